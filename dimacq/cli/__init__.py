@@ -1,0 +1,1 @@
+"""Command line: ``dimacq SUBCOMMAND``; each subcommand lives in :mod:`dimacq.cli.commands`."""
