@@ -1,0 +1,1 @@
+"""Domain models: the test setup, FRF data and solution records shared by every layer."""

@@ -1,0 +1,301 @@
+"""The test setup: where every transducer and input is, and which way it points.
+
+Coordinates are in the global coordinate system (GCS) of the structure, in metres. A setup file
+(TOML or JSON, see :mod:`dimacq.io.setup_file`) holds one :class:`TestSetup`.
+
+Conventions
+-----------
+- A response channel measures the projection of the acceleration of its point on its GCS unit
+  direction ``d``: ``q = dᵀ ü(r)``.
+- An excitation is a force of magnitude ``f`` (the FRF's denominator) along the unit line of action
+  ``d`` applied at ``r``.
+- A 6-DOF load cell at ``r_c`` with local-to-global rotation ``R`` (``x_G = R x_L``; the columns of ``R``
+  are the cell's local axes in the GCS) measures ``[f_L; m_L]`` about its own origin. ``sign`` states
+  what that is: ``"on_structure"`` — the force and moment the support exerts on the structure
+  (the DIM convention, used as is) — or ``"on_support"`` — the force the structure exerts on the
+  support, which dimacq negates.
+- UFF directions: ``+1 .. +3`` = local +x, +y, +z of the node's displacement coordinate system,
+  ``+4 .. +6`` the rotations / moments; a negative value is the opposite direction.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import numpy as np
+from numpy.typing import NDArray
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+
+__all__ = [
+    "LENGTH_UNITS",
+    "PARAMETERS",
+    "Excitation",
+    "KnownProperties",
+    "LoadCell",
+    "ResponseChannel",
+    "TestSetup",
+    "Vec3",
+    "direction_label",
+]
+
+Vec3 = tuple[float, float, float]
+
+#: Metres per unit for the length units the solver can work in.
+LENGTH_UNITS: dict[str, float] = {"m": 1.0, "cm": 0.01, "mm": 0.001}
+
+_UNIT_TOL = 1e-6
+
+
+def direction_label(direction: int) -> str:
+    """UFF direction ``±1..±6`` as a label: ``+X``, ``-Y``, ``+RZ``."""
+    axis = ("X", "Y", "Z", "RX", "RY", "RZ")[abs(direction) - 1]
+    return ("+" if direction > 0 else "-") + axis
+
+
+def _fmt(v: NDArray[np.float64]) -> str:
+    return "(" + ", ".join(f"{x:.6g}" for x in v) + ")"
+
+
+def _check_unit(value: Vec3, what: str) -> Vec3:
+    n = float(np.linalg.norm(value))
+    if not np.all(np.isfinite(value)):
+        raise ValueError(f"{what} has a non-finite component {value}; give three finite numbers")
+    if abs(n - 1.0) > _UNIT_TOL:
+        raise ValueError(
+            f"{what} {tuple(value)} has length {n:.6g}, not 1; give a unit vector "
+            f"(e.g. {_fmt(np.asarray(value) / n) if n > 0 else '(1, 0, 0)'})"
+        )
+    return value
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class ResponseChannel(_Model):
+    """One accelerometer axis.
+
+    Attributes
+    ----------
+    node : int
+        Node number (as in UFF).
+    direction : int
+        UFF direction of the axis in the node's own coordinate system, ``±1..±3``.
+    position_m : (3,) float
+        Position of the measurement point in the GCS, metres.
+    direction_gcs : (3,) float
+        Unit vector of the measured direction in the GCS.
+    label : str
+        Free text, e.g. ``"1103+Y"``.
+    """
+
+    node: int
+    direction: int = Field(ge=-3, le=3)
+    position_m: Vec3
+    direction_gcs: Vec3
+    label: str = ""
+
+    @field_validator("direction")
+    @classmethod
+    def _nonzero(cls, v: int) -> int:
+        if v == 0:
+            raise ValueError("direction 0 is not a UFF direction; use ±1, ±2 or ±3")
+        return v
+
+    @model_validator(mode="after")
+    def _unit(self) -> ResponseChannel:
+        _check_unit(self.direction_gcs, f"response {self.node}{direction_label(self.direction)}: direction_gcs")
+        return self
+
+    @property
+    def name(self) -> str:
+        return self.label or f"{self.node}{direction_label(self.direction)}"
+
+
+class Excitation(_Model):
+    """One input: a force along a unit line of action at a point.
+
+    Attributes
+    ----------
+    node : int
+        Input node.
+    direction : int
+        UFF reference direction ``±1..±3`` in the node's system.
+    position_m : (3,) float
+        Point of application in the GCS, metres.
+    direction_gcs : (3,) float
+        Unit line of action in the GCS (the direction of a positive force on the structure).
+    """
+
+    node: int
+    direction: int = Field(default=1, ge=-3, le=3)
+    position_m: Vec3
+    direction_gcs: Vec3 | None = None
+    label: str = ""
+
+    @model_validator(mode="after")
+    def _unit(self) -> Excitation:
+        name = f"input {self.node}{direction_label(self.direction) if self.direction else ''}"
+        if self.direction_gcs is None:
+            raise ValueError(f"{name} has no line of action; give direction_gcs as a unit vector")
+        _check_unit(self.direction_gcs, f"{name}: direction_gcs")
+        return self
+
+    @property
+    def name(self) -> str:
+        return self.label or f"{self.node}{direction_label(self.direction)}"
+
+
+class LoadCell(_Model):
+    """A 6-DOF load cell between the structure and a support.
+
+    Attributes
+    ----------
+    node : int
+        Node number of the cell (its UFF records use directions 1–6 = Fx, Fy, Fz, Mx, My, Mz in
+        the cell's local system).
+    position_m : (3,) float
+        Origin of the cell's measuring system in the GCS, metres.
+    rotation : (3, 3) float
+        Local-to-global rotation ``R`` (``x_G = R x_L``): column k is local axis k in the GCS.
+    sign : {"on_structure", "on_support"}
+        What the cell's outputs are: the load the support exerts on the structure, or the load the
+        structure exerts on the support (negated by dimacq).
+    """
+
+    node: int
+    position_m: Vec3
+    rotation: tuple[Vec3, Vec3, Vec3] = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
+    sign: Literal["on_structure", "on_support"] = "on_structure"
+    label: str = ""
+
+    @model_validator(mode="after")
+    def _orthonormal(self) -> LoadCell:
+        r = np.asarray(self.rotation, dtype=float)
+        err = float(np.max(np.abs(r.T @ r - np.eye(3))))
+        if not np.all(np.isfinite(r)) or err > 1e-6 or np.linalg.det(r) < 0:
+            raise ValueError(
+                f"load cell {self.node}: rotation is not a proper rotation (max |RᵀR − I| = {err:.3g}, "
+                f"det = {np.linalg.det(r):.3g}); give the cell's local axes as orthonormal columns, right-handed"
+            )
+        return self
+
+    @property
+    def rotation_matrix(self) -> NDArray[np.float64]:
+        return np.asarray(self.rotation, dtype=float)
+
+    @property
+    def sign_factor(self) -> float:
+        return 1.0 if self.sign == "on_structure" else -1.0
+
+    @property
+    def name(self) -> str:
+        return self.label or f"LC{self.node}"
+
+
+#: Order of the ten DIM parameters (method.md §6): mass, CG (solved as s = m·c), inertia about P.
+PARAMETERS: tuple[str, ...] = ("m", "cx", "cy", "cz", "Ixx", "Ixy", "Ixz", "Iyy", "Iyz", "Izz")
+
+
+class KnownProperties(_Model):
+    """Properties known beforehand (any subset); CG and inertia relative to the reference point.
+
+    Inertia terms are tensor elements about the reference point P (products of inertia carry their
+    tensor sign, ``Ixy = −∫ x y dm``).
+    """
+
+    mass_kg: float | None = Field(default=None, gt=0)
+    cg_m: tuple[float | None, float | None, float | None] = (None, None, None)
+    inertia_kgm2: dict[Literal["Ixx", "Ixy", "Ixz", "Iyy", "Iyz", "Izz"], float] = Field(
+        default_factory=dict
+    )
+
+    def as_dict(self) -> dict[str, float]:
+        """Known values keyed by parameter name (``m``, ``cx``, ..., ``Izz``)."""
+        out: dict[str, float] = {}
+        if self.mass_kg is not None:
+            out["m"] = float(self.mass_kg)
+        for k, v in zip(("cx", "cy", "cz"), self.cg_m, strict=True):
+            if v is not None:
+                out[k] = float(v)
+        out.update({k: float(v) for k, v in self.inertia_kgm2.items()})
+        return out
+
+    @property
+    def empty(self) -> bool:
+        return not self.as_dict()
+
+
+class TestSetup(_Model):
+    """Everything the solver needs besides the FRFs.
+
+    Attributes
+    ----------
+    schema_version : int
+        Version of the setup file format (1).
+    reference_point_m : (3,) float
+        The point P about which forces and motion are condensed and the inertia reported.
+    length_unit : {"m", "cm", "mm"}
+        Length unit the solver works in (weights moment rows against force rows; thesis Table 15).
+    responses, excitations, load_cells
+        The transducers and inputs.
+    known : KnownProperties
+        Optional known properties.
+    """
+
+    __test__ = False  # not a pytest test class
+
+    schema_version: Literal[1] = 1
+    name: str = ""
+    reference_point_m: Vec3 = (0.0, 0.0, 0.0)
+    length_unit: Literal["m", "cm", "mm"] = "m"
+    responses: tuple[ResponseChannel, ...]
+    excitations: tuple[Excitation, ...]
+    load_cells: tuple[LoadCell, ...] = ()
+    known: KnownProperties = KnownProperties()
+
+    @model_validator(mode="after")
+    def _unique(self) -> TestSetup:
+        seen: set[tuple[int, int]] = set()
+        for ch in self.responses:
+            key = (ch.node, ch.direction)
+            if key in seen:
+                raise ValueError(f"response {ch.name} appears twice; give each node/direction once")
+            seen.add(key)
+        seen_in: set[tuple[int, int]] = set()
+        for ex in self.excitations:
+            key = (ex.node, ex.direction)
+            if key in seen_in:
+                raise ValueError(f"input {ex.name} appears twice; give each node/direction once")
+            seen_in.add(key)
+        nodes = [lc.node for lc in self.load_cells]
+        if len(set(nodes)) != len(nodes):
+            raise ValueError("two load cells share a node number; give each cell its own node")
+        if not self.responses:
+            raise ValueError("responses is empty; a DIM test needs at least 6 response channels")
+        if not self.excitations:
+            raise ValueError("excitations is empty; give at least one input")
+        return self
+
+    # Array views ---------------------------------------------------------------------------
+    @property
+    def response_positions(self) -> NDArray[np.float64]:
+        """(n_responses, 3) GCS positions, metres."""
+        return np.array([c.position_m for c in self.responses], dtype=float).reshape(-1, 3)
+
+    @property
+    def response_directions(self) -> NDArray[np.float64]:
+        """(n_responses, 3) GCS unit directions."""
+        return np.array([c.direction_gcs for c in self.responses], dtype=float).reshape(-1, 3)
+
+    @property
+    def input_positions(self) -> NDArray[np.float64]:
+        return np.array([e.position_m for e in self.excitations], dtype=float).reshape(-1, 3)
+
+    @property
+    def input_directions(self) -> NDArray[np.float64]:
+        return np.array([e.direction_gcs for e in self.excitations], dtype=float).reshape(-1, 3)
+
+    @property
+    def reference_point(self) -> NDArray[np.float64]:
+        return np.asarray(self.reference_point_m, dtype=float)
