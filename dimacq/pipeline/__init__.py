@@ -1,0 +1,1 @@
+"""Numerical pipeline: pure functions over numpy arrays (no I/O, no threads, no HTTP)."""
