@@ -1,0 +1,387 @@
+"""FRF estimation from time records: H1, H2, Hv, multiple inputs, coherence, windows, Welch.
+
+Notation (one frequency line ω, averages a = 1..n_a, column vectors):
+``F_a`` input spectra, shape (n_inputs,); ``Y_a`` output spectra, shape (n_outputs,). The
+averaged cross-spectral matrices are
+
+    G_ff = Σ_a F_a F_aᴴ            shape (n_inputs, n_inputs)
+    G_yf = Σ_a Y_a F_aᴴ            shape (n_outputs, n_inputs)
+    G_yy = Σ_a |Y_a|²              shape (n_outputs,)   (diagonal only)
+
+(the common scale factor 1/(n_a · Σw²) of a one-sided spectral density cancels in every FRF and
+coherence, so it is left out). The estimators:
+
+- **H1** (noise on the outputs): ``H1 = G_yf G_ff⁻¹``; for one input ``H1 = G_yf / G_ff``.
+  With several inputs this is the multiple-input estimator (Bendat & Piersol, ch. 7); the inputs
+  must be partially uncorrelated, which the condition number of ``G_ff`` per line reports.
+- **H2** (noise on the input, one input only): ``H2 = G_yy / G_fy`` with ``G_fy = conj(G_yf)``.
+- **Hv** (total least squares, equal noise weighting on inputs and outputs): for each output the
+  Hermitian matrix ``G_c = Σ_a z_a z_aᴴ`` with ``z_a = [F_a; Y_a,o]`` is built; its eigenvector
+  ``v`` of the smallest eigenvalue gives ``H_o = −conj(v[:n_in]) / conj(v[n_in])`` (the row
+  ``r = [H_o, −1]`` minimising ``Σ_a |r z_a|² / |r|²``). For one input this is the classic
+  ``Hv = (G_yy − G_ff + sqrt((G_ff − G_yy)² + 4|G_fy|²)) / (2 G_fy)``.
+- **Ordinary coherence** ``γ²_oj = |G_yf,oj|² / (G_yy,o G_ff,jj)``; **multiple coherence**
+  ``γ²_o = (G_yf G_ff⁻¹ G_fy)_oo / G_yy,o = Re(Σ_j H1_oj conj(G_yf,oj)) / G_yy,o``. With one input
+  they are equal.
+
+Windows for impact testing (:func:`force_window`, :func:`exponential_window`) and Welch's
+overlapped segments for random excitation (:func:`welch_segments`) prepare the records; the
+estimator itself (:func:`estimate_frf`) is vectorised over averages, outputs, inputs and lines.
+
+Exponential window and damping
+------------------------------
+Multiplying a free decay ``e^{−σ t}`` (``σ = ζ ω_n``) by ``w(t) = e^{−t/τ}`` gives a decay with
+``σ' = σ + 1/τ``: every mode looks more damped. A modal parameter estimated from the windowed FRF
+is corrected by ``σ = σ' − 1/τ`` at unchanged damped frequency, ``ζ ≈ ζ' − 1/(τ ω_n)``
+(:func:`exponential_window_damping_correction` does it exactly). More precisely, when the same
+window multiplies input and output (``y·w = (h·w) * (f·w)`` because
+``e^{−t/τ} = e^{−(t−s)/τ} e^{−s/τ}``), the estimate is the true FRF evaluated off the axis:
+``H_w(iω) = H(iω + 1/τ)``: poles shift by ``−1/τ``, residues are unchanged. A rigid body's
+accelerance (a constant mass line) is therefore unchanged; the suspension and elastic modes
+around the DIM band are only more damped, which is why DIM can use windowed impact FRFs.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+import scipy.fft
+from numpy.typing import ArrayLike, NDArray
+
+from dimacq.errors import DataError, SetupError
+
+__all__ = [
+    "FrfEstimate",
+    "double_hit_mask",
+    "estimate_frf",
+    "exponential_window",
+    "exponential_window_damping_correction",
+    "force_window",
+    "welch_segments",
+]
+
+Estimator = Literal["H1", "H2", "Hv"]
+
+
+@dataclass(frozen=True, eq=False)
+class FrfEstimate:
+    """FRFs estimated from averaged records, with their quality measures.
+
+    Attributes
+    ----------
+    frequencies_hz : ndarray, shape (n_lines,)
+        ``k · fs / n_samples`` for ``k = 0 .. n_samples // 2``.
+    H : ndarray, shape (n_lines, n_outputs, n_inputs), complex
+        FRF output/input in the records' engineering units (e.g. (m/s²)/N).
+    coherence : ndarray, shape (n_lines, n_outputs)
+        Multiple coherence of each output on all inputs (equals the ordinary coherence for one
+        input). 1 means a noise-free linear relation; NaN where ``G_yy = 0``.
+    ordinary_coherence : ndarray, shape (n_lines, n_outputs, n_inputs)
+    input_condition : ndarray, shape (n_lines,)
+        2-norm condition number of ``G_ff`` per line (1 for one input): large values mean the
+        inputs are correlated and the multiple-input H1 is ill-determined.
+    g_ff : ndarray, shape (n_lines, n_inputs, n_inputs), complex
+        Summed input cross-spectra (unscaled, see module docstring).
+    g_yy : ndarray, shape (n_lines, n_outputs)
+        Summed output autospectra (unscaled).
+    n_averages : int
+    estimator : {"H1", "H2", "Hv"}
+    """
+
+    frequencies_hz: NDArray[np.float64]
+    H: NDArray[np.complex128]
+    coherence: NDArray[np.float64]
+    ordinary_coherence: NDArray[np.float64]
+    input_condition: NDArray[np.float64]
+    g_ff: NDArray[np.complex128]
+    g_yy: NDArray[np.float64]
+    n_averages: int
+    estimator: str
+
+
+def _as_records(name: str, data: ArrayLike) -> NDArray[np.float64]:
+    arr = np.asarray(data, dtype=float)
+    if arr.ndim == 2:
+        arr = arr[None]
+    if arr.ndim != 3:
+        raise DataError(
+            f"{name} has shape {arr.shape}; give (n_averages, n_channels, n_samples) "
+            "or (n_channels, n_samples) for one average"
+        )
+    if not np.all(np.isfinite(arr)):
+        raise DataError(f"{name} contains NaN or infinite samples; reject that average first")
+    return arr
+
+
+def estimate_frf(
+    inputs: ArrayLike,
+    outputs: ArrayLike,
+    sample_rate_hz: float,
+    *,
+    estimator: Estimator = "H1",
+    input_window: ArrayLike | None = None,
+    output_window: ArrayLike | None = None,
+) -> FrfEstimate:
+    """Estimate FRFs (outputs per input) from averaged time records.
+
+    Parameters
+    ----------
+    inputs : array_like, shape (n_averages, n_inputs, n_samples)
+        Excitation records (forces, N), one per average; a 2-D array is one average.
+    outputs : array_like, shape (n_averages, n_outputs, n_samples)
+        Response records taken at the same samples.
+    sample_rate_hz : float
+    estimator : {"H1", "H2", "Hv"}
+        H2 needs exactly one input.
+    input_window, output_window : array_like, shape (n_samples,), optional
+        Time windows multiplied into the input and output records (e.g. ``force_window(...) *
+        exponential_window(...)`` for the hammer and ``exponential_window(...)`` for responses;
+        a Hann window for random data). Default: rectangular.
+
+    Returns
+    -------
+    FrfEstimate
+        ``H`` of shape (n_lines, n_outputs, n_inputs) with ``n_lines = n_samples // 2 + 1``.
+
+    Raises
+    ------
+    DataError
+        Mismatched shapes, NaNs, or fewer averages than inputs for the multiple-input H1.
+    SetupError
+        Unknown estimator, H2 with several inputs.
+    """
+    x = _as_records("inputs", inputs)
+    y = _as_records("outputs", outputs)
+    if x.shape[0] != y.shape[0] or x.shape[2] != y.shape[2]:
+        raise DataError(
+            f"inputs {x.shape} and outputs {y.shape} must share n_averages and n_samples"
+        )
+    if sample_rate_hz <= 0:
+        raise SetupError(f"sample_rate_hz = {sample_rate_hz}; give a positive sample rate")
+    n_avg, n_in, n_s = x.shape
+    if estimator not in ("H1", "H2", "Hv"):
+        raise SetupError(f"estimator {estimator!r} is unknown; use 'H1', 'H2' or 'Hv'")
+    if estimator == "H2" and n_in != 1:
+        raise SetupError(
+            f"estimator 'H2' needs one input, got {n_in}; use 'H1' or 'Hv' for multiple inputs"
+        )
+    if n_in > 1 and n_avg < n_in:
+        raise DataError(
+            f"{n_in} inputs need at least {n_in} averages for the multiple-input estimator, "
+            f"got {n_avg}; acquire more averages"
+        )
+    if input_window is not None:
+        x = x * _window("input_window", input_window, n_s)
+    if output_window is not None:
+        y = y * _window("output_window", output_window, n_s)
+
+    # Spectra, lines last then moved first: F (n_lines, n_in, n_avg), Y (n_lines, n_out, n_avg).
+    fx = scipy.fft.rfft(x, axis=-1)
+    fy = scipy.fft.rfft(y, axis=-1)
+    f_l = np.ascontiguousarray(fx.transpose(2, 1, 0))
+    y_l = np.ascontiguousarray(fy.transpose(2, 1, 0))
+    g_ff = f_l @ f_l.conj().transpose(0, 2, 1)  # (L, n_in, n_in)
+    g_yf = y_l @ f_l.conj().transpose(0, 2, 1)  # (L, n_out, n_in)
+    g_yy = np.einsum("loa,loa->lo", y_l.real, y_l.real) + np.einsum(
+        "loa,loa->lo", y_l.imag, y_l.imag
+    )
+    g_ff_diag = np.real(np.diagonal(g_ff, axis1=1, axis2=2))  # (L, n_in)
+
+    with np.errstate(divide="ignore", invalid="ignore"):
+        if n_in == 1:
+            h1 = g_yf / g_ff  # broadcast (L, n_out, 1) / (L, 1, 1)
+            cond = np.ones(g_ff.shape[0])
+        else:
+            # H1 = G_yf G_ff⁻¹  ⇔  G_ffᵀ H1ᵀ = G_yfᵀ (G_ff Hermitian), batched over lines.
+            h1 = np.linalg.solve(g_ff.transpose(0, 2, 1), g_yf.transpose(0, 2, 1)).transpose(
+                0, 2, 1
+            )
+            s = np.linalg.svd(g_ff, compute_uv=False)
+            cond = s[:, 0] / s[:, -1]
+        ordinary = np.abs(g_yf) ** 2 / (g_yy[:, :, None] * g_ff_diag[:, None, :])
+        multiple = np.real(np.sum(h1 * g_yf.conj(), axis=2)) / g_yy
+        if estimator == "H1":
+            h = h1
+        elif estimator == "H2":
+            h = (g_yy / g_yf[:, :, 0].conj())[:, :, None]
+        else:
+            h = _hv(g_ff, g_yf, g_yy)
+    freqs = np.arange(n_s // 2 + 1) * (sample_rate_hz / n_s)
+    return FrfEstimate(
+        frequencies_hz=freqs,
+        H=h,
+        coherence=np.clip(multiple, 0.0, 1.0, where=np.isfinite(multiple), out=multiple),
+        ordinary_coherence=ordinary,
+        input_condition=cond,
+        g_ff=g_ff,
+        g_yy=g_yy,
+        n_averages=n_avg,
+        estimator=estimator,
+    )
+
+
+def _hv(
+    g_ff: NDArray[np.complex128], g_yf: NDArray[np.complex128], g_yy: NDArray[np.float64]
+) -> NDArray[np.complex128]:
+    """Total-least-squares (Hv) FRFs, batched over lines and outputs (see module docstring)."""
+    n_l, n_out, n_in = g_yf.shape
+    gc = np.empty((n_l, n_out, n_in + 1, n_in + 1), dtype=complex)
+    gc[:, :, :n_in, :n_in] = g_ff[:, None]
+    gc[:, :, n_in, :n_in] = g_yf
+    gc[:, :, :n_in, n_in] = g_yf.conj()
+    gc[:, :, n_in, n_in] = g_yy
+    _, vecs = np.linalg.eigh(gc)
+    v = vecs[..., 0]  # eigenvector of the smallest eigenvalue, (L, n_out, n_in + 1)
+    return np.asarray(-v[..., :n_in].conj() / v[..., n_in : n_in + 1].conj())
+
+
+def _window(name: str, w: ArrayLike, n: int) -> NDArray[np.float64]:
+    arr = np.asarray(w, dtype=float)
+    if arr.shape != (n,):
+        raise DataError(f"{name} has shape {arr.shape}; it must be ({n},) like the records")
+    return arr
+
+
+def force_window(
+    n_samples: int, end_sample: int, *, taper_samples: int = 0, start_sample: int = 0
+) -> NDArray[np.float64]:
+    """Force (transient) window for the hammer channel.
+
+    ``w[n] = 1`` for ``start_sample ≤ n < end_sample``, a half-cosine fall to 0 over the next
+    ``taper_samples`` samples, 0 elsewhere. It keeps the pulse and removes the noise the force
+    channel records after it.
+
+    Returns
+    -------
+    ndarray, shape (n_samples,)
+    """
+    if not 0 <= start_sample < end_sample <= n_samples:
+        raise SetupError(
+            f"force window [{start_sample}, {end_sample}) does not fit {n_samples} samples; "
+            "choose 0 ≤ start < end ≤ n_samples"
+        )
+    w = np.zeros(n_samples)
+    w[start_sample:end_sample] = 1.0
+    taper = min(taper_samples, n_samples - end_sample)
+    if taper > 0:
+        k = np.arange(1, taper + 1)
+        w[end_sample : end_sample + taper] = 0.5 * (1.0 + np.cos(np.pi * k / (taper + 1)))
+    return w
+
+
+def exponential_window(
+    n_samples: int, sample_rate_hz: float, tau_s: float, *, start_sample: int = 0
+) -> NDArray[np.float64]:
+    """Exponential window ``w(t) = exp(−(t − t0)/τ)`` for ``t ≥ t0``, 1 before ``t0``.
+
+    ``t0 = start_sample / fs`` is the trigger point (the end of the pre-trigger). Apply it to the
+    force and the responses alike; see the module docstring for the damping it adds
+    (``σ' = σ + 1/τ``) and :func:`exponential_window_damping_correction`.
+
+    Returns
+    -------
+    ndarray, shape (n_samples,)
+    """
+    if tau_s <= 0:
+        raise SetupError(f"tau_s = {tau_s}; the exponential window needs a positive time constant")
+    t = (np.arange(n_samples) - start_sample) / sample_rate_hz
+    return np.exp(-np.clip(t, 0.0, None) / tau_s)
+
+
+def exponential_window_damping_correction(
+    zeta_measured: ArrayLike, natural_frequency_hz: ArrayLike, tau_s: float
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Remove the damping an exponential window adds to an identified pole.
+
+    The window moves every pole ``p = −σ ± iω_d`` to ``p' = −(σ + 1/τ) ± iω_d``. From the
+    measured (windowed) pole, ``σ' = ζ' ω_n'`` and ``ω_d = ω_n' sqrt(1 − ζ'²)``, the true pole is
+    ``σ = σ' − 1/τ``, ``ω_n = sqrt(σ² + ω_d²)``, ``ζ = σ / ω_n``; for light damping this is
+    ``ζ ≈ ζ' − 1/(τ ω_n)``.
+
+    Parameters
+    ----------
+    zeta_measured : array_like
+        Damping ratios identified from FRFs estimated with the window.
+    natural_frequency_hz : array_like
+        Natural frequencies identified with them (of the windowed poles), Hz.
+    tau_s : float
+        The window's time constant.
+
+    Returns
+    -------
+    zeta, natural_frequency_hz : ndarray
+        The corrected damping ratios and natural frequencies.
+    """
+    zeta_m = np.asarray(zeta_measured, dtype=float)
+    wn_m = 2.0 * np.pi * np.asarray(natural_frequency_hz, dtype=float)
+    sigma = zeta_m * wn_m - 1.0 / tau_s
+    wd = wn_m * np.sqrt(1.0 - zeta_m**2)
+    wn = np.hypot(sigma, wd)
+    return sigma / wn, wn / (2.0 * np.pi)
+
+
+def welch_segments(
+    records: ArrayLike, nperseg: int, noverlap: int | None = None
+) -> NDArray[np.float64]:
+    """Cut continuous records into overlapped segments (Welch averages) without copying.
+
+    Parameters
+    ----------
+    records : array_like, shape (n_channels, n_samples)
+    nperseg : int
+        Segment length.
+    noverlap : int, optional
+        Overlap in samples, default ``nperseg // 2`` (50 %, the usual choice with a Hann window).
+
+    Returns
+    -------
+    ndarray, shape (n_segments, n_channels, nperseg)
+        A read-only strided view; pass it with the same segmentation for inputs and outputs to
+        :func:`estimate_frf` together with ``scipy.signal.get_window("hann", nperseg)``.
+    """
+    arr = np.asarray(records, dtype=float)
+    if arr.ndim != 2:
+        raise DataError(f"records have shape {arr.shape}; give (n_channels, n_samples)")
+    noverlap = nperseg // 2 if noverlap is None else noverlap
+    if not 0 <= noverlap < nperseg <= arr.shape[1]:
+        raise SetupError(
+            f"nperseg={nperseg}, noverlap={noverlap} do not fit {arr.shape[1]} samples; "
+            "choose 0 ≤ noverlap < nperseg ≤ n_samples"
+        )
+    step = nperseg - noverlap
+    view = np.lib.stride_tricks.sliding_window_view(arr, nperseg, axis=1)[:, ::step]
+    return view.transpose(1, 0, 2)
+
+
+def double_hit_mask(
+    force: ArrayLike,
+    *,
+    threshold: float = 0.1,
+    min_gap_samples: int = 3,
+) -> NDArray[np.bool_]:
+    """Flag impact records whose force shows more than one separate pulse.
+
+    A pulse is a run of samples with ``|f| > threshold · max|f|`` (per record); runs separated
+    by fewer than ``min_gap_samples`` samples below the threshold count as one pulse (ringing).
+
+    Parameters
+    ----------
+    force : array_like, shape (n_records, n_samples)
+
+    Returns
+    -------
+    ndarray of bool, shape (n_records,)
+        True where a second pulse follows the first.
+    """
+    f = np.abs(np.asarray(force, dtype=float))
+    if f.ndim == 1:
+        f = f[None]
+    above = f > threshold * f.max(axis=1, keepdims=True)
+    out = np.zeros(f.shape[0], dtype=bool)
+    for r in range(f.shape[0]):
+        idx = np.flatnonzero(above[r])
+        if idx.size > 1:
+            out[r] = bool(np.any(np.diff(idx) > min_gap_samples))
+    return out

@@ -1,0 +1,209 @@
+"""FRF estimation against closed forms and scipy's independent spectral estimators."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.signal
+
+from dimacq.errors import DataError, SetupError
+from dimacq.pipeline.frf_estimation import (
+    double_hit_mask,
+    estimate_frf,
+    exponential_window,
+    exponential_window_damping_correction,
+    force_window,
+    welch_segments,
+)
+
+FS = 1024.0
+
+
+def periodic_through(b, a, x, n_periods=8):
+    """Steady-state periodic response of the digital filter (b, a) to periodic records x."""
+    rep = np.concatenate([x] * n_periods, axis=-1)
+    return scipy.signal.lfilter(b, a, rep, axis=-1)[..., -x.shape[-1] :]
+
+
+def test_noise_free_identity_gives_unit_frf_and_coherence():
+    rng = np.random.default_rng(1)
+    x = rng.standard_normal((4, 1, 256))
+    y = np.concatenate([x, 2 * x, -x], axis=1)
+    est = estimate_frf(x, y, FS)
+    assert est.H.shape == (129, 3, 1)
+    expected = np.broadcast_to(np.array([1.0, 2.0, -1.0]) + 0j, (129, 3))
+    np.testing.assert_allclose(est.H[:, :, 0], expected, atol=1e-12)
+    np.testing.assert_allclose(est.coherence, 1.0, atol=1e-12)
+    np.testing.assert_allclose(est.frequencies_hz[1], FS / 256)
+
+
+def test_h1_equals_digital_filter_response_exactly_for_periodic_data():
+    # Discrete SDOF resonator (closed form via freqz is the independent answer).
+    b, a = scipy.signal.iirpeak(100.0, Q=20, fs=FS)
+    rng = np.random.default_rng(2)
+    x = rng.standard_normal((5, 1, 512))
+    y = periodic_through(b, a, x)
+    est = estimate_frf(x, y, FS)
+    _, h_true = scipy.signal.freqz(b, a, worN=est.frequencies_hz, fs=FS)
+    scale = np.abs(h_true).max()
+    np.testing.assert_allclose(est.H[:, 0, 0], h_true, rtol=0, atol=1e-10 * scale)
+    for kind in ("H2", "Hv"):
+        h = estimate_frf(x, y, FS, estimator=kind).H[1:-1, 0, 0]
+        np.testing.assert_allclose(h, h_true[1:-1], rtol=0, atol=1e-9 * scale)
+
+
+def sdof_accelerance(f_hz, m, fn_hz, zeta):
+    w = 2 * np.pi * f_hz
+    wn = 2 * np.pi * fn_hz
+    return -(w**2) / (m * (wn**2 - w**2 + 2j * zeta * wn * w))
+
+
+def sdof_impact(m, fn_hz, zeta, n, fs, pulse_s=0.002, pre=16):
+    """Force pulse (half sine) and the exact acceleration of a continuous SDOF (lsim, FOH)."""
+    wn = 2 * np.pi * fn_hz
+    t = np.arange(n) / fs
+    f = np.where(
+        (t >= pre / fs) & (t < pre / fs + pulse_s), np.sin(np.pi * (t - pre / fs) / pulse_s), 0.0
+    )
+    # x'' = (f - c x' - k x)/m ; output acceleration = C x + D f
+    A = np.array([[0.0, 1.0], [-(wn**2), -2 * zeta * wn]])
+    B = np.array([[0.0], [1.0 / m]])
+    C = np.array([[-(wn**2), -2 * zeta * wn]])
+    D = np.array([[1.0 / m]])
+    _, acc, _ = scipy.signal.lsim((A, B, C, D), f, t, interp=True)
+    return f, acc
+
+
+def test_impact_h1_matches_continuous_sdof_closed_form():
+    m, fn, zeta, n, fs = 2.0, 40.0, 0.05, 4096, 2048.0
+    f, acc = sdof_impact(m, fn, zeta, n, fs)
+    est = estimate_frf(f[None, None], acc[None, None], fs)
+    band = (est.frequencies_hz > 5) & (est.frequencies_hz < 200)
+    h_true = sdof_accelerance(est.frequencies_hz[band], m, fn, zeta)
+    err = np.abs(est.H[band, 0, 0] / h_true - 1)
+    # The residual is the sampling of a continuous system (first-order-hold input, aliasing).
+    assert err.max() < 3e-3
+
+
+def test_exponential_window_adds_known_damping_and_correction_removes_it():
+    m, fn, zeta, n, fs = 1.0, 30.0, 0.002, 4096, 2048.0
+    f, acc = sdof_impact(m, fn, zeta, n, fs, pre=0)
+    tau = 0.1
+    w = exponential_window(n, fs, tau)
+    est = estimate_frf(f[None, None], acc[None, None], fs, input_window=w, output_window=w)
+    # Windowing input and output alike gives H evaluated at s = i w + 1/tau (closed form).
+    fl = est.frequencies_hz
+    band = (fl > 5) & (fl < 200)
+    s = 2j * np.pi * fl[band] + 1 / tau
+    wn = 2 * np.pi * fn
+    h_shifted = s**2 / (m * (s**2 + 2 * zeta * wn * s + wn**2))
+    assert np.max(np.abs(est.H[band, 0, 0] / h_shifted - 1)) < 3e-3
+    # Its poles: sigma' = sigma + 1/tau, i.e. an apparent zeta' = zeta + 1/(tau wn) (small zeta).
+    poles = np.roots([1, 2 * zeta * wn, wn**2]) - 1 / tau
+    zeta_apparent = -poles[0].real / abs(poles[0])
+    fn_apparent = abs(poles[0]) / (2 * np.pi)
+    np.testing.assert_allclose(zeta_apparent, zeta + 1 / (tau * wn), rtol=2e-3)
+    zeta_c, fn_c = exponential_window_damping_correction(zeta_apparent, fn_apparent, tau)
+    np.testing.assert_allclose([zeta_c, fn_c], [zeta, fn], rtol=1e-9)
+
+
+def test_force_window_shape():
+    w = force_window(100, 20, taper_samples=4)
+    assert np.all(w[:20] == 1) and np.all(w[24:] == 0)
+    assert np.all(np.diff(w[19:25]) < 0)
+    with pytest.raises(SetupError):
+        force_window(100, 120)
+
+
+def test_multiple_input_h1_recovers_both_paths_exactly():
+    rng = np.random.default_rng(3)
+    b1, a1 = scipy.signal.butter(2, 0.2)
+    b2, a2 = scipy.signal.cheby1(3, 1, 0.3)
+    x = rng.standard_normal((8, 2, 256))
+    y0 = periodic_through(b1, a1, x[:, 0]) + 0.5 * periodic_through(b2, a2, x[:, 1])
+    y1 = periodic_through(b2, a2, x[:, 0]) - periodic_through(b1, a1, x[:, 1])
+    y = np.stack([y0, y1], axis=1)
+    est = estimate_frf(x, y, FS)
+    fl = est.frequencies_hz
+    _, h1 = scipy.signal.freqz(b1, a1, worN=fl, fs=FS)
+    _, h2 = scipy.signal.freqz(b2, a2, worN=fl, fs=FS)
+    expected = np.stack([np.stack([h1, 0.5 * h2], -1), np.stack([h2, -h1], -1)], 1)
+    np.testing.assert_allclose(est.H, expected, atol=1e-10)
+    # (the Nyquist line is excluded: both filters have a zero there, so G_yy = 0)
+    np.testing.assert_allclose(est.coherence[:-1], 1.0, atol=1e-9)
+    # Ordinary coherence of one input is < 1 because the other input also drives the output.
+    assert np.median(est.ordinary_coherence[:, 0, 0]) < 0.99
+    assert np.all(est.input_condition >= 1)
+    hv = estimate_frf(x, y, FS, estimator="Hv")
+    np.testing.assert_allclose(hv.H, expected, atol=1e-8)
+
+
+def test_h1_bias_with_input_noise_follows_closed_form_and_h2_is_unbiased():
+    rng = np.random.default_rng(4)
+    n_avg, n = 400, 128
+    x = rng.standard_normal((n_avg, 1, n))
+    y = 3.0 * x  # H = 3
+    noise_rms = 0.5
+    xm = x + noise_rms * rng.standard_normal(x.shape)
+    h1 = estimate_frf(xm, y, FS).H[1:-1, 0, 0]
+    h2 = estimate_frf(xm, y, FS, estimator="H2").H[1:-1, 0, 0]
+    expected_h1 = 3.0 / (1 + noise_rms**2)  # E[H1] = H G_xx / (G_xx + G_nn)
+    assert abs(np.mean(h1.real) / expected_h1 - 1) < 0.01
+    assert abs(np.mean(h2.real) / 3.0 - 1) < 0.01
+
+
+def test_hv_single_input_equals_classic_formula():
+    rng = np.random.default_rng(5)
+    x = rng.standard_normal((20, 1, 64))
+    y = 2 * x + 0.3 * rng.standard_normal((20, 2, 64))
+    xm = x + 0.3 * rng.standard_normal(x.shape)
+    est = estimate_frf(xm, y, FS, estimator="Hv")
+    X = np.fft.rfft(xm, axis=-1)[:, 0]
+    Y = np.fft.rfft(y, axis=-1)
+    gff = np.sum(np.abs(X) ** 2, 0)
+    for o in range(2):
+        gyy = np.sum(np.abs(Y[:, o]) ** 2, 0)
+        gfy = np.sum(X.conj() * Y[:, o], 0)
+        hv = (gyy - gff + np.sqrt((gff - gyy) ** 2 + 4 * np.abs(gfy) ** 2)) / (2 * gfy.conj())
+        np.testing.assert_allclose(est.H[:, o, 0], hv, rtol=1e-9)
+
+
+def test_welch_matches_scipy_csd_over_welch():
+    rng = np.random.default_rng(6)
+    x = rng.standard_normal(8192)
+    b, a = scipy.signal.butter(4, 0.25)
+    y = scipy.signal.lfilter(b, a, x) + 0.1 * rng.standard_normal(x.size)
+    nper = 512
+    win = scipy.signal.get_window("hann", nper)
+    xs = welch_segments(x[None], nper)
+    ys = welch_segments(y[None], nper)
+    assert xs.shape == (8192 // 256 - 1, 1, nper)
+    est = estimate_frf(xs, ys, FS, input_window=win, output_window=win)
+    _, pxy = scipy.signal.csd(x, y, fs=FS, nperseg=nper, window="hann", detrend=False)
+    _, pxx = scipy.signal.welch(x, fs=FS, nperseg=nper, window="hann", detrend=False)
+    np.testing.assert_allclose(est.H[:, 0, 0], pxy / pxx, rtol=1e-9)
+    _, coh = scipy.signal.coherence(x, y, fs=FS, nperseg=nper, window="hann", detrend=False)
+    np.testing.assert_allclose(est.coherence[:, 0], coh, rtol=1e-8)
+
+
+def test_double_hit_detected():
+    n = 512
+    t = np.arange(n)
+    single = np.exp(-(((t - 50) / 3.0) ** 2))
+    double = single + 0.5 * np.exp(-(((t - 90) / 3.0) ** 2))
+    noise = 0.01 * np.random.default_rng(7).standard_normal(n)
+    mask = double_hit_mask(np.stack([single + noise, double + noise]))
+    assert mask.tolist() == [False, True]
+
+
+def test_bad_input_refused():
+    with pytest.raises(DataError, match="n_averages"):
+        estimate_frf(np.zeros((2, 1, 64)), np.zeros((3, 1, 64)), FS)
+    with pytest.raises(SetupError, match="H2"):
+        estimate_frf(np.ones((4, 2, 64)), np.ones((4, 1, 64)), FS, estimator="H2")
+    bad = np.zeros((1, 1, 64))
+    bad[0, 0, 3] = np.nan
+    with pytest.raises(DataError, match="NaN"):
+        estimate_frf(bad, bad, FS)
+    with pytest.raises(DataError, match="averages"):
+        estimate_frf(np.ones((1, 2, 64)), np.ones((1, 1, 64)), FS)
