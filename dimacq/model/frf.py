@@ -95,7 +95,9 @@ class FrfData:
             )
         for kind in self.output_kinds:
             if kind not in ("acceleration", "reaction"):
-                raise DataError(f"output kind {kind!r} is unknown; use 'acceleration' or 'reaction'")
+                raise DataError(
+                    f"output kind {kind!r} is unknown; use 'acceleration' or 'reaction'"
+                )
         if len(set(self.outputs)) != len(self.outputs):
             raise DataError("an output channel appears twice; give each node/direction once")
         if len(set(self.inputs)) != len(self.inputs):
@@ -152,7 +154,9 @@ class FrfData:
         fields.update(changes)
         return FrfData(**fields)  # type: ignore[arg-type]
 
-    def scaled(self, gamma: float, kinds: tuple[OutputKind, ...] = ("acceleration", "reaction")) -> FrfData:
+    def scaled(
+        self, gamma: float, kinds: tuple[OutputKind, ...] = ("acceleration", "reaction")
+    ) -> FrfData:
         """FRFs of the given output kinds multiplied by ``gamma``."""
         scale = np.array([gamma if k in kinds else 1.0 for k in self.output_kinds])
         return self.replace(H=self.H * scale[None, :, None])
@@ -176,7 +180,7 @@ def to_accelerance(
     H : ndarray, shape (n_lines, ...), complex
     frequencies_hz : ndarray, shape (n_lines,)
     """
-    h = np.asarray(H, dtype=complex)
+    h: NDArray[np.complex128] = np.asarray(H, dtype=np.complex128)
     f = np.asarray(frequencies_hz, dtype=float)
     if h.shape[0] != f.shape[0]:
         raise DataError(f"H has {h.shape[0]} lines but the frequency axis has {f.shape[0]}")
@@ -191,10 +195,14 @@ def to_accelerance(
     else:
         raise DataError(f"unit {unit!r} is unknown; use 'm', 'mm' or 'g'")
     w = (2 * np.pi * f).reshape((-1,) + (1,) * (h.ndim - 1))
+    out: NDArray[np.complex128]
     if quantity == "acceleration":
-        return h * factor
+        out = h * factor
+        return out
     if quantity == "velocity":
-        return h * factor * (1j * w)
+        out = h * factor * (1j * w)
+        return out
     if quantity == "displacement":
-        return h * factor * (-(w**2))
+        out = h * (factor * (-(w**2)))
+        return out
     raise DataError(f"quantity {quantity!r} is unknown; use acceleration, velocity or displacement")

@@ -55,7 +55,9 @@ def parallel_axis_shift(mass_kg: float, offset_m: NDArray[np.floating]) -> NDArr
     return mass_kg * (np.dot(c, c) * np.eye(3) - np.outer(c, c))
 
 
-def principal_moments(tensor: NDArray[np.floating]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+def principal_moments(
+    tensor: NDArray[np.floating],
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Principal moments (ascending) and axes (columns, right-handed) of a symmetric tensor."""
     w, v = np.linalg.eigh(0.5 * (np.asarray(tensor, float) + np.asarray(tensor, float).T))
     if np.linalg.det(v) < 0:
@@ -91,7 +93,9 @@ class RigidBodyProperties:
         object.__setattr__(self, "cg_m", np.asarray(self.cg_m, dtype=float).reshape(3))
         t = np.asarray(self.inertia_cg_kgm2, dtype=float).reshape(3, 3)
         if not np.allclose(t, t.T, rtol=0, atol=1e-12 * max(1.0, float(np.abs(t).max()))):
-            raise SetupError("inertia_cg_kgm2 must be symmetric; give tensor elements with Ixy = Iyx")
+            raise SetupError(
+                "inertia_cg_kgm2 must be symmetric; give tensor elements with Ixy = Iyx"
+            )
         object.__setattr__(self, "inertia_cg_kgm2", 0.5 * (t + t.T))
 
     @classmethod
@@ -100,15 +104,22 @@ class RigidBodyProperties:
         mass_kg: float,
         cg_m: NDArray[np.floating],
         inertia_p_kgm2: NDArray[np.floating],
-        point_m: NDArray[np.floating] = np.zeros(3),
+        point_m: NDArray[np.floating] | None = None,
     ) -> RigidBodyProperties:
         """From the inertia tensor about a point P: ``I_CG = I_P − m(|c|²E − c cᵀ)``, c = CG − P."""
-        c = np.asarray(cg_m, float) - np.asarray(point_m, float)
-        return cls(mass_kg, np.asarray(cg_m, float), np.asarray(inertia_p_kgm2, float) - parallel_axis_shift(mass_kg, c))
+        point = np.zeros(3) if point_m is None else np.asarray(point_m, float)
+        c = np.asarray(cg_m, float) - point
+        return cls(
+            mass_kg,
+            np.asarray(cg_m, float),
+            np.asarray(inertia_p_kgm2, float) - parallel_axis_shift(mass_kg, c),
+        )
 
     def inertia_about(self, point_m: NDArray[np.floating]) -> NDArray[np.float64]:
         """Inertia tensor about ``point_m`` (GCS, metres)."""
-        return self.inertia_cg_kgm2 + parallel_axis_shift(self.mass_kg, self.cg_m - np.asarray(point_m, float))
+        return self.inertia_cg_kgm2 + parallel_axis_shift(
+            self.mass_kg, self.cg_m - np.asarray(point_m, float)
+        )
 
     def mass_matrix(self, point_m: NDArray[np.floating]) -> NDArray[np.float64]:
         """6×6 rigid-body mass matrix about P for motion ``[u_P; θ]``.
@@ -131,8 +142,9 @@ class RigidBodyProperties:
         c = self.cg_m - np.asarray(point_m, float)
         return np.concatenate([[self.mass_kg], c, inertia_to_vector(self.inertia_about(point_m))])
 
-    def to_json(self, point_m: NDArray[np.floating] = np.zeros(3)) -> dict[str, Any]:
+    def to_json(self, point_m: NDArray[np.floating] | None = None) -> dict[str, Any]:
         """The keys of ``dimacq solve --json`` (CG in the GCS; inertia about P and about the CG)."""
+        point_m = np.zeros(3) if point_m is None else np.asarray(point_m, float)
         w, v = principal_moments(self.inertia_cg_kgm2)
         return {
             "mass_kg": float(self.mass_kg),
@@ -158,4 +170,6 @@ class RigidBodyProperties:
         if "inertia_p_kgm2" in data:
             p = np.asarray(data.get("reference_point_m", [0.0, 0.0, 0.0]), float)
             return cls.from_about_point(m, cg, np.asarray(data["inertia_p_kgm2"], float), p)
-        raise SetupError("properties JSON lacks inertia_cg_kgm2 and inertia_p_kgm2; give one of them")
+        raise SetupError(
+            "properties JSON lacks inertia_cg_kgm2 and inertia_p_kgm2; give one of them"
+        )

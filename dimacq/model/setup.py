@@ -104,7 +104,10 @@ class ResponseChannel(_Model):
 
     @model_validator(mode="after")
     def _unit(self) -> ResponseChannel:
-        _check_unit(self.direction_gcs, f"response {self.node}{direction_label(self.direction)}: direction_gcs")
+        _check_unit(
+            self.direction_gcs,
+            f"response {self.node}{direction_label(self.direction)}: direction_gcs",
+        )
         return self
 
     @property
@@ -198,10 +201,11 @@ PARAMETERS: tuple[str, ...] = ("m", "cx", "cy", "cz", "Ixx", "Ixy", "Ixz", "Iyy"
 
 
 class KnownProperties(_Model):
-    """Properties known beforehand (any subset); CG and inertia relative to the reference point.
+    """Properties known beforehand (any subset).
 
-    Inertia terms are tensor elements about the reference point P (products of inertia carry their
-    tensor sign, ``Ixy = −∫ x y dm``).
+    ``cg_m`` is the CG in the GCS, metres (each component may be unknown). Inertia terms are tensor
+    elements about the reference point P, kg·m² (products of inertia carry their tensor sign,
+    ``Ixy = −∫ x y dm``).
     """
 
     mass_kg: float | None = Field(default=None, gt=0)

@@ -1,0 +1,855 @@
+"""The Dynamic Inertia Method solver (method.md §6–7, thesis Appendix A Eq. 32–35, §3.2).
+
+Equations
+---------
+With ``a``, ``α`` the translational and angular acceleration of the reference point P, ``c`` the CG
+relative to P, ``s = m c`` and ``I`` the inertia tensor about P (tensor elements), the linearised
+equations of motion of a rigid body (Eq. 32) are
+
+    F = m a − m [c]x α = a·m + [α]x s
+    M = m [c]x a + I α = −[a]x s + L(α) I6
+
+with ``L(α) = [[αx, αy, αz, 0, 0, 0], [0, αx, 0, αy, αz, 0], [0, 0, αx, 0, αy, αz]]`` and
+``I6 = [Ixx, Ixy, Ixz, Iyy, Iyz, Izz]`` (Eq. 33). They are linear in
+``x = [m, sx, sy, sz, Ixx, Ixy, Ixz, Iyy, Iyz, Izz]``: ``A(a, α) x = [F; M]``.
+
+For FRFs, ``[a; α]`` per unit input j at line ω is the condensed accelerance ``K = Ψ⁺ H_acc``, and
+``[F; M]`` is the sum of the input's unit force vector ``φ_j`` and the load-cell reactions mapped to
+P (``dimacq.pipeline.rigid_body``). Real and imaginary parts and all inputs are stacked (Eq. 34–35);
+since ``A`` is linear in the complex ``K``, the stacked normal matrix is
+``N = Σ_j Re(A_jᴴ A_j)`` and the right side ``Σ_j Re(A_jᴴ b_j)``.
+
+Solution
+--------
+Per line (a spectrum of estimates) or jointly over a band (normal equations summed over lines).
+The normal equations are column-equilibrated, solved by a symmetric eigendecomposition (which gives
+rank and condition number of the equilibrated design matrix, ``κ(A) = sqrt(λmax/λmin)``), then refined
+once with the residual formed in the original, unsquared system (semi-normal equations with
+refinement), which recovers the accuracy of a QR solve while staying vectorised over lines.
+
+Known properties (§3.2.1, Eq. 17–22) are eliminated by the affine parameterisation
+``x = T θ + x0``: known inertia terms and known ``s`` components move to the right side; with the
+mass known, an unknown CG component ``c_k`` is the unknown itself (column ``m·A_{s_k}``); with the mass
+unknown and ``c_k`` known, the mass column becomes ``A_m + c_k A_{s_k}`` (Eq. 19–21). With mass and
+CG known only ``I`` remains and the force rows carry no information (Eq. 22).
+
+Length-unit scaling (§3.2.2.2, Table 15): the system is formed in the chosen length unit ``u``
+in the consistent system (kg, u, s): positions ``r/u``, accelerations ``a/u``, forces ``F/u`` and
+moments ``M/u²``, which weights moment rows against force rows by ``1/u``; the unknowns come back as
+``s·u``, ``I·u²``.
+
+FRF scaling (§3.2.2.1): ``γ`` such that the band mass of the solution with FRFs ``γ·H`` equals a
+known mass, found with a bracketing root finder (Brent) since load-cell reactions make the mass a
+nonlinear function of ``γ``.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, replace
+from typing import Any, Literal
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.optimize import brentq
+
+from dimacq.errors import DataError, SetupError, SolverError
+from dimacq.model.frf import Channel, FrfData
+from dimacq.model.properties import (
+    RigidBodyProperties,
+    principal_moments,
+    vector_to_inertia,
+)
+from dimacq.model.setup import LENGTH_UNITS, PARAMETERS, TestSetup
+from dimacq.pipeline.rigid_body import (
+    condense,
+    force_vectors,
+    load_cell_transform,
+    response_matrix,
+    skew,
+)
+
+__all__ = [
+    "Diagnostic",
+    "DimResult",
+    "DimSystem",
+    "assemble",
+    "design_matrices",
+    "plausibility",
+    "scale_to_known_mass",
+    "solve",
+    "solve_system",
+]
+
+log = logging.getLogger(__name__)
+
+FloatArray = NDArray[np.float64]
+ComplexArray = NDArray[np.complex128]
+Method = Literal["joint", "mean"]
+
+_I_KEYS = PARAMETERS[4:]
+
+
+# --------------------------------------------------------------------------------------------
+# Assembly: from FRFs and setup to condensed motion K and summed forces F at P
+# --------------------------------------------------------------------------------------------
+@dataclass(frozen=True, eq=False)
+class DimSystem:
+    """Condensed motion and summed forces at P, in the working length unit.
+
+    Attributes
+    ----------
+    frequencies_hz : ndarray, shape (n_lines,)
+    K : ndarray, shape (n_lines, 6, n_inputs), complex
+        ``[a; α]`` of P per unit input; ``a`` in unit/s²/N, ``α`` in rad/s²/N.
+    F : ndarray, shape (n_lines, 6, n_inputs), complex
+        Summed load on the structure at P per unit input force, in the consistent unit system
+        (kg, unit, s): forces in (N/u)/N, moments in (N·m/u²)/N.
+    unit_m : float
+        Metres per working length unit.
+    reference_point_m : ndarray, shape (3,)
+    responses, inputs : tuple of Channel
+        The channels used, in the order of the FRF.
+    load_cells : tuple of int
+        Nodes of the load cells used.
+    psi : ndarray, shape (n_responses, 6)
+        Rigid-body shape matrix in the working unit.
+    phi : ndarray, shape (6, n_inputs)
+        Unit input force vectors at P in the working unit.
+    hull_points_m : ndarray, shape (n, 3)
+        Measured points (responses, inputs, load cells), for the CG hull check.
+    response_condition : float
+        Condition number of Ψ.
+    """
+
+    frequencies_hz: FloatArray
+    K: ComplexArray
+    F: ComplexArray
+    unit_m: float
+    length_unit: str
+    reference_point_m: FloatArray
+    responses: tuple[Channel, ...]
+    inputs: tuple[Channel, ...]
+    load_cells: tuple[int, ...]
+    psi: FloatArray
+    phi: FloatArray
+    hull_points_m: FloatArray
+    response_condition: float
+
+    def select_inputs(self, keep: NDArray[np.intp] | Sequence[int]) -> DimSystem:
+        """The same system with only the given input indices."""
+        k = np.asarray(keep, dtype=np.intp)
+        return replace(
+            self,
+            K=self.K[:, :, k],
+            F=self.F[:, :, k],
+            inputs=tuple(self.inputs[i] for i in k),
+            phi=self.phi[:, k],
+        )
+
+    def select_lines(self, keep: NDArray[np.bool_] | NDArray[np.intp]) -> DimSystem:
+        return replace(
+            self, frequencies_hz=self.frequencies_hz[keep], K=self.K[keep], F=self.F[keep]
+        )
+
+
+def assemble(
+    frf: FrfData,
+    setup: TestSetup,
+    *,
+    band_hz: tuple[float, float] | None = None,
+    length_unit: str | None = None,
+    reference_point_m: NDArray[np.floating] | Sequence[float] | None = None,
+    response_weights: NDArray[np.floating] | None = None,
+) -> DimSystem:
+    """Match the FRFs to the setup, condense the responses and sum the forces at P.
+
+    Parameters
+    ----------
+    frf : FrfData
+        Accelerance outputs (matched to ``setup.responses`` by node and direction) and load cell
+        outputs (directions ±1..±6 of each ``setup.load_cells`` node; all six needed).
+    setup : TestSetup
+    band_hz : (lo, hi), optional
+        Keep only these lines.
+    length_unit : {"m", "cm", "mm"}, optional
+        Working unit; default ``setup.length_unit``.
+    reference_point_m : (3,), optional
+        Default ``setup.reference_point_m``.
+    response_weights : ndarray, shape (n_acceleration_outputs,), optional
+        Weights of the accelerometer channels in the condensation (0 drops one).
+    """
+    unit = length_unit or setup.length_unit
+    if unit not in LENGTH_UNITS:
+        raise SetupError(f"length unit {unit!r} is unknown; use one of {', '.join(LENGTH_UNITS)}")
+    u = LENGTH_UNITS[unit]
+    p = np.asarray(
+        setup.reference_point_m if reference_point_m is None else reference_point_m, float
+    )
+    if p.shape != (3,) or not np.all(np.isfinite(p)):
+        raise SetupError("reference point must be three finite coordinates in metres")
+    if band_hz is not None:
+        lo, hi = band_hz
+        if not lo < hi:
+            raise SetupError(f"band {lo:g}–{hi:g} Hz is empty; give LO < HI")
+        frf = frf.band(lo, hi)
+
+    # Responses -------------------------------------------------------------------------------
+    by_key = {(c.node, c.direction): c for c in setup.responses}
+    acc_idx = frf.output_index("acceleration")
+    if acc_idx.size == 0:
+        raise DataError("the FRFs hold no acceleration output; DIM needs accelerometer FRFs")
+    pos, dirs = [], []
+    for i in acc_idx:
+        ch = frf.outputs[i]
+        rc = by_key.get((ch.node, ch.direction)) or by_key.get((ch.node, -ch.direction))
+        if rc is None:
+            raise SetupError(
+                f"response {ch.name} of the FRFs is not in the setup; add it to responses "
+                "with its position and direction, or drop the record"
+            )
+        sign = 1.0 if rc.direction == ch.direction else -1.0
+        pos.append(rc.position_m)
+        dirs.append(sign * np.asarray(rc.direction_gcs, float))
+    psi = response_matrix(np.asarray(pos) / u, np.asarray(dirs), p / u)
+    cond = condense(psi, response_weights)
+    H = frf.H
+    K = np.einsum("kc,lcj->lkj", cond.transform, H[:, acc_idx, :] / u)
+
+    # Inputs ------------------------------------------------------------------------------------
+    ex_key = {(e.node, e.direction): e for e in setup.excitations}
+    in_pos, in_dir = [], []
+    for ch in frf.inputs:
+        ex = ex_key.get((ch.node, ch.direction)) or ex_key.get((ch.node, -ch.direction))
+        if ex is None:
+            raise SetupError(
+                f"input {ch.name} of the FRFs has no line of action in the setup; add it to "
+                "excitations with position_m and direction_gcs"
+            )
+        assert ex.direction_gcs is not None
+        sign = 1.0 if ex.direction == ch.direction else -1.0
+        in_pos.append(ex.position_m)
+        in_dir.append(sign * np.asarray(ex.direction_gcs, float))
+    phi = force_vectors(np.asarray(in_pos) / u, np.asarray(in_dir), p / u)
+    F = np.broadcast_to(phi[None].astype(complex), K.shape).copy()
+
+    # Load cells ----------------------------------------------------------------------------------
+    cells = {lc.node: lc for lc in setup.load_cells}
+    reaction_idx = frf.output_index("reaction")
+    rows: dict[int, dict[int, int]] = {}
+    for i in reaction_idx:
+        ch = frf.outputs[i]
+        if ch.node not in cells:
+            raise SetupError(
+                f"load cell output {ch.name} belongs to node {ch.node}, which is not a load cell of "
+                "the setup; add it to load_cells with position, rotation and sign"
+            )
+        if not 1 <= abs(ch.direction) <= 6:
+            raise DataError(f"load cell output {ch.name}: direction must be ±1..±6 (Fx..Mz)")
+        rows.setdefault(ch.node, {})[ch.direction] = int(i)
+    used_cells: list[int] = []
+    for node, lc in cells.items():
+        got = rows.get(node)
+        if got is None:
+            log.warning("load cell %s of the setup has no FRF records; it is left out", lc.name)
+            continue
+        sel = np.empty(6, dtype=np.intp)
+        sgn = np.empty(6)
+        for k in range(1, 7):
+            if k in got:
+                sel[k - 1], sgn[k - 1] = got[k], 1.0
+            elif -k in got:
+                sel[k - 1], sgn[k - 1] = got[-k], -1.0
+            else:
+                raise DataError(
+                    f"load cell {lc.name} lacks its direction {k} record (Fx, Fy, Fz, Mx, My, Mz "
+                    "are all needed); add it or remove the cell's other records"
+                )
+        scale = np.array([1, 1, 1, 1 / u, 1 / u, 1 / u]) * sgn
+        T = load_cell_transform(
+            np.asarray(lc.position_m) / u, lc.rotation_matrix, p / u, lc.sign_factor
+        )
+        F += np.einsum("ab,lbj->laj", T * scale[None, :], H[:, sel, :])
+        used_cells.append(node)
+
+    # Consistent units (kg, unit, s): forces are kg·unit/s² = N/u, moments kg·unit²/s² = N·m/u².
+    # So far F holds forces in N and moments in N·unit (N·m/u): one more division by u.
+    F /= u
+
+    hull = np.concatenate(
+        [
+            np.asarray(pos),
+            np.asarray(in_pos),
+            np.array([c.position_m for c in setup.load_cells]).reshape(-1, 3),
+        ]
+    )
+    return DimSystem(
+        frequencies_hz=frf.frequencies_hz,
+        K=K,
+        F=F,
+        unit_m=u,
+        length_unit=unit,
+        reference_point_m=p,
+        responses=tuple(frf.outputs[i] for i in acc_idx),
+        inputs=frf.inputs,
+        load_cells=tuple(used_cells),
+        psi=psi,
+        phi=phi,
+        hull_points_m=hull,
+        response_condition=cond.condition_number,
+    )
+
+
+def design_matrices(K: NDArray[np.complexfloating]) -> ComplexArray:
+    """DIM design matrices ``A(a, α)`` for every line and input.
+
+    Parameters
+    ----------
+    K : ndarray, shape (..., 6, n_inputs)
+        ``[a; α]`` per input.
+
+    Returns
+    -------
+    ndarray, shape (..., n_inputs, 6, 10)
+        Rows ``[F; M]``, columns ``[m, sx, sy, sz, Ixx, Ixy, Ixz, Iyy, Iyz, Izz]`` (Eq. 33).
+    """
+    k = np.moveaxis(np.asarray(K), -1, -2)  # (..., n_inputs, 6)
+    a, al = k[..., :3], k[..., 3:]
+    A: NDArray[Any] = np.zeros(k.shape[:-1] + (6, 10), dtype=k.dtype)
+    A[..., :3, 0] = a
+    A[..., :3, 1:4] = skew(al)
+    A[..., 3:, 1:4] = -skew(a)
+    ax, ay, az = al[..., 0], al[..., 1], al[..., 2]
+    A[..., 3, 4], A[..., 3, 5], A[..., 3, 6] = ax, ay, az
+    A[..., 4, 5], A[..., 4, 7], A[..., 4, 8] = ax, ay, az
+    A[..., 5, 6], A[..., 5, 8], A[..., 5, 9] = ax, ay, az
+    return A
+
+
+# --------------------------------------------------------------------------------------------
+# Known properties: x = T θ + x0
+# --------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class _Param:
+    T: FloatArray  # (10, n_theta)
+    x0: FloatArray  # (10,)
+    names: tuple[str, ...]  # what θ holds: "m", "sx", "cx" (c directly), "Ixx", ...
+
+
+def _parameterisation(known: Mapping[str, float], p: FloatArray, u: float) -> _Param:
+    """Affine map from the unknowns θ to x = [m, s, I] in the working unit (c relative to P)."""
+    unknown_names = [k for k in known if k not in PARAMETERS]
+    if unknown_names:
+        raise SetupError(
+            f"known property {unknown_names[0]!r} is unknown; use {', '.join(PARAMETERS)}"
+        )
+    cols: list[FloatArray] = []
+    names: list[str] = []
+    x0 = np.zeros(10)
+    m = known.get("m")
+    c_rel = {k: (known[k] - p[i]) / u for i, k in enumerate(("cx", "cy", "cz")) if k in known}
+    if m is None:
+        col = np.zeros(10)
+        col[0] = 1.0
+        for i, k in enumerate(("cx", "cy", "cz")):
+            if k in c_rel:
+                col[1 + i] = c_rel[k]  # s_k = m c_k: mass column gains c_k A_{s_k}
+        cols.append(col)
+        names.append("m")
+        for i, k in enumerate(("cx", "cy", "cz")):
+            if k not in c_rel:
+                col = np.zeros(10)
+                col[1 + i] = 1.0
+                cols.append(col)
+                names.append("s" + k[1])
+    else:
+        x0[0] = m
+        for i, k in enumerate(("cx", "cy", "cz")):
+            if k in c_rel:
+                x0[1 + i] = m * c_rel[k]
+            else:
+                col = np.zeros(10)
+                col[1 + i] = m  # s_k = m c_k with c_k unknown: linear in c_k
+                cols.append(col)
+                names.append(k)
+    for i, k in enumerate(_I_KEYS):
+        if k in known:
+            x0[4 + i] = known[k] / u**2
+        else:
+            col = np.zeros(10)
+            col[4 + i] = 1.0
+            cols.append(col)
+            names.append(k)
+    T = np.stack(cols, axis=1) if cols else np.zeros((10, 0))
+    return _Param(T, x0, tuple(names))
+
+
+# --------------------------------------------------------------------------------------------
+# Results
+# --------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Diagnostic:
+    """One plausibility or quality check, reported whatever its outcome."""
+
+    code: str
+    ok: bool
+    message: str
+    severity: Literal["info", "warning", "error"] = "warning"
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "code": self.code,
+            "ok": self.ok,
+            "severity": self.severity,
+            "message": self.message,
+        }
+
+
+@dataclass(frozen=True, eq=False)
+class DimResult:
+    """A DIM solution with its evidence.
+
+    Attributes
+    ----------
+    properties : RigidBodyProperties
+        Headline answer (CG in the GCS, inertia about the CG).
+    reference_point_m : ndarray, shape (3,)
+    parameters : ndarray, shape (10,)
+        ``[m, cx, cy, cz, Ixx, Ixy, Ixz, Iyy, Iyz, Izz]``, CG in the GCS (m), inertia about P (kg·m²).
+    frequencies_hz : ndarray, shape (n_lines,)
+    per_line : ndarray, shape (n_lines, 10)
+        The spectrum of estimates, same layout as ``parameters`` (NaN on lines of rank < unknowns).
+    band_stats : dict
+        Per parameter: ``mean``, ``std``, ``min``, ``max`` over the lines of the band.
+    method : {"joint", "mean"}
+        Joint least squares over the band, or mean of the per-line estimates.
+    rank, n_unknowns : int
+    condition_number : float
+        Of the column-equilibrated design matrix (joint system).
+    residual_rel : float
+        ``‖A x − b‖ / ‖b‖`` over the band.
+    unknowns : tuple of str
+    known : dict
+    """
+
+    properties: RigidBodyProperties
+    reference_point_m: FloatArray
+    parameters: FloatArray
+    frequencies_hz: FloatArray
+    per_line: FloatArray
+    band_stats: dict[str, dict[str, float]]
+    method: str
+    rank: int
+    n_unknowns: int
+    condition_number: float
+    residual_rel: float
+    unknowns: tuple[str, ...]
+    known: dict[str, float]
+    length_unit: str
+    responses: tuple[Channel, ...]
+    inputs: tuple[Channel, ...]
+    load_cells: tuple[int, ...]
+    response_condition: float
+    diagnostics: tuple[Diagnostic, ...] = ()
+    extras: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def mass_kg(self) -> float:
+        return self.properties.mass_kg
+
+    @property
+    def cg_m(self) -> FloatArray:
+        return self.properties.cg_m
+
+    @property
+    def inertia_p_kgm2(self) -> FloatArray:
+        return self.properties.inertia_about(self.reference_point_m)
+
+    @property
+    def inertia_cg_kgm2(self) -> FloatArray:
+        return self.properties.inertia_cg_kgm2
+
+    @property
+    def band_hz(self) -> tuple[float, float]:
+        return float(self.frequencies_hz[0]), float(self.frequencies_hz[-1])
+
+    def to_json(self) -> dict[str, Any]:
+        """The JSON of ``dimacq solve --json``."""
+        out = self.properties.to_json(self.reference_point_m)
+        out.update(
+            {
+                "band_hz": list(self.band_hz),
+                "n_lines": int(self.frequencies_hz.size),
+                "method": self.method,
+                "length_unit": self.length_unit,
+                "known": dict(self.known),
+                "unknowns": list(self.unknowns),
+                "band_statistics": self.band_stats,
+                "rank": self.rank,
+                "n_unknowns": self.n_unknowns,
+                "condition_number": self.condition_number,
+                "response_condition_number": self.response_condition,
+                "residual_rel": self.residual_rel,
+                "responses_used": [c.as_dict() for c in self.responses],
+                "inputs_used": [c.as_dict() for c in self.inputs],
+                "load_cells_used": list(self.load_cells),
+                "diagnostics": [d.as_dict() for d in self.diagnostics],
+            }
+        )
+        out.update(self.extras)
+        return out
+
+
+# --------------------------------------------------------------------------------------------
+# Solving
+# --------------------------------------------------------------------------------------------
+def _solve_normal(
+    N: FloatArray, rhs: FloatArray, rcond: float
+) -> tuple[FloatArray, NDArray[np.intp], FloatArray, FloatArray]:
+    """Batched minimum-norm solve of ``N θ = rhs`` (N symmetric PSD, shape (..., n, n)).
+
+    Returns θ, rank, condition number of the equilibrated design matrix, and the pseudo-inverse
+    of N (for refinement).
+    """
+    d = np.sqrt(np.einsum("...ii->...i", N))
+    d = np.where(d > 0, d, 1.0)
+    Ns = N / (d[..., :, None] * d[..., None, :])
+    lam, V = np.linalg.eigh(Ns)
+    lam_max = lam[..., -1:]
+    good = lam > lam_max * rcond**2
+    inv = np.where(good, 1.0 / np.where(good, lam, 1.0), 0.0)
+    Ninv_s = np.einsum("...ik,...k,...jk->...ij", V, inv, V)
+    Ninv = Ninv_s / (d[..., :, None] * d[..., None, :])
+    theta = np.einsum("...ij,...j->...i", Ninv, rhs)
+    rank = good.sum(axis=-1)
+    lam_min = np.where(good, lam, np.inf).min(axis=-1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        cond = np.sqrt(lam_max[..., 0] / lam_min)
+    return theta, rank, cond, Ninv
+
+
+def _to_parameters(x: FloatArray, p: FloatArray, u: float) -> FloatArray:
+    """x = [m, s, I] in the working unit → [m, CG in GCS (m), I about P (kg·m²)], shape (..., 10)."""
+    out = np.empty_like(x)
+    m = x[..., 0]
+    out[..., 0] = m
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out[..., 1:4] = x[..., 1:4] / m[..., None] * u + p
+    out[..., 4:] = x[..., 4:] * u**2
+    return out
+
+
+def solve_system(
+    system: DimSystem,
+    *,
+    known: Mapping[str, float] | None = None,
+    method: Method = "joint",
+    input_weights: NDArray[np.floating] | None = None,
+    line_weights: NDArray[np.floating] | None = None,
+    rcond: float = 1e-10,
+    check_plausibility: bool = True,
+) -> DimResult:
+    """Solve an assembled DIM system per line and over the band.
+
+    Parameters
+    ----------
+    system : DimSystem
+    known : dict, optional
+        Known values by name (``m`` kg; ``cx, cy, cz`` CG in the GCS, m; ``Ixx..Izz`` about P, kg·m²).
+    method : {"joint", "mean"}
+        Headline answer: joint least squares over all lines, or the mean of per-line estimates.
+    input_weights : ndarray, shape (n_inputs,), optional
+        Non-negative weights of the inputs' equations.
+    line_weights : ndarray, shape (n_lines,), optional
+        Non-negative weights of the lines in the joint solve.
+    rcond : float
+        Relative singular-value cut-off on the equilibrated design matrix for the rank.
+    """
+    known = dict(known or {})
+    u = system.unit_m
+    p = system.reference_point_m
+    prm = _parameterisation(known, p, u)
+    n_theta = prm.T.shape[1]
+    if n_theta == 0:
+        raise SetupError("every property is known; leave at least one unknown to solve for")
+    n_lines, _, n_in = system.K.shape
+    if n_lines == 0:
+        raise SolverError("no frequency line to solve; widen the band")
+    w_in = np.ones(n_in) if input_weights is None else np.asarray(input_weights, float)
+    if w_in.shape != (n_in,) or np.any(w_in < 0):
+        raise SetupError(f"input_weights must be {n_in} non-negative numbers, one per input")
+    A = design_matrices(system.K)  # (L, J, 6, 10)
+    b = np.moveaxis(system.F, -1, -2)  # (L, J, 6)
+    sw = np.sqrt(w_in)[None, :, None]
+    A = A * sw[..., None]
+    b = b * sw
+    A_t = A @ prm.T  # (L, J, 6, nθ)
+    b_t = b - A @ prm.x0
+    A_t = A_t.reshape(n_lines, n_in * 6, n_theta)
+    b_t = b_t.reshape(n_lines, n_in * 6)
+    A_h = np.conj(np.swapaxes(A_t, -1, -2))
+    N = np.real(A_h @ A_t)  # (L, nθ, nθ)
+    rhs = np.real(np.einsum("lij,lj->li", A_h, b_t))
+
+    # Per line ---------------------------------------------------------------------------------
+    theta_l, rank_l, _cond_l, Ninv_l = _solve_normal(N, rhs, rcond)
+    r_l = b_t - np.einsum("lij,lj->li", A_t, theta_l)
+    theta_l = theta_l + np.einsum("lij,lj->li", Ninv_l, np.real(np.einsum("lij,lj->li", A_h, r_l)))
+    x_l = theta_l @ prm.T.T + prm.x0
+    per_line = _to_parameters(x_l, p, u)
+    per_line[rank_l < n_theta] = np.nan
+
+    # Joint ------------------------------------------------------------------------------------
+    w_l = np.ones(n_lines) if line_weights is None else np.asarray(line_weights, float)
+    if w_l.shape != (n_lines,) or np.any(w_l < 0):
+        raise SetupError(f"line_weights must be {n_lines} non-negative numbers, one per line")
+    Nj = np.einsum("l,lij->ij", w_l, N)
+    rj = np.einsum("l,li->i", w_l, rhs)
+    theta, rank_j, cond, Ninv = _solve_normal(Nj, rj, rcond)
+    for _ in range(2):
+        r = b_t - np.einsum("lij,j->li", A_t, theta)
+        theta = theta + Ninv @ np.einsum("l,li->i", w_l, np.real(np.einsum("lij,lj->li", A_h, r)))
+    r = b_t - np.einsum("lij,j->li", A_t, theta)
+    bn = float(np.sqrt(np.einsum("l,l->", w_l, np.sum(np.abs(b_t) ** 2, axis=1))))
+    resid = float(np.sqrt(np.einsum("l,l->", w_l, np.sum(np.abs(r) ** 2, axis=1)))) / (
+        bn if bn > 0 else 1.0
+    )
+    rank = int(rank_j)
+    if rank < n_theta:
+        null = np.linalg.eigh(Nj)[1][:, 0]
+        worst = prm.names[int(np.argmax(np.abs(null)))]
+        raise SolverError(
+            f"the DIM system has rank {rank} < {n_theta} unknowns ({', '.join(prm.names)}): "
+            f"'{worst}' is not determined by the data; the inputs do not excite every rigid-body "
+            "DOF (run the excitation check) or the band holds no usable line"
+        )
+    x = prm.T @ theta + prm.x0
+    joint = _to_parameters(x, p, u)
+
+    finite = per_line[np.all(np.isfinite(per_line), axis=1)]
+    stats: dict[str, dict[str, float]] = {}
+    for i, name in enumerate(PARAMETERS):
+        col = finite[:, i] if finite.size else np.array([np.nan])
+        stats[name] = {
+            "mean": float(np.mean(col)),
+            "std": float(np.std(col, ddof=1)) if col.size > 1 else 0.0,
+            "min": float(np.min(col)),
+            "max": float(np.max(col)),
+        }
+    if method == "joint":
+        params = joint
+    elif method == "mean":
+        if finite.size == 0:
+            raise SolverError(
+                "no line of the band has full rank; use method 'joint' or widen the band"
+            )
+        params = finite.mean(axis=0)
+        for k, v in known.items():  # known values stay exact
+            params[PARAMETERS.index(k)] = v
+    else:
+        raise SetupError(f"method {method!r} is unknown; use 'joint' or 'mean'")
+
+    I_p = vector_to_inertia(params[4:])
+    props = (
+        RigidBodyProperties.from_about_point(float(params[0]), params[1:4], I_p, p)
+        if params[0] != 0
+        else None
+    )
+    if props is None:
+        raise SolverError(
+            "the estimated mass is exactly zero; the data carry no inertia information"
+        )
+    result = DimResult(
+        properties=props,
+        reference_point_m=p,
+        parameters=params,
+        frequencies_hz=system.frequencies_hz,
+        per_line=per_line,
+        band_stats=stats,
+        method=method,
+        rank=rank,
+        n_unknowns=n_theta,
+        condition_number=float(cond),
+        residual_rel=resid,
+        unknowns=prm.names,
+        known=known,
+        length_unit=system.length_unit,
+        responses=system.responses,
+        inputs=system.inputs,
+        load_cells=system.load_cells,
+        response_condition=system.response_condition,
+    )
+    if check_plausibility:
+        result = replace(
+            result, diagnostics=plausibility(result.properties, system.hull_points_m, result)
+        )
+    return result
+
+
+def solve(
+    frf: FrfData,
+    setup: TestSetup,
+    *,
+    band_hz: tuple[float, float] | None = None,
+    known: Mapping[str, float] | None = None,
+    length_unit: str | None = None,
+    reference_point_m: Sequence[float] | NDArray[np.floating] | None = None,
+    method: Method = "joint",
+    input_weights: NDArray[np.floating] | None = None,
+    line_weights: NDArray[np.floating] | None = None,
+) -> DimResult:
+    """Assemble and solve in one call; ``known`` defaults to ``setup.known``.
+
+    See :func:`assemble` and :func:`solve_system`.
+    """
+    system = assemble(
+        frf, setup, band_hz=band_hz, length_unit=length_unit, reference_point_m=reference_point_m
+    )
+    kn = setup.known.as_dict() if known is None else dict(known)
+    return solve_system(
+        system, known=kn, method=method, input_weights=input_weights, line_weights=line_weights
+    )
+
+
+# --------------------------------------------------------------------------------------------
+# Plausibility
+# --------------------------------------------------------------------------------------------
+def plausibility(
+    props: RigidBodyProperties, hull_points_m: FloatArray, result: DimResult | None = None
+) -> tuple[Diagnostic, ...]:
+    """Physical checks on an estimate, all reported whatever their outcome.
+
+    - ``mass_positive``: m > 0.
+    - ``inertia_cg_positive_definite``: eigenvalues of I_CG > 0.
+    - ``triangle_inequality``: each principal moment ≤ the sum of the other two (a real mass
+      distribution satisfies ``I1 + I2 ≥ I3``).
+    - ``cg_inside_hull``: the CG lies inside the convex hull of the measured points (responses,
+      inputs, load cells); outside it is possible but suspicious.
+    - ``condition``: condition number of the design matrix (warning above 1e6).
+    """
+    diags: list[Diagnostic] = []
+    m = props.mass_kg
+    diags.append(
+        Diagnostic(
+            "mass_positive",
+            m > 0,
+            f"mass {m:.6g} kg " + ("> 0" if m > 0 else "≤ 0: not physical"),
+            "error",
+        )
+    )
+    w, _ = principal_moments(props.inertia_cg_kgm2)
+    pd = bool(np.all(w > 0))
+    diags.append(
+        Diagnostic(
+            "inertia_cg_positive_definite",
+            pd,
+            "principal moments about the CG "
+            + ", ".join(f"{x:.6g}" for x in w)
+            + " kg·m²"
+            + ("" if pd else ": not positive definite, not physical"),
+            "error",
+        )
+    )
+    tri = bool(w[0] + w[1] >= w[2] * (1 - 1e-9)) and pd
+    diags.append(
+        Diagnostic(
+            "triangle_inequality",
+            tri,
+            f"I1 + I2 = {w[0] + w[1]:.6g} {'≥' if tri else '<'} I3 = {w[2]:.6g} kg·m²"
+            + ("" if tri else ": no real mass distribution has these principal moments"),
+            "error",
+        )
+    )
+    diags.append(_hull_check(props.cg_m, hull_points_m))
+    if result is not None:
+        ok = result.condition_number < 1e6
+        diags.append(
+            Diagnostic(
+                "condition",
+                ok,
+                f"condition number of the equilibrated design matrix {result.condition_number:.3g}"
+                + ("" if ok else ": the estimate is sensitive to noise; add or spread the inputs"),
+                "warning" if not ok else "info",
+            )
+        )
+    return tuple(diags)
+
+
+def _hull_check(cg: FloatArray, points: FloatArray) -> Diagnostic:
+    from scipy.spatial import Delaunay, QhullError
+
+    pts = np.unique(np.asarray(points, float), axis=0)
+    try:
+        inside = bool(Delaunay(pts).find_simplex(cg[None, :])[0] >= 0)
+    except (QhullError, ValueError):
+        return Diagnostic(
+            "cg_inside_hull",
+            True,
+            "measured points are coplanar; CG hull check not possible",
+            "info",
+        )
+    return Diagnostic(
+        "cg_inside_hull",
+        inside,
+        "CG inside the hull of the measured points"
+        if inside
+        else "CG lies outside the hull of the measured points; check signs and geometry",
+        "warning",
+    )
+
+
+# --------------------------------------------------------------------------------------------
+# FRF scaling to a known mass
+# --------------------------------------------------------------------------------------------
+def scale_to_known_mass(
+    frf: FrfData,
+    setup: TestSetup,
+    mass_kg: float,
+    *,
+    band_hz: tuple[float, float] | None = None,
+    kinds: tuple[Literal["acceleration", "reaction"], ...] = ("acceleration", "reaction"),
+    length_unit: str | None = None,
+    xtol: float = 1e-12,
+) -> tuple[float, DimResult]:
+    """Find ``γ`` with band mass of the solution on ``γ·H`` equal to ``mass_kg`` (thesis §3.2.2.1).
+
+    ``kinds`` says which FRFs carry the scale error: both (a force transducer sensitivity error)
+    or only the accelerations. With reactions present the mass is not ``m(1)/γ``; Brent's method
+    on a bracket found by expanding around the reaction-free guess ``γ0 = m(1)/m_known``.
+
+    Returns
+    -------
+    gamma : float
+    result : DimResult
+        The solution on the scaled FRFs (mass not imposed).
+    """
+    if not mass_kg > 0:
+        raise SetupError(f"known mass {mass_kg} kg must be positive")
+    if band_hz is not None:
+        frf = frf.band(*band_hz)
+
+    def mass(gamma: float) -> float:
+        sys_ = assemble(frf.scaled(gamma, kinds), setup, length_unit=length_unit)
+        return solve_system(sys_, check_plausibility=False).mass_kg
+
+    m1 = mass(1.0)
+    g0 = m1 / mass_kg if m1 > 0 else 1.0
+    lo, hi = g0 / 1.5, g0 * 1.5
+    f_lo, f_hi = mass(lo) - mass_kg, mass(hi) - mass_kg
+    for _ in range(40):
+        if f_lo * f_hi < 0:
+            break
+        lo, hi = lo / 2.0, hi * 2.0
+        f_lo, f_hi = mass(lo) - mass_kg, mass(hi) - mass_kg
+    else:
+        raise SolverError(
+            f"no FRF scale factor between {lo:.3g} and {hi:.3g} gives a mass of {mass_kg} kg; "
+            "check the known mass and the FRF units"
+        )
+    gamma = float(
+        brentq(lambda g: mass(g) - mass_kg, lo, hi, xtol=xtol, rtol=4 * np.finfo(float).eps)
+    )
+    sys_ = assemble(frf.scaled(gamma, kinds), setup, length_unit=length_unit)
+    result = solve_system(sys_)
+    return gamma, replace(result, extras={**result.extras, "frf_scale_factor": gamma})
