@@ -1,0 +1,1 @@
+"""Typed device interfaces: one typing.Protocol per device kind."""

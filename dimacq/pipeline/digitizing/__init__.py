@@ -1,0 +1,1 @@
+"""Sonic digitizer pipeline: triangulation, registration, orientation jig, lines of action."""

@@ -1,0 +1,1 @@
+"""Services: orchestration of devices and the numerical pipeline."""
