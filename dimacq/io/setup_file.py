@@ -147,7 +147,13 @@ def _describe(err: ValidationError, source: str) -> str:
     for e in err.errors(include_url=False):
         msg = str(e["msg"]).removeprefix("Value error, ")
         fix = _FIXES.get(str(e["type"]), "")
-        where = _loc(tuple(e["loc"]))
+        loc = tuple(e["loc"])
+        if e["type"] == "missing" and loc and isinstance(loc[-1], int):
+            # a fixed-length vector with too few items: pydantic names the missing index
+            msg = f"has too few items (item {loc[-1]} is missing)"
+            fix = "give exactly 3 numbers (x, y, z); a rotation is 3 rows of 3 numbers"
+            loc = loc[:-1]
+        where = _loc(loc)
         lines.append(f"{source}: {where}: {msg}" + (f"; {fix}" if fix and ";" not in msg else ""))
     return "\n".join(lines)
 

@@ -227,17 +227,19 @@ def _system_18(
                 r = systems[ref]
                 pts = [r.origin_m + r.axes.T @ p for p in pts]
             o, px, pxz = pts
+            # x towards the x point; the xz point lies in the x–z half-plane with z > 0, so
+            # y ∝ (p_xz − o) × x and z = x × y
             x = px - o
-            z = np.cross(x, pxz - o)
-            if np.linalg.norm(x) == 0 or np.linalg.norm(z) == 0:
+            y = np.cross(pxz - o, x)
+            if np.linalg.norm(x) == 0 or np.linalg.norm(y) == 0:
                 raise DataError(
                     f"{path}: dataset #{k} (18): coordinate system {label} is degenerate (its x "
                     "point or xz-plane point coincides with the origin or the x axis); "
                     "fix its definition"
                 )
             x = x / np.linalg.norm(x)
-            z = z / np.linalg.norm(z)
-            y = np.cross(z, x)
+            y = y / np.linalg.norm(y)
+            z = np.cross(x, y)
             systems[label] = _System(label, np.vstack([x, y, z]), o, "18")
             del pending[label]
             progress = True
