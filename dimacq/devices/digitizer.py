@@ -145,8 +145,8 @@ class Digitizer(Protocol):
         """Fire ``n_shots`` shots back to back and yield the records as they arrive."""
         ...
 
-    def reconnect(self) -> None:
-        """Reopen the port after it vanished."""
+    def reconnect(self) -> DeviceIdentity:
+        """Reopen the port after it vanished; return who answers."""
         ...
 
     def close(self) -> None:

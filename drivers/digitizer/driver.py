@@ -230,6 +230,12 @@ class DigitizerDriver(abc.ABC):
                 )
         return got
 
+    def command(self, text: str, expect: str = "OK") -> list[str]:
+        """Send a raw command line (e.g. a simulator-only ``SIM:`` command) and return the fields
+        of the reply tagged ``expect``."""
+        name, _, args = text.strip().partition(" ")
+        return self._transact(wire.encode_command(name, args.strip()), expect)
+
     def fire(self) -> ShotRecord:
         """``SHOT``: fire once, return the record."""
         record = wire.decode_shot(self._transact(wire.encode_command("SHOT"), "SHT"))

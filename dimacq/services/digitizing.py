@@ -1,0 +1,757 @@
+"""Digitizing session: a digitizer device + triangulation + registration, nothing ever lost.
+
+:class:`DigitizingSession` fires shots on a :class:`dimacq.devices.digitizer.Digitizer`,
+triangulates them (:mod:`dimacq.pipeline.digitizing.triangulation`), combines the shots of each
+point robustly and keeps every accepted point with its patch (array position). Each patch is
+registered in the GCS from reference nodes (:mod:`dimacq.pipeline.digitizing.registration`).
+
+Robustness: a corrupted record or a timeout is retried; when the port vanishes the session calls
+``device.reconnect()`` and carries on. Points already digitized stay in memory (and, with a
+``journal`` callback such as :class:`JsonlJournal`, on disk as soon as they are accepted); the
+shots of a point interrupted by a lost port are kept and the point resumes on the next
+:meth:`DigitizingSession.digitize` call with the same label.
+
+Configuration readers for ``config/digitizer/array.toml`` and ``jig.toml`` live here too
+(pydantic models with ``schema_version``).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import tomllib
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal, Protocol
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+
+from dimacq.devices.digitizer import Digitizer, ShotRecord
+from dimacq.errors import (
+    DataError,
+    DeviceNotFoundError,
+    DeviceTimeoutError,
+    ProtocolError,
+    SetupError,
+)
+from dimacq.pipeline.digitizing.orientation import JigDefinition
+from dimacq.pipeline.digitizing.registration import Registration, register, three_point_frame
+from dimacq.pipeline.digitizing.triangulation import (
+    DigitizerGeometry,
+    PointEstimate,
+    QualityLimits,
+    combine_shots,
+    triangulate,
+)
+
+__all__ = [
+    "ArrayConfig",
+    "DigitizedPoint",
+    "DigitizingSession",
+    "JigConfig",
+    "JsonlJournal",
+    "Patch",
+    "config_dir",
+    "load_array_config",
+    "load_jig",
+    "records_to_arrays",
+]
+
+log = logging.getLogger(__name__)
+FloatArray = NDArray[np.float64]
+SCHEMA_VERSION = 1
+
+
+# ---------------------------------------------------------------------------- configuration
+
+
+def config_dir() -> Path:
+    """``$DIMACQ_CONFIG_DIR`` or the repository's ``config/`` folder."""
+    base = os.environ.get("DIMACQ_CONFIG_DIR")
+    return Path(base) if base else Path(__file__).resolve().parents[2] / "config"
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class _ArraySection(_Model):
+    name: str = "sonic array"
+    microphones_m: list[tuple[float, float, float]] = Field(min_length=3)
+    facing: tuple[float, float, float] = (0.0, 0.0, 1.0)
+
+
+class _CounterSection(_Model):
+    clock_hz: float = Field(gt=0)
+    delay_counts: int = Field(ge=0)
+    bits: int = Field(default=24, ge=8, le=32)
+
+
+class _BarSection(_Model):
+    length_m: float = Field(gt=0)
+
+
+class _ProbeSection(_Model):
+    emitter_spacing_m: float = Field(gt=0)
+    tip_length_m: float
+
+
+class _QualitySection(_Model):
+    max_range_residual_m: float = Field(default=1.0e-3, gt=0)
+    spacing_tolerance_m: float = Field(default=1.5e-3, gt=0)
+    bar_spread_tolerance_m: float = Field(default=1.0e-3, gt=0)
+    speed_min_m_s: float = 300.0
+    speed_max_m_s: float = 380.0
+    point_outlier_m: float = Field(default=1.0e-3, gt=0)
+
+
+class _VolumeSection(_Model):
+    min_m: tuple[float, float, float]
+    max_m: tuple[float, float, float]
+
+
+class ArrayConfig(_Model):
+    """``config/digitizer/array.toml``."""
+
+    schema_version: Literal[1]
+    array: _ArraySection
+    counter: _CounterSection
+    bar: _BarSection
+    probe: _ProbeSection
+    quality: _QualitySection = _QualitySection()
+    volume: _VolumeSection | None = None
+
+    def geometry(self) -> DigitizerGeometry:
+        return DigitizerGeometry(
+            microphones_m=np.asarray(self.array.microphones_m, dtype=float),
+            facing=np.asarray(self.array.facing, dtype=float),
+            bar_length_m=self.bar.length_m,
+            delay_s=self.counter.delay_counts / self.counter.clock_hz,
+            clock_hz=self.counter.clock_hz,
+            emitter_spacing_m=self.probe.emitter_spacing_m,
+            tip_length_m=self.probe.tip_length_m,
+        )
+
+    def limits(self) -> QualityLimits:
+        return QualityLimits(**self.quality.model_dump())
+
+
+class _JigPoint(_Model):
+    label: str
+    rod: Literal["X", "Y", "Z"]
+    local_m: tuple[float, float, float]
+
+
+class JigConfig(_Model):
+    """``config/digitizer/jig.toml``: calibrated indentation coordinates, 3 rods."""
+
+    schema_version: Literal[1]
+    name: str = "orientation jig"
+    pitch_m: float = Field(default=0.0254, gt=0)
+    first_indentation_m: float = 0.030
+    points: list[_JigPoint]
+
+    @field_validator("points")
+    @classmethod
+    def _three_rods(cls, points: list[_JigPoint]) -> list[_JigPoint]:
+        labels = [p.label for p in points]
+        dup = sorted({x for x in labels if labels.count(x) > 1})
+        if dup:
+            raise ValueError(f"duplicate indentation labels {dup}")
+        for rod in "XYZ":
+            n = sum(p.rod == rod for p in points)
+            if n < 2:
+                raise ValueError(
+                    f"rod {rod} has {n} indentation(s); the jig has three rods, give each rod's "
+                    "calibrated points (8 per rod at 25.4 mm pitch)"
+                )
+        return points
+
+    def definition(self) -> JigDefinition:
+        return JigDefinition(
+            points_local_m=np.array([p.local_m for p in self.points], dtype=float),
+            rod=np.array(["XYZ".index(p.rod) for p in self.points], dtype=np.int64),
+            labels=tuple(p.label for p in self.points),
+        )
+
+
+def _read_toml(path: Path, what: str) -> dict[str, Any]:
+    try:
+        return tomllib.loads(Path(path).read_text())
+    except OSError as err:
+        raise SetupError(
+            f"{what} {path}: cannot read ({err.strerror}); give an existing file"
+        ) from err
+    except tomllib.TOMLDecodeError as err:
+        raise SetupError(f"{what} {path}: not valid TOML ({err}); fix the syntax") from err
+
+
+def _validation_message(err: ValidationError) -> str:
+    return "; ".join(
+        f"{'.'.join(str(p) for p in e['loc']) or 'file'}: {e['msg']}" for e in err.errors()
+    )
+
+
+def load_array_config(path: Path | str | None = None) -> ArrayConfig:
+    """Read and validate the array configuration (default ``config/digitizer/array.toml``)."""
+    p = Path(path) if path else config_dir() / "digitizer" / "array.toml"
+    try:
+        return ArrayConfig.model_validate(_read_toml(p, "digitizer array config"))
+    except ValidationError as err:
+        raise SetupError(f"digitizer array config {p}: {_validation_message(err)}") from err
+
+
+def load_jig(path: Path | str | None = None) -> JigDefinition:
+    """Read and validate a jig file (default ``config/digitizer/jig.toml``)."""
+    p = Path(path) if path else config_dir() / "digitizer" / "jig.toml"
+    try:
+        return JigConfig.model_validate(_read_toml(p, "jig file")).definition()
+    except ValidationError as err:
+        raise SetupError(f"jig file {p}: {_validation_message(err)}") from err
+
+
+# ---------------------------------------------------------------------------- records
+
+
+def records_to_arrays(
+    records: Sequence[ShotRecord],
+) -> tuple[
+    NDArray[np.int64], NDArray[np.int64], NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]
+]:
+    """Stack shot records: ``counts (N, E, M)``, ``bar (N, B)``, ``averaging``, ``status``, ``seq``.
+
+    Raises
+    ------
+    DataError
+        Records with different shapes (settings changed between shots): triangulate separately.
+    """
+    if not records:
+        raise DataError("no shot records to triangulate; fire at least one shot")
+    shapes = {(r.counts.shape, r.bar_counts.shape) for r in records}
+    if len(shapes) != 1:
+        raise DataError(
+            f"shot records have different shapes {sorted(shapes)}; triangulate each group"
+        )
+    counts = np.stack([r.counts for r in records]).astype(np.int64)
+    bar = np.stack([r.bar_counts for r in records]).astype(np.int64)
+    avg = np.array([r.averaging for r in records], dtype=np.int64)
+    status = np.array([r.status for r in records], dtype=np.int64)
+    seq = np.array([r.seq for r in records], dtype=np.int64)
+    return counts, bar, avg, status, seq
+
+
+# ---------------------------------------------------------------------------- session
+
+
+@dataclass(frozen=True)
+class DigitizedPoint:
+    """One accepted point.
+
+    Attributes
+    ----------
+    label : str
+    patch : int
+        Index of the array position it was digitized from.
+    position_array_m : ndarray, shape (3,)
+        DACS coordinates (combined shots).
+    spread_m : ndarray, shape (3,)
+        Standard deviation of the shots kept.
+    n_shots, n_used : int
+    seqs : tuple of int
+        Sequence numbers of all shots fired for this point.
+    """
+
+    label: str
+    patch: int
+    position_array_m: FloatArray
+    spread_m: FloatArray
+    n_shots: int
+    n_used: int
+    seqs: tuple[int, ...]
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "label": self.label,
+            "patch": self.patch,
+            "position_array_m": [float(v) for v in self.position_array_m],
+            "spread_m": [float(v) for v in self.spread_m],
+            "n_shots": self.n_shots,
+            "n_used": self.n_used,
+            "seqs": list(self.seqs),
+        }
+
+
+@dataclass
+class Patch:
+    """An array position; ``registration`` maps its DACS into the GCS once known."""
+
+    index: int
+    name: str
+    registration: Registration | None = None
+
+
+class JsonlJournal:
+    """Journal callback: appends each accepted point as one JSON line to ``path`` (flushed)."""
+
+    def __init__(self, path: Path | str) -> None:
+        self.path = Path(path)
+
+    def __call__(self, point: DigitizedPoint) -> None:
+        with self.path.open("a", encoding="utf-8") as fh:
+            fh.write(json.dumps(point.to_json()) + "\n")
+            fh.flush()
+
+    def read(self) -> list[dict[str, Any]]:
+        """Entries written so far."""
+        if not self.path.exists():
+            return []
+        return [json.loads(line) for line in self.path.read_text().splitlines() if line.strip()]
+
+
+@dataclass
+class _Pending:
+    records: list[ShotRecord] = field(default_factory=list)
+
+
+class DigitizingSession:
+    """Digitize labelled points patch by patch.
+
+    Parameters
+    ----------
+    device : Digitizer
+    geometry : DigitizerGeometry
+    limits : QualityLimits, optional
+    shots_per_point : int
+        Accepted shots wanted per point.
+    max_shots_per_point : int
+        Give up on a point (DataError; its shots stay pending) after this many shots.
+    journal : callable, optional
+        Called with each accepted :class:`DigitizedPoint` (e.g. :class:`JsonlJournal`).
+    max_reconnects : int
+        Reconnects tried per point before giving up (DeviceNotFoundError; nothing is lost).
+    """
+
+    def __init__(
+        self,
+        device: Digitizer,
+        geometry: DigitizerGeometry,
+        limits: QualityLimits | None = None,
+        *,
+        shots_per_point: int = 5,
+        max_shots_per_point: int = 20,
+        journal: Callable[[DigitizedPoint], None] | None = None,
+        max_reconnects: int = 3,
+    ) -> None:
+        if shots_per_point < 1 or max_shots_per_point < shots_per_point:
+            raise SetupError(
+                f"digitizing session: shots_per_point {shots_per_point} must be >= 1 and <= "
+                f"max_shots_per_point {max_shots_per_point}"
+            )
+        self.device = device
+        self.geometry = geometry
+        self.limits = limits or QualityLimits()
+        self.shots_per_point = shots_per_point
+        self.max_shots_per_point = max_shots_per_point
+        self.journal = journal
+        self.max_reconnects = max_reconnects
+        self.patches: list[Patch] = [Patch(0, "patch 0")]
+        self._points: list[DigitizedPoint] = []
+        self._pending: dict[tuple[int, str], _Pending] = {}
+        self.shots_fired = 0
+        self.retries = 0
+        self.reconnects = 0
+
+    # ------------------------------------------------------------------ patches
+    @property
+    def patch(self) -> Patch:
+        return self.patches[-1]
+
+    def new_patch(self, name: str | None = None) -> Patch:
+        """The array moved: points from now on belong to a new patch (register it again)."""
+        p = Patch(len(self.patches), name or f"patch {len(self.patches)}")
+        self.patches.append(p)
+        return p
+
+    # ------------------------------------------------------------------ points
+    @property
+    def points(self) -> list[DigitizedPoint]:
+        """Every accepted point so far, in order (a copy)."""
+        return list(self._points)
+
+    def pending_shots(self, label: str) -> int:
+        """Shots already fired for an unfinished point of the current patch."""
+        pend = self._pending.get((self.patch.index, label))
+        return len(pend.records) if pend else 0
+
+    def _fire_one(self, reconnects_left: list[int]) -> ShotRecord | None:
+        try:
+            return self.device.fire()
+        except (ProtocolError, DeviceTimeoutError) as err:
+            self.retries += 1
+            log.warning("digitizing: shot failed (%s); firing again", err)
+            return None
+        except DeviceNotFoundError as err:
+            if reconnects_left[0] <= 0:
+                raise DeviceNotFoundError(
+                    f"digitizing: port lost and reconnect failed ({err}); the {len(self._points)} points "
+                    "digitized so far are kept: fix the connection and call digitize() again"
+                ) from err
+            reconnects_left[0] -= 1
+            log.warning("digitizing: port lost (%s); reconnecting", err)
+            self.device.reconnect()
+            self.reconnects += 1
+            return None
+
+    def digitize(self, label: str, shots: int | None = None) -> DigitizedPoint:
+        """Fire until ``shots`` accepted shots (default ``shots_per_point``) and keep the point.
+
+        Raises
+        ------
+        DataError
+            Too few accepted shots within ``max_shots_per_point`` (echoes): the shots stay pending,
+            call again to continue.
+        DeviceNotFoundError
+            The port is gone and reconnecting failed; the shots stay pending.
+        """
+        want = shots or self.shots_per_point
+        key = (self.patch.index, label)
+        pend = self._pending.setdefault(key, _Pending())
+        reconnects_left = [self.max_reconnects]
+        fired_here = 0
+        est: PointEstimate | None = None
+        while True:
+            if pend.records:
+                counts, bar, avg, status, _ = records_to_arrays(pend.records)
+                sol = triangulate(
+                    counts, bar, self.geometry, averaging=avg, status=status, limits=self.limits
+                )
+                if int(sol.accepted.sum()) >= want:
+                    est = combine_shots(sol.tip_m, sol.accepted, self.limits.point_outlier_m)
+                    break
+            if fired_here >= self.max_shots_per_point:
+                raise DataError(
+                    f"point {label!r}: fewer than {want} accepted shots in {fired_here} (echoes?); "
+                    "the shots are kept: move the probe or the array and call digitize() again"
+                )
+            rec = self._fire_one(reconnects_left)
+            if rec is not None:
+                pend.records.append(rec)
+                self.shots_fired += 1
+                fired_here += 1
+        point = DigitizedPoint(
+            label=label,
+            patch=self.patch.index,
+            position_array_m=est.position_m,
+            spread_m=est.spread_m,
+            n_shots=est.n_shots,
+            n_used=est.n_used,
+            seqs=tuple(r.seq for r in pend.records),
+        )
+        del self._pending[key]
+        self._points.append(point)
+        if self.journal is not None:
+            self.journal(point)
+        return point
+
+    # ------------------------------------------------------------------ registration
+    def _patch_points(self, patch: int, labels: Sequence[str]) -> FloatArray:
+        found = {p.label: p.position_array_m for p in self._points if p.patch == patch}
+        missing = [lab for lab in labels if lab not in found]
+        if missing:
+            raise SetupError(
+                f"patch {patch}: reference node(s) {missing} not digitized in this patch; digitize them first"
+            )
+        return np.array([found[lab] for lab in labels])
+
+    def register_patch(
+        self, references_global_m: Mapping[str, ArrayLike], method: str = "rigid"
+    ) -> Registration:
+        """Register the current patch from reference nodes (label → known GCS coordinates)."""
+        labels = list(references_global_m)
+        xa = self._patch_points(self.patch.index, labels)
+        xg = np.array([np.asarray(references_global_m[lab], dtype=float) for lab in labels])
+        reg = register(xa, xg, method=method)
+        self.patch.registration = reg
+        return reg
+
+    def define_frame(self, origin: str, on_x: str, in_xz: str) -> Registration:
+        """Three-point frame from three digitized labels of the current patch (DACS ≡ GCS)."""
+        pts = self._patch_points(self.patch.index, [origin, on_x, in_xz])
+        reg = three_point_frame(*pts)
+        self.patch.registration = reg
+        return reg
+
+    def global_position(self, point: DigitizedPoint) -> FloatArray:
+        """GCS coordinates of a point through its patch's registration."""
+        reg = self.patches[point.patch].registration
+        if reg is None:
+            raise SetupError(
+                f"point {point.label!r}: its patch {point.patch} is not registered; register it from "
+                "reference nodes"
+            )
+        return reg.apply(point.position_array_m)
+
+    def global_points(self) -> dict[str, FloatArray]:
+        """Label → GCS position of every point whose patch is registered (last one wins)."""
+        out: dict[str, FloatArray] = {}
+        for p in self._points:
+            if self.patches[p.patch].registration is not None:
+                out[p.label] = self.global_position(p)
+        return out
+
+
+# ---------------------------------------------------------------------------- selftest
+
+
+class _SimControl(Digitizer, Protocol):
+    def command(self, text: str, expect: str = "OK") -> list[str]: ...
+
+
+@dataclass(frozen=True)
+class SelftestReport:
+    """Figures of :func:`run_selftest` (lengths in mm, angles in degrees).
+
+    ``as_dict()`` gives the JSON keys of ``dimacq digitizer selftest --json``.
+    """
+
+    values: dict[str, Any]
+    orthogonality_checks: list[FloatArray]
+    jig_names: list[str]
+
+    def as_dict(self) -> dict[str, Any]:
+        return dict(self.values)
+
+
+def _random_axes(
+    rng: np.random.Generator, n: int, facing: FloatArray, cone_deg: float
+) -> FloatArray:
+    """Unit probe axes within ``cone_deg`` of ``facing`` (the tip points away from the array)."""
+    out = np.empty((n, 3))
+    for i in range(n):
+        while True:
+            v = facing + np.tan(np.radians(cone_deg)) * rng.uniform(-1, 1, 3)
+            v /= np.linalg.norm(v)
+            if np.degrees(np.arccos(np.clip(v @ facing, -1, 1))) <= cone_deg:
+                out[i] = v
+                break
+    return out
+
+
+def _shots_at(device: _SimControl, tip_m: FloatArray, axis: FloatArray, n: int) -> list[ShotRecord]:
+    vals = ",".join(f"{v:.6f}" for v in (*tip_m, *axis))
+    device.command(f"SIM:PROBE {vals}")
+    return [device.fire() for _ in range(n)]
+
+
+def _solve(records: Sequence[ShotRecord], cfg: ArrayConfig) -> Any:
+    counts, bar, avg, status, _ = records_to_arrays(records)
+    return triangulate(
+        counts, bar, cfg.geometry(), averaging=avg, status=status, limits=cfg.limits()
+    )
+
+
+def _points_from(
+    records: Sequence[ShotRecord], cfg: ArrayConfig, per_point: int
+) -> tuple[FloatArray, Any]:
+    sol = _solve(records, cfg)
+    n_points = len(records) // per_point
+    pts = np.empty((n_points, 3))
+    for i in range(n_points):
+        sl = slice(i * per_point, (i + 1) * per_point)
+        try:
+            pts[i] = combine_shots(
+                sol.tip_m[sl], sol.accepted[sl], cfg.quality.point_outlier_m
+            ).position_m
+        except DataError:
+            pts[i] = np.nan
+    return pts, sol
+
+
+def run_selftest(
+    device: _SimControl,
+    cfg: ArrayConfig,
+    jig: JigDefinition,
+    *,
+    shots: int = 1000,
+    shots_per_point: int = 5,
+    echo_rate: float = 0.02,
+    temperature_c: float = 20.0,
+    temperature_step_c: float = 10.0,
+    n_jigs: int = 4,
+    seed: int = 1,
+    min_timing_s: float = 0.3,
+) -> SelftestReport:
+    """Digitize the simulator's known points through the wire and report the accuracy figures.
+
+    Steps: (1) ``shots`` shots on ``shots // shots_per_point`` random points of the digitizer
+    volume at ``temperature_c`` with echo rate ``echo_rate``: tip RMS error per point and per shot,
+    echoes injected (the simulator's ``SIM:ECHOES?``) and accepted; (2) the same points after a
+    ``temperature_step_c`` change of air temperature; (3) a random DACS→GCS registration from 8
+    reference nodes, then ``n_jigs`` jig placements (24 indentations × ``shots_per_point`` shots)
+    fitted with three rods (rigid and thesis affine), two rods (cross product and rigid), and the Z
+    rod as a line of action; (4) triangulation throughput on the recorded shots.
+    """
+    import time
+
+    from scipy.spatial.transform import Rotation
+
+    from dimacq.pipeline.digitizing.lines_of_action import (
+        angle_between_deg,
+        line_of_action_svd,
+        line_of_action_thesis,
+    )
+    from dimacq.pipeline.digitizing.orientation import fit_orientation, rotation_error_deg
+
+    if cfg.volume is None:
+        raise SetupError("selftest: the array config has no [volume] section; add min_m and max_m")
+    if shots < shots_per_point:
+        raise SetupError(f"selftest: shots {shots} < shots_per_point {shots_per_point}")
+    rng = np.random.default_rng(seed)
+    geometry = cfg.geometry()
+    lo, hi = np.asarray(cfg.volume.min_m), np.asarray(cfg.volume.max_m)
+    n_mics = len(geometry.microphones_m)
+    device.reset()
+    device.configure(emitters=2, microphones=n_mics, averaging=1, bar_repeats=4)
+    device.command(f"SIM:TEMP {temperature_c:g}")
+    device.command(f"SIM:ECHO {echo_rate:g}")
+
+    # (1) known points over the volume
+    n_points = shots // shots_per_point
+    tips = rng.uniform(lo, hi, size=(n_points, 3))
+    axes = _random_axes(rng, n_points, geometry.facing, 40.0)
+    records: list[ShotRecord] = []
+    for tip, ax in zip(tips, axes, strict=True):
+        records += _shots_at(device, tip, ax, shots_per_point)
+    echo_fields = device.command("SIM:ECHOES?", expect="SIM")
+    echo_seqs = {int(v) for v in echo_fields[3:]}
+    pts, sol = _points_from(records, cfg, shots_per_point)
+    seqs = np.array([r.seq for r in records])
+    is_echo = np.isin(seqs, list(echo_seqs))
+    truth_per_shot = np.repeat(tips, shots_per_point, axis=0)
+    shot_err = np.linalg.norm(sol.tip_m - truth_per_shot, axis=1)
+    ok = sol.accepted
+    point_err = np.linalg.norm(pts - tips, axis=1)
+    tip_rms = float(np.sqrt(np.nanmean(point_err**2)))
+
+    # (2) temperature step
+    device.command("SIM:ECHO 0")
+    device.command(f"SIM:TEMP {temperature_c + temperature_step_c:g}")
+    rec_t: list[ShotRecord] = []
+    for tip, ax in zip(tips, axes, strict=True):
+        rec_t += _shots_at(device, tip, ax, shots_per_point)
+    pts_t, _ = _points_from(rec_t, cfg, shots_per_point)
+    rms_t = float(np.sqrt(np.nanmean(np.sum((pts_t - tips) ** 2, axis=1))))
+    # the same shots with the speed of sound frozen at the first pass (no bar tracking)
+    counts_t, _, avg_t, status_t, _ = records_to_arrays(rec_t)
+    _, bar_0, _, _, _ = records_to_arrays(records[: len(rec_t)])
+    frozen = triangulate(
+        counts_t, bar_0, geometry, averaging=avg_t, status=status_t, limits=cfg.limits()
+    )
+    frozen_err = np.linalg.norm(frozen.tip_m - truth_per_shot, axis=1)
+    device.command(f"SIM:TEMP {temperature_c:g}")
+    device.command(f"SIM:ECHO {echo_rate:g}")
+
+    # (3) registration + jig placements
+    true_rot = Rotation.random(random_state=int(rng.integers(2**31)))
+    true_off = rng.uniform(-1, 1, 3)
+    corners = np.array([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)], dtype=float)
+    ref_dacs = lo + 0.1 * (hi - lo) + corners * 0.8 * (hi - lo)
+    ref_gcs = true_rot.apply(ref_dacs) + true_off
+    ref_rec: list[ShotRecord] = []
+    for p, ax in zip(
+        ref_dacs, _random_axes(rng, len(ref_dacs), geometry.facing, 30.0), strict=True
+    ):
+        ref_rec += _shots_at(device, p, ax, shots_per_point)
+    ref_meas, _ = _points_from(ref_rec, cfg, shots_per_point)
+    reg = register(ref_meas, ref_gcs)
+    errs: dict[str, list[float]] = {
+        k: [] for k in ("rigid", "affine", "cross", "rigid2", "loa", "loa13")
+    }
+    checks: list[FloatArray] = []
+    names: list[str] = []
+    local = jig.points_local_m
+    margin = 0.25
+    for j in range(n_jigs):
+        r_sensor = Rotation.random(random_state=int(rng.integers(2**31)))
+        origin_dacs = rng.uniform(lo + margin, hi - margin)
+        # the sensor's true orientation in the GCS: C = R_reg · R_sensor(DACS)
+        jig_dacs = r_sensor.apply(local) + origin_dacs
+        jig_rec: list[ShotRecord] = []
+        for p, ax in zip(
+            jig_dacs, _random_axes(rng, len(jig_dacs), geometry.facing, 30.0), strict=True
+        ):
+            jig_rec += _shots_at(device, p, ax, shots_per_point)
+        meas_dacs, _ = _points_from(jig_rec, cfg, shots_per_point)
+        meas_gcs = reg.apply(meas_dacs)
+        c_true = true_rot.as_matrix() @ r_sensor.as_matrix()
+        o_true = true_rot.apply(origin_dacs) + true_off
+        good = np.isfinite(meas_gcs).all(axis=1)
+        full = fit_orientation(local[good], meas_gcs[good], jig.rod[good], method="rigid")
+        aff = fit_orientation(local[good], meas_gcs[good], jig.rod[good], method="affine")
+        two = good & (jig.rod != 2)
+        cross = fit_orientation(local[two], meas_gcs[two], jig.rod[two], method="cross")
+        rigid2 = fit_orientation(local[two], meas_gcs[two], jig.rod[two], method="rigid")
+        errs["rigid"].append(rotation_error_deg(full.rotation, c_true))
+        errs["affine"].append(rotation_error_deg(aff.rotation, c_true))
+        errs["cross"].append(rotation_error_deg(cross.rotation, c_true))
+        errs["rigid2"].append(rotation_error_deg(rigid2.rotation, c_true))
+        if full.affine is not None:
+            checks.append(full.affine.orthogonality)
+            names.append(f"jig {j + 1}")
+        zrod = good & (jig.rod == 2)
+        true_dir = -c_true[:, 2]  # from the rod's points towards the input node (jig origin)
+        errs["loa"].append(
+            angle_between_deg(line_of_action_svd(meas_gcs[zrod], o_true).direction, true_dir)
+        )
+        errs["loa13"].append(
+            angle_between_deg(line_of_action_thesis(meas_gcs[zrod], o_true).direction, true_dir)
+        )
+
+    # (4) throughput on the recorded shots (solver only, no serial link)
+    counts, bar, avg, status, _ = records_to_arrays(records)
+    n_done, t0 = 0, time.perf_counter()
+    while True:
+        triangulate(counts, bar, geometry, averaging=avg, status=status, limits=cfg.limits())
+        n_done += len(records)
+        elapsed = time.perf_counter() - t0
+        if elapsed >= min_timing_s:
+            break
+
+    def rms(v: Sequence[float]) -> float:
+        return float(np.sqrt(np.mean(np.square(v)))) if len(v) else float("nan")
+
+    values: dict[str, Any] = {
+        "shots": len(records),
+        "points": n_points,
+        "shots_per_point": shots_per_point,
+        "echo_rate": echo_rate,
+        "temperature_c": temperature_c,
+        "tip_rms_mm": 1e3 * tip_rms,
+        "tip_max_mm": 1e3 * float(np.nanmax(point_err)),
+        "tip_rms_single_shot_mm": 1e3 * float(np.sqrt(np.mean(shot_err[ok & ~is_echo] ** 2))),
+        "echoes_injected": int(is_echo.sum()),
+        "echoes_accepted": int((is_echo & ok).sum()),
+        "echoes_rejected": int((is_echo & ~ok).sum()),
+        "clean_shots_rejected": int((~is_echo & ~ok).sum()),
+        "temperature_step_c": temperature_step_c,
+        "tip_rms_mm_after_step": 1e3 * rms_t,
+        "temperature_step_added_mm": 1e3 * float(np.sqrt(max(rms_t**2 - tip_rms**2, 0.0))),
+        "tip_rms_mm_speed_not_tracked": 1e3 * float(np.sqrt(np.mean(frozen_err**2))),
+        "registration_rms_mm": 1e3 * reg.rms_m,
+        "jigs": n_jigs,
+        "jig_orientation_rms_deg": rms(errs["rigid"]),
+        "jig_orientation_affine_nearest_rms_deg": rms(errs["affine"]),
+        "jig_two_rod_cross_rms_deg": rms(errs["cross"]),
+        "jig_two_rod_rigid_rms_deg": rms(errs["rigid2"]),
+        "jig_max_orthogonality_off_diagonal": float(
+            max((np.abs(c - np.diag(np.diag(c))).max() for c in checks), default=float("nan"))
+        ),
+        "line_of_action_rms_deg": rms(errs["loa"]),
+        "line_of_action_eq13_rms_deg": rms(errs["loa13"]),
+        "triangulation_shots_per_second": n_done / elapsed,
+    }
+    return SelftestReport(values=values, orthogonality_checks=checks, jig_names=names)
