@@ -568,3 +568,18 @@ def test_noisy_sample_reads() -> None:
     s, f = read_uff_test(SAMPLES / "bracket_noisy_ascii.uff")
     assert f.H.shape == (140, 30, 12)
     assert len(s.responses) == 18
+
+
+@needs_samples
+@pytest.mark.parametrize("name", ["bracket_clean_binary.uff", "bracket_clean_ascii.uff"])
+def test_samples_solve_to_truth(name: str) -> None:
+    """End to end with the DIM solver: the geometry read from the file must be the truth's."""
+    from dimacq.pipeline.dim import solve
+
+    truth = json.loads((SAMPLES / "bracket_truth.json").read_text())
+    setup, frf = read_uff_test(SAMPLES / name)
+    res = solve(frf, setup).to_json()
+    assert res["mass_kg"] == pytest.approx(truth["mass_kg"], rel=1e-9)
+    np.testing.assert_allclose(res["cg_m"], truth["cg_m"], atol=1e-9 * 0.2)
+    scale = np.abs(truth["inertia_p_kgm2"]).max()
+    np.testing.assert_allclose(res["inertia_p_kgm2"], truth["inertia_p_kgm2"], atol=1e-9 * scale)
