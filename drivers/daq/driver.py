@@ -1,0 +1,653 @@
+"""Driver of the dimacq USB DAQ over pyusb, with the backend injected.
+
+Two layers, after NI-DAQmx and uldaq:
+
+- :class:`DaqDevice` — the wire: vendor control requests and bulk frames of
+  :mod:`dimacq.drivers.daq.protocol` on a ``usb.core.Device``. Public methods own timeouts,
+  logging and validation and turn pyusb errors into :mod:`dimacq.errors`; the wire steps are
+  :meth:`DaqDevice._control` and :meth:`DaqDevice._bulk_read` (template method).
+- :class:`DaqTask` — task → channels → timing → start / read / stop. Channels carry their
+  transducer sensitivity (mV/g, mV/N, V/V) and come back in engineering units (m/s², N, V).
+  Reads are aligned on the device's sample counter: a FIFO overflow, a lost transfer, an
+  overloaded channel or a USB timeout is recorded as an event on the task and in the block,
+  never silently patched. Samples already received are never dropped by an error.
+
+Opening a device (real or simulated is only the backend)::
+
+    dev = DaqDevice.open(backend=None)            # libusb via pyusb's default backend
+    dev = DaqDevice.open(backend=VirtualDaqBackend(source, wiring))   # the simulator
+"""
+
+from __future__ import annotations
+
+import errno
+import logging
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+import usb.core
+import usb.util
+from dimacq.drivers.daq import protocol as p
+from numpy.typing import NDArray
+
+from dimacq.errors import (
+    DeviceError,
+    DeviceNotFoundError,
+    DeviceStateError,
+    DeviceTimeoutError,
+    ProtocolError,
+    SetupError,
+)
+
+__all__ = [
+    "STANDARD_GRAVITY",
+    "ChannelConfig",
+    "DaqBlock",
+    "DaqDevice",
+    "DaqEvent",
+    "DaqTask",
+]
+
+log = logging.getLogger(__name__)
+
+#: m/s² per g, to turn mV/g into V/(m/s²).
+STANDARD_GRAVITY = 9.80665
+
+
+class DaqDevice:
+    """One dimacq USB DAQ (wire level).
+
+    Parameters
+    ----------
+    device : usb.core.Device
+        Found with the backend of choice (see :meth:`open`).
+    timeout_s : float
+        Default timeout of control and bulk transfers.
+    """
+
+    def __init__(self, device: Any, *, timeout_s: float = 1.0) -> None:
+        self._dev = device
+        self.timeout_s = timeout_s
+        self._closed = False
+        try:
+            device.set_configuration()
+        except usb.core.USBError as err:
+            raise DeviceError(
+                f"DAQ {self._describe()}: cannot set its USB configuration ({err}); "
+                "check permissions (udev rule for 1209:DA64) and that no other program holds it"
+            ) from err
+
+    @classmethod
+    def open(
+        cls, backend: Any = None, *, serial_number: str | None = None, timeout_s: float = 1.0
+    ) -> DaqDevice:
+        """Find the DAQ (VID 0x1209, PID 0xDA64) on ``backend`` and open it."""
+        found = usb.core.find(
+            find_all=True, idVendor=p.VENDOR_ID, idProduct=p.PRODUCT_ID, backend=backend
+        )
+        devices = list(found or [])
+        for dev in devices:
+            if serial_number is None:
+                return cls(dev, timeout_s=timeout_s)
+            ident = cls(dev, timeout_s=timeout_s).identify()
+            if ident.serial_number == serial_number:
+                return cls(dev, timeout_s=timeout_s)
+            usb.util.dispose_resources(dev)
+        wanted = f" with serial number {serial_number}" if serial_number else ""
+        raise DeviceNotFoundError(
+            f"no dimacq DAQ (USB 1209:DA64){wanted} found; check the cable and the backend, "
+            "or use the simulator backend"
+        )
+
+    def _describe(self) -> str:
+        return f"USB {getattr(self._dev, 'bus', '?')}:{getattr(self._dev, 'address', '?')}"
+
+    # -- wire steps ------------------------------------------------------------------------
+    def _control(
+        self, bm: int, request: int, value: int, index: int, data: Any, timeout_ms: int
+    ) -> Any:
+        return self._dev.ctrl_transfer(bm, request, value, index, data, timeout_ms)
+
+    def _bulk_read(self, n_bytes: int, timeout_ms: int) -> Any:
+        return self._dev.read(p.DATA_ENDPOINT, n_bytes, timeout_ms)
+
+    # -- public, owning timeout, logging, validation ----------------------------------------
+    def _check_open(self) -> None:
+        if self._closed:
+            raise DeviceStateError("the DAQ was closed; open it again with DaqDevice.open()")
+
+    def _request(
+        self,
+        request: p.Request,
+        value: int = 0,
+        index: int = 0,
+        data: bytes | None = None,
+        read_len: int | None = None,
+    ) -> bytes:
+        self._check_open()
+        timeout_ms = max(1, int(self.timeout_s * 1000))
+        bm = p.BM_REQUEST_IN if read_len is not None else p.BM_REQUEST_OUT
+        payload = read_len if read_len is not None else (data or b"")
+        log.debug("DAQ control %s value=%d index=%d", request.name, value, index)
+        try:
+            ret = self._control(bm, int(request), value, index, payload, timeout_ms)
+        except usb.core.USBTimeoutError as err:
+            raise DeviceTimeoutError(
+                f"DAQ did not answer {request.name} within {self.timeout_s} s; "
+                "check the USB connection"
+            ) from err
+        except usb.core.USBError as err:
+            if err.errno == errno.EPIPE:
+                raise DeviceStateError(
+                    f"DAQ refused {request.name} (value={value}, index={index}): the value is "
+                    "not supported or the device is streaming; read get_status() and "
+                    "stop the task before changing its configuration"
+                ) from err
+            raise DeviceError(f"DAQ {request.name} failed: {err}") from err
+        if read_len is None:
+            return b""
+        return bytes(ret)
+
+    def identify(self) -> p.DeviceIdentity:
+        """IDENTIFY: model data, serial number, firmware."""
+        return p.DeviceIdentity.decode(
+            self._request(p.Request.IDENTIFY, read_len=p.IDENTIFY_STRUCT.size)
+        )
+
+    def get_status(self) -> p.DeviceStatus:
+        """GET_STATUS: running, overflow, actual rate, samples clocked, frames lost."""
+        return p.DeviceStatus.decode(
+            self._request(p.Request.GET_STATUS, read_len=p.STATUS_STRUCT.size)
+        )
+
+    def set_sample_rate(self, rate_hz: int) -> None:
+        if not 0 < rate_hz < 2**32:
+            raise SetupError(f"sample rate {rate_hz} Hz is out of range; give 1 .. 2^32-1 Hz")
+        self._request(p.Request.SET_SAMPLE_RATE, data=int(rate_hz).to_bytes(4, "little"))
+
+    def set_channel_enable(self, channel: int, enabled: bool) -> None:
+        self._request(p.Request.SET_CHANNEL_ENABLE, int(enabled), channel)
+
+    def set_iepe(self, channel: int, current_ua: int) -> None:
+        if current_ua not in p.IEPE_CURRENTS_UA:
+            raise SetupError(
+                f"channel {channel}: IEPE current {current_ua} µA is not supported; "
+                f"choose one of {p.IEPE_CURRENTS_UA}"
+            )
+        self._request(p.Request.SET_IEPE, current_ua, channel)
+
+    def set_range(self, channel: int, range_v: float) -> None:
+        self._request(p.Request.SET_RANGE, range_code(range_v), channel)
+
+    def set_coupling(self, channel: int, coupling: Literal["AC", "DC"]) -> None:
+        self._request(p.Request.SET_COUPLING, 1 if coupling == "AC" else 0, channel)
+
+    def start(self, samples_per_frame: int) -> None:
+        if not 0 < samples_per_frame < 2**16:
+            raise SetupError(f"samples_per_frame={samples_per_frame}; give 1 .. 65535")
+        self._request(p.Request.START, samples_per_frame)
+
+    def stop(self) -> None:
+        self._request(p.Request.STOP)
+
+    def read_frame(self, n_bytes: int, timeout_s: float | None = None) -> bytes:
+        """Read one bulk frame of at most ``n_bytes``.
+
+        Raises
+        ------
+        DeviceTimeoutError
+            No frame within the timeout (nothing is lost: the next read continues).
+        """
+        self._check_open()
+        t = self.timeout_s if timeout_s is None else timeout_s
+        try:
+            data = self._bulk_read(n_bytes, max(1, int(t * 1000)))
+        except usb.core.USBTimeoutError as err:
+            raise DeviceTimeoutError(
+                f"DAQ sent no frame within {t} s; check that the task is started and the "
+                "sample clock runs"
+            ) from err
+        except usb.core.USBError as err:
+            raise DeviceError(f"DAQ bulk read failed: {err}") from err
+        return bytes(data)
+
+    def close(self) -> None:
+        if not self._closed:
+            usb.util.dispose_resources(self._dev)
+            self._closed = True
+
+    def __enter__(self) -> DaqDevice:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def range_code(range_v: float) -> int:
+    """Range code of ``±range_v`` volts (:data:`protocol.RANGES_V`)."""
+    for code, r in enumerate(p.RANGES_V):
+        if abs(r - range_v) < 1e-9 * r:
+            return code
+    raise SetupError(f"input range ±{range_v} V is not supported; choose one of {p.RANGES_V}")
+
+
+@dataclass(frozen=True)
+class ChannelConfig:
+    """One task channel.
+
+    Attributes
+    ----------
+    physical_channel : int
+        DAQ input, 0-based.
+    name : str
+        e.g. ``"1103+Y"`` or ``"21+X force"``.
+    units : str
+        Engineering unit of the data: ``"m/s^2"``, ``"N"`` or ``"V"``.
+    sensitivity_v_per_unit : float
+        Transducer sensitivity, V per engineering unit (100 mV/g → 0.1/9.80665 V/(m/s²)).
+    range_v, iepe_current_ua, coupling
+        Input settings.
+    """
+
+    physical_channel: int
+    name: str
+    units: str
+    sensitivity_v_per_unit: float
+    range_v: float = 10.0
+    iepe_current_ua: int = 0
+    coupling: Literal["AC", "DC"] = "DC"
+
+
+@dataclass(frozen=True)
+class DaqEvent:
+    """Something the acquisition must know about: ``kind`` in
+    ``{"overflow", "lost_transfer", "overload", "timeout"}``, the sample range it concerns
+    (``first_sample`` .. ``first_sample + n_samples - 1``) and the channels involved."""
+
+    kind: str
+    first_sample: int
+    n_samples: int
+    channels: tuple[str, ...] = ()
+    message: str = ""
+
+
+@dataclass(frozen=True, eq=False)
+class DaqBlock:
+    """Samples ``first_sample .. first_sample + n - 1`` of a task, in engineering units.
+
+    Attributes
+    ----------
+    data : ndarray, shape (n_channels, n_samples)
+        NaN where samples were lost (see ``events``).
+    overload : ndarray of bool, shape (n_channels, n_samples)
+        True in every frame in which that channel clipped.
+    valid : ndarray of bool, shape (n_samples,)
+        False for samples lost to a FIFO overflow or a lost transfer.
+    events : tuple of DaqEvent
+    """
+
+    first_sample: int
+    sample_rate_hz: float
+    channel_names: tuple[str, ...]
+    units: tuple[str, ...]
+    data: NDArray[np.float64]
+    overload: NDArray[np.bool_]
+    valid: NDArray[np.bool_]
+    events: tuple[DaqEvent, ...] = ()
+
+    @property
+    def n_samples(self) -> int:
+        return int(self.data.shape[1])
+
+
+@dataclass
+class _Chunk:
+    first: int
+    data: NDArray[np.float64]  # (n, n_ch), sample-major
+    overload: NDArray[np.bool_]  # (n, n_ch)
+    valid: bool
+
+
+@dataclass
+class _Stream:
+    next_sample: int = 0
+    next_sequence: int = 0
+    chunks: list[_Chunk] = field(default_factory=list)
+    buffered: int = 0
+    events: list[DaqEvent] = field(default_factory=list)
+
+
+class DaqTask:
+    """An acquisition task: channels → timing → start → read → stop (NI-DAQmx style).
+
+    Channels come back in ascending physical-channel order (the order on the wire); their
+    names are in :attr:`channel_names`.
+    """
+
+    def __init__(self, device: DaqDevice, name: str = "task") -> None:
+        self.device = device
+        self.name = name
+        self._channels: dict[int, ChannelConfig] = {}
+        self.sample_rate_hz: float | None = None
+        self.samples_per_frame = 256
+        self._running = False
+        self._stream = _Stream()
+        self.events: list[DaqEvent] = []
+        self._scale = np.zeros(0)
+
+    # -- channels -----------------------------------------------------------------------------
+    def add_channel(self, config: ChannelConfig) -> None:
+        if self._running:
+            raise DeviceStateError(f"task {self.name} is running; stop it before adding channels")
+        if config.physical_channel in self._channels:
+            raise SetupError(
+                f"physical channel {config.physical_channel} is already in task {self.name} "
+                f"as {self._channels[config.physical_channel].name!r}; use another input"
+            )
+        if not config.sensitivity_v_per_unit > 0:
+            raise SetupError(
+                f"channel {config.name}: sensitivity {config.sensitivity_v_per_unit} V/unit; "
+                "give the transducer's positive sensitivity from its calibration sheet"
+            )
+        range_code(config.range_v)
+        if config.iepe_current_ua not in p.IEPE_CURRENTS_UA:
+            raise SetupError(
+                f"channel {config.name}: IEPE current {config.iepe_current_ua} µA; choose one "
+                f"of {p.IEPE_CURRENTS_UA}"
+            )
+        self._channels[config.physical_channel] = config
+
+    def add_accel_channel(
+        self,
+        physical_channel: int,
+        name: str,
+        sensitivity_mv_per_g: float,
+        *,
+        range_v: float = 5.0,
+        iepe_current_ma: float = 4.0,
+        coupling: Literal["AC", "DC"] = "AC",
+    ) -> None:
+        """IEPE accelerometer; data in m/s²."""
+        self.add_channel(
+            ChannelConfig(
+                physical_channel,
+                name,
+                "m/s^2",
+                sensitivity_mv_per_g * 1e-3 / STANDARD_GRAVITY,
+                range_v,
+                round(iepe_current_ma * 1000),
+                coupling,
+            )
+        )
+
+    def add_force_channel(
+        self,
+        physical_channel: int,
+        name: str,
+        sensitivity_mv_per_n: float,
+        *,
+        range_v: float = 5.0,
+        iepe_current_ma: float = 4.0,
+        coupling: Literal["AC", "DC"] = "AC",
+    ) -> None:
+        """IEPE force transducer (impact hammer, shaker stinger load cell); data in N."""
+        self.add_channel(
+            ChannelConfig(
+                physical_channel,
+                name,
+                "N",
+                sensitivity_mv_per_n * 1e-3,
+                range_v,
+                round(iepe_current_ma * 1000),
+                coupling,
+            )
+        )
+
+    def add_voltage_channel(
+        self,
+        physical_channel: int,
+        name: str,
+        *,
+        range_v: float = 10.0,
+        coupling: Literal["AC", "DC"] = "DC",
+    ) -> None:
+        self.add_channel(ChannelConfig(physical_channel, name, "V", 1.0, range_v, 0, coupling))
+
+    @property
+    def channels(self) -> tuple[ChannelConfig, ...]:
+        return tuple(self._channels[k] for k in sorted(self._channels))
+
+    @property
+    def channel_names(self) -> tuple[str, ...]:
+        return tuple(c.name for c in self.channels)
+
+    # -- timing ------------------------------------------------------------------------------
+    def configure_timing(self, sample_rate_hz: float, samples_per_frame: int = 256) -> None:
+        if self._running:
+            raise DeviceStateError(f"task {self.name} is running; stop it before changing timing")
+        if sample_rate_hz <= 0 or samples_per_frame <= 0:
+            raise SetupError(
+                f"sample rate {sample_rate_hz} Hz / {samples_per_frame} samples per frame; "
+                "give positive values"
+            )
+        self.sample_rate_hz = float(sample_rate_hz)
+        self.samples_per_frame = int(samples_per_frame)
+
+    # -- run -----------------------------------------------------------------------------------
+    @property
+    def running(self) -> bool:
+        return self._running
+
+    @property
+    def frame_bytes(self) -> int:
+        return p.frame_size(self.samples_per_frame, len(self._channels))
+
+    def start(self) -> None:
+        """Configure the device for this task and start the sample clock (counter 0)."""
+        if self._running:
+            raise DeviceStateError(f"task {self.name} is already running")
+        if not self._channels:
+            raise SetupError(f"task {self.name} has no channels; add channels before start()")
+        if self.sample_rate_hz is None:
+            raise SetupError(f"task {self.name}: call configure_timing() before start()")
+        ident = self.device.identify()
+        for ch in self.channels:
+            if ch.physical_channel >= ident.n_channels:
+                raise SetupError(
+                    f"channel {ch.name}: physical channel {ch.physical_channel} does not exist "
+                    f"on a {ident.n_channels}-channel DAQ"
+                )
+        self.device.set_sample_rate(round(self.sample_rate_hz))
+        for k in range(ident.n_channels):
+            self.device.set_channel_enable(k, k in self._channels)
+        for ch in self.channels:
+            self.device.set_range(ch.physical_channel, ch.range_v)
+            self.device.set_iepe(ch.physical_channel, ch.iepe_current_ua)
+            self.device.set_coupling(ch.physical_channel, ch.coupling)
+        status = self.device.get_status()
+        if abs(status.sample_rate_hz - self.sample_rate_hz) > 1e-9 * self.sample_rate_hz:
+            raise SetupError(
+                f"the DAQ runs at {status.sample_rate_hz} Hz, not the {self.sample_rate_hz} Hz "
+                "asked for; choose a rate the device supports"
+            )
+        self._scale = np.array(
+            [c.range_v / 2**23 / c.sensitivity_v_per_unit for c in self.channels]
+        )
+        self._stream = _Stream()
+        self.events = []
+        self.device.start(self.samples_per_frame)
+        self._running = True
+        log.info(
+            "DAQ task %s started: %d channels at %g Hz",
+            self.name,
+            len(self._channels),
+            self.sample_rate_hz,
+        )
+
+    def stop(self) -> None:
+        """Stop the clock. Samples already received stay readable (:meth:`read_buffered`)."""
+        if self._running:
+            self._running = False
+            self.device.stop()
+            log.info("DAQ task %s stopped", self.name)
+
+    def _record(self, ev: DaqEvent) -> None:
+        self._stream.events.append(ev)
+        self.events.append(ev)
+        log.warning("DAQ task %s: %s", self.name, ev.message)
+
+    def _ingest(self, frame: p.Frame) -> None:
+        st = self._stream
+        names = self.channel_names
+        if frame.n_channels != len(names):
+            raise ProtocolError(
+                f"frame {frame.sequence} carries {frame.n_channels} channels, the task "
+                f"enabled {len(names)}; stop and restart the task"
+            )
+        if frame.first_sample < st.next_sample:
+            raise ProtocolError(
+                f"frame {frame.sequence} starts at sample {frame.first_sample}, before the "
+                f"expected {st.next_sample}; the sample counter went backwards"
+            )
+        lost_seq = (frame.sequence - st.next_sequence) & 0xFFFFFFFF
+        gap = frame.first_sample - st.next_sample
+        if gap:
+            n_ch = len(names)
+            if frame.flags & p.FrameFlags.OVERFLOW:
+                kind = "overflow"
+                msg = (
+                    f"device FIFO overflow: samples {st.next_sample}..{frame.first_sample - 1} "
+                    "lost (read faster or lower the rate/channel count)"
+                )
+            else:
+                kind = "lost_transfer"
+                msg = (
+                    f"{lost_seq} bulk transfer(s) lost (sequence {st.next_sequence} → "
+                    f"{frame.sequence}): samples {st.next_sample}..{frame.first_sample - 1} lost"
+                )
+            self._record(DaqEvent(kind, st.next_sample, gap, names, msg))
+            st.chunks.append(
+                _Chunk(
+                    st.next_sample,
+                    np.full((gap, n_ch), np.nan),
+                    np.zeros((gap, n_ch), dtype=bool),
+                    False,
+                )
+            )
+            st.buffered += gap
+        elif lost_seq:
+            raise ProtocolError(
+                f"frame sequence jumped {st.next_sequence} → {frame.sequence} without a sample "
+                "gap; the stream is inconsistent, stop and restart the task"
+            )
+        data = frame.to_float(self._scale)
+        overload = np.zeros(data.shape, dtype=bool)
+        if frame.overload_mask:
+            bits = [(frame.overload_mask >> k) & 1 for k in range(len(names))]
+            over = np.array(bits, dtype=bool)
+            overload[:, over] = True
+            self._record(
+                DaqEvent(
+                    "overload",
+                    frame.first_sample,
+                    frame.n_samples,
+                    tuple(n for n, o in zip(names, over, strict=True) if o),
+                    f"overload on {', '.join(n for n, o in zip(names, over, strict=True) if o)} "
+                    f"in samples {frame.first_sample}..{frame.first_sample + frame.n_samples - 1}"
+                    "; raise the input range",
+                )
+            )
+        st.chunks.append(_Chunk(frame.first_sample, data, overload, True))
+        st.buffered += frame.n_samples
+        st.next_sample = frame.first_sample + frame.n_samples
+        st.next_sequence = (frame.sequence + 1) & 0xFFFFFFFF
+
+    def _fill(self, n_samples: int, timeout_s: float | None) -> None:
+        while self._stream.buffered < n_samples:
+            if not self._running:
+                raise DeviceStateError(
+                    f"task {self.name} is not running and holds {self._stream.buffered} of "
+                    f"the {n_samples} samples asked for; start() it or read_buffered()"
+                )
+            try:
+                raw = self.device.read_frame(self.frame_bytes, timeout_s)
+            except DeviceTimeoutError as err:
+                st = self._stream
+                self._record(
+                    DaqEvent(
+                        "timeout",
+                        st.next_sample,
+                        0,
+                        (),
+                        f"USB timeout after sample {st.next_sample - 1}; {st.buffered} samples "
+                        "kept in the buffer",
+                    )
+                )
+                raise DeviceTimeoutError(
+                    f"task {self.name}: {err} ({self._stream.buffered} samples received and "
+                    "kept; read again to continue)"
+                ) from err
+            self._ingest(p.decode_frame(raw))
+
+    def read(self, n_samples: int, timeout_s: float | None = None) -> DaqBlock:
+        """Read the next ``n_samples`` samples (blocking), in engineering units.
+
+        Raises
+        ------
+        DeviceTimeoutError
+            A frame did not arrive in time; what was received stays buffered for the next read.
+        """
+        if n_samples <= 0:
+            raise SetupError(f"n_samples={n_samples}; read at least one sample")
+        self._fill(n_samples, timeout_s)
+        return self._take(n_samples)
+
+    def read_buffered(self) -> DaqBlock | None:
+        """Everything received and not yet read (e.g. after stop()), or None."""
+        if self._stream.buffered == 0:
+            return None
+        return self._take(self._stream.buffered)
+
+    def read_available(self, timeout_s: float | None = None) -> DaqBlock:
+        """Read at least one more frame and return all buffered samples."""
+        self._fill(self._stream.buffered + 1, timeout_s)
+        return self._take(self._stream.buffered)
+
+    def _take(self, n: int) -> DaqBlock:
+        st = self._stream
+        taken: list[_Chunk] = []
+        need = n
+        while need:
+            c = st.chunks[0]
+            m = c.data.shape[0]
+            if m <= need:
+                taken.append(st.chunks.pop(0))
+                need -= m
+            else:
+                taken.append(_Chunk(c.first, c.data[:need], c.overload[:need], c.valid))
+                st.chunks[0] = _Chunk(c.first + need, c.data[need:], c.overload[need:], c.valid)
+                need = 0
+        st.buffered -= n
+        first = taken[0].first
+        data = np.concatenate([c.data for c in taken]) if len(taken) > 1 else taken[0].data
+        over = np.concatenate([c.overload for c in taken]) if len(taken) > 1 else taken[0].overload
+        valid = np.concatenate([np.full(c.data.shape[0], c.valid) for c in taken])
+        end = first + n
+        events = tuple(
+            e
+            for e in st.events
+            if e.first_sample < end and e.first_sample + max(e.n_samples, 1) > first
+        )
+        st.events = [e for e in st.events if e.first_sample + max(e.n_samples, 1) > end]
+        assert self.sample_rate_hz is not None
+        return DaqBlock(
+            first,
+            self.sample_rate_hz,
+            self.channel_names,
+            tuple(c.units for c in self.channels),
+            data.T,
+            over.T,
+            valid,
+            events,
+        )

@@ -1,0 +1,384 @@
+"""The USB DAQ simulator: a pyusb backend object that is the device side of the protocol.
+
+``usb.core.find(backend=VirtualDaqBackend(...))`` finds one dimacq DAQ (VID 0x1209, PID 0xDA64)
+whose control requests and bulk frames follow :mod:`dimacq.drivers.daq.protocol` byte for
+byte (the codec module is the only thing shared with the driver). The analogue world behind its
+inputs is a :class:`~dimacq.simulators.lab.source.SampleSource`: each wired input reads one
+source channel (physical unit), multiplies it by the transducer's true sensitivity (V/unit) and
+digitises it on the selected range (24 bits, clipping and overload flags at full scale). An IEPE
+transducer gives 0 V when its input's IEPE current is off. AC coupling is ideal (the source
+carries no sensor bias voltage).
+
+The sample clock is free-running as fast as the host reads: each bulk read clocks one frame of
+``samples_per_frame`` samples and advances :attr:`clock` (the SYNC output the load cell
+amplifier counts). Pulse ``k`` of a run is sample ``clock.epoch + k`` of the source; a new run
+continues the world where the previous one stopped.
+
+Faults for tests (:class:`DaqFaults`): bulk reads that time out, frames lost in the device FIFO
+(the next frame carries the overflow flag and the sample counter jumps), transfers lost on the
+way (sequence and sample counter jump, no flag), frames with a corrupted payload.
+"""
+
+from __future__ import annotations
+
+import array
+import errno
+import logging
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import usb.backend
+import usb.core
+from dimacq.drivers.daq import protocol as p
+from dimacq.simulators.daq.clock import SampleClock
+from dimacq.simulators.lab.source import SampleSource
+
+__all__ = ["DaqFaults", "DaqInput", "VirtualDaqBackend"]
+
+log = logging.getLogger(__name__)
+
+_SUPPORTED_RATES_HZ_NOTE = "the simulator clocks at its source's sample rate only"
+
+
+@dataclass(frozen=True)
+class DaqInput:
+    """What is plugged into one DAQ input.
+
+    Attributes
+    ----------
+    source_channel : int
+        Index into the source's channels.
+    sensitivity_v_per_unit : float
+        True sensitivity of the transducer, V per source unit (V/(m/s²), V/N, or 1 for V).
+    iepe : bool
+        The transducer needs IEPE current (reads 0 V without it).
+    """
+
+    source_channel: int
+    sensitivity_v_per_unit: float
+    iepe: bool = True
+
+
+@dataclass
+class DaqFaults:
+    """Faults to inject, by 0-based bulk read index or frame sequence number."""
+
+    timeout_reads: set[int] = field(default_factory=set)
+    fifo_overflow_frames: set[int] = field(default_factory=set)
+    lost_transfers: set[int] = field(default_factory=set)
+    corrupt_frames: set[int] = field(default_factory=set)
+
+
+class _Desc:
+    def __init__(self, **fields: Any) -> None:
+        self.__dict__.update(fields)
+
+
+class VirtualDaqBackend(usb.backend.IBackend):  # type: ignore[misc]
+    """A pyusb backend with one simulated dimacq DAQ on it.
+
+    Parameters
+    ----------
+    source : SampleSource
+        The virtual lab behind the inputs.
+    wiring : mapping of physical channel → DaqInput
+        Inputs not listed read 0 V.
+    n_channels : int
+    serial_number : str
+    clock : SampleClock, optional
+        The SYNC output; pass the same object to the load cell simulator.
+    faults : DaqFaults, optional
+    """
+
+    def __init__(
+        self,
+        source: SampleSource,
+        wiring: Mapping[int, DaqInput],
+        *,
+        n_channels: int = 64,
+        serial_number: str = "SIMDAQ-0001",
+        clock: SampleClock | None = None,
+        faults: DaqFaults | None = None,
+    ) -> None:
+        super().__init__()
+        self.source = source
+        self.wiring = dict(wiring)
+        for k, w in self.wiring.items():
+            if not 0 <= k < n_channels:
+                raise ValueError(f"wiring: physical channel {k} outside 0..{n_channels - 1}")
+            if not 0 <= w.source_channel < len(source.channel_names):
+                raise ValueError(f"wiring: source channel {w.source_channel} does not exist")
+        self.n_channels = n_channels
+        self.identity = p.DeviceIdentity(
+            p.PROTOCOL_VERSION, n_channels, 204800, 24, len(p.RANGES_V), serial_number, "sim-1.0"
+        )
+        self.clock = clock if clock is not None else SampleClock()
+        self.faults = faults if faults is not None else DaqFaults()
+        self._device = _Desc(
+            bLength=18,
+            bDescriptorType=1,
+            bcdUSB=0x0200,
+            bDeviceClass=0xFF,
+            bDeviceSubClass=0,
+            bDeviceProtocol=0,
+            bMaxPacketSize0=64,
+            idVendor=p.VENDOR_ID,
+            idProduct=p.PRODUCT_ID,
+            bcdDevice=0x0100,
+            iManufacturer=0,
+            iProduct=0,
+            iSerialNumber=0,
+            bNumConfigurations=1,
+            address=1,
+            bus=1,
+            port_number=1,
+            port_numbers=(1,),
+            speed=3,
+        )
+        self.enabled = np.zeros(n_channels, dtype=bool)
+        self.iepe_ua = np.zeros(n_channels, dtype=int)
+        self.range_code = np.zeros(n_channels, dtype=int)
+        self.ac = np.zeros(n_channels, dtype=bool)
+        self.sample_rate_hz = float(source.sample_rate_hz)
+        self.running = False
+        self.open_handles = 0
+        self._spf = 0
+        self._count = 0
+        self._epoch = 0
+        self._world = 0
+        self._seq = 0
+        self._reads = 0
+        self._overflowed = False
+        self._pending_overflow = False
+        self._frames_lost = 0
+
+    # -- descriptors -------------------------------------------------------------------------
+    def enumerate_devices(self) -> Any:
+        yield self._device
+
+    def get_parent(self, dev: Any) -> None:
+        return None
+
+    def get_device_descriptor(self, dev: Any) -> Any:
+        return dev
+
+    def get_configuration_descriptor(self, dev: Any, config: int) -> Any:
+        return _Desc(
+            bLength=9,
+            bDescriptorType=2,
+            wTotalLength=25,
+            bNumInterfaces=1,
+            bConfigurationValue=1,
+            iConfiguration=0,
+            bmAttributes=0x80,
+            bMaxPower=250,
+            extra_descriptors=[],
+        )
+
+    def get_interface_descriptor(self, dev: Any, intf: int, alt: int, config: int) -> Any:
+        return _Desc(
+            bLength=9,
+            bDescriptorType=4,
+            bInterfaceNumber=0,
+            bAlternateSetting=0,
+            bNumEndpoints=1,
+            bInterfaceClass=0xFF,
+            bInterfaceSubClass=0,
+            bInterfaceProtocol=0,
+            iInterface=0,
+            extra_descriptors=[],
+        )
+
+    def get_endpoint_descriptor(self, dev: Any, ep: int, intf: int, alt: int, config: int) -> Any:
+        return _Desc(
+            bLength=7,
+            bDescriptorType=5,
+            bEndpointAddress=p.DATA_ENDPOINT,
+            bmAttributes=2,
+            wMaxPacketSize=512,
+            bInterval=0,
+            bRefresh=0,
+            bSynchAddress=0,
+            extra_descriptors=[],
+        )
+
+    # -- handles -----------------------------------------------------------------------------
+    def open_device(self, dev: Any) -> Any:
+        self.open_handles += 1
+        return dev
+
+    def close_device(self, dev_handle: Any) -> None:
+        self.open_handles -= 1
+        if self.running:
+            self._stop()
+
+    def set_configuration(self, dev_handle: Any, config_value: int) -> None:
+        return None
+
+    def get_configuration(self, dev_handle: Any) -> int:
+        return 1
+
+    def claim_interface(self, dev_handle: Any, intf: int) -> None:
+        return None
+
+    def release_interface(self, dev_handle: Any, intf: int) -> None:
+        return None
+
+    def clear_halt(self, dev_handle: Any, ep: int) -> None:
+        return None
+
+    # -- control requests --------------------------------------------------------------------
+    @staticmethod
+    def _stall(why: str) -> usb.core.USBError:
+        log.info("simulated DAQ stalls a control request: %s", why)
+        return usb.core.USBError("Pipe error", error_code=-9, errno=errno.EPIPE)
+
+    def ctrl_transfer(
+        self,
+        dev_handle: Any,
+        bmRequestType: int,
+        bRequest: int,
+        wValue: int,
+        wIndex: int,
+        data: array.array[int],
+        timeout: int,
+    ) -> int:
+        if bmRequestType == p.BM_REQUEST_IN:
+            if bRequest == p.Request.IDENTIFY:
+                return self._answer(data, self.identity.encode())
+            if bRequest == p.Request.GET_STATUS:
+                st = p.DeviceStatus(
+                    self.running,
+                    self._overflowed,
+                    self.sample_rate_hz,
+                    self._count,
+                    self._frames_lost,
+                )
+                return self._answer(data, st.encode())
+            raise self._stall(f"unknown IN request {bRequest:#x}")
+        if bmRequestType != p.BM_REQUEST_OUT:
+            raise self._stall(f"request type {bmRequestType:#x} not supported")
+        req = bRequest
+        if req == p.Request.STOP:
+            self._stop()
+            return 0
+        if self.running:
+            raise self._stall(f"request {req:#x} while streaming")
+        if req == p.Request.SET_SAMPLE_RATE:
+            rate = int.from_bytes(bytes(data[:4]), "little") if len(data) >= 4 else -1
+            if rate != round(self.source.sample_rate_hz):
+                raise self._stall(f"rate {rate} Hz: {_SUPPORTED_RATES_HZ_NOTE}")
+            self.sample_rate_hz = float(self.source.sample_rate_hz)
+            return 4
+        if req == p.Request.START:
+            if wValue == 0 or not self.enabled.any():
+                raise self._stall("START with no samples per frame or no channel enabled")
+            self._start(wValue)
+            return 0
+        ch = wIndex
+        if not 0 <= ch < self.n_channels:
+            raise self._stall(f"channel {ch} does not exist")
+        if req == p.Request.SET_CHANNEL_ENABLE:
+            self.enabled[ch] = bool(wValue)
+        elif req == p.Request.SET_IEPE:
+            if wValue not in p.IEPE_CURRENTS_UA:
+                raise self._stall(f"IEPE current {wValue} µA")
+            self.iepe_ua[ch] = wValue
+        elif req == p.Request.SET_RANGE:
+            if not 0 <= wValue < len(p.RANGES_V):
+                raise self._stall(f"range code {wValue}")
+            self.range_code[ch] = wValue
+        elif req == p.Request.SET_COUPLING:
+            self.ac[ch] = bool(wValue)
+        else:
+            raise self._stall(f"unknown OUT request {req:#x}")
+        return 0
+
+    @staticmethod
+    def _answer(buf: array.array[int], payload: bytes) -> int:
+        n = min(len(buf), len(payload))
+        buf[:n] = array.array("B", payload[:n])
+        return n
+
+    def _start(self, spf: int) -> None:
+        self._spf = spf
+        self._count = 0
+        self._seq = 0
+        self._reads = 0
+        self._overflowed = False
+        self._pending_overflow = False
+        self._frames_lost = 0
+        self._epoch = self._world
+        self.running = True
+        self.clock.start(self._epoch, self.sample_rate_hz)
+
+    def _stop(self) -> None:
+        if self.running:
+            self.running = False
+            self._world = self._epoch + self._count
+            self.clock.stop()
+
+    def world_sample(self, daq_sample: int) -> int:
+        """The source counter of DAQ sample ``daq_sample`` of the present run."""
+        return self._epoch + daq_sample
+
+    # -- bulk data ---------------------------------------------------------------------------
+    def _make_frame(self) -> tuple[int, int, np.ndarray, int]:
+        chans = np.flatnonzero(self.enabled)
+        n = self._spf
+        first = self._count
+        volts = np.zeros((chans.size, n))
+        wired = [(i, self.wiring[int(k)]) for i, k in enumerate(chans) if int(k) in self.wiring]
+        if wired:
+            src = np.array([w.source_channel for _, w in wired], dtype=np.intp)
+            with self.clock.source_lock:
+                x = self.source.read(src, self._epoch + first, n)
+            for row, (i, w) in enumerate(wired):
+                powered = (not w.iepe) or self.iepe_ua[chans[i]] > 0
+                volts[i] = x[row] * w.sensitivity_v_per_unit if powered else 0.0
+        rng_v = np.array([p.RANGES_V[c] for c in self.range_code[chans]])
+        counts = np.rint(volts.T / rng_v * 2**23)
+        over = np.abs(counts) > p.FULL_SCALE_COUNTS
+        np.clip(counts, -p.FULL_SCALE_COUNTS, p.FULL_SCALE_COUNTS, out=counts)
+        mask = 0
+        for i in np.flatnonzero(over.any(axis=0)):
+            mask |= 1 << int(i)
+        self._count += n
+        self.clock.advance(self._count)
+        return first, mask, counts.astype(np.int32), n
+
+    def bulk_read(
+        self, dev_handle: Any, ep: int, intf: int, buff: array.array[int], timeout: int
+    ) -> int:
+        if ep != p.DATA_ENDPOINT:
+            raise usb.core.USBError("Pipe error", error_code=-9, errno=errno.EPIPE)
+        read_index = self._reads
+        self._reads += 1
+        if not self.running or read_index in self.faults.timeout_reads:
+            raise usb.core.USBTimeoutError("Operation timed out", error_code=-7, errno=110)
+        while True:
+            first, mask, counts, _ = self._make_frame()
+            seq = self._seq
+            if seq in self.faults.fifo_overflow_frames:
+                # The FIFO overflowed: these samples never leave the device.
+                self.faults.fifo_overflow_frames.discard(seq)
+                self._overflowed = True
+                self._pending_overflow = True
+                self._frames_lost += 1
+                continue
+            self._seq += 1
+            if seq in self.faults.lost_transfers:
+                self.faults.lost_transfers.discard(seq)
+                continue
+            break
+        flags = p.FrameFlags.OVERFLOW if self._pending_overflow else p.FrameFlags.NONE
+        self._pending_overflow = False
+        frame = p.encode_frame(seq, first, counts, overload_mask=mask, flags=flags)
+        if seq in self.faults.corrupt_frames:
+            frame = frame[:-1] + bytes([frame[-1] ^ 0xFF])
+        if len(frame) > len(buff):
+            raise usb.core.USBError("Overflow", error_code=-8, errno=errno.EOVERFLOW)
+        buff[: len(frame)] = array.array("B", frame)
+        return len(frame)

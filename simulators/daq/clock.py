@@ -1,0 +1,80 @@
+"""The DAQ's sample clock as seen on its SYNC output: what the load cell amplifier counts.
+
+In the lab a cable carries the DAQ's sample clock to the load cell amplifier, which counts its
+pulses; nothing else is shared. :class:`SampleClock` is that cable for the simulators: the DAQ
+simulator drives it (start at a position of the lab's world, advance per sample clocked, stop),
+the load cell simulator observes it. ``epoch`` is the :class:`~dimacq.simulators.lab.source.
+SampleSource` counter of pulse 0 of the present run, so ``epoch + k`` is the world's sample at
+pulse ``k``. ``source_lock`` serialises the two simulators' reads of the shared source.
+"""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass
+
+__all__ = ["ClockState", "SampleClock"]
+
+
+@dataclass(frozen=True)
+class ClockState:
+    """A snapshot: ``run`` counts runs (START) since creation; ``count`` pulses in this run."""
+
+    run: int
+    running: bool
+    epoch: int
+    count: int
+    sample_rate_hz: float
+
+
+class SampleClock:
+    """Pulses of the DAQ sample clock, observable from another thread."""
+
+    def __init__(self) -> None:
+        self._cond = threading.Condition()
+        self._run = 0
+        self._running = False
+        self._epoch = 0
+        self._count = 0
+        self._rate = 0.0
+        self.source_lock = threading.RLock()
+
+    def start(self, epoch: int, sample_rate_hz: float) -> None:
+        with self._cond:
+            self._run += 1
+            self._running = True
+            self._epoch = epoch
+            self._count = 0
+            self._rate = sample_rate_hz
+            self._cond.notify_all()
+
+    def advance(self, count: int) -> None:
+        """The clock has produced ``count`` pulses in this run."""
+        with self._cond:
+            self._count = count
+            self._cond.notify_all()
+
+    def stop(self) -> None:
+        with self._cond:
+            self._running = False
+            self._cond.notify_all()
+
+    def state(self) -> ClockState:
+        with self._cond:
+            return ClockState(self._run, self._running, self._epoch, self._count, self._rate)
+
+    def wait_change(self, seen: ClockState, timeout_s: float) -> ClockState:
+        """Block until the clock differs from ``seen`` (or the timeout), return the new state."""
+        with self._cond:
+            self._cond.wait_for(
+                lambda: (
+                    (self._run, self._running, self._count) != (seen.run, seen.running, seen.count)
+                ),
+                timeout_s,
+            )
+            return ClockState(self._run, self._running, self._epoch, self._count, self._rate)
+
+    def notify(self) -> None:
+        """Wake every waiter (used by observers shutting down)."""
+        with self._cond:
+            self._cond.notify_all()

@@ -1,0 +1,176 @@
+"""The USB DAQ simulator through pyusb and the real driver (they meet only at the wire)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import usb.core
+from _acq_support import ImpulseSource
+from dimacq.drivers.daq import protocol as p
+from dimacq.drivers.daq.driver import DaqDevice, DaqTask
+from dimacq.simulators.daq.backend import DaqFaults, DaqInput, VirtualDaqBackend
+
+from dimacq.errors import DeviceNotFoundError, DeviceStateError, DeviceTimeoutError
+from dimacq.pipeline.frf_estimation import estimate_frf
+
+FORCE_MV_PER_N = 2.25
+ACCEL_MV_PER_G = 100.0
+G = 9.80665
+
+
+def make(source, faults=None, force_range=5.0):
+    wiring = {0: DaqInput(0, FORCE_MV_PER_N * 1e-3)}
+    for k in range(source.n_responses):
+        wiring[1 + k] = DaqInput(source.n_inputs + k, ACCEL_MV_PER_G * 1e-3 / G)
+    backend = VirtualDaqBackend(source, wiring, faults=faults)
+    dev = DaqDevice.open(backend=backend)
+    task = DaqTask(dev)
+    task.add_force_channel(0, "10+X force", FORCE_MV_PER_N, range_v=force_range)
+    for k in range(source.n_responses):
+        task.add_accel_channel(1 + k, f"{100 + k}+Z", ACCEL_MV_PER_G, range_v=5.0)
+    task.configure_timing(source.sample_rate_hz, samples_per_frame=128)
+    return backend, dev, task
+
+
+def test_find_and_identify():
+    backend = VirtualDaqBackend(ImpulseSource(), {})
+    raw = usb.core.find(idVendor=p.VENDOR_ID, idProduct=p.PRODUCT_ID, backend=backend)
+    assert raw is not None
+    with DaqDevice.open(backend=backend) as dev:
+        ident = dev.identify()
+        assert ident.n_channels == 64 and ident.adc_bits == 24
+        assert ident.serial_number == "SIMDAQ-0001"
+        assert not dev.get_status().running
+    assert backend.open_handles == 0
+
+
+def test_not_found_names_the_device():
+    class Empty(VirtualDaqBackend):
+        def enumerate_devices(self):
+            return iter(())
+
+    with pytest.raises(DeviceNotFoundError, match="1209:DA64"):
+        DaqDevice.open(backend=Empty(ImpulseSource(), {}))
+
+
+def test_samples_arrive_in_engineering_units():
+    src = ImpulseSource(background=0.5)
+    src.excite(0, 40)
+    _backend, dev, task = make(src)
+    with dev:
+        task.start()
+        block = task.read(1000)
+        task.stop()
+    assert block.first_sample == 0 and block.data.shape == (4, 1000)
+    truth = src.read(np.arange(4), 0, 1000)
+    # 24-bit quantisation on the 5 V range in each channel's unit
+    lsb = np.array([5 / 2**23 / (FORCE_MV_PER_N * 1e-3)] + [5 / 2**23 / (0.1 / G)] * 3)
+    assert np.all(np.abs(block.data - truth) <= 0.51 * lsb[:, None])
+    assert block.units == ("N", "m/s^2", "m/s^2", "m/s^2")
+    assert block.valid.all() and not block.overload.any() and not block.events
+
+
+def test_frf_through_the_simulated_daq_matches_closed_form():
+    src = ImpulseSource(n_responses=3)
+    n = 2048
+    for a in range(3):
+        src.excite(0, a * n + 10)
+    _backend, dev, task = make(src)
+    with dev:
+        task.start()
+        recs = [task.read(n) for _ in range(3)]
+        task.stop()
+    force = np.stack([r.data[:1] for r in recs])
+    resp = np.stack([r.data[1:] for r in recs])
+    est = estimate_frf(force, resp, src.sample_rate_hz)
+    h_true = src.frf(est.frequencies_hz)[:, :, :1]
+    rel = np.abs(est.H - h_true) / np.abs(h_true).max()
+    assert rel.max() < 1e-4
+    assert est.coherence.min() > 0.9999
+
+
+def test_iepe_off_reads_zero_and_unsupported_rate_is_refused():
+    src = ImpulseSource(background=1.0)
+    _backend, dev, task = make(src)
+    with dev:
+        dev.set_iepe(1, 0)  # the task will switch it on again at start
+        task._channels[1] = task._channels[1].__class__(
+            **{**task._channels[1].__dict__, "iepe_current_ua": 0}
+        )
+        task.start()
+        block = task.read(256)
+        task.stop()
+        assert np.all(block.data[1] == 0) and np.any(block.data[2] != 0)
+        with pytest.raises(DeviceStateError, match="SET_SAMPLE_RATE"):
+            dev.set_sample_rate(1000)
+
+
+def test_overload_is_flagged_on_the_clipping_channel_only():
+    src = ImpulseSource(
+        amplitude_n=1000.0, response_gain=0.001
+    )  # 1000 N x 2.25 mV/N = 2.25 V > 1 V range
+    src.excite(0, 300)
+    _backend, dev, task = make(src, force_range=1.0)
+    with dev:
+        task.start()
+        block = task.read(512)
+        task.stop()
+    ev = [e for e in block.events if e.kind == "overload"]
+    assert len(ev) == 1 and ev[0].channels == ("10+X force",)
+    assert ev[0].first_sample <= 300 < ev[0].first_sample + ev[0].n_samples
+    assert block.overload[0, 300] and not block.overload[1:].any()
+    assert np.isclose(block.data[0, 300], 1.0 / 2.25e-3, rtol=1e-6)  # clipped at full scale
+
+
+def test_timeout_is_reported_and_no_sample_is_lost():
+    src = ImpulseSource(background=1.0)
+    _backend, dev, task = make(src, faults=DaqFaults(timeout_reads={2}))
+    with dev:
+        task.start()
+        with pytest.raises(DeviceTimeoutError, match="256 samples received and kept"):
+            task.read(512)
+        block = task.read(512)
+        task.stop()
+    assert block.first_sample == 0 and block.valid.all()
+    truth = src.read(np.array([1]), 0, 512)[0]
+    np.testing.assert_allclose(block.data[1], truth, atol=1e-3)
+    assert [e.kind for e in task.events] == ["timeout"]
+
+
+def test_fifo_overflow_and_lost_transfer_leave_aligned_gaps():
+    src = ImpulseSource(background=1.0)
+    faults = DaqFaults(fifo_overflow_frames={1}, lost_transfers={3})
+    _backend, dev, task = make(src, faults=faults)
+    with dev:
+        task.start()
+        block = task.read(128 * 6)
+        status = dev.get_status()
+        task.stop()
+    kinds = [(e.kind, e.first_sample, e.n_samples) for e in block.events]
+    # frame 1 (samples 128..255) lost in the FIFO; transfer of sequence 3 lost on the way:
+    # sequence 3 is the 4th delivered frame, samples 512..639 (frame 1 took no sequence).
+    assert kinds == [("overflow", 128, 128), ("lost_transfer", 512, 128)]
+    assert np.all(np.isnan(block.data[:, 128:256])) and not block.valid[128:256].any()
+    assert np.all(np.isnan(block.data[:, 512:640]))
+    ok = block.valid
+    truth = src.read(np.array([1]), 0, 128 * 6)[0]
+    np.testing.assert_allclose(block.data[1, ok], truth[ok], atol=1e-3)
+    assert status.overflowed and status.frames_lost == 1
+
+
+def test_clock_counts_samples_and_runs_continue_the_world():
+    src = ImpulseSource(background=1.0)
+    backend, dev, task = make(src)
+    with dev:
+        task.start()
+        task.read(300)
+        st = backend.clock.state()
+        assert st.running and st.count == 384 and st.epoch == 0  # 3 frames of 128
+        task.stop()
+        assert not backend.clock.state().running
+        task.start()
+        block = task.read(128)
+        task.stop()
+    assert backend.clock.state().epoch == 384
+    truth = src.read(np.array([1]), 384, 128)[0]
+    np.testing.assert_allclose(block.data[1], truth, atol=1e-3)
