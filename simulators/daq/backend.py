@@ -76,7 +76,7 @@ class _Desc:
         self.__dict__.update(fields)
 
 
-class VirtualDaqBackend(usb.backend.IBackend):  # type: ignore[misc]
+class VirtualDaqBackend(usb.backend.IBackend):
     """A pyusb backend with one simulated dimacq DAQ on it.
 
     Parameters
@@ -343,8 +343,8 @@ class VirtualDaqBackend(usb.backend.IBackend):  # type: ignore[misc]
         over = np.abs(counts) > p.FULL_SCALE_COUNTS
         np.clip(counts, -p.FULL_SCALE_COUNTS, p.FULL_SCALE_COUNTS, out=counts)
         mask = 0
-        for i in np.flatnonzero(over.any(axis=0)):
-            mask |= 1 << int(i)
+        for col in np.flatnonzero(over.any(axis=0)).tolist():
+            mask |= 1 << col
         self._count += n
         self.clock.advance(self._count)
         return first, mask, counts.astype(np.int32), n
