@@ -215,7 +215,7 @@ def assemble(
     psi = response_matrix(np.asarray(pos) / u, np.asarray(dirs), p / u)
     cond = condense(psi, response_weights)
     H = frf.H
-    K = np.einsum("kc,lcj->lkj", cond.transform, H[:, acc_idx, :] / u)
+    K = _apply_real(cond.transform / u, H, acc_idx)
 
     # Inputs ------------------------------------------------------------------------------------
     ex_key = {(e.node, e.direction): e for e in setup.excitations}
@@ -270,7 +270,7 @@ def assemble(
         T = load_cell_transform(
             np.asarray(lc.position_m) / u, lc.rotation_matrix, p / u, lc.sign_factor
         )
-        F += np.einsum("ab,lbj->laj", T * scale[None, :], H[:, sel, :])
+        F += _apply_real(T * scale[None, :], H, sel)
         used_cells.append(node)
 
     # Consistent units (kg, unit, s): forces are kg·unit/s² = N/u, moments kg·unit²/s² = N·m/u².
@@ -299,6 +299,14 @@ def assemble(
         hull_points_m=hull,
         response_condition=cond.condition_number,
     )
+
+
+def _apply_real(M: FloatArray, H: ComplexArray, rows: NDArray[np.intp]) -> ComplexArray:
+    """``M @ H[:, rows, :]`` for a real matrix M, as one real matmul on the (re, im) view."""
+    Hs = np.ascontiguousarray(H[:, rows, :])
+    n_lines, _, n_in = Hs.shape
+    out = M @ Hs.view(np.float64)  # (L, k, 2J)
+    return np.ascontiguousarray(out).view(np.complex128).reshape(n_lines, M.shape[0], n_in)
 
 
 def design_matrices(K: NDArray[np.complexfloating]) -> ComplexArray:
@@ -529,6 +537,110 @@ def _solve_normal(
     return theta, rank, cond, Ninv
 
 
+# Constant tensors of the design matrix: A(k) = Σ_s E[:, :, s] k_s, shape (6, 10, 6).
+_E = np.moveaxis(design_matrices(np.eye(6)[:, :, None])[..., 0, :, :], 0, -1)
+# N_pq = Σ_{s,t} Q[p,q,s,t] G_st with G = Re(Σ_j conj(k_j) k_jᵀ): Q = Σ_r E[r,p,s] E[r,q,t].
+_Q = np.einsum("rps,rqt->pqst", _E, _E).reshape(100, 36)
+# rhs_p = Σ_{s,r} E[r,p,s] C_sr with C = Re(Σ_j conj(k_j) b_jᵀ).
+_R = np.einsum("rps->psr", _E).reshape(10, 36)
+#: Cholesky pivot (≈ 1/κ² of the equilibrated design matrix) below which a line is refined.
+_REFINE_PIVOT = 1e-6
+#: Joint condition number above which the joint solution is refined on the unsquared system.
+_REFINE_COND = 1e3
+
+
+def _gram_normal_equations(
+    K: ComplexArray, F: ComplexArray
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Stacked real/imaginary normal equations of every line from 6×6 Gram matrices.
+
+    ``A`` is linear in the motion ``k_j = [a; α]`` of each input, ``A(k) = Σ_s E_s k_s``, so
+    ``N = Σ_j Re(A(k_j)ᴴ A(k_j)) = Σ_st Q_st G_st`` with ``G = Re(Σ_j k̄_j k_jᵀ)`` and
+    ``Aᴴb = Σ_sr E_rs C_sr`` with ``C = Re(Σ_j k̄_j b_jᵀ)``: O(n_inputs·36) work per line.
+
+    Returns
+    -------
+    N : (n_lines, 10, 10), rhs : (n_lines, 10), bb : (n_lines,) ``Σ_j |b_j|²``.
+    """
+    n_lines = K.shape[0]
+    # Re(Σ_j conj(u_j) v_j) is the dot product of the interleaved (re, im) float views.
+    Kv = np.ascontiguousarray(K).view(np.float64)  # (L, 6, 2J)
+    Fv = np.ascontiguousarray(F).view(np.float64)
+    KvT = np.swapaxes(Kv, 1, 2)
+    G = (Kv @ KvT).reshape(n_lines, 36)
+    C = (Kv @ np.swapaxes(Fv, 1, 2)).reshape(n_lines, 36)
+    N = (G @ _Q.T).reshape(n_lines, 10, 10)
+    rhs = C @ _R.T
+    bb = np.einsum("lij,lij->l", Fv, Fv)
+    return N, rhs, bb
+
+
+def _solve_lines(N: FloatArray, rhs: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Batched Cholesky solve of SPD systems after equilibration, vectorised over lines.
+
+    The factorisation ``Ns = L Lᵀ`` of the equilibrated matrix (unit diagonal) runs column by
+    column over all lines at once; ``min_i L_ii²`` is returned as a cheap measure of
+    ``λ_min(Ns) ≈ 1/κ(A)²`` (0 for a rank-deficient line, whose θ is then the minimum-norm
+    solution from an eigendecomposition).
+
+    Returns
+    -------
+    theta : (n_lines, n), pivot : (n_lines,)
+    """
+    d = np.sqrt(np.einsum("lii->li", N))
+    d = np.where(d > 0, d, 1.0)
+    Ns = N / (d[:, :, None] * d[:, None, :])
+    bs = rhs / d
+    n_lines, n = rhs.shape
+    L = np.zeros_like(Ns)
+    piv = np.empty((n_lines, n))
+    tiny = 1e-300
+    for j in range(n):
+        Lj = L[:, j, :j]
+        sj = Ns[:, j, j] - np.einsum("li,li->l", Lj, Lj)
+        piv[:, j] = sj
+        ljj = np.sqrt(np.maximum(sj, tiny))
+        L[:, j, j] = ljj
+        if j + 1 < n:
+            L[:, j + 1 :, j] = (
+                Ns[:, j + 1 :, j] - np.einsum("lik,lk->li", L[:, j + 1 :, :j], Lj)
+            ) / ljj[:, None]
+    y = np.empty_like(bs)
+    for j in range(n):
+        y[:, j] = (bs[:, j] - np.einsum("li,li->l", L[:, j, :j], y[:, :j])) / L[:, j, j]
+    x = np.empty_like(bs)
+    for j in range(n - 1, -1, -1):
+        x[:, j] = (y[:, j] - np.einsum("li,li->l", L[:, j + 1 :, j], x[:, j + 1 :])) / L[:, j, j]
+    pivot = np.clip(piv.min(axis=1), 0.0, None)
+    theta = x / d
+    bad = pivot < 1e-13
+    if bad.any():
+        theta[bad] = _solve_normal(N[bad], rhs[bad], 1e-10)[0]
+    return theta, pivot
+
+
+def _explicit_system(
+    K: ComplexArray, F: ComplexArray, T: FloatArray, x0: FloatArray
+) -> tuple[ComplexArray, ComplexArray]:
+    """Explicit stacked design ``A T`` (L, 6J, nθ) and right side ``b − A x0`` (L, 6J)."""
+    A = design_matrices(K)  # (L, J, 6, 10)
+    b = np.moveaxis(F, -1, -2)  # (L, J, 6)
+    n_lines = A.shape[0]
+    A_t = (A @ T).reshape(n_lines, -1, T.shape[1])
+    b_t = (b - A @ x0).reshape(n_lines, -1)
+    return A_t, b_t
+
+
+def _refine(A_t: ComplexArray, b_t: ComplexArray, N: FloatArray, theta: FloatArray) -> FloatArray:
+    """One step of iterative refinement per line with residuals of the unsquared system."""
+    _, _, _, Ninv = _solve_normal(N, np.zeros(theta.shape), 1e-13)
+    for _ in range(2):
+        r = b_t - np.einsum("lij,lj->li", A_t, theta)
+        g = np.real(np.einsum("lij,li->lj", A_t.conj(), r))
+        theta = theta + np.einsum("lij,lj->li", Ninv, g)
+    return theta
+
+
 def _to_parameters(x: FloatArray, p: FloatArray, u: float) -> FloatArray:
     """x = [m, s, I] in the working unit → [m, CG in GCS (m), I about P (kg·m²)], shape (..., 10)."""
     out = np.empty_like(x)
@@ -548,6 +660,7 @@ def solve_system(
     input_weights: NDArray[np.floating] | None = None,
     line_weights: NDArray[np.floating] | None = None,
     rcond: float = 1e-10,
+    rcond_line: float = 1e-7,
     check_plausibility: bool = True,
 ) -> DimResult:
     """Solve an assembled DIM system per line and over the band.
@@ -564,7 +677,11 @@ def solve_system(
     line_weights : ndarray, shape (n_lines,), optional
         Non-negative weights of the lines in the joint solve.
     rcond : float
-        Relative singular-value cut-off on the equilibrated design matrix for the rank.
+        Relative singular-value cut-off on the equilibrated design matrix for the rank of the
+        joint system.
+    rcond_line : float
+        A line whose equilibrated design matrix has a Cholesky pivot below ``rcond_line``
+        (roughly a condition number above ``1/rcond_line``) is reported as NaN in ``per_line``.
     """
     known = dict(known or {})
     u = system.unit_m
@@ -579,42 +696,55 @@ def solve_system(
     w_in = np.ones(n_in) if input_weights is None else np.asarray(input_weights, float)
     if w_in.shape != (n_in,) or np.any(w_in < 0):
         raise SetupError(f"input_weights must be {n_in} non-negative numbers, one per input")
-    A = design_matrices(system.K)  # (L, J, 6, 10)
-    b = np.moveaxis(system.F, -1, -2)  # (L, J, 6)
-    sw = np.sqrt(w_in)[None, :, None]
-    A = A * sw[..., None]
-    b = b * sw
-    A_t = A @ prm.T  # (L, J, 6, nθ)
-    b_t = b - A @ prm.x0
-    A_t = A_t.reshape(n_lines, n_in * 6, n_theta)
-    b_t = b_t.reshape(n_lines, n_in * 6)
-    A_h = np.conj(np.swapaxes(A_t, -1, -2))
-    N = np.real(A_h @ A_t)  # (L, nθ, nθ)
-    rhs = np.real(np.einsum("lij,lj->li", A_h, b_t))
+    if input_weights is None:
+        Kw, Fw = system.K, system.F
+    else:
+        sw = np.sqrt(w_in)
+        Kw, Fw = system.K * sw, system.F * sw
+
+    # Normal equations from 6×6 Gram matrices (see module docstring, "Solution").
+    N_full, rhs_full, bb = _gram_normal_equations(Kw, Fw)
+    T, x0 = prm.T, prm.x0
+    if known:
+        Nx0 = N_full @ x0  # (L, 10)
+        N = T.T @ N_full @ T  # (L, nθ, nθ)
+        rhs = (rhs_full - Nx0) @ T  # (L, nθ)
+        bb = bb - 2.0 * rhs_full @ x0 + Nx0 @ x0  # ‖b − A x0‖² per line
+    else:  # T = I, x0 = 0
+        N, rhs = N_full, rhs_full
 
     # Per line ---------------------------------------------------------------------------------
-    theta_l, rank_l, _cond_l, Ninv_l = _solve_normal(N, rhs, rcond)
-    r_l = b_t - np.einsum("lij,lj->li", A_t, theta_l)
-    theta_l = theta_l + np.einsum("lij,lj->li", Ninv_l, np.real(np.einsum("lij,lj->li", A_h, r_l)))
-    x_l = theta_l @ prm.T.T + prm.x0
+    theta_l, piv_l = _solve_lines(N, rhs)
+    ill = piv_l < _REFINE_PIVOT
+    if ill.any():  # ill-conditioned lines: refine with residuals of the unsquared system
+        idx = np.nonzero(ill)[0]
+        A_t, b_t = _explicit_system(Kw[idx], Fw[idx], T, x0)
+        theta_l[idx] = _refine(A_t, b_t, N[idx], theta_l[idx])
+    x_l = theta_l @ T.T + x0
     per_line = _to_parameters(x_l, p, u)
-    per_line[rank_l < n_theta] = np.nan
+    per_line[piv_l < rcond_line**2] = np.nan
 
     # Joint ------------------------------------------------------------------------------------
     w_l = np.ones(n_lines) if line_weights is None else np.asarray(line_weights, float)
     if w_l.shape != (n_lines,) or np.any(w_l < 0):
         raise SetupError(f"line_weights must be {n_lines} non-negative numbers, one per line")
-    Nj = np.einsum("l,lij->ij", w_l, N)
-    rj = np.einsum("l,li->i", w_l, rhs)
+    Nj = np.tensordot(w_l, N, axes=1)
+    rj = w_l @ rhs
     theta, rank_j, cond, Ninv = _solve_normal(Nj, rj, rcond)
-    for _ in range(2):
-        r = b_t - np.einsum("lij,j->li", A_t, theta)
-        theta = theta + Ninv @ np.einsum("l,li->i", w_l, np.real(np.einsum("lij,lj->li", A_h, r)))
-    r = b_t - np.einsum("lij,j->li", A_t, theta)
-    bn = float(np.sqrt(np.einsum("l,l->", w_l, np.sum(np.abs(b_t) ** 2, axis=1))))
-    resid = float(np.sqrt(np.einsum("l,l->", w_l, np.sum(np.abs(r) ** 2, axis=1)))) / (
-        bn if bn > 0 else 1.0
-    )
+    if cond > _REFINE_COND:
+        sel = np.nonzero(w_l > 0)[0]
+        A_t, b_t = _explicit_system(Kw[sel], Fw[sel], T, x0)
+        sq = np.sqrt(w_l[sel])
+        A_t, b_t = A_t * sq[:, None, None], b_t * sq[:, None]
+        for _ in range(2):
+            r = b_t - A_t @ theta
+            theta = theta + Ninv @ np.real(np.einsum("lij,li->j", A_t.conj(), r))
+        r = b_t - A_t @ theta
+        resid2 = float(np.sum(np.abs(r) ** 2))
+    else:
+        resid2 = float(w_l @ bb - 2.0 * theta @ rj + theta @ Nj @ theta)
+    bnorm2 = float(w_l @ bb)
+    resid = float(np.sqrt(max(resid2, 0.0) / bnorm2)) if bnorm2 > 0 else 0.0
     rank = int(rank_j)
     if rank < n_theta:
         null = np.linalg.eigh(Nj)[1][:, 0]
