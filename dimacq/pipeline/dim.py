@@ -309,7 +309,7 @@ def _apply_real(M: FloatArray, H: ComplexArray, rows: NDArray[np.intp]) -> Compl
     return np.ascontiguousarray(out).view(np.complex128).reshape(n_lines, M.shape[0], n_in)
 
 
-def design_matrices(K: NDArray[np.complexfloating]) -> ComplexArray:
+def design_matrices(K: NDArray[Any]) -> NDArray[Any]:
     """DIM design matrices ``A(a, α)`` for every line and input.
 
     Parameters
