@@ -621,7 +621,7 @@ def _solve_lines(N: FloatArray, rhs: FloatArray) -> tuple[FloatArray, FloatArray
 
 def _explicit_system(
     K: ComplexArray, F: ComplexArray, T: FloatArray, x0: FloatArray
-) -> tuple[ComplexArray, ComplexArray]:
+) -> tuple[NDArray[Any], NDArray[Any]]:
     """Explicit stacked design ``A T`` (L, 6J, nθ) and right side ``b − A x0`` (L, 6J)."""
     A = design_matrices(K)  # (L, J, 6, 10)
     b = np.moveaxis(F, -1, -2)  # (L, J, 6)
