@@ -1,0 +1,130 @@
+"""Shared helpers of the sonic digitizer tests: scripted transport, simulator fixtures, leak check."""
+
+from __future__ import annotations
+
+import contextlib
+import itertools
+import threading
+from collections.abc import Iterator, Sequence
+
+import dimacq.simulators.digitizer as simdig
+import pytest
+import serial
+from dimacq.drivers.digitizer import SerialDigitizer
+from dimacq.simulators.digitizer.device import SimulatedDigitizer, lab_from_config
+from dimacq.simulators.digitizer.pty import PtyServer
+
+# Deterministic exchanges (sent, answered) shared by the scripted-transport test and the pty test.
+# The answers are literal bytes: NMEA XOR checksums, the device serial is "SIM-T".
+SCRIPT: list[tuple[bytes, bytes]] = [
+    (b"*IDN?\r", b"$IDN,DIMACQ,SD-3-SIM,SIM-T,1.0,4*3A\r\n"),
+    (b"RST\r", b"$OK,RST*7D\r\n"),
+    (b"CFG?\r", b"$CFG,2,4,1,4,10000000,500*75\r\n"),
+    (b"CFG A=3,B=2\r", b"$CFG,2,4,3,2,10000000,500*71\r\n"),
+    (b"BOGUS\r", b"$ERR,1,unknown command BOGUS*37\r\n"),
+    (b"SIM:ECHOES?\r", b"$SIM,ECHOES,0*70\r\n"),
+    (b"RST\r", b"$OK,RST*7D\r\n"),
+]
+
+
+class ScriptedTransport:
+    """A fake pyserial port: each write must equal the next expected bytes, whose scripted answer
+    then becomes readable (pymeasure ``expected_protocol`` style). ``answered=None`` answers nothing
+    (a timeout); ``vanish_after`` makes the port raise like an unplugged USB adapter."""
+
+    def __init__(
+        self, pairs: Sequence[tuple[bytes, bytes | None]], vanish_after: int | None = None
+    ):
+        self.pairs = list(pairs)
+        self.rx = bytearray()
+        self.timeout: float | None = 0.0
+        self.closed = False
+        self.vanish_after = vanish_after
+        self.writes = 0
+
+    def _maybe_vanish(self) -> None:
+        if self.vanish_after is not None and self.writes > self.vanish_after:
+            raise serial.SerialException("device reports readiness to read but returned no data")
+
+    def write(self, data: bytes) -> int:
+        self.writes += 1
+        self._maybe_vanish()
+        assert self.pairs, f"unexpected write {data!r}: script exhausted"
+        sent, answered = self.pairs.pop(0)
+        assert data == sent, f"sent {data!r}, script expected {sent!r}"
+        if answered:
+            self.rx += answered
+        return len(data)
+
+    def read(self, size: int = 1) -> bytes:
+        self._maybe_vanish()
+        out = bytes(self.rx[:size])
+        del self.rx[:size]
+        return out
+
+    @property
+    def in_waiting(self) -> int:
+        return len(self.rx)
+
+    def reset_input_buffer(self) -> None:
+        self.rx.clear()
+
+    def close(self) -> None:
+        self.closed = True
+
+
+@contextlib.contextmanager
+def expected_protocol(
+    pairs: Sequence[tuple[bytes, bytes | None]], timeout_s: float = 0.05, **kw: object
+) -> Iterator[SerialDigitizer]:
+    """A driver on a :class:`ScriptedTransport`; leftover pairs or unread answers fail the test."""
+    transport = ScriptedTransport(pairs, **kw)  # type: ignore[arg-type]
+    driver = SerialDigitizer(transport, timeout_s=timeout_s, name="scripted")
+    yield driver
+    assert not transport.pairs, f"script not consumed: {transport.pairs!r}"
+    assert not transport.rx and not driver._buf, f"answers left unread: {bytes(transport.rx)!r}"
+    driver.close()
+
+
+_names = itertools.count()
+
+
+def make_device(seed: int = 0, **env: float) -> SimulatedDigitizer:
+    lab = lab_from_config()
+    for k, v in env.items():
+        setattr(lab.environment, k, v)
+    return SimulatedDigitizer(lab, seed=seed, serial="SIM-T")
+
+
+@contextlib.contextmanager
+def url_backend(device: SimulatedDigitizer) -> Iterator[tuple[str, SerialDigitizer]]:
+    name = f"t{next(_names)}"
+    simdig.register_device(name, device)
+    url = f"simdigitizer://{name}"
+    driver = SerialDigitizer.from_url(url, timeout_s=1.0)
+    try:
+        yield url, driver
+    finally:
+        driver.close()
+        simdig.unregister_device(name)
+
+
+@contextlib.contextmanager
+def pty_backend(device: SimulatedDigitizer) -> Iterator[tuple[PtyServer, SerialDigitizer]]:
+    server = PtyServer(device).start()
+    driver = None
+    try:
+        driver = SerialDigitizer.from_url(server.path, timeout_s=1.0)
+        yield server, driver
+    finally:
+        if driver is not None:
+            driver.close()
+        server.stop()
+
+
+@pytest.fixture
+def no_thread_leaks() -> Iterator[None]:
+    before = set(threading.enumerate())
+    yield
+    left = [t for t in threading.enumerate() if t not in before and t.is_alive()]
+    assert not left, f"test left threads running: {left}"
