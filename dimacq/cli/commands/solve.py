@@ -1,0 +1,300 @@
+"""``dimacq solve``: rigid-body inertia properties from FRFs by the Dynamic Inertia Method.
+
+Usage::
+
+    dimacq solve INPUT [FRF.uff] [--band LO HI] [--known-mass KG] [--known-cg X Y Z]
+                 [--known-inertia NAME=VALUE ...] [--reference-point X Y Z]
+                 [--length-unit m|cm|mm] [--method joint|mean] [--scale-to-mass KG]
+                 [--reference REF.json] [--json OUT]
+                 [--select-responses] [--select-inputs] [--repair-orientation] [--auto-band]
+                 [--plots DIR]
+
+INPUT is a setup file (``.toml``/``.json``, then FRF.uff holds the FRFs) or one UFF file holding
+the whole test (geometry, coordinate systems and 58 records).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+from typing import Any, TextIO
+
+import numpy as np
+
+from dimacq.errors import SetupError
+from dimacq.model.frf import FrfData
+from dimacq.model.properties import PRODUCT_SIGN_CONVENTION, RigidBodyProperties
+from dimacq.model.setup import PARAMETERS, TestSetup
+from dimacq.pipeline import dim
+
+_UFF_SUFFIXES = {".uff", ".unv"}
+_SETUP_SUFFIXES = {".toml", ".json"}
+_SELECTION_FLAGS = ("select_responses", "select_inputs", "repair_orientation", "auto_band", "plots")
+
+
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    p = sub.add_parser(
+        "solve",
+        help="solve mass, CG and inertia from FRFs (DIM)",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument(
+        "input", type=Path, metavar="INPUT", help="setup file (.toml/.json) or whole-test UFF"
+    )
+    p.add_argument(
+        "frf", type=Path, nargs="?", metavar="FRF.uff", help="FRFs when INPUT is a setup"
+    )
+    p.add_argument("--band", nargs=2, type=float, metavar=("LO", "HI"), help="analysis band, Hz")
+    p.add_argument("--known-mass", type=float, metavar="KG", help="known mass, kg")
+    p.add_argument(
+        "--known-cg",
+        nargs=3,
+        metavar=("X", "Y", "Z"),
+        help="known CG in the GCS, m; '-' leaves a component unknown",
+    )
+    p.add_argument(
+        "--known-inertia",
+        nargs="+",
+        metavar="NAME=VALUE",
+        default=[],
+        help="known inertia terms about the reference point, kg·m² (tensor elements), e.g. Ixy=0",
+    )
+    p.add_argument(
+        "--reference-point", nargs=3, type=float, metavar=("X", "Y", "Z"), help="point P, m"
+    )
+    p.add_argument(
+        "--length-unit", choices=("m", "cm", "mm"), help="working length unit (row weighting)"
+    )
+    p.add_argument(
+        "--method",
+        choices=("joint", "mean"),
+        default="joint",
+        help="joint least squares over the band (default) or mean of per-line estimates",
+    )
+    p.add_argument(
+        "--scale-to-mass",
+        type=float,
+        metavar="KG",
+        help="scale the FRFs so that the band mass equals KG (FRF scaling, thesis §3.2.2.1)",
+    )
+    p.add_argument("--reference", type=Path, metavar="REF.json", help="true values: print % error")
+    p.add_argument("--json", type=Path, metavar="OUT", help="write the solution as JSON")
+    g = p.add_argument_group("data selection and diagnostics")
+    g.add_argument("--select-responses", action="store_true", help="perimeter response selection")
+    g.add_argument("--select-inputs", action="store_true", help="jackknife excitation selection")
+    g.add_argument(
+        "--repair-orientation", action="store_true", help="apply sensor orientation repair"
+    )
+    g.add_argument("--auto-band", action="store_true", help="choose the band automatically")
+    g.add_argument("--plots", type=Path, metavar="DIR", help="write figures (PNG and SVG) to DIR")
+    p.set_defaults(func=run)
+
+
+# ---------------------------------------------------------------------------------------------
+def load_test(input_path: Path, frf_path: Path | None) -> tuple[TestSetup, FrfData]:
+    """Read a setup + FRF pair or one whole-test UFF file."""
+    from dimacq.io.setup_file import load_setup
+    from dimacq.io.uff import read_frf_uff, read_uff_test
+
+    if not input_path.exists():
+        raise SetupError(f"INPUT {input_path} does not exist; give a setup file or a UFF file")
+    suffix = input_path.suffix.lower()
+    if suffix in _UFF_SUFFIXES:
+        if frf_path is not None:
+            raise SetupError(
+                f"INPUT {input_path} is a UFF file holding the whole test; give FRF.uff only "
+                "with a setup file (.toml/.json)"
+            )
+        return read_uff_test(input_path)
+    if suffix in _SETUP_SUFFIXES:
+        if frf_path is None:
+            raise SetupError(f"setup {input_path} needs its FRFs: give FRF.uff after it")
+        if not frf_path.exists():
+            raise SetupError(f"FRF.uff {frf_path} does not exist")
+        setup = load_setup(input_path)
+        return setup, read_frf_uff(frf_path, setup)
+    raise SetupError(
+        f"INPUT {input_path}: unknown file type {suffix!r}; use .toml/.json (setup) or .uff/.unv"
+    )
+
+
+def known_from_args(args: argparse.Namespace, setup: TestSetup) -> dict[str, float]:
+    """Known properties: the setup's, overridden by the command line."""
+    known = setup.known.as_dict()
+    if args.known_mass is not None:
+        if not args.known_mass > 0:
+            raise SetupError(f"--known-mass {args.known_mass}: give a positive mass in kg")
+        known["m"] = float(args.known_mass)
+    if args.known_cg is not None:
+        for name, text in zip(("cx", "cy", "cz"), args.known_cg, strict=True):
+            if text in ("-", "_", "?"):
+                known.pop(name, None)
+                continue
+            try:
+                known[name] = float(text)
+            except ValueError as err:
+                raise SetupError(
+                    f"--known-cg: {text!r} is not a number; give metres or '-' for unknown"
+                ) from err
+    for item in args.known_inertia:
+        name, sep, value = item.partition("=")
+        if not sep or name not in PARAMETERS[4:]:
+            raise SetupError(
+                f"--known-inertia {item!r}: write NAME=VALUE with NAME one of {', '.join(PARAMETERS[4:])}"
+            )
+        try:
+            known[name] = float(value)
+        except ValueError as err:
+            raise SetupError(
+                f"--known-inertia {item!r}: {value!r} is not a number (kg·m²)"
+            ) from err
+    return known
+
+
+def run(args: argparse.Namespace) -> int:
+    setup, frf = load_test(args.input, args.frf)
+    if args.reference_point is not None:
+        setup = setup.model_copy(update={"reference_point_m": tuple(args.reference_point)})
+    known = known_from_args(args, setup)
+    band = tuple(args.band) if args.band else None
+    gamma: float | None = None
+    if args.scale_to_mass is not None:
+        gamma, _ = dim.scale_to_known_mass(
+            frf, setup, args.scale_to_mass, band_hz=band, length_unit=args.length_unit
+        )
+        frf = frf.scaled(gamma)
+    payload: dict[str, Any]
+    if any(getattr(args, f) for f in _SELECTION_FLAGS):
+        from dimacq.services.analysis import AnalysisOptions, analyse
+
+        options = AnalysisOptions(
+            select_responses=args.select_responses,
+            select_inputs=args.select_inputs,
+            repair_orientation=args.repair_orientation,
+            auto_band=args.auto_band,
+            plots_dir=args.plots,
+            band_hz=band,
+            known=known,
+            length_unit=args.length_unit,
+        )
+        report = analyse(frf, setup, options)
+        result = report.result
+        payload = report.to_json()
+    else:
+        result = dim.solve(
+            frf, setup, band_hz=band, known=known, length_unit=args.length_unit, method=args.method
+        )
+        payload = result.to_json()
+    if gamma is not None:
+        payload["frf_scale_factor"] = gamma
+    reference = _load_reference(args.reference) if args.reference else None
+    if reference is not None:
+        payload["reference"] = reference.to_json(result.reference_point_m)
+        payload["error_pct"] = error_pct(result, reference)
+    print_report(result, payload, reference, sys.stdout)
+    if args.json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(payload, indent=2, allow_nan=True) + "\n", encoding="utf-8")
+    return 0
+
+
+def _load_reference(path: Path) -> RigidBodyProperties:
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError as err:
+        raise SetupError(f"--reference {path} does not exist") from err
+    except json.JSONDecodeError as err:
+        raise SetupError(f"--reference {path}: not valid JSON ({err})") from err
+    return RigidBodyProperties.from_json(data)
+
+
+# ---------------------------------------------------------------------------------------------
+def _rows(result: dim.DimResult) -> list[tuple[str, str, float, str]]:
+    """(name, unit, value, stats-key) rows of the report."""
+    p = result.parameters
+    units = ["kg", "m", "m", "m"] + ["kg·m²"] * 6
+    return [(n, u, float(v), n) for n, u, v in zip(PARAMETERS, units, p, strict=True)]
+
+
+def error_pct(result: dim.DimResult, ref: RigidBodyProperties) -> dict[str, float]:
+    """% error per parameter against a reference.
+
+    Mass and inertia terms: ``100 (est − true)/|true|``; inertia terms whose true value is below
+    1e-6 of the largest principal moment, and CG components below 1 mm, are reported relative to
+    the largest principal moment and to 1 m respectively, so a zero true value gives no infinity.
+    """
+    true = ref.parameter_vector(result.reference_point_m)
+    true[1:4] = ref.cg_m
+    est = result.parameters
+    big_i = float(np.max(np.abs(np.linalg.eigvalsh(ref.inertia_about(result.reference_point_m)))))
+    out: dict[str, float] = {}
+    for i, name in enumerate(PARAMETERS):
+        if i == 0:
+            scale = abs(true[0])
+        elif i < 4:
+            scale = abs(true[i]) if abs(true[i]) >= 1e-3 else 1.0
+        else:
+            scale = abs(true[i]) if abs(true[i]) >= 1e-6 * big_i else big_i
+        out[name] = float(100.0 * (est[i] - true[i]) / scale) if scale > 0 else math.nan
+    return out
+
+
+def print_report(
+    result: dim.DimResult,
+    payload: dict[str, Any],
+    reference: RigidBodyProperties | None,
+    out: TextIO,
+) -> None:
+    """A table like the thesis's: estimate, band statistics and, with a reference, % error."""
+    lo, hi = result.band_hz
+    w = out.write
+    w(
+        f"DIM solution — band {lo:g}–{hi:g} Hz ({result.frequencies_hz.size} lines), "
+        f"method {result.method}, length unit {result.length_unit}\n"
+    )
+    w(
+        f"reference point P = ({', '.join(f'{x:g}' for x in result.reference_point_m)}) m; "
+        f"{len(result.responses)} responses, {len(result.inputs)} inputs, "
+        f"{len(result.load_cells)} load cells\n"
+    )
+    if result.known:
+        w("known: " + ", ".join(f"{k} = {v:g}" for k, v in result.known.items()) + "\n")
+    header = f"{'parameter':<10}{'unit':<7}{'estimate':>14}{'band mean':>14}{'band std':>12}{'band min':>14}{'band max':>14}"
+    errs = payload.get("error_pct")
+    if reference is not None:
+        header += f"{'true':>14}{'error %':>10}"
+        true = reference.parameter_vector(result.reference_point_m)
+        true[1:4] = reference.cg_m
+    w(header + "\n" + "-" * len(header) + "\n")
+    for i, (name, unit, value, key) in enumerate(_rows(result)):
+        st = result.band_stats[key]
+        line = (
+            f"{name:<10}{unit:<7}{value:>14.6g}{st['mean']:>14.6g}{st['std']:>12.3g}"
+            f"{st['min']:>14.6g}{st['max']:>14.6g}"
+        )
+        if reference is not None and errs is not None:
+            line += f"{true[i]:>14.6g}{errs[name]:>10.3f}"
+        w(line + "\n")
+    pm = payload["principal_moments_kgm2"]
+    w("principal moments about the CG: " + ", ".join(f"{x:.6g}" for x in pm) + " kg·m²\n")
+    axes = np.asarray(payload["principal_axes"])
+    for k in range(3):
+        w(f"  axis {k + 1}: ({', '.join(f'{x:+.4f}' for x in axes[:, k])})\n")
+    w(
+        f"rank {result.rank}/{result.n_unknowns}, condition number {result.condition_number:.3g}, "
+        f"relative residual {result.residual_rel:.3g}\n"
+    )
+    w(f"sign convention: {PRODUCT_SIGN_CONVENTION}\n")
+    if "frf_scale_factor" in payload:
+        w(f"FRFs scaled by {payload['frf_scale_factor']:.9g} to the known mass\n")
+    for key in ("excluded_responses", "excluded_inputs"):
+        if payload.get(key):
+            items = ", ".join(f"{d['node']}:{d['direction']:+d}" for d in payload[key])
+            w(f"{key.replace('_', ' ')}: {items}\n")
+    for d in result.diagnostics:
+        mark = "ok  " if d.ok else ("FAIL" if d.severity == "error" else "warn")
+        w(f"[{mark}] {d.code}: {d.message}\n")
