@@ -1,0 +1,56 @@
+"""Shared test configuration.
+
+- ``--device KIND`` opts in to tests that need real hardware (marker ``device``); they are
+  skipped otherwise.
+- Every test must leave no thread running: a test that leaves a simulator, reader thread or bus
+  notifier alive fails (python-can's own suite does the same for virtual channels).
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Iterator
+
+import pytest
+
+
+def pytest_addoption(parser: pytest.Parser) -> None:
+    parser.addoption(
+        "--device",
+        action="append",
+        default=[],
+        metavar="KIND",
+        help="run tests that need real hardware of this kind (digitizer, loadcell, daq)",
+    )
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    wanted = set(config.getoption("--device"))
+    for item in items:
+        marker = item.get_closest_marker("device")
+        if marker is None:
+            continue
+        kinds = set(marker.args) or {"any"}
+        if not (wanted & kinds or ("any" in kinds and wanted)):
+            item.add_marker(
+                pytest.mark.skip(reason=f"needs real hardware: --device {'/'.join(sorted(kinds))}")
+            )
+
+
+@pytest.fixture(autouse=True)
+def _no_leaked_threads() -> Iterator[None]:
+    before = set(threading.enumerate())
+    yield
+    deadline = time.monotonic() + 2.0
+    while True:
+        leaked = [t for t in threading.enumerate() if t not in before and t.is_alive()]
+        if not leaked or time.monotonic() > deadline:
+            break
+        time.sleep(0.02)
+    if leaked:
+        pytest.fail(
+            "test left threads running: " + ", ".join(t.name for t in leaked) + " — close the "
+            "simulator, bus or device in the test (use a fixture with a finally)",
+            pytrace=False,
+        )
