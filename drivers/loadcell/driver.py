@@ -1,0 +1,470 @@
+"""Driver of the dimacq 6-DOF load cell amplifier over python-can, with the bus injected.
+
+The bus is any ``can.BusABC`` with CAN FD (PCAN, Kvaser, SocketCAN, ``virtual``): switching
+between the simulator and hardware is the bus configuration only::
+
+    bus = can.Bus(interface="virtual", channel="lab", fd=True)          # simulator
+    bus = can.Bus(interface="pcan", channel="PCAN_USBBUS1", fd=True, ...)  # hardware
+    amp = LoadCellAmplifier(bus, node_id=1)
+
+Public methods own timeouts, logging and the protocol checks (template method); the wire steps
+are :meth:`LoadCellAmplifier._send` and :meth:`LoadCellAmplifier._recv`. Data frames and
+heartbeats that arrive while a command waits for its answer are kept, never dropped.
+
+Streams are aligned by the amplifier's sample counter, which counts the DAQ's sample clock:
+``read_until(end)`` returns samples ``next .. end − 1`` with NaN where frames were lost
+(``gap`` events), and the heartbeats' counter-versus-local-time check reports a ``drift`` event
+when SYNC pulses were missed or added (the counter no longer matches the DAQ's).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import can
+import numpy as np
+from dimacq.drivers.loadcell import protocol as p
+from numpy.typing import NDArray
+
+from dimacq.errors import (
+    DeviceError,
+    DeviceStateError,
+    DeviceTimeoutError,
+    ProtocolError,
+    SetupError,
+)
+
+__all__ = ["LoadCellAmplifier", "LoadCellBlock", "LoadCellEvent", "LoadCellIdentity"]
+
+log = logging.getLogger(__name__)
+
+_ERRORS = {
+    p.ErrorCode.UNKNOWN_COMMAND: "unknown command",
+    p.ErrorCode.BAD_ARGUMENT: "bad argument",
+    p.ErrorCode.BUSY: "not allowed while streaming; stop() first",
+    p.ErrorCode.CRC_MISMATCH: "calibration CRC mismatch; download again",
+    p.ErrorCode.MISSING_SEGMENT: "calibration segment missing; download again",
+}
+
+
+@dataclass(frozen=True)
+class LoadCellIdentity:
+    n_gauges: int
+    firmware: str
+    serial_number: int
+
+
+@dataclass(frozen=True)
+class LoadCellEvent:
+    """``kind`` in ``{"gap", "drift", "overload", "sync_missing"}`` over a counter range."""
+
+    kind: str
+    first_sample: int
+    n_samples: int
+    message: str
+
+
+@dataclass(frozen=True, eq=False)
+class LoadCellBlock:
+    """Samples ``first_sample .. first_sample + n − 1`` on the DAQ's sample counter.
+
+    Attributes
+    ----------
+    gauges_v : ndarray, shape (12, n)
+        Gauge volts; NaN where frames were lost.
+    forces : ndarray, shape (6, n) or None
+        ``C g``: ``[Fx, Fy, Fz]`` N and ``[Mx, My, Mz]`` N·m in the cell's frame, when a
+        calibration matrix is set.
+    valid : ndarray of bool, shape (n,)
+    overload : ndarray of bool, shape (n,)
+    events : tuple of LoadCellEvent
+    """
+
+    first_sample: int
+    gauges_v: NDArray[np.float64]
+    forces: NDArray[np.float64] | None
+    valid: NDArray[np.bool_]
+    overload: NDArray[np.bool_]
+    events: tuple[LoadCellEvent, ...]
+
+    @property
+    def n_samples(self) -> int:
+        return int(self.gauges_v.shape[1])
+
+
+@dataclass
+class _Stream:
+    next_sample: int = 0
+    payloads: list[bytes] = field(default_factory=list)
+    counters: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, np.int64))
+    gauges: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, p.N_GAUGES)))
+    status: NDArray[np.uint8] = field(default_factory=lambda: np.zeros(0, np.uint8))
+    last_counter: int = -1
+    heartbeat0: tuple[int, int] | None = None
+    last_heartbeat: tuple[int, int] | None = None
+    drift_reported: float = 0.0
+    events: list[LoadCellEvent] = field(default_factory=list)
+
+
+class LoadCellAmplifier:
+    """One load cell amplifier on a CAN FD bus.
+
+    Parameters
+    ----------
+    bus : can.BusABC
+        Injected; the driver does not create or shut it down.
+    node_id : int
+    timeout_s : float
+        Default time to wait for a command's response.
+    calibration_matrix : array_like, shape (6, 12), optional
+        Applied to the gauges (``F = C g``); see also :meth:`upload_calibration`.
+    drift_tolerance_samples : float
+        Heartbeat counter deviation from ``rate · Δt`` that is reported as drift.
+    """
+
+    def __init__(
+        self,
+        bus: can.BusABC,
+        *,
+        node_id: int = 1,
+        timeout_s: float = 1.0,
+        calibration_matrix: Any = None,
+        drift_tolerance_samples: float = 1.5,
+    ) -> None:
+        if not 1 <= node_id <= 127:
+            raise SetupError(f"node_id {node_id}: give 1..127 as set on the amplifier")
+        self.bus = bus
+        self.node_id = node_id
+        self.timeout_s = timeout_s
+        self.drift_tolerance_samples = drift_tolerance_samples
+        self.sample_rate_hz: float | None = None
+        self.streaming = False
+        self._stream = _Stream()
+        self._final_pulses: int | None = None
+        self.events: list[LoadCellEvent] = []
+        self.calibration_matrix: NDArray[np.float64] | None = None
+        if calibration_matrix is not None:
+            self.set_calibration_matrix(calibration_matrix)
+
+    # -- wire steps --------------------------------------------------------------------------
+    def _send(self, arbitration_id: int, data: bytes) -> None:
+        self.bus.send(can.Message(arbitration_id=arbitration_id, data=data, is_extended_id=False))
+
+    def _recv(self, timeout_s: float) -> can.Message | None:
+        return self.bus.recv(timeout_s)
+
+    # -- message routing ---------------------------------------------------------------------
+    def _route(self, msg: can.Message) -> bytes | None:
+        """File a data frame or heartbeat; return a response payload for this node."""
+        aid = msg.arbitration_id
+        if aid == p.data_id(self.node_id):
+            self._stream.payloads.append(bytes(msg.data))
+        elif aid == p.heartbeat_id(self.node_id):
+            self._heartbeat(bytes(msg.data))
+        elif aid == p.response_id(self.node_id):
+            return bytes(msg.data)
+        return None
+
+    def _command(self, op: p.Command, args: bytes = b"", *, answer: bool = True) -> bytes:
+        log.debug("load cell %d: command %s %s", self.node_id, op.name, args.hex())
+        try:
+            self._send(p.command_id(self.node_id), bytes([op]) + args)
+        except can.CanError as err:
+            raise DeviceError(f"load cell {self.node_id}: cannot send {op.name}: {err}") from err
+        if not answer:
+            return b""
+        return self._await_response(op)
+
+    def _await_response(self, op: int, expect: int | None = None) -> bytes:
+        expect = (op | 0x80) if expect is None else expect
+        deadline = time.monotonic() + self.timeout_s
+        while True:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                raise DeviceTimeoutError(
+                    f"load cell amplifier {self.node_id} did not answer command {op:#04x} "
+                    f"within {self.timeout_s} s; check the CAN bus, bit rate, termination "
+                    "and node id"
+                )
+            msg = self._recv(left)
+            if msg is None:
+                continue
+            resp = self._route(msg)
+            if resp is None:
+                continue
+            if resp[0] == p.ERROR:
+                code = resp[2] if len(resp) > 2 else 0
+                why = _ERRORS.get(p.ErrorCode(code), "error") if code in (1, 2, 3, 4, 5) else ""
+                exc: type[DeviceError] = (
+                    DeviceStateError if code == p.ErrorCode.BUSY else ProtocolError
+                )
+                raise exc(
+                    f"load cell amplifier {self.node_id} refused command {resp[1]:#04x}: "
+                    f"error {code} ({why})"
+                )
+            if resp[0] != expect:
+                raise ProtocolError(
+                    f"load cell amplifier {self.node_id}: expected response {expect:#04x}, got "
+                    f"{resp.hex()}; another program may be talking to this node"
+                )
+            return resp
+
+    # -- commands ------------------------------------------------------------------------------
+    def identify(self) -> LoadCellIdentity:
+        r = self._command(p.Command.IDENTIFY)
+        if len(r) != 8:
+            raise ProtocolError(f"IDENTIFY answer {r.hex()} has {len(r)} bytes, expected 8")
+        return LoadCellIdentity(r[1], f"{r[2]}.{r[3]}", int.from_bytes(r[4:8], "little"))
+
+    def set_rate(self, rate_hz: int) -> float:
+        """Nominal sample rate (the DAQ's when counting SYNC)."""
+        r = self._command(p.Command.SET_RATE, int(rate_hz).to_bytes(4, "little"))
+        self.sample_rate_hz = float(int.from_bytes(r[1:5], "little"))
+        return self.sample_rate_hz
+
+    def tare(self, n_samples: int = 256) -> None:
+        if self.streaming:
+            raise DeviceStateError("tare() while streaming; stop() the amplifier first")
+        self._command(p.Command.TARE, int(n_samples).to_bytes(2, "little"))
+
+    def start(self, *, external_clock: bool = True) -> None:
+        """Arm: counter := 0; with ``external_clock`` it counts the DAQ's SYNC pulses.
+
+        Arm before starting the DAQ so that both counters start at the same pulse.
+        """
+        if self.sample_rate_hz is None:
+            raise SetupError("call set_rate() with the DAQ's sample rate before start()")
+        self._stream = _Stream()
+        self._final_pulses = None
+        self._command(p.Command.START, bytes([1 if external_clock else 0]))
+        self.streaming = True
+
+    def stop(self) -> int:
+        """Stop; returns the pulses counted. Frames still in flight are kept for reading."""
+        r = self._command(p.Command.STOP)
+        self.streaming = False
+        pulses = int.from_bytes(r[1:5], "little")
+        self._drain(0.05)
+        self._final_pulses = pulses
+        return pulses
+
+    def verify_count(self, daq_samples_clocked: int) -> LoadCellEvent | None:
+        """After both devices stopped: the pulses counted must equal the DAQ's samples.
+
+        Returns (and records) a ``drift`` event when they differ: SYNC pulses were missed or
+        added somewhere, so the load cell samples are misaligned with the DAQ's.
+        """
+        if self._final_pulses is None:
+            raise DeviceStateError("verify_count() needs stop() first")
+        diff = self._final_pulses - daq_samples_clocked
+        if diff == 0:
+            return None
+        ev = LoadCellEvent(
+            "drift",
+            0,
+            daq_samples_clocked,
+            f"the amplifier counted {self._final_pulses} SYNC pulses, the DAQ clocked "
+            f"{daq_samples_clocked} samples ({diff:+d}): the streams are misaligned; check the "
+            "SYNC cable and arm the amplifier before starting the DAQ",
+        )
+        self._record(ev)
+        return ev
+
+    def get_status(self) -> tuple[int, int, int]:
+        """(state 0 idle / 1 armed / 2 streaming, flags, counter)."""
+        r = self._command(p.Command.GET_STATUS)
+        return r[1], r[2], int.from_bytes(r[4:8], "little")
+
+    def download_calibration(self, matrix: Any) -> None:
+        """Store a 6×12 matrix in the amplifier (host → amplifier, CRC checked)."""
+        blob = p.matrix_to_blob(np.asarray(matrix, dtype=float))
+        self._command(p.Command.CAL_DOWNLOAD_BEGIN, len(blob).to_bytes(2, "little"))
+        for i, seg in enumerate(p.segments(blob)):
+            self._command(p.Command.CAL_SEGMENT, bytes([i]) + seg, answer=False)
+        self._command(p.Command.CAL_DOWNLOAD_END, p.blob_crc(blob).to_bytes(4, "little"))
+
+    def upload_calibration(self) -> NDArray[np.float64]:
+        """Read the matrix stored in the amplifier (amplifier → host, CRC checked)."""
+        head = self._command(p.Command.CAL_UPLOAD)
+        n_bytes = int.from_bytes(head[1:3], "little")
+        crc = int.from_bytes(head[3:7], "little")
+        n_seg = (n_bytes + 5) // 6
+        parts: dict[int, bytes] = {}
+        while len(parts) < n_seg:
+            r = self._await_response(p.Command.CAL_UPLOAD, expect=p.UPLOAD_SEGMENT)
+            parts[r[1]] = r[2:8]
+        blob = b"".join(parts[i] for i in range(n_seg))[:n_bytes]
+        if p.blob_crc(blob) != crc:
+            raise ProtocolError("uploaded calibration fails its CRC; upload again")
+        return p.matrix_from_blob(blob)
+
+    def set_calibration_matrix(self, matrix: Any) -> None:
+        m = np.asarray(matrix, dtype=float)
+        if m.shape != (6, p.N_GAUGES) or not np.all(np.isfinite(m)):
+            raise SetupError(
+                f"calibration matrix has shape {m.shape}; give a finite 6x12 matrix "
+                "(N and N·m per gauge volt)"
+            )
+        self.calibration_matrix = m
+
+    # -- stream ----------------------------------------------------------------------------------
+    def _record(self, ev: LoadCellEvent) -> None:
+        self._stream.events.append(ev)
+        self.events.append(ev)
+        log.warning("load cell %d: %s", self.node_id, ev.message)
+
+    def _heartbeat(self, data: bytes) -> None:
+        if len(data) != p.HEARTBEAT.size:
+            raise ProtocolError(f"heartbeat of {len(data)} bytes, expected 8")
+        counter, t_us = p.HEARTBEAT.unpack(data)
+        st = self._stream
+        if st.heartbeat0 is None or self.sample_rate_hz is None:
+            st.heartbeat0 = (counter, t_us)
+            st.last_heartbeat = (counter, t_us)
+            return
+        assert st.last_heartbeat is not None
+        c_prev, t_prev = st.last_heartbeat
+        # unwrap both u32 quantities against the previous heartbeat
+        c_abs = c_prev + ((counter - c_prev) & 0xFFFFFFFF)
+        t_abs = t_prev + ((t_us - t_prev) & 0xFFFFFFFF)
+        st.last_heartbeat = (c_abs, t_abs)
+        c0, t0 = st.heartbeat0
+        expected = c0 + (t_abs - t0) * 1e-6 * self.sample_rate_hz
+        dev = c_abs - expected
+        if abs(dev) > self.drift_tolerance_samples and abs(dev) > abs(st.drift_reported) + 1:
+            st.drift_reported = dev
+            self._record(
+                LoadCellEvent(
+                    "drift",
+                    c0,
+                    c_abs - c0,
+                    f"counter {c_abs} is {dev:+.1f} samples off the {self.sample_rate_hz:g} Hz "
+                    f"clock since sample {c0}: SYNC pulses were missed or added, the load cell "
+                    "is misaligned with the DAQ; check the SYNC cable and repeat the average",
+                )
+            )
+
+    def _drain(self, timeout_s: float) -> None:
+        """Route everything that arrives within ``timeout_s`` (at least one recv)."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            msg = self._recv(max(0.0, deadline - time.monotonic()))
+            if msg is None:
+                return
+            self._route(msg)
+
+    def _decode_pending(self) -> None:
+        st = self._stream
+        if not st.payloads:
+            return
+        counters, status, gauges = p.decode_data_frames(st.payloads)
+        st.payloads = []
+        # unwrap the u32 counters along the stream
+        ref = st.last_counter if st.last_counter >= 0 else int(counters[0])
+        diffs = np.diff(np.concatenate([[ref & 0xFFFFFFFF], counters])) & 0xFFFFFFFF
+        diffs = np.where(diffs >= 2**31, diffs - 2**32, diffs)
+        abs_c = ref + np.cumsum(diffs)
+        st.last_counter = int(abs_c[-1])
+        st.counters = np.concatenate([st.counters, abs_c])
+        st.gauges = np.concatenate([st.gauges, gauges])
+        st.status = np.concatenate([st.status, status])
+
+    def read_until(self, end_sample: int, timeout_s: float | None = None) -> LoadCellBlock:
+        """Samples ``next .. end_sample − 1`` (blocking until a later counter arrives).
+
+        Raises
+        ------
+        DeviceTimeoutError
+            The counter did not reach ``end_sample`` in time (received samples are kept).
+        """
+        st = self._stream
+        if end_sample <= st.next_sample:
+            raise SetupError(
+                f"end_sample {end_sample} is not after the next unread sample {st.next_sample}"
+            )
+        t = self.timeout_s if timeout_s is None else timeout_s
+        deadline = time.monotonic() + t
+        final = None if self.streaming else self._final_pulses
+        while True:
+            self._decode_pending()
+            have = st.last_counter + 1
+            if have >= end_sample or (final is not None and end_sample <= final):
+                break
+            left = deadline - time.monotonic()
+            if left <= 0:
+                raise DeviceTimeoutError(
+                    f"load cell amplifier {self.node_id}: counter reached {have}, not "
+                    f"{end_sample}, within {t} s; is the DAQ clock running and the amplifier "
+                    "started?"
+                )
+            msg = self._recv(min(left, 0.05))
+            if msg is not None:
+                self._route(msg)
+                # batch: take whatever is queued without waiting
+                while (m := self._recv(0.0)) is not None:
+                    self._route(m)
+        return self._take(end_sample)
+
+    def _take(self, end: int) -> LoadCellBlock:
+        st = self._stream
+        first = st.next_sample
+        n = end - first
+        gauges = np.full((n, p.N_GAUGES), np.nan)
+        status = np.zeros(n, dtype=np.uint8)
+        valid = np.zeros(n, dtype=bool)
+        sel = (st.counters >= first) & (st.counters < end)
+        idx = st.counters[sel] - first
+        gauges[idx] = st.gauges[sel]
+        status[idx] = st.status[sel]
+        valid[idx] = True
+        keep = st.counters >= end
+        st.counters, st.gauges, st.status = st.counters[keep], st.gauges[keep], st.status[keep]
+        st.next_sample = end
+        if not valid.all():
+            missing = np.flatnonzero(~valid)
+            # report contiguous runs
+            breaks = np.flatnonzero(np.diff(missing) > 1)
+            starts = np.concatenate([[missing[0]], missing[breaks + 1]])
+            stops = np.concatenate([missing[breaks], [missing[-1]]])
+            for a, b in zip(starts, stops, strict=True):
+                self._record(
+                    LoadCellEvent(
+                        "gap",
+                        first + int(a),
+                        int(b - a + 1),
+                        f"load cell samples {first + a}..{first + b} lost on the CAN bus "
+                        "(frames dropped); the average that contains them must be repeated",
+                    )
+                )
+        over = (status & p.STATUS_OVERLOAD) > 0
+        if over.any():
+            k = np.flatnonzero(over)
+            self._record(
+                LoadCellEvent(
+                    "overload",
+                    first + int(k[0]),
+                    int(k[-1] - k[0] + 1),
+                    f"gauge overload in samples {first + k[0]}..{first + k[-1]}",
+                )
+            )
+        if np.any(status & p.STATUS_SYNC_MISSING):
+            self._record(
+                LoadCellEvent(
+                    "sync_missing",
+                    first,
+                    n,
+                    "the amplifier sees no SYNC clock; connect the DAQ's SYNC output",
+                )
+            )
+        events = tuple(
+            e
+            for e in st.events
+            if e.first_sample < end and e.first_sample + max(e.n_samples, 1) > first
+        )
+        st.events = [e for e in st.events if e.first_sample + max(e.n_samples, 1) > end]
+        g = gauges.T
+        forces = None if self.calibration_matrix is None else self.calibration_matrix @ g
+        return LoadCellBlock(first, g, forces, valid, over, events)

@@ -1,0 +1,224 @@
+"""CAN protocol of the dimacq 6-DOF load cell amplifier (12 gauges): documented codec.
+
+The amplifier digitises the 12 strain-gauge bridges of one 6-DOF load cell (±10 V, 24 bits) and
+counts the DAQ's sample clock on its SYNC input, so every sample it sends carries the DAQ's sample
+counter: the host aligns the two streams by counter, never by arrival time. The driver and the
+simulator both import this module; it is the only thing they share.
+
+Bus: control frames are classic CAN (≤ 8 data bytes); data frames need CAN FD (48 data bytes), so
+the interface must be FD-capable (PCAN-USB FD, Kvaser, SocketCAN ``can0`` with ``fd on``,
+python-can ``virtual``). 11-bit identifiers, node id ``N`` (1..127, default 1):
+
+==================  ===========  =========  ==========================================
+frame               identifier   direction  content
+==================  ===========  =========  ==========================================
+command             0x600 + N    host → amp byte 0 opcode, then arguments (classic CAN)
+response            0x580 + N    amp → host byte 0 opcode | 0x80, or 0xFF error (classic CAN)
+data                0x180 + N    amp → host one sample, 48 bytes (CAN FD, DLC 13)
+heartbeat           0x700 + N    amp → host counter u32, local time µs u32 (classic CAN)
+==================  ===========  =========  ==========================================
+
+Commands (little-endian arguments)
+----------------------------------
+=====  ==================  ===============================  ===========================================
+code   command             arguments                        response
+=====  ==================  ===============================  ===========================================
+0x01   IDENTIFY            —                                0x81, n_gauges u8, fw major u8, fw minor u8,
+                                                            serial number u32
+0x02   START               clock u8 (0 internal, 1 SYNC)    0x82. Counter := 0; with SYNC it counts the
+                                                            DAQ's clock pulses from the next pulse on
+0x03   STOP                —                                0x83, pulses counted u32
+0x04   SET_RATE            rate u32 (Hz)                    0x84, rate u32. Internal clock rate and the
+                                                            nominal SYNC rate used by the heartbeat
+0x05   TARE                n_samples u16                    0x85 when done (offsets zeroed)
+0x06   CAL_DOWNLOAD_BEGIN  n_bytes u16                      0x86 (host → amplifier matrix transfer)
+0x07   CAL_SEGMENT         index u8, 6 data bytes           none
+0x08   CAL_DOWNLOAD_END    crc32 u32 of the n_bytes         0x88, or error 4 (CRC) / 5 (missing segment)
+0x09   CAL_UPLOAD          —                                0x89, n_bytes u16, crc32 u32; then segment
+                                                            frames 0x8A, index u8, 6 data bytes
+0x0B   GET_STATUS          —                                0x8B, state u8 (0 idle, 1 armed, 2 streaming),
+                                                            flags u8 (bit0 SYNC missing), 0, counter u32
+=====  ==================  ===============================  ===========================================
+
+Error response: ``0xFF, opcode, code`` with codes 1 unknown command, 2 bad argument, 3 busy
+(not allowed while streaming), 4 CRC mismatch, 5 missing segment.
+
+Calibration blob (download/upload, "download" = host to amplifier as in CANopen SDO): the 6×12
+matrix ``C`` as float32, row-major (288 bytes), mapping gauge volts to ``[Fx, Fy, Fz]`` in N and
+``[Mx, My, Mz]`` in N·m in the cell's own frame: ``F = C g``.
+
+Data frame (48 bytes)
+---------------------
+======  =====  ==================================================================
+offset  type   field
+======  =====  ==================================================================
+0       u32    sample counter (pulse index since START; wraps at 2³²)
+4       u8     status: bit0 a gauge is overloaded, bit1 SYNC clock missing
+5       3 B    reserved (0)
+8       36 B   12 gauges, signed 24-bit little-endian; ±(2²³ − 1) counts = ±10 V
+44      4 B    padding (0) to the CAN FD length 48
+======  =====  ==================================================================
+
+Heartbeat (every 256 samples while streaming): the counter reached and the amplifier's own
+oscillator time in µs (u32, wraps). Pulses counted per local second must equal the DAQ's rate:
+missed or extra SYNC pulses show as a counter drifting away from ``rate · Δt``.
+"""
+
+from __future__ import annotations
+
+import struct
+import zlib
+from enum import IntEnum
+
+import numpy as np
+from numpy.typing import NDArray
+
+from dimacq.errors import ProtocolError
+
+__all__ = [
+    "DATA_LENGTH",
+    "FULL_SCALE_COUNTS",
+    "FULL_SCALE_V",
+    "HEARTBEAT_EVERY",
+    "N_GAUGES",
+    "Command",
+    "ErrorCode",
+    "command_id",
+    "data_id",
+    "decode_data_frames",
+    "encode_data_frames",
+    "heartbeat_id",
+    "matrix_from_blob",
+    "matrix_to_blob",
+    "response_id",
+    "segments",
+]
+
+N_GAUGES = 12
+FULL_SCALE_V = 10.0
+FULL_SCALE_COUNTS = 2**23 - 1
+DATA_LENGTH = 48
+HEARTBEAT_EVERY = 256
+STATUS_OVERLOAD = 1
+STATUS_SYNC_MISSING = 2
+HEARTBEAT = struct.Struct("<II")
+
+
+class Command(IntEnum):
+    IDENTIFY = 0x01
+    START = 0x02
+    STOP = 0x03
+    SET_RATE = 0x04
+    TARE = 0x05
+    CAL_DOWNLOAD_BEGIN = 0x06
+    CAL_SEGMENT = 0x07
+    CAL_DOWNLOAD_END = 0x08
+    CAL_UPLOAD = 0x09
+    GET_STATUS = 0x0B
+
+
+UPLOAD_SEGMENT = 0x8A
+ERROR = 0xFF
+
+
+class ErrorCode(IntEnum):
+    UNKNOWN_COMMAND = 1
+    BAD_ARGUMENT = 2
+    BUSY = 3
+    CRC_MISMATCH = 4
+    MISSING_SEGMENT = 5
+
+
+def command_id(node: int) -> int:
+    return 0x600 + node
+
+
+def response_id(node: int) -> int:
+    return 0x580 + node
+
+
+def data_id(node: int) -> int:
+    return 0x180 + node
+
+
+def heartbeat_id(node: int) -> int:
+    return 0x700 + node
+
+
+def matrix_to_blob(matrix: NDArray[np.float64]) -> bytes:
+    """6×12 matrix → 288-byte float32 row-major blob."""
+    m = np.asarray(matrix, dtype=float)
+    if m.shape != (6, N_GAUGES):
+        raise ProtocolError(f"calibration matrix has shape {m.shape}; it must be (6, 12)")
+    return m.astype("<f4").tobytes()
+
+
+def matrix_from_blob(blob: bytes) -> NDArray[np.float64]:
+    if len(blob) != 6 * N_GAUGES * 4:
+        raise ProtocolError(f"calibration blob has {len(blob)} bytes; expected 288")
+    return np.frombuffer(blob, dtype="<f4").astype(float).reshape(6, N_GAUGES)
+
+
+def segments(blob: bytes) -> list[bytes]:
+    """Split a blob into 6-byte segment payloads (the last zero-padded)."""
+    return [blob[i : i + 6].ljust(6, b"\0") for i in range(0, len(blob), 6)]
+
+
+def blob_crc(blob: bytes) -> int:
+    return zlib.crc32(blob)
+
+
+def encode_data_frames(
+    counter0: int, gauges_v: NDArray[np.float64], status: NDArray[np.uint8] | None = None
+) -> tuple[list[bytes], NDArray[np.bool_]]:
+    """Encode ``n`` samples (gauge volts, shape (n, 12)) as ``n`` 48-byte data frames.
+
+    Counters are ``counter0 + k``. Clips at full scale and sets the overload status bit.
+    Returns the frames and the per-sample overload flags.
+    """
+    g = np.asarray(gauges_v, dtype=float)
+    n = g.shape[0]
+    counts = np.rint(g / FULL_SCALE_V * 2**23)
+    over = np.any(np.abs(counts) > FULL_SCALE_COUNTS, axis=1)
+    np.clip(counts, -FULL_SCALE_COUNTS, FULL_SCALE_COUNTS, out=counts)
+    buf = np.zeros((n, DATA_LENGTH), dtype=np.uint8)
+    ctr = (counter0 + np.arange(n, dtype=np.int64)) & 0xFFFFFFFF
+    buf[:, 0:4] = ctr.astype("<u4").view(np.uint8).reshape(n, 4)
+    st = np.zeros(n, dtype=np.uint8) if status is None else np.asarray(status, np.uint8).copy()
+    st |= over.astype(np.uint8) * STATUS_OVERLOAD
+    buf[:, 4] = st
+    c32 = counts.astype("<i4").view(np.uint8).reshape(n, N_GAUGES, 4)[:, :, :3]
+    buf[:, 8:44] = c32.reshape(n, 36)
+    raw = buf.tobytes()
+    return [raw[i * DATA_LENGTH : (i + 1) * DATA_LENGTH] for i in range(n)], over
+
+
+def decode_data_frames(
+    payloads: list[bytes] | list[bytearray],
+) -> tuple[NDArray[np.int64], NDArray[np.uint8], NDArray[np.float64]]:
+    """Decode data frames in one vectorised pass.
+
+    Returns
+    -------
+    counters : ndarray of int64, shape (n,)
+        As sent (u32, not unwrapped).
+    status : ndarray of uint8, shape (n,)
+    gauges_v : ndarray, shape (n, 12)
+        Gauge volts.
+    """
+    if not payloads:
+        return np.zeros(0, np.int64), np.zeros(0, np.uint8), np.zeros((0, N_GAUGES))
+    bad = [i for i, d in enumerate(payloads) if len(d) != DATA_LENGTH]
+    if bad:
+        raise ProtocolError(
+            f"data frame {bad[0]} has {len(payloads[bad[0]])} bytes, expected {DATA_LENGTH}; "
+            "the bus must run CAN FD"
+        )
+    buf = np.frombuffer(b"".join(payloads), dtype=np.uint8).reshape(-1, DATA_LENGTH)
+    counters = buf[:, 0:4].copy().view("<u4").reshape(-1).astype(np.int64)
+    status = buf[:, 4].copy()
+    words = np.zeros((buf.shape[0], N_GAUGES, 4), dtype=np.uint8)
+    words[:, :, 1:] = buf[:, 8:44].reshape(-1, N_GAUGES, 3)
+    counts = words.view("<i4").reshape(-1, N_GAUGES) >> 8
+    gauges_v = np.multiply(counts, FULL_SCALE_V / 2**23, dtype=np.float64)
+    return counters, status, gauges_v
