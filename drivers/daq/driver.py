@@ -31,6 +31,7 @@ import usb.util
 from dimacq.drivers.daq import protocol as p
 from numpy.typing import NDArray
 
+from dimacq.devices.daq import ChannelConfig, DaqBlock, DaqEvent
 from dimacq.errors import (
     DeviceError,
     DeviceNotFoundError,
@@ -230,75 +231,6 @@ def range_code(range_v: float) -> int:
         if abs(r - range_v) < 1e-9 * r:
             return code
     raise SetupError(f"input range ±{range_v} V is not supported; choose one of {p.RANGES_V}")
-
-
-@dataclass(frozen=True)
-class ChannelConfig:
-    """One task channel.
-
-    Attributes
-    ----------
-    physical_channel : int
-        DAQ input, 0-based.
-    name : str
-        e.g. ``"1103+Y"`` or ``"21+X force"``.
-    units : str
-        Engineering unit of the data: ``"m/s^2"``, ``"N"`` or ``"V"``.
-    sensitivity_v_per_unit : float
-        Transducer sensitivity, V per engineering unit (100 mV/g → 0.1/9.80665 V/(m/s²)).
-    range_v, iepe_current_ua, coupling
-        Input settings.
-    """
-
-    physical_channel: int
-    name: str
-    units: str
-    sensitivity_v_per_unit: float
-    range_v: float = 10.0
-    iepe_current_ua: int = 0
-    coupling: Literal["AC", "DC"] = "DC"
-
-
-@dataclass(frozen=True)
-class DaqEvent:
-    """Something the acquisition must know about: ``kind`` in
-    ``{"overflow", "lost_transfer", "overload", "timeout"}``, the sample range it concerns
-    (``first_sample`` .. ``first_sample + n_samples - 1``) and the channels involved."""
-
-    kind: str
-    first_sample: int
-    n_samples: int
-    channels: tuple[str, ...] = ()
-    message: str = ""
-
-
-@dataclass(frozen=True, eq=False)
-class DaqBlock:
-    """Samples ``first_sample .. first_sample + n - 1`` of a task, in engineering units.
-
-    Attributes
-    ----------
-    data : ndarray, shape (n_channels, n_samples)
-        NaN where samples were lost (see ``events``).
-    overload : ndarray of bool, shape (n_channels, n_samples)
-        True in every frame in which that channel clipped.
-    valid : ndarray of bool, shape (n_samples,)
-        False for samples lost to a FIFO overflow or a lost transfer.
-    events : tuple of DaqEvent
-    """
-
-    first_sample: int
-    sample_rate_hz: float
-    channel_names: tuple[str, ...]
-    units: tuple[str, ...]
-    data: NDArray[np.float64]
-    overload: NDArray[np.bool_]
-    valid: NDArray[np.bool_]
-    events: tuple[DaqEvent, ...] = ()
-
-    @property
-    def n_samples(self) -> int:
-        return int(self.data.shape[1])
 
 
 @dataclass

@@ -29,6 +29,7 @@ import numpy as np
 from dimacq.drivers.loadcell import protocol as p
 from numpy.typing import NDArray
 
+from dimacq.devices.loadcell import LoadCellBlock, LoadCellEvent, LoadCellIdentity
 from dimacq.errors import (
     DeviceError,
     DeviceStateError,
@@ -48,51 +49,6 @@ _ERRORS = {
     p.ErrorCode.CRC_MISMATCH: "calibration CRC mismatch; download again",
     p.ErrorCode.MISSING_SEGMENT: "calibration segment missing; download again",
 }
-
-
-@dataclass(frozen=True)
-class LoadCellIdentity:
-    n_gauges: int
-    firmware: str
-    serial_number: int
-
-
-@dataclass(frozen=True)
-class LoadCellEvent:
-    """``kind`` in ``{"gap", "drift", "overload", "sync_missing"}`` over a counter range."""
-
-    kind: str
-    first_sample: int
-    n_samples: int
-    message: str
-
-
-@dataclass(frozen=True, eq=False)
-class LoadCellBlock:
-    """Samples ``first_sample .. first_sample + n − 1`` on the DAQ's sample counter.
-
-    Attributes
-    ----------
-    gauges_v : ndarray, shape (12, n)
-        Gauge volts; NaN where frames were lost.
-    forces : ndarray, shape (6, n) or None
-        ``C g``: ``[Fx, Fy, Fz]`` N and ``[Mx, My, Mz]`` N·m in the cell's frame, when a
-        calibration matrix is set.
-    valid : ndarray of bool, shape (n,)
-    overload : ndarray of bool, shape (n,)
-    events : tuple of LoadCellEvent
-    """
-
-    first_sample: int
-    gauges_v: NDArray[np.float64]
-    forces: NDArray[np.float64] | None
-    valid: NDArray[np.bool_]
-    overload: NDArray[np.bool_]
-    events: tuple[LoadCellEvent, ...]
-
-    @property
-    def n_samples(self) -> int:
-        return int(self.gauges_v.shape[1])
 
 
 @dataclass
