@@ -402,7 +402,13 @@ class DigitizingSession:
                 ) from err
             reconnects_left[0] -= 1
             log.warning("digitizing: port lost (%s); reconnecting", err)
-            self.device.reconnect()
+            try:
+                self.device.reconnect()
+            except DeviceNotFoundError as again:
+                raise DeviceNotFoundError(
+                    f"digitizing: port lost and reconnect failed ({again}); the {len(self._points)} "
+                    "points digitized so far are kept: fix the connection and call digitize() again"
+                ) from again
             self.reconnects += 1
             return None
 

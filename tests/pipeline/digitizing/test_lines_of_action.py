@@ -47,6 +47,6 @@ def test_refusals():
         line_of_action_svd(PTS[:1], BASE)
     with pytest.raises(DataError, match="coincide"):
         line_of_action_thesis(np.zeros((4, 3)), BASE)
-    with pytest.raises(SetupError, match="side is\\s+undefined|undefined"):
+    with pytest.raises(SetupError, match="undefined"):
         line_of_action_svd(PTS, PTS.mean(axis=0))
     assert angle_between_deg([1, 0, 0], [0, 1, 0]) == pytest.approx(90.0)

@@ -66,7 +66,7 @@ def test_gauss_newton_equals_scipy_least_squares():
     p, res = trilaterate(d, PLANAR)
     for k in range(30):
         ref = least_squares(
-            lambda x: np.linalg.norm(x - PLANAR, axis=1) - d[k], p_true[k], xtol=1e-15
+            lambda x, dk=d[k]: np.linalg.norm(x - PLANAR, axis=1) - dk, p_true[k], xtol=1e-15
         )
         np.testing.assert_allclose(p[k], ref.x, atol=1e-8)
         np.testing.assert_allclose(res[k], ref.fun, atol=1e-8)
