@@ -1,0 +1,209 @@
+"""Load cell calibration files: JSON (native) and ATI-style XML, import and export.
+
+JSON (``schema_version`` 1)::
+
+    {
+      "schema_version": 1,
+      "kind": "dimacq.loadcell_calibration",
+      "serial_number": "LC501",
+      "date": "2026-11-21",
+      "method": "inertial",
+      "gauge_unit": "V",
+      "force_unit": "N",
+      "moment_unit": "N*m",
+      "matrix": [[12 numbers] x 6],        # rows Fx Fy Fz Mx My Mz, F = C g
+      "diagnostics": {"residual_rel": ..., ...},
+      "notes": ""
+    }
+
+The XML follows the layout of ATI Industrial Automation's ``.cal`` files (an ``FTSensor`` element
+with a ``Calibration`` child holding one ``Axis`` per load with a ``values`` attribute of
+whitespace-separated gauge coefficients), with ``NumGages="12"``; units are given as
+``ForceUnits="N"`` and ``TorqueUnits="N-m"``. Only files written by trusted tools should be read
+(the standard library parser is used).
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from dimacq.errors import DataError
+
+__all__ = [
+    "LoadCellCalibration",
+    "read_calibration",
+    "read_calibration_json",
+    "read_calibration_xml",
+    "write_calibration_json",
+    "write_calibration_xml",
+]
+
+SCHEMA_VERSION = 1
+AXES = ("Fx", "Fy", "Fz", "Tx", "Ty", "Tz")
+_MOMENT_UNITS = {"N*m": 1.0, "N-m": 1.0, "Nm": 1.0, "N·m": 1.0, "N-mm": 1e-3, "N*mm": 1e-3}
+_FORCE_UNITS = {"N": 1.0, "kN": 1e3}
+
+
+@dataclass(frozen=True, eq=False)
+class LoadCellCalibration:
+    """A 6×12 calibration of one load cell, in SI (N and N·m per gauge volt)."""
+
+    serial_number: str
+    date: str
+    matrix: NDArray[np.float64]
+    method: str = "inertial"
+    gauge_unit: str = "V"
+    diagnostics: dict[str, Any] = field(default_factory=dict)
+    notes: str = ""
+
+    def __post_init__(self) -> None:
+        m = np.asarray(self.matrix, dtype=float)
+        if m.shape != (6, 12) or not np.all(np.isfinite(m)):
+            raise DataError(
+                f"calibration {self.serial_number}: matrix has shape {m.shape} or non-finite "
+                "values; it must be a finite 6x12 matrix (rows Fx Fy Fz Mx My Mz)"
+            )
+        if not self.serial_number:
+            raise DataError("calibration without serial_number; give the load cell's serial")
+        try:
+            _dt.date.fromisoformat(self.date)
+        except ValueError as err:
+            raise DataError(
+                f"calibration {self.serial_number}: date {self.date!r} is not ISO (YYYY-MM-DD)"
+            ) from err
+        object.__setattr__(self, "matrix", m)
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "schema_version": SCHEMA_VERSION,
+            "kind": "dimacq.loadcell_calibration",
+            "serial_number": self.serial_number,
+            "date": self.date,
+            "method": self.method,
+            "gauge_unit": self.gauge_unit,
+            "force_unit": "N",
+            "moment_unit": "N*m",
+            "matrix": self.matrix.tolist(),
+            "diagnostics": self.diagnostics,
+            "notes": self.notes,
+        }
+
+
+def write_calibration_json(cal: LoadCellCalibration, path: str | Path) -> None:
+    Path(path).write_text(json.dumps(cal.to_json(), indent=2) + "\n", encoding="utf-8")
+
+
+def read_calibration_json(path: str | Path) -> LoadCellCalibration:
+    p = Path(path)
+    try:
+        data = json.loads(p.read_text(encoding="utf-8"))
+    except (OSError, json.JSONDecodeError) as err:
+        raise DataError(f"{p}: cannot read calibration JSON ({err})") from err
+    if not isinstance(data, dict) or data.get("kind") != "dimacq.loadcell_calibration":
+        raise DataError(f"{p}: not a dimacq load cell calibration (key 'kind' missing/wrong)")
+    if data.get("schema_version") != SCHEMA_VERSION:
+        raise DataError(
+            f"{p}: schema_version {data.get('schema_version')!r}; this dimacq reads version "
+            f"{SCHEMA_VERSION}"
+        )
+    for key in ("serial_number", "date", "matrix"):
+        if key not in data:
+            raise DataError(f"{p}: key {key!r} missing")
+    fu = _FORCE_UNITS.get(data.get("force_unit", "N"))
+    mu = _MOMENT_UNITS.get(data.get("moment_unit", "N*m"))
+    if fu is None or mu is None:
+        raise DataError(
+            f"{p}: units {data.get('force_unit')!r}/{data.get('moment_unit')!r} unknown; use "
+            "N and N*m"
+        )
+    m = np.asarray(data["matrix"], dtype=float)
+    if m.shape == (6, 12):
+        m = m * np.array([fu] * 3 + [mu] * 3)[:, None]
+    return LoadCellCalibration(
+        serial_number=str(data["serial_number"]),
+        date=str(data["date"]),
+        matrix=m,
+        method=str(data.get("method", "")),
+        gauge_unit=str(data.get("gauge_unit", "V")),
+        diagnostics=dict(data.get("diagnostics", {})),
+        notes=str(data.get("notes", "")),
+    )
+
+
+def write_calibration_xml(cal: LoadCellCalibration, path: str | Path) -> None:
+    """ATI-style ``FTSensor``/``Calibration``/``Axis`` XML with 12 gauges."""
+    root = ET.Element("FTSensor", Serial=cal.serial_number, NumGages="12", BodyStyle="dimacq-6DOF")
+    calel = ET.SubElement(
+        root,
+        "Calibration",
+        CalDate=cal.date,
+        ForceUnits="N",
+        TorqueUnits="N-m",
+        DistUnits="m",
+        GageUnits=cal.gauge_unit,
+        Method=cal.method,
+    )
+    for name, row in zip(AXES, cal.matrix, strict=True):
+        ET.SubElement(calel, "Axis", Name=name, values=" ".join(f"{v:.17g}" for v in row))
+    ET.indent(root)
+    ET.ElementTree(root).write(path, encoding="utf-8", xml_declaration=True)
+
+
+def read_calibration_xml(path: str | Path) -> LoadCellCalibration:
+    p = Path(path)
+    try:
+        root = ET.parse(p).getroot()
+    except (OSError, ET.ParseError) as err:
+        raise DataError(f"{p}: cannot read calibration XML ({err})") from err
+    calel = root.find("Calibration")
+    if root.tag != "FTSensor" or calel is None:
+        raise DataError(f"{p}: expected an FTSensor element with a Calibration child")
+    fu = _FORCE_UNITS.get(calel.get("ForceUnits", "N"))
+    mu = _MOMENT_UNITS.get(calel.get("TorqueUnits", "N-m"))
+    if fu is None or mu is None:
+        raise DataError(
+            f"{p}: units {calel.get('ForceUnits')!r}/{calel.get('TorqueUnits')!r} unknown; "
+            "use N and N-m"
+        )
+    rows = {}
+    for ax in calel.findall("Axis"):
+        try:
+            rows[ax.get("Name")] = [float(v) for v in (ax.get("values") or "").split()]
+        except ValueError as err:
+            raise DataError(f"{p}: axis {ax.get('Name')}: values are not numbers") from err
+    missing = [a for a in AXES if a not in rows]
+    if missing:
+        raise DataError(f"{p}: axes {missing} missing; need {AXES}")
+    m = (
+        np.array([rows[a] for a in AXES], dtype=float)
+        if all(len(rows[a]) == 12 for a in AXES)
+        else np.zeros((0,))
+    )
+    if m.shape != (6, 12):
+        raise DataError(f"{p}: every Axis needs 12 gauge values (NumGages=12)")
+    m = m * np.array([fu] * 3 + [mu] * 3)[:, None]
+    return LoadCellCalibration(
+        serial_number=root.get("Serial", ""),
+        date=calel.get("CalDate", ""),
+        matrix=m,
+        method=calel.get("Method", ""),
+        gauge_unit=calel.get("GageUnits", "V"),
+    )
+
+
+def read_calibration(path: str | Path) -> LoadCellCalibration:
+    """Read JSON or XML by file suffix."""
+    suffix = Path(path).suffix.lower()
+    if suffix == ".json":
+        return read_calibration_json(path)
+    if suffix in (".xml", ".cal"):
+        return read_calibration_xml(path)
+    raise DataError(f"{path}: unknown calibration file type; use .json or .xml/.cal")

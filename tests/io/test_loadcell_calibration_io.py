@@ -1,0 +1,71 @@
+"""Load cell calibration files: JSON and ATI-style XML round trips and refusals."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from dimacq.errors import DataError
+from dimacq.io.loadcell_calibration import (
+    LoadCellCalibration,
+    read_calibration,
+    write_calibration_json,
+    write_calibration_xml,
+)
+
+
+def cal():
+    m = np.random.default_rng(0).standard_normal((6, 12)) * 1e3
+    return LoadCellCalibration(
+        "LC501", "2026-11-21", m, method="inertial", diagnostics={"residual_rel": 1e-3}
+    )
+
+
+def test_json_round_trip_is_lossless(tmp_path):
+    c = cal()
+    write_calibration_json(c, tmp_path / "c.json")
+    back = read_calibration(tmp_path / "c.json")
+    np.testing.assert_array_equal(back.matrix, c.matrix)
+    assert (back.serial_number, back.date, back.method) == ("LC501", "2026-11-21", "inertial")
+    assert back.diagnostics == {"residual_rel": 1e-3}
+
+
+def test_xml_round_trip_and_ati_layout(tmp_path):
+    c = cal()
+    write_calibration_xml(c, tmp_path / "c.xml")
+    text = (tmp_path / "c.xml").read_text()
+    assert "<FTSensor" in text and 'NumGages="12"' in text and 'Name="Tz"' in text
+    back = read_calibration(tmp_path / "c.xml")
+    np.testing.assert_array_equal(back.matrix, c.matrix)
+    assert back.serial_number == "LC501"
+
+
+def test_moment_units_in_mm_are_converted(tmp_path):
+    c = cal()
+    d = c.to_json()
+    d["moment_unit"] = "N-mm"
+    (tmp_path / "mm.json").write_text(json.dumps(d))
+    back = read_calibration(tmp_path / "mm.json")
+    np.testing.assert_allclose(back.matrix[3:], c.matrix[3:] * 1e-3)
+    np.testing.assert_allclose(back.matrix[:3], c.matrix[:3])
+
+
+def test_bad_files_are_refused(tmp_path):
+    with pytest.raises(DataError, match="6x12"):
+        LoadCellCalibration("LC1", "2026-01-01", np.zeros((6, 11)))
+    with pytest.raises(DataError, match="ISO"):
+        LoadCellCalibration("LC1", "21/11/2026", np.zeros((6, 12)))
+    d = cal().to_json()
+    d["schema_version"] = 99
+    (tmp_path / "v.json").write_text(json.dumps(d))
+    with pytest.raises(DataError, match="schema_version"):
+        read_calibration(tmp_path / "v.json")
+    (tmp_path / "x.xml").write_text(
+        "<FTSensor><Calibration><Axis Name='Fx' values='1 2'/></Calibration></FTSensor>"
+    )
+    with pytest.raises(DataError, match="missing"):
+        read_calibration(tmp_path / "x.xml")
+    with pytest.raises(DataError, match="unknown calibration file type"):
+        read_calibration(tmp_path / "c.txt")

@@ -1,0 +1,130 @@
+"""Load cell calibration numerics against a known gauge sensitivity and independent loads."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from dimacq.errors import SetupError, SolverError
+from dimacq.pipeline.loadcell_calibration import (
+    dead_weight_loads,
+    inertial_calibration,
+    inertial_loads,
+    static_calibration,
+)
+
+# Thesis calibration mass (method §9), about the GCS origin P.
+M_KG = 18.175
+C_M = np.array([0.035236, 0.000130, -0.085632])
+I_P = np.array(
+    [
+        [0.218554, -0.000109, 0.078161],
+        [-0.000109, 0.304172, 0.000218],
+        [0.078161, 0.000218, 0.158154],
+    ]
+)
+
+
+def skew(v):
+    return np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
+
+
+def mass_matrix():
+    M = np.zeros((6, 6))
+    M[:3, :3] = M_KG * np.eye(3)
+    M[:3, 3:] = -M_KG * skew(C_M)
+    M[3:, :3] = M_KG * skew(C_M)
+    M[3:, 3:] = I_P
+    return M
+
+
+CELL_POS = np.array([0.01, -0.02, -0.20])
+CELL_ROT = Rotation.from_euler("z", 45, degrees=True).as_matrix()
+
+
+def sensitivity(seed=0):
+    """A 12x6 gauge sensitivity (V per N and per N·m) of a 4-spoke cell, well conditioned."""
+    rng = np.random.default_rng(seed)
+    return rng.standard_normal((12, 6)) * np.array([1e-3] * 3 + [1e-2] * 3)
+
+
+def synthetic(n_lines=50, n_inputs=24, noise=0.0, seed=1):
+    rng = np.random.default_rng(seed)
+    a_p = rng.standard_normal((n_lines, 6, n_inputs)) + 1j * rng.standard_normal(
+        (n_lines, 6, n_inputs)
+    )
+    # Independent loads: Newton-Euler on the mass, then moved into the cell frame by hand.
+    f_on_mass = M_KG * (a_p[:, :3] - np.einsum("ij,ljk->lik", skew(C_M), a_p[:, 3:]))
+    m_p = M_KG * np.einsum("ij,ljk->lik", skew(C_M), a_p[:, :3]) + np.einsum(
+        "ij,ljk->lik", I_P, a_p[:, 3:]
+    )
+    m_cell = m_p - np.cross(CELL_POS, f_on_mass, axisa=0, axisb=1, axisc=1).transpose(0, 1, 2)
+    f_l = np.einsum("ji,ljk->lik", CELL_ROT, f_on_mass)
+    m_l = np.einsum("ji,ljk->lik", CELL_ROT, m_cell)
+    F_L = np.concatenate([f_l, m_l], axis=1)
+    S = sensitivity()
+    g = np.einsum("ij,ljk->lik", S, F_L)
+    g = g + noise * np.abs(g).mean() * (
+        rng.standard_normal(g.shape) + 1j * rng.standard_normal(g.shape)
+    )
+    return a_p, F_L, g, S
+
+
+def test_inertial_loads_match_newton_euler_in_the_cell_frame():
+    a_p, F_L, _, _ = synthetic(n_lines=3, n_inputs=4)
+    got = inertial_loads(a_p, mass_matrix(), CELL_POS, CELL_ROT, np.zeros(3))
+    np.testing.assert_allclose(got, F_L, rtol=1e-12, atol=1e-12 * np.abs(F_L).max())
+
+
+def test_noise_free_inertial_calibration_recovers_the_pseudo_inverse():
+    a_p, _, g, S = synthetic()
+    fit = inertial_calibration(g, a_p, mass_matrix(), CELL_POS, CELL_ROT, np.zeros(3))
+    C_true = np.linalg.pinv(S)
+    err = np.linalg.norm(fit.matrix - C_true) / np.linalg.norm(C_true)
+    assert err < 1e-10
+    assert fit.residual_rel < 1e-10 and fit.rank_used == 6
+    assert fit.noise_separation < 1e-10 and fit.condition < 1e3
+    np.testing.assert_allclose(fit.matrix @ S, np.eye(6), atol=1e-9)
+
+
+def test_noisy_inertial_calibration_within_half_a_percent():
+    a_p, _, g, S = synthetic(noise=1e-3)
+    fit = inertial_calibration(g, a_p, mass_matrix(), CELL_POS, CELL_ROT, np.zeros(3))
+    C_true = np.linalg.pinv(S)
+    err = np.linalg.norm(fit.matrix - C_true) / np.linalg.norm(C_true)
+    assert err < 5e-3
+    assert 1e-4 < fit.residual_rel < 1e-2
+    assert 0 < fit.noise_separation < 0.1
+
+
+def test_wrong_sign_or_degenerate_excitation_is_visible():
+    a_p, _, g, S = synthetic(n_lines=5, n_inputs=3)
+    flipped = inertial_calibration(
+        g, a_p, mass_matrix(), CELL_POS, CELL_ROT, np.zeros(3), sign=-1.0
+    )
+    np.testing.assert_allclose(flipped.matrix, -np.linalg.pinv(S), rtol=1e-8, atol=1e-10)
+    a1 = np.zeros_like(a_p)
+    a1[:, 0] = a_p[:, 0]  # only x translation excited
+    with pytest.raises(SolverError, match="six components"):
+        inertial_calibration(g, a1, mass_matrix(), CELL_POS, CELL_ROT, np.zeros(3))
+
+
+def test_static_dead_weight_calibration_and_piezo_refusal():
+    rng = np.random.default_rng(5)
+    S = sensitivity(2)
+    n = 30
+    masses = rng.uniform(1, 20, n)
+    pos = rng.uniform(-0.1, 0.1, (n, 3))
+    dirs = Rotation.random(n, random_state=3).apply([0, 0, -1])  # the cell turned per case
+    loads = dead_weight_loads(masses, pos, dirs)
+    # independent check of one load case
+    f0 = masses[0] * 9.80665 * dirs[0]
+    np.testing.assert_allclose(loads[:, 0], np.r_[f0, np.cross(pos[0], f0)])
+    tare = rng.standard_normal(12) * 0.01
+    readings = (S @ loads).T + tare
+    fit = static_calibration(readings, tare, loads, gauge_coupling="DC")
+    np.testing.assert_allclose(fit.matrix, np.linalg.pinv(S), rtol=1e-8, atol=1e-8)
+    assert fit.method == "static"
+    with pytest.raises(SetupError, match="AC-coupled.*inertial"):
+        static_calibration(readings, tare, loads, gauge_coupling="AC")
