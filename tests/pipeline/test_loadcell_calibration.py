@@ -126,5 +126,5 @@ def test_static_dead_weight_calibration_and_piezo_refusal():
     fit = static_calibration(readings, tare, loads, gauge_coupling="DC")
     np.testing.assert_allclose(fit.matrix, np.linalg.pinv(S), rtol=1e-8, atol=1e-8)
     assert fit.method == "static"
-    with pytest.raises(SetupError, match="AC-coupled.*inertial"):
+    with pytest.raises(SetupError, match=r"AC-coupled.*inertial"):
         static_calibration(readings, tare, loads, gauge_coupling="AC")
