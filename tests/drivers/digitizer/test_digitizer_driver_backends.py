@@ -63,7 +63,7 @@ def test_link_faults(kind, fault):
                 d.fire()
         else:
             assert d.fire().seq == 0
-        assert d.fire().seq == (1 if fault != "checksum" else 1)
+        assert d.fire().seq == 1  # the damaged reply consumed seq 0 in every case
         assert d.stats.garbage_bytes + d.stats.truncated_lines + d.stats.bad_lines > 0
 
 

@@ -77,7 +77,7 @@ def test_truncated_record_with_valid_frame():
 
 def test_timeout_when_device_silent():
     with expected_protocol([(b"*IDN?\r", None)], timeout_s=0.05) as d:
-        with pytest.raises(DeviceTimeoutError, match="no reply to \\*IDN\\? within 0.05 s"):
+        with pytest.raises(DeviceTimeoutError, match=r"no reply to \*IDN\? within 0\.05 s"):
             d.identify()
 
 
@@ -121,7 +121,7 @@ def test_busy_maps_to_state_error():
 
 def test_configure_validates_before_sending():
     with expected_protocol([]) as d:
-        with pytest.raises(SetupError, match="averaging = 17; give an integer 1..16"):
+        with pytest.raises(SetupError, match=r"averaging = 17; give an integer 1\.\.16"):
             d.configure(averaging=17)
         with pytest.raises(SetupError, match="n_shots"):
             next(d.stream(0))
@@ -133,7 +133,7 @@ def test_port_vanishes_then_reconnect():
     ports = iter([second])
     d = SerialDigitizer(first, reopen=lambda: next(ports), timeout_s=0.05, name="scripted")
     assert d.fire().seq == 7
-    with pytest.raises(DeviceNotFoundError, match="port vanished .* call reconnect"):
+    with pytest.raises(DeviceNotFoundError, match=r"port vanished .* call reconnect"):
         d.fire()
     assert first.closed
     with pytest.raises(DeviceNotFoundError, match="port is gone"):
