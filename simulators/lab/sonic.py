@@ -42,6 +42,7 @@ __all__ = [
     "SonicLab",
     "SonicProbe",
     "SonicShot",
+    "default_array",
     "speed_of_sound_m_s",
 ]
 
