@@ -103,7 +103,10 @@ def test_errors_and_timeout(peer):
 
 def data_frames(counters, gauges):
     frames, _ = p.encode_data_frames(0, gauges)
-    return [(int(c) & 0xFFFFFFFF).to_bytes(4, "little") + f[4:] for c, f in zip(counters, frames, strict=False)]
+    return [
+        (int(c) & 0xFFFFFFFF).to_bytes(4, "little") + f[4:]
+        for c, f in zip(counters, frames, strict=False)
+    ]
 
 
 def started(peer, **kw):
