@@ -1,0 +1,460 @@
+"""Impact-test acquisition session: DAQ + load cells → checked averages → FRFs, streamed to disk.
+
+:class:`ImpactSession` runs a roving-hammer test on a :class:`~dimacq.devices.daq.Daq` task and
+any number of :class:`~dimacq.devices.loadcell.LoadCell` amplifiers that count the DAQ's sample
+clock:
+
+1. **Synchronised start**: every amplifier is armed (counter 0 at the DAQ's next pulse), then the
+   DAQ starts; at the end the DAQ stops first, then the amplifiers, and each amplifier's pulse
+   count is checked against the DAQ's sample counter (``verify_count``).
+2. **Streaming to disk**: every block read (DAQ and load cells, aligned by the sample counter) is
+   appended to an :class:`~dimacq.io.acquisition_hdf5.AcquisitionWriter` as it arrives (flushed at
+   least every second), with every event and every average's verdict.
+3. **Per input, per average**: the operator is asked to strike (``operator(input, sample)``; in
+   simulation that strikes the virtual lab), the hammer channel is watched for the trigger level,
+   and a record of ``record_samples`` starting ``pretrigger_samples`` before the trigger is cut.
+   It is **rejected** (and the operator asked again) when any channel overloaded, a DAQ or load
+   cell sample in it was lost, the load cell reported drift, or the force shows a double hit.
+   Rejected averages stay on disk; accepted ones are kept for the FRFs.
+4. **FRFs** per input from its accepted averages (:func:`~dimacq.pipeline.frf_estimation.
+   estimate_frf`), with the force window on the hammer and the exponential window on everything
+   (both starting at the trigger), stacked to ``(n_lines, n_outputs, n_inputs)``.
+
+``progress(Progress)`` is called after every average.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass
+from typing import Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from dimacq.devices.daq import Daq, DaqBlock
+from dimacq.devices.loadcell import LoadCell, LoadCellBlock
+from dimacq.errors import DataError, DeviceTimeoutError, SetupError
+from dimacq.io.acquisition_hdf5 import AcquisitionWriter
+from dimacq.pipeline.frf_estimation import (
+    double_hit_mask,
+    estimate_frf,
+    exponential_window,
+    force_window,
+)
+
+__all__ = ["AverageRecord", "ImpactResult", "ImpactSession", "ImpactSettings", "Progress"]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class ImpactSettings:
+    """Settings of an impact test.
+
+    Attributes
+    ----------
+    record_samples : int
+        Samples per average (the FFT length).
+    pretrigger_samples : int
+        Samples kept before the trigger.
+    trigger_level : float
+        Hammer force (N) that triggers a record.
+    averages_per_input : int
+    force_window_samples : int or None
+        Length of the force window after the trigger (None: no force window).
+    exponential_tau_s : float or None
+        Time constant of the exponential window from the trigger (None: none).
+    block_samples : int
+        DAQ read size.
+    max_attempts_factor : int
+        At most ``factor × averages_per_input`` strikes per input.
+    double_hit_threshold : float
+        Fraction of the peak force that counts as a second pulse.
+    hit_delay_samples : int
+        How far ahead the operator is asked to strike (simulation: exactly then).
+    trigger_timeout_samples : int
+        Samples to wait for a strike before giving up.
+    estimator : {"H1", "H2", "Hv"}
+    """
+
+    record_samples: int = 2048
+    pretrigger_samples: int = 32
+    trigger_level: float = 5.0
+    averages_per_input: int = 5
+    force_window_samples: int | None = None
+    exponential_tau_s: float | None = None
+    block_samples: int = 512
+    max_attempts_factor: int = 3
+    double_hit_threshold: float = 0.1
+    hit_delay_samples: int = 64
+    trigger_timeout_samples: int = 200_000
+    estimator: Literal["H1", "H2", "Hv"] = "H1"
+
+
+@dataclass(frozen=True)
+class Progress:
+    input_index: int
+    n_inputs: int
+    accepted: int
+    wanted: int
+    rejected: int
+    message: str
+
+
+@dataclass(frozen=True)
+class AverageRecord:
+    input_index: int
+    first_sample: int
+    n_samples: int
+    accepted: bool
+    reasons: tuple[str, ...]
+
+
+@dataclass(frozen=True, eq=False)
+class ImpactResult:
+    """FRFs of the test and the history of every average.
+
+    Attributes
+    ----------
+    H : ndarray, shape (n_lines, n_outputs, n_inputs)
+        Outputs: the response channels, then per load cell its 6 loads (N/N, N·m/N, cell
+        frame) or its 12 gauges (V/N).
+    coherence : ndarray, shape (n_lines, n_outputs, n_inputs)
+    """
+
+    frequencies_hz: NDArray[np.float64]
+    H: NDArray[np.complex128]
+    coherence: NDArray[np.float64]
+    output_names: tuple[str, ...]
+    input_names: tuple[str, ...]
+    averages: tuple[AverageRecord, ...]
+    n_accepted: tuple[int, ...]
+
+
+class _Buffer:
+    """Samples from ``first`` on, for the DAQ or one load cell, trimmed as records are cut."""
+
+    def __init__(self, n_rows: int) -> None:
+        self.first = 0
+        self.data = np.zeros((n_rows, 0))
+        self.valid = np.zeros(0, dtype=bool)
+        self.over = np.zeros((n_rows, 0), dtype=bool)
+        self.drift: list[tuple[int, int]] = []
+
+    @property
+    def end(self) -> int:
+        return self.first + self.valid.size
+
+    def append(
+        self, data: NDArray[np.float64], valid: NDArray[np.bool_], over: NDArray[np.bool_]
+    ) -> None:
+        self.data = np.concatenate([self.data, data], axis=1)
+        self.valid = np.concatenate([self.valid, valid])
+        self.over = np.concatenate([self.over, over], axis=1)
+
+    def window(
+        self, s0: int, n: int
+    ) -> tuple[NDArray[np.float64], NDArray[np.bool_], NDArray[np.bool_]]:
+        a = s0 - self.first
+        return self.data[:, a : a + n], self.valid[a : a + n], self.over[:, a : a + n]
+
+    def trim(self, keep_from: int) -> None:
+        k = max(0, keep_from - self.first)
+        if k:
+            self.data = self.data[:, k:]
+            self.valid = self.valid[k:]
+            self.over = self.over[:, k:]
+            self.first += k
+
+
+class ImpactSession:
+    """A roving-hammer impact test.
+
+    Parameters
+    ----------
+    daq : Daq
+        Configured task (channels and timing set, not started).
+    input_channels : sequence of str
+        DAQ channel of the hammer force for each input (may repeat: one roving hammer).
+    response_channels : sequence of str
+        DAQ channels used as outputs.
+    loadcells : sequence of LoadCell
+    settings : ImpactSettings
+    writer : AcquisitionWriter, optional
+    operator : callable (input_index, daq_sample) -> None, optional
+        Asked to strike input ``input_index`` at about DAQ sample ``daq_sample``.
+    progress : callable (Progress) -> None, optional
+    loadcell_outputs : {"forces", "gauges"}
+        FRF outputs per load cell: its 6 calibrated loads, or its 12 gauge voltages
+        (for calibrating it).
+    """
+
+    def __init__(
+        self,
+        daq: Daq,
+        input_channels: Sequence[str],
+        response_channels: Sequence[str],
+        loadcells: Sequence[LoadCell] = (),
+        *,
+        settings: ImpactSettings | None = None,
+        writer: AcquisitionWriter | None = None,
+        operator: Callable[[int, int], None] | None = None,
+        progress: Callable[[Progress], None] | None = None,
+        loadcell_outputs: Literal["forces", "gauges"] = "forces",
+    ) -> None:
+        self.daq = daq
+        self.settings = settings or ImpactSettings()
+        names = list(daq.channel_names)
+        missing = [c for c in (*input_channels, *response_channels) if c not in names]
+        if missing:
+            raise SetupError(f"channels {missing} are not in the DAQ task; add them first")
+        self.input_rows = [names.index(c) for c in input_channels]
+        self.response_rows = [names.index(c) for c in response_channels]
+        self.input_names = tuple(input_channels)
+        self.response_names = tuple(response_channels)
+        self.loadcells = list(loadcells)
+        if loadcell_outputs == "forces" and any(lc.calibration_matrix is None for lc in loadcells):
+            raise SetupError(
+                "a load cell has no calibration matrix; set one (or use loadcell_outputs="
+                "'gauges' to calibrate it)"
+            )
+        self.loadcell_outputs = loadcell_outputs
+        self.writer = writer
+        self.operator = operator
+        self.progress = progress
+        s = self.settings
+        if not 0 <= s.pretrigger_samples < s.record_samples:
+            raise SetupError("pretrigger_samples must be in [0, record_samples)")
+
+    # -- streaming -------------------------------------------------------------------------------
+    def _read_block(self) -> None:
+        n = self.settings.block_samples
+        for attempt in range(3):
+            try:
+                block = self.daq.read(n)
+                break
+            except DeviceTimeoutError as err:
+                self._event({"kind": "daq_timeout", "message": str(err)})
+                if attempt == 2:
+                    raise
+        self._ingest_daq(block)
+        for k, lc in enumerate(self.loadcells):
+            self._ingest_lc(k, lc.read_until(block.first_sample + block.n_samples))
+
+    def _ingest_daq(self, block: DaqBlock) -> None:
+        if self._daq_buf.valid.size == 0:
+            self._daq_buf.first = block.first_sample
+        self._daq_buf.append(block.data, block.valid, block.overload)
+        if self.writer is not None:
+            self.writer.append_daq(block.first_sample, block.data, block.valid, block.overload)
+        for e in block.events:
+            self._event({"device": "daq", **asdict(e)})
+
+    def _ingest_lc(self, k: int, block: LoadCellBlock) -> None:
+        buf = self._lc_bufs[k]
+        if buf.valid.size == 0:
+            buf.first = block.first_sample
+        if self.loadcell_outputs == "forces":
+            assert block.forces is not None
+            rows = block.forces
+        else:
+            rows = block.gauges_v
+        buf.append(rows, block.valid, np.broadcast_to(block.overload, rows.shape))
+        if self.writer is not None:
+            self.writer.append_loadcell(k, block.gauges_v, block.valid)
+        for e in block.events:
+            if e.kind == "drift":
+                buf.drift.append((e.first_sample, e.first_sample + e.n_samples))
+            self._event({"device": f"loadcell{k}", **asdict(e)})
+
+    def _event(self, ev: dict[str, object]) -> None:
+        log.info("acquisition event: %s", ev)
+        if self.writer is not None:
+            self.writer.log_event(ev)
+
+    def _until(self, end: int) -> None:
+        while self._daq_buf.end < end:
+            self._read_block()
+
+    # -- one average ---------------------------------------------------------------------------------
+    def _wait_trigger(self, input_index: int, armed_from: int) -> int:
+        s = self.settings
+        row = self.input_rows[input_index]
+        search_from = armed_from
+        limit = armed_from + s.trigger_timeout_samples
+        while True:
+            buf = self._daq_buf
+            if buf.end > search_from:
+                seg = buf.data[row, search_from - buf.first :]
+                hits = np.flatnonzero(np.abs(np.nan_to_num(seg)) >= s.trigger_level)
+                if hits.size:
+                    return search_from + int(hits[0])
+                search_from = buf.end
+            if search_from > limit:
+                raise DeviceTimeoutError(
+                    f"input {self.input_names[input_index]}: no hammer force above "
+                    f"{s.trigger_level} N within {s.trigger_timeout_samples} samples; strike "
+                    "harder or lower trigger_level"
+                )
+            self._read_block()
+
+    def _check(
+        self, input_index: int, s0: int, n: int
+    ) -> tuple[list[str], dict[str, NDArray[np.float64]]]:
+        reasons: list[str] = []
+        data, valid, over = self._daq_buf.window(s0, n)
+        if not valid.all():
+            reasons.append(f"DAQ samples lost ({int((~valid).sum())})")
+        if over.any():
+            chans = [self.daq.channel_names[i] for i in np.flatnonzero(over.any(axis=1))]
+            reasons.append(f"overload on {', '.join(chans)}")
+        force = data[self.input_rows[input_index]]
+        if (
+            valid.all()
+            and double_hit_mask(force[None], threshold=self.settings.double_hit_threshold)[0]
+        ):
+            reasons.append("double hit")
+        lc_rows = []
+        for k, buf in enumerate(self._lc_bufs):
+            d, v, o = buf.window(s0, n)
+            if not v.all():
+                reasons.append(f"load cell {k} samples lost ({int((~v).sum())})")
+            if o.any():
+                reasons.append(f"load cell {k} overload")
+            if any(a < s0 + n and b > s0 for a, b in buf.drift):
+                reasons.append(f"load cell {k} clock drift")
+            lc_rows.append(d)
+        out = np.concatenate([data[self.response_rows], *lc_rows], axis=0)
+        return reasons, {"force": force[None], "outputs": out}
+
+    # -- run -------------------------------------------------------------------------------------------
+    def run(self) -> ImpactResult:
+        s = self.settings
+        n_in = len(self.input_rows)
+        self._daq_buf = _Buffer(len(self.daq.channel_names))
+        n_lc_rows = 6 if self.loadcell_outputs == "forces" else 12
+        self._lc_bufs = [_Buffer(n_lc_rows) for _ in self.loadcells]
+        assert self.daq.sample_rate_hz is not None
+        fs = self.daq.sample_rate_hz
+        for lc in self.loadcells:
+            lc.set_rate(round(fs))
+            lc.start(external_clock=True)
+        self.daq.start()
+        records: list[list[dict[str, NDArray[np.float64]]]] = [[] for _ in range(n_in)]
+        history: list[AverageRecord] = []
+        stopped = False
+        try:
+            armed_from = 0
+            for j in range(n_in):
+                rejected = 0
+                attempts = 0
+                while len(records[j]) < s.averages_per_input:
+                    attempts += 1
+                    if attempts > s.max_attempts_factor * s.averages_per_input:
+                        break
+                    ask_at = max(armed_from, self._daq_buf.end) + s.hit_delay_samples
+                    if self.operator is not None:
+                        self.operator(j, ask_at)
+                    t = self._wait_trigger(j, max(armed_from, self._daq_buf.end))
+                    s0 = t - s.pretrigger_samples
+                    self._until(s0 + s.record_samples)
+                    reasons, rec = self._check(j, s0, s.record_samples)
+                    ok = not reasons
+                    if ok:
+                        records[j].append(rec)
+                    else:
+                        rejected += 1
+                    ar = AverageRecord(j, s0, s.record_samples, ok, tuple(reasons))
+                    history.append(ar)
+                    if self.writer is not None:
+                        self.writer.log_average(asdict(ar))
+                    armed_from = s0 + s.record_samples
+                    self._daq_buf.trim(armed_from - s.pretrigger_samples)
+                    for buf in self._lc_bufs:
+                        buf.trim(armed_from - s.pretrigger_samples)
+                    msg = (
+                        f"input {self.input_names[j]}: average {len(records[j])}/"
+                        f"{s.averages_per_input}"
+                        + (f" rejected: {'; '.join(reasons)}" if reasons else "")
+                    )
+                    log.info(msg)
+                    if self.progress is not None:
+                        self.progress(
+                            Progress(j, n_in, len(records[j]), s.averages_per_input, rejected, msg)
+                        )
+            self.daq.stop()
+            tail = self.daq.read_buffered()
+            n_clocked = self._daq_buf.end if tail is None else tail.first_sample + tail.n_samples
+            for k, lc in enumerate(self.loadcells):
+                lc.stop()
+                ev = lc.verify_count(n_clocked)
+                if ev is not None:
+                    self._event({"device": f"loadcell{k}", **asdict(ev)})
+            stopped = True
+        finally:
+            if not stopped:
+                if self.daq.running:
+                    self.daq.stop()
+                for lc in self.loadcells:
+                    try:
+                        lc.stop()
+                    except Exception:  # keep the original error
+                        log.exception("stopping load cell after an error failed")
+            if self.writer is not None:
+                self.writer.flush()
+        short = [self.input_names[j] for j in range(n_in) if not records[j]]
+        if short:
+            raise DataError(
+                f"inputs {short}: no acceptable average after {s.max_attempts_factor * s.averages_per_input} "
+                "strikes (see the rejected reasons in the acquisition file); fix the cause and "
+                "repeat those inputs"
+            )
+        return self._frfs(records, history, fs)
+
+    def _frfs(
+        self,
+        records: list[list[dict[str, NDArray[np.float64]]]],
+        history: list[AverageRecord],
+        fs: float,
+    ) -> ImpactResult:
+        s = self.settings
+        n = s.record_samples
+        w_out = (
+            exponential_window(n, fs, s.exponential_tau_s, start_sample=s.pretrigger_samples)
+            if s.exponential_tau_s
+            else np.ones(n)
+        )
+        w_in = w_out.copy()
+        if s.force_window_samples:
+            w_in *= force_window(n, min(n, s.pretrigger_samples + s.force_window_samples))
+        hs, cohs = [], []
+        freqs = None
+        for recs in records:
+            x = np.stack([r["force"] for r in recs])
+            y = np.stack([r["outputs"] for r in recs])
+            est = estimate_frf(
+                x, y, fs, estimator=s.estimator, input_window=w_in, output_window=w_out
+            )
+            hs.append(est.H[:, :, 0])
+            cohs.append(est.ordinary_coherence[:, :, 0])
+            freqs = est.frequencies_hz
+        assert freqs is not None
+        lc_names: list[str] = []
+        for k in range(len(self.loadcells)):
+            comps = (
+                ("Fx", "Fy", "Fz", "Mx", "My", "Mz")
+                if self.loadcell_outputs == "forces"
+                else tuple(f"g{i + 1:02d}" for i in range(12))
+            )
+            lc_names += [f"loadcell{k} {c}" for c in comps]
+        return ImpactResult(
+            frequencies_hz=freqs,
+            H=np.stack(hs, axis=2),
+            coherence=np.stack(cohs, axis=2),
+            output_names=self.response_names + tuple(lc_names),
+            input_names=self.input_names,
+            averages=tuple(history),
+            n_accepted=tuple(len(r) for r in records),
+        )

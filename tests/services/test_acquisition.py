@@ -1,0 +1,136 @@
+"""Impact acquisition through the USB DAQ and CAN load cell simulators, with faults.
+
+The virtual lab here is the deterministic test source of ``tests/_acq_support.py`` (impulses
+through known resonators), so the FRFs have a closed form.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import can
+import h5py
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from _acq_support import ImpulseSource, no_leaks
+from dimacq.drivers.daq.driver import DaqDevice, DaqTask
+from dimacq.drivers.loadcell.driver import LoadCellAmplifier
+from dimacq.simulators.daq.backend import DaqInput, VirtualDaqBackend
+from dimacq.simulators.daq.clock import SampleClock
+from dimacq.simulators.loadcell.amplifier import (
+    LoadCellAmplifierSim,
+    LoadCellFaults,
+)
+
+from dimacq.errors import SetupError
+from dimacq.io.acquisition_hdf5 import AcquisitionWriter
+from dimacq.services.acquisition import ImpactSession, ImpactSettings
+
+__all__ = ["no_leaks"]
+
+G = 9.80665
+
+
+@pytest.fixture
+def lab(request, no_leaks):
+    made = []
+
+    def build(lc_faults=None):
+        src = ImpulseSource(n_inputs=2, n_responses=3, n_gauges=12, response_gain=0.01)
+        clock = SampleClock()
+        name = f"acq-{request.node.name}"
+        g0 = src.n_inputs + src.n_responses
+        sim = LoadCellAmplifierSim(name, src, range(g0, g0 + 12), clock=clock, faults=lc_faults)
+        bus = can.Bus(interface="virtual", channel=name, fd=True)
+        wiring = {j: DaqInput(j, 2.25e-3) for j in range(2)}
+        wiring.update({2 + k: DaqInput(2 + k, 0.1 / G) for k in range(3)})
+        backend = VirtualDaqBackend(src, wiring, clock=clock)
+        dev = DaqDevice.open(backend=backend)
+        made.append((sim, bus, dev))
+        task = DaqTask(dev)
+        for j in range(2):
+            task.add_force_channel(j, f"{10 + j}+X force", 2.25, range_v=0.5)
+        for k in range(3):
+            task.add_accel_channel(2 + k, f"{100 + k}+Z", 100.0)
+        task.configure_timing(src.sample_rate_hz, 256)
+        amp = LoadCellAmplifier(bus, timeout_s=2.0)
+        return src, backend, task, amp
+
+    yield build
+    for sim, bus, dev in made:
+        dev.close()
+        bus.shutdown()
+        sim.close()
+
+
+def test_impact_test_rejects_bad_averages_and_matches_closed_form(lab, tmp_path):
+    # CAN frames dropped inside what becomes input 1's first record
+    src, backend, task, amp = lab(LoadCellFaults(dropped_samples={12_000, 12_001}))
+    strikes = []
+
+    def operator(j, at):
+        n = len(strikes)
+        strikes.append((j, at))
+        world = backend.world_sample(at)
+        src.excite(j, world)
+        if n == 1:  # a double hit
+            src.excite(j, world + 40)
+        if n == 2:  # three hammers at once: 675 mV on the 500 mV range
+            src.excite(j, world)
+            src.excite(j, world)
+
+    settings = ImpactSettings(record_samples=2048, averages_per_input=2, trigger_level=20.0)
+    progress = []
+    with AcquisitionWriter(
+        tmp_path / "raw.h5",
+        sample_rate_hz=src.sample_rate_hz,
+        daq_channels=task.channel_names,
+        daq_units=("N", "N", "m/s^2", "m/s^2", "m/s^2"),
+        n_loadcells=1,
+    ) as writer:
+        session = ImpactSession(
+            task,
+            ["10+X force", "11+X force"],
+            ["100+Z", "101+Z", "102+Z"],
+            [amp],
+            settings=settings,
+            writer=writer,
+            operator=operator,
+            progress=progress.append,
+            loadcell_outputs="gauges",
+        )
+        res = session.run()
+    assert res.n_accepted == (2, 2)
+    verdicts = [(a.input_index, a.accepted, a.reasons) for a in res.averages]
+    assert verdicts[0] == (0, True, ())
+    assert verdicts[1] == (0, False, ("double hit",))
+    assert verdicts[2][:2] == (0, False) and "overload on 10+X force" in verdicts[2][2][0]
+    lost = [v for v in verdicts if any("load cell 0 samples lost" in r for r in v[2])]
+    assert len(lost) == 1 and lost[0][0] == 1
+    assert sum(v[1] for v in verdicts) == 4 and len(progress) == len(verdicts)
+    # FRFs: responses and gauges against the closed form
+    h_true = src.frf(res.frequencies_hz)  # (L, 3, 2)
+    band = slice(1, None)
+    scale = np.abs(h_true).max()
+    np.testing.assert_allclose(res.H[band, :3], h_true[band], atol=2e-3 * scale)
+    g_true = np.einsum("gr,lri->lgi", src.gauge_mix, h_true)
+    np.testing.assert_allclose(res.H[band, 3:], g_true[band], atol=2e-3 * np.abs(g_true).max())
+    assert res.output_names[3] == "loadcell0 g01" and res.H.shape[1:] == (15, 2)
+    # everything is on disk, including the rejected averages
+    with h5py.File(tmp_path / "raw.h5") as f:
+        n = f["daq/data"].shape[1]
+        assert n >= 8 * 2048 and f["loadcell0/gauges_v"].shape[1] == n
+        avgs = [json.loads(s) for s in f["averages"][()]]
+        assert [a["accepted"] for a in avgs] == [v[1] for v in verdicts]
+        truth = src.read(np.array([2]), backend.world_sample(0), 1000)[0]
+        np.testing.assert_allclose(f["daq/data"][2, :1000], truth, atol=5 / 2**23 / (0.1 / G))
+
+
+def test_loadcell_forces_need_a_calibration(lab):
+    _, _, task, amp = lab()
+    with pytest.raises(SetupError, match="calibration matrix"):
+        ImpactSession(task, ["10+X force"], ["100+Z"], [amp])
