@@ -594,7 +594,7 @@ def _solve_lines(N: FloatArray, rhs: FloatArray) -> tuple[FloatArray, FloatArray
     n_lines, n = rhs.shape
     L = np.zeros_like(Ns)
     piv = np.empty((n_lines, n))
-    tiny = 1e-300
+    tiny = 1e-30
     for j in range(n):
         Lj = L[:, j, :j]
         sj = Ns[:, j, j] - np.einsum("li,li->l", Lj, Lj)
@@ -907,11 +907,12 @@ def plausibility(
 
 
 def _hull_check(cg: FloatArray, points: FloatArray) -> Diagnostic:
-    from scipy.spatial import Delaunay, QhullError
+    """CG inside the convex hull: every facet plane ``nᵀx + o ≤ 0`` holds (Qhull's outward normals)."""
+    from scipy.spatial import ConvexHull, QhullError
 
     pts = np.unique(np.asarray(points, float), axis=0)
     try:
-        inside = bool(Delaunay(pts).find_simplex(cg[None, :])[0] >= 0)
+        hull = ConvexHull(pts)
     except (QhullError, ValueError):
         return Diagnostic(
             "cg_inside_hull",
@@ -919,6 +920,8 @@ def _hull_check(cg: FloatArray, points: FloatArray) -> Diagnostic:
             "measured points are coplanar; CG hull check not possible",
             "info",
         )
+    scale = float(np.ptp(pts, axis=0).max())
+    inside = bool(np.all(hull.equations[:, :3] @ cg + hull.equations[:, 3] <= 1e-9 * scale))
     return Diagnostic(
         "cg_inside_hull",
         inside,
