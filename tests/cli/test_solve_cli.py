@@ -1,0 +1,134 @@
+"""``dimacq solve`` end to end: bundled example, independent sample files, errors."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from dimacq.cli.main import main
+from dimacq.io.setup_file import load_setup
+from dimacq.io.uff import read_frf_uff
+from dimacq.simulators.lab.forward import six_triax_box
+
+ROOT = Path(__file__).resolve().parents[2]
+EXAMPLES = ROOT / "config" / "examples"
+SAMPLES = Path(os.environ.get("DIMACQ_SAMPLES_DIR", ROOT.parent / "shared" / "samples"))
+
+
+def test_bundled_example_is_the_forward_model_and_solves_to_its_truth(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    setup = load_setup(EXAMPLES / "six_triax_setup.toml")
+    bundled = read_frf_uff(EXAMPLES / "six_triax_frf.uff", setup)
+    model = six_triax_box(setup).frf(bundled.frequencies_hz)
+    assert np.allclose(
+        bundled.H,
+        model.select(outputs=np.array([model.outputs.index(c) for c in bundled.outputs])).H,
+        rtol=1e-12,
+        atol=0,
+    )
+    out = tmp_path / "sol.json"
+    rc = main(
+        [
+            "solve",
+            str(EXAMPLES / "six_triax_setup.toml"),
+            str(EXAMPLES / "six_triax_frf.uff"),
+            "--reference",
+            str(EXAMPLES / "six_triax_truth.json"),
+            "--json",
+            str(out),
+        ]
+    )
+    assert rc == 0
+    text = capsys.readouterr().out
+    assert "error %" in text and "principal moments" in text and "tensor sign" in text
+    data = json.loads(out.read_text())
+    truth = json.loads((EXAMPLES / "six_triax_truth.json").read_text())
+    assert data["mass_kg"] == pytest.approx(truth["mass_kg"], rel=1e-9)
+    assert np.allclose(data["inertia_cg_kgm2"], truth["inertia_cg_kgm2"], atol=1e-9)
+    assert max(abs(v) for v in data["error_pct"].values()) < 1e-6
+
+
+@pytest.mark.skipif(not SAMPLES.is_dir(), reason="shared samples folder absent")
+@pytest.mark.parametrize("name", ["bracket_clean_binary.uff", "bracket_clean_ascii.uff"])
+def test_independent_sample_files_solve_to_their_truth(name: str, tmp_path: Path) -> None:
+    out = tmp_path / "sol.json"
+    assert main(["solve", str(SAMPLES / name), "--json", str(out)]) == 0
+    data = json.loads(out.read_text())
+    truth = json.loads((SAMPLES / "bracket_truth.json").read_text())
+    assert data["mass_kg"] == pytest.approx(truth["mass_kg"], rel=1e-9)
+    assert np.allclose(data["cg_m"], truth["cg_m"], atol=1e-10)
+    assert np.allclose(data["inertia_p_kgm2"], truth["inertia_p_kgm2"], atol=1e-10)
+    assert np.allclose(data["inertia_cg_kgm2"], truth["inertia_cg_kgm2"], atol=1e-10)
+
+
+@pytest.mark.skipif(not SAMPLES.is_dir(), reason="shared samples folder absent")
+def test_noisy_sample_within_a_tenth_of_a_percent_and_known_mass(tmp_path: Path) -> None:
+    out = tmp_path / "sol.json"
+    args = [
+        "solve",
+        str(SAMPLES / "bracket_noisy_ascii.uff"),
+        "--known-mass",
+        "3.2",
+        "--known-cg",
+        "-",
+        "-0.01",
+        "-",
+    ]
+    assert main([*args, "--json", str(out)]) == 0
+    data = json.loads(out.read_text())
+    assert data["mass_kg"] == 3.2 and data["cg_m"][1] == pytest.approx(-0.01)
+    assert data["known"] == {"m": 3.2, "cy": -0.01}
+    assert data["cg_m"][0] == pytest.approx(0.02, abs=2e-4)
+
+
+def test_errors_name_the_item_and_exit_2(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert main(["solve", str(tmp_path / "missing.uff")]) == 2
+    assert "does not exist" in capsys.readouterr().err
+    assert main(["solve", str(EXAMPLES / "six_triax_setup.toml")]) == 2
+    assert "needs its FRFs" in capsys.readouterr().err
+    args = ["solve", str(EXAMPLES / "six_triax_setup.toml"), str(EXAMPLES / "six_triax_frf.uff")]
+    assert main([*args, "--known-inertia", "Ixq=1"]) == 2
+    assert "NAME one of Ixx" in capsys.readouterr().err
+    assert main([*args, "--band", "500", "600"]) == 2
+    assert "holds no line" in capsys.readouterr().err
+    assert main([*args, "--known-mass", "-3"]) == 2
+    assert "positive mass" in capsys.readouterr().err
+
+
+def test_scale_to_mass_and_options(tmp_path: Path) -> None:
+    out = tmp_path / "sol.json"
+    args = ["solve", str(EXAMPLES / "six_triax_setup.toml"), str(EXAMPLES / "six_triax_frf.uff")]
+    rc = main(
+        [
+            *args,
+            "--scale-to-mass",
+            "12.5",
+            "--band",
+            "20",
+            "80",
+            "--length-unit",
+            "mm",
+            "--method",
+            "mean",
+            "--reference-point",
+            "0",
+            "0",
+            "0.1",
+            "--json",
+            str(out),
+        ]
+    )
+    assert rc == 0
+    data = json.loads(out.read_text())
+    assert data["frf_scale_factor"] == pytest.approx(1.0, abs=1e-9)
+    assert (
+        data["band_hz"] == [20.0, 80.0] and data["length_unit"] == "mm" and data["method"] == "mean"
+    )
+    assert data["reference_point_m"] == [0.0, 0.0, 0.1]
