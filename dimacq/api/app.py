@@ -1,0 +1,238 @@
+"""App factory: ``create_app(settings)`` → FastAPI app around a :class:`~dimacq.services.lab.Lab`.
+
+- The lab (database, devices) is opened in the lifespan handler and held on ``app.state.lab``.
+- Access: every state-changing call (any method but GET/HEAD/OPTIONS) under ``/api`` needs the
+  token (``Authorization: Bearer <token>``). It is checked by an ASGI middleware *before* the body
+  is read or validated, so an anonymous caller gets 401 and learns nothing about the body schema.
+- CORS only for the configured origins (none by default).
+- Errors: every failure is a 4xx/503 JSON :class:`~dimacq.api.schemas.ErrorBody` naming the field:
+  request validation → 422; :class:`~dimacq.errors.DataError` → 400;
+  :class:`~dimacq.errors.SetupError` and :class:`~dimacq.errors.SolverError` → 422;
+  :class:`~dimacq.errors.DeviceStateError` → 409; other :class:`~dimacq.errors.DeviceError` → 503.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import secrets
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+from typing import Any
+
+from fastapi import FastAPI, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.middleware.cors import CORSMiddleware
+from fastapi.openapi.utils import get_openapi
+from fastapi.responses import JSONResponse
+from starlette.types import ASGIApp, Receive, Scope, Send
+
+from dimacq.api.routers import (
+    acquisitions,
+    calibrations,
+    devices,
+    digitizer,
+    frfs,
+    jobs,
+    sensitivity,
+    setups,
+    solutions,
+    status,
+)
+from dimacq.api.schemas import ErrorBody
+from dimacq.config import Settings, load_settings
+from dimacq.errors import (
+    DataError,
+    DeviceError,
+    DeviceStateError,
+    SetupError,
+    SolverError,
+)
+from dimacq.services.lab import Lab
+
+__all__ = ["create_app"]
+
+log = logging.getLogger(__name__)
+
+_SAFE_METHODS = frozenset({"GET", "HEAD", "OPTIONS"})
+
+ERROR_RESPONSES: dict[int | str, dict[str, Any]] = {
+    400: {"model": ErrorBody, "description": "unusable data (the message names the item)"},
+    401: {"model": ErrorBody, "description": "missing or wrong token (state-changing calls)"},
+    404: {"model": ErrorBody, "description": "no such item"},
+    409: {"model": ErrorBody, "description": "the request does not fit the device or job state"},
+    422: {"model": ErrorBody, "description": "invalid request (the message names the field)"},
+    503: {"model": ErrorBody, "description": "device unavailable"},
+}
+
+
+class TokenMiddleware:
+    """Refuse state-changing calls under ``/api`` without the token (before any body parsing)."""
+
+    def __init__(self, app: ASGIApp, token: str) -> None:
+        self.app = app
+        self.token = token.encode()
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if (
+            scope["type"] == "http"
+            and scope["method"] not in _SAFE_METHODS
+            and scope["path"].startswith("/api")
+        ):
+            given = b""
+            for k, v in scope.get("headers", []):
+                if k == b"authorization" and v[:7].lower() == b"bearer ":
+                    given = v[7:].strip()
+                elif k == b"x-dimacq-token":
+                    given = v.strip()
+            if not given or not secrets.compare_digest(given, self.token):
+                body = json.dumps(
+                    {
+                        "detail": "this call changes state and needs the token: send "
+                        "'Authorization: Bearer <token>' (see <data_dir>/token or DIMACQ_TOKEN)",
+                        "field": "Authorization",
+                        "errors": [],
+                    }
+                ).encode()
+                await send(
+                    {
+                        "type": "http.response.start",
+                        "status": 401,
+                        "headers": [
+                            (b"content-type", b"application/json"),
+                            (b"content-length", str(len(body)).encode()),
+                            (b"www-authenticate", b"Bearer"),
+                        ],
+                    }
+                )
+                await send({"type": "http.response.body", "body": body})
+                return
+        await self.app(scope, receive, send)
+
+
+def _error(
+    status: int, detail: str, field: str | None = None, errors: list[Any] | None = None
+) -> JSONResponse:
+    return JSONResponse(
+        status_code=status, content={"detail": detail, "field": field, "errors": errors or []}
+    )
+
+
+def _loc(loc: tuple[Any, ...] | list[Any]) -> str:
+    out = ""
+    for p in loc:
+        if isinstance(p, int):
+            out += f"[{p}]"
+        else:
+            out += ("." if out else "") + str(p)
+    return out
+
+
+def _install_error_handlers(app: FastAPI) -> None:
+    @app.exception_handler(RequestValidationError)
+    async def _validation(_req: Request, err: RequestValidationError) -> JSONResponse:
+        errs: list[dict[str, Any]] = []
+        for e in err.errors():
+            loc = tuple(e.get("loc", ()))
+            errs.append(
+                {
+                    "loc": [str(p) for p in loc],
+                    "field": _loc(loc),
+                    "msg": str(e.get("msg", "")),
+                    "type": str(e.get("type", "")),
+                }
+            )
+        field = errs[0]["field"] if errs else None
+        detail = "; ".join(f"{e['field']}: {e['msg']}" for e in errs) or "invalid request"
+        return _error(422, detail, field, errs)
+
+    @app.exception_handler(DataError)
+    async def _data(_req: Request, err: DataError) -> JSONResponse:
+        return _error(400, str(err))
+
+    @app.exception_handler(SetupError)
+    async def _setup(_req: Request, err: SetupError) -> JSONResponse:
+        return _error(422, str(err))
+
+    @app.exception_handler(SolverError)
+    async def _solver(_req: Request, err: SolverError) -> JSONResponse:
+        return _error(422, str(err))
+
+    @app.exception_handler(DeviceStateError)
+    async def _state(_req: Request, err: DeviceStateError) -> JSONResponse:
+        return _error(409, str(err))
+
+    @app.exception_handler(DeviceError)
+    async def _device(_req: Request, err: DeviceError) -> JSONResponse:
+        return _error(503, str(err))
+
+
+def _custom_openapi(app: FastAPI) -> Any:
+    def openapi() -> dict[str, Any]:
+        if app.openapi_schema:
+            return app.openapi_schema
+        schema = get_openapi(
+            title=app.title, version=app.version, description=app.description, routes=app.routes
+        )
+        comps = schema.setdefault("components", {})
+        comps.setdefault("securitySchemes", {})["bearer"] = {"type": "http", "scheme": "bearer"}
+        for path, ops in schema.get("paths", {}).items():
+            for method, op in ops.items():
+                if method.upper() not in _SAFE_METHODS and path.startswith("/api"):
+                    op["security"] = [{"bearer": []}]
+                # the default 422 schema is replaced by ErrorBody everywhere
+        app.openapi_schema = schema
+        return schema
+
+    return openapi
+
+
+def create_app(settings: Settings | None = None, *, lab: Lab | None = None) -> FastAPI:
+    """Build the app. ``lab`` may be given (tests); otherwise the lifespan opens one from
+    ``settings`` and closes it at shutdown."""
+    settings = settings or load_settings()
+    token = settings.resolved_token()
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        owned = lab is None
+        app.state.lab = lab if lab is not None else Lab(settings)
+        try:
+            yield
+        finally:
+            if owned:
+                app.state.lab.close()
+
+    app = FastAPI(
+        title="dimacq",
+        version="0.1.0",
+        description="Rigid-body inertia properties by the Dynamic Inertia Method: the lab service.",
+        lifespan=lifespan,
+        responses=ERROR_RESPONSES,
+    )
+    app.state.settings = settings
+    app.state.token = token
+    _install_error_handlers(app)
+    for r in (
+        status,
+        devices,
+        digitizer,
+        setups,
+        acquisitions,
+        frfs,
+        calibrations,
+        solutions,
+        sensitivity,
+        jobs,
+    ):
+        app.include_router(r.router)
+    app.add_middleware(TokenMiddleware, token=token)
+    if settings.cors_origins:  # outermost, so a 401 still carries the CORS headers
+        app.add_middleware(
+            CORSMiddleware,
+            allow_origins=list(settings.cors_origins),
+            allow_methods=["*"],
+            allow_headers=["Authorization", "Content-Type", "X-Dimacq-Token"],
+        )
+    app.openapi = _custom_openapi(app)  # type: ignore[method-assign]
+    return app

@@ -1,0 +1,96 @@
+"""Digitizer: shots, speed of sound, points, patches, reference nodes, registration, jig
+orientation, lines of action."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from fastapi import APIRouter, status
+
+from dimacq.api.deps import LabDep
+from dimacq.api.schemas import (
+    LineOfActionRequest,
+    OrientationRequest,
+    PatchRequest,
+    PointOut,
+    PointRequest,
+    ReferenceNodesRequest,
+    RegistrationRequest,
+    ShotsRequest,
+)
+
+router = APIRouter(prefix="/api/digitizer", tags=["digitizer"])
+
+
+@router.post("/shots", response_model=dict[str, Any])
+def fire_shots(body: ShotsRequest, lab: LabDep) -> dict[str, Any]:
+    """Fire raw shots; each with its triangulated tip, speed of sound and verdict."""
+    if body.sim_probe is not None:
+        lab.place_simulated_probe(body.sim_probe.tip_m, body.sim_probe.axis)
+    return lab.fire_shots(body.n)
+
+
+@router.get("/speed-of-sound", response_model=dict[str, float])
+def speed_of_sound(lab: LabDep) -> dict[str, float]:
+    """Fire three shots and report the speed of sound measured on the calibration bar."""
+    return {"speed_of_sound_m_s": lab.fire_shots(3)["speed_of_sound_m_s"]}
+
+
+@router.post("/points", response_model=PointOut, status_code=status.HTTP_201_CREATED)
+def digitize_point(body: PointRequest, lab: LabDep) -> dict[str, Any]:
+    """Digitize one labelled point (committed to the database before the reply)."""
+    if body.sim_probe is not None:
+        lab.place_simulated_probe(body.sim_probe.tip_m, body.sim_probe.axis)
+    return lab.digitize(body.label, body.shots)
+
+
+@router.get("/points", response_model=list[PointOut])
+def list_points(lab: LabDep) -> list[dict[str, Any]]:
+    return lab.points()
+
+
+@router.get("/patches", response_model=list[dict[str, Any]])
+def list_patches(lab: LabDep) -> list[dict[str, Any]]:
+    return lab.patches()
+
+
+@router.post("/patches", response_model=dict[str, Any], status_code=status.HTTP_201_CREATED)
+def new_patch(body: PatchRequest, lab: LabDep) -> dict[str, Any]:
+    """The array moved: later points belong to a new patch."""
+    return lab.new_patch(body.name)
+
+
+@router.put("/reference-nodes", response_model=list[dict[str, Any]])
+def set_reference_nodes(body: ReferenceNodesRequest, lab: LabDep) -> list[dict[str, Any]]:
+    return lab.set_reference_nodes(body.nodes)
+
+
+@router.get("/reference-nodes", response_model=list[dict[str, Any]])
+def reference_nodes(lab: LabDep) -> list[dict[str, Any]]:
+    return lab.reference_nodes()
+
+
+@router.post("/registrations", response_model=dict[str, Any])
+def register_patch(body: RegistrationRequest, lab: LabDep) -> dict[str, Any]:
+    return lab.register_patch(body.patch, body.method, body.labels)
+
+
+@router.post("/orientations", response_model=dict[str, Any], status_code=status.HTTP_201_CREATED)
+def fit_orientation(body: OrientationRequest, lab: LabDep) -> dict[str, Any]:
+    """Orientation of a triax from its digitized jig indentations (``<prefix>X1`` .. ``Z8``)."""
+    return lab.fit_orientation(body.node, body.prefix, body.method)
+
+
+@router.get("/orientations", response_model=list[dict[str, Any]])
+def orientations(lab: LabDep) -> list[dict[str, Any]]:
+    return lab.orientations()
+
+
+@router.post("/lines-of-action", response_model=dict[str, Any], status_code=status.HTTP_201_CREATED)
+def fit_line_of_action(body: LineOfActionRequest, lab: LabDep) -> dict[str, Any]:
+    return lab.fit_line_of_action(body.node, body.input_label, body.labels, body.method)
+
+
+@router.get("/lines-of-action", response_model=list[dict[str, Any]])
+def lines_of_action(lab: LabDep) -> list[dict[str, Any]]:
+    return lab.lines_of_action()

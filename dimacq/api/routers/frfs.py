@@ -1,0 +1,58 @@
+"""FRF sets: list, read, import (UFF), export (UFF)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from fastapi import APIRouter, Query, Request, Response, status
+from starlette.concurrency import run_in_threadpool
+
+from dimacq.api.deps import LabDep
+from dimacq.api.routers._common import RAW_BODY, found, read_upload
+from dimacq.api.schemas import FrfOut
+
+router = APIRouter(prefix="/api/frfs", tags=["frfs"])
+
+
+@router.get("", response_model=list[FrfOut])
+def list_frfs(lab: LabDep) -> list[dict[str, Any]]:
+    return lab.frfs()
+
+
+@router.get("/{frf_id}", response_model=FrfOut)
+def get_frf(frf_id: int, lab: LabDep) -> dict[str, Any]:
+    return found(lab.frf_summary(frf_id), f"FRF set {frf_id}")
+
+
+@router.get("/{frf_id}/data", response_model=dict[str, Any])
+def frf_data(
+    frf_id: int,
+    lab: LabDep,
+    output: int | None = Query(default=None, ge=0),
+    input: int | None = Query(default=None, ge=0),
+) -> dict[str, Any]:
+    """FRF values (real, imag, coherence) of one output/input pair, or all."""
+    return found(lab.frf_data(frf_id, output, input), f"FRF set {frf_id}")
+
+
+@router.get(
+    "/{frf_id}/uff",
+    response_class=Response,
+    responses={200: {"content": {"application/octet-stream": {}}}},
+)
+def export_uff(frf_id: int, lab: LabDep, whole_test: bool = True) -> Response:
+    """The FRFs as UFF 58 (with geometry 164/2420/2411 when ``whole_test``)."""
+    data = found(lab.export_frf_uff(frf_id, whole_test), f"FRF set {frf_id}")
+    return Response(content=data, media_type="application/octet-stream")
+
+
+@router.post(
+    "/import", response_model=FrfOut, status_code=status.HTTP_201_CREATED, openapi_extra=RAW_BODY
+)
+async def import_uff(
+    request: Request, lab: LabDep, setup_id: int = Query(ge=1), name: str = ""
+) -> dict[str, Any]:
+    """Send a UFF file (58 records) whose channels match the setup."""
+    data = await read_upload(request)
+    fid = await run_in_threadpool(lab.import_frf, data, setup_id, name)
+    return found(lab.frf_summary(fid), f"FRF set {fid}")

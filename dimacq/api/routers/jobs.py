@@ -1,0 +1,75 @@
+"""Jobs: list, status, cancel, and live status as server-sent events."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+from collections.abc import AsyncIterator
+from typing import Any
+
+from fastapi import APIRouter
+from fastapi.responses import StreamingResponse
+
+from dimacq.api.deps import LabDep
+from dimacq.api.routers._common import found
+from dimacq.api.schemas import JobInfo
+from dimacq.services.jobs import FINAL_STATES
+
+router = APIRouter(prefix="/api/jobs", tags=["jobs"])
+
+
+@router.get("", response_model=list[JobInfo])
+async def list_jobs(lab: LabDep) -> list[dict[str, Any]]:
+    return lab.jobs.list_jobs()
+
+
+@router.get("/{job_id}", response_model=JobInfo)
+async def get_job(job_id: str, lab: LabDep) -> dict[str, Any]:
+    return found(lab.jobs.snapshot(job_id), f"job {job_id!r}")
+
+
+@router.post("/{job_id}/cancel", response_model=JobInfo)
+async def cancel_job(job_id: str, lab: LabDep) -> dict[str, Any]:
+    found(lab.jobs.snapshot(job_id), f"job {job_id!r}")
+    return lab.jobs.cancel(job_id)
+
+
+@router.get(
+    "/{job_id}/events",
+    response_class=StreamingResponse,
+    responses={
+        200: {
+            "content": {"text/event-stream": {}},
+            "description": "one 'status' event per change, then 'end'",
+        }
+    },
+)
+async def job_events(job_id: str, lab: LabDep, poll_s: float = 0.1) -> StreamingResponse:
+    """Server-sent events: ``event: status`` with the job's JSON on every change; ``event: end``
+    when it reaches a final state."""
+    found(lab.jobs.snapshot(job_id), f"job {job_id!r}")
+    poll = min(max(poll_s, 0.02), 2.0)
+
+    async def stream() -> AsyncIterator[str]:
+        seen = -1
+        idle = 0.0
+        while True:
+            snap = lab.jobs.snapshot(job_id)
+            if snap is None:
+                return
+            if snap["version"] != seen:
+                seen = snap["version"]
+                idle = 0.0
+                yield f"event: status\ndata: {json.dumps(snap)}\n\n"
+            if snap["state"] in FINAL_STATES:
+                yield f"event: end\ndata: {json.dumps(snap)}\n\n"
+                return
+            await asyncio.sleep(poll)
+            idle += poll
+            if idle >= 15.0:
+                idle = 0.0
+                yield ": keep-alive\n\n"
+
+    return StreamingResponse(
+        stream(), media_type="text/event-stream", headers={"Cache-Control": "no-cache"}
+    )

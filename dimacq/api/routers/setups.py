@@ -1,0 +1,71 @@
+"""Test setups: create, read, import (JSON/TOML/whole-test UFF), export, build from geometry."""
+
+from __future__ import annotations
+
+from typing import Any, Literal
+
+from fastapi import APIRouter, Request, Response, status
+
+from dimacq.api.deps import LabDep
+from dimacq.api.routers._common import RAW_BODY, found, read_upload
+from dimacq.api.schemas import FromGeometryRequest, ImportOut, SetupOut
+from dimacq.model.setup import TestSetup
+
+router = APIRouter(prefix="/api/setups", tags=["setups"])
+
+
+@router.post("", response_model=SetupOut, status_code=status.HTTP_201_CREATED)
+def create_setup(body: TestSetup, lab: LabDep) -> dict[str, Any]:
+    sid = lab.save_setup(body)
+    return found(lab.setup_summary(sid), f"setup {sid}")
+
+
+@router.get("", response_model=list[SetupOut])
+def list_setups(lab: LabDep) -> list[dict[str, Any]]:
+    return lab.setups()
+
+
+@router.get("/{setup_id}", response_model=SetupOut)
+def get_setup(setup_id: int, lab: LabDep) -> dict[str, Any]:
+    return found(lab.setup_summary(setup_id), f"setup {setup_id}")
+
+
+@router.get(
+    "/{setup_id}/export",
+    response_class=Response,
+    responses={200: {"content": {"application/json": {}, "application/toml": {}}}},
+)
+def export_setup(setup_id: int, lab: LabDep, format: Literal["json", "toml"] = "json") -> Response:
+    data, media = found(lab.export_setup(setup_id, format), f"setup {setup_id}")
+    return Response(content=data, media_type=media)
+
+
+@router.post(
+    "/import", response_model=ImportOut, status_code=status.HTTP_201_CREATED, openapi_extra=RAW_BODY
+)
+async def import_setup(
+    request: Request,
+    lab: LabDep,
+    format: Literal["json", "toml", "uff"] = "json",
+    name: str | None = None,
+) -> dict[str, Any]:
+    """Send the file as the body. ``uff`` (a whole test) also stores its FRFs."""
+    from starlette.concurrency import run_in_threadpool
+
+    data = await read_upload(request)
+    return await run_in_threadpool(lab.import_setup, data, format, name)
+
+
+@router.post("/from-geometry", response_model=SetupOut, status_code=status.HTTP_201_CREATED)
+def setup_from_geometry(body: FromGeometryRequest, lab: LabDep) -> dict[str, Any]:
+    """Responses from the oriented triaxes, inputs from the lines of action."""
+    sid = lab.setup_from_geometry(
+        name=body.name,
+        reference_point_m=body.reference_point_m,
+        length_unit=body.length_unit,
+        triaxes=body.triaxes,
+        inputs=body.inputs,
+        load_cells=body.load_cells,
+        known=body.known.model_dump(),
+    )
+    return found(lab.setup_summary(sid), f"setup {sid}")

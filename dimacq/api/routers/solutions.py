@@ -1,0 +1,47 @@
+"""DIM solutions: solve (options), result, diagnostics, figures."""
+
+from __future__ import annotations
+
+from typing import Any, Literal
+
+from fastapi import APIRouter, Response, status
+
+from dimacq.api.deps import LabDep
+from dimacq.api.routers._common import found
+from dimacq.api.schemas import SolutionOut, SolveRequest
+
+router = APIRouter(prefix="/api/solutions", tags=["solutions"])
+
+
+@router.post("", response_model=SolutionOut, status_code=status.HTTP_201_CREATED)
+def solve(body: SolveRequest, lab: LabDep) -> dict[str, Any]:
+    """Solve mass, CG and inertia from an FRF set; the result has the keys of ``dimacq solve --json``."""
+    options = body.model_dump(exclude={"frf_id"})
+    return found(lab.solve(body.frf_id, options), f"FRF set {body.frf_id}")
+
+
+@router.get("", response_model=list[SolutionOut])
+def list_solutions(lab: LabDep) -> list[dict[str, Any]]:
+    return lab.solutions()
+
+
+@router.get("/{solution_id}", response_model=SolutionOut)
+def get_solution(solution_id: int, lab: LabDep) -> dict[str, Any]:
+    return found(lab.solution(solution_id), f"solution {solution_id}")
+
+
+@router.get("/{solution_id}/diagnostics", response_model=list[dict[str, Any]])
+def diagnostics(solution_id: int, lab: LabDep) -> list[dict[str, Any]]:
+    sol = found(lab.solution(solution_id), f"solution {solution_id}")
+    return list(sol["result"].get("diagnostics", []))
+
+
+@router.get(
+    "/{solution_id}/figure",
+    response_class=Response,
+    responses={200: {"content": {"image/png": {}, "image/svg+xml": {}}}},
+)
+def figure(solution_id: int, lab: LabDep, format: Literal["png", "svg"] = "png") -> Response:
+    """Parameters against frequency with the band (thesis Fig. 25)."""
+    data = found(lab.solution_figure(solution_id, format), f"solution {solution_id}")
+    return Response(content=data, media_type="image/png" if format == "png" else "image/svg+xml")

@@ -1,0 +1,200 @@
+"""Request and response bodies of the REST API (pydantic). Unknown fields are refused (422)."""
+
+from __future__ import annotations
+
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from dimacq.model.setup import KnownProperties, LoadCell
+
+__all__ = [
+    "AcquisitionRequest",
+    "ErrorBody",
+    "FromGeometryRequest",
+    "JobInfo",
+    "LineOfActionRequest",
+    "OrientationRequest",
+    "PointRequest",
+    "RegistrationRequest",
+    "SolveRequest",
+]
+
+Vec3 = tuple[float, float, float]
+Param = Literal["m", "cx", "cy", "cz", "Ixx", "Ixy", "Ixz", "Iyy", "Iyz", "Izz"]
+
+
+class _Body(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class ErrorBody(BaseModel):
+    """Every error: a message naming the item and the fix, and the field when there is one."""
+
+    detail: str
+    field: str | None = None
+    errors: list[dict[str, Any]] = Field(default_factory=list)
+
+
+class SimProbe(_Body):
+    """Simulation only: where the simulated probe tip is (array coordinates) and its axis."""
+
+    tip_m: Vec3
+    axis: Vec3 = (0.0, 0.0, 1.0)
+
+
+class PointRequest(_Body):
+    label: str = Field(min_length=1, max_length=200)
+    shots: int | None = Field(default=None, ge=1, le=100)
+    sim_probe: SimProbe | None = None
+
+
+class ShotsRequest(_Body):
+    n: int = Field(default=1, ge=1, le=100)
+    sim_probe: SimProbe | None = None
+
+
+class PatchRequest(_Body):
+    name: str | None = Field(default=None, max_length=200)
+
+
+class ReferenceNodesRequest(_Body):
+    nodes: dict[str, Vec3] = Field(description="label → known GCS position, metres")
+
+
+class RegistrationRequest(_Body):
+    patch: int | None = Field(default=None, ge=0)
+    method: Literal["rigid", "similarity", "affine"] = "rigid"
+    labels: list[str] | None = None
+
+
+class OrientationRequest(_Body):
+    node: int = Field(ge=0)
+    prefix: str | None = Field(default=None, max_length=100)
+    method: Literal["rigid", "affine", "cross"] = "rigid"
+
+
+class LineOfActionRequest(_Body):
+    node: int = Field(ge=0)
+    input_label: str = Field(min_length=1, max_length=200)
+    labels: list[str] = Field(min_length=2)
+    method: Literal["svd", "eq13"] = "svd"
+
+
+class FromGeometryRequest(_Body):
+    name: str = ""
+    reference_point_m: Vec3 = (0.0, 0.0, 0.0)
+    length_unit: Literal["m", "cm", "mm"] = "m"
+    triaxes: list[int] | None = None
+    inputs: list[int] | None = None
+    load_cells: list[LoadCell] = Field(default_factory=list)
+    known: KnownProperties = KnownProperties()
+
+
+class SolveRequest(_Body):
+    frf_id: int = Field(ge=1)
+    band_hz: tuple[float, float] | None = None
+    known: dict[Param, float] = Field(default_factory=dict)
+    length_unit: Literal["m", "cm", "mm"] | None = None
+    method: Literal["joint", "mean"] = "joint"
+    select_responses: bool = False
+    select_inputs: bool = False
+    repair_orientation: bool = False
+    auto_band: bool = False
+
+
+class AcquisitionRequest(_Body):
+    setup_id: int = Field(ge=1)
+    averages_per_input: int = Field(default=5, ge=1, le=100)
+    record_samples: int = Field(default=2048, ge=64, le=1_048_576)
+    pretrigger_samples: int = Field(default=32, ge=0, le=65536)
+    trigger_level_n: float = Field(default=5.0, gt=0)
+    estimator: Literal["H1", "H2", "Hv"] = "H1"
+    exponential_tau_s: float | None = Field(default=None, gt=0)
+    force_window_samples: int | None = Field(default=None, ge=1)
+    seed: int = Field(default=0, ge=0)
+
+
+class SensitivityRequest(_Body):
+    half_size_m: float = Field(gt=0, le=1000)
+    sensors: int = Field(default=1, ge=1, le=8)
+    max_angle_deg: float = Field(gt=0, le=90)
+    trials: int = Field(default=500, ge=1, le=100_000)
+    seed: int = Field(default=0, ge=0)
+
+
+class JobInfo(BaseModel):
+    id: str
+    kind: str
+    state: Literal["pending", "running", "succeeded", "failed", "cancelled", "interrupted"]
+    progress: float
+    message: str
+    result: dict[str, Any] | None = None
+    error: str | None = None
+    created_at: str
+    finished_at: str | None = None
+    version: int = 0
+
+
+class DeviceOut(BaseModel):
+    name: str
+    kind: str
+    address: str
+    simulated: bool
+    connected: bool
+    identity: dict[str, Any]
+    error: str
+
+
+class StatusOut(BaseModel):
+    service: str
+    version: str
+    schema_version: int
+    uptime_s: float
+    devices: dict[str, dict[str, Any]]
+    jobs_running: list[dict[str, Any]]
+
+
+class PointOut(BaseModel):
+    label: str
+    patch: int
+    position_array_m: list[float]
+    spread_m: list[float]
+    n_shots: int
+    n_used: int
+    id: int | None = None
+    position_m: list[float] | None = None
+    seqs: list[int] | None = None
+
+
+class SetupOut(BaseModel):
+    id: int
+    name: str
+    n_responses: int
+    n_excitations: int
+    n_load_cells: int
+    setup: dict[str, Any]
+
+
+class ImportOut(BaseModel):
+    setup_id: int
+    frf_id: int | None = None
+
+
+class FrfOut(BaseModel):
+    id: int
+    setup_id: int
+    acquisition_id: int | None = None
+    name: str
+    n_lines: int
+    n_outputs: int
+    n_inputs: int
+    f_min_hz: float
+    f_max_hz: float
+
+
+class SolutionOut(BaseModel):
+    id: int
+    frf_id: int
+    options: dict[str, Any]
+    result: dict[str, Any]

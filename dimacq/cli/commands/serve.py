@@ -1,0 +1,45 @@
+"""``dimacq serve [--host H] [--port P]``: the lab service (REST API) on the simulated lab by default.
+
+Configuration: ``config/dimacq.toml``, overridden by ``DIMACQ_*`` variables, overridden by these
+arguments. Binds 127.0.0.1 unless told otherwise. State-changing calls need the token, printed at
+start (kept in ``<data_dir>/token`` unless ``DIMACQ_TOKEN`` is set).
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any
+
+
+def register(sub: Any) -> None:
+    p = sub.add_parser(
+        "serve",
+        help="serve the REST API (simulated lab by default)",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("--host", default=None, help="bind address (default 127.0.0.1)")
+    p.add_argument("--port", type=int, default=None, help="TCP port (default 8765)")
+    p.add_argument("--data-dir", type=Path, default=None, help="where the database and arrays live")
+    p.add_argument(
+        "--log-level", default="info", choices=("critical", "error", "warning", "info", "debug")
+    )
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from dimacq.api import create_app
+    from dimacq.api.server import serve
+    from dimacq.config import load_settings
+
+    settings = load_settings(host=args.host, port=args.port, data_dir=args.data_dir)
+    app = create_app(settings)
+    token_src = "DIMACQ_TOKEN / config" if settings.token else str(settings.data_dir / "token")
+    print(
+        f"dimacq serving http://{settings.host}:{settings.port}  (docs: /docs, spec: /openapi.json)"
+    )
+    print(f"data: {settings.data_dir}  database: {settings.db_url}")
+    print(f"token for state-changing calls: {app.state.token}  (from {token_src})", flush=True)
+    serve(app, settings.host, settings.port, log_level=args.log_level)
+    return 0

@@ -1,0 +1,126 @@
+"""Service configuration: pydantic-settings with a schema version.
+
+Sources, highest priority first: arguments given to :func:`load_settings` (the command line),
+``DIMACQ_*`` environment variables, ``config/dimacq.toml`` (or the file named by
+``DIMACQ_CONFIG``), the defaults below. Devices are simulated by default; pointing
+``digitizer_url``, ``loadcell_interface``/``loadcell_channel`` and ``daq_backend`` at real hardware
+is configuration only.
+"""
+
+from __future__ import annotations
+
+import os
+import secrets
+from pathlib import Path
+from typing import Any, Literal
+
+from pydantic import Field, ValidationError, field_validator
+from pydantic_settings import (
+    BaseSettings,
+    PydanticBaseSettingsSource,
+    SettingsConfigDict,
+    TomlConfigSettingsSource,
+)
+
+from dimacq.errors import SetupError
+
+__all__ = ["Settings", "default_config_file", "load_settings"]
+
+SCHEMA_VERSION: Literal[1] = 1
+
+
+def default_config_file() -> Path:
+    """``$DIMACQ_CONFIG`` or the repository's ``config/dimacq.toml``."""
+    env = os.environ.get("DIMACQ_CONFIG")
+    return Path(env) if env else Path(__file__).resolve().parents[1] / "config" / "dimacq.toml"
+
+
+def _default_data_dir() -> Path:
+    base = os.environ.get("XDG_DATA_HOME")
+    return (Path(base) if base else Path.home() / ".local" / "share") / "dimacq"
+
+
+class Settings(BaseSettings):
+    """Configuration of the dimacq service (``config/dimacq.toml``, schema_version 1)."""
+
+    model_config = SettingsConfigDict(env_prefix="DIMACQ_", extra="forbid", frozen=True)
+
+    schema_version: Literal[1] = SCHEMA_VERSION
+    data_dir: Path = Field(default_factory=_default_data_dir)
+    database_url: str = ""
+    host: str = "127.0.0.1"
+    port: int = Field(default=8765, ge=0, le=65535)
+    token: str = ""
+    cors_origins: list[str] = Field(default_factory=list)
+    digitizer_url: str = "simdigitizer://lab?seed=0"
+    loadcell_interface: str = "virtual"
+    loadcell_channel: str = "dimacq-lab"
+    daq_backend: Literal["simulated", "libusb"] = "simulated"
+    scenario: str = "calibration-mass-bungee"
+
+    @field_validator("data_dir", mode="before")
+    @classmethod
+    def _empty_data_dir(cls, v: Any) -> Any:
+        return _default_data_dir() if v in ("", None) else Path(str(v)).expanduser()
+
+    @property
+    def db_url(self) -> str:
+        """The SQLAlchemy URL (default: SQLite in the data directory)."""
+        return self.database_url or f"sqlite:///{self.data_dir / 'dimacq.sqlite'}"
+
+    @property
+    def simulated(self) -> bool:
+        return self.daq_backend == "simulated"
+
+    def resolved_token(self) -> str:
+        """The access token: configured, or generated once and kept in ``<data_dir>/token``."""
+        if self.token:
+            return self.token
+        path = self.data_dir / "token"
+        if path.exists():
+            text = path.read_text(encoding="utf-8").strip()
+            if text:
+                return text
+        self.data_dir.mkdir(parents=True, exist_ok=True)
+        tok = secrets.token_urlsafe(24)
+        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            fh.write(tok + "\n")
+        return tok
+
+    @classmethod
+    def settings_customise_sources(
+        cls,
+        settings_cls: type[BaseSettings],
+        init_settings: PydanticBaseSettingsSource,
+        env_settings: PydanticBaseSettingsSource,
+        dotenv_settings: PydanticBaseSettingsSource,
+        file_secret_settings: PydanticBaseSettingsSource,
+    ) -> tuple[PydanticBaseSettingsSource, ...]:
+        path = default_config_file()
+        sources: list[PydanticBaseSettingsSource] = [init_settings, env_settings]
+        if path.exists():
+            sources.append(TomlConfigSettingsSource(settings_cls, toml_file=path))
+        return tuple(sources)
+
+
+def load_settings(**overrides: Any) -> Settings:
+    """Settings from the file, the environment and ``overrides`` (None values are ignored).
+
+    Raises
+    ------
+    SetupError
+        A value is invalid; the message names the key and where it can be set.
+    """
+    given = {k: v for k, v in overrides.items() if v is not None}
+    try:
+        return Settings(**given)
+    except ValidationError as err:
+        first = err.errors()[0]
+        key = ".".join(str(p) for p in first["loc"])
+        raise SetupError(
+            f"configuration item {key!r}: {first['msg']}; fix it in {default_config_file()}, "
+            f"in DIMACQ_{key.upper()} or on the command line"
+        ) from err
+    except ValueError as err:  # e.g. malformed TOML
+        raise SetupError(f"configuration {default_config_file()}: {err}") from err

@@ -1,0 +1,98 @@
+"""Bulk arrays in HDF5 files under the data directory, referenced from the database by path.
+
+Every file is written whole and atomically: to a temporary file in the same directory, flushed
+and ``fsync``-ed, then renamed over the final name (and the directory ``fsync``-ed). A reader
+never sees a half-written file, and a file that exists is complete, so killing the service loses
+at most the item being written, never a completed average or FRF set. The database row that
+references a file is committed after the file is in place; :meth:`ArrayStore.orphans` finds files
+whose row was never committed (the service re-registers them at start-up).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import uuid
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import h5py
+import numpy as np
+from numpy.typing import NDArray
+
+from dimacq.errors import DataError
+
+__all__ = ["ArrayStore"]
+
+
+class ArrayStore:
+    """HDF5 files under ``root``; paths given and returned are relative to ``root``."""
+
+    def __init__(self, root: Path | str) -> None:
+        self.root = Path(root)
+        self.root.mkdir(parents=True, exist_ok=True)
+
+    def path(self, rel: str) -> Path:
+        p = (self.root / rel).resolve()
+        if self.root.resolve() not in p.parents:
+            raise DataError(
+                f"array file {rel!r} lies outside the data directory; use a relative path"
+            )
+        return p
+
+    def write(
+        self,
+        rel: str,
+        arrays: Mapping[str, NDArray[Any]],
+        attrs: Mapping[str, Any] | None = None,
+    ) -> str:
+        """Write ``arrays`` (name → ndarray) and JSON-able ``attrs`` atomically to ``rel``."""
+        final = self.path(rel)
+        final.parent.mkdir(parents=True, exist_ok=True)
+        tmp = final.with_name(f".{final.name}.{uuid.uuid4().hex}.tmp")
+        try:
+            with h5py.File(tmp, "w") as fh:
+                for name, arr in arrays.items():
+                    fh.create_dataset(name, data=np.asarray(arr))
+                fh.attrs["meta"] = json.dumps(dict(attrs or {}))
+                fh.flush()
+            with open(tmp, "rb") as raw:
+                os.fsync(raw.fileno())
+            os.replace(tmp, final)
+            dfd = os.open(final.parent, os.O_RDONLY)
+            try:
+                os.fsync(dfd)
+            finally:
+                os.close(dfd)
+        finally:
+            if tmp.exists():
+                tmp.unlink()
+        return rel
+
+    def read(self, rel: str) -> tuple[dict[str, NDArray[Any]], dict[str, Any]]:
+        """Arrays and attributes of a file written by :meth:`write`."""
+        p = self.path(rel)
+        if not p.exists():
+            raise DataError(
+                f"array file {rel!r} is missing from {self.root}; restore it from backup"
+            )
+        with h5py.File(p, "r") as fh:
+            arrays = {k: fh[k][()] for k in fh.keys()}
+            attrs = json.loads(fh.attrs.get("meta", "{}"))
+        return arrays, attrs
+
+    def exists(self, rel: str) -> bool:
+        return self.path(rel).exists()
+
+    def orphans(self, folder: str, known: set[str]) -> list[str]:
+        """Complete ``.h5`` files under ``folder`` not in ``known`` (sorted relative paths)."""
+        base = self.root / folder
+        if not base.exists():
+            return []
+        out = []
+        for p in sorted(base.rglob("*.h5")):
+            rel = p.relative_to(self.root).as_posix()
+            if rel not in known:
+                out.append(rel)
+        return out

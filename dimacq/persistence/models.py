@@ -1,0 +1,184 @@
+"""Database tables (SQLAlchemy 2 declarative, portable types only: SQLite and PostgreSQL).
+
+Bulk arrays (time data of each average, FRFs) are not in the database: rows reference HDF5 files
+under the data directory by a path relative to it (:class:`dimacq.persistence.arrays.ArrayStore`).
+"""
+
+from __future__ import annotations
+
+from datetime import UTC, datetime
+from typing import Any, ClassVar
+
+from sqlalchemy import JSON, Boolean, DateTime, Float, ForeignKey, Integer, String, Text
+from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
+
+__all__ = [
+    "Acquisition",
+    "Average",
+    "Base",
+    "Calibration",
+    "DigitizedPointRow",
+    "FrfSet",
+    "JobRow",
+    "LineOfActionRow",
+    "OrientationRow",
+    "PatchRow",
+    "ReferenceNode",
+    "SchemaMigration",
+    "SensitivityStudy",
+    "SetupRow",
+    "Solution",
+    "utcnow",
+]
+
+
+def utcnow() -> datetime:
+    return datetime.now(UTC)
+
+
+class Base(DeclarativeBase):
+    type_annotation_map: ClassVar[dict[Any, Any]] = {dict[str, Any]: JSON, list[Any]: JSON}
+
+
+class SchemaMigration(Base):
+    __tablename__ = "schema_migrations"
+    version: Mapped[int] = mapped_column(Integer, primary_key=True)
+    description: Mapped[str] = mapped_column(String(200))
+    applied_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
+
+
+class PatchRow(Base):
+    """An array position of the digitizer; ``registration`` maps its DACS to the GCS."""
+
+    __tablename__ = "patches"
+    index: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=False)
+    name: Mapped[str] = mapped_column(String(200))
+    registration: Mapped[dict[str, Any] | None] = mapped_column(JSON, nullable=True)
+
+
+class DigitizedPointRow(Base):
+    """One accepted digitized point (committed as soon as it is accepted)."""
+
+    __tablename__ = "digitized_points"
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    label: Mapped[str] = mapped_column(String(200), index=True)
+    patch: Mapped[int] = mapped_column(Integer)
+    position_array_m: Mapped[list[Any]] = mapped_column(JSON)
+    spread_m: Mapped[list[Any]] = mapped_column(JSON)
+    n_shots: Mapped[int] = mapped_column(Integer)
+    n_used: Mapped[int] = mapped_column(Integer)
+    seqs: Mapped[list[Any]] = mapped_column(JSON)
+    created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
+
+
+class ReferenceNode(Base):
+    """A reference node with known GCS coordinates (registration targets)."""
+
+    __tablename__ = "reference_nodes"
+    label: Mapped[str] = mapped_column(String(200), primary_key=True)
+    position_m: Mapped[list[Any]] = mapped_column(JSON)
+
+
+class OrientationRow(Base):
+    """A triaxial sensor's orientation from the jig (rotation: columns = local axes in the GCS)."""
+
+    __tablename__ = "orientations"
+    node: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=False)
+    body: Mapped[dict[str, Any]] = mapped_column(JSON)
+
+
+class LineOfActionRow(Base):
+    """An input's line of action."""
+
+    __tablename__ = "lines_of_action"
+    node: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=False)
+    body: Mapped[dict[str, Any]] = mapped_column(JSON)
+
+
+class SetupRow(Base):
+    __tablename__ = "setups"
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    name: Mapped[str] = mapped_column(String(200), default="")
+    body: Mapped[dict[str, Any]] = mapped_column(JSON)
+    created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
+
+
+class Acquisition(Base):
+    __tablename__ = "acquisitions"
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    setup_id: Mapped[int | None] = mapped_column(ForeignKey("setups.id"), nullable=True)
+    config: Mapped[dict[str, Any]] = mapped_column(JSON)
+    state: Mapped[str] = mapped_column(String(20), default="configured")
+    message: Mapped[str] = mapped_column(Text, default="")
+    job_id: Mapped[str | None] = mapped_column(String(40), nullable=True)
+    frf_id: Mapped[int | None] = mapped_column(Integer, nullable=True)
+    created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
+
+
+class Average(Base):
+    """One completed average (accepted or rejected) of an acquisition; data in an HDF5 file."""
+
+    __tablename__ = "averages"
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    acquisition_id: Mapped[int] = mapped_column(ForeignKey("acquisitions.id"), index=True)
+    input_index: Mapped[int] = mapped_column(Integer)
+    number: Mapped[int] = mapped_column(Integer)
+    accepted: Mapped[bool] = mapped_column(Boolean)
+    reason: Mapped[str] = mapped_column(Text, default="")
+    path: Mapped[str] = mapped_column(String(500))
+    created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
+
+
+class FrfSet(Base):
+    __tablename__ = "frf_sets"
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    setup_id: Mapped[int] = mapped_column(ForeignKey("setups.id"))
+    acquisition_id: Mapped[int | None] = mapped_column(Integer, nullable=True)
+    name: Mapped[str] = mapped_column(String(200), default="")
+    path: Mapped[str] = mapped_column(String(500))
+    n_lines: Mapped[int] = mapped_column(Integer)
+    n_outputs: Mapped[int] = mapped_column(Integer)
+    n_inputs: Mapped[int] = mapped_column(Integer)
+    f_min_hz: Mapped[float] = mapped_column(Float)
+    f_max_hz: Mapped[float] = mapped_column(Float)
+    created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
+
+
+class Solution(Base):
+    __tablename__ = "solutions"
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    frf_id: Mapped[int] = mapped_column(ForeignKey("frf_sets.id"))
+    options: Mapped[dict[str, Any]] = mapped_column(JSON)
+    result: Mapped[dict[str, Any]] = mapped_column(JSON)
+    created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
+
+
+class Calibration(Base):
+    __tablename__ = "calibrations"
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    serial: Mapped[str] = mapped_column(String(100))
+    body: Mapped[dict[str, Any]] = mapped_column(JSON)
+    created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
+
+
+class SensitivityStudy(Base):
+    __tablename__ = "sensitivity_studies"
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    params: Mapped[dict[str, Any]] = mapped_column(JSON)
+    result: Mapped[dict[str, Any] | None] = mapped_column(JSON, nullable=True)
+    created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
+
+
+class JobRow(Base):
+    """A background job's last known state (running jobs found at start-up were interrupted)."""
+
+    __tablename__ = "jobs"
+    id: Mapped[str] = mapped_column(String(40), primary_key=True)
+    kind: Mapped[str] = mapped_column(String(50))
+    state: Mapped[str] = mapped_column(String(20))
+    progress: Mapped[float] = mapped_column(Float, default=0.0)
+    message: Mapped[str] = mapped_column(Text, default="")
+    result: Mapped[dict[str, Any] | None] = mapped_column(JSON, nullable=True)
+    error: Mapped[str | None] = mapped_column(Text, nullable=True)
+    created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
+    finished_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True), nullable=True)

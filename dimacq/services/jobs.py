@@ -1,0 +1,293 @@
+"""Background jobs: long operations run on worker threads with progress, cancel and a final state.
+
+A job function receives a :class:`JobContext` and returns a JSON-able result::
+
+    def work(ctx: JobContext) -> dict:
+        for i in range(n):
+            ctx.check_cancelled()           # raises JobCancelled when cancel() was called
+            ...
+            ctx.progress((i + 1) / n, f"average {i + 1} of {n}")
+        return {"frf_id": 3}
+
+    job = manager.submit("acquisition", work)
+
+States: ``pending → running → succeeded | failed | cancelled``; a job that was running when the
+service stopped is ``interrupted`` after a restart (its completed work, e.g. averages, is in the
+database). Every change bumps :attr:`Job.version`, so watchers (the API's server-sent events) can
+wait for the next change cheaply. The persist callback stores each state change (progress changes
+at most every ``persist_interval_s``). No HTTP here.
+"""
+
+from __future__ import annotations
+
+import builtins
+import logging
+import threading
+import time
+import uuid
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from typing import Any, Literal
+
+from dimacq.errors import DimacqError, SetupError
+
+__all__ = ["FINAL_STATES", "Job", "JobCancelled", "JobContext", "JobManager", "JobState"]
+
+log = logging.getLogger(__name__)
+
+JobState = Literal["pending", "running", "succeeded", "failed", "cancelled", "interrupted"]
+FINAL_STATES: frozenset[str] = frozenset({"succeeded", "failed", "cancelled", "interrupted"})
+
+
+class JobCancelled(DimacqError):
+    """Raised inside a job function by :meth:`JobContext.check_cancelled` after a cancel."""
+
+
+@dataclass
+class Job:
+    """One background job (mutable; read a consistent copy with :meth:`snapshot`)."""
+
+    id: str
+    kind: str
+    state: JobState = "pending"
+    progress: float = 0.0
+    message: str = ""
+    result: dict[str, Any] | None = None
+    error: str | None = None
+    created_at: datetime = field(default_factory=lambda: datetime.now(UTC))
+    finished_at: datetime | None = None
+    version: int = 0
+    cancel_event: threading.Event = field(default_factory=threading.Event, repr=False)
+    thread: threading.Thread | None = field(default=None, repr=False)
+
+    @property
+    def done(self) -> bool:
+        return self.state in FINAL_STATES
+
+    def snapshot(self) -> dict[str, Any]:
+        return {
+            "id": self.id,
+            "kind": self.kind,
+            "state": self.state,
+            "progress": self.progress,
+            "message": self.message,
+            "result": self.result,
+            "error": self.error,
+            "created_at": self.created_at.isoformat(),
+            "finished_at": self.finished_at.isoformat() if self.finished_at else None,
+            "version": self.version,
+        }
+
+
+class JobContext:
+    """What a job function sees: progress reporting and the cancel flag."""
+
+    def __init__(self, manager: JobManager, job: Job) -> None:
+        self._manager = manager
+        self._job = job
+
+    @property
+    def job_id(self) -> str:
+        return self._job.id
+
+    @property
+    def cancelled(self) -> bool:
+        return self._job.cancel_event.is_set()
+
+    def check_cancelled(self) -> None:
+        """Raise :class:`JobCancelled` if a cancel was requested."""
+        if self._job.cancel_event.is_set():
+            raise JobCancelled(f"job {self._job.id} ({self._job.kind}) cancelled")
+
+    def progress(self, fraction: float, message: str = "") -> None:
+        """Report progress in 0..1 with a human message."""
+        self._manager._update(
+            self._job, progress=min(max(float(fraction), 0.0), 1.0), message=message
+        )
+
+
+JobFunction = Callable[[JobContext], dict[str, Any] | None]
+PersistFunction = Callable[[dict[str, Any]], None]
+
+
+class JobManager:
+    """Runs jobs on their own threads and keeps their state.
+
+    Parameters
+    ----------
+    persist : callable, optional
+        Called with :meth:`Job.snapshot` on every state change (and on progress, throttled).
+    persist_interval_s : float
+        Minimum time between two progress-only persist calls of one job.
+    max_running : int
+        Jobs allowed to run at once; :meth:`submit` beyond that raises SetupError.
+    """
+
+    def __init__(
+        self,
+        persist: PersistFunction | None = None,
+        *,
+        persist_interval_s: float = 1.0,
+        max_running: int = 4,
+    ) -> None:
+        self._jobs: dict[str, Job] = {}
+        self._lock = threading.Lock()
+        self._changed = threading.Condition(self._lock)
+        self._persist = persist
+        self._persist_interval_s = persist_interval_s
+        self._last_persist: dict[str, float] = {}
+        self.max_running = max_running
+
+    # -- queries -------------------------------------------------------------------------------
+    def get(self, job_id: str) -> Job | None:
+        with self._lock:
+            return self._jobs.get(job_id)
+
+    def snapshot(self, job_id: str) -> dict[str, Any] | None:
+        with self._lock:
+            job = self._jobs.get(job_id)
+            return None if job is None else job.snapshot()
+
+    def list_jobs(self) -> list[dict[str, Any]]:
+        with self._lock:
+            return [j.snapshot() for j in self._jobs.values()]
+
+    def running(self, kind: str | None = None) -> builtins.list[Job]:
+        with self._lock:
+            return [
+                j for j in self._jobs.values() if not j.done and (kind is None or j.kind == kind)
+            ]
+
+    def wait_change(
+        self, job_id: str, seen_version: int, timeout_s: float
+    ) -> dict[str, Any] | None:
+        """Block until the job's version exceeds ``seen_version`` or it is final, or the timeout."""
+        deadline = time.monotonic() + timeout_s
+        with self._changed:
+            while True:
+                job = self._jobs.get(job_id)
+                if job is None:
+                    return None
+                if job.version > seen_version or job.done:
+                    return job.snapshot()
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return job.snapshot()
+                self._changed.wait(left)
+
+    def wait(self, job_id: str, timeout_s: float | None = None) -> dict[str, Any]:
+        """Block until the job is final; return its snapshot."""
+        job = self.get(job_id)
+        if job is None:
+            raise SetupError(f"job {job_id!r} does not exist; list jobs to find its id")
+        if job.thread is not None:
+            job.thread.join(timeout_s)
+        snap = self.snapshot(job_id)
+        assert snap is not None
+        return snap
+
+    # -- control -------------------------------------------------------------------------------
+    def submit(self, kind: str, fn: JobFunction, *, job_id: str | None = None) -> Job:
+        """Start ``fn`` on a new thread; return the job at once."""
+        with self._lock:
+            active = sum(1 for j in self._jobs.values() if not j.done)
+            if active >= self.max_running:
+                raise SetupError(
+                    f"{active} jobs are running (limit {self.max_running}); wait for one to finish "
+                    "or cancel one"
+                )
+            job = Job(id=job_id or uuid.uuid4().hex[:12], kind=kind)
+            self._jobs[job.id] = job
+        self._store(job, force=True)
+        thread = threading.Thread(
+            target=self._run, args=(job, fn), name=f"dimacq-job-{kind}-{job.id}", daemon=True
+        )
+        job.thread = thread
+        thread.start()
+        return job
+
+    def cancel(self, job_id: str) -> dict[str, Any]:
+        """Ask a job to stop (it stops at its next check); final jobs are left as they are."""
+        job = self.get(job_id)
+        if job is None:
+            raise SetupError(f"job {job_id!r} does not exist; list jobs to find its id")
+        if not job.done:
+            job.cancel_event.set()
+            self._update(job, message="cancel requested")
+        snap = self.snapshot(job_id)
+        assert snap is not None
+        return snap
+
+    def shutdown(self, timeout_s: float = 10.0) -> None:
+        """Cancel every running job and join the threads."""
+        jobs = self.running()
+        for j in jobs:
+            j.cancel_event.set()
+        deadline = time.monotonic() + timeout_s
+        for j in jobs:
+            if j.thread is not None:
+                j.thread.join(max(0.0, deadline - time.monotonic()))
+            if j.thread is not None and j.thread.is_alive():
+                log.warning("job %s (%s) did not stop within %.1f s", j.id, j.kind, timeout_s)
+
+    # -- internals -----------------------------------------------------------------------------
+    def _update(self, job: Job, **changes: Any) -> None:
+        with self._changed:
+            for k, v in changes.items():
+                setattr(job, k, v)
+            job.version += 1
+            self._changed.notify_all()
+        self._store(job, force="state" in changes)
+
+    def _store(self, job: Job, force: bool) -> None:
+        if self._persist is None:
+            return
+        now = time.monotonic()
+        if not force and now - self._last_persist.get(job.id, 0.0) < self._persist_interval_s:
+            return
+        self._last_persist[job.id] = now
+        try:
+            self._persist(job.snapshot())
+        except Exception:  # persisting status must never kill the job
+            log.exception("could not persist the state of job %s", job.id)
+
+    def _run(self, job: Job, fn: JobFunction) -> None:
+        ctx = JobContext(self, job)
+        self._update(job, state="running", message="started")
+        try:
+            result = fn(ctx)
+        except JobCancelled as err:
+            self._finish(job, "cancelled", message=str(err))
+        except DimacqError as err:
+            log.warning("job %s (%s) failed: %s", job.id, job.kind, err)
+            self._finish(job, "failed", error=str(err), message=str(err))
+        except Exception as err:
+            log.exception("job %s (%s) failed with an internal error", job.id, job.kind)
+            self._finish(job, "failed", error=f"internal error: {type(err).__name__}: {err}")
+        else:
+            if job.cancel_event.is_set():
+                self._finish(job, "cancelled", result=result, message="cancelled")
+            else:
+                self._finish(job, "succeeded", result=result, progress=1.0, message="done")
+
+    def _finish(self, job: Job, state: JobState, **changes: Any) -> None:
+        self._update(job, state=state, finished_at=datetime.now(UTC), **changes)
+
+    def adopt(self, snapshot: dict[str, Any]) -> None:
+        """Register a job known from storage (final; e.g. interrupted by a restart)."""
+        created = snapshot.get("created_at")
+        finished = snapshot.get("finished_at")
+        job = Job(
+            id=snapshot["id"],
+            kind=snapshot["kind"],
+            state=snapshot["state"],
+            progress=float(snapshot.get("progress") or 0.0),
+            message=snapshot.get("message") or "",
+            result=snapshot.get("result"),
+            error=snapshot.get("error"),
+            created_at=created if isinstance(created, datetime) else datetime.now(UTC),
+            finished_at=finished if isinstance(finished, datetime) else None,
+        )
+        with self._lock:
+            self._jobs.setdefault(job.id, job)

@@ -1,0 +1,53 @@
+"""A live API server (uvicorn on a loopback port, in-process) per test module."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+
+import httpx
+import pytest
+from _api_support import TOKEN, Api, make_settings
+
+from dimacq.api import create_app
+from dimacq.api.server import BackgroundServer
+
+
+@pytest.fixture(scope="module")
+def api(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Api]:
+    settings = make_settings(tmp_path_factory.mktemp("api"))
+    app = create_app(settings)
+    with BackgroundServer(app) as srv:
+        auth = {"Authorization": f"Bearer {TOKEN}"}
+        with (
+            httpx.Client(base_url=srv.url, headers=auth, timeout=30) as c,
+            httpx.Client(base_url=srv.url, timeout=30) as anon,
+        ):
+            # spawn the server's worker threads before any per-test thread accounting
+            for _ in range(8):
+                c.get("/api/setups")
+            yield Api(srv.url, TOKEN, c, anon, app, settings)
+
+
+@pytest.fixture(autouse=True)
+def _no_leaked_threads() -> Iterator[None]:
+    """Overrides the suite-wide check for this folder: the module's server keeps AnyIO worker
+    threads alive between requests (they end with the server); every other thread is checked."""
+    import threading
+    import time
+
+    before = set(threading.enumerate())
+    yield
+    deadline = time.monotonic() + 2.0
+    while True:
+        leaked = [
+            t
+            for t in threading.enumerate()
+            if t not in before and t.is_alive() and not t.name.startswith("AnyIO worker thread")
+        ]
+        if not leaked or time.monotonic() > deadline:
+            break
+        time.sleep(0.02)
+    if leaked:
+        pytest.fail(
+            "test left threads running: " + ", ".join(t.name for t in leaked), pytrace=False
+        )
