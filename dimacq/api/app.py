@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import json
 import logging
+import re
 import secrets
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
@@ -25,6 +26,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.middleware.cors import CORSMiddleware
 from fastapi.openapi.utils import get_openapi
 from fastapi.responses import JSONResponse
+from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.types import ASGIApp, Receive, Scope, Send
 
 from dimacq.api.routers import (
@@ -39,6 +41,7 @@ from dimacq.api.routers import (
     solutions,
     status,
 )
+from dimacq.api.routers._common import add_body_components
 from dimacq.api.schemas import ErrorBody
 from dimacq.config import Settings, load_settings
 from dimacq.errors import (
@@ -128,6 +131,19 @@ def _loc(loc: tuple[Any, ...] | list[Any]) -> str:
     return out
 
 
+def _allowed_methods(app: FastAPI, path: str) -> set[str]:
+    """Methods the spec documents for ``path`` (static paths win over templated ones)."""
+    static: set[str] = set()
+    templated: set[str] = set()
+    for template, ops in app.openapi().get("paths", {}).items():
+        rx = "^" + re.sub(r"\\\{[^/]+?\\\}", "[^/]+", re.escape(template)) + "$"
+        if template == path:
+            static |= {m.upper() for m in ops}
+        elif "{" in template and re.match(rx, path):
+            templated |= {m.upper() for m in ops}
+    return static or templated
+
+
 def _install_error_handlers(app: FastAPI) -> None:
     @app.exception_handler(RequestValidationError)
     async def _validation(_req: Request, err: RequestValidationError) -> JSONResponse:
@@ -145,6 +161,20 @@ def _install_error_handlers(app: FastAPI) -> None:
         field = errs[0]["field"] if errs else None
         detail = "; ".join(f"{e['field']}: {e['msg']}" for e in errs) or "invalid request"
         return _error(422, detail, field, errs)
+
+    @app.exception_handler(StarletteHTTPException)
+    async def _http(req: Request, err: StarletteHTTPException) -> JSONResponse:
+        headers = dict(err.headers or {})
+        if err.status_code == 405:
+            # Starlette lists only the first matching route's methods; list every route's
+            allowed = _allowed_methods(req.app, req.url.path)
+            if allowed:
+                headers["Allow"] = ", ".join(sorted(allowed))
+        return JSONResponse(
+            status_code=err.status_code,
+            content={"detail": str(err.detail), "field": None, "errors": []},
+            headers=headers,
+        )
 
     @app.exception_handler(DataError)
     async def _data(_req: Request, err: DataError) -> JSONResponse:
@@ -175,6 +205,7 @@ def _custom_openapi(app: FastAPI) -> Any:
             title=app.title, version=app.version, description=app.description, routes=app.routes
         )
         comps = schema.setdefault("components", {})
+        add_body_components(comps)
         comps.setdefault("securitySchemes", {})["bearer"] = {"type": "http", "scheme": "bearer"}
         for path, ops in schema.get("paths", {}).items():
             for method, op in ops.items():

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -36,11 +36,15 @@ class ErrorBody(BaseModel):
     errors: list[dict[str, Any]] = Field(default_factory=list)
 
 
-class SimProbe(_Body):
-    """Simulation only: where the simulated probe tip is (array coordinates) and its axis."""
+Coord = Annotated[float, Field(ge=-100.0, le=100.0)]
 
-    tip_m: Vec3
-    axis: Vec3 = (0.0, 0.0, 1.0)
+
+class SimProbe(_Body):
+    """Simulation only: where the simulated probe tip is (array coordinates, within ±100 m) and
+    its axis."""
+
+    tip_m: tuple[Coord, Coord, Coord]
+    axis: tuple[Coord, Coord, Coord] = (0.0, 0.0, 1.0)
 
 
 class PointRequest(_Body):

@@ -2,19 +2,26 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Annotated, Any
 
 from fastapi import APIRouter, status
 
 from dimacq.api.deps import LabDep
-from dimacq.api.routers._common import found
+from dimacq.api.routers._common import body_openapi, found, strict_body
 from dimacq.api.schemas import AcquisitionRequest
 
 router = APIRouter(prefix="/api/acquisitions", tags=["acquisitions"])
 
 
-@router.post("", response_model=dict[str, Any], status_code=status.HTTP_202_ACCEPTED)
-def start_acquisition(body: AcquisitionRequest, lab: LabDep) -> dict[str, Any]:
+@router.post(
+    "",
+    response_model=dict[str, Any],
+    status_code=status.HTTP_202_ACCEPTED,
+    openapi_extra=body_openapi(AcquisitionRequest),
+)
+def start_acquisition(
+    lab: LabDep, body: Annotated[AcquisitionRequest, strict_body(AcquisitionRequest)]
+) -> dict[str, Any]:
     """Configure and start an impact acquisition (a job); FRFs are stored when it finishes."""
     return lab.start_acquisition(body.model_dump())
 
@@ -24,12 +31,12 @@ def list_acquisitions(lab: LabDep) -> list[dict[str, Any]]:
     return lab.acquisitions()
 
 
-@router.get("/{acq_id}", response_model=dict[str, Any])
+@router.get("/{acq_id:int}", response_model=dict[str, Any])
 def get_acquisition(acq_id: int, lab: LabDep) -> dict[str, Any]:
     """State, progress and the averages accepted and rejected so far."""
     return found(lab.acquisition(acq_id), f"acquisition {acq_id}")
 
 
-@router.post("/{acq_id}/stop", response_model=dict[str, Any])
+@router.post("/{acq_id:int}/stop", response_model=dict[str, Any])
 def stop_acquisition(acq_id: int, lab: LabDep) -> dict[str, Any]:
     return found(lab.stop_acquisition(acq_id), f"acquisition {acq_id}")

@@ -2,20 +2,41 @@
 
 from __future__ import annotations
 
-from typing import Annotated, Any
+import json
+from typing import Any
 
-from fastapi import APIRouter, Body, status
+from fastapi import APIRouter, Request, status
+from starlette.concurrency import run_in_threadpool
 
 from dimacq.api.deps import LabDep
 from dimacq.api.routers._common import found
+from dimacq.errors import DataError
 
 router = APIRouter(prefix="/api/calibrations", tags=["calibrations"])
 
 
-@router.post("", response_model=dict[str, Any], status_code=status.HTTP_201_CREATED)
-def add_calibration(lab: LabDep, body: Annotated[dict[str, Any], Body()]) -> dict[str, Any]:
+@router.post(
+    "",
+    response_model=dict[str, Any],
+    status_code=status.HTTP_201_CREATED,
+    openapi_extra={
+        "requestBody": {
+            "required": True,
+            "content": {"application/json": {"schema": {"type": "object"}}},
+        }
+    },
+)
+async def add_calibration(request: Request, lab: LabDep) -> dict[str, Any]:
     """A calibration JSON document (schema_version 1: serial_number, date, 6×12 matrix, ...)."""
-    return lab.save_calibration(body)
+    try:
+        body = json.loads(await request.body())
+    except (json.JSONDecodeError, UnicodeDecodeError) as err:
+        raise DataError(
+            f"body: not valid JSON ({err}); send the calibration JSON document"
+        ) from err
+    if not isinstance(body, dict):
+        raise DataError("body: send a JSON object (the calibration document)")
+    return await run_in_threadpool(lab.save_calibration, body)
 
 
 @router.get("", response_model=list[dict[str, Any]])
@@ -23,6 +44,6 @@ def list_calibrations(lab: LabDep) -> list[dict[str, Any]]:
     return lab.calibrations()
 
 
-@router.get("/{cal_id}", response_model=dict[str, Any])
+@router.get("/{cal_id:int}", response_model=dict[str, Any])
 def get_calibration(cal_id: int, lab: LabDep) -> dict[str, Any]:
     return found(lab.calibration(cal_id), f"calibration {cal_id}")

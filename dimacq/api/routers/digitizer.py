@@ -3,11 +3,12 @@ orientation, lines of action."""
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Annotated, Any
 
 from fastapi import APIRouter, status
 
 from dimacq.api.deps import LabDep
+from dimacq.api.routers._common import body_openapi, strict_body
 from dimacq.api.schemas import (
     LineOfActionRequest,
     OrientationRequest,
@@ -22,8 +23,10 @@ from dimacq.api.schemas import (
 router = APIRouter(prefix="/api/digitizer", tags=["digitizer"])
 
 
-@router.post("/shots", response_model=dict[str, Any])
-def fire_shots(body: ShotsRequest, lab: LabDep) -> dict[str, Any]:
+@router.post("/shots", response_model=dict[str, Any], openapi_extra=body_openapi(ShotsRequest))
+def fire_shots(
+    lab: LabDep, body: Annotated[ShotsRequest, strict_body(ShotsRequest)]
+) -> dict[str, Any]:
     """Fire raw shots; each with its triangulated tip, speed of sound and verdict."""
     if body.sim_probe is not None:
         lab.place_simulated_probe(body.sim_probe.tip_m, body.sim_probe.axis)
@@ -36,8 +39,15 @@ def speed_of_sound(lab: LabDep) -> dict[str, float]:
     return {"speed_of_sound_m_s": lab.fire_shots(3)["speed_of_sound_m_s"]}
 
 
-@router.post("/points", response_model=PointOut, status_code=status.HTTP_201_CREATED)
-def digitize_point(body: PointRequest, lab: LabDep) -> dict[str, Any]:
+@router.post(
+    "/points",
+    response_model=PointOut,
+    status_code=status.HTTP_201_CREATED,
+    openapi_extra=body_openapi(PointRequest),
+)
+def digitize_point(
+    lab: LabDep, body: Annotated[PointRequest, strict_body(PointRequest)]
+) -> dict[str, Any]:
     """Digitize one labelled point (committed to the database before the reply)."""
     if body.sim_probe is not None:
         lab.place_simulated_probe(body.sim_probe.tip_m, body.sim_probe.axis)
@@ -54,14 +64,27 @@ def list_patches(lab: LabDep) -> list[dict[str, Any]]:
     return lab.patches()
 
 
-@router.post("/patches", response_model=dict[str, Any], status_code=status.HTTP_201_CREATED)
-def new_patch(body: PatchRequest, lab: LabDep) -> dict[str, Any]:
+@router.post(
+    "/patches",
+    response_model=dict[str, Any],
+    status_code=status.HTTP_201_CREATED,
+    openapi_extra=body_openapi(PatchRequest),
+)
+def new_patch(
+    lab: LabDep, body: Annotated[PatchRequest, strict_body(PatchRequest)]
+) -> dict[str, Any]:
     """The array moved: later points belong to a new patch."""
     return lab.new_patch(body.name)
 
 
-@router.put("/reference-nodes", response_model=list[dict[str, Any]])
-def set_reference_nodes(body: ReferenceNodesRequest, lab: LabDep) -> list[dict[str, Any]]:
+@router.put(
+    "/reference-nodes",
+    response_model=list[dict[str, Any]],
+    openapi_extra=body_openapi(ReferenceNodesRequest),
+)
+def set_reference_nodes(
+    lab: LabDep, body: Annotated[ReferenceNodesRequest, strict_body(ReferenceNodesRequest)]
+) -> list[dict[str, Any]]:
     return lab.set_reference_nodes(body.nodes)
 
 
@@ -70,13 +93,24 @@ def reference_nodes(lab: LabDep) -> list[dict[str, Any]]:
     return lab.reference_nodes()
 
 
-@router.post("/registrations", response_model=dict[str, Any])
-def register_patch(body: RegistrationRequest, lab: LabDep) -> dict[str, Any]:
+@router.post(
+    "/registrations", response_model=dict[str, Any], openapi_extra=body_openapi(RegistrationRequest)
+)
+def register_patch(
+    lab: LabDep, body: Annotated[RegistrationRequest, strict_body(RegistrationRequest)]
+) -> dict[str, Any]:
     return lab.register_patch(body.patch, body.method, body.labels)
 
 
-@router.post("/orientations", response_model=dict[str, Any], status_code=status.HTTP_201_CREATED)
-def fit_orientation(body: OrientationRequest, lab: LabDep) -> dict[str, Any]:
+@router.post(
+    "/orientations",
+    response_model=dict[str, Any],
+    status_code=status.HTTP_201_CREATED,
+    openapi_extra=body_openapi(OrientationRequest),
+)
+def fit_orientation(
+    lab: LabDep, body: Annotated[OrientationRequest, strict_body(OrientationRequest)]
+) -> dict[str, Any]:
     """Orientation of a triax from its digitized jig indentations (``<prefix>X1`` .. ``Z8``)."""
     return lab.fit_orientation(body.node, body.prefix, body.method)
 
@@ -86,8 +120,15 @@ def orientations(lab: LabDep) -> list[dict[str, Any]]:
     return lab.orientations()
 
 
-@router.post("/lines-of-action", response_model=dict[str, Any], status_code=status.HTTP_201_CREATED)
-def fit_line_of_action(body: LineOfActionRequest, lab: LabDep) -> dict[str, Any]:
+@router.post(
+    "/lines-of-action",
+    response_model=dict[str, Any],
+    status_code=status.HTTP_201_CREATED,
+    openapi_extra=body_openapi(LineOfActionRequest),
+)
+def fit_line_of_action(
+    lab: LabDep, body: Annotated[LineOfActionRequest, strict_body(LineOfActionRequest)]
+) -> dict[str, Any]:
     return lab.fit_line_of_action(body.node, body.input_label, body.labels, body.method)
 
 

@@ -19,12 +19,12 @@ def list_frfs(lab: LabDep) -> list[dict[str, Any]]:
     return lab.frfs()
 
 
-@router.get("/{frf_id}", response_model=FrfOut)
+@router.get("/{frf_id:int}", response_model=FrfOut)
 def get_frf(frf_id: int, lab: LabDep) -> dict[str, Any]:
     return found(lab.frf_summary(frf_id), f"FRF set {frf_id}")
 
 
-@router.get("/{frf_id}/data", response_model=dict[str, Any])
+@router.get("/{frf_id:int}/data", response_model=dict[str, Any])
 def frf_data(
     frf_id: int,
     lab: LabDep,
@@ -36,7 +36,7 @@ def frf_data(
 
 
 @router.get(
-    "/{frf_id}/uff",
+    "/{frf_id:int}/uff",
     response_class=Response,
     responses={200: {"content": {"application/octet-stream": {}}}},
 )

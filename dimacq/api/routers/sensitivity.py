@@ -2,22 +2,29 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Annotated, Any
 
 from fastapi import APIRouter, status
 
 from dimacq.api.deps import LabDep
-from dimacq.api.routers._common import found
+from dimacq.api.routers._common import body_openapi, found, strict_body
 from dimacq.api.schemas import SensitivityRequest
 
 router = APIRouter(prefix="/api/sensitivity", tags=["sensitivity"])
 
 
-@router.post("", response_model=dict[str, Any], status_code=status.HTTP_202_ACCEPTED)
-def start(body: SensitivityRequest, lab: LabDep) -> dict[str, Any]:
+@router.post(
+    "",
+    response_model=dict[str, Any],
+    status_code=status.HTTP_202_ACCEPTED,
+    openapi_extra=body_openapi(SensitivityRequest),
+)
+def start(
+    lab: LabDep, body: Annotated[SensitivityRequest, strict_body(SensitivityRequest)]
+) -> dict[str, Any]:
     return lab.start_sensitivity(body.model_dump())
 
 
-@router.get("/{study_id}", response_model=dict[str, Any])
+@router.get("/{study_id:int}", response_model=dict[str, Any])
 def get(study_id: int, lab: LabDep) -> dict[str, Any]:
     return found(lab.sensitivity(study_id), f"sensitivity study {study_id}")

@@ -2,20 +2,25 @@
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, Request, Response, status
 
 from dimacq.api.deps import LabDep
-from dimacq.api.routers._common import RAW_BODY, found, read_upload
+from dimacq.api.routers._common import RAW_BODY, body_openapi, found, read_upload, strict_body
 from dimacq.api.schemas import FromGeometryRequest, ImportOut, SetupOut
 from dimacq.model.setup import TestSetup
 
 router = APIRouter(prefix="/api/setups", tags=["setups"])
 
 
-@router.post("", response_model=SetupOut, status_code=status.HTTP_201_CREATED)
-def create_setup(body: TestSetup, lab: LabDep) -> dict[str, Any]:
+@router.post(
+    "",
+    response_model=SetupOut,
+    status_code=status.HTTP_201_CREATED,
+    openapi_extra=body_openapi(TestSetup),
+)
+def create_setup(lab: LabDep, body: Annotated[TestSetup, strict_body(TestSetup)]) -> dict[str, Any]:
     sid = lab.save_setup(body)
     return found(lab.setup_summary(sid), f"setup {sid}")
 
@@ -25,13 +30,13 @@ def list_setups(lab: LabDep) -> list[dict[str, Any]]:
     return lab.setups()
 
 
-@router.get("/{setup_id}", response_model=SetupOut)
+@router.get("/{setup_id:int}", response_model=SetupOut)
 def get_setup(setup_id: int, lab: LabDep) -> dict[str, Any]:
     return found(lab.setup_summary(setup_id), f"setup {setup_id}")
 
 
 @router.get(
-    "/{setup_id}/export",
+    "/{setup_id:int}/export",
     response_class=Response,
     responses={200: {"content": {"application/json": {}, "application/toml": {}}}},
 )
@@ -56,8 +61,15 @@ async def import_setup(
     return await run_in_threadpool(lab.import_setup, data, format, name)
 
 
-@router.post("/from-geometry", response_model=SetupOut, status_code=status.HTTP_201_CREATED)
-def setup_from_geometry(body: FromGeometryRequest, lab: LabDep) -> dict[str, Any]:
+@router.post(
+    "/from-geometry",
+    response_model=SetupOut,
+    status_code=status.HTTP_201_CREATED,
+    openapi_extra=body_openapi(FromGeometryRequest),
+)
+def setup_from_geometry(
+    lab: LabDep, body: Annotated[FromGeometryRequest, strict_body(FromGeometryRequest)]
+) -> dict[str, Any]:
     """Responses from the oriented triaxes, inputs from the lines of action."""
     sid = lab.setup_from_geometry(
         name=body.name,

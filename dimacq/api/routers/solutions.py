@@ -2,19 +2,24 @@
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, Response, status
 
 from dimacq.api.deps import LabDep
-from dimacq.api.routers._common import found
+from dimacq.api.routers._common import body_openapi, found, strict_body
 from dimacq.api.schemas import SolutionOut, SolveRequest
 
 router = APIRouter(prefix="/api/solutions", tags=["solutions"])
 
 
-@router.post("", response_model=SolutionOut, status_code=status.HTTP_201_CREATED)
-def solve(body: SolveRequest, lab: LabDep) -> dict[str, Any]:
+@router.post(
+    "",
+    response_model=SolutionOut,
+    status_code=status.HTTP_201_CREATED,
+    openapi_extra=body_openapi(SolveRequest),
+)
+def solve(lab: LabDep, body: Annotated[SolveRequest, strict_body(SolveRequest)]) -> dict[str, Any]:
     """Solve mass, CG and inertia from an FRF set; the result has the keys of ``dimacq solve --json``."""
     options = body.model_dump(exclude={"frf_id"})
     return found(lab.solve(body.frf_id, options), f"FRF set {body.frf_id}")
@@ -25,19 +30,19 @@ def list_solutions(lab: LabDep) -> list[dict[str, Any]]:
     return lab.solutions()
 
 
-@router.get("/{solution_id}", response_model=SolutionOut)
+@router.get("/{solution_id:int}", response_model=SolutionOut)
 def get_solution(solution_id: int, lab: LabDep) -> dict[str, Any]:
     return found(lab.solution(solution_id), f"solution {solution_id}")
 
 
-@router.get("/{solution_id}/diagnostics", response_model=list[dict[str, Any]])
+@router.get("/{solution_id:int}/diagnostics", response_model=list[dict[str, Any]])
 def diagnostics(solution_id: int, lab: LabDep) -> list[dict[str, Any]]:
     sol = found(lab.solution(solution_id), f"solution {solution_id}")
     return list(sol["result"].get("diagnostics", []))
 
 
 @router.get(
-    "/{solution_id}/figure",
+    "/{solution_id:int}/figure",
     response_class=Response,
     responses={200: {"content": {"image/png": {}, "image/svg+xml": {}}}},
 )

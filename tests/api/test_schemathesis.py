@@ -1,0 +1,41 @@
+"""Property-based API testing against the OpenAPI spec (schemathesis): no 500, no schema violation.
+
+Bounded: a few examples per operation (the whole run takes well under a minute). Runs against the
+live server of this module on loopback, with the token, so state-changing operations are exercised
+past the access check. Every default check runs (no server error, status codes, content types,
+headers, response schemas, negative data rejected, Allow headers, ...) except
+``positive_data_acceptance``: a schema-valid request may still be refused on its meaning with a
+documented 4xx naming the item (registering a patch that has no reference nodes, solving an FRF
+set that does not exist, a simulated probe placed outside the digitizer's volume).
+"""
+
+from __future__ import annotations
+
+import pytest
+import schemathesis
+from _api_support import TOKEN, Api
+from hypothesis import HealthCheck, settings
+from schemathesis.specs.openapi.checks import positive_data_acceptance
+
+
+@pytest.fixture(scope="module")
+def api_schema(api: Api):
+    return schemathesis.openapi.from_url(f"{api.url}/openapi.json")
+
+
+schema = schemathesis.pytest.from_fixture("api_schema")
+
+
+@schema.parametrize()
+@settings(
+    max_examples=6,
+    deadline=None,
+    derandomize=True,
+    suppress_health_check=list(HealthCheck),
+)
+def test_api_conforms_to_its_spec(case, api: Api) -> None:
+    case.call_and_validate(
+        headers={"Authorization": f"Bearer {TOKEN}"},
+        timeout=30,
+        excluded_checks=[positive_data_acceptance],
+    )
