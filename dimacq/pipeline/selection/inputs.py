@@ -1,0 +1,444 @@
+"""Jackknife excitation selection and the excitation check (thesis §3.1, Eq. 16, Table 14).
+
+Excitation check (Eq. 16)
+-------------------------
+For the unit 6-DOF force vectors of the inputs at P, ``Φ = [φ_1 … φ_N]`` (6 × N, forces in N/N,
+moments in N·m/N), the autopower ``G = Φ Φᵀ`` (6 × 6): its diagonal says how strongly each of
+Fx, Fy, Fz, Mx, My, Mz is excited; the rank and singular values of Φ say whether every
+rigid-body DOF is excited (rank < 6: a DOF is not excited and DIM cannot be solved).
+
+Jackknife cycles (§3.1)
+-----------------------
+One cycle over the N active inputs: solve DIM N times, each with one input left out, giving
+``p_(−j)`` (10 parameters). With the jackknife mean ``p̄``, the deviation ``|p_(−j) − p̄|`` of each
+parameter is scaled to a maximum of 1 over j and summed over the parameters: the scaled-deviation
+sum ``S_j`` (thesis Fig. 11). The cycle also records the jackknife standard deviation of each
+parameter (thesis Fig. 12) and, for each input, its *predictive residual*
+``ρ_j = ‖A_j x_(−j) − b_j‖ / ‖b_j‖`` — how badly the input's own equations (Eq. 34) are met by the
+solution from the other inputs (rows scaled by their RMS over all inputs, so that forces and
+moments count alike).
+
+The input removed in a cycle is the one with the largest scaled-deviation sum whose removal keeps
+the excitation rank 6 (a removal dropping the rank is refused and recorded). Cycles continue past
+the chosen one for the history (figures), to a limit.
+
+Automatic choice of cycle (needs no known answer): the thesis notes the jackknife standard
+deviation alone does not always show when to stop. A removal is *justified* when the removed
+input's predictive residual is an outlier of the other active inputs' residuals (above ``ratio``
+times their median and their median plus ``z`` robust standard deviations). The chosen cycle is
+the number of leading justified removals: clean data lose nothing.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from dimacq.errors import SetupError, SolverError
+from dimacq.model.frf import Channel
+from dimacq.model.setup import PARAMETERS
+from dimacq.pipeline.dim import DimSystem, design_matrices, solve_system
+from dimacq.pipeline.selection._common import robust_outlier
+
+__all__ = [
+    "ExcitationCheck",
+    "JackknifeCycle",
+    "JackknifeSelection",
+    "excitation_check",
+    "jackknife_estimates",
+    "jackknife_inputs",
+    "predictive_residuals",
+]
+
+log = logging.getLogger(__name__)
+FloatArray = NDArray[np.float64]
+_DOF = ("Fx", "Fy", "Fz", "Mx", "My", "Mz")
+
+
+@dataclass(frozen=True)
+class ExcitationCheck:
+    """Eq. 16: rank, autopower diagonal and singular values of the inputs' 6-DOF force vectors.
+
+    Attributes
+    ----------
+    rank : int
+    autopower : ndarray, shape (6,)
+        ``diag(Φ Φᵀ)`` for Fx, Fy, Fz, Mx, My, Mz (moments in metres).
+    singular_values : ndarray, shape (6,)
+        Of Φ, descending (zeros when fewer than 6 inputs).
+    ok : bool
+        Rank 6.
+    weakest : str
+        The DOF with the smallest autopower.
+    n_inputs : int
+    """
+
+    rank: int
+    autopower: FloatArray
+    singular_values: FloatArray
+    ok: bool
+    weakest: str
+    n_inputs: int
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "rank": self.rank,
+            "autopower": dict(zip(_DOF, map(float, self.autopower), strict=True)),
+            "singular_values": [float(s) for s in self.singular_values],
+            "ok": self.ok,
+            "weakest": self.weakest,
+            "n_inputs": self.n_inputs,
+        }
+
+
+def excitation_check(phi_m: NDArray[np.floating], rtol: float = 1e-6) -> ExcitationCheck:
+    """Excitation check of Eq. 16.
+
+    Parameters
+    ----------
+    phi_m : ndarray, shape (6, n_inputs)
+        Unit force vectors at P, forces in N/N and moments in N·m/N (metres).
+    rtol : float
+        A singular value below ``rtol · σ_max`` counts as zero.
+    """
+    phi = np.asarray(phi_m, float)
+    if phi.ndim != 2 or phi.shape[0] != 6:
+        raise SetupError(f"phi has shape {phi.shape}; give the (6, n_inputs) unit force vectors")
+    G = phi @ phi.T
+    s = np.zeros(6)
+    if phi.shape[1]:
+        sv = np.linalg.svd(phi, compute_uv=False)
+        s[: sv.size] = sv[:6]
+    rank = int(np.sum(s > rtol * s.max(initial=0.0))) if s.max(initial=0.0) > 0 else 0
+    diag = np.diag(G).copy()
+    return ExcitationCheck(rank, diag, s, rank == 6, _DOF[int(np.argmin(diag))], phi.shape[1])
+
+
+def _phi_m(system: DimSystem) -> FloatArray:
+    phi = system.phi.copy()
+    phi[3:] *= system.unit_m
+    return phi
+
+
+def _x_working(params: FloatArray, system: DimSystem) -> FloatArray:
+    """[m, CG (GCS, m), I about P (kg·m²)] → x = [m, s, I] in the working unit (shape (..., 10))."""
+    u = system.unit_m
+    x = np.empty_like(params)
+    x[..., 0] = params[..., 0]
+    x[..., 1:4] = params[..., :1] * (params[..., 1:4] - system.reference_point_m) / u
+    x[..., 4:] = params[..., 4:] / u**2
+    return x
+
+
+def predictive_residuals(system: DimSystem, params: FloatArray) -> FloatArray:
+    """Relative residual of each input's equations for given parameters.
+
+    Parameters
+    ----------
+    system : DimSystem
+    params : ndarray, shape (10,) or (n_inputs, 10)
+        One parameter set for all inputs, or one per input (e.g. its leave-one-out solution).
+
+    Returns
+    -------
+    ndarray, shape (n_inputs,)
+        ``sqrt(mean_{lines, rows} |(A_j x − b_j)_r / s_r|²)`` with ``s_r`` the RMS of row r of b
+        over lines and inputs.
+    """
+    A = design_matrices(system.K)  # (L, J, 6, 10)
+    b = np.moveaxis(system.F, -1, -2)  # (L, J, 6)
+    x = _x_working(np.asarray(params, float), system)
+    if x.ndim == 1:
+        r = A @ x - b
+    else:
+        r = np.einsum("ljrp,jp->ljr", A, x) - b
+    s = np.sqrt(np.mean(np.abs(b) ** 2, axis=(0, 1)))
+    s = np.where(s > 0, s, 1.0)
+    out: FloatArray = np.sqrt(np.mean(np.abs(r / s) ** 2, axis=(0, 2)))
+    return out
+
+
+def jackknife_estimates(
+    system: DimSystem,
+    active: NDArray[np.bool_],
+    *,
+    known: Mapping[str, float] | None = None,
+) -> tuple[FloatArray, NDArray[np.bool_]]:
+    """Leave-one-out joint solutions over the active inputs.
+
+    Returns
+    -------
+    estimates : ndarray, shape (n_inputs, 10)
+        ``p_(−j)`` for every active input j (NaN rows for inactive inputs or rank-deficient solves).
+    solved : ndarray of bool, shape (n_inputs,)
+    """
+    n = system.K.shape[2]
+    est = np.full((n, 10), np.nan)
+    ok = np.zeros(n, dtype=bool)
+    for j in np.nonzero(active)[0]:
+        w = active.astype(float)
+        w[j] = 0.0
+        try:
+            res = solve_system(system, known=known, input_weights=w, check_plausibility=False)
+        except SolverError:
+            continue
+        est[j] = res.parameters
+        ok[j] = True
+    return est, ok
+
+
+@dataclass(frozen=True, eq=False)
+class JackknifeCycle:
+    """One jackknife cycle.
+
+    Attributes
+    ----------
+    active : ndarray of bool, shape (n_inputs,)
+        Inputs in play during this cycle.
+    estimates : ndarray, shape (n_inputs, 10)
+        Leave-one-out solutions (NaN for inactive inputs).
+    scaled_deviation : ndarray, shape (n_inputs, 10)
+        ``|p_(−j) − p̄| / max_j |p_(−j) − p̄|`` per parameter.
+    score : ndarray, shape (n_inputs,)
+        Scaled-deviation sum ``S_j`` (NaN for inactive inputs).
+    std : ndarray, shape (10,)
+        Jackknife standard deviation of each parameter over the leave-one-out solutions.
+    residual : ndarray, shape (n_inputs,)
+        Predictive residual ``ρ_j``.
+    removed : int or None
+        Index of the input removed at the end of this cycle.
+    justified : bool
+        Whether that removal passed the outlier rule.
+    median_others, threshold : float
+    refused : tuple of int
+        Candidates refused by the excitation check (rank would drop below 6).
+    excitation : ExcitationCheck
+        Of the active inputs after the removal.
+    """
+
+    active: NDArray[np.bool_]
+    estimates: FloatArray
+    scaled_deviation: FloatArray
+    score: FloatArray
+    std: FloatArray
+    residual: FloatArray
+    removed: int | None
+    justified: bool
+    median_others: float
+    threshold: float
+    refused: tuple[int, ...]
+    excitation: ExcitationCheck
+
+
+@dataclass(frozen=True, eq=False)
+class JackknifeSelection:
+    """Outcome of the jackknife excitation selection.
+
+    Attributes
+    ----------
+    inputs : tuple of Channel
+    keep : ndarray of bool, shape (n_inputs,)
+        Inputs kept at the chosen cycle.
+    excluded : tuple of Channel
+        Removed (in order) plus the forced-out ones.
+    cycles : tuple of JackknifeCycle
+        The full history (may run past the chosen cycle).
+    chosen_cycle : int
+        Number of automatic removals accepted.
+    stop_reason : str
+    excitation : ExcitationCheck
+        Of the kept inputs.
+    """
+
+    inputs: tuple[Channel, ...]
+    keep: NDArray[np.bool_]
+    excluded: tuple[Channel, ...]
+    reasons: dict[str, str]
+    cycles: tuple[JackknifeCycle, ...]
+    chosen_cycle: int
+    stop_reason: str
+    excitation: ExcitationCheck
+
+    @property
+    def std_history(self) -> FloatArray:
+        """Jackknife standard deviations per cycle, shape (n_cycles, 10)."""
+        return np.array([c.std for c in self.cycles]).reshape(-1, 10)
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "excluded": [c.as_dict() for c in self.excluded],
+            "reasons": dict(self.reasons),
+            "chosen_cycle": self.chosen_cycle,
+            "stop_reason": self.stop_reason,
+            "excitation_check": self.excitation.to_json(),
+            "cycles": [
+                {
+                    "n_active": int(c.active.sum()),
+                    "removed": None if c.removed is None else self.inputs[c.removed].as_dict(),
+                    "justified": c.justified,
+                    "residual_removed": None if c.removed is None else float(c.residual[c.removed]),
+                    "median_others": c.median_others,
+                    "threshold": c.threshold,
+                    "refused": [self.inputs[i].as_dict() for i in c.refused],
+                    "std": dict(zip(PARAMETERS, map(float, c.std), strict=True)),
+                }
+                for c in self.cycles
+            ],
+        }
+
+
+def jackknife_inputs(
+    system: DimSystem,
+    *,
+    known: Mapping[str, float] | None = None,
+    force_in: NDArray[np.bool_] | None = None,
+    force_out: NDArray[np.bool_] | None = None,
+    ratio: float = 3.0,
+    z: float = 6.0,
+    min_inputs: int = 8,
+    max_removals: int | None = None,
+    extra_cycles: int = 2,
+) -> JackknifeSelection:
+    """Jackknife excitation selection with automatic cycle choice (module docstring).
+
+    Parameters
+    ----------
+    system : DimSystem
+        Assembled over the analysis band (responses already selected).
+    known : dict, optional
+        Known properties, passed to every solve.
+    force_in, force_out : ndarray of bool, shape (n_inputs,), optional
+        Inputs the user keeps / drops whatever the jackknife says.
+    ratio, z : float
+        Outlier rule on the predictive residual of the removed input.
+    min_inputs : int
+        Never go below this many inputs.
+    max_removals : int, optional
+        Default: a third of the inputs.
+    extra_cycles : int
+        Cycles recorded past the chosen one (history for the figures).
+    """
+    n = system.K.shape[2]
+    fin = np.zeros(n, bool) if force_in is None else np.asarray(force_in, bool)
+    fout = np.zeros(n, bool) if force_out is None else np.asarray(force_out, bool)
+    if np.any(fin & fout):
+        c = system.inputs[int(np.argmax(fin & fout))]
+        raise SetupError(f"input {c.name} is both forced in and forced out; choose one")
+    phi = _phi_m(system)
+    active = ~fout
+    chk = excitation_check(phi[:, active])
+    if not chk.ok:
+        raise SolverError(
+            f"the inputs excite rank {chk.rank} < 6 (weakest {chk.weakest}); add inputs that "
+            "excite every force and moment, or force fewer out"
+        )
+    limit = n // 3 if max_removals is None else max_removals
+    cycles: list[JackknifeCycle] = []
+    chosen: int | None = None
+    stop = ""
+    removed_order: list[int] = []
+    reasons: dict[str, str] = {
+        system.inputs[i].name: "forced out by the user" for i in np.nonzero(fout)[0]
+    }
+    while True:
+        est, solved = jackknife_estimates(system, active, known=known)
+        idx = np.nonzero(active & solved)[0]
+        if idx.size < 3:
+            stop = stop or "too few inputs for a jackknife cycle"
+            break
+        mean = est[idx].mean(axis=0)
+        dev = np.abs(est - mean)
+        mx = np.nanmax(dev[idx], axis=0)
+        sdev = dev / np.where(mx > 0, mx, 1.0)
+        score = np.where(active & solved, np.nansum(sdev, axis=1), np.nan)
+        std = est[idx].std(axis=0, ddof=1)
+        resid = np.full(n, np.nan)
+        resid[idx] = predictive_residuals(system.select_inputs(idx), est[idx])
+        # candidate: largest scaled-deviation sum whose removal keeps the excitation rank 6
+        refused: list[int] = []
+        removed: int | None = None
+        after = excitation_check(phi[:, active])
+        can_remove = int(active.sum()) - 1 >= min_inputs and len(removed_order) < limit
+        if can_remove:
+            for j in idx[np.argsort(score[idx])[::-1]]:
+                if fin[j]:
+                    continue
+                trial = active.copy()
+                trial[j] = False
+                chk_j = excitation_check(phi[:, trial])
+                if not chk_j.ok:
+                    refused.append(int(j))
+                    continue
+                removed, after = int(j), chk_j
+                break
+        justified, med, thr = False, float("nan"), float("nan")
+        if removed is not None:
+            others = idx[idx != removed]
+            justified, med, thr = robust_outlier(
+                float(resid[removed]), resid[others], ratio=ratio, z=z
+            )
+        cycles.append(
+            JackknifeCycle(
+                active.copy(),
+                est,
+                sdev,
+                score,
+                std,
+                resid,
+                removed,
+                justified,
+                med,
+                thr,
+                tuple(refused),
+                after,
+            )
+        )
+        if removed is None:
+            if not stop:
+                stop = (
+                    "every candidate removal would drop the excitation rank below 6"
+                    if refused
+                    else f"reached the limit (at least {min_inputs} inputs, at most {limit} removals)"
+                )
+            break
+        if chosen is None and not justified:
+            chosen = len(removed_order)
+            stop = (
+                f"cycle {chosen}: the worst input {system.inputs[removed].name} has predictive "
+                f"residual {resid[removed]:.3g}, within the spread of the others "
+                f"(median {med:.3g}, threshold {thr:.3g})"
+            )
+        if chosen is not None and len(cycles) - chosen > extra_cycles:
+            break
+        if chosen is None:
+            reasons[system.inputs[removed].name] = (
+                f"jackknife cycle {len(removed_order) + 1}: largest scaled-deviation sum "
+                f"{score[removed]:.3g}; predictive residual {resid[removed]:.3g} > threshold "
+                f"{thr:.3g} (median of the others {med:.3g})"
+            )
+        removed_order.append(removed)
+        active = active.copy()
+        active[removed] = False
+    if chosen is None:
+        chosen = len(removed_order)
+    keep = ~fout
+    for j in removed_order[:chosen]:
+        keep[j] = False
+    excluded = [system.inputs[i] for i in np.nonzero(fout)[0]] + [
+        system.inputs[j] for j in removed_order[:chosen]
+    ]
+    return JackknifeSelection(
+        inputs=system.inputs,
+        keep=keep,
+        excluded=tuple(excluded),
+        reasons={k: v for k, v in reasons.items() if any(c.name == k for c in excluded)},
+        cycles=tuple(cycles),
+        chosen_cycle=chosen,
+        stop_reason=stop,
+        excitation=excitation_check(phi[:, keep]),
+    )
