@@ -195,3 +195,90 @@ def make_case(
     )
     setup = TestSetup(name="calibration mass (closed form)", responses=resp, excitations=exc)
     return Case(frf, setup, dirs_true, bad_channels, bad_inputs, rots)
+
+
+# --------------------------------------------------------------------------------------------
+# Cases on the virtual lab's forward model (simulators/lab/forward.py): the FRFs come from the
+# model with *perturbed* (true) geometry, the solver is given the model's nominal setup.
+# --------------------------------------------------------------------------------------------
+@dataclass
+class ForwardCase:
+    frf: FrfData
+    nominal: TestSetup
+    true: TestSetup
+    truth: object  # RigidBodyProperties
+    bad_channels: list[tuple[int, int]] = field(default_factory=list)
+    bad_inputs: list[tuple[int, int]] = field(default_factory=list)
+
+
+def forward_case(
+    seed: int,
+    *,
+    noise: float = 0.01,
+    triax_error_deg: float = 0.0,
+    bad_channel_deg: float = 0.0,
+    n_bad_channels: int = 0,
+    n_bad_inputs: int = 0,
+    input_angle_deg: float = 30.0,
+    input_shift_m: float = 0.03,
+    freqs_hz: NDArray[np.float64] | None = None,
+    support: str = "bungee",
+) -> ForwardCase:
+    """Calibration mass of the forward model (8 triaxes, 24 impacts, one load cell) with errors.
+
+    ``triax_error_deg``: each triax truly rotated by angles uniform within ±value about x, y, z
+    (about its own axes); ``n_bad_channels`` channels further rotated by ``bad_channel_deg`` + U(0,
+    10°) about an axis perpendicular to them; ``n_bad_inputs`` inputs with the line of action
+    rotated by ``input_angle_deg`` and the point moved by ``input_shift_m``. 1 % noise: complex
+    Gaussian scaled by each output's RMS over the inputs at each line.
+    """
+    from dataclasses import replace as dc_replace
+
+    from dimacq.simulators.lab.forward import calibration_mass
+
+    rng = np.random.default_rng(seed)
+    fm = calibration_mass(seed, support=support)  # type: ignore[arg-type]
+    nominal = fm.setup
+    resp = list(nominal.responses)
+    nodes = sorted({c.node for c in resp})
+    for n in nodes:
+        r = Rotation.from_euler(
+            "xyz", rng.uniform(-triax_error_deg, triax_error_deg, 3), degrees=True
+        )
+        idx = [i for i, c in enumerate(resp) if c.node == n]
+        C = np.array([resp[i].direction_gcs for i in idx]).T  # columns: the triax axes (GCS)
+        Ct = C @ r.as_matrix()  # rotation about the sensor's own axes
+        for k, i in enumerate(idx):
+            resp[i] = resp[i].model_copy(
+                update={"direction_gcs": tuple(Ct[:, k] / np.linalg.norm(Ct[:, k]))}
+            )
+    bad_ch = rng.choice(len(resp), size=n_bad_channels, replace=False) if n_bad_channels else []
+    bad_channels = []
+    for i in bad_ch:
+        d = np.asarray(resp[i].direction_gcs)
+        d2 = _perp_rotation(d, bad_channel_deg + rng.uniform(0, 10), rng).apply(d)
+        resp[i] = resp[i].model_copy(update={"direction_gcs": tuple(d2 / np.linalg.norm(d2))})
+        bad_channels.append((resp[i].node, resp[i].direction))
+    exc = list(nominal.excitations)
+    bad_in = rng.choice(len(exc), size=n_bad_inputs, replace=False) if n_bad_inputs else []
+    bad_inputs = []
+    for j in bad_in:
+        d = np.asarray(exc[j].direction_gcs)
+        d2 = _perp_rotation(d, input_angle_deg, rng).apply(d)
+        s = rng.normal(size=3)
+        p2 = np.asarray(exc[j].position_m) + input_shift_m * s / np.linalg.norm(s)
+        exc[j] = exc[j].model_copy(
+            update={"direction_gcs": tuple(d2 / np.linalg.norm(d2)), "position_m": tuple(p2)}
+        )
+        bad_inputs.append((exc[j].node, exc[j].direction))
+    true = nominal.model_copy(update={"responses": tuple(resp), "excitations": tuple(exc)})
+    f = np.linspace(20.0, 200.0, 61) if freqs_hz is None else np.asarray(freqs_hz, float)
+    frf = dc_replace(fm, setup=true).frf(f)
+    H = frf.H
+    if noise > 0:
+        scale = np.sqrt(np.mean(np.abs(H) ** 2, axis=2, keepdims=True))
+        H = H + noise * scale * (
+            rng.normal(size=H.shape) + 1j * rng.normal(size=H.shape)
+        ) / np.sqrt(2)
+        frf = frf.replace(H=H)
+    return ForwardCase(frf, nominal, true, fm.properties, bad_channels, bad_inputs)

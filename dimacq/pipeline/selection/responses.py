@@ -19,8 +19,10 @@ nor removed (the rank would drop).
 Automatic stopping rule (needs no known answer)
 -----------------------------------------------
 Each step takes the active, removable channel with the largest band error and asks whether it is
-an outlier *of the other active channels' errors*, recomputed with the candidate left out of the
-fit (so that a bad candidate does not inflate the reference spread): it must exceed ``ratio`` times their median and
+an outlier *of the other active channels' errors*. The reference is a "clean core" fit that
+leaves out the candidate and the provisional suspects (active channels above twice the median
+error; a forward-search idea), so that neither the candidate nor a second bad channel inflates the
+reference spread; the candidate's error is its prediction from that core. It must exceed ``ratio`` times their median and
 their median plus ``z`` robust standard deviations (1.4826·MAD, floored at 5 % of the median). If
 it is not, the selection stops: the remaining channels agree with rigid-body motion as well as
 each other. Guards on every removal: the active set keeps rank 6, at least ``min_per_direction``
@@ -318,44 +320,45 @@ def select_responses(
         for i in order:
             trial = active.copy()
             trial[i] = False
-            # the others' errors with the candidate left out of the fit: a bad candidate no
-            # longer inflates them, and its own error is its prediction from them.
-            ok_rank, _, _ = _guards(psi_n, dirs, trial, 0, np.inf)
-            if ok_rank:
-                e_trial = rigid_body_errors(psi, q, trial).loo_band
+            # Reference: a "clean core" fit without the candidate and without the provisional
+            # suspects (active channels above 2× the median error), so that neither the
+            # candidate nor a second bad channel inflates the reference spread; the candidate's
+            # error is then its prediction from the core.
+            act_idx = np.nonzero(active)[0]
+            med_all = float(np.median(errs.loo_band[act_idx][np.isfinite(errs.loo_band[act_idx])]))
+            suspects = act_idx[errs.loo_band[act_idx] > 2.0 * med_all]
+            suspects = suspects[np.argsort(errs.loo_band[suspects])[::-1]][: max(n // 3, 1)]
+            core = trial.copy()
+            core[suspects] = False
+            if not _guards(psi_n, dirs, core, 0, np.inf)[0]:
+                core = trial
+            if _guards(psi_n, dirs, core, 0, np.inf)[0]:
+                e_core = rigid_body_errors(psi, q, core).loo_band
+                e_cand = float(e_core[i])
             else:
-                e_trial = errs.loo_band
-            others = np.nonzero(trial)[0]
-            out, med, thr = robust_outlier(
-                float(errs.loo_band[i]), e_trial[others], ratio=ratio, z=z
-            )
+                e_core, e_cand = errs.loo_band, float(errs.loo_band[i])
+            out, med, thr = robust_outlier(e_cand, e_core[np.nonzero(core)[0]], ratio=ratio, z=z)
             if not out:
                 stop = (
-                    f"worst remaining channel {channels[i].name} has error {errs.loo_band[i]:.3g}, "
+                    f"worst remaining channel {channels[i].name} has error {e_cand:.3g}, "
                     f"within the spread of the others (median {med:.3g}, threshold {thr:.3g})"
                 )
-                steps.append(
-                    ResponseStep(channels[i], float(errs.loo_band[i]), med, thr, False, stop)
-                )
+                steps.append(ResponseStep(channels[i], e_cand, med, thr, False, stop))
                 break
             ok, why, _cond = _guards(psi_n, dirs, trial, min_per_direction, cond_max)
             if not ok:
-                steps.append(
-                    ResponseStep(
-                        channels[i], float(errs.loo_band[i]), med, thr, False, "kept: " + why
-                    )
-                )
+                steps.append(ResponseStep(channels[i], e_cand, med, thr, False, "kept: " + why))
                 log.info("channel %s is an outlier but kept: %s", channels[i].name, why)
                 continue
             active = trial
             n_removed += 1
             excluded.append(channels[i])
             msg = (
-                f"rigid-body error {errs.loo_band[i]:.3g} > threshold {thr:.3g} "
+                f"rigid-body error {e_cand:.3g} > threshold {thr:.3g} "
                 f"(median of the others {med:.3g})"
             )
             reasons[channels[i].name] = msg
-            steps.append(ResponseStep(channels[i], float(errs.loo_band[i]), med, thr, True, msg))
+            steps.append(ResponseStep(channels[i], e_cand, med, thr, True, msg))
             log.info("removed channel %s: %s", channels[i].name, msg)
             errs = rigid_body_errors(psi, q, active)
             removed_now = True
