@@ -264,6 +264,9 @@ def print_report(
     if result.known:
         w("known: " + ", ".join(f"{k} = {v:g}" for k, v in result.known.items()) + "\n")
     header = f"{'parameter':<10}{'unit':<7}{'estimate':>14}{'band mean':>14}{'band std':>12}{'band min':>14}{'band max':>14}"
+    unc = payload.get("uncertainty") or {}
+    if unc:
+        header += f"{'95 % interval':>28}"
     errs = payload.get("error_pct")
     if reference is not None:
         header += f"{'true':>14}{'error %':>10}"
@@ -276,6 +279,9 @@ def print_report(
             f"{name:<10}{unit:<7}{value:>14.6g}{st['mean']:>14.6g}{st['std']:>12.3g}"
             f"{st['min']:>14.6g}{st['max']:>14.6g}"
         )
+        if unc:
+            ci = unc.get(name, {}).get("ci95")
+            line += f"{f'[{ci[0]:.6g}, {ci[1]:.6g}]' if ci else '':>28}"
         if reference is not None and errs is not None:
             line += f"{true[i]:>14.6g}{errs[name]:>10.3f}"
         w(line + "\n")
@@ -291,10 +297,18 @@ def print_report(
     w(f"sign convention: {PRODUCT_SIGN_CONVENTION}\n")
     if "frf_scale_factor" in payload:
         w(f"FRFs scaled by {payload['frf_scale_factor']:.9g} to the known mass\n")
+    band_sel = payload.get("band_selection")
+    if isinstance(band_sel, dict) and band_sel.get("reason"):
+        w(f"band: {band_sel['reason']}\n")
     for key in ("excluded_responses", "excluded_inputs"):
         if payload.get(key):
             items = ", ".join(f"{d['node']}:{d['direction']:+d}" for d in payload[key])
             w(f"{key.replace('_', ' ')}: {items}\n")
+    for corr in payload.get("orientation_corrections") or []:
+        if isinstance(corr, dict):
+            applied = "applied" if corr.get("applied") else "not applied"
+            angle = float(corr.get("angle_deg", float("nan")))
+            w(f"orientation correction node {corr.get('node')}: {angle:.3f} deg ({applied})\n")
     for d in result.diagnostics:
         mark = "ok  " if d.ok else ("FAIL" if d.severity == "error" else "warn")
         w(f"[{mark}] {d.code}: {d.message}\n")
