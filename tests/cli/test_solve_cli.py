@@ -132,3 +132,31 @@ def test_scale_to_mass_and_options(tmp_path: Path) -> None:
         data["band_hz"] == [20.0, 80.0] and data["length_unit"] == "mm" and data["method"] == "mean"
     )
     assert data["reference_point_m"] == [0.0, 0.0, 0.1]
+
+
+def test_selection_flags_add_the_contract_keys_and_figures(tmp_path: Path) -> None:
+    out = tmp_path / "sol.json"
+    args = ["solve", str(EXAMPLES / "six_triax_setup.toml"), str(EXAMPLES / "six_triax_frf.uff")]
+    flags = [
+        "--select-responses",
+        "--select-inputs",
+        "--auto-band",
+        "--plots",
+        str(tmp_path / "fig"),
+    ]
+    assert main([*args, *flags, "--json", str(out)]) == 0
+    data = json.loads(out.read_text())
+    for key in (
+        "excluded_responses",
+        "excluded_inputs",
+        "uncertainty",
+        "orientation_corrections",
+        "band_selection",
+    ):
+        assert key in data
+    assert (
+        data["excluded_responses"] == [] and data["excluded_inputs"] == []
+    )  # clean data: nothing removed
+    assert data["mass_kg"] == pytest.approx(12.5, rel=1e-9)
+    assert set(data["uncertainty"]["m"]) >= {"standard_error", "ci95"}
+    assert any(p.suffix == ".svg" for p in (tmp_path / "fig").iterdir())
