@@ -4,6 +4,7 @@ on a loopback port (``dimacq demo``, tests, benchmarks)."""
 from __future__ import annotations
 
 import socket
+import sys
 import threading
 import time
 from types import TracebackType
@@ -23,8 +24,15 @@ def free_port(host: str = "127.0.0.1") -> int:
         return int(s.getsockname()[1])
 
 
+#: GIL switch interval of the service process, s. Acquisition threads are CPU-bound (decoding,
+#: checks); with Python's default 5 ms the event loop can wait that long for the GIL at every
+#: step of a request, which is what status pollers would see as latency.
+SWITCH_INTERVAL_S = 0.0005
+
+
 def serve(app: FastAPI, host: str, port: int, log_level: str = "info") -> None:
-    """Serve in the foreground until interrupted."""
+    """Serve in the foreground until interrupted (this process is the service)."""
+    sys.setswitchinterval(SWITCH_INTERVAL_S)
     uvicorn.run(app, host=host, port=port, log_level=log_level, access_log=False)
 
 

@@ -26,7 +26,7 @@ import logging
 import tempfile
 import threading
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -123,15 +123,26 @@ class Lab:
     open_devices : bool
         Open the configured devices now (:meth:`connect_all`); failures are recorded in the
         device list, not raised, so the service starts without hardware.
+    rig_factory : callable (settings, setup, config) -> Rig, optional
+        Builds the acquisition rig (:class:`dimacq.services.lab_rig.Rig`); default
+        :func:`dimacq.services.lab_rig.build_rig` on the configured devices.
     """
 
-    def __init__(self, settings: Settings, *, open_devices: bool = True) -> None:
+    def __init__(
+        self,
+        settings: Settings,
+        *,
+        open_devices: bool = True,
+        rig_factory: Callable[[Settings, TestSetup, Mapping[str, Any]], Any] | None = None,
+    ) -> None:
         self.settings = settings
+        self._rig_factory = rig_factory
         settings.data_dir.mkdir(parents=True, exist_ok=True)
         self.db: Database = open_database(settings.db_url)
         self.arrays = ArrayStore(settings.data_dir / "arrays")
         self.jobs = JobManager(persist=self._persist_job)
         self.started_monotonic = time.monotonic()
+        self.version = _version()
         self._device_lock = threading.RLock()
         self._digitizer: Any = None
         self._dig_session: Any = None
@@ -213,7 +224,7 @@ class Lab:
         running = self.jobs.running()
         return {
             "service": "dimacq",
-            "version": _version(),
+            "version": self.version,
             "schema_version": self.db.schema_version,
             "uptime_s": time.monotonic() - self.started_monotonic,
             "devices": {
@@ -1050,6 +1061,8 @@ class Lab:
     def _build_rig(self, setup: TestSetup, cfg: Mapping[str, Any]) -> Any:
         from dimacq.services import lab_rig
 
+        if self._rig_factory is not None:
+            return self._rig_factory(self.settings, setup, cfg)
         for name in ("daq", "loadcell"):
             info = self.devices[name]
             if not info.connected:

@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-from typing import Any
+import json
 
-from fastapi import APIRouter
+from fastapi import APIRouter, Response
 
 from dimacq.api.deps import LabDep
 from dimacq.api.schemas import StatusOut
@@ -13,5 +13,7 @@ router = APIRouter(prefix="/api", tags=["status"])
 
 
 @router.get("/status", response_model=StatusOut)
-async def get_status(lab: LabDep) -> dict[str, Any]:
-    return lab.status()
+async def get_status(lab: LabDep) -> Response:
+    """Service status from memory only (no database, no device I/O): the call to poll."""
+    # serialised directly: this is the hot path clients poll during acquisitions
+    return Response(json.dumps(lab.status()).encode(), media_type="application/json")

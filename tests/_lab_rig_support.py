@@ -1,0 +1,71 @@
+"""A small acquisition rig for the service tests: the acquisition tests' closed-form impulse
+source behind the real USB DAQ simulator and driver (no load cell), with a paced operator.
+
+``impulse_rig_factory(pace_s)`` returns a ``rig_factory`` for :class:`dimacq.services.lab.Lab`;
+``IMPULSE_SETUP`` is the matching test setup (2 inputs, 3 responses).
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from typing import Any
+
+from _acq_support import ImpulseSource
+
+from dimacq.drivers.daq.driver import DaqDevice, DaqTask
+from dimacq.model.setup import Excitation, ResponseChannel, TestSetup
+from dimacq.services.lab_rig import Rig
+from dimacq.simulators.daq.backend import DaqInput, VirtualDaqBackend
+from dimacq.simulators.daq.clock import SampleClock
+
+G = 9.80665
+
+IMPULSE_SETUP = TestSetup(
+    name="impulse rig",
+    responses=tuple(
+        ResponseChannel(
+            node=100 + k, direction=3, position_m=(0.1 * k, 0.0, 0.0), direction_gcs=(0.0, 0.0, 1.0)
+        )
+        for k in range(3)
+    ),
+    excitations=tuple(
+        Excitation(
+            node=10 + j, direction=1, position_m=(0.0, 0.1 * j, 0.0), direction_gcs=(1.0, 0.0, 0.0)
+        )
+        for j in range(2)
+    ),
+)
+
+
+def impulse_rig_factory(pace_s: float = 0.0) -> Any:
+    def factory(_settings: Any, _setup: TestSetup, _cfg: Any) -> Rig:
+        src = ImpulseSource(n_inputs=2, n_responses=3, n_gauges=0, response_gain=0.01)
+        clock = SampleClock()
+        wiring = {j: DaqInput(j, 2.25e-3) for j in range(2)}
+        wiring.update({2 + k: DaqInput(2 + k, 0.1 / G) for k in range(3)})
+        backend = VirtualDaqBackend(src, wiring, clock=clock)
+        dev = DaqDevice.open(backend=backend)
+        task = DaqTask(dev)
+        for j in range(2):
+            task.add_force_channel(j, f"{10 + j}+X force", 2.25, range_v=0.5)
+        for k in range(3):
+            task.add_accel_channel(2 + k, f"{100 + k}+Z", 100.0)
+        task.configure_timing(src.sample_rate_hz, 256)
+        lock = threading.Lock()
+
+        def operator(j: int, at: int) -> None:
+            if pace_s:
+                time.sleep(pace_s)  # an engineer takes time between strikes
+            with lock:
+                src.excite(j, backend.world_sample(at))
+
+        return Rig(
+            daq=task,
+            input_channels=["10+X force", "11+X force"],
+            response_channels=["100+Z", "101+Z", "102+Z"],
+            operator=operator,
+            closers=[dev.close],
+        )
+
+    return factory
