@@ -1242,7 +1242,13 @@ class Lab:
 
         def work(ctx: JobContext) -> dict[str, Any]:
             ctx.progress(0.0, "running Monte Carlo trials")
-            res = mod.cube_study(**params)
+            res = mod.cube_study(
+                float(params["half_size_m"]),
+                n_sensors=int(params.get("sensors", 1)),
+                max_angle_deg=float(params["max_angle_deg"]),
+                n_trials=int(params.get("trials", 500)),
+                seed=params.get("seed"),
+            )
             out = _json_safe(res.to_json() if hasattr(res, "to_json") else dict(res))
             with self.db.session() as s2:
                 r = s2.get(m.SensitivityStudy, sid)

@@ -135,6 +135,16 @@ def test_setup_frf_solution_round_trip(api: Api) -> None:
     got = api.client.get(f"/api/solutions/{sol['id']}").json()
     assert got["result"]["cg_m"] == sol["result"]["cg_m"]
     assert isinstance(api.client.get(f"/api/solutions/{sol['id']}/diagnostics").json(), list)
+    # data selection and diagnostics through the analysis service
+    r = api.client.post(
+        "/api/solutions",
+        json={"frf_id": fid, "select_responses": True, "select_inputs": True, "auto_band": True},
+    )
+    assert r.status_code == 201, r.text
+    sel = r.json()["result"]
+    for key in ("excluded_responses", "excluded_inputs", "uncertainty"):
+        assert key in sel
+    assert sel["mass_kg"] == pytest.approx(model.properties.mass_kg, rel=1e-3)
     png = api.client.get(f"/api/solutions/{sol['id']}/figure")
     assert png.status_code == 200 and png.content[:4] == b"\x89PNG"
 
@@ -251,3 +261,18 @@ def test_calibrations(api: Api) -> None:
 
 
 _ = io
+
+
+def test_sensitivity_study_job(api: Api) -> None:
+    body = {"half_size_m": 0.02, "sensors": 1, "max_angle_deg": 1.0, "trials": 200, "seed": 1}
+    r = api.client.post("/api/sensitivity", json=body)
+    assert r.status_code == 202, r.text
+    snap = api.lab.jobs.wait(r.json()["job_id"], 30)
+    assert snap["state"] == "succeeded", snap
+    study = api.client.get(f"/api/sensitivity/{r.json()['id']}").json()
+    from dimacq.pipeline.sensitivity import cube_study
+
+    direct = cube_study(0.02, n_sensors=1, max_angle_deg=1.0, n_trials=200, seed=1).to_json()
+    assert study["result"] == json.loads(json.dumps(direct))
+    bad = api.client.post("/api/sensitivity", json={**body, "sensors": 9})
+    assert bad.status_code == 422 and "sensors" in bad.json()["detail"]
