@@ -27,11 +27,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from _selection_support import forward_case  # noqa: E402
+from _selection_support import forward_case
 
-from dimacq.pipeline.selection._common import response_geometry  # noqa: E402
-from dimacq.pipeline.selection.orientation import estimate_orientation_frf  # noqa: E402
-from dimacq.services.analysis import AnalysisOptions, analyse  # noqa: E402
+from dimacq.pipeline.selection._common import response_geometry
+from dimacq.pipeline.selection.orientation import estimate_orientation_frf
+from dimacq.services.analysis import AnalysisOptions, analyse
 
 
 def _accuracy(report, truth) -> tuple[bool, float, float, float]:  # type: ignore[no-untyped-def]
