@@ -1,0 +1,91 @@
+"""``dimacq acquire`` and ``dimacq loadcell calibrate --simulated`` end to end (short runs).
+
+The full-size figures (24 inputs × 5 averages) are in tests/scripts/acquisition_must_show.py.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from _acq_support import no_leaks
+
+from dimacq.cli.main import main
+from dimacq.io.loadcell_calibration import read_calibration_json
+from dimacq.io.uff import read_uff_test
+from dimacq.simulators.lab.forward import CALIBRATION_MASS
+
+__all__ = ["no_leaks"]
+
+
+def test_acquire_writes_a_uff_that_solve_reads(tmp_path, capsys, no_leaks):
+    uff = tmp_path / "cm.uff"
+    rc = main(
+        [
+            "acquire",
+            "calibration-mass-ground",
+            "--impacts-per-input",
+            "1",
+            "--frf",
+            str(uff),
+            "--data",
+            str(tmp_path / "raw"),
+            "--json",
+            str(tmp_path / "acq.json"),
+        ]
+    )
+    assert rc == 0
+    cap = capsys.readouterr()
+    assert "24 inputs × 1 averages" in cap.out and "[  24/24]" in cap.err
+    summary = json.loads((tmp_path / "acq.json").read_text())
+    assert summary["averages_accepted"] == [1] * 24 and summary["n_outputs"] == 30
+    assert (tmp_path / "raw" / "acquisition.h5").stat().st_size > 1e6
+    setup, frf = read_uff_test(uff)
+    assert len(setup.load_cells) == 1 and frf.H.shape == (2048, 30, 24)
+    assert [k for k in frf.output_kinds].count("reaction") == 6
+    rc = main(["solve", str(uff), "--band", "20", "400", "--json", str(tmp_path / "sol.json")])
+    assert rc == 0
+    sol = json.loads((tmp_path / "sol.json").read_text())
+    mass = sol["properties"]["mass_kg"] if "properties" in sol else sol["mass_kg"]
+    assert abs(mass - CALIBRATION_MASS.mass_kg) / CALIBRATION_MASS.mass_kg < 5e-3
+
+
+def test_acquire_refuses_unknown_scenario(tmp_path, capsys):
+    rc = main(["acquire", "nope", "--impacts-per-input", "1", "--frf", str(tmp_path / "a.uff")])
+    assert rc != 0
+    assert "scenario 'nope' is unknown" in capsys.readouterr().err
+
+
+def test_loadcell_calibrate_simulated(tmp_path, capsys, no_leaks):
+    out = tmp_path / "cal.json"
+    mat = tmp_path / "lc501.json"
+    rc = main(
+        [
+            "loadcell",
+            "calibrate",
+            "--simulated",
+            "--impacts-per-input",
+            "1",
+            "--json",
+            str(out),
+            "--matrix",
+            str(mat),
+        ]
+    )
+    assert rc == 0
+    res = json.loads(out.read_text())
+    assert res["matrix_error_rel"] < 5e-3
+    assert abs(res["circular_mass_error_pct"]) < 0.5
+    assert "circular check" in capsys.readouterr().out
+    cal = read_calibration_json(mat)
+    np.testing.assert_allclose(cal.matrix, np.array(res["matrix"]))
+
+
+def test_loadcell_calibrate_needs_simulated(capsys):
+    rc = main(["loadcell", "calibrate"])
+    assert rc != 0
+    assert "--simulated" in capsys.readouterr().err
