@@ -50,7 +50,7 @@ def test_acquire_writes_a_uff_that_solve_reads(tmp_path, capsys, no_leaks):
     rc = main(["solve", str(uff), "--band", "20", "400", "--json", str(tmp_path / "sol.json")])
     assert rc == 0
     sol = json.loads((tmp_path / "sol.json").read_text())
-    mass = sol["properties"]["mass_kg"] if "properties" in sol else sol["mass_kg"]
+    mass = sol["mass_kg"]
     assert abs(mass - CALIBRATION_MASS.mass_kg) / CALIBRATION_MASS.mass_kg < 5e-3
 
 
