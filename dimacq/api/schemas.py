@@ -123,7 +123,7 @@ class SensitivityRequest(_Body):
     half_size_m: float = Field(gt=0, le=1000)
     sensors: int = Field(default=1, ge=1, le=8)
     max_angle_deg: float = Field(gt=0, le=90)
-    trials: int = Field(default=500, ge=1, le=100_000)
+    trials: int = Field(default=500, ge=1, le=10_000)
     seed: int = Field(default=0, ge=0)
 
 
