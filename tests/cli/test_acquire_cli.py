@@ -44,6 +44,8 @@ def test_acquire_writes_a_uff_that_solve_reads(tmp_path, capsys, no_leaks):
     summary = json.loads((tmp_path / "acq.json").read_text())
     assert summary["averages_accepted"] == [1] * 24 and summary["n_outputs"] == 30
     assert (tmp_path / "raw" / "acquisition.h5").stat().st_size > 1e6
+    with np.load(tmp_path / "raw" / "frf.npz") as z:
+        assert z["coherence"].shape == (2048, 30, 24)
     setup, frf = read_uff_test(uff)
     assert len(setup.load_cells) == 1 and frf.H.shape == (2048, 30, 24)
     assert [k for k in frf.output_kinds].count("reaction") == 6

@@ -29,12 +29,11 @@ from dimacq.services.simulated_lab import model_frf, scenario_model
 
 def frf_figures(uff: Path, scenario: str, seed: int, n_avg: int, band: tuple[float, float]) -> dict:
     _setup, frf = read_uff_test(uff)
+    coh = np.load(uff.with_suffix("") / "frf.npz")["coherence"]
     m = scenario_model(scenario, seed)
     f = frf.frequencies_hz
     sel = (f >= band[0]) & (f <= band[1])
     H, Ht = frf.H[sel], model_frf(m, f[sel])
-    coh = frf.coherence
-    assert coh is not None
     g2 = coh[sel]
     rel = np.abs(H - Ht) / np.abs(Ht)
     eps = np.sqrt(np.clip(1 - g2, 0, None)) / (
@@ -93,6 +92,8 @@ def main_(argv: list[str] | None = None) -> int:
                 str(uff),
                 "--seed",
                 str(a.seed),
+                "--data",
+                str(tmp / scenario),
                 "--json",
                 str(tmp / f"acq-{scenario}.json"),
             ]
@@ -106,7 +107,17 @@ def main_(argv: list[str] | None = None) -> int:
         }
     cal = tmp / "calibration.json"
     assert (
-        main(["loadcell", "calibrate", "--simulated", "--seed", str(a.seed), "--json", str(cal)])
+        main(
+            [
+                "loadcell",
+                "calibrate",
+                "--simulated",
+                "--seed",
+                str(a.seed),
+                "--json",
+                str(cal),
+            ]
+        )
         == 0
     )
     c = json.loads(cal.read_text())

@@ -10,7 +10,8 @@ simulated USB DAQ (pyusb backend) and one simulated CAN FD amplifier per load ce
 ``virtual``), by the real drivers; an impact session strikes every input N accepted times, and
 the FRFs (accelerances and the load cells' six loads, as the drivers' calibration matrices give
 them) are written as one whole-test UFF file (geometry + 58 records, binary) that
-``dimacq solve OUT.uff`` reads. ``--data DIR`` keeps the raw blocks in ``DIR/acquisition.h5``.
+``dimacq solve OUT.uff`` reads. ``--data DIR`` keeps the raw blocks in ``DIR/acquisition.h5`` and the FRFs with their
+coherence (which UFF 58 cannot carry) in ``DIR/frf.npz``.
 Progress goes to stderr; a summary (with the FRFs' agreement with the true model) to stdout.
 """
 
@@ -22,6 +23,8 @@ import sys
 import time
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from dimacq.errors import SetupError
 
@@ -93,6 +96,14 @@ def run(args: argparse.Namespace) -> int:
     sys.stderr.write("\n")
     args.frf.parent.mkdir(parents=True, exist_ok=True)
     write_uff_test(args.frf, run_.setup, run_.frf, binary=True)
+    if args.data:
+        # UFF 58 holds no coherence: keep it (with the FRFs) next to the raw data.
+        np.savez(
+            args.data / "frf.npz",
+            frequencies_hz=run_.frf.frequencies_hz,
+            H=run_.frf.H,
+            coherence=run_.frf.coherence,
+        )
     elapsed = time.monotonic() - t0
     res = run_.result
     rejected = [a for a in res.averages if not a.accepted]
