@@ -1,6 +1,9 @@
-"""Independent forward model: a rigid body on soft supports, each through a 6-DOF load cell.
+"""Independent forward model: a body on soft supports, each through a 6-DOF load cell.
 
 The FRFs come from the body's equations of motion, not from the DIM equations run backwards.
+
+Rigid body
+----------
 Motion ``U = [u_O; θ]`` of the GCS origin O, mass matrix ``M`` about O
 (:meth:`RigidBodyProperties.mass_matrix`), and for each support s at ``r_s`` with its load cell's
 local-to-global rotation ``R_s`` and 6×6 stiffness ``k_s`` and damping ``c_s`` in the cell frame:
@@ -11,45 +14,80 @@ local-to-global rotation ``R_s`` and 6×6 stiffness ``k_s`` and damping ``c_s`` 
 - the same load at O is ``G_sᵀ W_s`` (force unchanged, moment ``m + r_s × f``).
 
 So ``(−ω² M + iω Σ G_sᵀ C_s G_s + Σ G_sᵀ K_s G_s) U = Φ f`` with input columns
-``φ_j = [d_j; r_j × d_j]``. Outputs per unit input force:
+``φ_j = [d_j; r_j × d_j]`` (a general 6-DOF load ``[f; m]`` at ``r``: ``[f; r × f + m]``).
 
-- accelerometer along ``d_i`` at ``r_i``: ``q_i = d_iᵀ (ü_O + θ̈ × r_i)`` with ``Ü = −ω² U``;
-- load cell s: ``B_sᵀ W_s`` (its local ``[f; m]`` about its origin), negated when the cell reports
-  the load on the support (``sign = "on_support"``).
+Flexible modes (optional)
+-------------------------
+A modal model of the free-free structure adds coordinates ``η`` (one per elastic mode r,
+mass-normalised, orthogonal to the rigid-body motion by assumption, as free-free modes are):
+the displacement of node n is ``[u_n; θ_n] = G_n U + Ψ_n η`` with ``Ψ_n`` (6, n_modes) the mode
+shapes at that node (GCS translations and rotations per unit modal coordinate, 1/√kg). With
+``z = [U; η]``:
 
-With no supports the body is free-free (``U = −Φ/(ω² M)``). Every output is vectorised over lines
-and inputs (one batched solve of 6×6 systems per line).
+- ``M_z = diag(M, I)``, ``K_z = diag(0, ω_r²) + Σ_s A_sᵀ K_s A_s``,
+  ``C_z = diag(0, 2 ζ_r ω_r) + Σ_s A_sᵀ C_s A_s`` with ``A_s = [G_s, Ψ_s]`` (6, 6 + n_modes);
+- generalised input ``q_j = [φ_j; Ψ_jᵀ [d_j; 0]]``;
+- ``(K_z − ω² M_z + iω C_z) z = q f``.
+
+Outputs per unit input force:
+
+- accelerometer along ``d_i`` at ``r_i``: ``q_i = −ω² (d_iᵀ (u_O + θ × r_i) + d_iᵀ Ψ_i,u η)``;
+- load cell s: ``−(k_s + iω c_s) B_sᵀ A_s z`` (its local ``[f; m]`` about its origin, the load
+  the support exerts on the structure), negated when the cell reports the load on the support
+  (``sign = "on_support"``).
+
+Without modes this is exactly the rigid model. With no supports the body is free-free
+(``U = −Φ/(ω² M)``). Every output is vectorised over lines and inputs (one batched solve of
+small systems per line). Gravity preload (pendulum stiffness) is not modelled: a support is a
+linear spring and dashpot at its cell, which is what the DIM equations assume of the supports
+(they measure every force through the cells).
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from dataclasses import dataclass, field
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, replace
 from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
+from dimacq.errors import SetupError
 from dimacq.model.frf import Channel, FrfData
 from dimacq.model.properties import RigidBodyProperties
 from dimacq.model.setup import Excitation, LoadCell, ResponseChannel, TestSetup
 
 __all__ = [
+    "CALIBRATION_MASS",
+    "X38_PROPERTIES",
+    "FlexibleMode",
     "ForwardModel",
     "Support",
+    "beam_bending_mode",
     "calibration_mass",
     "cube",
+    "cube_unit_loads",
+    "fixed_support_stiffness",
     "six_triax_box",
     "soft_support_stiffness",
+    "subsystem_mode",
     "x38_like",
 ]
 
 FloatArray = NDArray[np.float64]
+ComplexArray = NDArray[np.complex128]
 
 
 def _skew(v: FloatArray) -> FloatArray:
     return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def _G(position_m: FloatArray) -> FloatArray:
+    """``[[E, −[r]x], [0, E]]``: motion of a point at ``r`` from ``[u_O; θ]``."""
+    g = np.eye(6)
+    g[:3, 3:] = -_skew(np.asarray(position_m, float))
+    return g
 
 
 @dataclass(frozen=True)
@@ -80,9 +118,7 @@ class Support:
     sign: Literal["on_structure", "on_support"] = "on_structure"
 
     def G(self) -> FloatArray:
-        g = np.eye(6)
-        g[:3, 3:] = -_skew(np.asarray(self.position_m, float))
-        return g
+        return _G(self.position_m)
 
     def B(self) -> FloatArray:
         b = np.zeros((6, 6))
@@ -102,84 +138,333 @@ class Support:
 def soft_support_stiffness(
     mass_kg: float, bounce_hz: float, lateral_hz: float, rocking_stiffness_nm_per_rad: float
 ) -> FloatArray:
-    """Diagonal 6×6 stiffness of a soft support (bungee / air ride) in its cell frame."""
+    """Diagonal 6×6 stiffness of a soft support (bungee / air ride) in its cell frame.
+
+    ``k_z = m (2π f_bounce)²``, ``k_x = k_y = m (2π f_lateral)²`` (N/m) for the mass ``m`` the
+    support carries; the same rocking/torsion stiffness about the three cell axes (N·m/rad).
+    """
     kz = mass_kg * (2 * np.pi * bounce_hz) ** 2
     kx = mass_kg * (2 * np.pi * lateral_hz) ** 2
     kr = rocking_stiffness_nm_per_rad
     return np.diag([kx, kx, kz, kr, kr, kr])
 
 
+def fixed_support_stiffness(
+    axial_n_per_m: float = 5.0e8,
+    shear_n_per_m: float = 2.0e8,
+    bending_nm_per_rad: float = 3.0e5,
+    torsion_nm_per_rad: float = 2.0e5,
+) -> FloatArray:
+    """6×6 stiffness of a 6-DOF load cell bolted between the structure and the floor
+    (thesis Appendix B, "calibration mass fixed to floor"): the cell's own stiffness is the
+    support. Diagonal in the cell frame: shear x, y; axial z; bending about x, y; torsion z."""
+    s, a, b, t = shear_n_per_m, axial_n_per_m, bending_nm_per_rad, torsion_nm_per_rad
+    return np.diag([s, s, a, b, b, t])
+
+
+@dataclass(frozen=True, eq=False)
+class FlexibleMode:
+    """One mass-normalised elastic mode of the free-free structure.
+
+    Attributes
+    ----------
+    name : str
+    frequency_hz : float
+        Free-free natural frequency ``ω_r / 2π``.
+    damping_ratio : float
+        Modal damping ratio ``ζ_r``.
+    shapes : mapping node -> ndarray (6,)
+        ``[u; θ]`` of the node in the GCS per unit modal coordinate (m/√kg, rad/√kg); nodes not
+        listed do not move in this mode.
+    """
+
+    name: str
+    frequency_hz: float
+    damping_ratio: float
+    shapes: Mapping[int, FloatArray]
+
+    def __post_init__(self) -> None:
+        if not (self.frequency_hz > 0 and np.isfinite(self.frequency_hz)):
+            raise SetupError(
+                f"mode {self.name!r}: frequency_hz = {self.frequency_hz}; give a positive frequency"
+            )
+        if not 0 <= self.damping_ratio < 1:
+            raise SetupError(
+                f"mode {self.name!r}: damping_ratio = {self.damping_ratio}; give 0 ≤ ζ < 1"
+            )
+
+    def shape_at(self, node: int) -> FloatArray:
+        v = self.shapes.get(int(node))
+        return np.zeros(6) if v is None else np.asarray(v, float).reshape(6)
+
+
 @dataclass(frozen=True)
 class ForwardModel:
-    """A rigid test article, its supports and its instrumentation (true geometry).
+    """A test article, its supports and its instrumentation (true geometry).
 
     Attributes
     ----------
     properties : RigidBodyProperties
-        True mass, CG and inertia.
+        True mass, CG and inertia (of the whole free-free structure).
     setup : TestSetup
         True positions and directions of the responses and inputs; its load cells are the
         supports' cells.
     supports : tuple of Support
+    modes : tuple of FlexibleMode
+        Elastic modes (empty: a rigid body).
     """
 
     properties: RigidBodyProperties
     setup: TestSetup
     supports: tuple[Support, ...] = ()
+    modes: tuple[FlexibleMode, ...] = ()
+
+    # -- structure -------------------------------------------------------------------------
+    @property
+    def n_dof(self) -> int:
+        return 6 + len(self.modes)
+
+    def rigid(self) -> ForwardModel:
+        """The same article without its elastic modes."""
+        return replace(self, modes=())
+
+    def _shapes(self, node: int) -> FloatArray:
+        """``Ψ_n``, shape (6, n_modes)."""
+        if not self.modes:
+            return np.zeros((6, 0))
+        return np.stack([m.shape_at(node) for m in self.modes], axis=1)
+
+    def _A(self, node: int, position_m: FloatArray) -> FloatArray:
+        """``[G_n, Ψ_n]``, shape (6, n_dof): GCS ``[u; θ]`` of a node from ``z``."""
+        return np.concatenate([_G(position_m), self._shapes(node)], axis=1)
 
     def dynamic_matrices(self) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """``M`` (about O), ``C`` and ``K`` (6×6 each)."""
-        M = self.properties.mass_matrix(np.zeros(3))
-        K = np.zeros((6, 6))
-        C = np.zeros((6, 6))
+        """``M``, ``C`` and ``K`` (n_dof × n_dof; the rigid part about O)."""
+        n = self.n_dof
+        M = np.zeros((n, n))
+        K = np.zeros((n, n))
+        C = np.zeros((n, n))
+        M[:6, :6] = self.properties.mass_matrix(np.zeros(3))
+        for r, mode in enumerate(self.modes, start=6):
+            w = 2 * np.pi * mode.frequency_hz
+            M[r, r] = 1.0
+            K[r, r] = w**2
+            C[r, r] = 2 * mode.damping_ratio * w
         for s in self.supports:
-            G, B = s.G(), s.B()
-            K += G.T @ B @ s.stiffness @ B.T @ G
-            C += G.T @ B @ s.damping @ B.T @ G
+            A, B = self._A(s.node, s.position_m), s.B()
+            K += A.T @ B @ s.stiffness @ B.T @ A
+            C += A.T @ B @ s.damping @ B.T @ A
         return M, C, K
 
-    def motion(self, frequencies_hz: FloatArray) -> NDArray[np.complex128]:
-        """``U`` of O per unit input force, shape (n_lines, 6, n_inputs)."""
-        w = 2 * np.pi * np.asarray(frequencies_hz, float)
-        M, C, K = self.dynamic_matrices()
-        pos, dirs = self.setup.input_positions, self.setup.input_directions
-        phi = np.concatenate([dirs, np.cross(pos, dirs)], axis=1).T  # (6, n_in)
-        Z = K[None] - (w**2)[:, None, None] * M[None] + 1j * w[:, None, None] * C[None]
-        return np.linalg.solve(Z, np.broadcast_to(phi.astype(complex), (w.size, *phi.shape)))
-
-    def frf(self, frequencies_hz: Sequence[float] | FloatArray) -> FrfData:
-        """Accelerances of every response and reactions of every load cell, per unit input."""
-        f = np.asarray(frequencies_hz, float)
-        if np.any(f <= 0):
-            raise ValueError("frequencies must be positive (a free body has no static response)")
-        w = 2 * np.pi * f
-        U = self.motion(f)
-        acc = -(w**2)[:, None, None] * U
-        pos, dirs = self.setup.response_positions, self.setup.response_directions
-        psi = np.concatenate([dirs, np.cross(pos, dirs)], axis=1)
-        H = [np.einsum("ck,lkj->lcj", psi, acc)]
-        outputs = [Channel(c.node, c.direction) for c in self.setup.responses]
-        kinds: list[Literal["acceleration", "reaction"]] = ["acceleration"] * len(outputs)
-        for s in self.supports:
-            G, B = s.G(), s.B()
-            Kg = B @ s.stiffness @ B.T
-            Cg = B @ s.damping @ B.T
-            Zs = Kg[None] + 1j * w[:, None, None] * Cg[None]
-            W = -np.einsum("lab,bc,lcj->laj", Zs, G, U)
-            local = np.einsum("ba,lbj->laj", B, W)
-            H.append(local * (1.0 if s.sign == "on_structure" else -1.0))
-            outputs += [Channel(s.node, k) for k in range(1, 7)]
-            kinds += ["reaction"] * 6
-        inputs = tuple(Channel(e.node, e.direction) for e in self.setup.excitations)
-        return FrfData(f, np.concatenate(H, axis=1), tuple(outputs), tuple(kinds), inputs)
-
-    def suspension_frequencies_hz(self) -> FloatArray:
-        """Undamped rigid-body mode frequencies on the supports (generalised eigenproblem)."""
+    def natural_frequencies_hz(self) -> FloatArray:
+        """Undamped natural frequencies of the whole model on its supports, ascending."""
         from scipy.linalg import eigh
 
         M, _, K = self.dynamic_matrices()
         lam = eigh(K, M, eigvals_only=True)
         return np.sqrt(np.clip(lam, 0.0, None)) / (2 * np.pi)
+
+    def suspension_frequencies_hz(self) -> FloatArray:
+        """Undamped rigid-body mode frequencies on the supports (generalised eigenproblem)."""
+        return self.rigid().natural_frequencies_hz()
+
+    # -- loads -----------------------------------------------------------------------------
+    def generalised_loads(
+        self,
+        nodes: Sequence[int],
+        positions_m: FloatArray,
+        forces: FloatArray,
+        moments: FloatArray | None = None,
+    ) -> FloatArray:
+        """Generalised forces ``q_j = A_jᵀ [f_j; m_j]`` of 6-DOF loads, shape (n_dof, n_loads).
+
+        Parameters
+        ----------
+        nodes : sequence of int, length n
+            Node of each load (selects its mode shapes).
+        positions_m : (n, 3)
+        forces : (n, 3)
+            Force of each load in the GCS (N per unit input).
+        moments : (n, 3), optional
+            Pure moment (couple) of each load in the GCS (N·m per unit input).
+        """
+        pos = np.asarray(positions_m, float).reshape(-1, 3)
+        f = np.asarray(forces, float).reshape(-1, 3)
+        m = np.zeros_like(f) if moments is None else np.asarray(moments, float).reshape(-1, 3)
+        loads = np.concatenate([f, m], axis=1)  # (n, 6)
+        return np.stack(
+            [self._A(n, p).T @ w for n, p, w in zip(nodes, pos, loads, strict=True)], axis=1
+        ).reshape(self.n_dof, -1)
+
+    def input_loads(self) -> FloatArray:
+        """Generalised forces of the setup's inputs (unit force along each line of action)."""
+        ex = self.setup.excitations
+        return self.generalised_loads(
+            [e.node for e in ex], self.setup.input_positions, self.setup.input_directions
+        )
+
+    # -- responses -------------------------------------------------------------------------
+    def motion(
+        self, frequencies_hz: Sequence[float] | FloatArray, loads: FloatArray | None = None
+    ) -> ComplexArray:
+        """``z = [U; η]`` per unit input, shape (n_lines, n_dof, n_inputs).
+
+        ``loads`` (n_dof, n) are generalised forces (default: the setup's inputs).
+        """
+        w = 2 * np.pi * np.asarray(frequencies_hz, float)
+        M, C, K = self.dynamic_matrices()
+        q = self.input_loads() if loads is None else np.asarray(loads, float)
+        Z = K[None] - (w**2)[:, None, None] * M[None] + 1j * w[:, None, None] * C[None]
+        return np.linalg.solve(Z, np.broadcast_to(q.astype(complex), (w.size, *q.shape)))
+
+    def _accel_rows(self) -> FloatArray:
+        """``S``, shape (n_responses, n_dof): ``q_i = −ω² S_i z``."""
+        pos, dirs = self.setup.response_positions, self.setup.response_directions
+        rows = np.concatenate([dirs, np.cross(pos, dirs)], axis=1)
+        if self.modes:
+            flex = np.stack(
+                [
+                    d @ self._shapes(c.node)[:3]
+                    for c, d in zip(self.setup.responses, dirs, strict=True)
+                ]
+            )
+            rows = np.concatenate([rows, flex], axis=1)
+        return rows
+
+    def output_matrices(self, frequencies_hz: Sequence[float] | FloatArray) -> ComplexArray:
+        """``O(ω)`` with ``H = O(ω) z``, shape (n_lines, n_outputs, n_dof), outputs in
+        :meth:`frf` order (accelerometers, then 6 per load cell)."""
+        w = 2 * np.pi * np.asarray(frequencies_hz, float)
+        acc = -(w**2)[:, None, None] * self._accel_rows()[None].astype(complex)
+        parts = [acc]
+        for s in self.supports:
+            Zs = s.stiffness[None] + 1j * w[:, None, None] * s.damping[None]
+            sign = 1.0 if s.sign == "on_structure" else -1.0
+            parts.append(-sign * Zs @ (s.B().T @ self._A(s.node, s.position_m))[None])
+        return np.concatenate(parts, axis=1)
+
+    def channels(
+        self,
+    ) -> tuple[tuple[Channel, ...], tuple[Literal["acceleration", "reaction"], ...]]:
+        """Output channels and kinds in :meth:`frf` order."""
+        outputs = [Channel(c.node, c.direction) for c in self.setup.responses]
+        kinds: list[Literal["acceleration", "reaction"]] = ["acceleration"] * len(outputs)
+        for s in self.supports:
+            outputs += [Channel(s.node, k) for k in range(1, 7)]
+            kinds += ["reaction"] * 6
+        return tuple(outputs), tuple(kinds)
+
+    def load_frf(
+        self, frequencies_hz: Sequence[float] | FloatArray, loads: FloatArray
+    ) -> ComplexArray:
+        """Outputs per unit generalised load (see :meth:`generalised_loads`), shape
+        (n_lines, n_outputs, n_loads) — e.g. the thesis cube's pure unit moments."""
+        f = self._check_freqs(frequencies_hz)
+        return self.output_matrices(f) @ self.motion(f, loads)
+
+    def _check_freqs(self, frequencies_hz: Sequence[float] | FloatArray) -> FloatArray:
+        f = np.asarray(frequencies_hz, float)
+        if f.ndim != 1 or f.size == 0 or np.any(f <= 0) or not np.all(np.isfinite(f)):
+            raise SetupError(
+                "frequencies must be a non-empty list of positive lines in Hz (a free body has no "
+                "static response); drop the 0 Hz line"
+            )
+        return f
+
+    def frf(self, frequencies_hz: Sequence[float] | FloatArray) -> FrfData:
+        """Accelerances of every response and reactions of every load cell, per unit input."""
+        f = self._check_freqs(frequencies_hz)
+        H = self.output_matrices(f) @ self.motion(f)
+        outputs, kinds = self.channels()
+        inputs = tuple(Channel(e.node, e.direction) for e in self.setup.excitations)
+        return FrfData(f, H, outputs, kinds, inputs)
+
+    def node_positions(self) -> dict[int, FloatArray]:
+        """Every node of the setup (responses, inputs, load cells) with its GCS position."""
+        out: dict[int, FloatArray] = {}
+        for c in self.setup.responses:
+            out[c.node] = np.asarray(c.position_m, float)
+        for e in self.setup.excitations:
+            out[e.node] = np.asarray(e.position_m, float)
+        for s in self.supports:
+            out[s.node] = np.asarray(s.position_m, float)
+        return out
+
+
+# ----------------------------------------------------------------------------------------------
+# Mode shape generators
+# ----------------------------------------------------------------------------------------------
+def _point_mass_matrix(mass_kg: float, position_m: FloatArray) -> FloatArray:
+    """6×6 mass matrix about O of a point mass at ``r``: ``Gᵀ diag(m E, 0) G``."""
+    G = _G(position_m)
+    return G[:3].T @ (mass_kg * G[:3])
+
+
+def subsystem_mode(
+    name: str,
+    frequency_hz: float,
+    damping_ratio: float,
+    *,
+    body: RigidBodyProperties,
+    part_mass_kg: float,
+    part_position_m: FloatArray,
+    direction: FloatArray,
+    part_nodes: Sequence[int],
+    nodes: Mapping[int, FloatArray],
+) -> FlexibleMode:
+    """A part (lumped mass) rocking against the rest of the body, e.g. a drogue-chute pack.
+
+    The part (mass ``m_p`` at ``r_p``) translates along unit ``e``; the rest of the body moves
+    rigidly by ``V`` such that the mode carries no momentum about O:
+    ``(M_body − M_p) V = −M_p [e; 0]`` with ``M_p`` the part's point-mass matrix about O. The shape
+    is mass-normalised by the modal mass ``μ = m_p + Vᵀ (M_body − M_p) V``. Part nodes move by
+    ``e/√μ``; every other node by the rigid motion ``G_n V/√μ``.
+    """
+    e = np.asarray(direction, float)
+    e = e / np.linalg.norm(e)
+    Mp = _point_mass_matrix(part_mass_kg, np.asarray(part_position_m, float))
+    Mr = body.mass_matrix(np.zeros(3)) - Mp
+    V = -np.linalg.solve(Mr, Mp @ np.concatenate([e, np.zeros(3)]))
+    mu = part_mass_kg + V @ Mr @ V
+    scale = 1.0 / np.sqrt(mu)
+    part = set(int(n) for n in part_nodes)
+    shapes: dict[int, FloatArray] = {}
+    for node, pos in nodes.items():
+        if int(node) in part:
+            shapes[int(node)] = np.concatenate([e, np.zeros(3)]) * scale
+        else:
+            shapes[int(node)] = _G(np.asarray(pos, float)) @ V * scale
+    return FlexibleMode(name, frequency_hz, damping_ratio, shapes)
+
+
+def beam_bending_mode(
+    name: str,
+    frequency_hz: float,
+    damping_ratio: float,
+    *,
+    mass_kg: float,
+    x_range_m: tuple[float, float],
+    nodes: Mapping[int, FloatArray],
+) -> FlexibleMode:
+    """First free-free bending mode of a uniform beam along X bending in Z.
+
+    ``w(x) = cosh βx + cos βx − σ (sinh βx + sin βx)``, ``βL = 4.730041``,
+    ``σ = (cosh βL − cos βL)/(sinh βL − sin βL)``, with ``∫₀ᴸ w² dx = L``, so with the mass spread
+    uniformly ``w/√m`` is mass-normalised and orthogonal to the rigid-body motions. Each node
+    moves ``u_z = w(x)/√m`` and rotates ``θ_y = −w'(x)/√m``.
+    """
+    x0, x1 = x_range_m
+    L = x1 - x0
+    bl = 4.730040744862704
+    sigma = (np.cosh(bl) - np.cos(bl)) / (np.sinh(bl) - np.sin(bl))
+    b = bl / L
+    shapes: dict[int, FloatArray] = {}
+    for node, pos in nodes.items():
+        x = float(np.clip(pos[0] - x0, 0.0, L))
+        w = np.cosh(b * x) + np.cos(b * x) - sigma * (np.sinh(b * x) + np.sin(b * x))
+        dw = b * (np.sinh(b * x) - np.sin(b * x) - sigma * (np.cosh(b * x) + np.cos(b * x)))
+        shapes[int(node)] = np.array([0.0, 0.0, w, 0.0, -dw, 0.0]) / np.sqrt(mass_kg)
+    return FlexibleMode(name, frequency_hz, damping_ratio, shapes)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -236,7 +521,7 @@ CALIBRATION_MASS = RigidBodyProperties.from_about_point(
 def calibration_mass(
     seed: int = 0,
     *,
-    support: Literal["bungee", "air-ride", "free"] = "bungee",
+    support: Literal["bungee", "air-ride", "ground", "free"] = "bungee",
     cell_angle_deg: float = 45.0,
     sensor_skew_deg: float = 25.0,
 ) -> ForwardModel:
@@ -245,8 +530,10 @@ def calibration_mass(
     The block spans x ∈ [−0.10, 0.20], y ∈ [−0.15, 0.15], z ∈ [−0.20, 0.05] m; a triax sits near
     each corner, each turned by a random rotation of up to ``sensor_skew_deg``; the impacts are on
     the +x, +y and −z faces at scattered points, normal to the face. The load cell (turned
-    ``cell_angle_deg`` about Z) is on the top face and carries the suspension (bungee: bounce 2 Hz,
-    pendulum 0.7 Hz; air ride: load cell underneath, 1.5 Hz / 0.3 Hz).
+    ``cell_angle_deg`` about Z) carries the support: ``"bungee"`` — on the top face, bounce 2 Hz,
+    pendulum 0.7 Hz; ``"air-ride"`` — underneath, 1.5 Hz / 0.3 Hz; ``"ground"`` — underneath,
+    bolted to the floor, the cell's own stiffness (:func:`fixed_support_stiffness`) is the
+    support (thesis Appendix B; rigid-body modes at a few hundred Hz); ``"free"`` — no support.
     """
     rng = np.random.default_rng(seed)
     lo, hi = np.array([-0.10, -0.15, -0.20]), np.array([0.20, 0.15, 0.05])
@@ -277,14 +564,23 @@ def calibration_mass(
             dirs.append(d / np.linalg.norm(d))
     inputs = _inputs(range(101, 125), np.array(pts), np.array(dirs))
     supports: tuple[Support, ...] = ()
+    if support not in ("bungee", "air-ride", "ground", "free"):
+        raise SetupError(
+            f"calibration mass support {support!r} is unknown; use bungee, air-ride, ground or free"
+        )
     if support != "free":
         R = Rotation.from_euler("z", cell_angle_deg, degrees=True).as_matrix()
         m = CALIBRATION_MASS.mass_kg
         if support == "bungee":
             pos, k = np.array([0.05, 0.0, 0.05]), soft_support_stiffness(m, 2.0, 0.7, 5.0)
-        else:
+            c = 0.02 * k / (2 * np.pi * 2.0)
+        elif support == "air-ride":
             pos, k = np.array([0.05, 0.0, -0.20]), soft_support_stiffness(m, 1.5, 0.3, 20.0)
-        supports = (Support(501, pos, R, k, 0.02 * k / (2 * np.pi * 2.0)),)
+            c = 0.02 * k / (2 * np.pi * 2.0)
+        else:
+            pos, k = np.array([0.05, 0.0, -0.20]), fixed_support_stiffness()
+            c = 2 * 0.02 * k / (2 * np.pi * 300.0)  # ζ ≈ 2 % near 300 Hz
+        supports = (Support(501, pos, R, k, c),)
     setup = TestSetup(
         name=f"calibration mass ({support})",
         responses=tuple(responses),
@@ -298,18 +594,42 @@ def _unit(v: FloatArray) -> FloatArray:
     return v / np.linalg.norm(v)
 
 
-def x38_like(seed: int = 0) -> ForwardModel:
+#: X-38-like vehicle (thesis §4.2): mass, CG and inertia about the CG (tensor elements).
+X38_PROPERTIES = RigidBodyProperties(
+    8089.0,
+    np.array([4.14, 0.004, 0.74]),
+    np.array([[9.8e3, 150.0, -820.0], [150.0, 6.1e4, 35.0], [-820.0, 35.0, 6.4e4]]),
+)
+
+#: Drogue-chute pack of the X-38-like vehicle: the three triaxes on it and where it sits.
+X38_CHUTE_NODES = (1019, 1020, 1021)
+X38_CHUTE_POSITION_M = np.array([7.6, 0.0, 1.7])
+
+
+def x38_like(
+    seed: int = 0,
+    *,
+    flexible: bool = False,
+    chute_mass_kg: float = 60.0,
+    chute_mode_hz: float = 5.0,
+    bending_mode_hz: float = 23.0,
+) -> ForwardModel:
     """An X-38-sized body: m = 8089 kg, CG ≈ (4.14, 0.004, 0.74) m, on 3 skewed load cells.
 
-    21 triaxes over a 9 m × 3 m × 1.8 m hull, 22 inputs, three air-ride-like supports through load
-    cells each turned about a tilted axis, so none is aligned with the GCS.
+    21 triaxes over a 9 m × 3 m × 1.8 m hull — the last three (nodes 1019–1021) on the drogue-chute
+    pack near (7.6, 0, 1.7) m — 22 inputs, three air-ride-like supports through load cells each
+    turned about a tilted axis, so none is aligned with the GCS. With ``flexible`` two elastic
+    modes are added (thesis §4.2): the drogue-chute pack rocking laterally against the vehicle
+    (:func:`subsystem_mode`, ``chute_mode_hz``, ζ = 3 %) and the first vertical bending of the
+    hull (:func:`beam_bending_mode`, ``bending_mode_hz``, ζ = 2 %).
     """
     rng = np.random.default_rng(seed)
-    cg = np.array([4.14, 0.004, 0.74])
-    I_cg = np.array([[9.8e3, 150.0, -820.0], [150.0, 6.1e4, 35.0], [-820.0, 35.0, 6.4e4]])
-    props = RigidBodyProperties(8089.0, cg, I_cg)
+    props = X38_PROPERTIES
     lo, hi = np.array([0.0, -1.5, 0.0]), np.array([9.0, 1.5, 1.8])
     positions = rng.uniform(lo, hi, (21, 3))
+    positions[18:] = X38_CHUTE_POSITION_M + np.array(
+        [[-0.25, -0.2, 0.05], [0.25, 0.2, 0.05], [0.0, 0.25, -0.1]]
+    )
     rots = [Rotation.random(random_state=int(rng.integers(1 << 31))).as_matrix() for _ in range(21)]
     responses = _triaxes(range(1001, 1022), positions, rots)
     in_pos = rng.uniform(lo, hi, (22, 3))
@@ -323,14 +643,39 @@ def x38_like(seed: int = 0) -> ForwardModel:
     ):
         R = Rotation.from_euler("zyx", ang, degrees=True).as_matrix()
         k = soft_support_stiffness(8089.0 / 3, 1.8, 0.5, 2.0e4)
-        supports.append(Support(node, np.array(pos), R, k, 0.03 * k / (2 * np.pi * 1.8)))
+        supports.append(
+            Support(node, np.array(pos), R, k, 0.03 * k / (2 * np.pi * 1.8), "on_support")
+        )
     setup = TestSetup(
         name="X-38-like vehicle",
         responses=tuple(responses),
         excitations=tuple(inputs),
         load_cells=tuple(s.load_cell() for s in supports),
     )
-    return ForwardModel(props, setup, tuple(supports))
+    fm = ForwardModel(props, setup, tuple(supports))
+    if not flexible:
+        return fm
+    nodes = fm.node_positions()
+    chute = subsystem_mode(
+        "drogue chute pair",
+        chute_mode_hz,
+        0.03,
+        body=props,
+        part_mass_kg=chute_mass_kg,
+        part_position_m=X38_CHUTE_POSITION_M,
+        direction=np.array([0.0, 1.0, 0.15]),
+        part_nodes=X38_CHUTE_NODES,
+        nodes=nodes,
+    )
+    bending = beam_bending_mode(
+        "first vertical bending",
+        bending_mode_hz,
+        0.02,
+        mass_kg=props.mass_kg,
+        x_range_m=(0.0, 9.0),
+        nodes=nodes,
+    )
+    return replace(fm, modes=(chute, bending))
 
 
 def cube(half_size_m: float, seed: int = 0) -> ForwardModel:
@@ -341,7 +686,8 @@ def cube(half_size_m: float, seed: int = 0) -> ForwardModel:
     pure moment, so the six inputs here are three unit forces at the origin along X, Y, Z and three
     at unit offsets (force along Y at +X, along Z at +Y, along X at +Z), whose 6-DOF vectors span
     the same space; triaxes are aligned with the GCS and rotated by a small seeded angle so each
-    case also exercises skewed directions.
+    case also exercises skewed directions. :func:`cube_unit_loads` gives the thesis's six pure
+    unit forces and moments for :meth:`ForwardModel.load_frf`.
     """
     H = float(half_size_m)
     corners = np.array([[x, y, z] for x in (-H, H) for y in (-H, H) for z in (-H, H)])
@@ -358,6 +704,19 @@ def cube(half_size_m: float, seed: int = 0) -> ForwardModel:
         name=f"cube H = {H:g} m", responses=tuple(responses), excitations=tuple(inputs)
     )
     return ForwardModel(CALIBRATION_MASS, setup, ())
+
+
+def cube_unit_loads(fm: ForwardModel) -> FloatArray:
+    """The thesis's six unit loads at the origin — forces along X, Y, Z, then pure moments about
+    X, Y, Z — as generalised forces (n_dof, 6) for :meth:`ForwardModel.load_frf`."""
+    eye = np.eye(3)
+    zeros = np.zeros((3, 3))
+    return fm.generalised_loads(
+        [0] * 6,
+        np.zeros((6, 3)),
+        np.concatenate([eye, zeros]),
+        np.concatenate([zeros, eye]),
+    )
 
 
 def six_triax_box(setup: TestSetup) -> ForwardModel:

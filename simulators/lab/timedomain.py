@@ -87,61 +87,54 @@ class LabNoise:
 def state_space(model: ForwardModel) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, int]:
     """``A`` (n, n), ``B`` (n, n_in), ``C`` (n_out, n), ``D`` (n_out, n_in), n_acc outputs first.
 
-    Outputs: every response channel (m/s²), then each support's 6 local loads (N, N·m) with the
-    cell's sign. See the module docstring.
+    From the forward model's ``M z̈ + C_z ż + K z = q f`` (:meth:`ForwardModel.dynamic_matrices`,
+    ``z = [U; η]``, elastic modes coupled to the rigid body through the supports) with the state
+    ``x = [z; ż]``: ``A = [[0, E], [−M⁻¹K, −M⁻¹C_z]]``, ``B = [0; M⁻¹q]``. Accelerometers read
+    ``S z̈ = S M⁻¹(−K z − C_z ż + q f)`` (``S`` from :meth:`ForwardModel.output_matrices` at
+    ``ω² = 1``), load cells ``−sign (k_s A'_s z + c_s A'_s ż)`` with ``A'_s = B_sᵀ [G_s, Ψ_s]``.
+    A free-free body (no supports) keeps only the elastic modes as states; its rigid motion is
+    the direct term ``S_rb M_rb⁻¹ φ``. Outputs: every response channel (m/s²), then each
+    support's 6 local loads (N, N·m) with the cell's sign.
     """
     setup = model.setup
     M, Cd, K = model.dynamic_matrices()
-    Minv = np.linalg.inv(M)
-    pos, dirs = setup.response_positions, setup.response_directions
-    psi = np.concatenate([dirs, np.cross(pos, dirs)], axis=1)
-    ipos, idir = setup.input_positions, setup.input_directions
-    phi = np.concatenate([idir, np.cross(ipos, idir)], axis=1).T
-    n_acc, n_in = psi.shape[0], phi.shape[1]
+    q = model.input_loads()  # (n_dof, n_in)
+    S = model.output_matrices(np.array([1.0 / (2 * np.pi)]))[0].real  # rows at ω = 1
+    n_acc = len(setup.responses)
+    n_in = q.shape[1]
+    S_acc = -S[:n_acc]  # output_matrices holds −ω² S for accelerometers
     n_rc = 6 * len(model.supports)
-    blocks_A: list[FloatArray] = []
-    blocks_B: list[FloatArray] = []
-    blocks_C: list[FloatArray] = []
     D = np.zeros((n_acc + n_rc, n_in))
-    D[:n_acc] = psi @ Minv @ phi
-    if model.supports:
-        if np.linalg.matrix_rank(K) < 6:
-            raise ValueError(
-                "the supports do not restrain every rigid-body DOF; give each a full 6×6 stiffness"
-            )
-        A = np.block([[np.zeros((6, 6)), np.eye(6)], [-Minv @ K, -Minv @ Cd]])
-        B = np.vstack([np.zeros((6, n_in)), Minv @ phi])
-        Cm = np.zeros((n_acc + n_rc, 12))
-        Cm[:n_acc] = psi @ Minv @ np.hstack([-K, -Cd])
-        for s_i, s in enumerate(model.supports):
-            G, Bs = s.G(), s.B()
-            Kg, Cg = Bs @ s.stiffness @ Bs.T, Bs @ s.damping @ Bs.T
-            sign = 1.0 if s.sign == "on_structure" else -1.0
-            Cm[n_acc + 6 * s_i : n_acc + 6 * s_i + 6] = -sign * Bs.T @ np.hstack([Kg @ G, Cg @ G])
-        blocks_A.append(A)
-        blocks_B.append(B)
-        blocks_C.append(Cm)
-    resp_nodes = [c.node for c in setup.responses]
-    in_nodes = [e.node for e in setup.excitations]
-    for mode in model.modes:
-        wk, z = 2 * np.pi * mode.frequency_hz, mode.damping_ratio
-        a = np.einsum("ij,ij->i", dirs, mode.shape_at(resp_nodes))
-        b = np.einsum("ij,ij->i", idir, mode.shape_at(in_nodes))
-        blocks_A.append(np.array([[0.0, 1.0], [-(wk**2), -2 * z * wk]]))
-        blocks_B.append(np.vstack([np.zeros(n_in), b]))
-        Cm = np.zeros((n_acc + n_rc, 2))
-        Cm[:n_acc] = np.outer(a, [-(wk**2), -2 * z * wk])
-        blocks_C.append(Cm)
-        D[:n_acc] += np.outer(a, b)
-    n = sum(a.shape[0] for a in blocks_A)
-    A_all = np.zeros((n, n))
-    k = 0
-    for a in blocks_A:
-        A_all[k : k + a.shape[0], k : k + a.shape[0]] = a
-        k += a.shape[0]
-    B_all = np.vstack(blocks_B) if blocks_B else np.zeros((0, n_in))
-    C_all = np.hstack(blocks_C) if blocks_C else np.zeros((n_acc + n_rc, 0))
-    return A_all, B_all, C_all, D, n_acc
+    if not model.supports:
+        # Free-free: rigid and elastic coordinates decouple (block-diagonal M, C, K).
+        keep = np.arange(6, model.n_dof)
+        D[:n_acc] = S_acc[:, :6] @ np.linalg.solve(M[:6, :6], q[:6])
+        M, Cd, K, q, S_acc = (
+            M[np.ix_(keep, keep)],
+            Cd[np.ix_(keep, keep)],
+            K[np.ix_(keep, keep)],
+            q[keep],
+            S_acc[:, keep],
+        )
+    n = M.shape[0]
+    if n == 0:
+        return np.zeros((0, 0)), np.zeros((0, n_in)), np.zeros((n_acc + n_rc, 0)), D, n_acc
+    if model.supports and np.linalg.matrix_rank(K) < n:
+        raise ValueError(
+            "the supports do not restrain every rigid-body DOF; give each a full 6×6 stiffness"
+        )
+    Minv = np.linalg.inv(M)
+    A = np.block([[np.zeros((n, n)), np.eye(n)], [-Minv @ K, -Minv @ Cd]])
+    B = np.vstack([np.zeros((n, n_in)), Minv @ q])
+    C = np.zeros((n_acc + n_rc, 2 * n))
+    C[:n_acc] = S_acc @ Minv @ np.hstack([-K, -Cd])
+    D[:n_acc] += S_acc @ Minv @ q
+    for s_i, s in enumerate(model.supports):
+        sign = 1.0 if s.sign == "on_structure" else -1.0
+        Ap = s.B().T @ model._A(s.node, s.position_m)
+        rows = slice(n_acc + 6 * s_i, n_acc + 6 * s_i + 6)
+        C[rows] = -sign * np.hstack([s.stiffness @ Ap, s.damping @ Ap])
+    return A, B, C, D, n_acc
 
 
 @dataclass
