@@ -80,13 +80,16 @@ def response_geometry(frf: FrfData, setup: TestSetup) -> ResponseGeometry:
 
 
 def robust_outlier(
-    value: float, others: FloatArray, *, ratio: float, z: float
+    value: float, others: FloatArray, *, ratio: float, z: float, floor: float = 1e-6
 ) -> tuple[bool, float, float]:
     """Is ``value`` an outlier against the sample ``others``?
 
     Outlier when ``value > ratio · median`` **and** ``value > median + z · σ̂`` with the robust scale
     ``σ̂ = max(1.4826 · MAD, 0.05 · median)`` (the floor keeps a very tight sample from flagging
-    ordinary variation). Returns (outlier, median, threshold).
+    ordinary variation), **and** ``value > floor``: relative errors below ``floor`` (1e-6 by
+    default, far below any measurement noise) are rounding, never evidence — without it noise-free
+    data would lose channels or inputs to differences of 1e-15. Returns (outlier, median,
+    threshold).
     """
     o = np.asarray(others, float)
     o = o[np.isfinite(o)]
@@ -95,7 +98,7 @@ def robust_outlier(
     med = float(np.median(o))
     mad = 1.4826 * float(np.median(np.abs(o - med)))
     sig = max(mad, 0.05 * med)
-    thr = max(ratio * med, med + z * sig)
+    thr = max(ratio * med, med + z * sig, floor)
     return bool(value > thr), med, thr
 
 
