@@ -69,6 +69,7 @@ __all__ = [
     "cube",
     "cube_unit_loads",
     "fixed_support_stiffness",
+    "modal_damping",
     "six_triax_box",
     "soft_support_stiffness",
     "subsystem_mode",
@@ -160,6 +161,22 @@ def fixed_support_stiffness(
     support. Diagonal in the cell frame: shear x, y; axial z; bending about x, y; torsion z."""
     s, a, b, t = shear_n_per_m, axial_n_per_m, bending_nm_per_rad, torsion_nm_per_rad
     return np.diag([s, s, a, b, b, t])
+
+
+def modal_damping(
+    stiffness: FloatArray,
+    properties: RigidBodyProperties,
+    position_m: FloatArray,
+    damping_ratio: float,
+) -> FloatArray:
+    """Diagonal damping giving each support direction about ``damping_ratio`` of critical:
+    ``c_kk = 2 ζ sqrt(k_kk m_k)`` with ``m_k`` the body's mass (translations) or its largest
+    moment of inertia about the support point (rotations). Bungee and air springs damp a few
+    per cent of critical in every suspension mode; stiffness-proportional damping would leave
+    the pendulum modes nearly undamped."""
+    i_max = float(np.linalg.eigvalsh(properties.inertia_about(np.asarray(position_m, float))).max())
+    m_eff = np.array([properties.mass_kg] * 3 + [i_max] * 3)
+    return np.diag(2 * damping_ratio * np.sqrt(np.clip(np.diag(stiffness), 0, None) * m_eff))
 
 
 @dataclass(frozen=True, eq=False)
@@ -379,6 +396,26 @@ class ForwardModel:
         inputs = tuple(Channel(e.node, e.direction) for e in self.setup.excitations)
         return FrfData(f, H, outputs, kinds, inputs)
 
+    def transfer(self, s: Sequence[complex] | ComplexArray) -> ComplexArray:
+        """Outputs per unit input at Laplace variables ``s`` (``s = iω`` gives :meth:`frf`),
+        shape (n_s, n_outputs, n_inputs).
+
+        ``(K + s C + s² M) z = q``; accelerometers ``s² S z``, load cells
+        ``−sign (k_s + s c_s) B_sᵀ A_s z``. An exponential window ``e^{−t/τ}`` on input and output
+        turns a measured FRF into ``H(iω + 1/τ)``: this is the reference for windowed impact FRFs.
+        """
+        s = np.asarray(s, complex).reshape(-1)
+        M, C, K = self.dynamic_matrices()
+        q = self.input_loads().astype(complex)
+        Z = K[None] + s[:, None, None] * C[None] + (s**2)[:, None, None] * M[None]
+        z = np.linalg.solve(Z, np.broadcast_to(q, (s.size, *q.shape)))
+        parts = [(s**2)[:, None, None] * self._accel_rows()[None]]
+        for sup in self.supports:
+            Zs = sup.stiffness[None] + s[:, None, None] * sup.damping[None]
+            sign = 1.0 if sup.sign == "on_structure" else -1.0
+            parts.append(-sign * Zs @ (sup.B().T @ self._A(sup.node, sup.position_m))[None])
+        return np.asarray(np.concatenate(parts, axis=1) @ z)
+
     def node_positions(self) -> dict[int, FloatArray]:
         """Every node of the setup (responses, inputs, load cells) with its GCS position."""
         out: dict[int, FloatArray] = {}
@@ -531,7 +568,8 @@ def calibration_mass(
     each corner, each turned by a random rotation of up to ``sensor_skew_deg``; the impacts are on
     the +x, +y and −z faces at scattered points, normal to the face. The load cell (turned
     ``cell_angle_deg`` about Z) carries the support: ``"bungee"`` — on the top face, bounce 2 Hz,
-    pendulum 0.7 Hz; ``"air-ride"`` — underneath, 1.5 Hz / 0.3 Hz; ``"ground"`` — underneath,
+    pendulum 0.7 Hz, ζ ≈ 5 % (:func:`modal_damping`); ``"air-ride"`` — underneath, 1.5 Hz /
+    0.3 Hz, ζ ≈ 8 %; ``"ground"`` — underneath,
     bolted to the floor, the cell's own stiffness (:func:`fixed_support_stiffness`) is the
     support (thesis Appendix B; rigid-body modes at a few hundred Hz); ``"free"`` — no support.
     """
@@ -573,10 +611,10 @@ def calibration_mass(
         m = CALIBRATION_MASS.mass_kg
         if support == "bungee":
             pos, k = np.array([0.05, 0.0, 0.05]), soft_support_stiffness(m, 2.0, 0.7, 5.0)
-            c = 0.02 * k / (2 * np.pi * 2.0)
+            c = modal_damping(k, CALIBRATION_MASS, pos, 0.05)
         elif support == "air-ride":
             pos, k = np.array([0.05, 0.0, -0.20]), soft_support_stiffness(m, 1.5, 0.3, 20.0)
-            c = 0.02 * k / (2 * np.pi * 2.0)
+            c = modal_damping(k, CALIBRATION_MASS, pos, 0.08)
         else:
             pos, k = np.array([0.05, 0.0, -0.20]), fixed_support_stiffness()
             c = 2 * 0.02 * k / (2 * np.pi * 300.0)  # ζ ≈ 2 % near 300 Hz
@@ -604,24 +642,33 @@ X38_PROPERTIES = RigidBodyProperties(
 #: Drogue-chute pack of the X-38-like vehicle: the three triaxes on it and where it sits.
 X38_CHUTE_NODES = (1019, 1020, 1021)
 X38_CHUTE_POSITION_M = np.array([7.6, 0.0, 1.7])
+#: Twin vertical tails (their lumped mass centre) of the X-38-like vehicle.
+X38_TAIL_POSITION_M = np.array([8.4, 0.0, 2.4])
 
 
 def x38_like(
     seed: int = 0,
     *,
     flexible: bool = False,
-    chute_mass_kg: float = 60.0,
-    chute_mode_hz: float = 5.0,
-    bending_mode_hz: float = 23.0,
+    chute_mass_kg: float = 5.0,
+    chute_modes_hz: tuple[float, float] = (4.8, 5.3),
+    deformation_mode_hz: float = 23.0,
+    tail_mass_kg: float = 40.0,
 ) -> ForwardModel:
     """An X-38-sized body: m = 8089 kg, CG ≈ (4.14, 0.004, 0.74) m, on 3 skewed load cells.
 
     21 triaxes over a 9 m × 3 m × 1.8 m hull — the last three (nodes 1019–1021) on the drogue-chute
-    pack near (7.6, 0, 1.7) m — 22 inputs, three air-ride-like supports through load cells each
-    turned about a tilted axis, so none is aligned with the GCS. With ``flexible`` two elastic
-    modes are added (thesis §4.2): the drogue-chute pack rocking laterally against the vehicle
-    (:func:`subsystem_mode`, ``chute_mode_hz``, ζ = 3 %) and the first vertical bending of the
-    hull (:func:`beam_bending_mode`, ``bending_mode_hz``, ζ = 2 %).
+    pack near (7.6, 0, 1.7) m — 22 inputs, three air-ride-like supports (rigid-body modes
+    0.45–2.2 Hz) through load cells each turned about a tilted axis, so none is aligned with the
+    GCS; the cells report the load on the support. With ``flexible`` three elastic modes are
+    added (thesis §4.2, Fig. 37: "two closely spaced modes" of the drogue chute near 5 Hz, the
+    first deformation mode near 23 Hz): the chute pack rocking laterally and vertically against
+    the vehicle (:func:`subsystem_mode`, ζ = 3 %) and the first deformation mode, the twin
+    vertical tails (``tail_mass_kg`` near (8.4, 0, 2.4) m) bending laterally against the hull
+    (:func:`subsystem_mode`, ζ = 2 %; :func:`beam_bending_mode` gives a global hull bending
+    instead, whose quasi-static share spoils a DIM band far more). Above its modes the pack no longer follows the vehicle:
+    the DIM then sees ``chute_mass_kg`` less mass (and its inertia), and the chute triaxes
+    disagree with rigid-body motion (the thesis solved with 18 of the 21 triaxes).
     """
     rng = np.random.default_rng(seed)
     props = X38_PROPERTIES
@@ -656,26 +703,35 @@ def x38_like(
     if not flexible:
         return fm
     nodes = fm.node_positions()
-    chute = subsystem_mode(
-        "drogue chute pair",
-        chute_mode_hz,
-        0.03,
-        body=props,
-        part_mass_kg=chute_mass_kg,
-        part_position_m=X38_CHUTE_POSITION_M,
-        direction=np.array([0.0, 1.0, 0.15]),
-        part_nodes=X38_CHUTE_NODES,
-        nodes=nodes,
+    chute = tuple(
+        subsystem_mode(
+            f"drogue chute {axis}",
+            f_hz,
+            0.03,
+            body=props,
+            part_mass_kg=chute_mass_kg,
+            part_position_m=X38_CHUTE_POSITION_M,
+            direction=direction,
+            part_nodes=X38_CHUTE_NODES,
+            nodes=nodes,
+        )
+        for axis, f_hz, direction in (
+            ("lateral", chute_modes_hz[0], np.array([0.0, 1.0, 0.0])),
+            ("vertical", chute_modes_hz[1], np.array([0.0, 0.0, 1.0])),
+        )
     )
-    bending = beam_bending_mode(
-        "first vertical bending",
-        bending_mode_hz,
+    tails = subsystem_mode(
+        "vertical tails lateral bending",
+        deformation_mode_hz,
         0.02,
-        mass_kg=props.mass_kg,
-        x_range_m=(0.0, 9.0),
+        body=props,
+        part_mass_kg=tail_mass_kg,
+        part_position_m=X38_TAIL_POSITION_M,
+        direction=np.array([0.0, 1.0, 0.0]),
+        part_nodes=(),
         nodes=nodes,
     )
-    return replace(fm, modes=(chute, bending))
+    return replace(fm, modes=(*chute, tails))
 
 
 def cube(half_size_m: float, seed: int = 0) -> ForwardModel:

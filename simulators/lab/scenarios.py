@@ -1,0 +1,516 @@
+"""Virtual-lab scenarios: versioned files in ``config/scenarios/`` that fix a simulated test.
+
+A scenario file (TOML, ``schema_version = 1``) names the test article and its support, the
+recommended DIM band, the frequency axis of the model FRFs, the errors between the true and the
+nominal (written) geometry, the transducers' imperfections, the hammer and the acquisition
+settings for time-domain simulation. Every item is checked on loading; a bad file is refused with
+the item and the fix named (:class:`~dimacq.errors.SetupError`). Everything random derives from
+the scenario's ``seed`` (or the one given on the command line), so a scenario is deterministic.
+
+File layout (every table but ``[article]`` and ``[band]`` optional)::
+
+    schema_version = 1
+    name = "calibration-mass-bungee"
+    description = "..."
+    seed = 0
+
+    [article]          # model = calibration-mass | x38 | cube
+    model = "calibration-mass"
+    support = "bungee"             # calibration-mass: bungee | air-ride | ground | free
+    sensor_skew_deg = 25.0         # calibration-mass: random triax rotations up to this angle
+    flexible = true                # x38: drogue-chute pair near 5 Hz, tails near 23 Hz
+    half_size_m = 1.0              # cube: triaxes at (±H, ±H, ±H)
+
+    [band]             # the recommended DIM band, Hz
+    lo_hz = 20.0
+    hi_hz = 60.0
+
+    [frequency_axis]   # lines k·resolution_hz, k = 1 .. max_hz/resolution_hz
+    max_hz = 200.0
+    resolution_hz = 0.5
+
+    [analysis]
+    exclude_nodes = []             # response nodes the recommended solution leaves out
+
+    [errors]           # true vs nominal geometry (standard deviations)
+    position_m = 0.0               # per triax and per input point
+    orientation_deg = 0.0          # rotation of each triax about a random axis
+    line_of_action_deg = 0.0       # rotation of each input's line of action
+
+    [transducers]      # time-domain signals (model FRFs: see model_frf)
+    accel_noise_ms2 = 5e-4
+    force_noise_n = 0.05
+    gauge_noise_v = 2e-6
+    gauge_drift_v_per_s = 0.0
+    sensitivity_error = 0.0        # relative, per accelerometer axis
+    cross_axis = 0.0               # fraction of the other two axes of the triax
+
+    [hammer]
+    peak_n = 200.0
+    pulse_sigma_ms = 0.7           # Gaussian pulse; omitted: 1.4 samples
+    double_hit_probability = 0.0
+    double_hit_delay_ms = 4.0
+    double_hit_ratio = 0.4
+
+    [acquisition]
+    sample_rate_hz = 2048.0
+    record_samples = 4096
+    averages = 5
+    pretrigger_samples = 64
+    exponential_tau_s = 0.5
+    settle_s = 30.0                # the operator waits for the swing to die down
+"""
+
+from __future__ import annotations
+
+import logging
+import tomllib
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+from numpy.typing import NDArray
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from scipy.spatial.transform import Rotation
+
+from dimacq.errors import SetupError
+from dimacq.model.frf import FrfData
+from dimacq.model.properties import RigidBodyProperties
+from dimacq.model.setup import Excitation, ResponseChannel, TestSetup
+from dimacq.simulators.lab.forward import ForwardModel, calibration_mass, cube, x38_like
+
+__all__ = [
+    "SCENARIO_DIR",
+    "BuiltScenario",
+    "Scenario",
+    "build_scenario",
+    "list_scenarios",
+    "load_scenario",
+]
+
+log = logging.getLogger(__name__)
+
+FloatArray = NDArray[np.float64]
+
+#: Where the bundled scenario files live (``config/scenarios/`` of the checkout).
+SCENARIO_DIR = Path(__file__).resolve().parents[2] / "config" / "scenarios"
+
+
+class _Spec(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class ArticleSpec(_Spec):
+    model: Literal["calibration-mass", "x38", "cube"] = Field(
+        description="the test article: calibration-mass, x38 or cube"
+    )
+    support: Literal["bungee", "air-ride", "ground", "free"] | None = Field(
+        default=None, description="calibration-mass support: bungee, air-ride, ground or free"
+    )
+    sensor_skew_deg: float = Field(
+        default=25.0, ge=0, le=180, description="largest random triax rotation, degrees (0–180)"
+    )
+    flexible: bool = Field(default=True, description="x38: true to include the elastic modes")
+    half_size_m: float | None = Field(
+        default=None, gt=0, description="cube: half the side H in metres (> 0)"
+    )
+
+    @model_validator(mode="after")
+    def _fits_model(self) -> ArticleSpec:
+        if self.model == "calibration-mass" and self.support is None:
+            raise ValueError(
+                "calibration-mass needs article.support = bungee, air-ride, ground or free"
+            )
+        if self.model != "calibration-mass" and self.support is not None:
+            raise ValueError(
+                f"article.support applies to the calibration mass only; remove it for {self.model}"
+            )
+        if self.model == "cube" and self.half_size_m is None:
+            raise ValueError("cube needs article.half_size_m (H, metres; triaxes at ±H)")
+        if self.model != "cube" and self.half_size_m is not None:
+            raise ValueError(
+                f"article.half_size_m applies to the cube only; remove it for {self.model}"
+            )
+        return self
+
+
+class BandSpec(_Spec):
+    lo_hz: float = Field(gt=0, description="lower edge of the recommended DIM band, Hz (> 0)")
+    hi_hz: float = Field(gt=0, description="upper edge of the recommended DIM band, Hz (> lo_hz)")
+
+    @model_validator(mode="after")
+    def _ordered(self) -> BandSpec:
+        if self.hi_hz <= self.lo_hz:
+            raise ValueError(
+                f"band.hi_hz = {self.hi_hz} is not above band.lo_hz = {self.lo_hz}; give lo_hz < hi_hz"
+            )
+        return self
+
+
+class FrequencyAxisSpec(_Spec):
+    max_hz: float = Field(default=200.0, gt=0, description="highest model FRF line, Hz (> 0)")
+    resolution_hz: float = Field(default=0.5, gt=0, description="line spacing, Hz (> 0)")
+
+    @model_validator(mode="after")
+    def _lines(self) -> FrequencyAxisSpec:
+        n = self.max_hz / self.resolution_hz
+        if n < 1 or n > 200_000:
+            raise ValueError(
+                f"frequency_axis gives {n:.0f} lines; choose max_hz / resolution_hz between 1 and 200000"
+            )
+        return self
+
+
+class AnalysisSpec(_Spec):
+    exclude_nodes: tuple[int, ...] = Field(
+        default=(), description="response nodes the recommended solution leaves out (list of ints)"
+    )
+
+
+class ErrorsSpec(_Spec):
+    position_m: float = Field(
+        default=0.0, ge=0, le=0.5, description="position error std, m (0–0.5)"
+    )
+    orientation_deg: float = Field(
+        default=0.0, ge=0, le=45, description="triax orientation error std, degrees (0–45)"
+    )
+    line_of_action_deg: float = Field(
+        default=0.0, ge=0, le=45, description="line-of-action error std, degrees (0–45)"
+    )
+
+
+class TransducerSpec(_Spec):
+    accel_noise_ms2: float = Field(
+        default=5e-4, ge=0, description="accelerometer noise rms, m/s² (≥ 0)"
+    )
+    force_noise_n: float = Field(default=0.05, ge=0, description="hammer force noise rms, N (≥ 0)")
+    gauge_noise_v: float = Field(
+        default=2e-6, ge=0, description="load cell gauge noise rms, V (≥ 0)"
+    )
+    gauge_drift_v_per_s: float = Field(default=0.0, ge=0, description="gauge zero drift, V/s (≥ 0)")
+    sensitivity_error: float = Field(
+        default=0.0,
+        ge=0,
+        le=0.5,
+        description="relative accelerometer sensitivity error std (0–0.5)",
+    )
+    cross_axis: float = Field(
+        default=0.0, ge=0, le=0.2, description="cross-axis sensitivity, fraction (0–0.2)"
+    )
+
+
+class HammerSpec(_Spec):
+    peak_n: float = Field(default=200.0, gt=0, description="peak hammer force, N (> 0)")
+    pulse_sigma_ms: float | None = Field(
+        default=None, gt=0, description="Gaussian pulse width (std), ms (> 0)"
+    )
+    double_hit_probability: float = Field(
+        default=0.0, ge=0, le=1, description="probability of a double hit (0–1)"
+    )
+    double_hit_delay_ms: float = Field(
+        default=4.0, gt=0, description="delay of the second hit, ms (> 0)"
+    )
+    double_hit_ratio: float = Field(
+        default=0.4, gt=0, le=1, description="second hit / first hit (0–1]"
+    )
+
+
+class AcquisitionSpec(_Spec):
+    sample_rate_hz: float = Field(default=2048.0, gt=0, description="sample rate, S/s (> 0)")
+    record_samples: int = Field(default=4096, ge=64, description="samples per record (≥ 64)")
+    averages: int = Field(default=5, ge=1, le=1000, description="averages per input (1–1000)")
+    pretrigger_samples: int = Field(default=64, ge=0, description="samples before the strike (≥ 0)")
+    exponential_tau_s: float | None = Field(
+        default=0.5, gt=0, description="exponential window time constant, s (> 0), or omit for none"
+    )
+    settle_s: float = Field(
+        default=30.0, ge=0, description="wait between a record and the next strike, s (≥ 0)"
+    )
+
+    @model_validator(mode="after")
+    def _fits(self) -> AcquisitionSpec:
+        if self.pretrigger_samples >= self.record_samples // 2:
+            raise ValueError(
+                f"acquisition.pretrigger_samples = {self.pretrigger_samples} leaves no room in "
+                f"{self.record_samples} samples; give fewer than record_samples / 2"
+            )
+        return self
+
+
+class Scenario(_Spec):
+    """One scenario file (see the module docstring)."""
+
+    schema_version: Literal[1] = Field(description="scenario file format version: 1")
+    name: str = Field(min_length=1, description="scenario name, e.g. calibration-mass-bungee")
+    description: str = Field(default="", description="free text")
+    seed: int = Field(default=0, ge=0, description="seed of everything random (integer ≥ 0)")
+    article: ArticleSpec
+    band: BandSpec
+    frequency_axis: FrequencyAxisSpec = FrequencyAxisSpec()
+    analysis: AnalysisSpec = AnalysisSpec()
+    errors: ErrorsSpec = ErrorsSpec()
+    transducers: TransducerSpec = TransducerSpec()
+    hammer: HammerSpec = HammerSpec()
+    acquisition: AcquisitionSpec = AcquisitionSpec()
+
+    @model_validator(mode="after")
+    def _band_in_axis(self) -> Scenario:
+        if self.band.hi_hz > self.frequency_axis.max_hz:
+            raise ValueError(
+                f"band.hi_hz = {self.band.hi_hz} lies above frequency_axis.max_hz = "
+                f"{self.frequency_axis.max_hz}; raise max_hz or lower the band"
+            )
+        if self.band.hi_hz >= self.acquisition.sample_rate_hz / 2:
+            raise ValueError(
+                f"band.hi_hz = {self.band.hi_hz} is not below the Nyquist frequency "
+                f"{self.acquisition.sample_rate_hz / 2:g} Hz of acquisition.sample_rate_hz; raise the rate"
+            )
+        return self
+
+
+# --------------------------------------------------------------------------------------------
+# Loading
+# --------------------------------------------------------------------------------------------
+def _describe(loc: tuple[Any, ...]) -> str | None:
+    """The description of the field at ``loc`` (the fix hint), walking the spec models."""
+    model: Any = Scenario
+    desc = None
+    for part in loc:
+        fields = getattr(model, "model_fields", None)
+        if not fields or part not in fields:
+            return desc
+        info = fields[part]
+        desc = info.description
+        ann = info.annotation
+        model = ann if isinstance(ann, type) and issubclass(ann, BaseModel) else None
+    return desc
+
+
+def _refuse(source: str, err: ValidationError) -> SetupError:
+    lines = []
+    for e in err.errors():
+        loc = tuple(e["loc"])
+        item = ".".join(str(p) for p in loc) or "(file)"
+        msg = e["msg"].removeprefix("Value error, ")
+        if e["type"] == "extra_forbidden":
+            fix = "remove it or correct its spelling"
+            msg = "is not a scenario item"
+        elif e["type"] == "missing":
+            fix = f"add it: {_describe(loc) or 'see the module docstring'}"
+            msg = "is missing"
+        else:
+            desc = _describe(loc)
+            fix = f"give {desc}" if desc else "see the scenario format"
+            if "input" in e and not isinstance(e["input"], dict):
+                msg = f"= {e['input']!r}: {msg}"
+        lines.append(f"item '{item}' {msg}; fix: {fix}")
+    return SetupError(f"scenario {source} refused: " + " | ".join(lines))
+
+
+def list_scenarios(directory: Path | None = None) -> dict[str, Path]:
+    """Scenario name → file, for every ``*.toml`` in ``directory`` (default :data:`SCENARIO_DIR`)."""
+    d = SCENARIO_DIR if directory is None else Path(directory)
+    return {p.stem: p for p in sorted(d.glob("*.toml"))}
+
+
+def load_scenario(name_or_path: str | Path, directory: Path | None = None) -> Scenario:
+    """Read and check a scenario by name (a file of :func:`list_scenarios`) or by path.
+
+    Raises
+    ------
+    SetupError
+        Unknown name, unreadable file, TOML syntax error, or an item that fails its check (the
+        message names the item and the fix).
+    """
+    path = Path(name_or_path)
+    known = list_scenarios(directory)
+    if str(name_or_path) in known:
+        path = known[str(name_or_path)]
+    elif not path.suffix or not path.exists():
+        raise SetupError(
+            f"scenario {str(name_or_path)!r} is unknown; use one of {', '.join(known) or '(none)'} "
+            "(dimacq simulate --list) or give the path of a scenario .toml file"
+        )
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except OSError as err:
+        raise SetupError(f"scenario file {path}: cannot read it ({err}); check the path") from err
+    except tomllib.TOMLDecodeError as err:
+        raise SetupError(
+            f"scenario file {path}: not valid TOML ({err}); fix the syntax there"
+        ) from err
+    try:
+        scn = Scenario.model_validate(data)
+    except ValidationError as err:
+        raise _refuse(f"file {path}", err) from err
+    if path.stem != scn.name:
+        log.info("scenario file %s holds scenario %r", path, scn.name)
+    return scn
+
+
+# --------------------------------------------------------------------------------------------
+# Building
+# --------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class BuiltScenario:
+    """A scenario made concrete for one seed.
+
+    Attributes
+    ----------
+    spec : Scenario
+    seed : int
+    model : ForwardModel
+        The TRUE article (geometry, supports, elastic modes).
+    setup : TestSetup
+        The nominal setup written with the FRFs: the true one with the scenario's geometry errors.
+    """
+
+    spec: Scenario
+    seed: int
+    model: ForwardModel
+    setup: TestSetup
+
+    @property
+    def truth(self) -> RigidBodyProperties:
+        return self.model.properties
+
+    @property
+    def band_hz(self) -> tuple[float, float]:
+        return (self.spec.band.lo_hz, self.spec.band.hi_hz)
+
+    def frequencies_hz(self) -> FloatArray:
+        """The model FRF lines ``k · resolution_hz``, ``k = 1 .. ⌊max_hz / resolution_hz⌋``."""
+        ax = self.spec.frequency_axis
+        n = int(np.floor(ax.max_hz / ax.resolution_hz + 1e-9))
+        return np.asarray(ax.resolution_hz * np.arange(1, n + 1), dtype=np.float64)
+
+    def article(self, rigid_only: bool = False) -> ForwardModel:
+        return self.model.rigid() if rigid_only else self.model
+
+    def model_frf(
+        self,
+        *,
+        rigid_only: bool = False,
+        noise: float = 0.0,
+        frequencies_hz: FloatArray | None = None,
+    ) -> FrfData:
+        """Model FRFs of the true article, in the nominal setup's channel order.
+
+        ``noise`` adds complex Gaussian noise with a standard deviation of ``noise`` times the RMS
+        magnitude of each FRF (over the lines), seeded by the scenario seed; 0 gives exact FRFs.
+        """
+        f = self.frequencies_hz() if frequencies_hz is None else np.asarray(frequencies_hz, float)
+        frf = self.article(rigid_only).frf(f)
+        if noise < 0:
+            raise SetupError(f"noise = {noise}; give a relative noise level ≥ 0")
+        if noise > 0:
+            rng = np.random.default_rng([self.seed, 23])
+            rms = np.sqrt(np.mean(np.abs(frf.H) ** 2, axis=0, keepdims=True))
+            e = rng.standard_normal(frf.H.shape) + 1j * rng.standard_normal(frf.H.shape)
+            frf = frf.replace(H=frf.H + noise * rms * e / np.sqrt(2))
+        return frf.replace(meta={"source": f"dimacq simulate {self.spec.name} (model)"})
+
+    def truth_json(self) -> dict[str, Any]:
+        """The true properties with the keys of ``dimacq solve --json`` plus the scenario's advice."""
+        out = self.truth.to_json(self.setup.reference_point)
+        out.update(
+            scenario=self.spec.name,
+            seed=self.seed,
+            band_hz=list(self.band_hz),
+            recommended={
+                "band_hz": list(self.band_hz),
+                "exclude_nodes": list(self.spec.analysis.exclude_nodes),
+            },
+            elastic_modes=[
+                {"name": m.name, "frequency_hz": m.frequency_hz, "damping_ratio": m.damping_ratio}
+                for m in self.model.modes
+            ],
+            suspension_frequencies_hz=self.model.suspension_frequencies_hz().tolist()
+            if self.model.supports
+            else [],
+        )
+        return out
+
+
+def _article(spec: ArticleSpec, seed: int) -> ForwardModel:
+    if spec.model == "calibration-mass":
+        assert spec.support is not None
+        return calibration_mass(seed, support=spec.support, sensor_skew_deg=spec.sensor_skew_deg)
+    if spec.model == "x38":
+        return x38_like(seed, flexible=spec.flexible)
+    assert spec.half_size_m is not None
+    return cube(spec.half_size_m, seed)
+
+
+def _small_rotation(rng: np.random.Generator, std_deg: float) -> FloatArray:
+    """A rotation about a random axis by an angle ~ N(0, std)."""
+    axis = rng.normal(size=3)
+    axis /= np.linalg.norm(axis)
+    return Rotation.from_rotvec(np.deg2rad(std_deg) * rng.standard_normal() * axis).as_matrix()
+
+
+def nominal_setup(true_setup: TestSetup, errors: ErrorsSpec, seed: int) -> TestSetup:
+    """The setup a user would have: the true geometry with seeded errors.
+
+    Each triax (all axes of one node together) moves by ``N(0, position_m)`` per coordinate and
+    turns by a rotation of ``N(0, orientation_deg)`` about a random axis; each input point moves
+    likewise and its line of action turns by ``N(0, line_of_action_deg)``. Load cells are exact.
+    """
+    if errors.position_m == 0 and errors.orientation_deg == 0 and errors.line_of_action_deg == 0:
+        return true_setup
+    rng = np.random.default_rng([seed, 31])
+    node_err: dict[int, tuple[FloatArray, FloatArray]] = {}
+    responses = []
+    for c in true_setup.responses:
+        if c.node not in node_err:
+            node_err[c.node] = (
+                rng.normal(scale=errors.position_m, size=3),
+                _small_rotation(rng, errors.orientation_deg),
+            )
+        dp, R = node_err[c.node]
+        d = R @ np.asarray(c.direction_gcs)
+        responses.append(
+            ResponseChannel(
+                node=c.node,
+                direction=c.direction,
+                position_m=tuple(float(x) for x in np.asarray(c.position_m) + dp),  # type: ignore[arg-type]
+                direction_gcs=tuple(float(x) for x in d / np.linalg.norm(d)),  # type: ignore[arg-type]
+                label=c.label,
+            )
+        )
+    inputs = []
+    for e in true_setup.excitations:
+        dp = rng.normal(scale=errors.position_m, size=3)
+        d = _small_rotation(rng, errors.line_of_action_deg) @ np.asarray(e.direction_gcs)
+        inputs.append(
+            Excitation(
+                node=e.node,
+                direction=e.direction,
+                position_m=tuple(float(x) for x in np.asarray(e.position_m) + dp),  # type: ignore[arg-type]
+                direction_gcs=tuple(float(x) for x in d / np.linalg.norm(d)),  # type: ignore[arg-type]
+                label=e.label,
+            )
+        )
+    return true_setup.model_copy(
+        update={"responses": tuple(responses), "excitations": tuple(inputs)}
+    )
+
+
+def build_scenario(spec: Scenario | str | Path, seed: int | None = None) -> BuiltScenario:
+    """Make a scenario concrete: the true article and the nominal setup, for ``seed`` (default:
+    the scenario's own)."""
+    scn = spec if isinstance(spec, Scenario) else load_scenario(spec)
+    s = scn.seed if seed is None else int(seed)
+    if s < 0:
+        raise SetupError(f"seed = {s}; give an integer ≥ 0")
+    model = _article(scn.article, s)
+    setup = nominal_setup(model.setup, scn.errors, s)
+    setup = setup.model_copy(update={"name": scn.name})
+    unknown = set(scn.analysis.exclude_nodes) - {c.node for c in setup.responses}
+    if unknown:
+        raise SetupError(
+            f"scenario {scn.name}: analysis.exclude_nodes lists {sorted(unknown)}, which carry no "
+            "response; give response nodes of the article"
+        )
+    return BuiltScenario(scn, s, replace(model, setup=model.setup), setup)
