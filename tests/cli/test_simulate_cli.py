@@ -1,0 +1,103 @@
+"""``dimacq simulate``: scenario FRFs in UFF and truth in JSON that ``dimacq solve`` turns back
+into the truth."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from dimacq.cli.main import main
+
+
+def _errors(sol: dict, truth: dict, size_m: float) -> tuple[float, float, float]:
+    it = np.array(truth["inertia_p_kgm2"])
+    return (
+        abs(sol["mass_kg"] / truth["mass_kg"] - 1),
+        float(np.abs(np.array(sol["cg_m"]) - truth["cg_m"]).max() / size_m),
+        float(np.abs(np.array(sol["inertia_p_kgm2"]) - it).max() / np.linalg.eigvalsh(it).max()),
+    )
+
+
+def test_list_names_every_scenario(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["simulate", "--list"]) == 0
+    out = capsys.readouterr().out
+    for name in (
+        "calibration-mass-bungee",
+        "calibration-mass-air-ride",
+        "calibration-mass-ground",
+        "x38",
+        "cube-0.02",
+        "cube-2",
+        "cube-200",
+    ):
+        assert name in out
+
+
+@pytest.mark.parametrize(("name", "size"), [("calibration-mass-ground", 0.3), ("cube-200", 200.0)])
+def test_rigid_only_model_frfs_solve_to_the_truth(tmp_path: Path, name: str, size: float) -> None:
+    uff, truth, sol = tmp_path / "t.uff", tmp_path / "truth.json", tmp_path / "sol.json"
+    assert main(["simulate", name, "--rigid-only", "--frf", str(uff), "--truth", str(truth)]) == 0
+    t = json.loads(truth.read_text())
+    assert t["scenario"] == name and {"mass_kg", "cg_m", "inertia_p_kgm2"} <= set(t)
+    assert main(["solve", str(uff), "--json", str(sol)]) == 0
+    assert max(_errors(json.loads(sol.read_text()), t, size)) < 1e-9
+
+
+def test_flexible_x38_in_its_recommended_band_is_within_half_a_percent(tmp_path: Path) -> None:
+    uff, truth, sol = tmp_path / "x.uff", tmp_path / "truth.json", tmp_path / "sol.json"
+    assert main(["simulate", "x38", "--frf", str(uff), "--truth", str(truth)]) == 0
+    t = json.loads(truth.read_text())
+    lo, hi = t["recommended"]["band_hz"]
+    args = ["solve", str(uff), "--band", str(lo), str(hi), "--json", str(sol)]
+    assert main([*args, "--select-responses"]) == 0
+    s = json.loads(sol.read_text())
+    assert max(_errors(s, t, 9.0)) < 5e-3
+    pm, pt = np.array(s["principal_moments_kgm2"]), np.array(t["principal_moments_kgm2"])
+    assert np.abs(pm / pt - 1).max() < 5e-3
+    # without leaving out the chute triaxes the elastic modes spoil the answer
+    assert main(args) == 0
+    assert max(_errors(json.loads(sol.read_text()), t, 9.0)) > 2e-2
+
+
+def test_time_domain_and_noise_options(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    uff, truth, sol = tmp_path / "c.uff", tmp_path / "truth.json", tmp_path / "sol.json"
+    assert (
+        main(
+            [
+                "simulate",
+                "cube-2",
+                "--time-domain",
+                "--noise",
+                "0",
+                "--seed",
+                "3",
+                "--frf",
+                str(uff),
+                "--truth",
+                str(truth),
+            ]
+        )
+        == 0
+    )
+    assert "time domain: 30 strikes" in capsys.readouterr().out
+    assert main(["solve", str(uff), "--band", "20", "60", "--json", str(sol)]) == 0
+    assert max(_errors(json.loads(sol.read_text()), json.loads(truth.read_text()), 2.0)) < 1e-6
+
+
+def test_bad_scenarios_exit_2_naming_the_fix(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert main(["simulate", "moon-lander", "--truth", str(tmp_path / "t.json")]) == 2
+    assert "dimacq simulate --list" in capsys.readouterr().err
+    bad = tmp_path / "bad.toml"
+    bad.write_text(
+        'schema_version = 1\nname = "b"\n[article]\nmodel = "cube"\n[band]\nlo_hz = 1\nhi_hz = 2\n'
+    )
+    assert main(["simulate", str(bad), "--truth", str(tmp_path / "t.json")]) == 2
+    err = capsys.readouterr().err
+    assert "half_size_m" in err and "fix:" in err
+    assert main(["simulate", "cube-2"]) == 2
+    assert "--frf" in capsys.readouterr().err
