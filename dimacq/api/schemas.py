@@ -108,15 +108,18 @@ class SolveRequest(_Body):
 
 
 class AcquisitionRequest(_Body):
+    """An impact test of every input of the setup. Values left out (null) come from the rig
+    (in simulation: the scenario's acquisition settings)."""
+
     setup_id: int = Field(ge=1)
-    averages_per_input: int = Field(default=5, ge=1, le=100)
-    record_samples: int = Field(default=2048, ge=64, le=1_048_576)
-    pretrigger_samples: int = Field(default=32, ge=0, le=65536)
-    trigger_level_n: float = Field(default=5.0, gt=0)
+    averages_per_input: int | None = Field(default=None, ge=1, le=100)
+    record_samples: int | None = Field(default=None, ge=64, le=1_048_576)
+    pretrigger_samples: int | None = Field(default=None, ge=0, le=65536)
+    trigger_level_n: float | None = Field(default=None, gt=0, le=1e6)
     estimator: Literal["H1", "H2", "Hv"] = "H1"
-    exponential_tau_s: float | None = Field(default=None, gt=0)
-    force_window_samples: int | None = Field(default=None, ge=1)
-    seed: int = Field(default=0, ge=0)
+    exponential_tau_s: float | None = Field(default=None, gt=0, le=1e4)
+    force_window_samples: int | None = Field(default=None, ge=1, le=1_048_576)
+    seed: int | None = Field(default=None, ge=0, le=2**31 - 1)
 
 
 class SensitivityRequest(_Body):

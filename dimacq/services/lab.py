@@ -352,14 +352,21 @@ class Lab:
 
     def _connect_acquisition_device(self, info: DeviceInfo) -> None:
         if info.simulated:
-            lab = _virtual_lab_module()
-            if lab is None:
+            scenarios = _virtual_lab_module()
+            if scenarios is None:
                 raise DeviceNotFoundError(
                     f"{info.name}: the simulated {info.kind} needs the virtual lab scenarios "
-                    "(dimacq.simulators.lab scenarios), which are not installed in this build"
+                    "(dimacq.simulators.lab.scenarios), which are not installed in this build"
                 )
+            spec = scenarios.load_scenario(self.settings.scenario)  # SetupError if unknown
             info.connected = True
-            info.identity = {"model": f"simulated {info.kind}", "scenario": self.settings.scenario}
+            info.identity = {
+                "model": "simulated USB DAQ (pyusb backend)"
+                if info.kind == "daq"
+                else "simulated CAN FD load cell amplifier (python-can virtual)",
+                "scenario": spec.name,
+                "description": spec.description,
+            }
             return
         raise DeviceNotFoundError(
             f"{info.name}: no real {info.kind} driver binding is configured in this build; set "

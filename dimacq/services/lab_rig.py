@@ -44,6 +44,8 @@ class Rig:
     loadcells : amplifiers in the order of ``setup.load_cells``
     operator : callable (input_index, daq_sample), optional (simulation: strikes the virtual lab)
     closers : called in reverse order by :meth:`close`
+    defaults : impact settings used where the request leaves a value out (None)
+    fixed : impact settings the rig imposes (e.g. how far ahead the simulated lab can be struck)
     """
 
     daq: Any
@@ -52,6 +54,8 @@ class Rig:
     loadcells: list[Any] = field(default_factory=list)
     operator: Callable[[int, int], None] | None = None
     closers: list[Callable[[], None]] = field(default_factory=list)
+    defaults: dict[str, Any] = field(default_factory=dict)
+    fixed: dict[str, Any] = field(default_factory=dict)
 
     def close(self) -> None:
         while self.closers:
@@ -63,27 +67,63 @@ class Rig:
 
 
 def build_rig(settings: Settings, setup: TestSetup, cfg: Mapping[str, Any]) -> Rig:
-    """The rig for ``setup``: simulated from the configured scenario, or the real devices."""
+    """The rig for ``setup``: the configured virtual-lab scenario behind the simulated USB DAQ and
+    CAN FD load cells (:class:`dimacq.services.simulated_lab.SimulatedRig`, real drivers), or
+    real devices.
+
+    The service's setup (e.g. built from digitized geometry) is matched to the scenario's article
+    channel by channel (node and direction); the virtual operator strikes the article's input
+    that the session asks for.
+    """
     if not settings.simulated:
         raise DeviceNotFoundError(
             "real DAQ/load cell rigs are not wired into the service in this build; use "
             "daq_backend = 'simulated'"
         )
-    try:
-        from dimacq.simulators.lab import scenarios  # type: ignore[attr-defined]
-    except ImportError as err:
-        raise DeviceNotFoundError(
-            f"the simulated rig needs the virtual lab's time-domain scenarios "
-            f"(dimacq.simulators.lab.scenarios, scenario {settings.scenario!r}), which this build "
-            "does not have yet"
-        ) from err
-    if not hasattr(scenarios, "build_simulated_rig"):
-        raise DeviceNotFoundError(
-            "dimacq.simulators.lab.scenarios has no build_simulated_rig(); the simulated rig "
-            "cannot be assembled in this build"
+    from dimacq.services.simulated_lab import SimulatedRig
+    from dimacq.simulators.lab.impact import virtual_lab
+    from dimacq.simulators.lab.scenarios import build_scenario
+
+    seed = cfg.get("seed")
+    built = build_scenario(settings.scenario, None if seed is None else int(seed))
+    lab = virtual_lab(built)
+    true = lab.model.setup
+    resp = {(c.node, c.direction): i for i, c in enumerate(true.responses)}
+    inp = {(e.node, e.direction): i for i, e in enumerate(true.excitations)}
+    cells = {lc.node: i for i, lc in enumerate(true.load_cells)}
+    missing = [c.name for c in setup.responses if (c.node, c.direction) not in resp]
+    missing += [e.name for e in setup.excitations if (e.node, e.direction) not in inp]
+    missing += [lc.name for lc in setup.load_cells if lc.node not in cells]
+    if missing:
+        raise SetupError(
+            f"setup channels {missing} are not instrumented in scenario {settings.scenario!r}; "
+            "use the scenario's node numbers (see dimacq simulate --list)"
         )
-    parts = scenarios.build_simulated_rig(settings.scenario, setup, seed=int(cfg.get("seed", 0)))
-    return Rig(**parts)
+    rig = SimulatedRig(lab)
+    in_index = [inp[(e.node, e.direction)] for e in setup.excitations]
+
+    def operator(j: int, daq_sample: int) -> None:
+        rig.strike(in_index[j], daq_sample)
+
+    acq = built.spec.acquisition
+    return Rig(
+        daq=rig.task,
+        input_channels=["hammer"] * len(setup.excitations),
+        response_channels=[
+            rig.response_channels[resp[(c.node, c.direction)]] for c in setup.responses
+        ],
+        loadcells=[rig.loadcells[cells[lc.node]] for lc in setup.load_cells],
+        operator=operator,
+        closers=[rig.close],
+        defaults={
+            "record_samples": acq.record_samples,
+            "pretrigger_samples": acq.pretrigger_samples,
+            "averages_per_input": acq.averages,
+            "exponential_tau_s": acq.exponential_tau_s,
+            "force_window_samples": 64,
+        },
+        fixed={"hit_delay_samples": lab.block_samples, "block_samples": 512},
+    )
 
 
 def run_impact_test(
@@ -105,14 +145,20 @@ def run_impact_test(
         raise SetupError(
             f"rig has {len(rig.response_channels)} response channels for {len(setup.responses)} responses"
         )
+
+    def value(key: str, fallback: Any) -> Any:
+        v = cfg.get(key)
+        return rig.defaults.get(key, fallback) if v is None else v
+
     settings = ImpactSettings(
-        record_samples=int(cfg.get("record_samples", 2048)),
-        pretrigger_samples=int(cfg.get("pretrigger_samples", 32)),
-        trigger_level=float(cfg.get("trigger_level_n", 5.0)),
-        averages_per_input=int(cfg.get("averages_per_input", 5)),
-        force_window_samples=cfg.get("force_window_samples"),
-        exponential_tau_s=cfg.get("exponential_tau_s"),
-        estimator=cfg.get("estimator", "H1"),
+        record_samples=int(value("record_samples", 2048)),
+        pretrigger_samples=int(value("pretrigger_samples", 32)),
+        trigger_level=float(value("trigger_level_n", 5.0)),
+        averages_per_input=int(value("averages_per_input", 5)),
+        force_window_samples=value("force_window_samples", None),
+        exponential_tau_s=value("exponential_tau_s", None),
+        estimator=value("estimator", "H1"),
+        **rig.fixed,
     )
     n_in = len(setup.excitations)
     wanted = settings.averages_per_input

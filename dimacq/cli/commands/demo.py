@@ -33,9 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from dimacq.errors import DataError, DeviceError, SetupError
-
-BAND_HZ = (10.0, 100.0)
+from dimacq.errors import DataError, DeviceError
 
 
 def register(sub: Any) -> None:
@@ -47,8 +45,10 @@ def register(sub: Any) -> None:
     )
     p.add_argument("--json", type=Path, default=None, metavar="OUT", help="write the solution JSON")
     p.add_argument("--scenario", default="calibration-mass-bungee", help="virtual lab scenario")
-    p.add_argument("--seed", type=int, default=0, help="seed of the scenario and the noise")
-    p.add_argument("--averages", type=int, default=5, help="averages per input (acquisition)")
+    p.add_argument("--seed", type=int, default=None, help="seed (default: the scenario's own)")
+    p.add_argument(
+        "--averages", type=int, default=None, help="averages per input (default: the scenario's)"
+    )
     p.add_argument("--noise", type=float, default=0.005, help="relative FRF noise (import path)")
     p.add_argument(
         "--data-dir", type=Path, default=None, help="data directory (default: temporary)"
@@ -58,18 +58,11 @@ def register(sub: Any) -> None:
 
 
 # ------------------------------------------------------------------------------------ scenario
-def _forward_model(name: str, seed: int) -> Any:
-    """The scenario's true article (virtual lab forward model)."""
-    from dimacq.simulators.lab import forward
+def _scenario(name: str, seed: int | None) -> Any:
+    """The scenario made concrete (true article, truth, recommended band)."""
+    from dimacq.simulators.lab.scenarios import build_scenario
 
-    builders: dict[str, Callable[[], Any]] = {
-        "calibration-mass-bungee": lambda: forward.calibration_mass(seed, support="bungee"),
-        "calibration-mass-air-ride": lambda: forward.calibration_mass(seed, support="air-ride"),
-        "calibration-mass-free": lambda: forward.calibration_mass(seed, support="free"),
-    }
-    if name not in builders:
-        raise SetupError(f"--scenario {name!r}: the demo knows {sorted(builders)}")
-    return builders[name]()
+    return build_scenario(name, seed)
 
 
 class _Array:
@@ -95,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
     say: Callable[[str], None] = (
         (lambda _m: None) if args.quiet else (lambda m: print(m, flush=True))
     )
-    model = _forward_model(args.scenario, args.seed)
+    built = _scenario(args.scenario, args.seed)
     tmp = None
     data_dir = args.data_dir
     if data_dir is None:
@@ -106,7 +99,7 @@ def run(args: argparse.Namespace) -> int:
         data_dir=data_dir,
         token=token,
         host="127.0.0.1",
-        digitizer_url=f"simdigitizer://demo-{secrets.token_hex(4)}?seed={args.seed}",
+        digitizer_url=f"simdigitizer://demo-{secrets.token_hex(4)}?seed={built.seed}",
         scenario=args.scenario,
         database_url="",
     )
@@ -114,7 +107,7 @@ def run(args: argparse.Namespace) -> int:
         app = create_app(settings)
         with BackgroundServer(app) as srv:
             say(f"dimacq demo: service on {srv.url} (data in {data_dir}), scenario {args.scenario}")
-            payload = _demo(srv.url, token, model, args, say)
+            payload = _demo(srv.url, token, built, args, say)
     finally:
         if tmp is not None:
             tmp.cleanup()
@@ -138,17 +131,19 @@ def _check(r: Any, what: str) -> Any:
 
 
 def _demo(
-    url: str, token: str, model: Any, args: argparse.Namespace, say: Callable[[str], None]
+    url: str, token: str, built: Any, args: argparse.Namespace, say: Callable[[str], None]
 ) -> dict[str, Any]:
     import httpx
 
     from dimacq.io.setup_file import dump_setup_dict
     from dimacq.services.digitizing import load_jig
 
-    rng = np.random.default_rng(args.seed + 1000)
-    setup_true = model.setup
+    rng = np.random.default_rng(built.seed + 1000)
+    model = built.model
+    setup_true = model.setup  # the TRUE geometry: what the digitizer measures
+    band = [float(b) for b in built.band_hz]
     c = httpx.Client(base_url=url, headers={"Authorization": f"Bearer {token}"}, timeout=120)
-    info: dict[str, Any] = {"scenario": args.scenario, "seed": args.seed}
+    info: dict[str, Any] = {"scenario": built.spec.name, "seed": built.seed}
     try:
         st = _check(c.get("/api/status"), "status")
         say(
@@ -252,7 +247,7 @@ def _demo(
             f"{setup_out['n_load_cells']} load cell(s)"
         )
         # --- 4. acquisition --------------------------------------------------------------
-        acq_body = {"setup_id": sid, "averages_per_input": args.averages, "seed": args.seed}
+        acq_body = {"setup_id": sid, "averages_per_input": args.averages, "seed": built.seed}
         r = c.post("/api/acquisitions", json=acq_body)
         if r.status_code < 400:
             acq = r.json()
@@ -265,21 +260,20 @@ def _demo(
                 "[4/5] importing the virtual lab's FRFs of the true article instead (UFF, "
                 f"{100 * args.noise:.2g} % noise)"
             )
-            frf_id = _import_model_frfs(c, model, sid, args, rng)
+            frf_id = _import_model_frfs(c, built, sid, args)
             info["acquisition"] = (
                 f"not run: {reason}; FRFs of the virtual lab's forward model (true geometry) with {100 * args.noise:g} % noise imported as UFF"
             )
         # --- 5. solve --------------------------------------------------------------------
-        sol = _check(
-            c.post("/api/solutions", json={"frf_id": frf_id, "band_hz": list(BAND_HZ)}), "solve"
-        )
+        sol = _check(c.post("/api/solutions", json={"frf_id": frf_id, "band_hz": band}), "solve")
         say(
-            f"[5/5] solution {sol['id']} on FRF set {frf_id}, band {BAND_HZ[0]:g}-{BAND_HZ[1]:g} Hz"
+            f"[5/5] solution {sol['id']} on FRF set {frf_id}, band {band[0]:g}-{band[1]:g} Hz "
+            "(the scenario's recommended band)"
         )
     finally:
         c.close()
     payload: dict[str, Any] = dict(sol["result"])
-    truth = model.properties.to_json(np.asarray(setup_true.reference_point_m, float))
+    truth = built.truth_json()
     payload["truth"] = truth
     errors = _errors(payload, truth)
     info.update(
@@ -325,20 +319,10 @@ def _follow_acquisition(c: Any, acq: dict[str, Any], say: Callable[[str], None])
     return int(a["frf_id"])
 
 
-def _import_model_frfs(
-    c: Any, model: Any, sid: int, args: argparse.Namespace, rng: np.random.Generator
-) -> int:
+def _import_model_frfs(c: Any, built: Any, sid: int, args: argparse.Namespace) -> int:
     from dimacq.io.uff import write_frf_uff
 
-    f = np.arange(2.0, 200.0 + 1e-9, 0.5)
-    frf = model.frf(f)
-    noise = (
-        args.noise
-        * np.abs(frf.H)
-        * (rng.standard_normal(frf.H.shape) + 1j * rng.standard_normal(frf.H.shape))
-        / np.sqrt(2)
-    )
-    frf = frf.replace(H=frf.H + noise)
+    frf = built.model_frf(noise=args.noise)
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "model.uff"
         write_frf_uff(path, frf)
