@@ -1,5 +1,6 @@
-"""Kill the service with SIGKILL mid-acquisition, restart it: no completed average and no
-digitized point is lost; the interrupted acquisition and job say so."""
+"""Kill ``dimacq serve`` with SIGKILL mid-acquisition (the simulated lab's impact test of the
+calibration mass), restart it: no completed average and no digitized point is lost; the
+interrupted acquisition and job say so."""
 
 from __future__ import annotations
 
@@ -11,21 +12,38 @@ import time
 from pathlib import Path
 
 import httpx
-from _lab_rig_support import IMPULSE_SETUP
 
 from dimacq.api.server import free_port
 from dimacq.io.setup_file import dump_setup_dict
 from dimacq.persistence import ArrayStore
+from dimacq.simulators.lab.scenarios import build_scenario
 
-SCRIPT = Path(__file__).resolve().parents[1] / "_crash_server.py"
 TOKEN = "crash-token"
 
 
 def _start(data_dir: Path, port: int) -> subprocess.Popen[bytes]:
+    env = {
+        **os.environ,
+        "DIMACQ_TOKEN": TOKEN,
+        "DIMACQ_DIGITIZER_URL": f"simdigitizer://crash{port}?seed=5",
+        "DIMACQ_SCENARIO": "calibration-mass-bungee",
+    }
     proc = subprocess.Popen(
-        [sys.executable, str(SCRIPT), str(data_dir), str(port), TOKEN, f"crash{port}"],
+        [
+            sys.executable,
+            "-m",
+            "dimacq.cli.main",
+            "serve",
+            "--port",
+            str(port),
+            "--data-dir",
+            str(data_dir),
+            "--log-level",
+            "warning",
+        ],
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
+        env=env,
     )
     deadline = time.monotonic() + 30
     while time.monotonic() < deadline:
@@ -58,16 +76,9 @@ def test_sigkill_mid_acquisition_loses_nothing_completed(tmp_path: Path) -> None
                     json={"label": f"P{i}", "sim_probe": {"tip_m": [0.1 * i - 0.3, 0.05, 1.0]}},
                 )
                 assert r.status_code == 201, r.text
-            sid = c.post("/api/setups", json=dump_setup_dict(IMPULSE_SETUP)).json()["id"]
-            acq = c.post(
-                "/api/acquisitions",
-                json={
-                    "setup_id": sid,
-                    "averages_per_input": 100,
-                    "record_samples": 512,
-                    "trigger_level_n": 20.0,
-                },
-            ).json()
+            setup = build_scenario("calibration-mass-bungee").model.setup
+            sid = c.post("/api/setups", json=dump_setup_dict(setup)).json()["id"]
+            acq = c.post("/api/acquisitions", json={"setup_id": sid}).json()
             deadline = time.monotonic() + 30
             while True:
                 a = c.get(f"/api/acquisitions/{acq['id']}").json()
@@ -97,7 +108,7 @@ def test_sigkill_mid_acquisition_loses_nothing_completed(tmp_path: Path) -> None
             store = ArrayStore(tmp_path / "arrays")
             for rel in after:
                 arrays, attrs = store.read(rel)
-                assert arrays["outputs"].shape == (3, 512) and attrs["acquisition_id"] == acq["id"]
+                assert arrays["outputs"].shape[0] == 24 + 6 and attrs["acquisition_id"] == acq["id"]
             assert c.get(f"/api/jobs/{acq['job_id']}").json()["state"] == "interrupted"
             # the service still refuses anonymous state changes after the restart
             assert c.post(f"/api/acquisitions/{acq['id']}/stop").status_code == 401

@@ -1,9 +1,10 @@
 """Status-call latency with 50 concurrent clients while an acquisition runs (loopback).
 
-Starts the service as its own process (the real app and Lab with the USB DAQ simulator rig of
-the tests), starts an impact acquisition, then 50 concurrent clients each call
-``GET /api/status`` repeatedly; prints p50/p90/p99/max latency and checks that the acquisition
-was running for the whole measurement. Target (issue 7): p99 < 50 ms.
+Starts ``dimacq serve`` as its own process on the simulated lab (scenario
+calibration-mass-bungee: USB DAQ and CAN FD load cell simulators fed by the virtual lab), starts
+the scenario's impact acquisition (24 inputs x 5 averages), then 50 concurrent clients each call
+``GET /api/status`` repeatedly over keep-alive connections; prints p50/p90/p99/max latency and
+checks that the acquisition was running for the whole measurement. Target (issue 7): p99 < 50 ms.
 
     python tests/benchmarks/bench_api_status.py [--clients 50] [--calls 40]
 """
@@ -26,10 +27,9 @@ import numpy as np
 TESTS = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(TESTS))
 
-from _lab_rig_support import IMPULSE_SETUP  # noqa: E402
-
 from dimacq.api.server import free_port  # noqa: E402
 from dimacq.io.setup_file import dump_setup_dict  # noqa: E402
+from dimacq.simulators.lab.scenarios import build_scenario  # noqa: E402
 
 TOKEN = "bench-token"
 
@@ -70,17 +70,27 @@ def main() -> int:
     port = free_port()
     url = f"http://127.0.0.1:{port}"
     with tempfile.TemporaryDirectory() as tmp:
+        env = {
+            **os.environ,
+            "DIMACQ_TOKEN": TOKEN,
+            "DIMACQ_DIGITIZER_URL": f"simdigitizer://bench{os.getpid()}",
+            "DIMACQ_SCENARIO": "calibration-mass-bungee",
+        }
         proc = subprocess.Popen(
             [
                 sys.executable,
-                str(TESTS / "_crash_server.py"),
-                tmp,
+                "-m",
+                "dimacq.cli.main",
+                "serve",
+                "--port",
                 str(port),
-                TOKEN,
-                f"bench{os.getpid()}",
-                "0.01",
+                "--data-dir",
+                tmp,
+                "--log-level",
+                "warning",
             ],
             stdout=subprocess.DEVNULL,
+            env=env,
         )
         try:
             deadline = time.monotonic() + 30
@@ -95,17 +105,10 @@ def main() -> int:
             with httpx.Client(
                 base_url=url, headers={"Authorization": f"Bearer {TOKEN}"}, timeout=30
             ) as c:
-                sid = c.post("/api/setups", json=dump_setup_dict(IMPULSE_SETUP)).json()["id"]
-                acq = c.post(
-                    "/api/acquisitions",
-                    json={
-                        "setup_id": sid,
-                        "averages_per_input": 100,
-                        "record_samples": 2048,
-                        "trigger_level_n": 20.0,
-                    },
-                ).json()
-                time.sleep(0.5)
+                setup = build_scenario("calibration-mass-bungee").model.setup
+                sid = c.post("/api/setups", json=dump_setup_dict(setup)).json()["id"]
+                acq = c.post("/api/acquisitions", json={"setup_id": sid}).json()
+                time.sleep(1.0)
                 before = c.get(f"/api/acquisitions/{acq['id']}").json()
                 # warm-up
                 asyncio.run(_load("127.0.0.1", port, args.clients, 2))
