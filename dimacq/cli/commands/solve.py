@@ -81,7 +81,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         metavar="KG",
         help="scale the FRFs so that the band mass equals KG (FRF scaling, thesis §3.2.2.1)",
     )
-    p.add_argument("--reference", type=Path, metavar="REF.json", help="true values: print % error")
+    p.add_argument("--reference", type=Path, metavar="REF.json", help="true values: print %% error")
     p.add_argument("--json", type=Path, metavar="OUT", help="write the solution as JSON")
     g = p.add_argument_group("data selection and diagnostics")
     g.add_argument("--select-responses", action="store_true", help="perimeter response selection")
