@@ -75,8 +75,8 @@ _bus_names = itertools.count()
 # ---------------------------------------------------------------------------------------------
 # Scenarios
 # ---------------------------------------------------------------------------------------------
-#: Scenario name → builder of the true article. Temporary: replaced by the virtual lab's scenario
-#: loader (config/scenarios/) once it exists.
+#: Extra scenario names (aliases and variants) beside the versioned files in ``config/scenarios/``,
+#: which take precedence (:func:`dimacq.simulators.lab.scenarios.build_scenario`).
 SCENARIOS: dict[str, Callable[[int], ForwardModel]] = {
     "calibration-mass": lambda seed: calibration_mass(seed, support="bungee"),
     "calibration-mass-bungee": lambda seed: calibration_mass(seed, support="bungee"),
@@ -88,12 +88,18 @@ SCENARIOS: dict[str, Callable[[int], ForwardModel]] = {
 
 
 def scenario_model(name: str, seed: int = 0) -> ForwardModel:
-    """The true article of scenario ``name`` (see :data:`SCENARIOS`)."""
+    """The true article of scenario ``name``: a file of ``config/scenarios/`` or an alias of
+    :data:`SCENARIOS`."""
+    from dimacq.simulators.lab.scenarios import build_scenario, list_scenarios
+
+    files = list_scenarios()
+    if name in files:
+        return build_scenario(name, seed).model
     try:
         build = SCENARIOS[name]
     except KeyError as err:
         raise SetupError(
-            f"scenario {name!r} is unknown; use one of {', '.join(sorted(SCENARIOS))}"
+            f"scenario {name!r} is unknown; use one of {', '.join(sorted({*files, *SCENARIOS}))}"
         ) from err
     return build(seed)
 

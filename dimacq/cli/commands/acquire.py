@@ -56,6 +56,17 @@ def register(subparsers: Any) -> None:
     p.set_defaults(func=run)
 
 
+def _scenario_band(name: str) -> tuple[float, float]:
+    """The scenario's recommended band (config/scenarios), else the simulated DIM band."""
+    from dimacq.services.simulated_lab import DIM_BAND_HZ
+    from dimacq.simulators.lab.scenarios import list_scenarios, load_scenario
+
+    if name in list_scenarios():
+        band = load_scenario(name).band
+        return (float(band.lo_hz), float(band.hi_hz))
+    return DIM_BAND_HZ
+
+
 def run(args: argparse.Namespace) -> int:
     from dimacq.io.uff import write_uff_test
     from dimacq.services.acquisition import Progress
@@ -107,7 +118,9 @@ def run(args: argparse.Namespace) -> int:
     elapsed = time.monotonic() - t0
     res = run_.result
     rejected = [a for a in res.averages if not a.accepted]
-    agreement = frf_agreement(run_.frf, model, exponential_tau_s=args.exp_tau)
+    agreement = frf_agreement(
+        run_.frf, model, exponential_tau_s=args.exp_tau, band_hz=_scenario_band(args.scenario)
+    )
     summary: dict[str, Any] = {
         "scenario": args.scenario,
         "setup": run_.setup.name,
