@@ -7,9 +7,10 @@ import itertools
 import threading
 from collections.abc import Iterator, Sequence
 
-import dimacq.simulators.digitizer as simdig
 import pytest
 import serial
+
+import dimacq.simulators.digitizer as simdig
 from dimacq.drivers.digitizer import SerialDigitizer
 from dimacq.simulators.digitizer.device import SimulatedDigitizer, lab_from_config
 from dimacq.simulators.digitizer.pty import PtyServer

@@ -214,7 +214,7 @@ class SimulatedRig:
             self._closers.append(bus.shutdown)
             C = (calibration or {}).get(lc.node)
             if C is None:
-                C = np.linalg.pinv(lab.gauge_matrix(lc.node))
+                C = np.asarray(np.linalg.pinv(lab.gauge_matrix(lc.node)), dtype=np.float64)
             self.loadcells.append(
                 LoadCellAmplifier(bus, timeout_s=5.0, calibration_matrix=np.asarray(C, float))
             )
@@ -617,7 +617,7 @@ def simulated_inertial_calibration(
     errs = solution_errors(sol, model.properties)
     return CalibrationRun(
         matrix=C,
-        true_matrix=C_true,
+        true_matrix=np.asarray(C_true, dtype=np.float64),
         matrix_error_rel=err,
         fit=fit,
         circular=sol,

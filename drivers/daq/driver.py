@@ -28,10 +28,10 @@ from typing import Any, Literal
 import numpy as np
 import usb.core
 import usb.util
-from dimacq.drivers.daq import protocol as p
 from numpy.typing import NDArray
 
 from dimacq.devices.daq import ChannelConfig, DaqBlock, DaqEvent
+from dimacq.drivers.daq import protocol as p
 from dimacq.errors import (
     DeviceError,
     DeviceNotFoundError,

@@ -29,9 +29,8 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any, Protocol
 
-from dimacq.drivers.digitizer import protocol as wire
-
 from dimacq.devices.digitizer import DeviceIdentity, DigitizerSettings, ShotRecord
+from dimacq.drivers.digitizer import protocol as wire
 from dimacq.errors import (
     DeviceError,
     DeviceNotFoundError,

@@ -26,10 +26,10 @@ from typing import Any
 
 import can
 import numpy as np
-from dimacq.drivers.loadcell import protocol as p
 from numpy.typing import NDArray
 
 from dimacq.devices.loadcell import LoadCellBlock, LoadCellEvent, LoadCellIdentity
+from dimacq.drivers.loadcell import protocol as p
 from dimacq.errors import (
     DeviceError,
     DeviceStateError,

@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 import usb.backend
 import usb.core
+
 from dimacq.drivers.daq import protocol as p
 from dimacq.simulators.daq.clock import SampleClock
 from dimacq.simulators.lab.source import SampleSource

@@ -17,9 +17,9 @@ import urllib.parse
 from pathlib import Path
 
 import serial
-from dimacq.simulators.digitizer.device import SimulatedDigitizer, lab_from_config
 
 from dimacq.errors import SetupError
+from dimacq.simulators.digitizer.device import SimulatedDigitizer, lab_from_config
 
 __all__ = [
     "SCHEME",

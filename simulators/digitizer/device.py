@@ -32,7 +32,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from dimacq.devices.digitizer import DeviceIdentity, DigitizerSettings, ShotRecord
 from dimacq.drivers.digitizer import protocol as wire
+from dimacq.errors import ProtocolError, SetupError
 from dimacq.simulators.lab.sonic import (
     SonicArray,
     SonicEnvironment,
@@ -40,9 +43,6 @@ from dimacq.simulators.lab.sonic import (
     SonicProbe,
     speed_of_sound_m_s,
 )
-
-from dimacq.devices.digitizer import DeviceIdentity, DigitizerSettings, ShotRecord
-from dimacq.errors import ProtocolError, SetupError
 
 __all__ = ["SimulatedDigitizer", "default_config_path", "lab_from_config"]
 

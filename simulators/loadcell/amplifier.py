@@ -28,6 +28,7 @@ from typing import Any
 
 import can
 import numpy as np
+
 from dimacq.drivers.loadcell import protocol as p
 from dimacq.simulators.daq.clock import SampleClock
 from dimacq.simulators.lab.source import SampleSource

@@ -10,6 +10,7 @@ from __future__ import annotations
 import time
 
 import numpy as np
+
 from dimacq.drivers.daq import protocol as p
 from dimacq.drivers.daq.driver import DaqDevice, DaqTask
 

@@ -35,18 +35,34 @@ def build(n_lines: int, seed: int = 0) -> tuple[FrfData, TestSetup]:
         r = rng.uniform(-0.2, 0.2, 3)
         q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
         for k in range(3):
-            resp.append(ResponseChannel(node=t + 1, direction=k + 1, position_m=tuple(r), direction_gcs=tuple(q[:, k])))
+            resp.append(
+                ResponseChannel(
+                    node=t + 1, direction=k + 1, position_m=tuple(r), direction_gcs=tuple(q[:, k])
+                )
+            )
     exc = []
     for j in range(24):
         d = rng.normal(size=3)
-        exc.append(Excitation(node=100 + j, position_m=tuple(rng.uniform(-0.2, 0.2, 3)), direction_gcs=tuple(d / np.linalg.norm(d))))
+        exc.append(
+            Excitation(
+                node=100 + j,
+                position_m=tuple(rng.uniform(-0.2, 0.2, 3)),
+                direction_gcs=tuple(d / np.linalg.norm(d)),
+            )
+        )
     setup = TestSetup(
-        responses=tuple(resp), excitations=tuple(exc), load_cells=(LoadCell(node=500, position_m=(0.0, 0.0, -0.3)),)
+        responses=tuple(resp),
+        excitations=tuple(exc),
+        load_cells=(LoadCell(node=500, position_m=(0.0, 0.0, -0.3)),),
     )
-    outs = tuple(Channel(c.node, c.direction) for c in resp) + tuple(Channel(500, k) for k in range(1, 7))
+    outs = tuple(Channel(c.node, c.direction) for c in resp) + tuple(
+        Channel(500, k) for k in range(1, 7)
+    )
     kinds = ("acceleration",) * 24 + ("reaction",) * 6
     H = rng.normal(size=(n_lines, 30, 24)) + 1j * rng.normal(size=(n_lines, 30, 24))
-    frf = FrfData(np.linspace(10, 200, n_lines), H, outs, kinds, tuple(Channel(e.node, 1) for e in exc))
+    frf = FrfData(
+        np.linspace(10, 200, n_lines), H, outs, kinds, tuple(Channel(e.node, 1) for e in exc)
+    )
     return frf, setup
 
 
@@ -59,7 +75,9 @@ def lstsq_loop(system: dim.DimSystem) -> np.ndarray:
     for i in range(n_lines):
         Ai = A[i].reshape(-1, 10)
         bi = b[i].reshape(-1)
-        out[i] = np.linalg.lstsq(np.concatenate([Ai.real, Ai.imag]), np.concatenate([bi.real, bi.imag]), rcond=None)[0]
+        out[i] = np.linalg.lstsq(
+            np.concatenate([Ai.real, Ai.imag]), np.concatenate([bi.real, bi.imag]), rcond=None
+        )[0]
     return out
 
 
@@ -73,7 +91,9 @@ def median_time(fn, repeat: int) -> float:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("--lines", type=int, default=2000)
     ap.add_argument("--repeat", type=int, default=15)
     args = ap.parse_args()
@@ -88,9 +108,13 @@ def main() -> None:
     agree = np.nanmax(np.abs(x_fast[:, 0] - x_loop[:, 0]) / np.abs(x_loop[:, 0]))
     print(f"problem: 8 triaxes + 1 load cell, 24 inputs, {args.lines} lines (one BLAS thread)")
     print(f"assemble (match, condense, sum forces): {t_assemble * 1e3:8.2f} ms median")
-    print(f"dimacq solve_system (per line + joint): {t_solve * 1e3:8.2f} ms median  (target <= 20 ms)")
+    print(
+        f"dimacq solve_system (per line + joint): {t_solve * 1e3:8.2f} ms median  (target <= 20 ms)"
+    )
     print(f"np.linalg.lstsq loop over lines:        {t_loop * 1e3:8.2f} ms median")
-    print(f"speed-up: {t_loop / t_solve:6.1f}x  (target >= 20x); max rel. mass difference {agree:.1e}")
+    print(
+        f"speed-up: {t_loop / t_solve:6.1f}x  (target >= 20x); max rel. mass difference {agree:.1e}"
+    )
     del s
 
 

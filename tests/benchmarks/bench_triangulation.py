@@ -17,9 +17,9 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("MKL_NUM_THREADS", "1")
 
 import numpy as np
-from dimacq.simulators.lab.sonic import SonicEnvironment, SonicLab, default_array
 
 from dimacq.pipeline.digitizing.triangulation import DigitizerGeometry, triangulate
+from dimacq.simulators.lab.sonic import SonicEnvironment, SonicLab, default_array
 
 
 def main(n_shots: int = 20000) -> float:

@@ -8,9 +8,9 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from _digitizer_support import make_device
-from dimacq.simulators.digitizer.pty import PtyServer
 
 from dimacq.cli.main import main
+from dimacq.simulators.digitizer.pty import PtyServer
 
 KEYS = {
     "tip_rms_mm",

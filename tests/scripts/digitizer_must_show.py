@@ -10,10 +10,10 @@ from __future__ import annotations
 import argparse
 import json
 
-import dimacq.simulators.digitizer as simdig
 import numpy as np
-from dimacq.drivers.digitizer import SerialDigitizer
 
+import dimacq.simulators.digitizer as simdig
+from dimacq.drivers.digitizer import SerialDigitizer
 from dimacq.services.digitizing import load_array_config, load_jig, run_selftest
 
 LIMITS = {

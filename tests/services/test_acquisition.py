@@ -17,18 +17,18 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from _acq_support import ImpulseSource, no_leaks
+
 from dimacq.drivers.daq.driver import DaqDevice, DaqTask
 from dimacq.drivers.loadcell.driver import LoadCellAmplifier
+from dimacq.errors import SetupError
+from dimacq.io.acquisition_hdf5 import AcquisitionWriter
+from dimacq.services.acquisition import ImpactSession, ImpactSettings
 from dimacq.simulators.daq.backend import DaqInput, VirtualDaqBackend
 from dimacq.simulators.daq.clock import SampleClock
 from dimacq.simulators.loadcell.amplifier import (
     LoadCellAmplifierSim,
     LoadCellFaults,
 )
-
-from dimacq.errors import SetupError
-from dimacq.io.acquisition_hdf5 import AcquisitionWriter
-from dimacq.services.acquisition import ImpactSession, ImpactSettings
 
 __all__ = ["no_leaks"]
 

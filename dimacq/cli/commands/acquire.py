@@ -113,7 +113,7 @@ def run(args: argparse.Namespace) -> int:
             args.data / "frf.npz",
             frequencies_hz=run_.frf.frequencies_hz,
             H=run_.frf.H,
-            coherence=run_.frf.coherence,
+            coherence=np.asarray(run_.frf.coherence if run_.frf.coherence is not None else []),
         )
     elapsed = time.monotonic() - t0
     res = run_.result

@@ -7,9 +7,9 @@ import errno
 import numpy as np
 import pytest
 import usb.core
+
 from dimacq.drivers.daq import protocol as p
 from dimacq.drivers.daq.driver import DaqDevice, DaqTask
-
 from dimacq.errors import DeviceStateError, DeviceTimeoutError, ProtocolError, SetupError
 
 IDENT = p.DeviceIdentity(1, 4, 51200, 24, 5, "SN42", "fw1").encode()

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 from _digitizer_support import SCRIPT, ScriptedTransport, expected_protocol
-from dimacq.drivers.digitizer import SerialDigitizer
 
+from dimacq.drivers.digitizer import SerialDigitizer
 from dimacq.errors import (
     DeviceNotFoundError,
     DeviceStateError,

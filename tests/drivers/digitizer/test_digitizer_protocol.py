@@ -2,9 +2,9 @@
 
 import numpy as np
 import pytest
-from dimacq.drivers.digitizer import protocol as wire
 
 from dimacq.devices.digitizer import DigitizerSettings, ShotRecord
+from dimacq.drivers.digitizer import protocol as wire
 from dimacq.errors import ProtocolError
 
 

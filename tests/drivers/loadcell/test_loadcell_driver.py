@@ -11,9 +11,9 @@ import zlib
 import can
 import numpy as np
 import pytest
+
 from dimacq.drivers.loadcell import protocol as p
 from dimacq.drivers.loadcell.driver import LoadCellAmplifier
-
 from dimacq.errors import DeviceStateError, DeviceTimeoutError, ProtocolError, SetupError
 
 NODE = 3

@@ -3,7 +3,6 @@ the must-show accuracy figures on the virtual lab."""
 
 import numpy as np
 import pytest
-from dimacq.simulators.lab.sonic import SonicEnvironment, SonicLab, SonicProbe, default_array
 from scipy.optimize import least_squares
 
 from dimacq.errors import DataError, SetupError
@@ -14,6 +13,7 @@ from dimacq.pipeline.digitizing.triangulation import (
     triangulate,
     trilaterate,
 )
+from dimacq.simulators.lab.sonic import SonicEnvironment, SonicLab, SonicProbe, default_array
 
 PLANAR = default_array().microphones_m
 SOLID = np.vstack([PLANAR, [[0.0, 0.0, 0.4]]])

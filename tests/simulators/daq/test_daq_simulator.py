@@ -6,12 +6,12 @@ import numpy as np
 import pytest
 import usb.core
 from _acq_support import ImpulseSource
+
 from dimacq.drivers.daq import protocol as p
 from dimacq.drivers.daq.driver import DaqDevice, DaqTask
-from dimacq.simulators.daq.backend import DaqFaults, DaqInput, VirtualDaqBackend
-
 from dimacq.errors import DeviceNotFoundError, DeviceStateError, DeviceTimeoutError
 from dimacq.pipeline.frf_estimation import estimate_frf
+from dimacq.simulators.daq.backend import DaqFaults, DaqInput, VirtualDaqBackend
 
 FORCE_MV_PER_N = 2.25
 ACCEL_MV_PER_G = 100.0

@@ -3,11 +3,12 @@
 import subprocess
 import sys
 
-import dimacq.simulators.digitizer as simdig
 import numpy as np
 import pytest
 import serial
 from _digitizer_support import make_device
+
+import dimacq.simulators.digitizer as simdig
 from dimacq.simulators.lab.sonic import (
     SonicEnvironment,
     SonicLab,

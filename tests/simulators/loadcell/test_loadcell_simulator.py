@@ -6,13 +6,13 @@ import can
 import numpy as np
 import pytest
 from _acq_support import ImpulseSource
+
 from dimacq.drivers.daq.driver import DaqDevice, DaqTask
 from dimacq.drivers.loadcell.driver import LoadCellAmplifier
+from dimacq.errors import DeviceTimeoutError
 from dimacq.simulators.daq.backend import DaqInput, VirtualDaqBackend
 from dimacq.simulators.daq.clock import SampleClock
 from dimacq.simulators.loadcell.amplifier import LoadCellAmplifierSim, LoadCellFaults
-
-from dimacq.errors import DeviceTimeoutError
 
 LSB_V = 10 / 2**23
 
