@@ -20,13 +20,15 @@ clock:
    estimate_frf`), with the force window on the hammer and the exponential window on everything
    (both starting at the trigger), stacked to ``(n_lines, n_outputs, n_inputs)``.
 
-``progress(Progress)`` is called after every average.
+``on_average(input_index, average_index, accepted, reasons, blocks)`` is called as soon as an
+average is decided (before ``progress`` and before the operator is asked for the next strike), so
+a caller can make each average durable on its own; ``progress(Progress)`` is called after it.
 """
 
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass
 from typing import Literal
 
@@ -44,9 +46,24 @@ from dimacq.pipeline.frf_estimation import (
     force_window,
 )
 
-__all__ = ["AverageRecord", "ImpactResult", "ImpactSession", "ImpactSettings", "Progress"]
+__all__ = [
+    "AverageCallback",
+    "AverageRecord",
+    "ImpactResult",
+    "ImpactSession",
+    "ImpactSettings",
+    "Progress",
+]
 
 log = logging.getLogger(__name__)
+
+#: ``on_average(input_index, average_index, accepted, reasons, blocks)``: ``average_index`` counts
+#: every decided average of the session from 0 (accepted and rejected); ``blocks`` holds
+#: ``"force"`` (1, n) N and ``"outputs"`` (n_outputs, n) in engineering units (responses, then
+#: the load cells' rows), the record exactly as it enters (or would have entered) the FRFs.
+AverageCallback = Callable[
+    [int, int, bool, tuple[str, ...], Mapping[str, NDArray[np.float64]]], None
+]
 
 
 @dataclass(frozen=True)
@@ -186,6 +203,10 @@ class ImpactSession:
     operator : callable (input_index, daq_sample) -> None, optional
         Asked to strike input ``input_index`` at about DAQ sample ``daq_sample``.
     progress : callable (Progress) -> None, optional
+    on_average : callable (input_index, average_index, accepted, reasons, blocks), optional
+        Called with every average as soon as it is decided, before the next strike (see
+        :data:`AverageCallback`); an exception raised there stops the session (devices are
+        stopped, the averages already handed over stay with the caller).
     loadcell_outputs : {"forces", "gauges"}
         FRF outputs per load cell: its 6 calibrated loads, or its 12 gauge voltages
         (for calibrating it).
@@ -202,6 +223,7 @@ class ImpactSession:
         writer: AcquisitionWriter | None = None,
         operator: Callable[[int, int], None] | None = None,
         progress: Callable[[Progress], None] | None = None,
+        on_average: AverageCallback | None = None,
         loadcell_outputs: Literal["forces", "gauges"] = "forces",
     ) -> None:
         self.daq = daq
@@ -224,6 +246,7 @@ class ImpactSession:
         self.writer = writer
         self.operator = operator
         self.progress = progress
+        self.on_average = on_average
         s = self.settings
         if not 0 <= s.pretrigger_samples < s.record_samples:
             raise SetupError("pretrigger_samples must be in [0, record_samples)")
@@ -370,6 +393,8 @@ class ImpactSession:
                     history.append(ar)
                     if self.writer is not None:
                         self.writer.log_average(asdict(ar))
+                    if self.on_average is not None:
+                        self.on_average(j, len(history) - 1, ok, ar.reasons, rec)
                     armed_from = s0 + s.record_samples
                     self._daq_buf.trim(armed_from - s.pretrigger_samples)
                     for buf in self._lc_bufs:

@@ -163,21 +163,22 @@ def run_impact_test(
     n_in = len(setup.excitations)
     wanted = settings.averages_per_input
 
-    class Session(ImpactSession):
-        def _check(
-            self, input_index: int, s0: int, n: int
-        ) -> tuple[list[str], dict[str, NDArray[np.float64]]]:
-            reasons, rec = super()._check(input_index, s0, n)
-            on_average(
-                input_index, not reasons, list(reasons), {k: np.asarray(v) for k, v in rec.items()}
-            )
-            return reasons, rec
+    def decided(
+        input_index: int,
+        _average_index: int,
+        accepted: bool,
+        reasons: Sequence[str],
+        blocks: Mapping[str, NDArray[np.float64]],
+    ) -> None:
+        on_average(
+            input_index, accepted, list(reasons), {k: np.asarray(v) for k, v in blocks.items()}
+        )
 
     def progress(p: Progress) -> None:
         done = p.input_index * wanted + p.accepted
         on_progress(done / (n_in * wanted), p.message)
 
-    session = Session(
+    session = ImpactSession(
         rig.daq,
         rig.input_channels,
         rig.response_channels,
@@ -185,6 +186,7 @@ def run_impact_test(
         settings=settings,
         operator=rig.operator,
         progress=progress,
+        on_average=decided,
     )
     res = session.run()
     outputs = [Channel(c.node, c.direction) for c in setup.responses]
