@@ -36,14 +36,27 @@ from __future__ import annotations
 import math
 from collections import OrderedDict
 from dataclasses import dataclass, field
+from functools import lru_cache
+from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.signal import butter, lfilter, sosfilt
+from scipy.spatial.transform import Rotation
 from scipy.special import erfc
 
+from dimacq.errors import SetupError
 from dimacq.simulators.lab.forward import ForwardModel
 
-__all__ = ["Hammer", "LabNoise", "VirtualLab", "state_space"]
+__all__ = [
+    "Hammer",
+    "LabNoise",
+    "ShakerSignal",
+    "VirtualLab",
+    "foh_coefficients",
+    "modal_foh_filter",
+    "state_space",
+]
 
 FloatArray = NDArray[np.float64]
 ComplexArray = NDArray[np.complex128]
@@ -63,6 +76,9 @@ class Hammer:
         Probability that a strike bounces back for a second hit.
     double_hit_delay_s, double_hit_ratio : float
         Delay and relative amplitude of the second hit.
+    line_of_action_error_deg : float
+        Standard deviation of each strike's angle from the input's line of action, degrees
+        (a new random direction per strike, seeded).
     """
 
     peak_n: float = 200.0
@@ -70,6 +86,7 @@ class Hammer:
     double_hit_probability: float = 0.0
     double_hit_delay_s: float = 0.004
     double_hit_ratio: float = 0.4
+    line_of_action_error_deg: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -84,8 +101,13 @@ class LabNoise:
     cross_axis: float = 0.0  # fraction of the other two axes of the triax
 
 
-def state_space(model: ForwardModel) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, int]:
+def state_space(
+    model: ForwardModel, loads: FloatArray | None = None
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, int]:
     """``A`` (n, n), ``B`` (n, n_in), ``C`` (n_out, n), ``D`` (n_out, n_in), n_acc outputs first.
+
+    ``loads`` (n_dof, n_in) replaces the setup's inputs by other generalised forces (e.g. unit
+    forces along X, Y, Z at each input point, :meth:`ForwardModel.generalised_loads`).
 
     From the forward model's ``M z̈ + C_z ż + K z = q f`` (:meth:`ForwardModel.dynamic_matrices`,
     ``z = [U; η]``, elastic modes coupled to the rigid body through the supports) with the state
@@ -98,7 +120,7 @@ def state_space(model: ForwardModel) -> tuple[FloatArray, FloatArray, FloatArray
     """
     setup = model.setup
     M, Cd, K = model.dynamic_matrices()
-    q = model.input_loads()  # (n_dof, n_in)
+    q = model.input_loads() if loads is None else np.asarray(loads, float)  # (n_dof, n_in)
     S = model.output_matrices(np.array([1.0 / (2 * np.pi)]))[0].real  # rows at ω = 1
     n_acc = len(setup.responses)
     n_in = q.shape[1]
@@ -137,11 +159,218 @@ def state_space(model: ForwardModel) -> tuple[FloatArray, FloatArray, FloatArray
     return A, B, C, D, n_acc
 
 
+@dataclass(frozen=True)
+class ShakerSignal:
+    """The drive of one shaker (force at its stinger, N), defined on the lab's sample clock.
+
+    The shaker amplifier's DAC updates at the lab's sample rate; between its samples the force
+    is linear (first-order hold), which the lab integrates exactly (:func:`foh_coefficients`).
+    ``rel`` below counts samples from the start of the drive; record ``r = rel // record_samples``
+    holds position ``p = rel % record_samples``.
+
+    Attributes
+    ----------
+    kind : {"random", "burst-random", "swept-sine"}
+        ``random``: Gaussian white samples of rms ``level_n`` (counter-based, reproducible per
+        ``seed``); ``burst-random``: the same during the first ``burst_fraction`` of each record,
+        zero for the rest (the response decays inside the record); ``swept-sine``: one chirp per
+        record, ``level_n · sin φ(t)``, ``t = p / fs``, ``T_r = record_samples / fs``, linear
+        ``φ = 2π (f_lo t + (f_hi − f_lo) t² / (2 T_r))`` or logarithmic
+        ``φ = 2π f_lo (e^{k t} − 1) / k``, ``k = ln(f_hi / f_lo) / T_r``.
+    level_n : float
+        RMS force of the random kinds, amplitude of the sine, N.
+    record_samples : int
+        Record (burst, sweep and period) length in samples.
+    periodic : bool
+        Random kinds: repeat the same realisation every record (periodic random).
+    burst_fraction : float
+        Fraction of each record driven (burst random), 0–1.
+    f_lo_hz, f_hi_hz : float
+        Sweep range.
+    sweep : {"linear", "log"}
+    polarity : tuple of float
+        Factor on record ``r``: ``polarity[r % len(polarity)]`` (a Hadamard row per shaker makes
+        simultaneous sweeps of several shakers separable).
+    seed : int
+        Seed of the random kinds (give each shaker its own: independent signals).
+    """
+
+    kind: Literal["random", "burst-random", "swept-sine"] = "random"
+    level_n: float = 20.0
+    record_samples: int = 4096
+    periodic: bool = False
+    burst_fraction: float = 0.5
+    f_lo_hz: float = 2.0
+    f_hi_hz: float = 400.0
+    sweep: Literal["linear", "log"] = "linear"
+    polarity: tuple[float, ...] = (1.0,)
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.kind not in ("random", "burst-random", "swept-sine"):
+            raise SetupError(
+                f"shaker signal kind {self.kind!r} is unknown; use random, burst-random or swept-sine"
+            )
+        if self.record_samples < 2:
+            raise SetupError(f"shaker record_samples = {self.record_samples}; give at least 2")
+        if not 0 < self.burst_fraction <= 1:
+            raise SetupError(f"shaker burst_fraction = {self.burst_fraction}; give 0 < it ≤ 1")
+        if not 0 < self.f_lo_hz < self.f_hi_hz:
+            raise SetupError(
+                f"shaker sweep {self.f_lo_hz}–{self.f_hi_hz} Hz; give 0 < f_lo_hz < f_hi_hz"
+            )
+        if self.sweep not in ("linear", "log"):
+            raise SetupError(f"shaker sweep {self.sweep!r} is unknown; use linear or log")
+        if not self.polarity:
+            raise SetupError("shaker polarity is empty; give at least one factor, e.g. (1.0,)")
+
+    def samples(self, rel: NDArray[np.int64], sample_rate_hz: float) -> FloatArray:
+        """Force at samples ``rel ≥ 0`` counted from the start of the drive, N."""
+        rel = np.asarray(rel, dtype=np.int64)
+        N = self.record_samples
+        rec, pos = np.divmod(rel, N)
+        pol = np.asarray(self.polarity, float)[rec % len(self.polarity)]
+        if self.kind == "swept-sine":
+            t, Tr = pos / sample_rate_hz, N / sample_rate_hz
+            f0, f1 = self.f_lo_hz, self.f_hi_hz
+            if self.sweep == "linear":
+                ph = 2 * np.pi * (f0 * t + (f1 - f0) * t**2 / (2 * Tr))
+            else:
+                k = math.log(f1 / f0) / Tr
+                ph = 2 * np.pi * f0 * np.expm1(k * t) / k
+            out: FloatArray = self.level_n * np.sin(ph) * pol
+            return out
+        v = _white(self.seed, pos if self.periodic else rel) * self.level_n
+        if self.kind == "burst-random":
+            v = v * (pos < round(self.burst_fraction * N))
+        return np.asarray(v * pol, dtype=np.float64)
+
+
+_CHUNK = 4096
+
+
+@lru_cache(maxsize=64)
+def _noise_chunk(seed: int, chunk: int) -> FloatArray:
+    arr = np.random.default_rng([seed, 61, chunk]).standard_normal(_CHUNK)
+    arr.flags.writeable = False
+    return arr
+
+
+def _white(seed: int, m: NDArray[np.int64]) -> FloatArray:
+    """Unit Gaussian white samples at counters ``m`` (counter-based: the same ``m``, the same value)."""
+    out = np.empty(m.shape)
+    chunks = m // _CHUNK
+    for c in np.unique(chunks):
+        sel = chunks == c
+        out[sel] = _noise_chunk(seed, int(c))[m[sel] % _CHUNK]
+    return out
+
+
+def _phi(x: ComplexArray, k: int) -> ComplexArray:
+    """``φ_k(x) = Σ_{i≥0} x^i / (i + k)!`` (``φ_1 = (eˣ − 1)/x``, ``φ_2 = (eˣ − 1 − x)/x²``),
+    by its series for small ``|x|`` and the closed form elsewhere."""
+    x = np.asarray(x, complex)
+    small = np.abs(x) < 0.1
+    xs = np.where(small, x, 0.0)
+    series = np.zeros_like(x)
+    term = np.full_like(x, 1.0 / math.factorial(k))
+    for i in range(14):
+        series += term
+        term = term * xs / (i + k + 1)
+    xl = np.where(small, 1.0, x)
+    closed = np.expm1(xl) / xl if k == 1 else (np.expm1(xl) - xl) / xl**2
+    return np.where(small, series, closed)
+
+
+def foh_coefficients(lam: ComplexArray, dt_s: float) -> tuple[ComplexArray, ComplexArray]:
+    """``(β0, β1)`` of the exact discrete update of ``ż = λ z + u(t)`` under a first-order hold.
+
+    Between ``t_n`` and ``t_{n+1} = t_n + T`` let ``u(t_n + s) = u_n + (u_{n+1} − u_n) s / T``.
+    Variation of constants gives
+
+        z_{n+1} = e^{λT} z_n + ∫₀ᵀ e^{λ(T−s)} u(t_n + s) ds = e^{λT} z_n + β0 u_n + β1 u_{n+1}
+
+    with ``I0 = ∫₀ᵀ e^{λ(T−s)} ds = (e^{λT} − 1)/λ = T φ1(λT)`` and
+    ``I1 = (1/T) ∫₀ᵀ e^{λ(T−s)} s ds = (e^{λT} − 1 − λT)/(λ² T) = T φ2(λT)``:
+    ``β1 = I1 = T φ2(λT)``, ``β0 = I0 − I1 = T (φ1(λT) − φ2(λT))``. Exact for any ``λ`` (no
+    approximation beyond the hold itself); ``φ_k`` by series for ``|λT| < 0.1`` (no cancellation).
+
+    Parameters
+    ----------
+    lam : ndarray, shape (P,), complex
+        Poles, 1/s.
+    dt_s : float
+        Step ``T``, s.
+
+    Returns
+    -------
+    beta0, beta1 : ndarray, shape (P,), complex
+    """
+    x: ComplexArray = np.asarray(np.asarray(lam, complex) * dt_s, dtype=np.complex128)
+    p1, p2 = _phi(x, 1), _phi(x, 2)
+    return dt_s * (p1 - p2), dt_s * p2
+
+
+def modal_foh_filter(
+    lam: ComplexArray, u: FloatArray, dt_s: float, zi: ComplexArray | None = None
+) -> tuple[ComplexArray, ComplexArray]:
+    """States ``z_p[n]`` of ``ż_p = λ_p z_p + u(t)`` for a first-order-hold input, exactly.
+
+    ``z[n] = e^{λT} z[n−1] + β1 u[n] + β0 u[n−1]`` (:func:`foh_coefficients`) is the IIR filter
+    ``b = [β1, β0]``, ``a = [1, −e^{λT}]`` run by :func:`scipy.signal.lfilter` per pole (complex
+    coefficients) on all rows of ``u`` at once.
+
+    Parameters
+    ----------
+    lam : (P,) complex
+    u : (R, N) float
+        Input samples (rows: independent inputs), the hold's knots at ``t = n T``.
+    dt_s : float
+    zi : (P, R) complex, optional
+        Filter state from the previous call (``β0 u_last + e^{λT} z_last``: the state at the
+        next sample if the input stays zero); zero: input and state zero before ``u[:, 0]``.
+
+    Returns
+    -------
+    z : (P, R, N) complex
+    zf : (P, R) complex
+        State to pass as ``zi`` to the call for the following samples.
+    """
+    lam = np.asarray(lam, complex)
+    u = np.atleast_2d(np.asarray(u, float))
+    P, (R, N) = lam.size, u.shape
+    b0, b1 = foh_coefficients(lam, dt_s)
+    a = np.exp(lam * dt_s)
+    z = np.empty((P, R, N), complex)
+    zf = np.empty((P, R), complex)
+    z0 = np.zeros((P, R), complex) if zi is None else np.asarray(zi, complex)
+    for p in range(P):
+        z[p], f = lfilter([b1[p], b0[p]], [1.0, -a[p]], u, axis=-1, zi=z0[p][:, None])
+        zf[p] = f[:, 0]
+    return z, zf
+
+
 @dataclass
 class _Hit:
     input_index: int
     t_s: float  # pulse centre
     peak_n: float
+    weights: FloatArray  # (n_basis,): the force's components in the lab's input basis
+    R: ComplexArray  # (n_phys, P) residues of this strike
+    Dv: FloatArray  # (n_phys,) direct term of this strike
+
+
+@dataclass
+class _Drive:
+    shaker: int
+    input_index: int
+    signal: ShakerSignal
+    start: int  # force 0 at `start`, ramping to the signal's sample 1 at start + 1
+    stop: int | None  # force 0 from `stop` on
+    weights: FloatArray
+    R: ComplexArray  # (n_phys, P)
+    Dv: FloatArray  # (n_phys,)
+    retired: int | None = None  # first block whose carry holds this drive's free decay
 
 
 @dataclass
@@ -150,7 +379,18 @@ class VirtualLab:
 
     Channels: one per response (``"1103+Y"``, m/s²), ``"hammer"`` (N, the force of whichever input
     is struck), and for each load cell ``"LC501 g01" .. "LC501 g12"`` (V) followed by
-    ``"LC501 Fx" .. "LC501 Mz"`` (N, N·m: the cell's local loads before the gauges, for tests).
+    ``"LC501 Fx" .. "LC501 Mz"`` (N, N·m: the cell's local loads before the gauges, for tests),
+    then ``"shaker1" .. "shakerN"`` (N, each shaker's force) if ``n_shakers > 0``.
+
+    Shakers (:meth:`drive`): shaker ``k`` drives an input with a :class:`ShakerSignal` whose samples
+    are joined by a first-order hold. Each pole is a first-order recursion, integrated exactly
+    for that force (:func:`modal_foh_filter`) at ``oversample × fs``; an anti-alias low-pass
+    (Butterworth, order 8, at 0.45 fs) then acts alike on the shaker force and on every response
+    before decimation to ``fs``, as the DAQ's filter does: it removes the hold's spectral images,
+    so the ratio of response to measured force is ``H(iω)`` on the lines below the cut-off,
+    up to the images above ``oversample × fs / 2`` that alias (relative weight about
+    ``(f / (oversample · fs))²``). Some time after a drive stops, its state joins the carried free
+    decay of the hammer strikes (``c ← c + L(e^{λT}) z``, ``L`` the filter's gain on that decay).
 
     Parameters
     ----------
@@ -164,6 +404,15 @@ class VirtualLab:
     seed : int
     block_samples : int
         Internal block length (samples) of the exact block recursion.
+    n_shakers : int
+        Shakers (force channels) available to :meth:`drive`.
+    oversample : int
+        Internal rate factor of the shaker integration.
+    anti_alias : bool
+        Apply the anti-alias low-pass to shaker signals (off: the raw first-order-hold response
+        at the sample instants, exact, for tests).
+    cache_blocks : int
+        Blocks kept for re-reading (older ones are recomputed from the stored block states).
     """
 
     model: ForwardModel
@@ -173,6 +422,10 @@ class VirtualLab:
     gauge_sensitivity: dict[int, FloatArray] | None = None
     seed: int = 0
     block_samples: int = 256
+    n_shakers: int = 0
+    oversample: int = 4
+    anti_alias: bool = True
+    cache_blocks: int = 4096
 
     def __post_init__(self) -> None:
         fs = float(self.sample_rate_hz)
@@ -182,20 +435,39 @@ class VirtualLab:
                 f"hammer pulse sigma {self.sigma_s * 1e3:.3g} ms is too short for {fs:g} S/s: its "
                 "spectrum above the Nyquist frequency aliases; use sigma ≥ 1.2/fs"
             )
-        A, B, C, D, n_acc = state_space(self.model)
+        if self.n_shakers < 0 or self.oversample < 1 or self.cache_blocks < 1:
+            raise ValueError("n_shakers ≥ 0, oversample ≥ 1 and cache_blocks ≥ 1 are required")
+        setup = self.model.setup
+        n_in = len(setup.excitations)
+        self._dirs = np.asarray(setup.input_directions, float).reshape(n_in, 3)
+        if self.hammer.line_of_action_error_deg > 0:
+            # Basis: unit forces along X, Y, Z at each input point (responses are linear in the
+            # force direction, so a strike along d has the residues Σ_a d_a R_{·,3j+a}).
+            loads = self.model.generalised_loads(
+                [e.node for e in setup.excitations for _ in range(3)],
+                np.repeat(np.asarray(setup.input_positions, float).reshape(n_in, 3), 3, axis=0),
+                np.tile(np.eye(3), (n_in, 1)),
+            )
+            W_in = np.zeros((3 * n_in, n_in))
+            for j in range(n_in):
+                W_in[3 * j : 3 * j + 3, j] = self._dirs[j]
+        else:
+            loads, W_in = None, np.eye(n_in)
+        self._W_in = W_in  # (n_basis, n_in): input j in the basis
+        A, B, C, D, n_acc = state_space(self.model, loads)
         self._n_acc = n_acc
         if A.shape[0]:
             lam, V = np.linalg.eig(A)
-            W = np.linalg.solve(V, B)  # (P, n_in)
+            W = np.linalg.solve(V, B)  # (P, n_basis)
             CV = C @ V  # (n_out, P)
             self._lam = lam
-            self._R = CV[:, None, :] * W.T[None, :, :]  # (n_out, n_in, P)
+            R_basis = CV[:, None, :] * W.T[None, :, :]  # (n_out, n_basis, P)
         else:
             self._lam = np.zeros(0, complex)
-            self._R = np.zeros((C.shape[0], B.shape[1], 0), complex)
-        self._D = D
+            R_basis = np.zeros((C.shape[0], B.shape[1], 0), complex)
+        self._R = np.einsum("obp,bj->ojp", R_basis, W_in)  # (n_out, n_in, P)
+        self._D = D @ W_in
         rng = np.random.default_rng([self.seed, 7])
-        setup = self.model.setup
         # Transducer mixing: sensitivity error and cross-axis within each triax.
         n_out = D.shape[0]
         X = np.eye(n_out)
@@ -228,11 +500,18 @@ class VirtualLab:
             rows.append(sel)
             names += [f"LC{s.node} {q}" for q in ("Fx", "Fy", "Fz", "Mx", "My", "Mz")]
             units += ["N", "N", "N", "N*m", "N*m", "N*m"]
-        mix = np.vstack(rows)  # (n_channels − 1 hammer, n_out)
+        self._shaker_rows = np.arange(len(names), len(names) + self.n_shakers)
+        names += [f"shaker{k + 1}" for k in range(self.n_shakers)]
+        units += ["N"] * self.n_shakers
+        mix = np.vstack(rows)  # (n_phys = channels − hammer − shakers, n_out)
         self._mix = mix
-        self._R_ch = np.einsum("co,ojp->cjp", mix, self._R)  # (n_ch_no_hammer, n_in, P)
-        self._D_ch = mix @ D
+        self._R_ch = np.einsum("co,obp->cbp", mix, R_basis)  # (n_phys, n_basis, P)
+        self._D_ch = mix @ D  # (n_phys, n_basis)
         self._hammer_row = hammer_row
+        phys = np.ones(len(names), bool)
+        phys[hammer_row] = False
+        phys[self._shaker_rows] = False
+        self._phys_rows = np.flatnonzero(phys)
         self.channel_names = tuple(names)
         self.channel_units = tuple(units)
         self._is_gauge = np.array([u == "V" for u in units])
@@ -241,7 +520,7 @@ class VirtualLab:
                 self.noise.accel_noise_ms2
                 if u == "m/s^2"
                 else self.noise.force_noise_n
-                if u == "N" and n == "hammer"
+                if u == "N" and (n == "hammer" or n.startswith("shaker"))
                 else self.noise.gauge_noise_v
                 if u == "V"
                 else 0.0
@@ -253,11 +532,31 @@ class VirtualLab:
         )
         self._hits: list[_Hit] = []
         self._hit_rng = np.random.default_rng([self.seed, 13])
-        self._carry: list[ComplexArray] = [np.zeros((len(self._lam), self._R.shape[1]), complex)]
+        self._loa_rng = np.random.default_rng([self.seed, 19])
+        self.hit_directions: list[FloatArray] = []
+        n_basis = W_in.shape[0]
+        self._carry: list[ComplexArray] = [np.zeros((len(self._lam), n_basis), complex)]
         self._cache: OrderedDict[int, FloatArray] = OrderedDict()
         self._frontier = 0  # first sample not yet generated
         self._block_decay = np.exp(self._lam * (self.block_samples / fs))
         self.double_hits: list[int] = []
+        # Shakers: exact first-order-hold recursion at K·fs, anti-alias filter, decimation.
+        K = self.oversample
+        self._dt_int = 1.0 / (K * fs)
+        self._sos = (
+            butter(8, 0.45 * fs, fs=K * fs, output="sos")
+            if self.anti_alias and self.n_shakers
+            else None
+        )
+        if self._sos is not None:
+            zq = np.exp(self._lam * self._dt_int) ** -1
+            num = self._sos[:, 0, None] + self._sos[:, 1, None] * zq + self._sos[:, 2, None] * zq**2
+            den = self._sos[:, 3, None] + self._sos[:, 4, None] * zq + self._sos[:, 5, None] * zq**2
+            self._decay_gain = np.prod(num / den, axis=0)  # L(e^{λ T_int}), (P,)
+        else:
+            self._decay_gain = np.ones(len(self._lam), complex)
+        self._drives: list[_Drive] = []
+        self._sh_state: list[dict[int, tuple[ComplexArray, ComplexArray | None]]] = [{}]
 
     # SampleSource ----------------------------------------------------------------------------
     @property
@@ -272,8 +571,17 @@ class VirtualLab:
                 f"virtual lab has no channel {name!r}; it has {', '.join(self.channel_names)}"
             ) from err
 
+    def _weights(self, w: FloatArray) -> tuple[FloatArray, ComplexArray, FloatArray]:
+        """A force with basis components ``w``: its residues (n_phys, P) and direct term."""
+        return w, np.einsum("cbp,b->cp", self._R_ch, w), self._D_ch @ w
+
     def excite(self, input_index: int, at_sample: int) -> None:
-        """Strike input ``input_index``; the pulse rises from ``at_sample`` (peak 6σ later)."""
+        """Strike input ``input_index``; the pulse rises from ``at_sample`` (peak 6σ later).
+
+        With ``hammer.line_of_action_error_deg`` each strike's direction is the input's turned by
+        an angle ``N(0, σ)`` about a random axis normal to it (seeded; kept in
+        :attr:`hit_directions`).
+        """
         if not 0 <= input_index < self.n_inputs:
             raise ValueError(f"input index {input_index} out of range 0..{self.n_inputs - 1}")
         if at_sample < self._frontier:
@@ -283,7 +591,21 @@ class VirtualLab:
             )
         fs = self.sample_rate_hz
         t = at_sample / fs + 6 * self.sigma_s
-        self._hits.append(_Hit(input_index, t, self.hammer.peak_n))
+        d = self._dirs[input_index]
+        if self.hammer.line_of_action_error_deg > 0:
+            axis = self._loa_rng.normal(size=3)
+            axis -= (axis @ d) * d
+            axis /= np.linalg.norm(axis)
+            ang = np.deg2rad(self.hammer.line_of_action_error_deg) * self._loa_rng.standard_normal()
+            d_hit = Rotation.from_rotvec(ang * axis).apply(d)
+            w = np.zeros(self._W_in.shape[0])
+            w[3 * input_index : 3 * input_index + 3] = d_hit
+        else:
+            d_hit = d
+            w = self._W_in[:, input_index].copy()
+        self.hit_directions.append(np.asarray(d_hit, float))
+        hit_w = self._weights(w)
+        self._hits.append(_Hit(input_index, t, self.hammer.peak_n, *hit_w))
         if (
             self.hammer.double_hit_probability > 0
             and self._hit_rng.uniform() < self.hammer.double_hit_probability
@@ -293,9 +615,55 @@ class VirtualLab:
                     input_index,
                     t + self.hammer.double_hit_delay_s,
                     self.hammer.peak_n * self.hammer.double_hit_ratio,
+                    *hit_w,
                 )
             )
             self.double_hits.append(at_sample)
+
+    def drive(
+        self,
+        shaker: int,
+        input_index: int,
+        signal: ShakerSignal,
+        at_sample: int,
+        until_sample: int | None = None,
+    ) -> None:
+        """Shaker ``shaker`` drives input ``input_index`` (along its line of action) with
+        ``signal`` from ``at_sample`` (force 0 there, the signal's samples after it) until
+        ``until_sample`` (force 0 from there on; default: until the shaker's next drive).
+
+        A shaker's earlier open drive ends at ``at_sample``. Drives of different shakers
+        superpose (multiple-input test).
+        """
+        if not 0 <= shaker < self.n_shakers:
+            raise ValueError(
+                f"shaker {shaker} does not exist; this lab has {self.n_shakers} (n_shakers)"
+            )
+        if not 0 <= input_index < self.n_inputs:
+            raise ValueError(f"input index {input_index} out of range 0..{self.n_inputs - 1}")
+        if at_sample < self._frontier:
+            raise ValueError(
+                f"cannot drive from sample {at_sample}: samples up to {self._frontier - 1} were "
+                "already read; start at or after the present sample"
+            )
+        if until_sample is not None and until_sample <= at_sample:
+            raise ValueError(f"until_sample {until_sample} must come after at_sample {at_sample}")
+        for d in self._drives:
+            if d.shaker == shaker and (d.stop is None or d.stop > at_sample):
+                if d.start >= at_sample:
+                    raise ValueError(
+                        f"shaker {shaker} already has a drive from sample {d.start}; schedule "
+                        "drives in time order"
+                    )
+                if at_sample <= self._frontier:
+                    raise ValueError(
+                        f"shaker {shaker} is driving; end its drive after sample {self._frontier}"
+                    )
+                d.stop = at_sample
+        w = self._W_in[:, input_index].copy()
+        self._drives.append(
+            _Drive(shaker, input_index, signal, int(at_sample), until_sample, *self._weights(w))
+        )
 
     def read(self, channels: NDArray[np.intp], start: int, n: int) -> FloatArray:
         ch = np.asarray(channels, dtype=np.intp)
@@ -322,17 +690,102 @@ class VirtualLab:
                 # No pulse touches block k and nobody reads it: only the carried free decay
                 # crosses it, c ← c e^{λ T_block} (the samples are made if it is read later).
                 self._carry.append(self._carry[k] * self._block_decay[:, None])
+                self._sh_state.append({})
                 self._frontier = (k + 1) * self.block_samples
             else:
                 self._generate(k)
         data = self._generate(b)
         return data
 
+    def _live(self, b: int) -> list[int]:
+        """Drives whose force or un-retired state touches block ``b``."""
+        end = (b + 1) * self.block_samples
+        return [
+            i
+            for i, d in enumerate(self._drives)
+            if d.start < end and (d.retired is None or b < d.retired)
+        ]
+
     def _quiet(self, b: int) -> bool:
-        """True if no hammer pulse (±6σ about its centre) overlaps block ``b``."""
+        """True if no hammer pulse (±6σ about its centre) and no shaker drive touches block ``b``."""
         Bn, fs, sig = self.block_samples, self.sample_rate_hz, self.sigma_s
         t_first, t_last = b * Bn / fs, (b * Bn + Bn - 1) / fs
-        return all(t_first - h.t_s > 6 * sig or t_last - h.t_s < -6 * sig for h in self._hits)
+        return not self._live(b) and all(
+            t_first - h.t_s > 6 * sig or t_last - h.t_s < -6 * sig for h in self._hits
+        )
+
+    def _drive_force(self, d: _Drive, n: NDArray[np.int64]) -> FloatArray:
+        rel = n - d.start
+        on = (rel > 0) & (n < (d.stop if d.stop is not None else np.iinfo(np.int64).max))
+        u = np.zeros(n.shape)
+        if np.any(on):
+            u[on] = d.signal.samples(rel[on], self.sample_rate_hz)
+        return u
+
+    def _shakers(
+        self, b: int, frontier: bool, next_carry: ComplexArray
+    ) -> tuple[FloatArray, FloatArray] | None:
+        """Shaker contributions to block ``b``: (n_phys, Bn) responses, (n_shakers, Bn) forces.
+
+        At the frontier, stores the drives' states for block ``b + 1`` and hands the free decay
+        of drives stopped more than a block ago to ``next_carry``.
+        """
+        live = self._live(b)
+        if not live:
+            if frontier:
+                self._sh_state.append({})
+            return None
+        Bn, K, lam = self.block_samples, self.oversample, self._lam
+        P, S = lam.size, len(live)
+        n0 = b * Bn
+        n = n0 + np.arange(Bn + 1, dtype=np.int64)  # one look-ahead sample for the hold
+        U = np.stack([self._drive_force(self._drives[i], n) for i in live])  # (S, Bn+1)
+        if K > 1:
+            frac = np.arange(K) / K
+            Ui = (U[:, :-1, None] * (1 - frac) + U[:, 1:, None] * frac).reshape(S, Bn * K)
+        else:
+            Ui = U[:, :-1]
+        states = self._sh_state[b]
+        n_sec = 0 if self._sos is None else self._sos.shape[0]
+        zl = np.zeros((P, S), complex)
+        zs = np.zeros((n_sec, S, P + 1, 2), complex)
+        for s, i in enumerate(live):
+            st = states.get(i)
+            if st is not None:
+                zl[:, s] = st[0]
+                if st[1] is not None:
+                    zs[:, s] = st[1]
+        X = np.empty((S, P + 1, Bn * K), complex)
+        if P:
+            z, zl_next = modal_foh_filter(lam, Ui, self._dt_int, zl)
+            X[:, :P] = z.transpose(1, 0, 2)
+        else:
+            zl_next = zl
+        X[:, P] = Ui
+        zs_next = zs
+        if self._sos is not None:
+            X, zs_next = sosfilt(self._sos, X, axis=-1, zi=zs)
+        Xd = X[:, :, ::K]  # (S, P+1, Bn) at the lab's samples
+        Rcat = np.concatenate([self._drives[i].R for i in live], axis=1)  # (n_phys, S·P)
+        y = _real_matmul(Rcat, Xd[:, :P].reshape(S * P, Bn)) if P else 0.0
+        Dcat = np.stack([self._drives[i].Dv for i in live], axis=1)  # (n_phys, S)
+        y = y + Dcat @ Xd[:, P].real
+        force = np.zeros((self.n_shakers, Bn))
+        for s, i in enumerate(live):
+            force[self._drives[i].shaker] += Xd[s, P].real
+        if frontier:
+            nxt: dict[int, tuple[ComplexArray, ComplexArray | None]] = {}
+            for s, i in enumerate(live):
+                d = self._drives[i]
+                if d.stop is not None and d.stop + Bn <= n0:
+                    # Force off for over a block: the filter's transient is gone and the state
+                    # is a free decay, carried like a hammer strike's.
+                    next_carry += np.outer(self._decay_gain * zl_next[:, s], d.weights)
+                    d.retired = b + 1
+                else:
+                    nxt[i] = (zl_next[:, s].copy(), None if n_sec == 0 else zs_next[:, s].copy())
+            self._sh_state.append(nxt)
+        return np.asarray(y, float), force
 
     def _generate(self, b: int) -> FloatArray:
         Bn, fs, sig = self.block_samples, self.sample_rate_hz, self.sigma_s
@@ -343,14 +796,15 @@ class VirtualLab:
         n_ch = len(self.channel_names)
         y = np.zeros((n_ch, Bn))
         carry = self._carry[b]
+        n_phys = self._phys_rows.size
         if P:
             E = np.exp(np.outer(lam, t - t0))  # (P, Bn)
             Mx = np.einsum("cjp,pj->cp", self._R_ch, carry)
             y_ns = _real_matmul(Mx, E)
         else:
-            y_ns = np.zeros((n_ch - 1, Bn))
+            y_ns = np.zeros((n_phys, Bn))
         force = np.zeros(Bn)
-        next_carry = carry * np.exp(lam * (Bn / fs))[:, None] if P else carry
+        next_carry = carry * np.exp(lam * (Bn / fs))[:, None] if P else carry.copy()
         t_end = (b + 1) * Bn / fs
         amp_scale = sig * math.sqrt(2 * math.pi)
         frontier = len(self._carry) == b + 1
@@ -362,7 +816,7 @@ class VirtualLab:
                 continue
             pulse = hit.peak_n * np.exp(-0.5 * (u / sig) ** 2)
             force += pulse
-            y_ns += np.outer(self._D_ch[:, hit.input_index], pulse)
+            y_ns += np.outer(hit.Dv, pulse)
             if P:
                 active = u > -6 * sig
                 ua = u[active]
@@ -374,15 +828,18 @@ class VirtualLab:
                     * np.exp(arg)
                     * erfc(-(ua[None, :] + (lam * sig**2)[:, None]) / (sig * math.sqrt(2)))
                 )
-                y_ns[:, active] += _real_matmul(self._R_ch[:, hit.input_index, :], g)
+                y_ns[:, active] += _real_matmul(hit.R, g)
             if frontier and P and t_end - hit.t_s > 6 * sig:  # carried from the next block on
-                next_carry[:, hit.input_index] += (
-                    hit.peak_n * amp_scale * np.exp(lam * (t_end - hit.t_s) + lam**2 * sig**2 / 2)
-                )
+                amp = hit.peak_n * amp_scale * np.exp(lam * (t_end - hit.t_s) + lam**2 * sig**2 / 2)
+                next_carry += np.outer(amp, hit.weights)
+        shaken = self._shakers(b, frontier, next_carry)
+        if shaken is not None:
+            y_ns += shaken[0]
+            y[self._shaker_rows] = shaken[1]
         if frontier:
             self._carry.append(next_carry)
             self._frontier = (b + 1) * Bn
-        y[np.arange(n_ch) != self._hammer_row] = y_ns
+        y[self._phys_rows] = y_ns
         y[self._hammer_row] = force
         # Noise (counter-based: block b always gets the same draws) and gauge drift.
         if np.any(self._noise_std > 0):
@@ -391,7 +848,7 @@ class VirtualLab:
         if np.any(self._drift != 0):
             y += self._drift[:, None] * t[None, :]
         self._cache[b] = y
-        if len(self._cache) > 4096:
+        if len(self._cache) > self.cache_blocks:
             self._cache.popitem(last=False)
         return y
 
