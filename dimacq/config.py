@@ -4,12 +4,16 @@ Sources, highest priority first: arguments given to :func:`load_settings` (the c
 ``DIMACQ_*`` environment variables, ``config/dimacq.toml`` (or the file named by
 ``DIMACQ_CONFIG``), the defaults below. Devices are simulated by default; pointing
 ``digitizer_url``, ``loadcell_interface``/``loadcell_channel`` and ``daq_backend`` at real hardware
-is configuration only.
+is configuration only: ``daq_backend = "libusb"`` (pyusb's default backend, the DAQ found by
+``daq_vendor_id``/``daq_product_id``) or ``"package.module:factory"`` (a function returning a
+pyusb backend object), with the channel map of the rig in ``rig_file`` (see
+:mod:`dimacq.io.rig_file`).
 """
 
 from __future__ import annotations
 
 import os
+import re
 import secrets
 from pathlib import Path
 from typing import Any, Literal
@@ -27,6 +31,8 @@ from dimacq.errors import SetupError
 __all__ = ["Settings", "default_config_file", "load_settings"]
 
 SCHEMA_VERSION: Literal[1] = 1
+
+_FACTORY = re.compile(r"[A-Za-z_][\w]*(\.[A-Za-z_][\w]*)*:[A-Za-z_][\w]*(\.[A-Za-z_][\w]*)*")
 
 
 def default_config_file() -> Path:
@@ -55,8 +61,22 @@ class Settings(BaseSettings):
     digitizer_url: str = "simdigitizer://lab?seed=0"
     loadcell_interface: str = "virtual"
     loadcell_channel: str = "dimacq-lab"
-    daq_backend: Literal["simulated", "libusb"] = "simulated"
+    daq_backend: str = "simulated"
+    daq_vendor_id: int = Field(default=0x1209, ge=0, le=0xFFFF)
+    daq_product_id: int = Field(default=0xDA64, ge=0, le=0xFFFF)
+    rig_file: str = ""
     scenario: str = "calibration-mass-bungee"
+
+    @field_validator("daq_backend")
+    @classmethod
+    def _backend(cls, v: str) -> str:
+        v = v.strip()
+        if v in ("simulated", "libusb") or _FACTORY.fullmatch(v):
+            return v
+        raise ValueError(
+            "give 'simulated', 'libusb' or the import path 'package.module:factory' of a "
+            "function returning a pyusb backend"
+        )
 
     @field_validator("data_dir", mode="before")
     @classmethod
@@ -70,7 +90,18 @@ class Settings(BaseSettings):
 
     @property
     def simulated(self) -> bool:
+        """The whole acquisition rig is the virtual lab (``daq_backend = "simulated"``)."""
         return self.daq_backend == "simulated"
+
+    @property
+    def rig_path(self) -> Path:
+        """The real rig's channel map: ``rig_file``, or ``rig.toml`` beside the config file
+        (relative paths are taken from the config file's folder)."""
+        base = default_config_file().parent
+        if not self.rig_file:
+            return base / "rig.toml"
+        p = Path(self.rig_file).expanduser()
+        return p if p.is_absolute() else base / p
 
     def resolved_token(self) -> str:
         """The access token: configured, or generated once and kept in ``<data_dir>/token``."""

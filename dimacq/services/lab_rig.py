@@ -11,10 +11,11 @@ durable before the next strike.
 
 from __future__ import annotations
 
+import importlib
 import logging
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -22,9 +23,23 @@ from numpy.typing import NDArray
 from dimacq.config import Settings
 from dimacq.errors import DeviceNotFoundError, SetupError
 from dimacq.model.frf import Channel, FrfData
-from dimacq.model.setup import TestSetup
+from dimacq.model.setup import TestSetup, direction_label
 
-__all__ = ["Rig", "build_rig", "run_impact_test"]
+if TYPE_CHECKING:
+    from dimacq.drivers.daq.driver import DaqDevice
+    from dimacq.drivers.loadcell.driver import LoadCellAmplifier
+    from dimacq.io.rig_file import LoadCellEntry, RigFile
+
+__all__ = [
+    "Rig",
+    "build_real_rig",
+    "build_rig",
+    "daq_backend",
+    "input_key",
+    "open_daq",
+    "open_loadcell",
+    "run_impact_test",
+]
 
 log = logging.getLogger(__name__)
 
@@ -42,7 +57,9 @@ class Rig:
     input_channels : DAQ channel name of the hammer force, per setup excitation (in order)
     response_channels : DAQ channel name per setup response (in order)
     loadcells : amplifiers in the order of ``setup.load_cells``
-    operator : callable (input_index, daq_sample), optional (simulation: strikes the virtual lab)
+    operator : callable (input_index, daq_sample), optional
+        Simulation: strikes the virtual lab. None: a person strikes; :func:`run_impact_test`
+        asks through the progress callback ("strike input N: <node+dir> ...").
     closers : called in reverse order by :meth:`close`
     defaults : impact settings used where the request leaves a value out (None)
     fixed : impact settings the rig imposes (e.g. how far ahead the simulated lab can be struck)
@@ -67,19 +84,19 @@ class Rig:
 
 
 def build_rig(settings: Settings, setup: TestSetup, cfg: Mapping[str, Any]) -> Rig:
-    """The rig for ``setup``: the configured virtual-lab scenario behind the simulated USB DAQ and
-    CAN FD load cells (:class:`dimacq.services.simulated_lab.SimulatedRig`, real drivers), or
-    real devices.
+    """The rig for ``setup``.
 
-    The service's setup (e.g. built from digitized geometry) is matched to the scenario's article
-    channel by channel (node and direction); the virtual operator strikes the article's input
-    that the session asks for.
+    - ``daq_backend = "simulated"``: the configured virtual-lab scenario behind the simulated USB
+      DAQ and CAN FD load cells (:class:`dimacq.services.simulated_lab.SimulatedRig`, real
+      drivers). The service's setup (e.g. built from digitized geometry) is matched to the
+      scenario's article channel by channel (node and direction); the virtual operator strikes the
+      article's input that the session asks for.
+    - otherwise real devices (:func:`build_real_rig`): the DAQ on the configured pyusb backend,
+      the load cell amplifiers on ``can.Bus(interface=loadcell_interface, ...)``, the channel
+      map from ``rig_file``; the operator strikes by hand when asked ("strike input N").
     """
     if not settings.simulated:
-        raise DeviceNotFoundError(
-            "real DAQ/load cell rigs are not wired into the service in this build; use "
-            "daq_backend = 'simulated'"
-        )
+        return build_real_rig(settings, setup, cfg)
     from dimacq.services.simulated_lab import SimulatedRig
     from dimacq.simulators.lab.impact import virtual_lab
     from dimacq.simulators.lab.scenarios import build_scenario
@@ -123,6 +140,304 @@ def build_rig(settings: Settings, setup: TestSetup, cfg: Mapping[str, Any]) -> R
             "force_window_samples": 64,
         },
         fixed={"hit_delay_samples": lab.block_samples, "block_samples": 512},
+    )
+
+
+# ---------------------------------------------------------------------------------------------
+# Real devices: the same drivers, transports chosen by configuration
+# ---------------------------------------------------------------------------------------------
+def input_key(node: int, direction: int) -> str:
+    """``"101+X"``: how the rig file names a setup input or response."""
+    return f"{node}{direction_label(direction)}"
+
+
+def daq_backend(settings: Settings) -> Any:
+    """The pyusb backend ``daq_backend`` names: None for ``"libusb"`` (pyusb's default: libusb1,
+    libusb0 or openusb, whichever is installed), or what ``"package.module:factory"`` returns.
+
+    Raises
+    ------
+    SetupError
+        ``daq_backend`` is ``"simulated"`` (no backend: the virtual lab builds its own), or the
+        factory cannot be imported or fails.
+    """
+    name = settings.daq_backend
+    if name == "simulated":
+        raise SetupError(
+            "daq_backend = 'simulated' has no pyusb backend of its own; the simulated lab builds "
+            "its rig itself"
+        )
+    if name == "libusb":
+        return None
+    module_name, _, attr = name.partition(":")
+    try:
+        obj: Any = importlib.import_module(module_name)
+        for part in attr.split("."):
+            obj = getattr(obj, part)
+    except (ImportError, AttributeError) as err:
+        raise SetupError(
+            f"daq_backend = {name!r}: cannot import {attr!r} from module {module_name!r} ({err}); "
+            "give 'libusb', 'simulated' or the import path 'package.module:factory' of a "
+            "function returning a pyusb backend"
+        ) from err
+    if not callable(obj):
+        raise SetupError(f"daq_backend = {name!r}: {attr!r} is not callable; give a factory")
+    backend = obj()
+    if backend is None:
+        raise SetupError(
+            f"daq_backend = {name!r}: the factory returned None; it must return a pyusb backend "
+            "object (usb.backend.IBackend)"
+        )
+    return backend
+
+
+def open_daq(settings: Settings, rig_file: RigFile) -> DaqDevice:
+    """Find and open the DAQ: USB ``daq_vendor_id:daq_product_id`` on :func:`daq_backend`, the
+    one with ``[daq] serial_number`` of the rig file if given.
+
+    Raises
+    ------
+    DeviceNotFoundError
+        No USB backend library (``libusb``) or no such device; the message names the settings.
+    """
+    import usb.core
+    import usb.util
+
+    from dimacq.drivers.daq.driver import DaqDevice
+
+    backend = daq_backend(settings)
+    vid, pid = settings.daq_vendor_id, settings.daq_product_id
+    where = (
+        f"daq_backend = {settings.daq_backend!r}, USB {vid:04x}:{pid:04x} "
+        "(daq_vendor_id/daq_product_id)"
+    )
+    try:
+        devices = list(
+            usb.core.find(find_all=True, idVendor=vid, idProduct=pid, backend=backend) or []
+        )
+    except usb.core.NoBackendError as err:
+        raise DeviceNotFoundError(
+            f"{where}: pyusb finds no USB library on this machine ({err}); install libusb-1.0 "
+            "(e.g. apt install libusb-1.0-0) or set daq_backend (DIMACQ_DAQ_BACKEND) to "
+            "'simulated' or to a backend factory"
+        ) from err
+    timeout = rig_file.daq.timeout_s
+    serial = rig_file.daq.serial_number
+    for dev in devices:
+        daq = DaqDevice(dev, timeout_s=timeout)
+        if not serial:
+            return daq
+        try:
+            if daq.identify().serial_number == serial:
+                return daq
+        except BaseException:
+            daq.close()
+            raise
+        daq.close()
+    wanted = (
+        f" with serial number {serial!r} ([daq] serial_number of {rig_file.path})" if serial else ""
+    )
+    seen = f" ({len(devices)} other DAQ found)" if devices else ""
+    raise DeviceNotFoundError(
+        f"{where}: no DAQ{wanted} found{seen}; check the cable, the power and the USB "
+        "permissions (udev rule), correct daq_vendor_id/daq_product_id, or set daq_backend "
+        "(DIMACQ_DAQ_BACKEND) = 'simulated'"
+    )
+
+
+def _loadcell_ids(node_id: int) -> list[dict[str, Any]]:
+    from dimacq.drivers.loadcell import protocol as lp
+
+    ids = (lp.response_id(node_id), lp.data_id(node_id), lp.heartbeat_id(node_id))
+    return [{"can_id": i, "can_mask": 0x7FF, "extended": False} for i in ids]
+
+
+def open_loadcell(
+    settings: Settings, rig_file: RigFile, entry: LoadCellEntry, *, timeout_s: float = 2.0
+) -> tuple[LoadCellAmplifier, Callable[[], None]]:
+    """Open the amplifier of ``entry`` on its own python-can bus handle
+    (``interface=loadcell_interface``, ``channel`` = the entry's or ``loadcell_channel``, CAN FD,
+    filtered to the node's identifiers), with the matrix of its calibration file; its serial
+    number must match the file's. Returns the driver and the bus's closer.
+
+    Raises
+    ------
+    DeviceNotFoundError
+        The bus cannot be opened, or the amplifier does not answer.
+    SetupError
+        The calibration file is unreadable or belongs to another cell.
+    """
+    import can
+
+    from dimacq.drivers.loadcell.driver import LoadCellAmplifier
+    from dimacq.errors import DataError, DeviceTimeoutError
+    from dimacq.io.loadcell_calibration import read_calibration
+
+    cal_path = rig_file.calibration_path(entry)
+    try:
+        cal = read_calibration(cal_path)
+    except (OSError, DataError) as err:
+        raise SetupError(
+            f"load cell {entry.node} (calibration_file of {rig_file.path}): {err}; give the "
+            "cell's calibration file (dimacq loadcell calibrate writes one)"
+        ) from err
+    channel = entry.channel or settings.loadcell_channel
+    where = (
+        f"loadcell_interface = {settings.loadcell_interface!r}, channel {channel!r} "
+        "(loadcell_channel)"
+    )
+    try:
+        bus = can.Bus(
+            interface=settings.loadcell_interface,
+            channel=channel,
+            fd=True,
+            can_filters=_loadcell_ids(entry.node_id),
+        )
+    except (can.CanError, OSError, ImportError, ValueError) as err:
+        raise DeviceNotFoundError(
+            f"{where}: cannot open the CAN bus ({err}); check the adapter and the driver, or set "
+            "loadcell_interface/loadcell_channel (DIMACQ_LOADCELL_INTERFACE/_CHANNEL)"
+        ) from err
+    try:
+        amp = LoadCellAmplifier(
+            bus, node_id=entry.node_id, timeout_s=timeout_s, calibration_matrix=cal.matrix
+        )
+        try:
+            ident = amp.identify()
+        except DeviceTimeoutError as err:
+            raise DeviceNotFoundError(
+                f"{where}: load cell amplifier node_id {entry.node_id} (load cell {entry.node}) "
+                f"does not answer ({err}); check its power, the bit rate and node_id in "
+                f"{rig_file.path}"
+            ) from err
+        if str(ident.serial_number) != str(cal.serial_number):
+            raise SetupError(
+                f"load cell {entry.node}: amplifier node_id {entry.node_id} reports serial number "
+                f"{ident.serial_number} but {cal_path} calibrates {cal.serial_number}; give this "
+                "cell's own calibration file or correct node_id"
+            )
+    except BaseException:
+        bus.shutdown()
+        raise
+    return amp, bus.shutdown
+
+
+def build_real_rig(settings: Settings, setup: TestSetup, cfg: Mapping[str, Any]) -> Rig:
+    """Real devices with the same drivers as the simulated lab, chosen by configuration.
+
+    The DAQ (:func:`open_daq`) gets one task: per hammer of the rig file a force channel (mV/N),
+    per setup response the accelerometer channel the rig file assigns to its node and direction
+    (mV/g), with their ranges, IEPE currents and couplings. Each setup load cell is the
+    amplifier the rig file names (:func:`open_loadcell`). Nobody strikes automatically: the
+    session asks the operator ("strike input N") and the trigger waits up to
+    ``[daq] strike_timeout_s``.
+    """
+    from dimacq.drivers.daq.driver import DaqTask
+    from dimacq.io.rig_file import load_rig_file
+
+    path = settings.rig_path
+    rf = load_rig_file(path)
+    where = f"rig file {rf.path}"
+    by_key = {r.key: r for r in rf.responses}
+    missing = [
+        input_key(c.node, c.direction)
+        for c in setup.responses
+        if input_key(c.node, c.direction) not in by_key
+    ]
+    if missing:
+        raise SetupError(
+            f"setup responses {missing} have no [[responses]] entry in {where}; add their node, "
+            "direction, physical_channel and sensitivity_mv_per_g"
+        )
+    claimed: dict[str, int] = {}
+    catch_all = [i for i, h in enumerate(rf.hammers) if not h.inputs]
+    if len(catch_all) > 1:
+        raise SetupError(
+            f"{where}: hammers {catch_all} all have inputs = []; list the inputs of all but one"
+        )
+    for i, h in enumerate(rf.hammers):
+        for k in h.inputs:
+            claimed[k.replace(" ", "").upper()] = i
+    hammer_of: list[int] = []
+    for e in setup.excitations:
+        k = input_key(e.node, e.direction).upper()
+        if k in claimed:
+            hammer_of.append(claimed[k])
+        elif catch_all:
+            hammer_of.append(catch_all[0])
+        else:
+            raise SetupError(
+                f"setup input {input_key(e.node, e.direction)} is struck by no hammer in {where}; "
+                "add it to a hammer's inputs or give one hammer inputs = []"
+            )
+    cells = {lc.node: lc for lc in rf.load_cells}
+    lc_missing = [lc.node for lc in setup.load_cells if lc.node not in cells]
+    if lc_missing:
+        raise SetupError(
+            f"setup load cells {lc_missing} have no [[load_cells]] entry in {where}; add node, "
+            "node_id and calibration_file"
+        )
+
+    closers: list[Callable[[], None]] = []
+    rig_ok = False
+    try:
+        device = open_daq(settings, rf)
+        closers.append(device.close)
+        task = DaqTask(device, "impact")
+        hammer_names = [f"hammer ch{h.physical_channel}" for h in rf.hammers]
+        for h, name in zip(rf.hammers, hammer_names, strict=True):
+            task.add_force_channel(
+                h.physical_channel,
+                name,
+                h.sensitivity_mv_per_n,
+                range_v=h.range_v,
+                iepe_current_ma=h.iepe_current_ma,
+                coupling=h.coupling,
+            )
+        response_names = []
+        for c in setup.responses:
+            r = by_key[input_key(c.node, c.direction)]
+            task.add_accel_channel(
+                r.physical_channel,
+                r.key,
+                r.sensitivity_mv_per_g,
+                range_v=r.range_v,
+                iepe_current_ma=r.iepe_current_ma,
+                coupling=r.coupling,
+            )
+            response_names.append(r.key)
+        task.configure_timing(rf.daq.sample_rate_hz, rf.daq.samples_per_frame)
+        loadcells = []
+        for lc in setup.load_cells:
+            amp, close_bus = open_loadcell(settings, rf, cells[lc.node])
+            closers.append(close_bus)
+            loadcells.append(amp)
+        rig_ok = True
+    finally:
+        if not rig_ok:
+            for fn in reversed(closers):
+                try:
+                    fn()
+                except Exception:  # keep the original error
+                    log.exception("closing part of a half-built rig failed")
+    fs = rf.daq.sample_rate_hz
+    log.info(
+        "real rig: %d hammer(s), %d responses, %d load cell(s) at %g Hz (%s)",
+        len(rf.hammers),
+        len(response_names),
+        len(loadcells),
+        fs,
+        rf.path,
+    )
+    return Rig(
+        daq=task,
+        input_channels=[hammer_names[i] for i in hammer_of],
+        response_channels=response_names,
+        loadcells=loadcells,
+        operator=None,
+        closers=closers,
+        defaults=rf.acquisition.given(),
+        fixed={"trigger_timeout_samples": max(1, round(rf.daq.strike_timeout_s * fs))},
     )
 
 
@@ -174,9 +489,27 @@ def run_impact_test(
             input_index, accepted, list(reasons), {k: np.asarray(v) for k, v in blocks.items()}
         )
 
+    fraction = [0.0]
+    accepted = [0] * n_in
+
     def progress(p: Progress) -> None:
         done = p.input_index * wanted + p.accepted
-        on_progress(done / (n_in * wanted), p.message)
+        fraction[0] = done / (n_in * wanted)
+        accepted[p.input_index] = p.accepted
+        on_progress(fraction[0], p.message)
+
+    operator = rig.operator
+    if operator is None:
+
+        def ask(j: int, _daq_sample: int) -> None:
+            e = setup.excitations[j]
+            on_progress(
+                fraction[0],
+                f"strike input {j + 1}: {input_key(e.node, e.direction)} "
+                f"(average {accepted[j] + 1} of {wanted}, input {j + 1} of {n_in})",
+            )
+
+        operator = ask
 
     session = ImpactSession(
         rig.daq,
@@ -184,7 +517,7 @@ def run_impact_test(
         rig.response_channels,
         rig.loadcells,
         settings=settings,
-        operator=rig.operator,
+        operator=operator,
         progress=progress,
         on_average=decided,
     )

@@ -1,0 +1,283 @@
+"""The real acquisition rig's channel map: ``config/rig.toml`` (schema_version 1).
+
+What is cabled where, for :func:`dimacq.services.lab_rig.build_rig` when the DAQ is not the
+simulated lab (``daq_backend`` = ``"libusb"`` or a backend factory):
+
+.. code-block:: toml
+
+    schema_version = 1
+
+    [daq]
+    sample_rate_hz = 2048.0
+    samples_per_frame = 256
+    serial_number = ""          # "" = the first DAQ found
+    timeout_s = 2.0             # USB transfer timeout
+    strike_timeout_s = 60.0     # how long the trigger waits for the operator's strike
+
+    [[hammers]]                 # one impact hammer per entry (usually one roving hammer)
+    physical_channel = 0
+    sensitivity_mv_per_n = 2.25
+    range_v = 5.0
+    iepe_current_ma = 4.0       # 0 = IEPE off
+    inputs = []                 # setup inputs struck with it, e.g. ["101+X"]; [] = every input
+
+    [[responses]]               # one entry per accelerometer axis of the setup
+    node = 1101
+    direction = "+X"            # or the UFF number 1
+    physical_channel = 1
+    sensitivity_mv_per_g = 100.0
+    range_v = 10.0
+
+    [[load_cells]]              # one entry per load cell of the setup
+    node = 501
+    node_id = 1                 # the amplifier's CAN node id
+    calibration_file = "calibrations/lc-501.json"   # relative to this file
+    channel = ""                # CAN channel if not the service's loadcell_channel
+
+    [acquisition]               # optional defaults of an impact test (a request overrides them)
+    record_samples = 4096
+
+Files are refused item by item: the message names the item (``responses.3.physical_channel``) and
+what to give instead.
+"""
+
+from __future__ import annotations
+
+import logging
+import tomllib
+from pathlib import Path
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from dimacq.drivers.daq.protocol import IEPE_CURRENTS_UA, RANGES_V
+from dimacq.errors import SetupError
+from dimacq.model.setup import direction_label
+
+__all__ = ["RigFile", "load_rig_file", "parse_direction"]
+
+log = logging.getLogger(__name__)
+
+_LABELS = {direction_label(d): d for d in (1, 2, 3, -1, -2, -3)}
+_RANGES_V = tuple(RANGES_V)  # the DAQ's documented input ranges, ±V
+_IEPE_MA = tuple(c / 1000 for c in IEPE_CURRENTS_UA)
+
+
+def parse_direction(value: Any) -> int:
+    """UFF direction ``±1..±3`` from an int or a label ``"+X"``, ``"-Z"``."""
+    if isinstance(value, bool):
+        raise ValueError("give a direction ±1..±3 or a label like '+X'")
+    if isinstance(value, int):
+        if value in (1, 2, 3, -1, -2, -3):
+            return value
+        raise ValueError(f"direction {value} is not ±1, ±2 or ±3")
+    if isinstance(value, str):
+        key = value.strip().upper()
+        key = key if key[:1] in "+-" else "+" + key
+        if key in _LABELS:
+            return _LABELS[key]
+    raise ValueError(f"direction {value!r}: give ±1..±3 or one of {', '.join(_LABELS)}")
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class DaqSection(_Model):
+    sample_rate_hz: float = Field(gt=0, description="the sample rate in Hz, e.g. 2048.0")
+    samples_per_frame: int = Field(
+        default=256, ge=1, le=65535, description="USB frame size in samples (1..65535)"
+    )
+    serial_number: str = Field(default="", description="the DAQ's serial number, or ''")
+    timeout_s: float = Field(default=2.0, gt=0, description="a USB timeout in seconds > 0")
+    strike_timeout_s: float = Field(
+        default=60.0, gt=0, description="seconds the trigger waits for a strike (> 0)"
+    )
+
+
+class _Analog(_Model):
+    physical_channel: int = Field(ge=0, le=255, description="the DAQ input number (0-based)")
+    range_v: float = Field(default=10.0, description=f"an input range, one of {_RANGES_V} V")
+    iepe_current_ma: float = Field(default=4.0, description=f"IEPE current, one of {_IEPE_MA} mA")
+    coupling: Literal["AC", "DC"] = Field(default="AC", description="'AC' or 'DC'")
+
+    @field_validator("range_v")
+    @classmethod
+    def _range(cls, v: float) -> float:
+        if not any(abs(v - r) < 1e-9 for r in _RANGES_V):
+            raise ValueError(f"range ±{v} V is not a DAQ range")
+        return v
+
+    @field_validator("iepe_current_ma")
+    @classmethod
+    def _iepe(cls, v: float) -> float:
+        if not any(abs(v - c) < 1e-9 for c in _IEPE_MA):
+            raise ValueError(f"IEPE current {v} mA is not supported")
+        return v
+
+
+class HammerEntry(_Analog):
+    sensitivity_mv_per_n: float = Field(gt=0, description="the hammer's sensitivity in mV/N > 0")
+    inputs: list[str] = Field(
+        default_factory=list,
+        description="setup inputs struck with this hammer as 'node+dir' (e.g. '101+X'), [] = all",
+    )
+
+
+class ResponseEntry(_Analog):
+    node: int = Field(description="the setup response's node number")
+    direction: int = Field(description="the response's direction, ±1..±3 or '+X'..'-Z'")
+    sensitivity_mv_per_g: float = Field(gt=0, description="the accelerometer's mV/g > 0")
+
+    @field_validator("direction", mode="before")
+    @classmethod
+    def _dir(cls, v: Any) -> int:
+        return parse_direction(v)
+
+    @property
+    def key(self) -> str:
+        return f"{self.node}{direction_label(self.direction)}"
+
+
+class LoadCellEntry(_Model):
+    node: int = Field(description="the setup load cell's node number")
+    node_id: int = Field(ge=1, le=127, description="the amplifier's CAN node id (1..127)")
+    calibration_file: str = Field(
+        min_length=1,
+        description="the cell's calibration file (.json or .xml, relative paths from rig.toml)",
+    )
+    channel: str = Field(default="", description="a CAN channel, or '' for loadcell_channel")
+
+
+class AcquisitionDefaults(_Model):
+    record_samples: int | None = Field(default=None, ge=16, description="samples per average")
+    pretrigger_samples: int | None = Field(default=None, ge=0, description="samples >= 0")
+    trigger_level_n: float | None = Field(default=None, gt=0, description="a force in N > 0")
+    averages_per_input: int | None = Field(default=None, ge=1, description="an integer >= 1")
+    exponential_tau_s: float | None = Field(default=None, gt=0, description="seconds > 0")
+    force_window_samples: int | None = Field(default=None, ge=1, description="samples >= 1")
+
+    def given(self) -> dict[str, Any]:
+        return {k: v for k, v in self.model_dump().items() if v is not None}
+
+
+class RigFile(_Model):
+    """The channel map of a real rig (see the module docstring)."""
+
+    schema_version: Literal[1] = Field(description="schema_version = 1")
+    daq: DaqSection = Field(description="a [daq] table with sample_rate_hz")
+    hammers: list[HammerEntry] = Field(min_length=1, description="at least one [[hammers]] entry")
+    responses: list[ResponseEntry] = Field(
+        default_factory=list, description="[[responses]] entries"
+    )
+    load_cells: list[LoadCellEntry] = Field(
+        default_factory=list, description="[[load_cells]] entries"
+    )
+    acquisition: AcquisitionDefaults = Field(default_factory=AcquisitionDefaults)
+    path: Path | None = Field(default=None, exclude=True, description="(set when read)")
+
+    @model_validator(mode="after")
+    def _unique(self) -> RigFile:
+        seen: dict[int, str] = {}
+        for i, h in enumerate(self.hammers):
+            _claim(seen, h.physical_channel, f"hammers.{i}")
+        keys: set[str] = set()
+        for i, r in enumerate(self.responses):
+            _claim(seen, r.physical_channel, f"responses.{i}")
+            if r.key in keys:
+                raise ValueError(f"responses.{i}: {r.key} is listed twice; keep one entry")
+            keys.add(r.key)
+        nodes: set[int] = set()
+        ids: set[tuple[str, int]] = set()
+        for i, lc in enumerate(self.load_cells):
+            if lc.node in nodes:
+                raise ValueError(f"load_cells.{i}: node {lc.node} is listed twice; keep one entry")
+            nodes.add(lc.node)
+            if (lc.channel, lc.node_id) in ids:
+                raise ValueError(
+                    f"load_cells.{i}: node_id {lc.node_id} is used twice on one CAN channel; "
+                    "give each amplifier its own node id"
+                )
+            ids.add((lc.channel, lc.node_id))
+        return self
+
+    def calibration_path(self, entry: LoadCellEntry) -> Path:
+        p = Path(entry.calibration_file).expanduser()
+        if not p.is_absolute() and self.path is not None:
+            p = self.path.parent / p
+        return p
+
+
+def _claim(seen: dict[int, str], channel: int, item: str) -> None:
+    if channel in seen:
+        raise ValueError(
+            f"{item}: physical_channel {channel} is already used by {seen[channel]}; "
+            "give every transducer its own DAQ input"
+        )
+    seen[channel] = item
+
+
+def _describe(loc: tuple[Any, ...]) -> str:
+    model: Any = RigFile
+    desc = ""
+    for part in loc:
+        if isinstance(part, int) or model is None:
+            continue
+        info = model.model_fields.get(part)
+        if info is None:
+            return desc
+        desc = info.description or ""
+        ann = info.annotation
+        args = getattr(ann, "__args__", ())
+        cand = [a for a in (ann, *args) if isinstance(a, type) and issubclass(a, BaseModel)]
+        model = cand[0] if cand else None
+    return desc
+
+
+def _refuse(source: str, err: ValidationError) -> SetupError:
+    lines = []
+    for e in err.errors():
+        loc = tuple(e["loc"])
+        item = ".".join(str(p) for p in loc) or "(file)"
+        msg = e["msg"].removeprefix("Value error, ")
+        if e["type"] == "extra_forbidden":
+            msg, fix = "is not a rig item", "remove it or correct its spelling"
+        elif e["type"] == "missing":
+            msg, fix = "is missing", f"add it: {_describe(loc) or 'see dimacq.io.rig_file'}"
+        else:
+            desc = _describe(loc)
+            fix = f"give {desc}" if desc else "see dimacq.io.rig_file"
+            if "input" in e and not isinstance(e["input"], dict):
+                msg = f"= {e['input']!r}: {msg}"
+        lines.append(f"item '{item}' {msg}; fix: {fix}")
+    return SetupError(f"rig file {source} refused: " + " | ".join(lines))
+
+
+def load_rig_file(path: str | Path) -> RigFile:
+    """Read and check a rig file.
+
+    Raises
+    ------
+    SetupError
+        Missing or unreadable file, TOML syntax, or an item that fails its check (the message
+        names the item and the fix).
+    """
+    p = Path(path).expanduser()
+    try:
+        text = p.read_text(encoding="utf-8")
+    except OSError as err:
+        raise SetupError(
+            f"rig file {p}: cannot read it ({err}); set rig_file (DIMACQ_RIG_FILE) to the channel "
+            "map of the real rig (see config/rig.toml)"
+        ) from err
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as err:
+        raise SetupError(f"rig file {p}: not valid TOML ({err}); fix the syntax there") from err
+    if isinstance(data, dict):
+        data.pop("path", None)
+    try:
+        rig = RigFile.model_validate(data)
+    except ValidationError as err:
+        raise _refuse(str(p), err) from err
+    return rig.model_copy(update={"path": p.resolve()})
