@@ -70,9 +70,15 @@ class ImpactRun:
 
 
 def virtual_lab(
-    built: BuiltScenario, *, rigid_only: bool = False, noise_scale: float = 1.0
+    built: BuiltScenario,
+    *,
+    rigid_only: bool = False,
+    noise_scale: float = 1.0,
+    n_shakers: int = 0,
+    cache_blocks: int = 4096,
 ) -> VirtualLab:
-    """The scenario's sample source: the true article, its transducers and its hammer.
+    """The scenario's sample source: the true article, its transducers, its hammer and
+    ``n_shakers`` shakers (channels ``shaker1`` ..; internal rate factor ``shaker.oversample``).
 
     ``noise_scale`` multiplies the scenario's noise and drift levels (0: noise-free).
     """
@@ -94,6 +100,7 @@ def virtual_lab(
         double_hit_probability=hm.double_hit_probability,
         double_hit_delay_s=hm.double_hit_delay_ms * 1e-3,
         double_hit_ratio=hm.double_hit_ratio,
+        line_of_action_error_deg=hm.line_of_action_error_deg,
     )
     try:
         return VirtualLab(
@@ -103,6 +110,9 @@ def virtual_lab(
             noise=noise,
             seed=built.seed,
             block_samples=512,
+            n_shakers=n_shakers,
+            oversample=spec.shaker.oversample,
+            cache_blocks=cache_blocks,
         )
     except ValueError as err:
         raise SetupError(f"scenario {spec.name}: {err}") from err

@@ -51,6 +51,7 @@ File layout (every table but ``[article]`` and ``[band]`` optional)::
     double_hit_probability = 0.0
     double_hit_delay_ms = 4.0
     double_hit_ratio = 0.4
+    line_of_action_error_deg = 0.0 # each strike's direction off the input's, std
 
     [acquisition]
     sample_rate_hz = 2048.0
@@ -59,6 +60,22 @@ File layout (every table but ``[article]`` and ``[band]`` optional)::
     pretrigger_samples = 64
     exponential_tau_s = 0.5
     settle_s = 30.0                # the operator waits for the swing to die down
+
+    [shaker]           # dimacq simulate --time-domain --excitation random|burst-random|swept-sine
+    kind = "random"                # random | burst-random | swept-sine
+    shakers = 2                    # driving at once (multiple-input H1); moved input group by group
+    inputs = []                    # input indices (from 0) visited; empty: all
+    level_n = 20.0                 # rms (random) or amplitude (sine), N
+    record_samples = 4096          # omitted: acquisition.record_samples
+    averages = 40                  # Welch segments (random) or records per shaker position
+    overlap = 0.5                  # random: Welch overlap (Hann window)
+    burst_fraction = 0.5           # burst random: rectangular window, burst then decay
+    sweep = "linear"               # swept sine: linear | log chirp per record
+    f_lo_hz = 10.0                 # sweep start, random band's lower edge; omitted: band.lo_hz / 2
+    f_hi_hz = 400.0                # sweep end, random band's upper edge; omitted: frequency_axis.max_hz
+    band_limited = true            # random kinds: band-pass the drive (FIR) to f_lo_hz–f_hi_hz
+    settle_s = 2.0                 # drive time before the first record
+    oversample = 4                 # internal rate of the exact integration (anti-alias filter)
 """
 
 from __future__ import annotations
@@ -84,6 +101,7 @@ __all__ = [
     "SCENARIO_DIR",
     "BuiltScenario",
     "Scenario",
+    "ShakerSpec",
     "build_scenario",
     "list_scenarios",
     "load_scenario",
@@ -214,6 +232,63 @@ class HammerSpec(_Spec):
     double_hit_ratio: float = Field(
         default=0.4, gt=0, le=1, description="second hit / first hit (0–1]"
     )
+    line_of_action_error_deg: float = Field(
+        default=0.0,
+        ge=0,
+        le=30,
+        description="std of each strike's angle from the input's line of action, degrees (0–30)",
+    )
+
+
+class ShakerSpec(_Spec):
+    kind: Literal["random", "burst-random", "swept-sine"] = Field(
+        default="random", description="shaker signal: random, burst-random or swept-sine"
+    )
+    shakers: int = Field(
+        default=2, ge=1, le=8, description="shakers driving at once (multiple-input test, 1–8)"
+    )
+    inputs: tuple[int, ...] = Field(
+        default=(),
+        description="indices (from 0) of the inputs the shakers visit, in groups of `shakers`; "
+        "empty: every input",
+    )
+    level_n: float = Field(
+        default=20.0, gt=0, description="rms force (random kinds) or sine amplitude, N (> 0)"
+    )
+    record_samples: int | None = Field(
+        default=None, ge=64, description="samples per record (≥ 64); omit: acquisition's"
+    )
+    averages: int = Field(
+        default=40, ge=1, le=10000, description="averages per shaker position (1–10000)"
+    )
+    overlap: float = Field(
+        default=0.5, ge=0, lt=0.95, description="random: Welch segment overlap, fraction (0–0.95)"
+    )
+    burst_fraction: float = Field(
+        default=0.5, gt=0, lt=1, description="burst random: driven fraction of a record (0–1)"
+    )
+    sweep: Literal["linear", "log"] = Field(
+        default="linear", description="swept sine: linear or log"
+    )
+    f_lo_hz: float | None = Field(
+        default=None,
+        gt=0,
+        description="sweep start / random band's lower edge, Hz (> 0); omit: band.lo_hz / 2",
+    )
+    f_hi_hz: float | None = Field(
+        default=None,
+        gt=0,
+        description="sweep end / random band's upper edge, Hz; omit: frequency_axis.max_hz",
+    )
+    band_limited: bool = Field(
+        default=True, description="random kinds: band-pass the drive to f_lo_hz–f_hi_hz (bool)"
+    )
+    settle_s: float = Field(
+        default=2.0, ge=0, description="drive time before the first record, s (≥ 0)"
+    )
+    oversample: int = Field(
+        default=4, ge=1, le=16, description="internal rate factor of the exact integration (1–16)"
+    )
 
 
 class AcquisitionSpec(_Spec):
@@ -253,6 +328,7 @@ class Scenario(_Spec):
     transducers: TransducerSpec = TransducerSpec()
     hammer: HammerSpec = HammerSpec()
     acquisition: AcquisitionSpec = AcquisitionSpec()
+    shaker: ShakerSpec = ShakerSpec()
 
     @model_validator(mode="after")
     def _band_in_axis(self) -> Scenario:
@@ -265,6 +341,14 @@ class Scenario(_Spec):
             raise ValueError(
                 f"band.hi_hz = {self.band.hi_hz} is not below the Nyquist frequency "
                 f"{self.acquisition.sample_rate_hz / 2:g} Hz of acquisition.sample_rate_hz; raise the rate"
+            )
+        sh, nyq = self.shaker, self.acquisition.sample_rate_hz / 2
+        lo = self.band.lo_hz / 2 if sh.f_lo_hz is None else sh.f_lo_hz
+        hi = self.frequency_axis.max_hz if sh.f_hi_hz is None else sh.f_hi_hz
+        if not lo < hi < nyq:
+            raise ValueError(
+                f"shaker sweep {lo:g}–{hi:g} Hz does not fit below the Nyquist frequency "
+                f"{nyq:g} Hz; give shaker.f_lo_hz < shaker.f_hi_hz < sample_rate_hz / 2"
             )
         return self
 

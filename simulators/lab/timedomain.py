@@ -41,7 +41,7 @@ from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.signal import butter, lfilter, sosfilt
+from scipy.signal import butter, firwin, lfilter, oaconvolve, sosfilt
 from scipy.spatial.transform import Rotation
 from scipy.special import erfc
 
@@ -171,8 +171,12 @@ class ShakerSignal:
     Attributes
     ----------
     kind : {"random", "burst-random", "swept-sine"}
-        ``random``: Gaussian white samples of rms ``level_n`` (counter-based, reproducible per
-        ``seed``); ``burst-random``: the same during the first ``burst_fraction`` of each record,
+        ``random``: Gaussian samples of rms ``level_n`` (counter-based, reproducible per
+        ``seed``), white or, with ``band_limited``, Gaussian white noise through a linear-phase
+        FIR band-pass ``f_lo_hz``–``f_hi_hz`` (Hamming, transition about ``f_lo_hz / 2``, taps
+        normalised to ``Σh² = 1``) so that suspension modes below the band are hardly driven
+        (their response would leak into the band through the analysis window); periodic:
+        an exact band mask on one record's spectrum; ``burst-random``: the same during the first ``burst_fraction`` of each record,
         zero for the rest (the response decays inside the record); ``swept-sine``: one chirp per
         record, ``level_n · sin φ(t)``, ``t = p / fs``, ``T_r = record_samples / fs``, linear
         ``φ = 2π (f_lo t + (f_hi − f_lo) t² / (2 T_r))`` or logarithmic
@@ -186,7 +190,9 @@ class ShakerSignal:
     burst_fraction : float
         Fraction of each record driven (burst random), 0–1.
     f_lo_hz, f_hi_hz : float
-        Sweep range.
+        Sweep range; band of the random kinds if ``band_limited``.
+    band_limited : bool
+        Random kinds: band-pass the noise to ``f_lo_hz``–``f_hi_hz``.
     sweep : {"linear", "log"}
     polarity : tuple of float
         Factor on record ``r``: ``polarity[r % len(polarity)]`` (a Hadamard row per shaker makes
@@ -205,6 +211,7 @@ class ShakerSignal:
     sweep: Literal["linear", "log"] = "linear"
     polarity: tuple[float, ...] = (1.0,)
     seed: int = 0
+    band_limited: bool = False
 
     def __post_init__(self) -> None:
         if self.kind not in ("random", "burst-random", "swept-sine"):
@@ -240,13 +247,48 @@ class ShakerSignal:
                 ph = 2 * np.pi * f0 * np.expm1(k * t) / k
             out: FloatArray = self.level_n * np.sin(ph) * pol
             return out
-        v = _white(self.seed, pos if self.periodic else rel) * self.level_n
+        if not self.band_limited:
+            v = _white(self.seed, pos if self.periodic else rel)
+        elif self.periodic:
+            v = _periodic_band_noise(self.seed, N, self.f_lo_hz, self.f_hi_hz, sample_rate_hz)[pos]
+        else:
+            h = _band_fir(self.f_lo_hz, self.f_hi_hz, sample_rate_hz)
+            lo, hi = int(rel.min()) - h.size + 1, int(rel.max())
+            m = np.arange(lo, hi + 1, dtype=np.int64)
+            w = np.where(m >= 0, _white(self.seed, np.maximum(m, 0)), 0.0)
+            v = oaconvolve(w, h, mode="valid")[rel - int(rel.min())]
+        v = v * self.level_n
         if self.kind == "burst-random":
             v = v * (pos < round(self.burst_fraction * N))
         return np.asarray(v * pol, dtype=np.float64)
 
 
 _CHUNK = 4096
+
+
+@lru_cache(maxsize=16)
+def _band_fir(f_lo_hz: float, f_hi_hz: float, fs: float) -> FloatArray:
+    """Band-pass FIR taps (Hamming window, ``Σh² = 1``), transition about ``f_lo / 2``."""
+    n = math.ceil(3.3 * fs / (0.5 * f_lo_hz)) | 1
+    n = min(n, 1 << 15 | 1)
+    h = firwin(n, [f_lo_hz, min(f_hi_hz, 0.49 * fs)], pass_zero=False, fs=fs)
+    h = h / np.sqrt(np.sum(h**2))
+    h.flags.writeable = False
+    return np.asarray(h, dtype=np.float64)
+
+
+@lru_cache(maxsize=64)
+def _periodic_band_noise(
+    seed: int, n: int, f_lo_hz: float, f_hi_hz: float, fs: float
+) -> FloatArray:
+    """One record of periodic band-limited noise (unit rms): white noise, spectrum masked."""
+    spec = np.fft.rfft(_white(seed, np.arange(n, dtype=np.int64)))
+    f = np.arange(spec.size) * fs / n
+    spec[(f < f_lo_hz) | (f > f_hi_hz)] = 0.0
+    v = np.fft.irfft(spec, n)
+    v = v / np.sqrt(np.mean(v**2))
+    v.flags.writeable = False
+    return np.asarray(v, dtype=np.float64)
 
 
 @lru_cache(maxsize=64)
