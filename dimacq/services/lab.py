@@ -159,7 +159,9 @@ class Lab:
                 "loadcell",
                 "loadcell",
                 f"can:{settings.loadcell_interface}:{settings.loadcell_channel}",
-                settings.loadcell_interface == "virtual",
+                # With the simulated lab the cells are the lab's own; otherwise "virtual" is
+                # just another python-can interface with whatever listens on it.
+                settings.simulated,
             ),
         }
         self._recover()
@@ -368,10 +370,35 @@ class Lab:
                 "description": spec.description,
             }
             return
-        raise DeviceNotFoundError(
-            f"{info.name}: no real {info.kind} driver binding is configured in this build; set "
-            f"daq_backend = 'simulated' / loadcell_interface = 'virtual' or connect the hardware"
-        )
+        self._probe_real_device(info)
+
+    def _probe_real_device(self, info: DeviceInfo) -> None:
+        """Open the real DAQ or every load cell amplifier of the rig file, identify, close
+        (:func:`dimacq.services.lab_rig.build_rig` opens them again for each acquisition)."""
+        from dimacq.io.rig_file import load_rig_file
+        from dimacq.services import lab_rig
+
+        rig_file = load_rig_file(self.settings.rig_path)
+        if info.kind == "daq":
+            daq = lab_rig.open_daq(self.settings, rig_file)
+            try:
+                ident = daq.identify()
+            finally:
+                daq.close()
+            info.identity = {"model": "dimacq USB DAQ", **_identity_dict(ident)}
+        else:
+            cells = {}
+            for entry in rig_file.load_cells:
+                amp, close = lab_rig.open_loadcell(self.settings, rig_file, entry)
+                try:
+                    cells[str(entry.node)] = {
+                        "node_id": entry.node_id,
+                        **_identity_dict(amp.identify()),
+                    }
+                finally:
+                    close()
+            info.identity = {"model": "CAN FD load cell amplifier", "load_cells": cells}
+        info.connected = True
 
     # ------------------------------------------------------------------ digitizer
     def _session(self) -> Any:

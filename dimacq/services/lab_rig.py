@@ -500,13 +500,16 @@ def run_impact_test(
 
     operator = rig.operator
     if operator is None:
+        asked = [0]
 
         def ask(j: int, _daq_sample: int) -> None:
             e = setup.excitations[j]
+            asked[0] += 1
             on_progress(
                 fraction[0],
                 f"strike input {j + 1}: {input_key(e.node, e.direction)} "
-                f"(average {accepted[j] + 1} of {wanted}, input {j + 1} of {n_in})",
+                f"(average {accepted[j] + 1} of {wanted}, input {j + 1} of {n_in}, "
+                f"request {asked[0]})",
             )
 
         operator = ask
