@@ -101,3 +101,31 @@ def test_bad_scenarios_exit_2_naming_the_fix(
     assert "half_size_m" in err and "fix:" in err
     assert main(["simulate", "cube-2"]) == 2
     assert "--frf" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("excitation", ["random", "swept-sine"])
+def test_shaker_time_domain_solves_to_the_truth(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], excitation: str
+) -> None:
+    uff, truth, sol = tmp_path / "s.uff", tmp_path / "truth.json", tmp_path / "sol.json"
+    args = ["simulate", "cube-2", "--time-domain", "--excitation", excitation, "--shakers", "2"]
+    assert main([*args, "--frf", str(uff), "--truth", str(truth)]) == 0
+    out = capsys.readouterr().out
+    assert f"{excitation} excitation, 2 shakers × 3 positions" in out
+    t = json.loads(truth.read_text())
+    assert t["excitation"] == excitation
+    assert main(["solve", str(uff), "--band", "20", "60", "--json", str(sol)]) == 0
+    assert max(_errors(json.loads(sol.read_text()), t, 2.0)) < 2e-3
+
+
+def test_shaker_options_need_the_time_domain(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    t = str(tmp_path / "t.json")
+    assert main(["simulate", "cube-2", "--excitation", "random", "--truth", t]) == 2
+    assert "--time-domain" in capsys.readouterr().err
+    assert main(["simulate", "cube-2", "--time-domain", "--shakers", "2", "--truth", t]) == 2
+    assert "--excitation" in capsys.readouterr().err
+    args = ["simulate", "cube-2", "--time-domain", "--excitation", "random", "--shakers", "9"]
+    assert main([*args, "--truth", t]) == 2
+    assert "shakers" in capsys.readouterr().err
