@@ -158,7 +158,7 @@ def impact_test(
     calib: list[FloatArray] = []
     for lc in setup.load_cells:
         gauge_ch += [lab.channel_index(f"LC{lc.node} g{g + 1:02d}") for g in range(12)]
-        calib.append(np.linalg.pinv(lab.gauge_matrix(lc.node)))
+        calib.append(np.asarray(np.linalg.pinv(lab.gauge_matrix(lc.node)), dtype=np.float64))
     channels = np.array([hammer_ch, *range(n_acc), *gauge_ch], dtype=np.intp)
 
     # Windows: the pulse peaks 6σ after the strike and is over 6σ later.

@@ -31,7 +31,7 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass
-from typing import Literal
+from typing import Literal, cast
 
 import numpy as np
 from numpy.typing import NDArray
@@ -117,9 +117,12 @@ def shaker_test(
     """
     spec = built.spec
     sh, acq = spec.shaker, spec.acquisition
-    kind = sh.kind if excitation is None else excitation
-    if kind not in EXCITATIONS:
-        raise SetupError(f"excitation {kind!r} is unknown; use one of {', '.join(EXCITATIONS)}")
+    requested = sh.kind if excitation is None else excitation
+    if requested not in EXCITATIONS:
+        raise SetupError(
+            f"excitation {requested!r} is unknown; use one of {', '.join(EXCITATIONS)}"
+        )
+    kind = cast(Excitation, requested)
     n_sh = sh.shakers if n_shakers is None else int(n_shakers)
     n_in = len(built.setup.excitations)
     inputs = list(sh.inputs) if sh.inputs else list(range(n_in))
@@ -164,7 +167,7 @@ def shaker_test(
     calib: list[FloatArray] = []
     for lc in setup.load_cells:
         gauge_ch += [lab.channel_index(f"LC{lc.node} g{g + 1:02d}") for g in range(12)]
-        calib.append(np.linalg.pinv(lab.gauge_matrix(lc.node)))
+        calib.append(np.asarray(np.linalg.pinv(lab.gauge_matrix(lc.node)), dtype=np.float64))
     n_out = n_acc + 6 * len(setup.load_cells)
     groups = [tuple(inputs[i : i + n_sh]) for i in range(0, len(inputs), n_sh)]
     n_lines = N // 2 + 1
