@@ -52,6 +52,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from dimacq.drivers.daq.protocol import IEPE_CURRENTS_UA, RANGES_V
 from dimacq.errors import SetupError
+from dimacq.io.validation import refuse
 from dimacq.model.setup import direction_label
 
 __all__ = ["RigFile", "load_rig_file", "parse_direction"]
@@ -217,40 +218,8 @@ def _claim(seen: dict[int, str], channel: int, item: str) -> None:
     seen[channel] = item
 
 
-def _describe(loc: tuple[Any, ...]) -> str:
-    model: Any = RigFile
-    desc = ""
-    for part in loc:
-        if isinstance(part, int) or model is None:
-            continue
-        info = model.model_fields.get(part)
-        if info is None:
-            return desc
-        desc = info.description or ""
-        ann = info.annotation
-        args = getattr(ann, "__args__", ())
-        cand = [a for a in (ann, *args) if isinstance(a, type) and issubclass(a, BaseModel)]
-        model = cand[0] if cand else None
-    return desc
-
-
 def _refuse(source: str, err: ValidationError) -> SetupError:
-    lines = []
-    for e in err.errors():
-        loc = tuple(e["loc"])
-        item = ".".join(str(p) for p in loc) or "(file)"
-        msg = e["msg"].removeprefix("Value error, ")
-        if e["type"] == "extra_forbidden":
-            msg, fix = "is not a rig item", "remove it or correct its spelling"
-        elif e["type"] == "missing":
-            msg, fix = "is missing", f"add it: {_describe(loc) or 'see dimacq.io.rig_file'}"
-        else:
-            desc = _describe(loc)
-            fix = f"give {desc}" if desc else "see dimacq.io.rig_file"
-            if "input" in e and not isinstance(e["input"], dict):
-                msg = f"= {e['input']!r}: {msg}"
-        lines.append(f"item '{item}' {msg}; fix: {fix}")
-    return SetupError(f"rig file {source} refused: " + " | ".join(lines))
+    return refuse("rig file", source, err, RigFile, "see dimacq.io.rig_file")
 
 
 def load_rig_file(path: str | Path) -> RigFile:

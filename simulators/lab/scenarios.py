@@ -92,6 +92,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 from scipy.spatial.transform import Rotation
 
 from dimacq.errors import SetupError
+from dimacq.io.validation import refuse
 from dimacq.model.frf import FrfData
 from dimacq.model.properties import RigidBodyProperties
 from dimacq.model.setup import Excitation, ResponseChannel, TestSetup
@@ -356,40 +357,14 @@ class Scenario(_Spec):
 # --------------------------------------------------------------------------------------------
 # Loading
 # --------------------------------------------------------------------------------------------
-def _describe(loc: tuple[Any, ...]) -> str | None:
-    """The description of the field at ``loc`` (the fix hint), walking the spec models."""
-    model: Any = Scenario
-    desc = None
-    for part in loc:
-        fields = getattr(model, "model_fields", None)
-        if not fields or part not in fields:
-            return desc
-        info = fields[part]
-        desc = info.description
-        ann = info.annotation
-        model = ann if isinstance(ann, type) and issubclass(ann, BaseModel) else None
-    return desc
-
-
 def _refuse(source: str, err: ValidationError) -> SetupError:
-    lines = []
-    for e in err.errors():
-        loc = tuple(e["loc"])
-        item = ".".join(str(p) for p in loc) or "(file)"
-        msg = e["msg"].removeprefix("Value error, ")
-        if e["type"] == "extra_forbidden":
-            fix = "remove it or correct its spelling"
-            msg = "is not a scenario item"
-        elif e["type"] == "missing":
-            fix = f"add it: {_describe(loc) or 'see the module docstring'}"
-            msg = "is missing"
-        else:
-            desc = _describe(loc)
-            fix = f"give {desc}" if desc else "see the scenario format"
-            if "input" in e and not isinstance(e["input"], dict):
-                msg = f"= {e['input']!r}: {msg}"
-        lines.append(f"item '{item}' {msg}; fix: {fix}")
-    return SetupError(f"scenario {source} refused: " + " | ".join(lines))
+    return refuse(
+        "scenario",
+        source,
+        err,
+        Scenario,
+        "see the scenario format (dimacq.simulators.lab.scenarios)",
+    )
 
 
 def list_scenarios(directory: Path | None = None) -> dict[str, Path]:
