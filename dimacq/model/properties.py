@@ -18,6 +18,8 @@ from dimacq.errors import SetupError
 
 __all__ = [
     "PRODUCT_SIGN_CONVENTION",
+    "THESIS_CALIBRATION_MASS",
+    "THESIS_CALIBRATION_MASS_INERTIA_ORIGIN_KGM2",
     "RigidBodyProperties",
     "inertia_to_vector",
     "parallel_axis_shift",
@@ -173,3 +175,19 @@ class RigidBodyProperties:
         raise SetupError(
             "properties JSON lacks inertia_cg_kgm2 and inertia_p_kgm2; give one of them"
         )
+
+
+#: The thesis's calibration mass (Lazor 2004, §4.1.1; method.md §9): inertia tensor elements about
+#: the GCS origin used there, kg·m². The one copy of these reference values in the project.
+THESIS_CALIBRATION_MASS_INERTIA_ORIGIN_KGM2 = np.array(
+    [
+        [0.218554, -0.000109, 0.078161],
+        [-0.000109, 0.304172, 0.000218],
+        [0.078161, 0.000218, 0.158154],
+    ]
+)
+THESIS_CALIBRATION_MASS = RigidBodyProperties.from_about_point(
+    18.175,
+    np.array([0.035236, 0.000130, -0.085632]),
+    THESIS_CALIBRATION_MASS_INERTIA_ORIGIN_KGM2,
+)

@@ -35,6 +35,11 @@ from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from dimacq.errors import SetupError
+from dimacq.model.properties import (
+    THESIS_CALIBRATION_MASS,
+    THESIS_CALIBRATION_MASS_INERTIA_ORIGIN_KGM2,
+    inertia_to_vector,
+)
 from dimacq.model.setup import PARAMETERS
 from dimacq.pipeline.dim import design_matrices
 from dimacq.pipeline.rigid_body import skew
@@ -53,9 +58,11 @@ FloatArray = NDArray[np.float64]
 
 #: Thesis calibration mass about the GCS origin: m (kg), CG (m), [Ixx, Ixy, Ixz, Iyy, Iyz, Izz] (kg·m²).
 CALIBRATION_MASS: dict[str, Any] = {
-    "mass_kg": 18.175,
-    "cg_m": (0.035236, 0.000130, -0.085632),
-    "inertia_origin_kgm2": (0.218554, -0.000109, 0.078161, 0.304172, 0.000218, 0.158154),
+    "mass_kg": THESIS_CALIBRATION_MASS.mass_kg,
+    "cg_m": tuple(THESIS_CALIBRATION_MASS.cg_m.tolist()),
+    "inertia_origin_kgm2": tuple(
+        inertia_to_vector(THESIS_CALIBRATION_MASS_INERTIA_ORIGIN_KGM2).tolist()
+    ),
 }
 
 #: Largest study accepted, and trials solved per vectorised chunk (bounds the memory).

@@ -55,7 +55,7 @@ from scipy.spatial.transform import Rotation
 
 from dimacq.errors import SetupError
 from dimacq.model.frf import Channel, FrfData
-from dimacq.model.properties import RigidBodyProperties
+from dimacq.model.properties import THESIS_CALIBRATION_MASS, RigidBodyProperties
 from dimacq.model.setup import Excitation, LoadCell, ResponseChannel, TestSetup
 
 __all__ = [
@@ -542,17 +542,7 @@ def _inputs(
 
 
 #: Calibration mass of the thesis (§4.1.1), about the GCS origin used there (tensor elements).
-CALIBRATION_MASS = RigidBodyProperties.from_about_point(
-    18.175,
-    np.array([0.035236, 0.000130, -0.085632]),
-    np.array(
-        [
-            [0.218554, -0.000109, 0.078161],
-            [-0.000109, 0.304172, 0.000218],
-            [0.078161, 0.000218, 0.158154],
-        ]
-    ),
-)
+CALIBRATION_MASS = THESIS_CALIBRATION_MASS
 
 
 def calibration_mass(
