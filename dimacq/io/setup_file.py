@@ -50,6 +50,12 @@ Top level
     ``inertia_kgm2`` : table with any of ``Ixx, Ixy, Ixz, Iyy, Iyz, Izz``, kg·m², tensor elements
     about the reference point (products of inertia carry the tensor sign, ``Ixy = −∫xy dm``).
 
+``[geometry_uncertainty]`` (optional; standard uncertainties, 1σ, of the geometry above)
+    ``sensor_position_m`` (default 0.002), ``sensor_orientation_deg`` (0.5), ``input_position_m``
+    (0.002), ``line_of_action_deg`` (1.0); ``registration_rms_m`` and ``registration_limit_m``
+    (written by a digitized setup); ``source`` = "default" | "stated" | "digitized". They widen
+    the 95 % intervals, act as priors where the geometry is refined, and enter the verdict.
+
 Example (TOML)::
 
     schema_version = 1

@@ -30,6 +30,7 @@ __all__ = [
     "LENGTH_UNITS",
     "PARAMETERS",
     "Excitation",
+    "GeometryUncertainty",
     "KnownProperties",
     "LoadCell",
     "ResponseChannel",
@@ -196,6 +197,44 @@ class LoadCell(_Model):
         return self.label or f"LC{self.node}"
 
 
+class GeometryUncertainty(_Model):
+    """The stated uncertainty of the geometry the solver is told (standard uncertainties, 1σ).
+
+    The DIM takes the sensor positions and directions and the inputs' points and lines of action
+    as exact; they are not. These values say how far each may be off, per item and independently:
+    they widen the 95 % intervals (geometry propagated through the solve), act as priors where the
+    geometry is refined from the data, and enter the verdict. Defaults describe a careful test with
+    a sonic digitizer and the orientation jig (method.md §1–3); a digitized setup writes its own
+    (digitizer and jig fit residuals, registration residual).
+
+    Attributes
+    ----------
+    sensor_position_m : float
+        1σ of each coordinate of each triax position, m.
+    sensor_orientation_deg : float
+        1σ of each triax's small rotation about each axis, degrees (all axes of a node together).
+    input_position_m : float
+        1σ of each coordinate of each input point, m.
+    line_of_action_deg : float
+        1σ of each input's direction about each axis normal to it, degrees.
+    registration_rms_m : float, optional
+        RMS residual of the registration of the digitizer array into the GCS over its reference
+        nodes, m (``None``: the geometry was not digitized here, or not recorded).
+    registration_limit_m : float, optional
+        The residual limit the registration was accepted against, m.
+    source : {"default", "stated", "digitized"}
+        Where the values come from: these defaults, the user's statement, or the digitizing chain.
+    """
+
+    sensor_position_m: float = Field(default=0.002, ge=0, le=0.5)
+    sensor_orientation_deg: float = Field(default=0.5, ge=0, le=45)
+    input_position_m: float = Field(default=0.002, ge=0, le=0.5)
+    line_of_action_deg: float = Field(default=1.0, ge=0, le=45)
+    registration_rms_m: float | None = Field(default=None, ge=0)
+    registration_limit_m: float | None = Field(default=None, gt=0)
+    source: Literal["default", "stated", "digitized"] = "default"
+
+
 #: Order of the ten DIM parameters (method.md §6): mass, CG (solved as s = m·c), inertia about P.
 PARAMETERS: tuple[str, ...] = ("m", "cx", "cy", "cz", "Ixx", "Ixy", "Ixz", "Iyy", "Iyz", "Izz")
 
@@ -245,6 +284,8 @@ class TestSetup(_Model):
         The transducers and inputs.
     known : KnownProperties
         Optional known properties.
+    geometry_uncertainty : GeometryUncertainty
+        How far the stated positions and directions may be off (1σ); defaults for a careful test.
     """
 
     __test__ = False  # not a pytest test class
@@ -257,6 +298,7 @@ class TestSetup(_Model):
     excitations: tuple[Excitation, ...]
     load_cells: tuple[LoadCell, ...] = ()
     known: KnownProperties = KnownProperties()
+    geometry_uncertainty: GeometryUncertainty = GeometryUncertainty()
 
     @model_validator(mode="after")
     def _unique(self) -> TestSetup:

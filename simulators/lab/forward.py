@@ -644,6 +644,7 @@ def x38_like(
     chute_modes_hz: tuple[float, float] = (4.8, 5.3),
     deformation_mode_hz: float = 23.0,
     tail_mass_kg: float = 40.0,
+    suspension_hz: float = 1.8,
 ) -> ForwardModel:
     """An X-38-sized body: m = 8089 kg, CG ≈ (4.14, 0.004, 0.74) m, on 3 skewed load cells.
 
@@ -656,7 +657,8 @@ def x38_like(
     the vehicle (:func:`subsystem_mode`, ζ = 3 %) and the first deformation mode, the twin
     vertical tails (``tail_mass_kg`` near (8.4, 0, 2.4) m) bending laterally against the hull
     (:func:`subsystem_mode`, ζ = 2 %; :func:`beam_bending_mode` gives a global hull bending
-    instead, whose quasi-static share spoils a DIM band far more). Above its modes the pack no longer follows the vehicle:
+    instead, whose quasi-static share spoils a DIM band far more). ``suspension_hz`` sets each
+    air-ride support's vertical (bounce) frequency (lateral 0.5 Hz). Above its modes the pack no longer follows the vehicle:
     the DIM then sees ``chute_mass_kg`` less mass (and its inertia), and the chute triaxes
     disagree with rigid-body motion (the thesis solved with 18 of the 21 triaxes).
     """
@@ -679,9 +681,9 @@ def x38_like(
         (3003, (7.5, 0.0, 0.0), (75, 5, 9)),
     ):
         R = Rotation.from_euler("zyx", ang, degrees=True).as_matrix()
-        k = soft_support_stiffness(8089.0 / 3, 1.8, 0.5, 2.0e4)
+        k = soft_support_stiffness(8089.0 / 3, suspension_hz, 0.5, 2.0e4)
         supports.append(
-            Support(node, np.array(pos), R, k, 0.03 * k / (2 * np.pi * 1.8), "on_support")
+            Support(node, np.array(pos), R, k, 0.03 * k / (2 * np.pi * suspension_hz), "on_support")
         )
     setup = TestSetup(
         name="X-38-like vehicle",

@@ -95,7 +95,7 @@ from dimacq.errors import SetupError
 from dimacq.io.validation import refuse
 from dimacq.model.frf import FrfData
 from dimacq.model.properties import RigidBodyProperties
-from dimacq.model.setup import Excitation, ResponseChannel, TestSetup
+from dimacq.model.setup import Excitation, GeometryUncertainty, ResponseChannel, TestSetup
 from dimacq.simulators.lab.forward import ForwardModel, calibration_mass, cube, x38_like
 
 __all__ = [
@@ -104,6 +104,7 @@ __all__ = [
     "Scenario",
     "ShakerSpec",
     "build_scenario",
+    "gross_errors",
     "list_scenarios",
     "load_scenario",
 ]
@@ -131,6 +132,19 @@ class ArticleSpec(_Spec):
         default=25.0, ge=0, le=180, description="largest random triax rotation, degrees (0–180)"
     )
     flexible: bool = Field(default=True, description="x38: true to include the elastic modes")
+    chute_modes_hz: tuple[float, float] | None = Field(
+        default=None,
+        description="x38: the drogue-chute pair's lateral and vertical frequencies, Hz "
+        "(default 4.8, 5.3)",
+    )
+    deformation_mode_hz: float | None = Field(
+        default=None, gt=0, description="x38: first deformation (tails) mode, Hz (default 23)"
+    )
+    suspension_hz: float | None = Field(
+        default=None,
+        gt=0,
+        description="x38: nominal vertical frequency of each air-ride support, Hz (default 1.8)",
+    )
     half_size_m: float | None = Field(
         default=None, gt=0, description="cube: half the side H in metres (> 0)"
     )
@@ -147,6 +161,19 @@ class ArticleSpec(_Spec):
             )
         if self.model == "cube" and self.half_size_m is None:
             raise ValueError("cube needs article.half_size_m (H, metres; triaxes at ±H)")
+        x38_only = {
+            k: v
+            for k, v in (
+                ("chute_modes_hz", self.chute_modes_hz),
+                ("deformation_mode_hz", self.deformation_mode_hz),
+                ("suspension_hz", self.suspension_hz),
+            )
+            if v is not None
+        }
+        if self.model != "x38" and x38_only:
+            raise ValueError(
+                f"article.{', '.join(x38_only)} applies to the x38 only; remove it for {self.model}"
+            )
         if self.model != "cube" and self.half_size_m is not None:
             raise ValueError(
                 f"article.half_size_m applies to the cube only; remove it for {self.model}"
@@ -196,6 +223,29 @@ class ErrorsSpec(_Spec):
     )
     line_of_action_deg: float = Field(
         default=0.0, ge=0, le=45, description="line-of-action error std, degrees (0–45)"
+    )
+    mismounted_channels: int = Field(
+        default=0,
+        ge=0,
+        le=50,
+        description="single accelerometer axes mounted off their stated direction by a gross "
+        "angle (mismount_deg): a sensor turned on its base, a wrong axis label (0–50)",
+    )
+    mismount_deg: float = Field(
+        default=15.0, gt=0, le=90, description="angle of a mis-mounted axis, degrees (0–90]"
+    )
+    bad_impacts: int = Field(
+        default=0,
+        ge=0,
+        le=50,
+        description="inputs struck away from their stated point and line of action by "
+        "bad_impact_deg and bad_impact_shift_m (0–50)",
+    )
+    bad_impact_deg: float = Field(
+        default=20.0, gt=0, le=90, description="line-of-action error of a bad impact, degrees"
+    )
+    bad_impact_shift_m: float = Field(
+        default=0.03, ge=0, le=1, description="point error of a bad impact, m (0–1)"
     )
 
 
@@ -497,7 +547,14 @@ def _article(spec: ArticleSpec, seed: int) -> ForwardModel:
         assert spec.support is not None
         return calibration_mass(seed, support=spec.support, sensor_skew_deg=spec.sensor_skew_deg)
     if spec.model == "x38":
-        return x38_like(seed, flexible=spec.flexible)
+        extra: dict[str, Any] = {}
+        if spec.chute_modes_hz is not None:
+            extra["chute_modes_hz"] = spec.chute_modes_hz
+        if spec.deformation_mode_hz is not None:
+            extra["deformation_mode_hz"] = spec.deformation_mode_hz
+        if spec.suspension_hz is not None:
+            extra["suspension_hz"] = spec.suspension_hz
+        return x38_like(seed, flexible=spec.flexible, **extra)
     assert spec.half_size_m is not None
     return cube(spec.half_size_m, seed)
 
@@ -515,8 +572,21 @@ def nominal_setup(true_setup: TestSetup, errors: ErrorsSpec, seed: int) -> TestS
     Each triax (all axes of one node together) moves by ``N(0, position_m)`` per coordinate and
     turns by a rotation of ``N(0, orientation_deg)`` about a random axis; each input point moves
     likewise and its line of action turns by ``N(0, line_of_action_deg)``. Load cells are exact.
+    Then ``mismounted_channels`` single axes (seeded choice) are told a direction ``mismount_deg``
+    away from their true one (turned about an axis normal to it), and ``bad_impacts`` inputs a
+    line of action ``bad_impact_deg`` away and a point ``bad_impact_shift_m`` away: gross errors a
+    careful user still makes, which data selection must catch. The setup states the error levels as
+    its ``geometry_uncertainty`` (what a user would write from the digitizer's and jig's accuracy);
+    the gross errors are not stated. The chosen channels and inputs are
+    :func:`gross_errors`' answer.
     """
-    if errors.position_m == 0 and errors.orientation_deg == 0 and errors.line_of_action_deg == 0:
+    if (
+        errors.position_m == 0
+        and errors.orientation_deg == 0
+        and errors.line_of_action_deg == 0
+        and errors.mismounted_channels == 0
+        and errors.bad_impacts == 0
+    ):
         return true_setup
     rng = np.random.default_rng([seed, 31])
     node_err: dict[int, tuple[FloatArray, FloatArray]] = {}
@@ -551,9 +621,64 @@ def nominal_setup(true_setup: TestSetup, errors: ErrorsSpec, seed: int) -> TestS
                 label=e.label,
             )
         )
-    return true_setup.model_copy(
-        update={"responses": tuple(responses), "excitations": tuple(inputs)}
+    bad_ch, bad_in = gross_errors(true_setup, errors, seed)
+    grng = np.random.default_rng([seed, 37])
+    for k in bad_ch:
+        c = responses[k]
+        d = _turn_normal(np.asarray(c.direction_gcs), errors.mismount_deg, grng)
+        responses[k] = c.model_copy(update={"direction_gcs": tuple(float(x) for x in d)})
+    for j in bad_in:
+        e = inputs[j]
+        d = _turn_normal(np.asarray(e.direction_gcs), errors.bad_impact_deg, grng)
+        s = grng.normal(size=3)
+        p = np.asarray(e.position_m) + errors.bad_impact_shift_m * s / np.linalg.norm(s)
+        inputs[j] = e.model_copy(
+            update={
+                "direction_gcs": tuple(float(x) for x in d),
+                "position_m": tuple(float(x) for x in p),
+            }
+        )
+    stated = GeometryUncertainty(
+        sensor_position_m=errors.position_m,
+        sensor_orientation_deg=errors.orientation_deg,
+        input_position_m=errors.position_m,
+        line_of_action_deg=errors.line_of_action_deg,
+        source="stated",
     )
+    return true_setup.model_copy(
+        update={
+            "responses": tuple(responses),
+            "excitations": tuple(inputs),
+            "geometry_uncertainty": stated,
+        }
+    )
+
+
+def gross_errors(
+    true_setup: TestSetup, errors: ErrorsSpec, seed: int
+) -> tuple[tuple[int, ...], tuple[int, ...]]:
+    """Indices of the mis-mounted response channels and of the bad inputs :func:`nominal_setup`
+    makes for ``seed`` (responses and excitations in setup order); the truth a test compares
+    data selection against."""
+    rng = np.random.default_rng([seed, 41])
+    n_ch, n_in = len(true_setup.responses), len(true_setup.excitations)
+    if errors.mismounted_channels > n_ch or errors.bad_impacts > n_in:
+        raise SetupError(
+            f"errors: {errors.mismounted_channels} mis-mounted channels / {errors.bad_impacts} bad "
+            f"impacts asked of a setup with {n_ch} channels / {n_in} inputs; give fewer"
+        )
+    ch = rng.choice(n_ch, size=errors.mismounted_channels, replace=False)
+    inp = rng.choice(n_in, size=errors.bad_impacts, replace=False)
+    return tuple(sorted(int(k) for k in ch)), tuple(sorted(int(j) for j in inp))
+
+
+def _turn_normal(d: FloatArray, angle_deg: float, rng: np.random.Generator) -> FloatArray:
+    """``d`` turned by ``angle_deg`` about a random axis normal to it (unit result)."""
+    a = rng.normal(size=3)
+    a -= (a @ d) * d
+    a /= np.linalg.norm(a)
+    out = Rotation.from_rotvec(np.deg2rad(angle_deg) * a).apply(d)
+    return np.asarray(out / np.linalg.norm(out), dtype=np.float64)
 
 
 def build_scenario(spec: Scenario | str | Path, seed: int | None = None) -> BuiltScenario:

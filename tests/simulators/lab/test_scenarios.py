@@ -7,10 +7,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from pydantic import ValidationError
 
 from dimacq.errors import SetupError
 from dimacq.simulators.lab.scenarios import (
+    Scenario,
     build_scenario,
+    gross_errors,
     list_scenarios,
     load_scenario,
     nominal_setup,
@@ -134,3 +137,46 @@ def test_unknown_names_syntax_errors_and_bad_exclusions(tmp_path: Path) -> None:
     p.write_text(GOOD + "[analysis]\nexclude_nodes = [999]\n")
     with pytest.raises(SetupError, match=r"exclude_nodes lists \[999\]"):
         build_scenario(p)
+
+
+def test_gross_errors_are_what_the_nominal_setup_states() -> None:
+    """Mis-mounted axes and bad impacts: exactly the chosen items differ grossly from the truth,
+    by the stated angles, and the setup states the small error levels (not the gross ones)."""
+    built = build_scenario("calibration-mass-realistic", seed=5)
+    truth, told = built.model.setup, built.setup
+    bad_ch, bad_in = gross_errors(truth, built.spec.errors, 5)
+    assert len(bad_ch) == 2 and len(bad_in) == 2
+
+    def angle(a: object, b: object) -> float:
+        c = float(np.clip(np.dot(np.asarray(a), np.asarray(b)), -1.0, 1.0))
+        return float(np.degrees(np.arccos(c)))
+
+    ch_angles = [
+        angle(t.direction_gcs, n.direction_gcs)
+        for t, n in zip(truth.responses, told.responses, strict=True)
+    ]
+    in_angles = [
+        angle(t.direction_gcs, n.direction_gcs)
+        for t, n in zip(truth.excitations, told.excitations, strict=True)
+    ]
+    # gross = the stated angle composed with the ordinary N(0, 0.5°)/N(0, 1°) error: within 5°
+    assert sorted(np.argsort(ch_angles)[-2:].tolist()) == list(bad_ch)
+    assert all(abs(ch_angles[k] - 15.0) < 5.0 for k in bad_ch)
+    assert max(a for k, a in enumerate(ch_angles) if k not in bad_ch) < 4.0
+    assert sorted(np.argsort(in_angles)[-2:].tolist()) == list(bad_in)
+    assert all(abs(in_angles[j] - 20.0) < 6.0 for j in bad_in)
+    gu = told.geometry_uncertainty
+    assert (gu.sensor_orientation_deg, gu.line_of_action_deg, gu.source) == (0.5, 1.0, "stated")
+    assert gu.sensor_position_m == pytest.approx(0.002)
+
+
+def test_x38_elastic_and_suspension_frequencies_are_settable() -> None:
+    spec = load_scenario("x38").model_dump()
+    spec["article"].update(chute_modes_hz=(4.0, 6.0), deformation_mode_hz=8.0, suspension_hz=1.5)
+    built = build_scenario(Scenario.model_validate(spec), seed=1)
+    assert [m.frequency_hz for m in built.model.modes] == [4.0, 6.0, 8.0]
+    # the bounce modes of three 1.5 Hz air rides under the vehicle sit near 1.5 Hz
+    assert 1.2 < built.model.suspension_frequencies_hz()[-1] < 2.0
+    spec["article"].update(model="cube", half_size_m=2.0)
+    with pytest.raises(ValidationError, match="applies to the x38 only"):
+        Scenario.model_validate(spec)
