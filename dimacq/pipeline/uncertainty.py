@@ -11,11 +11,20 @@ Two sources are combined:
   out; the delete-one-group jackknife ``SE_R = sqrt((G−1)/G · Σ_g (p_(−g) − p̄)²)`` carries the
   sensor position and orientation errors that are common to every input and hence invisible to
   the input resampling.
+- **Over the geometry** (optional, :func:`geometry_spread`): the stated 1σ of sensor positions and
+  orientations, input points and lines of action (and the registration residual) propagated
+  through the joint solve by Monte Carlo; ``SE_G`` the standard deviation of those solutions. The
+  input and sensor jackknives see only the part of a geometry error that differs between inputs
+  or sensors; a common part (every triax turned the same way, a registration offset) is in
+  ``SE_G`` alone.
 - **Over lines**: ``SE_L = std_l(p_l) / sqrt(n_eff)``; adjacent lines of a smooth FRF are not
   independent, so ``n_eff`` is the number of lines divided by the integrated autocorrelation time
   of the per-line estimates (at least 1 line per effective sample).
 
-The reported standard error is ``sqrt(SE_inputs² + SE_R² + SE_L²)`` (the line spread is largely included
+Leave-one-out solves that are rank deficient (an input or sensor node the others cannot do
+without) are counted (``n_rank_deficient``) and reported, not silently dropped.
+
+The reported standard error is ``sqrt(SE_inputs² + SE_R² + SE_G² + SE_L²)`` (the line spread is largely included
 in the input resampling, so this is mildly conservative) and the 95 % interval
 ``p ± t_{0.975, N−1} · SE`` (Student t with N − 1 degrees of freedom of the input resampling).
 """
@@ -35,7 +44,15 @@ from dimacq.errors import SetupError, SolverError
 from dimacq.model.setup import PARAMETERS
 from dimacq.pipeline.dim import DimResult, DimSystem, solve_system
 
-__all__ = ["ParameterUncertainty", "Uncertainty", "effective_samples", "estimate_uncertainty"]
+__all__ = [
+    "GeometrySpread",
+    "ParameterUncertainty",
+    "Uncertainty",
+    "effective_samples",
+    "estimate_uncertainty",
+    "geometry_spread",
+    "joint_parameters_for_geometry",
+]
 
 log = logging.getLogger(__name__)
 FloatArray = NDArray[np.float64]
@@ -51,6 +68,7 @@ class ParameterUncertainty:
     se_inputs: float
     se_lines: float
     se_responses: float = 0.0
+    se_geometry: float = 0.0
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -60,6 +78,7 @@ class ParameterUncertainty:
             "se_inputs": self.se_inputs,
             "se_lines": self.se_lines,
             "se_responses": self.se_responses,
+            "se_geometry": self.se_geometry,
         }
 
 
@@ -76,6 +95,10 @@ class Uncertainty:
     n_lines_effective : float
     samples : ndarray, shape (n_samples, 10)
         The leave-one-out or bootstrap solutions.
+    n_rank_deficient : int
+        Input resamplings and sensor leave-outs whose solve was rank deficient.
+    components : tuple of str
+        The sources included: ``inputs``, ``lines``, and ``responses`` / ``geometry`` when given.
     """
 
     parameters: dict[str, ParameterUncertainty]
@@ -83,12 +106,16 @@ class Uncertainty:
     n_inputs: int
     n_lines_effective: float
     samples: FloatArray
+    n_rank_deficient: int = 0
+    components: tuple[str, ...] = ("inputs", "lines")
 
     def to_json(self) -> dict[str, Any]:
         out: dict[str, Any] = {k: v.to_json() for k, v in self.parameters.items()}
         out["method"] = self.method
         out["n_inputs"] = self.n_inputs
         out["n_lines_effective"] = self.n_lines_effective
+        out["n_rank_deficient"] = self.n_rank_deficient
+        out["components"] = list(self.components)
         return out
 
 
@@ -119,6 +146,7 @@ def estimate_uncertainty(
     n_bootstrap: int = 200,
     seed: int | None = 0,
     response_systems: Sequence[DimSystem] = (),
+    geometry: GeometrySpread | None = None,
 ) -> Uncertainty:
     """Standard error and 95 % interval of every parameter of ``result`` (module docstring).
 
@@ -135,7 +163,10 @@ def estimate_uncertainty(
         Seed of the bootstrap resampling.
     response_systems : sequence of DimSystem, optional
         The same test assembled with one response node left out each (delete-one-group
-        jackknife over sensors); empty: no sensor term.
+        jackknife over sensors); empty: no sensor term (then ``components`` says so).
+    geometry : GeometrySpread, optional
+        The stated geometry uncertainty propagated through the solve (:func:`geometry_spread`);
+        None: no geometry term (``components`` says so; the analysis service always gives it).
     """
     n_in = system.K.shape[2]
     if n_in < 3:
@@ -143,6 +174,7 @@ def estimate_uncertainty(
             f"{n_in} inputs are too few to estimate an uncertainty over inputs; give 3 or more"
         )
     samples: list[FloatArray] = []
+    n_bad = 0
     if method == "jackknife":
         for j in range(n_in):
             w = np.ones(n_in)
@@ -154,11 +186,16 @@ def estimate_uncertainty(
                     ).parameters
                 )
             except SolverError:
-                log.info("leave-one-out without input %s is rank deficient", system.inputs[j].name)
+                n_bad += 1
+                log.warning(
+                    "leave-one-out without input %s is rank deficient: the others cannot "
+                    "determine every parameter without it",
+                    system.inputs[j].name,
+                )
         s = np.array(samples).reshape(-1, 10)
         n = s.shape[0]
         se_in = (
-            np.sqrt((n - 1) / n * np.sum((s - s.mean(axis=0)) ** 2, axis=0))
+            np.sqrt((n_in - 1) / n_in * np.sum((s - s.mean(axis=0)) ** 2, axis=0))
             if n > 1
             else np.zeros(10)
         )
@@ -173,6 +210,7 @@ def estimate_uncertainty(
                     ).parameters
                 )
             except SolverError:
+                n_bad += 1
                 continue
         s = np.array(samples).reshape(-1, 10)
         se_in = s.std(axis=0, ddof=1) if s.shape[0] > 1 else np.zeros(10)
@@ -193,13 +231,15 @@ def estimate_uncertainty(
         try:
             rs.append(solve_system(sy, known=known, check_plausibility=False).parameters)
         except SolverError:
+            n_bad += 1
             continue
     se_r = np.zeros(10)
     if len(rs) > 1:
         r_arr = np.array(rs)
         g = r_arr.shape[0]
         se_r = np.sqrt((g - 1) / g * np.sum((r_arr - r_arr.mean(axis=0)) ** 2, axis=0))
-    se = np.sqrt(se_in**2 + se_r**2 + se_l**2)
+    se_g = np.zeros(10) if geometry is None else np.asarray(geometry.se, float)
+    se = np.sqrt(se_in**2 + se_r**2 + se_g**2 + se_l**2)
     for k in known or {}:
         se[PARAMETERS.index(k)] = 0.0
     tq = float(stats.t.ppf(0.975, max(n_in - 1, 1)))
@@ -212,7 +252,242 @@ def estimate_uncertainty(
             float(se_in[i]),
             float(se_l[i]),
             float(se_r[i]),
+            float(se_g[i]) if PARAMETERS[i] not in (known or {}) else 0.0,
         )
         for i, name in enumerate(PARAMETERS)
     }
-    return Uncertainty(params, method, n_in, n_eff, s)
+    comps = ("inputs", "lines")
+    if response_systems:
+        comps += ("responses",)
+    if geometry is not None:
+        comps += ("geometry",)
+    return Uncertainty(params, method, n_in, n_eff, s, n_bad, comps)
+
+
+# --------------------------------------------------------------------------------------------
+# Geometry: the stated uncertainty of positions and directions propagated through the solve
+# --------------------------------------------------------------------------------------------
+@dataclass(frozen=True, eq=False)
+class GeometrySpread:
+    """Spread of the joint DIM solution over the stated geometry uncertainty.
+
+    Attributes
+    ----------
+    se : ndarray, shape (10,)
+        Standard deviation of the parameters over the Monte Carlo samples (kg, m, kg·m²).
+    se_linear : ndarray, shape (10,)
+        The same by linearisation: ``sqrt(Σ_k (∂p/∂g_k · σ_k)²)`` over every geometry coordinate
+        ``g_k`` (central differences of ±σ_k); a check on ``se``.
+    samples : ndarray, shape (n_samples, 10)
+    n_samples : int
+    sigma : dict
+        The 1σ values used (``sensor_position_m``, ``sensor_orientation_deg``,
+        ``input_position_m``, ``line_of_action_deg``; registration residual added in quadrature
+        to both positions).
+    """
+
+    se: FloatArray
+    se_linear: FloatArray
+    samples: FloatArray
+    n_samples: int
+    sigma: dict[str, float]
+
+
+def _band_sums(
+    system: DimSystem, H_acc: NDArray[np.complexfloating]
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Sums over lines that make the joint normal equations a function of the geometry only.
+
+    With ``K_l = M H_l`` (``M`` the 6×n condensation, over ``u``) and ``F_l = (Φ + R_l)/u``
+    (``Φ`` the inputs' unit force vectors, ``R_l`` the load-cell reactions at P), the joint Gram
+    matrices of :func:`dimacq.pipeline.dim._gram_normal_equations` summed over lines are
+    ``G = M P Mᵀ`` and ``C = M (S₁ Φᵀ + S₂)/u`` with ``P = Re Σ_l H̄_l H_lᵀ`` (n×n),
+    ``S₁ = Re Σ_l H̄_l`` (n×J) and ``S₂ = Re Σ_l H̄_l R_lᵀ`` (n×6).
+    """
+    H = np.asarray(H_acc)
+    u = system.unit_m
+    R = system.F * u - system.phi[None].astype(complex)  # (L, 6, J): reactions at P
+    P = np.real(np.einsum("lij,lkj->ik", H.conj(), H))
+    S1 = np.real(H.conj().sum(axis=0))
+    S2 = np.real(np.einsum("lij,lkj->ik", H.conj(), R))
+    return P, S1, S2
+
+
+def joint_parameters_for_geometry(
+    system: DimSystem,
+    sums: tuple[FloatArray, FloatArray, FloatArray],
+    positions_m: FloatArray,
+    directions: FloatArray,
+    weights: FloatArray,
+    in_positions_m: FloatArray,
+    in_directions: FloatArray,
+    known: Mapping[str, float] | None = None,
+) -> FloatArray:
+    """Joint DIM parameters for a batch of geometries, vectorised over the batch.
+
+    Parameters
+    ----------
+    system : DimSystem
+        The assembled system (its load cells, reference point, unit and inputs).
+    sums : from :func:`_band_sums`
+    positions_m, directions : ndarray, shape (S, n, 3)
+        Response channel positions and unit directions (GCS, m) of each geometry sample.
+    weights : ndarray, shape (n,)
+        Channel weights (0 = excluded).
+    in_positions_m, in_directions : ndarray, shape (S, J, 3)
+    known : dict, optional
+
+    Returns
+    -------
+    ndarray, shape (S, 10)
+        ``[m, cx, cy, cz, Ixx..Izz]`` as :attr:`DimResult.parameters`.
+    """
+    from dimacq.pipeline.dim import _Q, _R, _parameterisation, _to_parameters
+
+    P, S1, S2 = sums
+    u = system.unit_m
+    p = system.reference_point_m
+    r = (positions_m - p) / u
+    psi = np.concatenate([directions, np.cross(r, directions)], axis=-1)  # (S, n, 6)
+    wp = psi * weights[None, :, None]
+    M = np.linalg.pinv(wp) * weights[None, None, :] / u  # (S, 6, n)
+    ri = (in_positions_m - p) / u
+    phi = np.concatenate([in_directions, np.cross(ri, in_directions)], axis=-1)  # (S, J, 6)
+    G = M @ P @ np.swapaxes(M, 1, 2)  # (S, 6, 6)
+    C = M @ (S1 @ phi + S2) / u
+    S = G.shape[0]
+    N = (G.reshape(S, 36) @ _Q.T).reshape(S, 10, 10)
+    rhs = C.reshape(S, 36) @ _R.T
+    prm = _parameterisation(dict(known or {}), p, u)
+    T, x0 = prm.T, prm.x0
+    Nt = T.T @ N @ T
+    rt = (rhs - N @ x0) @ T
+    d = np.sqrt(np.einsum("sii->si", Nt))
+    theta = np.linalg.solve(Nt / (d[:, :, None] * d[:, None, :]), (rt / d)[..., None])[..., 0] / d
+    x = theta @ T.T + x0
+    out: FloatArray = _to_parameters(x, p, u)
+    return out
+
+
+def _rot(v: FloatArray) -> FloatArray:
+    """Rotation matrices of rotation vectors ``v`` (..., 3) (Rodrigues, via scipy)."""
+    from scipy.spatial.transform import Rotation
+
+    shp = v.shape[:-1]
+    m: FloatArray = Rotation.from_rotvec(v.reshape(-1, 3)).as_matrix().reshape(*shp, 3, 3)
+    return m
+
+
+def geometry_spread(
+    system: DimSystem,
+    H_acc: NDArray[np.complexfloating],
+    positions_m: FloatArray,
+    directions: FloatArray,
+    nodes: NDArray[np.integer],
+    weights: FloatArray,
+    in_positions_m: FloatArray,
+    in_directions: FloatArray,
+    *,
+    sensor_position_m: float,
+    sensor_orientation_deg: float,
+    input_position_m: float,
+    line_of_action_deg: float,
+    registration_rms_m: float | None = None,
+    known: Mapping[str, float] | None = None,
+    n_samples: int = 400,
+    seed: int | None = 0,
+) -> GeometrySpread:
+    """Propagate the stated geometry uncertainty through the joint DIM solve.
+
+    Model (independent, 1σ): each sensor node (all its channels together) moves by
+    ``N(0, σ_p² + σ_reg²)`` per coordinate and turns by a rotation vector ``N(0, σ_o)`` per axis;
+    each input point moves by ``N(0, σ_ip² + σ_reg²)`` per coordinate and its line of action turns
+    by ``N(0, σ_loa)`` about each of the two axes normal to it. Monte Carlo over ``n_samples``
+    geometries (vectorised: :func:`joint_parameters_for_geometry`) gives ``se``; central differences
+    over every coordinate give ``se_linear`` (first-order propagation), which the Monte Carlo must
+    match while the geometry errors are small.
+
+    Parameters
+    ----------
+    system : DimSystem
+        Assembled on the band with the kept inputs.
+    H_acc : ndarray, shape (n_lines, n, J)
+        The band's acceleration FRFs of those inputs, channels in ``system.responses`` order.
+    positions_m, directions : ndarray, shape (n, 3)
+        Nominal channel positions (m) and unit directions (sign of the record applied).
+    nodes : ndarray, shape (n,)
+        Node of each channel (channels of a node move and turn together).
+    weights : ndarray, shape (n,)
+    in_positions_m, in_directions : ndarray, shape (J, 3)
+    """
+    rng = np.random.default_rng(seed)
+    sums = _band_sums(system, H_acc)
+    reg = float(registration_rms_m or 0.0)
+    sp = float(np.hypot(sensor_position_m, reg))
+    ip = float(np.hypot(input_position_m, reg))
+    so = np.deg2rad(sensor_orientation_deg)
+    sl = np.deg2rad(line_of_action_deg)
+    uniq, inv = np.unique(nodes, return_inverse=True)
+    G, J = uniq.size, in_positions_m.shape[0]
+    pos0, dir0 = np.asarray(positions_m, float), np.asarray(directions, float)
+    ipos0, idir0 = np.asarray(in_positions_m, float), np.asarray(in_directions, float)
+
+    def params(
+        dp_node: FloatArray, rv_node: FloatArray, dp_in: FloatArray, rv_in: FloatArray
+    ) -> FloatArray:
+        Rn = _rot(rv_node)  # (S, G, 3, 3)
+        pos = pos0[None] + dp_node[:, inv]
+        dirs = np.einsum("snij,nj->sni", Rn[:, inv], dir0)
+        # line of action turns about axes normal to it: project the rotation vector
+        rv = rv_in - np.einsum("sjk,jk->sj", rv_in, idir0)[..., None] * idir0[None]
+        idir = np.einsum("sjik,jk->sji", _rot(rv), idir0)
+        return joint_parameters_for_geometry(
+            system, sums, pos, dirs, np.asarray(weights, float), ipos0[None] + dp_in, idir, known
+        )
+
+    S = int(n_samples)
+    samples = params(
+        rng.normal(scale=sp, size=(S, G, 3)),
+        rng.normal(scale=so, size=(S, G, 3)),
+        rng.normal(scale=ip, size=(S, J, 3)),
+        rng.normal(scale=sl, size=(S, J, 3)),
+    )
+    se = samples.std(axis=0, ddof=1) if S > 1 else np.zeros(10)
+    # linearisation: central differences of ±σ along every coordinate, one batch
+    blocks = [(0, G, sp), (1, G, so), (2, J, ip), (3, J, sl)]
+    pert: list[list[FloatArray]] = []
+    for b, count, sig in blocks:
+        if sig == 0:
+            continue
+        for i in range(count):
+            for k in range(3):
+                if b == 3:  # only the two directions normal to the line of action
+                    basis = np.linalg.svd(idir0[i][None])[2][1:]
+                    if k == 2:
+                        continue
+                    vec = basis[k]
+                else:
+                    vec = np.eye(3)[k]
+                for sgn in (1.0, -1.0):
+                    z = [np.zeros((G, 3)), np.zeros((G, 3)), np.zeros((J, 3)), np.zeros((J, 3))]
+                    z[b][i] = sgn * sig * vec
+                    pert.append(z)
+    if pert:
+        arr = [np.stack([p[k] for p in pert]) for k in range(4)]
+        vals = params(*arr)
+        d = (vals[0::2] - vals[1::2]) / 2.0
+        se_lin = np.sqrt(np.sum(d**2, axis=0))
+    else:
+        se_lin = np.zeros(10)
+    return GeometrySpread(
+        se=se,
+        se_linear=se_lin,
+        samples=samples,
+        n_samples=S,
+        sigma={
+            "sensor_position_m": sp,
+            "sensor_orientation_deg": float(sensor_orientation_deg),
+            "input_position_m": ip,
+            "line_of_action_deg": float(line_of_action_deg),
+        },
+    )

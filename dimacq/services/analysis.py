@@ -1,13 +1,16 @@
 """Analysis service: band → response selection → orientation repair → input selection → solve →
 uncertainty → figures, with every decision recorded in the report.
 
-Used by ``dimacq solve`` (``--select-responses``, ``--select-inputs``, ``--repair-orientation``,
-``--auto-band``, ``--plots DIR``) and by the REST API. Pure orchestration over
+Used by every ``dimacq solve`` and by the REST API (``POST /api/solutions``). The defaults are the
+best method: automatic band, response and input selection, 95 % intervals with every source of
+uncertainty (inputs, sensors, lines, the stated geometry uncertainty), and one verdict
+(``ok`` / ``warn`` / ``fail`` with its reasons). Options turn each off. Pure orchestration over
 :mod:`dimacq.pipeline` (no devices, no threads); the only I/O is writing figures when asked.
 
 Order of the steps and why
 --------------------------
-1. Band: given, automatic (:func:`~dimacq.pipeline.selection.band.suggest_band`), or the whole span.
+1. Band: given (``band_hz`` overrides), automatic (default,
+   :func:`~dimacq.pipeline.selection.band.suggest_band`), or the whole span (``auto_band=False``).
    An automatic band is suggested again after the selections (step 5) on the selected data, and
    the solve uses that second suggestion.
 2. Perimeter response selection on the band (gross channel errors first, so that they do not
@@ -15,15 +18,18 @@ Order of the steps and why
 3. Orientation repair of the kept channels (only when asked; the setup given to the solver then
    carries the corrected directions and the report says so).
 4. Jackknife excitation selection on the assembled system of the kept channels.
-5. Joint DIM solve, uncertainty from the input jackknife, a delete-one-sensor-node jackknife and
-   the line spread.
+5. Joint DIM solve, uncertainty from the input jackknife, a delete-one-sensor-node jackknife,
+   the line spread and the stated geometry uncertainty (Monte Carlo through the joint solve).
+6. Verdict (:func:`verdict`): ``fail`` when the answer cannot be trusted (no qualifying band, a
+   non-physical estimate, a residual above its limit, a DOF not excited, a registration above its
+   limit), ``warn`` when it stands with a caveat, else ``ok``; every check with its reason.
 """
 
 from __future__ import annotations
 
 import logging
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -31,10 +37,15 @@ import numpy as np
 
 from dimacq.errors import SetupError
 from dimacq.model.frf import Channel, FrfData
-from dimacq.model.setup import TestSetup
+from dimacq.model.setup import PARAMETERS, TestSetup
 from dimacq.pipeline.dim import DimResult, DimSystem, assemble, solve_system
 from dimacq.pipeline.selection._common import match_pairs, response_geometry
-from dimacq.pipeline.selection.band import BandSuggestion, suggest_band
+from dimacq.pipeline.selection.band import (
+    MAX_RESIDUAL,
+    MAX_RIGID_BODY_ERROR,
+    BandSuggestion,
+    suggest_band,
+)
 from dimacq.pipeline.selection.inputs import (
     ExcitationCheck,
     JackknifeSelection,
@@ -47,9 +58,18 @@ from dimacq.pipeline.selection.orientation import (
     estimate_orientation_frf,
 )
 from dimacq.pipeline.selection.responses import ResponseSelection, select_responses_frf
-from dimacq.pipeline.uncertainty import Uncertainty, estimate_uncertainty
+from dimacq.pipeline.uncertainty import (
+    GeometrySpread,
+    Uncertainty,
+    estimate_uncertainty,
+    geometry_spread,
+)
 
-__all__ = ["AnalysisOptions", "AnalysisReport", "analyse"]
+__all__ = ["AnalysisOptions", "AnalysisReport", "VerdictReason", "analyse", "verdict"]
+
+#: Relative residual of the joint DIM solve above which the answer is refused / flagged.
+RESIDUAL_FAIL = MAX_RESIDUAL
+RESIDUAL_WARN = 0.05
 
 log = logging.getLogger(__name__)
 
@@ -61,17 +81,21 @@ class AnalysisOptions:
     Attributes
     ----------
     select_responses : bool
-        Automatic perimeter response selection.
+        Automatic perimeter response selection (default on).
     select_inputs : bool
-        Jackknife excitation selection.
+        Jackknife excitation selection (default on).
     repair_orientation : bool
         Estimate one small rotation per sensor node and apply it to the setup.
     auto_band : bool
-        Suggest the band automatically (overrides ``band_hz``).
+        Choose the band automatically (default on; ``band_hz`` overrides it).
     plots_dir : Path, optional
         Write the figures (PNG and SVG) there.
     band_hz : (lo, hi), optional
-        Analysis band when ``auto_band`` is off; default the whole span.
+        Analysis band given by the user (overrides ``auto_band``); with ``auto_band`` off and no
+        band, the whole span.
+    geometry_samples : int
+        Monte Carlo samples of the geometry propagation (0 turns it off; the intervals then leave
+        out the geometry uncertainty and the verdict says so).
     known : dict, optional
         Known properties (``m``, ``cx``.., ``Ixx``..); default ``setup.known``.
     length_unit : {"m", "cm", "mm"}, optional
@@ -82,10 +106,10 @@ class AnalysisOptions:
     uncertainty_method : {"jackknife", "bootstrap"}
     """
 
-    select_responses: bool = False
-    select_inputs: bool = False
+    select_responses: bool = True
+    select_inputs: bool = True
     repair_orientation: bool = False
-    auto_band: bool = False
+    auto_band: bool = True
     plots_dir: Path | None = None
     band_hz: tuple[float, float] | None = None
     known: Mapping[str, float] | None = None
@@ -93,6 +117,19 @@ class AnalysisOptions:
     force_in: Sequence[tuple[int, int]] = ()
     force_out: Sequence[tuple[int, int]] = ()
     uncertainty_method: str = "jackknife"
+    geometry_samples: int = 400
+
+
+@dataclass(frozen=True)
+class VerdictReason:
+    """One check behind the verdict: ``severity`` ``ok`` | ``warn`` | ``fail``."""
+
+    check: str
+    severity: str
+    message: str
+
+    def to_json(self) -> dict[str, str]:
+        return {"check": self.check, "severity": self.severity, "message": self.message}
 
 
 @dataclass(frozen=True, eq=False)
@@ -116,6 +153,10 @@ class AnalysisReport:
     response_selection, input_selection, band_suggestion, orientation : optional details
     setup_used : TestSetup
         The setup given to the solver (with repaired directions if applied).
+    verdict : {"ok", "warn", "fail"}
+    verdict_reasons : list of VerdictReason
+        Every check, whatever its outcome (the failing and warning ones first).
+    geometry : GeometrySpread, optional
     """
 
     result: DimResult
@@ -131,6 +172,9 @@ class AnalysisReport:
     input_selection: JackknifeSelection | None = None
     band_suggestion: BandSuggestion | None = None
     orientation: OrientationRepair | None = None
+    verdict: str = "ok"
+    verdict_reasons: list[VerdictReason] = field(default_factory=list)
+    geometry: GeometrySpread | None = None
 
     def to_json(self) -> dict[str, Any]:
         """``result.to_json()`` plus ``excluded_responses``, ``excluded_inputs``, ``uncertainty``,
@@ -145,8 +189,19 @@ class AnalysisReport:
                 "band_selection": dict(self.band_selection),
                 "excitation_check": self.excitation.to_json(),
                 "plots": [str(p) for p in self.plots],
+                "verdict": self.verdict,
+                "verdict_reasons": [r.to_json() for r in self.verdict_reasons],
+                "geometry_uncertainty": self.setup_used.geometry_uncertainty.model_dump(),
             }
         )
+        if self.geometry is not None:
+            out["uncertainty"]["geometry_check"] = {
+                "n_samples": self.geometry.n_samples,
+                "se_monte_carlo": dict(zip(PARAMETERS, self.geometry.se.tolist(), strict=True)),
+                "se_linearised": dict(
+                    zip(PARAMETERS, self.geometry.se_linear.tolist(), strict=True)
+                ),
+            }
         if self.response_selection is not None:
             out["response_selection"] = self.response_selection.to_json()
         if self.input_selection is not None:
@@ -185,18 +240,21 @@ def analyse(
 
     # 1. band ------------------------------------------------------------------------------
     suggestion: BandSuggestion | None = None
-    if opt.auto_band:
+    auto = opt.auto_band and opt.band_hz is None
+    if opt.band_hz is not None:
+        band = (float(opt.band_hz[0]), float(opt.band_hz[1]))
+        if not band[0] < band[1]:
+            raise SetupError(f"band {band[0]:g}–{band[1]:g} Hz is empty; give LO < HI in Hz")
+        band_sel = {"band_hz": list(band), "reason": "given by the user", "automatic": False}
+    elif auto:
         suggestion = suggest_band(frf, setup, known=known, response_weights=w0, input_keep=~in_out)
         band = suggestion.band_hz
         band_sel = suggestion.to_json()
-    elif opt.band_hz is not None:
-        band = (float(opt.band_hz[0]), float(opt.band_hz[1]))
-        band_sel = {"band_hz": list(band), "reason": "given by the user", "automatic": False}
     else:
         band = (float(frf.frequencies_hz[0]), float(frf.frequencies_hz[-1]))
         band_sel = {
             "band_hz": list(band),
-            "reason": "whole measured span (no band given; use --auto-band for a suggestion)",
+            "reason": "whole measured span (automatic band turned off and no band given)",
             "automatic": False,
         }
     data = frf.band(*band)
@@ -236,7 +294,7 @@ def analyse(
     else:
         excluded_in = [_ch(frf.inputs[i]) for i in np.nonzero(in_out)[0]]
     keep_idx = np.nonzero(keep_in)[0]
-    if suggestion is not None and (rsel is not None or jsel is not None or repair is not None):
+    if auto and (rsel is not None or jsel is not None or repair is not None):
         # the first suggestion saw every channel and input; suggest again on the selected data
         suggestion = suggest_band(
             frf, setup_used, known=known, response_weights=weights, input_keep=keep_in
@@ -254,6 +312,7 @@ def analyse(
     result = solve_system(system_used, known=known)
     nodes = geo_all.nodes
     resp_systems: list[DimSystem] = []
+    n_node_rank = 0
     for g in np.unique(nodes[weights > 0]):
         wg = weights * (nodes != g)
         try:
@@ -267,13 +326,19 @@ def analyse(
                 "leaving out sensor node %s drops the response rank; not used for the uncertainty",
                 g,
             )
+    geo: GeometrySpread | None = None
+    if opt.geometry_samples > 0:
+        geo = _geometry(data, setup_used, system_used, weights, keep_idx, known, opt)
     unc = estimate_uncertainty(
         system_used,
         result,
         known=known,
         method="bootstrap" if opt.uncertainty_method == "bootstrap" else "jackknife",
         response_systems=resp_systems,
+        geometry=geo,
     )
+    if n_node_rank:
+        unc = replace(unc, n_rank_deficient=unc.n_rank_deficient + n_node_rank)
     exc = excitation_check(_phi_m(system_used))
     result = _with_extras(result, rsel, jsel, repair)
 
@@ -290,7 +355,10 @@ def analyse(
         input_selection=jsel,
         band_suggestion=suggestion,
         orientation=repair,
+        geometry=geo,
     )
+    v, reasons = verdict(report, data, suggestion if auto else None)
+    report = replace(report, verdict=v, verdict_reasons=reasons)
     if opt.plots_dir is not None:
         from dimacq.plotting import write_report_figures
 
@@ -311,8 +379,6 @@ def _with_extras(
     jsel: JackknifeSelection | None,
     repair: OrientationRepair | None,
 ) -> DimResult:
-    from dataclasses import replace
-
     extras = dict(result.extras)
     extras["selection_applied"] = {
         "responses": rsel is not None,
@@ -320,3 +386,231 @@ def _with_extras(
         "orientation_repair": repair is not None and repair.applied,
     }
     return replace(result, extras=extras)
+
+
+def _geometry(
+    data: FrfData,
+    setup: TestSetup,
+    system: DimSystem,
+    weights: np.ndarray,
+    keep_idx: np.ndarray,
+    known: Mapping[str, float],
+    opt: AnalysisOptions,
+) -> GeometrySpread:
+    """The setup's stated geometry uncertainty through the joint solve of the kept data."""
+    geo = response_geometry(data, setup)
+    ex_key = {(e.node, e.direction): e for e in setup.excitations}
+    in_pos, in_dir = [], []
+    for j in keep_idx:
+        ch = data.inputs[int(j)]
+        ex = ex_key.get((ch.node, ch.direction)) or ex_key.get((ch.node, -ch.direction))
+        assert ex is not None and ex.direction_gcs is not None  # assemble checked it
+        sign = 1.0 if ex.direction == ch.direction else -1.0
+        in_pos.append(ex.position_m)
+        in_dir.append(sign * np.asarray(ex.direction_gcs, float))
+    gu = setup.geometry_uncertainty
+    H_acc = data.H[:, geo.output_index][:, :, keep_idx]
+    return geometry_spread(
+        system,
+        H_acc,
+        geo.positions_m,
+        geo.directions,
+        geo.nodes,
+        np.asarray(weights, float),
+        np.asarray(in_pos, float),
+        np.asarray(in_dir, float),
+        sensor_position_m=gu.sensor_position_m,
+        sensor_orientation_deg=gu.sensor_orientation_deg,
+        input_position_m=gu.input_position_m,
+        line_of_action_deg=gu.line_of_action_deg,
+        registration_rms_m=gu.registration_rms_m,
+        known=known,
+        n_samples=opt.geometry_samples,
+    )
+
+
+def _band_quality(report: AnalysisReport, data: FrfData) -> tuple[float, float]:
+    """Worst rigid-body error and median per-line DIM residual over the band's lines (kept data)."""
+    from dimacq.pipeline.dim import assemble as _assemble
+    from dimacq.pipeline.dim import line_residuals
+    from dimacq.pipeline.rigid_body import response_matrix
+
+    setup = report.setup_used
+    geo = response_geometry(data, setup)
+    kept = {(c["node"], c["direction"]) for c in report.excluded_responses}
+    use = np.array([(c.node, c.direction) not in kept for c in geo.channels])
+    in_keep = [
+        i
+        for i, c in enumerate(data.inputs)
+        if {"node": c.node, "direction": c.direction} not in report.excluded_inputs
+    ]
+    q = data.H[:, geo.output_index][:, use][:, :, in_keep]
+    psi = response_matrix(geo.positions_m[use], geo.directions[use], setup.reference_point)
+    fit = np.einsum("ck,lkj->lcj", psi @ np.linalg.pinv(psi), q)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        e = np.sqrt(np.sum(np.abs(q - fit) ** 2, axis=(1, 2)) / np.sum(np.abs(q) ** 2, axis=(1, 2)))
+    system = _assemble(data, setup, response_weights=use.astype(float)).select_inputs(in_keep)
+    r = line_residuals(system, known=report.result.known)
+    return float(np.nanmax(e)), float(np.nanmedian(r))
+
+
+def verdict(
+    report: AnalysisReport, data: FrfData, suggestion: BandSuggestion | None = None
+) -> tuple[str, list[VerdictReason]]:
+    """One verdict for a solution: ``fail`` if any check fails, else ``warn`` if any warns, else
+    ``ok``; the reasons list every check (failing and warning ones first).
+
+    Checks: ``band`` (an automatic band that qualified, or a given band whose worst rigid-body
+    error and median DIM residual stay below the absolute limits
+    :data:`~dimacq.pipeline.selection.band.MAX_RIGID_BODY_ERROR` and ``MAX_RESIDUAL``),
+    ``residual`` (relative residual of the joint solve: fail above 0.10, warn above 0.05), the
+    plausibility diagnostics of the solver (error severity → fail, warning → warn),
+    ``excitation`` (every rigid-body DOF excited), ``coverage`` (lines in the band, share of the
+    channels and inputs kept, rank-deficient leave-outs), ``registration`` (the setup's
+    registration residual against its limit), ``uncertainty`` (every source included).
+    """
+    res = report.result
+    out: list[VerdictReason] = []
+    add = out.append
+    # band
+    if suggestion is not None:
+        if suggestion.qualified:
+            add(VerdictReason("band", "ok", f"automatic band: {suggestion.reason}"))
+        else:
+            add(VerdictReason("band", "fail", suggestion.reason))
+    else:
+        e_max, r_med = _band_quality(report, data)
+        lo, hi = res.band_hz
+        bad = e_max > MAX_RIGID_BODY_ERROR or r_med > MAX_RESIDUAL
+        add(
+            VerdictReason(
+                "band",
+                "fail" if bad else "ok",
+                f"band {lo:g}–{hi:g} Hz ({report.band_selection.get('reason', '')}): worst "
+                f"rigid-body error {e_max:.3g} (limit {MAX_RIGID_BODY_ERROR:g}), median DIM "
+                f"residual {r_med:.3g} (limit {MAX_RESIDUAL:g})"
+                + (
+                    "; the data in this band are not a rigid body with measured forces"
+                    if bad
+                    else ""
+                ),
+            )
+        )
+    # residual
+    rr = res.residual_rel
+    sev = "fail" if rr > RESIDUAL_FAIL else "warn" if rr > RESIDUAL_WARN else "ok"
+    add(
+        VerdictReason(
+            "residual",
+            sev,
+            f"relative residual of the DIM system {rr:.3g} (warn above {RESIDUAL_WARN:g}, "
+            f"fail above {RESIDUAL_FAIL:g})"
+            + (
+                ""
+                if sev == "ok"
+                else ": the rigid-body equations do not explain the data; "
+                "check the setup against the FRFs (channels, signs, units, geometry)"
+            ),
+        )
+    )
+    # plausibility
+    for d in res.diagnostics:
+        if d.ok:
+            add(VerdictReason(f"plausibility:{d.code}", "ok", d.message))
+        else:
+            add(
+                VerdictReason(
+                    f"plausibility:{d.code}",
+                    "fail"
+                    if d.severity == "error"
+                    else "warn"
+                    if d.severity == "warning"
+                    else "ok",
+                    d.message,
+                )
+            )
+    # excitation and coverage
+    exc = report.excitation
+    exc_j = exc.to_json()
+    rank = int(exc_j.get("rank", 6))
+    add(
+        VerdictReason(
+            "excitation",
+            "ok" if rank >= 6 else "fail",
+            f"the kept inputs excite {rank} of 6 rigid-body DOF"
+            + ("" if rank >= 6 else "; add inputs in the missing directions"),
+        )
+    )
+    n_lines = res.frequencies_hz.size
+    n_ch = len(res.responses)
+    n_ex_r = len(report.excluded_responses)
+    n_in = len(res.inputs) + len(report.excluded_inputs)
+    n_ex_i = len(report.excluded_inputs)
+    warn_cov = n_lines < 5 or n_ex_r > n_ch / 3 or n_ex_i > n_in / 3
+    add(
+        VerdictReason(
+            "coverage",
+            "warn" if warn_cov else "ok",
+            f"{n_lines} lines in the band; {n_ex_r} of {n_ch} response channels and {n_ex_i} of "
+            f"{n_in} inputs excluded"
+            + ("; a large share of the data was set aside, check why" if warn_cov else ""),
+        )
+    )
+    nbad = report.uncertainty.n_rank_deficient
+    if nbad:
+        add(
+            VerdictReason(
+                "coverage:leave_one_out",
+                "warn",
+                f"{nbad} leave-one-out solve(s) rank deficient: some input or sensor node is "
+                "indispensable; the interval cannot show what losing it would do",
+            )
+        )
+    # registration
+    gu = report.setup_used.geometry_uncertainty
+    if gu.registration_rms_m is not None:
+        lim = gu.registration_limit_m
+        if lim is not None and gu.registration_rms_m > lim:
+            add(
+                VerdictReason(
+                    "registration",
+                    "fail",
+                    f"registration RMS residual {gu.registration_rms_m * 1000:.3g} mm exceeds its "
+                    f"limit {lim * 1000:.3g} mm: the digitized geometry is not trustworthy; "
+                    "re-register the array (check the reference nodes)",
+                )
+            )
+        else:
+            add(
+                VerdictReason(
+                    "registration",
+                    "ok",
+                    f"registration RMS residual {gu.registration_rms_m * 1000:.3g} mm"
+                    + (
+                        f" (limit {lim * 1000:.3g} mm)" if lim is not None else " (no limit stated)"
+                    ),
+                )
+            )
+    # uncertainty sources
+    missing = [
+        c
+        for c in ("inputs", "responses", "geometry", "lines")
+        if c not in report.uncertainty.components
+    ]
+    add(
+        VerdictReason(
+            "uncertainty",
+            "warn" if missing else "ok",
+            "95 % intervals include "
+            + ", ".join(report.uncertainty.components)
+            + (f"; they leave out {', '.join(missing)}" if missing else ""),
+        )
+    )
+    order = {"fail": 0, "warn": 1, "ok": 2}
+    out.sort(key=lambda r: order.get(r.severity, 3))
+    v = (
+        "fail"
+        if any(r.severity == "fail" for r in out)
+        else ("warn" if any(r.severity == "warn" for r in out) else "ok")
+    )
+    return v, out

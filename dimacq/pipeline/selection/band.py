@@ -3,24 +3,40 @@
 CMIF: the singular values of the accelerance matrix ``H(ω)`` (outputs × inputs) per line, largest
 first; peaks of the first curve mark modes.
 
-Automatic band (needs no known answer): DIM wants lines above the suspension modes (where
-unmeasured support forces vanish relative to inertia forces) and below the first deformation mode
-(where the body still moves rigidly), where the per-line estimates are flat. Per line we compute
+Automatic band (needs no known answer). DIM wants lines where the measured structure is one rigid
+body whose every external force is measured: above the suspension / support modes (where
+unmeasured support forces are not negligible against inertia forces) and below the first elastic
+mode (above which parts of the structure no longer follow it: the DIM then sees a different, smaller
+body however flat and rigid the data look). Per line we compute
 
-- the rigid-body error ``e(ω) = ‖q − Ψ Ψ⁺ q‖ / ‖q‖`` over channels and inputs (rises near and above
-  deformation modes);
+- the rigid-body error ``e(ω) = ‖q − Ψ Ψ⁺ q‖ / ‖q‖`` over the kept channels and inputs (rises
+  where the measured points do not move rigidly);
+- the DIM residual ``r(ω) = ‖A x(ω) − b‖ / ‖b‖`` of each line solved on its own
+  (:func:`~dimacq.pipeline.dim.line_residuals`): rises where the rigid-body equations with the
+  measured forces do not hold (unmeasured support forces, the unmeasured inertia force of an elastic
+  part near its resonance);
 - the per-line DIM estimates, normalised (mass by its median, CG by the sensor array radius ``L``,
-  inertia by ``m L²``), and their *roughness* ``ρ(ω)``: the largest deviation from a running median
-  over a window of lines (large near suspension and deformation modes, where the estimates swing).
+  inertia by ``m L²``), and their *roughness* ``ρ(ω)``: the largest deviation from a running median.
 
-A line is usable when ``e`` is below ``max(3 e₂₀, e₂₀ + 0.02)`` and ``ρ`` below
-``max(3 ρ₂₀, 0.005)`` (``x₂₀`` the 20th percentile over all lines: the level of the good part of the
-spectrum). The suggestion is the longest run of usable lines (gaps of one line bridged), then trimmed at
-its ends until every line's normalised estimates lie within ``max(4 σ, 0.002)`` of the band median
-(σ the line-to-line noise level from first differences): slow trends from the suspension or an
-approaching mode, which a running median does not see, are cut off. CMIF peaks
-below it with low rigid-body error are reported as suspension (rigid-body) modes, peaks with high
-rigid-body error as deformation modes.
+Thresholds: ``e`` below ``min(max(3 e₁₀, e₁₀ + 0.02), e_max)`` and ``r`` below
+``min(max(3 r₁₀, r₁₀ + 0.02), r_max)`` (``x₁₀`` the 10th percentile over all lines: the noise floor,
+assuming only a tenth of the span is rigid), with ABSOLUTE limits ``e_max`` and ``r_max``
+(default 0.10 each): whatever the spectrum, a line whose measured motion is more than 10 % non-rigid
+or whose rigid-body equations leave more than 10 % unexplained is not usable. ``ρ`` below
+``max(3 ρ₁₀, 0.005)``.
+
+Modes the rigid-body model does not explain: CMIF peaks (first curve) where ``e`` or ``r`` lies
+above its threshold within ±2 lines, and peaks of ``r`` itself. Walking up in frequency, the first
+run of usable lines (gaps of one line bridged) that keeps at least ``min_lines`` lines after
+trimming is the start of the rigid-body band; runs above it join it unless an unexplained peak lies
+between (that peak is an elastic mode: the band never crosses it); the longest of those runs wins.
+Unexplained peaks below the band are reported as suspension (support) modes, the ones above as
+elastic modes. The run is trimmed at its ends until every line's normalised estimates lie within
+``max(4 σ, 0.002)`` of the band median (σ the line-to-line noise level from first differences):
+slow trends from the suspension or an approaching mode are cut off.
+
+If no run qualifies, the suggestion says so (``qualified = False``) and names the best band found
+(the run with the lowest median DIM residual) with its errors; the caller must refuse the answer.
 """
 
 from __future__ import annotations
@@ -39,14 +55,19 @@ from scipy.signal import find_peaks
 from dimacq.errors import DataError, SolverError
 from dimacq.model.frf import FrfData
 from dimacq.model.setup import TestSetup
-from dimacq.pipeline.dim import assemble, solve_system
+from dimacq.pipeline.dim import assemble, line_residuals, solve_system
 from dimacq.pipeline.rigid_body import response_matrix
 from dimacq.pipeline.selection._common import response_geometry
 
-__all__ = ["BandSuggestion", "cmif", "suggest_band"]
+__all__ = ["MAX_RESIDUAL", "MAX_RIGID_BODY_ERROR", "BandSuggestion", "cmif", "suggest_band"]
 
 log = logging.getLogger(__name__)
 FloatArray = NDArray[np.float64]
+
+#: Absolute limit of the rigid-body error of a usable line (and of a band's worst line).
+MAX_RIGID_BODY_ERROR = 0.10
+#: Absolute limit of the per-line DIM residual of a usable line.
+MAX_RESIDUAL = 0.10
 
 
 def cmif(H: NDArray[np.complexfloating]) -> FloatArray:
@@ -78,8 +99,19 @@ class BandSuggestion:
     roughness : ndarray, shape (n_lines,)
     usable : ndarray of bool, shape (n_lines,)
     suspension_peaks_hz, deformation_peaks_hz : tuple of float
+        Peaks the rigid-body model does not explain, below and above the band (the latter are
+        the elastic modes).
     per_line : ndarray, shape (n_lines, 10)
         Per-line DIM estimates over the whole span.
+    residual : ndarray, shape (n_lines,)
+        Per-line DIM residual ``r(ω)``.
+    qualified : bool
+        False when no band meets the limits: ``band_hz`` is then the best band found, not one to
+        solve in, and ``reason`` says why.
+    band_rigid_body_error, band_residual : float
+        Largest ``e`` and median ``r`` over the band's lines.
+    limits : dict
+        The thresholds used (``rigid_body_error``, ``residual``, absolute maxima).
     """
 
     band_hz: tuple[float, float]
@@ -92,33 +124,43 @@ class BandSuggestion:
     suspension_peaks_hz: tuple[float, ...]
     deformation_peaks_hz: tuple[float, ...]
     per_line: FloatArray
+    residual: FloatArray | None = None
+    qualified: bool = True
+    band_rigid_body_error: float = float("nan")
+    band_residual: float = float("nan")
+    limits: dict[str, float] | None = None
 
     def to_json(self) -> dict[str, Any]:
         return {
             "band_hz": list(self.band_hz),
             "reason": self.reason,
             "automatic": True,
+            "qualified": self.qualified,
+            "rigid_body_error": self.band_rigid_body_error,
+            "residual": self.band_residual,
+            "limits": dict(self.limits or {}),
             "suspension_peaks_hz": list(self.suspension_peaks_hz),
             "deformation_peaks_hz": list(self.deformation_peaks_hz),
+            "elastic_modes_hz": list(self.deformation_peaks_hz),
         }
 
 
-def _longest_run(mask: NDArray[np.bool_], bridge: int = 1) -> tuple[int, int]:
+def _runs(mask: NDArray[np.bool_], bridge: int = 1) -> list[tuple[int, int]]:
+    """Runs ``(first, last)`` of True lines, gaps of up to ``bridge`` lines bridged, ascending."""
     m = mask.copy()
-    # bridge gaps of up to `bridge` lines between usable lines
     idx = np.nonzero(m)[0]
     for a, b in itertools.pairwise(idx):
         if 1 < b - a <= bridge + 1:
             m[a:b] = True
-    best, start, best_rng = 0, None, (0, -1)
+    out: list[tuple[int, int]] = []
+    start: int | None = None
     for i, v in enumerate(np.append(m, False)):
         if v and start is None:
             start = i
         elif not v and start is not None:
-            if i - start > best:
-                best, best_rng = i - start, (start, i - 1)
+            out.append((start, i - 1))
             start = None
-    return best_rng
+    return out
 
 
 def suggest_band(
@@ -132,6 +174,8 @@ def suggest_band(
     min_lines: int = 5,
     flat_sigma: float = 4.0,
     flat_floor: float = 2e-3,
+    max_rigid_body_error: float = MAX_RIGID_BODY_ERROR,
+    max_residual: float = MAX_RESIDUAL,
 ) -> BandSuggestion:
     """Suggest an analysis band (module docstring).
 
@@ -152,6 +196,14 @@ def suggest_band(
     flat_sigma, flat_floor : float
         Plateau tolerance per normalised parameter: ``max(flat_sigma · σ, flat_floor)`` with σ the
         line-to-line noise level (robust scale of first differences / √2).
+    max_rigid_body_error, max_residual : float
+        Absolute limits of a usable line's rigid-body error and DIM residual (dimensionless).
+
+    Returns
+    -------
+    BandSuggestion
+        ``qualified = False`` (with the best band found and its errors in ``reason``) when no
+        band meets the limits.
     """
     geo = response_geometry(frf, setup)
     data = frf if input_keep is None else frf.select(inputs=np.nonzero(input_keep)[0])
@@ -159,6 +211,7 @@ def suggest_band(
     w = np.ones(q.shape[1]) if response_weights is None else np.asarray(response_weights, float)
     use = w > 0
     f = data.frequencies_hz
+    n = f.size
     sv = cmif(q[:, use, :])
     psi = response_matrix(geo.positions_m, geo.directions, setup.reference_point)[use]
     qa = q[:, use, :]
@@ -167,12 +220,15 @@ def suggest_band(
         e = np.sqrt(
             np.sum(np.abs(qa - fit) ** 2, axis=(1, 2)) / np.sum(np.abs(qa) ** 2, axis=(1, 2))
         )
+    e = np.where(np.isfinite(e), e, np.inf)
     system = assemble(data, setup, response_weights=w)
     try:
         res = solve_system(system, known=known, check_plausibility=False)
         pl = res.per_line
     except SolverError:
-        pl = np.full((f.size, 10), np.nan)
+        pl = np.full((n, 10), np.nan)
+    r = line_residuals(system, known=known)
+    r = np.where(np.isfinite(r), r, np.inf)
     L = float(
         np.sqrt(np.mean(np.sum((geo.positions_m - geo.positions_m.mean(axis=0)) ** 2, axis=1)))
     )
@@ -180,74 +236,176 @@ def suggest_band(
     m_ref = abs(m_med) if m_med != 0 else 1.0
     norm = np.concatenate([[m_ref], [L] * 3, [m_ref * L**2] * 6])
     pn = pl / norm
-    win = window or max(5, f.size // 15)
+    win = window or max(5, n // 15)
     win += 1 - win % 2
-    rough = np.full(f.size, np.inf)
+    rough = np.full(n, np.inf)
     fin = np.all(np.isfinite(pn), axis=1)
     if fin.sum() >= 3:
         med = median_filter(np.where(fin[:, None], pn, 0.0), size=(win, 1), mode="nearest")
         rough = np.where(fin, np.max(np.abs(pn - med), axis=1), np.inf)
-    e20 = float(np.nanpercentile(e, 20))
-    r20 = (
-        float(np.percentile(rough[np.isfinite(rough)], 20)) if np.isfinite(rough).any() else np.inf
+    e10 = float(np.percentile(e[np.isfinite(e)], 10)) if np.isfinite(e).any() else np.inf
+    r10 = float(np.percentile(r[np.isfinite(r)], 10)) if np.isfinite(r).any() else np.inf
+    rho10 = (
+        float(np.percentile(rough[np.isfinite(rough)], 10)) if np.isfinite(rough).any() else np.inf
     )
-    e_thr = max(3 * e20, e20 + 0.02)
-    r_thr = max(3 * r20, 0.005)
-    usable = (e < e_thr) & (rough < r_thr)
-    i0, i1 = _longest_run(usable)
-    # plateau: trim the ends of the run until every line lies within tol of the band median
-    fin_idx = np.isfinite(pn).all(axis=1)
-    dif = np.diff(pn[fin_idx], axis=0)
+    e_thr = min(max(3 * e10, e10 + 0.02), max_rigid_body_error)
+    r_thr = min(max(3 * r10, r10 + 0.02), max_residual)
+    rho_thr = max(3 * rho10, 0.005)
+    usable = (e < e_thr) & (r < r_thr) & (rough < rho_thr)
+    limits = {
+        "rigid_body_error": e_thr,
+        "residual": r_thr,
+        "max_rigid_body_error": max_rigid_body_error,
+        "max_residual": max_residual,
+    }
+
+    # peaks the rigid-body model does not explain ----------------------------------------------
+    def _near_max(x: FloatArray, i: int) -> float:
+        return float(np.max(x[max(i - 2, 0) : i + 3]))
+
+    cpk, _ = find_peaks(np.log10(sv[:, 0] + 1e-300), prominence=0.3)
+    rlog = np.log10(np.where(np.isfinite(r), r, np.nanmax(r[np.isfinite(r)], initial=1.0)) + 1e-12)
+    rpk, _ = find_peaks(rlog, prominence=np.log10(2.0))
+    unexplained = sorted(
+        {int(p) for p in cpk if _near_max(e, p) >= e_thr or _near_max(r, p) >= r_thr}
+        | {int(p) for p in rpk if r[p] >= r_thr}
+    )
+
+    # plateau noise level ------------------------------------------------------------------------
+    dif = np.diff(pn[fin], axis=0)
     sig = (
         1.4826 * np.median(np.abs(dif - np.median(dif, axis=0)), axis=0) / np.sqrt(2)
         if dif.shape[0] > 2
         else np.zeros(10)
     )
     tol = np.maximum(flat_sigma * sig, flat_floor)
-    while i1 - i0 + 1 > min_lines:
-        d = np.max(np.abs(pn[i0 : i1 + 1] - np.median(pn[i0 : i1 + 1], axis=0)) / tol, axis=1)
-        if d[0] <= 1.0 and d[-1] <= 1.0:
+
+    def _trim(i0: int, i1: int) -> tuple[int, int]:
+        while i1 - i0 + 1 > min_lines:
+            seg = pn[i0 : i1 + 1]
+            if not np.all(np.isfinite(seg)):
+                bad = ~np.all(np.isfinite(seg), axis=1)
+                if bad[0]:
+                    i0 += 1
+                    continue
+                if bad[-1]:
+                    i1 -= 1
+                    continue
+                seg = seg[~bad]
+            d = np.max(np.abs(pn[i0 : i1 + 1] - np.median(seg, axis=0)) / tol, axis=1)
+            d = np.where(np.isfinite(d), d, np.inf)
+            if d[0] <= 1.0 and d[-1] <= 1.0:
+                break
+            if d[0] >= d[-1]:
+                i0 += 1
+            else:
+                i1 -= 1
+        return i0, i1
+
+    runs = _runs(usable)
+    chosen: tuple[int, int] | None = None
+    candidates: list[tuple[int, int]] = []
+    for a, b in runs:
+        if candidates and any(candidates[-1][1] < p < a for p in unexplained):
+            break  # an elastic mode lies between: the band never crosses it
+        # a run that holds an unexplained peak (bridged gap) is cut there
+        inside = [p for p in unexplained if a <= p <= b]
+        pieces = []
+        lo_i = a
+        for p in inside:
+            pieces.append((lo_i, p - 1))
+            lo_i = p + 1
+        pieces.append((lo_i, b))
+        for k, (i0, i1) in enumerate(pieces):
+            if i1 - i0 + 1 < min_lines:
+                if candidates and k < len(pieces) - 1:
+                    break
+                continue
+            t0, t1 = _trim(i0, i1)
+            if t1 - t0 + 1 >= min_lines:
+                candidates.append((t0, t1))
+                if k < len(pieces) - 1:  # an unexplained peak follows inside the run
+                    break
+        if candidates and inside and candidates[-1][1] < inside[-1]:
             break
-        if d[0] >= d[-1]:
-            i0 += 1
-        else:
-            i1 -= 1
-    if i1 - i0 + 1 < min_lines:
-        raise DataError(
-            f"no run of {min_lines} usable lines: the rigid-body error or the per-line estimates "
-            "vary everywhere; check the data or give the band by hand"
-        )
-    peaks, _ = find_peaks(np.log10(sv[:, 0] + 1e-300), prominence=0.3)
-    susp = tuple(float(f[p]) for p in peaks if e[p] < e_thr and f[p] < f[i0])
-    deform = tuple(float(f[p]) for p in peaks if e[p] >= e_thr)
-    lo, hi = float(f[i0]), float(f[i1])
-    in_band = np.arange(i0, i1 + 1)
-    m_var = float(np.nanstd(pl[in_band, 0]) / m_ref * 100)
-    parts = [
-        f"{lo:g}–{hi:g} Hz ({i1 - i0 + 1} lines): the longest run where the rigid-body error "
-        f"is below {e_thr:.3g} and the per-line estimates are flat (within the plateau tolerance); "
-        f"per-line mass varies {m_var:.2g} % there"
-    ]
-    if i0 > 0:
-        below = f"below {lo:g} Hz the per-line estimates drift off the plateau"
-        if susp:
-            below += (
-                f" near the suspension (rigid-body) peaks at {', '.join(f'{x:g}' for x in susp)} Hz"
+    if candidates:
+        chosen = max(candidates, key=lambda ab: ab[1] - ab[0])
+    qualified = chosen is not None
+    if chosen is None:
+        # best band found: the run (usable or not) with the lowest median residual
+        cand = [(a, b) for a, b in _runs(np.isfinite(r) & np.isfinite(e)) if b - a + 1 >= min_lines]
+        if not cand:
+            raise DataError(
+                "no frequency line has a finite rigid-body error and DIM residual; check the data"
             )
-        parts.append(below)
-    if i1 < f.size - 1:
-        k = i1 + 1
-        above = (
-            f"above {hi:g} Hz the rigid-body error rises to {e[k]:.3g}"
-            if e[k] >= e_thr
-            else f"above {hi:g} Hz the per-line estimates drift off the plateau"
+        best, best_score = cand[0], np.inf
+        for a, b in cand:
+            # slide a window of max(min_lines, 5 %) lines: lowest median of max(e/e_max, r/r_max)
+            wl = max(min_lines, n // 20)
+            score = np.maximum(e[a : b + 1] / max_rigid_body_error, r[a : b + 1] / max_residual)
+            if b - a + 1 <= wl:
+                s0, sc = a, float(np.median(score))
+            else:
+                med = median_filter(score, size=wl, mode="nearest")
+                k = int(np.argmin(med[wl // 2 : b - a + 1 - wl // 2])) + wl // 2
+                s0, sc = a + k - wl // 2, float(med[k])
+                b = s0 + wl - 1
+                a = s0
+            if sc < best_score:
+                best, best_score = (a, b), sc
+        chosen = best
+    i0, i1 = chosen
+    lo, hi = float(f[i0]), float(f[i1])
+    band_e = float(np.max(e[i0 : i1 + 1]))
+    band_r = float(np.median(r[i0 : i1 + 1]))
+    susp = tuple(float(f[p]) for p in unexplained if p < i0)
+    susp_cmif = tuple(
+        float(f[p]) for p in cpk if p < i0 and int(p) not in unexplained
+    )  # rigid-body (suspension) peaks the model explains
+    deform = tuple(float(f[p]) for p in unexplained if p > i1)
+    in_band = np.arange(i0, i1 + 1)
+    m_var = (
+        float(np.nanstd(pl[in_band, 0]) / m_ref * 100)
+        if np.isfinite(pl[in_band, 0]).any()
+        else float("nan")
+    )
+    if qualified:
+        parts = [
+            f"{lo:g}–{hi:g} Hz ({i1 - i0 + 1} lines): rigid-body error ≤ {band_e:.3g} "
+            f"(limit {e_thr:.3g}), DIM residual median {band_r:.3g} (limit {r_thr:.3g}), per-line "
+            f"estimates flat (per-line mass varies {m_var:.2g} % there)"
+        ]
+        if i0 > 0:
+            below = f"below {lo:g} Hz the per-line estimates drift off the plateau"
+            peaks = sorted(set(susp) | set(susp_cmif))
+            if peaks:
+                below += f" near the suspension (support) modes at {', '.join(f'{x:g}' for x in peaks)} Hz"
+            parts.append(below)
+        if i1 < n - 1:
+            k = i1 + 1
+            if deform:
+                above = (
+                    f"above {hi:g} Hz the elastic mode at {deform[0]:g} Hz (a resonance the "
+                    "rigid-body model does not explain) ends the rigid-body band"
+                )
+            elif e[k] >= e_thr:
+                above = f"above {hi:g} Hz the rigid-body error rises to {e[k]:.3g}"
+            elif r[k] >= r_thr:
+                above = f"above {hi:g} Hz the DIM residual rises to {r[k]:.3g}"
+            else:
+                above = f"above {hi:g} Hz the per-line estimates drift off the plateau"
+            parts.append(above)
+        reason = "; ".join(parts)
+    else:
+        reason = (
+            f"no band qualifies: no run of {min_lines} lines with rigid-body error below "
+            f"{e_thr:.3g} and DIM residual below {r_thr:.3g} (absolute limits "
+            f"{max_rigid_body_error:g} and {max_residual:g}) and flat per-line estimates lies below "
+            f"the first elastic mode; best band found {lo:g}–{hi:g} Hz with rigid-body error "
+            f"{band_e:.3g} and DIM residual {band_r:.3g}; check the channels, the support and the "
+            "span, or give the band by hand (--band)"
         )
-        up = [x for x in deform if x > hi]
-        if up:
-            above += f" towards the first deformation mode at {up[0]:g} Hz"
-        parts.append(above)
-    reason = "; ".join(parts)
-    log.info("suggested band %s", reason)
+    log.info("band suggestion: %s", reason)
     return BandSuggestion(
         band_hz=(lo, hi),
         reason=reason,
@@ -256,7 +414,12 @@ def suggest_band(
         rigid_body_error=e,
         roughness=rough,
         usable=usable,
-        suspension_peaks_hz=susp,
+        suspension_peaks_hz=tuple(sorted(set(susp) | set(susp_cmif))),
         deformation_peaks_hz=deform,
         per_line=pl,
+        residual=r,
+        qualified=qualified,
+        band_rigid_body_error=band_e,
+        band_residual=band_r,
+        limits=limits,
     )
