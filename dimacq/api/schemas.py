@@ -101,10 +101,18 @@ class SolveRequest(_Body):
     known: dict[Param, float] = Field(default_factory=dict)
     length_unit: Literal["m", "cm", "mm"] | None = None
     method: Literal["joint", "mean"] = "joint"
-    select_responses: bool = False
-    select_inputs: bool = False
+    select_responses: bool = Field(
+        default=True, description="perimeter response selection (default on)"
+    )
+    select_inputs: bool = Field(default=True, description="jackknife input selection (default on)")
     repair_orientation: bool = False
-    auto_band: bool = False
+    auto_band: bool = Field(
+        default=True, description="choose the band automatically (default on; band_hz overrides)"
+    )
+    geometry_uncertainty: bool = Field(
+        default=True,
+        description="include the setup's stated geometry uncertainty in the 95 % intervals",
+    )
 
 
 class AcquisitionRequest(_Body):

@@ -104,6 +104,8 @@ class AnalysisOptions:
         Channels or inputs the user keeps / drops whatever the selection says. A pair applies to
         the response channel and to the input it names (either sign of the direction).
     uncertainty_method : {"jackknife", "bootstrap"}
+    method : {"joint", "mean"}
+        Headline answer of the solve (intervals are those of the joint solve).
     """
 
     select_responses: bool = True
@@ -118,6 +120,7 @@ class AnalysisOptions:
     force_out: Sequence[tuple[int, int]] = ()
     uncertainty_method: str = "jackknife"
     geometry_samples: int = 400
+    method: str = "joint"
 
 
 @dataclass(frozen=True)
@@ -309,7 +312,9 @@ def analyse(
     system_used: DimSystem = system.select_inputs(keep_idx)
 
     # 5. solve + uncertainty ---------------------------------------------------------------
-    result = solve_system(system_used, known=known)
+    result = solve_system(
+        system_used, known=known, method="mean" if opt.method == "mean" else "joint"
+    )
     nodes = geo_all.nodes
     resp_systems: list[DimSystem] = []
     n_node_rank = 0

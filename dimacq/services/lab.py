@@ -942,11 +942,13 @@ class Lab:
     def solve(self, frf_id: int, options: Mapping[str, Any]) -> dict[str, Any] | None:
         """DIM solution of an FRF set; stored and returned with its id.
 
-        ``options``: ``band_hz`` [lo, hi], ``known`` (parameter → value), ``length_unit``,
-        ``method`` (joint/mean), and the selection flags of the analysis service
-        (``select_responses``, ``select_inputs``, ``repair_orientation``, ``auto_band``).
+        ``options``: ``band_hz`` [lo, hi] (overrides the automatic band), ``known`` (parameter →
+        value), ``length_unit``, ``method`` (joint/mean), and the analysis service's switches
+        (``select_responses``, ``select_inputs``, ``auto_band``, ``geometry_uncertainty``: default
+        on; ``repair_orientation``). The result carries ``verdict`` (ok/warn/fail) and
+        ``verdict_reasons``; a ``fail`` is stored and returned like any other (HTTP 201), its
+        reasons say why it must not be used.
         """
-        from dimacq.pipeline import dim
 
         got = self.frf(frf_id)
         if got is None:
@@ -957,36 +959,20 @@ class Lab:
             raise SetupError(f"band_hz {list(band)}: give [low, high] with low < high, in Hz")
         known = setup.known.as_dict()
         known.update({k: float(v) for k, v in (options.get("known") or {}).items()})
-        selection = any(
-            options.get(k)
-            for k in ("select_responses", "select_inputs", "repair_orientation", "auto_band")
+        from dimacq.services.analysis import AnalysisOptions, analyse
+
+        opts = AnalysisOptions(
+            select_responses=bool(options.get("select_responses", True)),
+            select_inputs=bool(options.get("select_inputs", True)),
+            repair_orientation=bool(options.get("repair_orientation")),
+            auto_band=bool(options.get("auto_band", True)),
+            band_hz=band,
+            known=known,
+            length_unit=options.get("length_unit"),
+            method=options.get("method") or "joint",
+            geometry_samples=400 if options.get("geometry_uncertainty", True) else 0,
         )
-        if selection:
-            analysis = _optional_module("dimacq.services.analysis")
-            if analysis is None:
-                raise DeviceStateError(
-                    "data selection (dimacq.services.analysis) is not installed in this build; "
-                    "solve without select_responses/select_inputs/repair_orientation/auto_band"
-                )
-            opts = analysis.AnalysisOptions(
-                select_responses=bool(options.get("select_responses")),
-                select_inputs=bool(options.get("select_inputs")),
-                repair_orientation=bool(options.get("repair_orientation")),
-                auto_band=bool(options.get("auto_band")),
-                band_hz=band,
-                known=known,
-                length_unit=options.get("length_unit"),
-            )
-            result = analysis.analyse(frf, setup, opts).to_json()
-        else:
-            result = dim.solve(
-                frf,
-                setup,
-                band_hz=band,
-                known=known,
-                length_unit=options.get("length_unit"),
-                method=options.get("method") or "joint",
-            ).to_json()
+        result = analyse(frf, setup, opts).to_json()
         result = _json_safe(result)
         with self.db.session() as s:
             row = m.Solution(frf_id=frf_id, options=_json_safe(dict(options)), result=result)

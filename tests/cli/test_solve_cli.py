@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 
 import numpy as np
 import pytest
+from _samples import samples_dir
 
 from dimacq.cli.main import main
 from dimacq.io.setup_file import load_setup
@@ -16,7 +16,7 @@ from dimacq.simulators.lab.forward import six_triax_box
 
 ROOT = Path(__file__).resolve().parents[2]
 EXAMPLES = ROOT / "config" / "examples"
-SAMPLES = Path(os.environ.get("DIMACQ_SAMPLES_DIR", ROOT.parent / "shared" / "samples"))
+SAMPLES = samples_dir()
 
 
 def test_bundled_example_is_the_forward_model_and_solves_to_its_truth(
@@ -132,6 +132,19 @@ def test_scale_to_mass_and_options(tmp_path: Path) -> None:
         data["band_hz"] == [20.0, 80.0] and data["length_unit"] == "mm" and data["method"] == "mean"
     )
     assert data["reference_point_m"] == [0.0, 0.0, 0.1]
+    # the answer, not the echo of the options: the exact example solves to its truth in any unit,
+    # about any point, by either method
+    from dimacq.model.properties import RigidBodyProperties
+
+    truth = RigidBodyProperties.from_json(
+        json.loads((EXAMPLES / "six_triax_truth.json").read_text())
+    )
+    assert data["mass_kg"] == pytest.approx(truth.mass_kg, rel=1e-9)
+    assert np.allclose(data["cg_m"], truth.cg_m, atol=1e-9)
+    assert np.allclose(
+        data["inertia_p_kgm2"], truth.inertia_about(np.array([0.0, 0.0, 0.1])), atol=1e-8
+    )
+    assert data["verdict"] == "ok"
 
 
 def test_selection_flags_add_the_contract_keys_and_figures(tmp_path: Path) -> None:

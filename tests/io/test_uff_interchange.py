@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import json
 import logging
-import os
 from pathlib import Path
 from typing import Any
 
@@ -515,8 +514,9 @@ def test_non_cartesian_and_missing_system_are_refused(tmp_path: Path) -> None:
 # Samples from an independent writer
 # --------------------------------------------------------------------------------------------
 def _samples_dir() -> Path:
-    env = os.environ.get("DIMACQ_SAMPLES_DIR")
-    return Path(env) if env else (Path(__file__).resolve().parents[2] / ".." / "shared" / "samples")
+    from _samples import samples_dir
+
+    return samples_dir()
 
 
 SAMPLES = _samples_dir()

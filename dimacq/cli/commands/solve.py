@@ -6,11 +6,21 @@ Usage::
                  [--known-inertia NAME=VALUE ...] [--reference-point X Y Z]
                  [--length-unit m|cm|mm] [--method joint|mean] [--scale-to-mass KG]
                  [--reference REF.json] [--json OUT]
-                 [--select-responses] [--select-inputs] [--repair-orientation] [--auto-band]
-                 [--plots DIR]
+                 [--no-select] [--no-select-responses] [--no-select-inputs] [--no-auto-band]
+                 [--no-geometry-uncertainty] [--repair-orientation] [--plots DIR]
 
 INPUT is a setup file (``.toml``/``.json``, then FRF.uff holds the FRFs) or one UFF file holding
 the whole test (geometry, coordinate systems and 58 records).
+
+Defaults are the best method: the band is chosen automatically (above the support modes, below
+the first elastic mode), response channels and inputs are selected, and every parameter gets a
+95 % interval (inputs, sensors, lines and the setup's stated geometry uncertainty). ``--band LO HI``
+overrides the band; ``--no-select`` turns both selections off. ``--select-responses``,
+``--select-inputs`` and ``--auto-band`` are still accepted (they are the default).
+
+Every result carries a verdict, ok / warn / fail, with its reasons. Exit status: 0 for ok or warn,
+3 for fail (the reasons go to stderr; ``--json`` is still written, with the verdict), 2 for bad
+input.
 """
 
 from __future__ import annotations
@@ -32,7 +42,8 @@ from dimacq.pipeline import dim
 
 _UFF_SUFFIXES = {".uff", ".unv"}
 _SETUP_SUFFIXES = {".toml", ".json"}
-_SELECTION_FLAGS = ("select_responses", "select_inputs", "repair_orientation", "auto_band", "plots")
+#: Exit status of a solve whose verdict is ``fail``.
+EXIT_FAIL = 3
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -83,13 +94,38 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     )
     p.add_argument("--reference", type=Path, metavar="REF.json", help="true values: print %% error")
     p.add_argument("--json", type=Path, metavar="OUT", help="write the solution as JSON")
-    g = p.add_argument_group("data selection and diagnostics")
-    g.add_argument("--select-responses", action="store_true", help="perimeter response selection")
-    g.add_argument("--select-inputs", action="store_true", help="jackknife excitation selection")
+    g = p.add_argument_group(
+        "data selection and diagnostics (selection and automatic band are on by default)"
+    )
+    g.add_argument("--no-select", action="store_true", help="turn off response and input selection")
+    g.add_argument(
+        "--no-select-responses", action="store_true", help="turn off perimeter response selection"
+    )
+    g.add_argument(
+        "--no-select-inputs", action="store_true", help="turn off jackknife input selection"
+    )
+    g.add_argument(
+        "--no-auto-band",
+        action="store_true",
+        help="no automatic band: solve over the whole span unless --band is given",
+    )
+    g.add_argument(
+        "--no-geometry-uncertainty",
+        action="store_true",
+        help="leave the stated geometry uncertainty out of the intervals (the verdict warns)",
+    )
+    g.add_argument(
+        "--select-responses", action="store_true", help="(default) perimeter response selection"
+    )
+    g.add_argument(
+        "--select-inputs", action="store_true", help="(default) jackknife input selection"
+    )
+    g.add_argument(
+        "--auto-band", action="store_true", help="(default) choose the band automatically"
+    )
     g.add_argument(
         "--repair-orientation", action="store_true", help="apply sensor orientation repair"
     )
-    g.add_argument("--auto-band", action="store_true", help="choose the band automatically")
     g.add_argument("--plots", type=Path, metavar="DIR", help="write figures (PNG and SVG) to DIR")
     p.set_defaults(func=run)
 
@@ -168,27 +204,23 @@ def run(args: argparse.Namespace) -> int:
         )
         frf = frf.scaled(gamma)
     payload: dict[str, Any]
-    if any(getattr(args, f) for f in _SELECTION_FLAGS):
-        from dimacq.services.analysis import AnalysisOptions, analyse
+    from dimacq.services.analysis import AnalysisOptions, analyse
 
-        options = AnalysisOptions(
-            select_responses=args.select_responses,
-            select_inputs=args.select_inputs,
-            repair_orientation=args.repair_orientation,
-            auto_band=args.auto_band,
-            plots_dir=args.plots,
-            band_hz=band,
-            known=known,
-            length_unit=args.length_unit,
-        )
-        report = analyse(frf, setup, options)
-        result = report.result
-        payload = report.to_json()
-    else:
-        result = dim.solve(
-            frf, setup, band_hz=band, known=known, length_unit=args.length_unit, method=args.method
-        )
-        payload = result.to_json()
+    options = AnalysisOptions(
+        select_responses=not (args.no_select or args.no_select_responses),
+        select_inputs=not (args.no_select or args.no_select_inputs),
+        repair_orientation=args.repair_orientation,
+        auto_band=not args.no_auto_band,
+        plots_dir=args.plots,
+        band_hz=band,
+        known=known,
+        length_unit=args.length_unit,
+        geometry_samples=0 if args.no_geometry_uncertainty else 400,
+        method=args.method,
+    )
+    report = analyse(frf, setup, options)
+    result = report.result
+    payload = report.to_json()
     if gamma is not None:
         payload["frf_scale_factor"] = gamma
     reference = _load_reference(args.reference) if args.reference else None
@@ -199,6 +231,16 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(payload, indent=2, allow_nan=True) + "\n", encoding="utf-8")
+    if report.verdict == "fail":
+        sys.stderr.write("dimacq solve: verdict FAIL — the result is refused:\n")
+        for r in report.verdict_reasons:
+            if r.severity == "fail":
+                sys.stderr.write(f"  {r.check}: {r.message}\n")
+        return EXIT_FAIL
+    if report.verdict == "warn":
+        for r in report.verdict_reasons:
+            if r.severity == "warn":
+                sys.stderr.write(f"dimacq solve: warning: {r.check}: {r.message}\n")
     return 0
 
 
@@ -312,3 +354,9 @@ def print_report(
     for d in result.diagnostics:
         mark = "ok  " if d.ok else ("FAIL" if d.severity == "error" else "warn")
         w(f"[{mark}] {d.code}: {d.message}\n")
+    v = payload.get("verdict")
+    if v:
+        w(f"verdict: {str(v).upper()}" + (" (result refused)" if v == "fail" else "") + "\n")
+        for r in payload.get("verdict_reasons") or []:
+            if r.get("severity") != "ok":
+                w(f"  [{r['severity']}] {r['check']}: {r['message']}\n")

@@ -376,7 +376,10 @@ def suggest_band(
             f"estimates flat (per-line mass varies {m_var:.2g} % there)"
         ]
         if i0 > 0:
-            below = f"below {lo:g} Hz the per-line estimates drift off the plateau"
+            below = (
+                f"below {lo:g} Hz the per-line estimates drift off the plateau (suspension / "
+                "support effects)"
+            )
             peaks = sorted(set(susp) | set(susp_cmif))
             if peaks:
                 below += f" near the suspension (support) modes at {', '.join(f'{x:g}' for x in peaks)} Hz"
@@ -385,8 +388,8 @@ def suggest_band(
             k = i1 + 1
             if deform:
                 above = (
-                    f"above {hi:g} Hz the elastic mode at {deform[0]:g} Hz (a resonance the "
-                    "rigid-body model does not explain) ends the rigid-body band"
+                    f"above {hi:g} Hz the first deformation mode at {deform[0]:g} Hz (an elastic "
+                    "mode: a resonance the rigid-body model does not explain) ends the rigid-body band"
                 )
             elif e[k] >= e_thr:
                 above = f"above {hi:g} Hz the rigid-body error rises to {e[k]:.3g}"
