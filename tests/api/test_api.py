@@ -134,17 +134,31 @@ def test_setup_frf_solution_round_trip(api: Api) -> None:
     assert set(direct) <= set(sol["result"])
     got = api.client.get(f"/api/solutions/{sol['id']}").json()
     assert got["result"]["cg_m"] == sol["result"]["cg_m"]
-    assert isinstance(api.client.get(f"/api/solutions/{sol['id']}/diagnostics").json(), list)
-    # data selection and diagnostics through the analysis service
-    r = api.client.post(
-        "/api/solutions",
-        json={"frf_id": fid, "select_responses": True, "select_inputs": True, "auto_band": True},
-    )
+    diags = api.client.get(f"/api/solutions/{sol['id']}/diagnostics").json()
+    assert diags == direct["diagnostics"] and {d["code"] for d in diags} >= {
+        "mass_positive",
+        "inertia_cg_positive_definite",
+        "triangle_inequality",
+        "cg_inside_hull",
+    }
+    assert all(d["ok"] for d in diags)
+    assert sol["result"]["verdict"] == "ok" and sol["result"]["verdict_reasons"]
+    # no band, no flags: the defaults (automatic band, selections, intervals, verdict)
+    r = api.client.post("/api/solutions", json={"frf_id": fid})
     assert r.status_code == 201, r.text
     sel = r.json()["result"]
-    for key in ("excluded_responses", "excluded_inputs", "uncertainty"):
+    for key in (
+        "excluded_responses",
+        "excluded_inputs",
+        "uncertainty",
+        "verdict",
+        "verdict_reasons",
+    ):
         assert key in sel
+    assert sel["band_selection"]["automatic"] and sel["verdict"] in ("ok", "warn")
     assert sel["mass_kg"] == pytest.approx(model.properties.mass_kg, rel=1e-3)
+    lo, hi = sel["uncertainty"]["m"]["ci95"]
+    assert lo <= model.properties.mass_kg <= hi
     png = api.client.get(f"/api/solutions/{sol['id']}/figure")
     assert png.status_code == 200 and png.content[:4] == b"\x89PNG"
 
