@@ -256,7 +256,7 @@ def estimate_uncertainty(
         )
         for i, name in enumerate(PARAMETERS)
     }
-    comps = ("inputs", "lines")
+    comps: tuple[str, ...] = ("inputs", "lines")
     if response_systems:
         comps += ("responses",)
     if geometry is not None:
