@@ -81,7 +81,7 @@ class TokenMiddleware:
         if scope["type"] == "http" and scope["path"] == "/api/status" and scope["method"] == "GET":
             # the poll of every client during acquisitions: answered here, from memory, without
             # routing or dependency resolution (same body as the documented route)
-            body = json.dumps(scope["app"].state.lab.status()).encode()
+            body = json.dumps(scope["app"].state.lab.status().to_json()).encode()
             await send(
                 {
                     "type": "http.response.start",

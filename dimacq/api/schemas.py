@@ -4,9 +4,11 @@ from __future__ import annotations
 
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, FiniteFloat, field_validator
 
 from dimacq.model.setup import KnownProperties, LoadCell
+from dimacq.services.lab.solving import SolveOptions
+from dimacq.services.lab.studies import CubeStudyParams
 
 __all__ = [
     "AcquisitionRequest",
@@ -21,7 +23,7 @@ __all__ = [
 ]
 
 Vec3 = tuple[float, float, float]
-Param = Literal["m", "cx", "cy", "cz", "Ixx", "Ixy", "Ixz", "Iyy", "Iyz", "Izz"]
+FiniteVec3 = tuple[FiniteFloat, FiniteFloat, FiniteFloat]
 
 
 class _Body(BaseModel):
@@ -46,6 +48,13 @@ class SimProbe(_Body):
     tip_m: tuple[Coord, Coord, Coord]
     axis: tuple[Coord, Coord, Coord] = (0.0, 0.0, 1.0)
 
+    @field_validator("axis")
+    @classmethod
+    def _axis_non_zero(cls, v: tuple[float, float, float]) -> tuple[float, float, float]:
+        if not any(v):
+            raise ValueError("give a non-zero direction of the probe")
+        return v
+
 
 class PointRequest(_Body):
     label: str = Field(min_length=1, max_length=200)
@@ -63,7 +72,7 @@ class PatchRequest(_Body):
 
 
 class ReferenceNodesRequest(_Body):
-    nodes: dict[str, Vec3] = Field(description="label → known GCS position, metres")
+    nodes: dict[str, FiniteVec3] = Field(description="label → known GCS position, metres")
 
 
 class RegistrationRequest(_Body):
@@ -95,24 +104,10 @@ class FromGeometryRequest(_Body):
     known: KnownProperties = KnownProperties()
 
 
-class SolveRequest(_Body):
+class SolveRequest(SolveOptions):
+    """Solve the FRF set ``frf_id`` with the options (:class:`SolveOptions`)."""
+
     frf_id: int = Field(ge=1)
-    band_hz: tuple[float, float] | None = None
-    known: dict[Param, float] = Field(default_factory=dict)
-    length_unit: Literal["m", "cm", "mm"] | None = None
-    method: Literal["joint", "mean"] = "joint"
-    select_responses: bool = Field(
-        default=True, description="perimeter response selection (default on)"
-    )
-    select_inputs: bool = Field(default=True, description="jackknife input selection (default on)")
-    repair_orientation: bool = False
-    auto_band: bool = Field(
-        default=True, description="choose the band automatically (default on; band_hz overrides)"
-    )
-    geometry_uncertainty: bool = Field(
-        default=True,
-        description="include the setup's stated geometry uncertainty in the 95 % intervals",
-    )
 
 
 class AcquisitionRequest(_Body):
@@ -130,12 +125,8 @@ class AcquisitionRequest(_Body):
     seed: int | None = Field(default=None, ge=0, le=2**31 - 1)
 
 
-class SensitivityRequest(_Body):
-    half_size_m: float = Field(gt=0, le=1000)
-    sensors: int = Field(default=1, ge=1, le=8)
-    max_angle_deg: float = Field(gt=0, le=90)
-    trials: int = Field(default=500, ge=1, le=10_000)
-    seed: int = Field(default=0, ge=0)
+class SensitivityRequest(CubeStudyParams):
+    """A sensitivity study on the thesis's cube model (:class:`CubeStudyParams`)."""
 
 
 class JobInfo(BaseModel):

@@ -39,6 +39,7 @@ from dimacq.errors import DataError
 
 __all__ = [
     "LoadCellCalibration",
+    "parse_calibration_json",
     "read_calibration",
     "read_calibration_json",
     "read_calibration_xml",
@@ -107,22 +108,27 @@ def read_calibration_json(path: str | Path) -> LoadCellCalibration:
         data = json.loads(p.read_text(encoding="utf-8"))
     except (OSError, json.JSONDecodeError) as err:
         raise DataError(f"{p}: cannot read calibration JSON ({err})") from err
+    return parse_calibration_json(data, str(p))
+
+
+def parse_calibration_json(data: Any, source: str = "calibration") -> LoadCellCalibration:
+    """A calibration from its JSON document (already parsed); errors name ``source``."""
     if not isinstance(data, dict) or data.get("kind") != "dimacq.loadcell_calibration":
-        raise DataError(f"{p}: not a dimacq load cell calibration (key 'kind' missing/wrong)")
+        raise DataError(f"{source}: not a dimacq load cell calibration (key 'kind' missing/wrong)")
     if data.get("schema_version") != SCHEMA_VERSION:
         raise DataError(
-            f"{p}: schema_version {data.get('schema_version')!r}; this dimacq reads version "
+            f"{source}: schema_version {data.get('schema_version')!r}; this dimacq reads version "
             f"{SCHEMA_VERSION}"
         )
     for key in ("serial_number", "date", "matrix"):
         if key not in data:
-            raise DataError(f"{p}: key {key!r} missing")
+            raise DataError(f"{source}: key {key!r} missing")
     fu = _FORCE_UNITS.get(data.get("force_unit", "N"))
     mu = _MOMENT_UNITS.get(data.get("moment_unit", "N*m"))
     if fu is None or mu is None:
         raise DataError(
-            f"{p}: units {data.get('force_unit')!r}/{data.get('moment_unit')!r} unknown; use "
-            "N and N*m"
+            f"{source}: units {data.get('force_unit')!r}/{data.get('moment_unit')!r} unknown; "
+            "use N and N*m"
         )
     m = np.asarray(data["matrix"], dtype=float)
     if m.shape == (6, 12):

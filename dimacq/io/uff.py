@@ -54,18 +54,21 @@ name. Load cells with ``sign="on_support"`` are written negated as ``"on_structu
 from __future__ import annotations
 
 import logging
+import os
 import re
-from collections.abc import Iterable, Sequence
+import tempfile
+from collections.abc import Iterable, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 import numpy as np
 import pyuff
 from numpy.typing import NDArray
 from pydantic import ValidationError
 
-from dimacq.errors import DataError, SetupError
+from dimacq.errors import DataError, DimacqError, SetupError
 from dimacq.model.frf import STANDARD_GRAVITY, Channel, FrfData, to_accelerance
 from dimacq.model.setup import (
     Excitation,
@@ -79,6 +82,8 @@ from dimacq.model.setup import (
 
 __all__ = [
     "ORDINATE_TYPES",
+    "UffSource",
+    "dump_uff",
     "read_frf_uff",
     "read_uff_test",
     "write_frf_uff",
@@ -498,8 +503,32 @@ def _vec(v: NDArray[np.float64]) -> Vec3:
     return (float(v[0]), float(v[1]), float(v[2]))
 
 
+#: A UFF file to read: its path, its content, or a binary stream (an upload).
+UffSource = str | os.PathLike[str] | bytes | bytearray | BinaryIO
+
+
+@contextmanager
+def _named_file(source: UffSource) -> Iterator[Path]:
+    """The path of ``source``. pyuff reads only named files, so content and streams are spooled
+    to a private temporary file here (the one place that knows it), and anything pyuff raises
+    on malformed content becomes a DataError."""
+    if isinstance(source, str | os.PathLike):
+        yield Path(source)
+        return
+    data = bytes(source) if isinstance(source, bytes | bytearray) else source.read()
+    with tempfile.TemporaryDirectory(prefix="dimacq-uff-") as tmp:
+        path = Path(tmp) / "upload.uff"
+        path.write_bytes(data)
+        try:
+            yield path
+        except DimacqError:
+            raise
+        except Exception as err:  # pyuff raises bare exceptions on malformed files
+            raise DataError(f"UFF upload could not be read ({type(err).__name__}: {err})") from err
+
+
 def read_uff_test(
-    path: str | Path,
+    path: UffSource,
     *,
     reference_point_m: Vec3 = (0.0, 0.0, 0.0),
     length_unit: str = "m",
@@ -509,7 +538,8 @@ def read_uff_test(
 
     Parameters
     ----------
-    path : path of the ``.uff``/``.unv`` file (layout in the module docstring).
+    path : the ``.uff``/``.unv`` file (layout in the module docstring): a path, its content
+        (bytes) or a binary stream.
     reference_point_m : the reference point P (not stored in UFF), GCS metres.
     length_unit : solver length unit for the setup (``"m"``, ``"cm"``, ``"mm"``).
     name : setup name; default the 2420 part name.
@@ -529,7 +559,13 @@ def read_uff_test(
         A record's node has no coordinates, frequency axes differ, NaNs, an unknown ordinate type,
         a missing response/reference pair, a non-orthonormal or non-Cartesian system, ...
     """
-    p = Path(path)
+    with _named_file(path) as p:
+        return _read_uff_test(p, reference_point_m, length_unit, name)
+
+
+def _read_uff_test(
+    p: Path, reference_point_m: Vec3, length_unit: str, name: str | None
+) -> tuple[TestSetup, FrfData]:
     content = _parse(p)
     outputs, inputs = _ordered_channels(content.records, p)
     frf = _assemble(content.records, outputs, inputs, p)
@@ -593,7 +629,7 @@ def read_uff_test(
     return setup, frf
 
 
-def read_frf_uff(path: str | Path, setup: TestSetup) -> FrfData:
+def read_frf_uff(path: UffSource, setup: TestSetup) -> FrfData:
     """Read the 58 FRF records of a UFF file and match them to a setup (from a setup file).
 
     Geometry datasets in the file are ignored (the setup is the geometry); 164 units apply.
@@ -609,7 +645,11 @@ def read_frf_uff(path: str | Path, setup: TestSetup) -> FrfData:
         A setup channel has no FRF, a record's type contradicts the setup (accelerometer vs load
         cell), mismatched frequency axes, NaNs, unknown ordinate types.
     """
-    p = Path(path)
+    with _named_file(path) as p:
+        return _read_frf_uff(p, setup)
+
+
+def _read_frf_uff(p: Path, setup: TestSetup) -> FrfData:
     content = _parse(p)
     recs = content.records
     by_node_kind: dict[int, str] = {}
@@ -987,3 +1027,15 @@ def write_uff_test(
     _write_header_sets(p, setup, frames)
     with p.open("ab") as fh:
         _append58(fh, frf, sign, binary)
+
+
+def dump_uff(frf: FrfData, setup: TestSetup | None = None, *, binary: bool = True) -> bytes:
+    """The content of a UFF file: the whole test (:func:`write_uff_test`) when ``setup`` is
+    given, else only the FRFs (:func:`write_frf_uff`)."""
+    with tempfile.TemporaryDirectory(prefix="dimacq-uff-") as tmp:
+        path = Path(tmp) / "out.uff"
+        if setup is not None:
+            write_uff_test(path, setup, frf, binary=binary)
+        else:
+            write_frf_uff(path, frf, binary=binary)
+        return path.read_bytes()

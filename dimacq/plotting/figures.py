@@ -26,6 +26,7 @@ if TYPE_CHECKING:
     from dimacq.services.analysis import AnalysisReport
 
 __all__ = [
+    "parameters_vs_frequency_figure",
     "plot_cmif",
     "plot_jackknife",
     "plot_parameters_vs_frequency",
@@ -61,15 +62,13 @@ def save_figure(fig: Figure, directory: Path, stem: str) -> list[Path]:
     return out
 
 
-def plot_parameters_vs_frequency(
+def parameters_vs_frequency_figure(
     frequencies_hz: NDArray[np.floating],
     per_line: NDArray[np.floating],
     band_hz: tuple[float, float] | None,
-    directory: Path,
     *,
     headline: NDArray[np.floating] | None = None,
-    stem: str = "parameters_vs_frequency",
-) -> list[Path]:
+) -> Figure:
     """Ten panels: per-line estimates against frequency, the band shaded, the headline dashed.
 
     Parameters
@@ -77,6 +76,8 @@ def plot_parameters_vs_frequency(
     frequencies_hz : (n_lines,)
     per_line : (n_lines, 10)
         ``[m, cx, cy, cz, Ixx..Izz]``.
+    band_hz : (lo, hi), optional
+    headline : (10,), optional
     """
     f = np.asarray(frequencies_hz, float)
     pl = np.asarray(per_line, float)
@@ -97,6 +98,20 @@ def plot_parameters_vs_frequency(
     for ax in axes[-1]:
         ax.set_xlabel("frequency [Hz]")
     fig.suptitle("DIM estimates per line (band shaded)")
+    return fig
+
+
+def plot_parameters_vs_frequency(
+    frequencies_hz: NDArray[np.floating],
+    per_line: NDArray[np.floating],
+    band_hz: tuple[float, float] | None,
+    directory: Path,
+    *,
+    headline: NDArray[np.floating] | None = None,
+    stem: str = "parameters_vs_frequency",
+) -> list[Path]:
+    """:func:`parameters_vs_frequency_figure` written as ``directory/stem.png`` and ``.svg``."""
+    fig = parameters_vs_frequency_figure(frequencies_hz, per_line, band_hz, headline=headline)
     return save_figure(fig, directory, stem)
 
 

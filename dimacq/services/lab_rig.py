@@ -13,12 +13,9 @@ from __future__ import annotations
 
 import importlib
 import logging
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
-
-import numpy as np
-from numpy.typing import NDArray
 
 from dimacq.config import Settings
 from dimacq.errors import DeviceNotFoundError, SetupError
@@ -29,6 +26,7 @@ if TYPE_CHECKING:
     from dimacq.drivers.daq.driver import DaqDevice
     from dimacq.drivers.loadcell.driver import LoadCellAmplifier
     from dimacq.io.rig_file import LoadCellEntry, RigFile
+    from dimacq.services.acquisition import AverageCallback
 
 __all__ = [
     "Rig",
@@ -43,7 +41,6 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-AverageCallback = Callable[[int, bool, Sequence[str], Mapping[str, NDArray[Any]]], None]
 ProgressCallback = Callable[[float, str], None]
 
 
@@ -478,17 +475,6 @@ def run_impact_test(
     n_in = len(setup.excitations)
     wanted = settings.averages_per_input
 
-    def decided(
-        input_index: int,
-        _average_index: int,
-        accepted: bool,
-        reasons: Sequence[str],
-        blocks: Mapping[str, NDArray[np.float64]],
-    ) -> None:
-        on_average(
-            input_index, accepted, list(reasons), {k: np.asarray(v) for k, v in blocks.items()}
-        )
-
     fraction = [0.0]
     accepted = [0] * n_in
 
@@ -522,7 +508,7 @@ def run_impact_test(
         settings=settings,
         operator=operator,
         progress=progress,
-        on_average=decided,
+        on_average=on_average,
     )
     res = session.run()
     outputs = [Channel(c.node, c.direction) for c in setup.responses]

@@ -90,7 +90,7 @@ def test_bad_requests_get_4xx_naming_the_field(api: Api) -> None:
     r = api.client.post("/api/frfs/import?setup_id=999999", content=b"x")
     assert r.status_code == 422 and "setup_id" in r.json()["detail"]
     # device state: identify a device that is not connected → 409 naming it
-    api.lab.devices["daq"].connected = False
+    api.lab.devices.require("daq").connected = False
     r = api.client.post("/api/devices/daq/identify")
     assert r.status_code == 409 and "daq" in r.json()["detail"]
     assert api.client.post("/api/devices/nope/connect").status_code == 404

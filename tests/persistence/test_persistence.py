@@ -83,8 +83,8 @@ def test_restart_recovers_interrupted_jobs_and_orphan_averages(tmp_path: Path) -
     lab2 = Lab(settings, open_devices=False)
     try:
         assert lab2.jobs.snapshot("j1")["state"] == "interrupted"
-        a = lab2.acquisition(acq_id)
-        assert a is not None and a["state"] == "interrupted"
-        assert a["averages_accepted"] == 1
+        a = lab2.acquisitions.get(acq_id)
+        assert a is not None and a.state == "interrupted"
+        assert a.averages_accepted == 1
     finally:
         lab2.close()

@@ -74,7 +74,7 @@ def test_real_branch_on_simulators_at_the_wire(tmp_path: Path) -> None:
                 events.append(("ask", int(m.group(1)) - 1))
                 world.strike(int(m.group(1)) - 1)  # the test operator, when asked
 
-        def on_average(j: int, ok: bool, reasons: Any, rec: Any) -> None:
+        def on_average(j: int, _number: int, ok: bool, reasons: Any, rec: Any) -> None:
             events.append(("average", (j, ok)))
             assert rec["outputs"].shape == (24 + 6, 2048)
 
@@ -105,17 +105,20 @@ def test_service_acquisition_on_the_real_branch(tmp_path: Path) -> None:
     with installed(world):
         lab = Lab(_settings(tmp_path, world))
         try:
-            assert lab.devices["daq"].connected, lab.devices["daq"].error
-            assert lab.devices["loadcell"].connected, lab.devices["loadcell"].error
-            assert lab.devices["loadcell"].identity["load_cells"]["501"]["serial_number"] == 501
-            sid = lab.save_setup(world.setup)
-            acq = lab.start_acquisition(
+            assert lab.devices.require("daq").connected, lab.devices.require("daq").error
+            assert lab.devices.require("loadcell").connected, lab.devices.require("loadcell").error
+            assert (
+                lab.devices.require("loadcell").identity["load_cells"]["501"]["serial_number"]
+                == 501
+            )
+            sid = lab.store.save_setup(world.setup)
+            acq = lab.acquisitions.start(
                 {"setup_id": sid, "averages_per_input": 2, "record_samples": 2048}
             )
             seen: set[str] = set()
             deadline = time.monotonic() + 25
             while time.monotonic() < deadline:
-                snap = lab.jobs.snapshot(acq["job_id"])
+                snap = lab.jobs.snapshot(acq.job_id)
                 assert snap is not None
                 msg = snap["message"]
                 m = PROMPT.match(msg)
@@ -125,11 +128,12 @@ def test_service_acquisition_on_the_real_branch(tmp_path: Path) -> None:
                 if snap["state"] not in ("queued", "running"):
                     break
                 time.sleep(0.005)
-            a = lab.acquisition(acq["id"])
-            assert a is not None and a["state"] == "finished", (a, snap)
-            assert a["averages_accepted"] == 4
-            assert len(a["averages"]) == len(world.strikes)
-            stored = lab.frf(a["frf_id"])
+            a = lab.acquisitions.get(acq.id)
+            assert a is not None and a.state == "finished", (a, snap)
+            assert a.averages_accepted == 4
+            assert len(a.averages) == len(world.strikes)
+            assert a.frf_id is not None
+            stored = lab.store.frf(a.frf_id)
             assert stored is not None
             frf = stored[0]
         finally:
@@ -160,12 +164,12 @@ def test_service_refuses_naming_the_setting(tmp_path: Path) -> None:
     with installed(world):
         lab = Lab(_settings(tmp_path, world, daq_backend="libusb"))
         try:
-            assert not lab.devices["daq"].connected
-            assert "daq_backend" in lab.devices["daq"].error
-            assert lab.devices["loadcell"].connected  # the amplifier is there
-            sid = lab.save_setup(world.setup)
+            assert not lab.devices.require("daq").connected
+            assert "daq_backend" in lab.devices.require("daq").error
+            assert lab.devices.require("loadcell").connected  # the amplifier is there
+            sid = lab.store.save_setup(world.setup)
             with pytest.raises(DeviceNotFoundError, match="daq_backend"):
-                lab.start_acquisition({"setup_id": sid})
+                lab.acquisitions.start({"setup_id": sid})
         finally:
             lab.close()
 

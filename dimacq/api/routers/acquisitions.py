@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import asdict
 from typing import Annotated, Any
 
 from fastapi import APIRouter, status
@@ -23,20 +24,20 @@ def start_acquisition(
     lab: LabDep, body: Annotated[AcquisitionRequest, strict_body(AcquisitionRequest)]
 ) -> dict[str, Any]:
     """Configure and start an impact acquisition (a job); FRFs are stored when it finishes."""
-    return lab.start_acquisition(body.model_dump())
+    return asdict(lab.acquisitions.start(body.model_dump()))
 
 
 @router.get("", response_model=list[dict[str, Any]])
 def list_acquisitions(lab: LabDep) -> list[dict[str, Any]]:
-    return lab.acquisitions()
+    return [asdict(a) for a in lab.acquisitions.all()]
 
 
 @router.get("/{acq_id:int}", response_model=dict[str, Any])
 def get_acquisition(acq_id: int, lab: LabDep) -> dict[str, Any]:
     """State, progress and the averages accepted and rejected so far."""
-    return found(lab.acquisition(acq_id), f"acquisition {acq_id}")
+    return asdict(found(lab.acquisitions.get(acq_id), f"acquisition {acq_id}"))
 
 
 @router.post("/{acq_id:int}/stop", response_model=dict[str, Any])
 def stop_acquisition(acq_id: int, lab: LabDep) -> dict[str, Any]:
-    return found(lab.stop_acquisition(acq_id), f"acquisition {acq_id}")
+    return asdict(found(lab.acquisitions.stop(acq_id), f"acquisition {acq_id}"))

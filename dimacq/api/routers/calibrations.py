@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import asdict
 from typing import Any
 
 from fastapi import APIRouter, Request, status
@@ -36,14 +37,14 @@ async def add_calibration(request: Request, lab: LabDep) -> dict[str, Any]:
         ) from err
     if not isinstance(body, dict):
         raise DataError("body: send a JSON object (the calibration document)")
-    return await run_in_threadpool(lab.save_calibration, body)
+    return asdict(await run_in_threadpool(lab.calibrations.save, body))
 
 
 @router.get("", response_model=list[dict[str, Any]])
 def list_calibrations(lab: LabDep) -> list[dict[str, Any]]:
-    return lab.calibrations()
+    return [asdict(c) for c in lab.calibrations.all()]
 
 
 @router.get("/{cal_id:int}", response_model=dict[str, Any])
 def get_calibration(cal_id: int, lab: LabDep) -> dict[str, Any]:
-    return found(lab.calibration(cal_id), f"calibration {cal_id}")
+    return asdict(found(lab.calibrations.get(cal_id), f"calibration {cal_id}"))

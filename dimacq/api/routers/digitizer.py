@@ -3,6 +3,7 @@ orientation, lines of action."""
 
 from __future__ import annotations
 
+from dataclasses import asdict
 from typing import Annotated, Any
 
 from fastapi import APIRouter, status
@@ -19,6 +20,7 @@ from dimacq.api.schemas import (
     RegistrationRequest,
     ShotsRequest,
 )
+from dimacq.services.lab.geometry import StoredPoint
 
 router = APIRouter(prefix="/api/digitizer", tags=["digitizer"])
 
@@ -29,14 +31,14 @@ def fire_shots(
 ) -> dict[str, Any]:
     """Fire raw shots; each with its triangulated tip, speed of sound and verdict."""
     if body.sim_probe is not None:
-        lab.place_simulated_probe(body.sim_probe.tip_m, body.sim_probe.axis)
-    return lab.fire_shots(body.n)
+        lab.geometry.place_simulated_probe(body.sim_probe.tip_m, body.sim_probe.axis)
+    return lab.geometry.fire_shots(body.n).to_json()
 
 
 @router.get("/speed-of-sound", response_model=dict[str, float])
 def speed_of_sound(lab: LabDep) -> dict[str, float]:
     """Fire three shots and report the speed of sound measured on the calibration bar."""
-    return {"speed_of_sound_m_s": lab.fire_shots(3)["speed_of_sound_m_s"]}
+    return {"speed_of_sound_m_s": lab.geometry.fire_shots(3).speed_of_sound_m_s}
 
 
 @router.post(
@@ -50,18 +52,18 @@ def digitize_point(
 ) -> dict[str, Any]:
     """Digitize one labelled point (committed to the database before the reply)."""
     if body.sim_probe is not None:
-        lab.place_simulated_probe(body.sim_probe.tip_m, body.sim_probe.axis)
-    return lab.digitize(body.label, body.shots)
+        lab.geometry.place_simulated_probe(body.sim_probe.tip_m, body.sim_probe.axis)
+    return lab.geometry.digitize(body.label, body.shots).to_json()
 
 
 @router.get("/points", response_model=list[PointOut])
-def list_points(lab: LabDep) -> list[dict[str, Any]]:
-    return lab.points()
+def list_points(lab: LabDep) -> list[StoredPoint]:
+    return lab.geometry.points()
 
 
 @router.get("/patches", response_model=list[dict[str, Any]])
 def list_patches(lab: LabDep) -> list[dict[str, Any]]:
-    return lab.patches()
+    return [p.to_json() for p in lab.geometry.patches()]
 
 
 @router.post(
@@ -74,7 +76,7 @@ def new_patch(
     lab: LabDep, body: Annotated[PatchRequest, strict_body(PatchRequest)]
 ) -> dict[str, Any]:
     """The array moved: later points belong to a new patch."""
-    return lab.new_patch(body.name)
+    return lab.geometry.new_patch(body.name).to_json()
 
 
 @router.put(
@@ -85,12 +87,12 @@ def new_patch(
 def set_reference_nodes(
     lab: LabDep, body: Annotated[ReferenceNodesRequest, strict_body(ReferenceNodesRequest)]
 ) -> list[dict[str, Any]]:
-    return lab.set_reference_nodes(body.nodes)
+    return [asdict(r) for r in lab.geometry.set_reference_nodes(body.nodes)]
 
 
 @router.get("/reference-nodes", response_model=list[dict[str, Any]])
 def reference_nodes(lab: LabDep) -> list[dict[str, Any]]:
-    return lab.reference_nodes()
+    return [asdict(r) for r in lab.geometry.reference_nodes()]
 
 
 @router.post(
@@ -99,7 +101,7 @@ def reference_nodes(lab: LabDep) -> list[dict[str, Any]]:
 def register_patch(
     lab: LabDep, body: Annotated[RegistrationRequest, strict_body(RegistrationRequest)]
 ) -> dict[str, Any]:
-    return lab.register_patch(body.patch, body.method, body.labels)
+    return lab.geometry.register_patch(body.patch, body.method, body.labels).to_json()
 
 
 @router.post(
@@ -112,12 +114,12 @@ def fit_orientation(
     lab: LabDep, body: Annotated[OrientationRequest, strict_body(OrientationRequest)]
 ) -> dict[str, Any]:
     """Orientation of a triax from its digitized jig indentations (``<prefix>X1`` .. ``Z8``)."""
-    return lab.fit_orientation(body.node, body.prefix, body.method)
+    return lab.geometry.fit_orientation(body.node, body.prefix, body.method).to_json()
 
 
 @router.get("/orientations", response_model=list[dict[str, Any]])
 def orientations(lab: LabDep) -> list[dict[str, Any]]:
-    return lab.orientations()
+    return [o.to_json() for o in lab.geometry.orientations()]
 
 
 @router.post(
@@ -129,9 +131,11 @@ def orientations(lab: LabDep) -> list[dict[str, Any]]:
 def fit_line_of_action(
     lab: LabDep, body: Annotated[LineOfActionRequest, strict_body(LineOfActionRequest)]
 ) -> dict[str, Any]:
-    return lab.fit_line_of_action(body.node, body.input_label, body.labels, body.method)
+    return lab.geometry.fit_line_of_action(
+        body.node, body.input_label, body.labels, body.method
+    ).to_json()
 
 
 @router.get("/lines-of-action", response_model=list[dict[str, Any]])
 def lines_of_action(lab: LabDep) -> list[dict[str, Any]]:
-    return lab.lines_of_action()
+    return [a.to_json() for a in lab.geometry.lines_of_action()]

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import asdict
 from typing import Any
 
 from fastapi import APIRouter, Query, Request, Response, status
@@ -10,18 +11,19 @@ from starlette.concurrency import run_in_threadpool
 from dimacq.api.deps import LabDep
 from dimacq.api.routers._common import RAW_BODY, found, read_upload
 from dimacq.api.schemas import FrfOut
+from dimacq.services.lab.store import FrfSummary
 
 router = APIRouter(prefix="/api/frfs", tags=["frfs"])
 
 
 @router.get("", response_model=list[FrfOut])
-def list_frfs(lab: LabDep) -> list[dict[str, Any]]:
-    return lab.frfs()
+def list_frfs(lab: LabDep) -> list[FrfSummary]:
+    return lab.store.frfs()
 
 
 @router.get("/{frf_id:int}", response_model=FrfOut)
-def get_frf(frf_id: int, lab: LabDep) -> dict[str, Any]:
-    return found(lab.frf_summary(frf_id), f"FRF set {frf_id}")
+def get_frf(frf_id: int, lab: LabDep) -> FrfSummary:
+    return found(lab.store.frf_summary(frf_id), f"FRF set {frf_id}")
 
 
 @router.get("/{frf_id:int}/data", response_model=dict[str, Any])
@@ -32,7 +34,7 @@ def frf_data(
     input: int | None = Query(default=None, ge=0),
 ) -> dict[str, Any]:
     """FRF values (real, imag, coherence) of one output/input pair, or all."""
-    return found(lab.frf_data(frf_id, output, input), f"FRF set {frf_id}")
+    return asdict(found(lab.store.frf_values(frf_id, output, input), f"FRF set {frf_id}"))
 
 
 @router.get(
@@ -42,7 +44,7 @@ def frf_data(
 )
 def export_uff(frf_id: int, lab: LabDep, whole_test: bool = True) -> Response:
     """The FRFs as UFF 58 (with geometry 164/2420/2411 when ``whole_test``)."""
-    data = found(lab.export_frf_uff(frf_id, whole_test), f"FRF set {frf_id}")
+    data = found(lab.store.export_frf_uff(frf_id, whole_test), f"FRF set {frf_id}")
     return Response(content=data, media_type="application/octet-stream")
 
 
@@ -51,8 +53,8 @@ def export_uff(frf_id: int, lab: LabDep, whole_test: bool = True) -> Response:
 )
 async def import_uff(
     request: Request, lab: LabDep, setup_id: int = Query(ge=1), name: str = ""
-) -> dict[str, Any]:
+) -> FrfSummary:
     """Send a UFF file (58 records) whose channels match the setup."""
     data = await read_upload(request)
-    fid = await run_in_threadpool(lab.import_frf, data, setup_id, name)
-    return found(lab.frf_summary(fid), f"FRF set {fid}")
+    fid = await run_in_threadpool(lab.store.import_frf, data, setup_id, name)
+    return found(lab.store.frf_summary(fid), f"FRF set {fid}")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import asdict
 from typing import Annotated, Any
 
 from fastapi import APIRouter, status
@@ -22,9 +23,9 @@ router = APIRouter(prefix="/api/sensitivity", tags=["sensitivity"])
 def start(
     lab: LabDep, body: Annotated[SensitivityRequest, strict_body(SensitivityRequest)]
 ) -> dict[str, Any]:
-    return lab.start_sensitivity(body.model_dump())
+    return asdict(lab.studies.start_sensitivity(body))
 
 
 @router.get("/{study_id:int}", response_model=dict[str, Any])
 def get(study_id: int, lab: LabDep) -> dict[str, Any]:
-    return found(lab.sensitivity(study_id), f"sensitivity study {study_id}")
+    return asdict(found(lab.studies.sensitivity(study_id), f"sensitivity study {study_id}"))

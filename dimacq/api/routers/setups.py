@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import asdict
 from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, Request, Response, status
@@ -10,6 +11,7 @@ from dimacq.api.deps import LabDep
 from dimacq.api.routers._common import RAW_BODY, body_openapi, found, read_upload, strict_body
 from dimacq.api.schemas import FromGeometryRequest, ImportOut, SetupOut
 from dimacq.model.setup import TestSetup
+from dimacq.services.lab.store import SetupSummary
 
 router = APIRouter(prefix="/api/setups", tags=["setups"])
 
@@ -20,19 +22,19 @@ router = APIRouter(prefix="/api/setups", tags=["setups"])
     status_code=status.HTTP_201_CREATED,
     openapi_extra=body_openapi(TestSetup),
 )
-def create_setup(lab: LabDep, body: Annotated[TestSetup, strict_body(TestSetup)]) -> dict[str, Any]:
-    sid = lab.save_setup(body)
-    return found(lab.setup_summary(sid), f"setup {sid}")
+def create_setup(lab: LabDep, body: Annotated[TestSetup, strict_body(TestSetup)]) -> SetupSummary:
+    sid = lab.store.save_setup(body)
+    return found(lab.store.setup_summary(sid), f"setup {sid}")
 
 
 @router.get("", response_model=list[SetupOut])
-def list_setups(lab: LabDep) -> list[dict[str, Any]]:
-    return lab.setups()
+def list_setups(lab: LabDep) -> list[SetupSummary]:
+    return lab.store.setups()
 
 
 @router.get("/{setup_id:int}", response_model=SetupOut)
-def get_setup(setup_id: int, lab: LabDep) -> dict[str, Any]:
-    return found(lab.setup_summary(setup_id), f"setup {setup_id}")
+def get_setup(setup_id: int, lab: LabDep) -> SetupSummary:
+    return found(lab.store.setup_summary(setup_id), f"setup {setup_id}")
 
 
 @router.get(
@@ -41,8 +43,8 @@ def get_setup(setup_id: int, lab: LabDep) -> dict[str, Any]:
     responses={200: {"content": {"application/json": {}, "application/toml": {}}}},
 )
 def export_setup(setup_id: int, lab: LabDep, format: Literal["json", "toml"] = "json") -> Response:
-    data, media = found(lab.export_setup(setup_id, format), f"setup {setup_id}")
-    return Response(content=data, media_type=media)
+    out = found(lab.store.export_setup(setup_id, format), f"setup {setup_id}")
+    return Response(content=out.content, media_type=out.media_type)
 
 
 @router.post(
@@ -58,7 +60,7 @@ async def import_setup(
     from starlette.concurrency import run_in_threadpool
 
     data = await read_upload(request)
-    return await run_in_threadpool(lab.import_setup, data, format, name)
+    return asdict(await run_in_threadpool(lab.store.import_setup, data, format, name))
 
 
 @router.post(
@@ -69,15 +71,16 @@ async def import_setup(
 )
 def setup_from_geometry(
     lab: LabDep, body: Annotated[FromGeometryRequest, strict_body(FromGeometryRequest)]
-) -> dict[str, Any]:
+) -> SetupSummary:
     """Responses from the oriented triaxes, inputs from the lines of action."""
-    sid = lab.setup_from_geometry(
+    setup = lab.geometry.setup_from_geometry(
         name=body.name,
         reference_point_m=body.reference_point_m,
         length_unit=body.length_unit,
         triaxes=body.triaxes,
         inputs=body.inputs,
         load_cells=body.load_cells,
-        known=body.known.model_dump(),
+        known=body.known,
     )
-    return found(lab.setup_summary(sid), f"setup {sid}")
+    sid = lab.store.save_setup(setup)
+    return found(lab.store.setup_summary(sid), f"setup {sid}")

@@ -9,6 +9,8 @@ from fastapi import APIRouter, Response, status
 from dimacq.api.deps import LabDep
 from dimacq.api.routers._common import body_openapi, found, strict_body
 from dimacq.api.schemas import SolutionOut, SolveRequest
+from dimacq.services.lab.solving import SolveOptions
+from dimacq.services.lab.store import StoredSolution
 
 router = APIRouter(prefix="/api/solutions", tags=["solutions"])
 
@@ -19,26 +21,26 @@ router = APIRouter(prefix="/api/solutions", tags=["solutions"])
     status_code=status.HTTP_201_CREATED,
     openapi_extra=body_openapi(SolveRequest),
 )
-def solve(lab: LabDep, body: Annotated[SolveRequest, strict_body(SolveRequest)]) -> dict[str, Any]:
+def solve(lab: LabDep, body: Annotated[SolveRequest, strict_body(SolveRequest)]) -> StoredSolution:
     """Solve mass, CG and inertia from an FRF set; the result has the keys of ``dimacq solve --json``."""
-    options = body.model_dump(exclude={"frf_id"})
-    return found(lab.solve(body.frf_id, options), f"FRF set {body.frf_id}")
+    options = SolveOptions.model_validate(body.model_dump(exclude={"frf_id"}))
+    return found(lab.analysis.solve(body.frf_id, options), f"FRF set {body.frf_id}")
 
 
 @router.get("", response_model=list[SolutionOut])
-def list_solutions(lab: LabDep) -> list[dict[str, Any]]:
-    return lab.solutions()
+def list_solutions(lab: LabDep) -> list[StoredSolution]:
+    return lab.store.solutions()
 
 
 @router.get("/{solution_id:int}", response_model=SolutionOut)
-def get_solution(solution_id: int, lab: LabDep) -> dict[str, Any]:
-    return found(lab.solution(solution_id), f"solution {solution_id}")
+def get_solution(solution_id: int, lab: LabDep) -> StoredSolution:
+    return found(lab.store.solution(solution_id), f"solution {solution_id}")
 
 
 @router.get("/{solution_id:int}/diagnostics", response_model=list[dict[str, Any]])
 def diagnostics(solution_id: int, lab: LabDep) -> list[dict[str, Any]]:
-    sol = found(lab.solution(solution_id), f"solution {solution_id}")
-    return list(sol["result"].get("diagnostics", []))
+    sol = found(lab.store.solution(solution_id), f"solution {solution_id}")
+    return list(sol.result.get("diagnostics", []))
 
 
 @router.get(
@@ -48,5 +50,5 @@ def diagnostics(solution_id: int, lab: LabDep) -> list[dict[str, Any]]:
 )
 def figure(solution_id: int, lab: LabDep, format: Literal["png", "svg"] = "png") -> Response:
     """Parameters against frequency with the band (thesis Fig. 25)."""
-    data = found(lab.solution_figure(solution_id, format), f"solution {solution_id}")
+    data = found(lab.analysis.solution_figure(solution_id, format), f"solution {solution_id}")
     return Response(content=data, media_type="image/png" if format == "png" else "image/svg+xml")

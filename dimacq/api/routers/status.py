@@ -16,4 +16,4 @@ router = APIRouter(prefix="/api", tags=["status"])
 async def get_status(lab: LabDep) -> Response:
     """Service status from memory only (no database, no device I/O): the call to poll."""
     # serialised directly: this is the hot path clients poll during acquisitions
-    return Response(json.dumps(lab.status()).encode(), media_type="application/json")
+    return Response(json.dumps(lab.status().to_json()).encode(), media_type="application/json")

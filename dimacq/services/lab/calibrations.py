@@ -1,0 +1,54 @@
+"""Load cell calibrations: JSON documents (:mod:`dimacq.io.loadcell_calibration`) in the
+database."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from sqlalchemy import select
+
+from dimacq.io.loadcell_calibration import parse_calibration_json
+from dimacq.persistence import Database
+from dimacq.persistence import models as m
+
+__all__ = ["CalibrationService", "StoredCalibration"]
+
+
+@dataclass(frozen=True)
+class StoredCalibration:
+    """A stored calibration: its id, the cell's serial number and the normalised document."""
+
+    id: int
+    serial_number: str
+    calibration: dict[str, Any]
+
+    @classmethod
+    def of(cls, r: m.Calibration) -> StoredCalibration:
+        return cls(id=r.id, serial_number=r.serial, calibration=r.body)
+
+
+class CalibrationService:
+    def __init__(self, db: Database) -> None:
+        self.db = db
+
+    def save(self, document: Any) -> StoredCalibration:
+        """Validate a calibration document (schema_version 1) and store it normalised (SI)."""
+        cal = parse_calibration_json(document, "calibration")
+        with self.db.session() as s:
+            row = m.Calibration(serial=cal.serial_number, body=cal.to_json())
+            s.add(row)
+            s.flush()
+            return StoredCalibration.of(row)
+
+    def all(self) -> list[StoredCalibration]:
+        with self.db.session() as s:
+            return [
+                StoredCalibration.of(r)
+                for r in s.scalars(select(m.Calibration).order_by(m.Calibration.id))
+            ]
+
+    def get(self, cal_id: int) -> StoredCalibration | None:
+        with self.db.session() as s:
+            r = s.get(m.Calibration, cal_id)
+            return None if r is None else StoredCalibration.of(r)

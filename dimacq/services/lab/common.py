@@ -1,0 +1,51 @@
+"""Small helpers shared by the lab's services (JSON-safe values, vectors, identities)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import asdict, is_dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = ["identity_dict", "json_safe", "package_version", "vec"]
+
+
+def vec(v: Sequence[float] | NDArray[np.floating]) -> list[float]:
+    """A vector as a list of Python floats (JSON)."""
+    return [float(x) for x in np.asarray(v, dtype=float).reshape(-1)]
+
+
+def json_safe(obj: Any) -> Any:
+    """NaN/inf → None and numpy → Python, so the JSON is strict."""
+    if isinstance(obj, dict):
+        return {str(k): json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [json_safe(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return json_safe(obj.tolist())
+    if isinstance(obj, np.generic):
+        return json_safe(obj.item())
+    if isinstance(obj, float) and not np.isfinite(obj):
+        return None
+    if isinstance(obj, Path):
+        return str(obj)
+    return obj
+
+
+def identity_dict(ident: Any) -> dict[str, Any]:
+    """A driver's identity (a dataclass) as the JSON object of the device list."""
+    if is_dataclass(ident) and not isinstance(ident, type):
+        return dict(asdict(ident))
+    return {"identity": str(ident)}
+
+
+def package_version() -> str:
+    try:
+        from importlib.metadata import version
+
+        return version("dimacq")
+    except Exception:
+        return "unknown"

@@ -1,0 +1,236 @@
+"""Devices: the configured digitizer, DAQ and load cells, their state and identities.
+
+:class:`DeviceService` opens and closes the devices, records each one's state in a
+:class:`DeviceInfo` (failures are recorded, not raised, when everything is opened at start, so the
+service starts without hardware) and holds the open digitizer driver and its digitizing session
+(:class:`~dimacq.services.digitizing.DigitizingSession`, built by the geometry service).
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, Literal
+
+from dimacq.config import Settings
+from dimacq.errors import DeviceStateError, DimacqError, SetupError
+from dimacq.services.lab.common import identity_dict
+
+if TYPE_CHECKING:
+    from dimacq.drivers.digitizer import SerialDigitizer
+    from dimacq.services.digitizing import DigitizingSession
+
+__all__ = ["DeviceInfo", "DeviceService", "SessionFactory"]
+
+log = logging.getLogger(__name__)
+
+#: Builds the digitizing session around a freshly opened digitizer driver.
+SessionFactory = Callable[["SerialDigitizer"], "DigitizingSession"]
+
+
+@dataclass
+class DeviceInfo:
+    """State of one configured device."""
+
+    name: str
+    kind: Literal["digitizer", "daq", "loadcell"]
+    address: str
+    simulated: bool
+    connected: bool = False
+    identity: dict[str, Any] = field(default_factory=dict)
+    error: str = ""
+
+
+class DeviceService:
+    """The configured devices (digitizer, DAQ, load cells).
+
+    Parameters
+    ----------
+    settings : Settings
+    open_session : callable (driver) -> DigitizingSession
+        Called each time the digitizer is (re)opened.
+    """
+
+    def __init__(self, settings: Settings, open_session: SessionFactory) -> None:
+        self.settings = settings
+        self._open_session = open_session
+        #: held while the digitizer driver or its session is used (one caller at a time)
+        self.lock = threading.RLock()
+        self._digitizer: SerialDigitizer | None = None
+        self._session: DigitizingSession | None = None
+        self._sim_names: list[str] = []
+        self._devices: dict[str, DeviceInfo] = {
+            "digitizer": DeviceInfo(
+                "digitizer",
+                "digitizer",
+                settings.digitizer_url,
+                settings.digitizer_url.startswith("simdigitizer://"),
+            ),
+            "daq": DeviceInfo("daq", "daq", f"usb:{settings.daq_backend}", settings.simulated),
+            "loadcell": DeviceInfo(
+                "loadcell",
+                "loadcell",
+                f"can:{settings.loadcell_interface}:{settings.loadcell_channel}",
+                # With the simulated lab the cells are the lab's own; otherwise "virtual" is
+                # just another python-can interface with whatever listens on it.
+                settings.simulated,
+            ),
+        }
+
+    # ------------------------------------------------------------------ the list
+    def all(self) -> list[DeviceInfo]:
+        return list(self._devices.values())
+
+    def get(self, name: str) -> DeviceInfo | None:
+        return self._devices.get(name)
+
+    def require(self, name: str) -> DeviceInfo:
+        """The device ``name``; SetupError naming the known ones if there is none."""
+        info = self._devices.get(name)
+        if info is None:
+            raise SetupError(f"device {name!r} is unknown; use one of {sorted(self._devices)}")
+        return info
+
+    # ------------------------------------------------------------------ open and close
+    def connect_all(self) -> None:
+        for name in self._devices:
+            try:
+                self.connect(name)
+            except DimacqError as err:
+                log.warning("device %s not connected: %s", name, err)
+
+    def disconnect_all(self) -> None:
+        with self.lock:
+            self._close_digitizer()
+            self._session = None
+            if self._sim_names:
+                from dimacq.simulators.digitizer import unregister_device
+
+                for n in self._sim_names:
+                    unregister_device(n)
+                self._sim_names = []
+            for d in self._devices.values():
+                d.connected = False
+
+    def connect(self, name: str) -> DeviceInfo:
+        """(Re)open one device; the device list records the outcome."""
+        info = self.require(name)
+        with self.lock:
+            try:
+                if info.kind == "digitizer":
+                    self._connect_digitizer(info)
+                else:
+                    self._connect_acquisition_device(info)
+            except DimacqError as err:
+                info.connected = False
+                info.error = str(err)
+                raise
+            info.error = ""
+            return info
+
+    def identify(self, name: str) -> dict[str, Any]:
+        info = self.require(name)
+        if not info.connected:
+            raise DeviceStateError(
+                f"device {name} is not connected ({info.error or 'closed'}); connect it first"
+            )
+        if info.kind == "digitizer":
+            with self.lock:
+                info.identity = identity_dict(self.digitizer().identify())
+        return dict(info.identity)
+
+    # ------------------------------------------------------------------ the digitizer
+    def digitizer(self) -> SerialDigitizer:
+        """The open digitizer driver (DeviceStateError if it is not connected)."""
+        self.session()
+        assert self._digitizer is not None
+        return self._digitizer
+
+    def session(self) -> DigitizingSession:
+        """The digitizing session of the open digitizer (DeviceStateError if not connected)."""
+        info = self._devices["digitizer"]
+        if self._session is None or not info.connected:
+            raise DeviceStateError(
+                f"digitizer is not connected ({info.error or 'closed'}); POST "
+                "/api/devices/digitizer/connect first"
+            )
+        return self._session
+
+    def _close_digitizer(self) -> None:
+        if self._digitizer is not None:
+            try:
+                self._digitizer.close()
+            except Exception:  # closing a vanished port must not stop the shutdown
+                log.exception("closing the digitizer failed")
+            self._digitizer = None
+
+    def _connect_digitizer(self, info: DeviceInfo) -> None:
+        from dimacq.drivers.digitizer import SerialDigitizer
+        from dimacq.services.digitizing import load_array_config
+
+        url = self.settings.digitizer_url
+        self._close_digitizer()
+        if url.startswith("simdigitizer://"):
+            import dimacq.simulators.digitizer as simdig
+
+            name = url.split("://", 1)[1].split("?", 1)[0]
+            simdig.get_device(url)  # create it from the query on first use
+            if name not in self._sim_names:
+                self._sim_names.append(name)
+        cfg = load_array_config()
+        driver = SerialDigitizer.from_url(url, timeout_s=2.0)
+        ident = driver.identify()
+        driver.configure(
+            emitters=2, microphones=len(cfg.array.microphones_m), averaging=1, bar_repeats=4
+        )
+        self._digitizer = driver
+        self._session = self._open_session(driver)
+        info.connected = True
+        info.identity = identity_dict(ident)
+
+    # ------------------------------------------------------------------ DAQ and load cells
+    def _connect_acquisition_device(self, info: DeviceInfo) -> None:
+        if info.simulated:
+            from dimacq.simulators.lab.scenarios import load_scenario
+
+            spec = load_scenario(self.settings.scenario)  # SetupError if unknown
+            info.connected = True
+            info.identity = {
+                "model": "simulated USB DAQ (pyusb backend)"
+                if info.kind == "daq"
+                else "simulated CAN FD load cell amplifier (python-can virtual)",
+                "scenario": spec.name,
+                "description": spec.description,
+            }
+            return
+        self._probe_real_device(info)
+
+    def _probe_real_device(self, info: DeviceInfo) -> None:
+        """Open the real DAQ or every load cell amplifier of the rig file, identify, close
+        (:func:`dimacq.services.lab_rig.build_rig` opens them again for each acquisition)."""
+        from dimacq.io.rig_file import load_rig_file
+        from dimacq.services import lab_rig
+
+        rig_file = load_rig_file(self.settings.rig_path)
+        if info.kind == "daq":
+            daq = lab_rig.open_daq(self.settings, rig_file)
+            try:
+                ident = daq.identify()
+            finally:
+                daq.close()
+            info.identity = {"model": "dimacq USB DAQ", **identity_dict(ident)}
+        else:
+            cells = {}
+            for entry in rig_file.load_cells:
+                amp, close = lab_rig.open_loadcell(self.settings, rig_file, entry)
+                try:
+                    cells[str(entry.node)] = {
+                        "node_id": entry.node_id,
+                        **identity_dict(amp.identify()),
+                    }
+                finally:
+                    close()
+            info.identity = {"model": "CAN FD load cell amplifier", "load_cells": cells}
+        info.connected = True

@@ -1,0 +1,206 @@
+"""Analysis: DIM solutions of stored FRF sets, and the figure of a stored solution.
+
+:meth:`AnalysisService.solve` solves an FRF set with :class:`SolveOptions` (plain DIM, or the
+selection steps of :mod:`dimacq.services.analysis`) and stores the result with its options.
+:meth:`AnalysisService.solution_spectrum` gives the per-line estimates behind a stored solution
+from the stored result and options (the channels and inputs it used, its known values, length
+unit, band and orientation repair), so its figure shows the solution that was stored.
+"""
+
+from __future__ import annotations
+
+import io
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import numpy as np
+from numpy.typing import NDArray
+from pydantic import BaseModel, ConfigDict, Field, field_validator
+
+from dimacq.errors import DataError
+from dimacq.model.frf import FrfData
+from dimacq.model.properties import inertia_to_vector
+from dimacq.model.setup import TestSetup
+from dimacq.services.lab.store import StoredSolution, TestStore
+
+__all__ = ["AnalysisService", "Param", "SolutionSpectrum", "SolveOptions"]
+
+Param = Literal["m", "cx", "cy", "cz", "Ixx", "Ixy", "Ixz", "Iyy", "Iyz", "Izz"]
+
+
+class SolveOptions(BaseModel):
+    """How to solve an FRF set (validated once, where the options come in)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    band_hz: tuple[float, float] | None = None
+    known: dict[Param, float] = Field(default_factory=dict)
+    length_unit: Literal["m", "cm", "mm"] | None = None
+    method: Literal["joint", "mean"] = "joint"
+    select_responses: bool = Field(
+        default=True, description="perimeter response selection (default on)"
+    )
+    select_inputs: bool = Field(default=True, description="jackknife input selection (default on)")
+    repair_orientation: bool = False
+    auto_band: bool = Field(
+        default=True, description="choose the band automatically (default on; band_hz overrides)"
+    )
+    geometry_uncertainty: bool = Field(
+        default=True,
+        description="include the setup's stated geometry uncertainty in the 95 % intervals",
+    )
+
+    @field_validator("band_hz")
+    @classmethod
+    def _band_ascending(cls, v: tuple[float, float] | None) -> tuple[float, float] | None:
+        if v is not None and not v[0] < v[1]:
+            raise ValueError(f"band_hz {list(v)}: give [low, high] with low < high, in Hz")
+        return v
+
+
+@dataclass(frozen=True)
+class SolutionSpectrum:
+    """The per-line estimates behind a stored solution.
+
+    Attributes
+    ----------
+    frequencies_hz : ndarray, shape (n_lines,)
+        Every line of the FRF set.
+    per_line : ndarray, shape (n_lines, 10)
+        ``[m, cx, cy, cz, Ixx, Ixy, Ixz, Iyy, Iyz, Izz]`` per line (kg, m, kg m²; inertia about
+        the reference point), from the channels and inputs the solution used.
+    band_hz : (lo, hi)
+        The band of the stored solution.
+    headline : ndarray, shape (10,)
+        The stored solution's estimate, same layout.
+    """
+
+    frequencies_hz: NDArray[np.float64]
+    per_line: NDArray[np.float64]
+    band_hz: tuple[float, float]
+    headline: NDArray[np.float64]
+
+
+class AnalysisService:
+    """Solve stored FRF sets; store and draw the solutions."""
+
+    def __init__(self, store: TestStore) -> None:
+        self.store = store
+
+    def solve(self, frf_id: int, options: SolveOptions) -> StoredSolution | None:
+        """DIM solution of an FRF set through :func:`dimacq.services.analysis.analyse`; stored
+        with its options. None if the set does not exist.
+
+        ``options``: ``band_hz`` (overrides the automatic band), ``known``, ``length_unit``,
+        ``method``, and the analysis service's switches (``select_responses``,
+        ``select_inputs``, ``auto_band``, ``geometry_uncertainty``: default on;
+        ``repair_orientation``). The result carries ``verdict`` (ok/warn/fail) and
+        ``verdict_reasons``; a ``fail`` is stored and returned like any other, its reasons say
+        why it must not be used.
+        """
+        got = self.store.frf(frf_id)
+        if got is None:
+            return None
+        frf, setup = got
+        result = self._analyse(frf, setup, options).to_json()
+        return self.store.save_solution(frf_id, options.model_dump(), result)
+
+    @staticmethod
+    def _known(setup: TestSetup, options: SolveOptions) -> dict[str, float]:
+        known = setup.known.as_dict()
+        known.update({k: float(v) for k, v in options.known.items()})
+        return known
+
+    def _analyse(self, frf: FrfData, setup: TestSetup, options: SolveOptions) -> Any:
+        from dimacq.services.analysis import AnalysisOptions, analyse
+
+        return analyse(
+            frf,
+            setup,
+            AnalysisOptions(
+                select_responses=options.select_responses,
+                select_inputs=options.select_inputs,
+                repair_orientation=options.repair_orientation,
+                auto_band=options.auto_band,
+                band_hz=options.band_hz,
+                known=self._known(setup, options),
+                length_unit=options.length_unit,
+                method=options.method,
+                geometry_samples=400 if options.geometry_uncertainty else 0,
+            ),
+        )
+
+    # ------------------------------------------------------------------ the stored solution
+    def solution_spectrum(self, solution_id: int) -> SolutionSpectrum | None:
+        """Per-line estimates of a stored solution over the whole FRF set.
+
+        Uses what the stored solution used: its setup (with the orientation repair when its
+        options asked for one), the response channels and inputs it kept (``excluded_responses``
+        and ``excluded_inputs`` of the result), its known values and length unit. The headline
+        and the band are the stored ones.
+        """
+        from dimacq.pipeline.dim import assemble, solve_system
+        from dimacq.pipeline.selection._common import response_geometry
+
+        sol = self.store.solution(solution_id)
+        if sol is None:
+            return None
+        got = self.store.frf(sol.frf_id)
+        if got is None:
+            raise DataError(f"solution {solution_id}: its FRF set {sol.frf_id} is missing")
+        frf, setup = got
+        res = sol.result
+        setup_used = setup
+        if sol.options.get("repair_orientation"):  # the stored run's repaired setup
+            setup_used = self._analyse(
+                frf, setup, SolveOptions.model_validate(sol.options)
+            ).setup_used
+        excluded_resp = list(res.get("excluded_responses", []))
+        excluded_in = list(res.get("excluded_inputs", []))
+        channels = response_geometry(frf, setup).channels
+        weights = np.array([_pair(c) not in excluded_resp for c in channels], dtype=float)
+        keep = np.nonzero([_pair(c) not in excluded_in for c in frf.inputs])[0]
+        system = assemble(
+            frf, setup_used, length_unit=res["length_unit"], response_weights=weights
+        ).select_inputs(keep)
+        per_line = solve_system(
+            system, known=res["known"], method=res["method"], check_plausibility=False
+        ).per_line
+        lo, hi = res["band_hz"]
+        return SolutionSpectrum(
+            frequencies_hz=np.asarray(frf.frequencies_hz, float),
+            per_line=np.asarray(per_line, float),
+            band_hz=(float(lo), float(hi)),
+            headline=_parameters(res),
+        )
+
+    def solution_figure(self, solution_id: int, fmt: Literal["png", "svg"] = "png") -> bytes | None:
+        """Parameters against frequency with the band and the stored estimate (thesis Fig. 25)."""
+        from dimacq.plotting.figures import parameters_vs_frequency_figure
+
+        spec = self.solution_spectrum(solution_id)
+        if spec is None:
+            return None
+        fig = parameters_vs_frequency_figure(
+            spec.frequencies_hz, spec.per_line, spec.band_hz, headline=spec.headline
+        )
+        buf = io.BytesIO()
+        fig.savefig(buf, format=fmt, dpi=110)
+        return buf.getvalue()
+
+
+def _pair(c: Any) -> dict[str, int]:
+    return {"node": int(c.node), "direction": int(c.direction)}
+
+
+def _parameters(result: Mapping[str, Any]) -> NDArray[np.float64]:
+    """``[m, cx, cy, cz, Ixx, Ixy, Ixz, Iyy, Iyz, Izz]`` of a result document (CG in the GCS,
+    inertia about the reference point), the layout of the solver's parameters."""
+    return np.concatenate(
+        [
+            [float(result["mass_kg"])],
+            np.asarray(result["cg_m"], float),
+            inertia_to_vector(np.asarray(result["inertia_p_kgm2"], float)),
+        ]
+    )

@@ -1,0 +1,82 @@
+"""Studies: the thesis's Monte Carlo sensitivity study on the cube model, run as a job."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from dimacq.persistence import Database
+from dimacq.persistence import models as m
+from dimacq.services.jobs import JobContext, JobManager
+from dimacq.services.lab.common import json_safe
+
+__all__ = ["CubeStudyParams", "StoredStudy", "StudyService", "StudyStarted"]
+
+
+class CubeStudyParams(BaseModel):
+    """The cube study (:func:`dimacq.pipeline.sensitivity.cube_study`): half the cube's edge,
+    how many triaxes are rotated, the largest rotation, Monte Carlo trials and the seed."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    half_size_m: float = Field(gt=0, le=1000)
+    sensors: int = Field(default=1, ge=1, le=8)
+    max_angle_deg: float = Field(gt=0, le=90)
+    trials: int = Field(default=500, ge=1, le=10_000)
+    seed: int = Field(default=0, ge=0)
+
+
+@dataclass(frozen=True)
+class StudyStarted:
+    id: int
+    job_id: str
+
+
+@dataclass(frozen=True)
+class StoredStudy:
+    """A study: its parameters and, once its job finished, its result."""
+
+    id: int
+    params: dict[str, Any]
+    result: dict[str, Any] | None
+
+
+class StudyService:
+    def __init__(self, db: Database, jobs: JobManager) -> None:
+        self.db = db
+        self.jobs = jobs
+
+    def start_sensitivity(self, params: CubeStudyParams) -> StudyStarted:
+        """A sensitivity study (thesis cube model) as a job; returns the study and job ids."""
+        from dimacq.pipeline.sensitivity import cube_study
+
+        with self.db.session() as s:
+            row = m.SensitivityStudy(params=params.model_dump())
+            s.add(row)
+            s.flush()
+            sid = int(row.id)
+
+        def work(ctx: JobContext) -> dict[str, Any]:
+            ctx.progress(0.0, "running Monte Carlo trials")
+            res = cube_study(
+                params.half_size_m,
+                n_sensors=params.sensors,
+                max_angle_deg=params.max_angle_deg,
+                n_trials=params.trials,
+                seed=params.seed,
+            )
+            with self.db.session() as s2:
+                r = s2.get(m.SensitivityStudy, sid)
+                assert r is not None
+                r.result = json_safe(res.to_json())
+            return {"study_id": sid}
+
+        job = self.jobs.submit("sensitivity", work)
+        return StudyStarted(sid, job.id)
+
+    def sensitivity(self, study_id: int) -> StoredStudy | None:
+        with self.db.session() as s:
+            r = s.get(m.SensitivityStudy, study_id)
+            return None if r is None else StoredStudy(r.id, r.params, r.result)
