@@ -2,12 +2,17 @@
 
 Sources, highest priority first: arguments given to :func:`load_settings` (the command line),
 ``DIMACQ_*`` environment variables, ``config/dimacq.toml`` (or the file named by
-``DIMACQ_CONFIG``), the defaults below. Devices are simulated by default; pointing
-``digitizer_url``, ``loadcell_interface``/``loadcell_channel`` and ``daq_backend`` at real hardware
-is configuration only: ``daq_backend = "libusb"`` (pyusb's default backend, the DAQ found by
-``daq_vendor_id``/``daq_product_id``) or ``"package.module:factory"`` (a function returning a
-pyusb backend object), with the channel map of the rig in ``rig_file`` (see
-:mod:`dimacq.io.rig_file`).
+``DIMACQ_CONFIG``), the defaults below.
+
+Devices: ``daq``, ``loadcell`` and ``digitizer`` name an entry of the device backend tables
+(:mod:`dimacq.backends`) — ``daq = "dimacq-usb" | "simulated" | "package.module:factory"``,
+``loadcell = "dimacq-can" | "simulated" | ...``, ``digitizer = "serial" | "simulated" | ...`` —
+with the channel map of the rig in ``rig_file`` (see :mod:`dimacq.io.rig_file`). The simulated
+lab is the default; real hardware is configuration only. Older names still work:
+``daq_backend = "simulated"`` means ``daq = "simulated"``; ``daq_backend = "libusb"`` or a
+factory (the pyusb backend of ``"dimacq-usb"``) without ``daq`` means ``daq = "dimacq-usb"``;
+``loadcell`` defaults to ``"simulated"`` with the simulated DAQ and to ``"dimacq-can"`` otherwise;
+``digitizer`` to ``"simulated"`` for a ``simdigitizer://`` URL and to ``"serial"`` otherwise.
 """
 
 from __future__ import annotations
@@ -18,7 +23,7 @@ import secrets
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import Field, ValidationError, field_validator
+from pydantic import Field, ValidationError, field_validator, model_validator
 from pydantic_settings import (
     BaseSettings,
     PydanticBaseSettingsSource,
@@ -32,6 +37,7 @@ __all__ = ["Settings", "default_config_file", "load_settings"]
 
 SCHEMA_VERSION: Literal[1] = 1
 
+_NAME = re.compile(r"[a-z][a-z0-9-]*")
 _FACTORY = re.compile(r"[A-Za-z_][\w]*(\.[A-Za-z_][\w]*)*:[A-Za-z_][\w]*(\.[A-Za-z_][\w]*)*")
 
 
@@ -58,24 +64,60 @@ class Settings(BaseSettings):
     port: int = Field(default=8765, ge=0, le=65535)
     token: str = ""
     cors_origins: list[str] = Field(default_factory=list)
+    daq: str = "simulated"
+    loadcell: str = "simulated"
+    digitizer: str = "simulated"
     digitizer_url: str = "simdigitizer://lab?seed=0"
     loadcell_interface: str = "virtual"
     loadcell_channel: str = "dimacq-lab"
-    daq_backend: str = "simulated"
+    daq_backend: str = "libusb"
     daq_vendor_id: int = Field(default=0x1209, ge=0, le=0xFFFF)
     daq_product_id: int = Field(default=0xDA64, ge=0, le=0xFFFF)
     rig_file: str = ""
     scenario: str = "calibration-mass-bungee"
 
+    @model_validator(mode="before")
+    @classmethod
+    def _aliases(cls, data: Any) -> Any:
+        """The older settings: ``daq_backend = "simulated"`` and the defaults that follow."""
+        if not isinstance(data, dict):
+            return data
+        d = dict(data)
+        backend = str(d.get("daq_backend", "")).strip()
+        if backend == "simulated":
+            d.pop("daq_backend")
+            d.setdefault("daq", "simulated")
+        elif backend and "daq" not in d:
+            d["daq"] = "dimacq-usb"
+        if "loadcell" not in d:
+            d["loadcell"] = (
+                "simulated" if d.get("daq", "simulated") == "simulated" else "dimacq-can"
+            )
+        if "digitizer" not in d:
+            url = str(d.get("digitizer_url", "simdigitizer://"))
+            d["digitizer"] = "simulated" if url.startswith("simdigitizer://") else "serial"
+        return d
+
+    @field_validator("daq", "loadcell", "digitizer")
+    @classmethod
+    def _kind(cls, v: str) -> str:
+        v = v.strip()
+        if _NAME.fullmatch(v) or _FACTORY.fullmatch(v):
+            return v
+        raise ValueError(
+            "give a backend name of dimacq.backends.BACKENDS (e.g. 'simulated') or the import "
+            "path 'package.module:factory' of a function opening the device"
+        )
+
     @field_validator("daq_backend")
     @classmethod
     def _backend(cls, v: str) -> str:
         v = v.strip()
-        if v in ("simulated", "libusb") or _FACTORY.fullmatch(v):
+        if v == "libusb" or _FACTORY.fullmatch(v):
             return v
         raise ValueError(
-            "give 'simulated', 'libusb' or the import path 'package.module:factory' of a "
-            "function returning a pyusb backend"
+            "give 'libusb' or the import path 'package.module:factory' of a function returning "
+            "a pyusb backend (the simulated DAQ is daq = 'simulated')"
         )
 
     @field_validator("data_dir", mode="before")
@@ -89,13 +131,8 @@ class Settings(BaseSettings):
         return self.database_url or f"sqlite:///{self.data_dir / 'dimacq.sqlite'}"
 
     @property
-    def simulated(self) -> bool:
-        """The whole acquisition rig is the virtual lab (``daq_backend = "simulated"``)."""
-        return self.daq_backend == "simulated"
-
-    @property
     def rig_path(self) -> Path:
-        """The real rig's channel map: ``rig_file``, or ``rig.toml`` beside the config file
+        """The rig's channel map: ``rig_file``, or ``rig.toml`` beside the config file
         (relative paths are taken from the config file's folder)."""
         base = default_config_file().parent
         if not self.rig_file:

@@ -15,7 +15,7 @@ from _acq_support import ImpulseSource
 
 from dimacq.drivers.daq.driver import DaqDevice, DaqTask
 from dimacq.model.setup import Excitation, ResponseChannel, TestSetup
-from dimacq.services.lab_rig import Rig
+from dimacq.services.rig import Rig
 from dimacq.simulators.daq.backend import DaqInput, VirtualDaqBackend
 from dimacq.simulators.daq.clock import SampleClock
 

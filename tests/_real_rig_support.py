@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from dimacq.io.loadcell_calibration import LoadCellCalibration, write_calibration_json
+from dimacq.model.channels import gauge_names
 from dimacq.model.frf import STANDARD_GRAVITY
 from dimacq.model.setup import TestSetup, direction_label
 from dimacq.simulators.daq.backend import DaqInput, VirtualDaqBackend
@@ -107,7 +108,7 @@ class VirtualWorld:
         directory.mkdir(parents=True, exist_ok=True)
         try:
             for i, lc in enumerate(true.load_cells):
-                gauges = [self.lab.channel_index(f"LC{lc.node} g{g + 1:02d}") for g in range(12)]
+                gauges = [self.lab.channel_index(n) for n in gauge_names(lc.node)]
                 nid = node_id + i
                 self.sims.append(
                     LoadCellAmplifierSim(

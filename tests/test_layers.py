@@ -5,7 +5,9 @@
 - nothing outside ``dimacq/api`` (and the CLI commands that start or drive the server) imports
   FastAPI, Starlette or uvicorn;
 - drivers and simulators meet at the wire: a driver never imports a simulator; a simulator may
-  import only a driver's documented wire codec (``drivers/<device>/protocol.py``).
+  import only a driver's documented wire codec (``drivers/<device>/protocol.py``);
+- only the device backend table (``dimacq/backends``) and the command-line tools that are
+  simulators by nature import ``dimacq.simulators``.
 """
 
 from __future__ import annotations
@@ -98,3 +100,25 @@ def test_drivers_never_import_simulators(path: Path) -> None:
 def test_simulators_import_only_driver_codecs(path: Path) -> None:
     bad = [i for i in _hits(_imports(path), ("dimacq.drivers",)) if not i.endswith(".protocol")]
     assert not bad, f"{path.relative_to(ROOT)} imports driver internals {bad}"
+
+
+#: Command-line tools that are simulators by nature (they play the virtual lab or its engineer).
+SIMULATOR_TOOLS = {
+    "dimacq/cli/simulated_lab.py",
+    "dimacq/cli/commands/acquire.py",
+    "dimacq/cli/commands/demo.py",
+    "dimacq/cli/commands/digitizer.py",
+    "dimacq/cli/commands/loadcell.py",
+    "dimacq/cli/commands/simulate.py",
+}
+
+
+@pytest.mark.parametrize("path", _modules("dimacq"), ids=lambda p: str(p.relative_to(ROOT)))
+def test_only_the_backend_table_reaches_the_simulators(path: Path) -> None:
+    """The service layer reaches a simulator only through its device backend table entry
+    (``dimacq/backends``), i.e. through its wire (also an import-linter contract in
+    ``pyproject.toml``)."""
+    rel = path.relative_to(ROOT).as_posix()
+    if rel.startswith("dimacq/backends/") or rel in SIMULATOR_TOOLS:
+        return
+    assert not _hits(_imports(path), ("dimacq.simulators",)), f"{rel} imports the simulators"

@@ -6,6 +6,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, FiniteFloat, field_validator
 
+from dimacq.model.impact import ImpactOverrides
 from dimacq.model.setup import KnownProperties, LoadCell
 from dimacq.services.lab.solving import SolveOptions
 from dimacq.services.lab.studies import CubeStudyParams
@@ -110,18 +111,12 @@ class SolveRequest(SolveOptions):
     frf_id: int = Field(ge=1)
 
 
-class AcquisitionRequest(_Body):
-    """An impact test of every input of the setup. Values left out (null) come from the rig
-    (in simulation: the scenario's acquisition settings)."""
+class AcquisitionRequest(ImpactOverrides):
+    """An impact test of every input of the setup. The impact settings are
+    :class:`dimacq.model.impact.ImpactOverrides`; values left out (null) come from the rig file's
+    ``[acquisition]`` table, then the built-in defaults."""
 
     setup_id: int = Field(ge=1)
-    averages_per_input: int | None = Field(default=None, ge=1, le=100)
-    record_samples: int | None = Field(default=None, ge=64, le=1_048_576)
-    pretrigger_samples: int | None = Field(default=None, ge=0, le=65536)
-    trigger_level_n: float | None = Field(default=None, gt=0, le=1e6)
-    estimator: Literal["H1", "H2", "Hv"] = "H1"
-    exponential_tau_s: float | None = Field(default=None, gt=0, le=1e4)
-    force_window_samples: int | None = Field(default=None, ge=1, le=1_048_576)
     seed: int | None = Field(default=None, ge=0, le=2**31 - 1)
 
 

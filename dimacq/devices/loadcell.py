@@ -10,7 +10,7 @@ python-can's ``virtual`` interface (:mod:`dimacq.simulators.loadcell.amplifier`)
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Protocol, runtime_checkable
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import NDArray
@@ -65,17 +65,21 @@ class LoadCellBlock:
 
 @runtime_checkable
 class LoadCell(Protocol):
-    """One 6-DOF load cell amplifier."""
+    """One 6-DOF load cell on the DAQ's sample clock: what an acquisition needs of it.
+
+    How a cell is calibrated, tared or stores its matrix is its own amplifier's business (e.g.
+    :class:`dimacq.drivers.loadcell.driver.LoadCellAmplifier`); the backend that opens it
+    (:mod:`dimacq.backends`) gives it the matrix of its calibration file.
+    """
 
     sample_rate_hz: float | None
+    #: The 6×12 matrix ``F = C g`` the cell applies (None: gauges only, no loads).
     calibration_matrix: NDArray[np.float64] | None
     events: list[LoadCellEvent]
 
     def identify(self) -> LoadCellIdentity: ...
 
     def set_rate(self, rate_hz: int) -> float: ...
-
-    def tare(self, n_samples: int = 256) -> None: ...
 
     def start(self, *, external_clock: bool = True) -> None: ...
 
@@ -84,9 +88,3 @@ class LoadCell(Protocol):
     def read_until(self, end_sample: int, timeout_s: float | None = None) -> LoadCellBlock: ...
 
     def verify_count(self, daq_samples_clocked: int) -> LoadCellEvent | None: ...
-
-    def set_calibration_matrix(self, matrix: Any) -> None: ...
-
-    def download_calibration(self, matrix: Any) -> None: ...
-
-    def upload_calibration(self) -> NDArray[np.float64]: ...

@@ -1,7 +1,8 @@
-"""The real acquisition rig's channel map: ``config/rig.toml`` (schema_version 1).
+"""The acquisition rig's channel map: ``config/rig.toml`` (schema_version 1).
 
-What is cabled where, for :func:`dimacq.services.lab_rig.build_rig` when the DAQ is not the
-simulated lab (``daq_backend`` = ``"libusb"`` or a backend factory):
+What is cabled where, for :func:`dimacq.services.rig.build_rig`, real or simulated alike (the
+simulated lab is cabled as the rig file says, and its drivers read the same calibrated
+sensitivities and calibration files as on a real rig):
 
 .. code-block:: toml
 
@@ -50,9 +51,10 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from dimacq.drivers.daq.protocol import IEPE_CURRENTS_UA, RANGES_V
 from dimacq.errors import SetupError
 from dimacq.io.validation import refuse
+from dimacq.model.channels import axis_name
+from dimacq.model.impact import ImpactOverrides
 from dimacq.model.setup import direction_label
 
 __all__ = ["RigFile", "load_rig_file", "parse_direction"]
@@ -60,8 +62,6 @@ __all__ = ["RigFile", "load_rig_file", "parse_direction"]
 log = logging.getLogger(__name__)
 
 _LABELS = {direction_label(d): d for d in (1, 2, 3, -1, -2, -3)}
-_RANGES_V = tuple(RANGES_V)  # the DAQ's documented input ranges, ±V
-_IEPE_MA = tuple(c / 1000 for c in IEPE_CURRENTS_UA)
 
 
 def parse_direction(value: Any) -> int:
@@ -97,24 +97,13 @@ class DaqSection(_Model):
 
 
 class _Analog(_Model):
+    """An analogue input. Which ranges and IEPE currents exist is the DAQ's business: its
+    backend refuses a value it does not have when the rig is built, naming this item."""
+
     physical_channel: int = Field(ge=0, le=255, description="the DAQ input number (0-based)")
-    range_v: float = Field(default=10.0, description=f"an input range, one of {_RANGES_V} V")
-    iepe_current_ma: float = Field(default=4.0, description=f"IEPE current, one of {_IEPE_MA} mA")
+    range_v: float = Field(default=10.0, gt=0, description="the input range ±V (> 0)")
+    iepe_current_ma: float = Field(default=4.0, ge=0, description="IEPE current in mA (0 = off)")
     coupling: Literal["AC", "DC"] = Field(default="AC", description="'AC' or 'DC'")
-
-    @field_validator("range_v")
-    @classmethod
-    def _range(cls, v: float) -> float:
-        if not any(abs(v - r) < 1e-9 for r in _RANGES_V):
-            raise ValueError(f"range ±{v} V is not a DAQ range")
-        return v
-
-    @field_validator("iepe_current_ma")
-    @classmethod
-    def _iepe(cls, v: float) -> float:
-        if not any(abs(v - c) < 1e-9 for c in _IEPE_MA):
-            raise ValueError(f"IEPE current {v} mA is not supported")
-        return v
 
 
 class HammerEntry(_Analog):
@@ -137,7 +126,7 @@ class ResponseEntry(_Analog):
 
     @property
     def key(self) -> str:
-        return f"{self.node}{direction_label(self.direction)}"
+        return axis_name(self.node, self.direction)
 
 
 class LoadCellEntry(_Model):
@@ -148,18 +137,6 @@ class LoadCellEntry(_Model):
         description="the cell's calibration file (.json or .xml, relative paths from rig.toml)",
     )
     channel: str = Field(default="", description="a CAN channel, or '' for loadcell_channel")
-
-
-class AcquisitionDefaults(_Model):
-    record_samples: int | None = Field(default=None, ge=16, description="samples per average")
-    pretrigger_samples: int | None = Field(default=None, ge=0, description="samples >= 0")
-    trigger_level_n: float | None = Field(default=None, gt=0, description="a force in N > 0")
-    averages_per_input: int | None = Field(default=None, ge=1, description="an integer >= 1")
-    exponential_tau_s: float | None = Field(default=None, gt=0, description="seconds > 0")
-    force_window_samples: int | None = Field(default=None, ge=1, description="samples >= 1")
-
-    def given(self) -> dict[str, Any]:
-        return {k: v for k, v in self.model_dump().items() if v is not None}
 
 
 class RigFile(_Model):
@@ -174,7 +151,7 @@ class RigFile(_Model):
     load_cells: list[LoadCellEntry] = Field(
         default_factory=list, description="[[load_cells]] entries"
     )
-    acquisition: AcquisitionDefaults = Field(default_factory=AcquisitionDefaults)
+    acquisition: ImpactOverrides = Field(default_factory=ImpactOverrides)
     path: Path | None = Field(default=None, exclude=True, description="(set when read)")
 
     @model_validator(mode="after")

@@ -39,6 +39,9 @@ from dimacq.devices.daq import Daq, DaqBlock
 from dimacq.devices.loadcell import LoadCell, LoadCellBlock
 from dimacq.errors import DataError, DeviceTimeoutError, SetupError
 from dimacq.io.acquisition_hdf5 import AcquisitionWriter
+from dimacq.model.frf import Channel, FrfData, OutputKind
+from dimacq.model.impact import ImpactSettings
+from dimacq.model.setup import TestSetup
 from dimacq.pipeline.frf_estimation import (
     double_hit_mask,
     estimate_frf,
@@ -53,6 +56,7 @@ __all__ = [
     "ImpactSession",
     "ImpactSettings",
     "Progress",
+    "impact_frf",
 ]
 
 log = logging.getLogger(__name__)
@@ -64,50 +68,6 @@ log = logging.getLogger(__name__)
 AverageCallback = Callable[
     [int, int, bool, tuple[str, ...], Mapping[str, NDArray[np.float64]]], None
 ]
-
-
-@dataclass(frozen=True)
-class ImpactSettings:
-    """Settings of an impact test.
-
-    Attributes
-    ----------
-    record_samples : int
-        Samples per average (the FFT length).
-    pretrigger_samples : int
-        Samples kept before the trigger.
-    trigger_level : float
-        Hammer force (N) that triggers a record.
-    averages_per_input : int
-    force_window_samples : int or None
-        Length of the force window after the trigger (None: no force window).
-    exponential_tau_s : float or None
-        Time constant of the exponential window from the trigger (None: none).
-    block_samples : int
-        DAQ read size.
-    max_attempts_factor : int
-        At most ``factor × averages_per_input`` strikes per input.
-    double_hit_threshold : float
-        Fraction of the peak force that counts as a second pulse.
-    hit_delay_samples : int
-        How far ahead the operator is asked to strike (simulation: exactly then).
-    trigger_timeout_samples : int
-        Samples to wait for a strike before giving up.
-    estimator : {"H1", "H2", "Hv"}
-    """
-
-    record_samples: int = 2048
-    pretrigger_samples: int = 32
-    trigger_level: float = 5.0
-    averages_per_input: int = 5
-    force_window_samples: int | None = None
-    exponential_tau_s: float | None = None
-    block_samples: int = 512
-    max_attempts_factor: int = 3
-    double_hit_threshold: float = 0.1
-    hit_delay_samples: int = 64
-    trigger_timeout_samples: int = 200_000
-    estimator: Literal["H1", "H2", "Hv"] = "H1"
 
 
 @dataclass(frozen=True)
@@ -311,15 +271,15 @@ class ImpactSession:
             buf = self._daq_buf
             if buf.end > search_from:
                 seg = buf.data[row, search_from - buf.first :]
-                hits = np.flatnonzero(np.abs(np.nan_to_num(seg)) >= s.trigger_level)
+                hits = np.flatnonzero(np.abs(np.nan_to_num(seg)) >= s.trigger_level_n)
                 if hits.size:
                     return search_from + int(hits[0])
                 search_from = buf.end
             if search_from > limit:
                 raise DeviceTimeoutError(
                     f"input {self.input_names[input_index]}: no hammer force above "
-                    f"{s.trigger_level} N within {s.trigger_timeout_samples} samples; strike "
-                    "harder or lower trigger_level"
+                    f"{s.trigger_level_n} N within {s.trigger_timeout_samples} samples; strike "
+                    "harder or lower trigger_level_n"
                 )
             self._read_block()
 
@@ -483,3 +443,42 @@ class ImpactSession:
             averages=tuple(history),
             n_accepted=tuple(len(r) for r in records),
         )
+
+
+def impact_frf(
+    result: ImpactResult, setup: TestSetup, *, meta: Mapping[str, str] | None = None
+) -> FrfData:
+    """The session's FRFs as :class:`FrfData` in the setup's channel order (the 0 Hz line dropped).
+
+    Outputs: each response (accelerance, (m/s²)/N), then per load cell of the setup its six loads
+    (directions 1..6, N/N and N·m/N, cell frame, as the driver's calibration matrix gives them);
+    inputs: the setup's excitations. Needs a session run with ``loadcell_outputs="forces"``.
+
+    Raises
+    ------
+    DataError
+        The result's shape does not match the setup.
+    """
+    n_acc = len(setup.responses)
+    n_out = n_acc + 6 * len(setup.load_cells)
+    if result.H.shape[1] != n_out or result.H.shape[2] != len(setup.excitations):
+        raise DataError(
+            f"impact result has {result.H.shape[1]} outputs × {result.H.shape[2]} inputs; the setup "
+            f"needs {n_out} × {len(setup.excitations)} (run the session with "
+            "loadcell_outputs='forces')"
+        )
+    outputs = [Channel(c.node, c.direction) for c in setup.responses]
+    kinds: list[OutputKind] = ["acceleration"] * n_acc
+    for lc in setup.load_cells:
+        outputs += [Channel(lc.node, k) for k in range(1, 7)]
+        kinds += ["reaction"] * 6
+    keep = result.frequencies_hz > 0
+    return FrfData(
+        frequencies_hz=result.frequencies_hz[keep],
+        H=result.H[keep],
+        outputs=tuple(outputs),
+        output_kinds=tuple(kinds),
+        inputs=tuple(Channel(e.node, e.direction) for e in setup.excitations),
+        coherence=result.coherence[keep],
+        meta={"source": "dimacq impact acquisition", **(meta or {})},
+    )

@@ -269,6 +269,10 @@ class DaqTask:
         self._scale = np.zeros(0)
 
     # -- channels -----------------------------------------------------------------------------
+    def identify(self) -> p.DeviceIdentity:
+        """The DAQ's identity (the task's device)."""
+        return self.device.identify()
+
     def add_channel(self, config: ChannelConfig) -> None:
         if self._running:
             raise DeviceStateError(f"task {self.name} is running; stop it before adding channels")

@@ -27,6 +27,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from dimacq.errors import SetupError
+from dimacq.model.channels import gauge_names
 from dimacq.model.frf import FrfData
 from dimacq.pipeline.frf_estimation import (
     double_hit_mask,
@@ -157,7 +158,7 @@ def impact_test(
     gauge_ch: list[int] = []
     calib: list[FloatArray] = []
     for lc in setup.load_cells:
-        gauge_ch += [lab.channel_index(f"LC{lc.node} g{g + 1:02d}") for g in range(12)]
+        gauge_ch += [lab.channel_index(n) for n in gauge_names(lc.node)]
         calib.append(np.asarray(np.linalg.pinv(lab.gauge_matrix(lc.node)), dtype=np.float64))
     channels = np.array([hammer_ch, *range(n_acc), *gauge_ch], dtype=np.intp)
 

@@ -39,6 +39,7 @@ from scipy.linalg import hadamard
 from scipy.signal import get_window
 
 from dimacq.errors import SetupError
+from dimacq.model.channels import gauge_names
 from dimacq.model.frf import FrfData
 from dimacq.pipeline.frf_estimation import estimate_frf, welch_segments
 from dimacq.simulators.lab.impact import virtual_lab
@@ -166,7 +167,7 @@ def shaker_test(
     gauge_ch: list[int] = []
     calib: list[FloatArray] = []
     for lc in setup.load_cells:
-        gauge_ch += [lab.channel_index(f"LC{lc.node} g{g + 1:02d}") for g in range(12)]
+        gauge_ch += [lab.channel_index(n) for n in gauge_names(lc.node)]
         calib.append(np.asarray(np.linalg.pinv(lab.gauge_matrix(lc.node)), dtype=np.float64))
     n_out = n_acc + 6 * len(setup.load_cells)
     groups = [tuple(inputs[i : i + n_sh]) for i in range(0, len(inputs), n_sh)]

@@ -41,11 +41,11 @@ from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.signal import butter, firwin, lfilter, oaconvolve, sosfilt
 from scipy.spatial.transform import Rotation
 from scipy.special import erfc
 
 from dimacq.errors import SetupError
+from dimacq.model.channels import N_GAUGES, axis_name, gauge_names, load_names
 from dimacq.simulators.lab.forward import ForwardModel
 
 __all__ = [
@@ -233,6 +233,8 @@ class ShakerSignal:
 
     def samples(self, rel: NDArray[np.int64], sample_rate_hz: float) -> FloatArray:
         """Force at samples ``rel ≥ 0`` counted from the start of the drive, N."""
+        from scipy.signal import oaconvolve  # lazy: scipy.signal is slow to import
+
         rel = np.asarray(rel, dtype=np.int64)
         N = self.record_samples
         rec, pos = np.divmod(rel, N)
@@ -269,6 +271,8 @@ _CHUNK = 4096
 @lru_cache(maxsize=16)
 def _band_fir(f_lo_hz: float, f_hi_hz: float, fs: float) -> FloatArray:
     """Band-pass FIR taps (Hamming window, ``Σh² = 1``), transition about ``f_lo / 2``."""
+    from scipy.signal import firwin  # lazy: scipy.signal is slow to import
+
     n = math.ceil(3.3 * fs / (0.5 * f_lo_hz)) | 1
     n = min(n, 1 << 15 | 1)
     h = firwin(n, [f_lo_hz, min(f_hi_hz, 0.49 * fs)], pass_zero=False, fs=fs)
@@ -378,6 +382,8 @@ def modal_foh_filter(
     zf : (P, R) complex
         State to pass as ``zi`` to the call for the following samples.
     """
+    from scipy.signal import lfilter  # lazy: scipy.signal is slow to import
+
     lam = np.asarray(lam, complex)
     u = np.atleast_2d(np.asarray(u, float))
     P, (R, N) = lam.size, u.shape
@@ -470,6 +476,8 @@ class VirtualLab:
     cache_blocks: int = 4096
 
     def __post_init__(self) -> None:
+        from scipy.signal import butter  # lazy: scipy.signal is slow to import
+
         fs = float(self.sample_rate_hz)
         self.sigma_s = self.hammer.sigma_s if self.hammer.sigma_s is not None else 1.4 / fs
         if math.exp(-((2 * np.pi * fs / 2 * self.sigma_s) ** 2) / 2) > 1e-3:
@@ -519,10 +527,7 @@ class VirtualLab:
             for k, other in enumerate(nodes):
                 if other == node and k != i:
                     X[i, k] = self.noise.cross_axis * rng.uniform(-1, 1)
-        names = [
-            c.label or f"{c.node}{'+-'[c.direction < 0]}{'XYZ'[abs(c.direction) - 1]}"
-            for c in setup.responses
-        ]
+        names = [c.label or axis_name(c.node, c.direction) for c in setup.responses]
         units = ["m/s^2"] * n_acc
         names.append("hammer")
         units.append("N")
@@ -532,15 +537,16 @@ class VirtualLab:
         for s_i, s in enumerate(self.model.supports):
             S = (self.gauge_sensitivity or {}).get(s.node)
             if S is None:
-                S = _default_gauge_matrix(np.random.default_rng([self.seed, 11, s.node]))
+                # A property of the cell (its serial number), not of the test: the same in every run.
+                S = _default_gauge_matrix(np.random.default_rng([11, s.node]))
             self._gauge_matrix[s.node] = np.asarray(S, float)
             sel = np.zeros((6, n_out))
             sel[:, n_acc + 6 * s_i : n_acc + 6 * s_i + 6] = np.eye(6)
             rows.append(self._gauge_matrix[s.node] @ sel)
-            names += [f"LC{s.node} g{g + 1:02d}" for g in range(12)]
-            units += ["V"] * 12
+            names += gauge_names(s.node)
+            units += ["V"] * N_GAUGES
             rows.append(sel)
-            names += [f"LC{s.node} {q}" for q in ("Fx", "Fy", "Fz", "Mx", "My", "Mz")]
+            names += load_names(s.node)
             units += ["N", "N", "N", "N*m", "N*m", "N*m"]
         self._shaker_rows = np.arange(len(names), len(names) + self.n_shakers)
         names += [f"shaker{k + 1}" for k in range(self.n_shakers)]
@@ -772,6 +778,8 @@ class VirtualLab:
         At the frontier, stores the drives' states for block ``b + 1`` and hands the free decay
         of drives stopped more than a block ago to ``next_carry``.
         """
+        from scipy.signal import sosfilt  # lazy: scipy.signal is slow to import
+
         live = self._live(b)
         if not live:
             if frontier:

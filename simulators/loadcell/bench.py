@@ -27,6 +27,7 @@ import bisect
 import numpy as np
 from numpy.typing import NDArray
 
+from dimacq.model.channels import gauge_names
 from dimacq.simulators.lab.timedomain import VirtualLab
 
 __all__ = ["SupportSideBench"]
@@ -79,7 +80,7 @@ class SupportSideBench:
         S = lab.gauge_matrix(node)
         #: gauge volts per newton of hammer force, per input: (12, n_in)
         self.transmission = S @ np.linalg.solve(sign * T, phi)
-        self._gauges = np.array([lab.channel_index(f"LC{node} g{g + 1:02d}") for g in range(12)])
+        self._gauges = np.array([lab.channel_index(n) for n in gauge_names(node)])
         self._gauge_pos = {int(c): g for g, c in enumerate(self._gauges)}
         self._hammer = lab.channel_index("hammer")
         self._strike_at: list[int] = []

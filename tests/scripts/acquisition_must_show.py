@@ -22,9 +22,9 @@ from pathlib import Path
 import numpy as np
 
 from dimacq.cli.main import main
+from dimacq.cli.simulated_lab import model_frf, scenario_model
 from dimacq.io.uff import read_uff_test
 from dimacq.model.properties import principal_moments
-from dimacq.services.simulated_lab import model_frf, scenario_model
 
 
 def frf_figures(uff: Path, scenario: str, seed: int, n_avg: int, band: tuple[float, float]) -> dict:

@@ -83,7 +83,7 @@ def test_impact_test_rejects_bad_averages_and_matches_closed_form(lab, tmp_path)
             src.excite(j, world)
             src.excite(j, world)
 
-    settings = ImpactSettings(record_samples=2048, averages_per_input=2, trigger_level=20.0)
+    settings = ImpactSettings(record_samples=2048, averages_per_input=2, trigger_level_n=20.0)
     progress = []
     with AcquisitionWriter(
         tmp_path / "raw.h5",

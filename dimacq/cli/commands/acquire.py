@@ -5,7 +5,7 @@ Usage::
     dimacq acquire SCENARIO --impacts-per-input N --frf OUT.uff [--seed S] [--data DIR]
                    [--json OUT] [--record-samples N] [--exp-tau S] [--noise-free]
 
-The virtual lab of SCENARIO (:data:`dimacq.services.simulated_lab.SCENARIOS`) is read through the
+The virtual lab of SCENARIO (:data:`dimacq.cli.simulated_lab.SCENARIOS`) is read through the
 simulated USB DAQ (pyusb backend) and one simulated CAN FD amplifier per load cell (python-can
 ``virtual``), by the real drivers; an impact session strikes every input N accepted times, and
 the FRFs (accelerances and the load cells' six loads, as the drivers' calibration matrices give
@@ -58,7 +58,7 @@ def register(subparsers: Any) -> None:
 
 def _scenario_band(name: str) -> tuple[float, float]:
     """The scenario's recommended band (config/scenarios), else the simulated DIM band."""
-    from dimacq.services.simulated_lab import DIM_BAND_HZ
+    from dimacq.cli.simulated_lab import DIM_BAND_HZ
     from dimacq.simulators.lab.scenarios import list_scenarios, load_scenario
 
     if name in list_scenarios():
@@ -68,13 +68,13 @@ def _scenario_band(name: str) -> tuple[float, float]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from dimacq.io.uff import write_uff_test
-    from dimacq.services.acquisition import Progress
-    from dimacq.services.simulated_lab import (
+    from dimacq.cli.simulated_lab import (
         frf_agreement,
         run_scenario,
         scenario_model,
     )
+    from dimacq.io.uff import write_uff_test
+    from dimacq.services.acquisition import Progress
     from dimacq.simulators.lab.timedomain import LabNoise
 
     if args.impacts_per_input < 1:

@@ -12,7 +12,9 @@ unless ``--data-dir``), then acts as the test engineer over HTTP only:
 4. acquires the impacts (``POST /api/acquisitions`` → job followed over server-sent events) when
    the simulated DAQ and load cell are available; otherwise says so and imports the virtual lab's
    FRFs of the *true* article (with noise) as UFF through ``POST /api/frfs/import``;
-5. solves (``POST /api/solutions``) and prints the result against the scenario's truth.
+5. solves (``POST /api/solutions`` with the service's defaults: automatic band, response and
+   input selection; ``--scenario-band`` imposes the scenario's recommended band) and prints the
+   result against the scenario's truth.
 
 The simulated engineer knows where the probe is (the ``sim_probe`` field tells the simulator);
 everything the service learns it measures through the digitizer. ``--json OUT`` writes the solution
@@ -53,6 +55,19 @@ def register(sub: Any) -> None:
     p.add_argument(
         "--data-dir", type=Path, default=None, help="data directory (default: temporary)"
     )
+    p.add_argument(
+        "--rig-file",
+        type=Path,
+        default=None,
+        help="the simulated rig's channel map and calibrations (default: the scenario's rig, "
+        "config/rigs/<scenario>.toml or config/rig.toml)",
+    )
+    p.add_argument(
+        "--scenario-band",
+        action="store_true",
+        help="solve in the scenario's recommended band (default: the service's defaults, "
+        "automatic band and selections, as a user gets them)",
+    )
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     p.set_defaults(func=run)
 
@@ -63,6 +78,19 @@ def _scenario(name: str, seed: int | None) -> Any:
     from dimacq.simulators.lab.scenarios import build_scenario
 
     return build_scenario(name, seed)
+
+
+def _rig_file(scenario: str) -> str:
+    """The rig the scenario's article is cabled on: ``config/rigs/<scenario>.toml``, else
+    ``config/rigs/<first word>.toml`` (e.g. ``cube`` for ``cube-2``), else "" (``rig.toml``,
+    the calibration mass)."""
+    from dimacq.config import default_config_file
+
+    rigs = default_config_file().parent / "rigs"
+    for name in (scenario, scenario.split("-")[0]):
+        if (rigs / f"{name}.toml").exists():
+            return str(rigs / f"{name}.toml")
+    return ""
 
 
 class _Array:
@@ -101,6 +129,7 @@ def run(args: argparse.Namespace) -> int:
         host="127.0.0.1",
         digitizer_url=f"simdigitizer://demo-{secrets.token_hex(4)}?seed={built.seed}",
         scenario=args.scenario,
+        rig_file=str(args.rig_file) if args.rig_file else _rig_file(args.scenario),
         database_url="",
     )
     try:
@@ -265,10 +294,15 @@ def _demo(
                 f"not run: {reason}; FRFs of the virtual lab's forward model (true geometry) with {100 * args.noise:g} % noise imported as UFF"
             )
         # --- 5. solve --------------------------------------------------------------------
-        sol = _check(c.post("/api/solutions", json={"frf_id": frf_id, "band_hz": band}), "solve")
+        body: dict[str, Any] = {"frf_id": frf_id}
+        if args.scenario_band:
+            body["band_hz"] = band
+        sol = _check(c.post("/api/solutions", json=body), "solve")
+        lo, hi = sol["result"]["band_hz"]
+        how = "the scenario's recommended band" if args.scenario_band else "chosen by the service"
         say(
-            f"[5/5] solution {sol['id']} on FRF set {frf_id}, band {band[0]:g}-{band[1]:g} Hz "
-            "(the scenario's recommended band)"
+            f"[5/5] solution {sol['id']} on FRF set {frf_id}, band {lo:g}-{hi:g} Hz ({how}), "
+            f"verdict {sol['result'].get('verdict', '?')}"
         )
     finally:
         c.close()
@@ -364,3 +398,13 @@ def _print_result(p: dict[str, Any], say: Callable[[str], None]) -> None:
             f"{'I' + str(k + 1) + ' (principal), kg m2':<22}{pe:>14.6f}{pt_:>14.6f}{e['principal_moments_pct'][k]:>11.3f}%"
         )
     print(f"CG error {e['cg_mm']:.3f} mm; acquisition: {p['demo']['acquisition']}")
+    lo, hi = p["band_hz"]
+    reasons = "; ".join(
+        str(r.get("message", r)) if isinstance(r, dict) else str(r)
+        for r in p.get("verdict_reasons") or []
+        if not (isinstance(r, dict) and r.get("severity") == "ok")
+    )
+    print(
+        f"band {lo:g}-{hi:g} Hz; verdict {p.get('verdict', '?')}"
+        + (f": {reasons}" if reasons else "")
+    )

@@ -58,8 +58,8 @@ def calibrate(args: argparse.Namespace) -> int:
         )
     if args.impacts_per_input < 1:
         raise SetupError(f"--impacts-per-input {args.impacts_per_input}: give at least 1")
+    from dimacq.cli.simulated_lab import simulated_inertial_calibration
     from dimacq.services.acquisition import Progress
-    from dimacq.services.simulated_lab import simulated_inertial_calibration
 
     def progress(stage: str, p: Progress) -> None:
         done = p.input_index * p.wanted + p.accepted

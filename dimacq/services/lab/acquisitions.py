@@ -31,7 +31,7 @@ __all__ = ["AcquisitionInfo", "AcquisitionService", "AverageInfo", "RigFactory"]
 
 log = logging.getLogger(__name__)
 
-#: Builds the acquisition rig (:class:`dimacq.services.lab_rig.Rig`) for a setup and a request.
+#: Builds the acquisition rig (:class:`dimacq.services.rig.Rig`) for a setup and a request.
 RigFactory = Callable[[Settings, TestSetup, Mapping[str, Any]], Any]
 
 
@@ -71,7 +71,7 @@ class AcquisitionService:
     settings, db, arrays, jobs, devices, store
         The lab's parts this service uses.
     rig_factory : callable (settings, setup, config) -> Rig, optional
-        Default :func:`dimacq.services.lab_rig.build_rig` on the configured devices (which must
+        Default :func:`dimacq.services.rig.build_rig` on the configured devices (which must
         be connected).
     """
 
@@ -161,7 +161,7 @@ class AcquisitionService:
                 setattr(r, k, v)
 
     def _build_rig(self, setup: TestSetup, cfg: Mapping[str, Any]) -> Any:
-        from dimacq.services import lab_rig
+        from dimacq.services import rig as rig_builder
 
         if self._rig_factory is not None:
             return self._rig_factory(self.settings, setup, cfg)
@@ -171,7 +171,7 @@ class AcquisitionService:
                 raise DeviceNotFoundError(
                     f"{name} is not connected ({info.error or 'closed'}); connect it first"
                 )
-        return lab_rig.build_rig(self.settings, setup, cfg)
+        return rig_builder.build_rig(self.settings, setup, cfg)
 
     def _run(
         self,
@@ -182,7 +182,7 @@ class AcquisitionService:
         cfg: Mapping[str, Any],
         rig: Any,
     ) -> dict[str, Any]:
-        from dimacq.services import lab_rig
+        from dimacq.services.rig import run_impact_test
 
         def on_average(
             input_index: int,
@@ -220,9 +220,7 @@ class AcquisitionService:
 
         state, message = "failed", ""
         try:
-            frf = lab_rig.run_impact_test(
-                rig, setup, cfg, on_average=on_average, on_progress=on_progress
-            )
+            frf = run_impact_test(rig, setup, cfg, on_average=on_average, on_progress=on_progress)
             fid = self.store.save_frf(
                 frf, setup_id, name=f"acquisition {acq_id}", acquisition_id=acq_id
             )

@@ -14,6 +14,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Literal
 
+from dimacq.backends.base import DeviceContext
 from dimacq.config import Settings
 from dimacq.errors import DeviceStateError, DimacqError, SetupError
 from dimacq.services.lab.common import identity_dict
@@ -59,23 +60,27 @@ class DeviceService:
         #: held while the digitizer driver or its session is used (one caller at a time)
         self.lock = threading.RLock()
         self._digitizer: SerialDigitizer | None = None
+        self._digitizer_ctx: DeviceContext | None = None
         self._session: DigitizingSession | None = None
-        self._sim_names: list[str] = []
+        # The backend each kind names (dimacq.backends.BACKENDS); "simulated" is the virtual lab.
         self._devices: dict[str, DeviceInfo] = {
             "digitizer": DeviceInfo(
                 "digitizer",
                 "digitizer",
-                settings.digitizer_url,
-                settings.digitizer_url.startswith("simdigitizer://"),
+                f"{settings.digitizer}:{settings.digitizer_url}",
+                settings.digitizer == "simulated",
             ),
-            "daq": DeviceInfo("daq", "daq", f"usb:{settings.daq_backend}", settings.simulated),
+            "daq": DeviceInfo(
+                "daq",
+                "daq",
+                f"{settings.daq}:{settings.rig_path.name}",
+                settings.daq == "simulated",
+            ),
             "loadcell": DeviceInfo(
                 "loadcell",
                 "loadcell",
-                f"can:{settings.loadcell_interface}:{settings.loadcell_channel}",
-                # With the simulated lab the cells are the lab's own; otherwise "virtual" is
-                # just another python-can interface with whatever listens on it.
-                settings.simulated,
+                f"{settings.loadcell}:{settings.rig_path.name}",
+                settings.loadcell == "simulated",
             ),
         }
 
@@ -105,12 +110,6 @@ class DeviceService:
         with self.lock:
             self._close_digitizer()
             self._session = None
-            if self._sim_names:
-                from dimacq.simulators.digitizer import unregister_device
-
-                for n in self._sim_names:
-                    unregister_device(n)
-                self._sim_names = []
             for d in self._devices.values():
                 d.connected = False
 
@@ -159,29 +158,27 @@ class DeviceService:
         return self._session
 
     def _close_digitizer(self) -> None:
-        if self._digitizer is not None:
-            try:
-                self._digitizer.close()
-            except Exception:  # closing a vanished port must not stop the shutdown
-                log.exception("closing the digitizer failed")
-            self._digitizer = None
+        """Close the digitizer's port and what its backend opened (logs, never raises: a
+        vanished port must not stop the shutdown)."""
+        ctx, self._digitizer_ctx = self._digitizer_ctx, None
+        self._digitizer = None
+        if ctx is not None:
+            ctx.close()
 
     def _connect_digitizer(self, info: DeviceInfo) -> None:
-        from dimacq.drivers.digitizer import SerialDigitizer
+        from dimacq.backends import lookup
         from dimacq.services.digitizing import load_array_config
 
-        url = self.settings.digitizer_url
         self._close_digitizer()
-        if url.startswith("simdigitizer://"):
-            import dimacq.simulators.digitizer as simdig
-
-            name = url.split("://", 1)[1].split("?", 1)[0]
-            simdig.get_device(url)  # create it from the query on first use
-            if name not in self._sim_names:
-                self._sim_names.append(name)
         cfg = load_array_config()
-        driver = SerialDigitizer.from_url(url, timeout_s=2.0)
-        ident = driver.identify()
+        ctx = DeviceContext(self.settings)
+        try:
+            driver = lookup("digitizer", self.settings.digitizer)(ctx)
+            ident = driver.identify()
+        except BaseException:
+            ctx.close()
+            raise
+        self._digitizer_ctx = ctx
         driver.configure(
             emitters=2, microphones=len(cfg.array.microphones_m), averaging=1, bar_repeats=4
         )
@@ -192,45 +189,12 @@ class DeviceService:
 
     # ------------------------------------------------------------------ DAQ and load cells
     def _connect_acquisition_device(self, info: DeviceInfo) -> None:
+        """Open the DAQ or every load cell of the rig file through its backend, identify,
+        close (:func:`dimacq.services.rig.build_rig` opens them again for each acquisition)."""
+        from dimacq.services.rig import check_devices
+
+        kind: Literal["daq", "loadcell"] = "daq" if info.kind == "daq" else "loadcell"
+        info.identity = check_devices(self.settings, kind)
         if info.simulated:
-            from dimacq.simulators.lab.scenarios import load_scenario
-
-            spec = load_scenario(self.settings.scenario)  # SetupError if unknown
-            info.connected = True
-            info.identity = {
-                "model": "simulated USB DAQ (pyusb backend)"
-                if info.kind == "daq"
-                else "simulated CAN FD load cell amplifier (python-can virtual)",
-                "scenario": spec.name,
-                "description": spec.description,
-            }
-            return
-        self._probe_real_device(info)
-
-    def _probe_real_device(self, info: DeviceInfo) -> None:
-        """Open the real DAQ or every load cell amplifier of the rig file, identify, close
-        (:func:`dimacq.services.lab_rig.build_rig` opens them again for each acquisition)."""
-        from dimacq.io.rig_file import load_rig_file
-        from dimacq.services import lab_rig
-
-        rig_file = load_rig_file(self.settings.rig_path)
-        if info.kind == "daq":
-            daq = lab_rig.open_daq(self.settings, rig_file)
-            try:
-                ident = daq.identify()
-            finally:
-                daq.close()
-            info.identity = {"model": "dimacq USB DAQ", **identity_dict(ident)}
-        else:
-            cells = {}
-            for entry in rig_file.load_cells:
-                amp, close = lab_rig.open_loadcell(self.settings, rig_file, entry)
-                try:
-                    cells[str(entry.node)] = {
-                        "node_id": entry.node_id,
-                        **identity_dict(amp.identify()),
-                    }
-                finally:
-                    close()
-            info.identity = {"model": "CAN FD load cell amplifier", "load_cells": cells}
+            info.identity["scenario"] = self.settings.scenario
         info.connected = True

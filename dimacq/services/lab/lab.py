@@ -86,8 +86,8 @@ class Lab:
         Open the configured devices now (:meth:`DeviceService.connect_all`); failures are
         recorded in the device list, not raised, so the service starts without hardware.
     rig_factory : callable (settings, setup, config) -> Rig, optional
-        Builds the acquisition rig (:class:`dimacq.services.lab_rig.Rig`); default
-        :func:`dimacq.services.lab_rig.build_rig` on the configured devices.
+        Builds the acquisition rig (:class:`dimacq.services.rig.Rig`); default
+        :func:`dimacq.services.rig.build_rig` on the configured device backends.
     """
 
     def __init__(

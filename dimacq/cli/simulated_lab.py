@@ -1,4 +1,8 @@
-"""Impact tests of the virtual lab through the simulated USB DAQ and CAN FD load cells.
+"""Impact tests of the virtual lab through the simulated USB DAQ and CAN FD load cells, for the
+command-line tools that are simulators by nature (``dimacq acquire``, ``dimacq loadcell
+calibrate --simulated``) and the scripts that measure the virtual lab against its truth. The
+service's rig is built by :func:`dimacq.services.rig.build_rig` from the backend tables; this
+module drives a scenario's whole article with its nominal transducers.
 
 :class:`SimulatedRig` wires one :class:`~dimacq.simulators.lab.timedomain.VirtualLab` (or any
 ``SampleSource`` over it, e.g. the calibration bench) to the real driver code:
@@ -13,10 +17,8 @@
   calibration matrix it applies (``F = C g``);
 - an :class:`~dimacq.services.acquisition.ImpactSession` whose operator strikes the lab.
 
-:func:`impact_frf` turns the session's :class:`~dimacq.services.acquisition.ImpactResult` into
-the foundation's :class:`~dimacq.model.frf.FrfData` (accelerometers as ``Channel(node, dir)``,
-each load cell's six loads as directions 1..6 in the cell frame, inputs as the setup's
-excitations). :func:`model_frf` evaluates the true article consistently with the exponential
+:func:`~dimacq.services.acquisition.impact_frf` turns the session's result into
+:class:`~dimacq.model.frf.FrfData`; :func:`model_frf` evaluates the true article consistently with the exponential
 window, and :func:`frf_agreement` compares. :func:`simulated_inertial_calibration` runs the
 load cell bench calibration (method §8) and its circular DIM check.
 """
@@ -39,9 +41,11 @@ from dimacq.drivers.daq.driver import DaqDevice, DaqTask
 from dimacq.drivers.loadcell.driver import LoadCellAmplifier
 from dimacq.errors import DataError, SetupError
 from dimacq.io.acquisition_hdf5 import AcquisitionWriter
-from dimacq.model.frf import STANDARD_GRAVITY, Channel, FrfData, OutputKind
+from dimacq.model.channels import gauge_names
+from dimacq.model.frf import STANDARD_GRAVITY, FrfData
+from dimacq.model.impact import ImpactSettings
 from dimacq.model.setup import TestSetup
-from dimacq.services.acquisition import ImpactResult, ImpactSession, ImpactSettings, Progress
+from dimacq.services.acquisition import ImpactResult, ImpactSession, Progress, impact_frf
 from dimacq.simulators.daq.backend import DaqInput, VirtualDaqBackend
 from dimacq.simulators.daq.clock import SampleClock
 from dimacq.simulators.lab.forward import ForwardModel, calibration_mass, x38_like
@@ -57,7 +61,6 @@ __all__ = [
     "SimulatedRig",
     "default_noise",
     "frf_agreement",
-    "impact_frf",
     "model_frf",
     "run_scenario",
     "scenario_model",
@@ -205,7 +208,7 @@ class SimulatedRig:
         self.loadcells: list[LoadCellAmplifier] = []
         for lc in self.setup.load_cells:
             name = f"dimacq-sim-{os.getpid()}-{next(_bus_names)}-lc{lc.node}"
-            gauges = [lab.channel_index(f"LC{lc.node} g{g + 1:02d}") for g in range(12)]
+            gauges = [lab.channel_index(n) for n in gauge_names(lc.node)]
             sim = LoadCellAmplifierSim(
                 name, self.source, gauges, clock=self.clock, serial_number=lc.node
             )
@@ -249,7 +252,7 @@ class SimulatedRig:
         n_in = len(self.setup.excitations)
         if settings.hit_delay_samples < self.lab.block_samples:
             # The lab can only be struck at or after what it has already generated (whole blocks).
-            settings = replace(settings, hit_delay_samples=self.lab.block_samples)
+            settings = settings.model_copy(update={"hit_delay_samples": self.lab.block_samples})
         kwargs: dict[str, Any] = dict(
             settings=settings,
             operator=self.strike,
@@ -281,40 +284,6 @@ class SimulatedRig:
 # ---------------------------------------------------------------------------------------------
 # Results as FRF data, and the model to compare with
 # ---------------------------------------------------------------------------------------------
-def impact_frf(
-    result: ImpactResult, setup: TestSetup, *, meta: Mapping[str, str] | None = None
-) -> FrfData:
-    """The session's FRFs as :class:`FrfData` in the setup's channel order (the 0 Hz line dropped).
-
-    Outputs: each response (accelerance, (m/s²)/N), then per load cell of the setup its six loads
-    (directions 1..6, N/N and N·m/N, cell frame, as the driver's calibration matrix gives them).
-    Needs a session run with ``loadcell_outputs="forces"``.
-    """
-    n_acc = len(setup.responses)
-    n_out = n_acc + 6 * len(setup.load_cells)
-    if result.H.shape[1] != n_out or result.H.shape[2] != len(setup.excitations):
-        raise DataError(
-            f"impact result has {result.H.shape[1]} outputs × {result.H.shape[2]} inputs; the setup "
-            f"needs {n_out} × {len(setup.excitations)} (run the session with "
-            "loadcell_outputs='forces')"
-        )
-    outputs = [Channel(c.node, c.direction) for c in setup.responses]
-    kinds: list[OutputKind] = ["acceleration"] * n_acc
-    for lc in setup.load_cells:
-        outputs += [Channel(lc.node, k) for k in range(1, 7)]
-        kinds += ["reaction"] * 6
-    keep = result.frequencies_hz > 0
-    return FrfData(
-        frequencies_hz=result.frequencies_hz[keep],
-        H=result.H[keep],
-        outputs=tuple(outputs),
-        output_kinds=tuple(kinds),
-        inputs=tuple(Channel(e.node, e.direction) for e in setup.excitations),
-        coherence=result.coherence[keep],
-        meta={"source": "dimacq acquire (simulated USB DAQ + CAN load cells)", **(meta or {})},
-    )
-
-
 def model_frf(
     model: ForwardModel, frequencies_hz: FloatArray, exponential_tau_s: float | None = None
 ) -> ComplexArray:
@@ -441,7 +410,7 @@ def impact_settings(
     return ImpactSettings(
         record_samples=record_samples,
         pretrigger_samples=32,
-        trigger_level=5.0,
+        trigger_level_n=5.0,
         averages_per_input=averages_per_input,
         force_window_samples=force_window_samples,
         exponential_tau_s=exponential_tau_s,
@@ -478,7 +447,14 @@ def run_scenario(
     )
     with SimulatedRig(lab, calibration=calibration) as rig:
         result = rig.run(settings, data_path=data_path, progress=progress)
-    frf = impact_frf(result, model.setup, meta={"scenario": model.setup.name})
+    frf = impact_frf(
+        result,
+        model.setup,
+        meta={
+            "source": "dimacq acquire (simulated USB DAQ + CAN load cells)",
+            "scenario": model.setup.name,
+        },
+    )
     return ScenarioRun(model, model.setup, result, frf, settings)
 
 

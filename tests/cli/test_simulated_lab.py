@@ -16,10 +16,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from _acq_support import no_leaks
 
-from dimacq.errors import SetupError
-from dimacq.pipeline import dim
-from dimacq.pipeline.rigid_body import load_cell_transform
-from dimacq.services.simulated_lab import (
+from dimacq.cli.simulated_lab import (
     DIM_BAND_HZ,
     frf_agreement,
     model_frf,
@@ -27,6 +24,9 @@ from dimacq.services.simulated_lab import (
     scenario_model,
     solution_errors,
 )
+from dimacq.errors import SetupError
+from dimacq.pipeline import dim
+from dimacq.pipeline.rigid_body import load_cell_transform
 from dimacq.simulators.lab.forward import calibration_mass
 from dimacq.simulators.lab.timedomain import Hammer, LabNoise, VirtualLab
 from dimacq.simulators.loadcell.bench import SupportSideBench

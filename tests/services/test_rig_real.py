@@ -1,7 +1,8 @@
 """The real-device branch of the acquisition rig, end to end without hardware.
 
-Configuration only: ``daq_backend`` names a pyusb backend factory returning the USB DAQ
-simulator fed by a virtual lab, ``loadcell_interface = "virtual"`` with the load cell amplifier
+Configuration only: ``daq = "dimacq-usb"`` (implied by the older setting ``daq_backend``) with
+``daq_backend`` naming a pyusb backend factory returning the USB DAQ simulator fed by a virtual
+lab, ``loadcell = "dimacq-can"`` with ``loadcell_interface = "virtual"`` with the load cell amplifier
 simulator listening on ``loadcell_channel``, and ``rig_file`` maps the cabling (hammer on DAQ
 input 40, accelerometers on shuffled inputs, the amplifier on CAN node 3). The operator strikes
 when the service asks "strike input N". Checks the FRFs against the article's model, every
@@ -20,11 +21,11 @@ import numpy as np
 import pytest
 from _real_rig_support import VirtualWorld, installed
 
+from dimacq.cli.simulated_lab import model_frf
 from dimacq.config import load_settings
 from dimacq.errors import DeviceNotFoundError, SetupError
 from dimacq.io.rig_file import load_rig_file
-from dimacq.services import lab_rig
-from dimacq.services.simulated_lab import model_frf
+from dimacq.services import rig as rig_builder
 
 FACTORY = "_real_rig_support:daq_backend"
 INPUTS = (0, 9, 17)
@@ -62,9 +63,9 @@ def test_real_branch_on_simulators_at_the_wire(tmp_path: Path) -> None:
     world = VirtualWorld("calibration-mass-ground", INPUTS, tmp_path / "rig")
     with installed(world):
         settings = _settings(tmp_path, world)
-        assert not settings.simulated
+        assert (settings.daq, settings.loadcell) == ("dimacq-usb", "dimacq-can")
         cfg = {"averages_per_input": 2, "record_samples": 2048}
-        rig = lab_rig.build_rig(settings, world.setup, cfg)
+        rig = rig_builder.build_rig(settings, world.setup, cfg)
         assert rig.operator is None  # a person strikes
         events: list[tuple[str, Any]] = []
 
@@ -79,7 +80,7 @@ def test_real_branch_on_simulators_at_the_wire(tmp_path: Path) -> None:
             assert rec["outputs"].shape == (24 + 6, 2048)
 
         try:
-            frf = lab_rig.run_impact_test(
+            frf = rig_builder.run_impact_test(
                 rig, world.setup, cfg, on_average=on_average, on_progress=on_progress
             )
         finally:
@@ -145,14 +146,13 @@ def test_service_acquisition_on_the_real_branch(tmp_path: Path) -> None:
 def test_libusb_without_device_names_the_setting(tmp_path: Path) -> None:
     world = VirtualWorld("calibration-mass-ground", INPUTS[:1], tmp_path / "rig")
     with installed(world):
-        rf = load_rig_file(world.rig_file)
         libusb = _settings(tmp_path, world, daq_backend="libusb")
         with pytest.raises(DeviceNotFoundError, match="daq_backend = 'libusb'"):
-            lab_rig.open_daq(libusb, rf)
+            rig_builder.check_devices(libusb, "daq")
         # a backend that has a USB device, but not the configured one
         other = _settings(tmp_path, world, daq_product_id=0x0001)
         with pytest.raises(DeviceNotFoundError, match="daq_product_id"):
-            lab_rig.build_rig(other, world.setup, {})
+            rig_builder.build_rig(other, world.setup, {})
 
 
 def test_service_refuses_naming_the_setting(tmp_path: Path) -> None:
@@ -185,7 +185,7 @@ def test_rig_file_errors_name_item_and_fix(tmp_path: Path) -> None:
     with pytest.raises(SetupError) as exc:
         load_rig_file(p)
     msg = str(exc.value)
-    assert "responses.0.direction" in msg and "responses.0.range_v" in msg and "fix:" in msg
+    assert "responses.0.direction" in msg and "fix:" in msg
     p.write_text(
         "schema_version = 1\n[daq]\nsample_rate_hz = 2048.0\n"
         "[[hammers]]\nphysical_channel = 0\nsensitivity_mv_per_n = 2.25\n"
@@ -195,3 +195,15 @@ def test_rig_file_errors_name_item_and_fix(tmp_path: Path) -> None:
         load_rig_file(p)
     with pytest.raises(SetupError, match="DIMACQ_RIG_FILE"):
         load_rig_file(tmp_path / "missing.toml")
+
+
+def test_a_range_the_daq_lacks_is_refused_naming_the_rig_file_item(tmp_path: Path) -> None:
+    """Which ranges exist is the DAQ's business (not the rig file's): building the rig refuses
+    ±3 V naming the item of the rig file."""
+    world = VirtualWorld("calibration-mass-ground", INPUTS[:1], tmp_path / "rig")
+    text = world.rig_file.read_text(encoding="utf-8")
+    world.rig_file.write_text(text.replace("range_v = 10.0", "range_v = 3.0", 1), encoding="utf-8")
+    assert load_rig_file(world.rig_file).responses[0].range_v == 3.0
+    with installed(world):
+        with pytest.raises(SetupError, match=r"responses\.0: .*range ±3\.0 V is not supported"):
+            rig_builder.build_rig(_settings(tmp_path, world), world.setup, {})

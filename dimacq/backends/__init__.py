@@ -1,0 +1,111 @@
+"""Device backend tables: which code opens each kind of device, chosen by a settings name.
+
+Like python-can's ``BACKENDS`` (``can/interfaces/__init__.py``, looked up by ``can/interface.py``):
+one table per device kind maps the name a setting gives to the factory that opens the device
+and returns its :mod:`dimacq.devices` protocol type. The simulator is one more entry, reached
+through its wire (a pyusb backend, a python-can ``virtual`` channel, a pyserial URL handler).
+
+========== =================== ==================================================================
+setting    name                what opens the device
+========== =================== ==================================================================
+``daq``    ``"dimacq-usb"``    :func:`dimacq.backends.usb_daq.open_daq`: the USB DAQ through pyusb
+                               (``daq_backend``: ``"libusb"`` or a pyusb backend factory)
+``daq``    ``"simulated"``     :func:`dimacq.backends.simulated.open_daq`: the same driver on the
+                               virtual lab's pyusb backend (scenario ``scenario``)
+``loadcell`` ``"dimacq-can"``  :func:`dimacq.backends.can_loadcell.open_loadcell`: the CAN FD
+                               amplifier on ``can.Bus(interface=loadcell_interface, ...)``
+``loadcell`` ``"simulated"``   :func:`dimacq.backends.simulated.open_loadcell`: the same driver on
+                               a python-can ``virtual`` channel to the amplifier simulator
+``digitizer`` ``"serial"``     :func:`dimacq.backends.serial_digitizer.open_digitizer`: pyserial
+                               URL ``digitizer_url``
+``digitizer`` ``"simulated"``  :func:`dimacq.backends.simulated.open_digitizer`: the same driver on
+                               the ``simdigitizer://`` URL handler
+========== =================== ==================================================================
+
+Any other name of the form ``"package.module:factory"`` is imported and called the same way
+(:func:`lookup`): **adding a device kind is one entry here (or a setting naming the factory) and
+one driver module**. Factories take a :class:`~dimacq.backends.base.DeviceContext` (settings, rig
+file, what closes the devices) and, for load cells, the rig file's entry of the cell:
+
+- DAQ: ``factory(ctx) -> dimacq.devices.daq.Daq`` (a task with no channels yet);
+- load cell: ``factory(ctx, entry) -> dimacq.devices.loadcell.LoadCell`` (calibrated from the
+  entry's calibration file);
+- digitizer: ``factory(ctx) -> dimacq.devices.digitizer.Digitizer``.
+
+Only this package (and command-line tools that are simulators by nature, e.g. ``dimacq
+simulate``) imports :mod:`dimacq.simulators`; an import-linter contract in ``pyproject.toml``
+says so.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import Any, Literal
+
+from dimacq.errors import SetupError
+
+__all__ = ["BACKENDS", "DeviceKind", "lookup"]
+
+DeviceKind = Literal["daq", "loadcell", "digitizer"]
+
+#: kind → settings name → ``"module:factory"`` (imported when first used).
+BACKENDS: dict[str, dict[str, str]] = {
+    "daq": {
+        "dimacq-usb": "dimacq.backends.usb_daq:open_daq",
+        "simulated": "dimacq.backends.simulated:open_daq",
+    },
+    "loadcell": {
+        "dimacq-can": "dimacq.backends.can_loadcell:open_loadcell",
+        "simulated": "dimacq.backends.simulated:open_loadcell",
+    },
+    "digitizer": {
+        "serial": "dimacq.backends.serial_digitizer:open_digitizer",
+        "simulated": "dimacq.backends.simulated:open_digitizer",
+    },
+}
+
+
+def import_factory(path: str, *, setting: str) -> Any:
+    """``"package.module:attr.attr"`` → the callable it names.
+
+    Raises
+    ------
+    SetupError
+        Malformed, not importable or not callable; the message names ``setting``.
+    """
+    module_name, sep, attr = path.partition(":")
+    if not sep or not module_name or not attr:
+        raise SetupError(f"{setting} = {path!r}: give 'package.module:factory'")
+    try:
+        obj: Any = importlib.import_module(module_name)
+        for part in attr.split("."):
+            obj = getattr(obj, part)
+    except (ImportError, AttributeError) as err:
+        raise SetupError(
+            f"{setting} = {path!r}: cannot import {attr!r} from module {module_name!r} ({err}); "
+            "give the import path 'package.module:factory' of an installed module"
+        ) from err
+    if not callable(obj):
+        raise SetupError(f"{setting} = {path!r}: {attr!r} is not callable; give a factory")
+    return obj
+
+
+def lookup(kind: DeviceKind, name: str) -> Any:
+    """The factory of backend ``name`` for device ``kind``: a table entry, or
+    ``"package.module:factory"``.
+
+    Raises
+    ------
+    SetupError
+        Unknown name (the message lists the table's names and names the setting).
+    """
+    table = BACKENDS[kind]
+    if name in table:
+        return import_factory(table[name], setting=kind)
+    if ":" in name:
+        return import_factory(name, setting=kind)
+    raise SetupError(
+        f"{kind} = {name!r} is not a known {kind} backend; give one of "
+        f"{', '.join(repr(n) for n in table)} or 'package.module:factory' "
+        f"(DIMACQ_{kind.upper()})"
+    )

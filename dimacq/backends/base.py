@@ -1,0 +1,88 @@
+"""What a backend factory is given: :class:`DeviceContext`."""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+from dimacq.config import Settings
+from dimacq.errors import SetupError
+
+if TYPE_CHECKING:
+    from dimacq.io.rig_file import RigFile
+    from dimacq.model.setup import TestSetup
+
+__all__ = ["DeviceContext", "Operator"]
+
+log = logging.getLogger(__name__)
+
+#: ``operator(input_index, daq_sample)``: strike input ``input_index`` of the setup at that DAQ
+#: sample (a person is asked; a simulated lab's hand strikes exactly then).
+Operator = Callable[[int, int], None]
+
+
+@dataclass
+class DeviceContext:
+    """The devices of one rig (or one connection check) while they are open.
+
+    Attributes
+    ----------
+    settings : Settings
+    setup : TestSetup or None
+        The test the rig is built for (None when only checking the devices).
+    seed : int or None
+        Seed of a simulated world (an acquisition request's ``seed``); None: the scenario's.
+    operator : Operator or None
+        Set by a backend whose world strikes by itself (the simulated lab); None: a person
+        strikes when asked.
+    fixed : dict
+        Impact settings the devices impose (e.g. how far ahead the simulated lab can be struck).
+    shared : dict
+        State backends of one context share (e.g. the simulated lab behind the DAQ and the load
+        cells: one physics, one sample clock).
+    closers : list of callables
+        Called in reverse order by :meth:`close`.
+    """
+
+    settings: Settings
+    setup: TestSetup | None = None
+    seed: int | None = None
+    operator: Operator | None = None
+    fixed: dict[str, Any] = field(default_factory=dict)
+    shared: dict[str, Any] = field(default_factory=dict)
+    closers: list[Callable[[], None]] = field(default_factory=list)
+    _rig_file: RigFile | None = None
+
+    @property
+    def rig_file(self) -> RigFile:
+        """The rig file of ``settings.rig_file`` (read once)."""
+        if self._rig_file is None:
+            from dimacq.io.rig_file import load_rig_file
+
+            self._rig_file = load_rig_file(self.settings.rig_path)
+        return self._rig_file
+
+    def on_close(self, fn: Callable[[], None]) -> None:
+        self.closers.append(fn)
+
+    def close(self) -> None:
+        while self.closers:
+            fn = self.closers.pop()
+            try:
+                fn()
+            except Exception:  # closing must go on for the others
+                log.exception("closing a device failed")
+
+    def __enter__(self) -> DeviceContext:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def require_setup(ctx: DeviceContext, what: str) -> TestSetup:
+    if ctx.setup is None:
+        raise SetupError(f"{what} needs the test setup; build the rig for a setup")
+    return ctx.setup

@@ -1,0 +1,115 @@
+"""Backend ``loadcell = "dimacq-can"``: the CAN FD load cell amplifier through python-can.
+
+Each load cell of the rig file is opened on its own bus handle (``interface =
+loadcell_interface``, ``channel`` = the entry's or ``loadcell_channel``, CAN FD, filtered to the
+node's identifiers) with the 6×12 matrix of its calibration file; the amplifier's serial number
+must match the file's.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from dimacq.backends.base import DeviceContext
+from dimacq.drivers.loadcell import protocol as lp
+from dimacq.drivers.loadcell.driver import LoadCellAmplifier
+from dimacq.errors import DataError, DeviceNotFoundError, DeviceTimeoutError, SetupError
+from dimacq.io.loadcell_calibration import LoadCellCalibration, read_calibration
+from dimacq.io.rig_file import LoadCellEntry
+
+__all__ = ["open_amplifier", "open_loadcell", "read_entry_calibration"]
+
+
+def _filters(node_id: int) -> list[dict[str, Any]]:
+    ids = (lp.response_id(node_id), lp.data_id(node_id), lp.heartbeat_id(node_id))
+    return [{"can_id": i, "can_mask": 0x7FF, "extended": False} for i in ids]
+
+
+def read_entry_calibration(ctx: DeviceContext, entry: LoadCellEntry) -> LoadCellCalibration:
+    """The calibration file of ``entry`` (relative paths from the rig file).
+
+    Raises
+    ------
+    SetupError
+        Unreadable file; the message names the rig file item.
+    """
+    rig_file = ctx.rig_file
+    try:
+        return read_calibration(rig_file.calibration_path(entry))
+    except (OSError, DataError) as err:
+        raise SetupError(
+            f"load cell {entry.node} (calibration_file of {rig_file.path}): {err}; give the "
+            "cell's calibration file (dimacq loadcell calibrate writes one)"
+        ) from err
+
+
+def open_amplifier(
+    ctx: DeviceContext,
+    entry: LoadCellEntry,
+    *,
+    interface: str,
+    channel: str,
+    where: str,
+    timeout_s: float = 2.0,
+) -> LoadCellAmplifier:
+    """Open the amplifier of ``entry`` on ``can.Bus(interface, channel)``, calibrated from its
+    file; the bus's closer goes to ``ctx``.
+
+    Raises
+    ------
+    DeviceNotFoundError
+        The bus cannot be opened, or the amplifier does not answer.
+    SetupError
+        The calibration file is unreadable or belongs to another cell.
+    """
+    import can
+
+    cal = read_entry_calibration(ctx, entry)
+    try:
+        bus = can.Bus(
+            interface=interface, channel=channel, fd=True, can_filters=_filters(entry.node_id)
+        )
+    except (can.CanError, OSError, ImportError, ValueError) as err:
+        raise DeviceNotFoundError(
+            f"{where}: cannot open the CAN bus ({err}); check the adapter and the driver, or set "
+            "loadcell_interface/loadcell_channel (DIMACQ_LOADCELL_INTERFACE/_CHANNEL)"
+        ) from err
+    try:
+        amp = LoadCellAmplifier(
+            bus, node_id=entry.node_id, timeout_s=timeout_s, calibration_matrix=cal.matrix
+        )
+        try:
+            ident = amp.identify()
+        except DeviceTimeoutError as err:
+            raise DeviceNotFoundError(
+                f"{where}: load cell amplifier node_id {entry.node_id} (load cell {entry.node}) "
+                f"does not answer ({err}); check its power, the bit rate and node_id in "
+                f"{ctx.rig_file.path}"
+            ) from err
+        if str(ident.serial_number) != str(cal.serial_number):
+            raise SetupError(
+                f"load cell {entry.node}: amplifier node_id {entry.node_id} reports serial number "
+                f"{ident.serial_number} but {ctx.rig_file.calibration_path(entry)} calibrates "
+                f"{cal.serial_number}; give this cell's own calibration file or correct node_id"
+            )
+    except BaseException:
+        bus.shutdown()
+        raise
+    ctx.on_close(bus.shutdown)
+    return amp
+
+
+def open_loadcell(ctx: DeviceContext, entry: LoadCellEntry) -> LoadCellAmplifier:
+    """The table entry ``"dimacq-can"``."""
+    s = ctx.settings
+    channel = entry.channel or s.loadcell_channel
+    return open_amplifier(
+        ctx,
+        entry,
+        interface=s.loadcell_interface,
+        channel=channel,
+        where=(
+            f"loadcell = 'dimacq-can', loadcell_interface = {s.loadcell_interface!r}, channel "
+            f"{channel!r} (loadcell_channel)"
+        ),
+    )

@@ -1,0 +1,215 @@
+"""Backend ``"simulated"`` of every device kind: the virtual lab behind the real drivers' wires.
+
+:class:`SimulatedWorld` is the lab of scenario ``scenario`` (:mod:`dimacq.simulators.lab`) cabled
+as the rig file says — the hammer(s) and each accelerometer axis on their ``physical_channel`` of
+a :class:`~dimacq.simulators.daq.backend.VirtualDaqBackend` (a pyusb backend), each load cell's
+amplifier simulator on one python-can ``virtual`` channel with the rig file's ``node_id``, both
+counting one SYNC clock. The transducers are the lab's own: each has a true sensitivity within
+its datasheet tolerance (:mod:`dimacq.simulators.lab.transducers`) and each load cell its own
+gauge matrix; the drivers learn them as on a real rig, only from the rig file's calibrated
+sensitivities and the calibration files it names.
+
+The entries then open the devices exactly as the hardware entries do:
+:func:`open_daq` finds the DAQ through pyusb on the world's backend
+(:func:`dimacq.backends.usb_daq.open_on_backend`), :func:`open_loadcell` opens each amplifier on
+``can.Bus(interface="virtual", ...)`` with its calibration file
+(:func:`dimacq.backends.can_loadcell.open_amplifier`), :func:`open_digitizer` opens
+``digitizer_url`` (``simdigitizer://``) through pyserial's URL handler. The world's hand strikes
+the article when the session asks (``ctx.operator``).
+"""
+
+from __future__ import annotations
+
+import itertools
+import logging
+import os
+from typing import Any
+
+from dimacq.backends.base import DeviceContext, require_setup
+from dimacq.backends.can_loadcell import open_amplifier
+from dimacq.backends.serial_digitizer import open_digitizer as open_serial_digitizer
+from dimacq.backends.usb_daq import open_on_backend
+from dimacq.drivers.daq.driver import DaqTask
+from dimacq.drivers.digitizer import SerialDigitizer
+from dimacq.drivers.loadcell.driver import LoadCellAmplifier
+from dimacq.errors import SetupError
+from dimacq.io.rig_file import LoadCellEntry, RigFile
+from dimacq.model.channels import axis_name, gauge_names
+from dimacq.model.frf import STANDARD_GRAVITY
+from dimacq.simulators.daq.backend import DaqInput, VirtualDaqBackend
+from dimacq.simulators.daq.clock import SampleClock
+from dimacq.simulators.lab import transducers as tr
+from dimacq.simulators.lab.impact import virtual_lab
+from dimacq.simulators.lab.scenarios import build_scenario
+from dimacq.simulators.lab.timedomain import VirtualLab
+from dimacq.simulators.loadcell.amplifier import LoadCellAmplifierSim
+
+__all__ = ["SimulatedWorld", "open_daq", "open_digitizer", "open_loadcell", "world"]
+
+log = logging.getLogger(__name__)
+
+_WORLD = "simulated-world"
+_names = itertools.count()
+
+
+class SimulatedWorld:
+    """The virtual lab of ``scenario`` cabled as ``rig_file`` says.
+
+    Parameters
+    ----------
+    scenario : str
+    rig_file : RigFile
+        Where each transducer is plugged in (``physical_channel``, node, direction, CAN
+        ``node_id``); its sensitivities and calibration files are NOT read here.
+    seed : int or None
+        The scenario's noise seed (None: the scenario's own).
+
+    Raises
+    ------
+    SetupError
+        The rig file's sample rate differs from the lab's, or it names a sensor the scenario's
+        article does not carry.
+    """
+
+    def __init__(self, scenario: str, rig_file: RigFile, seed: int | None = None) -> None:
+        self.scenario = scenario
+        self.built = build_scenario(scenario, seed)
+        self.lab: VirtualLab = virtual_lab(self.built)
+        article = self.lab.model.setup
+        where = f"rig file {rig_file.path} with scenario {scenario!r}"
+        if abs(rig_file.daq.sample_rate_hz - self.lab.sample_rate_hz) > 1e-9:
+            raise SetupError(
+                f"{where}: [daq] sample_rate_hz = {rig_file.daq.sample_rate_hz:g} but the virtual "
+                f"lab samples at {self.lab.sample_rate_hz:g} Hz; set sample_rate_hz to it"
+            )
+        responses = {(c.node, c.direction): k for k, c in enumerate(article.responses)}
+        hammer = self.lab.channel_index("hammer")
+        wiring: dict[int, DaqInput] = {}
+        for h in rig_file.hammers:
+            mv = tr.true_sensitivity(
+                tr.NOMINAL_HAMMER_MV_PER_N,
+                tr.HAMMER_TOLERANCE,
+                tr.hammer_serial(h.physical_channel),
+            )
+            wiring[h.physical_channel] = DaqInput(hammer, mv * 1e-3)
+        absent = [r.key for r in rig_file.responses if (r.node, r.direction) not in responses]
+        cells = {lc.node for lc in article.load_cells}
+        absent += [f"load cell {e.node}" for e in rig_file.load_cells if e.node not in cells]
+        if absent:
+            raise SetupError(
+                f"{where}: {', '.join(absent)} are not instrumented in the scenario's article; "
+                f"give a rig file of this scenario (rig_file, DIMACQ_RIG_FILE; see config/rigs/) "
+                "or use the scenario's node numbers (dimacq simulate --list)"
+            )
+        for r in rig_file.responses:
+            mv = tr.true_sensitivity(
+                tr.NOMINAL_ACCEL_MV_PER_G,
+                tr.ACCEL_TOLERANCE,
+                tr.accelerometer_serial(r.physical_channel),
+            )
+            wiring[r.physical_channel] = DaqInput(
+                responses[(r.node, r.direction)], mv * 1e-3 / STANDARD_GRAVITY
+            )
+        self.clock = SampleClock()
+        self.backend = VirtualDaqBackend(self.lab, wiring, clock=self.clock)
+        self.can_channel = f"dimacq-sim-{os.getpid()}-{next(_names)}"
+        self._sims: list[LoadCellAmplifierSim] = []
+        try:
+            for e in rig_file.load_cells:
+                gauges = [self.lab.channel_index(n) for n in gauge_names(e.node)]
+                self._sims.append(
+                    LoadCellAmplifierSim(
+                        self.can_channel,
+                        self.lab,
+                        gauges,
+                        clock=self.clock,
+                        node_id=e.node_id,
+                        serial_number=e.node,
+                    )
+                )
+        except BaseException:
+            self.close()
+            raise
+
+    def operator(self, ctx: DeviceContext) -> Any:
+        """The hand that strikes the article's input the setup's input ``j`` names (node and
+        direction), at the DAQ sample the session asks for."""
+        setup = require_setup(ctx, "the simulated operator")
+        inputs = {(e.node, e.direction): i for i, e in enumerate(self.lab.model.setup.excitations)}
+        missing = [
+            axis_name(e.node, e.direction)
+            for e in setup.excitations
+            if (e.node, e.direction) not in inputs
+        ]
+        if missing:
+            raise SetupError(
+                f"setup inputs {missing} are not input points of scenario {self.scenario!r}; "
+                "use the scenario's node numbers (see dimacq simulate --list)"
+            )
+        index = [inputs[(e.node, e.direction)] for e in setup.excitations]
+        lab, backend = self.lab, self.backend
+
+        def strike(j: int, daq_sample: int) -> None:
+            lab.excite(index[j], backend.world_sample(daq_sample))
+
+        return strike
+
+    def close(self) -> None:
+        while self._sims:
+            self._sims.pop().close()
+
+
+def world(ctx: DeviceContext) -> SimulatedWorld:
+    """The context's simulated world (made on first use, closed with the context)."""
+    w = ctx.shared.get(_WORLD)
+    if w is None:
+        w = SimulatedWorld(ctx.settings.scenario, ctx.rig_file, ctx.seed)
+        ctx.shared[_WORLD] = w
+        ctx.on_close(w.close)
+    assert isinstance(w, SimulatedWorld)
+    return w
+
+
+def open_daq(ctx: DeviceContext) -> DaqTask:
+    """The table entry ``daq = "simulated"``: the DAQ driver on the world's pyusb backend."""
+    w = world(ctx)
+    task = open_on_backend(ctx, w.backend, f"daq = 'simulated' (scenario {w.scenario!r})")
+    if ctx.setup is not None:
+        ctx.operator = w.operator(ctx)
+    # The lab can only be struck at or after what it has generated (whole blocks).
+    ctx.fixed.update({"hit_delay_samples": w.lab.block_samples, "block_samples": 512})
+    return task
+
+
+def open_loadcell(ctx: DeviceContext, entry: LoadCellEntry) -> LoadCellAmplifier:
+    """The table entry ``loadcell = "simulated"``: the amplifier driver on the world's
+    python-can ``virtual`` channel, calibrated from the entry's calibration file."""
+    w = world(ctx)
+    return open_amplifier(
+        ctx,
+        entry,
+        interface="virtual",
+        channel=w.can_channel,
+        where=f"loadcell = 'simulated' (scenario {w.scenario!r})",
+        timeout_s=5.0,
+    )
+
+
+def open_digitizer(ctx: DeviceContext) -> SerialDigitizer:
+    """The table entry ``digitizer = "simulated"``: ``digitizer_url = "simdigitizer://NAME?..."``
+    through pyserial's URL handler (the simulated device is made on first use and forgotten
+    when the context closes)."""
+    import urllib.parse
+
+    import dimacq.simulators.digitizer as simdig
+
+    url = ctx.settings.digitizer_url
+    parts = urllib.parse.urlsplit(url)
+    if parts.scheme != simdig.SCHEME:
+        raise SetupError(
+            f"digitizer = 'simulated' with digitizer_url = {url!r}: give a "
+            "'simdigitizer://NAME?seed=S' URL, or digitizer = 'serial' for a real port"
+        )
+    simdig.get_device(url)
+    ctx.on_close(lambda: simdig.unregister_device(parts.netloc))
+    return open_serial_digitizer(ctx)
