@@ -56,6 +56,12 @@ Top level
     (written by a digitized setup); ``source`` = "default" | "stated" | "digitized". They widen
     the 95 % intervals, act as priors where the geometry is refined, and enter the verdict.
 
+``[transducer_uncertainty]`` (optional; relative 1σ of the certificate sensitivities)
+    ``accel_sensitivity_rel`` (default 0.005, each axis independently), ``force_sensitivity_rel``
+    (0.005, one value for the hammer, common to all inputs); ``source`` = "default" | "stated".
+    The force transducer's error scales mass and inertia directly: it sets a floor on their
+    intervals that only a known mass (``--scale-to-mass``) removes.
+
 Example (TOML)::
 
     schema_version = 1

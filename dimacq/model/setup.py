@@ -35,6 +35,7 @@ __all__ = [
     "LoadCell",
     "ResponseChannel",
     "TestSetup",
+    "TransducerUncertainty",
     "Vec3",
     "direction_label",
 ]
@@ -235,6 +236,33 @@ class GeometryUncertainty(_Model):
     source: Literal["default", "stated", "digitized"] = "default"
 
 
+class TransducerUncertainty(_Model):
+    """The stated calibration uncertainty of the transducers (relative standard uncertainties, 1σ).
+
+    FRFs are scaled by the sensitivities the calibration certificates give, which are off by a
+    certificate's uncertainty. A response channel whose sensitivity is off by ``ε`` reports
+    ``(1 + ε) dᵀu``; a force transducer off by ``η`` scales every acceleration and reaction FRF by
+    ``1/(1 + η)``, so mass and inertia come out ``(1 + η)``-scaled (less where load cells measure
+    part of the force) whatever the data: no
+    redundancy in the test can find it (only a known mass, ``--scale-to-mass``, can). These values
+    enter the 95 % intervals with the geometry (:func:`dimacq.pipeline.uncertainty.geometry_spread`).
+
+    Attributes
+    ----------
+    accel_sensitivity_rel : float
+        1σ relative error of each accelerometer axis's certificate sensitivity (independent per
+        axis). Default 0.005 (a back-to-back calibration, ±1 % at k = 2).
+    force_sensitivity_rel : float
+        1σ relative error of the force transducer's (hammer's) sensitivity, one value common to
+        every input struck with it. Default 0.005.
+    source : {"default", "stated"}
+    """
+
+    accel_sensitivity_rel: float = Field(default=0.005, ge=0, le=0.5)
+    force_sensitivity_rel: float = Field(default=0.005, ge=0, le=0.5)
+    source: Literal["default", "stated"] = "default"
+
+
 #: Order of the ten DIM parameters (method.md §6): mass, CG (solved as s = m·c), inertia about P.
 PARAMETERS: tuple[str, ...] = ("m", "cx", "cy", "cz", "Ixx", "Ixy", "Ixz", "Iyy", "Iyz", "Izz")
 
@@ -286,6 +314,8 @@ class TestSetup(_Model):
         Optional known properties.
     geometry_uncertainty : GeometryUncertainty
         How far the stated positions and directions may be off (1σ); defaults for a careful test.
+    transducer_uncertainty : TransducerUncertainty
+        How far the certificate sensitivities may be off (relative 1σ).
     """
 
     __test__ = False  # not a pytest test class
@@ -299,6 +329,7 @@ class TestSetup(_Model):
     load_cells: tuple[LoadCell, ...] = ()
     known: KnownProperties = KnownProperties()
     geometry_uncertainty: GeometryUncertainty = GeometryUncertainty()
+    transducer_uncertainty: TransducerUncertainty = TransducerUncertainty()
 
     @model_validator(mode="after")
     def _unique(self) -> TestSetup:

@@ -393,16 +393,25 @@ def geometry_spread(
     input_position_m: float,
     line_of_action_deg: float,
     registration_rms_m: float | None = None,
+    accel_sensitivity_rel: float = 0.0,
+    force_sensitivity_rel: float = 0.0,
     known: Mapping[str, float] | None = None,
     n_samples: int = 400,
     seed: int | None = 0,
 ) -> GeometrySpread:
-    """Propagate the stated geometry uncertainty through the joint DIM solve.
+    """Propagate the stated geometry and transducer uncertainty through the joint DIM solve.
 
     Model (independent, 1σ): each sensor node (all its channels together) moves by
     ``N(0, σ_p² + σ_reg²)`` per coordinate and turns by a rotation vector ``N(0, σ_o)`` per axis;
     each input point moves by ``N(0, σ_ip² + σ_reg²)`` per coordinate and its line of action turns
-    by ``N(0, σ_loa)`` about each of the two axes normal to it. Monte Carlo over ``n_samples``
+    by ``N(0, σ_loa)`` about each of the two axes normal to it. Transducer calibration: a channel
+    whose certificate sensitivity is off by ``ε_c ~ N(0, σ_a)`` reports ``(1 + ε_c) d_cᵀ u``, the
+    same as solving with its row of Ψ scaled by ``(1 + ε_c)``; a force transducer off by
+    ``η ~ N(0, σ_f)`` (one for all inputs) divides every acceleration and reaction FRF by
+    ``(1 + η)``, and solving ``A(K/(1 + η)) x = φ + R/(1 + η)`` is solving
+    ``A(K) x = (1 + η) φ + R``: the input force vectors are scaled by ``(1 + η)``. (Without
+    measured reactions mass and inertia then scale by ``(1 + η)``; with them, by less.)
+    Monte Carlo over ``n_samples``
     geometries (vectorised: :func:`joint_parameters_for_geometry`) gives ``se``; central differences
     over every coordinate give ``se_linear`` (first-order propagation), which the Monte Carlo must
     match while the geometry errors are small.
@@ -432,15 +441,23 @@ def geometry_spread(
     pos0, dir0 = np.asarray(positions_m, float), np.asarray(directions, float)
     ipos0, idir0 = np.asarray(in_positions_m, float), np.asarray(in_directions, float)
 
+    n_ch = pos0.shape[0]
+    sa, sf = float(accel_sensitivity_rel), float(force_sensitivity_rel)
+
     def params(
-        dp_node: FloatArray, rv_node: FloatArray, dp_in: FloatArray, rv_in: FloatArray
+        dp_node: FloatArray,
+        rv_node: FloatArray,
+        dp_in: FloatArray,
+        rv_in: FloatArray,
+        eps_ch: FloatArray,
+        eta: FloatArray,
     ) -> FloatArray:
         Rn = _rot(rv_node)  # (S, G, 3, 3)
         pos = pos0[None] + dp_node[:, inv]
-        dirs = np.einsum("snij,nj->sni", Rn[:, inv], dir0)
+        dirs = np.einsum("snij,nj->sni", Rn[:, inv], dir0) * (1.0 + eps_ch)[..., None]
         # line of action turns about axes normal to it: project the rotation vector
         rv = rv_in - np.einsum("sjk,jk->sj", rv_in, idir0)[..., None] * idir0[None]
-        idir = np.einsum("sjik,jk->sji", _rot(rv), idir0)
+        idir = np.einsum("sjik,jk->sji", _rot(rv), idir0) * (1.0 + eta)[:, None, None]
         return joint_parameters_for_geometry(
             system, sums, pos, dirs, np.asarray(weights, float), ipos0[None] + dp_in, idir, known
         )
@@ -451,9 +468,22 @@ def geometry_spread(
         rng.normal(scale=so, size=(S, G, 3)),
         rng.normal(scale=ip, size=(S, J, 3)),
         rng.normal(scale=sl, size=(S, J, 3)),
+        rng.normal(scale=sa, size=(S, n_ch)),
+        rng.normal(scale=sf, size=S),
     )
     se = samples.std(axis=0, ddof=1) if S > 1 else np.zeros(10)
+
     # linearisation: central differences of ±σ along every coordinate, one batch
+    def zero() -> list[FloatArray]:
+        return [
+            np.zeros((G, 3)),
+            np.zeros((G, 3)),
+            np.zeros((J, 3)),
+            np.zeros((J, 3)),
+            np.zeros(n_ch),
+            np.zeros(()),
+        ]
+
     blocks = [(0, G, sp), (1, G, so), (2, J, ip), (3, J, sl)]
     pert: list[list[FloatArray]] = []
     for b, count, sig in blocks:
@@ -469,11 +499,20 @@ def geometry_spread(
                 else:
                     vec = np.eye(3)[k]
                 for sgn in (1.0, -1.0):
-                    z = [np.zeros((G, 3)), np.zeros((G, 3)), np.zeros((J, 3)), np.zeros((J, 3))]
+                    z = zero()
                     z[b][i] = sgn * sig * vec
                     pert.append(z)
+    for c in range(n_ch if sa > 0 else 0):
+        for sgn in (1.0, -1.0):
+            z = zero()
+            z[4][c] = sgn * sa
+            pert.append(z)
+    for sgn in (1.0, -1.0) if sf > 0 else ():
+        z = zero()
+        z[5] = np.asarray(sgn * sf)
+        pert.append(z)
     if pert:
-        arr = [np.stack([p[k] for p in pert]) for k in range(4)]
+        arr = [np.stack([p[k] for p in pert]) for k in range(6)]
         vals = params(*arr)
         d = (vals[0::2] - vals[1::2]) / 2.0
         se_lin = np.sqrt(np.sum(d**2, axis=0))
@@ -489,5 +528,7 @@ def geometry_spread(
             "sensor_orientation_deg": float(sensor_orientation_deg),
             "input_position_m": ip,
             "line_of_action_deg": float(line_of_action_deg),
+            "accel_sensitivity_rel": sa,
+            "force_sensitivity_rel": sf,
         },
     )

@@ -195,6 +195,7 @@ class AnalysisReport:
                 "verdict": self.verdict,
                 "verdict_reasons": [r.to_json() for r in self.verdict_reasons],
                 "geometry_uncertainty": self.setup_used.geometry_uncertainty.model_dump(),
+                "transducer_uncertainty": self.setup_used.transducer_uncertainty.model_dump(),
             }
         )
         if self.geometry is not None:
@@ -429,6 +430,8 @@ def _geometry(
         input_position_m=gu.input_position_m,
         line_of_action_deg=gu.line_of_action_deg,
         registration_rms_m=gu.registration_rms_m,
+        accel_sensitivity_rel=setup.transducer_uncertainty.accel_sensitivity_rel,
+        force_sensitivity_rel=setup.transducer_uncertainty.force_sensitivity_rel,
         known=known,
         n_samples=opt.geometry_samples,
     )

@@ -144,3 +144,74 @@ def test_geometry_monte_carlo_matches_linearisation() -> None:
     assert np.all(g.se > 0)
     # 2000 samples: the standard deviation is known to about 1.6 % (1σ); allow 10 %
     assert g.se == pytest.approx(g.se_linear, rel=0.10)
+
+
+def test_transducer_calibration_enters_the_spread_as_derived() -> None:
+    """A hammer whose certificate is off by η divides every FRF (accelerations and load-cell
+    reactions) by (1+η). Solving those data equals solving the unscaled data with the input forces
+    scaled by (1+η) — what the spread samples — checked against the real solver with and without
+    load cells; without them mass and inertia scale by exactly (1+η), so the force term of the mass
+    spread is m·σ_f (closed form). Per-channel accelerometer errors: Monte Carlo against first-order
+    propagation, and against re-solving data whose channels are really rescaled (a second method,
+    not the Ψ-row scaling the spread uses)."""
+    from dimacq.pipeline.selection._common import response_geometry
+    from dimacq.pipeline.uncertainty import (
+        _band_sums,
+        geometry_spread,
+        joint_parameters_for_geometry,
+    )
+
+    eta = 0.02
+    common = dict(
+        sensor_position_m=0.0,
+        sensor_orientation_deg=0.0,
+        input_position_m=0.0,
+        line_of_action_deg=0.0,
+        n_samples=2000,
+        seed=3,
+    )
+    for support in ("bungee", "free"):
+        c = forward_case(2, noise=0.0, support=support)
+        frf = c.frf.band(20.0, 200.0)
+        sy = assemble(frf, c.nominal)
+        assert (len(sy.load_cells) > 0) == (support == "bungee")
+        geo = response_geometry(frf, c.nominal)
+        ipos = np.array([e.position_m for e in c.nominal.excitations])
+        idir = np.array([e.direction_gcs for e in c.nominal.excitations])
+        H = frf.H[:, geo.output_index]
+        w = np.ones(len(geo.channels))
+        scaled = solve_system(assemble(frf.replace(H=frf.H / (1 + eta)), c.nominal)).parameters
+        equivalent = joint_parameters_for_geometry(
+            sy, _band_sums(sy, H), geo.positions_m[None], geo.directions[None], w,
+            ipos[None], idir[None] * (1 + eta),
+        )[0]  # fmt: skip
+        assert equivalent == pytest.approx(scaled, rel=1e-8, abs=1e-12)
+        g = geometry_spread(
+            sy, H, geo.positions_m, geo.directions, geo.nodes, w, ipos, idir,
+            force_sensitivity_rel=0.01, **common,
+        )  # fmt: skip
+        assert g.se == pytest.approx(g.se_linear, rel=0.10, abs=1e-12)
+        # the CG is a ratio: no hammer term without reactions, a trace (< 1 µm) with them
+        assert g.se[1:4] == pytest.approx(0.0, abs=1e-9 if support == "free" else 1e-6)
+        if support == "free":
+            base = solve_system(sy).parameters
+            assert scaled[[0, *range(4, 10)]] == pytest.approx(
+                base[[0, *range(4, 10)]] * (1 + eta), rel=1e-9, abs=1e-12
+            )
+            assert g.se_linear[0] == pytest.approx(0.01 * base[0], rel=1e-3)
+
+    ga = geometry_spread(
+        sy, H, geo.positions_m, geo.directions, geo.nodes, w, ipos, idir,
+        accel_sensitivity_rel=0.01, **common,
+    )  # fmt: skip
+    assert ga.se == pytest.approx(ga.se_linear, rel=0.10)
+    rng = np.random.default_rng(7)
+    out_rows = np.asarray(geo.output_index)
+    draws = []
+    for _ in range(300):
+        f = np.ones(frf.H.shape[1])
+        f[out_rows] = 1.0 + rng.normal(scale=0.01, size=out_rows.size)
+        draws.append(solve_system(assemble(frf.replace(H=frf.H * f[None, :, None]), c.nominal)))
+    se_data = np.std([d.parameters for d in draws], axis=0, ddof=1)
+    # 300 re-solves: the standard deviation is known to about 4 % (1σ); allow 15 %
+    assert ga.se_linear == pytest.approx(se_data, rel=0.15)
