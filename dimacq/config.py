@@ -20,6 +20,7 @@ from __future__ import annotations
 import os
 import re
 import secrets
+import socket
 from pathlib import Path
 from typing import Any, Literal
 
@@ -60,6 +61,10 @@ class Settings(BaseSettings):
     schema_version: Literal[1] = SCHEMA_VERSION
     data_dir: Path = Field(default_factory=_default_data_dir)
     database_url: str = ""
+    #: This test stand's name on a shared database (default: the host name); one service each.
+    stand: str = Field(default="", max_length=100, pattern=r"^[A-Za-z0-9._-]*$")
+    #: How long a write waits for an unreachable database (retry with backoff), in seconds.
+    database_retry_s: float = Field(default=600.0, ge=0.0)
     host: str = "127.0.0.1"
     port: int = Field(default=8765, ge=0, le=65535)
     token: str = ""
@@ -129,6 +134,11 @@ class Settings(BaseSettings):
     def db_url(self) -> str:
         """The SQLAlchemy URL (default: SQLite in the data directory)."""
         return self.database_url or f"sqlite:///{self.data_dir / 'dimacq.sqlite'}"
+
+    @property
+    def stand_name(self) -> str:
+        """``stand``, or the host name."""
+        return self.stand or socket.gethostname()[:100]
 
     @property
     def rig_path(self) -> Path:

@@ -12,7 +12,8 @@ wrong and says how to fix it::
           ├── DeviceNotFoundError   no device at that port / bus / USB id
           ├── DeviceTimeoutError    the device did not answer in time (also a TimeoutError)
           ├── ProtocolError         bytes on the wire do not follow the documented protocol
-          └── DeviceStateError      the request does not fit the device's state (e.g. not started)
+          ├── DeviceStateError      the request does not fit the device's state (e.g. not started)
+          └── DatabaseUnavailableError  the database server cannot be reached (the service retries)
 
 Chain with ``raise ... from err`` so the original cause stays visible.
 """
@@ -21,6 +22,7 @@ from __future__ import annotations
 
 __all__ = [
     "DataError",
+    "DatabaseUnavailableError",
     "DeviceError",
     "DeviceNotFoundError",
     "DeviceStateError",
@@ -66,3 +68,8 @@ class ProtocolError(DeviceError):
 
 class DeviceStateError(DeviceError):
     """The request does not fit the device's present state (not connected, already streaming)."""
+
+
+class DatabaseUnavailableError(DeviceError):
+    """The database server cannot be reached now (restart, network); the service retries with
+    backoff and keeps acquired data on its own disk until the database is back."""

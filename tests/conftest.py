@@ -13,6 +13,7 @@ import time
 from collections.abc import Iterator
 
 import pytest
+from _pg_support import BACKENDS, database_url_for
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:
@@ -54,3 +55,34 @@ def _no_leaked_threads() -> Iterator[None]:
             "simulator, bus or device in the test (use a fixture with a finally)",
             pytrace=False,
         )
+
+
+# -- database backends -----------------------------------------------------------------------------
+@pytest.fixture(scope="session")
+def pg_server() -> Iterator[object]:
+    """One throwaway PostgreSQL server for the session (started on first use). Skipped with the
+    reason where the binaries are absent; under ``CI=true`` or ``DIMACQ_TEST_POSTGRES=required``
+    (set by ``.ci/run``) their absence fails instead."""
+    import os
+
+    from _pg_support import PgServer, pg_binaries_missing
+
+    why = pg_binaries_missing()
+    if why:
+        if (
+            os.environ.get("CI", "").lower() == "true"
+            or os.environ.get("DIMACQ_TEST_POSTGRES") == "required"
+        ):
+            pytest.fail(f"PostgreSQL tests are required here but {why}", pytrace=False)
+        pytest.skip(why)
+    srv = PgServer()
+    try:
+        yield srv
+    finally:
+        srv.close()
+
+
+@pytest.fixture(params=BACKENDS)
+def database_url(request: pytest.FixtureRequest) -> Iterator[str]:
+    """Each test using it runs on SQLite and on a fresh PostgreSQL database."""
+    yield from database_url_for(request, request.param)

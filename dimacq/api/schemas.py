@@ -135,6 +135,7 @@ class JobInfo(BaseModel):
     created_at: str
     finished_at: str | None = None
     version: int = 0
+    stand: str = ""
 
 
 class DeviceOut(BaseModel):
@@ -151,6 +152,8 @@ class StatusOut(BaseModel):
     service: str
     version: str
     schema_version: int
+    stand: str = ""
+    database: dict[str, Any] = {}
     uptime_s: float
     devices: dict[str, dict[str, Any]]
     jobs_running: list[dict[str, Any]]
@@ -175,6 +178,7 @@ class SetupOut(BaseModel):
     n_excitations: int
     n_load_cells: int
     setup: dict[str, Any]
+    stand: str = ""  # the test stand that stored it
 
 
 class ImportOut(BaseModel):
@@ -192,6 +196,7 @@ class FrfOut(BaseModel):
     n_inputs: int
     f_min_hz: float
     f_max_hz: float
+    stand: str = ""  # the test stand that stored it
 
 
 class SolutionOut(BaseModel):

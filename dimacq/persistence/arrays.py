@@ -10,6 +10,7 @@ whose row was never committed (the service re-registers them at start-up).
 
 from __future__ import annotations
 
+import io
 import json
 import os
 import uuid
@@ -23,7 +24,28 @@ from numpy.typing import NDArray
 
 from dimacq.errors import DataError
 
-__all__ = ["ArrayStore"]
+__all__ = ["ArrayStore", "arrays_from_bytes", "arrays_to_bytes"]
+
+
+def arrays_to_bytes(arrays: Mapping[str, NDArray[Any]], attrs: Mapping[str, Any]) -> bytes:
+    """``arrays`` and JSON-able ``attrs`` as the bytes of an HDF5 file (for a database column)."""
+    buf = io.BytesIO()
+    with h5py.File(buf, "w") as fh:
+        for name, arr in arrays.items():
+            fh.create_dataset(name, data=np.asarray(arr))
+        fh.attrs["meta"] = json.dumps(dict(attrs))
+    return buf.getvalue()
+
+
+def arrays_from_bytes(data: bytes) -> tuple[dict[str, NDArray[Any]], dict[str, Any]]:
+    """Inverse of :func:`arrays_to_bytes`."""
+    try:
+        with h5py.File(io.BytesIO(data), "r") as fh:
+            arrays = {k: fh[k][()] for k in fh.keys()}
+            attrs = json.loads(fh.attrs.get("meta", "{}"))
+    except (OSError, ValueError) as err:
+        raise DataError(f"stored array data are not a readable HDF5 image ({err})") from err
+    return arrays, attrs
 
 
 class ArrayStore:

@@ -2,21 +2,33 @@
 
 Each migration is a function of a SQLAlchemy connection, applied in order inside one
 transaction per version, using only portable DDL (``MetaData.create_all`` / ``Table.create`` and
-``ALTER TABLE ... ADD COLUMN``), so SQLite and PostgreSQL take the same path. To change the
-schema, append ``(version, description, function)`` to :data:`MIGRATIONS`; never edit an applied one.
+``ALTER TABLE ... ADD COLUMN``), so SQLite and PostgreSQL take the same path. Every step checks
+what exists before creating it, so a migration is idempotent. To change the schema, append
+``(version, description, function)`` to :data:`MIGRATIONS`; never edit an applied one.
+
+Several processes may start at once on one database (the services of several test stands): the
+whole check-and-apply runs under a lock, a PostgreSQL advisory lock (``pg_advisory_lock``, held
+by the migrating connection, released when it ends even if the process dies) or, for SQLite, an
+exclusive ``flock`` on ``<database file>.migrate.lock``. The second process waits, then finds
+the schema current and applies nothing.
 """
 
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable
+import os
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 
-from sqlalchemy import Connection, Engine, inspect, select
+from sqlalchemy import Column, Connection, Engine, inspect, select, text
 
 from dimacq.errors import SetupError
 from dimacq.persistence import models as m
 
-__all__ = ["MIGRATIONS", "SCHEMA_VERSION", "current_version", "migrate"]
+__all__ = ["MIGRATIONS", "SCHEMA_VERSION", "current_version", "migrate", "migration_lock"]
+
+#: Key of the PostgreSQL advisory lock held while migrating (any fixed 64-bit number).
+ADVISORY_LOCK_KEY = 0x64_69_6D_61_63_71  # "dimacq"
 
 log = logging.getLogger(__name__)
 
@@ -26,11 +38,42 @@ def _v1_initial(conn: Connection) -> None:
     m.Base.metadata.create_all(conn, tables=tables)
 
 
+def _add_column(conn: Connection, table: str, column: Column[object]) -> None:
+    """``ALTER TABLE table ADD COLUMN`` unless the column is there (a database created by a
+    later schema's ``create_all`` already has it)."""
+    if column.name in {c["name"] for c in inspect(conn).get_columns(table)}:
+        return
+    ddl = f"ALTER TABLE {table} ADD COLUMN {column.name} {column.type.compile(conn.dialect)}"
+    if column.server_default is not None:
+        ddl += f" DEFAULT '{column.server_default.arg}'"  # type: ignore[attr-defined]
+        ddl += " NOT NULL"
+    conn.execute(text(ddl))
+
+
+def _v2_stands(conn: Connection) -> None:
+    m.StandRow.__table__.create(conn, checkfirst=True)  # type: ignore[attr-defined]
+    for table in ("setups", "acquisitions", "averages", "frf_sets", "solutions", "calibrations"):
+        _add_column(conn, table, Column("stand", m.String(100), server_default=""))
+    _add_column(conn, "frf_sets", Column("data", m.LargeBinary(), nullable=True))
+    _add_column(conn, "jobs", Column("stand", m.String(100), server_default=""))
+    _add_column(conn, "jobs", Column("created_by", m.String(100), server_default=""))
+    _add_column(conn, "jobs", Column("runs_on", m.String(100), nullable=True))
+    _add_column(conn, "jobs", Column("owner", m.String(100), nullable=True))
+    _add_column(conn, "jobs", Column("params", m.JSON(), nullable=True))
+    _add_column(conn, "jobs", Column("attempts", m.Integer(), server_default="0"))
+
+
 MIGRATIONS: list[tuple[int, str, Callable[[Connection], None]]] = [
     (
         1,
         "initial schema: geometry, setups, acquisitions, averages, FRFs, solutions, jobs",
         _v1_initial,
+    ),
+    (
+        2,
+        "several stands on one database: stands, stand of each row, FRF data in the database, "
+        "queued jobs",
+        _v2_stands,
     ),
 ]
 
@@ -55,22 +98,54 @@ def migrate(engine: Engine) -> int:
     SetupError
         The database is newer than this code (downgrade refused).
     """
-    m.SchemaMigration.__table__.create(engine, checkfirst=True)  # type: ignore[attr-defined]
-    have = current_version(engine)
-    if have > SCHEMA_VERSION:
-        raise SetupError(
-            f"database schema version {have} is newer than this dimacq ({SCHEMA_VERSION}); "
-            "upgrade dimacq or point database_url at another database"
-        )
-    for version, description, fn in MIGRATIONS:
-        if version <= have:
-            continue
-        with engine.begin() as conn:
-            fn(conn)
-            conn.execute(
-                m.SchemaMigration.__table__.insert().values(  # type: ignore[attr-defined]
-                    version=version, description=description, applied_at=m.utcnow()
-                )
+    with migration_lock(engine):
+        m.SchemaMigration.__table__.create(engine, checkfirst=True)  # type: ignore[attr-defined]
+        have = current_version(engine)
+        if have > SCHEMA_VERSION:
+            raise SetupError(
+                f"database schema version {have} is newer than this dimacq ({SCHEMA_VERSION}); "
+                "upgrade dimacq or point database_url at another database"
             )
-        log.info("database migrated to schema version %d (%s)", version, description)
-    return max(have, SCHEMA_VERSION)
+        for version, description, fn in MIGRATIONS:
+            if version <= have:
+                continue
+            with engine.begin() as conn:
+                fn(conn)
+                conn.execute(
+                    m.SchemaMigration.__table__.insert().values(  # type: ignore[attr-defined]
+                        version=version, description=description, applied_at=m.utcnow()
+                    )
+                )
+            log.info("database migrated to schema version %d (%s)", version, description)
+        return max(have, SCHEMA_VERSION)
+
+
+@contextmanager
+def migration_lock(engine: Engine) -> Iterator[None]:
+    """Hold the database's migration lock (see the module docstring) for the block."""
+    if engine.dialect.name == "postgresql":
+        with engine.connect() as conn:
+            conn.execute(text("SELECT pg_advisory_lock(:k)"), {"k": ADVISORY_LOCK_KEY})
+            conn.commit()
+            try:
+                yield
+            finally:
+                conn.execute(text("SELECT pg_advisory_unlock(:k)"), {"k": ADVISORY_LOCK_KEY})
+                conn.commit()
+        return
+    path = engine.url.database if engine.dialect.name == "sqlite" else None
+    if not path or path == ":memory:":
+        yield
+        return
+    try:
+        import fcntl
+    except ImportError:  # Windows: one process per SQLite file is the rule there anyway
+        yield
+        return
+    fd = os.open(f"{path}.migrate.lock", os.O_RDWR | os.O_CREAT, 0o600)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        fcntl.flock(fd, fcntl.LOCK_UN)
+        os.close(fd)

@@ -1,7 +1,11 @@
 """Database tables (SQLAlchemy 2 declarative, portable types only: SQLite and PostgreSQL).
 
-Bulk arrays (time data of each average, FRFs) are not in the database: rows reference HDF5 files
-under the data directory by a path relative to it (:class:`dimacq.persistence.arrays.ArrayStore`).
+Several test stands may share one database: every row a stand produces carries the stand's name
+(``stand``). FRF sets live in the database (``FrfSet.data``, the HDF5 bytes), so every stand and
+the office read them; raw time data (each average of an acquisition) stays on the acquiring
+stand's disk as an HDF5 file, registered here by its path relative to that stand's data folder
+and the stand's name (:class:`dimacq.persistence.arrays.ArrayStore`). Columns added after schema
+version 1 are listed in :data:`dimacq.persistence.migrations.MIGRATIONS`.
 """
 
 from __future__ import annotations
@@ -9,7 +13,17 @@ from __future__ import annotations
 from datetime import UTC, datetime
 from typing import Any, ClassVar
 
-from sqlalchemy import JSON, Boolean, DateTime, Float, ForeignKey, Integer, String, Text
+from sqlalchemy import (
+    JSON,
+    Boolean,
+    DateTime,
+    Float,
+    ForeignKey,
+    Integer,
+    LargeBinary,
+    String,
+    Text,
+)
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
 
 __all__ = [
@@ -28,6 +42,7 @@ __all__ = [
     "SensitivityStudy",
     "SetupRow",
     "Solution",
+    "StandRow",
     "utcnow",
 ]
 
@@ -99,6 +114,7 @@ class SetupRow(Base):
     __tablename__ = "setups"
     id: Mapped[int] = mapped_column(Integer, primary_key=True)
     name: Mapped[str] = mapped_column(String(200), default="")
+    stand: Mapped[str] = mapped_column(String(100), default="", server_default="")
     body: Mapped[dict[str, Any]] = mapped_column(JSON)
     created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
 
@@ -112,6 +128,7 @@ class Acquisition(Base):
     message: Mapped[str] = mapped_column(Text, default="")
     job_id: Mapped[str | None] = mapped_column(String(40), nullable=True)
     frf_id: Mapped[int | None] = mapped_column(Integer, nullable=True)
+    stand: Mapped[str] = mapped_column(String(100), default="", server_default="")
     created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
 
 
@@ -126,6 +143,7 @@ class Average(Base):
     accepted: Mapped[bool] = mapped_column(Boolean)
     reason: Mapped[str] = mapped_column(Text, default="")
     path: Mapped[str] = mapped_column(String(500))
+    stand: Mapped[str] = mapped_column(String(100), default="", server_default="")
     created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
 
 
@@ -141,6 +159,8 @@ class FrfSet(Base):
     n_inputs: Mapped[int] = mapped_column(Integer)
     f_min_hz: Mapped[float] = mapped_column(Float)
     f_max_hz: Mapped[float] = mapped_column(Float)
+    stand: Mapped[str] = mapped_column(String(100), default="", server_default="")
+    data: Mapped[bytes | None] = mapped_column(LargeBinary, nullable=True)
     created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
 
 
@@ -150,6 +170,7 @@ class Solution(Base):
     frf_id: Mapped[int] = mapped_column(ForeignKey("frf_sets.id"))
     options: Mapped[dict[str, Any]] = mapped_column(JSON)
     result: Mapped[dict[str, Any]] = mapped_column(JSON)
+    stand: Mapped[str] = mapped_column(String(100), default="", server_default="")
     created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
 
 
@@ -158,6 +179,7 @@ class Calibration(Base):
     id: Mapped[int] = mapped_column(Integer, primary_key=True)
     serial: Mapped[str] = mapped_column(String(100))
     body: Mapped[dict[str, Any]] = mapped_column(JSON)
+    stand: Mapped[str] = mapped_column(String(100), default="", server_default="")
     created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
 
 
@@ -170,7 +192,13 @@ class SensitivityStudy(Base):
 
 
 class JobRow(Base):
-    """A background job's last known state (running jobs found at start-up were interrupted)."""
+    """A background job's last known state (running jobs found at start-up were interrupted).
+
+    ``stand`` runs (or ran) the job, ``owner`` is the service process that claimed it,
+    ``created_by`` the stand that created it. A queued job (``state = "pending"``, ``params``
+    given) runs on stand ``runs_on`` or, if that is NULL, on whichever service claims it first
+    (:mod:`dimacq.persistence.queue`); ``attempts`` counts its claims.
+    """
 
     __tablename__ = "jobs"
     id: Mapped[str] = mapped_column(String(40), primary_key=True)
@@ -182,3 +210,27 @@ class JobRow(Base):
     error: Mapped[str | None] = mapped_column(Text, nullable=True)
     created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
     finished_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True), nullable=True)
+    stand: Mapped[str] = mapped_column(String(100), default="", server_default="")
+    created_by: Mapped[str] = mapped_column(String(100), default="", server_default="")
+    runs_on: Mapped[str | None] = mapped_column(String(100), nullable=True)
+    owner: Mapped[str | None] = mapped_column(String(100), nullable=True)
+    params: Mapped[dict[str, Any] | None] = mapped_column(JSON, nullable=True)
+    attempts: Mapped[int] = mapped_column(Integer, default=0, server_default="0")
+
+
+class StandRow(Base):
+    """A test stand (one dimacq service on its PC): who holds the name, alive until when.
+
+    A service claims its stand's row at start-up and renews ``heartbeat_at``; a second service
+    under the same name is refused while the heartbeat is fresh, so one stand's devices are only
+    ever driven by that stand's service (:mod:`dimacq.persistence.stands`).
+    """
+
+    __tablename__ = "stands"
+    name: Mapped[str] = mapped_column(String(100), primary_key=True)
+    instance: Mapped[str] = mapped_column(String(100))
+    host: Mapped[str] = mapped_column(String(200), default="")
+    pid: Mapped[int] = mapped_column(Integer, default=0)
+    api_url: Mapped[str] = mapped_column(String(300), default="")
+    started_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
+    heartbeat_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)

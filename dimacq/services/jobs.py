@@ -14,8 +14,15 @@ A job function receives a :class:`JobContext` and returns a JSON-able result::
 States: ``pending → running → succeeded | failed | cancelled``; a job that was running when the
 service stopped is ``interrupted`` after a restart (its completed work, e.g. averages, is in the
 database). Every change bumps :attr:`Job.version`, so watchers (the API's server-sent events) can
-wait for the next change cheaply. The persist callback stores each state change (progress changes
-at most every ``persist_interval_s``). No HTTP here.
+wait for the next change cheaply. The store (:class:`JobStore`, the database) keeps each state
+change (progress changes at most every ``persist_interval_s``) and answers for jobs this process
+does not hold: jobs other services run on the shared database, or final jobs of earlier runs.
+
+Queued jobs: ``handlers`` maps a job kind to a function of the job's JSON parameters that returns
+the job function; :meth:`JobManager.claim_queued` takes one pending job from the store (claimed
+by exactly one service, see :mod:`dimacq.persistence.queue`) and runs it here. :class:`Ticker`
+is the service's one background thread for periodic work (claiming queued jobs, the stand's
+heartbeat, writes waiting for the database). No HTTP here.
 """
 
 from __future__ import annotations
@@ -28,11 +35,20 @@ import uuid
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
-from typing import Any, Literal
+from typing import Any, Literal, Protocol
 
-from dimacq.errors import DimacqError, SetupError
+from dimacq.errors import DatabaseUnavailableError, DimacqError, SetupError
 
-__all__ = ["FINAL_STATES", "Job", "JobCancelled", "JobContext", "JobManager", "JobState"]
+__all__ = [
+    "FINAL_STATES",
+    "Job",
+    "JobCancelled",
+    "JobContext",
+    "JobManager",
+    "JobState",
+    "JobStore",
+    "Ticker",
+]
 
 log = logging.getLogger(__name__)
 
@@ -109,6 +125,21 @@ class JobContext:
 
 JobFunction = Callable[[JobContext], dict[str, Any] | None]
 PersistFunction = Callable[[dict[str, Any]], None]
+JobHandler = Callable[[dict[str, Any]], JobFunction]
+
+
+class JobStore(Protocol):
+    """Where job states are kept beyond this process (the database)."""
+
+    def save(self, snapshot: dict[str, Any]) -> None: ...
+
+    def load(self, job_id: str) -> dict[str, Any] | None: ...
+
+    def load_all(self) -> list[dict[str, Any]]: ...
+
+    def cancel(self, job_id: str) -> dict[str, Any]: ...
+
+    def claim(self, kinds: list[str]) -> tuple[str, str, dict[str, Any]] | None: ...
 
 
 class JobManager:
@@ -128,9 +159,15 @@ class JobManager:
         self,
         persist: PersistFunction | None = None,
         *,
+        store: JobStore | None = None,
         persist_interval_s: float = 1.0,
         max_running: int = 4,
     ) -> None:
+        self.store = store
+        if persist is None and store is not None:
+            persist = store.save
+        self.handlers: dict[str, JobHandler] = {}
+        self._claim_lock = threading.Lock()
         self._jobs: dict[str, Job] = {}
         self._lock = threading.Lock()
         self._changed = threading.Condition(self._lock)
@@ -147,11 +184,17 @@ class JobManager:
     def snapshot(self, job_id: str) -> dict[str, Any] | None:
         with self._lock:
             job = self._jobs.get(job_id)
-            return None if job is None else job.snapshot()
+            if job is not None:
+                return job.snapshot()
+        return None if self.store is None else self.store.load(job_id)
 
     def list_jobs(self) -> list[dict[str, Any]]:
+        """Every job: those of this process (live) and, from the store, those of the others."""
         with self._lock:
-            return [j.snapshot() for j in self._jobs.values()]
+            live = {j.id: j.snapshot() for j in self._jobs.values()}
+        stored = [] if self.store is None else self.store.load_all()
+        out = [live.pop(s["id"], s) for s in stored]
+        return out + list(live.values())
 
     def running(self, kind: str | None = None) -> builtins.list[Job]:
         with self._lock:
@@ -177,19 +220,28 @@ class JobManager:
                 self._changed.wait(left)
 
     def wait(self, job_id: str, timeout_s: float | None = None) -> dict[str, Any]:
-        """Block until the job is final; return its snapshot."""
-        job = self.get(job_id)
-        if job is None:
-            raise SetupError(f"job {job_id!r} does not exist; list jobs to find its id")
-        if job.thread is not None:
-            job.thread.join(timeout_s)
-        snap = self.snapshot(job_id)
-        assert snap is not None
-        return snap
+        """Block until the job is final (here or, for a job another service runs, in the store);
+        return its snapshot."""
+        deadline = None if timeout_s is None else time.monotonic() + timeout_s
+        while True:
+            job = self.get(job_id)
+            if job is not None and job.thread is not None:
+                job.thread.join(None if deadline is None else max(0.0, deadline - time.monotonic()))
+            snap = self.snapshot(job_id)
+            if snap is None:
+                raise SetupError(f"job {job_id!r} does not exist; list jobs to find its id")
+            if snap["state"] in FINAL_STATES or (
+                deadline is not None and time.monotonic() >= deadline
+            ):
+                return snap
+            time.sleep(0.05)
 
     # -- control -------------------------------------------------------------------------------
-    def submit(self, kind: str, fn: JobFunction, *, job_id: str | None = None) -> Job:
-        """Start ``fn`` on a new thread; return the job at once."""
+    def submit(
+        self, kind: str, fn: JobFunction, *, job_id: str | None = None, claimed: bool = False
+    ) -> Job:
+        """Start ``fn`` on a new thread; return the job at once (``claimed``: a queued job this
+        service has claimed, already ``running`` in the store)."""
         with self._lock:
             active = sum(1 for j in self._jobs.values() if not j.done)
             if active >= self.max_running:
@@ -197,7 +249,11 @@ class JobManager:
                     f"{active} jobs are running (limit {self.max_running}); wait for one to finish "
                     "or cancel one"
                 )
-            job = Job(id=job_id or uuid.uuid4().hex[:12], kind=kind)
+            job = Job(
+                id=job_id or uuid.uuid4().hex[:12],
+                kind=kind,
+                state="running" if claimed else "pending",
+            )
             self._jobs[job.id] = job
         self._store(job, force=True)
         thread = threading.Thread(
@@ -207,9 +263,33 @@ class JobManager:
         thread.start()
         return job
 
+    def claim_queued(self) -> bool:
+        """Claim one queued job this service has a handler for and start it; False if none (or
+        no capacity)."""
+        if self.store is None or not self.handlers:
+            return False
+        with self._claim_lock:
+            with self._lock:
+                if sum(1 for j in self._jobs.values() if not j.done) >= self.max_running:
+                    return False
+            got = self.store.claim(sorted(self.handlers))
+            if got is None:
+                return False
+            job_id, kind, params = got
+            log.info("claimed queued job %s (%s)", job_id, kind)
+            try:
+                fn = self.handlers[kind](params)
+            except DimacqError as err:
+                fn = _failing(err)
+            self.submit(kind, fn, job_id=job_id, claimed=True)
+            return True
+
     def cancel(self, job_id: str) -> dict[str, Any]:
-        """Ask a job to stop (it stops at its next check); final jobs are left as they are."""
+        """Ask a job to stop (it stops at its next check); final jobs are left as they are. A
+        queued job nobody claimed yet is cancelled in the store."""
         job = self.get(job_id)
+        if job is None and self.store is not None and self.store.load(job_id) is not None:
+            return self.store.cancel(job_id)
         if job is None:
             raise SetupError(f"job {job_id!r} does not exist; list jobs to find its id")
         if not job.done:
@@ -249,6 +329,9 @@ class JobManager:
         self._last_persist[job.id] = now
         try:
             self._persist(job.snapshot())
+        except DatabaseUnavailableError as err:  # the job goes on; the next change retries
+            self._last_persist.pop(job.id, None)
+            log.warning("state of job %s not stored: %s", job.id, err)
         except Exception:  # persisting status must never kill the job
             log.exception("could not persist the state of job %s", job.id)
 
@@ -291,3 +374,58 @@ class JobManager:
         )
         with self._lock:
             self._jobs.setdefault(job.id, job)
+
+
+def _failing(err: DimacqError) -> JobFunction:
+    def fn(_ctx: JobContext) -> dict[str, Any] | None:
+        raise err
+
+    return fn
+
+
+class Ticker:
+    """One background thread running periodic tasks: ``add(name, period_s, fn)``; ``poke()``
+    runs the due ones at once. A task's exception is logged and the task runs again at its next
+    period (a database that is down is retried this way)."""
+
+    def __init__(self, name: str = "dimacq-ticker") -> None:
+        self._tasks: list[tuple[str, float, Callable[[], Any]]] = []
+        self._next: dict[str, float] = {}
+        self._wake = threading.Event()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._loop, name=name, daemon=True)
+
+    def add(self, name: str, period_s: float, fn: Callable[[], Any]) -> None:
+        self._tasks.append((name, period_s, fn))
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def poke(self) -> None:
+        self._next.clear()
+        self._wake.set()
+
+    def stop(self, timeout_s: float = 10.0) -> None:
+        self._stop.set()
+        self._wake.set()
+        if self._thread.is_alive():
+            self._thread.join(timeout_s)
+
+    def _loop(self) -> None:
+        while not self._stop.is_set():
+            now = time.monotonic()
+            for name, period, fn in self._tasks:
+                if self._stop.is_set():
+                    return
+                if now < self._next.get(name, 0.0):
+                    continue
+                self._next[name] = now + period
+                try:
+                    fn()
+                except DatabaseUnavailableError as err:
+                    log.debug("task %s waits for the database: %s", name, err)
+                except Exception:
+                    log.exception("periodic task %s failed", name)
+            due = min((self._next.get(n, 0.0) for n, _, _ in self._tasks), default=now + 1.0)
+            self._wake.wait(max(0.01, due - time.monotonic()))
+            self._wake.clear()

@@ -7,14 +7,21 @@ from collections.abc import Iterator
 import httpx
 import pytest
 from _api_support import TOKEN, Api, make_settings
+from _pg_support import BACKENDS, database_url_for
 
 from dimacq.api import create_app
 from dimacq.api.server import BackgroundServer
 
 
+@pytest.fixture(scope="module", params=BACKENDS)
+def api_database_url(request: pytest.FixtureRequest) -> Iterator[str]:
+    """The module's database: SQLite, then a fresh PostgreSQL database."""
+    yield from database_url_for(request, request.param)
+
+
 @pytest.fixture(scope="module")
-def api(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Api]:
-    settings = make_settings(tmp_path_factory.mktemp("api"))
+def api(tmp_path_factory: pytest.TempPathFactory, api_database_url: str) -> Iterator[Api]:
+    settings = make_settings(tmp_path_factory.mktemp("api"), database_url=api_database_url)
     app = create_app(settings)
     with BackgroundServer(app) as srv:
         auth = {"Authorization": f"Bearer {TOKEN}"}

@@ -19,8 +19,8 @@ from dimacq.services.lab import Lab
 
 
 @pytest.fixture
-def rig_api(tmp_path: Path) -> Iterator[tuple[httpx.Client, Lab]]:
-    settings = make_settings(tmp_path)
+def rig_api(tmp_path: Path, database_url: str) -> Iterator[tuple[httpx.Client, Lab]]:
+    settings = make_settings(tmp_path, database_url=database_url)
     lab = Lab(settings, open_devices=False, rig_factory=impulse_rig_factory())
     try:
         with (
@@ -76,8 +76,8 @@ def test_acquisition_to_frfs(rig_api) -> None:
     assert job["state"] == "succeeded" and job["result"]["frf_id"] == a["frf_id"]
 
 
-def test_acquisition_stop_keeps_completed_averages(tmp_path: Path) -> None:
-    settings = make_settings(tmp_path)
+def test_acquisition_stop_keeps_completed_averages(tmp_path: Path, database_url: str) -> None:
+    settings = make_settings(tmp_path, database_url=database_url)
     lab = Lab(settings, open_devices=False, rig_factory=impulse_rig_factory(pace_s=0.05))
     try:
         with (

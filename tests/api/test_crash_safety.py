@@ -1,6 +1,6 @@
 """Kill ``dimacq serve`` with SIGKILL mid-acquisition (the simulated lab's impact test of the
 calibration mass), restart it: no completed average and no digitized point is lost; the
-interrupted acquisition and job say so."""
+interrupted acquisition and job say so. On SQLite and on PostgreSQL."""
 
 from __future__ import annotations
 
@@ -21,9 +21,10 @@ from dimacq.simulators.lab.scenarios import build_scenario
 TOKEN = "crash-token"
 
 
-def _start(data_dir: Path, port: int) -> subprocess.Popen[bytes]:
+def _start(data_dir: Path, port: int, database_url: str) -> subprocess.Popen[bytes]:
     env = {
         **os.environ,
+        "DIMACQ_DATABASE_URL": database_url,
         "DIMACQ_TOKEN": TOKEN,
         "DIMACQ_DIGITIZER_URL": f"simdigitizer://crash{port}?seed=5",
         "DIMACQ_SCENARIO": "calibration-mass-bungee",
@@ -61,9 +62,9 @@ def _start(data_dir: Path, port: int) -> subprocess.Popen[bytes]:
     raise AssertionError("server did not start")
 
 
-def test_sigkill_mid_acquisition_loses_nothing_completed(tmp_path: Path) -> None:
+def test_sigkill_mid_acquisition_loses_nothing_completed(tmp_path: Path, database_url: str) -> None:
     port = free_port()
-    proc = _start(tmp_path, port)
+    proc = _start(tmp_path, port, database_url)
     try:
         with httpx.Client(
             base_url=f"http://127.0.0.1:{port}",
@@ -96,7 +97,7 @@ def test_sigkill_mid_acquisition_loses_nothing_completed(tmp_path: Path) -> None
         if proc.stderr:
             proc.stderr.close()
 
-    proc = _start(tmp_path, port)
+    proc = _start(tmp_path, port, database_url)
     try:
         with httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=30) as c:
             points = c.get("/api/digitizer/points").json()

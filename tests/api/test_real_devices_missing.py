@@ -16,10 +16,11 @@ from dimacq.io.setup_file import dump_setup_dict
 
 
 @pytest.fixture
-def real_api(tmp_path: Path) -> Iterator[httpx.Client]:
+def real_api(tmp_path: Path, database_url: str) -> Iterator[httpx.Client]:
     # A USB id no device has: the real pyusb path finds nothing (whatever libusb is installed).
     settings = make_settings(
         tmp_path,
+        database_url=database_url,
         daq_backend="libusb",
         daq_vendor_id=0xFFFE,
         daq_product_id=0xFFFE,

@@ -64,8 +64,10 @@ def test_frf_arrays_round_trip() -> None:
     assert back.output_kinds == frf.output_kinds
 
 
-def test_restart_recovers_interrupted_jobs_and_orphan_averages(tmp_path: Path) -> None:
-    settings = make_settings(tmp_path)
+def test_restart_recovers_interrupted_jobs_and_orphan_averages(
+    tmp_path: Path, database_url: str
+) -> None:
+    settings = make_settings(tmp_path, database_url=database_url)
     lab = Lab(settings, open_devices=False)
     with lab.db.session() as s:
         s.add(m.JobRow(id="j1", kind="acquisition", state="running", progress=0.4))

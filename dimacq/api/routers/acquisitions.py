@@ -41,3 +41,12 @@ def get_acquisition(acq_id: int, lab: LabDep) -> dict[str, Any]:
 @router.post("/{acq_id:int}/stop", response_model=dict[str, Any])
 def stop_acquisition(acq_id: int, lab: LabDep) -> dict[str, Any]:
     return asdict(found(lab.acquisitions.stop(acq_id), f"acquisition {acq_id}"))
+
+
+@router.get("/{acq_id:int}/averages/{number:int}", response_model=dict[str, Any])
+def get_average(acq_id: int, number: int, lab: LabDep) -> dict[str, Any]:
+    """Raw time data of one average, served by the stand that acquired it (it stays on that
+    stand's disk); another stand answers 409 with that stand's address."""
+    return found(
+        lab.acquisitions.average_data(acq_id, number), f"average {number} of acquisition {acq_id}"
+    )

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from typing import Any
 
 from fastapi import APIRouter, Response
 
@@ -17,3 +18,9 @@ async def get_status(lab: LabDep) -> Response:
     """Service status from memory only (no database, no device I/O): the call to poll."""
     # serialised directly: this is the hot path clients poll during acquisitions
     return Response(json.dumps(lab.status().to_json()).encode(), media_type="application/json")
+
+
+@router.get("/stands", response_model=list[dict[str, Any]])
+def get_stands(lab: LabDep) -> list[dict[str, Any]]:
+    """The test stands sharing this database: name, host, API address, last heartbeat."""
+    return lab.stands()

@@ -39,7 +39,12 @@ def run(args: argparse.Namespace) -> int:
     print(
         f"dimacq serving http://{settings.host}:{settings.port}  (docs: /docs, spec: /openapi.json)"
     )
-    print(f"data: {settings.data_dir}  database: {settings.db_url}")
+    from dimacq.persistence.db import masked_url
+
+    print(
+        f"stand: {settings.stand_name}  data: {settings.data_dir}  "
+        f"database: {masked_url(settings.db_url)}"
+    )
     print(f"token for state-changing calls: {app.state.token}  (from {token_src})", flush=True)
     serve(app, settings.host, settings.port, log_level=args.log_level)
     return 0

@@ -4,6 +4,11 @@ Every completed average (accepted or rejected) is written to its own HDF5 file a
 the database before the next strike, so a crash loses none of them; after a restart the files
 written but not yet committed are registered (:meth:`AcquisitionService.recover`). When all
 inputs have their averages the FRFs are estimated and stored as an FRF set.
+
+On a shared database every acquisition belongs to the stand that runs it: only that stand
+stops or recovers it, and the raw time data stay on its disk (:meth:`average_data`). While the
+database is unreachable the averages go on to the disk and their rows wait in the outbox
+(:class:`dimacq.persistence.queue.Outbox`); the FRFs are stored with retry and backoff.
 """
 
 from __future__ import annotations
@@ -18,14 +23,22 @@ from numpy.typing import NDArray
 from sqlalchemy import select
 
 from dimacq.config import Settings
-from dimacq.errors import DataError, DeviceNotFoundError, DeviceStateError, DimacqError
+from dimacq.errors import (
+    DatabaseUnavailableError,
+    DataError,
+    DeviceNotFoundError,
+    DeviceStateError,
+    DimacqError,
+)
 from dimacq.model.setup import TestSetup
 from dimacq.persistence import ArrayStore, Database
 from dimacq.persistence import models as m
+from dimacq.persistence import stands as stand_lease
+from dimacq.persistence.queue import Outbox
 from dimacq.services.jobs import JobContext, JobManager
 from dimacq.services.lab.common import json_safe
 from dimacq.services.lab.devices import DeviceService
-from dimacq.services.lab.store import TestStore
+from dimacq.services.lab.store import TestStore, frf_to_arrays
 
 __all__ = ["AcquisitionInfo", "AcquisitionService", "AverageInfo", "RigFactory"]
 
@@ -61,6 +74,7 @@ class AcquisitionInfo:
     averages_rejected: int
     averages: list[AverageInfo]
     progress: float
+    stand: str = ""  # the test stand that runs it (its raw data are on that stand's disk)
 
 
 class AcquisitionService:
@@ -84,8 +98,13 @@ class AcquisitionService:
         devices: DeviceService,
         store: TestStore,
         rig_factory: RigFactory | None = None,
+        *,
+        stand: str = "",
+        outbox: Outbox | None = None,
     ) -> None:
         self.settings = settings
+        self.stand = stand
+        self.outbox = outbox if outbox is not None else Outbox()
         self.db = db
         self.arrays = arrays
         self.jobs = jobs
@@ -94,16 +113,18 @@ class AcquisitionService:
         self._rig_factory = rig_factory
 
     def recover(self) -> None:
-        """After a restart: running acquisitions are interrupted; orphan average files (written
-        but not yet committed when the service died) are registered."""
+        """After a restart: this stand's running acquisitions are interrupted (other stands'
+        are theirs); orphan average files (written but not yet committed when the service died,
+        or while the database was unreachable) are registered."""
+        mine = [self.stand, ""]
         with self.db.session() as s:
-            for acq in s.scalars(select(m.Acquisition)):
+            for acq in s.scalars(select(m.Acquisition).where(m.Acquisition.stand.in_(mine))):
                 if acq.state in ("running", "configured-running"):
                     acq.state = "interrupted"
                     acq.message = (
                         "the service stopped during the acquisition; completed averages are kept"
                     )
-            known = set(s.scalars(select(m.Average.path)))
+            known = set(s.scalars(select(m.Average.path).where(m.Average.stand.in_(mine))))
             for rel in self.arrays.orphans("acquisitions", known):
                 try:
                     _, attrs = self.arrays.read(rel)
@@ -115,6 +136,7 @@ class AcquisitionService:
                             accepted=bool(attrs["accepted"]),
                             reason=str(attrs.get("reason", "")),
                             path=rel,
+                            stand=self.stand,
                         )
                     )
                     log.info("recovered average file %s", rel)
@@ -135,7 +157,9 @@ class AcquisitionService:
             raise DeviceStateError("an acquisition is already running; stop it or wait for it")
         rig = self._build_rig(setup, cfg)  # raises DeviceError if the devices are not there
         with self.db.session() as s:
-            row = m.Acquisition(setup_id=setup_id, config=json_safe(cfg), state="running")
+            row = m.Acquisition(
+                setup_id=setup_id, config=json_safe(cfg), state="running", stand=self.stand
+            )
             s.add(row)
             s.flush()
             acq_id = int(row.id)
@@ -201,31 +225,54 @@ class AcquisitionService:
                 "accepted": accepted,
                 "reason": reason,
             }
-            self.arrays.write(rel, record, attrs)
-            with self.db.session() as s:
-                s.add(
-                    m.Average(
-                        acquisition_id=acq_id,
-                        input_index=input_index,
-                        number=number,
-                        accepted=accepted,
-                        reason=reason,
-                        path=rel,
-                    )
-                )
+            self.arrays.write(rel, record, attrs)  # on this stand's disk first, always
+            row = {
+                "acquisition_id": acq_id,
+                "input_index": input_index,
+                "number": number,
+                "accepted": accepted,
+                "reason": reason,
+                "path": rel,
+                "stand": self.stand,
+            }
+            if not self.outbox.write(self.db, rel, lambda s: s.add(m.Average(**row))):
+                log.warning("average %s kept on disk; registered when the database is back", rel)
 
         def on_progress(fraction: float, message: str) -> None:
             ctx.progress(fraction, message)
             ctx.check_cancelled()  # raising here stops the session; its finally stops the devices
 
-        state, message = "failed", ""
-        try:
-            frf = run_impact_test(rig, setup, cfg, on_average=on_average, on_progress=on_progress)
+        def wait(msg: str) -> None:
+            ctx.progress(1.0, msg)
+
+        def store_frf(frf: Any) -> int:
+            self.outbox.flush(self.db)  # the averages first
             fid = self.store.save_frf(
                 frf, setup_id, name=f"acquisition {acq_id}", acquisition_id=acq_id
             )
-            state, message = "finished", f"FRFs stored as FRF set {fid}"
             self._set(acq_id, frf_id=fid)
+            return fid
+
+        state, message = "failed", ""
+        try:
+            frf = run_impact_test(rig, setup, cfg, on_average=on_average, on_progress=on_progress)
+            try:
+                fid = self.db.retry(
+                    lambda: store_frf(frf),
+                    what="store the FRFs",
+                    timeout_s=self.settings.database_retry_s,
+                    on_wait=wait,
+                )
+            except DatabaseUnavailableError as err:
+                rel = self.arrays.write(
+                    f"frfs/unsaved-acquisition-{acq_id:06d}.h5", *frf_to_arrays(frf)
+                )
+                raise DatabaseUnavailableError(
+                    f"{err}; the FRFs are kept in {self.arrays.path(rel)} and every average in "
+                    f"{self.arrays.path(f'acquisitions/{acq_id:06d}')} (import the FRFs when "
+                    "the database is back)"
+                ) from err
+            state, message = "finished", f"FRFs stored as FRF set {fid}"
             return {"acquisition_id": acq_id, "frf_id": fid}
         except DimacqError as err:
             state = "cancelled" if ctx.cancelled else "failed"
@@ -233,7 +280,18 @@ class AcquisitionService:
             raise
         finally:
             rig.close()
-            self._set(acq_id, state=state, message=message)
+
+            def final(s: Any) -> None:
+                r = s.get(m.Acquisition, acq_id)
+                assert r is not None
+                r.state, r.message = state, message
+
+            if not self.outbox.write(self.db, f"acquisition {acq_id} {state}", final):
+                log.warning(
+                    "acquisition %d %s; its state is stored when the database is back",
+                    acq_id,
+                    state,
+                )
 
     # ------------------------------------------------------------------ read and stop
     def all(self) -> list[AcquisitionInfo]:
@@ -255,8 +313,8 @@ class AcquisitionService:
                     .order_by(m.Average.number)
                 )
             ]
-            row = (r.id, r.setup_id, r.config, r.state, r.message, r.job_id, r.frf_id)
-        acq, setup_id, config, state, message, job_id, frf_id = row
+            row = (r.id, r.setup_id, r.config, r.state, r.message, r.job_id, r.frf_id, r.stand)
+        acq, setup_id, config, state, message, job_id, frf_id, stand = row
         snap = self.jobs.snapshot(job_id) if job_id else None
         return AcquisitionInfo(
             id=acq,
@@ -270,6 +328,7 @@ class AcquisitionService:
             averages_rejected=sum(1 for a in avgs if not a.accepted),
             averages=avgs,
             progress=snap["progress"] if snap else (1.0 if state == "finished" else 0.0),
+            stand=stand,
         )
 
     def stop(self, acq_id: int) -> AcquisitionInfo | None:
@@ -277,6 +336,48 @@ class AcquisitionService:
         cur = self.get(acq_id)
         if cur is None:
             return None
+        if cur.state == "running" and cur.stand not in (self.stand, ""):
+            raise DeviceStateError(
+                f"acquisition {acq_id} runs on stand {cur.stand!r}: only that stand drives its "
+                f"devices; stop it through its API ({self._stand_url(cur.stand)})"
+            )
         if cur.job_id and cur.state == "running":
             self.jobs.cancel(cur.job_id)
         return self.get(acq_id)
+
+    def _stand_url(self, name: str) -> str:
+        for st in stand_lease.stands(self.db):
+            if st["name"] == name:
+                return st["api_url"] or "address unknown"
+        return "address unknown"
+
+    def average_data(self, acq_id: int, number: int) -> dict[str, Any] | None:
+        """Raw time data of one average: it lives on the disk of the stand that acquired it, so
+        only that stand serves it (another stand raises DeviceStateError with its address)."""
+        with self.db.session() as s:
+            acq = s.get(m.Acquisition, acq_id)
+            if acq is None or not -(2**31) <= number < 2**31:
+                return None
+            avg = s.scalars(
+                select(m.Average).where(
+                    m.Average.acquisition_id == acq_id, m.Average.number == number
+                )
+            ).first()
+            if avg is None:
+                return None
+            where, rel = avg.stand, avg.path
+        if where not in (self.stand, ""):
+            raise DeviceStateError(
+                f"average {number} of acquisition {acq_id}: its raw time data are on stand "
+                f"{where!r}; ask that stand's API ({self._stand_url(where)})"
+            )
+        arrays, attrs = self.arrays.read(rel)
+        return {
+            "acquisition_id": acq_id,
+            "number": number,
+            "stand": self.stand,
+            "path": rel,
+            "attrs": attrs,
+            "arrays": {k: json_safe(np.asarray(v)) for k, v in arrays.items()},
+            "shapes": {k: list(np.shape(v)) for k, v in arrays.items()},
+        }

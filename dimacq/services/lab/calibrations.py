@@ -29,14 +29,15 @@ class StoredCalibration:
 
 
 class CalibrationService:
-    def __init__(self, db: Database) -> None:
+    def __init__(self, db: Database, stand: str = "") -> None:
         self.db = db
+        self.stand = stand
 
     def save(self, document: Any) -> StoredCalibration:
         """Validate a calibration document (schema_version 1) and store it normalised (SI)."""
         cal = parse_calibration_json(document, "calibration")
         with self.db.session() as s:
-            row = m.Calibration(serial=cal.serial_number, body=cal.to_json())
+            row = m.Calibration(serial=cal.serial_number, body=cal.to_json(), stand=self.stand)
             s.add(row)
             s.flush()
             return StoredCalibration.of(row)

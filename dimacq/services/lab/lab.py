@@ -32,16 +32,17 @@ return ``None`` (the API's 404).
 
 from __future__ import annotations
 
+import logging
 import time
 from dataclasses import dataclass
 from typing import Any
 
-from sqlalchemy import select
-
 from dimacq.config import Settings
+from dimacq.errors import DatabaseUnavailableError
 from dimacq.persistence import ArrayStore, Database, open_database
-from dimacq.persistence import models as m
-from dimacq.services.jobs import FINAL_STATES, JobManager
+from dimacq.persistence import stands as stand_lease
+from dimacq.persistence.queue import DbJobStore, Outbox
+from dimacq.services.jobs import JobManager, Ticker
 from dimacq.services.lab.acquisitions import AcquisitionService, RigFactory
 from dimacq.services.lab.calibrations import CalibrationService
 from dimacq.services.lab.common import package_version
@@ -53,10 +54,13 @@ from dimacq.services.lab.studies import StudyService
 
 __all__ = ["Lab", "LabStatus"]
 
+log = logging.getLogger(__name__)
+
 
 @dataclass(frozen=True)
 class LabStatus:
-    """Cheap in-memory status: version, uptime, each device's state, running jobs."""
+    """Cheap in-memory status: version, stand, the database's health, uptime, each device's
+    state, running jobs."""
 
     service: str
     version: str
@@ -64,12 +68,16 @@ class LabStatus:
     uptime_s: float
     devices: dict[str, dict[str, Any]]
     jobs_running: list[dict[str, Any]]
+    stand: str = ""
+    database: dict[str, Any] | None = None
 
     def to_json(self) -> dict[str, Any]:
         return {
             "service": self.service,
             "version": self.version,
             "schema_version": self.schema_version,
+            "stand": self.stand,
+            "database": self.database or {},
             "uptime_s": self.uptime_s,
             "devices": self.devices,
             "jobs_running": self.jobs_running,
@@ -99,30 +107,75 @@ class Lab:
     ) -> None:
         self.settings = settings
         settings.data_dir.mkdir(parents=True, exist_ok=True)
-        self.db: Database = open_database(settings.db_url)
+        self.db: Database = open_database(
+            settings.db_url, timeout_s=min(20.0, settings.database_retry_s)
+        )
         self.arrays = ArrayStore(settings.data_dir / "arrays")
-        self.jobs = JobManager(persist=self._persist_job)
+        # one service per stand on a shared database (refused while another one is alive)
+        self.stand = stand_lease.StandIdentity(
+            settings.stand_name, api_url=f"http://{settings.host}:{settings.port}"
+        )
+        stand_lease.claim_stand(self.db, self.stand)
+        self.outbox = Outbox()  # database writes waiting for the database (data kept locally)
+        self.job_store = DbJobStore(self.db, self.stand.name, self.stand.instance)
+        self.jobs = JobManager(store=self.job_store)
+        name = self.stand.name
         self.started_monotonic = time.monotonic()
         self.version = package_version()
         self.devices = DeviceService(settings, lambda driver: self.geometry.open_session(driver))
         self.geometry = GeometryService(self.db, self.devices)
-        self.store = TestStore(self.db, self.arrays)
+        self.store = TestStore(self.db, self.arrays, name)
         self.analysis = AnalysisService(self.store)
         self.acquisitions = AcquisitionService(
-            settings, self.db, self.arrays, self.jobs, self.devices, self.store, rig_factory
+            settings,
+            self.db,
+            self.arrays,
+            self.jobs,
+            self.devices,
+            self.store,
+            rig_factory,
+            stand=name,
+            outbox=self.outbox,
         )
-        self.calibrations = CalibrationService(self.db)
-        self.studies = StudyService(self.db, self.jobs)
-        self._recover_jobs()
+        self.calibrations = CalibrationService(self.db, name)
+        self.studies = StudyService(self.db, self.jobs, name)
+        self.job_store.interrupt_stale()  # this stand's jobs that ran when it stopped
         self.acquisitions.recover()
+        self.ticker = Ticker(f"dimacq-ticker-{name}")
+        self.ticker.add("queued jobs", 0.5, self.jobs.claim_queued)
+        self.ticker.add("waiting writes", 1.0, lambda: self.outbox.flush(self.db))
+        self.ticker.add("stand heartbeat", 5.0, self._heartbeat)
+        self.ticker.start()
         if open_devices:
             self.devices.connect_all()
 
     def close(self) -> None:
-        """Cancel jobs, close devices and the database."""
+        """Cancel jobs, close devices, give the stand up, close the database."""
+        self.ticker.stop()
         self.jobs.shutdown()
         self.devices.disconnect_all()
+        try:
+            self.outbox.flush(self.db)
+            stand_lease.release_stand(self.db, self.stand)
+        except DatabaseUnavailableError as err:
+            log.warning(
+                "closing with the database unreachable (%s): %d writes not stored; "
+                "their files are re-registered at the next start",
+                err,
+                len(self.outbox),
+            )
         self.db.close()
+
+    def _heartbeat(self) -> None:
+        if not stand_lease.heartbeat(self.db, self.stand):
+            log.error(
+                "stand %s has been taken over by another service; this one should be stopped",
+                self.stand.name,
+            )
+
+    def stands(self) -> list[dict[str, Any]]:
+        """The stands sharing this database (name, host, API address, last heartbeat)."""
+        return stand_lease.stands(self.db)
 
     def status(self) -> LabStatus:
         """Cheap in-memory status (no I/O): devices, running jobs, uptime."""
@@ -130,6 +183,12 @@ class Lab:
             service="dimacq",
             version=self.version,
             schema_version=self.db.schema_version,
+            stand=self.stand.name,
+            database={
+                "backend": self.db.backend,
+                **self.db.health.as_dict(),
+                "writes_waiting": len(self.outbox),
+            },
             uptime_s=time.monotonic() - self.started_monotonic,
             devices={
                 d.name: {"connected": d.connected, "error": d.error} for d in self.devices.all()
@@ -139,40 +198,3 @@ class Lab:
                 for j in self.jobs.running()
             ],
         )
-
-    # ------------------------------------------------------------------ jobs in the database
-    def _recover_jobs(self) -> None:
-        """After a restart: jobs that were running are interrupted; every job is listed again."""
-        with self.db.session() as s:
-            for row in s.scalars(select(m.JobRow)):
-                if row.state not in FINAL_STATES:
-                    row.state = "interrupted"
-                    row.message = "the service stopped while this job ran; completed work is kept"
-                    row.finished_at = m.utcnow()
-                self.jobs.adopt(
-                    {
-                        "id": row.id,
-                        "kind": row.kind,
-                        "state": row.state,
-                        "progress": row.progress,
-                        "message": row.message,
-                        "result": row.result,
-                        "error": row.error,
-                        "created_at": row.created_at,
-                        "finished_at": row.finished_at,
-                    }
-                )
-
-    def _persist_job(self, snap: dict[str, Any]) -> None:
-        with self.db.session() as s:
-            row = s.get(m.JobRow, snap["id"])
-            if row is None:
-                row = m.JobRow(id=snap["id"], kind=snap["kind"], state=snap["state"])
-                s.add(row)
-            row.state = snap["state"]
-            row.progress = float(snap["progress"])
-            row.message = snap["message"]
-            row.result = snap["result"]
-            row.error = snap["error"]
-            if snap["finished_at"]:
-                row.finished_at = m.utcnow()

@@ -7,7 +7,6 @@ database row written after the file. Lookups of unknown ids return ``None`` (the
 from __future__ import annotations
 
 import json
-import time
 import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -22,6 +21,7 @@ from dimacq.model.frf import Channel, FrfData
 from dimacq.model.setup import TestSetup
 from dimacq.persistence import ArrayStore, Database
 from dimacq.persistence import models as m
+from dimacq.persistence.arrays import arrays_from_bytes, arrays_to_bytes
 from dimacq.services.lab.common import json_safe, vec
 
 __all__ = [
@@ -76,6 +76,7 @@ class SetupSummary:
     n_excitations: int
     n_load_cells: int
     setup: dict[str, Any]
+    stand: str = ""  # the test stand that stored it
 
     @classmethod
     def of(cls, r: m.SetupRow) -> SetupSummary:
@@ -86,6 +87,7 @@ class SetupSummary:
             n_excitations=len(r.body.get("excitations", [])),
             n_load_cells=len(r.body.get("load_cells", [])),
             setup=r.body,
+            stand=r.stand,
         )
 
 
@@ -116,6 +118,7 @@ class FrfSummary:
     n_inputs: int
     f_min_hz: float
     f_max_hz: float
+    stand: str = ""  # the test stand that stored it
 
     @classmethod
     def of(cls, r: m.FrfSet) -> FrfSummary:
@@ -129,6 +132,7 @@ class FrfSummary:
             n_inputs=r.n_inputs,
             f_min_hz=r.f_min_hz,
             f_max_hz=r.f_max_hz,
+            stand=r.stand,
         )
 
 
@@ -166,16 +170,17 @@ class TestStore:
 
     __test__ = False  # not a pytest class
 
-    def __init__(self, db: Database, arrays: ArrayStore) -> None:
+    def __init__(self, db: Database, arrays: ArrayStore, stand: str = "") -> None:
         self.db = db
         self.arrays = arrays
+        self.stand = stand  # this service's test stand, recorded with what it stores
 
     # ------------------------------------------------------------------ setups
     def save_setup(self, setup: TestSetup) -> int:
         from dimacq.io.setup_file import dump_setup_dict
 
         with self.db.session() as s:
-            row = m.SetupRow(name=setup.name, body=dump_setup_dict(setup))
+            row = m.SetupRow(name=setup.name, body=dump_setup_dict(setup), stand=self.stand)
             s.add(row)
             s.flush()
             return int(row.id)
@@ -262,21 +267,22 @@ class TestStore:
     def save_frf(
         self, frf: FrfData, setup_id: int, *, name: str = "", acquisition_id: int | None = None
     ) -> int:
-        """Store FRFs (HDF5 file, then the row referencing it)."""
+        """Store FRFs: the HDF5 image in the database row, so every stand reads them."""
         arrays, attrs = frf_to_arrays(frf)
         with self.db.session() as s:
             if s.get(m.SetupRow, setup_id) is None:
                 raise SetupError(
                     f"setup_id {setup_id} does not exist; create or import the setup first"
                 )
-        rel = f"frfs/frf-{time.time_ns()}.h5"
-        self.arrays.write(rel, arrays, attrs)
+        data = arrays_to_bytes(arrays, attrs)
         with self.db.session() as s:
             row = m.FrfSet(
                 setup_id=setup_id,
                 acquisition_id=acquisition_id,
                 name=name,
-                path=rel,
+                path="",
+                data=data,
+                stand=self.stand,
                 n_lines=frf.n_lines,
                 n_outputs=int(frf.H.shape[1]),
                 n_inputs=int(frf.H.shape[2]),
@@ -302,8 +308,9 @@ class TestStore:
             row = s.get(m.FrfSet, frf_id)
             if row is None:
                 return None
-            rel, setup_id = row.path, row.setup_id
-        arrays, attrs = self.arrays.read(rel)
+            rel, setup_id, data = row.path, row.setup_id, row.data
+        # schema-1 rows (and their files) predate FRF data in the database
+        arrays, attrs = arrays_from_bytes(data) if data is not None else self.arrays.read(rel)
         setup = self.setup(setup_id)
         if setup is None:
             raise DataError(f"FRF set {frf_id}: its setup {setup_id} is missing from the database")
@@ -356,7 +363,10 @@ class TestStore:
     ) -> StoredSolution:
         with self.db.session() as s:
             row = m.Solution(
-                frf_id=frf_id, options=json_safe(dict(options)), result=json_safe(dict(result))
+                frf_id=frf_id,
+                options=json_safe(dict(options)),
+                result=json_safe(dict(result)),
+                stand=self.stand,
             )
             s.add(row)
             s.flush()

@@ -1,7 +1,10 @@
-"""Studies: the thesis's Monte Carlo sensitivity study on the cube model, run as a job."""
+"""Studies: the thesis's Monte Carlo sensitivity study on the cube model, run as a queued job:
+whichever service sharing the database claims it first runs it, exactly once
+(:mod:`dimacq.persistence.queue`)."""
 
 from __future__ import annotations
 
+import uuid
 from dataclasses import dataclass
 from typing import Any
 
@@ -9,6 +12,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from dimacq.persistence import Database
 from dimacq.persistence import models as m
+from dimacq.persistence.queue import enqueue_job
 from dimacq.services.jobs import JobContext, JobManager
 from dimacq.services.lab.common import json_safe
 
@@ -44,19 +48,37 @@ class StoredStudy:
 
 
 class StudyService:
-    def __init__(self, db: Database, jobs: JobManager) -> None:
+    def __init__(self, db: Database, jobs: JobManager, stand: str = "") -> None:
         self.db = db
         self.jobs = jobs
+        self.stand = stand
+        jobs.handlers["sensitivity"] = self._job
 
     def start_sensitivity(self, params: CubeStudyParams) -> StudyStarted:
-        """A sensitivity study (thesis cube model) as a job; returns the study and job ids."""
-        from dimacq.pipeline.sensitivity import cube_study
-
+        """A sensitivity study (thesis cube model) as a queued job; returns the study and job
+        ids. This service claims it at once if it has room; otherwise another one does."""
         with self.db.session() as s:
             row = m.SensitivityStudy(params=params.model_dump())
             s.add(row)
             s.flush()
             sid = int(row.id)
+        job_id = uuid.uuid4().hex[:12]
+        enqueue_job(
+            self.db,
+            job_id,
+            "sensitivity",
+            {**params.model_dump(), "study_id": sid},
+            created_by=self.stand,
+        )
+        self.jobs.claim_queued()
+        return StudyStarted(sid, job_id)
+
+    def _job(self, doc: dict[str, Any]) -> Any:
+        """The job function of a claimed study (its parameters from the queue)."""
+        from dimacq.pipeline.sensitivity import cube_study
+
+        sid = int(doc["study_id"])
+        params = CubeStudyParams.model_validate({k: v for k, v in doc.items() if k != "study_id"})
 
         def work(ctx: JobContext) -> dict[str, Any]:
             ctx.progress(0.0, "running Monte Carlo trials")
@@ -71,10 +93,9 @@ class StudyService:
                 r = s2.get(m.SensitivityStudy, sid)
                 assert r is not None
                 r.result = json_safe(res.to_json())
-            return {"study_id": sid}
+            return {"study_id": sid, "stand": self.stand}
 
-        job = self.jobs.submit("sensitivity", work)
-        return StudyStarted(sid, job.id)
+        return work
 
     def sensitivity(self, study_id: int) -> StoredStudy | None:
         with self.db.session() as s:
