@@ -37,7 +37,7 @@ code   command             arguments                        response
 0x09   CAL_UPLOAD          —                                0x89, n_bytes u16, crc32 u32; then segment
                                                             frames 0x8A, index u8, 6 data bytes
 0x0B   GET_STATUS          —                                0x8B, state u8 (0 idle, 1 armed, 2 streaming),
-                                                            flags u8 (bit0 SYNC missing), 0, counter u32
+                                                            flags u8 (bit1 SYNC missing), 0, counter u32
 =====  ==================  ===============================  ===========================================
 
 Error response: ``0xFF, opcode, code`` with codes 1 unknown command, 2 bad argument, 3 busy
@@ -401,7 +401,7 @@ class CalUpload(Request):
 
 @dataclass(frozen=True)
 class StatusReply(Reply):
-    """``state`` 0 idle, 1 armed, 2 streaming; ``flags`` bit0 SYNC missing."""
+    """``state`` 0 idle, 1 armed, 2 streaming; ``flags`` bit1 SYNC missing (as in the data frame status)."""
 
     OPCODE = Command.GET_STATUS | REPLY_BIT
     ARGS = struct.Struct("<BBxI")

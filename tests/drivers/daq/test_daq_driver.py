@@ -138,7 +138,7 @@ def start_script(spf=4):
     R = p.Request
     return [
         IN(R.IDENTIFY, p.IDENTIFY_STRUCT.size, IDENT),
-        OUT(R.SET_SAMPLE_RATE, data=(2048).to_bytes(4, "little")),
+        OUT(R.SET_SAMPLE_RATE, data=bytes.fromhex("00 08 00 00")),  # u32 2048
         OUT(R.SET_CHANNEL_ENABLE, 0, 0),
         OUT(R.SET_CHANNEL_ENABLE, 1, 1),
         OUT(R.SET_CHANNEL_ENABLE, 0, 2),

@@ -74,15 +74,15 @@ def test_calibration_download_and_upload():
     m = np.arange(72, dtype=float).reshape(6, 12) / 7
     blob = p.matrix_to_blob(m)
     segs = p.segments(blob)
-    crc = p.blob_crc(blob).to_bytes(4, "little").hex()
+    crc = p.blob_crc(blob)
     script = [(cmd("06 20 01"), rsp("86"))]
-    script += [(Can(CMD, bytes([0x07, i]) + s), None) for i, s in enumerate(segs)]
-    script += [(cmd("08" + crc), rsp("88"))]
+    script += [(Can(CMD, p.CalSegment(i, s).encode()), None) for i, s in enumerate(segs)]
+    script += [(Can(CMD, p.CalDownloadEnd(crc).encode()), rsp("88"))]
     with expected_exchange("can", script, connect=amp()) as a:
         a.download_calibration(m)
     # upload: header then segments, out of order is fine
-    answers = [rsp("89 20 01" + crc)]
-    answers += [Can(RSP, bytes([0x8A, i]) + segs[i]) for i in reversed(range(len(segs)))]
+    answers = [Can(RSP, p.CalUploadReply(288, crc).encode())]
+    answers += [Can(RSP, p.CalUploadSegment(i, segs[i]).encode()) for i in reversed(range(48))]
     with expected_exchange("can", [(cmd("09"), answers)], connect=amp()) as a:
         np.testing.assert_allclose(a.upload_calibration(), m, rtol=1e-7)
 
@@ -90,7 +90,7 @@ def test_calibration_download_and_upload():
 def test_upload_with_a_bad_crc_is_refused():
     blob = p.matrix_to_blob(np.ones((6, 12)))
     answers = [rsp("89 20 01 00 00 00 00")]
-    answers += [Can(RSP, bytes([0x8A, i]) + s) for i, s in enumerate(p.segments(blob))]
+    answers += [Can(RSP, p.CalUploadSegment(i, s).encode()) for i, s in enumerate(p.segments(blob))]
     with expected_exchange("can", [(cmd("09"), answers)], connect=amp()) as a:
         with pytest.raises(ProtocolError, match="fails its CRC"):
             a.upload_calibration()
@@ -102,9 +102,9 @@ def test_refusals_map_to_errors():
             a.tare(256)
     crc_end = [(cmd("06 20 01"), rsp("86"))]
     crc_end += [
-        (Can(CMD, bytes([0x07, i]) + s), None) for i, s in enumerate(p.segments(bytes(288)))
+        (Can(CMD, p.CalSegment(i, s).encode()), None) for i, s in enumerate(p.segments(bytes(288)))
     ]
-    crc_end += [(cmd("08" + p.blob_crc(bytes(288)).to_bytes(4, "little").hex()), rsp("ff 08 04"))]
+    crc_end += [(Can(CMD, p.CalDownloadEnd(p.blob_crc(bytes(288))).encode()), rsp("ff 08 04"))]
     with expected_exchange("can", crc_end, connect=amp()) as a:
         with pytest.raises(ProtocolError, match="CRC"):
             a.download_calibration(np.zeros((6, 12)))
