@@ -8,7 +8,7 @@ import threading
 from collections.abc import Iterator, Sequence
 
 import pytest
-import serial
+from _exchange import expected_exchange
 
 import dimacq.simulators.digitizer as simdig
 from dimacq.drivers.digitizer import SerialDigitizer
@@ -28,62 +28,20 @@ SCRIPT: list[tuple[bytes, bytes]] = [
 ]
 
 
-class ScriptedTransport:
-    """A fake pyserial port: each write must equal the next expected bytes, whose scripted answer
-    then becomes readable (pymeasure ``expected_protocol`` style). ``answered=None`` answers nothing
-    (a timeout); ``vanish_after`` makes the port raise like an unplugged USB adapter."""
-
-    def __init__(
-        self, pairs: Sequence[tuple[bytes, bytes | None]], vanish_after: int | None = None
-    ):
-        self.pairs = list(pairs)
-        self.rx = bytearray()
-        self.timeout: float | None = 0.0
-        self.closed = False
-        self.vanish_after = vanish_after
-        self.writes = 0
-
-    def _maybe_vanish(self) -> None:
-        if self.vanish_after is not None and self.writes > self.vanish_after:
-            raise serial.SerialException("device reports readiness to read but returned no data")
-
-    def write(self, data: bytes) -> int:
-        self.writes += 1
-        self._maybe_vanish()
-        assert self.pairs, f"unexpected write {data!r}: script exhausted"
-        sent, answered = self.pairs.pop(0)
-        assert data == sent, f"sent {data!r}, script expected {sent!r}"
-        if answered:
-            self.rx += answered
-        return len(data)
-
-    def read(self, size: int = 1) -> bytes:
-        self._maybe_vanish()
-        out = bytes(self.rx[:size])
-        del self.rx[:size]
-        return out
-
-    @property
-    def in_waiting(self) -> int:
-        return len(self.rx)
-
-    def reset_input_buffer(self) -> None:
-        self.rx.clear()
-
-    def close(self) -> None:
-        self.closed = True
-
-
 @contextlib.contextmanager
 def expected_protocol(
     pairs: Sequence[tuple[bytes, bytes | None]], timeout_s: float = 0.05, **kw: object
 ) -> Iterator[SerialDigitizer]:
-    """A driver on a :class:`ScriptedTransport`; leftover pairs or unread answers fail the test."""
-    transport = ScriptedTransport(pairs, **kw)  # type: ignore[arg-type]
-    driver = SerialDigitizer(transport, timeout_s=timeout_s, name="scripted")
-    yield driver
-    assert not transport.pairs, f"script not consumed: {transport.pairs!r}"
-    assert not transport.rx and not driver._buf, f"answers left unread: {bytes(transport.rx)!r}"
+    """A driver on a scripted serial port (:func:`_exchange.expected_exchange`); leftover pairs
+    or answers left unread, on the port or in the driver's line buffer, fail the test."""
+    with expected_exchange(
+        "serial",
+        pairs,
+        connect=lambda port: SerialDigitizer(port, timeout_s=timeout_s, name="scripted"),
+        **kw,
+    ) as driver:
+        yield driver
+        assert not driver._buf, f"answers left unread: {bytes(driver._buf)!r}"
     driver.close()
 
 

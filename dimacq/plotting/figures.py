@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -21,9 +21,9 @@ from dimacq.model.setup import PARAMETERS
 if TYPE_CHECKING:
     from dimacq.model.frf import FrfData
     from dimacq.model.setup import TestSetup
+    from dimacq.pipeline.dim import DimResult
     from dimacq.pipeline.selection.inputs import JackknifeSelection
     from dimacq.pipeline.selection.responses import ResponseSelection
-    from dimacq.services.analysis import AnalysisReport
 
 __all__ = [
     "parameters_vs_frequency_figure",
@@ -37,6 +37,20 @@ __all__ = [
 ]
 
 _UNITS = ("kg", "m", "m", "m") + ("kg m²",) * 6
+
+
+class ReportLike(Protocol):
+    """What :func:`write_report_figures` reads of an analysis report (the services' report
+    satisfies it; plotting sits below the services and does not import them)."""
+
+    @property
+    def result(self) -> DimResult: ...
+
+    @property
+    def response_selection(self) -> ResponseSelection | None: ...
+
+    @property
+    def input_selection(self) -> JackknifeSelection | None: ...
 
 
 def _fig(w: float, h: float) -> Figure:
@@ -225,7 +239,7 @@ def plot_sensitivity(
 
 
 def write_report_figures(
-    report: AnalysisReport,
+    report: ReportLike,
     frf: FrfData,
     setup: TestSetup,
     directory: Path,

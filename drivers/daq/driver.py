@@ -5,12 +5,14 @@ Two layers, after NI-DAQmx and uldaq:
 - :class:`DaqDevice` — the wire: vendor control requests and bulk frames of
   :mod:`dimacq.drivers.daq.protocol` on a ``usb.core.Device``. Public methods own timeouts,
   logging and validation and turn pyusb errors into :mod:`dimacq.errors`; the wire steps are
-  :meth:`DaqDevice._control` and :meth:`DaqDevice._bulk_read` (template method).
+  :meth:`DaqDevice._control` and :meth:`DaqDevice._bulk_read` (template method,
+  :class:`~dimacq.drivers.base.WireDriver`).
 - :class:`DaqTask` — task → channels → timing → start / read / stop. Channels carry their
   transducer sensitivity (mV/g, mV/N, V/V) and come back in engineering units (m/s², N, V).
   Reads are aligned on the device's sample counter: a FIFO overflow, a lost transfer, an
   overloaded channel or a USB timeout is recorded as an event on the task and in the block,
-  never silently patched. Samples already received are never dropped by an error.
+  never silently patched. Samples already received are never dropped by an error (they are
+  filed in the shared sample-counter buffer, :class:`~dimacq.drivers.stream.CounterStream`).
 
 Opening a device (real or simulated is only the backend)::
 
@@ -22,16 +24,16 @@ from __future__ import annotations
 
 import errno
 import logging
-from dataclasses import dataclass, field
 from typing import Any, Literal
 
 import numpy as np
 import usb.core
 import usb.util
-from numpy.typing import NDArray
 
 from dimacq.devices.daq import ChannelConfig, DaqBlock, DaqEvent
+from dimacq.drivers.base import Deadline, WireDriver
 from dimacq.drivers.daq import protocol as p
+from dimacq.drivers.stream import CounterStream
 from dimacq.errors import (
     DeviceError,
     DeviceNotFoundError,
@@ -56,7 +58,10 @@ log = logging.getLogger(__name__)
 STANDARD_GRAVITY = 9.80665
 
 
-class DaqDevice:
+_BULK = "bulk read"
+
+
+class DaqDevice(WireDriver):
     """One dimacq USB DAQ (wire level).
 
     Parameters
@@ -65,12 +70,15 @@ class DaqDevice:
         Found with the backend of choice (see :meth:`open`).
     timeout_s : float
         Default timeout of control and bulk transfers.
+    retries : int
+        Further attempts of a query (IDENTIFY, GET_STATUS) that timed out.
     """
 
-    def __init__(self, device: Any, *, timeout_s: float = 1.0) -> None:
+    reopen_hint = "open it again with DaqDevice.open()"
+
+    def __init__(self, device: Any, *, timeout_s: float = 1.0, retries: int = 0) -> None:
         self._dev = device
-        self.timeout_s = timeout_s
-        self._closed = False
+        super().__init__(f"DAQ {self._describe()}", timeout_s=timeout_s, retries=retries, log=log)
         try:
             device.set_configuration()
         except usb.core.USBError as err:
@@ -113,11 +121,29 @@ class DaqDevice:
     def _bulk_read(self, n_bytes: int, timeout_ms: int) -> Any:
         return self._dev.read(p.DATA_ENDPOINT, n_bytes, timeout_ms)
 
-    # -- public, owning timeout, logging, validation ----------------------------------------
-    def _check_open(self) -> None:
-        if self._closed:
-            raise DeviceStateError("the DAQ was closed; open it again with DaqDevice.open()")
+    def _wire_error(self, err: Exception, what: str, deadline: Deadline) -> DeviceError | None:
+        if not isinstance(err, usb.core.USBError):
+            return None
+        if what == _BULK:
+            if isinstance(err, usb.core.USBTimeoutError):
+                return DeviceTimeoutError(
+                    f"DAQ sent no frame within {deadline.timeout_s} s; check that the task is "
+                    "started and the sample clock runs"
+                )
+            return DeviceError(f"DAQ bulk read failed: {err}")
+        name = what.partition(" ")[0]
+        if isinstance(err, usb.core.USBTimeoutError):
+            return DeviceTimeoutError(
+                f"DAQ did not answer {name} within {deadline.timeout_s} s; check the USB connection"
+            )
+        if err.errno == errno.EPIPE:
+            return DeviceStateError(
+                f"DAQ refused {what}: the value is not supported or the device is streaming; "
+                "read get_status() and stop the task before changing its configuration"
+            )
+        return DeviceError(f"DAQ {name} failed: {err}")
 
+    # -- public, owning timeout, logging, validation ----------------------------------------
     def _request(
         self,
         request: p.Request,
@@ -126,29 +152,19 @@ class DaqDevice:
         data: bytes | None = None,
         read_len: int | None = None,
     ) -> bytes:
-        self._check_open()
-        timeout_ms = max(1, int(self.timeout_s * 1000))
         bm = p.BM_REQUEST_IN if read_len is not None else p.BM_REQUEST_OUT
         payload = read_len if read_len is not None else (data or b"")
-        log.debug("DAQ control %s value=%d index=%d", request.name, value, index)
-        try:
+
+        def attempt(deadline: Deadline) -> bytes:
+            timeout_ms = max(1, int(deadline.timeout_s * 1000))
             ret = self._control(bm, int(request), value, index, payload, timeout_ms)
-        except usb.core.USBTimeoutError as err:
-            raise DeviceTimeoutError(
-                f"DAQ did not answer {request.name} within {self.timeout_s} s; "
-                "check the USB connection"
-            ) from err
-        except usb.core.USBError as err:
-            if err.errno == errno.EPIPE:
-                raise DeviceStateError(
-                    f"DAQ refused {request.name} (value={value}, index={index}): the value is "
-                    "not supported or the device is streaming; read get_status() and "
-                    "stop the task before changing its configuration"
-                ) from err
-            raise DeviceError(f"DAQ {request.name} failed: {err}") from err
-        if read_len is None:
-            return b""
-        return bytes(ret)
+            return b"" if read_len is None else bytes(ret)
+
+        return self._exchange(
+            f"{request.name} (value={value}, index={index})",
+            attempt,
+            idempotent=read_len is not None,
+        )
 
     def identify(self) -> p.DeviceIdentity:
         """IDENTIFY: model data, serial number, firmware."""
@@ -165,7 +181,7 @@ class DaqDevice:
     def set_sample_rate(self, rate_hz: int) -> None:
         if not 0 < rate_hz < 2**32:
             raise SetupError(f"sample rate {rate_hz} Hz is out of range; give 1 .. 2^32-1 Hz")
-        self._request(p.Request.SET_SAMPLE_RATE, data=int(rate_hz).to_bytes(4, "little"))
+        self._request(p.Request.SET_SAMPLE_RATE, data=p.RATE_STRUCT.pack(int(rate_hz)))
 
     def set_channel_enable(self, channel: int, enabled: bool) -> None:
         self._request(p.Request.SET_CHANNEL_ENABLE, int(enabled), channel)
@@ -198,31 +214,16 @@ class DaqDevice:
         Raises
         ------
         DeviceTimeoutError
-            No frame within the timeout (nothing is lost: the next read continues).
+            No frame within ``timeout_s`` (default :attr:`timeout_s`).
         """
-        self._check_open()
-        t = self.timeout_s if timeout_s is None else timeout_s
-        try:
-            data = self._bulk_read(n_bytes, max(1, int(t * 1000)))
-        except usb.core.USBTimeoutError as err:
-            raise DeviceTimeoutError(
-                f"DAQ sent no frame within {t} s; check that the task is started and the "
-                "sample clock runs"
-            ) from err
-        except usb.core.USBError as err:
-            raise DeviceError(f"DAQ bulk read failed: {err}") from err
-        return bytes(data)
 
-    def close(self) -> None:
-        if not self._closed:
-            usb.util.dispose_resources(self._dev)
-            self._closed = True
+        def attempt(deadline: Deadline) -> bytes:
+            return bytes(self._bulk_read(n_bytes, max(1, int(deadline.timeout_s * 1000))))
 
-    def __enter__(self) -> DaqDevice:
-        return self
+        return self._exchange(_BULK, attempt, timeout_s=timeout_s)
 
-    def __exit__(self, *exc: object) -> None:
-        self.close()
+    def _close_transport(self) -> None:
+        usb.util.dispose_resources(self._dev)
 
 
 def range_code(range_v: float) -> int:
@@ -231,23 +232,6 @@ def range_code(range_v: float) -> int:
         if abs(r - range_v) < 1e-9 * r:
             return code
     raise SetupError(f"input range ±{range_v} V is not supported; choose one of {p.RANGES_V}")
-
-
-@dataclass
-class _Chunk:
-    first: int
-    data: NDArray[np.float64]  # (n, n_ch), sample-major
-    overload: NDArray[np.bool_]  # (n, n_ch)
-    valid: bool
-
-
-@dataclass
-class _Stream:
-    next_sample: int = 0
-    next_sequence: int = 0
-    chunks: list[_Chunk] = field(default_factory=list)
-    buffered: int = 0
-    events: list[DaqEvent] = field(default_factory=list)
 
 
 class DaqTask:
@@ -264,7 +248,8 @@ class DaqTask:
         self.sample_rate_hz: float | None = None
         self.samples_per_frame = 256
         self._running = False
-        self._stream = _Stream()
+        self._stream: CounterStream[DaqEvent] = CounterStream(0)
+        self._next_sequence = 0
         self.events: list[DaqEvent] = []
         self._scale = np.zeros(0)
 
@@ -410,7 +395,10 @@ class DaqTask:
         self._scale = np.array(
             [c.range_v / 2**23 / c.sensitivity_v_per_unit for c in self.channels]
         )
-        self._stream = _Stream()
+        self._stream = CounterStream(
+            len(self._channels), flag_shape=(len(self._channels),), flag_dtype=np.bool_
+        )
+        self._next_sequence = 0
         self.events = []
         self.device.start(self.samples_per_frame)
         self._running = True
@@ -429,53 +417,45 @@ class DaqTask:
             log.info("DAQ task %s stopped", self.name)
 
     def _record(self, ev: DaqEvent) -> None:
-        self._stream.events.append(ev)
+        self._stream.record(ev)
         self.events.append(ev)
         log.warning("DAQ task %s: %s", self.name, ev.message)
 
     def _ingest(self, frame: p.Frame) -> None:
         st = self._stream
         names = self.channel_names
+        expected = st.end  # the sample after the last one received
         if frame.n_channels != len(names):
             raise ProtocolError(
                 f"frame {frame.sequence} carries {frame.n_channels} channels, the task "
                 f"enabled {len(names)}; stop and restart the task"
             )
-        if frame.first_sample < st.next_sample:
+        if frame.first_sample < expected:
             raise ProtocolError(
                 f"frame {frame.sequence} starts at sample {frame.first_sample}, before the "
-                f"expected {st.next_sample}; the sample counter went backwards"
+                f"expected {expected}; the sample counter went backwards"
             )
-        lost_seq = (frame.sequence - st.next_sequence) & 0xFFFFFFFF
-        gap = frame.first_sample - st.next_sample
+        lost_seq = (frame.sequence - self._next_sequence) & 0xFFFFFFFF
+        gap = frame.first_sample - expected
         if gap:
-            n_ch = len(names)
             if frame.flags & p.FrameFlags.OVERFLOW:
                 kind = "overflow"
                 msg = (
-                    f"device FIFO overflow: samples {st.next_sample}..{frame.first_sample - 1} "
+                    f"device FIFO overflow: samples {expected}..{frame.first_sample - 1} "
                     "lost (read faster or lower the rate/channel count)"
                 )
             else:
                 kind = "lost_transfer"
                 msg = (
-                    f"{lost_seq} bulk transfer(s) lost (sequence {st.next_sequence} → "
-                    f"{frame.sequence}): samples {st.next_sample}..{frame.first_sample - 1} lost"
+                    f"{lost_seq} bulk transfer(s) lost (sequence {self._next_sequence} → "
+                    f"{frame.sequence}): samples {expected}..{frame.first_sample - 1} lost"
                 )
-            self._record(DaqEvent(kind, st.next_sample, gap, names, msg))
-            st.chunks.append(
-                _Chunk(
-                    st.next_sample,
-                    np.full((gap, n_ch), np.nan),
-                    np.zeros((gap, n_ch), dtype=bool),
-                    False,
-                )
-            )
-            st.buffered += gap
+            # the buffer reads the missing samples as NaN, not valid
+            self._record(DaqEvent(kind, expected, gap, names, msg))
         elif lost_seq:
             raise ProtocolError(
-                f"frame sequence jumped {st.next_sequence} → {frame.sequence} without a sample "
-                "gap; the stream is inconsistent, stop and restart the task"
+                f"frame sequence jumped {self._next_sequence} → {frame.sequence} without a "
+                "sample gap; the stream is inconsistent, stop and restart the task"
             )
         data = frame.to_float(self._scale)
         overload = np.zeros(data.shape, dtype=bool)
@@ -494,10 +474,8 @@ class DaqTask:
                     "; raise the input range",
                 )
             )
-        st.chunks.append(_Chunk(frame.first_sample, data, overload, True))
-        st.buffered += frame.n_samples
-        st.next_sample = frame.first_sample + frame.n_samples
-        st.next_sequence = (frame.sequence + 1) & 0xFFFFFFFF
+        st.put(frame.first_sample, data, overload)
+        self._next_sequence = (frame.sequence + 1) & 0xFFFFFFFF
 
     def _fill(self, n_samples: int, timeout_s: float | None) -> None:
         while self._stream.buffered < n_samples:
@@ -513,10 +491,10 @@ class DaqTask:
                 self._record(
                     DaqEvent(
                         "timeout",
-                        st.next_sample,
+                        st.end,
                         0,
                         (),
-                        f"USB timeout after sample {st.next_sample - 1}; {st.buffered} samples "
+                        f"USB timeout after sample {st.end - 1}; {st.buffered} samples "
                         "kept in the buffer",
                     )
                 )
@@ -552,38 +530,16 @@ class DaqTask:
 
     def _take(self, n: int) -> DaqBlock:
         st = self._stream
-        taken: list[_Chunk] = []
-        need = n
-        while need:
-            c = st.chunks[0]
-            m = c.data.shape[0]
-            if m <= need:
-                taken.append(st.chunks.pop(0))
-                need -= m
-            else:
-                taken.append(_Chunk(c.first, c.data[:need], c.overload[:need], c.valid))
-                st.chunks[0] = _Chunk(c.first + need, c.data[need:], c.overload[need:], c.valid)
-                need = 0
-        st.buffered -= n
-        first = taken[0].first
-        data = np.concatenate([c.data for c in taken]) if len(taken) > 1 else taken[0].data
-        over = np.concatenate([c.overload for c in taken]) if len(taken) > 1 else taken[0].overload
-        valid = np.concatenate([np.full(c.data.shape[0], c.valid) for c in taken])
-        end = first + n
-        events = tuple(
-            e
-            for e in st.events
-            if e.first_sample < end and e.first_sample + max(e.n_samples, 1) > first
-        )
-        st.events = [e for e in st.events if e.first_sample + max(e.n_samples, 1) > end]
+        got = st.take(st.next_sample + n)
+        events = st.pop_events(got.first, got.first + n)
         assert self.sample_rate_hz is not None
         return DaqBlock(
-            first,
+            got.first,
             self.sample_rate_hz,
             self.channel_names,
             tuple(c.units for c in self.channels),
-            data.T,
-            over.T,
-            valid,
+            got.data.T,
+            got.flags.astype(bool, copy=False).T,
+            got.valid,
             events,
         )

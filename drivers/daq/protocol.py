@@ -76,6 +76,7 @@ __all__ = [
     "PRODUCT_ID",
     "PROTOCOL_VERSION",
     "RANGES_V",
+    "RATE_STRUCT",
     "STATUS_STRUCT",
     "VENDOR_ID",
     "DeviceIdentity",
@@ -109,6 +110,8 @@ FRAME_HEADER = struct.Struct("<2sBBIQHHQI")
 #: IDENTIFY answer: magic b"DQ64", protocol version, n_channels, max rate (Hz), ADC bits,
 #: n_ranges, serial number (16 bytes ASCII, NUL padded), firmware (16 bytes ASCII).
 IDENTIFY_STRUCT = struct.Struct("<4sHHIBB16s16s")
+#: SET_SAMPLE_RATE data stage: the rate in Hz.
+RATE_STRUCT = struct.Struct("<I")
 #: GET_STATUS answer: running (0/1), overflowed since START (0/1), reserved u16, actual sample
 #: rate (Hz, f64), samples clocked since START (u64), frames lost to FIFO overflow (u32).
 STATUS_STRUCT = struct.Struct("<BBHdQI")

@@ -1,7 +1,8 @@
 """Driver of the SD-3 sonic digitizer over any pyserial-like port.
 
-Template method: :class:`DigitizerDriver` owns the public methods (validation, timeouts, logging,
-reply matching, error mapping); a transport subclass implements only the wire step
+Template method (:class:`~dimacq.drivers.base.WireDriver`): :class:`DigitizerDriver` owns the
+public methods (validation, timeouts, logging, reply matching, error mapping); a transport
+subclass implements only the wire step
 (:meth:`DigitizerDriver._send`, :meth:`DigitizerDriver._receive_line`,
 :meth:`DigitizerDriver._reopen`). :class:`SerialDigitizer` is that subclass for pyserial ports,
 opened from a URL (``serial_for_url``) so that a real port, ``rfc2217://``, ``socket://`` and the
@@ -30,6 +31,7 @@ from dataclasses import dataclass
 from typing import Any, Protocol
 
 from dimacq.devices.digitizer import DeviceIdentity, DigitizerSettings, ShotRecord
+from dimacq.drivers.base import Deadline, WireDriver
 from dimacq.drivers.digitizer import protocol as wire
 from dimacq.errors import (
     DeviceError,
@@ -74,7 +76,7 @@ class DriverStats:
     reconnects: int = 0
 
 
-class DigitizerDriver(abc.ABC):
+class DigitizerDriver(WireDriver, abc.ABC):
     """Public behaviour of an SD-3 digitizer driver; subclasses move the bytes.
 
     Parameters
@@ -83,15 +85,12 @@ class DigitizerDriver(abc.ABC):
         Longest wait for one reply line.
     """
 
+    reopen_hint = "create a new one or call reconnect()"
+
     def __init__(self, timeout_s: float = 1.0) -> None:
-        if not timeout_s > 0:
-            raise SetupError(
-                f"digitizer timeout_s = {timeout_s}; give a positive number of seconds"
-            )
-        self.timeout_s = float(timeout_s)
+        super().__init__("digitizer", timeout_s=timeout_s, log=log)
         self.stats = DriverStats()
         self._last_seq: int | None = None
-        self._closed = False
 
     # ------------------------------------------------------------------ wire step (subclass)
     @abc.abstractmethod
@@ -111,12 +110,6 @@ class DigitizerDriver(abc.ABC):
         """Close the transport."""
 
     # ------------------------------------------------------------------ helpers
-    def _require_open(self) -> None:
-        if self._closed:
-            raise DeviceStateError(
-                "digitizer driver is closed; create a new one or call reconnect()"
-            )
-
     def _read_fields(self, deadline: float, what: str) -> list[str]:
         try:
             line = self._receive_line(deadline)
@@ -132,26 +125,27 @@ class DigitizerDriver(abc.ABC):
 
     def _transact(self, command: bytes, expect: str) -> list[str]:
         """Send ``command`` and return the fields of the reply tagged ``expect``."""
-        self._require_open()
         what = command.strip().decode("ascii", "replace")
-        log.debug("digitizer > %s", what)
-        self._send(command)
-        deadline = time.monotonic() + self.timeout_s
-        while True:
-            fields = self._read_fields(deadline, what)
-            log.debug("digitizer < %s", ",".join(fields)[:120])
-            tag = fields[0]
-            if tag == expect:
-                return fields
-            if tag == "ERR":
-                self._raise_device_error(fields, what)
-            if tag == "SHT":
-                self.stats.stale_records += 1
-                log.warning("digitizer: stale shot record ignored while waiting for %s", expect)
-                continue
-            raise ProtocolError(
-                f"digitizer: reply to {what!r} has tag {tag!r}; expected {expect!r}"
-            )
+
+        def attempt(deadline: Deadline) -> list[str]:
+            self._send(command)
+            while True:
+                fields = self._read_fields(deadline.at, what)
+                log.debug("digitizer < %s", ",".join(fields)[:120])
+                tag = fields[0]
+                if tag == expect:
+                    return fields
+                if tag == "ERR":
+                    self._raise_device_error(fields, what)
+                if tag == "SHT":
+                    self.stats.stale_records += 1
+                    log.warning("digitizer: stale shot record ignored while waiting for %s", expect)
+                    continue
+                raise ProtocolError(
+                    f"digitizer: reply to {what!r} has tag {tag!r}; expected {expect!r}"
+                )
+
+        return self._exchange(what, attempt)
 
     @staticmethod
     def _raise_device_error(fields: list[str], what: str) -> None:
@@ -297,18 +291,6 @@ class DigitizerDriver(abc.ABC):
         raise DeviceNotFoundError(
             f"digitizer: reconnect failed after {attempts} attempts ({last}); check the cable/port"
         ) from last
-
-    def close(self) -> None:
-        """Close the port (idempotent)."""
-        if not self._closed:
-            self._closed = True
-            self._close_transport()
-
-    def __enter__(self) -> DigitizerDriver:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
 
 class SerialDigitizer(DigitizerDriver):

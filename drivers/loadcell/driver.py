@@ -7,9 +7,12 @@ between the simulator and hardware is the bus configuration only::
     bus = can.Bus(interface="pcan", channel="PCAN_USBBUS1", fd=True, ...)  # hardware
     amp = LoadCellAmplifier(bus, node_id=1)
 
-Public methods own timeouts, logging and the protocol checks (template method); the wire steps
-are :meth:`LoadCellAmplifier._send` and :meth:`LoadCellAmplifier._recv`. Data frames and
-heartbeats that arrive while a command waits for its answer are kept, never dropped.
+Public methods own timeouts, logging and the protocol checks (template method,
+:class:`~dimacq.drivers.base.WireDriver`); the wire steps are :meth:`LoadCellAmplifier._send`
+and :meth:`LoadCellAmplifier._recv`. Every control frame is a message of the protocol's table
+(:mod:`dimacq.drivers.loadcell.protocol`). Data frames and heartbeats that arrive while a
+command waits for its answer are kept, never dropped; samples are filed in the shared
+sample-counter buffer (:class:`~dimacq.drivers.stream.CounterStream`).
 
 Streams are aligned by the amplifier's sample counter, which counts the DAQ's sample clock:
 ``read_until(end)`` returns samples ``next .. end − 1`` with NaN where frames were lost
@@ -20,16 +23,17 @@ when SYNC pulses were missed or added (the counter no longer matches the DAQ's).
 from __future__ import annotations
 
 import logging
-import time
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypeVar
 
 import can
 import numpy as np
 from numpy.typing import NDArray
 
 from dimacq.devices.loadcell import LoadCellBlock, LoadCellEvent, LoadCellIdentity
+from dimacq.drivers.base import Deadline, WireDriver
 from dimacq.drivers.loadcell import protocol as p
+from dimacq.drivers.stream import CounterStream
 from dimacq.errors import (
     DeviceError,
     DeviceStateError,
@@ -42,6 +46,8 @@ __all__ = ["LoadCellAmplifier", "LoadCellBlock", "LoadCellEvent", "LoadCellIdent
 
 log = logging.getLogger(__name__)
 
+R = TypeVar("R", bound=p.Reply)
+
 _ERRORS = {
     p.ErrorCode.UNKNOWN_COMMAND: "unknown command",
     p.ErrorCode.BAD_ARGUMENT: "bad argument",
@@ -51,21 +57,23 @@ _ERRORS = {
 }
 
 
+def _new_samples() -> CounterStream[LoadCellEvent]:
+    return CounterStream(p.N_GAUGES, flag_shape=(), flag_dtype=np.uint8)
+
+
 @dataclass
 class _Stream:
-    next_sample: int = 0
+    """Wire state of one run: frames not yet decoded, the u32 counter unwrapping, heartbeats."""
+
+    samples: CounterStream[LoadCellEvent] = field(default_factory=_new_samples)
     payloads: list[bytes] = field(default_factory=list)
-    counters: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, np.int64))
-    gauges: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, p.N_GAUGES)))
-    status: NDArray[np.uint8] = field(default_factory=lambda: np.zeros(0, np.uint8))
     last_counter: int = -1
     heartbeat0: tuple[int, int] | None = None
     last_heartbeat: tuple[int, int] | None = None
     drift_reported: float = 0.0
-    events: list[LoadCellEvent] = field(default_factory=list)
 
 
-class LoadCellAmplifier:
+class LoadCellAmplifier(WireDriver):
     """One load cell amplifier on a CAN FD bus.
 
     Parameters
@@ -79,6 +87,8 @@ class LoadCellAmplifier:
         Applied to the gauges (``F = C g``); see also :meth:`upload_calibration`.
     drift_tolerance_samples : float
         Heartbeat counter deviation from ``rate · Δt`` that is reported as drift.
+    retries : int
+        Further attempts of a query (IDENTIFY, GET_STATUS) that timed out.
     """
 
     def __init__(
@@ -89,12 +99,15 @@ class LoadCellAmplifier:
         timeout_s: float = 1.0,
         calibration_matrix: Any = None,
         drift_tolerance_samples: float = 1.5,
+        retries: int = 0,
     ) -> None:
         if not 1 <= node_id <= 127:
             raise SetupError(f"node_id {node_id}: give 1..127 as set on the amplifier")
+        super().__init__(
+            f"load cell amplifier {node_id}", timeout_s=timeout_s, retries=retries, log=log
+        )
         self.bus = bus
         self.node_id = node_id
-        self.timeout_s = timeout_s
         self.drift_tolerance_samples = drift_tolerance_samples
         self.sample_rate_hz: float | None = None
         self.streaming = False
@@ -112,6 +125,11 @@ class LoadCellAmplifier:
     def _recv(self, timeout_s: float) -> can.Message | None:
         return self.bus.recv(timeout_s)
 
+    def _wire_error(self, err: Exception, what: str, deadline: Deadline) -> DeviceError | None:
+        if isinstance(err, can.CanError):
+            return DeviceError(f"load cell {self.node_id}: cannot send {what}: {err}")
+        return None
+
     # -- message routing ---------------------------------------------------------------------
     def _route(self, msg: can.Message) -> bytes | None:
         """File a data frame or heartbeat; return a response payload for this node."""
@@ -119,72 +137,78 @@ class LoadCellAmplifier:
         if aid == p.data_id(self.node_id):
             self._stream.payloads.append(bytes(msg.data))
         elif aid == p.heartbeat_id(self.node_id):
-            self._heartbeat(bytes(msg.data))
+            self._heartbeat(p.Heartbeat.decode(bytes(msg.data)))
         elif aid == p.response_id(self.node_id):
             return bytes(msg.data)
         return None
 
-    def _command(self, op: p.Command, args: bytes = b"", *, answer: bool = True) -> bytes:
-        log.debug("load cell %d: command %s %s", self.node_id, op.name, args.hex())
-        try:
-            self._send(p.command_id(self.node_id), bytes([op]) + args)
-        except can.CanError as err:
-            raise DeviceError(f"load cell {self.node_id}: cannot send {op.name}: {err}") from err
-        if not answer:
-            return b""
-        return self._await_response(op)
+    def _request(self, request: p.Request, *, idempotent: bool = False) -> p.Reply | None:
+        """Send ``request``; return its decoded reply (None for a request without one)."""
+        name = p.Command(request.OPCODE).name
 
-    def _await_response(self, op: int, expect: int | None = None) -> bytes:
-        expect = (op | 0x80) if expect is None else expect
-        deadline = time.monotonic() + self.timeout_s
+        def attempt(deadline: Deadline) -> p.Reply | None:
+            self._send(p.command_id(self.node_id), request.encode())
+            if request.REPLY is None:
+                return None
+            return self._await_reply(request.OPCODE, request.REPLY, deadline)
+
+        return self._exchange(name, attempt, idempotent=idempotent)
+
+    def _ask(self, request: p.Request, reply: type[R], *, idempotent: bool = False) -> R:
+        r = self._request(request, idempotent=idempotent)
+        assert isinstance(r, reply)
+        return r
+
+    def _await_reply(self, op: int, expect: type[R], deadline: Deadline) -> R:
         while True:
-            left = deadline - time.monotonic()
+            left = deadline.left()
             if left <= 0:
                 raise DeviceTimeoutError(
                     f"load cell amplifier {self.node_id} did not answer command {op:#04x} "
-                    f"within {self.timeout_s} s; check the CAN bus, bit rate, termination "
+                    f"within {deadline.timeout_s} s; check the CAN bus, bit rate, termination "
                     "and node id"
                 )
             msg = self._recv(left)
             if msg is None:
                 continue
-            resp = self._route(msg)
-            if resp is None:
+            payload = self._route(msg)
+            if payload is None:
                 continue
-            if resp[0] == p.ERROR:
-                code = resp[2] if len(resp) > 2 else 0
-                why = _ERRORS.get(p.ErrorCode(code), "error") if code in (1, 2, 3, 4, 5) else ""
-                exc: type[DeviceError] = (
-                    DeviceStateError if code == p.ErrorCode.BUSY else ProtocolError
-                )
-                raise exc(
-                    f"load cell amplifier {self.node_id} refused command {resp[1]:#04x}: "
-                    f"error {code} ({why})"
-                )
-            if resp[0] != expect:
+            if payload[:1] == bytes([p.ERROR]):
+                self._refused(p.ErrorReply.decode(payload))
+            if payload[:1] != bytes([expect.OPCODE]):
                 raise ProtocolError(
-                    f"load cell amplifier {self.node_id}: expected response {expect:#04x}, got "
-                    f"{resp.hex()}; another program may be talking to this node"
+                    f"load cell amplifier {self.node_id}: expected response {expect.OPCODE:#04x}, "
+                    f"got {payload.hex()}; another program may be talking to this node"
                 )
-            return resp
+            return expect.decode(payload)
+
+    def _refused(self, err: p.ErrorReply) -> None:
+        code = err.code
+        why = _ERRORS[p.ErrorCode(code)] if code in set(p.ErrorCode) else ""
+        exc: type[DeviceError] = DeviceStateError if code == p.ErrorCode.BUSY else ProtocolError
+        raise exc(
+            f"load cell amplifier {self.node_id} refused command {err.opcode:#04x}: "
+            f"error {code} ({why})"
+        )
 
     # -- commands ------------------------------------------------------------------------------
     def identify(self) -> LoadCellIdentity:
-        r = self._command(p.Command.IDENTIFY)
-        if len(r) != 8:
-            raise ProtocolError(f"IDENTIFY answer {r.hex()} has {len(r)} bytes, expected 8")
-        return LoadCellIdentity(r[1], f"{r[2]}.{r[3]}", int.from_bytes(r[4:8], "little"))
+        r = self._ask(p.Identify(), p.IdentifyReply, idempotent=True)
+        return LoadCellIdentity(
+            r.n_gauges, f"{r.firmware_major}.{r.firmware_minor}", r.serial_number
+        )
 
     def set_rate(self, rate_hz: int) -> float:
         """Nominal sample rate (the DAQ's when counting SYNC)."""
-        r = self._command(p.Command.SET_RATE, int(rate_hz).to_bytes(4, "little"))
-        self.sample_rate_hz = float(int.from_bytes(r[1:5], "little"))
+        r = self._ask(p.SetRate(int(rate_hz)), p.SetRateReply)
+        self.sample_rate_hz = float(r.rate_hz)
         return self.sample_rate_hz
 
     def tare(self, n_samples: int = 256) -> None:
         if self.streaming:
             raise DeviceStateError("tare() while streaming; stop() the amplifier first")
-        self._command(p.Command.TARE, int(n_samples).to_bytes(2, "little"))
+        self._request(p.Tare(int(n_samples)))
 
     def start(self, *, external_clock: bool = True) -> None:
         """Arm: counter := 0; with ``external_clock`` it counts the DAQ's SYNC pulses.
@@ -195,17 +219,16 @@ class LoadCellAmplifier:
             raise SetupError("call set_rate() with the DAQ's sample rate before start()")
         self._stream = _Stream()
         self._final_pulses = None
-        self._command(p.Command.START, bytes([1 if external_clock else 0]))
+        self._request(p.Start(1 if external_clock else 0))
         self.streaming = True
 
     def stop(self) -> int:
         """Stop; returns the pulses counted. Frames still in flight are kept for reading."""
-        r = self._command(p.Command.STOP)
+        r = self._ask(p.Stop(), p.StopReply)
         self.streaming = False
-        pulses = int.from_bytes(r[1:5], "little")
         self._drain(0.05)
-        self._final_pulses = pulses
-        return pulses
+        self._final_pulses = r.pulses
+        return r.pulses
 
     def verify_count(self, daq_samples_clocked: int) -> LoadCellEvent | None:
         """After both devices stopped: the pulses counted must equal the DAQ's samples.
@@ -231,31 +254,33 @@ class LoadCellAmplifier:
 
     def get_status(self) -> tuple[int, int, int]:
         """(state 0 idle / 1 armed / 2 streaming, flags, counter)."""
-        r = self._command(p.Command.GET_STATUS)
-        return r[1], r[2], int.from_bytes(r[4:8], "little")
+        r = self._ask(p.GetStatus(), p.StatusReply, idempotent=True)
+        return r.state, r.flags, r.counter
 
     def download_calibration(self, matrix: Any) -> None:
         """Store a 6×12 matrix in the amplifier (host → amplifier, CRC checked)."""
         blob = p.matrix_to_blob(np.asarray(matrix, dtype=float))
-        self._command(p.Command.CAL_DOWNLOAD_BEGIN, len(blob).to_bytes(2, "little"))
+        self._request(p.CalDownloadBegin(len(blob)))
         for i, seg in enumerate(p.segments(blob)):
-            self._command(p.Command.CAL_SEGMENT, bytes([i]) + seg, answer=False)
-        self._command(p.Command.CAL_DOWNLOAD_END, p.blob_crc(blob).to_bytes(4, "little"))
+            self._request(p.CalSegment(i, seg))
+        self._request(p.CalDownloadEnd(p.blob_crc(blob)))
 
     def upload_calibration(self) -> NDArray[np.float64]:
         """Read the matrix stored in the amplifier (amplifier → host, CRC checked)."""
-        head = self._command(p.Command.CAL_UPLOAD)
-        n_bytes = int.from_bytes(head[1:3], "little")
-        crc = int.from_bytes(head[3:7], "little")
-        n_seg = (n_bytes + 5) // 6
-        parts: dict[int, bytes] = {}
-        while len(parts) < n_seg:
-            r = self._await_response(p.Command.CAL_UPLOAD, expect=p.UPLOAD_SEGMENT)
-            parts[r[1]] = r[2:8]
-        blob = b"".join(parts[i] for i in range(n_seg))[:n_bytes]
-        if p.blob_crc(blob) != crc:
-            raise ProtocolError("uploaded calibration fails its CRC; upload again")
-        return p.matrix_from_blob(blob)
+
+        def attempt(deadline: Deadline) -> bytes:
+            self._send(p.command_id(self.node_id), p.CalUpload().encode())
+            head = self._await_reply(p.CalUpload.OPCODE, p.CalUploadReply, deadline)
+            parts: dict[int, bytes] = {}
+            while len(parts) < p.n_segments(head.n_bytes):
+                seg = self._await_reply(p.CalUpload.OPCODE, p.CalUploadSegment, deadline)
+                parts[seg.index] = seg.data
+            blob = p.join_segments(parts, head.n_bytes)
+            if p.blob_crc(blob) != head.crc32:
+                raise ProtocolError("uploaded calibration fails its CRC; upload again")
+            return blob
+
+        return p.matrix_from_blob(self._exchange("CAL_UPLOAD", attempt))
 
     def set_calibration_matrix(self, matrix: Any) -> None:
         m = np.asarray(matrix, dtype=float)
@@ -268,14 +293,12 @@ class LoadCellAmplifier:
 
     # -- stream ----------------------------------------------------------------------------------
     def _record(self, ev: LoadCellEvent) -> None:
-        self._stream.events.append(ev)
+        self._stream.samples.record(ev)
         self.events.append(ev)
         log.warning("load cell %d: %s", self.node_id, ev.message)
 
-    def _heartbeat(self, data: bytes) -> None:
-        if len(data) != p.HEARTBEAT.size:
-            raise ProtocolError(f"heartbeat of {len(data)} bytes, expected 8")
-        counter, t_us = p.HEARTBEAT.unpack(data)
+    def _heartbeat(self, hb: p.Heartbeat) -> None:
+        counter, t_us = hb.counter, hb.time_us
         st = self._stream
         if st.heartbeat0 is None or self.sample_rate_hz is None:
             st.heartbeat0 = (counter, t_us)
@@ -305,9 +328,9 @@ class LoadCellAmplifier:
 
     def _drain(self, timeout_s: float) -> None:
         """Route everything that arrives within ``timeout_s`` (at least one recv)."""
-        deadline = time.monotonic() + timeout_s
+        deadline = Deadline(timeout_s)
         while True:
-            msg = self._recv(max(0.0, deadline - time.monotonic()))
+            msg = self._recv(max(0.0, deadline.left()))
             if msg is None:
                 return
             self._route(msg)
@@ -324,9 +347,7 @@ class LoadCellAmplifier:
         diffs = np.where(diffs >= 2**31, diffs - 2**32, diffs)
         abs_c = ref + np.cumsum(diffs)
         st.last_counter = int(abs_c[-1])
-        st.counters = np.concatenate([st.counters, abs_c])
-        st.gauges = np.concatenate([st.gauges, gauges])
-        st.status = np.concatenate([st.status, status])
+        st.samples.put_counters(abs_c, gauges, status)
 
     def read_until(self, end_sample: int, timeout_s: float | None = None) -> LoadCellBlock:
         """Samples ``next .. end_sample − 1`` (blocking until a later counter arrives).
@@ -337,24 +358,24 @@ class LoadCellAmplifier:
             The counter did not reach ``end_sample`` in time (received samples are kept).
         """
         st = self._stream
-        if end_sample <= st.next_sample:
+        if end_sample <= st.samples.next_sample:
             raise SetupError(
-                f"end_sample {end_sample} is not after the next unread sample {st.next_sample}"
+                f"end_sample {end_sample} is not after the next unread sample "
+                f"{st.samples.next_sample}"
             )
-        t = self.timeout_s if timeout_s is None else timeout_s
-        deadline = time.monotonic() + t
+        deadline = self._deadline(timeout_s)
         final = None if self.streaming else self._final_pulses
         while True:
             self._decode_pending()
             have = st.last_counter + 1
             if have >= end_sample or (final is not None and end_sample <= final):
                 break
-            left = deadline - time.monotonic()
+            left = deadline.left()
             if left <= 0:
                 raise DeviceTimeoutError(
                     f"load cell amplifier {self.node_id}: counter reached {have}, not "
-                    f"{end_sample}, within {t} s; is the DAQ clock running and the amplifier "
-                    "started?"
+                    f"{end_sample}, within {deadline.timeout_s} s; is the DAQ clock running and "
+                    "the amplifier started?"
                 )
             msg = self._recv(min(left, 0.05))
             if msg is not None:
@@ -365,20 +386,10 @@ class LoadCellAmplifier:
         return self._take(end_sample)
 
     def _take(self, end: int) -> LoadCellBlock:
-        st = self._stream
-        first = st.next_sample
+        samples = self._stream.samples
+        got = samples.take(end)
+        first, valid, status = got.first, got.valid, got.flags.astype(np.uint8, copy=False)
         n = end - first
-        gauges = np.full((n, p.N_GAUGES), np.nan)
-        status = np.zeros(n, dtype=np.uint8)
-        valid = np.zeros(n, dtype=bool)
-        sel = (st.counters >= first) & (st.counters < end)
-        idx = st.counters[sel] - first
-        gauges[idx] = st.gauges[sel]
-        status[idx] = st.status[sel]
-        valid[idx] = True
-        keep = st.counters >= end
-        st.counters, st.gauges, st.status = st.counters[keep], st.gauges[keep], st.status[keep]
-        st.next_sample = end
         if not valid.all():
             missing = np.flatnonzero(~valid)
             # report contiguous runs
@@ -415,12 +426,7 @@ class LoadCellAmplifier:
                     "the amplifier sees no SYNC clock; connect the DAQ's SYNC output",
                 )
             )
-        events = tuple(
-            e
-            for e in st.events
-            if e.first_sample < end and e.first_sample + max(e.n_samples, 1) > first
-        )
-        st.events = [e for e in st.events if e.first_sample + max(e.n_samples, 1) > end]
-        g = gauges.T
+        events = samples.pop_events(first, end)
+        g = got.data.T
         forces = None if self.calibration_matrix is None else self.calibration_matrix @ g
         return LoadCellBlock(first, g, forces, valid, over, events)

@@ -268,7 +268,7 @@ class VirtualDaqBackend(usb.backend.IBackend):
         if self.running:
             raise self._stall(f"request {req:#x} while streaming")
         if req == p.Request.SET_SAMPLE_RATE:
-            rate = int.from_bytes(bytes(data[:4]), "little") if len(data) >= 4 else -1
+            rate = p.RATE_STRUCT.unpack(bytes(data))[0] if len(data) == p.RATE_STRUCT.size else -1
             if rate != round(self.source.sample_rate_hz):
                 raise self._stall(f"rate {rate} Hz: {_SUPPORTED_RATES_HZ_NOTE}")
             self.sample_rate_hz = float(self.source.sample_rate_hz)

@@ -21,7 +21,6 @@ from __future__ import annotations
 import logging
 import threading
 import time
-import zlib
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -30,6 +29,7 @@ import can
 import numpy as np
 
 from dimacq.drivers.loadcell import protocol as p
+from dimacq.errors import ProtocolError
 from dimacq.simulators.daq.clock import SampleClock
 from dimacq.simulators.lab.source import SampleSource
 
@@ -153,83 +153,78 @@ class LoadCellAmplifierSim:
     def _send(self, aid: int, data: bytes, fd: bool = False) -> None:
         self.bus.send(can.Message(arbitration_id=aid, data=data, is_extended_id=False, is_fd=fd))
 
-    def _reply(self, data: bytes) -> None:
-        self._send(p.response_id(self.node), data)
+    def _reply(self, msg: p.Reply) -> None:
+        self._send(p.response_id(self.node), msg.encode())
 
     def _error(self, op: int, code: p.ErrorCode) -> None:
-        self._reply(bytes([p.ERROR, op, int(code)]))
+        self._reply(p.ErrorReply(op, int(code)))
+
+    #: commands answered in any state; the others are refused (busy) while armed or streaming
+    _ANY_STATE = (p.Identify, p.GetStatus, p.Stop)
 
     def _handle(self, d: bytes) -> None:
         op = d[0]
-        C = p.Command
-        if op == C.IDENTIFY:
-            self._reply(bytes([0x81, p.N_GAUGES, 1, 0]) + self.serial_number.to_bytes(4, "little"))
-        elif op == C.GET_STATUS:
-            flags = 0
-            if self._external and (self.clock is None or not self.clock.state().running):
-                flags |= p.STATUS_SYNC_MISSING
-            self._reply(
-                bytes([0x8B, self.state, flags, 0])
-                + (self._counter & 0xFFFFFFFF).to_bytes(4, "little")
-            )
-        elif op == C.STOP:
-            self._stream_some(final=True)
-            self.state = 0
-            self._reply(bytes([0x83]) + (self._counter & 0xFFFFFFFF).to_bytes(4, "little"))
-        elif self.state != 0:
+        kind = p.REQUESTS.get(op)
+        if self.state != 0 and kind not in self._ANY_STATE:
             self._error(op, p.ErrorCode.BUSY)
-        elif op == C.START:
-            if len(d) < 2 or d[1] not in (0, 1):
-                self._error(op, p.ErrorCode.BAD_ARGUMENT)
-                return
-            self._arm(external=d[1] == 1)
-            self._reply(bytes([0x82]))
-        elif op == C.SET_RATE:
-            rate = int.from_bytes(d[1:5], "little") if len(d) >= 5 else 0
-            if rate <= 0:
-                self._error(op, p.ErrorCode.BAD_ARGUMENT)
-                return
-            self.rate_hz = float(rate)
-            self._reply(bytes([0x84]) + rate.to_bytes(4, "little"))
-        elif op == C.TARE:
-            n = max(1, int.from_bytes(d[1:3], "little"))
-            pos = self._world_now()
-            with self._source_lock():
-                g = self.source.read(self.gauges, pos, n)
-            self.offsets = g.mean(axis=1)
-            self._reply(bytes([0x85]))
-        elif op == C.CAL_DOWNLOAD_BEGIN:
-            self._download_len = int.from_bytes(d[1:3], "little")
-            self._download = {}
-            self._reply(bytes([0x86]))
-        elif op == C.CAL_SEGMENT:
-            self._download[d[1]] = d[2:8]
-        elif op == C.CAL_DOWNLOAD_END:
-            n_seg = (self._download_len + 5) // 6
-            if any(i not in self._download for i in range(n_seg)):
-                self._error(op, p.ErrorCode.MISSING_SEGMENT)
-                return
-            blob = b"".join(self._download[i] for i in range(n_seg))[: self._download_len]
-            if zlib.crc32(blob) != int.from_bytes(d[1:5], "little"):
-                self._error(op, p.ErrorCode.CRC_MISMATCH)
-                return
-            try:
-                self.matrix = p.matrix_from_blob(blob)
-            except Exception:
-                self._error(op, p.ErrorCode.BAD_ARGUMENT)
-                return
-            self._reply(bytes([0x88]))
-        elif op == C.CAL_UPLOAD:
-            blob = p.matrix_to_blob(self.matrix)
-            self._reply(
-                bytes([0x89])
-                + len(blob).to_bytes(2, "little")
-                + zlib.crc32(blob).to_bytes(4, "little")
-            )
-            for i, seg in enumerate(p.segments(blob)):
-                self._reply(bytes([p.UPLOAD_SEGMENT, i]) + seg)
-        else:
-            self._error(op, p.ErrorCode.UNKNOWN_COMMAND)
+            return
+        try:
+            req = p.decode_request(d)
+        except p.BadMessage as err:
+            self._error(op, err.code)
+            return
+        match req:
+            case p.Identify():
+                self._reply(p.IdentifyReply(p.N_GAUGES, 1, 0, self.serial_number))
+            case p.GetStatus():
+                flags = 0
+                if self._external and (self.clock is None or not self.clock.state().running):
+                    flags |= p.STATUS_SYNC_MISSING
+                self._reply(p.StatusReply(self.state, flags, self._counter & 0xFFFFFFFF))
+            case p.Stop():
+                self._stream_some(final=True)
+                self.state = 0
+                self._reply(p.StopReply(self._counter & 0xFFFFFFFF))
+            case p.Start(clock=clock):
+                self._arm(external=clock == 1)
+                self._reply(p.StartReply())
+            case p.SetRate(rate_hz=rate):
+                self.rate_hz = float(rate)
+                self._reply(p.SetRateReply(rate))
+            case p.Tare(n_samples=n):
+                pos = self._world_now()
+                with self._source_lock():
+                    g = self.source.read(self.gauges, pos, max(1, n))
+                self.offsets = g.mean(axis=1)
+                self._reply(p.TareReply())
+            case p.CalDownloadBegin(n_bytes=n_bytes):
+                self._download_len = n_bytes
+                self._download = {}
+                self._reply(p.CalDownloadBeginReply())
+            case p.CalSegment(index=i, data=seg):
+                self._download[i] = seg
+            case p.CalDownloadEnd(crc32=crc):
+                try:
+                    blob = p.join_segments(self._download, self._download_len)
+                except p.BadMessage as err:
+                    self._error(op, err.code)
+                    return
+                if p.blob_crc(blob) != crc:
+                    self._error(op, p.ErrorCode.CRC_MISMATCH)
+                    return
+                try:
+                    self.matrix = p.matrix_from_blob(blob)
+                except ProtocolError:
+                    self._error(op, p.ErrorCode.BAD_ARGUMENT)
+                    return
+                self._reply(p.CalDownloadEndReply())
+            case p.CalUpload():
+                blob = p.matrix_to_blob(self.matrix)
+                self._reply(p.CalUploadReply(len(blob), p.blob_crc(blob)))
+                for i, seg in enumerate(p.segments(blob)):
+                    self._reply(p.CalUploadSegment(i, seg))
+            case _:  # pragma: no cover - every request of the table has its case
+                self._error(op, p.ErrorCode.UNKNOWN_COMMAND)
 
     def _source_lock(self) -> Any:
         return self.clock.source_lock if self.clock is not None else self._lock
@@ -297,16 +292,16 @@ class LoadCellAmplifierSim:
             g = self.source.read(self.gauges, world0 + pulse0, n)
         g = (g - self.offsets[:, None]).T
         keep = ~is_missed
-        frames, _ = p.encode_data_frames(0, g[keep])
+        frames, _ = p.encode_data_frames(counters[keep], g[keep])
         aid = p.data_id(self.node)
         hb = p.heartbeat_id(self.node)
         scale_us = 1e6 / self.rate_hz * (1 + self.oscillator_ppm * 1e-6)
         for c, q, f in zip(counters[keep].tolist(), pulses[keep].tolist(), frames, strict=True):
             if c not in self.faults.dropped_samples:
-                self._send(aid, (c & 0xFFFFFFFF).to_bytes(4, "little") + f[4:], fd=True)
+                self._send(aid, f, fd=True)
             if (c + 1) % p.HEARTBEAT_EVERY == 0:
                 # counter reached, and the true time of that pulse on the amplifier's oscillator
                 t_us = round((q + 1) * scale_us)
-                self._send(hb, p.HEARTBEAT.pack((c + 1) & 0xFFFFFFFF, t_us & 0xFFFFFFFF))
+                self._send(hb, p.Heartbeat(c + 1, t_us).encode())
         if keep.any():
             self._counter = int(counters[keep][-1]) + 1

@@ -1,8 +1,9 @@
-"""The driver against scripted byte exchanges (pymeasure ``expected_protocol`` style)."""
+"""The driver against scripted byte exchanges (tests/_exchange.py, pymeasure ``expected_protocol``)."""
 
 import numpy as np
 import pytest
-from _digitizer_support import SCRIPT, ScriptedTransport, expected_protocol
+from _digitizer_support import SCRIPT, expected_protocol
+from _exchange import ScriptedSerial
 
 from dimacq.drivers.digitizer import SerialDigitizer
 from dimacq.errors import (
@@ -128,8 +129,8 @@ def test_configure_validates_before_sending():
 
 
 def test_port_vanishes_then_reconnect():
-    first = ScriptedTransport([(b"SHOT\r", SHT7), (b"SHOT\r", SHT8)], vanish_after=1)
-    second = ScriptedTransport([(b"*IDN?\r", SCRIPT[0][1]), (b"SHOT\r", SHT8)])
+    first = ScriptedSerial([(b"SHOT\r", SHT7), (b"SHOT\r", SHT8)], vanish_after=1)
+    second = ScriptedSerial([(b"*IDN?\r", SCRIPT[0][1]), (b"SHOT\r", SHT8)])
     ports = iter([second])
     d = SerialDigitizer(first, reopen=lambda: next(ports), timeout_s=0.05, name="scripted")
     assert d.fire().seq == 7
@@ -147,7 +148,7 @@ def test_port_vanishes_then_reconnect():
 
 
 def test_reconnect_without_factory_fails_clearly():
-    d = SerialDigitizer(ScriptedTransport([]), timeout_s=0.05)
+    d = SerialDigitizer(ScriptedSerial([]), timeout_s=0.05)
     with pytest.raises(DeviceNotFoundError, match="reconnect failed after 2 attempts"):
         d.reconnect(attempts=2, delay_s=0.0)
     d.close()

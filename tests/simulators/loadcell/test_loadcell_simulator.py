@@ -119,3 +119,22 @@ def test_lc_armed_but_daq_not_started_times_out_with_data_kept(rig):
     with pytest.raises(DeviceTimeoutError, match="DAQ clock"):
         amp.read_until(10, timeout_s=0.1)
     amp.stop()
+
+
+def test_simulator_answers_the_reference_bytes(rig):
+    """Raw frames to the simulator: its answers are the protocol's documented bytes."""
+    _src, _backend, _task, amp, _sim = rig()
+    exchanges = [
+        ("01", "81 0c 01 00 f5 01 00 00"),  # IDENTIFY: 12 gauges, firmware 1.0, serial 501
+        ("04 00 00 00 00", "ff 04 02"),  # SET_RATE 0 Hz: bad argument
+        ("02 07", "ff 02 02"),  # START with clock 7: bad argument
+        ("0c", "ff 0c 01"),  # not a command: unknown
+        ("0b", "8b 00 02 00 00 00 00 00"),  # GET_STATUS: idle, flags bit1 SYNC missing, counter 0
+    ]
+    for sent, answered in exchanges:
+        amp.bus.send(
+            can.Message(arbitration_id=0x601, data=bytes.fromhex(sent), is_extended_id=False)
+        )
+        reply = amp.bus.recv(2.0)
+        assert reply is not None and reply.arbitration_id == 0x581
+        assert bytes(reply.data) == bytes.fromhex(answered), sent
