@@ -35,15 +35,10 @@ from typing import Any
 
 import numpy as np
 
-from dimacq.errors import SetupError, SolverError
+from dimacq.errors import SetupError
 from dimacq.model.frf import Channel, FrfData
 from dimacq.model.setup import PARAMETERS, TestSetup
 from dimacq.pipeline.dim import DimResult, DimSystem, assemble, solve_system
-from dimacq.pipeline.output_error import (
-    OutputErrorOptions,
-    OutputErrorResult,
-    solve_output_error,
-)
 from dimacq.pipeline.selection._common import match_pairs, response_geometry
 from dimacq.pipeline.selection.band import (
     MAX_RESIDUAL,
@@ -69,14 +64,13 @@ from dimacq.pipeline.uncertainty import (
     estimate_uncertainty,
     geometry_spread,
 )
+from dimacq.services.estimation import output_error_step
 
 __all__ = ["AnalysisOptions", "AnalysisReport", "VerdictReason", "analyse", "verdict"]
 
 #: Relative residual of the joint DIM solve above which the answer is refused / flagged.
 RESIDUAL_FAIL = MAX_RESIDUAL
 RESIDUAL_WARN = 0.05
-#: Reduced χ² above which an output-error fit on the unrefined stated geometry is not used.
-OE_MAX_CHI2_UNREFINED = 3.0
 
 log = logging.getLogger(__name__)
 
@@ -363,48 +357,10 @@ def analyse(
     )
     if n_node_rank:
         unc = replace(unc, n_rank_deficient=unc.n_rank_deficient + n_node_rank)
-    oe: OutputErrorResult | None = None
     if opt.method == "joint" and (opt.unbiased or opt.refine_geometry or opt.residual_flexibility):
-        try:
-            oe = solve_output_error(
-                data,
-                setup_used,
-                response_weights=weights,
-                input_keep=keep_in,
-                known=known,
-                initial=result,
-                options=OutputErrorOptions(
-                    refine_geometry=opt.refine_geometry,
-                    residual_flexibility=opt.residual_flexibility,
-                ),
-            )
-        except (SolverError, SetupError) as err:
-            log.warning("output-error estimate not used (%s); equation-error result kept", err)
-            result = _note(result, "output_error", {"used": False, "reason": str(err)})
-        else:
-            if not oe.refine_geometry and oe.chi2_reduced > OE_MAX_CHI2_UNREFINED:
-                # with the stated geometry taken as exact, a misfit far above the noise makes the
-                # output-error fit shrink its predictions (mass biased high): not used
-                reason = (
-                    f"reduced χ² {oe.chi2_reduced:.3g} with the stated geometry (limit "
-                    f"{OE_MAX_CHI2_UNREFINED:g}): the geometry, not the noise, dominates the "
-                    "misfit; refine the geometry (--refine-geometry)"
-                )
-                log.warning("output-error estimate not used: %s", reason)
-                result = _note(result, "output_error", {"used": False, "reason": reason})
-            else:
-                result, unc = _apply_output_error(result, oe, unc, system_used.hull_points_m)
-                if oe.gross_errors:  # items the refinement found far outside their stated σ
-                    assert oe.input_keep is not None and oe.response_weights is not None
-                    for j in np.nonzero(keep_in & ~oe.input_keep)[0]:
-                        excluded_in.append(_ch(frf.inputs[j]))
-                    gone = (weights > 0) & (oe.response_weights == 0)
-                    excluded_resp.extend(_ch(geo_all.channels[i]) for i in np.nonzero(gone)[0])
-                    result = replace(
-                        result,
-                        inputs=tuple(c for c in result.inputs if _ch(c) not in excluded_in),
-                        responses=tuple(c for c in result.responses if _ch(c) not in excluded_resp),
-                    )
+        result, unc = output_error_step(
+            data, setup_used, result, unc, weights, keep_in, known, opt, system_used.hull_points_m
+        )
     exc = excitation_check(_phi_m(system_used))
     result = _with_extras(result, rsel, jsel, repair)
 
@@ -431,80 +387,6 @@ def analyse(
         paths = write_report_figures(report, frf, setup_used, Path(opt.plots_dir), weights, keep_in)
         report = AnalysisReport(**{**report.__dict__, "plots": paths})
     return report
-
-
-def _note(result: DimResult, key: str, value: Any) -> DimResult:
-    return replace(result, extras={**result.extras, key: value})
-
-
-def _apply_output_error(
-    result: DimResult, oe: OutputErrorResult, unc: Uncertainty, hull: np.ndarray
-) -> tuple[DimResult, Uncertainty]:
-    """Headline = the output-error estimate, with its own 95 % intervals.
-
-    The posterior covariance of the output-error fit carries the noise of every line, channel and
-    input and — with the geometry refined — the stated geometry uncertainty (the priors, gauge
-    included) and the registration residual. Without refinement the geometry share propagated by
-    Monte Carlo (``se_geometry`` of ``unc``) is added in quadrature. ``se_inputs`` holds the noise
-    share (every line, channel and input; geometry held), ``se_geometry`` the rest. Student t with
-    N − 1 inputs, as for the jackknife.
-    """
-    from scipy import stats
-
-    from dimacq.model.properties import RigidBodyProperties, vector_to_inertia
-    from dimacq.pipeline.dim import plausibility
-    from dimacq.pipeline.uncertainty import ParameterUncertainty
-
-    p = oe.parameters
-    props = RigidBodyProperties.from_about_point(
-        float(p[0]), p[1:4], vector_to_inertia(p[4:]), result.reference_point_m
-    )
-    se_post = oe.standard_errors
-    se_noise = np.minimum(np.sqrt(np.clip(np.diag(oe.covariance_noise), 0.0, None)), se_post)
-    se_geo = np.array([unc.parameters[k].se_geometry for k in PARAMETERS])
-    comps: tuple[str, ...]
-    if oe.refine_geometry:
-        se_geo = np.zeros(10)  # in the posterior already
-        comps = ("inputs", "responses", "geometry", "lines")
-    else:
-        comps = ("inputs", "lines") + (("geometry",) if "geometry" in unc.components else ())
-    se = np.sqrt(se_post**2 + se_geo**2)
-    for k in result.known:
-        se[PARAMETERS.index(k)] = 0.0
-    tq = float(stats.t.ppf(0.975, max(oe.n_inputs - 1, 1)))
-    params = {
-        name: ParameterUncertainty(
-            float(p[i]),
-            float(se[i]),
-            (float(p[i] - tq * se[i]), float(p[i] + tq * se[i])),
-            se_inputs=float(se_noise[i]),
-            se_lines=0.0,
-            se_responses=0.0,
-            se_geometry=float(np.sqrt(max(se[i] ** 2 - se_noise[i] ** 2, 0.0))),
-        )
-        for i, name in enumerate(PARAMETERS)
-    }
-    unc_oe = replace(
-        unc,
-        parameters=params,
-        method="output-error posterior"
-        + (" (geometry refined)" if oe.refine_geometry else " + geometry Monte Carlo"),
-        components=comps,
-    )
-    out = replace(
-        result,
-        properties=props,
-        parameters=p.copy(),
-        extras={
-            **result.extras,
-            "output_error": {"used": True, **oe.to_json()},
-            "equation_error_parameters": {
-                k: float(v) for k, v in zip(PARAMETERS, result.parameters, strict=True)
-            },
-        },
-    )
-    out = replace(out, diagnostics=plausibility(props, hull, out))
-    return out, unc_oe
 
 
 def _phi_m(system: DimSystem) -> np.ndarray:
