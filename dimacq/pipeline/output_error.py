@@ -363,7 +363,7 @@ class _Problem:
         """Channel positions/directions and input positions/directions for corrections ``g``."""
         nn = self.n_nodes
         gs = g[: 6 * nn].reshape(nn, 6)
-        gi = g[6 * nn :].reshape(-1, 4)
+        gi = g[6 * nn : 6 * nn + 4 * self.rin0.shape[0]].reshape(-1, 4)
         rot = Rotation.from_rotvec(gs[self.node_of, :3])
         d = rot.apply(self.d0)
         r = self.r0 + gs[self.node_of, 3:]
@@ -398,7 +398,9 @@ class _Problem:
         phi = np.concatenate([din, np.cross(rin, din)], axis=1)  # (J, 6)
         Y = np.concatenate([phi[:, :, None], np.broadcast_to(np.eye(6), (phi.shape[0], 6, 6))], 2)
         G = A @ (Y @ self.Ly)  # (J, 6, k)
-        wt = self.w.T[:, :, None]  # (J, C, 1)
+        C0 = psi.shape[0]
+        gain = 1.0 + g[g.size - C0 :]
+        wt = self.w.T[:, :, None] * np.reshape(gain, (1, -1, 1))  # (J, C, 1): 1/σ × channel gain
         pred = wt * (psi @ G)  # (J, C, k)
         E = self.Lh - pred  # (J, C, k)
         n_data = E.size
@@ -431,7 +433,7 @@ class _Problem:
                 sens_p = -wt * (dpsi[:, p, :] @ G)  # (J, C, k)
                 full[:, np.arange(C_), :, cols[:, p]] = np.moveaxis(sens_p, 1, 0)
             # inputs: ∂φ for β (2) and γ (2)
-            gi = g[6 * nn :].reshape(-1, 4)
+            gi = g[6 * nn : 6 * nn + 4 * self.rin0.shape[0]].reshape(-1, 4)
             ax = np.einsum("ji,jik->jk", gi[:, :2], self.ebasis)
             jli = _left_jacobian(ax)  # (J, 3, 3)
             eb_l = np.einsum("jab,jib->jia", jli, self.ebasis)  # J_l e_i for the two normals
@@ -444,6 +446,11 @@ class _Problem:
             ly0 = self.Ly[:, None, 0, :]  # (J, 1, k)
             for p in range(4):
                 full[np.arange(J_), :, :, base + p] = -(WPA @ dphi[:, p, :, None]) * ly0
+            if self.sigma_g.size > 6 * nn + 4 * J_:  # channel gains (relative)
+                gcols = 6 * nn + 4 * J_ + np.arange(C_)
+                full[:, np.arange(C_), :, gcols] = np.moveaxis(
+                    -(self.w.T[:, :, None] * (psi @ G)), 1, 0
+                )
             sub = full[..., self.free_g] * self.sigma_g[self.free_g]
             Jac[:n_data, n_x:] = sub.reshape(n_data, n_g)
             Jac[n_data:, n_x:] = np.eye(n_g)
@@ -640,6 +647,8 @@ def solve_output_error(
         [
             np.tile([np.deg2rad(gu.sensor_orientation_deg)] * 3 + [gu.sensor_position_m] * 3, nn),
             np.tile([np.deg2rad(gu.line_of_action_deg)] * 2 + [gu.input_position_m] * 2, J),
+            # each accelerometer axis's sensitivity against its certificate (relative)
+            np.full(int(active.sum()), setup.transducer_uncertainty.accel_sensitivity_rel),
         ]
     )
     cand = np.nonzero(sig_g > 0)[0] if opt.refine_geometry else np.zeros(0, np.intp)
@@ -712,6 +721,8 @@ def solve_output_error(
             worst = int(np.argmax(zfull))
             w2 = wts.copy()
             k2 = np.asarray(keep_in, bool).copy()
+            if worst >= 6 * nn + 4 * J:  # a channel's gain: leave its sensor node out
+                worst = 6 * int(node_of[worst - 6 * nn - 4 * J])
             if worst < 6 * nn:
                 node = int(nodes[worst // 6])
                 w2[geo.nodes == node] = 0.0
@@ -871,9 +882,11 @@ def _direct_cost(
     """``Σ |H − Ĥ|²/σ²`` over every line, channel and input (residual terms projected out when
     ``basis`` is given): the data cost without the bias compensation, for χ² and the test."""
     x = prob.full_x(theta)
-    r, d, rin, din = prob.geometry(prob.full_g(theta))
+    gfull = prob.full_g(theta)
+    r, d, rin, din = prob.geometry(gfull)
     A = np.linalg.inv(mass_matrix(x)[0])
     psi = np.concatenate([d, np.cross(r, d)], axis=1)
+    psi = psi * (1.0 + gfull[gfull.size - psi.shape[0] :])[:, None]
     phi = np.concatenate([din, np.cross(rin, din)], axis=1)
     mot = A @ (phi.T[None] + R)  # (L, 6, J)
     e = (H - psi @ mot) / sigma[None]

@@ -112,7 +112,7 @@ class AnalysisOptions:
         (:mod:`dimacq.pipeline.output_error`): no errors-in-variables bias. Default on.
     refine_geometry : bool
         Estimate sensor rotations/offsets and input lines of action with the properties (priors
-        from ``setup.geometry_uncertainty``). Default on; implies the output-error estimate.
+        from ``setup.geometry_uncertainty``). Default off (see README, Accuracy); implies the output-error estimate.
     residual_flexibility : bool
         Fit residual terms of elastic modes above the band (and test whether they were needed).
     """
@@ -131,7 +131,7 @@ class AnalysisOptions:
     geometry_samples: int = 400
     method: str = "joint"
     unbiased: bool = True
-    refine_geometry: bool = True
+    refine_geometry: bool = False
     residual_flexibility: bool = False
 
 

@@ -78,7 +78,7 @@ def output_error_step(
         )
         log.warning("output-error estimate not used: %s", reason)
         return _note(result, "output_error", {"used": False, "reason": reason}), unc
-    result, unc = _apply_output_error(result, oe, unc, hull)
+    result, unc = _apply_output_error(result, oe, unc, hull, setup)
     if oe.gross_errors:
         assert oe.input_keep is not None and oe.response_weights is not None
         chans = [c for c in result.responses]
@@ -109,7 +109,11 @@ def _note(result: DimResult, key: str, value: Any) -> DimResult:
 
 
 def _apply_output_error(
-    result: DimResult, oe: OutputErrorResult, unc: Uncertainty, hull: np.ndarray
+    result: DimResult,
+    oe: OutputErrorResult,
+    unc: Uncertainty,
+    hull: np.ndarray,
+    setup: TestSetup,
 ) -> tuple[DimResult, Uncertainty]:
     """Headline = the output-error estimate, with its own 95 % intervals.
 
@@ -135,10 +139,21 @@ def _apply_output_error(
     se_geo = np.array([unc.parameters[k].se_geometry for k in PARAMETERS])
     comps: tuple[str, ...]
     if oe.refine_geometry:
-        se_geo = np.zeros(10)  # in the posterior already
+        # the geometry is in the posterior already; the transducer calibration is not: a force
+        # (hammer) sensitivity error η scales every FRF, hence m and I, by 1/(1+η) exactly (the
+        # CG not at all); the accelerometer axes' independent errors act through their mean
+        # over the n_ch channels kept (σ_a/√n_ch) the same way
+        tu = setup.transducer_uncertainty
+        rel = np.hypot(
+            tu.force_sensitivity_rel,
+            tu.accel_sensitivity_rel / np.sqrt(max(len(result.responses), 1)),
+        )
+        se_geo = np.zeros(10)
+        se_geo[[0, *range(4, 10)]] = rel * np.abs(oe.parameters[[0, *range(4, 10)]])
         comps = ("inputs", "responses", "geometry", "lines")
-    else:
-        comps = ("inputs", "lines") + (("geometry",) if "geometry" in unc.components else ())
+    else:  # stated geometry: its Monte Carlo share and the sensor jackknife, as the jackknife had
+        comps = tuple(unc.components)
+        se_geo = np.hypot(se_geo, [unc.parameters[k].se_responses for k in PARAMETERS])
     se = np.sqrt(se_post**2 + se_geo**2)
     for k in result.known:
         se[PARAMETERS.index(k)] = 0.0

@@ -139,9 +139,9 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     e.add_argument(
         "--refine-geometry",
         action=argparse.BooleanOptionalAction,
-        default=True,
+        default=False,
         help="estimate sensor rotations/offsets and input lines of action with the properties, "
-        "priors from the setup's [geometry_uncertainty] (default on)",
+        "priors from the setup's [geometry_uncertainty] (default off for now)",
     )
     e.add_argument(
         "--residual-flexibility",

@@ -55,7 +55,7 @@ class SolveOptions(BaseModel):
         description="output-error (maximum-likelihood) estimate with the FRF noise from the data",
     )
     refine_geometry: bool = Field(
-        default=True,
+        default=False,
         description="estimate sensor rotations/offsets and input lines of action with the properties",
     )
     residual_flexibility: bool = Field(
