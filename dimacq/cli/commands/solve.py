@@ -8,6 +8,7 @@ Usage::
                  [--reference REF.json] [--json OUT]
                  [--no-select] [--no-select-responses] [--no-select-inputs] [--no-auto-band]
                  [--no-geometry-uncertainty] [--repair-orientation] [--plots DIR]
+                 [--unbiased] [--refine-geometry] [--residual-flexibility]
 
 INPUT is a setup file (``.toml``/``.json``, then FRF.uff holds the FRFs) or one UFF file holding
 the whole test (geometry, coordinate systems and 58 records).
@@ -127,6 +128,29 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         "--repair-orientation", action="store_true", help="apply sensor orientation repair"
     )
     g.add_argument("--plots", type=Path, metavar="DIR", help="write figures (PNG and SVG) to DIR")
+    e = p.add_argument_group("estimator (dimacq.pipeline.output_error)")
+    e.add_argument(
+        "--unbiased",
+        action=argparse.BooleanOptionalAction,
+        default=False,
+        help="output-error (maximum-likelihood) estimate, FRF noise estimated from the data: "
+        "no errors-in-variables bias (default off: its intervals do not yet hold the truth "
+        "often enough)",
+    )
+    e.add_argument(
+        "--refine-geometry",
+        action=argparse.BooleanOptionalAction,
+        default=False,
+        help="estimate sensor rotations/offsets and input lines of action with the properties, "
+        "priors from the setup's [geometry_uncertainty] (default off for now)",
+    )
+    e.add_argument(
+        "--residual-flexibility",
+        action=argparse.BooleanOptionalAction,
+        default=False,
+        help="fit residual terms (ω², ω⁴) of elastic modes above the band and test whether they "
+        "were needed (default off)",
+    )
     p.set_defaults(func=run)
 
 
@@ -217,6 +241,9 @@ def run(args: argparse.Namespace) -> int:
         length_unit=args.length_unit,
         geometry_samples=0 if args.no_geometry_uncertainty else 400,
         method=args.method,
+        unbiased=args.unbiased,
+        refine_geometry=args.refine_geometry,
+        residual_flexibility=args.residual_flexibility,
     )
     report = analyse(frf, setup, options)
     result = report.result
@@ -351,6 +378,27 @@ def print_report(
             applied = "applied" if corr.get("applied") else "not applied"
             angle = float(corr.get("angle_deg", float("nan")))
             w(f"orientation correction node {corr.get('node')}: {angle:.3f} deg ({applied})\n")
+    oe = payload.get("output_error")
+    if isinstance(oe, dict) and oe.get("used"):
+        w(
+            f"estimator: output-error (geometry refined: {'yes' if oe['refine_geometry'] else 'no'}), "
+            f"{oe['iterations']} iterations, reduced χ² {oe['chi2_reduced']:.3g}\n"
+        )
+        est = [c for c in oe["sensor_corrections"] if c["rotation_estimated"]]
+        if est:
+            worst = max(est, key=lambda c: float(np.linalg.norm(c["rotation_deg"])))
+            w(
+                f"  sensor corrections: {len(est)} nodes, largest rotation node {worst['node']} "
+                f"{float(np.linalg.norm(worst['rotation_deg'])):.3f} deg\n"
+            )
+        rf = oe.get("residual_flexibility") or {}
+        if rf.get("mode") != "off":
+            w(
+                f"  residual flexibility: {'fitted' if rf.get('fitted') else 'not fitted'}, "
+                f"{'needed' if rf.get('needed') else 'not needed'} by the test\n"
+            )
+    elif isinstance(oe, dict):
+        w(f"estimator: equation-error (output-error not used: {oe.get('reason')})\n")
     for d in result.diagnostics:
         mark = "ok  " if d.ok else ("FAIL" if d.severity == "error" else "warn")
         w(f"[{mark}] {d.code}: {d.message}\n")

@@ -50,6 +50,17 @@ class SolveOptions(BaseModel):
         default=True,
         description="include the setup's stated geometry uncertainty in the 95 % intervals",
     )
+    unbiased: bool = Field(
+        default=False,
+        description="output-error (maximum-likelihood) estimate with the FRF noise from the data",
+    )
+    refine_geometry: bool = Field(
+        default=False,
+        description="estimate sensor rotations/offsets and input lines of action with the properties",
+    )
+    residual_flexibility: bool = Field(
+        default=False, description="fit residual terms of elastic modes above the band"
+    )
 
     @field_validator("band_hz")
     @classmethod
@@ -128,6 +139,9 @@ class AnalysisService:
                 length_unit=options.length_unit,
                 method=options.method,
                 geometry_samples=400 if options.geometry_uncertainty else 0,
+                unbiased=options.unbiased,
+                refine_geometry=options.refine_geometry,
+                residual_flexibility=options.residual_flexibility,
             ),
         )
 

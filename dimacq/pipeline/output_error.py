@@ -1,0 +1,1060 @@
+"""Output-error (maximum-likelihood) DIM with geometry self-calibration and residual flexibility.
+
+Why
+---
+The equation-error DIM (:mod:`dimacq.pipeline.dim`) puts the condensed accelerations ``K = Ψ⁺H`` in
+its design matrix and treats them, and the geometry behind ``Ψ`` and ``φ``, as exact. Noise on
+``H`` then shrinks the estimate (errors in variables), and the stated geometry sets a floor on the
+accuracy (``estimation-notes.md``). Here the measured FRFs are *predicted* from the parameters and
+compared where the noise is.
+
+Model
+-----
+For input ``j`` at line ``ω`` the rigid-body motion of the reference point P and the accelerance of
+accelerometer channel ``c`` (unit direction ``d_c`` at ``r_c``, both relative to P) are
+
+    [a_j; α_j](ω) = M(x)⁻¹ ( φ_j(g) + R_j(ω) )
+    Ĥ_cj(ω)       = ψ_c(g)ᵀ [a_j; α_j](ω) + Σ_k G_cjk b_k(ω),   ψ_c = [d_c; r_c × d_c]
+
+with ``M(x) = [[m E, −m[c]x], [m[c]x, I_P]]`` the rigid mass matrix of the ten properties
+(``c`` the CG relative to P, ``I_P`` about P), ``φ_j = [d_j; r_j × d_j]`` the unit input, ``R_j`` the
+measured load-cell reactions mapped to P, and — with residual flexibility — free real coefficients
+``G`` on the basis ``b(ω) = [(ω/ω_hi)², (ω/ω_hi)⁴]``: the stiffness-line share of elastic modes above
+the band (``−ω²/(ω_r² − ω²) = −(ω/ω_r)² − (ω/ω_r)⁴ − …`` per mode) and below nothing else. The
+estimate minimises
+
+    Σ_jcω |Ĥ_cj − H_cj|² / σ_cj²  +  Σ_g (δg / σ_g)²
+
+(a MAP / bundle-adjustment cost). ``σ_cj`` is the FRF noise (below); ``δg`` the geometry corrections
+with their stated 1σ (:class:`~dimacq.model.setup.GeometryUncertainty`):
+
+- each sensor node (triax): a small rotation ``δθ_n`` (3, rad; prior ``sensor_orientation_deg`` per
+  axis) and a position offset ``δp_n`` (3, m; prior ``sensor_position_m``): ``d_c = exp([δθ_n]x) d_c⁰``,
+  ``r_c = r_c⁰ + δp_n``;
+- each input: its line of action turned about the two axes ``e₁, e₂`` normal to it (2, rad; prior
+  ``line_of_action_deg``) and its point moved along ``e₁, e₂`` (2, m; prior ``input_position_m``; a
+  move along the line of action changes nothing and is not a parameter).
+
+Sufficient statistics (why it is fast)
+--------------------------------------
+With ``z_j(ω) = [1; R_j(ω); b(ω); H_:j(ω)/σ_:j]`` the cost of input ``j`` is a quadratic form in the
+real second-moment matrix ``S_j = Σ_ω Re(z_j z_jᴴ)`` (all lines of the band), so the number of lines
+enters once. The free residual coefficients ``G`` are eliminated exactly by the Schur complement of
+``S_j`` on the ``b`` block (variable projection). With ``S'_j = L_j L_jᵀ`` (eigen-factor, numerical
+rank columns) the cost is ``‖L_jʰ − W_j Ψ M⁻¹ [φ_j, E] L_jʸ‖²_F``: a residual of ``n_ch × rank``
+entries per input, whatever the number of lines. Gauss–Newton / Levenberg–Marquardt on that
+residual and the prior residuals with the analytic Jacobian:
+
+- ``∂/∂x_k``: ``W Ψ M⁻¹ M_k G_j`` with ``G_j = M⁻¹ Y_j L_jʸ`` (``∂M⁻¹ = −M⁻¹ ∂M M⁻¹``);
+- sensor node: ``−W_jc (∂ψ_c)ᵀ G_j``, ``∂ψ_c/∂δθ_i = [e_i × d_c; r_c × (e_i × d_c)]``,
+  ``∂ψ_c/∂δp_i = [0; e_i × d_c]``;
+- input: ``−W_j Ψ M⁻¹ ∂φ_j (L_jʸ)₀``, ``∂φ/∂β_i = [e_i × d; r × (e_i × d)]``, ``∂φ/∂γ_i = [0; e_i × d]``.
+
+Noise model (errors in variables)
+---------------------------------
+Independent circular complex noise per output, input and line. ``σ_cj`` is estimated from the data by
+the line-to-line scatter: the third difference along the lines ``Δ³H = H_ℓ − 3H_ℓ₊₁ + 3H_ℓ₊₂ − H_ℓ₊₃``
+removes a smooth FRF (the mass line) and has variance ``20 σ²`` for white noise; a robust
+(median) estimate ``σ² = median|Δ³H|² / (20 ln 2)``. The reactions ``R_j`` are regressors with noise:
+``E[S_RR] = S_RR⁰ + n_ω Σ_R``, so ``n_ω Σ_R`` (``Σ_R`` from the third difference of ``R_j``) is
+subtracted before the fit (bias compensation). Noise on ``H`` sits on the compared quantity and does
+not bias the estimate. The reduced ``χ²`` at the solution checks the noise model; the covariance
+is scaled by ``max(1, χ²_red)``.
+
+Gauge
+-----
+A common rigid motion of the whole instrumentation (all sensors and inputs together, with the
+body's properties moved with it) leaves every FRF unchanged (the load cells, taken as exact, see it
+only through the small reactions). The data do not fix it; the priors do: the MAP solution puts the
+common-mode corrections at their prior-precision-weighted mean of zero, i.e. the frame is the one of
+the stated (digitized, registered) geometry. The reported CG uncertainty includes that common mode
+(it is in the posterior through the priors) and the stated registration residual.
+
+Identifiability
+---------------
+A geometry parameter whose posterior standard deviation (at the start, all others marginalised) is
+above ``refuse_ratio`` of its prior is not identified by the data: it is left at the stated value
+(not estimated) and reported with that reason. The posterior covariance of the properties is the
+inverse of the Gauss–Newton information (data and priors) at the solution (Laplace approximation).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy import stats
+from scipy.spatial.transform import Rotation
+
+from dimacq.errors import SetupError, SolverError
+from dimacq.model.frf import Channel, FrfData
+from dimacq.model.setup import PARAMETERS, TestSetup
+from dimacq.pipeline.dim import DimResult, assemble, solve_system
+from dimacq.pipeline.selection._common import response_geometry
+
+__all__ = [
+    "OutputErrorOptions",
+    "OutputErrorResult",
+    "estimate_noise",
+    "mass_matrix",
+    "solve_output_error",
+]
+
+log = logging.getLogger(__name__)
+FloatArray = NDArray[np.float64]
+ComplexArray = NDArray[np.complex128]
+
+_E = np.eye(3)
+#: Directions of the (bias-compensated) regressor moments below this fraction of the largest are
+#: dropped (numerically null: no reaction in that direction).
+_EIG_KEEP = 1e-12
+
+
+def _skew(v: FloatArray) -> FloatArray:
+    out = np.zeros(v.shape + (3,))
+    out[..., 0, 1], out[..., 0, 2] = -v[..., 2], v[..., 1]
+    out[..., 1, 0], out[..., 1, 2] = v[..., 2], -v[..., 0]
+    out[..., 2, 0], out[..., 2, 1] = -v[..., 1], v[..., 0]
+    return out
+
+
+def _left_jacobian(rv: FloatArray) -> FloatArray:
+    """Left Jacobian of SO(3), ``J_l(θ) = E + ½[θ]x + ⅙[θ]x²`` (series to second order; the
+    corrections are small angles), shape (..., 3, 3)."""
+    k = _skew(rv)
+    return np.asarray(_E + 0.5 * k + (k @ k) / 6.0, float)
+
+
+# ------------------------------------------------------------------------------------------
+# Mass matrix of the ten properties
+# ------------------------------------------------------------------------------------------
+_IDX6 = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
+
+
+def mass_matrix(x: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """``M(x)`` and its derivatives ``∂M/∂x_k``.
+
+    Parameters
+    ----------
+    x : ndarray, shape (10,)
+        ``[m, cx, cy, cz, Ixx, Ixy, Ixz, Iyy, Iyz, Izz]``, CG relative to P (m), inertia about P.
+
+    Returns
+    -------
+    M : ndarray, shape (6, 6)
+        ``[[m E, −m[c]x], [m[c]x, I_P]]``.
+    dM : ndarray, shape (10, 6, 6)
+    """
+    m, c = x[0], x[1:4]
+    M = np.zeros((6, 6))
+    M[:3, :3] = m * _E
+    M[:3, 3:] = -m * _skew(c)
+    M[3:, :3] = m * _skew(c)
+    dM = np.zeros((10, 6, 6))
+    dM[0, :3, :3] = _E
+    dM[0, :3, 3:] = -_skew(c)
+    dM[0, 3:, :3] = _skew(c)
+    for i in range(3):
+        s = _skew(_E[i])
+        dM[1 + i, :3, 3:] = -m * s
+        dM[1 + i, 3:, :3] = m * s
+    for k, (a, b) in enumerate(_IDX6):
+        M[3 + a, 3 + b] = M[3 + b, 3 + a] = x[4 + k]
+        dM[4 + k, 3 + a, 3 + b] = dM[4 + k, 3 + b, 3 + a] = 1.0
+    return M, dM
+
+
+# ------------------------------------------------------------------------------------------
+# Noise
+# ------------------------------------------------------------------------------------------
+def estimate_noise(H: ComplexArray) -> FloatArray:
+    """Noise standard deviation of each FRF from the line-to-line scatter (module docstring).
+
+    Parameters
+    ----------
+    H : ndarray, shape (n_lines, ...), complex
+        FRFs along their lines (axis 0), at least 8 lines.
+
+    Returns
+    -------
+    ndarray, shape (...)
+        ``σ = sqrt(median|Δ³H|² / (20 ln 2))``, same unit as ``H`` (total complex variance σ²).
+    """
+    H = np.asarray(H)
+    if H.shape[0] < 8:
+        raise SetupError(
+            f"the band holds {H.shape[0]} lines; the noise estimate from line-to-line scatter "
+            "needs at least 8: widen the band"
+        )
+    d3 = H[:-3] - 3 * H[1:-2] + 3 * H[2:-1] - H[3:]
+    return np.asarray(np.sqrt(np.median(np.abs(d3) ** 2, axis=0) / (20 * np.log(2))), float)
+
+
+def _reaction_noise_cov(R: ComplexArray) -> FloatArray:
+    """``Σ_R`` per input (J, 6, 6): real covariance per line of the noise on the reactions at P
+    (``E Re(e eᴴ)`` = total complex covariance), from the third difference of ``R_j``."""
+    d3 = R[:-3] - 3 * R[1:-2] + 3 * R[2:-1] - R[3:]  # (L-3, 6, J)
+    cov = np.real(np.einsum("lij,lkj->jik", d3, d3.conj())) / (20.0 * d3.shape[0])
+    # robust scale: match the diagonal to the median estimate, keep the correlation structure
+    med = np.median(np.abs(d3) ** 2, axis=0).T / (20 * np.log(2))  # (J, 6)
+    diag = np.einsum("jii->ji", cov)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = np.sqrt(np.where(diag > 0, med / diag, 0.0))
+    return np.asarray(cov * s[:, :, None] * s[:, None, :], float)
+
+
+def _smooth_reactions(R: ComplexArray, f_hz: FloatArray) -> tuple[ComplexArray, int]:
+    """Least-squares projection of each reaction ``R_j(ω)`` on a smooth basis over the band.
+
+    Above the suspension a support's load is ``−(k + iωc) u_cell`` with ``u_cell ≈ −a/ω²``
+    (plus a stiffness-line share of modes above the band), so ``R(ω) ≈ Σ_k ρ_k ω^k``,
+    ``k ∈ {−2, −1, 0, 1}``, complex ``ρ_k``. The projection keeps the signal and ``n_b = 4`` of the
+    ``n_ω`` noise dimensions per component: the noise on the regressors, which would bias the
+    output-error estimate (errors in variables), falls by ``n_b / n_ω``; what is left is compensated
+    (``n_b Σ_R``). Needs ``n_ω ≥ 12`` lines; otherwise ``R`` is returned as is (``n_b = n_ω``).
+    """
+    n = R.shape[0]
+    if n < 12:
+        return R, n
+    w = f_hz / np.sqrt(f_hz[0] * f_hz[-1])
+    B = np.stack([w**-2, w**-1, np.ones_like(w), w], axis=1)  # (L, 4)
+    Q, _ = np.linalg.qr(B)
+    flat = R.reshape(n, -1)
+    return (Q @ (Q.T @ flat)).reshape(R.shape), B.shape[1]
+
+
+# ------------------------------------------------------------------------------------------
+# Options and result
+# ------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class OutputErrorOptions:
+    """What :func:`solve_output_error` estimates.
+
+    Attributes
+    ----------
+    refine_geometry : bool
+        Estimate sensor rotations and offsets and input lines of action (priors from
+        ``setup.geometry_uncertainty``). Off: the stated geometry is taken as exact.
+    residual_flexibility : bool or None
+        ``True``: fit the residual terms (and report the Hausman test of whether they were
+        needed); ``False`` (default): never; ``None`` (auto): keep them only when the test says so.
+    refine_positions : bool
+        Include the sensor position offsets (where identified).
+    refuse_ratio : float
+        A geometry parameter whose posterior σ exceeds this fraction of its prior σ is not
+        estimated (not identified by the data).
+    max_iterations : int
+    max_correction_sigma : float
+        A refined correction beyond this many stated σ is a gross error: the item (sensor node or
+        input) is left out and the solve repeated, at most ``max_gross_items`` times; beyond
+        that the model, not the geometry, is wrong: the refinement is refused.
+    max_gross_items : int
+    """
+
+    refine_geometry: bool = True
+    residual_flexibility: bool | None = False
+    refine_positions: bool = True
+    refuse_ratio: float = 0.9
+    max_iterations: int = 30
+    max_correction_sigma: float = 6.0
+    max_gross_items: int = 3
+
+
+@dataclass(frozen=True, eq=False)
+class OutputErrorResult:
+    """The output-error estimate with its evidence.
+
+    Attributes
+    ----------
+    parameters : ndarray, shape (10,)
+        ``[m, cx, cy, cz, Ixx..Izz]``: CG in the GCS (m), inertia about P (kg·m²).
+    covariance : ndarray, shape (10, 10)
+        Posterior covariance (geometry marginalised, scaled by ``max(1, χ²_red)``, registration
+        residual added to the CG); zero rows for known properties.
+    covariance_noise : ndarray, shape (10, 10)
+        The same with the geometry held at its estimate: the noise's share; the difference is
+        the geometry's (priors, gauge, registration).
+    sensor_corrections, input_corrections : list of dict
+        Each correction with its standard deviation, or the reason it was not estimated.
+    residual_flexibility : dict
+        ``fitted``, ``needed``, the likelihood-ratio statistic and the size of the residual.
+    noise : dict
+        Median FRF noise relative to the band RMS, reduced χ², how σ was estimated.
+    setup : TestSetup
+        The setup with the refined geometry.
+    refine_geometry : bool
+        Whether the geometry was refined (False when asked but refused).
+    """
+
+    parameters: FloatArray
+    covariance: FloatArray
+    covariance_noise: FloatArray
+    chi2_reduced: float
+    iterations: int
+    elapsed_s: float
+    sensor_corrections: list[dict[str, Any]]
+    input_corrections: list[dict[str, Any]]
+    residual_flexibility: dict[str, Any]
+    noise: dict[str, Any]
+    gauge: str
+    setup: TestSetup
+    refine_geometry: bool
+    n_inputs: int
+    gross_errors: list[dict[str, Any]] = field(default_factory=list)
+    response_weights: FloatArray | None = None
+    input_keep: NDArray[np.bool_] | None = None
+    extras: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def standard_errors(self) -> FloatArray:
+        return np.sqrt(np.clip(np.diag(self.covariance), 0.0, None))
+
+    def to_json(self) -> dict[str, Any]:
+        se = self.standard_errors
+        return {
+            "estimator": "output-error",
+            "refine_geometry": self.refine_geometry,
+            "parameters": {k: float(v) for k, v in zip(PARAMETERS, self.parameters, strict=True)},
+            "standard_errors": {k: float(v) for k, v in zip(PARAMETERS, se, strict=True)},
+            "chi2_reduced": self.chi2_reduced,
+            "iterations": self.iterations,
+            "elapsed_s": self.elapsed_s,
+            "gauge": self.gauge,
+            "sensor_corrections": self.sensor_corrections,
+            "input_corrections": self.input_corrections,
+            "residual_flexibility": self.residual_flexibility,
+            "noise": self.noise,
+            "gross_errors": list(self.gross_errors),
+        }
+
+
+# ------------------------------------------------------------------------------------------
+# Problem
+# ------------------------------------------------------------------------------------------
+@dataclass(eq=False)
+class _Problem:
+    """Everything the cost needs, in SI units relative to P."""
+
+    r0: FloatArray  # (C, 3) channel positions rel P
+    d0: FloatArray  # (C, 3) channel directions
+    node_of: NDArray[np.intp]  # (C,) index of the channel's node
+    nodes: NDArray[np.int64]  # (Nn,)
+    rin0: FloatArray  # (J, 3)
+    din0: FloatArray  # (J, 3)
+    ebasis: FloatArray  # (J, 2, 3) unit vectors normal to each line of action
+    w: FloatArray  # (C, J) 1/σ
+    Ly: FloatArray  # (J, 7, k)
+    Lh: FloatArray  # (J, C, k)  (already weighted by 1/σ)
+    free_x: NDArray[np.intp]
+    x_fixed: FloatArray  # (10,)
+    free_g: NDArray[np.intp]  # indices into the full geometry vector
+    sigma_g: FloatArray  # (n_geom_full,) prior σ
+
+    @property
+    def n_nodes(self) -> int:
+        return int(self.nodes.size)
+
+    def geometry(self, g: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+        """Channel positions/directions and input positions/directions for corrections ``g``."""
+        nn = self.n_nodes
+        gs = g[: 6 * nn].reshape(nn, 6)
+        gi = g[6 * nn : 6 * nn + 4 * self.rin0.shape[0]].reshape(-1, 4)
+        rot = Rotation.from_rotvec(gs[self.node_of, :3])
+        d = rot.apply(self.d0)
+        r = self.r0 + gs[self.node_of, 3:]
+        axis = np.einsum("ji,jik->jk", gi[:, :2], self.ebasis)
+        din = Rotation.from_rotvec(axis).apply(self.din0)
+        rin = self.rin0 + np.einsum("ji,jik->jk", gi[:, 2:], self.ebasis)
+        return r, d, rin, din
+
+    def full_x(self, theta: FloatArray) -> FloatArray:
+        x = self.x_fixed.copy()
+        x[self.free_x] = theta[: self.free_x.size]
+        return x
+
+    def full_g(self, theta: FloatArray) -> FloatArray:
+        g = np.zeros(self.sigma_g.size)
+        g[self.free_g] = theta[self.free_x.size :] * self.sigma_g[self.free_g]
+        return g
+
+    def residual(
+        self, theta: FloatArray, jacobian: bool = True
+    ) -> tuple[FloatArray, FloatArray | None]:
+        """Stacked residual (data then prior) and, optionally, its Jacobian in θ.
+
+        θ = [free properties; free geometry corrections / their prior σ].
+        """
+        x = self.full_x(theta)
+        g = self.full_g(theta)
+        r, d, rin, din = self.geometry(g)
+        M, dM = mass_matrix(x)
+        A = np.linalg.inv(M)
+        psi = np.concatenate([d, np.cross(r, d)], axis=1)  # (C, 6)
+        phi = np.concatenate([din, np.cross(rin, din)], axis=1)  # (J, 6)
+        Y = np.concatenate([phi[:, :, None], np.broadcast_to(np.eye(6), (phi.shape[0], 6, 6))], 2)
+        G = A @ (Y @ self.Ly)  # (J, 6, k)
+        C0 = psi.shape[0]
+        gain = 1.0 + g[g.size - C0 :]
+        wt = self.w.T[:, :, None] * np.reshape(gain, (1, -1, 1))  # (J, C, 1): 1/σ × channel gain
+        pred = wt * (psi @ G)  # (J, C, k)
+        E = self.Lh - pred  # (J, C, k)
+        n_data = E.size
+        prior = theta[self.free_x.size :]
+        res = np.concatenate([E.ravel(), prior])
+        if not jacobian:
+            return res, None
+        J_, C_, k_ = E.shape
+        n_x, n_g = self.free_x.size, self.free_g.size
+        Jac = np.zeros((n_data + n_g, n_x + n_g))
+        # properties
+        WPA = wt * (psi @ A)[None]  # (J, C, 6)
+        for col, k in enumerate(self.free_x):
+            Jac[:n_data, col] = ((WPA @ dM[k]) @ G).ravel()
+        if n_g:
+            full = np.zeros((J_, C_, k_, self.sigma_g.size))
+            nn = self.n_nodes
+            # sensor nodes: ∂ψ_c for rotation (3) and offset (3)
+            # ∂(exp([θ]x) d⁰)/∂θ_i = (J_l(θ) e_i) × d with the left Jacobian of SO(3)
+            rv = g[: 6 * nn].reshape(nn, 6)[:, :3]
+            jl = _left_jacobian(rv)[self.node_of]  # (C, 3, 3), columns J_l e_i
+            ex_d = np.cross(np.swapaxes(jl, 1, 2), d[:, None, :])  # (C, 3, 3): (J_l e_i) × d_c
+            dpsi = np.zeros((C_, 6, 6))
+            dpsi[:, :3, :3] = ex_d
+            dpsi[:, :3, 3:] = np.cross(r[:, None, :], ex_d)
+            dpsi[:, 3:, 3:] = np.cross(_E[None, :, :], d[:, None, :])  # e_i × d_c (offsets)
+            # −W_jc dψ_c[p]ᵀ G_j
+            cols = 6 * self.node_of[:, None] + np.arange(6)[None, :]  # (C, 6)
+            for p in range(6):  # each channel belongs to one node: no two writes collide
+                sens_p = -wt * (dpsi[:, p, :] @ G)  # (J, C, k)
+                full[:, np.arange(C_), :, cols[:, p]] = np.moveaxis(sens_p, 1, 0)
+            # inputs: ∂φ for β (2) and γ (2)
+            gi = g[6 * nn : 6 * nn + 4 * self.rin0.shape[0]].reshape(-1, 4)
+            ax = np.einsum("ji,jik->jk", gi[:, :2], self.ebasis)
+            jli = _left_jacobian(ax)  # (J, 3, 3)
+            eb_l = np.einsum("jab,jib->jia", jli, self.ebasis)  # J_l e_i for the two normals
+            exd = np.cross(eb_l, din[:, None, :])  # (J, 2, 3)
+            dphi = np.zeros((J_, 4, 6))
+            dphi[:, :2, :3] = exd
+            dphi[:, :2, 3:] = np.cross(rin[:, None, :], exd)
+            dphi[:, 2:, 3:] = exd
+            base = 6 * nn + 4 * np.arange(J_)
+            ly0 = self.Ly[:, None, 0, :]  # (J, 1, k)
+            for p in range(4):
+                full[np.arange(J_), :, :, base + p] = -(WPA @ dphi[:, p, :, None]) * ly0
+            if self.sigma_g.size > 6 * nn + 4 * J_:  # channel gains (relative)
+                gcols = 6 * nn + 4 * J_ + np.arange(C_)
+                full[:, np.arange(C_), :, gcols] = np.moveaxis(
+                    -(self.w.T[:, :, None] * (psi @ G)), 1, 0
+                )
+            sub = full[..., self.free_g] * self.sigma_g[self.free_g]
+            Jac[:n_data, n_x:] = sub.reshape(n_data, n_g)
+            Jac[n_data:, n_x:] = np.eye(n_g)
+        return res, Jac
+
+
+def _statistics(
+    H: ComplexArray,
+    R: ComplexArray,
+    sigma: FloatArray,
+    cov_R: FloatArray,
+    basis: ComplexArray | None,
+) -> tuple[FloatArray, FloatArray, float]:
+    """Factors ``L_jʸ`` (J, 7, 7) and ``T_j`` (J, C, 7) of the reduced statistics (module
+    docstring), and the part of the cost that no parameter changes (for χ²)."""
+    L, C, J = H.shape
+    ones = np.ones((L, 1, J), complex)
+    parts = [ones, R]
+    nb = 0
+    if basis is not None:
+        nb = basis.shape[1]
+        parts.append(np.broadcast_to(basis[:, :, None], (L, nb, J)).astype(complex))
+    parts.append(H / sigma[None])
+    z = np.concatenate(parts, axis=1)  # (L, n, J)
+    zt = np.ascontiguousarray(np.transpose(z, (2, 1, 0)))  # (J, n, L)
+    zr, zi = zt.real.copy(), zt.imag.copy()
+    S = zr @ np.swapaxes(zr, 1, 2) + zi @ np.swapaxes(zi, 1, 2)  # Σ_ω Re(z zᴴ), (J, n, n)
+    dsc = np.sqrt(np.clip(np.einsum("jii->ji", S), 1e-300, None))  # equilibration (raw S)
+    S[:, 1:7, 1:7] -= cov_R  # bias compensation of the noisy reactions (already × n_ω or rank)
+    if nb:
+        a = np.r_[0:7, 7 + nb : 7 + nb + C]
+        b = np.arange(7, 7 + nb)
+        Sab = S[:, a][:, :, b]
+        Sbb = S[:, b][:, :, b]
+        S = S[:, a][:, :, a] - Sab @ np.linalg.solve(Sbb, np.swapaxes(Sab, 1, 2))
+        dsc = dsc[:, a]
+    # cost_j = tr(S_hh) − 2 tr(B S_yh) + tr(B S_yy Bᵀ) = ‖B L_y − T‖² + tr(S_hh) − ‖T‖²
+    # with S_yy = L_y L_yᵀ (7 × k) and T = S_hy L_y⁺ᵀ: 7 columns per channel, whatever n_ω.
+    d = dsc[:, :7]
+    lam, V = np.linalg.eigh(S[:, :7, :7] / (d[:, :, None] * d[:, None, :]))
+    keep = lam > np.clip(lam.max(axis=1, keepdims=True), 0, None) * _EIG_KEEP
+    sq = np.sqrt(np.where(keep, lam, 1.0))
+    Ly = np.where(keep[:, None, :], d[:, :, None] * V * sq[:, None, :], 0.0)
+    T = np.where(keep[:, None, :], (S[:, 7:, :7] / d[:, None, :]) @ V / sq[:, None, :], 0.0)
+    const = np.einsum("jii->j", S[:, 7:, 7:]) - np.einsum("jck,jck->j", T, T)
+    return Ly, T, float(np.sum(const))
+
+
+def _lm(
+    prob: _Problem, theta0: FloatArray, max_iter: int
+) -> tuple[FloatArray, FloatArray, float, int]:
+    """Levenberg–Marquardt with column equilibration; returns θ, Jacobian, cost, iterations."""
+    theta = theta0.copy()
+    res, Jac = prob.residual(theta)
+    assert Jac is not None
+    cost = float(res @ res)
+    lam = 1e-6
+    it = 0
+    while it < max_iter:
+        it += 1
+        N = Jac.T @ Jac
+        g = Jac.T @ res
+        dsc = np.sqrt(np.diag(N))
+        dsc = np.where(dsc > 0, dsc, 1.0)
+        Ns = N / np.outer(dsc, dsc)
+        improved = False
+        for _ in range(12):
+            try:
+                step = -np.linalg.solve(Ns + lam * np.eye(Ns.shape[0]), g / dsc) / dsc
+            except np.linalg.LinAlgError:
+                lam *= 10
+                continue
+            t_new = theta + step
+            try:
+                r_new, _ = prob.residual(t_new, jacobian=False)
+            except np.linalg.LinAlgError:
+                lam *= 10
+                continue
+            c_new = float(r_new @ r_new)
+            if np.isfinite(c_new) and c_new <= cost:
+                improved = True
+                break
+            lam *= 10
+        if not improved:
+            break
+        # predicted decrease −gᵀδ (Newton decrement, cost units of χ²/2): below 1e-2 the step is
+        # about a tenth of the posterior standard deviations: further iterations change nothing
+        dec = float(-(g @ step))
+        rel = (cost - c_new) / max(cost, 1e-300)
+        log.debug("LM %d: cost %.6g → %.6g, decrement %.3g, λ %.1g", it, cost, c_new, dec, lam)
+        theta = t_new
+        cost = c_new
+        lam = max(lam / 10, 1e-9)
+        res, Jac = prob.residual(theta)
+        assert Jac is not None
+        if dec < 1e-2 or rel < 1e-12 or float(np.max(np.abs(step * dsc))) < 1e-8:
+            break
+    return theta, Jac, cost, it
+
+
+# ------------------------------------------------------------------------------------------
+# Entry point
+# ------------------------------------------------------------------------------------------
+def solve_output_error(
+    frf: FrfData,
+    setup: TestSetup,
+    *,
+    response_weights: NDArray[np.floating] | None = None,
+    input_keep: NDArray[np.bool_] | None = None,
+    known: Mapping[str, float] | None = None,
+    options: OutputErrorOptions | None = None,
+    initial: DimResult | None = None,
+    _depth: int = 0,
+) -> OutputErrorResult:
+    """Output-error DIM over the band of ``frf`` (module docstring).
+
+    An item (sensor node or input) whose refined correction exceeds ``max_correction_sigma`` of
+    its stated uncertainty is a gross error: it is left out and the solve repeated (at most
+    ``max_gross_items`` times; ``gross_errors`` of the result lists them); beyond that the
+    refinement is refused and the stated geometry used.
+
+    Parameters
+    ----------
+    frf : FrfData
+        FRFs of the analysis band (accelerances and load-cell reactions).
+    setup : TestSetup
+        The stated geometry and its ``geometry_uncertainty`` (priors).
+    response_weights : ndarray, shape (n_acceleration_outputs,), optional
+        0 drops a channel (selection); any positive value keeps it (the noise sets the weight).
+    input_keep : ndarray of bool, shape (n_inputs,), optional
+    known : dict, optional
+        Known properties (``m`` kg, ``cx..cz`` GCS m, ``Ixx..Izz`` about P kg·m²).
+    options : OutputErrorOptions
+    initial : DimResult, optional
+        Equation-error solution on the same data to start from (solved here if absent).
+
+    Raises
+    ------
+    SolverError
+        The start is not a physical mass matrix, or the fit does not converge to one.
+    """
+    t0 = time.perf_counter()
+    opt = options or OutputErrorOptions()
+    known = dict(known or {})
+    geo = response_geometry(frf, setup)
+    n_acc = geo.output_index.size
+    wts = np.ones(n_acc) if response_weights is None else np.asarray(response_weights, float)
+    if wts.shape != (n_acc,):
+        raise SetupError(f"response_weights must hold {n_acc} values, one per accelerometer")
+    keep_in = np.ones(len(frf.inputs), bool) if input_keep is None else np.asarray(input_keep)
+    active = wts > 0
+    in_idx = np.nonzero(keep_in)[0]
+    p = setup.reference_point
+    system = assemble(frf, setup, length_unit="m", response_weights=wts).select_inputs(in_idx)
+    if initial is None:
+        initial = solve_system(system, known=known, check_plausibility=False)
+    x0 = initial.parameters.copy()
+    x0[1:4] -= p
+    # data in SI, relative to P
+    H = frf.H[:, geo.output_index[active]][:, :, in_idx]  # (L, C, J)
+    R = system.F - system.phi[None].astype(complex)  # (L, 6, J), N and N·m per N
+    L_lines = H.shape[0]
+    sigma = estimate_noise(H)
+    floor = 1e-6 * np.sqrt(np.mean(np.abs(H) ** 2, axis=0))
+    sigma = np.maximum(sigma, np.maximum(floor, 1e-300))
+    cov_R = _reaction_noise_cov(R) if R.shape[0] >= 8 else np.zeros((len(in_idx), 6, 6))
+    R, n_rb = _smooth_reactions(R, frf.frequencies_hz)
+    cov_R = cov_R * n_rb  # noise left in Σ_ω Re(R̂ R̂ᴴ) after the projection: trace of it
+
+    # geometry
+    r0 = geo.positions_m[active] - p
+    d0 = geo.directions[active]
+    nodes_all = geo.nodes[active]
+    nodes, node_of = np.unique(nodes_all, return_inverse=True)
+    ex = {(e.node, e.direction): e for e in setup.excitations}
+    rin0, din0 = [], []
+    for j in in_idx:
+        ch = frf.inputs[j]
+        e = ex.get((ch.node, ch.direction)) or ex.get((ch.node, -ch.direction))
+        assert e is not None and e.direction_gcs is not None  # assemble checked
+        s = 1.0 if e.direction == ch.direction else -1.0
+        rin0.append(np.asarray(e.position_m) - p)
+        din0.append(s * np.asarray(e.direction_gcs))
+    rin0_a, din0_a = np.asarray(rin0, float), np.asarray(din0, float)
+    eb = np.empty((len(in_idx), 2, 3))
+    for k, dv in enumerate(din0_a):
+        a = _E[int(np.argmin(np.abs(dv)))]
+        e1 = np.cross(dv, a)
+        e1 /= np.linalg.norm(e1)
+        eb[k] = (e1, np.cross(dv, e1))
+    gu = setup.geometry_uncertainty
+    nn, J = nodes.size, len(in_idx)
+    sig_g = np.concatenate(
+        [
+            np.tile([np.deg2rad(gu.sensor_orientation_deg)] * 3 + [gu.sensor_position_m] * 3, nn),
+            np.tile([np.deg2rad(gu.line_of_action_deg)] * 2 + [gu.input_position_m] * 2, J),
+            # each accelerometer axis's sensitivity against its certificate (relative)
+            np.full(int(active.sum()), setup.transducer_uncertainty.accel_sensitivity_rel),
+        ]
+    )
+    cand = np.nonzero(sig_g > 0)[0] if opt.refine_geometry else np.zeros(0, np.intp)
+    if opt.refine_geometry and not opt.refine_positions:
+        cand = cand[~np.isin(cand % 6, (3, 4, 5)) | (cand >= 6 * nn)]
+    free_x = np.array([i for i, k in enumerate(PARAMETERS) if k not in known], dtype=np.intp)
+    x_fixed = x0.copy()
+    for name, v in known.items():
+        i = PARAMETERS.index(name)
+        x_fixed[i] = v - p[i - 1] if 1 <= i <= 3 else v
+    x_start = x_fixed.copy()
+    x_start[free_x] = x0[free_x]
+    if not np.all(np.linalg.eigvalsh(mass_matrix(x_start)[0]) > 0):
+        raise SolverError(
+            "the equation-error start is not a physical mass matrix (not positive definite); the "
+            "output-error fit needs a plausible start: check the band and the data selection"
+        )
+    w_hi = 2 * np.pi * float(frf.frequencies_hz[-1])
+    wn = 2 * np.pi * frf.frequencies_hz / w_hi
+    basis = np.stack([wn**2, wn**4], axis=1).astype(complex)
+
+    def build(use_basis: bool, free_g: NDArray[np.intp]) -> tuple[_Problem, float]:
+        Ly, Lh, const = _statistics(H, R, sigma, cov_R, basis if use_basis else None)
+        return (
+            _Problem(
+                r0, d0, node_of, nodes, rin0_a, din0_a, eb, 1.0 / sigma, Ly, Lh,
+                free_x, x_fixed, free_g, sig_g,
+            ),
+            const,
+        )  # fmt: skip
+
+    def fit(use_basis: bool) -> tuple[_Problem, FloatArray, FloatArray, float, int, list[int]]:
+        prob, const = build(use_basis, cand)
+        theta0 = np.concatenate([x_start[free_x], np.zeros(cand.size)])
+        refused: list[int] = []
+        if cand.size:
+            _, J0 = prob.residual(theta0)
+            assert J0 is not None
+            post = np.linalg.pinv(J0.T @ J0)
+            ratio = np.sqrt(np.clip(np.diag(post)[free_x.size :], 0, None))
+            ok = ratio <= opt.refuse_ratio
+            refused = [int(i) for i in cand[~ok]]
+            prob.free_g = cand[ok]
+            theta0 = np.concatenate([x_start[free_x], np.zeros(prob.free_g.size)])
+        theta, Jac, cost, it = _lm(prob, theta0, opt.max_iterations)
+        return prob, theta, Jac, cost + const, it, refused
+
+    rf_mode = opt.residual_flexibility
+    n_data = 2 * L_lines * H.shape[1] * J
+    n_rf = 2 * H.shape[1] * J
+    prob, theta, Jac, _, it, refused = fit(False)
+    variance_factor = 1.0
+    refinement_note = ""
+    if cand.size:
+        # a posteriori variance factor: misfit the noise does not explain (elastic modes, errors
+        # the model lacks) must not be absorbed by the geometry at the noise's weight
+        for _ in range(2):
+            c2 = 2 * _direct_cost(prob, theta, H, R, sigma, None) / max(n_data - theta.size, 1)
+            if c2 <= 1.5:
+                break
+            sigma = sigma * np.sqrt(c2)
+            variance_factor *= c2
+            prob, theta, Jac, _, it, refused = fit(False)
+        z = float(np.max(np.abs(theta[free_x.size :]), initial=0.0))
+        if z > opt.max_correction_sigma and _depth < opt.max_gross_items:
+            # one item far outside its stated uncertainty: a gross error the selection missed
+            # (a bad impact, a mis-mounted sensor). Leave out the worst item and solve again.
+            zfull = np.zeros(sig_g.size)
+            zfull[prob.free_g] = np.abs(theta[free_x.size :])
+            worst = int(np.argmax(zfull))
+            w2 = wts.copy()
+            k2 = np.asarray(keep_in, bool).copy()
+            if worst >= 6 * nn + 4 * J:  # a channel's gain: leave its sensor node out
+                worst = 6 * int(node_of[worst - 6 * nn - 4 * J])
+            if worst < 6 * nn:
+                node = int(nodes[worst // 6])
+                w2[geo.nodes == node] = 0.0
+                item = f"sensor node {node}"
+            else:
+                jj = int(in_idx[(worst - 6 * nn) // 4])
+                k2[jj] = False
+                item = f"input {frf.inputs[jj].name}"
+            log.warning(
+                "geometry refinement: %s needs a correction of %.1f σ of its stated uncertainty; "
+                "left out as a gross error and solved again",
+                item,
+                z,
+            )
+            try:
+                sub = solve_output_error(
+                    frf,
+                    setup,
+                    response_weights=w2,
+                    input_keep=k2,
+                    known=known,
+                    options=opt,
+                    _depth=_depth + 1,
+                )
+            except (SolverError, SetupError) as err:
+                log.warning("leaving out %s fails (%s); refinement refused instead", item, err)
+            else:
+                gross = {"item": item, "correction_sigma": z}
+                return replace(sub, gross_errors=[gross, *sub.gross_errors])
+        if z > opt.max_correction_sigma:
+            refinement_note = (
+                f"geometry refinement refused: corrections up to {z:.1f} σ of the stated "
+                "uncertainty; the data disagree with the rigid-body model, not only with the "
+                "stated geometry (check the band and the selection); stated geometry used"
+            )
+            log.warning(refinement_note)
+            refused = [int(i) for i in cand]
+            cand = np.zeros(0, np.intp)
+            prob, theta, Jac, _cost, it, _ = fit(False)
+    rf_info: dict[str, Any] = {"fitted": False, "mode": _rf_mode(rf_mode)}
+    if rf_mode is not False:
+        # both models, each at its own solution
+        prob_b, theta_b, Jac_b, _cost_b, it_b, refused_b = fit(True)
+        theta_a, prob_a = theta, prob
+        # Hausman test: under a rigid structure both fits are consistent and the one without
+        # residual terms is efficient, so d = x_b − x_a has covariance V_b − V_a; a large
+        # dᵀ (V_b − V_a)⁺ d says the residual terms change the properties beyond noise.
+        ca = _direct_cost(prob_a, theta_a, H, R, sigma, None)
+        cb = _direct_cost(prob_b, theta_b, H, R, sigma, basis)
+        nx_ = free_x.size
+        # one noise scale for both (the wider model's χ², consistent under either hypothesis)
+        s2 = max(1.0, 2 * cb / max(n_data - n_rf - theta_b.size, 1))
+        va = np.linalg.pinv(Jac.T @ Jac)[:nx_, :nx_] * s2
+        vb = np.linalg.pinv(Jac_b.T @ Jac_b)[:nx_, :nx_] * s2
+        dx = theta_b[:nx_] - theta_a[:nx_]
+        lam_d, vec_d = np.linalg.eigh(vb - va)
+        ok_d = lam_d > max(float(lam_d.max()), 0.0) * 1e-9
+        if ok_d.any():
+            hz = float(np.sum((vec_d[:, ok_d].T @ dx) ** 2 / lam_d[ok_d]))
+            crit = float(stats.chi2.ppf(0.999, int(ok_d.sum())))
+        else:  # no precision lost to the residual terms: nothing to test against
+            hz, crit = 0.0, float("inf")
+        needed = bool(hz > crit)
+        rf_info.update(
+            {
+                "test": "Hausman (properties with and without residual terms), p = 0.001",
+                "statistic": hz,
+                "critical_value": crit,
+                "chi2_reduced_without": 2 * ca / max(n_data - theta_a.size, 1),
+                "chi2_reduced_with": 2 * cb / max(n_data - n_rf - theta_b.size, 1),
+                "extra_parameters": int(n_rf),
+                "needed": needed,
+            }
+        )
+        if rf_mode is True or needed:
+            prob, theta, Jac, it, refused = prob_b, theta_b, Jac_b, it_b, refused_b
+            rf_info["fitted"] = True
+        if rf_info["fitted"]:
+            rf_info.update(_residual_size(prob, theta, H, R, sigma, basis))
+    n_par = theta.size + (n_rf if rf_info["fitted"] else 0)
+    dof = max(n_data - n_par, 1)
+    # complex residuals: E|e/σ|² = 1 per 2 real data
+    chi2 = 2.0 * _direct_cost(prob, theta, H, R, sigma, basis if rf_info["fitted"] else None) / dof
+    N = Jac.T @ Jac
+    cov_theta = np.linalg.pinv(N) * max(1.0, chi2)
+    nx0 = free_x.size
+    cov_noise_theta = np.linalg.pinv(N[:nx0, :nx0]) * max(1.0, chi2)  # geometry held fixed
+    x = prob.full_x(theta)
+    if not np.all(np.linalg.eigvalsh(mass_matrix(x)[0]) > 0):
+        raise SolverError(
+            "the output-error fit ended on a mass matrix that is not positive definite; the data "
+            "do not support it: check the band, the selection and the stated geometry"
+        )
+    cov = np.zeros((10, 10))
+    cov_noise = np.zeros((10, 10))
+    nx = free_x.size
+    cov[np.ix_(free_x, free_x)] = cov_theta[:nx, :nx]
+    cov_noise[np.ix_(free_x, free_x)] = cov_noise_theta
+    if gu.registration_rms_m:
+        for i in (1, 2, 3):
+            if i in free_x:
+                cov[i, i] += gu.registration_rms_m**2
+    params = x.copy()
+    params[1:4] += p
+    g = prob.full_g(theta)
+    se_g = np.zeros(sig_g.size)
+    se_g[prob.free_g] = np.sqrt(np.clip(np.diag(cov_theta)[nx:], 0, None)) * sig_g[prob.free_g]
+    sens, inps = _corrections(
+        g, se_g, sig_g, prob, refused, frf.inputs, in_idx, opt.refine_geometry, refinement_note
+    )
+    new_setup = _refined_setup(setup, geo, active, prob, g, frf.inputs, in_idx, p)
+    sig_rel = sigma / np.sqrt(np.mean(np.abs(H) ** 2, axis=0))
+    noise = {
+        "method": "line-to-line scatter (third difference), per channel and input",
+        "relative_median": float(np.median(sig_rel)),
+        "relative_max": float(np.max(sig_rel)),
+        "reaction_bias_compensated": bool(np.any(cov_R)),
+        "chi2_reduced": float(chi2),
+        "variance_factor": float(variance_factor),
+        "chi2_reduced_stated_noise": float(chi2 * variance_factor),
+    }
+    if refinement_note:
+        noise["refinement_refused"] = refinement_note
+    gauge = (
+        "frame of the stated geometry: the common rigid motion of all sensors and inputs, "
+        "which the FRFs cannot see, is held by the priors at a precision-weighted mean "
+        "correction of zero; its uncertainty is in the CG interval"
+    )
+    return OutputErrorResult(
+        parameters=params,
+        covariance=cov,
+        covariance_noise=cov_noise,
+        chi2_reduced=float(chi2),
+        iterations=int(it),
+        elapsed_s=time.perf_counter() - t0,
+        sensor_corrections=sens,
+        input_corrections=inps,
+        residual_flexibility=rf_info,
+        noise=noise,
+        gauge=gauge,
+        setup=new_setup,
+        refine_geometry=opt.refine_geometry and not refinement_note,
+        n_inputs=J,
+        response_weights=wts,
+        input_keep=np.asarray(keep_in, bool),
+    )
+
+
+def _direct_cost(
+    prob: _Problem,
+    theta: FloatArray,
+    H: ComplexArray,
+    R: ComplexArray,
+    sigma: FloatArray,
+    basis: ComplexArray | None,
+) -> float:
+    """``Σ |H − Ĥ|²/σ²`` over every line, channel and input (residual terms projected out when
+    ``basis`` is given): the data cost without the bias compensation, for χ² and the test."""
+    x = prob.full_x(theta)
+    gfull = prob.full_g(theta)
+    r, d, rin, din = prob.geometry(gfull)
+    A = np.linalg.inv(mass_matrix(x)[0])
+    psi = np.concatenate([d, np.cross(r, d)], axis=1)
+    psi = psi * (1.0 + gfull[gfull.size - psi.shape[0] :])[:, None]
+    phi = np.concatenate([din, np.cross(rin, din)], axis=1)
+    mot = A @ (phi.T[None] + R)  # (L, 6, J)
+    e = (H - psi @ mot) / sigma[None]
+    if basis is not None:
+        Bs = np.concatenate([basis.real, basis.imag], axis=0)  # (2L, nb)
+        es = np.concatenate([e.real, e.imag], axis=0).reshape(2 * e.shape[0], -1)
+        Q, _ = np.linalg.qr(Bs)
+        es = es - Q @ (Q.T @ es)
+        return float(np.sum(es**2))
+    return float(np.sum(np.abs(e) ** 2))
+
+
+def _rf_mode(mode: bool | None) -> str:
+    return "auto" if mode is None else ("on" if mode else "off")
+
+
+def _residual_size(
+    prob: _Problem,
+    theta: FloatArray,
+    H: ComplexArray,
+    R: ComplexArray,
+    sigma: FloatArray,
+    basis: ComplexArray,
+) -> dict[str, Any]:
+    """Fitted residual terms: RMS of ``G b(ω)`` relative to the RMS of the FRFs, median and max
+    over channels and inputs."""
+    x = prob.full_x(theta)
+    r, d, rin, din = prob.geometry(prob.full_g(theta))
+    A = np.linalg.inv(mass_matrix(x)[0])
+    psi = np.concatenate([d, np.cross(r, d)], axis=1)
+    phi = np.concatenate([din, np.cross(rin, din)], axis=1)
+    mot = np.einsum("ab,ljb->lja", A, phi[None] + np.moveaxis(R, 1, 2))  # (L, J, 6)
+    rigid = np.einsum("ca,lja->lcj", psi, mot)
+    e = H - rigid
+    Bm = basis.real  # (L, nb)
+    coef = np.linalg.lstsq(Bm, np.real(e).reshape(e.shape[0], -1), rcond=None)[0]
+    fitted = (Bm @ coef).reshape(e.shape)
+    rel = np.sqrt(np.mean(fitted**2, axis=0)) / np.sqrt(np.mean(np.abs(H) ** 2, axis=0))
+    return {
+        "relative_rms_median": float(np.median(rel)),
+        "relative_rms_max": float(np.max(rel)),
+        "basis": "(ω/ω_hi)², (ω/ω_hi)⁴ per channel and input",
+    }
+
+
+def _corrections(
+    g: FloatArray,
+    se: FloatArray,
+    sig: FloatArray,
+    prob: _Problem,
+    refused: list[int],
+    inputs: tuple[Channel, ...],
+    in_idx: NDArray[np.intp],
+    refine: bool,
+    note: str,
+) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
+    nn = prob.n_nodes
+    free = set(int(i) for i in prob.free_g)
+    ref = set(refused)
+
+    def status(idx: list[int]) -> tuple[bool, str]:
+        if not refine:
+            return False, "geometry refinement off: stated value used"
+        if note:
+            return False, note
+        if all(i in free for i in idx):
+            return True, "estimated"
+        if any(i in ref for i in idx):
+            return False, (
+                "not identified by the data (posterior σ above the stated prior's "
+                "refuse ratio): stated value kept"
+            )
+        return False, "no stated uncertainty (prior σ = 0): stated value kept"
+
+    sens = []
+    for n in range(nn):
+        b = 6 * n
+        ok_r, why_r = status(list(range(b, b + 3)))
+        ok_p, why_p = status(list(range(b + 3, b + 6)))
+        sens.append(
+            {
+                "node": int(prob.nodes[n]),
+                "rotation_deg": np.rad2deg(g[b : b + 3]).tolist(),
+                "rotation_se_deg": np.rad2deg(se[b : b + 3]).tolist(),
+                "rotation_prior_deg": float(np.rad2deg(sig[b])),
+                "rotation_status": why_r,
+                "rotation_estimated": ok_r,
+                "offset_mm": (1e3 * g[b + 3 : b + 6]).tolist(),
+                "offset_se_mm": (1e3 * se[b + 3 : b + 6]).tolist(),
+                "offset_prior_mm": float(1e3 * sig[b + 3]),
+                "offset_status": why_p,
+                "offset_estimated": ok_p,
+            }
+        )
+    inps = []
+    for k, j in enumerate(in_idx):
+        b = 6 * nn + 4 * k
+        ok_d, why_d = status([b, b + 1])
+        ok_o, why_o = status([b + 2, b + 3])
+        inps.append(
+            {
+                "node": int(inputs[j].node),
+                "direction": int(inputs[j].direction),
+                "line_of_action_deg": float(np.rad2deg(np.hypot(g[b], g[b + 1]))),
+                "line_of_action_components_deg": np.rad2deg(g[b : b + 2]).tolist(),
+                "line_of_action_se_deg": np.rad2deg(se[b : b + 2]).tolist(),
+                "line_of_action_status": why_d,
+                "line_of_action_estimated": ok_d,
+                "offset_mm": float(1e3 * np.hypot(g[b + 2], g[b + 3])),
+                "offset_components_mm": (1e3 * g[b + 2 : b + 4]).tolist(),
+                "offset_se_mm": (1e3 * se[b + 2 : b + 4]).tolist(),
+                "offset_status": why_o,
+                "offset_estimated": ok_o,
+            }
+        )
+    return sens, inps
+
+
+def _refined_setup(
+    setup: TestSetup,
+    geo: Any,
+    active: NDArray[np.bool_],
+    prob: _Problem,
+    g: FloatArray,
+    inputs: tuple[Channel, ...],
+    in_idx: NDArray[np.intp],
+    p: FloatArray,
+) -> TestSetup:
+    """The setup with the refined sensor (all channels of a refined node) and input geometry."""
+    nn = prob.n_nodes
+    gs = g[: 6 * nn].reshape(nn, 6)
+    by_node = {int(n): gs[i] for i, n in enumerate(prob.nodes)}
+    responses = []
+    for c in setup.responses:
+        corr = by_node.get(int(c.node))
+        if corr is None:
+            responses.append(c)
+            continue
+        d = Rotation.from_rotvec(corr[:3]).apply(np.asarray(c.direction_gcs))
+        responses.append(
+            c.model_copy(
+                update={
+                    "direction_gcs": tuple(float(v) for v in d / np.linalg.norm(d)),
+                    "position_m": tuple(float(v) for v in np.asarray(c.position_m) + corr[3:]),
+                }
+            )
+        )
+    _, _, rin, din = prob.geometry(g)
+    moved = {}
+    for k, j in enumerate(in_idx):
+        ch = inputs[j]
+        moved[(ch.node, abs(ch.direction))] = (rin[k] + p, din[k], ch.direction)
+    excitations = []
+    for e in setup.excitations:
+        hit = moved.get((e.node, abs(e.direction)))
+        if hit is None:
+            excitations.append(e)
+            continue
+        pos, dv, rec_dir = hit
+        s = 1.0 if rec_dir == e.direction else -1.0
+        excitations.append(
+            e.model_copy(
+                update={
+                    "position_m": tuple(float(v) for v in pos),
+                    "direction_gcs": tuple(float(v) for v in s * dv / np.linalg.norm(dv)),
+                }
+            )
+        )
+    return setup.model_copy(
+        update={"responses": tuple(responses), "excitations": tuple(excitations)}
+    )
