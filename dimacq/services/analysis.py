@@ -70,6 +70,15 @@ __all__ = ["AnalysisOptions", "AnalysisReport", "VerdictReason", "analyse", "ver
 #: Relative residual of the joint DIM solve above which the answer is refused / flagged.
 RESIDUAL_FAIL = MAX_RESIDUAL
 RESIDUAL_WARN = 0.05
+#: Largest useful relative half-width of the 95 % interval of the mass and of each principal
+#: moment: ±1 % and ±5 %, the accuracy issue 10 accepts of any answer (flexible structures); an
+#: interval wider than that cannot show the answer is usable, so it gives ``warn``, one
+#: :data:`PRECISION_FAIL_FACTOR` times wider ``fail``. (A careful lab's stated geometry
+#: uncertainty — 2 mm, 0.5°, 1° — gives about ±0.3 % mass and ±3 % principal moments on the
+#: 18 kg calibration mass, within these limits.)
+CI95_LIMIT_MASS = 0.01
+CI95_LIMIT_PRINCIPAL = 0.05
+PRECISION_FAIL_FACTOR = 10.0
 
 log = logging.getLogger(__name__)
 
@@ -106,6 +115,10 @@ class AnalysisOptions:
     uncertainty_method : {"jackknife", "bootstrap"}
     method : {"joint", "mean"}
         Headline answer of the solve (intervals are those of the joint solve).
+    ci95_limit_mass, ci95_limit_principal : float
+        Largest useful relative half-width of the 95 % interval of the mass and of the principal
+        moments (default 0.01 and 0.05); wider gives a ``warn`` verdict (``precision``),
+        :data:`PRECISION_FAIL_FACTOR` times wider a ``fail``.
     """
 
     select_responses: bool = True
@@ -121,6 +134,8 @@ class AnalysisOptions:
     uncertainty_method: str = "jackknife"
     geometry_samples: int = 400
     method: str = "joint"
+    ci95_limit_mass: float = CI95_LIMIT_MASS
+    ci95_limit_principal: float = CI95_LIMIT_PRINCIPAL
 
 
 @dataclass(frozen=True)
@@ -363,7 +378,12 @@ def analyse(
         orientation=repair,
         geometry=geo,
     )
-    v, reasons = verdict(report, data, suggestion if auto else None)
+    v, reasons = verdict(
+        report,
+        data,
+        suggestion if auto else None,
+        ci95_limits=(opt.ci95_limit_mass, opt.ci95_limit_principal),
+    )
     report = replace(report, verdict=v, verdict_reasons=reasons)
     if opt.plots_dir is not None:
         from dimacq.plotting import write_report_figures
@@ -463,7 +483,11 @@ def _band_quality(report: AnalysisReport, data: FrfData) -> tuple[float, float]:
 
 
 def verdict(
-    report: AnalysisReport, data: FrfData, suggestion: BandSuggestion | None = None
+    report: AnalysisReport,
+    data: FrfData,
+    suggestion: BandSuggestion | None = None,
+    *,
+    ci95_limits: tuple[float, float] = (CI95_LIMIT_MASS, CI95_LIMIT_PRINCIPAL),
 ) -> tuple[str, list[VerdictReason]]:
     """One verdict for a solution: ``fail`` if any check fails, else ``warn`` if any warns, else
     ``ok``; the reasons list every check (failing and warning ones first).
@@ -475,7 +499,10 @@ def verdict(
     plausibility diagnostics of the solver (error severity → fail, warning → warn),
     ``excitation`` (every rigid-body DOF excited), ``coverage`` (lines in the band, share of the
     channels and inputs kept, rank-deficient leave-outs), ``registration`` (the setup's
-    registration residual against its limit), ``uncertainty`` (every source included).
+    registration residual against its limit), ``uncertainty`` (every source included),
+    ``precision`` (the relative half-width of the 95 % interval of the mass and of each principal
+    moment against ``ci95_limits``: above → warn, :data:`PRECISION_FAIL_FACTOR` times above → fail;
+    an interval that wide cannot tell whether the answer is good enough).
     """
     res = report.result
     out: list[VerdictReason] = []
@@ -614,6 +641,7 @@ def verdict(
             + (f"; they leave out {', '.join(missing)}" if missing else ""),
         )
     )
+    out.append(_precision(report.uncertainty, ci95_limits))
     order = {"fail": 0, "warn": 1, "ok": 2}
     out.sort(key=lambda r: order.get(r.severity, 3))
     v = (
@@ -622,3 +650,32 @@ def verdict(
         else ("warn" if any(r.severity == "warn" for r in out) else "ok")
     )
     return v, out
+
+
+def _precision(unc: Uncertainty, limits: tuple[float, float]) -> VerdictReason:
+    """The ``precision`` check: is each 95 % interval narrow enough to be useful?"""
+    parts: list[str] = []
+    worst = 0.0
+    items = [("mass", unc.parameters["m"], limits[0])]
+    items += [(f"I{k + 1}", u, limits[1]) for k, u in enumerate(unc.principal)]
+    for name, u, lim in items:
+        if u.value == 0 or lim <= 0:
+            continue
+        half = 0.5 * (u.ci95[1] - u.ci95[0]) / abs(u.value)
+        worst = max(worst, half / lim)
+        if half > lim:
+            parts.append(f"{name} ±{100 * half:.3g} % (limit ±{100 * lim:.3g} %)")
+    sev = "fail" if worst > PRECISION_FAIL_FACTOR else "warn" if worst > 1 else "ok"
+    if sev == "ok":
+        msg = (
+            f"95 % intervals within ±{100 * limits[0]:g} % of the mass and ±{100 * limits[1]:g} % "
+            "of each principal moment"
+        )
+    else:
+        msg = (
+            "95 % interval too wide to show the answer is good enough: "
+            + ", ".join(parts)
+            + "; see uncertainty.*.se_* for the dominant source (inputs: check or re-strike "
+            "them; geometry: measure positions and directions more accurately; lines: a wider band)"
+        )
+    return VerdictReason("precision", sev, msg)
