@@ -24,6 +24,11 @@ Two sources are combined:
 Leave-one-out solves that are rank deficient (an input or sensor node the others cannot do
 without) are counted (``n_rank_deficient``) and reported, not silently dropped.
 
+Principal moments about the CG (a nonlinear function of all ten parameters) get their own standard
+error from the same four sources: the principal moments of every input leave-out (or bootstrap
+draw), sensor leave-out, geometry sample and line, combined like the parameters'
+(:func:`principal_of_parameters`); ``Uncertainty.principal`` holds them.
+
 The reported standard error is ``sqrt(SE_inputs² + SE_R² + SE_G² + SE_L²)`` (the line spread is largely included
 in the input resampling, so this is mildly conservative) and the 95 % interval
 ``p ± t_{0.975, N−1} · SE`` (Student t with N − 1 degrees of freedom of the input resampling).
@@ -41,6 +46,7 @@ from numpy.typing import NDArray
 from scipy import stats
 
 from dimacq.errors import SetupError, SolverError
+from dimacq.model.properties import vector_to_inertia
 from dimacq.model.setup import PARAMETERS
 from dimacq.pipeline.dim import DimResult, DimSystem, solve_system
 
@@ -52,6 +58,7 @@ __all__ = [
     "estimate_uncertainty",
     "geometry_spread",
     "joint_parameters_for_geometry",
+    "principal_of_parameters",
 ]
 
 log = logging.getLogger(__name__)
@@ -108,9 +115,21 @@ class Uncertainty:
     samples: FloatArray
     n_rank_deficient: int = 0
     components: tuple[str, ...] = ("inputs", "lines")
+    principal: tuple[ParameterUncertainty, ...] = ()
+
+    def relative_se(self) -> dict[str, float]:
+        """Relative standard errors ``SE / |value|`` of the mass (``m``) and of the principal
+        moments (``I1 ≤ I2 ≤ I3``); NaN for a zero value."""
+        items = [("m", self.parameters["m"])] if "m" in self.parameters else []
+        items += [(f"I{k + 1}", u) for k, u in enumerate(self.principal)]
+        return {
+            k: (u.standard_error / abs(u.value) if u.value != 0 else float("nan")) for k, u in items
+        }
 
     def to_json(self) -> dict[str, Any]:
         out: dict[str, Any] = {k: v.to_json() for k, v in self.parameters.items()}
+        if self.principal:
+            out["principal_moments"] = [u.to_json() for u in self.principal]
         out["method"] = self.method
         out["n_inputs"] = self.n_inputs
         out["n_lines_effective"] = self.n_lines_effective
@@ -135,6 +154,36 @@ def effective_samples(x: NDArray[np.floating]) -> float:
             break
         tau += 2 * ac[k]
     return float(max(1.0, n / tau))
+
+
+def principal_of_parameters(
+    params: NDArray[np.floating], reference_point_m: NDArray[np.floating]
+) -> FloatArray:
+    """Principal moments about the CG of parameter vectors.
+
+    ``I_CG = I_P − m (|d|² E − d dᵀ)`` with ``d = c − P`` (parallel axis theorem), then the
+    eigenvalues of ``I_CG`` in ascending order.
+
+    Parameters
+    ----------
+    params : ndarray, shape (..., 10)
+        ``[m (kg), cx, cy, cz (GCS, m), Ixx, Ixy, Ixz, Iyy, Iyz, Izz (about P, kg·m²)]``.
+    reference_point_m : ndarray, shape (3,)
+        P in the GCS, m.
+
+    Returns
+    -------
+    ndarray, shape (..., 3)
+        kg·m², ascending.
+    """
+    p = np.asarray(params, float)
+    d = p[..., 1:4] - np.asarray(reference_point_m, float)
+    m = p[..., 0]
+    shift = m[..., None, None] * (
+        np.sum(d * d, axis=-1)[..., None, None] * np.eye(3) - d[..., :, None] * d[..., None, :]
+    )
+    out: FloatArray = np.linalg.eigvalsh(vector_to_inertia(p[..., 4:]) - shift)
+    return out
 
 
 def estimate_uncertainty(
@@ -256,12 +305,69 @@ def estimate_uncertainty(
         )
         for i, name in enumerate(PARAMETERS)
     }
+    principal = _principal_uncertainty(
+        result, s, method, n_in, finite, n_eff, rs, geometry, known or {}, tq
+    )
     comps: tuple[str, ...] = ("inputs", "lines")
     if response_systems:
         comps += ("responses",)
     if geometry is not None:
         comps += ("geometry",)
-    return Uncertainty(params, method, n_in, n_eff, s, n_bad, comps)
+    return Uncertainty(params, method, n_in, n_eff, s, n_bad, comps, principal)
+
+
+def _principal_uncertainty(
+    result: DimResult,
+    s_in: FloatArray,
+    method: str,
+    n_in: int,
+    per_line: FloatArray,
+    n_eff: float,
+    rs: Sequence[FloatArray],
+    geometry: GeometrySpread | None,
+    known: Mapping[str, float],
+    tq: float,
+) -> tuple[ParameterUncertainty, ...]:
+    """Standard error of the three principal moments from the samples of each source."""
+    P = result.reference_point_m
+    w0 = principal_of_parameters(result.parameters, P)
+    if s_in.shape[0] > 1:
+        w = principal_of_parameters(s_in, P)
+        se_in = (
+            np.sqrt((n_in - 1) / n_in * np.sum((w - w.mean(axis=0)) ** 2, axis=0))
+            if method == "jackknife"
+            else w.std(axis=0, ddof=1)
+        )
+    else:
+        se_in = np.zeros(3)
+    se_l = (
+        principal_of_parameters(per_line, P).std(axis=0, ddof=1) / np.sqrt(n_eff)
+        if per_line.shape[0] > 1
+        else np.zeros(3)
+    )
+    se_r = np.zeros(3)
+    if len(rs) > 1:
+        wr = principal_of_parameters(np.asarray(rs), P)
+        g = wr.shape[0]
+        se_r = np.sqrt((g - 1) / g * np.sum((wr - wr.mean(axis=0)) ** 2, axis=0))
+    se_g = np.zeros(3)
+    if geometry is not None and geometry.samples.shape[0] > 1:
+        se_g = principal_of_parameters(geometry.samples, P).std(axis=0, ddof=1)
+    se = np.sqrt(se_in**2 + se_r**2 + se_g**2 + se_l**2)
+    if all(k in known for k in PARAMETERS[4:]) and all(k in known for k in PARAMETERS[:4]):
+        se = np.zeros(3)
+    return tuple(
+        ParameterUncertainty(
+            float(w0[k]),
+            float(se[k]),
+            (float(w0[k] - tq * se[k]), float(w0[k] + tq * se[k])),
+            float(se_in[k]),
+            float(se_l[k]),
+            float(se_r[k]),
+            float(se_g[k]),
+        )
+        for k in range(3)
+    )
 
 
 # --------------------------------------------------------------------------------------------

@@ -1,4 +1,5 @@
-"""Figure functions; every one returns the paths written (``<stem>.png`` and ``<stem>.svg``).
+"""Figure functions: ``figure_*`` builds a figure and returns it (what tests inspect), ``plot_*``
+writes it and returns the paths written (``<stem>.png`` and ``<stem>.svg``).
 
 Uses matplotlib's object API on a :class:`~matplotlib.figure.Figure` with an Agg canvas (no
 pyplot state, no GUI, thread safe).
@@ -26,6 +27,11 @@ if TYPE_CHECKING:
     from dimacq.pipeline.selection.responses import ResponseSelection
 
 __all__ = [
+    "figure_cmif",
+    "figure_jackknife",
+    "figure_parameters_vs_frequency",
+    "figure_response_errors",
+    "figure_sensitivity",
     "parameters_vs_frequency_figure",
     "plot_cmif",
     "plot_jackknife",
@@ -76,7 +82,7 @@ def save_figure(fig: Figure, directory: Path, stem: str) -> list[Path]:
     return out
 
 
-def parameters_vs_frequency_figure(
+def figure_parameters_vs_frequency(
     frequencies_hz: NDArray[np.floating],
     per_line: NDArray[np.floating],
     band_hz: tuple[float, float] | None,
@@ -115,6 +121,10 @@ def parameters_vs_frequency_figure(
     return fig
 
 
+#: The name :mod:`dimacq.services.lab.solving` uses.
+parameters_vs_frequency_figure = figure_parameters_vs_frequency
+
+
 def plot_parameters_vs_frequency(
     frequencies_hz: NDArray[np.floating],
     per_line: NDArray[np.floating],
@@ -124,18 +134,18 @@ def plot_parameters_vs_frequency(
     headline: NDArray[np.floating] | None = None,
     stem: str = "parameters_vs_frequency",
 ) -> list[Path]:
-    """:func:`parameters_vs_frequency_figure` written as ``directory/stem.png`` and ``.svg``."""
-    fig = parameters_vs_frequency_figure(frequencies_hz, per_line, band_hz, headline=headline)
-    return save_figure(fig, directory, stem)
+    """Ten panels: per-line estimates against frequency, the band shaded, the headline dashed. Written as ``directory/stem.png`` and ``.svg`` (:func:`figure_parameters_vs_frequency`)."""
+    return save_figure(
+        figure_parameters_vs_frequency(frequencies_hz, per_line, band_hz, headline=headline),
+        directory,
+        stem,
+    )
 
 
-def plot_response_errors(
+def figure_response_errors(
     selection: ResponseSelection,
     frequencies_hz: NDArray[np.floating],
-    directory: Path,
-    *,
-    stem: str = "response_errors",
-) -> list[Path]:
+) -> Figure:
     """Rigid-body error per channel: band bars (initial and final, excluded in red) and per line."""
     names = [c.name for c in selection.channels]
     x = np.arange(len(names))
@@ -161,22 +171,42 @@ def plot_response_errors(
     ax2.set_xlabel("frequency [Hz]")
     ax2.set_ylabel("rigid-body error per line")
     fig.suptitle("Perimeter response selection (Eq. 30–31)")
-    return save_figure(fig, directory, stem)
+    return fig
 
 
-def plot_jackknife(
-    selection: JackknifeSelection, directory: Path, *, stem: str = "jackknife"
+def plot_response_errors(
+    selection: ResponseSelection,
+    frequencies_hz: NDArray[np.floating],
+    directory: Path,
+    *,
+    stem: str = "response_errors",
 ) -> list[Path]:
-    """Scaled-deviation sums per cycle and the jackknife standard-deviation history."""
+    """Rigid-body error per channel: band bars (initial and final, excluded in red) and per line. Written as ``directory/stem.png`` and ``.svg`` (:func:`figure_response_errors`)."""
+    return save_figure(figure_response_errors(selection, frequencies_hz), directory, stem)
+
+
+def figure_jackknife(selection: JackknifeSelection) -> Figure:
+    """Per cycle: the studentised predictive residual of every input with the removal threshold
+    (what decides a removal), the scaled-deviation sums (thesis Fig. 11), and the jackknife
+    standard-deviation history (thesis Fig. 12)."""
     cyc = selection.cycles
     names = [c.name for c in selection.inputs]
-    fig = _fig(12, 8)
-    ax1, ax2 = fig.subplots(2, 1)
+    fig = _fig(12, 11)
+    ax0, ax1, ax2 = fig.subplots(3, 1)
     x = np.arange(len(names))
     for k, c in enumerate(cyc[: min(len(cyc), 6)]):
+        stat = c.statistic if c.statistic is not None else c.residual
+        (ln,) = ax0.semilogy(x, stat, marker="o", ms=3, lw=0.8, label=f"cycle {k + 1}")
+        if np.isfinite(c.threshold):
+            ax0.axhline(c.threshold, color=ln.get_color(), ls=":", lw=0.8)
         ax1.plot(x, c.score, marker="o", ms=3, lw=0.8, label=f"cycle {k + 1}")
         if c.removed is not None:
+            ax0.plot([c.removed], [stat[c.removed]], "kx" if c.justified else "k+", ms=8)
             ax1.plot([c.removed], [c.score[c.removed]], "kx", ms=8)
+    ax0.set_xticks(x, names, rotation=90, fontsize=7)
+    ax0.set_ylabel("studentised predictive residual")
+    ax0.set_title("dotted: removal threshold; x: removed, +: candidate kept", fontsize=8)
+    ax0.legend(fontsize=7, ncol=3)
     ax1.set_xticks(x, names, rotation=90, fontsize=7)
     ax1.set_ylabel("scaled-deviation sum")
     ax1.legend(fontsize=7, ncol=3)
@@ -192,7 +222,32 @@ def plot_jackknife(
     ax2.set_ylabel("jackknife std / cycle 1")
     ax2.legend(fontsize=7, ncol=5)
     fig.suptitle("Jackknife excitation selection")
-    return save_figure(fig, directory, stem)
+    return fig
+
+
+def plot_jackknife(
+    selection: JackknifeSelection, directory: Path, *, stem: str = "jackknife"
+) -> list[Path]:
+    """Scaled-deviation sums per cycle and the jackknife standard-deviation history. Written as ``directory/stem.png`` and ``.svg`` (:func:`figure_jackknife`)."""
+    return save_figure(figure_jackknife(selection), directory, stem)
+
+
+def figure_cmif(
+    frequencies_hz: NDArray[np.floating],
+    cmif_values: NDArray[np.floating],
+    *,
+    band_hz: tuple[float, float] | None = None,
+) -> Figure:
+    """CMIF curves (log scale) with the band shaded."""
+    fig = _fig(9, 5)
+    ax = fig.subplots()
+    ax.semilogy(np.asarray(frequencies_hz), np.asarray(cmif_values), lw=0.8)
+    if band_hz is not None:
+        ax.axvspan(band_hz[0], band_hz[1], color="tab:green", alpha=0.15, lw=0)
+    ax.set_xlabel("frequency [Hz]")
+    ax.set_ylabel("singular value [(m/s²)/N]")
+    ax.set_title("CMIF")
+    return fig
 
 
 def plot_cmif(
@@ -203,26 +258,16 @@ def plot_cmif(
     band_hz: tuple[float, float] | None = None,
     stem: str = "cmif",
 ) -> list[Path]:
-    """CMIF curves (log scale) with the band shaded."""
-    fig = _fig(9, 5)
-    ax = fig.subplots()
-    ax.semilogy(np.asarray(frequencies_hz), np.asarray(cmif_values), lw=0.8)
-    if band_hz is not None:
-        ax.axvspan(band_hz[0], band_hz[1], color="tab:green", alpha=0.15, lw=0)
-    ax.set_xlabel("frequency [Hz]")
-    ax.set_ylabel("singular value [(m/s²)/N]")
-    ax.set_title("CMIF")
-    return save_figure(fig, directory, stem)
+    """CMIF curves (log scale) with the band shaded. Written as ``directory/stem.png`` and ``.svg`` (:func:`figure_cmif`)."""
+    return save_figure(figure_cmif(frequencies_hz, cmif_values, band_hz=band_hz), directory, stem)
 
 
-def plot_sensitivity(
+def figure_sensitivity(
     samples: NDArray[np.floating],
     truth: Sequence[float] | NDArray[np.floating],
-    directory: Path,
     *,
     title: str = "",
-    stem: str = "sensitivity",
-) -> list[Path]:
+) -> Figure:
     """Histograms of Monte Carlo estimates, shape (n_trials, 10), with the true values."""
     s = np.asarray(samples, float)
     fig = _fig(12, 7)
@@ -235,7 +280,19 @@ def plot_sensitivity(
         ax.set_title(f"{PARAMETERS[k]} [{_UNITS[k]}]", fontsize=9)
         ax.tick_params(labelsize=7)
     fig.suptitle(title or "Monte Carlo sensitivity")
-    return save_figure(fig, directory, stem)
+    return fig
+
+
+def plot_sensitivity(
+    samples: NDArray[np.floating],
+    truth: Sequence[float] | NDArray[np.floating],
+    directory: Path,
+    *,
+    title: str = "",
+    stem: str = "sensitivity",
+) -> list[Path]:
+    """Histograms of Monte Carlo estimates, shape (n_trials, 10), with the true values. Written as ``directory/stem.png`` and ``.svg`` (:func:`figure_sensitivity`)."""
+    return save_figure(figure_sensitivity(samples, truth, title=title), directory, stem)
 
 
 def write_report_figures(

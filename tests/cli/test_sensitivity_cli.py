@@ -17,13 +17,13 @@ def test_cube_json_and_table(tmp_path: Path, capsys: pytest.CaptureFixture[str])
             "sensitivity",
             "cube",
             "--half-size",
-            "0.01",
+            "1",
             "--sensors",
             "1",
             "--max-angle-deg",
             "1",
             "--trials",
-            "500",
+            "5000",
             "--seed",
             "3",
             "--json",
@@ -38,8 +38,12 @@ def test_cube_json_and_table(tmp_path: Path, capsys: pytest.CaptureFixture[str])
     for key in ("min", "max", "mean", "std", "mean_error_pct"):
         assert key in data["mass_kg"]
     assert data["mass_kg"]["min"] <= data["mass_kg"]["mean"] <= data["mass_kg"]["max"]
-    assert data["mass_kg"]["mean"] == pytest.approx(17.967635, rel=0.05)  # thesis Table 5
-    assert data["study"]["n_trials"] == 500
+    # thesis Table 5, 2 m cube, 1°: mean mass 16.419498 kg, i.e. an error of 1.7555 kg; checked to
+    # 5 % of that error or the Monte Carlo noise of the two means (the thesis's 500 trials, ours)
+    thesis, truth = 16.419498, data["mass_kg"]["actual"]
+    tol = max(0.05 * (truth - thesis), 3 * data["mass_kg"]["std"] * (1 / 500 + 1 / 5000) ** 0.5)
+    assert abs(data["mass_kg"]["mean"] - thesis) <= tol < truth - thesis
+    assert data["study"]["n_trials"] == 5000
 
 
 def test_refusals(capsys: pytest.CaptureFixture[str]) -> None:

@@ -7,6 +7,7 @@ import pytest
 from _selection_support import forward_case
 
 from dimacq.errors import SetupError
+from dimacq.model.properties import vector_to_inertia
 from dimacq.pipeline.dim import assemble, solve_system
 from dimacq.pipeline.uncertainty import effective_samples, estimate_uncertainty
 
@@ -215,3 +216,42 @@ def test_transducer_calibration_enters_the_spread_as_derived() -> None:
     se_data = np.std([d.parameters for d in draws], axis=0, ddof=1)
     # 300 re-solves: the standard deviation is known to about 4 % (1σ); allow 15 %
     assert ga.se_linear == pytest.approx(se_data, rel=0.15)
+
+
+def test_principal_moment_uncertainty() -> None:
+    """Principal moments: value equals the solution's (from the tensor about the CG); the input
+    term is the jackknife of the leave-one-out solutions' principal moments, each computed
+    independently through RigidBodyProperties; a first-order propagation of the parameters'
+    jackknife covariance agrees."""
+    from dimacq.model.properties import RigidBodyProperties
+
+    c = forward_case(1, triax_error_deg=0.5)
+    sy = assemble(c.frf, c.nominal)
+    res = solve_system(sy)
+    u = estimate_uncertainty(sy, res)
+    w_res = np.linalg.eigvalsh(res.inertia_cg_kgm2)
+    assert [p.value for p in u.principal] == pytest.approx(list(w_res), rel=1e-12)
+
+    def principal(p: np.ndarray) -> np.ndarray:
+        props = RigidBodyProperties.from_about_point(
+            p[0], p[1:4], vector_to_inertia(p[4:]), res.reference_point_m
+        )
+        return np.linalg.eigvalsh(props.inertia_cg_kgm2)
+
+    w = np.array([principal(s) for s in u.samples])
+    se = np.sqrt(23 / 24 * np.sum((w - w.mean(axis=0)) ** 2, axis=0))
+    assert [p.se_inputs for p in u.principal] == pytest.approx(list(se), rel=1e-9)
+    # first order: J Σ Jᵀ with J the numerical gradient of the principal moments
+    cov = 23 / 24 * (u.samples - u.samples.mean(axis=0)).T @ (u.samples - u.samples.mean(axis=0))
+    J = np.empty((3, 10))
+    for k in range(10):
+        h = 1e-6 * max(abs(res.parameters[k]), 1e-3)
+        dp = np.zeros(10)
+        dp[k] = h
+        J[:, k] = (principal(res.parameters + dp) - principal(res.parameters - dp)) / (2 * h)
+    se_lin = np.sqrt(np.diag(J @ cov @ J.T))
+    assert [p.se_inputs for p in u.principal] == pytest.approx(list(se_lin), rel=0.1)
+    rel = u.relative_se()
+    assert set(rel) == {"m", "I1", "I2", "I3"}
+    assert rel["I1"] == pytest.approx(u.principal[0].standard_error / w_res[0])
+    assert len(u.to_json()["principal_moments"]) == 3

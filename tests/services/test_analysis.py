@@ -6,6 +6,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+import pytest
 from _selection_support import forward_case
 
 from dimacq.services.analysis import AnalysisOptions, analyse
@@ -67,3 +68,46 @@ def test_defaults_and_user_overrides() -> None:
     assert rep2.excluded_responses == [{"node": ch.node, "direction": ch.direction}]
     assert rep2.excluded_inputs == [{"node": ex.node, "direction": ex.direction}]
     assert rep2.result.band_hz[0] >= 50.0 and rep2.band_selection["reason"] == "given by the user"
+
+
+def test_verdict_warns_on_an_interval_too_wide_to_be_useful() -> None:
+    """The same data and solution: with the stated geometry uncertainty of a careful lab the
+    intervals are narrow enough (precision ok); with 1 cm positions and 3° directions stated they
+    are not, and the verdict warns naming the widest ones; far wider than the limits it fails."""
+    from dimacq.model.setup import GeometryUncertainty
+    from dimacq.services.analysis import CI95_LIMIT_PRINCIPAL
+
+    c = forward_case(13)
+    opts = AnalysisOptions(select_responses=False, select_inputs=False, band_hz=(50.0, 150.0))
+    fine = analyse(c.frf, c.nominal, opts)
+    prec = next(r for r in fine.verdict_reasons if r.check == "precision")
+    assert prec.severity == "ok" and fine.verdict == "ok"
+    loose = c.nominal.model_copy(
+        update={
+            "geometry_uncertainty": GeometryUncertainty(
+                sensor_position_m=0.01,
+                sensor_orientation_deg=3.0,
+                input_position_m=0.01,
+                line_of_action_deg=3.0,
+                source="stated",
+            )
+        }
+    )
+    wide = analyse(c.frf, loose, opts)
+    assert wide.result.parameters == pytest.approx(fine.result.parameters, rel=1e-12)
+    prec = next(r for r in wide.verdict_reasons if r.check == "precision")
+    half = [0.5 * (p.ci95[1] - p.ci95[0]) / p.value for p in wide.uncertainty.principal]
+    assert max(half) > CI95_LIMIT_PRINCIPAL
+    assert prec.severity == "warn" and wide.verdict == "warn" and "I1 ±" in prec.message
+    strict = analyse(
+        c.frf,
+        loose,
+        AnalysisOptions(
+            select_responses=False,
+            select_inputs=False,
+            band_hz=(50.0, 150.0),
+            ci95_limit_principal=max(half) / 20,
+        ),
+    )
+    assert strict.verdict == "fail"
+    assert next(r for r in strict.verdict_reasons if r.check == "precision").severity == "fail"

@@ -18,15 +18,34 @@ parameter (thesis Fig. 12) and, for each input, its *predictive residual*
 solution from the other inputs (rows scaled by their RMS over all inputs, so that forces and
 moments count alike).
 
-The input removed in a cycle is the one with the largest scaled-deviation sum whose removal keeps
-the excitation rank 6 (a removal dropping the rank is refused and recorded). Cycles continue past
-the chosen one for the history (figures), to a limit.
+Which input a cycle removes, and when to stop (needs no known answer)
+--------------------------------------------------------------------
+The thesis removes the input with the largest scaled-deviation sum and notes that the jackknife
+standard deviation alone does not always show when to stop. The scaled-deviation sum measures an
+input's *influence* on the parameters, which is leverage times inconsistency: a badly struck input
+in a well-covered direction (low leverage) moves the parameters less than a good input that alone
+excites some DOF, so the sum can point at a good input while a bad one stays in (seen on an
+X-38-like vehicle: the bad impact had 15× the median predictive residual but the second-largest
+sum, the good input with the largest sum passed the stop rule, and the cycle stopped with the bad
+impact kept). Candidate and stop therefore use one statistic, each input's consistency with the
+rigid-body model fitted to the others:
 
-Automatic choice of cycle (needs no known answer): the thesis notes the jackknife standard
-deviation alone does not always show when to stop. A removal is *justified* when the removed
-input's predictive residual is an outlier of the other active inputs' residuals (above ``ratio``
-times their median and their median plus ``z`` robust standard deviations). The chosen cycle is
-the number of leading justified removals: clean data lose nothing.
+- the predictive residual ``ρ_j`` (above), the misfit of input j's measured force and the motion
+  it caused under the parameters of the other inputs;
+- corrected for leverage: for least squares the in-sample residual ``e_j`` and the predictive one
+  ``e_(−j)`` obey ``e_(−j) = (1 − h_j)⁻¹ e_j``, and the externally studentised residual is
+  ``e_(−j) √(1 − h_j) = √(e_j · e_(−j))``. With the in-sample residual ``r_j`` of the fit to every
+  active input (same row scaling), the statistic is ``t_j = √(r_j ρ_j)``: an input that alone
+  excites a direction (large ``h_j``) is not penalised for the extrapolation of the others.
+
+The candidate is the input with the largest ``t_j`` whose removal keeps the excitation rank 6 (a
+removal dropping the rank is refused and recorded). The removal is *justified* when ``t_j`` is an
+outlier of the other active inputs' statistics (above ``ratio`` times their median and their median
+plus ``z`` robust standard deviations, :func:`~dimacq.pipeline.selection._common.robust_outlier`):
+the other inputs' spread is the data's own noise-and-geometry level. The chosen cycle is the number
+of leading justified removals; clean data lose nothing. The scaled-deviation sums and jackknife
+standard deviations are still computed every cycle (thesis Figs. 11–12). Cycles continue past the
+chosen one for the history (figures), to a limit.
 """
 
 from __future__ import annotations
@@ -210,6 +229,9 @@ class JackknifeCycle:
         Jackknife standard deviation of each parameter over the leave-one-out solutions.
     residual : ndarray, shape (n_inputs,)
         Predictive residual ``ρ_j``.
+    statistic : ndarray, shape (n_inputs,)
+        Leverage-corrected (studentised) predictive residual ``t_j = √(r_j ρ_j)``, the statistic
+        that picks the candidate and decides the removal (NaN for inactive inputs).
     removed : int or None
         Index of the input removed at the end of this cycle.
     justified : bool
@@ -233,6 +255,7 @@ class JackknifeCycle:
     threshold: float
     refused: tuple[int, ...]
     excitation: ExcitationCheck
+    statistic: FloatArray | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -282,6 +305,9 @@ class JackknifeSelection:
                     "removed": None if c.removed is None else self.inputs[c.removed].as_dict(),
                     "justified": c.justified,
                     "residual_removed": None if c.removed is None else float(c.residual[c.removed]),
+                    "statistic_removed": None
+                    if c.removed is None or c.statistic is None
+                    else float(c.statistic[c.removed]),
                     "median_others": c.median_others,
                     "threshold": c.threshold,
                     "refused": [self.inputs[i].as_dict() for i in c.refused],
@@ -315,7 +341,7 @@ def jackknife_inputs(
     force_in, force_out : ndarray of bool, shape (n_inputs,), optional
         Inputs the user keeps / drops whatever the jackknife says.
     ratio, z : float
-        Outlier rule on the predictive residual of the removed input.
+        Outlier rule on the studentised predictive residual of the candidate.
     min_inputs : int
         Never go below this many inputs.
     max_removals : int, optional
@@ -359,13 +385,21 @@ def jackknife_inputs(
         std = est[idx].std(axis=0, ddof=1)
         resid = np.full(n, np.nan)
         resid[idx] = predictive_residuals(system.select_inputs(idx), est[idx])
-        # candidate: largest scaled-deviation sum whose removal keeps the excitation rank 6
+        stat = resid.copy()
+        try:
+            full = solve_system(
+                system, known=known, input_weights=active.astype(float), check_plausibility=False
+            ).parameters
+            stat[idx] = np.sqrt(resid[idx] * predictive_residuals(system.select_inputs(idx), full))
+        except SolverError:  # pragma: no cover - the active inputs excite rank 6 (checked)
+            pass
+        # candidate: largest studentised predictive residual whose removal keeps rank 6
         refused: list[int] = []
         removed: int | None = None
         after = excitation_check(phi[:, active])
         can_remove = int(active.sum()) - 1 >= min_inputs and len(removed_order) < limit
         if can_remove:
-            for j in idx[np.argsort(score[idx])[::-1]]:
+            for j in idx[np.argsort(stat[idx])[::-1]]:
                 if fin[j]:
                     continue
                 trial = active.copy()
@@ -380,7 +414,7 @@ def jackknife_inputs(
         if removed is not None:
             others = idx[idx != removed]
             justified, med, thr = robust_outlier(
-                float(resid[removed]), resid[others], ratio=ratio, z=z
+                float(stat[removed]), stat[others], ratio=ratio, z=z
             )
         cycles.append(
             JackknifeCycle(
@@ -396,6 +430,7 @@ def jackknife_inputs(
                 thr,
                 tuple(refused),
                 after,
+                stat,
             )
         )
         if removed is None:
@@ -409,17 +444,18 @@ def jackknife_inputs(
         if chosen is None and not justified:
             chosen = len(removed_order)
             stop = (
-                f"cycle {chosen}: the worst input {system.inputs[removed].name} has predictive "
-                f"residual {resid[removed]:.3g}, within the spread of the others "
-                f"(median {med:.3g}, threshold {thr:.3g})"
+                f"cycle {chosen}: the least consistent input {system.inputs[removed].name} has "
+                f"studentised predictive residual {stat[removed]:.3g}, within the spread of the "
+                f"others (median {med:.3g}, threshold {thr:.3g})"
             )
         if chosen is not None and len(cycles) - chosen > extra_cycles:
             break
         if chosen is None:
             reasons[system.inputs[removed].name] = (
-                f"jackknife cycle {len(removed_order) + 1}: largest scaled-deviation sum "
-                f"{score[removed]:.3g}; predictive residual {resid[removed]:.3g} > threshold "
-                f"{thr:.3g} (median of the others {med:.3g})"
+                f"jackknife cycle {len(removed_order) + 1}: its force and the motion it caused "
+                f"disagree with the rigid body fitted to the other inputs: studentised predictive "
+                f"residual {stat[removed]:.3g} > threshold {thr:.3g} (median of the others "
+                f"{med:.3g}; scaled-deviation sum {score[removed]:.3g})"
             )
         removed_order.append(removed)
         active = active.copy()

@@ -96,3 +96,43 @@ def test_removal_dropping_rank_is_refused() -> None:
     assert sel.excluded == ()
     assert sel.cycles[0].refused and len(sel.cycles[0].refused) == 6
     assert "rank below 6" in sel.stop_reason
+
+
+def test_bad_impact_of_small_influence_is_removed() -> None:
+    """X-38-like vehicle built rigid (seed 102): the second bad impact moves the parameters less
+    than a good input that dominates a direction (smaller scaled-deviation sum), but its force and
+    the motion it caused disagree with the other inputs' rigid body 15× more than any good input's:
+    the studentised predictive residual removes both bad impacts and nothing else."""
+    from dimacq.simulators.lab.scenarios import (
+        Scenario,
+        build_scenario,
+        gross_errors,
+        load_scenario,
+    )
+
+    d = load_scenario("x38-realistic").model_dump()
+    d["article"]["flexible"] = False
+    scn = Scenario.model_validate(d)
+    b = build_scenario(scn, 102)
+    bad_ch, bad_in = gross_errors(b.model.setup, scn.errors, 102)
+    frf = b.model_frf(noise=0.01).band(27.0, 33.0)
+    bad_resp = {(b.setup.responses[k].node, b.setup.responses[k].direction) for k in bad_ch}
+    w = np.array(
+        [0.0 if (c.node, c.direction) in bad_resp else 1.0 for c in frf.outputs], dtype=float
+    )[frf.output_index("acceleration")]
+    sy = assemble(frf, b.setup, response_weights=w)
+    sel = jackknife_inputs(sy)
+    want = {(b.setup.excitations[j].node, b.setup.excitations[j].direction) for j in bad_in}
+    assert {(c.node, c.direction) for c in sel.excluded} == want
+    # the thesis's rule would have been misled: in some justified cycle the removed (bad) input
+    # did not have the largest scaled-deviation sum
+    misled = [
+        c
+        for c in sel.cycles[: sel.chosen_cycle]
+        if c.removed is not None and c.score[c.removed] < np.nanmax(c.score)
+    ]
+    assert misled
+    # the stop: the next candidate is within the spread of the others
+    stop = sel.cycles[sel.chosen_cycle]
+    assert not stop.justified and stop.statistic is not None
+    assert stop.statistic[stop.removed] < stop.threshold

@@ -1,0 +1,285 @@
+"""One verdict per solution: ``ok`` | ``warn`` | ``fail`` with the reasons behind it.
+
+A wrong answer reported as ok is the worst defect a measurement tool can have: every check below is
+reported whatever its outcome, and any failing check fails the solution (``dimacq solve`` exits 3).
+Split from :mod:`dimacq.services.analysis`, which calls :func:`verdict` after the solve and
+re-exports these names.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from dimacq.model.frf import FrfData
+from dimacq.pipeline.selection._common import response_geometry
+from dimacq.pipeline.selection.band import MAX_RESIDUAL, MAX_RIGID_BODY_ERROR, BandSuggestion
+from dimacq.pipeline.uncertainty import Uncertainty
+
+if TYPE_CHECKING:
+    from dimacq.services.analysis import AnalysisReport
+
+__all__ = [
+    "CI95_LIMIT_MASS",
+    "CI95_LIMIT_PRINCIPAL",
+    "PRECISION_FAIL_FACTOR",
+    "RESIDUAL_FAIL",
+    "RESIDUAL_WARN",
+    "VerdictReason",
+    "verdict",
+]
+
+log = logging.getLogger(__name__)
+
+#: Relative residual of the joint DIM solve above which the answer is refused / flagged.
+RESIDUAL_FAIL = MAX_RESIDUAL
+RESIDUAL_WARN = 0.05
+#: Largest useful relative half-width of the 95 % interval of the mass and of each principal
+#: moment. Principal moments: ±5 %, the accuracy issue 10 accepts of any answer (flexible
+#: structures). Mass: ±2 %, twice what a careful lab's stated uncertainties give (the default
+#: 0.5 % (1σ) hammer certificate alone is ±1 %; 2 mm / 0.5° / 1° geometry adds about ±0.3 % on
+#: the 18 kg calibration mass, whose principal moments come out near ±3 %). An interval wider than
+#: that cannot show the answer is usable: ``warn``; :data:`PRECISION_FAIL_FACTOR` times wider:
+#: ``fail``.
+CI95_LIMIT_MASS = 0.02
+CI95_LIMIT_PRINCIPAL = 0.05
+PRECISION_FAIL_FACTOR = 10.0
+
+
+@dataclass(frozen=True)
+class VerdictReason:
+    """One check behind the verdict: ``severity`` ``ok`` | ``warn`` | ``fail``."""
+
+    check: str
+    severity: str
+    message: str
+
+    def to_json(self) -> dict[str, str]:
+        return {"check": self.check, "severity": self.severity, "message": self.message}
+
+
+def _band_quality(report: AnalysisReport, data: FrfData) -> tuple[float, float]:
+    """Worst rigid-body error and median per-line DIM residual over the band's lines (kept data)."""
+    from dimacq.pipeline.dim import assemble as _assemble
+    from dimacq.pipeline.dim import line_residuals
+    from dimacq.pipeline.rigid_body import response_matrix
+
+    setup = report.setup_used
+    geo = response_geometry(data, setup)
+    kept = {(c["node"], c["direction"]) for c in report.excluded_responses}
+    use = np.array([(c.node, c.direction) not in kept for c in geo.channels])
+    in_keep = [
+        i
+        for i, c in enumerate(data.inputs)
+        if {"node": c.node, "direction": c.direction} not in report.excluded_inputs
+    ]
+    q = data.H[:, geo.output_index][:, use][:, :, in_keep]
+    psi = response_matrix(geo.positions_m[use], geo.directions[use], setup.reference_point)
+    fit = np.einsum("ck,lkj->lcj", psi @ np.linalg.pinv(psi), q)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        e = np.sqrt(np.sum(np.abs(q - fit) ** 2, axis=(1, 2)) / np.sum(np.abs(q) ** 2, axis=(1, 2)))
+    system = _assemble(data, setup, response_weights=use.astype(float)).select_inputs(in_keep)
+    r = line_residuals(system, known=report.result.known)
+    return float(np.nanmax(e)), float(np.nanmedian(r))
+
+
+def verdict(
+    report: AnalysisReport,
+    data: FrfData,
+    suggestion: BandSuggestion | None = None,
+    *,
+    ci95_limits: tuple[float, float] = (CI95_LIMIT_MASS, CI95_LIMIT_PRINCIPAL),
+) -> tuple[str, list[VerdictReason]]:
+    """One verdict for a solution: ``fail`` if any check fails, else ``warn`` if any warns, else
+    ``ok``; the reasons list every check (failing and warning ones first).
+
+    Checks: ``band`` (an automatic band that qualified, or a given band whose worst rigid-body
+    error and median DIM residual stay below the absolute limits
+    :data:`~dimacq.pipeline.selection.band.MAX_RIGID_BODY_ERROR` and ``MAX_RESIDUAL``),
+    ``residual`` (relative residual of the joint solve: fail above 0.10, warn above 0.05), the
+    plausibility diagnostics of the solver (error severity → fail, warning → warn),
+    ``excitation`` (every rigid-body DOF excited), ``coverage`` (lines in the band, share of the
+    channels and inputs kept, rank-deficient leave-outs), ``registration`` (the setup's
+    registration residual against its limit), ``uncertainty`` (every source included),
+    ``precision`` (the relative half-width of the 95 % interval of the mass and of each principal
+    moment against ``ci95_limits``: above → warn, :data:`PRECISION_FAIL_FACTOR` times above → fail;
+    an interval that wide cannot tell whether the answer is good enough).
+    """
+    res = report.result
+    out: list[VerdictReason] = []
+    add = out.append
+    # band
+    if suggestion is not None:
+        if suggestion.qualified:
+            add(VerdictReason("band", "ok", f"automatic band: {suggestion.reason}"))
+        else:
+            add(VerdictReason("band", "fail", suggestion.reason))
+    else:
+        e_max, r_med = _band_quality(report, data)
+        lo, hi = res.band_hz
+        bad = e_max > MAX_RIGID_BODY_ERROR or r_med > MAX_RESIDUAL
+        add(
+            VerdictReason(
+                "band",
+                "fail" if bad else "ok",
+                f"band {lo:g}–{hi:g} Hz ({report.band_selection.get('reason', '')}): worst "
+                f"rigid-body error {e_max:.3g} (limit {MAX_RIGID_BODY_ERROR:g}), median DIM "
+                f"residual {r_med:.3g} (limit {MAX_RESIDUAL:g})"
+                + (
+                    "; the data in this band are not a rigid body with measured forces"
+                    if bad
+                    else ""
+                ),
+            )
+        )
+    # residual
+    rr = res.residual_rel
+    sev = "fail" if rr > RESIDUAL_FAIL else "warn" if rr > RESIDUAL_WARN else "ok"
+    add(
+        VerdictReason(
+            "residual",
+            sev,
+            f"relative residual of the DIM system {rr:.3g} (warn above {RESIDUAL_WARN:g}, "
+            f"fail above {RESIDUAL_FAIL:g})"
+            + (
+                ""
+                if sev == "ok"
+                else ": the rigid-body equations do not explain the data; "
+                "check the setup against the FRFs (channels, signs, units, geometry)"
+            ),
+        )
+    )
+    # plausibility
+    for d in res.diagnostics:
+        if d.ok:
+            add(VerdictReason(f"plausibility:{d.code}", "ok", d.message))
+        else:
+            add(
+                VerdictReason(
+                    f"plausibility:{d.code}",
+                    "fail"
+                    if d.severity == "error"
+                    else "warn"
+                    if d.severity == "warning"
+                    else "ok",
+                    d.message,
+                )
+            )
+    # excitation and coverage
+    exc = report.excitation
+    exc_j = exc.to_json()
+    rank = int(exc_j.get("rank", 6))
+    add(
+        VerdictReason(
+            "excitation",
+            "ok" if rank >= 6 else "fail",
+            f"the kept inputs excite {rank} of 6 rigid-body DOF"
+            + ("" if rank >= 6 else "; add inputs in the missing directions"),
+        )
+    )
+    n_lines = res.frequencies_hz.size
+    n_ch = len(res.responses)
+    n_ex_r = len(report.excluded_responses)
+    n_in = len(res.inputs) + len(report.excluded_inputs)
+    n_ex_i = len(report.excluded_inputs)
+    warn_cov = n_lines < 5 or n_ex_r > n_ch / 3 or n_ex_i > n_in / 3
+    add(
+        VerdictReason(
+            "coverage",
+            "warn" if warn_cov else "ok",
+            f"{n_lines} lines in the band; {n_ex_r} of {n_ch} response channels and {n_ex_i} of "
+            f"{n_in} inputs excluded"
+            + ("; a large share of the data was set aside, check why" if warn_cov else ""),
+        )
+    )
+    nbad = report.uncertainty.n_rank_deficient
+    if nbad:
+        add(
+            VerdictReason(
+                "coverage:leave_one_out",
+                "warn",
+                f"{nbad} leave-one-out solve(s) rank deficient: some input or sensor node is "
+                "indispensable; the interval cannot show what losing it would do",
+            )
+        )
+    # registration
+    gu = report.setup_used.geometry_uncertainty
+    if gu.registration_rms_m is not None:
+        lim = gu.registration_limit_m
+        if lim is not None and gu.registration_rms_m > lim:
+            add(
+                VerdictReason(
+                    "registration",
+                    "fail",
+                    f"registration RMS residual {gu.registration_rms_m * 1000:.3g} mm exceeds its "
+                    f"limit {lim * 1000:.3g} mm: the digitized geometry is not trustworthy; "
+                    "re-register the array (check the reference nodes)",
+                )
+            )
+        else:
+            add(
+                VerdictReason(
+                    "registration",
+                    "ok",
+                    f"registration RMS residual {gu.registration_rms_m * 1000:.3g} mm"
+                    + (
+                        f" (limit {lim * 1000:.3g} mm)" if lim is not None else " (no limit stated)"
+                    ),
+                )
+            )
+    # uncertainty sources
+    missing = [
+        c
+        for c in ("inputs", "responses", "geometry", "lines")
+        if c not in report.uncertainty.components
+    ]
+    add(
+        VerdictReason(
+            "uncertainty",
+            "warn" if missing else "ok",
+            "95 % intervals include "
+            + ", ".join(report.uncertainty.components)
+            + (f"; they leave out {', '.join(missing)}" if missing else ""),
+        )
+    )
+    out.append(_precision(report.uncertainty, ci95_limits))
+    order = {"fail": 0, "warn": 1, "ok": 2}
+    out.sort(key=lambda r: order.get(r.severity, 3))
+    v = (
+        "fail"
+        if any(r.severity == "fail" for r in out)
+        else ("warn" if any(r.severity == "warn" for r in out) else "ok")
+    )
+    return v, out
+
+
+def _precision(unc: Uncertainty, limits: tuple[float, float]) -> VerdictReason:
+    """The ``precision`` check: is each 95 % interval narrow enough to be useful?"""
+    parts: list[str] = []
+    worst = 0.0
+    items = [("mass", unc.parameters["m"], limits[0])]
+    items += [(f"I{k + 1}", u, limits[1]) for k, u in enumerate(unc.principal)]
+    for name, u, lim in items:
+        if u.value == 0 or lim <= 0:
+            continue
+        half = 0.5 * (u.ci95[1] - u.ci95[0]) / abs(u.value)
+        worst = max(worst, half / lim)
+        if half > lim:
+            parts.append(f"{name} ±{100 * half:.3g} % (limit ±{100 * lim:.3g} %)")
+    sev = "fail" if worst > PRECISION_FAIL_FACTOR else "warn" if worst > 1 else "ok"
+    if sev == "ok":
+        msg = (
+            f"95 % intervals within ±{100 * limits[0]:g} % of the mass and ±{100 * limits[1]:g} % "
+            "of each principal moment"
+        )
+    else:
+        msg = (
+            "95 % interval too wide to show the answer is good enough: "
+            + ", ".join(parts)
+            + "; see uncertainty.*.se_* for the dominant source (inputs: check or re-strike "
+            "them; geometry: measure positions and directions more accurately; lines: a wider band)"
+        )
+    return VerdictReason("precision", sev, msg)
