@@ -72,6 +72,13 @@ class Settings(BaseSettings):
     daq: str = "simulated"
     loadcell: str = "simulated"
     digitizer: str = "simulated"
+    #: further names (without port) the service may be called by, besides the loopback names and
+    #: the bound host (the Host header is checked against them: DNS rebinding)
+    allowed_hosts: list[str] = Field(default_factory=list)
+    #: largest JSON request body, bytes (413 above it)
+    max_body_bytes: int = Field(default=4 * 1024 * 1024, ge=1024, le=2**31 - 1)
+    #: largest uploaded file (setup or UFF import), bytes (413 above it)
+    max_upload_bytes: int = Field(default=256 * 1024 * 1024, ge=1024, le=2**40)
     digitizer_url: str = "simdigitizer://lab?seed=0"
     loadcell_interface: str = "virtual"
     loadcell_channel: str = "dimacq-lab"
@@ -124,6 +131,14 @@ class Settings(BaseSettings):
             "give 'libusb' or the import path 'package.module:factory' of a function returning "
             "a pyusb backend (the simulated DAQ is daq = 'simulated')"
         )
+
+    @field_validator("allowed_hosts")
+    @classmethod
+    def _hosts(cls, v: list[str]) -> list[str]:
+        out = [h.strip().strip("[]").lower() for h in v]
+        if any(not h or "/" in h or " " in h for h in out):
+            raise ValueError("give host names or addresses without scheme, port or path")
+        return out
 
     @field_validator("data_dir", mode="before")
     @classmethod

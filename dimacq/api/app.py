@@ -2,13 +2,20 @@
 
 - The lab (database, devices) is opened in the lifespan handler and held on ``app.state.lab``.
 - Access: every state-changing call (any method but GET/HEAD/OPTIONS) under ``/api`` needs the
-  token (``Authorization: Bearer <token>``). It is checked by an ASGI middleware *before* the body
-  is read or validated, so an anonymous caller gets 401 and learns nothing about the body schema.
+  token (``Authorization: Bearer <token>``); bound to a non-loopback address, every read under
+  ``/api`` needs it too (the LAN is not the lab PC). It is checked by an ASGI middleware *before*
+  the body is read or validated, so an anonymous caller gets 401 and learns nothing about the
+  body schema.
+- Guards before that (:mod:`dimacq.api.guards`): the Host header must name the service (421,
+  DNS rebinding), bodies are limited to ``max_body_bytes`` / ``max_upload_bytes`` (413).
 - CORS only for the configured origins (none by default).
 - Errors: every failure is a 4xx/503 JSON :class:`~dimacq.api.schemas.ErrorBody` naming the field:
-  request validation → 422; :class:`~dimacq.errors.DataError` → 400;
+  request validation → 422, except an id out of range in the path → 404 (it names no item);
+  :class:`~dimacq.errors.DataError` → 400;
   :class:`~dimacq.errors.SetupError` and :class:`~dimacq.errors.SolverError` → 422;
   :class:`~dimacq.errors.DeviceStateError` → 409; other :class:`~dimacq.errors.DeviceError` → 503.
+  Messages never show server paths of temporary files (uploads are spooled to one; the readers
+  name "the upload", and :func:`_public` removes any temporary path that would still slip by).
 """
 
 from __future__ import annotations
@@ -18,6 +25,7 @@ import json
 import logging
 import re
 import secrets
+import tempfile
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from typing import Any
@@ -30,6 +38,14 @@ from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.types import ASGIApp, Receive, Scope, Send
 
+from dimacq.api.guards import (
+    LOOPBACK_NAMES,
+    BodyLimitMiddleware,
+    BodyTooLarge,
+    HostCheckMiddleware,
+    is_loopback,
+    is_wildcard,
+)
 from dimacq.api.routers import (
     acquisitions,
     calibrations,
@@ -42,8 +58,8 @@ from dimacq.api.routers import (
     solutions,
     status,
 )
-from dimacq.api.routers._common import add_body_components
-from dimacq.api.schemas import ErrorBody
+from dimacq.api.routers._common import UPLOAD_PATHS, add_body_components
+from dimacq.api.schemas import MAX_ID, ErrorBody
 from dimacq.config import Settings, load_settings
 from dimacq.errors import (
     DataError,
@@ -65,20 +81,30 @@ ERROR_RESPONSES: dict[int | str, dict[str, Any]] = {
     401: {"model": ErrorBody, "description": "missing or wrong token (state-changing calls)"},
     404: {"model": ErrorBody, "description": "no such item"},
     409: {"model": ErrorBody, "description": "the request does not fit the device or job state"},
+    413: {"model": ErrorBody, "description": "request body larger than the configured limit"},
+    421: {"model": ErrorBody, "description": "the Host header does not name this service"},
     422: {"model": ErrorBody, "description": "invalid request (the message names the field)"},
     503: {"model": ErrorBody, "description": "device unavailable"},
 }
 
 
 class TokenMiddleware:
-    """Refuse state-changing calls under ``/api`` without the token (before any body parsing)."""
+    """Refuse state-changing calls under ``/api`` without the token (before any body parsing);
+    with ``protect_reads`` (bound to a non-loopback address) every call under ``/api`` but
+    OPTIONS."""
 
-    def __init__(self, app: ASGIApp, token: str) -> None:
+    def __init__(self, app: ASGIApp, token: str, protect_reads: bool = False) -> None:
         self.app = app
         self.token = token.encode()
+        self.protected = frozenset({"OPTIONS"} if protect_reads else _SAFE_METHODS)
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        if scope["type"] == "http" and scope["path"] == "/api/status" and scope["method"] == "GET":
+        if (
+            scope["type"] == "http"
+            and scope["path"] == "/api/status"
+            and scope["method"] == "GET"
+            and "GET" in self.protected
+        ):
             # the poll of every client during acquisitions: answered here, from memory, without
             # routing or dependency resolution (same body as the documented route)
             body = json.dumps(scope["app"].state.lab.status().to_json()).encode()
@@ -96,7 +122,7 @@ class TokenMiddleware:
             return
         if (
             scope["type"] == "http"
-            and scope["method"] not in _SAFE_METHODS
+            and scope["method"] not in self.protected
             and scope["path"].startswith("/api")
         ):
             given = b""
@@ -108,7 +134,7 @@ class TokenMiddleware:
             if not given or not secrets.compare_digest(given, self.token):
                 body = json.dumps(
                     {
-                        "detail": "this call changes state and needs the token: send "
+                        "detail": "this call needs the token: send "
                         "'Authorization: Bearer <token>' (see <data_dir>/token or DIMACQ_TOKEN)",
                         "field": "Authorization",
                         "errors": [],
@@ -130,11 +156,21 @@ class TokenMiddleware:
         await self.app(scope, receive, send)
 
 
+#: Temporary directories the server spools uploads to (never shown to a client).
+_TEMP_PATH = re.compile(re.escape(tempfile.gettempdir().rstrip("/")) + r"/[^\s:;,'\")]*")
+
+
+def _public(text: str) -> str:
+    """``text`` without server paths of temporary files."""
+    return _TEMP_PATH.sub("<upload>", text)
+
+
 def _error(
     status: int, detail: str, field: str | None = None, errors: list[Any] | None = None
 ) -> JSONResponse:
     return JSONResponse(
-        status_code=status, content={"detail": detail, "field": field, "errors": errors or []}
+        status_code=status,
+        content={"detail": _public(detail), "field": field, "errors": errors or []},
     )
 
 
@@ -161,9 +197,13 @@ def _allowed_methods(app: FastAPI, path: str) -> set[str]:
     return static or templated
 
 
+def _path_value(req: Request, name: str) -> str:
+    return str(req.path_params.get(name, "?"))[:40]
+
+
 def _install_error_handlers(app: FastAPI) -> None:
     @app.exception_handler(RequestValidationError)
-    async def _validation(_req: Request, err: RequestValidationError) -> JSONResponse:
+    async def _validation(req: Request, err: RequestValidationError) -> JSONResponse:
         errs: list[dict[str, Any]] = []
         for e in err.errors():
             loc = tuple(e.get("loc", ()))
@@ -176,6 +216,15 @@ def _install_error_handlers(app: FastAPI) -> None:
                 }
             )
         field = errs[0]["field"] if errs else None
+        if errs and all(e["loc"][:1] == ["path"] for e in errs):
+            # an id out of range names no item: the same answer as an id that is not stored
+            return _error(
+                404,
+                f"{errs[0]['loc'][-1]} {_path_value(req, errs[0]['loc'][-1])} does not exist "
+                f"(ids are 1..{MAX_ID}); list the collection to find its id",
+                field,
+                errs,
+            )
         detail = "; ".join(f"{e['field']}: {e['msg']}" for e in errs) or "invalid request"
         return _error(422, detail, field, errs)
 
@@ -187,9 +236,10 @@ def _install_error_handlers(app: FastAPI) -> None:
             allowed = _allowed_methods(req.app, req.url.path)
             if allowed:
                 headers["Allow"] = ", ".join(sorted(allowed))
+        field = "Content-Length" if isinstance(err, BodyTooLarge) else None
         return JSONResponse(
             status_code=err.status_code,
-            content={"detail": str(err.detail), "field": None, "errors": []},
+            content={"detail": _public(str(err.detail)), "field": field, "errors": []},
             headers=headers,
         )
 
@@ -214,7 +264,7 @@ def _install_error_handlers(app: FastAPI) -> None:
         return _error(503, str(err))
 
 
-def _custom_openapi(app: FastAPI) -> Any:
+def _custom_openapi(app: FastAPI, protect_reads: bool) -> Any:
     def openapi() -> dict[str, Any]:
         if app.openapi_schema:
             return app.openapi_schema
@@ -226,13 +276,25 @@ def _custom_openapi(app: FastAPI) -> Any:
         comps.setdefault("securitySchemes", {})["bearer"] = {"type": "http", "scheme": "bearer"}
         for path, ops in schema.get("paths", {}).items():
             for method, op in ops.items():
-                if method.upper() not in _SAFE_METHODS and path.startswith("/api"):
+                guarded = protect_reads and method.upper() != "OPTIONS"
+                if (guarded or method.upper() not in _SAFE_METHODS) and path.startswith("/api"):
                     op["security"] = [{"bearer": []}]
                 # the default 422 schema is replaced by ErrorBody everywhere
         app.openapi_schema = schema
         return schema
 
     return openapi
+
+
+def allowed_hosts(settings: Settings) -> frozenset[str] | None:
+    """Names the Host header may carry: loopback names, the bound host, ``allowed_hosts``;
+    None (not checked) when bound to a wildcard address with no ``allowed_hosts``."""
+    if is_wildcard(settings.host) and not settings.allowed_hosts:
+        return None
+    names = set(LOOPBACK_NAMES) | set(settings.allowed_hosts)
+    if not is_wildcard(settings.host):
+        names.add(settings.host.strip().strip("[]").lower())
+    return frozenset(names)
 
 
 def create_app(settings: Settings | None = None, *, lab: Lab | None = None) -> FastAPI:
@@ -279,7 +341,15 @@ def create_app(settings: Settings | None = None, *, lab: Lab | None = None) -> F
         jobs,
     ):
         app.include_router(r.router)
-    app.add_middleware(TokenMiddleware, token=token)
+    # added innermost first: Host check → token → body limit → routes
+    app.add_middleware(
+        BodyLimitMiddleware,
+        max_body_bytes=settings.max_body_bytes,
+        max_upload_bytes=settings.max_upload_bytes,
+        upload_paths=UPLOAD_PATHS,
+    )
+    app.add_middleware(TokenMiddleware, token=token, protect_reads=not is_loopback(settings.host))
+    app.add_middleware(HostCheckMiddleware, allowed=allowed_hosts(settings))
     if settings.cors_origins:  # outermost, so a 401 still carries the CORS headers
         app.add_middleware(
             CORSMiddleware,
@@ -287,5 +357,7 @@ def create_app(settings: Settings | None = None, *, lab: Lab | None = None) -> F
             allow_methods=["*"],
             allow_headers=["Authorization", "Content-Type", "X-Dimacq-Token"],
         )
-    app.openapi = _custom_openapi(app)  # type: ignore[method-assign]
+    app.openapi = _custom_openapi(  # type: ignore[method-assign]
+        app, protect_reads=not is_loopback(settings.host)
+    )
     return app

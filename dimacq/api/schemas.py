@@ -12,11 +12,14 @@ from dimacq.services.lab.solving import SolveOptions
 from dimacq.services.lab.studies import CubeStudyParams
 
 __all__ = [
+    "MAX_ID",
     "AcquisitionRequest",
+    "DbId",
     "ErrorBody",
     "FromGeometryRequest",
     "JobInfo",
     "LineOfActionRequest",
+    "Number",
     "OrientationRequest",
     "PointRequest",
     "RegistrationRequest",
@@ -24,6 +27,17 @@ __all__ = [
 ]
 
 Vec3 = tuple[float, float, float]
+
+#: The largest id or node number the API accepts: the range of a SQL ``INTEGER`` on every
+#: database backend (PostgreSQL's is 32-bit; SQLite's 64-bit) and of a UFF node number (I10).
+#: Larger values never reach the database (they used to overflow it: a 500 and a reset connection).
+MAX_ID = 2**31 - 1
+
+#: A stored item's id in a request body (1..MAX_ID; out of range → 422 naming the field). Path
+#: ids use :data:`dimacq.api.deps.IdPath` (out of range → 404).
+DbId = Annotated[int, Field(ge=1, le=MAX_ID)]
+#: A node number or patch index in a request body (0..MAX_ID).
+Number = Annotated[int, Field(ge=0, le=MAX_ID)]
 FiniteVec3 = tuple[FiniteFloat, FiniteFloat, FiniteFloat]
 
 
@@ -77,19 +91,19 @@ class ReferenceNodesRequest(_Body):
 
 
 class RegistrationRequest(_Body):
-    patch: int | None = Field(default=None, ge=0)
+    patch: Number | None = None
     method: Literal["rigid", "similarity", "affine"] = "rigid"
     labels: list[str] | None = None
 
 
 class OrientationRequest(_Body):
-    node: int = Field(ge=0)
+    node: Number
     prefix: str | None = Field(default=None, max_length=100)
     method: Literal["rigid", "affine", "cross"] = "rigid"
 
 
 class LineOfActionRequest(_Body):
-    node: int = Field(ge=0)
+    node: Number
     input_label: str = Field(min_length=1, max_length=200)
     labels: list[str] = Field(min_length=2)
     method: Literal["svd", "eq13"] = "svd"
@@ -99,8 +113,8 @@ class FromGeometryRequest(_Body):
     name: str = ""
     reference_point_m: Vec3 = (0.0, 0.0, 0.0)
     length_unit: Literal["m", "cm", "mm"] = "m"
-    triaxes: list[int] | None = None
-    inputs: list[int] | None = None
+    triaxes: list[Number] | None = None
+    inputs: list[Number] | None = None
     load_cells: list[LoadCell] = Field(default_factory=list)
     known: KnownProperties = KnownProperties()
 
@@ -108,7 +122,7 @@ class FromGeometryRequest(_Body):
 class SolveRequest(SolveOptions):
     """Solve the FRF set ``frf_id`` with the options (:class:`SolveOptions`)."""
 
-    frf_id: int = Field(ge=1)
+    frf_id: DbId
 
 
 class AcquisitionRequest(ImpactOverrides):
@@ -116,7 +130,7 @@ class AcquisitionRequest(ImpactOverrides):
     :class:`dimacq.model.impact.ImpactOverrides`; values left out (null) come from the rig file's
     ``[acquisition]`` table, then the built-in defaults."""
 
-    setup_id: int = Field(ge=1)
+    setup_id: DbId
     seed: int | None = Field(default=None, ge=0, le=2**31 - 1)
 
 

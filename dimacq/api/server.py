@@ -3,6 +3,7 @@ on a loopback port (``dimacq demo``, tests, benchmarks)."""
 
 from __future__ import annotations
 
+import errno
 import socket
 import sys
 import threading
@@ -12,9 +13,9 @@ from types import TracebackType
 import uvicorn
 from fastapi import FastAPI
 
-from dimacq.errors import DeviceError
+from dimacq.errors import DeviceError, SetupError
 
-__all__ = ["BackgroundServer", "free_port", "serve"]
+__all__ = ["BackgroundServer", "bind_socket", "free_port", "serve"]
 
 
 def free_port(host: str = "127.0.0.1") -> int:
@@ -30,10 +31,50 @@ def free_port(host: str = "127.0.0.1") -> int:
 SWITCH_INTERVAL_S = 0.0005
 
 
-def serve(app: FastAPI, host: str, port: int, log_level: str = "info") -> None:
-    """Serve in the foreground until interrupted (this process is the service)."""
+def bind_socket(host: str, port: int) -> socket.socket:
+    """A TCP socket bound to ``host:port`` (listening starts when the server runs on it).
+
+    Raises
+    ------
+    SetupError
+        The address cannot be bound (port in use, address not on this machine, no permission);
+        the message names ``--host``/``--port``.
+    """
+    try:
+        infos = socket.getaddrinfo(
+            host or None, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE
+        )
+    except socket.gaierror as err:
+        raise SetupError(f"--host {host}: not an address of this machine ({err.strerror})") from err
+    family, kind, proto, _, addr = infos[0]
+    sock = socket.socket(family, kind, proto)
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        sock.bind(addr)
+    except OSError as err:
+        sock.close()
+        if err.errno == errno.EADDRINUSE:
+            raise SetupError(
+                f"--port {port}: {host}:{port} is already in use (another dimacq serve?); "
+                "stop that process or choose another port with --port"
+            ) from err
+        raise SetupError(
+            f"--host {host} --port {port}: cannot bind ({err.strerror}); choose another "
+            "--host or --port"
+        ) from err
+    sock.set_inheritable(True)
+    return sock
+
+
+def serve(
+    app: FastAPI, host: str, port: int, log_level: str = "info", sock: socket.socket | None = None
+) -> None:
+    """Serve in the foreground until interrupted (this process is the service), on ``sock``
+    (from :func:`bind_socket`) or on a socket bound here."""
     sys.setswitchinterval(SWITCH_INTERVAL_S)
-    uvicorn.run(app, host=host, port=port, log_level=log_level, access_log=False)
+    sock = sock or bind_socket(host, port)
+    config = uvicorn.Config(app, log_level=log_level, access_log=False)
+    uvicorn.Server(config).run(sockets=[sock])
 
 
 class BackgroundServer:

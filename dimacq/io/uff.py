@@ -521,10 +521,18 @@ def _named_file(source: UffSource) -> Iterator[Path]:
         path.write_bytes(data)
         try:
             yield path
-        except DimacqError:
-            raise
+        except DimacqError as err:
+            # the messages name the file read; a client must see "the UFF upload", never the
+            # server's temporary path
+            text = str(err).replace(str(path), "UFF upload").replace(tmp, "<upload>")
+            if text == str(err):
+                raise
+            raise type(err)(text) from err
         except Exception as err:  # pyuff raises bare exceptions on malformed files
-            raise DataError(f"UFF upload could not be read ({type(err).__name__}: {err})") from err
+            text = f"{type(err).__name__}: {err}".replace(str(path), "UFF upload")
+            raise DataError(
+                f"UFF upload could not be read ({text.replace(tmp, '<upload>')})"
+            ) from err
 
 
 def read_uff_test(

@@ -24,7 +24,7 @@ from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, FiniteFloat, field_validator, model_validator
 
 __all__ = [
     "LENGTH_UNITS",
@@ -275,9 +275,9 @@ class KnownProperties(_Model):
     ``Ixy = −∫ x y dm``).
     """
 
-    mass_kg: float | None = Field(default=None, gt=0)
-    cg_m: tuple[float | None, float | None, float | None] = (None, None, None)
-    inertia_kgm2: dict[Literal["Ixx", "Ixy", "Ixz", "Iyy", "Iyz", "Izz"], float] = Field(
+    mass_kg: FiniteFloat | None = Field(default=None, gt=0)
+    cg_m: tuple[FiniteFloat | None, FiniteFloat | None, FiniteFloat | None] = (None, None, None)
+    inertia_kgm2: dict[Literal["Ixx", "Ixy", "Ixz", "Iyy", "Iyz", "Izz"], FiniteFloat] = Field(
         default_factory=dict
     )
 

@@ -11,7 +11,9 @@ from pydantic import BaseModel, ValidationError
 
 T = TypeVar("T")
 
-MAX_UPLOAD_BYTES = 256 * 1024 * 1024
+#: Paths whose body is a file (``RAW_BODY``): limited by ``max_upload_bytes`` instead of
+#: ``max_body_bytes`` (:class:`dimacq.api.guards.BodyLimitMiddleware`).
+UPLOAD_PATHS = frozenset({"/api/setups/import", "/api/frfs/import"})
 
 RAW_BODY: dict[str, Any] = {
     "requestBody": {
@@ -31,16 +33,15 @@ def found(value: T | None, what: str) -> T:
 
 
 async def read_upload(request: Request) -> bytes:
+    """The body of an upload (a path in :data:`UPLOAD_PATHS`); 422 if empty."""
+    if request.url.path not in UPLOAD_PATHS:
+        raise RuntimeError(f"{request.url.path}: add the upload path to UPLOAD_PATHS")
     data = await request.body()
     if not data:
         raise HTTPException(
             status_code=422, detail="body: send the file content as the request body"
         )
-    if len(data) > MAX_UPLOAD_BYTES:
-        raise HTTPException(
-            status_code=413, detail=f"body: file larger than {MAX_UPLOAD_BYTES} bytes"
-        )
-    return data
+    return data  # its size is limited before it is read (max_upload_bytes)
 
 
 # -- strict JSON bodies -------------------------------------------------------------------------

@@ -7,7 +7,7 @@ from typing import Annotated, Any
 
 from fastapi import APIRouter, status
 
-from dimacq.api.deps import LabDep
+from dimacq.api.deps import IdPath, LabDep
 from dimacq.api.routers._common import body_openapi, found, strict_body
 from dimacq.api.schemas import AcquisitionRequest
 
@@ -33,13 +33,13 @@ def list_acquisitions(lab: LabDep) -> list[dict[str, Any]]:
 
 
 @router.get("/{acq_id:int}", response_model=dict[str, Any])
-def get_acquisition(acq_id: int, lab: LabDep) -> dict[str, Any]:
+def get_acquisition(acq_id: IdPath, lab: LabDep) -> dict[str, Any]:
     """State, progress and the averages accepted and rejected so far."""
     return asdict(found(lab.acquisitions.get(acq_id), f"acquisition {acq_id}"))
 
 
 @router.post("/{acq_id:int}/stop", response_model=dict[str, Any])
-def stop_acquisition(acq_id: int, lab: LabDep) -> dict[str, Any]:
+def stop_acquisition(acq_id: IdPath, lab: LabDep) -> dict[str, Any]:
     return asdict(found(lab.acquisitions.stop(acq_id), f"acquisition {acq_id}"))
 
 

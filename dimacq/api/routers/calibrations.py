@@ -9,7 +9,7 @@ from typing import Any
 from fastapi import APIRouter, Request, status
 from starlette.concurrency import run_in_threadpool
 
-from dimacq.api.deps import LabDep
+from dimacq.api.deps import IdPath, LabDep
 from dimacq.api.routers._common import found
 from dimacq.errors import DataError
 
@@ -46,5 +46,5 @@ def list_calibrations(lab: LabDep) -> list[dict[str, Any]]:
 
 
 @router.get("/{cal_id:int}", response_model=dict[str, Any])
-def get_calibration(cal_id: int, lab: LabDep) -> dict[str, Any]:
+def get_calibration(cal_id: IdPath, lab: LabDep) -> dict[str, Any]:
     return asdict(found(lab.calibrations.get(cal_id), f"calibration {cal_id}"))

@@ -6,7 +6,7 @@ from __future__ import annotations
 from dataclasses import asdict
 from typing import Annotated, Any
 
-from fastapi import APIRouter, status
+from fastapi import APIRouter, HTTPException, status
 
 from dimacq.api.deps import LabDep
 from dimacq.api.routers._common import body_openapi, strict_body
@@ -35,10 +35,24 @@ def fire_shots(
     return lab.geometry.fire_shots(body.n).to_json()
 
 
+@router.post("/speed-of-sound", response_model=dict[str, float])
+def measure_speed_of_sound(lab: LabDep) -> dict[str, float]:
+    """Fire three shots and report the speed of sound measured on the calibration bar (it fires
+    the digitizer: a POST with the token; ``GET`` returns the last measured value)."""
+    return {"speed_of_sound_m_s": lab.geometry.measure_speed_of_sound()}
+
+
 @router.get("/speed-of-sound", response_model=dict[str, float])
 def speed_of_sound(lab: LabDep) -> dict[str, float]:
-    """Fire three shots and report the speed of sound measured on the calibration bar."""
-    return {"speed_of_sound_m_s": lab.geometry.fire_shots(3).speed_of_sound_m_s}
+    """The speed of sound measured last (``POST`` measures it), without firing: 404 if none
+    was measured since the service started."""
+    v = lab.geometry.last_speed_of_sound()
+    if v is None:
+        raise HTTPException(
+            status_code=404,
+            detail="speed of sound: not measured yet; POST /api/digitizer/speed-of-sound",
+        )
+    return {"speed_of_sound_m_s": v}
 
 
 @router.post(

@@ -3,14 +3,14 @@
 from __future__ import annotations
 
 from dataclasses import asdict
-from typing import Any
+from typing import Annotated, Any
 
 from fastapi import APIRouter, Query, Request, Response, status
 from starlette.concurrency import run_in_threadpool
 
-from dimacq.api.deps import LabDep
+from dimacq.api.deps import IdPath, LabDep
 from dimacq.api.routers._common import RAW_BODY, found, read_upload
-from dimacq.api.schemas import FrfOut
+from dimacq.api.schemas import MAX_ID, FrfOut
 from dimacq.services.lab.store import FrfSummary
 
 router = APIRouter(prefix="/api/frfs", tags=["frfs"])
@@ -22,13 +22,13 @@ def list_frfs(lab: LabDep) -> list[FrfSummary]:
 
 
 @router.get("/{frf_id:int}", response_model=FrfOut)
-def get_frf(frf_id: int, lab: LabDep) -> FrfSummary:
+def get_frf(frf_id: IdPath, lab: LabDep) -> FrfSummary:
     return found(lab.store.frf_summary(frf_id), f"FRF set {frf_id}")
 
 
 @router.get("/{frf_id:int}/data", response_model=dict[str, Any])
 def frf_data(
-    frf_id: int,
+    frf_id: IdPath,
     lab: LabDep,
     output: int | None = Query(default=None, ge=0),
     input: int | None = Query(default=None, ge=0),
@@ -42,7 +42,7 @@ def frf_data(
     response_class=Response,
     responses={200: {"content": {"application/octet-stream": {}}}},
 )
-def export_uff(frf_id: int, lab: LabDep, whole_test: bool = True) -> Response:
+def export_uff(frf_id: IdPath, lab: LabDep, whole_test: bool = True) -> Response:
     """The FRFs as UFF 58 (with geometry 164/2420/2411 when ``whole_test``)."""
     data = found(lab.store.export_frf_uff(frf_id, whole_test), f"FRF set {frf_id}")
     return Response(content=data, media_type="application/octet-stream")
@@ -52,7 +52,7 @@ def export_uff(frf_id: int, lab: LabDep, whole_test: bool = True) -> Response:
     "/import", response_model=FrfOut, status_code=status.HTTP_201_CREATED, openapi_extra=RAW_BODY
 )
 async def import_uff(
-    request: Request, lab: LabDep, setup_id: int = Query(ge=1), name: str = ""
+    request: Request, lab: LabDep, setup_id: Annotated[int, Query(ge=1, le=MAX_ID)], name: str = ""
 ) -> FrfSummary:
     """Send a UFF file (58 records) whose channels match the setup."""
     data = await read_upload(request)

@@ -7,7 +7,7 @@ from typing import Annotated, Any
 
 from fastapi import APIRouter, status
 
-from dimacq.api.deps import LabDep
+from dimacq.api.deps import IdPath, LabDep
 from dimacq.api.routers._common import body_openapi, found, strict_body
 from dimacq.api.schemas import SensitivityRequest
 
@@ -27,5 +27,5 @@ def start(
 
 
 @router.get("/{study_id:int}", response_model=dict[str, Any])
-def get(study_id: int, lab: LabDep) -> dict[str, Any]:
+def get(study_id: IdPath, lab: LabDep) -> dict[str, Any]:
     return asdict(found(lab.studies.sensitivity(study_id), f"sensitivity study {study_id}"))

@@ -7,7 +7,7 @@ from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, Request, Response, status
 
-from dimacq.api.deps import LabDep
+from dimacq.api.deps import IdPath, LabDep
 from dimacq.api.routers._common import RAW_BODY, body_openapi, found, read_upload, strict_body
 from dimacq.api.schemas import FromGeometryRequest, ImportOut, SetupOut
 from dimacq.model.setup import TestSetup
@@ -33,7 +33,7 @@ def list_setups(lab: LabDep) -> list[SetupSummary]:
 
 
 @router.get("/{setup_id:int}", response_model=SetupOut)
-def get_setup(setup_id: int, lab: LabDep) -> SetupSummary:
+def get_setup(setup_id: IdPath, lab: LabDep) -> SetupSummary:
     return found(lab.store.setup_summary(setup_id), f"setup {setup_id}")
 
 
@@ -42,7 +42,9 @@ def get_setup(setup_id: int, lab: LabDep) -> SetupSummary:
     response_class=Response,
     responses={200: {"content": {"application/json": {}, "application/toml": {}}}},
 )
-def export_setup(setup_id: int, lab: LabDep, format: Literal["json", "toml"] = "json") -> Response:
+def export_setup(
+    setup_id: IdPath, lab: LabDep, format: Literal["json", "toml"] = "json"
+) -> Response:
     out = found(lab.store.export_setup(setup_id, format), f"setup {setup_id}")
     return Response(content=out.content, media_type=out.media_type)
 

@@ -6,7 +6,7 @@ from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, Response, status
 
-from dimacq.api.deps import LabDep
+from dimacq.api.deps import IdPath, LabDep
 from dimacq.api.routers._common import body_openapi, found, strict_body
 from dimacq.api.schemas import SolutionOut, SolveRequest
 from dimacq.services.lab.solving import SolveOptions
@@ -33,12 +33,12 @@ def list_solutions(lab: LabDep) -> list[StoredSolution]:
 
 
 @router.get("/{solution_id:int}", response_model=SolutionOut)
-def get_solution(solution_id: int, lab: LabDep) -> StoredSolution:
+def get_solution(solution_id: IdPath, lab: LabDep) -> StoredSolution:
     return found(lab.store.solution(solution_id), f"solution {solution_id}")
 
 
 @router.get("/{solution_id:int}/diagnostics", response_model=list[dict[str, Any]])
-def diagnostics(solution_id: int, lab: LabDep) -> list[dict[str, Any]]:
+def diagnostics(solution_id: IdPath, lab: LabDep) -> list[dict[str, Any]]:
     sol = found(lab.store.solution(solution_id), f"solution {solution_id}")
     return list(sol.result.get("diagnostics", []))
 
@@ -48,7 +48,7 @@ def diagnostics(solution_id: int, lab: LabDep) -> list[dict[str, Any]]:
     response_class=Response,
     responses={200: {"content": {"image/png": {}, "image/svg+xml": {}}}},
 )
-def figure(solution_id: int, lab: LabDep, format: Literal["png", "svg"] = "png") -> Response:
+def figure(solution_id: IdPath, lab: LabDep, format: Literal["png", "svg"] = "png") -> Response:
     """Parameters against frequency with the band (thesis Fig. 25)."""
     data = found(lab.analysis.solution_figure(solution_id, format), f"solution {solution_id}")
     return Response(content=data, media_type="image/png" if format == "png" else "image/svg+xml")

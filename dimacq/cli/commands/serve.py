@@ -8,6 +8,7 @@ start (kept in ``<data_dir>/token`` unless ``DIMACQ_TOKEN`` is set).
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -30,12 +31,31 @@ def register(sub: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from dimacq.api import create_app
-    from dimacq.api.server import serve
+    from dimacq.api.guards import is_loopback, is_wildcard
+    from dimacq.api.server import bind_socket, serve
     from dimacq.config import load_settings
 
     settings = load_settings(host=args.host, port=args.port, data_dir=args.data_dir)
-    app = create_app(settings)
+    # the port first: nothing (token included) is printed for a service that cannot start
+    sock = bind_socket(settings.host, settings.port)
+    try:
+        app = create_app(settings)
+    except BaseException:
+        sock.close()
+        raise
     token_src = "DIMACQ_TOKEN / config" if settings.token else str(settings.data_dir / "token")
+    if not is_loopback(settings.host):
+        checked = (
+            "the Host header is not checked (set allowed_hosts to the names clients use)"
+            if is_wildcard(settings.host) and not settings.allowed_hosts
+            else "the Host header must name this service"
+        )
+        print(
+            f"warning: bound to {settings.host}, a non-loopback address: anyone on the network "
+            f"can reach the service; every /api call, reads included, needs the token; {checked}",
+            file=sys.stderr,
+            flush=True,
+        )
     print(
         f"dimacq serving http://{settings.host}:{settings.port}  (docs: /docs, spec: /openapi.json)"
     )
@@ -45,6 +65,7 @@ def run(args: argparse.Namespace) -> int:
         f"stand: {settings.stand_name}  data: {settings.data_dir}  "
         f"database: {masked_url(settings.db_url)}"
     )
-    print(f"token for state-changing calls: {app.state.token}  (from {token_src})", flush=True)
-    serve(app, settings.host, settings.port, log_level=args.log_level)
+    reads = "every call" if not is_loopback(settings.host) else "state-changing calls"
+    print(f"token for {reads}: {app.state.token}  (from {token_src})", flush=True)
+    serve(app, settings.host, settings.port, log_level=args.log_level, sock=sock)
     return 0

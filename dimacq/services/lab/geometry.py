@@ -193,6 +193,7 @@ class GeometryService:
     def __init__(self, db: Database, devices: DeviceService) -> None:
         self.db = db
         self.devices = devices
+        self._speed_of_sound_m_s: float | None = None  # the last finite one measured
 
     # ------------------------------------------------------------------ the session
     def open_session(self, driver: SerialDigitizer) -> DigitizingSession:
@@ -261,7 +262,7 @@ class GeometryService:
         sol = triangulate(
             counts, bar, sess.geometry, averaging=avg, status=status, limits=sess.limits
         )
-        return Shots(
+        shots = Shots(
             shots=[
                 Shot(
                     seq=int(seq[i]),
@@ -273,6 +274,17 @@ class GeometryService:
             ],
             speed_of_sound_m_s=float(np.nanmedian(sol.speed_m_s)),
         )
+        if np.isfinite(shots.speed_of_sound_m_s):
+            self._speed_of_sound_m_s = shots.speed_of_sound_m_s
+        return shots
+
+    def measure_speed_of_sound(self, shots: int = 3) -> float:
+        """Fire ``shots`` shots: the median speed of sound on the calibration bar, m/s."""
+        return self.fire_shots(shots).speed_of_sound_m_s
+
+    def last_speed_of_sound(self) -> float | None:
+        """The speed of sound measured last (by any firing), m/s; None before the first."""
+        return self._speed_of_sound_m_s
 
     def points(self) -> list[StoredPoint]:
         with self.db.session() as s:

@@ -10,6 +10,7 @@ unit, band and orientation repair), so its figure shows the solution that was st
 from __future__ import annotations
 
 import io
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, Literal
@@ -27,6 +28,16 @@ from dimacq.services.lab.store import StoredSolution, TestStore
 __all__ = ["AnalysisService", "Param", "SolutionSpectrum", "SolveOptions"]
 
 Param = Literal["m", "cx", "cy", "cz", "Ixx", "Ixy", "Ixz", "Iyy", "Iyz", "Izz"]
+
+_KNOWN_UNIT = {"m": "kg", "cx": "m", "cy": "m", "cz": "m"} | dict.fromkeys(
+    ("Ixx", "Ixy", "Ixz", "Iyy", "Iyz", "Izz"), "kg m²"
+)
+#: Largest magnitude of a known value (SI): far beyond any structure a lab weighs (10⁹ kg,
+#: 10⁶ m, 10¹⁵ kg m²), and small enough that the solver's products stay finite in float64.
+KNOWN_LIMIT = {"m": 1e9, "cx": 1e6, "cy": 1e6, "cz": 1e6} | dict.fromkeys(
+    ("Ixx", "Ixy", "Ixz", "Iyy", "Iyz", "Izz"), 1e15
+)
+_POSITIVE = frozenset({"m", "Ixx", "Iyy", "Izz"})
 
 
 class SolveOptions(BaseModel):
@@ -65,8 +76,26 @@ class SolveOptions(BaseModel):
     @field_validator("band_hz")
     @classmethod
     def _band_ascending(cls, v: tuple[float, float] | None) -> tuple[float, float] | None:
-        if v is not None and not v[0] < v[1]:
-            raise ValueError(f"band_hz {list(v)}: give [low, high] with low < high, in Hz")
+        if v is not None and not (0 <= v[0] < v[1] and math.isfinite(v[1])):
+            raise ValueError(
+                f"band_hz {list(v)}: give [low, high] with 0 ≤ low < high, finite, in Hz"
+            )
+        return v
+
+    @field_validator("known")
+    @classmethod
+    def _known_physical(cls, v: dict[str, float]) -> dict[str, float]:
+        for k, x in v.items():
+            if not math.isfinite(x) or abs(x) > KNOWN_LIMIT[k]:
+                raise ValueError(
+                    f"known {k} = {x}: give a finite value within ±{KNOWN_LIMIT[k]:g} "
+                    f"({_KNOWN_UNIT[k]})"
+                )
+            if k in _POSITIVE and not x > 0:
+                raise ValueError(
+                    f"known {k} = {x}: a {'mass' if k == 'm' else 'moment of inertia'} must be "
+                    f"> 0 ({_KNOWN_UNIT[k]})"
+                )
         return v
 
 
