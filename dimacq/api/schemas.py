@@ -7,7 +7,7 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, FiniteFloat, field_validator
 
 from dimacq.model.impact import ImpactOverrides
-from dimacq.model.setup import KnownProperties, LoadCell
+from dimacq.model.setup import KnownProperties, LoadCell, NodeNumber
 from dimacq.services.lab.solving import SolveOptions
 from dimacq.services.lab.studies import CubeStudyParams
 
@@ -36,7 +36,7 @@ MAX_ID = 2**31 - 1
 #: A stored item's id in a request body (1..MAX_ID; out of range → 422 naming the field). Path
 #: ids use :data:`dimacq.api.deps.IdPath` (out of range → 404).
 DbId = Annotated[int, Field(ge=1, le=MAX_ID)]
-#: A node number or patch index in a request body (0..MAX_ID).
+#: A patch index in a request body (0..MAX_ID); node numbers are :data:`NodeNumber`.
 Number = Annotated[int, Field(ge=0, le=MAX_ID)]
 FiniteVec3 = tuple[FiniteFloat, FiniteFloat, FiniteFloat]
 
@@ -97,13 +97,13 @@ class RegistrationRequest(_Body):
 
 
 class OrientationRequest(_Body):
-    node: Number
+    node: NodeNumber
     prefix: str | None = Field(default=None, max_length=100)
     method: Literal["rigid", "affine", "cross"] = "rigid"
 
 
 class LineOfActionRequest(_Body):
-    node: Number
+    node: NodeNumber
     input_label: str = Field(min_length=1, max_length=200)
     labels: list[str] = Field(min_length=2)
     method: Literal["svd", "eq13"] = "svd"
@@ -113,8 +113,8 @@ class FromGeometryRequest(_Body):
     name: str = ""
     reference_point_m: Vec3 = (0.0, 0.0, 0.0)
     length_unit: Literal["m", "cm", "mm"] = "m"
-    triaxes: list[Number] | None = None
-    inputs: list[Number] | None = None
+    triaxes: list[NodeNumber] | None = None
+    inputs: list[NodeNumber] | None = None
     load_cells: list[LoadCell] = Field(default_factory=list)
     known: KnownProperties = KnownProperties()
 

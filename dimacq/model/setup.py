@@ -20,7 +20,7 @@ Conventions
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Annotated, Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -33,6 +33,7 @@ __all__ = [
     "GeometryUncertainty",
     "KnownProperties",
     "LoadCell",
+    "NodeNumber",
     "ResponseChannel",
     "TestSetup",
     "TransducerUncertainty",
@@ -41,6 +42,8 @@ __all__ = [
 ]
 
 Vec3 = tuple[float, float, float]
+#: A node number: a UFF node label (I10 field, positive), 1..2³¹−1.
+NodeNumber = Annotated[int, Field(ge=1, le=2**31 - 1)]
 
 #: Metres per unit for the length units the solver can work in.
 LENGTH_UNITS: dict[str, float] = {"m": 1.0, "cm": 0.01, "mm": 0.001}
@@ -91,7 +94,7 @@ class ResponseChannel(_Model):
         Free text, e.g. ``"1103+Y"``.
     """
 
-    node: int
+    node: NodeNumber
     direction: int = Field(ge=-3, le=3)
     position_m: Vec3
     direction_gcs: Vec3
@@ -132,7 +135,7 @@ class Excitation(_Model):
         Unit line of action in the GCS (the direction of a positive force on the structure).
     """
 
-    node: int
+    node: NodeNumber
     direction: int = Field(default=1, ge=-3, le=3)
     position_m: Vec3
     direction_gcs: Vec3 | None = None
@@ -168,7 +171,7 @@ class LoadCell(_Model):
         structure exerts on the support (negated by dimacq).
     """
 
-    node: int
+    node: NodeNumber
     position_m: Vec3
     rotation: tuple[Vec3, Vec3, Vec3] = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
     sign: Literal["on_structure", "on_support"] = "on_structure"
