@@ -157,7 +157,9 @@ class TokenMiddleware:
 
 
 #: Temporary directories the server spools uploads to (never shown to a client).
-_TEMP_PATH = re.compile(re.escape(tempfile.gettempdir().rstrip("/")) + r"/[^\s:;,'\")]*")
+_TEMP_PATH = re.compile(
+    r"(?<![\w/.~-])" + re.escape(tempfile.gettempdir().rstrip("/")) + r"/[^\s:;,'\")]*"
+)
 
 
 def _public(text: str) -> str:

@@ -322,3 +322,12 @@ def test_errors_do_not_show_server_temp_paths(api: Api) -> None:
         detail = r.json()["detail"]
         assert tmp not in detail and "dimacq-uff-" not in detail, detail
         assert "upload" in detail.lower(), detail
+
+
+def test_temp_paths_are_scrubbed_from_any_error_text() -> None:
+    from dimacq.api.app import _public
+
+    tmp = tempfile.gettempdir()
+    text = _public(f"{tmp}/dimacq-uff-x1/upload.uff: bad record; see ({tmp}/a/b)")
+    assert tmp not in text and text.startswith("<upload>: bad record")
+    assert _public("/home/lab/tmp/setup.toml: fine") == "/home/lab/tmp/setup.toml: fine"
