@@ -38,6 +38,7 @@ __all__ = ["LoadCellAmplifierSim", "LoadCellFaults"]
 log = logging.getLogger(__name__)
 
 _CHUNK = 256
+_MAX_LAG = 8 * _CHUNK
 
 
 @dataclass
@@ -67,6 +68,9 @@ class LoadCellAmplifierSim:
         What the amplifier holds in its memory at power-on (default zeros).
     oscillator_ppm : float
         Error of the amplifier's own oscillator (heartbeat time base).
+    time_scale : float
+        Simulation only: the internal clock runs this many times faster than the host's wall
+        clock (a dead-weight calibration's minutes of settling in seconds). SYNC is unaffected.
     faults : LoadCellFaults, optional
     """
 
@@ -81,8 +85,12 @@ class LoadCellAmplifierSim:
         serial_number: int = 501,
         calibration_matrix: Any = None,
         oscillator_ppm: float = 0.0,
+        time_scale: float = 1.0,
         faults: LoadCellFaults | None = None,
     ) -> None:
+        if time_scale <= 0:
+            raise ValueError(f"time_scale {time_scale}: give a positive factor")
+        self.time_scale = float(time_scale)
         if len(gauge_channels) != p.N_GAUGES:
             raise ValueError(f"give {p.N_GAUGES} gauge channels, got {len(gauge_channels)}")
         self.source = source
@@ -253,7 +261,13 @@ class LoadCellAmplifierSim:
     def _available_pulses(self) -> int:
         """SYNC pulses seen since START (or internal clock ticks)."""
         if not self._external:
-            return int((time.monotonic() - self._t0) * self.rate_hz)
+            ticks = int((time.monotonic() - self._t0) * self.rate_hz * self.time_scale)
+            if ticks > self._pulses + _MAX_LAG:
+                # The simulator thread fell behind its own (scaled) clock: the oscillator slips
+                # rather than queueing a backlog no real amplifier would have.
+                self._t0 += (ticks - self._pulses - _MAX_LAG) / (self.rate_hz * self.time_scale)
+                ticks = self._pulses + _MAX_LAG
+            return ticks
         assert self.clock is not None
         st = self.clock.state()
         if st.run != self._base_run:

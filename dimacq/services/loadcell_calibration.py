@@ -1,0 +1,299 @@
+"""Bench calibration of a 6-DOF load cell: the static (dead-weight) session and its simulation.
+
+:func:`run_static_calibration` drives one load cell amplifier (the :class:`~dimacq.devices.
+loadcell.LoadCell` protocol: real over CAN, or the simulator over python-can ``virtual``) through
+a :class:`~dimacq.pipeline.loadcell_calibration.LoadPlan`:
+
+1. the plan is checked first (:func:`~dimacq.pipeline.loadcell_calibration.check_load_plan`):
+   nobody lifts a weight for a plan that cannot determine the matrix;
+2. the amplifier runs on its own clock at a low rate (``sample_rate_hz``; no DAQ is needed);
+   every series is tared by its own zero readings;
+3. for every load case the operator is asked (``operator(case, sample)``: a person through the
+   progress prompt, or the virtual operator on the simulated bench), the reading is left to settle
+   for ``settle_s`` (the hanger swing), then averaged over windows of ``average_s`` until a window
+   no longer creeps (:func:`~dimacq.pipeline.loadcell_calibration.settled_mean`), at most
+   ``max_wait_s``; only the current window is held in memory;
+4. readings are zero-corrected per series (tare and linear zero drift) and the matrix and the
+   certificate figures are computed (:func:`~dimacq.pipeline.loadcell_calibration.
+   static_certificate`).
+
+:func:`simulated_static_calibration` runs it on the simulated dead-weight bench
+(:class:`~dimacq.simulators.loadcell.bench.DeadWeightBench`) behind the amplifier simulator.
+"""
+
+from __future__ import annotations
+
+import itertools
+import logging
+import os
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+
+from dimacq.devices.loadcell import LoadCell
+from dimacq.errors import DataError, SetupError
+from dimacq.pipeline.loadcell_calibration import (
+    LoadCase,
+    LoadPlan,
+    StaticCertificate,
+    check_load_plan,
+    series_zero_corrected,
+    settled_mean,
+    static_certificate,
+)
+
+__all__ = [
+    "StaticRun",
+    "StaticSettings",
+    "run_static_calibration",
+    "simulated_static_calibration",
+]
+
+log = logging.getLogger(__name__)
+
+FloatArray = NDArray[np.float64]
+
+#: ``operator(case, sample)``: set up ``case`` (the prompt is ``case.prompt()``); ``sample`` is
+#: the last sample read. Returns the sample at which the load was in place, or None (then the
+#: wall-clock time the operator took counts from ``sample`` on).
+Operator = Callable[[LoadCase, int], int | None]
+#: ``progress(done, total, message)``
+ProgressFn = Callable[[int, int, str], None]
+
+_buses = itertools.count()
+
+
+class BenchLoadCell(LoadCell, Protocol):
+    """What a bench calibration needs of an amplifier beyond an acquisition's
+    :class:`~dimacq.devices.loadcell.LoadCell`: its counter now (GET_STATUS), and storing and
+    reading back a matrix (:class:`dimacq.drivers.loadcell.driver.LoadCellAmplifier`)."""
+
+    def get_status(self) -> tuple[int, int, int]: ...
+
+    def download_calibration(self, matrix: Any) -> None: ...
+
+    def upload_calibration(self) -> NDArray[np.float64]: ...
+
+
+@dataclass(frozen=True)
+class StaticSettings:
+    """Timing of a dead-weight calibration.
+
+    Attributes
+    ----------
+    sample_rate_hz : int
+        Amplifier rate on its internal clock, S/s.
+    settle_s : float
+        Wait after the operator has placed a load (the hanger swing dies down).
+    average_s : float
+        Length of one averaging window.
+    max_wait_s : float
+        Give up waiting for creep to stop after this long (the reading is flagged).
+    creep_tolerance : float
+        Drift allowed over a window, as a fraction of the reading's change from the zero.
+    read_timeout_s : float
+        Extra time allowed for samples to arrive beyond their duration.
+    """
+
+    sample_rate_hz: int = 20
+    settle_s: float = 20.0
+    average_s: float = 5.0
+    max_wait_s: float = 120.0
+    creep_tolerance: float = 2e-5
+    read_timeout_s: float = 10.0
+
+    def __post_init__(self) -> None:
+        if self.sample_rate_hz < 1 or self.average_s * self.sample_rate_hz < 8:
+            raise SetupError(
+                f"sample_rate_hz {self.sample_rate_hz} × average_s {self.average_s}: give at "
+                "least 8 samples per window"
+            )
+        if self.settle_s < 0 or self.max_wait_s < self.average_s:
+            raise SetupError("settle_s ≥ 0 and max_wait_s ≥ average_s are required")
+
+
+@dataclass(frozen=True, eq=False)
+class StaticRun:
+    """A dead-weight calibration: the raw settled readings and the certificate.
+
+    Attributes
+    ----------
+    plan : LoadPlan
+    readings : ndarray, shape (n_cases, 12)
+        Settled means (gauge units: mV/V for bridges), before zero correction.
+    times_s : ndarray, shape (n_cases,)
+        Centre of each averaging window on the amplifier's clock.
+    unsettled : ndarray of bool, shape (n_cases,)
+    waited_s : ndarray, shape (n_cases,)
+        From the load being in place to the end of its window.
+    certificate : StaticCertificate
+    """
+
+    plan: LoadPlan
+    readings: FloatArray
+    times_s: FloatArray
+    unsettled: NDArray[np.bool_]
+    waited_s: FloatArray
+    certificate: StaticCertificate
+
+    @property
+    def matrix(self) -> FloatArray:
+        return self.certificate.fit.matrix
+
+
+def run_static_calibration(
+    loadcell: BenchLoadCell,
+    plan: LoadPlan,
+    operator: Operator,
+    *,
+    settings: StaticSettings | None = None,
+    progress: ProgressFn | None = None,
+) -> StaticRun:
+    """Calibrate ``loadcell`` with dead weights (see the module docstring).
+
+    Raises
+    ------
+    SetupError
+        The plan does not determine the matrix (before any load is asked for).
+    DataError
+        Readings with lost frames that cannot be averaged.
+    """
+    st = settings or StaticSettings()
+    check_load_plan(plan)
+    fs = st.sample_rate_hz
+    n_settle = round(st.settle_s * fs)
+    n_avg = round(st.average_s * fs)
+    n_max = round(st.max_wait_s * fs)
+    timeout = st.average_s + st.read_timeout_s
+    n_cases = len(plan.cases)
+    readings = np.zeros((n_cases, 12))
+    times = np.zeros(n_cases)
+    waited = np.zeros(n_cases)
+    unsettled = np.zeros(n_cases, dtype=bool)
+    zero_of_series: dict[int, FloatArray] = {}
+    loadcell.set_rate(fs)
+    loadcell.start(external_clock=False)
+    cursor = 0
+    try:
+        for i, case in enumerate(plan.cases):
+            msg = case.prompt()
+            if progress is not None:
+                progress(i, n_cases, msg)
+            log.info("load case %d/%d: %s", i + 1, n_cases, msg)
+            t_ask = time.monotonic()
+            at = operator(case, cursor)
+            t0 = (
+                max(cursor, int(at))
+                if at is not None
+                else cursor + round((time.monotonic() - t_ask) * fs)
+            )
+            if t0 + n_settle > cursor:
+                loadcell.read_until(t0 + n_settle, timeout_s=st.settle_s + timeout)
+                cursor = t0 + n_settle
+            zero = zero_of_series.get(case.series)
+            while True:
+                block = loadcell.read_until(cursor + n_avg, timeout_s=timeout)
+                cursor += n_avg
+                g = block.gauges_v
+                if not block.valid.all():
+                    continue  # frames lost: take the next window
+                step = np.zeros(12) if zero is None else g.mean(axis=1) - zero
+                sr = settled_mean(g, step, tolerance=st.creep_tolerance)
+                if sr.settled or cursor - t0 >= n_max:
+                    break
+            readings[i] = sr.mean
+            times[i] = (cursor - n_avg / 2) / fs
+            waited[i] = (cursor - t0) / fs
+            unsettled[i] = not sr.settled
+            if case.phase == "zero" and zero is None:
+                zero_of_series[case.series] = sr.mean
+            if unsettled[i]:
+                log.warning("load case %d still creeping after %.0f s", i + 1, waited[i])
+        if progress is not None:
+            progress(n_cases, n_cases, "all load cases read; fitting the matrix")
+    finally:
+        try:
+            loadcell.stop()
+        except Exception:  # keep the original error
+            log.exception("stopping the load cell amplifier failed")
+    corrected = series_zero_corrected(readings, times, plan)
+    cert = static_certificate(corrected, plan, unsettled=unsettled)
+    return StaticRun(plan, readings, times, unsettled, waited, cert)
+
+
+# ---------------------------------------------------------------------------------------------
+# The simulated dead-weight bench
+# ---------------------------------------------------------------------------------------------
+@dataclass(frozen=True, eq=False)
+class SimulatedStaticRun:
+    """A static calibration on the simulated bench with the simulator's truth beside it.
+
+    Attributes
+    ----------
+    run : StaticRun
+    true_matrix : ndarray (6, 12)
+        ``S⁺`` of the simulated cell.
+    matrix_error_rel : float
+        ``‖C − S⁺‖_F / ‖S⁺‖_F``.
+    cell : StrainGaugeCell
+        The simulated cell (same for the inertial calibration and the circular check).
+    """
+
+    run: StaticRun
+    true_matrix: FloatArray
+    matrix_error_rel: float
+    cell: Any
+    wall_s: float
+
+
+def simulated_static_calibration(
+    *,
+    seed: int = 0,
+    node: int = 501,
+    minimal_plan: bool = False,
+    settings: StaticSettings | None = None,
+    time_scale: float = 200.0,
+    progress: ProgressFn | None = None,
+    cell: Any = None,
+) -> SimulatedStaticRun:
+    """Dead-weight calibration of the virtual lab's strain-gauge cell ``node`` (seed ``seed``):
+    the bench behind the CAN amplifier simulator, the real driver, the virtual operator."""
+    import can
+
+    from dimacq.drivers.loadcell.driver import LoadCellAmplifier
+    from dimacq.pipeline.loadcell_calibration import standard_load_plan
+    from dimacq.simulators.lab.bridge import strain_gauge_cell
+    from dimacq.simulators.loadcell.amplifier import LoadCellAmplifierSim
+    from dimacq.simulators.loadcell.bench import DeadWeightBench
+
+    st = settings or StaticSettings()
+    if cell is None:
+        cell = strain_gauge_cell(node, temperature_ramp_k_per_s=2e-4)
+    plan = standard_load_plan(cell.rated_load, minimal=minimal_plan)
+    bench = DeadWeightBench(cell, node=node, sample_rate_hz=st.sample_rate_hz, seed=seed)
+    name = f"dimacq-static-{os.getpid()}-{next(_buses)}"
+
+    def operator(case: LoadCase, sample: int) -> int:
+        return bench.place(case.mass_kg, np.array(case.position_m), np.array(case.gravity), sample)
+
+    t_wall = time.monotonic()
+    with LoadCellAmplifierSim(
+        name, bench, list(range(12)), serial_number=node, time_scale=time_scale
+    ) as sim:
+        sim.rate_hz = float(st.sample_rate_hz)
+        bus = can.Bus(interface="virtual", channel=name, fd=True)
+        try:
+            amp = LoadCellAmplifier(bus, timeout_s=5.0)
+            run = run_static_calibration(amp, plan, operator, settings=st, progress=progress)
+        finally:
+            bus.shutdown()
+    S = np.asarray(cell.sensitivity_mvv, float)
+    C_true = np.linalg.pinv(S)
+    err = float(np.linalg.norm(run.matrix - C_true) / np.linalg.norm(C_true))
+    if not np.isfinite(err):
+        raise DataError("static calibration produced a non-finite matrix")
+    return SimulatedStaticRun(run, C_true, err, cell, time.monotonic() - t_wall)
