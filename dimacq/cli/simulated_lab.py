@@ -114,8 +114,8 @@ DIM_BAND_HZ = (20.0, 400.0)
 
 
 #: Blocks a streamed simulated test keeps cached: the DAQ and the amplifier read each block
-#: about once, the amplifier's tare a little behind (256 samples per block: 64 k samples).
-_STREAM_CACHE_BLOCKS = 256
+#: about once, the amplifier's tare a little behind (256 samples per block: 16 k samples).
+_STREAM_CACHE_BLOCKS = 64
 
 
 def default_noise() -> LabNoise:

@@ -341,7 +341,9 @@ class ImpactSession:
         records: list[list[dict[str, NDArray[np.float64]]]] = [[] for _ in range(n_in)]
         # Streamed: an input's FRF is estimated as soon as its averages are in, and its records
         # are dropped (memory: one input's records, not the whole test's).
-        frfs: list[tuple[NDArray[np.float64], NDArray[np.complex128], NDArray[np.float64]]] = []
+        H_all: NDArray[np.complex128] | None = None
+        coh_all: NDArray[np.float64] | None = None
+        freqs: NDArray[np.float64] | None = None
         n_accepted: list[int] = []
         history: list[AverageRecord] = []
         stopped = False
@@ -388,7 +390,14 @@ class ImpactSession:
                         )
                 n_accepted.append(len(records[j]))
                 if records[j]:
-                    frfs.append(self._frf(records[j], fs))
+                    f_j, H_j, coh_j = self._frf(records[j], fs)
+                    if H_all is None:  # filled input by input: no stacking copy at the end
+                        H_all = np.zeros((*H_j.shape, n_in), dtype=H_j.dtype)
+                        coh_all = np.zeros((*coh_j.shape, n_in))
+                        freqs = f_j
+                    assert coh_all is not None
+                    H_all[:, :, j] = H_j
+                    coh_all[:, :, j] = coh_j
                 records[j] = []
             self.daq.stop()
             tail = self.daq.read_buffered()
@@ -417,7 +426,8 @@ class ImpactSession:
                 "strikes (see the rejected reasons in the acquisition file); fix the cause and "
                 "repeat those inputs"
             )
-        return self._result(frfs, history, n_accepted)
+        assert H_all is not None and coh_all is not None and freqs is not None
+        return self._result(freqs, H_all, coh_all, history, n_accepted)
 
     def _frf(
         self, recs: list[dict[str, NDArray[np.float64]]], fs: float
@@ -440,11 +450,12 @@ class ImpactSession:
 
     def _result(
         self,
-        frfs: list[tuple[NDArray[np.float64], NDArray[np.complex128], NDArray[np.float64]]],
+        freqs: NDArray[np.float64],
+        H: NDArray[np.complex128],
+        coherence: NDArray[np.float64],
         history: list[AverageRecord],
         n_accepted: list[int],
     ) -> ImpactResult:
-        freqs = frfs[0][0]
         lc_names: list[str] = []
         for k in range(len(self.loadcells)):
             comps = (
@@ -455,8 +466,8 @@ class ImpactSession:
             lc_names += [f"loadcell{k} {c}" for c in comps]
         return ImpactResult(
             frequencies_hz=freqs,
-            H=np.stack([f[1] for f in frfs], axis=2),
-            coherence=np.stack([f[2] for f in frfs], axis=2),
+            H=H,
+            coherence=coherence,
             output_names=self.response_names + tuple(lc_names),
             input_names=self.input_names,
             averages=tuple(history),
@@ -491,7 +502,9 @@ def impact_frf(
     for lc in setup.load_cells:
         outputs += [Channel(lc.node, k) for k in range(1, 7)]
         kinds += ["reaction"] * 6
-    keep = result.frequencies_hz > 0
+    f = result.frequencies_hz
+    # the 0 Hz line leads (ascending lines): a slice keeps views, not copies, of the arrays
+    keep: slice | NDArray[np.bool_] = slice(1, None) if f.size and f[0] == 0 else f > 0
     return FrfData(
         frequencies_hz=result.frequencies_hz[keep],
         H=result.H[keep],

@@ -98,7 +98,7 @@ class StrainGaugeCell:
     temperature_ramp_k_per_s: float = 0.0
     reference_temperature_c: float = 21.0
     excitation_v: float = 10.0
-    noise_uv: float = 0.2
+    noise_uv: float = 0.05
 
     def __post_init__(self) -> None:
         S = np.asarray(self.sensitivity_mvv, float)

@@ -48,7 +48,7 @@ File layout (every table but ``[article]`` and ``[band]`` optional)::
     [loadcell]         # the 6-DOF load cells' gauges
     kind = "strain-gauge"          # strain-gauge (DC bridges, mV/V) | piezo (AC-coupled, V)
     excitation_v = 10.0            # strain-gauge: bridge excitation
-    noise_uv = 0.2                 # strain-gauge: amplifier input noise, µV rms per sample
+    noise_uv = 0.05                # strain-gauge: amplifier input noise, µV rms per sample
     nonlinearity_pct_fs = 0.05     # strain-gauge: per axis, % of rated load
     hysteresis_pct_fs = 0.03       # strain-gauge: per axis, % of rated load
 
@@ -285,7 +285,7 @@ class LoadCellSpec(_Spec):
     )
     excitation_v: float = Field(default=10.0, gt=0, le=20, description="bridge excitation, V")
     noise_uv: float = Field(
-        default=0.2, ge=0, description="amplifier input noise, µV rms per sample (≥ 0)"
+        default=0.05, ge=0, description="amplifier input noise, µV rms per sample (≥ 0)"
     )
     nonlinearity_pct_fs: float = Field(
         default=0.05, ge=0, le=5, description="nonlinearity per axis, % of rated load (0–5)"
