@@ -455,6 +455,10 @@ def standard_load_plan(
     levels: tuple[float, ...] = (0.5, 1.0),
     mass_step_kg: float = 0.5,
     minimal: bool = False,
+    points: dict[str, tuple[float, float, float]] | None = None,
+    mass_rel_uncertainty: float = 5e-5,
+    position_uncertainty_m: float = 5e-6,
+    gravity_uncertainty_rad: float = 1e-4,
 ) -> LoadPlan:
     """Series that load every axis to about its rated load, in both signs, up and down.
 
@@ -465,7 +469,10 @@ def standard_load_plan(
     and ``My = h Fx``, at ``(0, ±a, 0)`` ``Fx`` and ``Mz``; likewise for ``y``. The mass of a
     series is the largest multiple of ``mass_step_kg`` that keeps every axis within its rated
     load; each series is ``0, l₁M, …, M, …, l₁M, 0`` for ``levels = (l₁, …, 1)``.
-    ``minimal`` keeps one offset point per orientation (12 series instead of 22).
+    ``minimal`` keeps one offset point per orientation (14 series instead of 22). Points are
+    named ``centre``, ``arm ±x`` / ``arm ±y`` (at height ``h``, cell upright or turned over)
+    and ``ring ±x`` / ``ring ±y`` (in the cell's plane, cell on its side); ``points`` replaces
+    the nominal position of a named point by its digitized one (cell frame, m).
 
     Returns
     -------
@@ -479,12 +486,13 @@ def standard_load_plan(
             f"levels {levels}: give increasing fractions of the series' mass ending at 1"
         )
     a, h = float(arm_m), float(height_m)
+    points_given = dict(points or {})
     series: list[tuple[str, tuple[float, float, float], str, tuple[float, float, float]]] = []
     for ax in ("z", "x", "y"):
         k = "xyz".index(ax)
         others = [i for i in range(3) if i != k]
         centre = [0.0, 0.0, h]
-        points: list[tuple[str, list[float]]] = [("centre", centre)]
+        hangers: list[tuple[str, list[float]]] = [("centre", centre)]
         offsets = others if ax == "z" else [i for i in others if i != 2] + [2]
         for i in offsets:
             if ax != "z" and i == 2:
@@ -492,8 +500,11 @@ def standard_load_plan(
             for sgn in (1.0, -1.0) if not minimal else (1.0,):
                 pnt = [0.0, 0.0, h if ax == "z" else 0.0]
                 pnt[i] = sgn * a
-                points.append((f"arm {'+' if sgn > 0 else '-'}{'xyz'[i]}", pnt))
-        for pname, pnt in points:
+                where = "arm" if ax == "z" else "ring"
+                hangers.append((f"{where} {'+' if sgn > 0 else '-'}{'xyz'[i]}", pnt))
+        for pname, pnt in hangers:
+            if points_given and pname in points_given:
+                pnt = [float(v) for v in points_given[pname]]
             for gs in (-1.0, 1.0):
                 d = [0.0, 0.0, 0.0]
                 d[k] = gs
@@ -518,7 +529,20 @@ def standard_load_plan(
                 "zero" if mass == 0 else "loading" if k_s <= n_up else "unloading"
             )
             cases.append(LoadCase(s_i, k_s, float(mass), point, g_dir, phase, orient, pname))
-    return LoadPlan(tuple(cases), R)
+    known = {c.point for c in cases}
+    unknown = sorted(set(points_given) - known)
+    if unknown:
+        raise SetupError(
+            f"digitized points {unknown} are not hanger points of the plan; use "
+            f"{', '.join(sorted(known))}"
+        )
+    return LoadPlan(
+        tuple(cases),
+        R,
+        mass_rel_uncertainty=mass_rel_uncertainty,
+        position_uncertainty_m=position_uncertainty_m,
+        gravity_uncertainty_rad=gravity_uncertainty_rad,
+    )
 
 
 def check_load_plan(plan: LoadPlan) -> list[str]:

@@ -29,6 +29,7 @@ import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
@@ -297,3 +298,228 @@ def simulated_static_calibration(
     if not np.isfinite(err):
         raise DataError("static calibration produced a non-finite matrix")
     return SimulatedStaticRun(run, C_true, err, cell, time.monotonic() - t_wall)
+
+
+# ---------------------------------------------------------------------------------------------
+# The configured rig: open the amplifier, calibrate, keep, download
+# ---------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class DownloadCheck:
+    """A matrix downloaded to the amplifier and read back.
+
+    Attributes
+    ----------
+    verified : int
+        Elements read back equal to the downloaded float32 values (72 when all agree).
+    of : int
+        Elements sent (72).
+    max_abs_diff : float
+        Largest difference from the float32 matrix sent.
+    """
+
+    verified: int
+    of: int
+    max_abs_diff: float
+
+    @property
+    def ok(self) -> bool:
+        return self.verified == self.of
+
+
+def download_and_verify(amplifier: BenchLoadCell, matrix: FloatArray) -> DownloadCheck:
+    """Download ``matrix`` to the amplifier's memory (CRC checked by the amplifier), read it
+    back (CRC checked by the driver) and count the elements that agree with what was sent.
+
+    Raises
+    ------
+    DeviceError
+        When an element read back differs (the amplifier kept something else).
+    """
+    from dimacq.errors import DeviceError
+
+    C = np.asarray(matrix, dtype=float)
+    amplifier.download_calibration(C)
+    back = np.asarray(amplifier.upload_calibration(), dtype=float)
+    sent = C.astype("<f4").astype(float)
+    same = back == sent
+    check = DownloadCheck(int(same.sum()), int(same.size), float(np.max(np.abs(back - sent))))
+    if not check.ok:
+        raise DeviceError(
+            f"calibration read back from the amplifier differs in {check.of - check.verified} "
+            f"of {check.of} elements (largest {check.max_abs_diff:.3g}); download again"
+        )
+    return check
+
+
+@dataclass(frozen=True, eq=False)
+class RigCalibration:
+    """A static calibration of the configured rig's cell, kept and (on request) downloaded."""
+
+    node: int
+    serial_number: str
+    run: StaticRun
+    calibration: Any  # LoadCellCalibration
+    installed: Any  # InstalledCalibration
+    download: DownloadCheck | None
+
+    def to_json(self) -> dict[str, Any]:
+        cert = self.run.certificate
+        return {
+            "method": "static",
+            "load_cell_node": self.node,
+            "serial_number": self.serial_number,
+            "version": self.installed.version,
+            "calibration_file": str(self.installed.current_path),
+            "versioned_files": [str(self.installed.json_path), str(self.installed.xml_path)],
+            "nonlinearity_pct_fs": cert.nonlinearity_pct_fs.tolist(),
+            "hysteresis_pct_fs": cert.hysteresis_pct_fs.tolist(),
+            "uncertainty_pct_fs": cert.uncertainty_pct_fs.tolist(),
+            "crosstalk_pct_fs": cert.crosstalk_pct_fs.tolist(),
+            "verdict": cert.verdict,
+            "reasons": list(cert.reasons),
+            "downloaded": self.download is not None,
+            "download_verified": None if self.download is None else self.download.verified,
+            "download_elements": None if self.download is None else self.download.of,
+            "matrix": self.run.matrix.tolist(),
+        }
+
+
+def certificate_json(cert: StaticCertificate) -> dict[str, Any]:
+    """The certificate figures as stored in the calibration file."""
+    return {
+        "rated_load": cert.rated_load.tolist(),
+        "nonlinearity_pct_fs": cert.nonlinearity_pct_fs.tolist(),
+        "hysteresis_pct_fs": cert.hysteresis_pct_fs.tolist(),
+        "uncertainty_pct_fs": cert.uncertainty_pct_fs.tolist(),
+        "crosstalk_pct_fs": cert.crosstalk_pct_fs.tolist(),
+        "matrix_std": cert.matrix_std.tolist(),
+        "verdict": cert.verdict,
+        "reasons": list(cert.reasons),
+    }
+
+
+def calibrate_rig_cell(
+    settings: Any,
+    operator: Operator,
+    *,
+    node: int | None = None,
+    bench_file: str | None = None,
+    download: bool = False,
+    progress: ProgressFn | None = None,
+) -> RigCalibration:
+    """Static calibration of a load cell of the configured rig, for real.
+
+    The rig file (``settings.rig_path``) names the cell's amplifier (CAN node id, channel) and
+    its calibration file; the bench file (``bench_file`` or ``loadcell_bench.toml`` beside the
+    rig file) gives the plan, the digitized hanger points and the timing. The amplifier is opened
+    on ``loadcell_interface``/``loadcell_channel`` (a new cell needs no calibration file yet),
+    the plan is run with ``operator`` prompting, and the result — unless its verdict is
+    ``fail`` — becomes the next version of the cell's calibration file (JSON and XML kept,
+    the current file replaced: the acquisition uses it from then on) and, with ``download``, is
+    downloaded to the amplifier and read back.
+
+    Raises
+    ------
+    SetupError
+        No such load cell in the rig file, a bad bench file, a plan that cannot determine the
+        matrix.
+    DataError
+        The calibration failed its checks (nothing installed; the readings are in the message's
+        file).
+    """
+    import datetime as _dt
+    import json
+
+    from dimacq.backends.base import DeviceContext
+    from dimacq.backends.can_loadcell import open_amplifier
+    from dimacq.io.loadcell_bench import load_bench_file
+    from dimacq.io.loadcell_calibration import LoadCellCalibration, install_calibration
+
+    ctx = DeviceContext(settings)
+    rig = ctx.rig_file
+    cells = {lc.node: lc for lc in rig.load_cells}
+    if not cells:
+        raise SetupError(f"rig file {rig.path} has no [[load_cells]]; add the cell to calibrate")
+    if node is None:
+        if len(cells) > 1:
+            raise SetupError(
+                f"rig file {rig.path} has load cells {sorted(cells)}: give the node to calibrate"
+            )
+        node = next(iter(cells))
+    if node not in cells:
+        raise SetupError(f"load cell {node} is not in {rig.path}; use one of {sorted(cells)}")
+    entry = cells[node]
+    assert rig.path is not None
+    bench = load_bench_file(bench_file or rig.path.parent / "loadcell_bench.toml")
+    plan = bench.load_plan()
+    check_load_plan(plan)
+    t = bench.timing
+    st = StaticSettings(
+        sample_rate_hz=t.sample_rate_hz,
+        settle_s=t.settle_s,
+        average_s=t.average_s,
+        max_wait_s=t.max_wait_s,
+        creep_tolerance=t.creep_tolerance,
+    )
+    channel = entry.channel or settings.loadcell_channel
+    amp = open_amplifier(
+        ctx,
+        entry,
+        interface=settings.loadcell_interface,
+        channel=channel,
+        where=(
+            f"loadcell_interface = {settings.loadcell_interface!r}, channel {channel!r} "
+            "(loadcell_channel)"
+        ),
+        require_calibration=False,
+    )
+    try:
+        ident = amp.identify()
+        run = run_static_calibration(amp, plan, operator, settings=st, progress=progress)
+        cert = run.certificate
+        cal = LoadCellCalibration(
+            serial_number=str(ident.serial_number),
+            date=_dt.date.today().isoformat(),
+            matrix=run.matrix,
+            method="static",
+            gauge_unit="mV/V",
+            diagnostics={
+                "residual_rel": cert.fit.residual_rel,
+                "condition": cert.fit.condition,
+                "load_cases": len(plan.cases),
+                "unsettled_readings": int(run.unsettled.sum()),
+            },
+            certificate=certificate_json(cert),
+            notes=f"dead-weight calibration, bench file {bench_file or 'loadcell_bench.toml'}",
+        )
+        if cert.verdict == "fail":
+            keep = Path(settings.data_dir) / "calibrations"
+            keep.mkdir(parents=True, exist_ok=True)
+            raw = keep / f"failed-{ident.serial_number}-{int(time.time())}.json"
+            raw.write_text(
+                json.dumps(
+                    {
+                        "readings": run.readings.tolist(),
+                        "times_s": run.times_s.tolist(),
+                        **certificate_json(cert),
+                    }
+                )
+                + "\n",
+                encoding="utf-8",
+            )
+            raise DataError(
+                f"load cell {node}: calibration failed ({'; '.join(cert.reasons)}); nothing "
+                f"installed, the readings are in {raw}"
+            )
+        installed = install_calibration(cal, rig.calibration_path(entry))
+        check = download_and_verify(amp, run.matrix) if download else None
+    finally:
+        ctx.close()
+    log.info(
+        "load cell %d (serial %s): calibration version %d installed at %s",
+        node,
+        ident.serial_number,
+        installed.version,
+        installed.current_path,
+    )
+    return RigCalibration(node, str(ident.serial_number), run, cal, installed, check)
