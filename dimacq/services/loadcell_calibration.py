@@ -362,6 +362,15 @@ class RigCalibration:
     installed: Any  # InstalledCalibration
     download: DownloadCheck | None
 
+    def installed_document(self) -> dict[str, Any]:
+        """The calibration document as installed (with its version)."""
+        import dataclasses
+
+        doc: dict[str, Any] = dataclasses.replace(
+            self.calibration, version=self.installed.version
+        ).to_json()
+        return doc
+
     def to_json(self) -> dict[str, Any]:
         cert = self.run.certificate
         return {
@@ -523,3 +532,15 @@ def calibrate_rig_cell(
         installed.current_path,
     )
     return RigCalibration(node, str(ident.serial_number), run, cal, installed, check)
+
+
+def record_calibration(db: Any, document: dict[str, Any]) -> int:
+    """Store a calibration document (``LoadCellCalibration.to_json()``) as a database record;
+    returns its id."""
+    from dimacq.persistence import models as m
+
+    with db.session() as s:
+        row = m.Calibration(serial=str(document["serial_number"]), body=document)
+        s.add(row)
+        s.flush()
+        return int(row.id)

@@ -88,8 +88,12 @@ def test_static_calibration_of_the_configured_cell(tmp_path: Path) -> None:
     ) as sim:
         result = calibrate_rig_cell(settings, operator, download=True)
         C = result.run.matrix
+        cert = result.run.certificate
         assert np.linalg.norm(C - C_true) / np.linalg.norm(C_true) < 1e-3
-        assert result.run.certificate.verdict == "ok"
+        np.testing.assert_allclose(cert.nonlinearity_pct_fs, 100 * cell.nonlinearity, rtol=0.1)
+        np.testing.assert_allclose(cert.hysteresis_pct_fs, 100 * cell.hysteresis, rtol=0.1)
+        assert cert.verdict == "ok", cert.reasons
+        assert not result.run.unsettled.any()
         # downloaded and read back: the amplifier holds the float32 matrix, all 72 verified
         assert result.download is not None and result.download.verified == 72
         np.testing.assert_array_equal(sim.matrix, C.astype("<f4").astype(float))

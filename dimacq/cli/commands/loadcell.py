@@ -17,7 +17,16 @@ certificate: nonlinearity, hysteresis, crosstalk and uncertainty in % of the rat
 the support side of the cell at the 24 points, accelerometers and the 12 gauges come through the
 simulated USB DAQ and CAN FD amplifier, and the 6×12 matrix is solved by rank-6 least squares.
 
-Either way the circular check follows: the same mass on the same cell, struck on the mass,
+Without ``--simulated`` the configured rig is calibrated for real (``--method static``): the
+amplifier of the rig file's load cell (``--node``) on ``loadcell_interface``/``loadcell_channel``,
+the plan, digitized hanger points and timing of the bench file (``--bench``, default
+``loadcell_bench.toml`` beside the rig file); the operator is prompted on the terminal for every
+load case (Enter when the load is in place). The result becomes the next version of the cell's
+calibration file (``<stem>-vN.json`` and ``.xml`` kept, the rig file's file replaced: the
+acquisition uses it from then on) and a database record; ``--download`` stores it in the
+amplifier and reads it back (verify count).
+
+Simulated, the circular check follows: the same mass on the same cell, struck on the mass,
 acquired with the driver applying the new matrix, solved by DIM. JSON keys: ``method``,
 ``matrix_error_rel`` (relative Frobenius error against the simulated cell's true ``pinv(S)``),
 ``nonlinearity_pct_fs``, ``hysteresis_pct_fs``, ``uncertainty_pct_fs`` (six values each; the
@@ -71,6 +80,13 @@ def register(subparsers: Any) -> None:
         help="dead-weight load plan: standard (22 series) or minimal (14)",
     )
     c.add_argument("--impacts-per-input", type=int, default=5, metavar="N")
+    c.add_argument("--node", type=int, help="real rig: the load cell (node) of the rig file")
+    c.add_argument("--bench", type=Path, metavar="FILE", help="real rig: the bench file")
+    c.add_argument(
+        "--download",
+        action="store_true",
+        help="real rig: store the new matrix in the amplifier and read it back",
+    )
     c.add_argument("--seed", type=int, default=0)
     c.add_argument("--json", type=Path, metavar="OUT", help="write the figures as JSON")
     c.add_argument(
@@ -84,9 +100,7 @@ def register(subparsers: Any) -> None:
 
 def calibrate(args: argparse.Namespace) -> int:
     if not args.simulated:
-        raise SetupError(
-            "only the virtual bench is wired into the command line in this build: add --simulated"
-        )
+        return _calibrate_rig(args)
     if args.impacts_per_input < 1:
         raise SetupError(f"--impacts-per-input {args.impacts_per_input}: give at least 1")
     from dimacq.cli.simulated_lab import simulated_inertial_calibration
@@ -179,3 +193,64 @@ def _write_matrix(path: Path | None, xml: Path | None, run: Any) -> None:
         if p is not None:
             p.parent.mkdir(parents=True, exist_ok=True)
             write(cal, p)
+
+
+def _calibrate_rig(args: argparse.Namespace) -> int:
+    """The configured rig, for real: the operator answers on the terminal."""
+    from dimacq.config import load_settings
+    from dimacq.persistence import open_database
+    from dimacq.pipeline.loadcell_calibration import LoadCase
+    from dimacq.services.loadcell_calibration import calibrate_rig_cell, record_calibration
+
+    if args.method != "static":
+        raise SetupError(
+            "--method inertial on the real rig is not in this build (it needs the calibration "
+            "mass test through the DAQ); calibrate with --method static, or --simulated"
+        )
+    settings = load_settings()
+
+    def operator(case: LoadCase, _sample: int) -> None:
+        sys.stderr.write(f"\n{case.prompt()}\n  press Enter when the load is in place: ")
+        sys.stderr.flush()
+        sys.stdin.readline()
+
+    def progress(done: int, total: int, message: str) -> None:
+        sys.stderr.write(f"[{done:3d}/{total}] {message}\n")
+
+    res = calibrate_rig_cell(
+        settings,
+        operator,
+        node=args.node,
+        bench_file=None if args.bench is None else str(args.bench),
+        download=args.download,
+        progress=progress,
+    )
+    db = open_database(settings.db_url)
+    try:
+        rec = record_calibration(db, res.installed_document())
+    finally:
+        db.close()
+    payload = {**res.to_json(), "record_id": rec}
+    cert = res.run.certificate
+    out = sys.stdout
+    out.write(
+        f"load cell {res.node} (serial {res.serial_number}): static calibration version "
+        f"{res.installed.version} in {res.installed.current_path} (record {rec})\n"
+    )
+    out.write("  axis        Fx       Fy       Fz       Mx       My       Mz   (% of rated)\n")
+    for label, v in (
+        ("nonlinearity", cert.nonlinearity_pct_fs),
+        ("hysteresis", cert.hysteresis_pct_fs),
+        ("uncert. k=2", cert.uncertainty_pct_fs),
+    ):
+        out.write(f"  {label:<12}" + "".join(f"{x:9.4f}" for x in v) + "\n")
+    out.write(f"  verdict {cert.verdict}" + "".join(f"; {r}" for r in cert.reasons) + "\n")
+    if res.download is not None:
+        out.write(
+            f"  downloaded to the amplifier: {res.download.verified}/{res.download.of} "
+            "elements verified on read-back\n"
+        )
+    if args.json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(payload, indent=2) + "\n", encoding="utf-8")
+    return 0
