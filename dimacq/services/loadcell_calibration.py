@@ -59,8 +59,8 @@ log = logging.getLogger(__name__)
 FloatArray = NDArray[np.float64]
 
 #: ``operator(case, sample)``: set up ``case`` (the prompt is ``case.prompt()``); ``sample`` is
-#: the last sample read. Returns the sample at which the load was in place, or None (then the
-#: wall-clock time the operator took counts from ``sample`` on).
+#: the last sample read. Returns the sample at which the load was in place, or None when a
+#: person confirms (then the amplifier's counter at that moment, GET_STATUS, is taken).
 Operator = Callable[[LoadCase, int], int | None]
 #: ``progress(done, total, message)``
 ProgressFn = Callable[[int, int, str], None]
@@ -185,13 +185,10 @@ def run_static_calibration(
             if progress is not None:
                 progress(i, n_cases, msg)
             log.info("load case %d/%d: %s", i + 1, n_cases, msg)
-            t_ask = time.monotonic()
             at = operator(case, cursor)
-            t0 = (
-                max(cursor, int(at))
-                if at is not None
-                else cursor + round((time.monotonic() - t_ask) * fs)
-            )
+            if at is None:  # a person confirmed: settling counts from the amplifier's "now"
+                at = loadcell.get_status()[2]
+            t0 = max(cursor, int(at))
             if t0 + n_settle > cursor:
                 loadcell.read_until(t0 + n_settle, timeout_s=st.settle_s + timeout)
                 cursor = t0 + n_settle
@@ -544,3 +541,165 @@ def record_calibration(db: Any, document: dict[str, Any]) -> int:
         s.add(row)
         s.flush()
         return int(row.id)
+
+
+# ---------------------------------------------------------------------------------------------
+# Calibration runs as jobs (the API): progress and operator prompts answered by a confirm call
+# ---------------------------------------------------------------------------------------------
+@dataclass
+class _Prompt:
+    case: int
+    of: int
+    message: str
+    confirmed: Any  # threading.Event
+
+
+class CalibrationRuns:
+    """Load cell calibrations run as background jobs.
+
+    ``start`` submits a ``loadcell-calibration`` job: on the simulated lab the virtual bench
+    and operator (:func:`~dimacq.services.simulated_lab.simulated_inertial_calibration`, with
+    the circular check), on the real rig :func:`calibrate_rig_cell` with a person answering the
+    prompts: the job's progress message is the prompt, :meth:`prompt` gives it with its case
+    number, :meth:`confirm` tells the job the load is in place. The result is recorded through
+    ``record`` (a calibration document → its record).
+    """
+
+    def __init__(
+        self, jobs: Any, settings: Any, record: Callable[[dict[str, Any]], dict[str, Any]]
+    ) -> None:
+        import threading
+
+        self.jobs = jobs
+        self.settings = settings
+        self.record = record
+        self._lock = threading.Lock()
+        self._prompts: dict[str, _Prompt] = {}
+
+    def start(self, request: dict[str, Any]) -> dict[str, Any]:
+        """Submit a run. ``request``: ``method`` (static | inertial), ``node`` (real rig),
+        ``download`` (bool, real rig), ``plan`` (standard | minimal, simulated)."""
+        from dimacq.errors import DeviceStateError
+
+        method = request.get("method", "static")
+        if method not in ("static", "inertial"):
+            raise SetupError(f"method {method!r}: use static or inertial")
+        node = request.get("node")
+        if node is not None and (not isinstance(node, int) or isinstance(node, bool)):
+            raise SetupError(f"node {node!r}: give the load cell's node number (an integer)")
+        download = request.get("download", False)
+        if not isinstance(download, bool):
+            raise SetupError(f"download {download!r}: give true or false")
+        plan = request.get("plan", "standard")
+        if plan not in ("standard", "minimal"):
+            raise SetupError(f"plan {plan!r}: use standard or minimal")
+        simulated = bool(self.settings.simulated)
+        if not simulated and method != "static":
+            raise SetupError(
+                "method inertial on the real rig is not in this build; use method static"
+            )
+        if self.jobs.running("loadcell-calibration"):
+            raise DeviceStateError("a load cell calibration is already running; wait or cancel it")
+
+        def work(ctx: Any) -> dict[str, Any]:
+            if simulated:
+                return self._simulated(ctx, method, plan == "minimal")
+            return self._real(ctx, node, download)
+
+        job = self.jobs.submit("loadcell-calibration", work)
+        return {"job_id": job.id, "method": method, "simulated": simulated}
+
+    def _simulated(self, ctx: Any, method: str, minimal: bool) -> dict[str, Any]:
+        from dimacq.services.simulated_lab import simulated_inertial_calibration
+
+        def prog(done: int, total: int, message: str) -> None:
+            ctx.check_cancelled()
+            ctx.progress(0.8 * done / max(total, 1), message)
+
+        def acq(stage: str, p: Any) -> None:
+            ctx.check_cancelled()
+            ctx.progress(0.8 if method == "static" else 0.5, f"{stage}: {p.message}")
+
+        run = simulated_inertial_calibration(
+            method=method,  # type: ignore[arg-type]
+            static_progress=prog,
+            progress=acq,
+            minimal_plan=minimal,
+        )
+        import datetime as _dt
+
+        from dimacq.io.loadcell_calibration import LoadCellCalibration
+
+        cal = LoadCellCalibration(
+            serial_number=str(run.node),
+            date=_dt.date.today().isoformat(),
+            matrix=run.matrix,
+            method=method,
+            gauge_unit=run.gauge_unit,
+            certificate={} if run.certificate is None else certificate_json(run.certificate),
+            notes="virtual bench (API)",
+        )
+        rec = self.record(cal.to_json())
+        return {**run.to_json(), "record_id": rec["id"]}
+
+    def _real(self, ctx: Any, node: int | None, download: bool) -> dict[str, Any]:
+        import threading
+
+        def operator(case: LoadCase, _sample: int) -> None:
+            total = len(plan_cases) if plan_cases else 0
+            idx = case_index["i"]
+            ev = threading.Event()
+            with self._lock:
+                self._prompts[ctx.job_id] = _Prompt(idx, total, case.prompt(), ev)
+            ctx.progress(
+                idx / max(total, 1),
+                f"load case {idx + 1}/{total}: {case.prompt()} — confirm when in place",
+            )
+            while not ev.wait(0.1):
+                ctx.check_cancelled()
+            with self._lock:
+                self._prompts.pop(ctx.job_id, None)
+
+        plan_cases: list[int] = []
+        case_index = {"i": 0}
+
+        def progress(done: int, total: int, message: str) -> None:
+            ctx.check_cancelled()
+            plan_cases[:] = list(range(total))
+            case_index["i"] = done
+            ctx.progress(done / max(total, 1), message)
+
+        res = calibrate_rig_cell(
+            self.settings, operator, node=node, download=download, progress=progress
+        )
+        rec = self.record(res.installed_document())
+        return {**res.to_json(), "record_id": rec["id"]}
+
+    def prompt(self, job_id: str) -> dict[str, Any]:
+        """The load case the job waits for (``waiting`` false when it waits for none)."""
+        with self._lock:
+            p = self._prompts.get(job_id)
+        if p is None:
+            return {"job_id": job_id, "waiting": False}
+        return {
+            "job_id": job_id,
+            "waiting": True,
+            "case": p.case,
+            "of": p.of,
+            "message": p.message,
+        }
+
+    def confirm(self, job_id: str, case: int) -> dict[str, Any]:
+        """The operator has put load case ``case`` in place."""
+        from dimacq.errors import DeviceStateError
+
+        with self._lock:
+            p = self._prompts.get(job_id)
+        if p is None:
+            raise DeviceStateError(f"job {job_id} is not waiting for a load case")
+        if p.case != case:
+            raise SetupError(
+                f"case {case}: job {job_id} waits for load case {p.case} ({p.message})"
+            )
+        p.confirmed.set()
+        return {"job_id": job_id, "confirmed": case}
