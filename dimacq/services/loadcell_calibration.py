@@ -581,6 +581,11 @@ class CalibrationRuns:
         ``download`` (bool, real rig), ``plan`` (standard | minimal, simulated)."""
         from dimacq.errors import DeviceStateError
 
+        extra = sorted(set(request) - {"method", "node", "download", "plan"})
+        if extra:
+            raise SetupError(
+                f"{extra}: not calibration run items; give method, node, download, plan"
+            )
         method = request.get("method", "static")
         if method not in ("static", "inertial"):
             raise SetupError(f"method {method!r}: use static or inertial")
