@@ -629,8 +629,9 @@ def settled_mean(samples: ArrayLike, step: ArrayLike, *, tolerance: float = 2e-5
     """Average a window of gauge readings and tell whether they still creep.
 
     A line ``g(t) = a + b t`` is fitted per gauge over the window (``t`` centred, n samples);
-    ``drift = b (n − 1)`` with standard error ``σ_res √(12 / n)`` (slope std ``σ √(12/n³)``
-    times the duration). The window is settled when every gauge's drift is within
+    ``drift = b (n − 1)`` with standard error ``σ √(12 / n)`` (slope std ``σ √(12/n³)`` times
+    the duration), ``σ`` the white noise estimated robustly from the sample-to-sample
+    differences (``1.4826 MAD(Δg) / √2``), so a step or a swing in the window counts as drift. The window is settled when every gauge's drift is within
     ``tolerance · |step|`` (``step``: the reading's change from the series zero, so the creep
     allowed is a fraction of the load change) or within four of its own standard errors.
 
@@ -649,8 +650,10 @@ def settled_mean(samples: ArrayLike, step: ArrayLike, *, tolerance: float = 2e-5
     t = np.arange(n) - (n - 1) / 2
     mean = g.mean(axis=1)
     b = (g - mean[:, None]) @ t / (t @ t)
-    res = g - mean[:, None] - b[:, None] * t[None, :]
-    sig = np.sqrt(np.sum(res**2, axis=1) / max(n - 2, 1))
+    # Noise from the sample-to-sample differences (median absolute deviation): a step or a
+    # swing inside the window inflates a fit's residual, not this; so they count as drift.
+    d = np.diff(g, axis=1)
+    sig = 1.4826 * np.median(np.abs(d - np.median(d, axis=1, keepdims=True)), axis=1) / np.sqrt(2)
     drift = b * (n - 1)
     drift_se = sig * np.sqrt(12.0 / n)
     ok = np.abs(drift) <= np.maximum(tolerance * np.abs(np.asarray(step, float)), 4 * drift_se)

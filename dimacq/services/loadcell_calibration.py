@@ -275,8 +275,10 @@ def simulated_static_calibration(
     bench = DeadWeightBench(cell, node=node, sample_rate_hz=st.sample_rate_hz, seed=seed)
     name = f"dimacq-static-{os.getpid()}-{next(_buses)}"
 
-    def operator(case: LoadCase, sample: int) -> int:
-        return bench.place(case.mass_kg, np.array(case.position_m), np.array(case.gravity), sample)
+    def operator(case: LoadCase, sample: int) -> None:
+        # the virtual operator sets the case up now and confirms, as a person would (the
+        # session then takes the amplifier's counter as the moment)
+        bench.place(case.mass_kg, np.array(case.position_m), np.array(case.gravity))
 
     t_wall = time.monotonic()
     with LoadCellAmplifierSim(
@@ -660,10 +662,13 @@ class CalibrationRuns:
                 idx / max(total, 1),
                 f"load case {idx + 1}/{total}: {case.prompt()} — confirm when in place",
             )
-            while not ev.wait(0.1):
-                ctx.check_cancelled()
-            with self._lock:
-                self._prompts.pop(ctx.job_id, None)
+            try:
+                while not ev.wait(0.1):
+                    ctx.check_cancelled()
+            finally:
+                with self._lock:
+                    if self._prompts.get(ctx.job_id) is not None and not ev.is_set():
+                        self._prompts.pop(ctx.job_id, None)
 
         plan_cases: list[int] = []
         case_index = {"i": 0}
@@ -700,11 +705,12 @@ class CalibrationRuns:
 
         with self._lock:
             p = self._prompts.get(job_id)
-        if p is None:
-            raise DeviceStateError(f"job {job_id} is not waiting for a load case")
-        if p.case != case:
-            raise SetupError(
-                f"case {case}: job {job_id} waits for load case {p.case} ({p.message})"
-            )
-        p.confirmed.set()
+            if p is None:
+                raise DeviceStateError(f"job {job_id} is not waiting for a load case")
+            if p.case != case:
+                raise SetupError(
+                    f"case {case}: job {job_id} waits for load case {p.case} ({p.message})"
+                )
+            del self._prompts[job_id]  # answered: no longer offered to prompt()
+            p.confirmed.set()
         return {"job_id": job_id, "confirmed": case}

@@ -115,6 +115,8 @@ class LoadCellAmplifierSim:
         self._base_count = 0
         self._epoch = 0
         self._t0 = 0.0
+        self._world_internal = 0  # next world sample on the internal clock
+        self._internal_epoch = 0  # world sample of counter 0 of an internal-clock run
         self._download: dict[int, bytes] = {}
         self._download_len = 0
         self._stop_evt = threading.Event()
@@ -204,6 +206,8 @@ class LoadCellAmplifierSim:
                 with self._source_lock():
                     g = self.source.read(self.gauges, pos, max(1, n))
                 self.offsets = g.mean(axis=1)
+                if self.clock is None or not self._external:
+                    self._world_internal = pos + max(1, n)
                 self._reply(p.TareReply())
             case p.CalDownloadBegin(n_bytes=n_bytes):
                 self._download_len = n_bytes
@@ -238,15 +242,16 @@ class LoadCellAmplifierSim:
         return self.clock.source_lock if self.clock is not None else self._lock
 
     def _world_now(self) -> int:
-        if self.clock is not None:
+        if self.clock is not None and self._external:
             st = self.clock.state()
             return st.epoch + st.count
-        return 0
+        return self._world_internal  # on its own clock the world goes on from its last read
 
     def _arm(self, external: bool) -> None:
         self._external = external
         self._counter = 0
         self._pulses = 0
+        self._internal_epoch = self._world_internal
         self._t0 = time.monotonic()
         if external:
             if self.clock is None:
@@ -301,9 +306,11 @@ class LoadCellAmplifierSim:
             is_missed |= (pulses >= at) & (pulses < at + m)
             missed_upto += np.clip(pulses - at + 1, 0, m)
         counters = pulses - missed_upto
-        world0 = self._epoch + self._base_count if self._external else 0
+        world0 = self._epoch + self._base_count if self._external else self._internal_epoch
         with self._source_lock():
             g = self.source.read(self.gauges, world0 + pulse0, n)
+        if not self._external:
+            self._world_internal = world0 + pulse0 + n
         g = (g - self.offsets[:, None]).T
         keep = ~is_missed
         frames, _ = p.encode_data_frames(counters[keep], g[keep])

@@ -246,3 +246,12 @@ def test_static_certificate_refuses_ac_coupled_gauges() -> None:
     plan = standard_load_plan(RATED, minimal=True)
     with pytest.raises(SetupError, match="AC-coupled"):
         static_certificate(np.zeros((len(plan.cases), 12)), plan, gauge_coupling="AC")
+
+
+def test_settled_mean_counts_a_step_in_the_window_as_drift() -> None:
+    from dimacq.pipeline.loadcell_calibration import settled_mean
+
+    rng = np.random.default_rng(1)
+    g = 0.5 + 1e-5 * rng.standard_normal((12, 40))
+    g[:, :3] -= 0.2  # the load arrived three samples into the window
+    assert not settled_mean(g, np.full(12, 0.5)).settled

@@ -17,6 +17,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from dimacq.backends.base import DeviceContext
+from dimacq.backends.can_loadcell import open_loadcell
 from dimacq.config import load_settings
 from dimacq.io.loadcell_calibration import (
     LoadCellCalibration,
@@ -25,8 +27,6 @@ from dimacq.io.loadcell_calibration import (
 )
 from dimacq.io.rig_file import load_rig_file
 from dimacq.pipeline.loadcell_calibration import LoadCase
-from dimacq.backends.base import DeviceContext
-from dimacq.backends.can_loadcell import open_loadcell
 from dimacq.services.loadcell_calibration import calibrate_rig_cell
 from dimacq.simulators.lab.bridge import strain_gauge_cell
 from dimacq.simulators.loadcell.amplifier import LoadCellAmplifierSim
@@ -79,9 +79,9 @@ def test_static_calibration_of_the_configured_cell(tmp_path: Path) -> None:
     )
     asked: list[str] = []
 
-    def operator(case: LoadCase, sample: int) -> int:
+    def operator(case: LoadCase, sample: int) -> None:
         asked.append(case.prompt())
-        return bench.place(case.mass_kg, np.array(case.position_m), np.array(case.gravity), sample)
+        bench.place(case.mass_kg, np.array(case.position_m), np.array(case.gravity))
 
     with LoadCellAmplifierSim(
         channel, bench, list(range(12)), node_id=3, serial_number=501, time_scale=200.0
