@@ -23,9 +23,7 @@ a :class:`~dimacq.pipeline.loadcell_calibration.LoadPlan`:
 
 from __future__ import annotations
 
-import itertools
 import logging
-import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -64,8 +62,6 @@ FloatArray = NDArray[np.float64]
 Operator = Callable[[LoadCase, int], int | None]
 #: ``progress(done, total, message)``
 ProgressFn = Callable[[int, int, str], None]
-
-_buses = itertools.count()
 
 
 class BenchLoadCell(LoadCell, Protocol):
@@ -260,37 +256,23 @@ def simulated_static_calibration(
 ) -> SimulatedStaticRun:
     """Dead-weight calibration of the virtual lab's strain-gauge cell ``node`` (seed ``seed``):
     the bench behind the CAN amplifier simulator, the real driver, the virtual operator."""
-    import can
-
-    from dimacq.drivers.loadcell.driver import LoadCellAmplifier
+    from dimacq.backends.base import DeviceContext
+    from dimacq.backends.simulated import open_dead_weight_bench
     from dimacq.pipeline.loadcell_calibration import standard_load_plan
-    from dimacq.simulators.lab.bridge import strain_gauge_cell
-    from dimacq.simulators.loadcell.amplifier import LoadCellAmplifierSim
-    from dimacq.simulators.loadcell.bench import DeadWeightBench
 
     st = settings or StaticSettings()
-    if cell is None:
-        cell = strain_gauge_cell(node, temperature_ramp_k_per_s=2e-4)
-    plan = standard_load_plan(cell.rated_load, minimal=minimal_plan)
-    bench = DeadWeightBench(cell, node=node, sample_rate_hz=st.sample_rate_hz, seed=seed)
-    name = f"dimacq-static-{os.getpid()}-{next(_buses)}"
-
-    def operator(case: LoadCase, sample: int) -> None:
-        # the virtual operator sets the case up now and confirms, as a person would (the
-        # session then takes the amplifier's counter as the moment)
-        bench.place(case.mass_kg, np.array(case.position_m), np.array(case.gravity))
-
     t_wall = time.monotonic()
-    with LoadCellAmplifierSim(
-        name, bench, list(range(12)), serial_number=node, time_scale=time_scale
-    ) as sim:
-        sim.rate_hz = float(st.sample_rate_hz)
-        bus = can.Bus(interface="virtual", channel=name, fd=True)
-        try:
-            amp = LoadCellAmplifier(bus, timeout_s=5.0)
-            run = run_static_calibration(amp, plan, operator, settings=st, progress=progress)
-        finally:
-            bus.shutdown()
+    with DeviceContext(None) as ctx:  # type: ignore[arg-type]
+        amp, operator, cell = open_dead_weight_bench(
+            ctx,
+            node=node,
+            sample_rate_hz=st.sample_rate_hz,
+            time_scale=time_scale,
+            cell=cell,
+            seed=seed,
+        )
+        plan = standard_load_plan(cell.rated_load, minimal=minimal_plan)
+        run = run_static_calibration(amp, plan, operator, settings=st, progress=progress)
     S = np.asarray(cell.sensitivity_mvv, float)
     C_true = np.linalg.pinv(S)
     err = float(np.linalg.norm(run.matrix - C_true) / np.linalg.norm(C_true))
@@ -559,9 +541,9 @@ class _Prompt:
 class CalibrationRuns:
     """Load cell calibrations run as background jobs.
 
-    ``start`` submits a ``loadcell-calibration`` job: on the simulated lab the virtual bench
-    and operator (:func:`~dimacq.services.simulated_lab.simulated_inertial_calibration`, with
-    the circular check), on the real rig :func:`calibrate_rig_cell` with a person answering the
+    ``start`` submits a ``loadcell-calibration`` job (method static): on the simulated lab the
+    virtual dead-weight bench and operator (:func:`simulated_static_calibration`), on the real
+    rig :func:`calibrate_rig_cell` with a person answering the
     prompts: the job's progress message is the prompt, :meth:`prompt` gives it with its case
     number, :meth:`confirm` tells the job the load is in place. The result is recorded through
     ``record`` (a calibration document → its record).
@@ -600,10 +582,11 @@ class CalibrationRuns:
         plan = request.get("plan", "standard")
         if plan not in ("standard", "minimal"):
             raise SetupError(f"plan {plan!r}: use standard or minimal")
-        simulated = bool(self.settings.simulated)
-        if not simulated and method != "static":
+        simulated = self.settings.loadcell == "simulated"
+        if method != "static":
             raise SetupError(
-                "method inertial on the real rig is not in this build; use method static"
+                "method inertial runs from the command line (dimacq loadcell calibrate "
+                "--simulated --method inertial); through the API use method static"
             )
         if self.jobs.running("loadcell-calibration"):
             raise DeviceStateError("a load cell calibration is already running; wait or cancel it")
@@ -617,37 +600,38 @@ class CalibrationRuns:
         return {"job_id": job.id, "method": method, "simulated": simulated}
 
     def _simulated(self, ctx: Any, method: str, minimal: bool) -> dict[str, Any]:
-        from dimacq.services.simulated_lab import simulated_inertial_calibration
-
-        def prog(done: int, total: int, message: str) -> None:
-            ctx.check_cancelled()
-            ctx.progress(0.8 * done / max(total, 1), message)
-
-        def acq(stage: str, p: Any) -> None:
-            ctx.check_cancelled()
-            ctx.progress(0.8 if method == "static" else 0.5, f"{stage}: {p.message}")
-
-        run = simulated_inertial_calibration(
-            method=method,  # type: ignore[arg-type]
-            static_progress=prog,
-            progress=acq,
-            minimal_plan=minimal,
-        )
         import datetime as _dt
 
         from dimacq.io.loadcell_calibration import LoadCellCalibration
 
+        def prog(done: int, total: int, message: str) -> None:
+            ctx.check_cancelled()
+            ctx.progress(done / max(total, 1), message)
+
+        sim = simulated_static_calibration(minimal_plan=minimal, progress=prog)
+        cert = sim.run.certificate
         cal = LoadCellCalibration(
-            serial_number=str(run.node),
+            serial_number="501",
             date=_dt.date.today().isoformat(),
-            matrix=run.matrix,
-            method=method,
-            gauge_unit=run.gauge_unit,
-            certificate={} if run.certificate is None else certificate_json(run.certificate),
-            notes="virtual bench (API)",
+            matrix=sim.run.matrix,
+            method="static",
+            gauge_unit="mV/V",
+            certificate=certificate_json(cert),
+            notes="virtual dead-weight bench (API)",
         )
         rec = self.record(cal.to_json())
-        return {**run.to_json(), "record_id": rec["id"]}
+        return {
+            "method": "static",
+            "matrix_error_rel": sim.matrix_error_rel,
+            "nonlinearity_pct_fs": cert.nonlinearity_pct_fs.tolist(),
+            "hysteresis_pct_fs": cert.hysteresis_pct_fs.tolist(),
+            "uncertainty_pct_fs": cert.uncertainty_pct_fs.tolist(),
+            "crosstalk_pct_fs": cert.crosstalk_pct_fs.tolist(),
+            "verdict": cert.verdict,
+            "reasons": list(cert.reasons),
+            "matrix": sim.run.matrix.tolist(),
+            "record_id": rec["id"],
+        }
 
     def _real(self, ctx: Any, node: int | None, download: bool) -> dict[str, Any]:
         import threading

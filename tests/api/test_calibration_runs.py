@@ -49,7 +49,7 @@ def test_static_run_with_prompts_over_http(tmp_path: Path) -> None:
     (rig_dir / "calibrations").mkdir(parents=True)
     (rig_dir / "rig.toml").write_text(RIG, encoding="utf-8")
     (rig_dir / "loadcell_bench.toml").write_text(BENCH, encoding="utf-8")
-    cell = strain_gauge_cell(9, 501, creep_tau_s=1.5, swing_tau_s=0.8)
+    cell = strain_gauge_cell(501, creep_tau_s=1.5, swing_tau_s=0.8)
     bench = DeadWeightBench(cell, sample_rate_hz=10, seed=9)
     channel = f"dimacq-apical-{os.getpid()}-{uuid.uuid4().hex[:8]}"
     settings = make_settings(

@@ -27,7 +27,7 @@ from pathlib import Path
 def one(method: str, trace: bool) -> dict[str, float | str]:
     import tracemalloc
 
-    from dimacq.services.simulated_lab import simulated_inertial_calibration
+    from dimacq.cli.simulated_lab import simulated_inertial_calibration
 
     if trace:
         tracemalloc.start()

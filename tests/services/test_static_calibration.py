@@ -13,7 +13,7 @@ from dimacq.simulators.lab.bridge import strain_gauge_cell
 
 
 def test_plan_that_cannot_determine_the_matrix_is_refused_before_any_load() -> None:
-    plan = standard_load_plan(strain_gauge_cell(0, 501).rated_load)
+    plan = standard_load_plan(strain_gauge_cell(501).rated_load)
     keep = tuple(c for c in plan.cases if c.gravity[2] == 0)  # cell never upright: no Fz
     asked: list[object] = []
 

@@ -13,7 +13,7 @@ R = np.array([500.0, 500.0, 1000.0, 50.0, 50.0, 50.0])
 
 
 def quiet_cell(**kw: float) -> StrainGaugeCell:
-    base = strain_gauge_cell(0, 501)
+    base = strain_gauge_cell(501)
     args: dict[str, object] = dict(
         rated_load=R, creep=0.0, swing=0.0, noise_uv=0.0, nonlinearity=0.0, hysteresis=0.0
     )
@@ -84,7 +84,7 @@ def test_dc_lab_carries_the_weight_of_the_hanging_mass() -> None:
     m_on_body = np.cross(c - np.asarray(s.position_m), -w)  # about the cell origin
     np.testing.assert_allclose(F[:3], Rm.T @ f_on_body, atol=1e-6 * m * 9.81)
     np.testing.assert_allclose(F[3:], Rm.T @ m_on_body, atol=1e-6 * m * 9.81)
-    cell = strain_gauge_cell(0, s.node, noise_uv=0.0)
+    cell = strain_gauge_cell(s.node, noise_uv=0.0)
     lab = VirtualLab(model, bridges={s.node: cell})
     assert lab.channel_units[lab.channel_index("LC501 g01")] == "mV/V"
     g = lab.read(np.array([lab.channel_index(f"LC501 g{i:02d}") for i in range(1, 13)]), 0, 64)
