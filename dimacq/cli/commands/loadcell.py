@@ -131,7 +131,7 @@ def calibrate(args: argparse.Namespace) -> int:
         cert = run.certificate
         out.write(
             f"load cell {run.node}: static calibration, {len(run.static_run.plan.cases)} load "
-            f"cases ({fit.n_equations} loaded), gauges in {run.gauge_unit}\n"
+            f"cases ({fit.n_equations} hysteresis-free points fitted), gauges in {run.gauge_unit}\n"
         )
         out.write(f"  residual {fit.residual_rel:.3g}, condition σ1/σ6 {fit.condition:.3g}\n")
         out.write("  axis        Fx       Fy       Fz       Mx       My       Mz   (% of rated)\n")
