@@ -256,8 +256,10 @@ def simulated_static_calibration(
 ) -> SimulatedStaticRun:
     """Dead-weight calibration of the virtual lab's strain-gauge cell ``node`` (seed ``seed``):
     the bench behind the CAN amplifier simulator, the real driver, the virtual operator."""
+    from dimacq.backends import lookup
     from dimacq.backends.base import DeviceContext
-    from dimacq.backends.simulated import open_dead_weight_bench
+
+    open_dead_weight_bench = lookup("loadcell-bench", "simulated")  # the table reaches simulators
     from dimacq.pipeline.loadcell_calibration import standard_load_plan
 
     st = settings or StaticSettings()
