@@ -38,7 +38,7 @@ class CalibrationService:
         self.stand = stand
         self.runs: Any = None
         if jobs is not None and settings is not None:
-            from dimacq.services.loadcell_calibration import CalibrationRuns
+            from dimacq.services.lab.calibration_runs import CalibrationRuns
 
             self.runs = CalibrationRuns(jobs, settings, lambda doc: asdict(self.save(doc)))
 
