@@ -46,7 +46,7 @@ from dimacq.errors import SetupError
 
 __all__ = ["BACKENDS", "DeviceKind", "lookup"]
 
-DeviceKind = Literal["daq", "loadcell", "digitizer"]
+DeviceKind = Literal["daq", "loadcell", "digitizer", "loadcell-bench"]
 
 #: kind → settings name → ``"module:factory"`` (imported when first used).
 BACKENDS: dict[str, dict[str, str]] = {
@@ -61,6 +61,11 @@ BACKENDS: dict[str, dict[str, str]] = {
     "digitizer": {
         "serial": "dimacq.backends.serial_digitizer:open_digitizer",
         "simulated": "dimacq.backends.simulated:open_digitizer",
+    },
+    # a load cell on the dead-weight calibration bench: the simulated one only (a real bench is
+    # the configured amplifier, dimacq.backends.can_loadcell.open_amplifier, and a person)
+    "loadcell-bench": {
+        "simulated": "dimacq.backends.simulated:open_dead_weight_bench",
     },
 }
 

@@ -51,9 +51,12 @@ def open_amplifier(
     channel: str,
     where: str,
     timeout_s: float = 2.0,
+    require_calibration: bool = True,
 ) -> LoadCellAmplifier:
     """Open the amplifier of ``entry`` on ``can.Bus(interface, channel)``, calibrated from its
-    file; the bus's closer goes to ``ctx``.
+    file; the bus's closer goes to ``ctx``. ``require_calibration=False`` (bench calibration
+    of a new cell): a missing calibration file is allowed (no matrix is set); an existing one
+    must still belong to the cell.
 
     Raises
     ------
@@ -64,7 +67,8 @@ def open_amplifier(
     """
     import can
 
-    cal = read_entry_calibration(ctx, entry)
+    missing = not ctx.rig_file.calibration_path(entry).exists()
+    cal = None if (missing and not require_calibration) else read_entry_calibration(ctx, entry)
     try:
         bus = can.Bus(
             interface=interface, channel=channel, fd=True, can_filters=_filters(entry.node_id)
@@ -76,7 +80,10 @@ def open_amplifier(
         ) from err
     try:
         amp = LoadCellAmplifier(
-            bus, node_id=entry.node_id, timeout_s=timeout_s, calibration_matrix=cal.matrix
+            bus,
+            node_id=entry.node_id,
+            timeout_s=timeout_s,
+            calibration_matrix=None if cal is None else cal.matrix,
         )
         try:
             ident = amp.identify()
@@ -86,7 +93,7 @@ def open_amplifier(
                 f"does not answer ({err}); check its power, the bit rate and node_id in "
                 f"{ctx.rig_file.path}"
             ) from err
-        if str(ident.serial_number) != str(cal.serial_number):
+        if cal is not None and str(ident.serial_number) != str(cal.serial_number):
             raise SetupError(
                 f"load cell {entry.node}: amplifier node_id {entry.node_id} reports serial number "
                 f"{ident.serial_number} but {ctx.rig_file.calibration_path(entry)} calibrates "

@@ -213,3 +213,49 @@ def open_digitizer(ctx: DeviceContext) -> SerialDigitizer:
     simdig.get_device(url)
     ctx.on_close(lambda: simdig.unregister_device(parts.netloc))
     return open_serial_digitizer(ctx)
+
+
+def open_dead_weight_bench(
+    ctx: DeviceContext,
+    *,
+    node: int = 501,
+    sample_rate_hz: float = 20.0,
+    time_scale: float = 200.0,
+    cell: Any = None,
+    seed: int = 0,
+) -> tuple[LoadCellAmplifier, Any, Any]:
+    """The simulated dead-weight bench of strain-gauge cell ``node`` behind the amplifier
+    simulator (its own clock, ``time_scale`` × real time) on a python-can ``virtual`` channel,
+    and the real driver on it.
+
+    Returns ``(amplifier, operator, cell)``: ``operator(case, sample)`` is the virtual operator
+    (sets the load case up on the bench, then confirms like a person: returns None); ``cell``
+    the simulated :class:`~dimacq.simulators.lab.bridge.StrainGaugeCell` (truth, for tests and
+    the simulated command's figures). Closers go to ``ctx``.
+    """
+    import can
+    import numpy as np
+
+    from dimacq.simulators.lab.bridge import strain_gauge_cell
+    from dimacq.simulators.loadcell.bench import DeadWeightBench
+
+    if cell is None:
+        cell = strain_gauge_cell(node, temperature_ramp_k_per_s=2e-4)
+    bench = DeadWeightBench(cell, node=node, sample_rate_hz=sample_rate_hz, seed=seed)
+    name = f"dimacq-bench-{os.getpid()}-{next(_bench_names)}"
+    sim = LoadCellAmplifierSim(
+        name, bench, list(range(12)), serial_number=node, time_scale=time_scale
+    )
+    ctx.on_close(sim.close)
+    sim.rate_hz = float(sample_rate_hz)
+    bus = can.Bus(interface="virtual", channel=name, fd=True)
+    ctx.on_close(bus.shutdown)
+    amp = LoadCellAmplifier(bus, timeout_s=5.0)
+
+    def operator(case: Any, _sample: int) -> None:
+        bench.place(case.mass_kg, np.array(case.position_m), np.array(case.gravity))
+
+    return amp, operator, cell
+
+
+_bench_names = itertools.count()

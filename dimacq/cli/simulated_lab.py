@@ -113,6 +113,11 @@ def scenario_model(name: str, seed: int = 0) -> ForwardModel:
 DIM_BAND_HZ = (20.0, 400.0)
 
 
+#: Blocks a streamed simulated test keeps cached: the DAQ and the amplifier read each block
+#: about once, the amplifier's tare a little behind (256 samples per block: 16 k samples).
+_STREAM_CACHE_BLOCKS = 64
+
+
 def default_noise() -> LabNoise:
     """Transducer noise of the simulated tests: accelerometers 0.5 mm/s² rms (50 µg), hammer 0.05 N rms,
     gauges 2 µV rms (plus the 24-bit quantisation of the DAQ and the amplifier)."""
@@ -432,8 +437,14 @@ def run_scenario(
     progress: Callable[[Progress], None] | None = None,
     calibration: Mapping[int, FloatArray] | None = None,
     gauge_sensitivity: dict[int, FloatArray] | None = None,
+    bridges: dict[int, Any] | None = None,
 ) -> ScenarioRun:
-    """Acquire ``model`` through the simulated USB DAQ and CAN load cells; FRFs in setup order."""
+    """Acquire ``model`` through the simulated USB DAQ and CAN load cells; FRFs in setup order.
+
+    ``bridges`` (node → :class:`~dimacq.simulators.lab.bridge.StrainGaugeCell`): DC-coupled
+    strain-gauge cells; the others are AC-coupled. The lab keeps only a few blocks cached (the
+    session streams through it once).
+    """
     lab = VirtualLab(
         model,
         sample_rate_hz=sample_rate_hz,
@@ -441,6 +452,8 @@ def run_scenario(
         noise=noise if noise is not None else default_noise(),
         gauge_sensitivity=gauge_sensitivity,
         seed=seed,
+        bridges=bridges,
+        cache_blocks=_STREAM_CACHE_BLOCKS,
     )
     settings = impact_settings(
         averages_per_input, record_samples=record_samples, exponential_tau_s=exponential_tau_s
@@ -487,16 +500,38 @@ class CalibrationRun:
     band_hz: tuple[float, float]
     node: int
     averages_per_input: int
+    method: str = "inertial"
+    certificate: Any = None
+    static_run: Any = None
+    gauge_unit: str = "mV/V"
 
     def to_json(self) -> dict[str, Any]:
+        """The figures; the contract keys first: ``method``, ``matrix_error_rel``,
+        ``nonlinearity_pct_fs``, ``hysteresis_pct_fs``, ``uncertainty_pct_fs`` (six values
+        each; None for the inertial method, which cannot see them), ``circular_mass_error_pct``.
+        """
         fit = self.fit
+        cert = self.certificate
         return {
+            "method": self.method,
+            "matrix_error_rel": self.matrix_error_rel,
+            "nonlinearity_pct_fs": None if cert is None else cert.nonlinearity_pct_fs.tolist(),
+            "hysteresis_pct_fs": None if cert is None else cert.hysteresis_pct_fs.tolist(),
+            "uncertainty_pct_fs": (
+                self.inertial_uncertainty_pct_fs()
+                if cert is None
+                else cert.uncertainty_pct_fs.tolist()
+            ),
+            "circular_mass_error_pct": self.circular_mass_error_pct,
+            "crosstalk_pct_fs": None if cert is None else cert.crosstalk_pct_fs.tolist(),
+            "rated_load": None if cert is None else cert.rated_load.tolist(),
+            "verdict": "ok" if cert is None else cert.verdict,
+            "reasons": [] if cert is None else list(cert.reasons),
+            "gauge_unit": self.gauge_unit,
             "load_cell_node": self.node,
             "averages_per_input": self.averages_per_input,
             "band_hz": list(self.band_hz),
             "circular_dim_band_hz": list(self.circular.band_hz),
-            "matrix_error_rel": self.matrix_error_rel,
-            "circular_mass_error_pct": self.circular_mass_error_pct,
             "circular_errors_pct": self.circular_errors_pct,
             "fit": {
                 "residual_rel": fit.residual_rel,
@@ -512,6 +547,11 @@ class CalibrationRun:
             "true_matrix": self.true_matrix.tolist(),
         }
 
+    def inertial_uncertainty_pct_fs(self) -> list[float]:
+        """Inertial method: expanded (k = 2) relative residual of each load row, % of that
+        row's rms dynamic load (the method has no rated-load reference: a bound, not % FS)."""
+        return [float(v) for v in 200 * np.asarray(self.fit.residual_rel_per_load, float)]
+
 
 def simulated_inertial_calibration(
     *,
@@ -521,16 +561,27 @@ def simulated_inertial_calibration(
     dim_band_hz: tuple[float, float] = DIM_BAND_HZ,
     noise: LabNoise | None = None,
     progress: Callable[[str, Progress], None] | None = None,
+    method: Literal["inertial", "static"] = "inertial",
+    gauges: Literal["strain-gauge", "piezo"] = "strain-gauge",
+    static_progress: Callable[[int, int, str], None] | None = None,
+    minimal_plan: bool = False,
 ) -> CalibrationRun:
     """Calibrate the calibration mass's load cell on the virtual bench, then check circularly.
 
-    1. **Bench** (method §8, thesis §4.1): the calibration mass hangs on its cell on bungees; the
-       24 impacts land on the support side of the cell
+    The cell is the virtual lab's strain-gauge cell (DC bridges, mV/V,
+    :func:`~dimacq.simulators.lab.bridge.strain_gauge_cell`) or, with ``gauges="piezo"``, the
+    AC-coupled gauges of the thesis's cell (V). One and the same cell serves every step.
+
+    1. **Static** (``method="static"``, strain gauges only): the dead-weight calibration
+       (:func:`~dimacq.services.loadcell_calibration.simulated_static_calibration`) gives ``C``
+       and the certificate.
+    1. **Inertial** (``method="inertial"``, method §8, thesis §4.1): the calibration mass hangs
+       on its cell on bungees; the 24 impacts land on the support side of the cell
        (:class:`~dimacq.simulators.loadcell.bench.SupportSideBench`), so the cell carries every
-       force on the mass. Accelerometer FRFs and the 12 gauge FRFs (V/N) come through the USB and
-       CAN simulators; the accelerances are condensed to ``a_O`` (GCS origin, least squares over
-       the 24 axes) and :func:`~dimacq.pipeline.loadcell_calibration.inertial_calibration` solves
-       ``C`` from ``C g = s T_c⁻¹ M_rb a_O`` over the band.
+       force on the mass. Accelerometer FRFs and the 12 gauge FRFs come through the USB and CAN
+       simulators; the accelerances are condensed to ``a_O`` (GCS origin, least squares over
+       the 24 axes) and :func:`~dimacq.pipeline.loadcell_calibration.inertial_calibration`
+       solves ``C`` from ``C g = s T_c⁻¹ M_rb a_O`` over the band.
     2. **Circular check** (thesis §4.1: "the same structure used to calibrate the load cell in
        the same configuration"): the same mass on the same cell, now struck directly on the mass,
        acquired with the driver applying ``C``, solved by DIM (all ten properties unknown).
@@ -538,47 +589,87 @@ def simulated_inertial_calibration(
     from dimacq.pipeline import dim
     from dimacq.pipeline.loadcell_calibration import inertial_calibration
     from dimacq.pipeline.rigid_body import condense, response_matrix
+    from dimacq.simulators.lab.bridge import strain_gauge_cell
     from dimacq.simulators.loadcell.bench import SupportSideBench
 
+    if method not in ("inertial", "static"):
+        raise SetupError(f"calibration method {method!r}: use static or inertial")
+    if method == "static" and gauges != "strain-gauge":
+        raise SetupError(
+            "static dead-weight calibration needs DC-coupled gauges; the piezo variant is "
+            "AC-coupled: use --method inertial"
+        )
     model = calibration_mass(seed, support="bungee")
     setup = model.setup
     (support,) = model.supports
+    bridges = None
+    if gauges == "strain-gauge":
+        bridges = {support.node: strain_gauge_cell(support.node)}
     base_noise = noise if noise is not None else default_noise()
-    bench_noise = replace(base_noise, force_noise_n=0.0)
-    lab = VirtualLab(model, hammer=Hammer(peak_n=200.0), noise=bench_noise, seed=seed)
-    S = lab.gauge_matrix(support.node)
-    bench = SupportSideBench(lab, support.node)
-    settings = impact_settings(averages_per_input)
 
     def prog(stage: str) -> Callable[[Progress], None] | None:
         if progress is None:
             return None
         return lambda p: progress(stage, p)
 
-    with SimulatedRig(lab, source=bench) as rig:
-        res = rig.run(settings, progress=prog("bench"), loadcell_outputs="gauges")
-    f = res.frequencies_hz
-    sel = (f >= band_hz[0]) & (f <= band_hz[1])
-    n_acc = len(setup.responses)
-    P = np.zeros(3)
-    psi = response_matrix(setup.response_positions, setup.response_directions, P)
-    Tq = condense(psi).transform  # (6, n_acc)
-    acc = res.H[sel, :n_acc]
-    a_p = np.einsum("kc,lci->lki", Tq, acc.real) + 1j * np.einsum("kc,lci->lki", Tq, acc.imag)
-    gauges = res.H[sel, n_acc : n_acc + 12]
-    fit = inertial_calibration(
-        gauges,
-        a_p,
-        model.properties.mass_matrix(P),
-        support.position_m,
-        support.rotation,
-        P,
-        sign=1.0 if support.sign == "on_structure" else -1.0,
-    )
+    certificate = None
+    static_run = None
+    if method == "static":
+        from dimacq.services.loadcell_calibration import simulated_static_calibration
+
+        assert bridges is not None
+        cell = bridges[support.node]
+        srun = simulated_static_calibration(
+            seed=seed,
+            node=support.node,
+            cell=cell,
+            minimal_plan=minimal_plan,
+            progress=static_progress,
+        )
+        S = np.asarray(cell.sensitivity_mvv, float)
+        fit = srun.run.certificate.fit
+        certificate = srun.run.certificate
+        static_run = srun.run
+        band = (0.0, 0.0)
+    else:
+        bench_noise = replace(base_noise, force_noise_n=0.0)
+        lab = VirtualLab(
+            model,
+            hammer=Hammer(peak_n=200.0),
+            noise=bench_noise,
+            seed=seed,
+            bridges=bridges,
+            cache_blocks=_STREAM_CACHE_BLOCKS,
+        )
+        S = lab.gauge_matrix(support.node)
+        bench = SupportSideBench(lab, support.node)
+        settings = impact_settings(averages_per_input)
+        with SimulatedRig(lab, source=bench) as rig:
+            res = rig.run(settings, progress=prog("bench"), loadcell_outputs="gauges")
+        f = res.frequencies_hz
+        sel = (f >= band_hz[0]) & (f <= band_hz[1])
+        n_acc = len(setup.responses)
+        P = np.zeros(3)
+        psi = response_matrix(setup.response_positions, setup.response_directions, P)
+        Tq = condense(psi).transform  # (6, n_acc)
+        acc = res.H[sel, :n_acc]
+        a_p = np.einsum("kc,lci->lki", Tq, acc.real) + 1j * np.einsum("kc,lci->lki", Tq, acc.imag)
+        gauge_frf = res.H[sel, n_acc : n_acc + 12]
+        del res, acc
+        fit = inertial_calibration(
+            gauge_frf,
+            a_p,
+            model.properties.mass_matrix(P),
+            support.position_m,
+            support.rotation,
+            P,
+            sign=1.0 if support.sign == "on_structure" else -1.0,
+        )
+        band = (float(f[sel][0]), float(f[sel][-1]))
     C = fit.matrix
     C_true = np.linalg.pinv(S)
     err = float(np.linalg.norm(C - C_true) / np.linalg.norm(C_true))
-    log.info("inertial calibration: matrix error %.3g (relative Frobenius)", err)
+    log.info("%s calibration: matrix error %.3g (relative Frobenius)", method, err)
 
     run = run_scenario(
         model,
@@ -588,6 +679,7 @@ def simulated_inertial_calibration(
         progress=prog("circular check"),
         calibration={support.node: C},
         gauge_sensitivity={support.node: S},
+        bridges=bridges,
     )
     sol = dim.solve(run.frf, setup, known={}, band_hz=dim_band_hz)
     errs = solution_errors(sol, model.properties)
@@ -599,9 +691,13 @@ def simulated_inertial_calibration(
         circular=sol,
         circular_errors_pct=errs,
         circular_mass_error_pct=errs["mass_pct"],
-        band_hz=(float(f[sel][0]), float(f[sel][-1])),
+        band_hz=band,
         node=support.node,
         averages_per_input=averages_per_input,
+        method=method,
+        certificate=certificate,
+        static_run=static_run,
+        gauge_unit="mV/V" if bridges else "V",
     )
 
 

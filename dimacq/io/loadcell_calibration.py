@@ -7,14 +7,21 @@ JSON (``schema_version`` 1)::
       "kind": "dimacq.loadcell_calibration",
       "serial_number": "LC501",
       "date": "2026-11-21",
-      "method": "inertial",
-      "gauge_unit": "V",
+      "method": "inertial",              # or "static"
+      "version": 3,                      # counts the calibrations of this cell (optional, 1)
+      "gauge_unit": "V",                 # or "mV/V" (strain-gauge bridges)
       "force_unit": "N",
       "moment_unit": "N*m",
       "matrix": [[12 numbers] x 6],        # rows Fx Fy Fz Mx My Mz, F = C g
       "diagnostics": {"residual_rel": ..., ...},
+      "certificate": {...},              # static: % FS per axis (optional)
       "notes": ""
     }
+
+Versions: :func:`install_calibration` keeps every calibration of a cell as ``<stem>-v<N>.json``
+and ``.xml`` beside the file the rig file names (``<stem>.json``), and replaces that file by the
+new one (atomically), so the acquisition uses the newest calibration from then on and the older
+ones stay for the record.
 
 The XML follows the layout of ATI Industrial Automation's ``.cal`` files (an ``FTSensor`` element
 with a ``Calibration`` child holding one ``Axis`` per load with a ``values`` attribute of
@@ -38,7 +45,9 @@ from numpy.typing import NDArray
 from dimacq.errors import DataError
 
 __all__ = [
+    "InstalledCalibration",
     "LoadCellCalibration",
+    "install_calibration",
     "parse_calibration_json",
     "read_calibration",
     "read_calibration_json",
@@ -64,6 +73,8 @@ class LoadCellCalibration:
     gauge_unit: str = "V"
     diagnostics: dict[str, Any] = field(default_factory=dict)
     notes: str = ""
+    version: int = 1
+    certificate: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         m = np.asarray(self.matrix, dtype=float)
@@ -89,11 +100,13 @@ class LoadCellCalibration:
             "serial_number": self.serial_number,
             "date": self.date,
             "method": self.method,
+            "version": self.version,
             "gauge_unit": self.gauge_unit,
             "force_unit": "N",
             "moment_unit": "N*m",
             "matrix": self.matrix.tolist(),
             "diagnostics": self.diagnostics,
+            "certificate": self.certificate,
             "notes": self.notes,
         }
 
@@ -141,7 +154,15 @@ def parse_calibration_json(data: Any, source: str = "calibration") -> LoadCellCa
         gauge_unit=str(data.get("gauge_unit", "V")),
         diagnostics=dict(data.get("diagnostics", {})),
         notes=str(data.get("notes", "")),
+        version=_version(data.get("version", 1), source),
+        certificate=dict(data.get("certificate", {})),
     )
+
+
+def _version(v: Any, where: str | Path) -> int:
+    if not isinstance(v, int) or isinstance(v, bool) or v < 1:
+        raise DataError(f"{where}: version {v!r}; give a positive integer")
+    return v
 
 
 def write_calibration_xml(cal: LoadCellCalibration, path: str | Path) -> None:
@@ -156,6 +177,7 @@ def write_calibration_xml(cal: LoadCellCalibration, path: str | Path) -> None:
         DistUnits="m",
         GageUnits=cal.gauge_unit,
         Method=cal.method,
+        Version=str(cal.version),
     )
     for name, row in zip(AXES, cal.matrix, strict=True):
         ET.SubElement(calel, "Axis", Name=name, values=" ".join(f"{v:.17g}" for v in row))
@@ -202,6 +224,7 @@ def read_calibration_xml(path: str | Path) -> LoadCellCalibration:
         matrix=m,
         method=calel.get("Method", ""),
         gauge_unit=calel.get("GageUnits", "V"),
+        version=_version(int(calel.get("Version", "1") or 1), p),
     )
 
 
@@ -213,3 +236,50 @@ def read_calibration(path: str | Path) -> LoadCellCalibration:
     if suffix in (".xml", ".cal"):
         return read_calibration_xml(path)
     raise DataError(f"{path}: unknown calibration file type; use .json or .xml/.cal")
+
+
+@dataclass(frozen=True)
+class InstalledCalibration:
+    """Where :func:`install_calibration` put a calibration."""
+
+    version: int
+    json_path: Path
+    xml_path: Path
+    current_path: Path
+
+
+def install_calibration(cal: LoadCellCalibration, current: str | Path) -> InstalledCalibration:
+    """Keep ``cal`` as the next version and make it the current calibration.
+
+    ``current`` is the file the rig file names (``calibrations/lc-501.json`` or ``.xml``). The
+    version is one more than the highest of ``<stem>-v<N>.json`` beside it and of the current
+    file; both formats are written as ``<stem>-v<N>.json/.xml``, then the current file is
+    replaced (write to a temporary file, then rename: a reader never sees half a file).
+    """
+    import dataclasses
+    import os
+    import re
+
+    cur = Path(current)
+    cur.parent.mkdir(parents=True, exist_ok=True)
+    stem = cur.stem
+    pat = re.compile(re.escape(stem) + r"-v(\d+)\.(json|xml)$")
+    seen = [int(m.group(1)) for f in cur.parent.iterdir() if (m := pat.match(f.name))]
+    if cur.exists():
+        try:
+            seen.append(read_calibration(cur).version)
+        except DataError:
+            pass
+    version = max(seen, default=0) + 1
+    new = dataclasses.replace(cal, version=version)
+    jp = cur.parent / f"{stem}-v{version}.json"
+    xp = cur.parent / f"{stem}-v{version}.xml"
+    write_calibration_json(new, jp)
+    write_calibration_xml(new, xp)
+    tmp = cur.parent / f".{cur.name}.tmp"
+    if cur.suffix.lower() in (".xml", ".cal"):
+        write_calibration_xml(new, tmp)
+    else:
+        write_calibration_json(new, tmp)
+    os.replace(tmp, cur)
+    return InstalledCalibration(version, jp, xp, cur)

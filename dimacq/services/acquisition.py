@@ -244,6 +244,17 @@ class ImpactSession:
             rows = block.forces
         else:
             rows = block.gauges_v
+        if self._lc_zero[k] is None:
+            # DC-coupled strain-gauge bridges read their zero and the static load at rest: the
+            # first samples of the run (before the first strike is asked for) are the zero,
+            # subtracted from everything after (AC-coupled gauges: about 0).
+            n0 = min(self._zero_samples, rows.shape[1])
+            ok = block.valid[:n0]
+            if ok.any():
+                self._lc_zero[k] = rows[:, :n0][:, ok].mean(axis=1)
+        zero = self._lc_zero[k]
+        if zero is not None:
+            rows = rows - zero[:, None]
         buf.append(rows, block.valid, np.broadcast_to(block.overload, rows.shape))
         if self.writer is not None:
             self.writer.append_loadcell(k, block.gauges_v, block.valid)
@@ -321,11 +332,19 @@ class ImpactSession:
         self._lc_bufs = [_Buffer(n_lc_rows) for _ in self.loadcells]
         assert self.daq.sample_rate_hz is not None
         fs = self.daq.sample_rate_hz
+        self._lc_zero: list[NDArray[np.float64] | None] = [None] * len(self.loadcells)
+        self._zero_samples = max(1, min(128, self.settings.hit_delay_samples))
         for lc in self.loadcells:
             lc.set_rate(round(fs))
             lc.start(external_clock=True)
         self.daq.start()
         records: list[list[dict[str, NDArray[np.float64]]]] = [[] for _ in range(n_in)]
+        # Streamed: an input's FRF is estimated as soon as its averages are in, and its records
+        # are dropped (memory: one input's records, not the whole test's).
+        H_all: NDArray[np.complex128] | None = None
+        coh_all: NDArray[np.float64] | None = None
+        freqs: NDArray[np.float64] | None = None
+        n_accepted: list[int] = []
         history: list[AverageRecord] = []
         stopped = False
         try:
@@ -369,6 +388,17 @@ class ImpactSession:
                         self.progress(
                             Progress(j, n_in, len(records[j]), s.averages_per_input, rejected, msg)
                         )
+                n_accepted.append(len(records[j]))
+                if records[j]:
+                    f_j, H_j, coh_j = self._frf(records[j], fs)
+                    if H_all is None:  # filled input by input: no stacking copy at the end
+                        H_all = np.zeros((*H_j.shape, n_in), dtype=H_j.dtype)
+                        coh_all = np.zeros((*coh_j.shape, n_in))
+                        freqs = f_j
+                    assert coh_all is not None
+                    H_all[:, :, j] = H_j
+                    coh_all[:, :, j] = coh_j
+                records[j] = []
             self.daq.stop()
             tail = self.daq.read_buffered()
             n_clocked = self._daq_buf.end if tail is None else tail.first_sample + tail.n_samples
@@ -389,21 +419,20 @@ class ImpactSession:
                         log.exception("stopping load cell after an error failed")
             if self.writer is not None:
                 self.writer.flush()
-        short = [self.input_names[j] for j in range(n_in) if not records[j]]
+        short = [self.input_names[j] for j in range(n_in) if not n_accepted[j]]
         if short:
             raise DataError(
                 f"inputs {short}: no acceptable average after {s.max_attempts_factor * s.averages_per_input} "
                 "strikes (see the rejected reasons in the acquisition file); fix the cause and "
                 "repeat those inputs"
             )
-        return self._frfs(records, history, fs)
+        assert H_all is not None and coh_all is not None and freqs is not None
+        return self._result(freqs, H_all, coh_all, history, n_accepted)
 
-    def _frfs(
-        self,
-        records: list[list[dict[str, NDArray[np.float64]]]],
-        history: list[AverageRecord],
-        fs: float,
-    ) -> ImpactResult:
+    def _frf(
+        self, recs: list[dict[str, NDArray[np.float64]]], fs: float
+    ) -> tuple[NDArray[np.float64], NDArray[np.complex128], NDArray[np.float64]]:
+        """One input's FRFs from its accepted records: (frequencies, H (L, n_out), coherence)."""
         s = self.settings
         n = s.record_samples
         w_out = (
@@ -414,18 +443,19 @@ class ImpactSession:
         w_in = w_out.copy()
         if s.force_window_samples:
             w_in *= force_window(n, min(n, s.pretrigger_samples + s.force_window_samples))
-        hs, cohs = [], []
-        freqs = None
-        for recs in records:
-            x = np.stack([r["force"] for r in recs])
-            y = np.stack([r["outputs"] for r in recs])
-            est = estimate_frf(
-                x, y, fs, estimator=s.estimator, input_window=w_in, output_window=w_out
-            )
-            hs.append(est.H[:, :, 0])
-            cohs.append(est.ordinary_coherence[:, :, 0])
-            freqs = est.frequencies_hz
-        assert freqs is not None
+        x = np.stack([r["force"] for r in recs])
+        y = np.stack([r["outputs"] for r in recs])
+        est = estimate_frf(x, y, fs, estimator=s.estimator, input_window=w_in, output_window=w_out)
+        return est.frequencies_hz, est.H[:, :, 0], est.ordinary_coherence[:, :, 0]
+
+    def _result(
+        self,
+        freqs: NDArray[np.float64],
+        H: NDArray[np.complex128],
+        coherence: NDArray[np.float64],
+        history: list[AverageRecord],
+        n_accepted: list[int],
+    ) -> ImpactResult:
         lc_names: list[str] = []
         for k in range(len(self.loadcells)):
             comps = (
@@ -436,12 +466,12 @@ class ImpactSession:
             lc_names += [f"loadcell{k} {c}" for c in comps]
         return ImpactResult(
             frequencies_hz=freqs,
-            H=np.stack(hs, axis=2),
-            coherence=np.stack(cohs, axis=2),
+            H=H,
+            coherence=coherence,
             output_names=self.response_names + tuple(lc_names),
             input_names=self.input_names,
             averages=tuple(history),
-            n_accepted=tuple(len(r) for r in records),
+            n_accepted=tuple(n_accepted),
         )
 
 
@@ -472,7 +502,9 @@ def impact_frf(
     for lc in setup.load_cells:
         outputs += [Channel(lc.node, k) for k in range(1, 7)]
         kinds += ["reaction"] * 6
-    keep = result.frequencies_hz > 0
+    f = result.frequencies_hz
+    # the 0 Hz line leads (ascending lines): a slice keeps views, not copies, of the arrays
+    keep: slice | NDArray[np.bool_] = slice(1, None) if f.size and f[0] == 0 else f > 0
     return FrfData(
         frequencies_hz=result.frequencies_hz[keep],
         H=result.H[keep],

@@ -1,6 +1,7 @@
 """CAN protocol of the dimacq 6-DOF load cell amplifier (12 gauges): documented codec.
 
-The amplifier digitises the 12 strain-gauge bridges of one 6-DOF load cell (±10 V, 24 bits) and
+The amplifier digitises the 12 gauges of one 6-DOF load cell (24 bits, ±10 full-scale units: mV/V
+for strain-gauge bridges, read ratiometrically against its excitation; V for AC-coupled gauges) and
 counts the DAQ's sample clock on its SYNC input, so every sample it sends carries the DAQ's sample
 counter: the host aligns the two streams by counter, never by arrival time. The driver and the
 simulator both import this module; it is the only thing they share.

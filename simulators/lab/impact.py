@@ -35,6 +35,7 @@ from dimacq.pipeline.frf_estimation import (
     exponential_window,
     force_window,
 )
+from dimacq.simulators.lab.bridge import strain_gauge_cell
 from dimacq.simulators.lab.scenarios import BuiltScenario
 from dimacq.simulators.lab.timedomain import Hammer, LabNoise, VirtualLab
 
@@ -103,6 +104,19 @@ def virtual_lab(
         double_hit_ratio=hm.double_hit_ratio,
         line_of_action_error_deg=hm.line_of_action_error_deg,
     )
+    bridges = None
+    lc = spec.loadcell
+    if lc.kind == "strain-gauge":
+        bridges = {
+            s.node: strain_gauge_cell(
+                s.node,
+                excitation_v=lc.excitation_v,
+                noise_uv=lc.noise_uv * noise_scale,
+                nonlinearity=lc.nonlinearity_pct_fs / 100,
+                hysteresis=lc.hysteresis_pct_fs / 100,
+            )
+            for s in built.model.supports
+        }
     try:
         return VirtualLab(
             built.article(rigid_only),
@@ -114,6 +128,7 @@ def virtual_lab(
             n_shakers=n_shakers,
             oversample=spec.shaker.oversample,
             cache_blocks=cache_blocks,
+            bridges=bridges,
         )
     except ValueError as err:
         raise SetupError(f"scenario {spec.name}: {err}") from err
@@ -161,6 +176,12 @@ def impact_test(
         gauge_ch += [lab.channel_index(n) for n in gauge_names(lc.node)]
         calib.append(np.asarray(np.linalg.pinv(lab.gauge_matrix(lc.node)), dtype=np.float64))
     channels = np.array([hammer_ch, *range(n_acc), *gauge_ch], dtype=np.intp)
+    # DC-coupled bridges carry a zero and the static load: tare them before the first strike,
+    # as the amplifier does (AC-coupled gauges read zero at rest).
+    tare = np.zeros(len(gauge_ch))
+    dc = np.array([lab.channel_units[c] == "mV/V" for c in gauge_ch], dtype=bool)
+    if dc.any():
+        tare[dc] = lab.read(np.array(gauge_ch, dtype=np.intp)[dc], 0, lab.block_samples).mean(1)
 
     # Windows: the pulse peaks 6σ after the strike and is over 6σ later.
     pulse_end = pre + int(np.ceil(12 * lab.sigma_s * fs)) + 2
@@ -173,7 +194,7 @@ def impact_test(
     inputs = np.empty((n_in, n_avg, 1, N))
     outputs = np.empty((n_in, n_avg, n_out, N))
     rng = np.random.default_rng([built.seed, 41])
-    cursor, strikes, rejected = 0, 0, 0
+    cursor, strikes, rejected = lab.block_samples if dc.any() else 0, 0, 0
     for j in range(n_in):
         got = 0
         while got < n_avg:
@@ -193,6 +214,7 @@ def impact_test(
             outputs[j, got, :n_acc] = rec[1 : 1 + n_acc]
             for c, C in enumerate(calib):
                 g = rec[1 + n_acc + 12 * c : 1 + n_acc + 12 * (c + 1)]
+                g = g - tare[12 * c : 12 * (c + 1), None]
                 outputs[j, got, n_acc + 6 * c : n_acc + 6 * (c + 1)] = C @ g
             got += 1
     H_cols, coh_cols = [], []

@@ -45,6 +45,13 @@ File layout (every table but ``[article]`` and ``[band]`` optional)::
     sensitivity_error = 0.0        # relative, per accelerometer axis
     cross_axis = 0.0               # fraction of the other two axes of the triax
 
+    [loadcell]         # the 6-DOF load cells' gauges
+    kind = "strain-gauge"          # strain-gauge (DC bridges, mV/V) | piezo (AC-coupled, V)
+    excitation_v = 10.0            # strain-gauge: bridge excitation
+    noise_uv = 0.05                # strain-gauge: amplifier input noise, µV rms per sample
+    nonlinearity_pct_fs = 0.05     # strain-gauge: per axis, % of rated load
+    hysteresis_pct_fs = 0.03       # strain-gauge: per axis, % of rated load
+
     [hammer]
     peak_n = 200.0
     pulse_sigma_ms = 0.7           # Gaussian pulse; omitted: 1.4 samples
@@ -101,6 +108,7 @@ from dimacq.simulators.lab.forward import ForwardModel, calibration_mass, cube, 
 __all__ = [
     "SCENARIO_DIR",
     "BuiltScenario",
+    "LoadCellSpec",
     "Scenario",
     "ShakerSpec",
     "build_scenario",
@@ -269,6 +277,24 @@ class TransducerSpec(_Spec):
     )
 
 
+class LoadCellSpec(_Spec):
+    kind: Literal["strain-gauge", "piezo"] = Field(
+        default="strain-gauge",
+        description="load cell gauges: strain-gauge (DC-coupled bridges, mV/V) or piezo "
+        "(AC-coupled, V)",
+    )
+    excitation_v: float = Field(default=10.0, gt=0, le=20, description="bridge excitation, V")
+    noise_uv: float = Field(
+        default=0.05, ge=0, description="amplifier input noise, µV rms per sample (≥ 0)"
+    )
+    nonlinearity_pct_fs: float = Field(
+        default=0.05, ge=0, le=5, description="nonlinearity per axis, % of rated load (0–5)"
+    )
+    hysteresis_pct_fs: float = Field(
+        default=0.03, ge=0, le=5, description="hysteresis per axis, % of rated load (0–5)"
+    )
+
+
 class HammerSpec(_Spec):
     peak_n: float = Field(default=200.0, gt=0, description="peak hammer force, N (> 0)")
     pulse_sigma_ms: float | None = Field(
@@ -377,6 +403,7 @@ class Scenario(_Spec):
     analysis: AnalysisSpec = AnalysisSpec()
     errors: ErrorsSpec = ErrorsSpec()
     transducers: TransducerSpec = TransducerSpec()
+    loadcell: LoadCellSpec = LoadCellSpec()
     hammer: HammerSpec = HammerSpec()
     acquisition: AcquisitionSpec = AcquisitionSpec()
     shaker: ShakerSpec = ShakerSpec()

@@ -205,6 +205,9 @@ def shaker_test(
         out[:n_acc] = rec[g : g + n_acc]
         for c, C in enumerate(calib):
             gg = rec[g + n_acc + 12 * c : g + n_acc + 12 * (c + 1)]
+            if lab.channel_units[gauge_ch[12 * c]] == "mV/V":
+                # DC-coupled bridges: their zero and static load are not part of the response
+                gg = gg - gg.mean(axis=1, keepdims=True)
             out[n_acc + 6 * c : n_acc + 6 * (c + 1)] = C @ gg
         if kind == "random":
             x = welch_segments(rec[:g], N, N - step)

@@ -28,7 +28,11 @@ Free-free bodies (no supports) have no states: the accelerations are ``D f`` exa
 
 Transducers: accelerometer sensitivity error and cross-axis sensitivity (mixing within a triax),
 Gaussian noise per channel, the hammer's own force channel, and each load cell's 12 gauges from its
-local ``[f; m]`` through a 12×6 sensitivity matrix, with noise and a slow zero drift.
+local ``[f; m]`` through a 12×6 sensitivity matrix: AC-coupled (piezo-like, volts, with noise and
+a slow zero drift; the loads are the dynamic part only) or, for the cells given in ``bridges``,
+DC-coupled strain-gauge bridges in mV/V (:mod:`dimacq.simulators.lab.bridge`: they also carry
+the static load of gravity on the article, their zero offset and its temperature drift, and the
+nonlinearity of the cell).
 """
 
 from __future__ import annotations
@@ -46,6 +50,7 @@ from scipy.special import erfc
 
 from dimacq.errors import SetupError
 from dimacq.model.channels import N_GAUGES, axis_name, gauge_names, load_names
+from dimacq.simulators.lab.bridge import BridgeState, StrainGaugeCell
 from dimacq.simulators.lab.forward import ForwardModel
 
 __all__ = [
@@ -53,6 +58,7 @@ __all__ = [
     "LabNoise",
     "ShakerSignal",
     "VirtualLab",
+    "default_gauge_matrix",
     "foh_coefficients",
     "modal_foh_filter",
     "state_space",
@@ -426,7 +432,8 @@ class VirtualLab:
     """The analogue world behind the lab's sample clock; implements ``SampleSource``.
 
     Channels: one per response (``"1103+Y"``, m/s²), ``"hammer"`` (N, the force of whichever input
-    is struck), and for each load cell ``"LC501 g01" .. "LC501 g12"`` (V) followed by
+    is struck), and for each load cell ``"LC501 g01" .. "LC501 g12"`` (V, or mV/V for a
+    strain-gauge cell of ``bridges``) followed by
     ``"LC501 Fx" .. "LC501 Mz"`` (N, N·m: the cell's local loads before the gauges, for tests),
     then ``"shaker1" .. "shakerN"`` (N, each shaker's force) if ``n_shakers > 0``.
 
@@ -449,6 +456,12 @@ class VirtualLab:
     noise : LabNoise
     gauge_sensitivity : dict node → (12, 6) V per N / N·m, optional
         Default: a seeded 4-spoke-like matrix of full rank.
+    bridges : dict node → StrainGaugeCell, optional
+        Load cells with DC-coupled strain-gauge bridges (mV/V); their ``sensitivity_mvv`` is the
+        cell's gauge matrix. The others are AC-coupled (piezo-like, V).
+    gravity_mps2 : float
+        Gravity along −Z of the GCS: the static load the bridges carry (the article's weight
+        shared by the supports, from the supports' static stiffness).
     seed : int
     block_samples : int
         Internal block length (samples) of the exact block recursion.
@@ -474,6 +487,8 @@ class VirtualLab:
     oversample: int = 4
     anti_alias: bool = True
     cache_blocks: int = 4096
+    bridges: dict[int, StrainGaugeCell] | None = None
+    gravity_mps2: float = 9.80665
 
     def __post_init__(self) -> None:
         from scipy.signal import butter  # lazy: scipy.signal is slow to import
@@ -534,17 +549,38 @@ class VirtualLab:
         rows: list[FloatArray] = [X[:n_acc]]
         hammer_row = n_acc
         self._gauge_matrix: dict[int, FloatArray] = {}
+        bridges = dict(self.bridges or {})
+        unknown = sorted(set(bridges) - {s.node for s in self.model.supports})
+        if unknown:
+            raise ValueError(f"bridges for load cells {unknown} that the model does not have")
+        preload = _static_support_loads(self.model, self.gravity_mps2) if bridges else None
+        #: strain-gauge cells: node → (state, gauge channel rows, load channel rows)
+        self._bridges: dict[int, tuple[BridgeState, NDArray[np.intp], NDArray[np.intp]]] = {}
+        n_rows = n_acc + 1
         for s_i, s in enumerate(self.model.supports):
             S = (self.gauge_sensitivity or {}).get(s.node)
+            cell = bridges.get(s.node)
+            if cell is not None:
+                S = cell.sensitivity_mvv
             if S is None:
                 # A property of the cell (its serial number), not of the test: the same in every run.
-                S = _default_gauge_matrix(np.random.default_rng([11, s.node]))
+                S = default_gauge_matrix(np.random.default_rng([11, s.node]))
             self._gauge_matrix[s.node] = np.asarray(S, float)
             sel = np.zeros((6, n_out))
             sel[:, n_acc + 6 * s_i : n_acc + 6 * s_i + 6] = np.eye(6)
             rows.append(self._gauge_matrix[s.node] @ sel)
             names += gauge_names(s.node)
-            units += ["V"] * N_GAUGES
+            units += ["V" if cell is None else "mV/V"] * N_GAUGES
+            if cell is not None:
+                assert preload is not None
+                state = BridgeState(cell)
+                state.place(preload[s_i], -1e9, settle=True)  # hung long before the test
+                self._bridges[s.node] = (
+                    state,
+                    np.arange(n_rows, n_rows + N_GAUGES),
+                    np.arange(n_rows + N_GAUGES, n_rows + N_GAUGES + 6),
+                )
+            n_rows += N_GAUGES + 6
             rows.append(sel)
             names += load_names(s.node)
             units += ["N", "N", "N", "N*m", "N*m", "N*m"]
@@ -562,7 +598,7 @@ class VirtualLab:
         self._phys_rows = np.flatnonzero(phys)
         self.channel_names = tuple(names)
         self.channel_units = tuple(units)
-        self._is_gauge = np.array([u == "V" for u in units])
+        self._is_gauge = np.array([u == "V" for u in units])  # AC-coupled gauges
         self._noise_std = np.array(
             [
                 self.noise.accel_noise_ms2
@@ -571,6 +607,8 @@ class VirtualLab:
                 if u == "N" and (n == "hammer" or n.startswith("shaker"))
                 else self.noise.gauge_noise_v
                 if u == "V"
+                else bridges[int(n[2 : n.index(" ")])].noise_mvv
+                if u == "mV/V"
                 else 0.0
                 for n, u in zip(names, units, strict=True)
             ]
@@ -891,6 +929,9 @@ class VirtualLab:
             self._frontier = (b + 1) * Bn
         y[self._phys_rows] = y_ns
         y[self._hammer_row] = force
+        for state, g_rows, f_rows in self._bridges.values():
+            # DC-coupled bridges: static level + dynamic load, through the cell's nonlinearity.
+            y[g_rows] = state.readings(t, y[f_rows])
         # Noise (counter-based: block b always gets the same draws) and gauge drift.
         if np.any(self._noise_std > 0):
             rng = np.random.default_rng([self.seed, 17, b])
@@ -907,13 +948,31 @@ class VirtualLab:
         return self._gauge_matrix[node]
 
 
+def _static_support_loads(model: ForwardModel, gravity_mps2: float) -> FloatArray:
+    """Each support's local load (n_supports, 6) under gravity ``g`` along −Z of the GCS.
+
+    The article's weight ``w = m g (−ẑ)`` at its CG is the generalised force
+    ``q = [w; c × w; 0]``; statics ``K z = q`` with the supports' stiffness, and each cell reads
+    ``−sign K_s A'_s z`` (:func:`state_space`'s load cell rows with ``ż = 0``): the steady
+    output ``y = (D − C A⁻¹ B) q``.
+    """
+    props = model.properties
+    w = np.array([0.0, 0.0, -props.mass_kg * gravity_mps2])
+    q = np.zeros((model.n_dof, 1))
+    q[:3, 0] = w
+    q[3:6, 0] = np.cross(np.asarray(props.cg_m, float), w)
+    A, B, C, D, n_acc = state_space(model, q)
+    y = D - C @ np.linalg.solve(A, B) if A.shape[0] else D
+    return np.asarray(y[n_acc:, 0].reshape(-1, 6), dtype=np.float64)
+
+
 def _real_matmul(a: ComplexArray, b: ComplexArray) -> FloatArray:
     """``Re(a @ b)`` with two real products (complex GEMM is far slower on some BLAS builds)."""
     out: FloatArray = a.real @ b.real - a.imag @ b.imag
     return out
 
 
-def _default_gauge_matrix(rng: np.random.Generator) -> FloatArray:
+def default_gauge_matrix(rng: np.random.Generator) -> FloatArray:
     """A 12×6 sensitivity of a 4-spoke strain-gauge cell (V per N and per N·m), well conditioned.
 
     Each spoke carries three gauges sensing mostly one combination of loads; a seeded perturbation

@@ -38,6 +38,7 @@ __all__ = ["LoadCellAmplifierSim", "LoadCellFaults"]
 log = logging.getLogger(__name__)
 
 _CHUNK = 256
+_MAX_LAG = 8 * _CHUNK
 
 
 @dataclass
@@ -67,6 +68,9 @@ class LoadCellAmplifierSim:
         What the amplifier holds in its memory at power-on (default zeros).
     oscillator_ppm : float
         Error of the amplifier's own oscillator (heartbeat time base).
+    time_scale : float
+        Simulation only: the internal clock runs this many times faster than the host's wall
+        clock (a dead-weight calibration's minutes of settling in seconds). SYNC is unaffected.
     faults : LoadCellFaults, optional
     """
 
@@ -81,8 +85,12 @@ class LoadCellAmplifierSim:
         serial_number: int = 501,
         calibration_matrix: Any = None,
         oscillator_ppm: float = 0.0,
+        time_scale: float = 1.0,
         faults: LoadCellFaults | None = None,
     ) -> None:
+        if time_scale <= 0:
+            raise ValueError(f"time_scale {time_scale}: give a positive factor")
+        self.time_scale = float(time_scale)
         if len(gauge_channels) != p.N_GAUGES:
             raise ValueError(f"give {p.N_GAUGES} gauge channels, got {len(gauge_channels)}")
         self.source = source
@@ -107,6 +115,8 @@ class LoadCellAmplifierSim:
         self._base_count = 0
         self._epoch = 0
         self._t0 = 0.0
+        self._world_internal = 0  # next world sample on the internal clock
+        self._internal_epoch = 0  # world sample of counter 0 of an internal-clock run
         self._download: dict[int, bytes] = {}
         self._download_len = 0
         self._stop_evt = threading.Event()
@@ -196,6 +206,8 @@ class LoadCellAmplifierSim:
                 with self._source_lock():
                     g = self.source.read(self.gauges, pos, max(1, n))
                 self.offsets = g.mean(axis=1)
+                if self.clock is None or not self._external:
+                    self._world_internal = pos + max(1, n)
                 self._reply(p.TareReply())
             case p.CalDownloadBegin(n_bytes=n_bytes):
                 self._download_len = n_bytes
@@ -230,15 +242,16 @@ class LoadCellAmplifierSim:
         return self.clock.source_lock if self.clock is not None else self._lock
 
     def _world_now(self) -> int:
-        if self.clock is not None:
+        if self.clock is not None and self._external:
             st = self.clock.state()
             return st.epoch + st.count
-        return 0
+        return self._world_internal  # on its own clock the world goes on from its last read
 
     def _arm(self, external: bool) -> None:
         self._external = external
         self._counter = 0
         self._pulses = 0
+        self._internal_epoch = self._world_internal
         self._t0 = time.monotonic()
         if external:
             if self.clock is None:
@@ -253,7 +266,13 @@ class LoadCellAmplifierSim:
     def _available_pulses(self) -> int:
         """SYNC pulses seen since START (or internal clock ticks)."""
         if not self._external:
-            return int((time.monotonic() - self._t0) * self.rate_hz)
+            ticks = int((time.monotonic() - self._t0) * self.rate_hz * self.time_scale)
+            if ticks > self._pulses + _MAX_LAG:
+                # The simulator thread fell behind its own (scaled) clock: the oscillator slips
+                # rather than queueing a backlog no real amplifier would have.
+                self._t0 += (ticks - self._pulses - _MAX_LAG) / (self.rate_hz * self.time_scale)
+                ticks = self._pulses + _MAX_LAG
+            return ticks
         assert self.clock is not None
         st = self.clock.state()
         if st.run != self._base_run:
@@ -287,9 +306,11 @@ class LoadCellAmplifierSim:
             is_missed |= (pulses >= at) & (pulses < at + m)
             missed_upto += np.clip(pulses - at + 1, 0, m)
         counters = pulses - missed_upto
-        world0 = self._epoch + self._base_count if self._external else 0
+        world0 = self._epoch + self._base_count if self._external else self._internal_epoch
         with self._source_lock():
             g = self.source.read(self.gauges, world0 + pulse0, n)
+        if not self._external:
+            self._world_internal = world0 + pulse0 + n
         g = (g - self.offsets[:, None]).T
         keep = ~is_missed
         frames, _ = p.encode_data_frames(counters[keep], g[keep])

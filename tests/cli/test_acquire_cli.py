@@ -87,7 +87,45 @@ def test_loadcell_calibrate_simulated(tmp_path, capsys, no_leaks):
     np.testing.assert_allclose(cal.matrix, np.array(res["matrix"]))
 
 
-def test_loadcell_calibrate_needs_simulated(capsys):
-    rc = main(["loadcell", "calibrate"])
-    assert rc != 0
-    assert "--simulated" in capsys.readouterr().err
+def test_loadcell_calibrate_static_simulated_json_contract(tmp_path, capsys, no_leaks):
+    out = tmp_path / "static.json"
+    rc = main(
+        [
+            "loadcell",
+            "calibrate",
+            "--simulated",
+            "--method",
+            "static",
+            "--plan",
+            "minimal",
+            "--impacts-per-input",
+            "1",
+            "--json",
+            str(out),
+            "--xml",
+            str(tmp_path / "lc.xml"),
+        ]
+    )
+    assert rc == 0
+    res = json.loads(out.read_text())
+    assert res["method"] == "static"
+    assert res["matrix_error_rel"] < 1e-3
+    for key in ("nonlinearity_pct_fs", "hysteresis_pct_fs", "uncertainty_pct_fs"):
+        assert len(res[key]) == 6
+    np.testing.assert_allclose(res["nonlinearity_pct_fs"], 0.05, rtol=0.1)  # simulated 0.05 %
+    np.testing.assert_allclose(res["hysteresis_pct_fs"], 0.03, rtol=0.1)  # simulated 0.03 %
+    assert abs(res["circular_mass_error_pct"]) < 0.5
+    assert "static calibration" in capsys.readouterr().out
+    from dimacq.io.loadcell_calibration import read_calibration
+
+    cal = read_calibration(tmp_path / "lc.xml")
+    assert cal.method == "static" and cal.gauge_unit == "mV/V"
+
+
+def test_loadcell_calibrate_static_refuses_piezo_and_real_inertial(capsys):
+    rc = main(["loadcell", "calibrate", "--simulated", "--method", "static", "--gauges", "piezo"])
+    assert rc == 2
+    assert "AC-coupled" in capsys.readouterr().err
+    rc = main(["loadcell", "calibrate", "--method", "inertial"])
+    assert rc == 2
+    assert "--method static" in capsys.readouterr().err

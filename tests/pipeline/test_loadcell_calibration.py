@@ -128,3 +128,130 @@ def test_static_dead_weight_calibration_and_piezo_refusal():
     assert fit.method == "static"
     with pytest.raises(SetupError, match=r"AC-coupled.*inertial"):
         static_calibration(readings, tare, loads, gauge_coupling="AC")
+
+
+# ---------------------------------------------------------------------------------------------
+# Static (dead-weight) calibration: plan, settled readings, zero correction, certificate
+# ---------------------------------------------------------------------------------------------
+RATED = np.array([500.0, 500.0, 1000.0, 50.0, 50.0, 50.0])
+
+
+def _gauge_matrix() -> np.ndarray:
+    rng = np.random.default_rng(3)
+    S = np.zeros((12, 6))
+    for spoke in range(4):
+        c, s = np.cos(spoke * np.pi / 2), np.sin(spoke * np.pi / 2)
+        S[3 * spoke] = [c, s, 0, 0, 0, 2]
+        S[3 * spoke + 1] = [0, 0, 1, 2 * s, -2 * c, 0]
+        S[3 * spoke + 2] = [-s, c, 0.3, 0, 0, -1]
+    S = S * 1e-3 + rng.normal(scale=1e-4, size=(12, 6))
+    S[:, 3:] *= 10
+    return S
+
+
+def test_standard_plan_spans_every_axis_both_ways_up_and_down() -> None:
+    from dimacq.pipeline.loadcell_calibration import check_load_plan, standard_load_plan
+
+    plan = standard_load_plan(RATED)
+    F = plan.loads() / RATED[:, None]
+    assert check_load_plan(plan) == []
+    assert np.all(F.max(axis=1) > 0.95) and np.all(F.min(axis=1) < -0.95)
+    assert np.all(np.abs(F) <= 1 + 1e-12)  # nothing beyond its rated load
+    # every loaded case has its negative in the plan (mirrored orientation)
+    cols = {tuple(np.round(c, 9)) for c in F.T}
+    assert all(tuple(np.round(-c, 9)) in cols for c in F.T)
+
+
+def test_plan_that_never_loads_mz_is_refused_naming_mz() -> None:
+    from dimacq.pipeline.loadcell_calibration import LoadPlan, check_load_plan, standard_load_plan
+
+    plan = standard_load_plan(RATED)
+    # drop the series whose hanger points give Mz (gravity along x or y, hanger off-centre)
+    keep = tuple(c for c in plan.cases if not (c.gravity[2] == 0 and c.point != "centre"))
+    with pytest.raises(SetupError, match="Mz"):
+        check_load_plan(LoadPlan(keep, RATED))
+
+
+def test_settled_mean_flags_a_creeping_window_and_accepts_a_steady_one() -> None:
+    from dimacq.pipeline.loadcell_calibration import settled_mean
+
+    rng = np.random.default_rng(0)
+    noise = 1e-5 * rng.standard_normal((12, 200))
+    step = np.full(12, 1.0)
+    steady = settled_mean(0.5 + noise, step)
+    assert steady.settled
+    np.testing.assert_allclose(steady.mean, 0.5, atol=5e-6)
+    creeping = settled_mean(0.5 + noise + np.linspace(0, 1e-4, 200)[None, :], step)
+    assert not creeping.settled
+    np.testing.assert_allclose(creeping.drift, 1e-4, rtol=0.1)
+
+
+def test_series_zero_correction_removes_tare_and_linear_drift_exactly() -> None:
+    from dimacq.pipeline.loadcell_calibration import series_zero_corrected, standard_load_plan
+
+    plan = standard_load_plan(RATED, minimal=True)
+    S = _gauge_matrix()
+    clean = (S @ plan.loads()).T
+    t = 25.0 * np.arange(len(plan.cases))
+    tare = np.array([np.full(12, 0.01 * c.series) for c in plan.cases])
+    drift = np.outer(t, np.linspace(-1e-7, 1e-7, 12))
+    out = series_zero_corrected(clean + tare + drift, t, plan)
+    np.testing.assert_allclose(out, clean, atol=1e-12)
+
+
+def test_static_certificate_recovers_pinv_s_and_the_simulated_imperfections() -> None:
+    """Readings from the bridge model's closed form (no wire): the fitted matrix is S⁺ and the
+    certificate reports the nonlinearity n and hysteresis h given to the model."""
+    from dimacq.pipeline.loadcell_calibration import standard_load_plan, static_certificate
+    from dimacq.simulators.lab.bridge import BridgeState, StrainGaugeCell
+
+    S = _gauge_matrix()
+    plan = standard_load_plan(RATED)
+    n, h = 5e-4, 3e-4
+    cell = StrainGaugeCell(
+        S, rated_load=RATED, nonlinearity=n, hysteresis=h, creep=0.0, swing=0.0, noise_uv=0.0
+    )
+    st = BridgeState(cell)
+    g = []
+    for k in range(len(plan.cases)):
+        st.place(plan.loads()[:, k], float(k))
+        g.append(S @ st.effective(np.array([k + 0.5]))[:, 0])
+    from dimacq.pipeline.loadcell_calibration import series_zero_corrected
+
+    gz = series_zero_corrected(np.array(g), np.arange(len(g)) + 0.5, plan)
+    cert = static_certificate(gz, plan)
+    C_true = np.linalg.pinv(S)
+    assert np.linalg.norm(cert.fit.matrix - C_true) / np.linalg.norm(C_true) < 2e-4
+    np.testing.assert_allclose(cert.nonlinearity_pct_fs, 100 * n, rtol=0.05)
+    np.testing.assert_allclose(cert.hysteresis_pct_fs, 100 * h, rtol=0.02)
+    assert cert.verdict == "ok"
+    # without imperfections the fit is exact and the figures vanish
+    st0 = BridgeState(
+        StrainGaugeCell(S, rated_load=RATED, nonlinearity=0.0, hysteresis=0.0, creep=0.0, swing=0.0)
+    )
+    g0 = []
+    for k in range(len(plan.cases)):
+        st0.place(plan.loads()[:, k], float(k))
+        g0.append(S @ st0.effective(np.array([k + 0.5]))[:, 0])
+    cert0 = static_certificate(
+        series_zero_corrected(np.array(g0), np.arange(len(g0)) + 0.5, plan), plan
+    )
+    np.testing.assert_allclose(cert0.fit.matrix, C_true, atol=1e-9 * np.abs(C_true).max())
+    assert cert0.nonlinearity_pct_fs.max() < 1e-9 and cert0.hysteresis_pct_fs.max() < 1e-9
+
+
+def test_static_certificate_refuses_ac_coupled_gauges() -> None:
+    from dimacq.pipeline.loadcell_calibration import standard_load_plan, static_certificate
+
+    plan = standard_load_plan(RATED, minimal=True)
+    with pytest.raises(SetupError, match="AC-coupled"):
+        static_certificate(np.zeros((len(plan.cases), 12)), plan, gauge_coupling="AC")
+
+
+def test_settled_mean_counts_a_step_in_the_window_as_drift() -> None:
+    from dimacq.pipeline.loadcell_calibration import settled_mean
+
+    rng = np.random.default_rng(1)
+    g = 0.5 + 1e-5 * rng.standard_normal((12, 40))
+    g[:, :3] -= 0.2  # the load arrived three samples into the window
+    assert not settled_mean(g, np.full(12, 0.5)).settled

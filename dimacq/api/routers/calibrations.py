@@ -1,4 +1,8 @@
-"""Load cell calibrations (JSON documents of :mod:`dimacq.io.loadcell_calibration`)."""
+"""Load cell calibrations (JSON documents of :mod:`dimacq.io.loadcell_calibration`) and
+calibration runs: ``POST /api/calibrations/runs`` starts a job (follow it at
+``/api/jobs/{job_id}``); on the real rig the job waits at every load case:
+``GET /api/calibrations/runs/{job_id}/prompt`` tells which, ``POST .../confirm`` with
+``{"case": N}`` says it is in place."""
 
 from __future__ import annotations
 
@@ -38,6 +42,64 @@ async def add_calibration(request: Request, lab: LabDep) -> dict[str, Any]:
     if not isinstance(body, dict):
         raise DataError("body: send a JSON object (the calibration document)")
     return asdict(await run_in_threadpool(lab.calibrations.save, body))
+
+
+@router.post(
+    "/runs",
+    response_model=dict[str, Any],
+    status_code=status.HTTP_202_ACCEPTED,
+    openapi_extra={
+        "requestBody": {
+            "required": False,
+            "content": {
+                "application/json": {
+                    "schema": {
+                        "type": "object",
+                        "properties": {
+                            "method": {"enum": ["static", "inertial"]},
+                            "node": {"anyOf": [{"type": "integer"}, {"type": "null"}]},
+                            "download": {"type": "boolean"},
+                            "plan": {"enum": ["standard", "minimal"]},
+                        },
+                        "additionalProperties": False,
+                    }
+                }
+            },
+        }
+    },
+)
+async def start_calibration_run(request: Request, lab: LabDep) -> dict[str, Any]:
+    """Start a load cell calibration job (``method`` static | inertial, ``node``,
+    ``download``, ``plan``): ``{"job_id", "method", "simulated"}``."""
+    raw = await request.body()
+    try:
+        body = json.loads(raw) if raw.strip() else {}
+    except (json.JSONDecodeError, UnicodeDecodeError) as err:
+        raise DataError(f'body: not valid JSON ({err}); send {{"method": "static"}}') from err
+    if not isinstance(body, dict):
+        raise DataError('body: send a JSON object, e.g. {"method": "static"}')
+    return await run_in_threadpool(lab.calibrations.runs.start, body)
+
+
+@router.get("/runs/{job_id}/prompt", response_model=dict[str, Any])
+def calibration_prompt(job_id: str, lab: LabDep) -> dict[str, Any]:
+    """The load case the run waits for: ``{"waiting", "case", "of", "message"}``."""
+    found(lab.jobs.snapshot(job_id), f"job {job_id}")
+    return lab.calibrations.runs.prompt(job_id)
+
+
+@router.post("/runs/{job_id}/confirm", response_model=dict[str, Any])
+async def confirm_load_case(job_id: str, request: Request, lab: LabDep) -> dict[str, Any]:
+    """The operator has put load case ``{"case": N}`` in place."""
+    found(lab.jobs.snapshot(job_id), f"job {job_id}")
+    try:
+        body = json.loads(await request.body())
+    except (json.JSONDecodeError, UnicodeDecodeError) as err:
+        raise DataError(f'body: not valid JSON ({err}); send {{"case": N}}') from err
+    case = body.get("case") if isinstance(body, dict) else None
+    if not isinstance(case, int) or isinstance(case, bool):
+        raise DataError('body: give the load case number, {"case": N}')
+    return lab.calibrations.runs.confirm(job_id, case)
 
 
 @router.get("", response_model=list[dict[str, Any]])

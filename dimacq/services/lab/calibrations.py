@@ -1,9 +1,11 @@
 """Load cell calibrations: JSON documents (:mod:`dimacq.io.loadcell_calibration`) in the
-database."""
+database, and calibration runs as jobs (:attr:`CalibrationService.runs`,
+:class:`~dimacq.services.loadcell_calibration.CalibrationRuns`: static or inertial, simulated or
+on the configured rig with the operator's prompts answered over the API)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from typing import Any
 
 from sqlalchemy import select
@@ -29,9 +31,16 @@ class StoredCalibration:
 
 
 class CalibrationService:
-    def __init__(self, db: Database, stand: str = "") -> None:
+    def __init__(
+        self, db: Database, stand: str = "", *, jobs: Any = None, settings: Any = None
+    ) -> None:
         self.db = db
         self.stand = stand
+        self.runs: Any = None
+        if jobs is not None and settings is not None:
+            from dimacq.services.lab.calibration_runs import CalibrationRuns
+
+            self.runs = CalibrationRuns(jobs, settings, lambda doc: asdict(self.save(doc)))
 
     def save(self, document: Any) -> StoredCalibration:
         """Validate a calibration document (schema_version 1) and store it normalised (SI)."""

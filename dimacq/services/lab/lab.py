@@ -15,7 +15,8 @@ services the REST API (and anything else) drives:
                           figure of a stored solution
 ``lab.acquisitions``      :class:`~dimacq.services.lab.acquisitions.AcquisitionService`: impact
                           tests as jobs, every average kept
-``lab.calibrations``      :class:`~dimacq.services.lab.calibrations.CalibrationService`
+``lab.calibrations``      :class:`~dimacq.services.lab.calibrations.CalibrationService`:
+                          documents, and calibration runs as jobs (``.runs``)
 ``lab.studies``           :class:`~dimacq.services.lab.studies.StudyService`: sensitivity
 ``lab.jobs``              :class:`~dimacq.services.jobs.JobManager`
 ========================  ===================================================================
@@ -137,7 +138,7 @@ class Lab:
             stand=name,
             outbox=self.outbox,
         )
-        self.calibrations = CalibrationService(self.db, name)
+        self.calibrations = CalibrationService(self.db, name, jobs=self.jobs, settings=settings)
         self.studies = StudyService(self.db, self.jobs, name)
         self.job_store.interrupt_stale()  # this stand's jobs that ran when it stopped
         self.acquisitions.recover()

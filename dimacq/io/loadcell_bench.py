@@ -1,0 +1,123 @@
+"""The dead-weight calibration bench: ``config/loadcell_bench.toml`` (schema_version 1).
+
+What a static calibration needs to know about the bench, beside the rig file's load cell entry
+(which amplifier, which calibration file): the cell's rated loads, the loading arm's geometry
+(nominal, and the digitized positions of its hanger points in the cell frame), the weights' step,
+the stated uncertainties of the reference loads and the timing of the readings.
+
+.. code-block:: toml
+
+    schema_version = 1
+    rated_load = [500.0, 500.0, 1000.0, 50.0, 50.0, 50.0]   # Fx Fy Fz in N, Mx My Mz in N*m
+    arm_m = 0.1                    # hanger points at ±arm_m off the cell's axis
+    height_m = 0.05                # height of the arm above the cell's origin
+    levels = [0.5, 1.0]            # load steps of a series, fractions of its mass
+    mass_step_kg = 0.5             # the weight set's smallest step
+    plan = "standard"              # standard (22 series) | minimal (14)
+    mass_rel_uncertainty = 5e-5    # standard uncertainties of the reference loads
+    position_uncertainty_m = 5e-6
+    gravity_uncertainty_rad = 1e-4
+
+    [[points]]                     # digitized hanger points, cell frame, m (override nominal)
+    name = "arm +x"
+    position_m = [0.10001, 0.0, 0.04998]
+
+    [timing]
+    sample_rate_hz = 20            # amplifier rate on its own clock
+    settle_s = 20.0                # after the operator has placed a load
+    average_s = 5.0                # one averaging window
+    max_wait_s = 120.0             # give up waiting for creep to stop (reading flagged)
+    creep_tolerance = 2e-5         # drift per window allowed, fraction of the reading's change
+
+Files are refused item by item (the message names the item and what to give).
+"""
+
+from __future__ import annotations
+
+import tomllib
+from pathlib import Path
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from dimacq.errors import SetupError
+from dimacq.io.validation import refuse
+from dimacq.pipeline.loadcell_calibration import LoadPlan, standard_load_plan
+
+__all__ = ["BenchFile", "load_bench_file"]
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class BenchPoint(_Model):
+    name: str = Field(min_length=1, description="a hanger point of the plan, e.g. 'arm +x'")
+    position_m: tuple[float, float, float] = Field(description="[x, y, z] in the cell frame, m")
+
+
+class BenchTiming(_Model):
+    sample_rate_hz: int = Field(default=20, ge=1, le=10000, description="S/s (1–10000)")
+    settle_s: float = Field(default=20.0, ge=0, description="seconds ≥ 0")
+    average_s: float = Field(default=5.0, gt=0, description="seconds > 0")
+    max_wait_s: float = Field(default=120.0, gt=0, description="seconds > 0")
+    creep_tolerance: float = Field(default=2e-5, gt=0, lt=0.1, description="a fraction (0–0.1)")
+
+
+class BenchFile(_Model):
+    """The dead-weight bench (see the module docstring)."""
+
+    schema_version: Literal[1] = Field(description="schema_version = 1")
+    rated_load: tuple[float, float, float, float, float, float] = Field(
+        description="six positive rated loads [Fx, Fy, Fz] N, [Mx, My, Mz] N*m"
+    )
+    arm_m: float = Field(default=0.1, gt=0, le=2, description="metres (0–2)")
+    height_m: float = Field(default=0.05, ge=0, le=2, description="metres (0–2)")
+    levels: tuple[float, ...] = Field(
+        default=(0.5, 1.0), min_length=1, description="increasing fractions ending at 1.0"
+    )
+    mass_step_kg: float = Field(default=0.5, gt=0, description="kilograms > 0")
+    plan: Literal["standard", "minimal"] = Field(
+        default="standard", description="standard or minimal"
+    )
+    mass_rel_uncertainty: float = Field(default=5e-5, ge=0, lt=0.01, description="fraction")
+    position_uncertainty_m: float = Field(default=5e-6, ge=0, lt=0.01, description="metres")
+    gravity_uncertainty_rad: float = Field(default=1e-4, ge=0, lt=0.1, description="radians")
+    points: tuple[BenchPoint, ...] = Field(default=(), description="[[points]] entries")
+    timing: BenchTiming = BenchTiming()
+
+    def load_plan(self) -> LoadPlan:
+        return standard_load_plan(
+            self.rated_load,
+            arm_m=self.arm_m,
+            height_m=self.height_m,
+            levels=self.levels,
+            mass_step_kg=self.mass_step_kg,
+            minimal=self.plan == "minimal",
+            points={p.name: p.position_m for p in self.points},
+            mass_rel_uncertainty=self.mass_rel_uncertainty,
+            position_uncertainty_m=self.position_uncertainty_m,
+            gravity_uncertainty_rad=self.gravity_uncertainty_rad,
+        )
+
+
+def load_bench_file(path: str | Path) -> BenchFile:
+    """Read and check a bench file; :class:`SetupError` naming the item otherwise."""
+    p = Path(path)
+    try:
+        data = tomllib.loads(p.read_text(encoding="utf-8"))
+    except OSError as err:
+        raise SetupError(
+            f"bench file {p}: cannot read it ({err}); give the dead-weight bench file "
+            "(config/loadcell_bench.toml)"
+        ) from err
+    except tomllib.TOMLDecodeError as err:
+        raise SetupError(f"bench file {p}: not valid TOML ({err})") from err
+    try:
+        bench = BenchFile.model_validate(data)
+    except ValidationError as err:
+        raise refuse(
+            "bench file", str(p), err, BenchFile, "see dimacq/io/loadcell_bench.py"
+        ) from err
+    bench.load_plan()  # refuses geometry that overloads the cell or unknown points
+    return bench

@@ -1,0 +1,113 @@
+"""A load cell calibration run through the API on the real-rig path, over HTTP: the job asks for
+every load case, the test operator sets it up on the simulated dead-weight bench (behind the
+amplifier simulator on the configured CAN channel) and confirms; the result is installed,
+downloaded, read back and recorded."""
+
+from __future__ import annotations
+
+import os
+import time
+import uuid
+from pathlib import Path
+
+import httpx
+import numpy as np
+from _api_support import TOKEN, make_settings
+
+from dimacq.api import create_app
+from dimacq.api.server import BackgroundServer
+from dimacq.io.loadcell_calibration import read_calibration
+from dimacq.simulators.lab.bridge import strain_gauge_cell
+from dimacq.simulators.loadcell.amplifier import LoadCellAmplifierSim
+from dimacq.simulators.loadcell.bench import DeadWeightBench
+
+BENCH = """schema_version = 1
+rated_load = [500.0, 500.0, 1000.0, 50.0, 50.0, 50.0]
+plan = "minimal"
+[timing]
+sample_rate_hz = 10
+settle_s = 8.0
+average_s = 2.0
+max_wait_s = 20.0
+"""
+
+RIG = """schema_version = 1
+[daq]
+sample_rate_hz = 2048.0
+[[hammers]]
+physical_channel = 0
+sensitivity_mv_per_n = 2.25
+[[load_cells]]
+node = 501
+node_id = 2
+calibration_file = "calibrations/lc-501.json"
+"""
+
+
+def test_static_run_with_prompts_over_http(tmp_path: Path) -> None:
+    rig_dir = tmp_path / "rig"
+    (rig_dir / "calibrations").mkdir(parents=True)
+    (rig_dir / "rig.toml").write_text(RIG, encoding="utf-8")
+    (rig_dir / "loadcell_bench.toml").write_text(BENCH, encoding="utf-8")
+    cell = strain_gauge_cell(501, creep_tau_s=1.5, swing_tau_s=0.8)
+    bench = DeadWeightBench(cell, sample_rate_hz=10, seed=9)
+    channel = f"dimacq-apical-{os.getpid()}-{uuid.uuid4().hex[:8]}"
+    settings = make_settings(
+        tmp_path / "data",
+        daq_backend="libusb",
+        daq_vendor_id=0xFFFE,
+        daq_product_id=0xFFFE,
+        loadcell_interface="virtual",
+        loadcell_channel=channel,
+        rig_file=str(rig_dir / "rig.toml"),
+    )
+    plan_cases = None
+    with (
+        LoadCellAmplifierSim(
+            channel, bench, list(range(12)), node_id=2, serial_number=501, time_scale=200.0
+        ) as sim,
+        BackgroundServer(create_app(settings)) as srv,
+        httpx.Client(
+            base_url=srv.url, headers={"Authorization": f"Bearer {TOKEN}"}, timeout=30
+        ) as c,
+    ):
+        r = c.post("/api/calibrations/runs", json={"method": "static", "download": True})
+        assert r.status_code == 202, r.text
+        job = r.json()["job_id"]
+        assert r.json()["simulated"] is False
+        from dimacq.pipeline.loadcell_calibration import standard_load_plan
+
+        plan_cases = standard_load_plan(cell.rated_load, minimal=True).cases
+        confirmed = 0
+        deadline = time.monotonic() + 240
+        while time.monotonic() < deadline:
+            st = c.get(f"/api/jobs/{job}").json()
+            if st["state"] in ("succeeded", "failed", "cancelled"):
+                break
+            p = c.get(f"/api/calibrations/runs/{job}/prompt").json()
+            if not p["waiting"]:
+                time.sleep(0.02)
+                continue
+            case = plan_cases[p["case"]]
+            assert p["message"] == case.prompt() and p["of"] == len(plan_cases)
+            bench.place(case.mass_kg, np.array(case.position_m), np.array(case.gravity))
+            wrong = c.post(f"/api/calibrations/runs/{job}/confirm", json={"case": p["case"] + 1})
+            assert wrong.status_code == 422 and "waits for load case" in wrong.text
+            ok = c.post(f"/api/calibrations/runs/{job}/confirm", json={"case": p["case"]})
+            assert ok.status_code == 200, ok.text
+            confirmed += 1
+        assert st["state"] == "succeeded", st
+        res = st["result"]
+        assert confirmed == len(plan_cases)
+        C = np.array(res["matrix"])
+        C_true = np.linalg.pinv(cell.sensitivity_mvv)
+        assert np.linalg.norm(C - C_true) / np.linalg.norm(C_true) < 1e-3
+        assert res["download_verified"] == 72 and res["version"] == 1
+        np.testing.assert_array_equal(sim.matrix, C.astype("<f4").astype(float))
+        cals = c.get("/api/calibrations").json()
+        assert cals[-1]["id"] == res["record_id"]
+        assert cals[-1]["calibration"]["method"] == "static"
+        assert cals[-1]["calibration"]["version"] == 1
+        assert read_calibration(rig_dir / "calibrations" / "lc-501.json").version == 1
+        # a second run while none waits: confirm is refused, naming why
+        assert c.post(f"/api/calibrations/runs/{job}/confirm", json={"case": 0}).status_code == 409
