@@ -87,6 +87,15 @@ class Settings(BaseSettings):
     daq_product_id: int = Field(default=0xDA64, ge=0, le=0xFFFF)
     rig_file: str = ""
     scenario: str = "calibration-mass-bungee"
+    # Registration of the digitizer array (see dimacq.pipeline.digitizing.registration):
+    # 1σ per coordinate of the reference nodes' known GCS coordinates, and the largest accepted
+    # residual of one reference node (None: 5·sqrt(σ_point² + σ_reference²) with σ_point the
+    # array's [accuracy] point_m, 2.9 mm for the shipped array).
+    reference_node_accuracy_m: float = Field(default=5.0e-4, ge=0, le=0.1)
+    registration_limit_m: float | None = Field(default=None, gt=0, le=1.0)
+    # Impact tests: fewest accepted averages per input (fewer: the input is struck again within
+    # the attempt budget, then reported incomplete); coherence needs at least 2.
+    min_averages: int = Field(default=3, ge=1, le=100)
 
     @model_validator(mode="before")
     @classmethod

@@ -38,7 +38,10 @@ IMPULSE_SETUP = TestSetup(
 )
 
 
-def impulse_rig_factory(pace_s: float = 0.0) -> Any:
+def impulse_rig_factory(pace_s: float = 0.0, double_hit_input: int | None = None) -> Any:
+    """Rigs on the impulse source; ``double_hit_input``: every strike of that input after its
+    first is a double hit (rejected)."""
+
     def factory(_settings: Any, _setup: TestSetup, _cfg: Any) -> Rig:
         src = ImpulseSource(n_inputs=2, n_responses=3, n_gauges=0, response_gain=0.01)
         clock = SampleClock()
@@ -53,12 +56,16 @@ def impulse_rig_factory(pace_s: float = 0.0) -> Any:
             task.add_accel_channel(2 + k, f"{100 + k}+Z", 100.0)
         task.configure_timing(src.sample_rate_hz, 256)
         lock = threading.Lock()
+        struck = [0, 0]
 
         def operator(j: int, at: int) -> None:
             if pace_s:
                 time.sleep(pace_s)  # an engineer takes time between strikes
             with lock:
                 src.excite(j, backend.world_sample(at))
+                if j == double_hit_input and struck[j] > 0:
+                    src.excite(j, backend.world_sample(at) + 40)
+                struck[j] += 1
 
         return Rig(
             daq=task,

@@ -90,10 +90,25 @@ class ReferenceNodesRequest(_Body):
     nodes: dict[str, FiniteVec3] = Field(description="label → known GCS position, metres")
 
 
+class ReferenceNodeRequest(_Body):
+    position_m: FiniteVec3 = Field(description="known GCS position of the node, metres")
+
+
+class NewTestRequest(_Body):
+    name: str | None = Field(default=None, max_length=200)
+
+
 class RegistrationRequest(_Body):
     patch: Number | None = None
     method: Literal["rigid", "similarity", "affine"] = "rigid"
     labels: list[str] | None = None
+    limit_m: float | None = Field(
+        default=None,
+        gt=0,
+        le=1.0,
+        description="largest accepted residual of one node, m (default: the "
+        "registration_limit_m setting); above it the registration is refused",
+    )
 
 
 class OrientationRequest(_Body):

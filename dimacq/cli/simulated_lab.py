@@ -333,7 +333,7 @@ class FrfAgreement:
     median_rel_error: float
     fraction_kept: float
     n_kept: int
-    coherence_threshold: float
+    coherence_threshold: float | None
     band_hz: tuple[float, float]
     by_kind: dict[str, float] = field(default_factory=dict)
 
@@ -355,11 +355,12 @@ def frf_agreement(
     model: ForwardModel,
     *,
     exponential_tau_s: float | None = None,
-    coherence_threshold: float = 0.99,
+    coherence_threshold: float | None = 0.99,
     band_hz: tuple[float, float] | None = None,
 ) -> FrfAgreement:
-    """Compare measured FRFs with :func:`model_frf` where ``coherence > coherence_threshold``."""
-    if frf.coherence is None:
+    """Compare measured FRFs with :func:`model_frf` where ``coherence > coherence_threshold``
+    (``None``: every value, e.g. noise-free single-average FRFs, whose coherence is undefined)."""
+    if frf.coherence is None and coherence_threshold is not None:
         raise DataError("the FRFs carry no coherence; compare FRFs from an impact session")
     f = frf.frequencies_hz
     sel = np.ones(f.size, bool)
@@ -367,7 +368,11 @@ def frf_agreement(
         sel = (f >= band_hz[0]) & (f <= band_hz[1])
     H_true = model_frf(model, f[sel], exponential_tau_s)
     H = frf.H[sel]
-    keep = frf.coherence[sel] > coherence_threshold
+    keep = (
+        np.ones(H.shape, bool)
+        if coherence_threshold is None or frf.coherence is None
+        else frf.coherence[sel] > coherence_threshold
+    )
     rel = np.abs(H - H_true) / np.maximum(np.abs(H_true), np.finfo(float).tiny)
     kept = rel[keep]
     if kept.size == 0:

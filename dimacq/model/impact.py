@@ -33,6 +33,15 @@ TriggerLevelN = Annotated[
 AveragesPerInput = Annotated[
     int, Field(ge=1, le=100, description="accepted averages wanted per input, 1..100")
 ]
+MinAverages = Annotated[
+    int,
+    Field(
+        ge=1,
+        le=100,
+        description="fewest accepted averages per input, 1..100 (capped at averages_per_input); "
+        "an input left below it after the strike budget is incomplete and gets no FRF",
+    ),
+]
 ForceWindowSamples = Annotated[
     int, Field(ge=1, le=1_048_576, description="force window length after the trigger, samples")
 ]
@@ -56,6 +65,7 @@ class ImpactOverrides(BaseModel):
     pretrigger_samples: PretriggerSamples | None = _doc(PretriggerSamples)
     trigger_level_n: TriggerLevelN | None = _doc(TriggerLevelN)
     averages_per_input: AveragesPerInput | None = _doc(AveragesPerInput)
+    min_averages: MinAverages | None = _doc(MinAverages)
     force_window_samples: ForceWindowSamples | None = _doc(ForceWindowSamples)
     exponential_tau_s: ExponentialTauS | None = _doc(ExponentialTauS)
     estimator: Estimator | None = Field(default=None, description=ESTIMATOR_DOC)
@@ -70,10 +80,13 @@ class ImpactSettings(BaseModel):
 
     Attributes
     ----------
-    record_samples, pretrigger_samples, trigger_level_n, averages_per_input,
+    record_samples, pretrigger_samples, trigger_level_n, averages_per_input, min_averages,
     force_window_samples, exponential_tau_s, estimator
         As in :class:`ImpactOverrides` (``force_window_samples`` / ``exponential_tau_s`` None:
-        no such window).
+        no such window). ``min_averages`` (capped at ``averages_per_input``: a test asking one
+        average gets it, with its coherence NaN): an input with fewer accepted averages after
+        the strike budget is incomplete (no FRF). The API and ``dimacq acquire`` default it to
+        the service's ``min_averages`` setting (3).
     block_samples : int
         DAQ read size, samples.
     max_attempts_factor : int
@@ -92,6 +105,7 @@ class ImpactSettings(BaseModel):
     pretrigger_samples: PretriggerSamples = 32
     trigger_level_n: TriggerLevelN = 5.0
     averages_per_input: AveragesPerInput = 5
+    min_averages: MinAverages = 2
     force_window_samples: ForceWindowSamples | None = _doc(ForceWindowSamples)
     exponential_tau_s: ExponentialTauS | None = _doc(ExponentialTauS)
     estimator: Estimator = Field(default="H1", description=ESTIMATOR_DOC)

@@ -63,6 +63,11 @@ def _v2_stands(conn: Connection) -> None:
     _add_column(conn, "jobs", Column("attempts", m.Integer(), server_default="0"))
 
 
+def _v3_patch_test(conn: Connection) -> None:
+    # the digitizing test a patch belongs to (a database created by a later create_all has it)
+    _add_column(conn, "patches", Column("test", m.Integer(), server_default="0"))
+
+
 MIGRATIONS: list[tuple[int, str, Callable[[Connection], None]]] = [
     (
         1,
@@ -75,6 +80,7 @@ MIGRATIONS: list[tuple[int, str, Callable[[Connection], None]]] = [
         "queued jobs",
         _v2_stands,
     ),
+    (3, "patches.test: the digitizing test a patch belongs to", _v3_patch_test),
 ]
 
 #: The schema version this code expects.

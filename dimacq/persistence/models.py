@@ -69,6 +69,9 @@ class PatchRow(Base):
     index: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=False)
     name: Mapped[str] = mapped_column(String(200))
     registration: Mapped[dict[str, Any] | None] = mapped_column(JSON, nullable=True)
+    # which test (reference nodes, orientations, lines of action) the patch belongs to; a new
+    # test starts a fresh patch with the next number and leaves the older patches' points aside
+    test: Mapped[int] = mapped_column(Integer, default=0, server_default="0")
 
 
 class DigitizedPointRow(Base):

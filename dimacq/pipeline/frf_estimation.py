@@ -23,6 +23,10 @@ coherence, so it is left out). The estimators:
 - **Ordinary coherence** ``γ²_oj = |G_yf,oj|² / (G_yy,o G_ff,jj)``; **multiple coherence**
   ``γ²_o = (G_yf G_ff⁻¹ G_fy)_oo / G_yy,o = Re(Σ_j H1_oj conj(G_yf,oj)) / G_yy,o``. With one input
   they are equal.
+- **Too few averages**: with ``n_averages ≤ n_inputs`` the spectral matrices have rank
+  ``n_averages`` and the multiple coherence is 1 identically (one average: ``|Y F̄|² = |Y|²|F|²``),
+  whatever the noise; it then carries no information and is returned as NaN (ordinary coherence
+  likewise with one average), never as 1.
 
 Windows for impact testing (:func:`force_window`, :func:`exponential_window`) and Welch's
 overlapped segments for random excitation (:func:`welch_segments`) prepare the records; the
@@ -77,7 +81,8 @@ class FrfEstimate:
         FRF output/input in the records' engineering units (e.g. (m/s²)/N).
     coherence : ndarray, shape (n_lines, n_outputs)
         Multiple coherence of each output on all inputs (equals the ordinary coherence for one
-        input). 1 means a noise-free linear relation; NaN where ``G_yy = 0``.
+        input). 1 means a noise-free linear relation; NaN where ``G_yy = 0`` and everywhere when
+        ``n_averages ≤ n_inputs`` (it would be 1 identically).
     ordinary_coherence : ndarray, shape (n_lines, n_outputs, n_inputs)
     input_condition : ndarray, shape (n_lines,)
         2-norm condition number of ``G_ff`` per line (1 for one input): large values mean the
@@ -208,6 +213,10 @@ def estimate_frf(
             h = (g_yy / g_yf[:, :, 0].conj())[:, :, None]
         else:
             h = _hv(g_ff, g_yf, g_yy)
+    if n_avg <= n_in:  # identically 1: no information (module docstring)
+        multiple[...] = np.nan
+    if n_avg == 1:
+        ordinary[...] = np.nan
     freqs = np.arange(n_s // 2 + 1) * (sample_rate_hz / n_s)
     return FrfEstimate(
         frequencies_hz=freqs,

@@ -16,7 +16,12 @@ clock:
    It is **rejected** (and the operator asked again) when any channel overloaded, a DAQ or load
    cell sample in it was lost, the load cell reported drift, or the force shows a double hit.
    Rejected averages stay on disk; accepted ones are kept for the FRFs.
-4. **FRFs** per input from its accepted averages (:func:`~dimacq.pipeline.frf_estimation.
+4. **Enough averages**: an input is struck until ``averages_per_input`` are accepted or
+   ``max_attempts_factor × averages_per_input`` strikes are used; an input left with fewer than
+   ``min_averages`` accepted averages is **incomplete**: it gets no FRF (one average would give a
+   coherence of 1 identically, whatever the noise) and the result names it
+   (:attr:`ImpactResult.incomplete_inputs`); when every input is incomplete the session raises.
+5. **FRFs** per input from its accepted averages (:func:`~dimacq.pipeline.frf_estimation.
    estimate_frf`), with the force window on the hammer and the exponential window on everything
    (both starting at the trigger), stacked to ``(n_lines, n_outputs, n_inputs)``.
 
@@ -39,6 +44,7 @@ from dimacq.devices.daq import Daq, DaqBlock
 from dimacq.devices.loadcell import LoadCell, LoadCellBlock
 from dimacq.errors import DataError, DeviceTimeoutError, SetupError
 from dimacq.io.acquisition_hdf5 import AcquisitionWriter
+from dimacq.model.channels import axis_name
 from dimacq.model.frf import Channel, FrfData, OutputKind
 from dimacq.model.impact import ImpactSettings
 from dimacq.model.setup import TestSetup
@@ -99,6 +105,17 @@ class ImpactResult:
         Outputs: the response channels, then per load cell its 6 loads (N/N, N·m/N, cell
         frame) or its 12 gauges (V/N).
     coherence : ndarray, shape (n_lines, n_outputs, n_inputs)
+        NaN for inputs with one average (undefined, see :func:`~dimacq.pipeline.
+        frf_estimation.estimate_frf`).
+    input_names : tuple of str
+        The inputs with FRFs (the complete ones), in session order; ``input_indices`` their
+        indices among the session's inputs.
+    n_accepted : tuple of int
+        Accepted averages of every session input.
+    incomplete_inputs : tuple of str
+        Inputs left with fewer than ``min_averages`` accepted averages (no FRF).
+    min_averages : int
+        The minimum that was applied.
     """
 
     frequencies_hz: NDArray[np.float64]
@@ -108,6 +125,9 @@ class ImpactResult:
     input_names: tuple[str, ...]
     averages: tuple[AverageRecord, ...]
     n_accepted: tuple[int, ...]
+    input_indices: tuple[int, ...] = ()
+    incomplete_inputs: tuple[str, ...] = ()
+    min_averages: int = 1
 
 
 class _Buffer:
@@ -210,6 +230,11 @@ class ImpactSession:
         s = self.settings
         if not 0 <= s.pretrigger_samples < s.record_samples:
             raise SetupError("pretrigger_samples must be in [0, record_samples)")
+        if s.min_averages < 1 or s.averages_per_input < 1:
+            raise SetupError(
+                f"min_averages {s.min_averages} / averages_per_input {s.averages_per_input}: "
+                "give at least 1 (2 or more for a coherence)"
+            )
 
     # -- streaming -------------------------------------------------------------------------------
     def _read_block(self) -> None:
@@ -346,6 +371,7 @@ class ImpactSession:
         freqs: NDArray[np.float64] | None = None
         n_accepted: list[int] = []
         history: list[AverageRecord] = []
+        need = min(s.min_averages, s.averages_per_input)
         stopped = False
         try:
             armed_from = 0
@@ -389,7 +415,7 @@ class ImpactSession:
                             Progress(j, n_in, len(records[j]), s.averages_per_input, rejected, msg)
                         )
                 n_accepted.append(len(records[j]))
-                if records[j]:
+                if len(records[j]) >= need:  # fewer: incomplete, no FRF (coherence would be 1)
                     f_j, H_j, coh_j = self._frf(records[j], fs)
                     if H_all is None:  # filled input by input: no stacking copy at the end
                         H_all = np.zeros((*H_j.shape, n_in), dtype=H_j.dtype)
@@ -419,15 +445,27 @@ class ImpactSession:
                         log.exception("stopping load cell after an error failed")
             if self.writer is not None:
                 self.writer.flush()
-        short = [self.input_names[j] for j in range(n_in) if not n_accepted[j]]
+        short = [j for j in range(n_in) if n_accepted[j] < need]
         if short:
+            log.warning(
+                "inputs %s incomplete: accepted %s of %d averages (minimum %d)",
+                [self.input_names[j] for j in short],
+                [n_accepted[j] for j in short],
+                s.averages_per_input,
+                need,
+            )
+        if len(short) == n_in:
             raise DataError(
-                f"inputs {short}: no acceptable average after {s.max_attempts_factor * s.averages_per_input} "
-                "strikes (see the rejected reasons in the acquisition file); fix the cause and "
-                "repeat those inputs"
+                f"inputs {[self.input_names[j] for j in short]}: fewer than {need} acceptable "
+                f"averages each ({[n_accepted[j] for j in short]}) after "
+                f"{s.max_attempts_factor * s.averages_per_input} strikes (see the rejected reasons "
+                "in the acquisition file); fix the cause and repeat those inputs"
             )
         assert H_all is not None and coh_all is not None and freqs is not None
-        return self._result(freqs, H_all, coh_all, history, n_accepted)
+        kept = [j for j in range(n_in) if j not in set(short)]
+        if short:  # drop the incomplete inputs' empty columns
+            H_all, coh_all = H_all[:, :, kept], coh_all[:, :, kept]
+        return self._result(freqs, H_all, coh_all, history, n_accepted, kept, short, need)
 
     def _frf(
         self, recs: list[dict[str, NDArray[np.float64]]], fs: float
@@ -455,6 +493,9 @@ class ImpactSession:
         coherence: NDArray[np.float64],
         history: list[AverageRecord],
         n_accepted: list[int],
+        kept: Sequence[int],
+        incomplete: Sequence[int],
+        need: int,
     ) -> ImpactResult:
         lc_names: list[str] = []
         for k in range(len(self.loadcells)):
@@ -469,9 +510,12 @@ class ImpactSession:
             H=H,
             coherence=coherence,
             output_names=self.response_names + tuple(lc_names),
-            input_names=self.input_names,
+            input_names=tuple(self.input_names[j] for j in kept),
             averages=tuple(history),
             n_accepted=tuple(n_accepted),
+            input_indices=tuple(kept),
+            incomplete_inputs=tuple(self.input_names[j] for j in incomplete),
+            min_averages=need,
         )
 
 
@@ -482,7 +526,9 @@ def impact_frf(
 
     Outputs: each response (accelerance, (m/s²)/N), then per load cell of the setup its six loads
     (directions 1..6, N/N and N·m/N, cell frame, as the driver's calibration matrix gives them);
-    inputs: the setup's excitations. Needs a session run with ``loadcell_outputs="forces"``.
+    inputs: the setup's excitations with FRFs (``result.input_indices``; the incomplete ones are
+    named in ``meta["incomplete_inputs"]``, e.g. ``"10+X, 12+Y"``). Needs a session run with
+    ``loadcell_outputs="forces"``.
 
     Raises
     ------
@@ -491,7 +537,12 @@ def impact_frf(
     """
     n_acc = len(setup.responses)
     n_out = n_acc + 6 * len(setup.load_cells)
-    if result.H.shape[1] != n_out or result.H.shape[2] != len(setup.excitations):
+    kept = result.input_indices or tuple(range(result.H.shape[2]))
+    if (
+        result.H.shape[1] != n_out
+        or result.H.shape[2] != len(kept)
+        or max(kept) >= len(setup.excitations)
+    ):
         raise DataError(
             f"impact result has {result.H.shape[1]} outputs × {result.H.shape[2]} inputs; the setup "
             f"needs {n_out} × {len(setup.excitations)} (run the session with "
@@ -502,6 +553,10 @@ def impact_frf(
     for lc in setup.load_cells:
         outputs += [Channel(lc.node, k) for k in range(1, 7)]
         kinds += ["reaction"] * 6
+    incomplete = [
+        axis_name(e.node, e.direction) for j, e in enumerate(setup.excitations) if j not in kept
+    ]
+    extra = {"incomplete_inputs": ", ".join(incomplete)} if incomplete else {}
     f = result.frequencies_hz
     # the 0 Hz line leads (ascending lines): a slice keeps views, not copies, of the arrays
     keep: slice | NDArray[np.bool_] = slice(1, None) if f.size and f[0] == 0 else f > 0
@@ -510,7 +565,9 @@ def impact_frf(
         H=result.H[keep],
         outputs=tuple(outputs),
         output_kinds=tuple(kinds),
-        inputs=tuple(Channel(e.node, e.direction) for e in setup.excitations),
+        inputs=tuple(
+            Channel(setup.excitations[j].node, setup.excitations[j].direction) for j in kept
+        ),
         coherence=result.coherence[keep],
-        meta={"source": "dimacq impact acquisition", **(meta or {})},
+        meta={"source": "dimacq impact acquisition", **extra, **(meta or {})},
     )

@@ -39,7 +39,11 @@ from dimacq.errors import (
     SetupError,
 )
 from dimacq.pipeline.digitizing.orientation import JigDefinition
-from dimacq.pipeline.digitizing.registration import Registration, register, three_point_frame
+from dimacq.pipeline.digitizing.registration import (
+    Registration,
+    register,
+    three_point_frame,
+)
 from dimacq.pipeline.digitizing.triangulation import (
     DigitizerGeometry,
     PointEstimate,
@@ -109,6 +113,15 @@ class _QualitySection(_Model):
     point_outlier_m: float = Field(default=1.0e-3, gt=0)
 
 
+class _AccuracySection(_Model):
+    # 1σ per coordinate of a digitized point (the accepted shots of one point combined): the
+    # array's stated accuracy. The simulator's selftest measures 0.16 mm 3-D RMS (0.09 mm per
+    # coordinate); 0.3 mm is what a sonic array keeps over a lab's temperature drift and probe
+    # tilts. It sets the registration limit (with the reference nodes' accuracy) and the
+    # geometry uncertainty a digitized setup states.
+    point_m: float = Field(default=3.0e-4, gt=0, le=0.05)
+
+
 class _VolumeSection(_Model):
     min_m: tuple[float, float, float]
     max_m: tuple[float, float, float]
@@ -123,6 +136,7 @@ class ArrayConfig(_Model):
     bar: _BarSection
     probe: _ProbeSection
     quality: _QualitySection = _QualitySection()
+    accuracy: _AccuracySection = _AccuracySection()
     volume: _VolumeSection | None = None
 
     def geometry(self) -> DigitizerGeometry:
@@ -474,13 +488,29 @@ class DigitizingSession:
         return np.array([found[lab] for lab in labels])
 
     def register_patch(
-        self, references_global_m: Mapping[str, ArrayLike], method: str = "rigid"
+        self,
+        references_global_m: Mapping[str, ArrayLike],
+        method: str = "rigid",
+        limit_m: float | None = None,
     ) -> Registration:
-        """Register the current patch from reference nodes (label → known GCS coordinates)."""
+        """Register the current patch from reference nodes (label → known GCS coordinates).
+
+        With ``limit_m`` a node residual above it refuses the registration (``DataError`` naming
+        the worst node; the patch stays unregistered), see
+        :func:`dimacq.services.geometry_trust.judge_registration`.
+        """
         labels = list(references_global_m)
         xa = self._patch_points(self.patch.index, labels)
         xg = np.array([np.asarray(references_global_m[lab], dtype=float) for lab in labels])
-        reg = register(xa, xg, method=method)
+        if limit_m is None:
+            reg = register(xa, xg, method=method)
+        else:
+            self.patch.registration = None
+            from dimacq.services.geometry_trust import judge_registration
+
+            reg, _ = judge_registration(
+                xa, xg, labels, limit_m=limit_m, prior_sigma_m=0.0, method=method
+            )
         self.patch.registration = reg
         return reg
 

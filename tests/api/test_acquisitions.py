@@ -61,6 +61,9 @@ def test_acquisition_to_frfs(rig_api) -> None:
     a = _wait(c, acq["id"], lambda a: a["state"] != "running")
     assert a["state"] == "finished", a
     assert a["averages_accepted"] == 6 and a["progress"] == 1.0
+    # the service's minimum (setting min_averages = 3) stated with the acquisition, and met
+    assert a["config"]["min_averages"] == 3 and a["min_averages"] == 3
+    assert a["accepted_per_input"] == [3, 3] and a["incomplete_inputs"] == []
     assert all(Path(lab.arrays.path(av["path"])).exists() for av in a["averages"])
     frf = c.get(f"/api/frfs/{a['frf_id']}").json()
     assert frf["n_outputs"] == 3 and frf["n_inputs"] == 2 and frf["acquisition_id"] == acq["id"]
@@ -74,6 +77,43 @@ def test_acquisition_to_frfs(rig_api) -> None:
     np.testing.assert_allclose(h, h_true, atol=3e-3 * np.abs(h_true).max())
     job = c.get(f"/api/jobs/{acq['job_id']}").json()
     assert job["state"] == "succeeded" and job["result"]["frf_id"] == a["frf_id"]
+
+
+def test_input_below_min_averages_is_reported_incomplete(tmp_path: Path, database_url: str) -> None:
+    """Issue 10: an input with 1 accepted average gave an FRF with coherence 1, silently. Now it
+    is struck again (3 × 3 strikes), then reported incomplete and left out of the FRF set."""
+    settings = make_settings(tmp_path, database_url=database_url)
+    lab = Lab(settings, open_devices=False, rig_factory=impulse_rig_factory(double_hit_input=0))
+    try:
+        with (
+            BackgroundServer(create_app(settings, lab=lab)) as srv,
+            httpx.Client(
+                base_url=srv.url, headers={"Authorization": f"Bearer {TOKEN}"}, timeout=30
+            ) as c,
+        ):
+            sid = c.post("/api/setups", json=dump_setup_dict(IMPULSE_SETUP)).json()["id"]
+            body = {
+                "setup_id": sid,
+                "averages_per_input": 3,
+                "min_averages": 2,
+                "record_samples": 2048,
+                "trigger_level_n": 20.0,
+            }
+            r = c.post("/api/acquisitions", json=body)
+            assert r.status_code == 202, r.text
+            a = _wait(c, r.json()["id"], lambda a: a["state"] != "running")
+            assert a["state"] == "finished", a
+            assert a["accepted_per_input"] == [1, 3] and a["incomplete_inputs"] == [0]
+            assert a["min_averages"] == 2 and a["averages_rejected"] == 8
+            assert "incomplete" in a["message"] and "10+X" in a["message"], a["message"]
+            frf = c.get(f"/api/frfs/{a['frf_id']}").json()
+            assert frf["n_inputs"] == 1
+            data = c.get(f"/api/frfs/{a['frf_id']}/data").json()
+            assert [i["node"] for i in data["inputs"]] == [11]
+            coh = np.asarray(data["coherence"], float)
+            assert np.isfinite(coh[1:]).all()  # three averages: a coherence, not NaN
+    finally:
+        lab.close()
 
 
 def test_acquisition_stop_keeps_completed_averages(tmp_path: Path, database_url: str) -> None:

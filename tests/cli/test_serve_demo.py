@@ -13,6 +13,7 @@ from pathlib import Path
 
 import httpx
 import numpy as np
+import pytest
 
 from dimacq.api.server import free_port
 from dimacq.cli.main import main
@@ -65,6 +66,16 @@ def test_serve_binds_loopback_and_needs_the_token(tmp_path: Path) -> None:
     assert "http://127.0.0.1:" in out and token in out
 
 
+INERTIA_INDEX = {
+    "Ixx": (0, 0),
+    "Ixy": (0, 1),
+    "Ixz": (0, 2),
+    "Iyy": (1, 1),
+    "Iyz": (1, 2),
+    "Izz": (2, 2),
+}
+
+
 def test_demo_recovers_the_truth(tmp_path: Path, capsys) -> None:
     out = tmp_path / "demo.json"
     assert main(["demo", "--json", str(out), "--averages", "3"]) == 0
@@ -99,6 +110,8 @@ def test_demo_recovers_the_truth(tmp_path: Path, capsys) -> None:
     # Honest simulation: the service reads the rig file's certificates, not the transducers'
     # true sensitivities. Every FRF is then scaled by (true/certificate) of the hammer and of
     # each accelerometer, so mass and inertia carry that scale (the CG, a ratio, does not).
+    # Limits from what the physics allows a careful test (issue 10's "Must show": 0.5 % mass,
+    # 1 mm CG, 0.5 % principal moments) around the calibrated truth.
     scale = _calibration_scale()
     assert abs(scale - 1) > 0.002  # the simulated transducers are not their certificates
     assert abs(p["mass_kg"] / (scale * t["mass_kg"]) - 1) < 0.003, (p["mass_kg"], scale)
@@ -106,10 +119,36 @@ def test_demo_recovers_the_truth(tmp_path: Path, capsys) -> None:
     np.testing.assert_allclose(
         p["principal_moments_kgm2"], scale * np.asarray(t["principal_moments_kgm2"]), rtol=0.005
     )
-    assert p["demo"]["points_digitized"] == 6 + 8 * 24 + 24 * 4
     assert p["demo"]["orientation_error_rms_deg"] < 0.1
-    assert p["elapsed_s"] < 120
-    assert p["demo"]["acquisition"].startswith("impact test through the simulated DAQ")
+    assert all(d["ok"] for d in p["diagnostics"] if d["severity"] == "error")
+    assert p["verdict"] == "ok", p["verdict_reasons"]
+    # the stated 95 % intervals hold the truth (mass, CG, inertia about P) as the rig file's
+    # certificates see it: mass and inertia × the calibration factor. (Against the raw truth the
+    # mass and Izz intervals miss: the simulated hammer certificate is 1.26 % off, 2.5σ of the
+    # default stated 0.5 %, a fixed property of the simulated transducer, not of the run.)
+    unc = p["uncertainty"]
+    truth = {"m": scale * t["mass_kg"], **dict(zip(("cx", "cy", "cz"), t["cg_m"], strict=True))}
+    ip = scale * np.asarray(t["inertia_p_kgm2"])
+    truth.update({k: ip[i, j] for k, (i, j) in INERTIA_INDEX.items()})
+    outside = [k for k, v in truth.items() if not unc[k]["ci95"][0] <= v <= unc[k]["ci95"][1]]
+    assert len(outside) <= 1, (outside, {k: unc[k]["ci95"] for k in outside})
+    d = p["demo"]
+    assert d["points_digitized"] == 6 + 8 * 24 + 24 * 4
+    assert d["acquisition"].startswith("impact test through the simulated DAQ")
+    # the registration was judged against the array's limit 5·sqrt(0.3² + 0.5²) mm, and passed
+    reg = d["registration"]
+    assert reg["verdict"] == "ok" and reg["limit_m"] == pytest.approx(5 * np.hypot(3e-4, 5e-4))
+    assert reg["worst_residual_m"] < 0.7 * reg["limit_m"]
+    # each triax's stated orientation uncertainty covers its true error (about 0.02°; the
+    # stated RMS misorientation holds the jig fit and the registration, ~0.11°), and the setup
+    # states the digitized geometry's quality, better than the careful-test defaults
+    for node, err in d["orientation_error_deg"].items():
+        assert err < 3 * d["orientation_uncertainty_deg"][node], node
+    gu = d["geometry_uncertainty"]
+    assert gu["source"] == "digitized" and gu["registration_rms_m"] == pytest.approx(reg["rms_m"])
+    assert gu["sensor_orientation_deg"] < 0.5 and gu["line_of_action_deg"] < 1.0
+    assert gu["sensor_position_m"] < 2e-3 and gu["input_position_m"] < 2e-3
+    assert d["orientation_error_rms_deg"] < 3 * gu["sensor_orientation_deg"] * np.sqrt(3)
 
 
 def _calibration_scale() -> float:

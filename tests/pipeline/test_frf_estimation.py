@@ -207,3 +207,24 @@ def test_bad_input_refused():
         estimate_frf(bad, bad, FS)
     with pytest.raises(DataError, match="averages"):
         estimate_frf(np.ones((1, 2, 64)), np.ones((1, 1, 64)), FS)
+
+
+def test_too_few_averages_give_no_coherence_rather_than_one():
+    """Issue 10: one average gave coherence 1 identically, whatever the noise."""
+    rng = np.random.default_rng(7)
+    x = rng.standard_normal((1, 1, 256))
+    y = x + 3.0 * rng.standard_normal((1, 1, 256))  # SNR 1/9: the true coherence is 0.1
+    one = estimate_frf(x, y, FS)
+    # what the old code returned: |Y F̄|² / (|Y|² |F|²) = 1 by Cauchy–Schwarz with one average
+    fx, fy = np.fft.rfft(x[0, 0]), np.fft.rfft(y[0, 0])
+    np.testing.assert_allclose(np.abs(fy * fx.conj()) ** 2 / (np.abs(fy) ** 2 * np.abs(fx) ** 2), 1)
+    assert np.isnan(one.coherence).all() and np.isnan(one.ordinary_coherence).all()
+    # two inputs, two averages: the multiple coherence is 1 identically too → NaN
+    x2 = rng.standard_normal((2, 2, 256))
+    y2 = x2.sum(axis=1, keepdims=True) + rng.standard_normal((2, 1, 256))
+    two = estimate_frf(x2, y2, FS)
+    assert np.isnan(two.coherence).all() and np.isfinite(two.ordinary_coherence[1:]).all()
+    # 64 averages: the coherence is the physics, about 1 / (1 + 9) (independent: SNR)
+    xs = rng.standard_normal((64, 1, 256))
+    many = estimate_frf(xs, xs + 3.0 * rng.standard_normal((64, 1, 256)), FS)
+    assert np.median(many.coherence[1:-1]) == pytest.approx(0.1, abs=0.03)

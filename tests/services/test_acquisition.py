@@ -20,7 +20,7 @@ from _acq_support import ImpulseSource, no_leaks
 
 from dimacq.drivers.daq.driver import DaqDevice, DaqTask
 from dimacq.drivers.loadcell.driver import LoadCellAmplifier
-from dimacq.errors import SetupError
+from dimacq.errors import DataError, SetupError
 from dimacq.io.acquisition_hdf5 import AcquisitionWriter
 from dimacq.services.acquisition import ImpactSession, ImpactSettings
 from dimacq.simulators.daq.backend import DaqInput, VirtualDaqBackend
@@ -134,3 +134,89 @@ def test_loadcell_forces_need_a_calibration(lab):
     _, _, task, amp = lab()
     with pytest.raises(SetupError, match="calibration matrix"):
         ImpactSession(task, ["10+X force"], ["100+Z"], [amp])
+
+
+def test_input_below_min_averages_is_struck_again_then_reported_incomplete(lab):
+    """Issue 10: an input with 1 of its averages accepted gave an FRF with coherence 1
+    identically. Now it is struck again within the budget, then reported incomplete (no FRF)."""
+    src, backend, task, amp = lab()
+    strikes = []
+
+    def operator(j, at):
+        world = backend.world_sample(at)
+        src.excite(j, world)
+        if j == 0 and sum(1 for s in strikes if s == 0) >= 1:
+            src.excite(j, world + 40)  # every strike after the first on input 0: a double hit
+        strikes.append(j)
+
+    settings = ImpactSettings(
+        record_samples=2048, averages_per_input=3, min_averages=2, trigger_level_n=20.0
+    )
+    session = ImpactSession(
+        task,
+        ["10+X force", "11+X force"],
+        ["100+Z", "101+Z", "102+Z"],
+        [amp],
+        settings=settings,
+        operator=operator,
+        loadcell_outputs="gauges",
+    )
+    res = session.run()
+    # input 0 struck until the budget (3 × 3) was spent; input 1 needed only its 3
+    assert strikes.count(0) == settings.max_attempts_factor * settings.averages_per_input
+    assert strikes.count(1) == 3
+    assert res.n_accepted == (1, 3)
+    assert res.incomplete_inputs == ("10+X force",) and res.min_averages == 2
+    assert res.input_names == ("11+X force",) and res.input_indices == (1,)
+    assert res.H.shape[2] == 1 and res.coherence.shape[2] == 1
+    # the complete input's FRF against the closed form
+    h_true = src.frf(res.frequencies_hz)[:, :, 1]
+    band = slice(1, None)
+    np.testing.assert_allclose(res.H[band, :3, 0], h_true[band], atol=2e-3 * np.abs(h_true).max())
+    rejected = [a.reasons for a in res.averages if a.input_index == 0 and not a.accepted]
+    assert len(rejected) == 8 and all(r == ("double hit",) for r in rejected)
+
+
+def test_one_average_gives_no_coherence_of_one(lab):
+    """One average asked (min_averages capped at it): the FRF is kept, its coherence is NaN."""
+    src, backend, task, amp = lab()
+
+    def operator(j, at):
+        src.excite(j, backend.world_sample(at))
+
+    settings = ImpactSettings(record_samples=2048, averages_per_input=1, trigger_level_n=20.0)
+    res = ImpactSession(
+        task,
+        ["10+X force", "11+X force"],
+        ["100+Z", "101+Z", "102+Z"],
+        [amp],
+        settings=settings,
+        operator=operator,
+        loadcell_outputs="gauges",
+    ).run()
+    assert res.n_accepted == (1, 1) and res.incomplete_inputs == () and res.min_averages == 1
+    assert np.isnan(res.coherence).all()
+
+
+def test_every_input_incomplete_is_refused(lab):
+    src, backend, task, amp = lab()
+
+    def operator(j, at):
+        world = backend.world_sample(at)
+        src.excite(j, world)
+        src.excite(j, world + 40)  # always a double hit
+
+    settings = ImpactSettings(
+        record_samples=2048, averages_per_input=1, max_attempts_factor=2, trigger_level_n=20.0
+    )
+    session = ImpactSession(
+        task,
+        ["10+X force"],
+        ["100+Z"],
+        [amp],
+        settings=settings,
+        operator=operator,
+        loadcell_outputs="gauges",
+    )
+    with pytest.raises(DataError, match=r"inputs \['10\+X force'\]: fewer than 1 acceptable"):
+        session.run()

@@ -6,16 +6,18 @@ from __future__ import annotations
 from dataclasses import asdict
 from typing import Annotated, Any
 
-from fastapi import APIRouter, HTTPException, status
+from fastapi import APIRouter, HTTPException, Response, status
 
 from dimacq.api.deps import LabDep
-from dimacq.api.routers._common import body_openapi, strict_body
+from dimacq.api.routers._common import body_openapi, found, strict_body
 from dimacq.api.schemas import (
     LineOfActionRequest,
+    NewTestRequest,
     OrientationRequest,
     PatchRequest,
     PointOut,
     PointRequest,
+    ReferenceNodeRequest,
     ReferenceNodesRequest,
     RegistrationRequest,
     ShotsRequest,
@@ -93,6 +95,20 @@ def new_patch(
     return lab.geometry.new_patch(body.name).to_json()
 
 
+@router.post(
+    "/tests",
+    response_model=dict[str, Any],
+    status_code=status.HTTP_201_CREATED,
+    openapi_extra=body_openapi(NewTestRequest),
+)
+def new_test(
+    lab: LabDep, body: Annotated[NewTestRequest, strict_body(NewTestRequest)]
+) -> dict[str, Any]:
+    """Start a new test: a fresh patch, reference nodes, orientations and lines of action
+    cleared (earlier points stay in the database, unused)."""
+    return lab.geometry.new_test(body.name).to_json()
+
+
 @router.put(
     "/reference-nodes",
     response_model=list[dict[str, Any]],
@@ -109,13 +125,36 @@ def reference_nodes(lab: LabDep) -> list[dict[str, Any]]:
     return [asdict(r) for r in lab.geometry.reference_nodes()]
 
 
+@router.put(
+    "/reference-nodes/{label}",
+    response_model=list[dict[str, Any]],
+    openapi_extra=body_openapi(ReferenceNodeRequest),
+)
+def set_reference_node(
+    lab: LabDep,
+    label: str,
+    body: Annotated[ReferenceNodeRequest, strict_body(ReferenceNodeRequest)],
+) -> list[dict[str, Any]]:
+    """Add or replace one reference node's known GCS position."""
+    return [asdict(r) for r in lab.geometry.set_reference_nodes({label: body.position_m})]
+
+
+@router.delete("/reference-nodes/{label}", status_code=status.HTTP_204_NO_CONTENT)
+def delete_reference_node(lab: LabDep, label: str) -> Response:
+    """Remove a reference node (registrations already made are kept)."""
+    found(True if lab.geometry.delete_reference_node(label) else None, f"reference node {label!r}")
+    return Response(status_code=status.HTTP_204_NO_CONTENT)
+
+
 @router.post(
     "/registrations", response_model=dict[str, Any], openapi_extra=body_openapi(RegistrationRequest)
 )
 def register_patch(
     lab: LabDep, body: Annotated[RegistrationRequest, strict_body(RegistrationRequest)]
 ) -> dict[str, Any]:
-    return lab.geometry.register_patch(body.patch, body.method, body.labels).to_json()
+    """Register a patch from its reference nodes; refused (400, naming the worst node and its
+    residual in mm) when a node's residual is above the limit."""
+    return lab.geometry.register_patch(body.patch, body.method, body.labels, body.limit_m).to_json()
 
 
 @router.post(

@@ -118,9 +118,17 @@ def run(args: argparse.Namespace) -> int:
     elapsed = time.monotonic() - t0
     res = run_.result
     rejected = [a for a in res.averages if not a.accepted]
+    # one average per input has no coherence (NaN): compare every value then
+    coherent = run_.frf.coherence is not None and bool(np.isfinite(run_.frf.coherence).any())
     agreement = frf_agreement(
-        run_.frf, model, exponential_tau_s=args.exp_tau, band_hz=_scenario_band(args.scenario)
+        run_.frf,
+        model,
+        exponential_tau_s=args.exp_tau,
+        band_hz=_scenario_band(args.scenario),
+        coherence_threshold=0.99 if coherent else None,
     )
+    kept = set(res.input_indices or range(len(run_.setup.excitations)))
+    incomplete = [e.name for j, e in enumerate(run_.setup.excitations) if j not in kept]
     summary: dict[str, Any] = {
         "scenario": args.scenario,
         "setup": run_.setup.name,
@@ -133,6 +141,8 @@ def run(args: argparse.Namespace) -> int:
         "n_outputs": len(run_.frf.outputs),
         "n_lines": run_.frf.n_lines,
         "averages_accepted": list(res.n_accepted),
+        "min_averages": res.min_averages,
+        "incomplete_inputs": incomplete,
         "averages_rejected": [
             {"input": run_.setup.excitations[a.input_index].name, "reasons": list(a.reasons)}
             for a in rejected
@@ -149,8 +159,18 @@ def run(args: argparse.Namespace) -> int:
     out.write(f"rejected averages: {len(rejected)}\n")
     for a in rejected:
         out.write(f"  input {run_.setup.excitations[a.input_index].name}: {'; '.join(a.reasons)}\n")
+    if incomplete:
+        out.write(
+            f"incomplete inputs (fewer than {res.min_averages} accepted averages, no FRF): "
+            f"{', '.join(incomplete)}\n"
+        )
+    where = (
+        f"where coherence > {agreement.coherence_threshold}"
+        if agreement.coherence_threshold is not None
+        else "(one average: no coherence, every value)"
+    )
     out.write(
-        f"FRFs vs model where coherence > {agreement.coherence_threshold}: "
+        f"FRFs vs model {where}: "
         f"{100 * agreement.fraction_kept:.1f} % of values, median error "
         f"{100 * agreement.median_rel_error:.3f} %, 99th percentile "
         f"{100 * agreement.p99_rel_error:.2f} %, max {100 * agreement.max_rel_error:.2f} %\n"

@@ -217,6 +217,10 @@ def _demo(
             c.post("/api/digitizer/registrations", json={"method": "rigid"}), "registration"
         )
         rms_mm = 1e3 * reg["registration"]["rms_m"]
+        info["registration"] = {
+            k: reg["registration"][k]
+            for k in ("verdict", "reasons", "limit_m", "rms_m", "worst_node", "worst_residual_m")
+        }
         say(
             f"[1/5] array registered from {len(refs)} reference nodes: RMS residual {rms_mm:.3f} mm"
         )
@@ -224,6 +228,7 @@ def _demo(
         jig = load_jig()
         nodes = sorted({ch.node for ch in setup_true.responses})
         ori_err = []
+        ori_unc = []
         for k, n in enumerate(nodes):
             chans = sorted(
                 (ch for ch in setup_true.responses if ch.node == n), key=lambda ch: ch.direction
@@ -234,6 +239,7 @@ def _demo(
                 digitize(f"jig{n}/{lab}", C @ xl + origin)
             o = _check(c.post("/api/digitizer/orientations", json={"node": n}), f"orientation {n}")
             ori_err.append(_angle_deg(np.array(o["rotation"]), C))
+            ori_unc.append(float(o["uncertainty_deg"]))
             say(
                 f"[2/5] triax {n} oriented ({k + 1}/{len(nodes)}): error {ori_err[-1]:.3f} deg, "
                 f"uncertainty {o['uncertainty_deg']:.3f} deg"
@@ -271,6 +277,7 @@ def _demo(
         }
         setup_out = _check(c.post("/api/setups/from-geometry", json=geo), "setup from geometry")
         sid = setup_out["id"]
+        info["geometry_uncertainty"] = setup_out["setup"].get("geometry_uncertainty")
         say(
             f"[3/5] setup {sid}: {setup_out['n_responses']} responses, {setup_out['n_excitations']} inputs, "
             f"{setup_out['n_load_cells']} load cell(s)"
@@ -316,6 +323,7 @@ def _demo(
             "registration_rms_mm": rms_mm,
             "orientation_error_deg": {str(n): e for n, e in zip(nodes, ori_err, strict=True)},
             "orientation_error_rms_deg": float(np.sqrt(np.mean(np.square(ori_err)))),
+            "orientation_uncertainty_deg": {str(n): u for n, u in zip(nodes, ori_unc, strict=True)},
             "line_of_action_error_rms_deg": float(np.sqrt(np.mean(np.square(loa_err)))),
             "setup_id": sid,
             "frf_id": frf_id,

@@ -22,13 +22,33 @@ A point digitized at ``x_A`` (DACS) lies in the global coordinate system at (the
   Coplanar reference nodes register only their plane (thesis §2.1.1): refused. Residuals are
   reported per node.
 
+Uncertainty of the map (rigid, linearised like the jig fit, method.md §3): a small rotation
+``δθ`` of the fitted map moves the image of reference node ``i`` by ``δθ × y_i`` with
+``y_i = x_G,i - x̄_G``; with independent per-coordinate errors of standard deviation ``σ`` on the
+nodes, ``cov(δθ) = σ² N⁻¹`` with ``N = Σ_i [y_i]×ᵀ [y_i]×`` (rad²), and the mapped image of a
+point ``x`` has ``cov = σ² (I/n + [x - x̄_G]× N⁻¹ [x - x̄_G]×ᵀ)``. ``σ`` is estimated from the
+residuals, ``σ̂² = Σ|r_i|² / (3n - p)`` (``p`` = 6, 7, 12 parameters for rigid, similarity,
+affine); :class:`Registration` keeps ``N⁻¹`` and the centroid so that any ``σ`` (e.g. the larger
+of ``σ̂`` and the stated accuracy) can be propagated (:meth:`Registration.rotation_std_deg`,
+:meth:`Registration.position_std_m`).
+
+Acceptance (:func:`registration_limit_m`, :func:`check_registration`): with per-coordinate
+standard deviations ``σ_d`` of a digitized point and ``σ_r`` of a reference node's stated GCS
+coordinates, a node's residual is ``r_i ~ N(0, σ_c² (1 - h_i) I₃)`` with
+``σ_c² = σ_d² + σ_r²`` and leverage ``h_i < 1``, so ``|r_i|² / σ_c² ≤ χ²₃``. The limit is
+``k σ_c`` with ``k = 5``: ``P(χ²₃ > 25) = 1.5·10⁻⁵`` per node, so a good registration of ten nodes
+is refused about once in 7000; a node 5 mm off with ``σ_c = 0.6 mm`` is refused. Above the limit
+the worst node is named; each node is also left out in turn and, when the others then fit
+within the limit, that node is named as the one to re-digitize (or its coordinates to check).
+
 Large structures are digitized in patches: each array position gets its own registration from the
 reference nodes it can see; the service keeps every point with its patch.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -36,10 +56,22 @@ from scipy.spatial.transform import Rotation
 
 from dimacq.errors import DataError, SetupError
 
-__all__ = ["Registration", "planarity", "register", "three_point_frame"]
+__all__ = [
+    "LIMIT_SIGMAS",
+    "Registration",
+    "RegistrationCheck",
+    "check_registration",
+    "planarity",
+    "register",
+    "registration_limit_m",
+    "three_point_frame",
+]
 
 FloatArray = NDArray[np.float64]
 METHODS = ("rigid", "similarity", "affine")
+N_PARAMETERS = {"rigid": 6, "similarity": 7, "affine": 12}
+#: The residual limit in standard deviations of a node's residual (see module docstring).
+LIMIT_SIGMAS = 5.0
 
 
 @dataclass(frozen=True)
@@ -63,6 +95,13 @@ class Registration:
         ``sqrt(mean |residual|²)``.
     planarity : float
         Smallest over largest singular value of the centred reference nodes (0 = coplanar).
+    sigma_m : float
+        ``σ̂``, per-coordinate standard deviation of a node estimated from the residuals
+        (NaN when there are no redundant coordinates, e.g. the three-point frame).
+    centroid_global_m : ndarray, shape (3,)
+        ``x̄_G`` of the reference nodes.
+    rotation_normal_inv : ndarray, shape (3, 3)
+        ``N⁻¹`` (1/m²): ``cov(δθ) = σ² N⁻¹``; NaN for the three-point frame.
     """
 
     matrix: FloatArray
@@ -73,6 +112,35 @@ class Registration:
     residual_norm_m: FloatArray
     rms_m: float
     planarity: float
+    sigma_m: float = float("nan")
+    centroid_global_m: FloatArray = field(default_factory=lambda: np.zeros(3))
+    rotation_normal_inv: FloatArray = field(default_factory=lambda: np.full((3, 3), np.nan))
+
+    def rotation_std_deg(self, sigma_m: float | None = None) -> FloatArray:
+        """1σ of the map's small rotation about the GCS axes, degrees, shape (3,).
+
+        ``sigma_m``: per-coordinate node error to propagate (default :attr:`sigma_m`).
+        """
+        s = self.sigma_m if sigma_m is None else float(sigma_m)
+        var = s**2 * np.clip(np.diag(self.rotation_normal_inv), 0.0, None)
+        return np.asarray(np.degrees(np.sqrt(var)), dtype=np.float64)
+
+    def rotation_uncertainty_deg(self, sigma_m: float | None = None) -> float:
+        """``sqrt(Σ rotation_std²)``: the RMS misorientation the map gives every direction."""
+        return float(np.sqrt(np.sum(self.rotation_std_deg(sigma_m) ** 2)))
+
+    def position_std_m(
+        self, points_global_m: ArrayLike, sigma_m: float | None = None
+    ) -> FloatArray:
+        """Per-coordinate 1σ the map adds to mapped points, shape (...,):
+        ``sqrt(tr(σ² (I/n + [d]× N⁻¹ [d]×ᵀ)) / 3)`` with ``d = x - x̄_G``."""
+        s = self.sigma_m if sigma_m is None else float(sigma_m)
+        d = np.asarray(points_global_m, dtype=float) - self.centroid_global_m
+        n = len(self.residual_norm_m)
+        ninv = self.rotation_normal_inv
+        # tr([d]× N⁻¹ [d]×ᵀ) = |d|² tr(N⁻¹) - dᵀ N⁻¹ d
+        rot = np.sum(d * d, axis=-1) * np.trace(ninv) - np.einsum("...i,ij,...j->...", d, ninv, d)
+        return np.asarray(np.sqrt(s**2 * (3.0 / n + np.clip(rot, 0.0, None)) / 3.0))
 
     def apply(self, points_m: ArrayLike) -> FloatArray:
         """Map DACS points, shape (..., 3), to the GCS."""
@@ -203,6 +271,10 @@ def register(
     res = xg - (xa @ t.T + o)
     norm = np.linalg.norm(res, axis=1)
     det = float(np.linalg.det(t))
+    dof = 3 * n - N_PARAMETERS[method]
+    sigma = float(np.sqrt(np.sum(res**2) / dof)) if dof > 0 else float("nan")
+    # N = Σ [y]×ᵀ[y]× = Σ (|y|² I - y yᵀ) on the centred known nodes
+    normal = np.sum(yg * yg) * np.eye(3) - yg.T @ yg
     return Registration(
         matrix=np.asarray(t, dtype=np.float64),
         offset_m=o,
@@ -212,4 +284,156 @@ def register(
         residual_norm_m=norm,
         rms_m=float(np.sqrt(np.mean(norm**2))),
         planarity=flat,
+        sigma_m=sigma,
+        centroid_global_m=cg,
+        rotation_normal_inv=np.linalg.inv(normal),
+    )
+
+
+def registration_limit_m(
+    point_accuracy_m: float, reference_accuracy_m: float, sigmas: float = LIMIT_SIGMAS
+) -> float:
+    """The largest acceptable residual of one reference node, m: ``k sqrt(σ_d² + σ_r²)``.
+
+    Parameters
+    ----------
+    point_accuracy_m : float
+        ``σ_d``, 1σ per coordinate of a digitized point (the array's stated accuracy).
+    reference_accuracy_m : float
+        ``σ_r``, 1σ per coordinate of a reference node's known GCS coordinates.
+    sigmas : float
+        ``k`` (default 5: a false refusal about once in 7000 registrations of ten nodes; see the
+        module docstring).
+    """
+    if point_accuracy_m < 0 or reference_accuracy_m < 0 or sigmas <= 0:
+        raise SetupError(
+            "registration limit: accuracies must be >= 0 m and sigmas > 0; give the digitizer's "
+            "and the reference nodes' 1-sigma accuracy per coordinate"
+        )
+    limit = sigmas * float(np.hypot(point_accuracy_m, reference_accuracy_m))
+    if limit <= 0:
+        raise SetupError(
+            "registration limit: both accuracies are 0 m; give the digitizer's point accuracy"
+        )
+    return limit
+
+
+@dataclass(frozen=True)
+class RegistrationCheck:
+    """A registration judged against its residual limit.
+
+    Attributes
+    ----------
+    verdict : {"ok", "warn", "fail"}
+        ``fail``: a node's residual is above ``limit_m``; ``warn``: above 0.7 ``limit_m`` (the
+        chance of that from noise alone is below 10⁻³ per node at k = 5).
+    reasons : tuple of str
+        Why, naming the worst node with its residual in mm (empty when ok).
+    limit_m : float
+    labels : tuple of str
+    worst_label : str
+    worst_residual_m : float
+    leave_one_out_rms_m : ndarray, shape (n,)
+        RMS residual of the other nodes when each node is left out (NaN where the rest cannot be
+        registered: fewer than 4, or coplanar).
+    suspect : str or None
+        The node whose removal brings every other node within the limit (the one to re-digitize
+        or whose coordinates to check), when there is exactly one such best candidate.
+    """
+
+    verdict: Literal["ok", "warn", "fail"]
+    reasons: tuple[str, ...]
+    limit_m: float
+    labels: tuple[str, ...]
+    worst_label: str
+    worst_residual_m: float
+    leave_one_out_rms_m: FloatArray
+    suspect: str | None
+
+
+#: A residual above this fraction of the limit is a warning.
+WARN_FRACTION = 0.7
+
+
+def check_registration(
+    points_array_m: ArrayLike,
+    points_global_m: ArrayLike,
+    labels: tuple[str, ...] | list[str],
+    limit_m: float,
+    method: str = "rigid",
+) -> tuple[Registration, RegistrationCheck]:
+    """Register and judge the fit against ``limit_m`` (see :func:`registration_limit_m`).
+
+    Parameters
+    ----------
+    points_array_m, points_global_m : array_like, shape (n, 3)
+        As :func:`register`.
+    labels : sequence of str, length n
+        The reference nodes' names (for the reasons).
+    limit_m : float
+        Largest acceptable residual of one node, m.
+    method : {"rigid", "similarity", "affine"}
+
+    Returns
+    -------
+    (Registration, RegistrationCheck)
+        The fit (whatever its verdict) and its check; the caller refuses a ``fail``.
+    """
+    xa = _points("points_array_m", points_array_m)
+    xg = _points("points_global_m", points_global_m)
+    labs = tuple(str(x) for x in labels)
+    if len(labs) != len(xa):
+        raise SetupError(f"registration: {len(labs)} labels for {len(xa)} nodes; name every node")
+    if not limit_m > 0:
+        raise SetupError(f"registration: limit {limit_m} m; give a positive residual limit")
+    reg = register(xa, xg, method=method)
+    n = len(xa)
+    loo = np.full(n, np.nan)
+    worst_after = np.full(n, np.nan)
+    if n >= 5:
+        for i in range(n):
+            keep = np.arange(n) != i
+            try:
+                sub = register(xa[keep], xg[keep], method=method)
+            except SetupError:
+                continue
+            loo[i] = sub.rms_m
+            worst_after[i] = float(sub.residual_norm_m.max())
+    k = int(np.argmax(reg.residual_norm_m))
+    worst = float(reg.residual_norm_m[k])
+    suspect = None
+    fits = np.flatnonzero(worst_after <= limit_m)
+    if len(fits) == 1:
+        suspect = labs[int(fits[0])]
+    reasons: list[str] = []
+    verdict: Literal["ok", "warn", "fail"] = "ok"
+    mm = 1e3
+    head = (
+        f"registration residual of reference node {labs[k]!r} is {mm * worst:.2f} mm "
+        f"(RMS over {n} nodes {mm * reg.rms_m:.2f} mm)"
+    )
+    if worst > limit_m:
+        verdict = "fail"
+        hint = (
+            f"without {suspect!r} the other nodes fit within {mm * worst_after[labs.index(suspect)]:.2f} mm: "
+            f"re-digitize {suspect!r} or check its known coordinates"
+            if suspect is not None
+            else "re-digitize the reference nodes (has the array moved? start a new patch after "
+            "moving it) or check their known coordinates"
+        )
+        reasons.append(f"{head}, above the limit {mm * limit_m:.2f} mm; {hint}")
+    elif worst > WARN_FRACTION * limit_m:
+        verdict = "warn"
+        reasons.append(
+            f"{head}, near the limit {mm * limit_m:.2f} mm; check that node and its coordinates"
+        )
+    return reg, RegistrationCheck(
+        verdict=verdict,
+        reasons=tuple(reasons),
+        limit_m=float(limit_m),
+        labels=labs,
+        worst_label=labs[k],
+        worst_residual_m=worst,
+        leave_one_out_rms_m=loo,
+        suspect=suspect,
     )

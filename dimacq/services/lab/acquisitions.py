@@ -3,7 +3,9 @@
 Every completed average (accepted or rejected) is written to its own HDF5 file and committed to
 the database before the next strike, so a crash loses none of them; after a restart the files
 written but not yet committed are registered (:meth:`AcquisitionService.recover`). When all
-inputs have their averages the FRFs are estimated and stored as an FRF set.
+inputs have their averages the FRFs are estimated and stored as an FRF set; an input left with
+fewer than ``min_averages`` accepted averages is incomplete: it gets no FRF and the acquisition
+names it (``incomplete_inputs``, its message).
 
 On a shared database every acquisition belongs to the stand that runs it: only that stand
 stops or recovers it, and the raw time data stay on its disk (:meth:`average_data`). While the
@@ -30,6 +32,7 @@ from dimacq.errors import (
     DeviceStateError,
     DimacqError,
 )
+from dimacq.model.impact import ImpactSettings
 from dimacq.model.setup import TestSetup
 from dimacq.persistence import ArrayStore, Database
 from dimacq.persistence import models as m
@@ -61,7 +64,12 @@ class AverageInfo:
 
 @dataclass(frozen=True)
 class AcquisitionInfo:
-    """State, progress (0..1) and every completed average of an acquisition."""
+    """State, progress (0..1) and every completed average of an acquisition.
+
+    ``accepted_per_input`` counts the accepted averages of each input index; ``min_averages`` is
+    the minimum applied (capped at ``averages_per_input``) and ``incomplete_inputs`` the input
+    indices below it once the acquisition is over (finished or failed).
+    """
 
     id: int
     setup_id: int | None
@@ -71,8 +79,11 @@ class AcquisitionInfo:
     job_id: str | None
     frf_id: int | None
     averages_accepted: int
+    accepted_per_input: list[int]
     averages_rejected: int
     averages: list[AverageInfo]
+    min_averages: int
+    incomplete_inputs: list[int]
     progress: float
     stand: str = ""  # the test stand that runs it (its raw data are on that stand's disk)
 
@@ -156,6 +167,15 @@ class AcquisitionService:
         if self.jobs.running("acquisition"):
             raise DeviceStateError("an acquisition is already running; stop it or wait for it")
         rig = self._build_rig(setup, cfg)  # raises DeviceError if the devices are not there
+        # the minimum of accepted averages per input, stated with the acquisition (the request,
+        # else the rig file's [acquisition], else the service's min_averages setting)
+        defaults: Mapping[str, Any] = getattr(rig, "defaults", {})
+        if cfg.get("min_averages") is None:
+            cfg["min_averages"] = defaults.get("min_averages", self.settings.min_averages)
+        if cfg.get("averages_per_input") is None:
+            cfg["averages_per_input"] = defaults.get(
+                "averages_per_input", ImpactSettings().averages_per_input
+            )
         with self.db.session() as s:
             row = m.Acquisition(
                 setup_id=setup_id, config=json_safe(cfg), state="running", stand=self.stand
@@ -273,6 +293,11 @@ class AcquisitionService:
                     "the database is back)"
                 ) from err
             state, message = "finished", f"FRFs stored as FRF set {fid}"
+            if frf.meta.get("incomplete_inputs"):
+                message += (
+                    f"; inputs {frf.meta['incomplete_inputs']} incomplete (fewer than "
+                    f"{cfg['min_averages']} accepted averages): no FRF, strike them again"
+                )
             return {"acquisition_id": acq_id, "frf_id": fid}
         except DimacqError as err:
             state = "cancelled" if ctx.cancelled else "failed"
@@ -316,6 +341,9 @@ class AcquisitionService:
             row = (r.id, r.setup_id, r.config, r.state, r.message, r.job_id, r.frf_id, r.stand)
         acq, setup_id, config, state, message, job_id, frf_id, stand = row
         snap = self.jobs.snapshot(job_id) if job_id else None
+        per_input = _accepted_per_input(avgs)
+        cfg = config or {}
+        need = min(int(cfg.get("min_averages") or 1), int(cfg.get("averages_per_input") or 10**6))
         return AcquisitionInfo(
             id=acq,
             setup_id=setup_id,
@@ -325,8 +353,13 @@ class AcquisitionService:
             job_id=job_id,
             frf_id=frf_id,
             averages_accepted=sum(1 for a in avgs if a.accepted),
+            accepted_per_input=per_input,
             averages_rejected=sum(1 for a in avgs if not a.accepted),
             averages=avgs,
+            min_averages=need,
+            incomplete_inputs=[j for j, n in enumerate(per_input) if n < need]
+            if state in ("finished", "failed")
+            else [],
             progress=snap["progress"] if snap else (1.0 if state == "finished" else 0.0),
             stand=stand,
         )
@@ -381,3 +414,13 @@ class AcquisitionService:
             "arrays": {k: json_safe(np.asarray(v)) for k, v in arrays.items()},
             "shapes": {k: list(np.shape(v)) for k, v in arrays.items()},
         }
+
+
+def _accepted_per_input(avgs: Sequence[AverageInfo]) -> list[int]:
+    """Accepted averages per input index (0 for inputs struck without success)."""
+    n = 1 + max((a.input_index for a in avgs), default=-1)
+    out = [0] * n
+    for a in avgs:
+        if a.accepted:
+            out[a.input_index] += 1
+    return out

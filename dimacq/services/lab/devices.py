@@ -157,6 +157,10 @@ class DeviceService:
             )
         return self._session
 
+    def session_if_open(self) -> DigitizingSession | None:
+        """The digitizing session if the digitizer is open, else None (hold :attr:`lock`)."""
+        return self._session
+
     def _close_digitizer(self) -> None:
         """Close the digitizer's port and what its backend opened (logs, never raises: a
         vanished port must not stop the shutdown)."""

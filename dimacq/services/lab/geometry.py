@@ -10,18 +10,29 @@ points and patches of the open digitizer.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import asdict, dataclass
 from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
 from sqlalchemy import select
 
-from dimacq.errors import DeviceStateError, SetupError
+from dimacq.errors import DataError, DeviceStateError, SetupError
 from dimacq.model.setup import Excitation, KnownProperties, LoadCell, ResponseChannel, TestSetup
 from dimacq.persistence import Database
 from dimacq.persistence import models as m
 from dimacq.services.lab.common import vec
+from dimacq.services.lab.geometry_records import (
+    LineOfAction,
+    NewTest,
+    Orientation,
+    PatchInfo,
+    ReferenceNode,
+    RegisteredPatch,
+    Registration,
+    Shot,
+    Shots,
+    StoredPoint,
+)
 
 if TYPE_CHECKING:
     from dimacq.drivers.digitizer import SerialDigitizer
@@ -31,6 +42,7 @@ if TYPE_CHECKING:
 __all__ = [
     "GeometryService",
     "LineOfAction",
+    "NewTest",
     "Orientation",
     "PatchInfo",
     "ReferenceNode",
@@ -42,141 +54,6 @@ __all__ = [
 ]
 
 FloatArray = NDArray[np.float64]
-
-
-# ---------------------------------------------------------------------------------- results
-@dataclass(frozen=True)
-class Shot:
-    """One raw shot: its sequence number, triangulated tip (array coordinates) and verdict."""
-
-    seq: int
-    tip_array_m: list[float]
-    speed_of_sound_m_s: float
-    accepted: bool
-
-
-@dataclass(frozen=True)
-class Shots:
-    """Raw shots and the median speed of sound measured on the calibration bar."""
-
-    shots: list[Shot]
-    speed_of_sound_m_s: float
-
-    def to_json(self) -> dict[str, Any]:
-        return asdict(self)
-
-
-@dataclass(frozen=True)
-class StoredPoint:
-    """A digitized point as stored; ``position_m`` (GCS) once its patch is registered."""
-
-    id: int
-    label: str
-    patch: int
-    position_array_m: list[float]
-    spread_m: list[float]
-    n_shots: int
-    n_used: int
-    position_m: list[float] | None
-
-
-@dataclass(frozen=True)
-class Registration:
-    """``x_G = matrix · x_A + offset_m`` of one patch, with the fit's quality (stored JSON)."""
-
-    matrix: list[list[float]]
-    offset_m: list[float]
-    method: str
-    scale: float
-    labels: list[str]
-    residual_norm_m: list[float]
-    rms_m: float
-    planarity: float
-
-    @classmethod
-    def from_json(cls, body: Mapping[str, Any]) -> Registration:
-        return cls(**body)
-
-    def apply(self, position_array_m: Sequence[float]) -> list[float]:
-        a = np.asarray(self.matrix, float)
-        return vec(a @ np.asarray(position_array_m, float) + np.asarray(self.offset_m, float))
-
-
-@dataclass(frozen=True)
-class PatchInfo:
-    """An array position and its registration (None until registered)."""
-
-    index: int
-    name: str
-    registration: Registration | None
-
-    def to_json(self) -> dict[str, Any]:
-        return asdict(self)
-
-
-@dataclass(frozen=True)
-class RegisteredPatch:
-    index: int
-    registration: Registration
-
-    def to_json(self) -> dict[str, Any]:
-        return asdict(self)
-
-
-@dataclass(frozen=True)
-class ReferenceNode:
-    """A node with known GCS coordinates (metres)."""
-
-    label: str
-    position_m: list[float]
-
-
-@dataclass(frozen=True)
-class Orientation:
-    """Orientation of the triax at ``node``: ``rotation`` has the sensor axes as columns (GCS);
-    ``orthogonality`` and ``max_off_diagonal`` only from the affine fit."""
-
-    node: int
-    rotation: list[list[float]]
-    origin_m: list[float]
-    method: str
-    rods: list[int]
-    n_points: int
-    residual_rms_m: float
-    angle_std_deg: list[float]
-    uncertainty_deg: float
-    orthogonality: list[list[float]] | None = None
-    max_off_diagonal: float | None = None
-
-    @classmethod
-    def from_json(cls, body: Mapping[str, Any]) -> Orientation:
-        return cls(**body)
-
-    def to_json(self) -> dict[str, Any]:
-        out = asdict(self)
-        for k in ("orthogonality", "max_off_diagonal"):
-            if out[k] is None:
-                del out[k]
-        return out
-
-
-@dataclass(frozen=True)
-class LineOfAction:
-    """Line of action of the input at ``node``: unit ``direction`` through ``point_m`` (GCS)."""
-
-    node: int
-    direction: list[float]
-    point_m: list[float]
-    method: str
-    perpendicular_rms_m: float
-    angle_std_deg: float
-
-    @classmethod
-    def from_json(cls, body: Mapping[str, Any]) -> LineOfAction:
-        return cls(**body)
-
-    def to_json(self) -> dict[str, Any]:
-        return asdict(self)
 
 
 # ---------------------------------------------------------------------------------- service
@@ -315,24 +192,64 @@ class GeometryService:
                     p.index,
                     p.name,
                     None if not p.registration else Registration.from_json(p.registration),
+                    p.test,
                 )
                 for p in s.scalars(select(m.PatchRow).order_by(m.PatchRow.index))
             ]
 
+    def current_test(self) -> int:
+        """The current digitizing test (the highest test number of the stored patches)."""
+        with self.db.session() as s:
+            t = s.scalars(select(m.PatchRow.test).order_by(m.PatchRow.test.desc())).first()
+        return int(t or 0)
+
     def new_patch(self, name: str | None = None) -> PatchInfo:
         """The array moved: later points belong to a new patch (register it again)."""
+        test = self.current_test()
         with self.devices.lock:
             p = self.devices.session().new_patch(name)
         with self.db.session() as s:
-            s.merge(m.PatchRow(index=p.index, name=p.name))
-        return PatchInfo(p.index, p.name, None)
+            s.merge(m.PatchRow(index=p.index, name=p.name, test=test))
+        return PatchInfo(p.index, p.name, None, test)
+
+    def new_test(self, name: str | None = None) -> NewTest:
+        """Start a new digitizing test: a fresh patch, no reference nodes, no orientations or
+        lines of action. Earlier points and patches stay in the database (listed, never used
+        for the new test's geometry); setups already built keep their geometry."""
+        test = self.current_test() + 1
+        with self.devices.lock:
+            p = self.devices.session().new_patch(name or f"test {test} patch 0")
+        with self.db.session() as s:
+            s.merge(m.PatchRow(index=p.index, name=p.name, test=test))
+            cleared = {
+                "reference_nodes": _delete_all(s, m.ReferenceNode),
+                "orientations": _delete_all(s, m.OrientationRow),
+                "lines_of_action": _delete_all(s, m.LineOfActionRow),
+            }
+        return NewTest(test, PatchInfo(p.index, p.name, None, test), cleared)
 
     def set_reference_nodes(self, nodes: Mapping[str, Sequence[float]]) -> list[ReferenceNode]:
-        """Store reference nodes (label → three finite GCS coordinates in metres)."""
+        """Add or replace reference nodes (label → three finite GCS coordinates in metres)."""
+        for lab, pos in nodes.items():
+            if not lab or len(lab) > 200:
+                raise SetupError("reference node label: give 1..200 characters")
+            if len(pos) != 3 or not np.all(np.isfinite(pos)):
+                raise SetupError(
+                    f"reference node {lab!r}: give three finite GCS coordinates in metres"
+                )
         with self.db.session() as s:
             for lab, pos in nodes.items():
                 s.merge(m.ReferenceNode(label=lab, position_m=vec(pos)))
         return self.reference_nodes()
+
+    def delete_reference_node(self, label: str) -> bool:
+        """Remove a reference node (registrations already made are kept); False if unknown."""
+        with self.db.session() as s:
+            row = s.get(m.ReferenceNode, label)
+            if row is None:
+                return False
+            s.delete(row)
+        return True
 
     def reference_nodes(self) -> list[ReferenceNode]:
         with self.db.session() as s:
@@ -346,7 +263,22 @@ class GeometryService:
             q = select(m.DigitizedPointRow).order_by(m.DigitizedPointRow.id)
             if patch is not None:
                 q = q.where(m.DigitizedPointRow.patch == patch)
-            return {(r.patch, r.label): list(r.position_array_m) for r in s.scalars(q)}
+            out: dict[tuple[int, str], list[float]] = {}
+            for r in s.scalars(q):
+                out.pop((r.patch, r.label), None)  # re-digitized: the latest, last in order
+                out[(r.patch, r.label)] = list(r.position_array_m)
+            return out
+
+    def _registration_settings(self) -> tuple[float, float, float]:
+        """(point accuracy, registration limit, prior σ of a node), m."""
+        from dimacq.services.digitizing import load_array_config
+        from dimacq.services.geometry_trust import registration_limit
+
+        settings = self.devices.settings
+        cfg = load_array_config()
+        ref = settings.reference_node_accuracy_m
+        limit = registration_limit(cfg, ref, settings.registration_limit_m)
+        return cfg.accuracy.point_m, limit, float(np.hypot(cfg.accuracy.point_m, ref))
 
     @staticmethod
     def _registrations(s: Any) -> dict[int, Registration]:
@@ -361,15 +293,30 @@ class GeometryService:
         patch: int | None = None,
         method: Literal["rigid", "similarity", "affine"] = "rigid",
         labels: Sequence[str] | None = None,
+        limit_m: float | None = None,
     ) -> RegisteredPatch:
-        """Register a patch (default: the last one) from the reference nodes it holds."""
-        from dimacq.pipeline.digitizing.registration import register
+        """Register a patch (default: the last one) from the reference nodes it holds.
 
+        A node residual above the limit (``limit_m``, default the ``registration_limit_m``
+        setting) refuses it (DataError naming the worst node) and leaves the patch unregistered.
+        A registration accepted against a limit raised above the array's is a ``warn``.
+        """
+        from dimacq.services.geometry_trust import judge_registration
+
+        _point, default_limit, prior = self._registration_settings()
+        limit = default_limit if limit_m is None else float(limit_m)
+        test = self.current_test()
         with self.db.session() as s:
             last = s.scalars(select(m.PatchRow.index).order_by(m.PatchRow.index.desc())).first()
             idx = int(last or 0) if patch is None else patch
-            if s.get(m.PatchRow, idx) is None:
+            prow = s.get(m.PatchRow, idx)
+            if prow is None:
                 raise SetupError(f"patch {idx} does not exist; list patches to find its index")
+            if prow.test != test:
+                raise SetupError(
+                    f"patch {idx} belongs to test {prow.test}, not the current test {test}; "
+                    "digitize the reference nodes again in a patch of this test"
+                )
             refs = {r.label: r.position_m for r in s.scalars(select(m.ReferenceNode))}
         pts = {lab: p for (_, lab), p in self._latest_points(idx).items()}
         use = [lab for lab in (labels or sorted(refs)) if lab in refs and lab in pts]
@@ -378,34 +325,64 @@ class GeometryService:
                 f"patch {idx}: {len(use)} reference node(s) digitized ({use}); digitize at least 4 "
                 "reference nodes with known GCS coordinates in this patch (3 only for rigid frames)"
             )
-        reg = register(
-            np.array([pts[u] for u in use]), np.array([refs[u] for u in use]), method=method
-        )
-        result = Registration(
-            matrix=np.asarray(reg.matrix).tolist(),
-            offset_m=vec(reg.offset_m),
-            method=reg.method,
-            scale=float(reg.scale),
-            labels=use,
-            residual_norm_m=vec(reg.residual_norm_m),
-            rms_m=float(reg.rms_m),
-            planarity=float(reg.planarity),
-        )
+        try:
+            _reg, body = judge_registration(
+                np.array([pts[u] for u in use]),
+                np.array([refs[u] for u in use]),
+                use,
+                limit_m=limit,
+                prior_sigma_m=prior,
+                method=method,
+            )
+        except DataError:
+            # the patch's points have changed since any earlier registration: unregister it
+            with self.db.session() as s:
+                row = s.get(m.PatchRow, idx)
+                assert row is not None
+                row.registration = None
+            with self.devices.lock:
+                sess = self.devices.session_if_open()
+                if sess is not None and idx < len(sess.patches):
+                    sess.patches[idx].registration = None
+            raise
+        if body["worst_residual_m"] > default_limit:
+            body["verdict"] = "warn"
+            body["reasons"].append(
+                f"accepted against a raised limit {1e3 * limit:.2f} mm; the array's limit is "
+                f"{1e3 * default_limit:.2f} mm (setups built on it state that limit, so a solve "
+                "on them fails its registration check)"
+            )
+        result = Registration.from_json(body)
         with self.db.session() as s:
             row = s.get(m.PatchRow, idx)
             assert row is not None
-            row.registration = asdict(result)
+            row.registration = result.to_json()
         return RegisteredPatch(idx, result)
 
     def global_points(self) -> dict[str, FloatArray]:
-        """Label → GCS position (points of registered patches; the latest wins)."""
+        """Label → GCS position (points of the current test's registered patches; the latest
+        wins)."""
+        return {k: v[0] for k, v in self._global_points_with_patch().items()}
+
+    def _test_registrations(self) -> dict[int, Registration]:
+        """Patch index → registration, the current test's registered patches only."""
+        test = self.current_test()
         with self.db.session() as s:
-            regs = self._registrations(s)
-        out: dict[str, FloatArray] = {}
+            return {
+                p.index: Registration.from_json(p.registration)
+                for p in s.scalars(select(m.PatchRow).where(m.PatchRow.test == test))
+                if p.registration
+            }
+
+    def _global_points_with_patch(self) -> dict[str, tuple[FloatArray, Registration]]:
+        """Label → (GCS position, its patch's registration), current test only."""
+        regs = self._test_registrations()
+        out: dict[str, tuple[FloatArray, Registration]] = {}
         for (patch, label), pos in self._latest_points().items():
             reg = regs.get(patch)
             if reg:
-                out[label] = np.asarray(reg.apply(pos))
+                out.pop(label, None)
+                out[label] = (np.asarray(reg.apply(pos)), reg)
         return out
 
     # ------------------------------------------------------------------ sensors and inputs
@@ -418,10 +395,12 @@ class GeometryService:
         """Orientation of the triax at ``node`` from jig points labelled ``<prefix><jig label>``."""
         from dimacq.pipeline.digitizing.orientation import fit_orientation
         from dimacq.services.digitizing import load_jig
+        from dimacq.services.geometry_trust import orientation_uncertainty
 
         prefix = f"jig{node}/" if prefix is None else prefix
         jig = load_jig()
-        pts = self.global_points()
+        with_patch = self._global_points_with_patch()
+        pts = {k: v[0] for k, v in with_patch.items()}
         have = [i for i, lab in enumerate(jig.labels) if prefix + lab in pts]
         if len(have) < 4:
             raise SetupError(
@@ -431,6 +410,15 @@ class GeometryService:
         idx = np.array(have)
         xg = np.array([pts[prefix + jig.labels[i]] for i in have])
         fit = fit_orientation(jig.points_local_m[idx], xg, jig.rod[idx], method=method)
+        point_m, _limit, _prior = self._registration_settings()
+        unc = orientation_uncertainty(
+            float(fit.uncertainty_deg),
+            float(fit.residual_rms_m),
+            len(have),
+            fit.origin_m,
+            _distinct(with_patch[prefix + jig.labels[i]][1] for i in have),
+            point_m,
+        )
         result = Orientation(
             node=node,
             rotation=np.asarray(fit.rotation).tolist(),
@@ -440,7 +428,10 @@ class GeometryService:
             n_points=len(have),
             residual_rms_m=float(fit.residual_rms_m),
             angle_std_deg=vec(fit.angle_std_deg),
-            uncertainty_deg=float(fit.uncertainty_deg),
+            uncertainty_deg=unc["uncertainty_deg"],
+            jig_uncertainty_deg=unc["jig_uncertainty_deg"],
+            registration_uncertainty_deg=unc["registration_uncertainty_deg"],
+            origin_std_m=unc["origin_std_m"],
             orthogonality=None
             if fit.affine is None
             else np.asarray(fit.affine.orthogonality).tolist(),
@@ -470,8 +461,10 @@ class GeometryService:
             line_of_action_svd,
             line_of_action_thesis,
         )
+        from dimacq.services.geometry_trust import line_of_action_uncertainty
 
-        pts = self.global_points()
+        with_patch = self._global_points_with_patch()
+        pts = {k: v[0] for k, v in with_patch.items()}
         missing = [lab for lab in [input_label, *labels] if lab not in pts]
         if missing:
             raise SetupError(
@@ -480,13 +473,23 @@ class GeometryService:
             )
         fn = line_of_action_svd if method == "svd" else line_of_action_thesis
         loa = fn(np.array([pts[lab] for lab in labels]), pts[input_label])
+        point_m, _limit, _prior = self._registration_settings()
+        unc = line_of_action_uncertainty(
+            float(loa.angle_std_deg),
+            pts[input_label],
+            _distinct(with_patch[lab][1] for lab in [input_label, *labels]),
+            point_m,
+        )
         result = LineOfAction(
             node=node,
             direction=vec(loa.direction),
             point_m=vec(pts[input_label]),
             method=loa.method,
             perpendicular_rms_m=float(loa.perpendicular_rms_m),
-            angle_std_deg=float(loa.angle_std_deg),
+            angle_std_deg=unc["angle_std_deg"],
+            fit_angle_std_deg=unc["fit_angle_std_deg"],
+            registration_uncertainty_deg=unc["registration_uncertainty_deg"],
+            point_std_m=unc["point_std_m"],
         )
         with self.db.session() as s:
             s.merge(m.LineOfActionRow(node=node, body=result.to_json()))
@@ -515,8 +518,13 @@ class GeometryService:
 
         Each triax at node N gives channels N+X, N+Y, N+Z along the columns of its orientation
         matrix, at its jig origin; each input node gives one excitation at its input point along
-        its line of action.
+        its line of action. The setup states the geometry's uncertainty
+        (:func:`dimacq.services.geometry_trust.geometry_uncertainty`: the orientations', lines of
+        action's and the current test's registrations' stated 1σ, and the array's registration
+        limit).
         """
+        from dimacq.services.geometry_trust import geometry_uncertainty
+
         ori = {o.node: o for o in self.orientations()}
         loas = {a.node: a for a in self.lines_of_action()}
         nodes = list(ori) if triaxes is None else list(triaxes)
@@ -549,6 +557,15 @@ class GeometryService:
             )
             for n in ins
         ]
+        point_m, limit, _prior = self._registration_settings()
+        geo_unc = geometry_uncertainty(
+            [ori[n].to_json() for n in nodes],
+            [loas[n].to_json() for n in ins],
+            [r.to_json() for r in self._test_registrations().values()],
+            point_accuracy_m=point_m,
+            # the array's limit, not a limit raised for one registration
+            registration_limit_m=limit,
+        )
         try:
             return TestSetup(
                 name=name,
@@ -558,6 +575,7 @@ class GeometryService:
                 excitations=tuple(excitations),
                 load_cells=tuple(load_cells),
                 known=known or KnownProperties(),
+                geometry_uncertainty=geo_unc,
             )
         except ValueError as err:
             raise SetupError(f"setup from geometry: {err}") from err
@@ -565,3 +583,19 @@ class GeometryService:
 
 def _vec3(v: Sequence[float]) -> tuple[float, float, float]:
     return (float(v[0]), float(v[1]), float(v[2]))
+
+
+def _delete_all(s: Any, model: Any) -> int:
+    rows = list(s.scalars(select(model)))
+    for r in rows:
+        s.delete(r)
+    return len(rows)
+
+
+def _distinct(regs: Any) -> list[dict[str, Any]]:
+    """The distinct registration records among ``regs`` (one per patch used), as JSON."""
+    out: list[Registration] = []
+    for r in regs:
+        if not any(r is o for o in out):
+            out.append(r)
+    return [r.to_json() for r in out]

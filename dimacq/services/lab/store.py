@@ -354,7 +354,8 @@ class TestStore:
             inputs=[frf.inputs[j].as_dict() for j in ii],
             real=h.real.tolist(),
             imag=h.imag.tolist(),
-            coherence=None if frf.coherence is None else frf.coherence[:, oi][:, :, ii].tolist(),
+            # NaN (one average: no coherence) → null, so the JSON is strict
+            coherence=None if frf.coherence is None else json_safe(frf.coherence[:, oi][:, :, ii]),
         )
 
     # ------------------------------------------------------------------ solutions
