@@ -68,6 +68,8 @@ class PanelDaq:
         self._channels: list[ChannelConfig] = []
         self._running = False
         self._next = 0
+        #: its clock runs only when pulled, so what it clocked is what was read
+        self.samples_clocked: int | None = None
 
     @property
     def channel_names(self) -> tuple[str, ...]:
@@ -124,9 +126,11 @@ class PanelDaq:
         if self.sample_rate_hz is None or not self._channels:
             raise DeviceStateError("panel DAQ: add channels and configure the timing first")
         self._running, self._next = True, 0
+        self.samples_clocked = None
 
     def stop(self) -> None:
         self._running = False
+        self.samples_clocked = self._next
 
     def read(self, n_samples: int, timeout_s: float | None = None) -> DaqBlock:
         assert self.sample_rate_hz is not None

@@ -93,6 +93,9 @@ class Daq(Protocol):
 
     sample_rate_hz: float | None
     events: list[DaqEvent]
+    #: Samples the DAQ's clock produced in the last run (known after stop(), else None): what
+    #: devices counting its SYNC output saw, which can exceed the samples the host received.
+    samples_clocked: int | None
 
     @property
     def channel_names(self) -> tuple[str, ...]: ...

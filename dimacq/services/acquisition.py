@@ -427,7 +427,11 @@ class ImpactSession:
                 records[j] = []
             self.daq.stop()
             tail = self.daq.read_buffered()
-            n_clocked = self._daq_buf.end if tail is None else tail.first_sample + tail.n_samples
+            n_received = self._daq_buf.end if tail is None else tail.first_sample + tail.n_samples
+            # the load cells counted every pulse the DAQ clocked, received by the host or not
+            n_clocked = self.daq.samples_clocked
+            if n_clocked is None:
+                n_clocked = n_received
             for k, lc in enumerate(self.loadcells):
                 lc.stop()
                 ev = lc.verify_count(n_clocked)

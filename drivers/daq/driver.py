@@ -59,6 +59,9 @@ STANDARD_GRAVITY = 9.80665
 
 
 _BULK = "bulk read"
+#: Draining stale frames before START: a read this short that times out means the FIFO is empty.
+_DRAIN_TIMEOUT_S = 0.02
+_DRAIN_MAX_FRAMES = 4096
 
 
 class DaqDevice(WireDriver):
@@ -252,6 +255,9 @@ class DaqTask:
         self._next_sequence = 0
         self.events: list[DaqEvent] = []
         self._scale = np.zeros(0)
+        #: Samples the DAQ clocked in the last run (GET_STATUS after STOP); None before a stop.
+        #: It is at least the samples received: frames still in the device FIFO count too.
+        self.samples_clocked: int | None = None
 
     # -- channels -----------------------------------------------------------------------------
     def identify(self) -> p.DeviceIdentity:
@@ -400,6 +406,8 @@ class DaqTask:
         )
         self._next_sequence = 0
         self.events = []
+        self.samples_clocked = None
+        self._drain()
         self.device.start(self.samples_per_frame)
         self._running = True
         log.info(
@@ -409,12 +417,41 @@ class DaqTask:
             self.sample_rate_hz,
         )
 
+    def _drain(self) -> None:
+        """Read and discard frames left in the device FIFO by a previous run (before START).
+
+        The FIFO is bounded, so this ends at the first read that times out; a stale frame
+        larger than this task's frame is discarded by the USB stack (an overflow error).
+        """
+        stale = 0
+        for _ in range(_DRAIN_MAX_FRAMES):
+            try:
+                self.device.read_frame(self.frame_bytes, _DRAIN_TIMEOUT_S)
+            except DeviceTimeoutError:
+                break
+            except DeviceError:
+                pass
+            stale += 1
+        else:
+            raise DeviceStateError(
+                f"task {self.name}: the DAQ still sends frames after {_DRAIN_MAX_FRAMES} stale "
+                "ones were drained; another program may be running it, stop it and retry"
+            )
+        if stale:
+            log.info("DAQ task %s: drained %d stale frame(s) before start", self.name, stale)
+
     def stop(self) -> None:
-        """Stop the clock. Samples already received stay readable (:meth:`read_buffered`)."""
+        """Stop the clock and read how many samples it clocked (:attr:`samples_clocked`).
+
+        Samples already received stay readable (:meth:`read_buffered`).
+        """
         if self._running:
             self._running = False
             self.device.stop()
-            log.info("DAQ task %s stopped", self.name)
+            self.samples_clocked = self.device.get_status().samples_clocked
+            log.info(
+                "DAQ task %s stopped after %d samples clocked", self.name, self.samples_clocked
+            )
 
     def _record(self, ev: DaqEvent) -> None:
         self._stream.record(ev)

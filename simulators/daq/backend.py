@@ -9,10 +9,20 @@ digitises it on the selected range (24 bits, clipping and overload flags at full
 transducer gives 0 V when its input's IEPE current is off. AC coupling is ideal (the source
 carries no sensor bias voltage).
 
-The sample clock is free-running as fast as the host reads: each bulk read clocks one frame of
-``samples_per_frame`` samples and advances :attr:`clock` (the SYNC output the load cell
-amplifier counts). Pulse ``k`` of a run is sample ``clock.epoch + k`` of the source; a new run
-continues the world where the previous one stopped.
+The sample clock has two modes. By default it runs as fast as the host reads: each bulk read
+clocks one frame of ``samples_per_frame`` samples. With ``free_running=True`` it runs in wall
+time, as a real DAQ's does, independent of the host: samples are clocked at ``sample_rate_hz``
+from START to STOP, a bulk read waits for the next complete frame (or times out), frames the
+host has not read yet wait in the device FIFO, and GET_STATUS reports every sample clocked, so at
+STOP the DAQ has clocked more samples than the host has received. Either way the clocked samples
+drive :attr:`clock` (the SYNC output the load cell amplifier counts). Pulse ``k`` of a run is
+sample ``clock.epoch + k`` of the source; a new run continues the world where the previous one
+stopped.
+
+Frames still in the FIFO at STOP stay readable after it (a short last frame for a partial one);
+a real device may keep them across the next START (``DaqFaults.stale_frames_survive_start``),
+so a driver must drain them before starting. ``DaqFaults.frames_clocked_before_stop`` clocks
+that many frames between the host's last read and STOP in the default mode too.
 
 Faults for tests (:class:`DaqFaults`): bulk reads that time out, frames lost in the device FIFO
 (the next frame carries the overflow flag and the sample counter jumps), transfers lost on the
@@ -24,6 +34,8 @@ from __future__ import annotations
 import array
 import errno
 import logging
+import time
+from collections import deque
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -70,6 +82,10 @@ class DaqFaults:
     fifo_overflow_frames: set[int] = field(default_factory=set)
     lost_transfers: set[int] = field(default_factory=set)
     corrupt_frames: set[int] = field(default_factory=set)
+    #: Frames the clock produces after the host's last read and before STOP (left in the FIFO).
+    frames_clocked_before_stop: int = 0
+    #: START does not clear the FIFO: frames left from the previous run are read first.
+    stale_frames_survive_start: bool = False
 
 
 class _Desc:
@@ -91,6 +107,8 @@ class VirtualDaqBackend(usb.backend.IBackend):
     clock : SampleClock, optional
         The SYNC output; pass the same object to the load cell simulator.
     faults : DaqFaults, optional
+    free_running : bool
+        Clock samples in wall time (a real DAQ) instead of one frame per bulk read.
     """
 
     def __init__(
@@ -102,6 +120,7 @@ class VirtualDaqBackend(usb.backend.IBackend):
         serial_number: str = "SIMDAQ-0001",
         clock: SampleClock | None = None,
         faults: DaqFaults | None = None,
+        free_running: bool = False,
     ) -> None:
         super().__init__()
         self.source = source
@@ -154,6 +173,10 @@ class VirtualDaqBackend(usb.backend.IBackend):
         self._overflowed = False
         self._pending_overflow = False
         self._frames_lost = 0
+        self.free_running = free_running
+        self._t0 = 0.0
+        self._sent = 0  # samples framed (sent or lost) in this run
+        self._fifo: deque[bytes] = deque()  # frames left in the FIFO after STOP
 
     # -- descriptors -------------------------------------------------------------------------
     def enumerate_devices(self) -> Any:
@@ -254,7 +277,7 @@ class VirtualDaqBackend(usb.backend.IBackend):
                     self.running,
                     self._overflowed,
                     self.sample_rate_hz,
-                    self._count,
+                    self._clocked(),
                     self._frames_lost,
                 )
                 return self._answer(data, st.encode())
@@ -304,8 +327,12 @@ class VirtualDaqBackend(usb.backend.IBackend):
         return n
 
     def _start(self, spf: int) -> None:
+        if not self.faults.stale_frames_survive_start:
+            self._fifo.clear()
         self._spf = spf
         self._count = 0
+        self._sent = 0
+        self._t0 = time.monotonic()
         self._seq = 0
         self._reads = 0
         self._overflowed = False
@@ -317,19 +344,38 @@ class VirtualDaqBackend(usb.backend.IBackend):
 
     def _stop(self) -> None:
         if self.running:
+            if self.free_running:
+                self._clocked()
+            else:
+                self._count += self.faults.frames_clocked_before_stop * self._spf
+                self.clock.advance(self._count)
+            # what was clocked and not sent stays in the FIFO, readable after STOP
+            while self._sent < self._count:
+                frame = self._next_frame(min(self._spf, self._count - self._sent))
+                if frame:
+                    self._fifo.append(frame)
             self.running = False
             self._world = self._epoch + self._count
             self.clock.stop()
+
+    def _clocked(self) -> int:
+        """Samples clocked in this run (free-running: advanced to the wall time while running)."""
+        if self.free_running and self.running:
+            n = int((time.monotonic() - self._t0) * self.sample_rate_hz)
+            if n > self._count:
+                self._count = n
+                self.clock.advance(n)
+        return self._count
 
     def world_sample(self, daq_sample: int) -> int:
         """The source counter of DAQ sample ``daq_sample`` of the present run."""
         return self._epoch + daq_sample
 
     # -- bulk data ---------------------------------------------------------------------------
-    def _make_frame(self) -> tuple[int, int, np.ndarray, int]:
+    def _make_frame(self, n: int) -> tuple[int, int, np.ndarray, int]:
+        """Samples ``_sent .. _sent + n - 1`` as counts; clocks them first in the default mode."""
         chans = np.flatnonzero(self.enabled)
-        n = self._spf
-        first = self._count
+        first = self._sent
         volts = np.zeros((chans.size, n))
         wired = [(i, self.wiring[int(k)]) for i, k in enumerate(chans) if int(k) in self.wiring]
         if wired:
@@ -346,9 +392,21 @@ class VirtualDaqBackend(usb.backend.IBackend):
         mask = 0
         for col in np.flatnonzero(over.any(axis=0)).tolist():
             mask |= 1 << col
-        self._count += n
-        self.clock.advance(self._count)
+        self._sent += n
+        if self._sent > self._count:
+            self._count = self._sent
+            self.clock.advance(self._count)
         return first, mask, counts.astype(np.int32), n
+
+    def _await_frame(self, deadline: float) -> bool:
+        """Free-running: wait until a whole frame is clocked; False at the deadline."""
+        while self._clocked() - self._sent < self._spf:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                return False
+            need = (self._sent + self._spf - self._count) / self.sample_rate_hz
+            time.sleep(min(left, max(need, 0.0005)))
+        return True
 
     def bulk_read(
         self, dev_handle: Any, ep: int, intf: int, buff: array.array[int], timeout: int
@@ -357,28 +415,45 @@ class VirtualDaqBackend(usb.backend.IBackend):
             raise usb.core.USBError("Pipe error", error_code=-9, errno=errno.EPIPE)
         read_index = self._reads
         self._reads += 1
-        if not self.running or read_index in self.faults.timeout_reads:
-            raise usb.core.USBTimeoutError("Operation timed out", error_code=-7, errno=110)
+        timed_out = usb.core.USBTimeoutError("Operation timed out", error_code=-7, errno=110)
+        if read_index in self.faults.timeout_reads:
+            raise timed_out
+        if self._fifo:
+            return self._deliver(self._fifo.popleft(), buff)
+        if not self.running:
+            raise timed_out
+        deadline = time.monotonic() + timeout / 1000
         while True:
-            first, mask, counts, _ = self._make_frame()
-            seq = self._seq
-            if seq in self.faults.fifo_overflow_frames:
-                # The FIFO overflowed: these samples never leave the device.
-                self.faults.fifo_overflow_frames.discard(seq)
-                self._overflowed = True
-                self._pending_overflow = True
-                self._frames_lost += 1
-                continue
-            self._seq += 1
-            if seq in self.faults.lost_transfers:
-                self.faults.lost_transfers.discard(seq)
-                continue
-            break
+            if self.free_running and not self._await_frame(deadline):
+                raise timed_out
+            frame = self._next_frame(self._spf)
+            if frame:
+                return self._deliver(frame, buff)
+
+    def _next_frame(self, n: int) -> bytes:
+        """Frame the next ``n`` samples; b"" when the frame is lost (fault) on the device side."""
+        first, mask, counts, _ = self._make_frame(n)
+        seq = self._seq
+        if seq in self.faults.fifo_overflow_frames:
+            # The FIFO overflowed: these samples never leave the device.
+            self.faults.fifo_overflow_frames.discard(seq)
+            self._overflowed = True
+            self._pending_overflow = True
+            self._frames_lost += 1
+            return b""
+        self._seq += 1
+        if seq in self.faults.lost_transfers:
+            self.faults.lost_transfers.discard(seq)
+            return b""
         flags = p.FrameFlags.OVERFLOW if self._pending_overflow else p.FrameFlags.NONE
         self._pending_overflow = False
         frame = p.encode_frame(seq, first, counts, overload_mask=mask, flags=flags)
         if seq in self.faults.corrupt_frames:
             frame = frame[:-1] + bytes([frame[-1] ^ 0xFF])
+        return frame
+
+    @staticmethod
+    def _deliver(frame: bytes, buff: array.array[int]) -> int:
         if len(frame) > len(buff):
             raise usb.core.USBError("Overflow", error_code=-8, errno=errno.EOVERFLOW)
         buff[: len(frame)] = array.array("B", frame)

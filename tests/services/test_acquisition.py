@@ -7,6 +7,7 @@ through known resonators), so the FRFs have a closed form.
 from __future__ import annotations
 
 import json
+import logging
 import sys
 from pathlib import Path
 
@@ -23,7 +24,7 @@ from dimacq.drivers.loadcell.driver import LoadCellAmplifier
 from dimacq.errors import DataError, SetupError
 from dimacq.io.acquisition_hdf5 import AcquisitionWriter
 from dimacq.services.acquisition import ImpactSession, ImpactSettings
-from dimacq.simulators.daq.backend import DaqInput, VirtualDaqBackend
+from dimacq.simulators.daq.backend import DaqFaults, DaqInput, VirtualDaqBackend
 from dimacq.simulators.daq.clock import SampleClock
 from dimacq.simulators.loadcell.amplifier import (
     LoadCellAmplifierSim,
@@ -39,7 +40,7 @@ G = 9.80665
 def lab(request, no_leaks):
     made = []
 
-    def build(lc_faults=None):
+    def build(lc_faults=None, free_running=False, daq_faults=None):
         src = ImpulseSource(n_inputs=2, n_responses=3, n_gauges=12, response_gain=0.01)
         clock = SampleClock()
         name = f"acq-{request.node.name}"
@@ -48,7 +49,9 @@ def lab(request, no_leaks):
         bus = can.Bus(interface="virtual", channel=name, fd=True)
         wiring = {j: DaqInput(j, 2.25e-3) for j in range(2)}
         wiring.update({2 + k: DaqInput(2 + k, 0.1 / G) for k in range(3)})
-        backend = VirtualDaqBackend(src, wiring, clock=clock)
+        backend = VirtualDaqBackend(
+            src, wiring, clock=clock, free_running=free_running, faults=daq_faults
+        )
         dev = DaqDevice.open(backend=backend)
         made.append((sim, bus, dev))
         task = DaqTask(dev)
@@ -128,6 +131,36 @@ def test_impact_test_rejects_bad_averages_and_matches_closed_form(lab, tmp_path)
         assert [a["accepted"] for a in avgs] == [v[1] for v in verdicts]
         truth = src.read(np.array([2]), backend.world_sample(0), 1000)[0]
         np.testing.assert_allclose(f["daq/data"][2, :1000], truth, atol=5 / 2**23 / (0.1 / G))
+
+
+@pytest.mark.parametrize("free_running", [True, False])
+def test_end_of_run_pulse_check_counts_the_samples_the_daq_clocked(lab, caplog, free_running):
+    """A DAQ clocks samples the host never reads (in its FIFO at STOP); the load cell counted
+    their pulses too, so the end-of-run check must use the DAQ's count, not the host's.
+    Free-running (wall time, as real hardware) and with 3 frames clocked before STOP."""
+    faults = None if free_running else DaqFaults(frames_clocked_before_stop=3)
+    src, backend, task, amp = lab(free_running=free_running, daq_faults=faults)
+
+    def operator(j, at):
+        src.excite(j, backend.world_sample(at))
+
+    settings = ImpactSettings(record_samples=512, averages_per_input=1, trigger_level_n=20.0)
+    session = ImpactSession(
+        task,
+        ["10+X force"],
+        ["100+Z"],
+        [amp],
+        settings=settings,
+        operator=operator,
+        loadcell_outputs="gauges",
+    )
+    with caplog.at_level(logging.INFO, logger="dimacq"):
+        res = session.run()
+    assert res.n_accepted == (1,)
+    assert task.samples_clocked is not None
+    assert task.samples_clocked > session._daq_buf.end  # the DAQ clocked more than was read
+    assert "misaligned" not in caplog.text
+    assert f"stopped after {task.samples_clocked} samples clocked" in caplog.text
 
 
 def test_loadcell_forces_need_a_calibration(lab):

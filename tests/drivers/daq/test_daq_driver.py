@@ -18,6 +18,9 @@ from dimacq.errors import DeviceStateError, DeviceTimeoutError, ProtocolError, S
 IDENT = p.DeviceIdentity(1, 4, 51200, 24, 5, "SN42", "fw1").encode()
 
 
+TIMEOUT = usb.core.USBTimeoutError("Operation timed out", error_code=-7, errno=110)
+
+
 def status(rate=2048.0, running=False):
     return p.DeviceStatus(running, False, rate, 0, 0).encode()
 
@@ -106,6 +109,7 @@ def test_reference_frame_read_by_a_task():
             )
         ),
         IN(p.Request.GET_STATUS, p.STATUS_STRUCT.size, STATUS_REF),
+        (BulkIn(p.DATA_ENDPOINT, 44), TIMEOUT),  # nothing stale to drain
         OUT(p.Request.START, 2),
         (BulkIn(p.DATA_ENDPOINT, 44), FRAME_REF),
     ]
@@ -134,8 +138,10 @@ def test_identify_exchange():
     assert (ident.n_channels, ident.serial_number, ident.firmware) == (4, "SN42", "fw1")
 
 
-def start_script(spf=4):
+def start_script(spf=4, stale=()):
+    """The exchange of ``DaqTask.start``; ``stale``: frames left in the FIFO, drained first."""
     R = p.Request
+    drain = [(BulkIn(p.DATA_ENDPOINT, p.frame_size(spf, 2)), f) for f in (*stale, TIMEOUT)]
     return [
         IN(R.IDENTIFY, p.IDENTIFY_STRUCT.size, IDENT),
         OUT(R.SET_SAMPLE_RATE, data=bytes.fromhex("00 08 00 00")),  # u32 2048
@@ -150,14 +156,15 @@ def start_script(spf=4):
         OUT(R.SET_IEPE, 0, 3),
         OUT(R.SET_COUPLING, 0, 3),
         IN(R.GET_STATUS, p.STATUS_STRUCT.size, status()),
+        *drain,
         OUT(R.START, spf),
     ]
 
 
 @contextlib.contextmanager
-def started_task(script):
+def started_task(script, stale=()):
     """A task of two channels started by the start script, then ``script``."""
-    with expected_exchange("usb", start_script() + script, connect=DaqDevice) as dev:
+    with expected_exchange("usb", start_script(stale=stale) + script, connect=DaqDevice) as dev:
         task = DaqTask(dev)
         task.add_voltage_channel(3, "aux")
         task.add_accel_channel(1, "1103+Y", 100.0)
@@ -179,7 +186,8 @@ def read(answer, size=FRAME_4x2):
 
 def test_start_exchange_and_engineering_units():
     counts = np.array([[2**22, 0], [-(2**22), 2**22], [0, 0], [1, -1]])
-    with started_task([read(frame(0, 0, counts)), OUT(p.Request.STOP)]) as task:
+    stop = [OUT(p.Request.STOP), IN(p.Request.GET_STATUS, p.STATUS_STRUCT.size, status())]
+    with started_task([read(frame(0, 0, counts)), *stop]) as task:
         block = task.read(4)
         task.stop()
     assert task.channel_names == ("1103+Y", "aux")  # ascending physical channel
@@ -187,6 +195,23 @@ def test_start_exchange_and_engineering_units():
     assert block.data[0, 0] == pytest.approx(25 * 9.80665, rel=1e-12)
     assert block.data[1, 1] == pytest.approx(5.0, rel=1e-12)  # ±10 V voltage channel
     assert block.data[0, 3] == pytest.approx(5 / 2**23 / 0.1 * 9.80665, rel=1e-12)
+
+
+def test_stale_frames_are_drained_before_start_and_stop_reads_samples_clocked():
+    """Frames a previous run left in the FIFO are read and dropped before START (else the
+    first one, sequence 5 at sample 640, would read as lost transfers); after STOP the task
+    knows the samples the DAQ clocked (GET_STATUS), not just those it received."""
+    c = np.ones((4, 2), dtype=int)
+    stale = [frame(5, 640, c), frame(6, 644, c)]
+    clocked = p.DeviceStatus(False, False, 2048.0, 11, 0).encode()
+    stop = [OUT(p.Request.STOP), IN(p.Request.GET_STATUS, p.STATUS_STRUCT.size, clocked)]
+    with started_task([read(frame(0, 0, 2 * c)), read(frame(1, 4, 3 * c)), *stop], stale) as task:
+        block = task.read(8)
+        assert task.samples_clocked is None
+        task.stop()
+    assert block.first_sample == 0 and block.valid.all() and not block.events
+    np.testing.assert_array_equal(block.data[1] * 2**23 / 10, [2] * 4 + [3] * 4)
+    assert task.samples_clocked == 11
 
 
 def test_overflow_gap_is_nan_filled_and_reported():

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import pytest
 import usb.core
@@ -174,3 +176,46 @@ def test_clock_counts_samples_and_runs_continue_the_world():
     assert backend.clock.state().epoch == 384
     truth = src.read(np.array([1]), 384, 128)[0]
     np.testing.assert_allclose(block.data[1], truth, atol=1e-3)
+
+
+def test_stale_frames_of_a_previous_run_are_drained_by_start():
+    """The DAQ keeps the frames clocked after the host's last read (FIFO) across STOP and
+    START; the driver drains them, so the new run starts clean at sample 0 with no event."""
+    src = ImpulseSource(background=1.0)
+    faults = DaqFaults(frames_clocked_before_stop=3, stale_frames_survive_start=True)
+    backend, dev, task = make(src, faults)
+    with dev:
+        task.start()
+        task.read(256)
+        task.stop()
+        assert task.samples_clocked == 256 + 3 * 128  # GET_STATUS: clocked, not received
+        assert backend.clock.state().count == 640
+        task.start()
+        block = task.read(256)
+        task.stop()
+    assert block.first_sample == 0 and block.valid.all() and not task.events
+    assert backend.clock.state().epoch == 640
+    truth = src.read(np.array([1]), 640, 256)[0]
+    np.testing.assert_allclose(block.data[1], truth, atol=1e-3)
+
+
+def test_free_running_clock_runs_in_wall_time_without_reads():
+    src = ImpulseSource(background=1.0)  # 2048 S/s
+    wiring = {0: DaqInput(0, FORCE_MV_PER_N * 1e-3)}
+    backend = VirtualDaqBackend(src, wiring, free_running=True)
+    with DaqDevice.open(backend=backend) as dev:
+        task = DaqTask(dev)
+        task.add_force_channel(0, "10+X force", FORCE_MV_PER_N)
+        task.configure_timing(src.sample_rate_hz, samples_per_frame=128)
+        task.start()
+        first = task.read(128)
+        time.sleep(0.25)  # the host reads nothing, the DAQ keeps clocking (~512 samples)
+        status = dev.get_status()
+        assert status.samples_clocked >= 128 + 0.25 * 2048
+        later = task.read(256)  # already in the FIFO: no wait, no gap
+        task.stop()
+    assert first.first_sample == 0 and later.first_sample == 128 and later.valid.all()
+    assert task.samples_clocked is not None and task.samples_clocked >= status.samples_clocked
+    truth = src.read(np.array([0]), 0, 384)[0]
+    got = np.concatenate([first.data[0], later.data[0]])
+    np.testing.assert_allclose(got, truth, atol=5 / 2**23 / (FORCE_MV_PER_N * 1e-3))
