@@ -131,38 +131,76 @@ class ImpactResult:
 
 
 class _Buffer:
-    """Samples from ``first`` on, for the DAQ or one load cell, trimmed as records are cut."""
+    """Samples ``first .. end - 1`` for the DAQ or one load cell, trimmed as records are cut.
 
-    def __init__(self, n_rows: int) -> None:
+    Storage is a preallocated array used as a sliding window: :meth:`append` writes after the
+    last sample (growing the capacity by doubling when full, after moving the live samples to
+    the front), :meth:`trim` only moves the start. With the live span bounded (the trigger wait
+    trims to the pre-trigger history after every block) appending a block costs O(block), not
+    O(samples held): no copy of the history per block.
+    """
+
+    def __init__(self, n_rows: int, capacity: int = 4096) -> None:
         self.first = 0
-        self.data = np.zeros((n_rows, 0))
-        self.valid = np.zeros(0, dtype=bool)
-        self.over = np.zeros((n_rows, 0), dtype=bool)
+        self._a = 0  # storage column of sample ``first``
+        self._n = 0  # samples held
+        self._data = np.zeros((n_rows, capacity))
+        self._valid = np.zeros(capacity, dtype=bool)
+        self._over = np.zeros((n_rows, capacity), dtype=bool)
         self.drift: list[tuple[int, int]] = []
 
     @property
     def end(self) -> int:
-        return self.first + self.valid.size
+        return self.first + self._n
+
+    @property
+    def n_samples(self) -> int:
+        return self._n
+
+    @property
+    def data(self) -> NDArray[np.float64]:
+        """The held samples, shape (n_rows, n_samples) (a view)."""
+        return self._data[:, self._a : self._a + self._n]
 
     def append(
         self, data: NDArray[np.float64], valid: NDArray[np.bool_], over: NDArray[np.bool_]
     ) -> None:
-        self.data = np.concatenate([self.data, data], axis=1)
-        self.valid = np.concatenate([self.valid, valid])
-        self.over = np.concatenate([self.over, over], axis=1)
+        m = valid.size
+        cap = self._valid.size
+        if self._a + self._n + m > cap:
+            live = slice(self._a, self._a + self._n)
+            new_cap = max(cap, 2 * (self._n + m))
+            if new_cap > cap:
+                d = np.zeros((self._data.shape[0], new_cap))
+                v = np.zeros(new_cap, dtype=bool)
+                o = np.zeros((self._data.shape[0], new_cap), dtype=bool)
+            else:
+                d, v, o = self._data, self._valid, self._over
+            # move the live samples to the front (overlapping copy is safe left-ward)
+            d[:, : self._n] = self._data[:, live]
+            v[: self._n] = self._valid[live]
+            o[:, : self._n] = self._over[:, live]
+            self._data, self._valid, self._over = d, v, o
+            self._a = 0
+        b = self._a + self._n
+        self._data[:, b : b + m] = data
+        self._valid[b : b + m] = valid
+        self._over[:, b : b + m] = over
+        self._n += m
 
     def window(
         self, s0: int, n: int
     ) -> tuple[NDArray[np.float64], NDArray[np.bool_], NDArray[np.bool_]]:
-        a = s0 - self.first
-        return self.data[:, a : a + n], self.valid[a : a + n], self.over[:, a : a + n]
+        """Copies of samples ``s0 .. s0 + n - 1`` (clipped to what is held)."""
+        a = self._a + max(0, s0 - self.first)
+        b = min(self._a + self._n, self._a + s0 - self.first + n)
+        return self._data[:, a:b].copy(), self._valid[a:b].copy(), self._over[:, a:b].copy()
 
     def trim(self, keep_from: int) -> None:
-        k = max(0, keep_from - self.first)
+        k = min(self._n, max(0, keep_from - self.first))
         if k:
-            self.data = self.data[:, k:]
-            self.valid = self.valid[k:]
-            self.over = self.over[:, k:]
+            self._a += k
+            self._n -= k
             self.first += k
 
 
@@ -252,7 +290,7 @@ class ImpactSession:
             self._ingest_lc(k, lc.read_until(block.first_sample + block.n_samples))
 
     def _ingest_daq(self, block: DaqBlock) -> None:
-        if self._daq_buf.valid.size == 0:
+        if self._daq_buf.n_samples == 0:
             self._daq_buf.first = block.first_sample
         self._daq_buf.append(block.data, block.valid, block.overload)
         if self.writer is not None:
@@ -262,7 +300,7 @@ class ImpactSession:
 
     def _ingest_lc(self, k: int, block: LoadCellBlock) -> None:
         buf = self._lc_bufs[k]
-        if buf.valid.size == 0:
+        if buf.n_samples == 0:
             buf.first = block.first_sample
         if self.loadcell_outputs == "forces":
             assert block.forces is not None
@@ -293,6 +331,11 @@ class ImpactSession:
         if self.writer is not None:
             self.writer.log_event(ev)
 
+    def _trim(self, keep_from: int) -> None:
+        self._daq_buf.trim(keep_from)
+        for buf in self._lc_bufs:
+            buf.trim(keep_from)
+
     def _until(self, end: int) -> None:
         while self._daq_buf.end < end:
             self._read_block()
@@ -311,6 +354,8 @@ class ImpactSession:
                 if hits.size:
                     return search_from + int(hits[0])
                 search_from = buf.end
+                # keep only the pre-trigger history while waiting: O(1) memory and work per block
+                self._trim(search_from - s.pretrigger_samples)
             if search_from > limit:
                 raise DeviceTimeoutError(
                     f"input {self.input_names[input_index]}: no hammer force above "
@@ -401,9 +446,7 @@ class ImpactSession:
                     if self.on_average is not None:
                         self.on_average(j, len(history) - 1, ok, ar.reasons, rec)
                     armed_from = s0 + s.record_samples
-                    self._daq_buf.trim(armed_from - s.pretrigger_samples)
-                    for buf in self._lc_bufs:
-                        buf.trim(armed_from - s.pretrigger_samples)
+                    self._trim(armed_from - s.pretrigger_samples)
                     msg = (
                         f"input {self.input_names[j]}: average {len(records[j])}/"
                         f"{s.averages_per_input}"

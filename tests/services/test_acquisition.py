@@ -18,6 +18,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from _acq_support import ImpulseSource, no_leaks
+from _block_daq import BlockDaq
 
 from dimacq.drivers.daq.driver import DaqDevice, DaqTask
 from dimacq.drivers.loadcell.driver import LoadCellAmplifier
@@ -253,3 +254,33 @@ def test_every_input_incomplete_is_refused(lab):
     )
     with pytest.raises(DataError, match=r"inputs \['10\+X force'\]: fewer than 1 acceptable"):
         session.run()
+
+
+def test_trigger_wait_holds_only_the_pretrigger_history():
+    """A long wait for the hammer keeps at most pre-trigger + one block in memory (it used to
+    grow the whole history by np.concatenate per block: quadratic CPU, unbounded memory), and
+    the record around the late hit is still whole and exact."""
+    daq = BlockDaq(4, 2048.0, 512)
+    settings = ImpactSettings(record_samples=1024, averages_per_input=1, trigger_level_n=20.0)
+    hit_after = 20 * 2048  # 20 s of nothing
+    session = ImpactSession(
+        daq,
+        ["0+X force"],
+        ["1+Z", "2+Z", "3+Z"],
+        settings=settings,
+        operator=lambda j, at: daq.strike(at + hit_after),
+    )
+    held: list[int] = []
+    waited: list[bool] = []
+
+    def on_read():
+        if daq._next < daq.hits[0]:  # still waiting for the trigger
+            held.append(session._daq_buf.data.shape[1])
+            waited.append(True)
+
+    daq.on_read = on_read
+    res = session.run()
+    assert res.n_accepted == (1,) and len(waited) > 70
+    assert max(held) <= settings.pretrigger_samples + settings.block_samples
+    (avg,) = res.averages
+    assert avg.first_sample == daq.hits[0] - settings.pretrigger_samples
