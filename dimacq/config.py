@@ -82,6 +82,9 @@ class Settings(BaseSettings):
     digitizer_url: str = "simdigitizer://lab?seed=0"
     loadcell_interface: str = "virtual"
     loadcell_channel: str = "dimacq-lab"
+    #: Rate mismatch of the DAQ's sample clock (SYNC) and a load cell amplifier's oscillator
+    #: taken for crystal tolerance, ppm: estimated and corrected; beyond it a ``drift`` event.
+    loadcell_clock_tolerance_ppm: float = Field(default=100.0, ge=0.0, lt=1e5)
     daq_backend: str = "libusb"
     daq_vendor_id: int = Field(default=0x1209, ge=0, le=0xFFFF)
     daq_product_id: int = Field(default=0xDA64, ge=0, le=0xFFFF)

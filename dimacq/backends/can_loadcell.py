@@ -84,6 +84,7 @@ def open_amplifier(
             node_id=entry.node_id,
             timeout_s=timeout_s,
             calibration_matrix=None if cal is None else cal.matrix,
+            clock_tolerance_ppm=ctx.settings.loadcell_clock_tolerance_ppm,
         )
         try:
             ident = amp.identify()

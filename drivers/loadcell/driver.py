@@ -70,7 +70,9 @@ class _Stream:
     last_counter: int = -1
     heartbeat0: tuple[int, int] | None = None
     last_heartbeat: tuple[int, int] | None = None
-    drift_reported: float = 0.0
+    steps: float = 0.0  # SYNC pulses missed (−) or added (+) so far, as reported
+    rate_reported: bool = False
+    rate_ratio: float | None = None  # pulses per local time over nominal, SYNC steps removed
 
 
 class LoadCellAmplifier(WireDriver):
@@ -86,7 +88,12 @@ class LoadCellAmplifier(WireDriver):
     calibration_matrix : array_like, shape (6, 12), optional
         Applied to the gauges (``F = C g``); see also :meth:`upload_calibration`.
     drift_tolerance_samples : float
-        Heartbeat counter deviation from ``rate · Δt`` that is reported as drift.
+        Heartbeat counter step (samples) off the predicted count that is reported as drift
+        (SYNC pulses missed or added).
+    clock_tolerance_ppm : float
+        Largest rate mismatch between the DAQ's sample clock and the amplifier's oscillator
+        taken for crystal tolerance (ppm); the mismatch is estimated from the heartbeats and
+        corrected, a larger one is reported as drift.
     retries : int
         Further attempts of a query (IDENTIFY, GET_STATUS) that timed out.
     """
@@ -99,16 +106,23 @@ class LoadCellAmplifier(WireDriver):
         timeout_s: float = 1.0,
         calibration_matrix: Any = None,
         drift_tolerance_samples: float = 1.5,
+        clock_tolerance_ppm: float = 100.0,
         retries: int = 0,
     ) -> None:
         if not 1 <= node_id <= 127:
             raise SetupError(f"node_id {node_id}: give 1..127 as set on the amplifier")
+        if not 0 <= clock_tolerance_ppm < 1e5:
+            raise SetupError(
+                f"clock tolerance {clock_tolerance_ppm} ppm: give 0 .. 100000 ppm "
+                "(loadcell_clock_tolerance_ppm; a crystal is typically within 50 ppm)"
+            )
         super().__init__(
             f"load cell amplifier {node_id}", timeout_s=timeout_s, retries=retries, log=log
         )
         self.bus = bus
         self.node_id = node_id
         self.drift_tolerance_samples = drift_tolerance_samples
+        self.clock_tolerance_ppm = float(clock_tolerance_ppm)
         self.sample_rate_hz: float | None = None
         self.streaming = False
         self._stream = _Stream()
@@ -297,7 +311,25 @@ class LoadCellAmplifier(WireDriver):
         self.events.append(ev)
         log.warning("load cell %d: %s", self.node_id, ev.message)
 
+    @property
+    def clock_mismatch_ppm(self) -> float | None:
+        """Estimated rate of the SYNC pulses against the amplifier's oscillator, ppm off nominal
+        (from the heartbeats of this run, SYNC steps removed); None before two heartbeats."""
+        r = self._stream.rate_ratio
+        return None if r is None else (r - 1.0) * 1e6
+
     def _heartbeat(self, hb: p.Heartbeat) -> None:
+        """Check the counter against the amplifier's time (heartbeat ``i``: ``(c_i, t_i)``).
+
+        The counter counts SYNC pulses at the DAQ's rate ``f·ρ``, the time runs on the
+        amplifier's oscillator: ``ρ`` (1 ± crystal tolerance) is estimated since the first
+        heartbeat, ``ρ̂ = (c_prev − c_0 − steps) / ((t_prev − t_0) f)``, clipped to
+        ``1 ± clock_tolerance_ppm``, and the count is predicted from the previous heartbeat,
+        ``ĉ_i = c_prev + (t_i − t_prev) f ρ̂``. A deviation ``c_i − ĉ_i`` beyond
+        ``drift_tolerance_samples`` (plus the tolerance over one interval) is a step: SYNC
+        pulses missed or added. An estimate ``|ρ̂ − 1|`` beyond the tolerance (over at least
+        one second) is a clock off its tolerance. Either is a ``drift`` event.
+        """
         counter, t_us = hb.counter, hb.time_us
         st = self._stream
         if st.heartbeat0 is None or self.sample_rate_hz is None:
@@ -311,20 +343,40 @@ class LoadCellAmplifier(WireDriver):
         t_abs = t_prev + ((t_us - t_prev) & 0xFFFFFFFF)
         st.last_heartbeat = (c_abs, t_abs)
         c0, t0 = st.heartbeat0
-        expected = c0 + (t_abs - t0) * 1e-6 * self.sample_rate_hz
-        dev = c_abs - expected
-        if abs(dev) > self.drift_tolerance_samples and abs(dev) > abs(st.drift_reported) + 1:
-            st.drift_reported = dev
+        f_us = self.sample_rate_hz * 1e-6  # nominal pulses per µs
+        tol = self.clock_tolerance_ppm * 1e-6
+        ratio = 1.0 if t_prev <= t0 else (c_prev - c0 - st.steps) / ((t_prev - t0) * f_us)
+        predicted = c_prev + (t_abs - t_prev) * f_us * min(max(ratio, 1 - tol), 1 + tol)
+        dev = c_abs - predicted
+        if abs(dev) > self.drift_tolerance_samples + tol * (c_abs - c_prev):
+            st.steps += dev
             self._record(
                 LoadCellEvent(
                     "drift",
                     c0,
                     c_abs - c0,
                     f"counter {c_abs} is {dev:+.1f} samples off the {self.sample_rate_hz:g} Hz "
-                    f"clock since sample {c0}: SYNC pulses were missed or added, the load cell "
-                    "is misaligned with the DAQ; check the SYNC cable and repeat the average",
+                    f"clock since sample {c_prev}: SYNC pulses were missed or added, the load "
+                    "cell is misaligned with the DAQ; check the SYNC cable and repeat the average",
                 )
             )
+        if t_abs > t0:
+            st.rate_ratio = (c_abs - c0 - st.steps) / ((t_abs - t0) * f_us)
+            off_ppm = (st.rate_ratio - 1) * 1e6
+            if (t_abs - t0) >= 1e6 and abs(off_ppm) > self.clock_tolerance_ppm:
+                if not st.rate_reported:
+                    st.rate_reported = True
+                    self._record(
+                        LoadCellEvent(
+                            "drift",
+                            c0,
+                            c_abs - c0,
+                            f"the SYNC pulses run {off_ppm:+.0f} ppm off the amplifier's "
+                            f"clock, beyond loadcell_clock_tolerance_ppm = "
+                            f"{self.clock_tolerance_ppm:g}: the SYNC input counts a wrong or "
+                            "unstable clock; check the SYNC cable and the DAQ's sample rate",
+                        )
+                    )
 
     def _drain(self, timeout_s: float) -> None:
         """Route everything that arrives within ``timeout_s`` (at least one recv)."""

@@ -138,3 +138,45 @@ def test_simulator_answers_the_reference_bytes(rig):
         reply = amp.bus.recv(2.0)
         assert reply is not None and reply.arbitration_id == 0x581
         assert bytes(reply.data) == bytes.fromhex(answered), sent
+
+
+def run_for(src, task, amp, n, chunk=4096, missed=0):
+    amp.set_rate(int(src.sample_rate_hz))
+    amp.start()
+    task.start()
+    for end in range(chunk, n + 1, chunk):
+        task.read(chunk)
+        amp.read_until(end - missed)  # the counter lags the pulses it missed
+    task.stop()
+    return amp.stop()
+
+
+@pytest.mark.parametrize("ppm", [50.0, -45.0])
+def test_crystal_mismatch_within_tolerance_is_no_drift(rig, ppm):
+    """20 s at 2048 Hz with the amplifier's oscillator ±50 ppm off the DAQ's clock: 2 samples
+    of heartbeat-time mismatch, which the old absolute 1.5-sample check took for drift; the
+    mismatch is estimated from the heartbeats (within 2 ppm) and no event is raised."""
+    src, _backend, task, amp, _sim = rig(oscillator_ppm=ppm)
+    n = 20 * 2048
+    assert run_for(src, task, amp, n) == n
+    assert not amp.events, amp.events
+    assert amp.verify_count(n) is None
+    # heartbeat time runs (1 + ppm) slow: the SYNC pulses look -ppm fast against it
+    assert amp.clock_mismatch_ppm == pytest.approx(-ppm, abs=2.0)
+
+
+def test_clock_beyond_tolerance_is_drift(rig):
+    src, _backend, task, amp, _sim = rig(oscillator_ppm=400.0)
+    run_for(src, task, amp, 3 * 4096)
+    (ev,) = amp.events
+    assert ev.kind == "drift" and "-400 ppm" in ev.message and "100" in ev.message
+
+
+def test_missed_pulses_under_a_corrected_mismatch_are_drift(rig):
+    """45 ppm off (estimated and corrected) and 2 SYNC pulses missed: the one step."""
+    src, _backend, task, amp, _sim = rig(
+        oscillator_ppm=45.0, faults=LoadCellFaults(missed_pulses={5000: 2})
+    )
+    run_for(src, task, amp, 3 * 4096, missed=2)
+    (ev,) = amp.events
+    assert ev.kind == "drift" and "-2.0 samples" in ev.message
