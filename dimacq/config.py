@@ -85,6 +85,14 @@ class Settings(BaseSettings):
     #: Rate mismatch of the DAQ's sample clock (SYNC) and a load cell amplifier's oscillator
     #: taken for crystal tolerance, ppm: estimated and corrected; beyond it a ``drift`` event.
     loadcell_clock_tolerance_ppm: float = Field(default=100.0, ge=0.0, lt=1e5)
+    #: CAN FD bit timing of the load cell bus (python-can ``BitTimingFd.from_sample_point``):
+    #: the adapter's CAN clock (Hz), nominal (arbitration) and data bit rates (bit/s) and
+    #: sample points (%); every amplifier on the bus must use the same.
+    loadcell_f_clock: int = Field(default=80_000_000, gt=0)
+    loadcell_bitrate: int = Field(default=1_000_000, gt=0)
+    loadcell_sample_point: float = Field(default=80.0, gt=50.0, lt=100.0)
+    loadcell_data_bitrate: int = Field(default=5_000_000, gt=0)
+    loadcell_data_sample_point: float = Field(default=80.0, gt=50.0, lt=100.0)
     daq_backend: str = "libusb"
     daq_vendor_id: int = Field(default=0x1209, ge=0, le=0xFFFF)
     daq_product_id: int = Field(default=0xDA64, ge=0, le=0xFFFF)

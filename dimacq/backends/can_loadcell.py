@@ -1,8 +1,10 @@
 """Backend ``loadcell = "dimacq-can"``: the CAN FD load cell amplifier through python-can.
 
 Each load cell of the rig file is opened on its own bus handle (``interface =
-loadcell_interface``, ``channel`` = the entry's or ``loadcell_channel``, CAN FD, filtered to the
-node's identifiers) with the 6×12 matrix of its calibration file; the amplifier's serial number
+loadcell_interface``, ``channel`` = the entry's or ``loadcell_channel``, CAN FD with the bit timing
+of the ``loadcell_f_clock``/``loadcell_bitrate``/``loadcell_sample_point``/
+``loadcell_data_bitrate``/``loadcell_data_sample_point`` settings, filtered to the node's
+identifiers) with the 6×12 matrix of its calibration file; the amplifier's serial number
 must match the file's.
 """
 
@@ -17,7 +19,38 @@ from dimacq.errors import DataError, DeviceNotFoundError, DeviceTimeoutError, Se
 from dimacq.io.loadcell_calibration import LoadCellCalibration, read_calibration
 from dimacq.io.rig_file import LoadCellEntry
 
-__all__ = ["open_amplifier", "open_loadcell", "read_entry_calibration"]
+__all__ = ["bit_timing", "open_amplifier", "open_loadcell", "read_entry_calibration"]
+
+_TIMING_SETTINGS = (
+    "loadcell_f_clock, loadcell_bitrate, loadcell_sample_point, loadcell_data_bitrate, "
+    "loadcell_data_sample_point"
+)
+
+
+def bit_timing(settings: Any) -> Any:
+    """The ``can.BitTimingFd`` of the settings.
+
+    Raises
+    ------
+    SetupError
+        No valid timing for those rates, clock and sample points; names the settings.
+    """
+    import can
+
+    s = settings
+    try:
+        return can.BitTimingFd.from_sample_point(
+            f_clock=s.loadcell_f_clock,
+            nom_bitrate=s.loadcell_bitrate,
+            nom_sample_point=s.loadcell_sample_point,
+            data_bitrate=s.loadcell_data_bitrate,
+            data_sample_point=s.loadcell_data_sample_point,
+        )
+    except ValueError as err:
+        raise SetupError(
+            f"CAN FD bit timing: {err}; give rates that divide the adapter's clock "
+            f"({_TIMING_SETTINGS})"
+        ) from err
 
 
 def _filters(node_id: int) -> list[dict[str, Any]]:
@@ -52,11 +85,13 @@ def open_amplifier(
     where: str,
     timeout_s: float = 2.0,
     require_calibration: bool = True,
+    timing: Any = None,
 ) -> LoadCellAmplifier:
-    """Open the amplifier of ``entry`` on ``can.Bus(interface, channel)``, calibrated from its
-    file; the bus's closer goes to ``ctx``. ``require_calibration=False`` (bench calibration
-    of a new cell): a missing calibration file is allowed (no matrix is set); an existing one
-    must still belong to the cell.
+    """Open the amplifier of ``entry`` on ``can.Bus(interface, channel)`` (CAN FD, with the
+    ``can.BitTimingFd`` ``timing`` when given), calibrated from its file; the bus's closer goes
+    to ``ctx``. ``require_calibration=False`` (bench calibration of a new cell): a missing
+    calibration file is allowed (no matrix is set); an existing one must still belong to the
+    cell.
 
     Raises
     ------
@@ -69,14 +104,23 @@ def open_amplifier(
 
     missing = not ctx.rig_file.calibration_path(entry).exists()
     cal = None if (missing and not require_calibration) else read_entry_calibration(ctx, entry)
+    extra = {} if timing is None else {"timing": timing}
     try:
         bus = can.Bus(
-            interface=interface, channel=channel, fd=True, can_filters=_filters(entry.node_id)
+            interface=interface,
+            channel=channel,
+            fd=True,
+            can_filters=_filters(entry.node_id),
+            **extra,
         )
-    except (can.CanError, OSError, ImportError, ValueError) as err:
+    except Exception as err:  # python-can raises anything: NameError without the vendor library
+        why = f"{type(err).__name__}: {err}".replace("\n", " ")
+        if isinstance(err, (NameError, ImportError, AttributeError)):
+            why = f"the vendor library of interface {interface!r} is missing ({why})"
         raise DeviceNotFoundError(
-            f"{where}: cannot open the CAN bus ({err}); check the adapter and the driver, or set "
-            "loadcell_interface/loadcell_channel (DIMACQ_LOADCELL_INTERFACE/_CHANNEL)"
+            f"{where}: cannot open the CAN bus ({why}); install the adapter's driver and "
+            "library, or set loadcell_interface/loadcell_channel (DIMACQ_LOADCELL_INTERFACE/"
+            f"_CHANNEL) and the bit timing ({_TIMING_SETTINGS})"
         ) from err
     try:
         amp = LoadCellAmplifier(
@@ -116,6 +160,7 @@ def open_loadcell(ctx: DeviceContext, entry: LoadCellEntry) -> LoadCellAmplifier
         entry,
         interface=s.loadcell_interface,
         channel=channel,
+        timing=bit_timing(s),
         where=(
             f"loadcell = 'dimacq-can', loadcell_interface = {s.loadcell_interface!r}, channel "
             f"{channel!r} (loadcell_channel)"

@@ -423,7 +423,7 @@ def calibrate_rig_cell(
     import json
 
     from dimacq.backends.base import DeviceContext
-    from dimacq.backends.can_loadcell import open_amplifier
+    from dimacq.backends.can_loadcell import bit_timing, open_amplifier
     from dimacq.io.loadcell_bench import load_bench_file
     from dimacq.io.loadcell_calibration import LoadCellCalibration, install_calibration
 
@@ -464,6 +464,7 @@ def calibrate_rig_cell(
             "(loadcell_channel)"
         ),
         require_calibration=False,
+        timing=bit_timing(settings),
     )
     try:
         ident = amp.identify()

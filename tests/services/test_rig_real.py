@@ -207,3 +207,59 @@ def test_a_range_the_daq_lacks_is_refused_naming_the_rig_file_item(tmp_path: Pat
     with installed(world):
         with pytest.raises(SetupError, match=r"responses\.0: .*range ±3\.0 V is not supported"):
             rig_builder.build_rig(_settings(tmp_path, world), world.setup, {})
+
+
+@pytest.mark.parametrize("interface", ["kvaser", "nosuchbus"])
+def test_can_bus_that_cannot_open_names_the_setting_in_one_line(
+    tmp_path: Path, interface: str
+) -> None:
+    """Kvaser without CANlib raises NameError inside python-can, an unknown interface its own
+    error: both are the one-line DeviceNotFoundError naming loadcell_interface, and the service
+    starts without the load cells instead of dying."""
+    from dimacq.services.lab import Lab
+
+    world = VirtualWorld("calibration-mass-ground", INPUTS[:1], tmp_path / "rig")
+    with installed(world):
+        # Kvaser channels are numbers: channel 0 reaches the missing library
+        settings = _settings(tmp_path, world, loadcell_interface=interface, loadcell_channel="0")
+        with pytest.raises(DeviceNotFoundError, match="loadcell_interface") as err:
+            rig_builder.check_devices(settings, "loadcell")
+        assert "\n" not in str(err.value) and interface in str(err.value)
+        if interface == "kvaser":
+            assert "vendor library" in str(err.value)
+        lab = Lab(settings)
+        try:
+            cell = lab.devices.require("loadcell")
+            assert not cell.connected and "loadcell_interface" in cell.error
+        finally:
+            lab.close()
+
+
+def test_can_fd_bit_timing_from_the_settings_reaches_the_bus(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import can
+
+    from dimacq.backends.can_loadcell import bit_timing
+
+    world = VirtualWorld("calibration-mass-ground", INPUTS[:1], tmp_path / "rig")
+    opened: list[dict[str, Any]] = []
+    real_bus = can.Bus
+
+    def recording_bus(**kw: Any) -> Any:
+        opened.append(kw)
+        return real_bus(**kw)
+
+    monkeypatch.setattr(can, "Bus", recording_bus)
+    with installed(world):
+        settings = _settings(
+            tmp_path, world, loadcell_bitrate=500_000, loadcell_data_bitrate=2_000_000
+        )
+        rig_builder.check_devices(settings, "loadcell")
+    (kw,) = opened
+    t = kw["timing"]
+    assert kw["fd"] and (t.nom_bitrate, t.data_bitrate, t.f_clock) == (500_000, 2_000_000, 80e6)
+    assert t.nom_sample_point == pytest.approx(80.0, abs=1.0)
+    bad = _settings(tmp_path, world, loadcell_data_bitrate=3_000_001)
+    with pytest.raises(SetupError, match="loadcell_data_bitrate"):
+        bit_timing(bad)
