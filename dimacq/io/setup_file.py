@@ -104,7 +104,7 @@ import logging
 import tomllib
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO, Literal
 
 import tomli_w
 from pydantic import ValidationError
@@ -112,7 +112,14 @@ from pydantic import ValidationError
 from dimacq.errors import SetupError
 from dimacq.model.setup import TestSetup
 
-__all__ = ["SUFFIXES", "dump_setup_dict", "load_setup", "parse_setup", "save_setup"]
+__all__ = [
+    "SUFFIXES",
+    "dump_setup_dict",
+    "load_setup",
+    "parse_setup",
+    "read_setup",
+    "save_setup",
+]
 
 logger = logging.getLogger(__name__)
 
@@ -207,6 +214,43 @@ def parse_setup(data: Mapping[str, Any], source: str = "<setup>") -> TestSetup:
         raise SetupError(_describe(err, source)) from err
 
 
+def read_setup(
+    data: bytes | BinaryIO, fmt: Literal["toml", "json"], source: str = "uploaded setup"
+) -> TestSetup:
+    """Read a setup document from bytes or a binary stream (``fmt`` ``toml`` or ``json``).
+
+    ``source`` names the document in messages (a file name, or "uploaded setup": never a server
+    path the user did not give).
+
+    Raises
+    ------
+    SetupError
+        Not UTF-8, not valid TOML/JSON, not a table/object, or an item is wrong (the message names
+        the source, the item such as ``responses[3].direction_gcs`` and the fix).
+    """
+    raw = data if isinstance(data, bytes) else data.read()
+    try:
+        if fmt == "toml":
+            doc = tomllib.loads(raw.decode("utf-8"))
+        else:
+            doc = json.loads(raw.decode("utf-8"))
+    except UnicodeDecodeError as err:
+        raise SetupError(f"{source}: not UTF-8 text ({err}); save it as UTF-8") from err
+    except tomllib.TOMLDecodeError as err:
+        raise SetupError(f"{source}: not valid TOML: {err}; correct the syntax there") from err
+    except json.JSONDecodeError as err:
+        raise SetupError(
+            f"{source}: not valid JSON: {err.msg} at line {err.lineno} column {err.colno}; "
+            "correct the syntax there"
+        ) from err
+    if not isinstance(doc, Mapping):
+        raise SetupError(
+            f"{source}: the setup must be a JSON object (or TOML table) with responses and "
+            "excitations"
+        )
+    return parse_setup(doc, source)
+
+
 def load_setup(path: str | Path) -> TestSetup:
     """Read a setup file (``.toml`` or ``.json``, format in the module docstring).
 
@@ -226,21 +270,7 @@ def load_setup(path: str | Path) -> TestSetup:
         raise SetupError(
             f"{p}: cannot read the setup file ({err.strerror}); check the path"
         ) from err
-    try:
-        if suffix == ".toml":
-            data = tomllib.loads(raw.decode("utf-8"))
-        else:
-            data = json.loads(raw.decode("utf-8"))
-    except UnicodeDecodeError as err:
-        raise SetupError(f"{p}: not UTF-8 text ({err}); save the file as UTF-8") from err
-    except tomllib.TOMLDecodeError as err:
-        raise SetupError(f"{p}: not valid TOML: {err}; correct the syntax there") from err
-    except json.JSONDecodeError as err:
-        raise SetupError(
-            f"{p}: not valid JSON: {err.msg} at line {err.lineno} column {err.colno}; "
-            "correct the syntax there"
-        ) from err
-    setup = parse_setup(data, str(p))
+    setup = read_setup(raw, "toml" if suffix == ".toml" else "json", str(p))
     logger.debug(
         "read setup %s: %d responses, %d excitations, %d load cells",
         p,

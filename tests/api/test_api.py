@@ -84,7 +84,11 @@ def test_bad_requests_get_4xx_naming_the_field(api: Api) -> None:
     assert r.status_code == 422 and "extra" in r.json()["detail"]
     assert api.client.get("/api/setups/999999").status_code == 404
     r = api.client.post("/api/setups/import?format=json", content=b"{oops")
-    assert r.status_code == 400 and "JSON" in r.json()["detail"]
+    assert r.status_code == 422 and "not valid JSON" in r.json()["detail"]
+    r = api.client.post("/api/setups/import?format=toml", content=b"[[responses]\n")
+    assert r.status_code == 422 and "not valid TOML" in r.json()["detail"]
+    r = api.client.post("/api/setups/import?format=json", content=b"[1, 2]")
+    assert r.status_code == 422 and "must be a JSON object" in r.json()["detail"]
     r = api.client.post("/api/setups/import?format=uff", content=b"garbage\n-1\n")
     assert r.status_code in (400, 422)
     r = api.client.post("/api/frfs/import?setup_id=999999", content=b"x")

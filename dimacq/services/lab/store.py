@@ -7,7 +7,6 @@ database row written after the file. Lookups of unknown ids return ``None`` (the
 from __future__ import annotations
 
 import json
-import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, BinaryIO, Literal
@@ -219,29 +218,14 @@ class TestStore:
         name: str | None = None,
     ) -> Imported:
         """Import a setup file (``json``/``toml``) or a whole-test UFF (``uff``: setup + FRFs)."""
-        from dimacq.io.setup_file import parse_setup
+        from dimacq.io.setup_file import read_setup
         from dimacq.io.uff import read_uff_test
 
         if fmt == "uff":
             setup, frf = read_uff_test(data, name=name)
             sid = self.save_setup(setup)
             return Imported(sid, self.save_frf(frf, sid, name=name or setup.name))
-        raw = data if isinstance(data, bytes) else data.read()
-        if fmt == "json":
-            try:
-                doc = json.loads(raw.decode("utf-8"))
-            except (UnicodeDecodeError, json.JSONDecodeError) as err:
-                raise DataError(
-                    f"setup JSON is not valid JSON ({err}); send a JSON object"
-                ) from err
-            if not isinstance(doc, dict):
-                raise DataError("setup JSON must be an object with responses and excitations")
-        else:
-            try:
-                doc = tomllib.loads(raw.decode("utf-8"))
-            except (UnicodeDecodeError, tomllib.TOMLDecodeError) as err:
-                raise DataError(f"setup TOML is not valid TOML ({err})") from err
-        setup = parse_setup(doc, "uploaded setup")
+        setup = read_setup(data, fmt, "uploaded setup")
         if name:
             setup = setup.model_copy(update={"name": name})
         return Imported(self.save_setup(setup))
