@@ -34,7 +34,7 @@ from pydantic_settings import (
 
 from dimacq.errors import SetupError
 
-__all__ = ["Settings", "default_config_file", "load_settings"]
+__all__ = ["Settings", "default_config_file", "load_settings", "scenario_rig_file"]
 
 SCHEMA_VERSION: Literal[1] = 1
 
@@ -46,6 +46,17 @@ def default_config_file() -> Path:
     """``$DIMACQ_CONFIG`` or the repository's ``config/dimacq.toml``."""
     env = os.environ.get("DIMACQ_CONFIG")
     return Path(env) if env else Path(__file__).resolve().parents[1] / "config" / "dimacq.toml"
+
+
+def scenario_rig_file(scenario: str) -> str:
+    """The rig a virtual-lab scenario's article is cabled on: ``config/rigs/<scenario>.toml``,
+    else ``config/rigs/<first word>.toml`` (e.g. ``cube`` for ``cube-2``), else "" (``rig.toml``,
+    the calibration mass). What ``dimacq demo`` and ``dimacq acquire`` give as ``rig_file``."""
+    rigs = default_config_file().parent / "rigs"
+    for name in (scenario, scenario.split("-")[0]):
+        if (rigs / f"{name}.toml").exists():
+            return str(rigs / f"{name}.toml")
+    return ""
 
 
 def _default_data_dir() -> Path:

@@ -12,6 +12,7 @@ gauges, each a fixed mix of the responses) make every channel distinguishable.
 from __future__ import annotations
 
 import threading
+from pathlib import Path
 
 import can.interfaces.virtual
 import numpy as np
@@ -110,3 +111,28 @@ def no_leaks():
         open_channels = list(can.interfaces.virtual.channels)
     assert not leaked_threads, f"test left threads running: {leaked_threads}"
     assert not open_channels, f"test left python-can virtual channels open: {open_channels}"
+
+
+def calibration_scale(rig_path: Path) -> float:
+    """``(true/certificate of the hammer) × mean(certificate/true of the accelerometers)`` of
+    the rig file ``rig_path`` over the simulated transducers: the factor the rig file's
+    calibration errors put on a mass measured from accelerances (first order; the CG, a
+    ratio, does not carry it)."""
+    from dimacq.io.rig_file import load_rig_file
+    from dimacq.simulators.lab import transducers as tr
+
+    rf = load_rig_file(rig_path)
+    (h,) = rf.hammers
+    hammer = tr.true_sensitivity(
+        tr.NOMINAL_HAMMER_MV_PER_N, tr.HAMMER_TOLERANCE, tr.hammer_serial(h.physical_channel)
+    )
+    accel = [
+        r.sensitivity_mv_per_g
+        / tr.true_sensitivity(
+            tr.NOMINAL_ACCEL_MV_PER_G,
+            tr.ACCEL_TOLERANCE,
+            tr.accelerometer_serial(r.physical_channel),
+        )
+        for r in rf.responses
+    ]
+    return float(hammer / h.sensitivity_mv_per_n * np.mean(accel))

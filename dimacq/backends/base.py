@@ -34,6 +34,9 @@ class DeviceContext:
         The test the rig is built for (None when only checking the devices).
     seed : int or None
         Seed of a simulated world (an acquisition request's ``seed``); None: the scenario's.
+    noise_scale : float
+        Factor on a simulated world's noise and drift levels (a request's ``noise_scale``;
+        1: the scenario's, 0: noise-free). Real devices ignore it.
     operator : Operator or None
         Set by a backend whose world strikes by itself (the simulated lab); None: a person
         strikes when asked.
@@ -49,6 +52,7 @@ class DeviceContext:
     settings: Settings
     setup: TestSetup | None = None
     seed: int | None = None
+    noise_scale: float = 1.0
     operator: Operator | None = None
     fixed: dict[str, Any] = field(default_factory=dict)
     shared: dict[str, Any] = field(default_factory=dict)

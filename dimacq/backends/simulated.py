@@ -63,6 +63,8 @@ class SimulatedWorld:
         ``node_id``); its sensitivities and calibration files are NOT read here.
     seed : int or None
         The scenario's noise seed (None: the scenario's own).
+    noise_scale : float
+        Factor on the scenario's noise and drift levels (0: noise-free).
 
     Raises
     ------
@@ -71,10 +73,16 @@ class SimulatedWorld:
         article does not carry.
     """
 
-    def __init__(self, scenario: str, rig_file: RigFile, seed: int | None = None) -> None:
+    def __init__(
+        self,
+        scenario: str,
+        rig_file: RigFile,
+        seed: int | None = None,
+        noise_scale: float = 1.0,
+    ) -> None:
         self.scenario = scenario
         self.built = build_scenario(scenario, seed)
-        self.lab: VirtualLab = virtual_lab(self.built)
+        self.lab: VirtualLab = virtual_lab(self.built, noise_scale=noise_scale)
         article = self.lab.model.setup
         where = f"rig file {rig_file.path} with scenario {scenario!r}"
         if abs(rig_file.daq.sample_rate_hz - self.lab.sample_rate_hz) > 1e-9:
@@ -163,7 +171,7 @@ def world(ctx: DeviceContext) -> SimulatedWorld:
     """The context's simulated world (made on first use, closed with the context)."""
     w = ctx.shared.get(_WORLD)
     if w is None:
-        w = SimulatedWorld(ctx.settings.scenario, ctx.rig_file, ctx.seed)
+        w = SimulatedWorld(ctx.settings.scenario, ctx.rig_file, ctx.seed, ctx.noise_scale)
         ctx.shared[_WORLD] = w
         ctx.on_close(w.close)
     assert isinstance(w, SimulatedWorld)

@@ -33,6 +33,7 @@ from dimacq.model.impact import ImpactSettings
 from dimacq.model.setup import TestSetup
 
 if TYPE_CHECKING:
+    from dimacq.io.acquisition_hdf5 import AcquisitionWriter
     from dimacq.services.acquisition import AverageCallback
 
 __all__ = ["Rig", "build_rig", "check_devices", "impact_settings", "run_impact_test"]
@@ -59,6 +60,7 @@ class Rig:
     closers : called in reverse order by :meth:`close`
     defaults : the rig file's impact settings (a request's values win)
     fixed : impact settings the devices impose (they win over the request)
+    daq_units : engineering unit of each DAQ channel, in ``daq.channel_names`` order
     """
 
     daq: Daq
@@ -69,6 +71,7 @@ class Rig:
     closers: list[Callable[[], None]] = field(default_factory=list)
     defaults: dict[str, Any] = field(default_factory=dict)
     fixed: dict[str, Any] = field(default_factory=dict)
+    daq_units: tuple[str, ...] = ()
 
     def close(self) -> None:
         while self.closers:
@@ -173,7 +176,8 @@ def build_rig(settings: Settings, setup: TestSetup, cfg: Mapping[str, Any]) -> R
         ``rig_file`` the channel map.
     setup : TestSetup
     cfg : mapping
-        The acquisition request; ``seed`` seeds a simulated world.
+        The acquisition request; ``seed`` seeds a simulated world, ``noise_scale`` scales its
+        noise (0: noise-free; default 1).
 
     Raises
     ------
@@ -183,7 +187,13 @@ def build_rig(settings: Settings, setup: TestSetup, cfg: Mapping[str, Any]) -> R
         A device is not there (the message names the setting).
     """
     seed = cfg.get("seed")
-    ctx = DeviceContext(settings, setup=setup, seed=None if seed is None else int(seed))
+    noise_scale = cfg.get("noise_scale")
+    ctx = DeviceContext(
+        settings,
+        setup=setup,
+        seed=None if seed is None else int(seed),
+        noise_scale=1.0 if noise_scale is None else float(noise_scale),
+    )
     rf = ctx.rig_file
     hammer_of, response_of, cell_of = _channels(rf, setup)
     ok = False
@@ -222,6 +232,7 @@ def build_rig(settings: Settings, setup: TestSetup, cfg: Mapping[str, Any]) -> R
         closers=[ctx.close],
         defaults=rf.acquisition.given(),
         fixed=fixed,
+        daq_units=("N",) * len(hammer_names) + ("m/s^2",) * len(response_names),
     )
 
 
@@ -266,8 +277,15 @@ def run_impact_test(
     *,
     on_average: AverageCallback,
     on_progress: ProgressCallback,
+    writer: AcquisitionWriter | None = None,
+    meta: Mapping[str, str] | None = None,
 ) -> FrfData:
-    """Run the impact test; return FRFs in the setup's channel order (SI units)."""
+    """Run the impact test; return FRFs in the setup's channel order (SI units).
+
+    ``writer`` keeps every raw block (:class:`~dimacq.io.acquisition_hdf5.AcquisitionWriter`,
+    channels ``rig.daq.channel_names`` in units ``rig.daq_units``); ``meta`` goes into the
+    FRFs' metadata (default: the source).
+    """
     from dimacq.services.acquisition import ImpactSession, Progress, impact_frf
 
     if len(rig.input_channels) != len(setup.excitations):
@@ -316,5 +334,8 @@ def run_impact_test(
         operator=operator,
         progress=progress,
         on_average=on_average,
+        writer=writer,
     )
-    return impact_frf(session.run(), setup, meta={"source": "dimacq impact acquisition"})
+    return impact_frf(
+        session.run(), setup, meta=dict(meta or {"source": "dimacq impact acquisition"})
+    )

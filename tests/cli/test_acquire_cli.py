@@ -12,9 +12,10 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from _acq_support import no_leaks
+from _acq_support import calibration_scale, no_leaks
 
 from dimacq.cli.main import main
+from dimacq.config import Settings, scenario_rig_file
 from dimacq.io.loadcell_calibration import read_calibration_json
 from dimacq.io.uff import read_uff_test
 from dimacq.simulators.lab.forward import CALIBRATION_MASS
@@ -23,11 +24,14 @@ __all__ = ["no_leaks"]
 
 
 def test_acquire_writes_a_uff_that_solve_reads(tmp_path, capsys, no_leaks):
+    """Through the service's rig (backends ``simulated``, the scenario's rig file): the drivers
+    know the certificates, not the simulated transducers, so the mass carries the rig file's
+    calibration factor."""
     uff = tmp_path / "cm.uff"
     rc = main(
         [
             "acquire",
-            "calibration-mass-ground",
+            "calibration-mass-bungee",
             "--impacts-per-input",
             "1",
             "--frf",
@@ -52,8 +56,14 @@ def test_acquire_writes_a_uff_that_solve_reads(tmp_path, capsys, no_leaks):
     rc = main(["solve", str(uff), "--band", "20", "400", "--json", str(tmp_path / "sol.json")])
     assert rc == 0
     sol = json.loads((tmp_path / "sol.json").read_text())
+    assert summary["rig_file"] == str(
+        Settings(rig_file=scenario_rig_file("calibration-mass-bungee")).rig_path
+    )
+    scale = calibration_scale(Path(summary["rig_file"]))
+    assert abs(scale - 1) > 0.002  # the simulated transducers are not their certificates
     mass = sol["mass_kg"]
-    assert abs(mass - CALIBRATION_MASS.mass_kg) / CALIBRATION_MASS.mass_kg < 5e-3
+    assert abs(mass / (scale * CALIBRATION_MASS.mass_kg) - 1) < 5e-3, (mass, scale)
+    assert sol["verdict"] == "ok"
 
 
 def test_acquire_refuses_unknown_scenario(tmp_path, capsys):

@@ -5,9 +5,13 @@ Usage::
     dimacq acquire SCENARIO --impacts-per-input N --frf OUT.uff [--seed S] [--data DIR]
                    [--json OUT] [--record-samples N] [--exp-tau S] [--noise-free]
 
-The virtual lab of SCENARIO (:data:`dimacq.cli.simulated_lab.SCENARIOS`) is read through the
-simulated USB DAQ (pyusb backend) and one simulated CAN FD amplifier per load cell (python-can
-``virtual``), by the real drivers; an impact session strikes every input N accepted times, and
+The virtual lab of SCENARIO (a file of ``config/scenarios/``) is read through the rig the
+service and ``dimacq demo`` use (:func:`dimacq.services.rig.build_rig`, backends ``simulated``):
+the simulated USB DAQ (pyusb backend) and one simulated CAN FD amplifier per load cell (python-can
+``virtual``), cabled and calibrated as the scenario's rig file says (``config/rigs/<scenario>.toml``,
+else ``config/rig.toml``: certificate sensitivities, load cell calibration files; the simulated
+transducers differ from them within their tolerances). An impact session strikes every input N
+accepted times (the rig file's ``[acquisition]`` gives the other settings), and
 the FRFs (accelerances and the load cells' six loads, as the drivers' calibration matrices give
 them) are written as one whole-test UFF file (geometry + 58 records, binary) that
 ``dimacq solve OUT.uff`` reads. ``--data DIR`` keeps the raw blocks in ``DIR/acquisition.h5`` and the FRFs with their
@@ -68,100 +72,145 @@ def _scenario_band(name: str) -> tuple[float, float]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from dimacq.cli.simulated_lab import (
-        frf_agreement,
-        run_scenario,
-        scenario_model,
-    )
+    from dimacq.cli.simulated_lab import frf_agreement
+    from dimacq.config import Settings, scenario_rig_file
+    from dimacq.io.acquisition_hdf5 import AcquisitionWriter
     from dimacq.io.uff import write_uff_test
-    from dimacq.services.acquisition import Progress
-    from dimacq.simulators.lab.timedomain import LabNoise
+    from dimacq.services.rig import build_rig, impact_settings, run_impact_test
+    from dimacq.simulators.lab.scenarios import build_scenario
 
     if args.impacts_per_input < 1:
         raise SetupError(f"--impacts-per-input {args.impacts_per_input}: give at least 1")
     if args.frf.suffix.lower() not in (".uff", ".unv"):
         raise SetupError(f"--frf {args.frf}: give a .uff (or .unv) file name")
-    model = scenario_model(args.scenario, args.seed)
-    n_in = len(model.setup.excitations)
+    # The truth, to compare the FRFs with; the rig below builds its own world of the same
+    # scenario and seed, and the drivers know only the rig file and its calibration files.
+    model = build_scenario(args.scenario, args.seed).model
+    setup = model.setup
+    n_in = len(setup.excitations)
+    settings = Settings(
+        daq="simulated",
+        loadcell="simulated",
+        scenario=args.scenario,
+        rig_file=scenario_rig_file(args.scenario),
+    )
+    cfg: dict[str, Any] = {
+        "seed": args.seed,
+        "noise_scale": 0.0 if args.noise_free else 1.0,
+        "averages_per_input": args.impacts_per_input,
+        "record_samples": args.record_samples,
+        "exponential_tau_s": args.exp_tau,
+    }
     t0 = time.monotonic()
+    total = n_in * args.impacts_per_input
+    averages: list[tuple[int, bool, list[str]]] = []
 
-    def progress(p: Progress) -> None:
-        done = p.input_index * p.wanted + p.accepted
-        sys.stderr.write(
-            f"\r[{done:4d}/{n_in * p.wanted}] {p.message[:90]:<90}"
-            + ("\n" if p.rejected and "rejected" in p.message else "")
-        )
+    def on_average(
+        input_index: int, _number: int, accepted: bool, reasons: Any, _record: Any
+    ) -> None:
+        averages.append((input_index, accepted, list(reasons)))
+        if not accepted:
+            sys.stderr.write(f"\ninput {input_index + 1} rejected: {'; '.join(reasons)}\n")
+
+    def on_progress(fraction: float, message: str) -> None:
+        sys.stderr.write(f"\r[{round(fraction * total):4d}/{total}] {message[:90]:<90}")
         sys.stderr.flush()
 
     data_path = args.data / "acquisition.h5" if args.data else None
-    run_ = run_scenario(
-        model,
-        averages_per_input=args.impacts_per_input,
-        seed=args.seed,
-        record_samples=args.record_samples,
-        exponential_tau_s=args.exp_tau,
-        noise=LabNoise() if args.noise_free else None,
-        data_path=data_path,
-        progress=progress,
-    )
+    meta = {
+        "source": "dimacq acquire (simulated USB DAQ + CAN load cells)",
+        "scenario": args.scenario,
+    }
+    rig = build_rig(settings, setup, cfg)
+    try:
+        # min_averages as the service states it: the rig file's [acquisition], else the
+        # min_averages setting (capped at --impacts-per-input by the session)
+        cfg["min_averages"] = rig.defaults.get("min_averages", settings.min_averages)
+        used = impact_settings(rig, cfg)
+        if data_path is None:
+            frf = run_impact_test(
+                rig, setup, cfg, on_average=on_average, on_progress=on_progress, meta=meta
+            )
+        else:
+            data_path.parent.mkdir(parents=True, exist_ok=True)
+            sample_rate_hz = rig.daq.sample_rate_hz
+            assert sample_rate_hz is not None  # configured by build_rig
+            with AcquisitionWriter(
+                data_path,
+                sample_rate_hz=sample_rate_hz,
+                daq_channels=rig.daq.channel_names,
+                daq_units=rig.daq_units,
+                n_loadcells=len(rig.loadcells),
+            ) as writer:
+                frf = run_impact_test(
+                    rig,
+                    setup,
+                    cfg,
+                    on_average=on_average,
+                    on_progress=on_progress,
+                    writer=writer,
+                    meta=meta,
+                )
+    finally:
+        rig.close()
     sys.stderr.write("\n")
     args.frf.parent.mkdir(parents=True, exist_ok=True)
-    write_uff_test(args.frf, run_.setup, run_.frf, binary=True)
+    write_uff_test(args.frf, setup, frf, binary=True)
     if args.data:
         # UFF 58 holds no coherence: keep it (with the FRFs) next to the raw data.
         np.savez(
             args.data / "frf.npz",
-            frequencies_hz=run_.frf.frequencies_hz,
-            H=run_.frf.H,
-            coherence=np.asarray(run_.frf.coherence if run_.frf.coherence is not None else []),
+            frequencies_hz=frf.frequencies_hz,
+            H=frf.H,
+            coherence=np.asarray(frf.coherence if frf.coherence is not None else []),
         )
     elapsed = time.monotonic() - t0
-    res = run_.result
-    rejected = [a for a in res.averages if not a.accepted]
+    rejected = [(j, reasons) for j, ok, reasons in averages if not ok]
     # one average per input has no coherence (NaN): compare every value then
-    coherent = run_.frf.coherence is not None and bool(np.isfinite(run_.frf.coherence).any())
+    coherent = frf.coherence is not None and bool(np.isfinite(frf.coherence).any())
     agreement = frf_agreement(
-        run_.frf,
+        frf,
         model,
-        exponential_tau_s=args.exp_tau,
+        exponential_tau_s=used.exponential_tau_s,
         band_hz=_scenario_band(args.scenario),
         coherence_threshold=0.99 if coherent else None,
     )
-    kept = set(res.input_indices or range(len(run_.setup.excitations)))
-    incomplete = [e.name for j, e in enumerate(run_.setup.excitations) if j not in kept]
+    accepted = [sum(ok for j, ok, _ in averages if j == i) for i in range(n_in)]
+    min_averages = min(used.min_averages, used.averages_per_input)
+    incomplete = [e.name for j, e in enumerate(setup.excitations) if accepted[j] < min_averages]
     summary: dict[str, Any] = {
         "scenario": args.scenario,
-        "setup": run_.setup.name,
+        "setup": setup.name,
         "seed": args.seed,
         "frf_file": str(args.frf),
         "raw_data": str(data_path) if data_path else None,
         "record_samples": args.record_samples,
-        "exponential_tau_s": args.exp_tau,
+        "exponential_tau_s": used.exponential_tau_s,
+        "rig_file": str(settings.rig_path),
         "n_inputs": n_in,
-        "n_outputs": len(run_.frf.outputs),
-        "n_lines": run_.frf.n_lines,
-        "averages_accepted": list(res.n_accepted),
-        "min_averages": res.min_averages,
+        "n_outputs": len(frf.outputs),
+        "n_lines": frf.n_lines,
+        "averages_accepted": accepted,
+        "min_averages": min_averages,
         "incomplete_inputs": incomplete,
         "averages_rejected": [
-            {"input": run_.setup.excitations[a.input_index].name, "reasons": list(a.reasons)}
-            for a in rejected
+            {"input": setup.excitations[j].name, "reasons": reasons} for j, reasons in rejected
         ],
         "frf_vs_model": agreement.to_json(),
         "elapsed_s": elapsed,
     }
     out = sys.stdout
     out.write(
-        f"{run_.setup.name}: {n_in} inputs × {args.impacts_per_input} averages, "
-        f"{len(run_.frf.outputs)} outputs ({len(run_.setup.load_cells)} load cells), "
-        f"{run_.frf.n_lines} lines {run_.frf.frequencies_hz[0]:g}–{run_.frf.frequencies_hz[-1]:g} Hz\n"
+        f"{setup.name}: {n_in} inputs × {args.impacts_per_input} averages, "
+        f"{len(frf.outputs)} outputs ({len(setup.load_cells)} load cells), "
+        f"{frf.n_lines} lines {frf.frequencies_hz[0]:g}–{frf.frequencies_hz[-1]:g} Hz\n"
     )
     out.write(f"rejected averages: {len(rejected)}\n")
-    for a in rejected:
-        out.write(f"  input {run_.setup.excitations[a.input_index].name}: {'; '.join(a.reasons)}\n")
+    for j, reasons in rejected:
+        out.write(f"  input {setup.excitations[j].name}: {'; '.join(reasons)}\n")
     if incomplete:
         out.write(
-            f"incomplete inputs (fewer than {res.min_averages} accepted averages, no FRF): "
+            f"incomplete inputs (fewer than {min_averages} accepted averages, no FRF): "
             f"{', '.join(incomplete)}\n"
         )
     where = (

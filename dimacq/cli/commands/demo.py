@@ -80,19 +80,6 @@ def _scenario(name: str, seed: int | None) -> Any:
     return build_scenario(name, seed)
 
 
-def _rig_file(scenario: str) -> str:
-    """The rig the scenario's article is cabled on: ``config/rigs/<scenario>.toml``, else
-    ``config/rigs/<first word>.toml`` (e.g. ``cube`` for ``cube-2``), else "" (``rig.toml``,
-    the calibration mass)."""
-    from dimacq.config import default_config_file
-
-    rigs = default_config_file().parent / "rigs"
-    for name in (scenario, scenario.split("-")[0]):
-        if (rigs / f"{name}.toml").exists():
-            return str(rigs / f"{name}.toml")
-    return ""
-
-
 class _Array:
     """Where the simulated engineer put the digitizer array: DACS = R·GCS + t."""
 
@@ -110,7 +97,7 @@ class _Array:
 def run(args: argparse.Namespace) -> int:
     from dimacq.api import create_app
     from dimacq.api.server import BackgroundServer
-    from dimacq.config import load_settings
+    from dimacq.config import load_settings, scenario_rig_file
 
     t0 = time.perf_counter()
     say: Callable[[str], None] = (
@@ -129,7 +116,7 @@ def run(args: argparse.Namespace) -> int:
         host="127.0.0.1",
         digitizer_url=f"simdigitizer://demo-{secrets.token_hex(4)}?seed={built.seed}",
         scenario=args.scenario,
-        rig_file=str(args.rig_file) if args.rig_file else _rig_file(args.scenario),
+        rig_file=str(args.rig_file) if args.rig_file else scenario_rig_file(args.scenario),
         database_url="",
     )
     try:
