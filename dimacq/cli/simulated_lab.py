@@ -1,8 +1,8 @@
 """Impact tests of the virtual lab through the simulated USB DAQ and CAN FD load cells, for the
-command-line tools that are simulators by nature (``dimacq acquire``, ``dimacq loadcell
-calibrate --simulated``) and the scripts that measure the virtual lab against its truth. The
-service's rig is built by :func:`dimacq.services.rig.build_rig` from the backend tables; this
-module drives a scenario's whole article with its nominal transducers.
+inertial ``dimacq loadcell calibrate --simulated`` and the scripts that measure the drivers
+against the virtual lab's truth. ``dimacq acquire``, the service and ``dimacq demo`` build their
+rig with :func:`dimacq.services.rig.build_rig` from the backend tables (calibrations from files
+only); this module drives a scenario's whole article with its nominal transducers.
 
 :class:`SimulatedRig` wires one :class:`~dimacq.simulators.lab.timedomain.VirtualLab` (or any
 ``SampleSource`` over it, e.g. the calibration bench) to the real driver code:
@@ -138,7 +138,11 @@ class SimulatedRig:
         What the devices read and the operator strikes (default: ``lab``; e.g. a
         :class:`~dimacq.simulators.loadcell.bench.SupportSideBench` over it).
     calibration : mapping node → (6, 12) array, optional
-        Matrix each load cell driver applies. Default: the true one, ``pinv(S)`` of the lab.
+        Matrix each load cell driver applies. Default: the true one, ``pinv(S)`` of the lab
+        (the drivers-vs-simulator checks of ``tests/cli/test_simulated_lab.py``).
+    uncalibrated : bool
+        The load cell drivers get no matrix at all (a new cell on the calibration bench:
+        gauge outputs only; the matrix is what the bench finds).
     accel_mv_per_g, hammer_mv_per_n : float
         Transducer sensitivities (the simulated transducers are exact).
     accel_range_v, hammer_range_v : float
@@ -155,6 +159,7 @@ class SimulatedRig:
         *,
         source: SampleSource | None = None,
         calibration: Mapping[int, FloatArray] | None = None,
+        uncalibrated: bool = False,
         accel_mv_per_g: float = 100.0,
         hammer_mv_per_n: float = 2.25,
         accel_range_v: float = 10.0,
@@ -173,7 +178,8 @@ class SimulatedRig:
         self._closers: list[Callable[[], None]] = []
         try:
             self._build(
-                calibration,
+                None if uncalibrated else calibration,
+                uncalibrated,
                 accel_mv_per_g,
                 hammer_mv_per_n,
                 accel_range_v,
@@ -187,6 +193,7 @@ class SimulatedRig:
     def _build(
         self,
         calibration: Mapping[int, FloatArray] | None,
+        uncalibrated: bool,
         accel_mv_per_g: float,
         hammer_mv_per_n: float,
         accel_range_v: float,
@@ -220,6 +227,9 @@ class SimulatedRig:
             self._closers.append(sim.close)
             bus = can.Bus(interface="virtual", channel=name, fd=True)
             self._closers.append(bus.shutdown)
+            if uncalibrated:
+                self.loadcells.append(LoadCellAmplifier(bus, timeout_s=5.0))
+                continue
             C = (calibration or {}).get(lc.node)
             if C is None:
                 C = np.asarray(np.linalg.pinv(lab.gauge_matrix(lc.node)), dtype=np.float64)
@@ -649,7 +659,8 @@ def simulated_inertial_calibration(
         S = lab.gauge_matrix(support.node)
         bench = SupportSideBench(lab, support.node)
         settings = impact_settings(averages_per_input)
-        with SimulatedRig(lab, source=bench) as rig:
+        # A new cell: its driver has no matrix (the bench finds it), gauge outputs only.
+        with SimulatedRig(lab, source=bench, uncalibrated=True) as rig:
             res = rig.run(settings, progress=prog("bench"), loadcell_outputs="gauges")
         f = res.frequencies_hz
         sel = (f >= band_hz[0]) & (f <= band_hz[1])
