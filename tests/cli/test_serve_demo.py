@@ -14,9 +14,11 @@ from pathlib import Path
 import httpx
 import numpy as np
 import pytest
+from _acq_support import calibration_scale
 
 from dimacq.api.server import free_port
 from dimacq.cli.main import main
+from dimacq.config import load_settings
 
 
 def test_serve_binds_loopback_and_needs_the_token(tmp_path: Path) -> None:
@@ -112,7 +114,7 @@ def test_demo_recovers_the_truth(tmp_path: Path, capsys) -> None:
     # each accelerometer, so mass and inertia carry that scale (the CG, a ratio, does not).
     # Limits from what the physics allows a careful test (issue 10's "Must show": 0.5 % mass,
     # 1 mm CG, 0.5 % principal moments) around the calibrated truth.
-    scale = _calibration_scale()
+    scale = calibration_scale(load_settings().rig_path)
     assert abs(scale - 1) > 0.002  # the simulated transducers are not their certificates
     assert abs(p["mass_kg"] / (scale * t["mass_kg"]) - 1) < 0.003, (p["mass_kg"], scale)
     assert np.linalg.norm(np.subtract(p["cg_m"], t["cg_m"])) < 1e-3
@@ -149,27 +151,3 @@ def test_demo_recovers_the_truth(tmp_path: Path, capsys) -> None:
     assert gu["sensor_orientation_deg"] < 0.5 and gu["line_of_action_deg"] < 1.0
     assert gu["sensor_position_m"] < 2e-3 and gu["input_position_m"] < 2e-3
     assert d["orientation_error_rms_deg"] < 3 * gu["sensor_orientation_deg"] * np.sqrt(3)
-
-
-def _calibration_scale() -> float:
-    """``(true/certificate of the hammer) × mean(certificate/true of the accelerometers)``: the
-    factor a rig file's calibration errors put on the measured mass (first order)."""
-    from dimacq.config import load_settings
-    from dimacq.io.rig_file import load_rig_file
-    from dimacq.simulators.lab import transducers as tr
-
-    rf = load_rig_file(load_settings().rig_path)
-    (h,) = rf.hammers
-    hammer = tr.true_sensitivity(
-        tr.NOMINAL_HAMMER_MV_PER_N, tr.HAMMER_TOLERANCE, tr.hammer_serial(h.physical_channel)
-    )
-    accel = [
-        r.sensitivity_mv_per_g
-        / tr.true_sensitivity(
-            tr.NOMINAL_ACCEL_MV_PER_G,
-            tr.ACCEL_TOLERANCE,
-            tr.accelerometer_serial(r.physical_channel),
-        )
-        for r in rf.responses
-    ]
-    return float(hammer / h.sensitivity_mv_per_n * np.mean(accel))
