@@ -306,7 +306,7 @@ def test_whole_simulated_test_through_the_page(service: str, tmp_path: Path) -> 
     # the band typed from the drag (0.1 Hz), snapped by the solver to the FRF lines
     assert res["band_hz"] == pytest.approx(band, abs=1.5)
     assert res["verdict"] in ("ok", "warn", "fail")
-    assert n_intervals == 10  # the ten parameters, each with its 95 % interval
+    assert n_intervals >= 10  # the ten parameters (and principal moments), with 95 % intervals
     assert abs(m_err) < 0.02, res["mass_kg"]
     assert cg_err < 0.01, res["cg_m"]
     assert float(pm_err.max()) < 0.05, res["principal_moments_kgm2"]

@@ -30,7 +30,9 @@ function say(text, err = false) {
 async function api(method, path, body, { raw = false } = {}) {
   const headers = {};
   const tok = sessionStorage.getItem(TOKEN_KEY);
-  if (method !== "GET" && tok) headers.Authorization = `Bearer ${tok}`;
+  // every call carries the token when the page has it: state-changing calls need it, and so do
+  // reads when the service is bound to a non-loopback address
+  if (tok) headers.Authorization = `Bearer ${tok}`;
   let payload;
   if (body !== undefined) {
     if (raw) payload = body;
