@@ -28,13 +28,15 @@ import secrets
 import tempfile
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
+from pathlib import Path
 from typing import Any
 
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.middleware.cors import CORSMiddleware
 from fastapi.openapi.utils import get_openapi
-from fastapi.responses import JSONResponse
+from fastapi.responses import FileResponse, JSONResponse
+from fastapi.staticfiles import StaticFiles
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.types import ASGIApp, Receive, Scope, Send
 
@@ -55,6 +57,7 @@ from dimacq.api.routers import (
     jobs,
     sensitivity,
     setups,
+    simulation,
     solutions,
     status,
 )
@@ -299,6 +302,24 @@ def allowed_hosts(settings: Settings) -> frozenset[str] | None:
     return frozenset(names)
 
 
+STATIC_DIR = Path(__file__).with_name("static")
+
+
+def _mount_page(app: FastAPI) -> None:
+    """The lab page: ``/`` (``static/index.html``) and its assets under ``/static`` (package data,
+    nothing fetched from elsewhere)."""
+
+    @app.get("/", include_in_schema=False)
+    async def index() -> FileResponse:
+        return FileResponse(STATIC_DIR / "index.html", headers={"Cache-Control": "no-cache"})
+
+    @app.get("/report", include_in_schema=False)
+    async def report() -> FileResponse:
+        return FileResponse(STATIC_DIR / "report.html", headers={"Cache-Control": "no-cache"})
+
+    app.mount("/static", StaticFiles(directory=STATIC_DIR), name="static")
+
+
 def create_app(settings: Settings | None = None, *, lab: Lab | None = None) -> FastAPI:
     """Build the app. ``lab`` may be given (tests); otherwise the lifespan opens one from
     ``settings`` and closes it at shutdown."""
@@ -341,8 +362,10 @@ def create_app(settings: Settings | None = None, *, lab: Lab | None = None) -> F
         solutions,
         sensitivity,
         jobs,
+        simulation,
     ):
         app.include_router(r.router)
+    _mount_page(app)
     # added innermost first: Host check → token → body limit → routes
     app.add_middleware(
         BodyLimitMiddleware,

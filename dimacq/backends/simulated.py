@@ -267,3 +267,18 @@ def open_dead_weight_bench(
 
 
 _bench_names = itertools.count()
+
+
+def article_geometry(scenario: str) -> dict[str, Any]:
+    """Where the simulated article's sensors, impact points and load cells are (the scenario's
+    geometry, in the setup-file format, GCS metres): what the engineer's hand knows in the
+    virtual lab, so that a client can point the simulated digitizer's probe at them. The true
+    inertia properties are not part of it."""
+    from dimacq.io.setup_file import dump_setup_dict
+
+    built = build_scenario(scenario, None)
+    return {
+        "scenario": scenario,
+        "setup": dump_setup_dict(built.model.setup),
+        "band_hz": [float(b) for b in built.band_hz],
+    }

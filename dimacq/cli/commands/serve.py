@@ -66,6 +66,11 @@ def run(args: argparse.Namespace) -> int:
         f"database: {masked_url(settings.db_url)}"
     )
     reads = "every call" if not is_loopback(settings.host) else "state-changing calls"
-    print(f"token for {reads}: {app.state.token}  (from {token_src})", flush=True)
+    print(f"token for {reads}: {app.state.token}  (from {token_src})")
+    print(
+        f"lab page: http://{settings.host}:{settings.port}/#token={app.state.token}  "
+        "(the token stays in the URL fragment, never sent to the server)",
+        flush=True,
+    )
     serve(app, settings.host, settings.port, log_level=args.log_level, sock=sock)
     return 0

@@ -141,6 +141,26 @@ class DeviceService:
         return dict(info.identity)
 
     # ------------------------------------------------------------------ the digitizer
+    def simulated_article(self) -> dict[str, Any] | None:
+        """Where the simulated article's sensors, impact points and load cells are (setup-file
+        format, GCS metres), the scenario's recommended band and the orientation jig — what the
+        engineer's hand knows in the virtual lab — or None when no device is simulated. Reached
+        through the backend table's module path, like every simulated device."""
+        s = self.settings
+        if "simulated" not in (s.daq, s.loadcell, s.digitizer):
+            return None
+        from dimacq.backends import import_factory
+        from dimacq.services.digitizing import load_jig
+
+        geometry = import_factory("dimacq.backends.simulated:article_geometry", setting="scenario")
+        out: dict[str, Any] = geometry(s.scenario)
+        jig = load_jig()
+        out["jig"] = {
+            "labels": list(jig.labels),
+            "points_local_m": [[float(v) for v in p] for p in jig.points_local_m],
+        }
+        return out
+
     def digitizer(self) -> SerialDigitizer:
         """The open digitizer driver (DeviceStateError if it is not connected)."""
         self.session()

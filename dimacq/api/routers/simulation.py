@@ -1,0 +1,25 @@
+"""Simulation only: where the virtual lab's sensors and impact points are."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from fastapi import APIRouter, HTTPException
+from starlette.concurrency import run_in_threadpool
+
+from dimacq.api.deps import LabDep
+
+router = APIRouter(prefix="/api/simulation", tags=["simulation"])
+
+
+@router.get("/article", response_model=dict[str, Any])
+async def article(lab: LabDep) -> dict[str, Any]:
+    """The simulated article's geometry (``setup`` in the setup-file format, GCS metres: response
+    channels, inputs with their lines of action, load cells), the scenario's recommended band and
+    the orientation jig (``jig``: indentation labels and positions in the sensor's axes, m);
+    404 when no device is simulated. A client points the simulated digitizer's probe
+    (``sim_probe``) at these positions; the true inertia properties are not given."""
+    out = await run_in_threadpool(lab.devices.simulated_article)
+    if out is None:
+        raise HTTPException(404, "no simulated device: the article's geometry is not known")
+    return out
