@@ -13,6 +13,7 @@ from pathlib import Path
 import httpx
 import numpy as np
 from _api_support import TOKEN, make_settings
+from _bench_rig_support import write_bench_rig
 
 from dimacq.api import create_app
 from dimacq.api.server import BackgroundServer
@@ -21,34 +22,9 @@ from dimacq.simulators.lab.bridge import strain_gauge_cell
 from dimacq.simulators.loadcell.amplifier import LoadCellAmplifierSim
 from dimacq.simulators.loadcell.bench import DeadWeightBench
 
-BENCH = """schema_version = 1
-rated_load = [500.0, 500.0, 1000.0, 50.0, 50.0, 50.0]
-plan = "minimal"
-[timing]
-sample_rate_hz = 10
-settle_s = 8.0
-average_s = 2.0
-max_wait_s = 20.0
-"""
-
-RIG = """schema_version = 1
-[daq]
-sample_rate_hz = 2048.0
-[[hammers]]
-physical_channel = 0
-sensitivity_mv_per_n = 2.25
-[[load_cells]]
-node = 501
-node_id = 2
-calibration_file = "calibrations/lc-501.json"
-"""
-
 
 def test_static_run_with_prompts_over_http(tmp_path: Path) -> None:
-    rig_dir = tmp_path / "rig"
-    (rig_dir / "calibrations").mkdir(parents=True)
-    (rig_dir / "rig.toml").write_text(RIG, encoding="utf-8")
-    (rig_dir / "loadcell_bench.toml").write_text(BENCH, encoding="utf-8")
+    rig_dir = write_bench_rig(tmp_path, node_id=2)
     cell = strain_gauge_cell(501, creep_tau_s=1.5, swing_tau_s=0.8)
     bench = DeadWeightBench(cell, sample_rate_hz=10, seed=9)
     channel = f"dimacq-apical-{os.getpid()}-{uuid.uuid4().hex[:8]}"

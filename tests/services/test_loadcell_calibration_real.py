@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _bench_rig_support import RIG, write_bench_rig
 
 from dimacq.backends.base import DeviceContext
 from dimacq.backends.can_loadcell import open_loadcell
@@ -32,37 +33,14 @@ from dimacq.simulators.lab.bridge import strain_gauge_cell
 from dimacq.simulators.loadcell.amplifier import LoadCellAmplifierSim
 from dimacq.simulators.loadcell.bench import DeadWeightBench
 
-BENCH = """schema_version = 1
-rated_load = [500.0, 500.0, 1000.0, 50.0, 50.0, 50.0]
-plan = "minimal"
-[[points]]
+POINTS = """[[points]]
 name = "arm +x"
 position_m = [0.1, 0.0, 0.05]
-[timing]
-sample_rate_hz = 10
-settle_s = 8.0
-average_s = 2.0
-max_wait_s = 20.0
-"""
-
-RIG = """schema_version = 1
-[daq]
-sample_rate_hz = 2048.0
-[[hammers]]
-physical_channel = 0
-sensitivity_mv_per_n = 2.25
-[[load_cells]]
-node = 501
-node_id = 3
-calibration_file = "calibrations/lc-501.json"
 """
 
 
 def test_static_calibration_of_the_configured_cell(tmp_path: Path) -> None:
-    rig_dir = tmp_path / "rig"
-    (rig_dir / "calibrations").mkdir(parents=True)
-    (rig_dir / "rig.toml").write_text(RIG, encoding="utf-8")
-    (rig_dir / "loadcell_bench.toml").write_text(BENCH, encoding="utf-8")
+    rig_dir = write_bench_rig(tmp_path, node_id=3, points=POINTS)
     cell = strain_gauge_cell(501, creep_tau_s=1.5, swing_tau_s=0.8)
     C_true = np.linalg.pinv(cell.sensitivity_mvv)
     old = LoadCellCalibration("501", "2025-01-01", 1.05 * C_true, method="inertial")
@@ -122,7 +100,7 @@ def test_unknown_load_cell_and_missing_bench_file_are_named(tmp_path: Path) -> N
 
     rig_dir = tmp_path / "rig"
     rig_dir.mkdir()
-    (rig_dir / "rig.toml").write_text(RIG, encoding="utf-8")
+    (rig_dir / "rig.toml").write_text(RIG.format(node_id=3), encoding="utf-8")
     settings = load_settings(
         data_dir=tmp_path / "data", token="t", rig_file=str(rig_dir / "rig.toml")
     )
