@@ -258,12 +258,13 @@ class TransducerUncertainty(_Model):
     force_sensitivity_rel : float
         1σ relative error of the force transducer's (hammer's) sensitivity, one value common to
         every input struck with it. Default 0.005.
-    source : {"default", "stated"}
+    source : {"default", "stated", "chain"}
+        ``chain``: the force term is a chain calibration's (:mod:`dimacq.pipeline.chain_calibration`).
     """
 
     accel_sensitivity_rel: float = Field(default=0.005, ge=0, le=0.5)
     force_sensitivity_rel: float = Field(default=0.005, ge=0, le=0.5)
-    source: Literal["default", "stated"] = "default"
+    source: Literal["default", "stated", "chain"] = "default"
 
 
 #: Order of the ten DIM parameters (method.md §6): mass, CG (solved as s = m·c), inertia about P.

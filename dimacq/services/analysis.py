@@ -38,6 +38,7 @@ import numpy as np
 from dimacq.errors import SetupError
 from dimacq.model.frf import Channel, FrfData
 from dimacq.model.setup import PARAMETERS, TestSetup
+from dimacq.pipeline.chain_calibration import ChainCalibration, chain_calibration
 from dimacq.pipeline.dim import DimResult, DimSystem, assemble, solve_system
 from dimacq.pipeline.selection._common import match_pairs, response_geometry
 from dimacq.pipeline.selection.band import (
@@ -137,6 +138,14 @@ class AnalysisOptions:
         Largest useful relative half-width of the 95 % interval of the mass and of the principal
         moments (default 0.02 and 0.05); wider gives a ``warn`` verdict (``precision``),
         :data:`PRECISION_FAIL_FACTOR` times wider a ``fail``.
+    reference_mass : (mass_kg, u_kg), optional
+        The data were measured on a reference body of this weighed mass (standard uncertainty
+        ``u_kg``): the report carries the chain calibration ``γ`` it gives
+        (:mod:`dimacq.pipeline.chain_calibration`); the hammer certificate term is left out of
+        that solve's intervals (it is what is being calibrated).
+    chain : ChainCalibration, optional
+        A chain calibration to apply: the FRFs are multiplied by ``chain.factor`` and the hammer
+        certificate's uncertainty is replaced by ``chain.u_rel``.
     """
 
     select_responses: bool = True
@@ -157,6 +166,8 @@ class AnalysisOptions:
     residual_flexibility: bool = False
     ci95_limit_mass: float = CI95_LIMIT_MASS
     ci95_limit_principal: float = CI95_LIMIT_PRINCIPAL
+    reference_mass: tuple[float, float] | None = None
+    chain: ChainCalibration | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -184,6 +195,9 @@ class AnalysisReport:
     verdict_reasons : list of VerdictReason
         Every check, whatever its outcome (the failing and warning ones first).
     geometry : GeometrySpread, optional
+    chain_calibration : dict, optional
+        ``{"role": "measured" | "applied", **ChainCalibration.to_json()}``: the chain factor this
+        solve measured on a reference mass, or the one it applied.
     """
 
     result: DimResult
@@ -202,6 +216,7 @@ class AnalysisReport:
     verdict: str = "ok"
     verdict_reasons: list[VerdictReason] = field(default_factory=list)
     geometry: GeometrySpread | None = None
+    chain_calibration: dict[str, Any] | None = None
 
     def to_json(self) -> dict[str, Any]:
         """``result.to_json()`` plus ``excluded_responses``, ``excluded_inputs``, ``uncertainty``,
@@ -230,6 +245,8 @@ class AnalysisReport:
                     zip(PARAMETERS, self.geometry.se_linear.tolist(), strict=True)
                 ),
             }
+        if self.chain_calibration is not None:
+            out["chain_calibration"] = dict(self.chain_calibration)
         if self.response_selection is not None:
             out["response_selection"] = self.response_selection.to_json()
         if self.input_selection is not None:
@@ -254,6 +271,7 @@ def analyse(
         The kept data cannot be solved (rank < 6 ...).
     """
     opt = options or AnalysisOptions()
+    frf, setup = _with_chain(frf, setup, opt)
     known = dict(setup.known.as_dict() if opt.known is None else opt.known)
     force_in = [tuple(map(int, p)) for p in opt.force_in]
     force_out = [tuple(map(int, p)) for p in opt.force_out]
@@ -398,12 +416,55 @@ def analyse(
         ci95_limits=(opt.ci95_limit_mass, opt.ci95_limit_principal),
     )
     report = replace(report, verdict=v, verdict_reasons=reasons)
+    if opt.chain is not None:
+        report = replace(report, chain_calibration={"role": "applied", **opt.chain.to_json()})
+    elif opt.reference_mass is not None:
+        report = _measure_chain(report, opt.reference_mass)
     if opt.plots_dir is not None:
         from dimacq.plotting import write_report_figures
 
         paths = write_report_figures(report, frf, setup_used, Path(opt.plots_dir), weights, keep_in)
         report = AnalysisReport(**{**report.__dict__, "plots": paths})
     return report
+
+
+def _with_chain(frf: FrfData, setup: TestSetup, opt: AnalysisOptions) -> tuple[FrfData, TestSetup]:
+    """Apply a chain calibration (FRFs × γ, hammer uncertainty := u(γ)), or leave the hammer
+    term out of a reference-mass solve (:mod:`dimacq.pipeline.chain_calibration`)."""
+    if opt.chain is not None and opt.reference_mass is not None:
+        raise SetupError(
+            "a reference-mass solve measures the chain factor; do not also apply one "
+            "(give either reference_mass or chain_calibration)"
+        )
+    tu = setup.transducer_uncertainty
+    if opt.chain is not None:
+        frf = frf.scaled(opt.chain.factor)
+        tu = tu.model_copy(update={"force_sensitivity_rel": opt.chain.u_rel, "source": "chain"})
+    elif opt.reference_mass is not None:
+        tu = tu.model_copy(update={"force_sensitivity_rel": 0.0})
+    else:
+        return frf, setup
+    return frf, setup.model_copy(update={"transducer_uncertainty": tu})
+
+
+def _measure_chain(report: AnalysisReport, reference_mass: tuple[float, float]) -> AnalysisReport:
+    """The chain factor of a reference-mass solve; refused (a ``fail`` reason, no factor) when
+    the solve itself is not trusted."""
+    if report.verdict == "fail":
+        reason = VerdictReason(
+            "chain_calibration",
+            "fail",
+            "no chain calibration from this solve: its verdict is fail (see the other reasons)",
+        )
+        return replace(report, verdict_reasons=[reason, *report.verdict_reasons])
+    m = report.uncertainty.parameters["m"]
+    cal = chain_calibration(
+        float(report.result.mass_kg),
+        float(m.standard_error),
+        float(reference_mass[0]),
+        float(reference_mass[1]),
+    )
+    return replace(report, chain_calibration={"role": "measured", **cal.to_json()})
 
 
 def _phi_m(system: DimSystem) -> np.ndarray:

@@ -56,10 +56,17 @@ from scipy.spatial.transform import Rotation
 from dimacq.errors import SetupError
 from dimacq.model.frf import Channel, FrfData
 from dimacq.model.properties import THESIS_CALIBRATION_MASS, RigidBodyProperties
-from dimacq.model.setup import Excitation, LoadCell, ResponseChannel, TestSetup
+from dimacq.model.setup import (
+    Excitation,
+    GeometryUncertainty,
+    LoadCell,
+    ResponseChannel,
+    TestSetup,
+)
 
 __all__ = [
     "CALIBRATION_MASS",
+    "REFERENCE_BLOCK",
     "X38_PROPERTIES",
     "FlexibleMode",
     "ForwardModel",
@@ -70,6 +77,8 @@ __all__ = [
     "cube_unit_loads",
     "fixed_support_stiffness",
     "modal_damping",
+    "reference_block",
+    "reference_block_drawing",
     "six_triax_box",
     "soft_support_stiffness",
     "subsystem_mode",
@@ -616,6 +625,114 @@ def calibration_mass(
         load_cells=tuple(s.load_cell() for s in supports),
     )
     return ForwardModel(CALIBRATION_MASS, setup, supports)
+
+
+#: The lab's reference block (the body of known mass for the chain calibration,
+#: :mod:`dimacq.pipeline.chain_calibration`): solid aluminium (2700 kg/m³), machined to
+#: x ∈ [−0.11, 0.21], y ∈ [−0.14, 0.14], z ∈ [−0.15, 0.05] m (0.32 × 0.28 × 0.20 m).
+REFERENCE_BLOCK_BOX_M = (np.array([-0.11, -0.14, -0.15]), np.array([0.21, 0.14, 0.05]))
+
+
+def _solid_box(density_kg_m3: float, lo: FloatArray, hi: FloatArray) -> RigidBodyProperties:
+    """A homogeneous box: ``m = ρ a b c``, CG at the centre, ``I = m/12 diag(b²+c², a²+c², a²+b²)``."""
+    a, b, c = hi - lo
+    m = density_kg_m3 * a * b * c
+    return RigidBodyProperties(
+        m, 0.5 * (lo + hi), m / 12.0 * np.diag([b * b + c * c, a * a + c * c, a * a + b * b])
+    )
+
+
+REFERENCE_BLOCK = _solid_box(2700.0, *REFERENCE_BLOCK_BOX_M)
+
+
+def reference_block_drawing() -> TestSetup:
+    """The reference block as its drawing gives it (what the lab knows, no tolerances).
+
+    A triax in a machined pocket 20 mm in from each corner (nodes 1..8, axes along the block's),
+    the load cell (node 501, turned 45° about Z) on the top face at (0.05, 0, 0.05) m, and 24
+    marked impact points (nodes 101..124), a 4 × 2 grid on each of the +x, +y and −z faces, struck
+    normal to the face.
+    """
+    lo, hi = REFERENCE_BLOCK_BOX_M
+    centre = 0.5 * (lo + hi)
+    corners = np.array(
+        [[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])]
+    )
+    positions = corners - 0.02 * np.sign(corners - centre)
+    responses = _triaxes(range(1, 9), positions, [np.eye(3)] * 8)
+    pts, dirs = [], []
+    for axis, value, normal in (
+        (0, hi[0], np.array([-1.0, 0, 0])),
+        (1, hi[1], np.array([0, -1.0, 0])),
+        (2, lo[2], np.array([0, 0, 1.0])),
+    ):
+        u_ax, v_ax = [k for k in range(3) if k != axis]
+        for iu in range(4):
+            for iv in range(2):
+                p = centre.copy()
+                p[axis] = value
+                p[u_ax] = lo[u_ax] + (hi[u_ax] - lo[u_ax]) * (0.15 + 0.7 * iu / 3)
+                p[v_ax] = lo[v_ax] + (hi[v_ax] - lo[v_ax]) * (0.3 + 0.4 * iv)
+                pts.append(p)
+                dirs.append(normal)
+    inputs = _inputs(range(101, 125), np.array(pts), np.array(dirs))
+    R = Rotation.from_euler("z", 45.0, degrees=True).as_matrix()
+    cell = Support(501, np.array([0.05, 0.0, 0.05]), R, np.zeros((6, 6)), np.zeros((6, 6)))
+    return TestSetup(
+        name="reference block (drawing)",
+        responses=tuple(responses),
+        excitations=tuple(inputs),
+        load_cells=(cell.load_cell(),),
+        reference_point_m=(float(centre[0]), float(centre[1]), float(centre[2])),
+        geometry_uncertainty=GeometryUncertainty(
+            sensor_position_m=2e-4,
+            sensor_orientation_deg=0.2,
+            input_position_m=2e-3,
+            line_of_action_deg=2.0,
+            source="stated",
+        ),
+    )
+
+
+def reference_block(seed: int = 0) -> ForwardModel:
+    """The reference block as built, hung on a bungee through the load cell (as the calibration
+    mass, :func:`calibration_mass`: bounce 2 Hz, pendulum 0.7 Hz, ζ ≈ 5 %).
+
+    Its geometry is the drawing's (:func:`reference_block_drawing`) within machining tolerance
+    (pockets ``N(0, 0.1 mm)`` per coordinate and ``N(0, 0.1°)`` in rotation) and the hand-held
+    hammer's placement (marked point ``N(0, 1 mm)``, direction ``N(0, 1°)``), seeded by ``seed``.
+    """
+    rng = np.random.default_rng([seed, 0xB10C])
+    drawing = reference_block_drawing()
+    responses = []
+    for node in range(1, 9):
+        chans = [c for c in drawing.responses if c.node == node]
+        R = Rotation.from_rotvec(
+            np.deg2rad(0.1) * rng.standard_normal() * _unit(rng.normal(size=3))
+        ).as_matrix()
+        pos = np.asarray(chans[0].position_m) + rng.normal(scale=1e-4, size=3)
+        responses += _triaxes([node], pos[None, :], [R])
+    pts, dirs = [], []
+    for e in drawing.excitations:
+        pts.append(np.asarray(e.position_m) + rng.normal(scale=1e-3, size=3))
+        d = np.asarray(e.direction_gcs, float)
+        rot = Rotation.from_rotvec(
+            np.deg2rad(1.0) * rng.standard_normal() * _unit(np.cross(d, rng.normal(size=3)))
+        )
+        dirs.append(rot.apply(d))
+    inputs = _inputs(range(101, 125), np.array(pts), np.array(dirs))
+    m = REFERENCE_BLOCK.mass_kg
+    R = Rotation.from_euler("z", 45.0, degrees=True).as_matrix()
+    pos, k = np.array([0.05, 0.0, 0.05]), soft_support_stiffness(m, 2.0, 0.7, 5.0)
+    support = Support(501, pos, R, k, modal_damping(k, REFERENCE_BLOCK, pos, 0.05))
+    setup = TestSetup(
+        name="reference block (bungee)",
+        responses=tuple(responses),
+        excitations=tuple(inputs),
+        load_cells=(support.load_cell(),),
+        reference_point_m=drawing.reference_point_m,
+    )
+    return ForwardModel(REFERENCE_BLOCK, setup, (support,))
 
 
 def _unit(v: FloatArray) -> FloatArray:

@@ -103,7 +103,13 @@ from dimacq.io.validation import refuse
 from dimacq.model.frf import FrfData
 from dimacq.model.properties import RigidBodyProperties
 from dimacq.model.setup import Excitation, GeometryUncertainty, ResponseChannel, TestSetup
-from dimacq.simulators.lab.forward import ForwardModel, calibration_mass, cube, x38_like
+from dimacq.simulators.lab.forward import (
+    ForwardModel,
+    calibration_mass,
+    cube,
+    reference_block,
+    x38_like,
+)
 
 __all__ = [
     "SCENARIO_DIR",
@@ -130,8 +136,9 @@ class _Spec(BaseModel):
 
 
 class ArticleSpec(_Spec):
-    model: Literal["calibration-mass", "x38", "cube"] = Field(
-        description="the test article: calibration-mass, x38 or cube"
+    model: Literal["calibration-mass", "x38", "cube", "reference-block"] = Field(
+        description="the test article: calibration-mass, x38, cube or reference-block (the "
+        "lab's weighed aluminium block for the chain calibration, on a bungee)"
     )
     support: Literal["bungee", "air-ride", "ground", "free"] | None = Field(
         default=None, description="calibration-mass support: bungee, air-ride, ground or free"
@@ -570,6 +577,8 @@ class BuiltScenario:
 
 
 def _article(spec: ArticleSpec, seed: int) -> ForwardModel:
+    if spec.model == "reference-block":
+        return reference_block(seed)
     if spec.model == "calibration-mass":
         assert spec.support is not None
         return calibration_mass(seed, support=spec.support, sensor_skew_deg=spec.sensor_skew_deg)

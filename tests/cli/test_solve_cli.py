@@ -176,3 +176,55 @@ def test_selection_flags_add_the_contract_keys_and_figures(tmp_path: Path) -> No
     assert data["mass_kg"] == pytest.approx(12.5, rel=1e-9)
     assert set(data["uncertainty"]["m"]) >= {"standard_error", "ci95"}
     assert any(p.suffix == ".svg" for p in (tmp_path / "fig").iterdir())
+
+
+def test_chain_calibration_on_the_reference_block(tmp_path: Path) -> None:
+    """``--reference-mass`` on the reference block's FRFs (its drawing as the setup file, its
+    weighing certificate) reports the chain factor; ``--chain-calibration`` applies it to the
+    article. The hammer is 1.5 % off (every FRF × κ)."""
+    from dimacq.io.setup_file import save_setup
+    from dimacq.io.uff import write_frf_uff
+    from dimacq.simulators.lab.forward import calibration_mass, reference_block
+
+    kappa = 1.015
+    f = np.linspace(10.0, 120.0, 56)
+    block_uff, art_uff, art_setup = tmp_path / "b.uff", tmp_path / "a.uff", tmp_path / "a.toml"
+    write_frf_uff(block_uff, reference_block(1).frf(f).scaled(kappa))
+    model = calibration_mass(1, support="bungee")
+    write_frf_uff(art_uff, model.frf(f).scaled(kappa))
+    save_setup(model.setup, art_setup)
+    ref = ROOT / "config" / "reference-block"
+    cal_json, out = tmp_path / "cal.json", tmp_path / "sol.json"
+    rc = main(
+        [
+            "solve",
+            str(ref / "setup.toml"),
+            str(block_uff),
+            "--reference-mass",
+            str(ref / "mass.toml"),
+            "--json",
+            str(cal_json),
+        ]
+    )
+    assert rc == 0
+    cal = json.loads(cal_json.read_text())["chain_calibration"]
+    assert cal["role"] == "measured"
+    # the certificate's weighed mass differs from the drawing's by the weighing error (≤ 0.05 %)
+    assert abs(cal["factor"] * kappa - 1) < 3 * cal["u_rel"] + 5e-4
+    rc = main(
+        [
+            "solve",
+            str(art_setup),
+            str(art_uff),
+            "--chain-calibration",
+            str(cal_json),
+            "--json",
+            str(out),
+        ]
+    )
+    assert rc == 0
+    sol = json.loads(out.read_text())
+    assert sol["chain_calibration"]["role"] == "applied"
+    assert abs(sol["mass_kg"] / model.properties.mass_kg - 1) < 0.002
+    # a solve that measured nothing is not a chain calibration
+    assert main(["solve", str(art_setup), str(art_uff), "--chain-calibration", str(out)]) == 2

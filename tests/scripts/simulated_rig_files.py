@@ -139,9 +139,41 @@ def write_rig(name: str, scenario: str, header: str) -> None:
     print(f"wrote {path}")
 
 
+#: The scale the reference block is weighed on: standard uncertainty of one weighing, kg.
+WEIGHING_U_KG = 0.005
+
+
+def write_reference_block() -> None:
+    """The reference block's drawing (a setup file) and its weighing certificate: what the lab
+    knows of the body it calibrates its measurement chain on (``dimacq demo``'s first step,
+    :mod:`dimacq.pipeline.chain_calibration`)."""
+    from dimacq.io.setup_file import save_setup
+    from dimacq.simulators.lab.forward import REFERENCE_BLOCK, reference_block_drawing
+
+    folder = CONFIG / "reference-block"
+    folder.mkdir(parents=True, exist_ok=True)
+    save_setup(reference_block_drawing(), folder / "setup.toml")
+    rng = np.random.default_rng([0x3E16, zlib.crc32(b"SIM-REF-BLOCK-1")])
+    weighed = REFERENCE_BLOCK.mass_kg + WEIGHING_U_KG * rng.standard_normal()
+    (folder / "mass.toml").write_text(
+        "# Weighing certificate of the lab's reference block (solid aluminium, 0.32 x 0.28 x\n"
+        "# 0.20 m, serial SIM-REF-BLOCK-1): the body of known mass the\n"
+        "# measurement chain (hammer and accelerometers) is calibrated on (dimacq demo, step 0;\n"
+        "# reference_mass of POST /api/solutions). Written by tests/scripts/simulated_rig_files.py.\n"
+        "schema_version = 1\n"
+        'serial_number = "SIM-REF-BLOCK-1"\n'
+        f"mass_kg = {weighed:.4f}\n"
+        f"u_kg = {WEIGHING_U_KG}            # standard uncertainty (k = 1)\n"
+        'setup_file = "setup.toml"  # the drawing: sensor pockets, marked impact points, load cell\n',
+        encoding="utf-8",
+    )
+    print(f"wrote {folder}")
+
+
 def main() -> None:
     for name, (scenario, header) in RIGS.items():
         write_rig(name, scenario, header)
+    write_reference_block()
 
 
 if __name__ == "__main__":

@@ -35,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from dimacq.errors import DataError, DeviceError
+from dimacq.errors import DataError, DeviceError, SetupError
 
 
 def register(sub: Any) -> None:
@@ -67,6 +67,12 @@ def register(sub: Any) -> None:
         action="store_true",
         help="solve in the scenario's recommended band (default: the service's defaults, "
         "automatic band and selections, as a user gets them)",
+    )
+    p.add_argument(
+        "--no-chain-calibration",
+        action="store_true",
+        help="skip step 0 (the chain calibration on the weighed reference block); the hammer's "
+        "certificate error then goes straight into mass and inertia",
     )
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     p.set_defaults(func=run)
@@ -120,10 +126,13 @@ def run(args: argparse.Namespace) -> int:
         database_url="",
     )
     try:
+        chain: dict[str, Any] | None = None
+        if not args.no_chain_calibration and args.scenario != REFERENCE_SCENARIO:
+            chain = _chain_step(data_dir, token, args, say)
         app = create_app(settings)
         with BackgroundServer(app) as srv:
             say(f"dimacq demo: service on {srv.url} (data in {data_dir}), scenario {args.scenario}")
-            payload = _demo(srv.url, token, built, args, say)
+            payload = _demo(srv.url, token, built, args, say, chain)
     finally:
         if tmp is not None:
             tmp.cleanup()
@@ -133,6 +142,96 @@ def run(args: argparse.Namespace) -> int:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(payload, indent=2) + "\n", encoding="utf-8")
     return 0
+
+
+#: The lab's weighed reference block (config/reference-block/), cabled as the calibration mass.
+REFERENCE_SCENARIO = "reference-block-bungee"
+
+
+def _chain_step(
+    data_dir: Path, token: str, args: argparse.Namespace, say: Callable[[str], None]
+) -> dict[str, Any]:
+    """Step 0: calibrate the measurement chain on the weighed reference block.
+
+    As a lab does before a test: the reference block hangs on the bungee through the load cell
+    with the same hammer and accelerometers; its drawing gives the geometry (setup file), its
+    weighing certificate the mass. The service acquires it and solves with ``reference_mass``; the
+    solution's ``chain_calibration`` (``γ`` and its uncertainty,
+    :mod:`dimacq.pipeline.chain_calibration`) is applied to the test's solve (step 5) by id.
+    Same data directory, so the test's service finds the stored solution.
+    """
+    import httpx
+
+    from dimacq.api import create_app
+    from dimacq.api.server import BackgroundServer
+    from dimacq.config import default_config_file, load_settings, scenario_rig_file
+    from dimacq.io.reference_mass import load_reference_mass
+
+    ref = load_reference_mass(default_config_file().parent / "reference-block" / "mass.toml")
+    if ref.setup_file is None:
+        raise SetupError("reference-block/mass.toml names no setup_file (the block's drawing)")
+    block = _scenario(REFERENCE_SCENARIO, args.seed)
+    settings = load_settings(
+        data_dir=data_dir,
+        token=token,
+        host="127.0.0.1",
+        digitizer_url=f"simdigitizer://demo-{secrets.token_hex(4)}?seed={block.seed}",
+        scenario=REFERENCE_SCENARIO,
+        rig_file=scenario_rig_file(REFERENCE_SCENARIO),
+        database_url="",
+    )
+    with BackgroundServer(create_app(settings)) as srv:
+        c = httpx.Client(
+            base_url=srv.url, headers={"Authorization": f"Bearer {token}"}, timeout=120
+        )
+        try:
+            say(
+                f"[0/5] chain calibration: reference block {ref.serial_number} "
+                f"({ref.mass_kg:g} ± {ref.u_kg:g} kg weighed) on the same hammer and sensors"
+            )
+            st = _check(
+                c.post(
+                    "/api/setups/import",
+                    params={"format": "toml", "name": "reference block (drawing)"},
+                    content=ref.setup_file.read_bytes(),
+                ),
+                "reference block setup",
+            )
+            sid = int(st.get("setup_id", st.get("id")))
+            acq = c.post(
+                "/api/acquisitions",
+                json={"setup_id": sid, "averages_per_input": args.averages, "seed": block.seed},
+            )
+            if acq.status_code >= 400:
+                say(
+                    "[0/5] chain calibration skipped: acquisition unavailable "
+                    f"({acq.json().get('detail', acq.text)})"
+                )
+                return {"skipped": str(acq.json().get("detail", acq.text))}
+            frf_id = _follow_acquisition(c, acq.json(), lambda m: say(m.replace("[4/5]", "[0/5]")))
+            sol = _check(
+                c.post(
+                    "/api/solutions",
+                    json={
+                        "frf_id": frf_id,
+                        "reference_mass": {"mass_kg": ref.mass_kg, "u_kg": ref.u_kg},
+                    },
+                ),
+                "reference block solve",
+            )
+        finally:
+            c.close()
+    cal = sol["result"].get("chain_calibration")
+    if cal is None:
+        reasons = "; ".join(
+            r["message"] for r in sol["result"].get("verdict_reasons", []) if r["severity"] != "ok"
+        )
+        raise DataError(f"demo: the reference block gave no chain calibration: {reasons}")
+    say(
+        f"[0/5] chain factor {cal['factor']:.5f} ± {100 * cal['u_rel']:.3f} % "
+        f"(block measures {cal['measured_mass_kg']:.4f} kg; solution {sol['id']})"
+    )
+    return {"solution_id": int(sol["id"]), **cal}
 
 
 def _check(r: Any, what: str) -> Any:
@@ -147,7 +246,12 @@ def _check(r: Any, what: str) -> Any:
 
 
 def _demo(
-    url: str, token: str, built: Any, args: argparse.Namespace, say: Callable[[str], None]
+    url: str,
+    token: str,
+    built: Any,
+    args: argparse.Namespace,
+    say: Callable[[str], None],
+    chain: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     import httpx
 
@@ -160,6 +264,8 @@ def _demo(
     band = [float(b) for b in built.band_hz]
     c = httpx.Client(base_url=url, headers={"Authorization": f"Bearer {token}"}, timeout=120)
     info: dict[str, Any] = {"scenario": built.spec.name, "seed": built.seed}
+    if chain is not None:
+        info["chain_calibration"] = chain
     try:
         st = _check(c.get("/api/status"), "status")
         say(
@@ -289,6 +395,8 @@ def _demo(
             )
         # --- 5. solve --------------------------------------------------------------------
         body: dict[str, Any] = {"frf_id": frf_id}
+        if chain is not None and "solution_id" in chain:
+            body["chain_calibration_id"] = chain["solution_id"]
         if args.scenario_band:
             body["band_hz"] = band
         sol = _check(c.post("/api/solutions", json=body), "solve")

@@ -93,6 +93,23 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         metavar="KG",
         help="scale the FRFs so that the band mass equals KG (FRF scaling, thesis §3.2.2.1)",
     )
+    c = p.add_argument_group(
+        "chain calibration on a reference mass (dimacq.pipeline.chain_calibration)"
+    )
+    c.add_argument(
+        "--reference-mass",
+        type=Path,
+        metavar="MASS.toml",
+        help="the data were measured on this weighed reference body (its certificate, e.g. "
+        "config/reference-block/mass.toml): report the chain factor it gives",
+    )
+    c.add_argument(
+        "--chain-calibration",
+        type=Path,
+        metavar="CAL.json",
+        help="apply the chain calibration of a reference-mass solve (its --json output): FRFs "
+        "times the factor, the hammer's certificate uncertainty replaced by its own",
+    )
     p.add_argument("--reference", type=Path, metavar="REF.json", help="true values: print %% error")
     p.add_argument("--json", type=Path, metavar="OUT", help="write the solution as JSON")
     g = p.add_argument_group(
@@ -215,6 +232,35 @@ def known_from_args(args: argparse.Namespace, setup: TestSetup) -> dict[str, flo
     return known
 
 
+def _reference_mass(path: Path | None) -> tuple[float, float] | None:
+    if path is None:
+        return None
+    from dimacq.io.reference_mass import load_reference_mass
+
+    ref = load_reference_mass(path)
+    return ref.mass_kg, ref.u_kg
+
+
+def _chain(path: Path | None) -> Any:
+    if path is None:
+        return None
+    from dimacq.pipeline.chain_calibration import ChainCalibration
+
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as err:
+        raise SetupError(
+            f"--chain-calibration {path.name}: cannot read it as JSON ({err})"
+        ) from err
+    cal = doc.get("chain_calibration") if isinstance(doc, dict) else None
+    if not cal or cal.get("role") != "measured":
+        raise SetupError(
+            f"--chain-calibration {path.name}: holds no measured chain calibration; give the "
+            "--json output of 'dimacq solve --reference-mass' on the reference body"
+        )
+    return ChainCalibration.from_json(cal, f"--chain-calibration {path.name}")
+
+
 def run(args: argparse.Namespace) -> int:
     setup, frf = load_test(args.input, args.frf)
     if args.reference_point is not None:
@@ -244,6 +290,8 @@ def run(args: argparse.Namespace) -> int:
         unbiased=args.unbiased,
         refine_geometry=args.refine_geometry,
         residual_flexibility=args.residual_flexibility,
+        reference_mass=_reference_mass(args.reference_mass),
+        chain=_chain(args.chain_calibration),
     )
     report = analyse(frf, setup, options)
     result = report.result
@@ -366,6 +414,20 @@ def print_report(
     w(f"sign convention: {PRODUCT_SIGN_CONVENTION}\n")
     if "frf_scale_factor" in payload:
         w(f"FRFs scaled by {payload['frf_scale_factor']:.9g} to the known mass\n")
+    chain = payload.get("chain_calibration")
+    if isinstance(chain, dict):
+        if chain.get("role") == "measured":
+            w(
+                f"chain calibration measured: factor {chain['factor']:.6f} ± "
+                f"{100 * chain['u_rel']:.3f} % (1σ; the reference body measures "
+                f"{chain['measured_mass_kg']:.5g} kg against its weighed "
+                f"{chain['reference_mass_kg']:.5g} kg); apply it with --chain-calibration\n"
+            )
+        else:
+            w(
+                f"chain calibration applied: FRFs × {chain['factor']:.6f} ± "
+                f"{100 * chain['u_rel']:.3f} % ({chain.get('source') or 'given'})\n"
+            )
     band_sel = payload.get("band_selection")
     if isinstance(band_sel, dict) and band_sel.get("reason"):
         w(f"band: {band_sel['reason']}\n")

@@ -12,17 +12,18 @@ from __future__ import annotations
 import io
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-from dimacq.errors import DataError
+from dimacq.errors import DataError, SetupError
 from dimacq.model.frf import FrfData
 from dimacq.model.properties import inertia_to_vector
 from dimacq.model.setup import TestSetup
+from dimacq.pipeline.chain_calibration import ChainCalibration
 from dimacq.services.lab.store import StoredSolution, TestStore
 
 __all__ = ["AnalysisService", "Param", "SolutionSpectrum", "SolveOptions"]
@@ -38,6 +39,17 @@ KNOWN_LIMIT = {"m": 1e9, "cx": 1e6, "cy": 1e6, "cz": 1e6} | dict.fromkeys(
     ("Ixx", "Ixy", "Ixz", "Iyy", "Iyz", "Izz"), 1e15
 )
 _POSITIVE = frozenset({"m", "Ixx", "Iyy", "Izz"})
+
+
+class ReferenceMassIn(BaseModel):
+    """A weighed reference body (``config/reference-block/mass.toml``)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    mass_kg: float = Field(gt=0, lt=1e6, allow_inf_nan=False, description="weighed mass, kg")
+    u_kg: float = Field(
+        default=0.0, ge=0, lt=1e6, allow_inf_nan=False, description="standard uncertainty, kg"
+    )
 
 
 class SolveOptions(BaseModel):
@@ -71,6 +83,18 @@ class SolveOptions(BaseModel):
     )
     residual_flexibility: bool = Field(
         default=False, description="fit residual terms of elastic modes above the band"
+    )
+    reference_mass: ReferenceMassIn | None = Field(
+        default=None,
+        description="the FRF set was measured on a reference body of this weighed mass: the "
+        "solution carries the chain calibration it gives (chain_calibration, role measured)",
+    )
+    chain_calibration_id: int | None = Field(
+        default=None,
+        ge=1,
+        le=2**63 - 1,
+        description="apply the chain calibration measured by this solution (a reference_mass "
+        "solve): FRFs × factor, the hammer's certificate uncertainty replaced by u_rel",
     )
 
     @field_validator("band_hz")
@@ -146,6 +170,30 @@ class AnalysisService:
         result = self._analyse(frf, setup, options).to_json()
         return self.store.save_solution(frf_id, options.model_dump(), result)
 
+    def chain(self, solution_id: int | None) -> ChainCalibration | None:
+        """The chain calibration a stored reference-mass solve measured (None for no id).
+
+        Raises
+        ------
+        SetupError
+            No such solution, or one that measured no chain calibration (not a reference-mass
+            solve, or refused: its verdict was fail).
+        """
+        if solution_id is None:
+            return None
+        sol = self.store.solution(solution_id)
+        where = f"chain_calibration_id {solution_id}"
+        if sol is None:
+            raise SetupError(f"{where}: no such solution; give the id of a reference-mass solve")
+        doc = sol.result.get("chain_calibration")
+        if not doc or doc.get("role") != "measured":
+            raise SetupError(
+                f"{where}: that solution measured no chain calibration (solve the reference "
+                "body's FRF set with reference_mass, and check its verdict is not fail)"
+            )
+        cal = ChainCalibration.from_json(doc, where)
+        return replace(cal, source=cal.source or f"solution {solution_id} (FRF set {sol.frf_id})")
+
     @staticmethod
     def _known(setup: TestSetup, options: SolveOptions) -> dict[str, float]:
         known = setup.known.as_dict()
@@ -171,6 +219,12 @@ class AnalysisService:
                 unbiased=options.unbiased,
                 refine_geometry=options.refine_geometry,
                 residual_flexibility=options.residual_flexibility,
+                reference_mass=(
+                    (options.reference_mass.mass_kg, options.reference_mass.u_kg)
+                    if options.reference_mass is not None
+                    else None
+                ),
+                chain=self.chain(options.chain_calibration_id),
             ),
         )
 
@@ -194,6 +248,8 @@ class AnalysisService:
             raise DataError(f"solution {solution_id}: its FRF set {sol.frf_id} is missing")
         frf, setup = got
         res = sol.result
+        if (res.get("chain_calibration") or {}).get("role") == "applied":
+            frf = frf.scaled(float(res["chain_calibration"]["factor"]))
         setup_used = setup
         if sol.options.get("repair_orientation"):  # the stored run's repaired setup
             setup_used = self._analyse(
