@@ -113,11 +113,12 @@ def no_leaks():
     assert not open_channels, f"test left python-can virtual channels open: {open_channels}"
 
 
-def calibration_scale(rig_path: Path) -> float:
-    """``(true/certificate of the hammer) × mean(certificate/true of the accelerometers)`` of
-    the rig file ``rig_path`` over the simulated transducers: the factor the rig file's
-    calibration errors put on a mass measured from accelerances (first order; the CG, a
-    ratio, does not carry it)."""
+def calibration_scale(rig_path: Path, *, chain: bool = True) -> float:
+    """``(true/used of the hammer) × mean(certificate/true of the accelerometers)`` of the rig
+    file ``rig_path`` over the simulated transducers: the factor the rig file's calibration
+    errors put on a mass measured from accelerances (first order; the CG, a ratio, does not
+    carry it). The hammer's used sensitivity is the certificate's times its recorded chain
+    factor (``chain=False``: the certificate's alone)."""
     from dimacq.io.rig_file import load_rig_file
     from dimacq.simulators.lab import transducers as tr
 
@@ -135,4 +136,5 @@ def calibration_scale(rig_path: Path) -> float:
         )
         for r in rf.responses
     ]
-    return float(hammer / h.sensitivity_mv_per_n * np.mean(accel))
+    used = h.effective_sensitivity_mv_per_n if chain else h.sensitivity_mv_per_n
+    return float(hammer / used * np.mean(accel))

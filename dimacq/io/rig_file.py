@@ -57,7 +57,13 @@ from dimacq.model.channels import axis_name
 from dimacq.model.impact import ImpactOverrides
 from dimacq.model.setup import direction_label
 
-__all__ = ["RigFile", "load_rig_file", "parse_direction"]
+__all__ = [
+    "ChainCalibrationEntry",
+    "RigFile",
+    "load_rig_file",
+    "parse_direction",
+    "write_chain_calibration",
+]
 
 log = logging.getLogger(__name__)
 
@@ -106,12 +112,36 @@ class _Analog(_Model):
     coupling: Literal["AC", "DC"] = Field(default="AC", description="'AC' or 'DC'")
 
 
+class ChainCalibrationEntry(_Model):
+    """The chain calibration of a hammer (:mod:`dimacq.pipeline.chain_calibration`): measured on
+    a weighed reference body with this hammer and the rig's accelerometers. The acquisition uses
+    ``sensitivity_mv_per_n × factor``: every FRF (∝ the hammer's sensitivity) × γ."""
+
+    factor: float = Field(
+        ge=0.9, le=1.1, description="γ = measured / weighed mass of the reference body (0.9..1.1)"
+    )
+    u_rel: float = Field(ge=0, lt=0.5, description="relative standard uncertainty of γ")
+    source: str = Field(default="", description="where it was measured (reference body, data)")
+    date: str = Field(default="", description="when (ISO date)")
+
+
 class HammerEntry(_Analog):
     sensitivity_mv_per_n: float = Field(gt=0, description="the hammer's sensitivity in mV/N > 0")
     inputs: list[str] = Field(
         default_factory=list,
         description="setup inputs struck with this hammer as 'node+dir' (e.g. '101+X'), [] = all",
     )
+    chain_calibration: ChainCalibrationEntry | None = Field(
+        default=None,
+        description="chain calibration on a reference mass (dimacq solve --reference-mass "
+        "--write-rig): the acquisition uses sensitivity_mv_per_n × factor",
+    )
+
+    @property
+    def effective_sensitivity_mv_per_n(self) -> float:
+        """The certificate's sensitivity times the chain factor (when calibrated), mV/N."""
+        f = 1.0 if self.chain_calibration is None else self.chain_calibration.factor
+        return self.sensitivity_mv_per_n * f
 
 
 class ResponseEntry(_Analog):
@@ -227,3 +257,69 @@ def load_rig_file(path: str | Path) -> RigFile:
     except ValidationError as err:
         raise _refuse(str(p), err) from err
     return rig.model_copy(update={"path": p.resolve()})
+
+
+def write_chain_calibration(
+    path: str | Path, factor: float, u_rel: float, *, source: str, date: str
+) -> RigFile:
+    """Record a chain calibration measured on the rig in its rig file (its one hammer).
+
+    The factor was measured on FRFs the rig already scaled by its recorded factor ``γ₀`` (if
+    any), so the hammer's new factor is ``γ₀ · factor``; ``u_rel`` is the new measurement's. The
+    file is edited in place, line by line (its comments stay); the result is read back and
+    checked before it replaces the old file.
+
+    Raises
+    ------
+    SetupError
+        A rig file with no or several hammers (which one was calibrated is ambiguous), or a
+        combined factor outside 0.9..1.1.
+    """
+    import math
+    import os
+
+    p = Path(path)
+    rf = load_rig_file(p)
+    if len(rf.hammers) != 1:
+        raise SetupError(
+            f"rig file {p.name}: {len(rf.hammers)} [[hammers]]; a chain calibration is written "
+            "for a rig with one hammer (calibrate each hammer on its own rig file)"
+        )
+    (h,) = rf.hammers
+    old = 1.0 if h.chain_calibration is None else h.chain_calibration.factor
+    total = old * factor
+    if not (math.isfinite(total) and 0.9 <= total <= 1.1):
+        raise SetupError(
+            f"rig file {p.name}: chain factor {old:.6g} × {factor:.6g} = {total:.6g} is outside "
+            "0.9..1.1; check the hammer's sensitivity in the rig file"
+        )
+    src = source.replace('"', "'")
+    line = (
+        f'chain_calibration = {{ factor = {total:.7f}, u_rel = {u_rel:.3g}, source = "{src}", '
+        f'date = "{date}" }}'
+    )
+    lines = p.read_text(encoding="utf-8").splitlines()
+    out: list[str] = []
+    in_hammer = False
+    written = False
+    for ln in lines:
+        stripped = ln.strip()
+        if stripped.startswith("["):
+            in_hammer = stripped == "[[hammers]]"
+        if in_hammer and stripped.startswith("chain_calibration"):
+            continue  # replaced below
+        out.append(ln)
+        if in_hammer and stripped.startswith("sensitivity_mv_per_n") and not written:
+            out.append(line)
+            written = True
+    if not written:
+        raise SetupError(f"rig file {p.name}: no sensitivity_mv_per_n line in [[hammers]]")
+    tmp = p.with_name(p.name + ".tmp")
+    tmp.write_text("\n".join(out) + "\n", encoding="utf-8")
+    try:
+        checked = load_rig_file(tmp)
+    except SetupError:
+        tmp.unlink(missing_ok=True)
+        raise
+    os.replace(tmp, p)
+    return checked

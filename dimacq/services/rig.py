@@ -143,7 +143,7 @@ def _configure(daq: Daq, rf: RigFile, response_of: list[int]) -> tuple[list[str]
             daq.add_force_channel(
                 h.physical_channel,
                 name,
-                h.sensitivity_mv_per_n,
+                h.effective_sensitivity_mv_per_n,
                 range_v=h.range_v,
                 iepe_current_ma=h.iepe_current_ma,
                 coupling=h.coupling,

@@ -116,8 +116,11 @@ def test_demo_recovers_the_truth(tmp_path: Path, capsys) -> None:
     # it on the weighed reference block (the chain calibration) and the solve removes it: the
     # answer is checked against the raw truth with issue 10's limits (0.5 % mass, 1 mm CG, 0.5 %
     # principal moments).
+    # The shipped rig file's hammer already carries a chain calibration (the lab's last one);
+    # step 0 measures what is left of the scale, the accelerometers' mean certificate error.
+    raw = calibration_scale(load_settings().rig_path, chain=False)
     scale = calibration_scale(load_settings().rig_path)
-    assert abs(scale - 1) > 0.002  # the simulated transducers are not their certificates
+    assert abs(raw - 1) > 0.005  # the simulated transducers are not their certificates
     chain = p["chain_calibration"]
     assert chain["role"] == "applied" and chain["factor"] == pytest.approx(scale, rel=0.003)
     assert p["demo"]["chain_calibration"]["solution_id"] >= 1

@@ -104,6 +104,13 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         "config/reference-block/mass.toml): report the chain factor it gives",
     )
     c.add_argument(
+        "--write-rig",
+        type=Path,
+        metavar="RIG.toml",
+        help="with --reference-mass: record the measured chain factor in this rig file's hammer "
+        "(chain_calibration; the acquisition then uses the certificate's sensitivity × factor)",
+    )
+    c.add_argument(
         "--chain-calibration",
         type=Path,
         metavar="CAL.json",
@@ -261,6 +268,36 @@ def _chain(path: Path | None) -> Any:
     return ChainCalibration.from_json(cal, f"--chain-calibration {path.name}")
 
 
+def _write_rig(args: argparse.Namespace, payload: dict[str, Any]) -> None:
+    """``--write-rig``: the measured chain factor into the rig file (refused without one)."""
+    import datetime as dt
+
+    from dimacq.io.rig_file import write_chain_calibration
+
+    if args.reference_mass is None:
+        raise SetupError("--write-rig needs --reference-mass (the weighed reference body)")
+    cal = payload.get("chain_calibration")
+    if not cal:
+        raise SetupError(
+            "--write-rig: this solve measured no chain calibration (verdict "
+            f"{payload.get('verdict')}); the rig file is unchanged"
+        )
+    from dimacq.io.reference_mass import load_reference_mass
+
+    ref = load_reference_mass(args.reference_mass)
+    data = Path(args.frf if args.frf is not None else args.input).name
+    write_chain_calibration(
+        args.write_rig,
+        float(cal["factor"]),
+        float(cal["u_rel"]),
+        source=f"reference {ref.serial_number or args.reference_mass.name}, FRFs {data}",
+        date=dt.date.today().isoformat(),
+    )
+    sys.stderr.write(
+        f"{args.write_rig}: hammer chain_calibration updated (× {cal['factor']:.6f})\n"
+    )
+
+
 def run(args: argparse.Namespace) -> int:
     setup, frf = load_test(args.input, args.frf)
     if args.reference_point is not None:
@@ -298,6 +335,8 @@ def run(args: argparse.Namespace) -> int:
     payload = report.to_json()
     if gamma is not None:
         payload["frf_scale_factor"] = gamma
+    if args.write_rig is not None:
+        _write_rig(args, payload)
     reference = _load_reference(args.reference) if args.reference else None
     if reference is not None:
         payload["reference"] = reference.to_json(result.reference_point_m)
