@@ -3,6 +3,11 @@
 The command starts the lab service in-process on a free loopback port (a fresh data directory
 unless ``--data-dir``), then acts as the test engineer over HTTP only:
 
+0. calibrates the measurement chain (hammer and accelerometers) on the lab's weighed reference
+   block (``config/reference-block/``: its drawing as the setup, its weighing certificate), in a
+   service session of its own on the same data directory; the test's solve applies the factor
+   (``chain_calibration_id``). ``--no-chain-calibration`` skips it;
+
 1. places the simulated digitizer's array in front of the test article and registers it from
    reference nodes with known coordinates;
 2. digitizes the 24 indentations of the orientation jig on every triaxial sensor and fits each
@@ -71,8 +76,8 @@ def register(sub: Any) -> None:
     p.add_argument(
         "--no-chain-calibration",
         action="store_true",
-        help="skip step 0 (the chain calibration on the weighed reference block); the hammer's "
-        "certificate error then goes straight into mass and inertia",
+        help="skip step 0 (measuring the chain on the weighed reference block); the rig file's "
+        "recorded chain calibration, if any, still applies",
     )
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     p.set_defaults(func=run)
