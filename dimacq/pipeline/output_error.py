@@ -88,6 +88,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy import linalg as scipy_linalg
 from scipy import stats
 from scipy.spatial.transform import Rotation
 
@@ -113,6 +114,9 @@ _E = np.eye(3)
 #: Directions of the (bias-compensated) regressor moments below this fraction of the largest are
 #: dropped (numerically null: no reaction in that direction).
 _EIG_KEEP = 1e-12
+#: Weight of the gauge constraint rows (whitened units: × the prior's unit weight); large enough
+#: to hold the constraint to ~1e-6 of a prior σ against the data's pull.
+_GAUGE_WEIGHT = 1e3
 
 
 def _skew(v: FloatArray) -> FloatArray:
@@ -167,6 +171,44 @@ def mass_matrix(x: FloatArray) -> tuple[FloatArray, FloatArray]:
         M[3 + a, 3 + b] = M[3 + b, 3 + a] = x[4 + k]
         dM[4 + k, 3 + a, 3 + b] = dM[4 + k, 3 + b, 3 + a] = 1.0
     return M, dM
+
+
+def gauge_property_jacobian(x: FloatArray) -> FloatArray:
+    """How the ten properties follow the gauge modes of :meth:`_Problem.gauge_basis`.
+
+    Parameters
+    ----------
+    x : ndarray, shape (10,)
+        ``[m, c (rel P, m), I_P (kg·m²)]``.
+
+    Returns
+    -------
+    ndarray, shape (10, 8)
+        ``∂x/∂(t, ω, s, g)``: a translation moves the CG, ``δc = t``, and the tensor about P by
+        the parallel-axis term ``δI_P = m (2 c·t E − t cᵀ − c tᵀ)``; a rotation turns both,
+        ``δc = ω × c``, ``δI_P = [ω]x I_P − I_P [ω]x``; a scale ``s`` of lengths with the same
+        FRFs gives ``δc = s c``, ``δI_P = 2 s I_P`` (moment arms ×(1+s), angular accelerations
+        ÷(1+s)); a common gain ``g`` on every accelerometer's prediction ``(1+g) ψ M⁻¹ φ`` is
+        undone by ``M → (1+g) M``: ``δm = g m``, ``δI_P = g I_P``.
+    """
+    m, c = float(x[0]), np.asarray(x[1:4], float)
+    M, _ = mass_matrix(np.asarray(x, float))
+    Ip = M[3:, 3:]
+    out = np.zeros((10, 8))
+
+    def put(col: int, dc: FloatArray, dI: FloatArray, dm: float = 0.0) -> None:
+        out[0, col] = dm
+        out[1:4, col] = dc
+        out[4:, col] = [dI[a, b] for a, b in _IDX6]
+
+    for i in range(3):
+        t = _E[i]
+        put(i, t, m * (2 * (c @ t) * _E - np.outer(t, c) - np.outer(c, t)))
+        w = _skew(_E[i])
+        put(3 + i, np.cross(_E[i], c), w @ Ip - Ip @ w)
+    put(6, c, 2 * Ip)
+    put(7, np.zeros(3), Ip, m)
+    return out
 
 
 # ------------------------------------------------------------------------------------------
@@ -254,6 +296,9 @@ class OutputErrorOptions:
         input) is left out and the solve repeated, at most ``max_gross_items`` times; beyond
         that the model, not the geometry, is wrong: the refinement is refused.
     max_gross_items : int
+    fix_gauge : bool
+        Fix the gauge modes the data do not identify (:func:`_gauge_constraint`) and add their
+        prior variance to the properties' covariance; off: the priors alone hold them.
     """
 
     refine_geometry: bool = True
@@ -263,6 +308,7 @@ class OutputErrorOptions:
     max_iterations: int = 30
     max_correction_sigma: float = 6.0
     max_gross_items: int = 3
+    fix_gauge: bool = True
 
 
 @dataclass(frozen=True, eq=False)
@@ -330,6 +376,7 @@ class OutputErrorResult:
             "residual_flexibility": self.residual_flexibility,
             "noise": self.noise,
             "gross_errors": list(self.gross_errors),
+            "gauge_modes": self.extras.get("gauge", {}),
         }
 
 
@@ -354,6 +401,12 @@ class _Problem:
     x_fixed: FloatArray  # (10,)
     free_g: NDArray[np.intp]  # indices into the full geometry vector
     sigma_g: FloatArray  # (n_geom_full,) prior σ
+    #: gauge constraint rows on the free geometry (k, n_free_g), whitened units; empty: none
+    gauge_rows: FloatArray = field(default_factory=lambda: np.zeros((0, 0)))
+    #: the fixed modes as combinations of the live gauge columns (n_live, k)
+    gauge_modes: FloatArray = field(default_factory=lambda: np.zeros((0, 0)))
+    gauge_live: NDArray[np.bool_] = field(default_factory=lambda: np.zeros(8, bool))
+    gauge_information_ratio: FloatArray = field(default_factory=lambda: np.zeros(0))
 
     @property
     def n_nodes(self) -> int:
@@ -405,12 +458,14 @@ class _Problem:
         E = self.Lh - pred  # (J, C, k)
         n_data = E.size
         prior = theta[self.free_x.size :]
-        res = np.concatenate([E.ravel(), prior])
+        n_c = self.gauge_rows.shape[0] if prior.size else 0
+        gauge = _GAUGE_WEIGHT * (self.gauge_rows @ prior) if n_c else np.zeros(0)
+        res = np.concatenate([E.ravel(), prior, gauge])
         if not jacobian:
             return res, None
         J_, C_, k_ = E.shape
         n_x, n_g = self.free_x.size, self.free_g.size
-        Jac = np.zeros((n_data + n_g, n_x + n_g))
+        Jac = np.zeros((n_data + n_g + n_c, n_x + n_g))
         # properties
         WPA = wt * (psi @ A)[None]  # (J, C, 6)
         for col, k in enumerate(self.free_x):
@@ -453,8 +508,44 @@ class _Problem:
                 )
             sub = full[..., self.free_g] * self.sigma_g[self.free_g]
             Jac[:n_data, n_x:] = sub.reshape(n_data, n_g)
-            Jac[n_data:, n_x:] = np.eye(n_g)
+            Jac[n_data : n_data + n_g, n_x:] = np.eye(n_g)
+            if n_c:
+                Jac[n_data + n_g :, n_x:] = _GAUGE_WEIGHT * self.gauge_rows
         return res, Jac
+
+    def gauge_basis(self) -> FloatArray:
+        """The similarity of the whole instrumentation and the common accelerometer gain, as
+        directions in the full geometry vector ``g`` (n_geom_full, 8).
+
+        Columns: translation ``t`` (3), rotation ``ω`` about P (3), scale ``s`` of the positions
+        about P (1), common relative gain of every accelerometer channel (1). A sensor node at
+        ``r_n`` moves by ``δp_n = t + ω × r_n + s r_n`` and turns by ``δθ_n = ω``; an input at
+        ``r_j`` with normals ``e_ji`` gets ``β_ji = ω · e_ji`` and ``γ_ji = (t + ω × r_j +
+        s r_j) · e_ji``. With the body's properties moved alike (:func:`gauge_property_jacobian`)
+        the FRFs do not change, except through the load cells' reactions (taken as exact).
+        """
+        nn, J = self.n_nodes, self.rin0.shape[0]
+        G = np.zeros((self.sigma_g.size, 8))
+        rn = np.zeros((nn, 3))
+        np.add.at(rn, self.node_of, self.r0)
+        rn /= np.bincount(self.node_of, minlength=nn)[:, None]
+        for i in range(3):
+            e = _E[i]
+            for n in range(nn):
+                G[6 * n + 3 : 6 * n + 6, i] = e
+                G[6 * n + i, 3 + i] = 1.0
+                G[6 * n + 3 : 6 * n + 6, 3 + i] = np.cross(e, rn[n])
+            for k in range(J):
+                b = 6 * nn + 4 * k
+                G[b + 2 : b + 4, i] = self.ebasis[k] @ e
+                G[b : b + 2, 3 + i] = self.ebasis[k] @ e
+                G[b + 2 : b + 4, 3 + i] = self.ebasis[k] @ np.cross(e, self.rin0[k])
+        for n in range(nn):
+            G[6 * n + 3 : 6 * n + 6, 6] = rn[n]
+        for k in range(J):
+            G[6 * nn + 4 * k + 2 : 6 * nn + 4 * k + 4, 6] = self.ebasis[k] @ self.rin0[k]
+        G[6 * nn + 4 * J :, 7] = 1.0
+        return G
 
 
 def _statistics(
@@ -497,6 +588,52 @@ def _statistics(
     T = np.where(keep[:, None, :], (S[:, 7:, :7] / d[:, None, :]) @ V / sq[:, None, :], 0.0)
     const = np.einsum("jii->j", S[:, 7:, 7:]) - np.einsum("jck,jck->j", T, T)
     return Ly, T, float(np.sum(const))
+
+
+def _gauge_constraint(prob: _Problem, theta0: FloatArray, refuse_ratio: float) -> None:
+    """Fix the gauge modes the data do not identify (sets ``prob.gauge_rows``).
+
+    The similarity of the whole instrumentation and the common accelerometer gain
+    (:meth:`_Problem.gauge_basis`, ``G``) change no FRF when the properties move with them; only
+    the load cells' reactions (exact positions) can tie them. In the whitened corrections
+    ``θ_g = δg/σ_g`` a gauge motion is ``G_θ c`` with ``G_θ = diag(1/σ_g) G``; the prior's
+    information on ``c`` is ``P = G_θᵀG_θ`` and the data's, properties marginalised,
+    ``D = G_θᵀ (J_gᵀJ_g − J_gᵀJ_x (J_xᵀJ_x)⁻¹ J_xᵀJ_g) G_θ``. The modes of the generalised
+    eigenproblem ``D v = λ P v`` that the data do not identify by the rule used for each item
+    (posterior σ ``1/√(1+λ)`` of the prior's above ``refuse_ratio``) are fixed:
+    ``(G_θ v)ᵀ θ_g = 0``, i.e. the corrections have no component along them in the prior's metric
+    (the inner constraint of bundle adjustment) and the frame, scale and common gain are those of
+    the stated geometry and certificates. Their prior variance is added to the properties'
+    covariance afterwards (:func:`gauge_property_jacobian`), so the intervals keep it; data
+    errors the model lacks (gain errors beyond the stated ones, load-cell errors) can no longer
+    move the answer along these modes, where only the priors speak.
+    """
+    G = prob.gauge_basis()[prob.free_g] / prob.sigma_g[prob.free_g][:, None]
+    live = np.linalg.norm(G, axis=0) > 0
+    G = G[:, live]
+    prob.gauge_rows = np.zeros((0, prob.free_g.size))
+    prob.gauge_modes = np.zeros((int(live.sum()), 0))
+    prob.gauge_live = live
+    if not G.shape[1]:
+        return
+    _, J0 = prob.residual(theta0)
+    assert J0 is not None
+    nx = prob.free_x.size
+    Jd = J0[: J0.shape[0] - prob.free_g.size]
+    Jx, Jg = Jd[:, :nx], Jd[:, nx:]
+    Nxx, Nxg, Ngg = Jx.T @ Jx, Jx.T @ Jg, Jg.T @ Jg
+    Dg = Ngg - Nxg.T @ np.linalg.pinv(Nxx) @ Nxg
+    D = G.T @ Dg @ G
+    P = G.T @ G
+    lam, V = scipy_linalg.eigh(D, P)
+    fixed = V[:, 1.0 / np.sqrt(1.0 + np.clip(lam, 0.0, None)) > refuse_ratio]
+    if not fixed.shape[1]:
+        return
+    rows = (G @ fixed).T
+    rows /= np.linalg.norm(rows, axis=1, keepdims=True)
+    prob.gauge_rows = rows
+    prob.gauge_modes = fixed
+    prob.gauge_information_ratio = lam
 
 
 def _lm(
@@ -693,6 +830,8 @@ def solve_output_error(
             refused = [int(i) for i in cand[~ok]]
             prob.free_g = cand[ok]
             theta0 = np.concatenate([x_start[free_x], np.zeros(prob.free_g.size)])
+            if opt.fix_gauge and prob.free_g.size:
+                _gauge_constraint(prob, theta0, opt.refuse_ratio)
         theta, Jac, cost, it = _lm(prob, theta0, opt.max_iterations)
         return prob, theta, Jac, cost + const, it, refused
 
@@ -750,8 +889,12 @@ def solve_output_error(
             except (SolverError, SetupError) as err:
                 log.warning("leaving out %s fails (%s); refinement refused instead", item, err)
             else:
-                gross = {"item": item, "correction_sigma": z}
-                return replace(sub, gross_errors=[gross, *sub.gross_errors])
+                if sub.refine_geometry:
+                    gross = {"item": item, "correction_sigma": z}
+                    return replace(sub, gross_errors=[gross, *sub.gross_errors])
+                # the refinement ends refused further down: the corrections that named this
+                # item are not trusted either; keep every item and refuse here
+                log.warning("leaving out %s does not save the refinement; all items kept", item)
         if z > opt.max_correction_sigma:
             refinement_note = (
                 f"geometry refinement refused: corrections up to {z:.1f} σ of the stated "
@@ -821,6 +964,23 @@ def solve_output_error(
     nx = free_x.size
     cov[np.ix_(free_x, free_x)] = cov_theta[:nx, :nx]
     cov_noise[np.ix_(free_x, free_x)] = cov_noise_theta
+    gauge_info: dict[str, Any] = {"fixed_modes": 0}
+    if prob.gauge_rows.shape[0] and prob.gauge_modes.size:
+        # the fixed gauge modes' prior variance, mapped to the properties (module docstring)
+        Gw = prob.gauge_basis()[prob.free_g] / prob.sigma_g[prob.free_g][:, None]
+        Gw = Gw[:, prob.gauge_live]
+        V = prob.gauge_modes
+        cov_a = np.linalg.inv(V.T @ Gw.T @ Gw @ V)
+        Jg = gauge_property_jacobian(x)[:, prob.gauge_live] @ V  # (10, k)
+        cov_gauge = Jg @ cov_a @ Jg.T
+        cov[np.ix_(free_x, free_x)] += cov_gauge[np.ix_(free_x, free_x)]
+        names = ["tx", "ty", "tz", "rx", "ry", "rz", "scale", "gain"]
+        gauge_info = {
+            "fixed_modes": int(V.shape[1]),
+            "modes_live": [n for n, ok in zip(names, prob.gauge_live, strict=True) if ok],
+            "data_to_prior_information": [float(v) for v in prob.gauge_information_ratio],
+            "common_gain_fixed": bool(prob.gauge_live[7]),
+        }
     if gu.registration_rms_m:
         for i in (1, 2, 3):
             if i in free_x:
@@ -847,9 +1007,19 @@ def solve_output_error(
     if refinement_note:
         noise["refinement_refused"] = refinement_note
     gauge = (
-        "frame of the stated geometry: the common rigid motion of all sensors and inputs, "
-        "which the FRFs cannot see, is held by the priors at a precision-weighted mean "
-        "correction of zero; its uncertainty is in the CG interval"
+        (
+            f"inner constraint: {gauge_info['fixed_modes']} modes of the similarity of all "
+            "sensors and inputs and of the common accelerometer gain, which the FRFs do not "
+            "identify (data information below the prior's), carry no correction in the prior's "
+            "metric: frame, scale and gain of the stated geometry and certificates; their prior "
+            "variance is in the intervals"
+        )
+        if gauge_info["fixed_modes"]
+        else (
+            "frame of the stated geometry: the common rigid motion of all sensors and inputs, "
+            "which the FRFs cannot see, is held by the priors at a precision-weighted mean "
+            "correction of zero; its uncertainty is in the CG interval"
+        )
     )
     return OutputErrorResult(
         parameters=params,
@@ -868,6 +1038,7 @@ def solve_output_error(
         n_inputs=J,
         response_weights=wts,
         input_keep=np.asarray(keep_in, bool),
+        extras={"gauge": gauge_info},
     )
 
 

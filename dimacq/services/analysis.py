@@ -125,13 +125,15 @@ class AnalysisOptions:
         Headline answer of the solve (intervals are those of the joint solve).
     unbiased : bool
         Output-error (maximum-likelihood) estimate with the FRF noise estimated from the data
-        (:mod:`dimacq.pipeline.output_error`): no errors-in-variables bias. Default off: its
-        posterior intervals held the truth for only 78–82 % of parameters on the rigid X-38 and it
-        is biased where the stated geometry is wrong and not refined, while the default
-        equation-error solve with the Monte Carlo geometry term holds ≥ 90 % (issue #10 first).
+        (:mod:`dimacq.pipeline.output_error`): no errors-in-variables bias. Default on; without
+        ``refine_geometry`` it is used only where the stated geometry explains the data
+        (reduced χ² ≤ 3), else the equation-error result stays, with the reason.
     refine_geometry : bool
-        Estimate sensor rotations/offsets and input lines of action with the properties (priors
-        from ``setup.geometry_uncertainty``). Default off (see README, Accuracy); implies the output-error estimate.
+        Estimate sensor rotations/offsets, input lines of action and channel gains with the
+        properties (priors from ``setup.geometry_uncertainty`` and
+        ``setup.transducer_uncertainty``; the gauge modes the data do not identify fixed, their
+        prior variance in the intervals). Default on (README, Accuracy: never worse than the
+        selection alone on the realistic cases); implies the output-error estimate.
     residual_flexibility : bool
         Fit residual terms of elastic modes above the band (and test whether they were needed).
     ci95_limit_mass, ci95_limit_principal : float
@@ -161,8 +163,8 @@ class AnalysisOptions:
     uncertainty_method: str = "jackknife"
     geometry_samples: int = 400
     method: str = "joint"
-    unbiased: bool = False
-    refine_geometry: bool = False
+    unbiased: bool = True
+    refine_geometry: bool = True
     residual_flexibility: bool = False
     ci95_limit_mass: float = CI95_LIMIT_MASS
     ci95_limit_principal: float = CI95_LIMIT_PRINCIPAL

@@ -108,6 +108,39 @@ def _note(result: DimResult, key: str, value: Any) -> DimResult:
     return replace(result, extras={**result.extras, key: value})
 
 
+def _principal_from_covariance(
+    p: np.ndarray, cov: np.ndarray, ref: np.ndarray, tq: float, se_noise: np.ndarray
+) -> tuple[Any, ...]:
+    """Principal moments about the CG with standard errors ``sqrt(diag(J C Jᵀ))``, ``J`` the
+    Jacobian of :func:`~dimacq.pipeline.uncertainty.principal_of_parameters` (central
+    differences); the noise share from the noise-only covariance's diagonal the same way."""
+    from dimacq.pipeline.uncertainty import ParameterUncertainty, principal_of_parameters
+
+    w0 = principal_of_parameters(p, ref)
+    h = 1e-6 * np.maximum(np.abs(p), 1e-3)
+    Jp = np.empty((3, 10))
+    for i in range(10):
+        e = np.zeros(10)
+        e[i] = h[i]
+        Jp[:, i] = (principal_of_parameters(p + e, ref) - principal_of_parameters(p - e, ref)) / (
+            2 * h[i]
+        )
+    se = np.sqrt(np.clip(np.diag(Jp @ cov @ Jp.T), 0.0, None))
+    se_n = np.minimum(np.sqrt(np.clip((Jp**2) @ se_noise**2, 0.0, None)), se)
+    return tuple(
+        ParameterUncertainty(
+            float(w0[k]),
+            float(se[k]),
+            (float(w0[k] - tq * se[k]), float(w0[k] + tq * se[k])),
+            se_inputs=float(se_n[k]),
+            se_lines=0.0,
+            se_responses=0.0,
+            se_geometry=float(np.sqrt(max(se[k] ** 2 - se_n[k] ** 2, 0.0))),
+        )
+        for k in range(3)
+    )
+
+
 def _apply_output_error(
     result: DimResult,
     oe: OutputErrorResult,
@@ -144,9 +177,13 @@ def _apply_output_error(
         # CG not at all); the accelerometer axes' independent errors act through their mean
         # over the n_ch channels kept (σ_a/√n_ch) the same way
         tu = setup.transducer_uncertainty
+        # (the common gain is in the posterior already when the fit fixed it as a gauge mode)
+        gain_in_post = bool(oe.extras.get("gauge", {}).get("common_gain_fixed"))
         rel = np.hypot(
             tu.force_sensitivity_rel,
-            tu.accel_sensitivity_rel / np.sqrt(max(len(result.responses), 1)),
+            0.0
+            if gain_in_post
+            else tu.accel_sensitivity_rel / np.sqrt(max(len(result.responses), 1)),
         )
         se_geo = np.zeros(10)
         se_geo[[0, *range(4, 10)]] = rel * np.abs(oe.parameters[[0, *range(4, 10)]])
@@ -158,6 +195,20 @@ def _apply_output_error(
     for k in result.known:
         se[PARAMETERS.index(k)] = 0.0
     tq = float(stats.t.ppf(0.975, max(oe.n_inputs - 1, 1)))
+    # the principal moments from the same covariance (first order): the posterior, plus the
+    # transducer share as the common scale of m and I it is (refined) or the Monte Carlo and
+    # sensor-jackknife shares (unrefined, diagonal as they were added above)
+    cov = np.array(oe.covariance, float)
+    if oe.refine_geometry:
+        v = p.copy()
+        v[1:4] = 0.0
+        cov = cov + np.outer(se_geo, se_geo) * np.outer(np.sign(v), np.sign(v))
+    else:
+        cov = cov + np.diag(se_geo**2)
+    for k in result.known:
+        i = PARAMETERS.index(k)
+        cov[i, :] = cov[:, i] = 0.0
+    principal = _principal_from_covariance(p, cov, result.reference_point_m, tq, se_noise)
     params = {
         name: ParameterUncertainty(
             float(p[i]),
@@ -173,6 +224,7 @@ def _apply_output_error(
     unc_oe = replace(
         unc,
         parameters=params,
+        principal=principal,
         method="output-error posterior"
         + (" (geometry refined)" if oe.refine_geometry else " + geometry Monte Carlo"),
         components=comps,

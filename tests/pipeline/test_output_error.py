@@ -68,7 +68,10 @@ def test_geometry_refinement_recovers_triax_rotations() -> None:
     assert np.abs(rel).max() < 0.05
     assert all(c["rotation_estimated"] for c in r.sensor_corrections)
     se = np.array([c["rotation_se_deg"] for c in r.sensor_corrections])
-    assert np.all((se > 0.01) & (se < 0.5))
+    # relative to the fixed gauge (the common rotation's prior σ 0.5°/√8 is in the properties)
+    assert np.all((se > 0.001) & (se < 0.05))
+    assert np.abs(rel).max() < 4 * se.max()
+    assert r.extras["gauge"]["fixed_modes"] == 8  # no load cell: nothing ties the similarity
     # the refined setup carries the corrections
     d_new = np.array(r.setup.responses[0].direction_gcs)
     assert not np.allclose(d_new, case.setup.responses[0].direction_gcs)
@@ -132,3 +135,50 @@ def test_known_mass_stays_exact() -> None:
     assert r.parameters[0] == MASS_KG
     assert r.covariance[0, 0] == 0.0
     assert rel_err(r.parameters).max() < 0.003
+
+
+def test_gauge_modes_change_no_frf_and_move_the_properties_as_stated() -> None:
+    """The similarity and common-gain directions of the geometry (gauge_basis) with the
+    properties moved by gauge_property_jacobian leave the prediction unchanged (first order)."""
+    from dimacq.pipeline.output_error import _Problem, gauge_property_jacobian
+    from dimacq.pipeline.selection._common import response_geometry
+
+    case = make_case(0, noise=0.0)
+    frf, setup = case.frf, case.setup
+    geo = response_geometry(frf, setup)
+    p = setup.reference_point
+    r0, d0 = geo.positions_m - p, geo.directions
+    nodes, node_of = np.unique(geo.nodes, return_inverse=True)
+    ex = {(e.node, e.direction): e for e in setup.excitations}
+    rin = np.array([np.asarray(ex[(c.node, c.direction)].position_m) - p for c in frf.inputs])
+    din = np.array([ex[(c.node, c.direction)].direction_gcs for c in frf.inputs], float)
+    eb = np.empty((len(din), 2, 3))
+    for k, dv in enumerate(din):
+        e1 = np.cross(dv, np.eye(3)[int(np.argmin(np.abs(dv)))])
+        e1 /= np.linalg.norm(e1)
+        eb[k] = (e1, np.cross(dv, e1))
+    n_g = 6 * nodes.size + 4 * len(din) + r0.shape[0]
+    prob = _Problem(
+        r0, d0, node_of, nodes, rin, din, eb, np.ones((r0.shape[0], len(din))),
+        np.zeros((len(din), 7, 1)), np.zeros((len(din), r0.shape[0], 1)),
+        np.arange(10), TRUTH - np.r_[0, p, np.zeros(6)], np.arange(n_g), np.ones(n_g),
+    )  # fmt: skip
+    x = prob.x_fixed
+
+    def predict(x: np.ndarray, g: np.ndarray) -> np.ndarray:
+        r, d, ri, di = prob.geometry(g)
+        psi = np.concatenate([d, np.cross(r, d)], 1) * (1 + g[-r.shape[0] :])[:, None]
+        phi = np.concatenate([di, np.cross(ri, di)], 1)
+        return np.asarray(psi @ np.linalg.solve(mass_matrix(x)[0], phi.T))
+
+    base = predict(x, np.zeros(n_g))
+    G, Jx = prob.gauge_basis(), gauge_property_jacobian(x)
+    h = 1e-6
+    for k in range(8):
+        moved = predict(x + h * Jx[:, k], h * G[:, k])
+        change = np.abs(moved - base).max() / np.abs(base).max()
+        assert change < 1e-9, (k, change)  # second order in h only
+        # and the mode is not trivial: the geometry alone changes the prediction
+        if k < 7:
+            alone = predict(x, h * G[:, k])
+            assert np.abs(alone - base).max() / np.abs(base).max() > 1e-8

@@ -156,17 +156,18 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     e.add_argument(
         "--unbiased",
         action=argparse.BooleanOptionalAction,
-        default=False,
+        default=True,
         help="output-error (maximum-likelihood) estimate, FRF noise estimated from the data: "
-        "no errors-in-variables bias (default off: its intervals do not yet hold the truth "
-        "often enough)",
+        "no errors-in-variables bias (default on; --no-unbiased: equation-error least squares)",
     )
     e.add_argument(
         "--refine-geometry",
         action=argparse.BooleanOptionalAction,
-        default=False,
-        help="estimate sensor rotations/offsets and input lines of action with the properties, "
-        "priors from the setup's [geometry_uncertainty] (default off for now)",
+        default=True,
+        help="estimate sensor rotations/offsets, input lines of action and channel gains with "
+        "the properties, priors from the setup's [geometry_uncertainty] and "
+        "[transducer_uncertainty], gauge fixed (default on; --no-refine-geometry: stated "
+        "geometry as exact, its uncertainty by Monte Carlo)",
     )
     e.add_argument(
         "--residual-flexibility",

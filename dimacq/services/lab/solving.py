@@ -74,11 +74,11 @@ class SolveOptions(BaseModel):
         description="include the setup's stated geometry uncertainty in the 95 % intervals",
     )
     unbiased: bool = Field(
-        default=False,
+        default=True,
         description="output-error (maximum-likelihood) estimate with the FRF noise from the data",
     )
     refine_geometry: bool = Field(
-        default=False,
+        default=True,
         description="estimate sensor rotations/offsets and input lines of action with the properties",
     )
     residual_flexibility: bool = Field(
