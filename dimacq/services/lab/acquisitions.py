@@ -16,9 +16,11 @@ database is unreachable the averages go on to the disk and their rows wait in th
 from __future__ import annotations
 
 import logging
+import queue
+import threading
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
-from typing import Any
+from dataclasses import dataclass, field
+from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -31,7 +33,10 @@ from dimacq.errors import (
     DeviceNotFoundError,
     DeviceStateError,
     DimacqError,
+    SetupError,
 )
+from dimacq.model.channels import axis_name
+from dimacq.model.frf import FrfData
 from dimacq.model.impact import ImpactSettings
 from dimacq.model.setup import TestSetup
 from dimacq.persistence import ArrayStore, Database
@@ -43,7 +48,14 @@ from dimacq.services.lab.common import json_safe
 from dimacq.services.lab.devices import DeviceService
 from dimacq.services.lab.store import TestStore, frf_to_arrays
 
-__all__ = ["AcquisitionInfo", "AcquisitionService", "AverageInfo", "RigFactory"]
+__all__ = [
+    "AcquisitionInfo",
+    "AcquisitionService",
+    "AverageInfo",
+    "RigFactory",
+    "hit_view",
+    "merge_frfs",
+]
 
 log = logging.getLogger(__name__)
 
@@ -86,6 +98,33 @@ class AcquisitionInfo:
     incomplete_inputs: list[int]
     progress: float
     stand: str = ""  # the test stand that runs it (its raw data are on that stand's disk)
+    #: the hit waiting for the operator's decision (review mode): ``number``, ``input_index``,
+    #: ``reasons`` (the automatic checks'); None when nothing waits
+    pending_review: dict[str, Any] | None = None
+    #: mean ordinary coherence (over lines and accelerometer outputs) of each input whose FRFs
+    #: are estimated (this run; None: not yet, or one average)
+    input_coherence: list[float | None] = field(default_factory=list)
+    #: the setup's input indices this acquisition strikes (all of them when the request named none)
+    inputs: list[int] = field(default_factory=list)
+
+
+Decision = Literal["accept", "reject", "redo"]
+
+
+@dataclass
+class _Live:
+    """What only the running job knows: the hit waiting for review, the operator's decisions,
+    the finish request, the coherence of the inputs done."""
+
+    review: bool
+    n_inputs: int
+    sample_rate_hz: float = 0.0
+    pending: dict[str, Any] | None = None
+    pending_view: dict[str, Any] | None = None
+    last_view: dict[str, Any] | None = None
+    decisions: queue.Queue[tuple[int, Decision]] = field(default_factory=queue.Queue)
+    finish: threading.Event = field(default_factory=threading.Event)
+    coherence: list[float | None] = field(default_factory=list)
 
 
 class AcquisitionService:
@@ -122,6 +161,7 @@ class AcquisitionService:
         self.devices = devices
         self.store = store
         self._rig_factory = rig_factory
+        self._live: dict[int, _Live] = {}
 
     def recover(self) -> None:
         """After a restart: this stand's running acquisitions are interrupted (other stands'
@@ -164,9 +204,36 @@ class AcquisitionService:
         cfg = dict(config)
         setup_id = int(cfg["setup_id"])
         setup = self.store.require_setup(setup_id)
+        n_ex = len(setup.excitations)
+        inputs = cfg.get("inputs")
+        if inputs is None:
+            inputs = list(range(n_ex))
+        inputs = [int(j) for j in inputs]
+        bad = [j for j in inputs if not 0 <= j < n_ex]
+        if bad or not inputs or len(set(inputs)) != len(inputs):
+            raise SetupError(
+                f"inputs {inputs}: give distinct indices of setup {setup_id}'s inputs, "
+                f"0..{n_ex - 1}"
+            )
+        cfg["inputs"] = inputs
+        merge_id = cfg.get("merge_frf_id")
+        if merge_id is not None:
+            merged = self.store.frf(int(merge_id))
+            if merged is None:
+                raise SetupError(
+                    f"merge_frf_id {merge_id} does not exist; give an FRF set of setup {setup_id}"
+                )
+            if merged[1] != setup:
+                raise SetupError(
+                    f"merge_frf_id {merge_id} belongs to another setup; give an FRF set of "
+                    f"setup {setup_id} (its inputs are replaced or appended)"
+                )
         if self.jobs.running("acquisition"):
             raise DeviceStateError("an acquisition is already running; stop it or wait for it")
-        rig = self._build_rig(setup, cfg)  # raises DeviceError if the devices are not there
+        struck = setup.model_copy(
+            update={"excitations": tuple(setup.excitations[j] for j in inputs)}
+        )
+        rig = self._build_rig(struck, cfg)  # raises DeviceError if the devices are not there
         # the minimum of accepted averages per input, stated with the acquisition (the request,
         # else the rig file's [acquisition], else the service's min_averages setting)
         defaults: Mapping[str, Any] = getattr(rig, "defaults", {})
@@ -183,13 +250,21 @@ class AcquisitionService:
             s.add(row)
             s.flush()
             acq_id = int(row.id)
+        live = _Live(
+            review=bool(cfg.get("review")),
+            n_inputs=len(inputs),
+            sample_rate_hz=float(getattr(rig.daq, "sample_rate_hz", 0.0) or 0.0),
+            coherence=[None] * len(inputs),
+        )
+        self._live[acq_id] = live
         try:
             job = self.jobs.submit(
                 "acquisition",
-                lambda ctx: self._run(ctx, acq_id, setup_id, setup, cfg, rig),
+                lambda ctx: self._run(ctx, acq_id, setup_id, setup, struck, cfg, rig, live),
             )
         except DimacqError:
             rig.close()
+            self._live.pop(acq_id, None)
             self._set(acq_id, state="failed")
             raise
         self._set(acq_id, job_id=job.id)
@@ -223,10 +298,53 @@ class AcquisitionService:
         acq_id: int,
         setup_id: int,
         setup: TestSetup,
+        struck: TestSetup,
         cfg: Mapping[str, Any],
         rig: Any,
+        live: _Live,
     ) -> dict[str, Any]:
         from dimacq.services.rig import run_impact_test
+
+        inputs: list[int] = list(cfg["inputs"])
+        fs = live.sample_rate_hz
+        n_resp = len(setup.responses)
+
+        def review(
+            j: int,
+            average_index: int,
+            reasons: tuple[str, ...],
+            record: Mapping[str, NDArray[np.float64]],
+            wait_s: float,
+        ) -> Decision | None:
+            number = average_index + 1
+            if live.pending is None or live.pending["number"] != number:
+                live.pending_view = hit_view(record, fs, n_resp)
+                live.pending = {
+                    "number": number,
+                    "input_index": inputs[j],
+                    "reasons": list(reasons),
+                }
+                ctx.progress(
+                    ctx_fraction[0],
+                    f"hit {number} on input {inputs[j] + 1}: accept, reject or redo the input",
+                )
+            if live.finish.is_set():
+                return "reject"
+            ctx.check_cancelled()
+            try:
+                got, decision = live.decisions.get(timeout=wait_s)
+            except queue.Empty:
+                return None
+            if got != number:  # a decision on a hit already decided: ignored
+                return None
+            live.pending = None
+            if decision == "redo":
+                self._supersede(acq_id, inputs[j])
+            return decision
+
+        def on_input(j: int, coherence: NDArray[np.float64]) -> None:
+            c = coherence[:, :n_resp]
+            live.coherence[j] = float(np.nanmean(c)) if np.isfinite(c).any() else None
 
         def on_average(
             input_index: int,
@@ -235,6 +353,18 @@ class AcquisitionService:
             reasons: Sequence[str],
             record: Mapping[str, NDArray[np.float64]],
         ) -> None:
+            input_index = inputs[input_index]  # the session counts the struck inputs only
+            live.last_view = (
+                live.pending_view if live.pending_view is not None else hit_view(record, fs, n_resp)
+            )
+            live.last_view = {
+                **live.last_view,
+                "number": average_index + 1,
+                "input_index": input_index,
+                "accepted": accepted,
+                "reasons": list(reasons),
+            }
+            live.pending_view = None
             number = average_index + 1
             rel = f"acquisitions/{acq_id:06d}/avg-{number:05d}.h5"
             reason = "; ".join(reasons)
@@ -244,6 +374,7 @@ class AcquisitionService:
                 "number": number,
                 "accepted": accepted,
                 "reason": reason,
+                "sample_rate_hz": fs,
             }
             self.arrays.write(rel, record, attrs)  # on this stand's disk first, always
             row = {
@@ -258,7 +389,10 @@ class AcquisitionService:
             if not self.outbox.write(self.db, rel, lambda s: s.add(m.Average(**row))):
                 log.warning("average %s kept on disk; registered when the database is back", rel)
 
+        ctx_fraction = [0.0]
+
         def on_progress(fraction: float, message: str) -> None:
+            ctx_fraction[0] = fraction
             ctx.progress(fraction, message)
             ctx.check_cancelled()  # raising here stops the session; its finally stops the devices
 
@@ -267,6 +401,12 @@ class AcquisitionService:
 
         def store_frf(frf: Any) -> int:
             self.outbox.flush(self.db)  # the averages first
+            merge_id = cfg.get("merge_frf_id")
+            if merge_id is not None:
+                base = self.store.frf(int(merge_id))
+                if base is None:
+                    raise DataError(f"FRF set {merge_id} was deleted during the acquisition")
+                frf = merge_frfs(base[0], frf, setup)
             fid = self.store.save_frf(
                 frf, setup_id, name=f"acquisition {acq_id}", acquisition_id=acq_id
             )
@@ -275,7 +415,16 @@ class AcquisitionService:
 
         state, message = "failed", ""
         try:
-            frf = run_impact_test(rig, setup, cfg, on_average=on_average, on_progress=on_progress)
+            frf = run_impact_test(
+                rig,
+                struck,
+                cfg,
+                on_average=on_average,
+                on_progress=on_progress,
+                review=review if live.review else None,
+                should_finish=live.finish.is_set,
+                on_input=on_input,
+            )
             try:
                 fid = self.db.retry(
                     lambda: store_frf(frf),
@@ -305,6 +454,7 @@ class AcquisitionService:
             raise
         finally:
             rig.close()
+            live.pending = live.pending_view = None
 
             def final(s: Any) -> None:
                 r = s.get(m.Acquisition, acq_id)
@@ -342,6 +492,8 @@ class AcquisitionService:
         acq, setup_id, config, state, message, job_id, frf_id, stand = row
         snap = self.jobs.snapshot(job_id) if job_id else None
         per_input = _accepted_per_input(avgs)
+        live = self._live.get(acq)
+        struck = (config or {}).get("inputs")
         cfg = config or {}
         need = min(int(cfg.get("min_averages") or 1), int(cfg.get("averages_per_input") or 10**6))
         return AcquisitionInfo(
@@ -362,7 +514,92 @@ class AcquisitionService:
             else [],
             progress=snap["progress"] if snap else (1.0 if state == "finished" else 0.0),
             stand=stand,
+            pending_review=dict(live.pending) if live and live.pending else None,
+            input_coherence=list(live.coherence) if live else [],
+            inputs=list(struck) if struck is not None else list(range(len(per_input))),
         )
+
+    # ------------------------------------------------------------------ the operator's decisions
+    def _require_live(self, acq_id: int) -> _Live:
+        cur = self.get(acq_id)
+        if cur is None:
+            raise KeyError(acq_id)
+        live = self._live.get(acq_id)
+        if live is None or cur.state != "running":
+            raise DeviceStateError(
+                f"acquisition {acq_id} is {cur.state}: only a running acquisition of this stand "
+                "takes decisions; start one (review = true to decide every hit)"
+            )
+        return live
+
+    def decide(self, acq_id: int, number: int, decision: Decision) -> AcquisitionInfo | None:
+        """The operator's accept / reject / redo (the input again) of the hit waiting for review.
+
+        Raises
+        ------
+        DeviceStateError
+            Not running here, not in review mode, or ``number`` is not the hit that waits.
+        """
+        try:
+            live = self._require_live(acq_id)
+        except KeyError:
+            return None
+        if not live.review:
+            raise DeviceStateError(
+                f"acquisition {acq_id} was started without review: its checks decide each hit; "
+                "start it with review = true to decide them"
+            )
+        pending = live.pending
+        if pending is None or pending["number"] != number:
+            waiting = "no hit waits" if pending is None else f"hit {pending['number']} waits"
+            raise DeviceStateError(
+                f"hit {number} of acquisition {acq_id} is not waiting for a decision ({waiting}); "
+                "decide the hit that waits (pending_review.number)"
+            )
+        live.decisions.put((number, decision))
+        return self.get(acq_id)
+
+    def finish(self, acq_id: int) -> AcquisitionInfo | None:
+        """Stop striking and keep the accepted averages: FRFs of the inputs that reached
+        ``min_averages`` are estimated and stored (the others are incomplete)."""
+        try:
+            live = self._require_live(acq_id)
+        except KeyError:
+            return None
+        live.finish.set()
+        return self.get(acq_id)
+
+    def hit(self, acq_id: int) -> dict[str, Any] | None:
+        """The hit waiting for review, else the last decided one: force and strongest response
+        traces and their spectra (see :func:`hit_view`); None when there is none."""
+        if self.get(acq_id) is None:
+            return None
+        live = self._live.get(acq_id)
+        if live is None:
+            return None
+        if live.pending is not None and live.pending_view is not None:
+            return {**live.pending_view, **live.pending, "pending": True}
+        if live.last_view is not None:
+            return {**live.last_view, "pending": False}
+        return None
+
+    def _supersede(self, acq_id: int, input_index: int) -> None:
+        """Redo of an input: its averages accepted so far no longer count."""
+        from dimacq.services.acquisition import OPERATOR_REDO
+
+        def mark(s: Any) -> None:
+            for a in s.scalars(
+                select(m.Average).where(
+                    m.Average.acquisition_id == acq_id,
+                    m.Average.input_index == input_index,
+                    m.Average.accepted.is_(True),
+                )
+            ):
+                a.accepted, a.reason = False, OPERATOR_REDO
+
+        self.outbox.flush(self.db)
+        if not self.outbox.write(self.db, f"acquisition {acq_id} redo input {input_index}", mark):
+            log.warning("redo of input %d kept until the database is back", input_index)
 
     def stop(self, acq_id: int) -> AcquisitionInfo | None:
         """Cancel a running acquisition (completed averages are kept)."""
@@ -424,3 +661,100 @@ def _accepted_per_input(avgs: Sequence[AverageInfo]) -> list[int]:
         if a.accepted:
             out[a.input_index] += 1
     return out
+
+
+def hit_view(
+    record: Mapping[str, NDArray[np.float64]], fs: float, n_responses: int
+) -> dict[str, Any]:
+    """What the operator sees of one hit: the force and the strongest response, and spectra.
+
+    ``record``: ``"force"`` (1, n) N and ``"outputs"`` (n_outputs, n) (responses first,
+    m/s²). Spectra are the magnitudes of the one-sided DFT, ``|X_k| = |Σ x_n e^{-2πikn/N}| / N``
+    in dB re their own maximum (a hammer's force spectrum should fall by at most 10–20 dB over the
+    band used: below that the input does not excite the band), at ``f_k = k fs / N``.
+
+    Returns
+    -------
+    dict
+        ``sample_rate_hz``, ``time_s`` (n,), ``force_n`` (n,), ``response`` (its index),
+        ``response_ms2`` (n,), ``frequencies_hz`` (n//2+1,), ``force_db``, ``response_db``,
+        ``peak_force_n``.
+    """
+    force = np.asarray(record["force"], dtype=float)[0]
+    outs = np.asarray(record["outputs"], dtype=float)[: max(1, n_responses)]
+    k = int(np.nanargmax(np.nanmax(np.abs(outs), axis=1))) if outs.size else 0
+    resp = outs[k] if outs.size else np.zeros_like(force)
+    n = force.size
+    fs = fs if fs > 0 else 1.0
+
+    def db(x: NDArray[np.float64]) -> NDArray[np.float64]:
+        mag = np.abs(np.fft.rfft(np.nan_to_num(x))) / max(n, 1)
+        return 20 * np.log10(np.maximum(mag, 1e-300) / max(float(mag.max()), 1e-300))
+
+    return json_safe(
+        {
+            "sample_rate_hz": fs,
+            "time_s": np.arange(n) / fs,
+            "force_n": force,
+            "response": k,
+            "response_ms2": resp,
+            "frequencies_hz": np.fft.rfftfreq(n, 1 / fs),
+            "force_db": np.maximum(db(force), -120.0),
+            "response_db": np.maximum(db(resp), -120.0),
+            "peak_force_n": float(np.nanmax(np.abs(force))) if n else 0.0,
+        }
+    )
+
+
+def merge_frfs(base: FrfData, new: FrfData, setup: TestSetup) -> FrfData:
+    """``base`` with the inputs of ``new`` replaced (redo) or added (append), in setup order.
+
+    Raises
+    ------
+    DataError
+        Different frequency lines or outputs (other acquisition settings): nothing to merge.
+    """
+    if base.frequencies_hz.shape != new.frequencies_hz.shape or not np.allclose(
+        base.frequencies_hz, new.frequencies_hz, rtol=1e-9, atol=1e-9
+    ):
+        raise DataError(
+            f"FRF set lines {base.frequencies_hz.size} × {base.frequencies_hz[1] - base.frequencies_hz[0]:g} Hz "
+            "differ from the new acquisition's; acquire with the same record_samples and rate"
+        )
+    if base.outputs != new.outputs:
+        raise DataError(
+            "the FRF set's outputs differ from the new acquisition's; use the same setup"
+        )
+    cols: dict[Any, tuple[NDArray[np.complex128], NDArray[np.float64] | None]] = {}
+    for j, ch in enumerate(base.inputs):
+        cols[ch] = (base.H[:, :, j], None if base.coherence is None else base.coherence[:, :, j])
+    for j, ch in enumerate(new.inputs):
+        cols[ch] = (new.H[:, :, j], None if new.coherence is None else new.coherence[:, :, j])
+    order = [(e.node, e.direction) for e in setup.excitations]
+    chans = sorted(
+        cols,
+        key=lambda c: (
+            order.index((c.node, c.direction)) if (c.node, c.direction) in order else len(order)
+        ),
+    )
+    H = np.stack([cols[c][0] for c in chans], axis=2)
+    cohs = [cols[c][1] for c in chans]
+    coh = (
+        None
+        if any(c is None for c in cohs)
+        else np.stack([c for c in cohs if c is not None], axis=2)
+    )
+    done = {(c.node, c.direction) for c in chans}
+    missing = [axis_name(n, d) for n, d in order if (n, d) not in done]
+    meta = {k: v for k, v in {**base.meta, **new.meta}.items() if k != "incomplete_inputs"}
+    if missing:
+        meta["incomplete_inputs"] = ", ".join(missing)
+    return FrfData(
+        frequencies_hz=base.frequencies_hz,
+        H=H,
+        outputs=base.outputs,
+        output_kinds=base.output_kinds,
+        inputs=tuple(chans),
+        coherence=coh,
+        meta=meta,
+    )
