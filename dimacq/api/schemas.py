@@ -24,6 +24,7 @@ __all__ = [
     "OrientationRequest",
     "PointRequest",
     "RegistrationRequest",
+    "RigText",
     "SolveRequest",
 ]
 
@@ -164,6 +165,14 @@ class AcquisitionRequest(ImpactOverrides):
         description="an FRF set of the same setup: the new FRF set is this one with the struck "
         "inputs replaced (redo) or added (append)",
     )
+
+
+class RigText(BaseModel):
+    """A rig file (``rig.toml``) as text."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    text: str = Field(max_length=1_000_000, description="the whole rig.toml")
 
 
 class HitDecision(BaseModel):
