@@ -324,7 +324,7 @@ def test_whole_simulated_test_through_the_page(service: str, tmp_path: Path) -> 
         report.wait_for_selector("body[data-ready='1']", timeout=20_000)
         report.screenshot(path=str(shots / "6-report.png"), full_page=True)
         body = report.inner_text("body").lower()
-        assert "verdict" in body and "data quality" in body and "rejected" in body
+        assert "verdict" in body and "data quality" in body and "rejected by the operator" in body
         assert report.locator("a[data-download$='.uff']").count() == 1
         with report.expect_download() as dl:
             report.click("a[data-download$='.json']")

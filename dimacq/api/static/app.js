@@ -24,10 +24,10 @@ async function init() {
     takeTokenFromFragment();
   };
   for (const step of [setup, digitize, acquire, frfs, solve, reportStep]) step.init();
-  await Promise.all([loadStatus(), setup.loadSetups(), setup.loadArticle(), frfs.loadFrfSets(), solve.load(),
-    setup.loadRig().catch((e) => say(e.message, true))]);
-  await digitize.load();
+  await Promise.all([loadStatus(), setup.loadSetups(), setup.loadArticle().then(digitize.load), frfs.loadFrfSets(),
+    solve.load(), setup.loadRig().catch((e) => say(e.message, true))]);
   state.timings.init_ms = performance.now() - t0;
+  state.timings.ready_ms = performance.now();
   document.body.dataset.ready = "1";
 }
 

@@ -15,7 +15,19 @@ async function main() {
   const s = await api("GET", `/api/solutions/${id}`);
   const [frf, data] = await Promise.all([api("GET", `/api/frfs/${s.frf_id}`), api("GET", `/api/frfs/${s.frf_id}/data`)]);
   const setup = await api("GET", `/api/setups/${frf.setup_id}`);
-  const acq = frf.acquisition_id ? await api("GET", `/api/acquisitions/${frf.acquisition_id}`) : null;
+  // the acquisitions behind the set: a redo / append acquisition merged into an earlier set
+  // (merge_frf_id) brings that set's acquisitions along; each input's averages come from the
+  // latest acquisition that struck it
+  const chain = [];
+  for (let fid = frf.id, guardN = 0; fid && guardN < 50; guardN++) {
+    const fs = fid === frf.id ? frf : await api("GET", `/api/frfs/${fid}`);
+    if (!fs.acquisition_id) break;
+    const a = await api("GET", `/api/acquisitions/${fs.acquisition_id}`);
+    chain.push(a);
+    fid = (a.config || {}).merge_frf_id || null;
+  }
+  const acq = chain[0] || null;
+  const struckBy = (j) => chain.find((a) => (a.inputs || []).includes(j)) || null;
   const r = s.result;
   const reasons = (r.verdict_reasons || []).map((x) => (typeof x === "string" ? x : `${x.severity || ""}: ${x.message || JSON.stringify(x)}`));
   const st = setup.setup;
@@ -32,16 +44,17 @@ async function main() {
     return n ? sum / n : null;
   });
   const perInput = st.excitations.map((e, j) => {
-    const avs = acq ? acq.averages.filter((a) => a.input_index === j) : [];
+    const by = struckBy(j);
+    const avs = by ? by.averages.filter((a) => a.input_index === j) : [];
     const k = data.inputs.findIndex((i) => i.node === e.node && i.direction === e.direction);
-    return [j + 1, e.node, avs.filter((a) => a.accepted).length, avs.filter((a) => !a.accepted).length,
+    return [j + 1, e.node, by ? by.id : "—", avs.filter((a) => a.accepted).length, avs.filter((a) => !a.accepted).length,
       `<span class="l small">${esc([...new Set(avs.filter((a) => !a.accepted).map((a) => a.reason))].join("; "))}</span>`,
       k < 0 ? "no FRF" : f(coh[k], 3)];
   });
   document.title = `dimacq report — solution ${s.id}`;
   document.getElementById("report-body").innerHTML = `
   <h1>DIM test report — solution ${s.id}</h1>
-  <p class="small">setup ${setup.id} "${esc(setup.name)}", FRF set ${frf.id}${acq ? `, acquisition ${acq.id}` : ""}; generated ${new Date().toISOString()} by the lab service</p>
+  <p class="small">setup ${setup.id} "${esc(setup.name)}", FRF set ${frf.id}${acq ? `, acquisition ${acq.id}` : ""}${frf.created_at ? `, measured ${esc(frf.created_at)}` : ""}; generated ${new Date().toISOString()} by the lab service</p>
   <section><h2>Result</h2>
   <p class="verdict ${esc(r.verdict)}">verdict: ${esc(r.verdict)}</p><ul>${reasons.map((x) => `<li>${esc(x)}</li>`).join("")}</ul>
   <p>band ${f(r.band_hz[0])}–${f(r.band_hz[1])} Hz; condition number ${f(r.condition_number, 3)}; relative residual ${f(r.residual_rel, 3)}; reference point P ${esc((r.reference_point_m || [0, 0, 0]).join(", "))} m</p>
@@ -52,8 +65,8 @@ async function main() {
   ${table(["input", "node", "position, m", "line of action (GCS)"], st.excitations.map((e, i) => [i + 1, e.node, e.position_m.map((v) => f(v, 4)).join(", "), e.direction_gcs.map((v) => f(v, 3)).join(", ")]))}</section>
   <section><h2>Data quality</h2>
   <p>FRF set ${frf.id} (${esc(frf.name)}): ${frf.n_outputs} outputs × ${frf.n_inputs} inputs × ${frf.n_lines} lines, ${f(frf.f_min_hz)}–${f(frf.f_max_hz)} Hz.
-  ${acq ? `Acquisition ${acq.id}: ${acq.averages_accepted} averages accepted, ${acq.averages_rejected} rejected.` : "FRFs imported (no acquisition record)."}</p>
-  ${table(["input", "node", "accepted", "rejected", "reasons", "mean γ² in band"], perInput)}
+  ${chain.length ? `Acquisitions ${chain.map((a) => a.id).reverse().join(", ")}: ${chain.reduce((n, a) => n + a.averages_accepted, 0)} averages accepted, ${chain.reduce((n, a) => n + a.averages_rejected, 0)} rejected (every hit is kept on the stand's disk with its reason).` : "FRFs imported (no acquisition record)."}</p>
+  ${table(["input", "node", "acquisition", "accepted", "rejected", "reasons", "mean γ² in band"], perInput)}
   <p>excluded responses: ${esc(JSON.stringify(r.excluded_responses || []))}; excluded inputs: ${esc(JSON.stringify(r.excluded_inputs || []))}</p></section>
   <section><h2>Figures</h2>
   <canvas id="report-frf" class="plot"></canvas>
