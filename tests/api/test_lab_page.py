@@ -376,3 +376,58 @@ def test_whole_simulated_test_through_the_page(service: str, tmp_path: Path) -> 
     assert abs(m_err) < 0.02, res["mass_kg"]
     assert cg_err < 0.01, res["cg_m"]
     assert float(pm_err.max()) < 0.05, res["principal_moments_kgm2"]
+
+
+def test_page_with_the_token_on_every_call(tmp_path: Path) -> None:
+    """Bound to a non-loopback address every ``/api`` call needs the token, reads included:
+    the page, its job event stream (read through fetch: an EventSource cannot send a header)
+    and its downloads carry it. Served here on loopback with the settings of a wildcard bind
+    (``host = "0.0.0.0"``), so the test stays on 127.0.0.1."""
+    from dimacq.api import create_app
+    from dimacq.api.server import BackgroundServer
+    from dimacq.config import default_config_file, load_settings
+
+    settings = load_settings(
+        token=TOKEN, data_dir=tmp_path, database_url="", host="0.0.0.0", scenario=SCENARIO
+    )
+    errors: list[str] = []
+    with BackgroundServer(create_app(settings)) as srv:
+        assert httpx.get(f"{srv.url}/api/setups").status_code == 401  # reads need it here
+        ex = default_config_file().parent / "examples" / "six_triax_setup.toml"
+        auth = {"Authorization": f"Bearer {TOKEN}"}
+        imported = httpx.post(
+            f"{srv.url}/api/setups/import?format=toml&name=example",
+            content=ex.read_bytes(),
+            headers=auth,
+        )
+        assert imported.status_code == 201, imported.text
+        with playwright_sync.sync_playwright() as pw:
+            browser = pw.chromium.launch(executable_path=CHROMIUM)
+            page = browser.new_page()
+            page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
+            page.on("pageerror", lambda e: errors.append(str(e)))
+            page.goto(f"{srv.url}/#token={TOKEN}")
+            page.wait_for_selector("body[data-ready='1']", timeout=20_000)
+            assert page.locator("#setups tbody tr").count() == 1
+            # a job's server-sent events through the page's reader (a short sensitivity study)
+            events = page.evaluate(
+                """async () => {
+                  const { api, jobEvents } = await import('/static/core.js');
+                  const s = await api('POST', '/api/sensitivity',
+                    { half_size_m: 0.5, max_angle_deg: 1, trials: 5 });
+                  return await new Promise((resolve) => {
+                    const seen = [];
+                    const h = jobEvents(s.job_id, (type, snap) => {
+                      seen.push([type, snap.state]);
+                      if (type === 'end') { h.close(); resolve(seen); }
+                    });
+                  });
+                }"""
+            )
+            with page.expect_download() as dl:
+                page.click("#setups a[data-download]")
+            text = Path(dl.value.path()).read_text(encoding="utf-8")
+            browser.close()
+    assert not errors, errors
+    assert events[-1] == ["end", "succeeded"], events
+    assert "[[responses]]" in text or "responses" in text
