@@ -374,7 +374,9 @@ class ImpactSession:
     ) -> Decision:
         """The operator's decision on a hit; the DAQ is read on (and trimmed) while waiting."""
         assert self.review is not None
-        wait_s = self.settings.block_samples / fs  # about one block: reads keep pace
+        # half a block's time: a device read blocks until its next block is there, so the
+        # stream is drained at least as fast as it fills (a simulated one paces at 2x real time)
+        wait_s = 0.5 * self.settings.block_samples / fs
         while True:
             decision = self.review(j, index, reasons, rec, wait_s)
             if decision is not None:

@@ -270,7 +270,7 @@ def test_whole_simulated_test_through_the_page(service: str, tmp_path: Path) -> 
         page.locator("#acquire").screenshot(path=str(shots / "3-acquire-done.png"))
         assert page.locator("#acq-inputs tbody tr").count() == N_INPUTS
         # then input 3 redone into that FRF set (the checks decide its hits)
-        page.wait_for_function("() => window.dimacq.frfData !== null", timeout=20_000)
+        page.wait_for_function("() => window.dimacq.frfData !== null", timeout=90_000)
         page.uncheck("#acq-review")
         page.click("[data-redo-input='2']")
         page.wait_for_function(
@@ -286,7 +286,7 @@ def test_whole_simulated_test_through_the_page(service: str, tmp_path: Path) -> 
         # --- 4 FRFs: plots, CMIF and checks of the merged set
         page.wait_for_function(
             f"() => window.dimacq.frf && window.dimacq.frf.id === {redo['frf_id']}",
-            timeout=20_000,
+            timeout=90_000,
         )
         frf_draw_ms = page.evaluate("() => window.dimacq.timings.frf_draw_ms")
         assert page.evaluate("() => window.dimacq.frfData.inputs.length") == N_INPUTS
@@ -308,8 +308,10 @@ def test_whole_simulated_test_through_the_page(service: str, tmp_path: Path) -> 
         band = page.evaluate("() => window.dimacq.band")
         page.locator("#frfs").screenshot(path=str(shots / "4-frfs.png"))
         assert band[0] == pytest.approx(lo, abs=2.0) and band[1] == pytest.approx(hi, abs=2.0)
+        t_frfs = time.perf_counter()
         page.click("#solve-btn")
         page.wait_for_selector("#solution .verdict", timeout=60_000)
+        t_solved = time.perf_counter()
         page.wait_for_function("() => window.dimacq.spectrum", timeout=20_000)
         page.locator("#solve").screenshot(path=str(shots / "5-solve.png"))
         n_intervals = page.locator("#solution td", has_text="[").count()
@@ -321,7 +323,8 @@ def test_whole_simulated_test_through_the_page(service: str, tmp_path: Path) -> 
         report = rp.value
         report.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
         report.on("pageerror", lambda e: errors.append(str(e)))
-        report.wait_for_selector("body[data-ready='1']", timeout=20_000)
+        report.wait_for_selector("body[data-ready='1']", timeout=90_000)
+        t_report = time.perf_counter()
         report.screenshot(path=str(shots / "6-report.png"), full_page=True)
         body = report.inner_text("body").lower()
         assert "verdict" in body and "data quality" in body and "rejected by the operator" in body
@@ -351,7 +354,9 @@ def test_whole_simulated_test_through_the_page(service: str, tmp_path: Path) -> 
         f"(init {warm[1]:.0f} ms); FRF plot {frf_draw_ms:.1f} ms; hits {decided}; prompt "
         f"{prompt!r}; verdict {res['verdict']}; mass {100 * m_err:+.2f} %, CG {1e3 * cg_err:.1f} mm, "
         f"principal moments {np.round(100 * pm_err, 2).tolist()} %; walk {elapsed:.1f} s "
-        f"(digitized at {t_digitized - t_start:.1f} s, acquired at {t_acquired - t_start:.1f} s); "
+        f"(digitized at {t_digitized - t_start:.1f} s, acquired at {t_acquired - t_start:.1f} s, "
+        f"FRFs at {t_frfs - t_start:.1f} s, solved at {t_solved - t_start:.1f} s, report at "
+        f"{t_report - t_start:.1f} s); "
         f"screenshots in {shots}"
     )
     assert not errors, errors

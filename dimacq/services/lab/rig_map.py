@@ -16,7 +16,7 @@ from typing import Any
 
 from dimacq.config import Settings
 from dimacq.errors import SetupError
-from dimacq.io.rig_file import RigFile, load_rig_file
+from dimacq.io.rig_file import RigFile, parse_rig_text
 
 __all__ = ["RigMapService", "dump_rig"]
 
@@ -40,39 +40,54 @@ class RigMapService:
         return {"path": str(self.path), "text": text, "rig": dump_rig(rig), "error": ""}
 
     def check(self, text: str) -> RigFile:
-        """The map ``text`` describes, read as an acquisition reads it.
+        """The map ``text`` describes, read as an acquisition reads it (nothing is written).
 
         Raises
         ------
         SetupError
-            TOML syntax or an item that fails its check (the message names it and the fix).
+            Not UTF-8 text, TOML syntax, or an item that fails its check (the message names it
+            and the fix).
         """
-        folder = self.path.parent
-        fd, tmp = tempfile.mkstemp(prefix=".rig-check-", suffix=".toml", dir=folder)
         try:
-            with os.fdopen(fd, "w", encoding="utf-8") as fh:
-                fh.write(text)
-            rig = load_rig_file(tmp)
-        except SetupError as err:
-            raise SetupError(str(err).replace(tmp, str(self.path))) from err
-        finally:
-            Path(tmp).unlink(missing_ok=True)
-        return rig.model_copy(update={"path": self.path.resolve()})
+            text.encode("utf-8")
+        except UnicodeEncodeError as err:
+            raise SetupError(
+                f"text: not UTF-8 text at character {err.start}; send the rig file as written"
+            ) from err
+        return parse_rig_text(text, self.path)
 
     def write(self, text: str) -> dict[str, Any]:
         """Check ``text`` and replace the rig file with it (the old one kept as
-        ``<name>.previous``); returns :meth:`read`'s answer for the new file."""
+        ``<name>.previous``); returns :meth:`read`'s answer for the new file.
+
+        Raises
+        ------
+        SetupError
+            The text fails its check, or the file's folder cannot be written (the message names
+            the folder).
+        """
         self.check(text)
         folder = self.path.parent
-        fd, tmp = tempfile.mkstemp(prefix=".rig-new-", suffix=".toml", dir=folder)
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
-            fh.flush()
-            os.fsync(fh.fileno())
-        if self.path.exists():
-            previous = self.path.with_name(self.path.name + ".previous")
-            previous.write_bytes(self.path.read_bytes())
-        os.replace(tmp, self.path)
+        tmp = ""
+        try:
+            fd, tmp = tempfile.mkstemp(prefix=".rig-new-", suffix=".toml", dir=folder)
+            with os.fdopen(fd, "w", encoding="utf-8") as fh:
+                fh.write(text)
+                fh.flush()
+                os.fsync(fh.fileno())
+            if self.path.exists():
+                previous = self.path.with_name(self.path.name + ".previous")
+                previous.write_bytes(self.path.read_bytes())
+            os.replace(tmp, self.path)
+            tmp = ""
+        except OSError as err:
+            raise SetupError(
+                f"rig file {self.path}: cannot write it ({err.strerror}); give the service write "
+                f"access to {folder} or set rig_file (DIMACQ_RIG_FILE) to a writable copy"
+            ) from err
+        finally:
+            if tmp:
+                Path(tmp).unlink(missing_ok=True)
         return self.read()
 
 
