@@ -383,29 +383,83 @@ def test_whole_simulated_test_through_the_page(service: str, tmp_path: Path) -> 
     assert float(pm_err.max()) < 0.05, res["principal_moments_kgm2"]
 
 
-def test_page_with_the_token_on_every_call(tmp_path: Path) -> None:
-    """Bound to a non-loopback address every ``/api`` call needs the token, reads included:
-    the page, its job event stream (read through fetch: an EventSource cannot send a header)
-    and its downloads carry it. Served here on loopback with the settings of a wildcard bind
-    (``host = "0.0.0.0"``), so the test stays on 127.0.0.1."""
+def _rigid_frf(flip_input: int | None = None) -> tuple[Any, Any]:
+    """A free rigid body struck at two triaxes' places (closed form): the accelerance of point q
+    along e to a force along d at r is ``[e; q×e]ᵀ M⁻¹ [d; r×d]`` with the rigid body's mass
+    matrix about the origin ``M = [[m E, −m[c]×], [m[c]×, I_P]]``: symmetric positive definite,
+    so driving points are positive real and the set is reciprocal. ``flip_input``: that input's
+    FRFs change sign (a hammer wired backwards)."""
+    from dimacq.model.frf import Channel, FrfData
+    from dimacq.model.setup import Excitation, ResponseChannel, TestSetup
+
+    m, c = 10.0, np.array([0.02, -0.01, 0.05])
+    cx = np.array([[0, -c[2], c[1]], [c[2], 0, -c[0]], [-c[1], c[0], 0]])
+    i_cg = np.array([[0.3, 0.02, 0.01], [0.02, 0.4, 0.03], [0.01, 0.03, 0.5]])
+    i_p = i_cg + m * (c @ c * np.eye(3) - np.outer(c, c))
+    mass = np.block([[m * np.eye(3), -m * cx], [m * cx, i_p]])
+    where = {1: np.array([0.15, 0.1, 0.3]), 2: np.array([0.25, -0.1, 0.05]), 3: np.zeros(3)}
+    responses = [
+        ResponseChannel(
+            node=n, direction=k + 1, position_m=tuple(p), direction_gcs=tuple(np.eye(3)[k])
+        )
+        for n, p in where.items()
+        for k in range(3)
+    ]
+    inputs = [(21, where[1], np.array([0.0, 0.0, -1.0])), (25, where[2], np.array([-1.0, 0, 0]))]
+    excitations = [
+        Excitation(node=n, direction=1, position_m=tuple(p), direction_gcs=tuple(d))
+        for n, p, d in inputs
+    ]
+    setup = TestSetup(name="rigid", responses=tuple(responses), excitations=tuple(excitations))
+    psi = np.array(
+        [np.r_[r.direction_gcs, np.cross(r.position_m, r.direction_gcs)] for r in responses]
+    )
+    phi = np.array([np.r_[d, np.cross(p, d)] for _, p, d in inputs]).T
+    h = psi @ np.linalg.solve(mass, phi)  # (9 outputs, 2 inputs), (m/s²)/N
+    if flip_input is not None:
+        h[:, flip_input] *= -1
+    f = np.linspace(10.0, 100.0, 46)
+    frf = FrfData(
+        frequencies_hz=f,
+        H=np.broadcast_to(h, (f.size, *h.shape)).astype(complex),
+        outputs=tuple(Channel(r.node, r.direction) for r in responses),
+        output_kinds=("acceleration",) * len(responses),
+        inputs=tuple(Channel(n, 1) for n, _, _ in inputs),
+        coherence=np.ones((f.size, *h.shape)),
+    )
+    return setup, frf
+
+
+def test_frf_checks_and_the_token_on_every_call(tmp_path: Path) -> None:
+    """The FRF step's driving-point and reciprocity checks on closed-form rigid-body FRFs: both
+    pass on the true set; a hammer wired backwards fails its driving point and reciprocity.
+
+    On a service that needs the token on every call (bound to a non-loopback address, reads
+    included): the page's reads, its job event stream (read through fetch: an EventSource cannot
+    send a header) and its downloads carry it. Served here on loopback with the settings of a
+    wildcard bind (``host = "0.0.0.0"``), so the test stays on 127.0.0.1."""
     from dimacq.api import create_app
     from dimacq.api.server import BackgroundServer
-    from dimacq.config import default_config_file, load_settings
+    from dimacq.config import load_settings
+    from dimacq.io.setup_file import dump_setup_dict
+    from dimacq.io.uff import dump_uff
 
-    settings = load_settings(
-        token=TOKEN, data_dir=tmp_path, database_url="", host="0.0.0.0", scenario=SCENARIO
-    )
+    settings = load_settings(token=TOKEN, data_dir=tmp_path, database_url="", host="0.0.0.0")
+    auth = {"Authorization": f"Bearer {TOKEN}"}
     errors: list[str] = []
     with BackgroundServer(create_app(settings)) as srv:
         assert httpx.get(f"{srv.url}/api/setups").status_code == 401  # reads need it here
-        ex = default_config_file().parent / "examples" / "six_triax_setup.toml"
-        auth = {"Authorization": f"Bearer {TOKEN}"}
-        imported = httpx.post(
-            f"{srv.url}/api/setups/import?format=toml&name=example",
-            content=ex.read_bytes(),
-            headers=auth,
-        )
-        assert imported.status_code == 201, imported.text
+        ids = []
+        for flip in (None, 1):
+            setup, frf = _rigid_frf(flip)
+            sid = httpx.post(
+                f"{srv.url}/api/setups", json=dump_setup_dict(setup), headers=auth
+            ).json()["id"]
+            r = httpx.post(
+                f"{srv.url}/api/frfs/import?setup_id={sid}", content=dump_uff(frf), headers=auth
+            )
+            assert r.status_code == 201, r.text
+            ids.append(r.json()["id"])
         with playwright_sync.sync_playwright() as pw:
             browser = pw.chromium.launch(executable_path=CHROMIUM)
             page = browser.new_page()
@@ -413,7 +467,14 @@ def test_page_with_the_token_on_every_call(tmp_path: Path) -> None:
             page.on("pageerror", lambda e: errors.append(str(e)))
             page.goto(f"{srv.url}/#token={TOKEN}")
             page.wait_for_selector("body[data-ready='1']", timeout=20_000)
-            assert page.locator("#setups tbody tr").count() == 1
+            assert page.locator("#setups tbody tr").count() == 2
+            found = []
+            for fid in ids:
+                page.select_option("#frf-set", str(fid))
+                page.wait_for_function(f"() => window.dimacq.frf && window.dimacq.frf.id === {fid}")
+                checks = page.evaluate("() => window.dimacq.frfChecks")
+                verdicts = page.locator("#frf-checks tbody td:last-child").all_inner_texts()
+                found.append([{**c, "verdict": v} for c, v in zip(checks, verdicts, strict=True)])
             # a job's server-sent events through the page's reader (a short sensitivity study)
             events = page.evaluate(
                 """async () => {
@@ -435,4 +496,10 @@ def test_page_with_the_token_on_every_call(tmp_path: Path) -> None:
             browser.close()
     assert not errors, errors
     assert events[-1] == ["end", "succeeded"], events
-    assert "[[responses]]" in text or "responses" in text
+    assert "[[responses]]" in text
+    good, flipped = found
+    assert [c["kind"] for c in good] == ["driving point", "driving point", "reciprocity"], good
+    assert all(c["verdict"] == "ok" for c in good), good
+    assert good[2]["value"].endswith("= 0.000 %"), good[2]
+    assert flipped[0]["verdict"] == "ok" and flipped[1]["verdict"] != "ok", flipped
+    assert flipped[2]["verdict"] != "ok", flipped  # H_ab = −H_ba now

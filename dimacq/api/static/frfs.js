@@ -119,19 +119,23 @@ function checks() {
     for (const q of pairs) {
       if (q.input <= p.input) continue;
       // H(out at q's input place, input p) vs H(out at p's input place, input q)
+      // both along the inputs' lines of action: s_q H(q's place, p) vs s_p H(p's place, q),
+      // relative to the larger of the two, or to 1 % of the driving points where both are ~0
       const diffs = [];
       for (let l = 0; l < nL; l++) {
         if (!inBand(l)) continue;
-        const ar = p.sign * q.sign * re[l][q.output][p.input];
-        const ai = p.sign * q.sign * im[l][q.output][p.input];
-        const br = re[l][p.output][q.input];
-        const bi = im[l][p.output][q.input];
-        const den = Math.max(Math.hypot(ar, ai), Math.hypot(br, bi)) || 1;
+        const ar = q.sign * re[l][q.output][p.input];
+        const ai = q.sign * im[l][q.output][p.input];
+        const br = p.sign * re[l][p.output][q.input];
+        const bi = p.sign * im[l][p.output][q.input];
+        const dp = Math.hypot(re[l][p.output][p.input], im[l][p.output][p.input]);
+        const dq = Math.hypot(re[l][q.output][q.input], im[l][q.output][q.input]);
+        const den = Math.max(Math.hypot(ar, ai), Math.hypot(br, bi), 0.01 * Math.sqrt(dp * dq)) || 1;
         diffs.push(Math.hypot(ar - br, ai - bi) / den);
       }
       diffs.sort((a, b) => a - b);
       const med = diffs.length ? diffs[Math.floor(diffs.length / 2)] : NaN;
-      rows.push(["reciprocity", `inputs ${p.input + 1} ↔ ${q.input + 1}`, `median |H_ab − H_ba| / |H| = ${f(100 * med, 3)} %`,
+      rows.push(["reciprocity", `inputs ${p.input + 1} ↔ ${q.input + 1}`, `median |H_ab − H_ba| / |H| = ${(100 * med).toFixed(3)} %`,
         `<span class="${med < 0.1 ? "ok" : "warn"}">${med < 0.1 ? "ok" : "differ by more than 10 %"}</span>`]);
     }
   }
