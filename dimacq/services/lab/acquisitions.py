@@ -120,6 +120,9 @@ class _Live:
     pending_view: dict[str, Any] | None = None
     last_view: dict[str, Any] | None = None
     decisions: queue.Queue[tuple[int, Decision]] = field(default_factory=queue.Queue)
+    #: the last hit a decision was given for (it is not announced again while the job takes it)
+    answered: int = 0
+    lock: threading.Lock = field(default_factory=threading.Lock)
     finish: threading.Event = field(default_factory=threading.Event)
     coherence: list[float | None] = field(default_factory=list)
 
@@ -314,13 +317,18 @@ class AcquisitionService:
             wait_s: float,
         ) -> Decision | None:
             number = average_index + 1
-            if live.pending is None or live.pending["number"] != number:
-                live.pending_view = hit_view(record, fs, n_resp)
-                live.pending = {
-                    "number": number,
-                    "input_index": inputs[j],
-                    "reasons": list(reasons),
-                }
+            with live.lock:
+                announce = live.answered != number and (
+                    live.pending is None or live.pending["number"] != number
+                )
+                if announce:
+                    live.pending_view = hit_view(record, fs, n_resp)
+                    live.pending = {
+                        "number": number,
+                        "input_index": inputs[j],
+                        "reasons": list(reasons),
+                    }
+            if announce:
                 ctx.progress(
                     ctx_fraction[0],
                     f"hit {number} on input {inputs[j] + 1}: accept, reject or redo the input",
@@ -334,7 +342,6 @@ class AcquisitionService:
                 return None
             if got != number:  # a decision on a hit already decided: ignored
                 return None
-            live.pending = None
             if decision == "redo":
                 self._supersede(acq_id, inputs[j])
             return decision
@@ -546,14 +553,17 @@ class AcquisitionService:
                 f"acquisition {acq_id} was started without review: its checks decide each hit; "
                 "start it with review = true to decide them"
             )
-        pending = live.pending
-        if pending is None or pending["number"] != number:
-            waiting = "no hit waits" if pending is None else f"hit {pending['number']} waits"
-            raise DeviceStateError(
-                f"hit {number} of acquisition {acq_id} is not waiting for a decision ({waiting}); "
-                "decide the hit that waits (pending_review.number)"
-            )
-        live.decisions.put((number, decision))
+        with live.lock:  # one decision per hit: the hit stops waiting as soon as it is given
+            pending = live.pending
+            if pending is None or pending["number"] != number:
+                waiting = "no hit waits" if pending is None else f"hit {pending['number']} waits"
+                raise DeviceStateError(
+                    f"hit {number} of acquisition {acq_id} is not waiting for a decision "
+                    f"({waiting}); decide the hit that waits (pending_review.number)"
+                )
+            live.pending = None
+            live.answered = number
+            live.decisions.put((number, decision))
         return self.get(acq_id)
 
     def finish(self, acq_id: int) -> AcquisitionInfo | None:
@@ -574,10 +584,15 @@ class AcquisitionService:
         live = self._live.get(acq_id)
         if live is None:
             return None
-        if live.pending is not None and live.pending_view is not None:
-            return {**live.pending_view, **live.pending, "pending": True}
-        if live.last_view is not None:
-            return {**live.last_view, "pending": False}
+        with live.lock:
+            pending, view, last = live.pending, live.pending_view, live.last_view
+            answered = live.answered
+        if pending is not None and view is not None:
+            return {**view, **pending, "pending": True}
+        if view is not None:  # decided, not yet recorded by the job
+            return {**view, "number": answered, "pending": False}
+        if last is not None:
+            return {**last, "pending": False}
         return None
 
     def _supersede(self, acq_id: int, input_index: int) -> None:
