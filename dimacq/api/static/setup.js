@@ -83,7 +83,8 @@ function showRig(rig, error) {
     $("#rig-table").innerHTML = `<p class="fail">${esc(error || "no rig file")}</p>`;
     return;
   }
-  const h = rig.hammers.map((x, i) => [`hammer ${i}`, "—", x.physical_channel, `${f(x.sensitivity_mv_per_n, 5)} mV/N`, esc((x.inputs || []).join(", ") || "every input")]);
+  const chain = (x) => (x.chain_calibration ? ` × ${f(x.chain_calibration.factor, 6)} (chain calibration ±${f(100 * x.chain_calibration.u_rel, 2)} %, ${esc(x.chain_calibration.date || "")})` : "");
+  const h = rig.hammers.map((x, i) => [`hammer ${i}`, "—", x.physical_channel, `${f(x.sensitivity_mv_per_n, 5)} mV/N${chain(x)}`, esc((x.inputs || []).join(", ") || "every input")]);
   const r = rig.responses.map((x) => [esc(x.key), x.node, x.physical_channel, `${f(x.sensitivity_mv_per_g, 5)} mV/g`, `±${x.range_v} V`]);
   const lc = rig.load_cells.map((x) => [`load cell ${x.node}`, x.node, `CAN id ${x.node_id}`, esc(x.calibration_file), esc(x.channel || "default")]);
   $("#rig-table").innerHTML = `<p class="small">DAQ ${f(rig.daq.sample_rate_hz, 5)} Hz; ${rig.hammers.length} hammer(s), ${rig.responses.length} accelerometer channels, ${rig.load_cells.length} load cell(s)${error ? ` — <span class="fail">${esc(error)}</span>` : ""}</p>`
