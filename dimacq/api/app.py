@@ -55,6 +55,7 @@ from dimacq.api.routers import (
     digitizer,
     frfs,
     jobs,
+    rig,
     sensitivity,
     setups,
     simulation,
@@ -363,6 +364,7 @@ def create_app(settings: Settings | None = None, *, lab: Lab | None = None) -> F
         sensitivity,
         jobs,
         simulation,
+        rig,
     ):
         app.include_router(r.router)
     _mount_page(app)

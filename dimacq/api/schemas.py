@@ -17,12 +17,14 @@ __all__ = [
     "DbId",
     "ErrorBody",
     "FromGeometryRequest",
+    "HitDecision",
     "JobInfo",
     "LineOfActionRequest",
     "Number",
     "OrientationRequest",
     "PointRequest",
     "RegistrationRequest",
+    "RigText",
     "SolveRequest",
 ]
 
@@ -147,6 +149,42 @@ class AcquisitionRequest(ImpactOverrides):
 
     setup_id: DbId
     seed: int | None = Field(default=None, ge=0, le=2**31 - 1)
+    review: bool = Field(
+        default=False,
+        description="the operator accepts, rejects or redoes (the whole input) every hit "
+        "(POST /api/acquisitions/{id}/review); false: the automatic checks decide",
+    )
+    inputs: list[Annotated[int, Field(ge=0, le=10_000)]] | None = Field(
+        default=None,
+        max_length=10_000,
+        description="indices of the setup's inputs to strike (redo one input, append inputs); "
+        "null: all of them",
+    )
+    merge_frf_id: DbId | None = Field(
+        default=None,
+        description="an FRF set of the same setup: the new FRF set is this one with the struck "
+        "inputs replaced (redo) or added (append)",
+    )
+
+
+class RigText(BaseModel):
+    """A rig file (``rig.toml``) as text."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    text: str = Field(max_length=1_000_000, description="the whole rig.toml")
+
+
+class HitDecision(BaseModel):
+    """The operator's decision on the hit waiting for review."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    number: DbId = Field(description="the hit (pending_review.number of the acquisition)")
+    decision: Literal["accept", "reject", "redo"] = Field(
+        description="accept (kept if the checks passed), reject (strike again), redo (drop "
+        "this input's averages and strike it again)"
+    )
 
 
 class SensitivityRequest(CubeStudyParams):

@@ -62,6 +62,7 @@ __all__ = [
     "RigFile",
     "load_rig_file",
     "parse_direction",
+    "parse_rig_text",
     "write_chain_calibration",
 ]
 
@@ -246,6 +247,19 @@ def load_rig_file(path: str | Path) -> RigFile:
             f"rig file {p}: cannot read it ({err}); set rig_file (DIMACQ_RIG_FILE) to the channel "
             "map of the real rig (see config/rig.toml)"
         ) from err
+    return parse_rig_text(text, p)
+
+
+def parse_rig_text(text: str, path: str | Path) -> RigFile:
+    """Check a rig file's text as :func:`load_rig_file` reads it; ``path`` is where it lives
+    (relative calibration paths are taken from its folder; nothing is read or written there).
+
+    Raises
+    ------
+    SetupError
+        TOML syntax, or an item that fails its check (the message names the item and the fix).
+    """
+    p = Path(path).expanduser()
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as err:

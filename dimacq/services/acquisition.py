@@ -25,6 +25,15 @@ clock:
    estimate_frf`), with the force window on the hammer and the exponential window on everything
    (both starting at the trigger), stacked to ``(n_lines, n_outputs, n_inputs)``.
 
+**Operator review** (optional ``review``): every hit, with the automatic checks' reasons and its
+record, is handed to ``review(input_index, average_index, reasons, blocks)``, which returns the
+operator's decision: ``"accept"`` (kept, when the checks passed: an overload or a double hit stays
+rejected whatever the operator says), ``"reject"`` (rejected "by the operator", strike again) or
+``"redo"`` (this hit and every average accepted so far for the input are dropped and the input
+starts again: its strike budget too). ``should_finish()`` (optional) is asked before every strike:
+when it answers True the session stops striking and estimates FRFs from what it has (the inputs
+short of ``min_averages`` are incomplete), the "stop, keep the accepted averages" of the lab page.
+
 ``on_average(input_index, average_index, accepted, reasons, blocks)`` is called as soon as an
 average is decided (before ``progress`` and before the operator is asked for the next strike), so
 a caller can make each average durable on its own; ``progress(Progress)`` is called after it.
@@ -54,14 +63,19 @@ from dimacq.pipeline.frf_estimation import (
     exponential_window,
     force_window,
 )
+from dimacq.services.acquisition_buffer import SampleBuffer as _Buffer
 
 __all__ = [
+    "OPERATOR_REDO",
+    "OPERATOR_REJECT",
     "AverageCallback",
     "AverageRecord",
+    "Decision",
     "ImpactResult",
     "ImpactSession",
     "ImpactSettings",
     "Progress",
+    "ReviewCallback",
     "impact_frf",
 ]
 
@@ -74,6 +88,23 @@ log = logging.getLogger(__name__)
 AverageCallback = Callable[
     [int, int, bool, tuple[str, ...], Mapping[str, NDArray[np.float64]]], None
 ]
+
+#: The operator's decision on one hit (see :class:`ImpactSession`).
+Decision = Literal["accept", "reject", "redo"]
+
+#: ``review(input_index, average_index, reasons, blocks, wait_s) -> Decision | None``:
+#: ``reasons`` are the automatic checks' (empty: passed), ``blocks`` as in
+#: :data:`AverageCallback`. It waits at most ``wait_s`` seconds for the operator and answers None
+#: when no decision came yet: the session then reads the DAQ's next block (the stream keeps
+#: flowing, nothing overflows while the operator looks) and asks again with the same hit.
+ReviewCallback = Callable[
+    [int, int, tuple[str, ...], Mapping[str, NDArray[np.float64]], float], Decision | None
+]
+
+#: Reason of a hit the operator rejected.
+OPERATOR_REJECT = "rejected by the operator"
+#: Reason of a hit (and of the averages accepted before it) dropped by "redo this input".
+OPERATOR_REDO = "input redone by the operator"
 
 
 @dataclass(frozen=True)
@@ -130,80 +161,6 @@ class ImpactResult:
     min_averages: int = 1
 
 
-class _Buffer:
-    """Samples ``first .. end - 1`` for the DAQ or one load cell, trimmed as records are cut.
-
-    Storage is a preallocated array used as a sliding window: :meth:`append` writes after the
-    last sample (growing the capacity by doubling when full, after moving the live samples to
-    the front), :meth:`trim` only moves the start. With the live span bounded (the trigger wait
-    trims to the pre-trigger history after every block) appending a block costs O(block), not
-    O(samples held): no copy of the history per block.
-    """
-
-    def __init__(self, n_rows: int, capacity: int = 4096) -> None:
-        self.first = 0
-        self._a = 0  # storage column of sample ``first``
-        self._n = 0  # samples held
-        self._data = np.zeros((n_rows, capacity))
-        self._valid = np.zeros(capacity, dtype=bool)
-        self._over = np.zeros((n_rows, capacity), dtype=bool)
-        self.drift: list[tuple[int, int]] = []
-
-    @property
-    def end(self) -> int:
-        return self.first + self._n
-
-    @property
-    def n_samples(self) -> int:
-        return self._n
-
-    @property
-    def data(self) -> NDArray[np.float64]:
-        """The held samples, shape (n_rows, n_samples) (a view)."""
-        return self._data[:, self._a : self._a + self._n]
-
-    def append(
-        self, data: NDArray[np.float64], valid: NDArray[np.bool_], over: NDArray[np.bool_]
-    ) -> None:
-        m = valid.size
-        cap = self._valid.size
-        if self._a + self._n + m > cap:
-            live = slice(self._a, self._a + self._n)
-            new_cap = max(cap, 2 * (self._n + m))
-            if new_cap > cap:
-                d = np.zeros((self._data.shape[0], new_cap))
-                v = np.zeros(new_cap, dtype=bool)
-                o = np.zeros((self._data.shape[0], new_cap), dtype=bool)
-            else:
-                d, v, o = self._data, self._valid, self._over
-            # move the live samples to the front (overlapping copy is safe left-ward)
-            d[:, : self._n] = self._data[:, live]
-            v[: self._n] = self._valid[live]
-            o[:, : self._n] = self._over[:, live]
-            self._data, self._valid, self._over = d, v, o
-            self._a = 0
-        b = self._a + self._n
-        self._data[:, b : b + m] = data
-        self._valid[b : b + m] = valid
-        self._over[:, b : b + m] = over
-        self._n += m
-
-    def window(
-        self, s0: int, n: int
-    ) -> tuple[NDArray[np.float64], NDArray[np.bool_], NDArray[np.bool_]]:
-        """Copies of samples ``s0 .. s0 + n - 1`` (clipped to what is held)."""
-        a = self._a + max(0, s0 - self.first)
-        b = min(self._a + self._n, self._a + s0 - self.first + n)
-        return self._data[:, a:b].copy(), self._valid[a:b].copy(), self._over[:, a:b].copy()
-
-    def trim(self, keep_from: int) -> None:
-        k = min(self._n, max(0, keep_from - self.first))
-        if k:
-            self._a += k
-            self._n -= k
-            self.first += k
-
-
 class ImpactSession:
     """A roving-hammer impact test.
 
@@ -228,6 +185,14 @@ class ImpactSession:
     loadcell_outputs : {"forces", "gauges"}
         FRF outputs per load cell: its 6 calibrated loads, or its 12 gauge voltages
         (for calibrating it).
+    review : callable (input_index, average_index, reasons, blocks, wait_s), optional
+        The operator's accept / reject / redo of every hit (see the module docstring); None:
+        the automatic checks decide.
+    should_finish : callable () -> bool, optional
+        Asked before every strike; True ends the striking (FRFs from what is accepted).
+    on_input : callable (input_index, coherence), optional
+        Called when an input's FRFs are estimated, with its ordinary coherence, shape
+        (n_lines, n_outputs) (NaN with one average).
     """
 
     def __init__(
@@ -243,8 +208,14 @@ class ImpactSession:
         progress: Callable[[Progress], None] | None = None,
         on_average: AverageCallback | None = None,
         loadcell_outputs: Literal["forces", "gauges"] = "forces",
+        review: ReviewCallback | None = None,
+        should_finish: Callable[[], bool] | None = None,
+        on_input: Callable[[int, NDArray[np.float64]], None] | None = None,
     ) -> None:
+        self.on_input = on_input
         self.daq = daq
+        self.review = review
+        self.should_finish = should_finish
         self.settings = settings or ImpactSettings()
         names = list(daq.channel_names)
         missing = [c for c in (*input_channels, *response_channels) if c not in names]
@@ -393,6 +364,26 @@ class ImpactSession:
         out = np.concatenate([data[self.response_rows], *lc_rows], axis=0)
         return reasons, {"force": force[None], "outputs": out}
 
+    def _ask_review(
+        self,
+        j: int,
+        index: int,
+        reasons: tuple[str, ...],
+        rec: Mapping[str, NDArray[np.float64]],
+        fs: float,
+    ) -> Decision:
+        """The operator's decision on a hit; the DAQ is read on (and trimmed) while waiting."""
+        assert self.review is not None
+        # half a block's time: a device read blocks until its next block is there, so the
+        # stream is drained at least as fast as it fills (a simulated one paces at 2x real time)
+        wait_s = 0.5 * self.settings.block_samples / fs
+        while True:
+            decision = self.review(j, index, reasons, rec, wait_s)
+            if decision is not None:
+                return decision
+            self._read_block()
+            self._trim(self._daq_buf.end - self.settings.pretrigger_samples)
+
     # -- run -------------------------------------------------------------------------------------------
     def run(self) -> ImpactResult:
         s = self.settings
@@ -420,10 +411,14 @@ class ImpactSession:
         stopped = False
         try:
             armed_from = 0
+            finished_early = False
             for j in range(n_in):
                 rejected = 0
                 attempts = 0
-                while len(records[j]) < s.averages_per_input:
+                while len(records[j]) < s.averages_per_input and not finished_early:
+                    if self.should_finish is not None and self.should_finish():
+                        finished_early = True
+                        break
                     attempts += 1
                     if attempts > s.max_attempts_factor * s.averages_per_input:
                         break
@@ -434,11 +429,31 @@ class ImpactSession:
                     s0 = t - s.pretrigger_samples
                     self._until(s0 + s.record_samples)
                     reasons, rec = self._check(j, s0, s.record_samples)
-                    ok = not reasons
+                    decision: Decision = "reject" if reasons else "accept"
+                    if self.review is not None:
+                        asked = self._ask_review(j, len(history), tuple(reasons), rec, fs)
+                        if asked == "redo":
+                            decision = "redo"
+                            reasons.append(OPERATOR_REDO)
+                        elif asked == "reject" and not reasons:
+                            decision = "reject"
+                            reasons.append(OPERATOR_REJECT)
+                    ok = decision == "accept"
                     if ok:
                         records[j].append(rec)
                     else:
                         rejected += 1
+                    if decision == "redo":  # the input starts again: its averages and budget
+                        records[j] = []
+                        rejected, attempts = 0, 0
+                        history = [
+                            AverageRecord(
+                                h.input_index, h.first_sample, h.n_samples, False, (OPERATOR_REDO,)
+                            )
+                            if h.input_index == j and h.accepted
+                            else h
+                            for h in history
+                        ]
                     ar = AverageRecord(j, s0, s.record_samples, ok, tuple(reasons))
                     history.append(ar)
                     if self.writer is not None:
@@ -467,6 +482,8 @@ class ImpactSession:
                     assert coh_all is not None
                     H_all[:, :, j] = H_j
                     coh_all[:, :, j] = coh_j
+                    if self.on_input is not None:
+                        self.on_input(j, coh_j)
                 records[j] = []
             self.daq.stop()
             tail = self.daq.read_buffered()

@@ -33,8 +33,11 @@ from dimacq.model.impact import ImpactSettings
 from dimacq.model.setup import TestSetup
 
 if TYPE_CHECKING:
+    import numpy as np
+    from numpy.typing import NDArray
+
     from dimacq.io.acquisition_hdf5 import AcquisitionWriter
-    from dimacq.services.acquisition import AverageCallback
+    from dimacq.services.acquisition import AverageCallback, ReviewCallback
 
 __all__ = ["Rig", "build_rig", "check_devices", "impact_settings", "run_impact_test"]
 
@@ -279,8 +282,15 @@ def run_impact_test(
     on_progress: ProgressCallback,
     writer: AcquisitionWriter | None = None,
     meta: Mapping[str, str] | None = None,
+    review: ReviewCallback | None = None,
+    should_finish: Callable[[], bool] | None = None,
+    on_input: Callable[[int, NDArray[np.float64]], None] | None = None,
 ) -> FrfData:
     """Run the impact test; return FRFs in the setup's channel order (SI units).
+
+    ``review``, ``should_finish`` and ``on_input`` go to the
+    :class:`~dimacq.services.acquisition.ImpactSession` (the operator's accept / reject / redo
+    of each hit; stop striking and keep the accepted averages; each input's coherence).
 
     ``writer`` keeps every raw block (:class:`~dimacq.io.acquisition_hdf5.AcquisitionWriter`,
     channels ``rig.daq.channel_names`` in units ``rig.daq_units``); ``meta`` goes into the
@@ -335,6 +345,9 @@ def run_impact_test(
         progress=progress,
         on_average=on_average,
         writer=writer,
+        review=review,
+        should_finish=should_finish,
+        on_input=on_input,
     )
     return impact_frf(
         session.run(), setup, meta=dict(meta or {"source": "dimacq impact acquisition"})

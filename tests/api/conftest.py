@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import shutil
 from collections.abc import Iterator
 
 import httpx
@@ -11,6 +12,7 @@ from _pg_support import BACKENDS, database_url_for
 
 from dimacq.api import create_app
 from dimacq.api.server import BackgroundServer
+from dimacq.config import default_config_file
 
 
 @pytest.fixture(scope="module", params=BACKENDS)
@@ -21,7 +23,15 @@ def api_database_url(request: pytest.FixtureRequest) -> Iterator[str]:
 
 @pytest.fixture(scope="module")
 def api(tmp_path_factory: pytest.TempPathFactory, api_database_url: str) -> Iterator[Api]:
-    settings = make_settings(tmp_path_factory.mktemp("api"), database_url=api_database_url)
+    # the rig file is a copy: PUT /api/rig (schemathesis sends it too) never touches config/
+    rig_dir = tmp_path_factory.mktemp("rig")
+    shutil.copy(default_config_file().parent / "rig.toml", rig_dir / "rig.toml")
+    shutil.copytree(default_config_file().parent / "calibrations", rig_dir / "calibrations")
+    settings = make_settings(
+        tmp_path_factory.mktemp("api"),
+        database_url=api_database_url,
+        rig_file=str(rig_dir / "rig.toml"),
+    )
     app = create_app(settings)
     with BackgroundServer(app) as srv:
         auth = {"Authorization": f"Bearer {TOKEN}"}

@@ -169,6 +169,14 @@ def test_setup_frf_solution_round_trip(api: Api) -> None:
     assert lo <= model.properties.mass_kg <= hi
     png = api.client.get(f"/api/solutions/{sol['id']}/figure")
     assert png.status_code == 200 and png.content[:4] == b"\x89PNG"
+    # the parameters against frequency behind it (the page's plot): in the band, the per-line
+    # masses scatter about the joint estimate
+    spec = api.client.get(f"/api/solutions/{sol['id']}/spectrum").json()
+    f_sp = np.asarray(spec["frequencies_hz"])
+    per_line = np.asarray(spec["per_line"], float)
+    assert spec["parameters"][0] == "m" and per_line.shape == (f_sp.size, 10)
+    in_band = (f_sp >= spec["band_hz"][0]) & (f_sp <= spec["band_hz"][1])
+    assert np.median(per_line[in_band, 0]) == pytest.approx(spec["headline"][0], rel=0.02)
 
 
 def test_digitizer_chain_to_setup(api: Api) -> None:

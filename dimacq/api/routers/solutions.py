@@ -43,6 +43,30 @@ def diagnostics(solution_id: IdPath, lab: LabDep) -> list[dict[str, Any]]:
     return list(sol.result.get("diagnostics", []))
 
 
+PARAMETERS = ["m", "cx", "cy", "cz", "Ixx", "Ixy", "Ixz", "Iyy", "Iyz", "Izz"]
+UNITS = ["kg", "m", "m", "m", "kg m^2", "kg m^2", "kg m^2", "kg m^2", "kg m^2", "kg m^2"]
+
+
+@router.get("/{solution_id:int}/spectrum", response_model=dict[str, Any])
+def spectrum(solution_id: IdPath, lab: LabDep) -> dict[str, Any]:
+    """The parameters against frequency behind a stored solution: ``per_line`` (n_lines × 10,
+    layout ``parameters``, units ``units``; inertia about the reference point, CG in the GCS) over
+    every line of its FRF set, from the channels and inputs the solution used; ``band_hz`` and
+    ``headline`` (the stored estimate, same layout)."""
+    from dimacq.services.lab.common import json_safe
+
+    spec = found(lab.analysis.solution_spectrum(solution_id), f"solution {solution_id}")
+    return {
+        "solution_id": solution_id,
+        "parameters": PARAMETERS,
+        "units": UNITS,
+        "frequencies_hz": json_safe(spec.frequencies_hz),
+        "per_line": json_safe(spec.per_line),
+        "band_hz": list(spec.band_hz),
+        "headline": json_safe(spec.headline),
+    }
+
+
 @router.get(
     "/{solution_id:int}/figure",
     response_class=Response,

@@ -16,9 +16,11 @@ database is unreachable the averages go on to the disk and their rows wait in th
 from __future__ import annotations
 
 import logging
+import queue
+import threading
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
-from typing import Any
+from dataclasses import dataclass, field
+from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -31,6 +33,7 @@ from dimacq.errors import (
     DeviceNotFoundError,
     DeviceStateError,
     DimacqError,
+    SetupError,
 )
 from dimacq.model.impact import ImpactSettings
 from dimacq.model.setup import TestSetup
@@ -39,11 +42,17 @@ from dimacq.persistence import models as m
 from dimacq.persistence import stands as stand_lease
 from dimacq.persistence.queue import Outbox
 from dimacq.services.jobs import JobContext, JobManager
+from dimacq.services.lab.acquisition_views import hit_view, merge_frfs
 from dimacq.services.lab.common import json_safe
 from dimacq.services.lab.devices import DeviceService
 from dimacq.services.lab.store import TestStore, frf_to_arrays
 
-__all__ = ["AcquisitionInfo", "AcquisitionService", "AverageInfo", "RigFactory"]
+__all__ = [
+    "AcquisitionInfo",
+    "AcquisitionService",
+    "AverageInfo",
+    "RigFactory",
+]
 
 log = logging.getLogger(__name__)
 
@@ -86,6 +95,36 @@ class AcquisitionInfo:
     incomplete_inputs: list[int]
     progress: float
     stand: str = ""  # the test stand that runs it (its raw data are on that stand's disk)
+    #: the hit waiting for the operator's decision (review mode): ``number``, ``input_index``,
+    #: ``reasons`` (the automatic checks'); None when nothing waits
+    pending_review: dict[str, Any] | None = None
+    #: mean ordinary coherence (over lines and accelerometer outputs) of each input whose FRFs
+    #: are estimated (this run; None: not yet, or one average)
+    input_coherence: list[float | None] = field(default_factory=list)
+    #: the setup's input indices this acquisition strikes (all of them when the request named none)
+    inputs: list[int] = field(default_factory=list)
+
+
+Decision = Literal["accept", "reject", "redo"]
+
+
+@dataclass
+class _Live:
+    """What only the running job knows: the hit waiting for review, the operator's decisions,
+    the finish request, the coherence of the inputs done."""
+
+    review: bool
+    n_inputs: int
+    sample_rate_hz: float = 0.0
+    pending: dict[str, Any] | None = None
+    pending_view: dict[str, Any] | None = None
+    last_view: dict[str, Any] | None = None
+    decisions: queue.Queue[tuple[int, Decision]] = field(default_factory=queue.Queue)
+    #: the last hit a decision was given for (it is not announced again while the job takes it)
+    answered: int = 0
+    lock: threading.Lock = field(default_factory=threading.Lock)
+    finish: threading.Event = field(default_factory=threading.Event)
+    coherence: list[float | None] = field(default_factory=list)
 
 
 class AcquisitionService:
@@ -122,6 +161,7 @@ class AcquisitionService:
         self.devices = devices
         self.store = store
         self._rig_factory = rig_factory
+        self._live: dict[int, _Live] = {}
 
     def recover(self) -> None:
         """After a restart: this stand's running acquisitions are interrupted (other stands'
@@ -164,9 +204,36 @@ class AcquisitionService:
         cfg = dict(config)
         setup_id = int(cfg["setup_id"])
         setup = self.store.require_setup(setup_id)
+        n_ex = len(setup.excitations)
+        inputs = cfg.get("inputs")
+        if inputs is None:
+            inputs = list(range(n_ex))
+        inputs = [int(j) for j in inputs]
+        bad = [j for j in inputs if not 0 <= j < n_ex]
+        if bad or not inputs or len(set(inputs)) != len(inputs):
+            raise SetupError(
+                f"inputs {inputs}: give distinct indices of setup {setup_id}'s inputs, "
+                f"0..{n_ex - 1}"
+            )
+        cfg["inputs"] = inputs
+        merge_id = cfg.get("merge_frf_id")
+        if merge_id is not None:
+            merged = self.store.frf(int(merge_id))
+            if merged is None:
+                raise SetupError(
+                    f"merge_frf_id {merge_id} does not exist; give an FRF set of setup {setup_id}"
+                )
+            if merged[1] != setup:
+                raise SetupError(
+                    f"merge_frf_id {merge_id} belongs to another setup; give an FRF set of "
+                    f"setup {setup_id} (its inputs are replaced or appended)"
+                )
         if self.jobs.running("acquisition"):
             raise DeviceStateError("an acquisition is already running; stop it or wait for it")
-        rig = self._build_rig(setup, cfg)  # raises DeviceError if the devices are not there
+        struck = setup.model_copy(
+            update={"excitations": tuple(setup.excitations[j] for j in inputs)}
+        )
+        rig = self._build_rig(struck, cfg)  # raises DeviceError if the devices are not there
         # the minimum of accepted averages per input, stated with the acquisition (the request,
         # else the rig file's [acquisition], else the service's min_averages setting)
         defaults: Mapping[str, Any] = getattr(rig, "defaults", {})
@@ -183,13 +250,21 @@ class AcquisitionService:
             s.add(row)
             s.flush()
             acq_id = int(row.id)
+        live = _Live(
+            review=bool(cfg.get("review")),
+            n_inputs=len(inputs),
+            sample_rate_hz=float(getattr(rig.daq, "sample_rate_hz", 0.0) or 0.0),
+            coherence=[None] * len(inputs),
+        )
+        self._live[acq_id] = live
         try:
             job = self.jobs.submit(
                 "acquisition",
-                lambda ctx: self._run(ctx, acq_id, setup_id, setup, cfg, rig),
+                lambda ctx: self._run(ctx, acq_id, setup_id, setup, struck, cfg, rig, live),
             )
         except DimacqError:
             rig.close()
+            self._live.pop(acq_id, None)
             self._set(acq_id, state="failed")
             raise
         self._set(acq_id, job_id=job.id)
@@ -223,10 +298,57 @@ class AcquisitionService:
         acq_id: int,
         setup_id: int,
         setup: TestSetup,
+        struck: TestSetup,
         cfg: Mapping[str, Any],
         rig: Any,
+        live: _Live,
     ) -> dict[str, Any]:
         from dimacq.services.rig import run_impact_test
+
+        inputs: list[int] = list(cfg["inputs"])
+        fs = live.sample_rate_hz
+        n_resp = len(setup.responses)
+
+        def review(
+            j: int,
+            average_index: int,
+            reasons: tuple[str, ...],
+            record: Mapping[str, NDArray[np.float64]],
+            wait_s: float,
+        ) -> Decision | None:
+            number = average_index + 1
+            with live.lock:
+                announce = live.answered != number and (
+                    live.pending is None or live.pending["number"] != number
+                )
+                if announce:
+                    live.pending_view = hit_view(record, fs, n_resp)
+                    live.pending = {
+                        "number": number,
+                        "input_index": inputs[j],
+                        "reasons": list(reasons),
+                    }
+            if announce:
+                ctx.progress(
+                    ctx_fraction[0],
+                    f"hit {number} on input {inputs[j] + 1}: accept, reject or redo the input",
+                )
+            if live.finish.is_set():
+                return "reject"
+            ctx.check_cancelled()
+            try:
+                got, decision = live.decisions.get(timeout=wait_s)
+            except queue.Empty:
+                return None
+            if got != number:  # a decision on a hit already decided: ignored
+                return None
+            if decision == "redo":
+                self._supersede(acq_id, inputs[j])
+            return decision
+
+        def on_input(j: int, coherence: NDArray[np.float64]) -> None:
+            c = coherence[:, :n_resp]
+            live.coherence[j] = float(np.nanmean(c)) if np.isfinite(c).any() else None
 
         def on_average(
             input_index: int,
@@ -235,6 +357,18 @@ class AcquisitionService:
             reasons: Sequence[str],
             record: Mapping[str, NDArray[np.float64]],
         ) -> None:
+            input_index = inputs[input_index]  # the session counts the struck inputs only
+            live.last_view = (
+                live.pending_view if live.pending_view is not None else hit_view(record, fs, n_resp)
+            )
+            live.last_view = {
+                **live.last_view,
+                "number": average_index + 1,
+                "input_index": input_index,
+                "accepted": accepted,
+                "reasons": list(reasons),
+            }
+            live.pending_view = None
             number = average_index + 1
             rel = f"acquisitions/{acq_id:06d}/avg-{number:05d}.h5"
             reason = "; ".join(reasons)
@@ -244,6 +378,7 @@ class AcquisitionService:
                 "number": number,
                 "accepted": accepted,
                 "reason": reason,
+                "sample_rate_hz": fs,
             }
             self.arrays.write(rel, record, attrs)  # on this stand's disk first, always
             row = {
@@ -258,7 +393,10 @@ class AcquisitionService:
             if not self.outbox.write(self.db, rel, lambda s: s.add(m.Average(**row))):
                 log.warning("average %s kept on disk; registered when the database is back", rel)
 
+        ctx_fraction = [0.0]
+
         def on_progress(fraction: float, message: str) -> None:
+            ctx_fraction[0] = fraction
             ctx.progress(fraction, message)
             ctx.check_cancelled()  # raising here stops the session; its finally stops the devices
 
@@ -267,6 +405,12 @@ class AcquisitionService:
 
         def store_frf(frf: Any) -> int:
             self.outbox.flush(self.db)  # the averages first
+            merge_id = cfg.get("merge_frf_id")
+            if merge_id is not None:
+                base = self.store.frf(int(merge_id))
+                if base is None:
+                    raise DataError(f"FRF set {merge_id} was deleted during the acquisition")
+                frf = merge_frfs(base[0], frf, setup)
             fid = self.store.save_frf(
                 frf, setup_id, name=f"acquisition {acq_id}", acquisition_id=acq_id
             )
@@ -275,7 +419,16 @@ class AcquisitionService:
 
         state, message = "failed", ""
         try:
-            frf = run_impact_test(rig, setup, cfg, on_average=on_average, on_progress=on_progress)
+            frf = run_impact_test(
+                rig,
+                struck,
+                cfg,
+                on_average=on_average,
+                on_progress=on_progress,
+                review=review if live.review else None,
+                should_finish=live.finish.is_set,
+                on_input=on_input,
+            )
             try:
                 fid = self.db.retry(
                     lambda: store_frf(frf),
@@ -305,6 +458,7 @@ class AcquisitionService:
             raise
         finally:
             rig.close()
+            live.pending = live.pending_view = None
 
             def final(s: Any) -> None:
                 r = s.get(m.Acquisition, acq_id)
@@ -342,6 +496,8 @@ class AcquisitionService:
         acq, setup_id, config, state, message, job_id, frf_id, stand = row
         snap = self.jobs.snapshot(job_id) if job_id else None
         per_input = _accepted_per_input(avgs)
+        live = self._live.get(acq)
+        struck = (config or {}).get("inputs")
         cfg = config or {}
         need = min(int(cfg.get("min_averages") or 1), int(cfg.get("averages_per_input") or 10**6))
         return AcquisitionInfo(
@@ -362,7 +518,100 @@ class AcquisitionService:
             else [],
             progress=snap["progress"] if snap else (1.0 if state == "finished" else 0.0),
             stand=stand,
+            pending_review=dict(live.pending) if live and live.pending else None,
+            input_coherence=list(live.coherence) if live else [],
+            inputs=list(struck) if struck is not None else list(range(len(per_input))),
         )
+
+    # ------------------------------------------------------------------ the operator's decisions
+    def _require_live(self, acq_id: int) -> _Live:
+        cur = self.get(acq_id)
+        if cur is None:
+            raise KeyError(acq_id)
+        live = self._live.get(acq_id)
+        if live is None or cur.state != "running":
+            raise DeviceStateError(
+                f"acquisition {acq_id} is {cur.state}: only a running acquisition of this stand "
+                "takes decisions; start one (review = true to decide every hit)"
+            )
+        return live
+
+    def decide(self, acq_id: int, number: int, decision: Decision) -> AcquisitionInfo | None:
+        """The operator's accept / reject / redo (the input again) of the hit waiting for review.
+
+        Raises
+        ------
+        DeviceStateError
+            Not running here, not in review mode, or ``number`` is not the hit that waits.
+        """
+        try:
+            live = self._require_live(acq_id)
+        except KeyError:
+            return None
+        if not live.review:
+            raise DeviceStateError(
+                f"acquisition {acq_id} was started without review: its checks decide each hit; "
+                "start it with review = true to decide them"
+            )
+        with live.lock:  # one decision per hit: the hit stops waiting as soon as it is given
+            pending = live.pending
+            if pending is None or pending["number"] != number:
+                waiting = "no hit waits" if pending is None else f"hit {pending['number']} waits"
+                raise DeviceStateError(
+                    f"hit {number} of acquisition {acq_id} is not waiting for a decision "
+                    f"({waiting}); decide the hit that waits (pending_review.number)"
+                )
+            live.pending = None
+            live.answered = number
+            live.decisions.put((number, decision))
+        return self.get(acq_id)
+
+    def finish(self, acq_id: int) -> AcquisitionInfo | None:
+        """Stop striking and keep the accepted averages: FRFs of the inputs that reached
+        ``min_averages`` are estimated and stored (the others are incomplete)."""
+        try:
+            live = self._require_live(acq_id)
+        except KeyError:
+            return None
+        live.finish.set()
+        return self.get(acq_id)
+
+    def hit(self, acq_id: int) -> dict[str, Any] | None:
+        """The hit waiting for review, else the last decided one: force and strongest response
+        traces and their spectra (see :func:`hit_view`); None when there is none."""
+        if self.get(acq_id) is None:
+            return None
+        live = self._live.get(acq_id)
+        if live is None:
+            return None
+        with live.lock:
+            pending, view, last = live.pending, live.pending_view, live.last_view
+            answered = live.answered
+        if pending is not None and view is not None:
+            return {**view, **pending, "pending": True}
+        if view is not None:  # decided, not yet recorded by the job
+            return {**view, "number": answered, "pending": False}
+        if last is not None:
+            return {**last, "pending": False}
+        return None
+
+    def _supersede(self, acq_id: int, input_index: int) -> None:
+        """Redo of an input: its averages accepted so far no longer count."""
+        from dimacq.services.acquisition import OPERATOR_REDO
+
+        def mark(s: Any) -> None:
+            for a in s.scalars(
+                select(m.Average).where(
+                    m.Average.acquisition_id == acq_id,
+                    m.Average.input_index == input_index,
+                    m.Average.accepted.is_(True),
+                )
+            ):
+                a.accepted, a.reason = False, OPERATOR_REDO
+
+        self.outbox.flush(self.db)
+        if not self.outbox.write(self.db, f"acquisition {acq_id} redo input {input_index}", mark):
+            log.warning("redo of input %d kept until the database is back", input_index)
 
     def stop(self, acq_id: int) -> AcquisitionInfo | None:
         """Cancel a running acquisition (completed averages are kept)."""

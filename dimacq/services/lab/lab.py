@@ -18,6 +18,8 @@ services the REST API (and anything else) drives:
 ``lab.calibrations``      :class:`~dimacq.services.lab.calibrations.CalibrationService`:
                           documents, and calibration runs as jobs (``.runs``)
 ``lab.studies``           :class:`~dimacq.services.lab.studies.StudyService`: sensitivity
+``lab.rig_map``           :class:`~dimacq.services.lab.rig_map.RigMapService`: the rig file
+                          (channel map, sensitivities): read, check, replace
 ``lab.jobs``              :class:`~dimacq.services.jobs.JobManager`
 ========================  ===================================================================
 
@@ -49,6 +51,7 @@ from dimacq.services.lab.calibrations import CalibrationService
 from dimacq.services.lab.common import package_version
 from dimacq.services.lab.devices import DeviceService
 from dimacq.services.lab.geometry import GeometryService
+from dimacq.services.lab.rig_map import RigMapService
 from dimacq.services.lab.solving import AnalysisService
 from dimacq.services.lab.store import TestStore
 from dimacq.services.lab.studies import StudyService
@@ -140,6 +143,7 @@ class Lab:
         )
         self.calibrations = CalibrationService(self.db, name, jobs=self.jobs, settings=settings)
         self.studies = StudyService(self.db, self.jobs, name)
+        self.rig_map = RigMapService(settings)
         self.job_store.interrupt_stale()  # this stand's jobs that ran when it stopped
         self.acquisitions.recover()
         self.ticker = Ticker(f"dimacq-ticker-{name}")

@@ -1,0 +1,98 @@
+// Step 5: solve — the band picked on the plots (or automatic), selection and exclusions, the ten
+// parameters with 95 % intervals and the verdict, the parameters against frequency, and stored
+// solutions compared side by side.
+import { $, api, authHeaders, emit, esc, f, guard, items, on, say, state, table } from "/static/core.js";
+import { linePlot } from "/static/plot.js";
+import { paramRows } from "/static/results.js";
+
+function interval(u) {
+  if (!u || !u.ci95) return "—";
+  return `[${f(u.ci95[0])}, ${f(u.ci95[1])}]`;
+}
+
+/** An image from the API with the token (an <img src> cannot send it). */
+export async function tokenImage(img, path) {
+  const r = await fetch(path, { headers: authHeaders() });
+  if (!r.ok) throw new Error(`GET ${path}: HTTP ${r.status}`);
+  img.src = URL.createObjectURL(await r.blob());
+}
+
+async function solve() {
+  const body = { frf_id: +$("#frf-set").value };
+  if (!body.frf_id) throw new Error("FRF set: open one in step 4 first");
+  if (!$("#auto-band").checked) {
+    const lo = parseFloat($("#band-lo").value);
+    const hi = parseFloat($("#band-hi").value);
+    if (!(hi > lo)) throw new Error("band: drag on the FRF plot or type low < high (Hz), or tick automatic band");
+    body.band_hz = [lo, hi];
+  }
+  say("solving…");
+  const s = await api("POST", "/api/solutions", body);
+  state.solution = s;
+  await renderSolution(s);
+  await loadSolutions();
+  say(`solution ${s.id}: verdict ${s.result.verdict}`);
+  await emit("solved", s);
+}
+
+async function renderSolution(s) {
+  const r = s.result;
+  const reasons = (r.verdict_reasons || []).map((x) => (typeof x === "string" ? { message: x } : x));
+  const ex = (k) => (r[k] || []).map((p) => (Array.isArray(p) ? p.join("/") : `${p.node}/${p.direction}`)).join(", ") || "none";
+  $("#solution").innerHTML = `<p class="verdict ${esc(r.verdict)}">verdict: ${esc(r.verdict)}</p>
+    <ul>${reasons.map((x) => `<li class="${esc(x.severity || "")}">${esc(x.severity ? `${x.severity}: ` : "")}${esc(x.message || JSON.stringify(x))}</li>`).join("")}</ul>
+    <p>band ${f(r.band_hz[0])}–${f(r.band_hz[1])} Hz${r.band_selection && r.band_selection.automatic ? " (automatic)" : " (picked)"}; reference point P ${esc((r.reference_point_m || []).join(", "))} m; excluded responses: ${esc(ex("excluded_responses"))}; excluded inputs: ${esc(ex("excluded_inputs"))}</p>
+    ${table(["parameter", "unit", "estimate", "95 % interval"], paramRows(r).map(([n, un, v, uu]) => [`<span class="l">${n}</span>`, un, f(v, 6), interval(uu)]))}`;
+  await drawSpectrum(s.id);
+}
+
+async function drawSpectrum(id) {
+  const sp = await api("GET", `/api/solutions/${id}/spectrum`);
+  state.spectrum = sp;
+  $("#spec-param").innerHTML = sp.parameters.map((p, k) => `<option value="${k}">${p} (${sp.units[k]})</option>`).join("");
+  plotSpectrum(0);
+}
+
+function plotSpectrum(k) {
+  const sp = state.spectrum;
+  const x = Float64Array.from(sp.frequencies_hz);
+  const y = Float64Array.from(sp.per_line.map((row) => (row[k] === null ? NaN : row[k])));
+  const inBand = [...x.keys()].filter((i) => x[i] >= sp.band_hz[0] && x[i] <= sp.band_hz[1]).map((i) => y[i]).filter(Number.isFinite);
+  inBand.sort((a, b) => a - b);
+  const lo = inBand.length ? inBand[Math.floor(0.02 * inBand.length)] : -1;
+  const hi = inBand.length ? inBand[Math.floor(0.98 * (inBand.length - 1))] : 1;
+  const pad = 0.5 * Math.max(hi - lo, Math.abs(sp.headline[k]) * 0.05, 1e-9);
+  state.plots.spectrum = linePlot($("#spec-plot"), { x, band: sp.band_hz, xLabel: "frequency, Hz",
+    yLabel: `${sp.parameters[k]}, ${sp.units[k]}`, yRange: [lo - pad, hi + pad],
+    title: `${sp.parameters[k]} per frequency line (blue) and the band estimate (red)`,
+    series: [{ y }, { y: new Float64Array(x.length).fill(sp.headline[k]), color: "#d62728" }] });
+}
+
+async function loadSolutions() {
+  state.solutions = items(await api("GET", "/api/solutions"));
+  $("#solutions tbody").innerHTML = state.solutions.map((s) => `<tr><td><input type="checkbox" data-cmp="${s.id}"${state.solution && s.id === state.solution.id ? " checked" : ""}></td>
+    <td>${s.id}</td><td>${s.frf_id}</td><td>${f(s.result.band_hz[0])}–${f(s.result.band_hz[1])}</td>
+    <td class="${esc(s.result.verdict)}">${esc(s.result.verdict)}</td><td>${f(s.result.mass_kg, 5)}</td></tr>`).join("");
+  for (const c of document.querySelectorAll("[data-cmp]")) c.onchange = compare;
+  compare();
+}
+
+/** The checked solutions side by side: estimate and 95 % interval of every parameter. */
+function compare() {
+  const ids = [...document.querySelectorAll("[data-cmp]:checked")].map((c) => +c.dataset.cmp);
+  const sols = ids.map((id) => state.solutions.find((s) => s.id === id)).filter(Boolean);
+  if (sols.length < 2) { $("#compare").innerHTML = `<p class="small">Tick two or more solutions to compare them.</p>`; return; }
+  const rows = paramRows(sols[0].result).map(([n, un], i) => [`<span class="l">${n}</span>`, un,
+    ...sols.map((s) => { const [, , v, u] = paramRows(s.result)[i] || []; return `${f(v, 5)}<br><span class="small">${interval(u)}</span>`; })]);
+  rows.push(["verdict", "", ...sols.map((s) => `<span class="${esc(s.result.verdict)}">${esc(s.result.verdict)}</span>`)]);
+  rows.push(["band", "Hz", ...sols.map((s) => `${f(s.result.band_hz[0])}–${f(s.result.band_hz[1])}`)]);
+  $("#compare").innerHTML = table(["parameter", "unit", ...sols.map((s) => `solution ${s.id}`)], rows);
+}
+
+export function init() {
+  $("#solve-btn").onclick = guard(solve);
+  $("#spec-param").onchange = () => plotSpectrum(+$("#spec-param").value);
+  on("frf-opened", () => {});
+}
+
+export async function load() { await loadSolutions(); }

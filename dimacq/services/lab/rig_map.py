@@ -1,0 +1,99 @@
+"""The rig's channel map (``rig.toml``, :mod:`dimacq.io.rig_file`): read, check and replace it.
+
+The lab page shows the file (hammers, responses with their sensitivities, load cells) and lets
+the engineer edit it as text: comments and layout are the engineer's, so the service keeps the
+text as given; it is checked exactly as an acquisition would read it (:func:`load_rig_file`,
+relative calibration paths resolved from the file's folder) before it replaces the file. The
+previous version is kept beside it (``rig.toml.previous``).
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+from dimacq.config import Settings
+from dimacq.errors import SetupError
+from dimacq.io.rig_file import RigFile, parse_rig_text
+
+__all__ = ["RigMapService", "dump_rig"]
+
+
+class RigMapService:
+    """The configured rig file (``settings.rig_path``)."""
+
+    def __init__(self, settings: Settings) -> None:
+        self.path = settings.rig_path
+
+    def read(self) -> dict[str, Any]:
+        """``path``, ``text``, ``rig`` (the parsed map, or None) and ``error`` ("" when valid)."""
+        try:
+            text = self.path.read_text(encoding="utf-8")
+        except OSError as err:
+            return {"path": str(self.path), "text": "", "rig": None, "error": str(err)}
+        try:
+            rig = self.check(text)
+        except SetupError as err:
+            return {"path": str(self.path), "text": text, "rig": None, "error": str(err)}
+        return {"path": str(self.path), "text": text, "rig": dump_rig(rig), "error": ""}
+
+    def check(self, text: str) -> RigFile:
+        """The map ``text`` describes, read as an acquisition reads it (nothing is written).
+
+        Raises
+        ------
+        SetupError
+            Not UTF-8 text, TOML syntax, or an item that fails its check (the message names it
+            and the fix).
+        """
+        try:
+            text.encode("utf-8")
+        except UnicodeEncodeError as err:
+            raise SetupError(
+                f"text: not UTF-8 text at character {err.start}; send the rig file as written"
+            ) from err
+        return parse_rig_text(text, self.path)
+
+    def write(self, text: str) -> dict[str, Any]:
+        """Check ``text`` and replace the rig file with it (the old one kept as
+        ``<name>.previous``); returns :meth:`read`'s answer for the new file.
+
+        Raises
+        ------
+        SetupError
+            The text fails its check, or the file's folder cannot be written (the message names
+            the folder).
+        """
+        self.check(text)
+        folder = self.path.parent
+        tmp = ""
+        try:
+            fd, tmp = tempfile.mkstemp(prefix=".rig-new-", suffix=".toml", dir=folder)
+            with os.fdopen(fd, "w", encoding="utf-8") as fh:
+                fh.write(text)
+                fh.flush()
+                os.fsync(fh.fileno())
+            if self.path.exists():
+                previous = self.path.with_name(self.path.name + ".previous")
+                previous.write_bytes(self.path.read_bytes())
+            os.replace(tmp, self.path)
+            tmp = ""
+        except OSError as err:
+            raise SetupError(
+                f"rig file {self.path}: cannot write it ({err.strerror}); give the service write "
+                f"access to {folder} or set rig_file (DIMACQ_RIG_FILE) to a writable copy"
+            ) from err
+        finally:
+            if tmp:
+                Path(tmp).unlink(missing_ok=True)
+        return self.read()
+
+
+def dump_rig(rig: RigFile) -> dict[str, Any]:
+    out: dict[str, Any] = rig.model_dump(mode="json")
+    out["responses"] = [
+        {**r, "key": e.key} for r, e in zip(out["responses"], rig.responses, strict=True)
+    ]
+    return out

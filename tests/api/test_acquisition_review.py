@@ -1,0 +1,170 @@
+"""The operator's decisions during an acquisition (issue 13): accept / reject / redo each hit,
+stop and keep the accepted averages, redo one input and append inputs into an FRF set.
+
+On the impulse source (:mod:`_lab_rig_support`), whose FRFs have a closed form: what the operator
+decides must be exactly what the stored averages and FRFs say.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import httpx
+import numpy as np
+import pytest
+from _acq_support import ImpulseSource
+from _api_support import TOKEN, make_settings
+from _lab_rig_support import IMPULSE_SETUP, impulse_rig_factory
+
+from dimacq.api import create_app
+from dimacq.api.server import BackgroundServer
+from dimacq.io.setup_file import dump_setup_dict
+from dimacq.model.setup import TestSetup
+from dimacq.services.acquisition import OPERATOR_REDO, OPERATOR_REJECT
+from dimacq.services.lab import Lab
+from dimacq.services.rig import Rig
+
+BODY = {"averages_per_input": 2, "min_averages": 2, "record_samples": 2048, "trigger_level_n": 20.0}
+
+
+def _struck_inputs_factory() -> Callable[[Any, TestSetup, Any], Rig]:
+    """The impulse rig striking the setup's inputs (a subset: redo / append) on their own
+    hammer channels (input node 10 → hammer 0, 11 → hammer 1)."""
+    inner = impulse_rig_factory()
+
+    def factory(settings: Any, setup: TestSetup, cfg: Any) -> Rig:
+        rig = inner(settings, setup, cfg)
+        which = [e.node - 10 for e in setup.excitations]
+        rig.input_channels = [f"{10 + k}+X force" for k in which]
+        strike = rig.operator
+        assert strike is not None
+        rig.operator = lambda j, at: strike(which[j], at)
+        return rig
+
+    return factory
+
+
+@pytest.fixture
+def review_api(tmp_path: Path, database_url: str) -> Iterator[httpx.Client]:
+    settings = make_settings(tmp_path, database_url=database_url)
+    lab = Lab(settings, open_devices=False, rig_factory=_struck_inputs_factory())
+    try:
+        with (
+            BackgroundServer(create_app(settings, lab=lab)) as srv,
+            httpx.Client(
+                base_url=srv.url, headers={"Authorization": f"Bearer {TOKEN}"}, timeout=30
+            ) as c,
+        ):
+            yield c
+    finally:
+        lab.close()
+
+
+def _wait(c: httpx.Client, acq_id: int, cond: Callable[[dict], bool]) -> dict:
+    deadline = time.monotonic() + 30
+    while time.monotonic() < deadline:
+        a = c.get(f"/api/acquisitions/{acq_id}").json()
+        if cond(a):
+            return a
+        time.sleep(0.02)
+    raise AssertionError(f"acquisition {acq_id}: condition not reached: {a}")
+
+
+def _decide(c: httpx.Client, acq_id: int, decision: str) -> dict:
+    """Wait for the next hit to review, look at it, decide; return the hit's view."""
+    a = _wait(c, acq_id, lambda a: a["pending_review"] is not None or a["state"] != "running")
+    assert a["state"] == "running", a
+    hit = c.get(f"/api/acquisitions/{acq_id}/hit").json()
+    n = a["pending_review"]["number"]
+    assert hit["pending"] and hit["number"] == n
+    r = c.post(f"/api/acquisitions/{acq_id}/review", json={"number": n, "decision": decision})
+    assert r.status_code == 200, r.text
+    return hit
+
+
+def _frf(c: httpx.Client, frf_id: int) -> tuple[np.ndarray, np.ndarray, list[int]]:
+    data = c.get(f"/api/frfs/{frf_id}/data").json()
+    f = np.asarray(data["frequencies_hz"])
+    h = np.asarray(data["real"]) + 1j * np.asarray(data["imag"])
+    return f, h, [i["node"] for i in data["inputs"]]
+
+
+def _closed_form(f: np.ndarray) -> np.ndarray:
+    return ImpulseSource(n_inputs=2, n_responses=3, response_gain=0.01).frf(f)
+
+
+def test_accept_reject_redo_each_hit_then_redo_and_append_inputs(review_api) -> None:
+    c = review_api
+    sid = c.post("/api/setups", json=dump_setup_dict(IMPULSE_SETUP)).json()["id"]
+    bad = c.post("/api/acquisitions", json={**BODY, "setup_id": sid, "inputs": [0, 2]})
+    assert bad.status_code == 422 and "inputs" in bad.json()["detail"]
+
+    # --- the whole test, reviewed: input 10 accept, reject, redo; then accept ×2; input 11 ×2
+    acq = c.post("/api/acquisitions", json={**BODY, "setup_id": sid, "review": True}).json()
+    aid = acq["id"]
+    hit = _decide(c, aid, "accept")
+    # what the operator looks at: the force pulse and the response, their spectra
+    fs = hit["sample_rate_hz"]
+    assert len(hit["force_n"]) == BODY["record_samples"] and hit["peak_force_n"] > 20.0
+    assert len(hit["frequencies_hz"]) == BODY["record_samples"] // 2 + 1
+    assert hit["frequencies_hz"][1] == pytest.approx(fs / BODY["record_samples"])
+    assert max(hit["force_db"]) == pytest.approx(0.0) and hit["reasons"] == []
+    wrong = c.post(f"/api/acquisitions/{aid}/review", json={"number": 99, "decision": "accept"})
+    _decide(c, aid, "reject")
+    assert wrong.status_code == 409
+    _decide(c, aid, "redo")
+    a = _wait(c, aid, lambda a: len(a["averages"]) == 3)
+    assert [(av["accepted"], av["reason"]) for av in a["averages"]] == [
+        (False, OPERATOR_REDO),  # accepted first, dropped by the redo
+        (False, OPERATOR_REJECT),
+        (False, OPERATOR_REDO),
+    ]
+    for decision in ("accept", "accept", "accept", "accept"):
+        _decide(c, aid, decision)
+    a = _wait(c, aid, lambda a: a["state"] != "running")
+    assert a["state"] == "finished", a
+    assert a["accepted_per_input"] == [2, 2] and a["averages_rejected"] == 3
+    assert all(v is not None and v > 0.99 for v in a["input_coherence"]), a["input_coherence"]
+    f, h, nodes = _frf(c, a["frf_id"])
+    assert nodes == [10, 11]
+    np.testing.assert_allclose(h, _closed_form(f), atol=3e-3 * np.abs(h).max())
+    assert c.get(f"/api/acquisitions/{aid}/hit").json()["pending"] is False
+
+    # --- redo input 11 into that FRF set: a new set, input 11 replaced, input 10 kept as it was
+    body = {**BODY, "setup_id": sid, "inputs": [1], "merge_frf_id": a["frf_id"]}
+    redo = c.post("/api/acquisitions", json=body).json()
+    assert redo["inputs"] == [1]
+    b = _wait(c, redo["id"], lambda a: a["state"] != "running")
+    assert b["state"] == "finished" and b["frf_id"] != a["frf_id"], b
+    assert {av["input_index"] for av in b["averages"]} == {1}  # setup indices, not session ones
+    f2, h2, nodes2 = _frf(c, b["frf_id"])
+    assert nodes2 == [10, 11]
+    np.testing.assert_array_equal(h2[:, :, 0], h[:, :, 0])
+    np.testing.assert_allclose(h2, _closed_form(f2), atol=3e-3 * np.abs(h2).max())
+
+
+def test_finish_keeps_the_accepted_averages_and_append_completes_the_set(review_api) -> None:
+    c = review_api
+    sid = c.post("/api/setups", json=dump_setup_dict(IMPULSE_SETUP)).json()["id"]
+    acq = c.post("/api/acquisitions", json={**BODY, "setup_id": sid, "review": True}).json()
+    aid = acq["id"]
+    _decide(c, aid, "accept")
+    _decide(c, aid, "accept")
+    _wait(c, aid, lambda a: a["pending_review"] is not None)  # input 11's first hit waits
+    assert c.post(f"/api/acquisitions/{aid}/finish").status_code == 200
+    a = _wait(c, aid, lambda a: a["state"] != "running")
+    assert a["state"] == "finished" and a["incomplete_inputs"] == [1], a
+    assert _frf(c, a["frf_id"])[2] == [10]
+    # a finished acquisition takes no more decisions
+    late = c.post(f"/api/acquisitions/{aid}/review", json={"number": 3, "decision": "accept"})
+    assert late.status_code == 409
+    # append input 11 (no review: the checks decide)
+    body = {**BODY, "setup_id": sid, "inputs": [1], "merge_frf_id": a["frf_id"]}
+    b = c.post("/api/acquisitions", json=body).json()
+    b = _wait(c, b["id"], lambda x: x["state"] != "running")
+    f2, h2, nodes2 = _frf(c, b["frf_id"])
+    assert b["state"] == "finished" and nodes2 == [10, 11], b
+    np.testing.assert_allclose(h2, _closed_form(f2), atol=3e-3 * np.abs(h2).max())
