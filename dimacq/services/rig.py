@@ -18,7 +18,7 @@ import logging
 from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field, is_dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal
 
 from dimacq.backends import DeviceKind, lookup
 from dimacq.backends.base import DeviceContext, Operator
@@ -34,9 +34,16 @@ from dimacq.model.setup import TestSetup
 
 if TYPE_CHECKING:
     from dimacq.io.acquisition_hdf5 import AcquisitionWriter
-    from dimacq.services.acquisition import AverageCallback
+    from dimacq.services.acquisition import AverageCallback, ImpactResult
 
-__all__ = ["Rig", "build_rig", "check_devices", "impact_settings", "run_impact_test"]
+__all__ = [
+    "Rig",
+    "build_rig",
+    "check_devices",
+    "impact_settings",
+    "run_impact_session",
+    "run_impact_test",
+]
 
 log = logging.getLogger(__name__)
 
@@ -166,7 +173,13 @@ def _configure(daq: Daq, rf: RigFile, response_of: list[int]) -> tuple[list[str]
     return hammer_names, names
 
 
-def build_rig(settings: Settings, setup: TestSetup, cfg: Mapping[str, Any]) -> Rig:
+def build_rig(
+    settings: Settings,
+    setup: TestSetup,
+    cfg: Mapping[str, Any],
+    *,
+    calibration_bench: int | None = None,
+) -> Rig:
     """Open and configure the rig for ``setup``.
 
     Parameters
@@ -178,6 +191,10 @@ def build_rig(settings: Settings, setup: TestSetup, cfg: Mapping[str, Any]) -> R
     cfg : mapping
         The acquisition request; ``seed`` seeds a simulated world, ``noise_scale`` scales its
         noise (0: noise-free; default 1).
+    calibration_bench : int, optional
+        The rig is the inertial calibration bench of this load cell (the calibration mass on
+        it, struck on the cell's support side): its amplifier opens without a calibration file;
+        run the test with ``loadcell_outputs="gauges"`` (:func:`run_impact_session`).
 
     Raises
     ------
@@ -193,6 +210,7 @@ def build_rig(settings: Settings, setup: TestSetup, cfg: Mapping[str, Any]) -> R
         setup=setup,
         seed=None if seed is None else int(seed),
         noise_scale=1.0 if noise_scale is None else float(noise_scale),
+        calibration_bench=calibration_bench,
     )
     rf = ctx.rig_file
     hammer_of, response_of, cell_of = _channels(rf, setup)
@@ -286,7 +304,29 @@ def run_impact_test(
     channels ``rig.daq.channel_names`` in units ``rig.daq_units``); ``meta`` goes into the
     FRFs' metadata (default: the source).
     """
-    from dimacq.services.acquisition import ImpactSession, Progress, impact_frf
+    from dimacq.services.acquisition import impact_frf
+
+    result = run_impact_session(
+        rig, setup, cfg, on_average=on_average, on_progress=on_progress, writer=writer
+    )
+    return impact_frf(result, setup, meta=dict(meta or {"source": "dimacq impact acquisition"}))
+
+
+def run_impact_session(
+    rig: Rig,
+    setup: TestSetup,
+    cfg: Mapping[str, Any],
+    *,
+    on_average: AverageCallback | None = None,
+    on_progress: ProgressCallback,
+    writer: AcquisitionWriter | None = None,
+    loadcell_outputs: Literal["forces", "gauges"] = "forces",
+) -> ImpactResult:
+    """Run the impact session of :func:`run_impact_test` and return its raw result: FRFs of
+    the responses, then per load cell its six loads (``loadcell_outputs="forces"``) or its 12
+    gauges (``"gauges"``: a cell being calibrated). Without a world that strikes by itself
+    (``rig.operator``) the person is asked through ``on_progress`` ("strike input N: ...")."""
+    from dimacq.services.acquisition import ImpactSession, Progress
 
     if len(rig.input_channels) != len(setup.excitations):
         raise SetupError(
@@ -335,7 +375,6 @@ def run_impact_test(
         progress=progress,
         on_average=on_average,
         writer=writer,
+        loadcell_outputs=loadcell_outputs,
     )
-    return impact_frf(
-        session.run(), setup, meta=dict(meta or {"source": "dimacq impact acquisition"})
-    )
+    return session.run()

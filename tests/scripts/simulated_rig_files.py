@@ -170,10 +170,45 @@ def write_reference_block() -> None:
     print(f"wrote {folder}")
 
 
+def write_calibration_mass_setup() -> None:
+    """``config/calibration_mass_setup.toml``: the calibration mass on its cell as the lab states
+    it (the scenario's setup) with its certificate under ``[known]`` (a machined steel block:
+    mass, CG and inertia from its drawing and a weighing; here the article's values), read by
+    the bench file's ``[inertial]`` table for the inertial calibration and the circular check."""
+    from dimacq.io.setup_file import save_setup
+    from dimacq.model.setup import KnownProperties
+
+    built = build_scenario("calibration-mass-bungee", None)
+    setup = built.setup
+    props = built.truth
+    P = np.asarray(setup.reference_point_m, float)
+    I = props.inertia_about(P)
+    names = {
+        "Ixx": (0, 0),
+        "Ixy": (0, 1),
+        "Ixz": (0, 2),
+        "Iyy": (1, 1),
+        "Iyz": (1, 2),
+        "Izz": (2, 2),
+    }
+    known = KnownProperties(
+        mass_kg=float(props.mass_kg),
+        cg_m=tuple(float(c) for c in props.cg_m),
+        inertia_kgm2={k: float(I[i, j]) for k, (i, j) in names.items()},
+    )
+    path = CONFIG / "calibration_mass_setup.toml"
+    save_setup(
+        setup.model_copy(update={"known": known, "name": "calibration mass on load cell 501"}),
+        path,
+    )
+    print(f"wrote {path}")
+
+
 def main() -> None:
     for name, (scenario, header) in RIGS.items():
         write_rig(name, scenario, header)
     write_reference_block()
+    write_calibration_mass_setup()
 
 
 if __name__ == "__main__":
