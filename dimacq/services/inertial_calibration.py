@@ -289,9 +289,7 @@ def run_inertial_calibration(
         Tq = condense(psi).transform  # (6, n_acc)
         acc = res.H[sel, :n_acc]
         # T_q H with real arithmetic (complex GEMM is slow on this machine's BLAS)
-        a_p = np.einsum("kc,lci->lki", Tq, acc.real) + 1j * np.einsum(
-            "kc,lci->lki", Tq, acc.imag
-        )
+        a_p = np.einsum("kc,lci->lki", Tq, acc.real) + 1j * np.einsum("kc,lci->lki", Tq, acc.imag)
         gauges = res.H[sel, n_acc + 12 * k : n_acc + 12 * (k + 1)]
         n_inputs = res.H.shape[2]
         del res, acc
@@ -447,7 +445,9 @@ def circular_check(
             "file, are off (DIM's mass scales with the hammer force)",
         )
     verdict = "fail" if reasons else "ok"
-    log.info("load cell %d: circular check, mass %+.4f %% (%s)", entry.node, errs["mass_pct"], verdict)
+    log.info(
+        "load cell %d: circular check, mass %+.4f %% (%s)", entry.node, errs["mass_pct"], verdict
+    )
     return CircularCheck(
         sol, errs, (float(band[0]), float(band[1])), version, tol, verdict, reasons
     )

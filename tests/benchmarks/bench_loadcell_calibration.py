@@ -40,7 +40,15 @@ def one(method: str, trace: bool) -> dict[str, float | str]:
         t0, c0 = time.perf_counter(), time.process_time()
         with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
             rc = dimacq(
-                ["loadcell", "calibrate", "--simulated", "--method", method, "--json", str(out_json)]
+                [
+                    "loadcell",
+                    "calibrate",
+                    "--simulated",
+                    "--method",
+                    method,
+                    "--json",
+                    str(out_json),
+                ]
             )
         wall, cpu = time.perf_counter() - t0, time.process_time() - c0
         res = json.loads(out_json.read_text())

@@ -61,12 +61,10 @@ class CalibrationRuns:
         simulated lab, false on a real rig, where it needs a person to strike again)."""
         from dimacq.errors import DeviceStateError
 
-        items = {"method", "node", "download", "plan", "circular_check"}
+        items = {"method", "node", "download", "plan", "circular_check", "averages_per_input"}
         extra = sorted(set(request) - items)
         if extra:
-            raise SetupError(
-                f"{extra}: not calibration run items; give {', '.join(sorted(items))}"
-            )
+            raise SetupError(f"{extra}: not calibration run items; give {', '.join(sorted(items))}")
         method = request.get("method", "static")
         if method not in ("static", "inertial"):
             raise SetupError(f"method {method!r}: use static or inertial")
@@ -83,6 +81,15 @@ class CalibrationRuns:
         check = request.get("circular_check", simulated)
         if not isinstance(check, bool):
             raise SetupError(f"circular_check {check!r}: give true or false")
+        averages = request.get("averages_per_input")
+        if averages is not None and (
+            not isinstance(averages, int) or isinstance(averages, bool) or not 1 <= averages <= 1000
+        ):
+            raise SetupError(
+                f"averages_per_input {averages!r}: give an integer 1–1000 (default: the bench "
+                "file's)"
+            )
+        cfg = {} if averages is None else {"averages_per_input": averages}
         if self.jobs.running("loadcell-calibration"):
             raise DeviceStateError("a load cell calibration is already running; wait or cancel it")
 
@@ -96,13 +103,13 @@ class CalibrationRuns:
                 where = Path(settings.data_dir) / "calibration-runs" / ctx.job_id
                 settings = scratch_rig(settings, where)
             if method == "inertial":
-                result = self._inertial(ctx, settings, node, download, simulated)
+                result = self._inertial(ctx, settings, node, download, simulated, cfg)
             elif simulated:
                 result = self._simulated(ctx, settings, plan == "minimal")
             else:
                 result = self._real(ctx, node, download)
             if check and result.get("verdict") != "fail":
-                result.update(self._check(ctx, settings, result["load_cell_node"], simulated))
+                result.update(self._check(ctx, settings, result["load_cell_node"], cfg))
             return result
 
         job = self.jobs.submit("loadcell-calibration", work)
@@ -116,7 +123,13 @@ class CalibrationRuns:
         return show
 
     def _inertial(
-        self, ctx: Any, settings: Any, node: int | None, download: bool, simulated: bool
+        self,
+        ctx: Any,
+        settings: Any,
+        node: int | None,
+        download: bool,
+        simulated: bool,
+        cfg: dict[str, Any],
     ) -> dict[str, Any]:
         """The inertial bench through the rig builder; on a real rig the job's progress asks
         the person for every strike (as an acquisition does)."""
@@ -132,6 +145,7 @@ class CalibrationRuns:
         run, verified = run_inertial_calibration(
             settings,
             node=node,
+            cfg=cfg,
             on_progress=self._job_progress(ctx, "inertial bench"),
             download=download_and_verify if download and not simulated else None,
         )
@@ -157,11 +171,11 @@ class CalibrationRuns:
             "record_id": rec["id"],
         }
 
-    def _check(self, ctx: Any, settings: Any, node: int, simulated: bool) -> dict[str, Any]:
+    def _check(self, ctx: Any, settings: Any, node: int, cfg: dict[str, Any]) -> dict[str, Any]:
         from dimacq.services.inertial_calibration import circular_check
 
         chk = circular_check(
-            settings, node=node, on_progress=self._job_progress(ctx, "circular check")
+            settings, node=node, cfg=cfg, on_progress=self._job_progress(ctx, "circular check")
         )
         return chk.to_json()
 
