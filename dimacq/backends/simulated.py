@@ -90,23 +90,26 @@ class SimulatedWorld:
     ) -> None:
         self.scenario = scenario
         self.built = build_scenario(scenario, seed)
-        bench = calibration_bench is not None
         # A test streams through the lab about once (the amplifier's tare a little behind):
         # 64 blocks cached, older ones recomputed from their stored states if read again.
         self.lab: VirtualLab = virtual_lab(
-            self.built, noise_scale=noise_scale, hammer_noise=not bench, cache_blocks=64
+            self.built,
+            noise_scale=noise_scale,
+            hammer_noise=calibration_bench is None,
+            cache_blocks=64,
         )
         article = self.lab.model.setup
         where = f"rig file {rig_file.path} with scenario {scenario!r}"
-        if bench and calibration_bench not in {lc.node for lc in article.load_cells}:
-            raise SetupError(
-                f"{where}: load cell {calibration_bench} to calibrate is not on the scenario's "
-                "article; give a scenario whose article hangs on that cell (calibration-mass-*)"
-            )
         #: what the devices read and the hand strikes: the lab, or the bench around it
-        self.source: VirtualLab | SupportSideBench = (
-            SupportSideBench(self.lab, calibration_bench) if bench else self.lab
-        )
+        self.source: VirtualLab | SupportSideBench = self.lab
+        if calibration_bench is not None:
+            if calibration_bench not in {lc.node for lc in article.load_cells}:
+                raise SetupError(
+                    f"{where}: load cell {calibration_bench} to calibrate is not on the "
+                    "scenario's article; give a scenario whose article hangs on that cell "
+                    "(calibration-mass-*)"
+                )
+            self.source = SupportSideBench(self.lab, calibration_bench)
         if abs(rig_file.daq.sample_rate_hz - self.lab.sample_rate_hz) > 1e-9:
             raise SetupError(
                 f"{where}: [daq] sample_rate_hz = {rig_file.daq.sample_rate_hz:g} but the virtual "

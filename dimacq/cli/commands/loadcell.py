@@ -148,7 +148,7 @@ def calibrate(args: argparse.Namespace) -> int:
             loadcell="simulated",
             scenario=SIMULATED_SCENARIO,
             rig_file="",
-            data_dir=str(Path(tmp) / "data"),
+            data_dir=Path(tmp) / "data",
         )
         return _calibrate(args, scratch_rig(base, Path(tmp) / "rig"), simulated=True)
 
