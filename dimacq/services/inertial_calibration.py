@@ -60,6 +60,7 @@ __all__ = [
     "bench_file_of",
     "calibration_mass",
     "circular_check",
+    "hammer_ratio",
     "run_inertial_calibration",
     "scratch_rig",
     "select_cell",
@@ -156,6 +157,9 @@ class InertialRun:
     n_inputs : int
         Inputs with FRFs (complete ones).
     gauge_unit : str
+    hammer_ratio : (mean, std) or None
+        The hammer's stated sensitivity over the one the calibration mass implies (see
+        :func:`hammer_ratio`); 1 when the rig file's hammer certificate is right.
     """
 
     node: int
@@ -165,6 +169,7 @@ class InertialRun:
     averages_per_input: int
     n_inputs: int
     gauge_unit: str
+    hammer_ratio: tuple[float, float] | None = None
 
     @property
     def matrix(self) -> FloatArray:
@@ -186,6 +191,10 @@ class InertialRun:
             "noise_separation": fit.noise_separation,
             "load_condition": fit.load_condition,
             "n_equations": fit.n_equations,
+            "hammer_sensitivity_ratio": None if self.hammer_ratio is None else self.hammer_ratio[0],
+            "hammer_sensitivity_ratio_std": (
+                None if self.hammer_ratio is None else self.hammer_ratio[1]
+            ),
         }
 
     def calibration(self) -> LoadCellCalibration:
@@ -205,6 +214,36 @@ class InertialRun:
             certificate={"uncertainty_pct_fs": self.uncertainty_pct_fs(), "verdict": "ok"},
             notes="inertial calibration with the calibration mass (support-side impacts)",
         )
+
+
+def hammer_ratio(
+    accel_p: NDArray[np.complex128],
+    mass_matrix: FloatArray,
+    directions: FloatArray,
+) -> tuple[float, float]:
+    """The hammer's stated sensitivity over the one the calibration mass implies.
+
+    On the bench the mass moves as a free rigid body above its suspension modes, so the force
+    on it along input ``j``'s line of action is the hammer's true force: ``d_jᵀ F_P = f`` with
+    ``F_P`` the first three rows of ``M_rb(P) a_P``. With ``a_P`` per *measured* hammer force
+    (a hammer read with the stated sensitivity ``s_stated`` while its true one is ``s_true``
+    reads ``f s_true / s_stated``), ``r_j(ω) = Re d_jᵀ (M_rb a_P)[:3] = s_stated / s_true``;
+    DIM's mass through that hammer comes out ``1/r − 1`` off.
+
+    Parameters
+    ----------
+    accel_p : (n_lines, 6, n_inputs) complex
+        Rigid-body acceleration of P per measured input force, lines above the suspension.
+    mass_matrix : (6, 6)
+    directions : (n_inputs, 3) unit lines of action
+
+    Returns
+    -------
+    (mean, std) of ``r`` over lines and inputs.
+    """
+    F = np.einsum("ab,lbi->lai", np.asarray(mass_matrix, float)[:3], accel_p.real)
+    r = np.einsum("ia,lai->li", np.asarray(directions, float), F)
+    return float(r.mean()), float(r.std())
 
 
 def _gauge_unit(rig: RigFile, entry: LoadCellEntry) -> str:
@@ -292,7 +331,19 @@ def run_inertial_calibration(
         a_p = np.einsum("kc,lci->lki", Tq, acc.real) + 1j * np.einsum("kc,lci->lki", Tq, acc.imag)
         gauges = res.H[sel, n_acc + 12 * k : n_acc + 12 * (k + 1)]
         n_inputs = res.H.shape[2]
-        del res, acc
+        kept = list(res.input_indices or range(n_inputs))
+        clo, chi = bench.inertial.check_band_hz  # above the suspension modes
+        above = (f >= clo) & (f <= chi)
+        acc_hi = res.H[above, :n_acc]
+        a_hi = np.einsum("kc,lci->lki", Tq, acc_hi.real) + 1j * np.einsum(
+            "kc,lci->lki", Tq, acc_hi.imag
+        )
+        ratio = (
+            hammer_ratio(a_hi, props.mass_matrix(P), setup.input_directions[kept])
+            if above.any()
+            else None
+        )
+        del res, acc, acc_hi, a_hi
         lc = setup.load_cells[k]
         fit = inertial_calibration(
             gauges,
@@ -311,6 +362,7 @@ def run_inertial_calibration(
             averages_per_input=int(request["averages_per_input"]),
             n_inputs=int(n_inputs),
             gauge_unit=_gauge_unit(rig_file, entry),
+            hammer_ratio=ratio,
         )
         done = None if download is None else download(rig.loadcells[k], run.matrix)
     finally:

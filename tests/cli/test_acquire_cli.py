@@ -100,14 +100,17 @@ def test_loadcell_calibrate_simulated(tmp_path, capsys, no_leaks):
     assert len(res["uncertainty_pct_fs"]) == 6
     # the bench's accelerometers are known by their certificates (0.5 % σ, config/rig.toml)
     assert res["matrix_error_rel"] < 1.5e-2
-    _circular_is_the_hammer_certificate(res)
+    expected = _circular_is_the_hammer_certificate(res)
+    # the bench sees the hammer's error too: stated / true sensitivity
+    ratio = res["fit"]["hammer_sensitivity_ratio"]
+    assert abs(100 * (1 / ratio - 1) - expected) < 0.3, (ratio, expected)
     assert "circular check" in capsys.readouterr().out
     cal = read_calibration_json(mat)
     np.testing.assert_allclose(cal.matrix, np.array(res["matrix"]))
     assert cal.method == "inertial"
 
 
-def _circular_is_the_hammer_certificate(res: dict) -> None:
+def _circular_is_the_hammer_certificate(res: dict) -> float:
     """DIM's mass scales with the hammer force: through a good cell calibration the circular
     check's mass error is the rig file's hammer certificate error (independent answer: the
     simulated hammer's true sensitivity), and the verdict follows the tolerance."""
@@ -121,6 +124,7 @@ def _circular_is_the_hammer_certificate(res: dict) -> None:
     assert abs(res["circular_mass_error_pct"] - expected) < 0.3, (res, expected)
     ok = abs(res["circular_mass_error_pct"]) <= res["circular_tolerance_pct"]
     assert res["circular_verdict"] == ("ok" if ok else "fail")
+    return expected
 
 
 def test_loadcell_calibrate_static_simulated_json_contract(tmp_path, capsys, no_leaks):

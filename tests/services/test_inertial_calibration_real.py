@@ -107,6 +107,8 @@ def test_inertial_calibration_and_circular_check_of_the_configured_cell(tmp_path
     C = run.matrix
     assert np.linalg.norm(C - C_true) / np.linalg.norm(C_true) < 5e-3
     assert run.fit.rank_used == 6 and run.n_inputs == len(INPUTS)
+    # the rig file states the simulated hammer's true sensitivity here: the ratio is 1
+    assert run.hammer_ratio is not None and abs(run.hammer_ratio[0] - 1) < 3e-3, run.hammer_ratio
     assert asked == [j for j, _ in bench_world.strikes] and len(asked) >= 2 * len(INPUTS)
     # downloaded and read back: the amplifier holds the float32 matrix, all 72 verified
     assert check.verified == 72

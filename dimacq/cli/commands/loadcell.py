@@ -105,7 +105,13 @@ def register(subparsers: Any) -> None:
         action="store_true",
         help="real rig: store the new matrix in the amplifier and read it back",
     )
-    c.add_argument("--seed", type=int, default=0)
+    c.add_argument(
+        "--seed",
+        type=int,
+        default=0,
+        help="simulated dead-weight bench: its seed (the simulated lab of the inertial bench and "
+        "the circular check is the scenario's own: its seed also places the sensors)",
+    )
     c.add_argument("--json", type=Path, metavar="OUT", help="write the figures as JSON")
     c.add_argument(
         "--matrix", type=Path, metavar="OUT.json", help="write the calibration file (JSON)"
@@ -415,5 +421,11 @@ def _inertial(
         f"  residual {fit.residual_rel:.3g}, condition σ1/σ6 {fit.condition:.3g}, noise "
         f"separation σ7/σ6 {fit.noise_separation:.3g}\n"
     )
+    if run.hammer_ratio is not None:
+        r, sd = run.hammer_ratio
+        sys.stdout.write(
+            f"  hammer: stated sensitivity / the calibration mass's {r:.4f} ± {sd:.4f} (DIM's "
+            f"mass through this hammer comes out {100 * (1 / r - 1):+.2f} % off)\n"
+        )
     _download_line(check)
     return payload, cal
