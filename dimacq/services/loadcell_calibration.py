@@ -421,8 +421,8 @@ def calibrate_rig_cell(
     """
     import dataclasses
 
+    from dimacq.backends import lookup
     from dimacq.backends.base import DeviceContext
-    from dimacq.backends.can_loadcell import bit_timing, open_amplifier
     from dimacq.io.loadcell_bench import load_bench_file
     from dimacq.services.inertial_calibration import select_cell
 
@@ -442,19 +442,18 @@ def calibrate_rig_cell(
         max_wait_s=t.max_wait_s,
         creep_tolerance=t.creep_tolerance,
     )
-    channel = entry.channel or settings.loadcell_channel
-    amp = open_amplifier(
-        ctx,
-        entry,
-        interface=settings.loadcell_interface,
-        channel=channel,
-        where=(
-            f"loadcell_interface = {settings.loadcell_interface!r}, channel {channel!r} "
-            "(loadcell_channel)"
-        ),
-        require_calibration=False,
-        timing=bit_timing(settings),
-    )
+    # the cell's amplifier through the loadcell backend table, as an acquisition opens it; on
+    # the bench it needs no calibration file (a new cell)
+    ctx.calibration_bench = node
+    amp = lookup("loadcell", settings.loadcell)(ctx, entry)
+    for need in ("get_status", "download_calibration", "upload_calibration"):
+        if not callable(getattr(amp, need, None)):
+            ctx.close()
+            raise SetupError(
+                f"loadcell = {settings.loadcell!r}: its amplifier has no {need}(); a dead-weight "
+                "calibration needs an amplifier that reads its own clock and stores a matrix "
+                "(the dimacq CAN FD amplifier)"
+            )
     try:
         ident = amp.identify()
         run = run_static_calibration(amp, plan, operator, settings=st, progress=progress)
