@@ -412,8 +412,12 @@ class CircularCheck:
         Version of the calibration file the amplifier applied.
     tolerance_pct : float
         The check passes when ``|mass error|`` is within it (bench file).
-    verdict : {"ok", "fail"}
-    reasons : why it failed (the mass error, and what it can come from)
+    cell_sensitivity : float
+        ``(Δm/m) / (Δc/c)``: how much the solved mass moves with a common scale error ``c`` of
+        the cell's loads (:func:`cell_sensitivity`). Where the cell carries little of the force
+        in the band (a soft suspension above its modes) the check cannot see the cell.
+    verdict : {"ok", "fail", "inconclusive"}
+    reasons : why it failed, or why it says nothing about the cell
     """
 
     solution: Any
@@ -421,6 +425,7 @@ class CircularCheck:
     band_hz: tuple[float, float]
     calibration_version: int
     tolerance_pct: float
+    cell_sensitivity: float
     verdict: str
     reasons: tuple[str, ...]
 
@@ -435,9 +440,33 @@ class CircularCheck:
             "circular_dim_band_hz": list(self.band_hz),
             "circular_calibration_version": self.calibration_version,
             "circular_tolerance_pct": self.tolerance_pct,
+            "circular_cell_sensitivity": self.cell_sensitivity,
             "circular_verdict": self.verdict,
             "circular_reasons": list(self.reasons),
         }
+
+
+#: Below this sensitivity (mass change per unit relative error of the cell's loads) the circular
+#: check cannot vouch for the cell: a 10 % matrix error would move the mass by less than 0.5 %.
+MIN_CELL_SENSITIVITY = 0.05
+
+
+def cell_sensitivity(frf: Any, setup: TestSetup, band_hz: tuple[float, float]) -> float:
+    """``(Δm/m) / ε``: the DIM mass's relative change when every load cell output is scaled by
+    ``1 + ε`` (ε = 1 %), all ten properties unknown. 1 where the cell carries the whole force
+    (its matrix's scale error goes straight into the mass), about 0 where a soft suspension
+    above its modes leaves the cell nearly unloaded."""
+    from dimacq.pipeline import dim
+
+    eps = 0.01
+    react = np.array([k == "reaction" for k in frf.output_kinds])
+    if not react.any():
+        return 0.0
+    H = np.array(frf.H, copy=True)
+    H[:, react, :] *= 1 + eps
+    m0 = dim.solve(frf, setup, known={}, band_hz=band_hz).properties.mass_kg
+    m1 = dim.solve(frf.replace(H=H), setup, known={}, band_hz=band_hz).properties.mass_kg
+    return float(abs(m1 - m0) / m0 / eps)
 
 
 def circular_check(
@@ -489,19 +518,28 @@ def circular_check(
     sol = dim.solve(frf, unknown, known={}, band_hz=band)
     errs = solution_errors(sol, props)
     tol = bench.inertial.check_tolerance_pct
+    sens = cell_sensitivity(frf, unknown, band)
     reasons: tuple[str, ...] = ()
+    verdict = "ok"
     if not abs(errs["mass_pct"]) <= tol:
+        verdict = "fail"
         reasons = (
             f"mass {errs['mass_pct']:+.3f} % off the certificate, beyond ±{tol:g} %: the "
             "cell's calibration, or the hammer's or accelerometers' sensitivities in the rig "
             "file, are off (DIM's mass scales with the hammer force)",
         )
-    verdict = "fail" if reasons else "ok"
+    if sens < MIN_CELL_SENSITIVITY:
+        verdict = "fail" if verdict == "fail" else "inconclusive"
+        reasons += (
+            f"the check hardly sees the cell: a 1 % error of its loads moves the mass by "
+            f"{sens:.3f} % (the cell carries little of the force in {band[0]:g}–{band[1]:g} Hz); "
+            "it says nothing about the cell's calibration",
+        )
     log.info(
         "load cell %d: circular check, mass %+.4f %% (%s)", entry.node, errs["mass_pct"], verdict
     )
     return CircularCheck(
-        sol, errs, (float(band[0]), float(band[1])), version, tol, verdict, reasons
+        sol, errs, (float(band[0]), float(band[1])), version, tol, sens, verdict, reasons
     )
 
 

@@ -123,7 +123,8 @@ def _circular_is_the_hammer_certificate(res: dict) -> float:
     expected = 100 * (true / hammer.sensitivity_mv_per_n - 1)
     assert abs(res["circular_mass_error_pct"] - expected) < 0.3, (res, expected)
     ok = abs(res["circular_mass_error_pct"]) <= res["circular_tolerance_pct"]
-    assert res["circular_verdict"] == ("ok" if ok else "fail")
+    blind = res["circular_cell_sensitivity"] < 0.05  # hung on bungees: the cell is hardly loaded
+    assert res["circular_verdict"] == ("fail" if not ok else "inconclusive" if blind else "ok")
     return expected
 
 

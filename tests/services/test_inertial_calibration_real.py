@@ -132,7 +132,10 @@ def test_inertial_calibration_and_circular_check_of_the_configured_cell(tmp_path
     assert chk.calibration_version == 1
     assert abs(e["mass_pct"]) < 0.5, e
     assert e["cg_error_mm"] < 2.0 and max(abs(e[f"I{k}_pct"]) for k in (1, 2, 3)) < 2.0, e
-    assert chk.verdict == "ok" and chk.to_json()["circular_mass_error_pct"] == e["mass_pct"]
+    assert chk.to_json()["circular_mass_error_pct"] == e["mass_pct"]
+    # hung on bungees the cell carries only the suspension force in the band: the check passes
+    # on the mass but cannot vouch for the cell, and says so
+    assert chk.cell_sensitivity < 0.05 and chk.verdict == "inconclusive", chk.reasons
 
 
 def test_inertial_bench_needs_the_certified_calibration_mass(tmp_path: Path) -> None:

@@ -33,7 +33,9 @@ as they are; the dead weights on the simulated bench behind the CAN amplifier si
 
 The circular check (always when simulated): the same mass on the same cell, struck on the mass,
 acquired with the amplifier applying the newly installed matrix, solved by DIM, compared with
-the certificate (verdict ok within the bench file's ``check_tolerance_pct``). JSON keys:
+the certificate (verdict ok within the bench file's ``check_tolerance_pct``; inconclusive when
+the cell carries too little of the force in the band for its matrix to matter: hung on bungees,
+a 1 % error of the cell moves DIM's mass by about 0.001 %, ``circular_cell_sensitivity``). JSON keys:
 ``method``, ``matrix_error_rel`` (simulated runs: relative Frobenius error against the simulated
 cell's true ``pinv(S)``), ``nonlinearity_pct_fs``, ``hysteresis_pct_fs``, ``uncertainty_pct_fs``
 (six values each; the inertial method gives no nonlinearity or hysteresis: null),
