@@ -110,7 +110,12 @@ def test_inertial_run_on_the_simulated_lab_over_http(tmp_path: Path) -> None:
         assert bad.status_code == 422 and "averages_per_input" in bad.text
         r = c.post(
             "/api/calibrations/runs",
-            json={"method": "inertial", "averages_per_input": 1, "circular_check": False},
+            json={
+                "method": "inertial",
+                "averages_per_input": 1,
+                "circular_check": False,
+                "download": True,
+            },
         )
         assert r.status_code == 202, r.text
         assert r.json()["simulated"] is True
@@ -131,6 +136,7 @@ def test_inertial_run_on_the_simulated_lab_over_http(tmp_path: Path) -> None:
         assert res["nonlinearity_pct_fs"] is None and len(res["uncertainty_pct_fs"]) == 6
         assert np.array(res["matrix"]).shape == (6, 12)
         assert "circular_mass_error_pct" not in res
+        assert res["downloaded"] and res["download_verified"] == 72  # read back from the amplifier
         assert 0.9 < res["fit"]["hammer_sensitivity_ratio"] < 1.1
         cals = c.get("/api/calibrations").json()
         assert cals[-1]["id"] == res["record_id"]

@@ -147,7 +147,7 @@ class CalibrationRuns:
             node=node,
             cfg=cfg,
             on_progress=self._job_progress(ctx, "inertial bench"),
-            download=download_and_verify if download and not simulated else None,
+            download=download_and_verify if download else None,
         )
         rig = load_rig_file(settings.rig_path)
         installed = install_inertial(rig, select_cell(rig, run.node), run)
