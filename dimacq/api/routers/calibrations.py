@@ -63,9 +63,10 @@ async def add_calibration(request: Request, lab: LabDep) -> dict[str, Any]:
                             "plan": {"enum": ["standard", "minimal"]},
                             "circular_check": {"type": "boolean"},
                             "averages_per_input": {
-                                "type": "integer",
-                                "minimum": 1,
-                                "maximum": 1000,
+                                "anyOf": [
+                                    {"type": "integer", "minimum": 1, "maximum": 1000},
+                                    {"type": "null"},
+                                ]
                             },
                         },
                         "additionalProperties": False,
