@@ -67,7 +67,7 @@ def register(subparsers: Any) -> None:
     c.add_argument(
         "--simulated",
         action="store_true",
-        help="on the virtual bench (simulated DAQ and CAN amplifier)",
+        help="on the simulated lab (backends simulated, a scratch copy of config/rig.toml's folder)",
     )
     c.add_argument(
         "--method",
@@ -79,7 +79,8 @@ def register(subparsers: Any) -> None:
         "--gauges",
         choices=("strain-gauge", "piezo"),
         default="strain-gauge",
-        help="simulated cell: DC strain-gauge bridges (default) or AC-coupled piezo gauges",
+        help="the cell's gauges: DC strain-gauge bridges; piezo is refused (the AC-coupled cell "
+        "is a scenario option, [loadcell] kind, and has no static calibration)",
     )
     c.add_argument(
         "--plan",
@@ -105,7 +106,8 @@ def register(subparsers: Any) -> None:
     c.add_argument(
         "--download",
         action="store_true",
-        help="real rig: store the new matrix in the amplifier and read it back",
+        help="store the new matrix in the amplifier and read it back (real rig; simulated: the "
+        "inertial bench's amplifier)",
     )
     c.add_argument(
         "--seed",
