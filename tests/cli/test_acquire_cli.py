@@ -112,7 +112,7 @@ def test_loadcell_calibrate_simulated(tmp_path, capsys, no_leaks):
 
 def _circular_is_the_hammer_certificate(res: dict) -> float:
     """DIM's mass scales with the hammer force: through a good cell calibration the circular
-    check's mass error is the rig file's hammer certificate error (independent answer: the
+    check's mass error is the rig file's hammer sensitivity error (independent answer: the
     simulated hammer's true sensitivity), and the verdict follows the tolerance."""
     from dimacq.simulators.lab import transducers as tr
 
@@ -120,7 +120,8 @@ def _circular_is_the_hammer_certificate(res: dict) -> float:
     true = tr.true_sensitivity(
         tr.NOMINAL_HAMMER_MV_PER_N, tr.HAMMER_TOLERANCE, tr.hammer_serial(hammer.physical_channel)
     )
-    expected = 100 * (true / hammer.sensitivity_mv_per_n - 1)
+    # what the acquisition uses: the certificate × the recorded chain calibration
+    expected = 100 * (true / hammer.effective_sensitivity_mv_per_n - 1)
     assert abs(res["circular_mass_error_pct"] - expected) < 0.3, (res, expected)
     ok = abs(res["circular_mass_error_pct"]) <= res["circular_tolerance_pct"]
     blind = res["circular_cell_sensitivity"] < 0.05  # hung on bungees: the cell is hardly loaded
