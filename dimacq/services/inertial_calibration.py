@@ -532,7 +532,7 @@ def circular_check(
         verdict = "fail" if verdict == "fail" else "inconclusive"
         reasons += (
             f"the check hardly sees the cell: a 1 % error of its loads moves the mass by "
-            f"{sens:.3f} % (the cell carries little of the force in {band[0]:g}–{band[1]:g} Hz); "
+            f"{sens:.2g} % (the cell carries little of the force in {band[0]:g}–{band[1]:g} Hz); "
             "it says nothing about the cell's calibration",
         )
     log.info(
