@@ -29,6 +29,7 @@ from dimacq.simulators.daq.clock import SampleClock
 from dimacq.simulators.lab.impact import virtual_lab
 from dimacq.simulators.lab.scenarios import build_scenario
 from dimacq.simulators.loadcell.amplifier import LoadCellAmplifierSim
+from dimacq.simulators.loadcell.bench import SupportSideBench
 
 HAMMER_CH = 40  # the hammer is not on input 0: the map must come from the rig file
 HAMMER_MV_PER_N = 2.25
@@ -66,6 +67,9 @@ class VirtualWorld:
         CAN node id of the (first) amplifier.
     pace : float or None
         Run the DAQ clock at ``pace`` × real time (None: as fast as the host reads).
+    bench_node : int or None
+        The article is the calibration mass on the inertial bench of this load cell (struck on
+        the cell's support side, :class:`~dimacq.simulators.loadcell.bench.SupportSideBench`).
     """
 
     def __init__(
@@ -77,9 +81,13 @@ class VirtualWorld:
         node_id: int = 3,
         pace: float | None = None,
         seed: int = 0,
+        bench_node: int | None = None,
     ) -> None:
         self.built = build_scenario(scenario, seed)
-        self.lab = virtual_lab(self.built)
+        self.lab = virtual_lab(self.built, hammer_noise=bench_node is None)
+        self.source: Any = (
+            self.lab if bench_node is None else SupportSideBench(self.lab, bench_node)
+        )
         true = self.lab.model.setup
         self.inputs = list(inputs)
         self.setup = TestSetup(
@@ -113,7 +121,7 @@ class VirtualWorld:
                 self.sims.append(
                     LoadCellAmplifierSim(
                         self.channel,
-                        self.lab,
+                        self.source,
                         gauges,
                         clock=self.clock,
                         node_id=nid,
@@ -180,7 +188,7 @@ class VirtualWorld:
         cls = VirtualDaqBackend
         if self.pace is not None:
             cls = type("PacedBackendX", (PacedBackend,), {"speed": self.pace})
-        be = cls(self.lab, self.wiring, clock=self.clock)
+        be = cls(self.source, self.wiring, clock=self.clock)
         self.backends.append(be)
         return be
 
@@ -190,7 +198,7 @@ class VirtualWorld:
         with self.clock.source_lock:
             st = self.clock.state()
             at = st.epoch + st.count + margin
-            self.lab.excite(self.inputs[setup_input], at)
+            self.source.excite(self.inputs[setup_input], at)
         self.strikes.append((setup_input, at))
 
     def close(self) -> None:

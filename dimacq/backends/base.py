@@ -37,6 +37,11 @@ class DeviceContext:
     noise_scale : float
         Factor on a simulated world's noise and drift levels (a request's ``noise_scale``;
         1: the scenario's, 0: noise-free). Real devices ignore it.
+    calibration_bench : int or None
+        Node of the load cell being calibrated on the inertial bench (the calibration mass on
+        this cell, struck on the cell's support side): its amplifier opens without needing a
+        calibration file (gauge outputs are read), and a simulated world puts its article on
+        that bench. None: an ordinary test.
     operator : Operator or None
         Set by a backend whose world strikes by itself (the simulated lab); None: a person
         strikes when asked.
@@ -53,6 +58,7 @@ class DeviceContext:
     setup: TestSetup | None = None
     seed: int | None = None
     noise_scale: float = 1.0
+    calibration_bench: int | None = None
     operator: Operator | None = None
     fixed: dict[str, Any] = field(default_factory=dict)
     shared: dict[str, Any] = field(default_factory=dict)

@@ -152,7 +152,8 @@ def open_amplifier(
 
 
 def open_loadcell(ctx: DeviceContext, entry: LoadCellEntry) -> LoadCellAmplifier:
-    """The table entry ``"dimacq-can"``."""
+    """The table entry ``"dimacq-can"`` (the cell on the calibration bench,
+    ``ctx.calibration_bench``, may have no calibration file yet)."""
     s = ctx.settings
     channel = entry.channel or s.loadcell_channel
     return open_amplifier(
@@ -161,6 +162,7 @@ def open_loadcell(ctx: DeviceContext, entry: LoadCellEntry) -> LoadCellAmplifier
         interface=s.loadcell_interface,
         channel=channel,
         timing=bit_timing(s),
+        require_calibration=ctx.calibration_bench != entry.node,
         where=(
             f"loadcell = 'dimacq-can', loadcell_interface = {s.loadcell_interface!r}, channel "
             f"{channel!r} (loadcell_channel)"

@@ -43,6 +43,7 @@ from dimacq.simulators.lab.impact import virtual_lab
 from dimacq.simulators.lab.scenarios import build_scenario
 from dimacq.simulators.lab.timedomain import VirtualLab
 from dimacq.simulators.loadcell.amplifier import LoadCellAmplifierSim
+from dimacq.simulators.loadcell.bench import SupportSideBench
 
 __all__ = ["SimulatedWorld", "open_daq", "open_digitizer", "open_loadcell", "world"]
 
@@ -65,6 +66,12 @@ class SimulatedWorld:
         The scenario's noise seed (None: the scenario's own).
     noise_scale : float
         Factor on the scenario's noise and drift levels (0: noise-free).
+    calibration_bench : int or None
+        The article is the calibration mass on the inertial calibration bench of load cell
+        ``calibration_bench``: the hand strikes a fixture on the cell's support side, so the cell
+        carries every force on the mass
+        (:class:`~dimacq.simulators.loadcell.bench.SupportSideBench`; the DAQ and the amplifier
+        simulators read the bench). None: the article as the scenario mounts it.
 
     Raises
     ------
@@ -79,12 +86,30 @@ class SimulatedWorld:
         rig_file: RigFile,
         seed: int | None = None,
         noise_scale: float = 1.0,
+        calibration_bench: int | None = None,
     ) -> None:
         self.scenario = scenario
         self.built = build_scenario(scenario, seed)
-        self.lab: VirtualLab = virtual_lab(self.built, noise_scale=noise_scale)
+        # A test streams through the lab about once (the amplifier's tare a little behind):
+        # 64 blocks cached, older ones recomputed from their stored states if read again.
+        self.lab: VirtualLab = virtual_lab(
+            self.built,
+            noise_scale=noise_scale,
+            hammer_noise=calibration_bench is None,
+            cache_blocks=64,
+        )
         article = self.lab.model.setup
         where = f"rig file {rig_file.path} with scenario {scenario!r}"
+        #: what the devices read and the hand strikes: the lab, or the bench around it
+        self.source: VirtualLab | SupportSideBench = self.lab
+        if calibration_bench is not None:
+            if calibration_bench not in {lc.node for lc in article.load_cells}:
+                raise SetupError(
+                    f"{where}: load cell {calibration_bench} to calibrate is not on the "
+                    "scenario's article; give a scenario whose article hangs on that cell "
+                    "(calibration-mass-*)"
+                )
+            self.source = SupportSideBench(self.lab, calibration_bench)
         if abs(rig_file.daq.sample_rate_hz - self.lab.sample_rate_hz) > 1e-9:
             raise SetupError(
                 f"{where}: [daq] sample_rate_hz = {rig_file.daq.sample_rate_hz:g} but the virtual "
@@ -119,7 +144,7 @@ class SimulatedWorld:
                 responses[(r.node, r.direction)], mv * 1e-3 / STANDARD_GRAVITY
             )
         self.clock = SampleClock()
-        self.backend = VirtualDaqBackend(self.lab, wiring, clock=self.clock)
+        self.backend = VirtualDaqBackend(self.source, wiring, clock=self.clock)
         self.can_channel = f"dimacq-sim-{os.getpid()}-{next(_names)}"
         self._sims: list[LoadCellAmplifierSim] = []
         try:
@@ -128,7 +153,7 @@ class SimulatedWorld:
                 self._sims.append(
                     LoadCellAmplifierSim(
                         self.can_channel,
-                        self.lab,
+                        self.source,
                         gauges,
                         clock=self.clock,
                         node_id=e.node_id,
@@ -155,10 +180,10 @@ class SimulatedWorld:
                 "use the scenario's node numbers (see dimacq simulate --list)"
             )
         index = [inputs[(e.node, e.direction)] for e in setup.excitations]
-        lab, backend = self.lab, self.backend
+        source, backend = self.source, self.backend
 
         def strike(j: int, daq_sample: int) -> None:
-            lab.excite(index[j], backend.world_sample(daq_sample))
+            source.excite(index[j], backend.world_sample(daq_sample))
 
         return strike
 
@@ -171,7 +196,13 @@ def world(ctx: DeviceContext) -> SimulatedWorld:
     """The context's simulated world (made on first use, closed with the context)."""
     w = ctx.shared.get(_WORLD)
     if w is None:
-        w = SimulatedWorld(ctx.settings.scenario, ctx.rig_file, ctx.seed, ctx.noise_scale)
+        w = SimulatedWorld(
+            ctx.settings.scenario,
+            ctx.rig_file,
+            ctx.seed,
+            ctx.noise_scale,
+            calibration_bench=ctx.calibration_bench,
+        )
         ctx.shared[_WORLD] = w
         ctx.on_close(w.close)
     assert isinstance(w, SimulatedWorld)
@@ -191,7 +222,8 @@ def open_daq(ctx: DeviceContext) -> DaqTask:
 
 def open_loadcell(ctx: DeviceContext, entry: LoadCellEntry) -> LoadCellAmplifier:
     """The table entry ``loadcell = "simulated"``: the amplifier driver on the world's
-    python-can ``virtual`` channel, calibrated from the entry's calibration file."""
+    python-can ``virtual`` channel, calibrated from the entry's calibration file (the cell on
+    the calibration bench, ``ctx.calibration_bench``, may have none yet)."""
     w = world(ctx)
     return open_amplifier(
         ctx,
@@ -200,6 +232,7 @@ def open_loadcell(ctx: DeviceContext, entry: LoadCellEntry) -> LoadCellAmplifier
         channel=w.can_channel,
         where=f"loadcell = 'simulated' (scenario {w.scenario!r})",
         timeout_s=5.0,
+        require_calibration=ctx.calibration_bench != entry.node,
     )
 
 

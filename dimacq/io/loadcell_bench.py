@@ -29,6 +29,16 @@ the stated uncertainties of the reference loads and the timing of the readings.
     max_wait_s = 120.0             # give up waiting for creep to stop (reading flagged)
     creep_tolerance = 2e-5         # drift per window allowed, fraction of the reading's change
 
+    [inertial]                     # the inertial bench and the circular check (optional)
+    setup_file = "calibration_mass_setup.toml"  # the calibration mass on the cell: responses,
+                                   # impact points (struck on the cell's support side for the
+                                   # calibration, on the mass for the check), the load cell, and
+                                   # [known] its certified mass, CG and inertia (all ten)
+    band_hz = [5.0, 800.0]         # band of the calibration fit
+    check_band_hz = [20.0, 400.0]  # DIM band of the circular check
+    averages_per_input = 5
+    check_tolerance_pct = 0.5      # the circular check passes within this mass error, %
+
 Files are refused item by item (the message names the item and what to give).
 """
 
@@ -38,7 +48,7 @@ import tomllib
 from pathlib import Path
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from dimacq.errors import SetupError
 from dimacq.io.validation import refuse
@@ -64,6 +74,30 @@ class BenchTiming(_Model):
     creep_tolerance: float = Field(default=2e-5, gt=0, lt=0.1, description="a fraction (0–0.1)")
 
 
+class InertialBench(_Model):
+    setup_file: str = Field(
+        min_length=1, description="the calibration mass's setup file (relative to the bench file)"
+    )
+    band_hz: tuple[float, float] = Field(
+        default=(5.0, 800.0), description="[lo, hi] Hz of the calibration fit, 0 ≤ lo < hi"
+    )
+    check_band_hz: tuple[float, float] = Field(
+        default=(20.0, 400.0), description="[lo, hi] Hz of the circular check, 0 ≤ lo < hi"
+    )
+    averages_per_input: int = Field(default=5, ge=1, le=1000, description="1–1000")
+    check_tolerance_pct: float = Field(
+        default=0.5, gt=0, le=100, description="circular check: largest mass error, % (0–100)"
+    )
+
+    @model_validator(mode="after")
+    def _bands(self) -> InertialBench:
+        for name in ("band_hz", "check_band_hz"):
+            lo, hi = getattr(self, name)
+            if not 0 <= lo < hi:
+                raise ValueError(f"{name} = [{lo}, {hi}]: give 0 ≤ lo < hi in Hz")
+        return self
+
+
 class BenchFile(_Model):
     """The dead-weight bench (see the module docstring)."""
 
@@ -85,6 +119,28 @@ class BenchFile(_Model):
     gravity_uncertainty_rad: float = Field(default=1e-4, ge=0, lt=0.1, description="radians")
     points: tuple[BenchPoint, ...] = Field(default=(), description="[[points]] entries")
     timing: BenchTiming = BenchTiming()
+    inertial: InertialBench | None = Field(default=None, description="[inertial] table")
+    #: the file read (relative paths of ``inertial.setup_file`` are from its folder)
+    path: Path | None = Field(default=None, exclude=True)
+
+    def inertial_setup_path(self) -> Path:
+        """The calibration mass's setup file of ``[inertial]``.
+
+        Raises
+        ------
+        SetupError
+            No ``[inertial]`` table.
+        """
+        if self.inertial is None:
+            raise SetupError(
+                f"bench file {self.path}: no [inertial] table; add setup_file (the calibration "
+                "mass on the cell, with its certified [known] properties) for the inertial "
+                "calibration and the circular check"
+            )
+        p = Path(self.inertial.setup_file)
+        if not p.is_absolute() and self.path is not None:
+            p = self.path.parent / p
+        return p
 
     def load_plan(self) -> LoadPlan:
         return standard_load_plan(
@@ -120,4 +176,4 @@ def load_bench_file(path: str | Path) -> BenchFile:
             "bench file", str(p), err, BenchFile, "see dimacq/io/loadcell_bench.py"
         ) from err
     bench.load_plan()  # refuses geometry that overloads the cell or unknown points
-    return bench
+    return bench.model_copy(update={"path": p})

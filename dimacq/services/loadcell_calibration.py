@@ -419,28 +419,17 @@ def calibrate_rig_cell(
         The calibration failed its checks (nothing installed; the readings are in the message's
         file).
     """
-    import datetime as _dt
-    import json
+    import dataclasses
 
+    from dimacq.backends import lookup
     from dimacq.backends.base import DeviceContext
-    from dimacq.backends.can_loadcell import bit_timing, open_amplifier
     from dimacq.io.loadcell_bench import load_bench_file
-    from dimacq.io.loadcell_calibration import LoadCellCalibration, install_calibration
+    from dimacq.services.inertial_calibration import select_cell
 
     ctx = DeviceContext(settings)
     rig = ctx.rig_file
-    cells = {lc.node: lc for lc in rig.load_cells}
-    if not cells:
-        raise SetupError(f"rig file {rig.path} has no [[load_cells]]; add the cell to calibrate")
-    if node is None:
-        if len(cells) > 1:
-            raise SetupError(
-                f"rig file {rig.path} has load cells {sorted(cells)}: give the node to calibrate"
-            )
-        node = next(iter(cells))
-    if node not in cells:
-        raise SetupError(f"load cell {node} is not in {rig.path}; use one of {sorted(cells)}")
-    entry = cells[node]
+    entry = select_cell(rig, node)
+    node = entry.node
     assert rig.path is not None
     bench = load_bench_file(bench_file or rig.path.parent / "loadcell_bench.toml")
     plan = bench.load_plan()
@@ -453,69 +442,107 @@ def calibrate_rig_cell(
         max_wait_s=t.max_wait_s,
         creep_tolerance=t.creep_tolerance,
     )
-    channel = entry.channel or settings.loadcell_channel
-    amp = open_amplifier(
-        ctx,
-        entry,
-        interface=settings.loadcell_interface,
-        channel=channel,
-        where=(
-            f"loadcell_interface = {settings.loadcell_interface!r}, channel {channel!r} "
-            "(loadcell_channel)"
-        ),
-        require_calibration=False,
-        timing=bit_timing(settings),
-    )
+    # the cell's amplifier through the loadcell backend table, as an acquisition opens it; on
+    # the bench it needs no calibration file (a new cell)
+    ctx.calibration_bench = node
+    amp = lookup("loadcell", settings.loadcell)(ctx, entry)
+    for need in ("get_status", "download_calibration", "upload_calibration"):
+        if not callable(getattr(amp, need, None)):
+            ctx.close()
+            raise SetupError(
+                f"loadcell = {settings.loadcell!r}: its amplifier has no {need}(); a dead-weight "
+                "calibration needs an amplifier that reads its own clock and stores a matrix "
+                "(the dimacq CAN FD amplifier)"
+            )
     try:
         ident = amp.identify()
         run = run_static_calibration(amp, plan, operator, settings=st, progress=progress)
-        cert = run.certificate
-        cal = LoadCellCalibration(
+        res = install_static(
+            settings,
+            node,
+            run,
             serial_number=str(ident.serial_number),
-            date=_dt.date.today().isoformat(),
-            matrix=run.matrix,
-            method="static",
-            gauge_unit="mV/V",
-            diagnostics={
-                "residual_rel": cert.fit.residual_rel,
-                "condition": cert.fit.condition,
-                "load_cases": len(plan.cases),
-                "unsettled_readings": int(run.unsettled.sum()),
-            },
-            certificate=certificate_json(cert),
-            notes=f"dead-weight calibration, bench file {bench_file or 'loadcell_bench.toml'}",
+            bench_file=bench_file,
+            rig=rig,
         )
-        if cert.verdict == "fail":
-            keep = Path(settings.data_dir) / "calibrations"
-            keep.mkdir(parents=True, exist_ok=True)
-            raw = keep / f"failed-{ident.serial_number}-{int(time.time())}.json"
-            raw.write_text(
-                json.dumps(
-                    {
-                        "readings": run.readings.tolist(),
-                        "times_s": run.times_s.tolist(),
-                        **certificate_json(cert),
-                    }
-                )
-                + "\n",
-                encoding="utf-8",
-            )
-            raise DataError(
-                f"load cell {node}: calibration failed ({'; '.join(cert.reasons)}); nothing "
-                f"installed, the readings are in {raw}"
-            )
-        installed = install_calibration(cal, rig.calibration_path(entry))
         check = download_and_verify(amp, run.matrix) if download else None
     finally:
         ctx.close()
+    return dataclasses.replace(res, download=check)
+
+
+def install_static(
+    settings: Any,
+    node: int,
+    run: StaticRun,
+    *,
+    serial_number: str,
+    bench_file: str | None = None,
+    rig: Any = None,
+) -> RigCalibration:
+    """Make a static run the next version of load cell ``node``'s calibration file of the rig
+    file (JSON and XML kept, the current file replaced), unless its verdict is ``fail``.
+
+    Raises
+    ------
+    DataError
+        The certificate's verdict is ``fail``: nothing installed; the readings are kept in
+        ``data_dir/calibrations/failed-*.json`` (named in the message).
+    """
+    import datetime as _dt
+    import json
+
+    from dimacq.io.loadcell_calibration import LoadCellCalibration, install_calibration
+    from dimacq.io.rig_file import load_rig_file
+    from dimacq.services.inertial_calibration import select_cell
+
+    rig = rig if rig is not None else load_rig_file(settings.rig_path)
+    entry = select_cell(rig, node)
+    cert = run.certificate
+    plan = run.plan
+    cal = LoadCellCalibration(
+        serial_number=serial_number,
+        date=_dt.date.today().isoformat(),
+        matrix=run.matrix,
+        method="static",
+        gauge_unit="mV/V",
+        diagnostics={
+            "residual_rel": cert.fit.residual_rel,
+            "condition": cert.fit.condition,
+            "load_cases": len(plan.cases),
+            "unsettled_readings": int(run.unsettled.sum()),
+        },
+        certificate=certificate_json(cert),
+        notes=f"dead-weight calibration, bench file {bench_file or 'loadcell_bench.toml'}",
+    )
+    if cert.verdict == "fail":
+        keep = Path(settings.data_dir) / "calibrations"
+        keep.mkdir(parents=True, exist_ok=True)
+        raw = keep / f"failed-{serial_number}-{int(time.time())}.json"
+        raw.write_text(
+            json.dumps(
+                {
+                    "readings": run.readings.tolist(),
+                    "times_s": run.times_s.tolist(),
+                    **certificate_json(cert),
+                }
+            )
+            + "\n",
+            encoding="utf-8",
+        )
+        raise DataError(
+            f"load cell {node}: calibration failed ({'; '.join(cert.reasons)}); nothing "
+            f"installed, the readings are in {raw}"
+        )
+    installed = install_calibration(cal, rig.calibration_path(entry))
     log.info(
         "load cell %d (serial %s): calibration version %d installed at %s",
         node,
-        ident.serial_number,
+        serial_number,
         installed.version,
         installed.current_path,
     )
-    return RigCalibration(node, str(ident.serial_number), run, cal, installed, check)
+    return RigCalibration(node, serial_number, run, cal, installed, None)
 
 
 def record_calibration(db: Any, document: dict[str, Any]) -> int:

@@ -18,7 +18,7 @@ import logging
 from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field, is_dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal
 
 from dimacq.backends import DeviceKind, lookup
 from dimacq.backends.base import DeviceContext, Operator
@@ -37,9 +37,16 @@ if TYPE_CHECKING:
     from numpy.typing import NDArray
 
     from dimacq.io.acquisition_hdf5 import AcquisitionWriter
-    from dimacq.services.acquisition import AverageCallback, ReviewCallback
+    from dimacq.services.acquisition import AverageCallback, ImpactResult, ReviewCallback
 
-__all__ = ["Rig", "build_rig", "check_devices", "impact_settings", "run_impact_test"]
+__all__ = [
+    "Rig",
+    "build_rig",
+    "check_devices",
+    "impact_settings",
+    "run_impact_session",
+    "run_impact_test",
+]
 
 log = logging.getLogger(__name__)
 
@@ -169,7 +176,13 @@ def _configure(daq: Daq, rf: RigFile, response_of: list[int]) -> tuple[list[str]
     return hammer_names, names
 
 
-def build_rig(settings: Settings, setup: TestSetup, cfg: Mapping[str, Any]) -> Rig:
+def build_rig(
+    settings: Settings,
+    setup: TestSetup,
+    cfg: Mapping[str, Any],
+    *,
+    calibration_bench: int | None = None,
+) -> Rig:
     """Open and configure the rig for ``setup``.
 
     Parameters
@@ -181,6 +194,10 @@ def build_rig(settings: Settings, setup: TestSetup, cfg: Mapping[str, Any]) -> R
     cfg : mapping
         The acquisition request; ``seed`` seeds a simulated world, ``noise_scale`` scales its
         noise (0: noise-free; default 1).
+    calibration_bench : int, optional
+        The rig is the inertial calibration bench of this load cell (the calibration mass on
+        it, struck on the cell's support side): its amplifier opens without a calibration file;
+        run the test with ``loadcell_outputs="gauges"`` (:func:`run_impact_session`).
 
     Raises
     ------
@@ -196,6 +213,7 @@ def build_rig(settings: Settings, setup: TestSetup, cfg: Mapping[str, Any]) -> R
         setup=setup,
         seed=None if seed is None else int(seed),
         noise_scale=1.0 if noise_scale is None else float(noise_scale),
+        calibration_bench=calibration_bench,
     )
     rf = ctx.rig_file
     hammer_of, response_of, cell_of = _channels(rf, setup)
@@ -296,7 +314,40 @@ def run_impact_test(
     channels ``rig.daq.channel_names`` in units ``rig.daq_units``); ``meta`` goes into the
     FRFs' metadata (default: the source).
     """
-    from dimacq.services.acquisition import ImpactSession, Progress, impact_frf
+    from dimacq.services.acquisition import impact_frf
+
+    result = run_impact_session(
+        rig,
+        setup,
+        cfg,
+        on_average=on_average,
+        on_progress=on_progress,
+        writer=writer,
+        review=review,
+        should_finish=should_finish,
+        on_input=on_input,
+    )
+    return impact_frf(result, setup, meta=dict(meta or {"source": "dimacq impact acquisition"}))
+
+
+def run_impact_session(
+    rig: Rig,
+    setup: TestSetup,
+    cfg: Mapping[str, Any],
+    *,
+    on_average: AverageCallback | None = None,
+    on_progress: ProgressCallback,
+    writer: AcquisitionWriter | None = None,
+    loadcell_outputs: Literal["forces", "gauges"] = "forces",
+    review: ReviewCallback | None = None,
+    should_finish: Callable[[], bool] | None = None,
+    on_input: Callable[[int, NDArray[np.float64]], None] | None = None,
+) -> ImpactResult:
+    """Run the impact session of :func:`run_impact_test` and return its raw result: FRFs of
+    the responses, then per load cell its six loads (``loadcell_outputs="forces"``) or its 12
+    gauges (``"gauges"``: a cell being calibrated). Without a world that strikes by itself
+    (``rig.operator``) the person is asked through ``on_progress`` ("strike input N: ...")."""
+    from dimacq.services.acquisition import ImpactSession, Progress
 
     if len(rig.input_channels) != len(setup.excitations):
         raise SetupError(
@@ -348,7 +399,6 @@ def run_impact_test(
         review=review,
         should_finish=should_finish,
         on_input=on_input,
+        loadcell_outputs=loadcell_outputs,
     )
-    return impact_frf(
-        session.run(), setup, meta=dict(meta or {"source": "dimacq impact acquisition"})
-    )
+    return session.run()

@@ -78,11 +78,15 @@ def virtual_lab(
     noise_scale: float = 1.0,
     n_shakers: int = 0,
     cache_blocks: int = 4096,
+    hammer_noise: bool = True,
 ) -> VirtualLab:
     """The scenario's sample source: the true article, its transducers, its hammer and
     ``n_shakers`` shakers (channels ``shaker1`` ..; internal rate factor ``shaker.oversample``).
 
-    ``noise_scale`` multiplies the scenario's noise and drift levels (0: noise-free).
+    ``noise_scale`` multiplies the scenario's noise and drift levels (0: noise-free);
+    ``hammer_noise=False`` leaves the hammer force channel noise-free (the inertial calibration
+    bench transmits the true hammer force to the cell:
+    :class:`~dimacq.simulators.loadcell.bench.SupportSideBench`).
     """
     if noise_scale < 0:
         raise SetupError(f"noise scale {noise_scale}; give a factor ≥ 0")
@@ -90,7 +94,7 @@ def virtual_lab(
     tr, hm, acq = spec.transducers, spec.hammer, spec.acquisition
     noise = LabNoise(
         accel_noise_ms2=tr.accel_noise_ms2 * noise_scale,
-        force_noise_n=tr.force_noise_n * noise_scale,
+        force_noise_n=tr.force_noise_n * noise_scale if hammer_noise else 0.0,
         gauge_noise_v=tr.gauge_noise_v * noise_scale,
         gauge_drift_v_per_s=tr.gauge_drift_v_per_s * noise_scale,
         sensitivity_error=tr.sensitivity_error,

@@ -87,3 +87,58 @@ def test_static_run_with_prompts_over_http(tmp_path: Path) -> None:
         assert read_calibration(rig_dir / "calibrations" / "lc-501.json").version == 1
         # a second run while none waits: confirm is refused, naming why
         assert c.post(f"/api/calibrations/runs/{job}/confirm", json={"case": 0}).status_code == 409
+
+
+def test_inertial_run_on_the_simulated_lab_over_http(tmp_path: Path) -> None:
+    """Method inertial through the API on the simulated lab (the rig builder and the simulated
+    backends: the calibration mass on the support-side bench), with the job's progress;
+    installed in a scratch copy of the rig, recorded; the shipped calibration file is left as it
+    is. The circular check is asked off here (the lab page's test runs it through the API)."""
+    from dimacq.config import Settings
+
+    shipped = Settings(rig_file="").rig_path.parent / "calibrations" / "lc-501.json"
+    before = shipped.read_bytes()
+    settings = make_settings(tmp_path / "data")
+    assert settings.loadcell == "simulated"
+    with (
+        BackgroundServer(create_app(settings)) as srv,
+        httpx.Client(
+            base_url=srv.url, headers={"Authorization": f"Bearer {TOKEN}"}, timeout=30
+        ) as c,
+    ):
+        bad = c.post("/api/calibrations/runs", json={"method": "inertial", "averages_per_input": 0})
+        assert bad.status_code == 422 and "averages_per_input" in bad.text
+        r = c.post(
+            "/api/calibrations/runs",
+            json={
+                "method": "inertial",
+                "averages_per_input": 1,
+                "circular_check": False,
+                "download": True,
+            },
+        )
+        assert r.status_code == 202, r.text
+        assert r.json()["simulated"] is True
+        job = r.json()["job_id"]
+        stages: set[str] = set()
+        deadline = time.monotonic() + 240
+        while time.monotonic() < deadline:
+            st = c.get(f"/api/jobs/{job}").json()
+            if st.get("message"):
+                stages.add(str(st["message"]).split(":")[0])
+            if st["state"] in ("succeeded", "failed", "cancelled"):
+                break
+            time.sleep(0.05)
+        assert st["state"] == "succeeded", st
+        assert "inertial bench" in stages and "circular check" not in stages, stages
+        res = st["result"]
+        assert res["method"] == "inertial" and res["version"] == 2  # shipped file is version 1
+        assert res["nonlinearity_pct_fs"] is None and len(res["uncertainty_pct_fs"]) == 6
+        assert np.array(res["matrix"]).shape == (6, 12)
+        assert "circular_mass_error_pct" not in res
+        assert res["downloaded"] and res["download_verified"] == 72  # read back from the amplifier
+        assert 0.9 < res["fit"]["hammer_sensitivity_ratio"] < 1.1
+        cals = c.get("/api/calibrations").json()
+        assert cals[-1]["id"] == res["record_id"]
+        assert cals[-1]["calibration"]["method"] == "inertial"
+    assert shipped.read_bytes() == before

@@ -6,11 +6,12 @@ Run on demand (not collected by pytest)::
                                                           [--tracemalloc] [--json OUT]
 
 Each method runs in its own fresh process (``dimacq loadcell calibrate --simulated --method M``
-in-process through its CLI entry point), so its peak resident memory is its own: ``ru_maxrss``
+in-process through its CLI entry point: the calibration and the circular check, through the rig
+builder and the simulated backends), so its peak resident memory is its own: ``ru_maxrss``
 of the child (MB, including the ~135 MB of the imported libraries), the wall and CPU seconds,
 and with ``--tracemalloc`` the peak of Python/numpy allocations traced by :mod:`tracemalloc`
 (slower). The static run's time is mostly the operator's settling: the simulated amplifier's clock
-runs 200× faster than real time, and the settling time on that clock is reported too.
+runs 200× faster than real time.
 """
 
 from __future__ import annotations
@@ -25,26 +26,43 @@ from pathlib import Path
 
 
 def one(method: str, trace: bool) -> dict[str, float | str]:
+    import contextlib
+    import io
+    import tempfile
     import tracemalloc
 
-    from dimacq.cli.simulated_lab import simulated_inertial_calibration
+    from dimacq.cli.main import main as dimacq
 
     if trace:
         tracemalloc.start()
-    t0, c0 = time.perf_counter(), time.process_time()
-    run = simulated_inertial_calibration(method=method)  # type: ignore[arg-type]
+    with tempfile.TemporaryDirectory() as tmp:
+        out_json = Path(tmp) / "cal.json"
+        t0, c0 = time.perf_counter(), time.process_time()
+        with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+            rc = dimacq(
+                [
+                    "loadcell",
+                    "calibrate",
+                    "--simulated",
+                    "--method",
+                    method,
+                    "--json",
+                    str(out_json),
+                ]
+            )
+        wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+        res = json.loads(out_json.read_text())
     out: dict[str, float | str] = {
         "method": method,
-        "wall_s": time.perf_counter() - t0,
-        "cpu_s": time.process_time() - c0,
+        "exit_status": rc,
+        "wall_s": wall,
+        "cpu_s": cpu,
         "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
-        "matrix_error_rel": run.matrix_error_rel,
-        "circular_mass_error_pct": run.circular_mass_error_pct,
+        "matrix_error_rel": res["matrix_error_rel"],
+        "circular_mass_error_pct": res["circular_mass_error_pct"],
     }
     if trace:
         out["tracemalloc_peak_mb"] = tracemalloc.get_traced_memory()[1] / 1e6
-    if run.static_run is not None:
-        out["operator_settling_s_on_the_amplifier_clock"] = float(run.static_run.waited_s.sum())
     return out
 
 

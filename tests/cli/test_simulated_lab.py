@@ -1,8 +1,9 @@
-"""The simulated lab rig: model FRFs, the support-side bench, and a short run through the drivers.
+"""The simulated lab's truth: model FRFs and the support-side bench.
 
 Independent answers: the forward model's own frequency-domain solve (ForwardModel.frf) for the
 state-space FRFs; Newton–Euler on the calibration mass for the bench gauges; the true article's
-properties for DIM through the simulated devices.
+properties for DIM through the simulated devices (the devices themselves:
+``tests/cli/test_acquire_cli.py``, ``tests/services/test_inertial_calibration.py``).
 """
 
 from __future__ import annotations
@@ -16,16 +17,8 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from _acq_support import no_leaks
 
-from dimacq.cli.simulated_lab import (
-    DIM_BAND_HZ,
-    frf_agreement,
-    model_frf,
-    run_scenario,
-    scenario_model,
-    solution_errors,
-)
+from dimacq.cli.simulated_lab import model_frf, scenario_model
 from dimacq.errors import SetupError
-from dimacq.pipeline import dim
 from dimacq.pipeline.rigid_body import load_cell_transform
 from dimacq.simulators.lab.forward import calibration_mass
 from dimacq.simulators.lab.timedomain import Hammer, LabNoise, VirtualLab
@@ -103,20 +96,3 @@ def test_bench_refuses_hammer_noise():
     lab = VirtualLab(calibration_mass(0), noise=LabNoise(force_noise_n=0.1))
     with pytest.raises(ValueError, match="force_noise_n=0"):
         SupportSideBench(lab, 501)
-
-
-def test_ground_mounted_mass_through_the_devices(no_leaks):
-    """One average per input, noise-free: FRFs match the model (every value: one average has no
-    coherence, and none of 1 is claimed), DIM returns the mass."""
-    m = scenario_model("calibration-mass-ground", 0)
-    run = run_scenario(m, averages_per_input=1, seed=0, noise=LabNoise())
-    assert run.result.n_accepted == (1,) * 24
-    assert np.isnan(run.frf.coherence).all()
-    assert run.frf.H.shape == (2048, 30, 24)
-    ag = frf_agreement(run.frf, m, band_hz=(50.0, 400.0), coherence_threshold=None)
-    # 24-bit quantisation only: well inside 1 % except near anti-resonances
-    assert ag.median_rel_error < 1e-3 and ag.p99_rel_error < 1e-2
-    sol = dim.solve(run.frf, run.setup, known={}, band_hz=DIM_BAND_HZ)
-    e = solution_errors(sol, m.properties)
-    assert abs(e["mass_pct"]) < 0.1 and e["cg_error_mm"] < 0.5
-    assert max(abs(e[k]) for k in ("I1_pct", "I2_pct", "I3_pct")) < 0.5

@@ -1,6 +1,7 @@
 """Load cell calibrations (JSON documents of :mod:`dimacq.io.loadcell_calibration`) and
-calibration runs: ``POST /api/calibrations/runs`` starts a job (follow it at
-``/api/jobs/{job_id}``); on the real rig the job waits at every load case:
+calibration runs: ``POST /api/calibrations/runs`` starts a job, static or inertial, with the
+circular check on request (follow it at ``/api/jobs/{job_id}``); on the real rig a static run
+waits at every load case:
 ``GET /api/calibrations/runs/{job_id}/prompt`` tells which, ``POST .../confirm`` with
 ``{"case": N}`` says it is in place."""
 
@@ -60,6 +61,13 @@ async def add_calibration(request: Request, lab: LabDep) -> dict[str, Any]:
                             "node": {"anyOf": [{"type": "integer"}, {"type": "null"}]},
                             "download": {"type": "boolean"},
                             "plan": {"enum": ["standard", "minimal"]},
+                            "circular_check": {"type": "boolean"},
+                            "averages_per_input": {
+                                "anyOf": [
+                                    {"type": "integer", "minimum": 1, "maximum": 1000},
+                                    {"type": "null"},
+                                ]
+                            },
                         },
                         "additionalProperties": False,
                     }
@@ -70,7 +78,10 @@ async def add_calibration(request: Request, lab: LabDep) -> dict[str, Any]:
 )
 async def start_calibration_run(request: Request, lab: LabDep) -> dict[str, Any]:
     """Start a load cell calibration job (``method`` static | inertial, ``node``,
-    ``download``, ``plan``): ``{"job_id", "method", "simulated"}``."""
+    ``download``, ``plan``, ``circular_check``, ``averages_per_input``):
+    ``{"job_id", "method", "simulated"}``. Progress at ``/api/jobs/{job_id}`` (a real inertial
+    run asks there for every strike); the result has the contract keys of ``dimacq loadcell
+    calibrate`` and the record id."""
     raw = await request.body()
     try:
         body = json.loads(raw) if raw.strip() else {}

@@ -2,8 +2,9 @@
 
 Usage::
 
-    dimacq loadcell calibrate --simulated [--method static|inertial] [--gauges strain-gauge|piezo]
-                              [--plan standard|minimal] [--impacts-per-input N] [--seed S]
+    dimacq loadcell calibrate [--simulated] [--method static|inertial] [--node N] [--bench FILE]
+                              [--download] [--circular-check] [--plan standard|minimal]
+                              [--impacts-per-input N] [--seed S]
                               [--json OUT] [--matrix OUT.json] [--xml OUT.xml]
 
 ``--method static`` (dead weights, the default for the strain-gauge cell): the simulated cell on
@@ -14,24 +15,32 @@ settled (creep detected), zero-corrected per series, and the 6×12 matrix is fit
 certificate: nonlinearity, hysteresis, crosstalk and uncertainty in % of the rated load per axis.
 
 ``--method inertial`` (method §8): the calibration mass hangs on its load cell, the hammer strikes
-the support side of the cell at the 24 points, accelerometers and the 12 gauges come through the
-simulated USB DAQ and CAN FD amplifier, and the 6×12 matrix is solved by rank-6 least squares.
+a fixture on the support side of the cell at the impact points of the calibration mass's setup
+(the bench file's ``[inertial] setup_file``, with the mass's certified properties), the
+accelerometers and the 12 gauges come through the rig's DAQ and amplifier, and the 6×12 matrix is
+solved by rank-6 least squares.
 
-Without ``--simulated`` the configured rig is calibrated for real (``--method static``): the
-amplifier of the rig file's load cell (``--node``) on ``loadcell_interface``/``loadcell_channel``,
-the plan, digitized hanger points and timing of the bench file (``--bench``, default
-``loadcell_bench.toml`` beside the rig file); the operator is prompted on the terminal for every
-load case (Enter when the load is in place). The result becomes the next version of the cell's
-calibration file (``<stem>-vN.json`` and ``.xml`` kept, the rig file's file replaced: the
-acquisition uses it from then on) and a database record; ``--download`` stores it in the
-amplifier and reads it back (verify count).
+Both methods run on the configured rig (``dimacq.toml``: the ``daq``/``loadcell`` backends and
+``rig_file``; the bench file ``--bench``, default ``loadcell_bench.toml`` beside the rig file).
+Without ``--simulated`` a person is prompted on the terminal: for every load case (Enter when the
+load is in place) or every strike. The result becomes the next version of the cell's calibration
+file (``<stem>-vN.json`` and ``.xml`` kept, the rig file's file replaced: the acquisition uses it
+from then on) and a database record; ``--download`` stores it in the amplifier and reads it back
+(verify count); ``--circular-check`` follows with the circular check. ``--simulated`` runs the same
+code on the simulated lab (backends ``simulated``, scenario calibration-mass-bungee, the
+``config/rig.toml`` folder copied to a scratch folder, so the configured calibration files stay
+as they are; the dead weights on the simulated bench behind the CAN amplifier simulator).
 
-Simulated, the circular check follows: the same mass on the same cell, struck on the mass,
-acquired with the driver applying the new matrix, solved by DIM. JSON keys: ``method``,
-``matrix_error_rel`` (relative Frobenius error against the simulated cell's true ``pinv(S)``),
-``nonlinearity_pct_fs``, ``hysteresis_pct_fs``, ``uncertainty_pct_fs`` (six values each; the
-inertial method gives no nonlinearity or hysteresis: null), ``circular_mass_error_pct``.
-Exit status 1 when the certificate's verdict is ``fail``.
+The circular check (always when simulated): the same mass on the same cell, struck on the mass,
+acquired with the amplifier applying the newly installed matrix, solved by DIM, compared with
+the certificate (verdict ok within the bench file's ``check_tolerance_pct``; inconclusive when
+the cell carries too little of the force in the band for its matrix to matter: hung on bungees,
+a 1 % error of the cell moves DIM's mass by about 0.001 %, ``circular_cell_sensitivity``). JSON keys:
+``method``, ``matrix_error_rel`` (simulated runs: relative Frobenius error against the simulated
+cell's true ``pinv(S)``), ``nonlinearity_pct_fs``, ``hysteresis_pct_fs``, ``uncertainty_pct_fs``
+(six values each; the inertial method gives no nonlinearity or hysteresis: null),
+``circular_mass_error_pct`` (null without the check). Exit status 1 when the certificate's
+verdict is ``fail``.
 """
 
 from __future__ import annotations
@@ -39,7 +48,6 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from datetime import date
 from pathlib import Path
 from typing import Any
 
@@ -52,14 +60,14 @@ def register(subparsers: Any) -> None:
     sub.required = True
     c = sub.add_parser(
         "calibrate",
-        help="inertial calibration with the calibration mass (method §8)",
+        help="bench calibration: dead weights (static) or the calibration mass (inertial)",
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     c.add_argument(
         "--simulated",
         action="store_true",
-        help="on the virtual bench (simulated DAQ and CAN amplifier)",
+        help="on the simulated lab (backends simulated, a scratch copy of config/rig.toml's folder)",
     )
     c.add_argument(
         "--method",
@@ -71,7 +79,8 @@ def register(subparsers: Any) -> None:
         "--gauges",
         choices=("strain-gauge", "piezo"),
         default="strain-gauge",
-        help="simulated cell: DC strain-gauge bridges (default) or AC-coupled piezo gauges",
+        help="the cell's gauges: DC strain-gauge bridges; piezo is refused (the AC-coupled cell "
+        "is a scenario option, [loadcell] kind, and has no static calibration)",
     )
     c.add_argument(
         "--plan",
@@ -79,15 +88,34 @@ def register(subparsers: Any) -> None:
         default="standard",
         help="dead-weight load plan: standard (22 series) or minimal (14)",
     )
-    c.add_argument("--impacts-per-input", type=int, default=5, metavar="N")
+    c.add_argument(
+        "--impacts-per-input",
+        type=int,
+        default=None,
+        metavar="N",
+        help="inertial bench and circular check: averages per input (default: the bench file's)",
+    )
+    c.add_argument(
+        "--circular-check",
+        action="store_true",
+        help="real rig: after the calibration, the circular check (DIM on the calibration mass "
+        "through the new matrix; simulated runs always do it)",
+    )
     c.add_argument("--node", type=int, help="real rig: the load cell (node) of the rig file")
     c.add_argument("--bench", type=Path, metavar="FILE", help="real rig: the bench file")
     c.add_argument(
         "--download",
         action="store_true",
-        help="real rig: store the new matrix in the amplifier and read it back",
+        help="store the new matrix in the amplifier and read it back (real rig; simulated: the "
+        "inertial bench's amplifier)",
     )
-    c.add_argument("--seed", type=int, default=0)
+    c.add_argument(
+        "--seed",
+        type=int,
+        default=0,
+        help="simulated dead-weight bench: its seed (the simulated lab of the inertial bench and "
+        "the circular check is the scenario's own: its seed also places the sensors)",
+    )
     c.add_argument("--json", type=Path, metavar="OUT", help="write the figures as JSON")
     c.add_argument(
         "--matrix", type=Path, metavar="OUT.json", help="write the calibration file (JSON)"
@@ -99,144 +127,154 @@ def register(subparsers: Any) -> None:
 
 
 def calibrate(args: argparse.Namespace) -> int:
-    if not args.simulated:
-        return _calibrate_rig(args)
-    if args.impacts_per_input < 1:
+    """Both methods, simulated or real, through the configured rig (the simulated one is the
+    virtual lab behind the same backends, on a scratch copy of the rig folder)."""
+    import tempfile
+
+    if args.impacts_per_input is not None and args.impacts_per_input < 1:
         raise SetupError(f"--impacts-per-input {args.impacts_per_input}: give at least 1")
-    from dimacq.cli.simulated_lab import simulated_inertial_calibration
-    from dimacq.services.acquisition import Progress
+    if args.gauges != "strain-gauge":
+        raise SetupError(
+            "--gauges piezo: the piezo cell is AC-coupled (no static calibration) and is a "
+            "scenario option ([loadcell] kind = 'piezo'); calibrate the strain-gauge cell"
+        )
+    if not args.simulated:
+        from dimacq.config import load_settings
 
-    def progress(stage: str, p: Progress) -> None:
-        done = p.input_index * p.wanted + p.accepted
-        sys.stderr.write(f"\r{stage}: [{done:4d}/{p.n_inputs * p.wanted}] {p.message[:70]:<70}")
+        settings = load_settings()
+        if "simulated" in (settings.daq, settings.loadcell):
+            raise SetupError(
+                f"daq = {settings.daq!r}, loadcell = {settings.loadcell!r}: the configured rig "
+                "is the simulated lab, whose calibration files are the shipped ones; use "
+                "--simulated (a scratch copy), or configure the real devices (dimacq.toml)"
+            )
+        return _calibrate(args, settings, simulated=False)
+    from dimacq.config import Settings
+    from dimacq.services.inertial_calibration import scratch_rig
+
+    with tempfile.TemporaryDirectory(prefix="dimacq-bench-") as tmp:
+        base = Settings(
+            daq="simulated",
+            loadcell="simulated",
+            scenario=SIMULATED_SCENARIO,
+            rig_file="",
+            data_dir=Path(tmp) / "data",
+        )
+        return _calibrate(args, scratch_rig(base, Path(tmp) / "rig"), simulated=True)
+
+
+#: The simulated bench: the calibration mass on strain-gauge cell 501 (``config/rig.toml``).
+SIMULATED_SCENARIO = "calibration-mass-bungee"
+
+
+def _progress(stage: str) -> Any:
+    def show(fraction: float, message: str) -> None:
+        sys.stderr.write(f"\r{stage}: [{100 * fraction:5.1f} %] {message[:80]:<80}")
         sys.stderr.flush()
 
-    def static_progress(done: int, total: int, message: str) -> None:
-        sys.stderr.write(f"\rdead weights: [{done:3d}/{total}] {message[:90]:<90}")
-        sys.stderr.flush()
+    return show
 
-    run = simulated_inertial_calibration(
-        seed=args.seed,
-        averages_per_input=args.impacts_per_input,
-        progress=progress,
-        method=args.method,
-        gauges=args.gauges,
-        static_progress=static_progress,
-        minimal_plan=args.plan == "minimal",
-    )
-    sys.stderr.write("\n")
-    fit = run.fit
+
+def _person(stage: str) -> Any:
+    """A person strikes: every request is printed on its own line."""
+
+    def show(fraction: float, message: str) -> None:
+        sys.stderr.write(f"{stage} [{100 * fraction:5.1f} %] {message}\n")
+
+    return show
+
+
+def _calibrate(args: argparse.Namespace, settings: Any, *, simulated: bool) -> int:
+    from dimacq.io.rig_file import load_rig_file
+    from dimacq.services.inertial_calibration import circular_check, select_cell
+
+    rig = load_rig_file(settings.rig_path)
+    entry = select_cell(rig, args.node)
+    bench = None if args.bench is None else str(args.bench)
+    cfg: dict[str, Any] = {}
+    if args.impacts_per_input is not None:
+        cfg["averages_per_input"] = args.impacts_per_input
     out = sys.stdout
-    if run.method == "static":
-        cert = run.certificate
-        out.write(
-            f"load cell {run.node}: static calibration, {len(run.static_run.plan.cases)} load "
-            f"cases ({fit.n_equations} hysteresis-free points fitted), gauges in {run.gauge_unit}\n"
-        )
-        out.write(f"  residual {fit.residual_rel:.3g}, condition σ1/σ6 {fit.condition:.3g}\n")
-        out.write("  axis        Fx       Fy       Fz       Mx       My       Mz   (% of rated)\n")
-        for label, v in (
-            ("nonlinearity", cert.nonlinearity_pct_fs),
-            ("hysteresis", cert.hysteresis_pct_fs),
-            ("uncert. k=2", cert.uncertainty_pct_fs),
-        ):
-            out.write(f"  {label:<12}" + "".join(f"{x:9.4f}" for x in v) + "\n")
-        out.write(f"  verdict {cert.verdict}" + "".join(f"; {r}" for r in cert.reasons) + "\n")
+    if args.method == "static":
+        payload, cal = _static(args, settings, entry.node, bench, simulated)
     else:
+        payload, cal = _inertial(args, settings, entry.node, bench, cfg, simulated)
+    if simulated:
+        payload["matrix_error_rel"] = _matrix_error(settings, entry.node, cal.matrix)
         out.write(
-            f"load cell {run.node}: inertial calibration, {run.averages_per_input} averages × 24 "
-            f"inputs, band {run.band_hz[0]:g}–{run.band_hz[1]:g} Hz ({fit.n_equations} equations)\n"
+            f"  matrix error vs the simulated cell's pinv(S): "
+            f"{100 * payload['matrix_error_rel']:.4f} % (Frobenius)\n"
         )
+    if (simulated or args.circular_check) and payload["verdict"] != "fail":
+        show = _progress("circular check") if simulated else _person("circular check")
+        chk = circular_check(settings, node=entry.node, bench_file=bench, cfg=cfg, on_progress=show)
+        sys.stderr.write("\n")
+        payload.update(chk.to_json())
+        e = chk.errors_pct
         out.write(
-            f"  residual {fit.residual_rel:.3g}, condition σ1/σ6 {fit.condition:.3g}, "
-            f"noise separation σ7/σ6 {fit.noise_separation:.3g}\n"
+            f"circular check (DIM through calibration version {chk.calibration_version}): mass "
+            f"{e['mass_pct']:+.4f} %, CG {e['cg_error_mm']:.3f} mm, principal moments "
+            f"{e['I1_pct']:+.3f} / {e['I2_pct']:+.3f} / {e['I3_pct']:+.3f} %; verdict "
+            f"{chk.verdict}" + "".join(f"; {r}" for r in chk.reasons) + "\n"
         )
-    out.write(f"  matrix error vs true pinv(S): {100 * run.matrix_error_rel:.4f} % (Frobenius)\n")
-    e = run.circular_errors_pct
-    out.write(
-        f"circular check (DIM through the new matrix): mass {e['mass_pct']:+.4f} %, CG "
-        f"{e['cg_error_mm']:.3f} mm, principal moments {e['I1_pct']:+.3f} / {e['I2_pct']:+.3f} / "
-        f"{e['I3_pct']:+.3f} %\n"
-    )
-    payload = run.to_json()
+    payload = _ordered(payload)
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(payload, indent=2) + "\n", encoding="utf-8")
-    if args.matrix or args.xml:
-        _write_matrix(args.matrix, args.xml, run)
+    for p, fmt in ((args.matrix, "json"), (args.xml, "xml")):
+        if p is not None:
+            _write_file(cal, p, fmt)
     return 1 if payload["verdict"] == "fail" else 0
 
 
-def _write_matrix(path: Path | None, xml: Path | None, run: Any) -> None:
-    from dimacq.io.loadcell_calibration import (
-        LoadCellCalibration,
-        write_calibration_json,
-        write_calibration_xml,
-    )
-
-    fit = run.fit
-    cal = LoadCellCalibration(
-        serial_number=str(run.node),
-        date=date.today().isoformat(),
-        matrix=run.matrix,
-        method=run.method,
-        gauge_unit=run.gauge_unit,
-        diagnostics={
-            "residual_rel": fit.residual_rel,
-            "condition": fit.condition,
-            "noise_separation": fit.noise_separation,
-            "matrix_error_rel_vs_simulated": run.matrix_error_rel,
-        },
-        notes=f"virtual bench (dimacq loadcell calibrate --simulated --method {run.method})",
-    )
-    for p, write in ((path, write_calibration_json), (xml, write_calibration_xml)):
-        if p is not None:
-            p.parent.mkdir(parents=True, exist_ok=True)
-            write(cal, p)
+_CONTRACT = (
+    "method",
+    "matrix_error_rel",
+    "nonlinearity_pct_fs",
+    "hysteresis_pct_fs",
+    "uncertainty_pct_fs",
+    "circular_mass_error_pct",
+)
 
 
-def _calibrate_rig(args: argparse.Namespace) -> int:
-    """The configured rig, for real: the operator answers on the terminal."""
-    from dimacq.config import load_settings
+def _ordered(payload: dict[str, Any]) -> dict[str, Any]:
+    """The contract keys first (null when not measured: ``matrix_error_rel`` off the simulated
+    lab, nonlinearity and hysteresis for the inertial method, the circular check when not run)."""
+    return {**{k: payload.get(k) for k in _CONTRACT}, **payload}
+
+
+def _matrix_error(settings: Any, node: int, matrix: Any) -> float:
+    """``‖C − S⁺‖_F / ‖S⁺‖_F`` against the simulated cell (this command plays the virtual lab:
+    it may read the simulator's truth, the service never does)."""
+    import numpy as np
+
+    from dimacq.simulators.lab.bridge import strain_gauge_cell
+
+    S = np.asarray(strain_gauge_cell(node).sensitivity_mvv, float)
+    C_true = np.linalg.pinv(S)
+    return float(np.linalg.norm(np.asarray(matrix) - C_true) / np.linalg.norm(C_true))
+
+
+def _write_file(cal: Any, path: Path, fmt: str) -> None:
+    from dimacq.io.loadcell_calibration import write_calibration_json, write_calibration_xml
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    (write_calibration_json if fmt == "json" else write_calibration_xml)(cal, path)
+
+
+def _record(settings: Any, document: dict[str, Any]) -> int:
     from dimacq.persistence import open_database
-    from dimacq.pipeline.loadcell_calibration import LoadCase
-    from dimacq.services.loadcell_calibration import calibrate_rig_cell, record_calibration
+    from dimacq.services.loadcell_calibration import record_calibration
 
-    if args.method != "static":
-        raise SetupError(
-            "--method inertial on the real rig is not in this build (it needs the calibration "
-            "mass test through the DAQ); calibrate with --method static, or --simulated"
-        )
-    settings = load_settings()
-
-    def operator(case: LoadCase, _sample: int) -> None:
-        sys.stderr.write(f"\n{case.prompt()}\n  press Enter when the load is in place: ")
-        sys.stderr.flush()
-        sys.stdin.readline()
-
-    def progress(done: int, total: int, message: str) -> None:
-        sys.stderr.write(f"[{done:3d}/{total}] {message}\n")
-
-    res = calibrate_rig_cell(
-        settings,
-        operator,
-        node=args.node,
-        bench_file=None if args.bench is None else str(args.bench),
-        download=args.download,
-        progress=progress,
-    )
     db = open_database(settings.db_url)
     try:
-        rec = record_calibration(db, res.installed_document())
+        return record_calibration(db, document)
     finally:
         db.close()
-    payload = {**res.to_json(), "record_id": rec}
-    cert = res.run.certificate
+
+
+def _certificate_table(cert: Any) -> None:
     out = sys.stdout
-    out.write(
-        f"load cell {res.node} (serial {res.serial_number}): static calibration version "
-        f"{res.installed.version} in {res.installed.current_path} (record {rec})\n"
-    )
     out.write("  axis        Fx       Fy       Fz       Mx       My       Mz   (% of rated)\n")
     for label, v in (
         ("nonlinearity", cert.nonlinearity_pct_fs),
@@ -245,12 +283,153 @@ def _calibrate_rig(args: argparse.Namespace) -> int:
     ):
         out.write(f"  {label:<12}" + "".join(f"{x:9.4f}" for x in v) + "\n")
     out.write(f"  verdict {cert.verdict}" + "".join(f"; {r}" for r in cert.reasons) + "\n")
-    if res.download is not None:
-        out.write(
-            f"  downloaded to the amplifier: {res.download.verified}/{res.download.of} "
-            "elements verified on read-back\n"
+
+
+def _static(
+    args: argparse.Namespace, settings: Any, node: int, bench: str | None, simulated: bool
+) -> tuple[dict[str, Any], Any]:
+    """Dead weights: the simulated bench (``loadcell-bench`` backend) or the configured
+    amplifier with a person at the bench. The result is installed as the cell's next
+    calibration version."""
+    from dimacq.pipeline.loadcell_calibration import LoadCase
+    from dimacq.services.loadcell_calibration import (
+        calibrate_rig_cell,
+        simulated_static_calibration,
+    )
+
+    out = sys.stdout
+    if simulated:
+        from dimacq.services.loadcell_calibration import install_static
+
+        def static_progress(done: int, total: int, message: str) -> None:
+            sys.stderr.write(f"\rdead weights: [{done:3d}/{total}] {message[:90]:<90}")
+            sys.stderr.flush()
+
+        sim = simulated_static_calibration(
+            seed=args.seed,
+            node=node,
+            minimal_plan=args.plan == "minimal",
+            progress=static_progress,
         )
-    if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(payload, indent=2) + "\n", encoding="utf-8")
-    return 0
+        sys.stderr.write("\n")
+        res = install_static(settings, node, sim.run, serial_number=str(node), bench_file=bench)
+    else:
+
+        def operator(case: LoadCase, _sample: int) -> None:
+            sys.stderr.write(f"\n{case.prompt()}\n  press Enter when the load is in place: ")
+            sys.stderr.flush()
+            sys.stdin.readline()
+
+        def progress(done: int, total: int, message: str) -> None:
+            sys.stderr.write(f"[{done:3d}/{total}] {message}\n")
+
+        res = calibrate_rig_cell(
+            settings,
+            operator,
+            node=node,
+            bench_file=bench,
+            download=args.download,
+            progress=progress,
+        )
+    payload = res.to_json()
+    if simulated:  # the scratch folder is gone after the run
+        payload.update(calibration_file=None, versioned_files=None)
+    else:
+        payload["record_id"] = _record(settings, res.installed_document())
+    fit = res.run.certificate.fit
+    out.write(
+        f"load cell {node} (serial {res.serial_number}): static calibration, "
+        f"{len(res.run.plan.cases)} load cases ({fit.n_equations} hysteresis-free points "
+        f"fitted), gauges in mV/V; version {res.installed.version}"
+        + ("" if simulated else f" in {res.installed.current_path}")
+        + "\n"
+    )
+    out.write(f"  residual {fit.residual_rel:.3g}, condition σ1/σ6 {fit.condition:.3g}\n")
+    _certificate_table(res.run.certificate)
+    _download_line(res.download)
+    return payload, res.calibration
+
+
+def _download_line(check: Any) -> None:
+    if check is not None:
+        sys.stdout.write(
+            f"  downloaded to the amplifier: {check.verified}/{check.of} elements verified on "
+            "read-back\n"
+        )
+
+
+def _inertial(
+    args: argparse.Namespace,
+    settings: Any,
+    node: int,
+    bench: str | None,
+    cfg: dict[str, Any],
+    simulated: bool,
+) -> tuple[dict[str, Any], Any]:
+    """The calibration mass on the cell, struck on its support side (simulated: the world's
+    hand; real: a person prompted for each strike); installed as the next version, recorded
+    (real rig) and downloaded on request."""
+    from dimacq.io.rig_file import load_rig_file
+    from dimacq.services.inertial_calibration import (
+        install_inertial,
+        installed_document,
+        run_inertial_calibration,
+        select_cell,
+    )
+    from dimacq.services.loadcell_calibration import download_and_verify
+
+    show = _progress("inertial bench") if simulated else _person("inertial bench")
+    run, check = run_inertial_calibration(
+        settings,
+        node=node,
+        bench_file=bench,
+        cfg=cfg,
+        on_progress=show,
+        download=download_and_verify if args.download else None,
+    )
+    sys.stderr.write("\n")
+    rig = load_rig_file(settings.rig_path)
+    installed = install_inertial(rig, select_cell(rig, node), run)
+    cal = run.calibration()
+    payload: dict[str, Any] = {
+        "method": "inertial",
+        "nonlinearity_pct_fs": None,
+        "hysteresis_pct_fs": None,
+        "uncertainty_pct_fs": run.uncertainty_pct_fs(),
+        "verdict": "ok",
+        "reasons": [],
+        "load_cell_node": node,
+        "serial_number": run.serial_number,
+        "gauge_unit": run.gauge_unit,
+        "averages_per_input": run.averages_per_input,
+        "band_hz": list(run.band_hz),
+        "version": installed.version,
+        "calibration_file": None if simulated else str(installed.current_path),
+        "versioned_files": (
+            None if simulated else [str(installed.json_path), str(installed.xml_path)]
+        ),
+        "downloaded": check is not None,
+        "download_verified": None if check is None else check.verified,
+        "download_elements": None if check is None else check.of,
+        "fit": run.fit_json(),
+        "matrix": run.matrix.tolist(),
+    }
+    if not simulated:
+        payload["record_id"] = _record(settings, installed_document(cal, installed.version))
+    fit = run.fit
+    sys.stdout.write(
+        f"load cell {node} (serial {run.serial_number}): inertial calibration, "
+        f"{run.averages_per_input} averages × {run.n_inputs} inputs, band "
+        f"{run.band_hz[0]:g}–{run.band_hz[1]:g} Hz ({fit.n_equations} equations); version "
+        f"{installed.version}" + ("" if simulated else f" in {installed.current_path}") + "\n"
+        f"  residual {fit.residual_rel:.3g}, condition σ1/σ6 {fit.condition:.3g}, noise "
+        f"separation σ7/σ6 {fit.noise_separation:.3g}\n"
+    )
+    if run.hammer_ratio is not None:
+        r, sd = run.hammer_ratio
+        sys.stdout.write(
+            f"  hammer: stated sensitivity / the calibration mass's {r:.4f} ± {sd:.4f} (DIM's "
+            f"mass through this hammer comes out {100 * (1 / r - 1):+.2f} % off)\n"
+        )
+    _download_line(check)
+    return payload, cal

@@ -11,7 +11,6 @@ from dimacq.errors import SetupError
 from dimacq.pipeline.loadcell_calibration import LoadCase
 from dimacq.services.loadcell_calibration import (
     calibrate_rig_cell,
-    certificate_json,
     simulated_static_calibration,
 )
 
@@ -32,12 +31,16 @@ class _Prompt:
 class CalibrationRuns:
     """Load cell calibrations run as background jobs.
 
-    ``start`` submits a ``loadcell-calibration`` job (method static): on the simulated lab the
+    ``start`` submits a ``loadcell-calibration`` job. Static: on the simulated lab the
     virtual dead-weight bench and operator (:func:`simulated_static_calibration`), on the real
-    rig :func:`calibrate_rig_cell` with a person answering the
-    prompts: the job's progress message is the prompt, :meth:`prompt` gives it with its case
-    number, :meth:`confirm` tells the job the load is in place. The result is recorded through
-    ``record`` (a calibration document → its record).
+    rig :func:`calibrate_rig_cell` with a person answering the prompts: the job's progress
+    message is the prompt, :meth:`prompt` gives it with its case number, :meth:`confirm` tells
+    the job the load is in place. Inertial: the calibration mass on the cell through the rig
+    builder (:func:`~dimacq.services.inertial_calibration.run_inertial_calibration`); a person
+    strikes when the job's progress asks. Then, on request, the circular check. The result is
+    installed as the cell's next calibration version (the simulated lab: in a scratch copy of
+    the rig under ``data_dir/calibration-runs/<job>``, the shipped files stay as they are) and
+    recorded through ``record`` (a calibration document → its record).
     """
 
     def __init__(
@@ -53,14 +56,15 @@ class CalibrationRuns:
 
     def start(self, request: dict[str, Any]) -> dict[str, Any]:
         """Submit a run. ``request``: ``method`` (static | inertial), ``node`` (real rig),
-        ``download`` (bool, real rig), ``plan`` (standard | minimal, simulated)."""
+        ``download`` (bool, real rig), ``plan`` (standard | minimal, simulated),
+        ``circular_check`` (bool: the circular check after the calibration; default true on the
+        simulated lab, false on a real rig, where it needs a person to strike again)."""
         from dimacq.errors import DeviceStateError
 
-        extra = sorted(set(request) - {"method", "node", "download", "plan"})
+        items = {"method", "node", "download", "plan", "circular_check", "averages_per_input"}
+        extra = sorted(set(request) - items)
         if extra:
-            raise SetupError(
-                f"{extra}: not calibration run items; give method, node, download, plan"
-            )
+            raise SetupError(f"{extra}: not calibration run items; give {', '.join(sorted(items))}")
         method = request.get("method", "static")
         if method not in ("static", "inertial"):
             raise SetupError(f"method {method!r}: use static or inertial")
@@ -74,45 +78,128 @@ class CalibrationRuns:
         if plan not in ("standard", "minimal"):
             raise SetupError(f"plan {plan!r}: use standard or minimal")
         simulated = self.settings.loadcell == "simulated"
-        if method != "static":
+        check = request.get("circular_check", simulated)
+        if not isinstance(check, bool):
+            raise SetupError(f"circular_check {check!r}: give true or false")
+        averages = request.get("averages_per_input")
+        if averages is not None and (
+            not isinstance(averages, int) or isinstance(averages, bool) or not 1 <= averages <= 1000
+        ):
             raise SetupError(
-                "method inertial runs from the command line (dimacq loadcell calibrate "
-                "--simulated --method inertial); through the API use method static"
+                f"averages_per_input {averages!r}: give an integer 1–1000 (default: the bench "
+                "file's)"
             )
+        cfg = {} if averages is None else {"averages_per_input": averages}
         if self.jobs.running("loadcell-calibration"):
             raise DeviceStateError("a load cell calibration is already running; wait or cancel it")
 
         def work(ctx: Any) -> dict[str, Any]:
-            if simulated:
-                return self._simulated(ctx, method, plan == "minimal")
-            return self._real(ctx, node, download)
+            settings = self.settings
+            if simulated:  # the simulated lab's files stay as shipped: a scratch copy per job
+                from pathlib import Path
+
+                from dimacq.services.inertial_calibration import scratch_rig
+
+                where = Path(settings.data_dir) / "calibration-runs" / ctx.job_id
+                settings = scratch_rig(settings, where)
+            if method == "inertial":
+                result = self._inertial(ctx, settings, node, download, simulated, cfg)
+            elif simulated:
+                result = self._simulated(ctx, settings, plan == "minimal")
+            else:
+                result = self._real(ctx, node, download)
+            if check and result.get("verdict") != "fail":
+                result.update(self._check(ctx, settings, result["load_cell_node"], cfg))
+            return result
 
         job = self.jobs.submit("loadcell-calibration", work)
         return {"job_id": job.id, "method": method, "simulated": simulated}
 
-    def _simulated(self, ctx: Any, method: str, minimal: bool) -> dict[str, Any]:
-        import datetime as _dt
+    def _job_progress(self, ctx: Any, stage: str) -> Callable[[float, str], None]:
+        def show(fraction: float, message: str) -> None:
+            ctx.check_cancelled()
+            ctx.progress(fraction, f"{stage}: {message}")
 
-        from dimacq.io.loadcell_calibration import LoadCellCalibration
+        return show
+
+    def _inertial(
+        self,
+        ctx: Any,
+        settings: Any,
+        node: int | None,
+        download: bool,
+        simulated: bool,
+        cfg: dict[str, Any],
+    ) -> dict[str, Any]:
+        """The inertial bench through the rig builder; on a real rig the job's progress asks
+        the person for every strike (as an acquisition does)."""
+        from dimacq.io.rig_file import load_rig_file
+        from dimacq.services.inertial_calibration import (
+            install_inertial,
+            installed_document,
+            run_inertial_calibration,
+            select_cell,
+        )
+        from dimacq.services.loadcell_calibration import download_and_verify
+
+        run, verified = run_inertial_calibration(
+            settings,
+            node=node,
+            cfg=cfg,
+            on_progress=self._job_progress(ctx, "inertial bench"),
+            download=download_and_verify if download else None,
+        )
+        rig = load_rig_file(settings.rig_path)
+        installed = install_inertial(rig, select_cell(rig, run.node), run)
+        rec = self.record(installed_document(run.calibration(), installed.version))
+        return {
+            "method": "inertial",
+            "load_cell_node": run.node,
+            "serial_number": run.serial_number,
+            "version": installed.version,
+            "calibration_file": None if simulated else str(installed.current_path),
+            "nonlinearity_pct_fs": None,
+            "hysteresis_pct_fs": None,
+            "uncertainty_pct_fs": run.uncertainty_pct_fs(),
+            "verdict": "ok",
+            "reasons": [],
+            "band_hz": list(run.band_hz),
+            "fit": run.fit_json(),
+            "downloaded": verified is not None,
+            "download_verified": None if verified is None else verified.verified,
+            "matrix": run.matrix.tolist(),
+            "record_id": rec["id"],
+        }
+
+    def _check(self, ctx: Any, settings: Any, node: int, cfg: dict[str, Any]) -> dict[str, Any]:
+        from dimacq.services.inertial_calibration import circular_check
+
+        chk = circular_check(
+            settings, node=node, cfg=cfg, on_progress=self._job_progress(ctx, "circular check")
+        )
+        return chk.to_json()
+
+    def _simulated(self, ctx: Any, settings: Any, minimal: bool) -> dict[str, Any]:
+        """The simulated dead-weight bench; installed in the job's scratch rig (so that the
+        circular check reads it) and recorded."""
+        from dimacq.services.inertial_calibration import select_cell
+        from dimacq.services.loadcell_calibration import install_static
 
         def prog(done: int, total: int, message: str) -> None:
             ctx.check_cancelled()
             ctx.progress(done / max(total, 1), message)
 
-        sim = simulated_static_calibration(minimal_plan=minimal, progress=prog)
+        from dimacq.io.rig_file import load_rig_file
+
+        node = select_cell(load_rig_file(settings.rig_path), None).node
+        sim = simulated_static_calibration(node=node, minimal_plan=minimal, progress=prog)
         cert = sim.run.certificate
-        cal = LoadCellCalibration(
-            serial_number="501",
-            date=_dt.date.today().isoformat(),
-            matrix=sim.run.matrix,
-            method="static",
-            gauge_unit="mV/V",
-            certificate=certificate_json(cert),
-            notes="virtual dead-weight bench (API)",
-        )
-        rec = self.record(cal.to_json())
+        res = install_static(settings, node, sim.run, serial_number=str(node))
+        rec = self.record(res.installed_document())
         return {
             "method": "static",
+            "load_cell_node": node,
+            "version": res.installed.version,
             "matrix_error_rel": sim.matrix_error_rel,
             "nonlinearity_pct_fs": cert.nonlinearity_pct_fs.tolist(),
             "hysteresis_pct_fs": cert.hysteresis_pct_fs.tolist(),

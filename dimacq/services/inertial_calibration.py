@@ -1,0 +1,588 @@
+"""Inertial bench calibration of a 6-DOF load cell and the circular check, on the configured rig.
+
+Both run through the one rig builder (:func:`dimacq.services.rig.build_rig`) and so through the
+device backend tables: the same code drives a real rig (a person strikes when asked) and the
+simulated lab (``daq = loadcell = "simulated"``: the world's hand strikes, the simulators are
+reached only through their wires).
+
+**Inertial calibration** (method §8, thesis §4.1). The calibration mass hangs on the cell; the
+hammer strikes a light rigid fixture on the cell's *support side* at the setup's impact points,
+so the cell carries every force on the mass. The rig is built with ``calibration_bench = node``
+(the cell's amplifier needs no calibration file and gives its 12 gauges). With the accelerances
+condensed to the rigid-body acceleration of P, ``a_P = T_q H_acc`` (least squares over the
+response axes, :func:`~dimacq.pipeline.rigid_body.condense`), Newton–Euler about P gives, per line
+and input,
+
+    ``C g = (s T_c)⁻¹ M_rb(P) a_P``
+
+with ``M_rb(P)`` the 6×6 rigid-body mass matrix of the certified calibration mass (the setup's
+``[known]`` mass, CG and inertia), ``T_c`` the cell's placement and ``s`` its sign;
+:func:`~dimacq.pipeline.loadcell_calibration.inertial_calibration` solves ``C`` (6×12) over the
+band by rank-6 least squares.
+
+**Circular check** (thesis §4.1: "the same structure used to calibrate the load cell in the same
+configuration"). The same mass on the same cell, now struck on the mass, acquired with the
+amplifier applying the cell's *installed* calibration (the rig file's calibration file: what an
+acquisition uses), solved by DIM with all ten properties unknown, compared with the certificate.
+It follows a static or an inertial calibration alike.
+
+Where the bench is described: the bench file (``loadcell_bench.toml`` beside the rig file),
+``[inertial]``: the calibration mass's setup file, the fit band, the check's DIM band, the
+averages per input (:mod:`dimacq.io.loadcell_bench`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime as _dt
+import logging
+import shutil
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from dimacq.config import Settings
+from dimacq.errors import DataError, SetupError
+from dimacq.io.loadcell_bench import BenchFile, load_bench_file
+from dimacq.io.loadcell_calibration import LoadCellCalibration
+from dimacq.io.rig_file import LoadCellEntry, RigFile, load_rig_file
+from dimacq.model.properties import RigidBodyProperties
+from dimacq.model.setup import KnownProperties, TestSetup
+from dimacq.services.rig import build_rig, run_impact_session, run_impact_test
+
+__all__ = [
+    "CircularCheck",
+    "InertialRun",
+    "bench_file_of",
+    "calibration_mass",
+    "circular_check",
+    "hammer_ratio",
+    "run_inertial_calibration",
+    "scratch_rig",
+    "select_cell",
+    "solution_errors",
+]
+
+log = logging.getLogger(__name__)
+
+FloatArray = NDArray[np.float64]
+#: ``on_progress(fraction, message)``; on a real rig the message asks the person to strike.
+ProgressFn = Callable[[float, str], None]
+
+_PARAMS = ("m", "cx", "cy", "cz", "Ixx", "Ixy", "Ixz", "Iyy", "Iyz", "Izz")
+
+
+def select_cell(rig: RigFile, node: int | None) -> LoadCellEntry:
+    """The rig file's load cell ``node`` (the only one when None).
+
+    Raises
+    ------
+    SetupError
+        No load cell, several and none chosen, or an unknown node.
+    """
+    cells = {lc.node: lc for lc in rig.load_cells}
+    if not cells:
+        raise SetupError(f"rig file {rig.path} has no [[load_cells]]; add the cell to calibrate")
+    if node is None:
+        if len(cells) > 1:
+            raise SetupError(
+                f"rig file {rig.path} has load cells {sorted(cells)}: give the node to calibrate"
+            )
+        node = next(iter(cells))
+    if node not in cells:
+        raise SetupError(f"load cell {node} is not in {rig.path}; use one of {sorted(cells)}")
+    return cells[node]
+
+
+def bench_file_of(settings: Settings, bench_file: str | Path | None = None) -> BenchFile:
+    """The bench file: ``bench_file``, else ``loadcell_bench.toml`` beside the rig file."""
+    return load_bench_file(bench_file or settings.rig_path.parent / "loadcell_bench.toml")
+
+
+def calibration_mass(bench: BenchFile, node: int) -> tuple[TestSetup, RigidBodyProperties]:
+    """The calibration mass's setup (``[inertial] setup_file``) and its certified properties
+    (the setup's ``[known]``: all ten).
+
+    Raises
+    ------
+    SetupError
+        No ``[inertial]`` table, an unreadable setup, properties not all known, or the setup
+        does not mount the mass on load cell ``node``.
+    """
+    from dimacq.io.setup_file import load_setup
+
+    path = bench.inertial_setup_path()
+    setup = load_setup(path)
+    known = setup.known.as_dict()
+    missing = [p for p in _PARAMS if p not in known]
+    if missing:
+        raise SetupError(
+            f"calibration mass setup {path}: [known] lacks {', '.join(missing)}; give the "
+            "certified mass, CG and inertia (all ten) of the calibration mass"
+        )
+    if node not in {lc.node for lc in setup.load_cells}:
+        raise SetupError(
+            f"calibration mass setup {path}: no load cell {node}; give the cell's node, "
+            "position and rotation under [[load_cells]]"
+        )
+    P = np.asarray(setup.reference_point_m, float)
+    I_p = np.array(
+        [
+            [known["Ixx"], known["Ixy"], known["Ixz"]],
+            [known["Ixy"], known["Iyy"], known["Iyz"]],
+            [known["Ixz"], known["Iyz"], known["Izz"]],
+        ]
+    )
+    props = RigidBodyProperties.from_about_point(
+        known["m"], np.array([known["cx"], known["cy"], known["cz"]]), I_p, P
+    )
+    return setup, props
+
+
+@dataclass(frozen=True, eq=False)
+class InertialRun:
+    """An inertial calibration of load cell ``node``.
+
+    Attributes
+    ----------
+    node, serial_number : the cell and its amplifier's serial number
+    fit : LoadCellCalibrationFit
+        ``fit.matrix`` is ``C`` (6×12, N and N·m per gauge unit).
+    band_hz : (lo, hi) lines used, Hz
+    averages_per_input : int
+    n_inputs : int
+        Inputs with FRFs (complete ones).
+    gauge_unit : str
+    hammer_ratio : (mean, std) or None
+        The hammer's stated sensitivity over the one the calibration mass implies (see
+        :func:`hammer_ratio`); 1 when the rig file's hammer certificate is right.
+    """
+
+    node: int
+    serial_number: str
+    fit: Any
+    band_hz: tuple[float, float]
+    averages_per_input: int
+    n_inputs: int
+    gauge_unit: str
+    hammer_ratio: tuple[float, float] | None = None
+
+    @property
+    def matrix(self) -> FloatArray:
+        return np.asarray(self.fit.matrix, dtype=np.float64)
+
+    def uncertainty_pct_fs(self) -> list[float]:
+        """Expanded (k = 2) relative residual of each load row, % of that row's rms dynamic
+        load (the inertial method has no rated-load reference: a bound, not % FS)."""
+        return [float(v) for v in 200 * np.asarray(self.fit.residual_rel_per_load, float)]
+
+    def fit_json(self) -> dict[str, Any]:
+        fit = self.fit
+        return {
+            "residual_rel": fit.residual_rel,
+            "residual_rel_per_load": fit.residual_rel_per_load.tolist(),
+            "singular_values": fit.singular_values.tolist(),
+            "rank_used": fit.rank_used,
+            "condition": fit.condition,
+            "noise_separation": fit.noise_separation,
+            "load_condition": fit.load_condition,
+            "n_equations": fit.n_equations,
+            "hammer_sensitivity_ratio": None if self.hammer_ratio is None else self.hammer_ratio[0],
+            "hammer_sensitivity_ratio_std": (
+                None if self.hammer_ratio is None else self.hammer_ratio[1]
+            ),
+        }
+
+    def calibration(self) -> LoadCellCalibration:
+        """The calibration document (version set when installed)."""
+        return LoadCellCalibration(
+            serial_number=self.serial_number,
+            date=_dt.date.today().isoformat(),
+            matrix=self.matrix,
+            method="inertial",
+            gauge_unit=self.gauge_unit,
+            diagnostics={
+                **{k: v for k, v in self.fit_json().items() if not isinstance(v, list)},
+                "band_hz": list(self.band_hz),
+                "averages_per_input": self.averages_per_input,
+                "inputs": self.n_inputs,
+            },
+            certificate={"uncertainty_pct_fs": self.uncertainty_pct_fs(), "verdict": "ok"},
+            notes="inertial calibration with the calibration mass (support-side impacts)",
+        )
+
+
+def hammer_ratio(
+    accel_p: NDArray[np.complex128],
+    mass_matrix: FloatArray,
+    directions: FloatArray,
+) -> tuple[float, float]:
+    """The hammer's stated sensitivity over the one the calibration mass implies.
+
+    On the bench the mass moves as a free rigid body above its suspension modes, so the force
+    on it along input ``j``'s line of action is the hammer's true force: ``d_jᵀ F_P = f`` with
+    ``F_P`` the first three rows of ``M_rb(P) a_P``. With ``a_P`` per *measured* hammer force
+    (a hammer read with the stated sensitivity ``s_stated`` while its true one is ``s_true``
+    reads ``f s_true / s_stated``), ``r_j(ω) = Re d_jᵀ (M_rb a_P)[:3] = s_stated / s_true``;
+    DIM's mass through that hammer comes out ``1/r − 1`` off.
+
+    Parameters
+    ----------
+    accel_p : (n_lines, 6, n_inputs) complex
+        Rigid-body acceleration of P per measured input force, lines above the suspension.
+    mass_matrix : (6, 6)
+    directions : (n_inputs, 3) unit lines of action
+
+    Returns
+    -------
+    (mean, std) of ``r`` over lines and inputs.
+    """
+    F = np.einsum("ab,lbi->lai", np.asarray(mass_matrix, float)[:3], accel_p.real)
+    r = np.einsum("ia,lai->li", np.asarray(directions, float), F)
+    return float(r.mean()), float(r.std())
+
+
+def _gauge_unit(rig: RigFile, entry: LoadCellEntry) -> str:
+    """The unit of the cell's gauges: as its present calibration file says, else mV/V (a
+    strain-gauge bridge, what this system is built for)."""
+    from dimacq.io.loadcell_calibration import read_calibration
+
+    path = rig.calibration_path(entry)
+    if path.exists():
+        try:
+            return read_calibration(path).gauge_unit
+        except DataError:
+            pass
+    return "mV/V"
+
+
+def run_inertial_calibration(
+    settings: Settings,
+    *,
+    node: int | None = None,
+    bench_file: str | Path | None = None,
+    cfg: Mapping[str, Any] | None = None,
+    on_progress: ProgressFn,
+    download: Callable[[Any, FloatArray], Any] | None = None,
+) -> tuple[InertialRun, Any]:
+    """Calibrate load cell ``node`` of the configured rig on the inertial bench.
+
+    Parameters
+    ----------
+    settings : Settings
+        ``daq``/``loadcell`` backends, ``rig_file``.
+    node : int, optional
+        The rig file's load cell (default: the only one).
+    bench_file : path, optional
+        Default ``loadcell_bench.toml`` beside the rig file; its ``[inertial]`` table.
+    cfg : mapping, optional
+        Impact-test request values (``seed``, ``noise_scale``, ``averages_per_input``, ...;
+        default averages: the bench file's).
+    on_progress : callable (fraction, message)
+    download : callable (amplifier, matrix), optional
+        Called with the open amplifier and ``C`` once the fit succeeded (e.g. store it in the
+        amplifier and read it back); its result is returned beside the run.
+
+    Returns
+    -------
+    (InertialRun, download result or None)
+
+    Raises
+    ------
+    SetupError
+        Bad bench file, setup or rig file (named).
+    DataError
+        The fit is refused (too few inputs, loads not excited).
+    """
+    from dimacq.pipeline.loadcell_calibration import inertial_calibration
+    from dimacq.pipeline.rigid_body import condense, response_matrix
+
+    rig_file = load_rig_file(settings.rig_path)
+    entry = select_cell(rig_file, node)
+    bench = bench_file_of(settings, bench_file)
+    setup, props = calibration_mass(bench, entry.node)
+    assert bench.inertial is not None
+    request = {"averages_per_input": bench.inertial.averages_per_input, **(cfg or {})}
+    k = [lc.node for lc in setup.load_cells].index(entry.node)
+    rig = build_rig(settings, setup, request, calibration_bench=entry.node)
+    try:
+        serial = str(rig.loadcells[k].identify().serial_number)
+        res = run_impact_session(
+            rig, setup, request, on_progress=on_progress, loadcell_outputs="gauges"
+        )
+        f = res.frequencies_hz
+        lo, hi = bench.inertial.band_hz
+        sel = (f >= lo) & (f <= hi)
+        if sel.sum() < 2:
+            raise SetupError(
+                f"bench file {bench.path}: [inertial] band_hz = [{lo}, {hi}] holds "
+                f"{int(sel.sum())} lines of 0–{f[-1]:g} Hz; give a band inside it"
+            )
+        n_acc = len(setup.responses)
+        P = np.asarray(setup.reference_point_m, float)
+        psi = response_matrix(setup.response_positions, setup.response_directions, P)
+        Tq = condense(psi).transform  # (6, n_acc)
+        acc = res.H[sel, :n_acc]
+        # T_q H with real arithmetic (complex GEMM is slow on this machine's BLAS)
+        a_p = np.einsum("kc,lci->lki", Tq, acc.real) + 1j * np.einsum("kc,lci->lki", Tq, acc.imag)
+        gauges = res.H[sel, n_acc + 12 * k : n_acc + 12 * (k + 1)]
+        n_inputs = res.H.shape[2]
+        kept = list(res.input_indices or range(n_inputs))
+        clo, chi = bench.inertial.check_band_hz  # above the suspension modes
+        above = (f >= clo) & (f <= chi)
+        acc_hi = res.H[above, :n_acc]
+        a_hi = np.einsum("kc,lci->lki", Tq, acc_hi.real) + 1j * np.einsum(
+            "kc,lci->lki", Tq, acc_hi.imag
+        )
+        ratio = (
+            hammer_ratio(a_hi, props.mass_matrix(P), setup.input_directions[kept])
+            if above.any()
+            else None
+        )
+        del res, acc, acc_hi, a_hi
+        lc = setup.load_cells[k]
+        fit = inertial_calibration(
+            gauges,
+            a_p,
+            props.mass_matrix(P),
+            np.asarray(lc.position_m, float),
+            lc.rotation_matrix,
+            P,
+            sign=lc.sign_factor,
+        )
+        run = InertialRun(
+            node=entry.node,
+            serial_number=serial,
+            fit=fit,
+            band_hz=(float(f[sel][0]), float(f[sel][-1])),
+            averages_per_input=int(request["averages_per_input"]),
+            n_inputs=int(n_inputs),
+            gauge_unit=_gauge_unit(rig_file, entry),
+            hammer_ratio=ratio,
+        )
+        done = None if download is None else download(rig.loadcells[k], run.matrix)
+    finally:
+        rig.close()
+    log.info(
+        "load cell %d: inertial calibration, residual %.3g, condition %.3g over %g–%g Hz",
+        run.node,
+        fit.residual_rel,
+        fit.condition,
+        *run.band_hz,
+    )
+    return run, done
+
+
+# ---------------------------------------------------------------------------------------------
+# The circular check
+# ---------------------------------------------------------------------------------------------
+def solution_errors(sol: Any, props: RigidBodyProperties) -> dict[str, float]:
+    """Errors of a DIM solution against reference properties: mass %, CG distance (mm) and per
+    component, principal moments about the CG (%)."""
+    from dimacq.model.properties import principal_moments
+
+    est = sol.properties
+    out = {"mass_pct": float(100 * (est.mass_kg - props.mass_kg) / props.mass_kg)}
+    d = 1e3 * (np.asarray(est.cg_m) - np.asarray(props.cg_m))
+    out["cg_error_mm"] = float(np.linalg.norm(d))
+    for k, ax in enumerate("xyz"):
+        out[f"c{ax}_error_mm"] = float(d[k])
+    est_pm = principal_moments(est.inertia_cg_kgm2)[0]
+    true_pm = principal_moments(props.inertia_cg_kgm2)[0]
+    for k in range(3):
+        out[f"I{k + 1}_pct"] = float(100 * (est_pm[k] - true_pm[k]) / true_pm[k])
+    return out
+
+
+@dataclass(frozen=True, eq=False)
+class CircularCheck:
+    """DIM on the calibration mass through the cell's installed calibration.
+
+    Attributes
+    ----------
+    solution : DimResult
+    errors_pct : dict
+        Against the certificate: ``mass_pct``, ``cg_error_mm`` (and per axis), ``I1_pct`` ..
+    band_hz : DIM band, Hz
+    calibration_version : int
+        Version of the calibration file the amplifier applied.
+    tolerance_pct : float
+        The check passes when ``|mass error|`` is within it (bench file).
+    cell_sensitivity : float
+        ``(Δm/m) / (Δc/c)``: how much the solved mass moves with a common scale error ``c`` of
+        the cell's loads (:func:`cell_sensitivity`). Where the cell carries little of the force
+        in the band (a soft suspension above its modes) the check cannot see the cell.
+    verdict : {"ok", "fail", "inconclusive"}
+    reasons : why it failed, or why it says nothing about the cell
+    """
+
+    solution: Any
+    errors_pct: dict[str, float]
+    band_hz: tuple[float, float]
+    calibration_version: int
+    tolerance_pct: float
+    cell_sensitivity: float
+    verdict: str
+    reasons: tuple[str, ...]
+
+    @property
+    def mass_error_pct(self) -> float:
+        return self.errors_pct["mass_pct"]
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "circular_mass_error_pct": self.mass_error_pct,
+            "circular_errors_pct": self.errors_pct,
+            "circular_dim_band_hz": list(self.band_hz),
+            "circular_calibration_version": self.calibration_version,
+            "circular_tolerance_pct": self.tolerance_pct,
+            "circular_cell_sensitivity": self.cell_sensitivity,
+            "circular_verdict": self.verdict,
+            "circular_reasons": list(self.reasons),
+        }
+
+
+#: Below this sensitivity (mass change per unit relative error of the cell's loads) the circular
+#: check cannot vouch for the cell: a 10 % matrix error would move the mass by less than 0.5 %.
+MIN_CELL_SENSITIVITY = 0.05
+
+
+def cell_sensitivity(frf: Any, setup: TestSetup, band_hz: tuple[float, float]) -> float:
+    """``(Δm/m) / ε``: the DIM mass's relative change when every load cell output is scaled by
+    ``1 + ε`` (ε = 1 %), all ten properties unknown. 1 where the cell carries the whole force
+    (its matrix's scale error goes straight into the mass), about 0 where a soft suspension
+    above its modes leaves the cell nearly unloaded."""
+    from dimacq.pipeline import dim
+
+    eps = 0.01
+    react = np.array([k == "reaction" for k in frf.output_kinds])
+    if not react.any():
+        return 0.0
+    H = np.array(frf.H, copy=True)
+    H[:, react, :] *= 1 + eps
+    m0 = dim.solve(frf, setup, known={}, band_hz=band_hz).properties.mass_kg
+    m1 = dim.solve(frf.replace(H=H), setup, known={}, band_hz=band_hz).properties.mass_kg
+    return float(abs(m1 - m0) / m0 / eps)
+
+
+def circular_check(
+    settings: Settings,
+    *,
+    node: int | None = None,
+    bench_file: str | Path | None = None,
+    cfg: Mapping[str, Any] | None = None,
+    on_progress: ProgressFn,
+) -> CircularCheck:
+    """The circular check of load cell ``node``'s installed calibration (module docstring).
+
+    Raises
+    ------
+    SetupError
+        As :func:`run_inertial_calibration`; or the cell has no calibration file.
+    """
+    from dimacq.io.loadcell_calibration import read_calibration
+    from dimacq.pipeline import dim
+
+    rig_file = load_rig_file(settings.rig_path)
+    entry = select_cell(rig_file, node)
+    bench = bench_file_of(settings, bench_file)
+    setup, props = calibration_mass(bench, entry.node)
+    assert bench.inertial is not None
+    unknown = setup.model_copy(update={"known": KnownProperties()})
+    request = {"averages_per_input": bench.inertial.averages_per_input, **(cfg or {})}
+    path = rig_file.calibration_path(entry)
+    try:
+        version = read_calibration(path).version
+    except (OSError, DataError) as err:
+        raise SetupError(
+            f"load cell {entry.node}: no calibration to check ({path}: {err}); calibrate it "
+            "first (dimacq loadcell calibrate)"
+        ) from err
+    rig = build_rig(settings, unknown, request)
+    try:
+        frf = run_impact_test(
+            rig,
+            unknown,
+            request,
+            on_average=lambda *_: None,
+            on_progress=on_progress,
+            meta={"source": f"circular check of load cell {entry.node}"},
+        )
+    finally:
+        rig.close()
+    band = bench.inertial.check_band_hz
+    sol = dim.solve(frf, unknown, known={}, band_hz=band)
+    errs = solution_errors(sol, props)
+    tol = bench.inertial.check_tolerance_pct
+    sens = cell_sensitivity(frf, unknown, band)
+    reasons: tuple[str, ...] = ()
+    verdict = "ok"
+    if not abs(errs["mass_pct"]) <= tol:
+        verdict = "fail"
+        reasons = (
+            f"mass {errs['mass_pct']:+.3f} % off the certificate, beyond ±{tol:g} %: the "
+            "cell's calibration, or the hammer's or accelerometers' sensitivities in the rig "
+            "file, are off (DIM's mass scales with the hammer force)",
+        )
+    if sens < MIN_CELL_SENSITIVITY:
+        verdict = "fail" if verdict == "fail" else "inconclusive"
+        reasons += (
+            f"the check hardly sees the cell: a 1 % error of its loads moves the mass by "
+            f"{sens:.2g} % (the cell carries little of the force in {band[0]:g}–{band[1]:g} Hz); "
+            "it says nothing about the cell's calibration",
+        )
+    log.info(
+        "load cell %d: circular check, mass %+.4f %% (%s)", entry.node, errs["mass_pct"], verdict
+    )
+    return CircularCheck(
+        sol, errs, (float(band[0]), float(band[1])), version, tol, sens, verdict, reasons
+    )
+
+
+# ---------------------------------------------------------------------------------------------
+# A scratch copy of the rig (simulated runs leave the configured calibration files alone)
+# ---------------------------------------------------------------------------------------------
+def scratch_rig(settings: Settings, directory: Path) -> Settings:
+    """Copy the rig file, its load cells' calibration files, the bench file and the calibration
+    mass's setup file into ``directory`` (same relative layout) and return the settings with
+    ``rig_file`` pointing at the copy: a simulated calibration installs its versions there, and
+    the circular check reads them, without touching the configured rig's files."""
+    src = settings.rig_path
+    rig = load_rig_file(src)
+    directory.mkdir(parents=True, exist_ok=True)
+    files = [src.name]
+    for e in rig.load_cells:
+        cal = rig.calibration_path(e)
+        if cal.exists():
+            try:
+                files.append(cal.relative_to(src.parent).as_posix())
+            except ValueError:
+                pass  # an absolute path outside the rig folder: left where it is (read only)
+    bench = src.parent / "loadcell_bench.toml"
+    if bench.exists():
+        files.append(bench.name)
+        b = load_bench_file(bench)
+        if b.inertial is not None and not Path(b.inertial.setup_file).is_absolute():
+            files.append(b.inertial.setup_file)
+    for rel in files:
+        dst = directory / rel
+        dst.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy2(src.parent / rel, dst)
+    return settings.model_copy(update={"rig_file": str(directory / src.name)})
+
+
+def install_inertial(rig_file: RigFile, entry: LoadCellEntry, run: InertialRun) -> Any:
+    """Keep the inertial calibration as the cell's next version (JSON and XML) and make it the
+    current file (:func:`~dimacq.io.loadcell_calibration.install_calibration`)."""
+    from dimacq.io.loadcell_calibration import install_calibration
+
+    return install_calibration(run.calibration(), rig_file.calibration_path(entry))
+
+
+def installed_document(cal: LoadCellCalibration, version: int) -> dict[str, Any]:
+    doc: dict[str, Any] = dataclasses.replace(cal, version=version).to_json()
+    return doc

@@ -1,0 +1,105 @@
+"""The lab page's bench-calibration step (``dimacq/api/static/calibration.js``) in headless
+Chromium against a real ``dimacq serve`` on the simulated lab, in the style of
+``tests/api/test_lab_page.py``: an inertial calibration run with its circular check started from
+the page, its progress followed, the certificate figures and the check shown, the calibration
+listed; every request stays on 127.0.0.1, the console stays free of errors. A screenshot goes to
+``<tmp>/screenshots/7-bench.png``.
+
+Needs Debian's ``chromium`` and Playwright's Python package; skipped when either is missing.
+"""
+
+from __future__ import annotations
+
+import shutil
+import signal
+import subprocess
+from pathlib import Path
+from typing import Any
+from urllib.parse import urlsplit
+
+import pytest
+
+CHROMIUM = shutil.which("chromium")
+playwright_sync = pytest.importorskip("playwright.sync_api")
+pytestmark = pytest.mark.skipif(CHROMIUM is None, reason="Debian's chromium is not installed")
+
+
+@pytest.fixture
+def service(tmp_path: Path) -> Any:
+    from test_lab_page import TOKEN, _serve
+
+    proc, url = _serve(tmp_path)
+    try:
+        yield url, TOKEN
+    finally:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.communicate(timeout=20)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.communicate()
+
+
+def test_bench_calibration_module_is_package_data() -> None:
+    from importlib.resources import files
+
+    js = files("dimacq.api") / "static" / "calibration.js"
+    text = js.read_text(encoding="utf-8")
+    assert "http://" not in text and "https://" not in text
+    html = (files("dimacq.api") / "static" / "index.html").read_text(encoding="utf-8")
+    assert '<script type="module" src="/static/calibration.js">' in html
+
+
+def test_inertial_calibration_through_the_page(service: Any, tmp_path: Path) -> None:
+    url, token = service
+    shots = tmp_path / "screenshots"
+    shots.mkdir()
+    errors: list[str] = []
+    outside: list[str] = []
+    with playwright_sync.sync_playwright() as pw:
+        browser = pw.chromium.launch(executable_path=CHROMIUM)
+        ctx = browser.new_context(viewport={"width": 1280, "height": 900})
+
+        def leaves(u: str) -> bool:
+            return not u.startswith("data:") and urlsplit(u).hostname != "127.0.0.1"
+
+        def refuse(r: Any) -> None:
+            outside.append(r.request.url)
+            r.abort()
+
+        ctx.route(leaves, refuse)
+        page = ctx.new_page()
+        page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
+        page.on("pageerror", lambda e: errors.append(str(e)))
+        page.goto(f"{url}/#token={token}")
+        page.wait_for_selector("#bench[data-ready='1']", timeout=20_000)
+        assert page.locator("header nav a[href='#bench']").count() == 1
+        page.select_option("#bench-method", "inertial")
+        page.fill("#bench-averages", "1")
+        page.click("#bench-start")
+        page.wait_for_function(
+            "() => /inertial bench/.test(document.querySelector('#bench-msg').textContent)",
+            timeout=30_000,
+        )
+        page.wait_for_function(
+            "() => /calibration finished|failed|cancelled|HTTP/.test("
+            "document.querySelector('#bench-msg').textContent)"
+            " || document.querySelector('#bench-msg').className === 'fail'",
+            timeout=240_000,
+        )
+        msg = page.inner_text("#bench-msg")
+        assert msg.startswith("calibration finished: inertial"), msg
+        result = page.evaluate("() => window.dimacqBench.result")
+        assert result["method"] == "inertial" and len(result["uncertainty_pct_fs"]) == 6
+        # what the page shows is the job's result
+        cert = page.inner_text("#bench-cert")
+        assert f"{result['uncertainty_pct_fs'][0]:.4f}" in cert
+        circular = page.inner_text("#bench-circular")
+        assert f"{result['circular_mass_error_pct']:.3f} %" in circular
+        assert result["circular_verdict"].upper() in circular  # CSS upper-cases it
+        rows = page.locator("#bench-list tbody tr")
+        assert rows.count() >= 1 and "inertial" in rows.first.inner_text()
+        page.locator("#bench").screenshot(path=str(shots / "7-bench.png"))
+        browser.close()
+    assert not errors, errors
+    assert not outside, outside
