@@ -163,6 +163,11 @@ class JobInfo(BaseModel):
     error: str | None = None
     created_at: str
     finished_at: str | None = None
+    updated_at: str | None = Field(
+        default=None,
+        description="last change of state, progress or message (null: a job of another stand "
+        "still running, whose progress times are not stored)",
+    )
     version: int = 0
     stand: str = ""
 
@@ -188,7 +193,12 @@ class StatusOut(BaseModel):
     jobs_running: list[dict[str, Any]]
 
 
+_CREATED = "when it was stored (ISO 8601, UTC); stored items are never changed, so no updated_at"
+
+
 class PointOut(BaseModel):
+    """A digitized point: array coordinates (DACS) and, once its patch is registered, GCS, m."""
+
     label: str
     patch: int
     position_array_m: list[float]
@@ -198,38 +208,134 @@ class PointOut(BaseModel):
     id: int | None = None
     position_m: list[float] | None = None
     seqs: list[int] | None = None
+    created_at: str | None = Field(default=None, description=_CREATED)
 
 
 class SetupOut(BaseModel):
+    """A stored setup: counts and the setup document (the setup-file keys)."""
+
     id: int
     name: str
     n_responses: int
-    n_excitations: int
+    n_inputs: int
     n_load_cells: int
     setup: dict[str, Any]
-    stand: str = ""  # the test stand that stored it
+    stand: str = Field(default="", description="the test stand that stored it")
+    created_at: str | None = Field(default=None, description=_CREATED)
 
 
-class ImportOut(BaseModel):
-    setup_id: int
+class ImportOut(SetupOut):
+    """The imported setup; ``frf_id`` is the FRF set a whole-test UFF also held."""
+
     frf_id: int | None = None
 
 
 class FrfOut(BaseModel):
+    """A stored FRF set (its values: ``GET /api/frfs/{frf_id}/data``)."""
+
     id: int
     setup_id: int
     acquisition_id: int | None = None
     name: str
     n_lines: int
-    n_outputs: int
+    n_responses: int
     n_inputs: int
     f_min_hz: float
     f_max_hz: float
-    stand: str = ""  # the test stand that stored it
+    stand: str = Field(default="", description="the test stand that stored it")
+    created_at: str | None = Field(default=None, description=_CREATED)
+
+
+class FrfChannelOut(BaseModel):
+    """A response channel or an input: node and UFF direction (±1..±3 translations, ±4..±6
+    rotations; a load cell's 1..6 are Fx..Mz in the cell's axes); for a response its kind and
+    the unit of its FRF."""
+
+    node: int
+    direction: int
+    kind: Literal["acceleration", "reaction", "input"] = "input"
+    unit: str = Field(default="N", description="unit of the FRF's numerator / of the input")
+
+
+class FrfDataOut(BaseModel):
+    """FRF values of the chosen responses × inputs over the chosen band."""
+
+    frf_id: int
+    layout: str = Field(
+        description="index order of real, imag and coherence: [line][response][input]"
+    )
+    frequencies_hz: list[float]
+    responses: list[FrfChannelOut]
+    inputs: list[FrfChannelOut]
+    real: list[Any] = Field(description="Re H, shape (n_lines, n_responses, n_inputs)")
+    imag: list[Any] = Field(description="Im H, same shape")
+    coherence: list[Any] | None = Field(
+        description="multiple coherence of each response, same shape; null entries where it is "
+        "undefined (no more averages than inputs), null when the set has none"
+    )
 
 
 class SolutionOut(BaseModel):
+    """A DIM solution: the options it was solved with and the result (the keys of
+    ``dimacq solve --json``: ``mass_kg``, ``cg_m``, ``inertia_p_kgm2``, ``uncertainty.<p>.ci95``,
+    ``verdict``, ``verdict_reasons``, …)."""
+
     id: int
     frf_id: int
     options: dict[str, Any]
     result: dict[str, Any]
+    stand: str = Field(default="", description="the test stand that solved it")
+    created_at: str | None = Field(default=None, description=_CREATED)
+
+
+class AverageOut(BaseModel):
+    number: int
+    input_index: int
+    accepted: bool
+    reason: str
+    path: str
+
+
+class AcquisitionOut(BaseModel):
+    """An impact acquisition: state (running, succeeded, failed, cancelled; the words of its
+    job), progress 0..1, and every completed average, accepted or rejected with its reason."""
+
+    id: int
+    setup_id: int | None
+    config: dict[str, Any]
+    state: str
+    message: str
+    job_id: str | None
+    frf_id: int | None
+    averages_accepted: int
+    accepted_per_input: list[int]
+    averages_rejected: int
+    averages: list[AverageOut]
+    min_averages: int
+    incomplete_inputs: list[int]
+    progress: float
+    stand: str = ""
+    created_at: str | None = None
+    updated_at: str | None = Field(
+        default=None, description="the last change of state, message, job or FRF set"
+    )
+
+
+class CalibrationOut(BaseModel):
+    """A stored load cell calibration (the normalised document, SI)."""
+
+    id: int
+    serial_number: str
+    calibration: dict[str, Any]
+    created_at: str | None = Field(default=None, description=_CREATED)
+
+
+class StudyOut(BaseModel):
+    """A sensitivity study: its parameters and, once its job has succeeded, its result;
+    ``job_id`` in the answer of the call that created it (follow it at /api/jobs/{job_id})."""
+
+    id: int
+    params: dict[str, Any]
+    result: dict[str, Any] | None
+    job_id: str | None = None
+    created_at: str | None = Field(default=None, description=_CREATED)

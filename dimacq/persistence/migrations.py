@@ -68,6 +68,12 @@ def _v3_patch_test(conn: Connection) -> None:
     _add_column(conn, "patches", Column("test", m.Integer(), server_default="0"))
 
 
+def _v4_acquisition_updated_at(conn: Connection) -> None:
+    _add_column(
+        conn, "acquisitions", Column("updated_at", m.DateTime(timezone=True), nullable=True)
+    )
+
+
 MIGRATIONS: list[tuple[int, str, Callable[[Connection], None]]] = [
     (
         1,
@@ -81,6 +87,7 @@ MIGRATIONS: list[tuple[int, str, Callable[[Connection], None]]] = [
         _v2_stands,
     ),
     (3, "patches.test: the digitizing test a patch belongs to", _v3_patch_test),
+    (4, "acquisitions.updated_at: when its state last changed", _v4_acquisition_updated_at),
 ]
 
 #: The schema version this code expects.

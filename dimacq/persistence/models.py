@@ -133,6 +133,10 @@ class Acquisition(Base):
     frf_id: Mapped[int | None] = mapped_column(Integer, nullable=True)
     stand: Mapped[str] = mapped_column(String(100), default="", server_default="")
     created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
+    # every change of state, message, job or FRF set (schema 4; NULL in older rows)
+    updated_at: Mapped[datetime | None] = mapped_column(
+        DateTime(timezone=True), nullable=True, default=utcnow, onupdate=utcnow
+    )
 
 
 class Average(Base):

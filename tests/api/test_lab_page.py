@@ -208,11 +208,11 @@ def test_whole_simulated_test_through_the_page(service: str, tmp_path: Path) -> 
         prompt = page.inner_text("#prompt")
         page.locator("#acquire").screenshot(path=str(shots / "3-acquire-running.png"))
         page.wait_for_function(
-            "() => /acquisition \\d+ (finished|failed|cancelled)/.test("
+            "() => /acquisition \\d+ (succeeded|failed|cancelled)/.test("
             "document.querySelector('#msg').textContent)",
             timeout=120_000,
         )
-        assert "finished" in page.inner_text("#msg"), page.inner_text("#msg")
+        assert "succeeded" in page.inner_text("#msg"), page.inner_text("#msg")
         t_acquired = time.perf_counter()
         page.locator("#acquire").screenshot(path=str(shots / "3-acquire-done.png"))
         assert page.locator("#acq-inputs tbody tr").count() == N_INPUTS

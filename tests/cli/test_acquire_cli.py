@@ -46,7 +46,7 @@ def test_acquire_writes_a_uff_that_solve_reads(tmp_path, capsys, no_leaks):
     cap = capsys.readouterr()
     assert "24 inputs × 1 averages" in cap.out and "[  24/24]" in cap.err
     summary = json.loads((tmp_path / "acq.json").read_text())
-    assert summary["averages_accepted"] == [1] * 24 and summary["n_outputs"] == 30
+    assert summary["averages_accepted"] == [1] * 24 and summary["n_responses"] == 30
     assert (tmp_path / "raw" / "acquisition.h5").stat().st_size > 1e6
     with np.load(tmp_path / "raw" / "frf.npz") as z:
         assert z["coherence"].shape == (2048, 30, 24)

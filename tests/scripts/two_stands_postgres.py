@@ -196,7 +196,7 @@ def main() -> int:
             f"{raw_b.status_code} {raw_b.json().get('detail')!r}"
         )
         ok &= (
-            fin["state"] == "finished"
+            fin["state"] == "succeeded"
             and len(numbers) == n_files
             and numbers == list(range(1, len(numbers) + 1))
             and st["ok"]

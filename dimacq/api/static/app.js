@@ -77,7 +77,7 @@ export function dirName(d) {
 async function loadSetups() {
   state.setups = await api("GET", "/api/setups");
   $("#setups tbody").innerHTML = state.setups.map((s) => `<tr><td>${s.id}</td><td class="l">${esc(s.name)}</td>
-    <td>${s.n_responses}</td><td>${s.n_excitations}</td><td>${s.n_load_cells}</td>
+    <td>${s.n_responses}</td><td>${s.n_inputs}</td><td>${s.n_load_cells}</td>
     <td><button data-setup="${s.id}">open</button></td></tr>`).join("");
   for (const b of document.querySelectorAll("[data-setup]")) {
     b.onclick = guard(() => openSetup(+b.dataset.setup));
@@ -108,9 +108,9 @@ async function importSetupFile(file) {
   const out = await api("POST", `/api/setups/import?format=${format}&name=${encodeURIComponent(file.name)}`,
     await file.arrayBuffer(), { raw: true });
   await loadSetups();
-  openSetup(out.setup_id);
+  openSetup(out.id);
   if (out.frf_id) await loadFrfSets(out.frf_id);
-  say(`imported ${file.name} as setup ${out.setup_id}${out.frf_id ? ` with FRF set ${out.frf_id}` : ""}`);
+  say(`imported ${file.name} as setup ${out.id}${out.frf_id ? ` with FRF set ${out.frf_id}` : ""}`);
 }
 
 async function loadArticle() {
@@ -252,7 +252,7 @@ async function buildSetup() {
   const s = await api("POST", "/api/setups/from-geometry", body);
   await loadSetups();
   openSetup(s.id);
-  say(`setup ${s.id}: ${s.n_responses} responses, ${s.n_excitations} inputs, ${s.n_load_cells} load cell(s)`);
+  say(`setup ${s.id}: ${s.n_responses} responses, ${s.n_inputs} inputs, ${s.n_load_cells} load cell(s)`);
 }
 
 // ------------------------------------------------------------------ 3 acquire
@@ -322,7 +322,7 @@ async function startAcquisition() {
 async function acquisitionEnded(a) {
   $("#acq-stop").disabled = true;
   $("#acq-start").disabled = false;
-  if (a.state !== "finished" && a.frf_id === null) {
+  if (a.state !== "succeeded" && a.frf_id === null) {
     // a job can end just before the acquisition row says so: read it once more
     await new Promise((r) => setTimeout(r, 300));
     a = await refreshAcquisition();
@@ -340,7 +340,7 @@ async function stopAcquisition() {
 /** List the FRF sets; open ``select`` (the page does not fetch FRF values before asked). */
 async function loadFrfSets(select) {
   const sets = await api("GET", "/api/frfs");
-  $("#frf-set").innerHTML = `<option value="">—</option>` + sets.map((s) => `<option value="${s.id}">${s.id} ${esc(s.name)} (${s.n_outputs}×${s.n_inputs}×${s.n_lines})</option>`).join("");
+  $("#frf-set").innerHTML = `<option value="">—</option>` + sets.map((s) => `<option value="${s.id}">${s.id} ${esc(s.name)} (${s.n_responses}×${s.n_inputs}×${s.n_lines})</option>`).join("");
   if (select) {
     $("#frf-set").value = select;
     await openFrf(+select);
@@ -353,7 +353,7 @@ async function openFrf(id) {
   state.timings.frf_fetch_ms = performance.now() - t0;
   state.frf = summary;
   const nL = data.frequencies_hz.length;
-  const nO = data.outputs.length;
+  const nO = data.responses.length;
   const nI = data.inputs.length;
   // flatten once: (line, output, input) → Float64Array per (output, input) of |H| and γ²
   const mag = [];
@@ -372,9 +372,9 @@ async function openFrf(id) {
       mag[j].push(m); coh[j].push(c);
     }
   }
-  state.frfData = { x: Float64Array.from(data.frequencies_hz), outputs: data.outputs, inputs: data.inputs, mag, coh, data };
+  state.frfData = { x: Float64Array.from(data.frequencies_hz), responses: data.responses, inputs: data.inputs, mag, coh, data };
   $("#frf-input").innerHTML = data.inputs.map((inp, j) => `<option value="${j}">${j + 1}: node ${inp.node} dir ${inp.direction}</option>`).join("");
-  $("#frf-info").textContent = `${nO} outputs × ${nI} inputs × ${nL} lines, ${f(summary.f_min_hz)}–${f(summary.f_max_hz)} Hz`;
+  $("#frf-info").textContent = `${nO} responses × ${nI} inputs × ${nL} lines, ${f(summary.f_min_hz)}–${f(summary.f_max_hz)} Hz`;
   drawFrfs(0);
   drawCmif();
 }
@@ -383,7 +383,7 @@ function drawFrfs(j) {
   const d = state.frfData;
   const onBand = (lo, hi) => setBand(lo, hi);
   const mag = linePlot($("#frf-mag"), { x: d.x, logY: true, xLabel: "frequency, Hz", yLabel: "|H|",
-    title: `FRF magnitude, input ${j + 1} (all ${d.outputs.length} outputs)`, band: state.band,
+    title: `FRF magnitude, input ${j + 1} (all ${d.responses.length} responses)`, band: state.band,
     series: d.mag[j].map((y) => ({ y })), onBand });
   state.timings.frf_draw_ms = mag.ms;
   state.plots = { mag };
@@ -398,7 +398,7 @@ function drawCmif() {
   const nI = d.inputs.length;
   const setup = state.setups.find((s) => s.id === state.frf.setup_id);
   const resp = new Set(setup ? setup.setup.responses.map((c) => `${c.node}/${c.direction}`) : []);
-  const outs = d.outputs.map((o, i) => i).filter((i) => !setup || resp.has(`${d.outputs[i].node}/${d.outputs[i].direction}`));
+  const outs = d.responses.map((o, i) => i).filter((i) => !setup || resp.has(`${d.responses[i].node}/${d.responses[i].direction}`));
   const nL = d.x.length;
   const K = Math.min(2, nI);
   const sv = Array.from({ length: K }, () => new Float64Array(nL));

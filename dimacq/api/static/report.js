@@ -39,7 +39,7 @@ async function main() {
   <p>${st.responses.length} response channels, ${st.excitations.length} inputs, ${(st.load_cells || []).length} load cell(s); reference point ${esc((st.reference_point_m || [0, 0, 0]).join(", "))} m</p>
   ${table(["input", "node", "position, m", "line of action (GCS)"], st.excitations.map((e, i) => [i + 1, e.node, e.position_m.map((v) => f(v, 4)).join(", "), e.direction_gcs.map((v) => f(v, 3)).join(", ")]))}</section>
   <section><h2>Data quality</h2>
-  <p>FRF set ${frf.id} (${esc(frf.name)}): ${frf.n_outputs} outputs × ${frf.n_inputs} inputs × ${frf.n_lines} lines, ${f(frf.f_min_hz)}–${f(frf.f_max_hz)} Hz.</p>
+  <p>FRF set ${frf.id} (${esc(frf.name)}): ${frf.n_responses} responses × ${frf.n_inputs} inputs × ${frf.n_lines} lines, ${f(frf.f_min_hz)}–${f(frf.f_max_hz)} Hz.</p>
   ${acq ? `<p>acquisition ${acq.id}: ${acq.averages_accepted} averages accepted, ${acq.averages_rejected} rejected${acq.averages_rejected ? ` (${esc([...new Set(acq.averages.filter((a) => !a.accepted).map((a) => a.reason))].join("; "))})` : ""}.</p>` : "<p>FRFs imported (no acquisition record).</p>"}
   <p>excluded responses: ${esc(JSON.stringify(r.excluded_responses || []))}; excluded inputs: ${esc(JSON.stringify(r.excluded_inputs || []))}</p></section>
   <section><h2>Figures</h2><img src="/api/solutions/${s.id}/figure?format=svg" alt="solution figure" style="max-width:100%"></section>

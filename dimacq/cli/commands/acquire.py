@@ -188,7 +188,7 @@ def run(args: argparse.Namespace) -> int:
         "exponential_tau_s": used.exponential_tau_s,
         "rig_file": str(settings.rig_path),
         "n_inputs": n_in,
-        "n_outputs": len(frf.outputs),
+        "n_responses": len(frf.outputs),
         "n_lines": frf.n_lines,
         "averages_accepted": accepted,
         "min_averages": min_averages,

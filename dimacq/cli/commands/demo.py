@@ -377,7 +377,7 @@ def _demo(
         sid = setup_out["id"]
         info["geometry_uncertainty"] = setup_out["setup"].get("geometry_uncertainty")
         say(
-            f"[3/5] setup {sid}: {setup_out['n_responses']} responses, {setup_out['n_excitations']} inputs, "
+            f"[3/5] setup {sid}: {setup_out['n_responses']} responses, {setup_out['n_inputs']} inputs, "
             f"{setup_out['n_load_cells']} load cell(s)"
         )
         # --- 4. acquisition --------------------------------------------------------------

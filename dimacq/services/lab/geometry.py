@@ -20,7 +20,7 @@ from dimacq.errors import DataError, DeviceStateError, SetupError
 from dimacq.model.setup import Excitation, KnownProperties, LoadCell, ResponseChannel, TestSetup
 from dimacq.persistence import Database
 from dimacq.persistence import models as m
-from dimacq.services.lab.common import vec
+from dimacq.services.lab.common import iso, vec
 from dimacq.services.lab.geometry_records import (
     LineOfAction,
     NewTest,
@@ -180,9 +180,20 @@ class GeometryService:
                     n_shots=r.n_shots,
                     n_used=r.n_used,
                     position_m=reg.apply(r.position_array_m) if reg else None,
+                    created_at=iso(r.created_at),
                 )
             )
         return out
+
+    def delete_point(self, point_id: int) -> bool | None:
+        """Delete one digitized point (a mistaken one; fits made from it are kept). The label's
+        earlier point, if any, is the latest again. None if there is no such point."""
+        with self.db.session() as s:
+            row = s.get(m.DigitizedPointRow, point_id)
+            if row is None:
+                return None
+            s.delete(row)
+            return True
 
     # ------------------------------------------------------------------ patches and registration
     def patches(self) -> list[PatchInfo]:
