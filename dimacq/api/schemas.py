@@ -339,3 +339,24 @@ class StudyOut(BaseModel):
     result: dict[str, Any] | None
     job_id: str | None = None
     created_at: str | None = Field(default=None, description=_CREATED)
+
+
+class DiagnosticOut(BaseModel):
+    """One plausibility or quality check of a solution, reported whatever its outcome."""
+
+    code: str
+    ok: bool
+    severity: Literal["info", "warning", "error"]
+    message: str
+
+
+class StandOut(BaseModel):
+    """A test stand sharing the database: its service's host, process, API address, start and
+    last heartbeat (ISO 8601, UTC)."""
+
+    name: str
+    host: str
+    pid: int
+    api_url: str
+    started_at: str
+    heartbeat_at: str

@@ -144,3 +144,26 @@ def test_acquisition_stop_keeps_completed_averages(tmp_path: Path, database_url:
             assert c.post("/api/acquisitions", json={**body, "setup_id": 999}).status_code == 422
     finally:
         lab.close()
+
+
+def test_settings_are_checked_when_the_acquisition_is_created(rig_api) -> None:
+    """A bad setting is a 422 naming it, and no acquisition or job is left behind: in the
+    request alone, against the built-in defaults, and against the rig the setup must match."""
+    c, _lab = rig_api
+    sid = c.post("/api/setups", json=dump_setup_dict(IMPULSE_SETUP)).json()["id"]
+    r = c.post(
+        "/api/acquisitions",
+        json={"setup_id": sid, "record_samples": 256, "pretrigger_samples": 256},
+    )
+    assert r.status_code == 422 and "pretrigger_samples 256" in r.json()["detail"], r.text
+    # with the default record length (2048): known only once the layers are applied
+    r = c.post("/api/acquisitions", json={"setup_id": sid, "pretrigger_samples": 4096})
+    assert r.status_code == 422, r.text
+    assert r.json()["detail"].startswith("pretrigger_samples") and "2048" in r.json()["detail"]
+    # a setup with other inputs than the rig's hammers: refused before any strike
+    other = dump_setup_dict(IMPULSE_SETUP)
+    other["excitations"] = other["excitations"][:1]
+    sid2 = c.post("/api/setups", json=other).json()["id"]
+    r = c.post("/api/acquisitions", json={"setup_id": sid2})
+    assert r.status_code == 422 and "hammer channels" in r.json()["detail"], r.text
+    assert c.get("/api/jobs").json() == [] and c.get("/api/acquisitions").json() == []

@@ -86,7 +86,7 @@ def digitize_point(
     """Digitize one labelled point (committed to the database before the reply)."""
     if body.sim_probe is not None:
         lab.geometry.place_simulated_probe(body.sim_probe.tip_m, body.sim_probe.axis)
-    return lab.geometry.digitize(body.label, body.shots).to_json()
+    return lab.geometry.digitize(body.label, body.shots)
 
 
 @router.get("/points", response_model=list[PointOut], responses=LIST_RESPONSES)

@@ -16,7 +16,7 @@ from dimacq.api.routers._common import (
     paged,
     strict_body,
 )
-from dimacq.api.schemas import MAX_ID, SolutionOut, SolveRequest
+from dimacq.api.schemas import MAX_ID, DiagnosticOut, SolutionOut, SolveRequest
 from dimacq.services.lab.solving import SolveOptions
 from dimacq.services.lab.store import StoredSolution
 
@@ -61,12 +61,15 @@ def delete_solution(solution_id: IdPath, lab: LabDep) -> Response:
     return deleted(lab.store.delete_solution(solution_id), f"solution {solution_id}")
 
 
-@router.get("/{solution_id:int}/diagnostics", response_model=list[dict[str, Any]])
-def diagnostics(solution_id: IdPath, lab: LabDep) -> list[dict[str, Any]]:
-    """The plausibility and quality checks of the solution (``code``, ``ok``, ``severity``,
-    ``message``)."""
+@router.get(
+    "/{solution_id:int}/diagnostics", response_model=list[DiagnosticOut], responses=LIST_RESPONSES
+)
+def diagnostics(
+    solution_id: IdPath, lab: LabDep, page: PageDep, response: Response
+) -> list[dict[str, Any]]:
+    """The plausibility and quality checks of the solution."""
     sol = found(lab.store.solution(solution_id), f"solution {solution_id}")
-    return list(sol.result.get("diagnostics", []))
+    return paged(response, list(sol.result.get("diagnostics", [])), page)
 
 
 @router.get(

@@ -9,7 +9,7 @@ from fastapi import APIRouter, Response
 
 from dimacq.api.deps import LabDep
 from dimacq.api.routers._common import LIST_RESPONSES, PageDep, paged
-from dimacq.api.schemas import StatusOut
+from dimacq.api.schemas import StandOut, StatusOut
 
 router = APIRouter(prefix="/api", tags=["status"])
 
@@ -21,7 +21,7 @@ async def get_status(lab: LabDep) -> Response:
     return Response(json.dumps(lab.status().to_json()).encode(), media_type="application/json")
 
 
-@router.get("/stands", response_model=list[dict[str, Any]], responses=LIST_RESPONSES)
+@router.get("/stands", response_model=list[StandOut], responses=LIST_RESPONSES)
 def get_stands(lab: LabDep, page: PageDep, response: Response) -> list[dict[str, Any]]:
     """The test stands sharing this database: name, host, API address, last heartbeat."""
     return paged(response, lab.stands(), page)

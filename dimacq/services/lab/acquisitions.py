@@ -169,6 +169,12 @@ class AcquisitionService:
         if self.jobs.running("acquisition"):
             raise DeviceStateError("an acquisition is already running; stop it or wait for it")
         rig = self._build_rig(setup, cfg)  # raises DeviceError if the devices are not there
+        try:
+            # every setting as applied (request < rig file < rig), before any job starts
+            self._check(rig, setup, cfg)
+        except DimacqError:
+            rig.close()
+            raise
         # the minimum of accepted averages per input, stated with the acquisition (the request,
         # else the rig file's [acquisition], else the service's min_averages setting)
         defaults: Mapping[str, Any] = getattr(rig, "defaults", {})
@@ -198,6 +204,11 @@ class AcquisitionService:
         out = self.get(acq_id)
         assert out is not None
         return out
+
+    def _check(self, rig: Any, setup: TestSetup, cfg: Mapping[str, Any]) -> None:
+        from dimacq.services.rig import check_impact_test
+
+        check_impact_test(rig, setup, cfg)
 
     def _set(self, acq_id: int, **values: Any) -> None:
         with self.db.session() as s:

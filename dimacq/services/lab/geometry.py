@@ -10,6 +10,7 @@ points and patches of the open digitizer.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from dataclasses import asdict
 from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
@@ -121,10 +122,24 @@ class GeometryService:
             vals = ",".join(f"{v:.6f}" for v in (*np.asarray(tip_m, dtype=float), *a))
             driver.command(f"SIM:PROBE {vals}")
 
-    def digitize(self, label: str, shots: int | None = None) -> DigitizedPoint:
-        """Digitize one point of the current patch; it is committed before this returns."""
+    def digitize(self, label: str, shots: int | None = None) -> dict[str, Any]:
+        """Digitize one point of the current patch; it is committed before this returns. The
+        point as measured (with its shot numbers ``seqs``) and as stored (``id``,
+        ``created_at``, ``position_m`` once its patch is registered)."""
         with self.devices.lock:
-            return self.devices.session().digitize(label, shots)
+            point = self.devices.session().digitize(label, shots)
+            with self.db.session() as s:
+                last = s.scalars(
+                    select(m.DigitizedPointRow.id)
+                    .where(m.DigitizedPointRow.label == label)
+                    .order_by(m.DigitizedPointRow.id.desc())
+                    .limit(1)
+                ).first()
+        stored = next((p for p in self.points() if p.id == last), None)
+        out = point.to_json()
+        if stored is not None:
+            out.update(asdict(stored))
+        return out
 
     def fire_shots(self, n: int) -> Shots:
         """Fire ``n`` raw shots and triangulate them (speed of sound, tip, accepted)."""
