@@ -162,7 +162,7 @@ def test_settings_are_checked_when_the_acquisition_is_created(rig_api) -> None:
     assert r.json()["detail"].startswith("pretrigger_samples") and "2048" in r.json()["detail"]
     # a setup with other inputs than the rig's hammers: refused before any strike
     other = dump_setup_dict(IMPULSE_SETUP)
-    other["excitations"] = other["excitations"][:1]
+    other["inputs"] = other["inputs"][:1]
     sid2 = c.post("/api/setups", json=other).json()["id"]
     r = c.post("/api/acquisitions", json={"setup_id": sid2})
     assert r.status_code == 422 and "hammer channels" in r.json()["detail"], r.text

@@ -96,8 +96,8 @@ function openSetup(id) {
   $("#setup-detail").innerHTML = `<h3>Setup ${s.id}: ${esc(s.name)}</h3><div class="row">
     <div><h4>Responses (${st.responses.length})</h4><div class="scroll">${table(["node", "dir", "position, m", "direction (GCS)"],
       st.responses.map((c) => [c.node, c.direction, v(c.position_m), v(c.direction_gcs)]))}</div></div>
-    <div><h4>Inputs (${st.excitations.length})</h4><div class="scroll">${table(["#", "node", "strike along", "position, m"],
-      st.excitations.map((e, i) => [i + 1, e.node, dirName(e.direction_gcs), v(e.position_m)]))}</div></div>
+    <div><h4>Inputs (${st.inputs.length})</h4><div class="scroll">${table(["#", "node", "strike along", "position, m"],
+      st.inputs.map((e, i) => [i + 1, e.node, dirName(e.direction_gcs), v(e.position_m)]))}</div></div>
     <div><h4>Load cells (${(st.load_cells || []).length})</h4>${table(["node", "position, m", "sign"],
       (st.load_cells || []).map((c) => [c.node, v(c.position_m), esc(c.sign || "")]))}</div></div>`;
 }
@@ -123,8 +123,8 @@ async function loadArticle() {
   }
   const a = state.article.setup;
   $("#scenario").textContent = `(${state.article.scenario})`;
-  $("#n-inputs").value = a.excitations.length;
-  const pts = [...a.responses.map((c) => c.position_m), ...a.excitations.map((e) => e.position_m)];
+  $("#n-inputs").value = a.inputs.length;
+  const pts = [...a.responses.map((c) => c.position_m), ...a.inputs.map((e) => e.position_m)];
   const xs = pts.map((p) => p[0]);
   const ys = pts.map((p) => p[1]);
   const [x0, x1, y0, y1] = [Math.min(...xs), Math.max(...xs), Math.min(...ys), Math.max(...ys)];
@@ -137,7 +137,7 @@ async function loadArticle() {
     svg += `<circle cx="${X(p[0])}" cy="${Y(p[1])}" r="4" fill="#1f77b4"><title>triax ${n}</title></circle>`;
     svg += `<text x="${X(p[0]) + 5}" y="${Y(p[1]) - 4}" font-size="9">${n}</text>`;
   }
-  for (const e of a.excitations) {
+  for (const e of a.inputs) {
     const [x, y] = [X(e.position_m[0]), Y(e.position_m[1])];
     svg += `<path d="M${x},${y - 4} l4,7 l-8,0 z" fill="#d62728"><title>input ${e.node} along ${dirName(e.direction_gcs)}</title></path>`;
   }
@@ -148,7 +148,7 @@ async function loadArticle() {
 function arrayPlacement() {
   // the array hangs 1.1 m above the article's centre, axes along the GCS: DACS = GCS + t
   const a = state.article.setup;
-  const pts = [...a.responses.map((c) => c.position_m), ...a.excitations.map((e) => e.position_m)];
+  const pts = [...a.responses.map((c) => c.position_m), ...a.inputs.map((e) => e.position_m)];
   const lo = [0, 1, 2].map((k) => Math.min(...pts.map((p) => p[k])) - 0.02);
   const hi = [0, 1, 2].map((k) => Math.max(...pts.map((p) => p[k])) + 0.02);
   const c = [0, 1, 2].map((k) => 0.5 * (lo[k] + hi[k]));
@@ -196,8 +196,8 @@ async function digitizeAll() {
   const refs = Object.fromEntries(corners.map((p, i) => [`REF${i}`, p]));
   const nodes = [...new Set(a.responses.map((c) => c.node))].sort((x, y) => x - y);
   // n inputs spread over the list (every direction of a symmetric layout, not the first face)
-  const nIn = Math.min(a.excitations.length, Math.max(1, +$("#n-inputs").value));
-  const inputs = Array.from({ length: nIn }, (_, i) => a.excitations[Math.floor((i * a.excitations.length) / nIn)]);
+  const nIn = Math.min(a.inputs.length, Math.max(1, +$("#n-inputs").value));
+  const inputs = Array.from({ length: nIn }, (_, i) => a.inputs[Math.floor((i * a.inputs.length) / nIn)]);
   const total = corners.length + nodes.length * jig.labels.length + inputs.length * 4;
   let done = 0;
   const step = () => { done += 1; $("#dig-bar").style.width = `${(100 * done) / total}%`; };
@@ -259,7 +259,7 @@ async function buildSetup() {
 const acq = { id: null, job: null, es: null, last: 0, setup: null, perInput: 0 };
 
 function renderAcquisition(a) {
-  const ex = acq.setup.setup.excitations;
+  const ex = acq.setup.setup.inputs;
   const per = ex.map(() => ({ acc: 0, rej: 0, reasons: [] }));
   for (const av of a.averages) {
     const p = per[av.input_index];

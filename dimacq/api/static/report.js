@@ -36,8 +36,8 @@ async function main() {
   <p>band ${f(r.band_hz[0])}–${f(r.band_hz[1])} Hz; condition number ${f(r.condition_number, 3)}; relative residual ${f(r.residual_rel, 3)}</p>
   ${table(["parameter", "estimate", "95 % interval"], rows.map(([n, v, uu]) => [`<span class="l">${n}</span>`, f(v, 6), ci(uu)]))}</section>
   <section><h2>Setup ${setup.id}: ${esc(setup.name)}</h2>
-  <p>${st.responses.length} response channels, ${st.excitations.length} inputs, ${(st.load_cells || []).length} load cell(s); reference point ${esc((st.reference_point_m || [0, 0, 0]).join(", "))} m</p>
-  ${table(["input", "node", "position, m", "line of action (GCS)"], st.excitations.map((e, i) => [i + 1, e.node, e.position_m.map((v) => f(v, 4)).join(", "), e.direction_gcs.map((v) => f(v, 3)).join(", ")]))}</section>
+  <p>${st.responses.length} response channels, ${st.inputs.length} inputs, ${(st.load_cells || []).length} load cell(s); reference point ${esc((st.reference_point_m || [0, 0, 0]).join(", "))} m</p>
+  ${table(["input", "node", "position, m", "line of action (GCS)"], st.inputs.map((e, i) => [i + 1, e.node, e.position_m.map((v) => f(v, 4)).join(", "), e.direction_gcs.map((v) => f(v, 3)).join(", ")]))}</section>
   <section><h2>Data quality</h2>
   <p>FRF set ${frf.id} (${esc(frf.name)}): ${frf.n_responses} responses × ${frf.n_inputs} inputs × ${frf.n_lines} lines, ${f(frf.f_min_hz)}–${f(frf.f_max_hz)} Hz.</p>
   ${acq ? `<p>acquisition ${acq.id}: ${acq.averages_accepted} averages accepted, ${acq.averages_rejected} rejected${acq.averages_rejected ? ` (${esc([...new Set(acq.averages.filter((a) => !a.accepted).map((a) => a.reason))].join("; "))})` : ""}.</p>` : "<p>FRFs imported (no acquisition record).</p>"}

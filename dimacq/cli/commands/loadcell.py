@@ -43,6 +43,7 @@ from datetime import date
 from pathlib import Path
 from typing import Any
 
+from dimacq.cli.progress import ProgressLine, add_quiet, plain
 from dimacq.errors import SetupError
 
 
@@ -53,7 +54,7 @@ def register(subparsers: Any) -> None:
     c = sub.add_parser(
         "calibrate",
         help="inertial calibration with the calibration mass (method §8)",
-        description=__doc__,
+        description=plain(__doc__),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     c.add_argument(
@@ -79,7 +80,15 @@ def register(subparsers: Any) -> None:
         default="standard",
         help="dead-weight load plan: standard (22 series) or minimal (14)",
     )
-    c.add_argument("--impacts-per-input", type=int, default=5, metavar="N")
+    c.add_argument(
+        "--averages-per-input",
+        "--impacts-per-input",
+        dest="impacts_per_input",
+        type=int,
+        default=5,
+        metavar="N",
+        help="inertial method: accepted averages per input (default 5)",
+    )
     c.add_argument("--node", type=int, help="real rig: the load cell (node) of the rig file")
     c.add_argument("--bench", type=Path, metavar="FILE", help="real rig: the bench file")
     c.add_argument(
@@ -95,6 +104,7 @@ def register(subparsers: Any) -> None:
     c.add_argument(
         "--xml", type=Path, metavar="OUT.xml", help="write the calibration file (ATI-style XML)"
     )
+    add_quiet(c)
     c.set_defaults(func=calibrate)
 
 
@@ -106,14 +116,14 @@ def calibrate(args: argparse.Namespace) -> int:
     from dimacq.cli.simulated_lab import simulated_inertial_calibration
     from dimacq.services.acquisition import Progress
 
+    line = ProgressLine("loadcell calibrate", quiet=args.quiet)
+
     def progress(stage: str, p: Progress) -> None:
-        done = p.input_index * p.wanted + p.accepted
-        sys.stderr.write(f"\r{stage}: [{done:4d}/{p.n_inputs * p.wanted}] {p.message[:70]:<70}")
-        sys.stderr.flush()
+        done, total = p.input_index * p.wanted + p.accepted, p.n_inputs * p.wanted
+        line.update(done / max(total, 1), f"{stage}: [{done}/{total}] {p.message}")
 
     def static_progress(done: int, total: int, message: str) -> None:
-        sys.stderr.write(f"\rdead weights: [{done:3d}/{total}] {message[:90]:<90}")
-        sys.stderr.flush()
+        line.update(done / max(total, 1), f"dead weights: [{done}/{total}] {message}")
 
     run = simulated_inertial_calibration(
         seed=args.seed,
@@ -124,7 +134,7 @@ def calibrate(args: argparse.Namespace) -> int:
         static_progress=static_progress,
         minimal_plan=args.plan == "minimal",
     )
-    sys.stderr.write("\n")
+    line.close()
     fit = run.fit
     out = sys.stdout
     if run.method == "static":
@@ -210,12 +220,15 @@ def _calibrate_rig(args: argparse.Namespace) -> int:
     settings = load_settings()
 
     def operator(case: LoadCase, _sample: int) -> None:
+        line.close()  # the prompt is always shown, --quiet or not
         sys.stderr.write(f"\n{case.prompt()}\n  press Enter when the load is in place: ")
         sys.stderr.flush()
         sys.stdin.readline()
 
+    line = ProgressLine("loadcell calibrate", quiet=args.quiet)
+
     def progress(done: int, total: int, message: str) -> None:
-        sys.stderr.write(f"[{done:3d}/{total}] {message}\n")
+        line.update(done / max(total, 1), f"[{done}/{total}] {message}")
 
     res = calibrate_rig_cell(
         settings,
