@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import datetime
 from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, FiniteFloat, field_validator
@@ -132,6 +133,7 @@ class FromGeometryRequest(_Body):
     inputs: list[NodeNumber] | None = None
     load_cells: list[LoadCell] = Field(default_factory=list)
     known: KnownProperties = KnownProperties()
+    test_id: DbId | None = Field(default=None, description="the test the setup belongs to")
 
 
 class SolveRequest(SolveOptions):
@@ -222,6 +224,7 @@ class SetupOut(BaseModel):
     setup: dict[str, Any]
     stand: str = Field(default="", description="the test stand that stored it")
     created_at: str | None = Field(default=None, description=_CREATED)
+    test_id: int | None = Field(default=None, description="the test it belongs to")
 
 
 class ImportOut(SetupOut):
@@ -360,3 +363,46 @@ class StandOut(BaseModel):
     api_url: str
     started_at: str
     heartbeat_at: str
+
+
+Text200 = Annotated[str, Field(max_length=200)]
+
+
+class TestCreate(_Body):
+    """A new test: the article's name, the operator, the test's date (default today) and notes."""
+
+    __test__ = False  # not a pytest class
+
+    article: Annotated[str, Field(min_length=1, max_length=200)]
+    operator: Text200 = ""
+    date: datetime.date | None = None
+    notes: Annotated[str, Field(max_length=20_000)] = ""
+
+
+class TestUpdate(_Body):
+    """The fields to change (those left out stay); ``archived: true`` archives the test."""
+
+    __test__ = False
+
+    article: Annotated[str, Field(min_length=1, max_length=200)] | None = None
+    operator: Text200 | None = None
+    date: datetime.date | None = None
+    notes: Annotated[str, Field(max_length=20_000)] | None = None
+    archived: bool | None = None
+
+
+class TestOut(BaseModel):
+    """A test and its setups (their acquisitions, FRF sets and solutions are the test's)."""
+
+    __test__ = False
+
+    id: int
+    article: str
+    operator: str
+    date: str = Field(description="the day of the test, YYYY-MM-DD")
+    notes: str
+    archived: bool
+    setup_ids: list[int]
+    stand: str = ""
+    created_at: str | None = None
+    updated_at: str | None = Field(default=None, description="the last change of its fields")

@@ -39,6 +39,16 @@ def _spec_operations(api: Api) -> list[tuple[str, str, dict[str, Any]]]:
     ]
 
 
+def _fill(path: str, op: dict[str, Any], text: str) -> str:
+    """``path`` with its parameters filled: integer ids with MAX_ID (in range, never stored),
+    others with ``text``."""
+    for name in re.findall(r"\{(\w+)\}", path):
+        params = [p for p in op.get("parameters", []) if p["name"] == name]
+        is_int = bool(params) and "integer" in str(params[0].get("schema"))
+        path = path.replace("{" + name + "}", str(MAX_ID) if is_int else text, 1)
+    return path
+
+
 def _json_body(op: dict[str, Any]) -> bool:
     return "application/json" in op.get("requestBody", {}).get("content", {})
 
@@ -48,10 +58,10 @@ def test_malformed_json_is_422_on_every_route_with_a_json_body(api: Api) -> None
     for path, method, op in _spec_operations(api):
         if not _json_body(op):
             continue
-        # ids that exist or are created by the call itself: a label is an upsert's key
-        url = re.sub(r"\{[^}]+\}", "R1", path)
         if "{job_id}" in path:
             continue  # an unknown job is 404 before its body is read (checked below)
+        # the body is read before the id is looked up; a label is an upsert's key
+        url = _fill(path, op, "R1")
         for bad in (b'{"oops', b"[1, 2", b"\xff\xfe", b"nul"):
             r = api.client.request(method, url, content=bad, headers=JSON)
             assert r.status_code == 422, (method, url, bad, r.status_code, r.text)
@@ -67,6 +77,8 @@ def test_malformed_json_is_422_on_every_route_with_a_json_body(api: Api) -> None
         "POST /api/digitizer/points",
         "PUT /api/digitizer/reference-nodes/{label}",
         "POST /api/sensitivity",
+        "POST /api/tests",
+        "PATCH /api/tests/{test_id}",
     ):
         assert must in walked, (must, walked)
 
@@ -76,11 +88,7 @@ def test_unknown_ids_are_404_on_every_route(api: Api) -> None:
     for path, method, op in _spec_operations(api):
         if "{" not in path or (method == "PUT" and path.endswith("{label}")):
             continue  # PUT of a labelled reference node adds it: no unknown id there
-        url = path
-        for name in re.findall(r"\{(\w+)\}", path):
-            params = [p for p in op.get("parameters", []) if p["name"] == name]
-            is_int = bool(params) and "integer" in str(params[0].get("schema"))
-            url = url.replace("{" + name + "}", str(MAX_ID) if is_int else "no-such-item", 1)
+        url = _fill(path, op, "no-such-item")
         body = b"{}" if _json_body(op) else None
         r = api.client.request(method, url, content=body, headers=JSON if body else None)
         assert r.status_code == 404, (method, url, r.status_code, r.text)
@@ -92,6 +100,8 @@ def test_unknown_ids_are_404_on_every_route(api: Api) -> None:
         "DELETE /api/solutions/{solution_id}",
         "DELETE /api/acquisitions/{acq_id}",
         "DELETE /api/digitizer/points/{point_id}",
+        "DELETE /api/tests/{test_id}",
+        "PATCH /api/tests/{test_id}",
         "DELETE /api/digitizer/reference-nodes/{label}",
         "GET /api/jobs/{job_id}",
         "POST /api/jobs/{job_id}/cancel",
@@ -332,3 +342,48 @@ def test_a_digitized_point_can_be_deleted(api: Api) -> None:
     assert pt["id"] in [p["id"] for p in listed.json()]
     assert api.client.delete(f"/api/digitizer/points/{pt['id']}").status_code == 204
     assert pt["id"] not in [p["id"] for p in api.client.get("/api/digitizer/points").json()]
+
+
+def test_tests_create_list_open_archive_delete(api: Api, stored: dict[str, Any]) -> None:
+    r = api.client.post(
+        "/api/tests",
+        json={
+            "article": "bracket B-12",
+            "operator": "A. Engineer",
+            "date": "2026-11-23",
+            "notes": "bungee, 8 triaxes",
+        },
+    )
+    assert r.status_code == 201, r.text
+    t = r.json()
+    assert t["id"] >= 1 and t["date"] == "2026-11-23" and t["archived"] is False
+    assert _recent(t["created_at"]) and t["setup_ids"] == []
+    today = api.client.post("/api/tests", json={"article": "cube"}).json()
+    assert today["date"] == datetime.now(UTC).date().isoformat()
+    # a setup joins the test; the test lists it and the setups filter by it
+    body = dump_setup_dict(stored["model"].setup)
+    sid = api.client.post("/api/setups", params={"test_id": t["id"]}, json=body).json()["id"]
+    assert api.client.get(f"/api/tests/{t['id']}").json()["setup_ids"] == [sid]
+    listed = api.client.get("/api/setups", params={"test_id": t["id"]})
+    assert [s["id"] for s in listed.json()] == [sid] and listed.headers["X-Total-Count"] == "1"
+    assert listed.json()[0]["test_id"] == t["id"]
+    r = api.client.post("/api/setups", params={"test_id": MAX_ID}, json=body)
+    assert r.status_code == 422 and f"test_id {MAX_ID} does not exist" in r.json()["detail"]
+    # change and archive: updated_at moves, archived tests are listed apart
+    r = api.client.patch(f"/api/tests/{t['id']}", json={"notes": "redo input 3", "archived": True})
+    assert r.status_code == 200, r.text
+    t2 = r.json()
+    assert t2["notes"] == "redo input 3" and t2["archived"] and t2["operator"] == "A. Engineer"
+    assert t2["updated_at"] >= t["updated_at"]
+    open_ids = [x["id"] for x in api.client.get("/api/tests", params={"archived": False}).json()]
+    archived = [x["id"] for x in api.client.get("/api/tests", params={"archived": True}).json()]
+    assert t["id"] in archived and t["id"] not in open_ids and today["id"] in open_ids
+    for bad in ({"article": ""}, {"date": "23/11/2026"}, {"archived": "yes"}, {"colour": 1}):
+        r = api.client.patch(f"/api/tests/{t['id']}", json=bad)
+        assert r.status_code == 422, (bad, r.text)
+    # a test with setups is not deleted (nothing measured is lost by a click)
+    r = api.client.delete(f"/api/tests/{t['id']}")
+    assert r.status_code == 409 and f"setups [{sid}]" in r.json()["detail"]
+    assert api.client.delete(f"/api/setups/{sid}").status_code == 204
+    assert api.client.delete(f"/api/tests/{t['id']}").status_code == 204
+    assert api.client.get(f"/api/tests/{t['id']}").status_code == 404

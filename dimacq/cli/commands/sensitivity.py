@@ -5,7 +5,7 @@
 six unit forces and moments at the origin, free-free, the calibration mass), the first K triaxes
 randomly rotated within ±A degrees about each axis, and prints the per-parameter table (min, max,
 mean, std, actual, mean error %) as thesis Tables 2–4. The JSON has one object per parameter
-(``mass_kg``, ``cx_m`` .. ``Izz_kgm2``) with ``min``, ``max``, ``mean``, ``std``, ``actual``,
+(the parameter names ``m``, ``cx`` .. ``Izz``, and ``mass_kg`` repeating ``m``) with ``min``, ``max``, ``mean``, ``std``, ``actual``,
 ``mean_error_pct``, plus ``study`` (the inputs).
 """
 

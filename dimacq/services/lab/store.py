@@ -91,6 +91,7 @@ class SetupSummary:
     setup: dict[str, Any]
     stand: str = ""  # the test stand that stored it
     created_at: str | None = None  # ISO 8601, UTC (a setup is never changed: no updated_at)
+    test_id: int | None = None  # the test it belongs to
 
     @classmethod
     def of(cls, r: m.SetupRow) -> SetupSummary:
@@ -104,6 +105,7 @@ class SetupSummary:
             setup=r.body,
             stand=r.stand,
             created_at=iso(r.created_at),
+            test_id=r.test_id,
         )
 
 
@@ -246,11 +248,18 @@ class TestStore:
         self.stand = stand  # this service's test stand, recorded with what it stores
 
     # ------------------------------------------------------------------ setups
-    def save_setup(self, setup: TestSetup) -> int:
+    def save_setup(self, setup: TestSetup, test_id: int | None = None) -> int:
+        """Store a setup (of test ``test_id``, which must exist); its id."""
         from dimacq.io.setup_file import dump_setup_dict
 
         with self.db.session() as s:
-            row = m.SetupRow(name=setup.name, body=dump_setup_dict(setup), stand=self.stand)
+            if test_id is not None and s.get(m.TestRow, test_id) is None:
+                raise SetupError(
+                    f"test_id {test_id} does not exist; create the test first (POST /api/tests)"
+                )
+            row = m.SetupRow(
+                name=setup.name, body=dump_setup_dict(setup), stand=self.stand, test_id=test_id
+            )
             s.add(row)
             s.flush()
             return int(row.id)
@@ -271,11 +280,15 @@ class TestStore:
             )
         return setup
 
-    def setups(self, limit: int | None = None, offset: int = 0) -> Page[SetupSummary]:
-        """Setups in id order: ``limit`` of them (None: all) after the first ``offset``."""
+    def setups(
+        self, limit: int | None = None, offset: int = 0, test_id: int | None = None
+    ) -> Page[SetupSummary]:
+        """Setups in id order (of one test when ``test_id`` is given): ``limit`` of them (None:
+        all) after the first ``offset``."""
+        where = [] if test_id is None else [m.SetupRow.test_id == test_id]
         with self.db.session() as s:
-            total = int(s.scalar(select(func.count()).select_from(m.SetupRow)) or 0)
-            q = select(m.SetupRow).order_by(m.SetupRow.id).offset(offset).limit(limit)
+            total = int(s.scalar(select(func.count()).select_from(m.SetupRow).where(*where)) or 0)
+            q = select(m.SetupRow).where(*where).order_by(m.SetupRow.id).offset(offset).limit(limit)
             return Page([SetupSummary.of(r) for r in s.scalars(q)], total)
 
     def delete_setup(self, setup_id: int) -> bool | None:
@@ -315,19 +328,21 @@ class TestStore:
         data: bytes | BinaryIO,
         fmt: Literal["json", "toml", "uff"],
         name: str | None = None,
+        test_id: int | None = None,
     ) -> Imported:
-        """Import a setup file (``json``/``toml``) or a whole-test UFF (``uff``: setup + FRFs)."""
+        """Import a setup file (``json``/``toml``) or a whole-test UFF (``uff``: setup + FRFs),
+        into test ``test_id`` when given."""
         from dimacq.io.setup_file import read_setup
         from dimacq.io.uff import read_uff_test
 
         if fmt == "uff":
             setup, frf = read_uff_test(data, name=name)
-            sid = self.save_setup(setup)
+            sid = self.save_setup(setup, test_id)
             return Imported(sid, self.save_frf(frf, sid, name=name or setup.name))
         setup = read_setup(data, fmt, "uploaded setup")
         if name:
             setup = setup.model_copy(update={"name": name})
-        return Imported(self.save_setup(setup))
+        return Imported(self.save_setup(setup, test_id))
 
     def export_setup(self, setup_id: int, fmt: Literal["json", "toml"]) -> ExportedFile | None:
         """Setup as ``json`` or ``toml`` text; None if it does not exist."""
