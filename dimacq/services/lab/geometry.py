@@ -158,21 +158,30 @@ class GeometryService:
             shots=[
                 Shot(
                     seq=int(seq[i]),
-                    tip_array_m=vec(sol.tip_m[i]),
-                    speed_of_sound_m_s=float(sol.speed_m_s[i]),
+                    tip_array_m=[_finite(x) for x in vec(sol.tip_m[i])],
+                    speed_of_sound_m_s=_finite(sol.speed_m_s[i]),
                     accepted=bool(sol.accepted[i]),
                 )
                 for i in range(n)
             ],
-            speed_of_sound_m_s=float(np.nanmedian(sol.speed_m_s)),
+            speed_of_sound_m_s=_finite(
+                np.nanmedian(sol.speed_m_s) if np.isfinite(sol.speed_m_s).any() else np.nan
+            ),
         )
-        if np.isfinite(shots.speed_of_sound_m_s):
+        if shots.speed_of_sound_m_s is not None:
             self._speed_of_sound_m_s = shots.speed_of_sound_m_s
         return shots
 
     def measure_speed_of_sound(self, shots: int = 3) -> float:
-        """Fire ``shots`` shots: the median speed of sound on the calibration bar, m/s."""
-        return self.fire_shots(shots).speed_of_sound_m_s
+        """Fire ``shots`` shots: the median speed of sound on the calibration bar, m/s;
+        DataError when no shot reached the bar."""
+        got = self.fire_shots(shots).speed_of_sound_m_s
+        if got is None:
+            raise DataError(
+                f"speed of sound: none of {shots} shots reached the calibration bar; check the "
+                "bar's microphones and fire again"
+            )
+        return got
 
     def last_speed_of_sound(self) -> float | None:
         """The speed of sound measured last (by any firing), m/s; None before the first."""
@@ -625,3 +634,9 @@ def _distinct(regs: Any) -> list[dict[str, Any]]:
         if not any(r is o for o in out):
             out.append(r)
     return [r.to_json() for r in out]
+
+
+def _finite(x: float | np.floating[Any]) -> float | None:
+    """A finite number, or None (JSON null) for NaN/inf (a shot that was not triangulated)."""
+    v = float(x)
+    return v if np.isfinite(v) else None
