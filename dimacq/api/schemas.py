@@ -380,7 +380,8 @@ class TestCreate(_Body):
 
 
 class TestUpdate(_Body):
-    """The fields to change (those left out stay); ``archived: true`` archives the test."""
+    """The fields to change (those left out or null stay); ``archived: true`` archives the
+    test, ``false`` reopens it."""
 
     __test__ = False
 

@@ -378,6 +378,8 @@ def test_tests_create_list_open_archive_delete(api: Api, stored: dict[str, Any])
     open_ids = [x["id"] for x in api.client.get("/api/tests", params={"archived": False}).json()]
     archived = [x["id"] for x in api.client.get("/api/tests", params={"archived": True}).json()]
     assert t["id"] in archived and t["id"] not in open_ids and today["id"] in open_ids
+    same = api.client.patch(f"/api/tests/{t['id']}", json={"article": None, "notes": None})
+    assert same.status_code == 200 and same.json()["notes"] == "redo input 3"  # null: unchanged
     for bad in ({"article": ""}, {"date": "23/11/2026"}, {"archived": "yes"}, {"colour": 1}):
         r = api.client.patch(f"/api/tests/{t['id']}", json=bad)
         assert r.status_code == 422, (bad, r.text)

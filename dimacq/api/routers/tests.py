@@ -57,7 +57,7 @@ def update_test(
     test_id: IdPath, lab: LabDep, body: Annotated[TestUpdate, strict_body(TestUpdate)]
 ) -> LabTest:
     """Change the fields given; ``{"archived": true}`` archives the test (kept, listed apart)."""
-    changes = body.model_dump(exclude_unset=True)
+    changes = body.model_dump(exclude_none=True)  # left out or null: unchanged
     return found(lab.tests.update(test_id, changes), f"test {test_id}")
 
 
