@@ -407,3 +407,38 @@ class TestOut(BaseModel):
     stand: str = ""
     created_at: str | None = None
     updated_at: str | None = Field(default=None, description="the last change of its fields")
+
+
+class JigOut(BaseModel):
+    """The orientation jig: indentation labels and positions in the sensor's axes, m."""
+
+    labels: list[str]
+    points_local_m: list[list[float]]
+
+
+class ArticleOut(BaseModel):
+    """Simulation only: the article's geometry as a setup file states it (GCS, m: responses,
+    inputs with their lines of action, load cells), the scenario's recommended band and the
+    orientation jig. The true inertia properties are not given."""
+
+    scenario: str
+    setup: dict[str, Any] = Field(description="setup-file keys (responses, inputs, load_cells)")
+    band_hz: list[float]
+    jig: JigOut
+
+
+class SpeedOfSoundOut(BaseModel):
+    speed_of_sound_m_s: float = Field(description="measured on the calibration bar, m/s")
+
+
+class AverageDataOut(BaseModel):
+    """Raw time data of one average (the stand's HDF5 file): ``arrays`` by name (``shapes``
+    gives each one's shape; the channel order and units are in ``attrs``), NaN as null."""
+
+    acquisition_id: int
+    number: int
+    stand: str
+    path: str = Field(description="the file, relative to the stand's data folder")
+    attrs: dict[str, Any]
+    arrays: dict[str, Any]
+    shapes: dict[str, list[int]]

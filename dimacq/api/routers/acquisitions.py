@@ -16,7 +16,7 @@ from dimacq.api.routers._common import (
     paged,
     strict_body,
 )
-from dimacq.api.schemas import AcquisitionOut, AcquisitionRequest
+from dimacq.api.schemas import AcquisitionOut, AcquisitionRequest, AverageDataOut
 from dimacq.services.lab.acquisitions import AcquisitionInfo
 
 router = APIRouter(prefix="/api/acquisitions", tags=["acquisitions"])
@@ -61,7 +61,7 @@ def stop_acquisition(acq_id: IdPath, lab: LabDep) -> AcquisitionInfo:
     return found(lab.acquisitions.stop(acq_id), f"acquisition {acq_id}")
 
 
-@router.get("/{acq_id:int}/averages/{number:int}", response_model=dict[str, Any])
+@router.get("/{acq_id:int}/averages/{number:int}", response_model=AverageDataOut)
 def get_average(acq_id: IdPath, number: int, lab: LabDep) -> dict[str, Any]:
     """Raw time data of one average, served by the stand that acquired it (it stays on that
     stand's disk); another stand answers 409 with that stand's address."""

@@ -29,6 +29,7 @@ from dimacq.api.schemas import (
     ReferenceNodesRequest,
     RegistrationRequest,
     ShotsRequest,
+    SpeedOfSoundOut,
 )
 from dimacq.services.lab.geometry import StoredPoint
 from dimacq.services.lab.geometry_records import (
@@ -54,14 +55,14 @@ def fire_shots(
     return lab.geometry.fire_shots(body.n).to_json()
 
 
-@router.post("/speed-of-sound", response_model=dict[str, float])
+@router.post("/speed-of-sound", response_model=SpeedOfSoundOut)
 def measure_speed_of_sound(lab: LabDep) -> dict[str, float]:
     """Fire three shots and report the speed of sound measured on the calibration bar (it fires
     the digitizer: a POST with the token; ``GET`` returns the last measured value)."""
     return {"speed_of_sound_m_s": lab.geometry.measure_speed_of_sound()}
 
 
-@router.get("/speed-of-sound", response_model=dict[str, float])
+@router.get("/speed-of-sound", response_model=SpeedOfSoundOut)
 def speed_of_sound(lab: LabDep) -> dict[str, float]:
     """The speed of sound measured last (``POST`` measures it), without firing: 404 if none
     was measured since the service started."""
