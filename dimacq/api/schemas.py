@@ -57,6 +57,15 @@ class ErrorBody(BaseModel):
 Coord = Annotated[float, Field(ge=-100.0, le=100.0)]
 
 
+#: A point or node label: printable text (no control characters: PostgreSQL cannot store NUL,
+#: and a label is shown to the operator), 1..200 characters.
+LABEL_PATTERN = r"^[^\x00-\x1f\x7f]+$"
+Label = Annotated[
+    str,
+    Field(min_length=1, max_length=200, pattern=LABEL_PATTERN, description="printable text"),
+]
+
+
 class SimProbe(_Body):
     """Simulation only: where the simulated probe tip is (array coordinates, within ±100 m) and
     its axis."""
@@ -73,7 +82,7 @@ class SimProbe(_Body):
 
 
 class PointRequest(_Body):
-    label: str = Field(min_length=1, max_length=200)
+    label: Label
     shots: int | None = Field(default=None, ge=1, le=100)
     sim_probe: SimProbe | None = None
 
@@ -88,7 +97,7 @@ class PatchRequest(_Body):
 
 
 class ReferenceNodesRequest(_Body):
-    nodes: dict[str, FiniteVec3] = Field(description="label → known GCS position, metres")
+    nodes: dict[Label, FiniteVec3] = Field(description="label → known GCS position, metres")
 
 
 class ReferenceNodeRequest(_Body):
@@ -102,7 +111,7 @@ class NewTestRequest(_Body):
 class RegistrationRequest(_Body):
     patch: Number | None = None
     method: Literal["rigid", "similarity", "affine"] = "rigid"
-    labels: list[str] | None = None
+    labels: list[Label] | None = None
     limit_m: float | None = Field(
         default=None,
         gt=0,
@@ -114,14 +123,14 @@ class RegistrationRequest(_Body):
 
 class OrientationRequest(_Body):
     node: NodeNumber
-    prefix: str | None = Field(default=None, max_length=100)
+    prefix: Annotated[str, Field(max_length=100, pattern=r"^[^\x00-\x1f\x7f]*$")] | None = None
     method: Literal["rigid", "affine", "cross"] = "rigid"
 
 
 class LineOfActionRequest(_Body):
     node: NodeNumber
-    input_label: str = Field(min_length=1, max_length=200)
-    labels: list[str] = Field(min_length=2)
+    input_label: Label
+    labels: list[Label] = Field(min_length=2)
     method: Literal["svd", "eq13"] = "svd"
 
 

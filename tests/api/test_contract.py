@@ -326,6 +326,22 @@ def test_deletes(api: Api, stored: dict[str, Any]) -> None:
     assert api.client.delete(f"/api/setups/{sid}").status_code == 404
 
 
+def test_labels_are_printable_text(api: Api) -> None:
+    """A control character in a label is 422 naming the field (PostgreSQL cannot store NUL: it
+    was a 500 there, found by schemathesis)."""
+    for body, field in (
+        ({"label": "a\u0000b"}, "body.label"),
+        ({"label": "\u001f"}, "body.label"),
+        ({"node": 1, "input_label": "x\u0007", "labels": ["a", "b"]}, "body.input_label"),
+    ):
+        path = "/api/digitizer/points" if "label" in body else "/api/digitizer/lines-of-action"
+        r = api.client.post(path, json=body)
+        assert r.status_code == 422 and r.json()["field"] == field, r.text
+    r = api.client.put("/api/digitizer/reference-nodes", json={"nodes": {"a\u0000": [0, 0, 0]}})
+    assert r.status_code == 422, r.text
+    assert api.client.delete("/api/digitizer/reference-nodes/a%00b").status_code == 404
+
+
 def test_a_digitized_point_can_be_deleted(api: Api) -> None:
     r = api.client.post(
         "/api/digitizer/points",

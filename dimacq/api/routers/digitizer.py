@@ -6,7 +6,7 @@ from __future__ import annotations
 from dataclasses import asdict
 from typing import Annotated, Any
 
-from fastapi import APIRouter, HTTPException, Response, status
+from fastapi import APIRouter, HTTPException, Path, Response, status
 
 from dimacq.api.deps import IdPath, LabDep
 from dimacq.api.routers._common import (
@@ -19,6 +19,7 @@ from dimacq.api.routers._common import (
     strict_body,
 )
 from dimacq.api.schemas import (
+    LABEL_PATTERN,
     LineOfActionRequest,
     NewTestRequest,
     OrientationRequest,
@@ -158,7 +159,7 @@ def reference_nodes(lab: LabDep, page: PageDep, response: Response) -> list[dict
 )
 def set_reference_node(
     lab: LabDep,
-    label: str,
+    label: Annotated[str, Path(max_length=200, pattern=LABEL_PATTERN)],
     body: Annotated[ReferenceNodeRequest, strict_body(ReferenceNodeRequest)],
 ) -> list[dict[str, Any]]:
     """Add or replace one reference node's known GCS position."""
@@ -166,7 +167,9 @@ def set_reference_node(
 
 
 @router.delete("/reference-nodes/{label}", status_code=status.HTTP_204_NO_CONTENT)
-def delete_reference_node(lab: LabDep, label: str) -> Response:
+def delete_reference_node(
+    lab: LabDep, label: Annotated[str, Path(max_length=200, pattern=LABEL_PATTERN)]
+) -> Response:
     """Remove a reference node (registrations already made are kept)."""
     found(True if lab.geometry.delete_reference_node(label) else None, f"reference node {label!r}")
     return Response(status_code=status.HTTP_204_NO_CONTENT)
