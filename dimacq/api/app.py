@@ -61,6 +61,7 @@ from dimacq.api.routers import (
     simulation,
     solutions,
     status,
+    tests,
 )
 from dimacq.api.routers._common import UPLOAD_PATHS, add_body_components
 from dimacq.api.schemas import MAX_ID, ErrorBody
@@ -354,6 +355,7 @@ def create_app(settings: Settings | None = None, *, lab: Lab | None = None) -> F
     _install_error_handlers(app)
     for r in (
         status,
+        tests,
         devices,
         digitizer,
         setups,

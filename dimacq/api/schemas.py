@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import datetime
 from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, FiniteFloat, field_validator
@@ -58,6 +59,15 @@ class ErrorBody(BaseModel):
 Coord = Annotated[float, Field(ge=-100.0, le=100.0)]
 
 
+#: A point or node label: printable text (no control characters: PostgreSQL cannot store NUL,
+#: and a label is shown to the operator), 1..200 characters.
+LABEL_PATTERN = r"^[^\x00-\x1f\x7f]+$"
+Label = Annotated[
+    str,
+    Field(min_length=1, max_length=200, pattern=LABEL_PATTERN, description="printable text"),
+]
+
+
 class SimProbe(_Body):
     """Simulation only: where the simulated probe tip is (array coordinates, within ±100 m) and
     its axis."""
@@ -74,7 +84,7 @@ class SimProbe(_Body):
 
 
 class PointRequest(_Body):
-    label: str = Field(min_length=1, max_length=200)
+    label: Label
     shots: int | None = Field(default=None, ge=1, le=100)
     sim_probe: SimProbe | None = None
 
@@ -89,7 +99,7 @@ class PatchRequest(_Body):
 
 
 class ReferenceNodesRequest(_Body):
-    nodes: dict[str, FiniteVec3] = Field(description="label → known GCS position, metres")
+    nodes: dict[Label, FiniteVec3] = Field(description="label → known GCS position, metres")
 
 
 class ReferenceNodeRequest(_Body):
@@ -103,7 +113,7 @@ class NewTestRequest(_Body):
 class RegistrationRequest(_Body):
     patch: Number | None = None
     method: Literal["rigid", "similarity", "affine"] = "rigid"
-    labels: list[str] | None = None
+    labels: list[Label] | None = None
     limit_m: float | None = Field(
         default=None,
         gt=0,
@@ -115,14 +125,14 @@ class RegistrationRequest(_Body):
 
 class OrientationRequest(_Body):
     node: NodeNumber
-    prefix: str | None = Field(default=None, max_length=100)
+    prefix: Annotated[str, Field(max_length=100, pattern=r"^[^\x00-\x1f\x7f]*$")] | None = None
     method: Literal["rigid", "affine", "cross"] = "rigid"
 
 
 class LineOfActionRequest(_Body):
     node: NodeNumber
-    input_label: str = Field(min_length=1, max_length=200)
-    labels: list[str] = Field(min_length=2)
+    input_label: Label
+    labels: list[Label] = Field(min_length=2)
     method: Literal["svd", "eq13"] = "svd"
 
 
@@ -134,6 +144,7 @@ class FromGeometryRequest(_Body):
     inputs: list[NodeNumber] | None = None
     load_cells: list[LoadCell] = Field(default_factory=list)
     known: KnownProperties = KnownProperties()
+    test_id: DbId | None = Field(default=None, description="the test the setup belongs to")
 
 
 class SolveRequest(SolveOptions):
@@ -201,6 +212,11 @@ class JobInfo(BaseModel):
     error: str | None = None
     created_at: str
     finished_at: str | None = None
+    updated_at: str | None = Field(
+        default=None,
+        description="last change of state, progress or message (null: a job of another stand "
+        "still running, whose progress times are not stored)",
+    )
     version: int = 0
     stand: str = ""
 
@@ -226,7 +242,12 @@ class StatusOut(BaseModel):
     jobs_running: list[dict[str, Any]]
 
 
+_CREATED = "when it was stored (ISO 8601, UTC); stored items are never changed, so no updated_at"
+
+
 class PointOut(BaseModel):
+    """A digitized point: array coordinates (DACS) and, once its patch is registered, GCS, m."""
+
     label: str
     patch: int
     position_array_m: list[float]
@@ -236,38 +257,247 @@ class PointOut(BaseModel):
     id: int | None = None
     position_m: list[float] | None = None
     seqs: list[int] | None = None
+    created_at: str | None = Field(default=None, description=_CREATED)
 
 
 class SetupOut(BaseModel):
+    """A stored setup: counts and the setup document (the setup-file keys)."""
+
     id: int
     name: str
     n_responses: int
-    n_excitations: int
+    n_inputs: int
     n_load_cells: int
     setup: dict[str, Any]
-    stand: str = ""  # the test stand that stored it
+    stand: str = Field(default="", description="the test stand that stored it")
+    created_at: str | None = Field(default=None, description=_CREATED)
+    test_id: int | None = Field(default=None, description="the test it belongs to")
 
 
-class ImportOut(BaseModel):
-    setup_id: int
+class ImportOut(SetupOut):
+    """The imported setup; ``frf_id`` is the FRF set a whole-test UFF also held."""
+
     frf_id: int | None = None
 
 
 class FrfOut(BaseModel):
+    """A stored FRF set (its values: ``GET /api/frfs/{frf_id}/data``)."""
+
     id: int
     setup_id: int
     acquisition_id: int | None = None
     name: str
     n_lines: int
-    n_outputs: int
+    n_responses: int
     n_inputs: int
     f_min_hz: float
     f_max_hz: float
-    stand: str = ""  # the test stand that stored it
+    stand: str = Field(default="", description="the test stand that stored it")
+    created_at: str | None = Field(default=None, description=_CREATED)
+
+
+class FrfChannelOut(BaseModel):
+    """A response channel or an input: node and UFF direction (±1..±3 translations, ±4..±6
+    rotations; a load cell's 1..6 are Fx..Mz in the cell's axes); for a response its kind and
+    the unit of its FRF."""
+
+    node: int
+    direction: int
+    kind: Literal["acceleration", "reaction", "input"] = "input"
+    unit: str = Field(default="N", description="unit of the FRF's numerator / of the input")
+
+
+class FrfDataOut(BaseModel):
+    """FRF values of the chosen responses × inputs over the chosen band."""
+
+    frf_id: int
+    layout: str = Field(
+        description="index order of real, imag and coherence: [line][response][input]"
+    )
+    frequencies_hz: list[float]
+    responses: list[FrfChannelOut]
+    inputs: list[FrfChannelOut]
+    real: list[Any] = Field(description="Re H, shape (n_lines, n_responses, n_inputs)")
+    imag: list[Any] = Field(description="Im H, same shape")
+    coherence: list[Any] | None = Field(
+        description="multiple coherence of each response, same shape; null entries where it is "
+        "undefined (no more averages than inputs), null when the set has none"
+    )
 
 
 class SolutionOut(BaseModel):
+    """A DIM solution: the options it was solved with and the result (the keys of
+    ``dimacq solve --json``: ``mass_kg``, ``cg_m``, ``inertia_p_kgm2``, ``uncertainty.<p>.ci95``,
+    ``verdict``, ``verdict_reasons``, …)."""
+
     id: int
     frf_id: int
     options: dict[str, Any]
     result: dict[str, Any]
+    stand: str = Field(default="", description="the test stand that solved it")
+    created_at: str | None = Field(default=None, description=_CREATED)
+
+
+class AverageOut(BaseModel):
+    number: int
+    input_index: int
+    accepted: bool
+    reason: str
+    path: str
+
+
+class AcquisitionOut(BaseModel):
+    """An impact acquisition: state (running, succeeded, failed, cancelled; the words of its
+    job), progress 0..1, and every completed average, accepted or rejected with its reason."""
+
+    id: int
+    setup_id: int | None
+    config: dict[str, Any]
+    state: str
+    message: str
+    job_id: str | None
+    frf_id: int | None
+    averages_accepted: int
+    accepted_per_input: list[int]
+    averages_rejected: int
+    averages: list[AverageOut]
+    min_averages: int
+    incomplete_inputs: list[int]
+    progress: float
+    stand: str = ""
+    pending_review: dict[str, Any] | None = Field(
+        default=None,
+        description="review mode: the hit waiting for the operator's decision (number, "
+        "input_index, reasons); null when nothing waits",
+    )
+    input_coherence: list[float | None] = Field(
+        default_factory=list,
+        description="mean ordinary coherence of each input whose FRFs are estimated (this run)",
+    )
+    inputs: list[int] = Field(
+        default_factory=list, description="the setup's input indices this acquisition strikes"
+    )
+    created_at: str | None = None
+    updated_at: str | None = Field(
+        default=None, description="the last change of state, message, job or FRF set"
+    )
+
+
+class CalibrationOut(BaseModel):
+    """A stored load cell calibration (the normalised document, SI)."""
+
+    id: int
+    serial_number: str
+    calibration: dict[str, Any]
+    created_at: str | None = Field(default=None, description=_CREATED)
+
+
+class StudyOut(BaseModel):
+    """A sensitivity study: its parameters and, once its job has succeeded, its result;
+    ``job_id`` in the answer of the call that created it (follow it at /api/jobs/{job_id})."""
+
+    id: int
+    params: dict[str, Any]
+    result: dict[str, Any] | None
+    job_id: str | None = None
+    created_at: str | None = Field(default=None, description=_CREATED)
+
+
+class DiagnosticOut(BaseModel):
+    """One plausibility or quality check of a solution, reported whatever its outcome."""
+
+    code: str
+    ok: bool
+    severity: Literal["info", "warning", "error"]
+    message: str
+
+
+class StandOut(BaseModel):
+    """A test stand sharing the database: its service's host, process, API address, start and
+    last heartbeat (ISO 8601, UTC)."""
+
+    name: str
+    host: str
+    pid: int
+    api_url: str
+    started_at: str
+    heartbeat_at: str
+
+
+Text200 = Annotated[str, Field(max_length=200)]
+
+
+class TestCreate(_Body):
+    """A new test: the article's name, the operator, the test's date (default today) and notes."""
+
+    __test__ = False  # not a pytest class
+
+    article: Annotated[str, Field(min_length=1, max_length=200)]
+    operator: Text200 = ""
+    date: datetime.date | None = None
+    notes: Annotated[str, Field(max_length=20_000)] = ""
+
+
+class TestUpdate(_Body):
+    """The fields to change (those left out or null stay); ``archived: true`` archives the
+    test, ``false`` reopens it."""
+
+    __test__ = False
+
+    article: Annotated[str, Field(min_length=1, max_length=200)] | None = None
+    operator: Text200 | None = None
+    date: datetime.date | None = None
+    notes: Annotated[str, Field(max_length=20_000)] | None = None
+    archived: bool | None = None
+
+
+class TestOut(BaseModel):
+    """A test and its setups (their acquisitions, FRF sets and solutions are the test's)."""
+
+    __test__ = False
+
+    id: int
+    article: str
+    operator: str
+    date: str = Field(description="the day of the test, YYYY-MM-DD")
+    notes: str
+    archived: bool
+    setup_ids: list[int]
+    stand: str = ""
+    created_at: str | None = None
+    updated_at: str | None = Field(default=None, description="the last change of its fields")
+
+
+class JigOut(BaseModel):
+    """The orientation jig: indentation labels and positions in the sensor's axes, m."""
+
+    labels: list[str]
+    points_local_m: list[list[float]]
+
+
+class ArticleOut(BaseModel):
+    """Simulation only: the article's geometry as a setup file states it (GCS, m: responses,
+    inputs with their lines of action, load cells), the scenario's recommended band and the
+    orientation jig. The true inertia properties are not given."""
+
+    scenario: str
+    setup: dict[str, Any] = Field(description="setup-file keys (responses, inputs, load_cells)")
+    band_hz: list[float]
+    jig: JigOut
+
+
+class SpeedOfSoundOut(BaseModel):
+    speed_of_sound_m_s: float = Field(description="measured on the calibration bar, m/s")
+
+
+class AverageDataOut(BaseModel):
+    """Raw time data of one average (the stand's HDF5 file): ``arrays`` by name (``shapes``
+    gives each one's shape; the channel order and units are in ``attrs``), NaN as null."""
+
+    acquisition_id: int
+    number: int
+    stand: str
+    path: str = Field(description="the file, relative to the stand's data folder")
+    attrs: dict[str, Any]
+    arrays: dict[str, Any]
+    shapes: dict[str, list[int]]

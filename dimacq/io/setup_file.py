@@ -25,7 +25,8 @@ Top level
     ``direction_gcs`` : [dx, dy, dz], unit vector of the measured (positive) direction.
     ``label`` : str, optional (default "" → ``"<node><±axis>"``, e.g. ``1+X``).
 
-``[[excitations]]`` (one table per input, each node/direction once)
+``[[inputs]]`` (one table per input, each node/direction once; ``[[excitations]]`` in the first
+setup files, still read with a deprecation message)
     ``node`` : int; ``direction`` : int, UFF reference direction ±1..±3 (default 1);
     ``position_m`` : [x, y, z] m, point of application;
     ``direction_gcs`` : [dx, dy, dz], unit line of action (direction of a positive force on the
@@ -41,14 +42,14 @@ Top level
     convention) | "on_support" (the load on the support; dimacq negates it). Default "on_structure".
     ``label`` : str, optional.
 
-``[known]`` (optional, properties known beforehand; any subset)
-    ``mass_kg`` : float > 0.
-    ``cg_m`` : the CG in the GCS, m, with unknown components left out. TOML has no null, so
-    write a table with any of the keys ``x``, ``y``, ``z`` (``cg_m = {x = 0.1, z = 0.02}``); a list
-    of three numbers is accepted when all three are known, and JSON may also use a list with
-    ``null`` for unknown components.
-    ``inertia_kgm2`` : table with any of ``Ixx, Ixy, Ixz, Iyy, Iyz, Izz``, kg·m², tensor elements
-    about the reference point (products of inertia carry the tensor sign, ``Ixy = −∫xy dm``).
+``[known]`` (optional, properties known beforehand; any subset, keyed by the ten parameter names
+of ``dimacq solve`` and the API)
+    ``m`` : mass, kg > 0.
+    ``cx``, ``cy``, ``cz`` : the CG in the GCS, m (unknown components left out).
+    ``Ixx``, ``Ixy``, ``Ixz``, ``Iyy``, ``Iyz``, ``Izz`` : kg·m², tensor elements about the
+    reference point (products of inertia carry the tensor sign, ``Ixy = −∫xy dm``).
+    The first setup files wrote ``mass_kg``, ``cg_m`` (a list, or a table of ``x``, ``y``, ``z``)
+    and ``inertia_kgm2`` (a table): still read, with a deprecation message.
 
 ``[geometry_uncertainty]`` (optional; standard uncertainties, 1σ, of the geometry above)
     ``sensor_position_m`` (default 0.002), ``sensor_orientation_deg`` (0.5), ``input_position_m``
@@ -75,7 +76,7 @@ Example (TOML)::
     position_m = [0.10, 0.05, 0.02]
     direction_gcs = [1.0, 0.0, 0.0]
 
-    [[excitations]]
+    [[inputs]]
     node = 21
     direction = 1
     position_m = [0.20, 0.0, 0.05]
@@ -90,8 +91,8 @@ Example (TOML)::
     sign = "on_structure"
 
     [known]
-    mass_kg = 3.2
-    cg_m = {z = 0.01}
+    m = 3.2
+    cz = 0.01
 
 A complete example with six triaxial accelerometers is bundled as
 ``config/examples/six_triax_setup.toml``.
@@ -178,18 +179,15 @@ def _describe(err: ValidationError, source: str) -> str:
 
 
 def _known_from_file(known: Any, source: str) -> Any:
-    """Accept ``cg_m`` as a table ``{x, y, z}`` (TOML) or a list (with ``null`` in JSON)."""
-    if not isinstance(known, Mapping) or "cg_m" not in known:
-        return known
-    cg = known["cg_m"]
+    """Old ``cg_m`` tables ``{x, y, z}`` checked here, so the message names the file."""
+    cg = known.get("cg_m") if isinstance(known, Mapping) else None
     if isinstance(cg, Mapping):
         extra = set(cg) - set(_AXES)
         if extra:
             raise SetupError(
-                f"{source}: known.cg_m has unknown key(s) {sorted(extra)}; use x, y and/or z"
+                f"{source}: known.cg_m has unknown key(s) {sorted(extra)}; use x, y and/or z "
+                "(better: the parameter names cx, cy, cz)"
             )
-        known = dict(known)
-        known["cg_m"] = [cg.get(a) for a in _AXES]
     return known
 
 
@@ -208,6 +206,15 @@ def parse_setup(data: Mapping[str, Any], source: str = "<setup>") -> TestSetup:
     data = dict(data)
     if "known" in data:
         data["known"] = _known_from_file(data["known"], source)
+    if "excitations" in data:
+        if "inputs" in data:
+            raise SetupError(
+                f"{source}: both inputs and excitations are given; keep inputs (excitations is "
+                "its old name)"
+            )
+        logger.warning(
+            "%s: [[excitations]] is the old name of [[inputs]] (read as such); rename it", source
+        )
     try:
         return TestSetup.model_validate(data)
     except ValidationError as err:
@@ -245,8 +252,7 @@ def read_setup(
         ) from err
     if not isinstance(doc, Mapping):
         raise SetupError(
-            f"{source}: the setup must be a JSON object (or TOML table) with responses and "
-            "excitations"
+            f"{source}: the setup must be a JSON object (or TOML table) with responses and inputs"
         )
     return parse_setup(doc, source)
 
@@ -282,18 +288,9 @@ def load_setup(path: str | Path) -> TestSetup:
 
 
 def dump_setup_dict(setup: TestSetup, *, toml: bool = False) -> dict[str, Any]:
-    """The setup as plain data in the file format (``toml=True``: no nulls, ``cg_m`` as a table)."""
-    data: dict[str, Any] = setup.model_dump(mode="json", exclude_none=True)
-    known = data.get("known", {})
-    cg = known.get("cg_m")
-    if cg is not None:
-        if all(c is None for c in cg):
-            del known["cg_m"]
-        elif toml and any(c is None for c in cg):
-            known["cg_m"] = {a: c for a, c in zip(_AXES, cg, strict=True) if c is not None}
-    if not known.get("inertia_kgm2"):
-        known.pop("inertia_kgm2", None)
-    if not known:
+    """The setup as plain data in the file format (no nulls: unknown properties left out)."""
+    data: dict[str, Any] = setup.model_dump(mode="json", exclude_none=True, by_alias=True)
+    if not data.get("known"):
         data.pop("known", None)
     return data
 

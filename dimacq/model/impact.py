@@ -14,7 +14,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 __all__ = ["Estimator", "ImpactOverrides", "ImpactSettings"]
 
@@ -74,6 +74,20 @@ class ImpactOverrides(BaseModel):
         """The values given (not None)."""
         return {k: v for k, v in self.model_dump().items() if v is not None}
 
+    @model_validator(mode="after")
+    def _consistent(self) -> ImpactOverrides:
+        _check_pair(self.pretrigger_samples, self.record_samples)
+        return self
+
+
+def _check_pair(pretrigger: int | None, record: int | None) -> None:
+    """Settings that must agree with each other (where both are given)."""
+    if pretrigger is not None and record is not None and not pretrigger < record:
+        raise ValueError(
+            f"pretrigger_samples {pretrigger} must be below record_samples {record}: "
+            "lower pretrigger_samples or raise record_samples"
+        )
+
 
 class ImpactSettings(BaseModel):
     """Settings of an impact test, every value concrete.
@@ -114,6 +128,11 @@ class ImpactSettings(BaseModel):
     double_hit_threshold: float = Field(default=0.1, gt=0, lt=1)
     hit_delay_samples: int = Field(default=64, ge=0)
     trigger_timeout_samples: int = Field(default=200_000, ge=1)
+
+    @model_validator(mode="after")
+    def _consistent(self) -> ImpactSettings:
+        _check_pair(self.pretrigger_samples, self.record_samples)
+        return self
 
     @classmethod
     def layered(cls, *layers: ImpactOverrides | Mapping[str, Any] | None) -> ImpactSettings:

@@ -20,11 +20,21 @@ Conventions
 
 from __future__ import annotations
 
-from typing import Annotated, Literal
+import logging
+from collections.abc import Mapping
+from typing import Annotated, Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
-from pydantic import BaseModel, ConfigDict, Field, FiniteFloat, field_validator, model_validator
+from pydantic import (
+    AliasChoices,
+    BaseModel,
+    ConfigDict,
+    Field,
+    FiniteFloat,
+    field_validator,
+    model_validator,
+)
 
 __all__ = [
     "LENGTH_UNITS",
@@ -40,6 +50,8 @@ __all__ = [
     "Vec3",
     "direction_label",
 ]
+
+log = logging.getLogger(__name__)
 
 Vec3 = tuple[float, float, float]
 #: A node number: a UFF node label (I10 field, positive), 1..2³¹−1.
@@ -271,34 +283,101 @@ class TransducerUncertainty(_Model):
 PARAMETERS: tuple[str, ...] = ("m", "cx", "cy", "cz", "Ixx", "Ixy", "Ixz", "Iyy", "Iyz", "Izz")
 
 
-class KnownProperties(_Model):
-    """Properties known beforehand (any subset).
+#: Keys of ``known`` before the one vocabulary (read, with a deprecation message).
+_OLD_KNOWN_KEYS = ("mass_kg", "cg_m", "inertia_kgm2")
 
-    ``cg_m`` is the CG in the GCS, metres (each component may be unknown). Inertia terms are tensor
-    elements about the reference point P, kg·m² (products of inertia carry their tensor sign,
-    ``Ixy = −∫ x y dm``).
+
+def _known_from_old_keys(data: Mapping[str, Any]) -> dict[str, Any]:
+    """``mass_kg`` / ``cg_m`` (a list or a table ``{x, y, z}``) / ``inertia_kgm2`` as parameter
+    names (``m``, ``cx``..``cz``, ``Ixx``..``Izz``)."""
+    out = {k: v for k, v in data.items() if k not in _OLD_KNOWN_KEYS}
+    if data.get("mass_kg") is not None:
+        out["m"] = data["mass_kg"]
+    cg = data.get("cg_m")
+    if isinstance(cg, Mapping):
+        extra = set(cg) - {"x", "y", "z"}
+        if extra:
+            raise ValueError(f"cg_m has unknown key(s) {sorted(extra)}; use cx, cy and/or cz")
+        cg = [cg.get(a) for a in "xyz"]
+    if cg is not None:
+        if not isinstance(cg, list | tuple) or len(cg) != 3:
+            raise ValueError("cg_m: give three values (null for unknown); better: cx, cy, cz")
+        out.update({k: v for k, v in zip(("cx", "cy", "cz"), cg, strict=True) if v is not None})
+    inertia = data.get("inertia_kgm2") or {}
+    if not isinstance(inertia, Mapping):
+        raise ValueError("inertia_kgm2: give a table of Ixx..Izz; better: Ixx = … directly")
+    out.update(inertia)
+    return out
+
+
+_KNOWN_DOC = {
+    "m": "mass, kg (> 0)",
+    "cx": "CG x in the GCS, m",
+    "cy": "CG y in the GCS, m",
+    "cz": "CG z in the GCS, m",
+} | {
+    k: f"{k} about the reference point P, kg·m² (tensor element"
+    + (", > 0)" if k[1] == k[2] else ": products carry the tensor sign, −∫ x y dm)")
+    for k in ("Ixx", "Ixy", "Ixz", "Iyy", "Iyz", "Izz")
+}
+
+
+class KnownProperties(_Model):
+    """Properties known beforehand (any subset), keyed by the ten parameter names
+    (:data:`PARAMETERS`): ``m`` (kg), ``cx``, ``cy``, ``cz`` (the CG in the GCS, m) and
+    ``Ixx`` .. ``Izz`` (tensor elements about the reference point P, kg·m²; products of inertia
+    carry their tensor sign, ``Ixy = −∫ x y dm``) — the names of ``known`` in ``dimacq solve``,
+    the API and a solution's ``uncertainty``.
+
+    The keys of the first setup files (``mass_kg``, ``cg_m``, ``inertia_kgm2``) are still read,
+    with a deprecation message in the log.
     """
 
-    mass_kg: FiniteFloat | None = Field(default=None, gt=0)
-    cg_m: tuple[FiniteFloat | None, FiniteFloat | None, FiniteFloat | None] = (None, None, None)
-    inertia_kgm2: dict[Literal["Ixx", "Ixy", "Ixz", "Iyy", "Iyz", "Izz"], FiniteFloat] = Field(
-        default_factory=dict
-    )
+    m: FiniteFloat | None = Field(default=None, gt=0, description=_KNOWN_DOC["m"])
+    cx: FiniteFloat | None = Field(default=None, description=_KNOWN_DOC["cx"])
+    cy: FiniteFloat | None = Field(default=None, description=_KNOWN_DOC["cy"])
+    cz: FiniteFloat | None = Field(default=None, description=_KNOWN_DOC["cz"])
+    Ixx: FiniteFloat | None = Field(default=None, gt=0, description=_KNOWN_DOC["Ixx"])
+    Ixy: FiniteFloat | None = Field(default=None, description=_KNOWN_DOC["Ixy"])
+    Ixz: FiniteFloat | None = Field(default=None, description=_KNOWN_DOC["Ixz"])
+    Iyy: FiniteFloat | None = Field(default=None, gt=0, description=_KNOWN_DOC["Iyy"])
+    Iyz: FiniteFloat | None = Field(default=None, description=_KNOWN_DOC["Iyz"])
+    Izz: FiniteFloat | None = Field(default=None, gt=0, description=_KNOWN_DOC["Izz"])
+
+    @model_validator(mode="before")
+    @classmethod
+    def _old_keys(cls, data: Any) -> Any:
+        if isinstance(data, Mapping) and any(k in data for k in _OLD_KNOWN_KEYS):
+            old = [k for k in _OLD_KNOWN_KEYS if k in data]
+            log.warning(
+                "known: %s are the old keys (read as such); write the parameter names m, cx, "
+                "cy, cz, Ixx, Ixy, Ixz, Iyy, Iyz, Izz instead (e.g. known = {m = 12.5, cz = "
+                "0.15, Ixy = 0.0})",
+                ", ".join(old),
+            )
+            return _known_from_old_keys(data)
+        return data
 
     def as_dict(self) -> dict[str, float]:
         """Known values keyed by parameter name (``m``, ``cx``, ..., ``Izz``)."""
-        out: dict[str, float] = {}
-        if self.mass_kg is not None:
-            out["m"] = float(self.mass_kg)
-        for k, v in zip(("cx", "cy", "cz"), self.cg_m, strict=True):
-            if v is not None:
-                out[k] = float(v)
-        out.update({k: float(v) for k, v in self.inertia_kgm2.items()})
-        return out
+        return {k: float(v) for k in PARAMETERS if (v := getattr(self, k)) is not None}
 
     @property
     def empty(self) -> bool:
         return not self.as_dict()
+
+    # the grouped views of the first vocabulary, for Python callers
+    @property
+    def mass_kg(self) -> float | None:
+        return self.m
+
+    @property
+    def cg_m(self) -> tuple[float | None, float | None, float | None]:
+        return (self.cx, self.cy, self.cz)
+
+    @property
+    def inertia_kgm2(self) -> dict[str, float]:
+        return {k: v for k, v in self.as_dict().items() if k.startswith("I")}
 
 
 class TestSetup(_Model):
@@ -329,7 +408,13 @@ class TestSetup(_Model):
     reference_point_m: Vec3 = (0.0, 0.0, 0.0)
     length_unit: Literal["m", "cm", "mm"] = "m"
     responses: tuple[ResponseChannel, ...]
-    excitations: tuple[Excitation, ...]
+    # "inputs" in files and the API; "excitations", the first name, is still read
+    excitations: tuple[Excitation, ...] = Field(
+        validation_alias=AliasChoices("inputs", "excitations"),
+        serialization_alias="inputs",
+        description="the inputs (one per node/direction): point of application and line of "
+        "action; the key was 'excitations' in the first setup files",
+    )
     load_cells: tuple[LoadCell, ...] = ()
     known: KnownProperties = KnownProperties()
     geometry_uncertainty: GeometryUncertainty = GeometryUncertainty()
@@ -355,7 +440,7 @@ class TestSetup(_Model):
         if not self.responses:
             raise ValueError("responses is empty; a DIM test needs at least 6 response channels")
         if not self.excitations:
-            raise ValueError("excitations is empty; give at least one input")
+            raise ValueError("inputs is empty; give at least one input")
         return self
 
     # Array views ---------------------------------------------------------------------------

@@ -68,6 +68,14 @@ def _v3_patch_test(conn: Connection) -> None:
     _add_column(conn, "patches", Column("test", m.Integer(), server_default="0"))
 
 
+def _v4_tests_and_times(conn: Connection) -> None:
+    m.TestRow.__table__.create(conn, checkfirst=True)  # type: ignore[attr-defined]
+    _add_column(conn, "setups", Column("test_id", m.Integer(), nullable=True))
+    _add_column(
+        conn, "acquisitions", Column("updated_at", m.DateTime(timezone=True), nullable=True)
+    )
+
+
 MIGRATIONS: list[tuple[int, str, Callable[[Connection], None]]] = [
     (
         1,
@@ -81,6 +89,11 @@ MIGRATIONS: list[tuple[int, str, Callable[[Connection], None]]] = [
         _v2_stands,
     ),
     (3, "patches.test: the digitizing test a patch belongs to", _v3_patch_test),
+    (
+        4,
+        "tests (article, operator, date, notes, archived), setups.test_id, acquisitions.updated_at",
+        _v4_tests_and_times,
+    ),
 ]
 
 #: The schema version this code expects.

@@ -43,6 +43,7 @@ __all__ = [
     "SetupRow",
     "Solution",
     "StandRow",
+    "TestRow",
     "utcnow",
 ]
 
@@ -113,6 +114,25 @@ class LineOfActionRow(Base):
     body: Mapped[dict[str, Any]] = mapped_column(JSON)
 
 
+class TestRow(Base):
+    """A test of one article (schema 4): who, when, notes; its setups name it (``test_id``), and
+    through them its acquisitions, FRF sets and solutions. Archived tests are kept, listed apart."""
+
+    __test__ = False  # not a pytest class
+    __tablename__ = "tests"
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    article: Mapped[str] = mapped_column(String(200))
+    operator: Mapped[str] = mapped_column(String(200), default="")
+    date: Mapped[str] = mapped_column(String(10))  # ISO date of the test, YYYY-MM-DD
+    notes: Mapped[str] = mapped_column(Text, default="")
+    archived: Mapped[bool] = mapped_column(Boolean, default=False)
+    stand: Mapped[str] = mapped_column(String(100), default="", server_default="")
+    created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
+    updated_at: Mapped[datetime | None] = mapped_column(
+        DateTime(timezone=True), nullable=True, default=utcnow, onupdate=utcnow
+    )
+
+
 class SetupRow(Base):
     __tablename__ = "setups"
     id: Mapped[int] = mapped_column(Integer, primary_key=True)
@@ -120,6 +140,8 @@ class SetupRow(Base):
     stand: Mapped[str] = mapped_column(String(100), default="", server_default="")
     body: Mapped[dict[str, Any]] = mapped_column(JSON)
     created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
+    # the test it belongs to (schema 4; NULL: none, and every setup stored before)
+    test_id: Mapped[int | None] = mapped_column(ForeignKey("tests.id"), nullable=True, index=True)
 
 
 class Acquisition(Base):
@@ -133,6 +155,10 @@ class Acquisition(Base):
     frf_id: Mapped[int | None] = mapped_column(Integer, nullable=True)
     stand: Mapped[str] = mapped_column(String(100), default="", server_default="")
     created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
+    # every change of state, message, job or FRF set (schema 4; NULL in older rows)
+    updated_at: Mapped[datetime | None] = mapped_column(
+        DateTime(timezone=True), nullable=True, default=utcnow, onupdate=utcnow
+    )
 
 
 class Average(Base):

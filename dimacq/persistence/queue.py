@@ -137,6 +137,8 @@ def _snapshot(r: m.JobRow) -> dict[str, Any]:
         "error": r.error,
         "created_at": _iso(r.created_at),
         "finished_at": _iso(r.finished_at),
+        # the row keeps no time of its last progress: known only once the job has ended
+        "updated_at": _iso(r.finished_at),
         "version": zlib.crc32(key) & 0x7FFFFFFF,  # changes whenever what a watcher sees does
         "stand": r.stand,
     }

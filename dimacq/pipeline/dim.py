@@ -90,6 +90,8 @@ ComplexArray = NDArray[np.complex128]
 Method = Literal["joint", "mean"]
 
 _I_KEYS = PARAMETERS[4:]
+#: θ's first moments ``s = m·c`` reported as the CG parameter they estimate.
+_UNKNOWN_NAME = {"sx": "cx", "sy": "cy", "sz": "cz"}
 
 
 # --------------------------------------------------------------------------------------------
@@ -493,7 +495,9 @@ class DimResult:
                 "method": self.method,
                 "length_unit": self.length_unit,
                 "known": dict(self.known),
-                "unknowns": list(self.unknowns),
+                # the estimated parameters by their names (θ holds s = m·c where the mass is
+                # unknown: that is the CG being estimated)
+                "unknowns": [_UNKNOWN_NAME.get(u, u) for u in self.unknowns],
                 "band_statistics": self.band_stats,
                 "rank": self.rank,
                 "n_unknowns": self.n_unknowns,

@@ -70,19 +70,11 @@ CALIBRATION_MASS: dict[str, Any] = {
 MAX_TRIALS = 1_000_000
 _CHUNK = 20_000
 
-#: Names of the parameters in the JSON of the study (CG in m, inertia about P in kg·m²).
-JSON_KEYS = (
-    "mass_kg",
-    "cx_m",
-    "cy_m",
-    "cz_m",
-    "Ixx_kgm2",
-    "Ixy_kgm2",
-    "Ixz_kgm2",
-    "Iyy_kgm2",
-    "Iyz_kgm2",
-    "Izz_kgm2",
-)
+#: Names of the parameters in the JSON of the study: the ten parameter names of ``known`` and
+#: ``uncertainty`` (m in kg, CG in m, inertia about P in kg·m²).
+JSON_KEYS = PARAMETERS
+#: Units of the parameters (``study.units`` in the JSON).
+UNITS = {"m": "kg", "cx": "m", "cy": "m", "cz": "m"} | dict.fromkeys(PARAMETERS[4:], "kg m^2")
 
 
 def _mass_matrix(mass: float, cg: FloatArray, i6: FloatArray) -> FloatArray:
@@ -152,7 +144,12 @@ class SensitivityResult:
     description: dict[str, Any] = field(default_factory=dict)
 
     def to_json(self) -> dict[str, Any]:
-        return {**{k: dict(v) for k, v in self.stats.items()}, "study": dict(self.description)}
+        """Per parameter name its statistics, and ``study`` (the description and the units).
+        ``mass_kg`` repeats ``m``: issue 4 names that key, and scripts read it."""
+        out: dict[str, Any] = {k: dict(v) for k, v in self.stats.items()}
+        out["mass_kg"] = dict(self.stats["m"])
+        out["study"] = {**self.description, "units": dict(UNITS)}
+        return out
 
 
 def _stats(samples: FloatArray, truth: FloatArray) -> dict[str, dict[str, float]]:

@@ -73,6 +73,7 @@ class Job:
     error: str | None = None
     created_at: datetime = field(default_factory=lambda: datetime.now(UTC))
     finished_at: datetime | None = None
+    updated_at: datetime | None = None  # the last change (state, progress, message)
     version: int = 0
     cancel_event: threading.Event = field(default_factory=threading.Event, repr=False)
     thread: threading.Thread | None = field(default=None, repr=False)
@@ -92,6 +93,7 @@ class Job:
             "error": self.error,
             "created_at": self.created_at.isoformat(),
             "finished_at": self.finished_at.isoformat() if self.finished_at else None,
+            "updated_at": (self.updated_at or self.created_at).isoformat(),
             "version": self.version,
         }
 
@@ -316,6 +318,7 @@ class JobManager:
         with self._changed:
             for k, v in changes.items():
                 setattr(job, k, v)
+            job.updated_at = datetime.now(UTC)
             job.version += 1
             self._changed.notify_all()
         self._store(job, force="state" in changes)

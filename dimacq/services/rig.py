@@ -20,6 +20,8 @@ from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field, is_dataclass
 from typing import TYPE_CHECKING, Any, Literal
 
+from pydantic import ValidationError
+
 from dimacq.backends import DeviceKind, lookup
 from dimacq.backends.base import DeviceContext, Operator
 from dimacq.config import Settings
@@ -287,8 +289,36 @@ def check_devices(settings: Settings, kind: DeviceKind) -> dict[str, Any]:
 
 
 def impact_settings(rig: Rig, cfg: Mapping[str, Any]) -> ImpactSettings:
-    """Built-in defaults < the rig file's ``[acquisition]`` < the request < what the rig fixes."""
-    return ImpactSettings.layered(rig.defaults, cfg, rig.fixed)
+    """Built-in defaults < the rig file's ``[acquisition]`` < the request < what the rig fixes;
+    :class:`SetupError` naming the setting when the layers do not agree."""
+    try:
+        return ImpactSettings.layered(rig.defaults, cfg, rig.fixed)
+    except ValidationError as err:
+        e = err.errors(include_url=False)[0]
+        where = ".".join(str(p) for p in e["loc"])
+        raise SetupError(
+            (f"{where}: " if where else "")
+            + f"{e['msg'].removeprefix('Value error, ')} (the request with the rig file's "
+            "[acquisition] table)"
+        ) from None
+
+
+def check_impact_test(rig: Rig, setup: TestSetup, cfg: Mapping[str, Any]) -> ImpactSettings:
+    """Everything an impact test checks before its first strike: the rig's hammer and response
+    channels against the setup's inputs and responses, and the settings as applied
+    (:func:`impact_settings`). Raises :class:`SetupError`; the API calls it when the
+    acquisition is created, so a bad setting is a 422 and no job starts."""
+    if len(rig.input_channels) != len(setup.excitations):
+        raise SetupError(
+            f"setup_id: the rig has {len(rig.input_channels)} hammer channels for "
+            f"{len(setup.excitations)} inputs of the setup; use a setup of this rig"
+        )
+    if len(rig.response_channels) != len(setup.responses):
+        raise SetupError(
+            f"setup_id: the rig has {len(rig.response_channels)} response channels for "
+            f"{len(setup.responses)} responses of the setup; use a setup of this rig"
+        )
+    return impact_settings(rig, cfg)
 
 
 def run_impact_test(
@@ -349,15 +379,7 @@ def run_impact_session(
     (``rig.operator``) the person is asked through ``on_progress`` ("strike input N: ...")."""
     from dimacq.services.acquisition import ImpactSession, Progress
 
-    if len(rig.input_channels) != len(setup.excitations):
-        raise SetupError(
-            f"rig has {len(rig.input_channels)} hammer channels for {len(setup.excitations)} inputs"
-        )
-    if len(rig.response_channels) != len(setup.responses):
-        raise SetupError(
-            f"rig has {len(rig.response_channels)} response channels for {len(setup.responses)} responses"
-        )
-    settings = impact_settings(rig, cfg)
+    settings = check_impact_test(rig, setup, cfg)
     n_in = len(setup.excitations)
     wanted = settings.averages_per_input
 

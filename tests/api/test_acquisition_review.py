@@ -125,7 +125,7 @@ def test_accept_reject_redo_each_hit_then_redo_and_append_inputs(review_api) -> 
     for decision in ("accept", "accept", "accept", "accept"):
         _decide(c, aid, decision)
     a = _wait(c, aid, lambda a: a["state"] != "running")
-    assert a["state"] == "finished", a
+    assert a["state"] == "succeeded", a
     assert a["accepted_per_input"] == [2, 2] and a["averages_rejected"] == 3
     assert all(v is not None and v > 0.99 for v in a["input_coherence"]), a["input_coherence"]
     f, h, nodes = _frf(c, a["frf_id"])
@@ -138,7 +138,7 @@ def test_accept_reject_redo_each_hit_then_redo_and_append_inputs(review_api) -> 
     redo = c.post("/api/acquisitions", json=body).json()
     assert redo["inputs"] == [1]
     b = _wait(c, redo["id"], lambda a: a["state"] != "running")
-    assert b["state"] == "finished" and b["frf_id"] != a["frf_id"], b
+    assert b["state"] == "succeeded" and b["frf_id"] != a["frf_id"], b
     assert {av["input_index"] for av in b["averages"]} == {1}  # setup indices, not session ones
     f2, h2, nodes2 = _frf(c, b["frf_id"])
     assert nodes2 == [10, 11]
@@ -156,7 +156,7 @@ def test_finish_keeps_the_accepted_averages_and_append_completes_the_set(review_
     _wait(c, aid, lambda a: a["pending_review"] is not None)  # input 11's first hit waits
     assert c.post(f"/api/acquisitions/{aid}/finish").status_code == 200
     a = _wait(c, aid, lambda a: a["state"] != "running")
-    assert a["state"] == "finished" and a["incomplete_inputs"] == [1], a
+    assert a["state"] == "succeeded" and a["incomplete_inputs"] == [1], a
     assert _frf(c, a["frf_id"])[2] == [10]
     # a finished acquisition takes no more decisions
     late = c.post(f"/api/acquisitions/{aid}/review", json={"number": 3, "decision": "accept"})
@@ -166,5 +166,5 @@ def test_finish_keeps_the_accepted_averages_and_append_completes_the_set(review_
     b = c.post("/api/acquisitions", json=body).json()
     b = _wait(c, b["id"], lambda x: x["state"] != "running")
     f2, h2, nodes2 = _frf(c, b["frf_id"])
-    assert b["state"] == "finished" and nodes2 == [10, 11], b
+    assert b["state"] == "succeeded" and nodes2 == [10, 11], b
     np.testing.assert_allclose(h2, _closed_form(f2), atol=3e-3 * np.abs(h2).max())

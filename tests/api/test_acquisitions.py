@@ -59,14 +59,14 @@ def test_acquisition_to_frfs(rig_api) -> None:
     assert r.status_code == 202, r.text
     acq = r.json()
     a = _wait(c, acq["id"], lambda a: a["state"] != "running")
-    assert a["state"] == "finished", a
+    assert a["state"] == "succeeded", a
     assert a["averages_accepted"] == 6 and a["progress"] == 1.0
     # the service's minimum (setting min_averages = 3) stated with the acquisition, and met
     assert a["config"]["min_averages"] == 3 and a["min_averages"] == 3
     assert a["accepted_per_input"] == [3, 3] and a["incomplete_inputs"] == []
     assert all(Path(lab.arrays.path(av["path"])).exists() for av in a["averages"])
     frf = c.get(f"/api/frfs/{a['frf_id']}").json()
-    assert frf["n_outputs"] == 3 and frf["n_inputs"] == 2 and frf["acquisition_id"] == acq["id"]
+    assert frf["n_responses"] == 3 and frf["n_inputs"] == 2 and frf["acquisition_id"] == acq["id"]
     # the stored FRFs match the source's closed form
     from _acq_support import ImpulseSource
 
@@ -102,7 +102,7 @@ def test_input_below_min_averages_is_reported_incomplete(tmp_path: Path, databas
             r = c.post("/api/acquisitions", json=body)
             assert r.status_code == 202, r.text
             a = _wait(c, r.json()["id"], lambda a: a["state"] != "running")
-            assert a["state"] == "finished", a
+            assert a["state"] == "succeeded", a
             assert a["accepted_per_input"] == [1, 3] and a["incomplete_inputs"] == [0]
             assert a["min_averages"] == 2 and a["averages_rejected"] == 8
             assert "incomplete" in a["message"] and "10+X" in a["message"], a["message"]
@@ -144,3 +144,26 @@ def test_acquisition_stop_keeps_completed_averages(tmp_path: Path, database_url:
             assert c.post("/api/acquisitions", json={**body, "setup_id": 999}).status_code == 422
     finally:
         lab.close()
+
+
+def test_settings_are_checked_when_the_acquisition_is_created(rig_api) -> None:
+    """A bad setting is a 422 naming it, and no acquisition or job is left behind: in the
+    request alone, against the built-in defaults, and against the rig the setup must match."""
+    c, _lab = rig_api
+    sid = c.post("/api/setups", json=dump_setup_dict(IMPULSE_SETUP)).json()["id"]
+    r = c.post(
+        "/api/acquisitions",
+        json={"setup_id": sid, "record_samples": 256, "pretrigger_samples": 256},
+    )
+    assert r.status_code == 422 and "pretrigger_samples 256" in r.json()["detail"], r.text
+    # with the default record length (2048): known only once the layers are applied
+    r = c.post("/api/acquisitions", json={"setup_id": sid, "pretrigger_samples": 4096})
+    assert r.status_code == 422, r.text
+    assert r.json()["detail"].startswith("pretrigger_samples") and "2048" in r.json()["detail"]
+    # a setup with other inputs than the rig's hammers: refused before any strike
+    other = dump_setup_dict(IMPULSE_SETUP)
+    other["inputs"] = other["inputs"][:1]
+    sid2 = c.post("/api/setups", json=other).json()["id"]
+    r = c.post("/api/acquisitions", json={"setup_id": sid2})
+    assert r.status_code == 422 and "hammer channels" in r.json()["detail"], r.text
+    assert c.get("/api/jobs").json() == [] and c.get("/api/acquisitions").json() == []

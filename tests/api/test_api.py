@@ -117,8 +117,8 @@ def test_setup_frf_solution_round_trip(api: Api) -> None:
     r = api.client.post("/api/frfs/import", params={"setup_id": sid}, content=buf.read_bytes())
     assert r.status_code == 201, r.text
     fid = r.json()["id"]
-    assert r.json()["n_outputs"] == frf.H.shape[1] and r.json()["n_inputs"] == 24
-    data = api.client.get(f"/api/frfs/{fid}/data", params={"output": 0, "input": 0}).json()
+    assert r.json()["n_responses"] == frf.H.shape[1] and r.json()["n_inputs"] == 24
+    data = api.client.get(f"/api/frfs/{fid}/data", params={"response": 0, "input": 0}).json()
     h = np.array(data["real"])[:, 0, 0] + 1j * np.array(data["imag"])[:, 0, 0]
     np.testing.assert_allclose(h, frf.H[:, 0, 0], rtol=1e-12)
     # whole-test UFF export → import gives a new setup + FRF set

@@ -151,7 +151,7 @@ def _decide_hits(page: Any, plan: list[str]) -> list[tuple[int, str]]:
     while True:
         page.wait_for_function(
             "() => !document.querySelector('#hit-accept').disabled"
-            " || /acquisition \\d+ (finished|failed|cancelled)/.test("
+            " || /acquisition \\d+ (succeeded|failed|cancelled)/.test("
             "document.querySelector('#msg').textContent)",
             timeout=60_000,
         )
@@ -265,7 +265,7 @@ def test_whole_simulated_test_through_the_page(service: str, tmp_path: Path) -> 
         )
         page.locator("#acquire").screenshot(path=str(shots / "3-acquire-hit.png"))
         decided = _decide_hits(page, plan)
-        assert "finished" in page.inner_text("#msg"), page.inner_text("#msg")
+        assert "succeeded" in page.inner_text("#msg"), page.inner_text("#msg")
         first = page.evaluate("() => window.dimacq.acq.info")
         page.locator("#acquire").screenshot(path=str(shots / "3-acquire-done.png"))
         assert page.locator("#acq-inputs tbody tr").count() == N_INPUTS
@@ -275,11 +275,11 @@ def test_whole_simulated_test_through_the_page(service: str, tmp_path: Path) -> 
         page.click("[data-redo-input='2']")
         page.wait_for_function(
             f"() => {{ const a = window.dimacq.acq.info; return a && a.id !== {first['id']}"
-            " && /acquisition \\d+ (finished|failed|cancelled)/.test("
+            " && /acquisition \\d+ (succeeded|failed|cancelled)/.test("
             "document.querySelector('#msg').textContent); }",
             timeout=120_000,
         )
-        assert "finished" in page.inner_text("#msg"), page.inner_text("#msg")
+        assert "succeeded" in page.inner_text("#msg"), page.inner_text("#msg")
         redo = page.evaluate("() => window.dimacq.acq.info")
         t_acquired = time.perf_counter()
 

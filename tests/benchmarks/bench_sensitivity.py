@@ -32,7 +32,7 @@ def main() -> None:
     print(f"500 trials x 9 cases: best of 5 = {best:.3f} s (target < 2 s)")
     print(f"{'cube':>8} {'angle':>6} {'mean mass':>12} {'thesis':>12} {'diff %':>8}")
     for (h, a), ref in TABLE5.items():
-        m = results[(h, a)].stats["mass_kg"]["mean"]
+        m = results[(h, a)].stats["m"]["mean"]
         print(f"{2 * h:>7g}m {a:>6g} {m:>12.6g} {ref:>12.6g} {(m - ref) / ref * 100:>8.2f}")
 
 

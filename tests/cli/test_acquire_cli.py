@@ -45,9 +45,12 @@ def test_acquire_writes_a_uff_that_solve_reads(tmp_path, capsys, no_leaks):
     )
     assert rc == 0
     cap = capsys.readouterr()
-    assert "24 inputs × 1 averages" in cap.out and "[  24/24]" in cap.err
+    assert "24 inputs × 1 averages" in cap.out
+    # progress off a terminal: plain lines, no carriage return, the time left, the last at 100 %
+    assert "\r" not in cap.err and "left)" in cap.err
+    assert "acquire: 100.0 %  [24/24]" in cap.err.splitlines()[-1]
     summary = json.loads((tmp_path / "acq.json").read_text())
-    assert summary["averages_accepted"] == [1] * 24 and summary["n_outputs"] == 30
+    assert summary["averages_accepted"] == [1] * 24 and summary["n_responses"] == 30
     assert (tmp_path / "raw" / "acquisition.h5").stat().st_size > 1e6
     with np.load(tmp_path / "raw" / "frf.npz") as z:
         assert z["coherence"].shape == (2048, 30, 24)

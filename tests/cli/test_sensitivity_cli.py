@@ -32,9 +32,9 @@ def test_cube_json_and_table(tmp_path: Path, capsys: pytest.CaptureFixture[str])
     )
     assert rc == 0
     text = capsys.readouterr().out
-    assert "mass_kg" in text and "mean err %" in text
+    assert "m (kg)" in text and "Izz (kg m²)" in text and "mean err %" in text
     data = json.loads(out.read_text())
-    assert "mass_kg" in data and "Izz_kgm2" in data
+    assert "mass_kg" in data and "Izz" in data and data["m"] == data["mass_kg"]
     for key in ("min", "max", "mean", "std", "mean_error_pct"):
         assert key in data["mass_kg"]
     assert data["mass_kg"]["min"] <= data["mass_kg"]["mean"] <= data["mass_kg"]["max"]

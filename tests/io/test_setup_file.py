@@ -10,7 +10,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from dimacq.errors import SetupError
-from dimacq.io.setup_file import load_setup, parse_setup, save_setup
+from dimacq.io.setup_file import dump_setup_dict, load_setup, parse_setup, save_setup
 from dimacq.model.setup import (
     Excitation,
     KnownProperties,
@@ -56,7 +56,7 @@ def _setup() -> TestSetup:
                 sign="on_support",
             ),
         ),
-        known=KnownProperties(mass_kg=3.2, cg_m=(0.01, None, -0.02), inertia_kgm2={"Ixy": -0.001}),
+        known=KnownProperties(m=3.2, cx=0.01, cz=-0.02, Ixy=-0.001),
     )
 
 
@@ -75,18 +75,48 @@ def test_round_trip_without_known(tmp_path: Path) -> None:
     assert load_setup(tmp_path / "s.toml") == setup
 
 
-def test_toml_cg_table_and_json_null_list_mean_the_same(tmp_path: Path) -> None:
-    base = (
-        "[[responses]]\nnode = 1\ndirection = 1\nposition_m = [0, 0, 0]\ndirection_gcs = [1, 0, 0]\n"
-        "[[excitations]]\nnode = 2\nposition_m = [0, 0, 0]\ndirection_gcs = [0, 0, 1]\n"
+def test_old_keys_are_read_as_the_parameter_names(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Setup files of the first vocabulary (``[[excitations]]``, ``mass_kg``, ``cg_m`` as a TOML
+    table or a JSON list with nulls, ``inertia_kgm2``) mean what the parameter names say, with a
+    deprecation message naming the new keys; a setup is written in the new keys only."""
+    responses = (
+        "[[responses]]\nnode = 1\ndirection = 1\nposition_m = [0, 0, 0]\n"
+        "direction_gcs = [1, 0, 0]\n"
     )
-    (tmp_path / "a.toml").write_text(base + "[known]\ncg_m = {x = 0.5, z = -1.0}\n")
-    a = load_setup(tmp_path / "a.toml")
-    assert a.known.cg_m == (0.5, None, -1.0)
-    data = a.model_dump(mode="json")
-    (tmp_path / "b.json").write_text(json.dumps(data))
-    assert json.loads((tmp_path / "b.json").read_text())["known"]["cg_m"] == [0.5, None, -1.0]
-    assert load_setup(tmp_path / "b.json") == a
+    inp = "node = 2\nposition_m = [0, 0, 0]\ndirection_gcs = [0, 0, 1]\n"
+    new = responses + "[[inputs]]\n" + inp + "[known]\nm = 2.0\ncx = 0.5\ncz = -1.0\nIxy = 0.25\n"
+    old = (
+        responses
+        + "[[excitations]]\n"
+        + inp
+        + "[known]\nmass_kg = 2.0\ncg_m = {x = 0.5, z = -1.0}\ninertia_kgm2 = {Ixy = 0.25}\n"
+    )
+    (tmp_path / "new.toml").write_text(new)
+    (tmp_path / "old.toml").write_text(old)
+    with caplog.at_level("WARNING"):
+        a = load_setup(tmp_path / "old.toml")
+    assert "[[excitations]] is the old name of [[inputs]]" in caplog.text
+    assert "mass_kg, cg_m, inertia_kgm2 are the old keys" in caplog.text and "cx" in caplog.text
+    caplog.clear()
+    with caplog.at_level("WARNING"):
+        b = load_setup(tmp_path / "new.toml")
+    assert caplog.text == ""
+    assert a == b and b.known.as_dict() == {"m": 2.0, "cx": 0.5, "cz": -1.0, "Ixy": 0.25}
+    assert b.known.cg_m == (0.5, None, -1.0)  # the grouped view for Python callers
+    # JSON of the first vocabulary: cg_m as a list with null
+    doc = json.loads(json.dumps(dump_setup_dict(b)))
+    assert doc["known"] == {"m": 2.0, "cx": 0.5, "cz": -1.0, "Ixy": 0.25} and "inputs" in doc
+    doc["excitations"] = doc.pop("inputs")
+    doc["known"] = {"mass_kg": 2.0, "cg_m": [0.5, None, -1.0], "inertia_kgm2": {"Ixy": 0.25}}
+    (tmp_path / "old.json").write_text(json.dumps(doc))
+    assert load_setup(tmp_path / "old.json") == b
+    save_setup(a, tmp_path / "again.toml")
+    text = (tmp_path / "again.toml").read_text()
+    assert "[[inputs]]" in text and "excitations" not in text and "mass_kg" not in text
+    with pytest.raises(SetupError, match="both inputs and excitations"):
+        load_setup(_write(tmp_path, responses + "[[inputs]]\n" + inp + "[[excitations]]\n" + inp))
 
 
 def test_bundled_example_loads() -> None:

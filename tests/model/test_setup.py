@@ -47,10 +47,10 @@ def test_duplicate_channels_and_empty_sets_are_refused() -> None:
 
 
 def test_known_properties_as_dict_and_sign_factor() -> None:
-    k = KnownProperties(mass_kg=2.0, cg_m=(None, 0.1, None), inertia_kgm2={"Ixy": 0.0})
+    k = KnownProperties(m=2.0, cy=0.1, Ixy=0.0)
     assert k.as_dict() == {"m": 2.0, "cy": 0.1, "Ixy": 0.0}
     cell = LoadCell(node=1, position_m=(0.0, 0.0, 0.0), sign="on_support")
     assert cell.sign_factor == -1.0
     assert np.allclose(cell.rotation_matrix, np.eye(3))
     with pytest.raises(ValidationError):
-        KnownProperties(mass_kg=-1.0)
+        KnownProperties(m=-1.0)

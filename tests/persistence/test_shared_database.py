@@ -156,7 +156,7 @@ def test_two_stands_share_results_but_not_devices(database_url: str, tmp_path: P
     lab_b = Lab(sb, open_devices=False)
     try:
         sid = lab_a.store.save_setup(IMPULSE_SETUP)
-        assert [x.id for x in lab_b.store.setups()] == [sid]
+        assert [x.id for x in lab_b.store.setups().items] == [sid]
         acq = _acq(
             lab_a.acquisitions.start(
                 {"setup_id": sid, "averages_per_input": 3, "record_samples": 512}
@@ -169,7 +169,7 @@ def test_two_stands_share_results_but_not_devices(database_url: str, tmp_path: P
         snap = lab_a.jobs.wait(acq["job_id"], 60)
         assert snap["state"] == "succeeded", snap
         seen_by_b = _acq(lab_b.acquisitions.get(acq["id"]))
-        assert seen_by_b["stand"] == "A" and seen_by_b["state"] == "finished"
+        assert seen_by_b["stand"] == "A" and seen_by_b["state"] == "succeeded"
         assert seen_by_b["averages_accepted"] == 6
         frf_a, _ = lab_a.store.frf(seen_by_b["frf_id"])
         frf_b, setup_b = lab_b.store.frf(
@@ -223,7 +223,7 @@ def test_postgresql_restart_mid_acquisition_loses_nothing(pg_server, tmp_path: P
         snap = lab.jobs.wait(acq["job_id"], 60)
         assert snap["state"] == "succeeded", snap
         a = _acq(lab.acquisitions.get(acq["id"]))
-        assert a["state"] == "finished" and a["frf_id"] is not None
+        assert a["state"] == "succeeded" and a["frf_id"] is not None
         assert a["averages_accepted"] == 24
         assert [av["number"] for av in a["averages"]] == list(range(1, 25))
         assert lab.status().database["ok"] and lab.status().database["outages"] >= 1

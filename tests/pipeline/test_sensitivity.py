@@ -48,7 +48,7 @@ def test_cube_reproduces_table5(half: float, angle: float) -> None:
     within 5 % of the mass in three of the seven cases)."""
     n = 5000
     res = cube_study(half, n_sensors=1, max_angle_deg=angle, n_trials=n, seed=7)
-    st = res.stats["mass_kg"]
+    st = res.stats["m"]
     truth = CALIBRATION_MASS["mass_kg"]
     tol = table5_tolerance(TABLE5[(half, angle)], truth, st["std"], n)
     assert abs(st["mean"] - TABLE5[(half, angle)]) <= tol
@@ -67,13 +67,13 @@ def test_cube_reproduces_table5(half: float, angle: float) -> None:
             max_angle_deg=angle,
             n_trials=n,
             seed=7,
-        ).stats["mass_kg"]["mean"]
+        ).stats["m"]["mean"]
         assert abs(wrong - TABLE5[(half, angle)]) > tol
 
 
 def test_200m_cube_heavy_tail_same_order() -> None:
     for angle, ref in ((1.0, 0.031593), (5.0, 0.001451)):
-        m = cube_study(100.0, max_angle_deg=angle, n_trials=500, seed=7).stats["mass_kg"]["mean"]
+        m = cube_study(100.0, max_angle_deg=angle, n_trials=500, seed=7).stats["m"]["mean"]
         assert ref / 10 < m < ref * 10
 
 
@@ -82,7 +82,7 @@ def test_no_error_gives_the_truth() -> None:
     np.testing.assert_allclose(
         res.samples, np.broadcast_to(res.truth, (3, 10)), rtol=1e-9, atol=1e-12
     )
-    assert res.stats["mass_kg"]["mean_error_pct"] < 1e-9
+    assert res.stats["m"]["mean_error_pct"] < 1e-9
 
 
 def test_batched_solve_matches_the_dim_solver() -> None:
@@ -195,7 +195,7 @@ def test_rotation_angles_within_bounds_and_input_errors() -> None:
         n_trials=200,
         seed=1,
     )
-    assert bad.stats["mass_kg"]["std"] > 1e-3
+    assert bad.stats["m"]["std"] > 1e-3
     with pytest.raises(SetupError):
         cube_study(1.0, n_sensors=9)
 

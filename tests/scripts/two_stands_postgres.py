@@ -81,7 +81,7 @@ def main() -> int:
             "/api/setups/import", params={"format": "toml"}, content=EXAMPLE.read_bytes()
         )
         r.raise_for_status()
-        sid = r.json()["setup_id"]
+        sid = r.json()["id"]
         listed = [s for s in b.client.get("/api/setups").json() if s["id"] == sid]
         print(
             f"\n1. setup {sid} imported through A; listed by B: {bool(listed)} "
@@ -196,7 +196,7 @@ def main() -> int:
             f"{raw_b.status_code} {raw_b.json().get('detail')!r}"
         )
         ok &= (
-            fin["state"] == "finished"
+            fin["state"] == "succeeded"
             and len(numbers) == n_files
             and numbers == list(range(1, len(numbers) + 1))
             and st["ok"]

@@ -2,14 +2,86 @@
 
 from __future__ import annotations
 
-from typing import Any, TypeVar
+import json
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Annotated, Any, TypeVar
 
 import numpy as np
-from fastapi import Depends, HTTPException, Request
+from fastapi import Depends, HTTPException, Query, Request, Response
 from fastapi.exceptions import RequestValidationError
 from pydantic import BaseModel, ValidationError
 
+from dimacq.api.schemas import MAX_ID
+from dimacq.services.lab.store import Page
+
 T = TypeVar("T")
+
+# -- pagination ---------------------------------------------------------------------------------
+#: Most items one list call returns.
+MAX_LIMIT = 10_000
+
+
+@dataclass(frozen=True)
+class PageQuery:
+    """``limit`` (at most :data:`MAX_LIMIT`; left out: all) items after the first ``offset``,
+    in id order (creation order)."""
+
+    limit: Annotated[
+        int | None,
+        Query(ge=1, le=MAX_LIMIT, description="items to return (default: all, up to 10000)"),
+    ] = None
+    offset: Annotated[int, Query(ge=0, le=MAX_ID, description="items to skip")] = 0
+
+
+PageDep = Annotated[PageQuery, Depends()]
+
+#: The documented headers of every list response.
+LIST_RESPONSES: dict[int | str, dict[str, Any]] = {
+    200: {
+        "description": "one page of the collection, oldest first; the total count of the "
+        "collection in the X-Total-Count header",
+        "headers": {
+            "X-Total-Count": {
+                "description": "items in the whole collection (for paging with limit/offset)",
+                "schema": {"type": "integer"},
+            }
+        },
+    }
+}
+
+
+def paged(response: Response, got: Page[T] | Sequence[T], page: PageQuery) -> list[T]:
+    """The page's items, and the collection's total in ``X-Total-Count``. A :class:`Page` was
+    cut by the database already; a plain sequence (small in-memory collections) is cut here."""
+    if isinstance(got, Page):
+        items, total = got.items, got.total
+    else:
+        total = len(got)
+        stop = None if page.limit is None else page.offset + page.limit
+        items = list(got[page.offset : stop])
+    response.headers["X-Total-Count"] = str(total)
+    return items
+
+
+def json_object(raw: bytes, example: str) -> dict[str, Any]:
+    """A JSON object body (``{}`` when empty), or 422 naming the body and an example."""
+    try:
+        body = json.loads(raw) if raw.strip() else {}
+    except (json.JSONDecodeError, UnicodeDecodeError) as err:
+        raise HTTPException(
+            status_code=422, detail=f"body: not valid JSON ({err}); send {example}"
+        ) from err
+    if not isinstance(body, dict):
+        raise HTTPException(status_code=422, detail=f"body: send a JSON object, e.g. {example}")
+    return body
+
+
+def deleted(done: bool | None, what: str) -> Response:
+    """204 after a delete, 404 naming the item when there was none."""
+    found(done, what)
+    return Response(status_code=204)
+
 
 #: Paths whose body is a file (``RAW_BODY``): limited by ``max_upload_bytes`` instead of
 #: ``max_body_bytes`` (:class:`dimacq.api.guards.BodyLimitMiddleware`).

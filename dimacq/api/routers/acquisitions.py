@@ -1,66 +1,85 @@
-"""Acquisitions: configure, start, stop, progress, averages accepted and rejected."""
+"""Acquisitions: configure, start, stop, progress, averages accepted and rejected, delete."""
 
 from __future__ import annotations
 
-from dataclasses import asdict
 from typing import Annotated, Any
 
-from fastapi import APIRouter, status
+from fastapi import APIRouter, Response, status
 
 from dimacq.api.deps import IdPath, LabDep
-from dimacq.api.routers._common import body_openapi, found, strict_body
-from dimacq.api.schemas import AcquisitionRequest, HitDecision
+from dimacq.api.routers._common import (
+    LIST_RESPONSES,
+    PageDep,
+    body_openapi,
+    deleted,
+    found,
+    paged,
+    strict_body,
+)
+from dimacq.api.schemas import AcquisitionOut, AcquisitionRequest, AverageDataOut, HitDecision
+from dimacq.services.lab.acquisitions import AcquisitionInfo
 
 router = APIRouter(prefix="/api/acquisitions", tags=["acquisitions"])
 
 
 @router.post(
     "",
-    response_model=dict[str, Any],
+    response_model=AcquisitionOut,
     status_code=status.HTTP_202_ACCEPTED,
     openapi_extra=body_openapi(AcquisitionRequest),
 )
 def start_acquisition(
     lab: LabDep, body: Annotated[AcquisitionRequest, strict_body(AcquisitionRequest)]
-) -> dict[str, Any]:
-    """Configure and start an impact acquisition (a job); FRFs are stored when it finishes."""
-    return asdict(lab.acquisitions.start(body.model_dump()))
+) -> AcquisitionInfo:
+    """Configure and start an impact acquisition (a job, ``job_id``); FRFs are stored when it
+    succeeds (``frf_id``). The settings are checked here (422 naming the field), before
+    anything starts."""
+    return lab.acquisitions.start(body.model_dump())
 
 
-@router.get("", response_model=list[dict[str, Any]])
-def list_acquisitions(lab: LabDep) -> list[dict[str, Any]]:
-    return [asdict(a) for a in lab.acquisitions.all()]
+@router.get("", response_model=list[AcquisitionOut], responses=LIST_RESPONSES)
+def list_acquisitions(lab: LabDep, page: PageDep, response: Response) -> list[AcquisitionInfo]:
+    return paged(response, lab.acquisitions.all(page.limit, page.offset), page)
 
 
-@router.get("/{acq_id:int}", response_model=dict[str, Any])
-def get_acquisition(acq_id: IdPath, lab: LabDep) -> dict[str, Any]:
+@router.get("/{acq_id:int}", response_model=AcquisitionOut)
+def get_acquisition(acq_id: IdPath, lab: LabDep) -> AcquisitionInfo:
     """State, progress and the averages accepted and rejected so far."""
-    return asdict(found(lab.acquisitions.get(acq_id), f"acquisition {acq_id}"))
+    return found(lab.acquisitions.get(acq_id), f"acquisition {acq_id}")
 
 
-@router.post("/{acq_id:int}/stop", response_model=dict[str, Any])
-def stop_acquisition(acq_id: IdPath, lab: LabDep) -> dict[str, Any]:
-    return asdict(found(lab.acquisitions.stop(acq_id), f"acquisition {acq_id}"))
+@router.delete("/{acq_id:int}", status_code=status.HTTP_204_NO_CONTENT)
+def delete_acquisition(acq_id: IdPath, lab: LabDep) -> Response:
+    """Delete an acquisition that is not running and its raw averages (its FRF set stays);
+    409 while it runs."""
+    return deleted(lab.acquisitions.delete(acq_id), f"acquisition {acq_id}")
+
+
+@router.post("/{acq_id:int}/stop", response_model=AcquisitionOut)
+def stop_acquisition(acq_id: IdPath, lab: LabDep) -> AcquisitionInfo:
+    """Cancel: the averages completed so far are kept in the record, no FRF set is stored
+    (``finish`` stops striking and stores the FRFs of the accepted averages)."""
+    return found(lab.acquisitions.stop(acq_id), f"acquisition {acq_id}")
 
 
 @router.post(
-    "/{acq_id:int}/review", response_model=dict[str, Any], openapi_extra=body_openapi(HitDecision)
+    "/{acq_id:int}/review", response_model=AcquisitionOut, openapi_extra=body_openapi(HitDecision)
 )
 def review_hit(
     acq_id: IdPath, lab: LabDep, body: Annotated[HitDecision, strict_body(HitDecision)]
-) -> dict[str, Any]:
+) -> AcquisitionInfo:
     """The operator's accept / reject / redo of the hit waiting for review (``pending_review``
     of an acquisition started with ``review: true``); 409 when that hit is not the one waiting."""
-    return asdict(
-        found(lab.acquisitions.decide(acq_id, body.number, body.decision), f"acquisition {acq_id}")
+    return found(
+        lab.acquisitions.decide(acq_id, body.number, body.decision), f"acquisition {acq_id}"
     )
 
 
-@router.post("/{acq_id:int}/finish", response_model=dict[str, Any])
-def finish_acquisition(acq_id: IdPath, lab: LabDep) -> dict[str, Any]:
+@router.post("/{acq_id:int}/finish", response_model=AcquisitionOut)
+def finish_acquisition(acq_id: IdPath, lab: LabDep) -> AcquisitionInfo:
     """Stop striking and keep the accepted averages: the FRFs of the inputs that reached
     ``min_averages`` are stored (``stop`` cancels instead: no FRF set)."""
-    return asdict(found(lab.acquisitions.finish(acq_id), f"acquisition {acq_id}"))
+    return found(lab.acquisitions.finish(acq_id), f"acquisition {acq_id}")
 
 
 @router.get("/{acq_id:int}/hit", response_model=dict[str, Any])
@@ -71,8 +90,8 @@ def get_hit(acq_id: IdPath, lab: LabDep) -> dict[str, Any]:
     return found(lab.acquisitions.hit(acq_id), f"hit of acquisition {acq_id}")
 
 
-@router.get("/{acq_id:int}/averages/{number:int}", response_model=dict[str, Any])
-def get_average(acq_id: int, number: int, lab: LabDep) -> dict[str, Any]:
+@router.get("/{acq_id:int}/averages/{number:int}", response_model=AverageDataOut)
+def get_average(acq_id: IdPath, number: int, lab: LabDep) -> dict[str, Any]:
     """Raw time data of one average, served by the stand that acquired it (it stays on that
     stand's disk); another stand answers 409 with that stand's address."""
     return found(

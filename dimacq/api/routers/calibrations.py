@@ -7,23 +7,22 @@ waits at every load case:
 
 from __future__ import annotations
 
-import json
-from dataclasses import asdict
 from typing import Any
 
-from fastapi import APIRouter, Request, status
+from fastapi import APIRouter, HTTPException, Request, Response, status
 from starlette.concurrency import run_in_threadpool
 
 from dimacq.api.deps import IdPath, LabDep
-from dimacq.api.routers._common import found
-from dimacq.errors import DataError
+from dimacq.api.routers._common import LIST_RESPONSES, PageDep, found, json_object, paged
+from dimacq.api.schemas import CalibrationOut
+from dimacq.services.lab.calibrations import StoredCalibration
 
 router = APIRouter(prefix="/api/calibrations", tags=["calibrations"])
 
 
 @router.post(
     "",
-    response_model=dict[str, Any],
+    response_model=CalibrationOut,
     status_code=status.HTTP_201_CREATED,
     openapi_extra={
         "requestBody": {
@@ -32,17 +31,12 @@ router = APIRouter(prefix="/api/calibrations", tags=["calibrations"])
         }
     },
 )
-async def add_calibration(request: Request, lab: LabDep) -> dict[str, Any]:
-    """A calibration JSON document (schema_version 1: serial_number, date, 6×12 matrix, ...)."""
-    try:
-        body = json.loads(await request.body())
-    except (json.JSONDecodeError, UnicodeDecodeError) as err:
-        raise DataError(
-            f"body: not valid JSON ({err}); send the calibration JSON document"
-        ) from err
-    if not isinstance(body, dict):
-        raise DataError("body: send a JSON object (the calibration document)")
-    return asdict(await run_in_threadpool(lab.calibrations.save, body))
+async def add_calibration(request: Request, lab: LabDep) -> StoredCalibration:
+    """A calibration JSON document (schema_version 1: serial_number, date, 6×12 matrix, ...);
+    returns it stored, with its ``id``."""
+    raw = await request.body()
+    body = json_object(raw or b"null", "the calibration JSON document")
+    return await run_in_threadpool(lab.calibrations.save, body)
 
 
 @router.post(
@@ -82,13 +76,7 @@ async def start_calibration_run(request: Request, lab: LabDep) -> dict[str, Any]
     ``{"job_id", "method", "simulated"}``. Progress at ``/api/jobs/{job_id}`` (a real inertial
     run asks there for every strike); the result has the contract keys of ``dimacq loadcell
     calibrate`` and the record id."""
-    raw = await request.body()
-    try:
-        body = json.loads(raw) if raw.strip() else {}
-    except (json.JSONDecodeError, UnicodeDecodeError) as err:
-        raise DataError(f'body: not valid JSON ({err}); send {{"method": "static"}}') from err
-    if not isinstance(body, dict):
-        raise DataError('body: send a JSON object, e.g. {"method": "static"}')
+    body = json_object(await request.body(), '{"method": "static"}')
     return await run_in_threadpool(lab.calibrations.runs.start, body)
 
 
@@ -103,21 +91,18 @@ def calibration_prompt(job_id: str, lab: LabDep) -> dict[str, Any]:
 async def confirm_load_case(job_id: str, request: Request, lab: LabDep) -> dict[str, Any]:
     """The operator has put load case ``{"case": N}`` in place."""
     found(lab.jobs.snapshot(job_id), f"job {job_id}")
-    try:
-        body = json.loads(await request.body())
-    except (json.JSONDecodeError, UnicodeDecodeError) as err:
-        raise DataError(f'body: not valid JSON ({err}); send {{"case": N}}') from err
-    case = body.get("case") if isinstance(body, dict) else None
+    body = json_object(await request.body() or b"null", '{"case": N}')
+    case = body.get("case")
     if not isinstance(case, int) or isinstance(case, bool):
-        raise DataError('body: give the load case number, {"case": N}')
+        raise HTTPException(422, 'body.case: give the load case number, {"case": N}')
     return lab.calibrations.runs.confirm(job_id, case)
 
 
-@router.get("", response_model=list[dict[str, Any]])
-def list_calibrations(lab: LabDep) -> list[dict[str, Any]]:
-    return [asdict(c) for c in lab.calibrations.all()]
+@router.get("", response_model=list[CalibrationOut], responses=LIST_RESPONSES)
+def list_calibrations(lab: LabDep, page: PageDep, response: Response) -> list[StoredCalibration]:
+    return paged(response, lab.calibrations.all(), page)
 
 
-@router.get("/{cal_id:int}", response_model=dict[str, Any])
-def get_calibration(cal_id: IdPath, lab: LabDep) -> dict[str, Any]:
-    return asdict(found(lab.calibrations.get(cal_id), f"calibration {cal_id}"))
+@router.get("/{cal_id:int}", response_model=CalibrationOut)
+def get_calibration(cal_id: IdPath, lab: LabDep) -> StoredCalibration:
+    return found(lab.calibrations.get(cal_id), f"calibration {cal_id}")

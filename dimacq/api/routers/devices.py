@@ -4,20 +4,20 @@ from __future__ import annotations
 
 from typing import Any
 
-from fastapi import APIRouter
+from fastapi import APIRouter, Response
 from starlette.concurrency import run_in_threadpool
 
 from dimacq.api.deps import LabDep
-from dimacq.api.routers._common import found
+from dimacq.api.routers._common import LIST_RESPONSES, PageDep, found, paged
 from dimacq.api.schemas import DeviceOut
 from dimacq.services.lab import DeviceInfo
 
 router = APIRouter(prefix="/api/devices", tags=["devices"])
 
 
-@router.get("", response_model=list[DeviceOut])
-async def list_devices(lab: LabDep) -> list[DeviceInfo]:
-    return lab.devices.all()
+@router.get("", response_model=list[DeviceOut], responses=LIST_RESPONSES)
+async def list_devices(lab: LabDep, page: PageDep, response: Response) -> list[DeviceInfo]:
+    return paged(response, lab.devices.all(), page)
 
 
 @router.get("/{name}", response_model=DeviceOut)

@@ -6,11 +6,20 @@ from __future__ import annotations
 from dataclasses import asdict
 from typing import Annotated, Any
 
-from fastapi import APIRouter, HTTPException, Response, status
+from fastapi import APIRouter, HTTPException, Path, Response, status
 
-from dimacq.api.deps import LabDep
-from dimacq.api.routers._common import body_openapi, found, strict_body
+from dimacq.api.deps import IdPath, LabDep
+from dimacq.api.routers._common import (
+    LIST_RESPONSES,
+    PageDep,
+    body_openapi,
+    deleted,
+    found,
+    paged,
+    strict_body,
+)
 from dimacq.api.schemas import (
+    LABEL_PATTERN,
     LineOfActionRequest,
     NewTestRequest,
     OrientationRequest,
@@ -21,13 +30,23 @@ from dimacq.api.schemas import (
     ReferenceNodesRequest,
     RegistrationRequest,
     ShotsRequest,
+    SpeedOfSoundOut,
 )
 from dimacq.services.lab.geometry import StoredPoint
+from dimacq.services.lab.geometry_records import (
+    LineOfAction,
+    NewTest,
+    Orientation,
+    PatchInfo,
+    ReferenceNode,
+    RegisteredPatch,
+    Shots,
+)
 
 router = APIRouter(prefix="/api/digitizer", tags=["digitizer"])
 
 
-@router.post("/shots", response_model=dict[str, Any], openapi_extra=body_openapi(ShotsRequest))
+@router.post("/shots", response_model=Shots, openapi_extra=body_openapi(ShotsRequest))
 def fire_shots(
     lab: LabDep, body: Annotated[ShotsRequest, strict_body(ShotsRequest)]
 ) -> dict[str, Any]:
@@ -37,14 +56,14 @@ def fire_shots(
     return lab.geometry.fire_shots(body.n).to_json()
 
 
-@router.post("/speed-of-sound", response_model=dict[str, float])
+@router.post("/speed-of-sound", response_model=SpeedOfSoundOut)
 def measure_speed_of_sound(lab: LabDep) -> dict[str, float]:
     """Fire three shots and report the speed of sound measured on the calibration bar (it fires
     the digitizer: a POST with the token; ``GET`` returns the last measured value)."""
     return {"speed_of_sound_m_s": lab.geometry.measure_speed_of_sound()}
 
 
-@router.get("/speed-of-sound", response_model=dict[str, float])
+@router.get("/speed-of-sound", response_model=SpeedOfSoundOut)
 def speed_of_sound(lab: LabDep) -> dict[str, float]:
     """The speed of sound measured last (``POST`` measures it), without firing: 404 if none
     was measured since the service started."""
@@ -69,22 +88,29 @@ def digitize_point(
     """Digitize one labelled point (committed to the database before the reply)."""
     if body.sim_probe is not None:
         lab.geometry.place_simulated_probe(body.sim_probe.tip_m, body.sim_probe.axis)
-    return lab.geometry.digitize(body.label, body.shots).to_json()
+    return lab.geometry.digitize(body.label, body.shots)
 
 
-@router.get("/points", response_model=list[PointOut])
-def list_points(lab: LabDep) -> list[StoredPoint]:
-    return lab.geometry.points()
+@router.get("/points", response_model=list[PointOut], responses=LIST_RESPONSES)
+def list_points(lab: LabDep, page: PageDep, response: Response) -> list[StoredPoint]:
+    return paged(response, lab.geometry.points(), page)
 
 
-@router.get("/patches", response_model=list[dict[str, Any]])
-def list_patches(lab: LabDep) -> list[dict[str, Any]]:
-    return [p.to_json() for p in lab.geometry.patches()]
+@router.delete("/points/{point_id:int}", status_code=status.HTTP_204_NO_CONTENT)
+def delete_point(point_id: IdPath, lab: LabDep) -> Response:
+    """Delete a mistaken point (redo it: digitize the label again; the latest point of a label
+    is the one used, so deleting is needed only to fall back to an earlier one)."""
+    return deleted(lab.geometry.delete_point(point_id), f"point {point_id}")
+
+
+@router.get("/patches", response_model=list[PatchInfo], responses=LIST_RESPONSES)
+def list_patches(lab: LabDep, page: PageDep, response: Response) -> list[dict[str, Any]]:
+    return paged(response, [p.to_json() for p in lab.geometry.patches()], page)
 
 
 @router.post(
     "/patches",
-    response_model=dict[str, Any],
+    response_model=PatchInfo,
     status_code=status.HTTP_201_CREATED,
     openapi_extra=body_openapi(PatchRequest),
 )
@@ -97,7 +123,7 @@ def new_patch(
 
 @router.post(
     "/tests",
-    response_model=dict[str, Any],
+    response_model=NewTest,
     status_code=status.HTTP_201_CREATED,
     openapi_extra=body_openapi(NewTestRequest),
 )
@@ -111,28 +137,29 @@ def new_test(
 
 @router.put(
     "/reference-nodes",
-    response_model=list[dict[str, Any]],
+    response_model=list[ReferenceNode],
     openapi_extra=body_openapi(ReferenceNodesRequest),
 )
 def set_reference_nodes(
     lab: LabDep, body: Annotated[ReferenceNodesRequest, strict_body(ReferenceNodesRequest)]
 ) -> list[dict[str, Any]]:
+    """Replace every reference node (those not given are removed)."""
     return [asdict(r) for r in lab.geometry.set_reference_nodes(body.nodes)]
 
 
-@router.get("/reference-nodes", response_model=list[dict[str, Any]])
-def reference_nodes(lab: LabDep) -> list[dict[str, Any]]:
-    return [asdict(r) for r in lab.geometry.reference_nodes()]
+@router.get("/reference-nodes", response_model=list[ReferenceNode], responses=LIST_RESPONSES)
+def reference_nodes(lab: LabDep, page: PageDep, response: Response) -> list[dict[str, Any]]:
+    return paged(response, [asdict(r) for r in lab.geometry.reference_nodes()], page)
 
 
 @router.put(
     "/reference-nodes/{label}",
-    response_model=list[dict[str, Any]],
+    response_model=list[ReferenceNode],
     openapi_extra=body_openapi(ReferenceNodeRequest),
 )
 def set_reference_node(
     lab: LabDep,
-    label: str,
+    label: Annotated[str, Path(max_length=200, pattern=LABEL_PATTERN)],
     body: Annotated[ReferenceNodeRequest, strict_body(ReferenceNodeRequest)],
 ) -> list[dict[str, Any]]:
     """Add or replace one reference node's known GCS position."""
@@ -140,14 +167,18 @@ def set_reference_node(
 
 
 @router.delete("/reference-nodes/{label}", status_code=status.HTTP_204_NO_CONTENT)
-def delete_reference_node(lab: LabDep, label: str) -> Response:
+def delete_reference_node(
+    lab: LabDep, label: Annotated[str, Path(max_length=200, pattern=LABEL_PATTERN)]
+) -> Response:
     """Remove a reference node (registrations already made are kept)."""
     found(True if lab.geometry.delete_reference_node(label) else None, f"reference node {label!r}")
     return Response(status_code=status.HTTP_204_NO_CONTENT)
 
 
 @router.post(
-    "/registrations", response_model=dict[str, Any], openapi_extra=body_openapi(RegistrationRequest)
+    "/registrations",
+    response_model=RegisteredPatch,
+    openapi_extra=body_openapi(RegistrationRequest),
 )
 def register_patch(
     lab: LabDep, body: Annotated[RegistrationRequest, strict_body(RegistrationRequest)]
@@ -159,7 +190,7 @@ def register_patch(
 
 @router.post(
     "/orientations",
-    response_model=dict[str, Any],
+    response_model=Orientation,
     status_code=status.HTTP_201_CREATED,
     openapi_extra=body_openapi(OrientationRequest),
 )
@@ -170,14 +201,14 @@ def fit_orientation(
     return lab.geometry.fit_orientation(body.node, body.prefix, body.method).to_json()
 
 
-@router.get("/orientations", response_model=list[dict[str, Any]])
-def orientations(lab: LabDep) -> list[dict[str, Any]]:
-    return [o.to_json() for o in lab.geometry.orientations()]
+@router.get("/orientations", response_model=list[Orientation], responses=LIST_RESPONSES)
+def orientations(lab: LabDep, page: PageDep, response: Response) -> list[dict[str, Any]]:
+    return paged(response, [o.to_json() for o in lab.geometry.orientations()], page)
 
 
 @router.post(
     "/lines-of-action",
-    response_model=dict[str, Any],
+    response_model=LineOfAction,
     status_code=status.HTTP_201_CREATED,
     openapi_extra=body_openapi(LineOfActionRequest),
 )
@@ -189,6 +220,6 @@ def fit_line_of_action(
     ).to_json()
 
 
-@router.get("/lines-of-action", response_model=list[dict[str, Any]])
-def lines_of_action(lab: LabDep) -> list[dict[str, Any]]:
-    return [a.to_json() for a in lab.geometry.lines_of_action()]
+@router.get("/lines-of-action", response_model=list[LineOfAction], responses=LIST_RESPONSES)
+def lines_of_action(lab: LabDep, page: PageDep, response: Response) -> list[dict[str, Any]]:
+    return paged(response, [a.to_json() for a in lab.geometry.lines_of_action()], page)

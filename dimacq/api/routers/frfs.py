@@ -1,4 +1,5 @@
-"""FRF sets: list, read, import (UFF), export (UFF)."""
+"""FRF sets: list, read, values by node and direction over a band, delete, import (UFF), export
+(UFF)."""
 
 from __future__ import annotations
 
@@ -9,16 +10,29 @@ from fastapi import APIRouter, Query, Request, Response, status
 from starlette.concurrency import run_in_threadpool
 
 from dimacq.api.deps import IdPath, LabDep
-from dimacq.api.routers._common import RAW_BODY, found, read_upload
-from dimacq.api.schemas import MAX_ID, FrfOut
-from dimacq.services.lab.store import FrfSummary
+from dimacq.api.routers._common import (
+    LIST_RESPONSES,
+    RAW_BODY,
+    PageDep,
+    deleted,
+    found,
+    paged,
+    read_upload,
+)
+from dimacq.api.schemas import MAX_ID, FrfDataOut, FrfOut
+from dimacq.services.lab.store import ChannelQuery, FrfSummary
 
 router = APIRouter(prefix="/api/frfs", tags=["frfs"])
 
+_Index = Annotated[int | None, Query(ge=0, le=MAX_ID)]
+_Node = Annotated[int | None, Query(ge=1, le=MAX_ID)]
+_Dir = Annotated[int | None, Query(ge=-6, le=6, description="UFF direction, ±1..±6")]
+_Hz = Annotated[float | None, Query(ge=0, le=1e9)]
 
-@router.get("", response_model=list[FrfOut])
-def list_frfs(lab: LabDep) -> list[FrfSummary]:
-    return lab.store.frfs()
+
+@router.get("", response_model=list[FrfOut], responses=LIST_RESPONSES)
+def list_frfs(lab: LabDep, page: PageDep, response: Response) -> list[FrfSummary]:
+    return paged(response, lab.store.frfs(page.limit, page.offset), page)
 
 
 @router.get("/{frf_id:int}", response_model=FrfOut)
@@ -26,15 +40,42 @@ def get_frf(frf_id: IdPath, lab: LabDep) -> FrfSummary:
     return found(lab.store.frf_summary(frf_id), f"FRF set {frf_id}")
 
 
-@router.get("/{frf_id:int}/data", response_model=dict[str, Any])
+@router.delete("/{frf_id:int}", status_code=status.HTTP_204_NO_CONTENT)
+def delete_frf(frf_id: IdPath, lab: LabDep) -> Response:
+    """Delete an FRF set and its solutions (the acquisition that measured it stays)."""
+    return deleted(lab.store.delete_frf(frf_id), f"FRF set {frf_id}")
+
+
+@router.get("/{frf_id:int}/data", response_model=FrfDataOut)
 def frf_data(
     frf_id: IdPath,
     lab: LabDep,
-    output: int | None = Query(default=None, ge=0),
-    input: int | None = Query(default=None, ge=0),
+    response: _Index = None,
+    input: _Index = None,
+    response_node: _Node = None,
+    response_direction: _Dir = None,
+    input_node: _Node = None,
+    input_direction: _Dir = None,
+    f_min_hz: _Hz = None,
+    f_max_hz: _Hz = None,
 ) -> dict[str, Any]:
-    """FRF values (real, imag, coherence) of one output/input pair, or all."""
-    return asdict(found(lab.store.frf_values(frf_id, output, input), f"FRF set {frf_id}"))
+    """FRF values H (response acceleration or reaction per input force) of the chosen responses
+    × inputs on the lines in [``f_min_hz``, ``f_max_hz``]: ``real``, ``imag`` and ``coherence``
+    indexed ``[line][response][input]`` (``layout``), each response with its ``kind`` and
+    ``unit`` ((m/s²)/N, N/N, N·m/N). Choose a channel by its index in the set (``response``,
+    ``input``) or by node and optional UFF direction (``response_node`` and
+    ``response_direction``, ``input_node`` and ``input_direction``); all of them otherwise."""
+    return asdict(
+        found(
+            lab.store.frf_values(
+                frf_id,
+                ChannelQuery(response, response_node, response_direction),
+                ChannelQuery(input, input_node, input_direction),
+                (f_min_hz, f_max_hz),
+            ),
+            f"FRF set {frf_id}",
+        )
+    )
 
 
 @router.get(
@@ -54,7 +95,8 @@ def export_uff(frf_id: IdPath, lab: LabDep, whole_test: bool = True) -> Response
 async def import_uff(
     request: Request, lab: LabDep, setup_id: Annotated[int, Query(ge=1, le=MAX_ID)], name: str = ""
 ) -> FrfSummary:
-    """Send a UFF file (58 records) whose channels match the setup."""
+    """Send a UFF file (58 records) whose channels match the setup; returns the set with its
+    ``id``."""
     data = await read_upload(request)
     fid = await run_in_threadpool(lab.store.import_frf, data, setup_id, name)
     return found(lab.store.frf_summary(fid), f"FRF set {fid}")

@@ -7,20 +7,20 @@ import json
 from collections.abc import AsyncIterator
 from typing import Any
 
-from fastapi import APIRouter
+from fastapi import APIRouter, Response
 from fastapi.responses import StreamingResponse
 
 from dimacq.api.deps import LabDep
-from dimacq.api.routers._common import found
+from dimacq.api.routers._common import LIST_RESPONSES, PageDep, found, paged
 from dimacq.api.schemas import JobInfo
 from dimacq.services.jobs import FINAL_STATES
 
 router = APIRouter(prefix="/api/jobs", tags=["jobs"])
 
 
-@router.get("", response_model=list[JobInfo])
-async def list_jobs(lab: LabDep) -> list[dict[str, Any]]:
-    return lab.jobs.list_jobs()
+@router.get("", response_model=list[JobInfo], responses=LIST_RESPONSES)
+async def list_jobs(lab: LabDep, page: PageDep, response: Response) -> list[dict[str, Any]]:
+    return paged(response, lab.jobs.list_jobs(), page)
 
 
 @router.get("/{job_id}", response_model=JobInfo)

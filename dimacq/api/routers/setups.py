@@ -1,19 +1,35 @@
-"""Test setups: create, read, import (JSON/TOML/whole-test UFF), export, build from geometry."""
+"""Test setups: create, list, read, delete, import (JSON/TOML/whole-test UFF), export, build from
+geometry."""
 
 from __future__ import annotations
 
 from dataclasses import asdict
 from typing import Annotated, Any, Literal
 
-from fastapi import APIRouter, Request, Response, status
+from fastapi import APIRouter, Query, Request, Response, status
+from starlette.concurrency import run_in_threadpool
 
 from dimacq.api.deps import IdPath, LabDep
-from dimacq.api.routers._common import RAW_BODY, body_openapi, found, read_upload, strict_body
-from dimacq.api.schemas import FromGeometryRequest, ImportOut, SetupOut
+from dimacq.api.routers._common import (
+    LIST_RESPONSES,
+    RAW_BODY,
+    PageDep,
+    body_openapi,
+    deleted,
+    found,
+    paged,
+    read_upload,
+    strict_body,
+)
+from dimacq.api.schemas import MAX_ID, FromGeometryRequest, ImportOut, SetupOut
 from dimacq.model.setup import TestSetup
 from dimacq.services.lab.store import SetupSummary
 
 router = APIRouter(prefix="/api/setups", tags=["setups"])
+
+TestIdQuery = Annotated[
+    int | None, Query(ge=1, le=MAX_ID, description="the test the setup belongs to")
+]
 
 
 @router.post(
@@ -22,19 +38,31 @@ router = APIRouter(prefix="/api/setups", tags=["setups"])
     status_code=status.HTTP_201_CREATED,
     openapi_extra=body_openapi(TestSetup),
 )
-def create_setup(lab: LabDep, body: Annotated[TestSetup, strict_body(TestSetup)]) -> SetupSummary:
-    sid = lab.store.save_setup(body)
+def create_setup(
+    lab: LabDep, body: Annotated[TestSetup, strict_body(TestSetup)], test_id: TestIdQuery = None
+) -> SetupSummary:
+    """Store a setup (the setup-file keys as JSON), in test ``test_id`` when given; returns it
+    with its ``id``."""
+    sid = lab.store.save_setup(body, test_id)
     return found(lab.store.setup_summary(sid), f"setup {sid}")
 
 
-@router.get("", response_model=list[SetupOut])
-def list_setups(lab: LabDep) -> list[SetupSummary]:
-    return lab.store.setups()
+@router.get("", response_model=list[SetupOut], responses=LIST_RESPONSES)
+def list_setups(
+    lab: LabDep, page: PageDep, response: Response, test_id: TestIdQuery = None
+) -> list[SetupSummary]:
+    return paged(response, lab.store.setups(page.limit, page.offset, test_id), page)
 
 
 @router.get("/{setup_id:int}", response_model=SetupOut)
 def get_setup(setup_id: IdPath, lab: LabDep) -> SetupSummary:
     return found(lab.store.setup_summary(setup_id), f"setup {setup_id}")
+
+
+@router.delete("/{setup_id:int}", status_code=status.HTTP_204_NO_CONTENT)
+def delete_setup(setup_id: IdPath, lab: LabDep) -> Response:
+    """Delete a setup; 409 while FRF sets or acquisitions use it (delete those first)."""
+    return deleted(lab.store.delete_setup(setup_id), f"setup {setup_id}")
 
 
 @router.get(
@@ -45,6 +73,7 @@ def get_setup(setup_id: IdPath, lab: LabDep) -> SetupSummary:
 def export_setup(
     setup_id: IdPath, lab: LabDep, format: Literal["json", "toml"] = "json"
 ) -> Response:
+    """The setup file (the keys of ``dimacq/io/setup_file.py``)."""
     out = found(lab.store.export_setup(setup_id, format), f"setup {setup_id}")
     return Response(content=out.content, media_type=out.media_type)
 
@@ -57,12 +86,14 @@ async def import_setup(
     lab: LabDep,
     format: Literal["json", "toml", "uff"] = "json",
     name: str | None = None,
+    test_id: TestIdQuery = None,
 ) -> dict[str, Any]:
-    """Send the file as the body. ``uff`` (a whole test) also stores its FRFs."""
-    from starlette.concurrency import run_in_threadpool
-
+    """Send the file as the body; returns the stored setup with its ``id``. ``uff`` (a whole
+    test) also stores its FRFs (``frf_id``)."""
     data = await read_upload(request)
-    return asdict(await run_in_threadpool(lab.store.import_setup, data, format, name))
+    got = await run_in_threadpool(lab.store.import_setup, data, format, name, test_id)
+    summary = found(lab.store.setup_summary(got.setup_id), f"setup {got.setup_id}")
+    return {**asdict(summary), "frf_id": got.frf_id}
 
 
 @router.post(
@@ -84,5 +115,5 @@ def setup_from_geometry(
         load_cells=body.load_cells,
         known=body.known,
     )
-    sid = lab.store.save_setup(setup)
+    sid = lab.store.save_setup(setup, body.test_id)
     return found(lab.store.setup_summary(sid), f"setup {sid}")

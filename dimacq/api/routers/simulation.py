@@ -8,11 +8,12 @@ from fastapi import APIRouter, HTTPException
 from starlette.concurrency import run_in_threadpool
 
 from dimacq.api.deps import LabDep
+from dimacq.api.schemas import ArticleOut
 
 router = APIRouter(prefix="/api/simulation", tags=["simulation"])
 
 
-@router.get("/article", response_model=dict[str, Any])
+@router.get("/article", response_model=ArticleOut)
 async def article(lab: LabDep) -> dict[str, Any]:
     """The simulated article's geometry (``setup`` in the setup-file format, GCS metres: response
     channels, inputs with their lines of action, load cells), the scenario's recommended band and

@@ -1,14 +1,22 @@
-"""DIM solutions: solve (options), result, diagnostics, figures."""
+"""DIM solutions: solve (options), list, result, delete, diagnostics, figures."""
 
 from __future__ import annotations
 
 from typing import Annotated, Any, Literal
 
-from fastapi import APIRouter, Response, status
+from fastapi import APIRouter, Query, Response, status
 
 from dimacq.api.deps import IdPath, LabDep
-from dimacq.api.routers._common import body_openapi, found, strict_body
-from dimacq.api.schemas import SolutionOut, SolveRequest
+from dimacq.api.routers._common import (
+    LIST_RESPONSES,
+    PageDep,
+    body_openapi,
+    deleted,
+    found,
+    paged,
+    strict_body,
+)
+from dimacq.api.schemas import MAX_ID, DiagnosticOut, SolutionOut, SolveRequest
 from dimacq.services.lab.solving import SolveOptions
 from dimacq.services.lab.store import StoredSolution
 
@@ -22,14 +30,25 @@ router = APIRouter(prefix="/api/solutions", tags=["solutions"])
     openapi_extra=body_openapi(SolveRequest),
 )
 def solve(lab: LabDep, body: Annotated[SolveRequest, strict_body(SolveRequest)]) -> StoredSolution:
-    """Solve mass, CG and inertia from an FRF set; the result has the keys of ``dimacq solve --json``."""
+    """Solve mass, CG and inertia from an FRF set; the result has the keys of ``dimacq solve
+    --json``. The options are those of ``dimacq solve``: ``band_hz`` (``--band``), ``known``
+    (``--known-*``, the ten parameter names), ``reference_point_m`` (``--reference-point``),
+    ``length_unit`` (``--length-unit``), ``scale_to_mass_kg`` (``--scale-to-mass``), ``method``,
+    the selections (``--no-select*``) and the estimators."""
     options = SolveOptions.model_validate(body.model_dump(exclude={"frf_id"}))
     return found(lab.analysis.solve(body.frf_id, options), f"FRF set {body.frf_id}")
 
 
-@router.get("", response_model=list[SolutionOut])
-def list_solutions(lab: LabDep) -> list[StoredSolution]:
-    return lab.store.solutions()
+@router.get("", response_model=list[SolutionOut], responses=LIST_RESPONSES)
+def list_solutions(
+    lab: LabDep,
+    page: PageDep,
+    response: Response,
+    frf_id: Annotated[
+        int | None, Query(ge=1, le=MAX_ID, description="of this FRF set only")
+    ] = None,
+) -> list[StoredSolution]:
+    return paged(response, lab.store.solutions(page.limit, page.offset, frf_id), page)
 
 
 @router.get("/{solution_id:int}", response_model=SolutionOut)
@@ -37,10 +56,20 @@ def get_solution(solution_id: IdPath, lab: LabDep) -> StoredSolution:
     return found(lab.store.solution(solution_id), f"solution {solution_id}")
 
 
-@router.get("/{solution_id:int}/diagnostics", response_model=list[dict[str, Any]])
-def diagnostics(solution_id: IdPath, lab: LabDep) -> list[dict[str, Any]]:
+@router.delete("/{solution_id:int}", status_code=status.HTTP_204_NO_CONTENT)
+def delete_solution(solution_id: IdPath, lab: LabDep) -> Response:
+    return deleted(lab.store.delete_solution(solution_id), f"solution {solution_id}")
+
+
+@router.get(
+    "/{solution_id:int}/diagnostics", response_model=list[DiagnosticOut], responses=LIST_RESPONSES
+)
+def diagnostics(
+    solution_id: IdPath, lab: LabDep, page: PageDep, response: Response
+) -> list[dict[str, Any]]:
+    """The plausibility and quality checks of the solution."""
     sol = found(lab.store.solution(solution_id), f"solution {solution_id}")
-    return list(sol.result.get("diagnostics", []))
+    return paged(response, list(sol.result.get("diagnostics", [])), page)
 
 
 PARAMETERS = ["m", "cx", "cy", "cz", "Ixx", "Ixy", "Ixz", "Iyy", "Iyz", "Izz"]

@@ -8,7 +8,8 @@ from typing import Any
 from fastapi import APIRouter, Response
 
 from dimacq.api.deps import LabDep
-from dimacq.api.schemas import StatusOut
+from dimacq.api.routers._common import LIST_RESPONSES, PageDep, paged
+from dimacq.api.schemas import StandOut, StatusOut
 
 router = APIRouter(prefix="/api", tags=["status"])
 
@@ -20,7 +21,7 @@ async def get_status(lab: LabDep) -> Response:
     return Response(json.dumps(lab.status().to_json()).encode(), media_type="application/json")
 
 
-@router.get("/stands", response_model=list[dict[str, Any]])
-def get_stands(lab: LabDep) -> list[dict[str, Any]]:
+@router.get("/stands", response_model=list[StandOut], responses=LIST_RESPONSES)
+def get_stands(lab: LabDep, page: PageDep, response: Response) -> list[dict[str, Any]]:
     """The test stands sharing this database: name, host, API address, last heartbeat."""
-    return lab.stands()
+    return paged(response, lab.stands(), page)

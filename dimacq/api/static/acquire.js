@@ -12,7 +12,7 @@ state.acq = acq;
 function setupOf(id) { return state.setups.find((s) => s.id === id); }
 
 function perInputRows(a) {
-  const ex = acq.setup.setup.excitations;
+  const ex = acq.setup.setup.inputs;
   const per = ex.map(() => ({ acc: 0, rej: 0, reasons: [], coh: null, struck: false }));
   (a.inputs || []).forEach((j, k) => {
     if (!per[j]) return;
@@ -30,7 +30,7 @@ function perInputRows(a) {
 
 function renderAcquisition(a) {
   acq.info = a;
-  const ex = acq.setup.setup.excitations;
+  const ex = acq.setup.setup.inputs;
   const per = perInputRows(a);
   const running = a.state === "running" || a.state === "pending";
   const cur = (a.inputs || []).find((j) => per[j].acc < acq.perInput);
@@ -143,7 +143,7 @@ async function ended() {
 function renderAppend(a) {
   // inputs of the setup without FRFs in the set (opened by the FRF step): strike them into it
   const have = new Set((state.frfData ? state.frfData.inputs : []).map((i) => `${i.node}/${i.direction}`));
-  const missing = acq.setup.setup.excitations.map((e, j) => [e, j]).filter(([e]) => !have.has(`${e.node}/${e.direction}`)).map(([, j]) => j);
+  const missing = acq.setup.setup.inputs.map((e, j) => [e, j]).filter(([e]) => !have.has(`${e.node}/${e.direction}`)).map(([, j]) => j);
   $("#acq-append").hidden = missing.length === 0;
   $("#acq-append").textContent = `Append the ${missing.length} missing input(s) to FRF set ${a.frf_id}`;
   $("#acq-append").onclick = guard(() => start({ inputs: missing, merge: a.frf_id }));

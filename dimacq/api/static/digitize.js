@@ -6,7 +6,7 @@ import { $, api, dirName, emit, esc, f, guard, mm, say, state, table } from "/st
 function arrayPlacement() {
   // the array hangs 1.1 m above the article's centre, axes along the GCS: DACS = GCS + t
   const a = state.article.setup;
-  const pts = [...a.responses.map((c) => c.position_m), ...a.excitations.map((e) => e.position_m)];
+  const pts = [...a.responses.map((c) => c.position_m), ...a.inputs.map((e) => e.position_m)];
   const lo = [0, 1, 2].map((k) => Math.min(...pts.map((p) => p[k])) - 0.02);
   const hi = [0, 1, 2].map((k) => Math.max(...pts.map((p) => p[k])) + 0.02);
   const c = [0, 1, 2].map((k) => 0.5 * (lo[k] + hi[k]));
@@ -109,8 +109,8 @@ async function digitizeAll() {
   const refs = Object.fromEntries(corners.map((p, i) => [`REF${i}`, p]));
   const nodes = [...new Set(a.responses.map((c) => c.node))].sort((x, y) => x - y);
   // n inputs spread over the list (every direction of a symmetric layout, not the first face)
-  const nIn = Math.min(a.excitations.length, Math.max(1, +$("#n-inputs").value));
-  const inputs = Array.from({ length: nIn }, (_, i) => a.excitations[Math.floor((i * a.excitations.length) / nIn)]);
+  const nIn = Math.min(a.inputs.length, Math.max(1, +$("#n-inputs").value));
+  const inputs = Array.from({ length: nIn }, (_, i) => a.inputs[Math.floor((i * a.inputs.length) / nIn)]);
   const total = corners.length + nodes.length * jig.labels.length + inputs.length * 4;
   let done = 0;
   const step = () => { done += 1; $("#dig-bar").style.width = `${(100 * done) / total}%`; };
@@ -165,7 +165,7 @@ async function buildSetup() {
   if (state.test) body.name = state.test.name;
   const s = await api("POST", "/api/setups/from-geometry", body);
   await emit("setup-built", s.id);
-  say(`setup ${s.id}: ${s.n_responses} responses, ${s.n_excitations} inputs, ${s.n_load_cells} load cell(s)`);
+  say(`setup ${s.id}: ${s.n_responses} responses, ${s.n_inputs} inputs, ${s.n_load_cells} load cell(s)`);
 }
 
 export function init() {
@@ -182,6 +182,6 @@ export function init() {
 
 export async function load() {
   if (!state.article) $("#digitize-all").disabled = true;
-  else $("#n-inputs").value = state.article.setup.excitations.length;
+  else $("#n-inputs").value = state.article.setup.inputs.length;
   await loadReferenceNodes();
 }

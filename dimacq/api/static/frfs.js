@@ -7,7 +7,7 @@ import { linePlot } from "/static/plot.js";
 /** List the FRF sets; open ``select`` (the page does not fetch FRF values before asked). */
 export async function loadFrfSets(select) {
   const sets = items(await api("GET", "/api/frfs"));
-  $("#frf-set").innerHTML = `<option value="">—</option>` + sets.map((s) => `<option value="${s.id}">${s.id} ${esc(s.name)} (${s.n_outputs}×${s.n_inputs}×${s.n_lines})</option>`).join("");
+  $("#frf-set").innerHTML = `<option value="">—</option>` + sets.map((s) => `<option value="${s.id}">${s.id} ${esc(s.name)} (${s.n_responses}×${s.n_inputs}×${s.n_lines})</option>`).join("");
   if (select) {
     $("#frf-set").value = select;
     await openFrf(+select);
@@ -20,7 +20,7 @@ export async function openFrf(id) {
   state.timings.frf_fetch_ms = performance.now() - t0;
   state.frf = summary;
   const nL = data.frequencies_hz.length;
-  const nO = data.outputs.length;
+  const nO = data.responses.length;
   const nI = data.inputs.length;
   // flatten once: (line, output, input) → Float64Array per (input, output) of |H| and γ²
   const mag = [];
@@ -37,9 +37,9 @@ export async function openFrf(id) {
       mag[j].push(m); coh[j].push(c);
     }
   }
-  state.frfData = { x: Float64Array.from(data.frequencies_hz), outputs: data.outputs, inputs: data.inputs, mag, coh, data };
+  state.frfData = { x: Float64Array.from(data.frequencies_hz), outputs: data.responses, inputs: data.inputs, mag, coh, data };
   $("#frf-input").innerHTML = data.inputs.map((inp, j) => `<option value="${j}">${j + 1}: node ${inp.node} dir ${inp.direction}</option>`).join("");
-  $("#frf-output").innerHTML = `<option value="">all ${nO} outputs</option>` + data.outputs.map((o, k) => `<option value="${k}">${k + 1}: node ${o.node} dir ${o.direction}</option>`).join("");
+  $("#frf-output").innerHTML = `<option value="">all ${nO} outputs</option>` + data.responses.map((o, k) => `<option value="${k}">${k + 1}: node ${o.node} dir ${o.direction}</option>`).join("");
   $("#frf-info").textContent = `${nO} outputs × ${nI} inputs × ${nL} lines, ${f(summary.f_min_hz)}–${f(summary.f_max_hz)} Hz`;
   drawFrfs();
   drawCmif();
@@ -70,7 +70,7 @@ function colocated() {
   if (!setup) return { acc: d.outputs.map((_, i) => i), pairs: [] };
   const st = setup.setup;
   const resp = new Map(st.responses.map((c) => [`${c.node}/${c.direction}`, c]));
-  const exc = new Map(st.excitations.map((e) => [`${e.node}/${e.direction}`, e]));
+  const exc = new Map(st.inputs.map((e) => [`${e.node}/${e.direction}`, e]));
   const acc = d.outputs.map((o, i) => i).filter((i) => resp.has(`${d.outputs[i].node}/${d.outputs[i].direction}`));
   const pairs = [];
   d.inputs.forEach((inp, j) => {

@@ -33,7 +33,7 @@ async function main() {
   const st = setup.setup;
   const nL = data.frequencies_hz.length;
   const resp = new Set(st.responses.map((c) => `${c.node}/${c.direction}`));
-  const acc = data.outputs.map((o, i) => i).filter((i) => resp.has(`${data.outputs[i].node}/${data.outputs[i].direction}`));
+  const acc = data.responses.map((o, i) => i).filter((i) => resp.has(`${data.responses[i].node}/${data.responses[i].direction}`));
   const inBand = data.frequencies_hz.map((x) => x >= r.band_hz[0] && x <= r.band_hz[1]);
   const coh = data.inputs.map((inp, j) => {
     let sum = 0; let n = 0;
@@ -43,7 +43,7 @@ async function main() {
     }
     return n ? sum / n : null;
   });
-  const perInput = st.excitations.map((e, j) => {
+  const perInput = st.inputs.map((e, j) => {
     const by = struckBy(j);
     const avs = by ? by.averages.filter((a) => a.input_index === j) : [];
     const k = data.inputs.findIndex((i) => i.node === e.node && i.direction === e.direction);
@@ -60,11 +60,11 @@ async function main() {
   <p>band ${f(r.band_hz[0])}–${f(r.band_hz[1])} Hz; condition number ${f(r.condition_number, 3)}; relative residual ${f(r.residual_rel, 3)}; reference point P ${esc((r.reference_point_m || [0, 0, 0]).join(", "))} m</p>
   ${table(["parameter", "unit", "estimate", "95 % interval"], paramRows(r).map(([n, un, v, uu]) => [`<span class="l">${n}</span>`, un, f(v, 6), ci(uu)]))}</section>
   <section><h2>Setup</h2>
-  <p>${st.responses.length} response channels, ${st.excitations.length} inputs, ${(st.load_cells || []).length} load cell(s); length unit ${esc(st.length_unit || "m")}</p>
+  <p>${st.responses.length} response channels, ${st.inputs.length} inputs, ${(st.load_cells || []).length} load cell(s); length unit ${esc(st.length_unit || "m")}</p>
   <canvas id="report-3d" class="plot"></canvas>
-  ${table(["input", "node", "position, m", "line of action (GCS)"], st.excitations.map((e, i) => [i + 1, e.node, e.position_m.map((v) => f(v, 4)).join(", "), e.direction_gcs.map((v) => f(v, 3)).join(", ")]))}</section>
+  ${table(["input", "node", "position, m", "line of action (GCS)"], st.inputs.map((e, i) => [i + 1, e.node, e.position_m.map((v) => f(v, 4)).join(", "), e.direction_gcs.map((v) => f(v, 3)).join(", ")]))}</section>
   <section><h2>Data quality</h2>
-  <p>FRF set ${frf.id} (${esc(frf.name)}): ${frf.n_outputs} outputs × ${frf.n_inputs} inputs × ${frf.n_lines} lines, ${f(frf.f_min_hz)}–${f(frf.f_max_hz)} Hz.
+  <p>FRF set ${frf.id} (${esc(frf.name)}): ${frf.n_responses} outputs × ${frf.n_inputs} inputs × ${frf.n_lines} lines, ${f(frf.f_min_hz)}–${f(frf.f_max_hz)} Hz.
   ${chain.length ? `Acquisitions ${chain.map((a) => a.id).reverse().join(", ")}: ${chain.reduce((n, a) => n + a.averages_accepted, 0)} averages accepted, ${chain.reduce((n, a) => n + a.averages_rejected, 0)} rejected (every hit is kept on the stand's disk with its reason).` : "FRFs imported (no acquisition record)."}</p>
   ${table(["input", "node", "acquisition", "accepted", "rejected", "reasons", "mean γ² in band"], perInput)}
   <p>excluded responses: ${esc(JSON.stringify(r.excluded_responses || []))}; excluded inputs: ${esc(JSON.stringify(r.excluded_inputs || []))}</p></section>

@@ -7,7 +7,7 @@ import { view3d } from "/static/view3d.js";
 export async function loadSetups() {
   state.setups = items(await api("GET", "/api/setups"));
   $("#setups tbody").innerHTML = state.setups.map((s) => `<tr><td>${s.id}</td><td class="l">${esc(s.name)}</td>
-    <td>${s.n_responses}</td><td>${s.n_excitations}</td><td>${s.n_load_cells}</td>
+    <td>${s.n_responses}</td><td>${s.n_inputs}</td><td>${s.n_load_cells}</td>
     <td><button data-setup="${s.id}">open</button>
     <a href="/api/setups/${s.id}/export?format=toml" data-download="setup-${s.id}.toml">TOML</a></td></tr>`).join("");
   for (const b of document.querySelectorAll("[data-setup]")) {
@@ -26,8 +26,8 @@ export async function openSetup(id) {
   $("#setup-detail").innerHTML = `<h3>Setup ${s.id}: ${esc(s.name)}</h3><div class="row">
     <div><h4>Responses (${st.responses.length})</h4><div class="scroll">${table(["node", "dir", "position, m", "direction (GCS)"],
       st.responses.map((c) => [c.node, c.direction, v(c.position_m), v(c.direction_gcs)]))}</div></div>
-    <div><h4>Inputs (${st.excitations.length})</h4><div class="scroll">${table(["#", "node", "strike along", "position, m"],
-      st.excitations.map((e, i) => [i + 1, e.node, dirName(e.direction_gcs), v(e.position_m)]))}</div></div>
+    <div><h4>Inputs (${st.inputs.length})</h4><div class="scroll">${table(["#", "node", "strike along", "position, m"],
+      st.inputs.map((e, i) => [i + 1, e.node, dirName(e.direction_gcs), v(e.position_m)]))}</div></div>
     <div><h4>Load cells (${(st.load_cells || []).length})</h4>${table(["node", "position, m", "sign"],
       (st.load_cells || []).map((c) => [c.node, v(c.position_m), esc(c.sign || "")]))}</div></div>`;
   show3d(st, `setup ${s.id}`);
@@ -63,9 +63,9 @@ export async function loadArticle() {
   const v = (p) => p.map((x) => f(x, 3)).join(", ");
   const nodes = [...new Set(a.responses.map((c) => c.node))];
   $("#article-table").innerHTML = `<p class="small">${nodes.length} triaxial sensors (nodes ${esc(nodes.join(", "))}),
-    ${a.excitations.length} impact points, ${(a.load_cells || []).length} load cell(s); GCS metres.</p>`
+    ${a.inputs.length} impact points, ${(a.load_cells || []).length} load cell(s); GCS metres.</p>`
     + table(["input", "node", "impact point, m", "strike along"],
-      a.excitations.map((e, i) => [i + 1, e.node, v(e.position_m), dirName(e.direction_gcs)]));
+      a.inputs.map((e, i) => [i + 1, e.node, v(e.position_m), dirName(e.direction_gcs)]));
   if (!state.setup) show3d(a, `simulated article ${state.article.scenario}`);
   return true;
 }

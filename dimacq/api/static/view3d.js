@@ -6,7 +6,7 @@
 const COL = { resp: "#1f77b4", input: "#d62728", cell: "#2ca02c", ref: "#000", axis: "#888" };
 
 /**
- * geometry: {responses: [{node, direction, position_m, direction_gcs}], excitations: [same],
+ * geometry: {responses: [{node, direction, position_m, direction_gcs}], inputs: [same],
  *            load_cells: [{node, position_m}], reference_point_m, extra: [{label, position_m}]}
  * Returns {draw(), view: {yaw, pitch}}.
  */
@@ -15,7 +15,7 @@ export function view3d(canvas, geometry) {
   const ctx = canvas.getContext("2d");
   const pts = [
     ...geometry.responses.map((c) => c.position_m),
-    ...geometry.excitations.map((e) => e.position_m),
+    ...geometry.inputs.map((e) => e.position_m),
     ...(geometry.load_cells || []).map((c) => c.position_m),
     ...(geometry.extra || []).map((p) => p.position_m),
     geometry.reference_point_m || [0, 0, 0],
@@ -100,7 +100,7 @@ export function view3d(canvas, geometry) {
         ctx.fillText(String(ch.node), x + 4, y + 10);
       }
     }
-    for (const e of geometry.excitations) {
+    for (const e of geometry.inputs) {
       const p = e.position_m;
       const d = e.direction_gcs;
       arrowTo(p.map((v, k) => v - arrow * d[k]), p, COL.input, w, h, 2);

@@ -2,8 +2,10 @@
 
 Usage::
 
-    dimacq acquire SCENARIO --impacts-per-input N --frf OUT.uff [--seed S] [--data DIR]
-                   [--json OUT] [--record-samples N] [--exp-tau S] [--noise-free]
+    dimacq acquire SCENARIO --averages-per-input N --frf OUT.uff [--seed S] [--data-dir DIR]
+                   [--json OUT] [--record-samples N] [--exp-tau S] [--noise-free] [--quiet]
+
+(``--impacts-per-input`` is the same as ``--averages-per-input``, ``--data`` as ``--data-dir``.)
 
 The virtual lab of SCENARIO (a file of ``config/scenarios/``) is read through the rig the
 service and ``dimacq demo`` use (:func:`dimacq.services.rig.build_rig`, backends ``simulated``):
@@ -14,9 +16,10 @@ transducers differ from them within their tolerances). An impact session strikes
 accepted times (the rig file's ``[acquisition]`` gives the other settings), and
 the FRFs (accelerances and the load cells' six loads, as the drivers' calibration matrices give
 them) are written as one whole-test UFF file (geometry + 58 records, binary) that
-``dimacq solve OUT.uff`` reads. ``--data DIR`` keeps the raw blocks in ``DIR/acquisition.h5`` and the FRFs with their
+``dimacq solve OUT.uff`` reads. ``--data-dir DIR`` keeps the raw blocks in ``DIR/acquisition.h5`` and the FRFs with their
 coherence (which UFF 58 cannot carry) in ``DIR/frf.npz``.
-Progress goes to stderr; a summary (with the FRFs' agreement with the true model) to stdout.
+Progress goes to stderr (one updating line on a terminal, plain lines otherwise, with the time
+remaining; ``--quiet``: none); a summary (with the FRFs' agreement with the true model) to stdout.
 """
 
 from __future__ import annotations
@@ -30,6 +33,7 @@ from typing import Any
 
 import numpy as np
 
+from dimacq.cli.progress import ProgressLine, add_quiet, plain
 from dimacq.errors import SetupError
 
 
@@ -37,26 +41,36 @@ def register(subparsers: Any) -> None:
     p = subparsers.add_parser(
         "acquire",
         help="impact test of a virtual-lab scenario through the simulated DAQ and load cells",
-        description=__doc__,
+        description=plain(__doc__),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("scenario", metavar="SCENARIO", help="virtual-lab scenario name")
     p.add_argument(
+        "--averages-per-input",
         "--impacts-per-input",
+        dest="impacts_per_input",
         type=int,
         required=True,
         metavar="N",
-        help="accepted averages per input",
+        help="accepted averages per input (the API's averages_per_input)",
     )
     p.add_argument("--frf", type=Path, required=True, metavar="OUT.uff", help="FRF output (UFF)")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--data", type=Path, metavar="DIR", help="keep the raw data (HDF5) in DIR")
+    p.add_argument(
+        "--data-dir",
+        "--data",
+        dest="data",
+        type=Path,
+        metavar="DIR",
+        help="keep the raw data (HDF5) and the FRFs with their coherence in DIR",
+    )
     p.add_argument("--json", type=Path, metavar="OUT", help="write the summary as JSON")
     p.add_argument("--record-samples", type=int, default=4096, help="samples per average")
     p.add_argument(
         "--exp-tau", type=float, default=None, metavar="S", help="exponential window time constant"
     )
     p.add_argument("--noise-free", action="store_true", help="no transducer noise")
+    add_quiet(p)
     p.set_defaults(func=run)
 
 
@@ -80,7 +94,7 @@ def run(args: argparse.Namespace) -> int:
     from dimacq.simulators.lab.scenarios import build_scenario
 
     if args.impacts_per_input < 1:
-        raise SetupError(f"--impacts-per-input {args.impacts_per_input}: give at least 1")
+        raise SetupError(f"--averages-per-input {args.impacts_per_input}: give at least 1")
     if args.frf.suffix.lower() not in (".uff", ".unv"):
         raise SetupError(f"--frf {args.frf}: give a .uff (or .unv) file name")
     # The truth, to compare the FRFs with; the rig below builds its own world of the same
@@ -104,17 +118,17 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.monotonic()
     total = n_in * args.impacts_per_input
     averages: list[tuple[int, bool, list[str]]] = []
+    line = ProgressLine("acquire", quiet=args.quiet)
 
     def on_average(
         input_index: int, _number: int, accepted: bool, reasons: Any, _record: Any
     ) -> None:
         averages.append((input_index, accepted, list(reasons)))
         if not accepted:
-            sys.stderr.write(f"\ninput {input_index + 1} rejected: {'; '.join(reasons)}\n")
+            line.note(f"input {input_index + 1} rejected: {'; '.join(reasons)}")
 
     def on_progress(fraction: float, message: str) -> None:
-        sys.stderr.write(f"\r[{round(fraction * total):4d}/{total}] {message[:90]:<90}")
-        sys.stderr.flush()
+        line.update(fraction, f"[{round(fraction * total)}/{total}] {message}")
 
     data_path = args.data / "acquisition.h5" if args.data else None
     meta = {
@@ -153,7 +167,7 @@ def run(args: argparse.Namespace) -> int:
                 )
     finally:
         rig.close()
-    sys.stderr.write("\n")
+        line.close()
     args.frf.parent.mkdir(parents=True, exist_ok=True)
     write_uff_test(args.frf, setup, frf, binary=True)
     if args.data:
@@ -188,7 +202,7 @@ def run(args: argparse.Namespace) -> int:
         "exponential_tau_s": used.exponential_tau_s,
         "rig_file": str(settings.rig_path),
         "n_inputs": n_in,
-        "n_outputs": len(frf.outputs),
+        "n_responses": len(frf.outputs),
         "n_lines": frf.n_lines,
         "averages_accepted": accepted,
         "min_averages": min_averages,

@@ -40,6 +40,7 @@ from typing import Any
 
 import numpy as np
 
+from dimacq.cli.progress import ProgressLine, add_quiet, plain
 from dimacq.errors import DataError, DeviceError, SetupError
 
 
@@ -47,14 +48,20 @@ def register(sub: Any) -> None:
     p = sub.add_parser(
         "demo",
         help="run a complete simulated DIM test through the HTTP API",
-        description=__doc__,
+        description=plain(__doc__),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("--json", type=Path, default=None, metavar="OUT", help="write the solution JSON")
     p.add_argument("--scenario", default="calibration-mass-bungee", help="virtual lab scenario")
     p.add_argument("--seed", type=int, default=None, help="seed (default: the scenario's own)")
     p.add_argument(
-        "--averages", type=int, default=None, help="averages per input (default: the scenario's)"
+        "--averages-per-input",
+        "--averages",
+        dest="averages",
+        type=int,
+        default=None,
+        metavar="N",
+        help="accepted averages per input (the API's averages_per_input; default: the scenario's)",
     )
     p.add_argument("--noise", type=float, default=0.005, help="relative FRF noise (import path)")
     p.add_argument(
@@ -79,7 +86,7 @@ def register(sub: Any) -> None:
         help="skip step 0 (measuring the chain on the weighed reference block); the rig file's "
         "recorded chain calibration, if any, still applies",
     )
-    p.add_argument("--quiet", action="store_true", help="no progress lines")
+    add_quiet(p)
     p.set_defaults(func=run)
 
 
@@ -213,7 +220,7 @@ def _chain_step(
                     f"({acq.json().get('detail', acq.text)})"
                 )
                 return {"skipped": str(acq.json().get("detail", acq.text))}
-            frf_id = _follow_acquisition(c, acq.json(), lambda m: say(m.replace("[4/5]", "[0/5]")))
+            frf_id = _follow_acquisition(c, acq.json(), say, quiet=args.quiet, step="[0/5]")
             sol = _check(
                 c.post(
                     "/api/solutions",
@@ -377,7 +384,7 @@ def _demo(
         sid = setup_out["id"]
         info["geometry_uncertainty"] = setup_out["setup"].get("geometry_uncertainty")
         say(
-            f"[3/5] setup {sid}: {setup_out['n_responses']} responses, {setup_out['n_excitations']} inputs, "
+            f"[3/5] setup {sid}: {setup_out['n_responses']} responses, {setup_out['n_inputs']} inputs, "
             f"{setup_out['n_load_cells']} load cell(s)"
         )
         # --- 4. acquisition --------------------------------------------------------------
@@ -385,7 +392,7 @@ def _demo(
         r = c.post("/api/acquisitions", json=acq_body)
         if r.status_code < 400:
             acq = r.json()
-            frf_id = _follow_acquisition(c, acq, say)
+            frf_id = _follow_acquisition(c, acq, say, quiet=args.quiet)
             info["acquisition"] = "impact test through the simulated DAQ (USB) and load cell (CAN)"
         else:
             reason = r.json().get("detail", r.text)
@@ -441,21 +448,28 @@ def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.degrees(Rotation.from_matrix(a @ b.T).magnitude()))
 
 
-def _follow_acquisition(c: Any, acq: dict[str, Any], say: Callable[[str], None]) -> int:
+def _follow_acquisition(
+    c: Any,
+    acq: dict[str, Any],
+    say: Callable[[str], None],
+    quiet: bool = False,
+    step: str = "[4/5]",
+) -> int:
     job_id = acq["job_id"]
-    last = -1.0
-    with c.stream("GET", f"/api/jobs/{job_id}/events", params={"poll_s": 0.2}) as r:
-        for line in r.iter_lines():
-            if not line.startswith("data:"):
-                continue
-            snap = json.loads(line[5:])
-            if snap["progress"] - last >= 0.05 or snap["state"] != "running":
-                last = snap["progress"]
-                say(f"[4/5] acquisition {100 * snap['progress']:5.1f} %  {snap['message']}")
-            if snap["state"] in ("succeeded", "failed", "cancelled", "interrupted"):
-                break
+    progress = ProgressLine(f"{step} acquisition", quiet=quiet)
+    try:
+        with c.stream("GET", f"/api/jobs/{job_id}/events", params={"poll_s": 0.2}) as r:
+            for line in r.iter_lines():
+                if not line.startswith("data:"):
+                    continue
+                snap = json.loads(line[5:])
+                progress.update(snap["progress"], snap["message"])
+                if snap["state"] in ("succeeded", "failed", "cancelled", "interrupted"):
+                    break
+    finally:
+        progress.close()
     a = _check(c.get(f"/api/acquisitions/{acq['id']}"), "acquisition status")
-    say(f"[4/5] averages accepted {a['averages_accepted']}, rejected {a['averages_rejected']}")
+    say(f"{step} averages accepted {a['averages_accepted']}, rejected {a['averages_rejected']}")
     if a["frf_id"] is None:
         raise DataError(f"demo: acquisition {acq['id']} ended {a['state']}: {a['message']}")
     return int(a["frf_id"])

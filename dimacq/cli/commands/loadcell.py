@@ -51,6 +51,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from dimacq.cli.progress import ProgressLine, add_quiet, plain
 from dimacq.errors import SetupError
 
 
@@ -61,7 +62,7 @@ def register(subparsers: Any) -> None:
     c = sub.add_parser(
         "calibrate",
         help="bench calibration: dead weights (static) or the calibration mass (inertial)",
-        description=__doc__,
+        description=plain(__doc__),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     c.add_argument(
@@ -89,7 +90,9 @@ def register(subparsers: Any) -> None:
         help="dead-weight load plan: standard (22 series) or minimal (14)",
     )
     c.add_argument(
+        "--averages-per-input",
         "--impacts-per-input",
+        dest="impacts_per_input",
         type=int,
         default=None,
         metavar="N",
@@ -123,6 +126,7 @@ def register(subparsers: Any) -> None:
     c.add_argument(
         "--xml", type=Path, metavar="OUT.xml", help="write the calibration file (ATI-style XML)"
     )
+    add_quiet(c)
     c.set_defaults(func=calibrate)
 
 
@@ -167,21 +171,21 @@ def calibrate(args: argparse.Namespace) -> int:
 SIMULATED_SCENARIO = "calibration-mass-bungee"
 
 
-def _progress(stage: str) -> Any:
-    def show(fraction: float, message: str) -> None:
-        sys.stderr.write(f"\r{stage}: [{100 * fraction:5.1f} %] {message[:80]:<80}")
-        sys.stderr.flush()
-
-    return show
+def _progress(stage: str, quiet: bool) -> ProgressLine:
+    """The simulated lab strikes by itself: one progress line (``--quiet``: none)."""
+    return ProgressLine(stage, quiet=quiet)
 
 
-def _person(stage: str) -> Any:
-    """A person strikes: every request is printed on its own line."""
+class _Person(ProgressLine):
+    """A person strikes: every request is printed on its own line, ``--quiet`` or not."""
 
-    def show(fraction: float, message: str) -> None:
-        sys.stderr.write(f"{stage} [{100 * fraction:5.1f} %] {message}\n")
+    def update(self, fraction: float, message: str = "") -> None:
+        self.stream.write(f"{self.label} [{100 * fraction:5.1f} %] {message}\n")
+        self.stream.flush()
 
-    return show
+
+def _shown(stage: str, simulated: bool, quiet: bool) -> ProgressLine:
+    return _progress(stage, quiet) if simulated else _Person(stage)
 
 
 def _calibrate(args: argparse.Namespace, settings: Any, *, simulated: bool) -> int:
@@ -206,9 +210,11 @@ def _calibrate(args: argparse.Namespace, settings: Any, *, simulated: bool) -> i
             f"{100 * payload['matrix_error_rel']:.4f} % (Frobenius)\n"
         )
     if (simulated or args.circular_check) and payload["verdict"] != "fail":
-        show = _progress("circular check") if simulated else _person("circular check")
-        chk = circular_check(settings, node=entry.node, bench_file=bench, cfg=cfg, on_progress=show)
-        sys.stderr.write("\n")
+        line = _shown("circular check", simulated, args.quiet)
+        chk = circular_check(
+            settings, node=entry.node, bench_file=bench, cfg=cfg, on_progress=line.update
+        )
+        line.close()
         payload.update(chk.to_json())
         e = chk.errors_pct
         out.write(
@@ -301,9 +307,10 @@ def _static(
     if simulated:
         from dimacq.services.loadcell_calibration import install_static
 
+        line = _progress("dead weights", args.quiet)
+
         def static_progress(done: int, total: int, message: str) -> None:
-            sys.stderr.write(f"\rdead weights: [{done:3d}/{total}] {message[:90]:<90}")
-            sys.stderr.flush()
+            line.update(done / max(total, 1), f"[{done}/{total}] {message}")
 
         sim = simulated_static_calibration(
             seed=args.seed,
@@ -311,7 +318,7 @@ def _static(
             minimal_plan=args.plan == "minimal",
             progress=static_progress,
         )
-        sys.stderr.write("\n")
+        line.close()
         res = install_static(settings, node, sim.run, serial_number=str(node), bench_file=bench)
     else:
 
@@ -378,16 +385,16 @@ def _inertial(
     )
     from dimacq.services.loadcell_calibration import download_and_verify
 
-    show = _progress("inertial bench") if simulated else _person("inertial bench")
+    line = _shown("inertial bench", simulated, args.quiet)
     run, check = run_inertial_calibration(
         settings,
         node=node,
         bench_file=bench,
         cfg=cfg,
-        on_progress=show,
+        on_progress=line.update,
         download=download_and_verify if args.download else None,
     )
-    sys.stderr.write("\n")
+    line.close()
     rig = load_rig_file(settings.rig_path)
     installed = install_inertial(rig, select_cell(rig, node), run)
     cal = run.calibration()

@@ -5,7 +5,7 @@
 six unit forces and moments at the origin, free-free, the calibration mass), the first K triaxes
 randomly rotated within ±A degrees about each axis, and prints the per-parameter table (min, max,
 mean, std, actual, mean error %) as thesis Tables 2–4. The JSON has one object per parameter
-(``mass_kg``, ``cx_m`` .. ``Izz_kgm2``) with ``min``, ``max``, ``mean``, ``std``, ``actual``,
+(the parameter names ``m``, ``cx`` .. ``Izz``, and ``mass_kg`` repeating ``m``) with ``min``, ``max``, ``mean``, ``std``, ``actual``,
 ``mean_error_pct``, plus ``study`` (the inputs).
 """
 
@@ -54,11 +54,13 @@ def register(subparsers: Any) -> None:
 
 def format_table(res: SensitivityResult) -> str:
     """The thesis-style table: one row per parameter."""
-    head = f"{'parameter':<10} {'minimum':>14} {'maximum':>14} {'mean':>14} {'std':>12} {'actual':>12} {'mean err %':>11}"
+    from dimacq.pipeline.sensitivity import UNITS
+
+    head = f"{'parameter':<13} {'minimum':>14} {'maximum':>14} {'mean':>14} {'std':>12} {'actual':>12} {'mean err %':>11}"
     lines = [head, "-" * len(head)]
     for key, s in res.stats.items():
         lines.append(
-            f"{key:<10} {s['min']:>14.6g} {s['max']:>14.6g} {s['mean']:>14.6g} {s['std']:>12.4g} "
+            f"{key + ' (' + UNITS[key].replace('kg m^2', 'kg m²') + ')':<13} {s['min']:>14.6g} {s['max']:>14.6g} {s['mean']:>14.6g} {s['std']:>12.4g} "
             f"{s['actual']:>12.6g} {s['mean_error_pct']:>11.4g}"
         )
     return "\n".join(lines)

@@ -12,12 +12,14 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from dimacq.cli.progress import plain
+
 
 def register(sub: Any) -> None:
     p = sub.add_parser(
         "serve",
         help="serve the REST API (simulated lab by default)",
-        description=__doc__,
+        description=plain(__doc__),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("--host", default=None, help="bind address (default 127.0.0.1)")

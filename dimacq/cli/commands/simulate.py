@@ -3,10 +3,14 @@
     dimacq simulate SCENARIO --frf OUT.uff --truth TRUTH.json [--time-domain] [--rigid-only]
                     [--excitation {impact,random,burst-random,swept-sine}] [--shakers N]
                     [--seed S] [--noise LEVEL] [--ascii]
-    dimacq simulate --list
+    dimacq simulate --list [--nodes]
+    dimacq simulate SCENARIO --nodes
 
-SCENARIO is a name from ``config/scenarios/`` (``dimacq simulate --list``) or the path of a
-scenario file. The UFF file holds the whole test as ``dimacq solve OUT.uff`` reads it (units,
+SCENARIO is a name from ``config/scenarios/`` (``dimacq simulate --list`` lists every one) or
+the path of a scenario file. ``--nodes`` prints the node numbers an acquisition and a setup use:
+each response channel (node, UFF direction, position and measured direction in the GCS), each
+input (node, where to strike and along which direction) and each load cell (node, position), as
+the nominal setup states them. The UFF file holds the whole test as ``dimacq solve OUT.uff`` reads it (units,
 node coordinate systems, nodes, 58 records, binary double precision unless ``--ascii``), with the
 NOMINAL geometry (the scenario's geometry errors applied). TRUTH.json holds the true properties
 with the keys of ``dimacq solve --json`` plus the scenario's recommended band and the response
@@ -31,6 +35,7 @@ import json
 import time
 from pathlib import Path
 
+from dimacq.cli.progress import plain
 from dimacq.errors import SetupError
 
 
@@ -38,11 +43,17 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser(
         "simulate",
         help="write a virtual-lab scenario's FRFs (UFF) and true properties (JSON)",
-        description=__doc__,
+        description=plain(__doc__),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("scenario", nargs="?", metavar="SCENARIO", help="scenario name or file")
     p.add_argument("--list", action="store_true", help="list the bundled scenarios and exit")
+    p.add_argument(
+        "--nodes",
+        action="store_true",
+        help="print the scenario's response, input and load cell nodes (with --list: of every "
+        "scenario) and exit",
+    )
     p.add_argument("--frf", type=Path, metavar="OUT.uff", help="write the FRFs here (UFF)")
     p.add_argument("--truth", type=Path, metavar="TRUTH.json", help="write the true properties")
     p.add_argument(
@@ -73,7 +84,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.set_defaults(func=run)
 
 
-def _list() -> int:
+def _list(nodes: bool = False) -> int:
     from dimacq.simulators.lab.scenarios import list_scenarios, load_scenario
 
     rows = []
@@ -84,12 +95,62 @@ def _list() -> int:
     print(f"{'scenario':<{width}}  {'band':<14}  description")
     for name, band, desc in rows:
         print(f"{name:<{width}}  {band:<14}  {desc}")
+    if nodes:
+        for name, _band, _desc in rows:
+            print()
+            _nodes(name, None)
+    return 0
+
+
+def _vec(v: object) -> str:
+    return "(" + ", ".join(f"{float(x):+.4f}" for x in v) + ")"  # type: ignore[attr-defined]
+
+
+def _axis_word(d: object) -> str:
+    """``+X`` … ``−Z`` for a direction within 10° of a GCS axis, else ``oblique``."""
+    v = [float(x) for x in d]  # type: ignore[attr-defined]
+    k = max(range(3), key=lambda i: abs(v[i]))
+    if abs(v[k]) < 0.985:
+        return "oblique"
+    return ("+" if v[k] > 0 else "−") + "XYZ"[k]
+
+
+def _nodes(scenario: str, seed: int | None) -> int:
+    """The scenario's nodes as its nominal setup states them (what the UFF file holds)."""
+    from dimacq.model.channels import axis_name
+    from dimacq.simulators.lab.scenarios import build_scenario
+
+    setup = build_scenario(scenario, seed=seed).setup
+    print(
+        f"{scenario}: {len(setup.responses)} responses, {len(setup.excitations)} inputs, "
+        f"{len(setup.load_cells)} load cell(s); positions in the GCS, m"
+    )
+    print("  responses: node  direction  position_m                    measures along (GCS)")
+    for c in setup.responses:
+        print(
+            f"    {c.node:>6}  {c.direction:+d} ({axis_name(c.node, c.direction)})"
+            f"  {_vec(c.position_m)}  {_vec(c.direction_gcs)}"
+        )
+    print("  inputs: node  position_m                    strike along (GCS)")
+    for e in setup.excitations:
+        print(
+            f"    {e.node:>6}  {_vec(e.position_m)}  {_vec(e.direction_gcs)} "
+            f"({_axis_word(e.direction_gcs)})"
+        )
+    if setup.load_cells:
+        print("  load cells: node  position_m")
+        for lc in setup.load_cells:
+            print(f"    {lc.node:>6}  {_vec(lc.position_m)}")
     return 0
 
 
 def run(args: argparse.Namespace) -> int:
     if args.list:
-        return _list()
+        return _list(args.nodes)
+    if args.nodes:
+        if not args.scenario:
+            raise SetupError("--nodes: give a SCENARIO, or --list --nodes for every one")
+        return _nodes(args.scenario, args.seed)
     if not args.scenario:
         raise SetupError("give a SCENARIO (dimacq simulate --list shows them)")
     if args.frf is None and args.truth is None:

@@ -35,6 +35,7 @@ from typing import Any, TextIO
 
 import numpy as np
 
+from dimacq.cli.progress import plain
 from dimacq.errors import SetupError
 from dimacq.model.frf import FrfData
 from dimacq.model.properties import PRODUCT_SIGN_CONVENTION, RigidBodyProperties
@@ -51,7 +52,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser(
         "solve",
         help="solve mass, CG and inertia from FRFs (DIM)",
-        description=__doc__,
+        description=plain(__doc__),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument(

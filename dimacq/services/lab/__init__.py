@@ -4,6 +4,7 @@
 module                    resource
 ========================  ===========================================================
 ``lab.py``                :class:`Lab` (composition, status, jobs in the database)
+``lab_tests.py``          tests: article, operator, date, notes; archive; their setups
 ``devices.py``            devices: digitizer, DAQ, load cells
 ``geometry.py``           digitizing, registration, orientation, lines of action
 ``store.py``              test store: setups, FRF sets, solutions

@@ -24,7 +24,7 @@ from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
-from sqlalchemy import select
+from sqlalchemy import func, select
 
 from dimacq.config import Settings
 from dimacq.errors import (
@@ -43,9 +43,9 @@ from dimacq.persistence import stands as stand_lease
 from dimacq.persistence.queue import Outbox
 from dimacq.services.jobs import JobContext, JobManager
 from dimacq.services.lab.acquisition_views import hit_view, merge_frfs
-from dimacq.services.lab.common import json_safe
+from dimacq.services.lab.common import iso, json_safe
 from dimacq.services.lab.devices import DeviceService
-from dimacq.services.lab.store import TestStore, frf_to_arrays
+from dimacq.services.lab.store import Page, TestStore, frf_to_arrays
 
 __all__ = [
     "AcquisitionInfo",
@@ -103,6 +103,8 @@ class AcquisitionInfo:
     input_coherence: list[float | None] = field(default_factory=list)
     #: the setup's input indices this acquisition strikes (all of them when the request named none)
     inputs: list[int] = field(default_factory=list)
+    created_at: str | None = None  # ISO 8601, UTC
+    updated_at: str | None = None  # the last change of state, message, job or FRF set
 
 
 Decision = Literal["accept", "reject", "redo"]
@@ -234,6 +236,12 @@ class AcquisitionService:
             update={"excitations": tuple(setup.excitations[j] for j in inputs)}
         )
         rig = self._build_rig(struck, cfg)  # raises DeviceError if the devices are not there
+        try:
+            # every setting as applied (request < rig file < rig), before any job starts
+            self._check(rig, struck, cfg)
+        except DimacqError:
+            rig.close()
+            raise
         # the minimum of accepted averages per input, stated with the acquisition (the request,
         # else the rig file's [acquisition], else the service's min_averages setting)
         defaults: Mapping[str, Any] = getattr(rig, "defaults", {})
@@ -271,6 +279,11 @@ class AcquisitionService:
         out = self.get(acq_id)
         assert out is not None
         return out
+
+    def _check(self, rig: Any, setup: TestSetup, cfg: Mapping[str, Any]) -> None:
+        from dimacq.services.rig import check_impact_test
+
+        check_impact_test(rig, setup, cfg)
 
     def _set(self, acq_id: int, **values: Any) -> None:
         with self.db.session() as s:
@@ -445,7 +458,7 @@ class AcquisitionService:
                     f"{self.arrays.path(f'acquisitions/{acq_id:06d}')} (import the FRFs when "
                     "the database is back)"
                 ) from err
-            state, message = "finished", f"FRFs stored as FRF set {fid}"
+            state, message = "succeeded", f"FRFs stored as FRF set {fid}"
             if frf.meta.get("incomplete_inputs"):
                 message += (
                     f"; inputs {frf.meta['incomplete_inputs']} incomplete (fewer than "
@@ -473,10 +486,41 @@ class AcquisitionService:
                 )
 
     # ------------------------------------------------------------------ read and stop
-    def all(self) -> list[AcquisitionInfo]:
+    def all(self, limit: int | None = None, offset: int = 0) -> Page[AcquisitionInfo]:
+        """Acquisitions in id order: ``limit`` of them (None: all) after ``offset``."""
         with self.db.session() as s:
-            ids = list(s.scalars(select(m.Acquisition.id).order_by(m.Acquisition.id)))
-        return [a for a in (self.get(i) for i in ids) if a is not None]
+            total = int(s.scalar(select(func.count()).select_from(m.Acquisition)) or 0)
+            ids = list(
+                s.scalars(
+                    select(m.Acquisition.id).order_by(m.Acquisition.id).offset(offset).limit(limit)
+                )
+            )
+        return Page([a for a in (self.get(i) for i in ids) if a is not None], total)
+
+    def delete(self, acq_id: int) -> bool | None:
+        """Delete an acquisition that is not running: its averages (rows and, on this stand,
+        their raw-data files); its FRF set stays. None if it does not exist."""
+        cur = self.get(acq_id)
+        if cur is None:
+            return None
+        if cur.state == "running":
+            raise DeviceStateError(
+                f"acquisition {acq_id} is running: stop it first "
+                f"(POST /api/acquisitions/{acq_id}/stop)"
+            )
+        with self.db.session() as s:
+            files = []
+            for a in s.scalars(select(m.Average).where(m.Average.acquisition_id == acq_id)):
+                if a.stand in (self.stand, ""):
+                    files.append(a.path)
+                s.delete(a)
+            s.flush()
+            row = s.get(m.Acquisition, acq_id)
+            if row is not None:
+                s.delete(row)
+        for rel in files:
+            self.arrays.path(rel).unlink(missing_ok=True)
+        return True
 
     def get(self, acq_id: int) -> AcquisitionInfo | None:
         """State, progress and every completed average of an acquisition."""
@@ -493,7 +537,10 @@ class AcquisitionService:
                 )
             ]
             row = (r.id, r.setup_id, r.config, r.state, r.message, r.job_id, r.frf_id, r.stand)
+            times = (iso(r.created_at), iso(r.updated_at or r.created_at))
         acq, setup_id, config, state, message, job_id, frf_id, stand = row
+        # one word for a job that ended well, as the jobs say it (rows before schema 4: finished)
+        state = "succeeded" if state == "finished" else state
         snap = self.jobs.snapshot(job_id) if job_id else None
         per_input = _accepted_per_input(avgs)
         live = self._live.get(acq)
@@ -514,13 +561,15 @@ class AcquisitionService:
             averages=avgs,
             min_averages=need,
             incomplete_inputs=[j for j, n in enumerate(per_input) if n < need]
-            if state in ("finished", "failed")
+            if state in ("succeeded", "failed")
             else [],
-            progress=snap["progress"] if snap else (1.0 if state == "finished" else 0.0),
+            progress=snap["progress"] if snap else (1.0 if state == "succeeded" else 0.0),
             stand=stand,
             pending_review=dict(live.pending) if live and live.pending else None,
             input_coherence=list(live.coherence) if live else [],
             inputs=list(struck) if struck is not None else list(range(len(per_input))),
+            created_at=times[0],
+            updated_at=times[1],
         )
 
     # ------------------------------------------------------------------ the operator's decisions

@@ -13,6 +13,7 @@ from sqlalchemy import select
 from dimacq.io.loadcell_calibration import parse_calibration_json
 from dimacq.persistence import Database
 from dimacq.persistence import models as m
+from dimacq.services.lab.common import iso
 
 __all__ = ["CalibrationService", "StoredCalibration"]
 
@@ -24,10 +25,13 @@ class StoredCalibration:
     id: int
     serial_number: str
     calibration: dict[str, Any]
+    created_at: str | None = None  # ISO 8601, UTC (a calibration is never changed)
 
     @classmethod
     def of(cls, r: m.Calibration) -> StoredCalibration:
-        return cls(id=r.id, serial_number=r.serial, calibration=r.body)
+        return cls(
+            id=r.id, serial_number=r.serial, calibration=r.body, created_at=iso(r.created_at)
+        )
 
 
 class CalibrationService:

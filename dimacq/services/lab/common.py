@@ -4,13 +4,22 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import asdict, is_dataclass
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["identity_dict", "json_safe", "package_version", "vec"]
+__all__ = ["identity_dict", "iso", "json_safe", "package_version", "vec"]
+
+
+def iso(t: datetime | None) -> str | None:
+    """A stored time as ISO 8601 in UTC (``2026-11-23T11:40:06.123456+00:00``); SQLite gives
+    back naive times, which were stored as UTC."""
+    if t is None:
+        return None
+    return (t if t.tzinfo is not None else t.replace(tzinfo=UTC)).astimezone(UTC).isoformat()
 
 
 def vec(v: Sequence[float] | NDArray[np.floating]) -> list[float]:

@@ -10,6 +10,7 @@ points and patches of the open digitizer.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from dataclasses import asdict
 from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
@@ -20,7 +21,7 @@ from dimacq.errors import DataError, DeviceStateError, SetupError
 from dimacq.model.setup import Excitation, KnownProperties, LoadCell, ResponseChannel, TestSetup
 from dimacq.persistence import Database
 from dimacq.persistence import models as m
-from dimacq.services.lab.common import vec
+from dimacq.services.lab.common import iso, vec
 from dimacq.services.lab.geometry_records import (
     LineOfAction,
     NewTest,
@@ -121,10 +122,24 @@ class GeometryService:
             vals = ",".join(f"{v:.6f}" for v in (*np.asarray(tip_m, dtype=float), *a))
             driver.command(f"SIM:PROBE {vals}")
 
-    def digitize(self, label: str, shots: int | None = None) -> DigitizedPoint:
-        """Digitize one point of the current patch; it is committed before this returns."""
+    def digitize(self, label: str, shots: int | None = None) -> dict[str, Any]:
+        """Digitize one point of the current patch; it is committed before this returns. The
+        point as measured (with its shot numbers ``seqs``) and as stored (``id``,
+        ``created_at``, ``position_m`` once its patch is registered)."""
         with self.devices.lock:
-            return self.devices.session().digitize(label, shots)
+            point = self.devices.session().digitize(label, shots)
+            with self.db.session() as s:
+                last = s.scalars(
+                    select(m.DigitizedPointRow.id)
+                    .where(m.DigitizedPointRow.label == label)
+                    .order_by(m.DigitizedPointRow.id.desc())
+                    .limit(1)
+                ).first()
+        stored = next((p for p in self.points() if p.id == last), None)
+        out = point.to_json()
+        if stored is not None:
+            out.update(asdict(stored))
+        return out
 
     def fire_shots(self, n: int) -> Shots:
         """Fire ``n`` raw shots and triangulate them (speed of sound, tip, accepted)."""
@@ -143,21 +158,30 @@ class GeometryService:
             shots=[
                 Shot(
                     seq=int(seq[i]),
-                    tip_array_m=vec(sol.tip_m[i]),
-                    speed_of_sound_m_s=float(sol.speed_m_s[i]),
+                    tip_array_m=[_finite(x) for x in vec(sol.tip_m[i])],
+                    speed_of_sound_m_s=_finite(sol.speed_m_s[i]),
                     accepted=bool(sol.accepted[i]),
                 )
                 for i in range(n)
             ],
-            speed_of_sound_m_s=float(np.nanmedian(sol.speed_m_s)),
+            speed_of_sound_m_s=_finite(
+                np.nanmedian(sol.speed_m_s) if np.isfinite(sol.speed_m_s).any() else np.nan
+            ),
         )
-        if np.isfinite(shots.speed_of_sound_m_s):
+        if shots.speed_of_sound_m_s is not None:
             self._speed_of_sound_m_s = shots.speed_of_sound_m_s
         return shots
 
     def measure_speed_of_sound(self, shots: int = 3) -> float:
-        """Fire ``shots`` shots: the median speed of sound on the calibration bar, m/s."""
-        return self.fire_shots(shots).speed_of_sound_m_s
+        """Fire ``shots`` shots: the median speed of sound on the calibration bar, m/s;
+        DataError when no shot reached the bar."""
+        got = self.fire_shots(shots).speed_of_sound_m_s
+        if got is None:
+            raise DataError(
+                f"speed of sound: none of {shots} shots reached the calibration bar; check the "
+                "bar's microphones and fire again"
+            )
+        return got
 
     def last_speed_of_sound(self) -> float | None:
         """The speed of sound measured last (by any firing), m/s; None before the first."""
@@ -180,9 +204,20 @@ class GeometryService:
                     n_shots=r.n_shots,
                     n_used=r.n_used,
                     position_m=reg.apply(r.position_array_m) if reg else None,
+                    created_at=iso(r.created_at),
                 )
             )
         return out
+
+    def delete_point(self, point_id: int) -> bool | None:
+        """Delete one digitized point (a mistaken one; fits made from it are kept). The label's
+        earlier point, if any, is the latest again. None if there is no such point."""
+        with self.db.session() as s:
+            row = s.get(m.DigitizedPointRow, point_id)
+            if row is None:
+                return None
+            s.delete(row)
+            return True
 
     # ------------------------------------------------------------------ patches and registration
     def patches(self) -> list[PatchInfo]:
@@ -599,3 +634,9 @@ def _distinct(regs: Any) -> list[dict[str, Any]]:
         if not any(r is o for o in out):
             out.append(r)
     return [r.to_json() for r in out]
+
+
+def _finite(x: float | np.floating[Any]) -> float | None:
+    """A finite number, or None (JSON null) for NaN/inf (a shot that was not triangulated)."""
+    v = float(x)
+    return v if np.isfinite(v) else None

@@ -27,11 +27,12 @@ __all__ = [
 
 @dataclass(frozen=True)
 class Shot:
-    """One raw shot: its sequence number, triangulated tip (array coordinates) and verdict."""
+    """One raw shot: its sequence number, triangulated tip (array coordinates) and verdict
+    (null numbers: the shot could not be triangulated)."""
 
     seq: int
-    tip_array_m: list[float]
-    speed_of_sound_m_s: float
+    tip_array_m: list[float | None]
+    speed_of_sound_m_s: float | None
     accepted: bool
 
 
@@ -40,7 +41,7 @@ class Shots:
     """Raw shots and the median speed of sound measured on the calibration bar."""
 
     shots: list[Shot]
-    speed_of_sound_m_s: float
+    speed_of_sound_m_s: float | None  # null: no shot reached the calibration bar
 
     def to_json(self) -> dict[str, Any]:
         return asdict(self)
@@ -58,6 +59,7 @@ class StoredPoint:
     n_shots: int
     n_used: int
     position_m: list[float] | None
+    created_at: str | None = None  # ISO 8601, UTC (a point is never changed: digitize it again)
 
 
 @dataclass(frozen=True)

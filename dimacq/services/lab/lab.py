@@ -51,6 +51,7 @@ from dimacq.services.lab.calibrations import CalibrationService
 from dimacq.services.lab.common import package_version
 from dimacq.services.lab.devices import DeviceService
 from dimacq.services.lab.geometry import GeometryService
+from dimacq.services.lab.lab_tests import LabTestService
 from dimacq.services.lab.rig_map import RigMapService
 from dimacq.services.lab.solving import AnalysisService
 from dimacq.services.lab.store import TestStore
@@ -129,6 +130,7 @@ class Lab:
         self.devices = DeviceService(settings, lambda driver: self.geometry.open_session(driver))
         self.geometry = GeometryService(self.db, self.devices)
         self.store = TestStore(self.db, self.arrays, name)
+        self.tests = LabTestService(self.db, name)
         self.analysis = AnalysisService(self.store)
         self.acquisitions = AcquisitionService(
             settings,

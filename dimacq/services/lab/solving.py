@@ -17,7 +17,7 @@ from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import BaseModel, ConfigDict, Field, FiniteFloat, field_validator
 
 from dimacq.errors import DataError, SetupError
 from dimacq.model.frf import FrfData
@@ -59,7 +59,24 @@ class SolveOptions(BaseModel):
 
     band_hz: tuple[float, float] | None = None
     known: dict[Param, float] = Field(default_factory=dict)
-    length_unit: Literal["m", "cm", "mm"] | None = None
+    length_unit: Literal["m", "cm", "mm"] | None = Field(
+        default=None,
+        description="length unit the solver works in (weights moment rows against force rows; "
+        "default: the setup's), as `dimacq solve --length-unit`",
+    )
+    reference_point_m: tuple[FiniteFloat, FiniteFloat, FiniteFloat] | None = Field(
+        default=None,
+        description="point P (GCS, m) the inertia is reported about (default: the setup's), "
+        "as `dimacq solve --reference-point`",
+    )
+    scale_to_mass_kg: FiniteFloat | None = Field(
+        default=None,
+        gt=0,
+        le=KNOWN_LIMIT["m"],
+        description="scale the FRFs so that the band mass equals this mass, kg (FRF scaling, "
+        "thesis §3.2.2.1; the factor is `frf_scale_factor` in the result), as "
+        "`dimacq solve --scale-to-mass`",
+    )
     method: Literal["joint", "mean"] = "joint"
     select_responses: bool = Field(
         default=True, description="perimeter response selection (default on)"
@@ -167,7 +184,10 @@ class AnalysisService:
         if got is None:
             return None
         frf, setup = got
+        frf, setup, gamma = self._prepared(frf, setup, options)
         result = self._analyse(frf, setup, options).to_json()
+        if gamma is not None:
+            result["frf_scale_factor"] = gamma
         return self.store.save_solution(frf_id, options.model_dump(), result)
 
     def chain(self, solution_id: int | None) -> ChainCalibration | None:
@@ -193,6 +213,28 @@ class AnalysisService:
             )
         cal = ChainCalibration.from_json(doc, where)
         return replace(cal, source=cal.source or f"solution {solution_id} (FRF set {sol.frf_id})")
+
+    @staticmethod
+    def _prepared(
+        frf: FrfData, setup: TestSetup, options: SolveOptions
+    ) -> tuple[FrfData, TestSetup, float | None]:
+        """The FRFs and setup as the options ask (``reference_point_m`` replaces the setup's
+        point P; ``scale_to_mass_kg`` scales the FRFs by ``γ``), and ``γ`` (None: not scaled);
+        what ``dimacq solve --reference-point --scale-to-mass`` does."""
+        from dimacq.pipeline.dim import scale_to_known_mass
+
+        if options.reference_point_m is not None:
+            setup = setup.model_copy(update={"reference_point_m": options.reference_point_m})
+        if options.scale_to_mass_kg is None:
+            return frf, setup, None
+        gamma, _ = scale_to_known_mass(
+            frf,
+            setup,
+            options.scale_to_mass_kg,
+            band_hz=options.band_hz,
+            length_unit=options.length_unit,
+        )
+        return frf.scaled(gamma), setup, float(gamma)
 
     @staticmethod
     def _known(setup: TestSetup, options: SolveOptions) -> dict[str, float]:
@@ -248,13 +290,17 @@ class AnalysisService:
             raise DataError(f"solution {solution_id}: its FRF set {sol.frf_id} is missing")
         frf, setup = got
         res = sol.result
+        stored_options = SolveOptions.model_validate(sol.options)
+        # the stored run's point P, FRF scale and chain calibration (older solutions have none)
+        if stored_options.reference_point_m is not None:
+            setup = setup.model_copy(update={"reference_point_m": stored_options.reference_point_m})
+        if res.get("frf_scale_factor") is not None:
+            frf = frf.scaled(float(res["frf_scale_factor"]))
         if (res.get("chain_calibration") or {}).get("role") == "applied":
             frf = frf.scaled(float(res["chain_calibration"]["factor"]))
         setup_used = setup
         if sol.options.get("repair_orientation"):  # the stored run's repaired setup
-            setup_used = self._analyse(
-                frf, setup, SolveOptions.model_validate(sol.options)
-            ).setup_used
+            setup_used = self._analyse(frf, setup, stored_options).setup_used
         excluded_resp = list(res.get("excluded_responses", []))
         excluded_in = list(res.get("excluded_inputs", []))
         channels = response_geometry(frf, setup).channels

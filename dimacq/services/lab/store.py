@@ -7,27 +7,30 @@ database row written after the file. Lookups of unknown ids return ``None`` (the
 from __future__ import annotations
 
 import json
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, BinaryIO, Literal
+from typing import Any, BinaryIO, Generic, Literal, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
-from sqlalchemy import select
+from sqlalchemy import func, select
+from sqlalchemy.orm import defer
 
-from dimacq.errors import DataError, SetupError
+from dimacq.errors import DataError, DeviceStateError, SetupError
 from dimacq.model.frf import Channel, FrfData
 from dimacq.model.setup import TestSetup
 from dimacq.persistence import ArrayStore, Database
 from dimacq.persistence import models as m
 from dimacq.persistence.arrays import arrays_from_bytes, arrays_to_bytes
-from dimacq.services.lab.common import json_safe, vec
+from dimacq.services.lab.common import iso, json_safe, vec
 
 __all__ = [
+    "ChannelQuery",
     "ExportedFile",
     "FrfSummary",
     "FrfValues",
     "Imported",
+    "Page",
     "SetupSummary",
     "StoredSolution",
     "TestStore",
@@ -65,6 +68,17 @@ def frf_from_arrays(arrays: Mapping[str, NDArray[Any]], attrs: Mapping[str, Any]
 
 
 # ---------------------------------------------------------------------------------- results
+T = TypeVar("T")
+
+
+@dataclass(frozen=True)
+class Page(Generic[T]):
+    """One page of a collection: ``items`` and the ``total`` count of the collection."""
+
+    items: list[T]
+    total: int
+
+
 @dataclass(frozen=True)
 class SetupSummary:
     """A stored setup: counts and the setup document (setup-file keys)."""
@@ -72,10 +86,12 @@ class SetupSummary:
     id: int
     name: str
     n_responses: int
-    n_excitations: int
+    n_inputs: int
     n_load_cells: int
     setup: dict[str, Any]
     stand: str = ""  # the test stand that stored it
+    created_at: str | None = None  # ISO 8601, UTC (a setup is never changed: no updated_at)
+    test_id: int | None = None  # the test it belongs to
 
     @classmethod
     def of(cls, r: m.SetupRow) -> SetupSummary:
@@ -83,10 +99,13 @@ class SetupSummary:
             id=r.id,
             name=r.name,
             n_responses=len(r.body.get("responses", [])),
-            n_excitations=len(r.body.get("excitations", [])),
+            # rows stored before the one vocabulary call the inputs "excitations"
+            n_inputs=len(r.body.get("inputs", r.body.get("excitations", []))),
             n_load_cells=len(r.body.get("load_cells", [])),
             setup=r.body,
             stand=r.stand,
+            created_at=iso(r.created_at),
+            test_id=r.test_id,
         )
 
 
@@ -113,11 +132,12 @@ class FrfSummary:
     acquisition_id: int | None
     name: str
     n_lines: int
-    n_outputs: int
+    n_responses: int
     n_inputs: int
     f_min_hz: float
     f_max_hz: float
     stand: str = ""  # the test stand that stored it
+    created_at: str | None = None  # ISO 8601, UTC (an FRF set is never changed)
 
     @classmethod
     def of(cls, r: m.FrfSet) -> FrfSummary:
@@ -127,25 +147,69 @@ class FrfSummary:
             acquisition_id=r.acquisition_id,
             name=r.name,
             n_lines=r.n_lines,
-            n_outputs=r.n_outputs,
+            n_responses=r.n_outputs,
             n_inputs=r.n_inputs,
             f_min_hz=r.f_min_hz,
             f_max_hz=r.f_max_hz,
             stand=r.stand,
+            created_at=iso(r.created_at),
         )
 
 
 @dataclass(frozen=True)
 class FrfValues:
-    """FRF values of some outputs × inputs: ``real``/``imag``/``coherence`` have the shape
-    (n_lines, n_outputs, n_inputs)."""
+    """FRF values of some responses × inputs over a band: ``real``/``imag``/``coherence`` have
+    the shape (n_lines, n_responses, n_inputs) (``layout``). Each response names its ``kind``
+    and the ``unit`` of its FRF; each input its unit (N)."""
 
+    frf_id: int
+    layout: str
     frequencies_hz: list[float]
-    outputs: list[dict[str, int]]
-    inputs: list[dict[str, int]]
+    responses: list[dict[str, Any]]
+    inputs: list[dict[str, Any]]
     real: list[Any]
     imag: list[Any]
     coherence: list[Any] | None
+
+
+#: Unit of an FRF's numerator per response kind (inputs are forces, N); a load cell's
+#: directions 4..6 are moments.
+_FRF_UNIT = {"acceleration": "(m/s²)/N", "reaction": "N/N"}
+
+
+@dataclass(frozen=True)
+class ChannelQuery:
+    """Which channels of an FRF set: an ``index`` (0-based, in the set's order), or a ``node``
+    with an optional UFF ``direction``; all when nothing is given."""
+
+    index: int | None = None
+    node: int | None = None
+    direction: int | None = None
+
+    def pick(self, channels: Sequence[Channel], what: str) -> list[int]:
+        n = len(channels)
+        if self.index is not None:
+            if not 0 <= self.index < n:
+                raise SetupError(f"{what} index {self.index} is outside 0..{n - 1}")
+            return [self.index]
+        if self.node is None:
+            if self.direction is not None:
+                raise SetupError(f"{what}_direction needs {what}_node: give the node too")
+            return list(range(n))
+        got = [
+            i
+            for i, c in enumerate(channels)
+            if c.node == self.node and (self.direction is None or c.direction == self.direction)
+        ]
+        if not got:
+            have = sorted({f"{c.node}:{c.direction:+d}" for c in channels})
+            raise SetupError(
+                f"{what} node {self.node}"
+                + ("" if self.direction is None else f" direction {self.direction:+d}")
+                + f" is not in this FRF set; it has {', '.join(have[:40])}"
+                + (" …" if len(have) > 40 else "")
+            )
+        return got
 
 
 @dataclass(frozen=True)
@@ -157,10 +221,19 @@ class StoredSolution:
     frf_id: int
     options: dict[str, Any]
     result: dict[str, Any]
+    created_at: str | None = None  # ISO 8601, UTC (a solution is never changed)
+    stand: str = ""  # the test stand that solved it
 
     @classmethod
     def of(cls, r: m.Solution) -> StoredSolution:
-        return cls(id=r.id, frf_id=r.frf_id, options=r.options, result=r.result)
+        return cls(
+            id=r.id,
+            frf_id=r.frf_id,
+            options=r.options,
+            result=r.result,
+            created_at=iso(r.created_at),
+            stand=r.stand,
+        )
 
 
 # ---------------------------------------------------------------------------------- service
@@ -175,11 +248,18 @@ class TestStore:
         self.stand = stand  # this service's test stand, recorded with what it stores
 
     # ------------------------------------------------------------------ setups
-    def save_setup(self, setup: TestSetup) -> int:
+    def save_setup(self, setup: TestSetup, test_id: int | None = None) -> int:
+        """Store a setup (of test ``test_id``, which must exist); its id."""
         from dimacq.io.setup_file import dump_setup_dict
 
         with self.db.session() as s:
-            row = m.SetupRow(name=setup.name, body=dump_setup_dict(setup), stand=self.stand)
+            if test_id is not None and s.get(m.TestRow, test_id) is None:
+                raise SetupError(
+                    f"test_id {test_id} does not exist; create the test first (POST /api/tests)"
+                )
+            row = m.SetupRow(
+                name=setup.name, body=dump_setup_dict(setup), stand=self.stand, test_id=test_id
+            )
             s.add(row)
             s.flush()
             return int(row.id)
@@ -200,11 +280,43 @@ class TestStore:
             )
         return setup
 
-    def setups(self) -> list[SetupSummary]:
+    def setups(
+        self, limit: int | None = None, offset: int = 0, test_id: int | None = None
+    ) -> Page[SetupSummary]:
+        """Setups in id order (of one test when ``test_id`` is given): ``limit`` of them (None:
+        all) after the first ``offset``."""
+        where = [] if test_id is None else [m.SetupRow.test_id == test_id]
         with self.db.session() as s:
-            return [
-                SetupSummary.of(r) for r in s.scalars(select(m.SetupRow).order_by(m.SetupRow.id))
-            ]
+            total = int(s.scalar(select(func.count()).select_from(m.SetupRow).where(*where)) or 0)
+            q = select(m.SetupRow).where(*where).order_by(m.SetupRow.id).offset(offset).limit(limit)
+            return Page([SetupSummary.of(r) for r in s.scalars(q)], total)
+
+    def delete_setup(self, setup_id: int) -> bool | None:
+        """Delete a setup; None if it does not exist. Refused (:class:`DeviceStateError`, 409)
+        while FRF sets or acquisitions refer to it: delete those first."""
+        with self.db.session() as s:
+            row = s.get(m.SetupRow, setup_id)
+            if row is None:
+                return None
+            frfs = list(s.scalars(select(m.FrfSet.id).where(m.FrfSet.setup_id == setup_id)))
+            acqs = list(
+                s.scalars(select(m.Acquisition.id).where(m.Acquisition.setup_id == setup_id))
+            )
+            if frfs or acqs:
+                raise DeviceStateError(
+                    f"setup {setup_id} is used by "
+                    + "; ".join(
+                        x
+                        for x in (
+                            f"FRF sets {frfs}" if frfs else "",
+                            f"acquisitions {acqs}" if acqs else "",
+                        )
+                        if x
+                    )
+                    + ": delete those first (DELETE /api/frfs/{id}, /api/acquisitions/{id})"
+                )
+            s.delete(row)
+            return True
 
     def setup_summary(self, setup_id: int) -> SetupSummary | None:
         with self.db.session() as s:
@@ -216,19 +328,21 @@ class TestStore:
         data: bytes | BinaryIO,
         fmt: Literal["json", "toml", "uff"],
         name: str | None = None,
+        test_id: int | None = None,
     ) -> Imported:
-        """Import a setup file (``json``/``toml``) or a whole-test UFF (``uff``: setup + FRFs)."""
+        """Import a setup file (``json``/``toml``) or a whole-test UFF (``uff``: setup + FRFs),
+        into test ``test_id`` when given."""
         from dimacq.io.setup_file import read_setup
         from dimacq.io.uff import read_uff_test
 
         if fmt == "uff":
             setup, frf = read_uff_test(data, name=name)
-            sid = self.save_setup(setup)
+            sid = self.save_setup(setup, test_id)
             return Imported(sid, self.save_frf(frf, sid, name=name or setup.name))
         setup = read_setup(data, fmt, "uploaded setup")
         if name:
             setup = setup.model_copy(update={"name": name})
-        return Imported(self.save_setup(setup))
+        return Imported(self.save_setup(setup, test_id))
 
     def export_setup(self, setup_id: int, fmt: Literal["json", "toml"]) -> ExportedFile | None:
         """Setup as ``json`` or ``toml`` text; None if it does not exist."""
@@ -282,9 +396,33 @@ class TestStore:
             row = s.get(m.FrfSet, frf_id)
             return None if row is None else FrfSummary.of(row)
 
-    def frfs(self) -> list[FrfSummary]:
+    def frfs(self, limit: int | None = None, offset: int = 0) -> Page[FrfSummary]:
+        """FRF sets in id order (their data are not read)."""
         with self.db.session() as s:
-            return [FrfSummary.of(r) for r in s.scalars(select(m.FrfSet).order_by(m.FrfSet.id))]
+            total = int(s.scalar(select(func.count()).select_from(m.FrfSet)) or 0)
+            q = (
+                select(m.FrfSet)
+                .options(defer(m.FrfSet.data))
+                .order_by(m.FrfSet.id)
+                .offset(offset)
+                .limit(limit)
+            )
+            return Page([FrfSummary.of(r) for r in s.scalars(q)], total)
+
+    def delete_frf(self, frf_id: int) -> bool | None:
+        """Delete an FRF set and the solutions of it; None if it does not exist. The
+        acquisition that measured it stays (its raw averages are still on disk)."""
+        with self.db.session() as s:
+            row = s.get(m.FrfSet, frf_id, options=[defer(m.FrfSet.data)])
+            if row is None:
+                return None
+            for sol in s.scalars(select(m.Solution).where(m.Solution.frf_id == frf_id)):
+                s.delete(sol)
+            s.flush()
+            for acq in s.scalars(select(m.Acquisition).where(m.Acquisition.frf_id == frf_id)):
+                acq.frf_id = None
+            s.delete(row)
+            return True
 
     def frf(self, frf_id: int) -> tuple[FrfData, TestSetup] | None:
         """The FRFs of a set and its setup."""
@@ -318,28 +456,50 @@ class TestStore:
         return dump_uff(frf, setup if whole_test else None)
 
     def frf_values(
-        self, frf_id: int, output: int | None = None, input_: int | None = None
+        self,
+        frf_id: int,
+        response: ChannelQuery = ChannelQuery(),
+        input_: ChannelQuery = ChannelQuery(),
+        band_hz: tuple[float | None, float | None] = (None, None),
     ) -> FrfValues | None:
-        """FRF values (real/imag) of one output/input pair or all of them."""
+        """FRF values (real/imag/coherence) of the chosen responses × inputs on the lines
+        within ``band_hz`` (either end None: open); None if the set does not exist."""
         got = self.frf(frf_id)
         if got is None:
             return None
         frf, _ = got
-        n_out, n_in = frf.H.shape[1:]
-        for k, n, what in ((output, n_out, "output"), (input_, n_in, "input")):
-            if k is not None and not 0 <= k < n:
-                raise SetupError(f"{what} index {k} is outside 0..{n - 1}")
-        oi = list(range(n_out)) if output is None else [output]
-        ii = list(range(n_in)) if input_ is None else [input_]
-        h = frf.H[:, oi][:, :, ii]
+        oi = response.pick(frf.outputs, "response")
+        ii = input_.pick(frf.inputs, "input")
+        f = frf.frequencies_hz
+        lo, hi = band_hz
+        if lo is not None and hi is not None and not lo <= hi:
+            raise SetupError(f"f_min_hz {lo} is above f_max_hz {hi}: give f_min_hz ≤ f_max_hz")
+        keep = np.ones(f.size, dtype=bool)
+        if lo is not None:
+            keep &= f >= lo
+        if hi is not None:
+            keep &= f <= hi
+        lines = np.nonzero(keep)[0]
+        h = frf.H[lines][:, oi][:, :, ii]
+
+        def resp(i: int) -> dict[str, Any]:
+            c, kind = frf.outputs[i], frf.output_kinds[i]
+            unit = _FRF_UNIT[kind] if abs(c.direction) <= 3 or kind != "reaction" else "N·m/N"
+            return {**c.as_dict(), "kind": kind, "unit": unit}
+
+        coh = None
+        if frf.coherence is not None:
+            # NaN (one average: no coherence) → null, so the JSON is strict
+            coh = json_safe(frf.coherence[lines][:, oi][:, :, ii])
         return FrfValues(
-            frequencies_hz=vec(frf.frequencies_hz),
-            outputs=[frf.outputs[i].as_dict() for i in oi],
-            inputs=[frf.inputs[j].as_dict() for j in ii],
+            frf_id=frf_id,
+            layout="[line][response][input]",
+            frequencies_hz=vec(f[lines]),
+            responses=[resp(i) for i in oi],
+            inputs=[{**frf.inputs[j].as_dict(), "kind": "input", "unit": "N"} for j in ii],
             real=h.real.tolist(),
             imag=h.imag.tolist(),
-            # NaN (one average: no coherence) → null, so the JSON is strict
-            coherence=None if frf.coherence is None else json_safe(frf.coherence[:, oi][:, :, ii]),
+            coherence=coh,
         )
 
     # ------------------------------------------------------------------ solutions
@@ -362,8 +522,20 @@ class TestStore:
             row = s.get(m.Solution, solution_id)
             return None if row is None else StoredSolution.of(row)
 
-    def solutions(self) -> list[StoredSolution]:
+    def solutions(
+        self, limit: int | None = None, offset: int = 0, frf_id: int | None = None
+    ) -> Page[StoredSolution]:
+        """Solutions in id order (of one FRF set when ``frf_id`` is given)."""
         with self.db.session() as s:
-            return [
-                StoredSolution.of(r) for r in s.scalars(select(m.Solution).order_by(m.Solution.id))
-            ]
+            where = [] if frf_id is None else [m.Solution.frf_id == frf_id]
+            total = int(s.scalar(select(func.count()).select_from(m.Solution).where(*where)) or 0)
+            q = select(m.Solution).where(*where).order_by(m.Solution.id).offset(offset).limit(limit)
+            return Page([StoredSolution.of(r) for r in s.scalars(q)], total)
+
+    def delete_solution(self, solution_id: int) -> bool | None:
+        with self.db.session() as s:
+            row = s.get(m.Solution, solution_id)
+            if row is None:
+                return None
+            s.delete(row)
+            return True

@@ -5,7 +5,7 @@ whichever service sharing the database claims it first runs it, exactly once
 from __future__ import annotations
 
 import uuid
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field
@@ -14,9 +14,9 @@ from dimacq.persistence import Database
 from dimacq.persistence import models as m
 from dimacq.persistence.queue import enqueue_job
 from dimacq.services.jobs import JobContext, JobManager
-from dimacq.services.lab.common import json_safe
+from dimacq.services.lab.common import iso, json_safe
 
-__all__ = ["CubeStudyParams", "StoredStudy", "StudyService", "StudyStarted"]
+__all__ = ["CubeStudyParams", "StoredStudy", "StudyService"]
 
 
 class CubeStudyParams(BaseModel):
@@ -33,18 +33,14 @@ class CubeStudyParams(BaseModel):
 
 
 @dataclass(frozen=True)
-class StudyStarted:
-    id: int
-    job_id: str
-
-
-@dataclass(frozen=True)
 class StoredStudy:
     """A study: its parameters and, once its job finished, its result."""
 
     id: int
     params: dict[str, Any]
     result: dict[str, Any] | None
+    job_id: str | None = None  # given when it is created
+    created_at: str | None = None  # ISO 8601, UTC
 
 
 class StudyService:
@@ -54,7 +50,7 @@ class StudyService:
         self.stand = stand
         jobs.handlers["sensitivity"] = self._job
 
-    def start_sensitivity(self, params: CubeStudyParams) -> StudyStarted:
+    def start_sensitivity(self, params: CubeStudyParams) -> StoredStudy:
         """A sensitivity study (thesis cube model) as a queued job; returns the study and job
         ids. This service claims it at once if it has room; otherwise another one does."""
         with self.db.session() as s:
@@ -71,7 +67,9 @@ class StudyService:
             created_by=self.stand,
         )
         self.jobs.claim_queued()
-        return StudyStarted(sid, job_id)
+        got = self.sensitivity(sid)
+        assert got is not None
+        return replace(got, job_id=job_id)
 
     def _job(self, doc: dict[str, Any]) -> Any:
         """The job function of a claimed study (its parameters from the queue)."""
@@ -100,4 +98,6 @@ class StudyService:
     def sensitivity(self, study_id: int) -> StoredStudy | None:
         with self.db.session() as s:
             r = s.get(m.SensitivityStudy, study_id)
-            return None if r is None else StoredStudy(r.id, r.params, r.result)
+            if r is None:
+                return None
+            return StoredStudy(r.id, r.params, r.result, created_at=iso(r.created_at))
