@@ -253,13 +253,16 @@ def simulated_static_calibration(
     time_scale: float = 200.0,
     progress: ProgressFn | None = None,
     cell: Any = None,
+    backend: str = "simulated",
 ) -> SimulatedStaticRun:
     """Dead-weight calibration of the virtual lab's strain-gauge cell ``node`` (seed ``seed``):
-    the bench behind the CAN amplifier simulator, the real driver, the virtual operator."""
+    the bench behind the amplifier simulator of ``backend`` (an entry of
+    ``BACKENDS["loadcell-bench"]``: the CAN FD or the CANopen one), the real driver, the
+    virtual operator."""
     from dimacq.backends import lookup
     from dimacq.backends.base import DeviceContext
 
-    open_dead_weight_bench = lookup("loadcell-bench", "simulated")  # the table reaches simulators
+    open_dead_weight_bench = lookup("loadcell-bench", backend)  # the table reaches simulators
     from dimacq.pipeline.loadcell_calibration import standard_load_plan
 
     st = settings or StaticSettings()
@@ -454,18 +457,25 @@ def calibrate_rig_cell(
         creep_tolerance=t.creep_tolerance,
     )
     channel = entry.channel or settings.loadcell_channel
-    amp = open_amplifier(
-        ctx,
-        entry,
-        interface=settings.loadcell_interface,
-        channel=channel,
-        where=(
-            f"loadcell_interface = {settings.loadcell_interface!r}, channel {channel!r} "
-            "(loadcell_channel)"
-        ),
-        require_calibration=False,
-        timing=bit_timing(settings),
-    )
+    amp: Any
+    if settings.loadcell in ("simulated", "dimacq-can"):
+        # the CAN FD amplifier on loadcell_interface (also the real path of the simulated lab)
+        amp = open_amplifier(
+            ctx,
+            entry,
+            interface=settings.loadcell_interface,
+            channel=channel,
+            where=(
+                f"loadcell_interface = {settings.loadcell_interface!r}, channel {channel!r} "
+                "(loadcell_channel)"
+            ),
+            require_calibration=False,
+            timing=bit_timing(settings),
+        )
+    else:  # another kind from the backend table (e.g. "canopen"), opened as for an acquisition
+        from dimacq.backends import lookup
+
+        amp = lookup("loadcell", settings.loadcell)(ctx, entry, require_calibration=False)
     try:
         ident = amp.identify()
         run = run_static_calibration(amp, plan, operator, settings=st, progress=progress)

@@ -195,7 +195,9 @@ class CanopenLoadCell(WireDriver):
             self.network.unsubscribe(cob, self._on_tpdo)
         del self.network[self.node_id]
 
-    def _sdo(self, what: str, index: int, subindex: int, fn: Callable[[], T], idempotent: bool) -> T:
+    def _sdo(
+        self, what: str, index: int, subindex: int, fn: Callable[[], T], idempotent: bool
+    ) -> T:
         name = p.object_name(index, subindex)
 
         def attempt(deadline: Deadline) -> T:
@@ -219,7 +221,9 @@ class CanopenLoadCell(WireDriver):
                     "power, the bit rate (loadcell_canopen_bitrate) and its node id in the rig file"
                 ) from err
             except can.CanError as err:
-                raise DeviceError(f"{self.name}: cannot send the SDO {what} of {name}: {err}") from err
+                raise DeviceError(
+                    f"{self.name}: cannot send the SDO {what} of {name}: {err}"
+                ) from err
 
         return self._exchange(f"SDO {what} {name}", attempt, idempotent=idempotent)
 
@@ -267,13 +271,13 @@ class CanopenLoadCell(WireDriver):
         DeviceError
             An SDO abort (naming the object) or no answer.
         """
-        tpdo = self.node.tpdo
+        tpdo_maps: Any = self.node.tpdo.map
 
         def read_all(deadline: Deadline) -> list[tuple[int, bool, list[p.MappedEntry]]]:
             out = []
             try:
-                for k in sorted(tpdo.map):
-                    m = tpdo.map[k]
+                for k in sorted(tpdo_maps):
+                    m = tpdo_maps[k]
                     m.read()
                     if m.enabled and m.cob_id is not None:
                         self.network.unsubscribe(m.cob_id, m.on_message)  # ours decode in bulk
@@ -365,6 +369,9 @@ class CanopenLoadCell(WireDriver):
         self._hb_lost_reported = False
         self._last_heartbeat = time.monotonic()
         self._exchange("NMT start", lambda d: self.node.nmt.send_command(0x01))
+        # NMT is unconfirmed: an SDO answer comes after the node handled the command (one queue),
+        # so the counter is armed before this returns and the DAQ may start
+        self._read_int(p.STATUS)
         self.streaming = True
 
     def stop(self) -> int:

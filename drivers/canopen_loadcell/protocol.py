@@ -278,8 +278,8 @@ class PdoLayout:
         for j, (_g, at) in enumerate(t.gauges):
             words[:, j, 1:] = buf[:, at : at + 3]
         counts = words.view("<i4").reshape(buf.shape[0], len(t.gauges)) >> 8
-        volts = counts * (self.full_scale_v / 2**23)
-        return low.astype(np.int64), [g for g, _ in t.gauges], volts
+        volts = np.multiply(counts, self.full_scale_v / 2**23, dtype=np.float64)
+        return np.asarray(low, dtype=np.int64), [g for g, _ in t.gauges], volts
 
     def overload(self, volts: NDArray[np.float64]) -> NDArray[np.bool_]:
         """Samples (n, 12 volts) at the clipping count of any gauge."""

@@ -106,7 +106,9 @@ class CanopenAmplifierSim:
         self.time_scale = float(time_scale)
         self.faults = faults if faults is not None else CanopenFaults()
         self.matrix = (
-            np.zeros((6, p.N_GAUGES)) if calibration_matrix is None else np.array(calibration_matrix)
+            np.zeros((6, p.N_GAUGES))
+            if calibration_matrix is None
+            else np.array(calibration_matrix)
         )
         self.offsets = np.zeros(p.N_GAUGES)
         self.last_volts = np.zeros(p.N_GAUGES)
@@ -127,12 +129,13 @@ class CanopenAmplifierSim:
         self.network = canopen.Network(can.Bus(interface="virtual", channel=channel))
         self.node = canopen.LocalNode(node_id, canopen.import_od(str(eds), node_id))
         self.node_id = node_id
-        self.network.add_node(self.node)  # type: ignore[arg-type]
+        if not self.faults.silent:  # a silent node is not on the bus: nothing answers
+            self.network.add_node(self.node)
         self.node.add_read_callback(self._on_read)
         self.node.add_write_callback(self._on_write)
-        self.node.sdo[p.IDENTITY][4].raw = int(serial_number)
+        self._obj(p.IDENTITY)[4].raw = int(serial_number)
         self.layout = self._layout()
-        self.rate_hz = float(self.node.sdo[p.SAMPLE_RATE].raw)
+        self.rate_hz = float(self._obj(p.SAMPLE_RATE).raw)
         self.network.subscribe(0, self._on_nmt)
         self.network.connect()
         if not self.faults.silent:
@@ -140,11 +143,15 @@ class CanopenAmplifierSim:
         self._thread = threading.Thread(target=self._run, name=f"canopen-sim-{channel}")
         self._thread.start()
 
+    def _obj(self, index: int) -> Any:
+        """Object ``index`` of the node's own dictionary (read and written locally)."""
+        return self.node.sdo[index]
+
     def _layout(self) -> p.PdoLayout:
         """The TPDO layout from the node's own mapping parameters (as the driver reads it)."""
         maps = []
         for k in range(6):
-            com, mapping = self.node.sdo[0x1800 + k], self.node.sdo[0x1A00 + k]
+            com, mapping = self._obj(0x1800 + k), self._obj(0x1A00 + k)
             cob = int(com[1].raw)
             entries, offset = [], 0
             for sub in range(1, int(mapping[0].raw) + 1):
@@ -153,7 +160,7 @@ class CanopenAmplifierSim:
                 entries.append(e)
                 offset += e.bits
             maps.append((cob & 0x7FF, not cob & (1 << 31), entries))
-        fs = float(self.node.sdo[p.FULL_SCALE].raw)
+        fs = float(self._obj(p.FULL_SCALE).raw)
         return p.PdoLayout.from_mappings(maps, full_scale_v=fs, where="simulator")
 
     # -- lifetime ----------------------------------------------------------------------------
@@ -236,7 +243,7 @@ class CanopenAmplifierSim:
 
     def _arm(self) -> None:
         with self._lock:
-            self._external = int(self.node.sdo[p.CLOCK_SOURCE].raw) == 1
+            self._external = int(self._obj(p.CLOCK_SOURCE).raw) == 1
             self._counter = 0
             self._pulses = 0
             self._bus_off_reported = False
@@ -320,7 +327,7 @@ class CanopenAmplifierSim:
             if off_n and c >= off_a + off_n and not self._bus_off_reported:
                 self._bus_off_reported = True
                 if not f.heartbeat_lost:
-                    self.node.nmt.start_heartbeat(int(self.node.sdo[p.HEARTBEAT_TIME].raw))
+                    self.node.nmt.start_heartbeat(int(self._obj(p.HEARTBEAT_TIME).raw))
                     self._hb_stopped = False
                 self.node.emcy.send(p.EMCY_BUS_OFF_RECOVERED, 0x11, p.emcy_data(c))
             if c in f.emcy_at:

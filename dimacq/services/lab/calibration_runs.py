@@ -7,6 +7,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+from dimacq.backends import BACKENDS
 from dimacq.errors import SetupError
 from dimacq.pipeline.loadcell_calibration import LoadCase
 from dimacq.services.loadcell_calibration import (
@@ -73,7 +74,8 @@ class CalibrationRuns:
         plan = request.get("plan", "standard")
         if plan not in ("standard", "minimal"):
             raise SetupError(f"plan {plan!r}: use standard or minimal")
-        simulated = self.settings.loadcell == "simulated"
+        # a backend with a simulated dead-weight bench (BACKENDS["loadcell-bench"]) runs there
+        simulated = self.settings.loadcell in BACKENDS["loadcell-bench"]
         if method != "static":
             raise SetupError(
                 "method inertial runs from the command line (dimacq loadcell calibrate "
@@ -99,7 +101,9 @@ class CalibrationRuns:
             ctx.check_cancelled()
             ctx.progress(done / max(total, 1), message)
 
-        sim = simulated_static_calibration(minimal_plan=minimal, progress=prog)
+        sim = simulated_static_calibration(
+            minimal_plan=minimal, progress=prog, backend=self.settings.loadcell
+        )
         cert = sim.run.certificate
         cal = LoadCellCalibration(
             serial_number="501",
