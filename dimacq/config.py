@@ -126,8 +126,8 @@ class Settings(BaseSettings):
     loadcell_canopen_eds: str = "canopen/loadcell.eds"
     loadcell_canopen_bitrate: int = Field(default=1_000_000, gt=0, le=1_000_000)
     loadcell_canopen_node_ids: list[int] = Field(default_factory=list)
-    loadcell_canopen_heartbeat_ms: int = Field(default=100, ge=10, le=10_000)
-    loadcell_canopen_heartbeat_factor: float = Field(default=3.0, ge=1.5, le=100.0)
+    loadcell_canopen_heartbeat_ms: int = Field(default=200, ge=10, le=10_000)
+    loadcell_canopen_heartbeat_factor: float = Field(default=5.0, ge=1.5, le=100.0)
 
     @model_validator(mode="before")
     @classmethod
