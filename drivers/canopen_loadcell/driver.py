@@ -177,6 +177,7 @@ class CanopenLoadCell(WireDriver):
                 "amplifier's EDS (loadcell_canopen_eds)"
             ) from err
         self.network = canopen.Network(bus)
+        self.network.NOTIFIER_CYCLE = 0.1  # how long closing waits for the receive thread
         self.node = canopen.RemoteNode(node_id, od)
         self.node.sdo.RESPONSE_TIMEOUT = self.timeout_s
         self.network.add_node(self.node)

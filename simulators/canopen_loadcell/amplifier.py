@@ -127,6 +127,7 @@ class CanopenAmplifierSim:
         self._lock = threading.RLock()
         self._stop_evt = threading.Event()
         self.network = canopen.Network(can.Bus(interface="virtual", channel=channel))
+        self.network.NOTIFIER_CYCLE = 0.1  # how long closing waits for the receive thread
         self.node = canopen.LocalNode(node_id, canopen.import_od(str(eds), node_id))
         self.node_id = node_id
         if not self.faults.silent:  # a silent node is not on the bus: nothing answers

@@ -38,7 +38,7 @@ def test_canopen_entries_are_in_the_tables() -> None:
 def _impact(tmp_path: Path, loadcell: str) -> Any:
     settings = load_settings(data_dir=tmp_path / loadcell, token="t", loadcell=loadcell)
     setup = build_scenario(settings.scenario).model.setup
-    setup = setup.model_copy(update={"excitations": setup.excitations[:3]})
+    setup = setup.model_copy(update={"excitations": setup.excitations[:2]})
     cfg = {"averages_per_input": 2, "record_samples": 2048, "seed": 4}
     rig = rig_builder.build_rig(settings, setup, cfg)
     try:
