@@ -248,9 +248,9 @@ class CanopenLoadCell(WireDriver):
 
     # -- notifier-thread callbacks -------------------------------------------------------------
     def _on_tpdo(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        # no wake-up per frame: the reader decodes what came in every few ms, in bulk
         with self._cond:
             self._frames[can_id].append(bytes(data))
-            self._cond.notify_all()
 
     def _on_emcy(self, emcy: Any) -> None:
         with self._cond:
@@ -558,8 +558,7 @@ class CanopenLoadCell(WireDriver):
                     "the node operational and on the bus?"
                 )
             with self._cond:
-                if not any(self._frames.get(c) for c in layout.cob_ids) and not self._emcys:
-                    self._cond.wait(min(left, 0.05))
+                self._cond.wait(min(left, 0.004))
         return self._take(end_sample)
 
     def _take(self, end: int) -> LoadCellBlock:
