@@ -443,7 +443,7 @@ class CanopenLoadCell(WireDriver):
     def _record(self, ev: LoadCellEvent) -> None:
         self._samples.record(ev)
         self.events.append(ev)
-        log.warning("%s: %s", self.name, ev.message)
+        log.warning("%s", ev.message)
 
     def _check_heartbeat(self) -> None:
         last = self._last_heartbeat
@@ -534,7 +534,7 @@ class CanopenLoadCell(WireDriver):
             and its heartbeat.
         """
         self._require_open()
-        layout = self._require_layout()
+        self._require_layout()
         if end_sample <= self._samples.next_sample:
             raise SetupError(
                 f"end_sample {end_sample} is not after the next unread sample "
