@@ -183,9 +183,9 @@ class CanopenLoadCell(WireDriver):
         self.network.add_node(self.node)
         self.node.nmt.add_heartbeat_callback(self._on_heartbeat)
         self.node.emcy.add_callback(self._on_emcy)
-        self.network.connect()
-        if calibration_matrix is not None:
+        if calibration_matrix is not None:  # refused before a receive thread is started
             self.set_calibration_matrix(calibration_matrix)
+        self.network.connect()
 
     # -- wire steps ---------------------------------------------------------------------------
     def _close_transport(self) -> None:
