@@ -55,6 +55,7 @@ def run(backend: str, averages: int, root: Path) -> dict[str, float | str]:
             averages=averages,
             data_dir=None,
             json=None,
+            no_chain_calibration=True,
             noise=0.005,
             quiet=True,
             rig_file=None,
