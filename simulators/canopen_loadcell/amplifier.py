@@ -125,6 +125,7 @@ class CanopenAmplifierSim:
         self._bus_off_reported = False
         self._hb_stopped = False
         self._lock = threading.RLock()
+        self._count_lock = threading.Lock()  # samples read ↔ counter, held briefly
         self._stop_evt = threading.Event()
         self.network = canopen.Network(can.Bus(interface="virtual", channel=channel))
         self.network.NOTIFIER_CYCLE = 0.1  # how long closing waits for the receive thread
@@ -188,7 +189,8 @@ class CanopenAmplifierSim:
     # -- object dictionary behaviour ------------------------------------------------------------
     def _on_read(self, index: int, subindex: int, od: Any) -> Any:
         if index == p.COUNTER:
-            return self._counter & 0xFFFFFFFF
+            with self._count_lock:  # the count of the samples read from the bridges so far
+                return self._counter & 0xFFFFFFFF
         if index == p.STATUS:
             missing = self._external and (self.clock is None or not self.clock.state().running)
             return p.STATUS_SYNC_MISSING if missing else 0
@@ -306,8 +308,10 @@ class CanopenAmplifierSim:
     def _emit(self, pulse0: int, n: int) -> None:
         """Samples at pulses ``pulse0 .. pulse0 + n − 1`` as TPDOs (counter = pulse)."""
         world0 = self._epoch + self._base_count if self._external else self._internal_epoch
-        with self._source_lock():
-            g = self.source.read(self.gauges, world0 + pulse0, n)
+        with self._count_lock:  # the counter says what was read (a load placed now is later)
+            with self._source_lock():
+                g = self.source.read(self.gauges, world0 + pulse0, n)
+            self._counter = pulse0 + n
         if not self._external:
             self._world_internal = world0 + pulse0 + n
         volts = (g - self.offsets[:, None]).T
@@ -337,4 +341,3 @@ class CanopenAmplifierSim:
                 if k == 1 and c in f.dropped_frames:
                     continue
                 self.network.send_message(t.cob_id, frames[k][i])
-        self._counter = int(counters[-1]) + 1
