@@ -118,6 +118,16 @@ class Settings(BaseSettings):
     # Impact tests: fewest accepted averages per input (fewer: the input is struck again within
     # the attempt budget, then reported incomplete); coherence needs at least 2.
     min_averages: int = Field(default=3, ge=1, le=100)
+    # CANopen load cell amplifiers (loadcell = "canopen" | "canopen-simulated",
+    # dimacq.backends.canopen_loadcell): the EDS file of the amplifiers (relative paths from the
+    # config file's folder), the classic CAN bit rate (bit/s), the node ids expected on the bus
+    # (empty: whatever the rig file's node_id say; else each rig file node_id must be one of
+    # them), and how many producer heartbeat periods may pass before a node counts as lost.
+    loadcell_canopen_eds: str = "canopen/loadcell.eds"
+    loadcell_canopen_bitrate: int = Field(default=1_000_000, gt=0, le=1_000_000)
+    loadcell_canopen_node_ids: list[int] = Field(default_factory=list)
+    loadcell_canopen_heartbeat_ms: int = Field(default=200, ge=10, le=10_000)
+    loadcell_canopen_heartbeat_factor: float = Field(default=5.0, ge=1.5, le=100.0)
 
     @model_validator(mode="before")
     @classmethod
@@ -195,6 +205,13 @@ class Settings(BaseSettings):
             return base / "rig.toml"
         p = Path(self.rig_file).expanduser()
         return p if p.is_absolute() else base / p
+
+    @property
+    def loadcell_canopen_eds_path(self) -> Path:
+        """The CANopen amplifiers' EDS file (``loadcell_canopen_eds``; relative paths from the
+        config file's folder)."""
+        p = Path(self.loadcell_canopen_eds).expanduser()
+        return p if p.is_absolute() else default_config_file().parent / p
 
     def resolved_token(self) -> str:
         """The access token: configured, or generated once and kept in ``<data_dir>/token``."""

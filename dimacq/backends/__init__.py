@@ -16,6 +16,11 @@ setting    name                what opens the device
                                amplifier on ``can.Bus(interface=loadcell_interface, ...)``
 ``loadcell`` ``"simulated"``   :func:`dimacq.backends.simulated.open_loadcell`: the same driver on
                                a python-can ``virtual`` channel to the amplifier simulator
+``loadcell`` ``"canopen"``     :func:`dimacq.backends.canopen_loadcell.open_loadcell`: a CANopen
+                               amplifier (EDS ``loadcell_canopen_eds``) through ``canopen`` on
+                               ``can.Bus(interface=loadcell_interface, bitrate=...)``
+``loadcell`` ``"canopen-simulated"`` :func:`dimacq.backends.canopen_simulated.open_loadcell`: the
+                               same driver on a ``virtual`` channel to CANopen simulators
 ``digitizer`` ``"serial"``     :func:`dimacq.backends.serial_digitizer.open_digitizer`: pyserial
                                URL ``digitizer_url``
 ``digitizer`` ``"simulated"``  :func:`dimacq.backends.simulated.open_digitizer`: the same driver on
@@ -57,6 +62,8 @@ BACKENDS: dict[str, dict[str, str]] = {
     "loadcell": {
         "dimacq-can": "dimacq.backends.can_loadcell:open_loadcell",
         "simulated": "dimacq.backends.simulated:open_loadcell",
+        "canopen": "dimacq.backends.canopen_loadcell:open_loadcell",
+        "canopen-simulated": "dimacq.backends.canopen_simulated:open_loadcell",
     },
     "digitizer": {
         "serial": "dimacq.backends.serial_digitizer:open_digitizer",
@@ -66,6 +73,7 @@ BACKENDS: dict[str, dict[str, str]] = {
     # the configured amplifier, dimacq.backends.can_loadcell.open_amplifier, and a person)
     "loadcell-bench": {
         "simulated": "dimacq.backends.simulated:open_dead_weight_bench",
+        "canopen-simulated": "dimacq.backends.canopen_simulated:open_dead_weight_bench",
     },
 }
 

@@ -27,7 +27,8 @@ class LoadCellIdentity:
 
 @dataclass(frozen=True)
 class LoadCellEvent:
-    """``kind`` in ``{"gap", "drift", "overload", "sync_missing"}`` over a counter range."""
+    """``kind`` in ``{"gap", "drift", "overload", "sync_missing", "device_error"}`` over a counter
+    range (``device_error``: an EMCY or a lost heartbeat of a CANopen amplifier, naming its node)."""
 
     kind: str
     first_sample: int

@@ -253,13 +253,16 @@ def simulated_static_calibration(
     time_scale: float = 200.0,
     progress: ProgressFn | None = None,
     cell: Any = None,
+    backend: str = "simulated",
 ) -> SimulatedStaticRun:
     """Dead-weight calibration of the virtual lab's strain-gauge cell ``node`` (seed ``seed``):
-    the bench behind the CAN amplifier simulator, the real driver, the virtual operator."""
+    the bench behind the amplifier simulator of ``backend`` (an entry of
+    ``BACKENDS["loadcell-bench"]``: the CAN FD or the CANopen one), the real driver, the
+    virtual operator."""
     from dimacq.backends import lookup
     from dimacq.backends.base import DeviceContext
 
-    open_dead_weight_bench = lookup("loadcell-bench", "simulated")  # the table reaches simulators
+    open_dead_weight_bench = lookup("loadcell-bench", backend)  # the table reaches simulators
     from dimacq.pipeline.loadcell_calibration import standard_load_plan
 
     st = settings or StaticSettings()

@@ -7,6 +7,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+from dimacq.backends import BACKENDS
 from dimacq.errors import SetupError
 from dimacq.pipeline.loadcell_calibration import LoadCase
 from dimacq.services.loadcell_calibration import (
@@ -77,7 +78,8 @@ class CalibrationRuns:
         plan = request.get("plan", "standard")
         if plan not in ("standard", "minimal"):
             raise SetupError(f"plan {plan!r}: use standard or minimal")
-        simulated = self.settings.loadcell == "simulated"
+        # a backend with a simulated dead-weight bench (BACKENDS["loadcell-bench"]) runs there
+        simulated = self.settings.loadcell in BACKENDS["loadcell-bench"]
         check = request.get("circular_check", simulated)
         if not isinstance(check, bool):
             raise SetupError(f"circular_check {check!r}: give true or false")
@@ -192,7 +194,9 @@ class CalibrationRuns:
         from dimacq.io.rig_file import load_rig_file
 
         node = select_cell(load_rig_file(settings.rig_path), None).node
-        sim = simulated_static_calibration(node=node, minimal_plan=minimal, progress=prog)
+        sim = simulated_static_calibration(
+            node=node, minimal_plan=minimal, progress=prog, backend=self.settings.loadcell
+        )
         cert = sim.run.certificate
         res = install_static(settings, node, sim.run, serial_number=str(node))
         rec = self.record(res.installed_document())
