@@ -464,7 +464,7 @@ def calibrate_rig_cell(
             "(loadcell_channel)"
         ),
         require_calibration=False,
-        timing=bit_timing(settings),
+        timing=bit_timing(settings, entry),
     )
     try:
         ident = amp.identify()
