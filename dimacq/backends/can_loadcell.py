@@ -101,6 +101,7 @@ def open_amplifier(
     timeout_s: float = 2.0,
     require_calibration: bool = True,
     timing: Any = None,
+    retries: int = 2,
 ) -> LoadCellAmplifier:
     """Open the amplifier of ``entry`` on ``can.Bus(interface, channel)`` (CAN FD, with the
     ``can.BitTimingFd`` ``timing`` when given), calibrated from its file; the bus's closer goes
@@ -142,6 +143,7 @@ def open_amplifier(
             bus,
             node_id=entry.node_id,
             timeout_s=timeout_s,
+            retries=retries,
             calibration_matrix=None if cal is None else cal.matrix,
             clock_tolerance_ppm=ctx.settings.loadcell_clock_tolerance_ppm,
         )
