@@ -135,6 +135,10 @@ class ImpactResult:
     min_averages: int = 1
 
 
+class _StrikeLost(Exception):
+    """Samples were lost while waiting for a strike: it may have been among them."""
+
+
 class _Buffer:
     """Samples ``first .. end - 1`` for the DAQ or one load cell, trimmed as records are cut.
 
@@ -365,6 +369,13 @@ class ImpactSession:
                 hits = np.flatnonzero(np.abs(np.nan_to_num(seg)) >= s.trigger_level_n)
                 if hits.size:
                     return search_from + int(hits[0])
+                if np.isnan(seg).any():
+                    # samples lost while waiting (FIFO overflow, lost transfer): the strike may
+                    # be among them; ask for it again rather than wait for one that never comes
+                    raise _StrikeLost(
+                        f"input {self.input_names[input_index]}: DAQ samples lost while waiting "
+                        "for the strike; asking for it again"
+                    )
                 search_from = buf.end
                 # keep only the pre-trigger history while waiting: O(1) memory and work per block
                 self._trim(search_from - s.pretrigger_samples)
@@ -509,6 +520,23 @@ class ImpactSession:
                         self._restart(err, j)
                         armed_from = 0
                         continue
+                    except _StrikeLost as lost:
+                        rejected += 1
+                        log.warning("%s", lost)
+                        self._event({"device": "daq", "kind": "strike_lost", "message": str(lost)})
+                        armed_from = self._daq_buf.end
+                        if self.progress is not None:
+                            self.progress(
+                                Progress(
+                                    j,
+                                    n_in,
+                                    len(records[j]),
+                                    s.averages_per_input,
+                                    rejected,
+                                    str(lost),
+                                )
+                            )
+                        continue
                     reasons, rec = self._check(j, s0, s.record_samples)
                     ok = not reasons
                     if ok:
@@ -553,7 +581,11 @@ class ImpactSession:
             if n_clocked is None:
                 n_clocked = n_received
             for k, lc in enumerate(self.loadcells):
-                lc.stop()
+                counted = lc.stop()
+                if counted > self._lc_bufs[k].end:
+                    # the rest of the run (after the last average): read so that its gaps are
+                    # reported too, not kept
+                    self._ingest_lc(k, lc.read_until(counted))
                 ev = lc.verify_count(n_clocked)
                 if ev is not None:
                     self._event({"device": f"loadcell{k}", **asdict(ev)})

@@ -470,6 +470,20 @@ class DaqTask:
             log.info(
                 "DAQ task %s stopped after %d samples clocked", self.name, self.samples_clocked
             )
+            self._read_rest()
+
+    def _read_rest(self) -> None:
+        """Read what the device FIFO still holds after STOP (bounded by the samples clocked),
+        so that its gaps (overflow, lost transfers) are reported and nothing is left stale."""
+        assert self.samples_clocked is not None
+        for _ in range(_DRAIN_MAX_FRAMES):
+            if self._stream.end >= self.samples_clocked:
+                return
+            try:
+                raw = self.device.read_frame(self.frame_bytes, _DRAIN_TIMEOUT_S)
+            except DeviceTimeoutError:
+                return
+            self._ingest(p.decode_frame(raw))
 
     def reconnect(self, timeout_s: float = 10.0, poll_s: float = 0.1) -> None:
         """Find the DAQ again after it dropped off the bus (USB re-enumeration: a new address,

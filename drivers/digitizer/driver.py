@@ -407,11 +407,11 @@ class SerialDigitizer(DigitizerDriver):
             start = buf.find(wire.START)
             if start < 0 and buf:
                 self.stats.garbage_bytes += len(buf)
-                log.debug("%s: %d garbage bytes dropped", self.name, len(buf))
+                log.warning("%s: line noise, %d garbage bytes dropped", self.name, len(buf))
                 buf.clear()
             elif start > 0:
                 self.stats.garbage_bytes += start
-                log.debug("%s: %d garbage bytes dropped", self.name, start)
+                log.warning("%s: line noise, %d garbage bytes dropped", self.name, start)
                 del buf[:start]
             if buf:
                 eol = buf.find(b"\n")

@@ -299,6 +299,13 @@ class VirtualDaqBackend(usb.backend.IBackend):
     def _reenumerate(self) -> None:
         """Off the bus for ``reenumerate_s``, then back at the next address, reset."""
         self._stop()
+        unseen = sum(1 for f in self._fifo if p.decode_frame(f).flags & p.FrameFlags.OVERFLOW)
+        unseen += len(self._lost) + int(self._pending_overflow)
+        if unseen:
+            self.injected["fifo_overflow"] = self.injected.get("fifo_overflow", 0) - unseen
+            fault_log.warning(
+                "simulated fault note: %d fifo_overflow(s) discarded unread by the reset", unseen
+            )
         self._fifo.clear()
         self._generation += 1
         self._gone_until = time.monotonic() + self.faults.reenumerate_s
@@ -419,12 +426,18 @@ class VirtualDaqBackend(usb.backend.IBackend):
         self._lost_upto = 0
         self._epoch = self._world
         self.running = True
-        self.clock.start(self._epoch, self.sample_rate_hz)
+        self.clock.start(
+            self._epoch,
+            self.sample_rate_hz,
+            wall_scale=self.time_scale if self.free_running else None,
+        )
 
     def _stop(self) -> None:
         if self.running:
             if self.free_running:
-                self._clocked()
+                # the clock stops at one instant: the count the amplifiers saw
+                self._count = max(self._count, self.clock.stop())
+                self._overflow()
             else:
                 self._count += self.faults.frames_clocked_before_stop * self._spf
                 self.clock.advance(self._count)
@@ -443,10 +456,9 @@ class VirtualDaqBackend(usb.backend.IBackend):
     def _clocked(self) -> int:
         """Samples clocked in this run (free-running: advanced to the wall time while running)."""
         if self.free_running and self.running:
-            n = int((time.monotonic() - self._t0) * self.sample_rate_hz * self.time_scale)
+            n = self.clock.count()
             if n > self._count:
                 self._count = n
-                self.clock.advance(n)
             self._overflow()
         return self._count
 
@@ -467,18 +479,17 @@ class VirtualDaqBackend(usb.backend.IBackend):
         start += -start % self._spf
         end = self._count - self._count % self._spf
         if end > start:
-            if self._lost and self._lost[-1][1] == start:
+            if self._lost and self._lost[-1][1] == start:  # the same overflow goes on
                 self._lost[-1] = (self._lost[-1][0], end)
             else:
                 self._lost.append((start, end))
+                self._count_fault(
+                    "fifo_overflow",
+                    "the host is late; the DAQ FIFO (%d bytes) is full from sample %d on",
+                    self.fifo_bytes,
+                    start,
+                )
             self._lost_upto = end
-            self._count_fault(
-                "fifo_overflow",
-                "the host is late; the DAQ FIFO (%d bytes) is full, samples %d..%d lost",
-                self.fifo_bytes,
-                start,
-                end - 1,
-            )
 
     def world_sample(self, daq_sample: int) -> int:
         """The source counter of DAQ sample ``daq_sample`` of the present run."""

@@ -114,6 +114,8 @@ class SimulatedDigitizer:
         self.port_loss_s = 0.3
         self._link_rng = np.random.default_rng([seed, 0x5E41])
         self._lost_until = 0.0
+        #: bumped when the port drops off: a handle opened before is dead for good
+        self.port_generation = 0
         #: faults injected so far, by kind
         self.injected: dict[str, int] = {}
         self._lock = threading.RLock()
@@ -215,6 +217,7 @@ class SimulatedDigitizer:
                     and self._link_rng.random() < self.port_loss_rate
                 ):
                     self._lost_until = time.monotonic() + self.port_loss_s
+                    self.port_generation += 1  # open handles are dead: reopen the port
                     self._out.clear()
                     self._rx.clear()
                     self._inject("serial_port_loss", "port drops off for %g s", self.port_loss_s)
