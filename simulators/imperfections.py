@@ -14,7 +14,8 @@ holds the rate or size of each; :class:`~dimacq.simulators.daq.backend.VirtualDa
 Defaults (:data:`DEFAULT`) are realistic and such that a simulated test still passes: the drivers
 and the acquisition session survive them (averages hit by a fault are rejected and struck again).
 The simulated lab runs ``daq_time_scale`` times faster than real time (a time-lapse: 240 s of
-impact test in the demo would otherwise take 4 minutes); 1 is a real DAQ. The service setting
+impact test in the demo would otherwise take 4 minutes; the host must keep
+up with 4× the real data rate); 1 is a real DAQ. The service setting
 ``simulation_imperfections`` overrides any field (``{}``: the defaults; ``{enabled = false}``:
 none, the kind simulators of before).
 
@@ -22,9 +23,9 @@ none, the kind simulators of before).
 field                        what                                    default
 =========================== ======================================= ================================
 daq_free_running             the DAQ clocks in wall time             true
-daq_time_scale               simulated seconds per wall second       8
+daq_time_scale               simulated seconds per wall second       4
 daq_fifo_bytes               device FIFO, 0: unbounded (host late:   4 MiB (19 s of the demo's 25
-                             overflow)                               channels, 2.4 s wall at 8×)
+                             overflow)                               channels, 4.7 s wall at 4×)
 daq_stale_frames             START keeps the previous run's frames   true
 daq_stall_rate               per bulk read: the device NAKs a while  0.002
 daq_stall_s                  how long (≥ the USB timeout: a timeout) 0.25 s
@@ -65,7 +66,7 @@ class Imperfections:
 
     enabled: bool = True
     daq_free_running: bool = True
-    daq_time_scale: float = 8.0
+    daq_time_scale: float = 4.0
     daq_fifo_bytes: int = 4 << 20
     daq_stale_frames: bool = True
     daq_stall_rate: float = 0.002

@@ -107,7 +107,8 @@ def open_amplifier(
     ``can.BitTimingFd`` ``timing`` when given), calibrated from its file; the bus's closer goes
     to ``ctx``. ``require_calibration=False`` (bench calibration of a new cell): a missing
     calibration file is allowed (no matrix is set); an existing one must still belong to the
-    cell.
+    cell. ``retries``: further attempts of an idempotent command (IDENTIFY, SET_RATE, START,
+    STOP, GET_STATUS) that got no answer (a node bus-off for a moment).
 
     Raises
     ------

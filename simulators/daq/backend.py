@@ -173,7 +173,7 @@ class VirtualDaqBackend(usb.backend.IBackend):
         )
         self.clock = clock if clock is not None else SampleClock()
         self.faults = faults if faults is not None else DaqFaults()
-        self._device = _Desc(
+        self._device: Any = _Desc(
             bLength=18,
             bDescriptorType=1,
             bcdUSB=0x0200,

@@ -344,13 +344,13 @@ class LoadCellAmplifierSim:
         frames, _ = p.encode_data_frames(counters[keep], g[keep])
         aid = p.data_id(self.node)
         hb = p.heartbeat_id(self.node)
-        f = self.faults
-        if f.bus_off_rate and self.rng.random() < f.bus_off_rate * n / self.rate_hz:
-            self._bus_off_until = time.monotonic() + f.bus_off_s
-            self._inject("can_bus_off", "goes bus-off for %g s at pulse %d", f.bus_off_s, pulse0)
+        flt = self.faults
+        if flt.bus_off_rate and self.rng.random() < flt.bus_off_rate * n / self.rate_hz:
+            self._bus_off_until = time.monotonic() + flt.bus_off_s
+            self._inject("can_bus_off", "goes bus-off for %g s at pulse %d", flt.bus_off_s, pulse0)
         lost = np.zeros(n, dtype=bool)
-        if f.frame_loss_rate:
-            lost = self.rng.random(n) < f.frame_loss_rate
+        if flt.frame_loss_rate:
+            lost = self.rng.random(n) < flt.frame_loss_rate
         lost_counters = set(counters[lost & keep].tolist()) if lost.any() else set()
         scale_us = 1e6 / self.rate_hz * (1 + self.oscillator_ppm * 1e-6)
         for c, q, f in zip(counters[keep].tolist(), pulses[keep].tolist(), frames, strict=True):

@@ -51,9 +51,7 @@ def test_impact_test_survives_re_enumeration_bus_off_and_frame_loss(
         "can_bus_off_s": 0.02,
         "can_frame_loss_rate": 1e-4,
     }
-    settings = load_settings(
-        data_dir=tmp_path, token="t", simulation_imperfections=imperfections
-    )
+    settings = load_settings(data_dir=tmp_path, token="t", simulation_imperfections=imperfections)
     full = build_scenario(settings.scenario).model.setup
     setup = full.model_copy(update={"excitations": full.excitations[:2]})
     accepted: list[tuple[int, int]] = []
