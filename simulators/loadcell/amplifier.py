@@ -46,6 +46,8 @@ log = logging.getLogger(__name__)
 
 _CHUNK = 256
 _MAX_LAG = 8 * _CHUNK
+#: SYNC pulses the simulator may fall behind the DAQ clock before their frames are dropped
+_MAX_BACKLOG = 128 * _CHUNK
 
 
 @dataclass
@@ -311,6 +313,12 @@ class LoadCellAmplifierSim:
     def _stream_some(self, final: bool = False) -> bool:
         """Send frames for pulses seen; returns False when there was nothing to send."""
         avail = self._available_pulses()
+        if self._external and avail - self._pulses > _MAX_BACKLOG:
+            # A real amplifier cannot queue seconds of frames: the bus is saturated and they are
+            # dropped (a counter gap). Here the simulator thread got too little CPU to keep up.
+            skip = avail - self._pulses - _MAX_BACKLOG
+            self._inject("can_overload", "fell %d pulses behind SYNC; their frames dropped", skip)
+            self._pulses += skip
         sent = False
         while self._pulses < avail:
             n = min(_CHUNK, avail - self._pulses)

@@ -262,7 +262,8 @@ _UNSEEN = re.compile(r"simulated fault note: (\d+) fifo_overflow")
 
 def count_faults(log_text: str) -> tuple[dict[str, int], dict[str, int]]:
     """Faults injected and reported, by kind, from the service log. CAN: one gap of the load
-    cell stream (reported block by block, merged when contiguous) per frame lost or bus-off;
+    cell stream (reported block by block, merged when contiguous) per frame lost, bus-off or
+    overload (the amplifier simulator starved of CPU drops the frames it is behind with);
     FIFO overflows the DAQ's reset discarded unread are not counted as injected."""
     injected = Counter(_INJECTED.findall(log_text))
     injected.pop("note", None)
@@ -275,7 +276,7 @@ def count_faults(log_text: str) -> tuple[dict[str, int], dict[str, int]]:
             gaps += 1
         last[node] = int(b) + 1
     reported["can_frame_loss + can_bus_off"] = gaps
-    can = injected.pop("can_frame_loss", 0) + injected.pop("can_bus_off", 0)
+    can = sum(injected.pop(k, 0) for k in ("can_frame_loss", "can_bus_off", "can_overload"))
     injected["can_frame_loss + can_bus_off"] = can
     return {k: v for k, v in injected.items() if v or k in reported}, reported
 
