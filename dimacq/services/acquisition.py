@@ -462,9 +462,11 @@ class ImpactSession:
         )
         log.warning(msg)
         self._event({"device": "daq", "kind": "restart", "message": msg})
-        for lc in self.loadcells:
+        for k, lc in enumerate(self.loadcells):
             try:
-                lc.stop()
+                counted = lc.stop()
+                if counted > self._lc_bufs[k].end:  # read the rest: its gaps are reported too
+                    self._ingest_lc(k, lc.read_until(counted))
             except DeviceError:  # the run is over for it anyway
                 log.warning("stopping a load cell after the DAQ was lost failed", exc_info=True)
         reconnect()
@@ -517,7 +519,8 @@ class ImpactSession:
                         s0 = t - s.pretrigger_samples
                         self._until(s0 + s.record_samples)
                     except DeviceLostError as err:
-                        self._restart(err, j)
+                        self._restart(err, j)  # bounded by max_restarts, not the strikes
+                        attempts -= 1
                         armed_from = 0
                         continue
                     except _StrikeLost as lost:
