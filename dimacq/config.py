@@ -109,6 +109,11 @@ class Settings(BaseSettings):
     daq_product_id: int = Field(default=0xDA64, ge=0, le=0xFFFF)
     rig_file: str = ""
     scenario: str = "calibration-mass-bungee"
+    #: The simulated devices' imperfections over their defaults (dimacq.simulators.imperfections:
+    #: free-running DAQ clock with a FIFO, stale frames, ±50 ppm crystals, CAN frame loss,
+    #: serial noise and port loss, USB stalls; re-enumeration and bus-off at rate 0);
+    #: ``{enabled = false}``: none.
+    simulation_imperfections: dict[str, float | bool] = Field(default_factory=dict)
     # Registration of the digitizer array (see dimacq.pipeline.digitizing.registration):
     # 1σ per coordinate of the reference nodes' known GCS coordinates, and the largest accepted
     # residual of one reference node (None: 5·sqrt(σ_point² + σ_reference²) with σ_point the

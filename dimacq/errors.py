@@ -10,6 +10,7 @@ wrong and says how to fix it::
      ├── SolverError            a numerical solve cannot give a trustworthy answer (rank < 6, ...)
      └── DeviceError            anything about an instrument
           ├── DeviceNotFoundError   no device at that port / bus / USB id
+          │    └── DeviceLostError  it was there and dropped off (port lost, USB re-enumeration)
           ├── DeviceTimeoutError    the device did not answer in time (also a TimeoutError)
           ├── ProtocolError         bytes on the wire do not follow the documented protocol
           ├── DeviceStateError      the request does not fit the device's state (e.g. not started)
@@ -24,6 +25,7 @@ __all__ = [
     "DataError",
     "DatabaseUnavailableError",
     "DeviceError",
+    "DeviceLostError",
     "DeviceNotFoundError",
     "DeviceStateError",
     "DeviceTimeoutError",
@@ -56,6 +58,10 @@ class DeviceError(DimacqError):
 
 class DeviceNotFoundError(DeviceError):
     """No device answers at the configured port, bus or USB id."""
+
+
+class DeviceLostError(DeviceNotFoundError):
+    """The device answered, then dropped off (port lost, USB re-enumeration): reconnect."""
 
 
 class DeviceTimeoutError(DeviceError, TimeoutError):

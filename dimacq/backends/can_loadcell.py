@@ -3,7 +3,8 @@
 Each load cell of the rig file is opened on its own bus handle (``interface =
 loadcell_interface``, ``channel`` = the entry's or ``loadcell_channel``, CAN FD with the bit timing
 of the ``loadcell_f_clock``/``loadcell_bitrate``/``loadcell_sample_point``/
-``loadcell_data_bitrate``/``loadcell_data_sample_point`` settings, filtered to the node's
+``loadcell_data_bitrate``/``loadcell_data_sample_point`` settings, each overridable per rig file entry by ``f_clock``,
+``bitrate``, ``sample_point``, ``data_bitrate``, ``data_sample_point``; filtered to the node's
 identifiers) with the 6×12 matrix of its calibration file; the amplifier's serial number
 must match the file's.
 """
@@ -27,29 +28,43 @@ _TIMING_SETTINGS = (
 )
 
 
-def bit_timing(settings: Any) -> Any:
-    """The ``can.BitTimingFd`` of the settings.
+def bit_timing(settings: Any, entry: LoadCellEntry | None = None) -> Any:
+    """The ``can.BitTimingFd`` of the settings, each value overridden by the rig file entry's
+    ``f_clock``/``bitrate``/``sample_point``/``data_bitrate``/``data_sample_point`` when given.
 
     Raises
     ------
     SetupError
-        No valid timing for those rates, clock and sample points; names the settings.
+        No valid timing for those rates, clock and sample points; names the settings (and the
+        rig file entry when it gave a value).
     """
     import can
 
     s = settings
+    given = {}
+    values = {}
+    for key in ("f_clock", "bitrate", "sample_point", "data_bitrate", "data_sample_point"):
+        v = None if entry is None else getattr(entry, key)
+        if v is not None:
+            given[key] = v
+        values[key] = v if v is not None else getattr(s, f"loadcell_{key}")
     try:
         return can.BitTimingFd.from_sample_point(
-            f_clock=s.loadcell_f_clock,
-            nom_bitrate=s.loadcell_bitrate,
-            nom_sample_point=s.loadcell_sample_point,
-            data_bitrate=s.loadcell_data_bitrate,
-            data_sample_point=s.loadcell_data_sample_point,
+            f_clock=values["f_clock"],
+            nom_bitrate=values["bitrate"],
+            nom_sample_point=values["sample_point"],
+            data_bitrate=values["data_bitrate"],
+            data_sample_point=values["data_sample_point"],
         )
     except ValueError as err:
-        raise SetupError(
-            f"CAN FD bit timing: {err}; give rates that divide the adapter's clock "
+        where = (
+            f"load cell {entry.node} of the rig file ({', '.join(given)}) and the settings "
             f"({_TIMING_SETTINGS})"
+            if entry is not None and given
+            else _TIMING_SETTINGS
+        )
+        raise SetupError(
+            f"CAN FD bit timing: {err}; give rates that divide the adapter's clock ({where})"
         ) from err
 
 
@@ -86,12 +101,14 @@ def open_amplifier(
     timeout_s: float = 2.0,
     require_calibration: bool = True,
     timing: Any = None,
+    retries: int = 2,
 ) -> LoadCellAmplifier:
     """Open the amplifier of ``entry`` on ``can.Bus(interface, channel)`` (CAN FD, with the
     ``can.BitTimingFd`` ``timing`` when given), calibrated from its file; the bus's closer goes
     to ``ctx``. ``require_calibration=False`` (bench calibration of a new cell): a missing
     calibration file is allowed (no matrix is set); an existing one must still belong to the
-    cell.
+    cell. ``retries``: further attempts of an idempotent command (IDENTIFY, SET_RATE, START,
+    STOP, GET_STATUS) that got no answer (a node bus-off for a moment).
 
     Raises
     ------
@@ -127,6 +144,7 @@ def open_amplifier(
             bus,
             node_id=entry.node_id,
             timeout_s=timeout_s,
+            retries=retries,
             calibration_matrix=None if cal is None else cal.matrix,
             clock_tolerance_ppm=ctx.settings.loadcell_clock_tolerance_ppm,
         )
@@ -161,7 +179,7 @@ def open_loadcell(ctx: DeviceContext, entry: LoadCellEntry) -> LoadCellAmplifier
         entry,
         interface=s.loadcell_interface,
         channel=channel,
-        timing=bit_timing(s),
+        timing=bit_timing(s, entry),
         require_calibration=ctx.calibration_bench != entry.node,
         where=(
             f"loadcell = 'dimacq-can', loadcell_interface = {s.loadcell_interface!r}, channel "

@@ -16,6 +16,13 @@ The entries then open the devices exactly as the hardware entries do:
 (:func:`dimacq.backends.can_loadcell.open_amplifier`), :func:`open_digitizer` opens
 ``digitizer_url`` (``simdigitizer://``) through pyserial's URL handler. The world's hand strikes
 the article when the session asks (``ctx.operator``).
+
+The devices are not kind: they play the imperfections of real ones
+(:class:`~dimacq.simulators.imperfections.Imperfections`, on by default, the setting
+``simulation_imperfections`` overrides any of them): the DAQ's clock free-runs in (time-lapse)
+wall time with a bounded FIFO, keeps stale frames across START, stalls now and then; each
+amplifier's crystal is off by up to ±50 ppm and CAN frames get lost; the digitizer's line
+picks up noise and its port drops off.
 """
 
 from __future__ import annotations
@@ -24,6 +31,8 @@ import itertools
 import logging
 import os
 from typing import Any
+
+import numpy as np
 
 from dimacq.backends.base import DeviceContext, require_setup
 from dimacq.backends.can_loadcell import open_amplifier
@@ -36,13 +45,14 @@ from dimacq.errors import SetupError
 from dimacq.io.rig_file import LoadCellEntry, RigFile
 from dimacq.model.channels import axis_name, gauge_names
 from dimacq.model.frf import STANDARD_GRAVITY
-from dimacq.simulators.daq.backend import DaqInput, VirtualDaqBackend
+from dimacq.simulators.daq.backend import DaqFaults, DaqInput, VirtualDaqBackend
 from dimacq.simulators.daq.clock import SampleClock
+from dimacq.simulators.imperfections import Imperfections
 from dimacq.simulators.lab import transducers as tr
 from dimacq.simulators.lab.impact import virtual_lab
 from dimacq.simulators.lab.scenarios import build_scenario
 from dimacq.simulators.lab.timedomain import VirtualLab
-from dimacq.simulators.loadcell.amplifier import LoadCellAmplifierSim
+from dimacq.simulators.loadcell.amplifier import LoadCellAmplifierSim, LoadCellFaults
 from dimacq.simulators.loadcell.bench import SupportSideBench
 
 __all__ = ["SimulatedWorld", "open_daq", "open_digitizer", "open_loadcell", "world"]
@@ -72,6 +82,8 @@ class SimulatedWorld:
         carries every force on the mass
         (:class:`~dimacq.simulators.loadcell.bench.SupportSideBench`; the DAQ and the amplifier
         simulators read the bench). None: the article as the scenario mounts it.
+    imperfections : Imperfections, optional
+        The devices' imperfections (default: :data:`~dimacq.simulators.imperfections.DEFAULT`).
 
     Raises
     ------
@@ -87,8 +99,12 @@ class SimulatedWorld:
         seed: int | None = None,
         noise_scale: float = 1.0,
         calibration_bench: int | None = None,
+        imperfections: Imperfections | None = None,
     ) -> None:
         self.scenario = scenario
+        imp = imperfections if imperfections is not None else Imperfections()
+        self.imperfections = imp
+        fault_seed = 0 if seed is None else seed
         self.built = build_scenario(scenario, seed)
         # A test streams through the lab about once (the amplifier's tare a little behind):
         # 64 blocks cached, older ones recomputed from their stored states if read again.
@@ -144,11 +160,30 @@ class SimulatedWorld:
                 responses[(r.node, r.direction)], mv * 1e-3 / STANDARD_GRAVITY
             )
         self.clock = SampleClock()
-        self.backend = VirtualDaqBackend(self.source, wiring, clock=self.clock)
+        self.backend = VirtualDaqBackend(
+            self.source,
+            wiring,
+            clock=self.clock,
+            free_running=imp.daq_free_running,
+            time_scale=imp.daq_time_scale,
+            fifo_bytes=imp.daq_fifo_bytes,
+            seed=fault_seed,
+            faults=DaqFaults(
+                stale_frames_survive_start=imp.daq_stale_frames,
+                stall_rate=imp.daq_stall_rate,
+                stall_s=imp.daq_stall_s,
+                reenumerate_rate=imp.daq_reenumerate_rate,
+                reenumerate_s=imp.daq_reenumerate_s,
+            ),
+        )
+        # each amplifier's crystal: within ±loadcell_oscillator_ppm of nominal
+        ppm = np.random.default_rng([fault_seed, 0x0C]).uniform(
+            -imp.loadcell_oscillator_ppm, imp.loadcell_oscillator_ppm, len(rig_file.load_cells)
+        )
         self.can_channel = f"dimacq-sim-{os.getpid()}-{next(_names)}"
         self._sims: list[LoadCellAmplifierSim] = []
         try:
-            for e in rig_file.load_cells:
+            for k, e in enumerate(rig_file.load_cells):
                 gauges = [self.lab.channel_index(n) for n in gauge_names(e.node)]
                 self._sims.append(
                     LoadCellAmplifierSim(
@@ -158,6 +193,13 @@ class SimulatedWorld:
                         clock=self.clock,
                         node_id=e.node_id,
                         serial_number=e.node,
+                        oscillator_ppm=float(ppm[k]),
+                        faults=LoadCellFaults(
+                            frame_loss_rate=imp.can_frame_loss_rate,
+                            bus_off_rate=imp.can_bus_off_rate,
+                            bus_off_s=imp.can_bus_off_s,
+                            seed=fault_seed,
+                        ),
                     )
                 )
         except BaseException:
@@ -183,7 +225,10 @@ class SimulatedWorld:
         source, backend = self.source, self.backend
 
         def strike(j: int, daq_sample: int) -> None:
-            source.excite(index[j], backend.world_sample(daq_sample))
+            # A free-running lab has gone on past what the host has read (the load cells have
+            # read it already): the hand strikes at the asked sample or, when that is past, now.
+            with backend.clock.source_lock:
+                source.excite(index[j], max(backend.world_sample(daq_sample), source.frontier))
 
         return strike
 
@@ -202,11 +247,17 @@ def world(ctx: DeviceContext) -> SimulatedWorld:
             ctx.seed,
             ctx.noise_scale,
             calibration_bench=ctx.calibration_bench,
+            imperfections=imperfections(ctx),
         )
         ctx.shared[_WORLD] = w
         ctx.on_close(w.close)
     assert isinstance(w, SimulatedWorld)
     return w
+
+
+def imperfections(ctx: DeviceContext) -> Imperfections:
+    """The simulated devices' imperfections of the settings (``simulation_imperfections``)."""
+    return Imperfections.from_mapping(ctx.settings.simulation_imperfections)
 
 
 def open_daq(ctx: DeviceContext) -> DaqTask:
@@ -251,7 +302,12 @@ def open_digitizer(ctx: DeviceContext) -> SerialDigitizer:
             f"digitizer = 'simulated' with digitizer_url = {url!r}: give a "
             "'simdigitizer://NAME?seed=S' URL, or digitizer = 'serial' for a real port"
         )
-    simdig.get_device(url)
+    imp = imperfections(ctx)
+    simdig.get_device(url).set_imperfections(
+        noise_rate=imp.digitizer_noise_rate,
+        port_loss_rate=imp.digitizer_port_loss_rate,
+        port_loss_s=imp.digitizer_port_loss_s,
+    )
     ctx.on_close(lambda: simdig.unregister_device(parts.netloc))
     return open_serial_digitizer(ctx)
 

@@ -64,17 +64,21 @@ def open_on_backend(ctx: DeviceContext, backend: Any, where: str) -> DaqTask:
         ) from err
     timeout = rig_file.daq.timeout_s
     serial = rig_file.daq.serial_number
-    for dev in devices:
-        daq = DaqDevice(dev, timeout_s=timeout)
-        try:
-            if serial and daq.identify().serial_number != serial:
-                daq.close()
-                continue
-        except BaseException:
-            daq.close()
-            raise
-        ctx.on_close(daq.close)
-        return DaqTask(daq, "impact")
+    daq = _first(devices, serial, timeout)
+    if daq is not None:
+        # re-enumerated (a new address, maybe another bus): found again by its serial number
+        ident = serial or daq.identify().serial_number
+
+        def reopen() -> DaqDevice:
+            found = usb.core.find(find_all=True, idVendor=vid, idProduct=pid, backend=backend)
+            again = _first(list(found or []), ident, timeout)
+            if again is None:
+                raise DeviceNotFoundError(f"{where}: DAQ {ident!r} is not on the bus")
+            return again
+
+        task = DaqTask(daq, "impact", reopen=reopen)
+        ctx.on_close(lambda: task.device.close())
+        return task
     wanted = (
         f" with serial number {serial!r} ([daq] serial_number of {rig_file.path})" if serial else ""
     )
@@ -84,6 +88,21 @@ def open_on_backend(ctx: DeviceContext, backend: Any, where: str) -> DaqTask:
         "permissions (udev rule), correct daq_vendor_id/daq_product_id, or set daq "
         "(DIMACQ_DAQ) = 'simulated'"
     )
+
+
+def _first(devices: list[Any], serial: str, timeout_s: float) -> DaqDevice | None:
+    """The first of ``devices`` with serial number ``serial`` ("" : any), opened."""
+    for dev in devices:
+        daq = DaqDevice(dev, timeout_s=timeout_s)
+        try:
+            if serial and daq.identify().serial_number != serial:
+                daq.close()
+                continue
+        except BaseException:
+            daq.close()
+            raise
+        return daq
+    return None
 
 
 def open_daq(ctx: DeviceContext) -> DaqTask:

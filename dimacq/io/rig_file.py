@@ -168,6 +168,22 @@ class LoadCellEntry(_Model):
         description="the cell's calibration file (.json or .xml, relative paths from rig.toml)",
     )
     channel: str = Field(default="", description="a CAN channel, or '' for loadcell_channel")
+    # CAN FD bit timing of this cell's bus (None: the loadcell_* setting of the same name)
+    f_clock: int | None = Field(
+        default=None, gt=0, description="the adapter's CAN clock in Hz, or leave it out"
+    )
+    bitrate: int | None = Field(
+        default=None, gt=0, description="the nominal bit rate in bit/s, or leave it out"
+    )
+    sample_point: float | None = Field(
+        default=None, gt=50.0, lt=100.0, description="the nominal sample point in % (50..100)"
+    )
+    data_bitrate: int | None = Field(
+        default=None, gt=0, description="the data-phase bit rate in bit/s, or leave it out"
+    )
+    data_sample_point: float | None = Field(
+        default=None, gt=50.0, lt=100.0, description="the data-phase sample point in % (50..100)"
+    )
 
 
 class RigFile(_Model):

@@ -16,6 +16,11 @@ clock:
    It is **rejected** (and the operator asked again) when any channel overloaded, a DAQ or load
    cell sample in it was lost, the load cell reported drift, or the force shows a double hit.
    Rejected averages stay on disk; accepted ones are kept for the FRFs.
+   A DAQ gap (FIFO overflow, lost transfer) names its kind and samples in the reason.
+   **The DAQ drops off the bus** (USB re-enumeration): the run is restarted — load cells
+   stopped, the DAQ found again (``daq.reconnect()``), everything armed and started anew (sample
+   counters from 0) — and the input struck again; the average in progress is lost (an event and
+   a progress message say so), the accepted ones are kept. At most ``max_restarts`` restarts.
 4. **Enough averages**: an input is struck until ``averages_per_input`` are accepted or
    ``max_attempts_factor × averages_per_input`` strikes are used; an input left with fewer than
    ``min_averages`` accepted averages is **incomplete**: it gets no FRF (one average would give a
@@ -51,7 +56,7 @@ from numpy.typing import NDArray
 
 from dimacq.devices.daq import Daq, DaqBlock
 from dimacq.devices.loadcell import LoadCell, LoadCellBlock
-from dimacq.errors import DataError, DeviceTimeoutError, SetupError
+from dimacq.errors import DataError, DeviceError, DeviceLostError, DeviceTimeoutError, SetupError
 from dimacq.io.acquisition_hdf5 import AcquisitionWriter
 from dimacq.model.channels import axis_name
 from dimacq.model.frf import Channel, FrfData, OutputKind
@@ -63,7 +68,7 @@ from dimacq.pipeline.frf_estimation import (
     exponential_window,
     force_window,
 )
-from dimacq.services.acquisition_buffer import SampleBuffer as _Buffer
+from dimacq.services.sample_window import SampleWindow
 
 __all__ = [
     "OPERATOR_REDO",
@@ -161,6 +166,10 @@ class ImpactResult:
     min_averages: int = 1
 
 
+class _StrikeLost(Exception):
+    """Samples were lost while waiting for a strike: it may have been among them."""
+
+
 class ImpactSession:
     """A roving-hammer impact test.
 
@@ -211,11 +220,16 @@ class ImpactSession:
         review: ReviewCallback | None = None,
         should_finish: Callable[[], bool] | None = None,
         on_input: Callable[[int, NDArray[np.float64]], None] | None = None,
+        max_restarts: int = 5,
     ) -> None:
         self.on_input = on_input
         self.daq = daq
         self.review = review
         self.should_finish = should_finish
+        self.max_restarts = max_restarts
+        #: runs restarted after the DAQ dropped off the bus
+        self.restarts = 0
+        self._gaps: list[tuple[int, int, str]] = []
         self.settings = settings or ImpactSettings()
         names = list(daq.channel_names)
         missing = [c for c in (*input_channels, *response_channels) if c not in names]
@@ -267,6 +281,8 @@ class ImpactSession:
         if self.writer is not None:
             self.writer.append_daq(block.first_sample, block.data, block.valid, block.overload)
         for e in block.events:
+            if e.n_samples and e.kind in ("overflow", "lost_transfer"):
+                self._gaps.append((e.first_sample, e.first_sample + e.n_samples, e.kind))
             self._event({"device": "daq", **asdict(e)})
 
     def _ingest_lc(self, k: int, block: LoadCellBlock) -> None:
@@ -324,6 +340,13 @@ class ImpactSession:
                 hits = np.flatnonzero(np.abs(np.nan_to_num(seg)) >= s.trigger_level_n)
                 if hits.size:
                     return search_from + int(hits[0])
+                if np.isnan(seg).any():
+                    # samples lost while waiting (FIFO overflow, lost transfer): the strike may
+                    # be among them; ask for it again rather than wait for one that never comes
+                    raise _StrikeLost(
+                        f"input {self.input_names[input_index]}: DAQ samples lost while waiting "
+                        "for the strike; asking for it again"
+                    )
                 search_from = buf.end
                 # keep only the pre-trigger history while waiting: O(1) memory and work per block
                 self._trim(search_from - s.pretrigger_samples)
@@ -341,7 +364,15 @@ class ImpactSession:
         reasons: list[str] = []
         data, valid, over = self._daq_buf.window(s0, n)
         if not valid.all():
-            reasons.append(f"DAQ samples lost ({int((~valid).sum())})")
+            kinds = sorted(
+                {
+                    "FIFO overflow" if k == "overflow" else "transfer lost"
+                    for a, b, k in self._gaps
+                    if a < s0 + n and b > s0
+                }
+            )
+            why = f": {', '.join(kinds)}" if kinds else ""
+            reasons.append(f"DAQ samples lost ({int((~valid).sum())}{why})")
         if over.any():
             chans = [self.daq.channel_names[i] for i in np.flatnonzero(over.any(axis=1))]
             reasons.append(f"overload on {', '.join(chans)}")
@@ -385,20 +416,73 @@ class ImpactSession:
             self._trim(self._daq_buf.end - self.settings.pretrigger_samples)
 
     # -- run -------------------------------------------------------------------------------------------
+    def _start_run(self) -> None:
+        """Fresh buffers; arm the load cells (counter 0 at the DAQ's next pulse); start the DAQ."""
+        self._daq_buf = SampleWindow(len(self.daq.channel_names))
+        n_lc_rows = 6 if self.loadcell_outputs == "forces" else 12
+        self._lc_bufs = [SampleWindow(n_lc_rows) for _ in self.loadcells]
+        self._lc_zero: list[NDArray[np.float64] | None] = [None] * len(self.loadcells)
+        self._gaps = []
+        assert self.daq.sample_rate_hz is not None
+        for lc in self.loadcells:
+            lc.set_rate(round(self.daq.sample_rate_hz))
+            lc.start(external_clock=True)
+        self.daq.start()
+
+    def _restart(self, err: DeviceLostError, input_index: int) -> None:
+        """The DAQ dropped off the bus: stop the load cells, find the DAQ again, start anew.
+
+        Raises
+        ------
+        DeviceLostError
+            The DAQ cannot reconnect, or ``max_restarts`` is used up.
+        DeviceNotFoundError
+            It did not come back.
+        """
+        reconnect = getattr(self.daq, "reconnect", None)
+        if reconnect is None or self.restarts >= self.max_restarts:
+            raise DeviceLostError(
+                f"{err}; the run was restarted {self.restarts} time(s) (max_restarts "
+                f"{self.max_restarts}); check the USB cable and hub, then repeat the missing inputs"
+            ) from err
+        self.restarts += 1
+        msg = (
+            f"DAQ lost ({err}); run restarted ({self.restarts} of at most {self.max_restarts}): "
+            f"the average in progress of input {self.input_names[input_index]} is struck again, "
+            "the accepted averages are kept"
+        )
+        log.warning(msg)
+        self._event({"device": "daq", "kind": "restart", "message": msg})
+        for k, lc in enumerate(self.loadcells):
+            try:
+                counted = lc.stop()
+                if counted > self._lc_bufs[k].end:  # read the rest: its gaps are reported too
+                    self._ingest_lc(k, lc.read_until(counted))
+            except DeviceError:  # the run is over for it anyway
+                log.warning("stopping a load cell after the DAQ was lost failed", exc_info=True)
+        reconnect()
+        self._start_run()
+        if self.progress is not None:
+            j = input_index
+            self.progress(
+                Progress(
+                    j,
+                    len(self.input_rows),
+                    self._n_acc[j],
+                    self.settings.averages_per_input,
+                    0,
+                    msg,
+                )
+            )
+
     def run(self) -> ImpactResult:
         s = self.settings
         n_in = len(self.input_rows)
-        self._daq_buf = _Buffer(len(self.daq.channel_names))
-        n_lc_rows = 6 if self.loadcell_outputs == "forces" else 12
-        self._lc_bufs = [_Buffer(n_lc_rows) for _ in self.loadcells]
         assert self.daq.sample_rate_hz is not None
         fs = self.daq.sample_rate_hz
-        self._lc_zero: list[NDArray[np.float64] | None] = [None] * len(self.loadcells)
         self._zero_samples = max(1, min(128, self.settings.hit_delay_samples))
-        for lc in self.loadcells:
-            lc.set_rate(round(fs))
-            lc.start(external_clock=True)
-        self.daq.start()
+        self._n_acc = [0] * n_in
+        self._start_run()
         records: list[list[dict[str, NDArray[np.float64]]]] = [[] for _ in range(n_in)]
         # Streamed: an input's FRF is estimated as soon as its averages are in, and its records
         # are dropped (memory: one input's records, not the whole test's).
@@ -423,11 +507,34 @@ class ImpactSession:
                     if attempts > s.max_attempts_factor * s.averages_per_input:
                         break
                     ask_at = max(armed_from, self._daq_buf.end) + s.hit_delay_samples
-                    if self.operator is not None:
-                        self.operator(j, ask_at)
-                    t = self._wait_trigger(j, max(armed_from, self._daq_buf.end))
-                    s0 = t - s.pretrigger_samples
-                    self._until(s0 + s.record_samples)
+                    try:
+                        if self.operator is not None:
+                            self.operator(j, ask_at)
+                        t = self._wait_trigger(j, max(armed_from, self._daq_buf.end))
+                        s0 = t - s.pretrigger_samples
+                        self._until(s0 + s.record_samples)
+                    except DeviceLostError as err:
+                        self._restart(err, j)  # bounded by max_restarts, not the strikes
+                        attempts -= 1
+                        armed_from = 0
+                        continue
+                    except _StrikeLost as lost:
+                        rejected += 1
+                        log.warning("%s", lost)
+                        self._event({"device": "daq", "kind": "strike_lost", "message": str(lost)})
+                        armed_from = self._daq_buf.end
+                        if self.progress is not None:
+                            self.progress(
+                                Progress(
+                                    j,
+                                    n_in,
+                                    len(records[j]),
+                                    s.averages_per_input,
+                                    rejected,
+                                    str(lost),
+                                )
+                            )
+                        continue
                     reasons, rec = self._check(j, s0, s.record_samples)
                     decision: Decision = "reject" if reasons else "accept"
                     if self.review is not None:
@@ -441,6 +548,7 @@ class ImpactSession:
                     ok = decision == "accept"
                     if ok:
                         records[j].append(rec)
+                        self._n_acc[j] += 1
                     else:
                         rejected += 1
                     if decision == "redo":  # the input starts again: its averages and budget
@@ -493,7 +601,11 @@ class ImpactSession:
             if n_clocked is None:
                 n_clocked = n_received
             for k, lc in enumerate(self.loadcells):
-                lc.stop()
+                counted = lc.stop()
+                if counted > self._lc_bufs[k].end:
+                    # the rest of the run (after the last average): read so that its gaps are
+                    # reported too, not kept
+                    self._ingest_lc(k, lc.read_until(counted))
                 ev = lc.verify_count(n_clocked)
                 if ev is not None:
                     self._event({"device": f"loadcell{k}", **asdict(ev)})

@@ -33,6 +33,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from dimacq.devices.digitizer import Digitizer, ShotRecord
 from dimacq.errors import (
     DataError,
+    DeviceError,
     DeviceNotFoundError,
     DeviceTimeoutError,
     ProtocolError,
@@ -425,6 +426,35 @@ class DigitizingSession:
                 ) from again
             self.reconnects += 1
             return None
+
+    def fire(self, n: int) -> list[ShotRecord]:
+        """Fire ``n`` raw shots (not kept as a point): a shot whose reply was damaged on the
+        link is fired again, a lost port reconnected (as :meth:`digitize`).
+
+        Raises
+        ------
+        DeviceNotFoundError
+            The port is gone and reconnecting failed.
+        DeviceError
+            More than ``max_shots_per_point`` shots failed in a row.
+        """
+        reconnects_left = [self.max_reconnects]
+        records: list[ShotRecord] = []
+        failed = 0
+        while len(records) < n:
+            rec = self._fire_one(reconnects_left)
+            if rec is None:
+                failed += 1
+                if failed > self.max_shots_per_point:
+                    raise DeviceError(
+                        f"digitizer: {failed} shots in a row failed (damaged replies or "
+                        "timeouts); check the cable and the port"
+                    )
+                continue
+            failed = 0
+            records.append(rec)
+            self.shots_fired += 1
+        return records
 
     def digitize(self, label: str, shots: int | None = None) -> DigitizedPoint:
         """Fire until ``shots`` accepted shots (default ``shots_per_point``) and keep the point.

@@ -24,6 +24,8 @@ from __future__ import annotations
 
 import errno
 import logging
+import time
+from collections.abc import Callable
 from typing import Any, Literal
 
 import numpy as np
@@ -36,6 +38,7 @@ from dimacq.drivers.daq import protocol as p
 from dimacq.drivers.stream import CounterStream
 from dimacq.errors import (
     DeviceError,
+    DeviceLostError,
     DeviceNotFoundError,
     DeviceStateError,
     DeviceTimeoutError,
@@ -127,6 +130,11 @@ class DaqDevice(WireDriver):
     def _wire_error(self, err: Exception, what: str, deadline: Deadline) -> DeviceError | None:
         if not isinstance(err, usb.core.USBError):
             return None
+        if err.errno == errno.ENODEV:
+            return DeviceLostError(
+                f"DAQ {self._describe()} dropped off the USB bus during {what.partition(' ')[0]} "
+                f"({err}); it is found again by its serial number (DaqTask.reconnect)"
+            )
         if what == _BULK:
             if isinstance(err, usb.core.USBTimeoutError):
                 return DeviceTimeoutError(
@@ -244,9 +252,19 @@ class DaqTask:
     names are in :attr:`channel_names`.
     """
 
-    def __init__(self, device: DaqDevice, name: str = "task") -> None:
+    def __init__(
+        self,
+        device: DaqDevice,
+        name: str = "task",
+        *,
+        reopen: Callable[[], DaqDevice] | None = None,
+    ) -> None:
         self.device = device
         self.name = name
+        #: finds the same DAQ again after it dropped off the bus (:meth:`reconnect`)
+        self.reopen = reopen
+        #: times the device was found again after dropping off
+        self.reconnects = 0
         self._channels: dict[int, ChannelConfig] = {}
         self.sample_rate_hz: float | None = None
         self.samples_per_frame = 256
@@ -452,6 +470,57 @@ class DaqTask:
             log.info(
                 "DAQ task %s stopped after %d samples clocked", self.name, self.samples_clocked
             )
+            self._read_rest()
+
+    def _read_rest(self) -> None:
+        """Read what the device FIFO still holds after STOP (bounded by the samples clocked),
+        so that its gaps (overflow, lost transfers) are reported and nothing is left stale."""
+        assert self.samples_clocked is not None
+        for _ in range(_DRAIN_MAX_FRAMES):
+            if self._stream.end >= self.samples_clocked:
+                return
+            try:
+                raw = self.device.read_frame(self.frame_bytes, _DRAIN_TIMEOUT_S)
+            except DeviceTimeoutError:
+                return
+            self._ingest(p.decode_frame(raw))
+
+    def reconnect(self, timeout_s: float = 10.0, poll_s: float = 0.1) -> None:
+        """Find the DAQ again after it dropped off the bus (USB re-enumeration: a new address,
+        a reset device) and make it this task's device; the task is stopped, its channels and
+        timing are kept (the next :meth:`start` configures the device again). Samples already
+        received stay readable (:meth:`read_buffered`).
+
+        Raises
+        ------
+        DeviceNotFoundError
+            No reopen function, or the DAQ did not come back within ``timeout_s``.
+        """
+        if self.reopen is None:
+            raise DeviceNotFoundError(
+                f"task {self.name}: the DAQ dropped off the bus and this task cannot find it "
+                "again (no reopen function); open the device again"
+            )
+        self._running = False
+        self.samples_clocked = None
+        try:
+            self.device.close()
+        except Exception:  # the old handle is dead anyway
+            log.debug("closing the lost DAQ handle failed", exc_info=True)
+        deadline = time.monotonic() + timeout_s
+        while True:
+            try:
+                self.device = self.reopen()
+                break
+            except DeviceNotFoundError as err:
+                if time.monotonic() >= deadline:
+                    raise DeviceNotFoundError(
+                        f"task {self.name}: the DAQ dropped off the bus and did not come back "
+                        f"within {timeout_s:g} s ({err})"
+                    ) from err
+                time.sleep(poll_s)
+        self.reconnects += 1
+        log.warning("DAQ task %s: the DAQ is back (%s)", self.name, self.device.name)
 
     def _record(self, ev: DaqEvent) -> None:
         self._stream.record(ev)

@@ -47,6 +47,10 @@ __all__ = ["DigitizerDriver", "DriverStats", "SerialDigitizer", "SerialLike"]
 log = logging.getLogger(__name__)
 
 
+class _DamagedLine(ProtocolError):
+    """A reply line damaged on the link (checksum, too few fields): the command may be resent."""
+
+
 class SerialLike(Protocol):
     """The part of :class:`serial.Serial` the driver uses."""
 
@@ -91,6 +95,7 @@ class DigitizerDriver(WireDriver, abc.ABC):
         super().__init__("digitizer", timeout_s=timeout_s, log=log)
         self.stats = DriverStats()
         self._last_seq: int | None = None
+        self._in_reconnect = False
 
     # ------------------------------------------------------------------ wire step (subclass)
     @abc.abstractmethod
@@ -119,12 +124,38 @@ class DigitizerDriver(WireDriver, abc.ABC):
             ) from err
         try:
             return wire.unframe(line)
-        except ProtocolError:
+        except ProtocolError as err:
             self.stats.bad_lines += 1
-            raise
+            raise _DamagedLine(str(err)) from err
 
-    def _transact(self, command: bytes, expect: str) -> list[str]:
-        """Send ``command`` and return the fields of the reply tagged ``expect``."""
+    #: further attempts of a command whose reply line was damaged on the link, or whose port
+    #: dropped off (reopened first); SHOT is not repeated here (the caller fires again)
+    link_retries = 2
+
+    def _transact(self, command: bytes, expect: str, *, repeatable: bool = True) -> list[str]:
+        """Send ``command`` and return the fields of the reply tagged ``expect``.
+
+        A repeatable command (every one but SHOT and STRM) whose reply line arrives damaged
+        (checksum, truncated) is sent again, and one whose port dropped off is sent again on the
+        reopened port, up to :attr:`link_retries` times; the device's own ERR replies are not
+        retried.
+        """
+        tries = 1 + (self.link_retries if repeatable and not self._in_reconnect else 0)
+        for k in range(tries):
+            try:
+                return self._transact_once(command, expect)
+            except _DamagedLine as err:
+                if k + 1 == tries:
+                    raise ProtocolError(str(err)) from err
+                log.warning("digitizer: %s; sending the command again", err)
+            except DeviceNotFoundError as err:
+                if k + 1 == tries:
+                    raise
+                log.warning("digitizer: port lost (%s); reopening it", err)
+                self.reconnect()
+        raise AssertionError("unreachable")  # pragma: no cover
+
+    def _transact_once(self, command: bytes, expect: str) -> list[str]:
         what = command.strip().decode("ascii", "replace")
 
         def attempt(deadline: Deadline) -> list[str]:
@@ -231,7 +262,9 @@ class DigitizerDriver(WireDriver, abc.ABC):
 
     def fire(self) -> ShotRecord:
         """``SHOT``: fire once, return the record."""
-        record = wire.decode_shot(self._transact(wire.encode_command("SHOT"), "SHT"))
+        record = wire.decode_shot(
+            self._transact(wire.encode_command("SHOT"), "SHT", repeatable=False)
+        )
         self._check_seq(record)
         return record
 
@@ -280,7 +313,11 @@ class DigitizerDriver(WireDriver, abc.ABC):
             try:
                 self._reopen()
                 self._closed = False
-                identity = self.identify()
+                self._in_reconnect = True
+                try:
+                    identity = self.identify()
+                finally:
+                    self._in_reconnect = False
                 self.stats.reconnects += 1
                 self._last_seq = None
                 log.info("digitizer reconnected (%s) after %d attempt(s)", identity.serial, i + 1)
@@ -370,11 +407,11 @@ class SerialDigitizer(DigitizerDriver):
             start = buf.find(wire.START)
             if start < 0 and buf:
                 self.stats.garbage_bytes += len(buf)
-                log.debug("%s: %d garbage bytes dropped", self.name, len(buf))
+                log.warning("%s: line noise, %d garbage bytes dropped", self.name, len(buf))
                 buf.clear()
             elif start > 0:
                 self.stats.garbage_bytes += start
-                log.debug("%s: %d garbage bytes dropped", self.name, start)
+                log.warning("%s: line noise, %d garbage bytes dropped", self.name, start)
                 del buf[:start]
             if buf:
                 eol = buf.find(b"\n")

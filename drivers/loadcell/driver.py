@@ -215,7 +215,7 @@ class LoadCellAmplifier(WireDriver):
 
     def set_rate(self, rate_hz: int) -> float:
         """Nominal sample rate (the DAQ's when counting SYNC)."""
-        r = self._ask(p.SetRate(int(rate_hz)), p.SetRateReply)
+        r = self._ask(p.SetRate(int(rate_hz)), p.SetRateReply, idempotent=True)
         self.sample_rate_hz = float(r.rate_hz)
         return self.sample_rate_hz
 
@@ -233,12 +233,13 @@ class LoadCellAmplifier(WireDriver):
             raise SetupError("call set_rate() with the DAQ's sample rate before start()")
         self._stream = _Stream()
         self._final_pulses = None
-        self._request(p.Start(1 if external_clock else 0))
+        # armed again by a repeated START: idempotent before the DAQ starts
+        self._request(p.Start(1 if external_clock else 0), idempotent=True)
         self.streaming = True
 
     def stop(self) -> int:
         """Stop; returns the pulses counted. Frames still in flight are kept for reading."""
-        r = self._ask(p.Stop(), p.StopReply)
+        r = self._ask(p.Stop(), p.StopReply, idempotent=True)
         self.streaming = False
         self._drain(0.05)
         self._final_pulses = r.pulses

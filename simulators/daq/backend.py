@@ -27,6 +27,18 @@ that many frames between the host's last read and STOP in the default mode too.
 Faults for tests (:class:`DaqFaults`): bulk reads that time out, frames lost in the device FIFO
 (the next frame carries the overflow flag and the sample counter jumps), transfers lost on the
 way (sequence and sample counter jump, no flag), frames with a corrupted payload.
+
+Imperfections of a real device (free-running mode, :class:`DaqFaults` rates, drawn from the
+backend's seeded generator; each injected one is logged on :data:`~dimacq.simulators.
+imperfections.fault_log`): a **bounded FIFO** (``fifo_bytes``): while the host is late and the
+FIFO is full, the samples clocked find no room and are lost — the next frame the host reads
+after them carries the overflow flag and its first sample jumps past them, GET_STATUS counts the
+lost frames; **stalls** (``stall_rate`` per bulk read): the device NAKs for ``stall_s`` (the
+clock runs on, the FIFO fills; a stall as long as the host's timeout is a USB timeout);
+**re-enumeration** (``reenumerate_rate`` per bulk read): the device drops off the bus for
+``reenumerate_s`` (a reset: it stops, forgets its configuration and FIFO) and comes back at a new
+address; every transfer on the old handle fails with ``ENODEV`` (libusb's NO_DEVICE), as on a
+real bus. ``time_scale`` makes the free-running clock a time-lapse (1: real time).
 """
 
 from __future__ import annotations
@@ -46,6 +58,7 @@ import usb.core
 
 from dimacq.drivers.daq import protocol as p
 from dimacq.simulators.daq.clock import SampleClock
+from dimacq.simulators.imperfections import fault_log
 from dimacq.simulators.lab.source import SampleSource
 
 __all__ = ["DaqFaults", "DaqInput", "VirtualDaqBackend"]
@@ -86,11 +99,25 @@ class DaqFaults:
     frames_clocked_before_stop: int = 0
     #: START does not clear the FIFO: frames left from the previous run are read first.
     stale_frames_survive_start: bool = False
+    #: Per bulk read: probability that the device NAKs for ``stall_s`` seconds (wall time).
+    stall_rate: float = 0.0
+    stall_s: float = 0.25
+    #: Per bulk read: probability that the device drops off the bus for ``reenumerate_s``
+    #: seconds and re-enumerates at a new address.
+    reenumerate_rate: float = 0.0
+    reenumerate_s: float = 0.5
 
 
 class _Desc:
     def __init__(self, **fields: Any) -> None:
         self.__dict__.update(fields)
+
+
+@dataclass(frozen=True)
+class _Handle:
+    """An open device handle; dead once the device has re-enumerated."""
+
+    generation: int
 
 
 class VirtualDaqBackend(usb.backend.IBackend):
@@ -109,6 +136,13 @@ class VirtualDaqBackend(usb.backend.IBackend):
     faults : DaqFaults, optional
     free_running : bool
         Clock samples in wall time (a real DAQ) instead of one frame per bulk read.
+    time_scale : float
+        Free-running: samples clocked per wall second = ``time_scale × sample_rate_hz``.
+    fifo_bytes : int
+        Free-running: the device FIFO's size in bytes (0: unbounded); a frame takes
+        ``p.frame_size`` bytes.
+    seed : int
+        Seed of the random faults (:class:`DaqFaults` rates).
     """
 
     def __init__(
@@ -121,6 +155,9 @@ class VirtualDaqBackend(usb.backend.IBackend):
         clock: SampleClock | None = None,
         faults: DaqFaults | None = None,
         free_running: bool = False,
+        time_scale: float = 1.0,
+        fifo_bytes: int = 0,
+        seed: int = 0,
     ) -> None:
         super().__init__()
         self.source = source
@@ -136,7 +173,7 @@ class VirtualDaqBackend(usb.backend.IBackend):
         )
         self.clock = clock if clock is not None else SampleClock()
         self.faults = faults if faults is not None else DaqFaults()
-        self._device = _Desc(
+        self._device: Any = _Desc(
             bLength=18,
             bDescriptorType=1,
             bcdUSB=0x0200,
@@ -174,13 +211,23 @@ class VirtualDaqBackend(usb.backend.IBackend):
         self._pending_overflow = False
         self._frames_lost = 0
         self.free_running = free_running
+        self.time_scale = float(time_scale)
+        self.fifo_bytes = int(fifo_bytes)
+        self.rng = np.random.default_rng(seed)
+        self._lost: deque[tuple[int, int]] = deque()  # sample ranges lost in a full FIFO
+        self._lost_upto = 0
+        self._generation = 0  # bumped at each re-enumeration: older handles are dead
+        self._gone_until = 0.0
+        #: faults injected so far, by kind (what the soak compares with what was reported)
+        self.injected: dict[str, int] = {}
         self._t0 = 0.0
         self._sent = 0  # samples framed (sent or lost) in this run
         self._fifo: deque[bytes] = deque()  # frames left in the FIFO after STOP
 
     # -- descriptors -------------------------------------------------------------------------
     def enumerate_devices(self) -> Any:
-        yield self._device
+        if time.monotonic() >= self._gone_until:
+            yield self._device
 
     def get_parent(self, dev: Any) -> None:
         return None
@@ -230,13 +277,49 @@ class VirtualDaqBackend(usb.backend.IBackend):
 
     # -- handles -----------------------------------------------------------------------------
     def open_device(self, dev: Any) -> Any:
+        self._alive(None)
         self.open_handles += 1
-        return dev
+        return _Handle(self._generation)
 
     def close_device(self, dev_handle: Any) -> None:
         self.open_handles -= 1
-        if self.running:
+        if self.running and dev_handle.generation == self._generation:
             self._stop()
+
+    def _alive(self, dev_handle: Any) -> None:
+        """A transfer on a handle of before a re-enumeration, or while off the bus: ENODEV."""
+        gone = time.monotonic() < self._gone_until
+        if gone or (dev_handle is not None and dev_handle.generation != self._generation):
+            raise usb.core.USBError("No such device", error_code=-4, errno=errno.ENODEV)
+
+    def _count_fault(self, kind: str, message: str, *args: Any) -> None:
+        self.injected[kind] = self.injected.get(kind, 0) + 1
+        fault_log.warning("simulated fault %s: " + message, kind, *args)
+
+    def _reenumerate(self) -> None:
+        """Off the bus for ``reenumerate_s``, then back at the next address, reset."""
+        self._stop()
+        unseen = sum(1 for f in self._fifo if p.decode_frame(f).flags & p.FrameFlags.OVERFLOW)
+        unseen += len(self._lost) + int(self._pending_overflow)
+        if unseen:
+            self.injected["fifo_overflow"] = self.injected.get("fifo_overflow", 0) - unseen
+            fault_log.warning(
+                "simulated fault note: %d fifo_overflow(s) discarded unread by the reset", unseen
+            )
+        self._fifo.clear()
+        self._generation += 1
+        self._gone_until = time.monotonic() + self.faults.reenumerate_s
+        self._device.address = self._device.address % 127 + 1
+        self.enabled[:] = False
+        self.iepe_ua[:] = 0
+        self.range_code[:] = 0
+        self.ac[:] = False
+        self._count_fault(
+            "usb_reenumeration",
+            "the DAQ drops off the USB bus for %g s and comes back at address %d",
+            self.faults.reenumerate_s,
+            self._device.address,
+        )
 
     def set_configuration(self, dev_handle: Any, config_value: int) -> None:
         return None
@@ -269,6 +352,7 @@ class VirtualDaqBackend(usb.backend.IBackend):
         data: array.array[int],
         timeout: int,
     ) -> int:
+        self._alive(dev_handle)
         if bmRequestType == p.BM_REQUEST_IN:
             if bRequest == p.Request.IDENTIFY:
                 return self._answer(data, self.identity.encode())
@@ -338,19 +422,30 @@ class VirtualDaqBackend(usb.backend.IBackend):
         self._overflowed = False
         self._pending_overflow = False
         self._frames_lost = 0
+        self._lost.clear()
+        self._lost_upto = 0
         self._epoch = self._world
         self.running = True
-        self.clock.start(self._epoch, self.sample_rate_hz)
+        self.clock.start(
+            self._epoch,
+            self.sample_rate_hz,
+            wall_scale=self.time_scale if self.free_running else None,
+        )
 
     def _stop(self) -> None:
         if self.running:
             if self.free_running:
-                self._clocked()
+                # the clock stops at one instant: the count the amplifiers saw
+                self._count = max(self._count, self.clock.stop())
+                self._overflow()
             else:
                 self._count += self.faults.frames_clocked_before_stop * self._spf
                 self.clock.advance(self._count)
             # what was clocked and not sent stays in the FIFO, readable after STOP
-            while self._sent < self._count:
+            while True:
+                self._skip_lost()
+                if self._sent >= self._count:
+                    break
                 frame = self._next_frame(min(self._spf, self._count - self._sent))
                 if frame:
                     self._fifo.append(frame)
@@ -361,11 +456,40 @@ class VirtualDaqBackend(usb.backend.IBackend):
     def _clocked(self) -> int:
         """Samples clocked in this run (free-running: advanced to the wall time while running)."""
         if self.free_running and self.running:
-            n = int((time.monotonic() - self._t0) * self.sample_rate_hz)
+            n = self.clock.count()
             if n > self._count:
                 self._count = n
-                self.clock.advance(n)
+            self._overflow()
         return self._count
+
+    def _fifo_samples(self) -> int:
+        """Samples the FIFO holds (whole frames of the enabled channels); 0: unbounded."""
+        if not self.fifo_bytes or not self._spf:
+            return 0
+        frame = p.frame_size(self._spf, max(1, int(self.enabled.sum())))
+        return max(1, self.fifo_bytes // frame) * self._spf
+
+    def _overflow(self) -> None:
+        """Samples clocked while the FIFO is full find no room: they are lost (whole frames)."""
+        cap = self._fifo_samples()
+        if not cap:
+            return
+        room_end = self._sent + cap + sum(b - a for a, b in self._lost)
+        start = max(room_end, self._lost_upto)
+        start += -start % self._spf
+        end = self._count - self._count % self._spf
+        if end > start:
+            if self._lost and self._lost[-1][1] == start:  # the same overflow goes on
+                self._lost[-1] = (self._lost[-1][0], end)
+            else:
+                self._lost.append((start, end))
+                self._count_fault(
+                    "fifo_overflow",
+                    "the host is late; the DAQ FIFO (%d bytes) is full from sample %d on",
+                    self.fifo_bytes,
+                    start,
+                )
+            self._lost_upto = end
 
     def world_sample(self, daq_sample: int) -> int:
         """The source counter of DAQ sample ``daq_sample`` of the present run."""
@@ -401,6 +525,9 @@ class VirtualDaqBackend(usb.backend.IBackend):
     def _await_frame(self, deadline: float) -> bool:
         """Free-running: wait until a whole frame is clocked; False at the deadline."""
         while self._clocked() - self._sent < self._spf:
+            self._skip_lost()
+            if self._clocked() - self._sent >= self._spf:
+                break
             left = deadline - time.monotonic()
             if left <= 0:
                 return False
@@ -413,11 +540,27 @@ class VirtualDaqBackend(usb.backend.IBackend):
     ) -> int:
         if ep != p.DATA_ENDPOINT:
             raise usb.core.USBError("Pipe error", error_code=-9, errno=errno.EPIPE)
+        self._alive(dev_handle)
         read_index = self._reads
         self._reads += 1
         timed_out = usb.core.USBTimeoutError("Operation timed out", error_code=-7, errno=110)
         if read_index in self.faults.timeout_reads:
             raise timed_out
+        f = self.faults
+        if self.running and f.reenumerate_rate and self.rng.random() < f.reenumerate_rate:
+            self._reenumerate()
+            raise usb.core.USBError("No such device", error_code=-4, errno=errno.ENODEV)
+        if self.running and f.stall_rate and self.rng.random() < f.stall_rate:
+            wait = min(f.stall_s, timeout / 1000)
+            self._count_fault(
+                "usb_timeout" if f.stall_s >= timeout / 1000 else "usb_stall",
+                "the DAQ NAKs bulk reads for %g s (host timeout %g s)",
+                f.stall_s,
+                timeout / 1000,
+            )
+            time.sleep(wait)
+            if f.stall_s >= timeout / 1000:
+                raise timed_out
         if self._fifo:
             return self._deliver(self._fifo.popleft(), buff)
         if not self.running:
@@ -430,8 +573,20 @@ class VirtualDaqBackend(usb.backend.IBackend):
             if frame:
                 return self._deliver(frame, buff)
 
+    def _skip_lost(self) -> None:
+        """Step over samples lost in a full FIFO; the next frame carries the overflow flag."""
+        while self._lost and self._lost[0][0] <= self._sent:
+            a, b = self._lost.popleft()
+            self._frames_lost += (b - a) // max(1, self._spf)
+            self._sent = max(self._sent, b)
+            self._overflowed = True
+            self._pending_overflow = True
+
     def _next_frame(self, n: int) -> bytes:
         """Frame the next ``n`` samples; b"" when the frame is lost (fault) on the device side."""
+        self._skip_lost()
+        if self._lost:
+            n = min(n, self._lost[0][0] - self._sent)
         first, mask, counts, _ = self._make_frame(n)
         seq = self._seq
         if seq in self.faults.fifo_overflow_frames:

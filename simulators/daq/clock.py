@@ -6,11 +6,17 @@ simulator drives it (start at a position of the lab's world, advance per sample 
 the load cell simulator observes it. ``epoch`` is the :class:`~dimacq.simulators.lab.source.
 SampleSource` counter of pulse 0 of the present run, so ``epoch + k`` is the world's sample at
 pulse ``k``. ``source_lock`` serialises the two simulators' reads of the shared source.
+
+A free-running clock (``start(..., wall_scale=s)``) pulses in wall time whoever looks: its count
+is ``(now − t0) × rate × s`` while it runs, whether the DAQ's host reads or not, and
+:meth:`stop` freezes it at the count of that instant (returned, so the DAQ reports exactly what
+the amplifiers counted).
 """
 
 from __future__ import annotations
 
 import threading
+import time
 from dataclasses import dataclass
 
 __all__ = ["ClockState", "SampleClock"]
@@ -37,16 +43,33 @@ class SampleClock:
         self._epoch = 0
         self._count = 0
         self._rate = 0.0
+        self._wall_scale: float | None = None
+        self._t0 = 0.0
         self.source_lock = threading.RLock()
 
-    def start(self, epoch: int, sample_rate_hz: float) -> None:
+    def start(self, epoch: int, sample_rate_hz: float, *, wall_scale: float | None = None) -> None:
         with self._cond:
             self._run += 1
             self._running = True
             self._epoch = epoch
             self._count = 0
             self._rate = sample_rate_hz
+            self._wall_scale = wall_scale
+            self._t0 = time.monotonic()
             self._cond.notify_all()
+
+    def _tick(self) -> None:
+        """Free-running: the count of now (call with the lock held)."""
+        if self._running and self._wall_scale is not None:
+            n = int((time.monotonic() - self._t0) * self._rate * self._wall_scale)
+            if n > self._count:
+                self._count = n
+
+    def count(self) -> int:
+        """Pulses of this run so far."""
+        with self._cond:
+            self._tick()
+            return self._count
 
     def advance(self, count: int) -> None:
         """The clock has produced ``count`` pulses in this run."""
@@ -54,24 +77,38 @@ class SampleClock:
             self._count = count
             self._cond.notify_all()
 
-    def stop(self) -> None:
+    def stop(self) -> int:
+        """Stop; return the pulses of the run (frozen)."""
         with self._cond:
+            self._tick()
             self._running = False
             self._cond.notify_all()
+            return self._count
 
     def state(self) -> ClockState:
         with self._cond:
+            self._tick()
             return ClockState(self._run, self._running, self._epoch, self._count, self._rate)
 
     def wait_change(self, seen: ClockState, timeout_s: float) -> ClockState:
         """Block until the clock differs from ``seen`` (or the timeout), return the new state."""
         with self._cond:
-            self._cond.wait_for(
-                lambda: (
-                    (self._run, self._running, self._count) != (seen.run, seen.running, seen.count)
-                ),
-                timeout_s,
-            )
+
+            def changed() -> bool:
+                self._tick()
+                return (self._run, self._running, self._count) != (
+                    seen.run,
+                    seen.running,
+                    seen.count,
+                )
+
+            if self._wall_scale is not None and self._running:
+                # nobody notifies wall-time pulses: look again every 2 ms
+                end = time.monotonic() + timeout_s
+                while not changed() and time.monotonic() < end:
+                    self._cond.wait(min(0.002, end - time.monotonic()))
+            else:
+                self._cond.wait_for(changed, timeout_s)
             return ClockState(self._run, self._running, self._epoch, self._count, self._rate)
 
     def notify(self) -> None:

@@ -36,6 +36,7 @@ import numpy as np
 from dimacq.devices.digitizer import DeviceIdentity, DigitizerSettings, ShotRecord
 from dimacq.drivers.digitizer import protocol as wire
 from dimacq.errors import ProtocolError, SetupError
+from dimacq.simulators.imperfections import fault_log
 from dimacq.simulators.lab.sonic import (
     SonicArray,
     SonicEnvironment,
@@ -106,7 +107,17 @@ class SimulatedDigitizer:
         self.seed = seed
         self.serial = serial
         self.shot_rate_hz = shot_rate_hz
-        self.plugged = True
+        self._plugged = True
+        #: imperfections of a real serial link (random, seeded; see :meth:`set_imperfections`)
+        self.noise_rate = 0.0
+        self.port_loss_rate = 0.0
+        self.port_loss_s = 0.3
+        self._link_rng = np.random.default_rng([seed, 0x5E41])
+        self._lost_until = 0.0
+        #: bumped when the port drops off: a handle opened before is dead for good
+        self.port_generation = 0
+        #: faults injected so far, by kind
+        self.injected: dict[str, int] = {}
         self._lock = threading.RLock()
         self._rx = bytearray()
         self._out = bytearray()
@@ -142,17 +153,39 @@ class SimulatedDigitizer:
         )
 
     # ------------------------------------------------------------------ test hooks
+    @property
+    def plugged(self) -> bool:
+        """The port is there (not unplugged, not in a random port loss)."""
+        return self._plugged and time.monotonic() >= self._lost_until
+
     def unplug(self) -> None:
         """The cable is pulled: open ports fail, bytes in flight are lost."""
         with self._lock:
-            self.plugged = False
+            self._plugged = False
             self._out.clear()
             self._rx.clear()
 
     def plug(self) -> None:
         """The cable is back; the device kept its settings and sequence number."""
         with self._lock:
-            self.plugged = True
+            self._plugged = True
+
+    def set_imperfections(
+        self, *, noise_rate: float, port_loss_rate: float, port_loss_s: float
+    ) -> None:
+        """Random faults of a real link: per reply line, noise that damages it (garbage before
+        it, a flipped bit, a cut line), probability ``noise_rate``; per command, the USB-serial
+        adapter drops off for ``port_loss_s`` seconds (the command and bytes in flight are lost,
+        open ports fail), probability ``port_loss_rate``. Each is logged on
+        :data:`~dimacq.simulators.imperfections.fault_log`."""
+        with self._lock:
+            self.noise_rate = float(noise_rate)
+            self.port_loss_rate = float(port_loss_rate)
+            self.port_loss_s = float(port_loss_s)
+
+    def _inject(self, kind: str, message: str, *args: object) -> None:
+        self.injected[kind] = self.injected.get(kind, 0) + 1
+        fault_log.warning("simulated fault %s: digitizer " + message, kind, *args)
 
     def corrupt_next(self, kind: str) -> None:
         """Damage the next reply line: ``"garbage"`` (noise before it), ``"checksum"`` (one byte
@@ -178,6 +211,17 @@ class SimulatedDigitizer:
                     return
                 line = bytes(self._rx[:cr]).replace(b"\n", b"")
                 del self._rx[: cr + 1]
+                if (
+                    line.strip()
+                    and self.port_loss_rate
+                    and self._link_rng.random() < self.port_loss_rate
+                ):
+                    self._lost_until = time.monotonic() + self.port_loss_s
+                    self.port_generation += 1  # open handles are dead: reopen the port
+                    self._out.clear()
+                    self._rx.clear()
+                    self._inject("serial_port_loss", "port drops off for %g s", self.port_loss_s)
+                    return
                 if line.strip():
                     self._execute(line)
 
@@ -199,6 +243,9 @@ class SimulatedDigitizer:
 
     def _emit(self, line: bytes) -> None:
         kind = self._corrupt.popleft() if self._corrupt else None
+        if kind is None and self.noise_rate and self._link_rng.random() < self.noise_rate:
+            kind = str(self._link_rng.choice(["garbage", "checksum", "truncate"]))
+            self._inject("serial_noise", "reply line damaged (%s)", kind)
         if kind == "garbage":
             self._out += b"\x00\xff#noise\r\n\x13" + line
         elif kind == "checksum":

@@ -22,6 +22,7 @@ class Serial(SerialBase):
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         self._device: Any = None
+        self._generation = 0
         self._buffer = bytearray()
         super().__init__(*args, **kwargs)
 
@@ -39,6 +40,7 @@ class Serial(SerialBase):
         if not device.plugged:
             raise SerialException(f"could not open port {self.portstr}: device not connected")
         self._device = device
+        self._generation = device.port_generation
         self._buffer.clear()
         self.is_open = True
 
@@ -53,7 +55,7 @@ class Serial(SerialBase):
     def _check(self) -> Any:
         if not self.is_open or self._device is None:
             raise PortNotOpenError()
-        if not self._device.plugged:
+        if not self._device.plugged or self._device.port_generation != self._generation:
             raise SerialException(f"{self.portstr}: device disconnected")
         return self._device
 

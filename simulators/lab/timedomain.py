@@ -661,6 +661,11 @@ class VirtualLab:
         """A force with basis components ``w``: its residues (n_phys, P) and direct term."""
         return w, np.einsum("cbp,b->cp", self._R_ch, w), self._D_ch @ w
 
+    @property
+    def frontier(self) -> int:
+        """The first sample not yet read by anyone (a strike can start here or later)."""
+        return int(self._frontier)
+
     def excite(self, input_index: int, at_sample: int) -> None:
         """Strike input ``input_index``; the pulse rises from ``at_sample`` (peak 6σ later).
 

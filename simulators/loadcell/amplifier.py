@@ -14,6 +14,12 @@ ppm error). With the internal clock it paces itself on the wall clock.
 
 Faults for tests (:class:`LoadCellFaults`): data frames not sent (bus overload: a counter gap),
 SYNC pulses missed at given pulses (the counter falls behind the DAQ: drift), and a silent node.
+At random (seeded; each one logged on :data:`~dimacq.simulators.imperfections.fault_log`): CAN
+frames lost (``frame_loss_rate`` per data frame), and **bus-off** (``bus_off_rate`` per second of
+streamed pulses): the node's transmit error counter passes 255, it leaves the bus for
+``bus_off_s`` wall seconds (sends nothing, hears no command) and then recovers by itself
+(ISO 11898-1 auto-recovery) and goes on; it kept counting SYNC pulses meanwhile, so the host sees
+a counter gap, not a shift.
 """
 
 from __future__ import annotations
@@ -31,6 +37,7 @@ import numpy as np
 from dimacq.drivers.loadcell import protocol as p
 from dimacq.errors import ProtocolError
 from dimacq.simulators.daq.clock import SampleClock
+from dimacq.simulators.imperfections import fault_log
 from dimacq.simulators.lab.source import SampleSource
 
 __all__ = ["LoadCellAmplifierSim", "LoadCellFaults"]
@@ -39,6 +46,8 @@ log = logging.getLogger(__name__)
 
 _CHUNK = 256
 _MAX_LAG = 8 * _CHUNK
+#: SYNC pulses the simulator may fall behind the DAQ clock before their frames are dropped
+_MAX_BACKLOG = 128 * _CHUNK
 
 
 @dataclass
@@ -49,6 +58,14 @@ class LoadCellFaults:
     dropped_samples: set[int] = field(default_factory=set)
     missed_pulses: dict[int, int] = field(default_factory=dict)
     silent: bool = False
+    #: per data frame: probability it is lost on the bus
+    frame_loss_rate: float = 0.0
+    #: per second of streamed pulses: probability the node goes bus-off
+    bus_off_rate: float = 0.0
+    #: wall seconds until it has recovered
+    bus_off_s: float = 0.1
+    #: seed of the random faults
+    seed: int = 0
 
 
 class LoadCellAmplifierSim:
@@ -105,6 +122,10 @@ class LoadCellAmplifierSim:
         )
         self.oscillator_ppm = oscillator_ppm
         self.faults = faults if faults is not None else LoadCellFaults()
+        self.rng = np.random.default_rng([self.faults.seed, node_id])
+        self._bus_off_until = 0.0
+        #: faults injected so far, by kind
+        self.injected: dict[str, int] = {}
         self.rate_hz = float(source.sample_rate_hz)
         self.offsets = np.zeros(p.N_GAUGES)
         self.state = 0
@@ -145,7 +166,7 @@ class LoadCellAmplifierSim:
             while not self._stop_evt.is_set():
                 msg = self.bus.recv(0.0 if self.state == 2 else 0.005)
                 if msg is not None and msg.arbitration_id == p.command_id(self.node):
-                    if not self.faults.silent:
+                    if not self.faults.silent and not self._bus_off():
                         self._handle(bytes(msg.data))
                     continue
                 if self.state == 2:
@@ -160,7 +181,16 @@ class LoadCellAmplifierSim:
         else:
             time.sleep(timeout_s / 5)
 
+    def _bus_off(self) -> bool:
+        return time.monotonic() < self._bus_off_until
+
+    def _inject(self, kind: str, message: str, *args: Any) -> None:
+        self.injected[kind] = self.injected.get(kind, 0) + 1
+        fault_log.warning("simulated fault %s: node %d " + message, kind, self.node, *args)
+
     def _send(self, aid: int, data: bytes, fd: bool = False) -> None:
+        if self._bus_off():
+            return
         self.bus.send(can.Message(arbitration_id=aid, data=data, is_extended_id=False, is_fd=fd))
 
     def _reply(self, msg: p.Reply) -> None:
@@ -283,6 +313,12 @@ class LoadCellAmplifierSim:
     def _stream_some(self, final: bool = False) -> bool:
         """Send frames for pulses seen; returns False when there was nothing to send."""
         avail = self._available_pulses()
+        if self._external and avail - self._pulses > _MAX_BACKLOG:
+            # A real amplifier cannot queue seconds of frames: the bus is saturated and they are
+            # dropped (a counter gap). Here the simulator thread got too little CPU to keep up.
+            skip = avail - self._pulses - _MAX_BACKLOG
+            self._inject("can_overload", "fell %d pulses behind SYNC; their frames dropped", skip)
+            self._pulses += skip
         sent = False
         while self._pulses < avail:
             n = min(_CHUNK, avail - self._pulses)
@@ -316,9 +352,19 @@ class LoadCellAmplifierSim:
         frames, _ = p.encode_data_frames(counters[keep], g[keep])
         aid = p.data_id(self.node)
         hb = p.heartbeat_id(self.node)
+        flt = self.faults
+        if flt.bus_off_rate and self.rng.random() < flt.bus_off_rate * n / self.rate_hz:
+            self._bus_off_until = time.monotonic() + flt.bus_off_s
+            self._inject("can_bus_off", "goes bus-off for %g s at pulse %d", flt.bus_off_s, pulse0)
+        lost = np.zeros(n, dtype=bool)
+        if flt.frame_loss_rate:
+            lost = self.rng.random(n) < flt.frame_loss_rate
+        lost_counters = set(counters[lost & keep].tolist()) if lost.any() else set()
         scale_us = 1e6 / self.rate_hz * (1 + self.oscillator_ppm * 1e-6)
         for c, q, f in zip(counters[keep].tolist(), pulses[keep].tolist(), frames, strict=True):
-            if c not in self.faults.dropped_samples:
+            if c in lost_counters and not self._bus_off():
+                self._inject("can_frame_loss", "data frame of counter %d lost on the bus", c)
+            elif c not in self.faults.dropped_samples:
                 self._send(aid, f, fd=True)
             if (c + 1) % p.HEARTBEAT_EVERY == 0:
                 # counter reached, and the true time of that pulse on the amplifier's oscillator

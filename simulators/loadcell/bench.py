@@ -251,6 +251,11 @@ class SupportSideBench:
     def n_inputs(self) -> int:
         return self.lab.n_inputs
 
+    @property
+    def frontier(self) -> int:
+        """The lab's first sample not yet generated (a free-running DAQ strikes no earlier)."""
+        return self.lab.frontier
+
     def channel_index(self, name: str) -> int:
         return self.lab.channel_index(name)
 

@@ -284,3 +284,30 @@ def test_trigger_wait_holds_only_the_pretrigger_history():
     assert max(held) <= settings.pretrigger_samples + settings.block_samples
     (avg,) = res.averages
     assert avg.first_sample == daq.hits[0] - settings.pretrigger_samples
+
+
+def test_fifo_overflow_rejects_the_average_it_hits_and_names_it(lab):
+    """A FIFO overflow inside a record: that average is rejected with the overflow named, the
+    operator strikes again, the accepted ones are unaffected."""
+    src, backend, task, amp = lab(daq_faults=DaqFaults(fifo_overflow_frames={12}))
+
+    def operator(j, at):
+        src.excite(j, backend.world_sample(at))
+
+    settings = ImpactSettings(record_samples=2048, averages_per_input=2, trigger_level_n=20.0)
+    session = ImpactSession(
+        task,
+        ["10+X force", "11+X force"],
+        ["100+Z"],
+        [amp],
+        settings=settings,
+        operator=operator,
+        loadcell_outputs="gauges",
+    )
+    res = session.run()
+    assert res.n_accepted == (2, 2)
+    rejected = [a for a in res.averages if not a.accepted]
+    assert len(rejected) == 1
+    assert rejected[0].reasons == ("DAQ samples lost (256: FIFO overflow)",)
+    # frame 12 holds samples 3072..3327: inside the rejected record
+    assert rejected[0].first_sample <= 12 * 256 < rejected[0].first_sample + 2048

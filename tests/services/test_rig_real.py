@@ -263,3 +263,42 @@ def test_can_fd_bit_timing_from_the_settings_reaches_the_bus(
     bad = _settings(tmp_path, world, loadcell_data_bitrate=3_000_001)
     with pytest.raises(SetupError, match="loadcell_data_bitrate"):
         bit_timing(bad)
+
+
+def test_can_fd_bit_timing_of_a_rig_file_entry_wins_over_the_settings(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Each load cell's ``[[load_cells]]`` entry may give its own bus's bit timing (one adapter
+    per cell on a mixed rig); what it leaves out comes from the settings."""
+    import can
+
+    world = VirtualWorld("calibration-mass-ground", INPUTS[:1], tmp_path / "rig")
+    text = world.rig_file.read_text(encoding="utf-8")
+    world.rig_file.write_text(
+        text.replace(
+            "[[load_cells]]\n",
+            "[[load_cells]]\ndata_bitrate = 2_000_000\ndata_sample_point = 70.0\n",
+            1,
+        ),
+        encoding="utf-8",
+    )
+    opened: list[dict[str, Any]] = []
+    real_bus = can.Bus
+
+    def recording_bus(**kw: Any) -> Any:
+        opened.append(kw)
+        return real_bus(**kw)
+
+    monkeypatch.setattr(can, "Bus", recording_bus)
+    with installed(world):
+        rig_builder.check_devices(_settings(tmp_path, world, loadcell_bitrate=500_000), "loadcell")
+        (kw,) = opened
+        t = kw["timing"]
+        assert (t.nom_bitrate, t.data_bitrate) == (500_000, 2_000_000)
+        assert t.data_sample_point == pytest.approx(70.0, abs=1.0)
+        world.rig_file.write_text(
+            text.replace("[[load_cells]]\n", "[[load_cells]]\ndata_bitrate = 3_000_001\n", 1),
+            encoding="utf-8",
+        )
+        with pytest.raises(SetupError, match=r"rig file \(data_bitrate\)"):
+            rig_builder.check_devices(_settings(tmp_path, world), "loadcell")

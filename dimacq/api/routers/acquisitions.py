@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Annotated, Any
 
-from fastapi import APIRouter, Response, status
+from fastapi import APIRouter, Request, Response, status
 
 from dimacq.api.deps import IdPath, LabDep
 from dimacq.api.routers._common import (
@@ -13,7 +13,9 @@ from dimacq.api.routers._common import (
     body_openapi,
     deleted,
     found,
+    json_object,
     paged,
+    parse_strict,
     strict_body,
 )
 from dimacq.api.schemas import AcquisitionOut, AcquisitionRequest, AverageDataOut, HitDecision
@@ -65,11 +67,20 @@ def stop_acquisition(acq_id: IdPath, lab: LabDep) -> AcquisitionInfo:
 @router.post(
     "/{acq_id:int}/review", response_model=AcquisitionOut, openapi_extra=body_openapi(HitDecision)
 )
-def review_hit(
-    acq_id: IdPath, lab: LabDep, body: Annotated[HitDecision, strict_body(HitDecision)]
-) -> AcquisitionInfo:
+async def review_hit(acq_id: IdPath, lab: LabDep, request: Request) -> AcquisitionInfo:
     """The operator's accept / reject / redo of the hit waiting for review (``pending_review``
-    of an acquisition started with ``review: true``); 409 when that hit is not the one waiting."""
+    of an acquisition started with ``review: true``); 409 when that hit is not the one waiting.
+    A malformed body is 422, then an unknown acquisition 404, then a bad decision 422."""
+    from starlette.concurrency import run_in_threadpool
+
+    raw = await request.body()
+    json_object(raw, '{"number": 1, "decision": "accept"}')
+    found(await run_in_threadpool(lab.acquisitions.get, acq_id), f"acquisition {acq_id}")
+    body = parse_strict(HitDecision, raw)
+    return await run_in_threadpool(_decide, lab, acq_id, body)
+
+
+def _decide(lab: Any, acq_id: int, body: HitDecision) -> AcquisitionInfo:
     return found(
         lab.acquisitions.decide(acq_id, body.number, body.decision), f"acquisition {acq_id}"
     )

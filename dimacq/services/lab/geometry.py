@@ -148,8 +148,7 @@ class GeometryService:
 
         with self.devices.lock:
             sess = self.devices.session()
-            driver = self.devices.digitizer()
-            records = [driver.fire() for _ in range(n)]
+            records = sess.fire(n)
         counts, bar, avg, status, seq = records_to_arrays(records)
         sol = triangulate(
             counts, bar, sess.geometry, averaging=avg, status=status, limits=sess.limits

@@ -200,18 +200,25 @@ def test_start_exchange_and_engineering_units():
 def test_stale_frames_are_drained_before_start_and_stop_reads_samples_clocked():
     """Frames a previous run left in the FIFO are read and dropped before START (else the
     first one, sequence 5 at sample 640, would read as lost transfers); after STOP the task
-    knows the samples the DAQ clocked (GET_STATUS), not just those it received."""
+    knows the samples the DAQ clocked (GET_STATUS), not just those it received, and reads what
+    the FIFO still holds up to them (the short last frame), so nothing is left stale."""
     c = np.ones((4, 2), dtype=int)
     stale = [frame(5, 640, c), frame(6, 644, c)]
     clocked = p.DeviceStatus(False, False, 2048.0, 11, 0).encode()
-    stop = [OUT(p.Request.STOP), IN(p.Request.GET_STATUS, p.STATUS_STRUCT.size, clocked)]
+    stop = [
+        OUT(p.Request.STOP),
+        IN(p.Request.GET_STATUS, p.STATUS_STRUCT.size, clocked),
+        read(frame(2, 8, 4 * np.ones((3, 2), dtype=int))),
+    ]
     with started_task([read(frame(0, 0, 2 * c)), read(frame(1, 4, 3 * c)), *stop], stale) as task:
         block = task.read(8)
         assert task.samples_clocked is None
         task.stop()
+        rest = task.read_buffered()
     assert block.first_sample == 0 and block.valid.all() and not block.events
     np.testing.assert_array_equal(block.data[1] * 2**23 / 10, [2] * 4 + [3] * 4)
     assert task.samples_clocked == 11
+    assert rest is not None and (rest.first_sample, rest.n_samples) == (8, 3) and rest.valid.all()
 
 
 def test_overflow_gap_is_nan_filled_and_reported():

@@ -219,3 +219,63 @@ def test_free_running_clock_runs_in_wall_time_without_reads():
     truth = src.read(np.array([0]), 0, 384)[0]
     got = np.concatenate([first.data[0], later.data[0]])
     np.testing.assert_allclose(got, truth, atol=5 / 2**23 / (FORCE_MV_PER_N * 1e-3))
+
+
+def test_a_late_host_overflows_the_bounded_fifo_and_the_gap_is_reported():
+    """A real DAQ's FIFO is bounded: while the host does not read, the clock runs on, and the
+    samples clocked once the FIFO is full are lost. The driver sees the overflow flag and the
+    sample counter jump and reports exactly those samples as lost (NaN, not valid)."""
+    src = ImpulseSource(background=1.0)  # 2048 S/s
+    wiring = {0: DaqInput(0, FORCE_MV_PER_N * 1e-3)}
+    fifo = 8 * p.frame_size(128, 1)  # 8 frames of 128 samples: 0.5 s at 2048 S/s
+    backend = VirtualDaqBackend(src, wiring, free_running=True, fifo_bytes=fifo)
+    with DaqDevice.open(backend=backend) as dev:
+        task = DaqTask(dev)
+        task.add_force_channel(0, "10+X force", FORCE_MV_PER_N)
+        task.configure_timing(src.sample_rate_hz, samples_per_frame=128)
+        task.start()
+        task.read(128)
+        time.sleep(1.0)  # the host is late: ~2048 samples clocked, room for 1024
+        block = task.read(2048)
+        task.stop()
+        status = dev.get_status()
+    (ev,) = [e for e in block.events if e.kind == "overflow"]
+    assert ev.first_sample == 128 + 1024  # the FIFO held 8 frames after the last read
+    assert ev.n_samples >= 512 and not block.valid[ev.first_sample - 128 :][: ev.n_samples].any()
+    assert block.valid[: ev.first_sample - 128].all()
+    assert status.frames_lost == ev.n_samples // 128 and status.overflowed
+    assert backend.injected["fifo_overflow"] == 1
+
+
+def test_re_enumeration_kills_the_handle_and_the_task_finds_the_daq_again():
+    """The DAQ drops off the bus (a reset) and comes back at a new address: every transfer on
+    the old handle fails with ENODEV (DeviceLostError); reconnect() finds it again by serial
+    number and the task starts on it as configured."""
+    from dimacq.errors import DeviceLostError
+
+    src = ImpulseSource(background=1.0)
+    wiring = {0: DaqInput(0, FORCE_MV_PER_N * 1e-3)}
+    faults = DaqFaults(reenumerate_rate=1.0, reenumerate_s=0.2)
+    backend = VirtualDaqBackend(src, wiring, free_running=True, time_scale=4.0, faults=faults)
+
+    def reopen() -> DaqDevice:
+        return DaqDevice.open(backend=backend, serial_number="SIMDAQ-0001")
+
+    task = DaqTask(DaqDevice.open(backend=backend), reopen=reopen)
+    task.add_force_channel(0, "10+X force", FORCE_MV_PER_N)
+    task.configure_timing(src.sample_rate_hz, samples_per_frame=128)
+    task.start()
+    old = task.device.name
+    with pytest.raises(DeviceLostError, match="dropped off the USB bus"):
+        task.read(128)
+    with pytest.raises(DeviceLostError):  # the old handle stays dead
+        task.device.get_status()
+    faults.reenumerate_rate = 0.0
+    task.reconnect(timeout_s=5.0)
+    assert task.reconnects == 1 and task.device.name != old and not task.running
+    task.start()
+    block = task.read(256)
+    task.stop()
+    task.device.close()
+    assert block.first_sample == 0 and block.valid.all()
+    assert backend.injected == {"usb_reenumeration": 1}

@@ -1,14 +1,14 @@
-"""The acquisition session's sample buffer: one device's samples, trimmed as records are cut."""
+"""The sliding sample window the acquisition session keeps per device (DAQ, each load cell)."""
 
 from __future__ import annotations
 
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["SampleBuffer"]
+__all__ = ["SampleWindow"]
 
 
-class SampleBuffer:
+class SampleWindow:
     """Samples ``first .. end - 1`` for the DAQ or one load cell, trimmed as records are cut.
 
     Storage is a preallocated array used as a sliding window: :meth:`append` writes after the
