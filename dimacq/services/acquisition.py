@@ -48,7 +48,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 from typing import Literal
 
 import numpy as np
@@ -58,15 +58,23 @@ from dimacq.devices.daq import Daq, DaqBlock
 from dimacq.devices.loadcell import LoadCell, LoadCellBlock
 from dimacq.errors import DataError, DeviceError, DeviceLostError, DeviceTimeoutError, SetupError
 from dimacq.io.acquisition_hdf5 import AcquisitionWriter
-from dimacq.model.channels import axis_name
-from dimacq.model.frf import Channel, FrfData, OutputKind
 from dimacq.model.impact import ImpactSettings
-from dimacq.model.setup import TestSetup
 from dimacq.pipeline.frf_estimation import (
     double_hit_mask,
     estimate_frf,
     exponential_window,
     force_window,
+)
+from dimacq.services.impact_result import (
+    OPERATOR_REDO,
+    OPERATOR_REJECT,
+    AverageCallback,
+    AverageRecord,
+    Decision,
+    ImpactResult,
+    Progress,
+    ReviewCallback,
+    impact_frf,
 )
 from dimacq.services.sample_window import SampleWindow
 
@@ -85,85 +93,6 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
-
-#: ``on_average(input_index, average_index, accepted, reasons, blocks)``: ``average_index`` counts
-#: every decided average of the session from 0 (accepted and rejected); ``blocks`` holds
-#: ``"force"`` (1, n) N and ``"outputs"`` (n_outputs, n) in engineering units (responses, then
-#: the load cells' rows), the record exactly as it enters (or would have entered) the FRFs.
-AverageCallback = Callable[
-    [int, int, bool, tuple[str, ...], Mapping[str, NDArray[np.float64]]], None
-]
-
-#: The operator's decision on one hit (see :class:`ImpactSession`).
-Decision = Literal["accept", "reject", "redo"]
-
-#: ``review(input_index, average_index, reasons, blocks, wait_s) -> Decision | None``:
-#: ``reasons`` are the automatic checks' (empty: passed), ``blocks`` as in
-#: :data:`AverageCallback`. It waits at most ``wait_s`` seconds for the operator and answers None
-#: when no decision came yet: the session then reads the DAQ's next block (the stream keeps
-#: flowing, nothing overflows while the operator looks) and asks again with the same hit.
-ReviewCallback = Callable[
-    [int, int, tuple[str, ...], Mapping[str, NDArray[np.float64]], float], Decision | None
-]
-
-#: Reason of a hit the operator rejected.
-OPERATOR_REJECT = "rejected by the operator"
-#: Reason of a hit (and of the averages accepted before it) dropped by "redo this input".
-OPERATOR_REDO = "input redone by the operator"
-
-
-@dataclass(frozen=True)
-class Progress:
-    input_index: int
-    n_inputs: int
-    accepted: int
-    wanted: int
-    rejected: int
-    message: str
-
-
-@dataclass(frozen=True)
-class AverageRecord:
-    input_index: int
-    first_sample: int
-    n_samples: int
-    accepted: bool
-    reasons: tuple[str, ...]
-
-
-@dataclass(frozen=True, eq=False)
-class ImpactResult:
-    """FRFs of the test and the history of every average.
-
-    Attributes
-    ----------
-    H : ndarray, shape (n_lines, n_outputs, n_inputs)
-        Outputs: the response channels, then per load cell its 6 loads (N/N, N·m/N, cell
-        frame) or its 12 gauges (V/N).
-    coherence : ndarray, shape (n_lines, n_outputs, n_inputs)
-        NaN for inputs with one average (undefined, see :func:`~dimacq.pipeline.
-        frf_estimation.estimate_frf`).
-    input_names : tuple of str
-        The inputs with FRFs (the complete ones), in session order; ``input_indices`` their
-        indices among the session's inputs.
-    n_accepted : tuple of int
-        Accepted averages of every session input.
-    incomplete_inputs : tuple of str
-        Inputs left with fewer than ``min_averages`` accepted averages (no FRF).
-    min_averages : int
-        The minimum that was applied.
-    """
-
-    frequencies_hz: NDArray[np.float64]
-    H: NDArray[np.complex128]
-    coherence: NDArray[np.float64]
-    output_names: tuple[str, ...]
-    input_names: tuple[str, ...]
-    averages: tuple[AverageRecord, ...]
-    n_accepted: tuple[int, ...]
-    input_indices: tuple[int, ...] = ()
-    incomplete_inputs: tuple[str, ...] = ()
-    min_averages: int = 1
 
 
 class _StrikeLost(Exception):
@@ -693,57 +622,3 @@ class ImpactSession:
             incomplete_inputs=tuple(self.input_names[j] for j in incomplete),
             min_averages=need,
         )
-
-
-def impact_frf(
-    result: ImpactResult, setup: TestSetup, *, meta: Mapping[str, str] | None = None
-) -> FrfData:
-    """The session's FRFs as :class:`FrfData` in the setup's channel order (the 0 Hz line dropped).
-
-    Outputs: each response (accelerance, (m/s²)/N), then per load cell of the setup its six loads
-    (directions 1..6, N/N and N·m/N, cell frame, as the driver's calibration matrix gives them);
-    inputs: the setup's excitations with FRFs (``result.input_indices``; the incomplete ones are
-    named in ``meta["incomplete_inputs"]``, e.g. ``"10+X, 12+Y"``). Needs a session run with
-    ``loadcell_outputs="forces"``.
-
-    Raises
-    ------
-    DataError
-        The result's shape does not match the setup.
-    """
-    n_acc = len(setup.responses)
-    n_out = n_acc + 6 * len(setup.load_cells)
-    kept = result.input_indices or tuple(range(result.H.shape[2]))
-    if (
-        result.H.shape[1] != n_out
-        or result.H.shape[2] != len(kept)
-        or max(kept) >= len(setup.excitations)
-    ):
-        raise DataError(
-            f"impact result has {result.H.shape[1]} outputs × {result.H.shape[2]} inputs; the setup "
-            f"needs {n_out} × {len(setup.excitations)} (run the session with "
-            "loadcell_outputs='forces')"
-        )
-    outputs = [Channel(c.node, c.direction) for c in setup.responses]
-    kinds: list[OutputKind] = ["acceleration"] * n_acc
-    for lc in setup.load_cells:
-        outputs += [Channel(lc.node, k) for k in range(1, 7)]
-        kinds += ["reaction"] * 6
-    incomplete = [
-        axis_name(e.node, e.direction) for j, e in enumerate(setup.excitations) if j not in kept
-    ]
-    extra = {"incomplete_inputs": ", ".join(incomplete)} if incomplete else {}
-    f = result.frequencies_hz
-    # the 0 Hz line leads (ascending lines): a slice keeps views, not copies, of the arrays
-    keep: slice | NDArray[np.bool_] = slice(1, None) if f.size and f[0] == 0 else f > 0
-    return FrfData(
-        frequencies_hz=result.frequencies_hz[keep],
-        H=result.H[keep],
-        outputs=tuple(outputs),
-        output_kinds=tuple(kinds),
-        inputs=tuple(
-            Channel(setup.excitations[j].node, setup.excitations[j].direction) for j in kept
-        ),
-        coherence=result.coherence[keep],
-        meta={"source": "dimacq impact acquisition", **extra, **(meta or {})},
-    )

@@ -3,8 +3,11 @@ sets merged from several acquisitions (redo one input, append inputs)."""
 
 from __future__ import annotations
 
+import queue
+import threading
 from collections.abc import Mapping
-from typing import Any
+from dataclasses import dataclass, field
+from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -15,7 +18,42 @@ from dimacq.model.frf import FrfData
 from dimacq.model.setup import TestSetup
 from dimacq.services.lab.common import json_safe
 
-__all__ = ["hit_view", "merge_frfs"]
+__all__ = ["Decision", "LiveReview", "hit_view", "merge_frfs"]
+
+Decision = Literal["accept", "reject", "redo"]
+
+
+@dataclass
+class LiveReview:
+    """What only the running job knows: the hit waiting for review, the operator's decisions,
+    the finish request, the coherence of the inputs done."""
+
+    review: bool
+    n_inputs: int
+    sample_rate_hz: float = 0.0
+    pending: dict[str, Any] | None = None
+    pending_view: dict[str, Any] | None = None
+    last_view: dict[str, Any] | None = None
+    decisions: queue.Queue[tuple[int, Decision]] = field(default_factory=queue.Queue)
+    #: the last hit a decision was given for (it is not announced again while the job takes it)
+    answered: int = 0
+    lock: threading.Lock = field(default_factory=threading.Lock)
+    finish: threading.Event = field(default_factory=threading.Event)
+    coherence: list[float | None] = field(default_factory=list)
+
+    def current_hit(self) -> dict[str, Any] | None:
+        """The hit waiting for review, else the one just decided (not yet recorded by the job),
+        else the last recorded one; None when there is none."""
+        with self.lock:
+            pending, view, last = self.pending, self.pending_view, self.last_view
+            answered = self.answered
+        if pending is not None and view is not None:
+            return {**view, **pending, "pending": True}
+        if view is not None:  # decided, not yet recorded by the job
+            return {**view, "number": answered, "pending": False}
+        if last is not None:
+            return {**last, "pending": False}
+        return None
 
 
 def hit_view(

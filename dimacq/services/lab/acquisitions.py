@@ -17,10 +17,9 @@ from __future__ import annotations
 
 import logging
 import queue
-import threading
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -42,7 +41,7 @@ from dimacq.persistence import models as m
 from dimacq.persistence import stands as stand_lease
 from dimacq.persistence.queue import Outbox
 from dimacq.services.jobs import JobContext, JobManager
-from dimacq.services.lab.acquisition_views import hit_view, merge_frfs
+from dimacq.services.lab.acquisition_views import Decision, LiveReview, hit_view, merge_frfs
 from dimacq.services.lab.common import iso, json_safe
 from dimacq.services.lab.devices import DeviceService
 from dimacq.services.lab.store import Page, TestStore, frf_to_arrays
@@ -107,28 +106,6 @@ class AcquisitionInfo:
     updated_at: str | None = None  # the last change of state, message, job or FRF set
 
 
-Decision = Literal["accept", "reject", "redo"]
-
-
-@dataclass
-class _Live:
-    """What only the running job knows: the hit waiting for review, the operator's decisions,
-    the finish request, the coherence of the inputs done."""
-
-    review: bool
-    n_inputs: int
-    sample_rate_hz: float = 0.0
-    pending: dict[str, Any] | None = None
-    pending_view: dict[str, Any] | None = None
-    last_view: dict[str, Any] | None = None
-    decisions: queue.Queue[tuple[int, Decision]] = field(default_factory=queue.Queue)
-    #: the last hit a decision was given for (it is not announced again while the job takes it)
-    answered: int = 0
-    lock: threading.Lock = field(default_factory=threading.Lock)
-    finish: threading.Event = field(default_factory=threading.Event)
-    coherence: list[float | None] = field(default_factory=list)
-
-
 class AcquisitionService:
     """Start, follow and stop impact acquisitions.
 
@@ -163,7 +140,7 @@ class AcquisitionService:
         self.devices = devices
         self.store = store
         self._rig_factory = rig_factory
-        self._live: dict[int, _Live] = {}
+        self._live: dict[int, LiveReview] = {}
 
     def recover(self) -> None:
         """After a restart: this stand's running acquisitions are interrupted (other stands'
@@ -258,7 +235,7 @@ class AcquisitionService:
             s.add(row)
             s.flush()
             acq_id = int(row.id)
-        live = _Live(
+        live = LiveReview(
             review=bool(cfg.get("review")),
             n_inputs=len(inputs),
             sample_rate_hz=float(getattr(rig.daq, "sample_rate_hz", 0.0) or 0.0),
@@ -314,7 +291,7 @@ class AcquisitionService:
         struck: TestSetup,
         cfg: Mapping[str, Any],
         rig: Any,
-        live: _Live,
+        live: LiveReview,
     ) -> dict[str, Any]:
         from dimacq.services.rig import run_impact_test
 
@@ -573,7 +550,7 @@ class AcquisitionService:
         )
 
     # ------------------------------------------------------------------ the operator's decisions
-    def _require_live(self, acq_id: int) -> _Live:
+    def _require_live(self, acq_id: int) -> LiveReview:
         cur = self.get(acq_id)
         if cur is None:
             raise KeyError(acq_id)
@@ -633,16 +610,7 @@ class AcquisitionService:
         live = self._live.get(acq_id)
         if live is None:
             return None
-        with live.lock:
-            pending, view, last = live.pending, live.pending_view, live.last_view
-            answered = live.answered
-        if pending is not None and view is not None:
-            return {**view, **pending, "pending": True}
-        if view is not None:  # decided, not yet recorded by the job
-            return {**view, "number": answered, "pending": False}
-        if last is not None:
-            return {**last, "pending": False}
-        return None
+        return live.current_hit()
 
     def _supersede(self, acq_id: int, input_index: int) -> None:
         """Redo of an input: its averages accepted so far no longer count."""
