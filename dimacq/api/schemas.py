@@ -501,3 +501,51 @@ class AverageDataOut(BaseModel):
     attrs: dict[str, Any]
     arrays: dict[str, Any]
     shapes: dict[str, list[int]]
+
+
+class HitOut(BaseModel):
+    """One hit as the operator sees it: the force and the strongest response over time and their
+    spectra (dB re their peak), the automatic checks' reasons; ``pending`` when it waits for a
+    decision (``POST /api/acquisitions/{id}/review``)."""
+
+    model_config = ConfigDict(extra="allow")
+
+    number: int = Field(description="the hit (average number, from 1)")
+    pending: bool
+    input_index: int | None = Field(default=None, description="the setup's input struck")
+    reasons: list[str] = Field(default_factory=list, description="the checks' (empty: passed)")
+    accepted: bool | None = None
+    sample_rate_hz: float
+    time_s: list[float | None]
+    force_n: list[float | None] = Field(description="hammer force, N")
+    response: int = Field(description="index of the strongest response channel shown")
+    response_ms2: list[float | None] = Field(description="its acceleration, m/s²")
+    frequencies_hz: list[float | None]
+    force_db: list[float | None] = Field(description="force spectrum, dB re its peak")
+    response_db: list[float | None] = Field(description="response spectrum, dB re its peak")
+    peak_force_n: float
+
+
+class RigOut(BaseModel):
+    """The configured rig file: its ``path`` and ``text``, the parsed map ``rig`` (``daq``,
+    ``hammers`` with any ``chain_calibration``, ``responses`` with ``sensitivity_mv_per_g``,
+    ``load_cells``; null when invalid) and ``error`` ("" when valid)."""
+
+    path: str = ""
+    text: str = ""
+    rig: dict[str, Any] | None
+    error: str
+
+
+class SolutionSpectrumOut(BaseModel):
+    """Parameters against frequency behind a stored solution: ``per_line`` (n_lines × 10, layout
+    ``parameters``, units ``units``; inertia about the reference point, CG in the GCS) over every
+    line of its FRF set; ``band_hz`` and ``headline`` (the stored estimate, same layout)."""
+
+    solution_id: int
+    parameters: list[str]
+    units: list[str]
+    frequencies_hz: list[float | None]
+    per_line: list[list[float | None]]
+    band_hz: list[float]
+    headline: list[float | None]

@@ -18,7 +18,13 @@ from dimacq.api.routers._common import (
     parse_strict,
     strict_body,
 )
-from dimacq.api.schemas import AcquisitionOut, AcquisitionRequest, AverageDataOut, HitDecision
+from dimacq.api.schemas import (
+    AcquisitionOut,
+    AcquisitionRequest,
+    AverageDataOut,
+    HitDecision,
+    HitOut,
+)
 from dimacq.services.lab.acquisitions import AcquisitionInfo
 
 router = APIRouter(prefix="/api/acquisitions", tags=["acquisitions"])
@@ -93,7 +99,7 @@ def finish_acquisition(acq_id: IdPath, lab: LabDep) -> AcquisitionInfo:
     return found(lab.acquisitions.finish(acq_id), f"acquisition {acq_id}")
 
 
-@router.get("/{acq_id:int}/hit", response_model=dict[str, Any])
+@router.get("/{acq_id:int}/hit", response_model=HitOut)
 def get_hit(acq_id: IdPath, lab: LabDep) -> dict[str, Any]:
     """The hit waiting for review (``pending: true``), else the last decided one (this service's
     run only): force (N) and strongest response (m/s²) over time, their spectra in dB, the

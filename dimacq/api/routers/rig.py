@@ -8,12 +8,12 @@ from fastapi import APIRouter
 
 from dimacq.api.deps import LabDep
 from dimacq.api.routers._common import body_openapi, strict_body
-from dimacq.api.schemas import RigText
+from dimacq.api.schemas import RigOut, RigText
 
 router = APIRouter(prefix="/api/rig", tags=["rig"])
 
 
-@router.get("", response_model=dict[str, Any])
+@router.get("", response_model=RigOut)
 def read_rig(lab: LabDep) -> dict[str, Any]:
     """The configured rig file: ``path``, ``text``, ``rig`` (parsed: ``daq``, ``hammers``,
     ``responses`` with ``sensitivity_mv_per_g``, ``load_cells``; None when invalid) and
@@ -21,7 +21,7 @@ def read_rig(lab: LabDep) -> dict[str, Any]:
     return lab.rig_map.read()
 
 
-@router.post("/check", response_model=dict[str, Any], openapi_extra=body_openapi(RigText))
+@router.post("/check", response_model=RigOut, openapi_extra=body_openapi(RigText))
 def check_rig(lab: LabDep, body: Annotated[RigText, strict_body(RigText)]) -> dict[str, Any]:
     """Check a rig file's text as an acquisition would read it (422 naming the item); nothing
     is written."""
@@ -30,7 +30,7 @@ def check_rig(lab: LabDep, body: Annotated[RigText, strict_body(RigText)]) -> di
     return {"rig": dump_rig(lab.rig_map.check(body.text)), "error": ""}
 
 
-@router.put("", response_model=dict[str, Any], openapi_extra=body_openapi(RigText))
+@router.put("", response_model=RigOut, openapi_extra=body_openapi(RigText))
 def write_rig(lab: LabDep, body: Annotated[RigText, strict_body(RigText)]) -> dict[str, Any]:
     """Replace the rig file with ``text`` once it is checked (422 naming the item otherwise);
     the previous file is kept as ``<name>.previous``. The next acquisition uses it."""

@@ -16,7 +16,13 @@ from dimacq.api.routers._common import (
     paged,
     strict_body,
 )
-from dimacq.api.schemas import MAX_ID, DiagnosticOut, SolutionOut, SolveRequest
+from dimacq.api.schemas import (
+    MAX_ID,
+    DiagnosticOut,
+    SolutionOut,
+    SolutionSpectrumOut,
+    SolveRequest,
+)
 from dimacq.services.lab.solving import SolveOptions
 from dimacq.services.lab.store import StoredSolution
 
@@ -76,7 +82,7 @@ PARAMETERS = ["m", "cx", "cy", "cz", "Ixx", "Ixy", "Ixz", "Iyy", "Iyz", "Izz"]
 UNITS = ["kg", "m", "m", "m", "kg m^2", "kg m^2", "kg m^2", "kg m^2", "kg m^2", "kg m^2"]
 
 
-@router.get("/{solution_id:int}/spectrum", response_model=dict[str, Any])
+@router.get("/{solution_id:int}/spectrum", response_model=SolutionSpectrumOut)
 def spectrum(solution_id: IdPath, lab: LabDep) -> dict[str, Any]:
     """The parameters against frequency behind a stored solution: ``per_line`` (n_lines × 10,
     layout ``parameters``, units ``units``; inertia about the reference point, CG in the GCS) over
