@@ -623,9 +623,15 @@ def _gauge_constraint(prob: _Problem, theta0: FloatArray, refuse_ratio: float) -
     Jx, Jg = Jd[:, :nx], Jd[:, nx:]
     Nxx, Nxg, Ngg = Jx.T @ Jx, Jx.T @ Jg, Jg.T @ Jg
     Dg = Ngg - Nxg.T @ np.linalg.pinv(Nxx) @ Nxg
-    D = G.T @ Dg @ G
-    P = G.T @ G
-    lam, V = scipy_linalg.eigh(D, P)
+    # Gauge coordinates c that move nothing (columns of G dependent once items are fixed or
+    # left out) carry no prior and no data: work in the row space of G, c = W y, where
+    # P_y = Wᵀ GᵀG W is positive definite.
+    _, sv, Wt = np.linalg.svd(G, full_matrices=False)
+    W = Wt[sv > sv[0] * 1e-9].T
+    D = W.T @ (G.T @ Dg @ G) @ W
+    P = W.T @ (G.T @ G) @ W
+    lam, Vy = scipy_linalg.eigh(0.5 * (D + D.T), 0.5 * (P + P.T))
+    V = W @ Vy
     fixed = V[:, 1.0 / np.sqrt(1.0 + np.clip(lam, 0.0, None)) > refuse_ratio]
     if not fixed.shape[1]:
         return
