@@ -25,7 +25,7 @@ from numpy.typing import NDArray
 
 from dimacq.errors import SetupError
 
-__all__ = ["CounterStream", "StreamEvent", "Taken"]
+__all__ = ["CounterStream", "StreamEvent", "Taken", "false_runs"]
 
 
 class StreamEvent(Protocol):
@@ -181,3 +181,15 @@ class CounterStream(Generic[E]):
         )
         self._events = [e for e in self._events if e.first_sample + max(e.n_samples, 1) > end]
         return out
+
+
+def false_runs(valid: np.ndarray) -> list[tuple[int, int]]:
+    """Contiguous runs ``(first, last)`` (inclusive indices) of False in ``valid``: the gaps a
+    driver reports, one event per run."""
+    missing = np.flatnonzero(~np.asarray(valid, dtype=bool))
+    if missing.size == 0:
+        return []
+    breaks = np.flatnonzero(np.diff(missing) > 1)
+    starts = np.concatenate([[missing[0]], missing[breaks + 1]])
+    stops = np.concatenate([missing[breaks], [missing[-1]]])
+    return [(int(a), int(b)) for a, b in zip(starts, stops, strict=True)]

@@ -48,7 +48,7 @@ from numpy.typing import NDArray
 from dimacq.devices.loadcell import LoadCellBlock, LoadCellEvent, LoadCellIdentity
 from dimacq.drivers.base import Deadline, WireDriver
 from dimacq.drivers.canopen_loadcell import protocol as p
-from dimacq.drivers.stream import CounterStream
+from dimacq.drivers.stream import CounterStream, false_runs
 from dimacq.errors import (
     DeviceError,
     DeviceStateError,
@@ -582,11 +582,7 @@ class CanopenLoadCell(WireDriver):
             self._bad.difference_update(bad)
         status = got.flags.astype(np.uint8, copy=False)
         if not got.valid.all():
-            missing = np.flatnonzero(~got.valid)
-            breaks = np.flatnonzero(np.diff(missing) > 1)
-            starts = np.concatenate([[missing[0]], missing[breaks + 1]])
-            stops = np.concatenate([missing[breaks], [missing[-1]]])
-            for a, b in zip(starts, stops, strict=True):
+            for a, b in false_runs(got.valid):
                 self._record(
                     LoadCellEvent(
                         "gap",

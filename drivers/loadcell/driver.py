@@ -33,7 +33,7 @@ from numpy.typing import NDArray
 from dimacq.devices.loadcell import LoadCellBlock, LoadCellEvent, LoadCellIdentity
 from dimacq.drivers.base import Deadline, WireDriver
 from dimacq.drivers.loadcell import protocol as p
-from dimacq.drivers.stream import CounterStream
+from dimacq.drivers.stream import CounterStream, false_runs
 from dimacq.errors import (
     DeviceError,
     DeviceStateError,
@@ -444,12 +444,7 @@ class LoadCellAmplifier(WireDriver):
         first, valid, status = got.first, got.valid, got.flags.astype(np.uint8, copy=False)
         n = end - first
         if not valid.all():
-            missing = np.flatnonzero(~valid)
-            # report contiguous runs
-            breaks = np.flatnonzero(np.diff(missing) > 1)
-            starts = np.concatenate([[missing[0]], missing[breaks + 1]])
-            stops = np.concatenate([missing[breaks], [missing[-1]]])
-            for a, b in zip(starts, stops, strict=True):
+            for a, b in false_runs(valid):
                 self._record(
                     LoadCellEvent(
                         "gap",
