@@ -61,6 +61,9 @@ __all__ = ["CanopenLoadCell"]
 
 log = logging.getLogger(__name__)
 
+#: seconds without a new counter while streaming before the driver reads the node's counter
+_STALL_PROBE_S = 0.5
+
 T = TypeVar("T")
 
 #: abort codes that mean "not now" (the device's state) rather than "not ever"
@@ -542,12 +545,22 @@ class CanopenLoadCell(WireDriver):
             )
         deadline = self._deadline(timeout_s)
         final = None if self.streaming else self._final_pulses
+        last_have, stalled = self._have(), Deadline(_STALL_PROBE_S)
         while True:
             self._decode_pending()
             self._check_heartbeat()
             have = self._have()
             if have >= end_sample or (final is not None and end_sample <= final):
                 break
+            if have != last_have:
+                last_have, stalled = have, Deadline(_STALL_PROBE_S)
+            elif self.streaming and stalled.left() <= 0:
+                # No TPDO for a while: read the node's counter (0x2102). Past the end, the frames
+                # up to it were lost (a bus-off over the run's last pulses, after which the SYNC
+                # stopped): they become a gap, not a timeout.
+                stalled = Deadline(_STALL_PROBE_S)
+                if self._counter_passed(end_sample):
+                    break
             left = deadline.left()
             if left <= 0:
                 hb = self._last_heartbeat
@@ -560,6 +573,15 @@ class CanopenLoadCell(WireDriver):
             with self._cond:
                 self._cond.wait(min(left, 0.004))
         return self._take(end_sample)
+
+    def _counter_passed(self, end_sample: int) -> bool:
+        """The node's own sample counter (``0x2102``) has reached ``end_sample``."""
+        try:
+            counter = self._read_int(p.COUNTER)
+        except DeviceTimeoutError:
+            return False  # still off the bus: keep waiting within the caller's deadline
+        self._decode_pending()
+        return counter >= end_sample
 
     def _take(self, end: int) -> LoadCellBlock:
         layout = self.layout

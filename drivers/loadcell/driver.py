@@ -48,6 +48,9 @@ log = logging.getLogger(__name__)
 
 R = TypeVar("R", bound=p.Reply)
 
+#: seconds without a new counter while streaming before the driver asks the amplifier's counter
+_STALL_PROBE_S = 0.5
+
 _ERRORS = {
     p.ErrorCode.UNKNOWN_COMMAND: "unknown command",
     p.ErrorCode.BAD_ARGUMENT: "bad argument",
@@ -418,11 +421,21 @@ class LoadCellAmplifier(WireDriver):
             )
         deadline = self._deadline(timeout_s)
         final = None if self.streaming else self._final_pulses
+        last_have, stalled = st.last_counter + 1, Deadline(_STALL_PROBE_S)
         while True:
             self._decode_pending()
             have = st.last_counter + 1
             if have >= end_sample or (final is not None and end_sample <= final):
                 break
+            if have != last_have:
+                last_have, stalled = have, Deadline(_STALL_PROBE_S)
+            elif self.streaming and stalled.left() <= 0:
+                # No frame for a while: ask the amplifier where its counter is. Past the end, the
+                # frames up to it were lost on the bus (a bus-off in the last pulses of a run,
+                # after which the SYNC stopped): they become a gap, not a timeout.
+                stalled = Deadline(_STALL_PROBE_S)
+                if self._counter_passed(end_sample):
+                    break
             left = deadline.left()
             if left <= 0:
                 raise DeviceTimeoutError(
@@ -437,6 +450,15 @@ class LoadCellAmplifier(WireDriver):
                 while (m := self._recv(0.0)) is not None:
                     self._route(m)
         return self._take(end_sample)
+
+    def _counter_passed(self, end_sample: int) -> bool:
+        """The amplifier's own counter (GET_STATUS) has reached ``end_sample``."""
+        try:
+            _, _, counter = self.get_status()
+        except DeviceTimeoutError:
+            return False  # still off the bus: keep waiting within the caller's deadline
+        self._decode_pending()
+        return counter >= end_sample
 
     def _take(self, end: int) -> LoadCellBlock:
         samples = self._stream.samples

@@ -311,7 +311,7 @@ def _acquire(call: Any, setup_id: int, averages: int, seed: int, fig: Figures, s
     fig.averages_accepted += len(final)
     fig.averages_rejected += sum(1 for v in a.get("averages", []) if not v.get("accepted"))
     fig.averages_lost += len(seen - final)
-    if a["state"] != "finished" or a.get("frf_id") is None:
+    if a["state"] != "succeeded" or a.get("frf_id") is None:
         fig.acquisitions_failed.append(f"acquisition {acq_id}: {a['state']}: {a.get('message')}")
         say(f"acquisition {acq_id} ended {a['state']}: {a.get('message')}")
 

@@ -176,6 +176,24 @@ def test_stream_gap_is_nan_and_reported_and_matrix_applied():
         assert rest.first_sample == 8 and rest.valid.all()
 
 
+def test_frames_lost_at_the_end_of_a_run_are_a_gap_not_a_timeout():
+    """A bus-off over a run's last pulses: no frame comes again once the SYNC stops. The
+    stalled driver asks the amplifier's counter (GET_STATUS): past the end, the rest is a gap."""
+    g = np.ones((6, 12))
+    script = [*started(data_frames(range(6), g)), (cmd("0b"), rsp("8b 02 00 00 0a 00 00 00"))]
+    with expected_exchange("can", script, connect=amp()) as a:
+        block = arm(a).read_until(10, timeout_s=5.0)
+        assert block.valid.tolist() == [1] * 6 + [0] * 4
+        assert [(e.kind, e.first_sample, e.n_samples) for e in block.events] == [("gap", 6, 4)]
+
+
+def test_a_stalled_stream_short_of_the_end_still_times_out():
+    script = [*started(data_frames(range(6), np.ones((6, 12))))]
+    script += [(cmd("0b"), rsp("8b 02 00 00 07 00 00 00"))] * 2
+    with expected_exchange("can", script, connect=amp()) as a, pytest.raises(DeviceTimeoutError):
+        arm(a).read_until(10, timeout_s=1.2)
+
+
 def test_counter_wraps_without_a_gap():
     frames = data_frames([2**32 - 2, 2**32 - 1, 0, 1], np.zeros((4, 12)))
     with expected_exchange("can", started(frames), connect=amp()) as a:

@@ -199,6 +199,15 @@ def test_bus_off_is_a_gap_and_an_emcy_and_the_stream_resumes(rig) -> None:
     _accepted_are_true(src, block)
 
 
+def test_bus_off_over_the_last_pulses_is_a_gap_not_a_timeout(rig) -> None:
+    """No TPDO comes again once the SYNC stops: the driver reads the node's counter (0x2102)."""
+    src, task, amp, _sim = rig(faults=CanopenFaults(bus_off=(900, 124)))
+    block, pulses = _run(src, task, amp, 1024)
+    assert ("gap", 900, 124) in [(e.kind, e.first_sample, e.n_samples) for e in block.events]
+    assert block.valid[:900].all() and not block.valid[900:].any() and pulses == 1024
+    _accepted_are_true(src, block)
+
+
 def test_heartbeat_loss_is_reported_naming_the_node_and_survived(rig) -> None:
     src, task, amp, sim = rig()
     amp.identify()  # heartbeat 100 ms, lost after 3 periods
