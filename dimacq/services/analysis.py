@@ -42,6 +42,7 @@ from dimacq.pipeline.chain_calibration import ChainCalibration, chain_calibratio
 from dimacq.pipeline.dim import DimResult, DimSystem, assemble, solve_system
 from dimacq.pipeline.selection._common import match_pairs, response_geometry
 from dimacq.pipeline.selection.band import (
+    MAX_RIGID_BODY_ERROR,
     BandSuggestion,
     suggest_band,
 )
@@ -71,6 +72,7 @@ from dimacq.services.verdict import (
     RESIDUAL_FAIL,
     RESIDUAL_WARN,
     VerdictReason,
+    band_quality,
     verdict,
 )
 
@@ -389,7 +391,23 @@ def analyse(
     )
     if n_node_rank:
         unc = replace(unc, n_rank_deficient=unc.n_rank_deficient + n_node_rank)
-    if opt.method == "joint" and (opt.unbiased or opt.refine_geometry or opt.residual_flexibility):
+    refine = opt.method == "joint" and (
+        opt.unbiased or opt.refine_geometry or opt.residual_flexibility
+    )
+    if refine and not auto:
+        # A band given by hand that the verdict will fail (the data are not a rigid body there,
+        # with the stated geometry: the band check is made on it) gains nothing from the output-
+        # error fit, whose gross-error search then tries every item in turn (minutes).
+        e_max, _ = band_quality(data, setup_used, weights > 0, keep_idx, known)
+        if e_max > MAX_RIGID_BODY_ERROR:
+            refine = False
+            log.warning(
+                "output-error estimate not tried: worst rigid-body error %.3g in the band "
+                "(limit %g); the band check fails and the equation-error estimate is reported",
+                e_max,
+                MAX_RIGID_BODY_ERROR,
+            )
+    if refine:
         result, unc = output_error_step(
             data, setup_used, result, unc, weights, keep_in, known, opt, system_used.hull_points_m
         )

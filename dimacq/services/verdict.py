@@ -9,10 +9,12 @@ re-exports these names.
 from __future__ import annotations
 
 import logging
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import NDArray
 
 from dimacq.model.frf import FrfData
 from dimacq.pipeline.selection._common import response_geometry
@@ -20,6 +22,7 @@ from dimacq.pipeline.selection.band import MAX_RESIDUAL, MAX_RIGID_BODY_ERROR, B
 from dimacq.pipeline.uncertainty import Uncertainty
 
 if TYPE_CHECKING:
+    from dimacq.model.setup import TestSetup
     from dimacq.services.analysis import AnalysisReport
 
 __all__ = [
@@ -29,6 +32,7 @@ __all__ = [
     "RESIDUAL_FAIL",
     "RESIDUAL_WARN",
     "VerdictReason",
+    "band_quality",
     "verdict",
 ]
 
@@ -61,12 +65,36 @@ class VerdictReason:
         return {"check": self.check, "severity": self.severity, "message": self.message}
 
 
-def _band_quality(report: AnalysisReport, data: FrfData) -> tuple[float, float]:
-    """Worst rigid-body error and median per-line DIM residual over the band's lines (kept data)."""
+def band_quality(
+    data: FrfData,
+    setup: TestSetup,
+    use: NDArray[np.bool_],
+    in_keep: Sequence[int],
+    known: Mapping[str, float] | None = None,
+) -> tuple[float, float]:
+    """Worst rigid-body error and median per-line DIM residual over the band's lines.
+
+    e(ω) = ‖Q − Ψ Ψ⁺ Q‖_F / ‖Q‖_F on the kept accelerometer channels ``use`` (one flag per
+    channel of ``response_geometry``) and inputs ``in_keep``: the share of the measured motion
+    no rigid body explains, with the stated geometry.
+    """
     from dimacq.pipeline.dim import assemble as _assemble
     from dimacq.pipeline.dim import line_residuals
     from dimacq.pipeline.rigid_body import response_matrix
 
+    geo = response_geometry(data, setup)
+    q = data.H[:, geo.output_index][:, use][:, :, list(in_keep)]
+    psi = response_matrix(geo.positions_m[use], geo.directions[use], setup.reference_point)
+    fit = np.einsum("ck,lkj->lcj", psi @ np.linalg.pinv(psi), q)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        e = np.sqrt(np.sum(np.abs(q - fit) ** 2, axis=(1, 2)) / np.sum(np.abs(q) ** 2, axis=(1, 2)))
+    system = _assemble(data, setup, response_weights=use.astype(float)).select_inputs(list(in_keep))
+    r = line_residuals(system, known=dict(known or {}))
+    return float(np.nanmax(e)), float(np.nanmedian(r))
+
+
+def _band_quality(report: AnalysisReport, data: FrfData) -> tuple[float, float]:
+    """:func:`band_quality` of a report's kept data."""
     setup = report.setup_used
     geo = response_geometry(data, setup)
     kept = {(c["node"], c["direction"]) for c in report.excluded_responses}
@@ -76,14 +104,7 @@ def _band_quality(report: AnalysisReport, data: FrfData) -> tuple[float, float]:
         for i, c in enumerate(data.inputs)
         if {"node": c.node, "direction": c.direction} not in report.excluded_inputs
     ]
-    q = data.H[:, geo.output_index][:, use][:, :, in_keep]
-    psi = response_matrix(geo.positions_m[use], geo.directions[use], setup.reference_point)
-    fit = np.einsum("ck,lkj->lcj", psi @ np.linalg.pinv(psi), q)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        e = np.sqrt(np.sum(np.abs(q - fit) ** 2, axis=(1, 2)) / np.sum(np.abs(q) ** 2, axis=(1, 2)))
-    system = _assemble(data, setup, response_weights=use.astype(float)).select_inputs(in_keep)
-    r = line_residuals(system, known=report.result.known)
-    return float(np.nanmax(e)), float(np.nanmedian(r))
+    return band_quality(data, setup, use, in_keep, report.result.known)
 
 
 def verdict(

@@ -46,8 +46,9 @@ def test_acquire_writes_a_uff_that_solve_reads(tmp_path, capsys, no_leaks):
     assert rc == 0
     cap = capsys.readouterr()
     assert "24 inputs × 1 averages" in cap.out
-    # progress off a terminal: plain lines, no carriage return, the time left, the last at 100 %
-    assert "\r" not in cap.err and "left)" in cap.err
+    # progress off a terminal: plain lines, no carriage return, the last at 100 % (the time left
+    # depends on the wall clock: tests/cli/test_cli_contract.py checks it on a fake clock)
+    assert "\r" not in cap.err
     assert "acquire: 100.0 %  [24/24]" in cap.err.splitlines()[-1]
     summary = json.loads((tmp_path / "acq.json").read_text())
     assert summary["averages_accepted"] == [1] * 24 and summary["n_responses"] == 30

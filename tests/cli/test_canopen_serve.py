@@ -28,7 +28,10 @@ def test_canopen_load_cell_through_dimacq_serve(tmp_path: Path) -> None:
         assert lc["connected"], lc
         assert "canopen-simulated" in str(lc)
         # bench calibration: the native backend's limits (tests/cli/test_acquire_cli.py)
-        r = c.post("/api/calibrations/runs", json={"method": "static", "plan": "minimal"})
+        r = c.post(
+            "/api/calibrations/runs",
+            json={"method": "static", "plan": "minimal", "circular_check": False},
+        )
         assert r.status_code == 202, r.text
         assert r.json()["simulated"] is True
         job = r.json()["job_id"]
