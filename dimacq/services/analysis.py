@@ -398,7 +398,7 @@ def analyse(
         # A band given by hand that the verdict will fail (the data are not a rigid body there,
         # with the stated geometry: the band check is made on it) gains nothing from the output-
         # error fit, whose gross-error search then tries every item in turn (minutes).
-        e_max, _ = band_quality(data, setup_used, weights > 0, keep_idx, known)
+        e_max, _ = band_quality(data, setup_used, weights > 0, keep_idx.tolist(), known)
         if e_max > MAX_RIGID_BODY_ERROR:
             refine = False
             log.warning(

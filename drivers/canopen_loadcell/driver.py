@@ -48,6 +48,7 @@ from numpy.typing import NDArray
 from dimacq.devices.loadcell import LoadCellBlock, LoadCellEvent, LoadCellIdentity
 from dimacq.drivers.base import Deadline, WireDriver
 from dimacq.drivers.canopen_loadcell import protocol as p
+from dimacq.drivers.loadcell.counting import SyncCounting
 from dimacq.drivers.stream import CounterStream, false_runs
 from dimacq.errors import (
     DeviceError,
@@ -60,9 +61,6 @@ from dimacq.errors import (
 __all__ = ["CanopenLoadCell"]
 
 log = logging.getLogger(__name__)
-
-#: seconds without a new counter while streaming before the driver reads the node's counter
-_STALL_PROBE_S = 0.5
 
 T = TypeVar("T")
 
@@ -108,7 +106,7 @@ class _Assembly:
         return out
 
 
-class CanopenLoadCell(WireDriver):
+class CanopenLoadCell(SyncCounting, WireDriver):
     """One CANopen load cell amplifier.
 
     Parameters
@@ -386,23 +384,12 @@ class CanopenLoadCell(WireDriver):
         self._final_pulses = pulses
         return pulses
 
-    def verify_count(self, daq_samples_clocked: int) -> LoadCellEvent | None:
-        """After both stopped: pulses counted must equal the DAQ's samples (else ``drift``)."""
-        if self._final_pulses is None:
-            raise DeviceStateError("verify_count() needs stop() first")
-        diff = self._final_pulses - daq_samples_clocked
-        if diff == 0:
-            return None
-        ev = LoadCellEvent(
-            "drift",
-            0,
-            daq_samples_clocked,
-            f"{self.name} counted {self._final_pulses} SYNC pulses, the DAQ clocked "
-            f"{daq_samples_clocked} samples ({diff:+d}): the streams are misaligned; check the "
-            "SYNC cable and start the amplifier before the DAQ",
-        )
-        self._record(ev)
-        return ev
+    @property
+    def _who(self) -> str:
+        return self.name
+
+    def _device_counter(self) -> int:
+        return self._read_int(p.COUNTER)
 
     def get_status(self) -> tuple[int, int, int]:
         """(0 idle / 2 streaming, status flags ``0x2103``, sample counter ``0x2102``)."""
@@ -544,44 +531,27 @@ class CanopenLoadCell(WireDriver):
                 f"{self._samples.next_sample}"
             )
         deadline = self._deadline(timeout_s)
-        final = None if self.streaming else self._final_pulses
-        last_have, stalled = self._have(), Deadline(_STALL_PROBE_S)
-        while True:
+
+        def have() -> int:
             self._decode_pending()
             self._check_heartbeat()
-            have = self._have()
-            if have >= end_sample or (final is not None and end_sample <= final):
-                break
-            if have != last_have:
-                last_have, stalled = have, Deadline(_STALL_PROBE_S)
-            elif self.streaming and stalled.left() <= 0:
-                # No TPDO for a while: read the node's counter (0x2102). Past the end, the frames
-                # up to it were lost (a bus-off over the run's last pulses, after which the SYNC
-                # stopped): they become a gap, not a timeout.
-                stalled = Deadline(_STALL_PROBE_S)
-                if self._counter_passed(end_sample):
-                    break
-            left = deadline.left()
-            if left <= 0:
-                hb = self._last_heartbeat
-                seen = "never" if hb is None else f"{time.monotonic() - hb:.2f} s ago"
-                raise DeviceTimeoutError(
-                    f"{self.name}: counter reached {have}, not {end_sample}, within "
-                    f"{deadline.timeout_s} s (last heartbeat {seen}); is the DAQ clock running, "
-                    "the node operational and on the bus?"
-                )
+            return self._have()
+
+        def pump(left: float) -> None:
             with self._cond:
                 self._cond.wait(min(left, 0.004))
-        return self._take(end_sample)
 
-    def _counter_passed(self, end_sample: int) -> bool:
-        """The node's own sample counter (``0x2102``) has reached ``end_sample``."""
-        try:
-            counter = self._read_int(p.COUNTER)
-        except DeviceTimeoutError:
-            return False  # still off the bus: keep waiting within the caller's deadline
-        self._decode_pending()
-        return counter >= end_sample
+        def timed_out(got: int) -> DeviceTimeoutError:
+            hb = self._last_heartbeat
+            seen = "never" if hb is None else f"{time.monotonic() - hb:.2f} s ago"
+            return DeviceTimeoutError(
+                f"{self.name}: counter reached {got}, not {end_sample}, within "
+                f"{deadline.timeout_s} s (last heartbeat {seen}); is the DAQ clock running, "
+                "the node operational and on the bus?"
+            )
+
+        self._await_counter(end_sample, deadline, have, pump, timed_out)
+        return self._take(end_sample)
 
     def _take(self, end: int) -> LoadCellBlock:
         layout = self.layout

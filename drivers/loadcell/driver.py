@@ -33,6 +33,7 @@ from numpy.typing import NDArray
 from dimacq.devices.loadcell import LoadCellBlock, LoadCellEvent, LoadCellIdentity
 from dimacq.drivers.base import Deadline, WireDriver
 from dimacq.drivers.loadcell import protocol as p
+from dimacq.drivers.loadcell.counting import SyncCounting
 from dimacq.drivers.stream import CounterStream, false_runs
 from dimacq.errors import (
     DeviceError,
@@ -47,9 +48,6 @@ __all__ = ["LoadCellAmplifier", "LoadCellBlock", "LoadCellEvent", "LoadCellIdent
 log = logging.getLogger(__name__)
 
 R = TypeVar("R", bound=p.Reply)
-
-#: seconds without a new counter while streaming before the driver asks the amplifier's counter
-_STALL_PROBE_S = 0.5
 
 _ERRORS = {
     p.ErrorCode.UNKNOWN_COMMAND: "unknown command",
@@ -78,7 +76,7 @@ class _Stream:
     rate_ratio: float | None = None  # pulses per local time over nominal, SYNC steps removed
 
 
-class LoadCellAmplifier(WireDriver):
+class LoadCellAmplifier(SyncCounting, WireDriver):
     """One load cell amplifier on a CAN FD bus.
 
     Parameters
@@ -248,32 +246,17 @@ class LoadCellAmplifier(WireDriver):
         self._final_pulses = r.pulses
         return r.pulses
 
-    def verify_count(self, daq_samples_clocked: int) -> LoadCellEvent | None:
-        """After both devices stopped: the pulses counted must equal the DAQ's samples.
-
-        Returns (and records) a ``drift`` event when they differ: SYNC pulses were missed or
-        added somewhere, so the load cell samples are misaligned with the DAQ's.
-        """
-        if self._final_pulses is None:
-            raise DeviceStateError("verify_count() needs stop() first")
-        diff = self._final_pulses - daq_samples_clocked
-        if diff == 0:
-            return None
-        ev = LoadCellEvent(
-            "drift",
-            0,
-            daq_samples_clocked,
-            f"the amplifier counted {self._final_pulses} SYNC pulses, the DAQ clocked "
-            f"{daq_samples_clocked} samples ({diff:+d}): the streams are misaligned; check the "
-            "SYNC cable and arm the amplifier before starting the DAQ",
-        )
-        self._record(ev)
-        return ev
-
     def get_status(self) -> tuple[int, int, int]:
         """(state 0 idle / 1 armed / 2 streaming, flags, counter)."""
         r = self._ask(p.GetStatus(), p.StatusReply, idempotent=True)
         return r.state, r.flags, r.counter
+
+    @property
+    def _who(self) -> str:
+        return f"load cell amplifier {self.node_id}"
+
+    def _device_counter(self) -> int:
+        return self.get_status()[2]
 
     def download_calibration(self, matrix: Any) -> None:
         """Store a 6×12 matrix in the amplifier (host → amplifier, CRC checked)."""
@@ -420,45 +403,28 @@ class LoadCellAmplifier(WireDriver):
                 f"{st.samples.next_sample}"
             )
         deadline = self._deadline(timeout_s)
-        final = None if self.streaming else self._final_pulses
-        last_have, stalled = st.last_counter + 1, Deadline(_STALL_PROBE_S)
-        while True:
+
+        def have() -> int:
             self._decode_pending()
-            have = st.last_counter + 1
-            if have >= end_sample or (final is not None and end_sample <= final):
-                break
-            if have != last_have:
-                last_have, stalled = have, Deadline(_STALL_PROBE_S)
-            elif self.streaming and stalled.left() <= 0:
-                # No frame for a while: ask the amplifier where its counter is. Past the end, the
-                # frames up to it were lost on the bus (a bus-off in the last pulses of a run,
-                # after which the SYNC stopped): they become a gap, not a timeout.
-                stalled = Deadline(_STALL_PROBE_S)
-                if self._counter_passed(end_sample):
-                    break
-            left = deadline.left()
-            if left <= 0:
-                raise DeviceTimeoutError(
-                    f"load cell amplifier {self.node_id}: counter reached {have}, not "
-                    f"{end_sample}, within {deadline.timeout_s} s; is the DAQ clock running and "
-                    "the amplifier started?"
-                )
+            return st.last_counter + 1
+
+        def pump(left: float) -> None:
             msg = self._recv(min(left, 0.05))
             if msg is not None:
                 self._route(msg)
                 # batch: take whatever is queued without waiting
                 while (m := self._recv(0.0)) is not None:
                     self._route(m)
-        return self._take(end_sample)
 
-    def _counter_passed(self, end_sample: int) -> bool:
-        """The amplifier's own counter (GET_STATUS) has reached ``end_sample``."""
-        try:
-            _, _, counter = self.get_status()
-        except DeviceTimeoutError:
-            return False  # still off the bus: keep waiting within the caller's deadline
-        self._decode_pending()
-        return counter >= end_sample
+        def timed_out(got: int) -> DeviceTimeoutError:
+            return DeviceTimeoutError(
+                f"load cell amplifier {self.node_id}: counter reached {got}, not {end_sample}, "
+                f"within {deadline.timeout_s} s; is the DAQ clock running and the amplifier "
+                "started?"
+            )
+
+        self._await_counter(end_sample, deadline, have, pump, timed_out)
+        return self._take(end_sample)
 
     def _take(self, end: int) -> LoadCellBlock:
         samples = self._stream.samples
