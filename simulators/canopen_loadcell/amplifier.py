@@ -35,13 +35,13 @@ from canopen.sdo import SdoAbortedError
 from dimacq.drivers.canopen_loadcell import protocol as p
 from dimacq.simulators.daq.clock import SampleClock
 from dimacq.simulators.lab.source import SampleSource
+from dimacq.simulators.loadcell.pulses import SyncPulses
 
 __all__ = ["CanopenAmplifierSim", "CanopenFaults"]
 
 log = logging.getLogger(__name__)
 
 _CHUNK = 128
-_MAX_LAG = 8 * _CHUNK
 _ABORT_STATE = 0x08000022  # data cannot be transferred because of the present device state
 _ABORT_LENGTH = 0x06070010  # data type and length do not match
 
@@ -61,7 +61,7 @@ class CanopenFaults:
     silent: bool = False
 
 
-class CanopenAmplifierSim:
+class CanopenAmplifierSim(SyncPulses):
     """Simulated CANopen amplifier; a context manager (node, thread and bus closed on exit).
 
     Parameters
@@ -114,14 +114,8 @@ class CanopenAmplifierSim:
         self.last_volts = np.zeros(p.N_GAUGES)
         self.streaming = False
         self._counter = 0  # samples labelled since NMT start
-        self._pulses = 0
-        self._base_run = 0
-        self._base_count = 0
-        self._epoch = 0
-        self._t0 = 0.0
         self._world_internal = 0
-        self._internal_epoch = 0
-        self._external = True
+        self._init_pulses(_CHUNK)
         self._bus_off_reported = False
         self._hb_stopped = False
         self._lock = threading.RLock()
@@ -231,7 +225,7 @@ class CanopenAmplifierSim:
             self._arm()
         elif state != "OPERATIONAL" and self.streaming:
             with self._lock:
-                self._stream_some(final=True)
+                self._send_pulses(final=True)
                 self.streaming = False
 
     # -- clock ---------------------------------------------------------------------------------
@@ -246,37 +240,13 @@ class CanopenAmplifierSim:
 
     def _arm(self) -> None:
         with self._lock:
-            self._external = int(self._obj(p.CLOCK_SOURCE).raw) == 1
+            external = int(self._obj(p.CLOCK_SOURCE).raw) == 1
+            if external and self.clock is None:
+                log.warning("node %d: SYNC clock source without a SYNC input", self.node_id)
             self._counter = 0
-            self._pulses = 0
             self._bus_off_reported = False
-            self._internal_epoch = self._world_internal
-            self._t0 = time.monotonic()
-            if self._external:
-                if self.clock is None:
-                    log.warning("node %d: SYNC clock source without a SYNC input", self.node_id)
-                else:
-                    st = self.clock.state()
-                    if st.running:
-                        self._base_run, self._base_count = st.run, st.count
-                    else:
-                        self._base_run, self._base_count = st.run + 1, 0
+            self._arm_pulses(external)
             self.streaming = True
-
-    def _available(self) -> int:
-        if not self._external:
-            ticks = int((time.monotonic() - self._t0) * self.rate_hz * self.time_scale)
-            if ticks > self._pulses + _MAX_LAG:
-                self._t0 += (ticks - self._pulses - _MAX_LAG) / (self.rate_hz * self.time_scale)
-                ticks = self._pulses + _MAX_LAG
-            return ticks
-        if self.clock is None:
-            return self._pulses
-        st = self.clock.state()
-        if st.run != self._base_run:
-            return self._pulses
-        self._epoch = st.epoch
-        return st.count - self._base_count
 
     def _run(self) -> None:
         try:
@@ -284,7 +254,7 @@ class CanopenAmplifierSim:
                 sent = False
                 with self._lock:
                     if self.streaming:
-                        sent = self._stream_some()
+                        sent = self._send_pulses()
                 if not sent:
                     if self.streaming and self.clock is not None and self._external:
                         self.clock.wait_change(self.clock.state(), 0.005)
@@ -293,21 +263,9 @@ class CanopenAmplifierSim:
         except Exception:  # pragma: no cover - surfaced through the driver's timeouts
             log.exception("CANopen load cell simulator thread failed")
 
-    def _stream_some(self, final: bool = False) -> bool:
-        avail = self._available()
-        sent = False
-        while self._pulses < avail:
-            n = min(_CHUNK, avail - self._pulses)
-            self._emit(self._pulses, n)
-            self._pulses += n
-            sent = True
-            if not final:
-                break
-        return sent
-
     def _emit(self, pulse0: int, n: int) -> None:
         """Samples at pulses ``pulse0 .. pulse0 + n − 1`` as TPDOs (counter = pulse)."""
-        world0 = self._epoch + self._base_count if self._external else self._internal_epoch
+        world0 = self._world0()
         with self._count_lock:  # the counter says what was read (a load placed now is later)
             with self._source_lock():
                 g = self.source.read(self.gauges, world0 + pulse0, n)

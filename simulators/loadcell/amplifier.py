@@ -39,13 +39,13 @@ from dimacq.errors import ProtocolError
 from dimacq.simulators.daq.clock import SampleClock
 from dimacq.simulators.imperfections import fault_log
 from dimacq.simulators.lab.source import SampleSource
+from dimacq.simulators.loadcell.pulses import SyncPulses
 
 __all__ = ["LoadCellAmplifierSim", "LoadCellFaults"]
 
 log = logging.getLogger(__name__)
 
 _CHUNK = 256
-_MAX_LAG = 8 * _CHUNK
 #: SYNC pulses the simulator may fall behind the DAQ clock before their frames are dropped
 _MAX_BACKLOG = 128 * _CHUNK
 
@@ -68,7 +68,7 @@ class LoadCellFaults:
     seed: int = 0
 
 
-class LoadCellAmplifierSim:
+class LoadCellAmplifierSim(SyncPulses):
     """Simulated amplifier; use as a context manager (the thread and bus are closed on exit).
 
     Parameters
@@ -129,15 +129,9 @@ class LoadCellAmplifierSim:
         self.rate_hz = float(source.sample_rate_hz)
         self.offsets = np.zeros(p.N_GAUGES)
         self.state = 0
-        self._external = True
+        self._init_pulses(_CHUNK)
         self._counter = 0  # next counter value to send
-        self._pulses = 0  # SYNC pulses seen since START
-        self._base_run = 0
-        self._base_count = 0
-        self._epoch = 0
-        self._t0 = 0.0
         self._world_internal = 0  # next world sample on the internal clock
-        self._internal_epoch = 0  # world sample of counter 0 of an internal-clock run
         self._download: dict[int, bytes] = {}
         self._download_len = 0
         self._stop_evt = threading.Event()
@@ -170,7 +164,7 @@ class LoadCellAmplifierSim:
                         self._handle(bytes(msg.data))
                     continue
                 if self.state == 2:
-                    if not self._stream_some():
+                    if not self._send_pulses():
                         self._wait_for_clock(0.005)
         except Exception:  # pragma: no cover - surfaced through the test's timeouts
             log.exception("load cell simulator thread failed")
@@ -222,7 +216,7 @@ class LoadCellAmplifierSim:
                     flags |= p.STATUS_SYNC_MISSING
                 self._reply(p.StatusReply(self.state, flags, self._counter & 0xFFFFFFFF))
             case p.Stop():
-                self._stream_some(final=True)
+                self._send_pulses(final=True)
                 self.state = 0
                 self._reply(p.StopReply(self._counter & 0xFFFFFFFF))
             case p.Start(clock=clock):
@@ -278,56 +272,19 @@ class LoadCellAmplifierSim:
         return self._world_internal  # on its own clock the world goes on from its last read
 
     def _arm(self, external: bool) -> None:
-        self._external = external
+        if external and self.clock is None:
+            raise RuntimeError("external clock requested but no SampleClock wired")
         self._counter = 0
-        self._pulses = 0
-        self._internal_epoch = self._world_internal
-        self._t0 = time.monotonic()
-        if external:
-            if self.clock is None:
-                raise RuntimeError("external clock requested but no SampleClock wired")
-            st = self.clock.state()
-            if st.running:
-                self._base_run, self._base_count = st.run, st.count
-            else:
-                self._base_run, self._base_count = st.run + 1, 0
+        self._arm_pulses(external)
         self.state = 2
 
-    def _available_pulses(self) -> int:
-        """SYNC pulses seen since START (or internal clock ticks)."""
-        if not self._external:
-            ticks = int((time.monotonic() - self._t0) * self.rate_hz * self.time_scale)
-            if ticks > self._pulses + _MAX_LAG:
-                # The simulator thread fell behind its own (scaled) clock: the oscillator slips
-                # rather than queueing a backlog no real amplifier would have.
-                self._t0 += (ticks - self._pulses - _MAX_LAG) / (self.rate_hz * self.time_scale)
-                ticks = self._pulses + _MAX_LAG
-            return ticks
-        assert self.clock is not None
-        st = self.clock.state()
-        if st.run != self._base_run:
-            return self._pulses  # the DAQ has not started this run yet, or has moved on
-        self._epoch = st.epoch
-        return st.count - self._base_count
-
-    def _stream_some(self, final: bool = False) -> bool:
-        """Send frames for pulses seen; returns False when there was nothing to send."""
-        avail = self._available_pulses()
+    def _drop_backlog(self, avail: int) -> None:
         if self._external and avail - self._pulses > _MAX_BACKLOG:
             # A real amplifier cannot queue seconds of frames: the bus is saturated and they are
             # dropped (a counter gap). Here the simulator thread got too little CPU to keep up.
             skip = avail - self._pulses - _MAX_BACKLOG
             self._inject("can_overload", "fell %d pulses behind SYNC; their frames dropped", skip)
             self._pulses += skip
-        sent = False
-        while self._pulses < avail:
-            n = min(_CHUNK, avail - self._pulses)
-            self._emit(self._pulses, n)
-            self._pulses += n
-            sent = True
-            if not final:
-                break
-        return sent
 
     def _emit(self, pulse0: int, n: int) -> None:
         """Samples at pulses ``pulse0 .. pulse0 + n − 1``, labelled with the amplifier's counter.
@@ -342,7 +299,7 @@ class LoadCellAmplifierSim:
             is_missed |= (pulses >= at) & (pulses < at + m)
             missed_upto += np.clip(pulses - at + 1, 0, m)
         counters = pulses - missed_upto
-        world0 = self._epoch + self._base_count if self._external else self._internal_epoch
+        world0 = self._world0()
         with self._source_lock():
             g = self.source.read(self.gauges, world0 + pulse0, n)
         if not self._external:

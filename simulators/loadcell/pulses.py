@@ -1,0 +1,101 @@
+"""The sample pulses of a SYNC-counting load cell amplifier simulator (the CAN FD one,
+:mod:`dimacq.simulators.loadcell.amplifier`, and the CANopen one,
+:mod:`dimacq.simulators.canopen_loadcell.amplifier`).
+
+An amplifier armed on the DAQ's SYNC output takes one sample per clock pulse of the DAQ's run
+that follows the arming (``external``); on its internal clock it takes ``rate_hz × time_scale``
+samples per wall second from arming. The simulator thread sends frames for the pulses seen and
+not yet sent, ``chunk`` at a time. A thread that fell behind its own internal clock lets the
+oscillator slip (at most ``max_lag`` pulses of backlog) rather than queueing frames no real
+amplifier would have.
+"""
+
+from __future__ import annotations
+
+import time
+
+from dimacq.simulators.daq.clock import SampleClock
+
+__all__ = ["SyncPulses"]
+
+
+class SyncPulses:
+    """Mixin: pulse bookkeeping of an amplifier simulator.
+
+    The simulator provides ``clock`` (the DAQ's :class:`SampleClock` or None), ``rate_hz``,
+    ``time_scale``, ``_world_internal`` (world sample reached on the internal clock) and
+    :meth:`_emit` (frames of ``n`` pulses from ``pulse0``); it calls :meth:`_init_pulses` in its
+    constructor, :meth:`_arm_pulses` on START and :meth:`_send_pulses` from its thread.
+    """
+
+    clock: SampleClock | None
+    rate_hz: float
+    time_scale: float
+    _world_internal: int
+    _pulse_chunk: int = 128
+
+    def _init_pulses(self, chunk: int) -> None:
+        self._pulse_chunk = chunk
+        self._external = True
+        self._pulses = 0  # pulses sent since arming
+        self._base_run = 0  # the DAQ run counted, and its count at arming
+        self._base_count = 0
+        self._epoch = 0  # world sample of count 0 of that run
+        self._t0 = 0.0  # wall time of arming (internal clock)
+        self._internal_epoch = 0  # world sample of counter 0 of an internal-clock run
+
+    def _emit(self, pulse0: int, n: int) -> None:
+        raise NotImplementedError
+
+    def _arm_pulses(self, external: bool) -> None:
+        """Counter 0 at the next pulse: the DAQ run after this one (or this one if running)."""
+        self._external = external
+        self._pulses = 0
+        self._internal_epoch = self._world_internal
+        self._t0 = time.monotonic()
+        if external and self.clock is not None:
+            st = self.clock.state()
+            if st.running:
+                self._base_run, self._base_count = st.run, st.count
+            else:
+                self._base_run, self._base_count = st.run + 1, 0
+
+    def _world0(self) -> int:
+        """World sample of pulse 0 of this arming."""
+        return self._epoch + self._base_count if self._external else self._internal_epoch
+
+    def _available_pulses(self) -> int:
+        """Pulses seen since arming (SYNC pulses, or internal clock ticks)."""
+        if not self._external:
+            scale = self.rate_hz * self.time_scale
+            ticks = int((time.monotonic() - self._t0) * scale)
+            lag = 8 * self._pulse_chunk
+            if ticks > self._pulses + lag:
+                self._t0 += (ticks - self._pulses - lag) / scale
+                ticks = self._pulses + lag
+            return ticks
+        if self.clock is None:
+            return self._pulses
+        st = self.clock.state()
+        if st.run != self._base_run:
+            return self._pulses  # the DAQ has not started this run yet, or has moved on
+        self._epoch = st.epoch
+        return st.count - self._base_count
+
+    def _drop_backlog(self, avail: int) -> None:
+        """Hook: what to do with pulses far behind (default: nothing, send them all)."""
+
+    def _send_pulses(self, final: bool = False) -> bool:
+        """Send frames for pulses seen (one chunk, or all of them when ``final``); False when
+        there was nothing to send."""
+        avail = self._available_pulses()
+        self._drop_backlog(avail)
+        sent = False
+        while self._pulses < avail:
+            n = min(self._pulse_chunk, avail - self._pulses)
+            self._emit(self._pulses, n)
+            self._pulses += n
+            sent = True
+            if not final:
+                break
+        return sent
