@@ -16,15 +16,12 @@ import httpx
 import numpy as np
 import pytest
 from _acq_support import ImpulseSource
-from _api_support import TOKEN, make_settings
+from _api_support import served_lab
 from _lab_rig_support import IMPULSE_SETUP, impulse_rig_factory
 
-from dimacq.api import create_app
-from dimacq.api.server import BackgroundServer
 from dimacq.io.setup_file import dump_setup_dict
 from dimacq.model.setup import TestSetup
 from dimacq.services.acquisition import OPERATOR_REDO, OPERATOR_REJECT
-from dimacq.services.lab import Lab
 from dimacq.services.rig import Rig
 
 BODY = {"averages_per_input": 2, "min_averages": 2, "record_samples": 2048, "trigger_level_n": 20.0}
@@ -49,18 +46,8 @@ def _struck_inputs_factory() -> Callable[[Any, TestSetup, Any], Rig]:
 
 @pytest.fixture
 def review_api(tmp_path: Path, database_url: str) -> Iterator[httpx.Client]:
-    settings = make_settings(tmp_path, database_url=database_url)
-    lab = Lab(settings, open_devices=False, rig_factory=_struck_inputs_factory())
-    try:
-        with (
-            BackgroundServer(create_app(settings, lab=lab)) as srv,
-            httpx.Client(
-                base_url=srv.url, headers={"Authorization": f"Bearer {TOKEN}"}, timeout=30
-            ) as c,
-        ):
-            yield c
-    finally:
-        lab.close()
+    with served_lab(tmp_path, database_url, _struck_inputs_factory()) as (c, _lab):
+        yield c
 
 
 def _wait(c: httpx.Client, acq_id: int, cond: Callable[[dict], bool]) -> dict:

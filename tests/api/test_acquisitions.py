@@ -9,29 +9,17 @@ from pathlib import Path
 import httpx
 import numpy as np
 import pytest
-from _api_support import TOKEN, make_settings
+from _api_support import served_lab
 from _lab_rig_support import IMPULSE_SETUP, impulse_rig_factory
 
-from dimacq.api import create_app
-from dimacq.api.server import BackgroundServer
 from dimacq.io.setup_file import dump_setup_dict
 from dimacq.services.lab import Lab
 
 
 @pytest.fixture
 def rig_api(tmp_path: Path, database_url: str) -> Iterator[tuple[httpx.Client, Lab]]:
-    settings = make_settings(tmp_path, database_url=database_url)
-    lab = Lab(settings, open_devices=False, rig_factory=impulse_rig_factory())
-    try:
-        with (
-            BackgroundServer(create_app(settings, lab=lab)) as srv,
-            httpx.Client(
-                base_url=srv.url, headers={"Authorization": f"Bearer {TOKEN}"}, timeout=30
-            ) as c,
-        ):
-            yield c, lab
-    finally:
-        lab.close()
+    with served_lab(tmp_path, database_url, impulse_rig_factory()) as (c, lab):
+        yield c, lab
 
 
 def _wait(c: httpx.Client, acq_id: int, cond, timeout_s: float = 30.0) -> dict:
@@ -82,68 +70,48 @@ def test_acquisition_to_frfs(rig_api) -> None:
 def test_input_below_min_averages_is_reported_incomplete(tmp_path: Path, database_url: str) -> None:
     """Issue 10: an input with 1 accepted average gave an FRF with coherence 1, silently. Now it
     is struck again (3 × 3 strikes), then reported incomplete and left out of the FRF set."""
-    settings = make_settings(tmp_path, database_url=database_url)
-    lab = Lab(settings, open_devices=False, rig_factory=impulse_rig_factory(double_hit_input=0))
-    try:
-        with (
-            BackgroundServer(create_app(settings, lab=lab)) as srv,
-            httpx.Client(
-                base_url=srv.url, headers={"Authorization": f"Bearer {TOKEN}"}, timeout=30
-            ) as c,
-        ):
-            sid = c.post("/api/setups", json=dump_setup_dict(IMPULSE_SETUP)).json()["id"]
-            body = {
-                "setup_id": sid,
-                "averages_per_input": 3,
-                "min_averages": 2,
-                "record_samples": 2048,
-                "trigger_level_n": 20.0,
-            }
-            r = c.post("/api/acquisitions", json=body)
-            assert r.status_code == 202, r.text
-            a = _wait(c, r.json()["id"], lambda a: a["state"] != "running")
-            assert a["state"] == "succeeded", a
-            assert a["accepted_per_input"] == [1, 3] and a["incomplete_inputs"] == [0]
-            assert a["min_averages"] == 2 and a["averages_rejected"] == 8
-            assert "incomplete" in a["message"] and "10+X" in a["message"], a["message"]
-            frf = c.get(f"/api/frfs/{a['frf_id']}").json()
-            assert frf["n_inputs"] == 1
-            data = c.get(f"/api/frfs/{a['frf_id']}/data").json()
-            assert [i["node"] for i in data["inputs"]] == [11]
-            coh = np.asarray(data["coherence"], float)
-            assert np.isfinite(coh[1:]).all()  # three averages: a coherence, not NaN
-    finally:
-        lab.close()
+    with served_lab(tmp_path, database_url, impulse_rig_factory(double_hit_input=0)) as (c, _lab):
+        sid = c.post("/api/setups", json=dump_setup_dict(IMPULSE_SETUP)).json()["id"]
+        body = {
+            "setup_id": sid,
+            "averages_per_input": 3,
+            "min_averages": 2,
+            "record_samples": 2048,
+            "trigger_level_n": 20.0,
+        }
+        r = c.post("/api/acquisitions", json=body)
+        assert r.status_code == 202, r.text
+        a = _wait(c, r.json()["id"], lambda a: a["state"] != "running")
+        assert a["state"] == "succeeded", a
+        assert a["accepted_per_input"] == [1, 3] and a["incomplete_inputs"] == [0]
+        assert a["min_averages"] == 2 and a["averages_rejected"] == 8
+        assert "incomplete" in a["message"] and "10+X" in a["message"], a["message"]
+        frf = c.get(f"/api/frfs/{a['frf_id']}").json()
+        assert frf["n_inputs"] == 1
+        data = c.get(f"/api/frfs/{a['frf_id']}/data").json()
+        assert [i["node"] for i in data["inputs"]] == [11]
+        coh = np.asarray(data["coherence"], float)
+        assert np.isfinite(coh[1:]).all()  # three averages: a coherence, not NaN
 
 
 def test_acquisition_stop_keeps_completed_averages(tmp_path: Path, database_url: str) -> None:
-    settings = make_settings(tmp_path, database_url=database_url)
-    lab = Lab(settings, open_devices=False, rig_factory=impulse_rig_factory(pace_s=0.05))
-    try:
-        with (
-            BackgroundServer(create_app(settings, lab=lab)) as srv,
-            httpx.Client(
-                base_url=srv.url, headers={"Authorization": f"Bearer {TOKEN}"}, timeout=30
-            ) as c,
-        ):
-            sid = c.post("/api/setups", json=dump_setup_dict(IMPULSE_SETUP)).json()["id"]
-            body = {
-                "setup_id": sid,
-                "averages_per_input": 50,
-                "record_samples": 512,
-                "trigger_level_n": 20.0,
-            }
-            acq = c.post("/api/acquisitions", json=body).json()
-            again = c.post("/api/acquisitions", json=body)
-            assert again.status_code == 409 and "already running" in again.json()["detail"]
-            _wait(c, acq["id"], lambda a: a["averages_accepted"] >= 2)
-            assert c.post(f"/api/acquisitions/{acq['id']}/stop").status_code == 200
-            a = _wait(c, acq["id"], lambda a: a["state"] != "running")
-            assert a["state"] == "cancelled" and a["averages_accepted"] >= 2 and a["frf_id"] is None
-            assert c.get(f"/api/jobs/{acq['job_id']}").json()["state"] == "cancelled"
-            assert c.post("/api/acquisitions", json={**body, "setup_id": 999}).status_code == 422
-    finally:
-        lab.close()
+    with served_lab(tmp_path, database_url, impulse_rig_factory(pace_s=0.05)) as (c, _lab):
+        sid = c.post("/api/setups", json=dump_setup_dict(IMPULSE_SETUP)).json()["id"]
+        body = {
+            "setup_id": sid,
+            "averages_per_input": 50,
+            "record_samples": 512,
+            "trigger_level_n": 20.0,
+        }
+        acq = c.post("/api/acquisitions", json=body).json()
+        again = c.post("/api/acquisitions", json=body)
+        assert again.status_code == 409 and "already running" in again.json()["detail"]
+        _wait(c, acq["id"], lambda a: a["averages_accepted"] >= 2)
+        assert c.post(f"/api/acquisitions/{acq['id']}/stop").status_code == 200
+        a = _wait(c, acq["id"], lambda a: a["state"] != "running")
+        assert a["state"] == "cancelled" and a["averages_accepted"] >= 2 and a["frf_id"] is None
+        assert c.get(f"/api/jobs/{acq['job_id']}").json()["state"] == "cancelled"
+        assert c.post("/api/acquisitions", json={**body, "setup_id": 999}).status_code == 422
 
 
 def test_settings_are_checked_when_the_acquisition_is_created(rig_api) -> None:
