@@ -71,6 +71,19 @@ def lab(request, no_leaks):
         sim.close()
 
 
+def _gauges_session(task, amp, inputs, outputs, settings, operator):
+    """An impact session on the DAQ task and the load cell ``amp`` (its gauges as outputs)."""
+    return ImpactSession(
+        task,
+        inputs,
+        outputs,
+        [amp],
+        settings=settings,
+        operator=operator,
+        loadcell_outputs="gauges",
+    )
+
+
 def test_impact_test_rejects_bad_averages_and_matches_closed_form(lab, tmp_path):
     # CAN frames dropped inside what becomes input 1's first record
     src, backend, task, amp = lab(LoadCellFaults(dropped_samples={12_000, 12_001}))
@@ -146,15 +159,7 @@ def test_end_of_run_pulse_check_counts_the_samples_the_daq_clocked(lab, caplog, 
         src.excite(j, backend.world_sample(at))
 
     settings = ImpactSettings(record_samples=512, averages_per_input=1, trigger_level_n=20.0)
-    session = ImpactSession(
-        task,
-        ["10+X force"],
-        ["100+Z"],
-        [amp],
-        settings=settings,
-        operator=operator,
-        loadcell_outputs="gauges",
-    )
+    session = _gauges_session(task, amp, ["10+X force"], ["100+Z"], settings, operator)
     with caplog.at_level(logging.INFO, logger="dimacq"):
         res = session.run()
     assert res.n_accepted == (1,)
@@ -186,14 +191,8 @@ def test_input_below_min_averages_is_struck_again_then_reported_incomplete(lab):
     settings = ImpactSettings(
         record_samples=2048, averages_per_input=3, min_averages=2, trigger_level_n=20.0
     )
-    session = ImpactSession(
-        task,
-        ["10+X force", "11+X force"],
-        ["100+Z", "101+Z", "102+Z"],
-        [amp],
-        settings=settings,
-        operator=operator,
-        loadcell_outputs="gauges",
+    session = _gauges_session(
+        task, amp, ["10+X force", "11+X force"], ["100+Z", "101+Z", "102+Z"], settings, operator
     )
     res = session.run()
     # input 0 struck until the budget (3 × 3) was spent; input 1 needed only its 3
@@ -219,14 +218,8 @@ def test_one_average_gives_no_coherence_of_one(lab):
         src.excite(j, backend.world_sample(at))
 
     settings = ImpactSettings(record_samples=2048, averages_per_input=1, trigger_level_n=20.0)
-    res = ImpactSession(
-        task,
-        ["10+X force", "11+X force"],
-        ["100+Z", "101+Z", "102+Z"],
-        [amp],
-        settings=settings,
-        operator=operator,
-        loadcell_outputs="gauges",
+    res = _gauges_session(
+        task, amp, ["10+X force", "11+X force"], ["100+Z", "101+Z", "102+Z"], settings, operator
     ).run()
     assert res.n_accepted == (1, 1) and res.incomplete_inputs == () and res.min_averages == 1
     assert np.isnan(res.coherence).all()
@@ -243,15 +236,7 @@ def test_every_input_incomplete_is_refused(lab):
     settings = ImpactSettings(
         record_samples=2048, averages_per_input=1, max_attempts_factor=2, trigger_level_n=20.0
     )
-    session = ImpactSession(
-        task,
-        ["10+X force"],
-        ["100+Z"],
-        [amp],
-        settings=settings,
-        operator=operator,
-        loadcell_outputs="gauges",
-    )
+    session = _gauges_session(task, amp, ["10+X force"], ["100+Z"], settings, operator)
     with pytest.raises(DataError, match=r"inputs \['10\+X force'\]: fewer than 1 acceptable"):
         session.run()
 
@@ -295,14 +280,8 @@ def test_fifo_overflow_rejects_the_average_it_hits_and_names_it(lab):
         src.excite(j, backend.world_sample(at))
 
     settings = ImpactSettings(record_samples=2048, averages_per_input=2, trigger_level_n=20.0)
-    session = ImpactSession(
-        task,
-        ["10+X force", "11+X force"],
-        ["100+Z"],
-        [amp],
-        settings=settings,
-        operator=operator,
-        loadcell_outputs="gauges",
+    session = _gauges_session(
+        task, amp, ["10+X force", "11+X force"], ["100+Z"], settings, operator
     )
     res = session.run()
     assert res.n_accepted == (2, 2)
