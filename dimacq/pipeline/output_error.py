@@ -63,12 +63,20 @@ is scaled by ``max(1, χ²_red)``.
 
 Gauge
 -----
-A common rigid motion of the whole instrumentation (all sensors and inputs together, with the
-body's properties moved with it) leaves every FRF unchanged (the load cells, taken as exact, see it
-only through the small reactions). The data do not fix it; the priors do: the MAP solution puts the
-common-mode corrections at their prior-precision-weighted mean of zero, i.e. the frame is the one of
-the stated (digitized, registered) geometry. The reported CG uncertainty includes that common mode
-(it is in the posterior through the priors) and the stated registration residual.
+A common similarity of the whole instrumentation (translation, rotation about P and scale of all
+sensors and inputs together, with the body's properties moved with it:
+:func:`gauge_property_jacobian`) and a common accelerometer gain leave every FRF unchanged
+(``ψᵀ M⁻¹ φ`` is invariant under ``ψ → Sψ``, ``φ → Sφ``, ``M → SMS``); only the load-cell
+reactions, whose positions and calibration the model takes as exact, can see it. The priors fix
+what the data do not (inner constraint, :func:`_gauge_constraint`): the scale and the common gain
+always (the reactions could pin the scale only if modelled to a few 0.1 %), translations and
+rotations unless the reactions identify them. Frame, scale and gain are then those of the stated
+(digitized, registered) geometry and certificates, and their prior variance — the Cramér–Rao
+bound of any estimator from these FRFs and priors — is in the intervals
+(``tests/scripts/accuracy_diagnose.py`` prints it). Its scale share is
+``σ_s = (Σ_i |r_i,⊥|² / σ_p²)^(-1/2)`` over the sensor and input positions (about P; inputs: the
+components normal to the line), which sets the principal moments' floor at ``2 σ_s`` whatever the
+data; the translation's, ``σ_p / √N`` per axis, the CG's.
 
 Identifiability
 ---------------
@@ -299,6 +307,11 @@ class OutputErrorOptions:
     fix_gauge : bool
         Fix the gauge modes the data do not identify (:func:`_gauge_constraint`) and add their
         prior variance to the properties' covariance; off: the priors alone hold them.
+    gauge_from_reactions : bool
+        Let the load-cell reactions identify a common translation or rotation of the
+        instrumentation (estimated where their information passes ``refuse_ratio``; default).
+        Off: every similarity mode is fixed at the stated geometry's. The scale and the common
+        accelerometer gain are fixed either way (:func:`_gauge_constraint`).
     """
 
     refine_geometry: bool = True
@@ -309,6 +322,7 @@ class OutputErrorOptions:
     max_correction_sigma: float = 6.0
     max_gross_items: int = 3
     fix_gauge: bool = True
+    gauge_from_reactions: bool = True
 
 
 @dataclass(frozen=True, eq=False)
@@ -590,23 +604,38 @@ def _statistics(
     return Ly, T, float(np.sum(const))
 
 
-def _gauge_constraint(prob: _Problem, theta0: FloatArray, refuse_ratio: float) -> None:
+def _gauge_constraint(
+    prob: _Problem, theta0: FloatArray, refuse_ratio: float, fix_all: bool = False
+) -> None:
     """Fix the gauge modes the data do not identify (sets ``prob.gauge_rows``).
 
     The similarity of the whole instrumentation and the common accelerometer gain
     (:meth:`_Problem.gauge_basis`, ``G``) change no FRF when the properties move with them; only
-    the load cells' reactions (exact positions) can tie them. In the whitened corrections
-    ``θ_g = δg/σ_g`` a gauge motion is ``G_θ c`` with ``G_θ = diag(1/σ_g) G``; the prior's
-    information on ``c`` is ``P = G_θᵀG_θ`` and the data's, properties marginalised,
-    ``D = G_θᵀ (J_gᵀJ_g − J_gᵀJ_x (J_xᵀJ_x)⁻¹ J_xᵀJ_g) G_θ``. The modes of the generalised
-    eigenproblem ``D v = λ P v`` that the data do not identify by the rule used for each item
-    (posterior σ ``1/√(1+λ)`` of the prior's above ``refuse_ratio``) are fixed:
-    ``(G_θ v)ᵀ θ_g = 0``, i.e. the corrections have no component along them in the prior's metric
-    (the inner constraint of bundle adjustment) and the frame, scale and common gain are those of
-    the stated geometry and certificates. Their prior variance is added to the properties'
-    covariance afterwards (:func:`gauge_property_jacobian`), so the intervals keep it; data
-    errors the model lacks (gain errors beyond the stated ones, load-cell errors) can no longer
-    move the answer along these modes, where only the priors speak.
+    the load cells' reactions (positions and calibration taken as exact) can tie them. In the
+    whitened corrections ``θ_g = δg/σ_g`` a gauge motion is ``G_θ c`` with
+    ``G_θ = diag(1/σ_g) G``; the prior's information on ``c`` is ``P = G_θᵀG_θ`` and the data's,
+    properties marginalised, ``D = G_θᵀ (J_gᵀJ_g − J_gᵀJ_x (J_xᵀJ_x)⁻¹ J_xᵀJ_g) G_θ``.
+
+    - The **scale** and the **common gain** are always fixed: the common gain is an exact
+      symmetry even with reactions, and the scale acts on the reactions only as the factor
+      ``1/(1+s)`` on their moments about P, so pinning it to the prior's precision (a few
+      0.1 %) needs the reactions modelled to that relative accuracy — finer than the reaction
+      model (smooth basis, errors-in-variables compensation) and the load cells' own
+      calibration and stated positions, which the model takes as exact. Measured
+      (``tests/scripts/accuracy_diagnose.py``): let free, the true geometry with 1 % FRF noise
+      came out 0.25 % off in scale (principal moments +0.5 %) on a bungee-hung mass.
+    - The translations and rotations, in the part of the space ``P``-orthogonal to those two,
+      are the modes of ``D v = λ P v``; those the data do not identify by the rule used for
+      each item (posterior σ ``1/√(1+λ)`` of the prior's above ``refuse_ratio``) are fixed too
+      (all of them with ``fix_all``).
+
+    A fixed mode satisfies ``(G_θ v)ᵀ θ_g = 0``: the corrections have no component along it in
+    the prior's metric (the inner constraint of bundle adjustment), and frame, scale and common
+    gain are those of the stated geometry and certificates. The fixed modes are ``P``-orthogonal
+    to the free ones, so their prior variance ``(VᵀPV)⁻¹`` is their marginal variance; it is
+    added to the properties' covariance afterwards (:func:`gauge_property_jacobian`), so the
+    intervals keep it — the Cramér–Rao bound of any estimator from these FRFs and priors along
+    those modes.
     """
     G = prob.gauge_basis()[prob.free_g] / prob.sigma_g[prob.free_g][:, None]
     live = np.linalg.norm(G, axis=0) > 0
@@ -630,16 +659,29 @@ def _gauge_constraint(prob: _Problem, theta0: FloatArray, refuse_ratio: float) -
     W = Wt[sv > sv[0] * 1e-9].T
     D = W.T @ (G.T @ Dg @ G) @ W
     P = W.T @ (G.T @ G) @ W
-    lam, Vy = scipy_linalg.eigh(0.5 * (D + D.T), 0.5 * (P + P.T))
-    V = W @ Vy
-    fixed = V[:, 1.0 / np.sqrt(1.0 + np.clip(lam, 0.0, None)) > refuse_ratio]
+    D, P = 0.5 * (D + D.T), 0.5 * (P + P.T)
+    lam_all = scipy_linalg.eigh(D, P, eigvals_only=True)
+    # always fixed: the scale and common-gain axes (columns 6, 7 of the full basis), in y
+    live_idx = np.nonzero(live)[0]
+    A = W[np.isin(live_idx, (6, 7)) | fix_all].T  # (r, n_always)
+    if A.shape[1]:
+        ua, sa, _ = np.linalg.svd(A, full_matrices=False)
+        A = ua[:, sa > sa[0] * 1e-9]
+    # the rest, P-orthogonal to A: B spans {y : Aᵀ P y = 0}
+    B = scipy_linalg.null_space((P @ A).T) if A.shape[1] else np.eye(W.shape[1])
+    fixed_y = A
+    if B.shape[1]:
+        lam, U = scipy_linalg.eigh(B.T @ D @ B, B.T @ P @ B)
+        sel = 1.0 / np.sqrt(1.0 + np.clip(lam, 0.0, None)) > refuse_ratio
+        fixed_y = np.concatenate([A, B @ U[:, sel]], axis=1)
+    fixed = W @ fixed_y
+    prob.gauge_information_ratio = lam_all
     if not fixed.shape[1]:
         return
     rows = (G @ fixed).T
     rows /= np.linalg.norm(rows, axis=1, keepdims=True)
     prob.gauge_rows = rows
     prob.gauge_modes = fixed
-    prob.gauge_information_ratio = lam
 
 
 def _lm(
@@ -837,7 +879,9 @@ def solve_output_error(
             prob.free_g = cand[ok]
             theta0 = np.concatenate([x_start[free_x], np.zeros(prob.free_g.size)])
             if opt.fix_gauge and prob.free_g.size:
-                _gauge_constraint(prob, theta0, opt.refuse_ratio)
+                _gauge_constraint(
+                    prob, theta0, opt.refuse_ratio, fix_all=not opt.gauge_from_reactions
+                )
         theta, Jac, cost, it = _lm(prob, theta0, opt.max_iterations)
         return prob, theta, Jac, cost + const, it, refused
 
@@ -958,6 +1002,9 @@ def solve_output_error(
     N = Jac.T @ Jac
     cov_theta = np.linalg.pinv(N) * max(1.0, chi2)
     nx0 = free_x.size
+    robust = _input_robust_factors(prob, theta, Jac, cov_theta, nx0)
+    cov_theta[:nx0] *= robust[:, None]
+    cov_theta[:, :nx0] *= robust[None, :]
     cov_noise_theta = np.linalg.pinv(N[:nx0, :nx0]) * max(1.0, chi2)  # geometry held fixed
     x = prob.full_x(theta)
     if not np.all(np.linalg.eigvalsh(mass_matrix(x)[0]) > 0):
@@ -1009,6 +1056,7 @@ def solve_output_error(
         "chi2_reduced": float(chi2),
         "variance_factor": float(variance_factor),
         "chi2_reduced_stated_noise": float(chi2 * variance_factor),
+        "input_robust_factor_max": float(robust.max(initial=1.0)),
     }
     if refinement_note:
         noise["refinement_refused"] = refinement_note
@@ -1046,6 +1094,51 @@ def solve_output_error(
         input_keep=np.asarray(keep_in, bool),
         extras={"gauge": gauge_info},
     )
+
+
+def _input_robust_factors(
+    prob: _Problem, theta: FloatArray, Jac: FloatArray, cov: FloatArray, nx: int
+) -> FloatArray:
+    """Per free property, ``max(1, σ_robust / σ_model)``: the input-clustered sandwich against the
+    model-based posterior.
+
+    The posterior ``N⁻¹ = (JᵀJ)⁻¹`` (× the reduced χ²) holds when the misfit is independent noise
+    on every line and channel. A misfit the rigid model lacks (the stiffness-line residual of an
+    elastic mode near the band, a support it does not see) is smooth along the lines and
+    correlated over an input's channels, and its effect on the estimate is far larger than the
+    same misfit as white noise. The inputs are independent experiments, so the cluster-robust
+    (Liang–Zeger) covariance holds whatever the correlation within one input:
+
+        V = N⁻¹ (Σ_j (s_j − s̄)(s_j − s̄)ᵀ · J/(J−1) + J_pᵀJ_p) N⁻¹,   s_j = J_jᵀ r_j
+
+    with ``s_j`` input ``j``'s score (the gradient of its cost: rows of the data residual and
+    Jacobian that belong to it, :meth:`_Problem.residual`), centred (the priors' pull balances
+    their sum at the MAP), and ``J_pᵀJ_p`` the priors' own (their scores have unit variance; the
+    gauge constraint rows carry none). Where a property's ``V`` exceeds the model-based variance,
+    its row and column of the covariance are scaled up to it (correlations kept); never down:
+    with ~20 inputs the robust variance is itself known only to ±30 %.
+
+    Returns
+    -------
+    ndarray, shape (nx,)
+        Factors ``≥ 1`` for the rows and columns of the free properties' covariance.
+    """
+    J_ = prob.Lh.shape[0]
+    if J_ < 3:
+        return np.ones(nx)
+    n_data = prob.Lh.size
+    res, _ = prob.residual(theta, jacobian=False)
+    Jd = Jac[:n_data].reshape(J_, -1, Jac.shape[1])
+    sc = np.einsum("jrp,jr->jp", Jd, res[:n_data].reshape(J_, -1))
+    sc = sc - sc.mean(axis=0)
+    n_g = prob.free_g.size
+    Jp = Jac[n_data : n_data + n_g]
+    B = sc.T @ sc * (J_ / (J_ - 1)) + Jp.T @ Jp
+    Ninv = np.linalg.pinv(Jac.T @ Jac)
+    V = Ninv @ B @ Ninv
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = np.diag(V)[:nx] / np.diag(cov)[:nx]
+    return np.asarray(np.sqrt(np.where(np.isfinite(ratio), np.maximum(ratio, 1.0), 1.0)), float)
 
 
 def _direct_cost(

@@ -118,11 +118,15 @@ CG_KEYS = ("cx", "cy", "cz")
 
 
 def _coverage(rep: Any, truth: RigidBodyProperties, setup: Any) -> float:
-    """Share of the ten parameters whose 95 % interval holds the truth."""
+    """Share of the ten parameters and the three principal moments whose 95 % interval holds
+    the truth."""
     truth_vec = truth.parameter_vector(setup.reference_point)
     truth_vec[1:4] = truth.cg_m
+    wt, _ = principal_moments(truth.inertia_cg_kgm2)
     ci = [rep.uncertainty.parameters[k].ci95 for k in PARAMETERS]
-    return float(np.mean([lo <= t <= hi for (lo, hi), t in zip(ci, truth_vec, strict=True)]))
+    ci += [p.ci95 for p in rep.uncertainty.principal]
+    vals = [*truth_vec, *wt]
+    return float(np.mean([lo <= t <= hi for (lo, hi), t in zip(ci, vals, strict=True)]))
 
 
 def worst(rows: list[dict[str, Any]]) -> dict[str, float]:
