@@ -21,8 +21,8 @@ Cases (every one solved through :func:`dimacq.services.analysis.analyse`, as ``d
    the realistic geometry errors, band 6–13 Hz: selection only, refinement, refinement + residual
    flexibility.
 
-Also the coverage of the 95 % intervals of the refined solution (fraction of the ten parameters of
-every seed whose interval holds the truth).
+Also the coverage of the 95 % intervals of the refined solution (fraction of the ten parameters and
+the three principal moments of every seed whose interval holds the truth).
 """
 
 from __future__ import annotations
