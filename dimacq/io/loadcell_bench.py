@@ -34,6 +34,9 @@ the stated uncertainties of the reference loads and the timing of the readings.
                                    # impact points (struck on the cell's support side for the
                                    # calibration, on the mass for the check), the load cell, and
                                    # [known] its certified mass, CG and inertia (all ten)
+    check_setup_file = "calibration_mass_on_cell.toml"  # the mass standing on the cell for the
+                                   # circular check (default: setup_file; hung on the cell the
+                                   # cell carries too little of the force: inconclusive)
     band_hz = [5.0, 800.0]         # band of the calibration fit
     check_band_hz = [20.0, 400.0]  # DIM band of the circular check
     averages_per_input = 5
@@ -77,6 +80,11 @@ class BenchTiming(_Model):
 class InertialBench(_Model):
     setup_file: str = Field(
         min_length=1, description="the calibration mass's setup file (relative to the bench file)"
+    )
+    check_setup_file: str = Field(
+        default="",
+        description="the calibration mass standing on the cell for the circular check (relative "
+        "to the bench file; empty: setup_file)",
     )
     band_hz: tuple[float, float] = Field(
         default=(5.0, 800.0), description="[lo, hi] Hz of the calibration fit, 0 ≤ lo < hi"
@@ -138,6 +146,18 @@ class BenchFile(_Model):
                 "calibration and the circular check"
             )
         p = Path(self.inertial.setup_file)
+        if not p.is_absolute() and self.path is not None:
+            p = self.path.parent / p
+        return p
+
+    def check_setup_path(self) -> Path:
+        """The circular check's setup file: ``[inertial] check_setup_file``, else the
+        calibration's (:meth:`inertial_setup_path`)."""
+        path = self.inertial_setup_path()
+        assert self.inertial is not None
+        if not self.inertial.check_setup_file:
+            return path
+        p = Path(self.inertial.check_setup_file)
         if not p.is_absolute() and self.path is not None:
             p = self.path.parent / p
         return p

@@ -113,6 +113,11 @@ class LoadCellCalibrationFit:
     n_equations : int
         Real equations per gauge (columns of ``G``).
     method : {"inertial", "static"}
+    matrix_std : ndarray, shape (6, 12), optional
+        Standard uncertainty of each element of ``C`` from the fit's residuals alone:
+        ``C = F P`` with ``P = V_k Σ_k⁻¹ U_kᵀ``, row ``i`` with residual variance
+        ``s_i² = ‖R_i‖² / (N − k)``, so ``Var C_ib = s_i² (U_k Σ_k⁻² U_kᵀ)_bb`` (residuals taken
+        as independent: a lower bound where neighbouring lines share their errors).
     """
 
     matrix: NDArray[np.float64]
@@ -125,6 +130,7 @@ class LoadCellCalibrationFit:
     load_condition: float
     n_equations: int
     method: str
+    matrix_std: NDArray[np.float64] | None = None
 
 
 def solve_calibration_matrix(
@@ -183,6 +189,8 @@ def solve_calibration_matrix(
     C = (F @ Vt[:k].T / s[:k]) @ U[:, :k].T
     R = C @ G - F
     per = np.linalg.norm(R, axis=1) / np.maximum(np.linalg.norm(F, axis=1), np.finfo(float).tiny)
+    s_row = np.linalg.norm(R, axis=1) / np.sqrt(max(G.shape[1] - k, 1))
+    p_col = np.sqrt(np.sum((U[:, :k] / s[:k]) ** 2, axis=1))  # √(U_k Σ_k⁻² U_kᵀ)_bb
     return LoadCellCalibrationFit(
         matrix=C,
         residual_rel=float(np.linalg.norm(R) / np.linalg.norm(F)),
@@ -194,6 +202,7 @@ def solve_calibration_matrix(
         load_condition=load_cond,
         n_equations=int(G.shape[1]),
         method=method,
+        matrix_std=s_row[:, None] * p_col[None, :],
     )
 
 

@@ -20,6 +20,16 @@ with ``M_rb(P)`` the 6×6 rigid-body mass matrix of the certified calibration ma
 :func:`~dimacq.pipeline.loadcell_calibration.inertial_calibration` solves ``C`` (6×12) over the
 band by rank-6 least squares.
 
+The accelerometers' certificates (0.5 % each) would put 0.85 % into ``C``: the cell's force is
+the small difference of the mass's large rotational terms, so the *differences* between channels
+are amplified (:mod:`dimacq.pipeline.inertial_bench`). The calibration mass is rigid, so the
+bench first finds the channels' relative gains from the rigid-body residual of its own FRFs
+(:func:`~dimacq.pipeline.inertial_bench.rigid_body_gains`), keeps the certificates' common scale
+(their weighted mean: ``σ/√n``, 0.1 % for 24 axes) and condenses with them; the matrix's
+uncertainty propagates the gains' covariance (that scale, the jackknife of the relative gains)
+and the fit's residuals (:func:`~dimacq.pipeline.inertial_bench.matrix_gain_variance`). A channel
+whose gain is far from its certificate (a wrong sensitivity in the rig file) is a warning.
+
 **Circular check** (thesis §4.1: "the same structure used to calibrate the load cell in the same
 configuration"). The same mass on the same cell, now struck on the mass, acquired with the
 amplifier applying the cell's *installed* calibration (the rig file's calibration file: what an
@@ -51,14 +61,21 @@ from dimacq.io.loadcell_bench import BenchFile, load_bench_file
 from dimacq.io.loadcell_calibration import LoadCellCalibration
 from dimacq.io.rig_file import LoadCellEntry, RigFile, load_rig_file
 from dimacq.model.properties import RigidBodyProperties
-from dimacq.model.setup import KnownProperties, TestSetup
-from dimacq.services.rig import build_rig, run_impact_session, run_impact_test
+from dimacq.model.setup import KnownProperties, TestSetup, direction_label
+from dimacq.pipeline.inertial_bench import ChannelGains
+from dimacq.services.rig import (
+    StrikeCallback,
+    build_rig,
+    run_impact_session,
+    run_impact_test,
+)
 
 __all__ = [
     "CircularCheck",
     "InertialRun",
     "bench_file_of",
     "calibration_mass",
+    "check_world",
     "circular_check",
     "hammer_ratio",
     "run_inertial_calibration",
@@ -103,9 +120,11 @@ def bench_file_of(settings: Settings, bench_file: str | Path | None = None) -> B
     return load_bench_file(bench_file or settings.rig_path.parent / "loadcell_bench.toml")
 
 
-def calibration_mass(bench: BenchFile, node: int) -> tuple[TestSetup, RigidBodyProperties]:
-    """The calibration mass's setup (``[inertial] setup_file``) and its certified properties
-    (the setup's ``[known]``: all ten).
+def calibration_mass(
+    bench: BenchFile, node: int, *, check: bool = False
+) -> tuple[TestSetup, RigidBodyProperties]:
+    """The calibration mass's setup (``[inertial] setup_file``; ``check``: the circular check's
+    ``check_setup_file``) and its certified properties (the setup's ``[known]``: all ten).
 
     Raises
     ------
@@ -115,7 +134,7 @@ def calibration_mass(bench: BenchFile, node: int) -> tuple[TestSetup, RigidBodyP
     """
     from dimacq.io.setup_file import load_setup
 
-    path = bench.inertial_setup_path()
+    path = bench.check_setup_path() if check else bench.inertial_setup_path()
     setup = load_setup(path)
     known = setup.known.as_dict()
     missing = [p for p in _PARAMS if p not in known]
@@ -160,6 +179,15 @@ class InertialRun:
     hammer_ratio : (mean, std) or None
         The hammer's stated sensitivity over the one the calibration mass implies (see
         :func:`hammer_ratio`); 1 when the rig file's hammer certificate is right.
+    gains : ChannelGains or None
+        The accelerometer channels' relative gains from the rigid-body residual, applied.
+    matrix_std : ndarray, shape (6, 12), or None
+        Standard uncertainty of each element of ``C``: the gains' (scale included) and the
+        fit's.
+    channel_labels : tuple of str
+        The response channels, in the order of ``gains``.
+    verdict : {"ok", "warn"}
+    reasons : tuple of str
     """
 
     node: int
@@ -170,15 +198,48 @@ class InertialRun:
     n_inputs: int
     gauge_unit: str
     hammer_ratio: tuple[float, float] | None = None
+    gains: ChannelGains | None = None
+    matrix_std: FloatArray | None = None
+    channel_labels: tuple[str, ...] = ()
+    verdict: str = "ok"
+    reasons: tuple[str, ...] = ()
 
     @property
     def matrix(self) -> FloatArray:
         return np.asarray(self.fit.matrix, dtype=np.float64)
 
+    def _std(self) -> FloatArray:
+        if self.matrix_std is not None:
+            return np.asarray(self.matrix_std, float)
+        return np.asarray(self.fit.matrix_std, float)
+
+    def matrix_uncertainty_rel(self) -> float:
+        """Expanded (k = 2) relative Frobenius uncertainty of ``C``:
+        ``2 √(Σ Var C_ab) / ‖C‖_F`` (what ``matrix_error_rel`` should stay within)."""
+        return float(2 * np.sqrt(np.sum(self._std() ** 2)) / np.linalg.norm(self.matrix))
+
     def uncertainty_pct_fs(self) -> list[float]:
-        """Expanded (k = 2) relative residual of each load row, % of that row's rms dynamic
-        load (the inertial method has no rated-load reference: a bound, not % FS)."""
-        return [float(v) for v in 200 * np.asarray(self.fit.residual_rel_per_load, float)]
+        """Expanded (k = 2) uncertainty of each load axis, % of the reading (the inertial
+        method has no rated-load reference: the % FS of a load at the rated load):
+        ``200 √(r_i² + u_i²)`` with ``r_i`` the fit's relative residual of that load (a single
+        reading's scatter) and ``u_i = √(Σ_b Var C_ib) / ‖C_i‖`` (the matrix row's)."""
+        u = np.sqrt(np.sum(self._std() ** 2, axis=1)) / np.linalg.norm(self.matrix, axis=1)
+        r = np.asarray(self.fit.residual_rel_per_load, float)
+        return [float(v) for v in 200 * np.sqrt(r**2 + u**2)]
+
+    def gains_json(self) -> dict[str, Any] | None:
+        g = self.gains
+        if g is None:
+            return None
+        return {
+            "identified": g.identified,
+            "separation": g.separation,
+            "residual_rel": g.residual_rel,
+            "scale_std_rel": g.scale_std,
+            "channels": list(self.channel_labels),
+            "gain": g.gains.tolist(),
+            "gain_std_rel": g.relative_std.tolist(),
+        }
 
     def fit_json(self) -> dict[str, Any]:
         fit = self.fit
@@ -195,6 +256,8 @@ class InertialRun:
             "hammer_sensitivity_ratio_std": (
                 None if self.hammer_ratio is None else self.hammer_ratio[1]
             ),
+            "matrix_uncertainty_rel": self.matrix_uncertainty_rel(),
+            "accelerometer_gains": self.gains_json(),
         }
 
     def calibration(self) -> LoadCellCalibration:
@@ -206,12 +269,21 @@ class InertialRun:
             method="inertial",
             gauge_unit=self.gauge_unit,
             diagnostics={
-                **{k: v for k, v in self.fit_json().items() if not isinstance(v, list)},
+                **{
+                    k: v
+                    for k, v in self.fit_json().items()
+                    if not isinstance(v, (list, dict)) and v is not None
+                },
                 "band_hz": list(self.band_hz),
                 "averages_per_input": self.averages_per_input,
                 "inputs": self.n_inputs,
             },
-            certificate={"uncertainty_pct_fs": self.uncertainty_pct_fs(), "verdict": "ok"},
+            certificate={
+                "uncertainty_pct_fs": self.uncertainty_pct_fs(),
+                "matrix_uncertainty_rel": self.matrix_uncertainty_rel(),
+                "verdict": self.verdict,
+                "reasons": list(self.reasons),
+            },
             notes="inertial calibration with the calibration mass (support-side impacts)",
         )
 
@@ -260,6 +332,31 @@ def _gauge_unit(rig: RigFile, entry: LoadCellEntry) -> str:
     return "mV/V"
 
 
+#: A channel's gain this many of its certificate's σ away from it: the rig file is wrong.
+GAIN_OUTLIER_SIGMA = 4.0
+
+
+def _gain_reasons(gains: ChannelGains, labels: tuple[str, ...], sigma: float) -> tuple[str, ...]:
+    """Warnings: gains not identified (the certificates' scatter stays in ``C``), or channels
+    whose gain is more than :data:`GAIN_OUTLIER_SIGMA` certificate σ off the certificate."""
+    if not gains.identified:
+        return (
+            f"the rigid-body residual does not single out the accelerometers' gains "
+            f"(λ₁/λ₂ = {gains.separation:.2g}): their certificates' scatter stays in the matrix "
+            "(see its uncertainty); strike more inputs, on three faces",
+        )
+    off = np.log(gains.gains)
+    bad = np.flatnonzero(np.abs(off) > GAIN_OUTLIER_SIGMA * sigma)
+    if not bad.size:
+        return ()
+    worst = bad[np.argmax(np.abs(off[bad]))]
+    return (
+        f"{bad.size} accelerometer channel(s) read more than {GAIN_OUTLIER_SIGMA * sigma * 100:g} % "
+        f"off their certificate on the rigid calibration mass (worst {labels[worst]}: "
+        f"{-100 * off[worst]:+.2f} %); check their sensitivities and directions in the rig file",
+    )
+
+
 def run_inertial_calibration(
     settings: Settings,
     *,
@@ -268,6 +365,7 @@ def run_inertial_calibration(
     cfg: Mapping[str, Any] | None = None,
     on_progress: ProgressFn,
     download: Callable[[Any, FloatArray], Any] | None = None,
+    on_strike: StrikeCallback | None = None,
 ) -> tuple[InertialRun, Any]:
     """Calibrate load cell ``node`` of the configured rig on the inertial bench.
 
@@ -283,6 +381,8 @@ def run_inertial_calibration(
         Impact-test request values (``seed``, ``noise_scale``, ``averages_per_input``, ...;
         default averages: the bench file's).
     on_progress : callable (fraction, message)
+    on_strike : callable (StrikeRequest), optional
+        Told each request to the person to strike (a real rig; :class:`StrikeRequest`).
     download : callable (amplifier, matrix), optional
         Called with the open amplifier and ``C`` once the fit succeeded (e.g. store it in the
         amplifier and read it back); its result is returned beside the run.
@@ -298,8 +398,9 @@ def run_inertial_calibration(
     DataError
         The fit is refused (too few inputs, loads not excited).
     """
+    from dimacq.pipeline.inertial_bench import matrix_gain_variance, rigid_body_gains
     from dimacq.pipeline.loadcell_calibration import inertial_calibration
-    from dimacq.pipeline.rigid_body import condense, response_matrix
+    from dimacq.pipeline.rigid_body import condense, load_cell_transform, response_matrix
 
     rig_file = load_rig_file(settings.rig_path)
     entry = select_cell(rig_file, node)
@@ -312,7 +413,12 @@ def run_inertial_calibration(
     try:
         serial = str(rig.loadcells[k].identify().serial_number)
         res = run_impact_session(
-            rig, setup, request, on_progress=on_progress, loadcell_outputs="gauges"
+            rig,
+            setup,
+            request,
+            on_progress=on_progress,
+            loadcell_outputs="gauges",
+            on_strike=on_strike,
         )
         f = res.frequencies_hz
         lo, hi = bench.inertial.band_hz
@@ -325,7 +431,10 @@ def run_inertial_calibration(
         n_acc = len(setup.responses)
         P = np.asarray(setup.reference_point_m, float)
         psi = response_matrix(setup.response_positions, setup.response_directions, P)
-        Tq = condense(psi).transform  # (6, n_acc)
+        gains = rigid_body_gains(
+            res.H[sel, :n_acc], psi, setup.transducer_uncertainty.accel_sensitivity_rel
+        )
+        Tq = condense(psi).transform * gains.gains[None, :]  # (6, n_acc), gains applied
         acc = res.H[sel, :n_acc]
         # T_q H with real arithmetic (complex GEMM is slow on this machine's BLAS)
         a_p = np.einsum("kc,lci->lki", Tq, acc.real) + 1j * np.einsum("kc,lci->lki", Tq, acc.imag)
@@ -338,22 +447,25 @@ def run_inertial_calibration(
         a_hi = np.einsum("kc,lci->lki", Tq, acc_hi.real) + 1j * np.einsum(
             "kc,lci->lki", Tq, acc_hi.imag
         )
-        ratio = (
-            hammer_ratio(a_hi, props.mass_matrix(P), setup.input_directions[kept])
-            if above.any()
-            else None
-        )
+        M = props.mass_matrix(P)
+        ratio = hammer_ratio(a_hi, M, setup.input_directions[kept]) if above.any() else None
         del res, acc, acc_hi, a_hi
         lc = setup.load_cells[k]
         fit = inertial_calibration(
             gauges,
             a_p,
-            props.mass_matrix(P),
+            M,
             np.asarray(lc.position_m, float),
             lc.rotation_matrix,
             P,
             sign=lc.sign_factor,
         )
+        Tc = load_cell_transform(
+            np.asarray(lc.position_m, float), lc.rotation_matrix, P, lc.sign_factor
+        )
+        var = matrix_gain_variance(fit.matrix, gains.covariance, Tq, psi, M, Tc)
+        labels = tuple(f"{r.node}{direction_label(r.direction)}" for r in setup.responses)
+        reasons = _gain_reasons(gains, labels, setup.transducer_uncertainty.accel_sensitivity_rel)
         run = InertialRun(
             node=entry.node,
             serial_number=serial,
@@ -363,6 +475,11 @@ def run_inertial_calibration(
             n_inputs=int(n_inputs),
             gauge_unit=_gauge_unit(rig_file, entry),
             hammer_ratio=ratio,
+            gains=gains,
+            matrix_std=np.sqrt(var + np.asarray(fit.matrix_std, float) ** 2),
+            channel_labels=labels,
+            verdict="warn" if reasons else "ok",
+            reasons=reasons,
         )
         done = None if download is None else download(rig.loadcells[k], run.matrix)
     finally:
@@ -418,6 +535,11 @@ class CircularCheck:
         in the band (a soft suspension above its modes) the check cannot see the cell.
     verdict : {"ok", "fail", "inconclusive"}
     reasons : why it failed, or why it says nothing about the cell
+    setup_file : str
+        The mounting checked (the bench file's ``check_setup_file``).
+    accel_gain_max_pct : float or None
+        Largest correction of an accelerometer's certificate by the rigid-body gains applied
+        before DIM (None: not identified, certificates used).
     """
 
     solution: Any
@@ -428,6 +550,8 @@ class CircularCheck:
     cell_sensitivity: float
     verdict: str
     reasons: tuple[str, ...]
+    setup_file: str = ""
+    accel_gain_max_pct: float | None = None
 
     @property
     def mass_error_pct(self) -> float:
@@ -443,6 +567,8 @@ class CircularCheck:
             "circular_cell_sensitivity": self.cell_sensitivity,
             "circular_verdict": self.verdict,
             "circular_reasons": list(self.reasons),
+            "circular_setup_file": self.setup_file,
+            "circular_accel_gain_max_pct": self.accel_gain_max_pct,
         }
 
 
@@ -476,6 +602,7 @@ def circular_check(
     bench_file: str | Path | None = None,
     cfg: Mapping[str, Any] | None = None,
     on_progress: ProgressFn,
+    on_strike: StrikeCallback | None = None,
 ) -> CircularCheck:
     """The circular check of load cell ``node``'s installed calibration (module docstring).
 
@@ -490,7 +617,7 @@ def circular_check(
     rig_file = load_rig_file(settings.rig_path)
     entry = select_cell(rig_file, node)
     bench = bench_file_of(settings, bench_file)
-    setup, props = calibration_mass(bench, entry.node)
+    setup, props = calibration_mass(bench, entry.node, check=True)
     assert bench.inertial is not None
     unknown = setup.model_copy(update={"known": KnownProperties()})
     request = {"averages_per_input": bench.inertial.averages_per_input, **(cfg or {})}
@@ -502,7 +629,11 @@ def circular_check(
             f"load cell {entry.node}: no calibration to check ({path}: {err}); calibrate it "
             "first (dimacq loadcell calibrate)"
         ) from err
-    rig = build_rig(settings, unknown, request)
+    where = bench.check_setup_path()
+    on_progress(
+        0.0, f"mount the calibration mass as {where.name} states ({setup.name}), then strike"
+    )
+    rig = build_rig(check_world(settings, bench), unknown, request)
     try:
         frf = run_impact_test(
             rig,
@@ -511,10 +642,12 @@ def circular_check(
             on_average=lambda *_: None,
             on_progress=on_progress,
             meta={"source": f"circular check of load cell {entry.node}"},
+            on_strike=on_strike,
         )
     finally:
         rig.close()
     band = bench.inertial.check_band_hz
+    frf, gains = _rigid_gains_applied(frf, unknown, band)
     sol = dim.solve(frf, unknown, known={}, band_hz=band)
     errs = solution_errors(sol, props)
     tol = bench.inertial.check_tolerance_pct
@@ -533,14 +666,70 @@ def circular_check(
         reasons += (
             f"the check hardly sees the cell: a 1 % error of its loads moves the mass by "
             f"{sens:.2g} % (the cell carries little of the force in {band[0]:g}–{band[1]:g} Hz); "
-            "it says nothing about the cell's calibration",
+            "it says nothing about the cell's calibration; stand the mass on the cell "
+            "([inertial] check_setup_file)",
         )
     log.info(
         "load cell %d: circular check, mass %+.4f %% (%s)", entry.node, errs["mass_pct"], verdict
     )
     return CircularCheck(
-        sol, errs, (float(band[0]), float(band[1])), version, tol, sens, verdict, reasons
+        sol,
+        errs,
+        (float(band[0]), float(band[1])),
+        version,
+        tol,
+        sens,
+        verdict,
+        reasons,
+        setup_file=str(where),
+        accel_gain_max_pct=gains,
     )
+
+
+#: The simulated lab's world of the circular check when the bench file stands the mass on the
+#: cell (``check_setup_file``): the calibration mass bolted to the floor through the cell.
+SIMULATED_ON_CELL_SCENARIO = "calibration-mass-ground"
+
+
+def check_world(settings: Settings, bench: BenchFile) -> Settings:
+    """The settings the circular check's rig is built with. A real rig: as configured (the
+    person mounts the mass as the check's setup file says). The simulated lab (``daq`` and
+    ``loadcell`` simulated), whose world is a scenario: when the check's setup differs from the
+    calibration's (the mass standing on the cell), the scenario where it does
+    (:data:`SIMULATED_ON_CELL_SCENARIO`); otherwise the configured one."""
+    if "simulated" not in (settings.daq, settings.loadcell):
+        return settings
+    if bench.check_setup_path() == bench.inertial_setup_path():
+        return settings
+    return settings.model_copy(update={"scenario": SIMULATED_ON_CELL_SCENARIO})
+
+
+def _rigid_gains_applied(frf: Any, setup: TestSetup, band: tuple[float, float]) -> tuple[Any, Any]:
+    """The check's FRFs with the accelerometers' relative gains from their own rigid-body
+    residual over the band applied (the certificates' scatter is amplified where the cell
+    carries the force, as on the inertial bench: :mod:`dimacq.pipeline.inertial_bench`), and
+    the largest correction in % (None when the gains are not identified: FRFs unchanged)."""
+    from dimacq.pipeline.inertial_bench import rigid_body_gains
+    from dimacq.pipeline.rigid_body import response_matrix
+
+    acc = np.array([k == "acceleration" for k in frf.output_kinds])
+    f = np.asarray(frf.frequencies_hz, float)
+    sel = (f >= band[0]) & (f <= band[1])
+    if acc.sum() != len(setup.responses) or sel.sum() < 2:
+        return frf, None
+    psi = response_matrix(
+        setup.response_positions,
+        setup.response_directions,
+        np.asarray(setup.reference_point_m, float),
+    )
+    gains = rigid_body_gains(
+        np.asarray(frf.H)[sel][:, acc], psi, setup.transducer_uncertainty.accel_sensitivity_rel
+    )
+    if not gains.identified:
+        return frf, None
+    H = np.array(frf.H, copy=True)
+    H[:, acc, :] *= gains.gains[None, :, None]
+    return frf.replace(H=H), float(np.max(np.abs(100 * (1 / gains.gains - 1))))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -566,8 +755,10 @@ def scratch_rig(settings: Settings, directory: Path) -> Settings:
     if bench.exists():
         files.append(bench.name)
         b = load_bench_file(bench)
-        if b.inertial is not None and not Path(b.inertial.setup_file).is_absolute():
-            files.append(b.inertial.setup_file)
+        if b.inertial is not None:
+            for name in (b.inertial.setup_file, b.inertial.check_setup_file):
+                if name and not Path(name).is_absolute():
+                    files.append(name)
     for rel in files:
         dst = directory / rel
         dst.parent.mkdir(parents=True, exist_ok=True)

@@ -43,6 +43,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "Rig",
+    "StrikeRequest",
     "build_rig",
     "check_devices",
     "impact_settings",
@@ -53,6 +54,56 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 ProgressCallback = Callable[[float, str], None]
+
+
+@dataclass(frozen=True)
+class StrikeRequest:
+    """A person is asked to strike (a rig without a world that strikes by itself): what the
+    acquisition's page says as "strike point 101 along −X".
+
+    Attributes
+    ----------
+    input_index : int
+        0-based, in the setup's input order; ``n_inputs`` of them.
+    node, direction : int
+        The input's node and UFF direction (±1..±3).
+    direction_gcs : (3,) float
+        Its line of action, unit vector in the GCS.
+    average, averages : int
+        The average asked for (1-based) of the ones wanted per input.
+    request : int
+        Running count of requests in this session (a rejected hit is asked again).
+    message : str
+        The progress line ("strike input N: 101+X (average ...)").
+    """
+
+    input_index: int
+    n_inputs: int
+    node: int
+    direction: int
+    direction_gcs: tuple[float, float, float]
+    average: int
+    averages: int
+    request: int
+    message: str
+
+    def to_json(self) -> dict[str, Any]:
+        from dimacq.model.setup import direction_label
+
+        return {
+            "input_index": self.input_index,
+            "n_inputs": self.n_inputs,
+            "node": self.node,
+            "direction": direction_label(self.direction),
+            "direction_gcs": list(self.direction_gcs),
+            "average": self.average,
+            "averages": self.averages,
+            "request": self.request,
+            "message": self.message,
+        }
+
+
+StrikeCallback = Callable[[StrikeRequest], None]
 
 
 @dataclass
@@ -333,6 +384,7 @@ def run_impact_test(
     review: ReviewCallback | None = None,
     should_finish: Callable[[], bool] | None = None,
     on_input: Callable[[int, NDArray[np.float64]], None] | None = None,
+    on_strike: StrikeCallback | None = None,
 ) -> FrfData:
     """Run the impact test; return FRFs in the setup's channel order (SI units).
 
@@ -342,7 +394,8 @@ def run_impact_test(
 
     ``writer`` keeps every raw block (:class:`~dimacq.io.acquisition_hdf5.AcquisitionWriter`,
     channels ``rig.daq.channel_names`` in units ``rig.daq_units``); ``meta`` goes into the
-    FRFs' metadata (default: the source).
+    FRFs' metadata (default: the source). ``on_strike`` is told every request to a person to
+    strike (:class:`StrikeRequest`; none where the world strikes by itself).
     """
     from dimacq.services.acquisition import impact_frf
 
@@ -356,6 +409,7 @@ def run_impact_test(
         review=review,
         should_finish=should_finish,
         on_input=on_input,
+        on_strike=on_strike,
     )
     return impact_frf(result, setup, meta=dict(meta or {"source": "dimacq impact acquisition"}))
 
@@ -372,11 +426,13 @@ def run_impact_session(
     review: ReviewCallback | None = None,
     should_finish: Callable[[], bool] | None = None,
     on_input: Callable[[int, NDArray[np.float64]], None] | None = None,
+    on_strike: StrikeCallback | None = None,
 ) -> ImpactResult:
     """Run the impact session of :func:`run_impact_test` and return its raw result: FRFs of
     the responses, then per load cell its six loads (``loadcell_outputs="forces"``) or its 12
     gauges (``"gauges"``: a cell being calibrated). Without a world that strikes by itself
-    (``rig.operator``) the person is asked through ``on_progress`` ("strike input N: ...")."""
+    (``rig.operator``) the person is asked through ``on_progress`` ("strike input N: ...") and,
+    structured, through ``on_strike``."""
     from dimacq.services.acquisition import ImpactSession, Progress
 
     settings = check_impact_test(rig, setup, cfg)
@@ -399,12 +455,27 @@ def run_impact_session(
         def ask(j: int, _daq_sample: int) -> None:
             e = setup.excitations[j]
             asked[0] += 1
-            on_progress(
-                fraction[0],
+            message = (
                 f"strike input {j + 1}: {axis_name(e.node, e.direction)} "
                 f"(average {accepted[j] + 1} of {wanted}, input {j + 1} of {n_in}, "
-                f"request {asked[0]})",
+                f"request {asked[0]})"
             )
+            if on_strike is not None:
+                d = e.direction_gcs
+                on_strike(
+                    StrikeRequest(
+                        j,
+                        n_in,
+                        e.node,
+                        e.direction,
+                        (float(d[0]), float(d[1]), float(d[2])),
+                        accepted[j] + 1,
+                        wanted,
+                        asked[0],
+                        message,
+                    )
+                )
+            on_progress(fraction[0], message)
 
         operator = ask
 

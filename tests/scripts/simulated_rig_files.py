@@ -171,15 +171,21 @@ def write_reference_block() -> None:
     print(f"wrote {folder}")
 
 
-def write_calibration_mass_setup() -> None:
+def write_calibration_mass_setup(
+    scenario: str = "calibration-mass-bungee",
+    file_name: str = "calibration_mass_setup.toml",
+    name: str = "calibration mass on load cell 501",
+) -> None:
     """``config/calibration_mass_setup.toml``: the calibration mass on its cell as the lab states
     it (the scenario's setup) with its certificate under ``[known]`` (a machined steel block:
     mass, CG and inertia from its drawing and a weighing; here the article's values), read by
-    the bench file's ``[inertial]`` table for the inertial calibration and the circular check."""
+    the bench file's ``[inertial]`` table for the inertial calibration; and
+    ``config/calibration_mass_on_cell.toml``: the same mass standing on the cell (scenario
+    calibration-mass-ground, the cell underneath), ``check_setup_file`` of the circular check."""
     from dimacq.io.setup_file import save_setup
     from dimacq.model.setup import KnownProperties
 
-    built = build_scenario("calibration-mass-bungee", None)
+    built = build_scenario(scenario, None)
     setup = built.setup
     props = built.truth
     P = np.asarray(setup.reference_point_m, float)
@@ -197,11 +203,8 @@ def write_calibration_mass_setup() -> None:
         cg_m=tuple(float(c) for c in props.cg_m),
         inertia_kgm2={k: float(I[i, j]) for k, (i, j) in names.items()},
     )
-    path = CONFIG / "calibration_mass_setup.toml"
-    save_setup(
-        setup.model_copy(update={"known": known, "name": "calibration mass on load cell 501"}),
-        path,
-    )
+    path = CONFIG / file_name
+    save_setup(setup.model_copy(update={"known": known, "name": name}), path)
     print(f"wrote {path}")
 
 
@@ -210,6 +213,11 @@ def main() -> None:
         write_rig(name, scenario, header)
     write_reference_block()
     write_calibration_mass_setup()
+    write_calibration_mass_setup(
+        "calibration-mass-ground",
+        "calibration_mass_on_cell.toml",
+        "calibration mass standing on load cell 501 (circular check)",
+    )
 
 
 if __name__ == "__main__":

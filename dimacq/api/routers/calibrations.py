@@ -82,7 +82,11 @@ async def start_calibration_run(request: Request, lab: LabDep) -> dict[str, Any]
 
 @router.get("/runs/{job_id}/prompt", response_model=dict[str, Any])
 def calibration_prompt(job_id: str, lab: LabDep) -> dict[str, Any]:
-    """The load case the run waits for: ``{"waiting", "case", "of", "message"}``."""
+    """What the run waits for from the operator: a load case to put in place (``kind``
+    ``load_case``: ``case``, ``of``, ``message``; confirm it) or a strike (``kind`` ``strike``:
+    ``stage``, ``input_index`` of ``n_inputs``, ``node``, ``direction`` (``+X``),
+    ``direction_gcs``, ``average`` of ``averages``, ``message``: "strike point 101 along +X",
+    as an acquisition asks); ``{"waiting": false}`` when none."""
     found(lab.jobs.snapshot(job_id), f"job {job_id}")
     return lab.calibrations.runs.prompt(job_id)
 

@@ -3,12 +3,14 @@
 // prompts, the certificate figures and the circular check. Its own module and section (added to
 // the page's <main> at load), so that the rest of the page does not depend on it.
 
+import { dirName } from "/static/core.js";
+
 const $ = (sel) => document.querySelector(sel);
 const TOKEN_KEY = "dimacq-token";
 const esc = (s) => String(s).replace(/[&<>"]/g, (c) => ({ "&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;" })[c]);
 const num = (v, d = 4) => (v === null || v === undefined ? "—" : Number(v).toFixed(d));
 const AXES = ["Fx", "Fy", "Fz", "Mx", "My", "Mz"];
-const bench = { job: null, result: null, prompts: 0 };
+const bench = { job: null, result: null, prompts: 0, strikes: 0 };
 window.dimacqBench = bench; // for the browser test
 
 async function api(method, path, body) {
@@ -46,6 +48,8 @@ calibration mass through it.</p>
   <button id="bench-start">Calibrate</button>
 </p>
 <p id="bench-prompt" class="prompt">—</p>
+<p class="small">Inertial and circular check on a real rig: strike where the prompt says (the
+trigger sees the hit); load cases: put the load in place, then confirm.</p>
 <p><button id="bench-confirm" disabled>Load in place</button></p>
 <div class="bar"><div id="bench-bar"></div></div>
 <p id="bench-msg" class="small"></p>
@@ -59,8 +63,8 @@ function certificateTable(r) {
     .filter(([, v]) => Array.isArray(v));
   const th = AXES.map((a) => `<th>${a}</th>`).join("");
   const tr = rows.map(([n, v]) => `<tr><td class="l">${esc(n)}</td>${v.map((x) => `<td>${num(x)}</td>`).join("")}</tr>`).join("");
-  // the inertial method has no rated-load reference: its figures are % of each row's rms load
-  const unit = r.method === "static" ? "% of rated load" : "% of rms dynamic load";
+  // the inertial method has no rated-load reference: its figures are % of the reading
+  const unit = r.method === "static" ? "% of rated load" : "% of the reading";
   return `<table id="bench-cert"><thead><tr><th class="l">${unit}</th>${th}</tr></thead><tbody>${tr}</tbody></table>`;
 }
 
@@ -68,6 +72,9 @@ function showResult(r) {
   const parts = [`<p>load cell ${esc(r.load_cell_node)}: <b>${esc(r.method)}</b> calibration, version
     ${esc(r.version)}, record ${esc(r.record_id)}; verdict <span class="verdict ${r.verdict === "ok" ? "ok" : "fail"}">${esc(r.verdict)}</span>
     ${(r.reasons || []).map(esc).join("; ")}</p>`, certificateTable(r)];
+  if (r.matrix_uncertainty_rel !== undefined && r.matrix_uncertainty_rel !== null) {
+    parts.push(`<p id="bench-matrix-u">matrix uncertainty (k = 2): ${num(100 * r.matrix_uncertainty_rel, 3)} % (Frobenius)</p>`);
+  }
   if (r.downloaded) parts.push(`<p>downloaded to the amplifier: ${esc(r.download_verified)}/72 elements verified on read-back</p>`);
   if (r.circular_mass_error_pct !== undefined && r.circular_mass_error_pct !== null) {
     const e = r.circular_errors_pct;
@@ -99,10 +106,15 @@ async function follow(jobId) {
     const st = await api("GET", `/api/jobs/${jobId}`);
     $("#bench-bar").style.width = `${Math.round(100 * (st.progress || 0))}%`;
     if (st.message) say(st.message);
-    if (/strike input/.test(st.message || "")) $("#bench-prompt").textContent = st.message.replace(/^[^:]*: /, "");
     if (["succeeded", "failed", "cancelled"].includes(st.state)) return st;
     const p = await api("GET", `/api/calibrations/runs/${jobId}/prompt`);
-    if (p.waiting && waitingCase !== p.case) {
+    if (p.waiting && p.kind === "strike") {
+      // as the acquisition asks: the point, the axis of its line of action, input and average
+      const text = `${p.stage}: strike point ${p.node} along ${dirName(p.direction_gcs)} — input ${p.input_index + 1}/${p.n_inputs}, average ${p.average}/${p.averages}`;
+      if ($("#bench-prompt").textContent !== text) bench.strikes += 1;
+      $("#bench-prompt").textContent = text;
+      $("#bench-prompt").dataset.request = String(p.request);
+    } else if (p.waiting && waitingCase !== p.case) {
       waitingCase = p.case;
       bench.prompts += 1;
       $("#bench-prompt").textContent = `Load case ${p.case + 1} of ${p.of}: ${p.message}`;

@@ -376,6 +376,8 @@ def _inertial(
     """The calibration mass on the cell, struck on its support side (simulated: the world's
     hand; real: a person prompted for each strike); installed as the next version, recorded
     (real rig) and downloaded on request."""
+    import numpy as np
+
     from dimacq.io.rig_file import load_rig_file
     from dimacq.services.inertial_calibration import (
         install_inertial,
@@ -403,8 +405,9 @@ def _inertial(
         "nonlinearity_pct_fs": None,
         "hysteresis_pct_fs": None,
         "uncertainty_pct_fs": run.uncertainty_pct_fs(),
-        "verdict": "ok",
-        "reasons": [],
+        "matrix_uncertainty_rel": run.matrix_uncertainty_rel(),
+        "verdict": run.verdict,
+        "reasons": list(run.reasons),
         "load_cell_node": node,
         "serial_number": run.serial_number,
         "gauge_unit": run.gauge_unit,
@@ -430,8 +433,19 @@ def _inertial(
         f"{run.band_hz[0]:g}–{run.band_hz[1]:g} Hz ({fit.n_equations} equations); version "
         f"{installed.version}" + ("" if simulated else f" in {installed.current_path}") + "\n"
         f"  residual {fit.residual_rel:.3g}, condition σ1/σ6 {fit.condition:.3g}, noise "
-        f"separation σ7/σ6 {fit.noise_separation:.3g}\n"
+        f"separation σ7/σ6 {fit.noise_separation:.3g}; matrix uncertainty (k = 2) "
+        f"{100 * run.matrix_uncertainty_rel():.3f} % (Frobenius)\n"
     )
+    g = run.gains
+    if g is not None and g.identified:
+        dev = 100 * (1 / g.gains - 1)
+        sys.stdout.write(
+            f"  accelerometers: relative gains from the rigid-body fit (λ₁/λ₂ {g.separation:.2g}),"
+            f" {np.max(np.abs(dev)):.2f} % at most from their certificates; common scale ± "
+            f"{100 * g.scale_std:.3f} % (the certificates' mean)\n"
+        )
+    for r in run.reasons:
+        sys.stdout.write(f"  warning: {r}\n")
     if run.hammer_ratio is not None:
         r, sd = run.hammer_ratio
         sys.stdout.write(

@@ -38,7 +38,10 @@ class CalibrationRuns:
     message is the prompt, :meth:`prompt` gives it with its case number, :meth:`confirm` tells
     the job the load is in place. Inertial: the calibration mass on the cell through the rig
     builder (:func:`~dimacq.services.inertial_calibration.run_inertial_calibration`); a person
-    strikes when the job's progress asks. Then, on request, the circular check. The result is
+    strikes when asked: :meth:`prompt` gives the strike request (``kind`` ``strike``: the input's
+    node, direction and line of action, the average, as the acquisition's "strike point 101
+    along −X"; the trigger sees the hit, nothing to confirm). Then, on request, the circular
+    check (its strikes asked the same way). The result is
     installed as the cell's next calibration version (the simulated lab: in a scratch copy of
     the rig under ``data_dir/calibration-runs/<job>``, the shipped files stay as they are) and
     recorded through ``record`` (a calibration document → its record).
@@ -54,6 +57,7 @@ class CalibrationRuns:
         self.record = record
         self._lock = threading.Lock()
         self._prompts: dict[str, _Prompt] = {}
+        self._strikes: dict[str, tuple[str, Any]] = {}  # job → (stage, StrikeRequest)
 
     def start(self, request: dict[str, Any]) -> dict[str, Any]:
         """Submit a run. ``request``: ``method`` (static | inertial), ``node`` (real rig),
@@ -117,6 +121,19 @@ class CalibrationRuns:
         job = self.jobs.submit("loadcell-calibration", work)
         return {"job_id": job.id, "method": method, "simulated": simulated}
 
+    def _strike_prompt(self, ctx: Any, stage: str) -> Callable[[Any], None]:
+        """Keep the latest strike request of job ``ctx`` for :meth:`prompt`."""
+
+        def asked(req: Any) -> None:
+            with self._lock:
+                self._strikes[ctx.job_id] = (stage, req)
+
+        return asked
+
+    def _strikes_done(self, job_id: str) -> None:
+        with self._lock:
+            self._strikes.pop(job_id, None)
+
     def _job_progress(self, ctx: Any, stage: str) -> Callable[[float, str], None]:
         def show(fraction: float, message: str) -> None:
             ctx.check_cancelled()
@@ -144,13 +161,17 @@ class CalibrationRuns:
         )
         from dimacq.services.loadcell_calibration import download_and_verify
 
-        run, verified = run_inertial_calibration(
-            settings,
-            node=node,
-            cfg=cfg,
-            on_progress=self._job_progress(ctx, "inertial bench"),
-            download=download_and_verify if download else None,
-        )
+        try:
+            run, verified = run_inertial_calibration(
+                settings,
+                node=node,
+                cfg=cfg,
+                on_progress=self._job_progress(ctx, "inertial bench"),
+                download=download_and_verify if download else None,
+                on_strike=self._strike_prompt(ctx, "inertial bench"),
+            )
+        finally:
+            self._strikes_done(ctx.job_id)
         rig = load_rig_file(settings.rig_path)
         installed = install_inertial(rig, select_cell(rig, run.node), run)
         rec = self.record(installed_document(run.calibration(), installed.version))
@@ -163,8 +184,9 @@ class CalibrationRuns:
             "nonlinearity_pct_fs": None,
             "hysteresis_pct_fs": None,
             "uncertainty_pct_fs": run.uncertainty_pct_fs(),
-            "verdict": "ok",
-            "reasons": [],
+            "matrix_uncertainty_rel": run.matrix_uncertainty_rel(),
+            "verdict": run.verdict,
+            "reasons": list(run.reasons),
             "band_hz": list(run.band_hz),
             "fit": run.fit_json(),
             "downloaded": verified is not None,
@@ -176,9 +198,16 @@ class CalibrationRuns:
     def _check(self, ctx: Any, settings: Any, node: int, cfg: dict[str, Any]) -> dict[str, Any]:
         from dimacq.services.inertial_calibration import circular_check
 
-        chk = circular_check(
-            settings, node=node, cfg=cfg, on_progress=self._job_progress(ctx, "circular check")
-        )
+        try:
+            chk = circular_check(
+                settings,
+                node=node,
+                cfg=cfg,
+                on_progress=self._job_progress(ctx, "circular check"),
+                on_strike=self._strike_prompt(ctx, "circular check"),
+            )
+        finally:
+            self._strikes_done(ctx.job_id)
         return chk.to_json()
 
     def _simulated(self, ctx: Any, settings: Any, minimal: bool) -> dict[str, Any]:
@@ -252,18 +281,33 @@ class CalibrationRuns:
         return {**res.to_json(), "record_id": rec["id"]}
 
     def prompt(self, job_id: str) -> dict[str, Any]:
-        """The load case the job waits for (``waiting`` false when it waits for none)."""
+        """What the job waits for from the operator: ``kind`` ``load_case`` (``case``, ``of``,
+        ``message``: confirm when in place) or ``strike`` (``stage``, ``input_index``,
+        ``n_inputs``, ``node``, ``direction``, ``direction_gcs``, ``average``, ``averages``,
+        ``request``, ``message``: the latest request, until the stage's strikes are done);
+        ``waiting`` false when it waits for none."""
         with self._lock:
             p = self._prompts.get(job_id)
-        if p is None:
-            return {"job_id": job_id, "waiting": False}
-        return {
-            "job_id": job_id,
-            "waiting": True,
-            "case": p.case,
-            "of": p.of,
-            "message": p.message,
-        }
+            strike = self._strikes.get(job_id)
+        if p is not None:
+            return {
+                "job_id": job_id,
+                "waiting": True,
+                "kind": "load_case",
+                "case": p.case,
+                "of": p.of,
+                "message": p.message,
+            }
+        if strike is not None:
+            stage, req = strike
+            return {
+                "job_id": job_id,
+                "waiting": True,
+                "kind": "strike",
+                "stage": stage,
+                **req.to_json(),
+            }
+        return {"job_id": job_id, "waiting": False}
 
     def confirm(self, job_id: str, case: int) -> dict[str, Any]:
         """The operator has put load case ``case`` in place."""
@@ -271,6 +315,11 @@ class CalibrationRuns:
 
         with self._lock:
             p = self._prompts.get(job_id)
+            if p is None and job_id in self._strikes:
+                raise DeviceStateError(
+                    f"job {job_id} waits for a strike, not a load case: strike as its prompt "
+                    "says (the trigger sees the hit)"
+                )
             if p is None:
                 raise DeviceStateError(f"job {job_id} is not waiting for a load case")
             if p.case != case:
