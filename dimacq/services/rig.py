@@ -461,7 +461,7 @@ def run_impact_session(
                 f"request {asked[0]})"
             )
             if on_strike is not None:
-                d = e.direction_gcs
+                d = setup.input_directions[j]
                 on_strike(
                     StrikeRequest(
                         j,

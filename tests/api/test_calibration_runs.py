@@ -9,9 +9,11 @@ import os
 import time
 import uuid
 from pathlib import Path
+from typing import Any
 
 import httpx
 import numpy as np
+import pytest
 from _api_support import TOKEN, make_settings
 from _bench_rig_support import write_bench_rig
 
@@ -142,3 +144,64 @@ def test_inertial_run_on_the_simulated_lab_over_http(tmp_path: Path) -> None:
         assert cals[-1]["id"] == res["record_id"]
         assert cals[-1]["calibration"]["method"] == "inertial"
     assert shipped.read_bytes() == before
+
+
+def test_inertial_strike_requests_are_the_runs_prompt(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A person strikes the inertial bench where the run asks: the run's prompt route gives
+    each request as the acquisition's page says it ("strike point 101 along +X": the input's
+    node, direction and line of action, the average) while the job waits for the hit; a
+    confirm is refused naming why (the trigger sees the hit, there is no load to confirm).
+    The bench is a stand-in that asks twice: the wiring of the requests from the impact
+    session is tested on the real path (tests/services/test_inertial_calibration_real.py)."""
+    import threading
+
+    import dimacq.services.inertial_calibration as ic
+    from dimacq.errors import DataError
+    from dimacq.services.rig import StrikeRequest
+
+    seen = [threading.Event(), threading.Event()]
+
+    def bench(settings: Any, *, on_strike: Any, on_progress: Any, **_: Any) -> Any:
+        for k, (node, d) in enumerate(((101, 1), (117, -3))):
+            g = (float(np.sign(d)), 0.0, 0.0) if abs(d) == 1 else (0.0, 0.0, float(np.sign(d)))
+            req = StrikeRequest(k, 24, node, d, g, 1, 2, k + 1, f"strike input {k + 1}: ...")
+            on_strike(req)
+            on_progress(k / 2, req.message)
+            assert seen[k].wait(20)
+        raise DataError("stand-in bench: no data")
+
+    monkeypatch.setattr(ic, "run_inertial_calibration", bench)
+    settings = make_settings(tmp_path / "data")
+    with (
+        BackgroundServer(create_app(settings)) as srv,
+        httpx.Client(
+            base_url=srv.url, headers={"Authorization": f"Bearer {TOKEN}"}, timeout=30
+        ) as c,
+    ):
+        r = c.post("/api/calibrations/runs", json={"method": "inertial", "circular_check": False})
+        assert r.status_code == 202, r.text
+        job = r.json()["job_id"]
+        want = [("+X", 101, [1.0, 0.0, 0.0]), ("-Z", 117, [0.0, 0.0, -1.0])]
+        for k, (label, node, gcs) in enumerate(want):
+            deadline = time.monotonic() + 20
+            while time.monotonic() < deadline:
+                p = c.get(f"/api/calibrations/runs/{job}/prompt").json()
+                if p["waiting"] and p["input_index"] == k:
+                    break
+                time.sleep(0.02)
+            assert p["kind"] == "strike" and p["stage"] == "inertial bench", p
+            assert (p["node"], p["direction"], p["direction_gcs"]) == (node, label, gcs)
+            assert (p["average"], p["averages"], p["n_inputs"]) == (1, 2, 24)
+            no = c.post(f"/api/calibrations/runs/{job}/confirm", json={"case": 0})
+            assert no.status_code == 409 and "waits for a strike" in no.text
+            seen[k].set()
+        deadline = time.monotonic() + 20
+        while c.get(f"/api/jobs/{job}").json()["state"] not in ("failed", "succeeded"):
+            assert time.monotonic() < deadline
+            time.sleep(0.02)
+        assert c.get(f"/api/calibrations/runs/{job}/prompt").json() == {
+            "job_id": job,
+            "waiting": False,
+        }

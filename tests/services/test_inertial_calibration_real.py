@@ -28,8 +28,8 @@ from dimacq.io.loadcell_calibration import read_calibration
 from dimacq.io.rig_file import load_rig_file
 from dimacq.io.setup_file import save_setup
 from dimacq.model.setup import KnownProperties
+from dimacq.services.circular_check import circular_check
 from dimacq.services.inertial_calibration import (
-    circular_check,
     install_inertial,
     run_inertial_calibration,
     select_cell,
@@ -97,11 +97,15 @@ def test_inertial_calibration_and_circular_check_of_the_configured_cell(tmp_path
     cal_path = bench_world.cal_files[0]
     cal_path.unlink()  # a new cell: no calibration file yet
     asked: list[int] = []
+    requests: list[Any] = []
     with installed(bench_world):
         settings = _settings(tmp_path, bench_world, rig_file)
         assert (settings.daq, settings.loadcell) == ("dimacq-usb", "dimacq-can")
         run, check = run_inertial_calibration(
-            settings, on_progress=_operator(bench_world, asked), download=download_and_verify
+            settings,
+            on_progress=_operator(bench_world, asked),
+            download=download_and_verify,
+            on_strike=requests.append,
         )
         sim_matrix = bench_world.sims[0].matrix.copy()
     C = run.matrix
@@ -110,6 +114,21 @@ def test_inertial_calibration_and_circular_check_of_the_configured_cell(tmp_path
     # the rig file states the simulated hammer's true sensitivity here: the ratio is 1
     assert run.hammer_ratio is not None and abs(run.hammer_ratio[0] - 1) < 3e-3, run.hammer_ratio
     assert asked == [j for j, _ in bench_world.strikes] and len(asked) >= 2 * len(INPUTS)
+    # every strike asked as a request too: the input's point and line of action, the average
+    ins = bench_world.setup.excitations
+    assert [r.input_index for r in requests] == asked
+    for r in requests:
+        e = ins[r.input_index]
+        assert (r.node, r.direction, r.n_inputs, r.averages) == (e.node, e.direction, len(ins), 2)
+        np.testing.assert_allclose(r.direction_gcs, e.direction_gcs)
+        assert 1 <= r.average <= 2 and r.message.startswith(f"strike input {r.input_index + 1}:")
+    assert [r.request for r in requests] == list(range(1, len(requests) + 1))
+    # the accelerometers' relative gains found on the rigid mass; the rig file states the
+    # simulated transducers' true sensitivities here: the gains are 1 within their uncertainty
+    g = run.gains
+    assert g is not None and g.identified
+    assert np.all(np.abs(np.log(g.gains)) < 4 * g.relative_std + 2e-4), g.gains
+    assert np.linalg.norm(C - C_true) / np.linalg.norm(C_true) < run.matrix_uncertainty_rel()
     # downloaded and read back: the amplifier holds the float32 matrix, all 72 verified
     assert check.verified == 72
     np.testing.assert_array_equal(sim_matrix, C.astype("<f4").astype(float))

@@ -190,7 +190,8 @@ def _shown(stage: str, simulated: bool, quiet: bool) -> ProgressLine:
 
 def _calibrate(args: argparse.Namespace, settings: Any, *, simulated: bool) -> int:
     from dimacq.io.rig_file import load_rig_file
-    from dimacq.services.inertial_calibration import circular_check, select_cell
+    from dimacq.services.circular_check import circular_check
+    from dimacq.services.inertial_calibration import select_cell
 
     rig = load_rig_file(settings.rig_path)
     entry = select_cell(rig, args.node)
@@ -221,7 +222,15 @@ def _calibrate(args: argparse.Namespace, settings: Any, *, simulated: bool) -> i
             f"circular check (DIM through calibration version {chk.calibration_version}): mass "
             f"{e['mass_pct']:+.4f} %, CG {e['cg_error_mm']:.3f} mm, principal moments "
             f"{e['I1_pct']:+.3f} / {e['I2_pct']:+.3f} / {e['I3_pct']:+.3f} %; verdict "
-            f"{chk.verdict}" + "".join(f"; {r}" for r in chk.reasons) + "\n"
+            f"{chk.verdict}"
+            + (
+                ""
+                if chk.chain_uncertainty_pct is None
+                else f" (cell sees {chk.cell_sensitivity:.2g} × its error; hammer and "
+                f"accelerometer scales alone ± {chk.chain_uncertainty_pct:.2f} %, k = 2)"
+            )
+            + "".join(f"; {r}" for r in chk.reasons)
+            + "\n"
         )
     payload = _ordered(payload)
     if args.json:
@@ -444,8 +453,8 @@ def _inertial(
             f" {np.max(np.abs(dev)):.2f} % at most from their certificates; common scale ± "
             f"{100 * g.scale_std:.3f} % (the certificates' mean)\n"
         )
-    for r in run.reasons:
-        sys.stdout.write(f"  warning: {r}\n")
+    for reason in run.reasons:
+        sys.stdout.write(f"  warning: {reason}\n")
     if run.hammer_ratio is not None:
         r, sd = run.hammer_ratio
         sys.stdout.write(

@@ -196,7 +196,7 @@ class CalibrationRuns:
         }
 
     def _check(self, ctx: Any, settings: Any, node: int, cfg: dict[str, Any]) -> dict[str, Any]:
-        from dimacq.services.inertial_calibration import circular_check
+        from dimacq.services.circular_check import circular_check
 
         try:
             chk = circular_check(
