@@ -235,7 +235,7 @@ def circular_check(
     finally:
         rig.close()
     band = bench.inertial.check_band_hz
-    frf, gains = _rigid_gains_applied(frf, unknown, band)
+    frf, gain_max = _rigid_gains_applied(frf, unknown, band)
     sol = dim.solve(frf, unknown, known={}, band_hz=band)
     errs = solution_errors(sol, props)
     tol = bench.inertial.check_tolerance_pct
@@ -248,7 +248,9 @@ def circular_check(
     u_h = max((c.u_rel for c in hammers), default=tu.force_sensitivity_rel)
     n_acc = len(unknown.responses)
     u_a = (
-        tu.accel_sensitivity_rel / np.sqrt(n_acc) if gains is not None else tu.accel_sensitivity_rel
+        tu.accel_sensitivity_rel / np.sqrt(n_acc)
+        if gain_max is not None
+        else tu.accel_sensitivity_rel
     )
     chain_u = float(200 * np.hypot(s_h * u_h, s_a * u_a))
     reasons: tuple[str, ...] = ()
@@ -281,7 +283,7 @@ def circular_check(
         verdict,
         reasons,
         setup_file=str(where),
-        accel_gain_max_pct=gains,
+        accel_gain_max_pct=gain_max,
         chain_uncertainty_pct=chain_u,
     )
 

@@ -264,11 +264,7 @@ class InertialRun:
             method="inertial",
             gauge_unit=self.gauge_unit,
             diagnostics={
-                **{
-                    k: v
-                    for k, v in self.fit_json().items()
-                    if not isinstance(v, (list, dict)) and v is not None
-                },
+                **{k: v for k, v in self.fit_json().items() if not isinstance(v, (list, dict))},
                 "band_hz": list(self.band_hz),
                 "averages_per_input": self.averages_per_input,
                 "inputs": self.n_inputs,

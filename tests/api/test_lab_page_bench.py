@@ -10,6 +10,7 @@ Needs Debian's ``chromium`` and Playwright's Python package; skipped when either
 
 from __future__ import annotations
 
+import json
 import shutil
 import signal
 import subprocess
@@ -76,7 +77,38 @@ def test_inertial_calibration_through_the_page(service: Any, tmp_path: Path) -> 
         assert page.locator("header nav a[href='#bench']").count() == 1
         page.select_option("#bench-method", "inertial")
         page.fill("#bench-averages", "1")
+        # On the simulated lab the world strikes by itself and asks nobody: the run's prompt
+        # route is answered here with a strike request of its shape (the route itself is
+        # tested in tests/api/test_calibration_runs.py) until the page has said it in words
+        strike = {
+            "job_id": "-",
+            "waiting": True,
+            "kind": "strike",
+            "stage": "inertial bench",
+            "input_index": 2,
+            "n_inputs": 24,
+            "node": 103,
+            "direction": "-X",
+            "direction_gcs": [-1.0, 0.0, 0.0],
+            "average": 1,
+            "averages": 1,
+            "request": 3,
+            "message": "strike input 3: 103-X (average 1 of 1, input 3 of 24, request 3)",
+        }
+        prompt_route = "**/api/calibrations/runs/*/prompt"
+        page.route(
+            prompt_route,
+            lambda r: r.fulfill(
+                status=200, content_type="application/json", body=json.dumps(strike)
+            ),
+        )
         page.click("#bench-start")
+        page.wait_for_function(
+            "() => document.querySelector('#bench-prompt').textContent === "
+            "'inertial bench: strike point 103 along −X — input 3/24, average 1/1'",
+            timeout=30_000,
+        )
+        page.unroute(prompt_route)
         page.wait_for_function(
             "() => /inertial bench/.test(document.querySelector('#bench-msg').textContent)",
             timeout=30_000,

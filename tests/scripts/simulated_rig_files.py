@@ -10,9 +10,12 @@ this script is that calibration lab. It writes, per rig:
   :data:`CERTIFICATE_ERROR` standard deviation (seeded by the transducer's serial number);
 - per load cell ``calibrations/lc-<node>.json`` with ``C = (I + E) S⁺``, ``E`` a 6×6 matrix of
   the same relative standard deviation (``dimacq loadcell calibrate --simulated`` replaces it
-  in a scratch copy: static 0.03 %, inertial 0.85 % through these accelerometer certificates);
+  in a scratch copy: static 0.03 %, inertial 0.15 % through these accelerometer certificates'
+  common scale, their scatter taken out by the rigid-body gains);
 - ``calibration_mass_setup.toml``: the calibration mass on cell 501 with its certificate
-  (``[known]``), read by ``loadcell_bench.toml``'s ``[inertial]`` table.
+  (``[known]``), read by ``loadcell_bench.toml``'s ``[inertial]`` table, and
+  ``calibration_mass_on_cell.toml``: the same mass standing on the cell (the circular check's
+  ``check_setup_file``).
 
 The service and the drivers read only these files; nothing else of the simulator's truth.
 """

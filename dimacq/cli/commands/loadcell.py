@@ -31,16 +31,19 @@ code on the simulated lab (backends ``simulated``, scenario calibration-mass-bun
 ``config/rig.toml`` folder copied to a scratch folder, so the configured calibration files stay
 as they are; the dead weights on the simulated bench behind the CAN amplifier simulator).
 
-The circular check (always when simulated): the same mass on the same cell, struck on the mass,
-acquired with the amplifier applying the newly installed matrix, solved by DIM, compared with
-the certificate (verdict ok within the bench file's ``check_tolerance_pct``; inconclusive when
-the cell carries too little of the force in the band for its matrix to matter: hung on bungees,
-a 1 % error of the cell moves DIM's mass by about 0.001 %, ``circular_cell_sensitivity``). JSON keys:
+The circular check (always when simulated): the same mass on the same cell, mounted as the
+bench file's ``check_setup_file`` says (shipped: standing on the cell; simulated: scenario
+calibration-mass-ground), struck on the mass, acquired with the amplifier applying the newly
+installed matrix, solved by DIM, compared with the certificate (verdict ok within the bench
+file's ``check_tolerance_pct``; inconclusive when the cell carries too little of the force in
+the band for its matrix to matter: hung on bungees, a 1 % error of the cell moves DIM's mass by
+about 0.001 %, ``circular_cell_sensitivity``; standing on it about 2.5 %). JSON keys:
 ``method``, ``matrix_error_rel`` (simulated runs: relative Frobenius error against the simulated
 cell's true ``pinv(S)``), ``nonlinearity_pct_fs``, ``hysteresis_pct_fs``, ``uncertainty_pct_fs``
 (six values each; the inertial method gives no nonlinearity or hysteresis: null),
-``circular_mass_error_pct`` (null without the check). Exit status 1 when the certificate's
-verdict is ``fail``.
+``circular_mass_error_pct`` (null without the check); beside them ``matrix_uncertainty_rel``
+(inertial: k = 2, relative Frobenius) and the check's ``circular_chain_uncertainty_pct``. Exit
+status 1 when the certificate's verdict is ``fail``.
 """
 
 from __future__ import annotations
