@@ -26,9 +26,11 @@ are amplified (:mod:`dimacq.pipeline.inertial_bench`). The calibration mass is r
 bench first finds the channels' relative gains from the rigid-body residual of its own FRFs
 (:func:`~dimacq.pipeline.inertial_bench.rigid_body_gains`), keeps the certificates' common scale
 (their weighted mean: ``σ/√n``, 0.1 % for 24 axes) and condenses with them; the matrix's
-uncertainty propagates the gains' covariance (that scale, the jackknife of the relative gains)
-and the fit's residuals (:func:`~dimacq.pipeline.inertial_bench.matrix_gain_variance`). A channel
-whose gain is far from its certificate (a wrong sensitivity in the rig file) is a warning.
+uncertainty propagates the gains' covariance (that scale, the jackknife of the relative gains,
+:func:`~dimacq.pipeline.inertial_bench.matrix_gain_variance`) and adds the fit's jackknife over
+inputs (:func:`~dimacq.pipeline.inertial_bench.jackknife_matrix_variance`: inputs on too few
+faces leave loads weakly excited). A channel whose gain is far from its certificate (a wrong
+sensitivity in the rig file), or a matrix known to worse than ±0.5 %, is a warning.
 
 **Circular check** (:mod:`dimacq.services.circular_check`; thesis §4.1: "the same structure used
 to calibrate the load cell in the same configuration"). The same mass on the same cell, now struck on the mass, acquired with the
@@ -178,7 +180,7 @@ class InertialRun:
         The accelerometer channels' relative gains from the rigid-body residual, applied.
     matrix_std : ndarray, shape (6, 12), or None
         Standard uncertainty of each element of ``C``: the gains' (scale included) and the
-        fit's.
+        fit's (jackknife over inputs).
     channel_labels : tuple of str
         The response channels, in the order of ``gains``.
     verdict : {"ok", "warn"}
@@ -325,6 +327,8 @@ def _gauge_unit(rig: RigFile, entry: LoadCellEntry) -> str:
 
 #: A channel's gain this many of its certificate's σ away from it: the rig file is wrong.
 GAIN_OUTLIER_SIGMA = 4.0
+#: Above this expanded (k = 2) relative uncertainty the inertial matrix is a warning.
+MAX_MATRIX_UNCERTAINTY_REL = 0.005
 
 
 def _gain_reasons(gains: ChannelGains, labels: tuple[str, ...], sigma: float) -> tuple[str, ...]:
@@ -389,7 +393,11 @@ def run_inertial_calibration(
     DataError
         The fit is refused (too few inputs, loads not excited).
     """
-    from dimacq.pipeline.inertial_bench import matrix_gain_variance, rigid_body_gains
+    from dimacq.pipeline.inertial_bench import (
+        jackknife_matrix_variance,
+        matrix_gain_variance,
+        rigid_body_gains,
+    )
     from dimacq.pipeline.loadcell_calibration import inertial_calibration
     from dimacq.pipeline.rigid_body import condense, load_cell_transform, response_matrix
 
@@ -455,8 +463,26 @@ def run_inertial_calibration(
             np.asarray(lc.position_m, float), lc.rotation_matrix, P, lc.sign_factor
         )
         var = matrix_gain_variance(fit.matrix, gains.covariance, Tq, psi, M, Tc)
+        var_fit = jackknife_matrix_variance(
+            gauges,
+            a_p,
+            M,
+            np.asarray(lc.position_m, float),
+            lc.rotation_matrix,
+            P,
+            sign=lc.sign_factor,
+        )
+        if var_fit is None:  # fewer than 4 inputs: the residuals' (a lower bound)
+            var_fit = np.asarray(fit.matrix_std, float) ** 2
+        u_rel = float(2 * np.sqrt(np.sum(var + var_fit)) / np.linalg.norm(fit.matrix))
         labels = tuple(f"{r.node}{direction_label(r.direction)}" for r in setup.responses)
         reasons = _gain_reasons(gains, labels, setup.transducer_uncertainty.accel_sensitivity_rel)
+        if u_rel > MAX_MATRIX_UNCERTAINTY_REL:
+            reasons += (
+                f"the matrix is known to ±{100 * u_rel:.2f} % only (k = 2; fit condition "
+                f"σ1/σ6 {fit.condition:.3g}): the inputs do not excite the six loads evenly; "
+                "strike the mass on three faces, off its centre",
+            )
         run = InertialRun(
             node=entry.node,
             serial_number=serial,
@@ -467,7 +493,7 @@ def run_inertial_calibration(
             gauge_unit=_gauge_unit(rig_file, entry),
             hammer_ratio=ratio,
             gains=gains,
-            matrix_std=np.sqrt(var + np.asarray(fit.matrix_std, float) ** 2),
+            matrix_std=np.sqrt(var + var_fit),
             channel_labels=labels,
             verdict="warn" if reasons else "ok",
             reasons=reasons,
