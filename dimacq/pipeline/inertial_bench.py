@@ -58,7 +58,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from dimacq.errors import DataError
-from dimacq.pipeline.loadcell_calibration import inertial_calibration
+from dimacq.pipeline.loadcell_calibration import inertial_loads
 
 __all__ = [
     "MAX_SEPARATION",
@@ -171,9 +171,9 @@ def rigid_body_gains(
     # Cov δv = σ_r² N_⊥⁺ (δv = Σ_k≥2 v_k v_kᵀ δN v / (λ₁ − λ_k)), δ ln g_i = δv_i / v_i
     n_in = H.shape[2]
     if n_in >= 4:
-        re3 = H.real.transpose(1, 0, 2)
-        im3 = H.imag.transpose(1, 0, 2)
-        S_j = np.einsum("alj,blj->jab", re3, re3) + np.einsum("alj,blj->jab", im3, im3)
+        re3 = np.ascontiguousarray(H.real.transpose(2, 1, 0))  # (n_inputs, n_ch, n_lines)
+        im3 = np.ascontiguousarray(H.imag.transpose(2, 1, 0))
+        S_j = re3 @ re3.transpose(0, 2, 1) + im3 @ im3.transpose(0, 2, 1)
         logs = np.empty((n_in, n))
         for j in range(n_in):
             vj = np.linalg.eigh(Q * (S - S_j[j]))[1][:, 0]
@@ -246,11 +246,13 @@ def jackknife_matrix_variance(
     reference_point_m: ArrayLike,
     *,
     sign: float = 1.0,
+    rank: int = 6,
 ) -> FloatArray | None:
     """Jackknife variance over inputs of the inertial calibration's ``C``.
 
     ``C_(j)`` is :func:`~dimacq.pipeline.loadcell_calibration.inertial_calibration` without
-    input ``j``; ``Var C_ab = (n − 1)/n Σ_j (C_(j),ab − C̄_ab)²``.
+    input ``j`` (rank ``rank``), computed from the inputs' Gram matrices (12×12 per input, no
+    refit over the lines); ``Var C_ab = (n − 1)/n Σ_j (C_(j),ab − C̄_ab)²``.
 
     Parameters
     ----------
@@ -264,21 +266,26 @@ def jackknife_matrix_variance(
     ndarray, shape (6, 12), or None with fewer than 4 inputs (nothing to leave out).
     """
     g = np.asarray(gauge_frf)
-    a = np.asarray(accel_p)
     n = g.shape[2]
     if n < 4:
         return None
-    Cs = np.empty((n, 6, g.shape[1]))
-    for j in range(n):
-        keep = np.arange(n) != j
-        Cs[j] = inertial_calibration(
-            g[:, :, keep],
-            a[:, :, keep],
-            mass_matrix,
-            cell_position_m,
-            cell_rotation,
-            reference_point_m,
-            sign=sign,
-        ).matrix
+    F = inertial_loads(
+        accel_p, mass_matrix, cell_position_m, cell_rotation, reference_point_m, sign
+    )
+    # C G = F stacks real and imaginary parts over lines and inputs; the rank-6 solution
+    # C = F V₆ Σ₆⁻¹ U₆ᵀ = (F Gᵀ) U₆ Σ₆⁻² U₆ᵀ needs only the sums over inputs of
+    # A_j = G_j G_jᵀ and B_j = F_j G_jᵀ: leaving input j out subtracts its terms
+    gr = np.ascontiguousarray(g.real.transpose(2, 1, 0))  # (n, 12, n_lines)
+    gi = np.ascontiguousarray(g.imag.transpose(2, 1, 0))
+    fr = np.ascontiguousarray(F.real.transpose(2, 1, 0))  # (n, 6, n_lines)
+    fi = np.ascontiguousarray(F.imag.transpose(2, 1, 0))
+    A_j = gr @ gr.transpose(0, 2, 1) + gi @ gi.transpose(0, 2, 1)  # (n, 12, 12)
+    B_j = fr @ gr.transpose(0, 2, 1) + fi @ gi.transpose(0, 2, 1)  # (n, 6, 12)
+    A = A_j.sum(axis=0) - A_j
+    B = B_j.sum(axis=0) - B_j
+    lam, U = np.linalg.eigh(A)  # ascending
+    U6 = U[:, :, -rank:]
+    P = (U6 / lam[:, None, -rank:]) @ U6.transpose(0, 2, 1)  # U₆ Σ₆⁻² U₆ᵀ
+    Cs = B @ P
     d = Cs - Cs.mean(axis=0)
     return np.asarray((n - 1) / n * np.sum(d**2, axis=0))

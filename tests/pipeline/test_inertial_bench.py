@@ -166,4 +166,14 @@ def test_jackknife_over_inputs_matches_repeated_benches() -> None:
     mc = np.sum(Cs.var(axis=0))
     jk = np.mean([np.sum(jackknife_matrix_variance(noisy(), a, *args)) for _ in range(6)])
     assert mc < jk < 4 * mc
+    # the Gram-matrix shortcut is the re-fit with each input left out
+    g = noisy()
+    Cs = np.array(
+        [
+            inertial_calibration(np.delete(g, j, 2), np.delete(a, j, 2), *args).matrix
+            for j in range(12)
+        ]
+    )
+    naive = 11 / 12 * np.sum((Cs - Cs.mean(axis=0)) ** 2, axis=0)
+    np.testing.assert_allclose(jackknife_matrix_variance(g, a, *args), naive, rtol=1e-6)
     assert jackknife_matrix_variance(g0[:, :, :3], a[:, :, :3], *args) is None

@@ -107,7 +107,8 @@ def main() -> int:
                 if draw == 0:
                     e, u = rows["gains"][-1]
                     print(
-                        f"seed {seed}, rig file's certificates: error {100 * e:.3f} %, "
+                        f"seed {seed} ({run.n_inputs} inputs with FRFs), rig file's "
+                        f"certificates: error {100 * e:.3f} %, "
                         f"uncertainty (k=2) {100 * u:.3f} %",
                         flush=True,
                     )

@@ -70,7 +70,7 @@ function certificateTable(r) {
 
 function showResult(r) {
   const parts = [`<p>load cell ${esc(r.load_cell_node)}: <b>${esc(r.method)}</b> calibration, version
-    ${esc(r.version)}, record ${esc(r.record_id)}; verdict <span class="verdict ${r.verdict === "ok" ? "ok" : "fail"}">${esc(r.verdict)}</span>
+    ${esc(r.version)}, record ${esc(r.record_id)}; verdict <span class="verdict ${["ok", "warn"].includes(r.verdict) ? r.verdict : "fail"}">${esc(r.verdict)}</span>
     ${(r.reasons || []).map(esc).join("; ")}</p>`, certificateTable(r)];
   if (r.matrix_uncertainty_rel !== undefined && r.matrix_uncertainty_rel !== null) {
     parts.push(`<p id="bench-matrix-u">matrix uncertainty (k = 2): ${num(100 * r.matrix_uncertainty_rel, 3)} % (Frobenius)</p>`);
