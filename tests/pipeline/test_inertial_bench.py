@@ -177,3 +177,17 @@ def test_jackknife_over_inputs_matches_repeated_benches() -> None:
     naive = 11 / 12 * np.sum((Cs - Cs.mean(axis=0)) ** 2, axis=0)
     np.testing.assert_allclose(jackknife_matrix_variance(g, a, *args), naive, rtol=1e-6)
     assert jackknife_matrix_variance(g0[:, :, :3], a[:, :, :3], *args) is None
+
+
+def test_a_wrong_geometry_is_not_a_rigid_body() -> None:
+    """Triaxes turned as the setup does not say (another scenario seed's array): the measured
+    motions are no rigid motion of the stated array, whatever the gains; the residual says so
+    (the service refuses above 5 %, MAX_RIGID_RESIDUAL) — the matrix fit's own residual would
+    not: C maps any linear combination."""
+    from dimacq.services.inertial_calibration import MAX_RIGID_RESIDUAL
+
+    psi_true = array(seed=0)
+    H, _ = rigid_frf(psi_true)
+    g = rigid_body_gains(H, array(seed=1), 0.005)
+    assert g.residual_rel > 2 * MAX_RIGID_RESIDUAL
+    assert rigid_body_gains(H, psi_true, 0.005).residual_rel < 1e-6
