@@ -26,7 +26,8 @@ import logging
 import re
 import secrets
 import tempfile
-from collections.abc import AsyncIterator
+import time
+from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
 from pathlib import Path
 from typing import Any
@@ -322,9 +323,83 @@ def _mount_page(app: FastAPI) -> None:
     app.mount("/static", StaticFiles(directory=STATIC_DIR), name="static")
 
 
-def create_app(settings: Settings | None = None, *, lab: Lab | None = None) -> FastAPI:
+#: What the lab page reads when it opens (``static/*.js`` at load), answered once in-process by
+#: :func:`warm_up` before the service says it is ready. A path no route has comes first: matching
+#: it walks every route, which builds FastAPI's per-route state (models, dependencies) that it
+#: otherwise builds on the first request that walks past each route (~1 s on this machine).
+PAGE_FIRST_READS = (
+    "/__warm_up__",
+    "/",
+    "/api/status",
+    "/api/tests?archived=false",
+    "/api/setups",
+    "/api/simulation/article",
+    "/api/frfs",
+    "/api/solutions",
+    "/api/rig",
+    "/api/digitizer/reference-nodes",
+    "/api/calibrations",
+)
+
+
+class _WarmUpReceive:
+    """ASGI ``receive`` of a warm-up GET: the (empty) body once, then the client is gone."""
+
+    def __init__(self) -> None:
+        self.asked = False
+
+    async def __call__(self) -> dict[str, Any]:
+        if not self.asked:
+            self.asked = True
+            return {"type": "http.request", "body": b"", "more_body": False}
+        return {"type": "http.disconnect"}
+
+
+async def _drop(_message: Any) -> None:
+    """ASGI ``send`` of a warm-up GET: the answer is not needed."""
+
+
+async def warm_up(app: ASGIApp, token: str, paths: tuple[str, ...] = PAGE_FIRST_READS) -> float:
+    """GET ``paths`` through the whole app (middleware included) without a socket, answers
+    dropped; returns the time it took, s. Reads only: no GET changes anything (see
+    ``tests/api/test_hardening.py``). What the first visitor would otherwise wait for: FastAPI's
+    lazily built route state, the first database queries, pydantic's first serialisations, the
+    simulated article's geometry."""
+    t0 = time.perf_counter()
+    for target in paths:
+        path, _, query = target.partition("?")
+        scope: dict[str, Any] = {
+            "type": "http",
+            "asgi": {"version": "3.0", "spec_version": "2.4"},
+            "http_version": "1.1",
+            "method": "GET",
+            "scheme": "http",
+            "path": path,
+            "raw_path": path.encode(),
+            "query_string": query.encode(),
+            "root_path": "",
+            "headers": [(b"host", b"127.0.0.1"), (b"authorization", f"Bearer {token}".encode())],
+            "client": ("127.0.0.1", 0),
+            "server": ("127.0.0.1", 0),
+        }
+
+        try:
+            await app(scope, _WarmUpReceive(), _drop)
+        except Exception as err:  # a read that fails here fails for the page too, and says so
+            log.warning("warm-up GET %s: %s", target, err)
+    return time.perf_counter() - t0
+
+
+def create_app(
+    settings: Settings | None = None,
+    *,
+    lab: Lab | None = None,
+    on_ready: Callable[[], None] | None = None,
+) -> FastAPI:
     """Build the app. ``lab`` may be given (tests); otherwise the lifespan opens one from
-    ``settings`` and closes it at shutdown."""
+    ``settings`` and closes it at shutdown. ``on_ready`` (``dimacq serve``): the lab is open and
+    the page's first reads have been answered once (:func:`warm_up`); called just before the
+    server accepts connections, so a visitor who follows what it prints does not wait for them."""
     settings = settings or load_settings()
     token = settings.resolved_token()
 
@@ -332,11 +407,16 @@ def create_app(settings: Settings | None = None, *, lab: Lab | None = None) -> F
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         owned = lab is None
         app.state.lab = lab if lab is not None else Lab(settings)
+        if on_ready is not None:
+            took = await warm_up(app, token)
+            log.info("warm-up: the page's first reads answered in %.2f s", took)
         # Everything loaded so far (numpy, scipy, SQLAlchemy, pydantic models, ...) lives as long
         # as the service: move it out of the collector's reach, so a full collection during an
         # acquisition walks only new objects instead of stalling every request for ~100 ms.
         gc.collect()
         gc.freeze()
+        if on_ready is not None:
+            on_ready()
         try:
             yield
         finally:

@@ -325,6 +325,32 @@ class FrfDataOut(BaseModel):
     )
 
 
+class FrfEnvelopeOut(BaseModel):
+    """The |H| envelope of the chosen responses × inputs: the lines in the band split into at most
+    ``points`` groups of consecutive lines, each group's largest and smallest |H| (what a plot of
+    every line shows, resonances and antiresonances kept), and the mean coherence of each pair
+    over those lines (what a data-quality table shows)."""
+
+    frf_id: int
+    layout: str = Field(description="index order of magnitude_max / _min: [point][response][input]")
+    n_lines: int = Field(description="lines in the band")
+    lines_per_point: int = Field(description="lines in the largest group")
+    frequencies_hz: list[float] = Field(description="centre of each group's range, Hz")
+    f_lo_hz: list[float] = Field(description="each group's first line, Hz")
+    f_hi_hz: list[float] = Field(description="each group's last line, Hz")
+    responses: list[FrfChannelOut]
+    inputs: list[FrfChannelOut]
+    magnitude_max: list[Any] = Field(
+        description="largest |H| of each group, shape (n_points, n_responses, n_inputs), in each "
+        "response's unit"
+    )
+    magnitude_min: list[Any] = Field(description="smallest |H| of each group, same shape")
+    coherence_mean: list[Any] | None = Field(
+        description="mean multiple coherence over the band's lines, shape (n_responses, "
+        "n_inputs); null entries where undefined, null when the set has none"
+    )
+
+
 class SolutionOut(BaseModel):
     """A DIM solution: the options it was solved with and the result (the keys of
     ``dimacq solve --json``: ``mass_kg``, ``cg_m``, ``inertia_p_kgm2``, ``uncertainty.<p>.ci95``,

@@ -73,6 +73,9 @@ def serve(
     (from :func:`bind_socket`) or on a socket bound here."""
     sys.setswitchinterval(SWITCH_INTERVAL_S)
     sock = sock or bind_socket(host, port)
+    # listening from now on: a client that comes while the lab opens waits in the backlog
+    # (answered once it is open) instead of being refused
+    sock.listen(2048)
     config = uvicorn.Config(app, log_level=log_level, access_log=False)
     uvicorn.Server(config).run(sockets=[sock])
 

@@ -306,3 +306,76 @@ def test_sensitivity_study_job(api: Api) -> None:
     assert study["result"] == json.loads(json.dumps(direct))
     bad = api.client.post("/api/sensitivity", json={**body, "sensors": 9})
     assert bad.status_code == 422 and "sensors" in bad.json()["detail"]
+
+
+_EXAMPLES = Path(__file__).resolve().parents[2] / "config" / "examples"
+
+
+def _store_example(api: Api, test_id: int | None) -> tuple[int, int]:
+    params = {"format": "toml"} | ({"test_id": test_id} if test_id else {})
+    setup = api.client.post(
+        "/api/setups/import",
+        params=params,
+        content=(_EXAMPLES / "six_triax_setup.toml").read_bytes(),
+    )
+    assert setup.status_code == 201, setup.text
+    sid = setup.json()["id"]
+    frf = api.client.post(
+        "/api/frfs/import",
+        params={"setup_id": sid},
+        content=(_EXAMPLES / "six_triax_frf.uff").read_bytes(),
+    )
+    assert frf.status_code == 201, frf.text
+    return sid, frf.json()["id"]
+
+
+def test_envelope_and_the_lists_of_one_test(api: Api) -> None:
+    """``GET /api/frfs/{id}/envelope`` (what the report and plots fetch instead of the whole
+    set) against ``/data``; the lists of one test (``?test_id=``) of FRF sets and solutions."""
+    test = api.client.post("/api/tests", json={"article": "envelope frame"}).json()
+    _, fid = _store_example(api, test["id"])
+    _, other = _store_example(api, None)
+    data = api.client.get(f"/api/frfs/{fid}/data", params={"input": 1}).json()
+    env = api.client.get(f"/api/frfs/{fid}/envelope", params={"input": 1, "points": 7})
+    assert env.status_code == 200, env.text
+    e = env.json()
+    mag = np.hypot(np.array(data["real"]), np.array(data["imag"]))  # (lines, responses, 1)
+    groups = np.array_split(np.arange(mag.shape[0]), 7)  # sizes differ by at most one line
+    assert e["n_lines"] == mag.shape[0] and e["layout"] == "[point][response][input]"
+    assert e["lines_per_point"] == max(len(g) for g in groups)
+    assert sorted(len(g) for g in groups) == sorted(
+        round((k + 1) * mag.shape[0] / 7) - round(k * mag.shape[0] / 7) for k in range(7)
+    )
+    f = np.array(data["frequencies_hz"])
+    lo = np.array(e["f_lo_hz"])
+    hi = np.array(e["f_hi_hz"])
+    for k in range(7):
+        rows = (f >= lo[k]) & (f <= hi[k])
+        np.testing.assert_allclose(e["magnitude_max"][k], mag[rows].max(axis=0), rtol=1e-12)
+        np.testing.assert_allclose(e["magnitude_min"][k], mag[rows].min(axis=0), rtol=1e-12)
+    assert e["responses"] == data["responses"] and e["inputs"] == data["inputs"]
+    # the band's mean coherence: what the report's data quality table shows
+    band = {"f_min_hz": 20, "f_max_hz": 60, "points": 1}
+    b = api.client.get(f"/api/frfs/{fid}/envelope", params=band).json()
+    d = api.client.get(f"/api/frfs/{fid}/data", params={"f_min_hz": 20, "f_max_hz": 60}).json()
+    assert b["n_lines"] == len(d["frequencies_hz"]) and len(b["frequencies_hz"]) == 1
+    if d["coherence"] is None:
+        assert b["coherence_mean"] is None
+    else:
+        c = np.array(d["coherence"], dtype=float)
+        np.testing.assert_allclose(b["coherence_mean"], np.nanmean(c, axis=0), rtol=1e-12)
+    # refused: unknown set 404, bad points / band 422
+    assert api.client.get("/api/frfs/999999/envelope").status_code == 404
+    assert api.client.get(f"/api/frfs/{fid}/envelope", params={"points": 0}).status_code == 422
+    bad = api.client.get(f"/api/frfs/{fid}/envelope", params={"f_min_hz": 9, "f_max_hz": 1})
+    assert bad.status_code == 422 and "f_min_hz" in bad.json()["detail"]
+    # lists of one test: its FRF sets and their solutions only
+    ids = [x["id"] for x in api.client.get("/api/frfs", params={"test_id": test["id"]}).json()]
+    assert ids == [fid] and other not in ids
+    quick = {"unbiased": False, "refine_geometry": False, "band_hz": [10, 100]}
+    s1 = api.client.post("/api/solutions", json={"frf_id": fid, **quick})
+    assert s1.status_code == 201, s1.text
+    api.client.post("/api/solutions", json={"frf_id": other, **quick})
+    sols = api.client.get("/api/solutions", params={"test_id": test["id"]})
+    assert [x["id"] for x in sols.json()] == [s1.json()["id"]]
+    assert sols.headers["X-Total-Count"] == "1"

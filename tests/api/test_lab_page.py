@@ -19,10 +19,12 @@ from __future__ import annotations
 
 import json
 import os
+import queue
 import shutil
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -79,19 +81,23 @@ def _serve(tmp_path: Path) -> tuple[subprocess.Popen[str], str]:
         env=env,
         text=True,
     )
+    # ready when it prints the page's address (the lab open, the page's first reads answered)
     url = f"http://127.0.0.1:{port}"
-    deadline = time.monotonic() + 30
+    lines: queue.Queue[str] = queue.Queue()
+    assert proc.stdout is not None
+    out = proc.stdout
+    threading.Thread(target=lambda: [lines.put(x) for x in out], daemon=True).start()
+    deadline = time.monotonic() + 90
     while True:
         try:
-            httpx.get(f"{url}/api/status", timeout=1).raise_for_status()
-            return proc, url
-        except httpx.TransportError:
+            if lines.get(timeout=0.2).startswith("lab page:"):
+                return proc, url
+        except queue.Empty:
             if proc.poll() is not None or time.monotonic() > deadline:
                 proc.kill()
                 raise AssertionError(
                     f"dimacq serve did not start: {proc.communicate()[1]}"
                 ) from None
-            time.sleep(0.1)
 
 
 @pytest.fixture
@@ -216,20 +222,45 @@ def test_whole_simulated_test_through_the_page(service: str, tmp_path: Path) -> 
         assert "sensitivity_mv_per_g" in page.input_value("#rig-text")
         page.locator("#setup").screenshot(path=str(shots / "1-setup.png"))
 
-        # --- 2 a new test; digitize the simulated article; build the setup from that geometry
+        # --- 0 a new test (POST /api/tests), opened: the rest of the walk belongs to it
         page.fill("#test-article", "calibration mass")
         page.fill("#test-operator", "page test")
+        page.fill("#test-notes", "walked by the browser test")
         page.click("#new-test")
         page.wait_for_function(
             "() => document.querySelector('#msg').textContent.startsWith('new test')"
         )
+        test = page.evaluate("() => window.dimacq.test")
+        assert test["article"] == "calibration mass" and test["operator"] == "page test"
+        assert page.locator(f"[data-test-open='{test['id']}']").count() == 1
+        assert "calibration mass" in page.inner_text("#test-open")
+        # a second test, listed, opened and closed, then deleted (it has no setup)
+        page.fill("#test-article", "scratch")
+        page.click("#new-test")
+        page.wait_for_function(
+            "() => /^new test \\d+: scratch/.test(document.querySelector('#msg').textContent)"
+        )
+        scratch = page.evaluate("() => window.dimacq.test.id")
+        assert page.locator("#tests tbody tr").count() == 2
+        page.click(f"[data-test-delete='{scratch}']")
+        page.wait_for_function(
+            f"() => document.querySelector('#msg').textContent === 'test {scratch} deleted'"
+        )
+        assert page.locator("#tests tbody tr").count() == 1
+        page.click(f"[data-test-open='{test['id']}']")
+        page.wait_for_function(
+            f"() => window.dimacq.test && window.dimacq.test.id === {test['id']}"
+        )
+        page.locator("#test").screenshot(path=str(shots / "0-test.png"))
+
+        # --- 2 digitize the simulated article; build the setup from that geometry (in the test)
         page.fill("#n-inputs", str(N_INPUTS))
         page.fill("#shots", str(SHOTS))
         page.click("#digitize-all")
         page.wait_for_function(
             "() => document.querySelector('#msg').textContent.startsWith('digitized')"
             " || document.querySelector('#msg').className === 'err'",
-            timeout=60_000,
+            timeout=120_000,
         )
         assert page.locator("#msg").get_attribute("class") != "err", page.inner_text("#msg")
         assert page.locator("#registration td").count() >= 6 * 3
@@ -244,6 +275,8 @@ def test_whole_simulated_test_through_the_page(service: str, tmp_path: Path) -> 
         page.locator("#digitize").screenshot(path=str(shots / "2-digitize.png"))
         assert page.locator("#setup-detail h4").first.is_visible()
         assert "calibration mass" in page.inner_text("#setup-detail h3")
+        setup_id = page.evaluate("() => window.dimacq.setup.id")
+        assert page.evaluate("() => window.dimacq.test.setup_ids") == [setup_id]
         page.locator("#view3d").screenshot(path=str(shots / "1-setup-3d.png"))
 
         # --- 3 acquire, reviewing every hit: the first accepted, the second rejected, input 2
@@ -333,6 +366,23 @@ def test_whole_simulated_test_through_the_page(service: str, tmp_path: Path) -> 
             report.click("a[data-download$='.json']")
         downloaded = Path(dl.value.path()).read_text(encoding="utf-8")
         page.screenshot(path=str(shots / "0-whole-page.png"), full_page=True)
+        report_ms = report.evaluate("() => window.dimacqReport.ready_ms")
+        assert f"test {test['id']}: calibration mass" in report.inner_text("body")
+        # the test cannot be deleted while it has setups (409, said on the page); archived
+        page.click(f"[data-test-delete='{test['id']}']")
+        page.wait_for_function(
+            "() => document.querySelector('#msg').className === 'err'"
+            " && /has|setup/.test(document.querySelector('#msg').textContent)"
+        )
+        page.click(f"[data-test-archive='{test['id']}']")
+        page.wait_for_function(
+            f"() => document.querySelector('#msg').textContent === 'test {test['id']} archived'"
+        )
+        assert page.locator("#tests tbody tr").count() == 0  # open tests only
+        page.check("#tests-archived")
+        page.wait_for_function("() => document.querySelector('#tests tbody tr')")
+        assert "(archived)" in page.inner_text("#tests")
+        errors[:] = [e for e in errors if "409" not in e]  # the refused DELETE, as meant
         # the page loaded again, service warm, with a setup, FRF sets and a solution stored
         page.reload()
         page.wait_for_selector("body[data-ready='1']", timeout=20_000)
@@ -356,7 +406,7 @@ def test_whole_simulated_test_through_the_page(service: str, tmp_path: Path) -> 
         f"principal moments {np.round(100 * pm_err, 2).tolist()} %; walk {elapsed:.1f} s "
         f"(digitized at {t_digitized - t_start:.1f} s, acquired at {t_acquired - t_start:.1f} s, "
         f"FRFs at {t_frfs - t_start:.1f} s, solved at {t_solved - t_start:.1f} s, report at "
-        f"{t_report - t_start:.1f} s); "
+        f"{t_report - t_start:.1f} s, report drawn in {report_ms:.0f} ms); "
         f"screenshots in {shots}"
     )
     assert not errors, errors
@@ -389,6 +439,16 @@ def test_whole_simulated_test_through_the_page(service: str, tmp_path: Path) -> 
     assert redo["inputs"] == [2] and redo["frf_id"] != first["frf_id"]
     assert {av["input_index"] for av in redo["averages"]} == {2}
     assert sol["frf_id"] == redo["frf_id"]
+    # the whole walk belongs to the test: its setup, FRF sets and solution listed under it
+    with httpx.Client(base_url=service) as c:
+        stored = c.get(f"/api/tests/{test['id']}").json()
+        assert stored["setup_ids"] == [setup_id] and stored["archived"] is True
+        sets = {x["id"] for x in c.get(f"/api/frfs?test_id={test['id']}").json()}
+        assert {first["frf_id"], redo["frf_id"]} <= sets
+        assert [x["id"] for x in c.get(f"/api/solutions?test_id={test['id']}").json()] == [
+            sol["id"]
+        ]
+        assert c.get(f"/api/tests/{scratch}").status_code == 404
     assert json.loads(downloaded)["id"] == sol["id"]
     # the band typed from the drag (0.1 Hz), snapped by the solver to the FRF lines
     assert res["band_hz"] == pytest.approx(band, abs=1.5)

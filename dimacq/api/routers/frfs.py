@@ -19,7 +19,7 @@ from dimacq.api.routers._common import (
     paged,
     read_upload,
 )
-from dimacq.api.schemas import MAX_ID, FrfDataOut, FrfOut
+from dimacq.api.schemas import MAX_ID, FrfDataOut, FrfEnvelopeOut, FrfOut
 from dimacq.services.lab.store import ChannelQuery, FrfSummary
 
 router = APIRouter(prefix="/api/frfs", tags=["frfs"])
@@ -31,8 +31,15 @@ _Hz = Annotated[float | None, Query(ge=0, le=1e9)]
 
 
 @router.get("", response_model=list[FrfOut], responses=LIST_RESPONSES)
-def list_frfs(lab: LabDep, page: PageDep, response: Response) -> list[FrfSummary]:
-    return paged(response, lab.store.frfs(page.limit, page.offset), page)
+def list_frfs(
+    lab: LabDep,
+    page: PageDep,
+    response: Response,
+    test_id: Annotated[
+        int | None, Query(ge=1, le=MAX_ID, description="of the setups of this test only")
+    ] = None,
+) -> list[FrfSummary]:
+    return paged(response, lab.store.frfs(page.limit, page.offset, test_id), page)
 
 
 @router.get("/{frf_id:int}", response_model=FrfOut)
@@ -75,6 +82,36 @@ def frf_data(
             ),
             f"FRF set {frf_id}",
         )
+    )
+
+
+@router.get("/{frf_id:int}/envelope", response_model=FrfEnvelopeOut)
+def frf_envelope(
+    frf_id: IdPath,
+    lab: LabDep,
+    points: Annotated[int, Query(ge=1, le=100_000, description="most points per pair")] = 512,
+    response: _Index = None,
+    input: _Index = None,
+    response_node: _Node = None,
+    response_direction: _Dir = None,
+    input_node: _Node = None,
+    input_direction: _Dir = None,
+    f_min_hz: _Hz = None,
+    f_max_hz: _Hz = None,
+) -> dict[str, Any]:
+    """What a plot or a report shows of the set, at a fraction of ``/data``'s size: the |H|
+    envelope of the chosen responses × inputs (as in ``/data``) on the lines in [``f_min_hz``,
+    ``f_max_hz``] in at most ``points`` points (each the largest and smallest |H| of its group
+    of consecutive lines), and each pair's mean coherence over those lines."""
+    return found(
+        lab.store.frf_envelope(
+            frf_id,
+            points,
+            ChannelQuery(response, response_node, response_direction),
+            ChannelQuery(input, input_node, input_direction),
+            (f_min_hz, f_max_hz),
+        ),
+        f"FRF set {frf_id}",
     )
 
 

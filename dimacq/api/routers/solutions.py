@@ -53,8 +53,11 @@ def list_solutions(
     frf_id: Annotated[
         int | None, Query(ge=1, le=MAX_ID, description="of this FRF set only")
     ] = None,
+    test_id: Annotated[
+        int | None, Query(ge=1, le=MAX_ID, description="of the FRF sets of this test only")
+    ] = None,
 ) -> list[StoredSolution]:
-    return paged(response, lab.store.solutions(page.limit, page.offset, frf_id), page)
+    return paged(response, lab.store.solutions(page.limit, page.offset, frf_id, test_id), page)
 
 
 @router.get("/{solution_id:int}", response_model=SolutionOut)

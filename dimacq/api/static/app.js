@@ -1,5 +1,5 @@
 // The lab page: a small vanilla-JS app over the REST API (no build step, no outside asset).
-// One module per step (setup, digitize, acquire, FRFs, solve, report); they share core.js and
+// One module per step (test, setup, digitize, acquire, FRFs, solve, report); they share core.js and
 // meet through its events (on/emit), so a new step is one more module and one more <section>.
 import { $, api, guard, say, state, takeTokenFromFragment } from "/static/core.js";
 import * as acquire from "/static/acquire.js";
@@ -8,6 +8,7 @@ import * as frfs from "/static/frfs.js";
 import * as reportStep from "/static/report-step.js";
 import * as setup from "/static/setup.js";
 import * as solve from "/static/solve.js";
+import * as test from "/static/test.js";
 
 async function loadStatus() {
   const st = await api("GET", "/api/status");
@@ -23,9 +24,10 @@ async function init() {
     $("#token").value = "";
     takeTokenFromFragment();
   };
-  for (const step of [setup, digitize, acquire, frfs, solve, reportStep]) step.init();
-  await Promise.all([loadStatus(), setup.loadSetups(), setup.loadArticle().then(digitize.load), frfs.loadFrfSets(),
-    solve.load(), setup.loadRig().catch((e) => say(e.message, true))]);
+  for (const step of [test, setup, digitize, acquire, frfs, solve, reportStep]) step.init();
+  // the test this tab had open first: the other steps list its setups, FRF sets and solutions
+  await Promise.all([loadStatus(), setup.loadArticle().then(digitize.load), setup.loadRig().catch((e) => say(e.message, true)),
+    test.load().then(() => Promise.all([setup.loadSetups(), frfs.loadFrfSets(), solve.load()]))]);
   state.timings.init_ms = performance.now() - t0;
   state.timings.ready_ms = performance.now();
   document.body.dataset.ready = "1";

@@ -1,7 +1,7 @@
 // Step 2: digitize — a new test, reference nodes (editable), live point readout with shots and
 // echo rejections, registration residual per node with its limit, jig orientations, lines of
 // action, redo a point; in simulation the page points the simulated probe at the article.
-import { $, api, dirName, emit, esc, f, guard, mm, say, state, table } from "/static/core.js";
+import { $, api, dirName, emit, esc, f, guard, mm, on, say, state, table } from "/static/core.js";
 
 function arrayPlacement() {
   // the array hangs 1.1 m above the article's centre, axes along the GCS: DACS = GCS + t
@@ -49,18 +49,18 @@ async function redoPoint(label) {
   say(`point ${label} digitized again (${p.n_used}/${p.n_shots} shots used); fit its registration, orientation or line of action again`);
 }
 
-// ------------------------------------------------------------------ test and reference nodes
-async function newTest() {
-  const parts = [$("#test-article").value.trim(), $("#test-operator").value.trim() && `operator ${$("#test-operator").value.trim()}`,
-    $("#test-date").value, $("#test-notes").value.trim()].filter(Boolean);
-  if (!$("#test-article").value.trim()) throw new Error("article: give the name of the test article");
-  const name = parts.join(" | ").slice(0, 200);
-  const out = await api("POST", "/api/digitizer/tests", { name });
-  state.test = { name, ...out };
-  Object.assign(geo, { points: [], orientations: [], loas: [], registration: null });
+// ------------------------------------------------------------------ session and reference nodes
+/** A fresh digitizing session for the open test (POST /api/digitizer/tests, named after it): new
+ * patch, reference nodes, orientations and lines of action cleared. */
+async function newSession() {
+  const t = state.test;
+  const name = t ? `test ${t.id}: ${t.article}` : `session ${new Date().toISOString().slice(0, 16)}`;
+  await api("POST", "/api/digitizer/tests", { name: name.slice(0, 200) });
+  Object.assign(geo, { points: [], orientations: [], loas: [], registration: null, triaxes: [], inputs: [] });
   for (const id of ["#points", "#registration", "#orientations", "#loas"]) $(id).innerHTML = "";
-  $("#test-state").textContent = `test "${name}" started: new patch, reference nodes, orientations and lines of action cleared`;
-  say(`new test: ${name}`);
+  $("#readout").textContent = "—";
+  await loadReferenceNodes();
+  $("#test-state").textContent = `${name}: new digitizing session (new patch; reference nodes, orientations and lines of action cleared)`;
 }
 
 async function loadReferenceNodes() {
@@ -162,16 +162,19 @@ async function buildSetup() {
     load_cells: a ? a.load_cells || [] : [] };
   if (geo.triaxes.length) body.triaxes = geo.triaxes;
   if (geo.inputs.length) body.inputs = geo.inputs;
-  if (state.test) body.name = state.test.name;
+  if (state.test) {
+    // the setup joins the open test and is named after it
+    body.test_id = state.test.id;
+    body.name = `${state.test.article}${state.test.operator ? ` (${state.test.operator})` : ""} ${state.test.date}`.slice(0, 200);
+  }
   const s = await api("POST", "/api/setups/from-geometry", body);
   await emit("setup-built", s.id);
   say(`setup ${s.id}: ${s.n_responses} responses, ${s.n_inputs} inputs, ${s.n_load_cells} load cell(s)`);
 }
 
 export function init() {
-  const d = new Date();
-  $("#test-date").value = `${d.getFullYear()}-${String(d.getMonth() + 1).padStart(2, "0")}-${String(d.getDate()).padStart(2, "0")}`;
-  $("#new-test").onclick = guard(newTest);
+  $("#new-session").onclick = guard(async () => { await newSession(); say($("#test-state").textContent); });
+  on("test-created", () => newSession());
   $("#ref-set").onclick = guard(setReferenceNode);
   $("#digitize-all").onclick = guard(async () => {
     $("#digitize-all").disabled = true;

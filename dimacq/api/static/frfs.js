@@ -3,10 +3,11 @@
 // drag on a plot to pick the solve band.
 import { $, api, emit, esc, f, guard, items, on, state, table } from "/static/core.js";
 import { linePlot } from "/static/plot.js";
+import { testQuery } from "/static/test.js";
 
 /** List the FRF sets; open ``select`` (the page does not fetch FRF values before asked). */
 export async function loadFrfSets(select) {
-  const sets = items(await api("GET", "/api/frfs"));
+  const sets = items(await api("GET", `/api/frfs${testQuery()}`));
   $("#frf-set").innerHTML = `<option value="">—</option>` + sets.map((s) => `<option value="${s.id}">${s.id} ${esc(s.name)} (${s.n_responses}×${s.n_inputs}×${s.n_lines})</option>`).join("");
   if (select) {
     $("#frf-set").value = select;
@@ -222,4 +223,5 @@ export function init() {
   $("#frf-input").onchange = () => drawFrfs();
   $("#frf-output").onchange = () => drawFrfs();
   on("frf-stored", (id) => loadFrfSets(id));
+  on("test-opened", () => loadFrfSets(state.frf && (!state.test || state.test.setup_ids.includes(state.frf.setup_id)) ? state.frf.id : undefined));
 }

@@ -9,12 +9,47 @@ import { view3d } from "/static/view3d.js";
 
 const ci = (u) => (u && u.ci95 ? `[${f(u.ci95[0], 5)}, ${f(u.ci95[1], 5)}]` : "—");
 
+/** The accelerances drawn (min/max per group of lines, interleaved: what a plot of every line
+ * shows at this width) for the first inputs, up to ~60 curves; one envelope request per input. */
+async function frfFigure(frfId, nInputs, accKeys, width) {
+  const points = Math.max(64, Math.min(1000, Math.round(width)));
+  const perInput = Math.max(1, accKeys.size);
+  const k = Math.min(nInputs, Math.max(1, Math.ceil(60 / perInput)));
+  const envs = await Promise.all(Array.from({ length: k }, (_, j) => api("GET", `/api/frfs/${frfId}/envelope?input=${j}&points=${points}`)));
+  const e0 = envs[0];
+  const n = e0.frequencies_hz.length;
+  const x = new Float64Array(2 * n);
+  for (let p = 0; p < n; p++) { x[2 * p] = e0.f_lo_hz[p]; x[2 * p + 1] = e0.f_hi_hz[p]; }
+  const series = [];
+  for (const e of envs) {
+    e.responses.forEach((o, i) => {
+      if (!accKeys.has(`${o.node}/${o.direction}`)) return;
+      const y = new Float64Array(2 * n);
+      for (let p = 0; p < n; p++) {
+        const hi = e.magnitude_max[p][i][0];
+        const lo = e.magnitude_min[p][i][0];
+        y[2 * p] = hi === null ? NaN : hi;
+        y[2 * p + 1] = lo === null ? NaN : lo;
+      }
+      series.push({ y });
+    });
+  }
+  return { x, series, linesPerPoint: e0.lines_per_point, shown: k };
+}
+
 async function main() {
+  const t0 = performance.now();
   takeTokenFromFragment();
   const id = new URLSearchParams(location.search).get("solution");
   const s = await api("GET", `/api/solutions/${id}`);
-  const [frf, data] = await Promise.all([api("GET", `/api/frfs/${s.frf_id}`), api("GET", `/api/frfs/${s.frf_id}/data`)]);
-  const setup = await api("GET", `/api/setups/${frf.setup_id}`);
+  const r = s.result;
+  // what the report shows, not the set: the set's summary, each pair's mean coherence in the
+  // band (envelope, one point) and the figure's envelopes; the acquisitions behind the set
+  const frf = await api("GET", `/api/frfs/${s.frf_id}`);
+  const bandQ = `f_min_hz=${r.band_hz[0]}&f_max_hz=${r.band_hz[1]}`;
+  const [setup, band] = await Promise.all([api("GET", `/api/setups/${frf.setup_id}`),
+    api("GET", `/api/frfs/${frf.id}/envelope?points=1&${bandQ}`)]);
+  const testP = setup.test_id ? api("GET", `/api/tests/${setup.test_id}`) : Promise.resolve(null);
   // the acquisitions behind the set: a redo / append acquisition merged into an earlier set
   // (merge_frf_id) brings that set's acquisitions along; each input's averages come from the
   // latest acquisition that struck it
@@ -26,27 +61,24 @@ async function main() {
     chain.push(a);
     fid = (a.config || {}).merge_frf_id || null;
   }
+  const test = await testP;
   const acq = chain[0] || null;
   const struckBy = (j) => chain.find((a) => (a.inputs || []).includes(j)) || null;
-  const r = s.result;
   const reasons = (r.verdict_reasons || []).map((x) => (typeof x === "string" ? x : `${x.severity || ""}: ${x.message || JSON.stringify(x)}`));
   const st = setup.setup;
-  const nL = data.frequencies_hz.length;
   const resp = new Set(st.responses.map((c) => `${c.node}/${c.direction}`));
-  const acc = data.responses.map((o, i) => i).filter((i) => resp.has(`${data.responses[i].node}/${data.responses[i].direction}`));
-  const inBand = data.frequencies_hz.map((x) => x >= r.band_hz[0] && x <= r.band_hz[1]);
-  const coh = data.inputs.map((inp, j) => {
-    let sum = 0; let n = 0;
-    for (let l = 0; l < nL; l++) {
-      if (!inBand[l] || !data.coherence) continue;
-      for (const o of acc) { const v = data.coherence[l][o][j]; if (v !== null) { sum += v; n += 1; } }
-    }
-    return n ? sum / n : null;
+  const acc = band.responses.map((o, i) => i).filter((i) => resp.has(`${band.responses[i].node}/${band.responses[i].direction}`));
+  // mean γ² of each input over the band's lines and the accelerometer outputs (each pair's mean
+  // from the service, weighted alike: every pair has the band's lines)
+  const coh = band.inputs.map((inp, j) => {
+    if (!band.coherence_mean) return null;
+    const v = acc.map((o) => band.coherence_mean[o][j]).filter((c) => c !== null);
+    return v.length ? v.reduce((a, b) => a + b, 0) / v.length : null;
   });
   const perInput = st.inputs.map((e, j) => {
     const by = struckBy(j);
     const avs = by ? by.averages.filter((a) => a.input_index === j) : [];
-    const k = data.inputs.findIndex((i) => i.node === e.node && i.direction === e.direction);
+    const k = band.inputs.findIndex((i) => i.node === e.node && i.direction === e.direction);
     return [j + 1, e.node, by ? by.id : "—", avs.filter((a) => a.accepted).length, avs.filter((a) => !a.accepted).length,
       `<span class="l small">${esc([...new Set(avs.filter((a) => !a.accepted).map((a) => a.reason))].join("; "))}</span>`,
       k < 0 ? "no FRF" : f(coh[k], 3)];
@@ -54,6 +86,7 @@ async function main() {
   document.title = `dimacq report — solution ${s.id}`;
   document.getElementById("report-body").innerHTML = `
   <h1>DIM test report — solution ${s.id}</h1>
+  ${test ? `<p>test ${test.id}: <b>${esc(test.article)}</b>; operator ${esc(test.operator || "—")}; date ${esc(test.date)}${test.archived ? " (archived)" : ""}${test.notes ? `<br><span class="small">${esc(test.notes)}</span>` : ""}</p>` : ""}
   <p class="small">setup ${setup.id} "${esc(setup.name)}", FRF set ${frf.id}${acq ? `, acquisition ${acq.id}` : ""}${frf.created_at ? `, measured ${esc(frf.created_at)}` : ""}; generated ${new Date().toISOString()} by the lab service</p>
   <section><h2>Result</h2>
   <p class="verdict ${esc(r.verdict)}">verdict: ${esc(r.verdict)}</p><ul>${reasons.map((x) => `<li>${esc(x)}</li>`).join("")}</ul>
@@ -76,14 +109,12 @@ async function main() {
   <a href="/api/setups/${setup.id}/export?format=toml" data-download="setup-${setup.id}.toml">setup (TOML)</a></p></section>`;
   wireDownloads();
   view3d(document.getElementById("report-3d"), st);
-  const x = Float64Array.from(data.frequencies_hz);
-  const series = [];
-  for (let j = 0; j < data.inputs.length && series.length < 60; j++) {
-    for (const o of acc) series.push({ y: Float64Array.from(data.real.map((row, l) => Math.hypot(row[o][j], data.imag[l][o][j]))) });
-  }
-  linePlot(document.getElementById("report-frf"), { x, series, logY: true, band: r.band_hz, xLabel: "frequency, Hz", yLabel: "|H|, (m/s²)/N",
-    title: `accelerances (${series.length} of ${acc.length * data.inputs.length}), the band shaded` });
+  const canvas = document.getElementById("report-frf");
+  const fig = await frfFigure(frf.id, frf.n_inputs, resp, canvas.clientWidth || 900);
+  linePlot(canvas, { x: fig.x, series: fig.series, logY: true, band: r.band_hz, xLabel: "frequency, Hz", yLabel: "|H|, (m/s²)/N",
+    title: `accelerances of inputs 1–${fig.shown} (${fig.series.length} of ${acc.length * frf.n_inputs}; ${fig.linesPerPoint > 1 ? `largest and smallest |H| of every ${fig.linesPerPoint} lines` : "every line"}), the band shaded` });
   await tokenImage(document.getElementById("report-figure"), `/api/solutions/${s.id}/figure?format=svg`);
+  window.dimacqReport = { ready_ms: performance.now() - t0 };
   document.body.dataset.ready = "1";
 }
 

@@ -2,10 +2,11 @@
 // directions, the simulated article (where its sensors and impact points are) and the rig's
 // channel map (rig.toml, with the sensitivities: shown, checked and saved with the token).
 import { $, api, dirName, emit, esc, f, guard, items, on, say, state, table, wireDownloads } from "/static/core.js";
+import { refreshTest, testQuery } from "/static/test.js";
 import { view3d } from "/static/view3d.js";
 
 export async function loadSetups() {
-  state.setups = items(await api("GET", "/api/setups"));
+  state.setups = items(await api("GET", `/api/setups${testQuery()}`));
   $("#setups tbody").innerHTML = state.setups.map((s) => `<tr><td>${s.id}</td><td class="l">${esc(s.name)}</td>
     <td>${s.n_responses}</td><td>${s.n_inputs}</td><td>${s.n_load_cells}</td>
     <td><button data-setup="${s.id}">open</button>
@@ -42,9 +43,10 @@ function show3d(geometry, what) {
 async function importSetupFile(file) {
   const name = file.name.toLowerCase();
   const format = name.endsWith(".toml") ? "toml" : name.endsWith(".json") ? "json" : "uff";
-  const out = await api("POST", `/api/setups/import?format=${format}&name=${encodeURIComponent(file.name)}`,
+  const out = await api("POST", `/api/setups/import?format=${format}&name=${encodeURIComponent(file.name)}${testQuery("&")}`,
     await file.arrayBuffer(), { raw: true });
   const sid = out.setup_id ?? out.id;
+  await refreshTest();
   await loadSetups();
   await openSetup(sid);
   if (out.frf_id) await emit("frf-stored", out.frf_id);
@@ -108,6 +110,15 @@ export function init() {
   $("#rig-check").onclick = guard(checkRig);
   $("#rig-save").onclick = guard(saveRig);
   $("#show-article").onclick = () => state.article && show3d(state.article.setup, `simulated article ${state.article.scenario}`);
-  on("setup-built", async (sid) => { await loadSetups(); await openSetup(sid); });
+  on("setup-built", async (sid) => { await refreshTest(); await loadSetups(); await openSetup(sid); });
+  on("test-opened", async () => {
+    await loadSetups();
+    // a setup of another test is closed
+    if (state.setup && !state.setups.some((x) => x.id === state.setup.id)) {
+      state.setup = null;
+      $("#setup-detail").innerHTML = "";
+      if (state.article) show3d(state.article.setup, `simulated article ${state.article.scenario}`);
+    }
+  });
   on("open-setup", async (sid) => openSetup(sid));
 }

@@ -4,6 +4,7 @@
 import { $, api, authHeaders, emit, esc, f, guard, items, on, say, state, table } from "/static/core.js";
 import { linePlot } from "/static/plot.js";
 import { paramRows } from "/static/results.js";
+import { testQuery } from "/static/test.js";
 
 function interval(u) {
   if (!u || !u.ci95) return "—";
@@ -69,7 +70,7 @@ function plotSpectrum(k) {
 }
 
 async function loadSolutions() {
-  state.solutions = items(await api("GET", "/api/solutions"));
+  state.solutions = items(await api("GET", `/api/solutions${testQuery()}`));
   $("#solutions tbody").innerHTML = state.solutions.map((s) => `<tr><td><input type="checkbox" data-cmp="${s.id}"${state.solution && s.id === state.solution.id ? " checked" : ""}></td>
     <td>${s.id}</td><td>${s.frf_id}</td><td>${f(s.result.band_hz[0])}–${f(s.result.band_hz[1])}</td>
     <td class="${esc(s.result.verdict)}">${esc(s.result.verdict)}</td><td>${f(s.result.mass_kg, 5)}</td></tr>`).join("");
@@ -92,7 +93,7 @@ function compare() {
 export function init() {
   $("#solve-btn").onclick = guard(solve);
   $("#spec-param").onchange = () => plotSpectrum(+$("#spec-param").value);
-  on("frf-opened", () => {});
+  on("test-opened", () => loadSolutions());
 }
 
 export async function load() { await loadSolutions(); }

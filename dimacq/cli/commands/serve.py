@@ -40,8 +40,18 @@ def run(args: argparse.Namespace) -> int:
     settings = load_settings(host=args.host, port=args.port, data_dir=args.data_dir)
     # the port first: nothing (token included) is printed for a service that cannot start
     sock = bind_socket(settings.host, settings.port)
+
+    def ready() -> None:
+        # printed once the lab is open and the page's first reads answered (create_app's
+        # on_ready): following this address right away gets the page at its usual speed
+        print(
+            f"lab page: http://{settings.host}:{settings.port}/#token={app.state.token}  "
+            "(the token stays in the URL fragment, never sent to the server)",
+            flush=True,
+        )
+
     try:
-        app = create_app(settings)
+        app = create_app(settings, on_ready=ready)
     except BaseException:
         sock.close()
         raise
@@ -69,10 +79,6 @@ def run(args: argparse.Namespace) -> int:
     )
     reads = "every call" if not is_loopback(settings.host) else "state-changing calls"
     print(f"token for {reads}: {app.state.token}  (from {token_src})")
-    print(
-        f"lab page: http://{settings.host}:{settings.port}/#token={app.state.token}  "
-        "(the token stays in the URL fragment, never sent to the server)",
-        flush=True,
-    )
+    print("opening the lab (database, devices); the lab page's address follows", flush=True)
     serve(app, settings.host, settings.port, log_level=args.log_level, sock=sock)
     return 0

@@ -22,6 +22,7 @@ from dimacq.model.setup import TestSetup
 from dimacq.persistence import ArrayStore, Database
 from dimacq.persistence import models as m
 from dimacq.persistence.arrays import arrays_from_bytes, arrays_to_bytes
+from dimacq.pipeline.frf_summary import magnitude_envelope
 from dimacq.services.lab.common import iso, json_safe, vec
 
 __all__ = [
@@ -237,6 +238,18 @@ class StoredSolution:
 
 
 # ---------------------------------------------------------------------------------- service
+
+
+def _strict(a: NDArray[np.float64]) -> Any:
+    """An array as nested lists, NaN → None (JSON) only where there is one (fast path)."""
+    return a.tolist() if np.isfinite(a).all() else json_safe(a)
+
+
+def _setups_of_test(test_id: int) -> Any:
+    """The ids of the setups of test ``test_id`` (a subquery)."""
+    return select(m.SetupRow.id).where(m.SetupRow.test_id == test_id)
+
+
 class TestStore:
     """Setups, FRF sets and solutions."""
 
@@ -396,12 +409,17 @@ class TestStore:
             row = s.get(m.FrfSet, frf_id)
             return None if row is None else FrfSummary.of(row)
 
-    def frfs(self, limit: int | None = None, offset: int = 0) -> Page[FrfSummary]:
-        """FRF sets in id order (their data are not read)."""
+    def frfs(
+        self, limit: int | None = None, offset: int = 0, test_id: int | None = None
+    ) -> Page[FrfSummary]:
+        """FRF sets in id order (of the setups of one test when ``test_id`` is given; their data
+        are not read)."""
+        where = [] if test_id is None else [m.FrfSet.setup_id.in_(_setups_of_test(test_id))]
         with self.db.session() as s:
-            total = int(s.scalar(select(func.count()).select_from(m.FrfSet)) or 0)
+            total = int(s.scalar(select(func.count()).select_from(m.FrfSet).where(*where)) or 0)
             q = (
                 select(m.FrfSet)
+                .where(*where)
                 .options(defer(m.FrfSet.data))
                 .order_by(m.FrfSet.id)
                 .offset(offset)
@@ -455,15 +473,14 @@ class TestStore:
         frf, setup = got
         return dump_uff(frf, setup if whole_test else None)
 
-    def frf_values(
+    def _frf_selection(
         self,
         frf_id: int,
-        response: ChannelQuery = ChannelQuery(),
-        input_: ChannelQuery = ChannelQuery(),
-        band_hz: tuple[float | None, float | None] = (None, None),
-    ) -> FrfValues | None:
-        """FRF values (real/imag/coherence) of the chosen responses × inputs on the lines
-        within ``band_hz`` (either end None: open); None if the set does not exist."""
+        response: ChannelQuery,
+        input_: ChannelQuery,
+        band_hz: tuple[float | None, float | None],
+    ) -> tuple[FrfData, list[int], list[int], NDArray[np.intp]] | None:
+        """The set, the response and input indices chosen and its lines within ``band_hz``."""
         got = self.frf(frf_id)
         if got is None:
             return None
@@ -479,14 +496,34 @@ class TestStore:
             keep &= f >= lo
         if hi is not None:
             keep &= f <= hi
-        lines = np.nonzero(keep)[0]
-        h = frf.H[lines][:, oi][:, :, ii]
+        return frf, oi, ii, np.nonzero(keep)[0]
 
+    @staticmethod
+    def _channels(frf: FrfData, oi: list[int], ii: list[int]) -> dict[str, Any]:
         def resp(i: int) -> dict[str, Any]:
             c, kind = frf.outputs[i], frf.output_kinds[i]
             unit = _FRF_UNIT[kind] if abs(c.direction) <= 3 or kind != "reaction" else "N·m/N"
             return {**c.as_dict(), "kind": kind, "unit": unit}
 
+        return {
+            "responses": [resp(i) for i in oi],
+            "inputs": [{**frf.inputs[j].as_dict(), "kind": "input", "unit": "N"} for j in ii],
+        }
+
+    def frf_values(
+        self,
+        frf_id: int,
+        response: ChannelQuery = ChannelQuery(),
+        input_: ChannelQuery = ChannelQuery(),
+        band_hz: tuple[float | None, float | None] = (None, None),
+    ) -> FrfValues | None:
+        """FRF values (real/imag/coherence) of the chosen responses × inputs on the lines
+        within ``band_hz`` (either end None: open); None if the set does not exist."""
+        got = self._frf_selection(frf_id, response, input_, band_hz)
+        if got is None:
+            return None
+        frf, oi, ii, lines = got
+        h = frf.H[lines][:, oi][:, :, ii]
         coh = None
         if frf.coherence is not None:
             # NaN (one average: no coherence) → null, so the JSON is strict
@@ -494,13 +531,46 @@ class TestStore:
         return FrfValues(
             frf_id=frf_id,
             layout="[line][response][input]",
-            frequencies_hz=vec(f[lines]),
-            responses=[resp(i) for i in oi],
-            inputs=[{**frf.inputs[j].as_dict(), "kind": "input", "unit": "N"} for j in ii],
+            frequencies_hz=vec(frf.frequencies_hz[lines]),
+            **self._channels(frf, oi, ii),
             real=h.real.tolist(),
             imag=h.imag.tolist(),
             coherence=coh,
         )
+
+    def frf_envelope(
+        self,
+        frf_id: int,
+        points: int,
+        response: ChannelQuery = ChannelQuery(),
+        input_: ChannelQuery = ChannelQuery(),
+        band_hz: tuple[float | None, float | None] = (None, None),
+    ) -> dict[str, Any] | None:
+        """The |H| envelope of the chosen responses × inputs on the lines within ``band_hz`` in
+        at most ``points`` points, and their mean coherence over those lines
+        (:func:`dimacq.pipeline.frf_summary.magnitude_envelope`); None if the set does not
+        exist."""
+        got = self._frf_selection(frf_id, response, input_, band_hz)
+        if got is None:
+            return None
+        frf, oi, ii, lines = got
+        coh = None if frf.coherence is None else frf.coherence[lines][:, oi][:, :, ii]
+        env = magnitude_envelope(
+            frf.frequencies_hz[lines], frf.H[lines][:, oi][:, :, ii], coh, points
+        )
+        return {
+            "frf_id": frf_id,
+            "layout": "[point][response][input]",
+            "n_lines": int(lines.size),
+            "lines_per_point": env.lines_per_point,
+            "frequencies_hz": vec(env.frequencies_hz),
+            "f_lo_hz": vec(env.f_lo_hz),
+            "f_hi_hz": vec(env.f_hi_hz),
+            **self._channels(frf, oi, ii),
+            "magnitude_max": _strict(env.magnitude_max),
+            "magnitude_min": _strict(env.magnitude_min),
+            "coherence_mean": None if env.coherence_mean is None else json_safe(env.coherence_mean),
+        }
 
     # ------------------------------------------------------------------ solutions
     def save_solution(
@@ -523,11 +593,19 @@ class TestStore:
             return None if row is None else StoredSolution.of(row)
 
     def solutions(
-        self, limit: int | None = None, offset: int = 0, frf_id: int | None = None
+        self,
+        limit: int | None = None,
+        offset: int = 0,
+        frf_id: int | None = None,
+        test_id: int | None = None,
     ) -> Page[StoredSolution]:
-        """Solutions in id order (of one FRF set when ``frf_id`` is given)."""
+        """Solutions in id order (of one FRF set when ``frf_id`` is given, of the FRF sets of one
+        test's setups when ``test_id`` is)."""
         with self.db.session() as s:
             where = [] if frf_id is None else [m.Solution.frf_id == frf_id]
+            if test_id is not None:
+                sets = select(m.FrfSet.id).where(m.FrfSet.setup_id.in_(_setups_of_test(test_id)))
+                where.append(m.Solution.frf_id.in_(sets))
             total = int(s.scalar(select(func.count()).select_from(m.Solution).where(*where)) or 0)
             q = select(m.Solution).where(*where).order_by(m.Solution.id).offset(offset).limit(limit)
             return Page([StoredSolution.of(r) for r in s.scalars(q)], total)
