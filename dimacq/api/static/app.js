@@ -26,7 +26,8 @@ async function init() {
   };
   for (const step of [test, setup, digitize, acquire, frfs, solve, reportStep]) step.init();
   // the test this tab had open first: the other steps list its setups, FRF sets and solutions
-  await Promise.all([loadStatus(), setup.loadArticle().then(digitize.load), setup.loadRig().catch((e) => say(e.message, true)),
+  const article = setup.loadArticle();
+  await Promise.all([loadStatus(), article, digitize.load(article), setup.loadRig().catch((e) => say(e.message, true)),
     test.load().then(() => Promise.all([setup.loadSetups(), frfs.loadFrfSets(), solve.load()]))]);
   state.timings.init_ms = performance.now() - t0;
   state.timings.ready_ms = performance.now();

@@ -183,8 +183,11 @@ export function init() {
   $("#build-setup").onclick = guard(buildSetup);
 }
 
-export async function load() {
-  if (!state.article) $("#digitize-all").disabled = true;
-  else $("#n-inputs").value = state.article.setup.inputs.length;
-  await loadReferenceNodes();
+/** At load: the reference nodes (no need to wait for the article) and, once the article is
+ * known (``article``: the promise of setup.loadArticle), the simulated digitizing controls. */
+export async function load(article) {
+  await Promise.all([loadReferenceNodes(), article.then(() => {
+    if (!state.article) $("#digitize-all").disabled = true;
+    else $("#n-inputs").value = state.article.setup.inputs.length;
+  })]);
 }

@@ -60,6 +60,7 @@ class DeviceService:
         #: held while the digitizer driver or its session is used (one caller at a time)
         self.lock = threading.RLock()
         self._digitizer: SerialDigitizer | None = None
+        self._article: dict[str, Any] | None = None  # simulated_article, built once
         self._digitizer_ctx: DeviceContext | None = None
         self._session: DigitizingSession | None = None
         # The backend each kind names (dimacq.backends.BACKENDS); "simulated" is the virtual lab.
@@ -149,6 +150,9 @@ class DeviceService:
         s = self.settings
         if "simulated" not in (s.daq, s.loadcell, s.digitizer):
             return None
+        # the scenario is the service's for its whole life: built once (~0.1-0.2 s), then kept
+        if self._article is not None:
+            return self._article
         from dimacq.backends import import_factory
         from dimacq.services.digitizing import load_jig
 
@@ -159,6 +163,7 @@ class DeviceService:
             "labels": list(jig.labels),
             "points_local_m": [[float(v) for v in p] for p in jig.points_local_m],
         }
+        self._article = out
         return out
 
     def digitizer(self) -> SerialDigitizer:
