@@ -354,6 +354,14 @@ def test_envelope_and_the_lists_of_one_test(api: Api) -> None:
         np.testing.assert_allclose(e["magnitude_max"][k], mag[rows].max(axis=0), rtol=1e-12)
         np.testing.assert_allclose(e["magnitude_min"][k], mag[rows].min(axis=0), rtol=1e-12)
     assert e["responses"] == data["responses"] and e["inputs"] == data["inputs"]
+    # several inputs in one call, in the order asked
+    two = api.client.get(f"/api/frfs/{fid}/envelope", params={"input": [2, 1], "points": 7}).json()
+    assert [i["node"] for i in two["inputs"]][1] == data["inputs"][0]["node"]
+    np.testing.assert_allclose(
+        np.array(two["magnitude_max"])[:, :, 1], np.array(e["magnitude_max"])[:, :, 0]
+    )
+    far = api.client.get(f"/api/frfs/{fid}/envelope", params={"input": [0, 99]})
+    assert far.status_code == 422 and "input index 99" in far.json()["detail"]
     # the band's mean coherence: what the report's data quality table shows
     band = {"f_min_hz": 20, "f_max_hz": 60, "points": 1}
     b = api.client.get(f"/api/frfs/{fid}/envelope", params=band).json()

@@ -7,6 +7,7 @@ from dataclasses import asdict
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Query, Request, Response, status
+from pydantic import Field
 from starlette.concurrency import run_in_threadpool
 
 from dimacq.api.deps import IdPath, LabDep
@@ -91,7 +92,10 @@ def frf_envelope(
     lab: LabDep,
     points: Annotated[int, Query(ge=1, le=100_000, description="most points per pair")] = 512,
     response: _Index = None,
-    input: _Index = None,
+    input: Annotated[
+        list[Annotated[int, Field(ge=0, le=MAX_ID)]] | None,
+        Query(max_length=1000, description="input indices (repeat the key for several)"),
+    ] = None,
     response_node: _Node = None,
     response_direction: _Dir = None,
     input_node: _Node = None,
@@ -102,13 +106,14 @@ def frf_envelope(
     """What a plot or a report shows of the set, at a fraction of ``/data``'s size: the |H|
     envelope of the chosen responses × inputs (as in ``/data``) on the lines in [``f_min_hz``,
     ``f_max_hz``] in at most ``points`` points (each the largest and smallest |H| of its group
-    of consecutive lines), and each pair's mean coherence over those lines."""
+    of consecutive lines), and each pair's mean coherence over those lines. ``input`` may be
+    repeated (``input=0&input=1``: those inputs, in that order)."""
     return found(
         lab.store.frf_envelope(
             frf_id,
             points,
             ChannelQuery(response, response_node, response_direction),
-            ChannelQuery(input, input_node, input_direction),
+            ChannelQuery(None, input_node, input_direction, tuple(input or ())),
             (f_min_hz, f_max_hz),
         ),
         f"FRF set {frf_id}",

@@ -1,33 +1,32 @@
 // One printable HTML report of a solution: setup (with its 3-D view), data quality (averages
 // accepted and rejected with their reasons, coherence per input), figures (FRFs, parameters
-// against frequency) and results; UFF, JSON and setup downloads. Print to PDF from the browser.
+// against frequency) and results; UFF, JSON, setup and figure downloads. Print to PDF from the browser.
 import { api, esc, f, table, takeTokenFromFragment, wireDownloads } from "/static/core.js";
 import { linePlot } from "/static/plot.js";
 import { paramRows } from "/static/results.js";
-import { tokenImage } from "/static/solve.js";
+import { spectrumPlot } from "/static/solve.js";
 import { view3d } from "/static/view3d.js";
 
 const ci = (u) => (u && u.ci95 ? `[${f(u.ci95[0], 5)}, ${f(u.ci95[1], 5)}]` : "—");
 
 /** The accelerances drawn (min/max per group of lines, interleaved: what a plot of every line
- * shows at this width) for the first inputs, up to ~60 curves; one envelope request per input. */
+ * shows at this width) for the first inputs, up to ~60 curves; one envelope request. */
 async function frfFigure(frfId, nInputs, accKeys, width) {
-  const points = Math.max(64, Math.min(1000, Math.round(width)));
+  const points = Math.max(64, Math.min(600, Math.round(width / 2))); // min/max pairs: ~1 px each
   const perInput = Math.max(1, accKeys.size);
   const k = Math.min(nInputs, Math.max(1, Math.ceil(60 / perInput)));
-  const envs = await Promise.all(Array.from({ length: k }, (_, j) => api("GET", `/api/frfs/${frfId}/envelope?input=${j}&points=${points}`)));
-  const e0 = envs[0];
+  const e0 = await api("GET", `/api/frfs/${frfId}/envelope?${Array.from({ length: k }, (_, j) => `input=${j}`).join("&")}&points=${points}`);
   const n = e0.frequencies_hz.length;
   const x = new Float64Array(2 * n);
   for (let p = 0; p < n; p++) { x[2 * p] = e0.f_lo_hz[p]; x[2 * p + 1] = e0.f_hi_hz[p]; }
   const series = [];
-  for (const e of envs) {
-    e.responses.forEach((o, i) => {
+  for (let j = 0; j < k; j++) {
+    e0.responses.forEach((o, i) => {
       if (!accKeys.has(`${o.node}/${o.direction}`)) return;
       const y = new Float64Array(2 * n);
       for (let p = 0; p < n; p++) {
-        const hi = e.magnitude_max[p][i][0];
-        const lo = e.magnitude_min[p][i][0];
+        const hi = e0.magnitude_max[p][i][j];
+        const lo = e0.magnitude_min[p][i][j];
         y[2 * p] = hi === null ? NaN : hi;
         y[2 * p + 1] = lo === null ? NaN : lo;
       }
@@ -47,26 +46,33 @@ async function main() {
   // band (envelope, one point) and the figure's envelopes; the acquisitions behind the set
   const frf = await api("GET", `/api/frfs/${s.frf_id}`);
   const bandQ = `f_min_hz=${r.band_hz[0]}&f_max_hz=${r.band_hz[1]}`;
-  const [setup, band] = await Promise.all([api("GET", `/api/setups/${frf.setup_id}`),
-    api("GET", `/api/frfs/${frf.id}/envelope?points=1&${bandQ}`)]);
-  const testP = setup.test_id ? api("GET", `/api/tests/${setup.test_id}`) : Promise.resolve(null);
+  const quiet = (p) => { p.catch(() => {}); return p; }; // awaited below, where a failure is shown
+  const bandP = quiet(api("GET", `/api/frfs/${frf.id}/envelope?points=1&${bandQ}`));
+  const spectrumP = quiet(api("GET", `/api/solutions/${s.id}/spectrum`));
   // the acquisitions behind the set: a redo / append acquisition merged into an earlier set
   // (merge_frf_id) brings that set's acquisitions along; each input's averages come from the
   // latest acquisition that struck it
-  const chain = [];
-  for (let fid = frf.id, guardN = 0; fid && guardN < 50; guardN++) {
-    const fs = fid === frf.id ? frf : await api("GET", `/api/frfs/${fid}`);
-    if (!fs.acquisition_id) break;
-    const a = await api("GET", `/api/acquisitions/${fs.acquisition_id}`);
-    chain.push(a);
-    fid = (a.config || {}).merge_frf_id || null;
-  }
+  const chainP = quiet((async () => {
+    const out = [];
+    for (let fid = frf.id, guardN = 0; fid && guardN < 50; guardN++) {
+      const fs = fid === frf.id ? frf : await api("GET", `/api/frfs/${fid}`);
+      if (!fs.acquisition_id) break;
+      const a = await api("GET", `/api/acquisitions/${fs.acquisition_id}`);
+      out.push(a);
+      fid = (a.config || {}).merge_frf_id || null;
+    }
+    return out;
+  })());
+  const setup = await api("GET", `/api/setups/${frf.setup_id}`);
+  const testP = quiet(setup.test_id ? api("GET", `/api/tests/${setup.test_id}`) : Promise.resolve(null));
+  const resp = new Set(setup.setup.responses.map((c) => `${c.node}/${c.direction}`));
+  const figureP = quiet(frfFigure(frf.id, frf.n_inputs, resp, Math.min(1200, document.body.clientWidth - 40)));
+  const [band, chain] = await Promise.all([bandP, chainP]);
   const test = await testP;
   const acq = chain[0] || null;
   const struckBy = (j) => chain.find((a) => (a.inputs || []).includes(j)) || null;
   const reasons = (r.verdict_reasons || []).map((x) => (typeof x === "string" ? x : `${x.severity || ""}: ${x.message || JSON.stringify(x)}`));
   const st = setup.setup;
-  const resp = new Set(st.responses.map((c) => `${c.node}/${c.direction}`));
   const acc = band.responses.map((o, i) => i).filter((i) => resp.has(`${band.responses[i].node}/${band.responses[i].direction}`));
   // mean γ² of each input over the band's lines and the accelerometer outputs (each pair's mean
   // from the service, weighted alike: every pair has the band's lines)
@@ -103,17 +109,22 @@ async function main() {
   <p>excluded responses: ${esc(JSON.stringify(r.excluded_responses || []))}; excluded inputs: ${esc(JSON.stringify(r.excluded_inputs || []))}</p></section>
   <section><h2>Figures</h2>
   <canvas id="report-frf" class="plot"></canvas>
-  <img id="report-figure" alt="parameters against frequency" style="max-width:100%"></section>
+  <h3>Parameters against frequency</h3><div id="report-spectrum" class="grid2"></div></section>
   <section><h2>Downloads</h2><p><a href="/api/frfs/${frf.id}/uff" data-download="frf-${frf.id}.uff">FRFs (UFF)</a> ·
   <a href="/api/solutions/${s.id}" data-download="solution-${s.id}.json">solution (JSON)</a> ·
-  <a href="/api/setups/${setup.id}/export?format=toml" data-download="setup-${setup.id}.toml">setup (TOML)</a></p></section>`;
+  <a href="/api/setups/${setup.id}/export?format=toml" data-download="setup-${setup.id}.toml">setup (TOML)</a> ·
+  <a href="/api/solutions/${s.id}/figure?format=svg" data-download="solution-${s.id}-parameters.svg">parameters against frequency (SVG, drawn by the service)</a></p></section>`;
   wireDownloads();
   view3d(document.getElementById("report-3d"), st);
   const canvas = document.getElementById("report-frf");
-  const fig = await frfFigure(frf.id, frf.n_inputs, resp, canvas.clientWidth || 900);
+  const fig = await figureP;
   linePlot(canvas, { x: fig.x, series: fig.series, logY: true, band: r.band_hz, xLabel: "frequency, Hz", yLabel: "|H|, (m/s²)/N",
     title: `accelerances of inputs 1–${fig.shown} (${fig.series.length} of ${acc.length * frf.n_inputs}; ${fig.linesPerPoint > 1 ? `largest and smallest |H| of every ${fig.linesPerPoint} lines` : "every line"}), the band shaded` });
-  await tokenImage(document.getElementById("report-figure"), `/api/solutions/${s.id}/figure?format=svg`);
+  // parameters against frequency: one small plot per parameter, from the solution's spectrum
+  const sp = await spectrumP;
+  const grid = document.getElementById("report-spectrum");
+  grid.innerHTML = sp.parameters.map((p, k) => `<canvas id="report-spec-${k}" class="plot short"></canvas>`).join("");
+  sp.parameters.forEach((p, k) => spectrumPlot(document.getElementById(`report-spec-${k}`), sp, k, { title: `${p} (${sp.units[k]}) per line, band estimate red` }));
   window.dimacqReport = { ready_ms: performance.now() - t0 };
   document.body.dataset.ready = "1";
 }

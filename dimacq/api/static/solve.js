@@ -54,8 +54,9 @@ async function drawSpectrum(id) {
   plotSpectrum(0);
 }
 
-function plotSpectrum(k) {
-  const sp = state.spectrum;
+/** Parameter ``k`` of a solution's spectrum (``GET /api/solutions/{id}/spectrum``) on ``canvas``:
+ * its estimate per frequency line (blue) and the band estimate (red), the band shaded. */
+export function spectrumPlot(canvas, sp, k, extra = {}) {
   const x = Float64Array.from(sp.frequencies_hz);
   const y = Float64Array.from(sp.per_line.map((row) => (row[k] === null ? NaN : row[k])));
   const inBand = [...x.keys()].filter((i) => x[i] >= sp.band_hz[0] && x[i] <= sp.band_hz[1]).map((i) => y[i]).filter(Number.isFinite);
@@ -63,10 +64,14 @@ function plotSpectrum(k) {
   const lo = inBand.length ? inBand[Math.floor(0.02 * inBand.length)] : -1;
   const hi = inBand.length ? inBand[Math.floor(0.98 * (inBand.length - 1))] : 1;
   const pad = 0.5 * Math.max(hi - lo, Math.abs(sp.headline[k]) * 0.05, 1e-9);
-  state.plots.spectrum = linePlot($("#spec-plot"), { x, band: sp.band_hz, xLabel: "frequency, Hz",
+  return linePlot(canvas, { x, band: sp.band_hz, xLabel: "frequency, Hz",
     yLabel: `${sp.parameters[k]}, ${sp.units[k]}`, yRange: [lo - pad, hi + pad],
     title: `${sp.parameters[k]} per frequency line (blue) and the band estimate (red)`,
-    series: [{ y }, { y: new Float64Array(x.length).fill(sp.headline[k]), color: "#d62728" }] });
+    series: [{ y }, { y: new Float64Array(x.length).fill(sp.headline[k]), color: "#d62728" }], ...extra });
+}
+
+function plotSpectrum(k) {
+  state.plots.spectrum = spectrumPlot($("#spec-plot"), state.spectrum, k);
 }
 
 async function loadSolutions() {

@@ -186,9 +186,16 @@ class ChannelQuery:
     index: int | None = None
     node: int | None = None
     direction: int | None = None
+    #: several indices at once (``GET /api/frfs/{id}/envelope?input=0&input=1``), in this order
+    indices: tuple[int, ...] = ()
 
     def pick(self, channels: Sequence[Channel], what: str) -> list[int]:
         n = len(channels)
+        for i in self.indices:
+            if not 0 <= i < n:
+                raise SetupError(f"{what} index {i} is outside 0..{n - 1}")
+        if self.indices:
+            return list(self.indices)
         if self.index is not None:
             if not 0 <= self.index < n:
                 raise SetupError(f"{what} index {self.index} is outside 0..{n - 1}")
