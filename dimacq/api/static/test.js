@@ -50,6 +50,8 @@ async function newTest() {
   if (!body.article) throw new Error("article: give the name of the test article");
   if ($("#test-date").value) body.date = $("#test-date").value;
   const t = await api("POST", "/api/tests", body);
+  $("#test-article").value = "";
+  $("#test-notes").value = "";
   await loadTests();
   await openTest(t.id, { quiet: true });
   await emit("test-created", t);
