@@ -1,8 +1,10 @@
 """The lab page (``GET /``) walked in headless Chromium against a real ``dimacq serve``.
 
 A whole simulated test through the page only: setup tables, the simulated article and its 3-D
-view, the rig's channel map; a new test (article, operator, date), digitize (registration, jig
-orientations, lines of action), build the setup from that geometry; acquire with the operator's
+view, the rig's channel map; a new test through the Test step (``POST /api/tests``; a second one
+listed and deleted; the first archived at the end, its delete refused while it has a setup), the
+rest of the walk tied to it; digitize (registration, jig orientations, lines of action), build the
+setup from that geometry (it joins the test); acquire with the operator's
 review of every hit (one hit accepted, one rejected, one input redone during the run), then one
 input redone afterwards into the FRF set; FRF plots and checks, solve in a band dragged on the
 FRF plot, parameters against frequency, report. The result is checked against the scenario's true
