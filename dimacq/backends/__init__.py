@@ -49,7 +49,7 @@ from typing import Any, Literal
 
 from dimacq.errors import SetupError
 
-__all__ = ["BACKENDS", "DeviceKind", "lookup"]
+__all__ = ["BACKENDS", "DeviceKind", "is_simulated", "lookup"]
 
 DeviceKind = Literal["daq", "loadcell", "digitizer", "loadcell-bench"]
 
@@ -76,6 +76,18 @@ BACKENDS: dict[str, dict[str, str]] = {
         "canopen-simulated": "dimacq.backends.canopen_simulated:open_dead_weight_bench",
     },
 }
+
+
+#: the modules whose factories open a simulator of the virtual lab, not a device
+_SIMULATED_MODULES = frozenset({"dimacq.backends.simulated", "dimacq.backends.canopen_simulated"})
+
+
+def is_simulated(kind: DeviceKind, name: str) -> bool:
+    """Whether the backend ``name`` of ``kind`` opens a simulator (``"simulated"``,
+    ``"canopen-simulated"``): its factory (the table entry's, or the one a
+    ``"package.module:factory"`` name gives) is in a simulated backend module."""
+    path = BACKENDS[kind].get(name, name)
+    return path.partition(":")[0] in _SIMULATED_MODULES
 
 
 def import_factory(path: str, *, setting: str) -> Any:

@@ -131,6 +131,10 @@ class ImpactSession:
     on_input : callable (input_index, coherence), optional
         Called when an input's FRFs are estimated, with its ordinary coherence, shape
         (n_lines, n_outputs) (NaN with one average).
+    on_event : callable (event), optional
+        Called with every event the session logs (a dict: ``device``, ``kind``, ``message``,
+        …), among them ``kind="restart"`` when the DAQ dropped off the bus and
+        ``kind="reconnected"`` when it is back; on the acquisition's thread, so keep it cheap.
     """
 
     def __init__(
@@ -150,8 +154,10 @@ class ImpactSession:
         should_finish: Callable[[], bool] | None = None,
         on_input: Callable[[int, NDArray[np.float64]], None] | None = None,
         max_restarts: int = 5,
+        on_event: Callable[[dict[str, object]], None] | None = None,
     ) -> None:
         self.on_input = on_input
+        self.on_event = on_event
         self.daq = daq
         self.review = review
         self.should_finish = should_finish
@@ -246,6 +252,8 @@ class ImpactSession:
         log.info("acquisition event: %s", ev)
         if self.writer is not None:
             self.writer.log_event(ev)
+        if self.on_event is not None:
+            self.on_event(ev)
 
     def _trim(self, keep_from: int) -> None:
         self._daq_buf.trim(keep_from)
@@ -390,6 +398,9 @@ class ImpactSession:
             except DeviceError:  # the run is over for it anyway
                 log.warning("stopping a load cell after the DAQ was lost failed", exc_info=True)
         reconnect()
+        self._event(
+            {"device": "daq", "kind": "reconnected", "message": "DAQ found again on the bus"}
+        )
         self._start_run()
         if self.progress is not None:
             j = input_index

@@ -348,6 +348,12 @@ class DigitizingSession:
         Called with each accepted :class:`DigitizedPoint` (e.g. :class:`JsonlJournal`).
     max_reconnects : int
         Reconnects tried per point before giving up (DeviceNotFoundError; nothing is lost).
+
+    Attributes
+    ----------
+    on_device : callable (lost), optional
+        Told what the session sees of the port: why it is lost (``"port lost (...)"``), then
+        ``""`` once it is reopened (the service's device state, ``/api/status``).
     """
 
     def __init__(
@@ -379,6 +385,7 @@ class DigitizingSession:
         self.shots_fired = 0
         self.retries = 0
         self.reconnects = 0
+        self.on_device: Callable[[str], None] | None = None
 
     # ------------------------------------------------------------------ patches
     @property
@@ -417,15 +424,22 @@ class DigitizingSession:
                 ) from err
             reconnects_left[0] -= 1
             log.warning("digitizing: port lost (%s); reconnecting", err)
+            self._tell_device(f"port lost ({err}); reconnecting")
             try:
                 self.device.reconnect()
             except DeviceNotFoundError as again:
+                self._tell_device(f"port lost, reconnect failed ({again})")
                 raise DeviceNotFoundError(
                     f"digitizing: port lost and reconnect failed ({again}); the {len(self._points)} "
                     "points digitized so far are kept: fix the connection and call digitize() again"
                 ) from again
             self.reconnects += 1
+            self._tell_device("")
             return None
+
+    def _tell_device(self, lost: str) -> None:
+        if self.on_device is not None:
+            self.on_device(lost)
 
     def fire(self, n: int) -> list[ShotRecord]:
         """Fire ``n`` raw shots (not kept as a point): a shot whose reply was damaged on the

@@ -385,12 +385,14 @@ def run_impact_test(
     should_finish: Callable[[], bool] | None = None,
     on_input: Callable[[int, NDArray[np.float64]], None] | None = None,
     on_strike: StrikeCallback | None = None,
+    on_event: Callable[[dict[str, object]], None] | None = None,
 ) -> FrfData:
     """Run the impact test; return FRFs in the setup's channel order (SI units).
 
-    ``review``, ``should_finish`` and ``on_input`` go to the
+    ``review``, ``should_finish``, ``on_input`` and ``on_event`` go to the
     :class:`~dimacq.services.acquisition.ImpactSession` (the operator's accept / reject / redo
-    of each hit; stop striking and keep the accepted averages; each input's coherence).
+    of each hit; stop striking and keep the accepted averages; each input's coherence; the
+    devices' events: DAQ lost and found again, gaps).
 
     ``writer`` keeps every raw block (:class:`~dimacq.io.acquisition_hdf5.AcquisitionWriter`,
     channels ``rig.daq.channel_names`` in units ``rig.daq_units``); ``meta`` goes into the
@@ -410,6 +412,7 @@ def run_impact_test(
         should_finish=should_finish,
         on_input=on_input,
         on_strike=on_strike,
+        on_event=on_event,
     )
     return impact_frf(result, setup, meta=dict(meta or {"source": "dimacq impact acquisition"}))
 
@@ -427,6 +430,7 @@ def run_impact_session(
     should_finish: Callable[[], bool] | None = None,
     on_input: Callable[[int, NDArray[np.float64]], None] | None = None,
     on_strike: StrikeCallback | None = None,
+    on_event: Callable[[dict[str, object]], None] | None = None,
 ) -> ImpactResult:
     """Run the impact session of :func:`run_impact_test` and return its raw result: FRFs of
     the responses, then per load cell its six loads (``loadcell_outputs="forces"``) or its 12
@@ -493,5 +497,6 @@ def run_impact_session(
         should_finish=should_finish,
         on_input=on_input,
         loadcell_outputs=loadcell_outputs,
+        on_event=on_event,
     )
     return session.run()

@@ -27,7 +27,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import can
 import canopen
 import numpy as np
 from canopen.sdo import SdoAbortedError
@@ -35,7 +34,8 @@ from canopen.sdo import SdoAbortedError
 from dimacq.drivers.canopen_loadcell import protocol as p
 from dimacq.simulators.daq.clock import SampleClock
 from dimacq.simulators.lab.source import SampleSource
-from dimacq.simulators.loadcell.pulses import SyncPulses
+from dimacq.simulators.loadcell.pulses import BURST_S, SyncPulses
+from dimacq.simulators.virtual_can import SimVirtualBus
 
 __all__ = ["CanopenAmplifierSim", "CanopenFaults"]
 
@@ -121,7 +121,7 @@ class CanopenAmplifierSim(SyncPulses):
         self._lock = threading.RLock()
         self._count_lock = threading.Lock()  # samples read ↔ counter, held briefly
         self._stop_evt = threading.Event()
-        self.network = canopen.Network(can.Bus(interface="virtual", channel=channel))
+        self.network = canopen.Network(SimVirtualBus(channel=channel))
         self.network.NOTIFIER_CYCLE = 0.1  # how long closing waits for the receive thread
         self.node = canopen.LocalNode(node_id, canopen.import_od(str(eds), node_id))
         self.node_id = node_id
@@ -251,7 +251,7 @@ class CanopenAmplifierSim(SyncPulses):
     def _run(self) -> None:
         try:
             while not self._stop_evt.is_set():
-                sent = False
+                sent = 0
                 with self._lock:
                     if self.streaming:
                         sent = self._send_pulses()
@@ -260,6 +260,8 @@ class CanopenAmplifierSim(SyncPulses):
                         self.clock.wait_change(self.clock.state(), 0.005)
                     else:
                         time.sleep(0.002)
+                elif sent < _CHUNK:  # caught up: the next burst in BURST_S
+                    self._stop_evt.wait(BURST_S)
         except Exception:  # pragma: no cover - surfaced through the driver's timeouts
             log.exception("CANopen load cell simulator thread failed")
 

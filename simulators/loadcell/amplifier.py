@@ -1,6 +1,7 @@
 """The load cell amplifier simulator on python-can's ``virtual`` interface.
 
-A thread owns its own bus end (``can.Bus(interface="virtual", channel=...)``), answers the
+A thread owns its own bus end (``can.Bus(interface="virtual", channel=...)``, sent through
+:class:`~dimacq.simulators.virtual_can.SimVirtualBus`), answers the
 control frames of :mod:`dimacq.drivers.loadcell.protocol` (the codec is all it shares with the
 driver) and, once started, streams one CAN FD data frame per sample and a heartbeat every 256
 samples. Its 12 gauges read 12 channels of the virtual lab's
@@ -39,7 +40,8 @@ from dimacq.errors import ProtocolError
 from dimacq.simulators.daq.clock import SampleClock
 from dimacq.simulators.imperfections import fault_log
 from dimacq.simulators.lab.source import SampleSource
-from dimacq.simulators.loadcell.pulses import SyncPulses
+from dimacq.simulators.loadcell.pulses import BURST_S, SyncPulses
+from dimacq.simulators.virtual_can import SimVirtualBus
 
 __all__ = ["LoadCellAmplifierSim", "LoadCellFaults"]
 
@@ -136,7 +138,7 @@ class LoadCellAmplifierSim(SyncPulses):
         self._download_len = 0
         self._stop_evt = threading.Event()
         self._lock = threading.Lock()
-        self.bus = can.Bus(interface="virtual", channel=channel, fd=True)
+        self.bus = SimVirtualBus(channel=channel, fd=True)
         self._thread = threading.Thread(target=self._run, name=f"loadcell-sim-{channel}")
         self._thread.start()
 
@@ -156,16 +158,21 @@ class LoadCellAmplifierSim(SyncPulses):
 
     # -- thread ------------------------------------------------------------------------------
     def _run(self) -> None:
+        next_burst = 0.0
         try:
             while not self._stop_evt.is_set():
-                msg = self.bus.recv(0.0 if self.state == 2 else 0.005)
+                wait = max(0.0, next_burst - time.monotonic()) if self.state == 2 else 0.005
+                msg = self.bus.recv(wait)
                 if msg is not None and msg.arbitration_id == p.command_id(self.node):
                     if not self.faults.silent and not self._bus_off():
                         self._handle(bytes(msg.data))
                     continue
-                if self.state == 2:
-                    if not self._send_pulses():
+                if self.state == 2 and time.monotonic() >= next_burst:
+                    sent = self._send_pulses()
+                    if not sent:
                         self._wait_for_clock(0.005)
+                    elif sent < _CHUNK:  # caught up: the next burst in BURST_S
+                        next_burst = time.monotonic() + BURST_S
         except Exception:  # pragma: no cover - surfaced through the test's timeouts
             log.exception("load cell simulator thread failed")
 

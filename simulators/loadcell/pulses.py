@@ -16,7 +16,14 @@ import time
 
 from dimacq.simulators.daq.clock import SampleClock
 
-__all__ = ["SyncPulses"]
+__all__ = ["BURST_S", "SyncPulses"]
+
+#: wall time between two bursts of frames once a simulator has caught up with its clock, s. A
+#: real amplifier sends each sample as it is taken; the simulator sends the pulses of the last
+#: few ms at once, so that its cost (numpy and Python per burst) does not grow with how often it
+#: looks: on a free-running DAQ clock a busy loop found a pulse or two each pass and spent a CPU
+#: core on them, under the GIL the service's event loop needs to answer.
+BURST_S = 0.004
 
 
 class SyncPulses:
@@ -85,17 +92,18 @@ class SyncPulses:
     def _drop_backlog(self, avail: int) -> None:
         """Hook: what to do with pulses far behind (default: nothing, send them all)."""
 
-    def _send_pulses(self, final: bool = False) -> bool:
-        """Send frames for pulses seen (one chunk, or all of them when ``final``); False when
-        there was nothing to send."""
+    def _send_pulses(self, final: bool = False) -> int:
+        """Send frames for pulses seen (one chunk, or all of them when ``final``); how many
+        pulses were sent (0: nothing to send; fewer than a chunk: caught up, wait
+        :data:`BURST_S` before looking again)."""
         avail = self._available_pulses()
         self._drop_backlog(avail)
-        sent = False
+        sent = 0
         while self._pulses < avail:
             n = min(self._pulse_chunk, avail - self._pulses)
             self._emit(self._pulses, n)
             self._pulses += n
-            sent = True
+            sent += n
             if not final:
                 break
         return sent

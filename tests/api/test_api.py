@@ -38,6 +38,29 @@ def test_status_docs_and_openapi(api: Api) -> None:
     assert api.anon.get("/docs").status_code == 200
 
 
+def test_status_shows_a_device_lost_by_its_worker_at_once(api: Api) -> None:
+    """The status touches no device: it reports what the code using the device last saw. The
+    acquisition's event of the DAQ dropping off the bus (the run restarts) makes the DAQ not
+    connected, with the reason and since when, until the session reports it found again."""
+    before = api.anon.get("/api/status").json()["devices"]["daq"]
+    assert before["connected"] is True and before["simulated"] is True, before
+    lab = api.lab
+    try:
+        lab.acquisitions._on_device_event({"device": "daq", "kind": "restart", "message": "x"})
+        lost = api.anon.get("/api/status").json()["devices"]["daq"]
+        assert lost["connected"] is False and "dropped off the bus" in lost["error"], lost
+        assert lost["since"] >= before["since"]
+        lab.acquisitions._on_device_event({"device": "daq", "kind": "reconnected"})
+        back = api.anon.get("/api/status").json()["devices"]["daq"]
+        assert back["connected"] is True and back["error"] == "", back
+        lab.devices.mark("digitizer", "port lost (gone); reconnecting")  # the session's call
+        dig = api.anon.get("/api/status").json()["devices"]["digitizer"]
+        assert dig["connected"] is False and "port lost" in dig["error"], dig
+    finally:
+        lab.devices.mark("daq", "")
+        lab.devices.mark("digitizer", "")
+
+
 def test_state_change_needs_token_checked_before_the_body(api: Api) -> None:
     # malformed JSON and a wrong schema: an anonymous caller still gets 401, not 400/422
     r = api.anon.post(

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dimacq.backends import BACKENDS, lookup
+from dimacq.backends import BACKENDS, is_simulated, lookup
 from dimacq.backends.base import DeviceContext
 from dimacq.config import load_settings
 from dimacq.errors import SetupError
@@ -25,6 +25,17 @@ def test_every_kind_has_a_hardware_and_a_simulated_entry() -> None:
         assert "simulated" in table and (len(table) >= 2 or kind == "loadcell-bench"), kind
         for name in table:
             assert callable(lookup(kind, name))  # type: ignore[arg-type]
+
+
+def test_which_entries_are_simulators() -> None:
+    """``canopen-simulated`` is the virtual lab as much as ``simulated`` (issue 17: the status
+    said it was not); hardware entries and other factories are devices."""
+    assert is_simulated("loadcell", "canopen-simulated") and is_simulated("loadcell", "simulated")
+    assert is_simulated("daq", "simulated") and is_simulated("digitizer", "simulated")
+    assert not is_simulated("loadcell", "canopen") and not is_simulated("loadcell", "dimacq-can")
+    assert not is_simulated("daq", "dimacq-usb") and not is_simulated("digitizer", "serial")
+    assert is_simulated("daq", "dimacq.backends.simulated:open_daq")  # by its import path
+    assert not is_simulated("daq", "tests._second_daq:open_daq")
 
 
 def test_unknown_names_are_refused_naming_the_setting() -> None:

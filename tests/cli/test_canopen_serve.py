@@ -27,6 +27,11 @@ def test_canopen_load_cell_through_dimacq_serve(tmp_path: Path) -> None:
         lc = c.get("/api/devices/loadcell").json()
         assert lc["connected"], lc
         assert "canopen-simulated" in str(lc)
+        # the CANopen simulator is the virtual lab: simulated, in the status too (issue 17)
+        assert lc["simulated"] is True, lc
+        st = c.get("/api/status").json()["devices"]["loadcell"]
+        assert st["simulated"] is True and st["connected"] is True, st
+        assert c.get("/api/simulation/article").status_code == 200
         # bench calibration: the native backend's limits (tests/cli/test_acquire_cli.py)
         r = c.post(
             "/api/calibrations/runs",

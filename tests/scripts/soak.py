@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import re
 import secrets
 import socket
@@ -89,6 +90,14 @@ class Figures:
     status_p50_ms: float = 0.0
     status_p99_ms: float = 0.0
     status_max_ms: float = 0.0
+    #: CPU time of the service process (user + system) per second of the run; the load average
+    #: of the machine at the end (it is shared: other processes compete for its cores)
+    service_cpu_per_s: float = 0.0
+    load_average: float = 0.0
+    #: p99 of each whole minute of the run ("throughout"), ms
+    status_p99_by_minute_ms: list[float] = field(default_factory=list)
+    #: the calls slower than 50 ms: (started, s into the run; latency, ms)
+    status_slow: list[tuple[float, float]] = field(default_factory=list)
     injected: dict[str, int] = field(default_factory=dict)
     reported: dict[str, int] = field(default_factory=dict)
     errors: list[str] = field(default_factory=list)
@@ -128,14 +137,17 @@ class _StatusProbe(threading.Thread):
         )
         self.period_s = period_s
         self.latencies_ms: list[float] = []
+        self.started_s: list[float] = []  # when each call started, s since the probe started
         self.codes: Counter[int] = Counter()
         self.stop_evt = threading.Event()
 
     def run(self) -> None:
         import httpx
 
+        t_start = time.perf_counter()
         while not self.stop_evt.is_set():
             t0 = time.perf_counter()
+            self.started_s.append(t0 - t_start)
             try:
                 code = self.client.get("/api/status").status_code
             except httpx.TransportError:
@@ -240,6 +252,8 @@ def run_soak(
             probe.stop_evt.set()
             probe.join(10)
             fig.minutes = (time.monotonic() - t0) / 60
+            fig.service_cpu_per_s = _cpu_s(svc.proc.pid) / max(1e-9, 60 * fig.minutes)
+            fig.load_average = _load_average()
             svc.stop()
             log_text = Path(svc.log.name).read_text(errors="replace")
         lat = np.array(probe.latencies_ms or [0.0])
@@ -247,6 +261,18 @@ def run_soak(
         fig.status_p50_ms = float(np.percentile(lat, 50))
         fig.status_p99_ms = float(np.percentile(lat, 99))
         fig.status_max_ms = float(lat.max())
+        started = np.array(probe.started_s[: lat.size] or [0.0])
+        minute = (started // 60).astype(int)
+        fig.status_p99_by_minute_ms = [
+            round(float(np.percentile(lat[minute == m], 99)), 1)
+            for m in range(int(minute.max()) + 1)
+            if (minute == m).sum() >= 300  # a whole minute (600 calls at 0.1 s)
+        ]
+        fig.status_slow = [
+            (round(float(t), 2), round(float(v), 1))
+            for t, v in zip(started, lat, strict=True)
+            if v > 50
+        ]
         fig.http_500 = sum(n for code, n in (codes + probe.codes).items() if code >= 500)
         if probe.codes.get(-1):
             fig.errors.append(f"{probe.codes[-1]} status calls got no answer")
@@ -254,6 +280,22 @@ def run_soak(
         if "Traceback" in log_text:
             fig.errors.append("the service log has a traceback: " + _first_traceback(log_text))
     return fig
+
+
+def _cpu_s(pid: int) -> float:
+    """User + system CPU time of process ``pid`` so far, s (Linux ``/proc``; 0 elsewhere)."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return 0.0
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def _load_average() -> float:
+    try:
+        return os.getloadavg()[1]
+    except OSError:
+        return float("nan")
 
 
 _GAP = re.compile(r"load cell (\d+): load cell samples (\d+)\.\.(\d+) lost on the CAN bus")
@@ -337,6 +379,11 @@ def table(fig: Figures) -> str:
         f"| HTTP 500 | {fig.http_500} |",
         f"| status calls; latency p50 / p99 / max | {fig.status_calls}; {fig.status_p50_ms:.1f} /"
         f" {fig.status_p99_ms:.1f} / {fig.status_max_ms:.1f} ms |",
+        f"| status p99 of the worst whole minute | "
+        f"{max(fig.status_p99_by_minute_ms, default=float('nan')):.1f} ms |",
+        f"| status calls over 50 ms | {len(fig.status_slow)} |",
+        f"| service CPU per second of run; machine load average (5 min) | "
+        f"{fig.service_cpu_per_s:.2f} s; {fig.load_average:.1f} |",
     ]
     return "\n".join(rows)
 

@@ -146,10 +146,11 @@ def calibrate(args: argparse.Namespace) -> int:
             "scenario option ([loadcell] kind = 'piezo'); calibrate the strain-gauge cell"
         )
     if not args.simulated:
+        from dimacq.backends import is_simulated
         from dimacq.config import load_settings
 
         settings = load_settings()
-        if "simulated" in (settings.daq, settings.loadcell):
+        if is_simulated("daq", settings.daq) or is_simulated("loadcell", settings.loadcell):
             raise SetupError(
                 f"daq = {settings.daq!r}, loadcell = {settings.loadcell!r}: the configured rig "
                 "is the simulated lab, whose calibration files are the shipped ones; use "

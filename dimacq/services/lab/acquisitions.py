@@ -280,7 +280,24 @@ class AcquisitionService:
                 raise DeviceNotFoundError(
                     f"{name} is not connected ({info.error or 'closed'}); connect it first"
                 )
-        return rig_builder.build_rig(self.settings, setup, cfg)
+        try:
+            rig = rig_builder.build_rig(self.settings, setup, cfg)
+        except DeviceNotFoundError as err:
+            self.devices.mark("daq" if "DAQ" in str(err) else "loadcell", str(err))
+            raise
+        for name in ("daq", "loadcell"):  # opened and identified: there
+            self.devices.mark(name, "")
+        return rig
+
+    def _on_device_event(self, ev: Mapping[str, object]) -> None:
+        """The session's events → the devices' state (``/api/status``): the DAQ lost (the
+        run restarts) and found again."""
+        if ev.get("device") != "daq":
+            return
+        if ev.get("kind") == "restart":
+            self.devices.mark("daq", "dropped off the bus during the acquisition; reconnecting")
+        elif ev.get("kind") == "reconnected":
+            self.devices.mark("daq", "")
 
     def _run(
         self,
@@ -418,6 +435,7 @@ class AcquisitionService:
                 review=review if live.review else None,
                 should_finish=live.finish.is_set,
                 on_input=on_input,
+                on_event=self._on_device_event,
             )
             try:
                 fid = self.db.retry(

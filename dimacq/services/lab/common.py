@@ -34,6 +34,10 @@ def json_safe(obj: Any) -> Any:
     if isinstance(obj, list | tuple):
         return [json_safe(v) for v in obj]
     if isinstance(obj, np.ndarray):
+        if obj.dtype.kind == "f":  # vectorised: a hit's traces are 10⁴ floats
+            out = obj.astype(object)
+            out[~np.isfinite(obj)] = None
+            return out.tolist()
         return json_safe(obj.tolist())
     if isinstance(obj, np.generic):
         return json_safe(obj.item())

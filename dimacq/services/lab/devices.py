@@ -10,10 +10,12 @@ from __future__ import annotations
 
 import logging
 import threading
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Literal
 
+from dimacq.backends import is_simulated
 from dimacq.backends.base import DeviceContext
 from dimacq.config import Settings
 from dimacq.errors import DeviceStateError, DimacqError, SetupError
@@ -42,6 +44,10 @@ class DeviceInfo:
     connected: bool = False
     identity: dict[str, Any] = field(default_factory=dict)
     error: str = ""
+    #: why the device was last seen lost by the worker using it ("" = working), and when its
+    #: state last changed (UNIX time, s): what ``/api/status`` reports without touching it
+    lost: str = ""
+    since: float = field(default_factory=time.time)
 
 
 class DeviceService:
@@ -63,25 +69,26 @@ class DeviceService:
         self._article: dict[str, Any] | None = None  # simulated_article, built once
         self._digitizer_ctx: DeviceContext | None = None
         self._session: DigitizingSession | None = None
-        # The backend each kind names (dimacq.backends.BACKENDS); "simulated" is the virtual lab.
+        # The backend each kind names (dimacq.backends.BACKENDS); "simulated" and
+        # "canopen-simulated" are the virtual lab (is_simulated).
         self._devices: dict[str, DeviceInfo] = {
             "digitizer": DeviceInfo(
                 "digitizer",
                 "digitizer",
                 f"{settings.digitizer}:{settings.digitizer_url}",
-                settings.digitizer == "simulated",
+                is_simulated("digitizer", settings.digitizer),
             ),
             "daq": DeviceInfo(
                 "daq",
                 "daq",
                 f"{settings.daq}:{settings.rig_path.name}",
-                settings.daq == "simulated",
+                is_simulated("daq", settings.daq),
             ),
             "loadcell": DeviceInfo(
                 "loadcell",
                 "loadcell",
                 f"{settings.loadcell}:{settings.rig_path.name}",
-                settings.loadcell == "simulated",
+                is_simulated("loadcell", settings.loadcell),
             ),
         }
 
@@ -91,6 +98,19 @@ class DeviceService:
 
     def get(self, name: str) -> DeviceInfo | None:
         return self._devices.get(name)
+
+    def mark(self, name: str, lost: str = "") -> None:
+        """What a worker using device ``name`` saw: lost (``lost`` says why) or working
+        (``""``). Cheap and from any thread: the acquisition and the digitizing session call it
+        as they see it, and ``/api/status`` reports it without touching the device."""
+        info = self._devices.get(name)
+        if info is None or info.lost == lost:
+            return
+        if lost:
+            log.warning("device %s lost: %s", name, lost)
+        elif info.lost:
+            log.warning("device %s working again", name)
+        info.lost, info.since = lost, time.time()
 
     def require(self, name: str) -> DeviceInfo:
         """The device ``name``; SetupError naming the known ones if there is none."""
@@ -126,8 +146,11 @@ class DeviceService:
             except DimacqError as err:
                 info.connected = False
                 info.error = str(err)
+                info.since = time.time()
                 raise
             info.error = ""
+            info.since = time.time()
+            self.mark(name, "")
             return info
 
     def identify(self, name: str) -> dict[str, Any]:
@@ -148,7 +171,7 @@ class DeviceService:
         engineer's hand knows in the virtual lab — or None when no device is simulated. Reached
         through the backend table's module path, like every simulated device."""
         s = self.settings
-        if "simulated" not in (s.daq, s.loadcell, s.digitizer):
+        if not any(is_simulated(k, getattr(s, k)) for k in ("daq", "loadcell", "digitizer")):
             return None
         # the scenario is the service's for its whole life: built once (~0.1-0.2 s), then kept
         if self._article is not None:
@@ -213,6 +236,7 @@ class DeviceService:
         )
         self._digitizer = driver
         self._session = self._open_session(driver)
+        self._session.on_device = lambda lost: self.mark("digitizer", lost)
         info.connected = True
         info.identity = identity_dict(ident)
 

@@ -38,6 +38,7 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass
+from datetime import UTC, datetime
 from typing import Any
 
 from dimacq.config import Settings
@@ -185,7 +186,15 @@ class Lab:
         return stand_lease.stands(self.db)
 
     def status(self) -> LabStatus:
-        """Cheap in-memory status (no I/O): devices, running jobs, uptime."""
+        """Cheap in-memory status (no I/O): devices, running jobs, uptime.
+
+        Each device's state is what the code using it last saw (:meth:`DeviceService.mark`),
+        never a probe made for the status: ``connected`` false with ``error`` saying why from
+        the moment the acquisition sees the DAQ gone (its next read: within the rig's USB
+        ``timeout_s``) or the digitizing session a lost port, until it is found again;
+        ``since`` is when that state began. A device nobody uses is not looked at: its state
+        is the last one seen (at start, its last use, or ``POST /api/devices/{name}/connect``).
+        """
         return LabStatus(
             service="dimacq",
             version=self.version,
@@ -198,7 +207,13 @@ class Lab:
             },
             uptime_s=time.monotonic() - self.started_monotonic,
             devices={
-                d.name: {"connected": d.connected, "error": d.error} for d in self.devices.all()
+                d.name: {
+                    "connected": d.connected and not d.lost,
+                    "simulated": d.simulated,
+                    "error": d.lost or d.error,
+                    "since": datetime.fromtimestamp(d.since, UTC).isoformat(),
+                }
+                for d in self.devices.all()
             },
             jobs_running=[
                 {"id": j.id, "kind": j.kind, "progress": j.progress, "message": j.message}
