@@ -17,7 +17,7 @@ Faults for tests (:class:`LoadCellFaults`): data frames not sent (bus overload: 
 SYNC pulses missed at given pulses (the counter falls behind the DAQ: drift), and a silent node.
 At random (seeded; each one logged on :data:`~dimacq.simulators.imperfections.fault_log`): CAN
 frames lost (``frame_loss_rate`` per data frame), and **bus-off** (``bus_off_rate`` per second of
-streamed pulses): the node's transmit error counter passes 255, it leaves the bus for
+streamed pulses, at pulses drawn from the seed whatever the thread's timing): the node's transmit error counter passes 255, it leaves the bus for
 ``bus_off_s`` wall seconds (sends nothing, hears no command) and then recovers by itself
 (ISO 11898-1 auto-recovery) and goes on; it kept counting SYNC pulses meanwhile, so the host sees
 a counter gap, not a shift.
@@ -126,6 +126,12 @@ class LoadCellAmplifierSim(SyncPulses):
         self.faults = faults if faults is not None else LoadCellFaults()
         self.rng = np.random.default_rng([self.faults.seed, node_id])
         self._bus_off_until = 0.0
+        # bus-offs at pulses streamed drawn from their own stream of the seed (exponential
+        # spacing, mean rate_hz / bus_off_rate pulses), not a draw per burst: where they fall
+        # does not depend on how the thread happened to split the stream
+        self._bus_rng = np.random.default_rng([self.faults.seed, node_id, 1])
+        self._streamed = 0  # pulses streamed since creation, every run
+        self._next_bus_off: float | None = None
         #: faults injected so far, by kind
         self.injected: dict[str, int] = {}
         self.rate_hz = float(source.sample_rate_hz)
@@ -317,9 +323,20 @@ class LoadCellAmplifierSim(SyncPulses):
         aid = p.data_id(self.node)
         hb = p.heartbeat_id(self.node)
         flt = self.faults
-        if flt.bus_off_rate and self.rng.random() < flt.bus_off_rate * n / self.rate_hz:
-            self._bus_off_until = time.monotonic() + flt.bus_off_s
-            self._inject("can_bus_off", "goes bus-off for %g s at pulse %d", flt.bus_off_s, pulse0)
+        if flt.bus_off_rate:
+            mean = self.rate_hz / flt.bus_off_rate
+            if self._next_bus_off is None:
+                self._next_bus_off = float(self._bus_rng.exponential(mean))
+            if self._next_bus_off < self._streamed + n:  # one bus-off per burst at most
+                self._bus_off_until = time.monotonic() + flt.bus_off_s
+                self._inject(
+                    "can_bus_off", "goes bus-off for %g s at pulse %d", flt.bus_off_s, pulse0
+                )
+                self._next_bus_off = max(
+                    self._next_bus_off + float(self._bus_rng.exponential(mean)),
+                    float(self._streamed + n),
+                )
+        self._streamed += n
         lost = np.zeros(n, dtype=bool)
         if flt.frame_loss_rate:
             lost = self.rng.random(n) < flt.frame_loss_rate

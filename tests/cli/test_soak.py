@@ -21,10 +21,15 @@ def _soak_module():
 
 def test_short_soak_loses_nothing_reports_every_fault_and_keeps_answering(tmp_path: Path) -> None:
     soak = _soak_module()
-    fig = soak.run_soak(0.3, seed=3, n_inputs=1, averages=3, workdir=tmp_path, say=lambda m: None)
+    fig = soak.run_soak(
+        0.3, seed=3, n_inputs=1, averages=3, workdir=tmp_path, say=lambda m: None, min_succeeded=1
+    )
     assert not fig.errors, fig.errors
+    # an acquisition may end refused as incomplete (a starved machine: the faults rejected more
+    # averages than its strikes allow; the reasons are in it, nothing is lost), never failed
     assert not fig.acquisitions_failed, fig.acquisitions_failed
-    assert fig.acquisitions >= 1 and fig.averages_accepted >= 3 * fig.acquisitions
+    succeeded = fig.acquisitions - len(fig.acquisitions_incomplete)
+    assert succeeded >= 1 and fig.averages_accepted >= 3 * succeeded, fig
     assert fig.points_accepted >= 4 and fig.points_lost == 0 and fig.averages_lost == 0
     assert fig.http_500 == 0 and fig.status_calls > 50
     assert sum(fig.injected.values()) >= 3, fig.injected

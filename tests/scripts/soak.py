@@ -6,19 +6,20 @@ simulated lab with its devices' imperfections turned up (:data:`SOAK_IMPERFECTIO
 a DAQ FIFO small enough to overflow when the host is late, USB re-enumeration, CAN frame loss and
 bus-off, serial line noise and port loss. The soak then works the service like a lab for
 ``--minutes``: rounds of digitized points (``POST /api/digitizer/points``) and impact tests
-(``POST /api/acquisitions`` on a setup of the article with ``--inputs`` inputs), while a thread
-reads ``GET /api/status`` every 0.1 s. It checks and prints:
+(``POST /api/acquisitions`` on a setup of the article with ``--inputs`` inputs), while a process
+of its own reads ``GET /api/status`` every 0.1 s. It checks and prints:
 
 - **nothing accepted is lost**: every digitized point the service accepted (HTTP 200) is in
   ``GET /api/digitizer/points`` at the end; every average seen accepted while an acquisition ran
   (polled ``GET /api/acquisitions/{id}``) is in its final record, and each acquisition ends
-  ``finished`` with FRFs;
+  ``succeeded`` with FRFs, or refused as incomplete with its reason (fewer acceptable averages
+  than asked after its strikes: the faults rejected too many; counted apart, nothing lost);
 - **every fault is reported**: the simulators log each fault they inject (``simulated fault
   <kind>``), the drivers and the acquisition session log what they detect; per kind, the
   reports found in the service's log against the faults injected;
 - **the service keeps answering**: no HTTP 500 on any call, status latency p50/p99/max.
 
-Usage (on demand; the test suite runs a short version, ``tests/api/test_soak.py``)::
+Usage (on demand; the test suite runs a short version, ``tests/cli/test_soak.py``)::
 
     nice python tests/scripts/soak.py --minutes 30 [--seed 1] [--json soak.json]
 """
@@ -31,6 +32,7 @@ import os
 import re
 import secrets
 import socket
+import subprocess
 import sys
 import tempfile
 import threading
@@ -82,6 +84,9 @@ class Figures:
     points_lost: int = 0
     acquisitions: int = 0
     acquisitions_failed: list[str] = field(default_factory=list)
+    #: ended refused: fewer acceptable averages than asked after the strikes allowed (the
+    #: faults' rejections named in the acquisition); nothing accepted lost, no FRFs
+    acquisitions_incomplete: list[str] = field(default_factory=list)
     averages_accepted: int = 0
     averages_rejected: int = 0
     averages_lost: int = 0
@@ -125,37 +130,63 @@ def _soak_rig(folder: Path) -> Path:
     return out
 
 
-class _StatusProbe(threading.Thread):
-    """``GET /api/status`` every ``period_s`` on its own client: latencies and status codes."""
+class _StatusProbe:
+    """``GET /api/status`` every ``period_s`` from a process of its own (:func:`_probe_main`:
+    one keep-alive ``http.client`` connection), so that what is measured is the service, not
+    the soak's own threads competing for this process's GIL; latencies and status codes."""
 
-    def __init__(self, url: str, token: str, period_s: float = 0.1) -> None:
-        import httpx
-
-        super().__init__(name="soak-status", daemon=True)
-        self.client = httpx.Client(
-            base_url=url, headers={"Authorization": f"Bearer {token}"}, timeout=30
+    def __init__(self, url: str, token: str, folder: Path, period_s: float = 0.1) -> None:
+        self.out = folder / "status-probe.txt"
+        self.proc = subprocess.Popen(
+            [sys.executable, __file__, "--probe", url, token, str(period_s), str(self.out)],
+            stdin=subprocess.PIPE,
         )
-        self.period_s = period_s
         self.latencies_ms: list[float] = []
         self.started_s: list[float] = []  # when each call started, s since the probe started
         self.codes: Counter[int] = Counter()
-        self.stop_evt = threading.Event()
 
-    def run(self) -> None:
-        import httpx
+    def stop(self) -> None:
+        """Stop the probe (closing its stdin) and read what it measured."""
+        assert self.proc.stdin is not None
+        self.proc.stdin.close()
+        try:
+            self.proc.wait(30)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait(10)
+        for line in self.out.read_text().splitlines():
+            t, ms, code = line.split()
+            self.started_s.append(float(t))
+            self.latencies_ms.append(float(ms))
+            self.codes[int(code)] += 1
 
-        t_start = time.perf_counter()
-        while not self.stop_evt.is_set():
+
+def _probe_main(url: str, token: str, period_s: float, out: str) -> None:
+    """The status probe's process: until its stdin closes, ``GET /api/status`` every
+    ``period_s``; one line per call: start (s since the first), latency (ms), HTTP code (-1: no
+    answer)."""
+    import http.client
+    from urllib.parse import urlsplit
+
+    u = urlsplit(url)
+    stop = threading.Event()
+    threading.Thread(target=lambda: (sys.stdin.read(), stop.set()), daemon=True).start()
+    conn = http.client.HTTPConnection(u.hostname or "127.0.0.1", u.port, timeout=30)
+    headers = {"Authorization": f"Bearer {token}"}
+    t_start = time.perf_counter()
+    with open(out, "w", encoding="utf-8") as f:
+        while not stop.is_set():
             t0 = time.perf_counter()
-            self.started_s.append(t0 - t_start)
             try:
-                code = self.client.get("/api/status").status_code
-            except httpx.TransportError:
+                conn.request("GET", "/api/status", headers=headers)
+                r = conn.getresponse()
+                r.read()
+                code = r.status
+            except (OSError, http.client.HTTPException):
+                conn.close()
                 code = -1
-            self.latencies_ms.append(1e3 * (time.perf_counter() - t0))
-            self.codes[code] += 1
-            self.stop_evt.wait(self.period_s)
-        self.client.close()
+            f.write(f"{t0 - t_start:.3f} {1e3 * (time.perf_counter() - t0):.2f} {code}\n")
+            stop.wait(period_s)
 
 
 def _setup(article: dict[str, Any], n_inputs: int) -> dict[str, Any]:
@@ -175,8 +206,13 @@ def run_soak(
     averages: int = 3,
     workdir: Path | None = None,
     say: Any = print,
+    min_succeeded: int = 0,
 ) -> Figures:
-    """Run the soak for ``minutes``; return its figures (see the module docstring)."""
+    """Run the soak for ``minutes``; return its figures (see the module docstring).
+
+    ``min_succeeded``: go on past ``minutes`` (up to 5 times as long) until that many
+    acquisitions have succeeded: a short run on a starved machine still shows one whole test.
+    """
     rng = np.random.default_rng(seed)
     fig = Figures()
     with tempfile.TemporaryDirectory(prefix="dimacq-soak-") as tmp:
@@ -191,8 +227,7 @@ def run_soak(
             "DIMACQ_DATABASE_URL": "",
         }
         svc = Service(data, _free_port(), token, env)
-        probe = _StatusProbe(svc.url, token)
-        probe.start()
+        probe = _StatusProbe(svc.url, token, base)
         c = svc.client
         codes: Counter[int] = Counter()
 
@@ -204,6 +239,13 @@ def run_soak(
             return r
 
         t_end = time.monotonic() + 60 * minutes
+        t_last = time.monotonic() + 5 * 60 * minutes
+
+        def more() -> bool:
+            now = time.monotonic()
+            done = fig.acquisitions - len(fig.acquisitions_failed + fig.acquisitions_incomplete)
+            return now < t_end or (done < min_succeeded and now < t_last)
+
         t0 = time.monotonic()
         try:
             article = call("GET", "/api/simulation/article").json()
@@ -223,7 +265,7 @@ def run_soak(
                 raise RuntimeError(f"soak: setup refused: HTTP {r.status_code} {r.text[:300]}")
             setup_id = r.json()["id"]
             k = 0
-            while time.monotonic() < t_end:
+            while more():
                 # a few digitized points: the probe somewhere around the article
                 for _ in range(4):
                     # array coordinates: the array 1.1 m above the article (as dimacq demo)
@@ -239,7 +281,7 @@ def run_soak(
                     elif r.status_code not in (409, 422, 503):
                         fig.errors.append(f"point p{k}: HTTP {r.status_code} {r.text[:200]}")
                     k += 1
-                if time.monotonic() >= t_end:
+                if not more():
                     break
                 _acquire(call, setup_id, averages, int(rng.integers(2**31 - 1)), fig, say)
                 say(
@@ -249,8 +291,7 @@ def run_soak(
             stored = call("GET", "/api/digitizer/points").json()
             fig.points_lost = max(0, fig.points_accepted - len(stored))
         finally:
-            probe.stop_evt.set()
-            probe.join(10)
+            probe.stop()
             fig.minutes = (time.monotonic() - t0) / 60
             fig.service_cpu_per_s = _cpu_s(svc.proc.pid) / max(1e-9, 60 * fig.minutes)
             fig.load_average = _load_average()
@@ -354,7 +395,11 @@ def _acquire(call: Any, setup_id: int, averages: int, seed: int, fig: Figures, s
     fig.averages_rejected += sum(1 for v in a.get("averages", []) if not v.get("accepted"))
     fig.averages_lost += len(seen - final)
     if a["state"] != "succeeded" or a.get("frf_id") is None:
-        fig.acquisitions_failed.append(f"acquisition {acq_id}: {a['state']}: {a.get('message')}")
+        what = f"acquisition {acq_id}: {a['state']}: {a.get('message')}"
+        if a["state"] == "failed" and "acceptable averages" in str(a.get("message")):
+            fig.acquisitions_incomplete.append(what)
+        else:
+            fig.acquisitions_failed.append(what)
         say(f"acquisition {acq_id} ended {a['state']}: {a.get('message')}")
 
 
@@ -372,8 +417,9 @@ def table(fig: Figures) -> str:
         "| --- | ---: |",
         f"| run length | {fig.minutes:.1f} min |",
         f"| digitized points accepted / lost | {fig.points_accepted} / {fig.points_lost} |",
-        f"| acquisitions (finished with FRFs) | {fig.acquisitions - len(fig.acquisitions_failed)}"
-        f" of {fig.acquisitions} |",
+        f"| acquisitions: succeeded with FRFs / refused incomplete / failed | "
+        f"{fig.acquisitions - len(fig.acquisitions_failed) - len(fig.acquisitions_incomplete)}"
+        f" / {len(fig.acquisitions_incomplete)} / {len(fig.acquisitions_failed)} |",
         f"| averages accepted / rejected / lost | {fig.averages_accepted} / "
         f"{fig.averages_rejected} / {fig.averages_lost} |",
         f"| HTTP 500 | {fig.http_500} |",
@@ -389,6 +435,10 @@ def table(fig: Figures) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    if argv[:1] == ["--probe"]:  # the status probe's own process (_StatusProbe)
+        _probe_main(argv[1], argv[2], float(argv[3]), argv[4])
+        return 0
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--minutes", type=float, default=30.0)
     ap.add_argument("--seed", type=int, default=1)
@@ -407,6 +457,8 @@ def main(argv: list[str] | None = None) -> int:
     print(table(fig))
     for e in fig.errors + fig.acquisitions_failed:
         print("problem:", e)
+    for e in fig.acquisitions_incomplete:
+        print("incomplete (refused, nothing lost):", e)
     if args.json:
         args.json.write_text(json.dumps(fig.__dict__, indent=2) + "\n", encoding="utf-8")
     ok = (

@@ -227,7 +227,7 @@ def test_a_late_host_overflows_the_bounded_fifo_and_the_gap_is_reported():
     sample counter jump and reports exactly those samples as lost (NaN, not valid)."""
     src = ImpulseSource(background=1.0)  # 2048 S/s
     wiring = {0: DaqInput(0, FORCE_MV_PER_N * 1e-3)}
-    fifo = 8 * p.frame_size(128, 1)  # 8 frames of 128 samples: 0.5 s at 2048 S/s
+    fifo = 16 * p.frame_size(128, 1)  # 16 frames of 128 samples: 1 s at 2048 S/s
     backend = VirtualDaqBackend(src, wiring, free_running=True, fifo_bytes=fifo)
     with DaqDevice.open(backend=backend) as dev:
         task = DaqTask(dev)
@@ -235,12 +235,17 @@ def test_a_late_host_overflows_the_bounded_fifo_and_the_gap_is_reported():
         task.configure_timing(src.sample_rate_hz, samples_per_frame=128)
         task.start()
         task.read(128)
-        time.sleep(1.0)  # the host is late: ~2048 samples clocked, room for 1024
-        block = task.read(2048)
+        # the host is late: it reads nothing until the DAQ has clocked 4 frames beyond a full
+        # FIFO (a deadline on that progress, not a fixed sleep: load only makes the gap longer)
+        deadline = time.monotonic() + 30
+        while dev.get_status().samples_clocked < 128 + 20 * 128:
+            assert time.monotonic() < deadline, "the free-running clock did not run"
+            time.sleep(0.05)
+        block = task.read(16 * 128 + 1024)
         task.stop()
         status = dev.get_status()
     (ev,) = [e for e in block.events if e.kind == "overflow"]
-    assert ev.first_sample == 128 + 1024  # the FIFO held 8 frames after the last read
+    assert ev.first_sample == 128 + 16 * 128  # the FIFO held 16 frames after the last read
     assert ev.n_samples >= 512 and not block.valid[ev.first_sample - 128 :][: ev.n_samples].any()
     assert block.valid[: ev.first_sample - 128].all()
     assert status.frames_lost == ev.n_samples // 128 and status.overflowed
