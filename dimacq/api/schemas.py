@@ -229,6 +229,11 @@ class DeviceOut(BaseModel):
     connected: bool
     identity: dict[str, Any]
     error: str
+    lost: str = Field(
+        default="",
+        description="why the code using the device (an acquisition, the digitizing session) "
+        "last saw it lost, e.g. the DAQ dropped off the bus; empty while it works",
+    )
 
 
 class StatusOut(BaseModel):

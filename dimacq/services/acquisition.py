@@ -134,7 +134,8 @@ class ImpactSession:
     on_event : callable (event), optional
         Called with every event the session logs (a dict: ``device``, ``kind``, ``message``,
         …), among them ``kind="restart"`` when the DAQ dropped off the bus and
-        ``kind="reconnected"`` when it is back; on the acquisition's thread, so keep it cheap.
+        ``kind="reconnected"`` when it is back, ``kind="lost"`` when it stopped answering (the
+        run fails); on the acquisition's thread, so keep it cheap.
     """
 
     def __init__(
@@ -204,6 +205,9 @@ class ImpactSession:
             except DeviceTimeoutError as err:
                 self._event({"kind": "daq_timeout", "message": str(err)})
                 if attempt == 2:
+                    self._event(
+                        {"device": "daq", "kind": "lost", "message": f"3 reads timed out: {err}"}
+                    )
                     raise
         self._ingest_daq(block)
         for k, lc in enumerate(self.loadcells):

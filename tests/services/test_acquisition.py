@@ -22,7 +22,7 @@ from _block_daq import BlockDaq
 
 from dimacq.drivers.daq.driver import DaqDevice, DaqTask
 from dimacq.drivers.loadcell.driver import LoadCellAmplifier
-from dimacq.errors import DataError, SetupError
+from dimacq.errors import DataError, DeviceTimeoutError, SetupError
 from dimacq.io.acquisition_hdf5 import AcquisitionWriter
 from dimacq.services.acquisition import ImpactSession, ImpactSettings
 from dimacq.simulators.daq.backend import DaqFaults, DaqInput, VirtualDaqBackend
@@ -290,3 +290,24 @@ def test_fifo_overflow_rejects_the_average_it_hits_and_names_it(lab):
     assert rejected[0].reasons == ("DAQ samples lost (256: FIFO overflow)",)
     # frame 12 holds samples 3072..3327: inside the rejected record
     assert rejected[0].first_sample <= 12 * 256 < rejected[0].first_sample + 2048
+
+
+def test_a_daq_that_stops_answering_is_reported_lost(lab):
+    """Three reads in a row time out: the run fails, and the session's events (the service's
+    device state, ``/api/status``) say the DAQ is lost, after the three timeouts."""
+    _, _, task, amp = lab(daq_faults=DaqFaults(timeout_reads=set(range(10_000))))
+    events: list[dict] = []
+    session = ImpactSession(
+        task,
+        ["10+X force"],
+        ["100+Z"],
+        [amp],
+        settings=ImpactSettings(record_samples=512, averages_per_input=1),
+        operator=lambda j, at: None,
+        loadcell_outputs="gauges",
+        on_event=events.append,
+    )
+    with pytest.raises(DeviceTimeoutError):
+        session.run()
+    kinds = [e["kind"] for e in events]
+    assert kinds.count("daq_timeout") == 3 and kinds[-1] == "lost", kinds

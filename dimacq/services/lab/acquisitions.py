@@ -291,11 +291,13 @@ class AcquisitionService:
 
     def _on_device_event(self, ev: Mapping[str, object]) -> None:
         """The session's events → the devices' state (``/api/status``): the DAQ lost (the
-        run restarts) and found again."""
+        run restarts, or fails when it stopped answering) and found again."""
         if ev.get("device") != "daq":
             return
         if ev.get("kind") == "restart":
             self.devices.mark("daq", "dropped off the bus during the acquisition; reconnecting")
+        elif ev.get("kind") == "lost":
+            self.devices.mark("daq", "stopped answering during the acquisition (reads timed out)")
         elif ev.get("kind") == "reconnected":
             self.devices.mark("daq", "")
 
