@@ -105,3 +105,26 @@ def test_service_and_api_modules_stay_small() -> None:
         if (n := len(p.read_text(encoding="utf-8").splitlines())) > 700
     }
     assert not big, f"split these modules (over 700 lines): {big}"
+
+
+def test_a_hit_view_is_kept_as_arrays_and_given_as_strict_json() -> None:
+    """The live review keeps a hit's traces as numpy arrays (not 10⁴ Python floats in lists that
+    every full garbage collection walks) and gives them as JSON (NaN → null); a long-finished
+    acquisition forgets them."""
+    from dimacq.services.lab.acquisition_views import LiveReview, hit_view
+
+    n = 256
+    force = np.zeros((1, n))
+    force[0, 10] = 100.0
+    outputs = np.vstack([np.sin(np.arange(n) / 5.0), 3 * np.cos(np.arange(n) / 7.0)])
+    outputs[1, 20] = np.nan  # a lost sample
+    view = hit_view({"force": force, "outputs": outputs}, 1024.0, 2)
+    assert isinstance(view["force_n"], np.ndarray) and view["response"] == 1
+    assert not np.shares_memory(view["response_ms2"], outputs)
+    live = LiveReview(review=False, n_inputs=1, last_view={**view, "number": 1})
+    got = live.current_hit()
+    assert got is not None and got["pending"] is False and got["number"] == 1
+    assert isinstance(got["force_n"], list) and got["response_ms2"][20] is None
+    assert got["force_n"][10] == 100.0 and len(got["frequencies_hz"]) == n // 2 + 1
+    live.drop_views()
+    assert live.current_hit() is None

@@ -106,6 +106,10 @@ class AcquisitionInfo:
     updated_at: str | None = None  # the last change of state, message, job or FRF set
 
 
+#: acquisitions whose last hit (traces and spectra) stays in memory for GET .../hit
+_KEEP_HIT_VIEWS = 16
+
+
 class AcquisitionService:
     """Start, follow and stop impact acquisitions.
 
@@ -242,6 +246,11 @@ class AcquisitionService:
             coherence=[None] * len(inputs),
         )
         self._live[acq_id] = live
+        # the hits' traces of the newest acquisitions only (memory, and the garbage collector's
+        # work); older ones keep their coherence, GET .../hit answers 404 for them (as after a
+        # restart of the service)
+        for old in list(self._live)[:-_KEEP_HIT_VIEWS]:
+            self._live[old].drop_views()
         try:
             job = self.jobs.submit(
                 "acquisition",
