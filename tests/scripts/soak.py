@@ -72,7 +72,9 @@ REPORTS: dict[str, str] = {
     "serial_noise": (
         r"line noise, \d+ garbage|truncated line dropped|bytes were corrupted on the link"
     ),
-    "serial_port_loss": r"digitiz\w*: port lost",
+    # the driver's line for every port it finds gone (also while reconnecting: a port lost
+    # again during the reopening is met by the reconnect's retries, not by the session)
+    "serial_port_loss": r"\S+ vanished: ",
 }
 _INJECTED = re.compile(r"simulated fault (\w+):")
 

@@ -289,11 +289,7 @@ class AcquisitionService:
                 raise DeviceNotFoundError(
                     f"{name} is not connected ({info.error or 'closed'}); connect it first"
                 )
-        try:
-            rig = rig_builder.build_rig(self.settings, setup, cfg)
-        except DeviceNotFoundError as err:
-            self.devices.mark("daq" if "DAQ" in str(err) else "loadcell", str(err))
-            raise
+        rig = rig_builder.build_rig(self.settings, setup, cfg)
         for name in ("daq", "loadcell"):  # opened and identified: there
             self.devices.mark(name, "")
         return rig

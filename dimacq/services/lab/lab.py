@@ -190,10 +190,11 @@ class Lab:
 
         Each device's state is what the code using it last saw (:meth:`DeviceService.mark`),
         never a probe made for the status: ``connected`` false with ``error`` saying why from
-        the moment the acquisition sees the DAQ gone (its next read: within the rig's USB
-        ``timeout_s``) or the digitizing session a lost port, until it is found again;
-        ``since`` is when that state began. A device nobody uses is not looked at: its state
-        is the last one seen (at start, its last use, or ``POST /api/devices/{name}/connect``).
+        the moment the acquisition sees the DAQ gone (a re-enumeration at its next read, a DAQ
+        that stopped answering after three reads timed out: 3 × the rig's USB ``timeout_s``) or
+        the digitizing session a lost port, until it is found again; ``since`` is when that
+        state began. A device nobody uses is not looked at: its state is the last one seen (at
+        start, its last use, or ``POST /api/devices/{name}/connect``).
         """
         return LabStatus(
             service="dimacq",
