@@ -46,15 +46,15 @@ def test_status_shows_a_device_lost_by_its_worker_at_once(api: Api) -> None:
     assert before["connected"] is True and before["simulated"] is True, before
     lab = api.lab
     try:
-        lab.acquisitions._on_device_event({"device": "daq", "kind": "restart", "message": "x"})
+        lab.devices.on_acquisition_event({"device": "daq", "kind": "restart", "message": "x"})
         lost = api.anon.get("/api/status").json()["devices"]["daq"]
         assert lost["connected"] is False and "dropped off the bus" in lost["error"], lost
         assert lost["since"] >= before["since"]
         assert "dropped off the bus" in api.anon.get("/api/devices/daq").json()["lost"]
-        lab.acquisitions._on_device_event({"device": "daq", "kind": "reconnected"})
+        lab.devices.on_acquisition_event({"device": "daq", "kind": "reconnected"})
         back = api.anon.get("/api/status").json()["devices"]["daq"]
         assert back["connected"] is True and back["error"] == "", back
-        lab.acquisitions._on_device_event({"device": "daq", "kind": "lost", "message": "t/o"})
+        lab.devices.on_acquisition_event({"device": "daq", "kind": "lost", "message": "t/o"})
         gone = api.anon.get("/api/status").json()["devices"]["daq"]
         assert gone["connected"] is False and "stopped answering" in gone["error"], gone
         lab.devices.mark("digitizer", "port lost (gone); reconnecting")  # the session's call

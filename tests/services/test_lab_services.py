@@ -128,3 +128,6 @@ def test_a_hit_view_is_kept_as_arrays_and_given_as_strict_json() -> None:
     assert got["force_n"][10] == 100.0 and len(got["frequencies_hz"]) == n // 2 + 1
     live.drop_views()
     assert live.current_hit() is None
+    lives = {i: LiveReview(review=False, n_inputs=1, last_view=dict(view)) for i in range(20)}
+    LiveReview.keep_newest_views(lives, keep=16)
+    assert [i for i, v in lives.items() if v.current_hit() is None] == [0, 1, 2, 3]

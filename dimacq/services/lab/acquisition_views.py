@@ -55,6 +55,14 @@ class LiveReview:
             return json_safe({**last, "pending": False})
         return None
 
+    @staticmethod
+    def keep_newest_views(lives: Mapping[int, LiveReview], keep: int = 16) -> None:
+        """Forget the hits' traces of all but the ``keep`` newest acquisitions (insertion
+        order): memory, and the garbage collector's work. Older ones keep their coherence; GET
+        .../hit answers 404 for them, as after a restart of the service."""
+        for old in list(lives)[:-keep]:
+            lives[old].drop_views()
+
     def drop_views(self) -> None:
         """Forget the hits' traces (an acquisition long finished: :meth:`current_hit` is None)."""
         with self.lock:

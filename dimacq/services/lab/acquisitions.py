@@ -106,10 +106,6 @@ class AcquisitionInfo:
     updated_at: str | None = None  # the last change of state, message, job or FRF set
 
 
-#: acquisitions whose last hit (traces and spectra) stays in memory for GET .../hit
-_KEEP_HIT_VIEWS = 16
-
-
 class AcquisitionService:
     """Start, follow and stop impact acquisitions.
 
@@ -246,11 +242,7 @@ class AcquisitionService:
             coherence=[None] * len(inputs),
         )
         self._live[acq_id] = live
-        # the hits' traces of the newest acquisitions only (memory, and the garbage collector's
-        # work); older ones keep their coherence, GET .../hit answers 404 for them (as after a
-        # restart of the service)
-        for old in list(self._live)[:-_KEEP_HIT_VIEWS]:
-            self._live[old].drop_views()
+        LiveReview.keep_newest_views(self._live)
         try:
             job = self.jobs.submit(
                 "acquisition",
@@ -293,18 +285,6 @@ class AcquisitionService:
         for name in ("daq", "loadcell"):  # opened and identified: there
             self.devices.mark(name, "")
         return rig
-
-    def _on_device_event(self, ev: Mapping[str, object]) -> None:
-        """The session's events → the devices' state (``/api/status``): the DAQ lost (the
-        run restarts, or fails when it stopped answering) and found again."""
-        if ev.get("device") != "daq":
-            return
-        if ev.get("kind") == "restart":
-            self.devices.mark("daq", "dropped off the bus during the acquisition; reconnecting")
-        elif ev.get("kind") == "lost":
-            self.devices.mark("daq", "stopped answering during the acquisition (reads timed out)")
-        elif ev.get("kind") == "reconnected":
-            self.devices.mark("daq", "")
 
     def _run(
         self,
@@ -442,7 +422,7 @@ class AcquisitionService:
                 review=review if live.review else None,
                 should_finish=live.finish.is_set,
                 on_input=on_input,
-                on_event=self._on_device_event,
+                on_event=self.devices.on_acquisition_event,
             )
             try:
                 fid = self.db.retry(

@@ -11,7 +11,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Literal
 
@@ -111,6 +111,19 @@ class DeviceService:
         elif info.lost:
             log.warning("device %s working again", name)
         info.lost, info.since = lost, time.time()
+
+    def on_acquisition_event(self, ev: Mapping[str, object]) -> None:
+        """An acquisition session's event (:class:`~dimacq.services.acquisition.ImpactSession`
+        ``on_event``) → the DAQ's state: lost (the run restarts, or fails when the DAQ stopped
+        answering) and found again."""
+        if ev.get("device") != "daq":
+            return
+        if ev.get("kind") == "restart":
+            self.mark("daq", "dropped off the bus during the acquisition; reconnecting")
+        elif ev.get("kind") == "lost":
+            self.mark("daq", "stopped answering during the acquisition (reads timed out)")
+        elif ev.get("kind") == "reconnected":
+            self.mark("daq", "")
 
     def require(self, name: str) -> DeviceInfo:
         """The device ``name``; SetupError naming the known ones if there is none."""
