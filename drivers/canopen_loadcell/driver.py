@@ -48,7 +48,7 @@ from numpy.typing import NDArray
 from dimacq.devices.loadcell import LoadCellBlock, LoadCellEvent, LoadCellIdentity
 from dimacq.drivers.base import Deadline, WireDriver
 from dimacq.drivers.canopen_loadcell import protocol as p
-from dimacq.drivers.loadcell.counting import SyncCounting
+from dimacq.drivers.loadcell.counting import SyncCounting, unwrap_u32
 from dimacq.drivers.stream import CounterStream, false_runs
 from dimacq.errors import (
     DeviceError,
@@ -389,7 +389,7 @@ class CanopenLoadCell(SyncCounting, WireDriver):
         return self.name
 
     def _device_counter(self) -> int:
-        return self._read_int(p.COUNTER)
+        return unwrap_u32(self._read_int(p.COUNTER), self._have() - 1)
 
     def get_status(self) -> tuple[int, int, int]:
         """(0 idle / 2 streaming, status flags ``0x2103``, sample counter ``0x2102``)."""

@@ -21,10 +21,17 @@ from dimacq.devices.loadcell import LoadCellEvent
 from dimacq.drivers.base import Deadline
 from dimacq.errors import DeviceStateError, DeviceTimeoutError
 
-__all__ = ["STALL_PROBE_S", "SyncCounting"]
+__all__ = ["STALL_PROBE_S", "SyncCounting", "unwrap_u32"]
 
 #: seconds without a new counter while streaming before the driver asks the amplifier's counter
 STALL_PROBE_S = 0.5
+
+
+def unwrap_u32(raw: int, ref: int) -> int:
+    """The absolute counter whose low 32 bits are ``raw``, at or after ``ref`` (a counter the
+    device has already passed): ``ref + ((raw − ref) mod 2³²)``."""
+    ref = max(ref, 0)
+    return ref + ((raw - ref) & 0xFFFFFFFF)
 
 
 class SyncCounting:
@@ -45,7 +52,8 @@ class SyncCounting:
         raise NotImplementedError
 
     def _device_counter(self) -> int:
-        """The amplifier's own pulse counter, asked over the bus (raises DeviceTimeoutError)."""
+        """The amplifier's own pulse counter, asked over the bus and unwrapped (u32 on the wire)
+        against the stream's (raises DeviceTimeoutError)."""
         raise NotImplementedError
 
     def _await_counter(

@@ -33,7 +33,7 @@ from numpy.typing import NDArray
 from dimacq.devices.loadcell import LoadCellBlock, LoadCellEvent, LoadCellIdentity
 from dimacq.drivers.base import Deadline, WireDriver
 from dimacq.drivers.loadcell import protocol as p
-from dimacq.drivers.loadcell.counting import SyncCounting
+from dimacq.drivers.loadcell.counting import SyncCounting, unwrap_u32
 from dimacq.drivers.stream import CounterStream, false_runs
 from dimacq.errors import (
     DeviceError,
@@ -256,7 +256,7 @@ class LoadCellAmplifier(SyncCounting, WireDriver):
         return f"load cell amplifier {self.node_id}"
 
     def _device_counter(self) -> int:
-        return self.get_status()[2]
+        return unwrap_u32(self.get_status()[2], self._stream.last_counter)
 
     def download_calibration(self, matrix: Any) -> None:
         """Store a 6×12 matrix in the amplifier (host → amplifier, CRC checked)."""

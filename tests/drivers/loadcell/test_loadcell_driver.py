@@ -243,3 +243,11 @@ def test_leftover_frames_fail_the_test():
     with pytest.raises(AssertionError, match="script expected"):
         with expected_exchange("can", [(cmd("01"), None)], connect=amp()) as a:
             a.get_status()
+
+
+def test_the_amplifiers_u32_counter_is_unwrapped_against_the_stream():
+    from dimacq.drivers.loadcell.counting import unwrap_u32
+
+    assert unwrap_u32(5, 2**32 - 3) == 2**32 + 5
+    assert unwrap_u32(2**32 - 1, 2**32 - 3) == 2**32 - 1
+    assert unwrap_u32(10, -1) == 10  # nothing received yet
