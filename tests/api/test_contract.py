@@ -290,16 +290,14 @@ def test_deletes(api: Api, stored: dict[str, Any]) -> None:
     write_frf_uff(path, frf)
     fid = api.client.post("/api/frfs/import", params={"setup_id": sid}, content=path.read_bytes())
     fid = fid.json()["id"]
-    sol = api.client.post(
-        "/api/solutions",
-        json={
-            "frf_id": fid,
-            "band_hz": [20, 100],
-            "select_responses": False,
-            "select_inputs": False,
-            "geometry_uncertainty": False,
-        },
-    ).json()
+    solve = {
+        "frf_id": fid,
+        "band_hz": [20, 100],
+        "select_responses": False,
+        "select_inputs": False,
+        "geometry_uncertainty": False,
+    }
+    sol = api.client.post("/api/solutions", json=solve).json()
     # a setup in use is kept, with the reason
     r = api.client.delete(f"/api/setups/{sid}")
     assert r.status_code == 409 and f"FRF sets [{fid}]" in r.json()["detail"], r.text
@@ -307,16 +305,7 @@ def test_deletes(api: Api, stored: dict[str, Any]) -> None:
     assert api.client.delete(f"/api/solutions/{sol['id']}").status_code == 204
     assert api.client.get(f"/api/solutions/{sol['id']}").status_code == 404
     # an FRF set with its solutions
-    sol2 = api.client.post(
-        "/api/solutions",
-        json={
-            "frf_id": fid,
-            "band_hz": [20, 100],
-            "select_responses": False,
-            "select_inputs": False,
-            "geometry_uncertainty": False,
-        },
-    ).json()
+    sol2 = api.client.post("/api/solutions", json=solve).json()
     assert api.client.get("/api/solutions", params={"frf_id": fid}).json()[0]["id"] == sol2["id"]
     assert api.client.delete(f"/api/frfs/{fid}").status_code == 204
     assert api.client.get(f"/api/frfs/{fid}").status_code == 404

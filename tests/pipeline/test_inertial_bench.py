@@ -10,6 +10,10 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from dimacq.errors import DataError
+from dimacq.model.properties import (
+    THESIS_CALIBRATION_MASS,
+    THESIS_CALIBRATION_MASS_INERTIA_ORIGIN_KGM2,
+)
 from dimacq.pipeline.inertial_bench import (
     jackknife_matrix_variance,
     matrix_gain_variance,
@@ -18,15 +22,9 @@ from dimacq.pipeline.inertial_bench import (
 from dimacq.pipeline.loadcell_calibration import inertial_calibration
 from dimacq.pipeline.rigid_body import condense, load_cell_transform, response_matrix
 
-M_KG = 18.175
-C_M = np.array([0.035236, 0.000130, -0.085632])
-I_P = np.array(
-    [
-        [0.218554, -0.000109, 0.078161],
-        [-0.000109, 0.304172, 0.000218],
-        [0.078161, 0.000218, 0.158154],
-    ]
-)
+M_KG = THESIS_CALIBRATION_MASS.mass_kg
+C_M = THESIS_CALIBRATION_MASS.cg_m
+I_P = THESIS_CALIBRATION_MASS_INERTIA_ORIGIN_KGM2
 CELL_POS = np.array([0.05, 0.0, 0.05])
 CELL_ROT = Rotation.from_euler("z", 45, degrees=True).as_matrix()
 

@@ -7,6 +7,10 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from dimacq.errors import SetupError, SolverError
+from dimacq.model.properties import (
+    THESIS_CALIBRATION_MASS,
+    THESIS_CALIBRATION_MASS_INERTIA_ORIGIN_KGM2,
+)
 from dimacq.pipeline.loadcell_calibration import (
     dead_weight_loads,
     inertial_calibration,
@@ -15,15 +19,9 @@ from dimacq.pipeline.loadcell_calibration import (
 )
 
 # Thesis calibration mass (method §9), about the GCS origin P.
-M_KG = 18.175
-C_M = np.array([0.035236, 0.000130, -0.085632])
-I_P = np.array(
-    [
-        [0.218554, -0.000109, 0.078161],
-        [-0.000109, 0.304172, 0.000218],
-        [0.078161, 0.000218, 0.158154],
-    ]
-)
+M_KG = THESIS_CALIBRATION_MASS.mass_kg
+C_M = THESIS_CALIBRATION_MASS.cg_m
+I_P = THESIS_CALIBRATION_MASS_INERTIA_ORIGIN_KGM2
 
 
 def skew(v):
