@@ -323,6 +323,11 @@ class DigitizerDriver(WireDriver, abc.ABC):
                 log.info("digitizer reconnected (%s) after %d attempt(s)", identity.serial, i + 1)
                 return identity
             except DeviceError as err:
+                # each failed attempt is reported (a reply damaged on the link while reopening
+                # is a fault of its own, not only a cause of the retry)
+                log.warning(
+                    "digitizer: reconnect attempt %d of %d failed: %s", i + 1, attempts, err
+                )
                 last = err
                 time.sleep(delay_s)
         raise DeviceNotFoundError(

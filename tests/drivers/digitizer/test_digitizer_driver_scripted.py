@@ -147,6 +147,28 @@ def test_port_vanishes_then_reconnect():
         d.fire()
 
 
+def test_reply_damaged_while_reconnecting_is_reported(caplog: pytest.LogCaptureFixture) -> None:
+    # the 30-minute soak: a checksum error on *IDN? during the reopening was retried silently,
+    # so one injected line fault of 330 went unreported
+    idn = SCRIPT[0][1]
+    bad = idn[:-4] + (b"00" if idn[-4:-2] != b"00" else b"11") + idn[-2:]  # wrong checksum
+    first = ScriptedSerial([], vanish_after=0)
+    second = ScriptedSerial([(b"*IDN?\r", bad)])
+    third = ScriptedSerial([(b"*IDN?\r", idn)])
+    ports = iter([second, third])
+    d = SerialDigitizer(first, reopen=lambda: next(ports), timeout_s=0.05, name="scripted")
+    with caplog.at_level("WARNING", logger="dimacq.drivers.digitizer.driver"):
+        assert d.reconnect(attempts=2, delay_s=0.0).serial == "SIM-T"
+    failed = [
+        r.getMessage()
+        for r in caplog.records
+        if "reconnect attempt 1 of 2 failed" in r.getMessage()
+    ]
+    assert len(failed) == 1 and "checksum" in failed[0]
+    assert "bytes were corrupted on the link" in failed[0]  # what the soak counts
+    d.close()
+
+
 def test_reconnect_without_factory_fails_clearly():
     d = SerialDigitizer(ScriptedSerial([]), timeout_s=0.05)
     with pytest.raises(DeviceNotFoundError, match="reconnect failed after 2 attempts"):
