@@ -122,6 +122,9 @@ def test_residual_flexibility_removes_the_bias_of_a_mode_above_the_band() -> Non
     assert rf["statistic"] > rf["critical_value"]
     assert rf["relative_rms_median"] > 0.001
     assert on.chi2_reduced < 2.0 < off.chi2_reduced
+    # the two fits' difference stays in the intervals as a model-form term
+    d = np.array(rf["model_form_difference"])
+    assert np.all(np.diag(on.covariance) >= d**2 * (1 - 1e-9))
 
 
 def test_known_mass_stays_exact() -> None:
