@@ -76,6 +76,10 @@ def test_noise_does_not_leave_a_short_band_below_an_elastic_mode() -> None:
     rep = analyse(frf, b.setup, AnalysisOptions())  # type: ignore[attr-defined]
     lo, hi = rep.result.band_hz
     assert hi - lo > 5.0 and hi < 0.7 * 23.0, (lo, hi)
+    reason = rep.band_selection["reason"]  # the band says why it starts and ends there
+    assert (
+        "still dominates the motion" in reason and "keeps below 0.6 of the elastic mode" in reason
+    )
     truth = b.truth  # type: ignore[attr-defined]
     assert np.linalg.norm(rep.result.cg_m - truth.cg_m) < 3e-3
     w, _ = principal_moments(rep.result.properties.inertia_cg_kgm2)
@@ -115,6 +119,7 @@ def test_band_keeps_below_six_tenths_of_the_elastic_mode_in_noisy_data() -> None
     s = rep.band_suggestion
     assert s is not None and s.deformation_peaks_hz
     assert rep.result.band_hz[1] <= 0.6 * s.deformation_peaks_hz[0] + 1e-9
+    assert "keeps below 0.6 of the elastic mode" in s.reason
     truth = b.truth  # type: ignore[attr-defined]
     assert np.linalg.norm(rep.result.cg_m - truth.cg_m) < 4e-3
     keys = ("cx", "cy", "cz")

@@ -34,9 +34,10 @@ between (that peak is an elastic mode: the band never crosses it); the longest o
 Unexplained peaks below the band are reported as suspension (support) modes, the ones above as
 elastic modes. Each run starts clear of the highest peak of the first CMIF curve ``σ₁`` at or below
 it: on that peak's falling flank, above the last line where ``σ₁`` is more than twice its mass-line
-level (:data:`MASS_LINE_RATIO`). The run is trimmed at its ends until every line's normalised estimates lie within
-``max(4 σ, 0.002)`` of the band median (σ the line-to-line noise level from first differences):
-slow trends from the suspension or an approaching mode are cut off.
+level (:data:`MASS_LINE_RATIO`). The run is trimmed at its ends until every line's normalised
+estimates lie within ``max(4 σ, 0.002)`` of the band median (σ the line-to-line noise level from
+first differences): slow trends from the suspension or an approaching mode are cut off. Its top
+stays at or below 0.6 of the first elastic mode above it (:data:`ELASTIC_CLEARANCE`).
 
 If no run qualifies, the suggestion says so (``qualified = False``) and names the best band found
 (the run with the lowest median DIM residual) with its errors; the caller must refuse the answer.
@@ -106,9 +107,10 @@ ROUGH_FLOOR = 0.005
 #: band reached 18–19 Hz, 0.8 of the 23 Hz tail mode, and the CG came out up to 5.5 mm off, up to
 #: 2 half-widths outside its interval, verdict ok.
 ELASTIC_CLEARANCE = 0.6
-#: Clearance of the band from a resonance below it (a suspension or support mode): the band starts
-#: above the last line, below the run's lowest level of the first CMIF curve ``σ₁``, where ``σ₁``
-#: exceeds this many times that level. Next to a lightly damped suspension mode every input drives
+#: Clearance of the band from a resonance below it (a suspension or support mode): on the falling
+#: flank of the highest peak of the first CMIF curve ``σ₁`` at or below the run, the band starts
+#: above the last line where ``σ₁`` exceeds this many times its lowest level between that peak and
+#: the run's top (the mass line). Next to a lightly damped suspension mode every input drives
 #: that one mode: each line's system is nearly rank one (``σ₁/σ₆`` 26 one line above an X-38-like
 #: vehicle's 4.25 Hz bounce mode, 5.7 on its mass line), so the stated geometry's errors are
 #: amplified, and the line's large motion gives it the weight of ten mass-line lines in the joint
@@ -345,6 +347,8 @@ def suggest_band(
     tol = np.maximum(flat_sigma * sig, flat_floor)
 
     s1 = median_filter(sv[:, 0], size=3, mode="nearest")
+    cleared: dict[int, int] = {}  # band start moved by the resonance clearance → that CMIF peak
+    capped: dict[int, int] = {}  # band top moved by the elastic clearance → that elastic peak
 
     def _clear_of_resonance(i0: int, i1: int) -> int:
         """First line of ``[i0, i1]`` clear of the highest resonance at or below it: on that
@@ -357,7 +361,10 @@ def suggest_band(
         seg = s1[pk : i1 + 1]
         k = int(np.argmin(seg))  # the falling flank only: σ₁ may rise again towards a mode above
         high = np.nonzero(seg[:k] > mass_line_ratio * seg[k])[0]
-        return max(i0, pk + int(high[-1]) + 1) if high.size else i0
+        start = max(i0, pk + int(high[-1]) + 1) if high.size else i0
+        if start > i0:
+            cleared[start] = pk
+        return start
 
     def _trim(i0: int, i1: int) -> tuple[int, int]:
         while i1 - i0 + 1 > min_lines:
@@ -388,9 +395,12 @@ def suggest_band(
         if not above:
             return i1
         cap = elastic_clearance * f[above[0]]
-        while i1 >= i0 and f[i1] > cap + 1e-9:
-            i1 -= 1
-        return i1
+        top = i1
+        while top >= i0 and f[top] > cap + 1e-9:
+            top -= 1
+        if top < i1:
+            capped[top] = above[0]
+        return top
 
     runs = _runs(usable)
     chosen: tuple[int, int] | None = None
@@ -469,7 +479,10 @@ def suggest_band(
         ]
         if i0 > 0:
             below = (
-                f"below {lo:g} Hz the per-line estimates drift off the plateau (suspension / "
+                f"below {lo:g} Hz the resonance at {f[cleared[i0]]:g} Hz still dominates the "
+                f"motion (first CMIF curve above {mass_line_ratio:g}× its mass-line level)"
+                if i0 in cleared
+                else f"below {lo:g} Hz the per-line estimates drift off the plateau (suspension / "
                 "support effects)"
             )
             peaks = sorted(set(susp) | set(susp_cmif))
@@ -478,7 +491,12 @@ def suggest_band(
             parts.append(below)
         if i1 < n - 1:
             k = i1 + 1
-            if deform:
+            if i1 in capped:
+                above = (
+                    f"above {hi:g} Hz the band keeps below {elastic_clearance:g} of the elastic mode "
+                    f"at {f[capped[i1]]:g} Hz (its part's dynamic mass grows like (f/f_e)²)"
+                )
+            elif deform:
                 above = (
                     f"above {hi:g} Hz the first deformation mode at {deform[0]:g} Hz (an elastic "
                     "mode: a resonance the rigid-body model does not explain) ends the rigid-body band"
