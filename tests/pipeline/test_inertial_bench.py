@@ -10,10 +10,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from dimacq.errors import DataError
-from dimacq.model.properties import (
-    THESIS_CALIBRATION_MASS,
-    THESIS_CALIBRATION_MASS_INERTIA_ORIGIN_KGM2,
-)
+from dimacq.model.properties import THESIS_CALIBRATION_MASS
 from dimacq.pipeline.inertial_bench import (
     jackknife_matrix_variance,
     matrix_gain_variance,
@@ -22,24 +19,12 @@ from dimacq.pipeline.inertial_bench import (
 from dimacq.pipeline.loadcell_calibration import inertial_calibration
 from dimacq.pipeline.rigid_body import condense, load_cell_transform, response_matrix
 
-M_KG = THESIS_CALIBRATION_MASS.mass_kg
-C_M = THESIS_CALIBRATION_MASS.cg_m
-I_P = THESIS_CALIBRATION_MASS_INERTIA_ORIGIN_KGM2
 CELL_POS = np.array([0.05, 0.0, 0.05])
 CELL_ROT = Rotation.from_euler("z", 45, degrees=True).as_matrix()
 
 
-def skew(v):
-    return np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
-
-
 def mass_matrix():
-    M = np.zeros((6, 6))
-    M[:3, :3] = M_KG * np.eye(3)
-    M[:3, 3:] = -M_KG * skew(C_M)
-    M[3:, :3] = M_KG * skew(C_M)
-    M[3:, 3:] = I_P
-    return M
+    return THESIS_CALIBRATION_MASS.mass_matrix(np.zeros(3))
 
 
 def array(seed=0):

@@ -29,12 +29,7 @@ def skew(v):
 
 
 def mass_matrix():
-    M = np.zeros((6, 6))
-    M[:3, :3] = M_KG * np.eye(3)
-    M[:3, 3:] = -M_KG * skew(C_M)
-    M[3:, :3] = M_KG * skew(C_M)
-    M[3:, 3:] = I_P
-    return M
+    return THESIS_CALIBRATION_MASS.mass_matrix(np.zeros(3))
 
 
 CELL_POS = np.array([0.01, -0.02, -0.20])

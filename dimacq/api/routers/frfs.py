@@ -3,10 +3,10 @@
 
 from __future__ import annotations
 
-from dataclasses import asdict
+from dataclasses import asdict, dataclass
 from typing import Annotated, Any
 
-from fastapi import APIRouter, Query, Request, Response, status
+from fastapi import APIRouter, Depends, Query, Request, Response, status
 from pydantic import Field
 from starlette.concurrency import run_in_threadpool
 
@@ -29,6 +29,39 @@ _Index = Annotated[int | None, Query(ge=0, le=MAX_ID)]
 _Node = Annotated[int | None, Query(ge=1, le=MAX_ID)]
 _Dir = Annotated[int | None, Query(ge=-6, le=6, description="UFF direction, ±1..±6")]
 _Hz = Annotated[float | None, Query(ge=0, le=1e9)]
+
+
+@dataclass(frozen=True)
+class _Selection:
+    """The query both value routes share: responses, the inputs' node and direction, the band."""
+
+    responses: ChannelQuery
+    input_node: int | None
+    input_direction: int | None
+    band_hz: tuple[float | None, float | None]
+
+    def inputs(self, index: int | None = None, indices: tuple[int, ...] = ()) -> ChannelQuery:
+        return ChannelQuery(index, self.input_node, self.input_direction, indices)
+
+
+def _selection(
+    response: _Index = None,
+    response_node: _Node = None,
+    response_direction: _Dir = None,
+    input_node: _Node = None,
+    input_direction: _Dir = None,
+    f_min_hz: _Hz = None,
+    f_max_hz: _Hz = None,
+) -> _Selection:
+    return _Selection(
+        ChannelQuery(response, response_node, response_direction),
+        input_node,
+        input_direction,
+        (f_min_hz, f_max_hz),
+    )
+
+
+SelectionDep = Annotated[_Selection, Depends(_selection)]
 
 
 @router.get("", response_model=list[FrfOut], responses=LIST_RESPONSES)
@@ -58,14 +91,8 @@ def delete_frf(frf_id: IdPath, lab: LabDep) -> Response:
 def frf_data(
     frf_id: IdPath,
     lab: LabDep,
-    response: _Index = None,
+    sel: SelectionDep,
     input: _Index = None,
-    response_node: _Node = None,
-    response_direction: _Dir = None,
-    input_node: _Node = None,
-    input_direction: _Dir = None,
-    f_min_hz: _Hz = None,
-    f_max_hz: _Hz = None,
 ) -> dict[str, Any]:
     """FRF values H (response acceleration or reaction per input force) of the chosen responses
     × inputs on the lines in [``f_min_hz``, ``f_max_hz``]: ``real``, ``imag`` and ``coherence``
@@ -75,12 +102,7 @@ def frf_data(
     ``response_direction``, ``input_node`` and ``input_direction``); all of them otherwise."""
     return asdict(
         found(
-            lab.store.frf_values(
-                frf_id,
-                ChannelQuery(response, response_node, response_direction),
-                ChannelQuery(input, input_node, input_direction),
-                (f_min_hz, f_max_hz),
-            ),
+            lab.store.frf_values(frf_id, sel.responses, sel.inputs(input), sel.band_hz),
             f"FRF set {frf_id}",
         )
     )
@@ -90,18 +112,12 @@ def frf_data(
 def frf_envelope(
     frf_id: IdPath,
     lab: LabDep,
+    sel: SelectionDep,
     points: Annotated[int, Query(ge=1, le=100_000, description="most points per pair")] = 512,
-    response: _Index = None,
     input: Annotated[
         list[Annotated[int, Field(ge=0, le=MAX_ID)]] | None,
         Query(max_length=1000, description="input indices (repeat the key for several)"),
     ] = None,
-    response_node: _Node = None,
-    response_direction: _Dir = None,
-    input_node: _Node = None,
-    input_direction: _Dir = None,
-    f_min_hz: _Hz = None,
-    f_max_hz: _Hz = None,
 ) -> dict[str, Any]:
     """What a plot or a report shows of the set, at a fraction of ``/data``'s size: the |H|
     envelope of the chosen responses × inputs (as in ``/data``) on the lines in [``f_min_hz``,
@@ -110,11 +126,7 @@ def frf_envelope(
     repeated (``input=0&input=1``: those inputs, in that order)."""
     return found(
         lab.store.frf_envelope(
-            frf_id,
-            points,
-            ChannelQuery(response, response_node, response_direction),
-            ChannelQuery(None, input_node, input_direction, tuple(input or ())),
-            (f_min_hz, f_max_hz),
+            frf_id, points, sel.responses, sel.inputs(indices=tuple(input or ())), sel.band_hz
         ),
         f"FRF set {frf_id}",
     )
