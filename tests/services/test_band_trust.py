@@ -7,6 +7,7 @@ Both cases were reported ``ok`` with errors far outside their intervals before t
 from __future__ import annotations
 
 import numpy as np
+from scipy.signal import find_peaks
 
 from dimacq.model.properties import principal_moments
 from dimacq.pipeline.selection.band import suggest_band
@@ -58,12 +59,16 @@ def test_band_starts_clear_of_the_top_suspension_mode() -> None:
     assert _inside(rep, truth.mass_kg, "m")
 
 
-def test_stiff_measured_support_keeps_its_lowest_lines() -> None:
-    # σ₁ rises from the lowest line (no resonance below the run): the rule does not trim it
+def test_run_without_a_resonance_below_keeps_its_start() -> None:
+    # free-free cube: no peak of the first CMIF curve below the band, so the clearance (one-sided:
+    # it trims only the falling flank of a peak at or below the run) leaves the start alone
     b = build_scenario(load_scenario("cube-2"), 0)
     frf = b.model_frf(noise=0.01)
     with_rule = suggest_band(frf, b.setup)
     without = suggest_band(frf, b.setup, mass_line_ratio=np.inf)
+    f, s1 = with_rule.frequencies_hz, with_rule.cmif[:, 0]
+    peaks, _ = find_peaks(np.log10(s1), prominence=0.3)
+    assert not np.any(f[peaks] < with_rule.band_hz[0])  # the premise
     assert with_rule.band_hz == without.band_hz
 
 
