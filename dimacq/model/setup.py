@@ -270,12 +270,18 @@ class TransducerUncertainty(_Model):
     force_sensitivity_rel : float
         1σ relative error of the force transducer's (hammer's) sensitivity, one value common to
         every input struck with it. Default 0.005.
+    loadcell_matrix_rel : float
+        1σ relative error of each load cell's calibration matrix (its certificate), per output
+        component. Default 0.01 (a six-axis cell's certificate, ±2 % at k = 2). The output-error
+        fit weighs the lines where the reactions carry much of the force by it
+        (:func:`dimacq.pipeline.output_error._line_weights`).
     source : {"default", "stated", "chain"}
         ``chain``: the force term is a chain calibration's (:mod:`dimacq.pipeline.chain_calibration`).
     """
 
     accel_sensitivity_rel: float = Field(default=0.005, ge=0, le=0.5)
     force_sensitivity_rel: float = Field(default=0.005, ge=0, le=0.5)
+    loadcell_matrix_rel: float = Field(default=0.01, ge=0, le=0.5)
     source: Literal["default", "stated", "chain"] = "default"
 
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -251,6 +251,7 @@ def verdict(
                     ),
                 )
             )
+    out.extend(_estimator_checks(res.extras.get("output_error")))
     # uncertainty sources
     missing = [
         c
@@ -275,6 +276,62 @@ def verdict(
         else ("warn" if any(r.severity == "warn" for r in out) else "ok")
     )
     return v, out
+
+
+def _estimator_checks(oe: Any) -> list[VerdictReason]:
+    """The ``estimator`` checks of an output-error solve (issue 22).
+
+    - ``estimator:adequacy``: the refined answer against the stated-geometry one
+      (:func:`dimacq.pipeline.output_error._adequacy`). A refinement that moved the properties
+      beyond what the stated geometry uncertainty allows explained a misfit that is not
+      geometry: ``warn``, with the difference already in the intervals (model-form term).
+    - ``estimator:refinement``: a refinement the data refused (corrections far beyond the stated
+      uncertainty after the gross-error search): ``warn``, the stated geometry was used.
+    - ``estimator:noise``: the misfit against the measured noise model (the a posteriori
+      variance factor): stated for the record; the intervals are scaled by it.
+    """
+    if not isinstance(oe, dict) or not oe.get("used"):
+        return []
+    out: list[VerdictReason] = []
+    ad = oe.get("adequacy") or {}
+    if ad.get("tested"):
+        if ad.get("passed"):
+            out.append(
+                VerdictReason(
+                    "estimator:adequacy",
+                    "ok",
+                    f"the refined geometry moves the properties as far as its stated uncertainty "
+                    f"allows (Hausman {ad['statistic']:.3g} ≤ {ad['critical_value']:.3g}, "
+                    f"{ad['dof']} dof)",
+                )
+            )
+        else:
+            out.append(
+                VerdictReason(
+                    "estimator:adequacy",
+                    "warn",
+                    f"the refinement moved the properties further from the stated-geometry "
+                    f"estimate than the stated geometry uncertainty allows (Hausman "
+                    f"{ad['statistic']:.3g} > {ad['critical_value']:.3g}, {ad['dof']} dof): it "
+                    "explained a misfit that is not geometry (channel calibration, a load-cell "
+                    "chain, a support or mode the rigid model lacks); the difference is in the "
+                    "95 % intervals. Check the channels' sensitivities and the band",
+                )
+            )
+    noise = oe.get("noise") or {}
+    if noise.get("refinement_refused"):
+        out.append(VerdictReason("estimator:refinement", "warn", str(noise["refinement_refused"])))
+    vf = noise.get("variance_factor")
+    if vf is not None and vf > 1.0:
+        out.append(
+            VerdictReason(
+                "estimator:noise",
+                "ok",
+                f"misfit {vf**0.5:.3g}× the FRFs' own noise (line-to-line scatter): the "
+                "intervals are scaled by it (calibration errors, modelling)",
+            )
+        )
+    return out
 
 
 def _precision(unc: Uncertainty, limits: tuple[float, float]) -> VerdictReason:
