@@ -15,7 +15,8 @@ else ``config/rig.toml``: certificate sensitivities, load cell calibration files
 transducers differ from them within their tolerances). An impact session strikes every input N
 accepted times (the rig file's ``[acquisition]`` gives the other settings), and
 the FRFs (accelerances and the load cells' six loads, as the drivers' calibration matrices give
-them) are written as one whole-test UFF file (geometry + 58 records, binary) that
+them) are written as one whole-test UFF file (the geometry the lab states: the scenario's
+geometry errors applied, never the simulator's truth; + 58 records, binary) that
 ``dimacq solve OUT.uff`` reads. ``--data-dir DIR`` keeps the raw blocks in ``DIR/acquisition.h5`` and the FRFs with their
 coherence (which UFF 58 cannot carry) in ``DIR/frf.npz``.
 Progress goes to stderr (one updating line on a terminal, plain lines otherwise, with the time
@@ -97,10 +98,14 @@ def run(args: argparse.Namespace) -> int:
         raise SetupError(f"--averages-per-input {args.impacts_per_input}: give at least 1")
     if args.frf.suffix.lower() not in (".uff", ".unv"):
         raise SetupError(f"--frf {args.frf}: give a .uff (or .unv) file name")
-    # The truth, to compare the FRFs with; the rig below builds its own world of the same
-    # scenario and seed, and the drivers know only the rig file and its calibration files.
-    model = build_scenario(args.scenario, args.seed).model
-    setup = model.setup
+    # The truth (``model``), to compare the FRFs with; the rig below builds its own world of the
+    # same scenario and seed, and the drivers know only the rig file and its calibration files.
+    # The setup the acquisition runs on and the file states is the lab's (the scenario's
+    # geometry errors applied: digitized positions, jig orientations, lines of action), never
+    # the simulator's true geometry (issue 22).
+    built = build_scenario(args.scenario, args.seed)
+    model = built.model
+    setup = built.setup
     n_in = len(setup.excitations)
     settings = Settings(
         daq="simulated",
