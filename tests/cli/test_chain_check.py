@@ -72,7 +72,9 @@ def test_compare_counts_intervals_against_an_independent_truth():
     distance to the nearer edge is 2.5 half-widths."""
     truth = build_scenario("calibration-mass-bungee", 0).truth_json()
     tv, tw = chain_check.truth_vector(truth, [0.0, 0.0, 0.0])
-    unc = {k: {"ci95": [v - 1e-3, v + 1e-3]} for k, v in zip(chain_check.PARAMETERS, tv)}
+    unc = {
+        k: {"ci95": [v - 1e-3, v + 1e-3]} for k, v in zip(chain_check.PARAMETERS, tv, strict=True)
+    }
     unc["cx"] = {"ci95": [tv[1] + 2.5e-3, tv[1] + 4.5e-3]}  # half-width 1 mm, 2.5 mm above
     unc["principal_moments"] = [{"ci95": [w * 0.99, w * 1.01]} for w in tw]
     sol = {
