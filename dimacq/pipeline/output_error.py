@@ -1097,21 +1097,31 @@ def solve_output_error(
             cand = np.zeros(0, np.intp)
             prob, theta, Jac, _cost, it, _ = fit(False)
     geometry_test: dict[str, Any] = {"tested": False}
-    geometry_cov: FloatArray | None = None
+    stated_theta: FloatArray | None = None
     keep_note = ""
     n_geo = 6 * nn + 4 * J
     if opt.geometry_test and cand.size and np.any(prob.free_g < n_geo):
-        geometry_test = _geometry_needed(prob, theta, Jac, fit, cand, n_geo, H, R, sigma, line_w())
+        geometry_test, prob_g, theta_g = _geometry_needed(
+            prob, theta, fit, cand, n_geo, H, R, sigma, line_w()
+        )
         if not geometry_test["needed"]:
-            # the stated geometry explains the data as well as a refined one (within its stated
-            # uncertainty): keep it, with the channels' gains refined, and its uncertainty in the
-            # intervals (propagated through the estimator, as the refined fit's Jacobian gives it)
-            geometry_cov = _stated_geometry_covariance(prob, Jac, n_geo)
-            prob, theta, Jac, _, it, refused = fit(False, cand[cand >= n_geo])
+            # the stated geometry explains the data as well as the refined one: report the
+            # estimate with the geometry as stated (the channels' gains refined); its intervals
+            # are the refined fit's posterior widened by the difference of the two (below)
+            stated_theta = theta.copy()
+            stated_theta[: free_x.size] = theta_g[: free_x.size]
+            where = {int(k): i for i, k in enumerate(prob_g.free_g)}
+            for i, k in enumerate(prob.free_g):
+                stated_theta[free_x.size + i] = (
+                    0.0
+                    if k < n_geo or int(k) not in where
+                    else theta_g[free_x.size + where[int(k)]]
+                )
             keep_note = (
                 "stated value kept: the data do not need the geometry moved (likelihood ratio "
                 f"{geometry_test['statistic']:.3g} ≤ {geometry_test['critical_value']:.3g}, "
-                f"{geometry_test['dof']} dof); its stated uncertainty is in the intervals"
+                f"{geometry_test['dof']} dof); the refined fit's posterior and its difference "
+                "to the stated-geometry estimate are in the intervals"
             )
     rf_info: dict[str, Any] = {"fitted": False, "mode": _rf_mode(rf_mode)}
     model_form: FloatArray | None = None
@@ -1174,10 +1184,17 @@ def solve_output_error(
     cov_theta[:, :nx0] *= robust[None, :]
     if model_form is not None:
         cov_theta[:nx0, :nx0] += np.outer(model_form, model_form)
-    if geometry_cov is not None:
-        cov_theta[:nx0, :nx0] += geometry_cov
     adequacy: dict[str, Any] = {"tested": False, "reason": "geometry not refined"}
-    if prob.free_g.size and geometry_cov is None and np.any(prob.free_g < n_geo):
+    if stated_theta is not None:
+        # the stated-geometry estimate, with the refined posterior widened by the difference
+        # (rank one): both are consistent with the data (the test above), the truth lies within
+        # the refined posterior, and the reported centre is the stated one
+        dx_k = theta[:nx0] - stated_theta[:nx0]
+        cov_theta[:nx0, :nx0] += np.outer(dx_k, dx_k)
+        geometry_test["difference"] = [float(v) for v in -dx_k]
+        theta = stated_theta
+        adequacy = {"tested": False, "reason": "geometry kept as stated (geometry_test)"}
+    elif prob.free_g.size and np.any(prob.free_g < n_geo):
         # the same data and noise scale with the stated geometry taken as exact
         prob_s, _ = build(rf_info["fitted"], np.zeros(0, np.intp))
         theta_s, _, _, _ = _lm(prob_s, np.asarray(x_start[free_x], float), opt.max_iterations)
@@ -1227,7 +1244,14 @@ def solve_output_error(
     se_g = np.zeros(sig_g.size)
     se_g[prob.free_g] = np.sqrt(np.clip(np.diag(cov_theta)[nx:], 0, None)) * sig_g[prob.free_g]
     sens, inps = _corrections(
-        g, se_g, sig_g, prob, refused, frf.inputs, in_idx, opt.refine_geometry,
+        g,
+        se_g,
+        sig_g,
+        prob,
+        refused,
+        frf.inputs,
+        in_idx,
+        opt.refine_geometry,
         refinement_note or keep_note,
     )
     new_setup = _refined_setup(setup, geo, active, prob, g, frf.inputs, in_idx, p)
@@ -1288,7 +1312,6 @@ ADEQUACY_P = 0.001
 def _geometry_needed(
     prob: _Problem,
     theta: FloatArray,
-    Jac: FloatArray,
     fit: Any,
     cand: NDArray[np.intp],
     n_geo: int,
@@ -1296,7 +1319,7 @@ def _geometry_needed(
     R: ComplexArray,
     sigma: FloatArray,
     lw: FloatArray | None,
-) -> dict[str, Any]:
+) -> tuple[dict[str, Any], _Problem, FloatArray]:
     """Do the data need the geometry moved, or do the channels' gains explain them as well?
 
     Nested models at the same noise scale: the refined fit (geometry and gains) against the fit
@@ -1310,6 +1333,8 @@ def _geometry_needed(
     over the band counts once per channel and input, white noise on every line. Measured on
     acquired calibration-mass sets (exact geometry): ``Λ`` 116–180 for k = 136; with the realistic
     scenario's geometry errors (2 mm, 0.5°, 1°): 2·10⁵–8·10⁵.
+
+    Returns the test, and the gains-only problem and solution.
     """
     res_f, _ = prob.residual(theta, jacobian=False)
     prob_g, theta_g, _, _, _, _ = fit(False, cand[cand >= n_geo])
@@ -1320,36 +1345,23 @@ def _geometry_needed(
     lr = raw * n_eff / L
     k = max(int(np.sum(prob.free_g < n_geo)) - int(prob.gauge_rows.shape[0]), 1)
     crit = float(stats.chi2.ppf(1.0 - ADEQUACY_P, k))
-    return {
-        "tested": True,
-        "test": (
-            "likelihood ratio, refined geometry against channel gains alone, scaled by the "
-            f"effective lines of the misfit ({n_eff:.3g} of {L}), p = {ADEQUACY_P:g}"
-        ),
-        "statistic": lr,
-        "statistic_white": raw,
-        "effective_lines": n_eff,
-        "dof": k,
-        "critical_value": crit,
-        "needed": bool(lr > crit),
-    }
-
-
-def _stated_geometry_covariance(prob: _Problem, Jac: FloatArray, n_geo: int) -> FloatArray:
-    """The stated geometry's uncertainty carried into the properties when it is kept:
-    ``K Kᵀ`` with ``K = N_xx⁻¹ J_xᵀ J_g`` over the (whitened, unit prior) geometry corrections of
-    the refined fit's data Jacobian at its solution — what a stated geometry off by its
-    stated uncertainty moves the estimate by. The gauge modes (the similarity of the whole
-    instrumentation) are included: a stated geometry is uncertain along them too."""
-    nx = prob.free_x.size
-    n_data = prob.Lh.size
-    geo_cols = nx + np.nonzero(prob.free_g < n_geo)[0]
-    Jx = Jac[:n_data, :nx]
-    Jg = Jac[:n_data, geo_cols]
-    K = np.linalg.pinv(Jx.T @ Jx) @ (Jx.T @ Jg)
-    return np.asarray(K @ K.T, float)
-
-
+    return (
+        {
+            "tested": True,
+            "test": (
+                "likelihood ratio, refined geometry against channel gains alone, scaled by the "
+                f"effective lines of the misfit ({n_eff:.3g} of {L}), p = {ADEQUACY_P:g}"
+            ),
+            "statistic": lr,
+            "statistic_white": raw,
+            "effective_lines": n_eff,
+            "dof": k,
+            "critical_value": crit,
+            "needed": bool(lr > crit),
+        },
+        prob_g,
+        theta_g,
+    )
 
 
 def _adequacy(
