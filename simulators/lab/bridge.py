@@ -247,12 +247,20 @@ def default_strain_gauge_cell(
     return StrainGaugeCell(np.asarray(sensitivity_mvv, float), **kw)  # type: ignore[arg-type]
 
 
-def strain_gauge_cell(node: int, **overrides: float) -> StrainGaugeCell:
+def strain_gauge_cell(node: int, rated_scale: float = 1.0, **overrides: float) -> StrainGaugeCell:
     """The virtual lab's strain-gauge cell ``node`` (its serial number): the lab's 4-spoke
     sensitivity for that cell (:func:`~dimacq.simulators.lab.timedomain.default_gauge_matrix`
     seeded by the node, read as mV/V per N and N·m; the same in every run, as a real cell is)
-    and :func:`default_strain_gauge_cell`'s zero terms."""
+    and :func:`default_strain_gauge_cell`'s zero terms.
+
+    ``rated_scale`` sizes the cell for its article, as a lab chooses its cells: rated loads
+    ``rated_scale ×`` :data:`DEFAULT_RATED_LOAD` and a sensitivity ``1/rated_scale`` as large (the
+    same mV/V at full scale). An 8-t vehicle on three cells loads each with ~26 kN: a 1-kN cell
+    would sit 26 times past its range and every strike would overload."""
     from dimacq.simulators.lab.timedomain import default_gauge_matrix
 
-    S = default_gauge_matrix(np.random.default_rng([11, node]))
+    if rated_scale <= 0:
+        raise ValueError("rated_scale must be positive")
+    S = default_gauge_matrix(np.random.default_rng([11, node])) / rated_scale
+    overrides.setdefault("rated_load", np.asarray(DEFAULT_RATED_LOAD) * rated_scale)  # type: ignore[arg-type]
     return default_strain_gauge_cell(S, np.random.default_rng([23, node]), **overrides)

@@ -114,6 +114,7 @@ def virtual_lab(
         bridges = {
             s.node: strain_gauge_cell(
                 s.node,
+                rated_scale=lc.rated_scale,
                 excitation_v=lc.excitation_v,
                 noise_uv=lc.noise_uv * noise_scale,
                 nonlinearity=lc.nonlinearity_pct_fs / 100,

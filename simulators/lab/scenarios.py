@@ -291,6 +291,13 @@ class LoadCellSpec(_Spec):
         "(AC-coupled, V)",
     )
     excitation_v: float = Field(default=10.0, gt=0, le=20, description="bridge excitation, V")
+    rated_scale: float = Field(
+        default=1.0,
+        gt=0,
+        le=1000,
+        description="cell size: rated loads this many times (500, 500, 1000 N, 50 N·m) and a "
+        "sensitivity this many times smaller (a cell chosen for the article's loads)",
+    )
     noise_uv: float = Field(
         default=0.05, ge=0, description="amplifier input noise, µV rms per sample (≥ 0)"
     )
