@@ -83,6 +83,7 @@ from dimacq.model.setup import (
 __all__ = [
     "ORDINATE_TYPES",
     "UffSource",
+    "check_uff_geometry",
     "dump_uff",
     "read_frf_uff",
     "read_uff_test",
@@ -1035,6 +1036,14 @@ def write_uff_test(
     _write_header_sets(p, setup, frames)
     with p.open("ab") as fh:
         _append58(fh, frf, sign, binary)
+
+
+def check_uff_geometry(setup: TestSetup) -> None:
+    """Raise the :class:`SetupError` :func:`write_uff_test` would raise on ``setup``'s geometry
+    (a node's directions not orthogonal, left-handed, or two items at one node that disagree),
+    without writing: what an acquisition checks before it strikes, so that no test is lost at
+    the end for a file that cannot hold its geometry."""
+    _node_frames(setup)
 
 
 def dump_uff(frf: FrfData, setup: TestSetup | None = None, *, binary: bool = True) -> bytes:

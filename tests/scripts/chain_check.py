@@ -19,7 +19,7 @@ Run on demand (about a minute of simulated acquisition per calibration-mass case
 simulated DAQ's default time-lapse; ``--jobs`` runs cases side by side)::
 
     python tests/scripts/chain_check.py [--scenarios a,b] [--seeds 0,1,2] [--averages 3]
-        [--jobs 2] [--json OUT] [--keep DIR]
+        [--jobs 2] [--json OUT] [--keep DIR [--reuse]]
 
 ``tests/cli/test_chain_check.py`` runs the short version in CI.
 """
@@ -98,16 +98,20 @@ def compare(sol: dict[str, Any], truth: dict[str, Any]) -> dict[str, Any]:
     }
 
 
-def one(scenario: str, seed: int, averages: int, work: Path) -> dict[str, Any]:
-    """Acquire, solve and compare one case (files in ``work``)."""
+def one(scenario: str, seed: int, averages: int, work: Path, reuse: bool = False) -> dict[str, Any]:
+    """Acquire, solve and compare one case (files in ``work``; ``reuse``: an acquisition
+    already there is solved again, not repeated)."""
     stem = work / f"{scenario}-s{seed}-a{averages}"
     out: dict[str, Any] = {"scenario": scenario, "seed": seed, "averages": averages}
     t0 = time.monotonic()
     uff = stem.with_suffix(".uff")
-    acq = _dimacq(
-        "acquire", scenario, "--seed", str(seed), "--averages-per-input", str(averages),
-        "--frf", str(uff), "--json", str(stem) + "-acquire.json", "-q",
-    )  # fmt: skip
+    if reuse and uff.is_file():
+        acq = subprocess.CompletedProcess([], 0, "", "")
+    else:
+        acq = _dimacq(
+            "acquire", scenario, "--seed", str(seed), "--averages-per-input", str(averages),
+            "--frf", str(uff), "--json", str(stem) + "-acquire.json", "-q",
+        )  # fmt: skip
     out["acquire_s"] = time.monotonic() - t0
     if acq.returncode != 0:
         out.update(status="acquire failed", error=(acq.stderr.strip().splitlines() or ["?"])[-1])
@@ -163,6 +167,9 @@ def main() -> None:
     ap.add_argument("--jobs", type=int, default=1)
     ap.add_argument("--json", type=Path)
     ap.add_argument("--keep", type=Path, help="keep the files in DIR")
+    ap.add_argument(
+        "--reuse", action="store_true", help="with --keep: solve acquisitions already in DIR again"
+    )
     a = ap.parse_args()
     seeds = [int(s) for s in a.seeds.split(",")]
     cases = [(s, seed) for s in a.scenarios.split(",") for seed in seeds]
@@ -170,7 +177,7 @@ def main() -> None:
         work = a.keep or Path(tmp)
         work.mkdir(parents=True, exist_ok=True)
         with ThreadPoolExecutor(max_workers=max(1, a.jobs)) as ex:
-            rows = list(ex.map(lambda c: one(c[0], c[1], a.averages, work), cases))
+            rows = list(ex.map(lambda c: one(c[0], c[1], a.averages, work, a.reuse), cases))
     for r in rows:
         if r.get("status") in ("solved", "refused"):
             print(

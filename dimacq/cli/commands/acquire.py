@@ -90,7 +90,7 @@ def run(args: argparse.Namespace) -> int:
     from dimacq.cli.simulated_lab import frf_agreement
     from dimacq.config import Settings, scenario_rig_file
     from dimacq.io.acquisition_hdf5 import AcquisitionWriter
-    from dimacq.io.uff import write_uff_test
+    from dimacq.io.uff import check_uff_geometry, write_uff_test
     from dimacq.services.rig import build_rig, impact_settings, run_impact_test
     from dimacq.simulators.lab.scenarios import build_scenario
 
@@ -106,6 +106,7 @@ def run(args: argparse.Namespace) -> int:
     built = build_scenario(args.scenario, args.seed)
     model = built.model
     setup = built.setup
+    check_uff_geometry(setup)  # before striking: the FRF file must be able to hold the geometry
     n_in = len(setup.excitations)
     settings = Settings(
         daq="simulated",
