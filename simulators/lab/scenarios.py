@@ -121,6 +121,7 @@ __all__ = [
     "gross_errors",
     "list_scenarios",
     "load_scenario",
+    "mismounted_truth",
 ]
 
 log = logging.getLogger(__name__)
@@ -615,13 +616,15 @@ def nominal_setup(true_setup: TestSetup, errors: ErrorsSpec, seed: int) -> TestS
     Each triax (all axes of one node together) moves by ``N(0, position_m)`` per coordinate and
     turns by a rotation of ``N(0, orientation_deg)`` about a random axis; each input point moves
     likewise and its line of action turns by ``N(0, line_of_action_deg)``. Load cells are exact.
-    Then ``mismounted_channels`` single axes (seeded choice) are told a direction ``mismount_deg``
-    away from their true one (turned about an axis normal to it), and ``bad_impacts`` inputs a
-    line of action ``bad_impact_deg`` away and a point ``bad_impact_shift_m`` away: gross errors a
-    careful user still makes, which data selection must catch. The setup states the error levels as
-    its ``geometry_uncertainty`` (what a user would write from the digitizer's and jig's accuracy);
-    the gross errors are not stated. The chosen channels and inputs are
-    :func:`gross_errors`' answer.
+    Then ``bad_impacts`` inputs are told a line of action ``bad_impact_deg`` away and a point
+    ``bad_impact_shift_m`` away: gross errors a careful user still makes, which data selection
+    must catch. The ``mismounted_channels`` are gross errors of the *true* geometry
+    (:func:`mismounted_truth`: an axis that measures ``mismount_deg`` away from where its triax
+    says), not of what is stated: a lab states each triax as the jig measured it, an orthonormal
+    frame (and a UFF node's system is one), so the stated axes of a triax stay orthogonal.
+    The setup states the error levels as its ``geometry_uncertainty`` (what a user would write
+    from the digitizer's and jig's accuracy); the gross errors are not stated. The chosen channels
+    and inputs are :func:`gross_errors`' answer.
     """
     if (
         errors.position_m == 0
@@ -666,10 +669,8 @@ def nominal_setup(true_setup: TestSetup, errors: ErrorsSpec, seed: int) -> TestS
         )
     bad_ch, bad_in = gross_errors(true_setup, errors, seed)
     grng = np.random.default_rng([seed, 37])
-    for k in bad_ch:
-        c = responses[k]
-        d = _turn_normal(np.asarray(c.direction_gcs), errors.mismount_deg, grng)
-        responses[k] = c.model_copy(update={"direction_gcs": tuple(float(x) for x in d)})
+    for k in bad_ch:  # drawn here too, so that the bad inputs' draws stay as they were
+        _turn_normal(np.asarray(responses[k].direction_gcs), errors.mismount_deg, grng)
     for j in bad_in:
         e = inputs[j]
         d = _turn_normal(np.asarray(e.direction_gcs), errors.bad_impact_deg, grng)
@@ -695,6 +696,23 @@ def nominal_setup(true_setup: TestSetup, errors: ErrorsSpec, seed: int) -> TestS
             "geometry_uncertainty": stated,
         }
     )
+
+
+def mismounted_truth(true_setup: TestSetup, errors: ErrorsSpec, seed: int) -> TestSetup:
+    """The true geometry with the ``mismounted_channels`` of :func:`gross_errors`: each such axis
+    measures along a direction ``mismount_deg`` from the one its triax has (turned about an axis
+    normal to it; the same seeded draws as before this error moved from the stated to the true
+    geometry). What the stated setup says of it is its triax's frame (:func:`nominal_setup`)."""
+    bad_ch, _ = gross_errors(true_setup, errors, seed)
+    if not bad_ch:
+        return true_setup
+    grng = np.random.default_rng([seed, 37])
+    responses = list(true_setup.responses)
+    for k in bad_ch:
+        c = responses[k]
+        d = _turn_normal(np.asarray(c.direction_gcs), errors.mismount_deg, grng)
+        responses[k] = c.model_copy(update={"direction_gcs": tuple(float(x) for x in d)})
+    return true_setup.model_copy(update={"responses": tuple(responses)})
 
 
 def gross_errors(
@@ -733,6 +751,7 @@ def build_scenario(spec: Scenario | str | Path, seed: int | None = None) -> Buil
         raise SetupError(f"seed = {s}; give an integer ≥ 0")
     model = _article(scn.article, s)
     setup = nominal_setup(model.setup, scn.errors, s)
+    model = replace(model, setup=mismounted_truth(model.setup, scn.errors, s))
     setup = setup.model_copy(update={"name": scn.name})
     unknown = set(scn.analysis.exclude_nodes) - {c.node for c in setup.responses}
     if unknown:
