@@ -33,13 +33,26 @@ schema = schemathesis.pytest.from_fixture("api_schema")
 
 @pytest.fixture
 def jobs_finish(api: Api):
-    """Jobs the generated requests started (sensitivity studies) end before the thread check;
-    load cell calibration runs (minutes of simulated bench work) are cancelled first."""
+    """Every job the generated requests started ends before the next test looks: load cell
+    calibration runs (minutes of simulated bench work) are cancelled, the running ones waited
+    for, and sensitivity studies still *queued* in the store (the service was at its job limit
+    when they were asked for) cancelled. Those last were the flake of
+    ``test_state_changing_operations_need_the_token`` (issue 27): the lab's ticker claimed one
+    during that test, between its two reads of ``jobs_running`` (a ``sensitivity`` job,
+    message "started", after a request that got 401)."""
     yield
-    for job in api.lab.jobs.running("loadcell-calibration"):
-        api.lab.jobs.cancel(job.id)
-    for job in api.lab.jobs.running():
-        api.lab.jobs.wait(job.id, 60)
+    jobs = api.lab.jobs
+    while True:
+        for snap in jobs.list_jobs():
+            if snap["state"] == "pending":
+                jobs.cancel(snap["id"])
+        for job in jobs.running("loadcell-calibration"):
+            jobs.cancel(job.id)
+        running = jobs.running()
+        if not running and all(snap["state"] != "pending" for snap in jobs.list_jobs()):
+            break
+        for job in running:
+            jobs.wait(job.id, 60)
 
 
 @schema.parametrize()
