@@ -146,9 +146,12 @@ def frf_agreement(
     exponential_tau_s: float | None = None,
     coherence_threshold: float | None = 0.99,
     band_hz: tuple[float, float] | None = None,
+    inputs: list[int] | None = None,
 ) -> FrfAgreement:
     """Compare measured FRFs with :func:`model_frf` where ``coherence > coherence_threshold``
-    (``None``: every value, e.g. noise-free single-average FRFs, whose coherence is undefined)."""
+    (``None``: every value, e.g. noise-free single-average FRFs, whose coherence is undefined).
+    ``inputs``: the model's input columns the FRFs hold, in their order (an acquisition whose
+    incomplete inputs have no FRF); default all."""
     if frf.coherence is None and coherence_threshold is not None:
         raise DataError("the FRFs carry no coherence; compare FRFs from an impact session")
     f = frf.frequencies_hz
@@ -156,6 +159,8 @@ def frf_agreement(
     if band_hz is not None:
         sel = (f >= band_hz[0]) & (f <= band_hz[1])
     H_true = model_frf(model, f[sel], exponential_tau_s)
+    if inputs is not None:
+        H_true = H_true[:, :, inputs]
     H = frf.H[sel]
     keep = (
         np.ones(H.shape, bool)

@@ -156,6 +156,7 @@ class ImpactSession:
         on_input: Callable[[int, NDArray[np.float64]], None] | None = None,
         max_restarts: int = 5,
         on_event: Callable[[dict[str, object]], None] | None = None,
+        input_labels: Sequence[str] | None = None,
     ) -> None:
         self.on_input = on_input
         self.on_event = on_event
@@ -173,7 +174,13 @@ class ImpactSession:
             raise SetupError(f"channels {missing} are not in the DAQ task; add them first")
         self.input_rows = [names.index(c) for c in input_channels]
         self.response_rows = [names.index(c) for c in response_channels]
-        self.input_names = tuple(input_channels)
+        # inputs are named by point and direction ("101+X") where the caller knows them: the
+        # hammer's channel is one name for every input
+        if input_labels is not None and len(input_labels) != len(input_channels):
+            raise SetupError(
+                f"{len(input_labels)} input labels for {len(input_channels)} inputs; give one each"
+            )
+        self.input_names = tuple(input_labels if input_labels is not None else input_channels)
         self.response_names = tuple(response_channels)
         self.loadcells = list(loadcells)
         if loadcell_outputs == "forces" and any(lc.calibration_matrix is None for lc in loadcells):

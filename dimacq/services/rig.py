@@ -498,5 +498,6 @@ def run_impact_session(
         on_input=on_input,
         loadcell_outputs=loadcell_outputs,
         on_event=on_event,
+        input_labels=[axis_name(e.node, e.direction) for e in setup.excitations],
     )
     return session.run()

@@ -78,6 +78,7 @@ def test_reference_mass_then_applied_by_id(api: Api) -> None:
     assert res["transducer_uncertainty"] == {
         "accel_sensitivity_rel": 0.005,
         "force_sensitivity_rel": pytest.approx(cal["u_rel"]),
+        "loadcell_matrix_rel": 0.01,
         "source": "chain",
     }
     sid = r.json()["id"]

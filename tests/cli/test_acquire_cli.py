@@ -204,3 +204,43 @@ def test_loadcell_calibrate_refuses_piezo_and_the_shipped_simulated_rig(capsys):
     rc = main(["loadcell", "calibrate", "--method", "inertial"])
     assert rc == 2  # the shipped configuration is the simulated lab: its files stay as they are
     assert "use --simulated" in capsys.readouterr().err
+
+
+def test_acquire_with_incomplete_inputs_keeps_the_rest_and_says_why(tmp_path, capsys, monkeypatch):
+    """Issue 22: inputs whose averages were all rejected (faults) have no FRF; the command writes
+    the complete inputs' FRFs and ends with that reason, naming the inputs by point and direction,
+    instead of failing on "inputs of the setup and of the FRFs differ". The session is replaced
+    by one whose inputs 2 and 5 had every hit rejected (the path through the devices is the
+    first test's)."""
+    from dataclasses import replace
+
+    import dimacq.services.rig as rig_mod
+    from dimacq.simulators.lab.scenarios import build_scenario
+
+    built = build_scenario("calibration-mass-bungee", 0)
+    lost = {1, 4}
+
+    def session(rig, setup, cfg, *, on_average, on_progress, **_kw):
+        frf = built.model_frf(noise=0.0)
+        for j in range(len(setup.excitations)):
+            ok = j not in lost
+            on_average(j, 0, ok, [] if ok else ["load cell 0 samples lost (12)"], None)
+        keep = [j for j in range(frf.H.shape[2]) if j not in lost]
+        return replace(frf, H=frf.H[:, :, keep], inputs=tuple(frf.inputs[j] for j in keep))
+
+    monkeypatch.setattr(rig_mod, "run_impact_test", session)
+    uff = tmp_path / "part.uff"
+    rc = main(
+        ["acquire", "calibration-mass-bungee", "--seed", "0", "--averages-per-input", "1",
+         "--frf", str(uff), "--json", str(tmp_path / "acq.json"), "-q"]
+    )  # fmt: skip
+    assert rc == 2
+    err = capsys.readouterr().err
+    names = [built.setup.excitations[j].name for j in sorted(lost)]
+    assert "acquisition incomplete: 2 of 24 inputs" in err
+    assert all(n in err for n in names) and "samples lost" in err
+    assert "holds the FRFs of the 22 complete inputs" in err
+    setup, frf = read_uff_test(uff)  # what was acquired is kept
+    assert frf.H.shape[2] == 22 and len(setup.excitations) == 22
+    summary = json.loads((tmp_path / "acq.json").read_text())
+    assert summary["incomplete_inputs"] == names

@@ -156,3 +156,23 @@ def test_demo_recovers_the_truth(tmp_path: Path, capsys) -> None:
     assert gu["sensor_orientation_deg"] < 0.5 and gu["line_of_action_deg"] < 1.0
     assert gu["sensor_position_m"] < 2e-3 and gu["input_position_m"] < 2e-3
     assert d["orientation_error_rms_deg"] < 3 * gu["sensor_orientation_deg"] * np.sqrt(3)
+
+
+def test_demo_that_cannot_acquire_fails_with_the_reason(monkeypatch, capsys) -> None:
+    """No silent fallback (issue 22): a load cell backend the table does not know stops the demo
+    with exit 2 and the setting to fix, instead of solving model FRFs of the true article."""
+    monkeypatch.setenv("DIMACQ_LOADCELL", "no-such-cell")
+    assert main(["demo", "--no-chain-calibration", "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "acquisition" in err and "no-such-cell" in err and "DIMACQ_LOADCELL" in err
+    assert "--model-frfs" in err
+
+
+def test_demo_model_frfs_says_so_first(tmp_path: Path, capsys) -> None:
+    out = tmp_path / "demo.json"
+    assert main(["demo", "--model-frfs", "--json", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert printed.splitlines()[0].startswith("dimacq demo --model-frfs: NO ACQUISITION")
+    p = json.loads(out.read_text())
+    assert p["demo"]["acquisition"].startswith("not run (--model-frfs)")
+    assert "chain_calibration" not in p["demo"]

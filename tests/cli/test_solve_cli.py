@@ -228,3 +228,25 @@ def test_chain_calibration_on_the_reference_block(tmp_path: Path) -> None:
     assert abs(sol["mass_kg"] / model.properties.mass_kg - 1) < 0.002
     # a solve that measured nothing is not a chain calibration
     assert main(["solve", str(art_setup), str(art_uff), "--chain-calibration", str(out)]) == 2
+
+
+@pytest.mark.skipif(not SAMPLES.is_dir(), reason="shared samples folder absent")
+def test_no_unbiased_gives_the_equation_error_estimate(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Issue 22: ``--no-unbiased`` printed the default's output-error answer (the geometry
+    refinement kept the fit on). It now gives the equation-error estimate and says so; asking
+    for it with an output-error option is refused, naming both flags."""
+    f = str(SAMPLES / "bracket_noisy_ascii.uff")
+    default, plain = tmp_path / "d.json", tmp_path / "ee.json"
+    assert main(["solve", f, "--json", str(default)]) == 0
+    capsys.readouterr()
+    assert main(["solve", f, "--no-unbiased", "--json", str(plain)]) == 0
+    assert "estimator: equation-error least squares" in capsys.readouterr().out
+    d, ee = json.loads(default.read_text()), json.loads(plain.read_text())
+    assert d["output_error"]["used"] and "output_error" not in ee
+    assert ee["mass_kg"] != d["mass_kg"]
+    for flag in ("--refine-geometry", "--residual-flexibility"):
+        assert main(["solve", f, "--no-unbiased", flag]) == 2
+        err = capsys.readouterr().err
+        assert "--no-unbiased" in err and flag in err

@@ -35,7 +35,8 @@ from typing import Any
 import numpy as np
 
 from dimacq.cli.progress import ProgressLine, add_quiet, plain
-from dimacq.errors import SetupError
+from dimacq.errors import DataError, SetupError
+from dimacq.model.frf import Channel
 
 
 def register(subparsers: Any) -> None:
@@ -131,7 +132,8 @@ def run(args: argparse.Namespace) -> int:
     ) -> None:
         averages.append((input_index, accepted, list(reasons)))
         if not accepted:
-            line.note(f"input {input_index + 1} rejected: {'; '.join(reasons)}")
+            name = setup.excitations[input_index].name
+            line.note(f"input {name} rejected: {'; '.join(reasons)}")
 
     def on_progress(fraction: float, message: str) -> None:
         line.update(fraction, f"[{round(fraction * total)}/{total}] {message}")
@@ -174,8 +176,21 @@ def run(args: argparse.Namespace) -> int:
     finally:
         rig.close()
         line.close()
+    # Inputs with too few accepted averages have no FRF: the file holds the complete ones (what
+    # was acquired is kept) and the command ends with the reason, not with a mismatch of inputs.
+    accepted = [sum(ok for j, ok, _ in averages if j == i) for i in range(n_in)]
+    have = set(frf.inputs)
+    complete = [e for e in setup.excitations if Channel(e.node, e.direction) in have]
+    incomplete = [e.name for e in setup.excitations if Channel(e.node, e.direction) not in have]
+    if not complete:
+        raise DataError(
+            f"acquisition incomplete: no input has {min(used.min_averages, used.averages_per_input)}"
+            f" accepted averages ({_rejections(setup, averages)}); nothing written to {args.frf}; "
+            "find the fault and acquire again"
+        )
+    written = setup if not incomplete else setup.model_copy(update={"excitations": complete})
     args.frf.parent.mkdir(parents=True, exist_ok=True)
-    write_uff_test(args.frf, setup, frf, binary=True)
+    write_uff_test(args.frf, written, frf, binary=True)
     if args.data:
         # UFF 58 holds no coherence: keep it (with the FRFs) next to the raw data.
         np.savez(
@@ -194,10 +209,9 @@ def run(args: argparse.Namespace) -> int:
         exponential_tau_s=used.exponential_tau_s,
         band_hz=_scenario_band(args.scenario),
         coherence_threshold=0.99 if coherent else None,
+        inputs=[j for j, e in enumerate(setup.excitations) if e in complete],
     )
-    accepted = [sum(ok for j, ok, _ in averages if j == i) for i in range(n_in)]
     min_averages = min(used.min_averages, used.averages_per_input)
-    incomplete = [e.name for j, e in enumerate(setup.excitations) if accepted[j] < min_averages]
     summary: dict[str, Any] = {
         "scenario": args.scenario,
         "setup": setup.name,
@@ -248,4 +262,26 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
+    if incomplete:
+        raise DataError(
+            f"acquisition incomplete: {len(incomplete)} of {n_in} inputs have fewer than "
+            f"{min_averages} accepted averages ({_rejections(setup, averages, incomplete)}); "
+            f"{args.frf} holds the FRFs of the {len(complete)} complete inputs only"
+        )
     return 0
+
+
+def _rejections(
+    setup: Any, averages: list[tuple[int, bool, list[str]]], names: list[str] | None = None
+) -> str:
+    """Per input named (all, or ``names``): accepted count and the rejection reasons seen."""
+    parts = []
+    for j, e in enumerate(setup.excitations):
+        if names is not None and e.name not in names:
+            continue
+        ok = sum(a for i, a, _ in averages if i == j)
+        why = sorted({r for i, a, rs in averages if i == j and not a for r in rs})
+        parts.append(
+            f"{e.name}: {ok} accepted" + (f", rejected for {'; '.join(why)}" if why else "")
+        )
+    return "; ".join(parts[:6]) + ("; …" if len(parts) > 6 else "")

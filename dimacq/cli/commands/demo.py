@@ -14,9 +14,12 @@ unless ``--data-dir``), then acts as the test engineer over HTTP only:
    sensor's orientation; digitizes each impact point and three points along the hammer's line of
    action and fits it;
 3. builds the test setup from that geometry (the load cell is given);
-4. acquires the impacts (``POST /api/acquisitions`` → job followed over server-sent events) when
-   the simulated DAQ and load cell are available; otherwise says so and imports the virtual lab's
-   FRFs of the *true* article (with noise) as UFF through ``POST /api/frfs/import``;
+4. acquires the impacts (``POST /api/acquisitions`` → job followed over server-sent events)
+   through the configured DAQ and load cell backends, as ``dimacq acquire`` does. A demo that
+   cannot acquire (a device missing, a backend name unknown) fails with the reason (exit 2); it
+   never substitutes other data. ``--model-frfs`` asks instead for the virtual lab's FRFs of the
+   *true* article (with ``--noise``), imported as UFF through ``POST /api/frfs/import``: a check
+   of the solver, not of the measurement chain, and the output says so first;
 5. solves (``POST /api/solutions`` with the service's defaults: automatic band, response and
    input selection; ``--scenario-band`` imposes the scenario's recommended band) and prints the
    result against the scenario's truth.
@@ -63,7 +66,16 @@ def register(sub: Any) -> None:
         metavar="N",
         help="accepted averages per input (the API's averages_per_input; default: the scenario's)",
     )
-    p.add_argument("--noise", type=float, default=0.005, help="relative FRF noise (import path)")
+    p.add_argument(
+        "--model-frfs",
+        action="store_true",
+        help="do not acquire: import the virtual lab's FRFs of the TRUE article (a check of the "
+        "solver, not of the chain; no chain calibration). Without it a demo that cannot acquire "
+        "fails (exit 2)",
+    )
+    p.add_argument(
+        "--noise", type=float, default=0.005, help="relative FRF noise (--model-frfs only)"
+    )
     p.add_argument(
         "--data-dir", type=Path, default=None, help="data directory (default: temporary)"
     )
@@ -137,14 +149,28 @@ def run(args: argparse.Namespace) -> int:
         rig_file=str(args.rig_file) if args.rig_file else scenario_rig_file(args.scenario),
         database_url="",
     )
+    if args.model_frfs:
+        say(
+            "dimacq demo --model-frfs: NO ACQUISITION. The FRFs are the virtual lab's forward model "
+            f"of the true article with {100 * args.noise:g} % noise: this checks the solver, not "
+            "the measurement chain"
+        )
     try:
         chain: dict[str, Any] | None = None
-        if not args.no_chain_calibration and args.scenario != REFERENCE_SCENARIO:
+        if (
+            not args.no_chain_calibration
+            and not args.model_frfs
+            and args.scenario != REFERENCE_SCENARIO
+        ):
             chain = _chain_step(data_dir, token, args, say)
         app = create_app(settings)
         with BackgroundServer(app) as srv:
             say(f"dimacq demo: service on {srv.url} (data in {data_dir}), scenario {args.scenario}")
-            payload = _demo(srv.url, token, built, args, say, chain)
+            backends = (
+                f"the {_sim('daq', settings.daq)}DAQ (backend {settings.daq!r}) and "
+                f"{_sim('loadcell', settings.loadcell)}load cell (backend {settings.loadcell!r})"
+            )
+            payload = _demo(srv.url, token, built, args, say, chain, backends)
     finally:
         if tmp is not None:
             tmp.cleanup()
@@ -154,6 +180,12 @@ def run(args: argparse.Namespace) -> int:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(payload, indent=2) + "\n", encoding="utf-8")
     return 0
+
+
+def _sim(kind: str, backend: str) -> str:
+    from dimacq.backends import is_simulated
+
+    return "simulated " if is_simulated(kind, backend) else ""
 
 
 #: The lab's weighed reference block (config/reference-block/), cabled as the calibration mass.
@@ -214,12 +246,9 @@ def _chain_step(
                 "/api/acquisitions",
                 json={"setup_id": sid, "averages_per_input": args.averages, "seed": block.seed},
             )
-            if acq.status_code >= 400:
-                say(
-                    "[0/5] chain calibration skipped: acquisition unavailable "
-                    f"({acq.json().get('detail', acq.text)})"
-                )
-                return {"skipped": str(acq.json().get("detail", acq.text))}
+            _check(
+                acq, "acquisition of the reference block (step 0; --no-chain-calibration skips it)"
+            )
             frf_id = _follow_acquisition(c, acq.json(), say, quiet=args.quiet, step="[0/5]")
             sol = _check(
                 c.post(
@@ -264,6 +293,7 @@ def _demo(
     args: argparse.Namespace,
     say: Callable[[str], None],
     chain: dict[str, Any] | None = None,
+    backends: str = "",
 ) -> dict[str, Any]:
     import httpx
 
@@ -388,23 +418,26 @@ def _demo(
             f"{setup_out['n_load_cells']} load cell(s)"
         )
         # --- 4. acquisition --------------------------------------------------------------
-        acq_body = {"setup_id": sid, "averages_per_input": args.averages, "seed": built.seed}
-        r = c.post("/api/acquisitions", json=acq_body)
-        if r.status_code < 400:
-            acq = r.json()
-            frf_id = _follow_acquisition(c, acq, say, quiet=args.quiet)
-            info["acquisition"] = "impact test through the simulated DAQ (USB) and load cell (CAN)"
-        else:
-            reason = r.json().get("detail", r.text)
-            say(f"[4/5] acquisition unavailable ({reason})")
+        if args.model_frfs:
             say(
-                "[4/5] importing the virtual lab's FRFs of the true article instead (UFF, "
-                f"{100 * args.noise:.2g} % noise)"
+                "[4/5] no acquisition (--model-frfs): importing the virtual lab's FRFs of the true "
+                f"article (UFF, {100 * args.noise:.2g} % noise)"
             )
             frf_id = _import_model_frfs(c, built, sid, args)
             info["acquisition"] = (
-                f"not run: {reason}; FRFs of the virtual lab's forward model (true geometry) with {100 * args.noise:g} % noise imported as UFF"
+                "not run (--model-frfs): FRFs of the virtual lab's forward model (true geometry) "
+                f"with {100 * args.noise:g} % noise imported as UFF"
             )
+        else:
+            acq_body = {"setup_id": sid, "averages_per_input": args.averages, "seed": built.seed}
+            acq = _check(
+                c.post("/api/acquisitions", json=acq_body),
+                "acquisition (the demo acquires as dimacq acquire does; --model-frfs solves "
+                "model FRFs instead)",
+            )
+            frf_id = _follow_acquisition(c, acq, say, quiet=args.quiet)
+            info["acquisition"] = f"impact test through {backends}"
+            say(f"[4/5] acquired through {backends}")
         # --- 5. solve --------------------------------------------------------------------
         body: dict[str, Any] = {"frf_id": frf_id}
         if chain is not None and "solution_id" in chain:

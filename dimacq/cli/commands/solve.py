@@ -164,11 +164,12 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     e.add_argument(
         "--refine-geometry",
         action=argparse.BooleanOptionalAction,
-        default=True,
+        default=None,
         help="estimate sensor rotations/offsets, input lines of action and channel gains with "
         "the properties, priors from the setup's [geometry_uncertainty] and "
-        "[transducer_uncertainty], gauge fixed (default on; --no-refine-geometry: stated "
-        "geometry as exact, its uncertainty by Monte Carlo)",
+        "[transducer_uncertainty], gauge fixed (default on, an output-error fit: off with "
+        "--no-unbiased; --no-refine-geometry: stated geometry as exact, its uncertainty by "
+        "Monte Carlo)",
     )
     e.add_argument(
         "--residual-flexibility",
@@ -315,6 +316,22 @@ def run(args: argparse.Namespace) -> int:
     payload: dict[str, Any]
     from dimacq.services.analysis import AnalysisOptions, analyse
 
+    refine_geometry = args.refine_geometry
+    if not args.unbiased:
+        # equation error, as the flag says: the refinement and the residual terms are
+        # output-error fits, so asking for them with it is a contradiction, not a preference
+        for flag, on in (
+            ("--refine-geometry", refine_geometry),
+            ("--residual-flexibility", args.residual_flexibility),
+        ):
+            if on:
+                raise SetupError(
+                    f"--no-unbiased asks for the equation-error estimate, {flag} for an "
+                    "output-error fit; give one of them"
+                )
+        refine_geometry = False
+    elif refine_geometry is None:
+        refine_geometry = True
     options = AnalysisOptions(
         select_responses=not (args.no_select or args.no_select_responses),
         select_inputs=not (args.no_select or args.no_select_inputs),
@@ -327,7 +344,7 @@ def run(args: argparse.Namespace) -> int:
         geometry_samples=0 if args.no_geometry_uncertainty else 400,
         method=args.method,
         unbiased=args.unbiased,
-        refine_geometry=args.refine_geometry,
+        refine_geometry=refine_geometry,
         residual_flexibility=args.residual_flexibility,
         reference_mass=_reference_mass(args.reference_mass),
         chain=_chain(args.chain_calibration),
@@ -502,6 +519,8 @@ def print_report(
             )
     elif isinstance(oe, dict):
         w(f"estimator: equation-error (output-error not used: {oe.get('reason')})\n")
+    else:
+        w("estimator: equation-error least squares (output-error fit not asked for)\n")
     for d in result.diagnostics:
         mark = "ok  " if d.ok else ("FAIL" if d.severity == "error" else "warn")
         w(f"[{mark}] {d.code}: {d.message}\n")
