@@ -105,7 +105,7 @@ def test_acquisition_stop_keeps_completed_averages(tmp_path: Path, database_url:
         }
         acq = c.post("/api/acquisitions", json=body).json()
         again = c.post("/api/acquisitions", json=body)
-        assert again.status_code == 409 and "already running" in again.json()["detail"]
+        assert again.status_code == 409 and "in use by acquisition" in again.json()["detail"]
         _wait(c, acq["id"], lambda a: a["averages_accepted"] >= 2)
         assert c.post(f"/api/acquisitions/{acq['id']}/stop").status_code == 200
         a = _wait(c, acq["id"], lambda a: a["state"] != "running")
@@ -135,3 +135,52 @@ def test_settings_are_checked_when_the_acquisition_is_created(rig_api) -> None:
     r = c.post("/api/acquisitions", json={"setup_id": sid2})
     assert r.status_code == 422 and "hammer channels" in r.json()["detail"], r.text
     assert c.get("/api/jobs").json() == [] and c.get("/api/acquisitions").json() == []
+
+
+def test_one_owner_per_device(tmp_path: Path, database_url: str) -> None:
+    """Issue 24: three acquisition requests sent together all got 202 and ran on one DAQ; a
+    calibration run, connect and identify were accepted during an acquisition. Now the first
+    claim of the devices wins (one 202, two 409 naming the holder), the others are refused while
+    it runs, and the devices are free again when it ends."""
+    import threading
+
+    with served_lab(tmp_path, database_url, impulse_rig_factory(pace_s=0.05)) as (c, _lab):
+        sid = c.post("/api/setups", json=dump_setup_dict(IMPULSE_SETUP)).json()["id"]
+        body = {
+            "setup_id": sid,
+            "averages_per_input": 50,
+            "record_samples": 512,
+            "trigger_level_n": 20.0,
+        }
+        go = threading.Barrier(3)
+        answers: list[httpx.Response] = []
+
+        def ask() -> None:
+            go.wait()
+            answers.append(c.post("/api/acquisitions", json=body))
+
+        threads = [threading.Thread(target=ask) for _ in range(3)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join(30)
+        codes = sorted(r.status_code for r in answers)
+        assert codes == [202, 409, 409], [r.text for r in answers]
+        acq = next(r.json() for r in answers if r.status_code == 202)
+        for r in answers:
+            if r.status_code == 409:
+                assert "in use by" in r.json()["detail"] and "acquisition" in r.json()["detail"]
+        # the devices the acquisition holds refuse other users, naming it
+        for path in ("/api/devices/daq/connect", "/api/devices/loadcell/identify"):
+            r = c.post(path)
+            assert r.status_code == 409, (path, r.text)
+            assert f"acquisition {acq['id']}" in r.json()["detail"]
+        r = c.post("/api/calibrations/runs", json={"method": "static"})
+        assert r.status_code == 409 and "loadcell is in use by" in r.json()["detail"], r.text
+        # the digitizer is not the acquisition's
+        assert "in use" not in c.post("/api/devices/digitizer/identify").text
+        assert c.post(f"/api/acquisitions/{acq['id']}/stop").status_code == 200
+        _wait(c, acq["id"], lambda a: a["state"] != "running")
+        r = c.post("/api/acquisitions", json={**body, "averages_per_input": 1})
+        assert r.status_code == 202, r.text
+        _wait(c, r.json()["id"], lambda a: a["state"] != "running")

@@ -44,6 +44,7 @@ from dimacq.services.jobs import JobContext, JobManager
 from dimacq.services.lab.acquisition_views import Decision, LiveReview, hit_view, merge_frfs
 from dimacq.services.lab.common import iso, json_safe
 from dimacq.services.lab.devices import DeviceService
+from dimacq.services.lab.ownership import Claim
 from dimacq.services.lab.store import Page, TestStore, frf_to_arrays
 
 __all__ = [
@@ -104,6 +105,10 @@ class AcquisitionInfo:
     inputs: list[int] = field(default_factory=list)
     created_at: str | None = None  # ISO 8601, UTC
     updated_at: str | None = None  # the last change of state, message, job or FRF set
+
+
+#: What an impact acquisition holds while it runs (:class:`~dimacq.services.lab.ownership.DeviceOwners`).
+ACQUISITION_DEVICES = ("daq", "loadcell")
 
 
 class AcquisitionService:
@@ -207,17 +212,25 @@ class AcquisitionService:
                     f"merge_frf_id {merge_id} belongs to another setup; give an FRF set of "
                     f"setup {setup_id} (its inputs are replaced or appended)"
                 )
-        if self.jobs.running("acquisition"):
-            raise DeviceStateError("an acquisition is already running; stop it or wait for it")
-        struck = setup.model_copy(
-            update={"excitations": tuple(setup.excitations[j] for j in inputs)}
-        )
-        rig = self._build_rig(struck, cfg)  # raises DeviceError if the devices are not there
+        # The DAQ and the load cells are this acquisition's from here until its job ends: the
+        # check and the claim are one step (three requests sent together: one starts).
+        claim = self.devices.owners.claim(ACQUISITION_DEVICES, "an acquisition being started")
+        try:
+            if self.jobs.running("acquisition"):  # another stand's process, same service
+                raise DeviceStateError("an acquisition is already running; stop it or wait for it")
+            struck = setup.model_copy(
+                update={"excitations": tuple(setup.excitations[j] for j in inputs)}
+            )
+            rig = self._build_rig(struck, cfg)  # raises DeviceError if the devices are not there
+        except BaseException:
+            self.devices.owners.release(claim)
+            raise
         try:
             # every setting as applied (request < rig file < rig), before any job starts
             self._check(rig, struck, cfg)
-        except DimacqError:
+        except BaseException:
             rig.close()
+            self.devices.owners.release(claim)
             raise
         # the minimum of accepted averages per input, stated with the acquisition (the request,
         # else the rig file's [acquisition], else the service's min_averages setting)
@@ -228,13 +241,19 @@ class AcquisitionService:
             cfg["averages_per_input"] = defaults.get(
                 "averages_per_input", ImpactSettings().averages_per_input
             )
-        with self.db.session() as s:
-            row = m.Acquisition(
-                setup_id=setup_id, config=json_safe(cfg), state="running", stand=self.stand
-            )
-            s.add(row)
-            s.flush()
-            acq_id = int(row.id)
+        try:
+            with self.db.session() as s:
+                row = m.Acquisition(
+                    setup_id=setup_id, config=json_safe(cfg), state="running", stand=self.stand
+                )
+                s.add(row)
+                s.flush()
+                acq_id = int(row.id)
+        except BaseException:
+            rig.close()
+            self.devices.owners.release(claim)
+            raise
+        self.devices.owners.rename(claim, f"acquisition {acq_id}")
         live = LiveReview(
             review=bool(cfg.get("review")),
             n_inputs=len(inputs),
@@ -246,13 +265,15 @@ class AcquisitionService:
         try:
             job = self.jobs.submit(
                 "acquisition",
-                lambda ctx: self._run(ctx, acq_id, setup_id, setup, struck, cfg, rig, live),
+                lambda ctx: self._run(ctx, acq_id, setup_id, setup, struck, cfg, rig, live, claim),
             )
-        except DimacqError:
+        except BaseException:
             rig.close()
+            self.devices.owners.release(claim)
             self._live.pop(acq_id, None)
             self._set(acq_id, state="failed")
             raise
+        self.devices.owners.rename(claim, f"acquisition {acq_id} (job {job.id})")
         self._set(acq_id, job_id=job.id)
         out = self.get(acq_id)
         assert out is not None
@@ -296,6 +317,7 @@ class AcquisitionService:
         cfg: Mapping[str, Any],
         rig: Any,
         live: LiveReview,
+        claim: Claim | None = None,
     ) -> dict[str, Any]:
         from dimacq.services.rig import run_impact_test
 
@@ -453,6 +475,8 @@ class AcquisitionService:
             raise
         finally:
             rig.close()
+            if claim is not None:  # the devices are free for the next job
+                self.devices.owners.release(claim)
             live.pending = live.pending_view = None
 
             def final(s: Any) -> None:

@@ -10,6 +10,7 @@ from typing import Any
 from dimacq.backends import BACKENDS
 from dimacq.errors import SetupError
 from dimacq.pipeline.loadcell_calibration import LoadCase
+from dimacq.services.lab.ownership import DeviceOwners
 from dimacq.services.loadcell_calibration import (
     calibrate_rig_cell,
     simulated_static_calibration,
@@ -48,10 +49,16 @@ class CalibrationRuns:
     """
 
     def __init__(
-        self, jobs: Any, settings: Any, record: Callable[[dict[str, Any]], dict[str, Any]]
+        self,
+        jobs: Any,
+        settings: Any,
+        record: Callable[[dict[str, Any]], dict[str, Any]],
+        owners: DeviceOwners | None = None,
     ) -> None:
         import threading
 
+        #: the stand's device owners: a run holds the load cell (and, inertial, the DAQ)
+        self.owners = owners if owners is not None else DeviceOwners()
         self.jobs = jobs
         self.settings = settings
         self.record = record
@@ -96,10 +103,19 @@ class CalibrationRuns:
                 "file's)"
             )
         cfg = {} if averages is None else {"averages_per_input": averages}
-        if self.jobs.running("loadcell-calibration"):
+        devices = ("loadcell", "daq") if method == "inertial" else ("loadcell",)
+        claim = self.owners.claim(devices, f"a load cell calibration run ({method})")
+        if self.jobs.running("loadcell-calibration"):  # another process of this stand's service
+            self.owners.release(claim)
             raise DeviceStateError("a load cell calibration is already running; wait or cancel it")
 
         def work(ctx: Any) -> dict[str, Any]:
+            try:
+                return run(ctx)
+            finally:
+                self.owners.release(claim)
+
+        def run(ctx: Any) -> dict[str, Any]:
             settings = self.settings
             if simulated:  # the simulated lab's files stay as shipped: a scratch copy per job
                 from pathlib import Path
@@ -118,7 +134,12 @@ class CalibrationRuns:
                 result.update(self._check(ctx, settings, result["load_cell_node"], cfg))
             return result
 
-        job = self.jobs.submit("loadcell-calibration", work)
+        try:
+            job = self.jobs.submit("loadcell-calibration", work)
+        except BaseException:
+            self.owners.release(claim)
+            raise
+        self.owners.rename(claim, f"load cell calibration run {job.id} ({method})")
         return {"job_id": job.id, "method": method, "simulated": simulated}
 
     def _strike_prompt(self, ctx: Any, stage: str) -> Callable[[Any], None]:

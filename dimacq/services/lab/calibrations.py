@@ -36,7 +36,13 @@ class StoredCalibration:
 
 class CalibrationService:
     def __init__(
-        self, db: Database, stand: str = "", *, jobs: Any = None, settings: Any = None
+        self,
+        db: Database,
+        stand: str = "",
+        *,
+        jobs: Any = None,
+        settings: Any = None,
+        owners: Any = None,
     ) -> None:
         self.db = db
         self.stand = stand
@@ -44,7 +50,9 @@ class CalibrationService:
         if jobs is not None and settings is not None:
             from dimacq.services.lab.calibration_runs import CalibrationRuns
 
-            self.runs = CalibrationRuns(jobs, settings, lambda doc: asdict(self.save(doc)))
+            self.runs = CalibrationRuns(
+                jobs, settings, lambda doc: asdict(self.save(doc)), owners=owners
+            )
 
     def save(self, document: Any) -> StoredCalibration:
         """Validate a calibration document (schema_version 1) and store it normalised (SI)."""

@@ -20,6 +20,7 @@ from dimacq.backends.base import DeviceContext
 from dimacq.config import Settings
 from dimacq.errors import DeviceStateError, DimacqError, SetupError
 from dimacq.services.lab.common import identity_dict
+from dimacq.services.lab.ownership import DeviceOwners
 
 if TYPE_CHECKING:
     from dimacq.drivers.digitizer import SerialDigitizer
@@ -69,6 +70,8 @@ class DeviceService:
         self._article: dict[str, Any] | None = None  # simulated_article, built once
         self._digitizer_ctx: DeviceContext | None = None
         self._session: DigitizingSession | None = None
+        #: who holds each device (an acquisition, a calibration run, a connect): one at a time
+        self.owners = DeviceOwners()
         # The backend each kind names (dimacq.backends.BACKENDS); "simulated" and
         # "canopen-simulated" are the virtual lab (is_simulated).
         self._devices: dict[str, DeviceInfo] = {
@@ -148,9 +151,10 @@ class DeviceService:
                 d.connected = False
 
     def connect(self, name: str) -> DeviceInfo:
-        """(Re)open one device; the device list records the outcome."""
+        """(Re)open one device; the device list records the outcome. Refused (409) while a job
+        holds the device: reopening it would cut that job's stream."""
         info = self.require(name)
-        with self.lock:
+        with self.owners.hold((name,), f"a connect of {name}"), self.lock:
             try:
                 if info.kind == "digitizer":
                     self._connect_digitizer(info)
@@ -168,14 +172,15 @@ class DeviceService:
 
     def identify(self, name: str) -> dict[str, Any]:
         info = self.require(name)
-        if not info.connected:
-            raise DeviceStateError(
-                f"device {name} is not connected ({info.error or 'closed'}); connect it first"
-            )
-        if info.kind == "digitizer":
-            with self.lock:
-                info.identity = identity_dict(self.digitizer().identify())
-        return dict(info.identity)
+        with self.owners.hold((name,), f"an identify of {name}"):
+            if not info.connected:
+                raise DeviceStateError(
+                    f"device {name} is not connected ({info.error or 'closed'}); connect it first"
+                )
+            if info.kind == "digitizer":
+                with self.lock:
+                    info.identity = identity_dict(self.digitizer().identify())
+            return dict(info.identity)
 
     # ------------------------------------------------------------------ the digitizer
     def simulated_article(self) -> dict[str, Any] | None:

@@ -144,7 +144,9 @@ class Lab:
             stand=name,
             outbox=self.outbox,
         )
-        self.calibrations = CalibrationService(self.db, name, jobs=self.jobs, settings=settings)
+        self.calibrations = CalibrationService(
+            self.db, name, jobs=self.jobs, settings=settings, owners=self.devices.owners
+        )
         self.studies = StudyService(self.db, self.jobs, name)
         self.rig_map = RigMapService(settings)
         self.job_store.interrupt_stale()  # this stand's jobs that ran when it stopped
