@@ -17,7 +17,12 @@ def test_of_many_threads_claiming_together_exactly_one_wins_each_round() -> None
         won: list[object] = []
         refused: list[str] = []
 
-        def claim(k: int) -> None:
+        def claim(
+            k: int,
+            go: threading.Barrier = go,
+            won: list[object] = won,
+            refused: list[str] = refused,
+        ) -> None:
             go.wait()
             try:
                 won.append(owners.claim(("daq", "loadcell"), f"job {k}"))
