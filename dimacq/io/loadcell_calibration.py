@@ -255,6 +255,12 @@ def install_calibration(cal: LoadCellCalibration, current: str | Path) -> Instal
     version is one more than the highest of ``<stem>-v<N>.json`` beside it and of the current
     file; both formats are written as ``<stem>-v<N>.json/.xml``, then the current file is
     replaced (write to a temporary file, then rename: a reader never sees half a file).
+
+    Raises
+    ------
+    DataError
+        ``current`` exists but is not a calibration file, or is another cell's (serial numbers
+        differ): nothing is written.
     """
     import dataclasses
     import os
@@ -266,10 +272,21 @@ def install_calibration(cal: LoadCellCalibration, current: str | Path) -> Instal
     pat = re.compile(re.escape(stem) + r"-v(\d+)\.(json|xml)$")
     seen = [int(m.group(1)) for f in cur.parent.iterdir() if (m := pat.match(f.name))]
     if cur.exists():
+        # the file the rig names is replaced only if it *is* this cell's calibration: a rig file
+        # pointing elsewhere (a typo, or a hostile path) never gets another file overwritten
         try:
-            seen.append(read_calibration(cur).version)
-        except DataError:
-            pass
+            old = read_calibration(cur)
+        except (DataError, OSError, ValueError) as err:
+            raise DataError(
+                f"{cur}: not a load cell calibration file ({err}); refusing to replace it. Point "
+                "the rig file's calibration_file at the cell's calibration file"
+            ) from err
+        if old.serial_number and cal.serial_number and old.serial_number != cal.serial_number:
+            raise DataError(
+                f"{cur}: the calibration of cell {old.serial_number}, not of {cal.serial_number}; "
+                "refusing to replace it. Point the rig file's calibration_file at this cell's file"
+            )
+        seen.append(old.version)
     version = max(seen, default=0) + 1
     new = dataclasses.replace(cal, version=version)
     jp = cur.parent / f"{stem}-v{version}.json"

@@ -46,7 +46,7 @@ from __future__ import annotations
 
 import logging
 import tomllib
-from pathlib import Path
+from pathlib import Path, PurePosixPath, PureWindowsPath
 from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
@@ -185,6 +185,24 @@ class LoadCellEntry(_Model):
         default=None, gt=50.0, lt=100.0, description="the data-phase sample point in % (50..100)"
     )
 
+    @field_validator("calibration_file")
+    @classmethod
+    def _inside_the_rig_folder(cls, v: str) -> str:
+        """The service reads *and replaces* this file (a calibration run installs the next
+        version there): it must lie in the rig file's folder or below it."""
+        p = PurePosixPath(v.replace("\\", "/"))
+        if p.is_absolute() or PureWindowsPath(v).is_absolute() or v.startswith("~"):
+            raise ValueError(
+                f"{v!r} is an absolute path; give a path relative to the rig file, inside its "
+                "folder (e.g. 'calibrations/lc-501.json')"
+            )
+        if ".." in p.parts:
+            raise ValueError(
+                f"{v!r} leaves the rig file's folder ('..'); keep the calibration files in the "
+                "rig file's folder or below it (e.g. 'calibrations/lc-501.json')"
+            )
+        return v
+
 
 class RigFile(_Model):
     """The channel map of a real rig (see the module docstring)."""
@@ -227,8 +245,10 @@ class RigFile(_Model):
         return self
 
     def calibration_path(self, entry: LoadCellEntry) -> Path:
-        p = Path(entry.calibration_file).expanduser()
-        if not p.is_absolute() and self.path is not None:
+        """The calibration file, relative to the rig file's folder (never outside it:
+        :meth:`LoadCellEntry._inside_the_rig_folder`)."""
+        p = Path(entry.calibration_file)
+        if self.path is not None:
             p = self.path.parent / p
         return p
 

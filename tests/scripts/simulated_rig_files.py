@@ -69,7 +69,7 @@ def write_rig(name: str, scenario: str, header: str) -> None:
     setup = lab.model.setup
     acq = built.spec.acquisition
     path = CONFIG / name
-    rel = "" if path.parent == CONFIG else "../"
+    # calibration files live beside the rig file (a rig file may not point outside its folder)
     out = [
         "# Channel map of the acquisition rig (schema_version 1; see dimacq/io/rig_file.py) of",
         f"# {header}",
@@ -102,7 +102,7 @@ def write_rig(name: str, scenario: str, header: str) -> None:
         "force_window_samples = 64",
     ]
     for i, lc in enumerate(setup.load_cells):
-        cal = CONFIG / "calibrations" / f"lc-{lc.node}.json"
+        cal = path.parent / "calibrations" / f"lc-{lc.node}.json"
         S = lab.gauge_matrix(lc.node)
         rng = np.random.default_rng([0xCA1, lc.node])
         E = CERTIFICATE_ERROR * rng.standard_normal((6, 6))
@@ -121,7 +121,7 @@ def write_rig(name: str, scenario: str, header: str) -> None:
             "[[load_cells]]",
             f"node = {lc.node}",
             f"node_id = {i + 1}",
-            f'calibration_file = "{rel}calibrations/lc-{lc.node}.json"',
+            f'calibration_file = "calibrations/lc-{lc.node}.json"',
             'channel = ""              # "" = loadcell_channel of dimacq.toml',
         ]
     for k, c in enumerate(setup.responses):
