@@ -39,7 +39,7 @@ import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
@@ -182,7 +182,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _sim(kind: str, backend: str) -> str:
+def _sim(kind: Literal["daq", "loadcell"], backend: str) -> str:
     from dimacq.backends import is_simulated
 
     return "simulated " if is_simulated(kind, backend) else ""
