@@ -66,6 +66,7 @@ sensitivity). Variance = max(noise, jackknife) + geometry.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -82,7 +83,15 @@ __all__ = [
     "MassLineFit",
     "mass_line_fit",
     "mass_line_from_frf",
+    "quantities_from_parameters",
     "read_mass_matrix",
+]
+
+#: A second estimator evaluated on the same geometry samples: (positions (S, n, 3), directions
+#: (S, n, 3), input positions (S, J, 3), input directions (S, J, 3)) → quantities (S, 19).
+Companion = Callable[
+    [NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]],
+    NDArray[np.float64],
 ]
 
 FloatArray = NDArray[np.float64]
@@ -181,6 +190,26 @@ def read_mass_matrix(M: NDArray[np.floating]) -> tuple[FloatArray, FloatArray]:
     return q, structure
 
 
+def quantities_from_parameters(x: NDArray[np.floating], p: NDArray[np.floating]) -> FloatArray:
+    """DIM parameters ``[m, CG (GCS), I_P (6)]`` (..., 10) → :data:`QUANTITIES` (..., 19)."""
+    x = np.asarray(x, float)
+    m, cg, ip6 = x[..., 0], x[..., 1:4], x[..., 4:10]
+    c = cg - np.asarray(p, float)
+    ip = np.zeros(x.shape[:-1] + (3, 3))
+    for k, (i, j) in enumerate(_I3):
+        ip[..., i, j] = ip6[..., k]
+        ip[..., j, i] = ip6[..., k]
+    shift = m[..., None, None] * (
+        np.einsum("...i,...i->...", c, c)[..., None, None] * np.eye(3)
+        - np.einsum("...i,...j->...ij", c, c)
+    )
+    icg = ip - shift
+    icg6 = np.stack([icg[..., i, j] for i, j in _I3], axis=-1)
+    pm = np.linalg.eigvalsh(icg)
+    out: FloatArray = np.concatenate([x[..., :10], icg6, pm], axis=-1)
+    return out
+
+
 @dataclass(frozen=True, eq=False)
 class MassLineFit:
     """The mass-line estimate with its uncertainty and its evidence.
@@ -213,6 +242,10 @@ class MassLineFit:
     jackknife : ndarray, shape (n_inputs, 19)
         The leave-one-input-out values.
     geometry_samples : int
+    se_geometry_difference : ndarray, shape (19,), optional
+        Spread over the same geometry samples of the difference between this estimate and the
+        companion estimator's (the DIM on the same stated geometry): the part of the geometry
+        uncertainty the two do not share. None without a companion.
     """
 
     values: FloatArray
@@ -232,6 +265,7 @@ class MassLineFit:
     reference_point_m: FloatArray
     jackknife: FloatArray
     geometry_samples: int
+    se_geometry_difference: FloatArray | None = None
 
     def value(self, name: str) -> float:
         return float(self.values[QUANTITIES.index(name)])
@@ -345,6 +379,7 @@ def mass_line_fit(
     force_sensitivity_rel: float = 0.0,
     n_samples: int = 200,
     seed: int | None = 0,
+    companion: Companion | None = None,
 ) -> MassLineFit:
     """Fit ``A(ω) ≈ Ψ M⁻¹ (Φ + R(ω))`` over the band and read m, CG and I (module docstring).
 
@@ -372,6 +407,9 @@ def mass_line_fit(
         :func:`dimacq.pipeline.uncertainty.geometry_spread`); all zero: no geometry term.
     n_samples : int
         Geometry Monte Carlo samples.
+    companion : callable, optional
+        A second estimator run on every geometry sample (:data:`Companion`): gives
+        :attr:`MassLineFit.se_geometry_difference`.
 
     Raises
     ------
@@ -417,10 +455,19 @@ def mass_line_fit(
     if noise_weighting:
         res = H - np.einsum("ia,ab,lbj->lij", psi0, _sym(g), F)
         s2 = np.mean(np.abs(res) ** 2, axis=0).T  # (J, n)
+        power = np.mean(np.abs(H) ** 2, axis=0).T
         pos_s2 = s2[W > 0]
         floor = 1e-6 * float(np.median(pos_s2)) if pos_s2.size else 0.0
-        if floor > 0:
-            W = W / np.maximum(s2, floor)
+        # exact data (round-off residuals) carry no noise to weight by
+        exact = (
+            not pos_s2.size or float(np.median(pos_s2 / np.maximum(power[W > 0], 1e-300))) < 1e-16
+        )
+        if floor > 0 and not exact:
+            # one noise level per channel (pooled over inputs and lines): a sensor's floor; per
+            # channel and input the weights would follow each FRF's own size and put the small
+            # cross terms, which the stated geometry's errors dominate, first
+            s2c = np.sum(s2 * (W > 0), axis=0) / np.maximum(np.sum(W > 0, axis=0), 1)
+            W = W / np.maximum(s2c, floor)[None, :]
             W /= float(np.median(W[W > 0]))
             g, Nj, bj = fit(W)
     N = Nj.sum(axis=0)
@@ -481,6 +528,7 @@ def mass_line_fit(
 
     # stated geometry and transducer uncertainty, Monte Carlo
     se_geometry = np.zeros(19)
+    se_geo_diff: FloatArray | None = None
     sig = (
         sensor_position_m,
         sensor_orientation_deg,
@@ -508,7 +556,7 @@ def mass_line_fit(
         dir_s = np.einsum("snij,nj->sni", Rn[:, inv], dirs) * (1.0 + eps)[..., None]
         idir_s = np.einsum("sjik,jk->sji", Ri, idir) * (1.0 + eta)[:, None, None]
         ipos_s = ipos[None] + dpi
-        qs_list, ss_list = [], []
+        qs_list, ss_list, dd_list = [], [], []
         for chunk in np.array_split(np.arange(S), max(1, S // 50)):
             psi_s = _scaled(pos_s[chunk], dir_s[chunk], p, ell)
             phi_s = _scaled(ipos_s[chunk], idir_s[chunk], p, ell)
@@ -520,11 +568,20 @@ def mass_line_fit(
                 q_s, s_s = _derive(gs[good], ell, p)
                 qs_list.append(q_s)
                 ss_list.append(s_s)
+                if companion is not None:
+                    sel = chunk[good]
+                    qc = companion(pos_s[sel], dir_s[sel], ipos_s[sel], idir_s[sel])
+                    dd_list.append(q_s - qc)
         if qs_list:
             qs, ss = np.concatenate(qs_list), np.concatenate(ss_list)
             if qs.shape[0] > 1:
                 se_geometry = qs.std(axis=0, ddof=1)
                 cov_s = cov_s + np.cov((ss / st_scale).T)
+        if dd_list:
+            dd = np.concatenate(dd_list)
+            dd = dd[np.all(np.isfinite(dd), axis=1)]
+            if dd.shape[0] > 1:
+                se_geo_diff = dd.std(axis=0, ddof=1)
     z = structure / st_scale
     structure_chi2 = float(z @ np.linalg.pinv(cov_s, rcond=1e-12, hermitian=True) @ z)
     se = np.sqrt(np.maximum(se_noise**2, se_inputs**2) + se_geometry**2)
@@ -549,6 +606,7 @@ def mass_line_fit(
         reference_point_m=p,
         jackknife=qj,
         geometry_samples=S,
+        se_geometry_difference=se_geo_diff,
     )
 
 
@@ -562,6 +620,9 @@ def mass_line_from_frf(
     geometry: bool = True,
     n_samples: int = 200,
     seed: int | None = 0,
+    dim_companion: bool = False,
+    known: Mapping[str, float] | None = None,
+    length_unit: str | None = None,
 ) -> MassLineFit:
     """:func:`mass_line_fit` on an FRF set and its setup (the whole span of ``frf``: band it first).
 
@@ -570,7 +631,10 @@ def mass_line_from_frf(
     the load-cell reactions at P are those the DIM sums (:func:`dimacq.pipeline.dim.assemble`).
     ``response_weights`` (one per acceleration output, 0 drops) and ``input_keep`` (one per
     input) select the data; ``geometry`` adds the setup's stated geometry and transducer
-    uncertainty to the intervals.
+    uncertainty to the intervals. ``dim_companion``: the joint equation-error DIM (with
+    ``known`` and ``length_unit``) is solved on every geometry sample too
+    (:func:`dimacq.pipeline.uncertainty.joint_parameters_for_geometry`), for
+    :attr:`MassLineFit.se_geometry_difference`.
     """
     from dimacq.pipeline.dim import assemble
     from dimacq.pipeline.selection._common import response_geometry
@@ -604,6 +668,31 @@ def mass_line_from_frf(
         R = system.F - system.phi[None].astype(complex)
         reactions = R[:, :, idx]
     H = frf.H[:, geo.output_index][:, :, idx]
+    companion: Companion | None = None
+    if dim_companion and geometry:
+        from dimacq.pipeline.uncertainty import _band_sums, joint_parameters_for_geometry
+
+        wts = (
+            np.ones(len(geo.channels))
+            if response_weights is None
+            else np.asarray(response_weights, float)
+        )
+        sysd = assemble(
+            frf, setup, length_unit=length_unit, reference_point_m=p, response_weights=wts
+        ).select_inputs(idx)
+        dsums = _band_sums(sysd, H)
+
+        def companion(
+            pos_s: FloatArray, dir_s: FloatArray, ipos_s: FloatArray, idir_s: FloatArray
+        ) -> FloatArray:
+            try:
+                x = joint_parameters_for_geometry(
+                    sysd, dsums, pos_s, dir_s, wts, ipos_s, idir_s, known
+                )
+            except np.linalg.LinAlgError:
+                return np.full((pos_s.shape[0], 19), np.nan)
+            return quantities_from_parameters(x, p)
+
     gu = setup.geometry_uncertainty
     tu = setup.transducer_uncertainty
     reg = float(gu.registration_rms_m or 0.0)
@@ -629,5 +718,6 @@ def mass_line_from_frf(
         nodes=geo.nodes,
         n_samples=n_samples,
         seed=seed,
+        companion=companion,
         **kw,
     )

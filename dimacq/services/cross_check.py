@@ -149,18 +149,53 @@ def _chi2_sf(x: float, dof: int) -> float:
     return float(chi2.sf(x, dof)) if np.isfinite(x) else 0.0
 
 
-def _dim_se(unc: Uncertainty, result: DimResult) -> dict[str, Any]:
+def _comparison_se(fit: MassLineFit) -> np.ndarray:
+    """The mass-line fit's standard errors for the comparison with the DIM: its own noise /
+    input spread, plus the geometry spread of its *difference* from the DIM on the same stated
+    geometry (the stated geometry moves both alike; the DIM's own interval holds its share and
+    what its refinement corrects). Its full geometry spread when no such difference was made."""
+    own = np.maximum(fit.se_noise, fit.se_inputs)
+    geo = fit.se_geometry if fit.se_geometry_difference is None else fit.se_geometry_difference
+    out: np.ndarray = np.sqrt(own**2 + geo**2)
+    return out
+
+
+def _dim_se(unc: Uncertainty, result: DimResult, force_rel: float) -> dict[str, Any]:
+    """The DIM's standard errors for the comparison: its intervals' without the force-sensor
+    calibration share ``σ_f·|x|`` of the mass and inertias (a hammer error scales every FRF, so
+    it moves both estimators alike: it is not a difference between them), never below the noise
+    share."""
     prm = unc.parameters
 
-    def se(name: str) -> float:
+    def se(name: str, scaled: bool) -> float:
         u = prm.get(name)
-        return float(u.standard_error) if u is not None else 0.0
+        if u is None:
+            return 0.0
+        s2 = float(u.standard_error) ** 2
+        if scaled:
+            s2 -= (force_rel * float(u.value)) ** 2
+        return float(np.sqrt(max(s2, float(u.se_inputs) ** 2, 0.0)))
 
-    pr = [float(u.standard_error) for u in unc.principal] if unc.principal else [0.0] * 3
+    pr = (
+        [
+            float(
+                np.sqrt(
+                    max(
+                        float(u.standard_error) ** 2 - (force_rel * float(u.value)) ** 2,
+                        float(u.se_inputs) ** 2,
+                        0.0,
+                    )
+                )
+            )
+            for u in unc.principal
+        ]
+        if unc.principal
+        else [0.0] * 3
+    )
     return {
-        "mass": se("m"),
-        "cg": [se(k) for k in ("cx", "cy", "cz")],
-        "inertia": {k: se(k) for k in _I_NAMES},
+        "mass": se("m", True),
+        "cg": [se(k, False) for k in ("cx", "cy", "cz")],
+        "inertia": {k: se(k, True) for k in _I_NAMES},
         "principal": pr,
     }
 
@@ -202,7 +237,7 @@ def cross_check(
     (``result.extras["excluded_by_refinement"]``) are left out here too.
     """
     band = result.band_hz
-    dim_se = _dim_se(unc, result)
+    dim_se = _dim_se(unc, result, float(setup.transducer_uncertainty.force_sensitivity_rel))
     w, keep = _kept(data, setup, result, weights, keep_in)
     try:
         fit = mass_line_from_frf(
@@ -213,12 +248,16 @@ def cross_check(
             reference_point_m=result.reference_point_m,
             geometry=geometry_samples > 0,
             n_samples=max(int(geometry_samples), 0),
+            dim_companion=True,
+            known=result.known,
+            length_unit=result.length_unit,
         )
     except (SolverError, SetupError) as err:
         log.warning("cross-check not made: %s", err)
         return CrossCheck(None, {}, {"all": True}, dim_se, band, error=str(err))
 
-    v, se = fit.values, fit.se
+    v = fit.values
+    se = _comparison_se(fit)
     ip_dim = result.parameters[4:10]
     pm_dim = principal_moments(result.inertia_cg_kgm2)[0]
 
