@@ -160,38 +160,31 @@ def _comparison_se(fit: MassLineFit) -> np.ndarray:
     return out
 
 
-def _dim_se(unc: Uncertainty, result: DimResult, force_rel: float) -> dict[str, Any]:
-    """The DIM's standard errors for the comparison: its intervals' without the force-sensor
-    calibration share ``σ_f·|x|`` of the mass and inertias (a hammer error scales every FRF, so
-    it moves both estimators alike: it is not a difference between them), never below the noise
-    share."""
+def _dim_se(unc: Uncertainty, force_rel: float) -> dict[str, Any]:
+    """The DIM's standard errors for the comparison.
+
+    ``sqrt(se_inputs² + se_lines² + se_geometry² − (σ_f·x)²)``: its noise / input and line
+    shares and its geometry share without the force-sensor calibration ``σ_f·|x|`` of the mass
+    and inertias (a hammer error scales every FRF and moves both estimators alike), never below
+    the noise share. The delete-one-sensor-node jackknife (``se_responses``, equation-error
+    solves only) is left out: it measures how far one sensor node moves the DIM, which is the
+    error the cross-check is there to see — a single mis-mounted node moves the DIM by about
+    the jackknife's own spread, so with it in the interval |z| stays below ~1 whatever the
+    error.
+    """
     prm = unc.parameters
+
+    def comb(u: Any, scaled: bool) -> float:
+        geo2 = float(u.se_geometry) ** 2
+        if scaled:
+            geo2 = max(geo2 - (force_rel * float(u.value)) ** 2, 0.0)
+        return float(np.sqrt(float(u.se_inputs) ** 2 + float(u.se_lines) ** 2 + geo2))
 
     def se(name: str, scaled: bool) -> float:
         u = prm.get(name)
-        if u is None:
-            return 0.0
-        s2 = float(u.standard_error) ** 2
-        if scaled:
-            s2 -= (force_rel * float(u.value)) ** 2
-        return float(np.sqrt(max(s2, float(u.se_inputs) ** 2, 0.0)))
+        return 0.0 if u is None else comb(u, scaled)
 
-    pr = (
-        [
-            float(
-                np.sqrt(
-                    max(
-                        float(u.standard_error) ** 2 - (force_rel * float(u.value)) ** 2,
-                        float(u.se_inputs) ** 2,
-                        0.0,
-                    )
-                )
-            )
-            for u in unc.principal
-        ]
-        if unc.principal
-        else [0.0] * 3
-    )
+    pr = [comb(u, True) for u in unc.principal] if unc.principal else [0.0] * 3
     return {
         "mass": se("m", True),
         "cg": [se(k, False) for k in ("cx", "cy", "cz")],
@@ -237,7 +230,7 @@ def cross_check(
     (``result.extras["excluded_by_refinement"]``) are left out here too.
     """
     band = result.band_hz
-    dim_se = _dim_se(unc, result, float(setup.transducer_uncertainty.force_sensitivity_rel))
+    dim_se = _dim_se(unc, float(setup.transducer_uncertainty.force_sensitivity_rel))
     w, keep = _kept(data, setup, result, weights, keep_in)
     try:
         fit = mass_line_from_frf(
