@@ -472,8 +472,10 @@ def mass_line_fit(
             g, Nj, bj = fit(W)
     N = Nj.sum(axis=0)
     d = np.sqrt(np.diag(N))
-    ev = np.linalg.eigvalsh(N / np.outer(d, d))
-    cond = float(np.sqrt(ev[-1] / ev[0])) if ev[0] > 0 else float("inf")
+    cond = float("inf")
+    if np.all(d > 0) and np.all(np.isfinite(N)):
+        ev = np.linalg.eigvalsh(N / np.outer(d, d))
+        cond = float(np.sqrt(ev[-1] / ev[0])) if ev[0] > 0 else float("inf")
     if not np.isfinite(cond) or cond > 1e12:
         raise SolverError(
             f"the mass-line fit is singular (condition {cond:.3g}): the inputs and channels do "

@@ -53,6 +53,9 @@ class CrossCheck:
         (3): ``(cross − DIM)/sqrt(se_cross² + se_DIM²)``.
     agrees : dict
         Same layout, ``|z| ≤ 1.96``; ``all`` for every item.
+    dim_se : dict
+        Same layout: the DIM's standard errors used in ``z`` (:func:`_dim_se`).
+    band_hz : (lo, hi)
     error : str, optional
     """
 
@@ -98,6 +101,7 @@ class CrossCheck:
 
         ip = vector_to_inertia(v[4:10])
         icg = vector_to_inertia(v[10:16])
+        cmp = _comparison_se(f)
         return {
             "method": METHOD,
             "equation": "A(ω) ≈ Ψ M⁻¹ (Φ + R(ω)), M⁻¹ symmetric (21 entries), weighted least "
@@ -120,6 +124,12 @@ class CrossCheck:
                 "inertia_p_kgm2": {k: ci(4 + i) for i, k in enumerate(_I_NAMES)},
                 "inertia_cg_kgm2": {k: ci(10 + i) for i, k in enumerate(_I_NAMES)},
                 "principal_moments_kgm2": [ci(i) for i in (16, 17, 18)],
+            },
+            "comparison_standard_error": {
+                "mass": float(cmp[0]),
+                "cg": cmp[1:4].tolist(),
+                "inertia": {k: float(cmp[4 + i]) for i, k in enumerate(_I_NAMES)},
+                "principal": cmp[16:19].tolist(),
             },
             "dim_standard_error": self.dim_se,
             "z": self.z,
