@@ -698,16 +698,7 @@ def mass_line_from_frf(
     gu = setup.geometry_uncertainty
     tu = setup.transducer_uncertainty
     reg = float(gu.registration_rms_m or 0.0)
-    kw: dict[str, float] = {}
-    if geometry:
-        kw = {
-            "sensor_position_m": float(np.hypot(gu.sensor_position_m, reg)),
-            "sensor_orientation_deg": float(gu.sensor_orientation_deg),
-            "input_position_m": float(np.hypot(gu.input_position_m, reg)),
-            "line_of_action_deg": float(gu.line_of_action_deg),
-            "accel_sensitivity_rel": float(tu.accel_sensitivity_rel),
-            "force_sensitivity_rel": float(tu.force_sensitivity_rel),
-        }
+    on = 1.0 if geometry else 0.0
     return mass_line_fit(
         H,
         reactions,
@@ -721,5 +712,10 @@ def mass_line_from_frf(
         n_samples=n_samples,
         seed=seed,
         companion=companion,
-        **kw,
+        sensor_position_m=on * float(np.hypot(gu.sensor_position_m, reg)),
+        sensor_orientation_deg=on * float(gu.sensor_orientation_deg),
+        input_position_m=on * float(np.hypot(gu.input_position_m, reg)),
+        line_of_action_deg=on * float(gu.line_of_action_deg),
+        accel_sensitivity_rel=on * float(tu.accel_sensitivity_rel),
+        force_sensitivity_rel=on * float(tu.force_sensitivity_rel),
     )

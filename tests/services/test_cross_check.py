@@ -8,12 +8,12 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from dimacq.model.setup import TestSetup
-from dimacq.services.analysis import AnalysisOptions, analyse
+from dimacq.services.analysis import AnalysisOptions, AnalysisReport, VerdictReason, analyse
 from dimacq.services.cross_check import Z95
 from dimacq.simulators.lab.scenarios import build_scenario
 
 
-def _reason(report, check: str):  # type: ignore[no-untyped-def]
+def _reason(report: AnalysisReport, check: str) -> VerdictReason:
     return next(r for r in report.verdict_reasons if r.check == check)
 
 
