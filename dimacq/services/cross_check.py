@@ -11,7 +11,16 @@ i.e. the difference lies within the combined 95 % interval. Both intervals hold 
 geometry uncertainty, which moves the two estimates alike: the combination is conservative (a
 disagreement is real). Inertia is compared about the reference point P, where the DIM states its
 intervals; the values about the CG are reported too. The verdict turns a disagreement into a
-``warn`` (:func:`dimacq.services.verdict.cross_check_checks`).
+``warn`` (:func:`dimacq.services.verdict.cross_check_checks`). Without geometry samples
+(``dimacq solve --no-geometry-uncertainty``) the comparison holds the noise only, and a stated
+geometry that is off makes the two disagree.
+
+What the comparison can see (README, "Cross-check"): the mass line does not refine the geometry
+and its unstructured fit is about three times as sensitive to the stated input geometry as the
+DIM, so it flags a DIM error only beyond about twice that spread (calibration mass, default
+priors: ~1 % on mass, 3–4 % on principal moments); with geometry stated to a tenth of the
+defaults, a triax turned 3° that the selection keeps moves the equation-error DIM far enough
+(z −3.3).
 """
 
 from __future__ import annotations
