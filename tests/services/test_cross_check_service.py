@@ -9,7 +9,7 @@ from scipy.spatial.transform import Rotation
 
 from dimacq.model.setup import TestSetup
 from dimacq.services.analysis import AnalysisOptions, AnalysisReport, VerdictReason, analyse
-from dimacq.services.cross_check import Z95
+from dimacq.services.cross_check import Z95, Z_FAMILY
 from dimacq.simulators.lab.scenarios import build_scenario
 
 
@@ -86,6 +86,7 @@ def test_a_mis_mounted_triax_the_selection_keeps_makes_them_disagree() -> None:
     assert not cc.all_agree
     worst = max(abs(z) for _, z in cc.disagreements())
     assert worst > Z95
+    assert cc.max_abs_z > Z_FAMILY and not cc.family_wise_agree
     reason = _reason(report, "cross_check")
     assert reason.severity == "warn"
     assert "disagrees" in reason.message and "I3" in reason.message
