@@ -95,3 +95,29 @@ def test_a_mis_mounted_triax_the_selection_keeps_makes_them_disagree() -> None:
     t = b.truth
     pm_t = np.linalg.eigvalsh(t.inertia_cg_kgm2)
     assert np.max(np.abs(cc.fit.values[16:19] / pm_t - 1)) < 0.003
+
+
+def test_verdict_check_without_a_fit_and_below_the_family_wise_limit() -> None:
+    from dimacq.services.cross_check import CrossCheck
+    from dimacq.services.verdict import cross_check_checks
+
+    assert cross_check_checks(None) == []
+    none = CrossCheck(None, {}, {"all": True}, {}, (10.0, 20.0), error="rank 5")
+    (r,) = cross_check_checks(none)
+    assert r.severity == "warn" and "could not be made (rank 5)" in r.message
+    assert none.to_json()["error"] == "rank 5" and none.max_abs_z == 0.0
+
+    b = build_scenario("calibration-mass-bungee", 0)
+    report = analyse(b.model_frf(noise=0.01), b.setup, AnalysisOptions(geometry_samples=50))
+    cc = report.cross_check
+    assert cc is not None and cc.fit is not None and cc.all_agree
+    # one item beyond its own 95 % interval, within the family-wise limit: reported, no warning
+    z = {**cc.z, "cg": [2.4, 0.0, 0.0]}
+    agrees = {**cc.agrees, "cg": [False, True, True], "all": False}
+    near = CrossCheck(cc.fit, z, agrees, cc.dim_se, cc.band_hz)
+    (r,) = cross_check_checks(near)
+    assert r.severity == "ok" and "cx z = +2.40" in r.message and "family-wise" in r.message
+    far = CrossCheck(cc.fit, {**z, "cg": [3.5, 0.0, 0.0]}, agrees, cc.dim_se, cc.band_hz)
+    (r,) = cross_check_checks(far)
+    assert r.severity == "warn" and "cx z = +3.50" in r.message
+    assert far.to_json()["family_wise_agree"] is False
