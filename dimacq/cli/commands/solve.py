@@ -533,7 +533,10 @@ def _print_cross_check(
         return
     w(
         "cross-check (mass line: A ≈ Ψ M⁻¹ F fitted on the same band, channels and inputs, "
-        "stated geometry); agreement: |z| ≤ 1.96\n"
+        "stated geometry); ± = each estimator's own 95 % interval;\n  z = difference over the "
+        "comparison standard errors (what moves both alike left out: JSON "
+        "cross_check.comparison_standard_error, dim_standard_error); agrees: |z| ≤ 1.96, "
+        f"verdict warns beyond |z| {cc.get('family_wise_z_limit', 2.89):.3g}\n"
     )
     unc = payload.get("uncertainty") or {}
     head = f"{'quantity':<12}{'DIM':>14}{'± (95 %)':>12}{'mass line':>14}{'± (95 %)':>12}{'z':>8}  agrees"
