@@ -65,6 +65,7 @@ from dimacq.pipeline.uncertainty import (
     estimate_uncertainty,
     geometry_spread,
 )
+from dimacq.services.cross_check import CrossCheck, cross_check
 from dimacq.services.estimation import output_error_step
 from dimacq.services.verdict import (
     CI95_LIMIT_MASS,
@@ -151,6 +152,9 @@ class AnalysisOptions:
     chain : ChainCalibration, optional
         A chain calibration to apply: the FRFs are multiplied by ``chain.factor`` and the hammer
         certificate's uncertainty is replaced by ``chain.u_rel``.
+    cross_check : bool
+        Run the second, independent estimator (the mass-line fit,
+        :mod:`dimacq.services.cross_check`) on the DIM's data and compare (default on).
     """
 
     select_responses: bool = True
@@ -173,6 +177,7 @@ class AnalysisOptions:
     ci95_limit_principal: float = CI95_LIMIT_PRINCIPAL
     reference_mass: tuple[float, float] | None = None
     chain: ChainCalibration | None = None
+    cross_check: bool = True
 
 
 @dataclass(frozen=True, eq=False)
@@ -203,6 +208,8 @@ class AnalysisReport:
     chain_calibration : dict, optional
         ``{"role": "measured" | "applied", **ChainCalibration.to_json()}``: the chain factor this
         solve measured on a reference mass, or the one it applied.
+    cross_check : CrossCheck, optional
+        The mass-line estimate on the same data and its agreement with the DIM.
     """
 
     result: DimResult
@@ -222,6 +229,7 @@ class AnalysisReport:
     verdict_reasons: list[VerdictReason] = field(default_factory=list)
     geometry: GeometrySpread | None = None
     chain_calibration: dict[str, Any] | None = None
+    cross_check: CrossCheck | None = None
 
     def to_json(self) -> dict[str, Any]:
         """``result.to_json()`` plus ``excluded_responses``, ``excluded_inputs``, ``uncertainty``,
@@ -252,6 +260,8 @@ class AnalysisReport:
             }
         if self.chain_calibration is not None:
             out["chain_calibration"] = dict(self.chain_calibration)
+        if self.cross_check is not None:
+            out["cross_check"] = self.cross_check.to_json()
         if self.response_selection is not None:
             out["response_selection"] = self.response_selection.to_json()
         if self.input_selection is not None:
@@ -417,6 +427,17 @@ def analyse(
         )
     exc = excitation_check(_phi_m(system_used))
     result = _with_extras(result, rsel, jsel, repair)
+    cc: CrossCheck | None = None
+    if opt.cross_check:
+        cc = cross_check(
+            data,
+            setup_used,
+            result,
+            unc,
+            weights,
+            keep_in,
+            geometry_samples=min(opt.geometry_samples, 200),
+        )
 
     report = AnalysisReport(
         result=result,
@@ -432,6 +453,7 @@ def analyse(
         band_suggestion=suggestion,
         orientation=repair,
         geometry=geo,
+        cross_check=cc,
     )
     v, reasons = verdict(
         report,

@@ -33,6 +33,7 @@ __all__ = [
     "RESIDUAL_WARN",
     "VerdictReason",
     "band_quality",
+    "cross_check_checks",
     "verdict",
 ]
 
@@ -267,6 +268,7 @@ def verdict(
             + (f"; they leave out {', '.join(missing)}" if missing else ""),
         )
     )
+    out.extend(cross_check_checks(getattr(report, "cross_check", None)))
     out.append(_precision(report.uncertainty, ci95_limits))
     order = {"fail": 0, "warn": 1, "ok": 2}
     out.sort(key=lambda r: order.get(r.severity, 3))
@@ -361,3 +363,70 @@ def _precision(unc: Uncertainty, limits: tuple[float, float]) -> VerdictReason:
             "them; geometry: measure positions and directions more accurately; lines: a wider band)"
         )
     return VerdictReason("precision", sev, msg)
+
+
+def cross_check_checks(cc: Any) -> list[VerdictReason]:
+    """The ``cross_check`` check (issue 25): the mass-line estimate against the DIM's.
+
+    ``warn`` when an item differs by more than the combined 95 % interval and the largest |z|
+    is beyond the family-wise limit of the 13 items compared (the two estimators
+    read different properties from the same data: one of them is misled by a channel, an input
+    or a geometry the model does not describe — a mis-mounted sensor, a wrong line of action,
+    elastic motion in the band), naming the items with their z-scores and the mass-line fit's
+    rigid-structure test; ``warn`` when the cross-check could not be made; else ``ok``.
+    ``cc`` is a :class:`dimacq.services.cross_check.CrossCheck` or None (not run: no check).
+    """
+    if cc is None:
+        return []
+    if cc.fit is None:
+        return [
+            VerdictReason(
+                "cross_check",
+                "warn",
+                f"the mass-line cross-check could not be made ({cc.error}); the DIM answer "
+                "stands without a second estimate",
+            )
+        ]
+    f = cc.fit
+    struct = (
+        f"the mass-line fit's mass matrix departs from rigid-body form by {f.structure_rel:.2g} "
+        f"(χ² {f.structure_chi2:.3g} on 11 dof against noise, inputs and stated geometry)"
+    )
+    bad = cc.disagreements()
+    limit = float(cc.family_wise_limit)
+    if not bad:
+        return [
+            VerdictReason(
+                "cross_check",
+                "ok",
+                f"the mass-line estimate agrees with the DIM within the combined 95 % intervals "
+                f"on mass, CG, inertia about P and principal moments (mass "
+                f"{f.value('m'):.6g} kg, z = {cc.z['mass']:+.2f}); {struct}",
+            )
+        ]
+    items = ", ".join(f"{k} z = {zv:+.2f}" for k, zv in bad[:6])
+    more = f" and {len(bad) - 6} more" if len(bad) > 6 else ""
+    if max(abs(zv) for _, zv in bad) <= limit:
+        return [
+            VerdictReason(
+                "cross_check",
+                "ok",
+                f"the mass-line estimate differs from the DIM beyond the combined 95 % interval on "
+                f"{items}{more}, but within the family-wise limit |z| ≤ {limit:.3g} of the 13 "
+                "items compared (one item outside its own 95 % interval is expected by chance "
+                f"in many solves); {struct}",
+            )
+        ]
+    return [
+        VerdictReason(
+            "cross_check",
+            "warn",
+            f"the mass-line estimate disagrees with the DIM beyond the combined 95 % intervals "
+            f"on {items}{more} (family-wise limit |z| ≤ {limit:.3g} over the 13 items "
+            "compared): the two estimators read different properties from the same "
+            "data, so a channel, an input or the geometry does not follow the rigid-body model "
+            "as stated (a mis-mounted or mis-oriented sensor, a wrong line of action, elastic "
+            f"motion in the band); {struct}. Check the setup against the FRFs "
+            "(dimacq solve --select-responses, --plots) before using either answer",
+        )
+    ]

@@ -38,7 +38,11 @@ import numpy as np
 from dimacq.cli.progress import plain
 from dimacq.errors import SetupError
 from dimacq.model.frf import FrfData
-from dimacq.model.properties import PRODUCT_SIGN_CONVENTION, RigidBodyProperties
+from dimacq.model.properties import (
+    PRODUCT_SIGN_CONVENTION,
+    RigidBodyProperties,
+    principal_moments,
+)
 from dimacq.model.setup import PARAMETERS, TestSetup
 from dimacq.pipeline import dim
 
@@ -470,6 +474,7 @@ def print_report(
         f"relative residual {result.residual_rel:.3g}\n"
     )
     w(f"sign convention: {PRODUCT_SIGN_CONVENTION}\n")
+    _print_cross_check(result, payload, reference, w)
     if "frf_scale_factor" in payload:
         w(f"FRFs scaled by {payload['frf_scale_factor']:.9g} to the known mass\n")
     chain = payload.get("chain_calibration")
@@ -530,3 +535,106 @@ def print_report(
         for r in payload.get("verdict_reasons") or []:
             if r.get("severity") != "ok":
                 w(f"  [{r['severity']}] {r['check']}: {r['message']}\n")
+
+
+def _print_cross_check(
+    result: dim.DimResult,
+    payload: dict[str, Any],
+    reference: RigidBodyProperties | None,
+    w: Any,
+) -> None:
+    """DIM and the mass-line cross-check side by side, with the z-score of each difference."""
+    cc = payload.get("cross_check")
+    if not isinstance(cc, dict):
+        return
+    if cc.get("error"):
+        w(f"cross-check (mass line): not made: {cc['error']}\n")
+        return
+    w(
+        "cross-check (mass line: A ≈ Ψ M⁻¹ F fitted on the same band, channels and inputs, "
+        "stated geometry); ± = each estimator's own 95 % interval;\n  z = difference over the "
+        "comparison standard errors (what moves both alike left out: JSON "
+        "cross_check.comparison_standard_error, dim_standard_error); agrees: |z| ≤ 1.96, "
+        f"verdict warns beyond |z| {cc.get('family_wise_z_limit', 2.89):.3g}\n"
+    )
+    unc = payload.get("uncertainty") or {}
+    head = f"{'quantity':<12}{'DIM':>14}{'± (95 %)':>12}{'mass line':>14}{'± (95 %)':>12}{'z':>8}  agrees"
+    if reference is not None:
+        head += f"{'DIM err %':>11}{'ML err %':>10}"
+    w(head + "\n" + "-" * len(head) + "\n")
+    se = cc["standard_error"]
+    z, ag = cc["z"], cc["agrees"]
+    pm_dim = payload["principal_moments_kgm2"]
+    pu = unc.get("principal_moments") or [{}] * 3
+    ref_pm = ref_ip = None
+    if reference is not None:
+        ref_pm = principal_moments(reference.inertia_cg_kgm2)[0]
+        ref_ip = reference.parameter_vector(result.reference_point_m)[4:10]
+    rows: list[tuple[str, float, float, float, float, float, bool, float | None]] = []
+    rows.append(
+        (
+            "m kg",
+            result.mass_kg,
+            float(unc.get("m", {}).get("standard_error", 0.0)),
+            cc["mass_kg"],
+            se["m"],
+            z["mass"],
+            ag["mass"],
+            reference.mass_kg if reference is not None else None,
+        )
+    )
+    for k, name in enumerate(("cx", "cy", "cz")):
+        rows.append(
+            (
+                f"{name} m",
+                float(result.cg_m[k]),
+                float(unc.get(name, {}).get("standard_error", 0.0)),
+                cc["cg_m"][k],
+                se[name],
+                z["cg"][k],
+                ag["cg"][k],
+                float(reference.cg_m[k]) if reference is not None else None,
+            )
+        )
+    for i, name in enumerate(("Ixx", "Ixy", "Ixz", "Iyy", "Iyz", "Izz")):
+        rows.append(
+            (
+                f"{name}(P)",
+                float(result.parameters[4 + i]),
+                float(unc.get(name, {}).get("standard_error", 0.0)),
+                cc["inertia_p_kgm2"][[0, 0, 0, 1, 1, 2][i]][[0, 1, 2, 1, 2, 2][i]],
+                se[f"{name}_p"],
+                z["inertia"][name],
+                ag["inertia"][name],
+                float(ref_ip[i]) if ref_ip is not None else None,
+            )
+        )
+    for k in range(3):
+        rows.append(
+            (
+                f"I{k + 1} kg·m²",
+                float(pm_dim[k]),
+                float(pu[k].get("standard_error", 0.0)) if pu[k] else 0.0,
+                cc["principal_moments_kgm2"][k],
+                se[f"I{k + 1}"],
+                z["principal"][k],
+                ag["principal"][k],
+                float(ref_pm[k]) if ref_pm is not None else None,
+            )
+        )
+    for name, xd, sd, xc, sc, zz, a, t in rows:
+        line = (
+            f"{name:<12}{xd:>14.6g}{1.96 * sd:>12.3g}{xc:>14.6g}{1.96 * sc:>12.3g}{zz:>8.2f}  "
+            f"{'yes' if a else 'NO':<6}"
+        )
+        if t is not None:
+            e1 = 100 * (xd - t) / abs(t) if t else float("nan")
+            e2 = 100 * (xc - t) / abs(t) if t else float("nan")
+            line += f"{e1:>11.3f}{e2:>10.3f}"
+        w(line + "\n")
+    st = cc.get("rigid_structure") or {}
+    w(
+        f"mass-line fit: relative residual {cc['residual_rel']:.3g}, non-rigid part of its mass "
+        f"matrix {st.get('rel', float('nan')):.3g} (χ² {st.get('chi2', float('nan')):.3g} on 11 "
+        f"dof, p = {st.get('p_value', float('nan')):.3g})\n"
+    )
