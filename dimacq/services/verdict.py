@@ -3,7 +3,8 @@
 A wrong answer reported as ok is the worst defect a measurement tool can have: every check below is
 reported whatever its outcome, and any failing check fails the solution (``dimacq solve`` exits 3).
 Split from :mod:`dimacq.services.analysis`, which calls :func:`verdict` after the solve and
-re-exports these names.
+re-exports these names. This module does not import the analysis (not even for types): what it
+reads of a solve is the :class:`SolveReport` protocol, so the two modules form no circle.
 """
 
 from __future__ import annotations
@@ -11,7 +12,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -23,7 +24,28 @@ from dimacq.pipeline.uncertainty import Uncertainty
 
 if TYPE_CHECKING:
     from dimacq.model.setup import TestSetup
-    from dimacq.services.analysis import AnalysisReport
+    from dimacq.pipeline.dim import DimResult
+    from dimacq.pipeline.selection.inputs import ExcitationCheck
+
+
+class SolveReport(Protocol):
+    """What the verdict reads of a solve (:class:`dimacq.services.analysis.AnalysisReport`)."""
+
+    @property
+    def result(self) -> DimResult: ...
+    @property
+    def excluded_responses(self) -> list[dict[str, int]]: ...
+    @property
+    def excluded_inputs(self) -> list[dict[str, int]]: ...
+    @property
+    def uncertainty(self) -> Uncertainty: ...
+    @property
+    def band_selection(self) -> dict[str, Any]: ...
+    @property
+    def excitation(self) -> ExcitationCheck: ...
+    @property
+    def setup_used(self) -> TestSetup: ...
+
 
 __all__ = [
     "CI95_LIMIT_MASS",
@@ -94,7 +116,7 @@ def band_quality(
     return float(np.nanmax(e)), float(np.nanmedian(r))
 
 
-def _band_quality(report: AnalysisReport, data: FrfData) -> tuple[float, float]:
+def _band_quality(report: SolveReport, data: FrfData) -> tuple[float, float]:
     """:func:`band_quality` of a report's kept data."""
     setup = report.setup_used
     geo = response_geometry(data, setup)
@@ -109,7 +131,7 @@ def _band_quality(report: AnalysisReport, data: FrfData) -> tuple[float, float]:
 
 
 def verdict(
-    report: AnalysisReport,
+    report: SolveReport,
     data: FrfData,
     suggestion: BandSuggestion | None = None,
     *,
