@@ -6,10 +6,17 @@ matrix ``M(x)`` about P, linear in ``x = [m, m·c, I6]`` (``M(x) K = A(K) x``, E
 P per unit input j is ``K_j = M⁻¹ φ_j`` and channel c (unit direction ``d_c`` at ``r_c``) measures the
 accelerance ``H_cj = ψ_cᵀ K_j``, ``ψ_c = [d_c; r_c × d_c]`` (a real number, the same on every line).
 
-Noise model: complex Gaussian FRF noise of ``noise`` times each FRF's RMS magnitude, independent
-per line (what ``dimacq simulate --noise`` adds and what the output-error estimator estimates per
-output and input): each of ``n_lines`` lines gives ``H_cj`` with a real-part variance
-``(noise·|H_cj|)²/2``.
+Noise model: complex Gaussian FRF noise, independent per line, channel and input (the
+output-error estimator estimates its level per output and input), of standard deviation
+``σ_cj = noise · s_cj``; each of ``n_lines`` lines gives ``H_cj`` with a real-part variance
+``σ_cj²/2``. Two scales ``s_cj``:
+
+- ``"channel"`` (default): the RMS of input j's FRFs over every candidate channel — the same
+  noise on every channel of one strike, as an accelerometer's noise floor is (it does not shrink
+  because the channel's signal is small);
+- ``"relative"``: each FRF's own magnitude, what ``dimacq simulate --noise`` adds. It makes a
+  small FRF as precise, relatively, as a large one, so that triaxes near the CG (small, precise
+  rotational terms) look as good as far ones: not what an accelerometer does.
 
 Nuisance parameters with Gaussian priors (the setup's ``[geometry_uncertainty]`` and
 ``[transducer_uncertainty]``, what the default solve refines): per triax a position offset δr (σ
@@ -105,6 +112,7 @@ class ErrorModel:
 
     noise: float = 0.01
     n_lines: int = 41
+    noise_model: str = "channel"
     sensor_position_m: float = 0.002
     sensor_orientation_deg: float = 0.5
     accel_gain_rel: float = 0.005
@@ -113,11 +121,16 @@ class ErrorModel:
     force_gain_rel: float = 0.005
 
     @classmethod
-    def from_setup(cls, setup: TestSetup, *, noise: float, n_lines: int) -> ErrorModel:
+    def from_setup(
+        cls, setup: TestSetup, *, noise: float, n_lines: int, noise_model: str = "channel"
+    ) -> ErrorModel:
+        if noise_model not in ("channel", "relative"):
+            raise SetupError(f"noise model {noise_model!r}: give channel or relative")
         g, t = setup.geometry_uncertainty, setup.transducer_uncertainty
         return cls(
             noise=noise,
             n_lines=n_lines,
+            noise_model=noise_model,
             sensor_position_m=g.sensor_position_m,
             sensor_orientation_deg=g.sensor_orientation_deg,
             accel_gain_rel=t.accel_sensitivity_rel,
@@ -144,6 +157,7 @@ class ErrorModel:
     def to_json(self) -> dict[str, Any]:
         return {
             "noise_rel": self.noise,
+            "noise_model": self.noise_model,
             "n_lines": self.n_lines,
             "sensor_position_m": self.sensor_position_m,
             "sensor_orientation_deg": self.sensor_orientation_deg,
@@ -293,9 +307,7 @@ def build_model(cand: Candidates, props: RigidBodyProperties, errors: ErrorModel
     m = props.mass_kg
     x_scale = np.array([m, m * rho, m * rho, m * rho, *([m * rho**2] * 6)])
     deg = np.pi / 180
-    sw = np.sqrt(2.0 * errors.n_lines) / (
-        errors.noise * np.maximum(np.abs(H), 1e-9 * np.abs(H).max())
-    )
+    sw = np.sqrt(2.0 * errors.n_lines) / (errors.noise * noise_scale(H, errors.noise_model))
     gtri = np.concatenate(
         [
             g_pos * errors.sensor_position_m,
@@ -319,6 +331,14 @@ def build_model(cand: Candidates, props: RigidBodyProperties, errors: ErrorModel
         x_scale=x_scale,
         radius_of_gyration_m=rho,
     )
+
+
+def noise_scale(H: FloatArray, noise_model: str) -> FloatArray:
+    """``s_cj`` of the noise model (module docstring) for the candidates' FRFs ``H`` (n_c, n_in)."""
+    if noise_model == "relative":
+        return np.asarray(np.maximum(np.abs(H), 1e-9 * np.abs(H).max()), dtype=np.float64)
+    rms = np.sqrt(np.mean(H**2, axis=0, keepdims=True))
+    return np.asarray(np.broadcast_to(rms, H.shape), dtype=np.float64)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -670,8 +690,7 @@ def simulated_frf(
 ) -> tuple[FloatArray, IntArray]:
     """FRFs of one simulated test of a layout: the true geometry is the candidates' (nominal)
     one with errors drawn from the error model, the transducers' gains likewise, and complex
-    Gaussian noise of ``errors.noise`` times each FRF's RMS magnitude is added on every line
-    (``dimacq simulate --noise``).
+    Gaussian noise of the error model's level is added on every line.
 
     Draws, in this order: per triax a position offset (each coordinate ~ N(0, σ_p)) and a rotation
     (rotation vector, each component ~ N(0, σ_o), as ``[geometry_uncertainty]`` defines it); per
@@ -703,7 +722,11 @@ def simulated_frf(
     p = cand.input_positions[J] + ipos - P
     phi = np.concatenate([e, np.cross(p, e)], axis=1).T
     H = gain[:, None] * (psi @ np.linalg.solve(props.mass_matrix(P), phi)) / fgain
-    rms = np.abs(H)
+    M = props.mass_matrix(P)
+    d0, r0 = cand.directions, cand.positions - P
+    e0, p0 = cand.input_directions[J], cand.input_positions[J] - P
+    H0 = np.c_[d0, np.cross(r0, d0)] @ np.linalg.solve(M, np.c_[e0, np.cross(p0, e0)].T)
+    rms = noise_scale(H0, errors.noise_model)[ch]
     z = rng.standard_normal((n_lines, *H.shape)) + 1j * rng.standard_normal((n_lines, *H.shape))
     return H[None] + errors.noise * rms * z / np.sqrt(2), ch
 

@@ -244,6 +244,7 @@ def make_plan(
     *,
     noise: float = DEFAULT_NOISE,
     n_lines: int = DEFAULT_LINES,
+    noise_model: str = "channel",
     trials: int = 0,
     seed: int = 0,
     scheduler: str | None = "local",
@@ -253,7 +254,7 @@ def make_plan(
 ) -> dict[str, Any]:
     """The plan as the JSON of ``dimacq plan`` (keys in the README's "Planning" section)."""
     cand = pl.candidates_from_setup(setup)
-    errors = pl.ErrorModel.from_setup(setup, noise=noise, n_lines=n_lines)
+    errors = pl.ErrorModel.from_setup(setup, noise=noise, n_lines=n_lines, noise_model=noise_model)
     model = pl.build_model(cand, props, errors)
     layout = pl.exchange_select(model, n_triaxes, n_inputs)
     cov = pl.layout_covariance(model, layout)
@@ -298,8 +299,9 @@ def make_plan(
         "one_more": _one_more(model, layout, predicted),
         "candidates": {"triaxes": cand.n_triaxes, "inputs": cand.n_inputs},
         "error_model": errors.to_json(),
-        "model": "free-free rigid body from the expected properties; FRF noise relative to each "
-        "FRF's RMS on every line; nuisances (triax position/rotation, channel gains, input point "
+        "model": "free-free rigid body from the expected properties; FRF noise on every line "
+        "(noise_model channel: the level times the RMS of the strike's FRFs over every candidate "
+        "channel; relative: times each FRF's own magnitude); nuisances (triax position/rotation, channel gains, input point "
         "and line of action) with the setup's stated uncertainties as priors; the hammer's "
         "sensitivity as a common scale of m and I. Bounds: 95 % quantiles of |mass error|, of the "
         "largest |CG component error| and of the largest |principal moment error|.",

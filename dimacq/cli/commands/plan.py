@@ -2,7 +2,7 @@
 
     dimacq plan SETUP --properties PROPS.json --triaxes K --inputs M [--trials N] [--seed S]
                 [--scheduler local|none|tcp://HOST:PORT] [--workers W] [--noise L] [--lines N]
-                [--json OUT] [--quiet]
+                [--noise-model channel|relative] [--json OUT] [--quiet]
 
 SETUP lists the candidate responses (each response node is a candidate triax) and inputs, in the
 setup-file format (``dimacq/io/setup_file.py``); its ``[geometry_uncertainty]`` and
@@ -13,6 +13,12 @@ Fisher information of the ten inertia parameters (nuisances marginalised,
 ``dimacq/pipeline/planning.py``) and prints the predicted 95 % bounds (mass %, largest CG component
 mm, largest principal moment %) against the median of random layouts of the same size, the
 observability, the error budget per source and what one more triax or input buys.
+
+FRF noise (``--noise L``, default 0.01, on each of ``--lines N`` lines, default 41): with
+``--noise-model channel`` (default) L times the RMS of a strike's FRFs over every candidate
+channel, the same on every channel (an accelerometer's noise floor); with ``relative`` L times
+each FRF's own magnitude (``dimacq simulate --noise``), which rates a triax near the CG as high
+as a far one.
 
 ``--trials N`` (default 0) checks the prediction with N simulated tests of the chosen layout, each
 solved by the default ``dimacq solve``: trials run on a Dask LocalCluster of ``--workers W``
@@ -79,6 +85,12 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument(
         "--lines", type=int, default=None, metavar="N", help="frequency lines (default 41)"
     )
+    p.add_argument(
+        "--noise-model",
+        choices=("channel", "relative"),
+        default="channel",
+        help="noise scale: per strike over the channels (default) or per FRF",
+    )
     p.add_argument("--json", type=Path, metavar="OUT", help="write the plan as JSON")
     add_quiet(p)
     p.set_defaults(func=run)
@@ -128,6 +140,7 @@ def run(args: argparse.Namespace) -> int:
             args.inputs,
             noise=DEFAULT_NOISE if args.noise is None else args.noise,
             n_lines=DEFAULT_LINES if args.lines is None else args.lines,
+            noise_model=args.noise_model,
             trials=args.trials,
             seed=args.seed,
             scheduler=args.scheduler,
