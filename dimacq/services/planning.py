@@ -287,6 +287,29 @@ def make_plan(
             },
         }
 
+    # what the layout controls: the same without the hammer's common scale (layout-independent)
+    m_nf = model.with_errors(errors.without("force_gain"))
+    pred_nf = pl.predicted_bounds(m_nf, pl.layout_covariance(m_nf, layout))
+    rand_nf = [
+        pl.predicted_bounds(m_nf, pl.layout_covariance(m_nf, lay))
+        for lay in pl.random_layouts(
+            cand.n_triaxes, cand.n_inputs, n_triaxes, n_inputs, n_random, seed
+        )
+    ]
+    med_nf = {
+        k: float(np.median([getattr(b, k) for b in rand_nf]))
+        for k in ("mass_pct", "cg_mm", "principal_pct")
+    }
+    layout_part = {
+        "predicted": pred_nf.to_json(),
+        "random_median": med_nf,
+        "factor_over_random": {
+            k: med_nf[k] / v if v > 0 else None for k, v in pred_nf.to_json().items()
+        },
+        "note": "the hammer's sensitivity (force_gain) left out: a common scale of m and I that "
+        "no layout changes",
+    }
+
     out: dict[str, Any] = {
         "layout": layout.to_json(cand),
         "predicted": _bounds_json(predicted),
@@ -294,6 +317,7 @@ def make_plan(
         "factor_over_random": {
             k: random_median[k] / v if v > 0 else None for k, v in predicted.to_json().items()
         },
+        "layout_controlled": layout_part,
         "observability": pl.observability(model, layout),
         "error_budget": budget,
         "one_more": _one_more(model, layout, predicted),
@@ -370,6 +394,15 @@ def _mc_summary(rows: np.ndarray, predicted: pl.Bounds) -> dict[str, Any]:
             for k in ("mass_pct", "cg_mm", "principal_pct")
         },
         "coverage": cov,
+        "within_predicted": {
+            "mass_pct": float(np.mean(np.abs(err[:, 0]) <= predicted.mass_pct)),
+            "cg_mm": float(np.mean(np.abs(err[:, 1:4]).max(axis=1) <= predicted.cg_mm)),
+            "principal_pct": float(
+                np.mean(np.abs(err[:, 4:7]).max(axis=1) <= predicted.principal_pct)
+            ),
+        }
+        if err.size
+        else None,
         "verdicts": {
             "ok": int(np.sum(v == 0)),
             "warn": int(np.sum(v == 1)),

@@ -163,6 +163,11 @@ def run(args: argparse.Namespace) -> int:
     )
     out.write(f"  predicted 95 % bounds: {_fmt(plan['predicted'])}\n")
     out.write(f"  random layouts (median): {_fmt(plan['random_median'])}\n")
+    lp = plan["layout_controlled"]
+    out.write(
+        f"  without the hammer's common scale: {_fmt(lp['predicted'])} (random median "
+        f"{_fmt(lp['random_median'])})\n"
+    )
     obs = plan["observability"]
     out.write(
         f"  observability: condition number {obs['condition_number']:.3g}, weakest "
@@ -190,7 +195,9 @@ def run(args: argparse.Namespace) -> int:
             f"  Monte Carlo, {mc['n_solved']}/{mc['n_trials']} solves: 95 % bounds "
             f"{_fmt(mc['bounds'])}; coverage of the solves' intervals mass "
             f"{mc['coverage']['mass']}, CG {mc['coverage']['cg']}, principal "
-            f"{mc['coverage']['principal']}\n"
+            f"{mc['coverage']['principal']}; share within the predicted bounds "
+            f"{mc['within_predicted']['mass_pct']} / {mc['within_predicted']['cg_mm']} / "
+            f"{mc['within_predicted']['principal_pct']}\n"
         )
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
