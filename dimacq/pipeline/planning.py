@@ -152,7 +152,8 @@ class ErrorModel:
             "line_of_action": "line_of_action_deg",
             "force_gain": "force_gain_rel",
         }[source]
-        return replace(self, **{key: 0.0})
+        zero: dict[str, Any] = {key: 0.0}
+        return replace(self, **zero)
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -687,7 +688,7 @@ def simulated_frf(
     errors: ErrorModel,
     n_lines: int,
     rng: np.random.Generator,
-) -> tuple[FloatArray, IntArray]:
+) -> tuple[NDArray[np.complex128], IntArray]:
     """FRFs of one simulated test of a layout: the true geometry is the candidates' (nominal)
     one with errors drawn from the error model, the transducers' gains likewise, and complex
     Gaussian noise of the error model's level is added on every line.
@@ -728,7 +729,8 @@ def simulated_frf(
     H0 = np.c_[d0, np.cross(r0, d0)] @ np.linalg.solve(M, np.c_[e0, np.cross(p0, e0)].T)
     rms = noise_scale(H0, errors.noise_model)[ch]
     z = rng.standard_normal((n_lines, *H.shape)) + 1j * rng.standard_normal((n_lines, *H.shape))
-    return H[None] + errors.noise * rms * z / np.sqrt(2), ch
+    out = H[None] + errors.noise * rms * z / np.sqrt(2)
+    return np.asarray(out, dtype=np.complex128), ch
 
 
 def _channels_of(cand: Candidates, triaxes: Sequence[int]) -> tuple[IntArray, IntArray]:

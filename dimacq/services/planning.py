@@ -25,7 +25,7 @@ import logging
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
@@ -126,19 +126,22 @@ def run_trial(spec: TrialSpec, index: int) -> list[float]:
         spec.candidates, spec.layout, spec.properties, spec.errors, n_lines, rng
     )
     setup = spec.setup
+    kinds: tuple[Literal["acceleration", "reaction"], ...] = ("acceleration",) * len(
+        setup.responses
+    )
     frf = FrfData(
-        20.0 + 2.0 * np.arange(n_lines),
+        np.asarray(20.0 + 2.0 * np.arange(n_lines), dtype=np.float64),
         H,
         tuple(Channel(c.node, c.direction) for c in setup.responses),
-        ("acceleration",) * len(setup.responses),
+        kinds,
         tuple(Channel(e.node, e.direction) for e in setup.excitations),
         meta={"source": f"dimacq plan trial {index}"},
     )
     assert len(ch) == len(setup.responses)
     try:
         report = analyse(frf, setup, AnalysisOptions())
-    except DimacqError as err:
-        log.warning("plan trial %d: no answer (%s)", index, err)
+    except DimacqError as exc:
+        log.warning("plan trial %d: no answer (%s)", index, exc)
         return [float("nan")] * 14 + [3.0]
     res = report.result
     est = np.concatenate([[res.properties.mass_kg], res.properties.cg_m, res.parameters[4:]])
