@@ -25,7 +25,7 @@ import logging
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any, Literal, cast
 
 import numpy as np
 
@@ -126,8 +126,8 @@ def run_trial(spec: TrialSpec, index: int) -> list[float]:
         spec.candidates, spec.layout, spec.properties, spec.errors, n_lines, rng
     )
     setup = spec.setup
-    kinds: tuple[Literal["acceleration", "reaction"], ...] = ("acceleration",) * len(
-        setup.responses
+    kinds = cast(
+        tuple[Literal["acceleration", "reaction"], ...], ("acceleration",) * len(setup.responses)
     )
     frf = FrfData(
         np.asarray(20.0 + 2.0 * np.arange(n_lines), dtype=np.float64),
