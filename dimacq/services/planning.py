@@ -22,6 +22,7 @@ a remote scheduler). Numbers in the JSON are rounded to 6 significant digits.
 from __future__ import annotations
 
 import logging
+import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -192,8 +193,14 @@ def run_trials(
             rows[i] = run_trial(spec, i)
             tick(i + 1)
         return np.asarray(rows, dtype=float)
+    import dask
     from dask.distributed import Client, LocalCluster, as_completed
 
+    # distributed logs every connection at INFO on stderr, in this process and in the workers it
+    # spawns (they read the config from the environment): keep stderr for the progress
+    os.environ.setdefault("DASK_LOGGING__DISTRIBUTED", "error")
+    dask.config.set({"logging.distributed": "error"})
+    logging.getLogger("distributed").setLevel(logging.ERROR)
     cluster = None
     try:
         if scheduler == "local":
