@@ -197,10 +197,12 @@ def run_trials(
     from dask.distributed import Client, LocalCluster, as_completed
 
     # distributed logs every connection at INFO on stderr, in this process and in the workers it
-    # spawns (they read the config from the environment): keep stderr for the progress
-    os.environ.setdefault("DASK_LOGGING__DISTRIBUTED", "error")
-    dask.config.set({"logging.distributed": "error"})
-    logging.getLogger("distributed").setLevel(logging.ERROR)
+    # spawns (they read the config from the environment), and at shutdown on a loaded machine a
+    # worker's last heartbeat may find the scheduler gone (a traceback at ERROR): keep stderr
+    # for the progress. A failing trial still raises here, through its future.
+    os.environ.setdefault("DASK_LOGGING__DISTRIBUTED", "critical")
+    dask.config.set({"logging.distributed": "critical"})
+    logging.getLogger("distributed").setLevel(logging.CRITICAL)
     cluster = None
     try:
         if scheduler == "local":
