@@ -365,7 +365,11 @@ class Layout:
 
 def _channels(model: PlanModel, triaxes: Sequence[int]) -> tuple[IntArray, IntArray]:
     """Channel indices of the triaxes and each channel's slot (position in ``triaxes``)."""
-    ct = model.candidates.channel_triax
+    return _channels_of(model.candidates, triaxes)
+
+
+def _channels_of(cand: Candidates, triaxes: Sequence[int]) -> tuple[IntArray, IntArray]:
+    ct = cand.channel_triax
     pos = {t: k for k, t in enumerate(triaxes)}
     ch = np.array([c for c in range(ct.size) if int(ct[c]) in pos], dtype=np.intp)
     slot = np.array([pos[int(ct[c])] for c in ch], dtype=np.intp)
@@ -731,13 +735,6 @@ def simulated_frf(
     z = rng.standard_normal((n_lines, *H.shape)) + 1j * rng.standard_normal((n_lines, *H.shape))
     out = H[None] + errors.noise * rms * z / np.sqrt(2)
     return np.asarray(out, dtype=np.complex128), ch
-
-
-def _channels_of(cand: Candidates, triaxes: Sequence[int]) -> tuple[IntArray, IntArray]:
-    pos = {t: k for k, t in enumerate(triaxes)}
-    ch = np.array([c for c in range(cand.channel_triax.size) if int(cand.channel_triax[c]) in pos])
-    slot = np.array([pos[int(cand.channel_triax[c])] for c in ch], dtype=np.intp)
-    return ch.astype(np.intp), slot
 
 
 def trial_errors(
