@@ -463,12 +463,17 @@ def dense_information(model: PlanModel, layout: Layout) -> FloatArray:
 
 def _x_covariance(info: FloatArray, model: PlanModel) -> FloatArray:
     """``(J⁻¹)_xx`` in physical units plus the hammer's common scale."""
-    info = info.copy()
-    info[:10, :10] += _X_RIDGE * np.eye(10)
-    try:
-        cov_s = np.linalg.inv(info)[:10, :10]
-    except np.linalg.LinAlgError:
-        cov_s = np.linalg.pinv(info)[:10, :10]
+    from scipy.linalg import LinAlgError, cho_factor, cho_solve
+
+    A = info[:10, :10] + _X_RIDGE * np.eye(10)
+    try:  # Schur complement on the nuisances' block (positive definite: their priors)
+        B = info[10:, :10]
+        S = A - B.T @ cho_solve(cho_factor(info[10:, 10:]), B) if B.size else A
+        cov_s = np.linalg.inv(S)
+    except (LinAlgError, np.linalg.LinAlgError):
+        full = info.copy()
+        full[:10, :10] = A
+        cov_s = np.linalg.pinv(full)[:10, :10]
     cov = cov_s * np.outer(model.x_scale, model.x_scale)
     f = model.errors.force_gain_rel
     return cov + f**2 * np.outer(model.x0, model.x0)
