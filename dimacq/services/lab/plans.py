@@ -6,7 +6,7 @@ The result is the JSON of ``dimacq plan --json`` (:func:`dimacq.services.plannin
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
@@ -18,18 +18,20 @@ from dimacq.services.jobs import Job, JobContext, JobManager
 
 __all__ = ["ExpectedProperties", "PlanParams", "PlanService"]
 
-Vec3 = tuple[float, float, float]
+Coord = Annotated[float, Field(ge=-1e4, le=1e4, allow_inf_nan=False)]
+Inertia = Annotated[float, Field(ge=-1e12, le=1e12, allow_inf_nan=False)]
+InertiaRow = tuple[Inertia, Inertia, Inertia]
 
 
 class ExpectedProperties(BaseModel):
-    """The expected properties (the keys of a truth file): mass, CG in the GCS, inertia tensor
-    about the CG (tensor elements)."""
+    """The expected properties (the keys of a truth file): mass (kg), CG in the GCS (m), inertia
+    tensor about the CG (tensor elements, kg·m²)."""
 
     model_config = ConfigDict(extra="forbid")
 
-    mass_kg: float = Field(gt=0, le=1e9)
-    cg_m: Vec3
-    inertia_cg_kgm2: tuple[Vec3, Vec3, Vec3]
+    mass_kg: float = Field(gt=0, le=1e9, allow_inf_nan=False)
+    cg_m: tuple[Coord, Coord, Coord]
+    inertia_cg_kgm2: tuple[InertiaRow, InertiaRow, InertiaRow]
 
 
 class PlanParams(BaseModel):
@@ -58,10 +60,10 @@ class PlanService:
         setup = parse_setup(params.setup, "setup")
         p = params.properties
         inertia = np.asarray(p.inertia_cg_kgm2, float)
-        if not np.all(np.isfinite(inertia)) or not np.all(np.isfinite(p.cg_m)):
-            raise SetupError("properties: give finite numbers")
         props = RigidBodyProperties(p.mass_kg, np.asarray(p.cg_m, float), inertia)
-        if np.linalg.eigvalsh(props.inertia_cg_kgm2).min() <= 0:
+        with np.errstate(all="ignore"):
+            lam = np.linalg.eigvalsh(props.inertia_cg_kgm2)
+        if not lam.min() > 0:
             raise SetupError(
                 "properties.inertia_cg_kgm2: not positive definite; give the tensor about the CG "
                 "(tensor elements, Ixy = −∫xy dm)"
