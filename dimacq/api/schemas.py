@@ -9,6 +9,7 @@ from pydantic import BaseModel, ConfigDict, Field, FiniteFloat, field_validator
 
 from dimacq.model.impact import ImpactOverrides
 from dimacq.model.setup import KnownProperties, LoadCell, NodeNumber
+from dimacq.services.lab.plans import PlanParams
 from dimacq.services.lab.solving import SolveOptions
 from dimacq.services.lab.studies import CubeStudyParams
 
@@ -200,6 +201,10 @@ class HitDecision(BaseModel):
 
 class SensitivityRequest(CubeStudyParams):
     """A sensitivity study on the thesis's cube model (:class:`CubeStudyParams`)."""
+
+
+class PlanRequest(PlanParams):
+    """A pre-test plan (``dimacq plan``, :class:`PlanParams`)."""
 
 
 class JobInfo(BaseModel):

@@ -46,8 +46,9 @@ def jobs_finish(api: Api):
         for snap in jobs.list_jobs():
             if snap["state"] == "pending":
                 jobs.cancel(snap["id"])
-        for job in jobs.running("loadcell-calibration"):
-            jobs.cancel(job.id)
+        for kind in ("loadcell-calibration", "plan"):  # plans: up to 200 solves
+            for job in jobs.running(kind):
+                jobs.cancel(job.id)
         running = jobs.running()
         if not running and all(snap["state"] != "pending" for snap in jobs.list_jobs()):
             break

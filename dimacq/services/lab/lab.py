@@ -17,6 +17,7 @@ services the REST API (and anything else) drives:
                           tests as jobs, every average kept
 ``lab.calibrations``      :class:`~dimacq.services.lab.calibrations.CalibrationService`:
                           documents, and calibration runs as jobs (``.runs``)
+``lab.plans``             :class:`~dimacq.services.lab.plans.PlanService`: pre-test plans (jobs)
 ``lab.studies``           :class:`~dimacq.services.lab.studies.StudyService`: sensitivity
 ``lab.rig_map``           :class:`~dimacq.services.lab.rig_map.RigMapService`: the rig file
                           (channel map, sensitivities): read, check, replace
@@ -53,6 +54,7 @@ from dimacq.services.lab.common import package_version
 from dimacq.services.lab.devices import DeviceService
 from dimacq.services.lab.geometry import GeometryService
 from dimacq.services.lab.lab_tests import LabTestService
+from dimacq.services.lab.plans import PlanService
 from dimacq.services.lab.rig_map import RigMapService
 from dimacq.services.lab.solving import AnalysisService
 from dimacq.services.lab.store import TestStore
@@ -148,6 +150,7 @@ class Lab:
             self.db, name, jobs=self.jobs, settings=settings, owners=self.devices.owners
         )
         self.studies = StudyService(self.db, self.jobs, name)
+        self.plans = PlanService(self.jobs)
         self.rig_map = RigMapService(settings)
         self.job_store.interrupt_stale()  # this stand's jobs that ran when it stopped
         self.acquisitions.recover()
