@@ -206,7 +206,8 @@ def _allowed_methods(app: FastAPI, path: str) -> set[str]:
 
 
 def _path_value(req: Request, name: str) -> str:
-    return str(req.path_params.get(name, "?"))[:40]
+    value = str(req.path_params.get(name, "?"))
+    return value if len(value) <= 40 else f"{value[:12]}…({len(value)} digits)"
 
 
 def _install_error_handlers(app: FastAPI) -> None:

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Annotated, Any, TypeVar
@@ -13,6 +12,8 @@ from fastapi.exceptions import RequestValidationError
 from pydantic import BaseModel, ValidationError
 
 from dimacq.api.schemas import MAX_ID
+from dimacq.errors import SetupError
+from dimacq.io.documents import loads_json
 from dimacq.services.lab.store import Page
 
 T = TypeVar("T")
@@ -65,13 +66,13 @@ def paged(response: Response, got: Page[T] | Sequence[T], page: PageQuery) -> li
 
 
 def json_object(raw: bytes, example: str) -> dict[str, Any]:
-    """A JSON object body (``{}`` when empty), or 422 naming the body and an example."""
+    """A JSON object body (``{}`` when empty), or 422 naming the body, the limit it passed
+    (:mod:`dimacq.io.documents`) and an example."""
     try:
-        body = json.loads(raw) if raw.strip() else {}
-    except (json.JSONDecodeError, UnicodeDecodeError) as err:
-        raise HTTPException(
-            status_code=422, detail=f"body: not valid JSON ({err}); send {example}"
-        ) from err
+        # within the documents' limits: depth, values, digits (dimacq.io.documents)
+        body = loads_json(raw, "body") if raw.strip() else {}
+    except SetupError as err:
+        raise HTTPException(status_code=422, detail=f"{err}; send {example}") from err
     if not isinstance(body, dict):
         raise HTTPException(status_code=422, detail=f"body: send a JSON object, e.g. {example}")
     return body

@@ -76,18 +76,18 @@ def list_frfs(
     return paged(response, lab.store.frfs(page.limit, page.offset, test_id), page)
 
 
-@router.get("/{frf_id:int}", response_model=FrfOut)
+@router.get("/{frf_id:id}", response_model=FrfOut)
 def get_frf(frf_id: IdPath, lab: LabDep) -> FrfSummary:
     return found(lab.store.frf_summary(frf_id), f"FRF set {frf_id}")
 
 
-@router.delete("/{frf_id:int}", status_code=status.HTTP_204_NO_CONTENT)
+@router.delete("/{frf_id:id}", status_code=status.HTTP_204_NO_CONTENT)
 def delete_frf(frf_id: IdPath, lab: LabDep) -> Response:
     """Delete an FRF set and its solutions (the acquisition that measured it stays)."""
     return deleted(lab.store.delete_frf(frf_id), f"FRF set {frf_id}")
 
 
-@router.get("/{frf_id:int}/data", response_model=FrfDataOut)
+@router.get("/{frf_id:id}/data", response_model=FrfDataOut)
 def frf_data(
     frf_id: IdPath,
     lab: LabDep,
@@ -108,7 +108,7 @@ def frf_data(
     )
 
 
-@router.get("/{frf_id:int}/envelope", response_model=FrfEnvelopeOut)
+@router.get("/{frf_id:id}/envelope", response_model=FrfEnvelopeOut)
 def frf_envelope(
     frf_id: IdPath,
     lab: LabDep,
@@ -133,7 +133,7 @@ def frf_envelope(
 
 
 @router.get(
-    "/{frf_id:int}/uff",
+    "/{frf_id:id}/uff",
     response_class=Response,
     responses={200: {"content": {"application/octet-stream": {}}}},
 )

@@ -54,19 +54,19 @@ def list_setups(
     return paged(response, lab.store.setups(page.limit, page.offset, test_id), page)
 
 
-@router.get("/{setup_id:int}", response_model=SetupOut)
+@router.get("/{setup_id:id}", response_model=SetupOut)
 def get_setup(setup_id: IdPath, lab: LabDep) -> SetupSummary:
     return found(lab.store.setup_summary(setup_id), f"setup {setup_id}")
 
 
-@router.delete("/{setup_id:int}", status_code=status.HTTP_204_NO_CONTENT)
+@router.delete("/{setup_id:id}", status_code=status.HTTP_204_NO_CONTENT)
 def delete_setup(setup_id: IdPath, lab: LabDep) -> Response:
     """Delete a setup; 409 while FRF sets or acquisitions use it (delete those first)."""
     return deleted(lab.store.delete_setup(setup_id), f"setup {setup_id}")
 
 
 @router.get(
-    "/{setup_id:int}/export",
+    "/{setup_id:id}/export",
     response_class=Response,
     responses={200: {"content": {"application/json": {}, "application/toml": {}}}},
 )
