@@ -16,14 +16,24 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import Depends, Path, Request
+from fastapi import Depends, Path, Query, Request
 from starlette.convertors import Convertor, register_url_convertor
 
 from dimacq.api.schemas import MAX_ID
 from dimacq.config import Settings
+from dimacq.model.setup import MAX_NAME_CHARS
 from dimacq.services.lab import Lab
 
-__all__ = ["ID_DIGITS", "IdConvertor", "IdPath", "LabDep", "SettingsDep", "get_lab", "get_settings"]
+__all__ = [
+    "ID_DIGITS",
+    "IdConvertor",
+    "IdPath",
+    "LabDep",
+    "NameQuery",
+    "SettingsDep",
+    "get_lab",
+    "get_settings",
+]
 
 #: Longest id segment converted to an int by the router (MAX_ID has 10 digits; leading zeros
 #: allowed up to here); longer segments are validated as strings (:class:`IdConvertor`).
@@ -59,3 +69,12 @@ def get_settings(request: Request) -> Settings:
 LabDep = Annotated[Lab, Depends(get_lab)]
 SettingsDep = Annotated[Settings, Depends(get_settings)]
 IdPath = Annotated[int, Path(ge=1, le=MAX_ID, description=f"the item's id, 1..{MAX_ID}")]
+#: A name given in the query (imports): one line of printable text, at most MAX_NAME_CHARS.
+NameQuery = Annotated[
+    str,
+    Query(
+        max_length=MAX_NAME_CHARS,
+        pattern=r"^[^\x00-\x1f\x7f]*$",
+        description=f"one line of printable text, at most {MAX_NAME_CHARS} characters",
+    ),
+]

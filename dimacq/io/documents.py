@@ -8,7 +8,11 @@ The readers here refuse those with a :class:`~dimacq.errors.SetupError` naming t
 - :data:`MAX_DOCUMENT_BYTES` of text (a setup file of the X-38 is ~60 kB, a rig file ~5 kB);
 - :data:`MAX_DEPTH` levels of nested arrays and tables/objects (ours use 4);
 - :data:`MAX_VALUES` values in all (arrays, tables and scalars);
-- integers of at most 4,300 digits (what Python converts).
+- integers of at most 4,300 digits (what Python converts);
+- finite numbers only (no NaN or infinity: JSON ``NaN``, ``Infinity``, ``1e999``; TOML ``nan``,
+  ``inf``), the item named;
+- text without unpaired surrogates (JSON ``"\\ud800"``: Python reads it, nothing can store or
+  write it as UTF-8).
 
 The depth is checked on the parsed document too (TOML's dotted keys nest without recursion).
 """
@@ -16,6 +20,8 @@ The depth is checked on the parsed document too (TOML's dotted keys nest without
 from __future__ import annotations
 
 import json
+import math
+import re
 import tomllib
 from typing import Any
 
@@ -26,6 +32,8 @@ __all__ = [
     "MAX_DOCUMENT_BYTES",
     "MAX_VALUES",
     "check_shape",
+    "find_non_finite",
+    "find_surrogate",
     "loads_json",
     "loads_toml",
 ]
@@ -47,9 +55,56 @@ def _size(text: str | bytes, source: str) -> None:
         )
 
 
+def _where(loc: tuple[str | int, ...]) -> str:
+    out = ""
+    for p in loc:
+        out += f"[{p}]" if isinstance(p, int) else ("." if out else "") + str(p)
+    return out or "the document"
+
+
+_SURROGATE = re.compile("[\ud800-\udfff]")
+
+
+def find_non_finite(doc: Any) -> tuple[tuple[str | int, ...], float] | None:
+    """The location (keys and indices) and value of the first NaN or ±inf number in ``doc``
+    (parsed JSON or TOML), or None; iterative, any depth."""
+    todo: list[tuple[Any, tuple[str | int, ...]]] = [(doc, ())]
+    while todo:
+        value, loc = todo.pop()
+        if isinstance(value, float):
+            if not math.isfinite(value):
+                return loc, value
+        elif isinstance(value, dict):
+            todo.extend((v, (*loc, str(k))) for k, v in reversed(value.items()))
+        elif isinstance(value, list):
+            todo.extend((v, (*loc, i)) for i, v in reversed(list(enumerate(value))))
+    return None
+
+
+def find_surrogate(doc: Any) -> tuple[str | int, ...] | None:
+    """The location of the first string (value or key) in ``doc`` holding an unpaired UTF-16
+    surrogate (JSON ``"\\ud800"``: not a character, cannot be stored or written as UTF-8),
+    or None."""
+    todo: list[tuple[Any, tuple[str | int, ...]]] = [(doc, ())]
+    while todo:
+        value, loc = todo.pop()
+        if isinstance(value, str):
+            if _SURROGATE.search(value):
+                return loc
+        elif isinstance(value, dict):
+            for k in value:
+                if isinstance(k, str) and _SURROGATE.search(k):
+                    return (*loc, "<key>")
+            todo.extend((v, (*loc, str(k))) for k, v in reversed(value.items()))
+        elif isinstance(value, list):
+            todo.extend((v, (*loc, i)) for i, v in reversed(list(enumerate(value))))
+    return None
+
+
 def check_shape(doc: Any, source: str) -> None:
-    """Refuse ``doc`` nested deeper than :data:`MAX_DEPTH` or with more than :data:`MAX_VALUES`
-    values (iterative: any depth is walked safely)."""
+    """Refuse ``doc`` nested deeper than :data:`MAX_DEPTH`, with more than :data:`MAX_VALUES`
+    values, a string with an unpaired surrogate, or a NaN or ±inf number (JSON ``NaN``/``Infinity``/``1e999``, TOML ``nan``/
+    ``inf``: no quantity we read may be one). Iterative: any depth is walked safely."""
     todo: list[tuple[Any, int]] = [(doc, 1)]
     count = 0
     while todo:
@@ -71,6 +126,18 @@ def check_shape(doc: Any, source: str) -> None:
                 "flatten the document"
             )
         todo.extend((c, depth + 1) for c in children)
+    where = find_surrogate(doc)
+    if where is not None:
+        raise SetupError(
+            f"{source}: {_where(where)} holds an unpaired surrogate (\\ud800-\\udfff), which is "
+            "not a character; send UTF-8 text"
+        )
+    bad = find_non_finite(doc)
+    if bad is not None:
+        raise SetupError(
+            f"{source}: {_where(bad[0])} is {bad[1]}; give a finite number "
+            "(NaN and infinities are refused)"
+        )
 
 
 def loads_json(text: str | bytes, source: str) -> Any:

@@ -3,12 +3,15 @@ connection) before its fix; each now gets a 4xx whose message names the field or
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
+from typing import Any
 
 import pytest
 from _api_support import Api
 
 from dimacq.io.documents import MAX_DEPTH, MAX_DOCUMENT_BYTES, MAX_VALUES
+from dimacq.io.setup_file import dump_setup_dict, load_setup
 
 ROOT = Path(__file__).resolve().parents[2]
 CALIBRATIONS = ROOT / "config" / "calibrations"
@@ -119,3 +122,140 @@ def test_real_documents_pass_the_limits(api: Api) -> None:
     assert r.status_code == 201, r.text[:300]
     r = api.client.post("/api/setups/import?format=toml", content=EXAMPLE.read_bytes())
     assert r.status_code == 201, r.text[:300]
+
+
+# -- 3. finite numbers only ---------------------------------------------------------------------
+
+JSON = {"content-type": "application/json"}
+
+
+def _with(doc: dict[str, Any], path: tuple[str | int, ...], token: str) -> bytes:
+    """``doc`` as JSON text with the value at ``path`` replaced by the raw ``token``."""
+    doc = json.loads(json.dumps(doc))
+    target: Any = doc
+    for key in path[:-1]:
+        target = target[key]
+    target[path[-1]] = "__here__"
+    return json.dumps(doc).replace('"__here__"', token).encode()
+
+
+@pytest.fixture(scope="module")
+def setup_doc() -> dict[str, Any]:
+    return dump_setup_dict(load_setup(EXAMPLE))
+
+
+@pytest.mark.parametrize("token", ["NaN", "Infinity", "-Infinity", "1e999"])
+@pytest.mark.parametrize(
+    "path",
+    [("responses", 0, "position_m", 1), ("reference_point_m", 2), ("inputs", 3, "position_m", 0)],
+    ids=["response-position", "reference-point", "input-position"],
+)
+def test_setup_positions_must_be_finite(
+    api: Api, setup_doc: dict[str, Any], path: tuple[str | int, ...], token: str
+) -> None:
+    """Were stored (201) with the number turned into null."""
+    r = api.client.post("/api/setups", content=_with(setup_doc, path, token), headers=JSON)
+    assert r.status_code == 422, r.text[:300]
+    field = "body." + "".join(f"[{p}]" if isinstance(p, int) else f".{p}" for p in path)[1:]
+    assert r.json()["field"] == field.replace(".[", "["), r.json()["field"]
+    assert "finite number" in r.json()["detail"]
+
+
+@pytest.mark.parametrize("fmt", ["json", "toml"])
+def test_imported_setups_must_be_finite(api: Api, setup_doc: dict[str, Any], fmt: str) -> None:
+    if fmt == "json":
+        raw = _with(setup_doc, ("responses", 0, "position_m", 1), "NaN")
+    else:
+        text = EXAMPLE.read_text()
+        at = text.index("position_m = [") + len("position_m = [")
+        raw = (text[:at] + "nan, " + text[at:].split(",", 1)[1]).encode()
+    r = api.client.post(f"/api/setups/import?format={fmt}", content=raw)
+    assert r.status_code == 422, r.text[:300]
+    assert "responses[0].position_m" in r.json()["detail"], r.text[:300]
+    assert "finite number" in r.json()["detail"]
+
+
+def test_from_geometry_reference_point_must_be_finite(api: Api) -> None:
+    r = api.client.post(
+        "/api/setups/from-geometry", content=b'{"reference_point_m": [0, NaN, 0]}', headers=JSON
+    )
+    assert r.status_code == 422 and r.json()["field"] == "body.reference_point_m[1]", r.text
+
+
+@pytest.mark.parametrize("value", ["nan", "inf", "-inf", "infinity"])
+def test_events_poll_must_be_finite_before_the_stream_starts(api: Api, value: str) -> None:
+    """``poll_s=nan`` passed min/max clamping (NaN compares false) into asyncio.sleep; the 422
+    comes before the job is looked up and before any 200."""
+    r = api.client.get(f"/api/jobs/no-such-job/events?poll_s={value}")
+    assert r.status_code == 422 and r.json()["field"] == "query.poll_s", r.text
+
+
+def test_calibration_numbers_must_be_finite(api: Api) -> None:
+    doc = json.loads((CALIBRATIONS / "lc-3001.json").read_text())
+    r = api.client.post("/api/calibrations", content=_with(doc, ("matrix", 2, 5), "NaN"))
+    assert r.status_code == 422 and "matrix[2][5] is nan" in r.json()["detail"], r.text
+
+
+# -- 4. text: no unpaired surrogates, names of one line and bounded length ----------------------
+
+
+def test_unpaired_surrogates_are_422(api: Api) -> None:
+    """A lone \\ud800 in a serial number was a UnicodeEncodeError (500) at the database."""
+    doc = json.loads((CALIBRATIONS / "lc-3001.json").read_text())
+    r = api.client.post("/api/calibrations", content=_with(doc, ("serial_number",), '"LC\\ud800"'))
+    assert r.status_code == 422, r.text
+    assert "serial_number holds an unpaired surrogate" in r.json()["detail"]
+    r = api.client.post(
+        "/api/setups/import?format=json", content=b'{"name": "\\udfff", "responses": []}'
+    )
+    assert r.status_code == 422 and "name holds an unpaired surrogate" in r.json()["detail"]
+
+
+@pytest.mark.parametrize(
+    "serial", ["LC\n501", "LC\x00501", "L" * 101, "L" * 2_000_000], ids=["lf", "nul", "101", "2M"]
+)
+def test_calibration_serial_numbers_are_one_short_line(api: Api, serial: str) -> None:
+    doc = json.loads((CALIBRATIONS / "lc-3001.json").read_text())
+    doc["serial_number"] = serial
+    r = api.client.post("/api/calibrations", content=json.dumps(doc).encode())
+    assert r.status_code == 422, r.text[:300]
+    detail = r.json()["detail"]
+    assert "serial_number" in detail and ("MAX_ITEM_CHARS" in detail or "one line" in detail)
+
+
+@pytest.mark.parametrize(
+    ("where", "value", "says"),
+    [
+        (("name",), "box\n-1 2420 injected", "one line"),
+        (("name",), "x" * 201, "at most 200 characters"),
+        (("name",), "x" * 1_000_000, "at most 200 characters"),
+        (("responses", 0, "label"), "1+X\r\n    -1", "one line"),
+        (("inputs", 0, "label"), "a\tb", "one line"),
+        (("load_cells", 0, "label"), "y" * 500, "at most 200 characters"),
+    ],
+    ids=["name-lf", "name-201", "name-1M", "response-label-crlf", "input-label-tab", "lc-500"],
+)
+def test_setup_names_and_labels_are_one_bounded_line(
+    api: Api, setup_doc: dict[str, Any], where: tuple[str | int, ...], value: str, says: str
+) -> None:
+    """They are written verbatim into the exported UFF (2420 part name, labels): a line break
+    ended the record there and the export could not be read back."""
+    r = api.client.post("/api/setups", content=_with(setup_doc, where, json.dumps(value)))
+    assert r.status_code == 422, r.text[:300]
+    assert says in r.json()["detail"], r.text[:300]
+    assert r.json()["field"].startswith("body." + str(where[0])), r.json()["field"]
+
+
+def test_other_names_are_one_bounded_line(api: Api) -> None:
+    for method, path, body, field in (
+        ("POST", "/api/tests", {"article": "a\nb"}, "body.article"),
+        ("POST", "/api/tests", {"article": "a", "operator": "o" * 201}, "body.operator"),
+        ("POST", "/api/setups/from-geometry", {"name": "a\nb"}, "body.name"),
+        ("POST", "/api/digitizer/tests", {"name": "x\x1b[2J"}, "body.name"),
+    ):
+        r = api.client.request(method, path, json=body)
+        assert r.status_code == 422 and r.json()["field"] == field, (path, r.text[:300])
+    r = api.client.post("/api/setups/import?format=toml&name=a%0Ab", content=EXAMPLE.read_bytes())
+    assert r.status_code == 422 and r.json()["field"] == "query.name", r.text[:300]
+    r = api.client.post(f"/api/frfs/import?setup_id=1&name={'n' * 201}", content=b"x")
+    assert r.status_code == 422 and r.json()["field"] == "query.name", r.text[:300]

@@ -7,13 +7,14 @@ from dataclasses import dataclass
 from typing import Annotated, Any, TypeVar
 
 import numpy as np
+import pydantic_core
 from fastapi import Depends, HTTPException, Query, Request, Response
 from fastapi.exceptions import RequestValidationError
 from pydantic import BaseModel, ValidationError
 
 from dimacq.api.schemas import MAX_ID
 from dimacq.errors import SetupError
-from dimacq.io.documents import loads_json
+from dimacq.io.documents import find_non_finite, loads_json
 from dimacq.services.lab.store import Page
 
 T = TypeVar("T")
@@ -141,7 +142,19 @@ def strict_body(model: type[M]) -> Any:
 
 def parse_strict(model: type[M], raw: bytes) -> M:
     """``raw`` validated as ``model`` in strict JSON mode (:func:`strict_body`); 422 naming the
-    field otherwise."""
+    field otherwise, also for any NaN or infinite number in the body."""
+    bad = _non_finite_in(raw)
+    if bad is not None:
+        raise RequestValidationError(
+            [
+                {
+                    "loc": ("body", *bad[0]),
+                    "msg": f"{bad[1]} is not a finite number; give a finite number "
+                    "(NaN and infinities are refused)",
+                    "type": "finite_number",
+                }
+            ]
+        )
     try:
         # the domain validators use numpy: absurd magnitudes overflow to inf and are refused
         # by the checks; do not let an overflow warning escape as an error
@@ -153,6 +166,18 @@ def parse_strict(model: type[M], raw: bytes) -> M:
             for e in err.errors(include_url=False)
         ]
         raise RequestValidationError(errors) from None
+
+
+def _non_finite_in(raw: bytes) -> tuple[tuple[str | int, ...], float] | None:
+    """Where a JSON body holds ``NaN``, ``Infinity`` or a number too large for a float
+    (``1e999``), checked before any model sees it (the domain models' own checks do not cover
+    every float: settings, tolerances); None when it holds none or is not JSON (the model's
+    validation says why)."""
+    try:
+        doc = pydantic_core.from_json(raw or b"null")
+    except ValueError:
+        return None
+    return find_non_finite(doc)
 
 
 def body_openapi(model: type[BaseModel]) -> dict[str, Any]:

@@ -10,7 +10,7 @@ from fastapi import APIRouter, Depends, Query, Request, Response, status
 from pydantic import Field
 from starlette.concurrency import run_in_threadpool
 
-from dimacq.api.deps import IdPath, LabDep
+from dimacq.api.deps import IdPath, LabDep, NameQuery
 from dimacq.api.routers._common import (
     LIST_RESPONSES,
     RAW_BODY,
@@ -147,7 +147,10 @@ def export_uff(frf_id: IdPath, lab: LabDep, whole_test: bool = True) -> Response
     "/import", response_model=FrfOut, status_code=status.HTTP_201_CREATED, openapi_extra=RAW_BODY
 )
 async def import_uff(
-    request: Request, lab: LabDep, setup_id: Annotated[int, Query(ge=1, le=MAX_ID)], name: str = ""
+    request: Request,
+    lab: LabDep,
+    setup_id: Annotated[int, Query(ge=1, le=MAX_ID)],
+    name: NameQuery = "",
 ) -> FrfSummary:
     """Send a UFF file (58 records) whose channels match the setup; returns the set with its
     ``id``."""

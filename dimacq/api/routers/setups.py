@@ -9,7 +9,7 @@ from typing import Annotated, Any, Literal
 from fastapi import APIRouter, Query, Request, Response, status
 from starlette.concurrency import run_in_threadpool
 
-from dimacq.api.deps import IdPath, LabDep
+from dimacq.api.deps import IdPath, LabDep, NameQuery
 from dimacq.api.routers._common import (
     LIST_RESPONSES,
     RAW_BODY,
@@ -85,7 +85,7 @@ async def import_setup(
     request: Request,
     lab: LabDep,
     format: Literal["json", "toml", "uff"] = "json",
-    name: str | None = None,
+    name: NameQuery | None = None,
     test_id: TestIdQuery = None,
 ) -> dict[str, Any]:
     """Send the file as the body; returns the stored setup with its ``id``. ``uff`` (a whole
