@@ -7,11 +7,15 @@ import json
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 from _api_support import Api
 
 from dimacq.io.documents import MAX_DEPTH, MAX_DOCUMENT_BYTES, MAX_VALUES
 from dimacq.io.setup_file import dump_setup_dict, load_setup
+from dimacq.io.uff import write_frf_uff
+from dimacq.services.lab import store
+from dimacq.simulators.lab.forward import calibration_mass
 
 ROOT = Path(__file__).resolve().parents[2]
 CALIBRATIONS = ROOT / "config" / "calibrations"
@@ -259,3 +263,45 @@ def test_other_names_are_one_bounded_line(api: Api) -> None:
     assert r.status_code == 422 and r.json()["field"] == "query.name", r.text[:300]
     r = api.client.post(f"/api/frfs/import?setup_id=1&name={'n' * 201}", content=b"x")
     assert r.status_code == 422 and r.json()["field"] == "query.name", r.text[:300]
+
+
+# -- 5. the envelope's cost ---------------------------------------------------------------------
+
+
+def _frf_set(api: Api, tmp: Path, lines: int = 56) -> int:
+    """A stored FRF set of the calibration mass (model FRFs): its id."""
+    model = calibration_mass(0, support="bungee")
+    frf = model.frf(np.linspace(10.0, 120.0, lines))
+    sid = api.client.post("/api/setups", json=dump_setup_dict(model.setup)).json()["id"]
+    write_frf_uff(tmp / "cal.uff", frf)
+    r = api.client.post(
+        "/api/frfs/import", params={"setup_id": sid}, content=(tmp / "cal.uff").read_bytes()
+    )
+    assert r.status_code == 201, r.text
+    return int(r.json()["id"])
+
+
+@pytest.fixture(scope="module")
+def frf_id(api: Api, tmp_path_factory: pytest.TempPathFactory) -> int:
+    return _frf_set(api, tmp_path_factory.mktemp("frf"))
+
+
+def test_envelope_inputs_repeated_are_422(api: Api, frf_id: int) -> None:
+    """``input=0`` 50 times with 100,000 points answered 126 MB (every input once per key)."""
+    query = "&".join(["input=0"] * 50) + "&input=1&input=1&points=100000"
+    r = api.client.get(f"/api/frfs/{frf_id}/envelope?{query}")
+    assert r.status_code == 422 and r.json()["field"] == "query.input", r.text[:300]
+    assert "input 0, 1 given more than once" in r.json()["detail"]
+    assert len(r.content) < 1000
+
+
+def test_envelope_size_is_limited(api: Api, frf_id: int, monkeypatch: pytest.MonkeyPatch) -> None:
+    whole = api.client.get(f"/api/frfs/{frf_id}/envelope?points=100000").json()
+    n = len(whole["frequencies_hz"]) * len(whole["responses"]) * len(whole["inputs"])
+    assert n > 1000
+    monkeypatch.setattr(store, "MAX_ENVELOPE_VALUES", n - 1)  # the server runs in this process
+    r = api.client.get(f"/api/frfs/{frf_id}/envelope?points=100000")
+    assert r.status_code == 422, r.text[:300]
+    assert f"= {n} values" in r.json()["detail"] and "MAX_ENVELOPE_VALUES" in r.json()["detail"]
+    r = api.client.get(f"/api/frfs/{frf_id}/envelope?points=100000&input=0")
+    assert r.status_code == 200, r.text[:300]

@@ -3,10 +3,12 @@
 
 from __future__ import annotations
 
+from collections import Counter
 from dataclasses import asdict, dataclass
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Depends, Query, Request, Response, status
+from fastapi.exceptions import RequestValidationError
 from pydantic import Field
 from starlette.concurrency import run_in_threadpool
 
@@ -123,7 +125,20 @@ def frf_envelope(
     envelope of the chosen responses × inputs (as in ``/data``) on the lines in [``f_min_hz``,
     ``f_max_hz``] in at most ``points`` points (each the largest and smallest |H| of its group
     of consecutive lines), and each pair's mean coherence over those lines. ``input`` may be
-    repeated (``input=0&input=1``: those inputs, in that order)."""
+    repeated (``input=0&input=1``: those inputs, in that order), each once; at most
+    :data:`~dimacq.services.lab.store.MAX_ENVELOPE_VALUES` points × responses × inputs."""
+    if input is not None and len(set(input)) != len(input):
+        twice = sorted(i for i, n in Counter(input).items() if n > 1)
+        raise RequestValidationError(
+            [
+                {
+                    "loc": ("query", "input"),
+                    "msg": f"input {', '.join(map(str, twice))} given more than once; "
+                    "give each input once",
+                    "type": "unique_items",
+                }
+            ]
+        )
     return found(
         lab.store.frf_envelope(
             frf_id, points, sel.responses, sel.inputs(indices=tuple(input or ())), sel.band_hz

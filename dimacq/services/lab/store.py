@@ -25,7 +25,12 @@ from dimacq.persistence.arrays import arrays_from_bytes, arrays_to_bytes
 from dimacq.pipeline.frf_summary import magnitude_envelope
 from dimacq.services.lab.common import iso, json_safe, vec
 
+#: Most values of one envelope curve (points × responses × inputs): ~50 MB of JSON at most, for
+#: its two curves. A report's figure asks for ~60 curves of ~1,000 points.
+MAX_ENVELOPE_VALUES = 500_000
+
 __all__ = [
+    "MAX_ENVELOPE_VALUES",
     "ChannelQuery",
     "ExportedFile",
     "FrfSummary",
@@ -556,11 +561,20 @@ class TestStore:
         """The |H| envelope of the chosen responses × inputs on the lines within ``band_hz`` in
         at most ``points`` points, and their mean coherence over those lines
         (:func:`dimacq.pipeline.frf_summary.magnitude_envelope`); None if the set does not
-        exist."""
+        exist. SetupError when points × responses × inputs passes :data:`MAX_ENVELOPE_VALUES`
+        (the answer would be ~50 bytes a value: 100,000 points of 18 × 50 inputs were 126 MB)."""
         got = self._frf_selection(frf_id, response, input_, band_hz)
         if got is None:
             return None
         frf, oi, ii, lines = got
+        n_points = min(points, int(lines.size))
+        if n_points * len(oi) * len(ii) > MAX_ENVELOPE_VALUES:
+            raise SetupError(
+                f"envelope of {n_points} points × {len(oi)} responses × {len(ii)} inputs = "
+                f"{n_points * len(oi) * len(ii)} values per curve, more than "
+                f"{MAX_ENVELOPE_VALUES} (MAX_ENVELOPE_VALUES); ask for fewer points, responses "
+                "or inputs"
+            )
         coh = None if frf.coherence is None else frf.coherence[lines][:, oi][:, :, ii]
         env = magnitude_envelope(
             frf.frequencies_hz[lines], frf.H[lines][:, oi][:, :, ii], coh, points
