@@ -14,6 +14,7 @@ from _api_support import Api
 from dimacq.io.documents import MAX_DEPTH, MAX_DOCUMENT_BYTES, MAX_VALUES
 from dimacq.io.setup_file import dump_setup_dict, load_setup
 from dimacq.io.uff import write_frf_uff
+from dimacq.persistence import models as m
 from dimacq.services.lab import store
 from dimacq.simulators.lab.forward import calibration_mass
 
@@ -305,3 +306,49 @@ def test_envelope_size_is_limited(api: Api, frf_id: int, monkeypatch: pytest.Mon
     assert f"= {n} values" in r.json()["detail"] and "MAX_ENVELOPE_VALUES" in r.json()["detail"]
     r = api.client.get(f"/api/frfs/{frf_id}/envelope?points=100000&input=0")
     assert r.status_code == 200, r.text[:300]
+
+
+# -- 7. races -----------------------------------------------------------------------------------
+
+
+def test_a_solve_racing_the_delete_of_its_set_is_409(
+    api: Api, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The set is deleted while it is solved (after it was read, before the solution is
+    stored): the solution's foreign key refused the row, an IntegrityError answered 500."""
+    fid = _frf_set(api, tmp_path)
+    analysis = api.lab.analysis
+    analyse = analysis._analyse
+
+    def deleted_meanwhile(*args: Any, **kw: Any) -> Any:
+        assert api.lab.store.delete_frf(fid) is True
+        return analyse(*args, **kw)
+
+    monkeypatch.setattr(analysis, "_analyse", deleted_meanwhile)
+    r = api.client.post("/api/solutions", json={"frf_id": fid})
+    assert r.status_code == 409, r.text[:300]
+    assert f"FRF set {fid} was deleted while it was being solved" in r.json()["detail"]
+    assert api.client.get(f"/api/frfs/{fid}").status_code == 404
+
+
+def test_the_set_a_running_acquisition_merges_into_cannot_be_deleted(
+    api: Api, tmp_path: Path
+) -> None:
+    fid = _frf_set(api, tmp_path)
+    sid = api.client.get(f"/api/frfs/{fid}").json()["setup_id"]
+    with api.lab.store.db.session() as s:  # a running acquisition that redoes inputs into it
+        row = m.Acquisition(setup_id=sid, config={"merge_frf_id": fid}, state="running")
+        s.add(row)
+        s.flush()
+        acq_id = int(row.id)
+    try:
+        r = api.client.delete(f"/api/frfs/{fid}")
+        assert r.status_code == 409, r.text[:300]
+        assert f"running acquisition {acq_id}" in r.json()["detail"]
+        assert api.client.get(f"/api/frfs/{fid}").status_code == 200
+    finally:
+        with api.lab.store.db.session() as s:
+            got = s.get(m.Acquisition, acq_id)
+            assert got is not None
+            got.state = "failed"
+    assert api.client.delete(f"/api/frfs/{fid}").status_code == 204

@@ -14,6 +14,7 @@ from typing import Any, BinaryIO, Generic, Literal, TypeVar
 import numpy as np
 from numpy.typing import NDArray
 from sqlalchemy import func, select
+from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import defer
 
 from dimacq.errors import DataError, DeviceStateError, SetupError
@@ -24,6 +25,9 @@ from dimacq.persistence import models as m
 from dimacq.persistence.arrays import arrays_from_bytes, arrays_to_bytes
 from dimacq.pipeline.frf_summary import magnitude_envelope
 from dimacq.services.lab.common import iso, json_safe, vec
+
+#: States of an acquisition whose job is still running (it may still merge into an FRF set).
+_RUNNING_STATES = ("running", "configured-running")
 
 #: Most values of one envelope curve (points × responses × inputs): ~50 MB of JSON at most, for
 #: its two curves. A report's figure asks for ~60 curves of ~1,000 points.
@@ -441,11 +445,26 @@ class TestStore:
 
     def delete_frf(self, frf_id: int) -> bool | None:
         """Delete an FRF set and the solutions of it; None if it does not exist. The
-        acquisition that measured it stays (its raw averages are still on disk)."""
+        acquisition that measured it stays (its raw averages are still on disk). Refused
+        (:class:`DeviceStateError`, 409, naming the acquisition) while a running acquisition
+        merges its new inputs into the set (it would end failed, its FRFs lost)."""
         with self.db.session() as s:
             row = s.get(m.FrfSet, frf_id, options=[defer(m.FrfSet.data)])
             if row is None:
                 return None
+            merging = [
+                a.id
+                for a in s.scalars(
+                    select(m.Acquisition).where(m.Acquisition.state.in_(_RUNNING_STATES))
+                )
+                if isinstance(a.config, dict) and a.config.get("merge_frf_id") == frf_id
+            ]
+            if merging:
+                raise DeviceStateError(
+                    f"FRF set {frf_id} is being merged into by running acquisition "
+                    f"{merging[0]}; stop it (POST /api/acquisitions/{merging[0]}/stop) or wait "
+                    "for it to end, then delete the set"
+                )
             for sol in s.scalars(select(m.Solution).where(m.Solution.frf_id == frf_id)):
                 s.delete(sol)
             s.flush()
@@ -597,16 +616,33 @@ class TestStore:
     def save_solution(
         self, frf_id: int, options: Mapping[str, Any], result: Mapping[str, Any]
     ) -> StoredSolution:
-        with self.db.session() as s:
-            row = m.Solution(
-                frf_id=frf_id,
-                options=json_safe(dict(options)),
-                result=json_safe(dict(result)),
-                stand=self.stand,
-            )
-            s.add(row)
-            s.flush()
-            return StoredSolution.of(row)
+        """Store a solution of FRF set ``frf_id``.
+
+        Raises
+        ------
+        DeviceStateError
+            The set was deleted while it was solved (409; its foreign key refused the row, an
+            IntegrityError, which was a 500).
+        """
+        gone = DeviceStateError(
+            f"FRF set {frf_id} was deleted while it was being solved; the solution is not "
+            "stored (import or acquire the set again to solve it)"
+        )
+        try:
+            with self.db.session() as s:
+                if s.get(m.FrfSet, frf_id, options=[defer(m.FrfSet.data)]) is None:
+                    raise gone
+                row = m.Solution(
+                    frf_id=frf_id,
+                    options=json_safe(dict(options)),
+                    result=json_safe(dict(result)),
+                    stand=self.stand,
+                )
+                s.add(row)
+                s.flush()
+                return StoredSolution.of(row)
+        except IntegrityError as err:  # deleted between the check and the insert
+            raise gone from err
 
     def solution(self, solution_id: int) -> StoredSolution | None:
         with self.db.session() as s:
