@@ -352,3 +352,14 @@ def test_the_set_a_running_acquisition_merges_into_cannot_be_deleted(
             assert got is not None
             got.state = "failed"
     assert api.client.delete(f"/api/frfs/{fid}").status_code == 204
+
+
+# -- 6. ids never reused ------------------------------------------------------------------------
+
+
+def test_ids_of_deleted_frf_sets_are_not_given_again(api: Api, tmp_path: Path) -> None:
+    """SQLite gave the largest deleted id again: "FRF set 3" could name another set later."""
+    ids = [_frf_set(api, tmp_path) for _ in range(3)]
+    for fid in reversed(ids):
+        assert api.client.delete(f"/api/frfs/{fid}").status_code == 204
+    assert _frf_set(api, tmp_path) > max(ids)
