@@ -35,8 +35,9 @@ from typing import Any
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.middleware.cors import CORSMiddleware
+from fastapi.openapi.docs import get_swagger_ui_html
 from fastapi.openapi.utils import get_openapi
-from fastapi.responses import FileResponse, JSONResponse
+from fastapi.responses import FileResponse, HTMLResponse, JSONResponse
 from fastapi.staticfiles import StaticFiles
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.types import ASGIApp, Receive, Scope, Send
@@ -309,19 +310,62 @@ def allowed_hosts(settings: Settings) -> frozenset[str] | None:
 STATIC_DIR = Path(__file__).with_name("static")
 
 
+#: Content-Security-Policy of the lab page and the report: scripts, styles and connections to
+#: this service only (no inline script, nothing from elsewhere); images also from ``blob:`` (the
+#: solution's figure) and ``data:`` (the empty icon); never framed (clickjacking).
+PAGE_CSP = (
+    "default-src 'self'; script-src 'self'; style-src 'self'; img-src 'self' blob: data:; "
+    "connect-src 'self'; object-src 'none'; base-uri 'none'; form-action 'self'; "
+    "frame-ancestors 'none'"
+)
+
+#: Headers of the lab page and the report.
+PAGE_HEADERS = {
+    "Cache-Control": "no-cache",
+    "Content-Security-Policy": PAGE_CSP,
+    "X-Frame-Options": "DENY",
+    "X-Content-Type-Options": "nosniff",
+    "Referrer-Policy": "no-referrer",
+}
+
+#: Where ``/docs`` takes Swagger UI's script and style from: the ``swagger-ui-bundle`` package,
+#: served at :data:`DOCS_ASSETS` (FastAPI's default fetches them from a CDN).
+DOCS_ASSETS = "/docs-assets"
+
+
 def _mount_page(app: FastAPI) -> None:
     """The lab page: ``/`` (``static/index.html``) and its assets under ``/static`` (package data,
-    nothing fetched from elsewhere)."""
+    nothing fetched from elsewhere), with :data:`PAGE_HEADERS`."""
 
     @app.get("/", include_in_schema=False)
     async def index() -> FileResponse:
-        return FileResponse(STATIC_DIR / "index.html", headers={"Cache-Control": "no-cache"})
+        return FileResponse(STATIC_DIR / "index.html", headers=PAGE_HEADERS)
 
     @app.get("/report", include_in_schema=False)
     async def report() -> FileResponse:
-        return FileResponse(STATIC_DIR / "report.html", headers={"Cache-Control": "no-cache"})
+        return FileResponse(STATIC_DIR / "report.html", headers=PAGE_HEADERS)
 
     app.mount("/static", StaticFiles(directory=STATIC_DIR), name="static")
+
+
+def _mount_docs(app: FastAPI) -> None:
+    """``/docs``: Swagger UI from local assets (``swagger-ui-bundle``), never framed; the lab
+    PC may have no internet, and a CDN script would run with the page's access."""
+    from swagger_ui_bundle import swagger_ui_path
+
+    app.mount(DOCS_ASSETS, StaticFiles(directory=swagger_ui_path), name="docs-assets")
+
+    @app.get("/docs", include_in_schema=False)
+    async def docs() -> HTMLResponse:
+        page = get_swagger_ui_html(
+            openapi_url=app.openapi_url or "/openapi.json",
+            title=f"{app.title} API",
+            swagger_js_url=f"{DOCS_ASSETS}/swagger-ui-bundle.js",
+            swagger_css_url=f"{DOCS_ASSETS}/swagger-ui.css",
+            swagger_favicon_url=f"{DOCS_ASSETS}/favicon-32x32.png",
+        )
+        page.headers["X-Frame-Options"] = "DENY"
+        return page
 
 
 #: What the lab page reads when it opens (``static/*.js`` at load), answered once in-process by
@@ -430,6 +474,8 @@ def create_app(
         description="Rigid-body inertia properties by the Dynamic Inertia Method: the lab service.",
         lifespan=lifespan,
         responses=ERROR_RESPONSES,
+        docs_url=None,  # served from local assets (_mount_docs)
+        redoc_url=None,  # ReDoc has no local assets here; /docs is the documentation
     )
     app.state.settings = settings
     app.state.token = token
@@ -451,6 +497,7 @@ def create_app(
     ):
         app.include_router(r.router)
     _mount_page(app)
+    _mount_docs(app)
     # added innermost first: Host check → token → body limit → routes
     app.add_middleware(
         BodyLimitMiddleware,

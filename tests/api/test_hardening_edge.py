@@ -4,17 +4,22 @@ connection) before its fix; each now gets a 4xx whose message names the field or
 from __future__ import annotations
 
 import json
+import os
+import re
+import stat
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
-from _api_support import Api
+from _api_support import Api, make_settings
 
+from dimacq.config import load_settings
 from dimacq.io.documents import MAX_DEPTH, MAX_DOCUMENT_BYTES, MAX_VALUES
 from dimacq.io.setup_file import dump_setup_dict, load_setup
 from dimacq.io.uff import write_frf_uff
 from dimacq.persistence import models as m
+from dimacq.persistence import open_database
 from dimacq.services.lab import store
 from dimacq.simulators.lab.forward import calibration_mass
 
@@ -363,3 +368,64 @@ def test_ids_of_deleted_frf_sets_are_not_given_again(api: Api, tmp_path: Path) -
     for fid in reversed(ids):
         assert api.client.delete(f"/api/frfs/{fid}").status_code == 204
     assert _frf_set(api, tmp_path) > max(ids)
+
+
+# -- 9. the page, /docs, the token and the data files -------------------------------------------
+
+
+def test_docs_are_served_from_local_assets(api: Api) -> None:
+    """FastAPI's /docs fetched Swagger UI from cdn.jsdelivr.net (the lab PC may be offline, and
+    a CDN's script runs with the page's access)."""
+    r = api.anon.get("/docs")
+    assert r.status_code == 200 and r.headers["x-frame-options"] == "DENY"
+    urls = re.findall(r"""(?:src|href|url)\s*[=:]\s*['"]([^'"]+)['"]""", r.text)
+    assert urls and all(u.startswith("/") for u in urls), urls
+    assert "cdn" not in r.text and "https://" not in r.text
+    for asset in ("swagger-ui-bundle.js", "swagger-ui.css"):
+        got = api.anon.get(f"/docs-assets/{asset}")
+        assert got.status_code == 200 and len(got.content) > 10_000, asset
+    assert api.anon.get("/redoc").status_code == 404  # ReDoc only came from a CDN
+
+
+@pytest.mark.parametrize("path", ["/", "/report"])
+def test_the_lab_page_and_the_report_forbid_framing_and_foreign_scripts(
+    api: Api, path: str
+) -> None:
+    r = api.anon.get(path)
+    assert r.status_code == 200
+    assert r.headers["x-frame-options"] == "DENY"
+    csp = dict(
+        d.strip().split(" ", 1) for d in r.headers["content-security-policy"].split(";") if d
+    )
+    assert csp["script-src"] == "'self'" and csp["frame-ancestors"] == "'none'"
+    assert csp["default-src"] == "'self'" and csp["connect-src"] == "'self'"
+    # what the page loads is allowed by it: its own scripts and styles, no inline script
+    assert not re.search(r"<script(?![^>]*\bsrc=)[^>]*>", r.text), "inline script"
+    assert not re.search(r"""(?:src|href)=["']https?://""", r.text)
+
+
+def test_data_files_are_private(tmp_path: Path) -> None:
+    """The token and the SQLite database (every measurement) were 0644 under the usual umask."""
+    old = os.umask(0o022)
+    try:
+        settings = make_settings(tmp_path / "data")
+        (tmp_path / "data").mkdir()
+        (tmp_path / "data" / "token").write_text("an-old-token\n")  # as an older dimacq left it
+        os.chmod(tmp_path / "data" / "token", 0o644)
+        settings = settings.model_copy(update={"token": ""})
+        assert settings.resolved_token() == "an-old-token"
+        db = open_database(f"sqlite:///{tmp_path / 'data' / 'dimacq.sqlite'}")
+        db.engine.dispose()
+        fresh = load_settings(data_dir=tmp_path / "fresh", token="")
+        fresh.resolved_token()
+    finally:
+        os.umask(old)
+    for path in (
+        tmp_path / "data" / "token",
+        tmp_path / "data" / "dimacq.sqlite",
+        tmp_path / "fresh" / "token",
+    ):
+        assert stat.S_IMODE(path.stat().st_mode) == 0o600, (path, oct(path.stat().st_mode))
+    wal = tmp_path / "data" / "dimacq.sqlite-wal"
+    if wal.exists():
+        assert stat.S_IMODE(wal.stat().st_mode) == 0o600
