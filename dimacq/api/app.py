@@ -40,6 +40,7 @@ from fastapi.openapi.utils import get_openapi
 from fastapi.responses import FileResponse, HTMLResponse, JSONResponse
 from fastapi.staticfiles import StaticFiles
 from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.requests import ClientDisconnect
 from starlette.types import ASGIApp, Receive, Scope, Send
 
 from dimacq.api.guards import (
@@ -252,6 +253,12 @@ def _install_error_handlers(app: FastAPI) -> None:
             content={"detail": _public(str(err.detail)), "field": field, "errors": []},
             headers=headers,
         )
+
+    @app.exception_handler(ClientDisconnect)
+    async def _gone(_req: Request, _err: ClientDisconnect) -> JSONResponse:
+        # the client closed (or stalled and was closed: dimacq.api.protocol) before its body
+        # was complete; nobody reads this answer, but it is not a server error in the log
+        return _error(400, "the client closed the connection before the body was complete")
 
     @app.exception_handler(DataError)
     async def _data(_req: Request, err: DataError) -> JSONResponse:

@@ -9,13 +9,22 @@ import sys
 import threading
 import time
 from types import TracebackType
+from typing import Any
 
 import uvicorn
 from fastapi import FastAPI
 
+from dimacq.api.protocol import DEFAULT_LIMITS, HttpLimits, limited_protocol
 from dimacq.errors import DeviceError, SetupError
 
-__all__ = ["BackgroundServer", "bind_socket", "free_port", "serve", "warm_routes"]
+__all__ = [
+    "BackgroundServer",
+    "bind_socket",
+    "free_port",
+    "serve",
+    "server_config",
+    "warm_routes",
+]
 
 
 def free_port(host: str = "127.0.0.1") -> int:
@@ -98,18 +107,39 @@ def serve(
     # listening from now on: a client that comes while the lab opens waits in the backlog
     # (answered once it is open) instead of being refused
     sock.listen(2048)
-    config = uvicorn.Config(app, log_level=log_level, access_log=False)
-    uvicorn.Server(config).run(sockets=[sock])
+    uvicorn.Server(server_config(app, log_level=log_level)).run(sockets=[sock])
+
+
+def server_config(app: FastAPI, limits: HttpLimits = DEFAULT_LIMITS, **kw: Any) -> uvicorn.Config:
+    """uvicorn's configuration of the service: HTTP/1.1 through
+    :class:`~dimacq.api.protocol.LimitedHttpToolsProtocol` (request heads at most
+    ``limits.max_head_bytes``, complete within ``limits.head_timeout_s``; bodies never idle
+    longer than ``limits.body_idle_timeout_s``), keep-alive ``limits.keep_alive_s``, no access
+    log, no ``server`` header (it names uvicorn's version)."""
+    return uvicorn.Config(
+        app,
+        http=limited_protocol(limits),
+        timeout_keep_alive=max(1, round(limits.keep_alive_s)),
+        access_log=False,
+        server_header=False,
+        **kw,
+    )
 
 
 class BackgroundServer:
     """uvicorn on a thread; ``with BackgroundServer(app) as srv: httpx.get(srv.url + ...)``."""
 
-    def __init__(self, app: FastAPI, host: str = "127.0.0.1", port: int | None = None) -> None:
+    def __init__(
+        self,
+        app: FastAPI,
+        host: str = "127.0.0.1",
+        port: int | None = None,
+        limits: HttpLimits = DEFAULT_LIMITS,
+    ) -> None:
         self.host = host
         self.port = port or free_port(host)
-        config = uvicorn.Config(
-            app, host=host, port=self.port, log_level="warning", access_log=False, lifespan="on"
+        config = server_config(
+            app, limits, host=host, port=self.port, log_level="warning", lifespan="on"
         )
         self.server = uvicorn.Server(config)
         self.thread = threading.Thread(

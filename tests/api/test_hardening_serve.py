@@ -5,12 +5,25 @@
 from __future__ import annotations
 
 import asyncio
+import contextlib
+import json
+import logging
+import socket
+import threading
+import time
+from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
+import httpx
 import pytest
-from _api_support import TOKEN
+from _api_support import TOKEN, make_settings
 
+from dimacq.api import create_app
+from dimacq.api.protocol import DEFAULT_LIMITS, HttpLimits, LimitedHttpToolsProtocol
+from dimacq.api.server import BackgroundServer, server_config
 from dimacq.cli.main import main
+from dimacq.config import load_settings
 
 
 def test_serve_prints_the_token_once(
@@ -41,3 +54,154 @@ def test_serve_prints_the_token_once(
     out, _ = capsys.readouterr()
     token = (tmp_path / "d2" / "token").read_text().strip()
     assert out.count(token) == 1 and f"in {tmp_path / 'd2' / 'token'}" in out
+
+
+# -- 8. HTTP limits on a real server ------------------------------------------------------------
+
+LIMITS = HttpLimits(max_head_bytes=8 * 1024, head_timeout_s=1.0, body_idle_timeout_s=1.0)
+SLACK_S = 3.0  # the most a test waits past a limit before it calls the connection held
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[BackgroundServer]:
+    app = create_app(make_settings(tmp_path_factory.mktemp("limits")))
+    with BackgroundServer(app, limits=LIMITS) as srv:
+        yield srv
+
+
+def _connect(
+    srv: BackgroundServer, timeout_s: float = LIMITS.head_timeout_s + SLACK_S
+) -> socket.socket:
+    return socket.create_connection((srv.host, srv.port), timeout=timeout_s)
+
+
+def _read_all(s: socket.socket) -> bytes:
+    out = b""
+    while True:
+        try:
+            chunk = s.recv(65536)
+        except TimeoutError:
+            raise AssertionError(f"the server held the connection; got {out[:200]!r}") from None
+        except ConnectionResetError:
+            break
+        if not chunk:
+            return out
+        out += chunk
+    return out
+
+
+def _status(answer: bytes) -> int:
+    return int(answer.split(b" ", 2)[1])
+
+
+def _body(answer: bytes) -> dict[str, Any]:
+    return dict(json.loads(answer.split(b"\r\n\r\n", 1)[1]))
+
+
+def test_a_1_mb_header_is_431_naming_the_limit(server: BackgroundServer) -> None:
+    """It was read whole and answered 200."""
+    s = _connect(server)
+    head = b"GET /api/status HTTP/1.1\r\nHost: 127.0.0.1\r\nX-Big: " + b"a" * 1_000_000
+    sender = threading.Thread(target=lambda: _send_quietly(s, head + b"\r\n\r\n"))
+    sender.start()
+    answer = _read_all(s)
+    sender.join(10)
+    s.close()
+    assert _status(answer) == 431, answer[:200]
+    assert f"more than {LIMITS.max_head_bytes} bytes" in _body(answer)["detail"]
+
+
+def _send_quietly(s: socket.socket, data: bytes) -> None:
+    with contextlib.suppress(OSError):  # the server stops reading after its answer
+        s.sendall(data)
+
+
+def test_headers_within_the_limit_pass(server: BackgroundServer) -> None:
+    r = httpx.get(server.url + "/api/status", headers={"X-Pad": "a" * 6000}, timeout=10)
+    assert r.status_code == 200
+
+
+@pytest.mark.parametrize("hosts", [("127.0.0.1", "evil.example"), ("localhost", "127.0.0.1")])
+def test_duplicate_host_headers_are_400(server: BackgroundServer, hosts: tuple[str, str]) -> None:
+    """Only the first was checked: Host: 127.0.0.1 then Host: evil.example passed."""
+    s = _connect(server)
+    s.sendall(
+        b"GET /api/setups HTTP/1.1\r\n"
+        + b"".join(b"Host: %s\r\n" % h.encode() for h in hosts)
+        + b"Connection: close\r\n\r\n"
+    )
+    answer = _read_all(s)
+    s.close()
+    assert _status(answer) == 400 and _body(answer)["field"] == "Host", answer[:300]
+    assert "sent 2 times" in _body(answer)["detail"]
+
+
+def test_a_header_trickled_byte_by_byte_is_cut_off(server: BackgroundServer) -> None:
+    """A slow client held the connection (and a worker's attention) forever."""
+    s = _connect(server)
+    t0 = time.monotonic()
+    head = b"GET /api/status HTTP/1.1\r\nHost: 127.0.0.1\r\nX-Slow: " + b"a" * 1000
+    with contextlib.suppress(OSError):
+        for byte in head:
+            s.sendall(bytes([byte]))
+            time.sleep(0.05)
+            if time.monotonic() - t0 > LIMITS.head_timeout_s + SLACK_S:
+                break
+    answer = _read_all(s)
+    s.close()
+    took = time.monotonic() - t0
+    assert _status(answer) == 408, answer[:200]
+    assert "not complete within 1 s" in _body(answer)["detail"]
+    assert took < LIMITS.head_timeout_s + SLACK_S
+    # others were served meanwhile and still are
+    assert httpx.get(server.url + "/api/status", timeout=10).status_code == 200
+
+
+def test_a_connection_that_sends_nothing_is_closed(server: BackgroundServer) -> None:
+    s = _connect(server)
+    t0 = time.monotonic()
+    assert _read_all(s) == b""
+    s.close()
+    assert LIMITS.head_timeout_s * 0.9 < time.monotonic() - t0 < LIMITS.head_timeout_s + SLACK_S
+
+
+def test_a_body_shorter_than_its_content_length_is_408(
+    server: BackgroundServer, caplog: pytest.LogCaptureFixture
+) -> None:
+    """The handler waited for the missing bytes forever; when the client gave up, uvicorn
+    logged "Exception in ASGI application" (ClientDisconnect)."""
+    s = _connect(server, LIMITS.body_idle_timeout_s + SLACK_S)
+    t0 = time.monotonic()
+    with caplog.at_level(logging.ERROR):
+        s.sendall(
+            b"POST /api/tests HTTP/1.1\r\nHost: 127.0.0.1\r\n"
+            + f"Authorization: Bearer {TOKEN}\r\n".encode()
+            + b'Content-Type: application/json\r\nContent-Length: 100\r\n\r\n{"article"'
+        )
+        answer = _read_all(s)
+        s.close()
+        time.sleep(0.3)  # the handler sees the client gone
+    assert _status(answer) == 408, answer[:200]
+    assert _body(answer)["detail"].startswith("Content-Length: no bytes of the request body")
+    assert time.monotonic() - t0 < LIMITS.body_idle_timeout_s + SLACK_S
+    assert not [r for r in caplog.records if r.levelno >= logging.ERROR], caplog.text
+
+
+def test_keep_alive_connections_are_closed_when_idle(server: BackgroundServer) -> None:
+    s = _connect(server)
+    s.sendall(b"GET /api/status HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")
+    t0 = time.monotonic()
+    answer = _read_all(s)  # the answer, then the close after keep_alive_s
+    s.close()
+    assert _status(answer) == 200
+    assert time.monotonic() - t0 < max(LIMITS.keep_alive_s, LIMITS.head_timeout_s) + SLACK_S
+
+
+def test_serve_uses_the_limits() -> None:
+    """``dimacq serve`` runs uvicorn through server_config: the limited protocol, no server
+    header (it named uvicorn), the keep-alive of the limits."""
+    config = server_config(create_app(load_settings(token=TOKEN)))
+    assert issubclass(config.http, LimitedHttpToolsProtocol)  # type: ignore[arg-type]
+    assert config.http.limits == DEFAULT_LIMITS  # type: ignore[union-attr]
+    assert config.timeout_keep_alive == DEFAULT_LIMITS.keep_alive_s
+    assert config.server_header is False
