@@ -73,6 +73,7 @@ from dimacq.errors import (
     DataError,
     DeviceError,
     DeviceStateError,
+    DimacqError,
     SetupError,
     SolverError,
 )
@@ -458,7 +459,13 @@ def create_app(
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         owned = lab is None
-        app.state.lab = lab if lab is not None else Lab(settings)
+        try:
+            app.state.lab = lab if lab is not None else Lab(settings)
+        except DimacqError as err:
+            # a refusal to start (stand already served, database unreachable, ...): the
+            # server says it in one line (dimacq.api.server.serve), not as a traceback
+            app.state.startup_error = err
+            raise
         if on_ready is not None:
             took = await warm_up(app, token)
             log.info("warm-up: the page's first reads answered in %.2f s", took)

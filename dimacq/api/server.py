@@ -4,6 +4,7 @@ on a loopback port (``dimacq demo``, tests, benchmarks)."""
 from __future__ import annotations
 
 import errno
+import logging
 import socket
 import sys
 import threading
@@ -13,6 +14,7 @@ from typing import Any
 
 import uvicorn
 from fastapi import FastAPI
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from dimacq.api.protocol import DEFAULT_LIMITS, HttpLimits, limited_protocol
 from dimacq.errors import DeviceError, SetupError
@@ -107,10 +109,50 @@ def serve(
     # listening from now on: a client that comes while the lab opens waits in the backlog
     # (answered once it is open) instead of being refused
     sock.listen(2048)
-    uvicorn.Server(server_config(app, log_level=log_level)).run(sockets=[sock])
+    quiet = _QuietRefusal(app)
+    uvicorn_log = logging.getLogger("uvicorn.error")
+    uvicorn_log.addFilter(quiet.filter)
+    try:
+        uvicorn.Server(server_config(quiet, log_level=log_level)).run(sockets=[sock])
+    except SystemExit:  # uvicorn exits 3 when the startup failed
+        if not quiet.refused():
+            raise
+    finally:
+        uvicorn_log.removeFilter(quiet.filter)
+    refused = getattr(app.state, "startup_error", None)
+    if refused is not None:
+        raise refused  # dimacq serve: one line, exit 2
 
 
-def server_config(app: FastAPI, limits: HttpLimits = DEFAULT_LIMITS, **kw: Any) -> uvicorn.Config:
+class _QuietRefusal:
+    """The app, with a refusal to start (a :class:`~dimacq.errors.DimacqError` of the lifespan,
+    kept in ``app.state.startup_error``) left to the caller to say in one line: uvicorn logged
+    the lifespan's whole traceback and "Application startup failed. Exiting.", then returned
+    as if all were well."""
+
+    def __init__(self, app: FastAPI) -> None:
+        self.app = app
+
+    def refused(self) -> bool:
+        return getattr(self.app.state, "startup_error", None) is not None
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "lifespan":
+            await self.app(scope, receive, send)
+            return
+
+        async def without_traceback(message: Message) -> None:
+            if message["type"] == "lifespan.startup.failed" and self.refused():
+                message = {**message, "message": ""}  # uvicorn logs a non-empty message
+            await send(message)
+
+        await self.app(scope, receive, without_traceback)
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return not (self.refused() and record.levelno >= logging.ERROR)
+
+
+def server_config(app: ASGIApp, limits: HttpLimits = DEFAULT_LIMITS, **kw: Any) -> uvicorn.Config:
     """uvicorn's configuration of the service: HTTP/1.1 through
     :class:`~dimacq.api.protocol.LimitedHttpToolsProtocol` (request heads at most
     ``limits.max_head_bytes``, complete within ``limits.head_timeout_s``; bodies never idle
@@ -156,6 +198,9 @@ class BackgroundServer:
         while not self.server.started:
             if not self.thread.is_alive() or time.monotonic() > deadline:
                 self.stop()
+                refused = getattr(self.server.config.app.state, "startup_error", None)
+                if refused is not None:
+                    raise refused
                 raise DeviceError(f"the API server on {self.url} did not start")
             time.sleep(0.01)
 

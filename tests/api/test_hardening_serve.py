@@ -8,7 +8,10 @@ import asyncio
 import contextlib
 import json
 import logging
+import os
 import socket
+import subprocess
+import sys
 import threading
 import time
 from collections.abc import Iterator
@@ -18,10 +21,11 @@ from typing import Any
 import httpx
 import pytest
 from _api_support import TOKEN, make_settings
+from _serve_support import Service
 
 from dimacq.api import create_app
 from dimacq.api.protocol import DEFAULT_LIMITS, HttpLimits, LimitedHttpToolsProtocol
-from dimacq.api.server import BackgroundServer, server_config
+from dimacq.api.server import BackgroundServer, free_port, server_config
 from dimacq.cli.main import main
 from dimacq.config import load_settings
 
@@ -205,3 +209,32 @@ def test_serve_uses_the_limits() -> None:
     assert config.http.limits == DEFAULT_LIMITS  # type: ignore[union-attr]
     assert config.timeout_keep_alive == DEFAULT_LIMITS.keep_alive_s
     assert config.server_header is False
+
+
+# -- 10. start-up refusals in one line ----------------------------------------------------------
+
+
+def test_a_second_serve_of_a_served_stand_says_so_in_one_line(tmp_path: Path) -> None:
+    """It printed uvicorn's whole lifespan traceback, then "Application startup failed.
+    Exiting.", and exited 3."""
+    env = {"DIMACQ_STAND": "bench-a", "DIMACQ_TOKEN": TOKEN}
+    first = Service(tmp_path / "data", free_port(), TOKEN, env=env)
+    try:
+        port = free_port()
+        proc = subprocess.run(
+            [sys.executable, "-m", "dimacq.cli.main", "serve", "--port", str(port)]
+            + ["--data-dir", str(tmp_path / "data"), "--log-level", "warning"],
+            capture_output=True,
+            text=True,
+            timeout=120,
+            env={**os.environ, **env, "DIMACQ_PORT": str(port)},
+        )
+    finally:
+        first.stop()
+    assert proc.returncode == 2, (proc.returncode, proc.stderr[-2000:])
+    assert "Traceback" not in proc.stderr and "startup failed" not in proc.stderr, proc.stderr
+    errors = [line for line in proc.stderr.splitlines() if line.strip()]
+    assert len(errors) == 1, proc.stderr
+    assert errors[0].startswith("dimacq serve: error: stand 'bench-a' is already served")
+    assert "DIMACQ_STAND" in errors[0]
+    assert TOKEN not in proc.stdout + proc.stderr  # never served: no lab page address
