@@ -178,6 +178,7 @@ class BackgroundServer:
         port: int | None = None,
         limits: HttpLimits = DEFAULT_LIMITS,
     ) -> None:
+        self.app = app
         self.host = host
         self.port = port or free_port(host)
         config = server_config(
@@ -198,7 +199,7 @@ class BackgroundServer:
         while not self.server.started:
             if not self.thread.is_alive() or time.monotonic() > deadline:
                 self.stop()
-                refused = getattr(self.server.config.app.state, "startup_error", None)
+                refused = getattr(self.app.state, "startup_error", None)
                 if refused is not None:
                     raise refused
                 raise DeviceError(f"the API server on {self.url} did not start")
