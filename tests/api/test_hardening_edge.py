@@ -434,3 +434,23 @@ def test_data_files_are_private(tmp_path: Path) -> None:
     wal = tmp_path / "data" / "dimacq.sqlite-wal"
     if wal.exists():
         assert stat.S_IMODE(wal.stat().st_mode) == 0o600
+
+
+def test_setups_stored_before_the_name_rule_stay_usable(
+    api: Api, setup_doc: dict[str, Any]
+) -> None:
+    """A name with a line break or a 300-character label was accepted before; such a row is read
+    with its names made one line (line breaks become spaces, cut at 200), never refused."""
+    body = json.loads(json.dumps(setup_doc))
+    body["name"] = "old\nbox"
+    body["responses"][0]["label"] = "L" * 300
+    with api.lab.store.db.session() as s:
+        row = m.SetupRow(name=body["name"], body=body, stand="")
+        s.add(row)
+        s.flush()
+        sid = int(row.id)
+    setup = api.lab.store.setup(sid)
+    assert setup is not None and setup.name == "old box"
+    assert setup.responses[0].label == "L" * 200
+    r = api.client.get(f"/api/setups/{sid}/export", params={"format": "toml"})
+    assert r.status_code == 200 and 'name = "old box"' in r.text, r.text[:300]

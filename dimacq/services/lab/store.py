@@ -7,6 +7,7 @@ database row written after the file. Lookups of unknown ids return ``None`` (the
 from __future__ import annotations
 
 import json
+import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, BinaryIO, Generic, Literal, TypeVar
@@ -19,12 +20,51 @@ from sqlalchemy.orm import defer
 
 from dimacq.errors import DataError, DeviceStateError, SetupError
 from dimacq.model.frf import Channel, FrfData
-from dimacq.model.setup import TestSetup
+from dimacq.model.setup import MAX_NAME_CHARS, TestSetup
 from dimacq.persistence import ArrayStore, Database
 from dimacq.persistence import models as m
 from dimacq.persistence.arrays import arrays_from_bytes, arrays_to_bytes
 from dimacq.pipeline.frf_summary import magnitude_envelope
 from dimacq.services.lab.common import iso, json_safe, vec
+
+#: Control characters: not in a name or label (dimacq.model.setup.one_line).
+_CONTROL = re.compile(r"[\x00-\x1f\x7f]")
+
+
+def _one_line(text: Any) -> Any:
+    if not isinstance(text, str):
+        return text
+    return (
+        " ".join(text.split())[:MAX_NAME_CHARS] if _CONTROL.search(text) else text[:MAX_NAME_CHARS]
+    )
+
+
+def _stored_names(body: dict[str, Any]) -> dict[str, Any]:
+    """A stored setup with its name and labels as one line of at most MAX_NAME_CHARS: rows stored
+    before names had that rule (issue 24) stay readable (line breaks become spaces, the rest is
+    cut); a body that keeps the rule is returned as it is."""
+    lists = ("responses", "inputs", "excitations", "load_cells")
+    names = [body.get("name")] + [
+        c.get("label")
+        for k in lists
+        if isinstance(body.get(k), list)
+        for c in body[k]
+        if isinstance(c, dict)
+    ]
+    if all(
+        not isinstance(n, str) or (len(n) <= MAX_NAME_CHARS and not _CONTROL.search(n))
+        for n in names
+    ):
+        return body
+    out = {**body, "name": _one_line(body.get("name", ""))}
+    for k in lists:
+        if isinstance(body.get(k), list):
+            out[k] = [
+                {**c, "label": _one_line(c["label"])} if isinstance(c, dict) and "label" in c else c
+                for c in body[k]
+            ]
+    return out
+
 
 #: States of an acquisition whose job is still running (it may still merge into an FRF set).
 _RUNNING_STATES = ("running", "configured-running")
@@ -298,7 +338,8 @@ class TestStore:
 
         with self.db.session() as s:
             row = s.get(m.SetupRow, setup_id)
-            return None if row is None else parse_setup(row.body, f"setup {setup_id}")
+            body = None if row is None else row.body
+        return None if body is None else parse_setup(_stored_names(body), f"setup {setup_id}")
 
     def require_setup(self, setup_id: int) -> TestSetup:
         """The setup, or SetupError naming ``setup_id`` and the fix."""
