@@ -73,9 +73,14 @@ def json_object(raw: bytes, example: str) -> dict[str, Any]:
         # within the documents' limits: depth, values, digits (dimacq.io.documents)
         body = loads_json(raw, "body") if raw.strip() else {}
     except SetupError as err:
-        raise HTTPException(status_code=422, detail=f"{err}; send {example}") from err
+        msg = str(err).removeprefix("body: ")
+        raise RequestValidationError(
+            [{"loc": ("body",), "msg": f"{msg}; send {example}", "type": "json_invalid"}]
+        ) from err
     if not isinstance(body, dict):
-        raise HTTPException(status_code=422, detail=f"body: send a JSON object, e.g. {example}")
+        raise RequestValidationError(
+            [{"loc": ("body",), "msg": f"send a JSON object, e.g. {example}", "type": "dict_type"}]
+        )
     return body
 
 
