@@ -219,11 +219,14 @@ class Settings(BaseSettings):
         return p if p.is_absolute() else default_config_file().parent / p
 
     def resolved_token(self) -> str:
-        """The access token: configured, or generated once and kept in ``<data_dir>/token``."""
+        """The access token: configured, or generated once and kept in ``<data_dir>/token``
+        (mode 0600: readable by the service's user only)."""
         if self.token:
             return self.token
         path = self.data_dir / "token"
         if path.exists():
+            if path.stat().st_mode & 0o077:  # written by an older dimacq or by hand
+                path.chmod(0o600)
             text = path.read_text(encoding="utf-8").strip()
             if text:
                 return text

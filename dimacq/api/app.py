@@ -35,10 +35,12 @@ from typing import Any
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.middleware.cors import CORSMiddleware
+from fastapi.openapi.docs import get_swagger_ui_html
 from fastapi.openapi.utils import get_openapi
-from fastapi.responses import FileResponse, JSONResponse
+from fastapi.responses import FileResponse, HTMLResponse, JSONResponse
 from fastapi.staticfiles import StaticFiles
 from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.requests import ClientDisconnect
 from starlette.types import ASGIApp, Receive, Scope, Send
 
 from dimacq.api.guards import (
@@ -72,6 +74,7 @@ from dimacq.errors import (
     DataError,
     DeviceError,
     DeviceStateError,
+    DimacqError,
     SetupError,
     SolverError,
 )
@@ -207,7 +210,8 @@ def _allowed_methods(app: FastAPI, path: str) -> set[str]:
 
 
 def _path_value(req: Request, name: str) -> str:
-    return str(req.path_params.get(name, "?"))[:40]
+    value = str(req.path_params.get(name, "?"))
+    return value if len(value) <= 40 else f"{value[:12]}…({len(value)} digits)"
 
 
 def _install_error_handlers(app: FastAPI) -> None:
@@ -251,6 +255,12 @@ def _install_error_handlers(app: FastAPI) -> None:
             content={"detail": _public(str(err.detail)), "field": field, "errors": []},
             headers=headers,
         )
+
+    @app.exception_handler(ClientDisconnect)
+    async def _gone(_req: Request, _err: ClientDisconnect) -> JSONResponse:
+        # the client closed (or stalled and was closed: dimacq.api.protocol) before its body
+        # was complete; nobody reads this answer, but it is not a server error in the log
+        return _error(400, "the client closed the connection before the body was complete")
 
     @app.exception_handler(DataError)
     async def _data(_req: Request, err: DataError) -> JSONResponse:
@@ -309,19 +319,72 @@ def allowed_hosts(settings: Settings) -> frozenset[str] | None:
 STATIC_DIR = Path(__file__).with_name("static")
 
 
+#: Content-Security-Policy of the lab page and the report: scripts, styles and connections to
+#: this service only (no inline script, nothing from elsewhere); images also from ``blob:`` (the
+#: solution's figure) and ``data:`` (the empty icon); never framed (clickjacking).
+PAGE_CSP = (
+    "default-src 'self'; script-src 'self'; style-src 'self'; img-src 'self' blob: data:; "
+    "connect-src 'self'; object-src 'none'; base-uri 'none'; form-action 'self'; "
+    "frame-ancestors 'none'"
+)
+
+#: Headers of the lab page and the report.
+PAGE_HEADERS = {
+    "Cache-Control": "no-cache",
+    "Content-Security-Policy": PAGE_CSP,
+    "X-Frame-Options": "DENY",
+    "X-Content-Type-Options": "nosniff",
+    "Referrer-Policy": "no-referrer",
+}
+
+#: Where ``/docs`` takes Swagger UI's script and style from: the ``swagger-ui-bundle`` package,
+#: served at :data:`DOCS_ASSETS` (FastAPI's default fetches them from a CDN).
+DOCS_ASSETS = "/docs-assets"
+#: The spec as ``/docs`` reads it (see :func:`_mount_docs`).
+DOCS_SPEC = "/docs/openapi.json"
+
+
 def _mount_page(app: FastAPI) -> None:
     """The lab page: ``/`` (``static/index.html``) and its assets under ``/static`` (package data,
-    nothing fetched from elsewhere)."""
+    nothing fetched from elsewhere), with :data:`PAGE_HEADERS`."""
 
     @app.get("/", include_in_schema=False)
     async def index() -> FileResponse:
-        return FileResponse(STATIC_DIR / "index.html", headers={"Cache-Control": "no-cache"})
+        return FileResponse(STATIC_DIR / "index.html", headers=PAGE_HEADERS)
 
     @app.get("/report", include_in_schema=False)
     async def report() -> FileResponse:
-        return FileResponse(STATIC_DIR / "report.html", headers={"Cache-Control": "no-cache"})
+        return FileResponse(STATIC_DIR / "report.html", headers=PAGE_HEADERS)
 
     app.mount("/static", StaticFiles(directory=STATIC_DIR), name="static")
+
+
+def _mount_docs(app: FastAPI) -> None:
+    """``/docs``: Swagger UI from local assets (``swagger-ui-bundle``), never framed; the lab
+    PC may have no internet, and a CDN script would run with the page's access."""
+    from swagger_ui_bundle import swagger_ui_path
+
+    app.mount(DOCS_ASSETS, StaticFiles(directory=swagger_ui_path), name="docs-assets")
+
+    @app.get(DOCS_SPEC, include_in_schema=False)
+    async def docs_spec() -> JSONResponse:
+        # the package's Swagger UI (4.15) refuses an "openapi: 3.1.0" document ("does not
+        # specify a valid version field"); FastAPI's spec is 3.1 and stays so at /openapi.json.
+        # The page gets it labelled 3.0.3: it renders every operation and its schemas (tuples'
+        # prefixItems show as plain arrays)
+        return JSONResponse({**app.openapi(), "openapi": "3.0.3"})
+
+    @app.get("/docs", include_in_schema=False)
+    async def docs() -> HTMLResponse:
+        page = get_swagger_ui_html(
+            openapi_url=DOCS_SPEC,
+            title=f"{app.title} API",
+            swagger_js_url=f"{DOCS_ASSETS}/swagger-ui-bundle.js",
+            swagger_css_url=f"{DOCS_ASSETS}/swagger-ui.css",
+            swagger_favicon_url=f"{DOCS_ASSETS}/favicon-32x32.png",
+        )
+        page.headers["X-Frame-Options"] = "DENY"
+        return page
 
 
 #: What the lab page reads when it opens (``static/*.js`` at load), answered once in-process by
@@ -407,7 +470,13 @@ def create_app(
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         owned = lab is None
-        app.state.lab = lab if lab is not None else Lab(settings)
+        try:
+            app.state.lab = lab if lab is not None else Lab(settings)
+        except DimacqError as err:
+            # a refusal to start (stand already served, database unreachable, ...): the
+            # server says it in one line (dimacq.api.server.serve), not as a traceback
+            app.state.startup_error = err
+            raise
         if on_ready is not None:
             took = await warm_up(app, token)
             log.info("warm-up: the page's first reads answered in %.2f s", took)
@@ -430,6 +499,8 @@ def create_app(
         description="Rigid-body inertia properties by the Dynamic Inertia Method: the lab service.",
         lifespan=lifespan,
         responses=ERROR_RESPONSES,
+        docs_url=None,  # served from local assets (_mount_docs)
+        redoc_url=None,  # ReDoc has no local assets here; /docs is the documentation
     )
     app.state.settings = settings
     app.state.token = token
@@ -452,6 +523,7 @@ def create_app(
     ):
         app.include_router(r.router)
     _mount_page(app)
+    _mount_docs(app)
     # added innermost first: Host check → token → body limit → routes
     app.add_middleware(
         BodyLimitMiddleware,

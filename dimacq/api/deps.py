@@ -4,19 +4,56 @@
 acquisitions, FRF sets, calibrations, studies, solutions): 1..:data:`~dimacq.api.schemas.MAX_ID`,
 documented in the spec; a value out of that range is answered 404 like any id that names nothing
 (the app's validation handler maps errors located in the path to 404), before any database call.
+
+Id segments are matched by the ``id`` path convertor (:class:`IdConvertor`, ``/{setup_id:id}``):
+digits of any length. Starlette's ``int`` convertor calls ``int()`` on them, which raises past
+4,300 digits (Python's limit for decimal strings): a long id was a 500 on every route. Here a
+segment of more than :data:`ID_DIGITS` digits stays a string, and the id's validation refuses it
+(404, as any id out of range).
 """
 
 from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import Depends, Path, Request
+from fastapi import Depends, Path, Query, Request
+from starlette.convertors import Convertor, register_url_convertor
 
 from dimacq.api.schemas import MAX_ID
 from dimacq.config import Settings
+from dimacq.model.setup import MAX_NAME_CHARS
 from dimacq.services.lab import Lab
 
-__all__ = ["IdPath", "LabDep", "SettingsDep", "get_lab", "get_settings"]
+__all__ = [
+    "ID_DIGITS",
+    "IdConvertor",
+    "IdPath",
+    "LabDep",
+    "NameQuery",
+    "SettingsDep",
+    "get_lab",
+    "get_settings",
+]
+
+#: Longest id segment converted to an int by the router (MAX_ID has 10 digits; leading zeros
+#: allowed up to here); longer segments are validated as strings (:class:`IdConvertor`).
+ID_DIGITS = 20
+
+
+class IdConvertor(Convertor[int | str]):
+    """A path segment of digits: an int up to :data:`ID_DIGITS` digits, the string beyond (never
+    ``int()`` of thousands of digits, which raises); the route's id validation answers 404."""
+
+    regex = "[0-9]+"
+
+    def convert(self, value: str) -> int | str:
+        return int(value) if len(value) <= ID_DIGITS else value
+
+    def to_string(self, value: int | str) -> str:
+        return str(value)
+
+
+register_url_convertor("id", IdConvertor())
 
 
 def get_lab(request: Request) -> Lab:
@@ -32,3 +69,12 @@ def get_settings(request: Request) -> Settings:
 LabDep = Annotated[Lab, Depends(get_lab)]
 SettingsDep = Annotated[Settings, Depends(get_settings)]
 IdPath = Annotated[int, Path(ge=1, le=MAX_ID, description=f"the item's id, 1..{MAX_ID}")]
+#: A name given in the query (imports): one line of printable text, at most MAX_NAME_CHARS.
+NameQuery = Annotated[
+    str,
+    Query(
+        max_length=MAX_NAME_CHARS,
+        pattern=r"^[^\x00-\x1f\x7f]*$",
+        description=f"one line of printable text, at most {MAX_NAME_CHARS} characters",
+    ),
+]

@@ -97,15 +97,29 @@ async def send_error(
 
 
 class HostCheckMiddleware:
-    """421 for a ``Host`` header naming none of ``allowed`` (names without ports, lower case).
-    ``allowed=None`` checks nothing. A request without a Host header (HTTP/1.0 tools; browsers
-    always send one) passes."""
+    """400 for more than one ``Host`` header (only the first was checked: ``Host: 127.0.0.1``
+    then ``Host: evil.example`` passed); 421 for a ``Host`` header naming none of ``allowed``
+    (names without ports, lower case). ``allowed=None`` checks the names not. A request without
+    a Host header (HTTP/1.0 tools; browsers always send one) passes."""
 
     def __init__(self, app: ASGIApp, allowed: frozenset[str] | None) -> None:
         self.app = app
         self.allowed = allowed
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] in ("http", "websocket"):
+            hosts = [v for k, v in scope.get("headers", []) if k == b"host"]
+            if len(hosts) > 1:
+                # which one names the service? Proxies and the app may read different ones
+                # (RFC 9112 §3.2: a request with more than one Host is answered 400)
+                await send_error(
+                    send,
+                    400,
+                    f"Host: sent {len(hosts)} times; send one Host header",
+                    "Host",
+                    [(b"connection", b"close")],
+                )
+                return
         if self.allowed is not None and scope["type"] in ("http", "websocket"):
             for k, v in scope.get("headers", []):
                 if k == b"host":

@@ -8,7 +8,7 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, FiniteFloat, field_validator
 
 from dimacq.model.impact import ImpactOverrides
-from dimacq.model.setup import KnownProperties, LoadCell, NodeNumber
+from dimacq.model.setup import KnownProperties, LoadCell, Name, NodeNumber
 from dimacq.services.lab.plans import PlanParams
 from dimacq.services.lab.solving import SolveOptions
 from dimacq.services.lab.studies import CubeStudyParams
@@ -96,7 +96,7 @@ class ShotsRequest(_Body):
 
 
 class PatchRequest(_Body):
-    name: str | None = Field(default=None, max_length=200)
+    name: Name | None = None
 
 
 class ReferenceNodesRequest(_Body):
@@ -108,7 +108,7 @@ class ReferenceNodeRequest(_Body):
 
 
 class NewTestRequest(_Body):
-    name: str | None = Field(default=None, max_length=200)
+    name: Name | None = None
 
 
 class RegistrationRequest(_Body):
@@ -138,7 +138,7 @@ class LineOfActionRequest(_Body):
 
 
 class FromGeometryRequest(_Body):
-    name: str = ""
+    name: Name = ""
     reference_point_m: Vec3 = (0.0, 0.0, 0.0)
     length_unit: Literal["m", "cm", "mm"] = "m"
     triaxes: list[NodeNumber] | None = None
@@ -460,7 +460,7 @@ class StandOut(BaseModel):
     heartbeat_at: str
 
 
-Text200 = Annotated[str, Field(max_length=200)]
+Text200 = Name  # one line, at most 200 characters
 
 
 class TestCreate(_Body):
@@ -468,7 +468,7 @@ class TestCreate(_Body):
 
     __test__ = False  # not a pytest class
 
-    article: Annotated[str, Field(min_length=1, max_length=200)]
+    article: Annotated[Name, Field(min_length=1)]
     operator: Text200 = ""
     date: datetime.date | None = None
     notes: Annotated[str, Field(max_length=20_000)] = ""
@@ -480,7 +480,7 @@ class TestUpdate(_Body):
 
     __test__ = False
 
-    article: Annotated[str, Field(min_length=1, max_length=200)] | None = None
+    article: Annotated[Name, Field(min_length=1)] | None = None
     operator: Text200 | None = None
     date: datetime.date | None = None
     notes: Annotated[str, Field(max_length=20_000)] | None = None

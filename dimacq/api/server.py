@@ -4,18 +4,29 @@ on a loopback port (``dimacq demo``, tests, benchmarks)."""
 from __future__ import annotations
 
 import errno
+import logging
 import socket
 import sys
 import threading
 import time
 from types import TracebackType
+from typing import Any
 
 import uvicorn
 from fastapi import FastAPI
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
+from dimacq.api.protocol import DEFAULT_LIMITS, HttpLimits, limited_protocol
 from dimacq.errors import DeviceError, SetupError
 
-__all__ = ["BackgroundServer", "bind_socket", "free_port", "serve", "warm_routes"]
+__all__ = [
+    "BackgroundServer",
+    "bind_socket",
+    "free_port",
+    "serve",
+    "server_config",
+    "warm_routes",
+]
 
 
 def free_port(host: str = "127.0.0.1") -> int:
@@ -98,18 +109,80 @@ def serve(
     # listening from now on: a client that comes while the lab opens waits in the backlog
     # (answered once it is open) instead of being refused
     sock.listen(2048)
-    config = uvicorn.Config(app, log_level=log_level, access_log=False)
-    uvicorn.Server(config).run(sockets=[sock])
+    quiet = _QuietRefusal(app)
+    uvicorn_log = logging.getLogger("uvicorn.error")
+    uvicorn_log.addFilter(quiet.filter)
+    try:
+        uvicorn.Server(server_config(quiet, log_level=log_level)).run(sockets=[sock])
+    except SystemExit:  # uvicorn exits 3 when the startup failed
+        if not quiet.refused():
+            raise
+    finally:
+        uvicorn_log.removeFilter(quiet.filter)
+    refused = getattr(app.state, "startup_error", None)
+    if refused is not None:
+        raise refused  # dimacq serve: one line, exit 2
+
+
+class _QuietRefusal:
+    """The app, with a refusal to start (a :class:`~dimacq.errors.DimacqError` of the lifespan,
+    kept in ``app.state.startup_error``) left to the caller to say in one line: uvicorn logged
+    the lifespan's whole traceback and "Application startup failed. Exiting.", then returned
+    as if all were well."""
+
+    def __init__(self, app: FastAPI) -> None:
+        self.app = app
+
+    def refused(self) -> bool:
+        return getattr(self.app.state, "startup_error", None) is not None
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "lifespan":
+            await self.app(scope, receive, send)
+            return
+
+        async def without_traceback(message: Message) -> None:
+            if message["type"] == "lifespan.startup.failed" and self.refused():
+                message = {**message, "message": ""}  # uvicorn logs a non-empty message
+            await send(message)
+
+        await self.app(scope, receive, without_traceback)
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return not (self.refused() and record.levelno >= logging.ERROR)
+
+
+def server_config(app: ASGIApp, limits: HttpLimits = DEFAULT_LIMITS, **kw: Any) -> uvicorn.Config:
+    """uvicorn's configuration of the service: HTTP/1.1 through
+    :class:`~dimacq.api.protocol.LimitedHttpToolsProtocol` (request heads at most
+    ``limits.max_head_bytes``, complete within ``limits.head_timeout_s``; bodies never idle
+    longer than ``limits.body_idle_timeout_s``), keep-alive ``limits.keep_alive_s``, no access
+    log, no ``server`` header (it names uvicorn's version)."""
+    return uvicorn.Config(
+        app,
+        http=limited_protocol(limits),
+        timeout_keep_alive=max(1, round(limits.keep_alive_s)),
+        access_log=False,
+        server_header=False,
+        **kw,
+    )
 
 
 class BackgroundServer:
     """uvicorn on a thread; ``with BackgroundServer(app) as srv: httpx.get(srv.url + ...)``."""
 
-    def __init__(self, app: FastAPI, host: str = "127.0.0.1", port: int | None = None) -> None:
+    def __init__(
+        self,
+        app: FastAPI,
+        host: str = "127.0.0.1",
+        port: int | None = None,
+        limits: HttpLimits = DEFAULT_LIMITS,
+    ) -> None:
+        self.app = app
         self.host = host
         self.port = port or free_port(host)
-        config = uvicorn.Config(
-            app, host=host, port=self.port, log_level="warning", access_log=False, lifespan="on"
+        config = server_config(
+            app, limits, host=host, port=self.port, log_level="warning", lifespan="on"
         )
         self.server = uvicorn.Server(config)
         self.thread = threading.Thread(
@@ -126,6 +199,9 @@ class BackgroundServer:
         while not self.server.started:
             if not self.thread.is_alive() or time.monotonic() > deadline:
                 self.stop()
+                refused = getattr(self.app.state, "startup_error", None)
+                if refused is not None:
+                    raise refused
                 raise DeviceError(f"the API server on {self.url} did not start")
             time.sleep(0.01)
 

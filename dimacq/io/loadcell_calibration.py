@@ -42,7 +42,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from dimacq.errors import DataError
+from dimacq.errors import DataError, SetupError
+from dimacq.model.setup import one_line
 
 __all__ = [
     "InstalledCalibration",
@@ -124,6 +125,48 @@ def read_calibration_json(path: str | Path) -> LoadCellCalibration:
     return parse_calibration_json(data, str(p))
 
 
+#: Longest text of the one-line items of a calibration (serial number, date, method, gauge
+#: unit), characters; and of its notes.
+MAX_ITEM_CHARS = 100
+MAX_NOTES_CHARS = 20_000
+
+
+def _check_text(data: dict[str, Any], source: str) -> None:
+    """The one-line items are one line of printable text of at most :data:`MAX_ITEM_CHARS`
+    (the serial number names the cell in file names, in the XML export's ``Serial`` attribute
+    and in every message), the notes at most :data:`MAX_NOTES_CHARS`.
+
+    Raises
+    ------
+    SetupError
+        Naming the item, the limit and the fix (answered 422 by the API).
+    """
+    for key, limit in (
+        ("serial_number", MAX_ITEM_CHARS),
+        ("date", MAX_ITEM_CHARS),
+        ("method", MAX_ITEM_CHARS),
+        ("gauge_unit", MAX_ITEM_CHARS),
+        ("notes", MAX_NOTES_CHARS),
+    ):
+        value = data.get(key)
+        if value is None:
+            continue
+        if isinstance(value, int | float):  # a serial number written as a number: read as text
+            value = str(value)
+        if not isinstance(value, str):
+            raise SetupError(f"{source}: {key} must be a string, not {type(value).__name__}")
+        if len(value) > limit:
+            raise SetupError(
+                f"{source}: {key} has {len(value)} characters, more than {limit} "
+                f"({'MAX_NOTES_CHARS' if key == 'notes' else 'MAX_ITEM_CHARS'}); shorten it"
+            )
+        if key != "notes":
+            try:
+                one_line(value)
+            except ValueError as err:
+                raise SetupError(f"{source}: {key} {err}") from None
+
+
 def parse_calibration_json(data: Any, source: str = "calibration") -> LoadCellCalibration:
     """A calibration from its JSON document (already parsed); errors name ``source``."""
     if not isinstance(data, dict) or data.get("kind") != "dimacq.loadcell_calibration":
@@ -136,6 +179,7 @@ def parse_calibration_json(data: Any, source: str = "calibration") -> LoadCellCa
     for key in ("serial_number", "date", "matrix"):
         if key not in data:
             raise DataError(f"{source}: key {key!r} missing")
+    _check_text(data, source)
     fu = _FORCE_UNITS.get(data.get("force_unit", "N"))
     mu = _MOMENT_UNITS.get(data.get("moment_unit", "N*m"))
     if fu is None or mu is None:

@@ -45,13 +45,13 @@ what to give instead.
 from __future__ import annotations
 
 import logging
-import tomllib
 from pathlib import Path, PurePosixPath, PureWindowsPath
 from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from dimacq.errors import SetupError
+from dimacq.io.documents import loads_toml
 from dimacq.io.validation import refuse
 from dimacq.model.channels import axis_name
 from dimacq.model.impact import ImpactOverrides
@@ -296,10 +296,7 @@ def parse_rig_text(text: str, path: str | Path) -> RigFile:
         TOML syntax, or an item that fails its check (the message names the item and the fix).
     """
     p = Path(path).expanduser()
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as err:
-        raise SetupError(f"rig file {p}: not valid TOML ({err}); fix the syntax there") from err
+    data = loads_toml(text, f"rig file {p}")  # within the documents' limits, named if not
     if isinstance(data, dict):
         data.pop("path", None)
     try:

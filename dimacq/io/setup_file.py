@@ -102,7 +102,6 @@ from __future__ import annotations
 
 import json
 import logging
-import tomllib
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, BinaryIO, Literal
@@ -111,6 +110,7 @@ import tomli_w
 from pydantic import ValidationError
 
 from dimacq.errors import SetupError
+from dimacq.io.documents import loads_json, loads_toml
 from dimacq.model.setup import TestSetup
 
 __all__ = [
@@ -237,19 +237,11 @@ def read_setup(
     """
     raw = data if isinstance(data, bytes) else data.read()
     try:
-        if fmt == "toml":
-            doc = tomllib.loads(raw.decode("utf-8"))
-        else:
-            doc = json.loads(raw.decode("utf-8"))
+        text = raw.decode("utf-8")
     except UnicodeDecodeError as err:
         raise SetupError(f"{source}: not UTF-8 text ({err}); save it as UTF-8") from err
-    except tomllib.TOMLDecodeError as err:
-        raise SetupError(f"{source}: not valid TOML: {err}; correct the syntax there") from err
-    except json.JSONDecodeError as err:
-        raise SetupError(
-            f"{source}: not valid JSON: {err.msg} at line {err.lineno} column {err.colno}; "
-            "correct the syntax there"
-        ) from err
+    # within the documents' limits (size, depth, values, digits): refused with the limit named
+    doc = loads_toml(text, source) if fmt == "toml" else loads_json(text, source)
     if not isinstance(doc, Mapping):
         raise SetupError(
             f"{source}: the setup must be a JSON object (or TOML table) with responses and inputs"

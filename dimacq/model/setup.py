@@ -21,12 +21,14 @@ Conventions
 from __future__ import annotations
 
 import logging
+import re
 from collections.abc import Mapping
 from typing import Annotated, Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
 from pydantic import (
+    AfterValidator,
     AliasChoices,
     BaseModel,
     ConfigDict,
@@ -56,6 +58,34 @@ log = logging.getLogger(__name__)
 Vec3 = tuple[float, float, float]
 #: A node number: a UFF node label (I10 field, positive), 1..2³¹−1.
 NodeNumber = Annotated[int, Field(ge=1, le=2**31 - 1)]
+
+#: Longest name of a setup or label of a channel, characters.
+MAX_NAME_CHARS = 200
+_CONTROL = re.compile(r"[\x00-\x1f\x7f]")
+
+
+def one_line(value: str) -> str:
+    """``value`` if it is one line of printable text; names and labels are written verbatim into
+    exported files (UFF 2420 part names and labels, a UFF 58 header line), where a line break
+    ends the record and corrupts the file."""
+    m = _CONTROL.search(value)
+    if m is not None:
+        raise ValueError(
+            f"holds the control character {m.group()!r} at position {m.start()}; a name is one "
+            "line of printable text (no line breaks or tabs)"
+        )
+    return value
+
+
+#: A name or label: one line of printable text, at most :data:`MAX_NAME_CHARS` characters.
+Name = Annotated[
+    str,
+    Field(
+        max_length=MAX_NAME_CHARS,
+        json_schema_extra={"pattern": "^[^\\x00-\\x1f\\x7f]*$"},
+    ),
+    AfterValidator(one_line),
+]
 
 #: Metres per unit for the length units the solver can work in.
 LENGTH_UNITS: dict[str, float] = {"m": 1.0, "cm": 0.01, "mm": 0.001}
@@ -110,7 +140,7 @@ class ResponseChannel(_Model):
     direction: int = Field(ge=-3, le=3)
     position_m: Vec3
     direction_gcs: Vec3
-    label: str = ""
+    label: Name = ""
 
     @field_validator("direction")
     @classmethod
@@ -151,7 +181,7 @@ class Excitation(_Model):
     direction: int = Field(default=1, ge=-3, le=3)
     position_m: Vec3
     direction_gcs: Vec3 | None = None
-    label: str = ""
+    label: Name = ""
 
     @model_validator(mode="after")
     def _unit(self) -> Excitation:
@@ -187,7 +217,7 @@ class LoadCell(_Model):
     position_m: Vec3
     rotation: tuple[Vec3, Vec3, Vec3] = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
     sign: Literal["on_structure", "on_support"] = "on_structure"
-    label: str = ""
+    label: Name = ""
 
     @model_validator(mode="after")
     def _orthonormal(self) -> LoadCell:
@@ -410,7 +440,7 @@ class TestSetup(_Model):
     __test__ = False  # not a pytest test class
 
     schema_version: Literal[1] = 1
-    name: str = ""
+    name: Name = ""
     reference_point_m: Vec3 = (0.0, 0.0, 0.0)
     length_unit: Literal["m", "cm", "mm"] = "m"
     responses: tuple[ResponseChannel, ...]

@@ -17,6 +17,7 @@ backoff until a deadline. The health is in memory, for the status call.
 from __future__ import annotations
 
 import logging
+import os
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -40,6 +41,23 @@ T = TypeVar("T")
 
 #: Largest integer primary key on both backends (PostgreSQL ``integer``).
 INT32_MAX = 2**31 - 1
+
+
+def private_file(path: Path) -> None:
+    """Create ``path`` (empty) readable and writable by its owner only (0600), or take group's
+    and others' access away from an existing one: the database holds every measurement, and
+    SQLite gives its ``-wal`` and ``-shm`` files the database file's mode."""
+    try:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o600)
+    except OSError:
+        return  # not ours to create (read-only folder): SQLite says why when it opens it
+    try:
+        if os.fstat(fd).st_mode & 0o077:
+            os.fchmod(fd, 0o600)
+    except OSError as err:  # another owner's file: keep going, say so
+        log.warning("cannot make %s private (%s)", path, err)
+    finally:
+        os.close(fd)
 
 
 def _sqlite_pragmas(dbapi_conn: Any, _record: Any) -> None:
@@ -201,6 +219,7 @@ def open_database(url: str, *, timeout_s: float = 0.0) -> Database:
         path = url.split("///", 1)[1] if "///" in url else ""
         if path and path != ":memory:":
             Path(path).parent.mkdir(parents=True, exist_ok=True)
+            private_file(Path(path))
     else:
         kwargs["pool_pre_ping"] = True
         kwargs["pool_size"] = 10

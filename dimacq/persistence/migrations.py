@@ -2,7 +2,9 @@
 
 Each migration is a function of a SQLAlchemy connection, applied in order inside one
 transaction per version, using only portable DDL (``MetaData.create_all`` / ``Table.create`` and
-``ALTER TABLE ... ADD COLUMN``), so SQLite and PostgreSQL take the same path. Every step checks
+``ALTER TABLE ... ADD COLUMN``), so SQLite and PostgreSQL take the same path; except version 5,
+which rebuilds SQLite's id tables with AUTOINCREMENT (SQLite cannot add it in place; SQLite
+migrations run with foreign keys off, checked before each commit). Every step checks
 what exists before creating it, so a migration is idempotent. To change the schema, append
 ``(version, description, function)`` to :data:`MIGRATIONS`; never edit an applied one.
 
@@ -20,7 +22,7 @@ import os
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
-from sqlalchemy import Column, Connection, Engine, inspect, select, text
+from sqlalchemy import Column, Connection, Engine, MetaData, inspect, select, text
 
 from dimacq.errors import SetupError
 from dimacq.persistence import models as m
@@ -76,6 +78,48 @@ def _v4_tests_and_times(conn: Connection) -> None:
     )
 
 
+def _sqlite_tables_reusing_ids(conn: Connection) -> list[str]:
+    """The tables of :data:`~dimacq.persistence.models.NEVER_REUSE_IDS` whose SQLite DDL lacks
+    AUTOINCREMENT (created before schema 5)."""
+    out = []
+    for name, table in m.Base.metadata.tables.items():
+        if not table.dialect_options["sqlite"].get("autoincrement"):
+            continue
+        ddl = conn.execute(
+            text("SELECT sql FROM sqlite_master WHERE type = 'table' AND name = :n"), {"n": name}
+        ).scalar()
+        if ddl is not None and "AUTOINCREMENT" not in ddl.upper():
+            out.append(name)
+    return out
+
+
+def _v5_ids_never_reused(conn: Connection) -> None:
+    """SQLite: rebuild each id table with AUTOINCREMENT, rows and ids kept (SQLite cannot add
+    it in place): create the new table from the model, copy the rows, drop the old one, rename,
+    recreate its indexes. Foreign keys are off meanwhile (:func:`migrate`) and checked before
+    the commit. PostgreSQL: nothing to do (SERIAL sequences never reuse an id)."""
+    if conn.dialect.name != "sqlite":
+        return
+    for name in _sqlite_tables_reusing_ids(conn):
+        table = m.Base.metadata.tables[name]
+        have = {c["name"] for c in inspect(conn).get_columns(name)}
+        cols = ", ".join(f'"{c.name}"' for c in table.columns if c.name in have)
+        tmp = MetaData()  # the model's tables, for the foreign keys to resolve
+        for t in m.Base.metadata.sorted_tables:
+            t.to_metadata(tmp)
+        # the model's table (columns, foreign keys, AUTOINCREMENT) under a new name, without
+        # its indexes: their names are the old table's until it is dropped
+        new = table.to_metadata(tmp, name=f"_new_{name}")
+        new.indexes.clear()
+        new.create(conn)
+        conn.execute(text(f'INSERT INTO "_new_{name}" ({cols}) SELECT {cols} FROM "{name}"'))
+        conn.execute(text(f'DROP TABLE "{name}"'))
+        conn.execute(text(f'ALTER TABLE "_new_{name}" RENAME TO "{name}"'))
+        for index in table.indexes:
+            index.create(conn, checkfirst=True)
+        log.info("table %s rebuilt with AUTOINCREMENT (ids are never reused)", name)
+
+
 MIGRATIONS: list[tuple[int, str, Callable[[Connection], None]]] = [
     (
         1,
@@ -94,6 +138,7 @@ MIGRATIONS: list[tuple[int, str, Callable[[Connection], None]]] = [
         "tests (article, operator, date, notes, archived), setups.test_id, acquisitions.updated_at",
         _v4_tests_and_times,
     ),
+    (5, "ids never reused: SQLite id tables rebuilt with AUTOINCREMENT", _v5_ids_never_reused),
 ]
 
 #: The schema version this code expects.
@@ -128,7 +173,7 @@ def migrate(engine: Engine) -> int:
         for version, description, fn in MIGRATIONS:
             if version <= have:
                 continue
-            with engine.begin() as conn:
+            with _migrating(engine) as conn:
                 fn(conn)
                 conn.execute(
                     m.SchemaMigration.__table__.insert().values(  # type: ignore[attr-defined]
@@ -137,6 +182,36 @@ def migrate(engine: Engine) -> int:
                 )
             log.info("database migrated to schema version %d (%s)", version, description)
         return max(have, SCHEMA_VERSION)
+
+
+@contextmanager
+def _migrating(engine: Engine) -> Iterator[Connection]:
+    """A connection in a transaction for one migration, committed at the end. SQLite: with
+    foreign keys off (a table rebuild drops a table others refer to; the pragma only takes
+    effect outside a transaction), checked with ``PRAGMA foreign_key_check`` before the commit
+    and on again afterwards."""
+    if engine.dialect.name != "sqlite":
+        with engine.begin() as conn:
+            yield conn
+        return
+    with engine.connect() as conn:
+        conn.exec_driver_sql("PRAGMA foreign_keys=OFF")
+        conn.commit()
+        try:
+            with conn.begin():
+                # the DDL inside the transaction too (Python's sqlite3 begins one only before
+                # INSERT/UPDATE/DELETE): a failed rebuild leaves the database as it was
+                conn.exec_driver_sql("BEGIN")
+                yield conn
+                bad = conn.exec_driver_sql("PRAGMA foreign_key_check").fetchall()
+                if bad:
+                    raise SetupError(
+                        f"database migration left rows whose foreign key names nothing: {bad[:5]};"
+                        " the migration is rolled back (restore the database from its backup)"
+                    )
+        finally:
+            conn.exec_driver_sql("PRAGMA foreign_keys=ON")
+            conn.commit()
 
 
 @contextmanager

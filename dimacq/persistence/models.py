@@ -27,6 +27,7 @@ from sqlalchemy import (
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
 
 __all__ = [
+    "NEVER_REUSE_IDS",
     "Acquisition",
     "Average",
     "Base",
@@ -50,6 +51,13 @@ __all__ = [
 
 def utcnow() -> datetime:
     return datetime.now(UTC)
+
+
+#: Table options of every table whose integer id the API shows: SQLite's AUTOINCREMENT, so an
+#: id is never given again after its row was deleted (without it SQLite reuses the largest
+#: deleted id: a client holding "FRF set 3" would read another set). PostgreSQL's SERIAL
+#: sequences never go back anyway. Existing SQLite tables are rebuilt by migration 5.
+NEVER_REUSE_IDS: dict[str, Any] = {"sqlite_autoincrement": True}
 
 
 class Base(DeclarativeBase):
@@ -79,6 +87,7 @@ class DigitizedPointRow(Base):
     """One accepted digitized point (committed as soon as it is accepted)."""
 
     __tablename__ = "digitized_points"
+    __table_args__ = NEVER_REUSE_IDS
     id: Mapped[int] = mapped_column(Integer, primary_key=True)
     label: Mapped[str] = mapped_column(String(200), index=True)
     patch: Mapped[int] = mapped_column(Integer)
@@ -120,6 +129,7 @@ class TestRow(Base):
 
     __test__ = False  # not a pytest class
     __tablename__ = "tests"
+    __table_args__ = NEVER_REUSE_IDS
     id: Mapped[int] = mapped_column(Integer, primary_key=True)
     article: Mapped[str] = mapped_column(String(200))
     operator: Mapped[str] = mapped_column(String(200), default="")
@@ -135,6 +145,7 @@ class TestRow(Base):
 
 class SetupRow(Base):
     __tablename__ = "setups"
+    __table_args__ = NEVER_REUSE_IDS
     id: Mapped[int] = mapped_column(Integer, primary_key=True)
     name: Mapped[str] = mapped_column(String(200), default="")
     stand: Mapped[str] = mapped_column(String(100), default="", server_default="")
@@ -146,6 +157,7 @@ class SetupRow(Base):
 
 class Acquisition(Base):
     __tablename__ = "acquisitions"
+    __table_args__ = NEVER_REUSE_IDS
     id: Mapped[int] = mapped_column(Integer, primary_key=True)
     setup_id: Mapped[int | None] = mapped_column(ForeignKey("setups.id"), nullable=True)
     config: Mapped[dict[str, Any]] = mapped_column(JSON)
@@ -165,6 +177,7 @@ class Average(Base):
     """One completed average (accepted or rejected) of an acquisition; data in an HDF5 file."""
 
     __tablename__ = "averages"
+    __table_args__ = NEVER_REUSE_IDS
     id: Mapped[int] = mapped_column(Integer, primary_key=True)
     acquisition_id: Mapped[int] = mapped_column(ForeignKey("acquisitions.id"), index=True)
     input_index: Mapped[int] = mapped_column(Integer)
@@ -178,6 +191,7 @@ class Average(Base):
 
 class FrfSet(Base):
     __tablename__ = "frf_sets"
+    __table_args__ = NEVER_REUSE_IDS
     id: Mapped[int] = mapped_column(Integer, primary_key=True)
     setup_id: Mapped[int] = mapped_column(ForeignKey("setups.id"))
     acquisition_id: Mapped[int | None] = mapped_column(Integer, nullable=True)
@@ -195,6 +209,7 @@ class FrfSet(Base):
 
 class Solution(Base):
     __tablename__ = "solutions"
+    __table_args__ = NEVER_REUSE_IDS
     id: Mapped[int] = mapped_column(Integer, primary_key=True)
     frf_id: Mapped[int] = mapped_column(ForeignKey("frf_sets.id"))
     options: Mapped[dict[str, Any]] = mapped_column(JSON)
@@ -205,6 +220,7 @@ class Solution(Base):
 
 class Calibration(Base):
     __tablename__ = "calibrations"
+    __table_args__ = NEVER_REUSE_IDS
     id: Mapped[int] = mapped_column(Integer, primary_key=True)
     serial: Mapped[str] = mapped_column(String(100))
     body: Mapped[dict[str, Any]] = mapped_column(JSON)
@@ -214,6 +230,7 @@ class Calibration(Base):
 
 class SensitivityStudy(Base):
     __tablename__ = "sensitivity_studies"
+    __table_args__ = NEVER_REUSE_IDS
     id: Mapped[int] = mapped_column(Integer, primary_key=True)
     params: Mapped[dict[str, Any]] = mapped_column(JSON)
     result: Mapped[dict[str, Any] | None] = mapped_column(JSON, nullable=True)

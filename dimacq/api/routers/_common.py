@@ -2,17 +2,19 @@
 
 from __future__ import annotations
 
-import json
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Annotated, Any, TypeVar
 
 import numpy as np
+import pydantic_core
 from fastapi import Depends, HTTPException, Query, Request, Response
 from fastapi.exceptions import RequestValidationError
 from pydantic import BaseModel, ValidationError
 
 from dimacq.api.schemas import MAX_ID
+from dimacq.errors import SetupError
+from dimacq.io.documents import find_non_finite, loads_json
 from dimacq.services.lab.store import Page
 
 T = TypeVar("T")
@@ -65,15 +67,20 @@ def paged(response: Response, got: Page[T] | Sequence[T], page: PageQuery) -> li
 
 
 def json_object(raw: bytes, example: str) -> dict[str, Any]:
-    """A JSON object body (``{}`` when empty), or 422 naming the body and an example."""
+    """A JSON object body (``{}`` when empty), or 422 naming the body, the limit it passed
+    (:mod:`dimacq.io.documents`) and an example."""
     try:
-        body = json.loads(raw) if raw.strip() else {}
-    except (json.JSONDecodeError, UnicodeDecodeError) as err:
-        raise HTTPException(
-            status_code=422, detail=f"body: not valid JSON ({err}); send {example}"
+        # within the documents' limits: depth, values, digits (dimacq.io.documents)
+        body = loads_json(raw, "body") if raw.strip() else {}
+    except SetupError as err:
+        msg = str(err).removeprefix("body: ")
+        raise RequestValidationError(
+            [{"loc": ("body",), "msg": f"{msg}; send {example}", "type": "json_invalid"}]
         ) from err
     if not isinstance(body, dict):
-        raise HTTPException(status_code=422, detail=f"body: send a JSON object, e.g. {example}")
+        raise RequestValidationError(
+            [{"loc": ("body",), "msg": f"send a JSON object, e.g. {example}", "type": "dict_type"}]
+        )
     return body
 
 
@@ -140,7 +147,19 @@ def strict_body(model: type[M]) -> Any:
 
 def parse_strict(model: type[M], raw: bytes) -> M:
     """``raw`` validated as ``model`` in strict JSON mode (:func:`strict_body`); 422 naming the
-    field otherwise."""
+    field otherwise, also for any NaN or infinite number in the body."""
+    bad = _non_finite_in(raw)
+    if bad is not None:
+        raise RequestValidationError(
+            [
+                {
+                    "loc": ("body", *bad[0]),
+                    "msg": f"{bad[1]} is not a finite number; give a finite number "
+                    "(NaN and infinities are refused)",
+                    "type": "finite_number",
+                }
+            ]
+        )
     try:
         # the domain validators use numpy: absurd magnitudes overflow to inf and are refused
         # by the checks; do not let an overflow warning escape as an error
@@ -152,6 +171,18 @@ def parse_strict(model: type[M], raw: bytes) -> M:
             for e in err.errors(include_url=False)
         ]
         raise RequestValidationError(errors) from None
+
+
+def _non_finite_in(raw: bytes) -> tuple[tuple[str | int, ...], float] | None:
+    """Where a JSON body holds ``NaN``, ``Infinity`` or a number too large for a float
+    (``1e999``), checked before any model sees it (the domain models' own checks do not cover
+    every float: settings, tolerances); None when it holds none or is not JSON (the model's
+    validation says why)."""
+    try:
+        doc = pydantic_core.from_json(raw or b"null")
+    except ValueError:
+        return None
+    return find_non_finite(doc)
 
 
 def body_openapi(model: type[BaseModel]) -> dict[str, Any]:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Annotated, Any
 
-from fastapi import APIRouter, Request, Response, status
+from fastapi import APIRouter, Path, Request, Response, status
 
 from dimacq.api.deps import IdPath, LabDep
 from dimacq.api.routers._common import (
@@ -50,20 +50,20 @@ def list_acquisitions(lab: LabDep, page: PageDep, response: Response) -> list[Ac
     return paged(response, lab.acquisitions.all(page.limit, page.offset), page)
 
 
-@router.get("/{acq_id:int}", response_model=AcquisitionOut)
+@router.get("/{acq_id:id}", response_model=AcquisitionOut)
 def get_acquisition(acq_id: IdPath, lab: LabDep) -> AcquisitionInfo:
     """State, progress and the averages accepted and rejected so far."""
     return found(lab.acquisitions.get(acq_id), f"acquisition {acq_id}")
 
 
-@router.delete("/{acq_id:int}", status_code=status.HTTP_204_NO_CONTENT)
+@router.delete("/{acq_id:id}", status_code=status.HTTP_204_NO_CONTENT)
 def delete_acquisition(acq_id: IdPath, lab: LabDep) -> Response:
     """Delete an acquisition that is not running and its raw averages (its FRF set stays);
     409 while it runs."""
     return deleted(lab.acquisitions.delete(acq_id), f"acquisition {acq_id}")
 
 
-@router.post("/{acq_id:int}/stop", response_model=AcquisitionOut)
+@router.post("/{acq_id:id}/stop", response_model=AcquisitionOut)
 def stop_acquisition(acq_id: IdPath, lab: LabDep) -> AcquisitionInfo:
     """Cancel: the averages completed so far are kept in the record, no FRF set is stored
     (``finish`` stops striking and stores the FRFs of the accepted averages)."""
@@ -71,7 +71,7 @@ def stop_acquisition(acq_id: IdPath, lab: LabDep) -> AcquisitionInfo:
 
 
 @router.post(
-    "/{acq_id:int}/review", response_model=AcquisitionOut, openapi_extra=body_openapi(HitDecision)
+    "/{acq_id:id}/review", response_model=AcquisitionOut, openapi_extra=body_openapi(HitDecision)
 )
 async def review_hit(acq_id: IdPath, lab: LabDep, request: Request) -> AcquisitionInfo:
     """The operator's accept / reject / redo of the hit waiting for review (``pending_review``
@@ -92,14 +92,14 @@ def _decide(lab: Any, acq_id: int, body: HitDecision) -> AcquisitionInfo:
     )
 
 
-@router.post("/{acq_id:int}/finish", response_model=AcquisitionOut)
+@router.post("/{acq_id:id}/finish", response_model=AcquisitionOut)
 def finish_acquisition(acq_id: IdPath, lab: LabDep) -> AcquisitionInfo:
     """Stop striking and keep the accepted averages: the FRFs of the inputs that reached
     ``min_averages`` are stored (``stop`` cancels instead: no FRF set)."""
     return found(lab.acquisitions.finish(acq_id), f"acquisition {acq_id}")
 
 
-@router.get("/{acq_id:int}/hit", response_model=HitOut)
+@router.get("/{acq_id:id}/hit", response_model=HitOut)
 def get_hit(acq_id: IdPath, lab: LabDep) -> dict[str, Any]:
     """The hit waiting for review (``pending: true``), else the last decided one (this service's
     run only): force (N) and strongest response (m/s²) over time, their spectra in dB, the
@@ -107,8 +107,10 @@ def get_hit(acq_id: IdPath, lab: LabDep) -> dict[str, Any]:
     return found(lab.acquisitions.hit(acq_id), f"hit of acquisition {acq_id}")
 
 
-@router.get("/{acq_id:int}/averages/{number:int}", response_model=AverageDataOut)
-def get_average(acq_id: IdPath, number: int, lab: LabDep) -> dict[str, Any]:
+@router.get("/{acq_id:id}/averages/{number:id}", response_model=AverageDataOut)
+def get_average(
+    acq_id: IdPath, number: Annotated[int, Path(ge=-(2**31), le=2**31 - 1)], lab: LabDep
+) -> dict[str, Any]:
     """Raw time data of one average, served by the stand that acquired it (it stays on that
     stand's disk); another stand answers 409 with that stand's address."""
     return found(

@@ -107,6 +107,6 @@ def list_calibrations(lab: LabDep, page: PageDep, response: Response) -> list[St
     return paged(response, lab.calibrations.all(), page)
 
 
-@router.get("/{cal_id:int}", response_model=CalibrationOut)
+@router.get("/{cal_id:id}", response_model=CalibrationOut)
 def get_calibration(cal_id: IdPath, lab: LabDep) -> StoredCalibration:
     return found(lab.calibrations.get(cal_id), f"calibration {cal_id}")

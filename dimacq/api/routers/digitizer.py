@@ -96,7 +96,7 @@ def list_points(lab: LabDep, page: PageDep, response: Response) -> list[StoredPo
     return paged(response, lab.geometry.points(), page)
 
 
-@router.delete("/points/{point_id:int}", status_code=status.HTTP_204_NO_CONTENT)
+@router.delete("/points/{point_id:id}", status_code=status.HTTP_204_NO_CONTENT)
 def delete_point(point_id: IdPath, lab: LabDep) -> Response:
     """Delete a mistaken point (redo it: digitize the label again; the latest point of a label
     is the one used, so deleting is needed only to fall back to an earlier one)."""

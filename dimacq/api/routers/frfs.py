@@ -3,14 +3,16 @@
 
 from __future__ import annotations
 
+from collections import Counter
 from dataclasses import asdict, dataclass
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Depends, Query, Request, Response, status
+from fastapi.exceptions import RequestValidationError
 from pydantic import Field
 from starlette.concurrency import run_in_threadpool
 
-from dimacq.api.deps import IdPath, LabDep
+from dimacq.api.deps import IdPath, LabDep, NameQuery
 from dimacq.api.routers._common import (
     LIST_RESPONSES,
     RAW_BODY,
@@ -76,18 +78,18 @@ def list_frfs(
     return paged(response, lab.store.frfs(page.limit, page.offset, test_id), page)
 
 
-@router.get("/{frf_id:int}", response_model=FrfOut)
+@router.get("/{frf_id:id}", response_model=FrfOut)
 def get_frf(frf_id: IdPath, lab: LabDep) -> FrfSummary:
     return found(lab.store.frf_summary(frf_id), f"FRF set {frf_id}")
 
 
-@router.delete("/{frf_id:int}", status_code=status.HTTP_204_NO_CONTENT)
+@router.delete("/{frf_id:id}", status_code=status.HTTP_204_NO_CONTENT)
 def delete_frf(frf_id: IdPath, lab: LabDep) -> Response:
     """Delete an FRF set and its solutions (the acquisition that measured it stays)."""
     return deleted(lab.store.delete_frf(frf_id), f"FRF set {frf_id}")
 
 
-@router.get("/{frf_id:int}/data", response_model=FrfDataOut)
+@router.get("/{frf_id:id}/data", response_model=FrfDataOut)
 def frf_data(
     frf_id: IdPath,
     lab: LabDep,
@@ -108,7 +110,7 @@ def frf_data(
     )
 
 
-@router.get("/{frf_id:int}/envelope", response_model=FrfEnvelopeOut)
+@router.get("/{frf_id:id}/envelope", response_model=FrfEnvelopeOut)
 def frf_envelope(
     frf_id: IdPath,
     lab: LabDep,
@@ -123,7 +125,20 @@ def frf_envelope(
     envelope of the chosen responses × inputs (as in ``/data``) on the lines in [``f_min_hz``,
     ``f_max_hz``] in at most ``points`` points (each the largest and smallest |H| of its group
     of consecutive lines), and each pair's mean coherence over those lines. ``input`` may be
-    repeated (``input=0&input=1``: those inputs, in that order)."""
+    repeated (``input=0&input=1``: those inputs, in that order), each once; at most
+    :data:`~dimacq.services.lab.store.MAX_ENVELOPE_VALUES` points × responses × inputs."""
+    if input is not None and len(set(input)) != len(input):
+        twice = sorted(i for i, n in Counter(input).items() if n > 1)
+        raise RequestValidationError(
+            [
+                {
+                    "loc": ("query", "input"),
+                    "msg": f"input {', '.join(map(str, twice))} given more than once; "
+                    "give each input once",
+                    "type": "unique_items",
+                }
+            ]
+        )
     return found(
         lab.store.frf_envelope(
             frf_id, points, sel.responses, sel.inputs(indices=tuple(input or ())), sel.band_hz
@@ -133,7 +148,7 @@ def frf_envelope(
 
 
 @router.get(
-    "/{frf_id:int}/uff",
+    "/{frf_id:id}/uff",
     response_class=Response,
     responses={200: {"content": {"application/octet-stream": {}}}},
 )
@@ -147,7 +162,10 @@ def export_uff(frf_id: IdPath, lab: LabDep, whole_test: bool = True) -> Response
     "/import", response_model=FrfOut, status_code=status.HTTP_201_CREATED, openapi_extra=RAW_BODY
 )
 async def import_uff(
-    request: Request, lab: LabDep, setup_id: Annotated[int, Query(ge=1, le=MAX_ID)], name: str = ""
+    request: Request,
+    lab: LabDep,
+    setup_id: Annotated[int, Query(ge=1, le=MAX_ID)],
+    name: NameQuery = "",
 ) -> FrfSummary:
     """Send a UFF file (58 records) whose channels match the setup; returns the set with its
     ``id``."""

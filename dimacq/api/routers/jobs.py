@@ -5,9 +5,9 @@ from __future__ import annotations
 import asyncio
 import json
 from collections.abc import AsyncIterator
-from typing import Any
+from typing import Annotated, Any
 
-from fastapi import APIRouter, Response
+from fastapi import APIRouter, Query, Response
 from fastapi.responses import StreamingResponse
 
 from dimacq.api.deps import LabDep
@@ -44,7 +44,19 @@ async def cancel_job(job_id: str, lab: LabDep) -> dict[str, Any]:
         }
     },
 )
-async def job_events(job_id: str, lab: LabDep, poll_s: float = 0.1) -> StreamingResponse:
+async def job_events(
+    job_id: str,
+    lab: LabDep,
+    poll_s: Annotated[
+        float,
+        Query(
+            ge=0,
+            le=3600,
+            allow_inf_nan=False,
+            description="how often the job is looked at, s (used within 0.02..2)",
+        ),
+    ] = 0.1,
+) -> StreamingResponse:
     """Server-sent events: ``event: status`` with the job's JSON on every change; ``event: end``
     when it reaches a final state."""
     found(lab.jobs.snapshot(job_id), f"job {job_id!r}")

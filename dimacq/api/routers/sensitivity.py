@@ -27,6 +27,6 @@ def start(
     return lab.studies.start_sensitivity(body)
 
 
-@router.get("/{study_id:int}", response_model=StudyOut)
+@router.get("/{study_id:id}", response_model=StudyOut)
 def get(study_id: IdPath, lab: LabDep) -> StoredStudy:
     return found(lab.studies.sensitivity(study_id), f"sensitivity study {study_id}")

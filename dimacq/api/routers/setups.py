@@ -9,7 +9,7 @@ from typing import Annotated, Any, Literal
 from fastapi import APIRouter, Query, Request, Response, status
 from starlette.concurrency import run_in_threadpool
 
-from dimacq.api.deps import IdPath, LabDep
+from dimacq.api.deps import IdPath, LabDep, NameQuery
 from dimacq.api.routers._common import (
     LIST_RESPONSES,
     RAW_BODY,
@@ -54,19 +54,19 @@ def list_setups(
     return paged(response, lab.store.setups(page.limit, page.offset, test_id), page)
 
 
-@router.get("/{setup_id:int}", response_model=SetupOut)
+@router.get("/{setup_id:id}", response_model=SetupOut)
 def get_setup(setup_id: IdPath, lab: LabDep) -> SetupSummary:
     return found(lab.store.setup_summary(setup_id), f"setup {setup_id}")
 
 
-@router.delete("/{setup_id:int}", status_code=status.HTTP_204_NO_CONTENT)
+@router.delete("/{setup_id:id}", status_code=status.HTTP_204_NO_CONTENT)
 def delete_setup(setup_id: IdPath, lab: LabDep) -> Response:
     """Delete a setup; 409 while FRF sets or acquisitions use it (delete those first)."""
     return deleted(lab.store.delete_setup(setup_id), f"setup {setup_id}")
 
 
 @router.get(
-    "/{setup_id:int}/export",
+    "/{setup_id:id}/export",
     response_class=Response,
     responses={200: {"content": {"application/json": {}, "application/toml": {}}}},
 )
@@ -85,7 +85,7 @@ async def import_setup(
     request: Request,
     lab: LabDep,
     format: Literal["json", "toml", "uff"] = "json",
-    name: str | None = None,
+    name: NameQuery | None = None,
     test_id: TestIdQuery = None,
 ) -> dict[str, Any]:
     """Send the file as the body; returns the stored setup with its ``id``. ``uff`` (a whole

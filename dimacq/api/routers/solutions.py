@@ -60,18 +60,18 @@ def list_solutions(
     return paged(response, lab.store.solutions(page.limit, page.offset, frf_id, test_id), page)
 
 
-@router.get("/{solution_id:int}", response_model=SolutionOut)
+@router.get("/{solution_id:id}", response_model=SolutionOut)
 def get_solution(solution_id: IdPath, lab: LabDep) -> StoredSolution:
     return found(lab.store.solution(solution_id), f"solution {solution_id}")
 
 
-@router.delete("/{solution_id:int}", status_code=status.HTTP_204_NO_CONTENT)
+@router.delete("/{solution_id:id}", status_code=status.HTTP_204_NO_CONTENT)
 def delete_solution(solution_id: IdPath, lab: LabDep) -> Response:
     return deleted(lab.store.delete_solution(solution_id), f"solution {solution_id}")
 
 
 @router.get(
-    "/{solution_id:int}/diagnostics", response_model=list[DiagnosticOut], responses=LIST_RESPONSES
+    "/{solution_id:id}/diagnostics", response_model=list[DiagnosticOut], responses=LIST_RESPONSES
 )
 def diagnostics(
     solution_id: IdPath, lab: LabDep, page: PageDep, response: Response
@@ -85,7 +85,7 @@ PARAMETERS = ["m", "cx", "cy", "cz", "Ixx", "Ixy", "Ixz", "Iyy", "Iyz", "Izz"]
 UNITS = ["kg", "m", "m", "m", "kg m^2", "kg m^2", "kg m^2", "kg m^2", "kg m^2", "kg m^2"]
 
 
-@router.get("/{solution_id:int}/spectrum", response_model=SolutionSpectrumOut)
+@router.get("/{solution_id:id}/spectrum", response_model=SolutionSpectrumOut)
 def spectrum(solution_id: IdPath, lab: LabDep) -> dict[str, Any]:
     """The parameters against frequency behind a stored solution: ``per_line`` (n_lines × 10,
     layout ``parameters``, units ``units``; inertia about the reference point, CG in the GCS) over
@@ -106,7 +106,7 @@ def spectrum(solution_id: IdPath, lab: LabDep) -> dict[str, Any]:
 
 
 @router.get(
-    "/{solution_id:int}/figure",
+    "/{solution_id:id}/figure",
     response_class=Response,
     responses={200: {"content": {"image/png": {}, "image/svg+xml": {}}}},
 )

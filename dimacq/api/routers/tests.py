@@ -47,12 +47,12 @@ def list_tests(
     return paged(response, lab.tests.all(page.limit, page.offset, archived), page)
 
 
-@router.get("/{test_id:int}", response_model=TestOut)
+@router.get("/{test_id:id}", response_model=TestOut)
 def get_test(test_id: IdPath, lab: LabDep) -> LabTest:
     return found(lab.tests.get(test_id), f"test {test_id}")
 
 
-@router.patch("/{test_id:int}", response_model=TestOut, openapi_extra=body_openapi(TestUpdate))
+@router.patch("/{test_id:id}", response_model=TestOut, openapi_extra=body_openapi(TestUpdate))
 def update_test(
     test_id: IdPath, lab: LabDep, body: Annotated[TestUpdate, strict_body(TestUpdate)]
 ) -> LabTest:
@@ -61,7 +61,7 @@ def update_test(
     return found(lab.tests.update(test_id, changes), f"test {test_id}")
 
 
-@router.delete("/{test_id:int}", status_code=status.HTTP_204_NO_CONTENT)
+@router.delete("/{test_id:id}", status_code=status.HTTP_204_NO_CONTENT)
 def delete_test(test_id: IdPath, lab: LabDep) -> Response:
     """Delete a test without setups; 409 while it has some (archive it instead)."""
     return deleted(lab.tests.delete(test_id), f"test {test_id}")

@@ -1,8 +1,9 @@
 """``dimacq serve [--host H] [--port P]``: the lab service (REST API) on the simulated lab by default.
 
 Configuration: ``config/dimacq.toml``, overridden by ``DIMACQ_*`` variables, overridden by these
-arguments. Binds 127.0.0.1 unless told otherwise. State-changing calls need the token, printed at
-start (kept in ``<data_dir>/token`` unless ``DIMACQ_TOKEN`` is set).
+arguments. Binds 127.0.0.1 unless told otherwise. State-changing calls need the token, printed once
+at start in the lab page's address (kept in ``<data_dir>/token``, mode 0600, unless
+``DIMACQ_TOKEN`` is set).
 """
 
 from __future__ import annotations
@@ -78,7 +79,9 @@ def run(args: argparse.Namespace) -> int:
         f"database: {masked_url(settings.db_url)}"
     )
     reads = "every call" if not is_loopback(settings.host) else "state-changing calls"
-    print(f"token for {reads}: {app.state.token}  (from {token_src})")
+    # the token itself is printed once, in the lab page's address (it ends up in logs and
+    # terminal scroll-back; here only where it is kept)
+    print(f"token for {reads}: in {token_src}")
     print("opening the lab (database, devices); the lab page's address follows", flush=True)
     serve(app, settings.host, settings.port, log_level=args.log_level, sock=sock)
     return 0

@@ -7,6 +7,7 @@ database row written after the file. Lookups of unknown ids return ``None`` (the
 from __future__ import annotations
 
 import json
+import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, BinaryIO, Generic, Literal, TypeVar
@@ -14,18 +15,66 @@ from typing import Any, BinaryIO, Generic, Literal, TypeVar
 import numpy as np
 from numpy.typing import NDArray
 from sqlalchemy import func, select
+from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import defer
 
 from dimacq.errors import DataError, DeviceStateError, SetupError
 from dimacq.model.frf import Channel, FrfData
-from dimacq.model.setup import TestSetup
+from dimacq.model.setup import MAX_NAME_CHARS, TestSetup
 from dimacq.persistence import ArrayStore, Database
 from dimacq.persistence import models as m
 from dimacq.persistence.arrays import arrays_from_bytes, arrays_to_bytes
 from dimacq.pipeline.frf_summary import magnitude_envelope
 from dimacq.services.lab.common import iso, json_safe, vec
 
+#: Control characters: not in a name or label (dimacq.model.setup.one_line).
+_CONTROL = re.compile(r"[\x00-\x1f\x7f]")
+
+
+def _one_line(text: Any) -> Any:
+    if not isinstance(text, str):
+        return text
+    return (
+        " ".join(text.split())[:MAX_NAME_CHARS] if _CONTROL.search(text) else text[:MAX_NAME_CHARS]
+    )
+
+
+def _stored_names(body: dict[str, Any]) -> dict[str, Any]:
+    """A stored setup with its name and labels as one line of at most MAX_NAME_CHARS: rows stored
+    before names had that rule (issue 24) stay readable (line breaks become spaces, the rest is
+    cut); a body that keeps the rule is returned as it is."""
+    lists = ("responses", "inputs", "excitations", "load_cells")
+    names = [body.get("name")] + [
+        c.get("label")
+        for k in lists
+        if isinstance(body.get(k), list)
+        for c in body[k]
+        if isinstance(c, dict)
+    ]
+    if all(
+        not isinstance(n, str) or (len(n) <= MAX_NAME_CHARS and not _CONTROL.search(n))
+        for n in names
+    ):
+        return body
+    out = {**body, "name": _one_line(body.get("name", ""))}
+    for k in lists:
+        if isinstance(body.get(k), list):
+            out[k] = [
+                {**c, "label": _one_line(c["label"])} if isinstance(c, dict) and "label" in c else c
+                for c in body[k]
+            ]
+    return out
+
+
+#: States of an acquisition whose job is still running (it may still merge into an FRF set).
+_RUNNING_STATES = ("running", "configured-running")
+
+#: Most values of one envelope curve (points × responses × inputs): ~50 MB of JSON at most, for
+#: its two curves. A report's figure asks for ~60 curves of ~1,000 points.
+MAX_ENVELOPE_VALUES = 500_000
+
 __all__ = [
+    "MAX_ENVELOPE_VALUES",
     "ChannelQuery",
     "ExportedFile",
     "FrfSummary",
@@ -289,7 +338,8 @@ class TestStore:
 
         with self.db.session() as s:
             row = s.get(m.SetupRow, setup_id)
-            return None if row is None else parse_setup(row.body, f"setup {setup_id}")
+            body = None if row is None else row.body
+        return None if body is None else parse_setup(_stored_names(body), f"setup {setup_id}")
 
     def require_setup(self, setup_id: int) -> TestSetup:
         """The setup, or SetupError naming ``setup_id`` and the fix."""
@@ -436,11 +486,26 @@ class TestStore:
 
     def delete_frf(self, frf_id: int) -> bool | None:
         """Delete an FRF set and the solutions of it; None if it does not exist. The
-        acquisition that measured it stays (its raw averages are still on disk)."""
+        acquisition that measured it stays (its raw averages are still on disk). Refused
+        (:class:`DeviceStateError`, 409, naming the acquisition) while a running acquisition
+        merges its new inputs into the set (it would end failed, its FRFs lost)."""
         with self.db.session() as s:
             row = s.get(m.FrfSet, frf_id, options=[defer(m.FrfSet.data)])
             if row is None:
                 return None
+            merging = [
+                a.id
+                for a in s.scalars(
+                    select(m.Acquisition).where(m.Acquisition.state.in_(_RUNNING_STATES))
+                )
+                if isinstance(a.config, dict) and a.config.get("merge_frf_id") == frf_id
+            ]
+            if merging:
+                raise DeviceStateError(
+                    f"FRF set {frf_id} is being merged into by running acquisition "
+                    f"{merging[0]}; stop it (POST /api/acquisitions/{merging[0]}/stop) or wait "
+                    "for it to end, then delete the set"
+                )
             for sol in s.scalars(select(m.Solution).where(m.Solution.frf_id == frf_id)):
                 s.delete(sol)
             s.flush()
@@ -556,11 +621,20 @@ class TestStore:
         """The |H| envelope of the chosen responses × inputs on the lines within ``band_hz`` in
         at most ``points`` points, and their mean coherence over those lines
         (:func:`dimacq.pipeline.frf_summary.magnitude_envelope`); None if the set does not
-        exist."""
+        exist. SetupError when points × responses × inputs passes :data:`MAX_ENVELOPE_VALUES`
+        (the answer would be ~50 bytes a value: 100,000 points of 18 × 50 inputs were 126 MB)."""
         got = self._frf_selection(frf_id, response, input_, band_hz)
         if got is None:
             return None
         frf, oi, ii, lines = got
+        n_points = min(points, int(lines.size))
+        if n_points * len(oi) * len(ii) > MAX_ENVELOPE_VALUES:
+            raise SetupError(
+                f"envelope of {n_points} points × {len(oi)} responses × {len(ii)} inputs = "
+                f"{n_points * len(oi) * len(ii)} values per curve, more than "
+                f"{MAX_ENVELOPE_VALUES} (MAX_ENVELOPE_VALUES); ask for fewer points, responses "
+                "or inputs"
+            )
         coh = None if frf.coherence is None else frf.coherence[lines][:, oi][:, :, ii]
         env = magnitude_envelope(
             frf.frequencies_hz[lines], frf.H[lines][:, oi][:, :, ii], coh, points
@@ -583,16 +657,33 @@ class TestStore:
     def save_solution(
         self, frf_id: int, options: Mapping[str, Any], result: Mapping[str, Any]
     ) -> StoredSolution:
-        with self.db.session() as s:
-            row = m.Solution(
-                frf_id=frf_id,
-                options=json_safe(dict(options)),
-                result=json_safe(dict(result)),
-                stand=self.stand,
-            )
-            s.add(row)
-            s.flush()
-            return StoredSolution.of(row)
+        """Store a solution of FRF set ``frf_id``.
+
+        Raises
+        ------
+        DeviceStateError
+            The set was deleted while it was solved (409; its foreign key refused the row, an
+            IntegrityError, which was a 500).
+        """
+        gone = DeviceStateError(
+            f"FRF set {frf_id} was deleted while it was being solved; the solution is not "
+            "stored (import or acquire the set again to solve it)"
+        )
+        try:
+            with self.db.session() as s:
+                if s.get(m.FrfSet, frf_id, options=[defer(m.FrfSet.data)]) is None:
+                    raise gone
+                row = m.Solution(
+                    frf_id=frf_id,
+                    options=json_safe(dict(options)),
+                    result=json_safe(dict(result)),
+                    stand=self.stand,
+                )
+                s.add(row)
+                s.flush()
+                return StoredSolution.of(row)
+        except IntegrityError as err:  # deleted between the check and the insert
+            raise gone from err
 
     def solution(self, solution_id: int) -> StoredSolution | None:
         with self.db.session() as s:
