@@ -21,6 +21,10 @@ setting    name                what opens the device
                                ``can.Bus(interface=loadcell_interface, bitrate=...)``
 ``loadcell`` ``"canopen-simulated"`` :func:`dimacq.backends.canopen_simulated.open_loadcell`: the
                                same driver on a ``virtual`` channel to CANopen simulators
+``loadcell`` ``"daq-channels"`` :func:`dimacq.backends.daq_channels.open_loadcell`: the cell's
+                               gauges (or six conditioned outputs) as inputs of the ``daq``
+                               (the rig file's ``daq_channels``), on the DAQ's clock; simulated
+                               when the DAQ is
 ``digitizer`` ``"serial"``     :func:`dimacq.backends.serial_digitizer.open_digitizer`: pyserial
                                URL ``digitizer_url``
 ``digitizer`` ``"simulated"``  :func:`dimacq.backends.simulated.open_digitizer`: the same driver on
@@ -64,6 +68,7 @@ BACKENDS: dict[str, dict[str, str]] = {
         "simulated": "dimacq.backends.simulated:open_loadcell",
         "canopen": "dimacq.backends.canopen_loadcell:open_loadcell",
         "canopen-simulated": "dimacq.backends.canopen_simulated:open_loadcell",
+        "daq-channels": "dimacq.backends.daq_channels:open_loadcell",
     },
     "digitizer": {
         "serial": "dimacq.backends.serial_digitizer:open_digitizer",

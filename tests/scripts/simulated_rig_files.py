@@ -124,6 +124,18 @@ def write_rig(name: str, scenario: str, header: str) -> None:
             f'calibration_file = "{rel}calibrations/lc-{lc.node}.json"',
             'channel = ""              # "" = loadcell_channel of dimacq.toml',
         ]
+        # its bridges on DAQ inputs after the accelerometers' (loadcell = "daq-channels")
+        first = 1 + len(setup.responses) + 12 * i
+        bridge = (lab.bridges or {}).get(lc.node)
+        if first + 12 <= 64 and bridge is not None:
+            out += [
+                '# or its 12 bridges on DAQ inputs (loadcell = "daq-channels"):',
+                f"daq_channels = [{', '.join(str(first + g) for g in range(12))}]",
+                'daq_signals = "gauges"',
+                f"excitation_v = {bridge.excitation_v:g}      # V; the calibration is in mV/V",
+                "daq_range_v = 0.1",
+                'daq_coupling = "DC"',
+            ]
     for k, c in enumerate(setup.responses):
         ch = 1 + k
         serial = tr.accelerometer_serial(ch)

@@ -142,9 +142,12 @@ def run(args: argparse.Namespace) -> int:
         if not args.no_chain_calibration and args.scenario != REFERENCE_SCENARIO:
             chain = _chain_step(data_dir, token, args, say)
         app = create_app(settings)
+        backends = {k: str(getattr(settings, k)) for k in ("daq", "loadcell", "digitizer")}
         with BackgroundServer(app) as srv:
             say(f"dimacq demo: service on {srv.url} (data in {data_dir}), scenario {args.scenario}")
-            payload = _demo(srv.url, token, built, args, say, chain)
+            say("backends: " + ", ".join(f"{k} = {v!r}" for k, v in backends.items()))
+            payload = _demo(srv.url, token, built, args, say, chain, backends)
+        payload["demo"]["backends"] = backends
     finally:
         if tmp is not None:
             tmp.cleanup()
@@ -264,6 +267,7 @@ def _demo(
     args: argparse.Namespace,
     say: Callable[[str], None],
     chain: dict[str, Any] | None = None,
+    backends: dict[str, str] | None = None,
 ) -> dict[str, Any]:
     import httpx
 
@@ -393,7 +397,15 @@ def _demo(
         if r.status_code < 400:
             acq = r.json()
             frf_id = _follow_acquisition(c, acq, say, quiet=args.quiet)
-            info["acquisition"] = "impact test through the simulated DAQ (USB) and load cell (CAN)"
+            b = backends or {}
+            cell = {
+                "daq-channels": "its bridges on inputs of the DAQ",
+                "canopen-simulated": "load cell (CANopen)",
+            }.get(b.get("loadcell", ""), "load cell (CAN)")
+            info["acquisition"] = (
+                f"impact test through the simulated DAQ (USB) and {cell} "
+                f"(daq = {b.get('daq', '?')!r}, loadcell = {b.get('loadcell', '?')!r})"
+            )
         else:
             reason = r.json().get("detail", r.text)
             say(f"[4/5] acquisition unavailable ({reason})")
@@ -520,6 +532,9 @@ def _print_result(p: dict[str, Any], say: Callable[[str], None]) -> None:
             f"{'I' + str(k + 1) + ' (principal), kg m2':<22}{pe:>14.6f}{pt_:>14.6f}{e['principal_moments_pct'][k]:>11.3f}%"
         )
     print(f"CG error {e['cg_mm']:.3f} mm; acquisition: {p['demo']['acquisition']}")
+    b = p["demo"].get("backends")
+    if b:
+        print("backends: " + ", ".join(f"{k} = {v!r}" for k, v in b.items()))
     lo, hi = p["band_hz"]
     reasons = "; ".join(
         str(r.get("message", r)) if isinstance(r, dict) else str(r)
