@@ -203,6 +203,25 @@ class LoadCellEntry(_Model):
     daq_coupling: Literal["AC", "DC"] = Field(
         default="DC", description="the inputs' coupling: 'DC' (bridges, static loads) or 'AC'"
     )
+    # an ATI Net F/T (loadcell = "netft-can" / "netft-udp"): where it is and its counts per unit
+    netft_base: int | None = Field(
+        default=None,
+        ge=0,
+        le=0x7F9,
+        description="the Net F/T's CAN base address as its DIP switches set it (0..0x7F9)",
+    )
+    netft_counts_per_force: int | None = Field(
+        default=None, gt=0, description="its counts per force unit (its calibration info)"
+    )
+    netft_counts_per_torque: int | None = Field(
+        default=None, gt=0, description="its counts per torque unit (its calibration info)"
+    )
+    netft_force_unit: int = Field(
+        default=2, ge=1, le=6, description="its force unit code (1 lbf, 2 N, 3 klbf, 4 kN, ...)"
+    )
+    netft_torque_unit: int = Field(
+        default=3, ge=1, le=6, description="its torque unit code (1 lbf-in, ..., 3 N-m, ...)"
+    )
     # CAN FD bit timing of this cell's bus (None: the loadcell_* setting of the same name)
     f_clock: int | None = Field(
         default=None, gt=0, description="the adapter's CAN clock in Hz, or leave it out"

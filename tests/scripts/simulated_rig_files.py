@@ -136,6 +136,14 @@ def write_rig(name: str, scenario: str, header: str) -> None:
                 "daq_range_v = 0.1",
                 'daq_coupling = "DC"',
             ]
+        out += [
+            '# or an ATI Net F/T on it (loadcell = "netft-can" / "netft-can-simulated"):',
+            f"netft_base = {0x020 + 8 * i:#05x}",
+            "netft_counts_per_force = 1000000",
+            "netft_counts_per_torque = 1000000",
+            "netft_force_unit = 2",
+            "netft_torque_unit = 3",
+        ]
     for k, c in enumerate(setup.responses):
         ch = 1 + k
         serial = tr.accelerometer_serial(ch)
