@@ -21,7 +21,7 @@ from dimacq.backends.base import DeviceContext
 from dimacq.backends.netft_can import open_netft, require_base
 from dimacq.backends.simulated import imperfections, world
 from dimacq.drivers.netft import protocol as p
-from dimacq.drivers.netft.can_driver import NetFtCan, bus_filters
+from dimacq.drivers.netft.can_driver import NetFtCan
 from dimacq.io.rig_file import LoadCellEntry
 from dimacq.model.channels import gauge_names
 
@@ -72,7 +72,9 @@ def open_loadcell(ctx: DeviceContext, entry: LoadCellEntry) -> NetFtCan:
     import can
 
     where = f"loadcell = 'netft-can-simulated' (scenario {ctx.settings.scenario!r})"
-    base = require_base(entry, where)
+    require_base(entry, where)
     channel = _channel(ctx)
-    bus = can.Bus(interface="virtual", channel=channel, can_filters=bus_filters(base))
+    # the channel is the simulators' own: every frame on it is a Net F/T's (no filter to run
+    # in Python on each of the five frames per sample); the driver ignores other bases' frames
+    bus = can.Bus(interface="virtual", channel=channel)
     return open_netft(ctx, entry, bus, where=where, timeout_s=5.0)

@@ -80,7 +80,8 @@ class DaqFeed:
         the DAQ lost (``valid`` False) stay holes, one ``gap`` event per run of them."""
         ok = np.asarray(valid, dtype=bool)
         counters = first + np.flatnonzero(ok)
-        self.stream.put_counters(counters, data.T[ok], overload.any(axis=0)[ok])
+        over = np.any(np.asarray(overload, dtype=bool), axis=0, keepdims=False).astype(bool)
+        self.stream.put_counters(counters, data.T[ok], over[ok])
         for a, b in false_runs(ok):
             self.stream.record(
                 LoadCellEvent(

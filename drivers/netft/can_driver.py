@@ -88,6 +88,8 @@ class NetFtCan(WireDriver):
         self.streaming = False
         self._reset_run()
 
+    _REQUEST_LONG = p.Request(p.Command.REQUEST_LONG).encode()
+
     @property
     def n_gauges(self) -> int:
         return 6
@@ -147,6 +149,8 @@ class NetFtCan(WireDriver):
                         f"(answers {sorted(got)} of base+1..+4); check its power, CAN Bus on its "
                         "Communications page, the bit rate and the base address DIP switches"
                     )
+                if not 0 <= frame[0] - self.base <= 6:
+                    continue  # another sensor's on a shared bus
                 msg = p.decode(self.base, *frame)
                 if isinstance(msg, (p.LongPair, p.LongStatus)):
                     off = msg.offset if isinstance(msg, p.LongPair) else p.LongStatus.OFFSET
@@ -200,7 +204,7 @@ class NetFtCan(WireDriver):
     def _reset_run(self) -> None:
         self._count = 0  # requests seen since start: sample count − 1 is being answered
         self._decided = 0  # samples 0 .. decided − 1 are filed or known incomplete
-        self._cur: dict[int, p.Message] = {}
+        self._cur: dict[int, tuple[int, int]] = {}
         self._stream: CounterStream[LoadCellEvent] = CounterStream(6, flag_dtype=np.bool_)
         self._pending_k: list[int] = []
         self._pending_v: list[list[float]] = []
@@ -231,47 +235,42 @@ class NetFtCan(WireDriver):
         self._decided = max(self._decided, self._count)
         if k < 0 or len(cur) < 4:
             return
-        pairs = [m for m in (cur[1], cur[2], cur[3]) if isinstance(m, p.LongPair)]
-        st = cur[4]
-        assert isinstance(st, p.LongStatus) and len(pairs) == 3
-        vals = [float(m.force) for m in pairs] + [float(m.torque) for m in pairs]
-        bad = st.status != 0
-        if bad and self._status_seen != st.status:
+        (fx, tx), (fy, ty), (fz, tz) = cur[1], cur[2], cur[3]
+        status, sample = cur[4]
+        bad = status != 0
+        if bad and self._status_seen != status:
             self._record(
                 LoadCellEvent(
                     "device_error",
                     k,
                     1,
-                    f"{self.name}: system status word {st.status:#010x} at sample {k} (see the "
+                    f"{self.name}: system status word {status:#010x} at sample {k} (see the "
                     "manual's system status code); its samples are marked overload",
                 )
             )
-        self._status_seen = st.status
-        if self._last_sample is not None and st.sample == self._last_sample:
+        self._status_seen = status
+        if self._last_sample is not None and sample == self._last_sample:
             bad = True  # the same measurement twice: the sensor's own rate is below the DAQ's
-        self._last_sample = st.sample
+        self._last_sample = sample
         self._pending_k.append(k)
-        self._pending_v.append(vals)
+        self._pending_v.append([fx, fy, fz, tx, ty, tz])
         self._pending_bad.append(bad)
 
     def _file(self, frame: tuple[int, bytes]) -> None:
-        try:
-            msg = p.decode(self.base, *frame)
-        except ProtocolError as err:
-            log.warning("%s: %s", self.name, err)
-            return
-        if isinstance(msg, p.Request):
-            if msg.command == p.Command.REQUEST_LONG:  # the next sample's SYNC
+        off = frame[0] - self.base
+        if off == 0:
+            if frame[1] == self._REQUEST_LONG:  # the next sample's SYNC
                 if self._count > self._decided:
                     self._close_sample()
                 self._count += 1
             return
-        if self._count == 0 or self._count == self._decided:
-            return  # an answer to no open request (the host's, or a late repeat)
-        if isinstance(msg, p.LongPair):
-            self._cur[msg.offset] = msg
-        elif isinstance(msg, p.LongStatus):
-            self._cur[p.LongStatus.OFFSET] = msg
+        if self._count == self._decided or not 1 <= off <= 4:
+            return  # an answer to no open request (the host's, a late repeat), or short data
+        try:
+            self._cur[off] = p.decode_long(off, frame[1])
+        except ProtocolError as err:
+            log.warning("%s: %s", self.name, err)
+            return
         if len(self._cur) == 4:
             self._close_sample()
 

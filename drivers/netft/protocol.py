@@ -74,7 +74,9 @@ __all__ = [
     "decode",
     "decode_i16",
     "decode_i32",
+    "decode_long",
     "long_frames",
+    "long_payloads",
 ]
 
 AXES = ("Fx", "Fy", "Fz", "Tx", "Ty", "Tz")
@@ -273,6 +275,41 @@ def decode(base: int, arbitration_id: int, data: bytes) -> Message:
     raise ProtocolError(
         f"CAN id {arbitration_id:#x} is not a Net F/T message of base {base:#x} (base..base+6)"
     )
+
+
+_PAIR = struct.Struct("<ii")
+_STATUS = struct.Struct("<II")
+
+
+def decode_long(offset: int, data: bytes) -> tuple[int, int]:
+    """The two values of long answer ``base + offset`` (1..3: force, torque counts; 4: status
+    word, sample number) without building a message object: the stream's fast path.
+
+    Raises
+    ------
+    ProtocolError
+        ``offset`` not 1..4, or not 8 bytes.
+    """
+    if len(data) != 8 or not 1 <= offset <= 4:
+        raise ProtocolError(f"Net F/T long answer base+{offset} of {len(data)} bytes")
+    a, b = (_STATUS if offset == 4 else _PAIR).unpack(data)
+    return int(a), int(b)
+
+
+def long_payloads(
+    counts: NDArray[np.int64], status: int, samples: NDArray[np.int64]
+) -> NDArray[np.uint8]:
+    """The four long answers of ``n`` samples at once: shape (n, 4, 8) bytes, answer ``j`` of
+    sample ``i`` is base + 1 + j (``counts`` shape (n, 6) in :data:`AXES` order)."""
+    n = counts.shape[0]
+    words = np.empty((n, 4, 2), dtype="<u4")
+    c = counts.astype(np.int64) & 0xFFFFFFFF
+    words[:, 0, 0], words[:, 0, 1] = c[:, 0], c[:, 3]
+    words[:, 1, 0], words[:, 1, 1] = c[:, 1], c[:, 4]
+    words[:, 2, 0], words[:, 2, 1] = c[:, 2], c[:, 5]
+    words[:, 3, 0] = status & 0xFFFFFFFF
+    words[:, 3, 1] = np.asarray(samples, dtype=np.int64) & 0xFFFFFFFF
+    return words.view(np.uint8).reshape(n, 4, 8)
 
 
 def long_frames(counts: Sequence[int], status: int, sample: int) -> list[tuple[int, bytes]]:

@@ -141,13 +141,16 @@ class NetFtCanSim:
             can.Message(arbitration_id=self.base + offset, data=data, is_extended_id=False)
         )
 
+    def _lost(self, offset: int) -> None:
+        self.injected["can_frame_loss"] = self.injected.get("can_frame_loss", 0) + 1
+        fault_log.warning(
+            "simulated fault can_frame_loss: Net F/T answer base+%d lost on the bus", offset
+        )
+
     def _answer_long(self, counts: NDArray[np.int64], world: int) -> None:
         for off, data in p.long_frames(counts.tolist(), self.status, self._sample_number(world)):
             if self.frame_loss_rate and self.rng.random() < self.frame_loss_rate:
-                self.injected["can_frame_loss"] = self.injected.get("can_frame_loss", 0) + 1
-                fault_log.warning(
-                    "simulated fault can_frame_loss: Net F/T answer base+%d lost on the bus", off
-                )
+                self._lost(off)
                 continue
             self._send(off, data)
 
@@ -184,11 +187,30 @@ class NetFtCanSim:
         if n <= 0:
             return 0
         k0 = self._sent
+        world = self._epoch + k0 + np.arange(n, dtype=np.int64)
         counts = self._counts(self._epoch + k0, n)
+        samples = (world * self.adc_rate_hz / self.source.sample_rate_hz).astype(np.int64)
+        payloads = p.long_payloads(counts, self.status, samples)
+        lost = (
+            self.rng.random((n, 4)) < self.frame_loss_rate
+            if self.frame_loss_rate
+            else np.zeros((n, 4), dtype=bool)
+        )
         req = p.Request(p.Command.REQUEST_LONG).encode()
+        base, send, Msg = self.base, self.bus.send, can.Message
         for j in range(n):
-            self._send(0, req)
-            self._answer_long(counts[j], self._epoch + k0 + j)
+            send(Msg(arbitration_id=base, data=req, is_extended_id=False))
+            for a in range(4):
+                if lost[j, a]:
+                    self._lost(a + 1)
+                    continue
+                send(
+                    Msg(
+                        arbitration_id=base + 1 + a,
+                        data=payloads[j, a].tobytes(),
+                        is_extended_id=False,
+                    )
+                )
         self._sent += n
         return n
 

@@ -401,6 +401,7 @@ def _demo(
             cell = {
                 "daq-channels": "its bridges on inputs of the DAQ",
                 "canopen-simulated": "load cell (CANopen)",
+                "netft-can-simulated": "ATI Net F/T (CAN)",
             }.get(b.get("loadcell", ""), "load cell (CAN)")
             info["acquisition"] = (
                 f"impact test through the simulated DAQ (USB) and {cell} "
