@@ -30,6 +30,11 @@ setting    name                what opens the device
                                ``netft_base`` and counts per unit)
 ``loadcell`` ``"netft-can-simulated"`` :func:`dimacq.backends.netft_simulated.open_loadcell`:
                                the same driver on a ``virtual`` channel to Net F/T simulators
+``loadcell`` ``"netft-udp"``   :func:`dimacq.backends.netft_udp.open_loadcell`: an ATI Net F/T's
+                               RDT over UDP (rig file ``netft_host``): identification and
+                               readings only, refuses an acquisition on the DAQ's clock
+``loadcell`` ``"netft-udp-simulated"`` :func:`dimacq.backends.netft_simulated.open_udp_loadcell`:
+                               the same driver on loopback to an RDT simulator
 ``digitizer`` ``"serial"``     :func:`dimacq.backends.serial_digitizer.open_digitizer`: pyserial
                                URL ``digitizer_url``
 ``digitizer`` ``"simulated"``  :func:`dimacq.backends.simulated.open_digitizer`: the same driver on
@@ -76,6 +81,8 @@ BACKENDS: dict[str, dict[str, str]] = {
         "daq-channels": "dimacq.backends.daq_channels:open_loadcell",
         "netft-can": "dimacq.backends.netft_can:open_loadcell",
         "netft-can-simulated": "dimacq.backends.netft_simulated:open_loadcell",
+        "netft-udp": "dimacq.backends.netft_udp:open_loadcell",
+        "netft-udp-simulated": "dimacq.backends.netft_simulated:open_udp_loadcell",
     },
     "digitizer": {
         "serial": "dimacq.backends.serial_digitizer:open_digitizer",

@@ -19,19 +19,29 @@ import numpy as np
 
 from dimacq.backends.base import DeviceContext
 from dimacq.backends.netft_can import open_netft, require_base
-from dimacq.backends.simulated import imperfections, world
+from dimacq.backends.netft_udp import open_rdt
+from dimacq.backends.simulated import SimulatedWorld, imperfections, world
 from dimacq.drivers.netft import protocol as p
 from dimacq.drivers.netft.can_driver import NetFtCan
+from dimacq.drivers.netft.udp_driver import NetFtUdp
 from dimacq.io.rig_file import LoadCellEntry
 from dimacq.model.channels import gauge_names
 
-__all__ = ["SENSOR_CALIBRATION", "open_loadcell"]
+__all__ = ["SENSOR_CALIBRATION", "open_loadcell", "open_udp_loadcell"]
 
 #: what the simulated sensors hold: N and N·m, 10⁶ counts per unit (ATI's example value)
 SENSOR_CALIBRATION = p.CalibrationInfo(2, 3, 1_000_000, 1_000_000)
 
 _SIMS = "netft-can-simulated"
 _names = itertools.count()
+
+
+def _factory_matrix(w: SimulatedWorld, node: int) -> np.ndarray:
+    """The simulated sensor's own calibration of cell ``node``: its true gauge matrix inverted,
+    with a 0.2 % certificate error of its own."""
+    S = w.lab.gauge_matrix(node)
+    err = 0.002 * np.random.default_rng([0x4E7F, node]).standard_normal((6, 6))
+    return (np.eye(6) + err) @ np.linalg.pinv(S)
 
 
 def _channel(ctx: DeviceContext) -> str:
@@ -49,13 +59,11 @@ def _channel(ctx: DeviceContext) -> str:
         if e.netft_base is None:
             continue
         gauges = [w.lab.channel_index(n) for n in gauge_names(e.node)]
-        S = w.lab.gauge_matrix(e.node)
-        err = 0.002 * np.random.default_rng([0x4E7F, e.node]).standard_normal((6, 6))
         sim = NetFtCanSim(
             channel,
             w.source,
             gauges,
-            (np.eye(6) + err) @ np.linalg.pinv(S),
+            _factory_matrix(w, e.node),
             SENSOR_CALIBRATION,
             base=e.netft_base,
             clock=w.clock,
@@ -78,3 +86,22 @@ def open_loadcell(ctx: DeviceContext, entry: LoadCellEntry) -> NetFtCan:
     # in Python on each of the five frames per sample); the driver ignores other bases' frames
     bus = can.Bus(interface="virtual", channel=channel)
     return open_netft(ctx, entry, bus, where=where, timeout_s=5.0)
+
+
+def open_udp_loadcell(ctx: DeviceContext, entry: LoadCellEntry) -> NetFtUdp:
+    """The table entry ``loadcell = "netft-udp-simulated"``: an RDT simulator of the cell on a
+    loopback UDP port (its own clock, 1000 records/s), and the ``"netft-udp"`` driver on it."""
+    from dimacq.simulators.netft.udp_sensor import NetFtUdpSim
+
+    w = world(ctx)
+    sim = NetFtUdpSim(
+        w.source,
+        [w.lab.channel_index(n) for n in gauge_names(entry.node)],
+        _factory_matrix(w, entry.node),
+        SENSOR_CALIBRATION,
+        clock=w.clock,
+    )
+    ctx.on_close(sim.close)
+    host, port = sim.address
+    where = f"loadcell = 'netft-udp-simulated' (scenario {ctx.settings.scenario!r})"
+    return open_rdt(ctx, entry, host, port, where=where)

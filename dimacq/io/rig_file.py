@@ -210,6 +210,10 @@ class LoadCellEntry(_Model):
         le=0x7F9,
         description="the Net F/T's CAN base address as its DIP switches set it (0..0x7F9)",
     )
+    netft_host: str = Field(
+        default="", description="the Net F/T's IP address for RDT over UDP ('netft-udp')"
+    )
+    netft_port: int = Field(default=49152, ge=1, le=65535, description="its RDT UDP port")
     netft_counts_per_force: int | None = Field(
         default=None, gt=0, description="its counts per force unit (its calibration info)"
     )

@@ -37,6 +37,15 @@ Frame layout (``<``: little endian)::
     base + 5    8    <hhhh  Fx, Tx, Fy, Ty          (short)
     base + 6    8    <hhhh  Fz, Tz, status, sample  (short)
 
+Raw Data Transfer (RDT) over UDP, port :data:`RDT_PORT` 49152, big endian (network order):
+a request (:class:`RdtRequest`) of ``uint16 command_header = 0x1234, uint16 command, uint32
+sample_count`` (0x0000 stop, 0x0002 start real-time streaming, 0x0003 start buffered streaming,
+0x0042 set software bias; ``sample_count`` records, 0 = until stopped) answered by records
+(:class:`RdtRecord`) of ``uint32 rdt_sequence`` (1 for the first record after a start, +1 per
+record sent: a jump is a lost datagram), ``uint32 ft_sequence`` (the sensor's own sample
+counter), ``uint32 status``, ``int32 Fx, Fy, Fz, Tx, Ty, Tz`` counts; one record per datagram in
+real-time mode, several in buffered mode.
+
 The Ethernet interface's Read Calibration Info (manual section 11.6, TCP; network byte order)::
 
     command   >B19x          READCALINFO = 1, 19 reserved zero bytes
@@ -62,11 +71,15 @@ __all__ = [
     "FORCE_UNITS",
     "MANUAL_EXAMPLES",
     "MAX_BASE",
+    "RDT_PORT",
     "TORQUE_UNITS",
     "CalibrationInfo",
     "Command",
     "LongPair",
     "LongStatus",
+    "RdtCommand",
+    "RdtRecord",
+    "RdtRequest",
     "Request",
     "ShortXY",
     "ShortZ",
@@ -391,3 +404,79 @@ class CalibrationInfo:
     def matrix(self) -> NDArray[np.float64]:
         """The 6×6 ``F = C g`` of counts ``g`` in :data:`AXES` order (diagonal)."""
         return np.diag(self.si_per_count())
+
+
+#: the Net F/T's RDT UDP port
+RDT_PORT = 49152
+
+
+class RdtCommand(IntEnum):
+    STOP = 0x0000
+    START_REALTIME = 0x0002
+    START_BUFFERED = 0x0003
+    SET_BIAS = 0x0042
+
+
+@dataclass(frozen=True)
+class RdtRequest:
+    """An RDT request datagram (8 bytes)."""
+
+    command: RdtCommand
+    sample_count: int = 0
+
+    HEADER = 0x1234
+    _FMT = struct.Struct(">HHI")
+
+    def encode(self) -> bytes:
+        return self._FMT.pack(self.HEADER, int(self.command), self.sample_count)
+
+    @classmethod
+    def decode(cls, data: bytes) -> RdtRequest:
+        header, command, count = _unpack(cls._FMT, data, "RDT request")
+        if header != cls.HEADER:
+            raise ProtocolError(f"RDT request header {header:#06x}, not 0x1234")
+        try:
+            return cls(RdtCommand(command), int(count))
+        except ValueError as err:
+            raise ProtocolError(f"RDT command {command:#06x} is not known") from err
+
+
+@dataclass(frozen=True)
+class RdtRecord:
+    """One RDT record (36 bytes); ``counts`` in :data:`AXES` order."""
+
+    rdt_sequence: int
+    ft_sequence: int
+    status: int
+    counts: tuple[int, int, int, int, int, int]
+
+    SIZE = 36
+    _FMT = struct.Struct(">III6i")
+
+    def encode(self) -> bytes:
+        return self._FMT.pack(
+            self.rdt_sequence & 0xFFFFFFFF,
+            self.ft_sequence & 0xFFFFFFFF,
+            self.status & 0xFFFFFFFF,
+            *self.counts,
+        )
+
+    @classmethod
+    def decode_all(cls, datagram: bytes) -> list[RdtRecord]:
+        """The records of one datagram (one in real-time mode, several when buffered).
+
+        Raises
+        ------
+        ProtocolError
+            A length that is not a whole number of records.
+        """
+        if not datagram or len(datagram) % cls.SIZE:
+            raise ProtocolError(
+                f"RDT datagram of {len(datagram)} bytes is not a whole number of "
+                f"{cls.SIZE}-byte records"
+            )
+        out = []
+        for off in range(0, len(datagram), cls.SIZE):
+            v = cls._FMT.unpack_from(datagram, off)
+            out.append(cls(int(v[0]), int(v[1]), int(v[2]), tuple(int(x) for x in v[3:9])))  # type: ignore[arg-type]
+        return out
