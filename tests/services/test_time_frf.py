@@ -136,3 +136,46 @@ def test_missing_input_and_bad_files_are_named(tmp_path: Path) -> None:
         w.write_segment([ChannelObject("g", "force", np.zeros(4))])
     with pytest.raises(DataError, match="no 'input' property"):
         read_tdms_time(bad)
+
+
+def test_command_line_writes_frfs_solve_reads(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from dimacq.cli.main import main
+    from dimacq.io.setup_file import save_setup
+    from dimacq.io.uff import read_frf_uff
+
+    setup = _setup()
+    taps, data = _data(setup)
+    _write_tdms(tmp_path / "t.tdms", setup, data)
+    save_setup(setup, tmp_path / "setup.toml")
+    out = tmp_path / "f.uff"
+    assert (
+        main(
+            [
+                "frf-from-time",
+                str(tmp_path / "setup.toml"),
+                str(tmp_path / "t.tdms"),
+                "--frf",
+                str(out),
+            ]
+        )
+        == 0
+    )
+    assert "186 time records" in capsys.readouterr().out
+    frf = read_frf_uff(out, setup)
+    np.testing.assert_allclose(
+        frf.H[:, :, 0], _expected(taps, frf.frequencies_hz), rtol=1e-6, atol=1e-6
+    )
+    assert (
+        main(
+            [
+                "frf-from-time",
+                str(tmp_path / "setup.toml"),
+                str(tmp_path / "nope.tdms"),
+                "--frf",
+                str(out),
+            ]
+        )
+        == 2
+    )
