@@ -12,12 +12,14 @@ import argparse
 from pathlib import Path
 from typing import Any
 
+from dimacq.cli.progress import plain
+
 
 def register(subparsers: Any) -> None:
     p = subparsers.add_parser(
         "frf-from-time",
         help="FRFs from impact time data (UFF 58 time records or TDMS)",
-        description=__doc__,
+        description=plain(__doc__),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("setup", type=Path, help="the test's setup file (TOML or JSON)")
