@@ -104,4 +104,8 @@ def open_udp_loadcell(ctx: DeviceContext, entry: LoadCellEntry) -> NetFtUdp:
     ctx.on_close(sim.close)
     host, port = sim.address
     where = f"loadcell = 'netft-udp-simulated' (scenario {ctx.settings.scenario!r})"
-    return open_rdt(ctx, entry, host, port, where=where)
+    # the sensor's counts per unit read from it, as from a real one (the rig file's ignored)
+    device_entry = entry.model_copy(
+        update={"netft_counts_per_force": None, "netft_counts_per_torque": None}
+    )
+    return open_rdt(ctx, device_entry, host, port, where=where, tcp_port=sim.tcp_address[1])

@@ -1,7 +1,8 @@
 """Backend ``loadcell = "netft-udp"``: an ATI Net F/T's Raw Data Transfer over UDP.
 
-The rig file's entry gives ``netft_host`` (its IP address), ``netft_port`` (49152) and its counts
-per unit (as for ``"netft-can"``). The driver identifies the sensor and reads it; it refuses an
+The rig file's entry gives ``netft_host`` (its IP address) and ``netft_port`` (49152); the
+sensor's counts per unit are read from it (Read Calibration Info over TCP, port 49151) unless
+the entry states them (as for ``"netft-can"``). The driver identifies the sensor and reads it; it refuses an
 impact acquisition, whose load cell samples must be on the DAQ's clock (see
 :mod:`dimacq.drivers.netft.udp_driver`): the devices check works, a test asks for
 ``netft-can`` or ``daq-channels``.
@@ -13,24 +14,54 @@ import socket
 
 from dimacq.backends.base import DeviceContext
 from dimacq.backends.netft_can import calibration_info
+from dimacq.drivers.netft import protocol as p
+from dimacq.drivers.netft.tcp_calibration import read_calibration_info
 from dimacq.drivers.netft.udp_driver import NetFtUdp
-from dimacq.errors import DeviceNotFoundError, DeviceTimeoutError, SetupError
+from dimacq.errors import DeviceError, DeviceNotFoundError, DeviceTimeoutError, SetupError
 from dimacq.io.rig_file import LoadCellEntry
 
-__all__ = ["open_loadcell", "open_rdt"]
+__all__ = ["device_calibration", "open_loadcell", "open_rdt"]
 
 
-def open_rdt(
-    ctx: DeviceContext, entry: LoadCellEntry, host: str, port: int, *, where: str
-) -> NetFtUdp:
-    """The driver on a UDP socket connected to ``host:port`` (closed with ``ctx``), identified.
+def device_calibration(host: str, port: int, *, where: str) -> p.CalibrationInfo:
+    """The sensor's counts per unit read from it (Read Calibration Info over TCP).
 
     Raises
     ------
     DeviceNotFoundError
-        No record came back.
+        It cannot be reached or does not answer.
     """
-    cal = calibration_info(entry, where)
+    try:
+        with socket.create_connection((host, port), timeout=2.0) as tcp:
+            return read_calibration_info(tcp, where=where)
+    except (OSError, DeviceTimeoutError, DeviceError) as err:
+        raise DeviceNotFoundError(
+            f"{where}: cannot read its calibration from {host}:{port} ({err}); check the "
+            "address, or give netft_counts_per_force/_torque in the rig file"
+        ) from err
+
+
+def open_rdt(
+    ctx: DeviceContext,
+    entry: LoadCellEntry,
+    host: str,
+    port: int,
+    *,
+    where: str,
+    tcp_port: int = p.TCP_PORT,
+) -> NetFtUdp:
+    """The driver on a UDP socket connected to ``host:port`` (closed with ``ctx``), identified;
+    its counts per unit read from the device (``tcp_port``) unless the rig file states them.
+
+    Raises
+    ------
+    DeviceNotFoundError
+        No record came back, or the calibration could not be read.
+    """
+    if entry.netft_counts_per_force is None and entry.netft_counts_per_torque is None:
+        cal = device_calibration(host, tcp_port, where=where)
+    else:
+        cal = calibration_info(entry, where)
     try:
         sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         sock.connect((host, port))

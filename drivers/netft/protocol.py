@@ -72,6 +72,7 @@ __all__ = [
     "MANUAL_EXAMPLES",
     "MAX_BASE",
     "RDT_PORT",
+    "TCP_PORT",
     "TORQUE_UNITS",
     "CalibrationInfo",
     "Command",
@@ -359,6 +360,7 @@ class CalibrationInfo:
 
     HEADER = 0x1234
     READCALINFO = 1
+    SIZE = 24
     _RESPONSE = struct.Struct(">HBBII6H")
     _COMMAND = struct.Struct(">B19x")
 
@@ -408,6 +410,8 @@ class CalibrationInfo:
 
 #: the Net F/T's RDT UDP port
 RDT_PORT = 49152
+#: its TCP command port (Read Calibration Info); not in the manual pages read for this module
+TCP_PORT = 49151
 
 
 class RdtCommand(IntEnum):

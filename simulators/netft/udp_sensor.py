@@ -63,6 +63,13 @@ class NetFtUdpSim:
         self.sock.bind((host, port))
         self.sock.settimeout(0.002)
         self.address: tuple[str, int] = self.sock.getsockname()[:2]
+        # its TCP command interface (Read Calibration Info), on its own loopback port
+        self.calibration = calibration
+        self.tcp = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+        self.tcp.bind((host, 0 if port == 0 else port - 1))
+        self.tcp.listen(4)
+        self.tcp.settimeout(0.0)
+        self.tcp_address: tuple[str, int] = self.tcp.getsockname()[:2]
         self._peer: Any = None
         self._left = 0  # records still to send (-1: until STOP)
         self._buffered = False
@@ -78,6 +85,7 @@ class NetFtUdpSim:
         self._stop_evt.set()
         self._thread.join(timeout=5.0)
         self.sock.close()
+        self.tcp.close()
 
     def __enter__(self) -> NetFtUdpSim:
         return self
@@ -143,6 +151,21 @@ class NetFtUdpSim:
                 continue
             self.sock.sendto(b"".join(r.encode() for r in recs), self._peer)
 
+    def _serve_tcp(self) -> None:
+        """Answer a Read Calibration Info on each connection waiting (one command each)."""
+        try:
+            conn, _ = self.tcp.accept()
+        except (BlockingIOError, OSError):
+            return
+        with conn:
+            conn.settimeout(1.0)
+            try:
+                cmd = conn.recv(20)
+                if cmd[:1] == bytes([p.CalibrationInfo.READCALINFO]):
+                    conn.sendall(self.calibration.encode())
+            except OSError:
+                log.debug("RDT simulator: TCP client went away")
+
     def _loop(self) -> None:
         try:
             while not self._stop_evt.is_set():
@@ -153,5 +176,6 @@ class NetFtUdpSim:
                     pass
                 if self._left != 0 and self._peer is not None:
                     self._stream()
+                self._serve_tcp()
         except Exception:  # pragma: no cover - surfaced through the test's timeouts
             log.exception("RDT simulator thread failed")

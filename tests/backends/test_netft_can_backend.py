@@ -91,6 +91,11 @@ def test_rdt_over_udp_identifies_but_refuses_an_impact_test(tmp_path: Path) -> N
     settings = load_settings(data_dir=tmp_path, token="t", loadcell="netft-udp-simulated")
     got = rig_builder.check_devices(settings, "loadcell")
     assert "Net F/T RDT" in got["load_cells"]["501"]["firmware"]
+    from dimacq.backends.netft_simulated import SENSOR_CALIBRATION
+
+    with DeviceContext(settings) as ctx:  # its counts per unit are read from the sensor
+        drv = lookup("loadcell", "netft-udp-simulated")(ctx, ctx.rig_file.load_cells[0])
+        assert drv.calibration == SENSOR_CALIBRATION
     setup = build_scenario(settings.scenario).model.setup
     cfg = {"averages_per_input": 2, "record_samples": 2048, "seed": 4}
     rig = rig_builder.build_rig(settings, setup, cfg)

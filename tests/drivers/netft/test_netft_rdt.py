@@ -98,3 +98,15 @@ def test_a_silent_address_times_out_naming_the_port() -> None:
     finally:
         sock.close()
         quiet.close()
+
+
+def test_calibration_read_from_the_device_over_tcp() -> None:
+    from dimacq.drivers.netft.tcp_calibration import read_calibration_info
+
+    cal = p.CalibrationInfo(1, 1, 2000, 3000, (1, 2, 3, 4, 5, 6))  # lbf, lbf-in
+    src = Bridges(np.zeros(12))
+    with NetFtUdpSim(src, range(12), np.zeros((6, 12)), cal) as sim:
+        with socket.create_connection(sim.tcp_address, timeout=2.0) as tcp:
+            got = read_calibration_info(tcp)
+    assert got == cal
+    assert cal.encode()[:4] == bytes.fromhex("12340101")  # header 0x1234, units, big endian
