@@ -125,3 +125,11 @@ def test_can_backends_need_a_node_id(tmp_path: Path) -> None:
         ),
     ):
         lookup("loadcell", "dimacq-can")(ctx, ctx.rig_file.load_cells[0])
+
+
+def test_status_calls_it_simulated_when_its_daq_is(tmp_path: Path) -> None:
+    from dimacq.services.lab.devices import DeviceService
+
+    settings = load_settings(data_dir=tmp_path, token="t", loadcell="daq-channels")
+    info = DeviceService(settings, lambda driver: None).get("loadcell")  # type: ignore[arg-type,return-value]
+    assert info is not None and info.simulated
