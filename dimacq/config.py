@@ -133,6 +133,9 @@ class Settings(BaseSettings):
     loadcell_canopen_node_ids: list[int] = Field(default_factory=list)
     loadcell_canopen_heartbeat_ms: int = Field(default=200, ge=10, le=10_000)
     loadcell_canopen_heartbeat_factor: float = Field(default=5.0, ge=1.5, le=100.0)
+    # ATI Net F/T on CAN (loadcell = "netft-can" | "netft-can-simulated",
+    # dimacq.backends.netft_can): the classic CAN bit rate its DIP switches set, bit/s.
+    loadcell_netft_bitrate: int = Field(default=1_000_000, gt=0, le=1_000_000)
 
     @model_validator(mode="before")
     @classmethod

@@ -21,6 +21,20 @@ setting    name                what opens the device
                                ``can.Bus(interface=loadcell_interface, bitrate=...)``
 ``loadcell`` ``"canopen-simulated"`` :func:`dimacq.backends.canopen_simulated.open_loadcell`: the
                                same driver on a ``virtual`` channel to CANopen simulators
+``loadcell`` ``"daq-channels"`` :func:`dimacq.backends.daq_channels.open_loadcell`: the cell's
+                               gauges (or six conditioned outputs) as inputs of the ``daq``
+                               (the rig file's ``daq_channels``), on the DAQ's clock; simulated
+                               when the DAQ is
+``loadcell`` ``"netft-can"``   :func:`dimacq.backends.netft_can.open_loadcell`: an ATI Net F/T
+                               on ``can.Bus(interface=loadcell_interface, ...)`` (rig file
+                               ``netft_base`` and counts per unit)
+``loadcell`` ``"netft-can-simulated"`` :func:`dimacq.backends.netft_simulated.open_loadcell`:
+                               the same driver on a ``virtual`` channel to Net F/T simulators
+``loadcell`` ``"netft-udp"``   :func:`dimacq.backends.netft_udp.open_loadcell`: an ATI Net F/T's
+                               RDT over UDP (rig file ``netft_host``): identification and
+                               readings only, refuses an acquisition on the DAQ's clock
+``loadcell`` ``"netft-udp-simulated"`` :func:`dimacq.backends.netft_simulated.open_udp_loadcell`:
+                               the same driver on loopback to an RDT simulator
 ``digitizer`` ``"serial"``     :func:`dimacq.backends.serial_digitizer.open_digitizer`: pyserial
                                URL ``digitizer_url``
 ``digitizer`` ``"simulated"``  :func:`dimacq.backends.simulated.open_digitizer`: the same driver on
@@ -64,6 +78,11 @@ BACKENDS: dict[str, dict[str, str]] = {
         "simulated": "dimacq.backends.simulated:open_loadcell",
         "canopen": "dimacq.backends.canopen_loadcell:open_loadcell",
         "canopen-simulated": "dimacq.backends.canopen_simulated:open_loadcell",
+        "daq-channels": "dimacq.backends.daq_channels:open_loadcell",
+        "netft-can": "dimacq.backends.netft_can:open_loadcell",
+        "netft-can-simulated": "dimacq.backends.netft_simulated:open_loadcell",
+        "netft-udp": "dimacq.backends.netft_udp:open_loadcell",
+        "netft-udp-simulated": "dimacq.backends.netft_simulated:open_udp_loadcell",
     },
     "digitizer": {
         "serial": "dimacq.backends.serial_digitizer:open_digitizer",
@@ -79,7 +98,13 @@ BACKENDS: dict[str, dict[str, str]] = {
 
 
 #: the modules whose factories open a simulator of the virtual lab, not a device
-_SIMULATED_MODULES = frozenset({"dimacq.backends.simulated", "dimacq.backends.canopen_simulated"})
+_SIMULATED_MODULES = frozenset(
+    {
+        "dimacq.backends.simulated",
+        "dimacq.backends.canopen_simulated",
+        "dimacq.backends.netft_simulated",
+    }
+)
 
 
 def is_simulated(kind: DeviceKind, name: str) -> bool:

@@ -11,6 +11,7 @@ from dimacq.config import Settings
 from dimacq.errors import SetupError
 
 if TYPE_CHECKING:
+    from dimacq.devices.daq import Daq
     from dimacq.io.rig_file import RigFile
     from dimacq.model.setup import TestSetup
 
@@ -52,6 +53,10 @@ class DeviceContext:
         cells: one physics, one sample clock).
     closers : list of callables
         Called in reverse order by :meth:`close`.
+    daq : Daq or None
+        The rig's DAQ task once opened (:func:`dimacq.services.rig.build_rig` sets it). A load
+        cell backend whose signals are DAQ inputs (``"daq-channels"``) reads through it and may
+        replace it by a wrapper that hands those inputs to the cell: the rig uses ``ctx.daq``.
     """
 
     settings: Settings
@@ -63,6 +68,7 @@ class DeviceContext:
     fixed: dict[str, Any] = field(default_factory=dict)
     shared: dict[str, Any] = field(default_factory=dict)
     closers: list[Callable[[], None]] = field(default_factory=list)
+    daq: Daq | None = None
     _rig_file: RigFile | None = None
 
     @property

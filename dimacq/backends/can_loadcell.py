@@ -119,6 +119,7 @@ def open_amplifier(
     """
     import can
 
+    node_id = entry.require_node_id(where)
     missing = not ctx.rig_file.calibration_path(entry).exists()
     cal = None if (missing and not require_calibration) else read_entry_calibration(ctx, entry)
     extra = {} if timing is None else {"timing": timing}
@@ -127,7 +128,7 @@ def open_amplifier(
             interface=interface,
             channel=channel,
             fd=True,
-            can_filters=_filters(entry.node_id),
+            can_filters=_filters(node_id),
             **extra,
         )
     except Exception as err:  # python-can raises anything: NameError without the vendor library
@@ -142,7 +143,7 @@ def open_amplifier(
     try:
         amp = LoadCellAmplifier(
             bus,
-            node_id=entry.node_id,
+            node_id=node_id,
             timeout_s=timeout_s,
             retries=retries,
             calibration_matrix=None if cal is None else cal.matrix,

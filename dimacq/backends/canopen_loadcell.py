@@ -54,13 +54,14 @@ def open_canopen_amplifier(
         Bad EDS or mapping, calibration file unreadable or of another cell.
     """
     s = ctx.settings
+    node_id = entry.require_node_id(where)
     _check_node_id(ctx, entry)
     missing = not ctx.rig_file.calibration_path(entry).exists()
     cal = None if (missing and not require_calibration) else read_entry_calibration(ctx, entry)
     try:
         cell = CanopenLoadCell(
             bus,
-            node_id=entry.node_id,
+            node_id=node_id,
             eds=s.loadcell_canopen_eds_path,
             timeout_s=timeout_s,
             calibration_matrix=None if cal is None else cal.matrix,

@@ -40,6 +40,8 @@ def _channel(ctx: DeviceContext) -> str:
     channel = f"dimacq-canopen-{os.getpid()}-{next(_names)}"
     eds = ctx.settings.loadcell_canopen_eds_path
     for e in ctx.rig_file.load_cells:
+        if e.node_id is None:  # not on CAN (its gauges may be DAQ inputs)
+            continue
         gauges = [w.lab.channel_index(n) for n in gauge_names(e.node)]
         sim = CanopenAmplifierSim(
             channel, eds, w.lab, gauges, clock=w.clock, node_id=e.node_id, serial_number=e.node

@@ -159,6 +159,11 @@ class SimulatedWorld:
             wiring[r.physical_channel] = DaqInput(
                 responses[(r.node, r.direction)], mv * 1e-3 / STANDARD_GRAVITY
             )
+        # load cells cabled to DAQ inputs (loadcell = "daq-channels"): their bridge outputs,
+        # the same lab channels the amplifier simulators read
+        for e in rig_file.load_cells:
+            if e.daq_channels:
+                wiring.update(self._bridge_inputs(e, where))
         self.clock = SampleClock()
         self.backend = VirtualDaqBackend(
             self.source,
@@ -184,6 +189,8 @@ class SimulatedWorld:
         self._sims: list[LoadCellAmplifierSim] = []
         try:
             for k, e in enumerate(rig_file.load_cells):
+                if e.node_id is None:  # not on CAN: its gauges are DAQ inputs
+                    continue
                 gauges = [self.lab.channel_index(n) for n in gauge_names(e.node)]
                 self._sims.append(
                     LoadCellAmplifierSim(
@@ -205,6 +212,26 @@ class SimulatedWorld:
         except BaseException:
             self.close()
             raise
+
+    def _bridge_inputs(self, entry: LoadCellEntry, where: str) -> dict[int, DaqInput]:
+        """DAQ inputs of load cell ``entry``'s gauges: the lab's bridge outputs (mV/V, a
+        DC-coupled strain-gauge cell) times its true excitation, or its AC-coupled gauges'
+        volts; no IEPE."""
+        names = gauge_names(entry.node)
+        if entry.daq_signals != "gauges" or len(entry.daq_channels) != len(names):
+            raise SetupError(
+                f"{where}: load cell {entry.node} has daq_signals = {entry.daq_signals!r} on "
+                f"{len(entry.daq_channels)} DAQ inputs; the simulated cell is cabled by its "
+                f"{len(names)} gauges (daq_signals = 'gauges')"
+            )
+        idx = [self.lab.channel_index(n) for n in names]
+        bridge = (self.lab.bridges or {}).get(entry.node)
+        out = {}
+        for ch, i in zip(entry.daq_channels, idx, strict=True):
+            unit = self.lab.channel_units[i]
+            sens = 1e-3 * bridge.excitation_v if unit == "mV/V" and bridge is not None else 1.0
+            out[ch] = DaqInput(i, sens, iepe=False)
+        return out
 
     def operator(self, ctx: DeviceContext) -> Any:
         """The hand that strikes the article's input the setup's input ``j`` names (node and

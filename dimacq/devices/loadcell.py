@@ -42,8 +42,9 @@ class LoadCellBlock:
 
     Attributes
     ----------
-    gauges_v : ndarray, shape (12, n)
-        Gauge volts; NaN where frames were lost.
+    gauges_v : ndarray, shape (n_gauges, n)
+        Gauge readings (12 gauges usually; six conditioned outputs for a cell read that way) in
+        its calibration's gauge unit; NaN where frames were lost.
     forces : ndarray, shape (6, n) or None
         ``C g``: ``[Fx, Fy, Fz]`` N and ``[Mx, My, Mz]`` N·m in the cell's frame, when a
         calibration matrix is set.
@@ -74,7 +75,7 @@ class LoadCell(Protocol):
     """
 
     sample_rate_hz: float | None
-    #: The 6×12 matrix ``F = C g`` the cell applies (None: gauges only, no loads).
+    #: The 6×N matrix ``F = C g`` the cell applies (None: gauges only, no loads).
     calibration_matrix: NDArray[np.float64] | None
     events: list[LoadCellEvent]
 

@@ -7,7 +7,7 @@ Layout (``schema_version`` 1)::
     /daq/valid              bool (n,)      False where samples were lost
     /daq/overload           bool (n_channels, n)
     /daq                    attrs: channel_names, units, first_sample
-    /loadcell<k>/gauges_v   float64 (12, n);   /loadcell<k>/valid  bool (n,)
+    /loadcell<k>/gauges_v   float64 (n_gauges, n) (12 usually);   /loadcell<k>/valid  bool (n,)
     /events                 variable-length UTF-8 strings, one JSON object per event
     /averages               variable-length UTF-8 strings, one JSON object per average
                             (input, first_sample, n_samples, accepted, reasons)
@@ -105,7 +105,14 @@ class AcquisitionWriter:
         self, k: int, gauges_v: NDArray[np.float64], valid: NDArray[np.bool_]
     ) -> None:
         g = self._f[f"loadcell{k}"]
-        self._append(g["gauges_v"], np.asarray(gauges_v))
+        gauges = np.asarray(gauges_v)
+        ds = g["gauges_v"]
+        if ds.shape[0] != gauges.shape[0] and ds.shape[1] == 0:
+            # a cell with another number of gauges (or six conditioned outputs): its rows
+            del g["gauges_v"]
+            n = gauges.shape[0]
+            g.create_dataset("gauges_v", (n, 0), maxshape=(n, None), dtype="f8", chunks=(n, 4096))
+        self._append(g["gauges_v"], gauges)
         self._append(g["valid"], np.asarray(valid))
         self._maybe_flush()
 

@@ -12,7 +12,8 @@ JSON (``schema_version`` 1)::
       "gauge_unit": "V",                 # or "mV/V" (strain-gauge bridges)
       "force_unit": "N",
       "moment_unit": "N*m",
-      "matrix": [[12 numbers] x 6],        # rows Fx Fy Fz Mx My Mz, F = C g
+      "matrix": [[12 numbers] x 6],        # rows Fx Fy Fz Mx My Mz, F = C g (6 x N:
+                                         # N gauges, 12 usually; 6 conditioned outputs)
       "diagnostics": {"residual_rel": ..., ...},
       "certificate": {...},              # static: % FS per axis (optional)
       "notes": ""
@@ -25,7 +26,8 @@ ones stay for the record.
 
 The XML follows the layout of ATI Industrial Automation's ``.cal`` files (an ``FTSensor`` element
 with a ``Calibration`` child holding one ``Axis`` per load with a ``values`` attribute of
-whitespace-separated gauge coefficients), with ``NumGages="12"``; units are given as
+whitespace-separated gauge coefficients), with ``NumGages`` gauge columns (12 usually; 6 for a cell read through its six conditioned
+outputs, ``gauge_unit`` ``"V"``); units are given as
 ``ForceUnits="N"`` and ``TorqueUnits="N-m"``. Only files written by trusted tools should be read
 (the standard library parser is used).
 """
@@ -65,7 +67,8 @@ _FORCE_UNITS = {"N": 1.0, "kN": 1e3}
 
 @dataclass(frozen=True, eq=False)
 class LoadCellCalibration:
-    """A 6×12 calibration of one load cell, in SI (N and N·m per gauge volt)."""
+    """A 6×N calibration of one load cell (N gauges, usually 12; or 6 conditioned outputs), in
+    SI (N and N·m per gauge unit)."""
 
     serial_number: str
     date: str
@@ -79,10 +82,11 @@ class LoadCellCalibration:
 
     def __post_init__(self) -> None:
         m = np.asarray(self.matrix, dtype=float)
-        if m.shape != (6, 12) or not np.all(np.isfinite(m)):
+        if m.ndim != 2 or m.shape[0] != 6 or m.shape[1] < 6 or not np.all(np.isfinite(m)):
             raise DataError(
                 f"calibration {self.serial_number}: matrix has shape {m.shape} or non-finite "
-                "values; it must be a finite 6x12 matrix (rows Fx Fy Fz Mx My Mz)"
+                "values; it must be a finite 6xN matrix, N >= 6 gauges or outputs (rows Fx Fy "
+                "Fz Mx My Mz; 6x12 for a 12-gauge cell)"
             )
         if not self.serial_number:
             raise DataError("calibration without serial_number; give the load cell's serial")
@@ -93,6 +97,11 @@ class LoadCellCalibration:
                 f"calibration {self.serial_number}: date {self.date!r} is not ISO (YYYY-MM-DD)"
             ) from err
         object.__setattr__(self, "matrix", m)
+
+    @property
+    def n_gauges(self) -> int:
+        """Columns of the matrix: gauges (or conditioned outputs) it combines."""
+        return int(self.matrix.shape[1])
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -188,7 +197,7 @@ def parse_calibration_json(data: Any, source: str = "calibration") -> LoadCellCa
             "use N and N*m"
         )
     m = np.asarray(data["matrix"], dtype=float)
-    if m.shape == (6, 12):
+    if m.ndim == 2 and m.shape[0] == 6:
         m = m * np.array([fu] * 3 + [mu] * 3)[:, None]
     return LoadCellCalibration(
         serial_number=str(data["serial_number"]),
@@ -210,8 +219,13 @@ def _version(v: Any, where: str | Path) -> int:
 
 
 def write_calibration_xml(cal: LoadCellCalibration, path: str | Path) -> None:
-    """ATI-style ``FTSensor``/``Calibration``/``Axis`` XML with 12 gauges."""
-    root = ET.Element("FTSensor", Serial=cal.serial_number, NumGages="12", BodyStyle="dimacq-6DOF")
+    """ATI-style ``FTSensor``/``Calibration``/``Axis`` XML with the calibration's gauges."""
+    root = ET.Element(
+        "FTSensor",
+        Serial=cal.serial_number,
+        NumGages=str(cal.n_gauges),
+        BodyStyle="dimacq-6DOF",
+    )
     calel = ET.SubElement(
         root,
         "Calibration",
@@ -254,13 +268,17 @@ def read_calibration_xml(path: str | Path) -> LoadCellCalibration:
     missing = [a for a in AXES if a not in rows]
     if missing:
         raise DataError(f"{p}: axes {missing} missing; need {AXES}")
+    try:
+        n_gauges = int(root.get("NumGages", "12"))
+    except ValueError as err:
+        raise DataError(f"{p}: NumGages {root.get('NumGages')!r} is not a number") from err
     m = (
         np.array([rows[a] for a in AXES], dtype=float)
-        if all(len(rows[a]) == 12 for a in AXES)
+        if all(len(rows[a]) == n_gauges for a in AXES)
         else np.zeros((0,))
     )
-    if m.shape != (6, 12):
-        raise DataError(f"{p}: every Axis needs 12 gauge values (NumGages=12)")
+    if m.shape != (6, n_gauges) or n_gauges < 6:
+        raise DataError(f"{p}: every Axis needs NumGages={n_gauges} gauge values (6 or more)")
     m = m * np.array([fu] * 3 + [mu] * 3)[:, None]
     return LoadCellCalibration(
         serial_number=root.get("Serial", ""),

@@ -34,6 +34,11 @@ sensitivities and calibration files as on a real rig):
     node_id = 1                 # the amplifier's CAN node id
     calibration_file = "calibrations/lc-501.json"   # relative to this file
     channel = ""                # CAN channel if not the service's loadcell_channel
+    # or / and its gauges on DAQ inputs (loadcell = "daq-channels"):
+    # daq_channels = [25, 26, 27, 28, 29, 30, 31, 32, 33, 34, 35, 36]
+    # daq_signals = "gauges"    # or "outputs": six conditioned F/T voltages (6x6 matrix)
+    # excitation_v = 10.0       # bridge excitation when the calibration is in mV/V
+    # daq_range_v = 0.1
 
     [acquisition]               # optional defaults of an impact test (a request overrides them)
     record_samples = 4096
@@ -161,13 +166,66 @@ class ResponseEntry(_Analog):
 
 
 class LoadCellEntry(_Model):
+    """One load cell: its amplifier on CAN (``node_id``, ``channel``, bit timing) and/or its
+    gauges or six conditioned F/T outputs on DAQ inputs (``daq_channels``: the
+    ``loadcell = "daq-channels"`` backend, sampled with the accelerometers on one clock)."""
+
     node: int = Field(description="the setup load cell's node number")
-    node_id: int = Field(ge=1, le=127, description="the amplifier's CAN node id (1..127)")
+    node_id: int | None = Field(
+        default=None,
+        ge=1,
+        le=127,
+        description="the amplifier's CAN node id (1..127); the CAN backends need it",
+    )
     calibration_file: str = Field(
         min_length=1,
         description="the cell's calibration file (.json or .xml, relative paths from rig.toml)",
     )
     channel: str = Field(default="", description="a CAN channel, or '' for loadcell_channel")
+    # the cell's signals read as DAQ inputs (loadcell = "daq-channels")
+    daq_channels: list[int] = Field(
+        default_factory=list,
+        description="DAQ inputs (0-based) of the cell's gauges, or of its six conditioned "
+        "outputs, in the calibration matrix's column order",
+    )
+    daq_signals: Literal["gauges", "outputs"] = Field(
+        default="gauges",
+        description="'gauges' (bridge outputs, the calibration's 6xN matrix) or 'outputs' (six "
+        "conditioned F/T voltages, a 6x6 matrix)",
+    )
+    excitation_v: float | None = Field(
+        default=None,
+        gt=0,
+        le=20,
+        description="the bridges' excitation in V when the calibration's gauge_unit is mV/V",
+    )
+    daq_range_v: float = Field(default=10.0, gt=0, description="the inputs' range ±V (> 0)")
+    daq_coupling: Literal["AC", "DC"] = Field(
+        default="DC", description="the inputs' coupling: 'DC' (bridges, static loads) or 'AC'"
+    )
+    # an ATI Net F/T (loadcell = "netft-can" / "netft-udp"): where it is and its counts per unit
+    netft_base: int | None = Field(
+        default=None,
+        ge=0,
+        le=0x7F9,
+        description="the Net F/T's CAN base address as its DIP switches set it (0..0x7F9)",
+    )
+    netft_host: str = Field(
+        default="", description="the Net F/T's IP address for RDT over UDP ('netft-udp')"
+    )
+    netft_port: int = Field(default=49152, ge=1, le=65535, description="its RDT UDP port")
+    netft_counts_per_force: int | None = Field(
+        default=None, gt=0, description="its counts per force unit (its calibration info)"
+    )
+    netft_counts_per_torque: int | None = Field(
+        default=None, gt=0, description="its counts per torque unit (its calibration info)"
+    )
+    netft_force_unit: int = Field(
+        default=2, ge=1, le=6, description="its force unit code (1 lbf, 2 N, 3 klbf, 4 kN, ...)"
+    )
+    netft_torque_unit: int = Field(
+        default=3, ge=1, le=6, description="its torque unit code (1 lbf-in, ..., 3 N-m, ...)"
+    )
     # CAN FD bit timing of this cell's bus (None: the loadcell_* setting of the same name)
     f_clock: int | None = Field(
         default=None, gt=0, description="the adapter's CAN clock in Hz, or leave it out"
@@ -203,6 +261,29 @@ class LoadCellEntry(_Model):
             )
         return v
 
+    @model_validator(mode="after")
+    def _signals(self) -> LoadCellEntry:
+        if len(set(self.daq_channels)) != len(self.daq_channels):
+            raise ValueError("daq_channels lists a DAQ input twice; give each signal its own")
+        if any(not 0 <= c <= 255 for c in self.daq_channels):
+            raise ValueError("daq_channels: give DAQ input numbers 0..255")
+        if self.daq_signals == "outputs" and self.daq_channels and len(self.daq_channels) != 6:
+            raise ValueError(
+                f"daq_signals = 'outputs' with {len(self.daq_channels)} daq_channels; give the "
+                "six conditioned outputs Fx Fy Fz Mx My Mz in that order"
+            )
+        return self
+
+    def require_node_id(self, where: str) -> int:
+        """The CAN node id, which a CAN backend (``where``) needs; :class:`SetupError` naming
+        the cell."""
+        if self.node_id is None:
+            raise SetupError(
+                f"load cell {self.node}: {where} needs its amplifier's CAN node id; give "
+                "node_id in its [[load_cells]] entry of the rig file"
+            )
+        return self.node_id
+
 
 class RigFile(_Model):
     """The channel map of a real rig (see the module docstring)."""
@@ -233,9 +314,13 @@ class RigFile(_Model):
         nodes: set[int] = set()
         ids: set[tuple[str, int]] = set()
         for i, lc in enumerate(self.load_cells):
+            for ch in lc.daq_channels:
+                _claim(seen, ch, f"load_cells.{i}.daq_channels")
             if lc.node in nodes:
                 raise ValueError(f"load_cells.{i}: node {lc.node} is listed twice; keep one entry")
             nodes.add(lc.node)
+            if lc.node_id is None:
+                continue
             if (lc.channel, lc.node_id) in ids:
                 raise ValueError(
                     f"load_cells.{i}: node_id {lc.node_id} is used twice on one CAN channel; "

@@ -95,6 +95,12 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 
+def _n_gauges(lc: LoadCell) -> int:
+    """Gauges of a load cell: its own count when it says (a cell on DAQ inputs), else 12."""
+    n = getattr(lc, "n_gauges", None)
+    return int(n) if isinstance(n, int) else 12
+
+
 class _StrikeLost(Exception):
     """Samples were lost while waiting for a strike: it may have been among them."""
 
@@ -367,8 +373,11 @@ class ImpactSession:
     def _start_run(self) -> None:
         """Fresh buffers; arm the load cells (counter 0 at the DAQ's next pulse); start the DAQ."""
         self._daq_buf = SampleWindow(len(self.daq.channel_names))
-        n_lc_rows = 6 if self.loadcell_outputs == "forces" else 12
-        self._lc_bufs = [SampleWindow(n_lc_rows) for _ in self.loadcells]
+        # forces: six loads; gauges: the cell's gauges (12 unless it says otherwise)
+        self._lc_bufs = [
+            SampleWindow(6 if self.loadcell_outputs == "forces" else _n_gauges(lc))
+            for lc in self.loadcells
+        ]
         self._lc_zero: list[NDArray[np.float64] | None] = [None] * len(self.loadcells)
         self._gaps = []
         assert self.daq.sample_rate_hz is not None
@@ -629,7 +638,7 @@ class ImpactSession:
             comps = (
                 ("Fx", "Fy", "Fz", "Mx", "My", "Mz")
                 if self.loadcell_outputs == "forces"
-                else tuple(f"g{i + 1:02d}" for i in range(12))
+                else tuple(f"g{i + 1:02d}" for i in range(_n_gauges(self.loadcells[k])))
             )
             lc_names += [f"loadcell{k} {c}" for c in comps]
         return ImpactResult(

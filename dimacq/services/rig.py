@@ -273,11 +273,14 @@ def build_rig(
     ok = False
     try:
         daq: Daq = lookup("daq", settings.daq)(ctx)
+        ctx.daq = daq
         hammer_names, response_names = _configure(daq, rf, response_of)
         loadcells: list[LoadCell] = []
         if cell_of:
             open_cell = lookup("loadcell", settings.loadcell)
             loadcells = [open_cell(ctx, rf.load_cells[i]) for i in cell_of]
+        # a load cell read through the DAQ ("daq-channels") has wrapped it: the rig reads that
+        daq = ctx.daq
         ok = True
     finally:
         if not ok:

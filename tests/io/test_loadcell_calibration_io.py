@@ -53,8 +53,9 @@ def test_moment_units_in_mm_are_converted(tmp_path):
 
 
 def test_bad_files_are_refused(tmp_path):
-    with pytest.raises(DataError, match="6x12"):
-        LoadCellCalibration("LC1", "2026-01-01", np.zeros((6, 11)))
+    # 6 x N (N >= 6 gauges or conditioned outputs): 6 x 11 is a cell of 11 gauges, 5 rows none
+    with pytest.raises(DataError, match="6xN"):
+        LoadCellCalibration("LC1", "2026-01-01", np.zeros((5, 12)))
     with pytest.raises(DataError, match="ISO"):
         LoadCellCalibration("LC1", "21/11/2026", np.zeros((6, 12)))
     d = cal().to_json()

@@ -124,6 +124,26 @@ def write_rig(name: str, scenario: str, header: str) -> None:
             f'calibration_file = "calibrations/lc-{lc.node}.json"',
             'channel = ""              # "" = loadcell_channel of dimacq.toml',
         ]
+        # its bridges on DAQ inputs after the accelerometers' (loadcell = "daq-channels")
+        first = 1 + len(setup.responses) + 12 * i
+        bridge = (lab.bridges or {}).get(lc.node)
+        if first + 12 <= 64 and bridge is not None:
+            out += [
+                '# or its 12 bridges on DAQ inputs (loadcell = "daq-channels"):',
+                f"daq_channels = [{', '.join(str(first + g) for g in range(12))}]",
+                'daq_signals = "gauges"',
+                f"excitation_v = {bridge.excitation_v:g}      # V; the calibration is in mV/V",
+                "daq_range_v = 0.1",
+                'daq_coupling = "DC"',
+            ]
+        out += [
+            '# or an ATI Net F/T on it (loadcell = "netft-can" / "netft-can-simulated"):',
+            f"netft_base = {0x020 + 8 * i:#05x}",
+            "netft_counts_per_force = 1000000",
+            "netft_counts_per_torque = 1000000",
+            "netft_force_unit = 2",
+            "netft_torque_unit = 3",
+        ]
     for k, c in enumerate(setup.responses):
         ch = 1 + k
         serial = tr.accelerometer_serial(ch)

@@ -164,13 +164,12 @@ def run(args: argparse.Namespace) -> int:
         ):
             chain = _chain_step(data_dir, token, args, say)
         app = create_app(settings)
+        backends = {k: str(getattr(settings, k)) for k in ("daq", "loadcell", "digitizer")}
         with BackgroundServer(app) as srv:
             say(f"dimacq demo: service on {srv.url} (data in {data_dir}), scenario {args.scenario}")
-            backends = (
-                f"the {_sim('daq', settings.daq)}DAQ (backend {settings.daq!r}) and "
-                f"{_sim('loadcell', settings.loadcell)}load cell (backend {settings.loadcell!r})"
-            )
+            say("backends: " + ", ".join(f"{k} = {v!r}" for k, v in backends.items()))
             payload = _demo(srv.url, token, built, args, say, chain, backends)
+        payload["demo"]["backends"] = backends
     finally:
         if tmp is not None:
             tmp.cleanup()
@@ -293,7 +292,7 @@ def _demo(
     args: argparse.Namespace,
     say: Callable[[str], None],
     chain: dict[str, Any] | None = None,
-    backends: str = "",
+    backends: dict[str, str] | None = None,
 ) -> dict[str, Any]:
     import httpx
 
@@ -436,8 +435,18 @@ def _demo(
                 "model FRFs instead)",
             )
             frf_id = _follow_acquisition(c, acq, say, quiet=args.quiet)
-            info["acquisition"] = f"impact test through {backends}"
-            say(f"[4/5] acquired through {backends}")
+            b = backends or {}
+            cell = {
+                "daq-channels": "its bridges on inputs of the DAQ",
+                "canopen-simulated": "load cell (CANopen)",
+                "netft-can-simulated": "ATI Net F/T (CAN)",
+            }.get(b.get("loadcell", ""), "load cell (CAN)")
+            daq = b.get("daq", "?")
+            info["acquisition"] = (
+                f"impact test through the {_sim('daq', daq)}DAQ (USB) and {cell} "
+                f"(daq = {daq!r}, loadcell = {b.get('loadcell', '?')!r})"
+            )
+            say(f"[4/5] acquired: {info['acquisition']}")
         # --- 5. solve --------------------------------------------------------------------
         body: dict[str, Any] = {"frf_id": frf_id}
         if chain is not None and "solution_id" in chain:
@@ -553,6 +562,9 @@ def _print_result(p: dict[str, Any], say: Callable[[str], None]) -> None:
             f"{'I' + str(k + 1) + ' (principal), kg m2':<22}{pe:>14.6f}{pt_:>14.6f}{e['principal_moments_pct'][k]:>11.3f}%"
         )
     print(f"CG error {e['cg_mm']:.3f} mm; acquisition: {p['demo']['acquisition']}")
+    b = p["demo"].get("backends")
+    if b:
+        print("backends: " + ", ".join(f"{k} = {v!r}" for k, v in b.items()))
     lo, hi = p["band_hz"]
     reasons = "; ".join(
         str(r.get("message", r)) if isinstance(r, dict) else str(r)

@@ -91,7 +91,9 @@ class DeviceService:
                 "loadcell",
                 "loadcell",
                 f"{settings.loadcell}:{settings.rig_path.name}",
-                is_simulated("loadcell", settings.loadcell),
+                # a cell read as DAQ inputs is simulated when its DAQ is
+                is_simulated("loadcell", settings.loadcell)
+                or (settings.loadcell == "daq-channels" and is_simulated("daq", settings.daq)),
             ),
         }
 

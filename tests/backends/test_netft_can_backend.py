@@ -1,0 +1,113 @@
+"""``loadcell = "netft-can"`` / ``"netft-can-simulated"``: an ATI Net F/T on CAN, the requests
+sent on the simulated DAQ's clock. The same impact test gives the load cell FRFs of the CAN FD
+amplifier within the two calibrations' certificate errors (0.5 % the amplifier's file, 0.2 %
+the sensor's own), the accelerometers' exactly; the rig file's missing items are named."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from dimacq.backends import BACKENDS, is_simulated, lookup
+from dimacq.backends.base import DeviceContext
+from dimacq.config import default_config_file, load_settings
+from dimacq.drivers.netft.can_driver import NetFtCan
+from dimacq.errors import SetupError
+from dimacq.services import rig as rig_builder
+from dimacq.simulators.lab.scenarios import build_scenario
+
+
+def test_entries_in_the_table() -> None:
+    assert {"netft-can", "netft-can-simulated"} <= set(BACKENDS["loadcell"])
+    assert is_simulated("loadcell", "netft-can-simulated")
+    assert not is_simulated("loadcell", "netft-can")
+
+
+def _impact(tmp_path: Path, loadcell: str) -> Any:
+    settings = load_settings(data_dir=tmp_path / loadcell, token="t", loadcell=loadcell)
+    setup = build_scenario(settings.scenario).model.setup
+    setup = setup.model_copy(update={"excitations": setup.excitations[:2]})
+    cfg = {"averages_per_input": 2, "record_samples": 2048, "seed": 4}
+    rig = rig_builder.build_rig(settings, setup, cfg)
+    try:
+        if loadcell.startswith("netft"):
+            assert isinstance(rig.loadcells[0], NetFtCan)
+        return rig_builder.run_impact_test(
+            rig, setup, cfg, on_average=lambda *a: None, on_progress=lambda f, m: None
+        )
+    finally:
+        rig.close()
+
+
+def test_same_impact_test_through_the_net_ft(tmp_path: Path) -> None:
+    amp = _impact(tmp_path, "simulated")
+    ft = _impact(tmp_path, "netft-can-simulated")
+    assert ft.H.shape == amp.H.shape and ft.H.shape[1] == 24 + 6
+    f = ft.frequencies_hz
+    band = (f >= 20) & (f <= 100)
+    np.testing.assert_allclose(ft.H[band, :24], amp.H[band, :24], rtol=1e-9)
+    lc = slice(24, 30)
+    rel = np.abs(ft.H[band, lc] - amp.H[band, lc]) / np.abs(amp.H[band, lc]).max(axis=0)
+    assert np.median(rel) < 0.02, np.median(rel)
+
+
+def test_devices_check(tmp_path: Path) -> None:
+    settings = load_settings(data_dir=tmp_path, token="t", loadcell="netft-can-simulated")
+    got = rig_builder.check_devices(settings, "loadcell")
+    cell = got["load_cells"]["501"]
+    assert got["backend"] == "netft-can-simulated" and cell["n_gauges"] == 6
+    assert "Net F/T CAN base 0x20" in cell["firmware"]
+
+
+@pytest.mark.parametrize(
+    ("drop", "match"),
+    [
+        ("netft_base", r"needs the Net F/T's CAN base address; give netft_base"),
+        ("netft_counts_per_force", r"needs the Net F/T's counts per unit"),
+    ],
+)
+def test_rig_file_items_named(tmp_path: Path, drop: str, match: str) -> None:
+    text = (default_config_file().parent / "rig.toml").read_text(encoding="utf-8")
+    text = "\n".join(ln for ln in text.splitlines() if not ln.startswith(drop))
+    (tmp_path / "rig.toml").write_text(text, encoding="utf-8")
+    settings = load_settings(
+        data_dir=tmp_path,
+        token="t",
+        loadcell="netft-can",
+        loadcell_channel=f"netft-none-{tmp_path.name}",
+        rig_file=str(tmp_path / "rig.toml"),
+    )
+    with DeviceContext(settings) as ctx, pytest.raises(SetupError, match=match):
+        lookup("loadcell", "netft-can")(ctx, ctx.rig_file.load_cells[0])
+
+
+def test_rdt_over_udp_identifies_but_refuses_an_impact_test(tmp_path: Path) -> None:
+    """``netft-udp-simulated``: the RDT simulator on a loopback port; the devices check reads the
+    sensor, an impact test is refused naming the backends that can be aligned."""
+    assert {"netft-udp", "netft-udp-simulated"} <= set(BACKENDS["loadcell"])
+    settings = load_settings(data_dir=tmp_path, token="t", loadcell="netft-udp-simulated")
+    got = rig_builder.check_devices(settings, "loadcell")
+    assert "Net F/T RDT" in got["load_cells"]["501"]["firmware"]
+    from dimacq.backends.netft_simulated import SENSOR_CALIBRATION
+
+    with DeviceContext(settings) as ctx:  # its counts per unit are read from the sensor
+        drv = lookup("loadcell", "netft-udp-simulated")(ctx, ctx.rig_file.load_cells[0])
+        assert drv.calibration == SENSOR_CALIBRATION
+    setup = build_scenario(settings.scenario).model.setup
+    cfg = {"averages_per_input": 2, "record_samples": 2048, "seed": 4}
+    rig = rig_builder.build_rig(settings, setup, cfg)
+    try:
+        with pytest.raises(SetupError, match=r"use loadcell = 'netft-can' .* 'daq-channels'"):
+            rig_builder.run_impact_test(
+                rig, setup, cfg, on_average=lambda *a: None, on_progress=lambda f, m: None
+            )
+    finally:
+        rig.close()
+    with (
+        DeviceContext(load_settings(data_dir=tmp_path, token="t")) as ctx,
+        pytest.raises(SetupError, match="needs the Net F/T's IP address; give netft_host"),
+    ):
+        lookup("loadcell", "netft-udp")(ctx, ctx.rig_file.load_cells[0])

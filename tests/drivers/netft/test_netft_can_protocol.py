@@ -1,0 +1,146 @@
+"""ATI Net F/T over CAN: the manual's byte order examples, and the driver's exchanges scripted
+byte for byte (base address 0x020 as DIP switches could set it)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from _exchange import Can, expected_exchange
+
+from dimacq.drivers.netft import protocol as p
+from dimacq.drivers.netft.can_driver import NetFtCan
+from dimacq.errors import DeviceTimeoutError, ProtocolError, SetupError
+
+BASE = 0x020
+CAL = p.CalibrationInfo(2, 3, 1_000_000, 1_000_000)  # N, N-m, 10^6 counts per unit
+REQUEST_LONG = Can(BASE, b"\x01")
+BIAS = Can(BASE, b"\x04")
+
+# one long answer: Fx = 0xFDDACF0F (the manual's example bytes 0F CF DA FD = -35 991 793),
+# Tx = 0x0256 (its 16-bit example 56 02, here in a DINT), Fy = 1, Ty = -1, Fz = 1000000,
+# Tz = 0, status 0, sample number 7
+ANSWER = [
+    Can(BASE + 1, bytes.fromhex("0fcfdafd") + bytes.fromhex("56020000")),
+    Can(BASE + 2, bytes.fromhex("01000000") + bytes.fromhex("ffffffff")),
+    Can(BASE + 3, bytes.fromhex("40420f00") + bytes.fromhex("00000000")),
+    Can(BASE + 4, bytes.fromhex("00000000") + bytes.fromhex("07000000")),
+]
+COUNTS = [-35991793, 1, 1000000, 0x0256, -1, 0]  # AXES order: Fx Fy Fz Tx Ty Tz
+
+
+def _driver(bus: object) -> NetFtCan:
+    return NetFtCan(bus, base=BASE, calibration=CAL, serial_number=501, timeout_s=0.5)
+
+
+def test_the_manuals_byte_order_examples() -> None:
+    (b16, v16), (b32, v32) = p.MANUAL_EXAMPLES
+    assert p.decode_i16(b16) == v16 == 0x0256
+    assert p.decode_i32(b32) == v32 == -35991793
+    assert v32 & 0xFFFFFFFF == 0xFDDACF0F
+
+
+def test_message_table_round_trips_and_refuses() -> None:
+    assert p.Request(p.Command.REQUEST_LONG).encode() == b"\x01"
+    assert p.Request(p.Command.REQUEST_SHORT).encode() == b"\x02"
+    assert p.Request(p.Command.BIAS).encode() == b"\x04"
+    frames = p.long_frames(COUNTS, 0, 7)
+    assert [(BASE + o, d) for o, d in frames] == [(c.id, c.data) for c in ANSWER]
+    assert p.decode(BASE, BASE + 1, ANSWER[0].data) == p.LongPair(0, -35991793, 0x0256)
+    assert p.decode(BASE, BASE + 4, ANSWER[3].data) == p.LongStatus(0, 7)
+    short = p.ShortZ(-2, 3, 0, 9)
+    assert short.encode() == bytes.fromhex("feff030000000900")
+    assert p.decode(BASE, BASE + 6, short.encode()) == short
+    with pytest.raises(ProtocolError, match="not a Net F/T message"):
+        p.decode(BASE, BASE + 7, b"")
+    with pytest.raises(ProtocolError, match="3 bytes, expected 8"):
+        p.decode(BASE, BASE + 2, b"abc")
+    with pytest.raises(ProtocolError, match="0x03 is not a known command"):
+        p.decode(BASE, BASE, b"\x03")
+    with pytest.raises(SetupError, match="base address 0x7fa"):
+        p.check_base(0x7FA)
+
+
+def test_calibration_info_of_the_ethernet_interface() -> None:
+    assert p.CalibrationInfo.command() == b"\x01" + bytes(19)
+    raw = bytes.fromhex("12340203000f4240000f4240" + "0001" * 6)
+    info = p.CalibrationInfo.decode(raw)
+    assert info == CAL and info.encode() == raw
+    np.testing.assert_allclose(info.si_per_count(), [1e-6] * 6)
+    lbf = p.CalibrationInfo(1, 1, 1000, 500)
+    np.testing.assert_allclose(
+        lbf.si_per_count(), [4.4482216152605e-3] * 3 + [0.112984829027617 / 500] * 3
+    )
+    with pytest.raises(ProtocolError, match="header 0x4321"):
+        p.CalibrationInfo.decode(bytes.fromhex("4321") + raw[2:])
+    with pytest.raises(SetupError, match="unit code"):
+        p.CalibrationInfo(9, 3, 1, 1)
+
+
+def test_identify_is_one_request_long_answered() -> None:
+    with expected_exchange("can", [(REQUEST_LONG, ANSWER)], connect=_driver) as drv:
+        counts, status, sample = drv.read_once()
+    np.testing.assert_array_equal(counts, COUNTS)
+    assert (status, sample) == (0, 7)
+    with expected_exchange("can", [(REQUEST_LONG, ANSWER)], connect=_driver) as drv:
+        ident = drv.identify()
+    assert ident.n_gauges == 6 and ident.serial_number == 501
+    assert "base 0x20" in ident.firmware and "status 0x00000000" in ident.firmware
+
+
+def test_a_silent_sensor_times_out_naming_the_fix() -> None:
+    with (
+        expected_exchange("can", [(REQUEST_LONG, ANSWER[:2])], connect=_driver) as drv,
+        pytest.raises(DeviceTimeoutError, match=r"answers \[1, 2\] .* base address DIP"),
+    ):
+        drv.read_once(timeout_s=0.2)
+
+
+def _sample(k: int, counts: list[int], status: int = 0, lose: int | None = None) -> list[Can]:
+    """The trigger's request of sample k and the sensor's answers (answer ``lose`` lost)."""
+    out = [REQUEST_LONG]
+    for off, data in p.long_frames(counts, status, 100 + k):
+        if off != lose:
+            out.append(Can(BASE + off, data))
+    return out
+
+
+def test_a_run_counts_the_requests_on_the_daqs_clock() -> None:
+    c = [[10 * k + j for j in range(6)] for k in range(4)]
+    stream = _sample(0, c[0]) + _sample(1, c[1], lose=3) + _sample(2, c[2]) + _sample(3, c[3])
+    with expected_exchange("can", [(BIAS, None), (None, stream)], connect=_driver) as drv:
+        drv.set_rate(2048)
+        drv.start()
+        blk = drv.read_until(3)
+        assert blk.first_sample == 0 and blk.n_samples == 3
+        assert blk.valid.tolist() == [True, False, True]  # sample 1 lost Fz, Tz on the bus
+        np.testing.assert_array_equal(blk.gauges_v[:, 0], c[0])
+        np.testing.assert_array_equal(blk.gauges_v[:, 2], c[2])
+        assert np.isnan(blk.gauges_v[:, 1]).all()
+        assert blk.forces is not None
+        np.testing.assert_allclose(blk.forces[:, 2], np.array(c[2]) * 1e-6)
+        assert [(e.kind, e.first_sample, e.n_samples) for e in blk.events] == [("gap", 1, 1)]
+        assert drv.stop() == 4
+        rest = drv.read_until(4)
+        np.testing.assert_array_equal(rest.gauges_v[:, 0], c[3])
+        assert drv.verify_count(4) is None
+        ev = drv.verify_count(5)
+        assert ev is not None and ev.kind == "drift" and "4 requests counted" in ev.message
+
+
+def test_a_status_word_is_a_device_error_and_rejects_its_samples() -> None:
+    stream = _sample(0, [0] * 6) + _sample(1, [0] * 6, status=0x80000001) + _sample(2, [0] * 6)
+    with expected_exchange("can", [(BIAS, None), (None, stream)], connect=_driver) as drv:
+        drv.start()
+        blk = drv.read_until(3)
+        drv.stop()
+    assert blk.overload.tolist() == [False, True, False]
+    (ev,) = blk.events
+    assert ev.kind == "device_error" and "0x80000001" in ev.message
+
+
+def test_internal_clock_is_refused() -> None:
+    with (
+        expected_exchange("can", [], connect=_driver) as drv,
+        pytest.raises(SetupError, match="requests sent on the DAQ's clock"),
+    ):
+        drv.start(external_clock=False)
