@@ -259,6 +259,9 @@ def _reaction_noise_cov(R: ComplexArray) -> FloatArray:
     return np.asarray(cov * s[:, :, None] * s[:, None, :], float)
 
 
+#: Reactions whose power on a line is at most this multiple of their noise are at noise level.
+REACTION_SNR_LOW = 4.0
+
 #: Half-width (lines) of the local noise estimate of :func:`_line_weights`.
 LINE_NOISE_HALF_WIDTH = 16
 
@@ -924,6 +927,10 @@ def solve_output_error(
     floor = 1e-6 * np.sqrt(np.mean(np.abs(H) ** 2, axis=0))
     sigma = np.maximum(sigma, np.maximum(floor, 1e-300))
     cov_R = _reaction_noise_cov(R) if R.shape[0] >= 8 else np.zeros((len(in_idx), 6, 6))
+    # the reactions' power against their own noise, per line and input:
+    # S/N_ℓj = Σ_k |R_ℓkj|² / tr Σ_Rj (the share of lines at noise level is reported)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        reaction_snr = np.sum(np.abs(R) ** 2, axis=1) / np.einsum("jii->j", cov_R)[None]
     R, n_rb = _smooth_reactions(R, frf.frequencies_hz, cov_R)
     cov_R = cov_R * n_rb[:, None, None]  # noise left in Σ_ω Re(R̂ R̂ᴴ) after the projection
 
@@ -1264,6 +1271,19 @@ def solve_output_error(
         "relative_median": float(np.median(sig_rel)),
         "relative_max": float(np.max(sig_rel)),
         "reaction_bias_compensated": bool(np.any(cov_R)),
+        # load cells present: the share of lines × inputs whose reactions' power is within
+        # REACTION_SNR_LOW of their noise (weighed by that noise in the fit, bias compensated,
+        # not trusted as exact forces), and the median power / noise
+        "reaction_lines_at_noise": (
+            float(np.mean(~(reaction_snr > REACTION_SNR_LOW)))
+            if setup.load_cells and reaction_snr.size
+            else None
+        ),
+        "reaction_snr_median": (
+            float(np.median(reaction_snr[np.isfinite(reaction_snr)]))
+            if setup.load_cells and np.any(np.isfinite(reaction_snr))
+            else None
+        ),
         "chi2_reduced": float(chi2),
         "variance_factor": float(variance_factor),
         "chi2_reduced_stated_noise": float(chi2 * variance_factor),

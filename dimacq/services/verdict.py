@@ -18,6 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from dimacq.model.frf import FrfData
+from dimacq.pipeline.output_error import REACTION_SNR_LOW
 from dimacq.pipeline.selection._common import response_geometry
 from dimacq.pipeline.selection.band import MAX_RESIDUAL, MAX_RIGID_BODY_ERROR, BandSuggestion
 from dimacq.pipeline.uncertainty import Uncertainty
@@ -345,6 +346,17 @@ def _estimator_checks(oe: Any) -> list[VerdictReason]:
     noise = oe.get("noise") or {}
     if noise.get("refinement_refused"):
         out.append(VerdictReason("estimator:refinement", "warn", str(noise["refinement_refused"])))
+    low = noise.get("reaction_lines_at_noise")
+    if low is not None and low > 0:
+        out.append(
+            VerdictReason(
+                "estimator:reactions",
+                "ok",
+                f"the load cells' reactions are at their noise level (power ≤ {REACTION_SNR_LOW:g}× "
+                f"noise) on {100 * low:.0f} % of the band's lines × inputs: the fit weighs them by "
+                "that noise (their bias compensated), not as exact forces",
+            )
+        )
     vf = noise.get("variance_factor")
     if vf is not None and vf > 1.0:
         out.append(

@@ -221,3 +221,26 @@ def test_the_scale_stays_that_of_the_stated_geometry_under_load_cell_reactions()
     est = RigidBodyProperties.from_about_point(float(x[0]), x[1:4], vector_to_inertia(x[4:]), p)
     pm = principal_moments(est.inertia_cg_kgm2)[0] / principal_moments(b.truth.inertia_cg_kgm2)[0]
     assert np.abs(pm - 1).max() < 0.002
+
+
+def test_reactions_at_noise_level_are_reported() -> None:
+    """Issue 22: load-cell reactions below their noise are weighed by it and the result says so
+    (``noise.reaction_lines_at_noise``, the verdict's ``estimator:reactions``)."""
+    from dataclasses import replace
+
+    b = build_scenario("calibration-mass-bungee", 0)
+    frf = b.model_frf(noise=0.01).band(*b.band_hz)
+    react = np.array([k == "reaction" for k in frf.output_kinds])
+    clean = solve_output_error(frf, b.setup).noise
+    rng = np.random.default_rng(5)
+    H = frf.H.copy()
+    scale = 1e-4 * np.abs(H[:, react]).mean()
+    H[:, react] = scale * (
+        rng.standard_normal(H[:, react].shape) + 1j * rng.standard_normal(H[:, react].shape)
+    )
+    noisy = solve_output_error(replace(frf, H=H), b.setup).noise
+    # on the bungee the cell's reaction falls off above the suspension: at noise level on part
+    # of the band already; replaced by noise, on (nearly) every line
+    assert 0 < clean["reaction_lines_at_noise"] < 0.8
+    assert noisy["reaction_lines_at_noise"] > 0.9
+    assert noisy["reaction_snr_median"] < min(2.0, clean["reaction_snr_median"])
