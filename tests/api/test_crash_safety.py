@@ -46,7 +46,7 @@ def _start(data_dir: Path, port: int, database_url: str) -> subprocess.Popen[byt
         stderr=subprocess.PIPE,
         env=env,
     )
-    deadline = time.monotonic() + 30
+    deadline = time.monotonic() + 120  # a guard only: it returns as soon as the server answers
     while time.monotonic() < deadline:
         try:
             if httpx.get(f"http://127.0.0.1:{port}/api/status", timeout=1).status_code == 200:

@@ -24,7 +24,7 @@ from dimacq.services.lab import store
 from dimacq.simulators.lab.forward import calibration_mass
 
 ROOT = Path(__file__).resolve().parents[2]
-CALIBRATIONS = ROOT / "config" / "calibrations"
+CALIBRATIONS = ROOT / "config" / "rigs" / "calibrations"
 EXAMPLE = ROOT / "config" / "examples" / "six_triax_setup.toml"
 LONG_ID = "9" * 5000  # past Python's 4,300-digit int() limit (Starlette's int convertor raised)
 

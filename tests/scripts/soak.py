@@ -31,6 +31,7 @@ import json
 import os
 import re
 import secrets
+import shutil
 import socket
 import subprocess
 import sys
@@ -117,16 +118,14 @@ def _free_port() -> int:
 
 
 def _soak_rig(folder: Path) -> Path:
-    """The calibration mass's rig file with a short USB timeout (0.2 s), calibration files
-    named by absolute path."""
+    """The calibration mass's rig file with a short USB timeout (0.2 s), its calibration files
+    copied beside it (a rig file names them relative to its folder, inside it)."""
     cfg = Path(__file__).resolve().parents[2] / "config"
     text = (cfg / "rig.toml").read_text(encoding="utf-8")
     text = re.sub(r"(?m)^timeout_s = .*$", "timeout_s = 0.2", text)
-    text = re.sub(
-        r'(?m)^calibration_file = "([^"]+)"',
-        lambda m: f'calibration_file = "{(cfg / m.group(1)).as_posix()}"',
-        text,
-    )
+    for name in re.findall(r'(?m)^calibration_file = "([^"]+)"', text):
+        (folder / name).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy(cfg / name, folder / name)
     out = folder / "soak-rig.toml"
     out.write_text(text, encoding="utf-8")
     return out

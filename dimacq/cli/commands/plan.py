@@ -48,7 +48,7 @@ from dimacq.errors import SetupError
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser(
         "plan",
-        help="choose the triaxes and inputs of a test and predict its 95 % bounds",
+        help="choose the triaxes and inputs of a test and predict its 95 %% bounds",
         description=plain(__doc__),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
