@@ -199,43 +199,37 @@ def assemble(
         frf = frf.band(lo, hi)
 
     # Responses -------------------------------------------------------------------------------
-    by_key = {(c.node, c.direction): c for c in setup.responses}
     acc_idx = frf.output_index("acceleration")
     if acc_idx.size == 0:
         raise DataError("the FRFs hold no acceleration output; DIM needs accelerometer FRFs")
-    pos, dirs = [], []
-    for i in acc_idx:
-        ch = frf.outputs[i]
-        rc = by_key.get((ch.node, ch.direction)) or by_key.get((ch.node, -ch.direction))
-        if rc is None:
-            raise SetupError(
-                f"response {ch.name} of the FRFs is not in the setup; add it to responses "
-                "with its position and direction, or drop the record"
-            )
-        sign = 1.0 if rc.direction == ch.direction else -1.0
-        pos.append(rc.position_m)
-        dirs.append(sign * np.asarray(rc.direction_gcs, float))
-    psi = response_matrix(np.asarray(pos) / u, np.asarray(dirs), p / u)
+    out_keys = _channel_keys(frf.outputs)
+    r_at, r_sign = _match_channels(out_keys[acc_idx], _channel_keys(setup.responses))
+    if np.any(r_at < 0):
+        ch = frf.outputs[int(acc_idx[np.argmax(r_at < 0)])]
+        raise SetupError(
+            f"response {ch.name} of the FRFs is not in the setup; add it to responses "
+            "with its position and direction, or drop the record"
+        )
+    pos = setup.response_positions[r_at]
+    dirs = r_sign[:, None] * setup.response_directions[r_at]
+    psi = response_matrix(pos / u, dirs, p / u)
     cond = condense(psi, response_weights)
     H = frf.H
     K = _apply_real(cond.transform / u, H, acc_idx)
 
     # Inputs ------------------------------------------------------------------------------------
-    ex_key = {(e.node, e.direction): e for e in setup.excitations}
-    in_pos, in_dir = [], []
-    for ch in frf.inputs:
-        ex = ex_key.get((ch.node, ch.direction)) or ex_key.get((ch.node, -ch.direction))
-        if ex is None:
-            raise SetupError(
-                f"input {ch.name} of the FRFs has no line of action in the setup; add it to "
-                "excitations with position_m and direction_gcs"
-            )
-        assert ex.direction_gcs is not None
-        sign = 1.0 if ex.direction == ch.direction else -1.0
-        in_pos.append(ex.position_m)
-        in_dir.append(sign * np.asarray(ex.direction_gcs, float))
-    phi = force_vectors(np.asarray(in_pos) / u, np.asarray(in_dir), p / u)
-    F = np.broadcast_to(phi[None].astype(complex), K.shape).copy()
+    e_at, e_sign = _match_channels(_channel_keys(frf.inputs), _channel_keys(setup.excitations))
+    if np.any(e_at < 0):
+        ch = frf.inputs[int(np.argmax(e_at < 0))]
+        raise SetupError(
+            f"input {ch.name} of the FRFs has no line of action in the setup; add it to "
+            "excitations with position_m and direction_gcs"
+        )
+    in_pos = setup.input_positions[e_at]
+    in_dir = e_sign[:, None] * setup.input_directions[e_at]
+    phi = force_vectors(in_pos / u, in_dir, p / u)
+    F = np.empty_like(K)
+    F[...] = phi
 
     # Load cells ----------------------------------------------------------------------------------
     cells = {lc.node: lc for lc in setup.load_cells}
@@ -277,13 +271,14 @@ def assemble(
         used_cells.append(node)
 
     # Consistent units (kg, unit, s): forces are kg·unit/s² = N/u, moments kg·unit²/s² = N·m/u².
-    # So far F holds forces in N and moments in N·unit (N·m/u): one more division by u.
-    F /= u
+    # So far F holds forces in N and moments in N·unit (N·m/u): one more division by u, on the
+    # real view (a complex array divided by a real number goes through complex division).
+    F.view(np.float64)[...] /= u
 
     hull = np.concatenate(
         [
-            np.asarray(pos),
-            np.asarray(in_pos),
+            pos,
+            in_pos,
             np.array([c.position_m for c in setup.load_cells]).reshape(-1, 3),
         ]
     )
@@ -304,12 +299,55 @@ def assemble(
     )
 
 
+def _channel_keys(channels: Sequence[Any]) -> NDArray[np.int64]:
+    """(node, direction) of channels or setup items, shape (n, 2)."""
+    return np.array([(c.node, c.direction) for c in channels], dtype=np.int64).reshape(-1, 2)
+
+
+def _match_channels(
+    keys: NDArray[np.int64], table: NDArray[np.int64]
+) -> tuple[NDArray[np.intp], FloatArray]:
+    """Row of ``table`` holding each (node, direction) of ``keys``, or its opposite direction.
+
+    The same direction wins over the opposite one (a setup may list both). Returns the rows
+    (−1 where neither is in the table) and the signs (+1 same direction, −1 opposite).
+    """
+    if table.shape[0] == 0:
+        return np.full(keys.shape[0], -1, dtype=np.intp), np.ones(keys.shape[0])
+    # Integer codes of (node, direction): UFF directions are within ±6.
+    code_t = table[:, 0] * 64 + table[:, 1]
+    order = np.argsort(code_t, kind="stable")
+    sorted_t = code_t[order]
+
+    def find(codes: NDArray[np.int64]) -> NDArray[np.intp]:
+        at = np.searchsorted(sorted_t, codes)
+        at_c = np.minimum(at, sorted_t.size - 1)
+        hit = sorted_t[at_c] == codes
+        return np.where(hit, order[at_c], -1).astype(np.intp)
+
+    same = find(keys[:, 0] * 64 + keys[:, 1])
+    opposite = find(keys[:, 0] * 64 - keys[:, 1])
+    rows = np.where(same >= 0, same, opposite)
+    sign = np.where(same >= 0, 1.0, -1.0)
+    return rows, sign
+
+
 def _apply_real(M: FloatArray, H: ComplexArray, rows: NDArray[np.intp]) -> ComplexArray:
-    """``M @ H[:, rows, :]`` for a real matrix M, as one real matmul on the (re, im) view."""
-    Hs = np.ascontiguousarray(H[:, rows, :])
-    n_lines, _, n_in = Hs.shape
-    out = M @ Hs.view(np.float64)  # (L, k, 2J)
-    return np.ascontiguousarray(out).view(np.complex128).reshape(n_lines, M.shape[0], n_in)
+    """``M @ H[:, rows, :]`` for a real matrix M, as one real matmul on the (re, im) view.
+
+    Rows that form a consecutive run are read in place (a strided view that BLAS takes as it
+    is); others are gathered with ``np.take`` (numpy's fancy indexing on the middle axis of a
+    complex array is several times slower). Both give the same bits as a gathered copy.
+    """
+    n_lines, _, n_in = H.shape
+    Hr = H.view(np.float64) if H.flags.c_contiguous else np.ascontiguousarray(H).view(np.float64)
+    r = np.asarray(rows, dtype=np.intp)
+    if r.size and r[-1] - r[0] == r.size - 1 and np.all(np.diff(r) == 1):
+        Hs = Hr[:, r[0] : r[-1] + 1]
+    else:
+        Hs = np.take(Hr, r, axis=1)
+    out = M @ Hs  # (L, k, 2J)
+    return out.view(np.complex128).reshape(n_lines, M.shape[0], n_in)
 
 
 def design_matrices(K: NDArray[Any]) -> NDArray[Any]:
