@@ -52,7 +52,6 @@ from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.optimize import brentq
 
 from dimacq.errors import DataError, SetupError, SolverError
 from dimacq.model.frf import Channel, FrfData
@@ -1030,6 +1029,8 @@ def scale_to_known_mass(
     result : DimResult
         The solution on the scaled FRFs (mass not imposed).
     """
+    from scipy.optimize import brentq  # here: scipy.optimize costs start-up time to every solve
+
     if not mass_kg > 0:
         raise SetupError(f"known mass {mass_kg} kg must be positive")
     if band_hz is not None:

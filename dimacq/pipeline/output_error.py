@@ -98,7 +98,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 from scipy import linalg as scipy_linalg
-from scipy import stats
+from scipy import special
 from scipy.spatial.transform import Rotation
 
 from dimacq.errors import SetupError, SolverError
@@ -116,6 +116,14 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
+
+
+def _chi2_ppf(q: float, dof: int) -> float:
+    """χ² quantile, ``scipy.stats.chi2.ppf(q, dof)`` to the bit (its ``2·P⁻¹(dof/2, q)``) without
+    importing scipy.stats (a second of start-up for ``dimacq solve``)."""
+    return float(2.0 * special.gammaincinv(dof / 2, q))
+
+
 FloatArray = NDArray[np.float64]
 ComplexArray = NDArray[np.complex128]
 
@@ -1144,7 +1152,7 @@ def solve_output_error(
         ok_d = lam_d > max(float(lam_d.max()), 0.0) * 1e-9
         if ok_d.any():
             hz = float(np.sum((vec_d[:, ok_d].T @ dx) ** 2 / lam_d[ok_d]))
-            crit = float(stats.chi2.ppf(0.999, int(ok_d.sum())))
+            crit = _chi2_ppf(0.999, int(ok_d.sum()))
         else:  # no precision lost to the residual terms: nothing to test against
             hz, crit = 0.0, float("inf")
         needed = bool(hz > crit)
@@ -1344,7 +1352,7 @@ def _geometry_needed(
     n_eff = effective_lines(_line_residual(prob, theta, H, R, sigma, lw))
     lr = raw * n_eff / L
     k = max(int(np.sum(prob.free_g < n_geo)) - int(prob.gauge_rows.shape[0]), 1)
-    crit = float(stats.chi2.ppf(1.0 - ADEQUACY_P, k))
+    crit = _chi2_ppf(1.0 - ADEQUACY_P, k)
     return (
         {
             "tested": True,
@@ -1415,7 +1423,7 @@ def _adequacy(
         return {"tested": False, "reason": "the refinement changes nothing the data can test"}
     h = float(np.sum((vec[:, ok].T @ d) ** 2 / lam[ok]))
     dof = int(ok.sum())
-    crit = float(stats.chi2.ppf(1.0 - ADEQUACY_P, dof))
+    crit = _chi2_ppf(1.0 - ADEQUACY_P, dof)
     return {
         "tested": True,
         "test": f"Hausman (refined against stated geometry), p = {ADEQUACY_P:g}",

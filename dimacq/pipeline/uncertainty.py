@@ -43,7 +43,7 @@ from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import stats
+from scipy import special
 
 from dimacq.errors import SetupError, SolverError
 from dimacq.model.properties import vector_to_inertia
@@ -291,7 +291,7 @@ def estimate_uncertainty(
     se = np.sqrt(se_in**2 + se_r**2 + se_g**2 + se_l**2)
     for k in known or {}:
         se[PARAMETERS.index(k)] = 0.0
-    tq = float(stats.t.ppf(0.975, max(n_in - 1, 1)))
+    tq = float(special.stdtrit(max(n_in - 1, 1), 0.975))  # stats.t.ppf to the bit
     p = result.parameters
     params = {
         name: ParameterUncertainty(
