@@ -79,6 +79,7 @@ __all__ = [
     "plausibility",
     "scale_to_known_mass",
     "solve",
+    "solve_joint",
     "solve_system",
 ]
 
@@ -694,6 +695,129 @@ def _to_parameters(x: FloatArray, p: FloatArray, u: float) -> FloatArray:
     return out
 
 
+@dataclass(frozen=True, eq=False)
+class _NormalEquations:
+    """Per-line normal equations in the unknowns θ (known properties eliminated)."""
+
+    prm: _Param
+    Kw: ComplexArray  # input-weighted K, F: (L, 6, J)
+    Fw: ComplexArray
+    N: FloatArray  # (L, nθ, nθ)
+    rhs: FloatArray  # (L, nθ)
+    bb: FloatArray  # (L,) ‖b − A x0‖²
+
+
+def _normal_equations(
+    system: DimSystem,
+    known: Mapping[str, float],
+    input_weights: NDArray[np.floating] | None,
+) -> _NormalEquations:
+    """Checks, parameterisation, input weights and per-line normal equations of a solve."""
+    prm = _parameterisation(known, system.reference_point_m, system.unit_m)
+    n_theta = prm.T.shape[1]
+    if n_theta == 0:
+        raise SetupError("every property is known; leave at least one unknown to solve for")
+    n_lines, _, n_in = system.K.shape
+    if n_lines == 0:
+        raise SolverError("no frequency line to solve; widen the band")
+    w_in = np.ones(n_in) if input_weights is None else np.asarray(input_weights, float)
+    if w_in.shape != (n_in,) or np.any(w_in < 0):
+        raise SetupError(f"input_weights must be {n_in} non-negative numbers, one per input")
+    if input_weights is None:
+        Kw, Fw = system.K, system.F
+    else:
+        sw = np.sqrt(w_in)
+        Kw, Fw = system.K * sw, system.F * sw
+
+    # Normal equations from 6×6 Gram matrices (see module docstring, "Solution").
+    N_full, rhs_full, bb = _gram_normal_equations(Kw, Fw)
+    T, x0 = prm.T, prm.x0
+    if known:
+        Nx0 = N_full @ x0  # (L, 10)
+        N = T.T @ N_full @ T  # (L, nθ, nθ)
+        rhs = (rhs_full - Nx0) @ T  # (L, nθ)
+        bb = bb - 2.0 * rhs_full @ x0 + Nx0 @ x0  # ‖b − A x0‖² per line
+    else:  # T = I, x0 = 0
+        N, rhs = N_full, rhs_full
+    return _NormalEquations(prm, Kw, Fw, N, rhs, bb)
+
+
+def _solve_joint(
+    ne: _NormalEquations, w_l: FloatArray, rcond: float
+) -> tuple[FloatArray, int, float, float]:
+    """Joint least squares over the lines with weights ``w_l``: θ, rank, condition, residual.
+
+    Raises
+    ------
+    SolverError
+        Rank below the number of unknowns.
+    """
+    prm, N, rhs, bb = ne.prm, ne.N, ne.rhs, ne.bb
+    T, x0 = prm.T, prm.x0
+    n_theta = T.shape[1]
+    Nj = np.tensordot(w_l, N, axes=1)
+    rj = w_l @ rhs
+    theta, rank_j, cond, Ninv = _solve_normal(Nj, rj, rcond)
+    if cond > _REFINE_COND:
+        sel = np.nonzero(w_l > 0)[0]
+        A_t, b_t = _explicit_system(ne.Kw[sel], ne.Fw[sel], T, x0)
+        sq = np.sqrt(w_l[sel])
+        A_t, b_t = A_t * sq[:, None, None], b_t * sq[:, None]
+        for _ in range(2):
+            r = b_t - A_t @ theta
+            theta = theta + Ninv @ np.real(np.einsum("lij,li->j", A_t.conj(), r))
+        r = b_t - A_t @ theta
+        resid2 = float(np.sum(np.abs(r) ** 2))
+    else:
+        resid2 = float(w_l @ bb - 2.0 * theta @ rj + theta @ Nj @ theta)
+    bnorm2 = float(w_l @ bb)
+    resid = float(np.sqrt(max(resid2, 0.0) / bnorm2)) if bnorm2 > 0 else 0.0
+    rank = int(rank_j)
+    if rank < n_theta:
+        null = np.linalg.eigh(Nj)[1][:, 0]
+        worst = prm.names[int(np.argmax(np.abs(null)))]
+        raise SolverError(
+            f"the DIM system has rank {rank} < {n_theta} unknowns ({', '.join(prm.names)}): "
+            f"'{worst}' is not determined by the data; the inputs do not excite every rigid-body "
+            "DOF (run the excitation check) or the band holds no usable line"
+        )
+    return theta, rank, float(cond), resid
+
+
+def solve_joint(
+    system: DimSystem,
+    *,
+    known: Mapping[str, float] | None = None,
+    input_weights: NDArray[np.floating] | None = None,
+    rcond: float = 1e-10,
+) -> FloatArray:
+    """The joint answer of :func:`solve_system` alone, without the per-line spectrum.
+
+    ``solve_system(system, known=known, input_weights=input_weights).parameters`` to the bit
+    (the same operations in the same order), for callers that solve many times and use only
+    the joint answer (the jackknife over inputs).
+
+    Returns
+    -------
+    ndarray, shape (10,)
+        ``[m, cx, cy, cz, Ixx, Ixy, Ixz, Iyy, Iyz, Izz]`` (CG in the GCS, m; I about P, kg·m²).
+
+    Raises
+    ------
+    SolverError
+        As :func:`solve_system`: rank deficiency, no line, or a mass of exactly zero.
+    """
+    kn = dict(known or {})
+    ne = _normal_equations(system, kn, input_weights)
+    theta, _, _, _ = _solve_joint(ne, np.ones(system.K.shape[0]), rcond)
+    params = _to_parameters(ne.prm.T @ theta + ne.prm.x0, system.reference_point_m, system.unit_m)
+    if params[0] == 0:
+        raise SolverError(
+            "the estimated mass is exactly zero; the data carry no inertia information"
+        )
+    return params
+
+
 def solve_system(
     system: DimSystem,
     *,
@@ -728,32 +852,11 @@ def solve_system(
     known = dict(known or {})
     u = system.unit_m
     p = system.reference_point_m
-    prm = _parameterisation(known, p, u)
-    n_theta = prm.T.shape[1]
-    if n_theta == 0:
-        raise SetupError("every property is known; leave at least one unknown to solve for")
-    n_lines, _, n_in = system.K.shape
-    if n_lines == 0:
-        raise SolverError("no frequency line to solve; widen the band")
-    w_in = np.ones(n_in) if input_weights is None else np.asarray(input_weights, float)
-    if w_in.shape != (n_in,) or np.any(w_in < 0):
-        raise SetupError(f"input_weights must be {n_in} non-negative numbers, one per input")
-    if input_weights is None:
-        Kw, Fw = system.K, system.F
-    else:
-        sw = np.sqrt(w_in)
-        Kw, Fw = system.K * sw, system.F * sw
-
-    # Normal equations from 6×6 Gram matrices (see module docstring, "Solution").
-    N_full, rhs_full, bb = _gram_normal_equations(Kw, Fw)
+    ne = _normal_equations(system, known, input_weights)
+    prm, Kw, Fw, N, rhs = ne.prm, ne.Kw, ne.Fw, ne.N, ne.rhs
     T, x0 = prm.T, prm.x0
-    if known:
-        Nx0 = N_full @ x0  # (L, 10)
-        N = T.T @ N_full @ T  # (L, nθ, nθ)
-        rhs = (rhs_full - Nx0) @ T  # (L, nθ)
-        bb = bb - 2.0 * rhs_full @ x0 + Nx0 @ x0  # ‖b − A x0‖² per line
-    else:  # T = I, x0 = 0
-        N, rhs = N_full, rhs_full
+    n_theta = T.shape[1]
+    n_lines = system.K.shape[0]
 
     # Per line ---------------------------------------------------------------------------------
     theta_l, piv_l = _solve_lines(N, rhs)
@@ -770,32 +873,7 @@ def solve_system(
     w_l = np.ones(n_lines) if line_weights is None else np.asarray(line_weights, float)
     if w_l.shape != (n_lines,) or np.any(w_l < 0):
         raise SetupError(f"line_weights must be {n_lines} non-negative numbers, one per line")
-    Nj = np.tensordot(w_l, N, axes=1)
-    rj = w_l @ rhs
-    theta, rank_j, cond, Ninv = _solve_normal(Nj, rj, rcond)
-    if cond > _REFINE_COND:
-        sel = np.nonzero(w_l > 0)[0]
-        A_t, b_t = _explicit_system(Kw[sel], Fw[sel], T, x0)
-        sq = np.sqrt(w_l[sel])
-        A_t, b_t = A_t * sq[:, None, None], b_t * sq[:, None]
-        for _ in range(2):
-            r = b_t - A_t @ theta
-            theta = theta + Ninv @ np.real(np.einsum("lij,li->j", A_t.conj(), r))
-        r = b_t - A_t @ theta
-        resid2 = float(np.sum(np.abs(r) ** 2))
-    else:
-        resid2 = float(w_l @ bb - 2.0 * theta @ rj + theta @ Nj @ theta)
-    bnorm2 = float(w_l @ bb)
-    resid = float(np.sqrt(max(resid2, 0.0) / bnorm2)) if bnorm2 > 0 else 0.0
-    rank = int(rank_j)
-    if rank < n_theta:
-        null = np.linalg.eigh(Nj)[1][:, 0]
-        worst = prm.names[int(np.argmax(np.abs(null)))]
-        raise SolverError(
-            f"the DIM system has rank {rank} < {n_theta} unknowns ({', '.join(prm.names)}): "
-            f"'{worst}' is not determined by the data; the inputs do not excite every rigid-body "
-            "DOF (run the excitation check) or the band holds no usable line"
-        )
+    theta, rank, cond, resid = _solve_joint(ne, w_l, rcond)
     x = prm.T @ theta + prm.x0
     joint = _to_parameters(x, p, u)
 

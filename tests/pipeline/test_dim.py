@@ -342,3 +342,33 @@ def test_assembly_names_the_unmatched_channel() -> None:
     bad_in = (Channel(8888, 1),) + frf.inputs[1:]
     with pytest.raises(SetupError, match=r"input 8888\S* of the FRFs has no line of action"):
         dim.assemble(frf.replace(inputs=bad_in), fm.setup)
+
+
+@pytest.mark.parametrize(
+    "known",
+    [{}, {"m": 18.0}, {"m": 18.0, "cx": 0.03}, {"cz": -0.08, "Ixy": 0.0}],
+)
+def test_solve_joint_is_solve_systems_joint_answer_to_the_bit(known: dict[str, float]) -> None:
+    """The jackknife's joint-only solve: the same numbers, leave-one-out weights included."""
+    fm = calibration_mass(0)
+    rng = np.random.default_rng(5)
+    frf = fm.frf(BAND)
+    frf = frf.replace(H=frf.H * (1 + 0.01 * rng.standard_normal(frf.H.shape)))
+    system = dim.assemble(frf, fm.setup)
+    n_in = system.K.shape[2]
+    for w in (None, np.r_[0.0, np.ones(n_in - 1)], rng.uniform(0.2, 2.0, n_in)):
+        full = dim.solve_system(system, known=known, input_weights=w, check_plausibility=False)
+        np.testing.assert_array_equal(
+            dim.solve_joint(system, known=known, input_weights=w), full.parameters
+        )
+
+
+def test_solve_joint_refuses_what_solve_system_refuses() -> None:
+    fm = calibration_mass(0)
+    system = dim.assemble(fm.frf(BAND), fm.setup)
+    none = np.zeros(system.K.shape[2])  # every input weighted out: rank 0
+    for fn in (dim.solve_system, dim.solve_joint):
+        with pytest.raises(SolverError, match="rank 0 < 10"):
+            fn(system, input_weights=none)
+        with pytest.raises(SetupError, match="every property is known"):
+            fn(system, known=dict.fromkeys(PARAMETERS, 1.0))

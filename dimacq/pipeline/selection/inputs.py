@@ -61,7 +61,7 @@ from numpy.typing import NDArray
 from dimacq.errors import SetupError, SolverError
 from dimacq.model.frf import Channel
 from dimacq.model.setup import PARAMETERS
-from dimacq.pipeline.dim import DimSystem, design_matrices, solve_system
+from dimacq.pipeline.dim import DimSystem, design_matrices, solve_joint, solve_system
 from dimacq.pipeline.selection._common import robust_outlier
 
 __all__ = [
@@ -202,11 +202,10 @@ def jackknife_estimates(
     for j in np.nonzero(active)[0]:
         w = active.astype(float)
         w[j] = 0.0
-        try:
-            res = solve_system(system, known=known, input_weights=w, check_plausibility=False)
+        try:  # only the joint answer: solve_system's, without its per-line spectrum
+            est[j] = solve_joint(system, known=known, input_weights=w)
         except SolverError:
             continue
-        est[j] = res.parameters
         ok[j] = True
     return est, ok
 
