@@ -61,7 +61,7 @@ from numpy.typing import NDArray
 from dimacq.errors import SetupError, SolverError
 from dimacq.model.frf import Channel
 from dimacq.model.setup import PARAMETERS
-from dimacq.pipeline.dim import DimSystem, design_matrices, solve_joint, solve_system
+from dimacq.pipeline.dim import DimSystem, design_matrices, solve_joint
 from dimacq.pipeline.selection._common import robust_outlier
 
 __all__ = [
@@ -386,9 +386,7 @@ def jackknife_inputs(
         resid[idx] = predictive_residuals(system.select_inputs(idx), est[idx])
         stat = resid.copy()
         try:
-            full = solve_system(
-                system, known=known, input_weights=active.astype(float), check_plausibility=False
-            ).parameters
+            full = solve_joint(system, known=known, input_weights=active.astype(float))
             stat[idx] = np.sqrt(resid[idx] * predictive_residuals(system.select_inputs(idx), full))
         except SolverError:  # pragma: no cover - the active inputs excite rank 6 (checked)
             pass
