@@ -539,13 +539,18 @@ def _common_axis(records: Sequence[_Record], path: Path) -> NDArray[np.float64]:
     first = records[0]
     f0 = first.frequencies_hz
     scale = float(np.max(np.abs(f0))) if f0.size else 1.0
-    for r in records[1:]:
-        f = r.frequencies_hz
-        if f.shape != f0.shape or not np.allclose(f, f0, rtol=1e-9, atol=1e-12 * scale):
-            raise DataError(
-                f"{path}: {r.name} has {_axis_text(f)} but {first.name} has {_axis_text(f0)}; "
-                "export all FRFs on one frequency axis"
-            )
+    rest = records[1:]
+    # np.allclose of every record with the first, in one comparison of the stacked axes.
+    ok = np.array([r.frequencies_hz.shape == f0.shape for r in rest], dtype=bool)
+    if ok.any():
+        same = np.stack([r.frequencies_hz for r, o in zip(rest, ok, strict=True) if o])
+        ok[ok] = np.all(np.isclose(same, f0, rtol=1e-9, atol=1e-12 * scale), axis=1)
+    if not ok.all():
+        r = rest[int(np.argmin(ok))]  # the first record off the axis
+        raise DataError(
+            f"{path}: {r.name} has {_axis_text(r.frequencies_hz)} but {first.name} has "
+            f"{_axis_text(f0)}; export all FRFs on one frequency axis"
+        )
     return f0
 
 

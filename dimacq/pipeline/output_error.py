@@ -659,21 +659,20 @@ class _Problem:
         rn = np.zeros((nn, 3))
         np.add.at(rn, self.node_of, self.r0)
         rn /= np.bincount(self.node_of, minlength=nn)[:, None]
-        for i in range(3):
+        Gn = G[: 6 * nn].reshape(nn, 6, 8)  # rows of sensor node n: δp (3), δθ (3)
+        Gj = G[6 * nn : 6 * nn + 4 * J].reshape(J, 4, 8)  # rows of input k: β (2), γ (2)
+        eb = np.asarray(self.ebasis)  # (J, 2, 3)
+        for i in range(3):  # over the three axes; nodes and inputs at once (same bits as per item)
             e = _E[i]
-            for n in range(nn):
-                G[6 * n + 3 : 6 * n + 6, i] = e
-                G[6 * n + i, 3 + i] = 1.0
-                G[6 * n + 3 : 6 * n + 6, 3 + i] = np.cross(e, rn[n])
-            for k in range(J):
-                b = 6 * nn + 4 * k
-                G[b + 2 : b + 4, i] = self.ebasis[k] @ e
-                G[b : b + 2, 3 + i] = self.ebasis[k] @ e
-                G[b + 2 : b + 4, 3 + i] = self.ebasis[k] @ np.cross(e, self.rin0[k])
-        for n in range(nn):
-            G[6 * n + 3 : 6 * n + 6, 6] = rn[n]
-        for k in range(J):
-            G[6 * nn + 4 * k + 2 : 6 * nn + 4 * k + 4, 6] = self.ebasis[k] @ self.rin0[k]
+            Gn[:, 3:6, i] = e
+            Gn[:, i, 3 + i] = 1.0
+            Gn[:, 3:6, 3 + i] = np.cross(e, rn)
+            be = eb @ e  # (J, 2)
+            Gj[:, 2:4, i] = be
+            Gj[:, 0:2, 3 + i] = be
+            Gj[:, 2:4, 3 + i] = (eb @ np.cross(e, self.rin0)[:, :, None])[:, :, 0]
+        Gn[:, 3:6, 6] = rn
+        Gj[:, 2:4, 6] = (eb @ np.asarray(self.rin0)[:, :, None])[:, :, 0]
         G[6 * nn + 4 * J :, 7] = 1.0
         return G
 
