@@ -983,7 +983,7 @@ def solve_output_error(
     eps_r = setup.transducer_uncertainty.loadcell_matrix_rel if setup.load_cells else 0.0
     psi0 = np.concatenate([d0, np.cross(r0, d0)], axis=1)
     phi0 = np.concatenate([din0_a, np.cross(rin0_a, din0_a)], axis=1)
-    A0 = np.linalg.inv(mass_matrix(x_start)[0])
+    A0 = np.asarray(np.linalg.inv(mass_matrix(x_start)[0]), dtype=np.float64)  # typed for mypy
 
     # from the measured noise and the certificates; the a posteriori variance factor below
     # scales the whole noise model, not the lines' relative weights
