@@ -282,6 +282,10 @@ _58_AXES = {
 }
 
 
+#: A line end as ``bytes.splitlines`` sees one.
+_EOL = re.compile(rb"\r\n|\r|\n")
+
+
 def _fast_58b(block: bytes) -> dict[str, Any] | None:
     """A binary 58 record (the fields :func:`_record` reads), or None to let pyuff read it.
 
@@ -294,15 +298,13 @@ def _fast_58b(block: bytes) -> dict[str, Any] | None:
     an ordinate type pyuff does not read, a malformed header) returns None.
     """
     # The 13 header lines as pyuff cuts them: bytes.splitlines (\n, \r, \r\n), then decoded.
+    ends = _EOL.finditer(block)
     end = 0
     for _ in range(13):
-        nl, cr = block.find(b"\n", end), block.find(b"\r", end)
-        if nl < 0 and cr < 0:
+        m = next(ends, None)
+        if m is None:
             return None
-        if cr >= 0 and (nl < 0 or cr < nl):
-            end = cr + 2 if block[cr + 1 : cr + 2] == b"\n" else cr + 1
-        else:
-            end = nl + 1
+        end = m.end()
     lines = block[:end].decode("utf-8", errors="replace").splitlines(True)
     if len(lines) != 13 or len(lines[1]) < 7 or lines[1][6].lower() != "b":
         return None

@@ -338,15 +338,15 @@ def suggest_band(
     f = data.frequencies_hz
     n = f.size
     # np.take: numpy's fancy indexing on the middle axis of a complex array is several times
-    # slower. The rigid-body fit Ψ Ψ⁺ q is one real matmul on the (re, im) view.
+    # slower. The rigid-body fit Ψ Ψ⁺ q is one real matmul on the (re, im) view, and the
+    # squared norms are sums over that view.
     qa = np.take(data.H, geo.output_index[use], axis=1)  # (L, n_used, n_in)
     sv = cmif(qa)
     psi = response_matrix(geo.positions_m, geo.directions, setup.reference_point)[use]
-    fit = ((psi @ np.linalg.pinv(psi)) @ qa.view(np.float64)).view(np.complex128)
+    qv = qa.view(np.float64)  # (L, n_used, 2 n_in): |z|² summed as re² + im²
+    dv = qv - (psi @ np.linalg.pinv(psi)) @ qv
     with np.errstate(divide="ignore", invalid="ignore"):
-        e = np.sqrt(
-            np.sum(np.abs(qa - fit) ** 2, axis=(1, 2)) / np.sum(np.abs(qa) ** 2, axis=(1, 2))
-        )
+        e = np.sqrt(np.einsum("lcx,lcx->l", dv, dv) / np.einsum("lcx,lcx->l", qv, qv))
     e = np.where(np.isfinite(e), e, np.inf)
     system = assemble(data, setup, response_weights=w)
     try:
