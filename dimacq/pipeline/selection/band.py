@@ -170,14 +170,37 @@ def find_peaks(x: NDArray[np.floating], prominence: float) -> NDArray[np.intp]:
     prom = np.empty(out.size)
     for m, pk in enumerate(out.tolist()):
         top = v[pk]
-        stop_l = np.nonzero(~(v[:pk] <= top))[0]
-        lo = int(stop_l[-1]) + 1 if stop_l.size else 0
-        stop_r = np.nonzero(~(v[pk + 1 :] <= top))[0]
-        hi = pk + 1 + int(stop_r[0]) if stop_r.size else n
+        lo = _first_not_below(v, pk, top, -1) + 1  # after the first higher (or NaN) sample
+        hi = _first_not_below(v, pk, top, +1)
         left_min = float(np.min(v[lo : pk + 1]))
         right_min = float(np.min(v[pk:hi]))
         prom[m] = top - (left_min if left_min > right_min else right_min)
     return out[prominence <= prom]
+
+
+def _first_not_below(v: FloatArray, pk: int, top: float, step: int) -> int:
+    """Nearest index to the left (``step`` −1) or right (+1) of ``pk`` whose sample is not
+    ``<= top`` (higher, or NaN); −1 or ``v.size`` if none. Searched in widening windows, since
+    a higher sample is usually near."""
+    n = v.size
+    width = 32
+    if step < 0:
+        end = pk
+        while end > 0:
+            start = max(0, end - width)
+            hit = np.flatnonzero(~(v[start:end] <= top))
+            if hit.size:
+                return start + int(hit[-1])
+            end, width = start, width * 4
+        return -1
+    start = pk + 1
+    while start < n:
+        end = min(n, start + width)
+        hit = np.flatnonzero(~(v[start:end] <= top))
+        if hit.size:
+            return start + int(hit[0])
+        start, width = end, width * 4
+    return n
 
 
 def cmif(H: NDArray[np.complexfloating]) -> FloatArray:
