@@ -146,61 +146,28 @@ def find_peaks(x: NDArray[np.floating], prominence: float) -> NDArray[np.intp]:
     """
     v = np.ascontiguousarray(x, dtype=np.float64)
     n = v.size
-    peaks: list[int] = []
-    if n >= 3:
-        # Candidates: a rise into i (x[i-1] < x[i]); then the run of equal samples after it.
-        rise = np.nonzero(v[:-2] < v[1:-1])[0] + 1
-        # Index of the first sample after i that differs from x[i] (n - 1 at most).
-        diff_at = np.nonzero(v[1:] != v[:-1])[0] + 1  # positions where x changes
-        i = 0
-        for c in rise.tolist():
-            if c < i:
-                continue  # inside the flat top of the previous peak
-            k = int(np.searchsorted(diff_at, c + 1))
-            ahead = int(diff_at[k]) if k < diff_at.size else n - 1
-            ahead = min(ahead, n - 1)
-            if v[ahead] < v[c]:
-                peaks.append((c + ahead - 1) // 2)
-                i = ahead + 1
-            else:
-                i = c + 1
-    out = np.asarray(peaks, dtype=np.intp)
-    if out.size == 0:
-        return out
+    if n < 3:
+        return np.zeros(0, dtype=np.intp)
+    # Runs of equal samples (NaN ends a run: NaN != NaN). A run is a peak when the samples
+    # before and after it are lower; the first and last runs touch the ends and never are.
+    change = np.flatnonzero(v[1:] != v[:-1]) + 1
+    starts = np.concatenate([[0], change])
+    ends = np.concatenate([change - 1, [n - 1]])
+    top = v[starts]
+    k = np.arange(1, starts.size - 1)
+    is_peak = (top[k - 1] < top[k]) & (top[k + 1] < top[k])
+    out = ((starts[k] + ends[k]) // 2)[is_peak].astype(np.intp)
     prom = np.empty(out.size)
     for m, pk in enumerate(out.tolist()):
-        top = v[pk]
-        lo = _first_not_below(v, pk, top, -1) + 1  # after the first higher (or NaN) sample
-        hi = _first_not_below(v, pk, top, +1)
+        h = v[pk]
+        stop_l = np.flatnonzero(~(v[:pk] <= h))  # higher samples, or NaN, on the left
+        lo = int(stop_l[-1]) + 1 if stop_l.size else 0
+        stop_r = np.flatnonzero(~(v[pk + 1 :] <= h))
+        hi = pk + 1 + int(stop_r[0]) if stop_r.size else n
         left_min = float(np.min(v[lo : pk + 1]))
         right_min = float(np.min(v[pk:hi]))
-        prom[m] = top - (left_min if left_min > right_min else right_min)
+        prom[m] = h - (left_min if left_min > right_min else right_min)
     return out[prominence <= prom]
-
-
-def _first_not_below(v: FloatArray, pk: int, top: float, step: int) -> int:
-    """Nearest index to the left (``step`` −1) or right (+1) of ``pk`` whose sample is not
-    ``<= top`` (higher, or NaN); −1 or ``v.size`` if none. Searched in widening windows, since
-    a higher sample is usually near."""
-    n = v.size
-    width = 32
-    if step < 0:
-        end = pk
-        while end > 0:
-            start = max(0, end - width)
-            hit = np.flatnonzero(~(v[start:end] <= top))
-            if hit.size:
-                return start + int(hit[-1])
-            end, width = start, width * 4
-        return -1
-    start = pk + 1
-    while start < n:
-        end = min(n, start + width)
-        hit = np.flatnonzero(~(v[start:end] <= top))
-        if hit.size:
-            return start + int(hit[0])
-        start, width = end, width * 4
-    return n
 
 
 def cmif(H: NDArray[np.complexfloating]) -> FloatArray:
