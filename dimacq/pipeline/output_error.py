@@ -994,10 +994,19 @@ def solve_output_error(
         # with residual terms the projection is per channel over all lines: no line weights
         return None if use_basis else lw0
 
+    # The reduced statistics depend on the data, the noise scale and the basis only, not on the
+    # free geometry: fits that share them (the first fit, the gains-only fit of the geometry
+    # test, the refits) reuse them. Keyed by the very arrays (sigma is rebound when rescaled).
+    stats_memo: dict[bool, tuple[tuple[object, ...], tuple[FloatArray, FloatArray, float]]] = {}
+
     def build(use_basis: bool, free_g: NDArray[np.intp]) -> tuple[_Problem, float]:
-        Ly, Lh, const = _statistics(
-            H, R, sigma, cov_R, basis if use_basis else None, line_w(use_basis)
-        )
+        args = (H, R, sigma, cov_R, basis if use_basis else None, line_w(use_basis))
+        memo = stats_memo.get(use_basis)
+        if memo is not None and all(a is b for a, b in zip(memo[0], args, strict=True)):
+            Ly, Lh, const = memo[1]
+        else:
+            Ly, Lh, const = _statistics(*args)
+            stats_memo[use_basis] = (args, (Ly, Lh, const))
         return (
             _Problem(
                 r0, d0, node_of, nodes, rin0_a, din0_a, eb, 1.0 / sigma, Ly, Lh,
