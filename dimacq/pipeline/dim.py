@@ -727,7 +727,10 @@ def _normal_equations(
         Kw, Fw = system.K, system.F
     else:
         sw = np.sqrt(w_in)
-        Kw, Fw = system.K * sw, system.F * sw
+        # C order: a system from select_inputs is not C-contiguous, and the Gram matrices
+        # would copy the weighted arrays again (same values either way)
+        Kw = np.multiply(system.K, sw, order="C")
+        Fw = np.multiply(system.F, sw, order="C")
 
     # Normal equations from 6×6 Gram matrices (see module docstring, "Solution").
     N_full, rhs_full, bb = _gram_normal_equations(Kw, Fw)
