@@ -199,9 +199,10 @@ def _read_sets(path: Path) -> list[dict[str, Any]]:
     # binary 58 records are read from it directly (_fast_58b), the rest through pyuff.
     blocks = getattr(uff, "_block_ind", None)
     raw = path.read_bytes() if blocks is not None and len(blocks) == n else None
+    memo: dict[tuple[int, str], dict[str, Any] | None] = {}  # parsed header lines
     for k in range(n):
         if raw is not None and int(types[k]) == 58 and blocks is not None:
-            fast = _fast_58b(raw[int(blocks[k][0]) : int(blocks[k][1]) + 1])
+            fast = _fast_58b(raw[int(blocks[k][0]) : int(blocks[k][1]) + 1], memo)
             if fast is not None:
                 sets.append(fast)
                 continue
@@ -286,7 +287,9 @@ _58_AXES = {
 _EOL = re.compile(rb"\r\n|\r|\n")
 
 
-def _fast_58b(block: bytes) -> dict[str, Any] | None:
+def _fast_58b(
+    block: bytes, memo: dict[tuple[int, str], dict[str, Any] | None] | None = None
+) -> dict[str, Any] | None:
     """A binary 58 record (the fields :func:`_record` reads), or None to let pyuff read it.
 
     pyuff spends about 1 ms of Python per record on the header (its general field parser, on
@@ -295,7 +298,8 @@ def _fast_58b(block: bytes) -> dict[str, Any] | None:
     same rules (:func:`_fields`), the values are read with ``np.frombuffer`` in the stated byte
     order and precision, and abscissa and ordinate are formed with pyuff's own expressions, so
     the arrays are equal to the bit (``tests/io/test_uff_fast_58b.py``). Anything else (ASCII,
-    an ordinate type pyuff does not read, a malformed header) returns None.
+    an ordinate type pyuff does not read, a malformed header) returns None. ``memo`` keeps the
+    parsed header lines across the records of one file (most lines repeat in every record).
     """
     # The 13 header lines as pyuff cuts them: bytes.splitlines (\n, \r, \r\n), then decoded.
     ends = _EOL.finditer(block)
@@ -308,10 +312,16 @@ def _fast_58b(block: bytes) -> dict[str, Any] | None:
     lines = block[:end].decode("utf-8", errors="replace").splitlines(True)
     if len(lines) != 13 or len(lines[1]) < 7 or lines[1][6].lower() != "b":
         return None
-    parts = [
-        _fields(lines[i], spec) for i, spec in ((1, _58_LINE1), (7, _58_LINE7), (8, _58_LINE8))
-    ]
-    parts += [_fields(lines[i], spec) for i, spec in _58_AXES.items()]
+    specs = ((1, _58_LINE1), (7, _58_LINE7), (8, _58_LINE8), *_58_AXES.items())
+    parts: list[dict[str, Any] | None] = []
+    for i, spec in specs:  # the records of a test share most header lines: parse each once
+        if memo is None:
+            parts.append(_fields(lines[i], spec))
+            continue
+        key = (i, lines[i])
+        if key not in memo:
+            memo[key] = _fields(lines[i], spec)
+        parts.append(memo[key])
     if any(p is None for p in parts):
         return None
     d: dict[str, Any] = {"type": 58, "binary": 1}
