@@ -578,7 +578,9 @@ def _assemble(
     f = _common_axis(records, path)
     o_index = {ch: i for i, (ch, _) in enumerate(outputs)}
     i_index = {ch: i for i, ch in enumerate(inputs)}
-    H = np.zeros((f.size, len(outputs), len(inputs)), dtype=complex)
+    # Each record is written contiguously (lines last), then one transpose to (lines, out, in):
+    # writing a record straight into H touched one cache line per frequency line.
+    Ht = np.zeros((len(outputs), len(inputs), f.size), dtype=complex)
     seen = np.zeros((len(outputs), len(inputs)), dtype=bool)
     for r in records:
         o = o_index.get(Channel(r.rsp_node, r.rsp_dir))
@@ -590,7 +592,7 @@ def _assemble(
                 f"{path}: {r.name} repeats an FRF already read; keep one record per "
                 "response/reference pair"
             )
-        H[:, o, i] = r.data
+        Ht[o, i] = r.data
         seen[o, i] = True
     if not seen.all():
         o, i = (int(v[0]) for v in np.nonzero(~seen))
@@ -599,6 +601,8 @@ def _assemble(
             f"({int((~seen).sum())} of {seen.size} pairs missing); "
             "export every response for every input"
         )
+    H = np.ascontiguousarray(Ht.transpose(2, 0, 1))
+    del Ht
     try:
         return FrfData(
             frequencies_hz=f,
