@@ -10,12 +10,21 @@ from __future__ import annotations
 import argparse
 import importlib
 import logging
+import os
 import pkgutil
 import sys
 from collections.abc import Sequence
 
-from dimacq.cli import commands
-from dimacq.errors import DimacqError
+# One BLAS thread unless the caller chose otherwise, set before numpy loads OpenBLAS. The
+# numerical core multiplies many small matrices (6×2J Gram matrices per line, 10×10 systems);
+# on those OpenBLAS's worker threads spin instead of helping: the DIM normal equations of a
+# 1357-line test took 6.1 ms of CPU with two threads and 1.0 ms with one, and on a machine
+# shared with other jobs the spinning threads wait for cores (dimacq solve: issue #27).
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+from dimacq.cli import commands  # noqa: E402
+from dimacq.errors import DimacqError  # noqa: E402
 
 
 def build_parser() -> argparse.ArgumentParser:

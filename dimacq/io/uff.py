@@ -195,7 +195,17 @@ def _read_sets(path: Path) -> list[dict[str, Any]]:
         raise DataError(f"{path}: no UFF datasets found; is it a UFF file?")
     sets: list[dict[str, Any]] = []
     types = uff.get_set_types()
+    # pyuff's index of the blocks (start of the opening '-1' tag, end before the closing one):
+    # binary 58 records are read from it directly (_fast_58b), the rest through pyuff.
+    blocks = getattr(uff, "_block_ind", None)
+    raw = path.read_bytes() if blocks is not None and len(blocks) == n else None
+    memo: dict[tuple[int, str], dict[str, Any] | None] = {}  # parsed header lines
     for k in range(n):
+        if raw is not None and int(types[k]) == 58 and blocks is not None:
+            fast = _fast_58b(raw[int(blocks[k][0]) : int(blocks[k][1]) + 1], memo)
+            if fast is not None:
+                sets.append(fast)
+                continue
         try:
             d = uff.read_sets(k)
         except Exception as err:
@@ -205,6 +215,143 @@ def _read_sets(path: Path) -> list[dict[str, Any]]:
             ) from err
         sets.append(d)
     return sets
+
+
+def _fields(line: str, spec: Sequence[tuple[int, int, str, str, bool]]) -> dict[str, Any] | None:
+    """Fixed-width fields of a header line as pyuff's ``_parse_header_line`` reads them.
+
+    ``spec`` rows: (start, width, type "i"/"f"/"s", name, mandatory). An optional number that
+    does not parse becomes 0 (pyuff's rule); a mandatory one returns None (pyuff then raises).
+    """
+    if len(line) < 80:
+        line = line + " " * (80 - len(line))
+    out: dict[str, Any] = {}
+    for start, width, kind, name, mandatory in spec:
+        text = line[start : start + width].strip()
+        if kind == "s":
+            out[name] = text
+            continue
+        try:
+            out[name] = int(text) if kind == "i" else float(text)
+        except ValueError:
+            if mandatory:
+                return None
+            out[name] = 0 if kind == "i" else 0.0
+    return out
+
+
+# (start, width, type, name, mandatory) of the header fields pyuff reads (its widths and types).
+_58_LINE1 = (
+    (7, 6, "i", "byte_ordering", True),
+    (13, 6, "i", "fp_format", True),
+    (19, 12, "i", "n_ascii_lines", True),
+    (31, 12, "i", "n_bytes", True),
+)
+_58_LINE7 = (
+    (0, 5, "i", "func_type", True),
+    (41, 10, "i", "rsp_node", False),
+    (51, 4, "i", "rsp_dir", False),
+    (66, 10, "i", "ref_node", False),
+    (76, 4, "i", "ref_dir", False),
+)
+_58_LINE8 = (
+    (0, 10, "i", "ord_data_type", True),
+    (10, 10, "i", "num_pts", True),
+    (20, 10, "i", "abscissa_spacing", True),
+    (30, 13, "f", "abscissa_min", True),
+    (43, 13, "f", "abscissa_inc", True),
+    (56, 13, "f", "z_axis_value", True),
+)
+
+
+def _58_axis(prefix: str) -> tuple[tuple[int, int, str, str, bool], ...]:
+    return (
+        (0, 10, "i", f"{prefix}_spec_data_type", True),
+        (10, 5, "i", f"{prefix}_len_unit_exp", True),
+        (15, 5, "i", f"{prefix}_force_unit_exp", True),
+        (20, 5, "i", f"{prefix}_temp_unit_exp", True),
+        (25, 21, "s", f"{prefix}_axis_lab", False),
+        (46, 21, "s", f"{prefix}_axis_units_lab", False),
+    )
+
+
+_58_AXES = {
+    9: _58_axis("abscissa"),
+    10: _58_axis("ordinate"),
+    11: _58_axis("orddenom"),
+    12: _58_axis("z_axis"),
+}
+
+
+#: A line end as ``bytes.splitlines`` sees one.
+_EOL = re.compile(rb"\r\n|\r|\n")
+
+
+def _fast_58b(
+    block: bytes, memo: dict[tuple[int, str], dict[str, Any] | None] | None = None
+) -> dict[str, Any] | None:
+    """A binary 58 record (the fields :func:`_record` reads), or None to let pyuff read it.
+
+    pyuff spends about 1 ms of Python per record on the header (its general field parser, on
+    every field) and unpacks the values through a tuple of Python floats; an acquired test
+    holds hundreds of records. Here the same header lines are cut at the same columns with the
+    same rules (:func:`_fields`), the values are read with ``np.frombuffer`` in the stated byte
+    order and precision, and abscissa and ordinate are formed with pyuff's own expressions, so
+    the arrays are equal to the bit (``tests/io/test_uff_fast_58b.py``). Anything else (ASCII,
+    an ordinate type pyuff does not read, a malformed header) returns None. ``memo`` keeps the
+    parsed header lines across the records of one file (most lines repeat in every record).
+    """
+    # The 13 header lines as pyuff cuts them: bytes.splitlines (\n, \r, \r\n), then decoded.
+    ends = _EOL.finditer(block)
+    end = 0
+    for _ in range(13):
+        m = next(ends, None)
+        if m is None:
+            return None
+        end = m.end()
+    lines = block[:end].decode("utf-8", errors="replace").splitlines(True)
+    if len(lines) != 13 or len(lines[1]) < 7 or lines[1][6].lower() != "b":
+        return None
+    specs = ((1, _58_LINE1), (7, _58_LINE7), (8, _58_LINE8), *_58_AXES.items())
+    parts: list[dict[str, Any] | None] = []
+    for i, spec in specs:  # the records of a test share most header lines: parse each once
+        if memo is None:
+            parts.append(_fields(lines[i], spec))
+            continue
+        key = (i, lines[i])
+        if key not in memo:
+            memo[key] = _fields(lines[i], spec)
+        parts.append(memo[key])
+    if any(p is None for p in parts):
+        return None
+    d: dict[str, Any] = {"type": 58, "binary": 1}
+    for p in parts:
+        assert p is not None
+        d.update(p)
+    ord_type = d["ord_data_type"]
+    if ord_type not in (2, 4, 5, 6):
+        return None
+    data = block[end:]
+    size = 4 if ord_type in (2, 5) else 8
+    order = "<" if d["byte_ordering"] == 1 else ">"
+    values = np.frombuffer(data[: len(data) // size * size], dtype=f"{order}f{size}").astype(
+        np.float64
+    )
+    even = d["abscissa_spacing"] != 0
+    if ord_type in (2, 4):
+        if even:
+            d["x"] = d["abscissa_min"] + np.arange(len(values)) * d["abscissa_inc"]
+            d["data"] = values.copy()
+        else:
+            d["x"] = values[:-1:2].copy()
+            d["data"] = values[1::2].copy()
+    elif even:
+        d["x"] = d["abscissa_min"] + np.arange(len(values) / 2) * d["abscissa_inc"]
+        d["data"] = values[0:-1:2] + 1.0j * values[1::2]
+    else:
+        d["x"] = values[:-2:3].copy()
+        d["data"] = values[1:-1:3] + 1.0j * values[2::3]
+    return d
 
 
 def _system_18(
@@ -404,13 +551,18 @@ def _common_axis(records: Sequence[_Record], path: Path) -> NDArray[np.float64]:
     first = records[0]
     f0 = first.frequencies_hz
     scale = float(np.max(np.abs(f0))) if f0.size else 1.0
-    for r in records[1:]:
-        f = r.frequencies_hz
-        if f.shape != f0.shape or not np.allclose(f, f0, rtol=1e-9, atol=1e-12 * scale):
-            raise DataError(
-                f"{path}: {r.name} has {_axis_text(f)} but {first.name} has {_axis_text(f0)}; "
-                "export all FRFs on one frequency axis"
-            )
+    rest = records[1:]
+    # np.allclose of every record with the first, in one comparison of the stacked axes.
+    ok = np.array([r.frequencies_hz.shape == f0.shape for r in rest], dtype=bool)
+    if ok.any():
+        same = np.stack([r.frequencies_hz for r, o in zip(rest, ok, strict=True) if o])
+        ok[ok] = np.all(np.isclose(same, f0, rtol=1e-9, atol=1e-12 * scale), axis=1)
+    if not ok.all():
+        r = rest[int(np.argmin(ok))]  # the first record off the axis
+        raise DataError(
+            f"{path}: {r.name} has {_axis_text(r.frequencies_hz)} but {first.name} has "
+            f"{_axis_text(f0)}; export all FRFs on one frequency axis"
+        )
     return f0
 
 
@@ -426,7 +578,9 @@ def _assemble(
     f = _common_axis(records, path)
     o_index = {ch: i for i, (ch, _) in enumerate(outputs)}
     i_index = {ch: i for i, ch in enumerate(inputs)}
-    H = np.zeros((f.size, len(outputs), len(inputs)), dtype=complex)
+    # Each record is written contiguously (lines last), then one transpose to (lines, out, in):
+    # writing a record straight into H touched one cache line per frequency line.
+    Ht = np.zeros((len(outputs), len(inputs), f.size), dtype=complex)
     seen = np.zeros((len(outputs), len(inputs)), dtype=bool)
     for r in records:
         o = o_index.get(Channel(r.rsp_node, r.rsp_dir))
@@ -438,7 +592,7 @@ def _assemble(
                 f"{path}: {r.name} repeats an FRF already read; keep one record per "
                 "response/reference pair"
             )
-        H[:, o, i] = r.data
+        Ht[o, i] = r.data
         seen[o, i] = True
     if not seen.all():
         o, i = (int(v[0]) for v in np.nonzero(~seen))
@@ -447,6 +601,8 @@ def _assemble(
             f"({int((~seen).sum())} of {seen.size} pairs missing); "
             "export every response for every input"
         )
+    H = np.ascontiguousarray(Ht.transpose(2, 0, 1))
+    del Ht
     try:
         return FrfData(
             frequencies_hz=f,

@@ -52,7 +52,6 @@ from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.optimize import brentq
 
 from dimacq.errors import DataError, SetupError, SolverError
 from dimacq.model.frf import Channel, FrfData
@@ -80,6 +79,7 @@ __all__ = [
     "plausibility",
     "scale_to_known_mass",
     "solve",
+    "solve_joint",
     "solve_system",
 ]
 
@@ -199,43 +199,37 @@ def assemble(
         frf = frf.band(lo, hi)
 
     # Responses -------------------------------------------------------------------------------
-    by_key = {(c.node, c.direction): c for c in setup.responses}
     acc_idx = frf.output_index("acceleration")
     if acc_idx.size == 0:
         raise DataError("the FRFs hold no acceleration output; DIM needs accelerometer FRFs")
-    pos, dirs = [], []
-    for i in acc_idx:
-        ch = frf.outputs[i]
-        rc = by_key.get((ch.node, ch.direction)) or by_key.get((ch.node, -ch.direction))
-        if rc is None:
-            raise SetupError(
-                f"response {ch.name} of the FRFs is not in the setup; add it to responses "
-                "with its position and direction, or drop the record"
-            )
-        sign = 1.0 if rc.direction == ch.direction else -1.0
-        pos.append(rc.position_m)
-        dirs.append(sign * np.asarray(rc.direction_gcs, float))
-    psi = response_matrix(np.asarray(pos) / u, np.asarray(dirs), p / u)
+    out_keys = _channel_keys(frf.outputs)
+    r_at, r_sign = _match_channels(out_keys[acc_idx], _channel_keys(setup.responses))
+    if np.any(r_at < 0):
+        ch = frf.outputs[int(acc_idx[np.argmax(r_at < 0)])]
+        raise SetupError(
+            f"response {ch.name} of the FRFs is not in the setup; add it to responses "
+            "with its position and direction, or drop the record"
+        )
+    pos = setup.response_positions[r_at]
+    dirs = r_sign[:, None] * setup.response_directions[r_at]
+    psi = response_matrix(pos / u, dirs, p / u)
     cond = condense(psi, response_weights)
     H = frf.H
     K = _apply_real(cond.transform / u, H, acc_idx)
 
     # Inputs ------------------------------------------------------------------------------------
-    ex_key = {(e.node, e.direction): e for e in setup.excitations}
-    in_pos, in_dir = [], []
-    for ch in frf.inputs:
-        ex = ex_key.get((ch.node, ch.direction)) or ex_key.get((ch.node, -ch.direction))
-        if ex is None:
-            raise SetupError(
-                f"input {ch.name} of the FRFs has no line of action in the setup; add it to "
-                "excitations with position_m and direction_gcs"
-            )
-        assert ex.direction_gcs is not None
-        sign = 1.0 if ex.direction == ch.direction else -1.0
-        in_pos.append(ex.position_m)
-        in_dir.append(sign * np.asarray(ex.direction_gcs, float))
-    phi = force_vectors(np.asarray(in_pos) / u, np.asarray(in_dir), p / u)
-    F = np.broadcast_to(phi[None].astype(complex), K.shape).copy()
+    e_at, e_sign = _match_channels(_channel_keys(frf.inputs), _channel_keys(setup.excitations))
+    if np.any(e_at < 0):
+        ch = frf.inputs[int(np.argmax(e_at < 0))]
+        raise SetupError(
+            f"input {ch.name} of the FRFs has no line of action in the setup; add it to "
+            "excitations with position_m and direction_gcs"
+        )
+    in_pos = setup.input_positions[e_at]
+    in_dir = e_sign[:, None] * setup.input_directions[e_at]
+    phi = force_vectors(in_pos / u, in_dir, p / u)
+    F = np.empty_like(K)
+    F[...] = phi
 
     # Load cells ----------------------------------------------------------------------------------
     cells = {lc.node: lc for lc in setup.load_cells}
@@ -277,13 +271,14 @@ def assemble(
         used_cells.append(node)
 
     # Consistent units (kg, unit, s): forces are kg·unit/s² = N/u, moments kg·unit²/s² = N·m/u².
-    # So far F holds forces in N and moments in N·unit (N·m/u): one more division by u.
-    F /= u
+    # So far F holds forces in N and moments in N·unit (N·m/u): one more division by u, on the
+    # real view (a complex array divided by a real number goes through complex division).
+    F.view(np.float64)[...] /= u
 
     hull = np.concatenate(
         [
-            np.asarray(pos),
-            np.asarray(in_pos),
+            pos,
+            in_pos,
             np.array([c.position_m for c in setup.load_cells]).reshape(-1, 3),
         ]
     )
@@ -304,12 +299,55 @@ def assemble(
     )
 
 
+def _channel_keys(channels: Sequence[Any]) -> NDArray[np.int64]:
+    """(node, direction) of channels or setup items, shape (n, 2)."""
+    return np.array([(c.node, c.direction) for c in channels], dtype=np.int64).reshape(-1, 2)
+
+
+def _match_channels(
+    keys: NDArray[np.int64], table: NDArray[np.int64]
+) -> tuple[NDArray[np.intp], FloatArray]:
+    """Row of ``table`` holding each (node, direction) of ``keys``, or its opposite direction.
+
+    The same direction wins over the opposite one (a setup may list both). Returns the rows
+    (−1 where neither is in the table) and the signs (+1 same direction, −1 opposite).
+    """
+    if table.shape[0] == 0:
+        return np.full(keys.shape[0], -1, dtype=np.intp), np.ones(keys.shape[0])
+    # Integer codes of (node, direction): UFF directions are within ±6.
+    code_t = table[:, 0] * 64 + table[:, 1]
+    order = np.argsort(code_t, kind="stable")
+    sorted_t = code_t[order]
+
+    def find(codes: NDArray[np.int64]) -> NDArray[np.intp]:
+        at = np.searchsorted(sorted_t, codes)
+        at_c = np.minimum(at, sorted_t.size - 1)
+        hit = sorted_t[at_c] == codes
+        return np.where(hit, order[at_c], -1).astype(np.intp)
+
+    same = find(keys[:, 0] * 64 + keys[:, 1])
+    opposite = find(keys[:, 0] * 64 - keys[:, 1])
+    rows = np.where(same >= 0, same, opposite)
+    sign = np.where(same >= 0, 1.0, -1.0)
+    return rows, sign
+
+
 def _apply_real(M: FloatArray, H: ComplexArray, rows: NDArray[np.intp]) -> ComplexArray:
-    """``M @ H[:, rows, :]`` for a real matrix M, as one real matmul on the (re, im) view."""
-    Hs = np.ascontiguousarray(H[:, rows, :])
-    n_lines, _, n_in = Hs.shape
-    out = M @ Hs.view(np.float64)  # (L, k, 2J)
-    return np.ascontiguousarray(out).view(np.complex128).reshape(n_lines, M.shape[0], n_in)
+    """``M @ H[:, rows, :]`` for a real matrix M, as one real matmul on the (re, im) view.
+
+    Rows that form a consecutive run are read in place (a strided view that BLAS takes as it
+    is); others are gathered with ``np.take`` (numpy's fancy indexing on the middle axis of a
+    complex array is several times slower). Both give the same bits as a gathered copy.
+    """
+    n_lines, _, n_in = H.shape
+    Hr = H.view(np.float64) if H.flags.c_contiguous else np.ascontiguousarray(H).view(np.float64)
+    r = np.asarray(rows, dtype=np.intp)
+    if r.size and r[-1] - r[0] == r.size - 1 and np.all(np.diff(r) == 1):
+        Hs = Hr[:, r[0] : r[-1] + 1]
+    else:
+        Hs = np.take(Hr, r, axis=1)
+    out = M @ Hs  # (L, k, 2J)
+    return out.view(np.complex128).reshape(n_lines, M.shape[0], n_in)
 
 
 def design_matrices(K: NDArray[Any]) -> NDArray[Any]:
@@ -657,6 +695,132 @@ def _to_parameters(x: FloatArray, p: FloatArray, u: float) -> FloatArray:
     return out
 
 
+@dataclass(frozen=True, eq=False)
+class _NormalEquations:
+    """Per-line normal equations in the unknowns θ (known properties eliminated)."""
+
+    prm: _Param
+    Kw: ComplexArray  # input-weighted K, F: (L, 6, J)
+    Fw: ComplexArray
+    N: FloatArray  # (L, nθ, nθ)
+    rhs: FloatArray  # (L, nθ)
+    bb: FloatArray  # (L,) ‖b − A x0‖²
+
+
+def _normal_equations(
+    system: DimSystem,
+    known: Mapping[str, float],
+    input_weights: NDArray[np.floating] | None,
+) -> _NormalEquations:
+    """Checks, parameterisation, input weights and per-line normal equations of a solve."""
+    prm = _parameterisation(known, system.reference_point_m, system.unit_m)
+    n_theta = prm.T.shape[1]
+    if n_theta == 0:
+        raise SetupError("every property is known; leave at least one unknown to solve for")
+    n_lines, _, n_in = system.K.shape
+    if n_lines == 0:
+        raise SolverError("no frequency line to solve; widen the band")
+    w_in = np.ones(n_in) if input_weights is None else np.asarray(input_weights, float)
+    if w_in.shape != (n_in,) or np.any(w_in < 0):
+        raise SetupError(f"input_weights must be {n_in} non-negative numbers, one per input")
+    if input_weights is None:
+        Kw, Fw = system.K, system.F
+    else:
+        sw = np.sqrt(w_in)
+        # C order: a system from select_inputs is not C-contiguous, and the Gram matrices
+        # would copy the weighted arrays again (same values either way)
+        Kw = np.multiply(system.K, sw, order="C")
+        Fw = np.multiply(system.F, sw, order="C")
+
+    # Normal equations from 6×6 Gram matrices (see module docstring, "Solution").
+    N_full, rhs_full, bb = _gram_normal_equations(Kw, Fw)
+    T, x0 = prm.T, prm.x0
+    if known:
+        Nx0 = N_full @ x0  # (L, 10)
+        N = T.T @ N_full @ T  # (L, nθ, nθ)
+        rhs = (rhs_full - Nx0) @ T  # (L, nθ)
+        bb = bb - 2.0 * rhs_full @ x0 + Nx0 @ x0  # ‖b − A x0‖² per line
+    else:  # T = I, x0 = 0
+        N, rhs = N_full, rhs_full
+    return _NormalEquations(prm, Kw, Fw, N, rhs, bb)
+
+
+def _solve_joint(
+    ne: _NormalEquations, w_l: FloatArray, rcond: float
+) -> tuple[FloatArray, int, float, float]:
+    """Joint least squares over the lines with weights ``w_l``: θ, rank, condition, residual.
+
+    Raises
+    ------
+    SolverError
+        Rank below the number of unknowns.
+    """
+    prm, N, rhs, bb = ne.prm, ne.N, ne.rhs, ne.bb
+    T, x0 = prm.T, prm.x0
+    n_theta = T.shape[1]
+    Nj = np.tensordot(w_l, N, axes=1)
+    rj = w_l @ rhs
+    theta, rank_j, cond, Ninv = _solve_normal(Nj, rj, rcond)
+    if cond > _REFINE_COND:
+        sel = np.nonzero(w_l > 0)[0]
+        A_t, b_t = _explicit_system(ne.Kw[sel], ne.Fw[sel], T, x0)
+        sq = np.sqrt(w_l[sel])
+        A_t, b_t = A_t * sq[:, None, None], b_t * sq[:, None]
+        for _ in range(2):
+            r = b_t - A_t @ theta
+            theta = theta + Ninv @ np.real(np.einsum("lij,li->j", A_t.conj(), r))
+        r = b_t - A_t @ theta
+        resid2 = float(np.sum(np.abs(r) ** 2))
+    else:
+        resid2 = float(w_l @ bb - 2.0 * theta @ rj + theta @ Nj @ theta)
+    bnorm2 = float(w_l @ bb)
+    resid = float(np.sqrt(max(resid2, 0.0) / bnorm2)) if bnorm2 > 0 else 0.0
+    rank = int(rank_j)
+    if rank < n_theta:
+        null = np.linalg.eigh(Nj)[1][:, 0]
+        worst = prm.names[int(np.argmax(np.abs(null)))]
+        raise SolverError(
+            f"the DIM system has rank {rank} < {n_theta} unknowns ({', '.join(prm.names)}): "
+            f"'{worst}' is not determined by the data; the inputs do not excite every rigid-body "
+            "DOF (run the excitation check) or the band holds no usable line"
+        )
+    return theta, rank, float(cond), resid
+
+
+def solve_joint(
+    system: DimSystem,
+    *,
+    known: Mapping[str, float] | None = None,
+    input_weights: NDArray[np.floating] | None = None,
+    rcond: float = 1e-10,
+) -> FloatArray:
+    """The joint answer of :func:`solve_system` alone, without the per-line spectrum.
+
+    ``solve_system(system, known=known, input_weights=input_weights).parameters`` to the bit
+    (the same operations in the same order), for callers that solve many times and use only
+    the joint answer (the jackknife over inputs).
+
+    Returns
+    -------
+    ndarray, shape (10,)
+        ``[m, cx, cy, cz, Ixx, Ixy, Ixz, Iyy, Iyz, Izz]`` (CG in the GCS, m; I about P, kg·m²).
+
+    Raises
+    ------
+    SolverError
+        As :func:`solve_system`: rank deficiency, no line, or a mass of exactly zero.
+    """
+    kn = dict(known or {})
+    ne = _normal_equations(system, kn, input_weights)
+    theta, _, _, _ = _solve_joint(ne, np.ones(system.K.shape[0]), rcond)
+    params = _to_parameters(ne.prm.T @ theta + ne.prm.x0, system.reference_point_m, system.unit_m)
+    if params[0] == 0:
+        raise SolverError(
+            "the estimated mass is exactly zero; the data carry no inertia information"
+        )
+    return params
+
+
 def solve_system(
     system: DimSystem,
     *,
@@ -691,32 +855,11 @@ def solve_system(
     known = dict(known or {})
     u = system.unit_m
     p = system.reference_point_m
-    prm = _parameterisation(known, p, u)
-    n_theta = prm.T.shape[1]
-    if n_theta == 0:
-        raise SetupError("every property is known; leave at least one unknown to solve for")
-    n_lines, _, n_in = system.K.shape
-    if n_lines == 0:
-        raise SolverError("no frequency line to solve; widen the band")
-    w_in = np.ones(n_in) if input_weights is None else np.asarray(input_weights, float)
-    if w_in.shape != (n_in,) or np.any(w_in < 0):
-        raise SetupError(f"input_weights must be {n_in} non-negative numbers, one per input")
-    if input_weights is None:
-        Kw, Fw = system.K, system.F
-    else:
-        sw = np.sqrt(w_in)
-        Kw, Fw = system.K * sw, system.F * sw
-
-    # Normal equations from 6×6 Gram matrices (see module docstring, "Solution").
-    N_full, rhs_full, bb = _gram_normal_equations(Kw, Fw)
+    ne = _normal_equations(system, known, input_weights)
+    prm, Kw, Fw, N, rhs = ne.prm, ne.Kw, ne.Fw, ne.N, ne.rhs
     T, x0 = prm.T, prm.x0
-    if known:
-        Nx0 = N_full @ x0  # (L, 10)
-        N = T.T @ N_full @ T  # (L, nθ, nθ)
-        rhs = (rhs_full - Nx0) @ T  # (L, nθ)
-        bb = bb - 2.0 * rhs_full @ x0 + Nx0 @ x0  # ‖b − A x0‖² per line
-    else:  # T = I, x0 = 0
-        N, rhs = N_full, rhs_full
+    n_theta = T.shape[1]
+    n_lines = system.K.shape[0]
 
     # Per line ---------------------------------------------------------------------------------
     theta_l, piv_l = _solve_lines(N, rhs)
@@ -733,32 +876,7 @@ def solve_system(
     w_l = np.ones(n_lines) if line_weights is None else np.asarray(line_weights, float)
     if w_l.shape != (n_lines,) or np.any(w_l < 0):
         raise SetupError(f"line_weights must be {n_lines} non-negative numbers, one per line")
-    Nj = np.tensordot(w_l, N, axes=1)
-    rj = w_l @ rhs
-    theta, rank_j, cond, Ninv = _solve_normal(Nj, rj, rcond)
-    if cond > _REFINE_COND:
-        sel = np.nonzero(w_l > 0)[0]
-        A_t, b_t = _explicit_system(Kw[sel], Fw[sel], T, x0)
-        sq = np.sqrt(w_l[sel])
-        A_t, b_t = A_t * sq[:, None, None], b_t * sq[:, None]
-        for _ in range(2):
-            r = b_t - A_t @ theta
-            theta = theta + Ninv @ np.real(np.einsum("lij,li->j", A_t.conj(), r))
-        r = b_t - A_t @ theta
-        resid2 = float(np.sum(np.abs(r) ** 2))
-    else:
-        resid2 = float(w_l @ bb - 2.0 * theta @ rj + theta @ Nj @ theta)
-    bnorm2 = float(w_l @ bb)
-    resid = float(np.sqrt(max(resid2, 0.0) / bnorm2)) if bnorm2 > 0 else 0.0
-    rank = int(rank_j)
-    if rank < n_theta:
-        null = np.linalg.eigh(Nj)[1][:, 0]
-        worst = prm.names[int(np.argmax(np.abs(null)))]
-        raise SolverError(
-            f"the DIM system has rank {rank} < {n_theta} unknowns ({', '.join(prm.names)}): "
-            f"'{worst}' is not determined by the data; the inputs do not excite every rigid-body "
-            "DOF (run the excitation check) or the band holds no usable line"
-        )
+    theta, rank, cond, resid = _solve_joint(ne, w_l, rcond)
     x = prm.T @ theta + prm.x0
     joint = _to_parameters(x, p, u)
 
@@ -992,6 +1110,8 @@ def scale_to_known_mass(
     result : DimResult
         The solution on the scaled FRFs (mass not imposed).
     """
+    from scipy.optimize import brentq  # here: scipy.optimize costs start-up time to every solve
+
     if not mass_kg > 0:
         raise SetupError(f"known mass {mass_kg} kg must be positive")
     if band_hz is not None:

@@ -115,9 +115,12 @@ def _as_records(name: str, data: ArrayLike) -> NDArray[np.float64]:
             f"{name} has shape {arr.shape}; give (n_averages, n_channels, n_samples) "
             "or (n_channels, n_samples) for one average"
         )
+    return arr
+
+
+def _check_finite(name: str, arr: NDArray[np.float64]) -> None:
     if not np.all(np.isfinite(arr)):
         raise DataError(f"{name} contains NaN or infinite samples; reject that average first")
-    return arr
 
 
 def estimate_frf(
@@ -177,40 +180,47 @@ def estimate_frf(
             f"{n_in} inputs need at least {n_in} averages for the multiple-input estimator, "
             f"got {n_avg}; acquire more averages"
         )
-    if input_window is not None:
-        x = x * _window("input_window", input_window, n_s)
-    if output_window is not None:
-        y = y * _window("output_window", output_window, n_s)
+    wx = None if input_window is None else _window("input_window", input_window, n_s)
+    wy = None if output_window is None else _window("output_window", output_window, n_s)
 
-    # Spectra, lines last then moved first: F (n_lines, n_in, n_avg), Y (n_lines, n_out, n_avg).
-    fx = scipy.fft.rfft(x, axis=-1)
-    fy = scipy.fft.rfft(y, axis=-1)
-    f_l = np.ascontiguousarray(fx.transpose(2, 1, 0))
-    y_l = np.ascontiguousarray(fy.transpose(2, 1, 0))
-    g_ff = f_l @ f_l.conj().transpose(0, 2, 1)  # (L, n_in, n_in)
-    g_yf = y_l @ f_l.conj().transpose(0, 2, 1)  # (L, n_out, n_in)
-    g_yy = np.einsum("loa,loa->lo", y_l.real, y_l.real) + np.einsum(
-        "loa,loa->lo", y_l.imag, y_l.imag
-    )
+    g_ff, g_yf, g_yy = _spectral_sums(x, y, wx, wy)
+    # A NaN or infinite sample makes its channel's spectral sums NaN or infinite: checking the
+    # small sums instead of every sample saves a pass over the records; the records are looked
+    # at only to say which side is wrong.
+    if not (np.all(np.isfinite(g_yy)) and np.all(np.isfinite(g_ff))):
+        _check_finite("inputs", x)
+        _check_finite("outputs", y)
     g_ff_diag = np.real(np.diagonal(g_ff, axis1=1, axis2=2))  # (L, n_in)
 
     with np.errstate(divide="ignore", invalid="ignore"):
         if n_in == 1:
-            h1 = g_yf / g_ff  # broadcast (L, n_out, 1) / (L, 1, 1)
+            # G_ff = Σ|F|² is real: divide the (re, im) view by it (complex division is slower).
+            gff = g_ff_diag[:, 0]
+            h1: NDArray[np.complex128] | None = None
+            if estimator == "H1":
+                h1 = (g_yf.view(np.float64) / gff[:, None, None]).view(np.complex128)
             cond = np.ones(g_ff.shape[0])
+            gv = g_yf.view(np.float64)
+            abs2 = gv[..., 0::2] ** 2 + gv[..., 1::2] ** 2  # |G_yf|², (L, n_out, 1)
+            ordinary = abs2 / (g_yy[:, :, None] * gff[:, None, None])
+            multiple = ordinary[:, :, 0].copy()  # equal for one input (module docstring)
         else:
             # H1 = G_yf G_ff⁻¹  ⇔  G_ffᵀ H1ᵀ = G_yfᵀ (G_ff Hermitian), batched over lines.
-            h1 = np.linalg.solve(g_ff.transpose(0, 2, 1), g_yf.transpose(0, 2, 1)).transpose(
-                0, 2, 1
+            h1 = np.asarray(
+                np.linalg.solve(g_ff.transpose(0, 2, 1), g_yf.transpose(0, 2, 1)).transpose(
+                    0, 2, 1
+                ),
+                dtype=np.complex128,
             )
             s = np.linalg.svd(g_ff, compute_uv=False)
             cond = s[:, 0] / s[:, -1]
-        ordinary = np.abs(g_yf) ** 2 / (g_yy[:, :, None] * g_ff_diag[:, None, :])
-        multiple = np.real(np.sum(h1 * g_yf.conj(), axis=2)) / g_yy
+            ordinary = np.abs(g_yf) ** 2 / (g_yy[:, :, None] * g_ff_diag[:, None, :])
+            multiple = np.real(np.sum(h1 * g_yf.conj(), axis=2)) / g_yy
         if estimator == "H1":
+            assert h1 is not None
             h = h1
-        elif estimator == "H2":
-            h = (g_yy / g_yf[:, :, 0].conj())[:, :, None]
+        elif estimator == "H2":  # one input: G_yy / conj(G_yf) = G_yf · G_yy / |G_yf|²
+            h = (g_yf.view(np.float64) * (g_yy[:, :, None] / abs2)).view(np.complex128)
         else:
             h = _hv(g_ff, g_yf, g_yy)
     if n_avg <= n_in:  # identically 1: no information (module docstring)
@@ -229,6 +239,51 @@ def estimate_frf(
         n_averages=n_avg,
         estimator=estimator,
     )
+
+
+#: Bytes of output spectra transformed and summed at a time: small enough to stay in a core's
+#: cache between the FFT that writes them and the two sums that read them.
+_BLOCK_BYTES = 2 << 20
+
+
+def _spectral_sums(
+    x: NDArray[np.float64],
+    y: NDArray[np.float64],
+    wx: NDArray[np.float64] | None = None,
+    wy: NDArray[np.float64] | None = None,
+) -> tuple[NDArray[np.complex128], NDArray[np.complex128], NDArray[np.float64]]:
+    """``G_ff``, ``G_yf``, ``G_yy`` summed over averages (module docstring), lines first.
+
+    One real FFT per channel and average, of the records times the windows ``wx``, ``wy`` when
+    given (applied block by block, never to a whole copy of the records). The spectra stay as the FFT leaves them (lines last)
+    and the sums over averages run along that layout: moving the lines first would copy every
+    spectrum, which costs as much as the FFT. The outputs go in blocks of about
+    ``_BLOCK_BYTES`` of spectra, so that the sums read them from cache rather than memory.
+
+    Returns
+    -------
+    g_ff : ndarray, shape (n_lines, n_inputs, n_inputs), complex
+    g_yf : ndarray, shape (n_lines, n_outputs, n_inputs), complex
+    g_yy : ndarray, shape (n_lines, n_outputs)
+    """
+    n_avg, n_in, n_s = x.shape
+    n_out = y.shape[1]
+    n_lines = n_s // 2 + 1
+    fx = scipy.fft.rfft(x if wx is None else x * wx, axis=-1)  # (n_avg, n_in, L)
+    fxc = fx.conj()
+    g_ff = np.einsum("ajl,ail->lji", fx, fxc)
+    g_yf = np.empty((n_lines, n_out, n_in), dtype=np.complex128)
+    s2 = np.empty((n_out, 2 * n_lines))  # Σ_a (re², im²) of Y, interleaved as in memory
+    block = max(1, _BLOCK_BYTES // (n_avg * n_lines * 16))
+    for o0 in range(0, n_out, block):
+        o1 = min(o0 + block, n_out)
+        yb = y[:, o0:o1] if wy is None else y[:, o0:o1] * wy
+        fy = scipy.fft.rfft(yb, axis=-1)  # (n_avg, block, L)
+        g_yf[:, o0:o1] = np.einsum("aol,ail->loi", fy, fxc)
+        yv = fy.view(np.float64)
+        np.einsum("aox,aox->ox", yv, yv, out=s2[o0:o1])
+    g_yy = np.ascontiguousarray((s2[:, 0::2] + s2[:, 1::2]).T)
+    return g_ff, g_yf, g_yy
 
 
 def _hv(
@@ -250,6 +305,8 @@ def _window(name: str, w: ArrayLike, n: int) -> NDArray[np.float64]:
     arr = np.asarray(w, dtype=float)
     if arr.shape != (n,):
         raise DataError(f"{name} has shape {arr.shape}; it must be ({n},) like the records")
+    if not np.all(np.isfinite(arr)):
+        raise DataError(f"{name} holds NaN or infinite values; give finite window weights")
     return arr
 
 

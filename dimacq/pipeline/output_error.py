@@ -98,7 +98,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 from scipy import linalg as scipy_linalg
-from scipy import stats
+from scipy import special
 from scipy.spatial.transform import Rotation
 
 from dimacq.errors import SetupError, SolverError
@@ -116,6 +116,14 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
+
+
+def _chi2_ppf(q: float, dof: int) -> float:
+    """χ² quantile, ``scipy.stats.chi2.ppf(q, dof)`` to the bit (its ``2·P⁻¹(dof/2, q)``) without
+    importing scipy.stats (a second of start-up for ``dimacq solve``)."""
+    return float(2.0 * special.gammaincinv(dof / 2, q))
+
+
 FloatArray = NDArray[np.float64]
 ComplexArray = NDArray[np.complex128]
 
@@ -658,21 +666,20 @@ class _Problem:
         rn = np.zeros((nn, 3))
         np.add.at(rn, self.node_of, self.r0)
         rn /= np.bincount(self.node_of, minlength=nn)[:, None]
-        for i in range(3):
+        Gn = G[: 6 * nn].reshape(nn, 6, 8)  # rows of sensor node n: δp (3), δθ (3)
+        Gj = G[6 * nn : 6 * nn + 4 * J].reshape(J, 4, 8)  # rows of input k: β (2), γ (2)
+        eb = np.asarray(self.ebasis)  # (J, 2, 3)
+        for i in range(3):  # over the three axes; nodes and inputs at once (same bits as per item)
             e = _E[i]
-            for n in range(nn):
-                G[6 * n + 3 : 6 * n + 6, i] = e
-                G[6 * n + i, 3 + i] = 1.0
-                G[6 * n + 3 : 6 * n + 6, 3 + i] = np.cross(e, rn[n])
-            for k in range(J):
-                b = 6 * nn + 4 * k
-                G[b + 2 : b + 4, i] = self.ebasis[k] @ e
-                G[b : b + 2, 3 + i] = self.ebasis[k] @ e
-                G[b + 2 : b + 4, 3 + i] = self.ebasis[k] @ np.cross(e, self.rin0[k])
-        for n in range(nn):
-            G[6 * n + 3 : 6 * n + 6, 6] = rn[n]
-        for k in range(J):
-            G[6 * nn + 4 * k + 2 : 6 * nn + 4 * k + 4, 6] = self.ebasis[k] @ self.rin0[k]
+            Gn[:, 3:6, i] = e
+            Gn[:, i, 3 + i] = 1.0
+            Gn[:, 3:6, 3 + i] = np.cross(e, rn)
+            be = eb @ e  # (J, 2)
+            Gj[:, 2:4, i] = be
+            Gj[:, 0:2, 3 + i] = be
+            Gj[:, 2:4, 3 + i] = (eb @ np.cross(e, self.rin0)[:, :, None])[:, :, 0]
+        Gn[:, 3:6, 6] = rn
+        Gj[:, 2:4, 6] = (eb @ np.asarray(self.rin0)[:, :, None])[:, :, 0]
         G[6 * nn + 4 * J :, 7] = 1.0
         return G
 
@@ -987,7 +994,7 @@ def solve_output_error(
     eps_r = setup.transducer_uncertainty.loadcell_matrix_rel if setup.load_cells else 0.0
     psi0 = np.concatenate([d0, np.cross(r0, d0)], axis=1)
     phi0 = np.concatenate([din0_a, np.cross(rin0_a, din0_a)], axis=1)
-    A0 = np.asarray(np.linalg.inv(mass_matrix(x_start)[0]), dtype=float)
+    A0 = np.asarray(np.linalg.inv(mass_matrix(x_start)[0]), dtype=np.float64)  # typed for mypy
 
     # from the measured noise and the load cells' certificate; the a posteriori variance factor
     # below scales the whole noise model, not the lines' relative weights
@@ -997,10 +1004,19 @@ def solve_output_error(
         # with residual terms the projection is per channel over all lines: no line weights
         return None if use_basis else lw0
 
+    # The reduced statistics depend on the data, the noise scale and the basis only, not on the
+    # free geometry: fits that share them (the first fit, the gains-only fit of the geometry
+    # test, the refits) reuse them. Keyed by the very arrays (sigma is rebound when rescaled).
+    stats_memo: dict[bool, tuple[tuple[object, ...], tuple[FloatArray, FloatArray, float]]] = {}
+
     def build(use_basis: bool, free_g: NDArray[np.intp]) -> tuple[_Problem, float]:
-        Ly, Lh, const = _statistics(
-            H, R, sigma, cov_R, basis if use_basis else None, line_w(use_basis)
-        )
+        args = (H, R, sigma, cov_R, basis if use_basis else None, line_w(use_basis))
+        memo = stats_memo.get(use_basis)
+        if memo is not None and all(a is b for a, b in zip(memo[0], args, strict=True)):
+            Ly, Lh, const = memo[1]
+        else:
+            Ly, Lh, const = _statistics(*args)
+            stats_memo[use_basis] = (args, (Ly, Lh, const))
         return (
             _Problem(
                 r0, d0, node_of, nodes, rin0_a, din0_a, eb, 1.0 / sigma, Ly, Lh,
@@ -1154,7 +1170,7 @@ def solve_output_error(
         ok_d = lam_d > max(float(lam_d.max()), 0.0) * 1e-9
         if ok_d.any():
             hz = float(np.sum((vec_d[:, ok_d].T @ dx) ** 2 / lam_d[ok_d]))
-            crit = float(stats.chi2.ppf(0.999, int(ok_d.sum())))
+            crit = _chi2_ppf(0.999, int(ok_d.sum()))
         else:  # no precision lost to the residual terms: nothing to test against
             hz, crit = 0.0, float("inf")
         needed = bool(hz > crit)
@@ -1367,7 +1383,7 @@ def _geometry_needed(
     n_eff = effective_lines(_line_residual(prob, theta, H, R, sigma, lw))
     lr = raw * n_eff / L
     k = max(int(np.sum(prob.free_g < n_geo)) - int(prob.gauge_rows.shape[0]), 1)
-    crit = float(stats.chi2.ppf(1.0 - ADEQUACY_P, k))
+    crit = _chi2_ppf(1.0 - ADEQUACY_P, k)
     return (
         {
             "tested": True,
@@ -1438,7 +1454,7 @@ def _adequacy(
         return {"tested": False, "reason": "the refinement changes nothing the data can test"}
     h = float(np.sum((vec[:, ok].T @ d) ** 2 / lam[ok]))
     dof = int(ok.sum())
-    crit = float(stats.chi2.ppf(1.0 - ADEQUACY_P, dof))
+    crit = _chi2_ppf(1.0 - ADEQUACY_P, dof)
     return {
         "tested": True,
         "test": f"Hausman (refined against stated geometry), p = {ADEQUACY_P:g}",

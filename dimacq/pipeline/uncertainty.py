@@ -43,12 +43,12 @@ from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import stats
+from scipy import special
 
 from dimacq.errors import SetupError, SolverError
 from dimacq.model.properties import vector_to_inertia
 from dimacq.model.setup import PARAMETERS
-from dimacq.pipeline.dim import DimResult, DimSystem, solve_system
+from dimacq.pipeline.dim import DimResult, DimSystem, solve_joint
 
 __all__ = [
     "GeometrySpread",
@@ -229,11 +229,7 @@ def estimate_uncertainty(
             w = np.ones(n_in)
             w[j] = 0.0
             try:
-                samples.append(
-                    solve_system(
-                        system, known=known, input_weights=w, check_plausibility=False
-                    ).parameters
-                )
+                samples.append(solve_joint(system, known=known, input_weights=w))
             except SolverError:
                 n_bad += 1
                 log.warning(
@@ -253,11 +249,7 @@ def estimate_uncertainty(
         for _ in range(n_bootstrap):
             w = np.bincount(rng.integers(0, n_in, n_in), minlength=n_in).astype(float)
             try:
-                samples.append(
-                    solve_system(
-                        system, known=known, input_weights=w, check_plausibility=False
-                    ).parameters
-                )
+                samples.append(solve_joint(system, known=known, input_weights=w))
             except SolverError:
                 n_bad += 1
                 continue
@@ -278,7 +270,7 @@ def estimate_uncertainty(
     rs: list[FloatArray] = []
     for sy in response_systems:
         try:
-            rs.append(solve_system(sy, known=known, check_plausibility=False).parameters)
+            rs.append(solve_joint(sy, known=known))
         except SolverError:
             n_bad += 1
             continue
@@ -291,7 +283,7 @@ def estimate_uncertainty(
     se = np.sqrt(se_in**2 + se_r**2 + se_g**2 + se_l**2)
     for k in known or {}:
         se[PARAMETERS.index(k)] = 0.0
-    tq = float(stats.t.ppf(0.975, max(n_in - 1, 1)))
+    tq = float(special.stdtrit(max(n_in - 1, 1), 0.975))  # stats.t.ppf to the bit
     p = result.parameters
     params = {
         name: ParameterUncertainty(

@@ -358,9 +358,19 @@ def analyse(
     if auto and (rsel is not None or jsel is not None or repair is not None):
         # the first suggestion saw every channel and input; suggest again on the selected data
         first = suggestion
-        suggestion = suggest_band(
-            frf, setup_used, known=known, response_weights=weights, input_keep=keep_in
-        )
+        if (
+            first is not None
+            and setup_used is setup
+            and np.array_equal(weights, w0)
+            and np.array_equal(keep_in, ~in_out)
+        ):
+            # the selection kept every channel and input: the second pass would see exactly
+            # what the first saw and repeat its answer (a deterministic function of the data)
+            suggestion = first
+        else:
+            suggestion = suggest_band(
+                frf, setup_used, known=known, response_weights=weights, input_keep=keep_in
+            )
         if first is not None:
             suggestion = _below_first_elastic_ceiling(suggestion, first)
         if suggestion.band_hz != band:

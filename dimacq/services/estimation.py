@@ -157,7 +157,7 @@ def _apply_output_error(
     share (every line, channel and input; geometry held), ``se_geometry`` the rest. Student t with
     N − 1 inputs, as for the jackknife.
     """
-    from scipy import stats
+    from scipy import special
 
     from dimacq.model.properties import RigidBodyProperties, vector_to_inertia
     from dimacq.pipeline.dim import plausibility
@@ -194,7 +194,7 @@ def _apply_output_error(
     se = np.sqrt(se_post**2 + se_geo**2)
     for k in result.known:
         se[PARAMETERS.index(k)] = 0.0
-    tq = float(stats.t.ppf(0.975, max(oe.n_inputs - 1, 1)))
+    tq = float(special.stdtrit(max(oe.n_inputs - 1, 1), 0.975))  # stats.t.ppf to the bit
     # the principal moments from the same covariance (first order): the posterior, plus the
     # transducer share as the common scale of m and I it is (refined) or the Monte Carlo and
     # sensor-jackknife shares (unrefined, diagonal as they were added above)

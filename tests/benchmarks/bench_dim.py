@@ -4,8 +4,9 @@ Run on demand (not collected by pytest)::
 
     python tests/benchmarks/bench_dim.py [--lines 2000] [--repeat 15]
 
-Prints the median time of :func:`dimacq.pipeline.dim.solve_system` (per-line spectrum and joint
-band solve, on an assembled system) and of the baseline it must beat: a Python loop of
+Prints the median and minimum times of :func:`dimacq.pipeline.dim.assemble` (match, condense,
+sum forces; target ≤ 5 ms) and :func:`dimacq.pipeline.dim.solve_system` (per-line spectrum and
+joint band solve, on an assembled system) and of the baseline it must beat: a Python loop of
 ``np.linalg.lstsq`` over lines on the same stacked real/imaginary system, and their ratio.
 Pins BLAS to one thread first, so the figure is for one core.
 """
@@ -81,13 +82,18 @@ def lstsq_loop(system: dim.DimSystem) -> np.ndarray:
     return out
 
 
-def median_time(fn, repeat: int) -> float:
-    times = []
+def times(fn, repeat: int) -> tuple[float, float]:
+    """(minimum, median) of ``repeat`` runs: on a shared machine the minimum is the figure."""
+    out = []
     for _ in range(repeat):
         t0 = time.perf_counter()
         fn()
-        times.append(time.perf_counter() - t0)
-    return float(np.median(times))
+        out.append(time.perf_counter() - t0)
+    return float(np.min(out)), float(np.median(out))
+
+
+def median_time(fn, repeat: int) -> float:
+    return times(fn, repeat)[1]
 
 
 def main() -> None:
@@ -99,17 +105,21 @@ def main() -> None:
     args = ap.parse_args()
     frf, setup = build(args.lines)
     system = dim.assemble(frf, setup)
-    t_assemble = median_time(lambda: dim.assemble(frf, setup), args.repeat)
-    t_solve = median_time(lambda: dim.solve_system(system, check_plausibility=False), args.repeat)
+    a_min, t_assemble = times(lambda: dim.assemble(frf, setup), args.repeat)
+    s_min, t_solve = times(lambda: dim.solve_system(system, check_plausibility=False), args.repeat)
     t_loop = median_time(lambda: lstsq_loop(system), max(3, args.repeat // 5))
     x_fast = dim.solve_system(system, check_plausibility=False).per_line
     x_loop = lstsq_loop(system)
     s = x_loop[:, 1:4] / x_loop[:, :1]
     agree = np.nanmax(np.abs(x_fast[:, 0] - x_loop[:, 0]) / np.abs(x_loop[:, 0]))
     print(f"problem: 8 triaxes + 1 load cell, 24 inputs, {args.lines} lines (one BLAS thread)")
-    print(f"assemble (match, condense, sum forces): {t_assemble * 1e3:8.2f} ms median")
     print(
-        f"dimacq solve_system (per line + joint): {t_solve * 1e3:8.2f} ms median  (target <= 20 ms)"
+        f"assemble (match, condense, sum forces): {t_assemble * 1e3:8.2f} ms median, "
+        f"{a_min * 1e3:.2f} ms min  (target <= 5 ms)"
+    )
+    print(
+        f"dimacq solve_system (per line + joint): {t_solve * 1e3:8.2f} ms median, "
+        f"{s_min * 1e3:.2f} ms min  (target <= 20 ms)"
     )
     print(f"np.linalg.lstsq loop over lines:        {t_loop * 1e3:8.2f} ms median")
     print(

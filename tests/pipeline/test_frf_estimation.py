@@ -228,3 +228,66 @@ def test_too_few_averages_give_no_coherence_rather_than_one():
     xs = rng.standard_normal((64, 1, 256))
     many = estimate_frf(xs, xs + 3.0 * rng.standard_normal((64, 1, 256)), FS)
     assert np.median(many.coherence[1:-1]) == pytest.approx(0.1, abs=0.03)
+
+
+def _per_line_reference(x, y, wx, wy):
+    """H1, H2, ordinary and multiple coherence line by line from the definitions (module
+    docstring), with Python loops: the reference of the blocked, vectorised estimator."""
+    fx = np.fft.rfft(x * wx, axis=-1)
+    fy = np.fft.rfft(y * wy, axis=-1)
+    n_lines, n_out, n_in = fx.shape[-1], fy.shape[1], fx.shape[1]
+    h1 = np.empty((n_lines, n_out, n_in), complex)
+    h2 = np.full((n_lines, n_out, 1), np.nan + 0j)
+    ordinary = np.empty((n_lines, n_out, n_in))
+    multiple = np.empty((n_lines, n_out))
+    for k in range(n_lines):
+        F, Y = fx[:, :, k].T, fy[:, :, k].T  # (n_in, n_avg), (n_out, n_avg)
+        gff = F @ F.conj().T
+        gyf = Y @ F.conj().T
+        gyy = np.sum(np.abs(Y) ** 2, axis=1)
+        h1[k] = gyf @ np.linalg.inv(gff)
+        if n_in == 1:
+            h2[k, :, 0] = gyy / gyf[:, 0].conj()
+        ordinary[k] = np.abs(gyf) ** 2 / np.outer(gyy, np.real(np.diag(gff)))
+        multiple[k] = np.real(np.sum(h1[k] * gyf.conj(), axis=1)) / gyy
+    return h1, h2, ordinary, multiple
+
+
+@pytest.mark.parametrize("n_in", [1, 2])
+def test_blocked_estimator_equals_the_per_line_definitions(
+    n_in: int, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Outputs in blocks of 3 (7 outputs: a short last block), windows applied block by block."""
+    import dimacq.pipeline.frf_estimation as fe
+
+    n_avg, n_out, n_s = 6, 7, 128
+    monkeypatch.setattr(fe, "_BLOCK_BYTES", 3 * n_avg * (n_s // 2 + 1) * 16)
+    rng = np.random.default_rng(27)
+    x = rng.standard_normal((n_avg, n_in, n_s))
+    y = rng.standard_normal((n_avg, n_out, n_s)) + x.sum(axis=1, keepdims=True)
+    wx = force_window(n_s, 40, taper_samples=8) * exponential_window(n_s, FS, 0.05)
+    wy = exponential_window(n_s, FS, 0.05)
+    h1, h2, ordinary, multiple = _per_line_reference(x, y, wx, wy)
+    est = estimate_frf(x, y, FS, input_window=wx, output_window=wy)
+    np.testing.assert_allclose(est.H, h1, rtol=1e-12, atol=0)
+    np.testing.assert_allclose(est.ordinary_coherence, ordinary, rtol=1e-12, atol=0)
+    np.testing.assert_allclose(est.coherence, np.clip(multiple, 0, 1), rtol=1e-12, atol=1e-15)
+    if n_in == 1:
+        h = estimate_frf(x, y, FS, estimator="H2", input_window=wx, output_window=wy).H
+        np.testing.assert_allclose(h, h2, rtol=1e-12, atol=0)
+
+
+def test_nan_found_in_either_record_set_and_in_a_window() -> None:
+    x = np.ones((3, 1, 64))
+    y = np.ones((3, 4, 64))
+    bad_x, bad_y = x.copy(), y.copy()
+    bad_x[1, 0, 5] = np.nan
+    bad_y[2, 3, 63] = np.inf
+    with pytest.raises(DataError, match="inputs contains NaN"):
+        estimate_frf(bad_x, y, FS)
+    with pytest.raises(DataError, match="outputs contains NaN"):
+        estimate_frf(x, bad_y, FS)
+    w = np.ones(64)
+    w[3] = np.nan
+    with pytest.raises(DataError, match="output_window holds NaN"):
+        estimate_frf(x, y, FS, output_window=w)

@@ -61,7 +61,7 @@ from numpy.typing import NDArray
 from dimacq.errors import SetupError, SolverError
 from dimacq.model.frf import Channel
 from dimacq.model.setup import PARAMETERS
-from dimacq.pipeline.dim import DimSystem, design_matrices, solve_system
+from dimacq.pipeline.dim import DimSystem, design_matrices, solve_joint
 from dimacq.pipeline.selection._common import robust_outlier
 
 __all__ = [
@@ -169,17 +169,29 @@ def predictive_residuals(system: DimSystem, params: FloatArray) -> FloatArray:
         ``sqrt(mean_{lines, rows} |(A_j x − b_j)_r / s_r|²)`` with ``s_r`` the RMS of row r of b
         over lines and inputs.
     """
-    A = design_matrices(system.K)  # (L, J, 6, 10)
-    b = np.moveaxis(system.F, -1, -2)  # (L, J, 6)
-    x = _x_working(np.asarray(params, float), system)
-    if x.ndim == 1:
-        r = A @ x - b
-    else:
-        r = np.einsum("ljrp,jp->ljr", A, x) - b
-    s = np.sqrt(np.mean(np.abs(b) ** 2, axis=(0, 1)))
-    s = np.where(s > 0, s, 1.0)
-    out: FloatArray = np.sqrt(np.mean(np.abs(r / s) ** 2, axis=(0, 2)))
-    return out
+    return _PredictiveResiduals(system)(params)
+
+
+class _PredictiveResiduals:
+    """:func:`predictive_residuals` of one system for several parameter sets: the design
+    matrices, right sides and row scales are formed once (the jackknife asks twice a cycle)."""
+
+    def __init__(self, system: DimSystem) -> None:
+        self.system = system
+        self.A = design_matrices(system.K)  # (L, J, 6, 10)
+        self.b = np.moveaxis(system.F, -1, -2)  # (L, J, 6)
+        s = np.sqrt(np.mean(np.abs(self.b) ** 2, axis=(0, 1)))
+        self.s = np.where(s > 0, s, 1.0)
+
+    def __call__(self, params: FloatArray) -> FloatArray:
+        A, b, s = self.A, self.b, self.s
+        x = _x_working(np.asarray(params, float), self.system)
+        if x.ndim == 1:
+            r = A @ x - b
+        else:
+            r = np.einsum("ljrp,jp->ljr", A, x) - b
+        out: FloatArray = np.sqrt(np.mean(np.abs(r / s) ** 2, axis=(0, 2)))
+        return out
 
 
 def jackknife_estimates(
@@ -202,11 +214,10 @@ def jackknife_estimates(
     for j in np.nonzero(active)[0]:
         w = active.astype(float)
         w[j] = 0.0
-        try:
-            res = solve_system(system, known=known, input_weights=w, check_plausibility=False)
+        try:  # only the joint answer: solve_system's, without its per-line spectrum
+            est[j] = solve_joint(system, known=known, input_weights=w)
         except SolverError:
             continue
-        est[j] = res.parameters
         ok[j] = True
     return est, ok
 
@@ -384,13 +395,12 @@ def jackknife_inputs(
         score = np.where(active & solved, np.nansum(sdev, axis=1), np.nan)
         std = est[idx].std(axis=0, ddof=1)
         resid = np.full(n, np.nan)
-        resid[idx] = predictive_residuals(system.select_inputs(idx), est[idx])
+        pred = _PredictiveResiduals(system.select_inputs(idx))
+        resid[idx] = pred(est[idx])
         stat = resid.copy()
         try:
-            full = solve_system(
-                system, known=known, input_weights=active.astype(float), check_plausibility=False
-            ).parameters
-            stat[idx] = np.sqrt(resid[idx] * predictive_residuals(system.select_inputs(idx), full))
+            full = solve_joint(system, known=known, input_weights=active.astype(float))
+            stat[idx] = np.sqrt(resid[idx] * pred(full))
         except SolverError:  # pragma: no cover - the active inputs excite rank 6 (checked)
             pass
         # candidate: largest studentised predictive residual whose removal keeps rank 6

@@ -1,0 +1,106 @@
+"""Benchmark: ``dimacq solve FILE --json OUT`` end to end, as a user runs it (issue #27).
+
+Run on demand (not collected by pytest)::
+
+    python tests/benchmarks/bench_solve.py [FILE.uff] [--repeat 5]
+
+Without FILE, a whole-test UFF of ``calibration-mass-bungee`` (24 responses x 24 inputs + one
+load cell, 800 lines, 1 % FRF noise) is made with ``dimacq simulate``; an acquired file
+(``dimacq acquire calibration-mass-bungee --seed 0 --averages-per-input 3 --frf a.uff``, a
+few minutes) is the case the issue names. Each run is a fresh process (imports included, the
+one BLAS thread the CLI sets by default). Prints the minimum and median wall time and CPU time
+(user + system) of the process, and the CPU time of a second solve in the same process (the
+computation without the imports). On a machine shared with other jobs the CPU time is the
+steadier figure; the target is a second of wall time on an idle machine.
+"""
+
+from __future__ import annotations
+
+import os
+
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")  # as the CLI does, for the in-process second solve
+
+import argparse  # noqa: E402
+import contextlib  # noqa: E402
+import io  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+import tempfile  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+TARGET_S = 1.0
+
+
+def _run(cmd: list[str]) -> tuple[float, float]:
+    """Wall and CPU (user + system) seconds of one child process."""
+    t0 = time.perf_counter()
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    _, status, usage = os.wait4(proc.pid, 0)
+    wall = time.perf_counter() - t0
+    assert proc.stderr is not None
+    err = proc.stderr.read().decode()
+    proc.stderr.close()
+    if os.waitstatus_to_exitcode(status) not in (0, 3):
+        raise SystemExit(f"{' '.join(cmd)} failed:\n{err}")
+    return wall, usage.ru_utime + usage.ru_stime
+
+
+def _compute_only(path: Path, out: Path) -> float:
+    """CPU seconds of a second solve in this process (imports already done)."""
+    from dimacq.cli.main import main
+
+    args = ["solve", str(path), "--json", str(out)]
+    with contextlib.redirect_stdout(io.StringIO()):
+        main(args)
+        t0 = time.process_time()
+        main(args)
+    return time.process_time() - t0
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    ap.add_argument("file", nargs="?", type=Path, help="whole-test UFF (default: simulated)")
+    ap.add_argument("--repeat", type=int, default=5)
+    args = ap.parse_args()
+    with tempfile.TemporaryDirectory(prefix="bench-solve-") as tmp:
+        path = args.file
+        if path is None:
+            path = Path(tmp) / "m.uff"
+            _run(
+                [
+                    sys.executable,
+                    "-m",
+                    "dimacq.cli.main",
+                    "simulate",
+                    "calibration-mass-bungee",
+                    "--noise",
+                    "0.01",
+                    "--frf",
+                    str(path),
+                    "--truth",
+                    str(Path(tmp) / "t.json"),
+                ]
+            )
+        out = Path(tmp) / "out.json"
+        cmd = [sys.executable, "-m", "dimacq.cli.main", "solve", str(path), "--json", str(out)]
+        runs = np.array([_run(cmd) for _ in range(args.repeat)])
+        compute = _compute_only(path, out)
+    wall, cpu = runs[:, 0], runs[:, 1]
+    print(f"dimacq solve {path.name}, {args.repeat} fresh processes")
+    print(f"wall: {wall.min():.2f} s min, {np.median(wall):.2f} s median")
+    print(f"CPU:  {cpu.min():.2f} s min, {np.median(cpu):.2f} s median (user + system)")
+    print(f"second solve in one process (no imports): {compute:.2f} s CPU")
+    print(
+        f"target < {TARGET_S:g} s: {'PASS' if wall.min() < TARGET_S else 'FAIL'} "
+        f"(load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores)"
+    )
+
+
+if __name__ == "__main__":
+    main()

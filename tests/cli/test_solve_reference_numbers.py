@@ -1,0 +1,115 @@
+"""``dimacq solve`` on the shipped example gives the numbers it gave before the speed work (#27).
+
+``six_triax_solve_reference.json`` is the ``--json`` output of
+``dimacq solve config/examples/six_triax_setup.toml config/examples/six_triax_frf.uff`` produced by
+the code at 16dff20, before the speed-ups of issue #27 (caching, vectorising); only
+``output_error.elapsed_s`` (a wall-clock time) was removed. Every other number, string and key
+must come back: numbers to 1e-9 relative, strings as they were except for the numbers they
+quote (to the digits they quote them with).
+
+The example is noise-free, so some numbers are rounding errors (band standard deviations ~1e-15,
+the residual statistics); they are compared with an absolute floor of 1e-12. One number is a ratio
+of rounding errors: the data-to-prior information of the best-determined-by-prior gauge mode
+(``gauge_modes.data_to_prior_information``, the mode whose data information is rounding noise).
+It moves by 6e-5 relative between one and two BLAS threads of the same code, so it is compared to
+1e-3; the other modes' ratios to 1e-9 like the rest.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from dimacq.cli.main import main
+
+ROOT = Path(__file__).resolve().parents[2]
+EXAMPLES = ROOT / "config" / "examples"
+REFERENCE = Path(__file__).with_name("six_triax_solve_reference.json")
+
+RTOL = 1e-9
+ATOL = 1e-12
+#: A number inside a message ("rigid-body error ≤ 5.86e-16 (limit 0.02)").
+_NUMBER = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
+#: Ratios of rounding noise on the noise-free example (see the module docstring).
+LOOSE = {".output_error.gauge_modes.data_to_prior_information[0]": 1e-3}
+SKIP = {".output_error.elapsed_s"}
+
+
+def _compare(got: Any, ref: Any, path: str, bad: list[str]) -> None:
+    if path in SKIP:
+        return
+    if isinstance(ref, dict):
+        assert isinstance(got, dict), path
+        missing, extra = set(ref) - set(got), set(got) - set(ref) - {"elapsed_s"}
+        if missing or extra:
+            bad.append(f"{path}: keys missing {sorted(missing)}, extra {sorted(extra)}")
+        for k in (k for k in ref if k in got):
+            _compare(got[k], ref[k], f"{path}.{k}", bad)
+    elif isinstance(ref, list):
+        if not isinstance(got, list) or len(got) != len(ref):
+            bad.append(f"{path}: {got!r} != {ref!r}")
+            return
+        for i, (g, r) in enumerate(zip(got, ref, strict=True)):
+            _compare(g, r, f"{path}[{i}]", bad)
+    elif isinstance(ref, float) and not isinstance(got, bool) and isinstance(got, int | float):
+        rtol = LOOSE.get(path, RTOL)
+        if not abs(got - ref) <= rtol * abs(ref) + ATOL:
+            bad.append(f"{path}: {got!r} != {ref!r} (rel {abs(got - ref) / abs(ref):.1e})")
+    elif isinstance(ref, str) and isinstance(got, str) and got != ref:
+        # Messages quote numbers to a few digits: the same text, and the quoted numbers within
+        # the tolerance of the numbers they quote (a rounding-noise 5.86e-16 may read 5.9e-16).
+        g_num, r_num = _NUMBER.findall(got), _NUMBER.findall(ref)
+        same_text = _NUMBER.sub("#", got) == _NUMBER.sub("#", ref) and len(g_num) == len(r_num)
+        if not same_text or any(
+            abs(float(g) - float(r)) > max(RTOL, 5e-3) * abs(float(r)) + ATOL
+            for g, r in zip(g_num, r_num, strict=True)
+        ):
+            bad.append(f"{path}: {got!r} != {ref!r}")
+    elif got != ref:
+        bad.append(f"{path}: {got!r} != {ref!r}")
+
+
+def test_shipped_example_solves_to_the_numbers_before_the_speed_work(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "sol.json"
+    rc = main(
+        [
+            "solve",
+            str(EXAMPLES / "six_triax_setup.toml"),
+            str(EXAMPLES / "six_triax_frf.uff"),
+            "--json",
+            str(out),
+        ]
+    )
+    capsys.readouterr()
+    assert rc == 0
+    bad: list[str] = []
+    _compare(json.loads(out.read_text()), json.loads(REFERENCE.read_text()), "", bad)
+    assert not bad, f"{len(bad)} numbers changed:\n" + "\n".join(bad[:40])
+
+
+def test_the_comparison_sees_a_change() -> None:
+    ref = json.loads(REFERENCE.read_text())
+    got = json.loads(REFERENCE.read_text())
+    got["mass_kg"] *= 1 + 1e-8
+    got["uncertainty"]["cx"]["ci95"][0] += 1e-9
+    got["verdict"] = "other"
+    got["band_selection"]["reason"] = ref["band_selection"]["reason"].replace(
+        "91 lines", "92 lines"
+    )
+    got["verdict_reasons"][0]["message"] = ref["verdict_reasons"][0]["message"].replace(
+        "5.86e-16", "5.9e-16"
+    )
+    bad: list[str] = []
+    _compare(got, ref, "", bad)
+    assert [b.split(":")[0] for b in bad] == [
+        ".mass_kg",
+        ".uncertainty.cx.ci95[0]",
+        ".band_selection.reason",
+        ".verdict",
+    ]
