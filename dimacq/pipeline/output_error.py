@@ -270,6 +270,9 @@ def _reaction_noise_cov(R: ComplexArray) -> FloatArray:
 #: Reactions whose power on a line is at most this multiple of their noise are at noise level.
 REACTION_SNR_LOW = 4.0
 
+#: Relative precision floor of an FRF value in the line weights (:func:`_line_weights`).
+PRECISION_FLOOR_REL = 1e-6
+
 #: Half-width (lines) of the local noise estimate of :func:`_line_weights`.
 LINE_NOISE_HALF_WIDTH = 16
 
@@ -294,13 +297,15 @@ def _line_weights(
     where a white-noise weighting lets those few lines run the fit. The variance of line ``ℓ``
     of input ``j``, relative to the band's mean power, is modelled as
 
-        v_ℓj = n_ℓj + ε_R² ρ_ℓj² p_ℓj
+        v_ℓj = n_ℓj + (ε_0² + ε_R² ρ_ℓj²) p_ℓj
         n_ℓj = median_c ⟨|Δ³H_cj|²⟩_ℓ / (20 · mean_ℓ|H_cj|²)        (local scatter: random noise)
         p_ℓj = median_c |H_ℓcj|² / mean_ℓ|H_cj|²                    (the line's relative power)
         ρ_ℓj² = Σ_c |ψ_cᵀ M⁻¹ R_ℓj|² / Σ_c |ψ_cᵀ M⁻¹ (φ_j + R_ℓj)|²  (the reactions' share)
 
     with ``⟨·⟩_ℓ`` the mean over ±:data:`LINE_NOISE_HALF_WIDTH` lines of the third difference
-    (which removes a smooth FRF), ``ψ, φ, M`` the stated geometry and the start's properties.
+    (which removes a smooth FRF), ``ψ, φ, M`` the stated geometry and the start's properties,
+    ``ε_0`` = :data:`PRECISION_FLOOR_REL` the data's own precision (without it, exact FRFs
+    would be weighed by ratios of rounding noise).
     The weight ``w_ℓj² = median_ℓ(v_ℓj) / v_ℓj`` (residual ``w (H − Ĥ)/σ``, σ carrying the band
     level): where the random noise dominates the weights are flat; lines where a support
     carries much of the force count as far as the cells' calibration lets them. One weight for
@@ -325,7 +330,10 @@ def _line_weights(
     power = np.maximum(np.mean(np.abs(H) ** 2, axis=0), 1e-300)  # (C, J)
     n = np.median(loc / (20.0 * power[None]), axis=1)  # (L, J)
     prel = np.median(np.abs(H) ** 2 / power[None], axis=1)  # (L, J)
-    rel = np.zeros_like(prel)
+    # a floor at the data's own precision (float32 UFF records, 24-bit converters: ~1e-7
+    # relative): on exact FRFs the local scatter is rounding noise and the weights would be
+    # ratios of it
+    rel = np.full_like(prel, PRECISION_FLOOR_REL**2)
     if eps_r > 0 and np.any(R):
         B = psi @ A  # (C, 6)
         pr = np.einsum("ca,laj->lcj", B, R)
