@@ -159,3 +159,15 @@ def test_resume_without_finish_and_refusals(lab_api) -> None:
     assert r.status_code == 409 and "nothing to strike" in r.json()["detail"], r.text
     r = c.post(f"/api/acquisitions/{b['id']}/finish")  # over the whole chain: complete
     assert r.status_code == 200 and r.json()["state"] == "succeeded", r.text
+
+
+def test_a_resumed_acquisition_is_deleted_after_the_one_that_resumed_it(lab_api) -> None:
+    c, lab = lab_api
+    aid = _interrupted(c, lab)
+    b = c.post(f"/api/acquisitions/{aid}/resume").json()
+    _accept(c, b["id"], 2)
+    _wait(c, b["id"], lambda a: a["state"] != "running")
+    r = c.delete(f"/api/acquisitions/{aid}")
+    assert r.status_code == 409 and f"acquisition {b['id']}" in r.json()["detail"], r.text
+    assert c.delete(f"/api/acquisitions/{b['id']}").status_code == 204
+    assert c.delete(f"/api/acquisitions/{aid}").status_code == 204

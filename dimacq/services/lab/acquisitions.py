@@ -580,6 +580,18 @@ class AcquisitionService:
                 f"acquisition {acq_id} is running: stop it first "
                 f"(POST /api/acquisitions/{acq_id}/stop)"
             )
+        if cur.state == "resumed":  # its averages are part of the one that resumed it
+            with self.db.session() as s:
+                later = [
+                    int(a.id)
+                    for a in s.scalars(select(m.Acquisition).where(m.Acquisition.id > acq_id))
+                    if (a.config or {}).get("resume_of") == acq_id
+                ]
+            if later:
+                raise DeviceStateError(
+                    f"acquisition {acq_id} was resumed by acquisition {later[0]}, which uses its "
+                    f"averages; delete acquisition {later[0]} first"
+                )
         with self.db.session() as s:
             files = []
             for a in s.scalars(select(m.Average).where(m.Average.acquisition_id == acq_id)):
