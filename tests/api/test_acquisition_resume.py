@@ -171,3 +171,18 @@ def test_a_resumed_acquisition_is_deleted_after_the_one_that_resumed_it(lab_api)
     assert r.status_code == 409 and f"acquisition {b['id']}" in r.json()["detail"], r.text
     assert c.delete(f"/api/acquisitions/{b['id']}").status_code == 204
     assert c.delete(f"/api/acquisitions/{aid}").status_code == 204
+
+
+def test_redo_on_a_resumed_acquisition_drops_the_kept_averages_too(lab_api) -> None:
+    c, lab = lab_api
+    aid = _interrupted(c, lab)
+    b = c.post(f"/api/acquisitions/{aid}/resume").json()
+    a = _wait(c, b["id"], lambda a: a["pending_review"] is not None)
+    n = a["pending_review"]["number"]
+    r = c.post(f"/api/acquisitions/{b['id']}/review", json={"number": n, "decision": "redo"})
+    assert r.status_code == 200, r.text
+    _accept(c, b["id"], 3)  # input 11+X again from nothing: 3 averages
+    b = _wait(c, b["id"], lambda a: a["state"] != "running")
+    assert b["state"] == "succeeded" and b["accepted_per_input"] == [3, 3], b
+    old = c.get(f"/api/acquisitions/{aid}").json()
+    assert old["accepted_per_input"] == [3, 0]  # its kept average of 11+X was redone

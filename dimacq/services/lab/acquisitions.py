@@ -945,6 +945,11 @@ class AcquisitionService:
                 )
             ):
                 a.accepted, a.reason = False, OPERATOR_REDO
+            r = s.get(m.Acquisition, acq_id)
+            kept = dict((r.config or {}).get("kept_per_input") or {}) if r is not None else {}
+            if r is not None and kept.get(str(input_index)):
+                kept[str(input_index)] = 0  # the kept ones were dropped with the rest
+                r.config = {**r.config, "kept_per_input": kept}
 
         self.outbox.flush(self.db)
         if not self.outbox.write(self.db, f"acquisition {acq_id} redo input {input_index}", mark):
