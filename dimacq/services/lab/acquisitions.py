@@ -7,6 +7,14 @@ inputs have their averages the FRFs are estimated and stored as an FRF set; an i
 fewer than ``min_averages`` accepted averages is incomplete: it gets no FRF and the acquisition
 names it (``incomplete_inputs``, its message).
 
+After a crash (or a stop, or a failure) the kept averages are not lost work:
+:meth:`AcquisitionService.finish` estimates the FRFs of the complete inputs from their files,
+with the live run's estimator (state ``succeeded`` only when no input is missing, else
+``incomplete`` naming them), and :meth:`AcquisitionService.resume` starts a new acquisition
+whose session begins each input with its kept accepted averages and strikes only the missing
+ones; the ended acquisition becomes ``resumed`` (config ``resume_of`` links them, and a chain
+of resumes counts every link's averages).
+
 On a shared database every acquisition belongs to the stand that runs it: only that stand
 stops or recovers it, and the raw time data stay on its disk (:meth:`average_data`). While the
 database is unreachable the averages go on to the disk and their rows wait in the outbox
