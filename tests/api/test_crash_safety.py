@@ -236,7 +236,8 @@ def test_sigkill_then_finish_and_resume_gives_the_frfs_of_a_run_without_the_kill
             a = c.get(f"/api/acquisitions/{acq['id']}").json()
             assert a["state"] == "interrupted", a
             kept = a["accepted_per_input"] + [0] * (3 - len(a["accepted_per_input"]))
-            assert 3 <= sum(kept) < 12, kept
+            # killed at 3 or a little later: the third input not struck yet (0.9 s of slack)
+            assert 3 <= sum(kept) <= 8, kept
             # finish: the complete inputs' FRFs, the missing ones named; never "succeeded"
             r = c.post(f"/api/acquisitions/{acq['id']}/finish")
             assert r.status_code == 200, r.text
