@@ -383,8 +383,10 @@ class AverageOut(BaseModel):
 
 
 class AcquisitionOut(BaseModel):
-    """An impact acquisition: state (running, succeeded, failed, cancelled; the words of its
-    job), progress 0..1, and every completed average, accepted or rejected with its reason."""
+    """An impact acquisition: state (running, succeeded, failed, cancelled, interrupted: the
+    words of its job; after ``finish`` of an ended one ``incomplete`` when inputs are missing,
+    after ``resume`` ``resumed``), progress 0..1, and every completed average, accepted or
+    rejected with its reason (a resumed one's ``accepted_per_input`` counts the kept ones)."""
 
     id: int
     setup_id: int | None

@@ -58,7 +58,10 @@ from dimacq.devices.daq import Daq, DaqBlock
 from dimacq.devices.loadcell import LoadCell, LoadCellBlock
 from dimacq.errors import DataError, DeviceError, DeviceLostError, DeviceTimeoutError, SetupError
 from dimacq.io.acquisition_hdf5 import AcquisitionWriter
+from dimacq.model.channels import axis_name
+from dimacq.model.frf import FrfData
 from dimacq.model.impact import ImpactSettings
+from dimacq.model.setup import TestSetup
 from dimacq.pipeline.frf_estimation import (
     double_hit_mask,
     estimate_frf,
@@ -90,6 +93,8 @@ __all__ = [
     "Progress",
     "ReviewCallback",
     "impact_frf",
+    "input_frf",
+    "records_frf",
 ]
 
 log = logging.getLogger(__name__)
@@ -99,6 +104,86 @@ def _n_gauges(lc: LoadCell) -> int:
     """Gauges of a load cell: its own count when it says (a cell on DAQ inputs), else 12."""
     n = getattr(lc, "n_gauges", None)
     return int(n) if isinstance(n, int) else 12
+
+
+def input_frf(
+    records: Sequence[Mapping[str, NDArray[np.float64]]], fs: float, settings: ImpactSettings
+) -> tuple[NDArray[np.float64], NDArray[np.complex128], NDArray[np.float64]]:
+    """One input's FRFs from its accepted records, as the live session estimates them (and
+    as an acquisition finished after a crash does, from the records kept on disk).
+
+    ``records``: per average ``"force"`` (1, n) N and ``"outputs"`` (n_outputs, n), the
+    ``n = record_samples`` samples starting ``pretrigger_samples`` before the trigger. The force
+    window (``force_window_samples`` after the pretrigger) goes on the hammer, the exponential
+    window (``exponential_tau_s``, from the trigger) on everything, then
+    :func:`~dimacq.pipeline.frf_estimation.estimate_frf` with ``settings.estimator``.
+
+    Returns
+    -------
+    frequencies_hz : ndarray, shape (n_lines,)
+    H : ndarray, shape (n_lines, n_outputs)
+    coherence : ndarray, shape (n_lines, n_outputs)
+        Ordinary coherence (NaN with one average).
+    """
+    s = settings
+    n = s.record_samples
+    w_out = (
+        exponential_window(n, fs, s.exponential_tau_s, start_sample=s.pretrigger_samples)
+        if s.exponential_tau_s
+        else np.ones(n)
+    )
+    w_in = w_out.copy()
+    if s.force_window_samples:
+        w_in *= force_window(n, min(n, s.pretrigger_samples + s.force_window_samples))
+    x = np.stack([r["force"] for r in records])
+    y = np.stack([r["outputs"] for r in records])
+    est = estimate_frf(x, y, fs, estimator=s.estimator, input_window=w_in, output_window=w_out)
+    return est.frequencies_hz, est.H[:, :, 0], est.ordinary_coherence[:, :, 0]
+
+
+def records_frf(
+    records: Sequence[Sequence[Mapping[str, NDArray[np.float64]]]],
+    fs: float,
+    settings: ImpactSettings,
+    setup: TestSetup,
+    *,
+    meta: Mapping[str, str] | None = None,
+) -> FrfData:
+    """FRFs from kept records, as a session that accepted them would give them: the inputs with
+    at least ``min(min_averages, averages_per_input)`` records each by :func:`input_frf`, in
+    :class:`FrfData` by :func:`impact_frf` (the others named in ``meta["incomplete_inputs"]``).
+
+    ``records``: per input of ``setup`` (in its order) its accepted records, as in
+    :data:`AverageCallback`; ``fs`` the sample rate, Hz.
+
+    Raises
+    ------
+    DataError
+        No input has enough records, or ``records`` does not match the setup's inputs.
+    """
+    if len(records) != len(setup.excitations):
+        raise DataError(
+            f"{len(records)} lists of records for {len(setup.excitations)} inputs of the setup"
+        )
+    need = min(settings.min_averages, settings.averages_per_input)
+    names = [axis_name(e.node, e.direction) for e in setup.excitations]
+    kept = [j for j, r in enumerate(records) if len(r) >= need]
+    if not kept:
+        raise DataError(f"inputs {names}: fewer than {need} accepted averages each; no FRF")
+    cols = [input_frf(records[j], fs, settings) for j in kept]
+    result = ImpactResult(
+        frequencies_hz=cols[0][0],
+        H=np.stack([c[1] for c in cols], axis=2),
+        coherence=np.stack([c[2] for c in cols], axis=2),
+        output_names=(),
+        input_names=tuple(names[j] for j in kept),
+        averages=(),
+        n_accepted=tuple(len(r) for r in records),
+        input_indices=tuple(kept),
+        incomplete_inputs=tuple(n for j, n in enumerate(names) if j not in kept),
+        min_averages=need,
+    )
+    return impact_frf(result, setup, meta=meta)
 
 
 class _StrikeLost(Exception):
@@ -142,6 +227,12 @@ class ImpactSession:
         …), among them ``kind="restart"`` when the DAQ dropped off the bus and
         ``kind="reconnected"`` when it is back, ``kind="lost"`` when it stopped answering (the
         run fails); on the acquisition's thread, so keep it cheap.
+    input_labels : sequence of str, optional
+        The inputs' names in messages ("101+X"; default: the hammer channels).
+    prior : sequence (one per input) of sequences of records, optional
+        Accepted averages kept from an interrupted acquisition (a resumed one): each input
+        starts with them and is struck only for the ``averages_per_input`` still missing; its
+        FRFs use them and the new ones alike (records as in :data:`AverageCallback`).
     """
 
     def __init__(
@@ -163,6 +254,7 @@ class ImpactSession:
         max_restarts: int = 5,
         on_event: Callable[[dict[str, object]], None] | None = None,
         input_labels: Sequence[str] | None = None,
+        prior: Sequence[Sequence[Mapping[str, NDArray[np.float64]]]] | None = None,
     ) -> None:
         self.on_input = on_input
         self.on_event = on_event
@@ -174,6 +266,13 @@ class ImpactSession:
         self.restarts = 0
         self._gaps: list[tuple[int, int, str]] = []
         self.settings = settings or ImpactSettings()
+        if prior is not None and len(prior) != len(input_channels):
+            raise SetupError(
+                f"{len(prior)} lists of kept averages for {len(input_channels)} inputs; give one "
+                "per input (empty: none kept)"
+            )
+        #: accepted averages kept from an interrupted acquisition, per input (a resumed one)
+        self.prior = [list(p) for p in prior] if prior is not None else None
         names = list(daq.channel_names)
         missing = [c for c in (*input_channels, *response_channels) if c not in names]
         if missing:
@@ -441,9 +540,11 @@ class ImpactSession:
         assert self.daq.sample_rate_hz is not None
         fs = self.daq.sample_rate_hz
         self._zero_samples = max(1, min(128, self.settings.hit_delay_samples))
-        self._n_acc = [0] * n_in
+        records: list[list[Mapping[str, NDArray[np.float64]]]] = (
+            [list(p) for p in self.prior] if self.prior is not None else [[] for _ in range(n_in)]
+        )
+        self._n_acc = [len(r) for r in records]
         self._start_run()
-        records: list[list[dict[str, NDArray[np.float64]]]] = [[] for _ in range(n_in)]
         # Streamed: an input's FRF is estimated as soon as its averages are in, and its records
         # are dropped (memory: one input's records, not the whole test's).
         H_all: NDArray[np.complex128] | None = None
@@ -604,23 +705,10 @@ class ImpactSession:
         return self._result(freqs, H_all, coh_all, history, n_accepted, kept, short, need)
 
     def _frf(
-        self, recs: list[dict[str, NDArray[np.float64]]], fs: float
+        self, recs: Sequence[Mapping[str, NDArray[np.float64]]], fs: float
     ) -> tuple[NDArray[np.float64], NDArray[np.complex128], NDArray[np.float64]]:
-        """One input's FRFs from its accepted records: (frequencies, H (L, n_out), coherence)."""
-        s = self.settings
-        n = s.record_samples
-        w_out = (
-            exponential_window(n, fs, s.exponential_tau_s, start_sample=s.pretrigger_samples)
-            if s.exponential_tau_s
-            else np.ones(n)
-        )
-        w_in = w_out.copy()
-        if s.force_window_samples:
-            w_in *= force_window(n, min(n, s.pretrigger_samples + s.force_window_samples))
-        x = np.stack([r["force"] for r in recs])
-        y = np.stack([r["outputs"] for r in recs])
-        est = estimate_frf(x, y, fs, estimator=s.estimator, input_window=w_in, output_window=w_out)
-        return est.frequencies_hz, est.H[:, :, 0], est.ordinary_coherence[:, :, 0]
+        """One input's FRFs from its accepted records (:func:`input_frf`)."""
+        return input_frf(recs, fs, self.settings)
 
     def _result(
         self,

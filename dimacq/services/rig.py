@@ -15,7 +15,7 @@ service's ``connect`` shows).
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field, is_dataclass
 from typing import TYPE_CHECKING, Any, Literal
@@ -389,6 +389,7 @@ def run_impact_test(
     on_input: Callable[[int, NDArray[np.float64]], None] | None = None,
     on_strike: StrikeCallback | None = None,
     on_event: Callable[[dict[str, object]], None] | None = None,
+    prior: Sequence[Sequence[Mapping[str, NDArray[np.float64]]]] | None = None,
 ) -> FrfData:
     """Run the impact test; return FRFs in the setup's channel order (SI units).
 
@@ -400,7 +401,9 @@ def run_impact_test(
     ``writer`` keeps every raw block (:class:`~dimacq.io.acquisition_hdf5.AcquisitionWriter`,
     channels ``rig.daq.channel_names`` in units ``rig.daq_units``); ``meta`` goes into the
     FRFs' metadata (default: the source). ``on_strike`` is told every request to a person to
-    strike (:class:`StrikeRequest`; none where the world strikes by itself).
+    strike (:class:`StrikeRequest`; none where the world strikes by itself). ``prior``: the
+    accepted averages an interrupted acquisition kept, per input (a resumed acquisition strikes
+    only the missing ones; see :class:`~dimacq.services.acquisition.ImpactSession`).
     """
     from dimacq.services.acquisition import impact_frf
 
@@ -416,6 +419,7 @@ def run_impact_test(
         on_input=on_input,
         on_strike=on_strike,
         on_event=on_event,
+        prior=prior,
     )
     return impact_frf(result, setup, meta=dict(meta or {"source": "dimacq impact acquisition"}))
 
@@ -434,6 +438,7 @@ def run_impact_session(
     on_input: Callable[[int, NDArray[np.float64]], None] | None = None,
     on_strike: StrikeCallback | None = None,
     on_event: Callable[[dict[str, object]], None] | None = None,
+    prior: Sequence[Sequence[Mapping[str, NDArray[np.float64]]]] | None = None,
 ) -> ImpactResult:
     """Run the impact session of :func:`run_impact_test` and return its raw result: FRFs of
     the responses, then per load cell its six loads (``loadcell_outputs="forces"``) or its 12
@@ -502,5 +507,6 @@ def run_impact_session(
         loadcell_outputs=loadcell_outputs,
         on_event=on_event,
         input_labels=[axis_name(e.node, e.direction) for e in setup.excitations],
+        prior=prior,
     )
     return session.run()

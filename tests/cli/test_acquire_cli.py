@@ -244,3 +244,52 @@ def test_acquire_with_incomplete_inputs_keeps_the_rest_and_says_why(tmp_path, ca
     assert frf.H.shape[2] == 22 and len(setup.excitations) == 22
     summary = json.loads((tmp_path / "acq.json").read_text())
     assert summary["incomplete_inputs"] == names
+
+
+def test_acquire_resume_strikes_only_the_missing_averages(tmp_path, capsys, no_leaks):
+    """Issue 24 on the command line: an acquisition with --data keeps every average as its own
+    file; one cut short (here: the files after input 10's first average removed, as a kill
+    would leave them) is continued with --resume: only the missing averages are struck (input
+    10's second included), and the inputs whose averages were all kept have the FRFs of the
+    uninterrupted run, bit for bit."""
+    raw = tmp_path / "raw"
+    args = ["acquire", "calibration-mass-bungee", "--averages-per-input", "2",
+            "--record-samples", "1024", "--data", str(raw), "-q"]  # fmt: skip
+    assert main([*args, "--frf", str(tmp_path / "full.uff")]) == 0
+    with np.load(raw / "frf.npz") as z:
+        h_full = z["H"]
+    files = sorted((raw / "averages").glob("avg-*.h5"))
+    assert len(files) >= 48
+    from dimacq.persistence import ArrayStore
+
+    store = ArrayStore(raw)
+    cut = None
+    for p in files:  # the kill: after input 10's first accepted average
+        attrs = store.read(p.relative_to(raw).as_posix())[1]
+        if attrs["input_index"] == 10 and attrs["accepted"]:
+            cut = int(attrs["number"])
+            break
+    assert cut is not None
+    for p in files:
+        if int(p.stem.split("-")[1]) > cut:
+            p.unlink()
+    capsys.readouterr()
+    # the folder holds an acquisition: not overwritten without --resume
+    assert main([*args, "--frf", str(tmp_path / "x.uff")]) == 2
+    assert "--resume" in capsys.readouterr().err
+    rc = main([*args, "--resume", "--frf", str(tmp_path / "resumed.uff"),
+               "--json", str(tmp_path / "acq.json")])  # fmt: skip
+    assert rc == 0, capsys.readouterr().err
+    summary = json.loads((tmp_path / "acq.json").read_text())
+    assert summary["averages_accepted"] == [2] * 24
+    new = sorted((raw / "averages").glob("avg-*.h5"))[cut:]
+    accepted_new = [store.read(p.relative_to(raw).as_posix())[1] for p in new]
+    accepted_new = [a for a in accepted_new if a["accepted"]]
+    assert len(accepted_new) == 1 + 2 * 13  # input 10's second, then inputs 11..23
+    assert min(a["input_index"] for a in accepted_new) == 10
+    assert (raw / "acquisition-resumed-1.h5").exists()
+    with np.load(raw / "frf.npz") as z:
+        h = z["H"]
+    np.testing.assert_array_equal(h[:, :, :10], h_full[:, :, :10])
+    _, frf = read_uff_test(tmp_path / "resumed.uff")
+    assert frf.H.shape[2] == 24

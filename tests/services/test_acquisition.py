@@ -311,3 +311,60 @@ def test_a_daq_that_stops_answering_is_reported_lost(lab):
         session.run()
     kinds = [e["kind"] for e in events]
     assert kinds.count("daq_timeout") == 3 and kinds[-1] == "lost", kinds
+
+
+def test_a_session_resumed_with_kept_averages_strikes_only_the_missing(lab):
+    """Issue 24: a session given the averages an interrupted one kept (``prior``) strikes only
+    the missing ones; an input whose averages were all kept has the first run's FRFs bit for
+    bit, and records_frf (finish after a crash) gives the session's numbers from the same
+    records."""
+    from dimacq.model.setup import Excitation, ResponseChannel, TestSetup
+    from dimacq.services.acquisition import records_frf
+
+    src, backend, task, amp = lab()
+    strikes = []
+
+    def operator(j, at):
+        src.excite(j, backend.world_sample(at))
+        strikes.append(j)
+
+    settings = ImpactSettings(
+        record_samples=2048, averages_per_input=3, min_averages=2, trigger_level_n=20.0
+    )
+    chans = (["10+X force", "11+X force"], ["100+Z", "101+Z", "102+Z"])
+    records: list[list] = [[], []]
+    first = _gauges_session(task, amp, *chans, settings, operator)
+    first.on_average = lambda j, _n, ok, _r, rec: records[j].append(rec) if ok else None
+    full = first.run()
+    kept = [records[0], records[1][:1]]  # the kill: after input 11's first average
+    strikes.clear()
+    again = _gauges_session(task, amp, *chans, settings, operator)
+    again.prior = kept
+    new: list[list] = [[], []]
+    again.on_average = lambda j, _n, ok, _r, rec: new[j].append(rec) if ok else None
+    res = again.run()
+    assert strikes == [1, 1] and res.n_accepted == (3, 3) and len(new[1]) == 2
+    np.testing.assert_array_equal(res.H[:, :, 0], full.H[:, :, 0])
+    h_true = src.frf(res.frequencies_hz)[:, :, 1]
+    np.testing.assert_allclose(res.H[1:, :3, 1], h_true[1:], atol=2e-3 * np.abs(h_true).max())
+    # the finish path: the same records, the same numbers
+    setup = TestSetup(
+        name="impulse",
+        responses=tuple(
+            ResponseChannel(node=100 + k, direction=3, position_m=(0.1 * k, 0, 0),
+                            direction_gcs=(0, 0, 1))
+            for k in range(3)
+        ),
+        excitations=tuple(
+            Excitation(node=10 + j, direction=1, position_m=(0, 0.1 * j, 0),
+                       direction_gcs=(1, 0, 0))
+            for j in range(2)
+        ),
+    )  # fmt: skip
+    fs = task.sample_rate_hz
+
+    def accels(recs):  # the setup has no load cell: the responses' rows (H1 is per output)
+        return [{"force": r["force"], "outputs": r["outputs"][:3]} for r in recs]
+
+    frf = records_frf([accels(kept[0]), accels(kept[1] + new[1])], fs, settings, setup)
+    np.testing.assert_array_equal(frf.H[:, :3], res.H[1:, :3])

@@ -95,8 +95,24 @@ def _decide(lab: Any, acq_id: int, body: HitDecision) -> AcquisitionInfo:
 @router.post("/{acq_id:id}/finish", response_model=AcquisitionOut)
 def finish_acquisition(acq_id: IdPath, lab: LabDep) -> AcquisitionInfo:
     """Stop striking and keep the accepted averages: the FRFs of the inputs that reached
-    ``min_averages`` are stored (``stop`` cancels instead: no FRF set)."""
+    ``min_averages`` are stored (``stop`` cancels instead: no FRF set). On an acquisition
+    ``interrupted`` (the service stopped during it), ``cancelled`` or ``failed`` without FRFs:
+    the FRFs of its complete inputs are estimated from the raw averages kept on disk, as the
+    live run would; state ``succeeded`` if every input is complete, else ``incomplete`` with
+    the missing inputs named (``resume`` strikes them). 409 otherwise."""
     return found(lab.acquisitions.finish(acq_id), f"acquisition {acq_id}")
+
+
+@router.post(
+    "/{acq_id:id}/resume", response_model=AcquisitionOut, status_code=status.HTTP_202_ACCEPTED
+)
+def resume_acquisition(acq_id: IdPath, lab: LabDep) -> AcquisitionInfo:
+    """A new acquisition (202; a job) that strikes only what an interrupted, cancelled, failed
+    or incomplete one is missing, the missing averages of a partly struck input included, and
+    ends with an FRF set of every input (the kept and the new averages together, merged into
+    the ended one's FRF set). The ended one becomes ``resumed``. 409 when it is not resumable,
+    nothing is missing or the devices are in use."""
+    return found(lab.acquisitions.resume(acq_id), f"acquisition {acq_id}")
 
 
 @router.get("/{acq_id:id}/hit", response_model=HitOut)

@@ -3,7 +3,8 @@
 Usage::
 
     dimacq acquire SCENARIO --averages-per-input N --frf OUT.uff [--seed S] [--data-dir DIR]
-                   [--json OUT] [--record-samples N] [--exp-tau S] [--noise-free] [--quiet]
+                   [--resume] [--json OUT] [--record-samples N] [--exp-tau S] [--noise-free]
+                   [--quiet]
 
 (``--impacts-per-input`` is the same as ``--averages-per-input``, ``--data`` as ``--data-dir``.)
 
@@ -18,7 +19,13 @@ the FRFs (accelerances and the load cells' six loads, as the drivers' calibratio
 them) are written as one whole-test UFF file (the geometry the lab states: the scenario's
 geometry errors applied, never the simulator's truth; + 58 records, binary) that
 ``dimacq solve OUT.uff`` reads. ``--data-dir DIR`` keeps the raw blocks in ``DIR/acquisition.h5`` and the FRFs with their
-coherence (which UFF 58 cannot carry) in ``DIR/frf.npz``.
+coherence (which UFF 58 cannot carry) in ``DIR/frf.npz``; and, as the service does, every
+decided average as its own file (``DIR/averages/avg-NNNNN.h5``, written before the next strike)
+with the settings in ``DIR/acquisition.json``. ``--resume`` continues an acquisition of ``DIR``
+that was interrupted (killed, a crash, Ctrl-C): the accepted averages kept there are used and
+only the missing ones are struck (a partly struck input gets its missing averages), with the
+kept settings (seed, record length, window; ``--averages-per-input`` must be the same); the new
+raw blocks go to ``DIR/acquisition-resumed-K.h5``.
 Progress goes to stderr (one updating line on a terminal, plain lines otherwise, with the time
 remaining; ``--quiet``: none); a summary (with the FRFs' agreement with the true model) to stdout.
 """
@@ -65,6 +72,12 @@ def register(subparsers: Any) -> None:
         type=Path,
         metavar="DIR",
         help="keep the raw data (HDF5) and the FRFs with their coherence in DIR",
+    )
+    p.add_argument(
+        "--resume",
+        action="store_true",
+        help="continue the interrupted acquisition kept in --data DIR: strike only the missing "
+        "averages",
     )
     p.add_argument("--json", type=Path, metavar="OUT", help="write the summary as JSON")
     p.add_argument("--record-samples", type=int, default=4096, help="samples per average")
@@ -122,15 +135,45 @@ def run(args: argparse.Namespace) -> int:
         "record_samples": args.record_samples,
         "exponential_tau_s": args.exp_tau,
     }
+    store = kept = None
+    first_number = 1
+    if args.resume:
+        if args.data is None:
+            raise SetupError("--resume: give --data DIR, the folder of the interrupted acquisition")
+        store, kept, first_number = _kept_averages(args, cfg, n_in)
+    elif args.data is not None:
+        from dimacq.persistence import ArrayStore
+
+        if (args.data / "averages").exists() and any((args.data / "averages").glob("*.h5")):
+            raise SetupError(
+                f"--data {args.data} holds the averages of an acquisition; continue it with "
+                "--resume, or give an empty folder"
+            )
+        store = ArrayStore(args.data)
     t0 = time.monotonic()
     total = n_in * args.impacts_per_input
-    averages: list[tuple[int, bool, list[str]]] = []
+    averages: list[tuple[int, bool, list[str]]] = [
+        (j, True, []) for j, recs in enumerate(kept or []) for _ in recs
+    ]
     line = ProgressLine("acquire", quiet=args.quiet)
 
     def on_average(
-        input_index: int, _number: int, accepted: bool, reasons: Any, _record: Any
+        input_index: int, number: int, accepted: bool, reasons: Any, record: Any
     ) -> None:
         averages.append((input_index, accepted, list(reasons)))
+        if store is not None and record is not None:  # durable before the next strike
+            n = first_number + number
+            store.write(
+                f"averages/avg-{n:05d}.h5",
+                record,
+                {
+                    "input_index": input_index,
+                    "number": n,
+                    "accepted": accepted,
+                    "reason": "; ".join(reasons),
+                    "sample_rate_hz": fs_hz[0],
+                },
+            )
         if not accepted:
             name = setup.excitations[input_index].name
             line.note(f"input {name} rejected: {'; '.join(reasons)}")
@@ -139,6 +182,12 @@ def run(args: argparse.Namespace) -> int:
         line.update(fraction, f"[{round(fraction * total)}/{total}] {message}")
 
     data_path = args.data / "acquisition.h5" if args.data else None
+    if args.resume and data_path is not None:
+        k = 1
+        while (args.data / f"acquisition-resumed-{k}.h5").exists():
+            k += 1
+        data_path = args.data / f"acquisition-resumed-{k}.h5"
+    fs_hz = [0.0]
     meta = {
         "source": "dimacq acquire (simulated USB DAQ + CAN load cells)",
         "scenario": args.scenario,
@@ -147,11 +196,29 @@ def run(args: argparse.Namespace) -> int:
     try:
         # min_averages as the service states it: the rig file's [acquisition], else the
         # min_averages setting (capped at --impacts-per-input by the session)
-        cfg["min_averages"] = rig.defaults.get("min_averages", settings.min_averages)
+        if cfg.get("min_averages") is None:
+            cfg["min_averages"] = rig.defaults.get("min_averages", settings.min_averages)
         used = impact_settings(rig, cfg)
+        fs_hz[0] = float(rig.daq.sample_rate_hz or 0.0)
+        if args.data is not None and not args.resume:
+            args.data.mkdir(parents=True, exist_ok=True)
+            (args.data / "acquisition.json").write_text(
+                json.dumps(
+                    {"scenario": args.scenario, "config": cfg, "applied": used.model_dump()},
+                    indent=2,
+                )
+                + "\n",
+                encoding="utf-8",
+            )
         if data_path is None:
             frf = run_impact_test(
-                rig, setup, cfg, on_average=on_average, on_progress=on_progress, meta=meta
+                rig,
+                setup,
+                cfg,
+                on_average=on_average,
+                on_progress=on_progress,
+                meta=meta,
+                prior=kept,
             )
         else:
             data_path.parent.mkdir(parents=True, exist_ok=True)
@@ -172,6 +239,7 @@ def run(args: argparse.Namespace) -> int:
                     on_progress=on_progress,
                     writer=writer,
                     meta=meta,
+                    prior=kept,
                 )
     finally:
         rig.close()
@@ -269,6 +337,65 @@ def run(args: argparse.Namespace) -> int:
             f"{args.frf} holds the FRFs of the {len(complete)} complete inputs only"
         )
     return 0
+
+
+#: The settings a resumed acquisition takes from the interrupted one (records and FRFs alike).
+_KEPT_SETTINGS = (
+    "seed",
+    "noise_scale",
+    "record_samples",
+    "pretrigger_samples",
+    "trigger_level_n",
+    "min_averages",
+    "force_window_samples",
+    "exponential_tau_s",
+    "estimator",
+)
+
+
+def _kept_averages(
+    args: argparse.Namespace, cfg: dict[str, Any], n_in: int
+) -> tuple[Any, list[list[dict[str, Any]]], int]:
+    """For ``--resume``: the folder's array store, its accepted averages per input (oldest
+    first) and the number of the next average; ``cfg`` takes the interrupted run's settings."""
+    from dimacq.persistence import ArrayStore
+
+    info_path = args.data / "acquisition.json"
+    try:
+        info = json.loads(info_path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as err:
+        raise SetupError(
+            f"--resume: {info_path} is missing or unreadable ({err}); give the --data folder "
+            "of an acquisition made with --data"
+        ) from err
+    if info.get("scenario") != args.scenario:
+        raise SetupError(
+            f"--resume: {args.data} holds an acquisition of scenario {info.get('scenario')!r}; "
+            f"give that scenario, not {args.scenario!r}"
+        )
+    old = info.get("config", {})
+    if int(old.get("averages_per_input", 0)) != args.impacts_per_input:
+        raise SetupError(
+            f"--resume: --averages-per-input {args.impacts_per_input} differs from the "
+            f"interrupted acquisition's {old.get('averages_per_input')}; give that"
+        )
+    applied = info.get("applied", {})
+    cfg.update({k: old.get(k, applied.get(k)) for k in _KEPT_SETTINGS if k in old or k in applied})
+    store = ArrayStore(args.data)
+    kept: list[list[dict[str, Any]]] = [[] for _ in range(n_in)]
+    last = 0
+    for path in sorted((args.data / "averages").glob("avg-*.h5")):
+        rel = path.relative_to(args.data).as_posix()
+        arrays, attrs = store.read(rel)
+        last = max(last, int(attrs["number"]))
+        if attrs["accepted"]:
+            kept[int(attrs["input_index"])].append(arrays)
+    if all(len(r) >= args.impacts_per_input for r in kept):
+        raise SetupError(
+            f"--resume: every input in {args.data} has its {args.impacts_per_input} accepted "
+            "averages; nothing to strike (run without --resume into a new folder)"
+        )
+    return store, kept, last + 1
 
 
 def _rejections(

@@ -7,6 +7,14 @@ inputs have their averages the FRFs are estimated and stored as an FRF set; an i
 fewer than ``min_averages`` accepted averages is incomplete: it gets no FRF and the acquisition
 names it (``incomplete_inputs``, its message).
 
+After a crash (or a stop, or a failure) the kept averages are not lost work:
+:meth:`AcquisitionService.finish` estimates the FRFs of the complete inputs from their files,
+with the live run's estimator (state ``succeeded`` only when no input is missing, else
+``incomplete`` naming them), and :meth:`AcquisitionService.resume` starts a new acquisition
+whose session begins each input with its kept accepted averages and strikes only the missing
+ones; the ended acquisition becomes ``resumed`` (config ``resume_of`` links them, and a chain
+of resumes counts every link's averages).
+
 On a shared database every acquisition belongs to the stand that runs it: only that stand
 stops or recovers it, and the raw time data stay on its disk (:meth:`average_data`). While the
 database is unreachable the averages go on to the disk and their rows wait in the outbox
@@ -34,6 +42,7 @@ from dimacq.errors import (
     DimacqError,
     SetupError,
 )
+from dimacq.model.channels import axis_name
 from dimacq.model.impact import ImpactSettings
 from dimacq.model.setup import TestSetup
 from dimacq.persistence import ArrayStore, Database
@@ -105,6 +114,38 @@ class AcquisitionInfo:
     inputs: list[int] = field(default_factory=list)
     created_at: str | None = None  # ISO 8601, UTC
     updated_at: str | None = None  # the last change of state, message, job or FRF set
+
+
+#: One average's record: ``"force"`` (1, n) N and ``"outputs"`` (n_outputs, n).
+Record = Mapping[str, NDArray[np.float64]]
+
+#: An acquisition that ended before all its averages were in: its kept averages can be
+#: finished (FRFs of its complete inputs) or resumed (a new acquisition strikes the missing).
+ENDED_SHORT = ("interrupted", "cancelled", "failed")
+#: ... and one finished with inputs short of min_averages can be resumed too.
+RESUMABLE = (*ENDED_SHORT, "incomplete")
+#: The settings that shape a record and its FRFs: a resumed acquisition keeps its ended one's.
+_RECORD_SETTINGS = (
+    "record_samples",
+    "pretrigger_samples",
+    "trigger_level_n",
+    "averages_per_input",
+    "min_averages",
+    "force_window_samples",
+    "exponential_tau_s",
+    "estimator",
+)
+#: Keys of an acquisition's config the service writes (never taken from a request).
+_INTERNAL_KEYS = ("applied", "resume_of", "kept_per_input")
+
+
+@dataclass(frozen=True)
+class _Resume:
+    """What a resumed acquisition continues: the ended one and its accepted averages, per
+    struck input (in its ``inputs`` order, oldest first)."""
+
+    acq_id: int
+    kept: list[list[Record]]
 
 
 #: What an impact acquisition holds while it runs (:class:`~dimacq.services.lab.ownership.DeviceOwners`).
@@ -185,7 +226,13 @@ class AcquisitionService:
         ``config``: ``setup_id`` and the impact settings of
         :class:`dimacq.api.schemas.AcquisitionRequest` (None: from the rig).
         """
-        cfg = dict(config)
+        return self._start(config)
+
+    def _start(self, config: Mapping[str, Any], resume: _Resume | None = None) -> AcquisitionInfo:
+        """:meth:`start`; with ``resume`` the new acquisition continues an ended one: its
+        inputs start with the accepted averages kept (``resume.kept``) and the ended one is
+        marked ``resumed`` when the new one exists (one step, the devices held)."""
+        cfg = {k: v for k, v in config.items() if k not in _INTERNAL_KEYS}
         setup_id = int(cfg["setup_id"])
         setup = self.store.require_setup(setup_id)
         n_ex = len(setup.excitations)
@@ -227,7 +274,7 @@ class AcquisitionService:
             raise
         try:
             # every setting as applied (request < rig file < rig), before any job starts
-            self._check(rig, struck, cfg)
+            applied = self._check(rig, struck, cfg)
         except BaseException:
             rig.close()
             self.devices.owners.release(claim)
@@ -241,14 +288,37 @@ class AcquisitionService:
             cfg["averages_per_input"] = defaults.get(
                 "averages_per_input", ImpactSettings().averages_per_input
             )
+        # the settings the FRFs are estimated with: a finish after a crash estimates them alike
+        cfg["applied"] = json_safe(applied.model_dump()) if applied is not None else None
+        prior: list[list[Record]] | None = None
+        if resume is not None:
+            cfg["resume_of"] = resume.acq_id
+            cfg["kept_per_input"] = {
+                str(j): len(r) for j, r in zip(inputs, resume.kept, strict=True)
+            }
+            prior = resume.kept
         try:
             with self.db.session() as s:
+                old = None
+                if resume is not None:  # still resumable (nobody resumed it meanwhile)
+                    old = s.get(m.Acquisition, resume.acq_id)
+                    if old is None or old.state not in RESUMABLE:
+                        raise DeviceStateError(
+                            f"acquisition {resume.acq_id} is "
+                            f"{'deleted' if old is None else old.state}: it cannot be resumed"
+                        )
                 row = m.Acquisition(
                     setup_id=setup_id, config=json_safe(cfg), state="running", stand=self.stand
                 )
                 s.add(row)
                 s.flush()
                 acq_id = int(row.id)
+                if old is not None:
+                    old.state = "resumed"
+                    old.message = (
+                        f"resumed by acquisition {acq_id} (its {sum(map(len, prior or []))} "
+                        "accepted averages are used there; the missing ones are struck)"
+                    )
         except BaseException:
             rig.close()
             self.devices.owners.release(claim)
@@ -265,7 +335,9 @@ class AcquisitionService:
         try:
             job = self.jobs.submit(
                 "acquisition",
-                lambda ctx: self._run(ctx, acq_id, setup_id, setup, struck, cfg, rig, live, claim),
+                lambda ctx: self._run(
+                    ctx, acq_id, setup_id, setup, struck, cfg, rig, live, claim, prior
+                ),
             )
         except BaseException:
             rig.close()
@@ -279,10 +351,10 @@ class AcquisitionService:
         assert out is not None
         return out
 
-    def _check(self, rig: Any, setup: TestSetup, cfg: Mapping[str, Any]) -> None:
+    def _check(self, rig: Any, setup: TestSetup, cfg: Mapping[str, Any]) -> ImpactSettings | None:
         from dimacq.services.rig import check_impact_test
 
-        check_impact_test(rig, setup, cfg)
+        return check_impact_test(rig, setup, cfg)
 
     def _set(self, acq_id: int, **values: Any) -> None:
         with self.db.session() as s:
@@ -318,6 +390,7 @@ class AcquisitionService:
         rig: Any,
         live: LiveReview,
         claim: Claim | None = None,
+        prior: Sequence[Sequence[Record]] | None = None,
     ) -> dict[str, Any]:
         from dimacq.services.rig import run_impact_test
 
@@ -445,6 +518,7 @@ class AcquisitionService:
                 should_finish=live.finish.is_set,
                 on_input=on_input,
                 on_event=self.devices.on_acquisition_event,
+                prior=prior,
             )
             try:
                 fid = self.db.retry(
@@ -514,6 +588,18 @@ class AcquisitionService:
                 f"acquisition {acq_id} is running: stop it first "
                 f"(POST /api/acquisitions/{acq_id}/stop)"
             )
+        if cur.state == "resumed":  # its averages are part of the one that resumed it
+            with self.db.session() as s:
+                later = [
+                    int(a.id)
+                    for a in s.scalars(select(m.Acquisition).where(m.Acquisition.id > acq_id))
+                    if (a.config or {}).get("resume_of") == acq_id
+                ]
+            if later:
+                raise DeviceStateError(
+                    f"acquisition {acq_id} was resumed by acquisition {later[0]}, which uses its "
+                    f"averages; delete acquisition {later[0]} first"
+                )
         with self.db.session() as s:
             files = []
             for a in s.scalars(select(m.Average).where(m.Average.acquisition_id == acq_id)):
@@ -548,10 +634,14 @@ class AcquisitionService:
         # one word for a job that ended well, as the jobs say it (rows before schema 4: finished)
         state = "succeeded" if state == "finished" else state
         snap = self.jobs.snapshot(job_id) if job_id else None
-        per_input = _accepted_per_input(avgs)
-        live = self._live.get(acq)
-        struck = (config or {}).get("inputs")
         cfg = config or {}
+        per_input = _accepted_per_input(avgs)
+        for j, n in (cfg.get("kept_per_input") or {}).items():  # a resumed one: those kept
+            j = int(j)
+            per_input += [0] * (j + 1 - len(per_input))
+            per_input[j] += int(n)
+        live = self._live.get(acq)
+        struck = cfg.get("inputs")
         need = min(int(cfg.get("min_averages") or 1), int(cfg.get("averages_per_input") or 10**6))
         return AcquisitionInfo(
             id=acq,
@@ -567,7 +657,7 @@ class AcquisitionService:
             averages=avgs,
             min_averages=need,
             incomplete_inputs=[j for j, n in enumerate(per_input) if n < need]
-            if state in ("succeeded", "failed")
+            if state in ("succeeded", "failed", "incomplete")
             else [],
             progress=snap["progress"] if snap else (1.0 if state == "succeeded" else 0.0),
             stand=stand,
@@ -623,13 +713,220 @@ class AcquisitionService:
 
     def finish(self, acq_id: int) -> AcquisitionInfo | None:
         """Stop striking and keep the accepted averages: FRFs of the inputs that reached
-        ``min_averages`` are estimated and stored (the others are incomplete)."""
-        try:
-            live = self._require_live(acq_id)
-        except KeyError:
+        ``min_averages`` are estimated and stored (the others are incomplete).
+
+        A running acquisition stops striking (its job stores the FRFs). One that ended short
+        (``interrupted`` by a crash of the service, ``cancelled``, ``failed``) and has no FRF
+        set gets its FRFs here, from the raw averages kept on disk, estimated exactly as the
+        live run does (:func:`~dimacq.services.acquisition.input_frf`): state ``succeeded``
+        when every input is complete, else ``incomplete`` with the missing inputs named in
+        the message (:meth:`resume` strikes them).
+
+        Raises
+        ------
+        DeviceStateError
+            Not running and not ended short, already with an FRF set, run by another stand,
+            or no input has ``min_averages`` accepted averages.
+        DataError
+            A kept average's file is missing or unreadable.
+        """
+        cur = self.get(acq_id)
+        if cur is None:
             return None
-        live.finish.set()
+        if cur.state not in ENDED_SHORT or cur.frf_id is not None:
+            try:
+                live = self._require_live(acq_id)
+            except KeyError:
+                return None
+            except DeviceStateError as err:
+                raise DeviceStateError(
+                    f"acquisition {acq_id} is {cur.state}"
+                    + (f" with FRF set {cur.frf_id}" if cur.frf_id is not None else "")
+                    + ": finish stops a running acquisition of this stand, or estimates the FRFs "
+                    "of one interrupted, cancelled or failed without them from its kept averages"
+                ) from err
+            live.finish.set()
+            return self.get(acq_id)
+        self._require_own(cur, "finish")
+        return self._finish_kept(cur)
+
+    def _require_own(self, cur: AcquisitionInfo, what: str) -> None:
+        if cur.stand not in (self.stand, ""):
+            raise DeviceStateError(
+                f"acquisition {cur.id} ran on stand {cur.stand!r}: its raw averages are on that "
+                f"stand's disk; {what} it through its API ({self._stand_url(cur.stand)})"
+            )
+
+    def _finish_kept(self, cur: AcquisitionInfo) -> AcquisitionInfo | None:
+        from dimacq.services.acquisition import records_frf
+
+        acq_id, cfg = cur.id, cur.config
+        assert cur.setup_id is not None
+        setup = self.store.require_setup(cur.setup_id)
+        inputs = [int(j) for j in cfg["inputs"]]
+        struck = setup.model_copy(
+            update={"excitations": tuple(setup.excitations[j] for j in inputs)}
+        )
+        kept, fs = self._kept(acq_id, inputs)
+        applied = self._applied(cfg)
+        need = min(applied.min_averages, applied.averages_per_input)
+        short = [
+            f"{axis_name(e.node, e.direction)} ({len(r)} of {applied.averages_per_input})"
+            for e, r in zip(struck.excitations, kept, strict=True)
+            if len(r) < need
+        ]
+        if len(short) == len(inputs):
+            raise DeviceStateError(
+                f"acquisition {acq_id}: no input has {need} accepted averages (inputs "
+                f"{', '.join(short)}): no FRF to estimate; resume it "
+                f"(POST /api/acquisitions/{acq_id}/resume) to strike them"
+            )
+        frf = records_frf(kept, fs, applied, struck, meta={"source": "dimacq impact acquisition"})
+        merge_id = cfg.get("merge_frf_id")
+        if merge_id is not None:
+            base = self.store.frf(int(merge_id))
+            if base is None:
+                raise DataError(
+                    f"FRF set {merge_id} (merge_frf_id of acquisition {acq_id}) was deleted; "
+                    "nothing to merge into"
+                )
+            frf = merge_frfs(base[0], frf, setup)
+        fid = self.store.save_frf(
+            frf, cur.setup_id, name=f"acquisition {acq_id}", acquisition_id=acq_id
+        )
+        message = (
+            f"finished from the averages kept after it was {cur.state}: FRFs stored as FRF set "
+            f"{fid}"
+        )
+        if short:
+            state = "incomplete"
+            message += (
+                f"; inputs {', '.join(short)} incomplete (fewer than {need} accepted averages): "
+                f"no FRF; resume it (POST /api/acquisitions/{acq_id}/resume) to strike them"
+            )
+        else:
+            state = "succeeded"
+        self._set(acq_id, frf_id=fid, state=state, message=message)
+        log.info("acquisition %d finished from kept averages: %s", acq_id, message)
         return self.get(acq_id)
+
+    def resume(self, acq_id: int) -> AcquisitionInfo | None:
+        """A new acquisition that strikes only what an ended one is missing: the inputs short
+        of ``averages_per_input`` accepted averages, each for its missing ones (input 7 had 2
+        of 5: 3 more, its FRFs from the 5). Every input's FRFs come from the kept and the new
+        averages together, and are merged like ``merge_frf_id`` into the ended one's FRF set
+        (its :meth:`finish`) or, without one, into its own ``merge_frf_id``: the new FRF set
+        covers every input. The ended one becomes ``resumed`` (naming the new one). Started
+        like :meth:`start`: it holds the DAQ and the load cells. None: no such acquisition.
+
+        Raises
+        ------
+        DeviceStateError
+            Not resumable (running, succeeded, already resumed), another stand's, nothing is
+            missing, or the devices are in use.
+        """
+        cur = self.get(acq_id)
+        if cur is None:
+            return None
+        if cur.state not in RESUMABLE:
+            hint = {
+                "running": "finish or stop it first",
+                "resumed": "resume the acquisition that resumed it (see its message)",
+                "succeeded": "every input has its FRFs; to redo inputs start an acquisition "
+                "with inputs and merge_frf_id",
+            }.get(cur.state, "")
+            raise DeviceStateError(
+                f"acquisition {acq_id} is {cur.state}: only one interrupted, cancelled, failed "
+                f"or incomplete can be resumed" + (f"; {hint}" if hint else "")
+            )
+        self._require_own(cur, "resume")
+        cfg = dict(cur.config)
+        inputs = [int(j) for j in cfg["inputs"]]
+        wanted = int(cfg["averages_per_input"])
+        kept, _fs = self._kept(acq_id, inputs)
+        if all(len(r) >= wanted for r in kept):
+            raise DeviceStateError(
+                f"acquisition {acq_id}: every input has its {wanted} accepted averages, nothing "
+                f"to strike; finish it (POST /api/acquisitions/{acq_id}/finish) for its FRFs"
+            )
+        applied = cfg.get("applied") or {}
+        # the settings the kept averages were taken with (whatever the rig file says now)
+        pinned = {k: applied[k] for k in _RECORD_SETTINGS if applied.get(k) is not None}
+        new = {**{k: v for k, v in cfg.items() if k not in _INTERNAL_KEYS}, **pinned}
+        new["merge_frf_id"] = cur.frf_id if cur.frf_id is not None else cfg.get("merge_frf_id")
+        return self._start(new, _Resume(acq_id, kept))
+
+    def _chain(self, acq_id: int) -> list[int]:
+        """The acquisition and the ones it resumes, oldest first."""
+        ids: list[int] = []
+        at: int | None = acq_id
+        with self.db.session() as s:
+            while at is not None and at not in ids:
+                r = s.get(m.Acquisition, at)
+                if r is None:
+                    break
+                ids.append(at)
+                nxt = (r.config or {}).get("resume_of")
+                at = None if nxt is None else int(nxt)
+        return ids[::-1]
+
+    def _kept(self, acq_id: int, inputs: Sequence[int]) -> tuple[list[list[Record]], float]:
+        """The accepted averages of an acquisition and of those it resumes, per struck input
+        (``inputs`` order; oldest first), read from this stand's disk; and the sample rate.
+
+        Raises
+        ------
+        DeviceStateError
+            An average is on another stand's disk.
+        DataError
+            An average's file is missing or unreadable (named).
+        """
+        ids = self._chain(acq_id)
+        with self.db.session() as s:
+            rows = [
+                (a.acquisition_id, a.number, a.input_index, a.path, a.stand)
+                for a in s.scalars(
+                    select(m.Average).where(
+                        m.Average.acquisition_id.in_(ids), m.Average.accepted.is_(True)
+                    )
+                )
+            ]
+        rows.sort(key=lambda r: (ids.index(r[0]), r[1]))
+        where = {j: k for k, j in enumerate(inputs)}
+        kept: list[list[Record]] = [[] for _ in inputs]
+        fs = 0.0
+        for aid, number, j, rel, stand in rows:
+            if j not in where:
+                continue
+            if stand not in (self.stand, ""):
+                raise DeviceStateError(
+                    f"average {number} of acquisition {aid} is on stand {stand!r}'s disk; "
+                    f"finish or resume it there ({self._stand_url(stand)})"
+                )
+            try:
+                arrays, attrs = self.arrays.read(rel)
+                rec = {
+                    "force": np.asarray(arrays["force"], dtype=np.float64),
+                    "outputs": np.asarray(arrays["outputs"], dtype=np.float64),
+                }
+                fs = float(attrs["sample_rate_hz"])
+            except (OSError, KeyError, DataError) as err:
+                raise DataError(
+                    f"average {number} of acquisition {aid} ({self.arrays.path(rel)}): {err}; "
+                    "restore the file, or delete the average's row to go on without it"
+                ) from err
+            kept[where[j]].append(rec)
+        return kept, fs
+
+    def _applied(self, cfg: Mapping[str, Any]) -> ImpactSettings:
+        """The impact settings an acquisition ran with: as stored when it started, else (older
+        rows) its request over the rig file's ``[acquisition]`` table as it is now."""
+        if cfg.get("applied"):
+            return ImpactSettings.model_validate(cfg["applied"])
+        from dimacq.io.rig_file import load_rig_file
+
+        defaults = load_rig_file(self.settings.rig_path).acquisition.given()
+        return ImpactSettings.layered(defaults, cfg)
 
     def hit(self, acq_id: int) -> dict[str, Any] | None:
         """The hit waiting for review, else the last decided one: force and strongest response
@@ -645,15 +942,22 @@ class AcquisitionService:
         """Redo of an input: its averages accepted so far no longer count."""
         from dimacq.services.acquisition import OPERATOR_REDO
 
+        chain = self._chain(acq_id)  # a resumed one: the kept averages are redone too
+
         def mark(s: Any) -> None:
             for a in s.scalars(
                 select(m.Average).where(
-                    m.Average.acquisition_id == acq_id,
+                    m.Average.acquisition_id.in_(chain),
                     m.Average.input_index == input_index,
                     m.Average.accepted.is_(True),
                 )
             ):
                 a.accepted, a.reason = False, OPERATOR_REDO
+            r = s.get(m.Acquisition, acq_id)
+            kept = dict((r.config or {}).get("kept_per_input") or {}) if r is not None else {}
+            if r is not None and kept.get(str(input_index)):
+                kept[str(input_index)] = 0  # the kept ones were dropped with the rest
+                r.config = {**r.config, "kept_per_input": kept}
 
         self.outbox.flush(self.db)
         if not self.outbox.write(self.db, f"acquisition {acq_id} redo input {input_index}", mark):
