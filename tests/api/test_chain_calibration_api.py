@@ -31,6 +31,7 @@ def _store(api: Api, setup, frf, name: str) -> int:
     return int(r.json()["id"])
 
 
+@pytest.mark.slow
 def test_reference_mass_then_applied_by_id(api: Api) -> None:
     f = np.linspace(10.0, 120.0, 56)
     rng = np.random.default_rng(7)

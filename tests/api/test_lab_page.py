@@ -180,6 +180,7 @@ def _decide_hits(page: Any, plan: list[str]) -> list[tuple[int, str]]:
         done.append((number, decision))
 
 
+@pytest.mark.slow
 def test_whole_simulated_test_through_the_page(service: str, tmp_path: Path) -> None:
     shots = Path(os.environ.get("DIMACQ_PAGE_SHOTS") or tmp_path / "screenshots")
     shots.mkdir(parents=True, exist_ok=True)

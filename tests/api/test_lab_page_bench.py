@@ -51,6 +51,7 @@ def test_bench_calibration_module_is_package_data() -> None:
     assert '<script type="module" src="/static/calibration.js">' in html
 
 
+@pytest.mark.slow
 def test_inertial_calibration_through_the_page(service: Any, tmp_path: Path) -> None:
     url, token = service
     shots = tmp_path / "screenshots"

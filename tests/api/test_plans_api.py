@@ -7,6 +7,7 @@ import json
 import tomllib
 from pathlib import Path
 
+import pytest
 from _api_support import Api
 
 from dimacq.io.setup_file import load_setup
@@ -29,6 +30,7 @@ def _body(**kw: object) -> dict:
     }
 
 
+@pytest.mark.slow
 def test_plan_job_gives_the_command_line_plan(api: Api) -> None:
     r = api.client.post("/api/plans", json=_body(seed=2))
     assert r.status_code == 202, r.text
@@ -57,6 +59,7 @@ def test_bad_plans_are_refused_before_a_job_starts(api: Api) -> None:
     assert len(api.lab.jobs.list_jobs()) == before
 
 
+@pytest.mark.slow
 def test_a_plan_with_trials_can_be_cancelled(api: Api) -> None:
     r = api.client.post("/api/plans", json=_body(trials=50))
     assert r.status_code == 202, r.text

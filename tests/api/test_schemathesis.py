@@ -63,6 +63,7 @@ def jobs_finish(api: Api):
     derandomize=True,
     suppress_health_check=list(HealthCheck),
 )
+@pytest.mark.slow
 def test_api_conforms_to_its_spec(case, api: Api, jobs_finish: None) -> None:
     case.call_and_validate(
         headers={"Authorization": f"Bearer {TOKEN}"},
@@ -78,6 +79,7 @@ def test_api_conforms_to_its_spec(case, api: Api, jobs_finish: None) -> None:
     derandomize=True,
     suppress_health_check=list(HealthCheck),
 )
+@pytest.mark.slow
 def test_state_changing_operations_need_the_token(case, api: Api) -> None:
     """Every state-changing operation of the spec, with generated bodies, answers 401 without
     the token (before its body is read) and changes nothing."""

@@ -16,6 +16,7 @@ from dimacq.io.uff import write_frf_uff
 from dimacq.simulators.lab.scenarios import build_scenario
 
 
+@pytest.mark.slow
 def test_service_defaults_and_plain_cli_solve_agree(api: Api, tmp_path: Path) -> None:
     built = build_scenario("calibration-mass-realistic", 1)  # stated geometry with errors
     frf = built.model_frf(noise=0.01)

@@ -10,6 +10,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from _acq_support import calibration_scale, no_leaks
@@ -24,6 +25,7 @@ from dimacq.simulators.lab.forward import CALIBRATION_MASS
 __all__ = ["no_leaks"]
 
 
+@pytest.mark.slow
 def test_acquire_writes_a_uff_that_solve_reads(tmp_path, capsys, no_leaks):
     """Through the service's rig (backends ``simulated``, the scenario's rig file): the drivers
     know the certificates, not the simulated transducers, so the mass carries the rig file's
@@ -162,6 +164,7 @@ def _circular_is_the_chain_against_the_cell(res: dict, cell_pct: float) -> float
     return expected
 
 
+@pytest.mark.slow
 def test_loadcell_calibrate_static_simulated_json_contract(tmp_path, capsys, no_leaks):
     out = tmp_path / "static.json"
     rc = main(

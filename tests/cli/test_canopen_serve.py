@@ -10,11 +10,13 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pytest
 from _serve_support import Service
 
 from dimacq.api.server import free_port
 
 
+@pytest.mark.slow
 def test_canopen_load_cell_through_dimacq_serve(tmp_path: Path) -> None:
     port = free_port()
     env = {

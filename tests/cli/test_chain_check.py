@@ -15,6 +15,8 @@ import json
 import sys
 from pathlib import Path
 
+import pytest
+
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from _acq_support import no_leaks
 
@@ -31,6 +33,7 @@ chain_check = importlib.util.module_from_spec(_SPEC)
 _SPEC.loader.exec_module(chain_check)
 
 
+@pytest.mark.slow
 def test_acquired_bungee_set_is_not_a_confident_wrong_answer(tmp_path, capsys, no_leaks):
     uff = tmp_path / "b3.uff"
     rc = main(

@@ -81,6 +81,7 @@ def _dask_offload_thread() -> None:
     _offload_executor.submit(lambda: None).result()
 
 
+@pytest.mark.slow
 @pytest.mark.usefixtures("_dask_offload_thread")
 def test_same_seed_same_json_in_process_and_on_a_local_cluster(tmp_path: Path) -> None:
     """Two trials (default solves) in this process, then on a LocalCluster of two workers

@@ -78,6 +78,7 @@ INERTIA_INDEX = {
 }
 
 
+@pytest.mark.slow
 def test_demo_recovers_the_truth(tmp_path: Path, capsys) -> None:
     out = tmp_path / "demo.json"
     assert main(["demo", "--json", str(out), "--averages", "3"]) == 0
@@ -168,6 +169,7 @@ def test_demo_that_cannot_acquire_fails_with_the_reason(monkeypatch, capsys) -> 
     assert "--model-frfs" in err
 
 
+@pytest.mark.slow
 def test_demo_model_frfs_says_so_first(tmp_path: Path, capsys) -> None:
     out = tmp_path / "demo.json"
     assert main(["demo", "--model-frfs", "--json", str(out)]) == 0

@@ -57,6 +57,7 @@ def test_rigid_only_model_frfs_solve_to_the_truth(tmp_path: Path, name: str, siz
         assert prec["severity"] == "fail" and "I1 ±" in prec["message"]
 
 
+@pytest.mark.slow
 def test_flexible_x38_in_its_recommended_band_is_within_half_a_percent(tmp_path: Path) -> None:
     uff, truth, sol = tmp_path / "x.uff", tmp_path / "truth.json", tmp_path / "sol.json"
     assert main(["simulate", "x38", "--frf", str(uff), "--truth", str(truth)]) == 0

@@ -7,6 +7,8 @@ import importlib.util
 import sys
 from pathlib import Path
 
+import pytest
+
 SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "soak.py"
 
 
@@ -19,6 +21,7 @@ def _soak_module():
     return mod
 
 
+@pytest.mark.slow
 def test_short_soak_loses_nothing_reports_every_fault_and_keeps_answering(tmp_path: Path) -> None:
     soak = _soak_module()
     fig = soak.run_soak(

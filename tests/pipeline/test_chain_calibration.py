@@ -57,6 +57,7 @@ def test_drawing_matches_the_block() -> None:
     assert len(d.responses) == 24 and len(d.excitations) == 24 and len(d.load_cells) == 1
 
 
+@pytest.mark.slow
 def test_hammer_error_calibrated_out_on_another_body() -> None:
     """A hammer certificate 2 % off scales every FRF (accelerations and reactions) by κ = 1.02:
     the calibration mass then measures 2 % light. The chain factor measured on the reference

@@ -103,6 +103,7 @@ def _forward(theta: np.ndarray, cand: pl.Candidates, lay: pl.Layout, P: np.ndarr
     return gain[:, None] * (psi @ np.linalg.solve(M, phi))
 
 
+@pytest.mark.slow
 def test_predicted_covariance_matches_map_fits_of_simulated_tests() -> None:
     """Fisher information vs Monte Carlo: 150 simulated tests of a small layout (errors drawn
     from the error model by ``simulated_frf``), each fitted by MAP with scipy's numerical

@@ -68,6 +68,7 @@ def test_effective_samples() -> None:
     assert effective_samples(ar) < 40  # τ ≈ (1 + 0.95)/(1 − 0.95) = 39
 
 
+@pytest.mark.slow
 def test_interval_covers_the_truth() -> None:
     """Coverage of the 95 % intervals over seeded trials with 0.5° sensor errors, as the analysis
     service computes them (inputs, sensor nodes, lines, stated geometry uncertainty): at least

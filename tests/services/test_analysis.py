@@ -12,6 +12,7 @@ from _selection_support import forward_case
 from dimacq.services.analysis import AnalysisOptions, analyse
 
 
+@pytest.mark.slow
 def test_full_chain_finds_bad_channels_and_inputs(tmp_path: Path) -> None:
     c = forward_case(
         11, triax_error_deg=0.5, n_bad_channels=2, bad_channel_deg=20.0, n_bad_inputs=2

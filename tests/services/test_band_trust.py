@@ -7,6 +7,7 @@ Both cases were reported ``ok`` with errors far outside their intervals before t
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from scipy.signal import find_peaks
 
 from dimacq.model.properties import principal_moments
@@ -28,6 +29,7 @@ def _inside(rep: object, truth: float, key: str, widen: float = 1.0) -> bool:
     return bool(mid - half <= truth <= mid + half)
 
 
+@pytest.mark.slow
 def test_band_starts_clear_of_the_top_suspension_mode() -> None:
     # bounce modes up to 4.20 Hz (3 % damped), elastic modes 17 / 24 / 31 Hz, 0.5 % noise: the
     # line one bin above the 4.25 Hz CMIF peak (σ₁ 8× its mass-line level) took the band's mass
@@ -72,6 +74,7 @@ def test_run_without_a_resonance_below_keeps_its_start() -> None:
     assert with_rule.band_hz == without.band_hz
 
 
+@pytest.mark.slow
 def test_noise_does_not_leave_a_short_band_below_an_elastic_mode() -> None:
     # the shipped x38 scenario (chute pair 4.8 / 5.3 Hz, tails 23 Hz), 1 % noise, seed 2: noise
     # broke the usable lines into short runs and the longest, 17.9–19.3 Hz, was 0.7 × the tail
