@@ -48,6 +48,9 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
             item.add_marker(
                 pytest.mark.skip(reason=f"needs real hardware: --device {'/'.join(sorted(kinds))}")
             )
+    # the long tests first (stable order otherwise): under -n the workers start on them and the
+    # short ones fill in behind, instead of one worker finishing a long test alone at the end
+    items.sort(key=lambda item: item.get_closest_marker("slow") is None)
 
 
 @pytest.fixture(autouse=True)
