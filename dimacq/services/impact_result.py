@@ -95,6 +95,9 @@ class ImpactResult:
         Inputs left with fewer than ``min_averages`` accepted averages (no FRF).
     min_averages : int
         The minimum that was applied.
+    lost_strikes : tuple of int
+        Per session input: strikes lost to DAQ sample gaps while waiting for them (asked again,
+        not counted against the strike budget).
     """
 
     frequencies_hz: NDArray[np.float64]
@@ -107,6 +110,7 @@ class ImpactResult:
     input_indices: tuple[int, ...] = ()
     incomplete_inputs: tuple[str, ...] = ()
     min_averages: int = 1
+    lost_strikes: tuple[int, ...] = ()
 
 
 def impact_frf(

@@ -386,13 +386,14 @@ def run_impact_test(
     on_input: Callable[[int, NDArray[np.float64]], None] | None = None,
     on_strike: StrikeCallback | None = None,
     on_event: Callable[[dict[str, object]], None] | None = None,
+    on_lost: Callable[[int, str], None] | None = None,
 ) -> FrfData:
     """Run the impact test; return FRFs in the setup's channel order (SI units).
 
-    ``review``, ``should_finish``, ``on_input`` and ``on_event`` go to the
+    ``review``, ``should_finish``, ``on_input``, ``on_event`` and ``on_lost`` go to the
     :class:`~dimacq.services.acquisition.ImpactSession` (the operator's accept / reject / redo
     of each hit; stop striking and keep the accepted averages; each input's coherence; the
-    devices' events: DAQ lost and found again, gaps).
+    devices' events: DAQ lost and found again, gaps; each strike lost to a gap).
 
     ``writer`` keeps every raw block (:class:`~dimacq.io.acquisition_hdf5.AcquisitionWriter`,
     channels ``rig.daq.channel_names`` in units ``rig.daq_units``); ``meta`` goes into the
@@ -413,6 +414,7 @@ def run_impact_test(
         on_input=on_input,
         on_strike=on_strike,
         on_event=on_event,
+        on_lost=on_lost,
     )
     return impact_frf(result, setup, meta=dict(meta or {"source": "dimacq impact acquisition"}))
 
@@ -431,6 +433,7 @@ def run_impact_session(
     on_input: Callable[[int, NDArray[np.float64]], None] | None = None,
     on_strike: StrikeCallback | None = None,
     on_event: Callable[[dict[str, object]], None] | None = None,
+    on_lost: Callable[[int, str], None] | None = None,
 ) -> ImpactResult:
     """Run the impact session of :func:`run_impact_test` and return its raw result: FRFs of
     the responses, then per load cell its six loads (``loadcell_outputs="forces"``) or its 12
@@ -498,6 +501,7 @@ def run_impact_session(
         on_input=on_input,
         loadcell_outputs=loadcell_outputs,
         on_event=on_event,
+        on_lost=on_lost,
         input_labels=[axis_name(e.node, e.direction) for e in setup.excitations],
     )
     return session.run()
