@@ -36,7 +36,9 @@ clock:
 **Operator review** (optional ``review``): every hit, with the automatic checks' reasons and its
 record, is handed to ``review(input_index, average_index, reasons, blocks)``, which returns the
 operator's decision: ``"accept"`` (kept, when the checks passed: an overload or a double hit stays
-rejected whatever the operator says), ``"reject"`` (rejected "by the operator", strike again) or
+rejected), ``"override"`` (kept although the checks rejected it, with
+:data:`OPERATOR_OVERRIDE` among its reasons; never a hit with samples lost, whose record has
+holes: :func:`unusable_reasons`), ``"reject`` (rejected "by the operator", strike again) or
 ``"redo"`` (this hit and every average accepted so far for the input are dropped and the input
 starts again: its strike budget too). While the operator looks, the DAQ is drained at its own
 pace (:meth:`ImpactSession._ask_review`): no sample is lost to the wait, however long. ``should_finish()`` (optional) is asked before every strike:
@@ -71,6 +73,7 @@ from dimacq.pipeline.frf_estimation import (
     force_window,
 )
 from dimacq.services.impact_result import (
+    OPERATOR_OVERRIDE,
     OPERATOR_REDO,
     OPERATOR_REJECT,
     AverageCallback,
@@ -80,10 +83,12 @@ from dimacq.services.impact_result import (
     Progress,
     ReviewCallback,
     impact_frf,
+    unusable_reasons,
 )
 from dimacq.services.sample_window import SampleWindow
 
 __all__ = [
+    "OPERATOR_OVERRIDE",
     "OPERATOR_REDO",
     "OPERATOR_REJECT",
     "AverageCallback",
@@ -546,6 +551,14 @@ class ImpactSession:
                         elif asked == "reject" and not reasons:
                             decision = "reject"
                             reasons.append(OPERATOR_REJECT)
+                        elif asked == "override" and reasons:
+                            holes = unusable_reasons(reasons)
+                            if holes:  # the caller should have refused it: say so, keep it out
+                                log.warning("override of %s refused: %s", reasons, holes)
+                                reasons.append(f"override refused: {'; '.join(holes)}")
+                            else:
+                                decision = "accept"
+                                reasons.append(OPERATOR_OVERRIDE)
                     ok = decision == "accept"
                     if ok:
                         records[j].append(rec)

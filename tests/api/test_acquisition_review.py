@@ -143,7 +143,13 @@ def test_finish_keeps_the_accepted_averages_and_append_completes_the_set(review_
     _wait(c, aid, lambda a: a["pending_review"] is not None)  # input 11's first hit waits
     assert c.post(f"/api/acquisitions/{aid}/finish").status_code == 200
     a = _wait(c, aid, lambda a: a["state"] != "running")
-    assert a["state"] == "succeeded" and a["incomplete_inputs"] == [1], a
+    # FRFs for input 10 only: not a success, the input left is named by point and direction
+    assert a["state"] == "incomplete" and a["incomplete_inputs"] == [1], a
+    assert "11+X" in a["message"] and f"FRF set {a['frf_id']}" in a["message"], a["message"]
+    assert [(s["name"], s["state"]) for s in a["input_states"]] == [
+        ("10+X", "complete"),
+        ("11+X", "incomplete"),
+    ]
     assert _frf(c, a["frf_id"])[2] == [10]
     # a finished acquisition takes no more decisions
     late = c.post(f"/api/acquisitions/{aid}/review", json={"number": 3, "decision": "accept"})
