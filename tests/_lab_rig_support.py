@@ -2,13 +2,16 @@
 source behind the real USB DAQ simulator and driver (no load cell), with a paced operator.
 
 ``impulse_rig_factory(pace_s)`` returns a ``rig_factory`` for :class:`dimacq.services.lab.Lab`;
-``IMPULSE_SETUP`` is the matching test setup (2 inputs, 3 responses).
+``IMPULSE_SETUP`` is the matching test setup (2 inputs, 3 responses). With ``imperfections``
+its DAQ plays theirs (a free-running clock, a bounded FIFO); ``faults`` makes each rig's
+:class:`DaqFaults`; the factory keeps every simulated DAQ it made (``factory.backends``).
 """
 
 from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable
 from typing import Any
 
 from _acq_support import ImpulseSource
@@ -16,8 +19,9 @@ from _acq_support import ImpulseSource
 from dimacq.drivers.daq.driver import DaqDevice, DaqTask
 from dimacq.model.setup import Excitation, ResponseChannel, TestSetup
 from dimacq.services.rig import Rig
-from dimacq.simulators.daq.backend import DaqInput, VirtualDaqBackend
+from dimacq.simulators.daq.backend import DaqFaults, DaqInput, VirtualDaqBackend
 from dimacq.simulators.daq.clock import SampleClock
+from dimacq.simulators.imperfections import NONE, Imperfections
 
 G = 9.80665
 
@@ -38,16 +42,33 @@ IMPULSE_SETUP = TestSetup(
 )
 
 
-def impulse_rig_factory(pace_s: float = 0.0, double_hit_input: int | None = None) -> Any:
+def impulse_rig_factory(
+    pace_s: float = 0.0,
+    double_hit_input: int | None = None,
+    *,
+    imperfections: Imperfections = NONE,
+    faults: Callable[[], DaqFaults] | None = None,
+) -> Any:
     """Rigs on the impulse source; ``double_hit_input``: every strike of that input after its
     first is a double hit (rejected)."""
+    backends: list[VirtualDaqBackend] = []
 
     def factory(_settings: Any, _setup: TestSetup, _cfg: Any) -> Rig:
         src = ImpulseSource(n_inputs=2, n_responses=3, n_gauges=0, response_gain=0.01)
         clock = SampleClock()
         wiring = {j: DaqInput(j, 2.25e-3) for j in range(2)}
         wiring.update({2 + k: DaqInput(2 + k, 0.1 / G) for k in range(3)})
-        backend = VirtualDaqBackend(src, wiring, clock=clock)
+        imp = imperfections
+        backend = VirtualDaqBackend(
+            src,
+            wiring,
+            clock=clock,
+            free_running=imp.daq_free_running,
+            time_scale=imp.daq_time_scale,
+            fifo_bytes=imp.daq_fifo_bytes,
+            faults=faults() if faults is not None else None,
+        )
+        backends.append(backend)
         dev = DaqDevice.open(backend=backend)
         task = DaqTask(dev)
         for j in range(2):
@@ -75,4 +96,5 @@ def impulse_rig_factory(pace_s: float = 0.0, double_hit_input: int | None = None
             closers=[dev.close],
         )
 
+    factory.backends = backends  # type: ignore[attr-defined]
     return factory
