@@ -98,3 +98,22 @@ def impulse_rig_factory(
 
     factory.backends = backends  # type: ignore[attr-defined]
     return factory
+
+
+def struck_inputs_factory(**kw: Any) -> Callable[[Any, TestSetup, Any], Rig]:
+    """The impulse rig striking the setup's inputs (a subset: redo / append) on their own
+    hammer channels (input node 10 → hammer 0, 11 → hammer 1); ``kw`` to
+    :func:`impulse_rig_factory` (its simulated DAQs: ``factory.backends``)."""
+    inner = impulse_rig_factory(**kw)
+
+    def factory(settings: Any, setup: TestSetup, cfg: Any) -> Rig:
+        rig = inner(settings, setup, cfg)
+        which = [e.node - 10 for e in setup.excitations]
+        rig.input_channels = [f"{10 + k}+X force" for k in which]
+        strike = rig.operator
+        assert strike is not None
+        rig.operator = lambda j, at: strike(which[j], at)
+        return rig
+
+    factory.backends = inner.backends  # type: ignore[attr-defined]
+    return factory

@@ -19,41 +19,20 @@ import numpy as np
 import pytest
 from _acq_support import ImpulseSource
 from _api_support import served_lab
-from _lab_rig_support import IMPULSE_SETUP, impulse_rig_factory
+from _lab_rig_support import IMPULSE_SETUP, struck_inputs_factory
 
 from dimacq.drivers.daq.protocol import frame_size
 from dimacq.io.setup_file import dump_setup_dict
-from dimacq.model.setup import TestSetup
 from dimacq.services.acquisition import OPERATOR_OVERRIDE, OPERATOR_REDO, OPERATOR_REJECT
-from dimacq.services.rig import Rig
 from dimacq.simulators.daq.backend import DaqFaults
 from dimacq.simulators.imperfections import NONE
 
 BODY = {"averages_per_input": 2, "min_averages": 2, "record_samples": 2048, "trigger_level_n": 20.0}
 
 
-def _struck_inputs_factory(**kw: Any) -> Callable[[Any, TestSetup, Any], Rig]:
-    """The impulse rig striking the setup's inputs (a subset: redo / append) on their own
-    hammer channels (input node 10 → hammer 0, 11 → hammer 1); ``kw`` to
-    :func:`impulse_rig_factory` (its simulated DAQs: ``factory.backends``)."""
-    inner = impulse_rig_factory(**kw)
-
-    def factory(settings: Any, setup: TestSetup, cfg: Any) -> Rig:
-        rig = inner(settings, setup, cfg)
-        which = [e.node - 10 for e in setup.excitations]
-        rig.input_channels = [f"{10 + k}+X force" for k in which]
-        strike = rig.operator
-        assert strike is not None
-        rig.operator = lambda j, at: strike(which[j], at)
-        return rig
-
-    factory.backends = inner.backends  # type: ignore[attr-defined]
-    return factory
-
-
 @pytest.fixture
 def review_api(tmp_path: Path, database_url: str) -> Iterator[httpx.Client]:
-    with served_lab(tmp_path, database_url, _struck_inputs_factory()) as (c, _lab):
+    with served_lab(tmp_path, database_url, struck_inputs_factory()) as (c, _lab):
         yield c
 
 
@@ -177,7 +156,7 @@ def test_finish_keeps_the_accepted_averages_and_append_completes_the_set(review_
 def _review_lab(tmp_path: Path, database_url: str, **kw: Any) -> Iterator[tuple[httpx.Client, Any]]:
     """A served lab on the impulse rig (``kw`` to :func:`impulse_rig_factory`); yields the
     client and the rig factory (its simulated DAQs: ``.backends``)."""
-    factory = _struck_inputs_factory(**kw)
+    factory = struck_inputs_factory(**kw)
     with served_lab(tmp_path, database_url, factory) as (c, _lab):
         yield c, factory
 
