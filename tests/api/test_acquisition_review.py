@@ -221,6 +221,26 @@ def test_lost_strikes_are_reported_and_not_counted(tmp_path: Path, database_url:
     assert "10+X 5 (DAQ samples lost (transfer lost))" in a["message"], a["message"]
 
 
+def test_an_input_that_loses_every_strike_is_incomplete_and_named(
+    tmp_path: Path, database_url: str
+) -> None:
+    """Every strike asked of input 10 falls in a lost transfer: after 6 lost (3 per average, as
+    the strike budget) it is asked no more; input 11 gets its averages. The acquisition ends
+    "incomplete" (never "succeeded"), naming 10+X and why its strikes were lost."""
+    lost = {0, 2, 4, 6, 8, 10}
+    with _review_lab(tmp_path, database_url, faults=lambda: DaqFaults(lost_transfers=lost)) as (
+        c,
+        _factory,
+    ):
+        sid = c.post("/api/setups", json=dump_setup_dict(IMPULSE_SETUP)).json()["id"]
+        acq = c.post("/api/acquisitions", json={**BODY, "setup_id": sid}).json()
+        a = _wait(c, acq["id"], lambda a: a["state"] != "running")
+    assert a["state"] == "incomplete" and a["incomplete_inputs"] == [0], a
+    assert _states(a) == [("10+X", 0, 0, 6, "incomplete"), ("11+X", 2, 0, 0, "complete")]
+    assert "inputs 10+X incomplete" in a["message"], a["message"]
+    assert "10+X 6 (DAQ samples lost (transfer lost))" in a["message"], a["message"]
+
+
 def test_a_hit_the_checks_rejected_needs_an_override(tmp_path: Path, database_url: str) -> None:
     """Input 10's first record lost a USB transfer (frame 1): it cannot be accepted, not even
     with override (409 naming the samples lost). Input 11's second strike is a double hit:
