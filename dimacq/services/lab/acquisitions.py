@@ -5,7 +5,14 @@ the database before the next strike, so a crash loses none of them; after a rest
 written but not yet committed are registered (:meth:`AcquisitionService.recover`). When all
 inputs have their averages the FRFs are estimated and stored as an FRF set; an input left with
 fewer than ``min_averages`` accepted averages is incomplete: it gets no FRF and the acquisition
-names it (``incomplete_inputs``, its message).
+names it (``incomplete_inputs``, ``input_states``, its message) and ends ``incomplete``, never
+``succeeded`` (``failed`` when no input has its averages).
+
+While a hit waits for the operator (review) the session drains the DAQ; a strike lost to a DAQ
+gap is asked again and reported per input (``input_states``: ``lost``, ``lost_reasons``; kept in
+memory for this service's run, summed up in the final message). A hit the checks rejected is
+accepted only with ``override`` (never one with samples lost); review can be switched on or off
+while the acquisition runs (:meth:`AcquisitionService.set_review`).
 
 On a shared database every acquisition belongs to the stand that runs it: only that stand
 stops or recovers it, and the raw time data stay on its disk (:meth:`average_data`). While the
