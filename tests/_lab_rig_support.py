@@ -70,7 +70,8 @@ def impulse_rig_factory(
         )
         backends.append(backend)
         dev = DaqDevice.open(backend=backend)
-        task = DaqTask(dev)
+        # back on the bus after a re-enumeration (the simulator's fault): the same backend
+        task = DaqTask(dev, reopen=lambda: DaqDevice.open(backend=backend))
         for j in range(2):
             task.add_force_channel(j, f"{10 + j}+X force", 2.25, range_v=0.5)
         for k in range(3):
@@ -93,7 +94,7 @@ def impulse_rig_factory(
             input_channels=["10+X force", "11+X force"],
             response_channels=["100+Z", "101+Z", "102+Z"],
             operator=operator,
-            closers=[dev.close],
+            closers=[lambda: task.device.close()],
         )
 
     factory.backends = backends  # type: ignore[attr-defined]

@@ -400,7 +400,19 @@ class ImpactSession:
             decision = self.review(j, index, reasons, rec, min(most_s, max(0.0, ahead_s)))
             if decision is not None:
                 return decision
-            self._read_block()
+            try:
+                self._read_block()
+            except DeviceLostError as err:
+                # the hit waiting is cut already (``rec``): it stays for the operator; the run
+                # starts anew (sample counters from 0: the caller re-arms from there)
+                self._restart(
+                    err,
+                    j,
+                    f"the hit {index + 1} waiting for review is kept, so are the accepted averages",
+                )
+                self._rearmed = True
+                t0, first = time.monotonic(), self._daq_buf.end
+                continue
             self._trim(self._daq_buf.end - self.settings.pretrigger_samples)
 
     # -- run -------------------------------------------------------------------------------------------
@@ -417,7 +429,7 @@ class ImpactSession:
             lc.start(external_clock=True)
         self.daq.start()
 
-    def _restart(self, err: DeviceLostError, input_index: int) -> None:
+    def _restart(self, err: DeviceLostError, input_index: int, kept: str = "") -> None:
         """The DAQ dropped off the bus: stop the load cells, find the DAQ again, start anew.
 
         Raises
@@ -436,8 +448,11 @@ class ImpactSession:
         self.restarts += 1
         msg = (
             f"DAQ lost ({err}); run restarted ({self.restarts} of at most {self.max_restarts}): "
-            f"the average in progress of input {self.input_names[input_index]} is struck again, "
-            "the accepted averages are kept"
+            + (
+                kept
+                or f"the average in progress of input {self.input_names[input_index]} is struck "
+                "again, the accepted averages are kept"
+            )
         )
         log.warning(msg)
         self._event({"device": "daq", "kind": "restart", "message": msg})
@@ -474,6 +489,7 @@ class ImpactSession:
         self._zero_samples = max(1, min(128, self.settings.hit_delay_samples))
         self._n_acc = [0] * n_in
         self._lost = [0] * n_in
+        self._rearmed = False
         self._start_run()
         records: list[list[dict[str, NDArray[np.float64]]]] = [[] for _ in range(n_in)]
         # Streamed: an input's FRF is estimated as soon as its averages are in, and its records
@@ -583,6 +599,8 @@ class ImpactSession:
                     if self.on_average is not None:
                         self.on_average(j, len(history) - 1, ok, ar.reasons, rec)
                     armed_from = s0 + s.record_samples
+                    if self._rearmed:  # the run restarted while the hit waited: from its start
+                        armed_from, self._rearmed = 0, False
                     self._trim(armed_from - s.pretrigger_samples)
                     msg = (
                         f"input {self.input_names[j]}: average {len(records[j])}/"

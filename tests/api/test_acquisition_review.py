@@ -203,6 +203,38 @@ def test_a_review_longer_than_the_fifo_holds_loses_nothing(tmp_path: Path, datab
     assert "lost" not in a["message"], a["message"]
 
 
+def test_the_daq_lost_while_a_hit_waits_keeps_the_hit(tmp_path: Path, database_url: str) -> None:
+    """The DAQ drops off the bus (USB re-enumeration) while the first hit waits for review: the
+    session finds it again and starts the run anew, the hit waiting is kept for the operator, and
+    the test goes on from the new run: every hit accepted, nothing lost."""
+    faults = DaqFaults(reenumerate_rate=0.02, reenumerate_s=0.05)
+    with _review_lab(tmp_path, database_url, faults=lambda: faults) as (c, factory):
+        sid = c.post("/api/setups", json=dump_setup_dict(IMPULSE_SETUP)).json()["id"]
+        acq = c.post("/api/acquisitions", json={**BODY, "setup_id": sid, "review": True}).json()
+        aid = acq["id"]
+        a = _wait(c, aid, lambda a: a["pending_review"] is not None)
+        (daq,) = factory.backends
+        # wait on the simulator's state: one re-enumeration while this hit waits, then no more
+        seen = daq.injected.get("usb_reenumeration", 0)
+        deadline = time.monotonic() + 60
+        while daq.injected.get("usb_reenumeration", 0) == seen:
+            assert time.monotonic() < deadline, "the simulated DAQ did not re-enumerate"
+            time.sleep(0.01)
+        faults.reenumerate_rate = 0.0
+        first = a["pending_review"]["number"]
+        assert c.get(f"/api/acquisitions/{aid}").json()["pending_review"]["number"] == first
+        decided = []
+        while True:
+            a = _wait(c, aid, lambda a: a["pending_review"] is not None or a["state"] != "running")
+            if a["state"] != "running":
+                break
+            decided.append(_decide(c, aid, "accept")["number"])
+    assert a["state"] == "succeeded", a
+    assert decided[0] == first and len(decided) == 4, decided
+    assert all(av["accepted"] for av in a["averages"]), a["averages"]
+    assert _states(a) == [("10+X", 2, 0, 0, "complete"), ("11+X", 2, 0, 0, "complete")]
+
+
 def test_lost_strikes_are_reported_and_not_counted(tmp_path: Path, database_url: str) -> None:
     """Five USB transfers are lost while the session waits for input 10's strikes (frames 0, 2,
     4, 6, 8: each holds the strike asked for): five strikes lost, each reported on the input
