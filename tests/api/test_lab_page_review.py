@@ -24,17 +24,34 @@ CHROMIUM = shutil.which("chromium")
 playwright_sync = pytest.importorskip("playwright.sync_api")
 pytestmark = pytest.mark.skipif(CHROMIUM is None, reason="Debian's chromium is not installed")
 
+WARNED: list[str] = []
 ENDED = "/acquisition \\d+ (succeeded|incomplete|failed|cancelled)/"
 
 
-def _pending(page: Any, number: int) -> dict[str, Any]:
-    page.wait_for_function(
-        "() => { const a = window.dimacq.acq.info; return a && a.pending_review"
-        f" && a.pending_review.number === {number}"
-        f" && /hit {number}/.test(document.querySelector('#hit-state').textContent)"
-        " && !document.querySelector('#hit-reject').disabled; }",
-        timeout=60_000,
+def _seen(page: Any) -> str:
+    """What the page shows, for a failure's message."""
+    return str(
+        page.evaluate(
+            "() => ({info: window.dimacq.acq.info, msg: document.querySelector('#msg')"
+            ".textContent, hit: document.querySelector('#hit-state').textContent,"
+            " prompt: document.querySelector('#prompt').textContent})"
+        )
     )
+
+
+def _pending(page: Any, number: int) -> dict[str, Any]:
+    try:
+        page.wait_for_function(
+            "() => { const a = window.dimacq.acq.info; return a && a.pending_review"
+            f" && a.pending_review.number === {number}"
+            f" && /hit {number}/.test(document.querySelector('#hit-state').textContent)"
+            " && !document.querySelector('#hit-reject').disabled; }",
+            timeout=60_000,
+        )
+    except playwright_sync.TimeoutError:
+        raise AssertionError(
+            f"hit {number} is not shown waiting: {_seen(page)}, {WARNED}"
+        ) from None
     return page.evaluate("() => window.dimacq.acq.info.pending_review")
 
 
@@ -51,6 +68,7 @@ def test_review_on_the_page(tmp_path: Path) -> None:
         double_hit_input=1, faults=lambda: DaqFaults(lost_transfers={1})
     )
     errors: list[str] = []
+    warned = WARNED
     with served_lab(tmp_path, "", factory) as (c, _lab):
         sid = c.post("/api/setups", json=dump_setup_dict(IMPULSE_SETUP)).json()["id"]
         with playwright_sync.sync_playwright() as pw:
@@ -58,6 +76,7 @@ def test_review_on_the_page(tmp_path: Path) -> None:
             page = browser.new_page()
             page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
             page.on("pageerror", lambda e: errors.append(str(e)))
+            page.on("console", lambda m: warned.append(m.text) if m.type == "warning" else None)
             page.goto(f"{c.base_url}/#token={TOKEN}")
             page.wait_for_selector("body[data-ready='1']", timeout=20_000)
             page.select_option("#acq-setup", str(sid))
@@ -100,13 +119,17 @@ def test_review_on_the_page(tmp_path: Path) -> None:
             page.check("#acq-review")
             page.click("#acq-start")
             page.wait_for_function(
-                "() => { const a = window.dimacq.acq.info; return a && a.pending_review"
-                " && !document.querySelector('#hit-reject').disabled; }",
+                f"() => {{ const a = window.dimacq.acq.info; return a && a.id !== {a['id']}"
+                " && a.pending_review && !document.querySelector('#hit-reject').disabled; }",
                 timeout=60_000,
             )
+            # the final state of the first stays (no read under way when it ended overwrites it)
+            assert page.evaluate("() => window.dimacq.acq.info.id") != a["id"]
             page.uncheck("#acq-review")
+            second_id = page.evaluate("() => window.dimacq.acq.id")
             page.wait_for_function(
-                f"() => {ENDED}.test(document.querySelector('#msg').textContent)",
+                f"() => new RegExp('acquisition {second_id} (succeeded|incomplete|failed|cancell"
+                "ed)').test(document.querySelector('#msg').textContent)",
                 timeout=60_000,
             )
             second = page.evaluate("() => window.dimacq.acq.info")
@@ -118,7 +141,7 @@ def test_review_on_the_page(tmp_path: Path) -> None:
     assert [(s["name"], s["accepted"], s["state"]) for s in second["input_states"]] == [
         ("10+X", 2, "complete"),
         ("11+X", 1, "incomplete"),
-    ], second
+    ], (second["state"], second["id"], msg, prompt, WARNED)
     assert second["state"] == "incomplete" and "11+X" in second["message"], second
     assert "incomplete" in msg and "incomplete (no FRF): 11+X" in prompt, (msg, prompt)
     assert not errors, errors

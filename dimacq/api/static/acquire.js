@@ -86,7 +86,7 @@ function renderAcquisition(a) {
 
 async function showHit() {
   let h;
-  try { h = await api("GET", `/api/acquisitions/${acq.id}/hit`); } catch { return; }
+  try { h = await api("GET", `/api/acquisitions/${acq.id}/hit`); } catch (err) { console.warn(`hit: ${err.message}`); return; }
   const x = Float64Array.from(h.time_s);
   // the force pulse lasts milliseconds: its plot shows the first 1/16 of the record
   const nF = Math.max(16, Math.floor(x.length / 16));
@@ -106,12 +106,17 @@ async function showHit() {
 async function refresh() {
   if (acq.busy) return acq.info;
   acq.busy = true;
+  const id = acq.id;
   try {
-    const a = await api("GET", `/api/acquisitions/${acq.id}`);
+    const a = await api("GET", `/api/acquisitions/${id}`);
+    // a read that was under way when the acquisition ended (or another started) is stale: the
+    // final state, rendered by ended(), stays
+    if (id !== acq.id || acq.endedId === id) return acq.info;
     const wasPending = acq.info && acq.info.pending_review ? acq.info.pending_review.number : null;
     renderAcquisition(a);
     const nowPending = a.pending_review ? a.pending_review.number : null;
-    if (nowPending !== null && nowPending !== wasPending) await showHit();
+    // the hit waiting until it is shown (a read that failed is tried again at the next poll)
+    if (nowPending !== null && (nowPending !== wasPending || nowPending !== acq.hitNumber)) await showHit();
     else if (nowPending === null && a.averages.length && (!acq.lastShown || acq.lastShown !== a.averages.length)) {
       acq.lastShown = a.averages.length;
       if (!$("#acq-review").checked) await showHit();
@@ -145,6 +150,7 @@ async function start({ inputs = null, merge = null } = {}) {
 }
 
 async function ended() {
+  acq.endedId = acq.id;
   if (acq.events) { acq.events.close(); acq.events = null; }
   if (acq.poll) { clearInterval(acq.poll); acq.poll = null; }
   let a = await api("GET", `/api/acquisitions/${acq.id}`);
