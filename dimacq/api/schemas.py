@@ -194,8 +194,26 @@ class HitDecision(BaseModel):
 
     number: DbId = Field(description="the hit (pending_review.number of the acquisition)")
     decision: Literal["accept", "reject", "redo"] = Field(
-        description="accept (kept if the checks passed), reject (strike again), redo (drop "
-        "this input's averages and strike it again)"
+        description="accept (kept if the checks passed; a hit the checks rejected answers 409 "
+        "naming them unless override is true), reject (strike again), redo (drop this input's "
+        "averages and strike it again)"
+    )
+    override: bool = Field(
+        default=False,
+        description="with accept: keep the hit although the checks rejected it (double hit, "
+        "overload, clock drift; pending_review.accept is 'override'); a hit with samples lost "
+        "cannot be accepted (pending_review.accept 'no')",
+    )
+
+
+class AcquisitionPatch(BaseModel):
+    """What the operator may change while an acquisition runs."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    review: bool = Field(
+        description="review every hit: true, the next hit waits for the operator's decision; "
+        "false, the checks decide from now on (the hit waiting too)"
     )
 
 
@@ -382,11 +400,34 @@ class AverageOut(BaseModel):
     path: str
 
 
+class AcquisitionInputOut(BaseModel):
+    """One struck input of an acquisition."""
+
+    input_index: int = Field(description="the setup's input index")
+    name: str = Field(description="point and direction, e.g. 101+X")
+    accepted: int
+    rejected: int
+    reasons: list[str] = Field(default_factory=list, description="why averages were rejected")
+    lost: int = Field(
+        default=0,
+        description="strikes lost while waiting for them (DAQ samples lost: FIFO overflow, "
+        "transfer lost); asked again, not counted against the strike budget (this service's "
+        "run only)",
+    )
+    lost_reasons: list[str] = Field(default_factory=list)
+    state: Literal["open", "complete", "incomplete"] = Field(
+        description="complete: min_averages accepted; incomplete: the acquisition ended short "
+        "of them (no FRF); open: not yet"
+    )
+
+
 class AcquisitionOut(BaseModel):
-    """An impact acquisition: state (running, succeeded, failed, cancelled, interrupted: the
-    words of its job; after ``finish`` of an ended one ``incomplete`` when inputs are missing,
-    after ``resume`` ``resumed``), progress 0..1, and every completed average, accepted or
-    rejected with its reason (a resumed one's ``accepted_per_input`` counts the kept ones)."""
+    """An impact acquisition: state (running; succeeded: every input has its FRFs; incomplete:
+    FRFs stored for some inputs, the others named in the message and ``incomplete_inputs`` (also
+    after ``finish`` of an interrupted one); failed; cancelled; interrupted; resumed: ``resume``
+    started the acquisition that strikes the rest), progress 0..1, and every completed average,
+    accepted or rejected with its reason (a resumed one's ``accepted_per_input`` counts the kept
+    ones)."""
 
     id: int
     setup_id: int | None
@@ -418,6 +459,15 @@ class AcquisitionOut(BaseModel):
     created_at: str | None = None
     updated_at: str | None = Field(
         default=None, description="the last change of state, message, job or FRF set"
+    )
+    review: bool = Field(
+        default=False,
+        description="every hit waits for the operator's decision (PATCH to switch it mid-run)",
+    )
+    input_states: list[AcquisitionInputOut] = Field(
+        default_factory=list,
+        description="per struck input: its name (point and direction), averages accepted and "
+        "rejected, strikes lost to DAQ sample gaps with their reasons, and its state",
     )
 
 

@@ -16,7 +16,10 @@ clock:
    It is **rejected** (and the operator asked again) when any channel overloaded, a DAQ or load
    cell sample in it was lost, the load cell reported drift, or the force shows a double hit.
    Rejected averages stay on disk; accepted ones are kept for the FRFs.
-   A DAQ gap (FIFO overflow, lost transfer) names its kind and samples in the reason.
+   A DAQ gap (FIFO overflow, lost transfer) names its kind and samples in the reason. A gap
+   while waiting for the trigger **loses the strike** (it may have been in the gap): it is asked
+   again, reported (``on_lost``, an event) and not counted against the strike budget; at most
+   ``max_attempts_factor × averages_per_input`` strikes are lost per input.
    **The DAQ drops off the bus** (USB re-enumeration): the run is restarted — load cells
    stopped, the DAQ found again (``daq.reconnect()``), everything armed and started anew (sample
    counters from 0) — and the input struck again; the average in progress is lost (an event and
@@ -33,9 +36,12 @@ clock:
 **Operator review** (optional ``review``): every hit, with the automatic checks' reasons and its
 record, is handed to ``review(input_index, average_index, reasons, blocks)``, which returns the
 operator's decision: ``"accept"`` (kept, when the checks passed: an overload or a double hit stays
-rejected whatever the operator says), ``"reject"`` (rejected "by the operator", strike again) or
+rejected), ``"override"`` (kept although the checks rejected it, with
+:data:`OPERATOR_OVERRIDE` among its reasons; never a hit with samples lost, whose record has
+holes: :func:`unusable_reasons`), ``"reject`` (rejected "by the operator", strike again) or
 ``"redo"`` (this hit and every average accepted so far for the input are dropped and the input
-starts again: its strike budget too). ``should_finish()`` (optional) is asked before every strike:
+starts again: its strike budget too). While the operator looks, the DAQ is drained at its own
+pace (:meth:`ImpactSession._ask_review`): no sample is lost to the wait, however long. ``should_finish()`` (optional) is asked before every strike:
 when it answers True the session stops striking and estimates FRFs from what it has (the inputs
 short of ``min_averages`` are incomplete), the "stop, keep the accepted averages" of the lab page.
 
@@ -47,6 +53,7 @@ a caller can make each average durable on its own; ``progress(Progress)`` is cal
 from __future__ import annotations
 
 import logging
+import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict
 from typing import Literal
@@ -69,6 +76,7 @@ from dimacq.pipeline.frf_estimation import (
     force_window,
 )
 from dimacq.services.impact_result import (
+    OPERATOR_OVERRIDE,
     OPERATOR_REDO,
     OPERATOR_REJECT,
     AverageCallback,
@@ -78,10 +86,12 @@ from dimacq.services.impact_result import (
     Progress,
     ReviewCallback,
     impact_frf,
+    unusable_reasons,
 )
 from dimacq.services.sample_window import SampleWindow
 
 __all__ = [
+    "OPERATOR_OVERRIDE",
     "OPERATOR_REDO",
     "OPERATOR_REJECT",
     "AverageCallback",
@@ -98,6 +108,10 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
+
+#: While a hit waits for review, a DAQ that answers every read at once (clocked by the host's
+#: reads, or with a backlog in its FIFO) is read at most this many times real time.
+DRAIN_SPEED = 32.0
 
 
 def _n_gauges(lc: LoadCell) -> int:
@@ -222,6 +236,12 @@ class ImpactSession:
     on_input : callable (input_index, coherence), optional
         Called when an input's FRFs are estimated, with its ordinary coherence, shape
         (n_lines, n_outputs) (NaN with one average).
+    on_lost : callable (input_index, reason), optional
+        Called with every strike lost while waiting for it (DAQ samples lost: the strike may
+        have been among them; ``reason`` e.g. ``"DAQ samples lost (FIFO overflow)"``). A lost
+        strike is asked again and not counted against the strike budget; at most
+        ``max_attempts_factor × averages_per_input`` are lost per input, then the input is
+        left as it is (incomplete if short of ``min_averages``).
     on_event : callable (event), optional
         Called with every event the session logs (a dict: ``device``, ``kind``, ``message``,
         …), among them ``kind="restart"`` when the DAQ dropped off the bus and
@@ -255,8 +275,11 @@ class ImpactSession:
         on_event: Callable[[dict[str, object]], None] | None = None,
         input_labels: Sequence[str] | None = None,
         prior: Sequence[Sequence[Mapping[str, NDArray[np.float64]]]] | None = None,
+        on_lost: Callable[[int, str], None] | None = None,
     ) -> None:
         self.on_input = on_input
+        self.on_lost = on_lost
+        self._lost: list[int] = []
         self.on_event = on_event
         self.daq = daq
         self.review = review
@@ -396,10 +419,7 @@ class ImpactSession:
                 if np.isnan(seg).any():
                     # samples lost while waiting (FIFO overflow, lost transfer): the strike may
                     # be among them; ask for it again rather than wait for one that never comes
-                    raise _StrikeLost(
-                        f"input {self.input_names[input_index]}: DAQ samples lost while waiting "
-                        "for the strike; asking for it again"
-                    )
+                    raise _StrikeLost(self._gap_kinds(search_from, buf.end))
                 search_from = buf.end
                 # keep only the pre-trigger history while waiting: O(1) memory and work per block
                 self._trim(search_from - s.pretrigger_samples)
@@ -410,6 +430,17 @@ class ImpactSession:
                     "harder or lower trigger_level_n"
                 )
             self._read_block()
+
+    def _gap_kinds(self, first: int, end: int) -> str:
+        """``"DAQ samples lost (FIFO overflow)"``: what lost samples in ``first .. end - 1``."""
+        kinds = sorted(
+            {
+                "FIFO overflow" if k == "overflow" else "transfer lost"
+                for a, b, k in self._gaps
+                if a < end and b > first
+            }
+        )
+        return "DAQ samples lost" + (f" ({', '.join(kinds)})" if kinds else "")
 
     def _check(
         self, input_index: int, s0: int, n: int
@@ -456,16 +487,37 @@ class ImpactSession:
         rec: Mapping[str, NDArray[np.float64]],
         fs: float,
     ) -> Decision:
-        """The operator's decision on a hit; the DAQ is read on (and trimmed) while waiting."""
+        """The operator's decision on a hit; the DAQ is drained (read and trimmed) while waiting.
+
+        A free-running DAQ's read blocks until its next block is there, so reading paces this
+        loop at the DAQ's own rate, whatever its time scale: between reads the operator's
+        answer is only polled (``wait_s`` 0) and the device FIFO never fills, however long the
+        decision takes. A DAQ clocked by the host's reads (a kind simulator) answers at once:
+        there the loop reads at most :data:`DRAIN_SPEED` times real time and waits on the
+        operator in between (at most half a block's time per wait).
+        """
         assert self.review is not None
-        # half a block's time: a device read blocks until its next block is there, so the
-        # stream is drained at least as fast as it fills (a simulated one paces at 2x real time)
-        wait_s = 0.5 * self.settings.block_samples / fs
+        most_s = 0.5 * self.settings.block_samples / fs
+        t0, first = time.monotonic(), self._daq_buf.end
         while True:
-            decision = self.review(j, index, reasons, rec, wait_s)
+            read_s = (self._daq_buf.end - first) / fs
+            ahead_s = read_s / DRAIN_SPEED - (time.monotonic() - t0)
+            decision = self.review(j, index, reasons, rec, min(most_s, max(0.0, ahead_s)))
             if decision is not None:
                 return decision
-            self._read_block()
+            try:
+                self._read_block()
+            except DeviceLostError as err:
+                # the hit waiting is cut already (``rec``): it stays for the operator; the run
+                # starts anew (sample counters from 0: the caller re-arms from there)
+                self._restart(
+                    err,
+                    j,
+                    f"the hit {index + 1} waiting for review is kept, so are the accepted averages",
+                )
+                self._rearmed = True
+                t0, first = time.monotonic(), self._daq_buf.end
+                continue
             self._trim(self._daq_buf.end - self.settings.pretrigger_samples)
 
     # -- run -------------------------------------------------------------------------------------------
@@ -485,7 +537,7 @@ class ImpactSession:
             lc.start(external_clock=True)
         self.daq.start()
 
-    def _restart(self, err: DeviceLostError, input_index: int) -> None:
+    def _restart(self, err: DeviceLostError, input_index: int, kept: str = "") -> None:
         """The DAQ dropped off the bus: stop the load cells, find the DAQ again, start anew.
 
         Raises
@@ -504,8 +556,11 @@ class ImpactSession:
         self.restarts += 1
         msg = (
             f"DAQ lost ({err}); run restarted ({self.restarts} of at most {self.max_restarts}): "
-            f"the average in progress of input {self.input_names[input_index]} is struck again, "
-            "the accepted averages are kept"
+            + (
+                kept
+                or f"the average in progress of input {self.input_names[input_index]} is struck "
+                "again, the accepted averages are kept"
+            )
         )
         log.warning(msg)
         self._event({"device": "daq", "kind": "restart", "message": msg})
@@ -544,6 +599,8 @@ class ImpactSession:
             [list(p) for p in self.prior] if self.prior is not None else [[] for _ in range(n_in)]
         )
         self._n_acc = [len(r) for r in records]
+        self._lost = [0] * n_in
+        self._rearmed = False
         self._start_run()
         # Streamed: an input's FRF is estimated as soon as its averages are in, and its records
         # are dropped (memory: one input's records, not the whole test's).
@@ -560,6 +617,7 @@ class ImpactSession:
             for j in range(n_in):
                 rejected = 0
                 attempts = 0
+                lost = 0
                 while len(records[j]) < s.averages_per_input and not finished_early:
                     if self.should_finish is not None and self.should_finish():
                         finished_early = True
@@ -579,22 +637,35 @@ class ImpactSession:
                         attempts -= 1
                         armed_from = 0
                         continue
-                    except _StrikeLost as lost:
-                        rejected += 1
-                        log.warning("%s", lost)
-                        self._event({"device": "daq", "kind": "strike_lost", "message": str(lost)})
+                    except _StrikeLost as gap:
+                        # not the operator's strike nor the article's: not counted against the
+                        # strike budget, counted (and reported) on its own, with its own bound
+                        attempts -= 1
+                        lost += 1
+                        self._lost[j] += 1
                         armed_from = self._daq_buf.end
+                        msg = (
+                            f"input {self.input_names[j]}: strike lost ({gap}) while waiting for "
+                            f"it; {lost} lost on this input"
+                        )
+                        out_of_lost = lost >= s.max_attempts_factor * s.averages_per_input
+                        msg += (
+                            "; no more strikes asked for this input"
+                            if out_of_lost
+                            else "; asking for it again"
+                        )
+                        log.warning("%s", msg)
+                        self._event({"device": "daq", "kind": "strike_lost", "message": msg})
+                        if self.on_lost is not None:
+                            self.on_lost(j, str(gap))
                         if self.progress is not None:
                             self.progress(
                                 Progress(
-                                    j,
-                                    n_in,
-                                    len(records[j]),
-                                    s.averages_per_input,
-                                    rejected,
-                                    str(lost),
+                                    j, n_in, len(records[j]), s.averages_per_input, rejected, msg
                                 )
                             )
+                        if out_of_lost:
+                            break
                         continue
                     reasons, rec = self._check(j, s0, s.record_samples)
                     decision: Decision = "reject" if reasons else "accept"
@@ -606,6 +677,14 @@ class ImpactSession:
                         elif asked == "reject" and not reasons:
                             decision = "reject"
                             reasons.append(OPERATOR_REJECT)
+                        elif asked == "override" and reasons:
+                            holes = unusable_reasons(reasons)
+                            if holes:  # the caller should have refused it: say so, keep it out
+                                log.warning("override of %s refused: %s", reasons, holes)
+                                reasons.append(f"override refused: {'; '.join(holes)}")
+                            else:
+                                decision = "accept"
+                                reasons.append(OPERATOR_OVERRIDE)
                     ok = decision == "accept"
                     if ok:
                         records[j].append(rec)
@@ -614,7 +693,7 @@ class ImpactSession:
                         rejected += 1
                     if decision == "redo":  # the input starts again: its averages and budget
                         records[j] = []
-                        rejected, attempts = 0, 0
+                        rejected, attempts, lost = 0, 0, 0
                         history = [
                             AverageRecord(
                                 h.input_index, h.first_sample, h.n_samples, False, (OPERATOR_REDO,)
@@ -630,6 +709,8 @@ class ImpactSession:
                     if self.on_average is not None:
                         self.on_average(j, len(history) - 1, ok, ar.reasons, rec)
                     armed_from = s0 + s.record_samples
+                    if self._rearmed:  # the run restarted while the hit waited: from its start
+                        armed_from, self._rearmed = 0, False
                     self._trim(armed_from - s.pretrigger_samples)
                     msg = (
                         f"input {self.input_names[j]}: average {len(records[j])}/"
@@ -692,11 +773,16 @@ class ImpactSession:
                 need,
             )
         if len(short) == n_in:
+            lost_note = (
+                f"; strikes lost to DAQ sample gaps: {[self._lost[j] for j in short]}"
+                if any(self._lost[j] for j in short)
+                else ""
+            )
             raise DataError(
                 f"inputs {[self.input_names[j] for j in short]}: fewer than {need} acceptable "
                 f"averages each ({[n_accepted[j] for j in short]}) after "
-                f"{s.max_attempts_factor * s.averages_per_input} strikes (see the rejected reasons "
-                "in the acquisition file); fix the cause and repeat those inputs"
+                f"{s.max_attempts_factor * s.averages_per_input} strikes{lost_note} (see the "
+                "rejected reasons in the acquisition file); fix the cause and repeat those inputs"
             )
         assert H_all is not None and coh_all is not None and freqs is not None
         kept = [j for j in range(n_in) if j not in set(short)]
@@ -740,4 +826,5 @@ class ImpactSession:
             input_indices=tuple(kept),
             incomplete_inputs=tuple(self.input_names[j] for j in incomplete),
             min_averages=need,
+            lost_strikes=tuple(self._lost),
         )

@@ -5,7 +5,7 @@ there."""
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Literal
 
@@ -18,6 +18,7 @@ from dimacq.model.frf import Channel, FrfData, OutputKind
 from dimacq.model.setup import TestSetup
 
 __all__ = [
+    "OPERATOR_OVERRIDE",
     "OPERATOR_REDO",
     "OPERATOR_REJECT",
     "AverageCallback",
@@ -27,6 +28,7 @@ __all__ = [
     "Progress",
     "ReviewCallback",
     "impact_frf",
+    "unusable_reasons",
 ]
 
 #: ``on_average(input_index, average_index, accepted, reasons, blocks)``: ``average_index`` counts
@@ -37,8 +39,9 @@ AverageCallback = Callable[
     [int, int, bool, tuple[str, ...], Mapping[str, NDArray[np.float64]]], None
 ]
 
-#: The operator's decision on one hit (see :class:`ImpactSession`).
-Decision = Literal["accept", "reject", "redo"]
+#: The operator's decision on one hit (see :class:`ImpactSession`); ``"override"``: accept a
+#: hit the checks rejected, knowingly (never one with samples lost: :func:`unusable_reasons`).
+Decision = Literal["accept", "reject", "redo", "override"]
 
 #: ``review(input_index, average_index, reasons, blocks, wait_s) -> Decision | None``:
 #: ``reasons`` are the automatic checks' (empty: passed), ``blocks`` as in
@@ -53,6 +56,15 @@ ReviewCallback = Callable[
 OPERATOR_REJECT = "rejected by the operator"
 #: Reason of a hit (and of the averages accepted before it) dropped by "redo this input".
 OPERATOR_REDO = "input redone by the operator"
+#: Reason kept with a hit the checks rejected and the operator accepted over them.
+OPERATOR_OVERRIDE = "accepted by the operator over the checks"
+
+
+def unusable_reasons(reasons: Sequence[str]) -> list[str]:
+    """The checks' reasons that no override can lift: samples lost (DAQ or load cell), the
+    record has no data there (NaN), so an FRF from it would be NaN. The others (overload, double
+    hit, clock drift) are the operator's call."""
+    return [r for r in reasons if "samples lost" in r]
 
 
 @dataclass(frozen=True)
@@ -95,6 +107,9 @@ class ImpactResult:
         Inputs left with fewer than ``min_averages`` accepted averages (no FRF).
     min_averages : int
         The minimum that was applied.
+    lost_strikes : tuple of int
+        Per session input: strikes lost to DAQ sample gaps while waiting for them (asked again,
+        not counted against the strike budget).
     """
 
     frequencies_hz: NDArray[np.float64]
@@ -107,6 +122,7 @@ class ImpactResult:
     input_indices: tuple[int, ...] = ()
     incomplete_inputs: tuple[str, ...] = ()
     min_averages: int = 1
+    lost_strikes: tuple[int, ...] = ()
 
 
 def impact_frf(

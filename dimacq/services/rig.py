@@ -390,13 +390,14 @@ def run_impact_test(
     on_strike: StrikeCallback | None = None,
     on_event: Callable[[dict[str, object]], None] | None = None,
     prior: Sequence[Sequence[Mapping[str, NDArray[np.float64]]]] | None = None,
+    on_lost: Callable[[int, str], None] | None = None,
 ) -> FrfData:
     """Run the impact test; return FRFs in the setup's channel order (SI units).
 
-    ``review``, ``should_finish``, ``on_input`` and ``on_event`` go to the
+    ``review``, ``should_finish``, ``on_input``, ``on_event`` and ``on_lost`` go to the
     :class:`~dimacq.services.acquisition.ImpactSession` (the operator's accept / reject / redo
     of each hit; stop striking and keep the accepted averages; each input's coherence; the
-    devices' events: DAQ lost and found again, gaps).
+    devices' events: DAQ lost and found again, gaps; each strike lost to a gap).
 
     ``writer`` keeps every raw block (:class:`~dimacq.io.acquisition_hdf5.AcquisitionWriter`,
     channels ``rig.daq.channel_names`` in units ``rig.daq_units``); ``meta`` goes into the
@@ -420,6 +421,7 @@ def run_impact_test(
         on_strike=on_strike,
         on_event=on_event,
         prior=prior,
+        on_lost=on_lost,
     )
     return impact_frf(result, setup, meta=dict(meta or {"source": "dimacq impact acquisition"}))
 
@@ -439,6 +441,7 @@ def run_impact_session(
     on_strike: StrikeCallback | None = None,
     on_event: Callable[[dict[str, object]], None] | None = None,
     prior: Sequence[Sequence[Mapping[str, NDArray[np.float64]]]] | None = None,
+    on_lost: Callable[[int, str], None] | None = None,
 ) -> ImpactResult:
     """Run the impact session of :func:`run_impact_test` and return its raw result: FRFs of
     the responses, then per load cell its six loads (``loadcell_outputs="forces"``) or its 12
@@ -506,6 +509,7 @@ def run_impact_session(
         on_input=on_input,
         loadcell_outputs=loadcell_outputs,
         on_event=on_event,
+        on_lost=on_lost,
         input_labels=[axis_name(e.node, e.direction) for e in setup.excitations],
         prior=prior,
     )

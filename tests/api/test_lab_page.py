@@ -158,12 +158,12 @@ def _decide_hits(page: Any, plan: list[str]) -> list[tuple[int, str]]:
     button = {"accept": "#hit-accept", "reject": "#hit-reject", "redo": "#hit-redo"}
     while True:
         page.wait_for_function(
-            "() => !document.querySelector('#hit-accept').disabled"
-            " || /acquisition \\d+ (succeeded|failed|cancelled)/.test("
+            "() => !document.querySelector('#hit-reject').disabled"
+            " || /acquisition \\d+ (succeeded|incomplete|failed|cancelled)/.test("
             "document.querySelector('#msg').textContent)",
             timeout=60_000,
         )
-        if page.locator("#hit-accept").is_disabled():
+        if page.locator("#hit-reject").is_disabled():
             return done
         number = page.evaluate("() => window.dimacq.acq.info.pending_review.number")
         page.wait_for_function(
@@ -171,6 +171,10 @@ def _decide_hits(page: Any, plan: list[str]) -> list[tuple[int, str]]:
             timeout=20_000,
         )
         decision = plan[len(done)] if len(done) < len(plan) else "accept"
+        if decision == "accept" and page.locator("#hit-accept").is_disabled():
+            # the checks rejected it (issue 24: Accept is off, the reason shown): reject
+            assert page.inner_text("#hit-why").strip(), "Accept disabled without a reason"
+            decision = "reject"
         page.click(button[decision])
         page.wait_for_function(
             f"() => {{ const a = window.dimacq.acq.info; return a.state !== 'running'"
@@ -294,7 +298,7 @@ def test_whole_simulated_test_through_the_page(service: str, tmp_path: Path) -> 
         prompt = page.inner_text("#prompt")
         plan = ["accept", "reject", "accept", "accept", "redo"]
         page.wait_for_function(
-            "() => !document.querySelector('#hit-accept').disabled", timeout=30_000
+            "() => !document.querySelector('#hit-reject').disabled", timeout=30_000
         )
         page.wait_for_function(
             "() => /waits for your decision/.test(document.querySelector('#hit-state').textContent)"
@@ -311,7 +315,7 @@ def test_whole_simulated_test_through_the_page(service: str, tmp_path: Path) -> 
         page.click("[data-redo-input='2']")
         page.wait_for_function(
             f"() => {{ const a = window.dimacq.acq.info; return a && a.id !== {first['id']}"
-            " && /acquisition \\d+ (succeeded|failed|cancelled)/.test("
+            " && /acquisition \\d+ (succeeded|incomplete|failed|cancelled)/.test("
             "document.querySelector('#msg').textContent); }",
             timeout=120_000,
         )

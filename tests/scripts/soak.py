@@ -397,7 +397,9 @@ def _acquire(call: Any, setup_id: int, averages: int, seed: int, fig: Figures, s
     fig.averages_lost += len(seen - final)
     if a["state"] != "succeeded" or a.get("frf_id") is None:
         what = f"acquisition {acq_id}: {a['state']}: {a.get('message')}"
-        if a["state"] == "failed" and "acceptable averages" in str(a.get("message")):
+        if a["state"] == "incomplete" or (
+            a["state"] == "failed" and "acceptable averages" in str(a.get("message"))
+        ):
             fig.acquisitions_incomplete.append(what)
         else:
             fig.acquisitions_failed.append(what)

@@ -20,6 +20,7 @@ from dimacq.api.routers._common import (
 )
 from dimacq.api.schemas import (
     AcquisitionOut,
+    AcquisitionPatch,
     AcquisitionRequest,
     AverageDataOut,
     HitDecision,
@@ -56,6 +57,25 @@ def get_acquisition(acq_id: IdPath, lab: LabDep) -> AcquisitionInfo:
     return found(lab.acquisitions.get(acq_id), f"acquisition {acq_id}")
 
 
+@router.patch(
+    "/{acq_id:id}", response_model=AcquisitionOut, openapi_extra=body_openapi(AcquisitionPatch)
+)
+async def patch_acquisition(acq_id: IdPath, lab: LabDep, request: Request) -> AcquisitionInfo:
+    """Change a running acquisition: ``review`` switches "review every hit" (false: the checks
+    decide from now on, the hit waiting too); 409 when it is not running on this stand. A
+    malformed body is 422, then an unknown acquisition 404."""
+    from starlette.concurrency import run_in_threadpool
+
+    raw = await request.body()
+    json_object(raw, '{"review": false}')
+    found(await run_in_threadpool(lab.acquisitions.get, acq_id), f"acquisition {acq_id}")
+    body = parse_strict(AcquisitionPatch, raw)
+    return found(
+        await run_in_threadpool(lab.acquisitions.set_review, acq_id, body.review),
+        f"acquisition {acq_id}",
+    )
+
+
 @router.delete("/{acq_id:id}", status_code=status.HTTP_204_NO_CONTENT)
 def delete_acquisition(acq_id: IdPath, lab: LabDep) -> Response:
     """Delete an acquisition that is not running and its raw averages (its FRF set stays);
@@ -75,7 +95,9 @@ def stop_acquisition(acq_id: IdPath, lab: LabDep) -> AcquisitionInfo:
 )
 async def review_hit(acq_id: IdPath, lab: LabDep, request: Request) -> AcquisitionInfo:
     """The operator's accept / reject / redo of the hit waiting for review (``pending_review``
-    of an acquisition started with ``review: true``); 409 when that hit is not the one waiting.
+    of an acquisition reviewing its hits); 409 when that hit is not the one waiting, or when an
+    accept is refused by the checks (the message names them: ``override: true`` accepts a double
+    hit, an overload or a clock drift anyway; a hit with samples lost is never accepted).
     A malformed body is 422, then an unknown acquisition 404, then a bad decision 422."""
     from starlette.concurrency import run_in_threadpool
 
@@ -88,7 +110,8 @@ async def review_hit(acq_id: IdPath, lab: LabDep, request: Request) -> Acquisiti
 
 def _decide(lab: Any, acq_id: int, body: HitDecision) -> AcquisitionInfo:
     return found(
-        lab.acquisitions.decide(acq_id, body.number, body.decision), f"acquisition {acq_id}"
+        lab.acquisitions.decide(acq_id, body.number, body.decision, body.override),
+        f"acquisition {acq_id}",
     )
 
 

@@ -1,7 +1,9 @@
 // Step 3: acquire — "strike point 12 along −Z", each hit's force and response over time and
 // their spectra, overload / double hit / drift / lost samples named, the operator's accept /
-// reject / redo (the whole input) of each hit, per-input averages and coherence; stop keeping
-// the accepted averages; redo one input or append the missing inputs into the FRF set.
+// reject / redo (the whole input) of each hit (a hit the checks rejected: Accept disabled with
+// the reason, "accept anyway" for the checks an operator may overrule), per-input averages,
+// strikes lost to DAQ gaps and coherence; "review every hit" switchable while it runs; stop
+// keeping the accepted averages; redo one input or append the missing inputs into the FRF set.
 import { $, api, dirName, emit, esc, f, guard, jobEvents, on, say, state, table } from "/static/core.js";
 import { linePlot } from "/static/plot.js";
 
@@ -13,12 +15,17 @@ function setupOf(id) { return state.setups.find((s) => s.id === id); }
 
 function perInputRows(a) {
   const ex = acq.setup.setup.inputs;
-  const per = ex.map(() => ({ acc: 0, rej: 0, reasons: [], coh: null, struck: false }));
+  const per = ex.map(() => ({ acc: 0, rej: 0, reasons: [], coh: null, struck: false, lost: 0, lostWhy: [], state: "" }));
   (a.inputs || []).forEach((j, k) => {
     if (!per[j]) return;
     per[j].struck = true;
     per[j].coh = (a.input_coherence || [])[k] ?? null;
   });
+  for (const st of a.input_states || []) {
+    const p = per[st.input_index];
+    if (!p) continue;
+    Object.assign(p, { lost: st.lost, lostWhy: st.lost_reasons, state: st.state });
+  }
   for (const av of a.averages) {
     const p = per[av.input_index];
     if (!p) continue;
@@ -33,35 +40,53 @@ function renderAcquisition(a) {
   const ex = acq.setup.setup.inputs;
   const per = perInputRows(a);
   const running = a.state === "running" || a.state === "pending";
+  if (running) $("#acq-review").checked = !!a.review;  // what the run does, not what was asked
   const cur = (a.inputs || []).find((j) => per[j].acc < acq.perInput);
+  const incomplete = (a.input_states || []).filter((st) => st.state === "incomplete").map((st) => st.name);
   if (running && a.pending_review) {
     const p = a.pending_review;
-    $("#prompt").textContent = `Hit ${p.number} on point ${ex[p.input_index].node}: accept, reject or redo the input`;
+    $("#prompt").textContent = p.accept === "yes"
+      ? `Hit ${p.number} on point ${ex[p.input_index].node}: accept, reject or redo the input`
+      : `Hit ${p.number} on point ${ex[p.input_index].node} failed the checks (${p.reasons.join("; ")}): reject it or redo the input${p.accept === "override" ? ", or accept it anyway" : ""}`;
   } else if (running && cur !== undefined) {
     const e = ex[cur];
     $("#prompt").textContent = `Strike point ${e.node} along ${dirName(e.direction_gcs)} — input ${cur + 1}/${ex.length}, average ${per[cur].acc + 1}/${acq.perInput}`;
   } else {
-    $("#prompt").textContent = `acquisition ${a.id} ${a.state}: ${a.averages_accepted} averages accepted, ${a.averages_rejected} rejected`;
+    $("#prompt").textContent = `acquisition ${a.id} ${a.state}: ${a.averages_accepted} averages accepted, ${a.averages_rejected} rejected`
+      + (!running && incomplete.length ? `; incomplete (no FRF): ${incomplete.join(", ")}` : "");
   }
   const done = !running && a.frf_id;
-  $("#acq-inputs").innerHTML = table(["#", "node", "strike along", "accepted", "rejected", "reasons", "coherence γ̄²", ""],
+  $("#acq-inputs").innerHTML = table(["#", "node", "strike along", "accepted", "rejected", "strikes lost", "reasons", "coherence γ̄²", ""],
     per.map((p, i) => [i + 1, ex[i].node, dirName(ex[i].direction_gcs),
-      p.struck ? `${p.acc}/${acq.perInput}` : "—", p.rej ? `<span class="rej">${p.rej}</span>` : 0,
-      `<span class="l small">${esc([...new Set(p.reasons)].join("; "))}</span>`,
+      p.struck ? (p.state === "incomplete" ? `<span class="fail">${p.acc}/${acq.perInput} incomplete</span>` : `${p.acc}/${acq.perInput}`) : "—",
+      p.rej ? `<span class="rej">${p.rej}</span>` : 0,
+      p.lost ? `<span class="warn" title="asked again; not counted against the strikes">${p.lost}</span>` : 0,
+      `<span class="l small">${esc([...new Set([...p.reasons, ...p.lostWhy.map((r) => `strike lost: ${r}`)])].join("; "))}</span>`,
       p.coh === null ? "—" : `<span class="${p.coh < 0.9 ? "warn" : "ok"}">${f(p.coh, 3)}</span>`,
       done ? `<button data-redo-input="${i}">redo input</button>` : ""]));
   for (const b of document.querySelectorAll("[data-redo-input]")) {
     b.onclick = guard(() => start({ inputs: [+b.dataset.redoInput], merge: acq.frfId }));
   }
   $("#acq-state").textContent = `${a.state} — ${a.message || ""}`;
+  $("#acq-state").className = `small ${["failed", "incomplete", "cancelled", "interrupted"].includes(a.state) ? "fail" : ""}`;
   $("#acq-bar").style.width = `${100 * (a.progress || 0)}%`;
   const pending = running && a.pending_review;
-  for (const id of ["#hit-accept", "#hit-reject", "#hit-redo"]) $(id).disabled = !pending;
+  for (const id of ["#hit-reject", "#hit-redo"]) $(id).disabled = !pending;
+  // a hit the checks rejected is not accepted by a plain click: Accept is disabled, the reason
+  // shown; "accept anyway" is there for the checks an operator may overrule (double hit,
+  // overload, drift), never for samples lost (the record has holes)
+  const verdict = pending ? a.pending_review.accept : "";
+  $("#hit-accept").disabled = verdict !== "yes";
+  $("#hit-override").hidden = verdict !== "override";
+  $("#hit-override").disabled = verdict !== "override";
+  $("#hit-why").textContent = !pending || verdict === "yes" ? ""
+    : verdict === "override" ? `Accept is off: the checks rejected this hit (${a.pending_review.reasons.join("; ")}).`
+      : `This hit cannot be accepted: ${a.pending_review.reasons.join("; ")} (the record has no data there); reject it or redo the input.`;
 }
 
 async function showHit() {
   let h;
-  try { h = await api("GET", `/api/acquisitions/${acq.id}/hit`); } catch { return; }
+  try { h = await api("GET", `/api/acquisitions/${acq.id}/hit`); } catch (err) { console.warn(`hit: ${err.message}`); return; }
   const x = Float64Array.from(h.time_s);
   // the force pulse lasts milliseconds: its plot shows the first 1/16 of the record
   const nF = Math.max(16, Math.floor(x.length / 16));
@@ -81,12 +106,17 @@ async function showHit() {
 async function refresh() {
   if (acq.busy) return acq.info;
   acq.busy = true;
+  const id = acq.id;
   try {
-    const a = await api("GET", `/api/acquisitions/${acq.id}`);
+    const a = await api("GET", `/api/acquisitions/${id}`);
+    // a read that was under way when the acquisition ended (or another started) is stale: the
+    // final state, rendered by ended(), stays
+    if (id !== acq.id || acq.endedId === id) return acq.info;
     const wasPending = acq.info && acq.info.pending_review ? acq.info.pending_review.number : null;
     renderAcquisition(a);
     const nowPending = a.pending_review ? a.pending_review.number : null;
-    if (nowPending !== null && nowPending !== wasPending) await showHit();
+    // the hit waiting until it is shown (a read that failed is tried again at the next poll)
+    if (nowPending !== null && (nowPending !== wasPending || nowPending !== acq.hitNumber)) await showHit();
     else if (nowPending === null && a.averages.length && (!acq.lastShown || acq.lastShown !== a.averages.length)) {
       acq.lastShown = a.averages.length;
       if (!$("#acq-review").checked) await showHit();
@@ -120,6 +150,7 @@ async function start({ inputs = null, merge = null } = {}) {
 }
 
 async function ended() {
+  acq.endedId = acq.id;
   if (acq.events) { acq.events.close(); acq.events = null; }
   if (acq.poll) { clearInterval(acq.poll); acq.poll = null; }
   let a = await api("GET", `/api/acquisitions/${acq.id}`);
@@ -132,7 +163,7 @@ async function ended() {
   $("#acq-finish").disabled = true;
   $("#acq-cancel").disabled = true;
   $("#acq-start").disabled = false;
-  say(`acquisition ${a.id} ${a.state}: ${a.message}`, a.state === "failed");
+  say(`acquisition ${a.id} ${a.state}: ${a.message}`, a.state !== "succeeded");
   if (a.frf_id) {
     acq.frfId = a.frf_id;
     await emit("frf-stored", a.frf_id);
@@ -149,12 +180,14 @@ function renderAppend(a) {
   $("#acq-append").onclick = guard(() => start({ inputs: missing, merge: a.frf_id }));
 }
 
-async function decide(decision) {
+async function decide(decision, override = false) {
   const p = acq.info && acq.info.pending_review;
   if (!p) throw new Error("no hit waits for a decision");
-  await api("POST", `/api/acquisitions/${acq.id}/review`, { number: p.number, decision });
-  for (const id of ["#hit-accept", "#hit-reject", "#hit-redo"]) $(id).disabled = true;
-  say(`hit ${p.number}: ${decision === "redo" ? "input redone (its averages dropped)" : `${decision}ed`}`);
+  const body = { number: p.number, decision };
+  if (override) body.override = true;
+  await api("POST", `/api/acquisitions/${acq.id}/review`, body);
+  for (const id of ["#hit-accept", "#hit-override", "#hit-reject", "#hit-redo"]) $(id).disabled = true;
+  say(`hit ${p.number}: ${decision === "redo" ? "input redone (its averages dropped)" : override ? `accepted over the checks (${p.reasons.join("; ")})` : `${decision}ed`}`);
   acq.decisions = [...(acq.decisions || []), [p.number, decision]];
   await refresh();
 }
@@ -170,6 +203,15 @@ export function init() {
     say(`acquisition ${acq.id}: cancelled (the averages stay on disk; no FRF set)`);
   });
   $("#hit-accept").onclick = guard(() => decide("accept"));
+  $("#hit-override").onclick = guard(() => decide("accept", true));
+  // unticked (or ticked) while an acquisition runs: the running acquisition follows
+  $("#acq-review").onchange = guard(async () => {
+    const a = acq.info;
+    if (!acq.id || !a || !["running", "pending"].includes(a.state)) return;
+    const review = $("#acq-review").checked;
+    renderAcquisition(await api("PATCH", `/api/acquisitions/${acq.id}`, { review }));
+    say(`acquisition ${acq.id}: ${review ? "every hit waits for your decision" : "the checks decide every hit from now on"}`);
+  });
   $("#hit-reject").onclick = guard(() => decide("reject"));
   $("#hit-redo").onclick = guard(() => decide("redo"));
   $("#acq-setup").onchange = () => emit("open-setup", +$("#acq-setup").value);

@@ -514,6 +514,8 @@ def _follow_acquisition(
     say(f"{step} averages accepted {a['averages_accepted']}, rejected {a['averages_rejected']}")
     if a["frf_id"] is None:
         raise DataError(f"demo: acquisition {acq['id']} ended {a['state']}: {a['message']}")
+    if a["state"] != "succeeded":  # "incomplete": FRFs of some inputs only, the rest named
+        say(f"{step} acquisition {acq['id']} ended {a['state']}: {a['message']}")
     return int(a["frf_id"])
 
 

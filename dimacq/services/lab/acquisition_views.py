@@ -20,13 +20,16 @@ from dimacq.services.lab.common import json_safe
 
 __all__ = ["Decision", "LiveReview", "hit_view", "merge_frfs"]
 
-Decision = Literal["accept", "reject", "redo"]
+#: the operator's decision; ``"override"``: accept a hit the checks rejected (API: ``accept``
+#: with ``override: true``)
+Decision = Literal["accept", "reject", "redo", "override"]
 
 
 @dataclass
 class LiveReview:
     """What only the running job knows: the hit waiting for review, the operator's decisions,
-    the finish request, the coherence of the inputs done."""
+    whether every hit is reviewed (the operator may switch it during the run), the finish
+    request, the coherence of the inputs done, the strikes lost to DAQ gaps per input."""
 
     review: bool
     n_inputs: int
@@ -40,6 +43,8 @@ class LiveReview:
     lock: threading.Lock = field(default_factory=threading.Lock)
     finish: threading.Event = field(default_factory=threading.Event)
     coherence: list[float | None] = field(default_factory=list)
+    #: per struck input: the reason of every strike lost while waiting for it (DAQ samples lost)
+    lost: list[list[str]] = field(default_factory=list)
 
     def current_hit(self) -> dict[str, Any] | None:
         """The hit waiting for review, else the one just decided (not yet recorded by the job),

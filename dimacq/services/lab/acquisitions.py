@@ -5,7 +5,14 @@ the database before the next strike, so a crash loses none of them; after a rest
 written but not yet committed are registered (:meth:`AcquisitionService.recover`). When all
 inputs have their averages the FRFs are estimated and stored as an FRF set; an input left with
 fewer than ``min_averages`` accepted averages is incomplete: it gets no FRF and the acquisition
-names it (``incomplete_inputs``, its message).
+names it (``incomplete_inputs``, ``input_states``, its message) and ends ``incomplete``, never
+``succeeded`` (``failed`` when no input has its averages).
+
+While a hit waits for the operator (review) the session drains the DAQ; a strike lost to a DAQ
+gap is asked again and reported per input (``input_states``: ``lost``, ``lost_reasons``; kept in
+memory for this service's run, summed up in the final message). A hit the checks rejected is
+accepted only with ``override`` (never one with samples lost); review can be switched on or off
+while the acquisition runs (:meth:`AcquisitionService.set_review`).
 
 After a crash (or a stop, or a failure) the kept averages are not lost work:
 :meth:`AcquisitionService.finish` estimates the FRFs of the complete inputs from their files,
@@ -49,6 +56,7 @@ from dimacq.persistence import ArrayStore, Database
 from dimacq.persistence import models as m
 from dimacq.persistence import stands as stand_lease
 from dimacq.persistence.queue import Outbox
+from dimacq.services.impact_result import unusable_reasons
 from dimacq.services.jobs import JobContext, JobManager
 from dimacq.services.lab.acquisition_views import Decision, LiveReview, hit_view, merge_frfs
 from dimacq.services.lab.common import iso, json_safe
@@ -114,6 +122,16 @@ class AcquisitionInfo:
     inputs: list[int] = field(default_factory=list)
     created_at: str | None = None  # ISO 8601, UTC
     updated_at: str | None = None  # the last change of state, message, job or FRF set
+    #: every hit waits for the operator's decision (switchable while it runs: set_review)
+    review: bool = False
+    #: per struck input (:func:`_input_states`): its name, accepted / rejected averages, the
+    #: strikes lost to DAQ gaps with their reasons, and its state
+    input_states: list[dict[str, Any]] = field(default_factory=list)
+
+
+#: The end states whose inputs can be short of their averages: "incomplete" is the end of an
+#: acquisition that stored FRFs for some inputs but not all (never "succeeded").
+ENDED_WITH_INPUTS = ("succeeded", "incomplete", "failed")
 
 
 #: One average's record: ``"force"`` (1, n) N and ``"outputs"`` (n_outputs, n).
@@ -297,6 +315,8 @@ class AcquisitionService:
                 str(j): len(r) for j, r in zip(inputs, resume.kept, strict=True)
             }
             prior = resume.kept
+        # the struck inputs by point and direction ("101+X"): what the operator strikes
+        cfg["input_names"] = [axis_name(e.node, e.direction) for e in struck.excitations]
         try:
             with self.db.session() as s:
                 old = None
@@ -329,6 +349,7 @@ class AcquisitionService:
             n_inputs=len(inputs),
             sample_rate_hz=float(getattr(rig.daq, "sample_rate_hz", 0.0) or 0.0),
             coherence=[None] * len(inputs),
+            lost=[[] for _ in inputs],
         )
         self._live[acq_id] = live
         LiveReview.keep_newest_views(self._live)
@@ -395,6 +416,7 @@ class AcquisitionService:
         from dimacq.services.rig import run_impact_test
 
         inputs: list[int] = list(cfg["inputs"])
+        names: list[str] = list(cfg["input_names"])
         fs = live.sample_rate_hz
         n_resp = len(setup.responses)
 
@@ -407,15 +429,25 @@ class AcquisitionService:
         ) -> Decision | None:
             number = average_index + 1
             with live.lock:
+                if not live.review:  # never on, or switched off: the checks decide this hit
+                    if live.pending is not None and live.pending["number"] == number:
+                        live.pending = None
+                        live.answered = number
+                    return "accept"
                 announce = live.answered != number and (
                     live.pending is None or live.pending["number"] != number
                 )
                 if announce:
+                    holes = unusable_reasons(reasons)
                     live.pending_view = hit_view(record, fs, n_resp)
                     live.pending = {
                         "number": number,
                         "input_index": inputs[j],
+                        "input_name": names[j],
                         "reasons": list(reasons),
+                        # accept: "yes" (the checks passed), "override" (only with override:
+                        # true) or "no" (samples lost: the record has holes)
+                        "accept": "no" if holes else ("override" if reasons else "yes"),
                     }
             if announce:
                 ctx.progress(
@@ -434,6 +466,9 @@ class AcquisitionService:
             if decision == "redo":
                 self._supersede(acq_id, inputs[j])
             return decision
+
+        def on_lost(j: int, reason: str) -> None:
+            live.lost[j].append(reason)
 
         def on_input(j: int, coherence: NDArray[np.float64]) -> None:
             c = coherence[:, :n_resp]
@@ -514,11 +549,12 @@ class AcquisitionService:
                 cfg,
                 on_average=on_average,
                 on_progress=on_progress,
-                review=review if live.review else None,
+                review=review,  # always: the operator may switch review on or off mid-run
                 should_finish=live.finish.is_set,
                 on_input=on_input,
                 on_event=self.devices.on_acquisition_event,
                 prior=prior,
+                on_lost=on_lost,
             )
             try:
                 fid = self.db.retry(
@@ -538,14 +574,18 @@ class AcquisitionService:
                 ) from err
             state, message = "succeeded", f"FRFs stored as FRF set {fid}"
             if frf.meta.get("incomplete_inputs"):
+                # not a success: inputs are missing from the set (state "incomplete")
+                state = "incomplete"
                 message += (
                     f"; inputs {frf.meta['incomplete_inputs']} incomplete (fewer than "
-                    f"{cfg['min_averages']} accepted averages): no FRF, strike them again"
+                    f"{cfg['min_averages']} accepted averages): no FRF, strike them again "
+                    f"(append them into FRF set {fid})"
                 )
+            message += _lost_note(names, live.lost)
             return {"acquisition_id": acq_id, "frf_id": fid}
         except DimacqError as err:
             state = "cancelled" if ctx.cancelled else "failed"
-            message = str(err)
+            message = str(err) + _lost_note(names, live.lost)
             raise
         finally:
             rig.close()
@@ -643,6 +683,8 @@ class AcquisitionService:
         live = self._live.get(acq)
         struck = cfg.get("inputs")
         need = min(int(cfg.get("min_averages") or 1), int(cfg.get("averages_per_input") or 10**6))
+        struck_inputs = list(struck) if struck is not None else list(range(len(per_input)))
+        review = live.review if live is not None else bool(cfg.get("review"))
         return AcquisitionInfo(
             id=acq,
             setup_id=setup_id,
@@ -656,14 +698,18 @@ class AcquisitionService:
             averages_rejected=sum(1 for a in avgs if not a.accepted),
             averages=avgs,
             min_averages=need,
-            incomplete_inputs=[j for j, n in enumerate(per_input) if n < need]
-            if state in ("succeeded", "failed", "incomplete")
+            incomplete_inputs=[j for j in struck_inputs if _count(per_input, j) < need]
+            if state in ENDED_WITH_INPUTS
             else [],
             progress=snap["progress"] if snap else (1.0 if state == "succeeded" else 0.0),
             stand=stand,
             pending_review=dict(live.pending) if live and live.pending else None,
             input_coherence=list(live.coherence) if live else [],
-            inputs=list(struck) if struck is not None else list(range(len(per_input))),
+            inputs=struck_inputs,
+            review=review,
+            input_states=_input_states(
+                state, struck_inputs, cfg.get("input_names"), avgs, need, live
+            ),
             created_at=times[0],
             updated_at=times[1],
         )
@@ -681,22 +727,38 @@ class AcquisitionService:
             )
         return live
 
-    def decide(self, acq_id: int, number: int, decision: Decision) -> AcquisitionInfo | None:
+    def decide(
+        self, acq_id: int, number: int, decision: Decision, override: bool = False
+    ) -> AcquisitionInfo | None:
         """The operator's accept / reject / redo (the input again) of the hit waiting for review.
+
+        A hit the checks rejected (double hit, overload, clock drift) is accepted only with
+        ``override`` (it is kept with the checks' reasons and
+        :data:`~dimacq.services.impact_result.OPERATOR_OVERRIDE`); a hit with samples lost never
+        (its record has no data there).
 
         Raises
         ------
         DeviceStateError
-            Not running here, not in review mode, or ``number`` is not the hit that waits.
+            Not running here, not in review mode, ``number`` is not the hit that waits, or an
+            accept the checks refuse (the message names them).
+        SetupError
+            ``override`` with a decision other than accept.
         """
+        if override and decision != "accept":
+            raise SetupError(
+                f"override: only with decision 'accept' (an accept over the checks), not "
+                f"{decision!r}; leave it out"
+            )
         try:
             live = self._require_live(acq_id)
         except KeyError:
             return None
         if not live.review:
             raise DeviceStateError(
-                f"acquisition {acq_id} was started without review: its checks decide each hit; "
-                "start it with review = true to decide them"
+                f"acquisition {acq_id} is not reviewing its hits: its checks decide each hit; "
+                f"switch review on (PATCH /api/acquisitions/{acq_id} with review: true) "
+                "to decide them"
             )
         with live.lock:  # one decision per hit: the hit stops waiting as soon as it is given
             pending = live.pending
@@ -706,9 +768,42 @@ class AcquisitionService:
                     f"hit {number} of acquisition {acq_id} is not waiting for a decision "
                     f"({waiting}); decide the hit that waits (pending_review.number)"
                 )
+            reasons = list(pending["reasons"])
+            if decision == "accept" and reasons:
+                holes = unusable_reasons(reasons)
+                if holes:
+                    raise DeviceStateError(
+                        f"hit {number} cannot be accepted: the checks found {'; '.join(holes)} "
+                        "(the record has no data there, even an override cannot use it); "
+                        "reject it or redo the input"
+                    )
+                if not override:
+                    raise DeviceStateError(
+                        f"hit {number} failed the checks: {'; '.join(reasons)}; reject it, "
+                        "redo the input, or accept it anyway with override: true"
+                    )
+                decision = "override"
             live.pending = None
             live.answered = number
             live.decisions.put((number, decision))
+        return self.get(acq_id)
+
+    def set_review(self, acq_id: int, review: bool) -> AcquisitionInfo | None:
+        """Switch "review every hit" of a running acquisition: on, the next hit waits for the
+        operator; off, the checks decide from now on, the hit waiting too (None: unknown).
+
+        Raises
+        ------
+        DeviceStateError
+            Not running on this stand.
+        """
+        try:
+            live = self._require_live(acq_id)
+        except KeyError:
+            return None
+        with live.lock:
+            live.review = review
+        log.info("acquisition %d: review every hit %s", acq_id, "on" if review else "off")
         return self.get(acq_id)
 
     def finish(self, acq_id: int) -> AcquisitionInfo | None:
@@ -1022,4 +1117,53 @@ def _accepted_per_input(avgs: Sequence[AverageInfo]) -> list[int]:
     for a in avgs:
         if a.accepted:
             out[a.input_index] += 1
+    return out
+
+
+def _count(per_input: Sequence[int], j: int) -> int:
+    return per_input[j] if 0 <= j < len(per_input) else 0
+
+
+def _lost_note(names: Sequence[str], lost: Sequence[Sequence[str]]) -> str:
+    """``"; strikes lost to DAQ sample gaps (asked again): 101+X 2 (DAQ samples lost (FIFO
+    overflow))"``, or "" when none was lost."""
+    parts = [
+        f"{names[k]} {len(why)} ({'; '.join(sorted(set(why)))})"
+        for k, why in enumerate(lost)
+        if why and k < len(names)
+    ]
+    return f"; strikes lost to DAQ sample gaps (asked again): {', '.join(parts)}" if parts else ""
+
+
+def _input_states(
+    state: str,
+    struck: Sequence[int],
+    names: Sequence[str] | None,
+    avgs: Sequence[AverageInfo],
+    need: int,
+    live: LiveReview | None,
+) -> list[dict[str, Any]]:
+    """Per struck input (setup index ``input_index``): ``name`` ("101+X"), ``accepted``,
+    ``rejected`` (and ``reasons``, distinct), ``lost`` strikes (DAQ samples lost while waiting for
+    the strike; ``lost_reasons``; this service's run only: not stored) and ``state``:
+    ``complete`` (at least ``min_averages`` accepted), ``incomplete`` (the acquisition ended
+    short of them) or ``open`` (running, or cancelled / interrupted)."""
+    ended = state in ENDED_WITH_INPUTS
+    out = []
+    for k, j in enumerate(struck):
+        mine = [a for a in avgs if a.input_index == j]
+        acc = sum(1 for a in mine if a.accepted)
+        lost = list(live.lost[k]) if live is not None and k < len(live.lost) else []
+        out.append(
+            {
+                "input_index": j,
+                "name": names[k] if names is not None and k < len(names) else f"input {j + 1}",
+                "accepted": acc,
+                "rejected": len(mine) - acc,
+                "reasons": sorted({a.reason for a in mine if not a.accepted and a.reason}),
+                "lost": len(lost),
+                "lost_reasons": sorted(set(lost)),
+                "state": "complete" if acc >= need else ("incomplete" if ended else "open"),
+            }
+        )
     return out
