@@ -61,19 +61,13 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from dimacq.devices.daq import Daq, DaqBlock
-from dimacq.devices.loadcell import LoadCell, LoadCellBlock
-from dimacq.errors import DataError, DeviceError, DeviceLostError, DeviceTimeoutError, SetupError
+from dimacq.devices.daq import Daq
+from dimacq.devices.loadcell import LoadCell
+from dimacq.errors import DataError, DeviceError, DeviceLostError, SetupError
 from dimacq.io.acquisition_hdf5 import AcquisitionWriter
-from dimacq.model.channels import axis_name
-from dimacq.model.frf import FrfData
 from dimacq.model.impact import ImpactSettings
-from dimacq.model.setup import TestSetup
 from dimacq.pipeline.frf_estimation import (
     double_hit_mask,
-    estimate_frf,
-    exponential_window,
-    force_window,
 )
 from dimacq.services.impact_result import (
     OPERATOR_OVERRIDE,
@@ -86,8 +80,11 @@ from dimacq.services.impact_result import (
     Progress,
     ReviewCallback,
     impact_frf,
+    input_frf,
+    records_frf,
     unusable_reasons,
 )
+from dimacq.services.impact_stream import ImpactStream, _StrikeLost
 from dimacq.services.sample_window import SampleWindow
 
 __all__ = [
@@ -120,91 +117,7 @@ def _n_gauges(lc: LoadCell) -> int:
     return int(n) if isinstance(n, int) else 12
 
 
-def input_frf(
-    records: Sequence[Mapping[str, NDArray[np.float64]]], fs: float, settings: ImpactSettings
-) -> tuple[NDArray[np.float64], NDArray[np.complex128], NDArray[np.float64]]:
-    """One input's FRFs from its accepted records, as the live session estimates them (and
-    as an acquisition finished after a crash does, from the records kept on disk).
-
-    ``records``: per average ``"force"`` (1, n) N and ``"outputs"`` (n_outputs, n), the
-    ``n = record_samples`` samples starting ``pretrigger_samples`` before the trigger. The force
-    window (``force_window_samples`` after the pretrigger) goes on the hammer, the exponential
-    window (``exponential_tau_s``, from the trigger) on everything, then
-    :func:`~dimacq.pipeline.frf_estimation.estimate_frf` with ``settings.estimator``.
-
-    Returns
-    -------
-    frequencies_hz : ndarray, shape (n_lines,)
-    H : ndarray, shape (n_lines, n_outputs)
-    coherence : ndarray, shape (n_lines, n_outputs)
-        Ordinary coherence (NaN with one average).
-    """
-    s = settings
-    n = s.record_samples
-    w_out = (
-        exponential_window(n, fs, s.exponential_tau_s, start_sample=s.pretrigger_samples)
-        if s.exponential_tau_s
-        else np.ones(n)
-    )
-    w_in = w_out.copy()
-    if s.force_window_samples:
-        w_in *= force_window(n, min(n, s.pretrigger_samples + s.force_window_samples))
-    x = np.stack([r["force"] for r in records])
-    y = np.stack([r["outputs"] for r in records])
-    est = estimate_frf(x, y, fs, estimator=s.estimator, input_window=w_in, output_window=w_out)
-    return est.frequencies_hz, est.H[:, :, 0], est.ordinary_coherence[:, :, 0]
-
-
-def records_frf(
-    records: Sequence[Sequence[Mapping[str, NDArray[np.float64]]]],
-    fs: float,
-    settings: ImpactSettings,
-    setup: TestSetup,
-    *,
-    meta: Mapping[str, str] | None = None,
-) -> FrfData:
-    """FRFs from kept records, as a session that accepted them would give them: the inputs with
-    at least ``min(min_averages, averages_per_input)`` records each by :func:`input_frf`, in
-    :class:`FrfData` by :func:`impact_frf` (the others named in ``meta["incomplete_inputs"]``).
-
-    ``records``: per input of ``setup`` (in its order) its accepted records, as in
-    :data:`AverageCallback`; ``fs`` the sample rate, Hz.
-
-    Raises
-    ------
-    DataError
-        No input has enough records, or ``records`` does not match the setup's inputs.
-    """
-    if len(records) != len(setup.excitations):
-        raise DataError(
-            f"{len(records)} lists of records for {len(setup.excitations)} inputs of the setup"
-        )
-    need = min(settings.min_averages, settings.averages_per_input)
-    names = [axis_name(e.node, e.direction) for e in setup.excitations]
-    kept = [j for j, r in enumerate(records) if len(r) >= need]
-    if not kept:
-        raise DataError(f"inputs {names}: fewer than {need} accepted averages each; no FRF")
-    cols = [input_frf(records[j], fs, settings) for j in kept]
-    result = ImpactResult(
-        frequencies_hz=cols[0][0],
-        H=np.stack([c[1] for c in cols], axis=2),
-        coherence=np.stack([c[2] for c in cols], axis=2),
-        output_names=(),
-        input_names=tuple(names[j] for j in kept),
-        averages=(),
-        n_accepted=tuple(len(r) for r in records),
-        input_indices=tuple(kept),
-        incomplete_inputs=tuple(n for j, n in enumerate(names) if j not in kept),
-        min_averages=need,
-    )
-    return impact_frf(result, setup, meta=meta)
-
-
-class _StrikeLost(Exception):
-    """Samples were lost while waiting for a strike: it may have been among them."""
-
-
-class ImpactSession:
+class ImpactSession(ImpactStream):
     """A roving-hammer impact test.
 
     Parameters
@@ -331,116 +244,8 @@ class ImpactSession:
             )
 
     # -- streaming -------------------------------------------------------------------------------
-    def _read_block(self) -> None:
-        n = self.settings.block_samples
-        for attempt in range(3):
-            try:
-                block = self.daq.read(n)
-                break
-            except DeviceTimeoutError as err:
-                self._event({"kind": "daq_timeout", "message": str(err)})
-                if attempt == 2:
-                    self._event(
-                        {"device": "daq", "kind": "lost", "message": f"3 reads timed out: {err}"}
-                    )
-                    raise
-        self._ingest_daq(block)
-        for k, lc in enumerate(self.loadcells):
-            self._ingest_lc(k, lc.read_until(block.first_sample + block.n_samples))
-
-    def _ingest_daq(self, block: DaqBlock) -> None:
-        if self._daq_buf.n_samples == 0:
-            self._daq_buf.first = block.first_sample
-        self._daq_buf.append(block.data, block.valid, block.overload)
-        if self.writer is not None:
-            self.writer.append_daq(block.first_sample, block.data, block.valid, block.overload)
-        for e in block.events:
-            if e.n_samples and e.kind in ("overflow", "lost_transfer"):
-                self._gaps.append((e.first_sample, e.first_sample + e.n_samples, e.kind))
-            self._event({"device": "daq", **asdict(e)})
-
-    def _ingest_lc(self, k: int, block: LoadCellBlock) -> None:
-        buf = self._lc_bufs[k]
-        if buf.n_samples == 0:
-            buf.first = block.first_sample
-        if self.loadcell_outputs == "forces":
-            assert block.forces is not None
-            rows = block.forces
-        else:
-            rows = block.gauges_v
-        if self._lc_zero[k] is None:
-            # DC-coupled strain-gauge bridges read their zero and the static load at rest: the
-            # first samples of the run (before the first strike is asked for) are the zero,
-            # subtracted from everything after (AC-coupled gauges: about 0).
-            n0 = min(self._zero_samples, rows.shape[1])
-            ok = block.valid[:n0]
-            if ok.any():
-                self._lc_zero[k] = rows[:, :n0][:, ok].mean(axis=1)
-        zero = self._lc_zero[k]
-        if zero is not None:
-            rows = rows - zero[:, None]
-        buf.append(rows, block.valid, np.broadcast_to(block.overload, rows.shape))
-        if self.writer is not None:
-            self.writer.append_loadcell(k, block.gauges_v, block.valid)
-        for e in block.events:
-            if e.kind == "drift":
-                buf.drift.append((e.first_sample, e.first_sample + e.n_samples))
-            self._event({"device": f"loadcell{k}", **asdict(e)})
-
-    def _event(self, ev: dict[str, object]) -> None:
-        log.info("acquisition event: %s", ev)
-        if self.writer is not None:
-            self.writer.log_event(ev)
-        if self.on_event is not None:
-            self.on_event(ev)
-
-    def _trim(self, keep_from: int) -> None:
-        self._daq_buf.trim(keep_from)
-        for buf in self._lc_bufs:
-            buf.trim(keep_from)
-
-    def _until(self, end: int) -> None:
-        while self._daq_buf.end < end:
-            self._read_block()
 
     # -- one average ---------------------------------------------------------------------------------
-    def _wait_trigger(self, input_index: int, armed_from: int) -> int:
-        s = self.settings
-        row = self.input_rows[input_index]
-        search_from = armed_from
-        limit = armed_from + s.trigger_timeout_samples
-        while True:
-            buf = self._daq_buf
-            if buf.end > search_from:
-                seg = buf.data[row, search_from - buf.first :]
-                hits = np.flatnonzero(np.abs(np.nan_to_num(seg)) >= s.trigger_level_n)
-                if hits.size:
-                    return search_from + int(hits[0])
-                if np.isnan(seg).any():
-                    # samples lost while waiting (FIFO overflow, lost transfer): the strike may
-                    # be among them; ask for it again rather than wait for one that never comes
-                    raise _StrikeLost(self._gap_kinds(search_from, buf.end))
-                search_from = buf.end
-                # keep only the pre-trigger history while waiting: O(1) memory and work per block
-                self._trim(search_from - s.pretrigger_samples)
-            if search_from > limit:
-                raise DeviceTimeoutError(
-                    f"input {self.input_names[input_index]}: no hammer force above "
-                    f"{s.trigger_level_n} N within {s.trigger_timeout_samples} samples; strike "
-                    "harder or lower trigger_level_n"
-                )
-            self._read_block()
-
-    def _gap_kinds(self, first: int, end: int) -> str:
-        """``"DAQ samples lost (FIFO overflow)"``: what lost samples in ``first .. end - 1``."""
-        kinds = sorted(
-            {
-                "FIFO overflow" if k == "overflow" else "transfer lost"
-                for a, b, k in self._gaps
-                if a < end and b > first
-            }
-        )
-        return "DAQ samples lost" + (f" ({', '.join(kinds)})" if kinds else "")
 
     def _check(
         self, input_index: int, s0: int, n: int

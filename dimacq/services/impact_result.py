@@ -15,7 +15,9 @@ from numpy.typing import NDArray
 from dimacq.errors import DataError
 from dimacq.model.channels import axis_name
 from dimacq.model.frf import Channel, FrfData, OutputKind
+from dimacq.model.impact import ImpactSettings
 from dimacq.model.setup import TestSetup
+from dimacq.pipeline.frf_estimation import estimate_frf, exponential_window, force_window
 
 __all__ = [
     "OPERATOR_OVERRIDE",
@@ -28,6 +30,8 @@ __all__ = [
     "Progress",
     "ReviewCallback",
     "impact_frf",
+    "input_frf",
+    "records_frf",
     "unusable_reasons",
 ]
 
@@ -177,3 +181,83 @@ def impact_frf(
         coherence=result.coherence[keep],
         meta={"source": "dimacq impact acquisition", **extra, **(meta or {})},
     )
+
+
+def input_frf(
+    records: Sequence[Mapping[str, NDArray[np.float64]]], fs: float, settings: ImpactSettings
+) -> tuple[NDArray[np.float64], NDArray[np.complex128], NDArray[np.float64]]:
+    """One input's FRFs from its accepted records, as the live session estimates them (and
+    as an acquisition finished after a crash does, from the records kept on disk).
+
+    ``records``: per average ``"force"`` (1, n) N and ``"outputs"`` (n_outputs, n), the
+    ``n = record_samples`` samples starting ``pretrigger_samples`` before the trigger. The force
+    window (``force_window_samples`` after the pretrigger) goes on the hammer, the exponential
+    window (``exponential_tau_s``, from the trigger) on everything, then
+    :func:`~dimacq.pipeline.frf_estimation.estimate_frf` with ``settings.estimator``.
+
+    Returns
+    -------
+    frequencies_hz : ndarray, shape (n_lines,)
+    H : ndarray, shape (n_lines, n_outputs)
+    coherence : ndarray, shape (n_lines, n_outputs)
+        Ordinary coherence (NaN with one average).
+    """
+    s = settings
+    n = s.record_samples
+    w_out = (
+        exponential_window(n, fs, s.exponential_tau_s, start_sample=s.pretrigger_samples)
+        if s.exponential_tau_s
+        else np.ones(n)
+    )
+    w_in = w_out.copy()
+    if s.force_window_samples:
+        w_in *= force_window(n, min(n, s.pretrigger_samples + s.force_window_samples))
+    x = np.stack([r["force"] for r in records])
+    y = np.stack([r["outputs"] for r in records])
+    est = estimate_frf(x, y, fs, estimator=s.estimator, input_window=w_in, output_window=w_out)
+    return est.frequencies_hz, est.H[:, :, 0], est.ordinary_coherence[:, :, 0]
+
+
+def records_frf(
+    records: Sequence[Sequence[Mapping[str, NDArray[np.float64]]]],
+    fs: float,
+    settings: ImpactSettings,
+    setup: TestSetup,
+    *,
+    meta: Mapping[str, str] | None = None,
+) -> FrfData:
+    """FRFs from kept records, as a session that accepted them would give them: the inputs with
+    at least ``min(min_averages, averages_per_input)`` records each by :func:`input_frf`, in
+    :class:`FrfData` by :func:`impact_frf` (the others named in ``meta["incomplete_inputs"]``).
+
+    ``records``: per input of ``setup`` (in its order) its accepted records, as in
+    :data:`AverageCallback`; ``fs`` the sample rate, Hz.
+
+    Raises
+    ------
+    DataError
+        No input has enough records, or ``records`` does not match the setup's inputs.
+    """
+    if len(records) != len(setup.excitations):
+        raise DataError(
+            f"{len(records)} lists of records for {len(setup.excitations)} inputs of the setup"
+        )
+    need = min(settings.min_averages, settings.averages_per_input)
+    names = [axis_name(e.node, e.direction) for e in setup.excitations]
+    kept = [j for j, r in enumerate(records) if len(r) >= need]
+    if not kept:
+        raise DataError(f"inputs {names}: fewer than {need} accepted averages each; no FRF")
+    cols = [input_frf(records[j], fs, settings) for j in kept]
+    result = ImpactResult(
+        frequencies_hz=cols[0][0],
+        H=np.stack([c[1] for c in cols], axis=2),
+        coherence=np.stack([c[2] for c in cols], axis=2),
+        output_names=(),
+        input_names=tuple(names[j] for j in kept),
+        averages=(),
+        n_accepted=tuple(len(r) for r in records),
+        input_indices=tuple(kept),
+        incomplete_inputs=tuple(n for j, n in enumerate(names) if j not in kept),
+        min_averages=need,
+    )
+    return impact_frf(result, setup, meta=meta)
