@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -13,6 +13,12 @@ from numpy.typing import NDArray
 from dimacq.config import Settings
 from dimacq.model.setup import TestSetup
 from dimacq.services.lab.acquisition_views import LiveReview
+
+if TYPE_CHECKING:
+    from dimacq.persistence import ArrayStore, Database
+    from dimacq.persistence.queue import Outbox
+    from dimacq.services.lab.store import TestStore
+
 
 #: Builds the acquisition rig (:class:`dimacq.services.rig.Rig`) for a setup and a request.
 RigFactory = Callable[[Settings, TestSetup, Mapping[str, Any]], Any]
@@ -168,3 +174,27 @@ def _input_states(
             }
         )
     return out
+
+
+class ServiceParts:
+    """What the parts of :class:`~dimacq.services.lab.acquisitions.AcquisitionService`
+    (:mod:`~dimacq.services.lab.acquisition_review`, :mod:`~dimacq.services.lab.acquisition_recovery`)
+    use of its state and of each other; declared for the type checker only (empty at run time)."""
+
+    if TYPE_CHECKING:
+        db: Database
+        store: TestStore
+        arrays: ArrayStore
+        settings: Settings
+        stand: str
+        outbox: Outbox
+        _live: dict[int, LiveReview]
+
+        def get(self, acq_id: int) -> AcquisitionInfo | None: ...
+        def _set(self, acq_id: int, **values: Any) -> None: ...
+        def _stand_url(self, name: str) -> str: ...
+        def _start(
+            self, config: Mapping[str, Any], resume: _Resume | None = None
+        ) -> AcquisitionInfo: ...
+        def _chain(self, acq_id: int) -> list[int]: ...
+        def _require_live(self, acq_id: int) -> LiveReview: ...

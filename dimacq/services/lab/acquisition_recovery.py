@@ -7,21 +7,18 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Mapping, Sequence
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 from sqlalchemy import select
 
-from dimacq.config import Settings
 from dimacq.errors import (
     DataError,
     DeviceStateError,
 )
 from dimacq.model.channels import axis_name
 from dimacq.model.impact import ImpactSettings
-from dimacq.persistence import ArrayStore, Database
 from dimacq.persistence import models as m
-from dimacq.persistence.queue import Outbox
 from dimacq.services.lab.acquisition_records import (
     _INTERNAL_KEYS,
     _RECORD_SETTINGS,
@@ -29,34 +26,17 @@ from dimacq.services.lab.acquisition_records import (
     RESUMABLE,
     AcquisitionInfo,
     Record,
+    ServiceParts,
     _Resume,
 )
-from dimacq.services.lab.acquisition_views import LiveReview, merge_frfs
-from dimacq.services.lab.store import TestStore
+from dimacq.services.lab.acquisition_views import merge_frfs
 
 log = logging.getLogger("dimacq.services.lab.acquisitions")
 
 
-class AcquisitionRecovery:
+class AcquisitionRecovery(ServiceParts):
     """Methods of :class:`~dimacq.services.lab.acquisitions.AcquisitionService` (its state: see
     there)."""
-
-    if TYPE_CHECKING:  # the state and methods of AcquisitionService it is a part of
-        db: Database
-        store: TestStore
-        arrays: ArrayStore
-        settings: Settings
-        stand: str
-        outbox: Outbox
-        _live: dict[int, LiveReview]
-
-        def get(self, acq_id: int) -> AcquisitionInfo | None: ...
-        def _set(self, acq_id: int, **values: Any) -> None: ...
-        def _stand_url(self, name: str) -> str: ...
-        def _start(
-            self, config: Mapping[str, Any], resume: _Resume | None = None
-        ) -> AcquisitionInfo: ...
-        def _require_live(self, acq_id: int) -> LiveReview: ...
 
     def finish(self, acq_id: int) -> AcquisitionInfo | None:
         """Stop striking and keep the accepted averages: FRFs of the inputs that reached

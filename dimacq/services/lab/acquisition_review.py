@@ -5,47 +5,25 @@ review switch, the last hit's view (:class:`AcquisitionReview`, a part of
 from __future__ import annotations
 
 import logging
-from collections.abc import Mapping
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from sqlalchemy import select
 
-from dimacq.config import Settings
 from dimacq.errors import (
     DeviceStateError,
     SetupError,
 )
-from dimacq.persistence import ArrayStore, Database
 from dimacq.persistence import models as m
-from dimacq.persistence.queue import Outbox
 from dimacq.services.impact_result import unusable_reasons
-from dimacq.services.lab.acquisition_records import AcquisitionInfo, _Resume
+from dimacq.services.lab.acquisition_records import AcquisitionInfo, ServiceParts
 from dimacq.services.lab.acquisition_views import Decision, LiveReview
-from dimacq.services.lab.store import TestStore
 
 log = logging.getLogger("dimacq.services.lab.acquisitions")
 
 
-class AcquisitionReview:
+class AcquisitionReview(ServiceParts):
     """Methods of :class:`~dimacq.services.lab.acquisitions.AcquisitionService` (its state: see
     there)."""
-
-    if TYPE_CHECKING:  # the state and methods of AcquisitionService it is a part of
-        db: Database
-        store: TestStore
-        arrays: ArrayStore
-        settings: Settings
-        stand: str
-        outbox: Outbox
-        _live: dict[int, LiveReview]
-
-        def get(self, acq_id: int) -> AcquisitionInfo | None: ...
-        def _set(self, acq_id: int, **values: Any) -> None: ...
-        def _stand_url(self, name: str) -> str: ...
-        def _start(
-            self, config: Mapping[str, Any], resume: _Resume | None = None
-        ) -> AcquisitionInfo: ...
-        def _chain(self, acq_id: int) -> list[int]: ...
 
     def _require_live(self, acq_id: int) -> LiveReview:
         cur = self.get(acq_id)
