@@ -1,0 +1,38 @@
+"""``dimacq devices list``: what this PC has, each with the setting that uses it (issue 23)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from dimacq.backends.inventory import inventory, serial_by_id
+from dimacq.cli.main import main
+
+
+def test_serial_ports_are_named_by_their_stable_link(tmp_path: Path) -> None:
+    dev = tmp_path / "dev"
+    dev.mkdir()
+    (dev / "ttyUSB3").write_text("")
+    by_id = tmp_path / "by-id"
+    by_id.mkdir()
+    link = by_id / "usb-FTDI_FT232R_USB_UART_A10K1234-if00-port0"
+    link.symlink_to(dev / "ttyUSB3")
+    assert serial_by_id(by_id) == {str((dev / "ttyUSB3").resolve()): str(link)}
+    assert serial_by_id(tmp_path / "absent") == {}
+
+
+def test_devices_list_names_the_settings(tmp_path: Path, capsys) -> None:
+    out = tmp_path / "devices.json"
+    assert main(["devices", "list", "--json", str(out)]) == 0
+    printed = capsys.readouterr().out
+    got = json.loads(out.read_text())
+    assert set(got) == {"serial", "usb", "can", "notes"}
+    assert f"serial ports ({len(got['serial'])})" in printed
+    for s in got["serial"]:
+        assert s["setting"].startswith("digitizer_url = ")
+    for u in got["usb"]:
+        assert len(u["vid"]) == 4 and u["setting"].startswith("daq_vendor_id = 0x")
+    # python-can's virtual interface is the simulated lab's: asked for, it is found and named
+    inv = inventory(can_interfaces=("virtual",))
+    assert inv.can and inv.can[0]["interface"] == "virtual"
+    assert inv.can[0]["setting"].startswith("loadcell_interface = 'virtual'")
