@@ -107,6 +107,8 @@ class Settings(BaseSettings):
     daq_backend: str = "libusb"
     daq_vendor_id: int = Field(default=0x1209, ge=0, le=0xFFFF)
     daq_product_id: int = Field(default=0xDA64, ge=0, le=0xFFFF)
+    #: daq = "mcc-usb": MCC's FPGA bitstream usb-1808.rbf, loaded into a USB-1808X after power-up
+    daq_fpga_file: str = ""
     rig_file: str = ""
     scenario: str = "calibration-mass-bungee"
     #: The simulated devices' imperfections over their defaults (dimacq.simulators.imperfections:

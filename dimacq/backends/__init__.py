@@ -12,6 +12,12 @@ setting    name                what opens the device
                                (``daq_backend``: ``"libusb"`` or a pyusb backend factory)
 ``daq``    ``"simulated"``     :func:`dimacq.backends.simulated.open_daq`: the same driver on the
                                virtual lab's pyusb backend (scenario ``scenario``)
+``daq``    ``"mcc-usb"``       :func:`dimacq.backends.mcc_usb.open_daq`: Measurement Computing
+                               USB-1808X unit(s) through pyusb (rig file ``[daq] units``)
+``daq``    ``"mcc-usb-simulated"`` :func:`dimacq.backends.mcc_simulated.open_daq`: the same driver
+                               on simulated USB-1808X units carrying the virtual lab
+``daq``    ``"nidaqmx"``       :func:`dimacq.backends.ni_daqmx.open_daq`: NI DSA devices through
+                               the ``nidaqmx`` API (extra ``[ni]``); no simulated twin
 ``loadcell`` ``"dimacq-can"``  :func:`dimacq.backends.can_loadcell.open_loadcell`: the CAN FD
                                amplifier on ``can.Bus(interface=loadcell_interface, ...)``
 ``loadcell`` ``"simulated"``   :func:`dimacq.backends.simulated.open_loadcell`: the same driver on
@@ -72,6 +78,9 @@ BACKENDS: dict[str, dict[str, str]] = {
     "daq": {
         "dimacq-usb": "dimacq.backends.usb_daq:open_daq",
         "simulated": "dimacq.backends.simulated:open_daq",
+        "mcc-usb": "dimacq.backends.mcc_usb:open_daq",
+        "mcc-usb-simulated": "dimacq.backends.mcc_simulated:open_daq",
+        "nidaqmx": "dimacq.backends.ni_daqmx:open_daq",
     },
     "loadcell": {
         "dimacq-can": "dimacq.backends.can_loadcell:open_loadcell",
@@ -103,6 +112,7 @@ _SIMULATED_MODULES = frozenset(
         "dimacq.backends.simulated",
         "dimacq.backends.canopen_simulated",
         "dimacq.backends.netft_simulated",
+        "dimacq.backends.mcc_simulated",
     }
 )
 

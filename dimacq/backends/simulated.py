@@ -164,8 +164,12 @@ class SimulatedWorld:
         for e in rig_file.load_cells:
             if e.daq_channels:
                 wiring.update(self._bridge_inputs(e, where))
+        #: what is plugged into each DAQ input (what a simulated DAQ of another make reads)
+        self.wiring = wiring
         self.clock = SampleClock()
-        self.backend = VirtualDaqBackend(
+        #: the DAQ's pyusb backend (``daq = "mcc-usb-simulated"`` puts its units here): what
+        #: the operator's strikes are timed on (``world_sample``, ``clock``)
+        self.backend: Any = VirtualDaqBackend(
             self.source,
             wiring,
             clock=self.clock,

@@ -102,6 +102,11 @@ class DaqSection(_Model):
         default=256, ge=1, le=65535, description="USB frame size in samples (1..65535)"
     )
     serial_number: str = Field(default="", description="the DAQ's serial number, or ''")
+    units: list[str] = Field(
+        default_factory=list,
+        description="daq = 'mcc-usb': the USB-1808X units' serial numbers in channel order "
+        "(inputs 0..7 on the first, the clock master; 8..15 on the second; ...), [] = the one found",
+    )
     timeout_s: float = Field(default=2.0, gt=0, description="a USB timeout in seconds > 0")
     strike_timeout_s: float = Field(
         default=60.0, gt=0, description="seconds the trigger waits for a strike (> 0)"
