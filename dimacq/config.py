@@ -153,8 +153,10 @@ class Settings(BaseSettings):
         elif backend and "daq" not in d:
             d["daq"] = "dimacq-usb"
         if "loadcell" not in d:
+            # a simulated DAQ ("simulated", "mcc-usb-simulated") comes with the simulated lab
+            daq = str(d.get("daq", "simulated")).strip()
             d["loadcell"] = (
-                "simulated" if d.get("daq", "simulated") == "simulated" else "dimacq-can"
+                "simulated" if daq == "simulated" or daq.endswith("-simulated") else "dimacq-can"
             )
         if "digitizer" not in d:
             url = str(d.get("digitizer_url", "simdigitizer://"))

@@ -3,7 +3,7 @@
 The virtual lab (:class:`~dimacq.backends.simulated.SimulatedWorld`, cabled as the rig file
 says) behind :class:`~dimacq.simulators.mcc.backend.Mcc1808Backend`, a pyusb backend with as
 many USB-1808X units as the rig file's inputs need (8 each; serials from ``[daq] units`` or the
-simulator's own), master's clock cabled to the slaves, their FPGAs not loaded at power-up. The
+simulator's own, cabled in its order), master's clock cabled to the slaves, their FPGAs not loaded at power-up. The
 driver opens them exactly as ``"mcc-usb"`` does (:func:`dimacq.backends.mcc_usb.open_units`),
 loading the simulator's stand-in bitstream. The load cell simulators count the master's clock.
 """
@@ -36,9 +36,10 @@ def open_daq(ctx: DeviceContext) -> MccTask:
         seed=0 if ctx.seed is None else ctx.seed,
     )
     w.backend = backend  # what the world's operator strikes on (the master's clock)
-    task = open_units(
-        ctx, backend, f"daq = 'mcc-usb-simulated' (scenario {w.scenario!r})", default_fpga_image()
-    )
+    where = f"daq = 'mcc-usb-simulated' (scenario {w.scenario!r})"
+    # the virtual lab's units are cabled in the simulator's order when [daq] units is empty
+    cabled = [u.serial for u in backend.units]
+    task = open_units(ctx, backend, where, default_fpga_image(), cabled)
     if ctx.setup is not None:
         ctx.operator = w.operator(ctx)
     ctx.fixed.update({"hit_delay_samples": w.lab.block_samples, "block_samples": 512})

@@ -24,9 +24,15 @@ __all__ = ["open_daq", "open_units"]
 
 
 def open_units(
-    ctx: DeviceContext, backend: Any, where: str, fpga_bitstream: bytes | None
+    ctx: DeviceContext,
+    backend: Any,
+    where: str,
+    fpga_bitstream: bytes | None,
+    cabled: list[str] | None = None,
 ) -> MccTask:
     """The rig file's units on ``backend``, FPGA loaded, as one task (closers to ``ctx``).
+
+    ``cabled``: the units' order when the rig file gives none (the simulated lab's cabling).
 
     Raises
     ------
@@ -54,7 +60,7 @@ def open_units(
     for u in opened:
         ctx.on_close(u.close)
     by_serial = {u.serial_number(): u for u in opened}
-    wanted = list(rig.daq.units)
+    wanted = list(rig.daq.units) or list(cabled or [])
     if not wanted:
         if len(opened) != 1:
             raise SetupError(

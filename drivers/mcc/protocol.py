@@ -35,7 +35,8 @@ AInScanStart (``usbAInScanStart_USB1808``): ``count`` u32 (scans, 0 = continuous
 ``retrig_count`` u32, ``pacer_period`` u32 = round(100 MHz / rate − 1) (**0: no internal
 clock, the scan is paced by the external clock input** — how a slave unit follows a master's
 ICLKO), ``packet_size`` u8 (0xFF block I/O, 0x01 single I/O), ``options`` u8 (bit0 external
-trigger, bit1 pattern trigger, bit2 retrigger, bit3 keep counters), 2 pad bytes: 14 bytes.
+trigger, bit1 pattern trigger, bit2 retrigger, bit3 keep counters): 14 bytes (wLength 14; the
+C struct's 2 pad bytes are not sent).
 A START while a scan runs stalls endpoint 0.
 
 Bulk data (``usbAInScanRead_USB1808``): scans in queue order, each sample a 32-bit
@@ -149,8 +150,9 @@ class InputMode(IntEnum):
 #: full scale of each range code, V (bipolar ranges: ±)
 RANGES_V = {Range.BP_10V: 10.0, Range.BP_5V: 5.0, Range.UP_10V: 10.0, Range.UP_5V: 5.0}
 
-#: count, retrig_count, pacer_period, packet_size, options, 2 pad bytes
-AIN_SCAN_START_STRUCT = struct.Struct("<IIIBB2x")
+#: count, retrig_count, pacer_period, packet_size, options: the 14 bytes the C driver sends
+#: (its ``struct AInScan_t`` has 2 pad bytes more, which ``wLength = 14`` leaves out)
+AIN_SCAN_START_STRUCT = struct.Struct("<IIIBB")
 STATUS_STRUCT = struct.Struct("<H")
 ADDRESS_STRUCT = struct.Struct("<H")
 _CAL_PAIR = struct.Struct("<ff")
@@ -169,7 +171,7 @@ def pacer_rate_hz(period: int) -> float:
 
 @dataclass(frozen=True)
 class AInScanStart:
-    """The AIN_SCAN_START data stage (``struct AInScan_t``, 14 bytes)."""
+    """The AIN_SCAN_START data stage (``struct AInScan_t`` without its pad: 14 bytes)."""
 
     count: int
     retrig_count: int
