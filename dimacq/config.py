@@ -109,6 +109,8 @@ class Settings(BaseSettings):
     daq_product_id: int = Field(default=0xDA64, ge=0, le=0xFFFF)
     #: daq = "mcc-usb": MCC's FPGA bitstream usb-1808.rbf, loaded into a USB-1808X after power-up
     daq_fpga_file: str = ""
+    #: daq = "nidaqmx": the terminal whose digital edge starts the task ("/cDAQ1/PFI0"), "" = none
+    daq_ni_start_trigger: str = ""
     rig_file: str = ""
     scenario: str = "calibration-mass-bungee"
     #: The simulated devices' imperfections over their defaults (dimacq.simulators.imperfections:

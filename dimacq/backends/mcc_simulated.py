@@ -32,6 +32,7 @@ def open_daq(ctx: DeviceContext) -> MccTask:
         n_units=n_units,
         serials=list(rig.daq.units) or None,
         clock=w.clock,
+        free_running=imp.daq_free_running,
         time_scale=imp.daq_time_scale,
         seed=0 if ctx.seed is None else ctx.seed,
     )

@@ -28,9 +28,17 @@ import numpy as np
 from numpy.typing import NDArray
 
 from dimacq.errors import DataError
-from dimacq.model.channels import LOAD_AXES
+from dimacq.model.channels import LOAD_AXES, axis_name
 
-__all__ = ["TimeRecord", "read_tdms_time", "read_time_data", "read_uff_time"]
+__all__ = [
+    "TimeRecord",
+    "read_tdms_time",
+    "read_time_data",
+    "read_uff_time",
+    "uff_sample_interval",
+    "write_tdms_time",
+    "write_uff_time",
+]
 
 TimeKind = Literal["force", "acceleration", "reaction"]
 
@@ -111,7 +119,7 @@ def read_uff_time(path: str | Path) -> list[TimeRecord]:
                 "acceleration (12) or reaction force (9)"
             )
         x = np.asarray(d.get("x"), dtype=float)
-        dt = float(d.get("abscissa_inc") or (x[1] - x[0] if x.size > 1 else 0.0))
+        dt = uff_sample_interval(float(d.get("abscissa_inc") or (x[1] - x[0] if x.size > 1 else 0)))
         if not dt > 0:
             raise DataError(f"{ident}: no sample interval (abscissa increment); re-export it")
         out.append(
@@ -128,6 +136,87 @@ def read_uff_time(path: str | Path) -> list[TimeRecord]:
     if not out:
         raise DataError(f"{p}: no time records (dataset 58, function type 1)")
     return out
+
+
+def uff_sample_interval(dt_s: float) -> float:
+    """The sample interval a UFF 58 header means: its abscissa increment is written in E13.5
+    (6 significant digits: 1/2048 Hz reads 4.88281e-04, 2048.001 Hz), so a rate within that
+    precision (5·10⁻⁶) of a whole number of Hz is taken as that rate: ``1 / round(1 / dt)``."""
+    if not dt_s > 0:
+        return dt_s
+    fs = 1.0 / dt_s
+    whole = round(fs)
+    return 1.0 / whole if whole and abs(fs - whole) <= 5e-6 * fs else dt_s
+
+
+def _uff58_time(r: TimeRecord, text: str) -> str:
+    """One ASCII dataset 58, function type 1 (time response), real double, even abscissa
+    (records 1–11 as the UFF 58 layout gives them; ordinates in E20.12)."""
+    o_type = {v: k for k, v in _UFF_KIND.items()}[r.kind]
+    lines = [
+        "    -1",
+        "    58",
+        f"{'Time Response':<80}",
+        f"{text:<80}"[:80],
+        f"{'dimacq':<80}",
+        f"{'NONE':<80}",
+        f"{'NONE':<80}",
+        "%5i%10i%5i%10i %10s%10i%4i %10s%10i%4i"  # noqa: UP031 (Fortran record layout)
+        % (1, 0, 0, 0, "NONE", r.node, r.direction, "NONE", r.ref_node, r.ref_direction),
+        "%10i%10i%10i%13.5e%13.5e%13.5e" % (4, r.data.size, 1, 0.0, r.dt_s, 0.0),  # noqa: UP031
+        "%10i%5i%5i%5i %-20s %-20s" % (17, 0, 0, 0, "Time", "s"),  # noqa: UP031
+        "%10i%5i%5i%5i %-20s %-20s" % (o_type, 0, 0, 0, r.kind, "SI"),  # noqa: UP031
+        "%10i%5i%5i%5i %-20s %-20s" % (0, 0, 0, 0, "NONE", "NONE"),  # noqa: UP031
+        "%10i%5i%5i%5i %-20s %-20s" % (0, 0, 0, 0, "NONE", "NONE"),  # noqa: UP031
+    ]
+    cells = [f"{v:20.12e}" for v in r.data.tolist()]
+    lines += ["".join(cells[i : i + 4]) for i in range(0, len(cells), 4)]
+    lines.append("    -1")
+    return "\n".join(lines) + "\n"
+
+
+def write_uff_time(path: str | Path, records: list[TimeRecord], text: str = "") -> None:
+    """``records`` as ASCII UFF 58 time records (function type 1) that :func:`read_uff_time`
+    (and other UFF readers) read: SI units, one record per channel per average, in order."""
+    with Path(path).open("w", encoding="ascii") as fh:
+        for r in records:
+            fh.write(_uff58_time(r, text))
+
+
+def write_tdms_time(path: str | Path, records: list[TimeRecord]) -> None:
+    """``records`` as a TDMS file laid out as the module docstring says: per input struck, the
+    ``a``-th force record opens group ``"<input> average <a>"`` and the records after it up to
+    the next force record of any input are its channels."""
+    from nptdms import ChannelObject, GroupObject, TdmsWriter
+
+    count: dict[tuple[int, int], int] = {}
+    with TdmsWriter(str(path)) as w:
+        objs: list[Any] = []
+        group = ""
+        for r in records:
+            if r.kind == "force":
+                if objs:
+                    w.write_segment(objs)
+                ref = (r.ref_node, r.ref_direction)
+                count[ref] = count.get(ref, 0) + 1
+                name = axis_name(*ref)
+                group = f"{name} average {count[ref]}"
+                objs = [GroupObject(group, properties={"input": name})]
+                channel = "force"
+            elif not objs:
+                raise DataError("time records: the first record must be a force record")
+            elif r.kind == "reaction":
+                channel = f"LC{r.node} {LOAD_AXES[r.direction - 1]}"
+            else:
+                channel = axis_name(r.node, r.direction)
+            unit = "N*m" if r.kind == "reaction" and r.direction > 3 else _SI[r.kind]
+            props = {"wf_increment": r.dt_s, "unit_string": unit}
+            objs.append(ChannelObject(group, channel, r.data, properties=props))
+        if objs:
+            w.write_segment(objs)
+
+
+_SI = {"force": "N", "acceleration": "m/s^2", "reaction": "N"}
 
 
 def read_tdms_time(path: str | Path) -> list[TimeRecord]:

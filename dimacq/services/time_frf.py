@@ -7,7 +7,7 @@ TDMS), through the same estimator and windows as an acquisition
 from __future__ import annotations
 
 from collections import defaultdict
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
@@ -25,7 +25,47 @@ from dimacq.pipeline.frf_estimation import (
 )
 from dimacq.services.impact_result import ImpactResult, impact_frf
 
-__all__ = ["frf_from_time"]
+__all__ = ["frf_from_time", "time_records"]
+
+
+def time_records(
+    setup: TestSetup,
+    kept: Sequence[Sequence[Mapping[str, NDArray[np.float64]]]],
+    fs: float,
+) -> list[TimeRecord]:
+    """An acquisition's kept records as time records (the export :func:`frf_from_time` and
+    other systems read back): per input of ``setup`` and per accepted average, the force
+    record (N) then each response (m/s², node and direction of the setup) and each load cell's
+    six loads (N, N·m), exactly the samples that entered the live FRFs (before windows).
+
+    ``kept``: per input its records as :data:`~dimacq.services.impact_result.AverageCallback`
+    gives them (``"force"`` (1, n), ``"outputs"`` (n_outputs, n)); ``fs`` the sample rate, Hz.
+
+    Raises
+    ------
+    DataError
+        ``kept`` does not match the setup's inputs or outputs.
+    """
+    chans = [("acceleration", c.node, c.direction) for c in setup.responses]
+    for lc in setup.load_cells:
+        chans += [("reaction", lc.node, d) for d in range(1, 7)]
+    if len(kept) != len(setup.excitations):
+        raise DataError(f"{len(kept)} inputs of records for {len(setup.excitations)} of the setup")
+    out: list[TimeRecord] = []
+    dt = 1.0 / fs
+    for e, averages in zip(setup.excitations, kept, strict=True):
+        for rec in averages:
+            y = np.asarray(rec["outputs"], dtype=float)
+            if y.shape[0] != len(chans):
+                raise DataError(
+                    f"input {axis_name(e.node, e.direction)}: {y.shape[0]} outputs per record, "
+                    f"the setup has {len(chans)} (responses, then 6 loads per load cell)"
+                )
+            force = np.asarray(rec["force"], dtype=float).reshape(-1)
+            out.append(TimeRecord(e.node, e.direction, e.node, e.direction, "force", dt, force))
+            for (kind, node, d), row in zip(chans, y, strict=True):
+                out.append(TimeRecord(node, d, e.node, e.direction, kind, dt, row))  # type: ignore[arg-type]
+    return out
 
 
 def frf_from_time(

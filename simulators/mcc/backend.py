@@ -11,7 +11,8 @@ learns them only by reading the EEPROM.
 
 Clock: the unit started with a pacer period > 0 is the master; it drives :attr:`clock` (the
 shared :class:`~dimacq.simulators.daq.clock.SampleClock` the load cell simulators count, as
-they count the master's ICLKO) in time-lapse wall time (``time_scale``). Units started with
+they count the master's ICLKO) in time-lapse wall time (``time_scale``), or, with
+``free_running=False`` (fast tests), as fast as the host reads. Units started with
 pacer period 0 (external clock) take one scan per master pulse from the moment they are armed:
 armed before the master starts, they scan in step. ``missed_pulses`` (fault) makes a slave lose
 its first pulses (a loose clock cable). ``fifo_bytes``: a unit whose host is late by more than
@@ -91,8 +92,11 @@ class Mcc1808Backend(usb.backend.IBackend):
     serials : sequence of str, optional
         8-character serial numbers (default ``"01F2A00u"``).
     clock : SampleClock, optional
+    free_running : bool
+        The master's clock runs in (time-lapse) wall time, as a real one does; False: it runs
+        as fast as the host reads (a bulk read clocks what it asks for), for fast tests.
     time_scale : float
-        Master pulses per wall second = ``time_scale × sample_rate_hz``.
+        Free-running: master pulses per wall second = ``time_scale × sample_rate_hz``.
     fifo_bytes : int
         Each unit's FIFO (0: unbounded).
     fpga_configured : bool
@@ -111,6 +115,7 @@ class Mcc1808Backend(usb.backend.IBackend):
         n_units: int = 1,
         serials: Sequence[str] | None = None,
         clock: SampleClock | None = None,
+        free_running: bool = True,
         time_scale: float = 1.0,
         fifo_bytes: int = 0,
         fpga_configured: bool = False,
@@ -125,6 +130,7 @@ class Mcc1808Backend(usb.backend.IBackend):
             raise ValueError(f"wiring beyond the {n_units} unit(s) × {p.N_AI} inputs")
         serials = list(serials) if serials else [f"01F2A{u:03X}" for u in range(n_units)]
         self.clock = clock if clock is not None else SampleClock()
+        self.free_running = free_running
         self.time_scale = float(time_scale)
         self.fifo_bytes = int(fifo_bytes)
         self.sample_rate_hz = float(source.sample_rate_hz)
@@ -309,7 +315,8 @@ class Mcc1808Backend(usb.backend.IBackend):
                     f"pacer {rate:g} Hz: the simulated lab samples at {self.sample_rate_hz:g} Hz"
                 )
             self._epoch = self._world
-            self.clock.start(self._epoch, self.sample_rate_hz, wall_scale=self.time_scale)
+            scale = self.time_scale if self.free_running else None
+            self.clock.start(self._epoch, self.sample_rate_hz, wall_scale=scale)
             self._run = self.clock.state().run
             u.run, u.offset_pulses = self._run, 0
             for s in self.units:  # armed slaves take the master's pulses from the first
@@ -384,6 +391,10 @@ class Mcc1808Backend(usb.backend.IBackend):
         if ep != p.DATA_ENDPOINT:
             raise usb.core.USBError("Pipe error", error_code=-9, errno=errno.EPIPE)
         want = len(buff) // (4 * len(u.queue))
+        if not self.free_running and not self._frozen(u) and u.frozen is None:
+            st = self.clock.state()  # host-paced: this read clocks what it asks for
+            if st.count < u.offset_pulses + u.sent + want:
+                self.clock.advance(u.offset_pulses + u.sent + want)
         deadline = time.monotonic() + timeout / 1000
         while True:
             avail = self._clocked(u) - u.sent
