@@ -61,14 +61,16 @@ def open_units(
         ctx.on_close(u.close)
     by_serial = {u.serial_number(): u for u in opened}
     wanted = list(rig.daq.units) or list(cabled or [])
+    if not opened:
+        raise DeviceNotFoundError(
+            f"{where}: no USB-1808 unit (USB 09db:013d/013e) found; check the cable, the power "
+            "and the udev rule (config/udev), or set daq (DIMACQ_DAQ) = 'mcc-usb-simulated'"
+        )
     if not wanted:
-        if len(opened) != 1:
+        if len(opened) > 1:
             raise SetupError(
                 f"{where}: {len(opened)} USB-1808 units found ({', '.join(sorted(by_serial))}); "
                 f"list their serial numbers in channel order as [daq] units in {rig.path}"
-                if opened
-                else f"{where}: no USB-1808 unit (USB 09db:013d/013e) found; check the cable, "
-                "the power and the udev rule (config/udev)"
             )
         wanted = list(by_serial)
     missing = [s for s in wanted if s not in by_serial]

@@ -442,8 +442,10 @@ def _demo(
                 "netft-can-simulated": "ATI Net F/T (CAN)",
             }.get(b.get("loadcell", ""), "load cell (CAN)")
             daq = b.get("daq", "?")
+            usb = "Measurement Computing USB-1808X units (USB)"
+            dev = {"mcc-usb-simulated": usb, "mcc-usb": usb}.get(daq, "DAQ (USB)")
             info["acquisition"] = (
-                f"impact test through the {_sim('daq', daq)}DAQ (USB) and {cell} "
+                f"impact test through the {_sim('daq', daq)}{dev} and {cell} "
                 f"(daq = {daq!r}, loadcell = {b.get('loadcell', '?')!r})"
             )
             say(f"[4/5] acquired: {info['acquisition']}")
