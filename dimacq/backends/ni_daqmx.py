@@ -63,6 +63,4 @@ def open_daq(ctx: DeviceContext) -> Any:
             f"{', '.join(present) or 'none'}); name them in [daq] units of {rig.path}"
         )
     channels = [ch.name for u in units for ch in ni.system.Device(u).ai_physical_chans]
-    return NiDsaTask(
-        ni, channels, tuple(units), start_trigger=ctx.settings.daq_ni_start_trigger
-    )
+    return NiDsaTask(ni, channels, tuple(units), start_trigger=ctx.settings.daq_ni_start_trigger)

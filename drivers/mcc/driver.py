@@ -266,7 +266,9 @@ class MccTask:
         self.units = list(units)
         self.name = name
         self.calibrations = (
-            list(calibrations) if calibrations is not None else [u.read_calibration() for u in units]
+            list(calibrations)
+            if calibrations is not None
+            else [u.read_calibration() for u in units]
         )
         self.serials = tuple(u.serial_number() for u in self.units)
         self._channels: dict[int, ChannelConfig] = {}
@@ -419,7 +421,9 @@ class MccTask:
             slope, offset = self.calibrations[u]
             ranges = np.array([rng[i] for i in inputs])
             self._runs.append(
-                _UnitRun(unit, inputs, cols, ranges, slope[inputs, ranges], offset[inputs, ranges], [])
+                _UnitRun(
+                    unit, inputs, cols, ranges, slope[inputs, ranges], offset[inputs, ranges], []
+                )
             )
         self._scale = np.array([1.0 / c.sensitivity_v_per_unit for c in chans])
         self._stream = CounterStream(len(chans), flag_shape=(len(chans),), flag_dtype=np.bool_)
@@ -471,10 +475,13 @@ class MccTask:
                 over[:, r.columns] = clip[:, : len(r.columns)]
         if over.any():
             names = self.channel_names
-            hit = tuple(nm for nm, o in zip(names, over.any(axis=0), strict=True) if o)
+            hit = tuple(names[int(k)] for k in np.flatnonzero(over.any(axis=0)))
             self._record(
                 DaqEvent(
-                    "overload", first, n, hit,
+                    "overload",
+                    first,
+                    n,
+                    hit,
                     f"overload on {', '.join(hit)} in samples {first}..{first + n - 1}; raise "
                     "the input range or lower the conditioner's gain",
                 )
@@ -547,7 +554,10 @@ class MccTask:
             if counts[0] > end:
                 self._record(
                     DaqEvent(
-                        "overflow", end, counts[0] - end, self.channel_names,
+                        "overflow",
+                        end,
+                        counts[0] - end,
+                        self.channel_names,
                         f"samples {end}..{counts[0] - 1} missing on a slave unit",
                     )
                 )

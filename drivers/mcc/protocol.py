@@ -161,7 +161,7 @@ CAL_TABLE_BYTES = N_AI * N_RANGES * _CAL_PAIR.size
 
 def pacer_period(rate_hz: float) -> int:
     """The pacer timer period of ``rate_hz``: ``round(100 MHz / rate − 1)``."""
-    return int(round(BASE_CLOCK_HZ / rate_hz - 1))
+    return round(BASE_CLOCK_HZ / rate_hz - 1)
 
 
 def pacer_rate_hz(period: int) -> float:
@@ -234,10 +234,8 @@ def decode_scans(data: bytes, n_queue: int) -> NDArray[np.uint32]:
     """Bulk data → codes, shape (n_scans, n_queue) (the 18 low bits of each LE u32)."""
     words = np.frombuffer(data, dtype="<u4")
     if words.size % n_queue:
-        raise ValueError(
-            f"{len(data)} bytes are not whole scans of {n_queue} channels × 4 bytes"
-        )
-    return (words & CODE_MASK).reshape(-1, n_queue)
+        raise ValueError(f"{len(data)} bytes are not whole scans of {n_queue} channels × 4 bytes")
+    return np.bitwise_and(words, np.uint32(CODE_MASK)).reshape(-1, n_queue)
 
 
 def codes_to_volts(

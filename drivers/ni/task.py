@@ -184,18 +184,27 @@ class NiDsaTask:
                 excite = c.ExcitationSource.INTERNAL if ch.iepe_a > 0 else c.ExcitationSource.NONE
                 if ch.kind == "accel":
                     ai = task.ai_channels.add_ai_accel_chan(
-                        phys, cfg.name, min_val=-full, max_val=full,
+                        phys,
+                        cfg.name,
+                        min_val=-full,
+                        max_val=full,
                         units=c.AccelUnits.METERS_PER_SECOND_SQUARED,
                         sensitivity=ch.sensitivity,
                         sensitivity_units=c.AccelSensitivityUnits.MILLIVOLTS_PER_G,
-                        current_excit_source=excite, current_excit_val=ch.iepe_a * 1e-3,
+                        current_excit_source=excite,
+                        current_excit_val=ch.iepe_a * 1e-3,
                     )
                 elif ch.kind == "force":
                     ai = task.ai_channels.add_ai_force_iepe_chan(
-                        phys, cfg.name, min_val=-full, max_val=full,
-                        units=c.ForceUnits.NEWTONS, sensitivity=ch.sensitivity,
+                        phys,
+                        cfg.name,
+                        min_val=-full,
+                        max_val=full,
+                        units=c.ForceUnits.NEWTONS,
+                        sensitivity=ch.sensitivity,
                         sensitivity_units=c.ForceIEPESensorSensitivityUnits.MILLIVOLTS_PER_NEWTON,
-                        current_excit_source=excite, current_excit_val=ch.iepe_a * 1e-3,
+                        current_excit_source=excite,
+                        current_excit_val=ch.iepe_a * 1e-3,
                     )
                 else:
                     ai = task.ai_channels.add_ai_voltage_chan(
@@ -248,9 +257,14 @@ class NiDsaTask:
             self.events.extend(events)
         assert self.sample_rate_hz is not None
         block = DaqBlock(
-            self._next, self.sample_rate_hz, self.channel_names,
-            tuple(c.units for c in self.channels), data, overload,
-            np.ones(n_samples, dtype=bool), events,
+            self._next,
+            self.sample_rate_hz,
+            self.channel_names,
+            tuple(c.units for c in self.channels),
+            data,
+            overload,
+            np.ones(n_samples, dtype=bool),
+            events,
         )
         self._next += n_samples
         return block

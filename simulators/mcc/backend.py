@@ -148,15 +148,37 @@ class Mcc1808Backend(usb.backend.IBackend):
             slope32, offset32 = p.calibration_table(table)
             eeprom = {p.CAL_BASE_ADDRESS + i: b for i, b in enumerate(table)}
             desc = _Desc(
-                bLength=18, bDescriptorType=1, bcdUSB=0x0200, bDeviceClass=0xFF,
-                bDeviceSubClass=0, bDeviceProtocol=0, bMaxPacketSize0=64,
-                idVendor=p.VENDOR_ID, idProduct=0x013E, bcdDevice=0x0100,
-                iManufacturer=0, iProduct=0, iSerialNumber=0, bNumConfigurations=1,
-                address=u + 2, bus=1, port_number=u + 1, port_numbers=(u + 1,), speed=3,
+                bLength=18,
+                bDescriptorType=1,
+                bcdUSB=0x0200,
+                bDeviceClass=0xFF,
+                bDeviceSubClass=0,
+                bDeviceProtocol=0,
+                bMaxPacketSize0=64,
+                idVendor=p.VENDOR_ID,
+                idProduct=0x013E,
+                bcdDevice=0x0100,
+                iManufacturer=0,
+                iProduct=0,
+                iSerialNumber=0,
+                bNumConfigurations=1,
+                address=u + 2,
+                bus=1,
+                port_number=u + 1,
+                port_numbers=(u + 1,),
+                speed=3,
             )
             self.units.append(
-                _Unit(serial, desc, slope32, offset32, eeprom, fpga_configured, image,
-                      missed=int((missed_pulses or {}).get(serial, 0)))
+                _Unit(
+                    serial,
+                    desc,
+                    slope32,
+                    offset32,
+                    eeprom,
+                    fpga_configured,
+                    image,
+                    missed=int((missed_pulses or {}).get(serial, 0)),
+                )
             )
 
     # -- descriptors -------------------------------------------------------------------------
@@ -172,22 +194,42 @@ class Mcc1808Backend(usb.backend.IBackend):
 
     def get_configuration_descriptor(self, dev: Any, config: int) -> Any:
         return _Desc(
-            bLength=9, bDescriptorType=2, wTotalLength=25, bNumInterfaces=1,
-            bConfigurationValue=1, iConfiguration=0, bmAttributes=0x80, bMaxPower=250,
+            bLength=9,
+            bDescriptorType=2,
+            wTotalLength=25,
+            bNumInterfaces=1,
+            bConfigurationValue=1,
+            iConfiguration=0,
+            bmAttributes=0x80,
+            bMaxPower=250,
             extra_descriptors=[],
         )
 
     def get_interface_descriptor(self, dev: Any, intf: int, alt: int, config: int) -> Any:
         return _Desc(
-            bLength=9, bDescriptorType=4, bInterfaceNumber=0, bAlternateSetting=0,
-            bNumEndpoints=1, bInterfaceClass=0xFF, bInterfaceSubClass=0, bInterfaceProtocol=0,
-            iInterface=0, extra_descriptors=[],
+            bLength=9,
+            bDescriptorType=4,
+            bInterfaceNumber=0,
+            bAlternateSetting=0,
+            bNumEndpoints=1,
+            bInterfaceClass=0xFF,
+            bInterfaceSubClass=0,
+            bInterfaceProtocol=0,
+            iInterface=0,
+            extra_descriptors=[],
         )
 
     def get_endpoint_descriptor(self, dev: Any, ep: int, intf: int, alt: int, config: int) -> Any:
         return _Desc(
-            bLength=7, bDescriptorType=5, bEndpointAddress=p.DATA_ENDPOINT, bmAttributes=2,
-            wMaxPacketSize=512, bInterval=0, bRefresh=0, bSynchAddress=0, extra_descriptors=[],
+            bLength=7,
+            bDescriptorType=5,
+            bEndpointAddress=p.DATA_ENDPOINT,
+            bmAttributes=2,
+            wMaxPacketSize=512,
+            bInterval=0,
+            bRefresh=0,
+            bSynchAddress=0,
+            extra_descriptors=[],
         )
 
     def open_device(self, dev: Any) -> Any:
@@ -277,7 +319,7 @@ class Mcc1808Backend(usb.backend.IBackend):
         elif u.running:
             raise self._stall(f"request {bRequest:#x} while scanning")
         elif bRequest == R.AIN_ADC_SETUP:
-            ranges, modes = p.decode_adc_setup(payload)
+            ranges, _modes = p.decode_adc_setup(payload)
             if len(ranges) != p.N_AI:
                 raise self._stall("AIN_ADC_SETUP needs 8 bytes")
             u.ranges = [int(r) for r in ranges]
@@ -366,8 +408,11 @@ class Mcc1808Backend(usb.backend.IBackend):
         """Raw ADC codes of scans ``first .. first + n − 1``, shape (n, len(queue))."""
         unit = self.units.index(u)
         volts = np.zeros((n, len(u.queue)))
-        wired = [(j, self.wiring[unit * p.N_AI + q]) for j, q in enumerate(u.queue)
-                 if unit * p.N_AI + q in self.wiring]
+        wired = [
+            (j, self.wiring[unit * p.N_AI + q])
+            for j, q in enumerate(u.queue)
+            if unit * p.N_AI + q in self.wiring
+        ]
         if wired:
             src = np.array([w.source_channel for _, w in wired], dtype=np.intp)
             start = self._epoch + u.offset_pulses + first
@@ -379,8 +424,9 @@ class Mcc1808Backend(usb.backend.IBackend):
         rng = np.array(u.ranges)[q]
         full = np.array([p.RANGES_V[p.Range(int(r))] for r in rng])
         bipolar = rng <= p.Range.BP_5V
-        ideal = np.where(bipolar, volts / full * p.MID_SCALE + p.MID_SCALE,
-                         volts / full * p.CODE_MASK)
+        ideal = np.where(
+            bipolar, volts / full * p.MID_SCALE + p.MID_SCALE, volts / full * p.CODE_MASK
+        )
         raw = (ideal - u.offset[q, rng]) / u.slope[q, rng]
         return np.clip(np.rint(raw), 0, p.CODE_MASK).astype(np.int64)
 

@@ -56,8 +56,12 @@ def _rig(tmp_path: Path, units: str = "") -> str:
 
 def _open(tmp_path: Path, factory: str, units: str = "", **kw: str) -> object:
     settings = load_settings(
-        data_dir=tmp_path, token="t", daq="mcc-usb", daq_backend=f"test_mcc_backend:{factory}",
-        rig_file=_rig(tmp_path, units), **kw,
+        data_dir=tmp_path,
+        token="t",
+        daq="mcc-usb",
+        daq_backend=f"test_mcc_backend:{factory}",
+        rig_file=_rig(tmp_path, units),
+        **kw,
     )
     with DeviceContext(settings) as ctx:
         task = lookup("daq", "mcc-usb")(ctx)
@@ -77,7 +81,11 @@ def test_devices_check_through_the_simulated_units(tmp_path: Path) -> None:
     got = rig_builder.check_devices(settings, "daq")
     # the shipped rig: hammer 0, accelerometers 1..24, the cell's bridges 25..36: five units
     assert got["backend"] == "mcc-usb-simulated" and got["model"] == "USB-1808X ×5"
-    assert len(got["units"]) == 5 and got["n_channels"] == 40 and got["units"][0] == got["serial_number"]
+    assert (
+        len(got["units"]) == 5
+        and got["n_channels"] == 40
+        and got["units"][0] == got["serial_number"]
+    )
 
 
 def test_one_line_errors_of_the_real_backend(tmp_path: Path) -> None:
@@ -113,7 +121,9 @@ def test_nidaqmx_package_missing(tmp_path: Path, monkeypatch: pytest.MonkeyPatch
     monkeypatch.setitem(sys.modules, "nidaqmx", None)
     monkeypatch.setitem(sys.modules, "nidaqmx.system", None)
     settings = load_settings(data_dir=tmp_path, token="t", daq="nidaqmx")
-    with pytest.raises(SetupError, match=r"package nidaqmx is not installed; pip install 'dimacq\[ni\]'") as e:
+    with pytest.raises(
+        SetupError, match=r"package nidaqmx is not installed; pip install 'dimacq\[ni\]'"
+    ) as e:
         rig_builder.check_devices(settings, "daq")
     assert "\n" not in str(e.value)
 
@@ -128,7 +138,9 @@ def test_nidaqmx_runtime_missing(tmp_path: Path) -> None:
     else:
         pytest.skip("NI-DAQmx is installed here")
     settings = load_settings(data_dir=tmp_path, token="t", daq="nidaqmx")
-    with pytest.raises(DeviceNotFoundError, match=r"NI-DAQmx \(the driver runtime\) is not installed") as e:
+    with pytest.raises(
+        DeviceNotFoundError, match=r"NI-DAQmx \(the driver runtime\) is not installed"
+    ) as e:
         rig_builder.check_devices(settings, "daq")
     assert "\n" not in str(e.value)
 

@@ -32,16 +32,16 @@ UNIT_TABLE = (bytes.fromhex("0000803f") + bytes(4)) * 32
 def test_ain_scan_start_bytes_of_the_c_driver() -> None:
     # usbAInScanStart_USB1808(udev, 0, 0, 1000.0, 0): pacer_period = rint(1e8/1000 - 1) = 99999
     start = p.AInScanStart(count=0, retrig_count=0, pacer_period=p.pacer_period(1000.0))
-    assert start.encode() == bytes.fromhex("00000000" "00000000" "9f860100" "ff" "00")
+    assert start.encode() == bytes.fromhex("00000000000000009f860100ff00")
     # a slave: external clock (pacer_period 0), 4096 scans
     slave = p.AInScanStart(4096, 0, 0)
-    assert slave.encode() == bytes.fromhex("00100000" "00000000" "00000000" "ff" "00")
+    assert slave.encode() == bytes.fromhex("001000000000000000000000ff00")
     assert p.AIN_SCAN_START_STRUCT.size == 14
 
 
 def test_codes_and_volts_follow_the_c_driver() -> None:
     # two scans of two channels; the upper 14 bits of each word are not the ADC's
-    raw = bytes.fromhex("00000200" "ffff0300" "33330200" "0000fcff")
+    raw = bytes.fromhex("00000200ffff0300333302000000fcff")
     codes = p.decode_scans(raw, 2)
     assert codes.tolist() == [[0x20000, 0x3FFFF], [0x23333, 0]]
     volts, clip = p.codes_to_volts(
@@ -54,7 +54,9 @@ def test_codes_and_volts_follow_the_c_driver() -> None:
     assert volts == pytest.approx(np.array(ref), abs=1e-12)
     assert clip.tolist() == [[False, True], [False, True]]
     # calibration: corrected = rint(raw * slope + offset)
-    v, _ = p.codes_to_volts(np.array([[131072]]), np.array([0]), np.array([1.001]), np.array([-3.0]))
+    v, _ = p.codes_to_volts(
+        np.array([[131072]]), np.array([0]), np.array([1.001]), np.array([-3.0])
+    )
     assert v[0, 0] == pytest.approx((round(131072 * 1.001 - 3) - 131072) * 10 / 131072)
 
 
@@ -76,7 +78,7 @@ def _unit_open() -> list[tuple[Ctrl | BulkIn, object]]:
 
 def test_one_unit_task_exchange() -> None:
     """A 2-channel task at 1000 Hz: configuration, start, one bulk read, stop, drain."""
-    scans = bytes.fromhex("00000200" "00400200") * 4  # 4 scans: 0 V on AI1, +0.625 V on AI6 (±5 V)
+    scans = bytes.fromhex("0000020000400200") * 4  # 4 scans: 0 V on AI1, +0.625 V on AI6 (±5 V)
     pairs = [
         *_unit_open(),
         (Ctrl(OUT, 0x13, 0, 0, b""), 0),  # AIN_SCAN_STOP

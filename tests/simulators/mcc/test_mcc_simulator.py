@@ -59,8 +59,11 @@ def test_three_units_scan_in_step_and_are_calibrated() -> None:
     task.stop()
     t = np.arange(1500) / RATE
     truth = np.stack(
-        [3 * np.sin(2 * np.pi * 50 * t), 3 * np.sin(2 * np.pi * 50 * t),
-         1.5 * np.sin(2 * np.pi * 120 * t + 0.3)]
+        [
+            3 * np.sin(2 * np.pi * 50 * t),
+            3 * np.sin(2 * np.pi * 50 * t),
+            1.5 * np.sin(2 * np.pi * 120 * t + 0.3),
+        ]
     )  # channels in physical order: 0, 12, 21
     truth = truth[[0, 2, 1]]
     lsb = np.array([10.0, 5.0, 5.0]) / 131072
