@@ -249,10 +249,11 @@ def codes_to_volts(
     ``codes`` shape (n_scans, n_ch); ``ranges``, ``slope``, ``offset`` shape (n_ch,) (the
     channel's range code and its calibration pair). ``c = rint(raw · slope + offset)`` clipped
     to 0..2¹⁸−1 (``usbAIn_USB1808``), then bipolar ``V = (c − 131072) · R / 131072``, unipolar
-    ``V = c · R / 262143``. Clipped: ``c`` at 0 or 2¹⁸−1.
+    ``V = c · R / 262143``. Clipped: the ADC's raw code at 0 or 2¹⁸−1 (after the correction a
+    saturated code need not reach the ends of the scale).
     """
     c = np.clip(np.rint(codes * slope + offset), 0, CODE_MASK)
     full = np.array([RANGES_V[Range(int(r))] for r in ranges])
     bipolar = np.asarray(ranges) <= Range.BP_5V
     volts = np.where(bipolar, (c - MID_SCALE) * full / MID_SCALE, c * full / CODE_MASK)
-    return volts, (c <= 0) | (c >= CODE_MASK)
+    return volts, (codes <= 0) | (codes >= CODE_MASK)

@@ -136,3 +136,20 @@ def test_fpga_must_be_loaded_first() -> None:
     unit.configure_fpga(default_fpga_image())
     assert unit.status() & p.Status.FPGA_CONFIGURED
     unit.scan_stop()
+
+
+def test_clipping_is_an_overload_event() -> None:
+    """3 V × 3 = ±9 V on the ±5 V range: codes at the ends of the 18-bit scale."""
+    backend = Mcc1808Backend(Sines(), {3: DaqInput(0, 3.0)}, n_units=1, time_scale=40.0)
+    task = MccTask(_units(backend))
+    task.add_voltage_channel(3, "hot", range_v=5.0)
+    task.configure_timing(RATE, samples_per_frame=200)
+    task.start()
+    block = task.read(400, timeout_s=2.0)
+    task.stop()
+    assert block.overload[0].any() and not block.overload[0].all()
+    assert block.first_sample == 0  # a fresh lab: the run starts at its sample 0
+    v = 9.0 * np.sin(2 * np.pi * 50 * np.arange(400) / RATE)
+    assert block.overload[0][np.abs(v) > 5.05].all()
+    assert not block.overload[0][np.abs(v) < 4.95].any()
+    assert any(e.kind == "overload" and e.channels == ("hot",) for e in block.events)
