@@ -97,10 +97,20 @@ def _usb(notes: list[str]) -> list[dict[str, Any]]:
             "pid": f"{d.idProduct:04x}",
             "bus": int(d.bus) if d.bus is not None else None,
             "address": int(d.address) if d.address is not None else None,
-            "setting": f"daq_vendor_id = 0x{d.idVendor:04x}, daq_product_id = 0x{d.idProduct:04x}",
+            "setting": _usb_setting(int(d.idVendor), int(d.idProduct)),
         }
         for d in found
     ]
+
+
+def _usb_setting(vid: int, pid: int) -> str:
+    """What uses a USB device: a Measurement Computing USB-1808(X) is ``daq = "mcc-usb"``;
+    anything else the dimacq DAQ's ids."""
+    from dimacq.drivers.mcc import protocol as mcc
+
+    if vid == mcc.VENDOR_ID and pid in mcc.PRODUCT_IDS:
+        return f"daq = 'mcc-usb' ({mcc.PRODUCT_IDS[pid]}: its serial number in [daq] units)"
+    return f"daq_vendor_id = 0x{vid:04x}, daq_product_id = 0x{pid:04x}"
 
 
 def _can(notes: list[str], interfaces: tuple[str, ...]) -> list[dict[str, Any]]:

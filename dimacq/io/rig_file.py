@@ -105,7 +105,8 @@ class DaqSection(_Model):
     units: list[str] = Field(
         default_factory=list,
         description="daq = 'mcc-usb': the USB-1808X units' serial numbers in channel order "
-        "(inputs 0..7 on the first, the clock master; 8..15 on the second; ...), [] = the one found",
+        "(inputs 0..7 on the first, the clock master; 8..15 on the second; ...); daq = 'nidaqmx': "
+        "the NI device names in channel order; [] = the one found",
     )
     timeout_s: float = Field(default=2.0, gt=0, description="a USB timeout in seconds > 0")
     strike_timeout_s: float = Field(

@@ -158,3 +158,12 @@ def test_cli_names_the_fix_without_a_traceback(
     assert "Traceback" not in err
     (line,) = [ln for ln in err.splitlines() if ln.startswith("dimacq demo: error:")]
     assert "pip install 'dimacq[ni]'" in line and "DIMACQ_DAQ" in line
+
+
+def test_devices_list_names_the_mcc_setting() -> None:
+    from dimacq.backends.inventory import _usb_setting
+
+    assert _usb_setting(0x09DB, 0x013E) == (
+        "daq = 'mcc-usb' (USB-1808X: its serial number in [daq] units)"
+    )
+    assert _usb_setting(0x1209, 0xDA64) == "daq_vendor_id = 0x1209, daq_product_id = 0xda64"
