@@ -443,9 +443,11 @@ class MccTask:
         )
 
     def _read_unit(self, r: _UnitRun, timeout_s: float | None) -> int:
-        """One bulk transfer of ``samples_per_frame`` scans of unit ``r``; the scans read."""
+        """One bulk transfer of about ``samples_per_frame`` scans of unit ``r`` (whole 512-byte
+        packets, :func:`~dimacq.drivers.mcc.protocol.scans_per_transfer`); the scans read."""
         n_q = len(r.inputs)
-        data = r.unit.read_scans(self.samples_per_frame * n_q * 4, timeout_s)
+        n = p.scans_per_transfer(self.samples_per_frame, n_q)
+        data = r.unit.read_scans(n * n_q * 4, timeout_s)
         try:
             codes = p.decode_scans(data, n_q)
         except ValueError as err:

@@ -56,6 +56,7 @@ FPGA_CONFIG_MODE. After power-up the FPGA is not configured: FPGA_CONFIG then th
 
 from __future__ import annotations
 
+import math
 import struct
 from dataclasses import dataclass
 from enum import IntEnum, IntFlag
@@ -89,6 +90,7 @@ __all__ = [
     "pacer_period",
     "pacer_rate_hz",
     "scan_queue",
+    "scans_per_transfer",
 ]
 
 VENDOR_ID = 0x09DB
@@ -157,6 +159,19 @@ STATUS_STRUCT = struct.Struct("<H")
 ADDRESS_STRUCT = struct.Struct("<H")
 _CAL_PAIR = struct.Struct("<ff")
 CAL_TABLE_BYTES = N_AI * N_RANGES * _CAL_PAIR.size
+
+
+#: the bulk endpoint's packet size (high speed)
+PACKET_BYTES = 512
+
+
+def scans_per_transfer(scans: int, n_queue: int) -> int:
+    """``scans`` rounded up so that a bulk transfer is whole scans and whole 512-byte packets:
+    a multiple of ``128 / gcd(128, n_queue)`` scans (4 bytes per sample). A transfer that ends
+    inside a packet would overflow (libusb's LIBUSB_ERROR_OVERFLOW) when the device sends it full.
+    """
+    step = (PACKET_BYTES // 4) // math.gcd(PACKET_BYTES // 4, n_queue)
+    return -(-max(scans, 1) // step) * step
 
 
 def pacer_period(rate_hz: float) -> int:

@@ -78,7 +78,8 @@ def _unit_open() -> list[tuple[Ctrl | BulkIn, object]]:
 
 def test_one_unit_task_exchange() -> None:
     """A 2-channel task at 1000 Hz: configuration, start, one bulk read, stop, drain."""
-    scans = bytes.fromhex("0000020000400200") * 4  # 4 scans: 0 V on AI1, +0.625 V on AI6 (±5 V)
+    # 64 scans (one 512-byte packet): 0 V on AI1, +0.625 V on AI6 (±5 V)
+    scans = bytes.fromhex("0000020000400200") * 64
     pairs = [
         *_unit_open(),
         (Ctrl(OUT, 0x13, 0, 0, b""), 0),  # AIN_SCAN_STOP
@@ -87,9 +88,9 @@ def test_one_unit_task_exchange() -> None:
         (Ctrl(OUT, 0x14, 0, 1, bytes([1, 6]) + bytes(11)), 13),  # queue AI1, AI6; wIndex 1
         (Ctrl(OUT, 0x15, 0, 0, b""), 0),  # AIN_CLR_FIFO
         (Ctrl(OUT, 0x12, 0, 0, bytes.fromhex("00000000 00000000 9f860100 ff00")), 14),
-        (BulkIn(0x86, 4 * 2 * 4), scans),
+        (BulkIn(0x86, 512), scans),  # 4 scans asked: rounded up to a whole packet
         (Ctrl(OUT, 0x13, 0, 0, b""), 0),
-        (BulkIn(0x86, 4 * 2 * 4), usb.core.USBTimeoutError("timeout", errno=110)),
+        (BulkIn(0x86, 512), usb.core.USBTimeoutError("timeout", errno=110)),
         (Ctrl(IN, 0x40, 0, 0, 2), bytes.fromhex("0001")),  # STATUS: FPGA configured, no overrun
     ]
     with expected_exchange("usb", pairs, connect=lambda d: Usb1808(d, timeout_s=0.5)) as unit:
@@ -102,7 +103,13 @@ def test_one_unit_task_exchange() -> None:
         task.stop()
     assert block.data[0] == pytest.approx(np.zeros(4))
     assert block.data[1] == pytest.approx(np.full(4, 0x4000 * 5 / 131072))
-    assert task.samples_clocked == 4
+    assert task.samples_clocked == 64
+    assert [p.scans_per_transfer(n, q) for n, q in [(256, 3), (200, 3), (100, 8), (1, 1)]] == [
+        256,
+        256,
+        112,
+        128,
+    ]
 
 
 def test_fpga_load_exchange_and_refusal() -> None:
