@@ -33,7 +33,7 @@ def pytest_addoption(parser: pytest.Parser) -> None:
         action="append",
         default=[],
         metavar="KIND",
-        help="run tests that need real hardware of this kind (digitizer, loadcell, daq)",
+        help="run tests that need real hardware of this kind (digitizer, loadcell, daq, mcc, ni)",
     )
 
 
