@@ -8,12 +8,21 @@ loop needs to answer). :class:`SimVirtualBus` hands each receiver its own
 :class:`can.Message` built field by field instead (about 5 µs): what the drivers receive is the
 same — a fresh message per receiver with the send time, the channel and ``is_rx`` set — and the
 driver ends stay plain ``can.Bus(interface="virtual", ...)``.
+
+At a time-lapse the frames come in bursts (an amplifier sends the pulses of the last few ms at
+once, :data:`~dimacq.simulators.loadcell.pulses.BURST_S`): :meth:`SimVirtualBus.send_frames`
+hands a whole burst to each receiver under one lock of its queue (``queue.Queue``'s own
+``mutex``, one wake-up of the reader), in order, each frame still its own message with the
+burst's send time. Per frame that is the message built and a deque append, about 1 µs, against
+about 15 µs through :meth:`send` (a lock, a notify and often a thread switch per frame): at 40x
+real time one amplifier sends 82 000 frames a second.
 """
 
 from __future__ import annotations
 
 import queue
 import time
+from collections.abc import Sequence
 
 import can
 from can.interfaces.virtual import VirtualBus
@@ -53,3 +62,50 @@ class SimVirtualBus(VirtualBus):
                 all_sent = False
         if not all_sent:
             raise can.CanOperationError("Could not send message to one or more recipients")
+
+    def send_frames(self, frames: Sequence[tuple[int, bytes | bytearray, bool]]) -> None:
+        """Send ``(arbitration_id, data, is_fd)`` frames in order, as one burst (11-bit ids).
+
+        Each receiver gets its own :class:`can.Message` per frame (send time, channel,
+        ``is_rx``), as :meth:`send` gives it, appended to its queue under the queue's lock with
+        one notify. A receiver with a bounded queue (``rx_queue_size``) too full for the burst
+        gets the frames one by one through :meth:`send`'s path (and the same error when full).
+        """
+        self._check_if_open()
+        if not frames:
+            return
+        timestamp = time.time()
+        channel = self.channel_id
+        for bus_queue in self.channel:
+            if bus_queue is self.queue and not self.receive_own_messages:
+                continue
+            is_rx = bus_queue is not self.queue
+            msgs = [
+                can.Message(
+                    timestamp=timestamp,
+                    arbitration_id=aid,
+                    is_extended_id=False,
+                    channel=channel,
+                    data=bytearray(data),
+                    is_fd=fd,
+                    is_rx=is_rx,
+                    bitrate_switch=False,
+                )
+                for aid, data, fd in frames
+            ]
+            with bus_queue.mutex:
+                room = bus_queue.maxsize <= 0 or bus_queue.maxsize - len(bus_queue.queue) >= len(
+                    msgs
+                )
+                if room:
+                    bus_queue.queue.extend(msgs)
+                    bus_queue.unfinished_tasks += len(msgs)
+                    bus_queue.not_empty.notify()
+            if not room:
+                for m in msgs:
+                    try:
+                        bus_queue.put(m, block=False)
+                    except queue.Full as err:
+                        raise can.CanOperationError(
+                            "Could not send message to one or more recipients"
+                        ) from err
