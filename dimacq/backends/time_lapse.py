@@ -116,7 +116,7 @@ def measure_host(
     probe_s : float
         Simulated seconds of data the probe handles.
     """
-    import can
+    from can.interfaces.virtual import VirtualBus
 
     from dimacq.simulators.virtual_can import SimVirtualBus
 
@@ -125,15 +125,15 @@ def measure_host(
             f"time-lapse probe: {n_channels} DAQ channels at {sample_rate_hz} Hz for {probe_s} s; "
             "give at least one channel, a positive rate and duration"
         )
-    n = max(1, int(round(probe_s * sample_rate_hz)))
-    min_wall_s = 0.1  # repeated up to this long: one preemption does not decide the factor
+    n = max(1, round(probe_s * sample_rate_hz))
+    min_wall_s = 0.25  # repeated up to this long: one preemption does not decide the factor
     rng = np.random.default_rng(0)
     spf = 256
     counts = rng.integers(-(2**20), 2**20, (n, n_channels)).astype(np.int32)
     gauges = rng.uniform(-1, 1, (n, lc_p.N_GAUGES))
     channel = f"dimacq-time-lapse-probe-{id(counts)}"
     tx = SimVirtualBus(channel=channel, fd=True)
-    rx = can.Bus(interface="virtual", channel=channel, fd=True)
+    rx = VirtualBus(channel=channel, fd=True)
     rounds = 0
     try:
         w0, c0 = time.perf_counter(), time.process_time()

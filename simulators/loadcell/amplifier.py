@@ -145,7 +145,8 @@ class LoadCellAmplifierSim(SyncPulses):
         self._download_len = 0
         self._stop_evt = threading.Event()
         self._lock = threading.Lock()
-        self.bus = SimVirtualBus(channel=channel, fd=True)
+        # its CAN controller accepts its command frames only (hardware acceptance filter)
+        self.bus = SimVirtualBus(channel=channel, fd=True, accept_ids=[p.command_id(node_id)])
         self._thread = threading.Thread(target=self._run, name=f"loadcell-sim-{channel}")
         self._thread.start()
 
