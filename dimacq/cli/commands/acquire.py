@@ -26,6 +26,10 @@ that was interrupted (killed, a crash, Ctrl-C): the accepted averages kept there
 only the missing ones are struck (a partly struck input gets its missing averages), with the
 kept settings (seed, record length, window; ``--averages-per-input`` must be the same); the new
 raw blocks go to ``DIR/acquisition-resumed-K.h5``.
+The simulated DAQ runs at a time-lapse: simulation_imperfections.daq_time_scale
+(DIMACQ_SIMULATION_IMPERFECTIONS='{"daq_time_scale": 10}') when given, else measured at start
+(half of what this host sustains now, dimacq.backends.time_lapse); the summary says the factor
+and whether the host kept up (no DAQ FIFO overflow, no load cell frames dropped).
 Progress goes to stderr (one updating line on a terminal, plain lines otherwise, with the time
 remaining; ``--quiet``: none); a summary (with the FRFs' agreement with the true model) to stdout.
 """
