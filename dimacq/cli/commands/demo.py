@@ -20,6 +20,10 @@ unless ``--data-dir``), then acts as the test engineer over HTTP only:
    never substitutes other data. ``--model-frfs`` asks instead for the virtual lab's FRFs of the
    *true* article (with ``--noise``), imported as UFF through ``POST /api/frfs/import``: a check
    of the solver, not of the measurement chain, and the output says so first;
+   The simulated DAQ runs at a time-lapse chosen at start for both acquisitions: the setting
+   ``simulation_imperfections.daq_time_scale`` when given, else half of what this host sustains
+   now (a timed probe, :mod:`dimacq.backends.time_lapse`); the summary says the factor and
+   whether the host kept up (no DAQ FIFO overflow, no load cell frames dropped);
 5. solves (``POST /api/solutions`` with the service's defaults: automatic band, response and
    input selection; ``--scenario-band`` imposes the scenario's recommended band) and prints the
    result against the scenario's truth.
