@@ -159,12 +159,15 @@ def run(args: argparse.Namespace) -> int:
     )
     # The simulated DAQ's time-lapse, for step 0 and the test alike: the setting's
     # (simulation_imperfections.daq_time_scale), else what this host sustains now.
-    lapse = rig_time_lapse(settings.simulation_imperfections, settings.rig_path)
-    imperfections = {**settings.simulation_imperfections, "daq_time_scale": lapse.scale}
-    settings = settings.model_copy(update={"simulation_imperfections": imperfections})
-    lag = HostLag()
+    # (--model-frfs acquires nothing: no time-lapse)
+    lapse = None
+    imperfections = dict(settings.simulation_imperfections)
     if not args.model_frfs:
+        lapse = rig_time_lapse(settings.simulation_imperfections, settings.rig_path)
+        imperfections["daq_time_scale"] = lapse.scale
+        settings = settings.model_copy(update={"simulation_imperfections": imperfections})
         say(f"time-lapse: {lapse.describe()}")
+    lag = HostLag()
     if args.model_frfs:
         say(
             "dimacq demo --model-frfs: NO ACQUISITION. The FRFs are the virtual lab's forward model "
@@ -186,7 +189,7 @@ def run(args: argparse.Namespace) -> int:
             say("backends: " + ", ".join(f"{k} = {v!r}" for k, v in backends.items()))
             payload = _demo(srv.url, token, built, args, say, chain, backends, lag)
         payload["demo"]["backends"] = backends
-        if not args.model_frfs:
+        if lapse is not None:
             payload["demo"]["time_lapse"] = {**lapse.to_json(), **lag.to_json()}
             payload["demo"]["time_lapse_summary"] = f"{lapse.describe()}; {lag.describe()}"
     finally:
