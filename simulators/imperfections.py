@@ -15,7 +15,9 @@ Defaults (:data:`DEFAULT`) are realistic and such that a simulated test still pa
 and the acquisition session survive them (averages hit by a fault are rejected and struck again).
 The simulated lab runs ``daq_time_scale`` times faster than real time (a time-lapse: 240 s of
 impact test in the demo would otherwise take 4 minutes; the host must keep
-up with 4× the real data rate); 1 is a real DAQ. The service setting
+up with 4× the real data rate); 1 is a real DAQ. ``dimacq demo`` and ``dimacq acquire`` measure
+at start what the host sustains and set the factor unless the setting gives one
+(:mod:`dimacq.backends.time_lapse`). The service setting
 ``simulation_imperfections`` overrides any field (``{}``: the defaults; ``{enabled = false}``:
 none, the kind simulators of before).
 

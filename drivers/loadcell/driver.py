@@ -23,11 +23,13 @@ when SYNC pulses were missed or added (the counter no longer matches the DAQ's).
 from __future__ import annotations
 
 import logging
+import queue
 from dataclasses import dataclass, field
 from typing import Any, TypeVar
 
 import can
 import numpy as np
+from can.interfaces.virtual import VirtualBus
 from numpy.typing import NDArray
 
 from dimacq.devices.loadcell import LoadCellBlock, LoadCellEvent, LoadCellIdentity
@@ -67,7 +69,7 @@ class _Stream:
     """Wire state of one run: frames not yet decoded, the u32 counter unwrapping, heartbeats."""
 
     samples: CounterStream[LoadCellEvent] = field(default_factory=_new_samples)
-    payloads: list[bytes] = field(default_factory=list)
+    payloads: list[bytes | bytearray] = field(default_factory=list)
     last_counter: int = -1
     heartbeat0: tuple[int, int] | None = None
     last_heartbeat: tuple[int, int] | None = None
@@ -140,6 +142,27 @@ class LoadCellAmplifier(SyncCounting, WireDriver):
     def _recv(self, timeout_s: float) -> can.Message | None:
         return self.bus.recv(timeout_s)
 
+    def _recv_pending(self) -> list[can.Message]:
+        """Every frame the bus has received and not yet given, without waiting.
+
+        On python-can's ``virtual`` interface the receive queue is taken whole under its lock
+        (the frames are in memory already; per frame ``recv(0)`` costs a lock, a filter test
+        and a log call, about 5 µs, 0.4 s of CPU per second at 40x the rate of one amplifier);
+        the bus's filters are not applied here, :meth:`_route_all` files frames by identifier.
+        On other interfaces: ``recv(0)`` until nothing is waiting.
+        """
+        q = getattr(self.bus, "queue", None) if isinstance(self.bus, VirtualBus) else None
+        if isinstance(q, queue.Queue):
+            with q.mutex:
+                got = list(q.queue)
+                q.queue.clear()
+                q.not_full.notify_all()
+            return got
+        out = []
+        while (m := self._recv(0.0)) is not None:
+            out.append(m)
+        return out
+
     def _wire_error(self, err: Exception, what: str, deadline: Deadline) -> DeviceError | None:
         if isinstance(err, can.CanError):
             return DeviceError(f"load cell {self.node_id}: cannot send {what}: {err}")
@@ -156,6 +179,17 @@ class LoadCellAmplifier(SyncCounting, WireDriver):
         elif aid == p.response_id(self.node_id):
             return bytes(msg.data)
         return None
+
+    def _route_all(self, msgs: list[can.Message]) -> None:
+        """:meth:`_route` of a batch (data frames filed without a call each; replies to no
+        command are dropped, as :meth:`_route`'s callers outside a command do)."""
+        did = p.data_id(self.node_id)
+        payloads = self._stream.payloads
+        for m in msgs:
+            if m.arbitration_id == did:
+                payloads.append(m.data)
+            else:
+                self._route(m)
 
     def _request(self, request: p.Request, *, idempotent: bool = False) -> p.Reply | None:
         """Send ``request``; return its decoded reply (None for a request without one)."""
@@ -413,8 +447,7 @@ class LoadCellAmplifier(SyncCounting, WireDriver):
             if msg is not None:
                 self._route(msg)
                 # batch: take whatever is queued without waiting
-                while (m := self._recv(0.0)) is not None:
-                    self._route(m)
+                self._route_all(self._recv_pending())
 
         def timed_out(got: int) -> DeviceTimeoutError:
             return DeviceTimeoutError(

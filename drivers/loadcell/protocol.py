@@ -609,13 +609,14 @@ def decode_data_frames(
     """
     if not payloads:
         return np.zeros(0, np.int64), np.zeros(0, np.uint8), np.zeros((0, N_GAUGES))
+    raw = b"".join(payloads)
     bad = [i for i, d in enumerate(payloads) if len(d) != DATA_LENGTH]
     if bad:
         raise ProtocolError(
             f"data frame {bad[0]} has {len(payloads[bad[0]])} bytes, expected {DATA_LENGTH}; "
             "the bus must run CAN FD"
         )
-    buf = np.frombuffer(b"".join(payloads), dtype=np.uint8).reshape(-1, DATA_LENGTH)
+    buf = np.frombuffer(raw, dtype=np.uint8).reshape(-1, DATA_LENGTH)
     counters = buf[:, 0:4].copy().view("<u4").reshape(-1).astype(np.int64)
     status = buf[:, 4].copy()
     words = np.zeros((buf.shape[0], N_GAUGES, 4), dtype=np.uint8)

@@ -625,6 +625,8 @@ class VirtualLab:
         self._cache: OrderedDict[int, FloatArray] = OrderedDict()
         self._frontier = 0  # first sample not yet generated
         self._block_decay = np.exp(self._lam * (self.block_samples / fs))
+        # e^{λ (t − t0)} over one block: the same for every block (t − t0 = k / fs)
+        self._block_exp = np.exp(np.outer(self._lam, np.arange(self.block_samples) / fs))
         self.double_hits: list[int] = []
         # Shakers: exact first-order-hold recursion at K·fs, anti-alias filter, decimation.
         K = self.oversample
@@ -883,7 +885,6 @@ class VirtualLab:
     def _generate(self, b: int) -> FloatArray:
         Bn, fs, sig = self.block_samples, self.sample_rate_hz, self.sigma_s
         t = (b * Bn + np.arange(Bn)) / fs
-        t0 = b * Bn / fs
         lam = self._lam
         P = lam.size
         n_ch = len(self.channel_names)
@@ -891,7 +892,7 @@ class VirtualLab:
         carry = self._carry[b]
         n_phys = self._phys_rows.size
         if P:
-            E = np.exp(np.outer(lam, t - t0))  # (P, Bn)
+            E = self._block_exp  # e^{λ (t − t0)}, (P, Bn)
             Mx = np.einsum("cjp,pj->cp", self._R_ch, carry)
             y_ns = _real_matmul(Mx, E)
         else:

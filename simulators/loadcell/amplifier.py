@@ -4,7 +4,8 @@ A thread owns its own bus end (``can.Bus(interface="virtual", channel=...)``, se
 :class:`~dimacq.simulators.virtual_can.SimVirtualBus`), answers the
 control frames of :mod:`dimacq.drivers.loadcell.protocol` (the codec is all it shares with the
 driver) and, once started, streams one CAN FD data frame per sample and a heartbeat every 256
-samples. Its 12 gauges read 12 channels of the virtual lab's
+samples (a burst of them at once, :meth:`SimVirtualBus.send_frames
+<dimacq.simulators.virtual_can.SimVirtualBus.send_frames>`). Its 12 gauges read 12 channels of the virtual lab's
 :class:`~dimacq.simulators.lab.source.SampleSource` (volts at the bridge outputs).
 
 Clock: with SYNC (external clock, the normal case) it counts the pulses of the DAQ simulator's
@@ -144,7 +145,8 @@ class LoadCellAmplifierSim(SyncPulses):
         self._download_len = 0
         self._stop_evt = threading.Event()
         self._lock = threading.Lock()
-        self.bus = SimVirtualBus(channel=channel, fd=True)
+        # its CAN controller accepts its command frames only (hardware acceptance filter)
+        self.bus = SimVirtualBus(channel=channel, fd=True, accept_ids=[p.command_id(node_id)])
         self._thread = threading.Thread(target=self._run, name=f"loadcell-sim-{channel}")
         self._thread.start()
 
@@ -340,16 +342,29 @@ class LoadCellAmplifierSim(SyncPulses):
         lost = np.zeros(n, dtype=bool)
         if flt.frame_loss_rate:
             lost = self.rng.random(n) < flt.frame_loss_rate
-        lost_counters = set(counters[lost & keep].tolist()) if lost.any() else set()
+        if self._bus_off():  # off the bus: the burst is not sent (the counter goes on)
+            self._counter = int(counters[keep][-1]) + 1 if keep.any() else self._counter
+            return
+        kc, kq, kl = counters[keep], pulses[keep], lost[keep]
+        for c in kc[kl].tolist():
+            self._inject("can_frame_loss", "data frame of counter %d lost on the bus", c)
+        send = ~kl
+        if self.faults.dropped_samples:
+            send &= ~np.isin(kc, np.fromiter(self.faults.dropped_samples, np.int64))
+        # heartbeats after the frames of counters c with (c + 1) % HEARTBEAT_EVERY == 0: the
+        # counter reached, and the true time of that pulse on the amplifier's oscillator
+        beat = (kc + 1) % p.HEARTBEAT_EVERY == 0
         scale_us = 1e6 / self.rate_hz * (1 + self.oscillator_ppm * 1e-6)
-        for c, q, f in zip(counters[keep].tolist(), pulses[keep].tolist(), frames, strict=True):
-            if c in lost_counters and not self._bus_off():
-                self._inject("can_frame_loss", "data frame of counter %d lost on the bus", c)
-            elif c not in self.faults.dropped_samples:
-                self._send(aid, f, fd=True)
-            if (c + 1) % p.HEARTBEAT_EVERY == 0:
-                # counter reached, and the true time of that pulse on the amplifier's oscillator
-                t_us = round((q + 1) * scale_us)
-                self._send(hb, p.Heartbeat(c + 1, t_us).encode())
+        beats = {
+            int(c): p.Heartbeat(int(c) + 1, round((int(q) + 1) * scale_us)).encode()
+            for c, q in zip(kc[beat], kq[beat], strict=True)
+        }
+        out: list[tuple[int, bytes | bytearray, bool]] = []
+        for c, f, s in zip(kc.tolist(), frames, send.tolist(), strict=True):
+            if s:
+                out.append((aid, f, True))
+            if c in beats:
+                out.append((hb, beats[c], False))
+        self.bus.send_frames(out)
         if keep.any():
             self._counter = int(counters[keep][-1]) + 1

@@ -141,6 +141,12 @@ def test_demo_recovers_the_truth(tmp_path: Path, capsys) -> None:
     outside = [k for k, v in truth.items() if not unc[k]["ci95"][0] <= v <= unc[k]["ci95"][1]]
     assert len(outside) <= 1, (outside, {k: unc[k]["ci95"] for k in outside})
     d = p["demo"]
+    # the time-lapse used and whether the host kept up (the test session turns the simulated
+    # imperfections off: the DAQ clocks as the host reads, nothing can overflow)
+    lapse = d["time_lapse"]
+    assert lapse["how"] == "host-paced" and lapse["daq_time_scale"] == 1.0
+    assert lapse["kept_up"] and lapse["daq_overflow_events"] == 0
+    assert "kept up" in d["time_lapse_summary"] and "time-lapse:" in text
     assert d["points_digitized"] == 6 + 8 * 24 + 24 * 4
     assert d["acquisition"].startswith("impact test through the simulated DAQ")
     # the registration was judged against the array's limit 5·sqrt(0.3² + 0.5²) mm, and passed

@@ -26,6 +26,10 @@ that was interrupted (killed, a crash, Ctrl-C): the accepted averages kept there
 only the missing ones are struck (a partly struck input gets its missing averages), with the
 kept settings (seed, record length, window; ``--averages-per-input`` must be the same); the new
 raw blocks go to ``DIR/acquisition-resumed-K.h5``.
+The simulated DAQ runs at a time-lapse: simulation_imperfections.daq_time_scale
+(DIMACQ_SIMULATION_IMPERFECTIONS='{"daq_time_scale": 10}') when given, else measured at start
+(half of what this host sustains now, dimacq.backends.time_lapse); the summary says the factor
+and whether the host kept up (no DAQ FIFO overflow, no load cell frames dropped).
 Progress goes to stderr (one updating line on a terminal, plain lines otherwise, with the time
 remaining; ``--quiet``: none); a summary (with the FRFs' agreement with the true model) to stdout.
 """
@@ -101,6 +105,7 @@ def _scenario_band(name: str) -> tuple[float, float]:
 
 
 def run(args: argparse.Namespace) -> int:
+    from dimacq.backends.time_lapse import HostLag, rig_time_lapse
     from dimacq.cli.simulated_lab import frf_agreement
     from dimacq.config import Settings, scenario_rig_file
     from dimacq.io.acquisition_hdf5 import AcquisitionWriter
@@ -128,6 +133,17 @@ def run(args: argparse.Namespace) -> int:
         scenario=args.scenario,
         rig_file=scenario_rig_file(args.scenario),
     )
+    # the simulated DAQ's time-lapse: the setting's, else what this host sustains now
+    lapse = rig_time_lapse(settings.simulation_imperfections, settings.rig_path)
+    settings = settings.model_copy(
+        update={
+            "simulation_imperfections": {
+                **settings.simulation_imperfections,
+                "daq_time_scale": lapse.scale,
+            }
+        }
+    )
+    lag = HostLag()
     cfg: dict[str, Any] = {
         "seed": args.seed,
         "noise_scale": 0.0 if args.noise_free else 1.0,
@@ -193,6 +209,7 @@ def run(args: argparse.Namespace) -> int:
         "scenario": args.scenario,
     }
     rig = build_rig(settings, setup, cfg)
+    t_acq, cpu_acq = time.monotonic(), time.process_time()
     try:
         # min_averages as the service states it: the rig file's [acquisition], else the
         # min_averages setting (capped at --impacts-per-input by the session)
@@ -219,6 +236,7 @@ def run(args: argparse.Namespace) -> int:
                 on_progress=on_progress,
                 meta=meta,
                 prior=kept,
+                on_event=lag.observe,
             )
         else:
             data_path.parent.mkdir(parents=True, exist_ok=True)
@@ -240,10 +258,12 @@ def run(args: argparse.Namespace) -> int:
                     writer=writer,
                     meta=meta,
                     prior=kept,
+                    on_event=lag.observe,
                 )
     finally:
         rig.close()
         line.close()
+    acq_wall_s, acq_cpu_s = time.monotonic() - t_acq, time.process_time() - cpu_acq
     # Inputs with too few accepted averages have no FRF: the file holds the complete ones (what
     # was acquired is kept) and the command ends with the reason, not with a mismatch of inputs.
     accepted = [sum(ok for j, ok, _ in averages if j == i) for i in range(n_in)]
@@ -300,6 +320,12 @@ def run(args: argparse.Namespace) -> int:
         ],
         "frf_vs_model": agreement.to_json(),
         "elapsed_s": elapsed,
+        "time_lapse": {
+            **lapse.to_json(),
+            **lag.to_json(),
+            "acquisition_wall_s": acq_wall_s,
+            "acquisition_cpu_s": acq_cpu_s,
+        },
     }
     out = sys.stdout
     out.write(
@@ -325,6 +351,10 @@ def run(args: argparse.Namespace) -> int:
         f"{100 * agreement.fraction_kept:.1f} % of values, median error "
         f"{100 * agreement.median_rel_error:.3f} %, 99th percentile "
         f"{100 * agreement.p99_rel_error:.2f} %, max {100 * agreement.max_rel_error:.2f} %\n"
+    )
+    out.write(
+        f"time-lapse: {lapse.describe()}; {lag.describe()}; acquisition {acq_wall_s:.1f} s wall, "
+        f"{acq_cpu_s:.1f} s CPU (user + sys)\n"
     )
     out.write(f"wrote {args.frf} in {elapsed:.1f} s\n")
     if args.json:

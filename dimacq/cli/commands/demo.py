@@ -20,6 +20,10 @@ unless ``--data-dir``), then acts as the test engineer over HTTP only:
    never substitutes other data. ``--model-frfs`` asks instead for the virtual lab's FRFs of the
    *true* article (with ``--noise``), imported as UFF through ``POST /api/frfs/import``: a check
    of the solver, not of the measurement chain, and the output says so first;
+   The simulated DAQ runs at a time-lapse chosen at start for both acquisitions: the setting
+   ``simulation_imperfections.daq_time_scale`` when given, else half of what this host sustains
+   now (a timed probe, :mod:`dimacq.backends.time_lapse`); the summary says the factor and
+   whether the host kept up (no DAQ FIFO overflow, no load cell frames dropped);
 5. solves (``POST /api/solutions`` with the service's defaults: automatic band, response and
    input selection; ``--scenario-band`` imposes the scenario's recommended band) and prints the
    result against the scenario's truth.
@@ -39,12 +43,15 @@ import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
 from dimacq.cli.progress import ProgressLine, add_quiet, plain
 from dimacq.errors import DataError, DeviceError, SetupError
+
+if TYPE_CHECKING:
+    from dimacq.backends.time_lapse import HostLag
 
 
 def register(sub: Any) -> None:
@@ -127,6 +134,7 @@ class _Array:
 def run(args: argparse.Namespace) -> int:
     from dimacq.api import create_app
     from dimacq.api.server import BackgroundServer
+    from dimacq.backends.time_lapse import HostLag, rig_time_lapse
     from dimacq.config import load_settings, scenario_rig_file
 
     t0 = time.perf_counter()
@@ -149,6 +157,17 @@ def run(args: argparse.Namespace) -> int:
         rig_file=str(args.rig_file) if args.rig_file else scenario_rig_file(args.scenario),
         database_url="",
     )
+    # The simulated DAQ's time-lapse, for step 0 and the test alike: the setting's
+    # (simulation_imperfections.daq_time_scale), else what this host sustains now.
+    # (--model-frfs acquires nothing: no time-lapse)
+    lapse = None
+    imperfections = dict(settings.simulation_imperfections)
+    if not args.model_frfs:
+        lapse = rig_time_lapse(settings.simulation_imperfections, settings.rig_path)
+        imperfections["daq_time_scale"] = lapse.scale
+        settings = settings.model_copy(update={"simulation_imperfections": imperfections})
+        say(f"time-lapse: {lapse.describe()}")
+    lag = HostLag()
     if args.model_frfs:
         say(
             "dimacq demo --model-frfs: NO ACQUISITION. The FRFs are the virtual lab's forward model "
@@ -162,14 +181,17 @@ def run(args: argparse.Namespace) -> int:
             and not args.model_frfs
             and args.scenario != REFERENCE_SCENARIO
         ):
-            chain = _chain_step(data_dir, token, args, say)
+            chain = _chain_step(data_dir, token, args, say, imperfections, lag)
         app = create_app(settings)
         backends = {k: str(getattr(settings, k)) for k in ("daq", "loadcell", "digitizer")}
         with BackgroundServer(app) as srv:
             say(f"dimacq demo: service on {srv.url} (data in {data_dir}), scenario {args.scenario}")
             say("backends: " + ", ".join(f"{k} = {v!r}" for k, v in backends.items()))
-            payload = _demo(srv.url, token, built, args, say, chain, backends)
+            payload = _demo(srv.url, token, built, args, say, chain, backends, lag)
         payload["demo"]["backends"] = backends
+        if lapse is not None:
+            payload["demo"]["time_lapse"] = {**lapse.to_json(), **lag.to_json()}
+            payload["demo"]["time_lapse_summary"] = f"{lapse.describe()}; {lag.describe()}"
     finally:
         if tmp is not None:
             tmp.cleanup()
@@ -192,7 +214,12 @@ REFERENCE_SCENARIO = "reference-block-bungee"
 
 
 def _chain_step(
-    data_dir: Path, token: str, args: argparse.Namespace, say: Callable[[str], None]
+    data_dir: Path,
+    token: str,
+    args: argparse.Namespace,
+    say: Callable[[str], None],
+    imperfections: dict[str, Any] | None = None,
+    lag: HostLag | None = None,
 ) -> dict[str, Any]:
     """Step 0: calibrate the measurement chain on the weighed reference block.
 
@@ -222,6 +249,7 @@ def _chain_step(
         scenario=REFERENCE_SCENARIO,
         rig_file=scenario_rig_file(REFERENCE_SCENARIO),
         database_url="",
+        simulation_imperfections=imperfections,
     )
     with BackgroundServer(create_app(settings)) as srv:
         c = httpx.Client(
@@ -248,7 +276,9 @@ def _chain_step(
             _check(
                 acq, "acquisition of the reference block (step 0; --no-chain-calibration skips it)"
             )
-            frf_id = _follow_acquisition(c, acq.json(), say, quiet=args.quiet, step="[0/5]")
+            frf_id = _follow_acquisition(
+                c, acq.json(), say, quiet=args.quiet, step="[0/5]", lag=lag
+            )
             sol = _check(
                 c.post(
                     "/api/solutions",
@@ -293,6 +323,7 @@ def _demo(
     say: Callable[[str], None],
     chain: dict[str, Any] | None = None,
     backends: dict[str, str] | None = None,
+    lag: HostLag | None = None,
 ) -> dict[str, Any]:
     import httpx
 
@@ -434,7 +465,7 @@ def _demo(
                 "acquisition (the demo acquires as dimacq acquire does; --model-frfs solves "
                 "model FRFs instead)",
             )
-            frf_id = _follow_acquisition(c, acq, say, quiet=args.quiet)
+            frf_id = _follow_acquisition(c, acq, say, quiet=args.quiet, lag=lag)
             b = backends or {}
             cell = {
                 "daq-channels": "its bridges on inputs of the DAQ",
@@ -498,6 +529,7 @@ def _follow_acquisition(
     say: Callable[[str], None],
     quiet: bool = False,
     step: str = "[4/5]",
+    lag: HostLag | None = None,
 ) -> int:
     job_id = acq["job_id"]
     progress = ProgressLine(f"{step} acquisition", quiet=quiet)
@@ -514,6 +546,9 @@ def _follow_acquisition(
         progress.close()
     a = _check(c.get(f"/api/acquisitions/{acq['id']}"), "acquisition status")
     say(f"{step} averages accepted {a['averages_accepted']}, rejected {a['averages_rejected']}")
+    if lag is not None:  # did the host keep up? the rejections' and lost strikes' reasons say
+        lag.observe_reasons(av["reason"] for av in a["averages"] if not av["accepted"])
+        lag.observe_reasons(r for st in a["input_states"] for r in st.get("lost_reasons", []))
     if a["frf_id"] is None:
         raise DataError(f"demo: acquisition {acq['id']} ended {a['state']}: {a['message']}")
     if a["state"] != "succeeded":  # "incomplete": FRFs of some inputs only, the rest named
@@ -569,6 +604,8 @@ def _print_result(p: dict[str, Any], say: Callable[[str], None]) -> None:
     b = p["demo"].get("backends")
     if b:
         print("backends: " + ", ".join(f"{k} = {v!r}" for k, v in b.items()))
+    if p["demo"].get("time_lapse_summary"):
+        print(f"time-lapse: {p['demo']['time_lapse_summary']}")
     lo, hi = p["band_hz"]
     reasons = "; ".join(
         str(r.get("message", r)) if isinstance(r, dict) else str(r)

@@ -1,0 +1,268 @@
+"""The simulated lab's time-lapse: chosen from what this host sustains, and whether it kept up.
+
+The simulated DAQ clocks in wall time ``daq_time_scale`` times faster than a real one
+(:mod:`dimacq.simulators.imperfections`); the host must read, decode, align and check
+``daq_time_scale`` times the real data rate or the DAQ's FIFO overflows and CAN frames are
+dropped, as on a real rig whose PC is too slow. :func:`choose_time_lapse` picks the factor at
+start, from a measurement of this host now (its load included), for the demo and ``dimacq
+acquire``; :class:`HostLag` then tells from the devices' own reports (DAQ overflow events, load
+cell gaps) whether the host kept up.
+
+The measurement (:func:`measure_host`): the wire work of ``probe_s`` simulated seconds of the
+rig, done for real — the DAQ frames of ``n_channels`` encoded and decoded with the DAQ codec
+(24-bit pack, CRC-32, unpack), each load cell's CAN FD data frames encoded, sent through
+python-can's ``virtual`` bus as the amplifier simulator sends them, taken by a receiver as the
+driver takes them and decoded — timed in wall time, so a loaded machine measures slower. The
+whole acquisition (the virtual lab's physics, trigger search, checks, FRFs, the simulators'
+threads, GIL hand-overs) costs ``FULL_OVER_PROBE`` times that wire work per simulated second
+(measured on the 2-core reference machine, ``tests/benchmarks/bench_time_lapse.py``), so
+
+    s_max = 1 / (FULL_OVER_PROBE · w),     w = wall seconds of probe work per simulated second
+
+is the time-lapse at which the host would be busy all the time; the chosen factor is
+``HEADROOM · s_max`` (room for the service, other processes, bursts), rounded down to a whole
+factor within ``[1, max_scale]``.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import time
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from dimacq.drivers.daq import protocol as daq_p
+from dimacq.drivers.loadcell import protocol as lc_p
+from dimacq.errors import SetupError
+
+__all__ = [
+    "FULL_OVER_PROBE",
+    "HEADROOM",
+    "HostLag",
+    "HostMeasurement",
+    "TimeLapse",
+    "choose_time_lapse",
+    "measure_host",
+    "rig_time_lapse",
+]
+
+#: whole acquisition's host cost per simulated second over the probe's (reference machine)
+FULL_OVER_PROBE = 6.0
+#: fraction of the host the chosen time-lapse may take
+HEADROOM = 0.5
+
+
+@dataclass(frozen=True)
+class HostMeasurement:
+    """Wall and CPU seconds of the probe's wire work per simulated second of the rig."""
+
+    wall_per_sim_s: float
+    cpu_per_sim_s: float
+    probe_sim_s: float
+
+    @property
+    def sustainable_scale(self) -> float:
+        """``1 / (FULL_OVER_PROBE · w)``: the time-lapse that would keep the host busy."""
+        return 1.0 / (FULL_OVER_PROBE * max(self.wall_per_sim_s, 1e-9))
+
+
+@dataclass(frozen=True)
+class TimeLapse:
+    """The DAQ's time-lapse factor and how it was chosen (``"measured"`` or ``"setting"``)."""
+
+    scale: float
+    how: str
+    measurement: HostMeasurement | None = None
+
+    def describe(self) -> str:
+        if self.how == "host-paced":
+            return "the simulated DAQ clocks as the host reads (daq_free_running = false)"
+        if self.measurement is None:
+            return (
+                f"the simulated DAQ at {self.scale:g}x real time "
+                "(setting simulation_imperfections.daq_time_scale)"
+            )
+        m = self.measurement
+        return (
+            f"the simulated DAQ at {self.scale:g}x real time (measured at start: this host "
+            f"sustains about {m.sustainable_scale:.0f}x now; {HEADROOM:.0%} of it taken)"
+        )
+
+    def to_json(self) -> dict[str, object]:
+        out: dict[str, object] = {"daq_time_scale": self.scale, "how": self.how}
+        if self.measurement is not None:
+            out["sustainable_scale"] = self.measurement.sustainable_scale
+            out["probe_wall_ms_per_sim_s"] = 1e3 * self.measurement.wall_per_sim_s
+            out["probe_cpu_ms_per_sim_s"] = 1e3 * self.measurement.cpu_per_sim_s
+        return out
+
+
+def measure_host(
+    n_channels: int, n_cells: int, sample_rate_hz: float, *, probe_s: float = 0.5
+) -> HostMeasurement:
+    """Time the wire work of ``probe_s`` simulated seconds of the rig (see the module doc).
+
+    Parameters
+    ----------
+    n_channels : int
+        DAQ channels (hammer and accelerometer axes).
+    n_cells : int
+        Load cells on their CAN FD amplifiers.
+    sample_rate_hz : float
+    probe_s : float
+        Simulated seconds of data the probe handles.
+    """
+    from can.interfaces.virtual import VirtualBus
+
+    from dimacq.simulators.virtual_can import SimVirtualBus
+
+    if n_channels < 1 or sample_rate_hz <= 0 or probe_s <= 0:
+        raise SetupError(
+            f"time-lapse probe: {n_channels} DAQ channels at {sample_rate_hz} Hz for {probe_s} s; "
+            "give at least one channel, a positive rate and duration"
+        )
+    n = max(1, round(probe_s * sample_rate_hz))
+    min_wall_s = 0.25  # repeated up to this long: one preemption does not decide the factor
+    rng = np.random.default_rng(0)
+    spf = 256
+    counts = rng.integers(-(2**20), 2**20, (n, n_channels)).astype(np.int32)
+    gauges = rng.uniform(-1, 1, (n, lc_p.N_GAUGES))
+    channel = f"dimacq-time-lapse-probe-{id(counts)}"
+    tx = SimVirtualBus(channel=channel, fd=True)
+    rx = VirtualBus(channel=channel, fd=True)
+    rounds = 0
+    try:
+        w0, c0 = time.perf_counter(), time.process_time()
+        while rounds == 0 or time.perf_counter() - w0 < min_wall_s:
+            rounds += 1
+            for k in range(0, n, spf):
+                frame = daq_p.encode_frame(k // spf, k, counts[k : k + spf])
+                daq_p.decode_frame(frame)
+            for _ in range(n_cells):
+                for k in range(0, n, spf):
+                    c = np.arange(k, min(n, k + spf))
+                    frames, _ = lc_p.encode_data_frames(c, gauges[c])
+                    tx.send_frames([(lc_p.data_id(1), f, True) for f in frames])
+                    q = rx.queue
+                    with q.mutex:
+                        got = list(q.queue)
+                        q.queue.clear()
+                    lc_p.decode_data_frames([m.data for m in got])
+        wall, cpu = time.perf_counter() - w0, time.process_time() - c0
+    finally:
+        rx.shutdown()
+        tx.shutdown()
+    sim_s = rounds * n / sample_rate_hz
+    return HostMeasurement(wall / sim_s, cpu / sim_s, sim_s)
+
+
+def choose_time_lapse(
+    imperfections: Mapping[str, object],
+    *,
+    n_channels: int,
+    n_cells: int,
+    sample_rate_hz: float,
+    max_scale: float = 40.0,
+) -> TimeLapse:
+    """The time-lapse of a simulated acquisition: the setting's ``daq_time_scale`` when it
+    gives one, else measured now (:func:`measure_host`), ``HEADROOM`` of what the host
+    sustains, a whole factor within ``[1, max_scale]``."""
+    given = imperfections.get("daq_time_scale")
+    if imperfections.get("enabled") is False or imperfections.get("daq_free_running") is False:
+        return TimeLapse(1.0, "host-paced")  # the DAQ clocks as the host reads: no time-lapse
+    if given is not None:
+        if isinstance(given, bool) or not isinstance(given, int | float) or not given > 0:
+            raise SetupError(
+                f"simulation_imperfections.daq_time_scale = {given!r}: give a positive factor "
+                "(1: real time), or leave it out to measure what this host sustains"
+            )
+        return TimeLapse(float(given), "setting")
+    m = measure_host(n_channels, n_cells, sample_rate_hz)
+    scale = min(float(max_scale), max(1.0, math.floor(HEADROOM * m.sustainable_scale)))
+    return TimeLapse(scale, "measured", m)
+
+
+_LC_LOST = re.compile(r"load cell \d+ samples lost \((\d+)\)")
+
+
+@dataclass
+class HostLag:
+    """Whether the host kept up with the time-lapse, from the devices' reports.
+
+    The DAQ reports a FIFO overflow when the host read too late; a load cell gap longer than one
+    frame is frames dropped because they could not be taken in time (one frame alone is the
+    bus's own rare loss, ``can_frame_loss_rate``). ``kept_up``: neither happened.
+    """
+
+    overflow_samples: int = 0
+    overflow_events: int = 0
+    loadcell_gaps: list[int] = field(default_factory=list)
+
+    def observe(self, event: Mapping[str, object]) -> None:
+        """One device event of an impact session (``on_event``)."""
+        dev, kind = str(event.get("device", "")), event.get("kind")
+        n = event.get("n_samples")
+        size = int(n) if isinstance(n, int | float) else 0
+        if dev == "daq" and kind == "overflow":
+            self.overflow_events += 1
+            self.overflow_samples += size
+        elif dev.startswith("loadcell") and kind == "gap":
+            self.loadcell_gaps.append(size)
+
+    def observe_reasons(self, reasons: Iterable[str]) -> None:
+        """The rejection reasons of averages and lost strikes (what the HTTP API reports)."""
+        for r in reasons:
+            if "FIFO overflow" in r:
+                self.overflow_events += 1
+                m = re.search(r"DAQ samples lost \((\d+)", r)
+                self.overflow_samples += int(m.group(1)) if m else 0
+            self.loadcell_gaps += [int(g) for g in _LC_LOST.findall(r)]
+
+    @property
+    def kept_up(self) -> bool:
+        return self.overflow_events == 0 and all(g <= 1 for g in self.loadcell_gaps)
+
+    def describe(self) -> str:
+        if self.kept_up:
+            return "the host kept up (no DAQ FIFO overflow, no load cell frames dropped)"
+        long = [g for g in self.loadcell_gaps if g > 1]
+        parts = []
+        if self.overflow_events:
+            parts.append(
+                f"{self.overflow_events} DAQ FIFO overflow(s), {self.overflow_samples} samples"
+            )
+        if long:
+            parts.append(f"{len(long)} load cell gap(s) of {sum(long)} samples")
+        return (
+            f"the host did NOT keep up ({'; '.join(parts)}): lower "
+            "simulation_imperfections.daq_time_scale (DIMACQ_SIMULATION_IMPERFECTIONS)"
+        )
+
+    def to_json(self) -> dict[str, object]:
+        return {
+            "kept_up": self.kept_up,
+            "daq_overflow_events": self.overflow_events,
+            "daq_overflow_samples": self.overflow_samples,
+            "loadcell_gap_samples": list(self.loadcell_gaps),
+        }
+
+
+def rig_time_lapse(imperfections: Mapping[str, object], rig_path: str | Path) -> TimeLapse:
+    """:func:`choose_time_lapse` for the rig file at ``rig_path`` (its DAQ channels, its load
+    cells on CAN amplifiers and its sample rate)."""
+    from dimacq.io.rig_file import load_rig_file
+
+    rig = load_rig_file(rig_path)
+    n_channels = len(rig.hammers) + len(rig.responses)
+    n_channels += sum(len(e.daq_channels) for e in rig.load_cells if e.node_id is None)
+    n_cells = sum(1 for e in rig.load_cells if e.node_id is not None)
+    return choose_time_lapse(
+        imperfections,
+        n_channels=n_channels,
+        n_cells=n_cells,
+        sample_rate_hz=rig.daq.sample_rate_hz,
+    )
