@@ -98,6 +98,9 @@ class ImpactStream:
         for e in block.events:
             if e.kind == "drift":
                 buf.drift.append((e.first_sample, e.first_sample + e.n_samples))
+            elif e.kind == "device_error":
+                end = e.first_sample + max(e.n_samples, 1)
+                buf.errors.append((e.first_sample, end, e.message))
             self._event({"device": f"loadcell{k}", **asdict(e)})
 
     def _event(self, ev: dict[str, object]) -> None:

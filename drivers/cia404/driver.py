@@ -469,7 +469,7 @@ class Cia404Amplifier(WireDriver):
                     "the average running then is rejected",
                 )
             )
-        elif state == 0x05:
+        elif state == 0x05 and any(b is None for _, b in self._bad):
             self._bad = [(a, at if b is None else b) for a, b in self._bad]
             log.warning("%s: OPERATIONAL again at sample %d", self.name, at)
 

@@ -66,6 +66,8 @@ __all__ = [
     "ProcessValue",
     "TpdoPlan",
     "bus_load",
+    "decode_tpdo",
+    "encode_tpdo",
     "emcy_cob_id",
     "frame_bits",
     "mapping_entry",
@@ -253,7 +255,8 @@ def mapping_writes(
         comm, mapping = TPDO_COMM + k, TPDO_MAP + k
         plan = next((p for p in plans if p.number == k + 1), None)
         if plan is None:
-            out.append((comm, 1, u32(COB_ID_INVALID | tpdo_cob_id(node_id, min(k, 3)))))
+            cob = tpdo_cob_id(node_id, k) if k < 4 or (k < 8 and node_id <= 63) else 0
+            out.append((comm, 1, u32(COB_ID_INVALID | cob)))
             continue
         if len(plan.entries) > _MAX_ENTRIES:
             raise SetupError(f"TPDO{k + 1}: {len(plan.entries)} entries; at most 8")
