@@ -370,6 +370,7 @@ class Cia404Amplifier(WireDriver):
         self._count = 0  # SYNCs (or sample starts) seen since start
         self._decided = 0  # samples below this are filed or known incomplete
         self._cur: dict[int, bytes] = {}
+        self._last_full = -1  # the last sample filed whole
         self._stream: CounterStream[LoadCellEvent] = CounterStream(
             self.n_channels, flag_dtype=np.bool_
         )
@@ -404,8 +405,10 @@ class Cia404Amplifier(WireDriver):
         self._hb_lost_reported = False
         self._last_heartbeat = time.monotonic()
         self._nmt(p.NmtCommand.START)
-        # NMT is unconfirmed; an SDO answer comes after the node handled it (one queue)
+        # NMT is unconfirmed; an SDO answer comes after the node handled it (one queue), so
+        # every heartbeat from now on was sent in the state the command left: OPERATIONAL
         self._read_u32(p.DEVICE_TYPE)
+        self._nmt_state = 0x05
         self.streaming = True
         if not external_clock:
             self._host_sync = True
@@ -451,7 +454,8 @@ class Cia404Amplifier(WireDriver):
         )
 
     def _nmt_event(self, before: int, state: int) -> None:
-        at = self._count
+        # the heartbeat tells up to a period late: the node stopped after its last full sample
+        at = min(self._count, self._last_full + 1)
         if before == 0x05:
             name = p.NMT_STATES.get(state, f"0x{state:02X}")
             why = (
@@ -464,8 +468,8 @@ class Cia404Amplifier(WireDriver):
                 LoadCellEvent(
                     "device_error",
                     at,
-                    1,
-                    f"{self.name}: NMT state {name} (was OPERATIONAL) at sample {at}: {why}; "
+                    max(self._count - at, 1),
+                    f"{self.name}: NMT state {name} (was OPERATIONAL) from sample {at}: {why}; "
                     "the average running then is rejected",
                 )
             )
@@ -480,6 +484,7 @@ class Cia404Amplifier(WireDriver):
         self._decided = max(self._decided, self._count)
         if k < 0 or len(cur) < len(self.plans):
             return
+        self._last_full = k
         self._pending_k.append(k)
         self._pending.append(tuple(cur[j] for j in range(len(self.plans))))
 
