@@ -45,7 +45,14 @@ def resolved_interface(settings: Settings) -> tuple[str, str | None]:
         return settings.loadcell_interface, None
     import can
 
-    cfg = can.util.load_config()
+    try:
+        cfg = can.util.load_config()
+    except can.CanInterfaceNotImplementedError as err:
+        raise DeviceNotFoundError(
+            f"loadcell_interface is empty and python-can's configuration (~/.canrc, "
+            f"CAN_INTERFACE) names an unknown python-can interface ({err}); correct it or set "
+            "loadcell_interface (DIMACQ_LOADCELL_INTERFACE)"
+        ) from err
     ch = cfg.get("channel")
     return str(cfg.get("interface") or ""), None if ch is None else str(ch)
 

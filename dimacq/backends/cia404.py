@@ -120,9 +120,7 @@ def open_loadcell(ctx: DeviceContext, entry: LoadCellEntry) -> Cia404Amplifier:
     channel = shared_channel(
         ctx,
         f"{s.loadcell_interface}:{chan}",
-        lambda: open_can_bus(
-            s, backend="cia404", channel=chan, bitrate=s.loadcell_canopen_bitrate
-        ),
+        lambda: open_can_bus(s, backend="cia404", channel=chan, bitrate=s.loadcell_canopen_bitrate),
         where=where,
     )
     return open_node(ctx, entry, channel, where=where)

@@ -48,9 +48,7 @@ def _channel(ctx: DeviceContext) -> str:
         if e.node_id is None:
             continue
         inputs = [w.lab.channel_index(n) for n in gauge_names(e.node)]
-        node = Cia404NodeSim(
-            channel, eds, w.lab, inputs, node_id=e.node_id, serial_number=e.node
-        )
+        node = Cia404NodeSim(channel, eds, w.lab, inputs, node_id=e.node_id, serial_number=e.node)
         ctx.on_close(node.close)
         nodes.append(node)
     producer = SyncProducerSim(channel, w.clock, nodes)

@@ -284,7 +284,9 @@ class Cia404Amplifier(WireDriver):
                     "power, the bit rate (loadcell_canopen_bitrate) and its node_id in the rig file"
                 ) from err
             except can.CanError as err:
-                raise DeviceError(f"{self.name}: cannot send the SDO {what} of {name}: {err}") from err
+                raise DeviceError(
+                    f"{self.name}: cannot send the SDO {what} of {name}: {err}"
+                ) from err
 
         return self._exchange(f"SDO {what} {name}", attempt, idempotent=True)
 
@@ -296,9 +298,7 @@ class Cia404Amplifier(WireDriver):
         self._sdo("download", index, sub, lambda: self.node.sdo.download(index, sub, data))
 
     def _nmt(self, command: p.NmtCommand) -> None:
-        self._exchange(
-            f"NMT {command.name}", lambda d: self.node.nmt.send_command(int(command))
-        )
+        self._exchange(f"NMT {command.name}", lambda d: self.node.nmt.send_command(int(command)))
 
     # -- setup ----------------------------------------------------------------------------------
     def _expected(self, index: int, sub: int | None = None) -> int:
@@ -554,8 +554,7 @@ class Cia404Amplifier(WireDriver):
                 f"{self.name}: no heartbeat for {age:.2f} s (producer time {self.heartbeat_ms} "
                 "ms): the node may be lost; check its power and the CAN bus",
             )
-            self._bad.append((at, None))
-            self._record(ev)
+            self._record(ev)  # the samples that do arrive stay valid
 
     def read_until(self, end_sample: int, timeout_s: float | None = None) -> LoadCellBlock:
         """Samples up to ``end_sample − 1`` (waits until the SYNC after it, or the run's end).

@@ -67,8 +67,8 @@ __all__ = [
     "TpdoPlan",
     "bus_load",
     "decode_tpdo",
-    "encode_tpdo",
     "emcy_cob_id",
+    "encode_tpdo",
     "frame_bits",
     "mapping_entry",
     "mapping_writes",
@@ -123,7 +123,9 @@ def emcy_cob_id(node_id: int) -> int:
     return 0x080 + node_id
 
 
-def sdo_expedited_download(node_id: int, index: int, subindex: int, data: bytes) -> tuple[int, bytes]:
+def sdo_expedited_download(
+    node_id: int, index: int, subindex: int, data: bytes
+) -> tuple[int, bytes]:
     """The SDO request frame writing 1..4 bytes: ``(0x600 + n, [0x23 | (4 − size) << 2 ...])``
     (command: ccs 1, expedited, size indicated; data little endian, unused bytes 0)."""
     if not 1 <= len(data) <= 4:

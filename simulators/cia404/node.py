@@ -161,7 +161,9 @@ class Cia404NodeSim:
             out.append((cob & 0x7FF, entries))
         return out
 
-    def _pack(self, entries: list[tuple[int, int, int]], values: NDArray[np.float64]) -> list[bytes]:
+    def _pack(
+        self, entries: list[tuple[int, int, int]], values: NDArray[np.float64]
+    ) -> list[bytes]:
         """Payloads of one TPDO for ``values`` (n, inputs), as its mapping entries say."""
         n = values.shape[0]
         cols = []
@@ -194,7 +196,7 @@ class Cia404NodeSim:
         # a fault that takes the node out of OPERATIONAL within these SYNCs cuts them short
         first = self._syncs
         cut = n
-        for s, cmd in self.faults.nmt_at.items():
+        for s in self.faults.nmt_at:
             if first <= s < first + n:
                 cut = min(cut, s - first)
         values = self.source.read(self.inputs, world0, n).T if n else np.zeros((0, 0))

@@ -47,7 +47,7 @@ def test_mapping_entries_and_cob_ids() -> None:
     assert p.mapping_entry(0x7130, 3, 16) == 0x71300310
     # predefined connection set: TPDO1..4 = 0x180/0x280/0x380/0x480 + node
     assert [p.tpdo_cob_id(NODE, k) for k in range(4)] == [0x185, 0x285, 0x385, 0x485]
-    with pytest.raises(SetupError, match="node id of 1..63"):
+    with pytest.raises(SetupError, match=r"node id of 1\.\.63"):
         p.tpdo_cob_id(100, 4)
 
 

@@ -56,18 +56,28 @@ def rig(no_leaks: None) -> Iterator[Any]:
         name = f"cia404-test-{os.getpid()}-{next(_n)}"
         clock = SampleClock()
         node = Cia404NodeSim(
-            name, EDS, Ramp(), range(12), node_id=3, serial_number=77, faults=faults,
+            name,
+            EDS,
+            Ramp(),
+            range(12),
+            node_id=3,
+            serial_number=77,
+            faults=faults,
             identity=identity,
         )
         closers.append(node.close)
         prod = SyncProducerSim(name, clock, [node])
         closers.append(prod.close)
         ch = CanChannel(
-            can.Bus(interface="virtual", channel=name), bitrate=1_000_000, max_load=2.0,
+            can.Bus(interface="virtual", channel=name),
+            bitrate=1_000_000,
+            max_load=2.0,
             where="test",
         )
         closers.append(ch.close)
-        amp = Cia404Amplifier(ch, node_id=3, eds=EDS, timeout_s=2.0, heartbeat_ms=50, **kw)
+        amp = Cia404Amplifier(
+            ch, node_id=3, eds=EDS, timeout_s=2.0, heartbeat_ms=50, heartbeat_factor=60, **kw
+        )
         closers.append(amp.close)
         return amp, node, clock
 
@@ -147,7 +157,7 @@ def test_host_sync_is_refused_for_an_acquisition(rig: Any) -> None:
     amp, _node, _clock = rig(sync="host")
     amp.identify()
     amp.set_rate(1000)
-    with pytest.raises(SetupError, match="cannot be aligned .* loadcell_cia404_sync = 'daq'"):
+    with pytest.raises(SetupError, match=r"cannot be aligned .* loadcell_cia404_sync = 'daq'"):
         amp.start(external_clock=True)
 
 
