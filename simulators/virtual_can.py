@@ -14,16 +14,31 @@ from __future__ import annotations
 
 import queue
 import time
+import weakref
+from typing import Any
 
 import can
 from can.interfaces.virtual import VirtualBus
 
 __all__ = ["SimVirtualBus"]
 
+#: receive queue → the identifiers its bus accepts (a CAN controller's acceptance filter)
+_ACCEPT: weakref.WeakKeyDictionary[Any, frozenset[int]] = weakref.WeakKeyDictionary()
+
 
 class SimVirtualBus(VirtualBus):
     """``can.Bus(interface="virtual", channel=...)`` with a send that copies a frame's fields
-    (not ``deepcopy``); the rest is python-can's."""
+    (not ``deepcopy``); the rest is python-can's.
+
+    ``accept_ids``: the identifiers this bus receives (a CAN controller's hardware acceptance
+    filter: a simulated node that needs only its SDO and NMT frames is not handed the stream's
+    thousands of frames a second); None: all.
+    """
+
+    def __init__(self, *args: Any, accept_ids: frozenset[int] | None = None, **kw: Any) -> None:
+        super().__init__(*args, **kw)
+        if accept_ids is not None:
+            _ACCEPT[self.queue] = frozenset(accept_ids)
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
         self._check_if_open()
@@ -32,6 +47,9 @@ class SimVirtualBus(VirtualBus):
         all_sent = True
         for bus_queue in self.channel:
             if bus_queue is self.queue and not self.receive_own_messages:
+                continue
+            accept = _ACCEPT.get(bus_queue)
+            if accept is not None and msg.arbitration_id not in accept:
                 continue
             copy = can.Message(
                 timestamp=timestamp,

@@ -42,8 +42,8 @@ from __future__ import annotations
 
 import logging
 import struct
-import threading
 import time
+from collections import deque
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TypeVar
@@ -68,6 +68,8 @@ T = TypeVar("T")
 
 #: seconds without a frame after which a stopped run is taken as fully received
 _QUIET_S = 0.1
+#: how long a read waits before looking at the received frames again, s
+_POLL_S = 0.004
 #: markers among the received frames: an EMCY, an NMT state change
 _EMCY, _NMT = -1, -2
 
@@ -229,10 +231,8 @@ class Cia404Amplifier(WireDriver):
         self._scale: NDArray[np.float64] | None = None
         if calibration_matrix is not None:
             self.set_calibration_matrix(calibration_matrix)
-        self._lock = threading.Lock()
-        self._arrived = threading.Event()
         #: frames in arrival order (EMCY and NMT state changes among them, as markers)
-        self._rx: list[tuple[int, Any]] = []
+        self._rx: deque[tuple[int, Any]] = deque()
         self._reset_run()
         self._last_heartbeat: float | None = None
         self._hb_lost_reported = False
@@ -398,9 +398,8 @@ class Cia404Amplifier(WireDriver):
                 "'daq-channels')"
             )
         self._require_open()
-        with self._lock:
-            self._rx = []
-            self._reset_run()
+        self._rx.clear()
+        self._reset_run()
         self.events = []
         self._hb_lost_reported = False
         self._last_heartbeat = time.monotonic()
@@ -416,25 +415,20 @@ class Cia404Amplifier(WireDriver):
 
     # -- receive thread -----------------------------------------------------------------------
     def _on_frame(self, can_id: int, data: bytearray, timestamp: float) -> None:
-        if not self.streaming:
-            return
-        with self._lock:
-            self._rx.append((can_id, bytes(data)))
-        self._arrived.set()
+        # thousands a second: a deque append (thread-safe), no lock, no wake-up (read_until
+        # polls; the DAQ's reads pace it)
+        if self.streaming:
+            self._rx.append((can_id, data))
 
     def _on_emcy(self, e: Any) -> None:
         if self.streaming and int(e.code) & 0xFF00:  # not an error reset, in a run
-            with self._lock:
-                self._rx.append((_EMCY, e))
-            self._arrived.set()
+            self._rx.append((_EMCY, e))
 
     def _on_heartbeat(self, state: int) -> None:
         self._last_heartbeat = time.monotonic()
         before, self._nmt_state = self._nmt_state, state
         if self.streaming and before is not None and state != before:
-            with self._lock:
-                self._rx.append((_NMT, (before, state)))
-            self._arrived.set()
+            self._rx.append((_NMT, (before, state)))
 
     def _emcy_event(self, e: Any) -> None:
         """An EMCY filed in frame order: the sample being taken when it came is rejected."""
@@ -489,9 +483,8 @@ class Cia404Amplifier(WireDriver):
         self._pending.append(tuple(cur[j] for j in range(len(self.plans))))
 
     def _file_pending(self) -> None:
-        with self._lock:
-            frames, self._rx = self._rx, []
-            self._arrived.clear()
+        rx = self._rx
+        frames = [rx.popleft() for _ in range(len(rx))]
         host = self.sync == "host" or self._host_sync
         index = self._cob_index
         for cob, data in frames:
@@ -578,7 +571,7 @@ class Cia404Amplifier(WireDriver):
                     f"{deadline.timeout_s:g} s ({self._decided} in, {self._count} SYNCs); is "
                     "the SYNC sent on the DAQ's clock and the node OPERATIONAL?"
                 )
-            self._arrived.wait(min(max(deadline.left(), 0.0), 0.02))
+            time.sleep(min(max(deadline.left(), 0.0), _POLL_S))
         return self._take(end_sample)
 
     def _take(self, end: int) -> LoadCellBlock:
@@ -622,7 +615,7 @@ class Cia404Amplifier(WireDriver):
             self._file_pending()
             if self._count != seen:
                 seen, quiet = self._count, Deadline(_QUIET_S)
-            self._arrived.wait(0.02)
+            time.sleep(_POLL_S)
         if self._host_sync:
             self._host_sync = False
             self.channel.stop_host_sync()

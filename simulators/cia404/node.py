@@ -93,7 +93,10 @@ class Cia404NodeSim:
         self.inputs = np.asarray(inputs, dtype=np.intp)
         self.node_id = node_id
         self.faults = faults if faults is not None else Cia404Faults()
-        self.network = canopen.Network(SimVirtualBus(channel=channel))
+        # the node's controller accepts NMT and its SDO requests (SYNC comes through on_sync)
+        self.network = canopen.Network(
+            SimVirtualBus(channel=channel, accept_ids=frozenset({0x000, 0x600 + node_id}))
+        )
         self.network.NOTIFIER_CYCLE = 0.1
         self.node = canopen.LocalNode(node_id, canopen.import_od(str(eds), node_id))
         if not self.faults.silent:
@@ -159,7 +162,7 @@ class Cia404NodeSim:
                 v = int(mapping[s].raw)
                 entries.append((v >> 16, (v >> 8) & 0xFF, v & 0xFF))
             out.append((cob & 0x7FF, entries))
-        return out
+        return sorted(out)  # sent in identifier order (arbitration)
 
     def _pack(
         self, entries: list[tuple[int, int, int]], values: NDArray[np.float64]
@@ -235,7 +238,7 @@ class SyncProducerSim:
         self.sent = 0  # SYNCs of this run
         self._run = -1
         self._stop_evt = threading.Event()
-        self.bus = SimVirtualBus(channel=channel)
+        self.bus = SimVirtualBus(channel=channel, accept_ids=frozenset())  # it only sends
         self._thread = threading.Thread(target=self._loop, name=f"cia404-sync-{channel}")
         self._thread.start()
 
@@ -265,9 +268,11 @@ class SyncProducerSim:
             answers = [node.on_sync(world0, n) for node in self.nodes]
         send, Msg = self.bus.send, can.Message
         sync = Msg(arbitration_id=p.SYNC_COB_ID, data=b"", is_extended_id=False)
+        one = len(answers) == 1  # one node: its TPDOs are already in identifier order
         for j in range(n):
             send(sync)
-            frames = sorted(f for a in answers for f in a[j])  # arbitration: lowest id first
+            # arbitration: the lowest identifier first
+            frames = answers[0][j] if one else sorted(f for a in answers for f in a[j])
             for cob, data in frames:
                 send(Msg(arbitration_id=cob, data=data, is_extended_id=False))
         self.sent += n
