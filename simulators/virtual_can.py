@@ -14,16 +14,12 @@ from __future__ import annotations
 
 import queue
 import time
-import weakref
 from typing import Any
 
 import can
 from can.interfaces.virtual import VirtualBus
 
 __all__ = ["SimVirtualBus"]
-
-#: receive queue → the identifiers its bus accepts (a CAN controller's acceptance filter)
-_ACCEPT: weakref.WeakKeyDictionary[Any, frozenset[int]] = weakref.WeakKeyDictionary()
 
 
 class SimVirtualBus(VirtualBus):
@@ -37,8 +33,8 @@ class SimVirtualBus(VirtualBus):
 
     def __init__(self, *args: Any, accept_ids: frozenset[int] | None = None, **kw: Any) -> None:
         super().__init__(*args, **kw)
-        if accept_ids is not None:
-            _ACCEPT[self.queue] = frozenset(accept_ids)
+        if accept_ids is not None:  # on the receive queue, where every sender looks
+            self.queue.accept_ids = frozenset(accept_ids)  # type: ignore[attr-defined]
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
         self._check_if_open()
@@ -48,7 +44,7 @@ class SimVirtualBus(VirtualBus):
         for bus_queue in self.channel:
             if bus_queue is self.queue and not self.receive_own_messages:
                 continue
-            accept = _ACCEPT.get(bus_queue)
+            accept = getattr(bus_queue, "accept_ids", None)
             if accept is not None and msg.arbitration_id not in accept:
                 continue
             copy = can.Message(

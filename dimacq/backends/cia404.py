@@ -31,7 +31,7 @@ def shared_channel(
     time, closed with the context after its nodes)."""
     got = ctx.shared.get(f"cia404-channel:{key}")
     if got is not None:
-        return got  # type: ignore[no-any-return]
+        return got
     s = ctx.settings
     bus = open_bus()
     try:

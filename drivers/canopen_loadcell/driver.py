@@ -321,7 +321,7 @@ class CanopenLoadCell(SyncCounting, WireDriver):
         the node's producer heartbeat is set to ``heartbeat_ms`` and the mapping read. First the
         node must be the device its EDS describes (device type ``0x1000``, vendor and product
         ``0x1018:01/02``): else a one-line SetupError naming both."""
-        od = self.node.object_dictionary
+        od: Any = self.node.object_dictionary
         got = (self._read_int(0x1000), self._read_int(p.IDENTITY, 1), self._read_int(p.IDENTITY, 2))
         want = (
             int(od[0x1000].default or 0),

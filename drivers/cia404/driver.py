@@ -216,13 +216,13 @@ class Cia404Amplifier(WireDriver):
         self.events: list[LoadCellEvent] = []
         self.streaming = False
         try:
-            od = canopen.import_od(str(eds), node_id)
+            od: Any = canopen.import_od(str(eds), node_id)
         except Exception as err:
             raise SetupError(
                 f"{what}: cannot read the EDS file {eds} ({type(err).__name__}: {err}); give the "
                 "amplifier's EDS (loadcell_cia404_eds)"
             ) from err
-        self.od = od
+        self.od: Any = od
         self.pv = p.process_value(od, process_value, where=what)
         n_tpdos = sum(1 for k in range(512) if p.TPDO_COMM + k in od and p.TPDO_MAP + k in od)
         self.n_tpdos = n_tpdos

@@ -101,7 +101,8 @@ class Cia404NodeSim:
         self.node = canopen.LocalNode(node_id, canopen.import_od(str(eds), node_id))
         if not self.faults.silent:
             self.network.add_node(self.node)
-        od = self.node.sdo
+        self._od: Any = self.node.sdo  # the node's own dictionary, read and written locally
+        od: Any = self.node.sdo
         od[p.IDENTITY][4].raw = int(serial_number) & 0xFFFFFFFF
         for key, value in (identity or {}).items():
             obj = od[key] if isinstance(key, int) else od[key[0]][key[1]]
@@ -139,14 +140,14 @@ class Cia404NodeSim:
         if index in (p.REAL32_PV.index, p.INT16_PV.index) and 1 <= subindex <= len(self.inputs):
             v = float(self.last_values[subindex - 1])
             if index == p.INT16_PV.index:
-                digits = int(self.node.sdo[p.AI_DECIMAL_DIGITS][subindex].raw)
+                digits = int(self._od[p.AI_DECIMAL_DIGITS][subindex].raw)
                 return int(np.clip(np.rint(v * 10**digits), -32768, 32767))
             return v
         return None
 
     def _read_layout(self) -> list[tuple[int, list[tuple[int, int, int]]]]:
         """Valid synchronous TPDOs from the node's own 0x1800/0x1A00: (COB-ID, entries)."""
-        od = self.node.sdo
+        od: Any = self.node.sdo
         out = []
         k = 0
         while p.TPDO_COMM + k in self.node.object_dictionary:
@@ -175,7 +176,7 @@ class Cia404NodeSim:
             if index == p.REAL32_PV.index and bits == 32:
                 cols.append(np.ascontiguousarray(v, dtype="<f4").view(np.uint8).reshape(n, 4))
             elif index == p.INT16_PV.index and bits == 16:
-                digits = int(self.node.sdo[p.AI_DECIMAL_DIGITS][sub].raw)
+                digits = int(self._od[p.AI_DECIMAL_DIGITS][sub].raw)
                 iv = np.clip(np.rint(v * 10**digits), -32768, 32767).astype("<i2")
                 cols.append(iv.view(np.uint8).reshape(n, 2))
             else:  # an object this firmware does not sample: zeros of its length
