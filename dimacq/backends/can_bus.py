@@ -60,7 +60,7 @@ def resolved_interface(settings: Settings) -> tuple[str, str | None]:
 def _bit_timing(settings: Settings) -> Any:
     import can
 
-    t = dict(settings.loadcell_can_bit_timing)
+    t: dict[str, Any] = dict(settings.loadcell_can_bit_timing)
     unknown = sorted(set(t) - set(_TIMING_KEYS))
     missing = [k for k in _TIMING_KEYS[:5] if k not in t]
     if unknown or missing:
