@@ -88,15 +88,18 @@ class Cia404NodeSim:
         serial_number: int = 0,
         identity: dict[Any, int] | None = None,
         faults: Cia404Faults | None = None,
+        hear_sync: bool = False,
     ) -> None:
         self.source = source
         self.inputs = np.asarray(inputs, dtype=np.intp)
         self.node_id = node_id
         self.faults = faults if faults is not None else Cia404Faults()
-        # the node's controller accepts NMT and its SDO requests (SYNC comes through on_sync)
-        self.network = canopen.Network(
-            SimVirtualBus(channel=channel, accept_ids=frozenset({0x000, 0x600 + node_id}))
-        )
+        # the node's controller accepts NMT and its SDO requests; SYNC comes through on_sync
+        # from the producer on the DAQ's clock, or (hear_sync) from the bus: a host's SYNC,
+        # sampled on the node's own clock (one sample per SYNC from world sample 0)
+        accept = {0x000, 0x600 + node_id} | ({p.SYNC_COB_ID} if hear_sync else set())
+        self.network = canopen.Network(SimVirtualBus(channel=channel, accept_ids=frozenset(accept)))
+        self._own_world = 0
         self.network.NOTIFIER_CYCLE = 0.1
         self.node = canopen.LocalNode(node_id, canopen.import_od(str(eds), node_id))
         if not self.faults.silent:
@@ -115,6 +118,8 @@ class Cia404NodeSim:
         self._layout: list[tuple[int, list[tuple[int, int, int]]]] = []
         self.last_values = np.zeros(len(self.inputs))
         self.network.connect()
+        if hear_sync:
+            self.network.subscribe(p.SYNC_COB_ID, self._on_bus_sync)
         self.node.add_read_callback(self._on_read)
         if not self.faults.silent:
             self.node.nmt.send_command(0x80)  # boot-up → PRE-OPERATIONAL, heartbeat per 0x1017
@@ -185,6 +190,13 @@ class Cia404NodeSim:
         return [bytes(r) for r in raw]
 
     # -- SYNC --------------------------------------------------------------------------------------
+    def _on_bus_sync(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        """A SYNC heard on the bus: this sample's frames sent at once (its own clock)."""
+        (frames,) = self.on_sync(self._own_world, 1)
+        self._own_world += 1
+        for cob, payload in frames:
+            self.network.send_message(cob, payload)
+
     def on_sync(self, world0: int, n: int) -> list[list[tuple[int, bytes]]]:
         """``n`` SYNCs at world samples ``world0 ..``: per SYNC, the frames the node sends."""
         empty: list[list[tuple[int, bytes]]] = [[] for _ in range(n)]

@@ -51,7 +51,10 @@ def rig(no_leaks: None) -> Iterator[Any]:
     closers: list[Any] = []
 
     def make(
-        faults: Cia404Faults | None = None, identity: dict[Any, int] | None = None, **kw: Any
+        faults: Cia404Faults | None = None,
+        identity: dict[Any, int] | None = None,
+        hear_sync: bool = False,
+        **kw: Any,
     ) -> tuple[Cia404Amplifier, Cia404NodeSim, SampleClock]:
         name = f"cia404-test-{os.getpid()}-{next(_n)}"
         clock = SampleClock()
@@ -64,6 +67,7 @@ def rig(no_leaks: None) -> Iterator[Any]:
             serial_number=77,
             faults=faults,
             identity=identity,
+            hear_sync=hear_sync,
         )
         closers.append(node.close)
         prod = SyncProducerSim(name, clock, [node])
@@ -181,3 +185,17 @@ def test_the_bus_load_is_summed_over_the_channels_nodes() -> None:
             ch.register(2, (8,))
     finally:
         ch.close()
+
+
+def test_host_sync_readings_on_the_nodes_own_time(rig: Any) -> None:
+    """``external_clock=False``: the driver's periodic SYNC (``canopen``'s producer), which the
+    node answers at once; samples start with the lowest TPDO (the host hears not its own SYNC)."""
+    amp, _node, _clock = rig(sync="host", hear_sync=True)
+    amp.identify()
+    amp.set_rate(200)
+    amp.start(external_clock=False)
+    block = amp.read_until(40, timeout_s=10.0)
+    counted = amp.stop()
+    assert counted >= 40 and block.valid.all()
+    want = Ramp().read(np.arange(12), 0, 40).astype("<f4").astype(float)
+    np.testing.assert_array_equal(block.gauges_v, want)
