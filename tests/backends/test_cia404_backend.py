@@ -204,3 +204,48 @@ def test_a_real_bus_refuses_the_load_the_simulated_one_only_reports(
             amp = lookup("loadcell", "cia404-simulated")(ctx, ctx.rig_file.load_cells[0])
             amp.set_rate(2048)
     assert any("a real bus would be" in r.getMessage() for r in caplog.records)
+
+
+def test_real_backend_path_on_a_node_of_the_generic_eds(tmp_path: Path) -> None:
+    """``loadcell = "cia404"`` (the real backend's code) on ``virtual`` with a node simulator:
+    the devices check identifies it, serial number against cell 501's calibration file."""
+    channel = f"dimacq-cia404real-{os.getpid()}-{uuid.uuid4().hex[:8]}"
+    settings = _real(
+        tmp_path,
+        loadcell="cia404",
+        loadcell_interface="virtual",
+        loadcell_virtual_ok=True,
+        loadcell_channel=channel,
+    )
+
+    class Zero:
+        sample_rate_hz = 1000.0
+
+        def read(self, channels: Any, start: int, n: int) -> Any:
+            return np.zeros((len(channels), n))
+
+    eds = settings.loadcell_cia404_eds_path
+    with Cia404NodeSim(channel, eds, Zero(), range(12), node_id=1, serial_number=501):
+        got = rig_builder.check_devices(settings, "loadcell")
+    assert got["load_cells"]["501"]["serial_number"] == 501
+
+
+def test_the_x38s_three_cells_share_one_bus(tmp_path: Path) -> None:
+    """Three nodes on one channel: one ``can.Bus``, one ``canopen.Network``, and the summed
+    load of 3 × (6 TPDOs) + SYNC at the X-38's 256 S/s: 3 × 810 + 55 bits, 63.6 %."""
+    from dimacq.config import scenario_rig_file
+
+    settings = load_settings(
+        data_dir=tmp_path,
+        token="t",
+        loadcell="cia404-simulated",
+        scenario="x38",
+        rig_file=scenario_rig_file("x38"),
+    )
+    with DeviceContext(settings) as ctx:
+        cells = [lookup("loadcell", "cia404-simulated")(ctx, e) for e in ctx.rig_file.load_cells]
+        assert len(cells) == 3 and len({id(c.channel) for c in cells}) == 1
+        assert len({id(c.channel.bus) for c in cells}) == 1
+        assert sorted(cells[0].channel.nodes) == [1, 2, 3]
+        load = cells[0].channel.check_load(256)
+        assert load == pytest.approx((3 * 6 * 135 + 55) * 256 / 1e6)
