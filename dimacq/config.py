@@ -91,8 +91,19 @@ class Settings(BaseSettings):
     #: largest uploaded file (setup or UFF import), bytes (413 above it)
     max_upload_bytes: int = Field(default=256 * 1024 * 1024, ge=1024, le=2**40)
     digitizer_url: str = "simdigitizer://lab?seed=0"
-    loadcell_interface: str = "virtual"
+    #: python-can interface of the real CAN load cell backends ("pcan", "socketcan", ...; ""
+    #: = python-can's own configuration: ~/.canrc, CAN_INTERFACE / CAN_CHANNEL / CAN_BITRATE).
+    #: "virtual" (python-can's in-process bus) is refused with a real backend unless
+    #: ``loadcell_virtual_ok`` (tests that put a simulator on it).
+    loadcell_interface: str = ""
     loadcell_channel: str = "dimacq-lab"
+    loadcell_virtual_ok: bool = False
+    #: further keyword arguments of ``can.Bus`` (interface-specific: PCAN ``device_id``, Kvaser
+    #: ``accept_virtual``, socketcan ``receive_own_messages`` ...), passed through as given
+    loadcell_can_options: dict[str, str | int | float | bool] = Field(default_factory=dict)
+    #: explicit classic-CAN bit timing (``can.BitTiming``: ``f_clock``, ``brp``, ``tseg1``,
+    #: ``tseg2``, ``sjw``, optional ``nof_samples``) instead of a bit rate; {} = the bit rate
+    loadcell_can_bit_timing: dict[str, int] = Field(default_factory=dict)
     #: Rate mismatch of the DAQ's sample clock (SYNC) and a load cell amplifier's oscillator
     #: taken for crystal tolerance, ppm: estimated and corrected; beyond it a ``drift`` event.
     loadcell_clock_tolerance_ppm: float = Field(default=100.0, ge=0.0, lt=1e5)
@@ -137,6 +148,17 @@ class Settings(BaseSettings):
     loadcell_canopen_node_ids: list[int] = Field(default_factory=list)
     loadcell_canopen_heartbeat_ms: int = Field(default=200, ge=10, le=10_000)
     loadcell_canopen_heartbeat_factor: float = Field(default=5.0, ge=1.5, le=100.0)
+    # Generic CiA 404 amplifiers (loadcell = "cia404" | "cia404-simulated",
+    # dimacq.backends.cia404): their EDS (relative paths from the config file's folder), who
+    # sends the SYNC ("daq": a producer on the DAQ's sample clock; "host": this PC's timer,
+    # bench readings only), which process value to map ("auto": 0x6130 REAL32 when the EDS has
+    # it, else 0x7130 INTEGER16), the largest summed bus load accepted, and the number of inputs
+    # of a cell without a calibration file (else its matrix's columns).
+    loadcell_cia404_eds: str = "canopen/cia404-generic.eds"
+    loadcell_cia404_sync: Literal["daq", "host"] = "daq"
+    loadcell_cia404_process_value: Literal["auto", "0x6130", "0x7130"] = "auto"
+    loadcell_cia404_max_bus_load: float = Field(default=0.70, gt=0.0, le=1.0)
+    loadcell_cia404_channels: int = Field(default=12, ge=1, le=64)
     # ATI Net F/T on CAN (loadcell = "netft-can" | "netft-can-simulated",
     # dimacq.backends.netft_can): the classic CAN bit rate its DIP switches set, bit/s.
     loadcell_netft_bitrate: int = Field(default=1_000_000, gt=0, le=1_000_000)
@@ -225,6 +247,12 @@ class Settings(BaseSettings):
         """The CANopen amplifiers' EDS file (``loadcell_canopen_eds``; relative paths from the
         config file's folder)."""
         p = Path(self.loadcell_canopen_eds).expanduser()
+        return p if p.is_absolute() else default_config_file().parent / p
+
+    @property
+    def loadcell_cia404_eds_path(self) -> Path:
+        """The CiA 404 amplifiers' EDS (``loadcell_cia404_eds``, relative to the config file)."""
+        p = Path(self.loadcell_cia404_eds).expanduser()
         return p if p.is_absolute() else default_config_file().parent / p
 
     def resolved_token(self) -> str:

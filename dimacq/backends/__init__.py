@@ -41,6 +41,12 @@ setting    name                what opens the device
                                readings only, refuses an acquisition on the DAQ's clock
 ``loadcell`` ``"netft-udp-simulated"`` :func:`dimacq.backends.netft_simulated.open_udp_loadcell`:
                                the same driver on loopback to an RDT simulator
+``loadcell`` ``"cia404"``      :func:`dimacq.backends.cia404.open_loadcell`: generic CiA 404
+                               amplifiers (EDS ``loadcell_cia404_eds``): process values mapped
+                               into synchronous TPDOs by SDO, one shared ``can.Bus`` per channel
+``loadcell`` ``"cia404-simulated"`` :func:`dimacq.backends.cia404_simulated.open_loadcell`: the
+                               same code on a ``virtual`` channel to ``canopen.LocalNode``
+                               simulators of the generic EDS and a SYNC producer on the DAQ's clock
 ``digitizer`` ``"serial"``     :func:`dimacq.backends.serial_digitizer.open_digitizer`: pyserial
                                URL ``digitizer_url``
 ``digitizer`` ``"simulated"``  :func:`dimacq.backends.simulated.open_digitizer`: the same driver on
@@ -92,6 +98,8 @@ BACKENDS: dict[str, dict[str, str]] = {
         "netft-can-simulated": "dimacq.backends.netft_simulated:open_loadcell",
         "netft-udp": "dimacq.backends.netft_udp:open_loadcell",
         "netft-udp-simulated": "dimacq.backends.netft_simulated:open_udp_loadcell",
+        "cia404": "dimacq.backends.cia404:open_loadcell",
+        "cia404-simulated": "dimacq.backends.cia404_simulated:open_loadcell",
     },
     "digitizer": {
         "serial": "dimacq.backends.serial_digitizer:open_digitizer",
@@ -113,6 +121,7 @@ _SIMULATED_MODULES = frozenset(
         "dimacq.backends.canopen_simulated",
         "dimacq.backends.netft_simulated",
         "dimacq.backends.mcc_simulated",
+        "dimacq.backends.cia404_simulated",
     }
 )
 

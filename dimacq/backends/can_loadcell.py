@@ -14,6 +14,7 @@ from __future__ import annotations
 from typing import Any
 
 from dimacq.backends.base import DeviceContext
+from dimacq.backends.can_bus import open_can_bus
 from dimacq.drivers.loadcell import protocol as lp
 from dimacq.drivers.loadcell.driver import LoadCellAmplifier
 from dimacq.errors import DataError, DeviceNotFoundError, DeviceTimeoutError, SetupError
@@ -95,7 +96,7 @@ def open_amplifier(
     ctx: DeviceContext,
     entry: LoadCellEntry,
     *,
-    interface: str,
+    interface: str | None,
     channel: str,
     where: str,
     timeout_s: float = 2.0,
@@ -103,7 +104,8 @@ def open_amplifier(
     timing: Any = None,
     retries: int = 2,
 ) -> LoadCellAmplifier:
-    """Open the amplifier of ``entry`` on ``can.Bus(interface, channel)`` (CAN FD, with the
+    """Open the amplifier of ``entry`` on ``can.Bus(interface, channel)`` (``interface`` None:
+    the real adapter of the settings, :func:`~dimacq.backends.can_bus.open_can_bus`; CAN FD, with the
     ``can.BitTimingFd`` ``timing`` when given), calibrated from its file; the bus's closer goes
     to ``ctx``. ``require_calibration=False`` (bench calibration of a new cell): a missing
     calibration file is allowed (no matrix is set); an existing one must still belong to the
@@ -123,23 +125,28 @@ def open_amplifier(
     missing = not ctx.rig_file.calibration_path(entry).exists()
     cal = None if (missing and not require_calibration) else read_entry_calibration(ctx, entry)
     extra = {} if timing is None else {"timing": timing}
-    try:
-        bus = can.Bus(
-            interface=interface,
+    if interface is None:  # a real adapter: the settings' interface or python-can's own
+        bus = open_can_bus(
+            ctx.settings,
+            backend="dimacq-can",
             channel=channel,
             fd=True,
             can_filters=_filters(node_id),
             **extra,
         )
-    except Exception as err:  # python-can raises anything: NameError without the vendor library
-        why = f"{type(err).__name__}: {err}".replace("\n", " ")
-        if isinstance(err, (NameError, ImportError, AttributeError)):
-            why = f"the vendor library of interface {interface!r} is missing ({why})"
-        raise DeviceNotFoundError(
-            f"{where}: cannot open the CAN bus ({why}); install the adapter's driver and "
-            "library, or set loadcell_interface/loadcell_channel (DIMACQ_LOADCELL_INTERFACE/"
-            f"_CHANNEL) and the bit timing ({_TIMING_SETTINGS})"
-        ) from err
+    else:
+        try:
+            bus = can.Bus(
+                interface=interface,
+                channel=channel,
+                fd=True,
+                can_filters=_filters(node_id),
+                **extra,
+            )
+        except Exception as err:  # python-can raises anything without the vendor library
+            raise DeviceNotFoundError(
+                f"{where}: cannot open the CAN bus ({type(err).__name__}: {err})"
+            ) from err
     try:
         amp = LoadCellAmplifier(
             bus,
@@ -178,7 +185,7 @@ def open_loadcell(ctx: DeviceContext, entry: LoadCellEntry) -> LoadCellAmplifier
     return open_amplifier(
         ctx,
         entry,
-        interface=s.loadcell_interface,
+        interface=None,
         channel=channel,
         timing=bit_timing(s, entry),
         require_calibration=ctx.calibration_bench != entry.node,

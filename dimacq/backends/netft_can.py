@@ -15,6 +15,7 @@ from __future__ import annotations
 from typing import Any
 
 from dimacq.backends.base import DeviceContext
+from dimacq.backends.can_bus import open_can_bus
 from dimacq.drivers.netft import protocol as p
 from dimacq.drivers.netft.can_driver import NetFtCan, bus_filters
 from dimacq.errors import DeviceNotFoundError, DeviceTimeoutError, SetupError
@@ -91,8 +92,6 @@ def open_netft(
 
 def open_loadcell(ctx: DeviceContext, entry: LoadCellEntry) -> NetFtCan:
     """The table entry ``loadcell = "netft-can"``."""
-    import can
-
     s = ctx.settings
     channel = entry.channel or s.loadcell_channel
     where = (
@@ -100,16 +99,11 @@ def open_loadcell(ctx: DeviceContext, entry: LoadCellEntry) -> NetFtCan:
         f"{channel!r}, loadcell_netft_bitrate = {s.loadcell_netft_bitrate}"
     )
     base = require_base(entry, where)
-    try:
-        bus = can.Bus(
-            interface=s.loadcell_interface,
-            channel=channel,
-            bitrate=s.loadcell_netft_bitrate,
-            can_filters=bus_filters(base),
-        )
-    except Exception as err:  # python-can raises anything: NameError without the vendor library
-        raise DeviceNotFoundError(
-            f"{where}: cannot open the CAN bus ({type(err).__name__}: {err}); install the "
-            "adapter's driver, or set loadcell_interface/loadcell_channel"
-        ) from err
+    bus = open_can_bus(
+        s,
+        backend="netft-can",
+        channel=channel,
+        bitrate=s.loadcell_netft_bitrate,
+        can_filters=bus_filters(base),
+    )
     return open_netft(ctx, entry, bus, where=where)

@@ -280,6 +280,8 @@ class ImpactSession(ImpactStream):
                 reasons.append(f"load cell {k} overload")
             if any(a < s0 + n and b > s0 for a, b in buf.drift):
                 reasons.append(f"load cell {k} clock drift")
+            errs = {m for a, b, m in buf.errors if a < s0 + n and b > s0}
+            reasons.extend(f"load cell {k} device error: {m}" for m in sorted(errs))
             lc_rows.append(d)
         out = np.concatenate([data[self.response_rows], *lc_rows], axis=0)
         return reasons, {"force": force[None], "outputs": out}

@@ -98,6 +98,10 @@ class ImpactStream:
         for e in block.events:
             if e.kind == "drift":
                 buf.drift.append((e.first_sample, e.first_sample + e.n_samples))
+            elif e.kind == "device_error" and e.n_samples > 0:
+                # an EMCY or an NMT state naming its samples (a heartbeat note names none: the
+                # samples that arrived are good)
+                buf.errors.append((e.first_sample, e.first_sample + e.n_samples, e.message))
             self._event({"device": f"loadcell{k}", **asdict(e)})
 
     def _event(self, ev: dict[str, object]) -> None:

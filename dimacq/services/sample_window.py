@@ -26,6 +26,8 @@ class SampleWindow:
         self._valid = np.zeros(capacity, dtype=bool)
         self._over = np.zeros((n_rows, capacity), dtype=bool)
         self.drift: list[tuple[int, int]] = []
+        #: device errors (an amplifier's EMCY, its NMT state leaving OPERATIONAL): [a, b) and why
+        self.errors: list[tuple[int, int, str]] = []
 
     @property
     def end(self) -> int:

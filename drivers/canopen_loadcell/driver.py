@@ -318,7 +318,24 @@ class CanopenLoadCell(SyncCounting, WireDriver):
 
     def identify(self) -> LoadCellIdentity:
         """Serial number (``0x1018:04``), software version (``0x100A``), gauges (``0x6100:00``);
-        the node's producer heartbeat is set to ``heartbeat_ms`` and the mapping read."""
+        the node's producer heartbeat is set to ``heartbeat_ms`` and the mapping read. First the
+        node must be the device its EDS describes (device type ``0x1000``, vendor and product
+        ``0x1018:01/02``): else a one-line SetupError naming both."""
+        od: Any = self.node.object_dictionary
+        got = (self._read_int(0x1000), self._read_int(p.IDENTITY, 1), self._read_int(p.IDENTITY, 2))
+        want = (
+            int(od[0x1000].default or 0),
+            int(od[p.IDENTITY][1].default or 0),
+            int(od[p.IDENTITY][2].default or 0),
+        )
+        if got != want:
+            raise SetupError(
+                f"{self.name} answers device type 0x{got[0]:08X}, vendor 0x{got[1]:08X}, product "
+                f"0x{got[2]:08X} but its EDS describes 0x{want[0]:08X}, 0x{want[1]:08X}, "
+                f"0x{want[2]:08X}: another device is at this node id; give its own EDS "
+                "(loadcell_canopen_eds, or loadcell = 'cia404' for a generic CiA 404 amplifier) "
+                "or correct node_id in the rig file"
+            )
         serial = self._read_int(p.IDENTITY, 4)
         firmware = self._read(0x100A).decode("ascii", "replace").strip("\0 ")
         n_gauges = self._read_int(p.GAUGES, 0)

@@ -36,6 +36,7 @@ def test_static_run_with_prompts_over_http(tmp_path: Path) -> None:
         daq_vendor_id=0xFFFE,
         daq_product_id=0xFFFE,
         loadcell_interface="virtual",
+        loadcell_virtual_ok=True,  # a simulator on python-can's in-process bus
         loadcell_channel=channel,
         rig_file=str(rig_dir / "rig.toml"),
     )

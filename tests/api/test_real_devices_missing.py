@@ -25,6 +25,7 @@ def real_api(tmp_path: Path, database_url: str) -> Iterator[httpx.Client]:
         daq_vendor_id=0xFFFE,
         daq_product_id=0xFFFE,
         loadcell_interface="virtual",
+        loadcell_virtual_ok=True,  # a simulator on python-can's in-process bus
         loadcell_channel=f"absent-{tmp_path.name}",
     )
     with (

@@ -91,6 +91,7 @@ def test_bench_calibration_of_the_configured_canopen_cell(tmp_path: Path) -> Non
         daq_backend="libusb",
         loadcell="canopen",
         loadcell_interface="virtual",
+        loadcell_virtual_ok=True,  # the documented way: a simulator on the in-process bus
         loadcell_channel=channel,
         rig_file=str(rig_dir / "rig.toml"),
     )

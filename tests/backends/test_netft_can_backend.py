@@ -77,6 +77,8 @@ def test_rig_file_items_named(tmp_path: Path, drop: str, match: str) -> None:
         data_dir=tmp_path,
         token="t",
         loadcell="netft-can",
+        loadcell_interface="virtual",
+        loadcell_virtual_ok=True,
         loadcell_channel=f"netft-none-{tmp_path.name}",
         rig_file=str(tmp_path / "rig.toml"),
     )

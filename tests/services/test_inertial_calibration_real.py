@@ -56,6 +56,7 @@ def _settings(tmp_path: Path, world: VirtualWorld, rig_file: Path) -> Any:
         token="t",
         daq_backend=FACTORY,
         loadcell_interface="virtual",
+        loadcell_virtual_ok=True,  # a simulator on python-can's in-process bus
         loadcell_channel=world.channel,
         rig_file=str(rig_file),
     )

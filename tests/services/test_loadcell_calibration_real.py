@@ -51,6 +51,7 @@ def test_static_calibration_of_the_configured_cell(tmp_path: Path) -> None:
         data_dir=tmp_path / "data",
         token="t",
         loadcell_interface="virtual",
+        loadcell_virtual_ok=True,  # a simulator on python-can's in-process bus
         loadcell_channel=channel,
         rig_file=str(rig_dir / "rig.toml"),
         daq_backend="libusb",

@@ -39,6 +39,7 @@ def _settings(tmp_path: Path, world: VirtualWorld, **kw: Any) -> Any:
         "digitizer_url": "simdigitizer://realrig?seed=1",
         "daq_backend": FACTORY,
         "loadcell_interface": "virtual",
+        "loadcell_virtual_ok": True,  # a simulator on python-can's in-process bus
         "loadcell_channel": world.channel,
         "rig_file": str(world.rig_file),
     }
