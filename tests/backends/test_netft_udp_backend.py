@@ -52,7 +52,7 @@ def _impact(tmp_path: Path, loadcell: str, rig_file: Path | None = None) -> Any:
         **extra,
     )
     setup = build_scenario(settings.scenario).model.setup
-    setup = setup.model_copy(update={"excitations": setup.excitations[:2]})
+    setup = setup.model_copy(update={"excitations": setup.excitations[:1]})
     cfg = {"averages_per_input": 2, "record_samples": 2048, "seed": 4}
     rig = rig_builder.build_rig(settings, setup, cfg)
     try:
@@ -92,13 +92,22 @@ def test_impact_test_at_a_band_the_alignment_allows(tmp_path: Path) -> None:
     rig = _rig_file(tmp_path, netft_band_hz=band_hz, netft_max_phase_deg=60.0)
     amp = _impact(tmp_path, "simulated")
     ft = _impact(tmp_path, "netft-udp-simulated", rig)
-    assert ft.H.shape == amp.H.shape and ft.H.shape[1] == 24 + 6
+    assert ft.H.shape == amp.H.shape and ft.H.shape[1:] == (24 + 6, 1)
     f = ft.frequencies_hz
     band = (f >= 15) & (f <= band_hz)
     lc = slice(24, 30)
-    rel = np.abs(ft.H[band, lc] - amp.H[band, lc]) / np.abs(amp.H[band, lc]).max(axis=0)
+    # relative to the largest force (Fx Fy Fz) or moment (Mx My Mz) FRF: the sensor's own 0.2 %
+    # certificate error puts that much of the large components into the small ones
+    ref = amp.H[band, lc, 0]
+    scale = np.concatenate(
+        [np.abs(ref[:, :3]).max() * np.ones(3), np.abs(ref[:, 3:]).max() * np.ones(3)]
+    )
+    rel = np.abs(ft.H[band, lc, 0] - ref) / scale
     # the budget: 2π f δ with δ ≤ 4 × (0.1 ms floor + scatter) at the time-lapse of 4, plus the
-    # sensor's own 0.2 % certificate error and the noise of two averages
-    allowed = 2 * np.pi * f[band][:, None, None] * 4 * 150e-6 + 0.03
-    print("median rel", np.median(rel, axis=0), "allowed", allowed.min(), allowed.max())
+    # noise of two averages
+    allowed = 2 * np.pi * f[band][:, None] * 4 * 150e-6 + 0.03
     assert np.median(rel / allowed) < 1.0, np.median(rel, axis=0)
+    big = np.abs(ref) > 0.3 * scale  # the phase of the components that carry the load
+    phase = np.angle(ft.H[band, lc, 0] / ref)
+    delay_s = np.median((-phase / (2 * np.pi * f[band][:, None]))[big])
+    assert abs(delay_s) < 4 * 150e-6, delay_s
