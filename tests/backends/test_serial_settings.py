@@ -47,6 +47,6 @@ def test_real_backends_with_the_simulated_rig_file_warn(tmp_path: Path) -> None:
     assert msg is not None and "\n" not in msg
     assert "daq = 'dimacq-usb', loadcell = 'netft-udp'" in msg and "give your own" in msg
     own = tmp_path / "rig.toml"
-    own.write_text(real.rig_path.read_text().replace("written by tests/scripts", "edited from"))
+    own.write_text(real.rig_path.read_text().replace("tests/scripts/simulated_rig_files.py", "us"))
     mine = load_settings(data_dir=tmp_path, token="t", daq="dimacq-usb", rig_file=str(own))
     assert simulated_rig_warning(mine) is None
