@@ -119,7 +119,7 @@ def simulated_rig_warning(settings: Settings) -> str | None:
     real = [
         f"{k} = {getattr(settings, k)!r}"
         for k in ("daq", "loadcell")
-        if not is_simulated(k, getattr(settings, k))  # type: ignore[arg-type]
+        if not is_simulated(k, getattr(settings, k))
         and not (k == "loadcell" and settings.loadcell == "daq-channels")
     ]
     if not real:

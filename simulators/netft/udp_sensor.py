@@ -133,9 +133,14 @@ class NetFtUdpSim:
                     st = self.clock.state()
                     at = st.epoch + st.count
                 return np.repeat(self.source.read(self.gauges, at, 1), len(walls), axis=1)
-            x = pos + (walls - walls[0]) * (self.clock.position_at(float(walls[0]) + 1.0) - pos)
+            clock = self.clock
+            assert clock is not None
+            st = clock.state()
+            # pulses per wall second: the clock's rate × its time-lapse
+            per_s = (clock.position_at(float(walls[0]) + 1.0) or pos) - pos
+            x = pos + (walls - walls[0]) * per_s
             # before the run's first pulse the world stands where the last run left it
-            x = np.maximum(x, self.clock.state().epoch)
+            x = np.maximum(x, st.epoch)
             i = np.floor(x).astype(np.int64)
             lo = max(0, int(i.min()) - 1)
             y = self.source.read(self.gauges, lo, int(i.max()) + 3 - lo)

@@ -15,7 +15,7 @@ import argparse
 import json
 import os
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 from dimacq.errors import SetupError
 
@@ -163,9 +163,10 @@ def import_points(args: argparse.Namespace) -> int:
     from dimacq.io.measured_points import read_measured_points
 
     path: Path = args.file
-    fmt = args.format or path.suffix.lstrip(".").lower()
-    if fmt not in ("csv", "json"):
-        raise SetupError(f"{path}: format {fmt!r}; give --format csv or json")
+    given = args.format or path.suffix.lstrip(".").lower()
+    if given not in ("csv", "json"):
+        raise SetupError(f"{path}: format {given!r}; give --format csv or json")
+    fmt: Literal["csv", "json"] = "csv" if given == "csv" else "json"
     data = path.read_bytes()
     read_measured_points(data, fmt, what=str(path))  # a bad file: named here, nothing sent
     settings = load_settings()
