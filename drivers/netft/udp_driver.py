@@ -75,12 +75,18 @@ class _Run:
     """One stream's records by index ``j = rdt_sequence − 1`` (NaN where lost) and its
     datagrams' arrivals."""
 
-    def __init__(self, rdt_rate_hz: float) -> None:
+    def __init__(self, rdt_rate_hz: float, nominal_slope: float) -> None:
         self.rdt_rate_hz = rdt_rate_hz
         self.ft0: int | None = None  # ft_sequence of record 0
         self._vals = np.full((4096, 6), np.nan)
         self._bad = np.zeros((4096, 1))
         self.end = 0  # one past the highest index received
+        self._n = 0  # datagrams
+        # the lowest arrival of each window (host s) against its record's sensor time: the
+        # lower envelope, kept as the datagrams come (the fit never looks at every arrival)
+        self._slope = nominal_slope
+        self._t_first: float | None = None
+        self._w: list[int] = []
         self._t: list[float] = []
         self._s: list[float] = []
         self.next_sample = 0
@@ -91,7 +97,7 @@ class _Run:
 
     @property
     def n_arrivals(self) -> int:
-        return len(self._t)
+        return self._n
 
     def put(
         self, j: np.ndarray, counts: np.ndarray, status: np.ndarray, t: float, s_last: float
@@ -109,8 +115,17 @@ class _Run:
         if np.any(status != 0):
             self.last_bad_status = int(status[status != 0][-1])
         self.end = max(self.end, top)
-        self._t.append(t)
-        self._s.append(s_last)
+        self._n += 1
+        if self._t_first is None:
+            self._t_first = t
+        w = int((t - self._t_first) / _WINDOW_S)
+        if self._w and self._w[-1] == w:
+            if t - self._slope * s_last < self._t[-1] - self._slope * self._s[-1]:
+                self._t[-1], self._s[-1] = t, s_last
+        else:
+            self._w.append(w)
+            self._t.append(t)
+            self._s.append(s_last)
 
     def values(self) -> np.ndarray:
         return self._vals[: self.end]
@@ -119,14 +134,15 @@ class _Run:
         return self._bad[: self.end]
 
     def fit(self, nominal_slope: float) -> ClockFit:
-        if self._fit is None or self._fit_n != len(self._t):
+        self._slope = nominal_slope
+        if self._fit is None or self._fit_n != self._n:
             self._fit = fit_lower_envelope(
                 np.asarray(self._s),
                 np.asarray(self._t),
                 nominal_slope=nominal_slope,
                 window_s=_WINDOW_S,
             )
-            self._fit_n = len(self._t)
+            self._fit_n = self._n
         return self._fit
 
 
@@ -371,7 +387,7 @@ class NetFtUdp(WireDriver):
         self._drain()
         self.bias()
         self.events = []
-        self._run = _Run(self.rdt_rate_hz)
+        self._run = _Run(self.rdt_rate_hz, 1.0 / self.time_scale)
         self._daq_window = None
         self._final = None
         self.start_streaming(0, buffered=True)
