@@ -50,8 +50,19 @@ def test_request_and_record_bytes() -> None:
     (rec,) = p.RdtRecord.decode_all(raw)
     assert rec == p.RdtRecord(1, 42, 0, (100, -100, 1000000, 1, 2, -3))
     assert rec.encode() == raw
+    # the manual's example program asks for one record of high-speed streaming: header 0x1234,
+    # command 0x0002, sample count 1, all in network order
+    assert p.RdtRequest(p.RdtCommand.START_REALTIME, 1).encode() == bytes.fromhex(
+        "1234000200000001"
+    )
+    # the stream's array codec reads and writes the same bytes as the record codec
+    blk = p.decode_rdt(raw + raw)
+    assert blk.rdt_sequence.tolist() == [1, 1] and blk.counts[1].tolist() == list(rec.counts)
+    assert p.encode_rdt(blk.rdt_sequence, blk.ft_sequence, 0, blk.counts) == raw + raw
     with pytest.raises(ProtocolError, match="whole number of 36-byte records"):
         p.RdtRecord.decode_all(raw[:-1])
+    with pytest.raises(ProtocolError, match="whole number of 36-byte records"):
+        p.decode_rdt(raw[:-1])
     with pytest.raises(ProtocolError, match="header 0x4321"):
         p.RdtRequest.decode(bytes.fromhex("4321000200000000"))
 
