@@ -25,12 +25,12 @@ from __future__ import annotations
 
 import csv
 import io
-import json
 import math
 from dataclasses import dataclass
 from typing import Any, Literal
 
 from dimacq.errors import SetupError
+from dimacq.io.documents import loads_json
 
 __all__ = ["MeasuredPoint", "MeasuredPoints", "read_measured_points"]
 
@@ -125,12 +125,7 @@ def _read_csv(text: str, what: str) -> MeasuredPoints:
 
 
 def _read_json(text: str, what: str) -> MeasuredPoints:
-    try:
-        doc = json.loads(text)
-    except json.JSONDecodeError as err:
-        raise SetupError(
-            f"{what}: not JSON ({err}); give the file's JSON or use format csv"
-        ) from err
+    doc = loads_json(text, what)  # size, depth, number and surrogate limits: one line each
     if not isinstance(doc, dict) or doc.get("kind") != KIND:
         raise SetupError(f'{what}: give a JSON object with "kind": "{KIND}"')
     if doc.get("schema_version") != SCHEMA_VERSION:
@@ -163,7 +158,10 @@ def read_measured_points(
     SetupError
         A missing column, unit or label, a non-number, a repeated label (one line naming it).
     """
-    text = data.decode("utf-8-sig") if isinstance(data, bytes) else data
+    try:
+        text = data.decode("utf-8-sig") if isinstance(data, bytes) else data
+    except UnicodeDecodeError as err:
+        raise SetupError(f"{what}: not UTF-8 text ({err}); save the file as UTF-8") from err
     if format == "csv":
         return _read_csv(text, what)
     if format == "json":

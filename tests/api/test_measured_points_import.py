@@ -102,6 +102,9 @@ def test_a_file_of_the_digitizers_points_gives_the_live_geometry(api: Api) -> No
             r"unit None; give \"unit\": \"m\" or \"mm\"",
         ),
         ('{"kind": "x"}', "json", r"kind"),
+        ("[" * 100 + "]" * 100, "json", r"levels deep"),
+        ('{"a": 1' + "0" * 5000 + "}", "json", r"digits"),
+        (b"label,x_mm\xff".decode("latin-1"), "csv", r"x_m,y_m,z_m or x_mm"),
     ],
 )
 def test_bad_files_refused_in_one_line(text: str, fmt: str, match: str) -> None:
