@@ -91,6 +91,12 @@ class Settings(BaseSettings):
     #: largest uploaded file (setup or UFF import), bytes (413 above it)
     max_upload_bytes: int = Field(default=256 * 1024 * 1024, ge=1024, le=2**40)
     digitizer_url: str = "simdigitizer://lab?seed=0"
+    #: the digitizer's serial line (``digitizer = "serial"``): baud rate (the SD-3 runs at
+    #: 115200 8N1; a USB-serial adapter takes what the device is set to), the longest wait for
+    #: one reply line, s, and the port's read poll, s
+    digitizer_baudrate: int = Field(default=115200, ge=300, le=4_000_000)
+    digitizer_timeout_s: float = Field(default=2.0, gt=0.0, le=60.0)
+    digitizer_poll_s: float = Field(default=0.02, gt=0.0, le=1.0)
     #: python-can interface of the real CAN load cell backends ("pcan", "socketcan", ...; ""
     #: = python-can's own configuration: ~/.canrc, CAN_INTERFACE / CAN_CHANNEL / CAN_BITRATE).
     #: "virtual" (python-can's in-process bus) is refused with a real backend unless

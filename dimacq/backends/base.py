@@ -78,6 +78,9 @@ class DeviceContext:
             from dimacq.io.rig_file import load_rig_file
 
             self._rig_file = load_rig_file(self.settings.rig_path)
+            warning = simulated_rig_warning(self.settings)
+            if warning:
+                log.warning("%s", warning)
         return self._rig_file
 
     def on_close(self, fn: Callable[[], None]) -> None:
@@ -102,3 +105,34 @@ def require_setup(ctx: DeviceContext, what: str) -> TestSetup:
     if ctx.setup is None:
         raise SetupError(f"{what} needs the test setup; build the rig for a setup")
     return ctx.setup
+
+
+#: the line every rig file of the simulated lab carries (tests/scripts/simulated_rig_files.py)
+SIMULATED_RIG_MARK = "written by tests/scripts/simulated_rig_files.py"
+
+
+def simulated_rig_warning(settings: Settings) -> str | None:
+    """A warning when a real DAQ or load cell backend runs with a rig file of the simulated lab
+    (its sensitivities and calibrations are the virtual transducers', not yours), else None."""
+    from dimacq.backends import is_simulated
+
+    real = [
+        f"{k} = {getattr(settings, k)!r}"
+        for k in ("daq", "loadcell")
+        if not is_simulated(k, getattr(settings, k))
+        and not (k == "loadcell" and settings.loadcell == "daq-channels")
+    ]
+    if not real:
+        return None
+    path = settings.rig_path
+    try:
+        head = path.read_text(encoding="utf-8", errors="replace")[:2000]
+    except OSError:
+        return None
+    if SIMULATED_RIG_MARK not in " ".join(head.replace("#", " ").split()):  # comment lines
+        return None
+    return (
+        f"{', '.join(real)} with the simulated lab's rig file {path}: its sensitivities and load "
+        "cell calibrations are the virtual transducers', not your rig's; give your own (rig_file, "
+        "DIMACQ_RIG_FILE)"
+    )

@@ -27,10 +27,14 @@ from dimacq.drivers.netft.udp_driver import NetFtUdp
 from dimacq.io.rig_file import LoadCellEntry
 from dimacq.model.channels import gauge_names
 
-__all__ = ["SENSOR_CALIBRATION", "open_loadcell", "open_udp_loadcell"]
+__all__ = ["SENSOR_CALIBRATION", "SIM_LATENCY_FLOOR_S", "open_loadcell", "open_udp_loadcell"]
 
 #: what the simulated sensors hold: N and N·m, 10⁶ counts per unit (ATI's example value)
 SENSOR_CALIBRATION = p.CalibrationInfo(2, 3, 1_000_000, 1_000_000)
+
+#: the simulated network's latency floor, wall s: loopback UDP and the simulator thread's
+#: wake-up (measured ~70-90 us on the project's 2-core machine), what a lab states for its LAN
+SIM_LATENCY_FLOOR_S = 100e-6
 
 _SIMS = "netft-can-simulated"
 _names = itertools.count()
@@ -90,22 +94,48 @@ def open_loadcell(ctx: DeviceContext, entry: LoadCellEntry) -> NetFtCan:
 
 def open_udp_loadcell(ctx: DeviceContext, entry: LoadCellEntry) -> NetFtUdp:
     """The table entry ``loadcell = "netft-udp-simulated"``: an RDT simulator of the cell on a
-    loopback UDP port (its own clock, 1000 records/s), and the ``"netft-udp"`` driver on it."""
+    loopback UDP port (its own crystal within ±``loadcell_oscillator_ppm``, the rig file's RDT
+    rate, buffered records of 40), and the ``"netft-udp"`` driver on it. Its records meet the
+    simulated DAQ's in the lab's physical time: the DAQ's free-running clock (with a DAQ clocked as
+    the host reads, the suite's kind world, there is no such time: the sensor reads the world
+    where the DAQ's count stands, and an acquisition through it is not aligned)."""
     from dimacq.simulators.netft.udp_sensor import NetFtUdpSim
 
+    where = f"loadcell = 'netft-udp-simulated' (scenario {ctx.settings.scenario!r})"
     w = world(ctx)
+    imp = imperfections(ctx)
+    ppm = float(
+        np.random.default_rng([0 if ctx.seed is None else ctx.seed, 0x4E7F, entry.node]).uniform(
+            -imp.loadcell_oscillator_ppm, imp.loadcell_oscillator_ppm
+        )
+    )
     sim = NetFtUdpSim(
         w.source,
         [w.lab.channel_index(n) for n in gauge_names(entry.node)],
         _factory_matrix(w, entry.node),
         SENSOR_CALIBRATION,
         clock=w.clock,
+        rdt_rate_hz=entry.netft_rdt_rate_hz,
+        ft_rate_hz=entry.netft_ft_rate_hz,
+        time_scale=imp.daq_time_scale,
+        ppm=ppm,
+        per_datagram=40,
+        loss_rate=imp.can_frame_loss_rate,
+        seed=0 if ctx.seed is None else ctx.seed,
     )
     ctx.on_close(sim.close)
     host, port = sim.address
-    where = f"loadcell = 'netft-udp-simulated' (scenario {ctx.settings.scenario!r})"
     # the sensor's counts per unit read from it, as from a real one (the rig file's ignored)
     device_entry = entry.model_copy(
         update={"netft_counts_per_force": None, "netft_counts_per_torque": None}
     )
-    return open_rdt(ctx, device_entry, host, port, where=where, tcp_port=sim.tcp_address[1])
+    return open_rdt(
+        ctx,
+        device_entry,
+        host,
+        port,
+        where=where,
+        tcp_port=sim.tcp_address[1],
+        time_scale=imp.daq_time_scale,
+        latency_floor_s=SIM_LATENCY_FLOOR_S,
+    )

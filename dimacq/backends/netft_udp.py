@@ -1,11 +1,13 @@
 """Backend ``loadcell = "netft-udp"``: an ATI Net F/T's Raw Data Transfer over UDP.
 
-The rig file's entry gives ``netft_host`` (its IP address) and ``netft_port`` (49152); the
-sensor's counts per unit are read from it (Read Calibration Info over TCP, port 49151) unless
-the entry states them (as for ``"netft-can"``). The driver identifies the sensor and reads it; it refuses an
-impact acquisition, whose load cell samples must be on the DAQ's clock (see
-:mod:`dimacq.drivers.netft.udp_driver`): the devices check works, a test asks for
-``netft-can`` or ``daq-channels``.
+The rig file's entry gives ``netft_host`` (its IP address) and ``netft_port`` (49152), the
+sensor's RDT output and internal rates as its settings page shows them (``netft_rdt_rate_hz``,
+``netft_ft_rate_hz``), and the alignment's phase budget (``netft_band_hz``,
+``netft_max_phase_deg``, ``netft_latency_floor_s``); the sensor's counts per unit are read from
+it (Read Calibration Info over TCP, port 49151) unless the entry states them (as for
+``"netft-can"``). The driver streams buffered records and puts them on the DAQ's sample grid
+through the host's clock (:mod:`dimacq.drivers.netft.udp_driver`), refusing a run whose
+alignment costs more phase than allowed.
 """
 
 from __future__ import annotations
@@ -49,6 +51,8 @@ def open_rdt(
     *,
     where: str,
     tcp_port: int = p.TCP_PORT,
+    time_scale: float = 1.0,
+    latency_floor_s: float | None = None,
 ) -> NetFtUdp:
     """The driver on a UDP socket connected to ``host:port`` (closed with ``ctx``), identified;
     its counts per unit read from the device (``tcp_port``) unless the rig file states them.
@@ -73,6 +77,14 @@ def open_rdt(
             calibration=cal,
             serial_number=entry.node,
             label=f"Net F/T of load cell {entry.node}",
+            rdt_rate_hz=entry.netft_rdt_rate_hz,
+            ft_rate_hz=entry.netft_ft_rate_hz,
+            time_scale=time_scale,
+            band_hz=entry.netft_band_hz,
+            max_phase_deg=entry.netft_max_phase_deg,
+            latency_floor_s=(
+                entry.netft_latency_floor_s if latency_floor_s is None else latency_floor_s
+            ),
         )
         try:
             drv.identify()

@@ -1,5 +1,6 @@
 """Backend ``digitizer = "serial"``: the sonic digitizer on the pyserial URL ``digitizer_url``
-(a port such as ``/dev/ttyUSB0``, ``rfc2217://host:port``, ``socket://host:port``)."""
+(a port such as ``/dev/ttyUSB0``, ``rfc2217://host:port``, ``socket://host:port``), at
+``digitizer_baudrate`` with ``digitizer_timeout_s`` per reply line and ``digitizer_poll_s`` reads."""
 
 from __future__ import annotations
 
@@ -11,6 +12,12 @@ __all__ = ["open_digitizer"]
 
 def open_digitizer(ctx: DeviceContext) -> SerialDigitizer:
     """The table entry ``"serial"``; the port's closer goes to ``ctx``."""
-    driver = SerialDigitizer.from_url(ctx.settings.digitizer_url, timeout_s=2.0)
+    st = ctx.settings
+    driver = SerialDigitizer.from_url(
+        st.digitizer_url,
+        timeout_s=st.digitizer_timeout_s,
+        poll_s=st.digitizer_poll_s,
+        baudrate=st.digitizer_baudrate,
+    )
     ctx.on_close(driver.close)
     return driver

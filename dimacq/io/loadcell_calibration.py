@@ -61,8 +61,24 @@ __all__ = [
 
 SCHEMA_VERSION = 1
 AXES = ("Fx", "Fy", "Fz", "Tx", "Ty", "Tz")
-_MOMENT_UNITS = {"N*m": 1.0, "N-m": 1.0, "Nm": 1.0, "N·m": 1.0, "N-mm": 1e-3, "N*mm": 1e-3}
-_FORCE_UNITS = {"N": 1.0, "kN": 1e3}
+#: the pound-force by definition: 0.45359237 kg × 9.80665 m/s² (N); the inch 0.0254 m
+LBF_N = 0.45359237 * 9.80665
+_MOMENT_UNITS = {
+    "N*m": 1.0,
+    "N-m": 1.0,
+    "Nm": 1.0,
+    "N·m": 1.0,
+    "N-mm": 1e-3,
+    "N*mm": 1e-3,
+    # ATI's .cal files of US-calibrated cells: TorqueUnits="lbf-in"
+    "lbf-in": LBF_N * 0.0254,
+    "lbf*in": LBF_N * 0.0254,
+    "lbf·in": LBF_N * 0.0254,
+    "lbf-ft": LBF_N * 0.3048,
+    "lbf*ft": LBF_N * 0.3048,
+    "lbf·ft": LBF_N * 0.3048,
+}
+_FORCE_UNITS = {"N": 1.0, "kN": 1e3, "lbf": LBF_N, "klbf": 1e3 * LBF_N}
 
 
 @dataclass(frozen=True, eq=False)
@@ -194,7 +210,7 @@ def parse_calibration_json(data: Any, source: str = "calibration") -> LoadCellCa
     if fu is None or mu is None:
         raise DataError(
             f"{source}: units {data.get('force_unit')!r}/{data.get('moment_unit')!r} unknown; "
-            "use N and N*m"
+            f"use one of {sorted(_FORCE_UNITS)} and {sorted(_MOMENT_UNITS)}"
         )
     m = np.asarray(data["matrix"], dtype=float)
     if m.ndim == 2 and m.shape[0] == 6:
@@ -257,7 +273,7 @@ def read_calibration_xml(path: str | Path) -> LoadCellCalibration:
     if fu is None or mu is None:
         raise DataError(
             f"{p}: units {calel.get('ForceUnits')!r}/{calel.get('TorqueUnits')!r} unknown; "
-            "use N and N-m"
+            f"use one of {sorted(_FORCE_UNITS)} and {sorted(_MOMENT_UNITS)}"
         )
     rows = {}
     for ax in calel.findall("Axis"):

@@ -220,6 +220,33 @@ class LoadCellEntry(_Model):
         default="", description="the Net F/T's IP address for RDT over UDP ('netft-udp')"
     )
     netft_port: int = Field(default=49152, ge=1, le=65535, description="its RDT UDP port")
+    netft_rdt_rate_hz: float = Field(
+        default=7000.0,
+        gt=0,
+        le=7000.0,
+        description="its RDT output rate in Hz as its settings page shows it (up to 7000)",
+    )
+    netft_ft_rate_hz: float = Field(
+        default=7000.0,
+        gt=0,
+        description="its internal sample rate in Hz: what ft_sequence counts (7000 on a Net F/T)",
+    )
+    netft_band_hz: float | None = Field(
+        default=None,
+        gt=0,
+        description="the top of the band analysed, Hz: where the RDT alignment's phase is "
+        "checked (default: 0.32 x the DAQ's rate, the automatic band's top)",
+    )
+    netft_max_phase_deg: float = Field(
+        default=2.0,
+        gt=0,
+        description="the FRF phase error in degrees the RDT alignment may cost at netft_band_hz",
+    )
+    netft_latency_floor_s: float = Field(
+        default=20e-6,
+        ge=0,
+        description="the network's least latency in s (in the RDT alignment's budget)",
+    )
     netft_counts_per_force: int | None = Field(
         default=None, gt=0, description="its counts per force unit (its calibration info)"
     )

@@ -342,7 +342,14 @@ class ImpactSession(ImpactStream):
         for lc in self.loadcells:
             lc.set_rate(round(self.daq.sample_rate_hz))
             lc.start(external_clock=True)
+        t_before = time.monotonic()
         self.daq.start()
+        # a load cell on its own clock (Net F/T RDT) is put on the DAQ's through the host's
+        window = getattr(self.daq, "clock_start_window", None) or (t_before, time.monotonic())
+        for lc in self.loadcells:
+            started = getattr(lc, "daq_clock_started", None)
+            if started is not None:
+                started(*window)
 
     def _restart(self, err: DeviceLostError, input_index: int, kept: str = "") -> None:
         """The DAQ dropped off the bus: stop the load cells, find the DAQ again, start anew.

@@ -265,6 +265,7 @@ class DaqTask:
         self.reopen = reopen
         #: times the device was found again after dropping off
         self.reconnects = 0
+        self.clock_start_window: tuple[float, float] | None = None
         self._channels: dict[int, ChannelConfig] = {}
         self.sample_rate_hz: float | None = None
         self.samples_per_frame = 256
@@ -426,7 +427,10 @@ class DaqTask:
         self.events = []
         self.samples_clocked = None
         self._drain()
+        t_before = time.monotonic()
         self.device.start(self.samples_per_frame)
+        #: the host's monotonic clock before and after the START request: sample 0 lies between
+        self.clock_start_window = (t_before, time.monotonic())
         self._running = True
         log.info(
             "DAQ task %s started: %d channels at %g Hz",

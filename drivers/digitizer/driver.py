@@ -366,15 +366,22 @@ class SerialDigitizer(DigitizerDriver):
 
     @classmethod
     def from_url(
-        cls, url: str, *, timeout_s: float = 1.0, poll_s: float = 0.02, **serial_kwargs: Any
+        cls,
+        url: str,
+        *,
+        timeout_s: float = 1.0,
+        poll_s: float = 0.02,
+        baudrate: int = wire.BAUDRATE,
+        **serial_kwargs: Any,
     ) -> SerialDigitizer:
-        """Open ``url`` with :func:`serial.serial_for_url` at 115200 8N1."""
+        """Open ``url`` with :func:`serial.serial_for_url`, 8N1 at ``baudrate`` (the SD-3's
+        115200 unless the settings say otherwise)."""
         import serial
 
         def opener() -> SerialLike:
             try:
                 port: SerialLike = serial.serial_for_url(
-                    url, baudrate=wire.BAUDRATE, timeout=poll_s, **serial_kwargs
+                    url, baudrate=baudrate, timeout=poll_s, **serial_kwargs
                 )
             except (serial.SerialException, OSError, ValueError) as err:
                 raise DeviceNotFoundError(

@@ -78,6 +78,7 @@ __all__ = [
     "Command",
     "LongPair",
     "LongStatus",
+    "RdtBlock",
     "RdtCommand",
     "RdtRecord",
     "RdtRequest",
@@ -89,6 +90,8 @@ __all__ = [
     "decode_i16",
     "decode_i32",
     "decode_long",
+    "decode_rdt",
+    "encode_rdt",
     "long_frames",
     "long_payloads",
 ]
@@ -484,3 +487,63 @@ class RdtRecord:
             v = cls._FMT.unpack_from(datagram, off)
             out.append(cls(int(v[0]), int(v[1]), int(v[2]), tuple(int(x) for x in v[3:9])))  # type: ignore[arg-type]
         return out
+
+
+#: one RDT record as a numpy record (big endian): the stream's fast path
+RDT_DTYPE = np.dtype(
+    [("rdt_sequence", ">u4"), ("ft_sequence", ">u4"), ("status", ">u4"), ("counts", ">i4", (6,))]
+)
+
+
+@dataclass(frozen=True, eq=False)
+class RdtBlock:
+    """The records of one or more datagrams as arrays (``n`` records).
+
+    Attributes
+    ----------
+    rdt_sequence, ft_sequence, status : ndarray of int64, shape (n,)
+    counts : ndarray of int64, shape (n, 6)
+        In :data:`AXES` order.
+    """
+
+    rdt_sequence: NDArray[np.int64]
+    ft_sequence: NDArray[np.int64]
+    status: NDArray[np.int64]
+    counts: NDArray[np.int64]
+
+
+def decode_rdt(datagram: bytes) -> RdtBlock:
+    """The records of one datagram at once (the same bytes as :meth:`RdtRecord.decode_all`).
+
+    Raises
+    ------
+    ProtocolError
+        A length that is not a whole number of 36-byte records.
+    """
+    if not datagram or len(datagram) % RdtRecord.SIZE:
+        raise ProtocolError(
+            f"RDT datagram of {len(datagram)} bytes is not a whole number of "
+            f"{RdtRecord.SIZE}-byte records"
+        )
+    a = np.frombuffer(datagram, dtype=RDT_DTYPE)
+    return RdtBlock(
+        a["rdt_sequence"].astype(np.int64),
+        a["ft_sequence"].astype(np.int64),
+        a["status"].astype(np.int64),
+        a["counts"].astype(np.int64),
+    )
+
+
+def encode_rdt(
+    rdt_sequence: NDArray[np.int64],
+    ft_sequence: NDArray[np.int64],
+    status: int,
+    counts: NDArray[np.int64],
+) -> bytes:
+    """``n`` records as one buffered datagram (``counts`` shape (n, 6), :data:`AXES` order)."""
+    a = np.zeros(len(rdt_sequence), dtype=RDT_DTYPE)
+    a["rdt_sequence"] = np.asarray(rdt_sequence, dtype=np.int64) & 0xFFFFFFFF
+    a["ft_sequence"] = np.asarray(ft_sequence, dtype=np.int64) & 0xFFFFFFFF
+    a["status"] = status & 0xFFFFFFFF
+    a["counts"] = counts
+    return a.tobytes()

@@ -2,22 +2,41 @@
 :mod:`dimacq.drivers.netft.protocol`, on an injected, connected UDP socket.
 
 What it does: one record on demand (:meth:`NetFtUdp.read_once`, :meth:`NetFtUdp.identify`), the
-software bias, and streams (:meth:`NetFtUdp.start_streaming`, :meth:`NetFtUdp.read_records`):
-a jump of ``rdt_sequence`` is a lost datagram, counted in :attr:`NetFtUdp.lost` and logged.
+software bias, and, as a :class:`~dimacq.devices.loadcell.LoadCell`, an acquisition: START
+buffered streaming (0x0003, until STOP) at the sensor's own rate, each record resampled to the
+DAQ's sample grid.
 
-What it does not do: put records on the DAQ's sample counter. RDT streams on the sensor's own
-clock (its rate set on its web page) from the moment the START datagram arrives, with nothing
-that ties it to the DAQ's clock, so its samples cannot be aligned to the accelerometers' to a
-fraction of a sample — and at 600 Hz a 0.5 ms offset is a 108° phase error in the load cell's
-FRF. As a :class:`~dimacq.devices.loadcell.LoadCell` it therefore refuses to start an
-acquisition on the DAQ's clock (a :class:`~dimacq.errors.SetupError` naming the alternatives:
-``netft-can`` with requests on the DAQ's clock, or the sensor's analogue outputs as
-``daq-channels``); the devices check (identify) works.
+**How its samples meet the DAQ's clock.** The Net F/T has no sync input: it samples on its own
+crystal at its configured RDT output rate (its settings page; ``ft_sequence`` counts its
+internal samples at ``ft_rate_hz``, so record ``j`` is at sensor time ``ft_sequence / ft_rate_hz``
+exactly). The common time base is the host's monotonic clock: every datagram is stamped on
+arrival, the lower envelope of the arrivals against ``ft_sequence`` gives the sensor's clock on
+the host's (offset and rate: the sensor's crystal error is fitted), and the acquisition reports
+the window around the DAQ's start request (:meth:`daq_clock_started`), which holds DAQ sample 0.
+DAQ sample ``k`` is then a fractional record index, interpolated by a 4-point Lagrange cubic
+(the method, its error and its budget: :mod:`dimacq.pipeline.stream_alignment`). What the
+alignment cannot know — half the DAQ start window, the envelope's scatter and the network's
+latency floor ``latency_floor_s`` — costs ``360° f δ`` of FRF phase at frequency ``f``: on the
+first block the driver refuses the run (a :class:`~dimacq.errors.SetupError`) when that exceeds
+``max_phase_deg`` at ``band_hz``, and marks later blocks ``drift`` (rejecting their averages)
+if it degrades. On a real network and DAQ the window is a USB request (~0.1–1 ms) and the DAQ's
+own crystal drifts against the host's (not fitted: ~20 ppm is 1.2 ms per minute): expect a
+real rig to be refused above a few tens of Hz, and use ``netft-can`` (requests on the DAQ's
+clock) or ``daq-channels`` there.
+
+A jump of ``rdt_sequence`` is a lost datagram: counted in :attr:`NetFtUdp.lost`, logged, and
+every DAQ sample whose four surrounding records are not all in is NaN with a ``gap`` event (the
+average is rejected, never interpolated across). A non-zero status word marks its samples
+``overload`` with a ``device_error`` event.
 """
 
 from __future__ import annotations
 
 import logging
+import socket
+import struct
+import sys
+import time
 from typing import Any
 
 import numpy as np
@@ -25,18 +44,106 @@ import numpy as np
 from dimacq.devices.loadcell import LoadCellBlock, LoadCellEvent, LoadCellIdentity
 from dimacq.drivers.base import Deadline, WireDriver
 from dimacq.drivers.netft import protocol as p
-from dimacq.errors import DeviceError, DeviceTimeoutError, SetupError
+from dimacq.drivers.stream import false_runs
+from dimacq.errors import DeviceError, DeviceTimeoutError, ProtocolError, SetupError
+from dimacq.pipeline.stream_alignment import (
+    ClockFit,
+    fit_lower_envelope,
+    lagrange4,
+    phase_error_deg,
+)
 
 __all__ = ["NetFtUdp"]
 
 log = logging.getLogger(__name__)
 
-_NOT_ON_DAQ_CLOCK = (
-    "{name}: RDT over UDP streams on the sensor's own clock with nothing tying it to the "
-    "DAQ's, so its samples cannot be aligned to the accelerometers' for FRFs; use "
-    "loadcell = 'netft-can' with REQUEST LONG sent on the DAQ's clock, or its analogue "
-    "outputs as loadcell = 'daq-channels'"
-)
+#: seconds without a datagram after STOP before the stream is taken as ended
+_QUIET_S = 0.1
+#: Linux's SO_TIMESTAMPNS (= SCM_TIMESTAMPNS; the socket module does not name it)
+_SO_TIMESTAMPNS = 35
+#: host seconds per window of the lower-envelope fit
+_WINDOW_S = 0.2
+
+
+def _empty(first: int) -> LoadCellBlock:
+    return LoadCellBlock(
+        first, np.zeros((6, 0)), np.zeros((6, 0)), np.zeros(0, bool), np.zeros(0, bool), ()
+    )
+
+
+class _Run:
+    """One stream's records by index ``j = rdt_sequence − 1`` (NaN where lost) and its
+    datagrams' arrivals."""
+
+    def __init__(self, rdt_rate_hz: float, nominal_slope: float) -> None:
+        self.rdt_rate_hz = rdt_rate_hz
+        self.ft0: int | None = None  # ft_sequence of record 0
+        self._vals = np.full((4096, 6), np.nan)
+        self._bad = np.zeros((4096, 1))
+        self.end = 0  # one past the highest index received
+        self._n = 0  # datagrams
+        # the lowest arrival of each window (host s) against its record's sensor time: the
+        # lower envelope, kept as the datagrams come (the fit never looks at every arrival)
+        self._slope = nominal_slope
+        self._t_first: float | None = None
+        self._w: list[int] = []
+        self._t: list[float] = []
+        self._s: list[float] = []
+        self.next_sample = 0
+        self.checked = False
+        self.last_bad_status = 0
+        self._fit: ClockFit | None = None
+        self._fit_n = 0
+
+    @property
+    def n_arrivals(self) -> int:
+        return self._n
+
+    def put(
+        self, j: np.ndarray, counts: np.ndarray, status: np.ndarray, t: float, s_last: float
+    ) -> None:
+        top = int(j.max()) + 1
+        if top > self._vals.shape[0]:
+            n = max(top, 2 * self._vals.shape[0])
+            vals = np.full((n, 6), np.nan)
+            vals[: self._vals.shape[0]] = self._vals
+            bad = np.zeros((n, 1))
+            bad[: self._bad.shape[0]] = self._bad
+            self._vals, self._bad = vals, bad
+        self._vals[j] = counts
+        self._bad[j, 0] = status != 0
+        if np.any(status != 0):
+            self.last_bad_status = int(status[status != 0][-1])
+        self.end = max(self.end, top)
+        self._n += 1
+        if self._t_first is None:
+            self._t_first = t
+        w = int((t - self._t_first) / _WINDOW_S)
+        if self._w and self._w[-1] == w:
+            if t - self._slope * s_last < self._t[-1] - self._slope * self._s[-1]:
+                self._t[-1], self._s[-1] = t, s_last
+        else:
+            self._w.append(w)
+            self._t.append(t)
+            self._s.append(s_last)
+
+    def values(self) -> np.ndarray:
+        return self._vals[: self.end]
+
+    def flags(self) -> np.ndarray:
+        return self._bad[: self.end]
+
+    def fit(self, nominal_slope: float) -> ClockFit:
+        self._slope = nominal_slope
+        if self._fit is None or self._fit_n != self._n:
+            self._fit = fit_lower_envelope(
+                np.asarray(self._s),
+                np.asarray(self._t),
+                nominal_slope=nominal_slope,
+                window_s=_WINDOW_S,
+            )
+            self._fit_n = self._n
+        return self._fit
 
 
 class NetFtUdp(WireDriver):
@@ -50,6 +157,17 @@ class NetFtUdp(WireDriver):
         Its counts per force and torque unit.
     serial_number : int
         What :meth:`identify` reports.
+    rdt_rate_hz : float
+        Its RDT output rate as its settings page says (records per second of its clock).
+    ft_rate_hz : float
+        Its internal sample rate: ``ft_sequence`` counts per second (7000 on a Net F/T).
+    time_scale : float
+        Seconds of the lab per second of the host's clock (1; a time-lapse simulation: more).
+    band_hz, max_phase_deg : float
+        The top of the band analysed (None: 0.32 × the DAQ's rate, the automatic band's top)
+        and the FRF phase error allowed there.
+    latency_floor_s : float
+        The network's least latency, s (unknown to the host; in the budget).
     """
 
     def __init__(
@@ -60,7 +178,20 @@ class NetFtUdp(WireDriver):
         serial_number: int = 0,
         timeout_s: float = 1.0,
         label: str = "Net F/T",
+        rdt_rate_hz: float = 7000.0,
+        ft_rate_hz: float = 7000.0,
+        time_scale: float = 1.0,
+        band_hz: float | None = None,
+        max_phase_deg: float = 2.0,
+        latency_floor_s: float = 20e-6,
     ) -> None:
+        ratio = ft_rate_hz / rdt_rate_hz if rdt_rate_hz > 0 else 0.0
+        if rdt_rate_hz <= 0 or ratio < 1 or abs(ratio - round(ratio)) > 1e-9:
+            raise SetupError(
+                f"{label}: RDT rate {rdt_rate_hz:g} Hz and internal rate {ft_rate_hz:g} Hz: "
+                "give the settings page's values (the internal rate a whole multiple of the "
+                "RDT rate)"
+            )
         peer = "?"
         try:
             host, port = sock.getpeername()[:2]
@@ -77,6 +208,18 @@ class NetFtUdp(WireDriver):
         #: datagrams lost in the current stream (rdt_sequence jumps)
         self.lost = 0
         self._next_seq: int | None = None
+        self.rdt_rate_hz = float(rdt_rate_hz)
+        self.ft_rate_hz = float(ft_rate_hz)
+        self.ft_per_record = round(ratio)
+        self.time_scale = float(time_scale)
+        self._band_hz = band_hz
+        self.max_phase_deg = float(max_phase_deg)
+        self.latency_floor_s = float(latency_floor_s)
+        self.streaming = False
+        self._run: _Run | None = None
+        self._daq_window: tuple[float, float] | None = None
+        self._final: int | None = None
+        self._stamps = self._enable_stamps()
 
     @property
     def n_gauges(self) -> int:
@@ -97,6 +240,41 @@ class NetFtUdp(WireDriver):
             return None
         except OSError as err:  # ICMP port unreachable on a connected socket, ...
             raise DeviceError(f"{self.name}: {err}") from err
+
+    def _enable_stamps(self) -> bool:
+        """Ask the kernel to stamp each datagram on arrival (Linux ``SO_TIMESTAMPNS``): the
+        stamp does not wait for the reader, so the queue does not bias the clock fit."""
+        if not sys.platform.startswith("linux"):
+            return False
+        try:  # room for a second of records between reads
+            self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4 << 20)
+        except (OSError, AttributeError):
+            log.debug("%s: SO_RCVBUF not raised", self.name)
+        try:
+            self.sock.setsockopt(socket.SOL_SOCKET, _SO_TIMESTAMPNS, 1)
+        except (OSError, AttributeError):
+            return False
+        return True
+
+    def _recv_stamped(self, timeout_s: float) -> tuple[bytes, float] | None:
+        """A datagram and its arrival on the host's monotonic clock (the kernel's stamp when it
+        gives one, else the time it was read)."""
+        if not self._stamps:
+            data = self._recv(timeout_s)
+            return None if data is None else (data, time.monotonic())
+        self.sock.settimeout(max(timeout_s, 1e-4))
+        try:
+            data, anc, _flags, _addr = self.sock.recvmsg(65535, 64)
+        except (TimeoutError, BlockingIOError):
+            return None
+        except OSError as err:
+            raise DeviceError(f"{self.name}: {err}") from err
+        mono, real = time.monotonic(), time.time()
+        for level, kind, payload in anc:
+            if level == socket.SOL_SOCKET and kind == _SO_TIMESTAMPNS and len(payload) >= 16:
+                sec, nsec = struct.unpack_from("@qq", payload)
+                return bytes(data), mono - (real - (sec + 1e-9 * nsec))
+        return bytes(data), mono
 
     def _drain(self) -> None:
         while self._recv(1e-4) is not None:
@@ -177,22 +355,266 @@ class NetFtUdp(WireDriver):
             serial_number=self.serial_number,
         )
 
-    # -- the LoadCell protocol: no acquisition on the DAQ's clock ----------------------------------
+    # -- the LoadCell protocol: a buffered stream put on the DAQ's sample grid ---------------------
+    def daq_clock_started(self, t_before_s: float, t_after_s: float) -> None:
+        """The host's monotonic clock before and after the request that started the DAQ's sample
+        clock: DAQ sample 0 lies between (the acquisition calls this after the DAQ's start)."""
+        if not t_before_s <= t_after_s:
+            raise SetupError(
+                f"{self.name}: DAQ start window {t_before_s}..{t_after_s} s is reversed; give "
+                "the time before the start request first"
+            )
+        self._daq_window = (t_before_s, t_after_s)
+
     def set_rate(self, rate_hz: int) -> float:
-        raise SetupError(_NOT_ON_DAQ_CLOCK.format(name=self.name))
+        """The DAQ's rate: the grid the records are resampled to (the sensor keeps its own)."""
+        if rate_hz <= 0:
+            raise SetupError(f"{self.name}: DAQ rate {rate_hz} S/s; give a positive rate")
+        self.sample_rate_hz = float(rate_hz)
+        return self.sample_rate_hz
 
     def start(self, *, external_clock: bool = True) -> None:
-        raise SetupError(_NOT_ON_DAQ_CLOCK.format(name=self.name))
+        """Bias, then START buffered streaming until STOP; returns once records flow (the DAQ
+        is started right after)."""
+        if not external_clock:
+            raise SetupError(
+                f"{self.name}: its records are put on the DAQ's clock; start the DAQ "
+                "(external_clock=True)"
+            )
+        if self.sample_rate_hz is None:
+            raise SetupError(f"{self.name}: call set_rate(the DAQ's rate) before start()")
+        self._require_open()
+        self._drain()
+        self.bias()
+        self.events = []
+        self._run = _Run(self.rdt_rate_hz, 1.0 / self.time_scale)
+        self._daq_window = None
+        self._final = None
+        self.start_streaming(0, buffered=True)
+        self.streaming = True
+        # the stream runs before the DAQ starts: its first samples have records on both sides
+        deadline = self._deadline()
+        while self._run.end < 4:
+            if not self._receive(min(deadline.left(), 0.05)) and deadline.passed:
+                raise DeviceTimeoutError(
+                    f"{self.name} sent no RDT records within {deadline.timeout_s:g} s of START; "
+                    f"check that RDT is enabled and UDP port {p.RDT_PORT}"
+                )
 
-    def stop(self) -> int:
-        self.stop_streaming()
-        return 0
+    def _receive(self, timeout_s: float) -> bool:
+        """One datagram into the run (False: none in time)."""
+        got = self._recv_stamped(timeout_s)
+        if got is None:
+            return False
+        data, t = got
+        try:
+            blk = p.decode_rdt(data)
+        except ProtocolError as err:
+            log.warning("%s: %s", self.name, err)
+            return True
+        run = self._run
+        assert run is not None
+        j = blk.rdt_sequence - 1  # rdt_sequence is 1 for the first record after START
+        if run.ft0 is None:
+            run.ft0 = int(blk.ft_sequence[0]) - int(j[0]) * self.ft_per_record
+        expect = run.ft0 + j * self.ft_per_record
+        if np.any(blk.ft_sequence != expect):
+            raise SetupError(
+                f"{self.name}: ft_sequence advances by "
+                f"{int(np.median(np.diff(blk.ft_sequence))) if blk.ft_sequence.size > 1 else '?'}"
+                f" per record, not {self.ft_per_record}: give the sensor's RDT output rate "
+                "(netft_rdt_rate_hz) and internal rate (netft_ft_rate_hz) as its settings page "
+                "shows them"
+            )
+        if self._next_seq is not None and int(blk.rdt_sequence[0]) != self._next_seq:
+            missed = (int(blk.rdt_sequence[0]) - self._next_seq) & 0xFFFFFFFF
+            self.lost += missed
+            log.warning(
+                "%s: rdt_sequence jumped from %d to %d: %d record(s) lost",
+                self.name,
+                self._next_seq - 1,
+                int(blk.rdt_sequence[0]),
+                missed,
+            )
+        self._next_seq = (int(blk.rdt_sequence[-1]) + 1) & 0xFFFFFFFF
+        run.put(j, blk.counts, blk.status, t, float(expect[-1]) / self.ft_rate_hz)
+        return True
+
+    def _positions(self, ks: np.ndarray) -> tuple[np.ndarray, float]:
+        """Fractional record indices of DAQ samples ``ks`` and the alignment's uncertainty (s
+        of the lab's time): see :mod:`dimacq.pipeline.stream_alignment`."""
+        run = self._run
+        assert run is not None and self.sample_rate_hz is not None
+        if self._daq_window is None:
+            raise SetupError(
+                f"{self.name}: no DAQ start time: RDT records can only be put on the DAQ's "
+                "clock through the host's clock (the acquisition reports the DAQ's start)"
+            )
+        fit = run.fit(1.0 / self.time_scale)
+        t_a, t_b = self._daq_window
+        t0 = 0.5 * (t_a + t_b)
+        t_k = t0 + ks / (self.sample_rate_hz * self.time_scale)  # host time of DAQ sample k
+        s_k = (t_k - fit.offset_s) / fit.slope  # sensor seconds
+        assert run.ft0 is not None
+        u = (s_k - run.ft0 / self.ft_rate_hz) * self.rdt_rate_hz
+        wall = 0.5 * (t_b - t_a) + fit.scatter_s + self.latency_floor_s
+        return u, wall * self.time_scale
+
+    @property
+    def band_hz(self) -> float:
+        """Where the alignment's phase is checked, Hz."""
+        if self._band_hz is not None:
+            return float(self._band_hz)
+        return 0.32 * (self.sample_rate_hz or 0.0)
+
+    def alignment_phase_deg(self) -> float:
+        """The phase error, degrees, that the alignment's uncertainty costs at ``band_hz``."""
+        _, delta = self._positions(np.zeros(1))
+        return phase_error_deg(delta, self.band_hz)
 
     def read_until(self, end_sample: int, timeout_s: float | None = None) -> LoadCellBlock:
-        raise SetupError(_NOT_ON_DAQ_CLOCK.format(name=self.name))
+        """DAQ samples up to ``end_sample − 1``, resampled from the records around them (waits
+        for the records that follow the last one).
+
+        Raises
+        ------
+        SetupError
+            The alignment's phase error at ``band_hz`` is above ``max_phase_deg`` (checked on
+            the first block: the run is refused).
+        DeviceTimeoutError
+            The records did not come in time.
+        """
+        run = self._run
+        if run is None:
+            raise SetupError(f"{self.name}: start() before read_until()")
+        deadline = self._deadline(timeout_s)
+        first = run.next_sample
+        if end_sample <= first:
+            return _empty(first)
+        while True:
+            if run.n_arrivals:
+                u_last = float(self._positions(np.array([end_sample - 1.0]))[0][0])
+                if run.end > np.floor(u_last) + 2 or self._final is not None:
+                    break
+            if not self._receive(min(deadline.left(), 0.05)) and deadline.passed:
+                raise DeviceTimeoutError(
+                    f"{self.name}: DAQ sample {end_sample - 1} not covered by RDT records within "
+                    f"{deadline.timeout_s:g} s ({run.end} records in); is it streaming?"
+                )
+        ks = np.arange(first, end_sample, dtype=float)
+        u, delta = self._positions(ks)
+        phase = phase_error_deg(delta, self.band_hz)
+        if not run.checked:
+            run.checked = True
+            log.info(
+                "%s: aligned to the DAQ's clock within %.1f us (%.2f deg at %g Hz)",
+                self.name,
+                1e6 * delta,
+                phase,
+                self.band_hz,
+            )
+            if phase > self.max_phase_deg:
+                raise SetupError(
+                    f"{self.name}: its records are aligned to the DAQ's clock within only "
+                    f"{1e6 * delta:.0f} us, {phase:.1f} deg of FRF phase at {self.band_hz:g} Hz "
+                    f"(limit netft_max_phase_deg = {self.max_phase_deg:g}); lower netft_band_hz "
+                    "to the band you analyse, or read the cell as loadcell = 'netft-can' or "
+                    "'daq-channels'"
+                )
+        vals = run.values()
+        forces_counts = lagrange4(vals, u).T  # (6, n)
+        valid = np.all(np.isfinite(forces_counts), axis=0)
+        flagged = lagrange4(run.flags(), u)[:, 0]
+        overload = np.nan_to_num(flagged, nan=0.0) != 0.0
+        events: list[LoadCellEvent] = []
+        for a, b in false_runs(valid):
+            events.append(
+                LoadCellEvent(
+                    "gap",
+                    first + a,
+                    b - a + 1,
+                    f"{self.name}: {b - a + 1} samples from {first + a} not resampled: RDT "
+                    f"records around them lost ({self.lost} lost so far, rdt_sequence jumps); "
+                    "the average is rejected",
+                )
+            )
+        if np.any(overload):
+            k = int(np.argmax(overload))
+            events.append(
+                LoadCellEvent(
+                    "device_error",
+                    first + k,
+                    int(overload.sum()),
+                    f"{self.name}: status word {run.last_bad_status:#010x} (see the manual's "
+                    "status code); its samples are marked overload",
+                )
+            )
+        if phase > self.max_phase_deg:
+            events.append(
+                LoadCellEvent(
+                    "drift",
+                    first,
+                    len(ks),
+                    f"{self.name}: alignment to the DAQ's clock degraded to {1e6 * delta:.0f} us "
+                    f"({phase:.1f} deg at {self.band_hz:g} Hz)",
+                )
+            )
+        for ev in events:
+            self.events.append(ev)
+            log.warning("%s", ev.message)
+        run.next_sample = end_sample
+        gauges = np.where(np.isfinite(forces_counts), forces_counts, np.nan)
+        assert self.calibration_matrix is not None
+        return LoadCellBlock(
+            first,
+            gauges,
+            self.calibration_matrix @ gauges,
+            valid,
+            overload,
+            tuple(events),
+        )
+
+    def stop(self) -> int:
+        """STOP; the records still on their way taken; the DAQ samples they cover."""
+        self.stop_streaming()
+        run = self._run
+        if run is None:
+            return 0
+        quiet = Deadline(_QUIET_S)
+        while not quiet.passed:
+            if self._receive(min(quiet.left(), 0.02)):
+                quiet = Deadline(_QUIET_S)
+        self.streaming = False
+        covered = 0
+        if run.n_arrivals and self._daq_window is not None and run.end >= 4:
+            # the last DAQ sample with two records after it
+            lo, hi = run.next_sample, run.next_sample + 1
+            while float(self._positions(np.array([float(hi)]))[0][0]) < run.end - 3:
+                lo, hi = hi, 2 * hi + 1
+            while hi - lo > 1:
+                mid = (lo + hi) // 2
+                if float(self._positions(np.array([float(mid)]))[0][0]) < run.end - 3:
+                    lo = mid
+                else:
+                    hi = mid
+            covered = lo + 1
+        self._final = covered
+        return covered
 
     def verify_count(self, daq_samples_clocked: int) -> LoadCellEvent | None:
-        return None
+        """The stream must cover every sample the DAQ clocked."""
+        covered = self._final if self._final is not None else 0
+        if covered >= daq_samples_clocked:
+            return None
+        ev = LoadCellEvent(
+            "gap",
+            covered,
+            daq_samples_clocked - covered,
+            f"{self.name}: RDT records cover {covered} DAQ samples of {daq_samples_clocked} "
+            "clocked (the stream stopped early?)",
+        )
+        self.events.append(ev)
+        return ev
 
     def _close_transport(self) -> None:
         """The socket belongs to whoever opened it (the backend closes it)."""

@@ -85,6 +85,15 @@ class SampleClock:
             self._cond.notify_all()
             return self._count
 
+    def position_at(self, t_monotonic: float) -> float | None:
+        """The world's sample position (fractional) at wall time ``t_monotonic`` while a
+        free-running run clocks (None otherwise): ``epoch + (t − t0) × rate × scale``. What a
+        sensor on its own clock reads the world at (the lab's physical time, not a device's)."""
+        with self._cond:
+            if not self._running or self._wall_scale is None:
+                return None
+            return self._epoch + (t_monotonic - self._t0) * self._rate * self._wall_scale
+
     def state(self) -> ClockState:
         with self._cond:
             self._tick()

@@ -2,15 +2,24 @@
 
 It answers the RDT requests of :mod:`dimacq.drivers.netft.protocol` (the codec is all it shares
 with the driver): START (real-time: one record per datagram; buffered: ``per_datagram`` records
-per datagram), STOP, SET_BIAS. Its records are paced on its own clock (``rdt_rate_hz`` in wall
-time × ``time_scale``), not the DAQ's, and read the lab's bridge outputs at the world sample the
-DAQ's clock has reached (or sample 0 when there is none) through the sensor's own calibration,
-in its counts per unit. ``drop`` lists ``rdt_sequence`` numbers whose datagram is lost (once each).
+per datagram), STOP, SET_BIAS; and Read Calibration Info on its TCP port.
+
+It samples on **its own clock**: a crystal ``ppm`` off, ``time_scale`` × wall time (the lab's
+time-lapse), its internal counter ``ft_sequence`` at ``ft_rate_hz`` since it was powered, and
+records at ``rdt_rate_hz``; record ``j`` of a stream is its state at its own instant, and is sent
+once that instant has passed (buffered: with the records before it). What it measures is the
+lab's bridge outputs at the lab's physical time of that instant — the DAQ's free-running clock
+gives the world's sample position at a wall time (fractional; the world interpolated by a
+4-point cubic between its samples) — through the sensor's own calibration, in its counts per
+unit. Nothing of the DAQ's clock reaches the driver: only the records, their sequence numbers
+and when they arrive. ``drop`` lists ``rdt_sequence`` numbers whose datagram is lost (once
+each); ``loss_rate`` loses datagrams at random.
 """
 
 from __future__ import annotations
 
 import logging
+import math
 import socket
 import threading
 import time
@@ -25,6 +34,9 @@ from dimacq.simulators.imperfections import fault_log
 from dimacq.simulators.lab.source import SampleSource
 
 __all__ = ["NetFtUdpSim"]
+
+#: how far ahead of its last record's instant a datagram is measured, wall s
+_AHEAD_S = 0.0004
 
 log = logging.getLogger(__name__)
 
@@ -42,23 +54,33 @@ class NetFtUdpSim:
         *,
         clock: SampleClock | None = None,
         rdt_rate_hz: float = 1000.0,
+        ft_rate_hz: float = 7000.0,
         time_scale: float = 1.0,
+        ppm: float = 0.0,
         host: str = "127.0.0.1",
         port: int = 0,
         per_datagram: int = 10,
         drop: Sequence[int] = (),
+        loss_rate: float = 0.0,
+        seed: int = 0,
     ) -> None:
         self.source = source
         self.gauges = np.asarray(gauge_channels, dtype=np.intp)
         self.C = np.asarray(factory_matrix, dtype=float)
         self.counts_per_unit = 1.0 / calibration.si_per_count()
         self.clock = clock
-        self.rate = rdt_rate_hz * time_scale
+        self.rdt_rate = float(rdt_rate_hz)
+        self.ft_rate = float(ft_rate_hz)
+        self.ft_step = round(ft_rate_hz / rdt_rate_hz)
+        #: its seconds per wall second
+        self.speed = time_scale * (1.0 + 1e-6 * ppm)
         self.per_datagram = per_datagram
         self.drop = set(drop)
+        self.loss_rate = loss_rate
+        self._rng = np.random.default_rng([seed, 0x4D7])
         self.bias_g = np.zeros(len(self.gauges))
         self.status = 0
-        self.ft_sequence = 0
+        self._t_power = time.monotonic()
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.bind((host, port))
         self.sock.settimeout(0.002)
@@ -73,9 +95,9 @@ class NetFtUdpSim:
         self._peer: Any = None
         self._left = 0  # records still to send (-1: until STOP)
         self._buffered = False
-        self._seq = 0
-        self._t0 = 0.0
-        self._sent = 0
+        self._tick0 = 0  # its internal tick of record 0 of this stream
+        self._sent = 0  # records of this stream measured (sent, pending or lost)
+        self._pending: list[tuple[float, bytes]] = []  # (wall time due, datagram)
         self._lock = threading.Lock()
         self._stop_evt = threading.Event()
         self._thread = threading.Thread(target=self._loop, name=f"netft-rdt-sim-{self.address}")
@@ -93,22 +115,50 @@ class NetFtUdpSim:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
-    def _world_now(self) -> int:
-        if self.clock is None:
-            return 0
-        st = self.clock.state()
-        return st.epoch + st.count
+    # -- its clock ---------------------------------------------------------------------------------
+    def _own_s(self, wall: float) -> float:
+        return (wall - self._t_power) * self.speed
 
-    def _read(self) -> np.ndarray:
+    def _wall(self, own_s: float) -> float:
+        return self._t_power + own_s / self.speed
+
+    def _read(self, walls: np.ndarray) -> np.ndarray:
+        """The bridge outputs at wall times ``walls``: shape (n_gauges, n)."""
         lock = self.clock.source_lock if self.clock is not None else self._lock
         with lock:
-            return self.source.read(self.gauges, self._world_now(), 1)[:, 0]
+            pos = None if self.clock is None else self.clock.position_at(float(walls[0]))
+            if pos is None:  # no run clocks: the world stands at the last sample reached
+                at = 0
+                if self.clock is not None:
+                    st = self.clock.state()
+                    at = st.epoch + st.count
+                return np.repeat(self.source.read(self.gauges, at, 1), len(walls), axis=1)
+            clock = self.clock
+            assert clock is not None
+            st = clock.state()
+            # pulses per wall second: the clock's rate × its time-lapse
+            per_s = (clock.position_at(float(walls[0]) + 1.0) or pos) - pos
+            x = pos + (walls - walls[0]) * per_s
+            # before the run's first pulse the world stands where the last run left it
+            x = np.maximum(x, st.epoch)
+            i = np.floor(x).astype(np.int64)
+            lo = max(0, int(i.min()) - 1)
+            y = self.source.read(self.gauges, lo, int(i.max()) + 3 - lo)
+        q = (x - i)[None, :]
+        k = i - lo
+        top = y.shape[1] - 1
+        return (
+            -q * (q - 1) * (q - 2) / 6 * y[:, np.maximum(k - 1, 0)]
+            + (q + 1) * (q - 1) * (q - 2) / 2 * y[:, k]
+            - (q + 1) * q * (q - 2) / 2 * y[:, np.minimum(k + 1, top)]
+            + (q + 1) * q * (q - 1) / 6 * y[:, np.minimum(k + 2, top)]
+        )
 
-    def _counts(self) -> tuple[int, int, int, int, int, int]:
-        loads = self.C @ (self._read() - self.bias_g)
-        c = np.rint(loads * self.counts_per_unit).astype(np.int64)
-        return (int(c[0]), int(c[1]), int(c[2]), int(c[3]), int(c[4]), int(c[5]))
+    def _counts(self, walls: np.ndarray) -> np.ndarray:
+        loads = self.C @ (self._read(walls) - self.bias_g[:, None])
+        return np.rint(loads.T * self.counts_per_unit).astype(np.int64)
 
+    # -- requests ----------------------------------------------------------------------------------
     def _handle(self, data: bytes, peer: Any) -> None:
         try:
             req = p.RdtRequest.decode(data)
@@ -116,40 +166,65 @@ class NetFtUdpSim:
             log.debug("RDT simulator: ignored %s", data.hex())
             return
         if req.command == p.RdtCommand.SET_BIAS:
-            self.bias_g = self._read().copy()
+            self.bias_g = self._read(np.array([time.monotonic()]))[:, 0].copy()
         elif req.command == p.RdtCommand.STOP:
             self._left = 0
+            self._pending.clear()
         else:
             self._peer = peer
             self._buffered = req.command == p.RdtCommand.START_BUFFERED
             self._left = req.sample_count if req.sample_count else -1
-            self._seq = 0
             self._sent = 0
-            self._t0 = time.monotonic()
+            self._pending.clear()
+            # the first record: its next output instant
+            self._tick0 = math.ceil(self._own_s(time.monotonic()) * self.rdt_rate) * self.ft_step
 
-    def _stream(self) -> None:
-        due = int((time.monotonic() - self._t0) * self.rate) + 1 - self._sent
+    def _due(self, j: int) -> float:
+        """Wall time of record ``j`` of the stream."""
+        return self._wall((self._tick0 + j * self.ft_step) / self.ft_rate)
+
+    def _prepare(self) -> None:
+        """The next datagram, measured ahead (its records' instants are at most
+        :data:`_AHEAD_S` away: the world is settled that far) so that it leaves on time."""
         group = self.per_datagram if self._buffered else 1
-        while due >= group and self._left != 0:
-            n = group if self._left < 0 else min(group, self._left)
-            recs = []
-            for _ in range(n):
-                self._seq += 1
-                self.ft_sequence += 1
-                recs.append(p.RdtRecord(self._seq, self.ft_sequence, self.status, self._counts()))
-            self._sent += n
-            due -= n
-            if self._left > 0:
-                self._left -= n
-            hit = {r.rdt_sequence for r in recs} & self.drop
-            if hit:
-                self.drop -= hit  # each listed datagram is lost once
-                fault_log.warning(
-                    "simulated fault udp_loss: RDT datagram of rdt_sequence %d lost",
-                    recs[0].rdt_sequence,
-                )
-                continue
-            self.sock.sendto(b"".join(r.encode() for r in recs), self._peer)
+        n = group if self._left < 0 else min(group, self._left)
+        js = self._sent + np.arange(n)
+        walls = self._t_power + (self._tick0 + js * self.ft_step) / self.ft_rate / self.speed
+        if walls[-1] - time.monotonic() > _AHEAD_S:
+            return
+        self._sent += n
+        if self._left > 0:
+            self._left -= n
+        seq = js + 1
+        hit = set(seq.tolist()) & self.drop
+        if hit or (self.loss_rate and self._rng.random() < self.loss_rate):
+            self.drop -= hit  # each listed datagram is lost once
+            fault_log.warning(
+                "simulated fault udp_loss: RDT datagram of rdt_sequence %d lost", int(seq[0])
+            )
+            return
+        ft = self._tick0 + js * self.ft_step
+        data = p.encode_rdt(seq, ft, self.status, self._counts(walls))
+        self._pending.append((float(walls[-1]), data))
+
+    def _stream(self) -> float:
+        """Send what is due; the wall time of the next thing to do."""
+        while True:
+            now = time.monotonic()
+            while self._pending and self._pending[0][0] <= now:
+                self.sock.sendto(self._pending.pop(0)[1], self._peer)
+            if self._left == 0 or len(self._pending) > 1:
+                break
+            before = len(self._pending)
+            sent_before = self._sent
+            self._prepare()
+            if len(self._pending) == before and self._sent == sent_before:
+                break
+        nxt = self._pending[0][0] if self._pending else now + 0.001
+        if self._left != 0:
+            group = self.per_datagram if self._buffered else 1
+            nxt = min(nxt, self._due(self._sent + group - 1) - _AHEAD_S)
+        return nxt
 
     def _serve_tcp(self) -> None:
         """Answer a Read Calibration Info on each connection waiting (one command each)."""
@@ -167,15 +242,23 @@ class NetFtUdpSim:
                 log.debug("RDT simulator: TCP client went away")
 
     def _loop(self) -> None:
+        """Requests served as they come; each datagram sent once its last record's instant has
+        passed (slept for precisely: a socket timeout would round to the millisecond)."""
+        self.sock.settimeout(0.0)
         try:
             while not self._stop_evt.is_set():
-                try:
-                    data, peer = self.sock.recvfrom(65535)
+                while True:
+                    try:
+                        data, peer = self.sock.recvfrom(65535)
+                    except (BlockingIOError, TimeoutError):
+                        break
                     self._handle(data, peer)
-                except TimeoutError:
-                    pass
-                if self._left != 0 and self._peer is not None:
-                    self._stream()
+                nxt = time.monotonic() + 0.001
+                if self._peer is not None and (self._left != 0 or self._pending):
+                    nxt = min(nxt, self._stream())
                 self._serve_tcp()
+                wait = nxt - time.monotonic()
+                if wait > 0:
+                    time.sleep(min(wait, 0.001))
         except Exception:  # pragma: no cover - surfaced through the test's timeouts
             log.exception("RDT simulator thread failed")

@@ -84,32 +84,3 @@ def test_rig_file_items_named(tmp_path: Path, drop: str, match: str) -> None:
     )
     with DeviceContext(settings) as ctx, pytest.raises(SetupError, match=match):
         lookup("loadcell", "netft-can")(ctx, ctx.rig_file.load_cells[0])
-
-
-def test_rdt_over_udp_identifies_but_refuses_an_impact_test(tmp_path: Path) -> None:
-    """``netft-udp-simulated``: the RDT simulator on a loopback port; the devices check reads the
-    sensor, an impact test is refused naming the backends that can be aligned."""
-    assert {"netft-udp", "netft-udp-simulated"} <= set(BACKENDS["loadcell"])
-    settings = load_settings(data_dir=tmp_path, token="t", loadcell="netft-udp-simulated")
-    got = rig_builder.check_devices(settings, "loadcell")
-    assert "Net F/T RDT" in got["load_cells"]["501"]["firmware"]
-    from dimacq.backends.netft_simulated import SENSOR_CALIBRATION
-
-    with DeviceContext(settings) as ctx:  # its counts per unit are read from the sensor
-        drv = lookup("loadcell", "netft-udp-simulated")(ctx, ctx.rig_file.load_cells[0])
-        assert drv.calibration == SENSOR_CALIBRATION
-    setup = build_scenario(settings.scenario).model.setup
-    cfg = {"averages_per_input": 2, "record_samples": 2048, "seed": 4}
-    rig = rig_builder.build_rig(settings, setup, cfg)
-    try:
-        with pytest.raises(SetupError, match=r"use loadcell = 'netft-can' .* 'daq-channels'"):
-            rig_builder.run_impact_test(
-                rig, setup, cfg, on_average=lambda *a: None, on_progress=lambda f, m: None
-            )
-    finally:
-        rig.close()
-    with (
-        DeviceContext(load_settings(data_dir=tmp_path, token="t")) as ctx,
-        pytest.raises(SetupError, match="needs the Net F/T's IP address; give netft_host"),
-    ):
-        lookup("loadcell", "netft-udp")(ctx, ctx.rig_file.load_cells[0])

@@ -70,3 +70,31 @@ def test_bad_files_are_refused(tmp_path):
         read_calibration(tmp_path / "x.xml")
     with pytest.raises(DataError, match="unknown calibration file type"):
         read_calibration(tmp_path / "c.txt")
+
+
+def test_lbf_and_lbf_in_read_and_the_gauge_count_taken_from_the_file(tmp_path):
+    """An ATI-style file of a US-calibrated cell: ForceUnits="lbf", TorqueUnits="lbf-in", and
+    NumGages="6" (a cell read through six conditioned outputs). Independent answer: the
+    definitions 1 lbf = 0.45359237 kg × 9.80665 m/s² = 4.4482216152605 N, 1 in = 0.0254 m."""
+    m = np.random.default_rng(3).standard_normal((6, 6))
+    c = LoadCellCalibration("FT9", "2026-11-27", m, gauge_unit="V")
+    write_calibration_xml(c, tmp_path / "ft.xml")
+    text = (tmp_path / "ft.xml").read_text()
+    assert 'NumGages="6"' in text
+    text = text.replace('ForceUnits="N"', 'ForceUnits="lbf"').replace(
+        'TorqueUnits="N-m"', 'TorqueUnits="lbf-in"'
+    )
+    (tmp_path / "lbf.xml").write_text(text)
+    back = read_calibration(tmp_path / "lbf.xml")
+    assert back.n_gauges == 6
+    np.testing.assert_allclose(back.matrix[:3], m[:3] * 4.4482216152605, rtol=1e-13)
+    np.testing.assert_allclose(back.matrix[3:], m[3:] * 4.4482216152605 * 0.0254, rtol=1e-13)
+    d = c.to_json()
+    d["force_unit"], d["moment_unit"] = "lbf", "lbf-ft"
+    (tmp_path / "lbf.json").write_text(json.dumps(d))
+    back = read_calibration(tmp_path / "lbf.json")
+    np.testing.assert_allclose(back.matrix[3:], m[3:] * 4.4482216152605 * 0.3048, rtol=1e-13)
+    d["force_unit"] = "kip"
+    (tmp_path / "kip.json").write_text(json.dumps(d))
+    with pytest.raises(DataError, match=r"units 'kip'/'lbf-ft' unknown; use one of \[.*'lbf'"):
+        read_calibration(tmp_path / "kip.json")

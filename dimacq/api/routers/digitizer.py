@@ -4,18 +4,21 @@ orientation, lines of action."""
 from __future__ import annotations
 
 from dataclasses import asdict
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
-from fastapi import APIRouter, HTTPException, Path, Response, status
+from fastapi import APIRouter, HTTPException, Path, Request, Response, status
+from fastapi.concurrency import run_in_threadpool
 
-from dimacq.api.deps import IdPath, LabDep
+from dimacq.api.deps import IdPath, LabDep, NameQuery
 from dimacq.api.routers._common import (
     LIST_RESPONSES,
+    RAW_BODY,
     PageDep,
     body_openapi,
     deleted,
     found,
     paged,
+    read_upload,
     strict_body,
 )
 from dimacq.api.schemas import (
@@ -94,6 +97,28 @@ def digitize_point(
 @router.get("/points", response_model=list[PointOut], responses=LIST_RESPONSES)
 def list_points(lab: LabDep, page: PageDep, response: Response) -> list[StoredPoint]:
     return paged(response, lab.geometry.points(), page)
+
+
+@router.post(
+    "/points/import",
+    response_model=list[PointOut],
+    status_code=status.HTTP_201_CREATED,
+    openapi_extra=RAW_BODY,
+)
+async def import_points(
+    request: Request,
+    lab: LabDep,
+    format: Literal["csv", "json"] = "csv",
+    name: NameQuery | None = None,
+) -> list[StoredPoint]:
+    """Labelled points measured by another instrument (CMM, laser tracker, photogrammetry), in
+    its own frame, as a new patch: register it from reference nodes and fit orientations and
+    lines of action as for digitized points (file layout: ``dimacq/io/measured_points.py``)."""
+    from dimacq.io.measured_points import read_measured_points
+
+    data = await read_upload(request)
+    points = read_measured_points(data, format, what=f"measured points ({format})")
+    return await run_in_threadpool(lab.geometry.import_points, points, name)
 
 
 @router.delete("/points/{point_id:id}", status_code=status.HTTP_204_NO_CONTENT)

@@ -5,6 +5,8 @@ simulator's known points through the wire protocol and prints the accuracy figur
 echoes injected/accepted, temperature step, jig orientation, line of action, solver throughput),
 with the thesis Table 1 style orthogonality check of each jig fit.
 ``dimacq digitizer sim-pty`` serves a simulated digitizer on a pseudo-terminal.
+``dimacq digitizer import-points FILE`` sends labelled points measured by another instrument
+(CSV/JSON, ``dimacq/io/measured_points.py``) to the running service as a new patch.
 """
 
 from __future__ import annotations
@@ -13,7 +15,7 @@ import argparse
 import json
 import os
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 from dimacq.errors import SetupError
 
@@ -51,6 +53,19 @@ def register(subparsers: Any) -> None:
         "--json", type=Path, default=None, metavar="OUT", help="write the figures as JSON"
     )
     st.set_defaults(func=selftest)
+
+    imp = sub.add_parser(
+        "import-points",
+        help="points measured by another instrument (CSV/JSON) into the running service",
+    )
+    imp.add_argument("file", type=Path, help="labelled points: CSV (label,x_mm,y_mm,z_mm) or JSON")
+    imp.add_argument("--format", choices=["csv", "json"], default=None, help="default: suffix")
+    imp.add_argument("--name", default=None, help="the patch's name (default: the instrument's)")
+    imp.add_argument(
+        "--url", default=None, help="the service (default: http://host:port of the settings)"
+    )
+    imp.add_argument("--token", default=None, help="its API token (default: the settings')")
+    imp.set_defaults(func=import_points)
 
     pty = sub.add_parser("sim-pty", help="serve a simulated digitizer on a pseudo-terminal")
     pty.add_argument("--seed", type=int, default=0)
@@ -136,3 +151,43 @@ def sim_pty(args: argparse.Namespace) -> int:
     if args.config is not None:
         argv += ["--config", str(args.config)]
     return sim_main(argv)
+
+
+def import_points(args: argparse.Namespace) -> int:
+    """POST the file to ``/api/digitizer/points/import`` of the running service (``dimacq
+    serve``): a new patch of labelled points, to register from reference nodes and orient as
+    digitized points (``POST /api/digitizer/registrations``, ``/orientations``, ...)."""
+    import httpx
+
+    from dimacq.config import load_settings
+    from dimacq.io.measured_points import read_measured_points
+
+    path: Path = args.file
+    given = args.format or path.suffix.lstrip(".").lower()
+    if given not in ("csv", "json"):
+        raise SetupError(f"{path}: format {given!r}; give --format csv or json")
+    fmt: Literal["csv", "json"] = "csv" if given == "csv" else "json"
+    data = path.read_bytes()
+    read_measured_points(data, fmt, what=str(path))  # a bad file: named here, nothing sent
+    settings = load_settings()
+    url = args.url or f"http://{settings.host}:{settings.port}"
+    token = args.token or settings.token
+    try:
+        r = httpx.post(
+            f"{url}/api/digitizer/points/import",
+            params={"format": fmt, **({"name": args.name} if args.name else {})},
+            content=data,
+            headers={"Authorization": f"Bearer {token}"},
+            timeout=60,
+        )
+    except httpx.HTTPError as err:
+        raise SetupError(f"{url}: {err}; start the service (dimacq serve) or give --url") from err
+    if r.status_code != 201:
+        raise SetupError(f"{url}: import refused ({r.status_code}): {r.text[:300]}")
+    pts = r.json()
+    patch = pts[0]["patch"] if pts else None
+    print(
+        f"{len(pts)} points imported from {path} as patch {patch}; register it from reference "
+        "nodes (POST /api/digitizer/registrations)"
+    )
+    return 0

@@ -37,6 +37,7 @@ from dimacq.services.lab.geometry_records import (
 
 if TYPE_CHECKING:
     from dimacq.drivers.digitizer import SerialDigitizer
+    from dimacq.io.measured_points import MeasuredPoints
     from dimacq.services.digitizing import DigitizedPoint, DigitizingSession
     from dimacq.services.lab.devices import DeviceService
 
@@ -245,6 +246,38 @@ class GeometryService:
         with self.db.session() as s:
             s.merge(m.PatchRow(index=p.index, name=p.name, test=test))
         return PatchInfo(p.index, p.name, None, test)
+
+    def import_points(self, points: MeasuredPoints, name: str | None = None) -> list[StoredPoint]:
+        """Points measured by another instrument (:mod:`dimacq.io.measured_points`), in its own
+        frame, as a new patch of the current test: registered, oriented and fitted into lines of
+        action exactly as points the digitizer measured (one shot each; ``spread_m`` the file's
+        sigma, else 0). The digitizer need not be connected."""
+        name = name or f"imported {points.instrument or 'points'}"
+        with self.devices.lock:
+            live = self.devices.session_if_open()
+            if live is not None:  # the session numbers its patches: it gets this one too
+                index = live.new_patch(name).index
+            else:
+                with self.db.session() as s:
+                    top = s.scalars(select(m.PatchRow.index).order_by(m.PatchRow.index.desc()))
+                    index = int((top.first() or 0) + 1)
+        test = self.current_test()
+        with self.db.session() as s:
+            s.merge(m.PatchRow(index=index, name=name, test=test))
+            for p in points.points:
+                sigma = 0.0 if p.sigma_m is None else p.sigma_m
+                s.add(
+                    m.DigitizedPointRow(
+                        label=p.label,
+                        patch=index,
+                        position_array_m=list(p.xyz_m),
+                        spread_m=[sigma, sigma, sigma],
+                        n_shots=1,
+                        n_used=1,
+                        seqs=[],
+                    )
+                )
+        return [q for q in self.points() if q.patch == index]
 
     def new_test(self, name: str | None = None) -> NewTest:
         """Start a new digitizing test: a fresh patch, no reference nodes, no orientations or
