@@ -85,6 +85,7 @@ from scipy.spatial.transform import Rotation
 from dimacq.errors import SetupError, SolverError
 from dimacq.model.frf import FrfData
 from dimacq.model.setup import TestSetup
+from dimacq.pipeline._batched import real_apply
 
 __all__ = [
     "QUANTITIES",
@@ -299,7 +300,7 @@ def _sums(H: ComplexArray, R: ComplexArray) -> _Sums:
         sum_r=R.sum(axis=0).T,
         rr=np.real(np.einsum("lkj,lmj->jkm", R.conj(), R)),
         sum_a=H.sum(axis=0).T,
-        ar=np.einsum("lij,lkj->jik", H, R.conj()),
+        ar=H.transpose(2, 1, 0) @ R.transpose(2, 0, 1).conj(),  # (J, n, 6): Σ_l A_l·j R_ljᴴ
     )
 
 
@@ -321,7 +322,7 @@ def _normal(
     )
     pw = psi[:, None, :, :] * w[None, :, :, None]  # (S, J, n, 6): W_j Ψ
     Pj = np.swapaxes(pw, -1, -2) @ psi[:, None]  # ΨᵀW_jΨ
-    N36 = np.einsum("sjbd,sjac->sjbadc", Sj, Pj).reshape(*Sj.shape[:2], 36, 36)
+    N36 = (Sj[:, :, :, None, :, None] * Pj[:, :, None, :, None, :]).reshape(*Sj.shape[:2], 36, 36)
     N = _DUP.T @ N36 @ _DUP
     # T_j = Σ A_j Fᴴ = Σ A_j φᵀ + Σ A_j Rᴴ ;  rhs = vec(ΨᵀW_j Re T_j)
     T = np.real(sums.sum_a[None, :, :, None] * phi[:, :, None, :] + sums.ar[None])
@@ -461,7 +462,7 @@ def mass_line_fit(
 
     g, Nj, bj = fit(W)
     if noise_weighting:
-        res = H - np.einsum("ia,ab,lbj->lij", psi0, _sym(g), F)
+        res = H - real_apply(psi0 @ _sym(g), F)
         s2 = np.mean(np.abs(res) ** 2, axis=0).T  # (J, n)
         power = np.mean(np.abs(H) ** 2, axis=0).T
         pos_s2 = s2[W > 0]
@@ -498,7 +499,7 @@ def mass_line_fit(
     values, structure = _derive(g, ell, p)
 
     # noise: Cov(g) = N⁻¹ χ²/ν, first-order through the reading
-    res = H - np.einsum("ia,ab,lbj->lij", psi0, G, F)
+    res = H - real_apply(psi0 @ G, F)
     chi2 = float(np.sum(W.T[None] * np.abs(res) ** 2))
     nu = max(2 * L * int(np.sum(W > 0)) - 21, 1)
     Ninv = np.linalg.inv(N)

@@ -336,6 +336,8 @@ def _line_weights(
     rel = np.full_like(prel, PRECISION_FLOOR_REL**2)
     if eps_r > 0 and np.any(R):
         B = psi @ A  # (C, 6)
+        # einsum's own summation order: on noise-free FRFs these weights feed quantities made of
+        # rounding noise (gauge-mode information, the geometry test), which a BLAS product moves
         pr = np.einsum("ca,laj->lcj", B, R)
         pt = pr + (B @ phi.T)[None]
         rho2 = np.sum(np.abs(pr) ** 2, axis=1) / np.maximum(np.sum(np.abs(pt) ** 2, axis=1), 1e-300)

@@ -405,9 +405,10 @@ def _band_sums(
     H = np.asarray(H_acc)
     u = system.unit_m
     R = system.F * u - system.phi[None].astype(complex)  # (L, 6, J): reactions at P
-    P = np.real(np.einsum("lij,lkj->ik", H.conj(), H))
+    Hm = np.moveaxis(H, 1, 0).reshape(H.shape[1], -1)  # (n, L·J)
+    P = np.real(Hm.conj() @ Hm.T)
     S1 = np.real(H.conj().sum(axis=0))
-    S2 = np.real(np.einsum("lij,lkj->ik", H.conj(), R))
+    S2 = np.real(Hm.conj() @ np.moveaxis(R, 1, 0).reshape(R.shape[1], -1).T)
     return P, S1, S2
 
 

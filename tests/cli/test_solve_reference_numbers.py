@@ -54,6 +54,15 @@ ATOL = 1e-12
 _NUMBER = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
 #: Ratios of rounding noise on the noise-free example (see the module docstring).
 LOOSE = {".output_error.gauge_modes.data_to_prior_information[0]": 1e-3}
+#: On the noisy sets the data information of that mode is rounding noise (±1e-7 of the prior's,
+#: against 1–15 for the other modes): an absolute tolerance there.
+NOISE_ATOL = {".output_error.gauge_modes.data_to_prior_information[0]": 1e-6}
+#: Second-order quantities (standard errors, intervals, the Monte Carlo's spreads: differences of
+#: nearby solves, gauge-projected covariances) move by rounding more than the estimates: between
+#: one and two BLAS threads the same code's x38-realistic answer moves them by up to 2.2e-8 (its
+#: estimates by < 1e-9). They are compared to 1e-7; everything else to RTOL.
+UNCERTAINTY_RTOL = 1e-7
+_UNCERTAINTY = re.compile(r"standard_error|\.se_|_se_|ci95|robust_factor")
 SKIP = {".output_error.elapsed_s"}
 
 
@@ -98,8 +107,8 @@ def _compare(got: Any, ref: Any, path: str, bad: list[str]) -> None:
         for i, (g, r) in enumerate(zip(got, ref, strict=True)):
             _compare(g, r, f"{path}[{i}]", bad)
     elif isinstance(ref, float) and not isinstance(got, bool) and isinstance(got, int | float):
-        rtol = LOOSE.get(path, RTOL)
-        if not abs(got - ref) <= rtol * abs(ref) + ATOL:
+        rtol = LOOSE.get(path, UNCERTAINTY_RTOL if _UNCERTAINTY.search(path) else RTOL)
+        if not abs(got - ref) <= rtol * abs(ref) + NOISE_ATOL.get(path, ATOL):
             bad.append(f"{path}: {got!r} != {ref!r} (rel {abs(got - ref) / abs(ref):.1e})")
     elif isinstance(ref, str) and isinstance(got, str) and got != ref:
         # Messages quote numbers to a few digits: the same text, and the quoted numbers within
@@ -150,7 +159,7 @@ def test_the_comparison_sees_a_change() -> None:
     ref = json.loads(REFERENCE.read_text())
     got = json.loads(REFERENCE.read_text())
     got["mass_kg"] *= 1 + 1e-8
-    got["uncertainty"]["cx"]["ci95"][0] += 1e-9
+    got["uncertainty"]["cx"]["ci95"][0] += 1e-8  # 8e-7 relative: beyond the uncertainty tolerance
     got["verdict"] = "other"
     got["band_selection"]["reason"] = ref["band_selection"]["reason"].replace(
         "91 lines", "92 lines"

@@ -189,7 +189,7 @@ class _PredictiveResiduals:
         if x.ndim == 1:
             r = A @ x - b
         else:
-            r = np.einsum("ljrp,jp->ljr", A, x) - b
+            r = (A @ x[:, :, None])[..., 0] - b
         out: FloatArray = np.sqrt(np.mean(np.abs(r / s) ** 2, axis=(0, 2)))
         return out
 
