@@ -49,6 +49,7 @@ from dimacq.errors import SetupError, SolverError
 from dimacq.model.properties import vector_to_inertia
 from dimacq.model.setup import PARAMETERS
 from dimacq.pipeline.dim import DimResult, DimSystem, solve_joint
+from dimacq.pipeline.dim_many import solve_joint_many
 
 __all__ = [
     "GeometrySpread",
@@ -225,12 +226,12 @@ def estimate_uncertainty(
     samples: list[FloatArray] = []
     n_bad = 0
     if method == "jackknife":
+        # every leave-one-out from the inputs' band sums (dimacq.pipeline.dim_many)
+        loo, solved = solve_joint_many(system, 1.0 - np.eye(n_in), known=known)
         for j in range(n_in):
-            w = np.ones(n_in)
-            w[j] = 0.0
-            try:
-                samples.append(solve_joint(system, known=known, input_weights=w))
-            except SolverError:
+            if solved[j]:
+                samples.append(loo[j])
+            else:
                 n_bad += 1
                 log.warning(
                     "leave-one-out without input %s is rank deficient: the others cannot "

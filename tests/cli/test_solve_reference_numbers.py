@@ -62,6 +62,13 @@ NOISE_ATOL = {".output_error.gauge_modes.data_to_prior_information[0]": 1e-6}
 #: one and two BLAS threads the same code's x38-realistic answer moves them by up to 2.2e-8 (its
 #: estimates by < 1e-9). They are compared to 1e-7; everything else to RTOL.
 UNCERTAINTY_RTOL = 1e-7
+#: The comparison's DIM standard errors take the hammer's share out of the geometry spread,
+#: ``sqrt(se_geo² − (σ_f x)²)``: a difference of nearly equal squares (the principal moments'
+#: geometry spread is mostly that scale), which multiplies the rounding of its terms ~10×.
+CANCELLING_RTOL = {".cross_check.dim_standard_error": 1e-6}
+#: Below this, an input's studentised residual in the input selection is rounding noise (the
+#: noise-free example: all of them are ~1e-15), and which input is "least consistent" is arbitrary.
+ROUNDING_STATISTIC = 1e-12
 _UNCERTAINTY = re.compile(r"standard_error|\.se_|_se_|ci95|robust_factor")
 SKIP = {".output_error.elapsed_s"}
 
@@ -87,7 +94,25 @@ def solve_json(files: list[str], out: Path) -> Any:
 
 def compare(got: Any, ref: Any, path: str, bad: list[str]) -> None:
     """Append to BAD every number, string or key of GOT that differs from REF (see above)."""
-    _compare(got, ref, path, bad)
+    _compare(_unnamed_rounding(got), _unnamed_rounding(ref), path, bad)
+
+
+def _unnamed_rounding(doc: Any) -> Any:
+    """A copy of DOC without the input named as least consistent where every input's residual
+    is rounding noise (its statistic, still compared, below :data:`ROUNDING_STATISTIC`)."""
+    sel = doc.get("input_selection") if isinstance(doc, dict) else None
+    if not isinstance(sel, dict) or not sel.get("cycles"):
+        return doc
+    doc = json.loads(json.dumps(doc))
+    sel = doc["input_selection"]
+    for k, cyc in enumerate(sel["cycles"]):
+        if float(cyc.get("statistic_removed") or 1.0) < ROUNDING_STATISTIC:
+            cyc["removed"] = "(rounding noise)"
+            if k == sel.get("chosen_cycle") and isinstance(sel.get("stop_reason"), str):
+                sel["stop_reason"] = re.sub(
+                    r"input \S+ has", "input (rounding noise) has", sel["stop_reason"]
+                )
+    return doc
 
 
 def _compare(got: Any, ref: Any, path: str, bad: list[str]) -> None:
@@ -108,6 +133,7 @@ def _compare(got: Any, ref: Any, path: str, bad: list[str]) -> None:
             _compare(g, r, f"{path}[{i}]", bad)
     elif isinstance(ref, float) and not isinstance(got, bool) and isinstance(got, int | float):
         rtol = LOOSE.get(path, UNCERTAINTY_RTOL if _UNCERTAINTY.search(path) else RTOL)
+        rtol = next((v for k, v in CANCELLING_RTOL.items() if path.startswith(k)), rtol)
         if not abs(got - ref) <= rtol * abs(ref) + NOISE_ATOL.get(path, ATOL):
             bad.append(f"{path}: {got!r} != {ref!r} (rel {abs(got - ref) / abs(ref):.1e})")
     elif isinstance(ref, str) and isinstance(got, str) and got != ref:
@@ -140,7 +166,7 @@ def test_shipped_example_solves_to_the_numbers_before_the_speed_work(
     capsys.readouterr()
     assert rc == 0
     bad: list[str] = []
-    _compare(json.loads(out.read_text()), json.loads(REFERENCE.read_text()), "", bad)
+    compare(json.loads(out.read_text()), json.loads(REFERENCE.read_text()), "", bad)
     assert not bad, f"{len(bad)} numbers changed:\n" + "\n".join(bad[:40])
 
 
