@@ -104,6 +104,7 @@ from scipy.spatial.transform import Rotation
 from dimacq.errors import SetupError, SolverError
 from dimacq.model.frf import Channel, FrfData
 from dimacq.model.setup import PARAMETERS, TestSetup
+from dimacq.pipeline._filters import uniform_filter_nearest
 from dimacq.pipeline.dim import DimResult, assemble, solve_system
 from dimacq.pipeline.selection._common import response_geometry
 
@@ -322,10 +323,8 @@ def _line_weights(
     L = H.shape[0]
     if L < 16:
         return None
-    from scipy.ndimage import uniform_filter1d
-
     d3 = np.abs(H[:-3] - 3 * H[1:-2] + 3 * H[2:-1] - H[3:]) ** 2  # (L-3, C, J)
-    loc = uniform_filter1d(d3, size=2 * LINE_NOISE_HALF_WIDTH + 1, axis=0, mode="nearest")
+    loc = uniform_filter_nearest(d3, 2 * LINE_NOISE_HALF_WIDTH + 1)
     loc = np.concatenate([loc[:2], loc, loc[-1:]], axis=0)  # centre the L-3 differences on L lines
     power = np.maximum(np.mean(np.abs(H) ** 2, axis=0), 1e-300)  # (C, J)
     n = np.median(loc / (20.0 * power[None]), axis=1)  # (L, J)
