@@ -305,11 +305,14 @@ def _sums(H: ComplexArray, R: ComplexArray) -> _Sums:
 
 
 def _normal(
-    sums: _Sums, psi: FloatArray, phi: FloatArray, w: FloatArray
+    sums: _Sums, psi: FloatArray, phi: FloatArray, w: FloatArray, *, summed: bool = False
 ) -> tuple[FloatArray, FloatArray]:
     """Per-input normal matrices and right sides, batched over geometries.
 
-    psi (S, n, 6), phi (S, J, 6) scaled; w (J, n). Returns N (S, J, 21, 21), b (S, J, 21).
+    psi (S, n, 6), phi (S, J, 6) scaled; w (J, n). Returns N (S, J, 21, 21), b (S, J, 21);
+    with ``summed`` their sums over the inputs, N (S, 21, 21), b (S, 21): the Kronecker blocks
+    ``Σ_j S_j ⊗ P_j`` as one product over j (a (36, J)·(J, 36) matmul per geometry) before the
+    21×21 reduction, instead of J of them (the geometry Monte Carlo needs only the sums).
     """
     L = sums.n_lines
     # S_j = Re Σ F̄ Fᵀ with F = φ + R
@@ -322,12 +325,21 @@ def _normal(
     )
     pw = psi[:, None, :, :] * w[None, :, :, None]  # (S, J, n, 6): W_j Ψ
     Pj = np.swapaxes(pw, -1, -2) @ psi[:, None]  # ΨᵀW_jΨ
-    N36 = (Sj[:, :, :, None, :, None] * Pj[:, :, None, :, None, :]).reshape(*Sj.shape[:2], 36, 36)
+    if summed:
+        S_, J_ = Sj.shape[:2]
+        X = np.swapaxes(Sj.reshape(S_, J_, 36), 1, 2) @ Pj.reshape(S_, J_, 36)  # [s, bd, ac]
+        N36 = X.reshape(S_, 6, 6, 6, 6).transpose(0, 1, 3, 2, 4).reshape(S_, 36, 36)
+    else:
+        N36 = (Sj[:, :, :, None, :, None] * Pj[:, :, None, :, None, :]).reshape(
+            *Sj.shape[:2], 36, 36
+        )
     N = _DUP.T @ N36 @ _DUP
     # T_j = Σ A_j Fᴴ = Σ A_j φᵀ + Σ A_j Rᴴ ;  rhs = vec(ΨᵀW_j Re T_j)
     T = np.real(sums.sum_a[None, :, :, None] * phi[:, :, None, :] + sums.ar[None])
     B = np.swapaxes(pw, -1, -2) @ T  # (S, J, 6, 6): row a, column b
-    b36 = np.swapaxes(B, -1, -2).reshape(*B.shape[:2], 36)  # column-major vec
+    if summed:
+        B = B.sum(axis=1)
+    b36 = np.swapaxes(B, -1, -2).reshape(*B.shape[:-2], 36)  # column-major vec
     b = b36 @ _DUP
     return N, b
 
@@ -571,8 +583,8 @@ def mass_line_fit(
         for chunk in np.array_split(np.arange(S), max(1, S // 50)):
             psi_s = _scaled(pos_s[chunk], dir_s[chunk], p, ell)
             phi_s = _scaled(ipos_s[chunk], idir_s[chunk], p, ell)
-            Ns, bs = _normal(sums, psi_s, phi_s, W)
-            gs = _solve(Ns.sum(axis=1), bs.sum(axis=1))
+            Ns, bs = _normal(sums, psi_s, phi_s, W, summed=True)
+            gs = _solve(Ns, bs)
             good = np.all(np.isfinite(gs), axis=1)
             good[good] = np.linalg.eigvalsh(_sym(gs[good]))[:, 0] > 0
             if good.any():
