@@ -80,12 +80,12 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.spatial.transform import Rotation
 
 from dimacq.errors import SetupError, SolverError
 from dimacq.model.frf import FrfData
 from dimacq.model.setup import TestSetup
 from dimacq.pipeline._batched import real_apply
+from dimacq.pipeline.rotations import rotvec_to_matrix
 
 __all__ = [
     "QUANTITIES",
@@ -573,8 +573,8 @@ def mass_line_fit(
         rvi -= np.einsum("sjk,jk->sj", rvi, idir)[..., None] * idir[None]
         eps = rng.normal(scale=accel_sensitivity_rel, size=(S, n))
         eta = rng.normal(scale=force_sensitivity_rel, size=S)
-        Rn = Rotation.from_rotvec(rv.reshape(-1, 3)).as_matrix().reshape(S, Gn, 3, 3)
-        Ri = Rotation.from_rotvec(rvi.reshape(-1, 3)).as_matrix().reshape(S, J, 3, 3)
+        Rn = rotvec_to_matrix(rv)  # (S, Gn, 3, 3), as scipy Rotation
+        Ri = rotvec_to_matrix(rvi)
         pos_s = pos[None] + dp[:, inv]
         dir_s = np.einsum("snij,nj->sni", Rn[:, inv], dirs) * (1.0 + eps)[..., None]
         idir_s = np.einsum("sjik,jk->sji", Ri, idir) * (1.0 + eta)[:, None, None]

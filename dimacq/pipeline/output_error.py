@@ -99,13 +99,13 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import linalg as scipy_linalg
 from scipy import special
-from scipy.spatial.transform import Rotation
 
 from dimacq.errors import SetupError, SolverError
 from dimacq.model.frf import Channel, FrfData
 from dimacq.model.setup import PARAMETERS, TestSetup
 from dimacq.pipeline._filters import uniform_filter_nearest
 from dimacq.pipeline.dim import DimResult, assemble, solve_system
+from dimacq.pipeline.rotations import apply_rotvec
 from dimacq.pipeline.selection._common import response_geometry
 
 __all__ = [
@@ -563,11 +563,10 @@ class _Problem:
         nn = self.n_nodes
         gs = g[: 6 * nn].reshape(nn, 6)
         gi = g[6 * nn : 6 * nn + 4 * self.rin0.shape[0]].reshape(-1, 4)
-        rot = Rotation.from_rotvec(gs[self.node_of, :3])
-        d = rot.apply(self.d0)
+        d = apply_rotvec(gs[self.node_of, :3], self.d0)
         r = self.r0 + gs[self.node_of, 3:]
         axis = np.einsum("ji,jik->jk", gi[:, :2], self.ebasis)
-        din = Rotation.from_rotvec(axis).apply(self.din0)
+        din = apply_rotvec(axis, self.din0)
         rin = self.rin0 + np.einsum("ji,jik->jk", gi[:, 2:], self.ebasis)
         return r, d, rin, din
 
@@ -1715,7 +1714,7 @@ def _refined_setup(
         if corr is None:
             responses.append(c)
             continue
-        d = Rotation.from_rotvec(corr[:3]).apply(np.asarray(c.direction_gcs))
+        d = apply_rotvec(corr[:3], np.asarray(c.direction_gcs))
         responses.append(
             c.model_copy(
                 update={

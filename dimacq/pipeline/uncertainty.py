@@ -50,6 +50,7 @@ from dimacq.model.properties import vector_to_inertia
 from dimacq.model.setup import PARAMETERS
 from dimacq.pipeline.dim import DimResult, DimSystem, solve_joint
 from dimacq.pipeline.dim_many import solve_joint_many
+from dimacq.pipeline.rotations import rotvec_to_matrix
 
 __all__ = [
     "GeometrySpread",
@@ -470,12 +471,8 @@ def joint_parameters_for_geometry(
 
 
 def _rot(v: FloatArray) -> FloatArray:
-    """Rotation matrices of rotation vectors ``v`` (..., 3) (Rodrigues, via scipy)."""
-    from scipy.spatial.transform import Rotation
-
-    shp = v.shape[:-1]
-    m: FloatArray = Rotation.from_rotvec(v.reshape(-1, 3)).as_matrix().reshape(*shp, 3, 3)
-    return m
+    """Rotation matrices of rotation vectors ``v`` (..., 3) (scipy's Rodrigues, without scipy)."""
+    return rotvec_to_matrix(v)
 
 
 def geometry_spread(
