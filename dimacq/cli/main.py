@@ -27,15 +27,20 @@ from dimacq.cli import commands  # noqa: E402
 from dimacq.errors import DimacqError  # noqa: E402
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """Build the top-level parser with every discovered subcommand."""
-    parser = argparse.ArgumentParser(
-        prog="dimacq",
-        description="Rigid-body inertia properties by the Dynamic Inertia Method.",
-    )
-    parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    sub.required = True
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """Build the top-level parser with every discovered subcommand.
+
+    With ``command`` (the subcommand a command line names), only the module of that name is
+    imported when it registers that subcommand: ``dimacq solve`` then does not import the
+    acquisition, the simulators or the sensitivity study (half a second of start-up, issue #27).
+    Any other name, or none, builds the whole parser (``dimacq --help``, a mistyped command).
+    """
+    if command is not None:
+        parser = _parser_for(command)
+        if parser is not None:
+            return parser
+    parser = _base_parser()
+    sub = _subparsers(parser)
     for info in sorted(pkgutil.iter_modules(commands.__path__), key=lambda m: m.name):
         module = importlib.import_module(f"{commands.__name__}.{info.name}")
         register = getattr(module, "register", None)
@@ -44,10 +49,55 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _base_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="dimacq",
+        description="Rigid-body inertia properties by the Dynamic Inertia Method.",
+    )
+    parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output")
+    return parser
+
+
+def _subparsers(
+    parser: argparse.ArgumentParser,
+) -> argparse._SubParsersAction[argparse.ArgumentParser]:
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+    return sub
+
+
+def _parser_for(command: str) -> argparse.ArgumentParser | None:
+    """The parser with the one module named like ``command``; None when it has no such command."""
+    name = command.replace("-", "_")
+    if not name.isidentifier() or name not in {
+        m.name for m in pkgutil.iter_modules(commands.__path__)
+    }:
+        return None
+    module = importlib.import_module(f"{commands.__name__}.{name}")
+    register = getattr(module, "register", None)
+    if register is None:
+        return None
+    parser = _base_parser()
+    sub = _subparsers(parser)
+    register(sub)
+    return parser if command in sub.choices else None
+
+
+def _command_name(argv: Sequence[str]) -> str | None:
+    """The subcommand of a command line: its first word that is not an option."""
+    for word in argv:
+        if word == "--":
+            return None
+        if not word.startswith("-"):
+            return word
+    return None
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; return the process exit status."""
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    words = sys.argv[1:] if argv is None else list(argv)
+    parser = build_parser(_command_name(words))
+    args = parser.parse_args(words)
     level = logging.WARNING - 10 * min(args.verbose, 2)
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
     try:

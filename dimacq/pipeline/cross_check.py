@@ -80,11 +80,12 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.spatial.transform import Rotation
 
 from dimacq.errors import SetupError, SolverError
 from dimacq.model.frf import FrfData
 from dimacq.model.setup import TestSetup
+from dimacq.pipeline._batched import real_apply
+from dimacq.pipeline.rotations import rotvec_to_matrix
 
 __all__ = [
     "QUANTITIES",
@@ -299,16 +300,19 @@ def _sums(H: ComplexArray, R: ComplexArray) -> _Sums:
         sum_r=R.sum(axis=0).T,
         rr=np.real(np.einsum("lkj,lmj->jkm", R.conj(), R)),
         sum_a=H.sum(axis=0).T,
-        ar=np.einsum("lij,lkj->jik", H, R.conj()),
+        ar=H.transpose(2, 1, 0) @ R.transpose(2, 0, 1).conj(),  # (J, n, 6): Σ_l A_l·j R_ljᴴ
     )
 
 
 def _normal(
-    sums: _Sums, psi: FloatArray, phi: FloatArray, w: FloatArray
+    sums: _Sums, psi: FloatArray, phi: FloatArray, w: FloatArray, *, summed: bool = False
 ) -> tuple[FloatArray, FloatArray]:
     """Per-input normal matrices and right sides, batched over geometries.
 
-    psi (S, n, 6), phi (S, J, 6) scaled; w (J, n). Returns N (S, J, 21, 21), b (S, J, 21).
+    psi (S, n, 6), phi (S, J, 6) scaled; w (J, n). Returns N (S, J, 21, 21), b (S, J, 21);
+    with ``summed`` their sums over the inputs, N (S, 21, 21), b (S, 21): the Kronecker blocks
+    ``Σ_j S_j ⊗ P_j`` as one product over j (a (36, J)·(J, 36) matmul per geometry) before the
+    21×21 reduction, instead of J of them (the geometry Monte Carlo needs only the sums).
     """
     L = sums.n_lines
     # S_j = Re Σ F̄ Fᵀ with F = φ + R
@@ -321,12 +325,21 @@ def _normal(
     )
     pw = psi[:, None, :, :] * w[None, :, :, None]  # (S, J, n, 6): W_j Ψ
     Pj = np.swapaxes(pw, -1, -2) @ psi[:, None]  # ΨᵀW_jΨ
-    N36 = np.einsum("sjbd,sjac->sjbadc", Sj, Pj).reshape(*Sj.shape[:2], 36, 36)
+    if summed:
+        S_, J_ = Sj.shape[:2]
+        X = np.swapaxes(Sj.reshape(S_, J_, 36), 1, 2) @ Pj.reshape(S_, J_, 36)  # [s, bd, ac]
+        N36 = X.reshape(S_, 6, 6, 6, 6).transpose(0, 1, 3, 2, 4).reshape(S_, 36, 36)
+    else:
+        N36 = (Sj[:, :, :, None, :, None] * Pj[:, :, None, :, None, :]).reshape(
+            *Sj.shape[:2], 36, 36
+        )
     N = _DUP.T @ N36 @ _DUP
     # T_j = Σ A_j Fᴴ = Σ A_j φᵀ + Σ A_j Rᴴ ;  rhs = vec(ΨᵀW_j Re T_j)
     T = np.real(sums.sum_a[None, :, :, None] * phi[:, :, None, :] + sums.ar[None])
     B = np.swapaxes(pw, -1, -2) @ T  # (S, J, 6, 6): row a, column b
-    b36 = np.swapaxes(B, -1, -2).reshape(*B.shape[:2], 36)  # column-major vec
+    if summed:
+        B = B.sum(axis=1)
+    b36 = np.swapaxes(B, -1, -2).reshape(*B.shape[:-2], 36)  # column-major vec
     b = b36 @ _DUP
     return N, b
 
@@ -461,7 +474,7 @@ def mass_line_fit(
 
     g, Nj, bj = fit(W)
     if noise_weighting:
-        res = H - np.einsum("ia,ab,lbj->lij", psi0, _sym(g), F)
+        res = H - real_apply(psi0 @ _sym(g), F)
         s2 = np.mean(np.abs(res) ** 2, axis=0).T  # (J, n)
         power = np.mean(np.abs(H) ** 2, axis=0).T
         pos_s2 = s2[W > 0]
@@ -498,7 +511,7 @@ def mass_line_fit(
     values, structure = _derive(g, ell, p)
 
     # noise: Cov(g) = N⁻¹ χ²/ν, first-order through the reading
-    res = H - np.einsum("ia,ab,lbj->lij", psi0, G, F)
+    res = H - real_apply(psi0 @ G, F)
     chi2 = float(np.sum(W.T[None] * np.abs(res) ** 2))
     nu = max(2 * L * int(np.sum(W > 0)) - 21, 1)
     Ninv = np.linalg.inv(N)
@@ -560,8 +573,8 @@ def mass_line_fit(
         rvi -= np.einsum("sjk,jk->sj", rvi, idir)[..., None] * idir[None]
         eps = rng.normal(scale=accel_sensitivity_rel, size=(S, n))
         eta = rng.normal(scale=force_sensitivity_rel, size=S)
-        Rn = Rotation.from_rotvec(rv.reshape(-1, 3)).as_matrix().reshape(S, Gn, 3, 3)
-        Ri = Rotation.from_rotvec(rvi.reshape(-1, 3)).as_matrix().reshape(S, J, 3, 3)
+        Rn = rotvec_to_matrix(rv)  # (S, Gn, 3, 3), as scipy Rotation
+        Ri = rotvec_to_matrix(rvi)
         pos_s = pos[None] + dp[:, inv]
         dir_s = np.einsum("snij,nj->sni", Rn[:, inv], dirs) * (1.0 + eps)[..., None]
         idir_s = np.einsum("sjik,jk->sji", Ri, idir) * (1.0 + eta)[:, None, None]
@@ -570,8 +583,8 @@ def mass_line_fit(
         for chunk in np.array_split(np.arange(S), max(1, S // 50)):
             psi_s = _scaled(pos_s[chunk], dir_s[chunk], p, ell)
             phi_s = _scaled(ipos_s[chunk], idir_s[chunk], p, ell)
-            Ns, bs = _normal(sums, psi_s, phi_s, W)
-            gs = _solve(Ns.sum(axis=1), bs.sum(axis=1))
+            Ns, bs = _normal(sums, psi_s, phi_s, W, summed=True)
+            gs = _solve(Ns, bs)
             good = np.all(np.isfinite(gs), axis=1)
             good[good] = np.linalg.eigvalsh(_sym(gs[good]))[:, 0] > 0
             if good.any():

@@ -1060,21 +1060,20 @@ def plausibility(
 
 
 def _hull_check(cg: FloatArray, points: FloatArray) -> Diagnostic:
-    """CG inside the convex hull: every facet plane ``nᵀx + o ≤ 0`` holds (Qhull's outward normals)."""
-    from scipy.spatial import ConvexHull, QhullError
+    """CG inside the convex hull of the points: on their side of every facet plane, within
+    1e-9 of their extent (:func:`dimacq.pipeline.rotations.inside_hull`)."""
+    from dimacq.pipeline.rotations import inside_hull
 
-    pts = np.unique(np.asarray(points, float), axis=0)
-    try:
-        hull = ConvexHull(pts)
-    except (QhullError, ValueError):
+    pts = np.asarray(points, float)
+    scale = float(np.ptp(pts, axis=0).max()) if pts.size else 0.0
+    inside = inside_hull(cg, pts, 1e-9 * scale)
+    if inside is None:
         return Diagnostic(
             "cg_inside_hull",
             True,
             "measured points are coplanar; CG hull check not possible",
             "info",
         )
-    scale = float(np.ptp(pts, axis=0).max())
-    inside = bool(np.all(hull.equations[:, :3] @ cg + hull.equations[:, 3] <= 1e-9 * scale))
     return Diagnostic(
         "cg_inside_hull",
         inside,

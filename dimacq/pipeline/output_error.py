@@ -99,12 +99,13 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import linalg as scipy_linalg
 from scipy import special
-from scipy.spatial.transform import Rotation
 
 from dimacq.errors import SetupError, SolverError
 from dimacq.model.frf import Channel, FrfData
 from dimacq.model.setup import PARAMETERS, TestSetup
+from dimacq.pipeline._filters import uniform_filter_nearest
 from dimacq.pipeline.dim import DimResult, assemble, solve_system
+from dimacq.pipeline.rotations import apply_rotvec
 from dimacq.pipeline.selection._common import response_geometry
 
 __all__ = [
@@ -322,10 +323,8 @@ def _line_weights(
     L = H.shape[0]
     if L < 16:
         return None
-    from scipy.ndimage import uniform_filter1d
-
     d3 = np.abs(H[:-3] - 3 * H[1:-2] + 3 * H[2:-1] - H[3:]) ** 2  # (L-3, C, J)
-    loc = uniform_filter1d(d3, size=2 * LINE_NOISE_HALF_WIDTH + 1, axis=0, mode="nearest")
+    loc = uniform_filter_nearest(d3, 2 * LINE_NOISE_HALF_WIDTH + 1)
     loc = np.concatenate([loc[:2], loc, loc[-1:]], axis=0)  # centre the L-3 differences on L lines
     power = np.maximum(np.mean(np.abs(H) ** 2, axis=0), 1e-300)  # (C, J)
     n = np.median(loc / (20.0 * power[None]), axis=1)  # (L, J)
@@ -336,6 +335,8 @@ def _line_weights(
     rel = np.full_like(prel, PRECISION_FLOOR_REL**2)
     if eps_r > 0 and np.any(R):
         B = psi @ A  # (C, 6)
+        # einsum's own summation order: on noise-free FRFs these weights feed quantities made of
+        # rounding noise (gauge-mode information, the geometry test), which a BLAS product moves
         pr = np.einsum("ca,laj->lcj", B, R)
         pt = pr + (B @ phi.T)[None]
         rho2 = np.sum(np.abs(pr) ** 2, axis=1) / np.maximum(np.sum(np.abs(pt) ** 2, axis=1), 1e-300)
@@ -562,11 +563,10 @@ class _Problem:
         nn = self.n_nodes
         gs = g[: 6 * nn].reshape(nn, 6)
         gi = g[6 * nn : 6 * nn + 4 * self.rin0.shape[0]].reshape(-1, 4)
-        rot = Rotation.from_rotvec(gs[self.node_of, :3])
-        d = rot.apply(self.d0)
+        d = apply_rotvec(gs[self.node_of, :3], self.d0)
         r = self.r0 + gs[self.node_of, 3:]
         axis = np.einsum("ji,jik->jk", gi[:, :2], self.ebasis)
-        din = Rotation.from_rotvec(axis).apply(self.din0)
+        din = apply_rotvec(axis, self.din0)
         rin = self.rin0 + np.einsum("ji,jik->jk", gi[:, 2:], self.ebasis)
         return r, d, rin, din
 
@@ -1714,7 +1714,7 @@ def _refined_setup(
         if corr is None:
             responses.append(c)
             continue
-        d = Rotation.from_rotvec(corr[:3]).apply(np.asarray(c.direction_gcs))
+        d = apply_rotvec(corr[:3], np.asarray(c.direction_gcs))
         responses.append(
             c.model_copy(
                 update={

@@ -49,6 +49,8 @@ from dimacq.errors import SetupError, SolverError
 from dimacq.model.properties import vector_to_inertia
 from dimacq.model.setup import PARAMETERS
 from dimacq.pipeline.dim import DimResult, DimSystem, solve_joint
+from dimacq.pipeline.dim_many import solve_joint_many
+from dimacq.pipeline.rotations import rotvec_to_matrix
 
 __all__ = [
     "GeometrySpread",
@@ -225,12 +227,12 @@ def estimate_uncertainty(
     samples: list[FloatArray] = []
     n_bad = 0
     if method == "jackknife":
+        # every leave-one-out from the inputs' band sums (dimacq.pipeline.dim_many)
+        loo, solved = solve_joint_many(system, 1.0 - np.eye(n_in), known=known)
         for j in range(n_in):
-            w = np.ones(n_in)
-            w[j] = 0.0
-            try:
-                samples.append(solve_joint(system, known=known, input_weights=w))
-            except SolverError:
+            if solved[j]:
+                samples.append(loo[j])
+            else:
                 n_bad += 1
                 log.warning(
                     "leave-one-out without input %s is rank deficient: the others cannot "
@@ -405,9 +407,10 @@ def _band_sums(
     H = np.asarray(H_acc)
     u = system.unit_m
     R = system.F * u - system.phi[None].astype(complex)  # (L, 6, J): reactions at P
-    P = np.real(np.einsum("lij,lkj->ik", H.conj(), H))
+    Hm = np.moveaxis(H, 1, 0).reshape(H.shape[1], -1)  # (n, L·J)
+    P = np.real(Hm.conj() @ Hm.T)
     S1 = np.real(H.conj().sum(axis=0))
-    S2 = np.real(np.einsum("lij,lkj->ik", H.conj(), R))
+    S2 = np.real(Hm.conj() @ np.moveaxis(R, 1, 0).reshape(R.shape[1], -1).T)
     return P, S1, S2
 
 
@@ -468,12 +471,8 @@ def joint_parameters_for_geometry(
 
 
 def _rot(v: FloatArray) -> FloatArray:
-    """Rotation matrices of rotation vectors ``v`` (..., 3) (Rodrigues, via scipy)."""
-    from scipy.spatial.transform import Rotation
-
-    shp = v.shape[:-1]
-    m: FloatArray = Rotation.from_rotvec(v.reshape(-1, 3)).as_matrix().reshape(*shp, 3, 3)
-    return m
+    """Rotation matrices of rotation vectors ``v`` (..., 3) (scipy's Rodrigues, without scipy)."""
+    return rotvec_to_matrix(v)
 
 
 def geometry_spread(

@@ -197,9 +197,11 @@ class CrossCheck:
 
 
 def _chi2_sf(x: float, dof: int) -> float:
-    from scipy.stats import chi2
+    """χ² survival function, ``scipy.stats.chi2.sf(x, dof)`` to the bit (it is
+    ``scipy.special.chdtrc(dof, x)``) without importing scipy.stats (0.5 s of start-up)."""
+    from scipy.special import chdtrc
 
-    return float(chi2.sf(x, dof)) if np.isfinite(x) else 0.0
+    return float(chdtrc(dof, x)) if np.isfinite(x) else 0.0
 
 
 def _comparison_se(fit: MassLineFit) -> np.ndarray:

@@ -44,6 +44,7 @@ __all__ = [
     "layout_setup",
     "make_plan",
     "run_trial",
+    "run_trial_batch",
     "run_trials",
 ]
 
@@ -53,6 +54,8 @@ log = logging.getLogger(__name__)
 DEFAULT_NOISE = 0.01
 #: Lines of the simulated FRFs (20–100 Hz every 2 Hz) and of the information.
 DEFAULT_LINES = 41
+#: Largest batch of Monte Carlo trials in one Dask task (:func:`run_trial_batch`).
+BATCH_MAX = 25
 #: Random layouts whose median bounds the plan is compared with.
 N_RANDOM = 200
 #: Columns of a trial's row: errors, whether the solve's 95 % interval holds the truth, verdict.
@@ -163,6 +166,19 @@ def run_trial(spec: TrialSpec, index: int) -> list[float]:
     return [*map(float, err), *inside, float(_VERDICT.get(report.verdict, 3))]
 
 
+def run_trial_batch(spec: TrialSpec, indices: list[int]) -> list[list[float]]:
+    """Rows of :func:`run_trial` for several trials: one Dask task for a batch of trials, so
+    that the scheduler's per-task cost (a few ms and a message each way) is paid per batch."""
+    return [run_trial(spec, i) for i in indices]
+
+
+def _batches(n_trials: int, workers: int) -> list[list[int]]:
+    """Consecutive trial indices in batches: about 8 per worker so that the progress and the
+    load stay even, at most :data:`BATCH_MAX` trials each."""
+    size = max(1, min(BATCH_MAX, n_trials // max(8 * workers, 1)))
+    return [list(range(i, min(i + size, n_trials))) for i in range(0, n_trials, size)]
+
+
 def run_trials(
     spec: TrialSpec,
     n_trials: int,
@@ -176,7 +192,7 @@ def run_trials(
     ``scheduler``: ``None`` or ``"none"`` (or ``workers == 0``) runs in this process; ``"local"``
     starts a Dask LocalCluster of ``workers`` single-threaded worker processes; an address
     (``tcp://host:8786``) uses that scheduler. ``progress(done, total, seconds_left)`` is called
-    after each trial.
+    after each trial in-process, after each batch of trials (:func:`_batches`) on Dask.
     """
     if n_trials < 1:
         raise SetupError(f"--trials {n_trials}: give at least 1 trial")
@@ -231,12 +247,14 @@ def run_trials(
             )
         with client:
             [spec_f] = client.scatter([spec], broadcast=True)
-            futures = client.map(run_trial, [spec_f] * n_trials, range(n_trials), pure=False)
-            index = {f.key: i for i, f in enumerate(futures)}
+            batches = _batches(n_trials, workers if scheduler == "local" else 8)
+            futures = client.map(run_trial_batch, [spec_f] * len(batches), batches, pure=False)
+            index = {f.key: b for f, b in zip(futures, batches, strict=True)}
             done = 0
             for fut in as_completed(futures):
-                rows[index[fut.key]] = fut.result()
-                done += 1
+                for i, row in zip(index[fut.key], fut.result(), strict=True):
+                    rows[i] = row
+                done += len(index[fut.key])
                 tick(done)
     finally:
         if cluster is not None:

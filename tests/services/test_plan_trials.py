@@ -8,6 +8,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from dimacq.io.setup_file import load_setup
 from dimacq.model.properties import RigidBodyProperties
@@ -54,3 +55,13 @@ def test_trial_draws_depend_only_on_seed_and_index() -> None:
     b, _ = pl.simulated_frf(cand, lay, props, em, 5, np.random.default_rng(
         np.random.SeedSequence(4).spawn(10)[3]))  # fmt: skip
     np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize(("n_trials", "workers"), [(1, 2), (7, 2), (100, 2), (1000, 2), (1000, 8)])
+def test_trial_batches_cover_every_trial_once_in_order(n_trials: int, workers: int) -> None:
+    from dimacq.services.planning import BATCH_MAX, _batches
+
+    batches = _batches(n_trials, workers)
+    assert [i for b in batches for i in b] == list(range(n_trials))
+    assert all(1 <= len(b) <= BATCH_MAX for b in batches)
+    assert len(batches) >= min(n_trials, 8 * workers)  # enough tasks to keep the workers busy

@@ -53,11 +53,11 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.ndimage import median_filter
 
 from dimacq.errors import DataError, SolverError
 from dimacq.model.frf import FrfData
 from dimacq.model.setup import TestSetup
+from dimacq.pipeline._filters import median_filter_nearest
 from dimacq.pipeline.dim import assemble, line_residuals, solve_system
 from dimacq.pipeline.rigid_body import response_matrix
 from dimacq.pipeline.selection._common import response_geometry
@@ -365,7 +365,7 @@ def suggest_band(
     )
     rough = np.full(n, np.inf)
     if fin.sum() >= 3:
-        med = median_filter(np.where(fin[:, None], pn, 0.0), size=(win, 1), mode="nearest")
+        med = median_filter_nearest(np.where(fin[:, None], pn, 0.0), win)
         dev = np.abs(pn - med)
         rough = np.where(fin, np.max(dev, axis=1), np.inf)
         rough_ok = fin & np.all(dev < np.maximum(rough_sigma * sig, ROUGH_FLOOR), axis=1)
@@ -397,7 +397,7 @@ def suggest_band(
 
     tol = np.maximum(flat_sigma * sig, flat_floor)
 
-    s1 = median_filter(sv[:, 0], size=3, mode="nearest")
+    s1 = median_filter_nearest(sv[:, 0], 3)
     cleared: dict[int, int] = {}  # band start moved by the resonance clearance → that CMIF peak
     capped: dict[int, int] = {}  # band top moved by the elastic clearance → that elastic peak
 
@@ -499,7 +499,7 @@ def suggest_band(
             if b - a + 1 <= wl:
                 s0, sc = a, float(np.median(score))
             else:
-                med = median_filter(score, size=wl, mode="nearest")
+                med = median_filter_nearest(score, wl)
                 k = int(np.argmin(med[wl // 2 : b - a + 1 - wl // 2])) + wl // 2
                 s0, sc = a + k - wl // 2, float(med[k])
                 b = s0 + wl - 1

@@ -62,6 +62,7 @@ from dimacq.errors import SetupError, SolverError
 from dimacq.model.frf import Channel
 from dimacq.model.setup import PARAMETERS
 from dimacq.pipeline.dim import DimSystem, design_matrices, solve_joint
+from dimacq.pipeline.dim_many import solve_joint_many
 from dimacq.pipeline.selection._common import robust_outlier
 
 __all__ = [
@@ -189,7 +190,7 @@ class _PredictiveResiduals:
         if x.ndim == 1:
             r = A @ x - b
         else:
-            r = np.einsum("ljrp,jp->ljr", A, x) - b
+            r = (A @ x[:, :, None])[..., 0] - b
         out: FloatArray = np.sqrt(np.mean(np.abs(r / s) ** 2, axis=(0, 2)))
         return out
 
@@ -211,14 +212,12 @@ def jackknife_estimates(
     n = system.K.shape[2]
     est = np.full((n, 10), np.nan)
     ok = np.zeros(n, dtype=bool)
-    for j in np.nonzero(active)[0]:
-        w = active.astype(float)
-        w[j] = 0.0
-        try:  # only the joint answer: solve_system's, without its per-line spectrum
-            est[j] = solve_joint(system, known=known, input_weights=w)
-        except SolverError:
-            continue
-        ok[j] = True
+    idx = np.nonzero(active)[0]
+    if idx.size:
+        # only the joint answers, all from the inputs' band sums (dimacq.pipeline.dim_many)
+        w = np.broadcast_to(np.asarray(active, float), (idx.size, n)).copy()
+        w[np.arange(idx.size), idx] = 0.0
+        est[idx], ok[idx] = solve_joint_many(system, w, known=known)
     return est, ok
 
 

@@ -29,7 +29,6 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.spatial.transform import Rotation
 
 from dimacq.errors import SetupError
 from dimacq.model.frf import Channel, FrfData
@@ -146,6 +145,8 @@ def estimate_orientation(
     act = np.ones(n, bool) if active is None else np.asarray(active, bool)
     p = np.zeros(3) if reference_point_m is None else np.asarray(reference_point_m, float)
     r = pos - p
+    from scipy.spatial.transform import Rotation  # here: only --repair-orientation needs it
+
     uniq = np.unique(nodes)
     rots = [Rotation.identity() for _ in uniq]
     members = [np.nonzero(nodes == g)[0] for g in uniq]

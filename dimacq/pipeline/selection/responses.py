@@ -42,6 +42,7 @@ from numpy.typing import NDArray
 from dimacq.errors import SetupError
 from dimacq.model.frf import Channel, FrfData
 from dimacq.model.setup import TestSetup
+from dimacq.pipeline._batched import real_apply
 from dimacq.pipeline.rigid_body import response_matrix
 from dimacq.pipeline.selection._common import (
     ResponseGeometry,
@@ -116,8 +117,8 @@ def rigid_body_errors(
     S = np.nonzero(act)[0]
     pS = psi_n[S]
     pinv = np.linalg.pinv(pS)  # (6, nS)
-    K = np.einsum("ks,lsj->lkj", pinv, q[:, S, :])
-    qf = np.einsum("ck,lkj->lcj", psi_n, K)  # fit / prediction for all channels
+    K = real_apply(pinv, q[:, S, :])
+    qf = real_apply(psi_n, K)  # fit / prediction for all channels
     r = q - qf
     h = np.full(psi_n.shape[0], np.nan)
     h[S] = np.einsum("sk,ks->s", pS, pinv)
