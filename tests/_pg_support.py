@@ -21,9 +21,15 @@ import pytest
 
 from dimacq.api.server import free_port
 
-__all__ = ["BACKENDS", "PgServer", "database_url_for", "pg_binaries_missing"]
+__all__ = ["BACKENDS", "SQLITE_ONLY", "PgServer", "database_url_for", "pg_binaries_missing"]
 
 BACKENDS = ("sqlite", "postgresql")
+
+# For an API test module whose cost is computation, not storage (plans, solves): its tests run on
+# the module's server on SQLite only (``pytestmark = SQLITE_ONLY``). What they store (jobs and
+# their results, setups, FRF sets, solutions) goes through the same store that test_api.py's
+# round trips check on both backends; a second server on PostgreSQL would repeat the computation.
+SQLITE_ONLY = pytest.mark.parametrize("api_database_url", ["sqlite"], indirect=True)
 
 USER = "dimacq"
 

@@ -51,6 +51,26 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     # the long tests first (stable order otherwise): under -n the workers start on them and the
     # short ones fill in behind, instead of one worker finishing a long test alone at the end
     items.sort(key=lambda item: item.get_closest_marker("slow") is None)
+    for item in items:
+        group = _shared_fixture_group(item)
+        if group and item.get_closest_marker("xdist_group") is None:
+            item.add_marker(pytest.mark.xdist_group(group))
+
+
+def _shared_fixture_group(item: pytest.Item) -> str:
+    """The xdist group of a test that uses a module-scoped fixture (a live API server, a solved
+    analysis): its module, and the server's database backend. ``--dist loadgroup`` (pyproject's
+    addopts) sends a group to one worker, so the fixture is built once, not once per worker
+    that happens to get one of its tests; the other tests are shared out one by one."""
+    info = getattr(item, "_fixtureinfo", None)
+    if info is None:
+        return ""
+    shared = any(d.scope == "module" for defs in info.name2fixturedefs.values() for d in defs[-1:])
+    if not shared:
+        return ""
+    callspec = getattr(item, "callspec", None)
+    backend = callspec.params.get("api_database_url", "") if callspec is not None else ""
+    return f"{item.nodeid.split('::', 1)[0]}:{backend}"
 
 
 @pytest.fixture(autouse=True)

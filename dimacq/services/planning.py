@@ -179,6 +179,20 @@ def _batches(n_trials: int, workers: int) -> list[list[int]]:
     return [list(range(i, min(i + size, n_trials))) for i in range(0, n_trials, size)]
 
 
+def _check_scheduler(scheduler: str | None, workers: int) -> None:
+    """Refuse a ``--scheduler`` / ``--workers`` pair :func:`run_trials` cannot use, before any
+    work (the layout search of :func:`make_plan` takes seconds)."""
+    if scheduler is None or scheduler == "none" or workers == 0:
+        return
+    if scheduler == "local":
+        if workers < 1:
+            raise SetupError(f"--workers {workers}: give 1 or more (0 runs in-process)")
+    elif "://" not in scheduler:
+        raise SetupError(
+            f"--scheduler {scheduler!r}: give local, none or a scheduler address (tcp://host:8786)"
+        )
+
+
 def run_trials(
     spec: TrialSpec,
     n_trials: int,
@@ -196,6 +210,7 @@ def run_trials(
     """
     if n_trials < 1:
         raise SetupError(f"--trials {n_trials}: give at least 1 trial")
+    _check_scheduler(scheduler, workers)
     t0 = time.perf_counter()
     rows: list[list[float] | None] = [None] * n_trials
 
@@ -222,17 +237,18 @@ def run_trials(
     cluster = None
     try:
         if scheduler == "local":
-            if workers < 1:
-                raise SetupError(f"--workers {workers}: give 1 or more (0 runs in-process)")
             cluster = LocalCluster(
                 n_workers=workers,
                 threads_per_worker=1,
                 processes=True,
                 dashboard_address=None,
+                # no dashboard, yet the scheduler's HTTP server binds 8787 by default: taken by
+                # another cluster on this PC it warns and moves; a free loopback port instead
+                scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
                 silence_logs=logging.ERROR,
             )
             client = Client(cluster)
-        elif scheduler is not None and "://" in scheduler:
+        else:  # an address (_check_scheduler)
             try:
                 client = Client(scheduler, timeout=30)
             except OSError as err:
@@ -240,11 +256,6 @@ def run_trials(
                     f"--scheduler {scheduler}: cannot reach the Dask scheduler ({err}); start one "
                     "(dask scheduler; dask worker ADDRESS) or use --scheduler local"
                 ) from err
-        else:
-            raise SetupError(
-                f"--scheduler {scheduler!r}: give local, none or a scheduler address "
-                "(tcp://host:8786)"
-            )
         with client:
             [spec_f] = client.scatter([spec], broadcast=True)
             batches = _batches(n_trials, workers if scheduler == "local" else 8)
@@ -283,6 +294,8 @@ def make_plan(
     n_random: int = N_RANDOM,
 ) -> dict[str, Any]:
     """The plan as the JSON of ``dimacq plan`` (keys in the README's "Planning" section)."""
+    if trials > 0:
+        _check_scheduler(scheduler, workers)
     cand = pl.candidates_from_setup(setup)
     errors = pl.ErrorModel.from_setup(setup, noise=noise, n_lines=n_lines, noise_model=noise_model)
     model = pl.build_model(cand, props, errors)

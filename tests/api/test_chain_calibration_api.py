@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from _api_support import Api
+from _pg_support import SQLITE_ONLY
 
 from dimacq.io.setup_file import dump_setup_dict
 from dimacq.io.uff import write_frf_uff
@@ -18,6 +19,8 @@ from dimacq.simulators.lab.forward import (
     reference_block,
     reference_block_drawing,
 )
+
+pytestmark = SQLITE_ONLY  # computation-bound: see _pg_support.SQLITE_ONLY
 
 KAPPA = 1.015  # the hammer's certificate 1.5 % off: every FRF × κ
 

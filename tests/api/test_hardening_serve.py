@@ -214,6 +214,7 @@ def test_serve_uses_the_limits() -> None:
 # -- 10. start-up refusals in one line ----------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_a_second_serve_of_a_served_stand_says_so_in_one_line(tmp_path: Path) -> None:
     """It printed uvicorn's whole lifespan traceback, then "Application startup failed.
     Exiting.", and exited 3."""

@@ -9,10 +9,13 @@ from pathlib import Path
 
 import pytest
 from _api_support import Api
+from _pg_support import SQLITE_ONLY
 
 from dimacq.io.setup_file import load_setup
 from dimacq.model.properties import RigidBodyProperties
 from dimacq.services.planning import make_plan
+
+pytestmark = SQLITE_ONLY  # computation-bound: see _pg_support.SQLITE_ONLY
 
 ROOT = Path(__file__).resolve().parents[2]
 SETUP = ROOT / "config" / "plans" / "calibration-mass-candidates.toml"

@@ -9,11 +9,14 @@ from pathlib import Path
 
 import pytest
 from _api_support import Api
+from _pg_support import SQLITE_ONLY
 
 from dimacq.cli.main import main
 from dimacq.io.setup_file import dump_setup_dict
 from dimacq.io.uff import write_frf_uff
 from dimacq.simulators.lab.scenarios import build_scenario
+
+pytestmark = SQLITE_ONLY  # computation-bound: see _pg_support.SQLITE_ONLY
 
 
 @pytest.mark.slow

@@ -90,7 +90,12 @@ def test_same_seed_same_json_in_process_and_on_a_local_cluster(tmp_path: Path) -
 
     local = _plan(tmp_path, "inproc", "--trials", "2", "--seed", "3", "--scheduler", "none")
     with LocalCluster(
-        n_workers=2, threads_per_worker=1, processes=False, dashboard_address=None
+        n_workers=2,
+        threads_per_worker=1,
+        processes=False,
+        dashboard_address=None,
+        # its HTTP server on a free loopback port, not 8787 (another cluster on this PC: a warning)
+        scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
     ) as cluster:
         remote = _plan(
             tmp_path, "cluster", "--trials", "2", "--seed", "3", "--scheduler",

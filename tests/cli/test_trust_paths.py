@@ -81,6 +81,7 @@ def test_mismatched_setup_and_uff_exit_3(
     assert "mass_kg" in data and "diagnostics" in data  # every existing key kept
 
 
+@pytest.mark.slow
 def test_registration_above_its_limit_is_not_ok() -> None:
     b = build_scenario("calibration-mass-bungee", 0)
     frf = b.model_frf(noise=0.002).band(20.0, 200.0)

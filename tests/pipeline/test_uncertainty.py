@@ -98,6 +98,7 @@ def test_interval_covers_the_truth() -> None:
     assert hits.sum() / (10 * n) >= 0.9
 
 
+@pytest.mark.slow
 def test_interval_covers_certificate_errors() -> None:
     """Coverage over draws of the calibration certificates: each accelerometer axis off by
     ``ε ~ N(0, 0.5 %)``, the hammer by ``η ~ N(0, 0.5 %)`` (every FRF × 1/(1+η)), exact geometry

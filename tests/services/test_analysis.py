@@ -41,6 +41,7 @@ def test_full_chain_finds_bad_channels_and_inputs(tmp_path: Path) -> None:
     assert len(rep.plots) == 8 and all(p.exists() for p in rep.plots)
 
 
+@pytest.mark.slow
 def test_defaults_and_user_overrides() -> None:
     c = forward_case(12)
     rep = analyse(c.frf, c.nominal)  # defaults: automatic band, both selections, intervals

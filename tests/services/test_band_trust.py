@@ -100,6 +100,7 @@ def test_noise_does_not_leave_a_short_band_below_an_elastic_mode() -> None:
     assert _inside(rep, truth.mass_kg, "m")
 
 
+@pytest.mark.slow
 def test_residual_flexibility_on_a_rigid_vehicle_keeps_the_truth_in_its_intervals() -> None:
     # rigid X-38, realistic geometry errors, 1 % noise, band 2.6–50 Hz: the residual terms absorb
     # misfit that is not elastic and moved the mass −0.13 % and the CG 4.5 mm, 1.4 half-widths
