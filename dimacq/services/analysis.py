@@ -67,6 +67,14 @@ from dimacq.pipeline.uncertainty import (
 )
 from dimacq.services.cross_check import CrossCheck, cross_check
 from dimacq.services.estimation import output_error_step
+from dimacq.services.modal_correction import (
+    ModalCorrection,
+    band_size,
+    contamination,
+    corrected,
+    modal_fit,
+    with_modal_uncertainty,
+)
 from dimacq.services.verdict import (
     CI95_LIMIT_MASS,
     CI95_LIMIT_PRINCIPAL,
@@ -155,6 +163,10 @@ class AnalysisOptions:
     cross_check : bool
         Run the second, independent estimator (the mass-line fit,
         :mod:`dimacq.services.cross_check`) on the DIM's data and compare (default on).
+    modal_correction : {"auto", "on", "off"}
+        Take the elastic modes identified from the FRFs out of them and solve on the corrected
+        FRFs (:mod:`dimacq.services.modal_correction`): ``auto`` (default) only when the plain
+        analysis shows elastic contamination, and says so.
     """
 
     select_responses: bool = True
@@ -178,6 +190,7 @@ class AnalysisOptions:
     reference_mass: tuple[float, float] | None = None
     chain: ChainCalibration | None = None
     cross_check: bool = True
+    modal_correction: str = "auto"
 
 
 @dataclass(frozen=True, eq=False)
@@ -230,6 +243,9 @@ class AnalysisReport:
     geometry: GeometrySpread | None = None
     chain_calibration: dict[str, Any] | None = None
     cross_check: CrossCheck | None = None
+    modal_correction: ModalCorrection | None = None
+    weights_used: np.ndarray | None = None
+    inputs_kept: np.ndarray | None = None
 
     def to_json(self) -> dict[str, Any]:
         """``result.to_json()`` plus ``excluded_responses``, ``excluded_inputs``, ``uncertainty``,
@@ -262,6 +278,8 @@ class AnalysisReport:
             out["chain_calibration"] = dict(self.chain_calibration)
         if self.cross_check is not None:
             out["cross_check"] = self.cross_check.to_json()
+        if self.modal_correction is not None:
+            out["modal_correction"] = self.modal_correction.to_json()
         if self.response_selection is not None:
             out["response_selection"] = self.response_selection.to_json()
         if self.input_selection is not None:
@@ -276,6 +294,94 @@ def _ch(c: Channel) -> dict[str, int]:
 def analyse(
     frf: FrfData, setup: TestSetup, options: AnalysisOptions | None = None
 ) -> AnalysisReport:
+    """Run selection → solve → uncertainty → figures (module docstring), on the FRFs as
+    measured or, when they show elastic contamination (``options.modal_correction``), on the
+    FRFs with the elastic modes taken out (:mod:`dimacq.services.modal_correction`).
+    """
+    opt = options or AnalysisOptions()
+    if opt.modal_correction not in ("auto", "on", "off"):
+        raise SetupError(
+            f"modal_correction = {opt.modal_correction!r}; give auto, on or off"
+        )
+    if opt.modal_correction == "off":
+        return _analyse(frf, setup, opt)
+    if opt.modal_correction == "on":
+        return _analyse_modal(frf, setup, opt, "asked for (--modal-correction on)", {})
+    plots = opt.plots_dir
+    first = _analyse(frf, setup, replace(opt, plots_dir=None))
+    cache: dict[str, Any] = {}
+    why = contamination(first, *_with_chain(frf, setup, opt), cache)
+    if why is None:
+        note = ModalCorrection(
+            cache.get("fit"), "no elastic contamination detected: solved as measured", False, "auto"
+        )
+        if plots is not None:
+            first = _analyse(frf, setup, opt)
+        return replace(first, modal_correction=note)
+    log.warning("modal correction applied: %s", why)
+    second = _analyse_modal(frf, setup, opt, why, cache)
+    if second.verdict == "fail" and first.verdict != "fail":
+        note = replace(
+            second.modal_correction,  # type: ignore[arg-type]
+            applied=False,
+            reason=f"{why}; but the corrected solve fails its checks: solved as measured",
+        )
+        if plots is not None:
+            first = _analyse(frf, setup, opt)
+        return replace(first, modal_correction=note)
+    return second
+
+
+def _analyse_modal(
+    frf: FrfData, setup: TestSetup, opt: AnalysisOptions, why: str, cache: dict[str, Any]
+) -> AnalysisReport:
+    """The analysis on the FRFs with the elastic modes taken out, the fit's uncertainty added."""
+    frf_c, setup_c = _with_chain(frf, setup, opt)
+    fit = cache.get("fit") or modal_fit(frf_c, setup_c)
+    data = corrected(frf, fit) if opt.chain is None else corrected(frf_c, fit)
+    opt_c = opt if opt.chain is None else replace(opt, chain=None)
+    if opt.chain is not None:
+        setup = setup_c
+    rep = _analyse(data, setup, opt_c)
+    if opt.chain is not None:
+        rep = replace(rep, chain_calibration={"role": "applied", **opt.chain.to_json()})
+    known = dict(setup.known.as_dict() if opt.known is None else opt.known)
+    assert rep.weights_used is not None and rep.inputs_kept is not None
+    unc, info = with_modal_uncertainty(
+        frf_c,
+        fit,
+        rep.setup_used,
+        rep.result,
+        rep.uncertainty,
+        rep.weights_used,
+        np.nonzero(rep.inputs_kept)[0],
+        known,
+        opt.length_unit,
+    )
+    geo = response_geometry(frf_c, rep.setup_used)
+    f_band, size = band_size(
+        frf_c,
+        fit,
+        tuple(rep.result.band_hz),  # type: ignore[arg-type]
+        geo.output_index[rep.weights_used > 0],
+        np.nonzero(rep.inputs_kept)[0],
+    )
+    note = ModalCorrection(
+        fit, f"modal correction applied: {why}", True, opt.modal_correction, size, f_band, info
+    )
+    reason = VerdictReason(
+        "modal_correction",
+        "ok",
+        f"elastic modes at {', '.join(f'{p.frequency_hz:.3g}' for p in fit.elastic_poles)} Hz "
+        f"taken out of the FRFs ({why}); correction up to {100 * float(np.max(size, initial=0)):.3g} "
+        "% of the kept accelerances in the band",
+    )
+    return replace(
+        rep, uncertainty=unc, modal_correction=note, verdict_reasons=[*rep.verdict_reasons, reason]
+    )
+
+
+def _analyse(frf: FrfData, setup: TestSetup, opt: AnalysisOptions) -> AnalysisReport:
     """Run selection → solve → uncertainty → figures (module docstring).
 
     Raises
@@ -285,7 +391,6 @@ def analyse(
     SolverError
         The kept data cannot be solved (rank < 6 ...).
     """
-    opt = options or AnalysisOptions()
     frf, setup = _with_chain(frf, setup, opt)
     known = dict(setup.known.as_dict() if opt.known is None else opt.known)
     force_in = [tuple(map(int, p)) for p in opt.force_in]
@@ -464,6 +569,8 @@ def analyse(
         orientation=repair,
         geometry=geo,
         cross_check=cc,
+        weights_used=np.asarray(weights, float),
+        inputs_kept=np.asarray(keep_in, bool),
     )
     v, reasons = verdict(
         report,

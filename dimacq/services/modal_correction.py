@@ -1,0 +1,254 @@
+"""The modal-model correction as a step of the analysis: when to use it, what it reports.
+
+:func:`dimacq.services.analysis.analyse` calls :func:`modal_fit` on the whole measured span, gives
+the DIM the corrected FRFs (:func:`corrected`), and adds the fit's own uncertainty to the intervals
+(:func:`with_modal_uncertainty`). The numerics are in :mod:`dimacq.pipeline.modal`.
+
+When (``modal_correction = "auto"``, the default)
+-------------------------------------------------
+The plain analysis runs first. Its result stands, unchanged, unless the rigid-body checks show
+elastic contamination (:func:`contamination`):
+
+- no band qualifies (the band suggestion found no run of lines moving as one rigid body), or the
+  band or residual checks of the verdict fail or warn;
+- or the band suggestion saw elastic modes above the band and the modal fit's elastic modes
+  contribute more than :data:`TRIGGER_SIZE` of the kept accelerances in that band (a smooth
+  mass-line trend the per-line checks cannot see: an X-38-like hull with modes at 34/48/62 Hz
+  passes them with principal moments 1.6–2.6 % off).
+
+Then the analysis runs again on the corrected FRFs and the report says why. ``"on"`` always
+corrects, ``"off"`` never.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Mapping
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from dimacq.model.frf import FrfData
+from dimacq.model.setup import PARAMETERS, TestSetup
+from dimacq.pipeline.dim import DimResult, assemble, solve_system
+from dimacq.pipeline.modal import ModalFit, correction_draws, fit_modal_model
+from dimacq.pipeline.rigid_body import response_matrix
+from dimacq.pipeline.selection._common import response_geometry
+from dimacq.pipeline.uncertainty import ParameterUncertainty, Uncertainty, principal_of_parameters
+
+__all__ = [
+    "TRIGGER_SIZE",
+    "ModalCorrection",
+    "contamination",
+    "corrected",
+    "modal_fit",
+    "with_modal_uncertainty",
+]
+
+log = logging.getLogger(__name__)
+FloatArray = NDArray[np.float64]
+
+#: Largest share of the kept accelerances (RMS over the band) the elastic modes may contribute
+#: before ``auto`` corrects a band that passed the rigid-body checks.
+TRIGGER_SIZE = 0.005
+#: Draws of the correction from the LSFD covariance for its share of the intervals.
+N_DRAWS = 24
+
+
+@dataclass(frozen=True, eq=False)
+class ModalCorrection:
+    """What the correction did, for the report.
+
+    Attributes
+    ----------
+    fit : ModalFit
+    reason : str
+        Why it was applied (or not).
+    applied : bool
+    mode : {"auto", "on", "off"}
+    size_band : ndarray, shape (n_band_lines,)
+        ``‖correction‖ / ‖H‖`` per line of the DIM band, kept accelerometers and inputs.
+    band_frequencies_hz : ndarray
+    se_modal : dict
+        Standard error the fit's uncertainty adds to each parameter (and ``principal``).
+    """
+
+    fit: ModalFit | None
+    reason: str
+    applied: bool
+    mode: str
+    size_band: FloatArray | None = None
+    band_frequencies_hz: FloatArray | None = None
+    se_modal: dict[str, Any] | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"mode": self.mode, "applied": self.applied, "reason": self.reason}
+        fit = self.fit
+        if fit is None:
+            return out
+        out.update(
+            {
+                "poles": [p.to_json() for p in fit.poles],
+                "modes_removed_hz": [p.frequency_hz for p in fit.poles if p.elastic],
+                "modes_kept_hz": [p.frequency_hz for p in fit.poles if not p.elastic],
+                "fit_range_hz": list(fit.fit_range_hz),
+                "fit_error_rel": fit.fit_error,
+            }
+        )
+        if self.size_band is not None and self.band_frequencies_hz is not None:
+            out["correction_size"] = {
+                "frequencies_hz": self.band_frequencies_hz.tolist(),
+                "relative": self.size_band.tolist(),
+                "max": float(np.max(self.size_band)) if self.size_band.size else 0.0,
+            }
+        if self.se_modal is not None:
+            out["se_modal_fit"] = self.se_modal
+        return out
+
+
+def modal_fit(frf: FrfData, setup: TestSetup) -> ModalFit:
+    """Poles and residues of every pair of ``frf`` (accelerances and reactions), elastic modes
+    told from suspension modes by the setup's rigid-body shapes."""
+    geo = response_geometry(frf, setup)
+    psi = response_matrix(geo.positions_m, geo.directions, np.asarray(setup.reference_point))
+    # Ψ rows in the FRF's order of accelerometer outputs
+    kinds = tuple(frf.output_kinds)
+    H = frf.H
+    acc_rows = np.array([i for i, k in enumerate(kinds) if k == "acceleration"])
+    pos = {int(o): int(i) for i, o in enumerate(geo.output_index)}
+    keep = np.array([pos.get(int(r), -1) for r in acc_rows])
+    if np.any(keep < 0):  # accelerometer outputs the setup does not know: leave them out
+        drop = acc_rows[keep < 0]
+        rows = np.setdiff1d(np.arange(len(kinds)), drop)
+        H = H[:, rows]
+        kinds = tuple(kinds[i] for i in rows)
+        keep = keep[keep >= 0]
+        fit = fit_modal_model(frf.frequencies_hz, H, kinds, psi[keep])
+        full = np.zeros_like(frf.H)
+        full[:, rows] = fit.correction
+        return replace(fit, correction=full)
+    return fit_modal_model(frf.frequencies_hz, H, kinds, psi[keep])
+
+
+def corrected(frf: FrfData, fit: ModalFit) -> FrfData:
+    """The FRFs with the elastic modes taken out, on the lines of the fit's range."""
+    lo, hi = fit.fit_range_hz
+    out = frf.replace(
+        H=frf.H - fit.correction,
+        meta={**frf.meta, "modal_correction": "elastic modes removed"},
+    )
+    return out.band(lo, hi)
+
+
+def band_size(
+    frf: FrfData,
+    fit: ModalFit,
+    band_hz: tuple[float, float],
+    rows: NDArray[np.intp],
+    inputs: NDArray[np.intp],
+) -> tuple[FloatArray, FloatArray]:
+    """Per line of the band: ‖correction‖ / ‖H‖ over the given outputs and inputs."""
+    f = frf.frequencies_hz
+    sel = (f >= band_hz[0] - 1e-9) & (f <= band_hz[1] + 1e-9)
+    c = fit.correction[sel][:, rows][:, :, inputs]
+    h = frf.H[sel][:, rows][:, :, inputs]
+    den = np.sqrt(np.sum(np.abs(h) ** 2, axis=(1, 2)))
+    size = np.sqrt(np.sum(np.abs(c) ** 2, axis=(1, 2))) / np.where(den > 0, den, 1.0)
+    return f[sel], np.asarray(size)
+
+
+def contamination(
+    report: Any, frf: FrfData, setup: TestSetup, fit_cache: dict[str, ModalFit]
+) -> str | None:
+    """Why the plain analysis is elastically contaminated, or None (module docstring)."""
+    sugg = report.band_suggestion
+    if sugg is not None and not sugg.qualified:
+        return f"no band qualifies ({sugg.reason})"
+    for r in report.verdict_reasons:
+        if r.check in ("band", "residual") and r.severity != "ok":
+            return f"the {r.check} check gives {r.severity}: {r.message}"
+    if sugg is None or not sugg.deformation_peaks_hz:
+        return None
+    fit = fit_cache.get("fit") or modal_fit(frf, setup)
+    fit_cache["fit"] = fit
+    if not fit.elastic_poles:
+        return None
+    geo = response_geometry(frf, setup)
+    excluded = {(c["node"], c["direction"]) for c in report.excluded_responses}
+    rows = np.array(
+        [o for o, ch in zip(geo.output_index, geo.channels, strict=True)
+         if (ch.node, ch.direction) not in excluded],
+        dtype=np.intp,
+    )
+    ex_in = {(c["node"], c["direction"]) for c in report.excluded_inputs}
+    inputs = np.array(
+        [j for j, ch in enumerate(frf.inputs) if (ch.node, ch.direction) not in ex_in],
+        dtype=np.intp,
+    )
+    _, size = band_size(frf, fit, tuple(report.result.band_hz), rows, inputs)
+    top = float(np.sqrt(np.mean(size**2))) if size.size else 0.0
+    if top <= TRIGGER_SIZE:
+        return None
+    modes = ", ".join(f"{p.frequency_hz:.3g}" for p in fit.elastic_poles)
+    return (
+        f"elastic modes at {modes} Hz contribute {100 * top:.2g} % of the kept accelerances in "
+        f"the band (limit {100 * TRIGGER_SIZE:g} %), a trend the rigid-body checks cannot see"
+    )
+
+
+def with_modal_uncertainty(
+    frf: FrfData,
+    fit: ModalFit,
+    setup: TestSetup,
+    result: DimResult,
+    unc: Uncertainty,
+    weights: FloatArray,
+    keep_idx: NDArray[np.intp],
+    known: Mapping[str, float],
+    length_unit: str | None,
+) -> tuple[Uncertainty, dict[str, Any]]:
+    """The intervals widened by the modal fit's uncertainty: corrections drawn from the LSFD
+    covariance (:func:`~dimacq.pipeline.modal.correction_draws`), the DIM (joint, equation
+    error) solved on each in the same band, channels and inputs; their spread is added in
+    quadrature to every parameter's standard error and the 95 % half-width scaled with it."""
+    lo, hi = result.band_hz
+    sel = (frf.frequencies_hz >= lo - 1e-9) & (frf.frequencies_hz <= hi + 1e-9)
+    draws = correction_draws(fit, N_DRAWS, seed=25)
+    samples = []
+    base = frf.band(lo, hi)
+    for d in draws:
+        data = base.replace(H=frf.H[sel] - d[sel])
+        system = assemble(
+            data, setup, length_unit=length_unit, response_weights=weights
+        ).select_inputs(keep_idx)
+        samples.append(solve_system(system, known=dict(known)).parameters)
+    s = np.asarray(samples)
+    se = s.std(axis=0, ddof=1)
+    P = np.asarray(result.reference_point_m, float)
+    se_pm = principal_of_parameters(s, P).std(axis=0, ddof=1)
+
+    def widen(u: ParameterUncertainty, extra: float) -> ParameterUncertainty:
+        new = float(np.hypot(u.standard_error, extra))
+        k = new / u.standard_error if u.standard_error > 0 else 1.0
+        half = 0.5 * (u.ci95[1] - u.ci95[0]) * k if u.standard_error > 0 else 1.96 * new
+        return replace(u, standard_error=new, ci95=(u.value - half, u.value + half))
+
+    params = {
+        k: widen(u, float(se[PARAMETERS.index(k)])) if k in PARAMETERS else u
+        for k, u in unc.parameters.items()
+    }
+    principal = tuple(widen(u, float(e)) for u, e in zip(unc.principal, se_pm, strict=False))
+    out = replace(
+        unc,
+        parameters=params,
+        principal=principal,
+        components=(*unc.components, "modal_fit"),
+    )
+    info = {
+        "n_draws": N_DRAWS,
+        "standard_error": dict(zip(PARAMETERS, se.tolist(), strict=True)),
+        "principal_moments": se_pm.tolist(),
+    }
+    return out, info
