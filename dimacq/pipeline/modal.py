@@ -86,7 +86,9 @@ __all__ = [
     "ELASTIC_SHAPE_ERROR",
     "ModalFit",
     "Pole",
-    "correction_draws",
+    "residue_draws",
+    "elastic_shapes",
+    "project_out",
     "fit_modal_model",
     "lscf_poles",
 ]
@@ -258,6 +260,8 @@ class ModalFit:
     kind_index: dict[str, NDArray[np.intp]]
     fit_error: float
     fit_range_hz: tuple[float, float]
+    residues: ComplexArray
+    upper_acc: ComplexArray
 
     @property
     def elastic_poles(self) -> list[Pole]:
@@ -284,14 +288,8 @@ def _basis(
         g1 = weight * (1 / (s - lam) + 1 / (s - np.conj(lam)))
         g2 = weight * (1j / (s - lam) - 1j / (s - np.conj(lam)))
         # reactions: the term minus its static value (module docstring)
-        import os
-        V = os.environ.get("MV", "static")
         r1 = g1 - (-1 / lam - 1 / np.conj(lam))
         r2 = g2 - (-1j / lam + 1j / np.conj(lam))
-        if V == "full":
-            r1, r2 = g1, g2
-        if V == "none":
-            r1, r2 = 0 * g1, 0 * g2
         cols += [g1, g2]
         el = 1.0 if p.elastic else 0.0
         sub_acc += [el * g1, el * g2]
@@ -393,6 +391,8 @@ def fit_modal_model(
             "are too few for the modal fit; measure a wider span or a finer resolution"
         )
     correction = np.zeros_like(H)
+    residues = np.zeros((len(classified), n_o, n_i), complex)
+    upper_acc = np.zeros_like(H)
     sigma = np.zeros((n_o, n_i))
     sub_basis: dict[str, FloatArray] = {}
     chols: dict[str, FloatArray] = {}
@@ -405,6 +405,13 @@ def fit_modal_model(
         sub = sub_a if kind == "acceleration" else sub_r
         coef, sig, chol, rel = _lsfd(B[fit_lines], H[fit_lines][:, idx].reshape(-1, idx.size * n_i))
         correction[:, idx] = (sub @ coef).reshape(n_l, idx.size, n_i)
+        nr = len(classified)
+        residues[:, idx] = (coef[0 : 2 * nr : 2] + 1j * coef[1 : 2 * nr : 2]).reshape(
+            nr, idx.size, n_i
+        )
+        if kind == "acceleration":
+            top = (s / omega_ref) ** 2
+            upper_acc[:, idx] = (top[:, None] * coef[-1][None, :]).reshape(n_l, idx.size, n_i)
         sigma[idx] = sig.reshape(idx.size, n_i)
         sub_basis[kind] = sub
         chols[kind] = chol
@@ -419,22 +426,61 @@ def fit_modal_model(
         kind_index=kind_index,
         fit_error=float(np.sqrt(np.mean(np.concatenate(rels) ** 2))),
         fit_range_hz=(float(f_lo), float(f[-1])),
+        residues=residues,
+        upper_acc=upper_acc,
     )
 
 
-def correction_draws(fit: ModalFit, n_draws: int, seed: int = 0) -> ComplexArray:
-    """Corrections drawn from the LSFD coefficients' covariance (poles held), shape
-    (n_draws, n_lines, n_outputs, n_inputs): the correction's own uncertainty."""
+def elastic_shapes(
+    residues_acc: ComplexArray, rigid_part: ComplexArray, rigid_basis: FloatArray
+) -> ComplexArray:
+    """Elastic shape at the accelerometers of each elastic mode, shape (n_acc, n_el).
+
+    ``residues_acc`` (n_el, n_acc, n_inputs) are the modes' displacement residues; ``rigid_part``
+    (n_el, 6, n_inputs) the rigid-body motion of P in each residue (from the reactions:
+    ``U_r = M⁻¹ W_r / λ_r²``). What is left, ``A_r − Ψ U_r``, is the mode's elastic motion
+    times its participation: its leading left singular vector is the shape."""
+    el = residues_acc - np.einsum("ck,rkj->rcj", rigid_basis, rigid_part)
+    out = []
+    for A in el:
+        u, _, _ = np.linalg.svd(A, full_matrices=False)
+        out.append(u[:, 0])
+    return np.stack(out, axis=1) if out else np.zeros((residues_acc.shape[1], 0), complex)
+
+
+def project_out(
+    H_acc: ComplexArray, rigid_basis: FloatArray, shapes: ComplexArray
+) -> tuple[ComplexArray, ComplexArray]:
+    """Per line and input, the accelerances' least-squares split ``a = Ψ K + C η`` over the
+    rigid-body shapes and the elastic shapes: returns ``a − C η`` and ``C η``.
+
+    Exact for any elastic motion within the span of ``C`` whatever drives it (the input or the
+    measured reactions), with no model of ``η``'s frequency dependence.
+    """
+    B = np.concatenate([np.asarray(rigid_basis, complex), shapes], axis=1)
+    pinv = np.linalg.pinv(B)[6:]  # rows giving η
+    eta = np.einsum("ec,lcj->lej", pinv, H_acc)
+    corr = np.einsum("ce,lej->lcj", shapes, eta)
+    return H_acc - corr, corr
+
+
+def residue_draws(
+    fit: ModalFit, n_draws: int, seed: int = 0
+) -> tuple[ComplexArray, ComplexArray]:
+    """Accelerometer residues and the residual term drawn from the LSFD coefficients'
+    covariance ``σ² (BᵀB)⁻¹`` per pair (poles held): shapes (n_draws, n_modes, n_acc, n_inputs)
+    and (n_draws, n_acc, n_inputs) (the ``s²`` term at the top line, as ``upper_acc[-1]``)."""
     rng = np.random.default_rng(seed)
-    n_l, n_o, n_i = fit.correction.shape
-    out = np.broadcast_to(fit.correction, (n_draws, n_l, n_o, n_i)).copy()
-    for kind, idx in fit.kind_index.items():
-        if idx.size == 0 or kind not in fit.sub_basis:
-            continue
-        chol, sub = fit.coef_cov_chol[kind], fit.sub_basis[kind]
-        sig = fit.sigma[idx].reshape(-1)  # (n_pairs,)
-        z = rng.standard_normal((n_draws, chol.shape[1], sig.size))
-        dcoef = np.einsum("bk,dkp->dbp", chol, z) * sig  # (n_draws, n_basis, n_pairs)
-        dc = np.einsum("lb,dbp->dlp", sub, dcoef)
-        out[:, :, idx] += dc.reshape(n_draws, n_l, idx.size, n_i)
-    return out
+    idx = fit.kind_index["acceleration"]
+    chol = fit.coef_cov_chol["acceleration"]
+    n_i = fit.sigma.shape[1]
+    sig = fit.sigma[idx].reshape(-1)
+    z = rng.standard_normal((n_draws, chol.shape[1], sig.size))
+    dcoef = np.einsum("bk,dkp->dbp", chol, z) * sig  # (n_draws, n_basis, n_pairs)
+    nr = len(fit.poles)
+    dres = (dcoef[:, 0 : 2 * nr : 2] + 1j * dcoef[:, 1 : 2 * nr : 2]).reshape(
+        n_draws, nr, idx.size, n_i
+    )
+    res = fit.residues[:, idx][None] + dres
+    up = fit.upper_acc[-1][idx][None] - dcoef[:, -1].reshape(n_draws, idx.size, n_i)
+    return res, up

@@ -338,7 +338,8 @@ def _analyse_modal(
     """The analysis on the FRFs with the elastic modes taken out, the fit's uncertainty added."""
     frf_c, setup_c = _with_chain(frf, setup, opt)
     fit = cache.get("fit") or modal_fit(frf_c, setup_c)
-    data = corrected(frf, fit) if opt.chain is None else corrected(frf_c, fit)
+    # without a chain factor frf_c is frf; with one, _analyse must not apply it again
+    data, correction = corrected(frf_c, fit, setup_c)
     opt_c = opt if opt.chain is None else replace(opt, chain=None)
     if opt.chain is not None:
         setup = setup_c
@@ -361,7 +362,7 @@ def _analyse_modal(
     geo = response_geometry(frf_c, rep.setup_used)
     f_band, size = band_size(
         frf_c,
-        fit,
+        correction,
         tuple(rep.result.band_hz),  # type: ignore[arg-type]
         geo.output_index[rep.weights_used > 0],
         np.nonzero(rep.inputs_kept)[0],
