@@ -102,6 +102,9 @@ ELASTIC_SHAPE_ERROR = 0.25
 RESIDUAL_POWERS = (-4, -3, -2, -1, 0, 1, 2)
 #: The residues are fitted above this multiple of the highest rigid-body (suspension) pole.
 CLEARANCE = 1.2
+#: Poles above this fraction of the top line are left out: LSCF puts spurious poles at the edge
+#: of its span (a real mode there is followed by the residual term of the modes above the span).
+EDGE = 0.97
 #: Largest damping ratio of a physical pole.
 MAX_DAMPING = 0.2
 
@@ -156,7 +159,7 @@ def lscf_poles(
     orders : tuple of int, optional
         Denominator orders tried (default 16, 20, … 48).
     band_hz : (lo, hi), optional
-        Keep poles in this range (default: the span).
+        Keep poles in this range (default: the span, less its top 3 %, :data:`EDGE`).
 
     Returns
     -------
@@ -195,7 +198,7 @@ def lscf_poles(
         lam = lam[lam.imag > 0]
         poles = [_pole_of(complex(v)) for v in lam]
         found.append(
-            [(fr, ze) for fr, ze in poles if 0 < ze < MAX_DAMPING and lo <= fr <= hi * 1.02]
+            [(fr, ze) for fr, ze in poles if 0 < ze < MAX_DAMPING and lo <= fr <= hi * EDGE]
         )
     return _stable(found, len(orders))
 
