@@ -86,11 +86,11 @@ __all__ = [
     "ELASTIC_SHAPE_ERROR",
     "ModalFit",
     "Pole",
-    "residue_draws",
     "elastic_shapes",
-    "project_out",
     "fit_modal_model",
     "lscf_poles",
+    "project_out",
+    "residue_draws",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -257,7 +257,7 @@ class ModalFit:
     poles: list[Pole]
     frequencies_hz: FloatArray
     correction: ComplexArray
-    sub_basis: dict[str, FloatArray]
+    sub_basis: dict[str, ComplexArray]
     coef_cov_chol: dict[str, FloatArray]
     sigma: FloatArray
     kind_index: dict[str, NDArray[np.intp]]
@@ -397,7 +397,7 @@ def fit_modal_model(
     residues = np.zeros((len(classified), n_o, n_i), complex)
     upper_acc = np.zeros_like(H)
     sigma = np.zeros((n_o, n_i))
-    sub_basis: dict[str, FloatArray] = {}
+    sub_basis: dict[str, ComplexArray] = {}
     chols: dict[str, FloatArray] = {}
     rels = []
     for kind, idx in kind_index.items():
@@ -423,7 +423,7 @@ def fit_modal_model(
         poles=classified,
         frequencies_hz=f,
         correction=correction,
-        sub_basis=sub_basis,  # type: ignore[arg-type]
+        sub_basis=sub_basis,
         coef_cov_chol=chols,
         sigma=sigma,
         kind_index=kind_index,
@@ -467,9 +467,7 @@ def project_out(
     return H_acc - corr, corr
 
 
-def residue_draws(
-    fit: ModalFit, n_draws: int, seed: int = 0
-) -> tuple[ComplexArray, ComplexArray]:
+def residue_draws(fit: ModalFit, n_draws: int, seed: int = 0) -> tuple[ComplexArray, ComplexArray]:
     """Accelerometer residues and the residual term drawn from the LSFD coefficients'
     covariance ``σ² (BᵀB)⁻¹`` per pair (poles held): shapes (n_draws, n_modes, n_acc, n_inputs)
     and (n_draws, n_acc, n_inputs) (the ``s²`` term at the top line, as ``upper_acc[-1]``)."""

@@ -67,14 +67,7 @@ from dimacq.pipeline.uncertainty import (
 )
 from dimacq.services.cross_check import CrossCheck, cross_check
 from dimacq.services.estimation import output_error_step
-from dimacq.services.modal_correction import (
-    ModalCorrection,
-    band_size,
-    contamination,
-    corrected,
-    modal_fit,
-    with_modal_uncertainty,
-)
+from dimacq.services.modal_correction import ModalCorrection, analyse_with_modal
 from dimacq.services.verdict import (
     CI95_LIMIT_MASS,
     CI95_LIMIT_PRINCIPAL,
@@ -299,87 +292,7 @@ def analyse(
     FRFs with the elastic modes taken out (:mod:`dimacq.services.modal_correction`).
     """
     opt = options or AnalysisOptions()
-    if opt.modal_correction not in ("auto", "on", "off"):
-        raise SetupError(
-            f"modal_correction = {opt.modal_correction!r}; give auto, on or off"
-        )
-    if opt.modal_correction == "off":
-        return _analyse(frf, setup, opt)
-    if opt.modal_correction == "on":
-        return _analyse_modal(frf, setup, opt, "asked for (--modal-correction on)", {})
-    plots = opt.plots_dir
-    first = _analyse(frf, setup, replace(opt, plots_dir=None))
-    cache: dict[str, Any] = {}
-    why = contamination(first, *_with_chain(frf, setup, opt), cache)
-    if why is None:
-        note = ModalCorrection(
-            cache.get("fit"), "no elastic contamination detected: solved as measured", False, "auto"
-        )
-        if plots is not None:
-            first = _analyse(frf, setup, opt)
-        return replace(first, modal_correction=note)
-    log.warning("modal correction applied: %s", why)
-    second = _analyse_modal(frf, setup, opt, why, cache)
-    if second.verdict == "fail" and first.verdict != "fail":
-        note = replace(
-            second.modal_correction,  # type: ignore[arg-type]
-            applied=False,
-            reason=f"{why}; but the corrected solve fails its checks: solved as measured",
-        )
-        if plots is not None:
-            first = _analyse(frf, setup, opt)
-        return replace(first, modal_correction=note)
-    return second
-
-
-def _analyse_modal(
-    frf: FrfData, setup: TestSetup, opt: AnalysisOptions, why: str, cache: dict[str, Any]
-) -> AnalysisReport:
-    """The analysis on the FRFs with the elastic modes taken out, the fit's uncertainty added."""
-    frf_c, setup_c = _with_chain(frf, setup, opt)
-    fit = cache.get("fit") or modal_fit(frf_c, setup_c)
-    # without a chain factor frf_c is frf; with one, _analyse must not apply it again
-    data, correction = corrected(frf_c, fit, setup_c)
-    opt_c = opt if opt.chain is None else replace(opt, chain=None)
-    if opt.chain is not None:
-        setup = setup_c
-    rep = _analyse(data, setup, opt_c)
-    if opt.chain is not None:
-        rep = replace(rep, chain_calibration={"role": "applied", **opt.chain.to_json()})
-    known = dict(setup.known.as_dict() if opt.known is None else opt.known)
-    assert rep.weights_used is not None and rep.inputs_kept is not None
-    unc, info = with_modal_uncertainty(
-        frf_c,
-        fit,
-        rep.setup_used,
-        rep.result,
-        rep.uncertainty,
-        rep.weights_used,
-        np.nonzero(rep.inputs_kept)[0],
-        known,
-        opt.length_unit,
-    )
-    geo = response_geometry(frf_c, rep.setup_used)
-    f_band, size = band_size(
-        frf_c,
-        correction,
-        tuple(rep.result.band_hz),  # type: ignore[arg-type]
-        geo.output_index[rep.weights_used > 0],
-        np.nonzero(rep.inputs_kept)[0],
-    )
-    note = ModalCorrection(
-        fit, f"modal correction applied: {why}", True, opt.modal_correction, size, f_band, info
-    )
-    reason = VerdictReason(
-        "modal_correction",
-        "ok",
-        f"elastic modes at {', '.join(f'{p.frequency_hz:.3g}' for p in fit.elastic_poles)} Hz "
-        f"taken out of the FRFs ({why}); correction up to {100 * float(np.max(size, initial=0)):.3g} "
-        "% of the kept accelerances in the band",
-    )
-    return replace(
-        rep, uncertainty=unc, modal_correction=note, verdict_reasons=[*rep.verdict_reasons, reason]
-    )
+    return analyse_with_modal(frf, setup, opt, _analyse, lambda f, st: _with_chain(f, st, opt))
 
 
 def _analyse(frf: FrfData, setup: TestSetup, opt: AnalysisOptions) -> AnalysisReport:

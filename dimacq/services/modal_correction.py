@@ -23,8 +23,9 @@ corrects, ``"off"`` never.
 from __future__ import annotations
 
 import logging
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -36,18 +37,20 @@ from dimacq.model.setup import PARAMETERS, TestSetup
 from dimacq.pipeline.dim import DimResult, assemble, solve_system
 from dimacq.pipeline.modal import (
     ModalFit,
-    residue_draws,
     elastic_shapes,
     fit_modal_model,
     project_out,
+    residue_draws,
 )
 from dimacq.pipeline.rigid_body import response_matrix
 from dimacq.pipeline.selection._common import response_geometry
 from dimacq.pipeline.uncertainty import ParameterUncertainty, Uncertainty, principal_of_parameters
+from dimacq.services.verdict import VerdictReason
 
 __all__ = [
     "TRIGGER_SIZE",
     "ModalCorrection",
+    "analyse_with_modal",
     "contamination",
     "corrected",
     "modal_fit",
@@ -255,8 +258,11 @@ def contamination(
     geo = response_geometry(frf, setup)
     excluded = {(c["node"], c["direction"]) for c in report.excluded_responses}
     rows = np.array(
-        [o for o, ch in zip(geo.output_index, geo.channels, strict=True)
-         if (ch.node, ch.direction) not in excluded],
+        [
+            o
+            for o, ch in zip(geo.output_index, geo.channels, strict=True)
+            if (ch.node, ch.direction) not in excluded
+        ],
         dtype=np.intp,
     )
     ex_in = {(c["node"], c["direction"]) for c in report.excluded_inputs}
@@ -330,3 +336,120 @@ def with_modal_uncertainty(
         "principal_moments": se_pm.tolist(),
     }
     return out, info
+
+
+def analyse_with_modal(
+    frf: FrfData,
+    setup: TestSetup,
+    opt: Any,
+    plain: Callable[..., Any],
+    with_chain: Callable[[FrfData, TestSetup], tuple[FrfData, TestSetup]],
+) -> Any:
+    """:func:`dimacq.services.analysis.analyse` with ``opt.modal_correction`` (module
+    docstring): ``plain(frf, setup, opt)`` is the analysis as measured (an ``AnalysisReport``),
+    ``with_chain`` applies the options' chain calibration as it does."""
+    if opt.modal_correction not in ("auto", "on", "off"):
+        raise SetupError(f"modal_correction = {opt.modal_correction!r}; give auto, on or off")
+    if opt.modal_correction == "off":
+        return plain(frf, setup, opt)
+    if opt.modal_correction == "on":
+        return _analyse_modal(
+            frf, setup, opt, plain, with_chain, "asked for (--modal-correction on)", {}
+        )
+    plots = opt.plots_dir
+    first = plain(frf, setup, replace(opt, plots_dir=None))
+    cache: dict[str, Any] = {}
+    why = contamination(first, *with_chain(frf, setup), cache)
+    if why is None:
+        note = ModalCorrection(
+            cache.get("fit"), "no elastic contamination detected: solved as measured", False, "auto"
+        )
+        if plots is not None:
+            first = plain(frf, setup, opt)
+        return replace(first, modal_correction=note)
+    log.warning("modal correction applied: %s", why)
+    second = _analyse_modal(frf, setup, opt, plain, with_chain, why, cache)
+    if second.verdict == "fail" and first.verdict != "fail":
+        assert second.modal_correction is not None
+        note = replace(
+            second.modal_correction,
+            applied=False,
+            reason=f"{why}; but the corrected solve fails its checks: solved as measured",
+        )
+        if plots is not None:
+            first = plain(frf, setup, opt)
+        return replace(first, modal_correction=note)
+    return second
+
+
+def _analyse_modal(
+    frf: FrfData,
+    setup: TestSetup,
+    opt: Any,
+    plain: Callable[..., Any],
+    with_chain: Callable[[FrfData, TestSetup], tuple[FrfData, TestSetup]],
+    why: str,
+    cache: dict[str, Any],
+) -> Any:
+    """The analysis on the FRFs with the elastic modes taken out, the fit's uncertainty added."""
+    frf_c, setup_c = with_chain(frf, setup)
+    fit = cache.get("fit") or modal_fit(frf_c, setup_c)
+    # without a chain factor frf_c is frf; with one, _analyse must not apply it again
+    data, correction = corrected(frf_c, fit, setup_c)
+    opt_c = opt if opt.chain is None else replace(opt, chain=None)
+    if opt.chain is not None:
+        setup = setup_c
+    rep = plain(data, setup, opt_c)
+    if opt.chain is not None:
+        rep = replace(rep, chain_calibration={"role": "applied", **opt.chain.to_json()})
+    known = dict(setup.known.as_dict() if opt.known is None else opt.known)
+    assert rep.weights_used is not None and rep.inputs_kept is not None
+    unc, info = with_modal_uncertainty(
+        frf_c,
+        fit,
+        rep.setup_used,
+        rep.result,
+        rep.uncertainty,
+        rep.weights_used,
+        np.nonzero(rep.inputs_kept)[0],
+        known,
+        opt.length_unit,
+    )
+    geo = response_geometry(frf_c, rep.setup_used)
+    f_band, size = band_size(
+        frf_c,
+        correction,
+        tuple(rep.result.band_hz),
+        geo.output_index[rep.weights_used > 0],
+        np.nonzero(rep.inputs_kept)[0],
+    )
+    note = ModalCorrection(
+        fit, f"modal correction applied: {why}", True, opt.modal_correction, size, f_band, info
+    )
+    if opt.plots_dir is not None:
+        from dimacq.plotting.figures import figure_modal_correction, save_figure
+
+        f_all, size_all = band_size(
+            frf_c,
+            correction,
+            fit.fit_range_hz,
+            geo.output_index[rep.weights_used > 0],
+            np.nonzero(rep.inputs_kept)[0],
+        )
+        fig = figure_modal_correction(
+            f_all,
+            size_all,
+            [(p.frequency_hz, p.elastic) for p in fit.poles],
+            band_hz=tuple(rep.result.band_hz),
+        )
+        rep = replace(rep, plots=[*rep.plots, *save_figure(fig, Path(opt.plots_dir), "modal")])
+    reason = VerdictReason(
+        "modal_correction",
+        "ok",
+        f"elastic modes at {', '.join(f'{p.frequency_hz:.3g}' for p in fit.elastic_poles)} Hz "
+        f"taken out of the FRFs ({why}); correction up to {100 * float(np.max(size, initial=0)):.3g} "
+        "% of the kept accelerances in the band",
+    )
+    return replace(
+        rep, uncertainty=unc, modal_correction=note, verdict_reasons=[*rep.verdict_reasons, reason]
+    )

@@ -100,7 +100,5 @@ def hull_modes(
     for (name, phi), f_hz in zip(shapes.items(), f, strict=True):
         peak = float(np.max(np.linalg.norm(phi[:, :3], axis=1)))
         psi = phi / (peak * np.sqrt(mu))
-        out.append(
-            FlexibleMode(name, f_hz, damping_ratio, {n: psi[k] for k, n in enumerate(ids)})
-        )
+        out.append(FlexibleMode(name, f_hz, damping_ratio, {n: psi[k] for k, n in enumerate(ids)}))
     return tuple(out)

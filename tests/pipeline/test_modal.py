@@ -92,7 +92,9 @@ def test_correction_recovers_the_rigid_part_of_a_flexible_vehicle() -> None:
     t = b.truth
     assert abs(res.properties.mass_kg / t.mass_kg - 1) < 1e-4
     assert np.linalg.norm(res.properties.cg_m - t.cg_m) < 1e-3
-    np.testing.assert_allclose(res.properties.inertia_cg_kgm2, t.inertia_cg_kgm2, atol=0.002 * 6.4e4)
+    np.testing.assert_allclose(
+        res.properties.inertia_cg_kgm2, t.inertia_cg_kgm2, atol=0.002 * 6.4e4
+    )
     raw = solve_system(assemble(frf.band(6.0, 58.0), b.setup))
     assert abs(raw.properties.mass_kg / t.mass_kg - 1) > 0.2  # the contamination is real
     assert np.all(corr[:, [i for i, k in enumerate(frf.output_kinds) if k == "reaction"]] == 0)

@@ -576,7 +576,9 @@ def _print_modal(payload: dict[str, Any], w: Any) -> None:
         step = max(1, f.size // 8)
         w(
             "  correction / accelerance per line: "
-            + ", ".join(f"{a:.4g} Hz {100 * b:.2g} %" for a, b in zip(f[::step], r[::step], strict=True))
+            + ", ".join(
+                f"{a:.4g} Hz {100 * b:.2g} %" for a, b in zip(f[::step], r[::step], strict=True)
+            )
             + f" (largest {100 * size['max']:.3g} %)\n"
         )
 
