@@ -74,7 +74,7 @@ the DIM solve.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -98,6 +98,10 @@ ComplexArray = NDArray[np.complex128]
 
 #: Smallest rigid-body error of a mode's accelerometer residues for it to count as elastic.
 ELASTIC_SHAPE_ERROR = 0.25
+#: Smallest signal-to-noise ratio of a mode's accelerometer residues (their norm over the root sum
+#: of their LSFD standard errors) for it to be taken out: a pole fitted to noise has random
+#: residues, whose shape is not rigid either.
+MIN_SNR = 10.0
 #: Powers of ``s / ω_ref`` of the residual terms (below and above the span).
 RESIDUAL_POWERS = (-4, -3, -2, -1, 0, 1, 2)
 #: The residues are fitted above this multiple of the highest rigid-body (suspension) pole.
@@ -119,6 +123,7 @@ class Pole:
     elastic: bool = False
     shape_rigid_error: float = float("nan")
     stability: float = 1.0
+    snr: float = float("nan")
 
     @property
     def lam(self) -> complex:
@@ -133,6 +138,7 @@ class Pole:
             "elastic": self.elastic,
             "shape_rigid_body_error": self.shape_rigid_error,
             "stability": self.stability,
+            "residue_snr": self.snr,
         }
 
 
@@ -370,16 +376,15 @@ def fit_modal_model(
     omega_ref = 2 * np.pi * f[-1]
     # classify each pole by the rigid-body error of its accelerometer residues
     B_acc, _, _ = _basis(s, poles, s**2, omega_ref)
-    coef_a, *_ = _lsfd(B_acc, H[:, acc].reshape(n_l, -1))
+    coef_a0, *_ = _lsfd(B_acc, H[:, acc].reshape(n_l, -1))
     Pq, _ = np.linalg.qr(np.asarray(rigid_basis, float))
     classified = []
     for r, p in enumerate(poles):
-        A = (coef_a[2 * r] + 1j * coef_a[2 * r + 1]).reshape(acc.size, n_i)
+        A = (coef_a0[2 * r] + 1j * coef_a0[2 * r + 1]).reshape(acc.size, n_i)
         nrm = np.linalg.norm(A)
         err = float(np.linalg.norm(A - Pq @ (Pq.T @ A)) / nrm) if nrm > 0 else 0.0
-        classified.append(
-            Pole(p.frequency_hz, p.damping_ratio, err > elastic_shape_error, err, p.stability)
-        )
+        elastic = err > elastic_shape_error  # the signal to noise is checked below
+        classified.append(Pole(p.frequency_hz, p.damping_ratio, elastic, err, p.stability))
     # the residues are fitted above the suspension (rigid-body) poles: their closely spaced peaks
     # are what the lower residual terms cannot follow, and the DIM band lies above them anyway
     el_f = [p.frequency_hz for p in classified if p.elastic]
@@ -394,21 +399,34 @@ def fit_modal_model(
             "are too few for the modal fit; measure a wider span or a finer resolution"
         )
     correction = np.zeros_like(H)
-    residues = np.zeros((len(classified), n_o, n_i), complex)
+    nr = len(classified)
+    residues = np.zeros((nr, n_o, n_i), complex)
     upper_acc = np.zeros_like(H)
     sigma = np.zeros((n_o, n_i))
     sub_basis: dict[str, ComplexArray] = {}
     chols: dict[str, FloatArray] = {}
     rels = []
+    fits = {}
     for kind, idx in kind_index.items():
         if idx.size == 0:
             continue
         weight = s**2 if kind == "acceleration" else np.ones_like(s)
-        B, sub_a, sub_r = _basis(s, classified, weight, omega_ref)
+        B, _, _ = _basis(s, classified, weight, omega_ref)
+        fits[kind] = _lsfd(B[fit_lines], H[fit_lines][:, idx].reshape(-1, idx.size * n_i))
+    # the residues' signal to noise on the fitted lines decides, with the shape, what is elastic
+    coef_a, sig_a, chol_a, _ = fits["acceleration"]
+    for r, p in enumerate(classified):
+        A = coef_a[2 * r] + 1j * coef_a[2 * r + 1]
+        se2 = (np.sum(chol_a[2 * r] ** 2) + np.sum(chol_a[2 * r + 1] ** 2)) * np.sum(sig_a**2)
+        snr = float(np.linalg.norm(A) / np.sqrt(se2)) if se2 > 0 else float("inf")
+        elastic = p.shape_rigid_error > elastic_shape_error and snr > MIN_SNR
+        classified[r] = replace(p, elastic=elastic, snr=snr)
+    for kind, (coef, sig, chol, rel) in fits.items():
+        idx = kind_index[kind]
+        weight = s**2 if kind == "acceleration" else np.ones_like(s)
+        _, sub_a, sub_r = _basis(s, classified, weight, omega_ref)
         sub = sub_a if kind == "acceleration" else sub_r
-        coef, sig, chol, rel = _lsfd(B[fit_lines], H[fit_lines][:, idx].reshape(-1, idx.size * n_i))
         correction[:, idx] = (sub @ coef).reshape(n_l, idx.size, n_i)
-        nr = len(classified)
         residues[:, idx] = (coef[0 : 2 * nr : 2] + 1j * coef[1 : 2 * nr : 2]).reshape(
             nr, idx.size, n_i
         )

@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from dimacq.errors import SetupError
+from dimacq.errors import DataError, SetupError
 from dimacq.model.frf import FrfData
 from dimacq.model.setup import PARAMETERS, TestSetup
 from dimacq.pipeline.dim import DimResult, assemble, solve_system
@@ -367,6 +367,18 @@ def analyse_with_modal(
         if plots is not None:
             first = plain(frf, setup, opt)
         return replace(first, modal_correction=note)
+    fit: ModalFit | None = None
+    try:
+        fit = cache.get("fit") or modal_fit(*with_chain(frf, setup))
+        why_not = "" if fit.elastic_poles else "the modal fit finds no elastic mode"
+    except DataError as err:
+        why_not = f"the modal fit is not possible ({err})"
+    if why_not or fit is None:
+        note = ModalCorrection(fit, f"{why}; but {why_not}: solved as measured", False, "auto")
+        if plots is not None:
+            first = plain(frf, setup, opt)
+        return replace(first, modal_correction=note)
+    cache["fit"] = fit
     log.warning("modal correction applied: %s", why)
     second = _analyse_modal(frf, setup, opt, plain, with_chain, why, cache)
     if second.verdict == "fail" and first.verdict != "fail":
