@@ -262,6 +262,28 @@ def plot_cmif(
     return save_figure(figure_cmif(frequencies_hz, cmif_values, band_hz=band_hz), directory, stem)
 
 
+def figure_modal_correction(
+    frequencies_hz: NDArray[np.floating],
+    size: NDArray[np.floating],
+    poles_hz: list[tuple[float, bool]],
+    *,
+    band_hz: tuple[float, float] | None = None,
+) -> Figure:
+    """The modal correction's size per line (‖correction‖ / ‖H‖ of the kept accelerances, %),
+    the band shaded, each pole marked (solid: elastic, taken out; dotted: left in)."""
+    fig = _fig(9, 4)
+    ax = fig.subplots()
+    ax.semilogy(np.asarray(frequencies_hz), 100 * np.asarray(size), lw=0.9)
+    if band_hz is not None:
+        ax.axvspan(band_hz[0], band_hz[1], color="tab:green", alpha=0.15, lw=0)
+    for f, elastic in poles_hz:
+        ax.axvline(f, color="tab:red" if elastic else "grey", ls="-" if elastic else ":", lw=0.8)
+    ax.set_xlabel("frequency [Hz]")
+    ax.set_ylabel("correction / accelerance [%]")
+    ax.set_title("modal correction (red: elastic modes taken out)")
+    return fig
+
+
 def figure_sensitivity(
     samples: NDArray[np.floating],
     truth: Sequence[float] | NDArray[np.floating],

@@ -67,6 +67,7 @@ from dimacq.pipeline.uncertainty import (
 )
 from dimacq.services.cross_check import CrossCheck, cross_check
 from dimacq.services.estimation import output_error_step
+from dimacq.services.modal_correction import ModalCorrection, analyse_with_modal
 from dimacq.services.verdict import (
     CI95_LIMIT_MASS,
     CI95_LIMIT_PRINCIPAL,
@@ -155,6 +156,10 @@ class AnalysisOptions:
     cross_check : bool
         Run the second, independent estimator (the mass-line fit,
         :mod:`dimacq.services.cross_check`) on the DIM's data and compare (default on).
+    modal_correction : {"auto", "on", "off"}
+        Take the elastic modes identified from the FRFs out of them and solve on the corrected
+        FRFs (:mod:`dimacq.services.modal_correction`): ``auto`` (default) only when the plain
+        analysis shows elastic contamination, and says so.
     """
 
     select_responses: bool = True
@@ -178,6 +183,7 @@ class AnalysisOptions:
     reference_mass: tuple[float, float] | None = None
     chain: ChainCalibration | None = None
     cross_check: bool = True
+    modal_correction: str = "auto"
 
 
 @dataclass(frozen=True, eq=False)
@@ -230,6 +236,9 @@ class AnalysisReport:
     geometry: GeometrySpread | None = None
     chain_calibration: dict[str, Any] | None = None
     cross_check: CrossCheck | None = None
+    modal_correction: ModalCorrection | None = None
+    weights_used: np.ndarray | None = None
+    inputs_kept: np.ndarray | None = None
 
     def to_json(self) -> dict[str, Any]:
         """``result.to_json()`` plus ``excluded_responses``, ``excluded_inputs``, ``uncertainty``,
@@ -262,6 +271,8 @@ class AnalysisReport:
             out["chain_calibration"] = dict(self.chain_calibration)
         if self.cross_check is not None:
             out["cross_check"] = self.cross_check.to_json()
+        if self.modal_correction is not None:
+            out["modal_correction"] = self.modal_correction.to_json()
         if self.response_selection is not None:
             out["response_selection"] = self.response_selection.to_json()
         if self.input_selection is not None:
@@ -276,6 +287,15 @@ def _ch(c: Channel) -> dict[str, int]:
 def analyse(
     frf: FrfData, setup: TestSetup, options: AnalysisOptions | None = None
 ) -> AnalysisReport:
+    """Run selection → solve → uncertainty → figures (module docstring), on the FRFs as
+    measured or, when they show elastic contamination (``options.modal_correction``), on the
+    FRFs with the elastic modes taken out (:mod:`dimacq.services.modal_correction`).
+    """
+    opt = options or AnalysisOptions()
+    return analyse_with_modal(frf, setup, opt, _analyse, lambda f, st: _with_chain(f, st, opt))
+
+
+def _analyse(frf: FrfData, setup: TestSetup, opt: AnalysisOptions) -> AnalysisReport:
     """Run selection → solve → uncertainty → figures (module docstring).
 
     Raises
@@ -285,7 +305,6 @@ def analyse(
     SolverError
         The kept data cannot be solved (rank < 6 ...).
     """
-    opt = options or AnalysisOptions()
     frf, setup = _with_chain(frf, setup, opt)
     known = dict(setup.known.as_dict() if opt.known is None else opt.known)
     force_in = [tuple(map(int, p)) for p in opt.force_in]
@@ -464,6 +483,8 @@ def analyse(
         orientation=repair,
         geometry=geo,
         cross_check=cc,
+        weights_used=np.asarray(weights, float),
+        inputs_kept=np.asarray(keep_in, bool),
     )
     v, reasons = verdict(
         report,

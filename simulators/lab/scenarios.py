@@ -19,6 +19,9 @@ File layout (every table but ``[article]`` and ``[band]`` optional)::
     support = "bungee"             # calibration-mass: bungee | air-ride | ground | free
     sensor_skew_deg = 25.0         # calibration-mass: random triax rotations up to this angle
     flexible = true                # x38: drogue-chute pair near 5 Hz, tails near 23 Hz
+    elastic_modes_hz = [17.0, 24.0, 31.0]  # x38: hull bending/torsion/lateral instead of those
+    elastic_modal_mass_fraction = 0.2      # x38 hull modes: modal mass / vehicle mass
+    elastic_damping = 0.02         # x38 hull modes: damping ratio
     half_size_m = 1.0              # cube: triaxes at (±H, ±H, ±H)
 
     [band]             # the recommended DIM band, Hz
@@ -103,6 +106,7 @@ from dimacq.io.validation import refuse
 from dimacq.model.frf import FrfData
 from dimacq.model.properties import RigidBodyProperties
 from dimacq.model.setup import Excitation, GeometryUncertainty, ResponseChannel, TestSetup
+from dimacq.simulators.lab.elastic import hull_modes
 from dimacq.simulators.lab.forward import (
     ForwardModel,
     calibration_mass,
@@ -164,6 +168,17 @@ class ArticleSpec(_Spec):
     half_size_m: float | None = Field(
         default=None, gt=0, description="cube: half the side H in metres (> 0)"
     )
+    elastic_modes_hz: tuple[float, float, float] | None = Field(
+        default=None,
+        description="x38: global hull modes instead of the chute pair and tails: vertical "
+        "bending, torsion, lateral bending, Hz (simulators.lab.elastic)",
+    )
+    elastic_modal_mass_fraction: float | None = Field(
+        default=None, gt=0, le=1, description="x38 hull modes: modal mass / vehicle mass (0.2)"
+    )
+    elastic_damping: float | None = Field(
+        default=None, ge=0, lt=1, description="x38 hull modes: damping ratio (default 0.02)"
+    )
 
     @model_validator(mode="after")
     def _fits_model(self) -> ArticleSpec:
@@ -183,6 +198,9 @@ class ArticleSpec(_Spec):
                 ("chute_modes_hz", self.chute_modes_hz),
                 ("deformation_mode_hz", self.deformation_mode_hz),
                 ("suspension_hz", self.suspension_hz),
+                ("elastic_modes_hz", self.elastic_modes_hz),
+                ("elastic_modal_mass_fraction", self.elastic_modal_mass_fraction),
+                ("elastic_damping", self.elastic_damping),
             )
             if v is not None
         }
@@ -598,7 +616,21 @@ def _article(spec: ArticleSpec, seed: int) -> ForwardModel:
             extra["deformation_mode_hz"] = spec.deformation_mode_hz
         if spec.suspension_hz is not None:
             extra["suspension_hz"] = spec.suspension_hz
-        return x38_like(seed, flexible=spec.flexible, **extra)
+        if spec.elastic_modes_hz is None:
+            return x38_like(seed, flexible=spec.flexible, **extra)
+        fm = x38_like(seed, flexible=False, **extra)
+        if not spec.flexible:
+            return fm
+        modes = hull_modes(
+            spec.elastic_modes_hz,
+            mass_kg=fm.properties.mass_kg,
+            nodes=fm.node_positions(),
+            x_range_m=(0.0, 9.0),
+            z_axis_m=float(fm.properties.cg_m[2]),
+            modal_mass_fraction=spec.elastic_modal_mass_fraction or 0.2,
+            damping_ratio=0.02 if spec.elastic_damping is None else spec.elastic_damping,
+        )
+        return replace(fm, modes=modes)
     assert spec.half_size_m is not None
     return cube(spec.half_size_m, seed)
 

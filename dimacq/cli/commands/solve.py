@@ -182,6 +182,14 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         help="fit residual terms (ω², ω⁴) of elastic modes above the band and test whether they "
         "were needed (default off)",
     )
+    e.add_argument(
+        "--modal-correction",
+        choices=("auto", "on", "off"),
+        default="auto",
+        help="take the elastic modes identified from the FRFs (poles and residues of every "
+        "pair, LSCF + LSFD) out of the accelerances and reactions and solve on the corrected "
+        "FRFs: auto (default) when the rigid-body checks show elastic contamination, on, off",
+    )
     p.set_defaults(func=run)
 
 
@@ -352,6 +360,7 @@ def run(args: argparse.Namespace) -> int:
         residual_flexibility=args.residual_flexibility,
         reference_mass=_reference_mass(args.reference_mass),
         chain=_chain(args.chain_calibration),
+        modal_correction=args.modal_correction,
     )
     report = analyse(frf, setup, options)
     result = report.result
@@ -474,6 +483,7 @@ def print_report(
         f"relative residual {result.residual_rel:.3g}\n"
     )
     w(f"sign convention: {PRODUCT_SIGN_CONVENTION}\n")
+    _print_modal(payload, w)
     _print_cross_check(result, payload, reference, w)
     if "frf_scale_factor" in payload:
         w(f"FRFs scaled by {payload['frf_scale_factor']:.9g} to the known mass\n")
@@ -535,6 +545,42 @@ def print_report(
         for r in payload.get("verdict_reasons") or []:
             if r.get("severity") != "ok":
                 w(f"  [{r['severity']}] {r['check']}: {r['message']}\n")
+
+
+def _print_modal(payload: dict[str, Any], w: Any) -> None:
+    """The modal correction: why, the poles, the modes taken out, the correction's size."""
+    mc = payload.get("modal_correction")
+    if not isinstance(mc, dict) or (not mc.get("applied") and mc.get("mode") == "off"):
+        return
+    w(f"modal correction ({mc['mode']}): {mc['reason']}\n")
+    if not mc.get("poles"):
+        return
+    w(
+        "  poles (Hz, damping %, shape's rigid-body error): "
+        + "; ".join(
+            f"{p['frequency_hz']:.3f} {100 * p['damping_ratio']:.2f} % "
+            f"{p['shape_rigid_body_error']:.2f}{' elastic' if p['elastic'] else ''}"
+            for p in mc["poles"]
+        )
+        + "\n"
+    )
+    lo, hi = mc["fit_range_hz"]
+    w(
+        f"  fit {lo:.3g}–{hi:.3g} Hz, residual {100 * mc['fit_error_rel']:.2g} % of each pair's "
+        f"RMS; modes taken out: {', '.join(f'{f:.3g}' for f in mc['modes_removed_hz']) or 'none'}"
+        f" Hz; left in: {', '.join(f'{f:.3g}' for f in mc['modes_kept_hz']) or 'none'} Hz\n"
+    )
+    size = mc.get("correction_size")
+    if size and size["relative"]:
+        f, r = np.asarray(size["frequencies_hz"]), np.asarray(size["relative"])
+        step = max(1, f.size // 8)
+        w(
+            "  correction / accelerance per line: "
+            + ", ".join(
+                f"{a:.4g} Hz {100 * b:.2g} %" for a, b in zip(f[::step], r[::step], strict=True)
+            )
+            + f" (largest {100 * size['max']:.3g} %)\n"
+        )
 
 
 def _print_cross_check(

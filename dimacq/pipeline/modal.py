@@ -1,0 +1,513 @@
+"""Modal-model correction: the elastic modes identified from the FRFs and taken out of them.
+
+Why
+---
+Above its first elastic mode a structure no longer moves as one rigid body, and there may be no
+flat mass line at all between the suspension and the elastic modes. The DIM's equation holds on
+every line for the rigid-body coordinates: with ``U = [u_P; θ]`` the rigid-body motion and ``η``
+the (mass-normalised, free-free) elastic coordinates, the structure on its measured supports obeys
+(:mod:`dimacq.simulators.lab.forward`; free-free modes carry no momentum)
+
+    s² M U − R(s) = φ_j                                                        (1)
+
+with ``R`` the measured reactions mapped to P and ``φ_j`` the input's unit load, while each
+accelerometer reads ``s² (Ψ_RB,i U + ψ_i η)``: the elastic motion enters the DIM only through the
+accelerometers. This module fits a modal model to every response/input pair (accelerances and
+load-cell reactions), finds which of its modes are elastic, and removes their contribution.
+
+Identification (poles, then residues)
+-------------------------------------
+*Poles: least-squares complex frequency (LSCF).* One common denominator for every pair,
+``H_oj(ω) ≈ N_oj(Ω) / d(Ω)`` with ``Ω = e^{iωΔt}``, ``Δt = 1/(2 f_max)``, ``d`` real of order p,
+``N_oj`` complex. Minimising ``Σ |N_oj − H_oj d|²`` over the numerators first leaves the reduced
+normal equations ``[Σ_o Re(T_o − S_oᴴ R⁻¹ S_o)] α = 0`` with ``X`` the basis
+``X_lk = Ω_l^k``, ``R = XᴴX``, ``S_o = −Xᴴ diag(H_o) X``, ``T_o = Xᴴ diag(|H_o|²) X``; with
+``α_p = 1`` it is one small linear solve per order. The pairs enter through their principal
+components (each pair scaled by its RMS, the leading left singular vectors of the stacked
+pairs × lines matrix): the same poles, a few "virtual" FRFs, and each of the hundreds of pairs
+still weighs in. Poles ``λ = ln z / Δt`` of the roots ``z`` of ``d``; the stabilisation over the
+orders keeps a pole seen (within 1 % in frequency and a damping ratio within a factor 1.5 or
+0.005) in at least half of the orders, damping 0 < ζ < 0.2.
+
+*Residues: least squares frequency domain (LSFD).* With the poles fixed every pair is linear in
+its residues. Accelerometer pairs (acceleration = s² × displacement, ``s = iω``) and reactions
+(force = (k + s c) × displacement: a pole term and a constant) are fitted as
+
+    H_acc(s) = Σ_r s² [A_r/(s − λ_r) + A_r*/(s − λ_r*)] + Σ_k c_k (s/ω_ref)^k
+    H_rea(s) = Σ_r    [B_r/(s − λ_r) + B_r*/(s − λ_r*)] + Σ_k c_k (s/ω_ref)^k
+
+``k ∈ {−4 … 2}``, real ``c_k``: the negative powers stand for modes below the span (the
+suspension's tails), ``k = 0`` the mass line, ``k = 1, 2`` the residual of modes above the span
+(a mode at ``λ`` far above contributes ``s² (−A/λ − A*/λ*)`` to an accelerance). One real
+least-squares solve for all pairs of a kind (a shared basis, one right-hand side per pair).
+
+Which modes are elastic
+-----------------------
+A mode's accelerometer residues ``A_r`` (channels × inputs) are its shape times its participation.
+A suspension mode moves the body rigidly: ``A_r`` lies in the column space of the rigid-body matrix
+``Ψ_RB``. An elastic mode does not: its rigid-body error ``‖A_r − Ψ Ψ⁺ A_r‖ / ‖A_r‖`` is large. A
+mode is elastic when that error exceeds :data:`ELASTIC_SHAPE_ERROR`; only elastic modes are taken out.
+
+The correction (why the reactions keep their static share)
+----------------------------------------------------------
+For a mode r of the structure on its supports, ``z_r`` its mass-normalised shape ``[U_r; η_r]``
+(the support springs couple it: ``U_r ≠ 0``), the contributions ``s² M U^(r)`` and ``R^(r)`` of the
+mode to (1) differ by a constant: ``s² M U^(r) − R^(r) = M U_r z_rᵀ q_j = −R^(r)(0)`` (the mode's
+equation ``(K − ω_r² M) z_r = 0``, rigid-body rows; exact undamped, to the damping's order
+otherwise). So the corrected data
+
+    H_acc,c = H_acc − Σ_elastic a^(r)(s) − c_2 (s/ω_ref)²
+    H_rea,c = H_rea − Σ_elastic [R^(r)(s) − R^(r)(0)] − c_1 (s/ω_ref) − c_2 (s/ω_ref)²
+
+satisfy (1) with the rigid-body motion alone: ``R^(r)(s) − R^(r)(0) = B_r [1/(s − λ_r) + 1/λ_r]
++ c.c.``. Subtracting the whole reaction term, as a textbook subtraction would, leaves a constant
+force error ``M U_r z_rᵀ q_j`` that grows as the elastic modes near the suspension modes
+(``U_r ~ (ω_susp/ω_r)²``), exactly the case this is for. Modes above the span: their residual
+terms, expanded the same way (``s²`` for an accelerance, ``s`` and ``s²`` for a reaction).
+
+That subtraction (``ModalFit.correction``) still leaves the elastic deformation the support
+forces cause below the modes (the suspension modes carry it): 0.4 % mass, 10 mm CG with hull
+modes at 17 Hz over 4.8 Hz suspension. :func:`elastic_shapes` and :func:`project_out` remove any
+elastic motion in the span of the identified shapes, whatever drives it: each mode's shape is its
+accelerometer residue less its rigid share ``U_r = M⁻¹ W_r / λ_r²`` (the mode's reaction residues
+at P), and the accelerances are split per line into ``Ψ K + C η``; the reactions stay as
+measured. :func:`dimacq.services.modal_correction.corrected` does this (M from a first solve).
+
+Uncertainty of the fit
+----------------------
+Per pair the LSFD residual gives ``σ²`` and the coefficients' covariance ``σ² (BᵀB)⁻¹``;
+:func:`residue_draws` draws residues from it (the poles held) for a Monte Carlo through the
+projection and the DIM solve.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from dimacq.errors import DataError
+
+__all__ = [
+    "ELASTIC_SHAPE_ERROR",
+    "ModalFit",
+    "Pole",
+    "elastic_shapes",
+    "fit_modal_model",
+    "lscf_poles",
+    "project_out",
+    "residue_draws",
+]
+
+FloatArray = NDArray[np.float64]
+ComplexArray = NDArray[np.complex128]
+
+#: Smallest rigid-body error of a mode's accelerometer residues for it to count as elastic.
+ELASTIC_SHAPE_ERROR = 0.25
+#: Smallest signal-to-noise ratio of a mode's accelerometer residues (their norm over the root sum
+#: of their LSFD standard errors) for it to be taken out: a pole fitted to noise has random
+#: residues, whose shape is not rigid either.
+MIN_SNR = 10.0
+#: Powers of ``s / ω_ref`` of the residual terms (below and above the span).
+RESIDUAL_POWERS = (-4, -3, -2, -1, 0, 1, 2)
+#: The residues are fitted above this multiple of the highest rigid-body (suspension) pole.
+CLEARANCE = 1.2
+#: Poles above this fraction of the top line are left out: LSCF puts spurious poles at the edge
+#: of its span (a real mode there is followed by the residual term of the modes above the span).
+EDGE = 0.97
+#: Largest damping ratio of a physical pole.
+MAX_DAMPING = 0.2
+
+
+@dataclass(frozen=True)
+class Pole:
+    """A pole ``λ = −ζ ω_n + i ω_n √(1 − ζ²)``: frequency (Hz), damping ratio, and whether the
+    mode is elastic (taken out) with the rigid-body error of its shape."""
+
+    frequency_hz: float
+    damping_ratio: float
+    elastic: bool = False
+    shape_rigid_error: float = float("nan")
+    stability: float = 1.0
+    snr: float = float("nan")
+
+    @property
+    def lam(self) -> complex:
+        wn = 2 * np.pi * self.frequency_hz
+        z = self.damping_ratio
+        return complex(-z * wn, wn * np.sqrt(max(1 - z * z, 0.0)))
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "frequency_hz": self.frequency_hz,
+            "damping_ratio": self.damping_ratio,
+            "elastic": self.elastic,
+            "shape_rigid_body_error": self.shape_rigid_error,
+            "stability": self.stability,
+            "residue_snr": self.snr,
+        }
+
+
+def _pole_of(lam: complex) -> tuple[float, float]:
+    wn = abs(lam)
+    return wn / (2 * np.pi), -lam.real / wn
+
+
+def lscf_poles(
+    frequencies_hz: FloatArray,
+    H: ComplexArray,
+    *,
+    orders: tuple[int, ...] | None = None,
+    n_components: int = 16,
+    band_hz: tuple[float, float] | None = None,
+) -> list[Pole]:
+    """Stable poles of FRFs by LSCF with a stabilisation over model orders (module docstring).
+
+    Parameters
+    ----------
+    frequencies_hz : ndarray, shape (n_lines,)
+    H : ndarray, shape (n_lines, n_pairs)
+        Every pair's FRF (any units: each pair is scaled by its RMS).
+    orders : tuple of int, optional
+        Denominator orders tried (default 16, 20, … 48).
+    band_hz : (lo, hi), optional
+        Keep poles in this range (default: the span, less its top 3 %, :data:`EDGE`).
+
+    Returns
+    -------
+    list of Pole, ascending in frequency
+    """
+    f = np.asarray(frequencies_hz, float)
+    Hp = np.asarray(H, complex).reshape(f.size, -1)
+    if f.size < 16:
+        raise DataError(f"{f.size} lines are too few for a modal fit; give at least 16 lines")
+    rms = np.sqrt(np.mean(np.abs(Hp) ** 2, axis=0))
+    ok = rms > 0
+    Hn = Hp[:, ok] / rms[ok]
+    # principal components over the lines: eigenvectors of the (n_lines × n_lines) Gram matrix
+    ev, u = np.linalg.eigh(Hn @ Hn.conj().T)
+    ev, u = ev[::-1], u[:, ::-1]
+    sv = np.sqrt(np.clip(ev, 0, None))
+    k = int(min(n_components, np.sum(sv > sv[0] * 1e-6)))
+    Hc = u[:, :k] * sv[:k]  # (n_lines, k) principal FRFs
+    dt = 1.0 / (2.0 * f[-1] * 1.05)
+    omega = 2 * np.pi * f
+    orders = orders or tuple(range(16, 50, 4))
+    lo, hi = band_hz or (f[0], f[-1])
+    found: list[list[tuple[float, float]]] = []
+    for p in orders:
+        X = np.exp(1j * omega[:, None] * dt * np.arange(p + 1)[None, :])  # (n_lines, p+1)
+        R = X.conj().T @ X
+        # S_o = −Xᴴ diag(H_o) X and T_o = Xᴴ diag(|H_o|²) X for every component at once
+        S = -np.einsum("lk,lo,lm->okm", X.conj(), Hc, X, optimize=True)
+        T = np.einsum("lk,lo,lm->km", X.conj(), np.abs(Hc) ** 2, X, optimize=True)
+        Rinv_S = np.linalg.solve(R[None], S)
+        Mm = np.real(T - np.einsum("okj,okm->jm", S.conj(), Rinv_S))
+        alpha = np.linalg.solve(Mm[:p, :p], -Mm[:p, p])
+        z = np.roots(np.concatenate([[1.0], alpha[::-1]]))
+        z = z[np.abs(z) > 0]
+        lam = np.log(z.astype(complex)) / dt
+        lam = lam[lam.imag > 0]
+        poles = [_pole_of(complex(v)) for v in lam]
+        found.append(
+            [(fr, ze) for fr, ze in poles if 0 < ze < MAX_DAMPING and lo <= fr <= hi * EDGE]
+        )
+    return _stable(found, len(orders))
+
+
+def _stable(found: list[list[tuple[float, float]]], n_orders: int) -> list[Pole]:
+    """Cluster the poles of every order (1 % in frequency, damping within a factor 1.5 or 0.005)
+    and keep the clusters seen in at least half of the orders (their medians)."""
+    allp = sorted((fr, ze, i) for i, ps in enumerate(found) for fr, ze in ps)
+    clusters: list[list[tuple[float, float, int]]] = []
+    for fr, ze, i in allp:
+        best = None
+        for c in clusters:
+            fm = float(np.median([x[0] for x in c]))
+            zm = float(np.median([x[1] for x in c]))
+            if abs(fr - fm) <= 0.01 * fm and abs(ze - zm) <= max(0.5 * zm, 0.005):
+                if i not in {x[2] for x in c}:
+                    best = c
+                    break
+        if best is None:
+            clusters.append([(fr, ze, i)])
+        else:
+            best.append((fr, ze, i))
+    out = []
+    for c in clusters:
+        n = len({x[2] for x in c})
+        if n >= 0.5 * n_orders:
+            out.append(
+                Pole(
+                    float(np.median([x[0] for x in c])),
+                    float(np.median([x[1] for x in c])),
+                    stability=n / n_orders,
+                )
+            )
+    return sorted(out, key=lambda p: p.frequency_hz)
+
+
+@dataclass(frozen=True, eq=False)
+class ModalFit:
+    """A fitted modal model of every pair and the correction it gives.
+
+    Attributes
+    ----------
+    poles : list of Pole
+        Every stable pole (``elastic`` marks the ones taken out).
+    frequencies_hz : ndarray, shape (n_lines,)
+    correction : ndarray, shape (n_lines, n_outputs, n_inputs), complex
+        What is subtracted from each FRF (zero for modes left in).
+    coef_cov_chol : ndarray, shape (n_basis, n_basis) per kind
+        Cholesky factor of ``(BᵀB)⁻¹`` of each kind's basis (acceleration, reaction).
+    sigma : ndarray, shape (n_outputs, n_inputs)
+        Per pair, the LSFD residual's standard deviation (real and imaginary parts).
+    fit_error : float
+        RMS of the LSFD residual over every pair, relative to each pair's RMS.
+    """
+
+    poles: list[Pole]
+    frequencies_hz: FloatArray
+    correction: ComplexArray
+    sub_basis: dict[str, ComplexArray]
+    coef_cov_chol: dict[str, FloatArray]
+    sigma: FloatArray
+    kind_index: dict[str, NDArray[np.intp]]
+    fit_error: float
+    fit_range_hz: tuple[float, float]
+    residues: ComplexArray
+    upper_acc: ComplexArray
+
+    @property
+    def elastic_poles(self) -> list[Pole]:
+        return [p for p in self.poles if p.elastic]
+
+    def size_per_line(self, H: ComplexArray, rows: NDArray[np.intp]) -> FloatArray:
+        """‖correction‖ / ‖H‖ per line over the given output rows (all inputs)."""
+        c = self.correction[:, rows]
+        h = np.asarray(H)[:, rows]
+        den = np.sqrt(np.sum(np.abs(h) ** 2, axis=(1, 2)))
+        return np.asarray(
+            np.sqrt(np.sum(np.abs(c) ** 2, axis=(1, 2))) / np.where(den > 0, den, 1.0)
+        )
+
+
+def _basis(
+    s: ComplexArray, poles: list[Pole], weight: ComplexArray, omega_ref: float
+) -> tuple[ComplexArray, ComplexArray, ComplexArray]:
+    """Complex basis columns (n_lines, n_basis) of the LSFD model, and the columns subtracted
+    for accelerometers and for reactions (same shape; zero where a column is not subtracted)."""
+    cols, sub_acc, sub_rea = [], [], []
+    for p in poles:
+        lam = p.lam
+        g1 = weight * (1 / (s - lam) + 1 / (s - np.conj(lam)))
+        g2 = weight * (1j / (s - lam) - 1j / (s - np.conj(lam)))
+        # reactions: the term minus its static value (module docstring)
+        r1 = g1 - (-1 / lam - 1 / np.conj(lam))
+        r2 = g2 - (-1j / lam + 1j / np.conj(lam))
+        cols += [g1, g2]
+        el = 1.0 if p.elastic else 0.0
+        sub_acc += [el * g1, el * g2]
+        sub_rea += [el * r1, el * r2]
+    for k in RESIDUAL_POWERS:
+        v = (s / omega_ref) ** k
+        cols.append(v)
+        sub_acc.append(v if k == 2 else 0 * v)
+        sub_rea.append(v if k in (1, 2) else 0 * v)
+    return np.stack(cols, 1), np.stack(sub_acc, 1), np.stack(sub_rea, 1)
+
+
+def _lsfd(
+    B: ComplexArray, Y: ComplexArray
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """Real least squares of complex data: coefficients (n_basis, n_pairs), residual σ per pair,
+    Cholesky factor of (BᵀB)⁻¹ and the relative RMS residual per pair."""
+    Br = np.concatenate([B.real, B.imag], 0)
+    Yr = np.concatenate([Y.real, Y.imag], 0)
+    scale = np.sqrt(np.sum(Br**2, axis=0))
+    scale[scale == 0] = 1.0
+    Bs = Br / scale
+    coef, *_ = np.linalg.lstsq(Bs, Yr, rcond=1e-10)
+    resid = Yr - Bs @ coef
+    dof = max(Br.shape[0] - Br.shape[1], 1)
+    sigma = np.sqrt(np.sum(resid**2, axis=0) / dof)
+    G = np.linalg.pinv(Bs.T @ Bs, rcond=1e-12, hermitian=True)
+    w, v = np.linalg.eigh(G)
+    chol = (v * np.sqrt(np.clip(w, 0, None))) / scale[:, None]
+    rms = np.sqrt(np.mean(Yr**2, axis=0))
+    rel = np.sqrt(np.mean(resid**2, axis=0)) / np.where(rms > 0, rms, 1.0)
+    return coef / scale[:, None], sigma, chol, rel
+
+
+def fit_modal_model(
+    frequencies_hz: FloatArray,
+    H: ComplexArray,
+    kinds: tuple[str, ...],
+    rigid_basis: FloatArray,
+    *,
+    poles: list[Pole] | None = None,
+    elastic_shape_error: float = ELASTIC_SHAPE_ERROR,
+) -> ModalFit:
+    """Fit poles and residues of every pair and build the elastic-mode correction.
+
+    Parameters
+    ----------
+    frequencies_hz : ndarray, shape (n_lines,)
+    H : ndarray, shape (n_lines, n_outputs, n_inputs)
+        Accelerances ((m/s²)/N) and reactions (N/N, N·m/N).
+    kinds : tuple of {"acceleration", "reaction"}, length n_outputs
+    rigid_basis : ndarray, shape (n_acc, 6)
+        ``Ψ_RB`` of the accelerometer outputs (in their order among the outputs): rows
+        ``[dᵀ, (r × d)ᵀ]`` with r relative to any point (the column space is what matters).
+    poles : list of Pole, optional
+        Poles to use (default: :func:`lscf_poles` on every pair).
+
+    Returns
+    -------
+    ModalFit
+    """
+    f = np.asarray(frequencies_hz, float)
+    H = np.asarray(H, complex)
+    n_l, n_o, n_i = H.shape
+    kind_index = {
+        k: np.array([i for i, x in enumerate(kinds) if x == k], dtype=np.intp)
+        for k in ("acceleration", "reaction")
+    }
+    acc = kind_index["acceleration"]
+    if acc.size == 0:
+        raise DataError("a modal correction needs accelerometer outputs; the FRFs have none")
+    if poles is None:
+        poles = lscf_poles(f, H.reshape(n_l, -1))
+    s = 2j * np.pi * f
+    omega_ref = 2 * np.pi * f[-1]
+    # classify each pole by the rigid-body error of its accelerometer residues
+    B_acc, _, _ = _basis(s, poles, s**2, omega_ref)
+    coef_a0, *_ = _lsfd(B_acc, H[:, acc].reshape(n_l, -1))
+    Pq, _ = np.linalg.qr(np.asarray(rigid_basis, float))
+    classified = []
+    for r, p in enumerate(poles):
+        A = (coef_a0[2 * r] + 1j * coef_a0[2 * r + 1]).reshape(acc.size, n_i)
+        nrm = np.linalg.norm(A)
+        err = float(np.linalg.norm(A - Pq @ (Pq.T @ A)) / nrm) if nrm > 0 else 0.0
+        elastic = err > elastic_shape_error  # the signal to noise is checked below
+        classified.append(Pole(p.frequency_hz, p.damping_ratio, elastic, err, p.stability))
+    # the residues are fitted above the suspension (rigid-body) poles: their closely spaced peaks
+    # are what the lower residual terms cannot follow, and the DIM band lies above them anyway
+    el_f = [p.frequency_hz for p in classified if p.elastic]
+    first_el = min(el_f) if el_f else float(f[-1])
+    rigid_f = [p.frequency_hz for p in classified if not p.elastic and p.frequency_hz < first_el]
+    f_lo = CLEARANCE * max(rigid_f) if rigid_f else 0.5 * first_el
+    f_lo = max(f_lo, float(f[0]))
+    fit_lines = f >= f_lo
+    if fit_lines.sum() < 4 * (2 * len(classified) + len(RESIDUAL_POWERS)):
+        raise DataError(
+            f"{int(fit_lines.sum())} lines above {f_lo:.3g} Hz (clear of the suspension modes) "
+            "are too few for the modal fit; measure a wider span or a finer resolution"
+        )
+    correction = np.zeros_like(H)
+    nr = len(classified)
+    residues = np.zeros((nr, n_o, n_i), complex)
+    upper_acc = np.zeros_like(H)
+    sigma = np.zeros((n_o, n_i))
+    sub_basis: dict[str, ComplexArray] = {}
+    chols: dict[str, FloatArray] = {}
+    rels = []
+    fits = {}
+    for kind, idx in kind_index.items():
+        if idx.size == 0:
+            continue
+        weight = s**2 if kind == "acceleration" else np.ones_like(s)
+        B, _, _ = _basis(s, classified, weight, omega_ref)
+        fits[kind] = _lsfd(B[fit_lines], H[fit_lines][:, idx].reshape(-1, idx.size * n_i))
+    # the residues' signal to noise on the fitted lines decides, with the shape, what is elastic
+    coef_a, sig_a, chol_a, _ = fits["acceleration"]
+    for r, p in enumerate(classified):
+        A = coef_a[2 * r] + 1j * coef_a[2 * r + 1]
+        se2 = (np.sum(chol_a[2 * r] ** 2) + np.sum(chol_a[2 * r + 1] ** 2)) * np.sum(sig_a**2)
+        snr = float(np.linalg.norm(A) / np.sqrt(se2)) if se2 > 0 else float("inf")
+        elastic = p.shape_rigid_error > elastic_shape_error and snr > MIN_SNR
+        classified[r] = replace(p, elastic=elastic, snr=snr)
+    for kind, (coef, sig, chol, rel) in fits.items():
+        idx = kind_index[kind]
+        weight = s**2 if kind == "acceleration" else np.ones_like(s)
+        _, sub_a, sub_r = _basis(s, classified, weight, omega_ref)
+        sub = sub_a if kind == "acceleration" else sub_r
+        correction[:, idx] = (sub @ coef).reshape(n_l, idx.size, n_i)
+        residues[:, idx] = (coef[0 : 2 * nr : 2] + 1j * coef[1 : 2 * nr : 2]).reshape(
+            nr, idx.size, n_i
+        )
+        if kind == "acceleration":
+            top = (s / omega_ref) ** 2
+            upper_acc[:, idx] = (top[:, None] * coef[-1][None, :]).reshape(n_l, idx.size, n_i)
+        sigma[idx] = sig.reshape(idx.size, n_i)
+        sub_basis[kind] = sub
+        chols[kind] = chol
+        rels.append(rel)
+    return ModalFit(
+        poles=classified,
+        frequencies_hz=f,
+        correction=correction,
+        sub_basis=sub_basis,
+        coef_cov_chol=chols,
+        sigma=sigma,
+        kind_index=kind_index,
+        fit_error=float(np.sqrt(np.mean(np.concatenate(rels) ** 2))),
+        fit_range_hz=(float(f_lo), float(f[-1])),
+        residues=residues,
+        upper_acc=upper_acc,
+    )
+
+
+def elastic_shapes(
+    residues_acc: ComplexArray, rigid_part: ComplexArray, rigid_basis: FloatArray
+) -> ComplexArray:
+    """Elastic shape at the accelerometers of each elastic mode, shape (n_acc, n_el).
+
+    ``residues_acc`` (n_el, n_acc, n_inputs) are the modes' displacement residues; ``rigid_part``
+    (n_el, 6, n_inputs) the rigid-body motion of P in each residue (from the reactions:
+    ``U_r = M⁻¹ W_r / λ_r²``). What is left, ``A_r − Ψ U_r``, is the mode's elastic motion
+    times its participation: its leading left singular vector is the shape."""
+    el = residues_acc - np.einsum("ck,rkj->rcj", rigid_basis, rigid_part)
+    out = []
+    for A in el:
+        u, _, _ = np.linalg.svd(A, full_matrices=False)
+        out.append(u[:, 0])
+    return np.stack(out, axis=1) if out else np.zeros((residues_acc.shape[1], 0), complex)
+
+
+def project_out(
+    H_acc: ComplexArray, rigid_basis: FloatArray, shapes: ComplexArray
+) -> tuple[ComplexArray, ComplexArray]:
+    """Per line and input, the accelerances' least-squares split ``a = Ψ K + C η`` over the
+    rigid-body shapes and the elastic shapes: returns ``a − C η`` and ``C η``.
+
+    Exact for any elastic motion within the span of ``C`` whatever drives it (the input or the
+    measured reactions), with no model of ``η``'s frequency dependence.
+    """
+    B = np.concatenate([np.asarray(rigid_basis, complex), shapes], axis=1)
+    pinv = np.linalg.pinv(B)[6:]  # rows giving η
+    eta = np.einsum("ec,lcj->lej", pinv, H_acc)
+    corr = np.einsum("ce,lej->lcj", shapes, eta)
+    return H_acc - corr, corr
+
+
+def residue_draws(fit: ModalFit, n_draws: int, seed: int = 0) -> tuple[ComplexArray, ComplexArray]:
+    """Accelerometer residues and the residual term drawn from the LSFD coefficients'
+    covariance ``σ² (BᵀB)⁻¹`` per pair (poles held): shapes (n_draws, n_modes, n_acc, n_inputs)
+    and (n_draws, n_acc, n_inputs) (the ``s²`` term at the top line, as ``upper_acc[-1]``)."""
+    rng = np.random.default_rng(seed)
+    idx = fit.kind_index["acceleration"]
+    chol = fit.coef_cov_chol["acceleration"]
+    n_i = fit.sigma.shape[1]
+    sig = fit.sigma[idx].reshape(-1)
+    z = rng.standard_normal((n_draws, chol.shape[1], sig.size))
+    dcoef = np.einsum("bk,dkp->dbp", chol, z) * sig  # (n_draws, n_basis, n_pairs)
+    nr = len(fit.poles)
+    dres = (dcoef[:, 0 : 2 * nr : 2] + 1j * dcoef[:, 1 : 2 * nr : 2]).reshape(
+        n_draws, nr, idx.size, n_i
+    )
+    res = fit.residues[:, idx][None] + dres
+    up = fit.upper_acc[-1][idx][None] - dcoef[:, -1].reshape(n_draws, idx.size, n_i)
+    return res, up
