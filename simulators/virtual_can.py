@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import queue
 import time
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from typing import Any
 
 import can
@@ -92,7 +92,7 @@ class SimVirtualBus(VirtualBus):
     second at 2x real time) before it saw a command: a STOP waited behind seconds of them.
     """
 
-    def __init__(self, *args: Any, accept_ids: Sequence[int] | None = None, **kwargs: Any):
+    def __init__(self, *args: Any, accept_ids: Iterable[int] | None = None, **kwargs: Any):
         super().__init__(*args, **kwargs)
         if accept_ids is not None:
             # on the queue, where the senders of the channel see it
