@@ -41,6 +41,7 @@ import usb.util
 
 from dimacq.devices.daq import ChannelConfig, DaqBlock, DaqEvent
 from dimacq.drivers.base import Deadline, WireDriver
+from dimacq.drivers.daq.driver import STANDARD_GRAVITY
 from dimacq.drivers.mcc import protocol as p
 from dimacq.drivers.stream import CounterStream
 from dimacq.errors import (
@@ -56,7 +57,6 @@ __all__ = ["MccIdentity", "MccTask", "Usb1808"]
 
 log = logging.getLogger(__name__)
 
-STANDARD_GRAVITY = 9.80665
 _BULK = "bulk read"
 #: the pacer's quantisation (100 MHz / (N + 1)) accepted against the asked rate: below the
 #: 100 MHz oscillator's own tolerance

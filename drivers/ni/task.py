@@ -22,6 +22,7 @@ from typing import Any, Literal
 import numpy as np
 
 from dimacq.devices.daq import ChannelConfig, DaqBlock, DaqEvent
+from dimacq.drivers.daq.driver import STANDARD_GRAVITY
 from dimacq.errors import DeviceError, DeviceStateError, DeviceTimeoutError, SetupError
 
 __all__ = ["NiDsaTask", "NiIdentity"]
@@ -115,7 +116,7 @@ class NiDsaTask:
         iepe_current_ma: float = 4.0,
         coupling: Literal["AC", "DC"] = "AC",
     ) -> None:
-        v = sensitivity_mv_per_g * 1e-3 / 9.80665
+        v = sensitivity_mv_per_g * 1e-3 / STANDARD_GRAVITY
         cfg = ChannelConfig(physical_channel, name, "m/s^2", v, range_v, 0, coupling)
         self._add(physical_channel, _Chan(cfg, "accel", sensitivity_mv_per_g, iepe_current_ma))
 
