@@ -53,13 +53,13 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-import usb.backend
 import usb.core
 
 from dimacq.drivers.daq import protocol as p
 from dimacq.simulators.daq.clock import SampleClock
 from dimacq.simulators.imperfections import fault_log
 from dimacq.simulators.lab.source import SampleSource
+from dimacq.simulators.usb_device import Desc, OneBulkInBackend
 
 __all__ = ["DaqFaults", "DaqInput", "VirtualDaqBackend"]
 
@@ -108,11 +108,6 @@ class DaqFaults:
     reenumerate_s: float = 0.5
 
 
-class _Desc:
-    def __init__(self, **fields: Any) -> None:
-        self.__dict__.update(fields)
-
-
 @dataclass(frozen=True)
 class _Handle:
     """An open device handle; dead once the device has re-enumerated."""
@@ -120,7 +115,7 @@ class _Handle:
     generation: int
 
 
-class VirtualDaqBackend(usb.backend.IBackend):
+class VirtualDaqBackend(OneBulkInBackend):
     """A pyusb backend with one simulated dimacq DAQ on it.
 
     Parameters
@@ -144,6 +139,9 @@ class VirtualDaqBackend(usb.backend.IBackend):
     seed : int
         Seed of the random faults (:class:`DaqFaults` rates).
     """
+
+    data_endpoint = p.DATA_ENDPOINT
+    device_name = "simulated DAQ"
 
     def __init__(
         self,
@@ -173,7 +171,7 @@ class VirtualDaqBackend(usb.backend.IBackend):
         )
         self.clock = clock if clock is not None else SampleClock()
         self.faults = faults if faults is not None else DaqFaults()
-        self._device: Any = _Desc(
+        self._device: Any = Desc(
             bLength=18,
             bDescriptorType=1,
             bcdUSB=0x0200,
@@ -224,56 +222,10 @@ class VirtualDaqBackend(usb.backend.IBackend):
         self._sent = 0  # samples framed (sent or lost) in this run
         self._fifo: deque[bytes] = deque()  # frames left in the FIFO after STOP
 
-    # -- descriptors -------------------------------------------------------------------------
+    # -- enumeration (descriptors: OneBulkInBackend) ------------------------------------------
     def enumerate_devices(self) -> Any:
         if time.monotonic() >= self._gone_until:
             yield self._device
-
-    def get_parent(self, dev: Any) -> None:
-        return None
-
-    def get_device_descriptor(self, dev: Any) -> Any:
-        return dev
-
-    def get_configuration_descriptor(self, dev: Any, config: int) -> Any:
-        return _Desc(
-            bLength=9,
-            bDescriptorType=2,
-            wTotalLength=25,
-            bNumInterfaces=1,
-            bConfigurationValue=1,
-            iConfiguration=0,
-            bmAttributes=0x80,
-            bMaxPower=250,
-            extra_descriptors=[],
-        )
-
-    def get_interface_descriptor(self, dev: Any, intf: int, alt: int, config: int) -> Any:
-        return _Desc(
-            bLength=9,
-            bDescriptorType=4,
-            bInterfaceNumber=0,
-            bAlternateSetting=0,
-            bNumEndpoints=1,
-            bInterfaceClass=0xFF,
-            bInterfaceSubClass=0,
-            bInterfaceProtocol=0,
-            iInterface=0,
-            extra_descriptors=[],
-        )
-
-    def get_endpoint_descriptor(self, dev: Any, ep: int, intf: int, alt: int, config: int) -> Any:
-        return _Desc(
-            bLength=7,
-            bDescriptorType=5,
-            bEndpointAddress=p.DATA_ENDPOINT,
-            bmAttributes=2,
-            wMaxPacketSize=512,
-            bInterval=0,
-            bRefresh=0,
-            bSynchAddress=0,
-            extra_descriptors=[],
-        )
 
     # -- handles -----------------------------------------------------------------------------
     def open_device(self, dev: Any) -> Any:
@@ -321,27 +273,7 @@ class VirtualDaqBackend(usb.backend.IBackend):
             self._device.address,
         )
 
-    def set_configuration(self, dev_handle: Any, config_value: int) -> None:
-        return None
-
-    def get_configuration(self, dev_handle: Any) -> int:
-        return 1
-
-    def claim_interface(self, dev_handle: Any, intf: int) -> None:
-        return None
-
-    def release_interface(self, dev_handle: Any, intf: int) -> None:
-        return None
-
-    def clear_halt(self, dev_handle: Any, ep: int) -> None:
-        return None
-
     # -- control requests --------------------------------------------------------------------
-    @staticmethod
-    def _stall(why: str) -> usb.core.USBError:
-        log.info("simulated DAQ stalls a control request: %s", why)
-        return usb.core.USBError("Pipe error", error_code=-9, errno=errno.EPIPE)
-
     def ctrl_transfer(
         self,
         dev_handle: Any,
@@ -403,12 +335,6 @@ class VirtualDaqBackend(usb.backend.IBackend):
         else:
             raise self._stall(f"unknown OUT request {req:#x}")
         return 0
-
-    @staticmethod
-    def _answer(buf: array.array[int], payload: bytes) -> int:
-        n = min(len(buf), len(payload))
-        buf[:n] = array.array("B", payload[:n])
-        return n
 
     def _start(self, spf: int) -> None:
         if not self.faults.stale_frames_survive_start:

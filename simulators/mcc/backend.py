@@ -33,13 +33,13 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-import usb.backend
 import usb.core
 
 from dimacq.drivers.mcc import protocol as p
 from dimacq.simulators.daq.backend import DaqInput
 from dimacq.simulators.daq.clock import SampleClock
 from dimacq.simulators.lab.source import SampleSource
+from dimacq.simulators.usb_device import Desc, OneBulkInBackend
 
 __all__ = ["Mcc1808Backend", "default_fpga_image"]
 
@@ -49,11 +49,6 @@ log = logging.getLogger(__name__)
 def default_fpga_image() -> bytes:
     """A stand-in bitstream (the simulator's ``.rbf``): 4 KiB of a fixed pattern."""
     return bytes(np.random.default_rng(1808).integers(0, 256, 4096, dtype=np.uint8))
-
-
-class _Desc:
-    def __init__(self, **fields: Any) -> None:
-        self.__dict__.update(fields)
 
 
 @dataclass
@@ -80,7 +75,7 @@ class _Unit:
     missed: int = 0
 
 
-class Mcc1808Backend(usb.backend.IBackend):
+class Mcc1808Backend(OneBulkInBackend):
     """A pyusb backend with ``n_units`` simulated USB-1808X on it.
 
     Parameters
@@ -106,6 +101,9 @@ class Mcc1808Backend(usb.backend.IBackend):
     seed : int
         The units' ADC errors.
     """
+
+    data_endpoint = p.DATA_ENDPOINT
+    device_name = "simulated USB-1808X"
 
     def __init__(
         self,
@@ -147,7 +145,7 @@ class Mcc1808Backend(usb.backend.IBackend):
             # what the factory stored: the float32 values, which the ADC errors then follow
             slope32, offset32 = p.calibration_table(table)
             eeprom = {p.CAL_BASE_ADDRESS + i: b for i, b in enumerate(table)}
-            desc = _Desc(
+            desc = Desc(
                 bLength=18,
                 bDescriptorType=1,
                 bcdUSB=0x0200,
@@ -181,56 +179,10 @@ class Mcc1808Backend(usb.backend.IBackend):
                 )
             )
 
-    # -- descriptors -------------------------------------------------------------------------
+    # -- enumeration (descriptors: OneBulkInBackend) ------------------------------------------
     def enumerate_devices(self) -> Any:
         for u in self.units:
             yield u.desc
-
-    def get_parent(self, dev: Any) -> None:
-        return None
-
-    def get_device_descriptor(self, dev: Any) -> Any:
-        return dev
-
-    def get_configuration_descriptor(self, dev: Any, config: int) -> Any:
-        return _Desc(
-            bLength=9,
-            bDescriptorType=2,
-            wTotalLength=25,
-            bNumInterfaces=1,
-            bConfigurationValue=1,
-            iConfiguration=0,
-            bmAttributes=0x80,
-            bMaxPower=250,
-            extra_descriptors=[],
-        )
-
-    def get_interface_descriptor(self, dev: Any, intf: int, alt: int, config: int) -> Any:
-        return _Desc(
-            bLength=9,
-            bDescriptorType=4,
-            bInterfaceNumber=0,
-            bAlternateSetting=0,
-            bNumEndpoints=1,
-            bInterfaceClass=0xFF,
-            bInterfaceSubClass=0,
-            bInterfaceProtocol=0,
-            iInterface=0,
-            extra_descriptors=[],
-        )
-
-    def get_endpoint_descriptor(self, dev: Any, ep: int, intf: int, alt: int, config: int) -> Any:
-        return _Desc(
-            bLength=7,
-            bDescriptorType=5,
-            bEndpointAddress=p.DATA_ENDPOINT,
-            bmAttributes=2,
-            wMaxPacketSize=512,
-            bInterval=0,
-            bRefresh=0,
-            bSynchAddress=0,
-            extra_descriptors=[],
-        )
 
     def open_device(self, dev: Any) -> Any:
         return next(u for u in self.units if u.desc is dev)
@@ -239,27 +191,7 @@ class Mcc1808Backend(usb.backend.IBackend):
         if dev_handle.running:
             self._scan_stop(dev_handle)
 
-    def set_configuration(self, dev_handle: Any, config_value: int) -> None:
-        return None
-
-    def get_configuration(self, dev_handle: Any) -> int:
-        return 1
-
-    def claim_interface(self, dev_handle: Any, intf: int) -> None:
-        return None
-
-    def release_interface(self, dev_handle: Any, intf: int) -> None:
-        return None
-
-    def clear_halt(self, dev_handle: Any, ep: int) -> None:
-        return None
-
     # -- control requests --------------------------------------------------------------------
-    @staticmethod
-    def _stall(why: str) -> usb.core.USBError:
-        log.info("simulated USB-1808X stalls a control request: %s", why)
-        return usb.core.USBError("Pipe error", error_code=-9, errno=errno.EPIPE)
-
     def _status(self, u: _Unit) -> int:
         s = p.Status.NONE
         if u.running and not self._frozen(u):
@@ -339,12 +271,6 @@ class Mcc1808Backend(usb.backend.IBackend):
         else:
             raise self._stall(f"unknown OUT request {bRequest:#x}")
         return len(payload)
-
-    @staticmethod
-    def _answer(buf: array.array[int], payload: bytes) -> int:
-        n = min(len(buf), len(payload))
-        buf[:n] = array.array("B", payload[:n])
-        return n
 
     def _scan_start(self, u: _Unit, cmd: p.AInScanStart) -> None:
         u.sent, u.frozen, u.overrun, u.running = 0, None, False, True
