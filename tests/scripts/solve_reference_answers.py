@@ -10,7 +10,9 @@ by ``dimacq simulate SCENARIO --noise 0.01`` (seed 0; calibration-mass-bungee, t
 ``tests/benchmarks/bench_solve.py`` solves, and x38-realistic) and, with ``--acquired``, a file of
 ``dimacq acquire calibration-mass-bungee --seed 0 --averages-per-input 3 --frf A.uff`` (too large
 and too slow to make for a test: its answer is kept in ``tests/cli/solve_reference/acquired.json``
-and compared here only). Each solve runs in this process after numpy is imported, as pytest runs
+and compared here only; an acquisition does not repeat bit for bit, so another acquired file has
+its own answer, ``--name NAME`` for ``solve_reference/NAME.json``: ``acquired-wt-solve`` is the
+file whose sha256 starts 9eb82ccd7627, made by that command at the time-lapse it measured). Each solve runs in this process after numpy is imported, as pytest runs
 it (``tests/cli/test_solve_reference_numbers.py`` compares the first three on every run).
 Regenerate only with a method change, and say which in the commit.
 """
@@ -51,6 +53,12 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     ap.add_argument("--write", action="store_true", help="write the fixtures instead of comparing")
     ap.add_argument("--acquired", type=Path, metavar="A.uff", help="an acquired whole-test file")
+    ap.add_argument(
+        "--name",
+        default="acquired",
+        help="the acquired file's answer is solve_reference/NAME.json (default: acquired); an "
+        "acquisition is not repeatable (wall-time DAQ), so each kept file has its own answer",
+    )
     args = ap.parse_args()
     with tempfile.TemporaryDirectory(prefix="solve-ref-") as tmp_name:
         tmp = Path(tmp_name)
@@ -58,7 +66,7 @@ def main() -> None:
         for name in SIMULATED:
             cases[name] = [str(simulate(name, tmp))]
         if args.acquired is not None:
-            cases["acquired"] = [str(args.acquired)]
+            cases[args.name] = [str(args.acquired)]
         failed = 0
         for name, files in cases.items():
             with contextlib.redirect_stdout(io.StringIO()):
