@@ -291,3 +291,21 @@ def test_nan_found_in_either_record_set_and_in_a_window() -> None:
     w[3] = np.nan
     with pytest.raises(DataError, match="output_window holds NaN"):
         estimate_frf(x, y, FS, output_window=w)
+
+
+def test_fft_threads_give_the_same_frfs_and_zero_threads_is_refused() -> None:
+    rng = np.random.default_rng(5)
+    x = rng.standard_normal((4, 1, 256))
+    y = rng.standard_normal((4, 3, 256)) + x
+    one = estimate_frf(x, y, FS)
+    two = estimate_frf(x, y, FS, workers=2)
+    np.testing.assert_allclose(two.H, one.H, rtol=1e-13, atol=0)
+    # against numpy's FFT directly: H1 = Σ Y F̄ / Σ |F|²
+    f = np.fft.rfft(x, axis=-1)
+    h = (
+        np.einsum("aol,ail->loi", np.fft.rfft(y, axis=-1), f.conj())
+        / np.sum(np.abs(f[:, 0]) ** 2, axis=0)[:, None, None]
+    )
+    np.testing.assert_allclose(one.H, h, rtol=1e-12, atol=0)
+    with pytest.raises(SetupError, match="workers = 0; give 1 or more"):
+        estimate_frf(x, y, FS, workers=0)
