@@ -295,7 +295,7 @@ def _spectral_sums(
     for o0 in range(0, n_out, block):
         o1 = min(o0 + block, n_out)
         yb = y[:, o0:o1]
-        if windowed is not None:
+        if windowed is not None and wy is not None:
             yb = np.multiply(yb, wy, out=windowed[:, : o1 - o0])
         fy = ducc0.fft.r2c(yb, axes=(2,), out=spectra[:, : o1 - o0], nthreads=workers)
         np.einsum("aol,ail->oil", fy, fxc, out=g[o0:o1])
