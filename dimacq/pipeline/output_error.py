@@ -97,13 +97,12 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import linalg as scipy_linalg
-from scipy import special
 
 from dimacq.errors import SetupError, SolverError
 from dimacq.model.frf import Channel, FrfData
 from dimacq.model.setup import PARAMETERS, TestSetup
 from dimacq.pipeline._filters import uniform_filter_nearest
+from dimacq.pipeline._special import chi2_ppf, eigh_generalized, null_space
 from dimacq.pipeline.dim import DimResult, assemble, solve_system
 from dimacq.pipeline.rotations import apply_rotvec
 from dimacq.pipeline.selection._common import response_geometry
@@ -120,9 +119,9 @@ log = logging.getLogger(__name__)
 
 
 def _chi2_ppf(q: float, dof: int) -> float:
-    """χ² quantile, ``scipy.stats.chi2.ppf(q, dof)`` to the bit (its ``2·P⁻¹(dof/2, q)``) without
-    importing scipy.stats (a second of start-up for ``dimacq solve``)."""
-    return float(2.0 * special.gammaincinv(dof / 2, q))
+    """χ² quantile, ``scipy.stats.chi2.ppf(q, dof)`` (its ``2·P⁻¹(dof/2, q)``) to ~1e-13, without
+    importing scipy (:mod:`dimacq.pipeline._special`)."""
+    return chi2_ppf(q, dof)
 
 
 FloatArray = NDArray[np.float64]
@@ -800,7 +799,7 @@ def _gauge_constraint(
     D = W.T @ (G.T @ Dg @ G) @ W
     P = W.T @ (G.T @ G) @ W
     D, P = 0.5 * (D + D.T), 0.5 * (P + P.T)
-    lam_all = scipy_linalg.eigh(D, P, eigvals_only=True)
+    lam_all = eigh_generalized(D, P)[0]
     # always fixed: the scale and common-gain axes (columns 6, 7 of the full basis), in y
     live_idx = np.nonzero(live)[0]
     A = W[np.isin(live_idx, (6, 7)) | fix_all].T  # (r, n_always)
@@ -808,10 +807,10 @@ def _gauge_constraint(
         ua, sa, _ = np.linalg.svd(A, full_matrices=False)
         A = ua[:, sa > sa[0] * 1e-9]
     # the rest, P-orthogonal to A: B spans {y : Aᵀ P y = 0}
-    B = scipy_linalg.null_space((P @ A).T) if A.shape[1] else np.eye(W.shape[1])
+    B = null_space((P @ A).T) if A.shape[1] else np.eye(W.shape[1])
     fixed_y = A
     if B.shape[1]:
-        lam, U = scipy_linalg.eigh(B.T @ D @ B, B.T @ P @ B)
+        lam, U = eigh_generalized(B.T @ D @ B, B.T @ P @ B)
         sel = 1.0 / np.sqrt(1.0 + np.clip(lam, 0.0, None)) > refuse_ratio
         fixed_y = np.concatenate([A, B @ U[:, sel]], axis=1)
     fixed = W @ fixed_y

@@ -43,11 +43,11 @@ from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import special
 
 from dimacq.errors import SetupError, SolverError
 from dimacq.model.properties import vector_to_inertia
 from dimacq.model.setup import PARAMETERS
+from dimacq.pipeline._special import t_ppf
 from dimacq.pipeline.dim import DimResult, DimSystem, solve_joint
 from dimacq.pipeline.dim_many import solve_joint_many
 from dimacq.pipeline.rotations import rotvec_to_matrix
@@ -285,7 +285,7 @@ def estimate_uncertainty(
     se = np.sqrt(se_in**2 + se_r**2 + se_g**2 + se_l**2)
     for k in known or {}:
         se[PARAMETERS.index(k)] = 0.0
-    tq = float(special.stdtrit(max(n_in - 1, 1), 0.975))  # stats.t.ppf to the bit
+    tq = t_ppf(0.975, max(n_in - 1, 1))  # stats.t.ppf to ~1e-14, without scipy
     p = result.parameters
     params = {
         name: ParameterUncertainty(
