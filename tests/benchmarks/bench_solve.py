@@ -10,7 +10,9 @@ load cell, 800 lines, 1 % FRF noise) is made with ``dimacq simulate``; an acquir
 few minutes) is the case the issue names. Each run is a fresh process (imports included, the
 one BLAS thread the CLI sets by default). Prints the minimum and median wall time and CPU time
 (user + system) of the process, and the CPU time of a second solve in the same process (the
-computation without the imports). On a machine shared with other jobs the CPU time is the
+computation without the imports). ``--before DIR`` (a tree holding an older ``dimacq`` package,
+e.g. ``git archive COMMIT dimacq | tar -x -C DIR``) runs that code too, first on ``PYTHONPATH``,
+the two taking turns so that both see the same load. On a machine shared with other jobs the CPU time is the
 steadier figure; the target is a second of wall time on an idle machine.
 """
 
@@ -35,10 +37,10 @@ import numpy as np  # noqa: E402
 TARGET_S = 1.0
 
 
-def _run(cmd: list[str]) -> tuple[float, float]:
+def _run(cmd: list[str], env: dict[str, str] | None = None) -> tuple[float, float]:
     """Wall and CPU (user + system) seconds of one child process."""
     t0 = time.perf_counter()
-    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env)
     _, status, usage = os.wait4(proc.pid, 0)
     wall = time.perf_counter() - t0
     assert proc.stderr is not None
@@ -67,6 +69,7 @@ def main() -> None:
     )
     ap.add_argument("file", nargs="?", type=Path, help="whole-test UFF (default: simulated)")
     ap.add_argument("--repeat", type=int, default=5)
+    ap.add_argument("--before", type=Path, metavar="DIR", help="tree of older code to compare")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory(prefix="bench-solve-") as tmp:
         path = args.file
@@ -89,8 +92,22 @@ def main() -> None:
             )
         out = Path(tmp) / "out.json"
         cmd = [sys.executable, "-m", "dimacq.cli.main", "solve", str(path), "--json", str(out)]
-        runs = np.array([_run(cmd) for _ in range(args.repeat)])
+        env_before = None
+        if args.before is not None:
+            env_before = dict(os.environ, PYTHONPATH=str(args.before.resolve()))
+        rows, rows_before = [], []
+        for _ in range(args.repeat):
+            rows.append(_run(cmd))
+            if env_before is not None:
+                rows_before.append(_run(cmd, env_before))
+        runs = np.array(rows)
         compute = _compute_only(path, out)
+    if rows_before:
+        b = np.array(rows_before)
+        print(
+            f"before ({args.before}): wall {b[:, 0].min():.2f} s min, {np.median(b[:, 0]):.2f} s "
+            f"median; CPU {b[:, 1].min():.2f} s min, {np.median(b[:, 1]):.2f} s median"
+        )
     wall, cpu = runs[:, 0], runs[:, 1]
     print(f"dimacq solve {path.name}, {args.repeat} fresh processes")
     print(f"wall: {wall.min():.2f} s min, {np.median(wall):.2f} s median")
