@@ -84,7 +84,7 @@ from numpy.typing import NDArray
 from dimacq.errors import SetupError, SolverError
 from dimacq.model.frf import FrfData
 from dimacq.model.setup import TestSetup
-from dimacq.pipeline._batched import real_apply
+from dimacq.pipeline._batched import cross3, real_apply
 from dimacq.pipeline.rotations import rotvec_to_matrix
 
 __all__ = [
@@ -365,7 +365,7 @@ def _scaled(
     positions_m: FloatArray, directions: FloatArray, p: FloatArray, ell: float
 ) -> FloatArray:
     r = positions_m - p
-    return np.concatenate([directions, np.cross(r, directions) / ell], axis=-1)
+    return np.concatenate([directions, cross3(r, directions) / ell], axis=-1)
 
 
 def _derive(g: FloatArray, ell: float, p: FloatArray) -> tuple[FloatArray, FloatArray]:

@@ -101,6 +101,7 @@ from numpy.typing import NDArray
 from dimacq.errors import SetupError, SolverError
 from dimacq.model.frf import Channel, FrfData
 from dimacq.model.setup import PARAMETERS, TestSetup
+from dimacq.pipeline._batched import cross3
 from dimacq.pipeline._filters import uniform_filter_nearest
 from dimacq.pipeline._special import chi2_ppf, eigh_generalized, null_space
 from dimacq.pipeline.dim import DimResult, assemble, solve_system
@@ -222,7 +223,7 @@ def gauge_property_jacobian(x: FloatArray) -> FloatArray:
         t = _E[i]
         put(i, t, m * (2 * (c @ t) * _E - np.outer(t, c) - np.outer(c, t)))
         w = _skew(_E[i])
-        put(3 + i, np.cross(_E[i], c), w @ Ip - Ip @ w)
+        put(3 + i, cross3(_E[i], c), w @ Ip - Ip @ w)
     put(6, c, 2 * Ip)
     put(7, np.zeros(3), Ip, m)
     return out
@@ -591,8 +592,8 @@ class _Problem:
         r, d, rin, din = self.geometry(g)
         M, dM = mass_matrix(x)
         A = np.linalg.inv(M)
-        psi = np.concatenate([d, np.cross(r, d)], axis=1)  # (C, 6)
-        phi = np.concatenate([din, np.cross(rin, din)], axis=1)  # (J, 6)
+        psi = np.concatenate([d, cross3(r, d)], axis=1)  # (C, 6)
+        phi = np.concatenate([din, cross3(rin, din)], axis=1)  # (J, 6)
         Y = np.concatenate([phi[:, :, None], np.broadcast_to(np.eye(6), (phi.shape[0], 6, 6))], 2)
         G = A @ (Y @ self.Ly)  # (J, 6, k)
         C0 = psi.shape[0]
@@ -621,11 +622,11 @@ class _Problem:
             # ∂(exp([θ]x) d⁰)/∂θ_i = (J_l(θ) e_i) × d with the left Jacobian of SO(3)
             rv = g[: 6 * nn].reshape(nn, 6)[:, :3]
             jl = _left_jacobian(rv)[self.node_of]  # (C, 3, 3), columns J_l e_i
-            ex_d = np.cross(np.swapaxes(jl, 1, 2), d[:, None, :])  # (C, 3, 3): (J_l e_i) × d_c
+            ex_d = cross3(np.swapaxes(jl, 1, 2), d[:, None, :])  # (C, 3, 3): (J_l e_i) × d_c
             dpsi = np.zeros((C_, 6, 6))
             dpsi[:, :3, :3] = ex_d
-            dpsi[:, :3, 3:] = np.cross(r[:, None, :], ex_d)
-            dpsi[:, 3:, 3:] = np.cross(_E[None, :, :], d[:, None, :])  # e_i × d_c (offsets)
+            dpsi[:, :3, 3:] = cross3(r[:, None, :], ex_d)
+            dpsi[:, 3:, 3:] = cross3(_E[None, :, :], d[:, None, :])  # e_i × d_c (offsets)
             # −W_jc dψ_c[p]ᵀ G_j
             cols = 6 * self.node_of[:, None] + np.arange(6)[None, :]  # (C, 6)
             for p in range(6):  # each channel belongs to one node: no two writes collide
@@ -636,10 +637,10 @@ class _Problem:
             ax = np.einsum("ji,jik->jk", gi[:, :2], self.ebasis)
             jli = _left_jacobian(ax)  # (J, 3, 3)
             eb_l = np.einsum("jab,jib->jia", jli, self.ebasis)  # J_l e_i for the two normals
-            exd = np.cross(eb_l, din[:, None, :])  # (J, 2, 3)
+            exd = cross3(eb_l, din[:, None, :])  # (J, 2, 3)
             dphi = np.zeros((J_, 4, 6))
             dphi[:, :2, :3] = exd
-            dphi[:, :2, 3:] = np.cross(rin[:, None, :], exd)
+            dphi[:, :2, 3:] = cross3(rin[:, None, :], exd)
             dphi[:, 2:, 3:] = exd
             base = 6 * nn + 4 * np.arange(J_)
             ly0 = self.Ly[:, None, 0, :]  # (J, 1, k)
@@ -680,11 +681,11 @@ class _Problem:
             e = _E[i]
             Gn[:, 3:6, i] = e
             Gn[:, i, 3 + i] = 1.0
-            Gn[:, 3:6, 3 + i] = np.cross(e, rn)
+            Gn[:, 3:6, 3 + i] = cross3(e, rn)
             be = eb @ e  # (J, 2)
             Gj[:, 2:4, i] = be
             Gj[:, 0:2, 3 + i] = be
-            Gj[:, 2:4, 3 + i] = (eb @ np.cross(e, self.rin0)[:, :, None])[:, :, 0]
+            Gj[:, 2:4, 3 + i] = (eb @ cross3(e, self.rin0)[:, :, None])[:, :, 0]
         Gn[:, 3:6, 6] = rn
         Gj[:, 2:4, 6] = (eb @ np.asarray(self.rin0)[:, :, None])[:, :, 0]
         G[6 * nn + 4 * J :, 7] = 1.0
@@ -966,9 +967,9 @@ def solve_output_error(
     eb = np.empty((len(in_idx), 2, 3))
     for k, dv in enumerate(din0_a):
         a = _E[int(np.argmin(np.abs(dv)))]
-        e1 = np.cross(dv, a)
+        e1 = cross3(dv, a)
         e1 /= np.linalg.norm(e1)
-        eb[k] = (e1, np.cross(dv, e1))
+        eb[k] = (e1, cross3(dv, e1))
     gu = setup.geometry_uncertainty
     nn, J = nodes.size, len(in_idx)
     sig_g = np.concatenate(
@@ -999,8 +1000,8 @@ def solve_output_error(
     basis = np.stack([wn**2, wn**4], axis=1).astype(complex)
 
     eps_r = setup.transducer_uncertainty.loadcell_matrix_rel if setup.load_cells else 0.0
-    psi0 = np.concatenate([d0, np.cross(r0, d0)], axis=1)
-    phi0 = np.concatenate([din0_a, np.cross(rin0_a, din0_a)], axis=1)
+    psi0 = np.concatenate([d0, cross3(r0, d0)], axis=1)
+    phi0 = np.concatenate([din0_a, cross3(rin0_a, din0_a)], axis=1)
     A0 = np.asarray(np.linalg.inv(mass_matrix(x_start)[0]), dtype=np.float64)  # typed for mypy
 
     # from the measured noise and the load cells' certificate; the a posteriori variance factor
@@ -1532,9 +1533,9 @@ def _line_residual(
     gfull = prob.full_g(theta)
     r, d, rin, din = prob.geometry(gfull)
     A = np.linalg.inv(mass_matrix(x)[0])
-    psi = np.concatenate([d, np.cross(r, d)], axis=1)
+    psi = np.concatenate([d, cross3(r, d)], axis=1)
     psi = psi * (1.0 + gfull[gfull.size - psi.shape[0] :])[:, None]
-    phi = np.concatenate([din, np.cross(rin, din)], axis=1)
+    phi = np.concatenate([din, cross3(rin, din)], axis=1)
     mot = A @ (phi.T[None] + R)  # (L, 6, J)
     e = (H - psi @ mot) / sigma[None]
     return e if lw is None else e * lw[:, None, :]
@@ -1604,8 +1605,8 @@ def _residual_size(
     x = prob.full_x(theta)
     r, d, rin, din = prob.geometry(prob.full_g(theta))
     A = np.linalg.inv(mass_matrix(x)[0])
-    psi = np.concatenate([d, np.cross(r, d)], axis=1)
-    phi = np.concatenate([din, np.cross(rin, din)], axis=1)
+    psi = np.concatenate([d, cross3(r, d)], axis=1)
+    phi = np.concatenate([din, cross3(rin, din)], axis=1)
     mot = np.einsum("ab,ljb->lja", A, phi[None] + np.moveaxis(R, 1, 2))  # (L, J, 6)
     rigid = np.einsum("ca,lja->lcj", psi, mot)
     e = H - rigid

@@ -25,6 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from dimacq.errors import SetupError
+from dimacq.pipeline._batched import cross3
 
 __all__ = [
     "Condensation",
@@ -67,7 +68,7 @@ def response_matrix(
     """
     r = np.asarray(positions, float) - np.asarray(reference_point, float)
     d = np.asarray(directions, float)
-    return np.concatenate([d, np.cross(r, d)], axis=1)
+    return np.concatenate([d, cross3(r, d)], axis=1)
 
 
 def force_vectors(
@@ -78,7 +79,7 @@ def force_vectors(
     """Unit 6-DOF force vectors at P of the inputs, shape (6, n_inputs): columns ``[d; (r − P) × d]``."""
     r = np.asarray(positions, float) - np.asarray(reference_point, float)
     d = np.asarray(directions, float)
-    return np.concatenate([d, np.cross(r, d)], axis=1).T
+    return np.concatenate([d, cross3(r, d)], axis=1).T
 
 
 def load_cell_transform(

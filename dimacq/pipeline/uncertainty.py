@@ -47,6 +47,7 @@ from numpy.typing import NDArray
 from dimacq.errors import SetupError, SolverError
 from dimacq.model.properties import vector_to_inertia
 from dimacq.model.setup import PARAMETERS
+from dimacq.pipeline._batched import cross3
 from dimacq.pipeline._special import t_ppf
 from dimacq.pipeline.dim import DimResult, DimSystem, solve_joint
 from dimacq.pipeline.dim_many import solve_joint_many
@@ -449,11 +450,11 @@ def joint_parameters_for_geometry(
     u = system.unit_m
     p = system.reference_point_m
     r = (positions_m - p) / u
-    psi = np.concatenate([directions, np.cross(r, directions)], axis=-1)  # (S, n, 6)
+    psi = np.concatenate([directions, cross3(r, directions)], axis=-1)  # (S, n, 6)
     wp = psi * weights[None, :, None]
     M = np.linalg.pinv(wp) * weights[None, None, :] / u  # (S, 6, n)
     ri = (in_positions_m - p) / u
-    phi = np.concatenate([in_directions, np.cross(ri, in_directions)], axis=-1)  # (S, J, 6)
+    phi = np.concatenate([in_directions, cross3(ri, in_directions)], axis=-1)  # (S, J, 6)
     G = M @ P @ np.swapaxes(M, 1, 2)  # (S, 6, 6)
     C = M @ (S1 @ phi + S2) / u
     S = G.shape[0]

@@ -37,10 +37,14 @@ import numpy as np  # noqa: E402
 TARGET_S = 1.0
 
 
-def _run(cmd: list[str], env: dict[str, str] | None = None) -> tuple[float, float]:
+def _run(
+    cmd: list[str], env: dict[str, str] | None = None, cwd: Path | None = None
+) -> tuple[float, float]:
     """Wall and CPU (user + system) seconds of one child process."""
     t0 = time.perf_counter()
-    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env)
+    proc = subprocess.Popen(
+        cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env, cwd=cwd
+    )
     _, status, usage = os.wait4(proc.pid, 0)
     wall = time.perf_counter() - t0
     assert proc.stderr is not None
@@ -92,14 +96,21 @@ def main() -> None:
             )
         out = Path(tmp) / "out.json"
         cmd = [sys.executable, "-m", "dimacq.cli.main", "solve", str(path), "--json", str(out)]
+        # As a user runs it: with the compiled modules cached (a PYTHONDONTWRITEBYTECODE set in
+        # the shell would make every run compile dimacq anew); one run first to write them. The
+        # children run in the temporary folder, so that ``python -m`` does not put the current
+        # folder's code first on the path.
+        env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
         env_before = None
         if args.before is not None:
-            env_before = dict(os.environ, PYTHONPATH=str(args.before.resolve()))
+            env_before = dict(env, PYTHONPATH=str(args.before.resolve()))
+            _run(cmd, env_before, Path(tmp))
+        _run(cmd, env, Path(tmp))
         rows, rows_before = [], []
         for _ in range(args.repeat):
-            rows.append(_run(cmd))
+            rows.append(_run(cmd, env, Path(tmp)))
             if env_before is not None:
-                rows_before.append(_run(cmd, env_before))
+                rows_before.append(_run(cmd, env_before, Path(tmp)))
         runs = np.array(rows)
         compute = _compute_only(path, out)
     if rows_before:
