@@ -616,7 +616,17 @@ class _Problem:
         for col, k in enumerate(self.free_x):
             Jac[:n_data, col] = ((WPA @ dM[k]) @ G).ravel()
         if n_g:
-            full = np.zeros((J_, C_, k_, self.sigma_g.size))
+            n_full = self.sigma_g.size
+            # Every geometry item free (the usual case): the sensitivities are written straight
+            # into the Jacobian's block (a view; its zeros are Jac's) and scaled there, instead
+            # of into a (J, C, k, n_geom) array gathered and scaled into a third copy (~6 MB per
+            # call): the same products, in place.
+            in_place = n_g == n_full and bool(np.all(self.free_g == np.arange(n_full)))
+            if in_place:
+                full = Jac[:n_data, n_x:].reshape(J_, C_, k_, n_full)  # splits rows: a view
+                assert np.may_share_memory(full, Jac)
+            else:
+                full = np.zeros((J_, C_, k_, n_full))
             nn = self.n_nodes
             # sensor nodes: ∂ψ_c for rotation (3) and offset (3)
             # ∂(exp([θ]x) d⁰)/∂θ_i = (J_l(θ) e_i) × d with the left Jacobian of SO(3)
@@ -651,8 +661,11 @@ class _Problem:
                 full[:, np.arange(C_), :, gcols] = np.moveaxis(
                     -(self.w.T[:, :, None] * (psi @ G)), 1, 0
                 )
-            sub = full[..., self.free_g] * self.sigma_g[self.free_g]
-            Jac[:n_data, n_x:] = sub.reshape(n_data, n_g)
+            if in_place:
+                full *= self.sigma_g
+            else:
+                sub = full[..., self.free_g] * self.sigma_g[self.free_g]
+                Jac[:n_data, n_x:] = sub.reshape(n_data, n_g)
             Jac[n_data : n_data + n_g, n_x:] = np.eye(n_g)
             if n_c:
                 Jac[n_data + n_g :, n_x:] = _GAUGE_WEIGHT * self.gauge_rows
