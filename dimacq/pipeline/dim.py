@@ -228,8 +228,9 @@ def assemble(
     in_pos = setup.input_positions[e_at]
     in_dir = e_sign[:, None] * setup.input_directions[e_at]
     phi = force_vectors(in_pos / u, in_dir, p / u)
-    F = np.empty_like(K)
-    F[...] = phi
+    # F = φ + Σ_cells T_c H_c: the first cell's product becomes F and φ is added to it in place
+    # (x + φ is φ + x to the bit), which saves writing φ into every line first.
+    F: ComplexArray | None = None
 
     # Load cells ----------------------------------------------------------------------------------
     cells = {lc.node: lc for lc in setup.load_cells}
@@ -267,8 +268,16 @@ def assemble(
         T = load_cell_transform(
             np.asarray(lc.position_m) / u, lc.rotation_matrix, p / u, lc.sign_factor
         )
-        F += _apply_real(T * scale[None, :], H, sel)
+        reactions = _apply_real(T * scale[None, :], H, sel)
+        if F is None:
+            F = reactions
+            F += phi
+        else:
+            F += reactions
         used_cells.append(node)
+    if F is None:  # no load cell: the hammer forces alone
+        F = np.empty_like(K)
+        F[...] = phi
 
     # Consistent units (kg, unit, s): forces are kg·unit/s² = N/u, moments kg·unit²/s² = N·m/u².
     # So far F holds forces in N and moments in N·unit (N·m/u): one more division by u, on the
