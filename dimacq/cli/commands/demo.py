@@ -47,8 +47,15 @@ from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
-from dimacq.cli.progress import ProgressLine, add_quiet, plain
-from dimacq.errors import DataError, DeviceError, SetupError
+from dimacq.cli.demo_steps import (
+    QUICK,
+    REFERENCE_SCENARIO,
+    ChainCheck,
+    acquire,
+    acquisition_plan,
+    check,
+)
+from dimacq.cli.progress import add_quiet, plain
 
 if TYPE_CHECKING:
     from dimacq.backends.time_lapse import HostLag
@@ -124,36 +131,6 @@ def register(sub: Any) -> None:
     p.set_defaults(func=run)
 
 
-#: What the demo's two acquisitions ask for unless ``--full`` (then the rig file's
-#: ``[acquisition]``: 5 averages of 4096 samples per input for the calibration mass). The demo
-#: must show the chain and the answer within its limits (0.5 % mass, 1 mm CG, 0.5 % principal
-#: moments, verdict ok), not the most a lab would take. Records: 2048 samples at 2048 S/s are
-#: 1 s, 1 Hz lines (80 in the scenario's 20–100 Hz band); the rig's exponential window
-#: (τ = 0.25 s) has decayed to e⁻⁴ = 1.8 % by then, so a longer record adds lines, not
-#: information. The test: 3 averages per input, the service's ``min_averages`` (a coherence and
-#: a noise estimate per line). The chain check on the reference block: 2 (its factor's
-#: uncertainty is the block's weighing and geometry, not the FRF noise: 1.00018…1.00020
-#: ± 0.103 % with 5 averages of 4096 samples or 2 of 2048). Together about a third of the full
-#: tests' simulated time; the README gives the runs.
-QUICK: dict[str, int] = {"averages_per_input": 3, "record_samples": 2048}
-QUICK_CHAIN: dict[str, int] = {"averages_per_input": 2, "min_averages": 2, "record_samples": 2048}
-
-
-def acquisition_plan(args: argparse.Namespace, *, chain: bool = False) -> dict[str, int]:
-    """The impact settings an acquisition asks for: :data:`QUICK` (the chain check
-    :data:`QUICK_CHAIN`; ``--full``: none, the rig file's), overridden by ``--averages`` /
-    ``--record-samples`` when given (``--averages`` also sets the fewest accepted averages
-    when it is below them)."""
-    plan = {} if args.full else dict(QUICK_CHAIN if chain else QUICK)
-    if args.averages is not None:
-        plan["averages_per_input"] = int(args.averages)
-        if "min_averages" in plan:
-            plan["min_averages"] = min(plan["min_averages"], int(args.averages))
-    if args.record_samples is not None:
-        plan["record_samples"] = int(args.record_samples)
-    return plan
-
-
 # ------------------------------------------------------------------------------------ scenario
 def _scenario(name: str, seed: int | None) -> Any:
     """The scenario made concrete (true article, truth, recommended band)."""
@@ -221,19 +198,23 @@ def run(args: argparse.Namespace) -> int:
             "the measurement chain"
         )
     try:
-        chain: dict[str, Any] | None = None
-        if (
-            not args.no_chain_calibration
-            and not args.model_frfs
-            and args.scenario != REFERENCE_SCENARIO
-        ):
-            chain = _chain_step(data_dir, token, args, say, imperfections, lag, runs)
         app = create_app(settings)
         backends = {k: str(getattr(settings, k)) for k in ("daq", "loadcell", "digitizer")}
         with BackgroundServer(app) as srv:
             say(f"dimacq demo: service on {srv.url} (data in {data_dir}), scenario {args.scenario}")
             say("backends: " + ", ".join(f"{k} = {v!r}" for k, v in backends.items()))
-            payload = _demo(srv.url, token, built, args, say, chain, backends, lag, runs)
+            chain: ChainCheck | None = None
+            if (
+                not args.no_chain_calibration
+                and not args.model_frfs
+                and args.scenario != REFERENCE_SCENARIO
+            ):  # step 0 in a process of its own while steps 1-3 digitize (demo_steps)
+                chain = ChainCheck(data_dir, token, args, imperfections, say)
+            try:
+                payload = _demo(srv.url, token, built, args, say, chain, backends, lag, runs)
+            finally:
+                if chain is not None:
+                    chain.close()
         payload["demo"]["backends"] = backends
         if lapse is not None:
             for r in runs:  # the DAQ clocks in wall time at the factor: simulated seconds
@@ -267,120 +248,13 @@ def _sim(kind: Literal["daq", "loadcell"], backend: str) -> str:
     return "simulated " if is_simulated(kind, backend) else ""
 
 
-#: The lab's weighed reference block (config/reference-block/), cabled as the calibration mass.
-REFERENCE_SCENARIO = "reference-block-bungee"
-
-
-def _chain_step(
-    data_dir: Path,
-    token: str,
-    args: argparse.Namespace,
-    say: Callable[[str], None],
-    imperfections: dict[str, Any] | None = None,
-    lag: HostLag | None = None,
-    runs: list[dict[str, Any]] | None = None,
-) -> dict[str, Any]:
-    """Step 0: calibrate the measurement chain on the weighed reference block.
-
-    As a lab does before a test: the reference block hangs on the bungee through the load cell
-    with the same hammer and accelerometers; its drawing gives the geometry (setup file), its
-    weighing certificate the mass. The service acquires it and solves with ``reference_mass``; the
-    solution's ``chain_calibration`` (``γ`` and its uncertainty,
-    :mod:`dimacq.pipeline.chain_calibration`) is applied to the test's solve (step 5) by id.
-    Same data directory, so the test's service finds the stored solution.
-    """
-    import httpx
-
-    from dimacq.api import create_app
-    from dimacq.api.server import BackgroundServer
-    from dimacq.config import default_config_file, load_settings, scenario_rig_file
-    from dimacq.io.reference_mass import load_reference_mass
-
-    ref = load_reference_mass(default_config_file().parent / "reference-block" / "mass.toml")
-    if ref.setup_file is None:
-        raise SetupError("reference-block/mass.toml names no setup_file (the block's drawing)")
-    block = _scenario(REFERENCE_SCENARIO, args.seed)
-    settings = load_settings(
-        data_dir=data_dir,
-        token=token,
-        host="127.0.0.1",
-        digitizer_url=f"simdigitizer://demo-{secrets.token_hex(4)}?seed={block.seed}",
-        scenario=REFERENCE_SCENARIO,
-        rig_file=scenario_rig_file(REFERENCE_SCENARIO),
-        database_url="",
-        simulation_imperfections=imperfections,
-    )
-    with BackgroundServer(create_app(settings)) as srv:
-        c = httpx.Client(
-            base_url=srv.url, headers={"Authorization": f"Bearer {token}"}, timeout=120
-        )
-        try:
-            say(
-                f"[0/5] chain calibration: reference block {ref.serial_number} "
-                f"({ref.mass_kg:g} ± {ref.u_kg:g} kg weighed) on the same hammer and sensors"
-            )
-            st = _check(
-                c.post(
-                    "/api/setups/import",
-                    params={"format": "toml", "name": "reference block (drawing)"},
-                    content=ref.setup_file.read_bytes(),
-                ),
-                "reference block setup",
-            )
-            sid = int(st.get("setup_id", st.get("id")))
-            acq = c.post(
-                "/api/acquisitions",
-                json={"setup_id": sid, **acquisition_plan(args, chain=True), "seed": block.seed},
-            )
-            _check(
-                acq, "acquisition of the reference block (step 0; --no-chain-calibration skips it)"
-            )
-            frf_id = _follow_acquisition(
-                c, acq.json(), say, quiet=args.quiet, step="[0/5]", lag=lag, runs=runs
-            )
-            sol = _check(
-                c.post(
-                    "/api/solutions",
-                    json={
-                        "frf_id": frf_id,
-                        "reference_mass": {"mass_kg": ref.mass_kg, "u_kg": ref.u_kg},
-                    },
-                ),
-                "reference block solve",
-            )
-        finally:
-            c.close()
-    cal = sol["result"].get("chain_calibration")
-    if cal is None:
-        reasons = "; ".join(
-            r["message"] for r in sol["result"].get("verdict_reasons", []) if r["severity"] != "ok"
-        )
-        raise DataError(f"demo: the reference block gave no chain calibration: {reasons}")
-    say(
-        f"[0/5] chain factor {cal['factor']:.5f} ± {100 * cal['u_rel']:.3f} % "
-        f"(block measures {cal['measured_mass_kg']:.4f} kg; solution {sol['id']})"
-    )
-    return {"solution_id": int(sol["id"]), **cal}
-
-
-def _check(r: Any, what: str) -> Any:
-    if r.status_code >= 400:
-        try:
-            detail = r.json().get("detail")
-        except ValueError:
-            detail = r.text
-        cls = DeviceError if r.status_code in (409, 503) else DataError
-        raise cls(f"demo: {what} failed with HTTP {r.status_code}: {detail}")
-    return r.json()
-
-
 def _demo(
     url: str,
     token: str,
     built: Any,
     args: argparse.Namespace,
     say: Callable[[str], None],
-    chain: dict[str, Any] | None = None,
+    chain_check: ChainCheck | None = None,
     backends: dict[str, str] | None = None,
     lag: HostLag | None = None,
     runs: list[dict[str, Any]] | None = None,
@@ -396,10 +270,9 @@ def _demo(
     band = [float(b) for b in built.band_hz]
     c = httpx.Client(base_url=url, headers={"Authorization": f"Bearer {token}"}, timeout=120)
     info: dict[str, Any] = {"scenario": built.spec.name, "seed": built.seed}
-    if chain is not None:
-        info["chain_calibration"] = chain
+    chain: dict[str, Any] | None = None
     try:
-        st = _check(c.get("/api/status"), "status")
+        st = check(c.get("/api/status"), "status")
         say(
             "devices: "
             + ", ".join(
@@ -424,7 +297,7 @@ def _demo(
                 ]
             )
         }
-        _check(c.put("/api/digitizer/reference-nodes", json={"nodes": refs}), "reference nodes")
+        check(c.put("/api/digitizer/reference-nodes", json={"nodes": refs}), "reference nodes")
         n_points = [0]
 
         def digitize(label: str, p_gcs: np.ndarray) -> None:
@@ -433,12 +306,12 @@ def _demo(
                 "shots": 5,
                 "sim_probe": {"tip_m": arr.dacs(p_gcs), "axis": [0.0, 0.0, 1.0]},
             }
-            _check(c.post("/api/digitizer/points", json=body), f"digitizing {label}")
+            check(c.post("/api/digitizer/points", json=body), f"digitizing {label}")
             n_points[0] += 1
 
         for lab, ref in refs.items():
             digitize(lab, np.array(ref))
-        reg = _check(
+        reg = check(
             c.post("/api/digitizer/registrations", json={"method": "rigid"}), "registration"
         )
         rms_mm = 1e3 * reg["registration"]["rms_m"]
@@ -462,7 +335,7 @@ def _demo(
             origin = np.asarray(chans[0].position_m)
             for lab, xl in zip(jig.labels, jig.points_local_m, strict=True):
                 digitize(f"jig{n}/{lab}", C @ xl + origin)
-            o = _check(c.post("/api/digitizer/orientations", json={"node": n}), f"orientation {n}")
+            o = check(c.post("/api/digitizer/orientations", json={"node": n}), f"orientation {n}")
             ori_err.append(_angle_deg(np.array(o["rotation"]), C))
             ori_unc.append(float(o["uncertainty_deg"]))
             say(
@@ -477,7 +350,7 @@ def _demo(
             for j, s in enumerate((0.04, 0.08, 0.12)):
                 digitize(f"loa{e.node}/{j}", p_in - s * d)
                 labels.append(f"loa{e.node}/{j}")
-            la = _check(
+            la = check(
                 c.post(
                     "/api/digitizer/lines-of-action",
                     json={"node": e.node, "input_label": f"in{e.node}", "labels": labels},
@@ -500,14 +373,17 @@ def _demo(
                 for i in range(len(setup_true.load_cells))
             ],
         }
-        setup_out = _check(c.post("/api/setups/from-geometry", json=geo), "setup from geometry")
+        setup_out = check(c.post("/api/setups/from-geometry", json=geo), "setup from geometry")
         sid = setup_out["id"]
         info["geometry_uncertainty"] = setup_out["setup"].get("geometry_uncertainty")
         say(
             f"[3/5] setup {sid}: {setup_out['n_responses']} responses, {setup_out['n_inputs']} inputs, "
             f"{setup_out['n_load_cells']} load cell(s)"
         )
-        # --- 4. acquisition --------------------------------------------------------------
+        # --- 4. acquisition (after step 0: one acquisition at a time) ---------------------
+        if chain_check is not None:
+            chain = chain_check.result(lag, runs)
+            info["chain_calibration"] = chain
         if args.model_frfs:
             say(
                 "[4/5] no acquisition (--model-frfs): importing the virtual lab's FRFs of the true "
@@ -519,13 +395,16 @@ def _demo(
                 f"with {100 * args.noise:g} % noise imported as UFF"
             )
         else:
-            acq_body = {"setup_id": sid, **acquisition_plan(args), "seed": built.seed}
-            acq = _check(
-                c.post("/api/acquisitions", json=acq_body),
+            frf_id = acquire(
+                c,
+                {"setup_id": sid, **acquisition_plan(args), "seed": built.seed},
                 "acquisition (the demo acquires as dimacq acquire does; --model-frfs solves "
                 "model FRFs instead)",
+                say,
+                quiet=args.quiet,
+                lag=lag,
+                runs=runs,
             )
-            frf_id = _follow_acquisition(c, acq, say, quiet=args.quiet, lag=lag, runs=runs)
             b = backends or {}
             cell = {
                 "daq-channels": "its bridges on inputs of the DAQ",
@@ -546,7 +425,7 @@ def _demo(
             body["chain_calibration_id"] = chain["solution_id"]
         if args.scenario_band:
             body["band_hz"] = band
-        sol = _check(c.post("/api/solutions", json=body), "solve")
+        sol = check(c.post("/api/solutions", json=body), "solve")
         lo, hi = sol["result"]["band_hz"]
         how = "the scenario's recommended band" if args.scenario_band else "chosen by the service"
         say(
@@ -583,56 +462,6 @@ def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.degrees(Rotation.from_matrix(a @ b.T).magnitude()))
 
 
-def _follow_acquisition(
-    c: Any,
-    acq: dict[str, Any],
-    say: Callable[[str], None],
-    quiet: bool = False,
-    step: str = "[4/5]",
-    lag: HostLag | None = None,
-    runs: list[dict[str, Any]] | None = None,
-) -> int:
-    t0 = time.perf_counter()
-    job_id = acq["job_id"]
-    progress = ProgressLine(f"{step} acquisition", quiet=quiet)
-    try:
-        with c.stream("GET", f"/api/jobs/{job_id}/events", params={"poll_s": 0.2}) as r:
-            for line in r.iter_lines():
-                if not line.startswith("data:"):
-                    continue
-                snap = json.loads(line[5:])
-                progress.update(snap["progress"], snap["message"])
-                if snap["state"] in ("succeeded", "failed", "cancelled", "interrupted"):
-                    break
-    finally:
-        progress.close()
-    a = _check(c.get(f"/api/acquisitions/{acq['id']}"), "acquisition status")
-    wall = time.perf_counter() - t0
-    say(
-        f"{step} averages accepted {a['averages_accepted']}, rejected {a['averages_rejected']} "
-        f"({wall:.1f} s)"
-    )
-    if runs is not None:  # what it took: the summary's simulated seconds (wall × time-lapse)
-        cfg = a.get("config") or {}
-        runs.append(
-            {
-                "step": step,
-                "wall_s": wall,
-                "averages_accepted": a["averages_accepted"],
-                "averages_rejected": a["averages_rejected"],
-                **{k: cfg.get(k) for k in ("averages_per_input", "record_samples")},
-            }
-        )
-    if lag is not None:  # did the host keep up? the rejections' and lost strikes' reasons say
-        lag.observe_reasons(av["reason"] for av in a["averages"] if not av["accepted"])
-        lag.observe_reasons(r for st in a["input_states"] for r in st.get("lost_reasons", []))
-    if a["frf_id"] is None:
-        raise DataError(f"demo: acquisition {acq['id']} ended {a['state']}: {a['message']}")
-    if a["state"] != "succeeded":  # "incomplete": FRFs of some inputs only, the rest named
-        say(f"{step} acquisition {acq['id']} ended {a['state']}: {a['message']}")
-    return int(a["frf_id"])
-
-
 def _import_model_frfs(c: Any, built: Any, sid: int, args: argparse.Namespace) -> int:
     from dimacq.io.uff import write_frf_uff
 
@@ -640,7 +469,7 @@ def _import_model_frfs(c: Any, built: Any, sid: int, args: argparse.Namespace) -
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "model.uff"
         write_frf_uff(path, frf)
-        out = _check(
+        out = check(
             c.post(
                 "/api/frfs/import",
                 params={"setup_id": sid, "name": "virtual lab model FRFs"},
