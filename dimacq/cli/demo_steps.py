@@ -6,8 +6,9 @@ Why a process: the demo's host work is Python under one GIL (the simulators' thr
 drivers, the service, the HTTP client). Step 0 (its own service on the same data directory, its
 own simulated lab: an acquisition and a solve) and steps 1–3 of the test (digitizing through the
 HTTP API) need nothing of each other, so :class:`ChainCheck` starts step 0 in a child process
-(``multiprocessing``, spawn) and the test waits for its result before it acquires: one
-acquisition at a time, as the time-lapse was chosen for. The child shares only the data
+(``multiprocessing``, spawn); the test acquires once step 0 has acquired (one acquisition at a
+time, as the time-lapse was chosen for) while step 0 solves, and waits for its chain calibration
+before its own solve. The child shares only the data
 directory (SQLite in WAL mode takes writers of several processes; the test's service has made
 the schema before the child starts) and sends back its lines, its result or its error, and what
 :class:`~dimacq.backends.time_lapse.HostLag` saw, through a pipe.
@@ -88,6 +89,7 @@ def chain_step(
     imperfections: dict[str, Any] | None = None,
     lag: HostLag | None = None,
     runs: list[dict[str, Any]] | None = None,
+    acquired: Callable[[], None] | None = None,
 ) -> dict[str, Any]:
     """Step 0: calibrate the measurement chain on the weighed reference block.
 
@@ -151,6 +153,8 @@ def chain_step(
                 lag=lag,
                 runs=runs,
             )
+            if acquired is not None:  # the DAQ is free: the test may acquire while this solves
+                acquired()
             sol = check(
                 c.post(
                     "/api/solutions",
@@ -282,9 +286,16 @@ def _child(
     runs: list[dict[str, Any]] = []
     try:
         chain = chain_step(
-            data_dir, token, args, lambda m: conn.send(("say", m)), imperfections, lag, runs
+            data_dir,
+            token,
+            args,
+            lambda m: conn.send(("say", m)),
+            imperfections,
+            lag,
+            runs,
+            acquired=lambda: conn.send(("acquired", lag, runs)),
         )
-        conn.send(("ok", chain, lag, runs))
+        conn.send(("ok", chain))
     except DimacqError as err:
         conn.send(("error", type(err).__name__, str(err)))
     except BaseException as err:  # a bug: named, with its type, not hidden
@@ -317,6 +328,8 @@ class ChainCheck:
         send.close()  # the child holds the sending end: EOF here when it ends
         self._say = say
         self._end: tuple[Any, ...] | None = None
+        self._acquired: tuple[HostLag, list[dict[str, Any]]] | None = None
+        self._acquired_event = threading.Event()
         self._reader = threading.Thread(
             target=self._read, args=(recv,), name="dimacq-demo-chain-lines", daemon=True
         )
@@ -328,6 +341,9 @@ class ChainCheck:
                 msg = recv.recv()
                 if msg[0] == "say":
                     self._say(msg[1])
+                elif msg[0] == "acquired":
+                    self._acquired = (msg[1], msg[2])
+                    self._acquired_event.set()
                 else:
                     self._end = msg
                     return
@@ -335,11 +351,27 @@ class ChainCheck:
             self._end = ("error", "DimacqError", "demo: step 0's process ended without a result")
         finally:
             recv.close()
+            self._acquired_event.set()  # nothing more comes: whoever waits, wait no longer
 
-    def result(self, lag: HostLag | None = None, runs: list[dict[str, Any]] | None = None) -> Any:
-        """Wait for step 0: its chain calibration (``solution_id``, factor, ...); its host lag
-        and acquisition added to ``lag`` and ``runs``. Its error is raised here, as the same
-        :mod:`dimacq.errors` class."""
+    def acquired(
+        self, lag: HostLag | None = None, runs: list[dict[str, Any]] | None = None
+    ) -> None:
+        """Wait until step 0 has acquired (the DAQ is free; its solve may still run): its host
+        lag and acquisition added to ``lag`` and ``runs``. Its error, if it ended before, is
+        raised here (:meth:`result`)."""
+        self._acquired_event.wait()
+        if self._acquired is None:
+            self.result()  # it ended without acquiring: raises its error
+            return
+        child_lag, child_runs = self._acquired
+        if lag is not None:
+            lag.merge(child_lag)
+        if runs is not None:
+            runs.extend(child_runs)
+
+    def result(self) -> Any:
+        """Wait for step 0: its chain calibration (``solution_id``, factor, ...). Its error is
+        raised here, as the same :mod:`dimacq.errors` class."""
         self._reader.join()
         self._proc.join()
         end = self._end or ("error", "DimacqError", "demo: step 0 gave no result")
@@ -348,12 +380,7 @@ class ChainCheck:
             if not (isinstance(cls, type) and issubclass(cls, DimacqError)):
                 cls = DimacqError
             raise cls(end[2])
-        _, chain, child_lag, child_runs = end
-        if lag is not None:
-            lag.merge(child_lag)
-        if runs is not None:
-            runs.extend(child_runs)
-        return chain
+        return end[1]
 
     def close(self) -> None:
         """Stop the child if it still runs (the demo failed before it waited for it)."""

@@ -56,7 +56,7 @@ def test_an_error_of_step_0_is_raised_in_the_demo_with_its_reason(
     check = ChainCheck(tmp_path, secrets.token_urlsafe(8), _args(), None, lines.append)
     try:
         with pytest.raises(DimacqError, match="no-such-cell") as err:
-            check.result(HostLag(), [])
+            check.acquired(HostLag(), [])  # it never acquires: its error, not a hang
     finally:
         check.close()
     assert type(err.value) is not DimacqError  # the child's own class, not the base

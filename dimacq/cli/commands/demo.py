@@ -5,8 +5,13 @@ unless ``--data-dir``), then acts as the test engineer over HTTP only:
 
 0. calibrates the measurement chain (hammer and accelerometers) on the lab's weighed reference
    block (``config/reference-block/``: its drawing as the setup, its weighing certificate), in a
-   service session of its own on the same data directory; the test's solve applies the factor
-   (``chain_calibration_id``). ``--no-chain-calibration`` skips it;
+   service of its own on the same data directory, run in a process of its own while steps 1–3
+   digitize (:mod:`dimacq.cli.demo_steps`); the test acquires once step 0 has acquired, and its
+   solve applies the factor (``chain_calibration_id``). ``--no-chain-calibration`` skips it;
+
+Unless ``--full``, both acquisitions take what the demo needs to show the chain and the answer
+within its limits (:data:`~dimacq.cli.demo_steps.QUICK`: 3 averages of 2048 samples per input,
+the chain check 2), not the rig file's 5 of 4096: about a third of the simulated time;
 
 1. places the simulated digitizer's array in front of the test article and registers it from
    reference nodes with known coordinates;
@@ -380,10 +385,9 @@ def _demo(
             f"[3/5] setup {sid}: {setup_out['n_responses']} responses, {setup_out['n_inputs']} inputs, "
             f"{setup_out['n_load_cells']} load cell(s)"
         )
-        # --- 4. acquisition (after step 0: one acquisition at a time) ---------------------
+        # --- 4. acquisition (after step 0's: one acquisition at a time) -------------------
         if chain_check is not None:
-            chain = chain_check.result(lag, runs)
-            info["chain_calibration"] = chain
+            chain_check.acquired(lag, runs)
         if args.model_frfs:
             say(
                 "[4/5] no acquisition (--model-frfs): importing the virtual lab's FRFs of the true "
@@ -419,7 +423,10 @@ def _demo(
                 f"(daq = {daq!r}, loadcell = {b.get('loadcell', '?')!r})"
             )
             say(f"[4/5] acquired: {info['acquisition']}")
-        # --- 5. solve --------------------------------------------------------------------
+        # --- 5. solve (with step 0's chain calibration) -----------------------------------
+        if chain_check is not None:
+            chain = chain_check.result()
+            info["chain_calibration"] = chain
         body: dict[str, Any] = {"frf_id": frf_id}
         if chain is not None and "solution_id" in chain:
             body["chain_calibration_id"] = chain["solution_id"]
