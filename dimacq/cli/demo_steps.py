@@ -295,11 +295,15 @@ def _child(
             runs,
             acquired=lambda: conn.send(("acquired", lag, runs)),
         )
-        conn.send(("ok", chain))
+        end: tuple[Any, ...] = ("ok", chain)
     except DimacqError as err:
-        conn.send(("error", type(err).__name__, str(err)))
+        end = ("error", type(err).__name__, str(err))
     except BaseException as err:  # a bug: named, with its type, not hidden
-        conn.send(("error", "DimacqError", f"demo: step 0 failed: {type(err).__name__}: {err}"))
+        end = ("error", "DimacqError", f"demo: step 0 failed: {type(err).__name__}: {err}")
+    try:
+        conn.send(end)
+    except OSError:  # the demo is gone (interrupted): nobody to tell
+        pass
     finally:
         conn.close()
 
