@@ -6,9 +6,10 @@ Why a process: the demo's host work is Python under one GIL (the simulators' thr
 drivers, the service, the HTTP client). Step 0 (its own service on the same data directory, its
 own simulated lab: an acquisition and a solve) and steps 1–3 of the test (digitizing through the
 HTTP API) need nothing of each other, so :class:`ChainCheck` starts step 0 in a child process
-(``multiprocessing``, spawn); the test acquires once step 0 has acquired (one acquisition at a
-time, as the time-lapse was chosen for) while step 0 solves, and waits for its chain calibration
-before its own solve. The child shares only the data
+(``multiprocessing``, spawn); the test acquires once step 0 is done: one acquisition at a time,
+as the time-lapse was chosen for, and not beside step 0's solve either (its modal fit, when the
+automatic path runs it, takes both cores for seconds: at 18x on a loaded machine that starved
+the test's acquisition into FIFO overflows). The child shares only the data
 directory (SQLite in WAL mode takes writers of several processes; the test's service has made
 the schema before the child starts) and sends back its lines, its result or its error, and what
 :class:`~dimacq.backends.time_lapse.HostLag` saw, through a pipe.
@@ -153,7 +154,7 @@ def chain_step(
                 lag=lag,
                 runs=runs,
             )
-            if acquired is not None:  # the DAQ is free: the test may acquire while this solves
+            if acquired is not None:  # its host lag and figures, as soon as they are known
                 acquired()
             sol = check(
                 c.post(

@@ -6,7 +6,7 @@ unless ``--data-dir``), then acts as the test engineer over HTTP only:
 0. calibrates the measurement chain (hammer and accelerometers) on the lab's weighed reference
    block (``config/reference-block/``: its drawing as the setup, its weighing certificate), in a
    service of its own on the same data directory, run in a process of its own while steps 1–3
-   digitize (:mod:`dimacq.cli.demo_steps`); the test acquires once step 0 has acquired, and its
+   digitize (:mod:`dimacq.cli.demo_steps`); the test acquires once step 0 is done, and its
    solve applies the factor (``chain_calibration_id``). ``--no-chain-calibration`` skips it;
 
 Unless ``--full``, both acquisitions take what the demo needs to show the chain and the answer
@@ -202,24 +202,23 @@ def run(args: argparse.Namespace) -> int:
             f"of the true article with {100 * args.noise:g} % noise: this checks the solver, not "
             "the measurement chain"
         )
+    chain: ChainCheck | None = None
     try:
+        if (
+            not args.no_chain_calibration
+            and not args.model_frfs
+            and args.scenario != REFERENCE_SCENARIO
+        ):  # step 0 in a process of its own while this service starts and steps 1-3 digitize
+            from dimacq.persistence.db import open_database
+
+            open_database(settings.db_url).close()  # the schema first: two services open it
+            chain = ChainCheck(data_dir, token, args, imperfections, say)
         app = create_app(settings)
         backends = {k: str(getattr(settings, k)) for k in ("daq", "loadcell", "digitizer")}
         with BackgroundServer(app) as srv:
             say(f"dimacq demo: service on {srv.url} (data in {data_dir}), scenario {args.scenario}")
             say("backends: " + ", ".join(f"{k} = {v!r}" for k, v in backends.items()))
-            chain: ChainCheck | None = None
-            if (
-                not args.no_chain_calibration
-                and not args.model_frfs
-                and args.scenario != REFERENCE_SCENARIO
-            ):  # step 0 in a process of its own while steps 1-3 digitize (demo_steps)
-                chain = ChainCheck(data_dir, token, args, imperfections, say)
-            try:
-                payload = _demo(srv.url, token, built, args, say, chain, backends, lag, runs)
-            finally:
-                if chain is not None:
-                    chain.close()
+            payload = _demo(srv.url, token, built, args, say, chain, backends, lag, runs)
         payload["demo"]["backends"] = backends
         if lapse is not None:
             for r in runs:  # the DAQ clocks in wall time at the factor: simulated seconds
@@ -237,6 +236,8 @@ def run(args: argparse.Namespace) -> int:
                 f"test in {sum(r['wall_s'] for r in runs):.1f} s; {lag.describe()}"
             )
     finally:
+        if chain is not None:
+            chain.close()
         if tmp is not None:
             tmp.cleanup()
     payload["elapsed_s"] = time.perf_counter() - t0
@@ -385,9 +386,13 @@ def _demo(
             f"[3/5] setup {sid}: {setup_out['n_responses']} responses, {setup_out['n_inputs']} inputs, "
             f"{setup_out['n_load_cells']} load cell(s)"
         )
-        # --- 4. acquisition (after step 0's: one acquisition at a time) -------------------
+        # --- 4. acquisition, once step 0 is done: one acquisition at a time, and step 0's solve
+        # (its modal fit can take both cores for seconds) not beside it: that starved the test's
+        # acquisition into FIFO overflows at 18x on the loaded machine
         if chain_check is not None:
             chain_check.acquired(lag, runs)
+            chain = chain_check.result()
+            info["chain_calibration"] = chain
         if args.model_frfs:
             say(
                 "[4/5] no acquisition (--model-frfs): importing the virtual lab's FRFs of the true "
@@ -424,9 +429,6 @@ def _demo(
             )
             say(f"[4/5] acquired: {info['acquisition']}")
         # --- 5. solve (with step 0's chain calibration) -----------------------------------
-        if chain_check is not None:
-            chain = chain_check.result()
-            info["chain_calibration"] = chain
         body: dict[str, Any] = {"frf_id": frf_id}
         if chain is not None and "solution_id" in chain:
             body["chain_calibration_id"] = chain["solution_id"]
