@@ -222,6 +222,12 @@ class HostLag:
                 self.overflow_samples += int(m.group(1)) if m else 0
             self.loadcell_gaps += [int(g) for g in _LC_LOST.findall(r)]
 
+    def merge(self, other: HostLag) -> None:
+        """Add what ``other`` saw (another process's acquisition, e.g. the demo's step 0)."""
+        self.overflow_events += other.overflow_events
+        self.overflow_samples += other.overflow_samples
+        self.loadcell_gaps += other.loadcell_gaps
+
     @property
     def kept_up(self) -> bool:
         return self.overflow_events == 0 and all(g <= 1 for g in self.loadcell_gaps)

@@ -251,7 +251,12 @@ def contamination(
             return f"the {r.check} check gives {r.severity}: {r.message}"
     if sugg is None or not sugg.deformation_peaks_hz:
         return None
-    fit = fit_cache.get("fit") or modal_fit(frf, setup)
+    try:
+        fit = fit_cache.get("fit") or modal_fit(frf, setup)
+    except DataError as err:  # no fit on these lines (e.g. a pole read as a suspension mode
+        # near Nyquist leaves none above it): no evidence of an elastic mode, as with none found
+        log.warning("modal correction auto: deformation peaks, but no modal fit (%s)", err)
+        return None
     fit_cache["fit"] = fit
     if not fit.elastic_poles:
         return None

@@ -457,7 +457,10 @@ class VirtualDaqBackend(OneBulkInBackend):
             left = deadline - time.monotonic()
             if left <= 0:
                 return False
-            need = (self._sent + self._spf - self._count) / self.sample_rate_hz
+            # the rest of the frame takes its samples' duration at the clock's pace (real
+            # time over the time-lapse): a bulk read returns once its frame is complete
+            pace = self.sample_rate_hz * self.time_scale
+            need = (self._sent + self._spf - self._count) / pace
             time.sleep(min(left, max(need, 0.0005)))
         return True
 

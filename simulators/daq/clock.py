@@ -94,6 +94,14 @@ class SampleClock:
                 return None
             return self._epoch + (t_monotonic - self._t0) * self._rate * self._wall_scale
 
+    def pulses_per_wall_s(self) -> float | None:
+        """Free-running: pulses per wall second (``rate × scale``); None while it does not
+        run on its own (stopped, or clocked by the host's reads)."""
+        with self._cond:
+            if not self._running or self._wall_scale is None:
+                return None
+            return self._rate * self._wall_scale
+
     def state(self) -> ClockState:
         with self._cond:
             self._tick()

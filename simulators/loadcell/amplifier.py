@@ -41,7 +41,7 @@ from dimacq.errors import ProtocolError
 from dimacq.simulators.daq.clock import SampleClock
 from dimacq.simulators.imperfections import fault_log
 from dimacq.simulators.lab.source import SampleSource
-from dimacq.simulators.loadcell.pulses import BURST_S, SyncPulses
+from dimacq.simulators.loadcell.pulses import SyncPulses
 from dimacq.simulators.virtual_can import SimVirtualBus
 
 __all__ = ["LoadCellAmplifierSim", "LoadCellFaults"]
@@ -179,8 +179,8 @@ class LoadCellAmplifierSim(SyncPulses):
                     sent = self._send_pulses()
                     if not sent:
                         self._wait_for_clock(0.005)
-                    elif sent < _CHUNK:  # caught up: the next burst in BURST_S
-                        next_burst = time.monotonic() + BURST_S
+                    elif sent < _CHUNK:  # caught up: the next burst in BURST_S or more
+                        next_burst = time.monotonic() + self._burst_s()
         except Exception:  # pragma: no cover - surfaced through the test's timeouts
             log.exception("load cell simulator thread failed")
 

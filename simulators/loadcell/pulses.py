@@ -16,7 +16,7 @@ import time
 
 from dimacq.simulators.daq.clock import SampleClock
 
-__all__ = ["BURST_S", "SyncPulses"]
+__all__ = ["BURST_PULSES", "BURST_S", "SyncPulses"]
 
 #: wall time between two bursts of frames once a simulator has caught up with its clock, s. A
 #: real amplifier sends each sample as it is taken; the simulator sends the pulses of the last
@@ -24,6 +24,11 @@ __all__ = ["BURST_S", "SyncPulses"]
 #: looks: on a free-running DAQ clock a busy loop found a pulse or two each pass and spent a CPU
 #: core on them, under the GIL the service's event loop needs to answer.
 BURST_S = 0.004
+#: fewest pulses a burst carries once caught up: on a slow clock (real time, a low time-lapse)
+#: the bursts are that far apart rather than :data:`BURST_S` (at 2048 S/s and 1× 62 ms, at 16× and
+#: above ``BURST_S``), so their fixed cost (a source read, an encode, a queue hand-over) is not
+#: paid 250 times per wall second for a few frames each: about 0.1 core at 1–4× before
+BURST_PULSES = 128
 
 
 class SyncPulses:
@@ -88,6 +93,17 @@ class SyncPulses:
             return self._pulses  # the DAQ has not started this run yet, or has moved on
         self._epoch = st.epoch
         return st.count - self._base_count
+
+    def _burst_s(self) -> float:
+        """Wall time to the next burst once caught up: :data:`BURST_S`, or the time
+        :data:`BURST_PULSES` pulses take at the clock's pace when that is longer."""
+        if self._external:
+            pace = self.clock.pulses_per_wall_s() if self.clock is not None else None
+        else:
+            pace = self.rate_hz * self.time_scale
+        if not pace:
+            return BURST_S
+        return max(BURST_S, BURST_PULSES / pace)
 
     def _drop_backlog(self, avail: int) -> None:
         """Hook: what to do with pulses far behind (default: nothing, send them all)."""

@@ -81,7 +81,7 @@ INERTIA_INDEX = {
 @pytest.mark.slow
 def test_demo_recovers_the_truth(tmp_path: Path, capsys) -> None:
     out = tmp_path / "demo.json"
-    assert main(["demo", "--json", str(out), "--averages", "3"]) == 0
+    assert main(["demo", "--json", str(out)]) == 0  # its default cut (demo_steps.QUICK)
     text = capsys.readouterr().out
     assert "DIM result vs truth" in text and "[5/5]" in text
     p = json.loads(out.read_text())
@@ -147,6 +147,17 @@ def test_demo_recovers_the_truth(tmp_path: Path, capsys) -> None:
     assert lapse["how"] == "host-paced" and lapse["daq_time_scale"] == 1.0
     assert lapse["kept_up"] and lapse["daq_overflow_events"] == 0
     assert "kept up" in d["time_lapse_summary"] and "time-lapse:" in text
+    # step 0 (its own process) and the test: 2 and 3 averages of 2048 samples per input, each
+    # with its wall and simulated seconds (at the host's pace here: the factor is 1)
+    steps = {r["step"]: r for r in d["acquisitions"]}
+    assert set(steps) == {"[0/5]", "[4/5]"}
+    assert (steps["[0/5]"]["averages_per_input"], steps["[4/5]"]["averages_per_input"]) == (2, 3)
+    assert all(r["record_samples"] == 2048 for r in steps.values())
+    assert steps["[4/5]"]["averages_accepted"] >= 24 * 3
+    assert lapse["acquisitions_simulated_s"] == pytest.approx(
+        sum(r["wall_s"] for r in steps.values())
+    )
+    assert "[0/5] chain factor" in text  # step 0's lines, sent from its process
     assert d["points_digitized"] == 6 + 8 * 24 + 24 * 4
     assert d["acquisition"].startswith("impact test through the simulated DAQ")
     # the registration was judged against the array's limit 5·sqrt(0.3² + 0.5²) mm, and passed

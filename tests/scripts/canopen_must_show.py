@@ -53,6 +53,8 @@ def run(backend: str, averages: int, root: Path) -> dict[str, float | str]:
     try:
         args = argparse.Namespace(
             averages=averages,
+            full=True,  # the rig file's [acquisition], as before dimacq demo's own cut
+            record_samples=None,
             data_dir=None,
             json=None,
             no_chain_calibration=True,

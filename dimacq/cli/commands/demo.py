@@ -5,8 +5,13 @@ unless ``--data-dir``), then acts as the test engineer over HTTP only:
 
 0. calibrates the measurement chain (hammer and accelerometers) on the lab's weighed reference
    block (``config/reference-block/``: its drawing as the setup, its weighing certificate), in a
-   service session of its own on the same data directory; the test's solve applies the factor
-   (``chain_calibration_id``). ``--no-chain-calibration`` skips it;
+   service of its own on the same data directory, run in a process of its own while steps 1–3
+   digitize (:mod:`dimacq.cli.demo_steps`); the test acquires once step 0 is done, and its
+   solve applies the factor (``chain_calibration_id``). ``--no-chain-calibration`` skips it;
+
+Unless ``--full``, both acquisitions take what the demo needs to show the chain and the answer
+within its limits (:data:`~dimacq.cli.demo_steps.QUICK`: 3 averages of 2048 samples per input,
+the chain check 2), not the rig file's 5 of 4096: about a third of the simulated time;
 
 1. places the simulated digitizer's array in front of the test article and registers it from
    reference nodes with known coordinates;
@@ -47,8 +52,15 @@ from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
-from dimacq.cli.progress import ProgressLine, add_quiet, plain
-from dimacq.errors import DataError, DeviceError, SetupError
+from dimacq.cli.demo_steps import (
+    QUICK,
+    REFERENCE_SCENARIO,
+    ChainCheck,
+    acquire,
+    acquisition_plan,
+    check,
+)
+from dimacq.cli.progress import add_quiet, plain
 
 if TYPE_CHECKING:
     from dimacq.backends.time_lapse import HostLag
@@ -71,7 +83,22 @@ def register(sub: Any) -> None:
         type=int,
         default=None,
         metavar="N",
-        help="accepted averages per input (the API's averages_per_input; default: the scenario's)",
+        help=f"accepted averages per input (the API's averages_per_input; default "
+        f"{QUICK['averages_per_input']}, with --full the rig file's)",
+    )
+    p.add_argument(
+        "--record-samples",
+        type=int,
+        default=None,
+        metavar="N",
+        help=f"samples per average (the API's record_samples; default {QUICK['record_samples']}, "
+        "with --full the rig file's)",
+    )
+    p.add_argument(
+        "--full",
+        action="store_true",
+        help="acquire both tests as the rig file sets them (5 averages of 4096 samples per input "
+        "for the calibration mass: about 4 times the demo's simulated time)",
     )
     p.add_argument(
         "--model-frfs",
@@ -168,31 +195,49 @@ def run(args: argparse.Namespace) -> int:
         settings = settings.model_copy(update={"simulation_imperfections": imperfections})
         say(f"time-lapse: {lapse.describe()}")
     lag = HostLag()
+    runs: list[dict[str, Any]] = []  # the acquisitions: wall seconds, averages, settings
     if args.model_frfs:
         say(
             "dimacq demo --model-frfs: NO ACQUISITION. The FRFs are the virtual lab's forward model "
             f"of the true article with {100 * args.noise:g} % noise: this checks the solver, not "
             "the measurement chain"
         )
+    chain: ChainCheck | None = None
     try:
-        chain: dict[str, Any] | None = None
         if (
             not args.no_chain_calibration
             and not args.model_frfs
             and args.scenario != REFERENCE_SCENARIO
-        ):
-            chain = _chain_step(data_dir, token, args, say, imperfections, lag)
+        ):  # step 0 in a process of its own while this service starts and steps 1-3 digitize
+            from dimacq.persistence.db import open_database
+
+            open_database(settings.db_url).close()  # the schema first: two services open it
+            chain = ChainCheck(data_dir, token, args, imperfections, say)
         app = create_app(settings)
         backends = {k: str(getattr(settings, k)) for k in ("daq", "loadcell", "digitizer")}
         with BackgroundServer(app) as srv:
             say(f"dimacq demo: service on {srv.url} (data in {data_dir}), scenario {args.scenario}")
             say("backends: " + ", ".join(f"{k} = {v!r}" for k, v in backends.items()))
-            payload = _demo(srv.url, token, built, args, say, chain, backends, lag)
+            payload = _demo(srv.url, token, built, args, say, chain, backends, lag, runs)
         payload["demo"]["backends"] = backends
         if lapse is not None:
-            payload["demo"]["time_lapse"] = {**lapse.to_json(), **lag.to_json()}
-            payload["demo"]["time_lapse_summary"] = f"{lapse.describe()}; {lag.describe()}"
+            for r in runs:  # the DAQ clocks in wall time at the factor: simulated seconds
+                r["simulated_s"] = r["wall_s"] * lapse.scale
+            sim_s = sum(r["simulated_s"] for r in runs)
+            payload["demo"]["acquisitions"] = runs
+            payload["demo"]["time_lapse"] = {
+                **lapse.to_json(),
+                **lag.to_json(),
+                "acquisitions_wall_s": sum(r["wall_s"] for r in runs),
+                "acquisitions_simulated_s": sim_s,
+            }
+            payload["demo"]["time_lapse_summary"] = (
+                f"{lapse.describe()}; {len(runs)} acquisitions, about {sim_s:.0f} s of simulated "
+                f"test in {sum(r['wall_s'] for r in runs):.1f} s; {lag.describe()}"
+            )
     finally:
+        if chain is not None:
+            chain.close()
         if tmp is not None:
             tmp.cleanup()
     payload["elapsed_s"] = time.perf_counter() - t0
@@ -209,121 +254,16 @@ def _sim(kind: Literal["daq", "loadcell"], backend: str) -> str:
     return "simulated " if is_simulated(kind, backend) else ""
 
 
-#: The lab's weighed reference block (config/reference-block/), cabled as the calibration mass.
-REFERENCE_SCENARIO = "reference-block-bungee"
-
-
-def _chain_step(
-    data_dir: Path,
-    token: str,
-    args: argparse.Namespace,
-    say: Callable[[str], None],
-    imperfections: dict[str, Any] | None = None,
-    lag: HostLag | None = None,
-) -> dict[str, Any]:
-    """Step 0: calibrate the measurement chain on the weighed reference block.
-
-    As a lab does before a test: the reference block hangs on the bungee through the load cell
-    with the same hammer and accelerometers; its drawing gives the geometry (setup file), its
-    weighing certificate the mass. The service acquires it and solves with ``reference_mass``; the
-    solution's ``chain_calibration`` (``γ`` and its uncertainty,
-    :mod:`dimacq.pipeline.chain_calibration`) is applied to the test's solve (step 5) by id.
-    Same data directory, so the test's service finds the stored solution.
-    """
-    import httpx
-
-    from dimacq.api import create_app
-    from dimacq.api.server import BackgroundServer
-    from dimacq.config import default_config_file, load_settings, scenario_rig_file
-    from dimacq.io.reference_mass import load_reference_mass
-
-    ref = load_reference_mass(default_config_file().parent / "reference-block" / "mass.toml")
-    if ref.setup_file is None:
-        raise SetupError("reference-block/mass.toml names no setup_file (the block's drawing)")
-    block = _scenario(REFERENCE_SCENARIO, args.seed)
-    settings = load_settings(
-        data_dir=data_dir,
-        token=token,
-        host="127.0.0.1",
-        digitizer_url=f"simdigitizer://demo-{secrets.token_hex(4)}?seed={block.seed}",
-        scenario=REFERENCE_SCENARIO,
-        rig_file=scenario_rig_file(REFERENCE_SCENARIO),
-        database_url="",
-        simulation_imperfections=imperfections,
-    )
-    with BackgroundServer(create_app(settings)) as srv:
-        c = httpx.Client(
-            base_url=srv.url, headers={"Authorization": f"Bearer {token}"}, timeout=120
-        )
-        try:
-            say(
-                f"[0/5] chain calibration: reference block {ref.serial_number} "
-                f"({ref.mass_kg:g} ± {ref.u_kg:g} kg weighed) on the same hammer and sensors"
-            )
-            st = _check(
-                c.post(
-                    "/api/setups/import",
-                    params={"format": "toml", "name": "reference block (drawing)"},
-                    content=ref.setup_file.read_bytes(),
-                ),
-                "reference block setup",
-            )
-            sid = int(st.get("setup_id", st.get("id")))
-            acq = c.post(
-                "/api/acquisitions",
-                json={"setup_id": sid, "averages_per_input": args.averages, "seed": block.seed},
-            )
-            _check(
-                acq, "acquisition of the reference block (step 0; --no-chain-calibration skips it)"
-            )
-            frf_id = _follow_acquisition(
-                c, acq.json(), say, quiet=args.quiet, step="[0/5]", lag=lag
-            )
-            sol = _check(
-                c.post(
-                    "/api/solutions",
-                    json={
-                        "frf_id": frf_id,
-                        "reference_mass": {"mass_kg": ref.mass_kg, "u_kg": ref.u_kg},
-                    },
-                ),
-                "reference block solve",
-            )
-        finally:
-            c.close()
-    cal = sol["result"].get("chain_calibration")
-    if cal is None:
-        reasons = "; ".join(
-            r["message"] for r in sol["result"].get("verdict_reasons", []) if r["severity"] != "ok"
-        )
-        raise DataError(f"demo: the reference block gave no chain calibration: {reasons}")
-    say(
-        f"[0/5] chain factor {cal['factor']:.5f} ± {100 * cal['u_rel']:.3f} % "
-        f"(block measures {cal['measured_mass_kg']:.4f} kg; solution {sol['id']})"
-    )
-    return {"solution_id": int(sol["id"]), **cal}
-
-
-def _check(r: Any, what: str) -> Any:
-    if r.status_code >= 400:
-        try:
-            detail = r.json().get("detail")
-        except ValueError:
-            detail = r.text
-        cls = DeviceError if r.status_code in (409, 503) else DataError
-        raise cls(f"demo: {what} failed with HTTP {r.status_code}: {detail}")
-    return r.json()
-
-
 def _demo(
     url: str,
     token: str,
     built: Any,
     args: argparse.Namespace,
     say: Callable[[str], None],
-    chain: dict[str, Any] | None = None,
+    chain_check: ChainCheck | None = None,
     backends: dict[str, str] | None = None,
     lag: HostLag | None = None,
+    runs: list[dict[str, Any]] | None = None,
 ) -> dict[str, Any]:
     import httpx
 
@@ -336,10 +276,9 @@ def _demo(
     band = [float(b) for b in built.band_hz]
     c = httpx.Client(base_url=url, headers={"Authorization": f"Bearer {token}"}, timeout=120)
     info: dict[str, Any] = {"scenario": built.spec.name, "seed": built.seed}
-    if chain is not None:
-        info["chain_calibration"] = chain
+    chain: dict[str, Any] | None = None
     try:
-        st = _check(c.get("/api/status"), "status")
+        st = check(c.get("/api/status"), "status")
         say(
             "devices: "
             + ", ".join(
@@ -364,7 +303,7 @@ def _demo(
                 ]
             )
         }
-        _check(c.put("/api/digitizer/reference-nodes", json={"nodes": refs}), "reference nodes")
+        check(c.put("/api/digitizer/reference-nodes", json={"nodes": refs}), "reference nodes")
         n_points = [0]
 
         def digitize(label: str, p_gcs: np.ndarray) -> None:
@@ -373,12 +312,12 @@ def _demo(
                 "shots": 5,
                 "sim_probe": {"tip_m": arr.dacs(p_gcs), "axis": [0.0, 0.0, 1.0]},
             }
-            _check(c.post("/api/digitizer/points", json=body), f"digitizing {label}")
+            check(c.post("/api/digitizer/points", json=body), f"digitizing {label}")
             n_points[0] += 1
 
         for lab, ref in refs.items():
             digitize(lab, np.array(ref))
-        reg = _check(
+        reg = check(
             c.post("/api/digitizer/registrations", json={"method": "rigid"}), "registration"
         )
         rms_mm = 1e3 * reg["registration"]["rms_m"]
@@ -402,7 +341,7 @@ def _demo(
             origin = np.asarray(chans[0].position_m)
             for lab, xl in zip(jig.labels, jig.points_local_m, strict=True):
                 digitize(f"jig{n}/{lab}", C @ xl + origin)
-            o = _check(c.post("/api/digitizer/orientations", json={"node": n}), f"orientation {n}")
+            o = check(c.post("/api/digitizer/orientations", json={"node": n}), f"orientation {n}")
             ori_err.append(_angle_deg(np.array(o["rotation"]), C))
             ori_unc.append(float(o["uncertainty_deg"]))
             say(
@@ -417,7 +356,7 @@ def _demo(
             for j, s in enumerate((0.04, 0.08, 0.12)):
                 digitize(f"loa{e.node}/{j}", p_in - s * d)
                 labels.append(f"loa{e.node}/{j}")
-            la = _check(
+            la = check(
                 c.post(
                     "/api/digitizer/lines-of-action",
                     json={"node": e.node, "input_label": f"in{e.node}", "labels": labels},
@@ -440,14 +379,20 @@ def _demo(
                 for i in range(len(setup_true.load_cells))
             ],
         }
-        setup_out = _check(c.post("/api/setups/from-geometry", json=geo), "setup from geometry")
+        setup_out = check(c.post("/api/setups/from-geometry", json=geo), "setup from geometry")
         sid = setup_out["id"]
         info["geometry_uncertainty"] = setup_out["setup"].get("geometry_uncertainty")
         say(
             f"[3/5] setup {sid}: {setup_out['n_responses']} responses, {setup_out['n_inputs']} inputs, "
             f"{setup_out['n_load_cells']} load cell(s)"
         )
-        # --- 4. acquisition --------------------------------------------------------------
+        # --- 4. acquisition, once step 0 is done: one acquisition at a time, and step 0's solve
+        # (its modal fit can take both cores for seconds) not beside it: that starved the test's
+        # acquisition into FIFO overflows at 18x on the loaded machine
+        if chain_check is not None:
+            chain_check.acquired(lag, runs)
+            chain = chain_check.result()
+            info["chain_calibration"] = chain
         if args.model_frfs:
             say(
                 "[4/5] no acquisition (--model-frfs): importing the virtual lab's FRFs of the true "
@@ -459,13 +404,16 @@ def _demo(
                 f"with {100 * args.noise:g} % noise imported as UFF"
             )
         else:
-            acq_body = {"setup_id": sid, "averages_per_input": args.averages, "seed": built.seed}
-            acq = _check(
-                c.post("/api/acquisitions", json=acq_body),
+            frf_id = acquire(
+                c,
+                {"setup_id": sid, **acquisition_plan(args), "seed": built.seed},
                 "acquisition (the demo acquires as dimacq acquire does; --model-frfs solves "
                 "model FRFs instead)",
+                say,
+                quiet=args.quiet,
+                lag=lag,
+                runs=runs,
             )
-            frf_id = _follow_acquisition(c, acq, say, quiet=args.quiet, lag=lag)
             b = backends or {}
             cell = {
                 "daq-channels": "its bridges on inputs of the DAQ",
@@ -480,13 +428,13 @@ def _demo(
                 f"(daq = {daq!r}, loadcell = {b.get('loadcell', '?')!r})"
             )
             say(f"[4/5] acquired: {info['acquisition']}")
-        # --- 5. solve --------------------------------------------------------------------
+        # --- 5. solve (with step 0's chain calibration) -----------------------------------
         body: dict[str, Any] = {"frf_id": frf_id}
         if chain is not None and "solution_id" in chain:
             body["chain_calibration_id"] = chain["solution_id"]
         if args.scenario_band:
             body["band_hz"] = band
-        sol = _check(c.post("/api/solutions", json=body), "solve")
+        sol = check(c.post("/api/solutions", json=body), "solve")
         lo, hi = sol["result"]["band_hz"]
         how = "the scenario's recommended band" if args.scenario_band else "chosen by the service"
         say(
@@ -523,39 +471,6 @@ def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.degrees(Rotation.from_matrix(a @ b.T).magnitude()))
 
 
-def _follow_acquisition(
-    c: Any,
-    acq: dict[str, Any],
-    say: Callable[[str], None],
-    quiet: bool = False,
-    step: str = "[4/5]",
-    lag: HostLag | None = None,
-) -> int:
-    job_id = acq["job_id"]
-    progress = ProgressLine(f"{step} acquisition", quiet=quiet)
-    try:
-        with c.stream("GET", f"/api/jobs/{job_id}/events", params={"poll_s": 0.2}) as r:
-            for line in r.iter_lines():
-                if not line.startswith("data:"):
-                    continue
-                snap = json.loads(line[5:])
-                progress.update(snap["progress"], snap["message"])
-                if snap["state"] in ("succeeded", "failed", "cancelled", "interrupted"):
-                    break
-    finally:
-        progress.close()
-    a = _check(c.get(f"/api/acquisitions/{acq['id']}"), "acquisition status")
-    say(f"{step} averages accepted {a['averages_accepted']}, rejected {a['averages_rejected']}")
-    if lag is not None:  # did the host keep up? the rejections' and lost strikes' reasons say
-        lag.observe_reasons(av["reason"] for av in a["averages"] if not av["accepted"])
-        lag.observe_reasons(r for st in a["input_states"] for r in st.get("lost_reasons", []))
-    if a["frf_id"] is None:
-        raise DataError(f"demo: acquisition {acq['id']} ended {a['state']}: {a['message']}")
-    if a["state"] != "succeeded":  # "incomplete": FRFs of some inputs only, the rest named
-        say(f"{step} acquisition {acq['id']} ended {a['state']}: {a['message']}")
-    return int(a["frf_id"])
-
-
 def _import_model_frfs(c: Any, built: Any, sid: int, args: argparse.Namespace) -> int:
     from dimacq.io.uff import write_frf_uff
 
@@ -563,7 +478,7 @@ def _import_model_frfs(c: Any, built: Any, sid: int, args: argparse.Namespace) -
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "model.uff"
         write_frf_uff(path, frf)
-        out = _check(
+        out = check(
             c.post(
                 "/api/frfs/import",
                 params={"setup_id": sid, "name": "virtual lab model FRFs"},

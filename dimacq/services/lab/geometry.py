@@ -131,12 +131,13 @@ class GeometryService:
             point = self.devices.session().digitize(label, shots)
             with self.db.session() as s:
                 last = s.scalars(
-                    select(m.DigitizedPointRow.id)
+                    select(m.DigitizedPointRow)
                     .where(m.DigitizedPointRow.label == label)
                     .order_by(m.DigitizedPointRow.id.desc())
                     .limit(1)
                 ).first()
-        stored = next((p for p in self.points() if p.id == last), None)
+                # this point alone (not every stored point: a test digitizes hundreds)
+                stored = None if last is None else self._stored(last, self._registrations(s))
         out = point.to_json()
         if stored is not None:
             out.update(asdict(stored))
@@ -191,23 +192,22 @@ class GeometryService:
         with self.db.session() as s:
             rows = list(s.scalars(select(m.DigitizedPointRow).order_by(m.DigitizedPointRow.id)))
             regs = self._registrations(s)
-        out = []
-        for r in rows:
-            reg = regs.get(r.patch)
-            out.append(
-                StoredPoint(
-                    id=r.id,
-                    label=r.label,
-                    patch=r.patch,
-                    position_array_m=list(r.position_array_m),
-                    spread_m=list(r.spread_m),
-                    n_shots=r.n_shots,
-                    n_used=r.n_used,
-                    position_m=reg.apply(r.position_array_m) if reg else None,
-                    created_at=iso(r.created_at),
-                )
-            )
-        return out
+        return [self._stored(r, regs) for r in rows]
+
+    @staticmethod
+    def _stored(r: m.DigitizedPointRow, regs: dict[int, Registration]) -> StoredPoint:
+        reg = regs.get(r.patch)
+        return StoredPoint(
+            id=r.id,
+            label=r.label,
+            patch=r.patch,
+            position_array_m=list(r.position_array_m),
+            spread_m=list(r.spread_m),
+            n_shots=r.n_shots,
+            n_used=r.n_used,
+            position_m=reg.apply(r.position_array_m) if reg else None,
+            created_at=iso(r.created_at),
+        )
 
     def delete_point(self, point_id: int) -> bool | None:
         """Delete one digitized point (a mistaken one; fits made from it are kept). The label's

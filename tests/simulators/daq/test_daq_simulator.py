@@ -221,6 +221,37 @@ def test_free_running_clock_runs_in_wall_time_without_reads():
     np.testing.assert_allclose(got, truth, atol=5 / 2**23 / (FORCE_MV_PER_N * 1e-3))
 
 
+@pytest.mark.parametrize("scale", [1.0, 40.0])
+def test_a_bulk_read_waits_for_its_frame_at_the_clocks_pace(monkeypatch, scale):
+    """A bulk read returns once its frame is clocked: at a time-lapse the frame takes its
+    samples' duration over the factor, so the simulator never sleeps longer than that (it slept
+    the real-time duration at any factor: the host read 40× late at 40×, and every strike
+    waited behind that backlog). The sleeps asked for are recorded; no wall time is asserted."""
+    from dimacq.simulators.daq import backend as daq_backend
+
+    asked: list[float] = []
+    real_sleep = time.sleep
+
+    def sleep(s: float) -> None:
+        asked.append(s)
+        real_sleep(s)
+
+    monkeypatch.setattr(daq_backend.time, "sleep", sleep)
+    src = ImpulseSource(background=1.0)  # 2048 S/s
+    wiring = {0: DaqInput(0, FORCE_MV_PER_N * 1e-3)}
+    backend = VirtualDaqBackend(src, wiring, free_running=True, time_scale=scale)
+    with DaqDevice.open(backend=backend) as dev:
+        task = DaqTask(dev)
+        task.add_force_channel(0, "10+X force", FORCE_MV_PER_N)
+        task.configure_timing(src.sample_rate_hz, samples_per_frame=128)
+        task.start()
+        block = task.read(512)
+        task.stop()
+    assert block.valid.all() and block.first_sample == 0
+    frame_s = 128 / (src.sample_rate_hz * scale)  # one frame at the clock's pace
+    assert asked and max(asked) <= frame_s * (1 + 1e-9)
+
+
 def test_a_late_host_overflows_the_bounded_fifo_and_the_gap_is_reported():
     """A real DAQ's FIFO is bounded: while the host does not read, the clock runs on, and the
     samples clocked once the FIFO is full are lost. The driver sees the overflow flag and the
