@@ -70,6 +70,7 @@ from numpy.typing import NDArray
 
 __all__ = [
     "ClockFit",
+    "DelayBudget",
     "DelayFit",
     "fit_delay",
     "fit_lower_envelope",
@@ -235,6 +236,29 @@ class DelayFit:
     def uncertainty_s(self) -> float:
         """``√(σ² + spread²)``, s: what the phase budget is checked against."""
         return float(np.hypot(self.sigma_s, self.spread_s))
+
+
+@dataclass(frozen=True)
+class DelayBudget:
+    """What a stream on its own clock asks of the data's delay fit, and its limit.
+
+    Attributes
+    ----------
+    search_s : float
+        ``|τ|`` is sought within this, s (the coarse alignment's uncertainty, with margin).
+    lo_hz : float
+        The fit's lowest line, Hz (above the suspension's modes); its highest is ``band_hz``.
+    band_hz, max_phase_deg : float
+        The fit's uncertainty may cost at most ``max_phase_deg`` of FRF phase at ``band_hz``.
+    label : str
+        The device, for messages.
+    """
+
+    search_s: float
+    lo_hz: float
+    band_hz: float
+    max_phase_deg: float
+    label: str = "stream"
 
 
 _GOLDEN = (np.sqrt(5.0) - 1.0) / 2.0

@@ -69,6 +69,7 @@ from dimacq.model.impact import ImpactSettings
 from dimacq.pipeline.frf_estimation import (
     double_hit_mask,
 )
+from dimacq.services.data_alignment import align_input_by_data
 from dimacq.services.impact_result import (
     OPERATOR_OVERRIDE,
     OPERATOR_REDO,
@@ -539,6 +540,17 @@ class ImpactSession(ImpactStream):
                 n_accepted.append(len(records[j]))
                 if len(records[j]) >= need:  # fewer: incomplete, no FRF (coherence would be 1)
                     f_j, H_j, coh_j = self._frf(records[j], fs)
+                    # a load cell on its own clock: its residual delay fitted from the data
+                    for msg in align_input_by_data(
+                        f_j,
+                        H_j,
+                        coh_j,
+                        self.loadcells,
+                        [b.data.shape[0] for b in self._lc_bufs],
+                        len(self.response_rows),
+                        f"input {self.input_names[j]}",
+                    ):
+                        self._event({"device": "loadcell", "kind": "alignment", "message": msg})
                     if H_all is None:  # filled input by input: no stacking copy at the end
                         H_all = np.zeros((*H_j.shape, n_in), dtype=H_j.dtype)
                         coh_all = np.zeros((*coh_j.shape, n_in))

@@ -111,7 +111,7 @@ def test_fit_delay_flags_a_model_that_does_not_hold_and_data_without_delay_infor
     noise = rng.standard_normal(H.shape) + 1j * rng.standard_normal(H.shape)
     got = fit_delay(f, noise, np.ones(H.shape), search_s=2e-3)
     assert got.uncertainty_s > 50e-6
-    with pytest.raises(ValueError, match="give .* arrays for the lines given"):
+    with pytest.raises(ValueError, match=r"give .* arrays for the lines given"):
         fit_delay(f, H[:-1], np.ones(H.shape), search_s=1e-3)
     with pytest.raises(ValueError, match="at least 8 lines"):
         fit_delay(f[:5], H[:5], np.ones((5, 6)), search_s=1e-3)

@@ -1,0 +1,75 @@
+"""The residual delay of a load cell on its own clock, fitted per input and removed
+(:mod:`dimacq.services.data_alignment`): against FRFs of the supports' mass-line model with a
+known delay (closed form), the refusal naming the fit, and only the cells that ask for it."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from dimacq.errors import SetupError
+from dimacq.pipeline.stream_alignment import DelayBudget
+from dimacq.services.data_alignment import align_input_by_data, align_rows
+
+F = np.arange(0.5, 1024.0, 0.5)
+
+
+def _cell_frfs(rng: np.random.Generator, n: int) -> np.ndarray:
+    """``c_0 + c_1 (ω0/iω) + c_2 (ω0/iω)²`` with random real ``c_n``: a cell's loads per unit
+    hammer force above its suspension (the model of the fit)."""
+    w, w0 = 2 * np.pi * F, 2 * np.pi * 100.0
+    c = rng.standard_normal((3, n)) * np.array([[1e-3], [1e-2], [1e-1]])
+    return sum(c[k][None, :] * ((w0 / (1j * w)) ** k)[:, None] for k in range(3))
+
+
+class _Cell:
+    def __init__(self, budget: DelayBudget | None) -> None:
+        self.budget = budget
+
+    def delay_budget(self) -> DelayBudget | None:
+        return self.budget
+
+
+BUDGET = DelayBudget(search_s=2e-3, lo_hz=20.0, band_hz=655.36, max_phase_deg=2.0, label="cell")
+
+
+def test_the_delay_is_fitted_and_removed_on_every_line() -> None:
+    rng = np.random.default_rng(3)
+    H0 = _cell_frfs(rng, 6)
+    tau = 437.5e-6
+    got, fit, phase = align_rows(
+        F, H0 * np.exp(-2j * np.pi * F * tau)[:, None], np.full(H0.shape, 0.99), BUDGET, "input 1"
+    )
+    assert fit.delay_s == pytest.approx(tau, abs=1e-9)
+    assert phase < 1e-3
+    np.testing.assert_allclose(got, H0, rtol=1e-6)  # below the fit's band too
+
+
+def test_only_the_cells_that_ask_are_aligned_in_place() -> None:
+    rng = np.random.default_rng(4)
+    acc = rng.standard_normal((F.size, 3)) + 0j  # responses: untouched
+    cells = [_cell_frfs(rng, 6) for _ in range(2)]
+    delayed = [cells[0] * np.exp(-2j * np.pi * F * 3e-4)[:, None], cells[1].copy()]
+    H = np.concatenate([acc, *delayed], axis=1)
+    coh = np.full(H.shape, 0.95)
+    msgs = align_input_by_data(F, H, coh, [_Cell(BUDGET), _Cell(None)], [6, 6], 3, "input 7")
+    assert len(msgs) == 1 and "input 7: residual delay +300.0 us" in msgs[0]
+    np.testing.assert_allclose(H[:, 3:9], cells[0], rtol=1e-6)
+    assert np.array_equal(H[:, :3], acc) and np.array_equal(H[:, 9:], cells[1])
+
+
+def test_refused_when_the_data_cannot_support_the_budget() -> None:
+    rng = np.random.default_rng(5)
+    H0 = _cell_frfs(rng, 6)
+    noisy = H0 * np.exp(-2j * np.pi * F * 2e-4)[:, None] + 0.7 * np.abs(H0) * (
+        rng.standard_normal(H0.shape) + 1j * rng.standard_normal(H0.shape)
+    )
+    coh = np.full(H0.shape, 0.5)  # what such noise leaves of the coherence
+    with pytest.raises(SetupError, match=r"input 2: the data align its loads .*limit netft_max"):
+        align_rows(F, noisy, coh, BUDGET, "input 2")
+    # the same data within a budget its fit meets
+    loose = DelayBudget(2e-3, 20.0, 655.36, 45.0, "cell")
+    _, fit, phase = align_rows(F, noisy, coh, loose, "input 2")
+    assert abs(fit.delay_s - 2e-4) < 4 * fit.uncertainty_s and phase <= 45.0
+    with pytest.raises(SetupError, match=r"no delay fit from the data .* netft_fit_lo_hz"):
+        align_rows(F, H0, coh, DelayBudget(2e-3, 700.0, 655.36, 2.0, "cell"), "input 3")
