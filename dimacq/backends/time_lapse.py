@@ -27,7 +27,7 @@ The probe's load cell work is the CAN FD amplifier's (one data frame per sample)
 backends put more frames per sample on the virtual bus, each with python-can's per-message cost
 (which dominates): :data:`LOADCELL_FRAMES_PER_SAMPLE` says how many, and the probe sends that
 many per sample per cell (an ATI Net F/T on CAN: the rig's REQUEST LONG and four answers; a
-CiA 404 node: the SYNC and its four TPDOs). Without it the probe, which saw one frame per sample,
+CiA 404 node: the SYNC and its six TPDOs). Without it the probe, which saw one frame per sample,
 chose 25x for ``netft-can-simulated`` where the host sustained less than 8x (2026-11-27, load
 average ~5: DAQ FIFO overflows from the twelfth input on, the demo refused). The RDT simulator
 (``netft-udp-simulated``) sends datagrams, not frames, but its alignment is what limits it: the
@@ -71,7 +71,7 @@ HEADROOM = 0.5
 #: amplifier's single data frame): the probe sends as many
 LOADCELL_FRAMES_PER_SAMPLE: dict[str, int] = {
     "netft-can-simulated": 5,  # REQUEST LONG on the DAQ's pulse + four answers
-    "cia404-simulated": 5,  # SYNC + four TPDOs (config/canopen/cia404-generic.eds)
+    "cia404-simulated": 7,  # SYNC + six TPDOs (0x6130 of config/canopen/cia404-generic.eds)
 }
 #: the highest time-lapse of a load cell backend, where lower than ``max_scale``
 LOADCELL_MAX_SCALE: dict[str, float] = {

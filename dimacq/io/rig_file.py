@@ -254,9 +254,9 @@ class LoadCellEntry(_Model):
         "netft_max_phase_deg) or 'host' (the host's clock alone)",
     )
     netft_fit_lo_hz: float = Field(
-        default=20.0,
+        default=5.0,
         gt=0,
-        description="the lowest line of the RDT delay fit, Hz: above the suspension's modes",
+        description="the lowest line of the RDT delay fit, Hz (its highest: netft_band_hz)",
     )
     netft_counts_per_force: int | None = Field(
         default=None, gt=0, description="its counts per force unit (its calibration info)"

@@ -30,31 +30,39 @@ error ``|1 − e^{−iφ}| ≈ 2π f δ`` of the load cell's force at frequency 
 stated, not estimated); on this project's 2-core machine that is ~100 µs of wall time, 36° at
 1 kHz: the host's clock is a **coarse** time base only.
 
-**The residual delay from the data** (:func:`fit_delay`). The hammer's force is on the DAQ's
-clock and the cell's loads on the sensor's; what is left after the coarse alignment is a delay
-``τ`` (constant over one input's averages: the sensor's rate is the envelope's) that multiplies
-every cell FRF ``H = W / F`` (load per unit hammer force) by ``e^{−iωτ}``. Its physics says what
-``H`` is without it: DIM assumes the article rigid in the band and every support a spring and
-dashpot acting through its cell, ``W_s = −(k_s + iω c_s) U_s``; above the suspension's modes the
-body moves on its mass line, the cell's acceleration ``A_s = −ω² U_s`` is real and constant per
-unit force (``G_s M⁻¹ Φ_j``), so ``W_s / F = (k_s + iω c_s) A_s / ω²``, and a cell that carries
-the load directly (a stiff support below its resonance) adds a real constant. Hence, per cell
-load ``m`` and input::
+**The residual delay from the data** (:func:`fit_delay`). The hammer's force and the
+accelerometers are on the DAQ's clock, the cell's loads on the sensor's; what is left after the
+coarse alignment is a delay ``τ`` (constant over one input's averages: the sensor's rate is the
+envelope's) that multiplies every cell FRF ``W_m = load m / hammer force`` by ``e^{−iωτ}``. The
+physics DIM itself assumes says what ``W`` is without it: the article is rigid in the band and
+every force on it other than the hammer's goes through the cells, so Newton–Euler about the
+origin, ``M A_O = Φ_j F + Σ_s G_sᵀ B_s W_s``, makes each cell load a **real** linear
+combination of the rigid body's accelerations — themselves real combinations of the
+accelerometers' FRFs ``A_k`` — and of the hammer's own (real, per unit force) term. Per input::
 
-    H_m(f) e^{iωτ} = c_0 + c_1 (ω0 / iω) + c_2 (ω0 / iω)²,     c_n real          (1)
+    W_m(f) e^{iωτ} = Σ_k c_mk A_k(f) + d_m,        c_mk, d_m real                 (1)
 
-(``ω0`` the band's geometric mean, for conditioning). The brief's "reaction FRFs are real" is
-the ``c_0`` term alone; on a soft suspension (the bungee, the air-ride) the dashpot term
-``c_1`` dominates — the cell's FRF is ~90° — and a real-only model would read the dashpot's
-phase as a delay. ``τ`` is fitted by variable projection: for each trial ``τ`` the ``c_n`` of
-every FRF are a real weighted least-squares fit (closed form), the cost ``J(τ)`` the weighted
-residual left; a grid over ``±search_s`` in steps of ``0.05 / f_max`` (no phase wrap between
-steps) brackets the minimum, a golden-section search refines it. Its statistical uncertainty is
-``σ_τ² = 2 s² / J''(τ̂)`` (``s²`` the residual variance per degree of freedom: model misfit counts
-as noise), and ``spread`` is half the difference of the estimates on the band's lower and upper
-halves — where (1) does not hold (a support resonance, an elastic mode in the band) the halves
-disagree. ``uncertainty = √(σ_τ² + spread²)`` is what the phase budget is checked against: a
-run is refused when ``360° f_band · uncertainty`` exceeds its limit.
+whatever the supports (bungee, air springs, bolted through the cells): their stiffness,
+damping, resonances and the suspension's swing are in ``A`` and ``W`` alike. (With no
+responses at hand the mass-line asymptote of a rigid body on spring-and-dashpot supports gives
+the regressors ``(ω0/iω)^n``, n = 0, 1, 2: :func:`mass_line_basis`, equation (2).) ``τ`` is
+fitted by variable projection: for a trial ``τ`` the real coefficients are a weighted least
+squares fit (the projection on the regressors' range, which does not depend on ``τ``), the cost
+``J(τ)`` the weighted residual left; a grid over ``±search_s`` in steps of ``0.05 / f_max`` (no
+phase wrap between steps) brackets the minimum, a golden-section search refines it. Its
+statistical uncertainty is ``σ_τ² = 2 s² / J''(τ̂)`` (``s²`` the residual variance per degree of
+freedom: noise and misfit alike), and ``spread`` is half the difference of the estimates on the
+lower and upper half of the lines — where (1) does not hold (an elastic mode, a cell whose loads
+are lost in noise) the halves disagree. ``uncertainty = √(σ_τ² + spread²)`` is what the phase
+budget is checked against: a run is refused when ``360° f_band · uncertainty`` exceeds its limit.
+
+How much the data say depends on how much the cell carries: ``τ`` moves ``W`` by ``ωτ |W|``.
+Bolted through its cell (``calibration-mass-ground``) the cell carries the hammer's force and
+1 % noise leaves ``σ_τ`` ~0.1 µs; hung on a bungee the cell carries ~0.1 % of it above the
+suspension, the suspension's swing and the noise dominate its FRFs, and an input's fit is no
+better than ~0.1–1 ms (refused at 2° at 655 Hz). The same ratio makes the cell's share of the
+result small there (a 1 % cell error moves the bungee's DIM mass by ~0.001 %), but the budget
+is the phase's, as set: a run whose data cannot support it is refused, not assumed.
 
 Clock drift between the DAQ and the host is not modelled by the coarse alignment (the DAQ's
 crystal against the host's: ~20 ppm is 1.2 ms after a minute); the data's delay, fitted per
@@ -75,6 +83,7 @@ __all__ = [
     "fit_delay",
     "fit_lower_envelope",
     "lagrange4",
+    "mass_line_basis",
     "phase_error_deg",
 ]
 
@@ -264,63 +273,67 @@ class DelayBudget:
 _GOLDEN = (np.sqrt(5.0) - 1.0) / 2.0
 
 
-def _delay_cost(
-    omega: NDArray[np.float64],
-    H: NDArray[np.complex128],
-    w: NDArray[np.float64],
-    B: NDArray[np.complex128],
-) -> tuple[object, float]:
-    """``J(τ)`` of equation (1) for an array of trial delays (see the module doc), and
-    ``Σ w |H|²``."""
-    Br, Bi = B.real, B.imag
-    # per FRF p: the real normal matrix of its basis, (P, nb, nb), inverted once
-    A = np.einsum("lp,la,lb->pab", w, Br, Br) + np.einsum("lp,la,lb->pab", w, Bi, Bi)
-    Ainv = np.linalg.pinv(A)
-    total = float(np.einsum("lp,lp->", w, np.abs(H) ** 2))
+def mass_line_basis(
+    frequencies_hz: NDArray[np.float64], n_terms: int = 3
+) -> NDArray[np.complex128]:
+    """Regressors ``(ω0 / iω)^n``, ``n = 0 .. n_terms − 1`` (``ω0`` the lines' geometric mean):
+    equation (2) of the module doc, for a cell with no reference FRFs at hand.
 
-    def cost(tau: NDArray[np.float64]) -> NDArray[np.float64]:
-        out = np.empty(tau.size)
-        for i0 in range(0, tau.size, 32):
-            t = tau[i0 : i0 + 32]
-            G = H[None] * np.exp(1j * omega[None, :, None] * t[:, None, None])  # (T, L, P)
-            b = np.einsum("lp,la,tlp->tpa", w, Br, G.real) + np.einsum(
-                "lp,la,tlp->tpa", w, Bi, G.imag
-            )
-            out[i0 : i0 + 32] = total - np.einsum("tpa,pab,tpb->t", b, Ainv, b)
-        return out
-
-    return cost, total
+    Returns
+    -------
+    ndarray, shape (n_lines, n_terms)
+    """
+    f = np.asarray(frequencies_hz, dtype=float)
+    omega = 2 * np.pi * f
+    omega0 = 2 * np.pi * float(np.sqrt(f.min() * f.max()))
+    return np.stack([(omega0 / (1j * omega)) ** n for n in range(n_terms)], axis=1)
 
 
 def _fit_tau(
     f: NDArray[np.float64],
     H: NDArray[np.complex128],
-    w: NDArray[np.float64],
+    X: NDArray[np.complex128],
+    sw: NDArray[np.float64],
     search_s: float,
-    n_terms: int,
 ) -> tuple[float, float, float, float]:
-    """``τ̂``, ``σ_τ``, ``J(τ̂)`` and ``Σ w |H|²`` on lines ``f``."""
+    """``τ̂``, ``σ_τ``, ``J(τ̂)`` and ``Σ w |H|²`` on lines ``f`` (``sw = √w`` per line)."""
     omega = 2 * np.pi * f
-    omega0 = 2 * np.pi * float(np.sqrt(f.min() * f.max()))
-    B = np.stack([(omega0 / (1j * omega)) ** n for n in range(n_terms)], axis=1)
-    cost, total = _delay_cost(omega, H, w, B)
+    n = f.size
+    # the real least-squares problem of (1): rows Re, Im of every line, columns the regressors'
+    # real coefficients; its range's orthonormal basis Q does not depend on τ
+    R = np.concatenate([X.real * sw[:, None], X.imag * sw[:, None]], axis=0)
+    U, sv, _ = np.linalg.svd(R, full_matrices=False)
+    rank = int((sv > sv[0] * 1e-10).sum()) if sv.size and sv[0] > 0 else 0
+    Q = U[:, :rank]
+    total = float(np.sum(sw[:, None] ** 2 * np.abs(H) ** 2))
+
+    def cost(tau: NDArray[np.float64]) -> NDArray[np.float64]:
+        out = np.empty(tau.size)
+        for i0 in range(0, tau.size, 32):
+            t = tau[i0 : i0 + 32]
+            G = H[None] * np.exp(1j * omega[None, :, None] * t[:, None, None])  # (T, L, M)
+            g = np.concatenate([G.real, G.imag], axis=1) * np.concatenate([sw, sw])[None, :, None]
+            p = np.einsum("lr,tlm->trm", Q, g)
+            out[i0 : i0 + 32] = np.einsum("tlm,tlm->t", g, g) - np.einsum("trm,trm->t", p, p)
+        return out
+
     step = 0.05 / float(f.max())  # 18° of phase at the top line between grid points
     grid = np.arange(-search_s, search_s + step, step)
-    J = cost(grid)  # type: ignore[operator]
+    J = cost(grid)
     i = int(np.argmin(J))
     a, b = grid[max(i - 1, 0)], grid[min(i + 1, grid.size - 1)]
     while b - a > 1e-6 * step:
         c, d = b - _GOLDEN * (b - a), a + _GOLDEN * (b - a)
-        jc, jd = cost(np.array([c, d]))  # type: ignore[operator]
+        jc, jd = cost(np.array([c, d]))
         if jc < jd:
             b = d
         else:
             a = c
     tau = 0.5 * (a + b)
     h = 0.01 * step
-    jm, j0, jp = cost(np.array([tau - h, tau, tau + h]))  # type: ignore[operator]
+    jm, j0, jp = cost(np.array([tau - h, tau, tau + h]))
     curv = (jp - 2 * j0 + jm) / h**2
-    dof = max(1, 2 * H.size - n_terms * H.shape[1] - 1)
+    dof = max(1, 2 * n * H.shape[1] - rank * H.shape[1] - 1)
     s2 = max(j0, 0.0) / dof
     sigma = float(np.sqrt(2 * s2 / curv)) if curv > 0 else float("inf")
     return float(tau), sigma, float(j0), total
@@ -332,53 +345,57 @@ def fit_delay(
     weights: NDArray[np.float64],
     *,
     search_s: float,
-    n_terms: int = 3,
+    regressors: NDArray[np.complex128] | None = None,
 ) -> DelayFit:
-    """The delay ``τ`` common to FRFs ``H`` of a stream against a reference on another clock:
-    ``H(f) e^{iωτ} = Σ_n c_n (ω0 / iω)^n`` with real ``c_n`` per FRF (equation (1) of the
-    module doc: a rigid body's support loads above its suspension), fitted by weighted least
-    squares over the lines, with its uncertainty and the half-bands' disagreement.
+    """The delay ``τ`` common to FRFs ``H`` of a stream against references on another clock:
+    ``H_m(f) e^{iωτ} = Σ_k c_mk X_k(f)`` with real ``c_mk`` (equation (1) of the module doc),
+    fitted by weighted least squares over the lines, with its uncertainty and the half-bands'
+    disagreement.
 
     Parameters
     ----------
     frequencies_hz : ndarray, shape (n_lines,)
-        Positive, the band where (1) holds (above the suspension's modes, below the article's
-        elastic ones).
+        Positive.
     H : ndarray, shape (n_lines, n_frfs)
-        The stream's FRFs against the reference (e.g. cell loads per unit hammer force).
-    weights : ndarray, shape (n_lines, n_frfs)
-        Inverse variances of ``H`` (e.g. ``γ² / ((1 − γ²) |H|²)``), ≥ 0.
+        The stream's FRFs (e.g. a cell's loads per unit hammer force); scale each column to a
+        comparable size (the cost sums them).
+    weights : ndarray, shape (n_lines,)
+        Inverse variance of each line (relative), ≥ 0.
     search_s : float
         ``|τ|`` is sought within this, s (the coarse alignment's uncertainty, with margin).
-    n_terms : int
-        Terms of (1): 1 (real FRFs), 2 (+ dashpot), 3 (+ spring).
+    regressors : ndarray, shape (n_lines, n_regressors), optional
+        ``X_k`` on the reference's clock (the DAQ's responses to the same input and a column of
+        ones: equation (1)); None: :func:`mass_line_basis` (equation (2)).
 
     Raises
     ------
     ValueError
-        Shapes disagree, no line, or fewer lines than needed for the fit.
+        Shapes disagree, or fewer usable lines than the fit needs.
     """
     f = np.asarray(frequencies_hz, dtype=float)
     Hc = np.asarray(H, dtype=complex)
     w = np.asarray(weights, dtype=float)
-    if Hc.ndim != 2 or Hc.shape[0] != f.size or w.shape != Hc.shape:
+    X = mass_line_basis(f) if regressors is None else np.asarray(regressors, dtype=complex)
+    if Hc.ndim != 2 or Hc.shape[0] != f.size or w.shape != f.shape or X.shape[0] != f.size:
         raise ValueError(
-            f"fit_delay: H {Hc.shape}, weights {w.shape} for {f.size} lines; give "
-            "(n_lines, n_frfs) arrays for the lines given"
+            f"fit_delay: H {Hc.shape}, weights {w.shape}, regressors {X.shape} for {f.size} "
+            "lines; give (n_lines, ...) arrays for the lines given"
         )
-    ok = np.isfinite(Hc).all(axis=1) & np.isfinite(w).all(axis=1) & (f > 0)
-    f, Hc, w = f[ok], Hc[ok], np.clip(w[ok], 0.0, None)
-    if f.size < 2 * n_terms + 2 or not search_s > 0:
+    ok = np.isfinite(Hc).all(axis=1) & np.isfinite(X).all(axis=1) & np.isfinite(w) & (f > 0)
+    f, Hc, X, w = f[ok], Hc[ok], X[ok], np.clip(w[ok], 0.0, None)
+    need = X.shape[1] + 2
+    if f.size < need or not search_s > 0:
         raise ValueError(
-            f"fit_delay: {f.size} usable lines, search {search_s} s; give at least "
-            f"{2 * n_terms + 2} lines with finite FRFs and a positive search range"
+            f"fit_delay: {f.size} usable lines, search {search_s} s; give at least {need} "
+            "lines with finite FRFs and a positive search range"
         )
-    tau, sigma, j0, total = _fit_tau(f, Hc, w, search_s, n_terms)
+    sw = np.sqrt(w)
+    tau, sigma, j0, total = _fit_tau(f, Hc, X, sw, search_s)
     spread = 0.0
-    if f.size >= 4 * n_terms + 4:
+    if f.size >= 2 * need:
         half = f < np.median(f)
-        lo = _fit_tau(f[half], Hc[half], w[half], search_s, n_terms)[0]
-        hi = _fit_tau(f[~half], Hc[~half], w[~half], search_s, n_terms)[0]
+        lo = _fit_tau(f[half], Hc[half], X[half], sw[half], search_s)[0]
+        hi = _fit_tau(f[~half], Hc[~half], X[~half], sw[~half], search_s)[0]
         spread = 0.5 * abs(lo - hi)
     misfit = float(np.sqrt(max(j0, 0.0) / total)) if total > 0 else 0.0
     return DelayFit(tau, sigma, spread, int(f.size), int(Hc.shape[1]), misfit)

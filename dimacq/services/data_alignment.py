@@ -5,8 +5,9 @@ The driver puts the stream on the DAQ's sample grid through the host's clock (a 
 base, ~0.1 ms of wall time) and says what is left to do (``delay_budget()``, None when its
 samples are final). Here, once an input's FRFs are estimated, the cell's rows (loads or gauges
 per unit hammer force) are fitted for the delay ``τ`` they share
-(:func:`~dimacq.pipeline.stream_alignment.fit_delay`: the supports' mass-line model, lines from
-the budget's ``lo_hz`` to its ``band_hz``), multiplied by ``e^{iωτ}`` on every line, and the
+(:func:`~dimacq.pipeline.stream_alignment.fit_delay`: the cell's loads are real combinations of
+the accelerometers' FRFs and the hammer's own term — the rigid-body law DIM solves — on the lines
+from the budget's ``lo_hz`` to its ``band_hz``), multiplied by ``e^{iωτ}`` on every line, and the
 run is refused (:class:`~dimacq.errors.SetupError`, one line) when the fit's uncertainty costs
 more FRF phase at ``band_hz`` than allowed — the data could not support the alignment.
 """
@@ -34,12 +35,17 @@ def align_rows(
     coherence: NDArray[np.float64],
     budget: DelayBudget,
     where: str,
+    references: NDArray[np.complex128] | None = None,
 ) -> tuple[NDArray[np.complex128], DelayFit, float]:
     """One cell's FRFs ``H`` (n_lines, n_rows) with their fitted delay removed, the fit and the
     phase its uncertainty costs at ``budget.band_hz`` (degrees).
 
-    Weights: ``γ² / ((1 − γ²) |H|²)``, the inverse relative variance of an FRF estimate of
-    coherence ``γ²`` (``1 − γ²`` floored at 1e-4).
+    ``references`` (n_lines, n_responses): the same input's FRFs on the DAQ's clock (the
+    accelerometers), the regressors of equation (1) of
+    :mod:`~dimacq.pipeline.stream_alignment` with a column of ones (the hammer's own term);
+    None: the mass-line basis (2). Each row is scaled to unit RMS over the fit's lines (forces
+    and moments count alike); each line is weighted by the median over the rows of
+    ``γ² / (1 − γ²)`` (its inverse relative variance; ``1 − γ²`` floored at 1e-4).
 
     Raises
     ------
@@ -50,13 +56,20 @@ def align_rows(
     m = (f >= budget.lo_hz) & (f <= budget.band_hz)
     Hm = H[m]
     g = np.clip(np.nan_to_num(coherence[m], nan=0.0), 0.0, 1.0)
-    w = g / np.maximum(1.0 - g, 1e-4) / np.maximum(np.abs(Hm) ** 2, 1e-300)
+    w = np.zeros(Hm.shape[0])
+    if Hm.size:
+        rms = np.sqrt(np.mean(np.abs(np.nan_to_num(Hm)) ** 2, axis=0))
+        Hm = Hm / np.where(rms > 0, rms, 1.0)
+        w = np.median(g / np.maximum(1.0 - g, 1e-4), axis=1)
+    X = None
+    if references is not None:
+        X = np.concatenate([references[m], np.ones((int(m.sum()), 1))], axis=1)
     try:
-        fit = fit_delay(f[m], Hm, w, search_s=budget.search_s)
+        fit = fit_delay(f[m], Hm, w, search_s=budget.search_s, regressors=X)
     except ValueError as err:
         raise SetupError(
             f"{budget.label}: {where}: no delay fit from the data ({err}); set netft_fit_lo_hz "
-            "below netft_band_hz in the rig file"
+            "well below netft_band_hz in the rig file"
         ) from err
     phase = phase_error_deg(fit.uncertainty_s, budget.band_hz)
     if not phase <= budget.max_phase_deg:
@@ -65,8 +78,9 @@ def align_rows(
             f"{1e6 * fit.uncertainty_s:.1f} us ({1e6 * fit.sigma_s:.1f} us statistical, "
             f"{1e6 * fit.spread_s:.1f} us between the band's halves), {phase:.1f} deg of FRF "
             f"phase at {budget.band_hz:g} Hz (limit netft_max_phase_deg = "
-            f"{budget.max_phase_deg:g}); raise netft_fit_lo_hz above the suspension's modes, "
-            "lower netft_band_hz, or read the cell as loadcell = 'netft-can' or 'daq-channels'"
+            f"{budget.max_phase_deg:g}): the cell carries too little of the force for its "
+            "delay to be told; lower netft_band_hz, or read the cell as loadcell = 'netft-can' "
+            "or 'daq-channels'"
         )
     out = H * np.exp(2j * np.pi * f * fit.delay_s)[:, None]
     return out, fit, phase
@@ -81,8 +95,9 @@ def align_input_by_data(
     first_row: int,
     where: str,
 ) -> list[str]:
-    """Every cell of ``loadcells`` that asks for it aligned in ``H`` (n_lines, n_outputs; the
-    cells' rows from ``first_row``, ``widths`` rows each), in place; one message per cell."""
+    """Every cell of ``loadcells`` that asks for it aligned in ``H`` (n_lines, n_outputs: the
+    responses first, the cells' rows from ``first_row``, ``widths`` rows each), in place,
+    against the responses (equation (1)); one message per cell."""
     messages = []
     row = first_row
     for lc, n in zip(loadcells, widths, strict=True):
@@ -91,7 +106,12 @@ def align_input_by_data(
         if budget is not None:
             rows = slice(row, row + n)
             H[:, rows], fit, phase = align_rows(
-                frequencies_hz, H[:, rows], coherence[:, rows], budget, where
+                frequencies_hz,
+                H[:, rows],
+                coherence[:, rows],
+                budget,
+                where,
+                references=H[:, :first_row] if first_row > 0 else None,
             )
             msg = (
                 f"{budget.label}: {where}: residual delay {1e6 * fit.delay_s:+.1f} us fitted from "

@@ -21,8 +21,9 @@ at frequency ``f`` (~100 µs: 36° at 1 kHz), so the host's clock is a coarse ti
 to finish (``time_base``):
 
 - ``"data"`` (the rig file's default): the residual delay is estimated from the data, per input,
-  by the acquisition (the hammer's force is on the DAQ, the cell's loads here: the delay shows
-  as a phase ``−2πfτ`` on every cell FRF, fitted against the supports' mass-line model:
+  by the acquisition (the hammer and the accelerometers are on the DAQ, the cell's loads here:
+  the delay shows as a phase ``−2πfτ`` on every cell FRF, fitted against the rigid-body law
+  that makes those loads real combinations of the accelerometers' FRFs and the hammer's:
   :func:`~dimacq.pipeline.stream_alignment.fit_delay`), and that estimate's uncertainty is what
   the phase budget ``max_phase_deg`` at ``band_hz`` is checked against (:meth:`delay_budget`).
   Here the driver refuses only a coarse alignment too poor to be refined (``δ`` above
@@ -191,7 +192,7 @@ class NetFtUdp(WireDriver):
         What the phase budget is checked against: the host clock's uncertainty (the driver
         refuses), or the data's delay fit (the acquisition refuses; see the module doc).
     fit_lo_hz : float
-        ``"data"``: the lowest line of the delay fit, Hz (above the suspension's modes).
+        ``"data"``: the lowest line of the delay fit, Hz.
     """
 
     def __init__(
@@ -209,7 +210,7 @@ class NetFtUdp(WireDriver):
         max_phase_deg: float = 2.0,
         latency_floor_s: float = 20e-6,
         time_base: str = "host",
-        fit_lo_hz: float = 20.0,
+        fit_lo_hz: float = 5.0,
     ) -> None:
         if time_base not in ("host", "data"):
             raise SetupError(

@@ -40,21 +40,25 @@ def test_the_delay_is_fitted_and_removed_on_every_line() -> None:
     got, fit, phase = align_rows(
         F, H0 * np.exp(-2j * np.pi * F * tau)[:, None], np.full(H0.shape, 0.99), BUDGET, "input 1"
     )
-    assert fit.delay_s == pytest.approx(tau, abs=1e-9)
-    assert phase < 1e-3
-    np.testing.assert_allclose(got, H0, rtol=1e-6)  # below the fit's band too
+    assert fit.delay_s == pytest.approx(tau, abs=1e-8)
+    assert phase < 1e-2
+    # below the fit's band too: within 2π f × 10 ns
+    np.testing.assert_allclose(got, H0, rtol=1e-4)
 
 
-def test_only_the_cells_that_ask_are_aligned_in_place() -> None:
+def test_only_the_cells_that_ask_are_aligned_in_place_against_the_responses() -> None:
+    """Equation (1): the cells' loads real combinations of the responses (here any complex
+    FRFs) and a constant; the first cell delayed 300 µs and aligned, the second (on the DAQ's
+    clock) left alone, the responses untouched."""
     rng = np.random.default_rng(4)
-    acc = rng.standard_normal((F.size, 3)) + 0j  # responses: untouched
-    cells = [_cell_frfs(rng, 6) for _ in range(2)]
+    acc = rng.standard_normal((F.size, 3)) + 1j * rng.standard_normal((F.size, 3))
+    cells = [acc @ rng.standard_normal((3, 6)) + rng.standard_normal(6) for _ in range(2)]
     delayed = [cells[0] * np.exp(-2j * np.pi * F * 3e-4)[:, None], cells[1].copy()]
     H = np.concatenate([acc, *delayed], axis=1)
     coh = np.full(H.shape, 0.95)
     msgs = align_input_by_data(F, H, coh, [_Cell(BUDGET), _Cell(None)], [6, 6], 3, "input 7")
     assert len(msgs) == 1 and "input 7: residual delay +300.0 us" in msgs[0]
-    np.testing.assert_allclose(H[:, 3:9], cells[0], rtol=1e-6)
+    np.testing.assert_allclose(H[:, 3:9], cells[0], rtol=1e-4)
     assert np.array_equal(H[:, :3], acc) and np.array_equal(H[:, 9:], cells[1])
 
 
@@ -68,8 +72,8 @@ def test_refused_when_the_data_cannot_support_the_budget() -> None:
     with pytest.raises(SetupError, match=r"input 2: the data align its loads .*limit netft_max"):
         align_rows(F, noisy, coh, BUDGET, "input 2")
     # the same data within a budget its fit meets
-    loose = DelayBudget(2e-3, 20.0, 655.36, 45.0, "cell")
+    loose = DelayBudget(2e-3, 20.0, 655.36, 120.0, "cell")
     _, fit, phase = align_rows(F, noisy, coh, loose, "input 2")
-    assert abs(fit.delay_s - 2e-4) < 4 * fit.uncertainty_s and phase <= 45.0
+    assert abs(fit.delay_s - 2e-4) < 4 * fit.uncertainty_s and phase <= 120.0
     with pytest.raises(SetupError, match=r"no delay fit from the data .* netft_fit_lo_hz"):
         align_rows(F, H0, coh, DelayBudget(2e-3, 700.0, 655.36, 2.0, "cell"), "input 3")
