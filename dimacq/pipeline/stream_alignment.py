@@ -52,9 +52,11 @@ squares fit (the projection on the regressors' range, which does not depend on `
 phase wrap between steps) brackets the minimum, a golden-section search refines it. Its
 statistical uncertainty is ``σ_τ² = 2 s² / J''(τ̂)`` (``s²`` the residual variance per degree of
 freedom: noise and misfit alike), and ``spread`` is half the difference of the estimates on the
-lower and upper half of the lines — where (1) does not hold (an elastic mode, a cell whose loads
-are lost in noise) the halves disagree. ``uncertainty = √(σ_τ² + spread²)`` is what the phase
-budget is checked against: a run is refused when ``360° f_band · uncertainty`` exceeds its limit.
+lower and upper half of the lines (each refining the whole band's within ``±20 σ_τ``; a half
+whose minimum is at that window's edge counts as that far off) — where (1) does not hold (an
+elastic mode, a cell whose loads are lost in noise) the halves disagree.
+``uncertainty = √(σ_τ² + spread²)`` is what the phase budget is checked against: a run is
+refused when ``360° f_band · uncertainty`` exceeds its limit.
 
 How much the data say depends on how much the cell carries: ``τ`` moves ``W`` by ``ωτ |W|``.
 Bolted through its cell (``calibration-mass-ground``) the cell carries the hammer's force and
@@ -295,8 +297,10 @@ def _fit_tau(
     X: NDArray[np.complex128],
     sw: NDArray[np.float64],
     search_s: float,
+    center_s: float = 0.0,
 ) -> tuple[float, float, float, float]:
-    """``τ̂``, ``σ_τ``, ``J(τ̂)`` and ``Σ w |H|²`` on lines ``f`` (``sw = √w`` per line)."""
+    """``τ̂``, ``σ_τ``, ``J(τ̂)`` and ``Σ w |H|²`` on lines ``f`` (``sw = √w`` per line), ``τ``
+    sought within ``center_s ± search_s``."""
     omega = 2 * np.pi * f
     n = f.size
     # the real least-squares problem of (1): rows Re, Im of every line, columns the regressors'
@@ -318,7 +322,8 @@ def _fit_tau(
         return out
 
     step = 0.05 / float(f.max())  # 18° of phase at the top line between grid points
-    grid = np.arange(-search_s, search_s + step, step)
+    step = min(step, search_s / 4)
+    grid = center_s + np.arange(-search_s, search_s + step, step)
     J = cost(grid)
     i = int(np.argmin(J))
     a, b = grid[max(i - 1, 0)], grid[min(i + 1, grid.size - 1)]
@@ -393,9 +398,15 @@ def fit_delay(
     tau, sigma, j0, total = _fit_tau(f, Hc, X, sw, search_s)
     spread = 0.0
     if f.size >= 2 * need:
+        # each half refines the whole band's estimate (its own search would find the far
+        # minima of a half's weaker cost); a half's minimum at the edge of its window counts
+        # as that far off
         half = f < np.median(f)
-        lo = _fit_tau(f[half], Hc[half], X[half], sw[half], search_s)[0]
-        hi = _fit_tau(f[~half], Hc[~half], X[~half], sw[~half], search_s)[0]
-        spread = 0.5 * abs(lo - hi)
+        near = max(20 * sigma, 0.05 / float(f.max())) if np.isfinite(sigma) else search_s
+        got = []
+        for h in (half, ~half):
+            t_h = _fit_tau(f[h], Hc[h], X[h], sw[h], near, tau)[0]
+            got.append(tau + near if abs(t_h - tau) > 0.99 * near else t_h)
+        spread = 0.5 * abs(got[0] - got[1])
     misfit = float(np.sqrt(max(j0, 0.0) / total)) if total > 0 else 0.0
     return DelayFit(tau, sigma, spread, int(f.size), int(Hc.shape[1]), misfit)
