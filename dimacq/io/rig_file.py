@@ -254,7 +254,7 @@ class LoadCellEntry(_Model):
         "netft_max_phase_deg) or 'host' (the host's clock alone)",
     )
     netft_fit_lo_hz: float = Field(
-        default=5.0,
+        default=50.0,
         gt=0,
         description="the lowest line of the RDT delay fit, Hz (its highest: netft_band_hz)",
     )

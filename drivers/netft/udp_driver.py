@@ -210,7 +210,7 @@ class NetFtUdp(WireDriver):
         max_phase_deg: float = 2.0,
         latency_floor_s: float = 20e-6,
         time_base: str = "host",
-        fit_lo_hz: float = 5.0,
+        fit_lo_hz: float = 50.0,
     ) -> None:
         if time_base not in ("host", "data"):
             raise SetupError(
