@@ -3,11 +3,13 @@
 The rig file's entry gives ``netft_host`` (its IP address) and ``netft_port`` (49152), the
 sensor's RDT output and internal rates as its settings page shows them (``netft_rdt_rate_hz``,
 ``netft_ft_rate_hz``), and the alignment's phase budget (``netft_band_hz``,
-``netft_max_phase_deg``, ``netft_latency_floor_s``); the sensor's counts per unit are read from
+``netft_max_phase_deg``, ``netft_latency_floor_s``, ``netft_time_base``, ``netft_fit_lo_hz``);
+the sensor's counts per unit are read from
 it (Read Calibration Info over TCP, port 49151) unless the entry states them (as for
 ``"netft-can"``). The driver streams buffered records and puts them on the DAQ's sample grid
-through the host's clock (:mod:`dimacq.drivers.netft.udp_driver`), refusing a run whose
-alignment costs more phase than allowed.
+through the host's clock, the residual delay fitted from the data by the acquisition
+(:mod:`dimacq.drivers.netft.udp_driver`), refusing a run whose alignment costs more phase than
+allowed.
 """
 
 from __future__ import annotations
@@ -85,6 +87,8 @@ def open_rdt(
             latency_floor_s=(
                 entry.netft_latency_floor_s if latency_floor_s is None else latency_floor_s
             ),
+            time_base=entry.netft_time_base,
+            fit_lo_hz=entry.netft_fit_lo_hz,
         )
         try:
             drv.identify()

@@ -22,6 +22,17 @@ threads, GIL hand-overs) costs ``FULL_OVER_PROBE`` times that wire work per simu
 is the time-lapse at which the host would be busy all the time; the chosen factor is
 ``HEADROOM · s_max`` (room for the service, other processes, bursts), rounded down to a whole
 factor within ``[1, max_scale]``.
+
+The probe's load cell work is the CAN FD amplifier's (one data frame per sample). Other load cell
+backends put more frames per sample on the virtual bus, each with python-can's per-message cost
+(which dominates): :data:`LOADCELL_FRAMES_PER_SAMPLE` says how many, and the probe sends that
+many per sample per cell (an ATI Net F/T on CAN: the rig's REQUEST LONG and four answers; a
+CiA 404 node: the SYNC and its six TPDOs). Without it the probe, which saw one frame per sample,
+chose 25x for ``netft-can-simulated`` where the host sustained less than 8x (2026-11-27, load
+average ~5: DAQ FIFO overflows from the twelfth input on, the demo refused). The RDT simulator
+(``netft-udp-simulated``) sends datagrams, not frames, but its alignment is what limits it: the
+host's clock is its coarse time base, and every wall microsecond of the host's floor is
+``daq_time_scale`` microseconds of the lab's time; :data:`LOADCELL_MAX_SCALE` caps its factor.
 """
 
 from __future__ import annotations
@@ -42,6 +53,8 @@ from dimacq.errors import SetupError
 __all__ = [
     "FULL_OVER_PROBE",
     "HEADROOM",
+    "LOADCELL_FRAMES_PER_SAMPLE",
+    "LOADCELL_MAX_SCALE",
     "HostLag",
     "HostMeasurement",
     "TimeLapse",
@@ -54,6 +67,19 @@ __all__ = [
 FULL_OVER_PROBE = 6.0
 #: fraction of the host the chosen time-lapse may take
 HEADROOM = 0.5
+#: virtual CAN frames per sample and cell of a load cell backend, where not one (the CAN FD
+#: amplifier's single data frame): the probe sends as many
+LOADCELL_FRAMES_PER_SAMPLE: dict[str, int] = {
+    "netft-can-simulated": 5,  # REQUEST LONG on the DAQ's pulse + four answers
+    "cia404-simulated": 7,  # SYNC + six TPDOs (0x6130 of config/canopen/cia404-generic.eds)
+}
+#: the highest time-lapse of a load cell backend, where lower than ``max_scale``
+LOADCELL_MAX_SCALE: dict[str, float] = {
+    # the host's clock is its coarse time base (100 us of wall time is 400 us of the lab's at
+    # 4x), and the simulator sends on wall time: at 4x under a load average of 12-14 it sent
+    # seconds late and the DAQ's FIFO overflowed from the second input on (2026-11-27)
+    "netft-udp-simulated": 2.0,
+}
 
 
 @dataclass(frozen=True)
@@ -257,18 +283,24 @@ class HostLag:
         }
 
 
-def rig_time_lapse(imperfections: Mapping[str, object], rig_path: str | Path) -> TimeLapse:
+def rig_time_lapse(
+    imperfections: Mapping[str, object], rig_path: str | Path, loadcell: str = "simulated"
+) -> TimeLapse:
     """:func:`choose_time_lapse` for the rig file at ``rig_path`` (its DAQ channels, its load
-    cells on CAN amplifiers and its sample rate)."""
+    cells on CAN amplifiers and its sample rate) read through the load cell backend
+    ``loadcell`` (its frames per sample: :data:`LOADCELL_FRAMES_PER_SAMPLE`; its highest factor:
+    :data:`LOADCELL_MAX_SCALE`)."""
     from dimacq.io.rig_file import load_rig_file
 
     rig = load_rig_file(rig_path)
     n_channels = len(rig.hammers) + len(rig.responses)
     n_channels += sum(len(e.daq_channels) for e in rig.load_cells if e.node_id is None)
     n_cells = sum(1 for e in rig.load_cells if e.node_id is not None)
+    n_cells *= LOADCELL_FRAMES_PER_SAMPLE.get(loadcell, 1)
     return choose_time_lapse(
         imperfections,
         n_channels=n_channels,
         n_cells=n_cells,
         sample_rate_hz=rig.daq.sample_rate_hz,
+        max_scale=LOADCELL_MAX_SCALE.get(loadcell, 40.0),
     )

@@ -247,6 +247,17 @@ class LoadCellEntry(_Model):
         ge=0,
         description="the network's least latency in s (in the RDT alignment's budget)",
     )
+    netft_time_base: Literal["data", "host"] = Field(
+        default="data",
+        description="RDT alignment: 'data' (the host's clock coarse, the residual delay fitted "
+        "from the hammer and cell FRFs per input, its uncertainty checked against "
+        "netft_max_phase_deg) or 'host' (the host's clock alone)",
+    )
+    netft_fit_lo_hz: float = Field(
+        default=50.0,
+        gt=0,
+        description="the lowest line of the RDT delay fit, Hz (its highest: netft_band_hz)",
+    )
     netft_counts_per_force: int | None = Field(
         default=None, gt=0, description="its counts per force unit (its calibration info)"
     )

@@ -1,6 +1,6 @@
-"""A stream on its own clock put on the DAQ's sample grid: the host clock as the common time
-base, a lower-envelope clock fit, band-limited (4-point Lagrange) resampling, and the FRF phase
-that the alignment's uncertainty costs.
+"""A stream on its own clock put on the DAQ's sample grid: the host clock as the coarse time
+base (a lower-envelope clock fit, band-limited 4-point Lagrange resampling), the residual delay
+estimated from the data, and the FRF phase that the alignment's uncertainty costs.
 
 Used for a sensor with no sync input that streams numbered samples (an ATI Net F/T's RDT:
 ``ft_sequence`` counts its own samples). Three clocks meet on the host's monotonic clock ``t``
@@ -25,11 +25,50 @@ Used for a sensor with no sync input that streams numbered samples (an ATI Net F
 Alignment error costs phase: a time error ``δ`` multiplies the sensor's FRFs by
 ``exp(−i 2π f δ)``, a phase error ``φ = 360° f δ`` (:func:`phase_error_deg`) and a relative
 error ``|1 − e^{−iφ}| ≈ 2π f δ`` of the load cell's force at frequency ``f`` — 0.1 ms is 3.6°
-(6 %) at 100 Hz. The budget here is ``δ = (t_b − t_a)/2 + scatter + d_min`` (``d_min`` the
-latency floor, unknown to the host: it biases every sample the same way and is stated, not
-estimated); a caller refuses when ``φ`` at the band's top frequency exceeds its limit.
-Clock drift between the DAQ and the host is not modelled (the DAQ's crystal against the host's:
-~20 ppm is 1.2 ms after a minute): it is the budget's ``daq_ppm`` term.
+(6 %) at 100 Hz. Through the host's clock the budget is ``δ = (t_b − t_a)/2 + scatter + d_min``
+(``d_min`` the latency floor, unknown to the host: it biases every sample the same way and is
+stated, not estimated); on this project's 2-core machine that is ~100 µs of wall time, 36° at
+1 kHz: the host's clock is a **coarse** time base only.
+
+**The residual delay from the data** (:func:`fit_delay`). The hammer's force and the
+accelerometers are on the DAQ's clock, the cell's loads on the sensor's; what is left after the
+coarse alignment is a delay ``τ`` (constant over one input's averages: the sensor's rate is the
+envelope's) that multiplies every cell FRF ``W_m = load m / hammer force`` by ``e^{−iωτ}``. The
+physics DIM itself assumes says what ``W`` is without it: the article is rigid in the band and
+every force on it other than the hammer's goes through the cells, so Newton–Euler about the
+origin, ``M A_O = Φ_j F + Σ_s G_sᵀ B_s W_s``, makes each cell load a **real** linear
+combination of the rigid body's accelerations — themselves real combinations of the
+accelerometers' FRFs ``A_k`` — and of the hammer's own (real, per unit force) term. Per input::
+
+    W_m(f) e^{iωτ} = Σ_k c_mk A_k(f) + d_m,        c_mk, d_m real                 (1)
+
+whatever the supports (bungee, air springs, bolted through the cells): their stiffness,
+damping, resonances and the suspension's swing are in ``A`` and ``W`` alike. (With no
+responses at hand the mass-line asymptote of a rigid body on spring-and-dashpot supports gives
+the regressors ``(ω0/iω)^n``, n = 0, 1, 2: :func:`mass_line_basis`, equation (2).) ``τ`` is
+fitted by variable projection: for a trial ``τ`` the real coefficients are a weighted least
+squares fit (the projection on the regressors' range, which does not depend on ``τ``), the cost
+``J(τ)`` the weighted residual left; a grid over ``±search_s`` in steps of ``0.05 / f_max`` (no
+phase wrap between steps) brackets the minimum, a golden-section search refines it. Its
+statistical uncertainty is ``σ_τ² = 2 s² / J''(τ̂)`` (``s²`` the residual variance per degree of
+freedom: noise and misfit alike), and ``spread`` is half the difference of the estimates on the
+lower and upper half of the lines (each refining the whole band's within ``±20 σ_τ``; a half
+whose minimum is at that window's edge counts as that far off) — where (1) does not hold (an
+elastic mode, a cell whose loads are lost in noise) the halves disagree.
+``uncertainty = √(σ_τ² + spread²)`` is what the phase budget is checked against: a run is
+refused when ``360° f_band · uncertainty`` exceeds its limit.
+
+How much the data say depends on how much the cell carries: ``τ`` moves ``W`` by ``ωτ |W|``.
+Bolted through its cell (``calibration-mass-ground``) the cell carries the hammer's force and
+1 % noise leaves ``σ_τ`` ~0.1 µs; hung on a bungee the cell carries ~0.1 % of it above the
+suspension, the suspension's swing and the noise dominate its FRFs, and an input's fit is no
+better than ~0.1–1 ms (refused at 2° at 655 Hz). The same ratio makes the cell's share of the
+result small there (a 1 % cell error moves the bungee's DIM mass by ~0.001 %), but the budget
+is the phase's, as set: a run whose data cannot support it is refused, not assumed.
+
+Clock drift between the DAQ and the host is not modelled by the coarse alignment (the DAQ's
+crystal against the host's: ~20 ppm is 1.2 ms after a minute); the data's delay, fitted per
+input, absorbs the part of it that is constant over an input.
 """
 
 from __future__ import annotations
@@ -39,7 +78,16 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["ClockFit", "fit_lower_envelope", "lagrange4", "phase_error_deg"]
+__all__ = [
+    "ClockFit",
+    "DelayBudget",
+    "DelayFit",
+    "fit_delay",
+    "fit_lower_envelope",
+    "lagrange4",
+    "mass_line_basis",
+    "phase_error_deg",
+]
 
 
 @dataclass(frozen=True)
@@ -167,3 +215,198 @@ def lagrange4(y: NDArray[np.float64], u: NDArray[np.float64]) -> NDArray[np.floa
 def phase_error_deg(delay_s: float, frequency_hz: float) -> float:
     """``360 f δ``: the FRF phase error, degrees, of a time error ``δ`` s at ``f`` Hz."""
     return 360.0 * frequency_hz * abs(delay_s)
+
+
+@dataclass(frozen=True)
+class DelayFit:
+    """The residual delay of a stream's FRFs (:func:`fit_delay`): ``H_measured = H e^{−iωτ}``.
+
+    Attributes
+    ----------
+    delay_s : float
+        ``τ``, s: the stream lags the reference by ``τ`` (multiply its FRFs by ``e^{iωτ}``).
+    sigma_s : float
+        Statistical 1σ of ``τ`` (curvature of the cost, residual variance), s.
+    spread_s : float
+        Half the difference of the estimates on the lower and upper half of the lines, s: the
+        model's misfit (0 when the lines are too few to split).
+    n_lines, n_frfs : int
+        Lines and FRFs fitted.
+    misfit : float
+        ``√(J(τ̂) / Σ w |H|²)``: the weighted residual relative to the data.
+    """
+
+    delay_s: float
+    sigma_s: float
+    spread_s: float
+    n_lines: int
+    n_frfs: int
+    misfit: float
+
+    @property
+    def uncertainty_s(self) -> float:
+        """``√(σ² + spread²)``, s: what the phase budget is checked against."""
+        return float(np.hypot(self.sigma_s, self.spread_s))
+
+
+@dataclass(frozen=True)
+class DelayBudget:
+    """What a stream on its own clock asks of the data's delay fit, and its limit.
+
+    Attributes
+    ----------
+    search_s : float
+        ``|τ|`` is sought within this, s (the coarse alignment's uncertainty, with margin).
+    lo_hz : float
+        The fit's lowest line, Hz (above the suspension's modes); its highest is ``band_hz``.
+    band_hz, max_phase_deg : float
+        The fit's uncertainty may cost at most ``max_phase_deg`` of FRF phase at ``band_hz``.
+    label : str
+        The device, for messages.
+    """
+
+    search_s: float
+    lo_hz: float
+    band_hz: float
+    max_phase_deg: float
+    label: str = "stream"
+
+
+_GOLDEN = (np.sqrt(5.0) - 1.0) / 2.0
+
+
+def mass_line_basis(
+    frequencies_hz: NDArray[np.float64], n_terms: int = 3
+) -> NDArray[np.complex128]:
+    """Regressors ``(ω0 / iω)^n``, ``n = 0 .. n_terms − 1`` (``ω0`` the lines' geometric mean):
+    equation (2) of the module doc, for a cell with no reference FRFs at hand.
+
+    Returns
+    -------
+    ndarray, shape (n_lines, n_terms)
+    """
+    f = np.asarray(frequencies_hz, dtype=float)
+    omega = 2 * np.pi * f
+    omega0 = 2 * np.pi * float(np.sqrt(f.min() * f.max()))
+    return np.stack([(omega0 / (1j * omega)) ** n for n in range(n_terms)], axis=1)
+
+
+def _fit_tau(
+    f: NDArray[np.float64],
+    H: NDArray[np.complex128],
+    X: NDArray[np.complex128],
+    sw: NDArray[np.float64],
+    search_s: float,
+    center_s: float = 0.0,
+) -> tuple[float, float, float, float]:
+    """``τ̂``, ``σ_τ``, ``J(τ̂)`` and ``Σ w |H|²`` on lines ``f`` (``sw = √w`` per line), ``τ``
+    sought within ``center_s ± search_s``."""
+    omega = 2 * np.pi * f
+    n = f.size
+    # the real least-squares problem of (1): rows Re, Im of every line, columns the regressors'
+    # real coefficients; its range's orthonormal basis Q does not depend on τ
+    R = np.concatenate([X.real * sw[:, None], X.imag * sw[:, None]], axis=0)
+    U, sv, _ = np.linalg.svd(R, full_matrices=False)
+    rank = int((sv > sv[0] * 1e-10).sum()) if sv.size and sv[0] > 0 else 0
+    Q = U[:, :rank]
+    total = float(np.sum(sw[:, None] ** 2 * np.abs(H) ** 2))
+
+    def cost(tau: NDArray[np.float64]) -> NDArray[np.float64]:
+        out = np.empty(tau.size)
+        for i0 in range(0, tau.size, 32):
+            t = tau[i0 : i0 + 32]
+            G = H[None] * np.exp(1j * omega[None, :, None] * t[:, None, None])  # (T, L, M)
+            g = np.concatenate([G.real, G.imag], axis=1) * np.concatenate([sw, sw])[None, :, None]
+            p = np.einsum("lr,tlm->trm", Q, g)
+            out[i0 : i0 + 32] = np.einsum("tlm,tlm->t", g, g) - np.einsum("trm,trm->t", p, p)
+        return out
+
+    step = 0.05 / float(f.max())  # 18° of phase at the top line between grid points
+    step = min(step, search_s / 4)
+    grid = center_s + np.arange(-search_s, search_s + step, step)
+    J = cost(grid)
+    i = int(np.argmin(J))
+    a, b = grid[max(i - 1, 0)], grid[min(i + 1, grid.size - 1)]
+    while b - a > 1e-6 * step:
+        c, d = b - _GOLDEN * (b - a), a + _GOLDEN * (b - a)
+        jc, jd = cost(np.array([c, d]))
+        if jc < jd:
+            b = d
+        else:
+            a = c
+    tau = 0.5 * (a + b)
+    h = 0.01 * step
+    jm, j0, jp = cost(np.array([tau - h, tau, tau + h]))
+    curv = (jp - 2 * j0 + jm) / h**2
+    dof = max(1, 2 * n * H.shape[1] - rank * H.shape[1] - 1)
+    s2 = max(j0, 0.0) / dof
+    sigma = float(np.sqrt(2 * s2 / curv)) if curv > 0 else float("inf")
+    return float(tau), sigma, float(j0), total
+
+
+def fit_delay(
+    frequencies_hz: NDArray[np.float64],
+    H: NDArray[np.complex128],
+    weights: NDArray[np.float64],
+    *,
+    search_s: float,
+    regressors: NDArray[np.complex128] | None = None,
+) -> DelayFit:
+    """The delay ``τ`` common to FRFs ``H`` of a stream against references on another clock:
+    ``H_m(f) e^{iωτ} = Σ_k c_mk X_k(f)`` with real ``c_mk`` (equation (1) of the module doc),
+    fitted by weighted least squares over the lines, with its uncertainty and the half-bands'
+    disagreement.
+
+    Parameters
+    ----------
+    frequencies_hz : ndarray, shape (n_lines,)
+        Positive.
+    H : ndarray, shape (n_lines, n_frfs)
+        The stream's FRFs (e.g. a cell's loads per unit hammer force); scale each column to a
+        comparable size (the cost sums them).
+    weights : ndarray, shape (n_lines,)
+        Inverse variance of each line (relative), ≥ 0.
+    search_s : float
+        ``|τ|`` is sought within this, s (the coarse alignment's uncertainty, with margin).
+    regressors : ndarray, shape (n_lines, n_regressors), optional
+        ``X_k`` on the reference's clock (the DAQ's responses to the same input and a column of
+        ones: equation (1)); None: :func:`mass_line_basis` (equation (2)).
+
+    Raises
+    ------
+    ValueError
+        Shapes disagree, or fewer usable lines than the fit needs.
+    """
+    f = np.asarray(frequencies_hz, dtype=float)
+    Hc = np.asarray(H, dtype=complex)
+    w = np.asarray(weights, dtype=float)
+    X = mass_line_basis(f) if regressors is None else np.asarray(regressors, dtype=complex)
+    if Hc.ndim != 2 or Hc.shape[0] != f.size or w.shape != f.shape or X.shape[0] != f.size:
+        raise ValueError(
+            f"fit_delay: H {Hc.shape}, weights {w.shape}, regressors {X.shape} for {f.size} "
+            "lines; give (n_lines, ...) arrays for the lines given"
+        )
+    ok = np.isfinite(Hc).all(axis=1) & np.isfinite(X).all(axis=1) & np.isfinite(w) & (f > 0)
+    f, Hc, X, w = f[ok], Hc[ok], X[ok], np.clip(w[ok], 0.0, None)
+    need = X.shape[1] + 2
+    if f.size < need or not search_s > 0:
+        raise ValueError(
+            f"fit_delay: {f.size} usable lines, search {search_s} s; give at least {need} "
+            "lines with finite FRFs and a positive search range"
+        )
+    sw = np.sqrt(w)
+    tau, sigma, j0, total = _fit_tau(f, Hc, X, sw, search_s)
+    spread = 0.0
+    if f.size >= 2 * need:
+        # each half refines the whole band's estimate (its own search would find the far
+        # minima of a half's weaker cost); a half's minimum at the edge of its window counts
+        # as that far off
+        half = f < np.median(f)
+        near = max(20 * sigma, 0.05 / float(f.max())) if np.isfinite(sigma) else search_s
+        got = []
+        for h in (half, ~half):
+            t_h = _fit_tau(f[h], Hc[h], X[h], sw[h], near, tau)[0]
+            got.append(tau + near if abs(t_h - tau) > 0.99 * near else t_h)
+        spread = 0.5 * abs(got[0] - got[1])
+    misfit = float(np.sqrt(max(j0, 0.0) / total)) if total > 0 else 0.0
+    return DelayFit(tau, sigma, spread, int(f.size), int(Hc.shape[1]), misfit)

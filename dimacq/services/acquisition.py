@@ -69,6 +69,7 @@ from dimacq.model.impact import ImpactSettings
 from dimacq.pipeline.frf_estimation import (
     double_hit_mask,
 )
+from dimacq.services.data_alignment import DataAligner
 from dimacq.services.impact_result import (
     OPERATOR_OVERRIDE,
     OPERATOR_REDO,
@@ -416,6 +417,9 @@ class ImpactSession(ImpactStream):
         self._lost = [0] * n_in
         self._rearmed = False
         self._start_run()
+        aligner = DataAligner(
+            self.loadcells, [b.data.shape[0] for b in self._lc_bufs], len(self.response_rows)
+        )
         # Streamed: an input's FRF is estimated as soon as its averages are in, and its records
         # are dropped (memory: one input's records, not the whole test's).
         H_all: NDArray[np.complex128] | None = None
@@ -539,6 +543,10 @@ class ImpactSession(ImpactStream):
                 n_accepted.append(len(records[j]))
                 if len(records[j]) >= need:  # fewer: incomplete, no FRF (coherence would be 1)
                     f_j, H_j, coh_j = self._frf(records[j], fs)
+                    # a load cell on its own clock: its residual delay fitted from the data
+                    where = f"input {self.input_names[j]}"
+                    for msg in aligner.align(j, f_j, H_j, coh_j, where):
+                        self._event({"device": "loadcell", "kind": "alignment", "message": msg})
                     if H_all is None:  # filled input by input: no stacking copy at the end
                         H_all = np.zeros((*H_j.shape, n_in), dtype=H_j.dtype)
                         coh_all = np.zeros((*coh_j.shape, n_in))
@@ -599,6 +607,8 @@ class ImpactSession(ImpactStream):
                 "rejected reasons in the acquisition file); fix the cause and repeat those inputs"
             )
         assert H_all is not None and coh_all is not None and freqs is not None
+        for msg in aligner.finish(freqs, H_all):  # inputs that take the run's delay
+            self._event({"device": "loadcell", "kind": "alignment", "message": msg})
         kept = [j for j in range(n_in) if j not in set(short)]
         if short:  # drop the incomplete inputs' empty columns
             H_all, coh_all = H_all[:, :, kept], coh_all[:, :, kept]

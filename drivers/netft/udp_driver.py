@@ -15,14 +15,27 @@ the host's (offset and rate: the sensor's crystal error is fitted), and the acqu
 the window around the DAQ's start request (:meth:`daq_clock_started`), which holds DAQ sample 0.
 DAQ sample ``k`` is then a fractional record index, interpolated by a 4-point Lagrange cubic
 (the method, its error and its budget: :mod:`dimacq.pipeline.stream_alignment`). What the
-alignment cannot know — half the DAQ start window, the envelope's scatter and the network's
-latency floor ``latency_floor_s`` — costs ``360° f δ`` of FRF phase at frequency ``f``: on the
-first block the driver refuses the run (a :class:`~dimacq.errors.SetupError`) when that exceeds
-``max_phase_deg`` at ``band_hz``, and marks later blocks ``drift`` (rejecting their averages)
-if it degrades. On a real network and DAQ the window is a USB request (~0.1–1 ms) and the DAQ's
-own crystal drifts against the host's (not fitted: ~20 ppm is 1.2 ms per minute): expect a
-real rig to be refused above a few tens of Hz, and use ``netft-can`` (requests on the DAQ's
-clock) or ``daq-channels`` there.
+host's clock cannot know — half the DAQ start window, the envelope's scatter and the network's
+latency floor ``latency_floor_s`` — is its uncertainty ``δ``; it costs ``360° f δ`` of FRF phase
+at frequency ``f`` (~100 µs: 36° at 1 kHz), so the host's clock is a coarse time base. Two ways
+to finish (``time_base``):
+
+- ``"data"`` (the rig file's default): the residual delay is estimated from the data, per input,
+  by the acquisition (the hammer and the accelerometers are on the DAQ, the cell's loads here:
+  the delay shows as a phase ``−2πfτ`` on every cell FRF, fitted against the rigid-body law
+  that makes those loads real combinations of the accelerometers' FRFs and the hammer's:
+  :func:`~dimacq.pipeline.stream_alignment.fit_delay`), and that estimate's uncertainty is what
+  the phase budget ``max_phase_deg`` at ``band_hz`` is checked against (:meth:`delay_budget`).
+  Here the driver refuses only a coarse alignment too poor to be refined (``δ`` above
+  :data:`MAX_COARSE_S`) and marks later blocks ``drift`` if it becomes that poor;
+- ``"host"``: the host's clock is the time base: on the first block the driver refuses the run
+  (a :class:`~dimacq.errors.SetupError`) when ``360° band_hz δ`` exceeds ``max_phase_deg``, and
+  marks later blocks ``drift`` (rejecting their averages) if it degrades. On a real network and
+  DAQ the window is a USB request (~0.1–1 ms) and the DAQ's own crystal drifts against the
+  host's (~20 ppm is 1.2 ms per minute): expect a real rig to be refused above a few tens of Hz.
+
+The Net F/T's manual offers no sync input or trigger for RDT (``ft_sequence`` counts its own
+clock only); ``netft-can`` (requests on the DAQ's clock) or ``daq-channels`` need no alignment.
 
 A jump of ``rdt_sequence`` is a lost datagram: counted in :attr:`NetFtUdp.lost`, logged, and
 every DAQ sample whose four surrounding records are not all in is NaN with a ``gap`` event (the
@@ -48,6 +61,7 @@ from dimacq.drivers.stream import false_runs
 from dimacq.errors import DeviceError, DeviceTimeoutError, ProtocolError, SetupError
 from dimacq.pipeline.stream_alignment import (
     ClockFit,
+    DelayBudget,
     fit_lower_envelope,
     lagrange4,
     phase_error_deg,
@@ -63,6 +77,12 @@ _QUIET_S = 0.1
 _SO_TIMESTAMPNS = 35
 #: host seconds per window of the lower-envelope fit
 _WINDOW_S = 0.2
+#: the coarsest host-clock alignment the data's delay fit refines, s of the lab's time: beyond
+#: it the cell's response moves by more than a few DAQ samples against the hammer's record
+#: window (its pre-trigger, its exponential window), and the fit's search grows long
+MAX_COARSE_S = 0.01
+#: the data's delay is sought within this many coarse uncertainties (and at least 1 ms)
+_SEARCH_FACTOR = 4.0
 
 
 def _empty(first: int) -> LoadCellBlock:
@@ -168,6 +188,11 @@ class NetFtUdp(WireDriver):
         and the FRF phase error allowed there.
     latency_floor_s : float
         The network's least latency, s (unknown to the host; in the budget).
+    time_base : {"host", "data"}
+        What the phase budget is checked against: the host clock's uncertainty (the driver
+        refuses), or the data's delay fit (the acquisition refuses; see the module doc).
+    fit_lo_hz : float
+        ``"data"``: the lowest line of the delay fit, Hz.
     """
 
     def __init__(
@@ -184,7 +209,14 @@ class NetFtUdp(WireDriver):
         band_hz: float | None = None,
         max_phase_deg: float = 2.0,
         latency_floor_s: float = 20e-6,
+        time_base: str = "host",
+        fit_lo_hz: float = 50.0,
     ) -> None:
+        if time_base not in ("host", "data"):
+            raise SetupError(
+                f"{label}: time base {time_base!r}; give netft_time_base = 'data' (the delay "
+                "fitted from the data) or 'host' (the host's clock)"
+            )
         ratio = ft_rate_hz / rdt_rate_hz if rdt_rate_hz > 0 else 0.0
         if rdt_rate_hz <= 0 or ratio < 1 or abs(ratio - round(ratio)) > 1e-9:
             raise SetupError(
@@ -215,6 +247,8 @@ class NetFtUdp(WireDriver):
         self._band_hz = band_hz
         self.max_phase_deg = float(max_phase_deg)
         self.latency_floor_s = float(latency_floor_s)
+        self.time_base = time_base
+        self.fit_lo_hz = float(fit_lo_hz)
         self.streaming = False
         self._run: _Run | None = None
         self._daq_window: tuple[float, float] | None = None
@@ -468,9 +502,28 @@ class NetFtUdp(WireDriver):
         return 0.32 * (self.sample_rate_hz or 0.0)
 
     def alignment_phase_deg(self) -> float:
-        """The phase error, degrees, that the alignment's uncertainty costs at ``band_hz``."""
+        """The phase error, degrees, that the host clock's uncertainty costs at ``band_hz``."""
         _, delta = self._positions(np.zeros(1))
         return phase_error_deg(delta, self.band_hz)
+
+    def delay_budget(self) -> DelayBudget | None:
+        """With ``time_base = "data"``: what the acquisition's delay fit needs and is checked
+        against (None with ``"host"``: the samples are final)."""
+        if self.time_base != "data":
+            return None
+        delta = MAX_COARSE_S
+        if self._run is not None and self._run.n_arrivals and self._daq_window is not None:
+            delta = self._positions(np.zeros(1))[1]
+        return DelayBudget(
+            search_s=max(_SEARCH_FACTOR * delta, 1e-3),
+            lo_hz=self.fit_lo_hz,
+            band_hz=self.band_hz,
+            max_phase_deg=self.max_phase_deg,
+            label=self.name,
+        )
+
+    def _too_coarse(self, delta: float, phase: float) -> bool:
+        return delta > MAX_COARSE_S if self.time_base == "data" else phase > self.max_phase_deg
 
     def read_until(self, end_sample: int, timeout_s: float | None = None) -> LoadCellBlock:
         """DAQ samples up to ``end_sample − 1``, resampled from the records around them (waits
@@ -513,7 +566,14 @@ class NetFtUdp(WireDriver):
                 phase,
                 self.band_hz,
             )
-            if phase > self.max_phase_deg:
+            if self.time_base == "data" and delta > MAX_COARSE_S:
+                raise SetupError(
+                    f"{self.name}: the host's clock aligns its records to the DAQ's within only "
+                    f"{1e3 * delta:.1f} ms, more than the {1e3 * MAX_COARSE_S:g} ms the data's "
+                    "delay fit refines (a loaded host, a slow network?); lower the load or "
+                    "read the cell as loadcell = 'netft-can' or 'daq-channels'"
+                )
+            if self.time_base == "host" and phase > self.max_phase_deg:
                 raise SetupError(
                     f"{self.name}: its records are aligned to the DAQ's clock within only "
                     f"{1e6 * delta:.0f} us, {phase:.1f} deg of FRF phase at {self.band_hz:g} Hz "
@@ -549,7 +609,7 @@ class NetFtUdp(WireDriver):
                     "status code); its samples are marked overload",
                 )
             )
-        if phase > self.max_phase_deg:
+        if self._too_coarse(delta, phase):
             events.append(
                 LoadCellEvent(
                     "drift",

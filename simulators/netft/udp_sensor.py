@@ -9,9 +9,13 @@ time-lapse), its internal counter ``ft_sequence`` at ``ft_rate_hz`` since it was
 records at ``rdt_rate_hz``; record ``j`` of a stream is its state at its own instant, and is sent
 once that instant has passed (buffered: with the records before it). What it measures is the
 lab's bridge outputs at the lab's physical time of that instant — the DAQ's free-running clock
-gives the world's sample position at a wall time (fractional; the world interpolated by a
-4-point cubic between its samples) — through the sensor's own calibration, in its counts per
-unit. Nothing of the DAQ's clock reaches the driver: only the records, their sequence numbers
+gives the world's sample position at a wall time (fractional) — through the sensor's own
+calibration, in its counts per unit. The world exists as samples at the DAQ's rate; between them
+it is interpolated band-limited, as a real sensor samples the continuous signal: a 16-tap
+Kaiser-windowed sinc (β = 8, :func:`_sinc_weights`), within 0.05 % and 0.01° up to 0.33 × the
+DAQ's rate. (The 4-point cubic it replaced lost up to 27 % of the amplitude and ±5° of phase at
+0.32 × the rate, the automatic band's top, varying with the instant's fraction: the data's delay
+fit read it as a delay that changes across the band.) Nothing of the DAQ's clock reaches the driver: only the records, their sequence numbers
 and when they arrive. ``drop`` lists ``rdt_sequence`` numbers whose datagram is lost (once
 each); ``loss_rate`` loses datagrams at random.
 """
@@ -37,6 +41,19 @@ __all__ = ["NetFtUdpSim"]
 
 #: how far ahead of its last record's instant a datagram is measured, wall s
 _AHEAD_S = 0.0004
+#: the band-limited interpolator: taps i − 7 .. i + 8 around the world's sample i, Kaiser β
+_TAPS = np.arange(-7, 9)
+_BETA = 8.0
+
+
+def _sinc_weights(d: np.ndarray) -> np.ndarray:
+    """Weights of the world's samples at distances ``d = x − (i + k)`` (shape (n, 16)): a
+    Kaiser-windowed sinc ``sinc(d) I0(β √(1 − (d/8.5)²)) / I0(β)``, each row normalised to a
+    sum of 1 (exact at DC)."""
+    win = np.i0(_BETA * np.sqrt(np.clip(1.0 - (d / 8.5) ** 2, 0.0, None))) / np.i0(_BETA)
+    w = np.sinc(d) * win
+    return w / w.sum(axis=1, keepdims=True)
+
 
 log = logging.getLogger(__name__)
 
@@ -141,18 +158,11 @@ class NetFtUdpSim:
             x = pos + (walls - walls[0]) * per_s
             # before the run's first pulse the world stands where the last run left it
             x = np.maximum(x, st.epoch)
-            i = np.floor(x).astype(np.int64)
-            lo = max(0, int(i.min()) - 1)
-            y = self.source.read(self.gauges, lo, int(i.max()) + 3 - lo)
-        q = (x - i)[None, :]
-        k = i - lo
-        top = y.shape[1] - 1
-        return (
-            -q * (q - 1) * (q - 2) / 6 * y[:, np.maximum(k - 1, 0)]
-            + (q + 1) * (q - 1) * (q - 2) / 2 * y[:, k]
-            - (q + 1) * q * (q - 2) / 2 * y[:, np.minimum(k + 1, top)]
-            + (q + 1) * q * (q - 1) / 6 * y[:, np.minimum(k + 2, top)]
-        )
+            idx = np.floor(x).astype(np.int64)[:, None] + _TAPS[None, :]  # (n, 16)
+            lo = max(0, int(idx.min()))
+            y = self.source.read(self.gauges, lo, int(idx.max()) + 1 - lo)
+        w = _sinc_weights(x[:, None] - idx)
+        return np.einsum("gnk,nk->gn", y[:, np.clip(idx - lo, 0, y.shape[1] - 1)], w)
 
     def _counts(self, walls: np.ndarray) -> np.ndarray:
         loads = self.C @ (self._read(walls) - self.bias_g[:, None])

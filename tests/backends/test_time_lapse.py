@@ -164,3 +164,25 @@ def test_real_time_path(tmp_path: Path) -> None:
     assert lag.kept_up, lag.describe()
     assert np.isfinite(frf.H).all() and frf.H.shape[2] == 1 and accepted[-1]
     assert wall >= 2048 / 2048.0  # one record of real time, at least
+
+
+def test_the_load_cell_backend_counts_in_the_probe(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A backend of several CAN frames per sample is probed with as many (the probe that saw one
+    chose 25x for netft-can, which the host could not sustain at 8x); RDT's simulator is capped
+    (the host's clock is its coarse time base)."""
+    from dimacq.config import default_config_file
+
+    seen: list[int] = []
+
+    def fake(n_channels: int, n_cells: int, rate: float) -> HostMeasurement:
+        seen.append(n_cells)
+        return HostMeasurement(0.001, 0.001, 0.5)  # 167x sustainable
+
+    monkeypatch.setattr(tl, "measure_host", fake)
+    rig = default_config_file().parent / "rig.toml"
+    assert tl.rig_time_lapse({}, rig).scale == 40.0
+    assert tl.rig_time_lapse({}, rig, "netft-can-simulated").scale == 40.0
+    assert tl.rig_time_lapse({}, rig, "cia404-simulated").scale == 40.0
+    assert seen == [1, 5, 7]  # the shipped rig's one cell, in frames per sample
+    assert tl.rig_time_lapse({}, rig, "netft-udp-simulated").scale == 2.0
+    assert tl.rig_time_lapse({"daq_time_scale": 6}, rig, "netft-udp-simulated").scale == 6.0

@@ -190,7 +190,9 @@ def run(args: argparse.Namespace) -> int:
     lapse = None
     imperfections = dict(settings.simulation_imperfections)
     if not args.model_frfs:
-        lapse = rig_time_lapse(settings.simulation_imperfections, settings.rig_path)
+        lapse = rig_time_lapse(
+            settings.simulation_imperfections, settings.rig_path, str(settings.loadcell)
+        )
         imperfections["daq_time_scale"] = lapse.scale
         settings = settings.model_copy(update={"simulation_imperfections": imperfections})
         say(f"time-lapse: {lapse.describe()}")
@@ -419,6 +421,8 @@ def _demo(
                 "daq-channels": "its bridges on inputs of the DAQ",
                 "canopen-simulated": "load cell (CANopen)",
                 "netft-can-simulated": "ATI Net F/T (CAN)",
+                "netft-udp-simulated": "ATI Net F/T (RDT over UDP)",
+                "cia404-simulated": "CiA 404 amplifier (CANopen)",
             }.get(b.get("loadcell", ""), "load cell (CAN)")
             daq = b.get("daq", "?")
             usb = "Measurement Computing USB-1808X units (USB)"
