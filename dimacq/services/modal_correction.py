@@ -109,6 +109,7 @@ class ModalCorrection:
                 "modes_kept_hz": [p.frequency_hz for p in fit.poles if not p.elastic],
                 "fit_range_hz": list(fit.fit_range_hz),
                 "fit_error_rel": fit.fit_error,
+                "fit_quality": fit.quality(),
             }
         )
         if self.size_band is not None and self.band_frequencies_hz is not None:
@@ -144,8 +145,8 @@ def modal_fit(frf: FrfData, setup: TestSetup) -> ModalFit:
 
 def _subtracted(frf: FrfData, fit: ModalFit) -> FrfData:
     """The FRFs minus the fitted elastic-mode terms (reactions keep their static share), on
-    the lines of the fit's range: the first estimate, for the mass matrix the shapes need."""
-    lo, hi = fit.fit_range_hz
+    the lines where the fit holds: the first estimate, for the mass matrix the shapes need."""
+    lo, hi = fit.band_range_hz
     return frf.replace(H=frf.H - fit.correction).band(lo, hi)
 
 
@@ -158,8 +159,9 @@ def _mass_matrix(data: FrfData, setup: TestSetup) -> FloatArray:
 def corrected(
     frf: FrfData, fit: ModalFit, setup: TestSetup, n_iter: int = 2
 ) -> tuple[FrfData, ComplexArray]:
-    """The FRFs with the elastic motion taken out of the accelerances, on the fit's lines, and
-    the correction (n_lines, n_outputs, n_inputs) over the whole span.
+    """The FRFs with the elastic motion taken out of the accelerances, on the lines where the
+    fit holds (``fit.band_range_hz``: within the FRFs' clean span, the LSFD residual within its
+    noise), and the correction (n_lines, n_outputs, n_inputs) over the whole span.
 
     Each elastic mode's displacement residues ``A_r`` hold its elastic shape and the rigid-body
     motion ``U_r`` the supports give it; (1) of :mod:`dimacq.pipeline.modal` at the pole gives
@@ -174,7 +176,7 @@ def corrected(
     ``(f_suspension / f_elastic)²``: 0.4 % mass and 10 mm CG with the hull modes at 17 Hz,
     noise-free; projected: 0.001 %, 0.01 mm).
     """
-    lo, hi = fit.fit_range_hz
+    lo, hi = fit.band_range_hz
     M = _mass_matrix(_subtracted(frf, fit), setup)
     for _ in range(n_iter):
         H = _projected(frf, fit, setup, M)
@@ -201,7 +203,11 @@ def _projected(
     pos = {int(o): k for k, o in enumerate(fit.kind_index["acceleration"])}
     rows = np.array([pos[int(o)] for o in acc], dtype=np.intp)
     res = fit.residues[:, fit.kind_index["acceleration"]] if residues_acc is None else residues_acc
-    top = fit.upper_acc[-1][fit.kind_index["acceleration"]] if upper_acc is None else upper_acc
+    top = (
+        fit.upper_acc[fit.top_line][fit.kind_index["acceleration"]]
+        if upper_acc is None
+        else upper_acc
+    )
     up = np.real(top[rows])
     u_up, sv_up, _ = np.linalg.svd(up, full_matrices=False)
     shapes = [u_up[:, sv_up > UPPER_RANK_RATIO * sv_up[0]] if sv_up[0] > 0 else u_up[:, :0]]
