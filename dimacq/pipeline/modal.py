@@ -85,7 +85,7 @@ is small wherever ``G`` is smooth on the line scale; the RMS over the accelerome
 to that of ``H`` on the line, and a running median over :data:`NOISE_WINDOW` lines (which rejects
 the few lines of a resonance, where ``Δ²G`` is not small), give the relative random error
 ``ε_l``. The span's noisy top is dropped: the fit range ends at the last line whose ``ε_l`` is
-within :data:`NOISE_RATIO` of the cleanest lines' (their 10th percentile; 20 dB,
+within :data:`NOISE_RATIO` of the cleanest lines' (the least ``ε_l``, itself a median; 20 dB,
 the usual limit of a hammer's force-spectrum drop over the band of interest) or below
 :data:`NOISE_FLOOR`. The LSCF orders are capped at an eighth of its lines.
 After the fit, the relative LSFD residual of the accelerances per line ``r_l`` (running median
@@ -227,7 +227,7 @@ def clean_span(noise: FloatArray) -> tuple[int, int, float]:
     finite = noise[np.isfinite(noise)]
     if finite.size == 0:
         raise DataError("the FRFs are zero or not finite on every line; nothing to fit")
-    limit = max(NOISE_RATIO * float(np.percentile(finite, 10)), NOISE_FLOOR)
+    limit = max(NOISE_RATIO * float(np.min(finite)), NOISE_FLOOR)
     ok = np.nonzero(noise <= limit)[0]
     return 0, int(ok[-1]), limit
 
