@@ -89,10 +89,13 @@ within :data:`NOISE_RATIO` of the cleanest lines' (the least ``ε_l``, itself a 
 the usual limit of a hammer's force-spectrum drop over the band of interest) or below
 :data:`NOISE_FLOOR`. The LSCF orders are capped at an eighth of its lines.
 After the fit, the relative LSFD residual of the accelerances per line ``r_l`` (running median
-over 9 lines) is compared with ``ε_l``: the fit holds where ``r_l ≤ max(``:data:`FIT_HOLDS` ``ε_l,``
-:data:`FIT_RESIDUAL_LIMIT` ``)`` (the model explains the line to within its noise, or to 1 %),
-and the corrected FRFs are given to the DIM only over the longest run of such lines
-(``ModalFit.band_range_hz``).
+over 9 lines) is compared with ``ε_l`` and with its own median over the fitted lines ``r̃``: the
+fit holds where ``r_l ≤`` :data:`FIT_HOLDS` ``· max(ε_l, r̃)`` — the model explains the line
+to within its noise, or no worse than it explains the span (a mode just above the span, which
+only the residual terms follow, raises ``r`` everywhere; what is left out are the lines where
+the model fails locally: an unmodelled mode, the noisy top) — and the corrected FRFs are given
+to the DIM only over the longest run of such lines (``ModalFit.band_range_hz``); the DIM's own
+band selection then keeps the lines where the corrected accelerances move rigidly.
 
 Uncertainty of the fit
 ----------------------
@@ -150,11 +153,8 @@ NOISE_RATIO = 10.0
 #: ratio: 0.1 % of the FRF, far below what moves the DIM (noise-free model FRFs are kept whole).
 NOISE_FLOOR = 1e-3
 #: The fit holds on a line whose relative LSFD residual is at most this multiple of its noise
-#: (:func:`frf_noise`, which lines correlated by an exponential window make an underestimate) ...
+#: (:func:`frf_noise`) or of the fit's median residual over the fitted lines, whichever is larger.
 FIT_HOLDS = 3.0
-#: ... or at most this share of the FRF: a model that explains the line to 1 % moves the
-#: corrected accelerances by less than that (the issue's limits: 0.3 % mass, 1 % moments).
-FIT_RESIDUAL_LIMIT = 0.01
 
 
 @dataclass(frozen=True)
@@ -362,7 +362,7 @@ class ModalFit:
     fit_range_hz : (lo, hi)
         The lines fitted: above the suspension, within the FRFs' clean span.
     band_range_hz : (lo, hi)
-        Where the fit holds (``r_l ≤ max(FIT_HOLDS ε_l, FIT_RESIDUAL_LIMIT)``, the longest run): the
+        Where the fit holds (``r_l ≤ FIT_HOLDS · max(ε_l, median r)``, the longest run): the
         corrected FRFs' lines.
     noise_rel, residual_rel : ndarray, shape (n_lines,)
         ``ε_l`` of the accelerances (:func:`frf_noise`) and the LSFD residual per line relative to
@@ -397,21 +397,20 @@ class ModalFit:
             "noise_limit_rel": self.noise_limit,
             "fit_range_hz": list(self.fit_range_hz),
             "holds_range_hz": list(self.band_range_hz),
-            "holds_limit": {"noise_multiple": FIT_HOLDS, "residual_rel": FIT_RESIDUAL_LIMIT},
+            "holds_limit": FIT_HOLDS,
         }
         if self.noise_rel is not None and self.residual_rel is not None:
             f = self.frequencies_hz
             lo, hi = self.fit_range_hz
             sel = (f >= lo) & (f <= hi) & np.isfinite(self.residual_rel)
-            ratio = self.residual_rel[sel] / np.maximum(
-                self.noise_rel[sel], FIT_RESIDUAL_LIMIT / FIT_HOLDS
-            )
+            r = self.residual_rel[sel]
+            ratio = r / np.maximum(self.noise_rel[sel], np.median(r)) if r.size else r
             out.update(
                 {
                     "lines_fitted": int(sel.sum()),
                     "lines_held": int(np.sum(ratio <= FIT_HOLDS)),
-                    "residual_to_noise_median": float(np.median(ratio)) if ratio.size else None,
-                    "residual_to_noise_max": float(np.max(ratio)) if ratio.size else None,
+                    "residual_median_rel": float(np.median(r)) if r.size else None,
+                    "residual_to_limit_max": float(np.max(ratio)) / FIT_HOLDS if r.size else None,
                 }
             )
         return out
@@ -610,7 +609,7 @@ def fit_modal_model(
     if band is None:
         raise DataError(
             f"the modal fit over {f_lo:.3g}–{f[i1]:.4g} Hz holds (LSFD residual ≤ {FIT_HOLDS:g}× "
-            f"the FRFs' noise or {100 * FIT_RESIDUAL_LIMIT:g} %) on too few consecutive lines for a DIM band: the FRFs do not "
+            "the FRFs' noise or the fit's median residual) on too few consecutive lines for a DIM band: the FRFs do not "
             "support a modal model there (modes missed, a nonlinear or noisy response)"
         )
     return ModalFit(
@@ -655,7 +654,7 @@ def _where_fit_holds(
     rel = median_filter_nearest(rel, min(9, rel.size))
     out = np.full(f.size, np.nan)
     out[fit_lines] = rel
-    holds = rel <= np.maximum(FIT_HOLDS * noise[fit_lines], FIT_RESIDUAL_LIMIT)
+    holds = rel <= FIT_HOLDS * np.maximum(noise[fit_lines], np.median(rel))
     a, b = _longest_run(holds)
     if a < 0 or b - a + 1 < 16:
         return out, None

@@ -509,7 +509,10 @@ def _analyse_modal(
         "modal_correction",
         "ok",
         f"elastic modes at {', '.join(f'{p.frequency_hz:.3g}' for p in fit.elastic_poles)} Hz "
-        f"taken out of the FRFs ({why}); correction up to {100 * float(np.max(size, initial=0)):.3g} "
+        f"taken out of the FRFs ({why}); fitted over {fit.fit_range_hz[0]:.3g}–"
+        f"{fit.fit_range_hz[1]:.4g} Hz (the FRFs' noise within {100 * fit.noise_limit:.2g} %), "
+        f"the fit holding over {fit.band_range_hz[0]:.4g}–{fit.band_range_hz[1]:.4g} Hz; "
+        f"correction up to {100 * float(np.max(size, initial=0)):.3g} "
         "% of the kept accelerances in the band",
     )
     return replace(
