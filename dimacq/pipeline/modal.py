@@ -234,15 +234,12 @@ def clean_span(noise: FloatArray) -> tuple[int, int, float]:
 
 def _longest_run(mask: NDArray[np.bool_]) -> tuple[int, int]:
     """First and last index (inclusive) of the longest run of True (-1, -1: none)."""
-    best, start, out = 0, -1, (-1, -1)
-    for i, v in enumerate(np.append(mask, False)):
-        if v and start < 0:
-            start = i
-        elif not v and start >= 0:
-            if i - start > best:
-                best, out = i - start, (start, i - 1)
-            start = -1
-    return out
+    d = np.diff(np.concatenate([[0], mask.astype(np.int8), [0]]))
+    starts, ends = np.nonzero(d == 1)[0], np.nonzero(d == -1)[0]
+    if starts.size == 0:
+        return -1, -1
+    k = int(np.argmax(ends - starts))
+    return int(starts[k]), int(ends[k] - 1)
 
 
 def lscf_poles(
