@@ -26,8 +26,8 @@ normal equations ``[Σ_o Re(T_o − S_oᴴ R⁻¹ S_o)] α = 0`` with ``X`` the 
 components (each pair scaled by its RMS, the leading left singular vectors of the stacked
 pairs × lines matrix): the same poles, a few "virtual" FRFs, and each of the hundreds of pairs
 still weighs in. Poles ``λ = ln z / Δt`` of the roots ``z`` of ``d``; the stabilisation over the
-orders keeps a pole seen (within 1 % in frequency and a damping ratio within a factor 1.5 or
-0.005) in at least half of the orders, damping 0 < ζ < 0.2.
+orders keeps a pole seen (within 1 % in frequency or one line, and a damping ratio within a
+factor 1.5 or 0.005) in at least half of the orders, damping 0 < ζ < 0.2.
 
 *Residues: least squares frequency domain (LSFD).* With the poles fixed every pair is linear in
 its residues. Accelerometer pairs (acceleration = s² × displacement, ``s = iω``) and reactions
@@ -73,6 +73,30 @@ accelerometer residue less its rigid share ``U_r = M⁻¹ W_r / λ_r²`` (the mo
 at P), and the accelerances are split per line into ``Ψ K + C η``; the reactions stay as
 measured. :func:`dimacq.services.modal_correction.corrected` does this (M from a first solve).
 
+Where the FRFs support a fit (the range, then where the fit holds)
+------------------------------------------------------------------
+An acquired span runs past what the test excites: above the hammer's spectrum the force is at its
+noise floor and the FRF is noise (the anti-alias filter's roll-off, the response noise over a
+vanishing force); below the suspension the same. The fit uses only the lines the data support,
+judged from the FRFs themselves (a UFF file carries no coherence; :func:`frf_noise`): with
+``H_l = G_l + e_l``, ``e`` white over the lines with a slowly varying variance ``σ_l²``, the second
+difference ``Δ²H_l = H_{l+1} − 2 H_l + H_{l−1}`` has ``E|Δ²e_l|² = 6 σ_l²`` while ``Δ²G_l ≈ G''Δf²``
+is small wherever ``G`` is smooth on the line scale; the RMS over the accelerometer pairs relative
+to that of ``H`` on the line, and a running median over :data:`NOISE_WINDOW` lines (which rejects
+the few lines of a resonance, where ``Δ²G`` is not small), give the relative random error
+``ε_l``. The span's noisy top is dropped: the fit range ends at the last line whose ``ε_l`` is
+within :data:`NOISE_RATIO` of the cleanest lines' (the least ``ε_l``, itself a median; 20 dB,
+the usual limit of a hammer's force-spectrum drop over the band of interest) or below
+:data:`NOISE_FLOOR`. The LSCF orders are capped at an eighth of its lines.
+After the fit, the relative LSFD residual of the accelerances per line ``r_l`` (running median
+over 9 lines) is compared with ``ε_l`` and with its own median over the fitted lines ``r̃``: the
+fit holds where ``r_l ≤`` :data:`FIT_HOLDS` ``· max(ε_l, r̃)`` — the model explains the line
+to within its noise, or no worse than it explains the span (a mode just above the span, which
+only the residual terms follow, raises ``r`` everywhere; what is left out are the lines where
+the model fails locally: an unmodelled mode, the noisy top) — and the corrected FRFs are given
+to the DIM only over the longest run of such lines (``ModalFit.band_range_hz``); the DIM's own
+band selection then keeps the lines where the corrected accelerances move rigidly.
+
 Uncertainty of the fit
 ----------------------
 Per pair the LSFD residual gives ``σ²`` and the coefficients' covariance ``σ² (BᵀB)⁻¹``;
@@ -96,6 +120,7 @@ __all__ = [
     "Pole",
     "elastic_shapes",
     "fit_modal_model",
+    "frf_noise",
     "lscf_poles",
     "project_out",
     "residue_draws",
@@ -119,6 +144,17 @@ CLEARANCE = 1.2
 EDGE = 0.97
 #: Largest damping ratio of a physical pole.
 MAX_DAMPING = 0.2
+#: Lines of the running median of the FRF noise estimate (:func:`frf_noise`).
+NOISE_WINDOW = 33
+#: The fit range ends where the FRFs' relative noise exceeds this multiple of the cleanest lines'
+#: (20 dB: a hammer's force spectrum that far below its plateau no longer drives the test).
+NOISE_RATIO = 10.0
+#: Relative noise (and LSFD residual) per line below which a line counts as clean whatever the
+#: ratio: 0.1 % of the FRF, far below what moves the DIM (noise-free model FRFs are kept whole).
+NOISE_FLOOR = 1e-3
+#: The fit holds on a line whose relative LSFD residual is at most this multiple of its noise
+#: (:func:`frf_noise`) or of the fit's median residual over the fitted lines, whichever is larger.
+FIT_HOLDS = 3.0
 
 
 @dataclass(frozen=True)
@@ -153,6 +189,57 @@ class Pole:
 def _pole_of(lam: complex) -> tuple[float, float]:
     wn = abs(lam)
     return wn / (2 * np.pi), -lam.real / wn
+
+
+def frf_noise(H: ComplexArray, window: int = NOISE_WINDOW) -> FloatArray:
+    """Relative random error per line of FRFs, from the FRFs alone (module docstring).
+
+    Parameters
+    ----------
+    H : ndarray, shape (n_lines, n_pairs)
+    window : int
+        Lines of the running median.
+
+    Returns
+    -------
+    ndarray, shape (n_lines,)
+        ``ε_l = median_window( RMS_pairs(Δ²H_l) / √6 / RMS_pairs(H_l) )``, the end lines taking
+        their neighbour's second difference.
+    """
+    from dimacq.pipeline._filters import median_filter_nearest
+
+    H = np.asarray(H, complex).reshape(H.shape[0], -1)
+    if H.shape[0] < 3:
+        return np.full(H.shape[0], np.inf)
+    d2 = np.sqrt(np.mean(np.abs(H[2:] - 2 * H[1:-1] + H[:-2]) ** 2, axis=1) / 6.0)
+    d2 = np.concatenate([d2[:1], d2, d2[-1:]])
+    mag = np.sqrt(np.mean(np.abs(H) ** 2, axis=1))
+    rel = d2 / np.where(mag > 0, mag, np.inf)
+    rel[mag == 0] = np.inf
+    return median_filter_nearest(rel, min(window, H.shape[0]))
+
+
+def clean_span(noise: FloatArray) -> tuple[int, int, float]:
+    """First and last line (inclusive) of the span the fit uses, and the noise limit: up to the
+    last line whose noise is within :data:`NOISE_RATIO` of the cleanest lines' or below
+    :data:`NOISE_FLOOR`. The span's bottom stays: the LSCF needs the suspension poles, whose
+    closely spaced peaks raise the estimate there, and the residues are fitted above them."""
+    finite = noise[np.isfinite(noise)]
+    if finite.size == 0:
+        raise DataError("the FRFs are zero or not finite on every line; nothing to fit")
+    limit = max(NOISE_RATIO * float(np.min(finite)), NOISE_FLOOR)
+    ok = np.nonzero(noise <= limit)[0]
+    return 0, int(ok[-1]), limit
+
+
+def _longest_run(mask: NDArray[np.bool_]) -> tuple[int, int]:
+    """First and last index (inclusive) of the longest run of True (-1, -1: none)."""
+    d = np.diff(np.concatenate([[0], mask.astype(np.int8), [0]]))
+    starts, ends = np.nonzero(d == 1)[0], np.nonzero(d == -1)[0]
+    if starts.size == 0:
+        return -1, -1
+    k = int(np.argmax(ends - starts))
+    return int(starts[k]), int(ends[k] - 1)
 
 
 def lscf_poles(
@@ -214,12 +301,15 @@ def lscf_poles(
         found.append(
             [(fr, ze) for fr, ze in poles if 0 < ze < MAX_DAMPING and lo <= fr <= hi * EDGE]
         )
-    return _stable(found, len(orders))
+    return _stable(found, len(orders), float(np.median(np.diff(f))))
 
 
-def _stable(found: list[list[tuple[float, float]]], n_orders: int) -> list[Pole]:
-    """Cluster the poles of every order (1 % in frequency, damping within a factor 1.5 or 0.005)
-    and keep the clusters seen in at least half of the orders (their medians)."""
+def _stable(
+    found: list[list[tuple[float, float]]], n_orders: int, line_hz: float = 0.0
+) -> list[Pole]:
+    """Cluster the poles of every order (1 % in frequency or one line, whichever is wider: a
+    pole a few lines above 0 Hz is not located better than a line; damping within a factor 1.5
+    or 0.005) and keep the clusters seen in at least half of the orders (their medians)."""
     allp = sorted((fr, ze, i) for i, ps in enumerate(found) for fr, ze in ps)
     clusters: list[list[tuple[float, float, int]]] = []
     for fr, ze, i in allp:
@@ -227,7 +317,7 @@ def _stable(found: list[list[tuple[float, float]]], n_orders: int) -> list[Pole]
         for c in clusters:
             fm = float(np.median([x[0] for x in c]))
             zm = float(np.median([x[1] for x in c]))
-            if abs(fr - fm) <= 0.01 * fm and abs(ze - zm) <= max(0.5 * zm, 0.005):
+            if abs(fr - fm) <= max(0.01 * fm, line_hz) and abs(ze - zm) <= max(0.5 * zm, 0.005):
                 if i not in {x[2] for x in c}:
                     best = c
                     break
@@ -266,6 +356,16 @@ class ModalFit:
         Per pair, the LSFD residual's standard deviation (real and imaginary parts).
     fit_error : float
         RMS of the LSFD residual over every pair, relative to each pair's RMS.
+    fit_range_hz : (lo, hi)
+        The lines fitted: above the suspension, within the FRFs' clean span.
+    band_range_hz : (lo, hi)
+        Where the fit holds (``r_l ≤ FIT_HOLDS · max(ε_l, median r)``, the longest run): the
+        corrected FRFs' lines.
+    noise_rel, residual_rel : ndarray, shape (n_lines,)
+        ``ε_l`` of the accelerances (:func:`frf_noise`) and the LSFD residual per line relative to
+        ``H`` (running median; NaN off the fitted lines).
+    clean_span_hz : (lo, hi)
+        The span whose noise is within the limit (:func:`clean_span`), and ``noise_limit``.
     """
 
     poles: list[Pole]
@@ -279,6 +379,38 @@ class ModalFit:
     fit_range_hz: tuple[float, float]
     residues: ComplexArray
     upper_acc: ComplexArray
+    band_range_hz: tuple[float, float] = (0.0, 0.0)
+    noise_rel: FloatArray | None = None
+    residual_rel: FloatArray | None = None
+    clean_span_hz: tuple[float, float] = (0.0, 0.0)
+    noise_limit: float = float("nan")
+    top_line: int = -1
+
+    def quality(self) -> dict[str, Any]:
+        """The fit's quality check, for the report: the clean span, where the fit holds, and the
+        residual against the noise on the fitted lines."""
+        out: dict[str, Any] = {
+            "clean_span_hz": list(self.clean_span_hz),
+            "noise_limit_rel": self.noise_limit,
+            "fit_range_hz": list(self.fit_range_hz),
+            "holds_range_hz": list(self.band_range_hz),
+            "holds_limit": FIT_HOLDS,
+        }
+        if self.noise_rel is not None and self.residual_rel is not None:
+            f = self.frequencies_hz
+            lo, hi = self.fit_range_hz
+            sel = (f >= lo) & (f <= hi) & np.isfinite(self.residual_rel)
+            r = self.residual_rel[sel]
+            ratio = r / np.maximum(self.noise_rel[sel], np.median(r)) if r.size else r
+            out.update(
+                {
+                    "lines_fitted": int(sel.sum()),
+                    "lines_held": int(np.sum(ratio <= FIT_HOLDS)),
+                    "residual_median_rel": float(np.median(r)) if r.size else None,
+                    "residual_to_limit_max": float(np.max(ratio)) / FIT_HOLDS if r.size else None,
+                }
+            )
+        return out
 
     @property
     def elastic_poles(self) -> list[Pole]:
@@ -378,13 +510,29 @@ def fit_modal_model(
     acc = kind_index["acceleration"]
     if acc.size == 0:
         raise DataError("a modal correction needs accelerometer outputs; the FRFs have none")
+    # the span the FRFs support: the noisy top (above the hammer's
+    # spectrum) are left out of every step of the fit (module docstring)
+    noise = frf_noise(H[:, acc].reshape(n_l, -1))
+    i0, i1, noise_limit = clean_span(noise)
+    span = np.zeros(n_l, bool)
+    span[i0 : i1 + 1] = True
+    n_span = int(span.sum())
+    top_order = min(48, n_span // 8)
+    if top_order < 16:
+        raise DataError(
+            f"the FRFs are clean (relative noise ≤ {100 * noise_limit:.2g} %) on only {n_span} "
+            f"lines ({f[i0]:.4g}–{f[i1]:.4g} Hz); a modal fit needs at least 128: measure with a "
+            "finer resolution, more averages or a hammer tip that excites the band"
+        )
     if poles is None:
-        poles = lscf_poles(f, H.reshape(n_l, -1))
+        poles = lscf_poles(
+            f[span], H[span].reshape(n_span, -1), orders=tuple(range(16, top_order + 1, 4))
+        )
     s = 2j * np.pi * f
-    omega_ref = 2 * np.pi * f[-1]
+    omega_ref = 2 * np.pi * f[i1]
     # classify each pole by the rigid-body error of its accelerometer residues
     B_acc, _, _ = _basis(s, poles, s**2, omega_ref)
-    coef_a0, *_ = _lsfd(B_acc, H[:, acc].reshape(n_l, -1))
+    coef_a0, *_ = _lsfd(B_acc[span], H[span][:, acc].reshape(n_span, -1))
     Pq, _ = np.linalg.qr(np.asarray(rigid_basis, float))
     classified = []
     for r, p in enumerate(poles):
@@ -399,12 +547,14 @@ def fit_modal_model(
     first_el = min(el_f) if el_f else float(f[-1])
     rigid_f = [p.frequency_hz for p in classified if not p.elastic and p.frequency_hz < first_el]
     f_lo = CLEARANCE * max(rigid_f) if rigid_f else 0.5 * first_el
-    f_lo = max(f_lo, float(f[0]))
-    fit_lines = f >= f_lo
+    f_lo = max(f_lo, float(f[i0]))
+    fit_lines = (f >= f_lo) & span
     if fit_lines.sum() < 4 * (2 * len(classified) + len(RESIDUAL_POWERS)):
         raise DataError(
-            f"{int(fit_lines.sum())} lines above {f_lo:.3g} Hz (clear of the suspension modes) "
-            "are too few for the modal fit; measure a wider span or a finer resolution"
+            f"{int(fit_lines.sum())} clean lines between {f_lo:.3g} Hz (clear of the suspension "
+            f"modes) and {f[i1]:.4g} Hz (where the FRFs' noise exceeds "
+            f"{100 * noise_limit:.2g} %) are too few for the modal fit; measure a wider span, a "
+            "finer resolution or with a hammer tip that excites higher"
         )
     correction = np.zeros_like(H)
     nr = len(classified)
@@ -445,6 +595,20 @@ def fit_modal_model(
         sub_basis[kind] = sub
         chols[kind] = chol
         rels.append(rel)
+    resid_rel, band = _where_fit_holds(
+        f,
+        H[:, acc].reshape(n_l, -1),
+        _basis(s, classified, s**2, omega_ref)[0],
+        coef_a,
+        fit_lines,
+        noise,
+    )
+    if band is None:
+        raise DataError(
+            f"the modal fit over {f_lo:.3g}–{f[i1]:.4g} Hz holds (LSFD residual ≤ {FIT_HOLDS:g}× "
+            "the FRFs' noise or the fit's median residual) on too few consecutive lines for a DIM band: the FRFs do not "
+            "support a modal model there (modes missed, a nonlinear or noisy response)"
+        )
     return ModalFit(
         poles=classified,
         frequencies_hz=f,
@@ -454,10 +618,45 @@ def fit_modal_model(
         sigma=sigma,
         kind_index=kind_index,
         fit_error=float(np.sqrt(np.mean(np.concatenate(rels) ** 2))),
-        fit_range_hz=(float(f_lo), float(f[-1])),
+        fit_range_hz=(float(f_lo), float(f[i1])),
         residues=residues,
         upper_acc=upper_acc,
+        band_range_hz=band,
+        noise_rel=noise,
+        residual_rel=resid_rel,
+        clean_span_hz=(float(f[i0]), float(f[i1])),
+        noise_limit=noise_limit,
+        top_line=i1,
     )
+
+
+def _where_fit_holds(
+    f: FloatArray,
+    H_acc: ComplexArray,
+    B: ComplexArray,
+    coef: FloatArray,
+    fit_lines: NDArray[np.bool_],
+    noise: FloatArray,
+) -> tuple[FloatArray, tuple[float, float] | None]:
+    """Per line the relative LSFD residual of the accelerances (running median over 9 lines,
+    NaN off ``fit_lines``) and the longest run of fitted lines where it is within
+    :data:`FIT_HOLDS` of the noise (module docstring); None when that run has fewer than 16
+    lines."""
+    from dimacq.pipeline._filters import median_filter_nearest
+
+    Y = H_acc[fit_lines]
+    r = Y - B[fit_lines] @ coef
+    mag = np.sqrt(np.mean(np.abs(Y) ** 2, axis=1))
+    rel = np.sqrt(np.mean(np.abs(r) ** 2, axis=1)) / np.where(mag > 0, mag, np.inf)
+    rel = median_filter_nearest(rel, min(9, rel.size))
+    out = np.full(f.size, np.nan)
+    out[fit_lines] = rel
+    holds = rel <= FIT_HOLDS * np.maximum(noise[fit_lines], np.median(rel))
+    a, b = _longest_run(holds)
+    if a < 0 or b - a + 1 < 16:
+        return out, None
+    ff = f[fit_lines]
+    return out, (float(ff[a]), float(ff[b]))
 
 
 def elastic_shapes(
@@ -496,7 +695,7 @@ def project_out(
 def residue_draws(fit: ModalFit, n_draws: int, seed: int = 0) -> tuple[ComplexArray, ComplexArray]:
     """Accelerometer residues and the residual term drawn from the LSFD coefficients'
     covariance ``σ² (BᵀB)⁻¹`` per pair (poles held): shapes (n_draws, n_modes, n_acc, n_inputs)
-    and (n_draws, n_acc, n_inputs) (the ``s²`` term at the top line, as ``upper_acc[-1]``)."""
+    and (n_draws, n_acc, n_inputs) (the ``s²`` term at the fit's top line, as ``upper_acc[top_line]``)."""
     rng = np.random.default_rng(seed)
     idx = fit.kind_index["acceleration"]
     chol = fit.coef_cov_chol["acceleration"]
@@ -509,5 +708,5 @@ def residue_draws(fit: ModalFit, n_draws: int, seed: int = 0) -> tuple[ComplexAr
         n_draws, nr, idx.size, n_i
     )
     res = fit.residues[:, idx][None] + dres
-    up = fit.upper_acc[-1][idx][None] - dcoef[:, -1].reshape(n_draws, idx.size, n_i)
+    up = fit.upper_acc[fit.top_line][idx][None] - dcoef[:, -1].reshape(n_draws, idx.size, n_i)
     return res, up

@@ -11,10 +11,12 @@ elastic contamination (:func:`contamination`):
 
 - no band qualifies (the band suggestion found no run of lines moving as one rigid body), or the
   band or residual checks of the verdict fail or warn;
-- or the band suggestion saw elastic modes above the band and the modal fit's elastic modes above
-  the band's upper edge contribute more than :data:`TRIGGER_SIZE` of the kept accelerances in it (a smooth
-  mass-line trend the per-line checks cannot see: an X-38-like hull with modes at 34/48/62 Hz
-  passes them with principal moments 1.6–2.6 % off).
+- or the band suggestion saw elastic modes above the band, and either the modal fit's elastic
+  modes above the band's upper edge contribute more than :data:`TRIGGER_SIZE` of the kept
+  accelerances in it (a smooth mass-line trend the per-line checks cannot see: an X-38-like hull
+  with modes at 34/48/62 Hz passes them with principal moments 1.6–2.6 % off), or the peak that
+  ended the band is one the fit finds a suspension mode (:func:`_suspension_peak_rejected`: the
+  elastic motion riding on it confined the band below the suspension).
 
 Then the analysis runs again on the corrected FRFs and the report says why. ``"on"`` always
 corrects, ``"off"`` never.
@@ -109,6 +111,7 @@ class ModalCorrection:
                 "modes_kept_hz": [p.frequency_hz for p in fit.poles if not p.elastic],
                 "fit_range_hz": list(fit.fit_range_hz),
                 "fit_error_rel": fit.fit_error,
+                "fit_quality": fit.quality(),
             }
         )
         if self.size_band is not None and self.band_frequencies_hz is not None:
@@ -144,8 +147,8 @@ def modal_fit(frf: FrfData, setup: TestSetup) -> ModalFit:
 
 def _subtracted(frf: FrfData, fit: ModalFit) -> FrfData:
     """The FRFs minus the fitted elastic-mode terms (reactions keep their static share), on
-    the lines of the fit's range: the first estimate, for the mass matrix the shapes need."""
-    lo, hi = fit.fit_range_hz
+    the lines where the fit holds: the first estimate, for the mass matrix the shapes need."""
+    lo, hi = fit.band_range_hz
     return frf.replace(H=frf.H - fit.correction).band(lo, hi)
 
 
@@ -158,8 +161,9 @@ def _mass_matrix(data: FrfData, setup: TestSetup) -> FloatArray:
 def corrected(
     frf: FrfData, fit: ModalFit, setup: TestSetup, n_iter: int = 2
 ) -> tuple[FrfData, ComplexArray]:
-    """The FRFs with the elastic motion taken out of the accelerances, on the fit's lines, and
-    the correction (n_lines, n_outputs, n_inputs) over the whole span.
+    """The FRFs with the elastic motion taken out of the accelerances, on the lines where the
+    fit holds (``fit.band_range_hz``: within the FRFs' clean span, the LSFD residual within its
+    noise), and the correction (n_lines, n_outputs, n_inputs) over the whole span.
 
     Each elastic mode's displacement residues ``A_r`` hold its elastic shape and the rigid-body
     motion ``U_r`` the supports give it; (1) of :mod:`dimacq.pipeline.modal` at the pole gives
@@ -174,7 +178,7 @@ def corrected(
     ``(f_suspension / f_elastic)²``: 0.4 % mass and 10 mm CG with the hull modes at 17 Hz,
     noise-free; projected: 0.001 %, 0.01 mm).
     """
-    lo, hi = fit.fit_range_hz
+    lo, hi = fit.band_range_hz
     M = _mass_matrix(_subtracted(frf, fit), setup)
     for _ in range(n_iter):
         H = _projected(frf, fit, setup, M)
@@ -201,7 +205,11 @@ def _projected(
     pos = {int(o): k for k, o in enumerate(fit.kind_index["acceleration"])}
     rows = np.array([pos[int(o)] for o in acc], dtype=np.intp)
     res = fit.residues[:, fit.kind_index["acceleration"]] if residues_acc is None else residues_acc
-    top = fit.upper_acc[-1][fit.kind_index["acceleration"]] if upper_acc is None else upper_acc
+    top = (
+        fit.upper_acc[fit.top_line][fit.kind_index["acceleration"]]
+        if upper_acc is None
+        else upper_acc
+    )
     up = np.real(top[rows])
     u_up, sv_up, _ = np.linalg.svd(up, full_matrices=False)
     shapes = [u_up[:, sv_up > UPPER_RANK_RATIO * sv_up[0]] if sv_up[0] > 0 else u_up[:, :0]]
@@ -260,6 +268,10 @@ def contamination(
     fit_cache["fit"] = fit
     if not fit.elastic_poles:
         return None
+    hi = float(report.result.band_hz[1])
+    why = _suspension_peak_rejected(sugg.deformation_peaks_hz, hi, fit)
+    if why is not None:
+        return why
     geo = response_geometry(frf, setup)
     excluded = {(c["node"], c["direction"]) for c in report.excluded_responses}
     rows = np.array(
@@ -279,7 +291,6 @@ def contamination(
     # (a small part isolated above its resonance) or inside it (a peak among the band's lines)
     # is what the per-line checks do see; counting those fired on the shipped x38's drogue-chute
     # pair at 5.1 Hz inside its band at 3 % noise and moved a right answer (CG 2.8 mm) to 5.3 mm.
-    hi = float(report.result.band_hz[1])
     above = [r for r, p in enumerate(fit.poles) if p.elastic and p.frequency_hz > hi]
     if not above:
         return None
@@ -301,6 +312,33 @@ def contamination(
         f"elastic modes at {modes} Hz contribute {100 * top:.2g} % of the kept accelerances in "
         f"the band (limit {100 * TRIGGER_SIZE:g} %), a trend the rigid-body checks cannot see"
     )
+
+
+def _suspension_peak_rejected(
+    peaks_hz: tuple[float, ...], band_hi_hz: float, fit: ModalFit
+) -> str | None:
+    """Why the band was confined below the suspension by elastic motion, or None.
+
+    The band suggestion ends the rigid-body band at the peaks above it that the rigid-body
+    model does not explain. When the modal fit finds one of them, below its first elastic mode,
+    to be a suspension mode (its
+    residues lie in the rigid-body span: the body moves as one there) while it also finds elastic
+    modes, what the per-line check rejected is the elastic motion riding on the suspension mode
+    — the deformation the support forces cause when the elastic modes lie close above (an
+    X-38-like hull with modes at 10 Hz, twice its top suspension mode, leaves a band of 8 lines
+    below 0.5 Hz, quasi-static, CG 38 mm off)."""
+    first_el = min(p.frequency_hz for p in fit.elastic_poles)
+    line = float(np.median(np.diff(fit.frequencies_hz)))
+    for peak in sorted(p for p in peaks_hz if band_hi_hz < p < first_el):
+        tol = max(0.02 * peak, 2 * line)
+        if any(not p.elastic and abs(p.frequency_hz - peak) <= tol for p in fit.poles):
+            modes = ", ".join(f"{p.frequency_hz:.3g}" for p in fit.elastic_poles)
+            return (
+                f"the band ends at {band_hi_hz:.3g} Hz below a peak at {peak:.3g} Hz the "
+                "rigid-body check rejects, which the modal fit finds a suspension mode moving "
+                f"the body rigidly: the elastic modes at {modes} Hz deform it there"
+            )
+    return None
 
 
 def with_modal_uncertainty(
@@ -476,7 +514,10 @@ def _analyse_modal(
         "modal_correction",
         "ok",
         f"elastic modes at {', '.join(f'{p.frequency_hz:.3g}' for p in fit.elastic_poles)} Hz "
-        f"taken out of the FRFs ({why}); correction up to {100 * float(np.max(size, initial=0)):.3g} "
+        f"taken out of the FRFs ({why}); fitted over {fit.fit_range_hz[0]:.3g}–"
+        f"{fit.fit_range_hz[1]:.4g} Hz (the FRFs' noise within {100 * fit.noise_limit:.2g} %), "
+        f"the fit holding over {fit.band_range_hz[0]:.4g}–{fit.band_range_hz[1]:.4g} Hz; "
+        f"correction up to {100 * float(np.max(size, initial=0)):.3g} "
         "% of the kept accelerances in the band",
     )
     return replace(

@@ -570,6 +570,15 @@ def _print_modal(payload: dict[str, Any], w: Any) -> None:
         f"RMS; modes taken out: {', '.join(f'{f:.3g}' for f in mc['modes_removed_hz']) or 'none'}"
         f" Hz; left in: {', '.join(f'{f:.3g}' for f in mc['modes_kept_hz']) or 'none'} Hz\n"
     )
+    q = mc.get("fit_quality")
+    if q:
+        w(
+            f"  fit quality: FRFs clean up to {q['clean_span_hz'][1]:.4g} Hz (noise ≤ "
+            f"{100 * q['noise_limit_rel']:.2g} %); the fit holds (residual ≤ "
+            f"{q['holds_limit']:g}× the noise or the median residual) on {q.get('lines_held', 0)} of "
+            f"{q.get('lines_fitted', 0)} lines, DIM band within {q['holds_range_hz'][0]:.4g}–"
+            f"{q['holds_range_hz'][1]:.4g} Hz\n"
+        )
     size = mc.get("correction_size")
     if size and size["relative"]:
         f, r = np.asarray(size["frequencies_hz"]), np.asarray(size["relative"])
