@@ -101,7 +101,13 @@ def test_no_chain_factor_from_a_failed_solve() -> None:
     rep = analyse(
         block.model_frf(noise=0.01),
         wrong,
-        AnalysisOptions(reference_mass=(REFERENCE_BLOCK.mass_kg, 0.005), geometry_samples=0),
+        AnalysisOptions(
+            reference_mass=(REFERENCE_BLOCK.mass_kg, 0.005),
+            geometry_samples=0,
+            # the verdict fails on the checks of the rigid solve (band, residual, plausibility);
+            # the modal correction's fit of this non-rigid data (97 % of the CPU) is its tests'
+            modal_correction="off",
+        ),
     )
     assert rep.verdict == "fail"
     assert rep.chain_calibration is None and "chain_calibration" not in rep.to_json()

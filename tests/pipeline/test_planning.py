@@ -74,33 +74,39 @@ def test_eliminated_forms_equal_the_full_information() -> None:
 
 def _forward(theta: np.ndarray, cand: pl.Candidates, lay: pl.Layout, P: np.ndarray) -> np.ndarray:
     """H of the layout for parameters [x (10), per triax δr δθ, per channel gain, per input δp
-    δβ] — the physics written again, independently of the planning module's derivatives."""
-    x = theta[:10]
+    δβ] — the physics written again, independently of the planning module's derivatives.
+
+    ``theta`` of shape (n,) gives H (n_channels, n_inputs); shape (K, n) gives K of them at
+    once (the columns of a finite-difference Jacobian in one call)."""
+    th = np.atleast_2d(theta)
+    K = th.shape[0]
+    x = th[:, :10]
     T, J = lay.triaxes, lay.inputs
     nT, nJ = len(T), len(J)
     ch = [c for c in range(cand.channel_triax.size) if cand.channel_triax[c] in T]
     slot = [T.index(int(cand.channel_triax[c])) for c in ch]
     o = 10
-    tri = theta[o : o + 6 * nT].reshape(nT, 6)
+    tri = th[:, o : o + 6 * nT].reshape(K, nT, 6)
     o += 6 * nT
-    gain = 1 + theta[o : o + len(ch)]
+    gain = 1 + th[:, o : o + len(ch)]
     o += len(ch)
-    inp = theta[o : o + 6 * nJ].reshape(nJ, 6)
-    m, s, i6 = x[0], x[1:4], x[4:]
-    I = np.array([[i6[0], i6[1], i6[2]], [i6[1], i6[3], i6[4]], [i6[2], i6[4], i6[5]]])
-    S = np.array([[0, -s[2], s[1]], [s[2], 0, -s[0]], [-s[1], s[0], 0]])
-    M = np.block([[m * np.eye(3), -S], [S, I]])
-    r = cand.positions[ch] - P + tri[slot, :3]
-    d = np.einsum(
-        "nij,nj->ni", Rotation.from_rotvec(tri[slot, 3:]).as_matrix(), cand.directions[ch]
-    )
-    psi = np.c_[d, np.cross(r, d)]
-    e = np.einsum(
-        "nij,nj->ni", Rotation.from_rotvec(inp[:, 3:]).as_matrix(), cand.input_directions[list(J)]
-    )
-    p = cand.input_positions[list(J)] - P + inp[:, :3]
-    phi = np.c_[e, np.cross(p, e)].T
-    return gain[:, None] * (psi @ np.linalg.solve(M, phi))
+    inp = th[:, o : o + 6 * nJ].reshape(K, nJ, 6)
+    m, s, i6 = x[:, 0], x[:, 1:4], x[:, 4:]
+    I = i6[:, [0, 1, 2, 1, 3, 4, 2, 4, 5]].reshape(K, 3, 3)
+    z = np.zeros(K)
+    S = np.stack([z, -s[:, 2], s[:, 1], s[:, 2], z, -s[:, 0], -s[:, 1], s[:, 0], z], 1)
+    S = S.reshape(K, 3, 3)
+    M = np.block([[m[:, None, None] * np.eye(3), -S], [S, I]])
+    r = cand.positions[ch] - P + tri[:, slot, :3]
+    R = Rotation.from_rotvec(tri[:, slot, 3:].reshape(-1, 3)).as_matrix()
+    d = np.einsum("knij,nj->kni", R.reshape(K, len(ch), 3, 3), cand.directions[ch])
+    psi = np.concatenate([d, np.cross(r, d)], axis=2)
+    Re = Rotation.from_rotvec(inp[:, :, 3:].reshape(-1, 3)).as_matrix().reshape(K, nJ, 3, 3)
+    e = np.einsum("knij,nj->kni", Re, cand.input_directions[list(J)])
+    p = cand.input_positions[list(J)] - P + inp[:, :, :3]
+    phi = np.concatenate([e, np.cross(p, e)], axis=2).transpose(0, 2, 1)
+    H = gain[:, :, None] * (psi @ np.linalg.solve(M, phi))
+    return H if theta.ndim == 2 else H[0]
 
 
 @pytest.mark.slow
@@ -130,6 +136,16 @@ def test_predicted_covariance_matches_map_fits_of_simulated_tests() -> None:
     H0 = _forward(theta0, cand, lay, P)
     assert np.allclose(H0, model.H)  # the layout is every candidate
     sd = errors.noise * pl.noise_scale(model.H, errors.noise_model) / np.sqrt(2 * errors.n_lines)
+    eye = np.eye(sig.size)
+
+    def jac(u: np.ndarray, *_: object) -> np.ndarray:
+        """Forward differences, scipy's '2-point' step (√ε·max(1, |u|)), every column of the
+        independent forward model in one batched call (the residual is linear in the data)."""
+        h = np.sqrt(np.finfo(float).eps) * np.maximum(1.0, np.abs(u))
+        th = theta0 + np.vstack([u, u + h[:, None] * eye]) * sig
+        F = (_forward(th, cand, lay, P) / sd).reshape(th.shape[0], -1)
+        return np.vstack([((F[1:] - F[0]) / h[:, None]).T, eye[10:]])
+
     est = []
     for i in range(150):
         rng = np.random.default_rng([7, i])
@@ -141,7 +157,7 @@ def test_predicted_covariance_matches_map_fits_of_simulated_tests() -> None:
             r = ((_forward(th, cand, lay, P) - data) / sd).ravel()
             return np.concatenate([r, u[10:]])  # priors of the nuisances, in σ units
 
-        fit = least_squares(resid, np.zeros(sig.size), method="lm", x_scale=1.0)
+        fit = least_squares(resid, np.zeros(sig.size), jac=jac, method="lm", x_scale=1.0)
         est.append(x0 + fit.x[:10] * model.x_scale)
     est = np.array(est)
     sd_mc = est.std(axis=0, ddof=1)
