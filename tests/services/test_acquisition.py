@@ -344,7 +344,9 @@ def test_a_session_resumed_with_kept_averages_strikes_only_the_missing(lab):
     again.on_average = lambda j, _n, ok, _r, rec: new[j].append(rec) if ok else None
     res = again.run()
     assert strikes == [1, 1] and res.n_accepted == (3, 3) and len(new[1]) == 2
-    np.testing.assert_array_equal(res.H[:, :, 0], full.H[:, :, 0])
+    # equal to rounding: the FFTs batch several records per SIMD pass, so how many records share
+    # a pass (the outputs' count) can move the last bits (3e-14 seen), not the numbers
+    np.testing.assert_allclose(res.H[:, :, 0], full.H[:, :, 0], rtol=1e-12, atol=0)
     h_true = src.frf(res.frequencies_hz)[:, :, 1]
     np.testing.assert_allclose(res.H[1:, :3, 1], h_true[1:], atol=2e-3 * np.abs(h_true).max())
     # the finish path: the same records, the same numbers
@@ -367,4 +369,4 @@ def test_a_session_resumed_with_kept_averages_strikes_only_the_missing(lab):
         return [{"force": r["force"], "outputs": r["outputs"][:3]} for r in recs]
 
     frf = records_frf([accels(kept[0]), accels(kept[1] + new[1])], fs, settings, setup)
-    np.testing.assert_array_equal(frf.H[:, :3], res.H[1:, :3])
+    np.testing.assert_allclose(frf.H[:, :3], res.H[1:, :3], rtol=1e-12, atol=0)
