@@ -245,7 +245,67 @@ def range_code(range_v: float) -> int:
     raise SetupError(f"input range ±{range_v} V is not supported; choose one of {p.RANGES_V}")
 
 
-class DaqTask:
+class StreamedReads:
+    """The reads of a task whose decoded samples sit in a :class:`CounterStream` (``_stream``):
+    ``read`` / ``read_buffered`` / ``read_available`` over the task's ``_fill(n, timeout_s)``
+    (receive until ``n`` samples are buffered), shared by our DAQ's and the USB-1808's tasks."""
+
+    _stream: CounterStream
+    sample_rate_hz: float | None
+
+    @property
+    def channels(self) -> tuple[ChannelConfig, ...]:
+        raise NotImplementedError
+
+    @property
+    def channel_names(self) -> tuple[str, ...]:
+        raise NotImplementedError
+
+    def _fill(self, n_samples: int, timeout_s: float | None) -> None:
+        raise NotImplementedError
+
+    def read(self, n_samples: int, timeout_s: float | None = None) -> DaqBlock:
+        """Read the next ``n_samples`` samples (blocking), in engineering units.
+
+        Raises
+        ------
+        DeviceTimeoutError
+            A frame did not arrive in time; what was received stays buffered for the next read.
+        """
+        if n_samples <= 0:
+            raise SetupError(f"n_samples={n_samples}; read at least one sample")
+        self._fill(n_samples, timeout_s)
+        return self._take(n_samples)
+
+    def read_buffered(self) -> DaqBlock | None:
+        """Everything received and not yet read (e.g. after stop()), or None."""
+        if self._stream.buffered == 0:
+            return None
+        return self._take(self._stream.buffered)
+
+    def read_available(self, timeout_s: float | None = None) -> DaqBlock:
+        """Read at least one more frame and return all buffered samples."""
+        self._fill(self._stream.buffered + 1, timeout_s)
+        return self._take(self._stream.buffered)
+
+    def _take(self, n: int) -> DaqBlock:
+        st = self._stream
+        got = st.take(st.next_sample + n)
+        events = st.pop_events(got.first, got.first + n)
+        assert self.sample_rate_hz is not None
+        return DaqBlock(
+            got.first,
+            self.sample_rate_hz,
+            self.channel_names,
+            tuple(c.units for c in self.channels),
+            got.data.T,
+            got.flags.astype(bool, copy=False).T,
+            got.valid,
+            events,
+        )
+
+
+class DaqTask(StreamedReads):
     """An acquisition task: channels → timing → start → read → stop (NI-DAQmx style).
 
     Channels come back in ascending physical-channel order (the order on the wire); their
@@ -613,43 +673,3 @@ class DaqTask:
                     "kept; read again to continue)"
                 ) from err
             self._ingest(p.decode_frame(raw))
-
-    def read(self, n_samples: int, timeout_s: float | None = None) -> DaqBlock:
-        """Read the next ``n_samples`` samples (blocking), in engineering units.
-
-        Raises
-        ------
-        DeviceTimeoutError
-            A frame did not arrive in time; what was received stays buffered for the next read.
-        """
-        if n_samples <= 0:
-            raise SetupError(f"n_samples={n_samples}; read at least one sample")
-        self._fill(n_samples, timeout_s)
-        return self._take(n_samples)
-
-    def read_buffered(self) -> DaqBlock | None:
-        """Everything received and not yet read (e.g. after stop()), or None."""
-        if self._stream.buffered == 0:
-            return None
-        return self._take(self._stream.buffered)
-
-    def read_available(self, timeout_s: float | None = None) -> DaqBlock:
-        """Read at least one more frame and return all buffered samples."""
-        self._fill(self._stream.buffered + 1, timeout_s)
-        return self._take(self._stream.buffered)
-
-    def _take(self, n: int) -> DaqBlock:
-        st = self._stream
-        got = st.take(st.next_sample + n)
-        events = st.pop_events(got.first, got.first + n)
-        assert self.sample_rate_hz is not None
-        return DaqBlock(
-            got.first,
-            self.sample_rate_hz,
-            self.channel_names,
-            tuple(c.units for c in self.channels),
-            got.data.T,
-            got.flags.astype(bool, copy=False).T,
-            got.valid,
-            events,
-        )

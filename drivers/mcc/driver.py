@@ -39,9 +39,9 @@ import numpy as np
 import usb.core
 import usb.util
 
-from dimacq.devices.daq import ChannelConfig, DaqBlock, DaqEvent
+from dimacq.devices.daq import ChannelConfig, DaqEvent
 from dimacq.drivers.base import Deadline, WireDriver
-from dimacq.drivers.daq.driver import STANDARD_GRAVITY
+from dimacq.drivers.daq.driver import STANDARD_GRAVITY, StreamedReads
 from dimacq.drivers.mcc import protocol as p
 from dimacq.drivers.stream import CounterStream
 from dimacq.errors import (
@@ -242,7 +242,7 @@ def range_of(config: ChannelConfig) -> p.Range:
     )
 
 
-class MccTask:
+class MccTask(StreamedReads):
     """A :class:`~dimacq.devices.daq.Daq` task on USB-1808(X) units (first = clock master).
 
     Parameters
@@ -574,38 +574,6 @@ class MccTask:
             return self._read_unit(r, _DRAIN_TIMEOUT_S)
         except DeviceTimeoutError:
             return 0
-
-    def read(self, n_samples: int, timeout_s: float | None = None) -> DaqBlock:
-        """The next ``n_samples`` scans of every channel (blocking), engineering units."""
-        if n_samples <= 0:
-            raise SetupError(f"n_samples={n_samples}; read at least one sample")
-        self._fill(n_samples, timeout_s)
-        return self._take(n_samples)
-
-    def read_buffered(self) -> DaqBlock | None:
-        if self._stream.buffered == 0:
-            return None
-        return self._take(self._stream.buffered)
-
-    def read_available(self, timeout_s: float | None = None) -> DaqBlock:
-        self._fill(self._stream.buffered + 1, timeout_s)
-        return self._take(self._stream.buffered)
-
-    def _take(self, n: int) -> DaqBlock:
-        st = self._stream
-        got = st.take(st.next_sample + n)
-        events = st.pop_events(got.first, got.first + n)
-        assert self.sample_rate_hz is not None
-        return DaqBlock(
-            got.first,
-            self.sample_rate_hz,
-            self.channel_names,
-            tuple(c.units for c in self.channels),
-            got.data.T,
-            got.flags.astype(bool, copy=False).T,
-            got.valid,
-            events,
-        )
 
     def close(self) -> None:
         for u in self.units:
