@@ -138,8 +138,9 @@ async function start() {
     if (st.state !== "succeeded") throw new Error(`calibration ${st.state}: ${st.error || st.message || ""}`);
     bench.result = st.result;
     showResult(st.result);
-    say(`calibration finished: ${st.result.method}, version ${st.result.version}`);
+    // the list first: "finished" is said once everything the run changed is on the page
     await listCalibrations();
+    say(`calibration finished: ${st.result.method}, version ${st.result.version}`);
   } catch (e) {
     say(e.message, true);
   } finally {
