@@ -189,7 +189,7 @@ def estimate_frf(
     wx = None if input_window is None else _window("input_window", input_window, n_s)
     wy = None if output_window is None else _window("output_window", output_window, n_s)
 
-    g_ff, g_yf, g_yy = _spectral_sums(x, y, wx, wy, workers)
+    g_ff, g_yf, g_yy, g_yf_abs2 = _spectral_sums(x, y, wx, wy, workers)
     # A NaN or infinite sample makes its channel's spectral sums NaN or infinite: checking the
     # small sums instead of every sample saves a pass over the records; the records are looked
     # at only to say which side is wrong.
@@ -209,7 +209,7 @@ def estimate_frf(
             pairs = g_yf[:, :, 0].T.view(np.float64).reshape(-1, n_lines, 2)  # (n_out, L, 2)
             yy = g_yy.T  # (n_out, L)
             cond = np.ones(n_lines)
-            abs2 = pairs[..., 0] ** 2 + pairs[..., 1] ** 2  # |G_yf|², (n_out, L)
+            abs2 = g_yf_abs2[:, :, 0].T  # |G_yf|², (n_out, L)
             ordinary_ol = abs2 / (yy * gff)
             ordinary = ordinary_ol.T[:, :, None]
             multiple = ordinary_ol.copy().T  # equal for one input (module docstring)
@@ -231,7 +231,7 @@ def estimate_frf(
             )
             s = np.linalg.svd(g_ff, compute_uv=False)
             cond = s[:, 0] / s[:, -1]
-            ordinary = np.abs(g_yf) ** 2 / (g_yy[:, :, None] * g_ff_diag[:, None, :])
+            ordinary = g_yf_abs2 / (g_yy[:, :, None] * g_ff_diag[:, None, :])
             multiple = np.real(np.sum(h1 * g_yf.conj(), axis=2)) / g_yy
         if estimator == "H1":
             assert h1 is not None
@@ -270,22 +270,29 @@ def _spectral_sums(
     wx: NDArray[np.float64] | None = None,
     wy: NDArray[np.float64] | None = None,
     workers: int = 1,
-) -> tuple[NDArray[np.complex128], NDArray[np.complex128], NDArray[np.float64]]:
-    """``G_ff``, ``G_yf``, ``G_yy`` summed over averages (module docstring), lines first.
+) -> tuple[
+    NDArray[np.complex128], NDArray[np.complex128], NDArray[np.float64], NDArray[np.float64]
+]:
+    """``G_ff``, ``G_yf``, ``G_yy`` summed over averages (module docstring) and ``|G_yf|²``.
 
     One real FFT per channel and average (ducc0's, which transforms several records at once in
     SIMD lanes: 1.9x numpy's pocketfft on 640 records of 8192 samples, equal to 4e-16), of the
     records times the windows ``wx``, ``wy`` when given. The outputs go in blocks of about
     ``_BLOCK_BYTES`` of spectra, written into one reused buffer: the sums over averages read them
     from cache, and no block asks the kernel for fresh pages (a new 42 MB spectrum array costs
-    ~6 ms of page faults, a quarter of an H1). The sums run along the FFT's layout (lines last);
-    the results are returned as lines-first views of it, not copies.
+    ~6 ms of page faults, a quarter of an H1). The sums run along the FFT's layout (lines last)
+    and so do ``G_yy`` and ``|G_yf|² = Re² + Im²``, taken from each block while it is in cache
+    (the same passes over whole (lines, outputs) arrays took 3.5 ms more, a fifth of an H1,
+    most of it in strided reads and writes); the results are returned as lines-first views of
+    that layout, not copies.
 
     Returns
     -------
     g_ff : ndarray, shape (n_lines, n_inputs, n_inputs), complex
     g_yf : ndarray, shape (n_lines, n_outputs, n_inputs), complex
     g_yy : ndarray, shape (n_lines, n_outputs)
+    g_yf_abs2 : ndarray, shape (n_lines, n_outputs, n_inputs)
+        ``|G_yf|²``, as ``Re(G_yf)² + Im(G_yf)²``.
     """
     n_avg, n_in, n_s = x.shape
     n_out = y.shape[1]
@@ -294,11 +301,12 @@ def _spectral_sums(
     fxc = fx.conj()  # (n_avg, n_in, L)
     g_ff = np.einsum("ajl,ail->lji", fx, fxc)
     g = np.empty((n_out, n_in, n_lines), dtype=np.complex128)
-    g_yy = np.empty((n_lines, n_out))
+    g_yy = np.empty((n_out, n_lines))
+    g_abs2 = np.empty((n_out, n_in, n_lines))
     block = max(1, min(n_out, _BLOCK_BYTES // (n_avg * n_lines * 16)))
     spectra = np.empty((n_avg, block, n_lines), dtype=np.complex128)
     product = np.empty((block, n_lines), dtype=np.complex128)
-    s2 = np.empty((block, 2 * n_lines))  # Σ_a (re², im²) of Y, interleaved as in memory
+    s2 = np.empty((block, 2 * n_lines))  # (re², im²) pairs, interleaved as in memory
     windowed = None if wy is None else np.empty((n_avg, block, n_s))
     for o0 in range(0, n_out, block):
         o1 = min(o0 + block, n_out)
@@ -316,10 +324,13 @@ def _spectral_sums(
                 np.multiply(fy[0], fxc[0, i], out=acc)
                 for a in range(1, n_avg):
                     acc += np.multiply(fy[a], fxc[a, i], out=product[:nb])
+                av = acc.view(np.float64)
+                np.multiply(av, av, out=s2[:nb])
+                np.add(s2[:nb, 0::2], s2[:nb, 1::2], out=g_abs2[o0:o1, i])
         yv = fy.view(np.float64)
-        np.einsum("aox,aox->ox", yv, yv, out=s2[:nb])
-        np.add(s2[:nb, 0::2], s2[:nb, 1::2], out=g_yy[:, o0:o1].T)
-    return g_ff, g.transpose(2, 0, 1), g_yy
+        np.einsum("aox,aox->ox", yv, yv, out=s2[:nb])  # Σ_a (re², im²) of Y
+        np.add(s2[:nb, 0::2], s2[:nb, 1::2], out=g_yy[o0:o1])
+    return g_ff, g.transpose(2, 0, 1), g_yy.T, g_abs2.transpose(2, 0, 1)
 
 
 def _lines_first(h_ol: NDArray[np.complex128]) -> NDArray[np.complex128]:

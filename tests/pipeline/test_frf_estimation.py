@@ -270,11 +270,33 @@ def test_blocked_estimator_equals_the_per_line_definitions(
     h1, h2, ordinary, multiple = _per_line_reference(x, y, wx, wy)
     est = estimate_frf(x, y, FS, input_window=wx, output_window=wy)
     np.testing.assert_allclose(est.H, h1, rtol=1e-12, atol=0)
+    fx, fy = np.fft.rfft(x * wx, axis=-1), np.fft.rfft(y * wy, axis=-1)
+    np.testing.assert_allclose(est.g_yy, np.sum(np.abs(fy) ** 2, axis=0).T, rtol=1e-12, atol=0)
+    g_ff = np.einsum("ajl,ail->lji", fx, fx.conj())
+    np.testing.assert_allclose(est.g_ff, g_ff, rtol=1e-12, atol=1e-12 * np.abs(g_ff).max())
     np.testing.assert_allclose(est.ordinary_coherence, ordinary, rtol=1e-12, atol=0)
     np.testing.assert_allclose(est.coherence, np.clip(multiple, 0, 1), rtol=1e-12, atol=1e-15)
     if n_in == 1:
         h = estimate_frf(x, y, FS, estimator="H2", input_window=wx, output_window=wy).H
         np.testing.assert_allclose(h, h2, rtol=1e-12, atol=0)
+
+
+def test_default_blocks_at_the_benchmark_record_length_equal_plain_numpy() -> None:
+    """8192 samples, 10 averages: outputs in blocks of 4 (the last one short), against numpy's
+    FFT and whole-array sums: H1 = Σ Y F̄ / Σ|F|², H2 = Σ|Y|² / Σ F Ȳ, γ² = |Σ Y F̄|² /
+    (Σ|Y|² Σ|F|²)."""
+    rng = np.random.default_rng(8192)
+    x = rng.standard_normal((10, 1, 8192))
+    y = 0.5 * rng.standard_normal((10, 10, 8192)) + np.cumsum(x, axis=-1) * 1e-2
+    fx, fy = np.fft.rfft(x, axis=-1), np.fft.rfft(y, axis=-1)
+    g_yf = np.einsum("aol,al->lo", fy, fx[:, 0].conj())
+    g_ff = np.sum(np.abs(fx[:, 0]) ** 2, axis=0)[:, None]
+    g_yy = np.sum(np.abs(fy) ** 2, axis=0).T
+    h1 = estimate_frf(x, y, FS)
+    np.testing.assert_allclose(h1.H[:, :, 0], g_yf / g_ff, rtol=1e-12, atol=0)
+    np.testing.assert_allclose(h1.coherence, np.abs(g_yf) ** 2 / (g_yy * g_ff), rtol=1e-12)
+    h2 = estimate_frf(x, y, FS, estimator="H2", workers=2)
+    np.testing.assert_allclose(h2.H[:, :, 0], g_yy / g_yf.conj(), rtol=1e-12, atol=0)
 
 
 def test_nan_found_in_either_record_set_and_in_a_window() -> None:
