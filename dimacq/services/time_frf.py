@@ -77,6 +77,7 @@ def frf_from_time(
     exponential_tau_s: float | None = None,
     estimator: Estimator = "H1",
     source: str = "time data",
+    fft_threads: int = 1,
 ) -> FrfData:
     """FRFs of ``setup`` (its responses, then each load cell's six loads, per excitation) from
     time records.
@@ -84,7 +85,9 @@ def frf_from_time(
     Per input (the setup's excitations, matched by node and direction), average ``a`` is the
     ``a``-th record of each channel struck at that input; the force window (``pretrigger +
     force_window_samples``) and the exponential window (``exponential_tau_s`` from the
-    pretrigger) are applied as in an acquisition (None: rectangular).
+    pretrigger) are applied as in an acquisition (None: rectangular). ``fft_threads``: threads of
+    the estimator's FFTs (``estimate_frf(workers=...)``; the CLI gives the machine's cores, the
+    live acquisition one, next to its streams).
 
     Raises
     ------
@@ -150,6 +153,7 @@ def frf_from_time(
             estimator=estimator,
             input_window=w_in,
             output_window=w_out,
+            workers=fft_threads,
         )
         if H_all is None:
             freqs = est.frequencies_hz

@@ -5,6 +5,7 @@ force (the whole response inside the record), so its FRF is the filter's DFT exa
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -179,3 +180,40 @@ def test_command_line_writes_frfs_solve_reads(
         )
         == 2
     )
+
+
+def test_command_line_fft_threads_give_the_same_frfs_and_zero_is_refused(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from dimacq.cli.main import main
+    from dimacq.io.setup_file import save_setup
+    from dimacq.io.uff import read_frf_uff
+
+    setup = _setup()
+    _, data = _data(setup)
+    _write_uff(tmp_path / "t.uff", setup, data)
+    save_setup(setup, tmp_path / "setup.toml")
+    args = ["frf-from-time", str(tmp_path / "setup.toml"), str(tmp_path / "t.uff")]
+    one = frf_from_time(read_time_data(tmp_path / "t.uff"), setup, source="t")
+    import dimacq.services.time_frf as time_frf
+
+    threads: list[int] = []
+    estimate = time_frf.estimate_frf
+
+    def spy(*a: Any, **kw: Any) -> Any:
+        threads.append(kw["workers"])
+        return estimate(*a, **kw)
+
+    monkeypatch.setattr(time_frf, "estimate_frf", spy)
+    assert main([*args, "--frf", str(tmp_path / "f.uff"), "--fft-threads", "2"]) == 0
+    assert threads == [2, 2]  # one estimate per input, on the threads asked for
+    two = read_frf_uff(tmp_path / "f.uff", setup)
+    np.testing.assert_allclose(two.H, one.H, rtol=1e-12, atol=1e-12 * np.abs(one.H).max())
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as err:
+        main([*args, "--frf", str(tmp_path / "g.uff"), "--fft-threads", "0"])
+    assert err.value.code == 2
+    assert "--fft-threads: '0': give a whole number of threads, 1 or more" in (
+        capsys.readouterr().err
+    )
+    assert not (tmp_path / "g.uff").exists()

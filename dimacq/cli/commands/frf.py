@@ -9,6 +9,7 @@ as a UFF file of FRFs that ``dimacq solve SETUP OUT.uff`` reads.
 from __future__ import annotations
 
 import argparse
+import os
 from pathlib import Path
 from typing import Any
 
@@ -33,7 +34,33 @@ def register(subparsers: Any) -> None:
         "--tau", type=float, default=None, metavar="S", help="exponential window time constant, s"
     )
     p.add_argument("--estimator", choices=("H1", "H2", "Hv"), default="H1")
+    p.add_argument(
+        "--fft-threads",
+        type=_threads,
+        default=None,
+        metavar="N",
+        help="threads of the FFTs (default: the cores this process may use)",
+    )
     p.set_defaults(func=run)
+
+
+def _threads(text: str) -> int:
+    try:
+        n = int(text)
+    except ValueError:
+        n = 0
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"{text!r}: give a whole number of threads, 1 or more")
+    return n
+
+
+def default_fft_threads() -> int:
+    """The cores this process may run on (its CPU affinity; ``os.cpu_count()`` where the
+    platform has no affinity)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # macOS, Windows
+        return os.cpu_count() or 1
 
 
 def run(args: argparse.Namespace) -> int:
@@ -52,6 +79,7 @@ def run(args: argparse.Namespace) -> int:
         exponential_tau_s=args.tau,
         estimator=args.estimator,
         source=f"time data {args.time.name}",
+        fft_threads=args.fft_threads or default_fft_threads(),
     )
     write_frf_uff(args.frf, frf)
     print(
