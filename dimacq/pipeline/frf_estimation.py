@@ -213,19 +213,19 @@ def estimate_frf(
             ordinary_ol = abs2 / (yy * gff)
             ordinary = ordinary_ol.T[:, :, None]
             multiple = ordinary_ol.copy().T  # equal for one input (module docstring)
-            # The scale factors are laid out (re, im)-interleaved like the pairs: a product of
-            # two contiguous rows is 7x faster than one broadcast over the pairs' axis of 2.
-            flat = pairs.reshape(-1, 2 * n_lines)  # (n_out, 2L), the same memory
+            # A real factor scales the pairs as rows, not broadcast over the pairs' axis of 2
+            # (5-7x slower): H1's 1/G_ff (re, im)-interleaved, H2's G_yy/|G_yf|² as a complex
+            # product with a real (the same values: x·r − y·0 = x·r).
             h1: NDArray[np.complex128] | None = None
             if estimator == "H1":
+                flat = pairs.reshape(-1, 2 * n_lines)  # (n_out, 2L), the same memory
                 np.multiply(flat, np.repeat(1.0 / gff, 2), out=flat)
                 h1 = _lines_first(pairs.view(np.complex128))
             elif estimator == "H2":  # G_yy / conj(G_yf) = G_yf · G_yy / |G_yf|²
-                scale = np.empty_like(flat)
-                np.divide(yy, abs2, out=scale[:, 0::2])
-                scale[:, 1::2] = scale[:, 0::2]
-                np.multiply(flat, scale, out=flat)
-                h2 = _lines_first(pairs.view(np.complex128))
+                ratio = np.divide(yy, abs2)
+                h2c = pairs.view(np.complex128)  # (n_out, L, 1)
+                np.multiply(h2c, ratio[..., None], out=h2c)
+                h2 = _lines_first(h2c)
         else:
             # H1 = G_yf G_ff⁻¹  ⇔  G_ffᵀ H1ᵀ = G_yfᵀ (G_ff Hermitian), batched over lines.
             h1 = np.asarray(
