@@ -3,7 +3,8 @@
 Run on demand: ``python tests/benchmarks/bench_frf.py [--repeat 9] [--workers N]``. Pins BLAS
 to one thread, then runs every function in turn ``--repeat`` times (each exposed to the same
 load from the other users of a shared machine) and prints a table of the minimum wall time, the
-minimum CPU time (the process's, all its threads) and the median CPU time:
+minimum CPU time (the process's, all its threads), the median CPU time and the median number of
+page faults (first touches of fresh memory: the kernel maps and zeroes each page):
 
 - the floor: numpy's real FFT of every channel and average plus one einsum for the cross-spectra
   ``Σ_a Y F̄`` (what any H1 must do at least; numpy's FFT has one thread);
@@ -34,6 +35,7 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ[_var] = "1"
 
 import inspect  # noqa: E402
+import resource  # noqa: E402
 import time  # noqa: E402
 from collections.abc import Callable  # noqa: E402
 from dataclasses import dataclass  # noqa: E402
@@ -59,11 +61,12 @@ def data() -> tuple[np.ndarray, np.ndarray]:
 
 @dataclass(frozen=True)
 class Timing:
-    """Minimum wall, minimum and median CPU time (s) of ``runs`` runs."""
+    """Minimum wall, minimum and median CPU time (s), median page faults of ``runs`` runs."""
 
     wall_min_s: float
     cpu_min_s: float
     cpu_median_s: float
+    page_faults: int
     runs: int
 
 
@@ -76,13 +79,21 @@ def measure(fns: dict[str, Callable[[], object]], repeat: int) -> dict[str, Timi
     """
     wall: dict[str, list[float]] = {k: [] for k in fns}
     cpu: dict[str, list[float]] = {k: [] for k in fns}
+    faults: dict[str, list[int]] = {k: [] for k in fns}
     for _ in range(repeat):
         for k, fn in fns.items():
+            f0 = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
             c0, t0 = time.process_time(), time.perf_counter()
             fn()
             wall[k].append(time.perf_counter() - t0)
             cpu[k].append(time.process_time() - c0)
-    return {k: Timing(min(wall[k]), min(cpu[k]), float(np.median(cpu[k])), repeat) for k in fns}
+            faults[k].append(resource.getrusage(resource.RUSAGE_SELF).ru_minflt - f0)
+    return {
+        k: Timing(
+            min(wall[k]), min(cpu[k]), float(np.median(cpu[k])), int(np.median(faults[k])), repeat
+        )
+        for k in fns
+    }
 
 
 def floor(force: np.ndarray, resp: np.ndarray) -> np.ndarray:
@@ -169,12 +180,16 @@ def main() -> None:
         f"{N_OUT} outputs x {N_AVG} averages x {N_S} samples, one input; BLAS on one thread; "
         f"load average {load0:.1f} -> {load1:.1f} on {os.cpu_count()} cores"
     )
-    print(f"| {'what':32s} | FFT threads | wall min ms | CPU min ms | CPU median ms | runs |")
-    print(f"| {'-' * 32} | ---: | ---: | ---: | ---: | ---: |")
+    print(
+        f"| {'what':32s} | FFT threads | wall min ms | CPU min ms | CPU median ms "
+        "| page faults | runs |"
+    )
+    print(f"| {'-' * 32} | ---: | ---: | ---: | ---: | ---: | ---: |")
     for k, v in t.items():
         print(
             f"| {k:32s} | {threads[k]:>4s} | {v.wall_min_s * 1e3:8.1f} | "
-            f"{v.cpu_min_s * 1e3:8.1f} | {v.cpu_median_s * 1e3:8.1f} | {v.runs} |"
+            f"{v.cpu_min_s * 1e3:8.1f} | {v.cpu_median_s * 1e3:8.1f} | {v.page_faults:6d} "
+            f"| {v.runs} |"
         )
     fl, h1, h2 = t["floor (numpy rfft + einsum)"], t["dimacq H1"], t["dimacq H2"]
     r1, r2 = h1.cpu_min_s / fl.cpu_min_s, h2.cpu_min_s / fl.cpu_min_s
