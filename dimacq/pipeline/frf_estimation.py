@@ -93,6 +93,11 @@ class FrfEstimate:
         Summed output autospectra (unscaled).
     n_averages : int
     estimator : {"H1", "H2", "Hv"}
+
+    Notes
+    -----
+    ``H`` (H1, H2), ``g_yy`` and ``ordinary_coherence`` are views of one buffer (the estimator
+    computes them in place): keeping one keeps the others' memory.
     """
 
     frequencies_hz: NDArray[np.float64]
