@@ -152,7 +152,7 @@ class Sine:
 def _run(
     *,
     scale: float = 4.0,
-    drop: tuple[int, ...] = (),
+    drop_at_s: float | None = None,
     max_phase_deg: float = 90.0,
     seconds: float = 0.6,
 ) -> tuple[NetFtUdp, Sine, NDArray[np.float64], LoadCellBlock]:
@@ -173,7 +173,6 @@ def _run(
         time_scale=scale,
         ppm=40.0,
         per_datagram=8,
-        drop=drop,
     ) as sim:
         sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         sock.connect(sim.address)
@@ -194,6 +193,9 @@ def _run(
             t_a = time.monotonic()
             clock.start(0, FS, wall_scale=scale)
             drv.daq_clock_started(t_a, time.monotonic())
+            if drop_at_s is not None:  # the datagram ``drop_at_s`` of the lab after the start
+                j = sim._sent + int(drop_at_s * 1000.0)
+                sim.drop.add(8 * (j // 8) + 1)
             n = int(seconds * FS * 0.8)
             try:
                 # read as the acquisition does: block by block
@@ -245,7 +247,7 @@ def test_buffered_stream_put_on_the_daq_clock() -> None:
 
 
 def test_a_lost_datagram_rejects_its_samples_not_bridged() -> None:
-    drv, _, _, blk = _run(drop=(241,))  # records 241..248 in one datagram of 8
+    drv, _, _, blk = _run(drop_at_s=0.2)  # 8 records in one datagram of 8
     assert drv.lost == 8
     assert not blk.valid.all() and blk.valid[:20].all() and blk.valid[-20:].all()
     n_bad = int((~blk.valid).sum())
