@@ -199,9 +199,7 @@ def fit_lower_envelope(
     c0 = float(np.min(y - c1 * x))  # the line touches the hull (exactly, unless clipped)
     r = y - (c0 + c1 * x)
     scatter = 1.4826 * float(np.median(np.abs(r - np.median(r))))
-    return ClockFit(
-        float(c0 - c1 * s[idx[0]]), float(nominal_slope + c1), scatter, int(idx.size)
-    )
+    return ClockFit(float(c0 - c1 * s[idx[0]]), float(nominal_slope + c1), scatter, int(idx.size))
 
 
 def lagrange4(y: NDArray[np.float64], u: NDArray[np.float64]) -> NDArray[np.float64]:
