@@ -545,16 +545,7 @@ class ImpactSession(ImpactStream):
                     f_j, H_j, coh_j = self._frf(records[j], fs)
                     # a load cell on its own clock: its residual delay fitted from the data
                     where = f"input {self.input_names[j]}"
-                    spans = (
-                        []  # records of an earlier session among them: no sample positions
-                        if self.prior is not None
-                        else [
-                            (h.first_sample, h.n_samples)
-                            for h in history
-                            if h.input_index == j and h.accepted
-                        ]
-                    )
-                    for msg in aligner.align(j, f_j, H_j, coh_j, where, spans):
+                    for msg in aligner.align(j, f_j, H_j, coh_j, where):
                         self._event({"device": "loadcell", "kind": "alignment", "message": msg})
                     if H_all is None:  # filled input by input: no stacking copy at the end
                         H_all = np.zeros((*H_j.shape, n_in), dtype=H_j.dtype)

@@ -144,12 +144,8 @@ class DataAligner:
     little of that input's force for its own fit (the refusal of :func:`align_rows`) waits for
     the end of the run (:meth:`finish`): it then takes the run's delay — the mean ``τ̄`` of
     the inputs that met the budget, with the uncertainty ``√(se² + ω²)``, ``ω`` how much the
-    delay wanders between inputs beyond their fits' own errors (the delay is the clocks', not
-    the input's: :func:`run_delay`). What the host's clock itself moved between inputs is
-    known at the end: the cell's ``coarse_shift_s`` says, per input, how far the clock fit of
-    the whole run puts its records from where they were delivered (the fit's first seconds,
-    its later corrections slewed in); each fitted delay is taken less its input's shift, and a
-    waiting input takes ``τ̄`` plus its own;
+    coarse alignment wanders between inputs beyond their fits' own errors (the delay is the
+    clocks', not the input's: :func:`run_delay`);
     the run is refused when that too costs more than the budget, or when no input met it.
 
     Parameters
@@ -169,11 +165,8 @@ class DataAligner:
                 self.cells.append((k, slice(row, row + n), lc))
             row += n
         self.first_row = first_row
-        #: per cell: (input, fitted delay, its uncertainty) of the inputs aligned on their own
-        self.fits: dict[int, list[tuple[int, float, float]]] = {k: [] for k, _, _ in self.cells}
+        self.fits: dict[int, list[tuple[float, float]]] = {k: [] for k, _, _ in self.cells}
         self.waiting: dict[int, list[tuple[int, str]]] = {k: [] for k, _, _ in self.cells}
-        #: each input's records, (first DAQ sample, count) each
-        self.spans: dict[int, list[tuple[int, int]]] = {}
 
     def align(
         self,
@@ -182,12 +175,9 @@ class DataAligner:
         H: NDArray[np.complex128],
         coherence: NDArray[np.float64],
         where: str,
-        spans: Sequence[tuple[int, int]] = (),
     ) -> list[str]:
         """Input ``j``'s FRFs ``H`` (n_lines, n_outputs) aligned in place where its own fit meets
-        the budget; one message per cell. ``spans``: its records' (first DAQ sample, count),
-        for the coarse alignment's moves between inputs (:meth:`finish`)."""
-        self.spans[j] = list(spans)
+        the budget; one message per cell."""
         messages = []
         for k, rows, lc in self.cells:
             budget = lc.delay_budget()  # type: ignore[attr-defined]
@@ -204,7 +194,7 @@ class DataAligner:
                 self.waiting[k].append((j, where))
                 msg = f"{err}; it takes the run's delay at the end"
             else:
-                self.fits[k].append((j, fit.delay_s, fit.uncertainty_s))
+                self.fits[k].append((fit.delay_s, fit.uncertainty_s))
                 msg = (
                     f"{budget.label}: {where}: residual delay {1e6 * fit.delay_s:+.1f} us fitted "
                     f"from the data, within {1e6 * fit.uncertainty_s:.1f} us ({phase:.2f} deg "
@@ -213,16 +203,6 @@ class DataAligner:
             log.info("%s", msg)
             messages.append(msg)
         return messages
-
-    def _shifts(self, lc: LoadCell, inputs: Sequence[int]) -> NDArray[np.float64]:
-        """Each input's coarse shift (the cell's ``coarse_shift_s`` over its records: how far the
-        coarse alignment it was delivered with has moved since), s; zeros where the cell or an
-        input cannot say (no spans, a run restarted since), for all inputs alike."""
-        get = getattr(lc, "coarse_shift_s", None)
-        if get is None or any(not self.spans.get(j) for j in inputs):
-            return np.zeros(len(inputs))
-        out = np.array([get(self.spans[j]) for j in inputs], dtype=float)
-        return out if np.all(np.isfinite(out)) else np.zeros(len(inputs))
 
     def finish(
         self, frequencies_hz: NDArray[np.float64], H_all: NDArray[np.complex128]
@@ -250,28 +230,18 @@ class DataAligner:
                     "the cell carries too little of the force for its delay to be told; lower "
                     "netft_band_hz, or read the cell as loadcell = 'netft-can' or 'daq-channels'"
                 )
-            shift = self._shifts(
-                lc, [j for j, _, _ in self.fits[k]] + [j for j, _ in self.waiting[k]]
-            )
-            n_fit = len(self.fits[k])
-            tau = np.array([t for _, t, _ in self.fits[k]]) - shift[:n_fit]
-            mean, sem, wander = run_delay(tau, np.array([u for _, _, u in self.fits[k]]))
+            tau = np.array([t for t, _ in self.fits[k]])
+            mean, sem, wander = run_delay(tau, np.array([u for _, u in self.fits[k]]))
             u = float(np.hypot(sem, wander))
             phase = phase_error_deg(u, budget.band_hz)
             if not phase <= budget.max_phase_deg:
                 raise SetupError(_refusal(budget, names, u, phase, None))
-            for (j, _), dj in zip(self.waiting[k], shift[n_fit:], strict=True):
-                H_all[:, rows, j] *= np.exp(2j * np.pi * f * (mean + dj))[:, None]
-            moved = (
-                f"; the coarse alignment's moves, {1e6 * np.ptp(shift):.1f} us between inputs, "
-                "taken out"
-                if np.any(shift)
-                else ""
-            )
+            for j, _ in self.waiting[k]:
+                H_all[:, rows, j] *= np.exp(2j * np.pi * f * mean)[:, None]
             msg = (
                 f"{budget.label}: {names}: the run's delay {1e6 * mean:+.1f} us (from "
                 f"{tau.size} inputs, wander {1e6 * wander:.1f} us beyond their fits' own "
-                f"uncertainties{moved}), within {1e6 * u:.1f} us "
+                f"uncertainties), within {1e6 * u:.1f} us "
                 f"({phase:.2f} deg at {budget.band_hz:g} Hz), removed"
             )
             log.info("%s", msg)

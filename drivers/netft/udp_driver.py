@@ -50,7 +50,6 @@ import socket
 import struct
 import sys
 import time
-from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -126,8 +125,6 @@ class _Run:
         self.corr = 0.0
         #: the position the last block's mapping gives sample ``next_sample`` (None: no block yet)
         self.u_next: float | None = None
-        #: the blocks delivered: first sample, end, the positions used at both (linear between)
-        self.blocks: list[tuple[int, int, float, float]] = []
 
     @property
     def n_arrivals(self) -> int:
@@ -552,40 +549,7 @@ class NetFtUdp(WireDriver):
         u = u_fit + c0 + (c1 - c0) * (ks - first) / n
         if commit:
             run.corr, run.u_next = c1, float(u[-1])
-            run.blocks.append((first, end_sample, float(u[0]), float(u[-1])))
         return u[:-1], delta
-
-    def coarse_shift_s(self, spans: Sequence[tuple[int, int]]) -> float:
-        """How much later the clock fit of now puts DAQ samples ``spans`` (``(first sample,
-        count)`` each: an input's records) than the positions they were delivered with, s of
-        the lab, averaged over their samples::
-
-            Δ = mean_k (u_now(k) − u_used(k)) / f_RDT
-
-        A load delivered from position ``u_used`` lags the truth by ``(u_true − u_used)/f_RDT``
-        and the fit of now is the truth but for a delay common to the run (its line's offset:
-        the network's latency floor, the DAQ start window), so an input's residual delay is
-        ``Δ`` plus that common delay: what the inputs that cannot fit their own share
-        (:class:`~dimacq.services.data_alignment.DataAligner`). NaN when a span was not
-        delivered in this stream (a run restarted since)."""
-        run = self._run
-        if run is None or not run.blocks:
-            return float("nan")
-        starts = np.array([b[0] for b in run.blocks])
-        total, count = 0.0, 0
-        for first, n in spans:
-            if n <= 0:
-                continue
-            ks = np.arange(first, first + n)
-            i = np.searchsorted(starts, ks, side="right") - 1
-            if i.min() < 0 or ks[-1] >= run.blocks[-1][1]:
-                return float("nan")
-            blk = np.array(run.blocks)[i]
-            used = blk[:, 2] + (blk[:, 3] - blk[:, 2]) * (ks - blk[:, 0]) / (blk[:, 1] - blk[:, 0])
-            now = self._positions(ks.astype(float), fit_only=True)[0]
-            total += float(np.sum(now - used))
-            count += n
-        return total / count / self.rdt_rate_hz if count else float("nan")
 
     @property
     def band_hz(self) -> float:
