@@ -276,3 +276,51 @@ def test_no_samples_without_the_daq_start() -> None:
             drv.stop()
         finally:
             sock.close()
+
+
+def test_positions_stay_continuous_when_the_clock_fit_moves() -> None:
+    """The cause of the RDT loads' per-load, frequency-growing lag: the clock fit moves as
+    datagrams come in (a datagram that waited less than all before it), and positions taken
+    from each block's fit jumped inside a hit's record, its loads cut from two delays. Here
+    arrivals with a known latency (20 µs, then a 60 µs lower one) are fed to the driver's
+    stream and blocks are placed: each block starts where the last one ended, the slope of
+    the positions differs from the fit's by at most MAX_SLEW."""
+    from dimacq.drivers.netft import udp_driver as ud
+
+    fs, rate = 2048.0, 7000.0
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        drv = NetFtUdp(sock, calibration=CAL, rdt_rate_hz=rate, ft_rate_hz=rate)
+        drv.set_rate(int(fs))
+        run = drv._run = ud._Run(rate, 1.0)
+        run.ft0 = 0
+        t0 = 100.0  # host time of the sensor's instant 0
+        blank = np.zeros((40, 6), dtype=np.int64)
+
+        def arrive(until_s: float, latency_s: float) -> None:
+            while run.end / rate < until_s:
+                j = np.arange(run.end, run.end + 40)
+                s_last = float(j[-1]) / rate
+                run.put(j, blank, np.zeros(40, np.int64), t0 + s_last + latency_s, s_last)
+
+        arrive(3.5, 80e-6)  # 3.5 s of arrivals, 80 µs each: the fit's line 80 µs late
+        early = run.fit(1.0)
+        drv.daq_clock_started(t0 + 0.5, t0 + 0.5)  # DAQ sample 0 at sensor time 0.5 s
+        blocks, fit_steps = [], []
+        for b in range(40):
+            if b == 4:
+                arrive(12.0, 20e-6)  # then datagrams that waited 20 µs: the fit moves by 60 µs
+            blocks.append(drv._block_positions(256 * b, 256 * (b + 1))[0])
+            fit_steps.append(np.full(256, rate / fs / run.fit(1.0).slope))
+        # the line under the arrivals: at the 20 µs floor once it holds most of the run
+        assert early.offset_s - t0 == pytest.approx(80e-6, abs=1e-9)
+        assert run.fit(1.0).offset_s - t0 == pytest.approx(20e-6, abs=1e-9)
+        u = np.concatenate(blocks)
+        # continuous: each step of the positions (within a block and to the next) is the
+        # fit's of that block within what the slew allows (the fit's 60 µs move at once would
+        # be a step 0.42 records off)
+        off = np.diff(u) - np.concatenate(fit_steps)[:-1]
+        assert np.abs(off).max() <= ud.MAX_SLEW * rate / fs * (1 + 1e-6)
+        assert np.abs(off).max() > 0.5 * ud.MAX_SLEW * rate / fs  # it did slew
+    finally:
+        sock.close()
