@@ -11,9 +11,10 @@ Used for a sensor with no sync input that streams numbered samples (an ATI Net F
   each datagram's arrival bounds its last record's instant from above:
   ``t_arr = A + B s + d``, with ``B`` the host seconds per sensor second (``1/time_scale`` for a
   time-lapse simulation, ``1 ± ppm`` for a real crystal). The **lower envelope** of the
-  arrivals, one minimum per window of ``window_s``, is fitted by a line
-  (:func:`fit_lower_envelope`): the windows' minima are the datagrams that waited least, and
-  their scatter about the line is what the fit cannot tell apart from latency;
+  arrivals, one minimum per window of ``window_s``, gives the line: the highest line under
+  all the minima (:func:`fit_lower_envelope`, a linear programme: it rests on the datagrams
+  that waited least, where a least-squares line through the minima moved with every busy
+  window); the minima's scatter above it is what the fit cannot tell apart from latency;
 - the **DAQ** clocks sample ``k`` at ``t = T0 + k / (f_d · time_scale)``; ``T0`` lies in the
   window the host measured around the request that started its clock (``t_a ≤ T0 ≤ t_b``, its
   midpoint taken, half its width an uncertainty);
