@@ -530,6 +530,10 @@ class ImpactSession(ImpactStream):
                     if self._rearmed:  # the run restarted while the hit waited: from its start
                         armed_from, self._rearmed = 0, False
                     self._trim(armed_from - s.pretrigger_samples)
+                    for lc in self.loadcells:  # between records: a cell on its own clock
+                        realign = getattr(lc, "realign", None)  # may move its alignment now
+                        if realign is not None:
+                            realign()
                     msg = (
                         f"input {self.input_names[j]}: average {len(records[j])}/"
                         f"{s.averages_per_input}"

@@ -15,10 +15,11 @@ the host's (offset and rate: the sensor's crystal error is fitted), and the acqu
 the window around the DAQ's start request (:meth:`daq_clock_started`), which holds DAQ sample 0.
 DAQ sample ``k`` is then a fractional record index, interpolated by a 4-point Lagrange cubic
 (the method, its error and its budget: :mod:`dimacq.pipeline.stream_alignment`). The clock
-fit moves as datagrams come in; the positions do not jump with it: each block of samples
-continues the last and turns toward the fit by at most :data:`MAX_SLEW` (a jump inside a hit's
-record cuts its loads from two delays — a lag that grows with frequency and differs per load,
-which no single delay removes). START waits for 3 s of arrivals so that the fit has a slope. What the
+fit moves as datagrams come in; the positions do not jump with it while a record may be open:
+each block of samples continues the last and turns toward the fit by at most :data:`MAX_SLEW`
+(a jump inside a hit's record cuts its loads from two delays — a lag that grows with
+frequency and differs per load, which no single delay removes); between records
+(:meth:`realign`) they go to the fit at once. START waits for 3 s of arrivals so that the fit has a slope. What the
 host's clock cannot know — half the DAQ start window, the envelope's scatter and the network's
 latency floor ``latency_floor_s`` — is its uncertainty ``δ``; it costs ``360° f δ`` of FRF phase
 at frequency ``f`` (~100 µs: 36° at 1 kHz), so the host's clock is a coarse time base. Two ways
@@ -554,6 +555,14 @@ class NetFtUdp(WireDriver):
         if commit:
             run.corr, run.u_next = c1, float(u[-1])
         return u[:-1], delta
+
+    def realign(self) -> None:
+        """No record is open (the acquisition calls this once a hit's record is cut, before it
+        asks for the next): the next block's positions go to the clock fit at once instead of
+        turning toward it at :data:`MAX_SLEW` — the jump falls between records, and the
+        inputs are not left behind a moved fit for seconds."""
+        if self._run is not None:
+            self._run.u_next, self._run.corr = None, 0.0
 
     @property
     def band_hz(self) -> float:

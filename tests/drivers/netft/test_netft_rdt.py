@@ -284,7 +284,8 @@ def test_positions_stay_continuous_when_the_clock_fit_moves() -> None:
     from each block's fit jumped inside a hit's record, its loads cut from two delays. Here
     arrivals with a known latency (20 µs, then a 60 µs lower one) are fed to the driver's
     stream and blocks are placed: each block starts where the last one ended, the slope of
-    the positions differs from the fit's by at most MAX_SLEW."""
+    the positions differs from the fit's by at most MAX_SLEW; between records (``realign``)
+    they go to the fit at once."""
     from dimacq.drivers.netft import udp_driver as ud
 
     fs, rate = 2048.0, 7000.0
@@ -322,5 +323,12 @@ def test_positions_stay_continuous_when_the_clock_fit_moves() -> None:
         off = np.diff(u) - np.concatenate(fit_steps)[:-1]
         assert np.abs(off).max() <= ud.MAX_SLEW * rate / fs * (1 + 1e-6)
         assert np.abs(off).max() > 0.5 * ud.MAX_SLEW * rate / fs  # it did slew
+        assert abs(run.corr) > 0.05  # records still to turn (60 µs = 0.42 records at first)
+        # between records the positions go to the fit at once
+        drv.realign()
+        nxt = drv._block_positions(256 * 40, 256 * 41)[0]
+        np.testing.assert_allclose(
+            nxt, drv._positions(np.arange(256 * 40.0, 256 * 41.0), fit_only=True)[0]
+        )
     finally:
         sock.close()
