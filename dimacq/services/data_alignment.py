@@ -39,6 +39,7 @@ def align_rows(
     budget: DelayBudget,
     where: str,
     references: NDArray[np.complex128] | None = None,
+    line_bandwidth: float = 1.0,
 ) -> tuple[NDArray[np.complex128], DelayFit, float]:
     """One cell's FRFs ``H`` (n_lines, n_rows) with their fitted delay removed, the fit and the
     phase its uncertainty costs at ``budget.band_hz`` (degrees).
@@ -49,6 +50,8 @@ def align_rows(
     None: the mass-line basis (2). Each row is scaled to unit RMS over the fit's lines (forces
     and moments count alike); each line is weighted by the median over the rows of
     ``γ² / (1 − γ²)`` (its inverse relative variance; ``1 − γ²`` floored at 1e-4).
+    ``line_bandwidth``: the records' window's equivalent noise bandwidth in lines
+    (:func:`~dimacq.pipeline.stream_alignment.fit_delay`).
 
     Raises
     ------
@@ -68,7 +71,9 @@ def align_rows(
     if references is not None:
         X = np.concatenate([references[m], np.ones((int(m.sum()), 1))], axis=1)
     try:
-        fit = fit_delay(f[m], Hm, w, search_s=budget.search_s, regressors=X)
+        fit = fit_delay(
+            f[m], Hm, w, search_s=budget.search_s, regressors=X, line_bandwidth=line_bandwidth
+        )
     except ValueError as err:
         raise SetupError(
             f"{budget.label}: {where}: no delay fit from the data ({err}); set netft_fit_lo_hz "
@@ -155,9 +160,17 @@ class DataAligner:
         Rows of each cell in the FRFs.
     first_row : int
         The cells' first row (after the responses, the regressors of equation (1)).
+    line_bandwidth : float
+        The records' output window's equivalent noise bandwidth, lines (1: none).
     """
 
-    def __init__(self, loadcells: Sequence[LoadCell], widths: Sequence[int], first_row: int):
+    def __init__(
+        self,
+        loadcells: Sequence[LoadCell],
+        widths: Sequence[int],
+        first_row: int,
+        line_bandwidth: float = 1.0,
+    ):
         self.cells: list[tuple[int, slice, LoadCell]] = []
         row = first_row
         for k, (lc, n) in enumerate(zip(loadcells, widths, strict=True)):
@@ -165,6 +178,7 @@ class DataAligner:
                 self.cells.append((k, slice(row, row + n), lc))
             row += n
         self.first_row = first_row
+        self.line_bandwidth = line_bandwidth
         self.fits: dict[int, list[tuple[float, float]]] = {k: [] for k, _, _ in self.cells}
         self.waiting: dict[int, list[tuple[int, str]]] = {k: [] for k, _, _ in self.cells}
 
@@ -186,7 +200,13 @@ class DataAligner:
             refs = H[:, : self.first_row] if self.first_row > 0 else None
             try:
                 H[:, rows], fit, phase = align_rows(
-                    frequencies_hz, H[:, rows], coherence[:, rows], budget, where, refs
+                    frequencies_hz,
+                    H[:, rows],
+                    coherence[:, rows],
+                    budget,
+                    where,
+                    refs,
+                    self.line_bandwidth,
                 )
             except SetupError as err:
                 if "too little of the force" not in str(err):
