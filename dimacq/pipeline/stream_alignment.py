@@ -405,9 +405,9 @@ def fit_delay(
         How many adjacent lines share their noise, ``B ≥ 1``: FRFs of records under a window
         ``w`` (an exponential window on a hit's response) have their noise smoothed over the
         window's equivalent noise bandwidth, ``B = N Σw² / (Σw)²`` lines; the residuals then
-        hold ``n / B`` independent lines, not ``n``, and ``σ_τ² = B · 2 s² / J''(τ̂)``. (With
-        ``B = 1`` taken for a 0.25 s window on 2 s records, ``B ≈ 4``, the demo's fits
-        scattered 2–3 times their σ.)
+        hold ``n / B`` independent lines, not ``n``, and ``σ_τ² = B · 2 s² / J''(τ̂)`` (a
+        0.25 s window: ``B`` ≈ 2 on 1 s records, 3.6 on 2 s; with 1 taken, the demo's step-0
+        fits scattered 2–3 times their σ).
 
     Raises
     ------
