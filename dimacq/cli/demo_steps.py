@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import multiprocessing
 import secrets
 import threading
@@ -280,8 +281,12 @@ def _child(
     args: argparse.Namespace,
     imperfections: dict[str, Any] | None,
 ) -> None:
-    """The child process of :class:`ChainCheck`: step 0, its lines sent as they come."""
+    """The child process of :class:`ChainCheck`: step 0, its lines sent as they come (its log
+    at the parent's ``-v`` level, on the same stderr: a spawned child starts unconfigured)."""
     from dimacq.backends.time_lapse import HostLag
+
+    level = logging.WARNING - 10 * min(int(getattr(args, "verbose", 0) or 0), 2)
+    logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
 
     lag = HostLag()
     runs: list[dict[str, Any]] = []

@@ -11,9 +11,10 @@ Used for a sensor with no sync input that streams numbered samples (an ATI Net F
   each datagram's arrival bounds its last record's instant from above:
   ``t_arr = A + B s + d``, with ``B`` the host seconds per sensor second (``1/time_scale`` for a
   time-lapse simulation, ``1 ± ppm`` for a real crystal). The **lower envelope** of the
-  arrivals, one minimum per window of ``window_s``, is fitted by a line
-  (:func:`fit_lower_envelope`): the windows' minima are the datagrams that waited least, and
-  their scatter about the line is what the fit cannot tell apart from latency;
+  arrivals, one minimum per window of ``window_s``, gives the line: the highest line under
+  all the minima (:func:`fit_lower_envelope`, a linear programme: it rests on the datagrams
+  that waited least, where a least-squares line through the minima moved with every busy
+  window); the minima's scatter above it is what the fit cannot tell apart from latency;
 - the **DAQ** clocks sample ``k`` at ``t = T0 + k / (f_d · time_scale)``; ``T0`` lies in the
   window the host measured around the request that started its clock (``t_a ≤ T0 ≤ t_b``, its
   midpoint taken, half its width an uncertainty);
@@ -112,6 +113,21 @@ class ClockFit:
     n_windows: int
 
 
+def _lower_hull(x: NDArray[np.float64], y: NDArray[np.float64]) -> NDArray[np.intp]:
+    """Indices of the lower convex hull of the points ``(x, y)``, ``x`` increasing (Andrew's
+    monotone chain: each point pops the vertices it sees from below; one pass, sequential by
+    nature, over the windows' minima only)."""
+    hull: list[int] = []
+    for i in range(x.size):
+        while len(hull) >= 2:
+            a, b = hull[-2], hull[-1]
+            if (x[b] - x[a]) * (y[i] - y[a]) - (y[b] - y[a]) * (x[i] - x[a]) > 0:
+                break
+            hull.pop()
+        hull.append(i)
+    return np.asarray(hull, dtype=np.intp)
+
+
 def fit_lower_envelope(
     sensor_s: NDArray[np.float64],
     host_s: NDArray[np.float64],
@@ -121,24 +137,40 @@ def fit_lower_envelope(
     max_ppm: float = 200.0,
     min_windows: int = 8,
 ) -> ClockFit:
-    """The line under the arrivals: one minimum of ``host_s − nominal_slope · sensor_s`` per
-    window of ``window_s`` host seconds, a least-squares line through them (windows more than
-    3 scatters above it dropped), its slope within the crystal's tolerance; the lowest point
-    with ``nominal_slope`` while fewer than ``min_windows`` windows are in.
+    """The line under the arrivals: with ``o = host_s − nominal_slope · sensor_s`` and one
+    minimum per window of ``window_s`` host seconds, the line ``o = c0 + c1 s`` that lies under
+    every minimum and is as high as it can be on average::
+
+        maximise  Σ_w (c0 + c1 s_w)   subject to   c0 + c1 s_w ≤ o_w  for every window w
+
+    (the linear-programming estimate of clock skew of Moon, Skelly & Towsley, 1999). Latency
+    only ever adds (``o_w = c0 + c1 s_w + d_w``, ``d_w ≥ d_min``), so the constraint holds for
+    the true line shifted by ``d_min``; the optimum is the edge of the minima's lower convex
+    hull over their mean ``s̄`` (the objective is ``n (c0 + c1 s̄)``), and it rests on the
+    datagrams that waited least — it does not move with the bulk of the latency, which a
+    least-squares line through the minima does (under load by tens of µs from one window to
+    the next, each move a jump of the DAQ samples' positions). The slope is kept within
+    ``nominal_slope × (1 ± max_ppm 10⁻⁶)`` (a crystal's tolerance; beyond, the line through
+    the lowest minimum with that slope); the lowest point with ``nominal_slope`` while fewer
+    than ``min_windows`` windows are in.
 
     Parameters
     ----------
     sensor_s : ndarray, shape (n,)
-        Sensor time of each datagram's last record, s.
+        Sensor time of each datagram's last record, s (increasing).
     host_s : ndarray, shape (n,)
         Its arrival on the host's monotonic clock, s.
     nominal_slope : float
         Host seconds per sensor second as configured (1 / time scale).
     window_s : float
     max_ppm : float
-        The slope is kept within ``nominal_slope × (1 ± max_ppm 10⁻⁶)`` (a crystal's
-        tolerance): over a short run the scatter would tilt the line more than any clock does;
-        the offset is then the median of the windows' minima about that slope.
+    min_windows : int
+
+    Returns
+    -------
+    ClockFit
+        ``scatter_s``: 1.4826 × the median absolute deviation of the minima's heights above
+        the line (how far a typical window's least latency is from the floor).
     """
     s = np.asarray(sensor_s, dtype=float)
     t = np.asarray(host_s, dtype=float)
@@ -149,29 +181,26 @@ def fit_lower_envelope(
     order = np.lexsort((o, w))
     first = np.ones(order.size, dtype=bool)
     first[1:] = w[order][1:] != w[order][:-1]
-    idx = order[first]  # the lowest offset of each window
+    idx = np.sort(order[first])  # the lowest offset of each window, in time order
     if idx.size < min_windows:  # too short a span to tell a slope from the scatter
         oo = o[idx]
         scatter = 1.4826 * float(np.median(np.abs(oo - np.median(oo)))) if idx.size > 2 else 0.0
         return ClockFit(float(oo.min()), nominal_slope, scatter, int(idx.size))
-    ss, oo = s[idx], o[idx]
-    keep = np.ones(idx.size, dtype=bool)
-    for _ in range(2):
-        c1, c0 = np.polyfit(ss[keep] - ss[0], oo[keep], 1)
-        r = oo - (c0 + c1 * (ss - ss[0]))
-        mad = 1.4826 * float(np.median(np.abs(r[keep] - np.median(r[keep]))))
-        keep = r <= 3.0 * max(mad, 1e-9)
-        if keep.sum() < 3:
-            keep[:] = True
-            break
-    c1, _ = np.polyfit(ss[keep] - ss[0], oo[keep], 1)
-    # a crystal is within max_ppm: a slope beyond is the scatter's, not the clock's
+    x = s[idx] - s[idx[0]]
+    y = o[idx]
+    hull = _lower_hull(x, y)
     lim = max_ppm * 1e-6 * nominal_slope
+    c1 = 0.0
+    if hull.size >= 2:
+        e = int(np.clip(np.searchsorted(x[hull], x.mean()) - 1, 0, hull.size - 2))
+        a, b = hull[e], hull[e + 1]
+        c1 = float((y[b] - y[a]) / (x[b] - x[a]))
+    # a crystal is within max_ppm: a slope beyond is the scatter's, not the clock's
     c1 = float(np.clip(c1, -lim, lim))
-    c0 = float(np.median(oo[keep] - c1 * ss[keep]))
-    r = oo[keep] - (c0 + c1 * ss[keep])
+    c0 = float(np.min(y - c1 * x))  # the line touches the hull (exactly, unless clipped)
+    r = y - (c0 + c1 * x)
     scatter = 1.4826 * float(np.median(np.abs(r - np.median(r))))
-    return ClockFit(float(c0), float(nominal_slope + c1), scatter, int(keep.sum()))
+    return ClockFit(float(c0 - c1 * s[idx[0]]), float(nominal_slope + c1), scatter, int(idx.size))
 
 
 def lagrange4(y: NDArray[np.float64], u: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -351,6 +380,7 @@ def fit_delay(
     *,
     search_s: float,
     regressors: NDArray[np.complex128] | None = None,
+    line_bandwidth: float = 1.0,
 ) -> DelayFit:
     """The delay ``τ`` common to FRFs ``H`` of a stream against references on another clock:
     ``H_m(f) e^{iωτ} = Σ_k c_mk X_k(f)`` with real ``c_mk`` (equation (1) of the module doc),
@@ -371,6 +401,13 @@ def fit_delay(
     regressors : ndarray, shape (n_lines, n_regressors), optional
         ``X_k`` on the reference's clock (the DAQ's responses to the same input and a column of
         ones: equation (1)); None: :func:`mass_line_basis` (equation (2)).
+    line_bandwidth : float
+        How many adjacent lines share their noise, ``B ≥ 1``: FRFs of records under a window
+        ``w`` (an exponential window on a hit's response) have their noise smoothed over the
+        window's equivalent noise bandwidth, ``B = N Σw² / (Σw)²`` lines; the residuals then
+        hold ``n / B`` independent lines, not ``n``, and ``σ_τ² = B · 2 s² / J''(τ̂)`` (a
+        0.25 s window: ``B`` ≈ 2 on 1 s records, 3.6 on 2 s; with 1 taken, the demo's step-0
+        fits scattered 2–3 times their σ).
 
     Raises
     ------
@@ -396,6 +433,7 @@ def fit_delay(
         )
     sw = np.sqrt(w)
     tau, sigma, j0, total = _fit_tau(f, Hc, X, sw, search_s)
+    sigma *= float(np.sqrt(max(line_bandwidth, 1.0)))
     spread = 0.0
     if f.size >= 2 * need:
         # each half refines the whole band's estimate (its own search would find the far

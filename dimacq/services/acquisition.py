@@ -68,6 +68,7 @@ from dimacq.io.acquisition_hdf5 import AcquisitionWriter
 from dimacq.model.impact import ImpactSettings
 from dimacq.pipeline.frf_estimation import (
     double_hit_mask,
+    exponential_window,
 )
 from dimacq.services.data_alignment import DataAligner
 from dimacq.services.impact_result import (
@@ -417,8 +418,20 @@ class ImpactSession(ImpactStream):
         self._lost = [0] * n_in
         self._rearmed = False
         self._start_run()
+        # the noise of FRF lines under the response window is shared by ~its equivalent noise
+        # bandwidth in lines: the delay fit's σ counts the independent ones
+        w_out = (
+            exponential_window(
+                s.record_samples, fs, s.exponential_tau_s, start_sample=s.pretrigger_samples
+            )
+            if s.exponential_tau_s
+            else np.ones(s.record_samples)
+        )
         aligner = DataAligner(
-            self.loadcells, [b.data.shape[0] for b in self._lc_bufs], len(self.response_rows)
+            self.loadcells,
+            [b.data.shape[0] for b in self._lc_bufs],
+            len(self.response_rows),
+            line_bandwidth=s.record_samples * float(np.sum(w_out**2)) / float(np.sum(w_out)) ** 2,
         )
         # Streamed: an input's FRF is estimated as soon as its averages are in, and its records
         # are dropped (memory: one input's records, not the whole test's).
@@ -530,6 +543,10 @@ class ImpactSession(ImpactStream):
                     if self._rearmed:  # the run restarted while the hit waited: from its start
                         armed_from, self._rearmed = 0, False
                     self._trim(armed_from - s.pretrigger_samples)
+                    for lc in self.loadcells:  # between records: a cell on its own clock
+                        realign = getattr(lc, "realign", None)  # may move its alignment now
+                        if realign is not None:
+                            realign()
                     msg = (
                         f"input {self.input_names[j]}: average {len(records[j])}/"
                         f"{s.averages_per_input}"

@@ -27,7 +27,7 @@ from dimacq.devices.loadcell import LoadCell
 from dimacq.errors import SetupError
 from dimacq.pipeline.stream_alignment import DelayBudget, DelayFit, fit_delay, phase_error_deg
 
-__all__ = ["DataAligner", "align_rows"]
+__all__ = ["DataAligner", "align_rows", "run_delay"]
 
 log = logging.getLogger(__name__)
 
@@ -39,6 +39,7 @@ def align_rows(
     budget: DelayBudget,
     where: str,
     references: NDArray[np.complex128] | None = None,
+    line_bandwidth: float = 1.0,
 ) -> tuple[NDArray[np.complex128], DelayFit, float]:
     """One cell's FRFs ``H`` (n_lines, n_rows) with their fitted delay removed, the fit and the
     phase its uncertainty costs at ``budget.band_hz`` (degrees).
@@ -49,6 +50,8 @@ def align_rows(
     None: the mass-line basis (2). Each row is scaled to unit RMS over the fit's lines (forces
     and moments count alike); each line is weighted by the median over the rows of
     ``γ² / (1 − γ²)`` (its inverse relative variance; ``1 − γ²`` floored at 1e-4).
+    ``line_bandwidth``: the records' window's equivalent noise bandwidth in lines
+    (:func:`~dimacq.pipeline.stream_alignment.fit_delay`).
 
     Raises
     ------
@@ -68,7 +71,9 @@ def align_rows(
     if references is not None:
         X = np.concatenate([references[m], np.ones((int(m.sum()), 1))], axis=1)
     try:
-        fit = fit_delay(f[m], Hm, w, search_s=budget.search_s, regressors=X)
+        fit = fit_delay(
+            f[m], Hm, w, search_s=budget.search_s, regressors=X, line_bandwidth=line_bandwidth
+        )
     except ValueError as err:
         raise SetupError(
             f"{budget.label}: {where}: no delay fit from the data ({err}); set netft_fit_lo_hz "
@@ -99,15 +104,53 @@ def _refusal(
     )
 
 
+def run_delay(
+    delays_s: NDArray[np.float64], uncertainties_s: NDArray[np.float64]
+) -> tuple[float, float, float]:
+    """The run's delay from the inputs' own fits: its mean, that mean's standard error and the
+    wander of the delay between inputs, s.
+
+    Each fit ``τ_i ± σ_i`` measures the clocks' delay during its input, ``τ_i = τ̄ + w_i + e_i``:
+    ``w_i`` how far the coarse alignment wandered (spread ``ω``), ``e_i`` the fit's own error
+    (``σ_i``). The scatter of the ``τ_i`` holds both, so ``ω`` is what is left of it beyond the
+    ``σ_i`` — the random-effects estimate of DerSimonian & Laird (1986)::
+
+        w_i = 1/σ_i²,   τ_F = Σ w_i τ_i / Σ w_i,   Q = Σ w_i (τ_i − τ_F)²,
+        ω² = max(0, (Q − (k − 1)) / (Σ w_i − Σ w_i² / Σ w_i))
+
+    (``E[Q] = k − 1`` when the inputs differ by their fits' errors alone); then
+    ``w*_i = 1 / (σ_i² + ω²)``, ``τ̄ = Σ w*_i τ_i / Σ w*_i``, standard error ``(Σ w*_i)^-½``.
+    An input that takes ``τ̄`` is off by its own wander and ``τ̄``'s error: ``√(se² + ω²)``.
+    (Taking the weighted scatter of the ``τ_i`` itself as the wander, as before, counted the
+    fits' own noise twice.) One fit: ``ω = 0`` (nothing to tell it from).
+
+    Parameters
+    ----------
+    delays_s, uncertainties_s : ndarray, shape (k,)
+    """
+    tau = np.asarray(delays_s, dtype=float)
+    w = 1.0 / np.maximum(np.asarray(uncertainties_s, dtype=float), 1e-12) ** 2
+    fixed = float(np.sum(w * tau) / w.sum())
+    q = float(np.sum(w * (tau - fixed) ** 2))
+    c = float(w.sum() - np.sum(w**2) / w.sum())
+    omega2 = max(0.0, (q - (tau.size - 1)) / c) if tau.size > 1 and c > 0 else 0.0
+    ws = 1.0 / (1.0 / w + omega2)
+    return (
+        float(np.sum(ws * tau) / ws.sum()),
+        float(1.0 / np.sqrt(ws.sum())),
+        float(np.sqrt(omega2)),
+    )
+
+
 class DataAligner:
     """The cells of one acquisition that ask for it (``delay_budget()``), aligned input by input.
 
     An input whose own fit meets the budget is aligned at once. One whose cell carries too
     little of that input's force for its own fit (the refusal of :func:`align_rows`) waits for
-    the end of the run (:meth:`finish`): it then takes the run's delay — the inverse-variance
-    mean ``τ̄`` of the inputs that met the budget — with the uncertainty
-    ``√(1/Σw + s²)``, ``s`` the weighted scatter of those inputs' delays about ``τ̄`` (how much
-    the coarse alignment wanders between inputs: the delay is the clocks', not the input's);
+    the end of the run (:meth:`finish`): it then takes the run's delay — the mean ``τ̄`` of
+    the inputs that met the budget, with the uncertainty ``√(se² + ω²)``, ``ω`` how much the
+    coarse alignment wanders between inputs beyond their fits' own errors (the delay is the
+    clocks', not the input's: :func:`run_delay`);
     the run is refused when that too costs more than the budget, or when no input met it.
 
     Parameters
@@ -117,9 +160,17 @@ class DataAligner:
         Rows of each cell in the FRFs.
     first_row : int
         The cells' first row (after the responses, the regressors of equation (1)).
+    line_bandwidth : float
+        The records' output window's equivalent noise bandwidth, lines (1: none).
     """
 
-    def __init__(self, loadcells: Sequence[LoadCell], widths: Sequence[int], first_row: int):
+    def __init__(
+        self,
+        loadcells: Sequence[LoadCell],
+        widths: Sequence[int],
+        first_row: int,
+        line_bandwidth: float = 1.0,
+    ):
         self.cells: list[tuple[int, slice, LoadCell]] = []
         row = first_row
         for k, (lc, n) in enumerate(zip(loadcells, widths, strict=True)):
@@ -127,6 +178,7 @@ class DataAligner:
                 self.cells.append((k, slice(row, row + n), lc))
             row += n
         self.first_row = first_row
+        self.line_bandwidth = line_bandwidth
         self.fits: dict[int, list[tuple[float, float]]] = {k: [] for k, _, _ in self.cells}
         self.waiting: dict[int, list[tuple[int, str]]] = {k: [] for k, _, _ in self.cells}
 
@@ -148,7 +200,13 @@ class DataAligner:
             refs = H[:, : self.first_row] if self.first_row > 0 else None
             try:
                 H[:, rows], fit, phase = align_rows(
-                    frequencies_hz, H[:, rows], coherence[:, rows], budget, where, refs
+                    frequencies_hz,
+                    H[:, rows],
+                    coherence[:, rows],
+                    budget,
+                    where,
+                    refs,
+                    self.line_bandwidth,
                 )
             except SetupError as err:
                 if "too little of the force" not in str(err):
@@ -193,10 +251,8 @@ class DataAligner:
                     "netft_band_hz, or read the cell as loadcell = 'netft-can' or 'daq-channels'"
                 )
             tau = np.array([t for t, _ in self.fits[k]])
-            wgt = 1.0 / np.maximum(np.array([u for _, u in self.fits[k]]), 1e-12) ** 2
-            mean = float(np.sum(wgt * tau) / wgt.sum())
-            wander = float(np.sqrt(np.sum(wgt * (tau - mean) ** 2) / wgt.sum()))
-            u = float(np.hypot(1.0 / np.sqrt(wgt.sum()), wander))
+            mean, sem, wander = run_delay(tau, np.array([u for _, u in self.fits[k]]))
+            u = float(np.hypot(sem, wander))
             phase = phase_error_deg(u, budget.band_hz)
             if not phase <= budget.max_phase_deg:
                 raise SetupError(_refusal(budget, names, u, phase, None))
@@ -204,7 +260,8 @@ class DataAligner:
                 H_all[:, rows, j] *= np.exp(2j * np.pi * f * mean)[:, None]
             msg = (
                 f"{budget.label}: {names}: the run's delay {1e6 * mean:+.1f} us (from "
-                f"{tau.size} inputs, wander {1e6 * wander:.1f} us), within {1e6 * u:.1f} us "
+                f"{tau.size} inputs, wander {1e6 * wander:.1f} us beyond their fits' own "
+                f"uncertainties), within {1e6 * u:.1f} us "
                 f"({phase:.2f} deg at {budget.band_hz:g} Hz), removed"
             )
             log.info("%s", msg)

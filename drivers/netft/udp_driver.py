@@ -14,7 +14,12 @@ arrival, the lower envelope of the arrivals against ``ft_sequence`` gives the se
 the host's (offset and rate: the sensor's crystal error is fitted), and the acquisition reports
 the window around the DAQ's start request (:meth:`daq_clock_started`), which holds DAQ sample 0.
 DAQ sample ``k`` is then a fractional record index, interpolated by a 4-point Lagrange cubic
-(the method, its error and its budget: :mod:`dimacq.pipeline.stream_alignment`). What the
+(the method, its error and its budget: :mod:`dimacq.pipeline.stream_alignment`). The clock
+fit moves as datagrams come in; the positions do not jump with it while a record may be open:
+each block of samples continues the last and turns toward the fit by at most :data:`MAX_SLEW`
+(a jump inside a hit's record cuts its loads from two delays — a lag that grows with
+frequency and differs per load, which no single delay removes); between records
+(:meth:`realign`) they go to the fit at once. START waits for 3 s of arrivals so that the fit has a slope. What the
 host's clock cannot know — half the DAQ start window, the envelope's scatter and the network's
 latency floor ``latency_floor_s`` — is its uncertainty ``δ``; it costs ``360° f δ`` of FRF phase
 at frequency ``f`` (~100 µs: 36° at 1 kHz), so the host's clock is a coarse time base. Two ways
@@ -77,6 +82,12 @@ _QUIET_S = 0.1
 _SO_TIMESTAMPNS = 35
 #: host seconds per window of the lower-envelope fit
 _WINDOW_S = 0.2
+#: windows of arrivals before the DAQ starts (3 s of the host: the envelope's slope, fitted
+#: from then on, rests on two datagrams that waited least, a span apart: ~1 ppm at 3 s)
+_MIN_WINDOWS = 15
+#: how fast the samples' positions may move toward a changed clock fit, s per s of the lab
+#: (a crystal's few ppm): a 30 µs change is spread over 6 s, 5 µs across a 1 s record
+MAX_SLEW = 5e-6
 #: the coarsest host-clock alignment the data's delay fit refines, s of the lab's time: beyond
 #: it the cell's response moves by more than a few DAQ samples against the hammer's record
 #: window (its pre-trigger, its exponential window), and the fit's search grows long
@@ -113,7 +124,12 @@ class _Run:
         self.checked = False
         self.last_bad_status = 0
         self._fit: ClockFit | None = None
-        self._fit_n = 0
+        self._fit_key: tuple[int, float] | None = None
+        #: records added to the clock fit's positions: what keeps them continuous from block
+        #: to block (see :meth:`NetFtUdp.read_until`)
+        self.corr = 0.0
+        #: the position the last block's mapping gives sample ``next_sample`` (None: no block yet)
+        self.u_next: float | None = None
 
     @property
     def n_arrivals(self) -> int:
@@ -153,16 +169,22 @@ class _Run:
     def flags(self) -> np.ndarray:
         return self._bad[: self.end]
 
+    @property
+    def n_windows(self) -> int:
+        return len(self._w)
+
     def fit(self, nominal_slope: float) -> ClockFit:
-        self._slope = nominal_slope
-        if self._fit is None or self._fit_n != self._n:
+        """The clock fit of the windows' minima (refitted when one of them changed)."""
+        key = (len(self._w), self._t[-1] - self._slope * self._s[-1]) if self._w else (0, 0.0)
+        if self._fit is None or self._fit_key != key:
             self._fit = fit_lower_envelope(
                 np.asarray(self._s),
                 np.asarray(self._t),
                 nominal_slope=nominal_slope,
                 window_s=_WINDOW_S,
+                min_windows=_MIN_WINDOWS,
             )
-            self._fit_n = self._n
+            self._fit_key = key
         return self._fit
 
 
@@ -426,13 +448,21 @@ class NetFtUdp(WireDriver):
         self._final = None
         self.start_streaming(0, buffered=True)
         self.streaming = True
-        # the stream runs before the DAQ starts: its first samples have records on both sides
+        # the stream runs before the DAQ starts: its first samples have records on both sides,
+        # and the clock fit has the windows it needs for a slope (~1.5 s of the host's time)
         deadline = self._deadline()
         while self._run.end < 4:
             if not self._receive(min(deadline.left(), 0.05)) and deadline.passed:
                 raise DeviceTimeoutError(
                     f"{self.name} sent no RDT records within {deadline.timeout_s:g} s of START; "
                     f"check that RDT is enabled and UDP port {p.RDT_PORT}"
+                )
+        settle = Deadline(_MIN_WINDOWS * _WINDOW_S + self.timeout_s)
+        while self._run.n_windows < _MIN_WINDOWS:
+            if not self._receive(min(settle.left(), 0.05)) and settle.passed:
+                raise DeviceTimeoutError(
+                    f"{self.name}: RDT records stopped within {settle.timeout_s:g} s of START "
+                    f"({self._run.end} in); check the network and UDP port {p.RDT_PORT}"
                 )
 
     def _receive(self, timeout_s: float) -> bool:
@@ -474,9 +504,10 @@ class NetFtUdp(WireDriver):
         run.put(j, blk.counts, blk.status, t, float(expect[-1]) / self.ft_rate_hz)
         return True
 
-    def _positions(self, ks: np.ndarray) -> tuple[np.ndarray, float]:
+    def _positions(self, ks: np.ndarray, *, fit_only: bool = False) -> tuple[np.ndarray, float]:
         """Fractional record indices of DAQ samples ``ks`` and the alignment's uncertainty (s
-        of the lab's time): see :mod:`dimacq.pipeline.stream_alignment`."""
+        of the lab's time): see :mod:`dimacq.pipeline.stream_alignment`; the clock fit's
+        positions plus the run's correction (``fit_only``: without it)."""
         run = self._run
         assert run is not None and self.sample_rate_hz is not None
         if self._daq_window is None:
@@ -491,8 +522,47 @@ class NetFtUdp(WireDriver):
         s_k = (t_k - fit.offset_s) / fit.slope  # sensor seconds
         assert run.ft0 is not None
         u = (s_k - run.ft0 / self.ft_rate_hz) * self.rdt_rate_hz
+        if not fit_only:
+            u = u + run.corr
         wall = 0.5 * (t_b - t_a) + fit.scatter_s + self.latency_floor_s
         return u, wall * self.time_scale
+
+    def _block_positions(
+        self, first: int, end_sample: int, *, commit: bool = True
+    ) -> tuple[np.ndarray, float]:
+        """Positions of DAQ samples ``first .. end_sample − 1``, continuous with the block
+        before: the clock fit changes as windows come in (its line rests on the datagrams
+        that waited least; a new one moves it), and a move applied at once would be a jump of
+        the samples' times inside a hit's record — its loads mixed from two delays, an error
+        that grows with frequency and differs per load. So the block starts where the last
+        one ended and its correction ``c`` (records added to the fit's positions) ramps
+        toward the fit, by at most :data:`MAX_SLEW` s per s of the lab::
+
+            c(k) = c_0 + (c_1 − c_0) (k − first) / n,   c_0 = u_prev(first) − u_fit(first),
+            c_1 = c_0 − clip(c_0, ±MAX_SLEW · n / f_DAQ · f_RDT)
+
+        (``n`` samples in the block, ``f_RDT`` records per second of the lab); ``commit``:
+        the block is delivered (the next one continues from it)."""
+        run = self._run
+        assert run is not None and self.sample_rate_hz is not None
+        ks = np.arange(first, end_sample + 1, dtype=float)
+        u_fit, delta = self._positions(ks, fit_only=True)
+        c0 = 0.0 if run.u_next is None else run.u_next - float(u_fit[0])
+        n = end_sample - first
+        step = MAX_SLEW * n / self.sample_rate_hz * self.rdt_rate_hz
+        c1 = c0 - float(np.clip(c0, -step, step))
+        u = u_fit + c0 + (c1 - c0) * (ks - first) / n
+        if commit:
+            run.corr, run.u_next = c1, float(u[-1])
+        return u[:-1], delta
+
+    def realign(self) -> None:
+        """No record is open (the acquisition calls this once a hit's record is cut, before it
+        asks for the next): the next block's positions go to the clock fit at once instead of
+        turning toward it at :data:`MAX_SLEW` — the jump falls between records, and the
+        inputs are not left behind a moved fit for seconds."""
+        if self._run is not None:
+            self._run.u_next, self._run.corr = None, 0.0
 
     @property
     def band_hz(self) -> float:
@@ -546,7 +616,7 @@ class NetFtUdp(WireDriver):
             return _empty(first)
         while True:
             if run.n_arrivals:
-                u_last = float(self._positions(np.array([end_sample - 1.0]))[0][0])
+                u_last = float(self._block_positions(first, end_sample, commit=False)[0][-1])
                 if run.end > np.floor(u_last) + 2 or self._final is not None:
                     break
             if not self._receive(min(deadline.left(), 0.05)) and deadline.passed:
@@ -555,7 +625,7 @@ class NetFtUdp(WireDriver):
                     f"{deadline.timeout_s:g} s ({run.end} records in); is it streaming?"
                 )
         ks = np.arange(first, end_sample, dtype=float)
-        u, delta = self._positions(ks)
+        u, delta = self._block_positions(first, end_sample)
         phase = phase_error_deg(delta, self.band_hz)
         if not run.checked:
             run.checked = True

@@ -98,9 +98,10 @@ def test_the_data_time_base_where_the_host_clock_is_refused(tmp_path: Path) -> N
     accelerometer FRFs) meets it, and the load cell FRFs then follow the CAN FD amplifier's
     (the same bridges, read on the DAQ's clock) from 5 to 150 Hz: phase within the budget plus
     the noise of two averages, magnitude within the sensor's 0.2 % certificate error and the
-    noise. NOT above: there the RDT path lags the amplifier by a phase that grows with
-    frequency and differs per load (−2 to −10° at 150–300 Hz, −7 to −37° at 450–655 Hz on
-    2026-11-27), which one delay does not describe (see the README, RDT: not found)."""
+    noise. Not above: the positions' jumps between blocks that made the RDT path lag by a
+    phase growing with frequency and differing per load are gone (continuity:
+    ``test_positions_stay_continuous_when_the_clock_fit_moves``), but a shift taken out in the
+    FRF domain leaves 1–6° per load at 450–655 Hz (see the README, RDT)."""
     budget = {"netft_max_phase_deg": 10.0}
     with pytest.raises(SetupError, match=r"netft_max_phase_deg = 10\); lower netft_band_hz"):
         _impact(

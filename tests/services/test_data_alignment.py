@@ -9,7 +9,7 @@ import pytest
 
 from dimacq.errors import SetupError
 from dimacq.pipeline.stream_alignment import DelayBudget
-from dimacq.services.data_alignment import DataAligner, align_rows
+from dimacq.services.data_alignment import DataAligner, align_rows, run_delay
 
 F = np.arange(0.5, 1024.0, 0.5)
 
@@ -76,7 +76,8 @@ def test_only_the_cells_that_ask_are_aligned_in_place_against_the_responses() ->
 def test_an_input_too_weak_for_its_own_fit_takes_the_runs_delay() -> None:
     """Inputs 0, 1 meet the budget on their own (delays 300 and 302 µs); input 2's cell loads
     are lost in noise: it waits, and at the end takes the inverse-variance mean (~301 µs), its
-    uncertainty the inputs' wander (~1 µs: 0.24° at 655 Hz)."""
+    uncertainty the inputs' wander beyond their fits' errors (noise-free fits: 2 µs apart, an
+    ω of √2 µs, 0.41° at 655 Hz with the mean's error)."""
     rng = np.random.default_rng(8)
     H_all = np.zeros((F.size, 15, 3), dtype=complex)
     aligner = DataAligner([_Cell(BUDGET), _Cell(None)], [6, 6], 3)
@@ -89,7 +90,7 @@ def test_an_input_too_weak_for_its_own_fit_takes_the_runs_delay() -> None:
         truth.append(cells[0])
     before = H_all[:, 3:9, 2].copy()
     (msg,) = aligner.finish(F, H_all)
-    assert "input 2: the run's delay +301.0 us (from 2 inputs, wander 1.0 us)" in msg
+    assert "input 2: the run's delay +301.0 us (from 2 inputs, wander 1.4 us" in msg
     np.testing.assert_allclose(H_all[:, 3:9, 2], before * np.exp(2j * np.pi * F * 301e-6)[:, None])
     # a wander the budget does not allow: refused, naming the waiting input
     aligner = DataAligner([_Cell(BUDGET)], [6], 3)
@@ -121,3 +122,21 @@ def test_refused_when_the_data_cannot_support_the_budget() -> None:
     assert abs(fit.delay_s - 2e-4) < 4 * fit.uncertainty_s and phase <= 120.0
     with pytest.raises(SetupError, match=r"no delay fit from the data .* netft_fit_lo_hz"):
         align_rows(F, H0, coh, DelayBudget(2e-3, 700.0, 655.36, 2.0, "cell"), "input 3")
+
+
+def test_the_runs_wander_is_what_the_fits_own_errors_do_not_explain() -> None:
+    """Fits ``τ_i = τ̄ + w_i + e_i`` drawn with known spreads: the wander ``ω`` of the ``w_i`` is
+    recovered, not the scatter of the ``τ_i`` (which holds the fits' errors ``σ_i`` too), and is
+    ~0 when the inputs differ by their fits' errors alone."""
+    rng = np.random.default_rng(3)
+    k = 400
+    sigma = rng.uniform(2e-6, 6e-6, k)
+    for omega in (0.0, 5e-6):
+        tau = 20e-6 + omega * rng.standard_normal(k) + sigma * rng.standard_normal(k)
+        mean, sem, wander = run_delay(tau, sigma)
+        assert wander == pytest.approx(omega, abs=1e-6)
+        assert abs(mean - 20e-6) < 4 * sem
+        # the scatter of the fits, the old measure, is well above the wander
+        assert np.std(tau) > wander + 1e-6
+    # one fit: nothing to tell a wander from
+    assert run_delay(np.array([1e-6]), np.array([2e-6])) == pytest.approx((1e-6, 2e-6, 0.0))

@@ -152,7 +152,7 @@ class Sine:
 def _run(
     *,
     scale: float = 4.0,
-    drop: tuple[int, ...] = (),
+    drop_at_s: float | None = None,
     max_phase_deg: float = 90.0,
     seconds: float = 0.6,
 ) -> tuple[NetFtUdp, Sine, NDArray[np.float64], LoadCellBlock]:
@@ -173,7 +173,6 @@ def _run(
         time_scale=scale,
         ppm=40.0,
         per_datagram=8,
-        drop=drop,
     ) as sim:
         sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         sock.connect(sim.address)
@@ -194,6 +193,9 @@ def _run(
             t_a = time.monotonic()
             clock.start(0, FS, wall_scale=scale)
             drv.daq_clock_started(t_a, time.monotonic())
+            if drop_at_s is not None:  # the datagram ``drop_at_s`` of the lab after the start
+                j = sim._sent + int(drop_at_s * 1000.0)
+                sim.drop.add(8 * (j // 8) + 1)
             n = int(seconds * FS * 0.8)
             try:
                 # read as the acquisition does: block by block
@@ -245,7 +247,7 @@ def test_buffered_stream_put_on_the_daq_clock() -> None:
 
 
 def test_a_lost_datagram_rejects_its_samples_not_bridged() -> None:
-    drv, _, _, blk = _run(drop=(241,))  # records 241..248 in one datagram of 8
+    drv, _, _, blk = _run(drop_at_s=0.2)  # 8 records in one datagram of 8
     assert drv.lost == 8
     assert not blk.valid.all() and blk.valid[:20].all() and blk.valid[-20:].all()
     n_bad = int((~blk.valid).sum())
@@ -274,3 +276,59 @@ def test_no_samples_without_the_daq_start() -> None:
             drv.stop()
         finally:
             sock.close()
+
+
+def test_positions_stay_continuous_when_the_clock_fit_moves() -> None:
+    """The cause of the RDT loads' per-load, frequency-growing lag: the clock fit moves as
+    datagrams come in (a datagram that waited less than all before it), and positions taken
+    from each block's fit jumped inside a hit's record, its loads cut from two delays. Here
+    arrivals with a known latency (20 µs, then a 60 µs lower one) are fed to the driver's
+    stream and blocks are placed: each block starts where the last one ended, the slope of
+    the positions differs from the fit's by at most MAX_SLEW; between records (``realign``)
+    they go to the fit at once."""
+    from dimacq.drivers.netft import udp_driver as ud
+
+    fs, rate = 2048.0, 7000.0
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        drv = NetFtUdp(sock, calibration=CAL, rdt_rate_hz=rate, ft_rate_hz=rate)
+        drv.set_rate(int(fs))
+        run = drv._run = ud._Run(rate, 1.0)
+        run.ft0 = 0
+        t0 = 100.0  # host time of the sensor's instant 0
+        blank = np.zeros((40, 6), dtype=np.int64)
+
+        def arrive(until_s: float, latency_s: float) -> None:
+            while run.end / rate < until_s:
+                j = np.arange(run.end, run.end + 40)
+                s_last = float(j[-1]) / rate
+                run.put(j, blank, np.zeros(40, np.int64), t0 + s_last + latency_s, s_last)
+
+        arrive(3.5, 80e-6)  # 3.5 s of arrivals, 80 µs each: the fit's line 80 µs late
+        early = run.fit(1.0)
+        drv.daq_clock_started(t0 + 0.5, t0 + 0.5)  # DAQ sample 0 at sensor time 0.5 s
+        blocks, fit_steps = [], []
+        for b in range(40):
+            if b == 4:
+                arrive(12.0, 20e-6)  # then datagrams that waited 20 µs: the fit moves by 60 µs
+            blocks.append(drv._block_positions(256 * b, 256 * (b + 1))[0])
+            fit_steps.append(np.full(256, rate / fs / run.fit(1.0).slope))
+        # the line under the arrivals: at the 20 µs floor once it holds most of the run
+        assert early.offset_s - t0 == pytest.approx(80e-6, abs=1e-9)
+        assert run.fit(1.0).offset_s - t0 == pytest.approx(20e-6, abs=1e-9)
+        u = np.concatenate(blocks)
+        # continuous: each step of the positions (within a block and to the next) is the
+        # fit's of that block within what the slew allows (the fit's 60 µs move at once would
+        # be a step 0.42 records off)
+        off = np.diff(u) - np.concatenate(fit_steps)[:-1]
+        assert np.abs(off).max() <= ud.MAX_SLEW * rate / fs * (1 + 1e-6)
+        assert np.abs(off).max() > 0.5 * ud.MAX_SLEW * rate / fs  # it did slew
+        assert abs(run.corr) > 0.05  # records still to turn (60 µs = 0.42 records at first)
+        # between records the positions go to the fit at once
+        drv.realign()
+        nxt = drv._block_positions(256 * 40, 256 * 41)[0]
+        np.testing.assert_allclose(
+            nxt, drv._positions(np.arange(256 * 40.0, 256 * 41.0), fit_only=True)[0]
+        )
+    finally:
+        sock.close()
