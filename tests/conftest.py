@@ -2,6 +2,7 @@
 
 - ``--device KIND`` opts in to tests that need real hardware (marker ``device``); they are
   skipped otherwise.
+- Under xdist (``-n``) every process runs one BLAS thread (see ``pytest_configure``).
 - Every test must leave no thread running: a test that leaves a simulator, reader thread or bus
   notifier alive fails (python-can's own suite does the same for virtual channels).
 """
@@ -35,6 +36,22 @@ def pytest_addoption(parser: pytest.Parser) -> None:
         metavar="KIND",
         help="run tests that need real hardware of this kind (digitizer, loadcell, daq, mcc, ni)",
     )
+
+
+# One BLAS thread per process under xdist. OpenBLAS starts a thread per core in every worker
+# (and every ``dimacq serve`` a test starts) and spins them while it waits: with two workers per
+# core all of them competing, that spinning was a third of a numerical test's CPU time
+# (tests/pipeline/test_uncertainty.py::test_interval_covers_the_truth: 10.4 s -> 6.9 s of CPU
+# alone, 21 s in a loaded parallel run). Set here, in the controller, before the workers start:
+# they, and the processes their tests start, inherit it. An explicit setting wins.
+BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_configure(config: pytest.Config) -> None:
+    if getattr(config.option, "numprocesses", None):
+        for name in BLAS_THREAD_VARIABLES:
+            os.environ.setdefault(name, "1")
 
 
 def pytest_xdist_auto_num_workers(config: pytest.Config) -> int:

@@ -372,6 +372,10 @@ def test_whole_simulated_test_through_the_page(service: str, tmp_path: Path) -> 
         with report.expect_download() as dl:
             report.click("a[data-download$='.json']")
         downloaded = Path(dl.value.path()).read_text(encoding="utf-8")
+        # back to the lab page's tab: behind the report's, Chromium throttles its timers and
+        # animation frames (the page's work and Playwright's polling of it): each wait below
+        # took about 3 s instead of 0.1 s
+        page.bring_to_front()
         page.screenshot(path=str(shots / "0-whole-page.png"), full_page=True)
         report_ms = report.evaluate("() => window.dimacqReport.ready_ms")
         assert f"test {test['id']}: calibration mass" in report.inner_text("body")

@@ -363,7 +363,14 @@ def test_lab_page_in_firefox(firefox_and_service: Any, tmp_path: Path) -> None:
     assert band[0] == pytest.approx(lo, abs=2.0) and band[1] == pytest.approx(hi, abs=2.0), band
     page.shot(shots / "firefox-2-frfs.png")
     page.click("#solve-btn")
-    page.wait("document.querySelector('#solution .verdict') && window.dimacq.spectrum", 60, "solve")
+    # the solutions list is filled after the verdict and the spectrum (solve.js: render, then
+    # list): wait for the row asserted below too, not only for what comes before it
+    page.wait(
+        "document.querySelector('#solution .verdict') && window.dimacq.spectrum"
+        " && document.querySelectorAll('#solutions tbody tr').length === 1",
+        60,
+        "solve",
+    )
     sol = page.js("window.dimacq.solution")
     page.js("document.querySelector('#solve').scrollIntoView()")
     page.shot(shots / "firefox-3-solve.png")

@@ -18,7 +18,9 @@ the residual statistics); they are compared with an absolute floor of 1e-12. One
 of rounding errors: the data-to-prior information of the best-determined-by-prior gauge mode
 (``gauge_modes.data_to_prior_information``, the mode whose data information is rounding noise).
 It moves by 6e-5 relative between one and two BLAS threads of the same code, so it is compared to
-1e-3; the other modes' ratios to 1e-9 like the rest.
+1e-3; the other modes' ratios move by up to 1.3e-8 between one and two threads and are compared
+to 1e-7 (the suite under ``-n`` runs one BLAS thread per process, as the CLI does: see
+``tests/conftest.py``; the references were written on two).
 
 The noisy sets (``solve_reference/<scenario>.json``: ``dimacq simulate SCENARIO --noise 0.01``,
 seed 0, solved by the default ``dimacq solve``; written by
@@ -62,6 +64,10 @@ NOISE_ATOL = {".output_error.gauge_modes.data_to_prior_information[0]": 1e-6}
 #: one and two BLAS threads the same code's x38-realistic answer moves them by up to 2.2e-8 (its
 #: estimates by < 1e-9). They are compared to 1e-7; everything else to RTOL.
 UNCERTAINTY_RTOL = 1e-7
+#: The gauge modes' data-to-prior information ratios: up to 1.3e-8 between one and two BLAS
+#: threads (the noisy calibration-mass set, the noise-free example); see the module docstring.
+GAUGE_RATIOS = ".output_error.gauge_modes.data_to_prior_information"
+GAUGE_RATIO_RTOL = 1e-7
 #: The comparison's DIM standard errors take the hammer's share out of the geometry spread,
 #: ``sqrt(se_geo² − (σ_f x)²)``: a difference of nearly equal squares (the principal moments'
 #: geometry spread is mostly that scale), which multiplies the rounding of its terms ~10×.
@@ -133,6 +139,8 @@ def _compare(got: Any, ref: Any, path: str, bad: list[str]) -> None:
             _compare(g, r, f"{path}[{i}]", bad)
     elif isinstance(ref, float) and not isinstance(got, bool) and isinstance(got, int | float):
         rtol = LOOSE.get(path, UNCERTAINTY_RTOL if _UNCERTAINTY.search(path) else RTOL)
+        if path.startswith(GAUGE_RATIOS):
+            rtol = max(rtol, GAUGE_RATIO_RTOL)
         rtol = next((v for k, v in CANCELLING_RTOL.items() if path.startswith(k)), rtol)
         if not abs(got - ref) <= rtol * abs(ref) + NOISE_ATOL.get(path, ATOL):
             bad.append(f"{path}: {got!r} != {ref!r} (rel {abs(got - ref) / abs(ref):.1e})")

@@ -213,10 +213,13 @@ def test_postgresql_restart_mid_acquisition_loses_nothing(pg_server, tmp_path: P
         try:
             with pytest.raises(DatabaseUnavailableError, match="database unavailable"):
                 _acq(lab.acquisitions.get(acq["id"]))
-            time.sleep(0.6)  # a few averages while the database is down
-            status = lab.status().database
+            # averages go on while the database is down: wait for one to queue its writes (the
+            # state asserted), not for a time (0.6 s held no average on a loaded machine)
+            deadline = time.monotonic() + 30
+            while (status := lab.status().database)["writes_waiting"] < 1:
+                assert time.monotonic() < deadline, status
+                time.sleep(0.02)
             assert status["ok"] is False and status["error"]
-            assert status["writes_waiting"] >= 1
             assert lab.jobs.snapshot(acq["job_id"])["state"] == "running"
         finally:
             pg_server.start()

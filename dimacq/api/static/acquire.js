@@ -8,7 +8,7 @@ import { $, api, dirName, emit, esc, f, guard, jobEvents, on, say, state, table 
 import { linePlot } from "/static/plot.js";
 
 const acq = { id: null, job: null, events: null, poll: null, setup: null, perInput: 0, info: null,
-  hitNumber: null, frfId: null, busy: false };
+  hitNumber: null, frfId: null, busy: false, reviewEpoch: 0 };
 state.acq = acq;
 
 function setupOf(id) { return state.setups.find((s) => s.id === id); }
@@ -35,12 +35,14 @@ function perInputRows(a) {
   return per;
 }
 
-function renderAcquisition(a) {
+function renderAcquisition(a, { review = true } = {}) {
   acq.info = a;
   const ex = acq.setup.setup.inputs;
   const per = perInputRows(a);
   const running = a.state === "running" || a.state === "pending";
-  if (running) $("#acq-review").checked = !!a.review;  // what the run does, not what was asked
+  // what the run does, not what was asked; but not from a read older than the operator's last
+  // change of the box (``review`` false): it re-ticked the box the operator had just unticked
+  if (running && review) $("#acq-review").checked = !!a.review;
   const cur = (a.inputs || []).find((j) => per[j].acc < acq.perInput);
   const incomplete = (a.input_states || []).filter((st) => st.state === "incomplete").map((st) => st.name);
   if (running && a.pending_review) {
@@ -107,13 +109,14 @@ async function refresh() {
   if (acq.busy) return acq.info;
   acq.busy = true;
   const id = acq.id;
+  const epoch = acq.reviewEpoch;
   try {
     const a = await api("GET", `/api/acquisitions/${id}`);
     // a read that was under way when the acquisition ended (or another started) is stale: the
     // final state, rendered by ended(), stays
     if (id !== acq.id || acq.endedId === id) return acq.info;
     const wasPending = acq.info && acq.info.pending_review ? acq.info.pending_review.number : null;
-    renderAcquisition(a);
+    renderAcquisition(a, { review: epoch === acq.reviewEpoch });
     const nowPending = a.pending_review ? a.pending_review.number : null;
     // the hit waiting until it is shown (a read that failed is tried again at the next poll)
     if (nowPending !== null && (nowPending !== wasPending || nowPending !== acq.hitNumber)) await showHit();
@@ -209,7 +212,10 @@ export function init() {
     const a = acq.info;
     if (!acq.id || !a || !["running", "pending"].includes(a.state)) return;
     const review = $("#acq-review").checked;
-    renderAcquisition(await api("PATCH", `/api/acquisitions/${acq.id}`, { review }));
+    acq.reviewEpoch += 1; // reads under way now predate the change: they leave the box alone
+    const changed = await api("PATCH", `/api/acquisitions/${acq.id}`, { review });
+    acq.reviewEpoch += 1; // and so do the ones that started before the change was stored
+    renderAcquisition(changed);
     say(`acquisition ${acq.id}: ${review ? "every hit waits for your decision" : "the checks decide every hit from now on"}`);
   });
   $("#hit-reject").onclick = guard(() => decide("reject"));

@@ -256,6 +256,27 @@ def _sim(kind: Literal["daq", "loadcell"], backend: str) -> str:
     return "simulated " if is_simulated(kind, backend) else ""
 
 
+ACQUISITION = (
+    "acquisition (the demo acquires as dimacq acquire does; --model-frfs solves model FRFs instead)"
+)
+
+
+def _acquisition_devices_connected(devices: dict[str, Any]) -> None:
+    """Step 4 needs the DAQ and the load cell: refuse at once, as the acquisition would (the
+    same reason: the service's own, from ``/api/status``), not after steps 1–3's digitizing."""
+    from dimacq.errors import DeviceError
+
+    missing = [
+        f"{name} is not connected ({devices[name].get('error') or 'closed'})"
+        for name in ("daq", "loadcell")
+        if name in devices and not devices[name]["connected"]
+    ]
+    if missing:
+        raise DeviceError(
+            f"demo: {ACQUISITION} cannot start: {'; '.join(missing)}; connect it first"
+        )
+
+
 def _demo(
     url: str,
     token: str,
@@ -288,6 +309,8 @@ def _demo(
                 for k, v in st["devices"].items()
             )
         )
+        if not args.model_frfs:
+            _acquisition_devices_connected(st["devices"])
         # --- 1. array placement and registration -----------------------------------------
         pos = np.vstack([setup_true.response_positions, setup_true.input_positions])
         lo, hi = pos.min(axis=0) - 0.02, pos.max(axis=0) + 0.02
@@ -409,8 +432,7 @@ def _demo(
             frf_id = acquire(
                 c,
                 {"setup_id": sid, **acquisition_plan(args), "seed": built.seed},
-                "acquisition (the demo acquires as dimacq acquire does; --model-frfs solves "
-                "model FRFs instead)",
+                ACQUISITION,
                 say,
                 quiet=args.quiet,
                 lag=lag,
