@@ -1,4 +1,5 @@
-"""Moving median and moving mean along one axis, edges extended with the nearest value.
+"""Moving median and moving mean along one axis, edges extended with the nearest value; the
+median along a short axis.
 
 ``scipy.ndimage.median_filter(x, size=(w, 1, …), mode="nearest")`` and
 ``scipy.ndimage.uniform_filter1d(x, w, axis=0, mode="nearest")`` to the bit, without importing
@@ -18,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["median_filter_nearest", "uniform_filter_nearest"]
+__all__ = ["median_along", "median_filter_nearest", "uniform_filter_nearest"]
 
 
 def _extended(x: NDArray[np.floating], w: int) -> NDArray[np.float64]:
@@ -54,4 +55,28 @@ def uniform_filter_nearest(x: NDArray[np.floating], size: int) -> NDArray[np.flo
     steps[0] = t0
     steps[1:] = ext[w : w + n - 1] - ext[: n - 1]
     out: NDArray[np.float64] = np.cumsum(steps, axis=0) / w
+    return out
+
+
+def median_along(x: NDArray[np.floating], axis: int) -> NDArray[np.float64]:
+    """``np.median(x, axis=axis)`` by sorting that axis: the same numbers, faster on a short axis.
+
+    ``np.median`` partitions a copy with the axis moved last, one selection per slice: on
+    (1290, 24, 24) FRF powers over the 24 channels that is 12 ms, a sort of the same slices
+    (numpy's vectorised sort) 2.5 ms. The middle value (odd length) or the mean of the middle
+    two (even: ``(a + b) / 2``, the sum and division ``np.mean`` makes of them) of the sorted
+    slice are the values the partition selects, so the result is the same to the bit, except
+    for the sign of a zero that ties with a ``-0.0``; a slice holding NaN gives NaN, as
+    ``np.median`` does.
+    """
+    s = np.sort(np.moveaxis(np.asarray(x, dtype=np.float64), axis, -1), axis=-1)
+    n = s.shape[-1]
+    if n == 0:
+        return np.median(s, axis=-1)  # numpy's own warning and NaN
+    out: NDArray[np.float64] = (
+        s[..., n // 2].copy() if n % 2 else (s[..., n // 2 - 1] + s[..., n // 2]) / 2.0
+    )
+    nan = np.isnan(s[..., -1])  # NaN sorts last
+    if nan.any():
+        out[nan] = np.nan
     return out

@@ -102,7 +102,7 @@ from dimacq.errors import SetupError, SolverError
 from dimacq.model.frf import Channel, FrfData
 from dimacq.model.setup import PARAMETERS, TestSetup
 from dimacq.pipeline._batched import cross3
-from dimacq.pipeline._filters import uniform_filter_nearest
+from dimacq.pipeline._filters import median_along, uniform_filter_nearest
 from dimacq.pipeline._special import chi2_ppf, eigh_generalized, null_space
 from dimacq.pipeline.dim import DimResult, assemble, solve_system
 from dimacq.pipeline.rotations import apply_rotvec
@@ -327,8 +327,8 @@ def _line_weights(
     loc = uniform_filter_nearest(d3, 2 * LINE_NOISE_HALF_WIDTH + 1)
     loc = np.concatenate([loc[:2], loc, loc[-1:]], axis=0)  # centre the L-3 differences on L lines
     power = np.maximum(np.mean(np.abs(H) ** 2, axis=0), 1e-300)  # (C, J)
-    n = np.median(loc / (20.0 * power[None]), axis=1)  # (L, J)
-    prel = np.median(np.abs(H) ** 2 / power[None], axis=1)  # (L, J)
+    n = median_along(loc / (20.0 * power[None]), axis=1)  # (L, J)
+    prel = median_along(np.abs(H) ** 2 / power[None], axis=1)  # (L, J)
     # a floor at the data's own precision (float32 UFF records, 24-bit converters: ~1e-7
     # relative): on exact FRFs the local scatter is rounding noise and the weights would be
     # ratios of it
