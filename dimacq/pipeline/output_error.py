@@ -721,20 +721,29 @@ def _statistics(
     ``z_j``) and the statistics keep their form. The reactions' noise compensation is scaled by
     the mean ``w²`` of the input."""
     L, C, J = H.shape
-    ones = np.ones((L, 1, J), complex)
-    parts = [ones, R]
     if lw is not None:
-        ones = ones * lw[:, None, :]
-        parts = [ones, R * lw[:, None, :]]
         cov_R = cov_R * np.mean(lw**2, axis=0)[:, None, None]
-    nb = 0
+    nb = 0 if basis is None else basis.shape[1]
+    # z_j = [w; w R_j; b; w H_:j/σ] (w = 1 without line weights), written straight into its real
+    # and imaginary parts as (J, n, L) arrays: the products of Σ_ω Re(z zᴴ) = Zr Zrᵀ + Zi Ziᵀ.
+    # The numbers are those of the complex expressions (w·(1+0i), R·w, H/σ = H·(1/σ) in numpy's
+    # complex division, H·(w/σ)) up to the sign of a zero, which no product or sum sees.
+    n = 7 + nb + C
+    zr = np.empty((J, n, L))
+    zi = np.empty((J, n, L))
+    w = None if lw is None else lw.T[:, None, :]  # (J, 1, L)
+    zr[:, 0:1] = 1.0 if w is None else w
+    zi[:, 0:1] = 0.0
+    Rt = np.transpose(R, (2, 1, 0))  # (J, 6, L), complex view
+    zr[:, 1:7] = Rt.real if w is None else Rt.real * w
+    zi[:, 1:7] = Rt.imag if w is None else Rt.imag * w
     if basis is not None:
-        nb = basis.shape[1]
-        parts.append(np.broadcast_to(basis[:, :, None], (L, nb, J)).astype(complex))
-    parts.append(H / sigma[None] if lw is None else H * (lw[:, None, :] / sigma[None]))
-    z = np.concatenate(parts, axis=1)  # (L, n, J)
-    zt = np.ascontiguousarray(np.transpose(z, (2, 1, 0)))  # (J, n, L)
-    zr, zi = zt.real.copy(), zt.imag.copy()
+        zr[:, 7 : 7 + nb] = basis.real.T[None]
+        zi[:, 7 : 7 + nb] = basis.imag.T[None]
+    scale = (1.0 / sigma).T[:, :, None] if w is None else w / sigma.T[:, :, None]  # (J, C, L)
+    Ht = np.transpose(H, (2, 1, 0))  # (J, C, L)
+    np.multiply(Ht.real, scale, out=zr[:, 7 + nb :])
+    np.multiply(Ht.imag, scale, out=zi[:, 7 + nb :])
     S = zr @ np.swapaxes(zr, 1, 2) + zi @ np.swapaxes(zi, 1, 2)  # Σ_ω Re(z zᴴ), (J, n, n)
     dsc = np.sqrt(np.clip(np.einsum("jii->ji", S), 1e-300, None))  # equilibration (raw S)
     S[:, 1:7, 1:7] -= cov_R  # bias compensation of the noisy reactions (already × n_ω or rank)
@@ -1550,7 +1559,10 @@ def _line_residual(
     psi = psi * (1.0 + gfull[gfull.size - psi.shape[0] :])[:, None]
     phi = np.concatenate([din, cross3(rin, din)], axis=1)
     mot = A @ (phi.T[None] + R)  # (L, 6, J)
-    e = (H - psi @ mot) / sigma[None]
+    # Ψ (real) times the motions as one real product on their (re, im) view, and 1/σ as a
+    # product: numpy's complex matmul and division give these numbers (up to the sign of a zero)
+    pred = (psi @ mot.view(np.float64)).view(np.complex128)
+    e = (H - pred) * (1.0 / sigma)[None]
     return e if lw is None else e * lw[:, None, :]
 
 
