@@ -328,7 +328,10 @@ def suggest_band(
         band meets the limits.
     """
     geo = response_geometry(frf, setup)
-    data = frf if input_keep is None else frf.select(inputs=np.nonzero(input_keep)[0])
+    # every input kept (the first pass): the FRFs as they are, not a copy of them (23 MB on an
+    # acquired test)
+    keep_all = input_keep is None or bool(np.all(input_keep))
+    data = frf if keep_all else frf.select(inputs=np.nonzero(input_keep)[0])
     w = (
         np.ones(geo.output_index.size)
         if response_weights is None
