@@ -232,13 +232,22 @@ def gauge_property_jacobian(x: FloatArray) -> FloatArray:
 # ------------------------------------------------------------------------------------------
 # Noise
 # ------------------------------------------------------------------------------------------
-def estimate_noise(H: ComplexArray) -> FloatArray:
+def _third_difference_power(H: ComplexArray) -> FloatArray:
+    """``|Δ³H|²`` along the lines (axis 0): ``|H_ℓ − 3H_ℓ₊₁ + 3H_ℓ₊₂ − H_ℓ₊₃|²``, (L − 3, ...)."""
+    d3 = H[:-3] - 3 * H[1:-2] + 3 * H[2:-1] - H[3:]
+    return np.asarray(np.abs(d3) ** 2, float)
+
+
+def estimate_noise(H: ComplexArray, *, d3_power: FloatArray | None = None) -> FloatArray:
     """Noise standard deviation of each FRF from the line-to-line scatter (module docstring).
 
     Parameters
     ----------
     H : ndarray, shape (n_lines, ...), complex
         FRFs along their lines (axis 0), at least 8 lines.
+    d3_power : ndarray, optional
+        ``|Δ³H|²`` if already formed (:func:`_third_difference_power`; the line weights use it
+        too).
 
     Returns
     -------
@@ -251,8 +260,8 @@ def estimate_noise(H: ComplexArray) -> FloatArray:
             f"the band holds {H.shape[0]} lines; the noise estimate from line-to-line scatter "
             "needs at least 8: widen the band"
         )
-    d3 = H[:-3] - 3 * H[1:-2] + 3 * H[2:-1] - H[3:]
-    return np.asarray(np.sqrt(np.median(np.abs(d3) ** 2, axis=0) / (20 * np.log(2))), float)
+    d3p = _third_difference_power(H) if d3_power is None else d3_power
+    return np.asarray(np.sqrt(np.median(d3p, axis=0) / (20 * np.log(2))), float)
 
 
 def _reaction_noise_cov(R: ComplexArray) -> FloatArray:
@@ -285,6 +294,9 @@ def _line_weights(
     phi: FloatArray,
     A: FloatArray,
     eps_r: float,
+    *,
+    h_power: FloatArray | None = None,
+    d3_power: FloatArray | None = None,
 ) -> FloatArray | None:
     """Per line and input, the weight ``w_ℓj`` of the line's own noise and of the load cells'
     calibration uncertainty (the noise model from the measurement).
@@ -323,12 +335,14 @@ def _line_weights(
     L = H.shape[0]
     if L < 16:
         return None
-    d3 = np.abs(H[:-3] - 3 * H[1:-2] + 3 * H[2:-1] - H[3:]) ** 2  # (L-3, C, J)
+    # |Δ³H|² and |H|² as the caller may have them (the noise estimate and the band's power)
+    d3 = _third_difference_power(H) if d3_power is None else d3_power  # (L-3, C, J)
+    h2 = np.abs(H) ** 2 if h_power is None else h_power
     loc = uniform_filter_nearest(d3, 2 * LINE_NOISE_HALF_WIDTH + 1)
     loc = np.concatenate([loc[:2], loc, loc[-1:]], axis=0)  # centre the L-3 differences on L lines
-    power = np.maximum(np.mean(np.abs(H) ** 2, axis=0), 1e-300)  # (C, J)
+    power = np.maximum(np.mean(h2, axis=0), 1e-300)  # (C, J)
     n = median_along(loc / (20.0 * power[None]), axis=1)  # (L, J)
-    prel = median_along(np.abs(H) ** 2 / power[None], axis=1)  # (L, J)
+    prel = median_along(h2 / power[None], axis=1)  # (L, J)
     # a floor at the data's own precision (float32 UFF records, 24-bit converters: ~1e-7
     # relative): on exact FRFs the local scatter is rounding noise and the weights would be
     # ratios of it
@@ -963,8 +977,12 @@ def solve_output_error(
     H = frf.H[:, geo.output_index[active]][:, :, in_idx]  # (L, C, J)
     R = system.F - system.phi[None].astype(complex)  # (L, 6, J), N and N·m per N
     L_lines = H.shape[0]
-    sigma = estimate_noise(H)
-    floor = 1e-6 * np.sqrt(np.mean(np.abs(H) ** 2, axis=0))
+    # |H|², its band mean and |Δ³H|² once: the noise, its floor, the line weights and the report
+    h_power = np.abs(H) ** 2
+    h_mean_power = np.mean(h_power, axis=0)  # (C, J)
+    d3_power = _third_difference_power(H) if L_lines >= 8 else None
+    sigma = estimate_noise(H, d3_power=d3_power)
+    floor = 1e-6 * np.sqrt(h_mean_power)
     sigma = np.maximum(sigma, np.maximum(floor, 1e-300))
     cov_R = _reaction_noise_cov(R) if R.shape[0] >= 8 else np.zeros((len(in_idx), 6, 6))
     # the reactions' power against their own noise, per line and input:
@@ -1031,7 +1049,8 @@ def solve_output_error(
 
     # from the measured noise and the load cells' certificate; the a posteriori variance factor
     # below scales the whole noise model, not the lines' relative weights
-    lw0 = _line_weights(H, R, psi0, phi0, A0, eps_r)
+    lw0 = _line_weights(H, R, psi0, phi0, A0, eps_r, h_power=h_power, d3_power=d3_power)
+    del h_power, d3_power
 
     def line_w(use_basis: bool = False) -> FloatArray | None:
         # with residual terms the projection is per channel over all lines: no line weights
@@ -1314,7 +1333,7 @@ def solve_output_error(
         refinement_note or keep_note,
     )
     new_setup = _refined_setup(setup, geo, active, prob, g, frf.inputs, in_idx, p)
-    sig_rel = sigma / np.sqrt(np.mean(np.abs(H) ** 2, axis=0))
+    sig_rel = sigma / np.sqrt(h_mean_power)
     noise = {
         "method": "line-to-line scatter (third difference), per channel and input",
         "relative_median": float(np.median(sig_rel)),
