@@ -1255,9 +1255,10 @@ def solve_output_error(
     lw_end = line_w(fitted_b)
     chi2 = 2.0 * _direct_cost(prob, theta, H, R, sigma, basis if fitted_b else None, lw_end) / dof
     N = Jac.T @ Jac
-    cov_theta = np.linalg.pinv(N) * max(1.0, chi2)
+    N_inv: FloatArray = np.asarray(np.linalg.pinv(N), float)
+    cov_theta = N_inv * max(1.0, chi2)
     nx0 = free_x.size
-    robust = _input_robust_factors(prob, theta, Jac, cov_theta, nx0)
+    robust = _input_robust_factors(prob, theta, Jac, cov_theta, nx0, N_inv)
     cov_theta[:nx0] *= robust[:, None]
     cov_theta[:, :nx0] *= robust[None, :]
     if model_form is not None:
@@ -1520,7 +1521,12 @@ def _adequacy(
 
 
 def _input_robust_factors(
-    prob: _Problem, theta: FloatArray, Jac: FloatArray, cov: FloatArray, nx: int
+    prob: _Problem,
+    theta: FloatArray,
+    Jac: FloatArray,
+    cov: FloatArray,
+    nx: int,
+    N_inv: FloatArray | None = None,
 ) -> FloatArray:
     """Per free property, ``max(1, σ_robust / σ_model)``: the input-clustered sandwich against the
     model-based posterior.
@@ -1557,7 +1563,7 @@ def _input_robust_factors(
     n_g = prob.free_g.size
     Jp = Jac[n_data : n_data + n_g]
     B = sc.T @ sc * (J_ / (J_ - 1)) + Jp.T @ Jp
-    Ninv = np.linalg.pinv(Jac.T @ Jac)
+    Ninv = np.linalg.pinv(Jac.T @ Jac) if N_inv is None else N_inv  # the caller's, if formed
     V = Ninv @ B @ Ninv
     with np.errstate(divide="ignore", invalid="ignore"):
         ratio = np.diag(V)[:nx] / np.diag(cov)[:nx]
