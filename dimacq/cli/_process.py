@@ -17,7 +17,6 @@ than glibc (musl, macOS, Windows) is left as it is.
 from __future__ import annotations
 
 import ctypes
-import ctypes.util
 import logging
 import sys
 
@@ -35,8 +34,9 @@ def keep_freed_memory() -> bool:
     if not sys.platform.startswith("linux"):
         return False
     try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
-        mallopt = libc.mallopt
+        # the running program's own symbols (dlopen(NULL)): the C library Python is linked to,
+        # without ctypes.util.find_library (which runs `ldconfig -p` in a subprocess)
+        mallopt = ctypes.CDLL(None).mallopt
     except (OSError, AttributeError):  # not glibc
         return False
     mallopt.argtypes = [ctypes.c_int, ctypes.c_int]
