@@ -330,8 +330,11 @@ def suggest_band(
     geo = response_geometry(frf, setup)
     # every input kept (the first pass): the FRFs as they are, not a copy of them (23 MB on an
     # acquired test)
-    keep_all = input_keep is None or bool(np.all(input_keep))
-    data = frf if keep_all else frf.select(inputs=np.nonzero(input_keep)[0])
+    data = (
+        frf
+        if input_keep is None or bool(np.all(input_keep))
+        else frf.select(inputs=np.nonzero(input_keep)[0])
+    )
     w = (
         np.ones(geo.output_index.size)
         if response_weights is None
