@@ -784,9 +784,16 @@ def _statistics(
 
 
 def _gauge_constraint(
-    prob: _Problem, theta0: FloatArray, refuse_ratio: float, fix_all: bool = False
+    prob: _Problem,
+    theta0: FloatArray,
+    refuse_ratio: float,
+    fix_all: bool = False,
+    data_jacobian: FloatArray | None = None,
 ) -> None:
     """Fix the gauge modes the data do not identify (sets ``prob.gauge_rows``).
+
+    ``data_jacobian``: the data rows of the Jacobian at ``theta0`` when the caller has them
+    (:meth:`_Problem.residual`'s, whose data rows do not depend on the constraint rows).
 
     The similarity of the whole instrumentation and the common accelerometer gain
     (:meth:`_Problem.gauge_basis`, ``G``) change no FRF when the properties move with them; only
@@ -824,10 +831,12 @@ def _gauge_constraint(
     prob.gauge_live = live
     if not G.shape[1]:
         return
-    _, J0 = prob.residual(theta0)
-    assert J0 is not None
+    if data_jacobian is None:
+        _, J0 = prob.residual(theta0)
+        assert J0 is not None
+        data_jacobian = J0[: J0.shape[0] - prob.free_g.size]
     nx = prob.free_x.size
-    Jd = J0[: J0.shape[0] - prob.free_g.size]
+    Jd = data_jacobian
     Jx, Jg = Jd[:, :nx], Jd[:, nx:]
     Nxx, Nxg, Ngg = Jx.T @ Jx, Jx.T @ Jg, Jg.T @ Jg
     Dg = Ngg - Nxg.T @ np.linalg.pinv(Nxx) @ Nxg
@@ -1094,8 +1103,15 @@ def solve_output_error(
             prob.free_g = cand_[ok]
             theta0 = np.concatenate([x_start[free_x], np.zeros(prob.free_g.size)])
             if opt.fix_gauge and prob.free_g.size:
+                # the data rows of J0 in the columns kept: the Jacobian at theta0 of the items
+                # kept, without computing it again (its data rows are the same numbers)
+                cols = np.concatenate([np.arange(free_x.size), free_x.size + np.nonzero(ok)[0]])
                 _gauge_constraint(
-                    prob, theta0, opt.refuse_ratio, fix_all=not opt.gauge_from_reactions
+                    prob,
+                    theta0,
+                    opt.refuse_ratio,
+                    fix_all=not opt.gauge_from_reactions,
+                    data_jacobian=J0[: prob.Lh.size][:, cols],
                 )
         theta, Jac, cost, it = _lm(prob, theta0, opt.max_iterations)
         return prob, theta, Jac, cost + const, it, refused
