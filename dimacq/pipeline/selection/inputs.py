@@ -210,7 +210,8 @@ class _PredictiveResiduals:
         b, s = self.b, self.s
         x = _x_working(np.asarray(params, float), self.system)
         r = self.predict(x) - b
-        out: FloatArray = np.sqrt(np.mean(np.abs(r / s) ** 2, axis=(0, 2)))
+        # r · (1/s): numpy divides a complex by a real number as (re·(1/s), im·(1/s))
+        out: FloatArray = np.sqrt(np.mean(np.abs(r * (1.0 / s)) ** 2, axis=(0, 2)))
         return out
 
 
