@@ -567,8 +567,9 @@ class _Problem:
     gauge_modes: FloatArray = field(default_factory=lambda: np.zeros((0, 0)))
     gauge_live: NDArray[np.bool_] = field(default_factory=lambda: np.zeros(8, bool))
     gauge_information_ratio: FloatArray = field(default_factory=lambda: np.zeros(0))
-    #: the last :func:`_line_residual` (its key, the arrays it was computed from, the residual):
-    #: the variance factor, the geometry test and χ² ask for the same one
+    #: the last :func:`_line_residual` (its key, the arrays it was computed from, the residual,
+    #: then its sum of squares once :func:`_direct_cost` formed it): the variance factor, the
+    #: geometry test and χ² ask for the same one
     line_residual_memo: tuple[Any, ...] | None = field(default=None, repr=False)
 
     @property
@@ -1641,7 +1642,13 @@ def _direct_cost(
         Q, _ = np.linalg.qr(Bs)
         es = es - Q @ (Q.T @ es)
         return float(np.sum(es**2))
-    return float(np.sum(np.abs(e) ** 2))
+    memo = prob.line_residual_memo
+    if memo is not None and memo[2] is e and len(memo) > 3:
+        return float(memo[3])  # this residual's sum, already formed
+    cost = float(np.sum(np.abs(e) ** 2))
+    if memo is not None and memo[2] is e:
+        prob.line_residual_memo = (*memo[:3], cost)
+    return cost
 
 
 def effective_lines(e: ComplexArray) -> float:
