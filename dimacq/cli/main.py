@@ -93,18 +93,50 @@ def _command_name(argv: Sequence[str]) -> str | None:
     return None
 
 
+#: Commands whose process ends without the interpreter's teardown (:func:`_end_process`).
+FAST_EXIT_COMMANDS = frozenset({"solve"})
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run the command line; return the process exit status."""
+    """Run the command line; return the process exit status.
+
+    Called as the program (``argv`` None: the ``dimacq`` script, ``python -m dimacq.cli.main``),
+    a command of :data:`FAST_EXIT_COMMANDS` ends the process itself once its work is done
+    (:func:`_end_process`); called with ``argv`` (tests, scripts) it always returns.
+    """
     words = sys.argv[1:] if argv is None else list(argv)
     parser = build_parser(_command_name(words))
     args = parser.parse_args(words)
     level = logging.WARNING - 10 * min(args.verbose, 2)
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
     try:
-        return int(args.func(args) or 0)
+        rc = int(args.func(args) or 0)
     except DimacqError as err:
         print(f"dimacq {args.command}: error: {err}", file=sys.stderr)
-        return 2
+        rc = 2
+    if argv is None and args.command in FAST_EXIT_COMMANDS:
+        _end_process(rc)
+    return rc
+
+
+def _end_process(rc: int) -> None:
+    """Flush what the command wrote and end the process with ``rc``, skipping the interpreter's
+    teardown.
+
+    ``dimacq solve`` has written its files (closed) and its report when it returns; what is left
+    is the interpreter's finalisation: every module torn down and every object freed one by one
+    (numpy, pydantic's schemas, the solve's 190 MB of arrays), which the kernel does at once when
+    the process ends. Measured on the acquired calibration-mass set: 0.07 s of CPU at the
+    minimum, 0.2 s at the median on the shared machine (issue #27). Only for commands that
+    leave no thread running and no file open (:data:`FAST_EXIT_COMMANDS`).
+    """
+    logging.shutdown()
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):  # a closed pipe or stream: nothing more can be written
+            pass
+    os._exit(rc)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -64,11 +64,11 @@ from pathlib import Path
 from typing import Any, BinaryIO
 
 import numpy as np
-import pyuff
 from numpy.typing import NDArray
 from pydantic import ValidationError
 
 from dimacq.errors import DataError, DimacqError, SetupError
+from dimacq.io._uff_read import read_sets
 from dimacq.model.frf import STANDARD_GRAVITY, Channel, FrfData, to_accelerance
 from dimacq.model.setup import (
     Excitation,
@@ -183,177 +183,6 @@ def _frame_check(axes: NDArray[np.float64], what: str, path: Path) -> None:
         )
 
 
-def _read_sets(path: Path) -> list[dict[str, Any]]:
-    if not path.is_file():
-        raise DataError(f"{path}: no such UFF file; check the path")
-    try:
-        uff = pyuff.UFF(str(path))
-        n = uff.get_n_sets()
-    except Exception as err:  # pyuff raises bare Exception
-        raise DataError(f"{path}: pyuff cannot index the file ({err}); is it a UFF file?") from err
-    if n == 0:
-        raise DataError(f"{path}: no UFF datasets found; is it a UFF file?")
-    sets: list[dict[str, Any]] = []
-    types = uff.get_set_types()
-    # pyuff's index of the blocks (start of the opening '-1' tag, end before the closing one):
-    # binary 58 records are read from it directly (_fast_58b), the rest through pyuff.
-    blocks = getattr(uff, "_block_ind", None)
-    raw = path.read_bytes() if blocks is not None and len(blocks) == n else None
-    memo: dict[tuple[int, str], dict[str, Any] | None] = {}  # parsed header lines
-    for k in range(n):
-        if raw is not None and int(types[k]) == 58 and blocks is not None:
-            fast = _fast_58b(raw[int(blocks[k][0]) : int(blocks[k][1]) + 1], memo)
-            if fast is not None:
-                sets.append(fast)
-                continue
-        try:
-            d = uff.read_sets(k)
-        except Exception as err:
-            raise DataError(
-                f"{path}: dataset #{k + 1} (type {int(types[k])}) cannot be read ({err}); "
-                "re-export it or remove it"
-            ) from err
-        sets.append(d)
-    return sets
-
-
-def _fields(line: str, spec: Sequence[tuple[int, int, str, str, bool]]) -> dict[str, Any] | None:
-    """Fixed-width fields of a header line as pyuff's ``_parse_header_line`` reads them.
-
-    ``spec`` rows: (start, width, type "i"/"f"/"s", name, mandatory). An optional number that
-    does not parse becomes 0 (pyuff's rule); a mandatory one returns None (pyuff then raises).
-    """
-    if len(line) < 80:
-        line = line + " " * (80 - len(line))
-    out: dict[str, Any] = {}
-    for start, width, kind, name, mandatory in spec:
-        text = line[start : start + width].strip()
-        if kind == "s":
-            out[name] = text
-            continue
-        try:
-            out[name] = int(text) if kind == "i" else float(text)
-        except ValueError:
-            if mandatory:
-                return None
-            out[name] = 0 if kind == "i" else 0.0
-    return out
-
-
-# (start, width, type, name, mandatory) of the header fields pyuff reads (its widths and types).
-_58_LINE1 = (
-    (7, 6, "i", "byte_ordering", True),
-    (13, 6, "i", "fp_format", True),
-    (19, 12, "i", "n_ascii_lines", True),
-    (31, 12, "i", "n_bytes", True),
-)
-_58_LINE7 = (
-    (0, 5, "i", "func_type", True),
-    (41, 10, "i", "rsp_node", False),
-    (51, 4, "i", "rsp_dir", False),
-    (66, 10, "i", "ref_node", False),
-    (76, 4, "i", "ref_dir", False),
-)
-_58_LINE8 = (
-    (0, 10, "i", "ord_data_type", True),
-    (10, 10, "i", "num_pts", True),
-    (20, 10, "i", "abscissa_spacing", True),
-    (30, 13, "f", "abscissa_min", True),
-    (43, 13, "f", "abscissa_inc", True),
-    (56, 13, "f", "z_axis_value", True),
-)
-
-
-def _58_axis(prefix: str) -> tuple[tuple[int, int, str, str, bool], ...]:
-    return (
-        (0, 10, "i", f"{prefix}_spec_data_type", True),
-        (10, 5, "i", f"{prefix}_len_unit_exp", True),
-        (15, 5, "i", f"{prefix}_force_unit_exp", True),
-        (20, 5, "i", f"{prefix}_temp_unit_exp", True),
-        (25, 21, "s", f"{prefix}_axis_lab", False),
-        (46, 21, "s", f"{prefix}_axis_units_lab", False),
-    )
-
-
-_58_AXES = {
-    9: _58_axis("abscissa"),
-    10: _58_axis("ordinate"),
-    11: _58_axis("orddenom"),
-    12: _58_axis("z_axis"),
-}
-
-
-#: A line end as ``bytes.splitlines`` sees one.
-_EOL = re.compile(rb"\r\n|\r|\n")
-
-
-def _fast_58b(
-    block: bytes, memo: dict[tuple[int, str], dict[str, Any] | None] | None = None
-) -> dict[str, Any] | None:
-    """A binary 58 record (the fields :func:`_record` reads), or None to let pyuff read it.
-
-    pyuff spends about 1 ms of Python per record on the header (its general field parser, on
-    every field) and unpacks the values through a tuple of Python floats; an acquired test
-    holds hundreds of records. Here the same header lines are cut at the same columns with the
-    same rules (:func:`_fields`), the values are read with ``np.frombuffer`` in the stated byte
-    order and precision, and abscissa and ordinate are formed with pyuff's own expressions, so
-    the arrays are equal to the bit (``tests/io/test_uff_fast_58b.py``). Anything else (ASCII,
-    an ordinate type pyuff does not read, a malformed header) returns None. ``memo`` keeps the
-    parsed header lines across the records of one file (most lines repeat in every record).
-    """
-    # The 13 header lines as pyuff cuts them: bytes.splitlines (\n, \r, \r\n), then decoded.
-    ends = _EOL.finditer(block)
-    end = 0
-    for _ in range(13):
-        m = next(ends, None)
-        if m is None:
-            return None
-        end = m.end()
-    lines = block[:end].decode("utf-8", errors="replace").splitlines(True)
-    if len(lines) != 13 or len(lines[1]) < 7 or lines[1][6].lower() != "b":
-        return None
-    specs = ((1, _58_LINE1), (7, _58_LINE7), (8, _58_LINE8), *_58_AXES.items())
-    parts: list[dict[str, Any] | None] = []
-    for i, spec in specs:  # the records of a test share most header lines: parse each once
-        if memo is None:
-            parts.append(_fields(lines[i], spec))
-            continue
-        key = (i, lines[i])
-        if key not in memo:
-            memo[key] = _fields(lines[i], spec)
-        parts.append(memo[key])
-    if any(p is None for p in parts):
-        return None
-    d: dict[str, Any] = {"type": 58, "binary": 1}
-    for p in parts:
-        assert p is not None
-        d.update(p)
-    ord_type = d["ord_data_type"]
-    if ord_type not in (2, 4, 5, 6):
-        return None
-    data = block[end:]
-    size = 4 if ord_type in (2, 5) else 8
-    order = "<" if d["byte_ordering"] == 1 else ">"
-    values = np.frombuffer(data[: len(data) // size * size], dtype=f"{order}f{size}").astype(
-        np.float64
-    )
-    even = d["abscissa_spacing"] != 0
-    if ord_type in (2, 4):
-        if even:
-            d["x"] = d["abscissa_min"] + np.arange(len(values)) * d["abscissa_inc"]
-            d["data"] = values.copy()
-        else:
-            d["x"] = values[:-1:2].copy()
-            d["data"] = values[1::2].copy()
-    elif even:
-        d["x"] = d["abscissa_min"] + np.arange(len(values) / 2) * d["abscissa_inc"]
-        d["data"] = values[0:-1:2] + 1.0j * values[1::2]
-    else:
-        d["x"] = values[:-2:3].copy()
-        d["data"] = values[1:-1:3] + 1.0j * values[2::3]
-    return d
-
-
 def _system_18(
     dset: dict[str, Any], k: int, length: float, systems: dict[int, _System], path: Path
 ) -> None:
@@ -405,7 +234,7 @@ def _system_18(
 
 def _parse(path: Path) -> _Content:
     """Read every dataset and convert geometry and FRFs to SI, GCS."""
-    sets = _read_sets(path)
+    sets = read_sets(path)
     length, force = 1.0, 1.0
     systems: dict[int, _System] = {}
     raw_nodes: list[
@@ -414,6 +243,7 @@ def _parse(path: Path) -> _Content:
     records: list[_Record] = []
     part_name = ""
     skipped: dict[int, int] = {}
+    deferred: list[tuple[Any, int, str, float, float]] = []
     for k, d in enumerate(sets, start=1):
         t = int(d["type"])
         if t == 164:
@@ -450,13 +280,14 @@ def _parse(path: Path) -> _Content:
             for i, n in enumerate(d["node_nums"]):
                 raw_nodes.append((_int(n), _int(d["def_cs"][i]), _int(d["disp_cs"][i]), k, xyz[i]))
         elif t == 58:
-            rec = _record(d, k, length, force, path)
+            rec = _record(d, k, length, force, path, deferred)
             if rec is None:
                 skipped[int(d["func_type"])] = skipped.get(int(d["func_type"]), 0) + 1
             else:
                 records.append(rec)
         else:
             skipped[-t] = skipped.get(-t, 0) + 1
+    _scale_rows(deferred)
     if skipped:
         logger.info(
             "%s: ignored %s",
@@ -482,8 +313,20 @@ def _parse(path: Path) -> _Content:
     return _Content(path, systems, nodes, records, part_name)
 
 
-def _record(d: dict[str, Any], k: int, length: float, force: float, path: Path) -> _Record | None:
-    """One 58 dataset → SI record, or None for a function that is not an FRF."""
+def _record(
+    d: dict[str, Any],
+    k: int,
+    length: float,
+    force: float,
+    path: Path,
+    deferred: list[tuple[Any, int, str, float, float]] | None = None,
+) -> _Record | None:
+    """One 58 dataset → SI record, or None for a function that is not an FRF.
+
+    A record read in a batch (``d["_rows"]``: a row of an array of records) with ``deferred``
+    keeps that row as its data and appends its unit conversion, ``(array, row, "mul"/"div",
+    factor, force)``, for :func:`_scale_rows` to apply to all the rows at once.
+    """
     func_type = int(d["func_type"])
     rsp_node, rsp_dir = _int(d["rsp_node"]), _int(d["rsp_dir"])
     ref_node, ref_dir = _int(d["ref_node"]), _int(d["ref_dir"])
@@ -523,23 +366,45 @@ def _record(d: dict[str, Any], k: int, length: float, force: float, path: Path) 
             "along a node's x, y or z axis"
         )
     f = np.asarray(d["x"], dtype=float)
-    h: NDArray[np.complex128] = np.asarray(d["data"]).astype(complex)
-    if f.shape != h.shape or f.ndim != 1:
+    if f.shape != np.shape(d["data"]) or f.ndim != 1:
         raise DataError(f"{path}: {ident}: abscissa and ordinate lengths differ; re-export it")
     # numerator → SI, denominator (force) → SI: H_SI = (num / f_num) / (den / force)
     label = str(d.get("ordinate_axis_units_lab", "")).strip().lower().replace(" ", "")
     if kind == "acceleration":
-        if o_type == 12 and _G_LABEL.match(label):
-            h = h * STANDARD_GRAVITY
-        else:
-            h = h / length
+        op, c = (
+            ("mul", STANDARD_GRAVITY) if o_type == 12 and _G_LABEL.match(label) else ("div", length)
+        )
     else:
-        h = h / (force if abs(rsp_dir) <= 3 else force * length)
-    if den_type == 13 or den_type == 0:
-        h = h * force
+        op, c = "div", force if abs(rsp_dir) <= 3 else force * length
+    # den_type is 13 or 0 here (refused above otherwise): the denominator is a force
+    rows = d.get("_rows")
+    if deferred is not None and rows is not None and o_type not in (8, 11):
+        deferred.append((rows[0], rows[1], op, c, force))
+        return _Record(k, rsp_node, rsp_dir, ref_node, ref_dir, kind, f, d["data"])
+    h: NDArray[np.complex128] = np.asarray(d["data"]).astype(complex)
+    h = h * c if op == "mul" else h / c
+    h = h * force
     if o_type in (8, 11):
         h = to_accelerance(h, f, quantity="displacement" if o_type == 8 else "velocity")
     return _Record(k, rsp_node, rsp_dir, ref_node, ref_dir, kind, f, h)
+
+
+def _scale_rows(deferred: list[tuple[Any, int, str, float, float]]) -> None:
+    """The unit conversions :func:`_record` deferred, in place on the records' rows: rows of one
+    array with the same conversion at once, with the same two operations (``× c`` or ``/ c``,
+    then ``× force``, Python floats) as a record alone, so each value is the same to the bit."""
+    groups: dict[tuple[int, str, float, float], tuple[Any, list[int]]] = {}
+    for array, row, op, c, force in deferred:
+        groups.setdefault((id(array), op, c, force), (array, []))[1].append(row)
+    for (_, op, c, force), (array, rows) in groups.items():
+        if len(rows) == len(array):  # every row (an SI file): in place, no copies
+            (np.multiply if op == "mul" else np.divide)(array, c, out=array)
+            np.multiply(array, force, out=array)
+            continue
+        idx = np.asarray(rows, dtype=np.intp)
+        block = array[idx]
+        block = block * c if op == "mul" else block / c
+        array[idx] = block * force
 
 
 def _axis_text(f: NDArray[np.float64]) -> str:
@@ -552,6 +417,8 @@ def _common_axis(records: Sequence[_Record], path: Path) -> NDArray[np.float64]:
     f0 = first.frequencies_hz
     scale = float(np.max(np.abs(f0))) if f0.size else 1.0
     rest = records[1:]
+    if all(r.frequencies_hz is f0 for r in rest) and np.all(np.isfinite(f0)):
+        return f0  # one axis shared by the records of a batch (dimacq.io._uff_read)
     # np.allclose of every record with the first, in one comparison of the stacked axes.
     ok = np.array([r.frequencies_hz.shape == f0.shape for r in rest], dtype=bool)
     if ok.any():
@@ -578,31 +445,28 @@ def _assemble(
     f = _common_axis(records, path)
     o_index = {ch: i for i, (ch, _) in enumerate(outputs)}
     i_index = {ch: i for i, ch in enumerate(inputs)}
-    # Each record is written contiguously (lines last), then one transpose to (lines, out, in):
-    # writing a record straight into H touched one cache line per frequency line.
-    Ht = np.zeros((len(outputs), len(inputs), f.size), dtype=complex)
-    seen = np.zeros((len(outputs), len(inputs)), dtype=bool)
+    n_in = len(inputs)
+    data: list[NDArray[np.complex128] | None] = [None] * (len(outputs) * n_in)
     for r in records:
         o = o_index.get(Channel(r.rsp_node, r.rsp_dir))
         i = i_index.get(Channel(r.ref_node, r.ref_dir))
         if o is None or i is None:
             continue
-        if seen[o, i]:
+        if data[o * n_in + i] is not None:
             raise DataError(
                 f"{path}: {r.name} repeats an FRF already read; keep one record per "
                 "response/reference pair"
             )
-        Ht[o, i] = r.data
-        seen[o, i] = True
-    if not seen.all():
+        data[o * n_in + i] = r.data
+    if any(d is None for d in data):
+        seen = np.array([d is not None for d in data]).reshape(len(outputs), n_in)
         o, i = (int(v[0]) for v in np.nonzero(~seen))
         raise DataError(
             f"{path}: no FRF for response {outputs[o][0].name} / reference {inputs[i].name} "
             f"({int((~seen).sum())} of {seen.size} pairs missing); "
             "export every response for every input"
         )
-    H = np.ascontiguousarray(Ht.transpose(2, 0, 1))
-    del Ht
+    H = _lines_first([d for d in data if d is not None], f.size).reshape(f.size, -1, n_in)
     try:
         return FrfData(
             frequencies_hz=f,
@@ -614,6 +478,19 @@ def _assemble(
         )
     except DataError as err:
         raise DataError(f"{path}: {err}") from err
+
+
+def _lines_first(rows: Sequence[NDArray[np.complex128]], n_lines: int) -> NDArray[np.complex128]:
+    """The records ``rows`` (each n_lines values) as the columns of one (n_lines, n_rows) array.
+
+    Written in blocks of 32 records (stacked, then transposed into place): each block's reads
+    and writes stay in the cache, where writing a record straight into its column touches one
+    cache line per line, and no whole-size intermediate is allocated (its page faults cost as
+    much as the copy: 23 MB for 720 records × 2048 lines)."""
+    H = np.empty((n_lines, len(rows)), dtype=np.complex128)
+    for r0 in range(0, len(rows), 32):
+        H[:, r0 : r0 + 32] = np.stack(rows[r0 : r0 + 32]).T
+    return H
 
 
 def _ordered_channels(
@@ -1157,6 +1034,8 @@ def _write_header_sets(
     except OSError as err:
         raise SetupError(f"{p}: cannot write ({err.strerror}); check the path") from err
     try:
+        import pyuff
+
         pyuff.UFF(str(p)).write_sets(sets, mode="overwrite")
     except Exception as err:  # pyuff raises bare Exception
         raise SetupError(f"{p}: pyuff could not write the geometry datasets ({err})") from err

@@ -119,10 +119,15 @@ class FrfData:
                 f"band {lo_hz:g}–{hi_hz:g} Hz holds no line (data span "
                 f"{self.frequencies_hz[0]:g}–{self.frequencies_hz[-1]:g} Hz); choose a band inside it"
             )
+        idx = np.flatnonzero(sel)
+        # one run of lines (a band of increasing frequencies): views of it, not copies
+        key: slice | NDArray[np.bool_] = (
+            slice(int(idx[0]), int(idx[-1]) + 1) if idx[-1] - idx[0] + 1 == idx.size else sel
+        )
         return self.replace(
-            frequencies_hz=self.frequencies_hz[sel],
-            H=self.H[sel],
-            coherence=None if self.coherence is None else self.coherence[sel],
+            frequencies_hz=self.frequencies_hz[key],
+            H=self.H[key],
+            coherence=None if self.coherence is None else self.coherence[key],
         )
 
     def select(

@@ -102,7 +102,7 @@ from dimacq.errors import SetupError, SolverError
 from dimacq.model.frf import Channel, FrfData
 from dimacq.model.setup import PARAMETERS, TestSetup
 from dimacq.pipeline._batched import cross3
-from dimacq.pipeline._filters import uniform_filter_nearest
+from dimacq.pipeline._filters import median_along, uniform_filter_nearest
 from dimacq.pipeline._special import chi2_ppf, eigh_generalized, null_space
 from dimacq.pipeline.dim import DimResult, assemble, solve_system
 from dimacq.pipeline.rotations import apply_rotvec
@@ -232,13 +232,22 @@ def gauge_property_jacobian(x: FloatArray) -> FloatArray:
 # ------------------------------------------------------------------------------------------
 # Noise
 # ------------------------------------------------------------------------------------------
-def estimate_noise(H: ComplexArray) -> FloatArray:
+def _third_difference_power(H: ComplexArray) -> FloatArray:
+    """``|Δ³H|²`` along the lines (axis 0): ``|H_ℓ − 3H_ℓ₊₁ + 3H_ℓ₊₂ − H_ℓ₊₃|²``, (L − 3, ...)."""
+    d3 = H[:-3] - 3 * H[1:-2] + 3 * H[2:-1] - H[3:]
+    return np.asarray(np.abs(d3) ** 2, float)
+
+
+def estimate_noise(H: ComplexArray, *, d3_power: FloatArray | None = None) -> FloatArray:
     """Noise standard deviation of each FRF from the line-to-line scatter (module docstring).
 
     Parameters
     ----------
     H : ndarray, shape (n_lines, ...), complex
         FRFs along their lines (axis 0), at least 8 lines.
+    d3_power : ndarray, optional
+        ``|Δ³H|²`` if already formed (:func:`_third_difference_power`; the line weights use it
+        too).
 
     Returns
     -------
@@ -251,8 +260,8 @@ def estimate_noise(H: ComplexArray) -> FloatArray:
             f"the band holds {H.shape[0]} lines; the noise estimate from line-to-line scatter "
             "needs at least 8: widen the band"
         )
-    d3 = H[:-3] - 3 * H[1:-2] + 3 * H[2:-1] - H[3:]
-    return np.asarray(np.sqrt(np.median(np.abs(d3) ** 2, axis=0) / (20 * np.log(2))), float)
+    d3p = _third_difference_power(H) if d3_power is None else d3_power
+    return np.asarray(np.sqrt(np.median(d3p, axis=0) / (20 * np.log(2))), float)
 
 
 def _reaction_noise_cov(R: ComplexArray) -> FloatArray:
@@ -285,6 +294,9 @@ def _line_weights(
     phi: FloatArray,
     A: FloatArray,
     eps_r: float,
+    *,
+    h_power: FloatArray | None = None,
+    d3_power: FloatArray | None = None,
 ) -> FloatArray | None:
     """Per line and input, the weight ``w_ℓj`` of the line's own noise and of the load cells'
     calibration uncertainty (the noise model from the measurement).
@@ -323,12 +335,14 @@ def _line_weights(
     L = H.shape[0]
     if L < 16:
         return None
-    d3 = np.abs(H[:-3] - 3 * H[1:-2] + 3 * H[2:-1] - H[3:]) ** 2  # (L-3, C, J)
+    # |Δ³H|² and |H|² as the caller may have them (the noise estimate and the band's power)
+    d3 = _third_difference_power(H) if d3_power is None else d3_power  # (L-3, C, J)
+    h2 = np.abs(H) ** 2 if h_power is None else h_power
     loc = uniform_filter_nearest(d3, 2 * LINE_NOISE_HALF_WIDTH + 1)
     loc = np.concatenate([loc[:2], loc, loc[-1:]], axis=0)  # centre the L-3 differences on L lines
-    power = np.maximum(np.mean(np.abs(H) ** 2, axis=0), 1e-300)  # (C, J)
-    n = np.median(loc / (20.0 * power[None]), axis=1)  # (L, J)
-    prel = np.median(np.abs(H) ** 2 / power[None], axis=1)  # (L, J)
+    power = np.maximum(np.mean(h2, axis=0), 1e-300)  # (C, J)
+    n = median_along(loc / (20.0 * power[None]), axis=1)  # (L, J)
+    prel = median_along(h2 / power[None], axis=1)  # (L, J)
     # a floor at the data's own precision (float32 UFF records, 24-bit converters: ~1e-7
     # relative): on exact FRFs the local scatter is rounding noise and the weights would be
     # ratios of it
@@ -553,6 +567,10 @@ class _Problem:
     gauge_modes: FloatArray = field(default_factory=lambda: np.zeros((0, 0)))
     gauge_live: NDArray[np.bool_] = field(default_factory=lambda: np.zeros(8, bool))
     gauge_information_ratio: FloatArray = field(default_factory=lambda: np.zeros(0))
+    #: the last :func:`_line_residual` (its key, the arrays it was computed from, the residual,
+    #: then its sum of squares once :func:`_direct_cost` formed it): the variance factor, the
+    #: geometry test and χ² ask for the same one
+    line_residual_memo: tuple[Any, ...] | None = field(default=None, repr=False)
 
     @property
     def n_nodes(self) -> int:
@@ -721,20 +739,29 @@ def _statistics(
     ``z_j``) and the statistics keep their form. The reactions' noise compensation is scaled by
     the mean ``w²`` of the input."""
     L, C, J = H.shape
-    ones = np.ones((L, 1, J), complex)
-    parts = [ones, R]
     if lw is not None:
-        ones = ones * lw[:, None, :]
-        parts = [ones, R * lw[:, None, :]]
         cov_R = cov_R * np.mean(lw**2, axis=0)[:, None, None]
-    nb = 0
+    nb = 0 if basis is None else basis.shape[1]
+    # z_j = [w; w R_j; b; w H_:j/σ] (w = 1 without line weights), written straight into its real
+    # and imaginary parts as (J, n, L) arrays: the products of Σ_ω Re(z zᴴ) = Zr Zrᵀ + Zi Ziᵀ.
+    # The numbers are those of the complex expressions (w·(1+0i), R·w, H/σ = H·(1/σ) in numpy's
+    # complex division, H·(w/σ)) up to the sign of a zero, which no product or sum sees.
+    n = 7 + nb + C
+    zr = np.empty((J, n, L))
+    zi = np.empty((J, n, L))
+    w = None if lw is None else lw.T[:, None, :]  # (J, 1, L)
+    zr[:, 0:1] = 1.0 if w is None else w
+    zi[:, 0:1] = 0.0
+    Rt = np.transpose(R, (2, 1, 0))  # (J, 6, L), complex view
+    zr[:, 1:7] = Rt.real if w is None else Rt.real * w
+    zi[:, 1:7] = Rt.imag if w is None else Rt.imag * w
     if basis is not None:
-        nb = basis.shape[1]
-        parts.append(np.broadcast_to(basis[:, :, None], (L, nb, J)).astype(complex))
-    parts.append(H / sigma[None] if lw is None else H * (lw[:, None, :] / sigma[None]))
-    z = np.concatenate(parts, axis=1)  # (L, n, J)
-    zt = np.ascontiguousarray(np.transpose(z, (2, 1, 0)))  # (J, n, L)
-    zr, zi = zt.real.copy(), zt.imag.copy()
+        zr[:, 7 : 7 + nb] = basis.real.T[None]
+        zi[:, 7 : 7 + nb] = basis.imag.T[None]
+    scale = (1.0 / sigma).T[:, :, None] if w is None else w / sigma.T[:, :, None]  # (J, C, L)
+    Ht = np.transpose(H, (2, 1, 0))  # (J, C, L)
+    np.multiply(Ht.real, scale, out=zr[:, 7 + nb :])
+    np.multiply(Ht.imag, scale, out=zi[:, 7 + nb :])
     S = zr @ np.swapaxes(zr, 1, 2) + zi @ np.swapaxes(zi, 1, 2)  # Σ_ω Re(z zᴴ), (J, n, n)
     dsc = np.sqrt(np.clip(np.einsum("jii->ji", S), 1e-300, None))  # equilibration (raw S)
     S[:, 1:7, 1:7] -= cov_R  # bias compensation of the noisy reactions (already × n_ω or rank)
@@ -758,9 +785,16 @@ def _statistics(
 
 
 def _gauge_constraint(
-    prob: _Problem, theta0: FloatArray, refuse_ratio: float, fix_all: bool = False
+    prob: _Problem,
+    theta0: FloatArray,
+    refuse_ratio: float,
+    fix_all: bool = False,
+    data_jacobian: FloatArray | None = None,
 ) -> None:
     """Fix the gauge modes the data do not identify (sets ``prob.gauge_rows``).
+
+    ``data_jacobian``: the data rows of the Jacobian at ``theta0`` when the caller has them
+    (:meth:`_Problem.residual`'s, whose data rows do not depend on the constraint rows).
 
     The similarity of the whole instrumentation and the common accelerometer gain
     (:meth:`_Problem.gauge_basis`, ``G``) change no FRF when the properties move with them; only
@@ -798,10 +832,12 @@ def _gauge_constraint(
     prob.gauge_live = live
     if not G.shape[1]:
         return
-    _, J0 = prob.residual(theta0)
-    assert J0 is not None
+    if data_jacobian is None:
+        _, J0 = prob.residual(theta0)
+        assert J0 is not None
+        data_jacobian = J0[: J0.shape[0] - prob.free_g.size]
     nx = prob.free_x.size
-    Jd = J0[: J0.shape[0] - prob.free_g.size]
+    Jd = data_jacobian
     Jx, Jg = Jd[:, :nx], Jd[:, nx:]
     Nxx, Nxg, Ngg = Jx.T @ Jx, Jx.T @ Jg, Jg.T @ Jg
     Dg = Ngg - Nxg.T @ np.linalg.pinv(Nxx) @ Nxg
@@ -951,8 +987,12 @@ def solve_output_error(
     H = frf.H[:, geo.output_index[active]][:, :, in_idx]  # (L, C, J)
     R = system.F - system.phi[None].astype(complex)  # (L, 6, J), N and N·m per N
     L_lines = H.shape[0]
-    sigma = estimate_noise(H)
-    floor = 1e-6 * np.sqrt(np.mean(np.abs(H) ** 2, axis=0))
+    # |H|², its band mean and |Δ³H|² once: the noise, its floor, the line weights and the report
+    h_power = np.abs(H) ** 2
+    h_mean_power = np.mean(h_power, axis=0)  # (C, J)
+    d3_power = _third_difference_power(H) if L_lines >= 8 else None
+    sigma = estimate_noise(H, d3_power=d3_power)
+    floor = 1e-6 * np.sqrt(h_mean_power)
     sigma = np.maximum(sigma, np.maximum(floor, 1e-300))
     cov_R = _reaction_noise_cov(R) if R.shape[0] >= 8 else np.zeros((len(in_idx), 6, 6))
     # the reactions' power against their own noise, per line and input:
@@ -1019,7 +1059,8 @@ def solve_output_error(
 
     # from the measured noise and the load cells' certificate; the a posteriori variance factor
     # below scales the whole noise model, not the lines' relative weights
-    lw0 = _line_weights(H, R, psi0, phi0, A0, eps_r)
+    lw0 = _line_weights(H, R, psi0, phi0, A0, eps_r, h_power=h_power, d3_power=d3_power)
+    del h_power, d3_power
 
     def line_w(use_basis: bool = False) -> FloatArray | None:
         # with residual terms the projection is per channel over all lines: no line weights
@@ -1063,8 +1104,15 @@ def solve_output_error(
             prob.free_g = cand_[ok]
             theta0 = np.concatenate([x_start[free_x], np.zeros(prob.free_g.size)])
             if opt.fix_gauge and prob.free_g.size:
+                # the data rows of J0 in the columns kept: the Jacobian at theta0 of the items
+                # kept, without computing it again (its data rows are the same numbers)
+                cols = np.concatenate([np.arange(free_x.size), free_x.size + np.nonzero(ok)[0]])
                 _gauge_constraint(
-                    prob, theta0, opt.refuse_ratio, fix_all=not opt.gauge_from_reactions
+                    prob,
+                    theta0,
+                    opt.refuse_ratio,
+                    fix_all=not opt.gauge_from_reactions,
+                    data_jacobian=J0[: prob.Lh.size][:, cols],
                 )
         theta, Jac, cost, it = _lm(prob, theta0, opt.max_iterations)
         return prob, theta, Jac, cost + const, it, refused
@@ -1224,9 +1272,10 @@ def solve_output_error(
     lw_end = line_w(fitted_b)
     chi2 = 2.0 * _direct_cost(prob, theta, H, R, sigma, basis if fitted_b else None, lw_end) / dof
     N = Jac.T @ Jac
-    cov_theta = np.linalg.pinv(N) * max(1.0, chi2)
+    N_inv: FloatArray = np.asarray(np.linalg.pinv(N), float)
+    cov_theta = N_inv * max(1.0, chi2)
     nx0 = free_x.size
-    robust = _input_robust_factors(prob, theta, Jac, cov_theta, nx0)
+    robust = _input_robust_factors(prob, theta, Jac, cov_theta, nx0, N_inv)
     cov_theta[:nx0] *= robust[:, None]
     cov_theta[:, :nx0] *= robust[None, :]
     if model_form is not None:
@@ -1302,7 +1351,7 @@ def solve_output_error(
         refinement_note or keep_note,
     )
     new_setup = _refined_setup(setup, geo, active, prob, g, frf.inputs, in_idx, p)
-    sig_rel = sigma / np.sqrt(np.mean(np.abs(H) ** 2, axis=0))
+    sig_rel = sigma / np.sqrt(h_mean_power)
     noise = {
         "method": "line-to-line scatter (third difference), per channel and input",
         "relative_median": float(np.median(sig_rel)),
@@ -1489,7 +1538,12 @@ def _adequacy(
 
 
 def _input_robust_factors(
-    prob: _Problem, theta: FloatArray, Jac: FloatArray, cov: FloatArray, nx: int
+    prob: _Problem,
+    theta: FloatArray,
+    Jac: FloatArray,
+    cov: FloatArray,
+    nx: int,
+    N_inv: FloatArray | None = None,
 ) -> FloatArray:
     """Per free property, ``max(1, σ_robust / σ_model)``: the input-clustered sandwich against the
     model-based posterior.
@@ -1526,7 +1580,7 @@ def _input_robust_factors(
     n_g = prob.free_g.size
     Jp = Jac[n_data : n_data + n_g]
     B = sc.T @ sc * (J_ / (J_ - 1)) + Jp.T @ Jp
-    Ninv = np.linalg.pinv(Jac.T @ Jac)
+    Ninv = np.linalg.pinv(Jac.T @ Jac) if N_inv is None else N_inv  # the caller's, if formed
     V = Ninv @ B @ Ninv
     with np.errstate(divide="ignore", invalid="ignore"):
         ratio = np.diag(V)[:nx] / np.diag(cov)[:nx]
@@ -1541,7 +1595,15 @@ def _line_residual(
     sigma: FloatArray,
     lw: FloatArray | None = None,
 ) -> ComplexArray:
-    """``w (H − Ĥ)/σ`` on every line, channel and input (L, C, J)."""
+    """``w (H − Ĥ)/σ`` on every line, channel and input (L, C, J), read-only.
+
+    The last one is kept on ``prob`` (with references to the arrays it came from, so that their
+    identities stay theirs): asked again for the same θ, free items and arrays, it is returned
+    as it is instead of computed anew."""
+    key = (theta.tobytes(), prob.free_g.tobytes(), id(H), id(R), id(sigma), id(lw))
+    memo = prob.line_residual_memo
+    if memo is not None and memo[0] == key:
+        return memo[2]
     x = prob.full_x(theta)
     gfull = prob.full_g(theta)
     r, d, rin, din = prob.geometry(gfull)
@@ -1550,8 +1612,15 @@ def _line_residual(
     psi = psi * (1.0 + gfull[gfull.size - psi.shape[0] :])[:, None]
     phi = np.concatenate([din, cross3(rin, din)], axis=1)
     mot = A @ (phi.T[None] + R)  # (L, 6, J)
-    e = (H - psi @ mot) / sigma[None]
-    return e if lw is None else e * lw[:, None, :]
+    # Ψ (real) times the motions as one real product on their (re, im) view, and 1/σ as a
+    # product: numpy's complex matmul and division give these numbers (up to the sign of a zero)
+    pred = (psi @ mot.view(np.float64)).view(np.complex128)
+    e = (H - pred) * (1.0 / sigma)[None]
+    if lw is not None:
+        e = e * lw[:, None, :]
+    e.flags.writeable = False
+    prob.line_residual_memo = (key, (H, R, sigma, lw), e)
+    return e
 
 
 def _direct_cost(
@@ -1573,7 +1642,13 @@ def _direct_cost(
         Q, _ = np.linalg.qr(Bs)
         es = es - Q @ (Q.T @ es)
         return float(np.sum(es**2))
-    return float(np.sum(np.abs(e) ** 2))
+    memo = prob.line_residual_memo
+    if memo is not None and memo[2] is e and len(memo) > 3:
+        return float(memo[3])  # this residual's sum, already formed
+    cost = float(np.sum(np.abs(e) ** 2))
+    if memo is not None and memo[2] is e:
+        prob.line_residual_memo = (*memo[:3], cost)
+    return cost
 
 
 def effective_lines(e: ComplexArray) -> float:

@@ -405,6 +405,12 @@ def _analyse(frf: FrfData, setup: TestSetup, opt: AnalysisOptions) -> AnalysisRe
     result = solve_system(
         system_used, known=known, method="mean" if opt.method == "mean" else "joint"
     )
+    geo: GeometrySpread | None = None
+    if opt.geometry_samples > 0:
+        geo = _geometry(data, setup_used, system_used, weights, keep_idx, known, opt)
+    # the leave-one-node-out systems (K and F of every line: 6 MB each on an acquired test) live
+    # only as long as the uncertainty needs them, not through the output-error fit and the
+    # cross-check (their 50 MB on top of those steps' own was most of dimacq solve's page faults)
     nodes = geo_all.nodes
     resp_systems: list[DimSystem] = []
     n_node_rank = 0
@@ -421,9 +427,6 @@ def _analyse(frf: FrfData, setup: TestSetup, opt: AnalysisOptions) -> AnalysisRe
                 "leaving out sensor node %s drops the response rank; not used for the uncertainty",
                 g,
             )
-    geo: GeometrySpread | None = None
-    if opt.geometry_samples > 0:
-        geo = _geometry(data, setup_used, system_used, weights, keep_idx, known, opt)
     unc = estimate_uncertainty(
         system_used,
         result,
@@ -432,6 +435,7 @@ def _analyse(frf: FrfData, setup: TestSetup, opt: AnalysisOptions) -> AnalysisRe
         response_systems=resp_systems,
         geometry=geo,
     )
+    del resp_systems
     if n_node_rank:
         unc = replace(unc, n_rank_deficient=unc.n_rank_deficient + n_node_rank)
     refine = opt.method == "joint" and (

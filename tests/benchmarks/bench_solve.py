@@ -39,8 +39,8 @@ TARGET_S = 1.0
 
 def _run(
     cmd: list[str], env: dict[str, str] | None = None, cwd: Path | None = None
-) -> tuple[float, float]:
-    """Wall and CPU (user + system) seconds of one child process."""
+) -> tuple[float, float, float]:
+    """Wall and CPU (user + system) seconds and minor page faults of one child process."""
     t0 = time.perf_counter()
     proc = subprocess.Popen(
         cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env, cwd=cwd
@@ -52,7 +52,7 @@ def _run(
     proc.stderr.close()
     if os.waitstatus_to_exitcode(status) not in (0, 3):
         raise SystemExit(f"{' '.join(cmd)} failed:\n{err}")
-    return wall, usage.ru_utime + usage.ru_stime
+    return wall, usage.ru_utime + usage.ru_stime, float(usage.ru_minflt)
 
 
 def _compute_only(path: Path, out: Path) -> float:
@@ -117,12 +117,14 @@ def main() -> None:
         b = np.array(rows_before)
         print(
             f"before ({args.before}): wall {b[:, 0].min():.2f} s min, {np.median(b[:, 0]):.2f} s "
-            f"median; CPU {b[:, 1].min():.2f} s min, {np.median(b[:, 1]):.2f} s median"
+            f"median; CPU {b[:, 1].min():.2f} s min, {np.median(b[:, 1]):.2f} s median; "
+            f"{np.median(b[:, 2]):.0f} page faults"
         )
     wall, cpu = runs[:, 0], runs[:, 1]
     print(f"dimacq solve {path.name}, {args.repeat} fresh processes")
     print(f"wall: {wall.min():.2f} s min, {np.median(wall):.2f} s median")
     print(f"CPU:  {cpu.min():.2f} s min, {np.median(cpu):.2f} s median (user + system)")
+    print(f"minor page faults: {np.median(runs[:, 2]):.0f} median")
     print(f"second solve in one process (no imports): {compute:.2f} s CPU")
     print(
         f"target < {TARGET_S:g} s: {'PASS' if wall.min() < TARGET_S else 'FAIL'} "

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import pyuff
 
-from dimacq.io.uff import _fast_58b
+from dimacq.io._uff_read import fast_58b as _fast_58b
 
 ROOT = Path(__file__).resolve().parents[2]
 

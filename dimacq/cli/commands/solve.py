@@ -196,7 +196,6 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 # ---------------------------------------------------------------------------------------------
 def load_test(input_path: Path, frf_path: Path | None) -> tuple[TestSetup, FrfData]:
     """Read a setup + FRF pair or one whole-test UFF file."""
-    from dimacq.io.setup_file import load_setup
     from dimacq.io.uff import read_frf_uff, read_uff_test
 
     if not input_path.exists():
@@ -214,6 +213,8 @@ def load_test(input_path: Path, frf_path: Path | None) -> tuple[TestSetup, FrfDa
             raise SetupError(f"setup {input_path} needs its FRFs: give FRF.uff after it")
         if not frf_path.exists():
             raise SetupError(f"FRF.uff {frf_path} does not exist")
+        from dimacq.io.setup_file import load_setup  # (TOML/JSON parsers: only for a setup file)
+
         setup = load_setup(input_path)
         return setup, read_frf_uff(frf_path, setup)
     raise SetupError(
@@ -314,6 +315,9 @@ def _write_rig(args: argparse.Namespace, payload: dict[str, Any]) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from dimacq.cli._process import keep_freed_memory
+
+    keep_freed_memory()  # a batch command: freed arrays are reused, not faulted in anew
     setup, frf = load_test(args.input, args.frf)
     if args.reference_point is not None:
         setup = setup.model_copy(update={"reference_point_m": tuple(args.reference_point)})

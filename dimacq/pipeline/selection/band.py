@@ -173,6 +173,12 @@ def find_peaks(x: NDArray[np.floating], prominence: float) -> NDArray[np.intp]:
 def cmif(H: NDArray[np.complexfloating]) -> FloatArray:
     """Complex mode indicator function: singular values of ``H`` per line.
 
+    ``σ_k = √λ_k`` of the Gram matrix ``HᴴH`` (or ``HHᴴ``, the smaller), one Hermitian
+    eigenvalue problem per line: a quarter less work than the SVD (57 against 74 ms on an
+    acquired test's 2048 lines of 24 × 24). ``σ₁``, the curve the band search reads, comes out
+    within a few ``ε`` relative of the SVD's; a smaller ``σ_k`` within ``ε σ₁²/σ_k`` (what a
+    log-scale plot cannot show).
+
     Parameters
     ----------
     H : ndarray, shape (n_lines, n_outputs, n_inputs), complex
@@ -181,7 +187,11 @@ def cmif(H: NDArray[np.complexfloating]) -> FloatArray:
     -------
     ndarray, shape (n_lines, min(n_outputs, n_inputs)), descending per line.
     """
-    out: FloatArray = np.linalg.svd(np.asarray(H), compute_uv=False)
+    h = np.asarray(H)
+    hh = np.swapaxes(h, -1, -2).conj()
+    gram = hh @ h if h.shape[-2] >= h.shape[-1] else h @ hh
+    lam = np.linalg.eigvalsh(gram)[..., ::-1]  # ascending → descending
+    out: FloatArray = np.sqrt(np.clip(lam, 0.0, None))
     return out
 
 
@@ -318,7 +328,13 @@ def suggest_band(
         band meets the limits.
     """
     geo = response_geometry(frf, setup)
-    data = frf if input_keep is None else frf.select(inputs=np.nonzero(input_keep)[0])
+    # every input kept (the first pass): the FRFs as they are, not a copy of them (23 MB on an
+    # acquired test)
+    data = (
+        frf
+        if input_keep is None or bool(np.all(input_keep))
+        else frf.select(inputs=np.nonzero(input_keep)[0])
+    )
     w = (
         np.ones(geo.output_index.size)
         if response_weights is None

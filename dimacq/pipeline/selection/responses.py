@@ -117,18 +117,25 @@ def rigid_body_errors(
     S = np.nonzero(act)[0]
     pS = psi_n[S]
     pinv = np.linalg.pinv(pS)  # (6, nS)
-    K = real_apply(pinv, q[:, S, :])
+    every = S.size == psi_n.shape[0]  # every channel active: no gathered copies of q and r
+    K = real_apply(pinv, q if every else q[:, S, :])
     qf = real_apply(psi_n, K)  # fit / prediction for all channels
     r = q - qf
     h = np.full(psi_n.shape[0], np.nan)
     h[S] = np.einsum("sk,ks->s", pS, pinv)
-    e = r.copy()
     testable = np.ones(psi_n.shape[0], dtype=bool)
     with np.errstate(divide="ignore", invalid="ignore"):
         hs = h[S]
         ok = hs < 1.0 - 1e-8
         testable[S] = ok
-        e[:, S, :] = np.where(ok[None, :, None], r[:, S, :] / (1.0 - hs)[None, :, None], np.nan)
+        loo = np.where(
+            ok[None, :, None], (r if every else r[:, S, :]) / (1.0 - hs)[None, :, None], np.nan
+        )
+        if every:
+            e = loo
+        else:
+            e = r.copy()
+            e[:, S, :] = loo
         pred = q - e
         num_l = np.sum(np.abs(e) ** 2, axis=2)
         loo_l = np.sqrt(num_l / np.sum(np.abs(pred) ** 2, axis=2))

@@ -136,3 +136,23 @@ def test_bad_impact_of_small_influence_is_removed() -> None:
     stop = sel.cycles[sel.chosen_cycle]
     assert not stop.justified and stop.statistic is not None
     assert stop.statistic[stop.removed] < stop.threshold
+
+
+def test_predicted_equations_are_the_design_matrices_times_x() -> None:
+    """The jackknife's residuals form A(a, α) x from the motions directly; the design matrices
+    (Eq. 33) give the same numbers, for one parameter set and for one per input."""
+    from types import SimpleNamespace
+
+    from dimacq.pipeline.dim import design_matrices
+    from dimacq.pipeline.selection.inputs import _PredictiveResiduals
+
+    rng = np.random.default_rng(3)
+    L, J = 40, 6
+    K = rng.normal(size=(L, 6, J)) + 1j * rng.normal(size=(L, 6, J))
+    F = rng.normal(size=(L, 6, J)) + 1j * rng.normal(size=(L, 6, J))
+    pred = _PredictiveResiduals(SimpleNamespace(K=K, F=F))  # type: ignore[arg-type]
+    A = design_matrices(K)  # (L, J, 6, 10)
+    x = rng.normal(size=10)
+    xs = rng.normal(size=(J, 10))
+    np.testing.assert_allclose(pred.predict(x), A @ x, rtol=0, atol=1e-13)
+    np.testing.assert_allclose(pred.predict(xs), (A @ xs[:, :, None])[..., 0], rtol=0, atol=1e-13)
