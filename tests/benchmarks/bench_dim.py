@@ -107,7 +107,8 @@ def median_time(fn, repeat: int) -> float:
     return times(fn, repeat)[1]
 
 
-def main() -> None:
+def main() -> int:
+    """Run the benchmark; exit status 1 when a target is missed (each line says PASS/FAIL)."""
     ap = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
@@ -139,7 +140,14 @@ def main() -> None:
         f"speed-up: {t_loop / t_solve:6.1f}x  (target >= 20x); max rel. mass difference {agree:.1e}"
     )
     del s
+    verdicts = {
+        "assemble <= 5 ms (min)": a_min <= 5e-3,
+        "solve_system <= 20 ms (min)": s_min <= 20e-3,
+        "speed-up >= 20x (medians)": t_loop / t_solve >= 20,
+    }
+    print("; ".join(f"{k}: {'PASS' if v else 'FAIL'}" for k, v in verdicts.items()))
+    return 0 if all(verdicts.values()) else 1
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())
