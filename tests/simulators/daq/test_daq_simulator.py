@@ -34,6 +34,15 @@ def make(source, faults=None, force_range=5.0):
     return backend, dev, task
 
 
+def _started_force_task(task: DaqTask, src: ImpulseSource) -> DaqTask:
+    """``task`` with the hammer's force on channel 0, 128-sample frames at the source's rate,
+    started."""
+    task.add_force_channel(0, "10+X force", FORCE_MV_PER_N)
+    task.configure_timing(src.sample_rate_hz, samples_per_frame=128)
+    task.start()
+    return task
+
+
 def test_find_and_identify():
     backend = VirtualDaqBackend(ImpulseSource(), {})
     raw = usb.core.find(idVendor=p.VENDOR_ID, idProduct=p.PRODUCT_ID, backend=backend)
@@ -204,10 +213,7 @@ def test_free_running_clock_runs_in_wall_time_without_reads():
     wiring = {0: DaqInput(0, FORCE_MV_PER_N * 1e-3)}
     backend = VirtualDaqBackend(src, wiring, free_running=True)
     with DaqDevice.open(backend=backend) as dev:
-        task = DaqTask(dev)
-        task.add_force_channel(0, "10+X force", FORCE_MV_PER_N)
-        task.configure_timing(src.sample_rate_hz, samples_per_frame=128)
-        task.start()
+        task = _started_force_task(DaqTask(dev), src)
         first = task.read(128)
         time.sleep(0.25)  # the host reads nothing, the DAQ keeps clocking (~512 samples)
         status = dev.get_status()
@@ -241,10 +247,7 @@ def test_a_bulk_read_waits_for_its_frame_at_the_clocks_pace(monkeypatch, scale):
     wiring = {0: DaqInput(0, FORCE_MV_PER_N * 1e-3)}
     backend = VirtualDaqBackend(src, wiring, free_running=True, time_scale=scale)
     with DaqDevice.open(backend=backend) as dev:
-        task = DaqTask(dev)
-        task.add_force_channel(0, "10+X force", FORCE_MV_PER_N)
-        task.configure_timing(src.sample_rate_hz, samples_per_frame=128)
-        task.start()
+        task = _started_force_task(DaqTask(dev), src)
         block = task.read(512)
         task.stop()
     assert block.valid.all() and block.first_sample == 0
@@ -261,10 +264,7 @@ def test_a_late_host_overflows_the_bounded_fifo_and_the_gap_is_reported():
     fifo = 16 * p.frame_size(128, 1)  # 16 frames of 128 samples: 1 s at 2048 S/s
     backend = VirtualDaqBackend(src, wiring, free_running=True, fifo_bytes=fifo)
     with DaqDevice.open(backend=backend) as dev:
-        task = DaqTask(dev)
-        task.add_force_channel(0, "10+X force", FORCE_MV_PER_N)
-        task.configure_timing(src.sample_rate_hz, samples_per_frame=128)
-        task.start()
+        task = _started_force_task(DaqTask(dev), src)
         task.read(128)
         # the host is late: it reads nothing until the DAQ has clocked 4 frames beyond a full
         # FIFO (a deadline on that progress, not a fixed sleep: load only makes the gap longer)
@@ -297,10 +297,7 @@ def test_re_enumeration_kills_the_handle_and_the_task_finds_the_daq_again():
     def reopen() -> DaqDevice:
         return DaqDevice.open(backend=backend, serial_number="SIMDAQ-0001")
 
-    task = DaqTask(DaqDevice.open(backend=backend), reopen=reopen)
-    task.add_force_channel(0, "10+X force", FORCE_MV_PER_N)
-    task.configure_timing(src.sample_rate_hz, samples_per_frame=128)
-    task.start()
+    task = _started_force_task(DaqTask(DaqDevice.open(backend=backend), reopen=reopen), src)
     old = task.device.name
     with pytest.raises(DeviceLostError, match="dropped off the USB bus"):
         task.read(128)
