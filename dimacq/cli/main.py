@@ -109,12 +109,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(words)
     level = logging.WARNING - 10 * min(args.verbose, 2)
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
+    ends_process = argv is None and args.command in FAST_EXIT_COMMANDS
+    if ends_process:
+        # a batch command whose process ends with it: freed arrays are reused, not faulted in
+        # anew (a test or script calling main([...]) keeps its process's allocator as it is)
+        from dimacq.cli._process import keep_freed_memory
+
+        keep_freed_memory()
     try:
         rc = int(args.func(args) or 0)
     except DimacqError as err:
         print(f"dimacq {args.command}: error: {err}", file=sys.stderr)
         rc = 2
-    if argv is None and args.command in FAST_EXIT_COMMANDS:
+    if ends_process:
         _end_process(rc)
     return rc
 

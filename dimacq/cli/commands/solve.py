@@ -315,9 +315,6 @@ def _write_rig(args: argparse.Namespace, payload: dict[str, Any]) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from dimacq.cli._process import keep_freed_memory
-
-    keep_freed_memory()  # a batch command: freed arrays are reused, not faulted in anew
     setup, frf = load_test(args.input, args.frf)
     if args.reference_point is not None:
         setup = setup.model_copy(update={"reference_point_m": tuple(args.reference_point)})
