@@ -47,6 +47,7 @@ around the DIM band are only more damped, which is why DIM can use windowed impa
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 from typing import Literal
 
@@ -194,7 +195,8 @@ def estimate_frf(
     wx = None if input_window is None else _window("input_window", input_window, n_s)
     wy = None if output_window is None else _window("output_window", output_window, n_s)
 
-    g_ff, g_yf, g_yy, g_yf_abs2 = _spectral_sums(x, y, wx, wy, workers)
+    fused = estimator if n_in == 1 and estimator != "Hv" else None
+    g_ff, g_yf, g_yy, g_yf_abs2 = _spectral_sums(x, y, wx, wy, workers, fused)
     # A NaN or infinite sample makes its channel's spectral sums NaN or infinite: checking the
     # small sums instead of every sample saves a pass over the records; the records are looked
     # at only to say which side is wrong.
@@ -204,55 +206,38 @@ def estimate_frf(
     g_ff_diag = np.real(np.diagonal(g_ff, axis1=1, axis2=2))  # (L, n_in)
 
     with np.errstate(divide="ignore", invalid="ignore"):
-        if n_in == 1:
-            # Lines last, as the sums left them ((n_out, L) rows, returned as lines-first
-            # views). G_ff = Σ|F|² is real: the (re, im) pairs of G_yf are scaled by 1/G_ff
-            # (a product, not a complex division; ≤ 1 ulp from G_yf / G_ff) in place, in the
-            # sums' own array (G_yf is not returned), once |G_yf|² is taken from it.
-            gff = g_ff_diag[:, 0]
-            n_lines = gff.shape[0]
-            pairs = g_yf[:, :, 0].T.view(np.float64).reshape(-1, n_lines, 2)  # (n_out, L, 2)
-            yy = g_yy.T  # (n_out, L)
-            cond = np.ones(n_lines)
-            abs2 = g_yf_abs2[:, :, 0].T  # |G_yf|², (n_out, L)
-            # A real factor scales the pairs as rows, not broadcast over the pairs' axis of 2
-            # (5-7x slower): H1's 1/G_ff (re, im)-interleaved, H2's G_yy/|G_yf|² as a complex
-            # product with a real (the same values: x·r − y·0 = x·r).
-            h1: NDArray[np.complex128] | None = None
-            if estimator == "H1":
-                flat = pairs.reshape(-1, 2 * n_lines)  # (n_out, 2L), the same memory
-                np.multiply(flat, np.repeat(1.0 / gff, 2), out=flat)
-                h1 = _lines_first(pairs.view(np.complex128))
-            elif estimator == "H2":  # G_yy / conj(G_yf) = G_yf · G_yy / |G_yf|²
-                ratio = np.divide(yy, abs2)
-                h2c = pairs.view(np.complex128)  # (n_out, L, 1)
-                np.multiply(h2c, ratio[..., None], out=h2c)
-                h2 = _lines_first(h2c)
-            # γ² = |G_yf|² / (G_yy G_ff), in place of |G_yf|² (the sums' array, returned)
-            multiple_ol = np.multiply(yy, gff)
-            ordinary_ol = np.divide(abs2, multiple_ol, out=abs2)
-            ordinary = ordinary_ol.T[:, :, None]
-            np.copyto(multiple_ol, ordinary_ol)  # equal for one input (module docstring)
-            multiple = multiple_ol.T
+        if fused is not None:
+            # One input, H1 or H2: the sums turned G_yf into the FRF and |G_yf|² into the
+            # (clipped) coherence block by block, while each block was in cache
+            # (:func:`_spectral_sums`); multiple and ordinary coherence are equal for one input
+            # (module docstring) and share that memory.
+            h = g_yf
+            ordinary = g_yf_abs2
+            multiple = g_yf_abs2[:, :, 0]
+            cond = np.ones(g_ff.shape[0])
         else:
-            # H1 = G_yf G_ff⁻¹  ⇔  G_ffᵀ H1ᵀ = G_yfᵀ (G_ff Hermitian), batched over lines.
-            h1 = np.asarray(
-                np.linalg.solve(g_ff.transpose(0, 2, 1), g_yf.transpose(0, 2, 1)).transpose(
-                    0, 2, 1
-                ),
-                dtype=np.complex128,
-            )
-            s = np.linalg.svd(g_ff, compute_uv=False)
-            cond = s[:, 0] / s[:, -1]
+            if n_in == 1:
+                cond = np.ones(g_ff.shape[0])
+            else:
+                s = np.linalg.svd(g_ff, compute_uv=False)
+                cond = s[:, 0] / s[:, -1]
             ordinary = np.divide(g_yf_abs2, g_yy[:, :, None] * g_ff_diag[:, None, :], out=g_yf_abs2)
-            multiple = np.real(np.sum(h1 * g_yf.conj(), axis=2)) / g_yy
-        if estimator == "H1":
-            assert h1 is not None
-            h = h1
-        elif estimator == "H2":  # one input (checked above)
-            h = h2
-        else:
-            h = _hv(g_ff, g_yf, g_yy)
+            if estimator == "Hv":
+                h = _hv(g_ff, g_yf, g_yy)
+            if n_in == 1:
+                multiple = ordinary[:, :, 0].copy()
+            else:
+                # H1 = G_yf G_ff⁻¹  ⇔  G_ffᵀ H1ᵀ = G_yfᵀ (G_ff Hermitian), batched over lines.
+                h1 = np.asarray(
+                    np.linalg.solve(g_ff.transpose(0, 2, 1), g_yf.transpose(0, 2, 1)).transpose(
+                        0, 2, 1
+                    ),
+                    dtype=np.complex128,
+                )
+                multiple = np.real(np.sum(h1 * g_yf.conj(), axis=2)) / g_yy
+                if estimator == "H1":
+                    h = h1
+            np.clip(multiple, 0.0, 1.0, where=np.isfinite(multiple), out=multiple)
     if n_avg <= n_in:  # identically 1: no information (module docstring)
         multiple[...] = np.nan
     if n_avg == 1:
@@ -261,7 +246,7 @@ def estimate_frf(
     return FrfEstimate(
         frequencies_hz=freqs,
         H=h,
-        coherence=np.clip(multiple, 0.0, 1.0, where=np.isfinite(multiple), out=multiple),
+        coherence=multiple,
         ordinary_coherence=ordinary,
         input_condition=cond,
         g_ff=g_ff,
@@ -277,16 +262,42 @@ def estimate_frf(
 _BLOCK_BYTES = 3 << 20
 
 
+_SCRATCH = threading.local()
+
+
+def _scratch(name: str, size: int, dtype: type) -> NDArray:
+    """A flat work buffer of at least ``size`` elements, kept per thread between calls.
+
+    The estimator's temporaries (a block of spectra, its windowed records: 2.6 MB each at ten
+    averages of 8192 samples) are the same size call after call. Fresh arrays of that size are
+    fresh pages whenever the allocator has given the last ones back to the kernel (after another
+    large array came and went): 600–1,400 page faults, 1–3 ms of a 15 ms H1, measured between
+    benchmark calls. Kept, they are touched once per thread; the results are always fresh.
+    """
+    buf = getattr(_SCRATCH, name, None)
+    if buf is None or buf.size < size or buf.dtype != dtype:
+        buf = np.empty(size, dtype=dtype)
+        setattr(_SCRATCH, name, buf)
+    return buf[:size]
+
+
 def _spectral_sums(
     x: NDArray[np.float64],
     y: NDArray[np.float64],
     wx: NDArray[np.float64] | None = None,
     wy: NDArray[np.float64] | None = None,
     workers: int = 1,
+    fused: Estimator | None = None,
 ) -> tuple[
     NDArray[np.complex128], NDArray[np.complex128], NDArray[np.float64], NDArray[np.float64]
 ]:
     """``G_ff``, ``G_yf``, ``G_yy`` summed over averages (module docstring) and ``|G_yf|²``.
+
+    With one input and ``fused`` = "H1" or "H2", each block of outputs is finished while it is
+    in cache: ``G_yf`` becomes the FRF (``H1 = G_yf · (1/G_ff)``, ``H2 = G_yf · G_yy/|G_yf|²``,
+    module docstring) and ``|G_yf|²`` the coherence ``min(|G_yf|² / (G_yy G_ff), 1)`` (≤ 1 by
+    Cauchy–Schwarz but for rounding; NaN where ``G_yy G_ff = 0``): the same products as passes
+    over whole arrays afterwards, which took 1–2 ms of a 17 ms H1 in strided memory traffic.
 
     One real FFT per channel and average (ducc0's, which transforms several records at once in
     SIMD lanes: 1.9x numpy's pocketfft on 640 records of 8192 samples, equal to 4e-16), of the
@@ -307,12 +318,21 @@ def _spectral_sums(
     g_yf_abs2 : ndarray, shape (n_lines, n_outputs, n_inputs)
         ``|G_yf|²``, as ``Re(G_yf)² + Im(G_yf)²``.
     """
+    from dimacq.pipeline._spectral_kernel import block_sums  # numba: loaded on first use
+
     n_avg, n_in, n_s = x.shape
     n_out = y.shape[1]
     n_lines = n_s // 2 + 1
     fx = ducc0.fft.r2c(x if wx is None else x * wx, axes=(2,), nthreads=workers)
     fxc = fx.conj()  # (n_avg, n_in, L)
     g_ff = np.einsum("ajl,ail->lji", fx, fxc)
+    gff = inv2 = None
+    if fused is not None:
+        if n_in != 1 or fused not in ("H1", "H2"):
+            raise SetupError(f"fused = {fused!r} needs one input and 'H1' or 'H2'")
+        gff = np.ascontiguousarray(np.real(g_ff[:, 0, 0]))
+        with np.errstate(divide="ignore"):
+            inv2 = np.repeat(1.0 / gff, 2) if fused == "H1" else None
     # One allocation holds the three results, returned as views of it (they keep it alive
     # together): numpy asks the kernel for huge pages for arrays of 4 MB and more (madvise),
     # where three separate arrays of 2-4 MB were first touched page by page. 100 calls in a row
@@ -324,33 +344,56 @@ def _spectral_sums(
     g_abs2 = arena[2 * n_in * n_pl : 3 * n_in * n_pl].reshape(n_out, n_in, n_lines)
     g_yy = arena[3 * n_in * n_pl :].reshape(n_out, n_lines)
     block = max(1, min(n_out, _BLOCK_BYTES // (n_avg * n_lines * 16)))
-    spectra = np.empty((n_avg, block, n_lines), dtype=np.complex128)
-    product = np.empty((block, n_lines), dtype=np.complex128)
-    s2 = np.empty((block, 2 * n_lines))  # (re², im²) pairs, interleaved as in memory
-    windowed = None if wy is None else np.empty((n_avg, block, n_s))
+    spectra = _scratch("spectra", n_avg * block * n_lines, np.complex128)
+    scratch = _scratch("scratch", block * n_lines, np.float64).reshape(block, n_lines)
+    windowed = None
+    if wy is not None:
+        windowed = _scratch("windowed", n_avg * block * n_s, np.float64).reshape(n_avg, block, n_s)
     for o0 in range(0, n_out, block):
         o1 = min(o0 + block, n_out)
         nb = o1 - o0
         yb = y[:, o0:o1]
         if windowed is not None and wy is not None:
             yb = np.multiply(yb, wy, out=windowed[:, :nb])
-        fy = ducc0.fft.r2c(yb, axes=(2,), out=spectra[:, :nb], nthreads=workers)
-        # Σ_a Y_a F̄_a, one average at a time over the block's (outputs, lines) plane: a
-        # complex product and a sum, where einsum's complex loop took 1.6x as long. A NaN or
-        # infinite sample is reported by the caller from the sums (no warning here, as einsum).
-        with np.errstate(invalid="ignore", over="ignore"):
-            for i in range(n_in):
-                acc = g[o0:o1, i]
-                np.multiply(fy[0], fxc[0, i], out=acc)
-                for a in range(1, n_avg):
-                    acc += np.multiply(fy[a], fxc[a, i], out=product[:nb])
-                av = acc.view(np.float64)
-                np.multiply(av, av, out=s2[:nb])
-                np.add(s2[:nb, 0::2], s2[:nb, 1::2], out=g_abs2[o0:o1, i])
-        yv = fy.view(np.float64)
-        np.einsum("aox,aox->ox", yv, yv, out=s2[:nb])  # Σ_a (re², im²) of Y
-        np.add(s2[:nb, 0::2], s2[:nb, 1::2], out=g_yy[o0:o1])
+        fy = spectra[: n_avg * nb * n_lines].reshape(n_avg, nb, n_lines)  # contiguous
+        ducc0.fft.r2c(yb, axes=(2,), out=fy, nthreads=workers)
+        # Σ_a Y_a F̄_a, Σ_a |Y_a|² and |G_yf|² in one pass over the block while it is in cache
+        # (compiled: _spectral_kernel). A NaN or infinite sample is reported by the caller from
+        # the sums.
+        block_sums(fy, fxc, g[o0:o1], g_abs2[o0:o1], g_yy[o0:o1])
+        if gff is not None:
+            _finish_block(g[o0:o1, 0], g_abs2[o0:o1, 0], g_yy[o0:o1], gff, inv2, scratch[:nb])
     return g_ff, g.transpose(2, 0, 1), g_yy.T, g_abs2.transpose(2, 0, 1)
+
+
+def _finish_block(
+    g: NDArray[np.complex128],
+    abs2: NDArray[np.float64],
+    yy: NDArray[np.float64],
+    gff: NDArray[np.float64],
+    inv2: NDArray[np.float64] | None,
+    scratch: NDArray[np.float64],
+) -> None:
+    """One input's block of (outputs, lines) sums made into FRFs and coherence, in place.
+
+    ``g`` holds ``G_yf`` and becomes H1 (``inv2`` given: ``1/G_ff`` repeated for the (re, im)
+    pairs) or H2 (``inv2`` None); ``abs2`` holds ``|G_yf|²`` and becomes the coherence
+    (``_spectral_sums``); ``scratch`` is a float buffer of the block's shape or larger. A real
+    factor scales the (re, im) pairs as rows, not broadcast over the pairs' axis of 2 (5–7x
+    slower): H1's ``1/G_ff`` interleaved, H2's ``G_yy/|G_yf|²`` as a complex product with a real
+    (the same values: x·r − y·0 = x·r).
+    """
+    buf = scratch
+    with np.errstate(divide="ignore", invalid="ignore"):
+        if inv2 is not None:
+            flat = g.view(np.float64)  # (nb, 2L), the same memory
+            np.multiply(flat, inv2, out=flat)
+        else:  # H2 = G_yy / conj(G_yf) = G_yf · G_yy / |G_yf|²
+            np.divide(yy, abs2, out=buf)
+            np.multiply(g, buf, out=g)
+        np.multiply(yy, gff, out=buf)
+        np.divide(abs2, buf, out=abs2)
+        np.minimum(abs2, 1.0, out=abs2)
 
 
 def _lines_first(h_ol: NDArray[np.complex128]) -> NDArray[np.complex128]:

@@ -331,3 +331,58 @@ def test_fft_threads_give_the_same_frfs_and_zero_threads_is_refused() -> None:
     np.testing.assert_allclose(one.H, h, rtol=1e-12, atol=0)
     with pytest.raises(SetupError, match="workers = 0; give 1 or more"):
         estimate_frf(x, y, FS, workers=0)
+
+
+def test_compiled_block_sums_equal_numpy_and_keep_a_nan_to_its_output() -> None:
+    """The one-pass sums (``_spectral_kernel``) against numpy's: ``G_yf = Σ_a Y F̄``,
+    ``G_yy = Σ_a |Y|²``, ``|G_yf|²``, two inputs; a NaN in one spectrum value reaches that
+    output's sums on that line only (the estimator's finite check relies on it)."""
+    from dimacq.pipeline._spectral_kernel import block_sums
+
+    rng = np.random.default_rng(404)
+    n_avg, n_out, n_in, n_l = 5, 3, 2, 33
+    y = rng.standard_normal((n_avg, n_out, n_l)) + 1j * rng.standard_normal((n_avg, n_out, n_l))
+    fc = rng.standard_normal((n_avg, n_in, n_l)) + 1j * rng.standard_normal((n_avg, n_in, n_l))
+    y[2, 1, 7] = np.nan
+    g = np.empty((n_out, n_in, n_l), complex)
+    a2 = np.empty((n_out, n_in, n_l))
+    yy = np.empty((n_out, n_l))
+    block_sums(y, fc, g, a2, yy)
+    g_ref = np.einsum("aol,ail->oil", y, fc)
+    np.testing.assert_allclose(g, g_ref, rtol=1e-14, atol=1e-14)
+    np.testing.assert_allclose(a2, np.abs(g_ref) ** 2, rtol=1e-14, atol=1e-14)
+    np.testing.assert_allclose(yy, np.sum(np.abs(y) ** 2, axis=0), rtol=1e-14)
+    assert np.isnan(yy[1, 7]) and np.isnan(g[1, :, 7]).all() and np.isnan(a2[1, :, 7]).all()
+    assert np.isfinite(np.delete(yy.ravel(), 1 * n_l + 7)).all()
+
+
+def test_results_own_their_memory_across_calls_and_threads() -> None:
+    """The estimator keeps its work buffers between calls (per thread): a later call of another
+    size, or calls from several threads at once, leave earlier results unchanged and equal to a
+    lone call's."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    rng = np.random.default_rng(9)
+    sets = [
+        (rng.standard_normal((a, 1, n)), rng.standard_normal((a, o, n)))
+        for a, o, n in ((4, 9, 512), (2, 3, 128), (6, 17, 1024))
+    ]
+    w = {n: exponential_window(n, FS, 0.2) for n in (128, 512, 1024)}
+
+    def run(k: int) -> tuple[np.ndarray, np.ndarray]:
+        x, y = sets[k]
+        n = x.shape[-1]
+        est = estimate_frf(x, y, FS, input_window=w[n], output_window=w[n])
+        return est.H, est.coherence
+
+    lone = [tuple(a.copy() for a in run(k)) for k in range(3)]
+    first = run(0)
+    run(2)
+    run(1)
+    np.testing.assert_array_equal(first[0], lone[0][0])
+    np.testing.assert_array_equal(first[1], lone[0][1])
+    with ThreadPoolExecutor(3) as pool:
+        got = list(pool.map(run, [0, 1, 2, 2, 1, 0] * 3))
+    for k, (h, c) in zip([0, 1, 2, 2, 1, 0] * 3, got, strict=True):
+        np.testing.assert_array_equal(h, lone[k][0])
+        np.testing.assert_array_equal(c, lone[k][1])
