@@ -47,7 +47,6 @@ around the DIM band are only more damped, which is why DIM can use windowed impa
 
 from __future__ import annotations
 
-import threading
 from dataclasses import dataclass
 from typing import Literal
 
@@ -262,25 +261,6 @@ def estimate_frf(
 _BLOCK_BYTES = 3 << 20
 
 
-_SCRATCH = threading.local()
-
-
-def _scratch(name: str, size: int, dtype: type) -> NDArray:
-    """A flat work buffer of at least ``size`` elements, kept per thread between calls.
-
-    The estimator's temporaries (a block of spectra, its windowed records: 2.6 MB each at ten
-    averages of 8192 samples) are the same size call after call. Fresh arrays of that size are
-    fresh pages whenever the allocator has given the last ones back to the kernel (after another
-    large array came and went): 600–1,400 page faults, 1–3 ms of a 15 ms H1, measured between
-    benchmark calls. Kept, they are touched once per thread; the results are always fresh.
-    """
-    buf = getattr(_SCRATCH, name, None)
-    if buf is None or buf.size < size or buf.dtype != dtype:
-        buf = np.empty(size, dtype=dtype)
-        setattr(_SCRATCH, name, buf)
-    return buf[:size]
-
-
 def _spectral_sums(
     x: NDArray[np.float64],
     y: NDArray[np.float64],
@@ -344,11 +324,9 @@ def _spectral_sums(
     g_abs2 = arena[2 * n_in * n_pl : 3 * n_in * n_pl].reshape(n_out, n_in, n_lines)
     g_yy = arena[3 * n_in * n_pl :].reshape(n_out, n_lines)
     block = max(1, min(n_out, _BLOCK_BYTES // (n_avg * n_lines * 16)))
-    spectra = _scratch("spectra", n_avg * block * n_lines, np.complex128)
-    scratch = _scratch("scratch", block * n_lines, np.float64).reshape(block, n_lines)
-    windowed = None
-    if wy is not None:
-        windowed = _scratch("windowed", n_avg * block * n_s, np.float64).reshape(n_avg, block, n_s)
+    spectra = np.empty(n_avg * block * n_lines, dtype=np.complex128)
+    scratch = np.empty((block, n_lines))
+    windowed = None if wy is None else np.empty((n_avg, block, n_s))
     for o0 in range(0, n_out, block):
         o1 = min(o0 + block, n_out)
         nb = o1 - o0

@@ -357,9 +357,9 @@ def test_compiled_block_sums_equal_numpy_and_keep_a_nan_to_its_output() -> None:
 
 
 def test_results_own_their_memory_across_calls_and_threads() -> None:
-    """The estimator keeps its work buffers between calls (per thread): a later call of another
-    size, or calls from several threads at once, leave earlier results unchanged and equal to a
-    lone call's."""
+    """Results are fresh arrays, not views of work memory: a later call of another size, or calls
+    from several threads at once (the compiled sums release the GIL), leave earlier results
+    unchanged and equal to a lone call's."""
     from concurrent.futures import ThreadPoolExecutor
 
     rng = np.random.default_rng(9)
