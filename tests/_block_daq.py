@@ -88,3 +88,6 @@ class BlockDaq:
 
     def read_buffered(self) -> DaqBlock | None:
         return None
+
+    def samples_clocked_now(self) -> int | None:
+        return self._next  # it clocks exactly what is read

@@ -156,6 +156,9 @@ class PanelDaq:
     def read_buffered(self) -> DaqBlock | None:
         return None
 
+    def samples_clocked_now(self) -> int | None:
+        return None  # a plug-in that cannot say: the session searches from what it has read
+
 
 def open_daq(ctx: DeviceContext) -> PanelDaq:
     """The backend factory the settings name (``daq = "_second_daq:open_daq"``)."""

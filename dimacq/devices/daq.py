@@ -139,4 +139,11 @@ class Daq(Protocol):
 
     def read_buffered(self) -> DaqBlock | None: ...
 
+    def samples_clocked_now(self) -> int | None:
+        """Samples the DAQ's clock has produced since start, as of this call (a status query of
+        the device), or None when the device cannot say. Ahead of what the host has read when
+        the host is behind: a strike asked for now lands at or after it (an impact session
+        looks for the hit from there, not from the samples still queued)."""
+        ...
+
     def stop(self) -> None: ...

@@ -13,6 +13,14 @@ clock:
 3. **Per input, per average**: the operator is asked to strike (``operator(input, sample)``; in
    simulation that strikes the virtual lab), the hammer channel is watched for the trigger level,
    and a record of ``record_samples`` starting ``pretrigger_samples`` before the trigger is cut.
+   The trigger is sought from the DAQ's clock at the moment of asking
+   (``daq.samples_clocked_now()``), not from what the host has read: when the host is behind
+   (a backlog in the DAQ's FIFO), a strike asked for now lands after the clock's present sample,
+   and a hit before it is an earlier request's — a strike asked again after a gap that had in fact
+   landed after the gap would otherwise be filed as the next request's, and every input after it
+   would carry the one before's FRFs (seen at 37× time-lapse on a loaded machine: the inputs
+   after the gap shifted by one, a DIM residual of 0.28; the solve refused it). Devices that
+   cannot tell (None) are searched from what the host has read.
    It is **rejected** (and the operator asked again) when any channel overloaded, a DAQ or load
    cell sample in it was lost, the load cell reported drift, or the force shows a double hit.
    Rejected averages stay on disk; accepted ones are kept for the FRFs.
@@ -456,11 +464,15 @@ class ImpactSession(ImpactStream):
                     attempts += 1
                     if attempts > s.max_attempts_factor * s.averages_per_input:
                         break
-                    ask_at = max(armed_from, self._daq_buf.end) + s.hit_delay_samples
                     try:
+                        # a strike asked for now lands after the DAQ's clock now, however far
+                        # the host is behind it: anything before is an earlier request's
+                        # (module docstring, step 3)
+                        now = self.daq.samples_clocked_now()
+                        search_from = max(armed_from, self._daq_buf.end, now or 0)
                         if self.operator is not None:
-                            self.operator(j, ask_at)
-                        t = self._wait_trigger(j, max(armed_from, self._daq_buf.end))
+                            self.operator(j, search_from + s.hit_delay_samples)
+                        t = self._wait_trigger(j, search_from)
                         s0 = t - s.pretrigger_samples
                         self._until(s0 + s.record_samples)
                     except DeviceLostError as err:

@@ -288,6 +288,10 @@ class StreamedReads:
         self._fill(self._stream.buffered + 1, timeout_s)
         return self._take(self._stream.buffered)
 
+    def samples_clocked_now(self) -> int | None:
+        """None: the task's device cannot say how far its clock is (see :class:`DaqTask`)."""
+        return None
+
     def _take(self, n: int) -> DaqBlock:
         st = self._stream
         got = st.take(st.next_sample + n)
@@ -521,6 +525,12 @@ class DaqTask(StreamedReads):
             )
         if stale:
             log.info("DAQ task %s: drained %d stale frame(s) before start", self.name, stale)
+
+    def samples_clocked_now(self) -> int | None:
+        """GET_STATUS's samples clocked since START while the task runs (None when stopped)."""
+        if not self._running:
+            return None
+        return int(self.device.get_status().samples_clocked)
 
     def stop(self) -> None:
         """Stop the clock and read how many samples it clocked (:attr:`samples_clocked`).

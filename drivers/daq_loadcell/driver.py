@@ -221,6 +221,9 @@ class DaqSplitter:
     def read_available(self, timeout_s: float | None = None) -> DaqBlock:
         return self._split(self.inner.read_available(timeout_s))
 
+    def samples_clocked_now(self) -> int | None:
+        return self.inner.samples_clocked_now()
+
     def read_buffered(self) -> DaqBlock | None:
         block = self.inner.read_buffered()
         return None if block is None else self._split(block)

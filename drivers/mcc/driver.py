@@ -252,6 +252,9 @@ class MccTask(StreamedReads):
     name : str
     calibrations : sequence of (slope, offset), optional
         Each unit's EEPROM table (read from the units when not given).
+
+    ``samples_clocked_now()`` is None: the unit's STATUS is flags only (no scan count in the
+    command set read), so an impact session looks for a hit from what it has read.
     """
 
     def __init__(

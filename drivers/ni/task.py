@@ -277,6 +277,13 @@ class NiDsaTask:
     def read_buffered(self) -> DaqBlock | None:
         return None  # NI-DAQmx keeps nothing readable after stop
 
+    def samples_clocked_now(self) -> int | None:
+        """``in_stream.total_samp_per_chan_acquired``: the samples the device has transferred
+        into the task's buffer (behind its clock by what is in transit: never ahead)."""
+        if self._task is None:
+            return None
+        return int(self._task.in_stream.total_samp_per_chan_acquired)
+
     def stop(self) -> None:
         if self._task is None:
             return

@@ -20,6 +20,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from _acq_support import ImpulseSource, no_leaks
 from _block_daq import BlockDaq
 
+from dimacq.devices.daq import DaqBlock, DaqEvent
 from dimacq.drivers.daq.driver import DaqDevice, DaqTask
 from dimacq.drivers.loadcell.driver import LoadCellAmplifier
 from dimacq.errors import DataError, DeviceTimeoutError, SetupError
@@ -370,3 +371,90 @@ def test_a_session_resumed_with_kept_averages_strikes_only_the_missing(lab):
 
     frf = records_frf([accels(kept[0]), accels(kept[1] + new[1])], fs, settings, setup)
     np.testing.assert_allclose(frf.H[:, :3], res.H[1:, :3], rtol=1e-12, atol=0)
+
+
+class _BehindDaq(BlockDaq):
+    """A DAQ whose clock runs ``backlog`` samples ahead of what the host has read (its FIFO
+    holds them), with samples lost in ``gaps`` (NaN, not valid, an overflow event), and strikes
+    of their own force each (``strike(at, force_n)``) to tell whose hit a record holds."""
+
+    def __init__(self, backlog: int, gaps: list[tuple[int, int]]) -> None:
+        super().__init__(4, 2048.0, 512)
+        self.backlog, self.gaps = backlog, gaps
+        self.force: dict[int, float] = {}
+
+    def samples_clocked_now(self) -> int | None:
+        return self._next + self.backlog if self._running else None
+
+    def read(self, n_samples: int, timeout_s: float | None = None) -> DaqBlock:
+        b = super().read(n_samples, timeout_s)
+        data, valid = b.data.copy(), np.ones(n_samples, dtype=bool)
+        k = b.first_sample + np.arange(n_samples)
+        for h, f in self.force.items():
+            data[0, k == h] = f
+        events = []
+        for a, e in self.gaps:
+            lost = (k >= a) & (k < e)
+            if lost.any():
+                data[:, lost], valid[lost] = np.nan, False
+                events.append(DaqEvent("overflow", a, e - a, message="FIFO overflow"))
+        return DaqBlock(
+            b.first_sample,
+            b.sample_rate_hz,
+            b.channel_names,
+            b.units,
+            data,
+            b.overload,
+            valid,
+            tuple(events),
+        )
+
+
+@pytest.mark.parametrize("clock_known", [True, False])
+def test_a_strike_asked_again_after_a_gap_is_not_filed_under_the_next_input(
+    clock_known: bool,
+) -> None:
+    """The host is 1 s behind the DAQ (its FIFO), and samples are lost in that backlog, after
+    the host's read position and before the strike of input 0 (struck at the clock's present
+    sample, as the simulated lab's hand does when the asked sample is past). Searched from what
+    the host had read, the gap "lost" the strike, it was asked again, the first strike was
+    filed for input 0 and the second one — input 0's — under input 1, and so on down the
+    inputs (each carried the one before's FRFs; seen in the demo at 37x on a loaded machine).
+    Searched from the DAQ's clock at the time of asking, every record holds its own input's
+    strike. A DAQ that cannot say its clock (None) keeps the old search: the mix-up shows."""
+    backlog = 2048
+    daq = _BehindDaq(backlog, gaps=[(600, 856)])
+    if not clock_known:
+        daq.backlog = 0  # the strike still lands a second ahead, as before; the host cannot say
+
+    struck: list[tuple[int, int]] = []
+
+    def operator(j: int, at: int) -> None:
+        h = max(at, daq._next + backlog + 1)  # the asked sample or, when past, the hand's now
+        daq.strike(h)
+        daq.force[h] = 1000.0 + 100.0 * j
+        struck.append((j, h))
+
+    settings = ImpactSettings(
+        record_samples=1024, averages_per_input=1, trigger_level_n=20.0, max_attempts_factor=3
+    )
+    session = ImpactSession(
+        daq,
+        ["0+X force"] * 3,  # a roving hammer: three inputs on its one channel
+        ["1+Z", "2+Z", "3+Z"],
+        settings=settings,
+        operator=operator,
+        input_labels=["10+X", "11+X", "12+X"],
+    )
+    res = session.run()
+    whose = {h: j for j, h in struck}
+    filed = [
+        (a.input_index, whose.get(a.first_sample + settings.pretrigger_samples))
+        for a in res.averages
+        if a.accepted
+    ]
+    assert len(filed) == 3
+    if clock_known:
+        assert filed == [(0, 0), (1, 1), (2, 2)], (filed, struck)
+    else:
+        assert any(i != j for i, j in filed), (filed, struck)

@@ -70,6 +70,9 @@ class ScriptedDaq:
     def read_buffered(self) -> DaqBlock | None:
         return self.blocks.popleft() if self.blocks else None
 
+    def samples_clocked_now(self) -> int | None:
+        return None
+
     def reconnect(self) -> None:
         self.reconnected += 1
 
