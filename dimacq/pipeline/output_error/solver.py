@@ -116,7 +116,7 @@ __all__ = [
     "solve_output_error",
 ]
 
-log = logging.getLogger(__name__)
+log = logging.getLogger("dimacq.pipeline.output_error")
 
 
 def _chi2_ppf(q: float, dof: int) -> float:
