@@ -83,7 +83,7 @@ __all__ = [
     "solve_system",
 ]
 
-log = logging.getLogger(__name__)
+log = logging.getLogger("dimacq.pipeline.dim")
 
 FloatArray = NDArray[np.float64]
 ComplexArray = NDArray[np.complex128]
