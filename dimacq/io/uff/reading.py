@@ -91,7 +91,7 @@ __all__ = [
     "write_uff_test",
 ]
 
-logger = logging.getLogger(__name__)
+logger = logging.getLogger("dimacq.io.uff")
 
 #: UFF 58 specific data types dimacq reads as response ordinates.
 ORDINATE_TYPES: dict[int, str] = {
