@@ -6,13 +6,13 @@ frequency line and jointly over a band.
 
 Modules
 -------
-- :mod:`dimacq.pipeline.dim.assembly`: from FRFs and setup to the condensed motion ``K`` and the summed forces
-  ``F`` at P in the working length unit, and the design matrices ``A(a, α)`` (Eq. 32–35).
-- :mod:`dimacq.pipeline.dim.solver`: known properties eliminated (``x = T θ + x0``, Eq. 17–22), the normal
+- :mod:`.assembly`: from FRFs and setup to the condensed motion ``K`` and the summed forces ``F``
+  at P in the working length unit, and the design matrices ``A(a, α)`` (Eq. 32–35).
+- :mod:`.solver`: known properties eliminated (``x = T θ + x0``, Eq. 17–22), the normal
   equations per line and over the band, their solution and refinement.
-- :mod:`dimacq.pipeline.dim.result`: the solution with its evidence, and its JSON.
-- :mod:`dimacq.pipeline.dim.checks`: the physical plausibility checks of an estimate.
-- :mod:`dimacq.pipeline.dim.scaling`: the FRF scale factor that gives a known mass (§3.2.2.1).
+- :mod:`.result`: the solution with its evidence, and its JSON.
+- :mod:`.checks`: the physical plausibility checks of an estimate.
+- :mod:`.scaling`: the FRF scale factor that gives a known mass (§3.2.2.1).
 
 The names below are importable from this package as they were from the module it replaces
 (with the private ones :mod:`dimacq.pipeline.dim_many` and :mod:`dimacq.pipeline.uncertainty`

@@ -1,7 +1,7 @@
 """Solving the DIM system: known properties eliminated, normal equations per line and over the
 band, their solution and refinement (:func:`solve_system`, :func:`solve_joint`,
-:func:`line_residuals`, :func:`solve`). The system comes from :mod:`dimacq.pipeline.dim.assembly`,
-the result is a :class:`~dimacq.pipeline.dim.result.DimResult` checked by :mod:`dimacq.pipeline.dim.checks`.
+:func:`line_residuals`, :func:`solve`). The system comes from :mod:`.assembly`, the result is a
+:class:`~.result.DimResult` checked by :mod:`.checks`.
 
 Solution
 --------

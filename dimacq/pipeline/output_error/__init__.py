@@ -10,19 +10,19 @@ compared where the noise is.
 
 Modules
 -------
-- :mod:`dimacq.pipeline.output_error.model`: the prediction ``Ĥ = ψᵀ M⁻¹ (φ + R) + G b``, the rigid mass matrix of the
-  ten properties and its derivatives, how the properties follow the gauge modes, the reduced
+- :mod:`.model`: the prediction ``Ĥ = ψᵀ M⁻¹ (φ + R) + G b``, the rigid mass matrix of the ten
+  properties and its derivatives, how the properties follow the gauge modes, the reduced
   (sufficient) statistics and the stacked residual with its analytic Jacobian.
-- :mod:`dimacq.pipeline.output_error.noise`: the noise model from the data: FRF noise from the third difference, the
+- :mod:`.noise`: the noise model from the data: FRF noise from the third difference, the
   reactions' noise and its compensation, the line weights, the smooth projection of the
   reactions.
-- :mod:`dimacq.pipeline.output_error.fit`: the gauge constraint (inner constraint on the modes the data do not
-  identify), Levenberg–Marquardt, the residual and cost on every line.
-- :mod:`dimacq.pipeline.output_error.checks`: the tests on a fit (does the geometry need moving, is the refinement
+- :mod:`.fit`: the gauge constraint (inner constraint on the modes the data do not identify),
+  Levenberg–Marquardt, the residual and cost on every line.
+- :mod:`.checks`: the tests on a fit (does the geometry need moving, is the refinement
   adequate), the input-clustered robust covariance, the effective lines of a misfit.
-- :mod:`dimacq.pipeline.output_error.report`: the options and the result, the reported corrections, residual terms and
+- :mod:`.report`: the options and the result, the reported corrections, residual terms and
   refined setup.
-- :mod:`dimacq.pipeline.output_error.solver`: :func:`solve_output_error`, which composes them.
+- :mod:`.solver`: :func:`solve_output_error`, which composes them.
 
 The names below are importable from this package as they were from the module it replaces.
 """

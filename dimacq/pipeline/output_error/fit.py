@@ -3,9 +3,9 @@ every line.
 
 Holds :func:`_gauge_constraint` (the gauge modes the data do not identify, fixed by an inner
 constraint), :func:`_lm` (Levenberg–Marquardt with column equilibration on the residual of
-:meth:`dimacq.pipeline.output_error.model._Problem.residual`), and the direct residual ``w (H − Ĥ)/σ`` on
-every line (:func:`_line_residual`) with its cost ``Σ w²|H − Ĥ|²/σ²`` (:func:`_direct_cost`),
-which χ² and the tests of :mod:`dimacq.pipeline.output_error.checks` use.
+:meth:`.model._Problem.residual`), and the direct residual ``w (H − Ĥ)/σ`` on every line
+(:func:`_line_residual`) with its cost ``Σ w²|H − Ĥ|²/σ²`` (:func:`_direct_cost`), which χ² and
+the tests of :mod:`.checks` use.
 
 Gauge
 -----

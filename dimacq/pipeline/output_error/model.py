@@ -5,7 +5,7 @@ gauge modes of the instrumentation (:func:`gauge_property_jacobian`), the proble
 (:class:`_Problem`: the geometry for corrections ``g``, the stacked residual with its analytic
 Jacobian, the gauge basis) and the reduced statistics it is built from (:func:`_statistics`).
 The package's docstring (:mod:`dimacq.pipeline.output_error`) says why; the noise model is in
-:mod:`dimacq.pipeline.output_error.noise`, the gauge in :mod:`dimacq.pipeline.output_error.fit`.
+:mod:`.noise`, the gauge in :mod:`.fit`.
 
 Model
 -----

@@ -1,13 +1,13 @@
 """The output-error solve: :func:`solve_output_error` composes the model, the noise, the fit, the
-checks and the report of this package (:mod:`dimacq.pipeline.output_error`; the equations are in its
-modules' docstrings).
+checks and the report of this package (:mod:`dimacq.pipeline.output_error`; the equations are in
+its modules' docstrings).
 
-The flow: the noise and the reactions' compensation (:mod:`dimacq.pipeline.output_error.noise`), the
-equation-error start (:func:`dimacq.pipeline.dim.solve_system`), the fit with the refusal of
-unidentified items, the a posteriori variance factor and the gross-error rule (:mod:`dimacq.pipeline.output_error.fit`),
-the geometry test and the residual-flexibility (Hausman) test (:mod:`dimacq.pipeline.output_error.checks`), the
-covariance (noise, input-robust factors, model-form terms, the fixed gauge modes' prior variance,
-registration) and the report (:mod:`dimacq.pipeline.output_error.report`).
+The flow: the noise and the reactions' compensation (:mod:`.noise`), the equation-error start
+(:func:`dimacq.pipeline.dim.solve_system`), the fit with the refusal of unidentified items, the
+a posteriori variance factor and the gross-error rule (:mod:`.fit`), the geometry test and the
+residual-flexibility (Hausman) test (:mod:`.checks`), the covariance (noise, input-robust
+factors, model-form terms, the fixed gauge modes' prior variance, registration) and the report
+(:mod:`.report`).
 
 Identifiability
 ---------------
@@ -86,7 +86,7 @@ def solve_output_error(
     initial: DimResult | None = None,
     _depth: int = 0,
 ) -> OutputErrorResult:
-    """Output-error DIM over the band of ``frf`` (module docstring).
+    """Output-error DIM over the band of ``frf`` (:mod:`dimacq.pipeline.output_error`).
 
     An item (sensor node or input) whose refined correction exceeds ``max_correction_sigma`` of
     its stated uncertainty is a gross error: it is left out and the solve repeated (at most
@@ -462,7 +462,7 @@ def solve_output_error(
     cov_noise[np.ix_(free_x, free_x)] = cov_noise_theta
     gauge_info: dict[str, Any] = {"fixed_modes": 0}
     if prob.gauge_rows.shape[0] and prob.gauge_modes.size:
-        # the fixed gauge modes' prior variance, mapped to the properties (module docstring)
+        # the fixed gauge modes' prior variance, mapped to the properties (fit.py, "Gauge")
         Gw = prob.gauge_basis()[prob.free_g] / prob.sigma_g[prob.free_g][:, None]
         Gw = Gw[:, prob.gauge_live]
         V = prob.gauge_modes
