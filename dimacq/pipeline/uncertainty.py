@@ -401,7 +401,7 @@ def _band_sums(
 
     With ``K_l = M H_l`` (``M`` the 6×n condensation, over ``u``) and ``F_l = (Φ + R_l)/u``
     (``Φ`` the inputs' unit force vectors, ``R_l`` the load-cell reactions at P), the joint Gram
-    matrices of :func:`dimacq.pipeline.dim._gram_normal_equations` summed over lines are
+    matrices of :func:`dimacq.pipeline.dim.solver._gram_normal_equations` summed over lines are
     ``G = M P Mᵀ`` and ``C = M (S₁ Φᵀ + S₂)/u`` with ``P = Re Σ_l H̄_l H_lᵀ`` (n×n),
     ``S₁ = Re Σ_l H̄_l`` (n×J) and ``S₂ = Re Σ_l H̄_l R_lᵀ`` (n×6).
     """

@@ -1,0 +1,410 @@
+"""The output-error model: prediction, reduced statistics, residual and Jacobian.
+
+Holds the rigid mass matrix of the ten properties (:func:`mass_matrix`) and how they follow the
+gauge modes of the instrumentation (:func:`gauge_property_jacobian`), the problem of one fit
+(:class:`_Problem`: the geometry for corrections ``g``, the stacked residual with its analytic
+Jacobian, the gauge basis) and the reduced statistics it is built from (:func:`_statistics`).
+The package's docstring (:mod:`dimacq.pipeline.output_error`) says why; the noise model is in
+:mod:`.noise`, the gauge in :mod:`.fit`.
+
+Model
+-----
+For input ``j`` at line ``ω`` the rigid-body motion of the reference point P and the accelerance of
+accelerometer channel ``c`` (unit direction ``d_c`` at ``r_c``, both relative to P) are
+
+    [a_j; α_j](ω) = M(x)⁻¹ ( φ_j(g) + R_j(ω) )
+    Ĥ_cj(ω)       = ψ_c(g)ᵀ [a_j; α_j](ω) + Σ_k G_cjk b_k(ω),   ψ_c = [d_c; r_c × d_c]
+
+with ``M(x) = [[m E, −m[c]x], [m[c]x, I_P]]`` the rigid mass matrix of the ten properties
+(``c`` the CG relative to P, ``I_P`` about P), ``φ_j = [d_j; r_j × d_j]`` the unit input, ``R_j`` the
+measured load-cell reactions mapped to P, and — with residual flexibility — free real coefficients
+``G`` on the basis ``b(ω) = [(ω/ω_hi)², (ω/ω_hi)⁴]``: the stiffness-line share of elastic modes above
+the band (``−ω²/(ω_r² − ω²) = −(ω/ω_r)² − (ω/ω_r)⁴ − …`` per mode) and below nothing else. The
+estimate minimises
+
+    Σ_jcω |Ĥ_cj − H_cj|² / σ_cj²  +  Σ_g (δg / σ_g)²
+
+(a MAP / bundle-adjustment cost). ``σ_cj`` is the FRF noise (below); ``δg`` the geometry corrections
+with their stated 1σ (:class:`~dimacq.model.setup.GeometryUncertainty`):
+
+- each sensor node (triax): a small rotation ``δθ_n`` (3, rad; prior ``sensor_orientation_deg`` per
+  axis) and a position offset ``δp_n`` (3, m; prior ``sensor_position_m``): ``d_c = exp([δθ_n]x) d_c⁰``,
+  ``r_c = r_c⁰ + δp_n``;
+- each input: its line of action turned about the two axes ``e₁, e₂`` normal to it (2, rad; prior
+  ``line_of_action_deg``) and its point moved along ``e₁, e₂`` (2, m; prior ``input_position_m``; a
+  move along the line of action changes nothing and is not a parameter).
+
+Sufficient statistics (why it is fast)
+--------------------------------------
+With ``z_j(ω) = [1; R_j(ω); b(ω); H_:j(ω)/σ_:j]`` the cost of input ``j`` is a quadratic form in the
+real second-moment matrix ``S_j = Σ_ω Re(z_j z_jᴴ)`` (all lines of the band), so the number of lines
+enters once. The free residual coefficients ``G`` are eliminated exactly by the Schur complement of
+``S_j`` on the ``b`` block (variable projection). With ``S'_j = L_j L_jᵀ`` (eigen-factor, numerical
+rank columns) the cost is ``‖L_jʰ − W_j Ψ M⁻¹ [φ_j, E] L_jʸ‖²_F``: a residual of ``n_ch × rank``
+entries per input, whatever the number of lines. Gauss–Newton / Levenberg–Marquardt on that
+residual and the prior residuals with the analytic Jacobian:
+
+- ``∂/∂x_k``: ``W Ψ M⁻¹ M_k G_j`` with ``G_j = M⁻¹ Y_j L_jʸ`` (``∂M⁻¹ = −M⁻¹ ∂M M⁻¹``);
+- sensor node: ``−W_jc (∂ψ_c)ᵀ G_j``, ``∂ψ_c/∂δθ_i = [e_i × d_c; r_c × (e_i × d_c)]``,
+  ``∂ψ_c/∂δp_i = [0; e_i × d_c]``;
+- input: ``−W_j Ψ M⁻¹ ∂φ_j (L_jʸ)₀``, ``∂φ/∂β_i = [e_i × d; r × (e_i × d)]``, ``∂φ/∂γ_i = [0; e_i × d]``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from dimacq.pipeline._batched import cross3
+from dimacq.pipeline.rotations import apply_rotvec
+
+FloatArray = NDArray[np.float64]
+ComplexArray = NDArray[np.complex128]
+
+
+_E = np.eye(3)
+#: Directions of the (bias-compensated) regressor moments below this fraction of the largest are
+#: dropped (numerically null: no reaction in that direction).
+_EIG_KEEP = 1e-12
+#: Weight of the gauge constraint rows (whitened units: × the prior's unit weight); large enough
+#: to hold the constraint to ~1e-6 of a prior σ against the data's pull.
+_GAUGE_WEIGHT = 1e3
+
+
+def _skew(v: FloatArray) -> FloatArray:
+    out = np.zeros(v.shape + (3,))
+    out[..., 0, 1], out[..., 0, 2] = -v[..., 2], v[..., 1]
+    out[..., 1, 0], out[..., 1, 2] = v[..., 2], -v[..., 0]
+    out[..., 2, 0], out[..., 2, 1] = -v[..., 1], v[..., 0]
+    return out
+
+
+def _left_jacobian(rv: FloatArray) -> FloatArray:
+    """Left Jacobian of SO(3), ``J_l(θ) = E + ½[θ]x + ⅙[θ]x²`` (series to second order; the
+    corrections are small angles), shape (..., 3, 3)."""
+    k = _skew(rv)
+    return np.asarray(_E + 0.5 * k + (k @ k) / 6.0, float)
+
+
+# ------------------------------------------------------------------------------------------
+# Mass matrix of the ten properties
+# ------------------------------------------------------------------------------------------
+_IDX6 = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
+
+
+def mass_matrix(x: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """``M(x)`` and its derivatives ``∂M/∂x_k``.
+
+    Parameters
+    ----------
+    x : ndarray, shape (10,)
+        ``[m, cx, cy, cz, Ixx, Ixy, Ixz, Iyy, Iyz, Izz]``, CG relative to P (m), inertia about P.
+
+    Returns
+    -------
+    M : ndarray, shape (6, 6)
+        ``[[m E, −m[c]x], [m[c]x, I_P]]``.
+    dM : ndarray, shape (10, 6, 6)
+    """
+    m, c = x[0], x[1:4]
+    M = np.zeros((6, 6))
+    M[:3, :3] = m * _E
+    M[:3, 3:] = -m * _skew(c)
+    M[3:, :3] = m * _skew(c)
+    dM = np.zeros((10, 6, 6))
+    dM[0, :3, :3] = _E
+    dM[0, :3, 3:] = -_skew(c)
+    dM[0, 3:, :3] = _skew(c)
+    for i in range(3):
+        s = _skew(_E[i])
+        dM[1 + i, :3, 3:] = -m * s
+        dM[1 + i, 3:, :3] = m * s
+    for k, (a, b) in enumerate(_IDX6):
+        M[3 + a, 3 + b] = M[3 + b, 3 + a] = x[4 + k]
+        dM[4 + k, 3 + a, 3 + b] = dM[4 + k, 3 + b, 3 + a] = 1.0
+    return M, dM
+
+
+def gauge_property_jacobian(x: FloatArray) -> FloatArray:
+    """How the ten properties follow the gauge modes of :meth:`_Problem.gauge_basis`.
+
+    Parameters
+    ----------
+    x : ndarray, shape (10,)
+        ``[m, c (rel P, m), I_P (kg·m²)]``.
+
+    Returns
+    -------
+    ndarray, shape (10, 8)
+        ``∂x/∂(t, ω, s, g)``: a translation moves the CG, ``δc = t``, and the tensor about P by
+        the parallel-axis term ``δI_P = m (2 c·t E − t cᵀ − c tᵀ)``; a rotation turns both,
+        ``δc = ω × c``, ``δI_P = [ω]x I_P − I_P [ω]x``; a scale ``s`` of lengths with the same
+        FRFs gives ``δc = s c``, ``δI_P = 2 s I_P`` (moment arms ×(1+s), angular accelerations
+        ÷(1+s)); a common gain ``g`` on every accelerometer's prediction ``(1+g) ψ M⁻¹ φ`` is
+        undone by ``M → (1+g) M``: ``δm = g m``, ``δI_P = g I_P``.
+    """
+    m, c = float(x[0]), np.asarray(x[1:4], float)
+    M, _ = mass_matrix(np.asarray(x, float))
+    Ip = M[3:, 3:]
+    out = np.zeros((10, 8))
+
+    def put(col: int, dc: FloatArray, dI: FloatArray, dm: float = 0.0) -> None:
+        out[0, col] = dm
+        out[1:4, col] = dc
+        out[4:, col] = [dI[a, b] for a, b in _IDX6]
+
+    for i in range(3):
+        t = _E[i]
+        put(i, t, m * (2 * (c @ t) * _E - np.outer(t, c) - np.outer(c, t)))
+        w = _skew(_E[i])
+        put(3 + i, cross3(_E[i], c), w @ Ip - Ip @ w)
+    put(6, c, 2 * Ip)
+    put(7, np.zeros(3), Ip, m)
+    return out
+
+
+# ------------------------------------------------------------------------------------------
+# Problem
+# ------------------------------------------------------------------------------------------
+@dataclass(eq=False)
+class _Problem:
+    """Everything the cost needs, in SI units relative to P."""
+
+    r0: FloatArray  # (C, 3) channel positions rel P
+    d0: FloatArray  # (C, 3) channel directions
+    node_of: NDArray[np.intp]  # (C,) index of the channel's node
+    nodes: NDArray[np.int64]  # (Nn,)
+    rin0: FloatArray  # (J, 3)
+    din0: FloatArray  # (J, 3)
+    ebasis: FloatArray  # (J, 2, 3) unit vectors normal to each line of action
+    w: FloatArray  # (C, J) 1/σ
+    Ly: FloatArray  # (J, 7, k)
+    Lh: FloatArray  # (J, C, k)  (already weighted by 1/σ)
+    free_x: NDArray[np.intp]
+    x_fixed: FloatArray  # (10,)
+    free_g: NDArray[np.intp]  # indices into the full geometry vector
+    sigma_g: FloatArray  # (n_geom_full,) prior σ
+    #: gauge constraint rows on the free geometry (k, n_free_g), whitened units; empty: none
+    gauge_rows: FloatArray = field(default_factory=lambda: np.zeros((0, 0)))
+    #: the fixed modes as combinations of the live gauge columns (n_live, k)
+    gauge_modes: FloatArray = field(default_factory=lambda: np.zeros((0, 0)))
+    gauge_live: NDArray[np.bool_] = field(default_factory=lambda: np.zeros(8, bool))
+    gauge_information_ratio: FloatArray = field(default_factory=lambda: np.zeros(0))
+    #: the last :func:`_line_residual` (its key, the arrays it was computed from, the residual,
+    #: then its sum of squares once :func:`_direct_cost` formed it): the variance factor, the
+    #: geometry test and χ² ask for the same one
+    line_residual_memo: tuple[Any, ...] | None = field(default=None, repr=False)
+
+    @property
+    def n_nodes(self) -> int:
+        return int(self.nodes.size)
+
+    def geometry(self, g: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+        """Channel positions/directions and input positions/directions for corrections ``g``."""
+        nn = self.n_nodes
+        gs = g[: 6 * nn].reshape(nn, 6)
+        gi = g[6 * nn : 6 * nn + 4 * self.rin0.shape[0]].reshape(-1, 4)
+        d = apply_rotvec(gs[self.node_of, :3], self.d0)
+        r = self.r0 + gs[self.node_of, 3:]
+        axis = np.einsum("ji,jik->jk", gi[:, :2], self.ebasis)
+        din = apply_rotvec(axis, self.din0)
+        rin = self.rin0 + np.einsum("ji,jik->jk", gi[:, 2:], self.ebasis)
+        return r, d, rin, din
+
+    def full_x(self, theta: FloatArray) -> FloatArray:
+        x = self.x_fixed.copy()
+        x[self.free_x] = theta[: self.free_x.size]
+        return x
+
+    def full_g(self, theta: FloatArray) -> FloatArray:
+        g = np.zeros(self.sigma_g.size)
+        g[self.free_g] = theta[self.free_x.size :] * self.sigma_g[self.free_g]
+        return g
+
+    def residual(
+        self, theta: FloatArray, jacobian: bool = True
+    ) -> tuple[FloatArray, FloatArray | None]:
+        """Stacked residual (data then prior) and, optionally, its Jacobian in θ.
+
+        θ = [free properties; free geometry corrections / their prior σ].
+        """
+        x = self.full_x(theta)
+        g = self.full_g(theta)
+        r, d, rin, din = self.geometry(g)
+        M, dM = mass_matrix(x)
+        A = np.linalg.inv(M)
+        psi = np.concatenate([d, cross3(r, d)], axis=1)  # (C, 6)
+        phi = np.concatenate([din, cross3(rin, din)], axis=1)  # (J, 6)
+        Y = np.concatenate([phi[:, :, None], np.broadcast_to(np.eye(6), (phi.shape[0], 6, 6))], 2)
+        G = A @ (Y @ self.Ly)  # (J, 6, k)
+        C0 = psi.shape[0]
+        gain = 1.0 + g[g.size - C0 :]
+        wt = self.w.T[:, :, None] * np.reshape(gain, (1, -1, 1))  # (J, C, 1): 1/σ × channel gain
+        pred = wt * (psi @ G)  # (J, C, k)
+        E = self.Lh - pred  # (J, C, k)
+        n_data = E.size
+        prior = theta[self.free_x.size :]
+        n_c = self.gauge_rows.shape[0] if prior.size else 0
+        gauge = _GAUGE_WEIGHT * (self.gauge_rows @ prior) if n_c else np.zeros(0)
+        res = np.concatenate([E.ravel(), prior, gauge])
+        if not jacobian:
+            return res, None
+        J_, C_, k_ = E.shape
+        n_x, n_g = self.free_x.size, self.free_g.size
+        Jac = np.zeros((n_data + n_g + n_c, n_x + n_g))
+        # properties
+        WPA = wt * (psi @ A)[None]  # (J, C, 6)
+        for col, k in enumerate(self.free_x):
+            Jac[:n_data, col] = ((WPA @ dM[k]) @ G).ravel()
+        if n_g:
+            n_full = self.sigma_g.size
+            # Every geometry item free (the usual case): the sensitivities are written straight
+            # into the Jacobian's block (a view; its zeros are Jac's) and scaled there, instead
+            # of into a (J, C, k, n_geom) array gathered and scaled into a third copy (~6 MB per
+            # call): the same products, in place.
+            in_place = n_g == n_full and bool(np.all(self.free_g == np.arange(n_full)))
+            if in_place:
+                full = Jac[:n_data, n_x:].reshape(J_, C_, k_, n_full)  # splits rows: a view
+                assert np.may_share_memory(full, Jac)
+            else:
+                full = np.zeros((J_, C_, k_, n_full))
+            nn = self.n_nodes
+            # sensor nodes: ∂ψ_c for rotation (3) and offset (3)
+            # ∂(exp([θ]x) d⁰)/∂θ_i = (J_l(θ) e_i) × d with the left Jacobian of SO(3)
+            rv = g[: 6 * nn].reshape(nn, 6)[:, :3]
+            jl = _left_jacobian(rv)[self.node_of]  # (C, 3, 3), columns J_l e_i
+            ex_d = cross3(np.swapaxes(jl, 1, 2), d[:, None, :])  # (C, 3, 3): (J_l e_i) × d_c
+            dpsi = np.zeros((C_, 6, 6))
+            dpsi[:, :3, :3] = ex_d
+            dpsi[:, :3, 3:] = cross3(r[:, None, :], ex_d)
+            dpsi[:, 3:, 3:] = cross3(_E[None, :, :], d[:, None, :])  # e_i × d_c (offsets)
+            # −W_jc dψ_c[p]ᵀ G_j
+            cols = 6 * self.node_of[:, None] + np.arange(6)[None, :]  # (C, 6)
+            for p in range(6):  # each channel belongs to one node: no two writes collide
+                sens_p = -wt * (dpsi[:, p, :] @ G)  # (J, C, k)
+                full[:, np.arange(C_), :, cols[:, p]] = np.moveaxis(sens_p, 1, 0)
+            # inputs: ∂φ for β (2) and γ (2)
+            gi = g[6 * nn : 6 * nn + 4 * self.rin0.shape[0]].reshape(-1, 4)
+            ax = np.einsum("ji,jik->jk", gi[:, :2], self.ebasis)
+            jli = _left_jacobian(ax)  # (J, 3, 3)
+            eb_l = np.einsum("jab,jib->jia", jli, self.ebasis)  # J_l e_i for the two normals
+            exd = cross3(eb_l, din[:, None, :])  # (J, 2, 3)
+            dphi = np.zeros((J_, 4, 6))
+            dphi[:, :2, :3] = exd
+            dphi[:, :2, 3:] = cross3(rin[:, None, :], exd)
+            dphi[:, 2:, 3:] = exd
+            base = 6 * nn + 4 * np.arange(J_)
+            ly0 = self.Ly[:, None, 0, :]  # (J, 1, k)
+            for p in range(4):
+                full[np.arange(J_), :, :, base + p] = -(WPA @ dphi[:, p, :, None]) * ly0
+            if self.sigma_g.size > 6 * nn + 4 * J_:  # channel gains (relative)
+                gcols = 6 * nn + 4 * J_ + np.arange(C_)
+                full[:, np.arange(C_), :, gcols] = np.moveaxis(
+                    -(self.w.T[:, :, None] * (psi @ G)), 1, 0
+                )
+            if in_place:
+                full *= self.sigma_g
+            else:
+                sub = full[..., self.free_g] * self.sigma_g[self.free_g]
+                Jac[:n_data, n_x:] = sub.reshape(n_data, n_g)
+            Jac[n_data : n_data + n_g, n_x:] = np.eye(n_g)
+            if n_c:
+                Jac[n_data + n_g :, n_x:] = _GAUGE_WEIGHT * self.gauge_rows
+        return res, Jac
+
+    def gauge_basis(self) -> FloatArray:
+        """The similarity of the whole instrumentation and the common accelerometer gain, as
+        directions in the full geometry vector ``g`` (n_geom_full, 8).
+
+        Columns: translation ``t`` (3), rotation ``ω`` about P (3), scale ``s`` of the positions
+        about P (1), common relative gain of every accelerometer channel (1). A sensor node at
+        ``r_n`` moves by ``δp_n = t + ω × r_n + s r_n`` and turns by ``δθ_n = ω``; an input at
+        ``r_j`` with normals ``e_ji`` gets ``β_ji = ω · e_ji`` and ``γ_ji = (t + ω × r_j +
+        s r_j) · e_ji``. With the body's properties moved alike (:func:`gauge_property_jacobian`)
+        the FRFs do not change, except through the load cells' reactions (taken as exact).
+        """
+        nn, J = self.n_nodes, self.rin0.shape[0]
+        G = np.zeros((self.sigma_g.size, 8))
+        rn = np.zeros((nn, 3))
+        np.add.at(rn, self.node_of, self.r0)
+        rn /= np.bincount(self.node_of, minlength=nn)[:, None]
+        Gn = G[: 6 * nn].reshape(nn, 6, 8)  # rows of sensor node n: δp (3), δθ (3)
+        Gj = G[6 * nn : 6 * nn + 4 * J].reshape(J, 4, 8)  # rows of input k: β (2), γ (2)
+        eb = np.asarray(self.ebasis)  # (J, 2, 3)
+        for i in range(3):  # over the three axes; nodes and inputs at once (same bits as per item)
+            e = _E[i]
+            Gn[:, 3:6, i] = e
+            Gn[:, i, 3 + i] = 1.0
+            Gn[:, 3:6, 3 + i] = cross3(e, rn)
+            be = eb @ e  # (J, 2)
+            Gj[:, 2:4, i] = be
+            Gj[:, 0:2, 3 + i] = be
+            Gj[:, 2:4, 3 + i] = (eb @ cross3(e, self.rin0)[:, :, None])[:, :, 0]
+        Gn[:, 3:6, 6] = rn
+        Gj[:, 2:4, 6] = (eb @ np.asarray(self.rin0)[:, :, None])[:, :, 0]
+        G[6 * nn + 4 * J :, 7] = 1.0
+        return G
+
+
+def _statistics(
+    H: ComplexArray,
+    R: ComplexArray,
+    sigma: FloatArray,
+    cov_R: FloatArray,
+    basis: ComplexArray | None,
+    lw: FloatArray | None = None,
+) -> tuple[FloatArray, FloatArray, float]:
+    """Factors ``L_jʸ`` (J, 7, 7) and ``T_j`` (J, C, 7) of the reduced statistics (module
+    docstring), and the part of the cost that no parameter changes (for χ²).
+
+    ``lw`` (L, J): line weights (:func:`_line_weights`); the residual of line ``ℓ`` and input
+    ``j`` is ``w_ℓj (H − Ĥ)/σ``, so ``z_j`` is scaled by ``w_ℓj`` (its prediction is linear in
+    ``z_j``) and the statistics keep their form. The reactions' noise compensation is scaled by
+    the mean ``w²`` of the input."""
+    L, C, J = H.shape
+    if lw is not None:
+        cov_R = cov_R * np.mean(lw**2, axis=0)[:, None, None]
+    nb = 0 if basis is None else basis.shape[1]
+    # z_j = [w; w R_j; b; w H_:j/σ] (w = 1 without line weights), written straight into its real
+    # and imaginary parts as (J, n, L) arrays: the products of Σ_ω Re(z zᴴ) = Zr Zrᵀ + Zi Ziᵀ.
+    # The numbers are those of the complex expressions (w·(1+0i), R·w, H/σ = H·(1/σ) in numpy's
+    # complex division, H·(w/σ)) up to the sign of a zero, which no product or sum sees.
+    n = 7 + nb + C
+    zr = np.empty((J, n, L))
+    zi = np.empty((J, n, L))
+    w = None if lw is None else lw.T[:, None, :]  # (J, 1, L)
+    zr[:, 0:1] = 1.0 if w is None else w
+    zi[:, 0:1] = 0.0
+    Rt = np.transpose(R, (2, 1, 0))  # (J, 6, L), complex view
+    zr[:, 1:7] = Rt.real if w is None else Rt.real * w
+    zi[:, 1:7] = Rt.imag if w is None else Rt.imag * w
+    if basis is not None:
+        zr[:, 7 : 7 + nb] = basis.real.T[None]
+        zi[:, 7 : 7 + nb] = basis.imag.T[None]
+    scale = (1.0 / sigma).T[:, :, None] if w is None else w / sigma.T[:, :, None]  # (J, C, L)
+    Ht = np.transpose(H, (2, 1, 0))  # (J, C, L)
+    np.multiply(Ht.real, scale, out=zr[:, 7 + nb :])
+    np.multiply(Ht.imag, scale, out=zi[:, 7 + nb :])
+    S = zr @ np.swapaxes(zr, 1, 2) + zi @ np.swapaxes(zi, 1, 2)  # Σ_ω Re(z zᴴ), (J, n, n)
+    dsc = np.sqrt(np.clip(np.einsum("jii->ji", S), 1e-300, None))  # equilibration (raw S)
+    S[:, 1:7, 1:7] -= cov_R  # bias compensation of the noisy reactions (already × n_ω or rank)
+    if nb:
+        a = np.r_[0:7, 7 + nb : 7 + nb + C]
+        b = np.arange(7, 7 + nb)
+        Sab = S[:, a][:, :, b]
+        Sbb = S[:, b][:, :, b]
+        S = S[:, a][:, :, a] - Sab @ np.linalg.solve(Sbb, np.swapaxes(Sab, 1, 2))
+        dsc = dsc[:, a]
+    # cost_j = tr(S_hh) − 2 tr(B S_yh) + tr(B S_yy Bᵀ) = ‖B L_y − T‖² + tr(S_hh) − ‖T‖²
+    # with S_yy = L_y L_yᵀ (7 × k) and T = S_hy L_y⁺ᵀ: 7 columns per channel, whatever n_ω.
+    d = dsc[:, :7]
+    lam, V = np.linalg.eigh(S[:, :7, :7] / (d[:, :, None] * d[:, None, :]))
+    keep = lam > np.clip(lam.max(axis=1, keepdims=True), 0, None) * _EIG_KEEP
+    sq = np.sqrt(np.where(keep, lam, 1.0))
+    Ly = np.where(keep[:, None, :], d[:, :, None] * V * sq[:, None, :], 0.0)
+    T = np.where(keep[:, None, :], (S[:, 7:, :7] / d[:, None, :]) @ V / sq[:, None, :], 0.0)
+    const = np.einsum("jii->j", S[:, 7:, 7:]) - np.einsum("jck,jck->j", T, T)
+    return Ly, T, float(np.sum(const))
