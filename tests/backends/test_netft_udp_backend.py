@@ -98,7 +98,7 @@ def test_the_data_time_base_where_the_host_clock_is_refused(tmp_path: Path) -> N
     accelerometer FRFs) meets it, and the load cell FRFs then follow the CAN FD amplifier's
     (the same bridges, read on the DAQ's clock) from 5 to 150 Hz: phase within the budget plus
     the noise of two averages, magnitude within the sensor's 0.2 % certificate error and the
-    noise. Not above: the positions' jumps between blocks that made the RDT path lag by a
+    noise, on the loads the strike drives (below). Not above: the positions' jumps between blocks that made the RDT path lag by a
     phase growing with frequency and differing per load are gone (continuity:
     ``test_positions_stay_continuous_when_the_clock_fit_moves``), but a shift taken out in the
     FRF domain leaves 1–6° per load at 450–655 Hz (see the README, RDT)."""
@@ -115,8 +115,12 @@ def test_the_data_time_base_where_the_host_clock_is_refused(tmp_path: Path) -> N
     band = (f >= 5) & (f <= 150)
     lc = slice(24, 30)
     ref, got = amp.H[band, lc, 0], ft.H[band, lc, 0]
-    # the three largest loads (the rest carry the certificate error's cross-talk)
-    big = np.argsort(np.abs(ref).mean(axis=0))[-3:]
+    # the two loads the strike explains best (coherence): on the bungee the others carry the
+    # suspension's swing from the first strike through the second record, which depends on when
+    # the second strike falls (the DAQ's clock, wall time: not the same in two runs; the
+    # vertical load differs by 200 % between two runs of the same path)
+    assert amp.coherence is not None
+    big = np.argsort(np.median(amp.coherence[band, lc, 0], axis=0))[-2:]
     dphi = np.degrees(np.angle(got[:, big] / ref[:, big]))
     assert np.all(np.abs(np.median(dphi, axis=0)) < 10.0), np.median(dphi, axis=0)
     ratio = np.median(np.abs(got[:, big] / ref[:, big]), axis=0)
