@@ -74,6 +74,7 @@ input, absorbs the part of it that is constant over an input.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -83,8 +84,10 @@ __all__ = [
     "ClockFit",
     "DelayBudget",
     "DelayFit",
+    "PooledDelayFit",
     "fit_delay",
     "fit_lower_envelope",
+    "fit_pooled_delay",
     "lagrange4",
     "mass_line_basis",
     "phase_error_deg",
@@ -320,18 +323,15 @@ def mass_line_basis(
     return np.stack([(omega0 / (1j * omega)) ** n for n in range(n_terms)], axis=1)
 
 
-def _fit_tau(
+def _cost_fn(
     f: NDArray[np.float64],
     H: NDArray[np.complex128],
     X: NDArray[np.complex128],
     sw: NDArray[np.float64],
-    search_s: float,
-    center_s: float = 0.0,
-) -> tuple[float, float, float, float]:
-    """``τ̂``, ``σ_τ``, ``J(τ̂)`` and ``Σ w |H|²`` on lines ``f`` (``sw = √w`` per line), ``τ``
-    sought within ``center_s ± search_s``."""
+) -> tuple[Callable[[NDArray[np.float64]], NDArray[np.float64]], int, float]:
+    """The cost ``J(τ)`` of equation (1) on lines ``f`` (``sw = √w`` per line) for an array of
+    trial delays, the regressors' rank and ``Σ w |H|²``."""
     omega = 2 * np.pi * f
-    n = f.size
     # the real least-squares problem of (1): rows Re, Im of every line, columns the regressors'
     # real coefficients; its range's orthonormal basis Q does not depend on τ
     R = np.concatenate([X.real * sw[:, None], X.imag * sw[:, None]], axis=0)
@@ -339,19 +339,30 @@ def _fit_tau(
     rank = int((sv > sv[0] * 1e-10).sum()) if sv.size and sv[0] > 0 else 0
     Q = U[:, :rank]
     total = float(np.sum(sw[:, None] ** 2 * np.abs(H) ** 2))
+    sw2 = np.concatenate([sw, sw])[None, :, None]
 
     def cost(tau: NDArray[np.float64]) -> NDArray[np.float64]:
         out = np.empty(tau.size)
         for i0 in range(0, tau.size, 32):
             t = tau[i0 : i0 + 32]
             G = H[None] * np.exp(1j * omega[None, :, None] * t[:, None, None])  # (T, L, M)
-            g = np.concatenate([G.real, G.imag], axis=1) * np.concatenate([sw, sw])[None, :, None]
+            g = np.concatenate([G.real, G.imag], axis=1) * sw2
             p = np.einsum("lr,tlm->trm", Q, g)
             out[i0 : i0 + 32] = np.einsum("tlm,tlm->t", g, g) - np.einsum("trm,trm->t", p, p)
         return out
 
-    step = 0.05 / float(f.max())  # 18° of phase at the top line between grid points
-    step = min(step, search_s / 4)
+    return cost, rank, total
+
+
+def _minimise(
+    cost: Callable[[NDArray[np.float64]], NDArray[np.float64]],
+    f_max: float,
+    search_s: float,
+    center_s: float = 0.0,
+) -> tuple[float, float, float]:
+    """``τ̂`` within ``center_s ± search_s`` (a grid of ``0.05 / f_max``, then golden section),
+    ``J(τ̂)`` and the curvature ``J''(τ̂)``."""
+    step = min(0.05 / f_max, search_s / 4)  # 18° of phase at the top line between grid points
     grid = center_s + np.arange(-search_s, search_s + step, step)
     J = cost(grid)
     i = int(np.argmin(J))
@@ -366,11 +377,60 @@ def _fit_tau(
     tau = 0.5 * (a + b)
     h = 0.01 * step
     jm, j0, jp = cost(np.array([tau - h, tau, tau + h]))
-    curv = (jp - 2 * j0 + jm) / h**2
-    dof = max(1, 2 * n * H.shape[1] - rank * H.shape[1] - 1)
-    s2 = max(j0, 0.0) / dof
+    return float(tau), float(j0), float((jp - 2 * j0 + jm) / h**2)
+
+
+def _fit_tau(
+    f: NDArray[np.float64],
+    H: NDArray[np.complex128],
+    X: NDArray[np.complex128],
+    sw: NDArray[np.float64],
+    search_s: float,
+    center_s: float = 0.0,
+) -> tuple[float, float, float, float]:
+    """``τ̂``, ``σ_τ``, ``J(τ̂)`` and ``Σ w |H|²`` on lines ``f`` (``sw = √w`` per line), ``τ``
+    sought within ``center_s ± search_s``."""
+    cost, rank, total = _cost_fn(f, H, X, sw)
+    tau, j0, curv = _minimise(cost, float(f.max()), search_s, center_s)
+    s2 = max(j0, 0.0) / _dof(f.size, H.shape[1], rank)
     sigma = float(np.sqrt(2 * s2 / curv)) if curv > 0 else float("inf")
-    return float(tau), sigma, float(j0), total
+    return tau, sigma, j0, total
+
+
+def _dof(n_lines: int, n_frfs: int, rank: int) -> int:
+    """The residual's degrees of freedom: Re and Im of every line and FRF, less the real
+    coefficients and ``τ``."""
+    return max(1, 2 * n_lines * n_frfs - rank * n_frfs - 1)
+
+
+def _usable(
+    f: NDArray[np.float64],
+    H: NDArray[np.complex128],
+    w: NDArray[np.float64],
+    regressors: NDArray[np.complex128] | None,
+    search_s: float,
+) -> tuple[
+    NDArray[np.float64], NDArray[np.complex128], NDArray[np.complex128], NDArray[np.float64]
+]:
+    """The lines with finite FRFs, regressors and weights: ``f, H, X, √w``."""
+    f = np.asarray(f, dtype=float)
+    Hc = np.asarray(H, dtype=complex)
+    w = np.asarray(w, dtype=float)
+    X = mass_line_basis(f) if regressors is None else np.asarray(regressors, dtype=complex)
+    if Hc.ndim != 2 or Hc.shape[0] != f.size or w.shape != f.shape or X.shape[0] != f.size:
+        raise ValueError(
+            f"fit_delay: H {Hc.shape}, weights {w.shape}, regressors {X.shape} for {f.size} "
+            "lines; give (n_lines, ...) arrays for the lines given"
+        )
+    ok = np.isfinite(Hc).all(axis=1) & np.isfinite(X).all(axis=1) & np.isfinite(w) & (f > 0)
+    f, Hc, X, w = f[ok], Hc[ok], X[ok], np.clip(w[ok], 0.0, None)
+    need = X.shape[1] + 2
+    if f.size < need or not search_s > 0:
+        raise ValueError(
+            f"fit_delay: {f.size} usable lines, search {search_s} s; give at least {need} "
+            "lines with finite FRFs and a positive search range"
+        )
+    return f, Hc, X, np.sqrt(w)
 
 
 def fit_delay(
@@ -414,24 +474,8 @@ def fit_delay(
     ValueError
         Shapes disagree, or fewer usable lines than the fit needs.
     """
-    f = np.asarray(frequencies_hz, dtype=float)
-    Hc = np.asarray(H, dtype=complex)
-    w = np.asarray(weights, dtype=float)
-    X = mass_line_basis(f) if regressors is None else np.asarray(regressors, dtype=complex)
-    if Hc.ndim != 2 or Hc.shape[0] != f.size or w.shape != f.shape or X.shape[0] != f.size:
-        raise ValueError(
-            f"fit_delay: H {Hc.shape}, weights {w.shape}, regressors {X.shape} for {f.size} "
-            "lines; give (n_lines, ...) arrays for the lines given"
-        )
-    ok = np.isfinite(Hc).all(axis=1) & np.isfinite(X).all(axis=1) & np.isfinite(w) & (f > 0)
-    f, Hc, X, w = f[ok], Hc[ok], X[ok], np.clip(w[ok], 0.0, None)
+    f, Hc, X, sw = _usable(frequencies_hz, H, weights, regressors, search_s)
     need = X.shape[1] + 2
-    if f.size < need or not search_s > 0:
-        raise ValueError(
-            f"fit_delay: {f.size} usable lines, search {search_s} s; give at least {need} "
-            "lines with finite FRFs and a positive search range"
-        )
-    sw = np.sqrt(w)
     tau, sigma, j0, total = _fit_tau(f, Hc, X, sw, search_s)
     sigma *= float(np.sqrt(max(line_bandwidth, 1.0)))
     spread = 0.0
@@ -448,3 +492,139 @@ def fit_delay(
         spread = 0.5 * abs(got[0] - got[1])
     misfit = float(np.sqrt(max(j0, 0.0) / total)) if total > 0 else 0.0
     return DelayFit(tau, sigma, spread, int(f.size), int(Hc.shape[1]), misfit)
+
+
+@dataclass(frozen=True)
+class PooledDelayFit:
+    """One delay shared by several inputs' FRFs (:func:`fit_pooled_delay`).
+
+    Attributes
+    ----------
+    delay_s : float
+        ``τ̂``, s (the convention of :class:`DelayFit`).
+    sigma_s : float
+        Its statistical 1σ from the joint cost's curvature, s: what the inputs' own noise
+        leaves, if each input's fit were unbiased.
+    jackknife_s : float
+        Its standard error from the leave-one-input-out refits, s: counts how far each input
+        pulls the estimate — its noise and its own bias alike — as random.
+    loo_delays_s : ndarray, shape (k,)
+        The refit without each input, s.
+    own_delays_s : ndarray, shape (k,)
+        Each input's own minimum, s (for the record).
+    """
+
+    delay_s: float
+    sigma_s: float
+    jackknife_s: float
+    loo_delays_s: NDArray[np.float64]
+    own_delays_s: NDArray[np.float64]
+
+    @property
+    def n_inputs(self) -> int:
+        return int(self.loo_delays_s.size)
+
+    @property
+    def uncertainty_s(self) -> float:
+        """``max(σ, se_jackknife)``, s: the estimate's error (the jackknife of few inputs
+        may come out small by chance; it is never below what the noise alone leaves)."""
+        return float(max(self.sigma_s, self.jackknife_s))
+
+
+def _shifted(
+    cost: Callable[[NDArray[np.float64]], NDArray[np.float64]], offset_s: float
+) -> Callable[[NDArray[np.float64]], NDArray[np.float64]]:
+    """``τ ↦ cost(τ + offset_s)``."""
+    return lambda tau: cost(np.asarray(tau) + offset_s)
+
+
+def fit_pooled_delay(
+    frequencies_hz: NDArray[np.float64],
+    H: list[NDArray[np.complex128]],
+    weights: list[NDArray[np.float64]],
+    *,
+    search_s: float,
+    regressors: list[NDArray[np.complex128] | None],
+    line_bandwidth: float = 1.0,
+    offsets_s: NDArray[np.float64] | None = None,
+) -> PooledDelayFit:
+    """One delay ``τ`` common to the FRFs of ``k`` inputs, each input with its own real
+    coefficients (equation (1) per input, ``τ`` shared), and its standard error by the
+    jackknife over inputs.
+
+    Input ``i``'s cost ``J_i(τ)`` (its variable projection, :func:`fit_delay`) is scaled by its
+    own residual variance per degree of freedom at its own minimum, ``s_i² B`` (``B`` the
+    lines sharing their noise), so that each is a χ²-like sum and the joint cost is::
+
+        C(τ) = Σ_i J_i(τ) / (s_i² B),     τ̂ = argmin C,     σ_τ² = 2 / C''(τ̂)
+
+    (the inverse-variance combination of the inputs' fits, to second order). ``σ_τ`` holds only
+    the noise: a fit that is biased per input (a model that holds per input but not exactly)
+    is not in it. The jackknife is: ``τ̂_(i) = argmin Σ_{l≠i} J_l / (s_l² B)`` and
+    ``se² = (k − 1)/k Σ_i (τ̂_(i) − τ̂_(·))²`` (Efron & Stein 1981: it estimates the variance of
+    a smooth estimator from the data, whatever made the inputs differ). Each ``τ̂_(i)`` is the
+    minimum of the summed costs on a grid of 401 points over ``τ̂ ± 0.05 / f_max`` (18° at the
+    top line: within it the costs have no other minimum), refined by a parabola; one at the
+    grid's edge counts as that far off.
+
+    Parameters
+    ----------
+    frequencies_hz : ndarray, shape (n_lines,)
+    H : list of ndarray, shape (n_lines, n_frfs_i)
+        Each input's FRFs on the stream's clock.
+    weights : list of ndarray, shape (n_lines,)
+    search_s : float
+    regressors : list of ndarray, shape (n_lines, n_regressors_i), or None
+        Each input's references (None: the mass-line basis).
+    line_bandwidth : float
+    offsets_s : ndarray, shape (k,), optional
+        What is known of how the inputs' delays differ, s: input ``i``'s delay is
+        ``τ + offsets_s[i]`` (its cost taken there), ``τ`` the one fitted.
+
+    Raises
+    ------
+    ValueError
+        No input, or an input with too few usable lines.
+    """
+    if not H or not len(H) == len(weights) == len(regressors):
+        raise ValueError(
+            f"fit_pooled_delay: {len(H)} inputs' FRFs, {len(weights)} weights, "
+            f"{len(regressors)} regressors; give one of each per input"
+        )
+    B = float(max(line_bandwidth, 1.0))
+    offs = np.zeros(len(H)) if offsets_s is None else np.asarray(offsets_s, dtype=float)
+    costs = []
+    f_max = 0.0
+    for Hi, wi, Xi, o in zip(H, weights, regressors, offs, strict=True):
+        f, Hc, X, sw = _usable(frequencies_hz, Hi, wi, Xi, search_s)
+        own_cost, rank, total = _cost_fn(f, Hc, X, sw)
+        cost = _shifted(own_cost, float(o))
+        _, j0, _ = _minimise(cost, float(f.max()), search_s)
+        # noise-free data: a residual at rounding's level (1e-24 of the data's size)
+        s2 = max(j0, 1e-24 * total, 1e-300) / _dof(f.size, Hc.shape[1], rank)
+        costs.append((cost, 1.0 / (s2 * B)))
+        f_max = max(f_max, float(f.max()))
+
+    def joint(tau: NDArray[np.float64]) -> NDArray[np.float64]:
+        return np.sum([a * c(tau) for c, a in costs], axis=0)
+
+    tau, _, curv = _minimise(joint, f_max, search_s)
+    sigma = float(np.sqrt(2.0 / curv)) if curv > 0 else float("inf")
+    half = 0.05 / f_max
+    grid = tau + np.linspace(-half, half, 401)
+    per = np.array([a * c(grid) for c, a in costs])  # (k, n_grid)
+    own = grid[np.argmin(per, axis=1)]
+    k = len(costs)
+    if k < 2:
+        return PooledDelayFit(tau, sigma, 0.0, np.array([tau]), own)
+    loo = per.sum(axis=0)[None, :] - per  # (k, n_grid): each input left out
+    i = np.argmin(loo, axis=1)
+    ic = np.clip(i, 1, grid.size - 2)
+    r = np.arange(k)
+    jm, j0, jp = loo[r, ic - 1], loo[r, ic], loo[r, ic + 1]
+    den = jm - 2 * j0 + jp
+    dx = np.where(den > 0, 0.5 * (jm - jp) / np.where(den > 0, den, 1.0), 0.0)
+    tau_loo = grid[ic] + np.clip(dx, -1.0, 1.0) * (grid[1] - grid[0])
+    tau_loo = np.where((i == 0) | (i == grid.size - 1), grid[i], tau_loo)
+    se = float(np.sqrt((k - 1) / k * np.sum((tau_loo - tau_loo.mean()) ** 2)))
+    return PooledDelayFit(tau, sigma, se, tau_loo, own)

@@ -130,6 +130,9 @@ class _Run:
         self.corr = 0.0
         #: the position the last block's mapping gives sample ``next_sample`` (None: no block yet)
         self.u_next: float | None = None
+        #: each delivered block's first sample, its position and its positions' step per sample
+        #: (linear within a block): what :meth:`NetFtUdp.alignment_offsets_s` compares
+        self.blocks: list[tuple[int, float, float]] = []
 
     @property
     def n_arrivals(self) -> int:
@@ -504,10 +507,13 @@ class NetFtUdp(WireDriver):
         run.put(j, blk.counts, blk.status, t, float(expect[-1]) / self.ft_rate_hz)
         return True
 
-    def _positions(self, ks: np.ndarray, *, fit_only: bool = False) -> tuple[np.ndarray, float]:
+    def _positions(
+        self, ks: np.ndarray, *, fit_only: bool = False, fit: ClockFit | None = None
+    ) -> tuple[np.ndarray, float]:
         """Fractional record indices of DAQ samples ``ks`` and the alignment's uncertainty (s
         of the lab's time): see :mod:`dimacq.pipeline.stream_alignment`; the clock fit's
-        positions plus the run's correction (``fit_only``: without it)."""
+        positions plus the run's correction (``fit_only``: without it; ``fit``: that clock fit
+        instead of the run's)."""
         run = self._run
         assert run is not None and self.sample_rate_hz is not None
         if self._daq_window is None:
@@ -515,7 +521,7 @@ class NetFtUdp(WireDriver):
                 f"{self.name}: no DAQ start time: RDT records can only be put on the DAQ's "
                 "clock through the host's clock (the acquisition reports the DAQ's start)"
             )
-        fit = run.fit(1.0 / self.time_scale)
+        fit = fit or run.fit(1.0 / self.time_scale)
         t_a, t_b = self._daq_window
         t0 = 0.5 * (t_a + t_b)
         t_k = t0 + ks / (self.sample_rate_hz * self.time_scale)  # host time of DAQ sample k
@@ -626,6 +632,7 @@ class NetFtUdp(WireDriver):
                 )
         ks = np.arange(first, end_sample, dtype=float)
         u, delta = self._block_positions(first, end_sample)
+        run.blocks.append((first, float(u[0]), float(u[-1] - u[0]) / max(1, u.size - 1)))
         phase = phase_error_deg(delta, self.band_hz)
         if not run.checked:
             run.checked = True
@@ -703,6 +710,49 @@ class NetFtUdp(WireDriver):
             overload,
             tuple(events),
         )
+
+    def alignment_offsets_s(
+        self, records: list[list[tuple[int, int]]]
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        """How far each input's records were put from where the whole run's clock fit puts them
+        now, as a delay, and how well that fit itself knows it (s of the lab's time; None
+        before a run). Per input, over its records ``(first_sample, n_samples)`` (nine points
+        each): the offset ``−mean(u_delivered − u_fit) / f_RDT`` — the positions delivered
+        (the fit of their time, slewed) against the fit over every arrival — and the
+        revision ``−mean(u_half − u_fit) / f_RDT``, ``u_half`` from the fit of only the half
+        of the run's windows that holds the record (the line through fewer least-waiting
+        datagrams: how much the fit still moves with the data it rests on). A part common to
+        the inputs (the start window, the latency floor) is in neither; NaN: an input without
+        records of this run."""
+        run = self._run
+        if run is None or not run.blocks or self._daq_window is None:
+            return None
+        b_first, b_u, b_step = (np.array(c) for c in zip(*run.blocks, strict=True))
+        s_w, t_w = np.asarray(run._s), np.asarray(run._t)
+        h = s_w.size // 2
+        halves = [
+            fit_lower_envelope(
+                s_w[sl], t_w[sl], nominal_slope=1.0 / self.time_scale, window_s=_WINDOW_S
+            )
+            for sl in (slice(0, h), slice(h, None))
+        ]
+        t_a, t_b = self._daq_window
+        t_mid = t_w[h] if h else np.inf
+        out = np.full((2, len(records)), np.nan)
+        for i, recs in enumerate(records):
+            if not recs:
+                continue
+            ks = np.concatenate([s0 + np.linspace(0.0, n - 1, 9) for s0, n in recs])
+            b = np.clip(np.searchsorted(b_first, ks, side="right") - 1, 0, None)
+            u = b_u[b] + b_step[b] * (ks - b_first[b])
+            u_fit = self._positions(ks, fit_only=True)[0]
+            half = int(
+                0.5 * (t_a + t_b) + ks.mean() / (self.sample_rate_hz or 1.0) / self.time_scale
+                >= t_mid
+            )
+            u_half = self._positions(ks, fit_only=True, fit=halves[half])[0]
+            out[:, i] = -np.array([np.mean(u - u_fit), np.mean(u_half - u_fit)]) / self.rdt_rate_hz
+        return out[0], out[1]
 
     def stop(self) -> int:
         """STOP; the records still on their way taken; the DAQ samples they cover."""
