@@ -511,7 +511,10 @@ class PooledDelayFit:
     loo_delays_s : ndarray, shape (k,)
         The refit without each input, s.
     own_delays_s : ndarray, shape (k,)
-        Each input's own minimum, s (for the record).
+        Each input's own minimum less its offset, s (for the record).
+    cost : float
+        ``C(τ̂)``: the joint cost left (χ²-like: ~ the degrees of freedom when the model and
+        the offsets hold), to compare fits of the same data under other offsets.
     """
 
     delay_s: float
@@ -519,6 +522,7 @@ class PooledDelayFit:
     jackknife_s: float
     loo_delays_s: NDArray[np.float64]
     own_delays_s: NDArray[np.float64]
+    cost: float
 
     @property
     def n_inputs(self) -> int:
@@ -608,7 +612,7 @@ def fit_pooled_delay(
     def joint(tau: NDArray[np.float64]) -> NDArray[np.float64]:
         return np.sum([a * c(tau) for c, a in costs], axis=0)
 
-    tau, _, curv = _minimise(joint, f_max, search_s)
+    tau, c_min, curv = _minimise(joint, f_max, search_s)
     sigma = float(np.sqrt(2.0 / curv)) if curv > 0 else float("inf")
     half = 0.05 / f_max
     grid = tau + np.linspace(-half, half, 401)
@@ -616,7 +620,7 @@ def fit_pooled_delay(
     own = grid[np.argmin(per, axis=1)]
     k = len(costs)
     if k < 2:
-        return PooledDelayFit(tau, sigma, 0.0, np.array([tau]), own)
+        return PooledDelayFit(tau, sigma, 0.0, np.array([tau]), own, c_min)
     loo = per.sum(axis=0)[None, :] - per  # (k, n_grid): each input left out
     i = np.argmin(loo, axis=1)
     ic = np.clip(i, 1, grid.size - 2)
@@ -627,4 +631,4 @@ def fit_pooled_delay(
     tau_loo = grid[ic] + np.clip(dx, -1.0, 1.0) * (grid[1] - grid[0])
     tau_loo = np.where((i == 0) | (i == grid.size - 1), grid[i], tau_loo)
     se = float(np.sqrt((k - 1) / k * np.sum((tau_loo - tau_loo.mean()) ** 2)))
-    return PooledDelayFit(tau, sigma, se, tau_loo, own)
+    return PooledDelayFit(tau, sigma, se, tau_loo, own, c_min)

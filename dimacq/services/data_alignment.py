@@ -273,8 +273,16 @@ class DataAligner:
             if len(entries) >= 2:
                 offsets, wander = self._offsets(lc, entries)
                 pooled = self._pooled(
-                    f, H_all, coherence_all, rows, entries, budget, names, offsets
+                    f, H_all, coherence_all, rows, entries, budget, names, np.zeros(len(entries))
                 )
+                if np.any(offsets != 0.0):  # the data say whether the cell's offsets hold
+                    shifted = self._pooled(
+                        f, H_all, coherence_all, rows, entries, budget, names, offsets
+                    )
+                    if shifted.cost < pooled.cost:
+                        pooled = shifted
+                    else:
+                        offsets = np.zeros(len(entries))
                 u = float(np.hypot(pooled.uncertainty_s, wander))
             phase = phase_error_deg(u, budget.band_hz)
             if pooled is not None and phase <= budget.max_phase_deg:
@@ -286,10 +294,16 @@ class DataAligner:
                     f"({phase:.2f} deg at {budget.band_hz:g} Hz; jackknife over inputs "
                     f"{1e6 * pooled.jackknife_s:.1f} us, noise {1e6 * pooled.sigma_s:.1f} us, "
                     f"the clock fit's wander between inputs {1e6 * wander:.1f} us), removed from "
-                    f"every input with the clock fit's offset at its records "
-                    f"({1e6 * offsets.min():+.1f} .. {1e6 * offsets.max():+.1f} us; their own "
-                    f"fits less it {1e6 * pooled.own_delays_s.min():+.1f} .. "
-                    f"{1e6 * pooled.own_delays_s.max():+.1f} us)"
+                    "every input"
+                    + (
+                        f" with the clock fit's offset at its records ({1e6 * offsets.min():+.1f}"
+                        f" .. {1e6 * offsets.max():+.1f} us: the data fit better with it)"
+                        if np.any(offsets != 0.0)
+                        else " (the clock fit's offsets at their records, if any, fit the data "
+                        "worse)"
+                    )
+                    + f"; their own fits {1e6 * pooled.own_delays_s.min():+.1f} .. "
+                    f"{1e6 * pooled.own_delays_s.max():+.1f} us"
                 )
             else:
                 weak = [e.where for e in entries if e.fit is None]

@@ -560,6 +560,7 @@ class NetFtUdp(WireDriver):
         u = u_fit + c0 + (c1 - c0) * (ks - first) / n
         if commit:
             run.corr, run.u_next = c1, float(u[-1])
+            run.blocks.append((first, float(u[0]), float(u[-1] - u[0]) / n))
         return u[:-1], delta
 
     def realign(self) -> None:
@@ -632,7 +633,6 @@ class NetFtUdp(WireDriver):
                 )
         ks = np.arange(first, end_sample, dtype=float)
         u, delta = self._block_positions(first, end_sample)
-        run.blocks.append((first, float(u[0]), float(u[-1] - u[0]) / max(1, u.size - 1)))
         phase = phase_error_deg(delta, self.band_hz)
         if not run.checked:
             run.checked = True
@@ -715,13 +715,13 @@ class NetFtUdp(WireDriver):
         self, records: list[list[tuple[int, int]]]
     ) -> tuple[np.ndarray, np.ndarray] | None:
         """How far each input's records were put from where the whole run's clock fit puts them
-        now, as a delay, and how well that fit itself knows it (s of the lab's time; None
-        before a run). Per input, over its records ``(first_sample, n_samples)`` (nine points
-        each): the offset ``−mean(u_delivered − u_fit) / f_RDT`` — the positions delivered
-        (the fit of their time, slewed) against the fit over every arrival — and the
-        revision ``−mean(u_half − u_fit) / f_RDT``, ``u_half`` from the fit of only the half
-        of the run's windows that holds the record (the line through fewer least-waiting
-        datagrams: how much the fit still moves with the data it rests on). A part common to
+        now, as a delay, and how much that fit rests on the input's own time (s of the lab's
+        time; None before a run). Per input, over its records ``(first_sample, n_samples)``
+        (nine points each): the offset ``−mean(u_delivered − u_fit) / f_RDT`` — the positions
+        delivered (the fit of their time, slewed) against the fit over every arrival — and the
+        revision ``−mean(u_other − u_fit) / f_RDT``, ``u_other`` from the fit without the
+        windows of the input's own span (a jackknife of the clock fit: how far the line
+        moves when the datagrams that waited least there are taken away). A part common to
         the inputs (the start window, the latency floor) is in neither; NaN: an input without
         records of this run."""
         run = self._run
@@ -729,15 +729,8 @@ class NetFtUdp(WireDriver):
             return None
         b_first, b_u, b_step = (np.array(c) for c in zip(*run.blocks, strict=True))
         s_w, t_w = np.asarray(run._s), np.asarray(run._t)
-        h = s_w.size // 2
-        halves = [
-            fit_lower_envelope(
-                s_w[sl], t_w[sl], nominal_slope=1.0 / self.time_scale, window_s=_WINDOW_S
-            )
-            for sl in (slice(0, h), slice(h, None))
-        ]
         t_a, t_b = self._daq_window
-        t_mid = t_w[h] if h else np.inf
+        per_s = (self.sample_rate_hz or 1.0) * self.time_scale  # DAQ samples per host second
         out = np.full((2, len(records)), np.nan)
         for i, recs in enumerate(records):
             if not recs:
@@ -746,12 +739,13 @@ class NetFtUdp(WireDriver):
             b = np.clip(np.searchsorted(b_first, ks, side="right") - 1, 0, None)
             u = b_u[b] + b_step[b] * (ks - b_first[b])
             u_fit = self._positions(ks, fit_only=True)[0]
-            half = int(
-                0.5 * (t_a + t_b) + ks.mean() / (self.sample_rate_hz or 1.0) / self.time_scale
-                >= t_mid
+            t_k = 0.5 * (t_a + t_b) + ks / per_s
+            keep = (t_w < t_k.min() - _WINDOW_S) | (t_w > t_k.max() + _WINDOW_S)
+            other = fit_lower_envelope(
+                s_w[keep], t_w[keep], nominal_slope=1.0 / self.time_scale, window_s=_WINDOW_S
             )
-            u_half = self._positions(ks, fit_only=True, fit=halves[half])[0]
-            out[:, i] = -np.array([np.mean(u - u_fit), np.mean(u_half - u_fit)]) / self.rdt_rate_hz
+            u_other = self._positions(ks, fit_only=True, fit=other)[0]
+            out[:, i] = -np.array([np.mean(u - u_fit), np.mean(u_other - u_fit)]) / self.rdt_rate_hz
         return out[0], out[1]
 
     def stop(self) -> int:
