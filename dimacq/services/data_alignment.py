@@ -1,18 +1,20 @@
 """Load cells on their own clock (an ATI Net F/T's RDT) finished from the data: the residual
-delay of each input's cell FRFs fitted, removed, and checked against the phase budget.
+delay of the cells' FRFs fitted, removed, and checked against the phase budget.
 
 The driver puts the stream on the DAQ's sample grid through the host's clock (a coarse time
 base, ~0.1 ms of wall time) and says what is left to do (``delay_budget()``, None when its
-samples are final). Here, once an input's FRFs are estimated, the cell's rows (loads or gauges
-per unit hammer force) are fitted for the delay ``τ`` they share
-(:func:`~dimacq.pipeline.stream_alignment.fit_delay`: the cell's loads are real combinations of
-the accelerometers' FRFs and the hammer's own term — the rigid-body law DIM solves — on the lines
-from the budget's ``lo_hz`` to its ``band_hz``) and multiplied by ``e^{iωτ}`` on every line
-when the fit's uncertainty costs no more FRF phase at ``band_hz`` than allowed. An input whose
-cell carries too little of its force for that takes the run's delay at the end, with the run's
-wander between inputs as its uncertainty (:class:`DataAligner`); the run is refused
-(:class:`~dimacq.errors.SetupError`, one line) when that does not meet the budget either — the
-data could not support the alignment.
+samples are final). What is left is (nearly) one delay per run: the DAQ's start window and the
+network's latency floor are one per run and the clock fit spans the run. So each input's FRFs
+are kept as they come (:meth:`DataAligner.align` fits its own delay, for the record and as the
+fallback), and at the end of the run one delay is fitted on every input at once, each with its
+own real coefficients of the rigid-body law
+(:func:`~dimacq.pipeline.stream_alignment.fit_pooled_delay`), its standard error from the
+jackknife over inputs — which counts each input's bias (the bungee's cell fits scatter ~3 times
+beyond their own σ) as the random error it is across inputs — together with the clock fit's
+wander between inputs as the cell measures it (:meth:`DataAligner.finish`). Every input takes
+that delay when it meets the budget; otherwise each takes its own fit where that meets it, and
+the run is refused (:class:`~dimacq.errors.SetupError`, one line) when one does not: the data
+could not support the alignment.
 """
 
 from __future__ import annotations
@@ -115,7 +117,12 @@ def cell_rows(
 
 
 def _refusal(
-    budget: DelayBudget, where: str, u_s: float, phase: float, fit: DelayFit | None
+    budget: DelayBudget,
+    where: str,
+    u_s: float,
+    phase: float,
+    fit: DelayFit | None,
+    pooled: tuple[PooledDelayFit, float] | None = None,
 ) -> str:
     how = (
         f" ({1e6 * fit.sigma_s:.1f} us statistical, {1e6 * fit.spread_s:.1f} us between the "
@@ -123,6 +130,13 @@ def _refusal(
         if fit is not None
         else " (the run's delay: its error and the alignment's wander between inputs)"
     )
+    if pooled is not None:
+        p, wander = pooled
+        how = (
+            f" (the run's delay {1e6 * p.delay_s:+.1f} us fitted on {p.n_inputs} inputs at once: "
+            f"jackknife over inputs {1e6 * p.jackknife_s:.1f} us, noise {1e6 * p.sigma_s:.1f} us, "
+            f"its drift between the run's halves {1e6 * wander:.1f} us)"
+        )
     return (
         f"{budget.label}: {where}: the data align its loads to the DAQ's clock within only "
         f"{1e6 * u_s:.1f} us{how}, {phase:.1f} deg of FRF phase at {budget.band_hz:g} Hz "
@@ -130,15 +144,6 @@ def _refusal(
         "of the force for its delay to be told; lower netft_band_hz, or read the cell as "
         "loadcell = 'netft-can' or 'daq-channels'"
     )
-
-
-def _wander_s(offsets: NDArray[np.float64] | None) -> float:
-    """The RMS of the inputs' alignment offsets about their mean, s (0: fewer than two known)."""
-    if offsets is None:
-        return 0.0
-    o = np.asarray(offsets, dtype=float)
-    o = o[np.isfinite(o)]
-    return float(np.sqrt(np.mean((o - o.mean()) ** 2))) if o.size >= 2 else 0.0
 
 
 @dataclass
@@ -271,7 +276,7 @@ class DataAligner:
             pooled, wander, u = None, 0.0, float("inf")
             offsets = np.zeros(len(entries))
             if len(entries) >= 2:
-                offsets, wander = self._offsets(lc, entries)
+                offsets = self._offsets(lc, entries)
                 pooled = self._pooled(
                     f, H_all, coherence_all, rows, entries, budget, names, np.zeros(len(entries))
                 )
@@ -283,6 +288,9 @@ class DataAligner:
                         pooled = shifted
                     else:
                         offsets = np.zeros(len(entries))
+                wander = self._wander(
+                    f, H_all, coherence_all, rows, entries, budget, names, offsets
+                )
                 u = float(np.hypot(pooled.uncertainty_s, wander))
             phase = phase_error_deg(u, budget.band_hz)
             if pooled is not None and phase <= budget.max_phase_deg:
@@ -293,7 +301,7 @@ class DataAligner:
                     f"{pooled.n_inputs} inputs at once, within {1e6 * u:.1f} us "
                     f"({phase:.2f} deg at {budget.band_hz:g} Hz; jackknife over inputs "
                     f"{1e6 * pooled.jackknife_s:.1f} us, noise {1e6 * pooled.sigma_s:.1f} us, "
-                    f"the clock fit's wander between inputs {1e6 * wander:.1f} us), removed from "
+                    f"its drift between the run's halves {1e6 * wander:.1f} us), removed from "
                     "every input"
                     + (
                         f" with the clock fit's offset at its records ({1e6 * offsets.min():+.1f}"
@@ -317,7 +325,9 @@ class DataAligner:
                         "= 'netft-can' or 'daq-channels'"
                     )
                 if weak:
-                    raise SetupError(_refusal(budget, ", ".join(weak), u, phase, None))
+                    raise SetupError(
+                        _refusal(budget, ", ".join(weak), u, phase, None, (pooled, wander))
+                    )
                 for e in entries:
                     assert e.fit is not None
                     H_all[:, rows, e.j] *= np.exp(2j * np.pi * f * e.fit.delay_s)[:, None]
@@ -332,18 +342,45 @@ class DataAligner:
         return messages
 
     @staticmethod
-    def _offsets(lc: LoadCell, entries: list[_Input]) -> tuple[NDArray[np.float64], float]:
-        """The cell's offsets of the inputs' alignment from its final clock fit (known parts of
-        how their delays differ; 0 where it cannot say) and the wander left: the RMS about
-        their mean of the fit's revisions between halves of the run."""
+    def _offsets(lc: LoadCell, entries: list[_Input]) -> NDArray[np.float64]:
+        """The cell's offsets of the inputs' alignment from its whole-run clock fit, about their
+        mean (0 where it cannot say)."""
         ask = getattr(lc, "alignment_offsets_s", None)
         got = ask([e.records for e in entries]) if ask is not None else None
         if got is None:
-            return np.zeros(len(entries)), 0.0
-        offsets, revisions = (np.asarray(a, dtype=float) for a in got)
+            return np.zeros(len(entries))
+        offsets = np.asarray(got, dtype=float)
         known = np.isfinite(offsets)
-        offsets = np.where(known, offsets - (offsets[known].mean() if known.any() else 0.0), 0.0)
-        return offsets, _wander_s(revisions)
+        return np.where(known, offsets - (offsets[known].mean() if known.any() else 0.0), 0.0)
+
+    def _wander(
+        self,
+        f: NDArray[np.float64],
+        H_all: NDArray[np.complex128],
+        coherence_all: NDArray[np.float64],
+        rows: slice,
+        entries: list[_Input],
+        budget: DelayBudget,
+        names: str,
+        offsets: NDArray[np.float64],
+    ) -> float:
+        """How the delay wanders over the run, from the data: the run's delay fitted on the
+        first and on the second half of its inputs (in the order measured), ``τ_A``, ``τ_B``;
+        a drift of the alignment that is linear over the run, from ``−D/2`` to ``+D/2``, puts
+        the halves' means ``D/2`` apart and the inputs an RMS ``D/√12`` from the run's mean, so
+        ``ω = |τ_A − τ_B| / √3`` (the halves' own noise included: it errs on the safe side). A
+        bias of single inputs averages out within each half; 0 with fewer than 4 inputs."""
+        k = len(entries)
+        if k < 4:
+            return 0.0
+        halves = (slice(0, k // 2), slice(k // 2, k))
+        tau = [
+            self._pooled(
+                f, H_all, coherence_all, rows, entries[h], budget, names, offsets[h]
+            ).delay_s
+            for h in halves
+        ]
+        return float(abs(tau[0] - tau[1]) / np.sqrt(3.0))
 
     def _pooled(
         self,

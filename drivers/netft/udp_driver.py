@@ -507,13 +507,10 @@ class NetFtUdp(WireDriver):
         run.put(j, blk.counts, blk.status, t, float(expect[-1]) / self.ft_rate_hz)
         return True
 
-    def _positions(
-        self, ks: np.ndarray, *, fit_only: bool = False, fit: ClockFit | None = None
-    ) -> tuple[np.ndarray, float]:
+    def _positions(self, ks: np.ndarray, *, fit_only: bool = False) -> tuple[np.ndarray, float]:
         """Fractional record indices of DAQ samples ``ks`` and the alignment's uncertainty (s
         of the lab's time): see :mod:`dimacq.pipeline.stream_alignment`; the clock fit's
-        positions plus the run's correction (``fit_only``: without it; ``fit``: that clock fit
-        instead of the run's)."""
+        positions plus the run's correction (``fit_only``: without it)."""
         run = self._run
         assert run is not None and self.sample_rate_hz is not None
         if self._daq_window is None:
@@ -521,7 +518,7 @@ class NetFtUdp(WireDriver):
                 f"{self.name}: no DAQ start time: RDT records can only be put on the DAQ's "
                 "clock through the host's clock (the acquisition reports the DAQ's start)"
             )
-        fit = fit or run.fit(1.0 / self.time_scale)
+        fit = run.fit(1.0 / self.time_scale)
         t_a, t_b = self._daq_window
         t0 = 0.5 * (t_a + t_b)
         t_k = t0 + ks / (self.sample_rate_hz * self.time_scale)  # host time of DAQ sample k
@@ -711,42 +708,26 @@ class NetFtUdp(WireDriver):
             tuple(events),
         )
 
-    def alignment_offsets_s(
-        self, records: list[list[tuple[int, int]]]
-    ) -> tuple[np.ndarray, np.ndarray] | None:
+    def alignment_offsets_s(self, records: list[list[tuple[int, int]]]) -> np.ndarray | None:
         """How far each input's records were put from where the whole run's clock fit puts them
-        now, as a delay, and how much that fit rests on the input's own time (s of the lab's
-        time; None before a run). Per input, over its records ``(first_sample, n_samples)``
-        (nine points each): the offset ``−mean(u_delivered − u_fit) / f_RDT`` — the positions
-        delivered (the fit of their time, slewed) against the fit over every arrival — and the
-        revision ``−mean(u_other − u_fit) / f_RDT``, ``u_other`` from the fit without the
-        windows of the input's own span (a jackknife of the clock fit: how far the line
-        moves when the datagrams that waited least there are taken away). A part common to
-        the inputs (the start window, the latency floor) is in neither; NaN: an input without
-        records of this run."""
+        now, as a delay (s of the lab's time; None before a run): per input, over its records
+        ``(first_sample, n_samples)`` (nine points each), ``−mean(u_delivered − u_fit) /
+        f_RDT`` — the positions delivered (the fit of their time, slewed) against the fit over
+        every arrival. A part common to the inputs (the start window, the latency floor) is
+        not in it; NaN: an input without records of this run."""
         run = self._run
         if run is None or not run.blocks or self._daq_window is None:
             return None
         b_first, b_u, b_step = (np.array(c) for c in zip(*run.blocks, strict=True))
-        s_w, t_w = np.asarray(run._s), np.asarray(run._t)
-        t_a, t_b = self._daq_window
-        per_s = (self.sample_rate_hz or 1.0) * self.time_scale  # DAQ samples per host second
-        out = np.full((2, len(records)), np.nan)
+        out = np.full(len(records), np.nan)
         for i, recs in enumerate(records):
             if not recs:
                 continue
             ks = np.concatenate([s0 + np.linspace(0.0, n - 1, 9) for s0, n in recs])
             b = np.clip(np.searchsorted(b_first, ks, side="right") - 1, 0, None)
             u = b_u[b] + b_step[b] * (ks - b_first[b])
-            u_fit = self._positions(ks, fit_only=True)[0]
-            t_k = 0.5 * (t_a + t_b) + ks / per_s
-            keep = (t_w < t_k.min() - _WINDOW_S) | (t_w > t_k.max() + _WINDOW_S)
-            other = fit_lower_envelope(
-                s_w[keep], t_w[keep], nominal_slope=1.0 / self.time_scale, window_s=_WINDOW_S
-            )
-            u_other = self._positions(ks, fit_only=True, fit=other)[0]
-            out[:, i] = -np.array([np.mean(u - u_fit), np.mean(u_other - u_fit)]) / self.rdt_rate_hz
-        return out[0], out[1]
+            out[i] = -float(np.mean(u - self._positions(ks, fit_only=True)[0])) / self.rdt_rate_hz
+        return out
 
     def stop(self) -> int:
         """STOP; the records still on their way taken; the DAQ samples they cover."""

@@ -77,20 +77,16 @@ def test_only_the_cells_that_ask_are_aligned_in_place_against_the_responses() ->
 
 
 class _Wandering(_Cell):
-    """A cell that says how far its alignment was off at each input's records and how far its
-    clock fit moved there between halves of the run (s)."""
+    """A cell that says how far its alignment was off at each input's records (s)."""
 
-    def __init__(self, budget: DelayBudget, offsets: list[float], revisions: list[float]):
+    def __init__(self, budget: DelayBudget, offsets: list[float]) -> None:
         super().__init__(budget)
         self.offsets = offsets
-        self.revisions = revisions
         self.asked: list[list[tuple[int, int]]] = []
 
-    def alignment_offsets_s(
-        self, records: list[list[tuple[int, int]]]
-    ) -> tuple[np.ndarray, np.ndarray]:
+    def alignment_offsets_s(self, records: list[list[tuple[int, int]]]) -> np.ndarray:
         self.asked = records
-        return np.array(self.offsets), np.array(self.revisions)
+        return np.array(self.offsets)
 
 
 def _run(
@@ -109,36 +105,50 @@ def _run(
 
 
 def test_every_input_takes_the_runs_delay_fitted_on_all_of_them_at_once() -> None:
-    """Five inputs with one delay (300 µs) but for the offsets the cell knows its alignment had
+    """Six inputs with one delay (300 µs) but for the offsets the cell knows its alignment had
     at their records (−20 .. +30 µs), two of them too weak for their own fit: the joint fit
     recovers the delay (at the offsets' mean) within its stated uncertainty, every input is
-    aligned by it and its own offset, and the clock fit's wander the cell reports (RMS of its
-    revisions about their mean, 2 µs) is in the uncertainty."""
+    aligned by it and its own offset, and the run's halves agree (no drift)."""
     rng = np.random.default_rng(8)
-    offsets = [10e-6, -20e-6, 30e-6, 0.0, -5e-6]
-    cell = _Wandering(BUDGET, offsets, [1e-6, -1e-6, 3e-6, -3e-6, 0.0])
-    taus, noises = [300e-6 + o for o in offsets], [0.05, 0.05, 3.0, 0.05, 3.0]
-    aligner, H_all, coh_all, msgs, truth = _run(rng, cell, taus, noises)
-    assert [("takes the run's delay" in m) for m in msgs] == [False, False, True, False, True]
+    offsets = [10e-6, -20e-6, 30e-6, 0.0, -5e-6, 3e-6]
+    cell = _Wandering(BUDGET, offsets)
+    taus, noises = [300e-6 + o for o in offsets], [0.05, 0.05, 3.0, 0.05, 3.0, 0.05]
+    aligner, H_all, coh_all, msgs, _ = _run(rng, cell, taus, noises)
+    assert [("takes the run's delay" in m) for m in msgs] == [
+        False,
+        False,
+        True,
+        False,
+        True,
+        False,
+    ]
     before = H_all.copy()
     (msg,) = aligner.finish(F, H_all, coh_all)
-    assert cell.asked == [[(1000 * j, 512)] for j in range(5)]
+    assert cell.asked == [[(1000 * j, 512)] for j in range(6)]
     got = float(msg.split("the run's delay ")[1].split(" us")[0]) * 1e-6
     u = float(msg.split("within ")[1].split(" us")[0]) * 1e-6
-    assert "fitted on 5 inputs at once" in msg and "wander between inputs 2.0 us" in msg
+    drift = float(msg.split("between the run's halves ")[1].split(" us")[0]) * 1e-6
+    assert "fitted on 6 inputs at once" in msg and drift < 1e-6
     assert "offset at its records (-23.0 .. +27.0 us" in msg
-    assert 2e-6 <= u < 4e-6 and abs(got - 303e-6) < max(u, 0.2e-6)
+    assert u < 2e-6 and abs(got - 303e-6) < max(u, 0.2e-6)
     # every input's cell rows multiplied by the one delay and its offset, nothing else touched
     turn = np.exp(2j * np.pi * F[:, None, None] * (got + np.array(offsets) - 3e-6))
     np.testing.assert_allclose(H_all[:, 3:9], before[:, 3:9] * turn, rtol=1e-3)
     assert np.array_equal(H_all[:, :3], before[:, :3])
+    # offsets the data do not carry (every input truly at 300 µs): the fit without them is
+    # the better one, and every input takes the one delay
+    cell = _Wandering(BUDGET, offsets)
+    aligner, H_all, coh_all, _, _ = _run(rng, cell, [300e-6] * 6, noises)
+    (msg,) = aligner.finish(F, H_all, coh_all)
+    assert "fit the data worse" in msg
+    got = float(msg.split("the run's delay ")[1].split(" us")[0]) * 1e-6
+    assert abs(got - 300e-6) < 0.5e-6
 
 
 def test_inputs_whose_delays_truly_differ_are_refused() -> None:
     """Delays 40 µs apart (10° at 655 Hz): the jackknife over inputs says so, the run's delay
     does not meet the budget; the inputs strong enough keep their own fits, and the run is
-    refused when one is too weak for its own — naming it. A wander the cell reports beyond the
-    budget refuses a run whose inputs agree."""
+    refused when one is too weak for its own — naming it; so too with a drift over the run."""
     rng = np.random.default_rng(9)
     taus = [280e-6, 320e-6, 280e-6, 320e-6]
     aligner, H_all, coh_all, _, truth = _run(rng, _Cell(BUDGET), taus, [0.02] * 4)
@@ -148,11 +158,16 @@ def test_inputs_whose_delays_truly_differ_are_refused() -> None:
         H_all[:, 3:9, 1], truth[1], rtol=0.2, atol=0.2 * np.abs(truth[1]).max()
     )
     aligner, H_all, coh_all, _, _ = _run(rng, _Cell(BUDGET), taus + [300e-6], [0.02] * 4 + [3.0])
-    with pytest.raises(SetupError, match=r"input 4: the data align .*the run's delay: its error"):
+    with pytest.raises(
+        SetupError,
+        match=r"input 4: the data align .*the run.s delay .* fitted on 5 inputs at once: jackknife",
+    ):
         aligner.finish(F, H_all, coh_all)
-    cell = _Wandering(BUDGET, [0.0] * 5, [0.0, 20e-6, 0.0, 20e-6, 0.0])
-    aligner, H_all, coh_all, _, _ = _run(rng, cell, [300e-6] * 5, [0.02] * 4 + [3.0])
-    with pytest.raises(SetupError, match=r"input 4: the data align its loads .* within only 9\.8"):
+    # a drift over the run (285 .. 315 µs): the halves' delays are 15 µs apart, the inputs
+    # ~9 µs from the run's mean, beyond the budget
+    taus = list(np.linspace(285e-6, 315e-6, 6))
+    aligner, H_all, coh_all, _, _ = _run(rng, _Cell(BUDGET), taus, [0.02] * 5 + [3.0])
+    with pytest.raises(SetupError, match=r"input 5: .*drift between the run's halves (8|9)\."):
         aligner.finish(F, H_all, coh_all)
     # one input, too weak for its own fit: nothing to pool
     aligner, H_all, coh_all, _, _ = _run(rng, _Cell(BUDGET), [300e-6], [3.0])
