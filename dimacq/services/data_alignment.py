@@ -10,8 +10,8 @@ fallback), and at the end of the run one delay is fitted on every input at once,
 own real coefficients of the rigid-body law
 (:func:`~dimacq.pipeline.stream_alignment.fit_pooled_delay`), its standard error from the
 jackknife over inputs — which counts each input's bias (the bungee's cell fits scatter ~3 times
-beyond their own σ) as the random error it is across inputs — together with the clock fit's
-wander between inputs as the cell measures it (:meth:`DataAligner.finish`). Every input takes
+beyond their own σ) as the random error it is across inputs — together with its drift between
+the run's halves (:meth:`DataAligner.finish`). Every input takes
 that delay when it meets the budget; otherwise each takes its own fit where that meets it, and
 the run is refused (:class:`~dimacq.errors.SetupError`, one line) when one does not: the data
 could not support the alignment.
@@ -162,20 +162,21 @@ class DataAligner:
 
     The coarse alignment's error is (nearly) one delay per run — the DAQ's start window and
     the network's latency floor are one per run, the clock fit spans the whole run — plus
-    the little it wanders between inputs. Each input's own fit of that delay is biased on a
-    cell that carries little of the force (the bungee's: its fits scatter ~3 times beyond
+    what it drifts or wanders between inputs. Each input's own fit of that delay is biased on
+    a cell that carries little of the force (the bungee's: its fits scatter ~3 times beyond
     their own σ), so one fit over every input, each with its own coefficients
     (:func:`~dimacq.pipeline.stream_alignment.fit_pooled_delay`), with the standard error of
     the jackknife over inputs (which counts each input's bias as the random error it is
-    across inputs), gives the run's delay ``τ̂``. An input taking ``τ̂`` is off by ``τ̂``'s
-    error and by how far the alignment wandered at its records, which the cell measures
-    itself when it can (``alignment_offsets_s(records)``: how far its delivered positions lie
-    from the whole run's clock fit; the RMS over inputs about their mean is the wander ``ω``).
-    Every input takes ``τ̂`` when ``√(se² + ω²)`` meets the budget (``se`` never below the
-    noise's ``σ``). Otherwise — the inputs' delays truly differ, or the data say too little —
-    each input takes its own fit where that meets the budget, and the run is refused
-    (:class:`~dimacq.errors.SetupError`, one line) when any input's does not: the data could
-    not support the alignment. One input: its own fit.
+    across inputs), gives the run's delay ``τ̂``. Where the cell says how far its alignment
+    was put from its whole-run clock fit at each input's records (``alignment_offsets_s``),
+    those offsets are taken as known differences of the inputs' delays when the data fit
+    better with them than without. An input taking ``τ̂`` is off by ``τ̂``'s error and by
+    how far the delay drifted at its records, which the data tell by the run's halves
+    fitted apart (``drift_s``); every input takes ``τ̂`` when ``√(se² + drift²)`` meets the
+    budget (``se`` never below the noise's ``σ``). Otherwise — the inputs' delays truly
+    differ, or the data say too little — each input takes its own fit where that meets the
+    budget, and the run is refused (:class:`~dimacq.errors.SetupError`, one line) when any
+    input's does not: the data could not support the alignment. One input: its own fit.
 
     Parameters
     ----------
@@ -278,19 +279,11 @@ class DataAligner:
             if len(entries) >= 2:
                 offsets = self._offsets(lc, entries)
                 pooled = self._pooled(
-                    f, H_all, coherence_all, rows, entries, budget, names, np.zeros(len(entries))
-                )
-                if np.any(offsets != 0.0):  # the data say whether the cell's offsets hold
-                    shifted = self._pooled(
-                        f, H_all, coherence_all, rows, entries, budget, names, offsets
-                    )
-                    if shifted.cost < pooled.cost:
-                        pooled = shifted
-                    else:
-                        offsets = np.zeros(len(entries))
-                wander = self._wander(
                     f, H_all, coherence_all, rows, entries, budget, names, offsets
                 )
+                if not pooled.offsets_used:
+                    offsets = np.zeros(len(entries))
+                wander = pooled.drift_s
                 u = float(np.hypot(pooled.uncertainty_s, wander))
             phase = phase_error_deg(u, budget.band_hz)
             if pooled is not None and phase <= budget.max_phase_deg:
@@ -352,35 +345,6 @@ class DataAligner:
         offsets = np.asarray(got, dtype=float)
         known = np.isfinite(offsets)
         return np.where(known, offsets - (offsets[known].mean() if known.any() else 0.0), 0.0)
-
-    def _wander(
-        self,
-        f: NDArray[np.float64],
-        H_all: NDArray[np.complex128],
-        coherence_all: NDArray[np.float64],
-        rows: slice,
-        entries: list[_Input],
-        budget: DelayBudget,
-        names: str,
-        offsets: NDArray[np.float64],
-    ) -> float:
-        """How the delay wanders over the run, from the data: the run's delay fitted on the
-        first and on the second half of its inputs (in the order measured), ``τ_A``, ``τ_B``;
-        a drift of the alignment that is linear over the run, from ``−D/2`` to ``+D/2``, puts
-        the halves' means ``D/2`` apart and the inputs an RMS ``D/√12`` from the run's mean, so
-        ``ω = |τ_A − τ_B| / √3`` (the halves' own noise included: it errs on the safe side). A
-        bias of single inputs averages out within each half; 0 with fewer than 4 inputs."""
-        k = len(entries)
-        if k < 4:
-            return 0.0
-        halves = (slice(0, k // 2), slice(k // 2, k))
-        tau = [
-            self._pooled(
-                f, H_all, coherence_all, rows, entries[h], budget, names, offsets[h]
-            ).delay_s
-            for h in halves
-        ]
-        return float(abs(tau[0] - tau[1]) / np.sqrt(3.0))
 
     def _pooled(
         self,
