@@ -67,9 +67,16 @@ better than ~0.1–1 ms (refused at 2° at 655 Hz). The same ratio makes the cel
 result small there (a 1 % cell error moves the bungee's DIM mass by ~0.001 %), but the budget
 is the phase's, as set: a run whose data cannot support it is refused, not assumed.
 
+**One delay for several inputs** (:func:`fit_pooled_delay`): the clocks' delay is one per run
+while each input's fit carries its own bias (a cell that carries little of the force), so the
+inputs' costs are summed, each scaled by its own residual variance, and the shared ``τ`` is
+fitted with its standard error from the jackknife over inputs and its drift between the run's
+halves.
+
 Clock drift between the DAQ and the host is not modelled by the coarse alignment (the DAQ's
-crystal against the host's: ~20 ppm is 1.2 ms after a minute); the data's delay, fitted per
-input, absorbs the part of it that is constant over an input.
+crystal against the host's: ~20 ppm is 1.2 ms after a minute); a run whose inputs' delays
+differ by more than the budget is told by the jackknife and the halves, and each input then
+keeps its own fit where that meets the budget.
 """
 
 from __future__ import annotations

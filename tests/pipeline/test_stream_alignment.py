@@ -206,5 +206,22 @@ def test_pooled_delay_recovers_one_delay_and_its_jackknife_matches_the_scatter()
             assert float(np.mean(sig)) < 0.3 * scatter  # the noise alone: far too sure
         else:
             assert 0.7 < float(np.mean(sig)) / scatter < 1.4
+    # offsets that are the inputs' true differences are taken (the data fit better with them),
+    # offsets that are not are left; a drift over the run shows in the halves
+    taus = 100e-6 + np.array([0.0, 20e-6, -30e-6, 10e-6, 5e-6, -15e-6])
+    H, w, X = _pooled_run(rng, f, taus, 0.01)
+    known = fit_pooled_delay(f, H, w, search_s=1e-3, regressors=X, offsets_s=taus - 100e-6)
+    assert known.offsets_used and known.delay_s == pytest.approx(100e-6, abs=0.5e-6)
+    H, w, X = _pooled_run(rng, f, np.full(6, 100e-6), 0.01)
+    wrong = fit_pooled_delay(f, H, w, search_s=1e-3, regressors=X, offsets_s=taus - 100e-6)
+    assert not wrong.offsets_used and wrong.delay_s == pytest.approx(100e-6, abs=0.5e-6)
+    assert wrong.drift_s < 0.5e-6
+    H, w, X = _pooled_run(rng, f, np.linspace(90e-6, 110e-6, 8), 0.01)
+    drifting = fit_pooled_delay(f, H, w, search_s=1e-3, regressors=X)
+    assert drifting.halves_s is not None
+    # the halves' means 11.4 µs apart: a drift of 6.6 µs, the inputs' own RMS about their
+    # mean 6.5 µs (to the noise of the halves' fits)
+    spread = float(np.std(np.linspace(90e-6, 110e-6, 8)))
+    assert drifting.drift_s == pytest.approx(spread, rel=0.15)
     with pytest.raises(ValueError, match="one of each per input"):
         fit_pooled_delay(f, H, w[:1], search_s=1e-3, regressors=X)
