@@ -308,7 +308,7 @@ class DataAligner:
                 )
             else:
                 weak = [e.where for e in entries if e.fit is None]
-                if weak and pooled is None:
+                if weak and pooled is None:  # one input, too weak for its own fit
                     raise SetupError(
                         f"{budget.label}: {', '.join(weak)}: the data align its loads to the "
                         "DAQ's clock within the budget on no input (no input's own fit met the "
@@ -317,7 +317,7 @@ class DataAligner:
                         "its delay to be told; lower netft_band_hz, or read the cell as loadcell "
                         "= 'netft-can' or 'daq-channels'"
                     )
-                if weak:
+                if weak and pooled is not None:
                     raise SetupError(
                         _refusal(budget, ", ".join(weak), u, phase, None, (pooled, wander))
                     )
