@@ -713,8 +713,9 @@ class NetFtUdp(WireDriver):
         now, as a delay (s of the lab's time; None before a run): per input, over its records
         ``(first_sample, n_samples)`` (nine points each), ``−mean(u_delivered − u_fit) /
         f_RDT`` — the positions delivered (the fit of their time, slewed) against the fit over
-        every arrival. A part common to the inputs (the start window, the latency floor) is
-        not in it; NaN: an input without records of this run."""
+        every arrival. What the inputs share (the start window, the latency floor) is the
+        run's delay's, not theirs: take them about their mean. NaN: an input without records
+        of this run."""
         run = self._run
         if run is None or not run.blocks or self._daq_window is None:
             return None
