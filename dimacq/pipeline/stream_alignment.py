@@ -67,13 +67,22 @@ better than ~0.1–1 ms (refused at 2° at 655 Hz). The same ratio makes the cel
 result small there (a 1 % cell error moves the bungee's DIM mass by ~0.001 %), but the budget
 is the phase's, as set: a run whose data cannot support it is refused, not assumed.
 
+**One delay for several inputs** (:func:`fit_pooled_delay`): the clocks' delay is one per run
+while each input's fit carries its own bias (a cell that carries little of the force), so the
+inputs' costs are summed, each scaled by its own residual variance, and the shared ``τ`` is
+fitted with its standard error from the jackknife over inputs and its drift between the run's
+halves.
+
 Clock drift between the DAQ and the host is not modelled by the coarse alignment (the DAQ's
-crystal against the host's: ~20 ppm is 1.2 ms after a minute); the data's delay, fitted per
-input, absorbs the part of it that is constant over an input.
+crystal against the host's: ~20 ppm is 1.2 ms after a minute); a run whose inputs' delays
+differ by more than the budget is told by the jackknife and the halves, and each input then
+keeps its own fit where that meets the budget.
 """
 
 from __future__ import annotations
 
+import dataclasses
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -83,8 +92,10 @@ __all__ = [
     "ClockFit",
     "DelayBudget",
     "DelayFit",
+    "PooledDelayFit",
     "fit_delay",
     "fit_lower_envelope",
+    "fit_pooled_delay",
     "lagrange4",
     "mass_line_basis",
     "phase_error_deg",
@@ -320,6 +331,68 @@ def mass_line_basis(
     return np.stack([(omega0 / (1j * omega)) ** n for n in range(n_terms)], axis=1)
 
 
+def _cost_fn(
+    f: NDArray[np.float64],
+    H: NDArray[np.complex128],
+    X: NDArray[np.complex128],
+    sw: NDArray[np.float64],
+) -> tuple[Callable[[NDArray[np.float64]], NDArray[np.float64]], int, float]:
+    """The cost ``J(τ)`` of equation (1) on lines ``f`` (``sw = √w`` per line) for an array of
+    trial delays, the regressors' rank and ``Σ w |H|²``."""
+    omega = 2 * np.pi * f
+    n = f.size
+    # the real least-squares problem of (1): rows Re, Im of every line, columns the regressors'
+    # real coefficients; its range's orthonormal basis Q does not depend on τ
+    R = np.concatenate([X.real * sw[:, None], X.imag * sw[:, None]], axis=0)
+    U, sv, _ = np.linalg.svd(R, full_matrices=False)
+    rank = int((sv > sv[0] * 1e-10).sum()) if sv.size and sv[0] > 0 else 0
+    Q = U[:, :rank]
+    Hs = H * sw[:, None]
+    total = float(np.sum(np.abs(Hs) ** 2))
+    # J(τ) = |g|² − |Qᵀg|² with g = [Re; Im] of Hs e^{iωτ}: |g|² is Σ w |H|² whatever τ, and
+    # Qᵀg = Re Σ_l (Q_Re,l − i Q_Im,l) ⊗ Hs_l e^{iω_l τ} — one matrix product for all trial τ
+    P = ((Q[:n] - 1j * Q[n:])[:, :, None] * Hs[:, None, :]).reshape(n, -1)
+    Pr, Pi = np.ascontiguousarray(P.real), np.ascontiguousarray(P.imag)
+
+    def cost(tau: NDArray[np.float64]) -> NDArray[np.float64]:
+        t = np.atleast_1d(np.asarray(tau, dtype=float))
+        out = np.empty(t.size)
+        for i0 in range(0, t.size, 64):
+            ph = t[i0 : i0 + 64, None] * omega[None, :]
+            # Re(e^{iφ} P) as two real products: 5 times cheaper than one complex one here
+            p = np.cos(ph) @ Pr - np.sin(ph) @ Pi
+            out[i0 : i0 + 64] = total - np.einsum("tk,tk->t", p, p)
+        return out
+
+    return cost, rank, total
+
+
+def _minimise(
+    cost: Callable[[NDArray[np.float64]], NDArray[np.float64]],
+    f_max: float,
+    search_s: float,
+    center_s: float = 0.0,
+) -> tuple[float, float, float]:
+    """``τ̂`` within ``center_s ± search_s`` (a grid of ``0.05 / f_max``, then golden section),
+    ``J(τ̂)`` and the curvature ``J''(τ̂)``."""
+    step = min(0.05 / f_max, search_s / 4)  # 18° of phase at the top line between grid points
+    grid = center_s + np.arange(-search_s, search_s + step, step)
+    J = cost(grid)
+    i = int(np.argmin(J))
+    a, b = grid[max(i - 1, 0)], grid[min(i + 1, grid.size - 1)]
+    while b - a > 1e-5 * step:  # 0.8 ns at 655 Hz
+        c, d = b - _GOLDEN * (b - a), a + _GOLDEN * (b - a)
+        jc, jd = cost(np.array([c, d]))
+        if jc < jd:
+            b = d
+        else:
+            a = c
+    tau = 0.5 * (a + b)
+    h = 0.01 * step
+    jm, j0, jp = cost(np.array([tau - h, tau, tau + h]))
+    return float(tau), float(j0), float((jp - 2 * j0 + jm) / h**2)
+
+
 def _fit_tau(
     f: NDArray[np.float64],
     H: NDArray[np.complex128],
@@ -330,47 +403,47 @@ def _fit_tau(
 ) -> tuple[float, float, float, float]:
     """``τ̂``, ``σ_τ``, ``J(τ̂)`` and ``Σ w |H|²`` on lines ``f`` (``sw = √w`` per line), ``τ``
     sought within ``center_s ± search_s``."""
-    omega = 2 * np.pi * f
-    n = f.size
-    # the real least-squares problem of (1): rows Re, Im of every line, columns the regressors'
-    # real coefficients; its range's orthonormal basis Q does not depend on τ
-    R = np.concatenate([X.real * sw[:, None], X.imag * sw[:, None]], axis=0)
-    U, sv, _ = np.linalg.svd(R, full_matrices=False)
-    rank = int((sv > sv[0] * 1e-10).sum()) if sv.size and sv[0] > 0 else 0
-    Q = U[:, :rank]
-    total = float(np.sum(sw[:, None] ** 2 * np.abs(H) ** 2))
-
-    def cost(tau: NDArray[np.float64]) -> NDArray[np.float64]:
-        out = np.empty(tau.size)
-        for i0 in range(0, tau.size, 32):
-            t = tau[i0 : i0 + 32]
-            G = H[None] * np.exp(1j * omega[None, :, None] * t[:, None, None])  # (T, L, M)
-            g = np.concatenate([G.real, G.imag], axis=1) * np.concatenate([sw, sw])[None, :, None]
-            p = np.einsum("lr,tlm->trm", Q, g)
-            out[i0 : i0 + 32] = np.einsum("tlm,tlm->t", g, g) - np.einsum("trm,trm->t", p, p)
-        return out
-
-    step = 0.05 / float(f.max())  # 18° of phase at the top line between grid points
-    step = min(step, search_s / 4)
-    grid = center_s + np.arange(-search_s, search_s + step, step)
-    J = cost(grid)
-    i = int(np.argmin(J))
-    a, b = grid[max(i - 1, 0)], grid[min(i + 1, grid.size - 1)]
-    while b - a > 1e-6 * step:
-        c, d = b - _GOLDEN * (b - a), a + _GOLDEN * (b - a)
-        jc, jd = cost(np.array([c, d]))
-        if jc < jd:
-            b = d
-        else:
-            a = c
-    tau = 0.5 * (a + b)
-    h = 0.01 * step
-    jm, j0, jp = cost(np.array([tau - h, tau, tau + h]))
-    curv = (jp - 2 * j0 + jm) / h**2
-    dof = max(1, 2 * n * H.shape[1] - rank * H.shape[1] - 1)
-    s2 = max(j0, 0.0) / dof
+    cost, rank, total = _cost_fn(f, H, X, sw)
+    tau, j0, curv = _minimise(cost, float(f.max()), search_s, center_s)
+    s2 = max(j0, 0.0) / _dof(f.size, H.shape[1], rank)
     sigma = float(np.sqrt(2 * s2 / curv)) if curv > 0 else float("inf")
-    return float(tau), sigma, float(j0), total
+    return tau, sigma, j0, total
+
+
+def _dof(n_lines: int, n_frfs: int, rank: int) -> int:
+    """The residual's degrees of freedom: Re and Im of every line and FRF, less the real
+    coefficients and ``τ``."""
+    return max(1, 2 * n_lines * n_frfs - rank * n_frfs - 1)
+
+
+def _usable(
+    f: NDArray[np.float64],
+    H: NDArray[np.complex128],
+    w: NDArray[np.float64],
+    regressors: NDArray[np.complex128] | None,
+    search_s: float,
+) -> tuple[
+    NDArray[np.float64], NDArray[np.complex128], NDArray[np.complex128], NDArray[np.float64]
+]:
+    """The lines with finite FRFs, regressors and weights: ``f, H, X, √w``."""
+    f = np.asarray(f, dtype=float)
+    Hc = np.asarray(H, dtype=complex)
+    w = np.asarray(w, dtype=float)
+    X = mass_line_basis(f) if regressors is None else np.asarray(regressors, dtype=complex)
+    if Hc.ndim != 2 or Hc.shape[0] != f.size or w.shape != f.shape or X.shape[0] != f.size:
+        raise ValueError(
+            f"fit_delay: H {Hc.shape}, weights {w.shape}, regressors {X.shape} for {f.size} "
+            "lines; give (n_lines, ...) arrays for the lines given"
+        )
+    ok = np.isfinite(Hc).all(axis=1) & np.isfinite(X).all(axis=1) & np.isfinite(w) & (f > 0)
+    f, Hc, X, w = f[ok], Hc[ok], X[ok], np.clip(w[ok], 0.0, None)
+    need = X.shape[1] + 2
+    if f.size < need or not search_s > 0:
+        raise ValueError(
+            f"fit_delay: {f.size} usable lines, search {search_s} s; give at least {need} "
+            "lines with finite FRFs and a positive search range"
+        )
+    return f, Hc, X, np.sqrt(w)
 
 
 def fit_delay(
@@ -414,24 +487,8 @@ def fit_delay(
     ValueError
         Shapes disagree, or fewer usable lines than the fit needs.
     """
-    f = np.asarray(frequencies_hz, dtype=float)
-    Hc = np.asarray(H, dtype=complex)
-    w = np.asarray(weights, dtype=float)
-    X = mass_line_basis(f) if regressors is None else np.asarray(regressors, dtype=complex)
-    if Hc.ndim != 2 or Hc.shape[0] != f.size or w.shape != f.shape or X.shape[0] != f.size:
-        raise ValueError(
-            f"fit_delay: H {Hc.shape}, weights {w.shape}, regressors {X.shape} for {f.size} "
-            "lines; give (n_lines, ...) arrays for the lines given"
-        )
-    ok = np.isfinite(Hc).all(axis=1) & np.isfinite(X).all(axis=1) & np.isfinite(w) & (f > 0)
-    f, Hc, X, w = f[ok], Hc[ok], X[ok], np.clip(w[ok], 0.0, None)
+    f, Hc, X, sw = _usable(frequencies_hz, H, weights, regressors, search_s)
     need = X.shape[1] + 2
-    if f.size < need or not search_s > 0:
-        raise ValueError(
-            f"fit_delay: {f.size} usable lines, search {search_s} s; give at least {need} "
-            "lines with finite FRFs and a positive search range"
-        )
-    sw = np.sqrt(w)
     tau, sigma, j0, total = _fit_tau(f, Hc, X, sw, search_s)
     sigma *= float(np.sqrt(max(line_bandwidth, 1.0)))
     spread = 0.0
@@ -448,3 +505,187 @@ def fit_delay(
         spread = 0.5 * abs(got[0] - got[1])
     misfit = float(np.sqrt(max(j0, 0.0) / total)) if total > 0 else 0.0
     return DelayFit(tau, sigma, spread, int(f.size), int(Hc.shape[1]), misfit)
+
+
+@dataclass(frozen=True)
+class PooledDelayFit:
+    """One delay shared by several inputs' FRFs (:func:`fit_pooled_delay`).
+
+    Attributes
+    ----------
+    delay_s : float
+        ``τ̂``, s (the convention of :class:`DelayFit`).
+    sigma_s : float
+        Its statistical 1σ from the joint cost's curvature, s: what the inputs' own noise
+        leaves, if each input's fit were unbiased.
+    jackknife_s : float
+        Its standard error from the leave-one-input-out refits, s: counts how far each input
+        pulls the estimate — its noise and its own bias alike — as random.
+    loo_delays_s : ndarray, shape (k,)
+        The refit without each input, s.
+    own_delays_s : ndarray, shape (k,)
+        Each input's own minimum less its offset, s (for the record).
+    cost : float
+        ``C(τ̂)``: the joint cost left (χ²-like: ~ the degrees of freedom when the model and
+        the offsets hold), what tells fits of the same data under other offsets apart.
+    offsets_used : bool
+        The offsets given fitted the data better than none, and were used.
+    halves_s : tuple of float, or None
+        ``τ̂`` of the first and of the second half of the inputs (in the order given; None
+        with fewer than 4).
+    """
+
+    delay_s: float
+    sigma_s: float
+    jackknife_s: float
+    loo_delays_s: NDArray[np.float64]
+    own_delays_s: NDArray[np.float64]
+    cost: float
+    offsets_used: bool = False
+    halves_s: tuple[float, float] | None = None
+
+    @property
+    def n_inputs(self) -> int:
+        return int(self.loo_delays_s.size)
+
+    @property
+    def uncertainty_s(self) -> float:
+        """``max(σ, se_jackknife)``, s: the estimate's error (the jackknife of few inputs
+        may come out small by chance; it is never below what the noise alone leaves)."""
+        return float(max(self.sigma_s, self.jackknife_s))
+
+    @property
+    def drift_s(self) -> float:
+        """How far the inputs' delays lie from the run's, RMS, if it drifts over the run, s:
+        a drift linear from ``−D/2`` to ``+D/2`` puts the halves' means ``D/2`` apart and the
+        inputs an RMS ``D/√12`` from the run's mean, so ``|τ_A − τ_B| / √3`` (the halves' own
+        errors included: it errs on the safe side; a bias of single inputs averages out within
+        each half). 0 with fewer than 4 inputs."""
+        if self.halves_s is None:
+            return 0.0
+        return float(abs(self.halves_s[0] - self.halves_s[1]) / np.sqrt(3.0))
+
+
+def fit_pooled_delay(
+    frequencies_hz: NDArray[np.float64],
+    H: list[NDArray[np.complex128]],
+    weights: list[NDArray[np.float64]],
+    *,
+    search_s: float,
+    regressors: list[NDArray[np.complex128] | None],
+    line_bandwidth: float = 1.0,
+    offsets_s: NDArray[np.float64] | None = None,
+) -> PooledDelayFit:
+    """One delay ``τ`` common to the FRFs of ``k`` inputs, each input with its own real
+    coefficients (equation (1) per input, ``τ`` shared), and its standard error by the
+    jackknife over inputs.
+
+    Input ``i``'s cost ``J_i(τ)`` (its variable projection, :func:`fit_delay`) is scaled by its
+    own residual variance per degree of freedom at its own minimum, ``s_i² B`` (``B`` the
+    lines sharing their noise), so that each is a χ²-like sum and the joint cost is::
+
+        C(τ) = Σ_i J_i(τ) / (s_i² B),     τ̂ = argmin C,     σ_τ² = 2 / C''(τ̂)
+
+    (the inverse-variance combination of the inputs' fits, to second order). ``σ_τ`` holds only
+    the noise: a fit that is biased per input (a model that holds per input but not exactly)
+    is not in it. The jackknife is: ``τ̂_(i) = argmin Σ_{l≠i} J_l / (s_l² B)`` and
+    ``se² = (k − 1)/k Σ_i (τ̂_(i) − τ̂_(·))²`` (Efron & Stein 1981: it estimates the variance of
+    a smooth estimator from the data, whatever made the inputs differ). Each ``τ̂_(i)`` is the
+    minimum of the summed costs on a grid of 151 points over ``τ̂ ± 0.05 / f_max`` (18° at the
+    top line: within it the costs have no other minimum), refined by a parabola; one at the
+    grid's edge counts as that far off.
+
+    Parameters
+    ----------
+    frequencies_hz : ndarray, shape (n_lines,)
+    H : list of ndarray, shape (n_lines, n_frfs_i)
+        Each input's FRFs on the stream's clock.
+    weights : list of ndarray, shape (n_lines,)
+    search_s : float
+    regressors : list of ndarray, shape (n_lines, n_regressors_i), or None
+        Each input's references (None: the mass-line basis).
+    line_bandwidth : float
+    offsets_s : ndarray, shape (k,), optional
+        What may be known of how the inputs' delays differ, s: input ``i``'s delay taken as
+        ``τ + offsets_s[i]`` (its cost there). Used when the joint cost left is lower with
+        them than without (same parameters: the data tell which holds).
+
+    Raises
+    ------
+    ValueError
+        No input, or an input with too few usable lines.
+    """
+    if not H or not len(H) == len(weights) == len(regressors):
+        raise ValueError(
+            f"fit_pooled_delay: {len(H)} inputs' FRFs, {len(weights)} weights, "
+            f"{len(regressors)} regressors; give one of each per input"
+        )
+    B = float(max(line_bandwidth, 1.0))
+    k = len(H)
+    costs = []
+    f_max = 0.0
+    for Hi, wi, Xi in zip(H, weights, regressors, strict=True):
+        f, Hc, X, sw = _usable(frequencies_hz, Hi, wi, Xi, search_s)
+        cost, rank, total = _cost_fn(f, Hc, X, sw)
+        _, j0, _ = _minimise(cost, float(f.max()), search_s)
+        # noise-free data: a residual at rounding's level (1e-24 of the data's size)
+        s2 = max(j0, 1e-24 * total, 1e-300) / _dof(f.size, Hc.shape[1], rank)
+        costs.append((cost, 1.0 / (s2 * B)))
+        f_max = max(f_max, float(f.max()))
+    zero = np.zeros(k)
+    fit = _joint_fit(costs, zero, f_max, search_s)
+    offs = zero if offsets_s is None else np.asarray(offsets_s, dtype=float)
+    if np.any(offs != 0.0):  # the data say whether the offsets hold
+        shifted = _joint_fit(costs, offs, f_max, search_s)
+        if shifted.cost < fit.cost:
+            fit = dataclasses.replace(shifted, offsets_used=True)
+    if k < 4:
+        return fit
+    used = offs if fit.offsets_used else zero
+    halves = tuple(
+        _minimise(_joint(costs[h], used[h]), f_max, search_s)[0]
+        for h in (slice(0, k // 2), slice(k // 2, k))
+    )
+    return dataclasses.replace(fit, halves_s=(float(halves[0]), float(halves[1])))
+
+
+def _joint(
+    costs: list[tuple[Callable[[NDArray[np.float64]], NDArray[np.float64]], float]],
+    offsets: NDArray[np.float64],
+) -> Callable[[NDArray[np.float64]], NDArray[np.float64]]:
+    """``τ ↦ Σ_i a_i J_i(τ + o_i)``."""
+
+    def joint(tau: NDArray[np.float64]) -> NDArray[np.float64]:
+        t = np.atleast_1d(np.asarray(tau, dtype=float))
+        return np.sum([a * c(t + o) for (c, a), o in zip(costs, offsets, strict=True)], axis=0)
+
+    return joint
+
+
+def _joint_fit(
+    costs: list[tuple[Callable[[NDArray[np.float64]], NDArray[np.float64]], float]],
+    offsets: NDArray[np.float64],
+    f_max: float,
+    search_s: float,
+) -> PooledDelayFit:
+    """The joint minimum of :func:`fit_pooled_delay`, its σ and its jackknife over inputs."""
+    tau, c_min, curv = _minimise(_joint(costs, offsets), f_max, search_s)
+    sigma = float(np.sqrt(2.0 / curv)) if curv > 0 else float("inf")
+    half = 0.05 / f_max
+    grid = tau + np.linspace(-half, half, 151)
+    per = np.array([a * c(grid + o) for (c, a), o in zip(costs, offsets, strict=True)])
+    own = grid[np.argmin(per, axis=1)]
+    k = len(costs)
+    if k < 2:
+        return PooledDelayFit(tau, sigma, 0.0, np.array([tau]), own, c_min)
+    loo = per.sum(axis=0)[None, :] - per  # (k, n_grid): each input left out
+    i = np.argmin(loo, axis=1)
+    ic = np.clip(i, 1, grid.size - 2)
+    r = np.arange(k)
+    jm, j0, jp = loo[r, ic - 1], loo[r, ic], loo[r, ic + 1]
+    den = jm - 2 * j0 + jp
+    dx = np.where(den > 0, 0.5 * (jm - jp) / np.where(den > 0, den, 1.0), 0.0)
+    tau_loo = grid[ic] + np.clip(dx, -1.0, 1.0) * (grid[1] - grid[0])
+    tau_loo = np.where((i == 0) | (i == grid.size - 1), grid[i], tau_loo)
+    se = float(np.sqrt((k - 1) / k * np.sum((tau_loo - tau_loo.mean()) ** 2)))
+    return PooledDelayFit(tau, sigma, se, tau_loo, own, c_min)

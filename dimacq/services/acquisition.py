@@ -574,7 +574,12 @@ class ImpactSession(ImpactStream):
                     f_j, H_j, coh_j = self._frf(records[j], fs)
                     # a load cell on its own clock: its residual delay fitted from the data
                     where = f"input {self.input_names[j]}"
-                    for msg in aligner.align(j, f_j, H_j, coh_j, where):
+                    ranges = [
+                        (h.first_sample, h.n_samples)
+                        for h in history
+                        if h.input_index == j and h.accepted
+                    ]
+                    for msg in aligner.align(j, f_j, H_j, coh_j, where, ranges):
                         self._event({"device": "loadcell", "kind": "alignment", "message": msg})
                     if H_all is None:  # filled input by input: no stacking copy at the end
                         H_all = np.zeros((*H_j.shape, n_in), dtype=H_j.dtype)
@@ -636,7 +641,7 @@ class ImpactSession(ImpactStream):
                 "rejected reasons in the acquisition file); fix the cause and repeat those inputs"
             )
         assert H_all is not None and coh_all is not None and freqs is not None
-        for msg in aligner.finish(freqs, H_all):  # inputs that take the run's delay
+        for msg in aligner.finish(freqs, H_all, coh_all):  # the run's delay, every input
             self._event({"device": "loadcell", "kind": "alignment", "message": msg})
         kept = [j for j in range(n_in) if j not in set(short)]
         if short:  # drop the incomplete inputs' empty columns

@@ -1,33 +1,43 @@
 """Load cells on their own clock (an ATI Net F/T's RDT) finished from the data: the residual
-delay of each input's cell FRFs fitted, removed, and checked against the phase budget.
+delay of the cells' FRFs fitted, removed, and checked against the phase budget.
 
 The driver puts the stream on the DAQ's sample grid through the host's clock (a coarse time
 base, ~0.1 ms of wall time) and says what is left to do (``delay_budget()``, None when its
-samples are final). Here, once an input's FRFs are estimated, the cell's rows (loads or gauges
-per unit hammer force) are fitted for the delay ``τ`` they share
-(:func:`~dimacq.pipeline.stream_alignment.fit_delay`: the cell's loads are real combinations of
-the accelerometers' FRFs and the hammer's own term — the rigid-body law DIM solves — on the lines
-from the budget's ``lo_hz`` to its ``band_hz``) and multiplied by ``e^{iωτ}`` on every line
-when the fit's uncertainty costs no more FRF phase at ``band_hz`` than allowed. An input whose
-cell carries too little of its force for that takes the run's delay at the end, with the run's
-wander between inputs as its uncertainty (:class:`DataAligner`); the run is refused
-(:class:`~dimacq.errors.SetupError`, one line) when that does not meet the budget either — the
-data could not support the alignment.
+samples are final). What is left is (nearly) one delay per run: the DAQ's start window and the
+network's latency floor are one per run and the clock fit spans the run. So each input's FRFs
+are kept as they come (:meth:`DataAligner.align` fits its own delay, for the record and as the
+fallback), and at the end of the run one delay is fitted on every input at once, each with its
+own real coefficients of the rigid-body law
+(:func:`~dimacq.pipeline.stream_alignment.fit_pooled_delay`), its standard error from the
+jackknife over inputs — which counts each input's bias (the bungee's cell fits scatter ~3 times
+beyond their own σ) as the random error it is across inputs — together with its drift between
+the run's halves (:meth:`DataAligner.finish`). Every input takes
+that delay when it meets the budget; otherwise each takes its own fit where that meets it, and
+the run is refused (:class:`~dimacq.errors.SetupError`, one line) when one does not: the data
+could not support the alignment.
 """
 
 from __future__ import annotations
 
 import logging
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
 
 from dimacq.devices.loadcell import LoadCell
 from dimacq.errors import SetupError
-from dimacq.pipeline.stream_alignment import DelayBudget, DelayFit, fit_delay, phase_error_deg
+from dimacq.pipeline.stream_alignment import (
+    DelayBudget,
+    DelayFit,
+    PooledDelayFit,
+    fit_delay,
+    fit_pooled_delay,
+    phase_error_deg,
+)
 
-__all__ = ["DataAligner", "align_rows", "run_delay"]
+__all__ = ["DataAligner", "align_rows", "cell_rows"]
 
 log = logging.getLogger(__name__)
 
@@ -59,20 +69,10 @@ def align_rows(
         Too few lines in the fit's band, or the phase above ``budget.max_phase_deg``.
     """
     f = np.asarray(frequencies_hz, dtype=float)
-    m = (f >= budget.lo_hz) & (f <= budget.band_hz)
-    Hm = H[m]
-    g = np.clip(np.nan_to_num(coherence[m], nan=0.0), 0.0, 1.0)
-    w = np.zeros(Hm.shape[0])
-    if Hm.size:
-        rms = np.sqrt(np.mean(np.abs(np.nan_to_num(Hm)) ** 2, axis=0))
-        Hm = Hm / np.where(rms > 0, rms, 1.0)
-        w = np.median(g / np.maximum(1.0 - g, 1e-4), axis=1)
-    X = None
-    if references is not None:
-        X = np.concatenate([references[m], np.ones((int(m.sum()), 1))], axis=1)
+    fm, Hm, w, X = cell_rows(f, H, coherence, budget, references)
     try:
         fit = fit_delay(
-            f[m], Hm, w, search_s=budget.search_s, regressors=X, line_bandwidth=line_bandwidth
+            fm, Hm, w, search_s=budget.search_s, regressors=X, line_bandwidth=line_bandwidth
         )
     except ValueError as err:
         raise SetupError(
@@ -86,15 +86,57 @@ def align_rows(
     return out, fit, phase
 
 
+def cell_rows(
+    frequencies_hz: NDArray[np.float64],
+    H: NDArray[np.complex128],
+    coherence: NDArray[np.float64],
+    budget: DelayBudget,
+    references: NDArray[np.complex128] | None,
+) -> tuple[
+    NDArray[np.float64],
+    NDArray[np.complex128],
+    NDArray[np.float64],
+    NDArray[np.complex128] | None,
+]:
+    """What the delay fit takes of one input's cell (:func:`align_rows`): the lines of the
+    budget's band, the rows scaled to unit RMS, the lines' weights and the regressors (the
+    references with a column of ones; None: the mass-line basis)."""
+    f = np.asarray(frequencies_hz, dtype=float)
+    m = (f >= budget.lo_hz) & (f <= budget.band_hz)
+    Hm = H[m]
+    g = np.clip(np.nan_to_num(coherence[m], nan=0.0), 0.0, 1.0)
+    w = np.zeros(Hm.shape[0])
+    if Hm.size:
+        rms = np.sqrt(np.mean(np.abs(np.nan_to_num(Hm)) ** 2, axis=0))
+        Hm = Hm / np.where(rms > 0, rms, 1.0)
+        w = np.median(g / np.maximum(1.0 - g, 1e-4), axis=1)
+    X = None
+    if references is not None:
+        X = np.concatenate([references[m], np.ones((int(m.sum()), 1))], axis=1)
+    return f[m], Hm, w, X
+
+
 def _refusal(
-    budget: DelayBudget, where: str, u_s: float, phase: float, fit: DelayFit | None
+    budget: DelayBudget,
+    where: str,
+    u_s: float,
+    phase: float,
+    fit: DelayFit | None,
+    pooled: tuple[PooledDelayFit, float] | None = None,
 ) -> str:
     how = (
         f" ({1e6 * fit.sigma_s:.1f} us statistical, {1e6 * fit.spread_s:.1f} us between the "
         "band's halves)"
         if fit is not None
-        else " (the run's delay and its wander between inputs)"
+        else " (the run's delay: its error and the alignment's wander between inputs)"
     )
+    if pooled is not None:
+        p, wander = pooled
+        how = (
+            f" (the run's delay {1e6 * p.delay_s:+.1f} us fitted on {p.n_inputs} inputs at once: "
+            f"jackknife over inputs {1e6 * p.jackknife_s:.1f} us, noise {1e6 * p.sigma_s:.1f} us, "
+            f"its drift between the run's halves {1e6 * wander:.1f} us)"
+        )
     return (
         f"{budget.label}: {where}: the data align its loads to the DAQ's clock within only "
         f"{1e6 * u_s:.1f} us{how}, {phase:.1f} deg of FRF phase at {budget.band_hz:g} Hz "
@@ -104,54 +146,37 @@ def _refusal(
     )
 
 
-def run_delay(
-    delays_s: NDArray[np.float64], uncertainties_s: NDArray[np.float64]
-) -> tuple[float, float, float]:
-    """The run's delay from the inputs' own fits: its mean, that mean's standard error and the
-    wander of the delay between inputs, s.
+@dataclass
+class _Input:
+    """One input of one cell, waiting for the end of the run."""
 
-    Each fit ``τ_i ± σ_i`` measures the clocks' delay during its input, ``τ_i = τ̄ + w_i + e_i``:
-    ``w_i`` how far the coarse alignment wandered (spread ``ω``), ``e_i`` the fit's own error
-    (``σ_i``). The scatter of the ``τ_i`` holds both, so ``ω`` is what is left of it beyond the
-    ``σ_i`` — the random-effects estimate of DerSimonian & Laird (1986)::
-
-        w_i = 1/σ_i²,   τ_F = Σ w_i τ_i / Σ w_i,   Q = Σ w_i (τ_i − τ_F)²,
-        ω² = max(0, (Q − (k − 1)) / (Σ w_i − Σ w_i² / Σ w_i))
-
-    (``E[Q] = k − 1`` when the inputs differ by their fits' errors alone); then
-    ``w*_i = 1 / (σ_i² + ω²)``, ``τ̄ = Σ w*_i τ_i / Σ w*_i``, standard error ``(Σ w*_i)^-½``.
-    An input that takes ``τ̄`` is off by its own wander and ``τ̄``'s error: ``√(se² + ω²)``.
-    (Taking the weighted scatter of the ``τ_i`` itself as the wander, as before, counted the
-    fits' own noise twice.) One fit: ``ω = 0`` (nothing to tell it from).
-
-    Parameters
-    ----------
-    delays_s, uncertainties_s : ndarray, shape (k,)
-    """
-    tau = np.asarray(delays_s, dtype=float)
-    w = 1.0 / np.maximum(np.asarray(uncertainties_s, dtype=float), 1e-12) ** 2
-    fixed = float(np.sum(w * tau) / w.sum())
-    q = float(np.sum(w * (tau - fixed) ** 2))
-    c = float(w.sum() - np.sum(w**2) / w.sum())
-    omega2 = max(0.0, (q - (tau.size - 1)) / c) if tau.size > 1 and c > 0 else 0.0
-    ws = 1.0 / (1.0 / w + omega2)
-    return (
-        float(np.sum(ws * tau) / ws.sum()),
-        float(1.0 / np.sqrt(ws.sum())),
-        float(np.sqrt(omega2)),
-    )
+    j: int
+    where: str
+    fit: DelayFit | None  # its own fit, where it met the budget
+    records: list[tuple[int, int]]
 
 
 class DataAligner:
-    """The cells of one acquisition that ask for it (``delay_budget()``), aligned input by input.
+    """The cells of one acquisition that ask for it (``delay_budget()``), aligned at the end of
+    the run by the delay the clocks had over it.
 
-    An input whose own fit meets the budget is aligned at once. One whose cell carries too
-    little of that input's force for its own fit (the refusal of :func:`align_rows`) waits for
-    the end of the run (:meth:`finish`): it then takes the run's delay — the mean ``τ̄`` of
-    the inputs that met the budget, with the uncertainty ``√(se² + ω²)``, ``ω`` how much the
-    coarse alignment wanders between inputs beyond their fits' own errors (the delay is the
-    clocks', not the input's: :func:`run_delay`);
-    the run is refused when that too costs more than the budget, or when no input met it.
+    The coarse alignment's error is (nearly) one delay per run — the DAQ's start window and
+    the network's latency floor are one per run, the clock fit spans the whole run — plus
+    what it drifts or wanders between inputs. Each input's own fit of that delay is biased on
+    a cell that carries little of the force (the bungee's: its fits scatter ~3 times beyond
+    their own σ), so one fit over every input, each with its own coefficients
+    (:func:`~dimacq.pipeline.stream_alignment.fit_pooled_delay`), with the standard error of
+    the jackknife over inputs (which counts each input's bias as the random error it is
+    across inputs), gives the run's delay ``τ̂``. Where the cell says how far its alignment
+    was put from its whole-run clock fit at each input's records (``alignment_offsets_s``),
+    those offsets are taken as known differences of the inputs' delays when the data fit
+    better with them than without. An input taking ``τ̂`` is off by ``τ̂``'s error and by
+    how far the delay drifted at its records, which the data tell by the run's halves
+    fitted apart (``drift_s``); every input takes ``τ̂`` when ``√(se² + drift²)`` meets the
+    budget (``se`` never below the noise's ``σ``). Otherwise — the inputs' delays truly
+    differ, or the data say too little — each input takes its own fit where that meets the
+    budget, and the run is refused (:class:`~dimacq.errors.SetupError`, one line) when any
+    input's does not: the data could not support the alignment. One input: its own fit.
 
     Parameters
     ----------
@@ -179,8 +204,10 @@ class DataAligner:
             row += n
         self.first_row = first_row
         self.line_bandwidth = line_bandwidth
-        self.fits: dict[int, list[tuple[float, float]]] = {k: [] for k, _, _ in self.cells}
-        self.waiting: dict[int, list[tuple[int, str]]] = {k: [] for k, _, _ in self.cells}
+        self.inputs: dict[int, list[_Input]] = {k: [] for k, _, _ in self.cells}
+
+    def _refs(self, H: NDArray[np.complex128]) -> NDArray[np.complex128] | None:
+        return H[:, : self.first_row] if self.first_row > 0 else None
 
     def align(
         self,
@@ -189,81 +216,171 @@ class DataAligner:
         H: NDArray[np.complex128],
         coherence: NDArray[np.float64],
         where: str,
+        records: Sequence[tuple[int, int]] = (),
     ) -> list[str]:
-        """Input ``j``'s FRFs ``H`` (n_lines, n_outputs) aligned in place where its own fit meets
-        the budget; one message per cell."""
+        """Input ``j``'s FRFs ``H`` (n_lines, n_outputs): its own fit, for the record and as the
+        fallback; ``H`` is aligned by :meth:`finish`. ``records``: its records' ``(first
+        sample, samples)`` on the DAQ's clock. One message per cell."""
         messages = []
         for k, rows, lc in self.cells:
             budget = lc.delay_budget()  # type: ignore[attr-defined]
             if budget is None:
                 continue
-            refs = H[:, : self.first_row] if self.first_row > 0 else None
+            fit: DelayFit | None = None
             try:
-                H[:, rows], fit, phase = align_rows(
+                _, fit, phase = align_rows(
                     frequencies_hz,
                     H[:, rows],
                     coherence[:, rows],
                     budget,
                     where,
-                    refs,
+                    self._refs(H),
                     self.line_bandwidth,
                 )
             except SetupError as err:
                 if "too little of the force" not in str(err):
                     raise
-                self.waiting[k].append((j, where))
                 msg = f"{err}; it takes the run's delay at the end"
             else:
-                self.fits[k].append((fit.delay_s, fit.uncertainty_s))
                 msg = (
-                    f"{budget.label}: {where}: residual delay {1e6 * fit.delay_s:+.1f} us fitted "
-                    f"from the data, within {1e6 * fit.uncertainty_s:.1f} us ({phase:.2f} deg "
-                    f"at {budget.band_hz:g} Hz), removed"
+                    f"{budget.label}: {where}: own delay fit {1e6 * fit.delay_s:+.1f} us, within "
+                    f"{1e6 * fit.uncertainty_s:.1f} us ({phase:.2f} deg at {budget.band_hz:g} "
+                    "Hz); the run's delay is fitted at its end"
                 )
+            self.inputs[k].append(_Input(j, where, fit, list(records)))
             log.info("%s", msg)
             messages.append(msg)
         return messages
 
     def finish(
-        self, frequencies_hz: NDArray[np.float64], H_all: NDArray[np.complex128]
+        self,
+        frequencies_hz: NDArray[np.float64],
+        H_all: NDArray[np.complex128],
+        coherence_all: NDArray[np.float64],
     ) -> list[str]:
-        """The waiting inputs (columns ``j`` of ``H_all``, shape (n_lines, n_outputs, n_inputs))
-        aligned in place by the run's delay; one message per cell that had any.
+        """Every input (columns ``j`` of ``H_all``, shape (n_lines, n_outputs, n_inputs), and of
+        ``coherence_all``) aligned in place; one message per cell.
 
         Raises
         ------
         SetupError
-            No input met the budget, or the run's delay does not either.
+            The run's delay does not meet the budget and an input's own fit does not either.
         """
         f = np.asarray(frequencies_hz, dtype=float)
         messages = []
         for k, rows, lc in self.cells:
-            if not self.waiting[k]:
+            entries = self.inputs[k]
+            if not entries:
                 continue
             budget = lc.delay_budget()  # type: ignore[attr-defined]
-            names = ", ".join(w for _, w in self.waiting[k])
-            if not self.fits[k]:
-                raise SetupError(
-                    f"{budget.label}: {names}: the data align its loads to the DAQ's clock "
-                    "within the budget on no input (no input's own fit met the budget, "
-                    f"netft_max_phase_deg = {budget.max_phase_deg:g} at {budget.band_hz:g} Hz): "
-                    "the cell carries too little of the force for its delay to be told; lower "
-                    "netft_band_hz, or read the cell as loadcell = 'netft-can' or 'daq-channels'"
+            names = ", ".join(e.where for e in entries)
+            pooled, wander, u = None, 0.0, float("inf")
+            offsets = np.zeros(len(entries))
+            if len(entries) >= 2:
+                offsets = self._offsets(lc, entries)
+                pooled = self._pooled(
+                    f, H_all, coherence_all, rows, entries, budget, names, offsets
                 )
-            tau = np.array([t for t, _ in self.fits[k]])
-            mean, sem, wander = run_delay(tau, np.array([u for _, u in self.fits[k]]))
-            u = float(np.hypot(sem, wander))
+                if not pooled.offsets_used:
+                    offsets = np.zeros(len(entries))
+                wander = pooled.drift_s
+                u = float(np.hypot(pooled.uncertainty_s, wander))
             phase = phase_error_deg(u, budget.band_hz)
-            if not phase <= budget.max_phase_deg:
-                raise SetupError(_refusal(budget, names, u, phase, None))
-            for j, _ in self.waiting[k]:
-                H_all[:, rows, j] *= np.exp(2j * np.pi * f * mean)[:, None]
-            msg = (
-                f"{budget.label}: {names}: the run's delay {1e6 * mean:+.1f} us (from "
-                f"{tau.size} inputs, wander {1e6 * wander:.1f} us beyond their fits' own "
-                f"uncertainties), within {1e6 * u:.1f} us "
-                f"({phase:.2f} deg at {budget.band_hz:g} Hz), removed"
-            )
+            if pooled is not None and phase <= budget.max_phase_deg:
+                for e, o in zip(entries, offsets, strict=True):
+                    H_all[:, rows, e.j] *= np.exp(2j * np.pi * f * (pooled.delay_s + o))[:, None]
+                msg = (
+                    f"{budget.label}: the run's delay {1e6 * pooled.delay_s:+.1f} us, fitted on "
+                    f"{pooled.n_inputs} inputs at once, within {1e6 * u:.1f} us "
+                    f"({phase:.2f} deg at {budget.band_hz:g} Hz; jackknife over inputs "
+                    f"{1e6 * pooled.jackknife_s:.1f} us, noise {1e6 * pooled.sigma_s:.1f} us, "
+                    f"its drift between the run's halves {1e6 * wander:.1f} us), removed from "
+                    "every input"
+                    + (
+                        f" with the clock fit's offset at its records ({1e6 * offsets.min():+.1f}"
+                        f" .. {1e6 * offsets.max():+.1f} us: the data fit better with it)"
+                        if np.any(offsets != 0.0)
+                        else " (the clock fit's offsets at their records, if any, fit the data "
+                        "worse)"
+                    )
+                    + f"; their own fits {1e6 * pooled.own_delays_s.min():+.1f} .. "
+                    f"{1e6 * pooled.own_delays_s.max():+.1f} us"
+                )
+            else:
+                weak = [e.where for e in entries if e.fit is None]
+                if weak and pooled is None:  # one input, too weak for its own fit
+                    raise SetupError(
+                        f"{budget.label}: {', '.join(weak)}: the data align its loads to the "
+                        "DAQ's clock within the budget on no input (no input's own fit met the "
+                        f"budget, netft_max_phase_deg = {budget.max_phase_deg:g} at "
+                        f"{budget.band_hz:g} Hz): the cell carries too little of the force for "
+                        "its delay to be told; lower netft_band_hz, or read the cell as loadcell "
+                        "= 'netft-can' or 'daq-channels'"
+                    )
+                if weak and pooled is not None:
+                    raise SetupError(
+                        _refusal(budget, ", ".join(weak), u, phase, None, (pooled, wander))
+                    )
+                for e in entries:
+                    assert e.fit is not None
+                    H_all[:, rows, e.j] *= np.exp(2j * np.pi * f * e.fit.delay_s)[:, None]
+                msg = f"{budget.label}: {names}: each input's own delay fit removed" + (
+                    f" (the run's delay {1e6 * pooled.delay_s:+.1f} us within {1e6 * u:.1f} us "
+                    "does not meet the budget: the inputs' delays differ)"
+                    if pooled is not None
+                    else ""
+                )
             log.info("%s", msg)
             messages.append(msg)
         return messages
+
+    @staticmethod
+    def _offsets(lc: LoadCell, entries: list[_Input]) -> NDArray[np.float64]:
+        """The cell's offsets of the inputs' alignment from its whole-run clock fit, about their
+        mean (0 where it cannot say)."""
+        ask = getattr(lc, "alignment_offsets_s", None)
+        got = ask([e.records for e in entries]) if ask is not None else None
+        if got is None:
+            return np.zeros(len(entries))
+        offsets = np.asarray(got, dtype=float)
+        known = np.isfinite(offsets)
+        return np.where(known, offsets - (offsets[known].mean() if known.any() else 0.0), 0.0)
+
+    def _pooled(
+        self,
+        f: NDArray[np.float64],
+        H_all: NDArray[np.complex128],
+        coherence_all: NDArray[np.float64],
+        rows: slice,
+        entries: list[_Input],
+        budget: DelayBudget,
+        names: str,
+        offsets: NDArray[np.float64],
+    ) -> PooledDelayFit:
+        Hs, ws, Xs = [], [], []
+        for e in entries:
+            fm, Hm, w, X = cell_rows(
+                f,
+                H_all[:, rows, e.j],
+                coherence_all[:, rows, e.j],
+                budget,
+                self._refs(H_all[..., e.j]),
+            )
+            Hs.append(Hm)
+            ws.append(w)
+            Xs.append(X)
+        try:
+            return fit_pooled_delay(
+                fm,
+                Hs,
+                ws,
+                search_s=budget.search_s,
+                regressors=Xs,
+                line_bandwidth=self.line_bandwidth,
+                offsets_s=offsets,
+            )
+        except ValueError as err:
+            raise SetupError(
+                f"{budget.label}: {names}: no delay fit from the data ({err}); set "
+                "netft_fit_lo_hz well below netft_band_hz in the rig file"
+            ) from err

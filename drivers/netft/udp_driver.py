@@ -62,12 +62,13 @@ import numpy as np
 from dimacq.devices.loadcell import LoadCellBlock, LoadCellEvent, LoadCellIdentity
 from dimacq.drivers.base import Deadline, WireDriver
 from dimacq.drivers.netft import protocol as p
+from dimacq.drivers.netft.rdt_stream import MIN_WINDOWS as _MIN_WINDOWS
+from dimacq.drivers.netft.rdt_stream import WINDOW_S as _WINDOW_S
+from dimacq.drivers.netft.rdt_stream import RdtRun as _Run
 from dimacq.drivers.stream import false_runs
 from dimacq.errors import DeviceError, DeviceTimeoutError, ProtocolError, SetupError
 from dimacq.pipeline.stream_alignment import (
-    ClockFit,
     DelayBudget,
-    fit_lower_envelope,
     lagrange4,
     phase_error_deg,
 )
@@ -80,11 +81,6 @@ log = logging.getLogger(__name__)
 _QUIET_S = 0.1
 #: Linux's SO_TIMESTAMPNS (= SCM_TIMESTAMPNS; the socket module does not name it)
 _SO_TIMESTAMPNS = 35
-#: host seconds per window of the lower-envelope fit
-_WINDOW_S = 0.2
-#: windows of arrivals before the DAQ starts (3 s of the host: the envelope's slope, fitted
-#: from then on, rests on two datagrams that waited least, a span apart: ~1 ppm at 3 s)
-_MIN_WINDOWS = 15
 #: how fast the samples' positions may move toward a changed clock fit, s per s of the lab
 #: (a crystal's few ppm): a 30 µs change is spread over 6 s, 5 µs across a 1 s record
 MAX_SLEW = 5e-6
@@ -100,92 +96,6 @@ def _empty(first: int) -> LoadCellBlock:
     return LoadCellBlock(
         first, np.zeros((6, 0)), np.zeros((6, 0)), np.zeros(0, bool), np.zeros(0, bool), ()
     )
-
-
-class _Run:
-    """One stream's records by index ``j = rdt_sequence − 1`` (NaN where lost) and its
-    datagrams' arrivals."""
-
-    def __init__(self, rdt_rate_hz: float, nominal_slope: float) -> None:
-        self.rdt_rate_hz = rdt_rate_hz
-        self.ft0: int | None = None  # ft_sequence of record 0
-        self._vals = np.full((4096, 6), np.nan)
-        self._bad = np.zeros((4096, 1))
-        self.end = 0  # one past the highest index received
-        self._n = 0  # datagrams
-        # the lowest arrival of each window (host s) against its record's sensor time: the
-        # lower envelope, kept as the datagrams come (the fit never looks at every arrival)
-        self._slope = nominal_slope
-        self._t_first: float | None = None
-        self._w: list[int] = []
-        self._t: list[float] = []
-        self._s: list[float] = []
-        self.next_sample = 0
-        self.checked = False
-        self.last_bad_status = 0
-        self._fit: ClockFit | None = None
-        self._fit_key: tuple[int, float] | None = None
-        #: records added to the clock fit's positions: what keeps them continuous from block
-        #: to block (see :meth:`NetFtUdp.read_until`)
-        self.corr = 0.0
-        #: the position the last block's mapping gives sample ``next_sample`` (None: no block yet)
-        self.u_next: float | None = None
-
-    @property
-    def n_arrivals(self) -> int:
-        return self._n
-
-    def put(
-        self, j: np.ndarray, counts: np.ndarray, status: np.ndarray, t: float, s_last: float
-    ) -> None:
-        top = int(j.max()) + 1
-        if top > self._vals.shape[0]:
-            n = max(top, 2 * self._vals.shape[0])
-            vals = np.full((n, 6), np.nan)
-            vals[: self._vals.shape[0]] = self._vals
-            bad = np.zeros((n, 1))
-            bad[: self._bad.shape[0]] = self._bad
-            self._vals, self._bad = vals, bad
-        self._vals[j] = counts
-        self._bad[j, 0] = status != 0
-        if np.any(status != 0):
-            self.last_bad_status = int(status[status != 0][-1])
-        self.end = max(self.end, top)
-        self._n += 1
-        if self._t_first is None:
-            self._t_first = t
-        w = int((t - self._t_first) / _WINDOW_S)
-        if self._w and self._w[-1] == w:
-            if t - self._slope * s_last < self._t[-1] - self._slope * self._s[-1]:
-                self._t[-1], self._s[-1] = t, s_last
-        else:
-            self._w.append(w)
-            self._t.append(t)
-            self._s.append(s_last)
-
-    def values(self) -> np.ndarray:
-        return self._vals[: self.end]
-
-    def flags(self) -> np.ndarray:
-        return self._bad[: self.end]
-
-    @property
-    def n_windows(self) -> int:
-        return len(self._w)
-
-    def fit(self, nominal_slope: float) -> ClockFit:
-        """The clock fit of the windows' minima (refitted when one of them changed)."""
-        key = (len(self._w), self._t[-1] - self._slope * self._s[-1]) if self._w else (0, 0.0)
-        if self._fit is None or self._fit_key != key:
-            self._fit = fit_lower_envelope(
-                np.asarray(self._s),
-                np.asarray(self._t),
-                nominal_slope=nominal_slope,
-                window_s=_WINDOW_S,
-                min_windows=_MIN_WINDOWS,
-            )
-            self._fit_key = key
-        return self._fit
 
 
 class NetFtUdp(WireDriver):
@@ -554,6 +464,7 @@ class NetFtUdp(WireDriver):
         u = u_fit + c0 + (c1 - c0) * (ks - first) / n
         if commit:
             run.corr, run.u_next = c1, float(u[-1])
+            run.blocks.append((first, float(u[0]), float(u[-1] - u[0]) / n))
         return u[:-1], delta
 
     def realign(self) -> None:
@@ -703,6 +614,28 @@ class NetFtUdp(WireDriver):
             overload,
             tuple(events),
         )
+
+    def alignment_offsets_s(self, records: list[list[tuple[int, int]]]) -> np.ndarray | None:
+        """How far each input's records were put from where the whole run's clock fit puts them
+        now, as a delay (s of the lab's time; None before a run): per input, over its records
+        ``(first_sample, n_samples)`` (nine points each), ``−mean(u_delivered − u_fit) /
+        f_RDT`` — the positions delivered (the fit of their time, slewed) against the fit over
+        every arrival. What the inputs share (the start window, the latency floor) is the
+        run's delay's, not theirs: take them about their mean. NaN: an input without records
+        of this run."""
+        run = self._run
+        if run is None or not run.blocks or self._daq_window is None:
+            return None
+        b_first, b_u, b_step = (np.array(c) for c in zip(*run.blocks, strict=True))
+        out = np.full(len(records), np.nan)
+        for i, recs in enumerate(records):
+            if not recs:
+                continue
+            ks = np.concatenate([s0 + np.linspace(0.0, n - 1, 9) for s0, n in recs])
+            b = np.clip(np.searchsorted(b_first, ks, side="right") - 1, 0, None)
+            u = b_u[b] + b_step[b] * (ks - b_first[b])
+            out[i] = -float(np.mean(u - self._positions(ks, fit_only=True)[0])) / self.rdt_rate_hz
+        return out
 
     def stop(self) -> int:
         """STOP; the records still on their way taken; the DAQ samples they cover."""

@@ -46,7 +46,7 @@ def _rig_file(tmp_path: Path, name: str = "config", **items: float | str) -> Pat
 WALL_TIME = {"enabled": False, "daq_free_running": True, "daq_time_scale": 1.0}
 
 
-def _impact(tmp_path: Path, loadcell: str, rig_file: Path | None = None) -> Any:
+def _impact(tmp_path: Path, loadcell: str, rig_file: Path | None = None, n_inputs: int = 1) -> Any:
     extra: dict[str, Any] = {} if rig_file is None else {"rig_file": str(rig_file)}
     settings = load_settings(
         data_dir=tmp_path / loadcell,
@@ -56,7 +56,7 @@ def _impact(tmp_path: Path, loadcell: str, rig_file: Path | None = None) -> Any:
         **extra,
     )
     setup = build_scenario(settings.scenario).model.setup
-    setup = setup.model_copy(update={"excitations": setup.excitations[:1]})
+    setup = setup.model_copy(update={"excitations": setup.excitations[:n_inputs]})
     cfg = {"averages_per_input": 2, "record_samples": 2048, "seed": 4}
     rig = rig_builder.build_rig(settings, setup, cfg)
     try:
@@ -125,6 +125,29 @@ def test_the_data_time_base_where_the_host_clock_is_refused(tmp_path: Path) -> N
     assert np.all(np.abs(np.median(dphi, axis=0)) < 10.0), np.median(dphi, axis=0)
     ratio = np.median(np.abs(got[:, big] / ref[:, big]), axis=0)
     assert np.all(np.abs(ratio - 1) < 0.05), ratio
+
+
+def test_one_delay_fitted_on_every_input_of_the_run(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Four inputs through the acquisition: each input's records are kept as they come, the
+    run's delay is fitted on the four at once at the end (the driver asked for its clock
+    fit's offsets at the inputs' records) and removed from every input: each input's load
+    cell FRFs then follow the CAN FD amplifier's from 5 to 150 Hz within the budget (10° at
+    655 Hz) plus the noise of two averages."""
+    caplog.set_level("INFO", logger="dimacq.services.data_alignment")
+    budget = {"netft_max_phase_deg": 10.0}
+    amp = _impact(tmp_path, "simulated", n_inputs=4)
+    ft = _impact(tmp_path, "netft-udp-simulated", _rig_file(tmp_path, **budget), n_inputs=4)
+    pooled = [r.getMessage() for r in caplog.records if "inputs at once" in r.getMessage()]
+    assert len(pooled) == 1 and "fitted on 4 inputs at once" in pooled[0], pooled
+    f = ft.frequencies_hz
+    band = (f >= 5) & (f <= 150)
+    for j in range(4):
+        ref, got = amp.H[band, 24:30, j], ft.H[band, 24:30, j]
+        big = np.argsort(np.abs(ref).mean(axis=0))[-3:]
+        dphi = np.degrees(np.angle(got[:, big] / ref[:, big]))
+        assert np.all(np.abs(np.median(dphi, axis=0)) < 10.0), (j, np.median(dphi, axis=0))
 
 
 def test_refused_where_the_data_cannot_support_the_alignment(tmp_path: Path) -> None:

@@ -9,7 +9,7 @@ import pytest
 
 from dimacq.errors import SetupError
 from dimacq.pipeline.stream_alignment import DelayBudget
-from dimacq.services.data_alignment import DataAligner, align_rows, run_delay
+from dimacq.services.data_alignment import DataAligner, align_rows
 
 F = np.arange(0.5, 1024.0, 0.5)
 
@@ -61,50 +61,118 @@ def _input(rng: np.random.Generator, tau: float, noise: float = 0.0) -> tuple:
 
 
 def test_only_the_cells_that_ask_are_aligned_in_place_against_the_responses() -> None:
-    """Equation (1): the first cell delayed 300 µs and aligned against the responses, the
-    second (on the DAQ's clock) left alone, the responses untouched."""
+    """Equation (1): the first cell delayed 300 µs and aligned against the responses at the
+    end of the run (one input: its own fit), the second (on the DAQ's clock) left alone, the
+    responses untouched."""
     rng = np.random.default_rng(4)
     H, coh, acc, cells = _input(rng, 3e-4)
     aligner = DataAligner([_Cell(BUDGET), _Cell(None)], [6, 6], 3)
     msgs = aligner.align(0, F, H, coh, "input 7")
-    assert len(msgs) == 1 and "input 7: residual delay +300.0 us" in msgs[0]
+    assert len(msgs) == 1 and "input 7: own delay fit +300.0 us" in msgs[0]
+    assert np.array_equal(H[:, 3:9], _input(np.random.default_rng(4), 3e-4)[0][:, 3:9])
+    (msg,) = aligner.finish(F, H[:, :, None], coh[:, :, None])
+    assert "input 7: each input's own delay fit removed" in msg
     np.testing.assert_allclose(H[:, 3:9], cells[0], rtol=1e-4)
     assert np.array_equal(H[:, :3], acc) and np.array_equal(H[:, 9:], cells[1])
-    assert aligner.finish(F, H[:, :, None]) == []  # nothing waited
 
 
-def test_an_input_too_weak_for_its_own_fit_takes_the_runs_delay() -> None:
-    """Inputs 0, 1 meet the budget on their own (delays 300 and 302 µs); input 2's cell loads
-    are lost in noise: it waits, and at the end takes the inverse-variance mean (~301 µs), its
-    uncertainty the inputs' wander beyond their fits' errors (noise-free fits: 2 µs apart, an
-    ω of √2 µs, 0.41° at 655 Hz with the mean's error)."""
-    rng = np.random.default_rng(8)
-    H_all = np.zeros((F.size, 15, 3), dtype=complex)
-    aligner = DataAligner([_Cell(BUDGET), _Cell(None)], [6, 6], 3)
-    truth = []
-    for j, (tau, noise) in enumerate([(300e-6, 0.0), (302e-6, 0.0), (301e-6, 3.0)]):
+class _Wandering(_Cell):
+    """A cell that says how far its alignment was off at each input's records (s)."""
+
+    def __init__(self, budget: DelayBudget, offsets: list[float]) -> None:
+        super().__init__(budget)
+        self.offsets = offsets
+        self.asked: list[list[tuple[int, int]]] = []
+
+    def alignment_offsets_s(self, records: list[list[tuple[int, int]]]) -> np.ndarray:
+        self.asked = records
+        return np.array(self.offsets)
+
+
+def _run(
+    rng: np.random.Generator, cell: _Cell, taus: list[float], noises: list[float]
+) -> tuple[DataAligner, np.ndarray, np.ndarray, list[str], list[np.ndarray]]:
+    aligner = DataAligner([cell], [6], 3)
+    H_all = np.zeros((F.size, 9, len(taus)), dtype=complex)
+    coh_all = np.zeros(H_all.shape)
+    msgs, truth = [], []
+    for j, (tau, noise) in enumerate(zip(taus, noises, strict=True)):
         H, coh, _, cells = _input(rng, tau, noise)
-        msgs = aligner.align(j, F, H, coh, f"input {j}")
-        assert ("takes the run's delay" in msgs[0]) == (j == 2)
-        H_all[:, :, j] = H
+        msgs += aligner.align(j, F, H[:, :9], coh[:, :9], f"input {j}", [(1000 * j, 512)])
+        H_all[:, :, j], coh_all[:, :, j] = H[:, :9], coh[:, :9]
         truth.append(cells[0])
-    before = H_all[:, 3:9, 2].copy()
-    (msg,) = aligner.finish(F, H_all)
-    assert "input 2: the run's delay +301.0 us (from 2 inputs, wander 1.4 us" in msg
-    np.testing.assert_allclose(H_all[:, 3:9, 2], before * np.exp(2j * np.pi * F * 301e-6)[:, None])
-    # a wander the budget does not allow: refused, naming the waiting input
-    aligner = DataAligner([_Cell(BUDGET)], [6], 3)
-    for j, (tau, noise) in enumerate([(300e-6, 0.0), (340e-6, 0.0), (301e-6, 3.0)]):
-        H, coh, _, _ = _input(rng, tau, noise)
-        aligner.align(j, F, H[:, :9], coh[:, :9], f"input {j}")
-    with pytest.raises(SetupError, match=r"input 2: the data align .*the run's delay and its"):
-        aligner.finish(F, H_all[:, :9])
-    # no input met it on its own
-    aligner = DataAligner([_Cell(BUDGET)], [6], 3)
-    H, coh, _, _ = _input(rng, 300e-6, 3.0)
-    aligner.align(0, F, H[:, :9], coh[:, :9], "input 0")
+    return aligner, H_all, coh_all, msgs, truth
+
+
+def test_every_input_takes_the_runs_delay_fitted_on_all_of_them_at_once() -> None:
+    """Six inputs with one delay (300 µs) but for the offsets the cell knows its alignment had
+    at their records (−20 .. +30 µs), two of them too weak for their own fit: the joint fit
+    recovers the delay (at the offsets' mean) within its stated uncertainty, every input is
+    aligned by it and its own offset, and the run's halves agree (no drift)."""
+    rng = np.random.default_rng(8)
+    offsets = [10e-6, -20e-6, 30e-6, 0.0, -5e-6, 3e-6]
+    cell = _Wandering(BUDGET, offsets)
+    taus, noises = [300e-6 + o for o in offsets], [0.05, 0.05, 3.0, 0.05, 3.0, 0.05]
+    aligner, H_all, coh_all, msgs, _ = _run(rng, cell, taus, noises)
+    assert [("takes the run's delay" in m) for m in msgs] == [
+        False,
+        False,
+        True,
+        False,
+        True,
+        False,
+    ]
+    before = H_all.copy()
+    (msg,) = aligner.finish(F, H_all, coh_all)
+    assert cell.asked == [[(1000 * j, 512)] for j in range(6)]
+    got = float(msg.split("the run's delay ")[1].split(" us")[0]) * 1e-6
+    u = float(msg.split("within ")[1].split(" us")[0]) * 1e-6
+    drift = float(msg.split("between the run's halves ")[1].split(" us")[0]) * 1e-6
+    assert "fitted on 6 inputs at once" in msg and drift < 1e-6
+    assert "offset at its records (-23.0 .. +27.0 us" in msg
+    assert u < 2e-6 and abs(got - 303e-6) < max(u, 0.2e-6)
+    # every input's cell rows multiplied by the one delay and its offset, nothing else touched
+    turn = np.exp(2j * np.pi * F[:, None, None] * (got + np.array(offsets) - 3e-6))
+    np.testing.assert_allclose(H_all[:, 3:9], before[:, 3:9] * turn, rtol=1e-3)
+    assert np.array_equal(H_all[:, :3], before[:, :3])
+    # offsets the data do not carry (every input truly at 300 µs): the fit without them is
+    # the better one, and every input takes the one delay
+    cell = _Wandering(BUDGET, offsets)
+    aligner, H_all, coh_all, _, _ = _run(rng, cell, [300e-6] * 6, noises)
+    (msg,) = aligner.finish(F, H_all, coh_all)
+    assert "fit the data worse" in msg
+    got = float(msg.split("the run's delay ")[1].split(" us")[0]) * 1e-6
+    assert abs(got - 300e-6) < 0.5e-6
+
+
+def test_inputs_whose_delays_truly_differ_are_refused() -> None:
+    """Delays 40 µs apart (10° at 655 Hz): the jackknife over inputs says so, the run's delay
+    does not meet the budget; the inputs strong enough keep their own fits, and the run is
+    refused when one is too weak for its own — naming it; so too with a drift over the run."""
+    rng = np.random.default_rng(9)
+    taus = [280e-6, 320e-6, 280e-6, 320e-6]
+    aligner, H_all, coh_all, _, truth = _run(rng, _Cell(BUDGET), taus, [0.02] * 4)
+    (msg,) = aligner.finish(F, H_all, coh_all)
+    assert "each input's own delay fit removed (the run's delay" in msg
+    np.testing.assert_allclose(
+        H_all[:, 3:9, 1], truth[1], rtol=0.2, atol=0.2 * np.abs(truth[1]).max()
+    )
+    aligner, H_all, coh_all, _, _ = _run(rng, _Cell(BUDGET), taus + [300e-6], [0.02] * 4 + [3.0])
+    with pytest.raises(
+        SetupError,
+        match=r"input 4: the data align .*the run.s delay .* fitted on 5 inputs at once: jackknife",
+    ):
+        aligner.finish(F, H_all, coh_all)
+    # a drift over the run (285 .. 315 µs): the halves' delays are 15 µs apart, the inputs
+    # ~9 µs from the run's mean, beyond the budget
+    taus = list(np.linspace(285e-6, 315e-6, 6))
+    aligner, H_all, coh_all, _, _ = _run(rng, _Cell(BUDGET), taus, [0.02] * 5 + [3.0])
+    with pytest.raises(SetupError, match=r"input 5: .*drift between the run's halves (8|9)\."):
+        aligner.finish(F, H_all, coh_all)
+    # one input, too weak for its own fit: nothing to pool
+    aligner, H_all, coh_all, _, _ = _run(rng, _Cell(BUDGET), [300e-6], [3.0])
     with pytest.raises(SetupError, match="no input's own fit met the budget"):
-        aligner.finish(F, H_all[:, :9, :1])
+        aligner.finish(F, H_all, coh_all)
 
 
 def test_refused_when_the_data_cannot_support_the_budget() -> None:
@@ -122,21 +190,3 @@ def test_refused_when_the_data_cannot_support_the_budget() -> None:
     assert abs(fit.delay_s - 2e-4) < 4 * fit.uncertainty_s and phase <= 120.0
     with pytest.raises(SetupError, match=r"no delay fit from the data .* netft_fit_lo_hz"):
         align_rows(F, H0, coh, DelayBudget(2e-3, 700.0, 655.36, 2.0, "cell"), "input 3")
-
-
-def test_the_runs_wander_is_what_the_fits_own_errors_do_not_explain() -> None:
-    """Fits ``τ_i = τ̄ + w_i + e_i`` drawn with known spreads: the wander ``ω`` of the ``w_i`` is
-    recovered, not the scatter of the ``τ_i`` (which holds the fits' errors ``σ_i`` too), and is
-    ~0 when the inputs differ by their fits' errors alone."""
-    rng = np.random.default_rng(3)
-    k = 400
-    sigma = rng.uniform(2e-6, 6e-6, k)
-    for omega in (0.0, 5e-6):
-        tau = 20e-6 + omega * rng.standard_normal(k) + sigma * rng.standard_normal(k)
-        mean, sem, wander = run_delay(tau, sigma)
-        assert wander == pytest.approx(omega, abs=1e-6)
-        assert abs(mean - 20e-6) < 4 * sem
-        # the scatter of the fits, the old measure, is well above the wander
-        assert np.std(tau) > wander + 1e-6
-    # one fit: nothing to tell a wander from
-    assert run_delay(np.array([1e-6]), np.array([2e-6])) == pytest.approx((1e-6, 2e-6, 0.0))

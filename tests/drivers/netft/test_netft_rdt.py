@@ -330,5 +330,13 @@ def test_positions_stay_continuous_when_the_clock_fit_moves() -> None:
         np.testing.assert_allclose(
             nxt, drv._positions(np.arange(256 * 40.0, 256 * 41.0), fit_only=True)[0]
         )
+        # what the acquisition asks at the end: records of the first blocks were placed by the
+        # line 60 µs late (a delay of +60 µs against the final fit), the last one on the fit
+        offsets = drv.alignment_offsets_s([[(0, 512)], [(256 * 40, 256)], [(256 * 30, 256)], []])
+        assert offsets is not None
+        assert offsets[0] == pytest.approx(60e-6, abs=0.5e-6)
+        assert offsets[1] == pytest.approx(0.0, abs=1e-9)
+        assert 0.0 < offsets[2] < 60e-6  # still turning toward the fit at MAX_SLEW
+        assert np.isnan(offsets[3])  # no records of this run
     finally:
         sock.close()
