@@ -46,10 +46,26 @@ def _rig_file(tmp_path: Path, name: str = "config", **items: float | str) -> Pat
 WALL_TIME = {"enabled": False, "daq_free_running": True, "daq_time_scale": 1.0}
 
 
-def _impact(tmp_path: Path, loadcell: str, rig_file: Path | None = None, n_inputs: int = 1) -> Any:
+#: the load cell carries the article (its rigid-body modes on the cell, 137 Hz and up): its loads
+#: are the strike's. On the bungee the cell carries ~0.1 % of the hammer's force above the
+#: suspension's modes, and the swing of earlier strikes, which depends on when each strike falls
+#: (the DAQ's clock, wall time), dominates two averages: two runs' cell FRFs differ by tens of
+#: degrees there, whatever the alignment.
+GROUND = "calibration-mass-ground"
+
+
+def _impact(
+    tmp_path: Path,
+    loadcell: str,
+    rig_file: Path | None = None,
+    n_inputs: int = 1,
+    scenario: str | None = None,
+) -> Any:
     extra: dict[str, Any] = {} if rig_file is None else {"rig_file": str(rig_file)}
+    if scenario is not None:
+        extra["scenario"] = scenario
     settings = load_settings(
-        data_dir=tmp_path / loadcell,
+        data_dir=tmp_path / f"{loadcell}-{scenario}",
         token="t",
         loadcell=loadcell,
         simulation_imperfections=WALL_TIME,
@@ -95,13 +111,12 @@ def test_refused_where_the_host_clock_costs_too_much_phase(tmp_path: Path) -> No
 def test_the_data_time_base_where_the_host_clock_is_refused(tmp_path: Path) -> None:
     """10° at the automatic band's top (655 Hz): the host's clock alone (~0.1 ms here, 24°) is
     refused; the data's fit of the input's residual delay (its cell FRFs against its
-    accelerometer FRFs) meets it, and the load cell FRFs then follow the CAN FD amplifier's
-    (the same bridges, read on the DAQ's clock) from 5 to 150 Hz: phase within the budget plus
-    the noise of two averages, magnitude within the sensor's 0.2 % certificate error and the
-    noise, on the loads the strike drives (below). Not above: the positions' jumps between blocks that made the RDT path lag by a
-    phase growing with frequency and differing per load are gone (continuity:
-    ``test_positions_stay_continuous_when_the_clock_fit_moves``), but a shift taken out in the
-    FRF domain leaves 1–6° per load at 450–655 Hz (see the README, RDT)."""
+    accelerometer FRFs) meets it, and, on the article bolted to the cell (``GROUND``), the load
+    cell FRFs then follow the CAN FD amplifier's (the same bridges, read on the DAQ's clock) over
+    the whole band, 50–655 Hz: median phase within half the budget (a delay error at the budget
+    costs 10° at 655 Hz, 5° on average over the band; measured 0.03–0.2°), magnitude within
+    the sensor's 0.2 % certificate error and the noise of two averages, on the two loads the
+    strike drives most."""
     budget = {"netft_max_phase_deg": 10.0}
     with pytest.raises(SetupError, match=r"netft_max_phase_deg = 10\); lower netft_band_hz"):
         _impact(
@@ -109,20 +124,18 @@ def test_the_data_time_base_where_the_host_clock_is_refused(tmp_path: Path) -> N
             "netft-udp-simulated",
             _rig_file(tmp_path, "host", **budget, netft_time_base='"host"'),
         )
-    amp = _impact(tmp_path, "simulated")
-    ft = _impact(tmp_path, "netft-udp-simulated", _rig_file(tmp_path, **budget))
+    amp = _impact(tmp_path, "simulated", scenario=GROUND)
+    ft = _impact(tmp_path, "netft-udp-simulated", _rig_file(tmp_path, **budget), scenario=GROUND)
     f = ft.frequencies_hz
-    band = (f >= 5) & (f <= 150)
+    band = (f >= 50) & (f <= 655)  # netft_fit_lo_hz to the automatic band's top
     lc = slice(24, 30)
     ref, got = amp.H[band, lc, 0], ft.H[band, lc, 0]
-    # the two loads the strike explains best (coherence): on the bungee the others carry the
-    # suspension's swing from the first strike through the second record, which depends on when
-    # the second strike falls (the DAQ's clock, wall time: not the same in two runs; the
-    # vertical load differs by 200 % between two runs of the same path)
+    # the two loads the strike explains best (coherence; the others carry the 45° cell's
+    # cross-talk and the sensor's certificate error)
     assert amp.coherence is not None
     big = np.argsort(np.median(amp.coherence[band, lc, 0], axis=0))[-2:]
     dphi = np.degrees(np.angle(got[:, big] / ref[:, big]))
-    assert np.all(np.abs(np.median(dphi, axis=0)) < 10.0), np.median(dphi, axis=0)
+    assert np.all(np.abs(np.median(dphi, axis=0)) < 5.0), np.median(dphi, axis=0)
     ratio = np.median(np.abs(got[:, big] / ref[:, big]), axis=0)
     assert np.all(np.abs(ratio - 1) < 0.05), ratio
 
@@ -133,21 +146,26 @@ def test_one_delay_fitted_on_every_input_of_the_run(
     """Four inputs through the acquisition: each input's records are kept as they come, the
     run's delay is fitted on the four at once at the end (the driver asked for its clock
     fit's offsets at the inputs' records) and removed from every input: each input's load
-    cell FRFs then follow the CAN FD amplifier's from 5 to 150 Hz within the budget (10° at
-    655 Hz) plus the noise of two averages."""
+    cell FRFs then follow the CAN FD amplifier's over 50–655 Hz (median phase within half the
+    budget of 10° at 655 Hz; measured up to 1.5°), on the article bolted to the cell
+    (``GROUND``), on the two loads the strike drives most."""
     caplog.set_level("INFO", logger="dimacq.services.data_alignment")
     budget = {"netft_max_phase_deg": 10.0}
-    amp = _impact(tmp_path, "simulated", n_inputs=4)
-    ft = _impact(tmp_path, "netft-udp-simulated", _rig_file(tmp_path, **budget), n_inputs=4)
+    amp = _impact(tmp_path, "simulated", n_inputs=4, scenario=GROUND)
+    ft = _impact(
+        tmp_path, "netft-udp-simulated", _rig_file(tmp_path, **budget), n_inputs=4, scenario=GROUND
+    )
     pooled = [r.getMessage() for r in caplog.records if "inputs at once" in r.getMessage()]
     assert len(pooled) == 1 and "fitted on 4 inputs at once" in pooled[0], pooled
     f = ft.frequencies_hz
-    band = (f >= 5) & (f <= 150)
+    band = (f >= 50) & (f <= 655)  # netft_fit_lo_hz to the automatic band's top
+    assert amp.coherence is not None
     for j in range(4):
         ref, got = amp.H[band, 24:30, j], ft.H[band, 24:30, j]
-        big = np.argsort(np.abs(ref).mean(axis=0))[-3:]
+        # the loads the strike explains best (as in the test above)
+        big = np.argsort(np.median(amp.coherence[band, 24:30, j], axis=0))[-2:]
         dphi = np.degrees(np.angle(got[:, big] / ref[:, big]))
-        assert np.all(np.abs(np.median(dphi, axis=0)) < 10.0), (j, np.median(dphi, axis=0))
+        assert np.all(np.abs(np.median(dphi, axis=0)) < 5.0), (j, np.median(dphi, axis=0))
 
 
 def test_refused_where_the_data_cannot_support_the_alignment(tmp_path: Path) -> None:
