@@ -15,6 +15,14 @@ the run's halves (:meth:`DataAligner.finish`). Every input takes
 that delay when it meets the budget; otherwise each takes its own fit where that meets it, and
 the run is refused (:class:`~dimacq.errors.SetupError`, one line) when one does not: the data
 could not support the alignment.
+
+The budget is what the delay's uncertainty may cost the equations DIM solves: ``360 f δτ``
+degrees of the cell's FRF phase at ``band_hz``, times the cell's share of the force balance
+(:func:`force_share`: 1 for a cell that carries the article, ~1e-3 for the load cell of a
+soft suspension, whose loads above the suspension's modes are ~0.1 % of the hammer's force and
+whose phase DIM barely uses). On such a cell the run's delay is ill-determined (each input's
+cell FRFs of a few averages hold the suspension's swing of earlier strikes, as large as the
+strike's own load) and does not need to be well determined.
 """
 
 from __future__ import annotations
@@ -37,7 +45,7 @@ from dimacq.pipeline.stream_alignment import (
     phase_error_deg,
 )
 
-__all__ = ["DataAligner", "align_rows", "cell_rows"]
+__all__ = ["DataAligner", "align_rows", "cell_rows", "force_share"]
 
 log = logging.getLogger(__name__)
 
@@ -122,7 +130,7 @@ def _refusal(
     u_s: float,
     phase: float,
     fit: DelayFit | None,
-    pooled: tuple[PooledDelayFit, float] | None = None,
+    pooled: tuple[PooledDelayFit, float, float] | None = None,
 ) -> str:
     how = (
         f" ({1e6 * fit.sigma_s:.1f} us statistical, {1e6 * fit.spread_s:.1f} us between the "
@@ -131,11 +139,12 @@ def _refusal(
         else " (the run's delay: its error and the alignment's wander between inputs)"
     )
     if pooled is not None:
-        p, wander = pooled
+        p, wander, share = pooled
         how = (
             f" (the run's delay {1e6 * p.delay_s:+.1f} us fitted on {p.n_inputs} inputs at once: "
             f"jackknife over inputs {1e6 * p.jackknife_s:.1f} us, noise {1e6 * p.sigma_s:.1f} us, "
-            f"its drift between the run's halves {1e6 * wander:.1f} us)"
+            f"its drift between the run's halves {1e6 * wander:.1f} us; the cell's share of the "
+            f"force balance {share:.3g}: {phase * share:.3g} deg of it)"
         )
     return (
         f"{budget.label}: {where}: the data align its loads to the DAQ's clock within only "
@@ -144,6 +153,54 @@ def _refusal(
         "of the force for its delay to be told; lower netft_band_hz, or read the cell as "
         "loadcell = 'netft-can' or 'daq-channels'"
     )
+
+
+#: Moments count in the force balance's share (:func:`force_share`) as forces at this lever
+#: arm, m: short, so that a cell's moments weigh more than they do about a larger article.
+SHARE_LEVER_M = 0.1
+
+
+def force_share(
+    frequencies_hz: NDArray[np.float64],
+    H_cell: NDArray[np.complex128],
+    budget: DelayBudget,
+    inputs: Sequence[int],
+) -> float:
+    """The largest share of the force balance one cell carries on the budget's lines, over
+    ``inputs``: what a phase error of its loads costs the equations DIM solves.
+
+    Per input and line the DIM balance is ``f_in + F_cell = M a`` (with the moments likewise);
+    a delay error ``δτ`` of the cell turns ``F_cell`` by ``ωδτ``, an error ``ωδτ |F_cell|``
+    against a balance of size ``|f_in| + |F_cell|`` (the hammer's ``f_in`` is the unit of the
+    FRFs). So the phase budget, which asks for ``ωδτ`` itself on a cell that carries the
+    article, costs the balance ``ωδτ · s`` with
+
+        s = median over the lines of ‖F_cell‖ / (1 + ‖F_cell‖),   ‖F‖² = |F|² + |T / L|²
+
+    (``L`` = :data:`SHARE_LEVER_M`), the largest over the inputs; ``s`` → 1 for a cell that
+    carries the article (the budget unchanged), ~1e-3 on a soft suspension whose cell carries
+    ~0.1 % of the hammer's force above its modes (a delay error there changes nothing DIM
+    uses). A cell read as anything but its six loads (forces, then moments: ``H_cell`` of 6
+    rows) counts as 1.
+
+    Parameters
+    ----------
+    H_cell : ndarray, shape (n_lines, n_rows, n_inputs)
+        The cell's FRFs per unit hammer force.
+    """
+    if H_cell.shape[1] != 6:
+        return 1.0
+    f = np.asarray(frequencies_hz, dtype=float)
+    m = (f >= budget.lo_hz) & (f <= budget.band_hz)
+    Hm = np.nan_to_num(H_cell[m][:, :, list(inputs)])
+    if Hm.shape[0] == 0:
+        return 1.0
+    mag = np.sqrt(
+        np.sum(np.abs(Hm[:, :3]) ** 2, axis=1)
+        + np.sum(np.abs(Hm[:, 3:] / SHARE_LEVER_M) ** 2, axis=1)
+    )  # (lines, inputs)
+    s = np.median(mag / (1.0 + mag), axis=0)
+    return float(np.max(s))
 
 
 @dataclass
@@ -173,7 +230,8 @@ class DataAligner:
     better with them than without. An input taking ``τ̂`` is off by ``τ̂``'s error and by
     how far the delay drifted at its records, which the data tell by the run's halves
     fitted apart (``drift_s``); every input takes ``τ̂`` when ``√(se² + drift²)`` meets the
-    budget (``se`` never below the noise's ``σ``). Otherwise — the inputs' delays truly
+    budget (``se`` never below the noise's ``σ``; its phase at ``band_hz`` weighed by the
+    cell's share of the force balance, :func:`force_share`). Otherwise — the inputs' delays truly
     differ, or the data say too little — each input takes its own fit where that meets the
     budget, and the run is refused (:class:`~dimacq.errors.SetupError`, one line) when any
     input's does not: the data could not support the alignment. One input: its own fit.
@@ -286,7 +344,8 @@ class DataAligner:
                 wander = pooled.drift_s
                 u = float(np.hypot(pooled.uncertainty_s, wander))
             phase = phase_error_deg(u, budget.band_hz)
-            if pooled is not None and phase <= budget.max_phase_deg:
+            share = force_share(f, H_all[:, rows], budget, [e.j for e in entries])
+            if pooled is not None and phase * share <= budget.max_phase_deg:
                 for e, o in zip(entries, offsets, strict=True):
                     H_all[:, rows, e.j] *= np.exp(2j * np.pi * f * (pooled.delay_s + o))[:, None]
                 msg = (
@@ -294,8 +353,9 @@ class DataAligner:
                     f"{pooled.n_inputs} inputs at once, within {1e6 * u:.1f} us "
                     f"({phase:.2f} deg at {budget.band_hz:g} Hz; jackknife over inputs "
                     f"{1e6 * pooled.jackknife_s:.1f} us, noise {1e6 * pooled.sigma_s:.1f} us, "
-                    f"its drift between the run's halves {1e6 * wander:.1f} us), removed from "
-                    "every input"
+                    f"its drift between the run's halves {1e6 * wander:.1f} us; the cell's "
+                    f"share of the force balance {share:.3g}: {phase * share:.3g} deg of it), "
+                    "removed from every input"
                     + (
                         f" with the clock fit's offset at its records ({1e6 * offsets.min():+.1f}"
                         f" .. {1e6 * offsets.max():+.1f} us: the data fit better with it)"
@@ -319,7 +379,7 @@ class DataAligner:
                     )
                 if weak and pooled is not None:
                     raise SetupError(
-                        _refusal(budget, ", ".join(weak), u, phase, None, (pooled, wander))
+                        _refusal(budget, ", ".join(weak), u, phase, None, (pooled, wander, share))
                     )
                 for e in entries:
                     assert e.fit is not None

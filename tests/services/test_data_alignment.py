@@ -9,7 +9,8 @@ import pytest
 
 from dimacq.errors import SetupError
 from dimacq.pipeline.stream_alignment import DelayBudget
-from dimacq.services.data_alignment import DataAligner, align_rows
+from dimacq.services import data_alignment
+from dimacq.services.data_alignment import DataAligner, align_rows, force_share
 
 F = np.arange(0.5, 1024.0, 0.5)
 
@@ -145,7 +146,14 @@ def test_every_input_takes_the_runs_delay_fitted_on_all_of_them_at_once() -> Non
     assert abs(got - 300e-6) < 0.5e-6
 
 
-def test_inputs_whose_delays_truly_differ_are_refused() -> None:
+@pytest.fixture
+def carrying(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The cell carries the article (its share of the force balance 1: the budget applies to
+    its own phase, :func:`force_share`)."""
+    monkeypatch.setattr(data_alignment, "force_share", lambda *a: 1.0)
+
+
+def test_inputs_whose_delays_truly_differ_are_refused(carrying: None) -> None:
     """Delays 40 µs apart (10° at 655 Hz): the jackknife over inputs says so, the run's delay
     does not meet the budget; the inputs strong enough keep their own fits, and the run is
     refused when one is too weak for its own — naming it; so too with a drift over the run."""
@@ -190,3 +198,29 @@ def test_refused_when_the_data_cannot_support_the_budget() -> None:
     assert abs(fit.delay_s - 2e-4) < 4 * fit.uncertainty_s and phase <= 120.0
     with pytest.raises(SetupError, match=r"no delay fit from the data .* netft_fit_lo_hz"):
         align_rows(F, H0, coh, DelayBudget(2e-3, 700.0, 655.36, 2.0, "cell"), "input 3")
+
+
+def test_the_budget_weighs_the_cells_share_of_the_force_balance() -> None:
+    """``s = median ‖F‖/(1 + ‖F‖)`` (moments at 0.1 m): closed form on constant loads; a cell
+    carrying 1e-3 of the hammer's force (a soft suspension) costs the balance 1e-3 of its phase
+    error, so the run whose delays differ by 40 µs (refused on a cell that carries the article,
+    above) takes the one delay, the message naming the share; refused again when the drift is
+    beyond that (a cell carrying more than half the force, an input too weak for its own)."""
+    H = np.zeros((F.size, 6, 2), dtype=complex)
+    H[:, 0, 0], H[:, 4, 1] = 3.0, 0.05 * 1j  # 3 N/N; 0.05 N·m/N = 0.5 at 0.1 m
+    assert force_share(F, H, BUDGET, [0]) == pytest.approx(0.75)
+    assert force_share(F, H, BUDGET, [0, 1]) == pytest.approx(0.75)
+    assert force_share(F, H, BUDGET, [1]) == pytest.approx(1 / 3)
+    assert force_share(F, H[:, :5], BUDGET, [0]) == 1.0  # not six loads: counts as carrying
+    rng = np.random.default_rng(9)
+    taus = [280e-6, 320e-6, 280e-6, 320e-6]
+    aligner, H_all, coh_all, _, _ = _run(rng, _Cell(BUDGET), taus, [0.02] * 4)
+    H_all[:, 3:9] *= 1e-3 / np.abs(H_all[:, 3:9]).max()
+    (msg,) = aligner.finish(F, H_all, coh_all)
+    assert "fitted on 4 inputs at once" in msg and "removed from every input" in msg
+    share = float(msg.split("share of the force balance ")[1].split(":")[0])
+    assert 1e-5 < share < 0.03  # loads at most 1e-3 N/N (moments: 1e-2 at 0.1 m)
+    aligner, H_all, coh_all, _, _ = _run(rng, _Cell(BUDGET), taus + [300e-6], [0.02] * 4 + [3.0])
+    H_all[:, 3:9] *= 30.0 / np.abs(H_all[:, 3:9]).max()
+    with pytest.raises(SetupError, match=r"input 4: .*share of the force balance 0\.[5-9]"):
+        aligner.finish(F, H_all, coh_all)
