@@ -290,8 +290,13 @@ class JobManager:
         """Ask a job to stop (it stops at its next check); final jobs are left as they are. A
         queued job nobody claimed yet is cancelled in the store."""
         job = self.get(job_id)
-        if job is None and self.store is not None and self.store.load(job_id) is not None:
-            return self.store.cancel(job_id)
+        if job is None and self.store is not None:
+            # a claim of this process in progress (claimed in the store, not yet submitted
+            # here) ends first: the job is then this process's to cancel, not "another stand's"
+            with self._claim_lock:
+                job = self.get(job_id)
+                if job is None and self.store.load(job_id) is not None:
+                    return self.store.cancel(job_id)
         if job is None:
             raise SetupError(f"job {job_id!r} does not exist; list jobs to find its id")
         if not job.done:

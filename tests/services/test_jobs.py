@@ -96,3 +96,59 @@ def test_shutdown_cancels_running_jobs() -> None:
     job = mgr.submit("t", work)
     mgr.shutdown(5)
     assert mgr.snapshot(job.id)["state"] == "cancelled"
+
+
+def test_cancel_during_a_claim_of_this_process_cancels_the_job_here() -> None:
+    """The lab's ticker claims a queued job (running in the store, not yet submitted here) while
+    a client cancels it: the cancel waits for the claim and stops the job here, where it used to
+    answer "job ... runs on stand <this stand>; cancel it through that stand's API" (the
+    schemathesis fixture's flake on PostgreSQL)."""
+    from dimacq.errors import DeviceStateError
+
+    claimed, go = threading.Event(), threading.Event()
+    rows: dict[str, dict] = {"j1": {"id": "j1", "state": "pending", "stand": "here"}}
+
+    class Store:
+        def save(self, snap: dict) -> None:
+            rows[snap["id"]] = {**rows.get(snap["id"], {}), **snap}
+
+        def load(self, job_id: str) -> dict | None:
+            return rows.get(job_id)
+
+        def load_all(self) -> list[dict]:
+            return list(rows.values())
+
+        def cancel(self, job_id: str) -> dict:
+            if rows[job_id]["state"] == "pending":
+                rows[job_id]["state"] = "cancelled"
+                return rows[job_id]
+            raise DeviceStateError(f"job {job_id} runs on stand 'here'")
+
+        def claim(self, kinds: list[str]) -> tuple[str, str, dict] | None:
+            rows["j1"]["state"] = "running"
+            claimed.set()
+            assert go.wait(5)
+            return "j1", "slow", {}
+
+    mgr = JobManager(store=Store(), persist_interval_s=0.0)  # type: ignore[arg-type]
+
+    def slow(params: dict):
+        def work(ctx):
+            while True:
+                ctx.check_cancelled()
+                threading.Event().wait(0.005)
+
+        return work
+
+    mgr.handlers["slow"] = slow
+    ticker = threading.Thread(target=mgr.claim_queued)
+    ticker.start()
+    assert claimed.wait(5)
+    got: list[object] = []
+    client = threading.Thread(target=lambda: got.append(mgr.cancel("j1")))
+    client.start()
+    go.set()
+    client.join(5)
+    ticker.join(5)
+    assert got and isinstance(got[0], dict), got
+    assert mgr.wait("j1", 5)["state"] == "cancelled"
