@@ -203,6 +203,24 @@ def force_share(
     return float(np.max(s))
 
 
+def _apart(
+    fit: DelayFit | None, tau_s: float, u_s: float, share: float, budget: DelayBudget
+) -> bool:
+    """An input whose own fit says the run's delay ``tau_s`` (uncertainty ``u_s``) is not its
+    own: apart by more than three standard errors of the difference, ``3 √(u_own² + u²)``, and
+    by more than the budget allows (its phase at ``band_hz`` times the cell's share). Such an
+    input's alignment moved between inputs (a coarse alignment that jumped), and the one delay
+    would leave it off; its own fit, which met the budget, is the better one. On a cell whose
+    share is small, biased own fits stay with the run's delay (the budget part)."""
+    if fit is None:
+        return False
+    diff = abs(fit.delay_s - tau_s)
+    return bool(
+        diff > 3.0 * float(np.hypot(fit.uncertainty_s, u_s))
+        and phase_error_deg(diff, budget.band_hz) * share > budget.max_phase_deg
+    )
+
+
 @dataclass
 class _Input:
     """One input of one cell, waiting for the end of the run."""
@@ -346,8 +364,14 @@ class DataAligner:
             phase = phase_error_deg(u, budget.band_hz)
             share = force_share(f, H_all[:, rows], budget, [e.j for e in entries])
             if pooled is not None and phase * share <= budget.max_phase_deg:
+                apart = []
                 for e, o in zip(entries, offsets, strict=True):
-                    H_all[:, rows, e.j] *= np.exp(2j * np.pi * f * (pooled.delay_s + o))[:, None]
+                    tau = float(pooled.delay_s + o)
+                    if _apart(e.fit, tau, u, share, budget):
+                        assert e.fit is not None
+                        tau = e.fit.delay_s
+                        apart.append(f"{e.where} ({1e6 * tau:+.1f} us)")
+                    H_all[:, rows, e.j] *= np.exp(2j * np.pi * f * tau)[:, None]
                 msg = (
                     f"{budget.label}: the run's delay {1e6 * pooled.delay_s:+.1f} us, fitted on "
                     f"{pooled.n_inputs} inputs at once, within {1e6 * u:.1f} us "
@@ -365,6 +389,12 @@ class DataAligner:
                     )
                     + f"; their own fits {1e6 * pooled.own_delays_s.min():+.1f} .. "
                     f"{1e6 * pooled.own_delays_s.max():+.1f} us"
+                    + (
+                        f"; but {', '.join(apart)} took their own fits: the run's delay does not "
+                        "describe them (beyond both fits' uncertainties and the budget)"
+                        if apart
+                        else ""
+                    )
                 )
             else:
                 weak = [e.where for e in entries if e.fit is None]
