@@ -5,7 +5,11 @@ the selection kept, starting from the equation-error solution, and — when it i
 estimate the headline and its posterior the 95 % intervals (``uncertainty.<p>.ci95``). It is not
 used (the equation-error result stays, with the reason in ``output_error``) when the fit fails or
 when, with the stated geometry taken as exact, the misfit is far above the noise: the fit would
-then shrink its predictions (mass biased high). Items the refinement finds far outside their
+then shrink its predictions (mass biased high). That misfit is measured against the FRFs' own
+noise, also when a refinement asked for was refused: the fit left on the stated geometry then
+carries the refined fit's a posteriori variance factor, and its reduced χ² near 1 would hide a
+misfit of 10⁴–10⁵ (an acquired chain check through the USB-1808X: 49.54 kg for a 48.38 kg block,
+used, where the equation-error gives 48.38 kg). Items the refinement finds far outside their
 stated uncertainty (gross errors the selection missed) are left out by the fit and listed in
 ``output_error.gross_errors`` and ``excluded_by_refinement``.
 """
@@ -71,11 +75,22 @@ def output_error_step(
     except (SolverError, SetupError) as err:
         log.warning("output-error estimate not used (%s); equation-error result kept", err)
         return _note(result, "output_error", {"used": False, "reason": str(err)}), unc
-    if not oe.refine_geometry and oe.chi2_reduced > OE_MAX_CHI2_UNREFINED:
+    # against the measured noise: a refinement that was asked for and refused leaves a fit on
+    # the stated geometry whose noise was scaled up by the refined fit's a posteriori variance
+    # factor (its χ² near 1 says nothing of the stated geometry); that fit is as biased as one
+    # never refined, and is judged the same way
+    chi2_stated = float(oe.noise.get("chi2_reduced_stated_noise", oe.chi2_reduced))
+    if not oe.refine_geometry and chi2_stated > OE_MAX_CHI2_UNREFINED:
+        refused = oe.noise.get("refinement_refused")
         reason = (
-            f"reduced χ² {oe.chi2_reduced:.3g} with the stated geometry (limit "
-            f"{OE_MAX_CHI2_UNREFINED:g}): the geometry, not the noise, dominates the misfit; "
-            "refine the geometry (--refine-geometry)"
+            f"reduced χ² {chi2_stated:.3g} with the stated geometry against the measured noise "
+            f"(limit {OE_MAX_CHI2_UNREFINED:g}): the geometry, not the noise, dominates the "
+            "misfit; "
+            + (
+                f"the refinement that would absorb it was refused ({refused})"
+                if refused
+                else "refine the geometry (--refine-geometry)"
+            )
         )
         log.warning("output-error estimate not used: %s", reason)
         return _note(result, "output_error", {"used": False, "reason": reason}), unc
