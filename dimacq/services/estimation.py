@@ -93,7 +93,10 @@ def output_error_step(
             )
         )
         log.warning("output-error estimate not used: %s", reason)
-        return _note(result, "output_error", {"used": False, "reason": reason}), unc
+        note: dict[str, Any] = {"used": False, "reason": reason}
+        if refused:
+            note["refinement_refused"] = refused  # the verdict's estimator:refinement warn
+        return _note(result, "output_error", note), unc
     result, unc = _apply_output_error(result, oe, unc, hull, setup)
     if oe.gross_errors:
         assert oe.input_keep is not None and oe.response_weights is not None

@@ -311,10 +311,22 @@ def _estimator_checks(oe: Any) -> list[VerdictReason]:
       beyond what the stated geometry uncertainty allows explained a misfit that is not
       geometry: ``warn``, with the difference already in the intervals (model-form term).
     - ``estimator:refinement``: a refinement the data refused (corrections far beyond the stated
-      uncertainty after the gross-error search): ``warn``, the stated geometry was used.
+      uncertainty after the gross-error search): ``warn``, the stated geometry was used — by the
+      output-error fit, or, when that fit's misfit is far above the noise, by the equation-error
+      estimate reported instead (:mod:`dimacq.services.estimation`): the data the refinement
+      could not reconcile are no less suspect for the estimator that stays.
     - ``estimator:noise``: the misfit against the measured noise model (the a posteriori
       variance factor): stated for the record; the intervals are scaled by it.
     """
+    if isinstance(oe, dict) and not oe.get("used") and oe.get("refinement_refused"):
+        return [
+            VerdictReason(
+                "estimator:refinement",
+                "warn",
+                f"{oe['refinement_refused']}; the output-error fit on it was not used either "
+                "(its misfit is far above the noise): the equation-error estimate is reported",
+            )
+        ]
     if not isinstance(oe, dict) or not oe.get("used"):
         return []
     out: list[VerdictReason] = []

@@ -71,6 +71,7 @@ def test_a_refused_refinement_leaves_a_fit_whose_misfit_is_judged_on_the_measure
     assert note["used"] is False
     assert "against the measured noise" in note["reason"]
     assert "refinement that would absorb it was refused" in note["reason"]
+    assert note["refinement_refused"] == oe.noise["refinement_refused"]  # for the verdict
     np.testing.assert_array_equal(got.parameters, ee.parameters)  # the equation-error estimate
     assert unc is SENTINEL
     assert abs(got.parameters[0] / MASS_KG - 1) < abs(oe.parameters[0] / MASS_KG - 1)
@@ -107,3 +108,16 @@ def test_a_refined_fit_is_used_whatever_its_variance_factor(
         np.zeros((0, 3)),
     )
     assert calls == [True]
+
+
+def test_the_refusal_stays_in_the_verdict_when_the_equation_error_estimate_is_reported() -> None:
+    """The equation-error estimate that stays is no answer to the data the refinement could not
+    reconcile: the verdict keeps its ``estimator:refinement`` warn (an x38-flexible-17 with the
+    realistic scenario's errors: CG 10.9 mm off, reported ``ok`` without it)."""
+    from dimacq.services.verdict import _estimator_checks
+
+    note = {"used": False, "reason": "…", "refinement_refused": "geometry refinement refused: x"}
+    (r,) = _estimator_checks(note)
+    assert (r.check, r.severity) == ("estimator:refinement", "warn")
+    assert "equation-error estimate is reported" in r.message
+    assert _estimator_checks({"used": False, "reason": "χ² 12 with the stated geometry"}) == []
