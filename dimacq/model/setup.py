@@ -263,6 +263,13 @@ class GeometryUncertainty(_Model):
         1σ of each coordinate of each input point, m.
     line_of_action_deg : float
         1σ of each input's direction about each axis normal to it, degrees.
+    load_cell_position_m : float
+        1σ of each coordinate of each load cell's point (where its reactions are resolved), m.
+        A cell is placed from the rig's drawing or measured like a sensor; the output-error
+        refinement moves it within this prior, so that reactions whose moment arms are off do
+        not pull the sensors and inputs instead (``dimacq.pipeline.output_error``).
+    load_cell_orientation_deg : float
+        1σ of each load cell's small rotation about each axis, degrees.
     registration_rms_m : float, optional
         RMS residual of the registration of the digitizer array into the GCS over its reference
         nodes, m (``None``: the geometry was not digitized here, or not recorded).
@@ -276,6 +283,8 @@ class GeometryUncertainty(_Model):
     sensor_orientation_deg: float = Field(default=0.5, ge=0, le=45)
     input_position_m: float = Field(default=0.002, ge=0, le=0.5)
     line_of_action_deg: float = Field(default=1.0, ge=0, le=45)
+    load_cell_position_m: float = Field(default=0.002, ge=0, le=0.5)
+    load_cell_orientation_deg: float = Field(default=0.5, ge=0, le=45)
     registration_rms_m: float | None = Field(default=None, ge=0)
     registration_limit_m: float | None = Field(default=None, gt=0)
     source: Literal["default", "stated", "digitized"] = "default"

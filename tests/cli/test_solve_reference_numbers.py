@@ -7,7 +7,10 @@ vectorising) were checked against the output of the code at 16dff20; the file wa
 regenerated once, when the method itself changed after that commit (issue 22: the output-error
 line weights lost their accelerometer term, standard errors moved by ~3e-7 and the noise-free
 χ² by rounding; a precision floor of 1e-6 entered the line weights; the mass-line cross-check
-and the reactions' noise keys were added). Regenerate it only with a method change, and say which
+and the reactions' noise keys were added), and again for issue 23 (the output-error fit refines
+each load cell's pose and moment gains with the geometry: ``load_cell_corrections``, the gauge
+with the cells in it; standard errors and the refined corrections moved, the properties by
+rounding on this noise-free example). Regenerate it only with a method change, and say which
 in the commit, in a process that imports numpy before the CLI (as pytest does: BLAS then runs on
 its own thread count, not the CLI's one thread; the gauge-mode ratios below differ by ~1e-8). Every other number, string and key
 must come back: numbers to 1e-9 relative, strings as they were except for the numbers they
@@ -62,12 +65,18 @@ NOISE_ATOL = {".output_error.gauge_modes.data_to_prior_information[0]": 1e-6}
 #: Second-order quantities (standard errors, intervals, the Monte Carlo's spreads: differences of
 #: nearby solves, gauge-projected covariances) move by rounding more than the estimates: between
 #: one and two BLAS threads the same code's x38-realistic answer moves them by up to 2.2e-8 (its
-#: estimates by < 1e-9). They are compared to 1e-7; everything else to RTOL.
-UNCERTAINTY_RTOL = 1e-7
-#: The gauge modes' data-to-prior information ratios: up to 1.3e-8 between one and two BLAS
-#: threads (the noisy calibration-mass set, the noise-free example); see the module docstring.
+#: estimates by < 1e-9), by 1.3e-7 since issue 23 (the CG's, through the gauge with the load
+#: cells in it). They are compared to 1e-6; everything else to RTOL.
+UNCERTAINTY_RTOL = 1e-6
+#: The gauge modes' data-to-prior information ratios. Since issue 23 the load cells move with the
+#: similarity, which is then an exact symmetry of the model: the data's information on those
+#: modes is a Schur complement of terms 1e8 apart that cancel, i.e. rounding noise, and it moves
+#: by up to 0.04 (absolute, against the prior's 1) between one and two BLAS threads on the noisy
+#: sets; the common gain's (~1.2, real information) by 2 %. A diagnostic (the modes are fixed
+#: whatever it reads, ``gauge_from_reactions`` off): compared to 5 % and 0.05 absolute.
 GAUGE_RATIOS = ".output_error.gauge_modes.data_to_prior_information"
-GAUGE_RATIO_RTOL = 1e-7
+GAUGE_RATIO_RTOL = 0.05
+GAUGE_RATIO_ATOL = 0.05
 #: The comparison's DIM standard errors take the hammer's share out of the geometry spread,
 #: ``sqrt(se_geo² − (σ_f x)²)``: a difference of nearly equal squares (the principal moments'
 #: geometry spread is mostly that scale), which multiplies the rounding of its terms ~10×.
@@ -142,7 +151,10 @@ def _compare(got: Any, ref: Any, path: str, bad: list[str]) -> None:
         if path.startswith(GAUGE_RATIOS):
             rtol = max(rtol, GAUGE_RATIO_RTOL)
         rtol = next((v for k, v in CANCELLING_RTOL.items() if path.startswith(k)), rtol)
-        if not abs(got - ref) <= rtol * abs(ref) + NOISE_ATOL.get(path, ATOL):
+        atol = NOISE_ATOL.get(path, ATOL)
+        if path.startswith(GAUGE_RATIOS):
+            atol = max(atol, GAUGE_RATIO_ATOL)
+        if not abs(got - ref) <= rtol * abs(ref) + atol:
             bad.append(f"{path}: {got!r} != {ref!r} (rel {abs(got - ref) / abs(ref):.1e})")
     elif isinstance(ref, str) and isinstance(got, str) and got != ref:
         # Messages quote numbers to a few digits: the same text, and the quoted numbers within
@@ -193,7 +205,7 @@ def test_the_comparison_sees_a_change() -> None:
     ref = json.loads(REFERENCE.read_text())
     got = json.loads(REFERENCE.read_text())
     got["mass_kg"] *= 1 + 1e-8
-    got["uncertainty"]["cx"]["ci95"][0] += 1e-8  # 8e-7 relative: beyond the uncertainty tolerance
+    got["uncertainty"]["cx"]["ci95"][0] += 1e-7  # 8e-6 relative: beyond the uncertainty tolerance
     got["verdict"] = "other"
     got["band_selection"]["reason"] = ref["band_selection"]["reason"].replace(
         "91 lines", "92 lines"

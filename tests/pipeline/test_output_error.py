@@ -192,7 +192,8 @@ def test_the_scale_stays_that_of_the_stated_geometry_under_load_cell_reactions()
     reactions; the scale (and the common gain) are fixed at the stated geometry's all the same:
     the corrections have no scale component in the prior's metric (inner constraint), and the
     true geometry, refined from noisy FRFs, keeps its scale (principal moments; let free, the
-    reactions moved it by ~0.25 %, tests/scripts/accuracy_diagnose.py)."""
+    reactions moved it by ~0.25 %, tests/scripts/accuracy_diagnose.py). The load cell is part of
+    the instrumentation whose similarity is fixed (it is refined with the sensors and inputs)."""
     from dimacq.model.properties import RigidBodyProperties, principal_moments, vector_to_inertia
 
     b = build_scenario("calibration-mass-realistic", 0)
@@ -201,7 +202,12 @@ def test_the_scale_stays_that_of_the_stated_geometry_under_load_cell_reactions()
     r = solve_output_error(frf, setup)
     gauge = r.extras["gauge"]
     assert "scale" in gauge["modes_live"] and gauge["fixed_modes"] >= 2
-    # Σ_n r_n·δp_n + Σ_j (r_j)_⊥·γ_j = 0 (equal prior σ for sensor and input positions)
+    # (Σ_n r_n·δp_n + Σ_j (r_j)_⊥·γ_j + Σ_k r_k·δp_k) / σ_p² + Σ_k Σ_o γ_ko / σ_γ² = 0 (equal
+    # prior σ_p for the sensors', the inputs' and the load cells' positions; the scale moves the
+    # cells' moment gains, prior σ_γ, with their points)
+    gu = setup.geometry_uncertainty
+    assert gu.sensor_position_m == gu.input_position_m == gu.load_cell_position_m
+    sig_p, sig_gain = gu.load_cell_position_m, setup.transducer_uncertainty.loadcell_matrix_rel
     p = setup.reference_point
     pos = {c.node: np.asarray(c.position_m) - p for c in setup.responses}
     s = sum(pos[c["node"]] @ (1e-3 * np.asarray(c["offset_mm"])) for c in r.sensor_corrections)
@@ -215,8 +221,17 @@ def test_the_scale_stays_that_of_the_stated_geometry_under_load_cell_reactions()
         s += (basis @ (np.asarray(e.position_m) - p)) @ (
             1e-3 * np.asarray(c["offset_components_mm"])
         )
+    cells = {lc.node: np.asarray(lc.position_m) - p for lc in setup.load_cells}
+    assert r.load_cell_corrections and all(c["offset_estimated"] for c in r.load_cell_corrections)
+    s += sum(
+        cells[c["node"]] @ (1e-3 * np.asarray(c["offset_mm"])) for c in r.load_cell_corrections
+    )
+    gains = sum(1e-2 * sum(c["moment_gain_pct"]) for c in r.load_cell_corrections)
     scale_rms = np.sqrt(sum(v @ v for v in pos.values()))
-    assert abs(s) / scale_rms**2 < 1e-6  # relative scale of the corrections
+    # relative scale of the corrections: the constraint against the size of one of its terms
+    total = s / sig_p**2 + gains / sig_gain**2
+    assert abs(total) / (abs(s) / sig_p**2 + abs(gains) / sig_gain**2) < 1e-6
+    assert abs(s) / scale_rms**2 > 1e-6  # not trivially zero: the cell's gains balance it
     x = r.parameters
     est = RigidBodyProperties.from_about_point(float(x[0]), x[1:4], vector_to_inertia(x[4:]), p)
     pm = principal_moments(est.inertia_cg_kgm2)[0] / principal_moments(b.truth.inertia_cg_kgm2)[0]
@@ -244,3 +259,137 @@ def test_reactions_at_noise_level_are_reported() -> None:
     assert 0 < clean["reaction_lines_at_noise"] < 0.8
     assert noisy["reaction_lines_at_noise"] > 0.9
     assert noisy["reaction_snr_median"] < min(2.0, clean["reaction_snr_median"])
+
+
+def _bungee_problem(monkeypatch: pytest.MonkeyPatch) -> tuple[object, np.ndarray]:
+    """The first :class:`_Problem` of an output-error fit of the bungee-hung calibration mass (one
+    load cell), and the start θ with small random geometry corrections."""
+    import dimacq.pipeline.output_error.solver as solver_module
+
+    b = build_scenario("calibration-mass-bungee", 0)
+    frf = b.model_frf(noise=0.005).band(3.0, 200.0)
+    seen: list[tuple[object, np.ndarray]] = []
+    lm = solver_module._lm
+
+    def capture(prob, theta0, max_iter):  # type: ignore[no-untyped-def]
+        seen.append((prob, theta0.copy()))
+        return lm(prob, theta0, max_iter)
+
+    monkeypatch.setattr(solver_module, "_lm", capture)
+    solve_output_error(frf, b.setup)
+    prob, theta = seen[0]
+    rng = np.random.default_rng(2)
+    nx = prob.free_x.size  # type: ignore[attr-defined]
+    theta = theta + np.r_[np.zeros(nx), rng.normal(0, 0.3, theta.size - nx)]
+    return prob, theta
+
+
+def test_load_cell_pose_and_moment_gains_have_the_analytic_jacobian(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The Jacobian columns of a load cell's rotation, offset and moment gains (model.py) match
+    central differences of the residual."""
+    prob, theta = _bungee_problem(monkeypatch)
+    assert prob.n_cells == 1  # type: ignore[attr-defined]
+    _, jac = prob.residual(theta)  # type: ignore[attr-defined]
+    nx = prob.free_x.size  # type: ignore[attr-defined]
+    free_g = prob.free_g  # type: ignore[attr-defined]
+    cols = [nx + i for i, k in enumerate(free_g) if prob.cell_base <= k < prob.gain_base]  # type: ignore[attr-defined]
+    assert len(cols) == 9
+    h = 1e-3
+    for c in cols:
+        tp, tm = theta.copy(), theta.copy()
+        tp[c] += h
+        tm[c] -= h
+        fd = (prob.residual(tp, False)[0] - prob.residual(tm, False)[0]) / (2 * h)  # type: ignore[attr-defined]
+        assert np.linalg.norm(fd - jac[:, c]) <= 1e-5 * np.linalg.norm(fd), c
+
+
+def test_the_similarity_with_the_load_cells_changes_no_prediction(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """With the load cell in the instrumentation, its translations, rotations and the common gain
+    leave the predicted FRFs (reactions included) unchanged to first order, and so does the
+    scale, which moves the cell's moment gains with its point. Without the cell's part of the
+    motion the reactions break every similarity mode (the cells held exact, before issue 23)."""
+    from dimacq.pipeline.dim import cell_reactions
+    from dimacq.pipeline.output_error import gauge_property_jacobian
+
+    prob, theta = _bungee_problem(monkeypatch)
+    b = build_scenario("calibration-mass-bungee", 0)
+    frf = b.model_frf(noise=0.0).band(3.0, 200.0)
+    _, R = cell_reactions(frf, b.setup)
+    x0 = prob.full_x(theta)  # type: ignore[attr-defined]
+    g0 = np.zeros(prob.sigma_g.size)  # type: ignore[attr-defined]  # the stated geometry
+    C = prob.r0.shape[0]  # type: ignore[attr-defined]
+
+    def predict(x: np.ndarray, g: np.ndarray) -> np.ndarray:
+        r, d, ri, di = prob.geometry(g)  # type: ignore[attr-defined]
+        psi = np.concatenate([d, np.cross(r, d)], 1) * (1 + g[-C:])[:, None]
+        phi = np.concatenate([di, np.cross(ri, di)], 1)
+        load = phi.T[None] + prob.reactions_at_p(g, R)  # type: ignore[attr-defined]
+        return np.asarray(psi @ np.linalg.solve(mass_matrix(x)[0], load))
+
+    base = predict(x0, g0)
+    G = prob.gauge_basis()  # type: ignore[attr-defined]
+    Jx = gauge_property_jacobian(x0)
+    cell = np.zeros(G.shape[0], bool)
+    cell[prob.cell_base : prob.gain_base] = True  # type: ignore[attr-defined]
+    h = 1e-6
+    for k in range(8):
+        moved = np.abs(predict(x0 + h * Jx[:, k], g0 + h * G[:, k]) - base).max()
+        broken = np.abs(predict(x0 + h * Jx[:, k], g0 + h * np.where(cell, 0, G[:, k])) - base)
+        scale = np.abs(base).max()
+        if k == 7:  # the common gain: no load cell term
+            assert moved < 1e-9 * scale
+        else:
+            assert moved < 1e-9 * scale < broken.max() * 1e-2, (k, moved, broken.max())
+
+
+def test_a_load_cell_moment_error_does_not_move_the_principal_moments() -> None:
+    """Issue 23 (netft-udp-simulated, seeds 3, 5, 7: principal moments 0.4–0.54 % low, mass
+    right): with the load cell held at its stated pose and calibration, an error in its moment
+    channels tied the scale of the sensors against the inputs' and moved the principal moments;
+    refined with the geometry (pose and moment gains), it does not. Model FRFs of the bungee-hung
+    mass, 0.5 % noise, the cell's three moment outputs 3 % low (3 σ of its certificate), the
+    digitized geometry's tight priors, band 3 Hz up."""
+    from dimacq.model.properties import RigidBodyProperties, principal_moments, vector_to_inertia
+    from dimacq.model.setup import GeometryUncertainty
+
+    b = build_scenario("calibration-mass-bungee", 0)
+    frf = b.model_frf(noise=0.005)
+    moment = np.array(
+        [
+            k == "reaction" and abs(c.direction) > 3
+            for k, c in zip(frf.output_kinds, frf.outputs, strict=True)
+        ]
+    )
+    frf = frf.replace(H=frf.H * np.where(moment, 0.97, 1.0)[None, :, None]).band(
+        3.0, float(frf.frequencies_hz[-1])
+    )
+    tight = GeometryUncertainty(
+        sensor_position_m=0.00034,
+        sensor_orientation_deg=0.065,
+        input_position_m=0.00045,
+        line_of_action_deg=0.15,
+        source="stated",
+    )
+    setup = b.setup.model_copy(update={"geometry_uncertainty": tight})
+    truth = principal_moments(b.truth.inertia_cg_kgm2)[0]
+    err = {}
+    for refine in (False, True):
+        r = solve_output_error(frf, setup, options=OutputErrorOptions(refine_load_cells=refine))
+        assert r.refine_geometry
+        x = r.parameters
+        est = RigidBodyProperties.from_about_point(
+            float(x[0]), x[1:4], vector_to_inertia(x[4:]), setup.reference_point
+        )
+        err[refine] = np.abs(principal_moments(est.inertia_cg_kgm2)[0] / truth - 1).max()
+        (corr,) = r.load_cell_corrections
+        moved = np.asarray(r.setup.load_cells[0].position_m) - setup.load_cells[0].position_m
+        np.testing.assert_allclose(1e3 * moved, corr["offset_mm"], atol=1e-9)
+        assert corr["moment_gain_estimated"] is refine
+        if refine:  # the moment gains find most of the 1/0.97 − 1 = 3.1 % (prior 1 %): 2.6–2.7 %
+            assert np.all(np.asarray(corr["moment_gain_pct"]) > 2.0)
+    assert err[False] > 0.002  # the cell held exact: 0.37 % off
+    assert err[True] < 0.001  # refined: 0.03 %

@@ -114,6 +114,8 @@ def test_interval_covers_certificate_errors() -> None:
         sensor_orientation_deg=0.0,
         input_position_m=0.0,
         line_of_action_deg=0.0,
+        load_cell_position_m=0.0,
+        load_cell_orientation_deg=0.0,
         source="stated",
     )
     scaled_params = [0, 4, 5, 6, 7, 8, 9]  # mass and inertia: what the certificates scale
@@ -130,7 +132,12 @@ def test_interval_covers_certificate_errors() -> None:
         truth = c.truth.parameter_vector(np.zeros(3))
         for key, tu in (
             ("stated", TransducerUncertainty(source="stated")),
-            ("none", TransducerUncertainty(accel_sensitivity_rel=0.0, force_sensitivity_rel=0.0)),
+            (
+                "none",
+                TransducerUncertainty(
+                    accel_sensitivity_rel=0.0, force_sensitivity_rel=0.0, loadcell_matrix_rel=0.0
+                ),
+            ),
         ):
             setup = c.nominal.model_copy(
                 update={"geometry_uncertainty": exact, "transducer_uncertainty": tu}

@@ -527,6 +527,16 @@ def print_report(
                 f"  sensor corrections: {len(est)} nodes, largest rotation node {worst['node']} "
                 f"{float(np.linalg.norm(worst['rotation_deg'])):.3f} deg\n"
             )
+        for c in oe.get("load_cell_corrections") or []:
+            if not (c.get("offset_estimated") or c.get("moment_gain_estimated")):
+                continue
+            off = float(np.linalg.norm(c["offset_mm"]))
+            gains = ", ".join(f"{v:+.2f}" for v in c["moment_gain_pct"])
+            w(
+                f"  load cell {c['node']}: moved {off:.2f} mm (prior {c['offset_prior_mm']:.2g} mm "
+                f"per axis), turned {float(np.linalg.norm(c['rotation_deg'])):.3f} deg, moment "
+                f"gains {gains} % (prior {c['moment_gain_prior_pct']:.2g} %)\n"
+            )
         rf = oe.get("residual_flexibility") or {}
         if rf.get("mode") != "off":
             w(

@@ -19,7 +19,7 @@ The names below are importable from this package as they were from the module it
 import from here).
 """
 
-from dimacq.pipeline.dim.assembly import DimSystem, assemble, design_matrices
+from dimacq.pipeline.dim.assembly import DimSystem, assemble, cell_reactions, design_matrices
 from dimacq.pipeline.dim.checks import plausibility
 from dimacq.pipeline.dim.result import Diagnostic, DimResult
 from dimacq.pipeline.dim.scaling import scale_to_known_mass
@@ -47,6 +47,7 @@ __all__ = [
     "_solve_normal",
     "_to_parameters",
     "assemble",
+    "cell_reactions",
     "design_matrices",
     "line_residuals",
     "plausibility",

@@ -30,7 +30,7 @@ moments ``M/u²``, which weights moment rows against force rows by ``1/u``; the 
 from __future__ import annotations
 
 import logging
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -194,42 +194,9 @@ def assemble(
     F: ComplexArray | None = None
 
     # Load cells ----------------------------------------------------------------------------------
-    cells = {lc.node: lc for lc in setup.load_cells}
-    reaction_idx = frf.output_index("reaction")
-    rows: dict[int, dict[int, int]] = {}
-    for i in reaction_idx:
-        ch = frf.outputs[i]
-        if ch.node not in cells:
-            raise SetupError(
-                f"load cell output {ch.name} belongs to node {ch.node}, which is not a load cell of "
-                "the setup; add it to load_cells with position, rotation and sign"
-            )
-        if not 1 <= abs(ch.direction) <= 6:
-            raise DataError(f"load cell output {ch.name}: direction must be ±1..±6 (Fx..Mz)")
-        rows.setdefault(ch.node, {})[ch.direction] = int(i)
     used_cells: list[int] = []
-    for node, lc in cells.items():
-        got = rows.get(node)
-        if got is None:
-            log.warning("load cell %s of the setup has no FRF records; it is left out", lc.name)
-            continue
-        sel = np.empty(6, dtype=np.intp)
-        sgn = np.empty(6)
-        for k in range(1, 7):
-            if k in got:
-                sel[k - 1], sgn[k - 1] = got[k], 1.0
-            elif -k in got:
-                sel[k - 1], sgn[k - 1] = got[-k], -1.0
-            else:
-                raise DataError(
-                    f"load cell {lc.name} lacks its direction {k} record (Fx, Fy, Fz, Mx, My, Mz "
-                    "are all needed); add it or remove the cell's other records"
-                )
-        scale = np.array([1, 1, 1, 1 / u, 1 / u, 1 / u]) * sgn
-        T = load_cell_transform(
-            np.asarray(lc.position_m) / u, lc.rotation_matrix, p / u, lc.sign_factor
-        )
-        reactions = _apply_real(T * scale[None, :], H, sel)
+    for node, T, rows in _cell_maps(frf, setup, u, p):
+        reactions = _apply_real(T, H, rows)
         if F is None:
             F = reactions
             F += phi
@@ -300,6 +267,82 @@ def _match_channels(
     rows = np.where(same >= 0, same, opposite)
     sign = np.where(same >= 0, 1.0, -1.0)
     return rows, sign
+
+
+def _cell_maps(
+    frf: FrfData, setup: TestSetup, u: float, p: FloatArray
+) -> Iterator[tuple[int, FloatArray, NDArray[np.intp]]]:
+    """Each load cell of the setup that has FRF records: its node, its map ``T`` from the cell's
+    six records (``rows`` of ``frf``'s outputs, in Fx..Mz order, their signs folded into ``T``) to
+    the load at P, forces in N and moments in N·unit per N (``/u`` more for consistent units).
+
+    Raises
+    ------
+    SetupError, DataError
+        A reaction record of a node that is no load cell of the setup; a direction outside
+        ±1..±6; a cell missing one of its six directions.
+    """
+    cells = {lc.node: lc for lc in setup.load_cells}
+    reaction_idx = frf.output_index("reaction")
+    rows: dict[int, dict[int, int]] = {}
+    for i in reaction_idx:
+        ch = frf.outputs[i]
+        if ch.node not in cells:
+            raise SetupError(
+                f"load cell output {ch.name} belongs to node {ch.node}, which is not a load cell of "
+                "the setup; add it to load_cells with position, rotation and sign"
+            )
+        if not 1 <= abs(ch.direction) <= 6:
+            raise DataError(f"load cell output {ch.name}: direction must be ±1..±6 (Fx..Mz)")
+        rows.setdefault(ch.node, {})[ch.direction] = int(i)
+    for node, lc in cells.items():
+        got = rows.get(node)
+        if got is None:
+            log.warning("load cell %s of the setup has no FRF records; it is left out", lc.name)
+            continue
+        sel = np.empty(6, dtype=np.intp)
+        sgn = np.empty(6)
+        for k in range(1, 7):
+            if k in got:
+                sel[k - 1], sgn[k - 1] = got[k], 1.0
+            elif -k in got:
+                sel[k - 1], sgn[k - 1] = got[-k], -1.0
+            else:
+                raise DataError(
+                    f"load cell {lc.name} lacks its direction {k} record (Fx, Fy, Fz, Mx, My, Mz "
+                    "are all needed); add it or remove the cell's other records"
+                )
+        scale = np.array([1, 1, 1, 1 / u, 1 / u, 1 / u]) * sgn
+        T = load_cell_transform(
+            np.asarray(lc.position_m) / u, lc.rotation_matrix, p / u, lc.sign_factor
+        )
+        yield node, np.asarray(T * scale[None, :], float), sel
+
+
+def cell_reactions(
+    frf: FrfData, setup: TestSetup, reference_point_m: NDArray[np.floating] | None = None
+) -> tuple[tuple[int, ...], ComplexArray]:
+    """Each load cell's reactions at P, in SI: ``R_k = T_k H_k`` (the summand of ``F`` in
+    :func:`assemble` with the length unit m), stacked per cell.
+
+    Returns
+    -------
+    nodes : tuple of int
+        The cells used, in the setup's order (those with FRF records).
+    R : ndarray, shape (n_lines, 6 K, n_inputs), complex
+        Rows ``6k..6k+5`` are cell ``k``'s force (N/N) and moment about P (N·m/N).
+    """
+    p = np.asarray(
+        setup.reference_point_m if reference_point_m is None else reference_point_m, float
+    )
+    nodes: list[int] = []
+    parts: list[ComplexArray] = []
+    for node, T, rows in _cell_maps(frf, setup, 1.0, p):
+        nodes.append(node)
+        parts.append(_apply_real(T, frf.H, rows))
+    if not parts:
+        return (), np.zeros((frf.H.shape[0], 0, frf.H.shape[2]), complex)
+    return tuple(nodes), np.concatenate(parts, axis=1)
 
 
 def _apply_real(M: FloatArray, H: ComplexArray, rows: NDArray[np.intp]) -> ComplexArray:

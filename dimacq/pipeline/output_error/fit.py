@@ -10,10 +10,12 @@ the tests of :mod:`.checks` use.
 Gauge
 -----
 A common similarity of the whole instrumentation (translation, rotation about P and scale of all
-sensors and inputs together, with the body's properties moved with it:
+sensors, inputs and load cells together, with the body's properties moved with it:
 :func:`gauge_property_jacobian`) and a common accelerometer gain leave every FRF unchanged
-(``ψᵀ M⁻¹ φ`` is invariant under ``ψ → Sψ``, ``φ → Sφ``, ``M → SMS``); only the load-cell
-reactions, whose positions and calibration the model takes as exact, can see it. The priors fix
+(``ψᵀ M⁻¹ φ`` is invariant under ``ψ → Sψ``, ``φ → Sφ``, ``M → SMS``; a cell's reactions at P
+move with its pose, and under the scale its own moments with its moment gains). When the cells are not
+refined (``OutputErrorOptions.refine_load_cells`` off) their stated poses break the symmetry,
+and the reactions alone see it. The priors fix
 what the data do not (inner constraint, :func:`_gauge_constraint`): the scale and the common gain
 always (the reactions could pin the scale only if modelled to a few 0.1 %), and by default the
 translations and rotations too (the reactions tie the frame only to the load cells' stated
@@ -56,9 +58,13 @@ def _gauge_constraint(
     ``data_jacobian``: the data rows of the Jacobian at ``theta0`` when the caller has them
     (:meth:`_Problem.residual`'s, whose data rows do not depend on the constraint rows).
 
-    The similarity of the whole instrumentation and the common accelerometer gain
-    (:meth:`_Problem.gauge_basis`, ``G``) change no FRF when the properties move with them; only
-    the load cells' reactions (positions and calibration taken as exact) can tie them. In the
+    The similarity of the whole instrumentation (the load cells included when they are refined)
+    and the common accelerometer gain (:meth:`_Problem.gauge_basis`, ``G``) change no FRF when the
+    properties move with them; only load cells held at their stated poses and calibration can tie
+    them. The fixed scale holds the product of the sensors' and
+    the inputs' scales (what the principal moments follow) only if nothing in the model ties
+    their ratio to an exact length: with the cells held exact, the reactions did, and a 0.3 %
+    error in them moved the principal moments 0.5 % (acquired sets of issue 23). In the
     whitened corrections ``θ_g = δg/σ_g`` a gauge motion is ``G_θ c`` with
     ``G_θ = diag(1/σ_g) G``; the prior's information on ``c`` is ``P = G_θᵀG_θ`` and the data's,
     properties marginalised, ``D = G_θᵀ (J_gᵀJ_g − J_gᵀJ_x (J_xᵀJ_x)⁻¹ J_xᵀJ_g) G_θ``.
@@ -209,7 +215,7 @@ def _line_residual(
     psi = np.concatenate([d, cross3(r, d)], axis=1)
     psi = psi * (1.0 + gfull[gfull.size - psi.shape[0] :])[:, None]
     phi = np.concatenate([din, cross3(rin, din)], axis=1)
-    mot = A @ (phi.T[None] + R)  # (L, 6, J)
+    mot = A @ (phi.T[None] + prob.reactions_at_p(gfull, R))  # (L, 6, J)
     # Ψ (real) times the motions as one real product on their (re, im) view, and 1/σ as a
     # product: numpy's complex matmul and division give these numbers (up to the sign of a zero)
     pred = (psi @ mot.view(np.float64)).view(np.complex128)

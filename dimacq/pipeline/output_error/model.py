@@ -12,12 +12,12 @@ Model
 For input ``j`` at line ``ω`` the rigid-body motion of the reference point P and the accelerance of
 accelerometer channel ``c`` (unit direction ``d_c`` at ``r_c``, both relative to P) are
 
-    [a_j; α_j](ω) = M(x)⁻¹ ( φ_j(g) + R_j(ω) )
+    [a_j; α_j](ω) = M(x)⁻¹ ( φ_j(g) + Σ_k A_k(g) B_k(g) R_jk(ω) )
     Ĥ_cj(ω)       = ψ_c(g)ᵀ [a_j; α_j](ω) + Σ_k G_cjk b_k(ω),   ψ_c = [d_c; r_c × d_c]
 
 with ``M(x) = [[m E, −m[c]x], [m[c]x, I_P]]`` the rigid mass matrix of the ten properties
-(``c`` the CG relative to P, ``I_P`` about P), ``φ_j = [d_j; r_j × d_j]`` the unit input, ``R_j`` the
-measured load-cell reactions mapped to P, and — with residual flexibility — free real coefficients
+(``c`` the CG relative to P, ``I_P`` about P), ``φ_j = [d_j; r_j × d_j]`` the unit input, ``R_jk`` the
+measured reactions of load cell ``k`` mapped to P through its stated pose, and — with residual flexibility — free real coefficients
 ``G`` on the basis ``b(ω) = [(ω/ω_hi)², (ω/ω_hi)⁴]``: the stiffness-line share of elastic modes above
 the band (``−ω²/(ω_r² − ω²) = −(ω/ω_r)² − (ω/ω_r)⁴ − …`` per mode) and below nothing else. The
 estimate minimises
@@ -32,22 +32,46 @@ with their stated 1σ (:class:`~dimacq.model.setup.GeometryUncertainty`):
   ``r_c = r_c⁰ + δp_n``;
 - each input: its line of action turned about the two axes ``e₁, e₂`` normal to it (2, rad; prior
   ``line_of_action_deg``) and its point moved along ``e₁, e₂`` (2, m; prior ``input_position_m``; a
-  move along the line of action changes nothing and is not a parameter).
+  move along the line of action changes nothing and is not a parameter);
+- each load cell ``k`` at ``r_k`` (rel P) with stated local-to-global rotation ``Q⁰_k``: a small
+  rotation ``δθ_k`` (3, rad; prior ``load_cell_orientation_deg``), an offset ``δp_k`` of its point
+  (3, m; prior ``load_cell_position_m``) and relative gains ``γ_k`` of its three moment outputs
+  (3; prior ``loadcell_matrix_rel``). With ``Q = exp([δθ_k]x)`` a stated reaction at P,
+  ``[f; m_P] = [f; r_k × f + m_k]``, becomes ``[Q f; (r_k + δp_k) × Q f + Q m_k]``:
+
+      A_k = [[Q, 0], [[r_k + δp_k]x Q − Q [r_k]x, Q]],   B_k = T_k diag(1, 1, 1, 1 + γ_k) T_k⁻¹
+
+  with ``T_k = [[Q⁰, 0], [[r_k]x Q⁰, Q⁰]]`` the stated map of the cell's local outputs to P. The
+  pose and the moment gains make the similarity of the whole instrumentation (sensors, inputs
+  *and* cells: a scale ``s`` moves a cell by ``s r_k`` and its moment gains by ``s``) a symmetry
+  of the model again, so the
+  fixed gauge (:func:`~dimacq.pipeline.output_error.fit._gauge_constraint`) holds what the data
+  cannot see; with the cells exact, the reactions alone tie the scale of the sensors against the
+  inputs', and an error in the reactions moved the principal moments through it. The moment
+  gains take the error of a cell's moment channels (its calibration, its chain's response at
+  the band's top), which otherwise went into that scale. The force gains are not refined: they
+  trade with the mass and with the hammer's certificate where a cell carries much of the force
+  (near the support modes, where the rigid model is least adequate), and a cell's force gain
+  went 6 σ on an X-38 with the realistic geometry errors (model FRFs, exact cells); their
+  certificate stays in the line weights (:func:`~dimacq.pipeline.output_error.noise._line_weights`).
 
 Sufficient statistics (why it is fast)
 --------------------------------------
-With ``z_j(ω) = [1; R_j(ω); b(ω); H_:j(ω)/σ_:j]`` the cost of input ``j`` is a quadratic form in the
+With ``z_j(ω) = [1; R_j1(ω); …; R_jK(ω); b(ω); H_:j(ω)/σ_:j]`` the cost of input ``j`` is a quadratic form in the
 real second-moment matrix ``S_j = Σ_ω Re(z_j z_jᴴ)`` (all lines of the band), so the number of lines
 enters once. The free residual coefficients ``G`` are eliminated exactly by the Schur complement of
 ``S_j`` on the ``b`` block (variable projection). With ``S'_j = L_j L_jᵀ`` (eigen-factor, numerical
 rank columns) the cost is ``‖L_jʰ − W_j Ψ M⁻¹ [φ_j, E] L_jʸ‖²_F``: a residual of ``n_ch × rank``
-entries per input, whatever the number of lines. Gauss–Newton / Levenberg–Marquardt on that
+entries per input, whatever the number of lines (``E`` is ``[A_1 B_1, …, A_K B_K]`` with cells). Gauss–Newton / Levenberg–Marquardt on that
 residual and the prior residuals with the analytic Jacobian:
 
 - ``∂/∂x_k``: ``W Ψ M⁻¹ M_k G_j`` with ``G_j = M⁻¹ Y_j L_jʸ`` (``∂M⁻¹ = −M⁻¹ ∂M M⁻¹``);
 - sensor node: ``−W_jc (∂ψ_c)ᵀ G_j``, ``∂ψ_c/∂δθ_i = [e_i × d_c; r_c × (e_i × d_c)]``,
   ``∂ψ_c/∂δp_i = [0; e_i × d_c]``;
-- input: ``−W_j Ψ M⁻¹ ∂φ_j (L_jʸ)₀``, ``∂φ/∂β_i = [e_i × d; r × (e_i × d)]``, ``∂φ/∂γ_i = [0; e_i × d]``.
+- input: ``−W_j Ψ M⁻¹ ∂φ_j (L_jʸ)₀``, ``∂φ/∂β_i = [e_i × d; r × (e_i × d)]``, ``∂φ/∂γ_i = [0; e_i × d]``;
+- load cell ``k``: ``−W_j Ψ M⁻¹ ∂(A_k B_k) (L_jʸ)_k`` on its rows of ``L_jʸ``:
+  ``∂A/∂δθ_i = [[S, 0], [[r_k + δp_k]x S − S [r_k]x, S]]`` with ``S = [J_l e_i]x Q``,
+  ``∂A/∂δp_i = [[0, 0], [[e_i]x Q, 0]]``, ``∂B/∂γ_o = T e_o e_oᵀ T⁻¹``.
 """
 
 from __future__ import annotations
@@ -59,7 +83,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from dimacq.pipeline._batched import cross3
-from dimacq.pipeline.rotations import apply_rotvec
+from dimacq.pipeline.rotations import apply_rotvec, rotvec_to_matrix
 
 FloatArray = NDArray[np.float64]
 ComplexArray = NDArray[np.complex128]
@@ -69,6 +93,9 @@ _E = np.eye(3)
 #: Directions of the (bias-compensated) regressor moments below this fraction of the largest are
 #: dropped (numerically null: no reaction in that direction).
 _EIG_KEEP = 1e-12
+#: Corrections per load cell in ``g``: rotation (3, rad), offset (3, m), relative gains of its three
+#: local moment outputs Mx, My, Mz (3)
+CELL_PARAMS = 9
 #: Weight of the gauge constraint rows (whitened units: × the prior's unit weight); large enough
 #: to hold the constraint to ~1e-6 of a prior σ against the data's pull.
 _GAUGE_WEIGHT = 1e3
@@ -181,7 +208,7 @@ class _Problem:
     din0: FloatArray  # (J, 3)
     ebasis: FloatArray  # (J, 2, 3) unit vectors normal to each line of action
     w: FloatArray  # (C, J) 1/σ
-    Ly: FloatArray  # (J, 7, k)
+    Ly: FloatArray  # (J, 1 + 6K, k)
     Lh: FloatArray  # (J, C, k)  (already weighted by 1/σ)
     free_x: NDArray[np.intp]
     x_fixed: FloatArray  # (10,)
@@ -193,6 +220,12 @@ class _Problem:
     gauge_modes: FloatArray = field(default_factory=lambda: np.zeros((0, 0)))
     gauge_live: NDArray[np.bool_] = field(default_factory=lambda: np.zeros(8, bool))
     gauge_information_ratio: FloatArray = field(default_factory=lambda: np.zeros(0))
+    #: (K, 3) the load cells' stated points rel P and (K, 3, 3) their stated local-to-global
+    #: rotations; their corrections (rotation 3, offset 3, gains of the three local moment
+    #: outputs 3 per cell: :data:`CELL_PARAMS`) sit between the inputs' and the channel gains'
+    #: in ``g``
+    cell_r0: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
+    cell_rot0: FloatArray = field(default_factory=lambda: np.zeros((0, 3, 3)))
     #: the last :func:`_line_residual` (its key, the arrays it was computed from, the residual,
     #: then its sum of squares once :func:`_direct_cost` formed it): the variance factor, the
     #: geometry test and χ² ask for the same one
@@ -201,6 +234,62 @@ class _Problem:
     @property
     def n_nodes(self) -> int:
         return int(self.nodes.size)
+
+    @property
+    def n_cells(self) -> int:
+        return int(self.cell_r0.shape[0])
+
+    @property
+    def cell_base(self) -> int:
+        """Index in ``g`` of the first load cell's first correction."""
+        return 6 * self.n_nodes + 4 * int(self.rin0.shape[0])
+
+    @property
+    def gain_base(self) -> int:
+        """Index in ``g`` of the first channel gain."""
+        return self.cell_base + CELL_PARAMS * self.n_cells
+
+    def _cell_local(self) -> tuple[FloatArray, FloatArray]:
+        """``T_k`` and ``T_k⁻¹`` (K, 6, 6): the stated map of cell ``k``'s local outputs to P
+        (without its sign, which cancels in ``T D T⁻¹``)."""
+        Q0, r = self.cell_rot0, self.cell_r0
+        K = self.n_cells
+        T = np.zeros((K, 6, 6))
+        Ti = np.zeros((K, 6, 6))
+        T[:, :3, :3] = T[:, 3:, 3:] = Q0
+        T[:, 3:, :3] = _skew(r) @ Q0
+        Q0t = np.swapaxes(Q0, 1, 2)
+        Ti[:, :3, :3] = Ti[:, 3:, 3:] = Q0t
+        Ti[:, 3:, :3] = -Q0t @ _skew(r)
+        return T, Ti
+
+    def cell_maps(self, g: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+        """``A_k B_k`` (K, 6, 6): cell ``k``'s reactions at P as stated, ``R_k = [f; m_P]``, to
+        those of the cell turned by ``δθ_k``, moved by ``δp_k`` and with its three local moment
+        outputs scaled by ``1 + γ_k`` (module docstring); ``A_k``,
+        ``B_k = T_k diag(1, 1, 1, 1 + γ_k) T_k⁻¹`` and the rotations ``Q_k = exp([δθ_k]x)``
+        (K, 3, 3)."""
+        K = self.n_cells
+        gc = g[self.cell_base : self.gain_base].reshape(K, CELL_PARAMS)
+        Q = rotvec_to_matrix(gc[:, :3]).reshape(K, 3, 3)
+        r = self.cell_r0
+        A = np.zeros((K, 6, 6))
+        A[:, :3, :3] = Q
+        A[:, 3:, 3:] = Q
+        A[:, 3:, :3] = _skew(r + gc[:, 3:6]) @ Q - Q @ _skew(r)
+        T, Ti = self._cell_local()
+        gains = np.concatenate([np.zeros((K, 3)), gc[:, 6:9]], axis=1)  # forces: as calibrated
+        B = (T * (1.0 + gains[:, None, :])) @ Ti
+        return A @ B, A, B, Q
+
+    def reactions_at_p(self, g: FloatArray, R: ComplexArray) -> ComplexArray:
+        """``Σ_k A_k R_k`` (L, 6, J) from the cells' stacked reactions ``R`` (L, 6K, J)."""
+        K = self.n_cells
+        if not K:
+            return np.zeros((R.shape[0], 6, R.shape[2]), complex)
+        A = self.cell_maps(g)[0]
+        Rk = R.reshape(R.shape[0], K, 6, R.shape[2])
+        return np.asarray(np.einsum("kab,lkbj->laj", A, Rk), complex)
 
     def geometry(self, g: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
         """Channel positions/directions and input positions/directions for corrections ``g``."""
@@ -238,7 +327,14 @@ class _Problem:
         A = np.linalg.inv(M)
         psi = np.concatenate([d, cross3(r, d)], axis=1)  # (C, 6)
         phi = np.concatenate([din, cross3(rin, din)], axis=1)  # (J, 6)
-        Y = np.concatenate([phi[:, :, None], np.broadcast_to(np.eye(6), (phi.shape[0], 6, 6))], 2)
+        if self.n_cells:
+            ABc, Ac, Bc, Qc = self.cell_maps(g)
+            Ycell = np.concatenate(list(ABc), axis=1)  # (6, 6K)
+        else:
+            Ycell = np.zeros((6, 0))
+        Y = np.concatenate(
+            [phi[:, :, None], np.broadcast_to(Ycell, (phi.shape[0], 6, Ycell.shape[1]))], 2
+        )
         G = A @ (Y @ self.Ly)  # (J, 6, k)
         C0 = psi.shape[0]
         gain = 1.0 + g[g.size - C0 :]
@@ -300,8 +396,33 @@ class _Problem:
             ly0 = self.Ly[:, None, 0, :]  # (J, 1, k)
             for p in range(4):
                 full[np.arange(J_), :, :, base + p] = -(WPA @ dphi[:, p, :, None]) * ly0
-            if self.sigma_g.size > 6 * nn + 4 * J_:  # channel gains (relative)
-                gcols = 6 * nn + 4 * J_ + np.arange(C_)
+            if self.n_cells:
+                # load cell k: ∂(A_k B_k) for its rotation (3), offset (3) and moment gains (3),
+                # on its block of L_jʸ
+                K = self.n_cells
+                gc = g[self.cell_base : self.gain_base].reshape(K, CELL_PARAMS)
+                jlc = _left_jacobian(gc[:, :3])  # (K, 3, 3)
+                rk = self.cell_r0 + gc[:, 3:6]
+                T, Ti = self._cell_local()
+                for k in range(K):
+                    lyk = self.Ly[:, 1 + 6 * k : 7 + 6 * k, :]  # (J, 6, k)
+                    for i in range(CELL_PARAMS):
+                        dA = np.zeros((6, 6))
+                        if i < 3:
+                            dQ = _skew(jlc[k][:, i]) @ Qc[k]
+                            dA[:3, :3] = dQ
+                            dA[3:, 3:] = dQ
+                            dA[3:, :3] = _skew(rk[k]) @ dQ - dQ @ _skew(self.cell_r0[k])
+                            dAB = dA @ Bc[k]
+                        elif i < 6:
+                            dA[3:, :3] = _skew(_E[i - 3]) @ Qc[k]
+                            dAB = dA @ Bc[k]
+                        else:  # ∂B/∂γ = T e_o e_oᵀ T⁻¹, local output o = Mx, My, Mz
+                            o = i - 3
+                            dAB = Ac[k] @ np.outer(T[k][:, o], Ti[k][o])
+                        full[..., self.cell_base + CELL_PARAMS * k + i] = -(WPA @ (dAB @ lyk))
+            if self.sigma_g.size > self.gain_base:  # channel gains (relative)
+                gcols = self.gain_base + np.arange(C_)
                 full[:, np.arange(C_), :, gcols] = np.moveaxis(
                     -(self.w.T[:, :, None] * (psi @ G)), 1, 0
                 )
@@ -317,7 +438,7 @@ class _Problem:
 
     def gauge_basis(self) -> FloatArray:
         """The similarity of the whole instrumentation and the common accelerometer gain, as
-        directions in the full geometry vector ``g`` (n_geom_full, 8).
+        directions in the full geometry vector ``g`` (n_geom_full, 8), load cells included.
 
         Columns: translation ``t`` (3), rotation ``ω`` about P (3), scale ``s`` of the positions
         about P (1), common relative gain of every accelerometer channel (1). A sensor node at
@@ -345,7 +466,17 @@ class _Problem:
             Gj[:, 2:4, 3 + i] = (eb @ cross3(e, self.rin0)[:, :, None])[:, :, 0]
         Gn[:, 3:6, 6] = rn
         Gj[:, 2:4, 6] = (eb @ np.asarray(self.rin0)[:, :, None])[:, :, 0]
-        G[6 * nn + 4 * J :, 7] = 1.0
+        # load cell k at r_k: δθ_k = ω, δp_k = t + ω × r_k + s r_k, and its moment gains γ_k = s
+        # (every moment about P is ×(1+s) under the scale, the cell's own ones too)
+        Gc = G[self.cell_base : self.gain_base].reshape(self.n_cells, CELL_PARAMS, 8)
+        for i in range(3):
+            e = _E[i]
+            Gc[:, 3:6, i] = e
+            Gc[:, i, 3 + i] = 1.0
+            Gc[:, 3:6, 3 + i] = cross3(e, self.cell_r0)
+        Gc[:, 3:6, 6] = self.cell_r0
+        Gc[:, 6:9, 6] = 1.0
+        G[self.gain_base :, 7] = 1.0
         return G
 
 
@@ -357,7 +488,7 @@ def _statistics(
     basis: ComplexArray | None,
     lw: FloatArray | None = None,
 ) -> tuple[FloatArray, FloatArray, float]:
-    """Factors ``L_jʸ`` (J, 7, 7) and ``T_j`` (J, C, 7) of the reduced statistics (module
+    """Factors ``L_jʸ`` (J, n_y, k) and ``T_j`` (J, C, k) of the reduced statistics (module
     docstring), and the part of the cost that no parameter changes (for χ²).
 
     ``lw`` (L, J): line weights (:func:`_line_weights`); the residual of line ``ℓ`` and input
@@ -368,43 +499,44 @@ def _statistics(
     if lw is not None:
         cov_R = cov_R * np.mean(lw**2, axis=0)[:, None, None]
     nb = 0 if basis is None else basis.shape[1]
+    ny = 1 + R.shape[1]  # [1; R_j]: the unit input and each load cell's six reactions
     # z_j = [w; w R_j; b; w H_:j/σ] (w = 1 without line weights), written straight into its real
     # and imaginary parts as (J, n, L) arrays: the products of Σ_ω Re(z zᴴ) = Zr Zrᵀ + Zi Ziᵀ.
     # The numbers are those of the complex expressions (w·(1+0i), R·w, H/σ = H·(1/σ) in numpy's
     # complex division, H·(w/σ)) up to the sign of a zero, which no product or sum sees.
-    n = 7 + nb + C
+    n = ny + nb + C
     zr = np.empty((J, n, L))
     zi = np.empty((J, n, L))
     w = None if lw is None else lw.T[:, None, :]  # (J, 1, L)
     zr[:, 0:1] = 1.0 if w is None else w
     zi[:, 0:1] = 0.0
     Rt = np.transpose(R, (2, 1, 0))  # (J, 6, L), complex view
-    zr[:, 1:7] = Rt.real if w is None else Rt.real * w
-    zi[:, 1:7] = Rt.imag if w is None else Rt.imag * w
+    zr[:, 1:ny] = Rt.real if w is None else Rt.real * w
+    zi[:, 1:ny] = Rt.imag if w is None else Rt.imag * w
     if basis is not None:
-        zr[:, 7 : 7 + nb] = basis.real.T[None]
-        zi[:, 7 : 7 + nb] = basis.imag.T[None]
+        zr[:, ny : ny + nb] = basis.real.T[None]
+        zi[:, ny : ny + nb] = basis.imag.T[None]
     scale = (1.0 / sigma).T[:, :, None] if w is None else w / sigma.T[:, :, None]  # (J, C, L)
     Ht = np.transpose(H, (2, 1, 0))  # (J, C, L)
-    np.multiply(Ht.real, scale, out=zr[:, 7 + nb :])
-    np.multiply(Ht.imag, scale, out=zi[:, 7 + nb :])
+    np.multiply(Ht.real, scale, out=zr[:, ny + nb :])
+    np.multiply(Ht.imag, scale, out=zi[:, ny + nb :])
     S = zr @ np.swapaxes(zr, 1, 2) + zi @ np.swapaxes(zi, 1, 2)  # Σ_ω Re(z zᴴ), (J, n, n)
     dsc = np.sqrt(np.clip(np.einsum("jii->ji", S), 1e-300, None))  # equilibration (raw S)
-    S[:, 1:7, 1:7] -= cov_R  # bias compensation of the noisy reactions (already × n_ω or rank)
+    S[:, 1:ny, 1:ny] -= cov_R  # bias compensation of the noisy reactions (already × n_ω or rank)
     if nb:
-        a = np.r_[0:7, 7 + nb : 7 + nb + C]
-        b = np.arange(7, 7 + nb)
+        a = np.r_[0:ny, ny + nb : ny + nb + C]
+        b = np.arange(ny, ny + nb)
         Sab = S[:, a][:, :, b]
         Sbb = S[:, b][:, :, b]
         S = S[:, a][:, :, a] - Sab @ np.linalg.solve(Sbb, np.swapaxes(Sab, 1, 2))
         dsc = dsc[:, a]
     # cost_j = tr(S_hh) − 2 tr(B S_yh) + tr(B S_yy Bᵀ) = ‖B L_y − T‖² + tr(S_hh) − ‖T‖²
-    # with S_yy = L_y L_yᵀ (7 × k) and T = S_hy L_y⁺ᵀ: 7 columns per channel, whatever n_ω.
-    d = dsc[:, :7]
-    lam, V = np.linalg.eigh(S[:, :7, :7] / (d[:, :, None] * d[:, None, :]))
+    # with S_yy = L_y L_yᵀ (n_y × k) and T = S_hy L_y⁺ᵀ: n_y columns per channel, whatever n_ω.
+    d = dsc[:, :ny]
+    lam, V = np.linalg.eigh(S[:, :ny, :ny] / (d[:, :, None] * d[:, None, :]))
     keep = lam > np.clip(lam.max(axis=1, keepdims=True), 0, None) * _EIG_KEEP
     sq = np.sqrt(np.where(keep, lam, 1.0))
     Ly = np.where(keep[:, None, :], d[:, :, None] * V * sq[:, None, :], 0.0)
-    T = np.where(keep[:, None, :], (S[:, 7:, :7] / d[:, None, :]) @ V / sq[:, None, :], 0.0)
-    const = np.einsum("jii->j", S[:, 7:, 7:]) - np.einsum("jck,jck->j", T, T)
+    T = np.where(keep[:, None, :], (S[:, ny:, :ny] / d[:, None, :]) @ V / sq[:, None, :], 0.0)
+    const = np.einsum("jii->j", S[:, ny:, ny:]) - np.einsum("jck,jck->j", T, T)
     return Ly, T, float(np.sum(const))

@@ -32,7 +32,7 @@ from dimacq.errors import SetupError, SolverError
 from dimacq.model.frf import FrfData
 from dimacq.model.setup import PARAMETERS, TestSetup
 from dimacq.pipeline._batched import cross3
-from dimacq.pipeline.dim import DimResult, assemble, solve_system
+from dimacq.pipeline.dim import DimResult, assemble, cell_reactions, solve_system
 from dimacq.pipeline.output_error.checks import (
     _adequacy,
     _chi2_ppf,
@@ -132,7 +132,11 @@ def solve_output_error(
     x0[1:4] -= p
     # data in SI, relative to P
     H = frf.H[:, geo.output_index[active]][:, :, in_idx]  # (L, C, J)
-    R = system.F - system.phi[None].astype(complex)  # (L, 6, J), N and N·m per N
+    # each load cell's reactions at P (L, 6K, J), N and N·m per N: the fit may turn and move
+    # each cell within its stated uncertainty (model.py, _Problem.cell_maps)
+    cell_nodes, R = cell_reactions(frf, setup, p)
+    R = R[:, :, in_idx]
+    K_cells = len(cell_nodes)
     L_lines = H.shape[0]
     # |H|², its band mean and |Δ³H|² once: the noise, its floor, the line weights and the report
     h_power = np.abs(H) ** 2
@@ -141,13 +145,19 @@ def solve_output_error(
     sigma = estimate_noise(H, d3_power=d3_power)
     floor = 1e-6 * np.sqrt(h_mean_power)
     sigma = np.maximum(sigma, np.maximum(floor, 1e-300))
-    cov_R = _reaction_noise_cov(R) if R.shape[0] >= 8 else np.zeros((len(in_idx), 6, 6))
+    cov_R = (
+        _reaction_noise_cov(R)
+        if R.shape[0] >= 8
+        else np.zeros((len(in_idx), R.shape[1], R.shape[1]))
+    )
     # the reactions' power against their own noise, per line and input:
     # S/N_ℓj = Σ_k |R_ℓkj|² / tr Σ_Rj (the share of lines at noise level is reported)
     with np.errstate(divide="ignore", invalid="ignore"):
         reaction_snr = np.sum(np.abs(R) ** 2, axis=1) / np.einsum("jii->j", cov_R)[None]
     R, n_rb = _smooth_reactions(R, frf.frequencies_hz, cov_R)
     cov_R = cov_R * n_rb[:, None, None]  # noise left in Σ_ω Re(R̂ R̂ᴴ) after the projection
+    # the stated cells' sum at P (L, 6, J)
+    R_at_p = R.reshape(L_lines, K_cells, 6, len(in_idx)).sum(axis=1)
 
     # geometry
     r0 = geo.positions_m[active] - p
@@ -164,6 +174,11 @@ def solve_output_error(
         rin0.append(np.asarray(e.position_m) - p)
         din0.append(s * np.asarray(e.direction_gcs))
     rin0_a, din0_a = np.asarray(rin0, float), np.asarray(din0, float)
+    cells = {lc.node: lc for lc in setup.load_cells}
+    cell_r0 = np.array([np.asarray(cells[n].position_m, float) - p for n in cell_nodes]).reshape(
+        -1, 3
+    )
+    cell_rot0 = np.array([cells[n].rotation_matrix for n in cell_nodes]).reshape(-1, 3, 3)
     eb = np.empty((len(in_idx), 2, 3))
     for k, dv in enumerate(din0_a):
         a = _E[int(np.argmin(np.abs(dv)))]
@@ -176,6 +191,15 @@ def solve_output_error(
         [
             np.tile([np.deg2rad(gu.sensor_orientation_deg)] * 3 + [gu.sensor_position_m] * 3, nn),
             np.tile([np.deg2rad(gu.line_of_action_deg)] * 2 + [gu.input_position_m] * 2, J),
+            # each load cell: a small rotation (3), an offset of its point (3) and the gains of
+            # its three moment outputs against its calibration (3; report.py, refine_load_cells)
+            np.tile(
+                [np.deg2rad(gu.load_cell_orientation_deg)] * 3
+                + [gu.load_cell_position_m] * 3
+                + [setup.transducer_uncertainty.loadcell_matrix_rel] * 3,
+                K_cells,
+            )
+            * float(opt.refine_load_cells),
             # each accelerometer axis's sensitivity against its certificate (relative)
             np.full(int(active.sum()), setup.transducer_uncertainty.accel_sensitivity_rel),
         ]
@@ -206,7 +230,7 @@ def solve_output_error(
 
     # from the measured noise and the load cells' certificate; the a posteriori variance factor
     # below scales the whole noise model, not the lines' relative weights
-    lw0 = _line_weights(H, R, psi0, phi0, A0, eps_r, h_power=h_power, d3_power=d3_power)
+    lw0 = _line_weights(H, R_at_p, psi0, phi0, A0, eps_r, h_power=h_power, d3_power=d3_power)
     del h_power, d3_power
 
     def line_w(use_basis: bool = False) -> FloatArray | None:
@@ -229,7 +253,7 @@ def solve_output_error(
         return (
             _Problem(
                 r0, d0, node_of, nodes, rin0_a, din0_a, eb, 1.0 / sigma, Ly, Lh,
-                free_x, x_fixed, free_g, sig_g,
+                free_x, x_fixed, free_g, sig_g, cell_r0=cell_r0, cell_rot0=cell_rot0,
             ),
             const,
         )  # fmt: skip
@@ -285,16 +309,20 @@ def solve_output_error(
             variance_factor *= c2
             prob, theta, Jac, _, it, refused = fit(False)
         z = float(np.max(np.abs(theta[free_x.size :]), initial=0.0))
-        if z > opt.max_correction_sigma and _depth < opt.max_gross_items:
+        zfull = np.zeros(sig_g.size)
+        zfull[prob.free_g] = np.abs(theta[free_x.size :])
+        worst = int(np.argmax(zfull))
+        # a load cell cannot be left out of the balance (its reactions are forces on the body):
+        # one far off refuses the refinement below
+        cell_worst = prob.cell_base <= worst < prob.gain_base
+        if z > opt.max_correction_sigma and _depth < opt.max_gross_items and not cell_worst:
             # one item far outside its stated uncertainty: a gross error the selection missed
             # (a bad impact, a mis-mounted sensor). Leave out the worst item and solve again.
-            zfull = np.zeros(sig_g.size)
-            zfull[prob.free_g] = np.abs(theta[free_x.size :])
-            worst = int(np.argmax(zfull))
             w2 = wts.copy()
             k2 = np.asarray(keep_in, bool).copy()
-            if worst >= 6 * nn + 4 * J:  # a channel's gain: leave its sensor node out
-                worst = 6 * int(node_of[worst - 6 * nn - 4 * J])
+            gain_base = prob.gain_base
+            if worst >= gain_base:  # a channel's gain: leave its sensor node out
+                worst = 6 * int(node_of[worst - gain_base])
             if worst < 6 * nn:
                 node = int(nodes[worst // 6])
                 w2[geo.nodes == node] = 0.0
@@ -341,7 +369,7 @@ def solve_output_error(
     geometry_test: dict[str, Any] = {"tested": False}
     stated_theta: FloatArray | None = None
     keep_note = ""
-    n_geo = 6 * nn + 4 * J
+    n_geo = prob.gain_base  # geometry items (sensors, inputs, load cells) before the gains
     if opt.geometry_test and cand.size and np.any(prob.free_g < n_geo):
         geometry_test, prob_g, theta_g = _geometry_needed(
             prob, theta, fit, cand, n_geo, H, R, sigma, line_w()
@@ -486,7 +514,7 @@ def solve_output_error(
     g = prob.full_g(theta)
     se_g = np.zeros(sig_g.size)
     se_g[prob.free_g] = np.sqrt(np.clip(np.diag(cov_theta)[nx:], 0, None)) * sig_g[prob.free_g]
-    sens, inps = _corrections(
+    sens, inps, cell_corr = _corrections(
         g,
         se_g,
         sig_g,
@@ -496,8 +524,9 @@ def solve_output_error(
         in_idx,
         opt.refine_geometry,
         refinement_note or keep_note,
+        cell_nodes,
     )
-    new_setup = _refined_setup(setup, geo, active, prob, g, frf.inputs, in_idx, p)
+    new_setup = _refined_setup(setup, geo, active, prob, g, frf.inputs, in_idx, p, cell_nodes)
     sig_rel = sigma / np.sqrt(h_mean_power)
     noise = {
         "method": "line-to-line scatter (third difference), per channel and input",
@@ -527,7 +556,7 @@ def solve_output_error(
     gauge = (
         (
             f"inner constraint: {gauge_info['fixed_modes']} modes of the similarity of all "
-            "sensors and inputs and of the common accelerometer gain, which the FRFs do not "
+            "sensors, inputs and load cells and of the common accelerometer gain, which the FRFs do not "
             "identify (data information below the prior's), carry no correction in the prior's "
             "metric: frame, scale and gain of the stated geometry and certificates; their prior "
             "variance is in the intervals"
@@ -548,6 +577,7 @@ def solve_output_error(
         elapsed_s=time.perf_counter() - t0,
         sensor_corrections=sens,
         input_corrections=inps,
+        load_cell_corrections=cell_corr,
         residual_flexibility=rf_info,
         noise=noise,
         gauge=gauge,
