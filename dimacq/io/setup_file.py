@@ -53,7 +53,9 @@ of ``dimacq solve`` and the API)
 
 ``[geometry_uncertainty]`` (optional; standard uncertainties, 1σ, of the geometry above)
     ``sensor_position_m`` (default 0.002), ``sensor_orientation_deg`` (0.5), ``input_position_m``
-    (0.002), ``line_of_action_deg`` (1.0); ``registration_rms_m`` and ``registration_limit_m``
+    (0.002), ``line_of_action_deg`` (1.0), ``load_cell_position_m`` (0.002) and
+    ``load_cell_orientation_deg`` (0.5, each load cell's pose: the output-error fit refines it);
+    ``registration_rms_m`` and ``registration_limit_m``
     (written by a digitized setup); ``source`` = "default" | "stated" | "digitized". They widen
     the 95 % intervals, act as priors where the geometry is refined, and enter the verdict.
 

@@ -202,12 +202,10 @@ def test_the_scale_stays_that_of_the_stated_geometry_under_load_cell_reactions()
     r = solve_output_error(frf, setup)
     gauge = r.extras["gauge"]
     assert "scale" in gauge["modes_live"] and gauge["fixed_modes"] >= 2
-    # (Σ_n r_n·δp_n + Σ_j (r_j)_⊥·γ_j + Σ_k r_k·δp_k) / σ_p² + Σ_k Σ_o γ_ko / σ_γ² = 0 (equal
-    # prior σ_p for the sensors', the inputs' and the load cells' positions; the scale moves the
-    # cells' moment gains, prior σ_γ, with their points)
+    # Σ_n r_n·δp_n + Σ_j (r_j)_⊥·γ_j + Σ_k r_k·δp_k = 0 (equal prior σ for the sensors', the
+    # inputs' and the load cells' positions; the cells' moment gains are not in the scale mode)
     gu = setup.geometry_uncertainty
     assert gu.sensor_position_m == gu.input_position_m == gu.load_cell_position_m
-    sig_p, sig_gain = gu.load_cell_position_m, setup.transducer_uncertainty.loadcell_matrix_rel
     p = setup.reference_point
     pos = {c.node: np.asarray(c.position_m) - p for c in setup.responses}
     s = sum(pos[c["node"]] @ (1e-3 * np.asarray(c["offset_mm"])) for c in r.sensor_corrections)
@@ -226,12 +224,8 @@ def test_the_scale_stays_that_of_the_stated_geometry_under_load_cell_reactions()
     s += sum(
         cells[c["node"]] @ (1e-3 * np.asarray(c["offset_mm"])) for c in r.load_cell_corrections
     )
-    gains = sum(1e-2 * sum(c["moment_gain_pct"]) for c in r.load_cell_corrections)
     scale_rms = np.sqrt(sum(v @ v for v in pos.values()))
-    # relative scale of the corrections: the constraint against the size of one of its terms
-    total = s / sig_p**2 + gains / sig_gain**2
-    assert abs(total) / (abs(s) / sig_p**2 + abs(gains) / sig_gain**2) < 1e-6
-    assert abs(s) / scale_rms**2 > 1e-6  # not trivially zero: the cell's gains balance it
+    assert abs(s) / scale_rms**2 < 1e-6  # relative scale of the corrections
     x = r.parameters
     est = RigidBodyProperties.from_about_point(float(x[0]), x[1:4], vector_to_inertia(x[4:]), p)
     pm = principal_moments(est.inertia_cg_kgm2)[0] / principal_moments(b.truth.inertia_cg_kgm2)[0]
@@ -310,8 +304,9 @@ def test_the_similarity_with_the_load_cells_changes_no_prediction(
 ) -> None:
     """With the load cell in the instrumentation, its translations, rotations and the common gain
     leave the predicted FRFs (reactions included) unchanged to first order, and so does the
-    scale, which moves the cell's moment gains with its point. Without the cell's part of the
-    motion the reactions break every similarity mode (the cells held exact, before issue 23)."""
+    scale with the cell's moment gains moved alike (the gauge's scale mode leaves them out: the
+    lengths keep their scale). Without the cell's part of the motion the reactions break every
+    similarity mode (the cells held exact, before issue 23)."""
     from dimacq.pipeline.dim import cell_reactions
     from dimacq.pipeline.output_error import gauge_property_jacobian
 
@@ -335,6 +330,10 @@ def test_the_similarity_with_the_load_cells_changes_no_prediction(
     Jx = gauge_property_jacobian(x0)
     cell = np.zeros(G.shape[0], bool)
     cell[prob.cell_base : prob.gain_base] = True  # type: ignore[attr-defined]
+    gains = prob.cell_base + 6 + np.arange(3)  # type: ignore[attr-defined]
+    assert np.all(G[gains, 6] == 0)  # the scale mode keeps the cell's moment gains
+    G = G.copy()
+    G[gains, 6] = 1.0  # the exact symmetry moves them with the lengths
     h = 1e-6
     for k in range(8):
         moved = np.abs(predict(x0 + h * Jx[:, k], g0 + h * G[:, k]) - base).max()

@@ -13,7 +13,8 @@ A common similarity of the whole instrumentation (translation, rotation about P 
 sensors, inputs and load cells together, with the body's properties moved with it:
 :func:`gauge_property_jacobian`) and a common accelerometer gain leave every FRF unchanged
 (``ψᵀ M⁻¹ φ`` is invariant under ``ψ → Sψ``, ``φ → Sφ``, ``M → SMS``; a cell's reactions at P
-move with its pose, and under the scale its own moments with its moment gains). When the cells are not
+move with its pose; under the scale its own moments would need its moment gains moved too, which
+the scale mode leaves out: model.py, ``gauge_basis``). When the cells are not
 refined (``OutputErrorOptions.refine_load_cells`` off) their stated poses break the symmetry,
 and the reactions alone see it. The priors fix
 what the data do not (inner constraint, :func:`_gauge_constraint`): the scale and the common gain
