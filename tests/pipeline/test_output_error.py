@@ -392,3 +392,30 @@ def test_a_load_cell_moment_error_does_not_move_the_principal_moments() -> None:
             assert np.all(np.asarray(corr["moment_gain_pct"]) > 2.0)
     assert err[False] > 0.002  # the cell held exact: 0.37 % off
     assert err[True] < 0.001  # refined: 0.03 %
+
+
+def test_a_load_cell_far_off_is_held_at_its_stated_pose() -> None:
+    """A load cell whose refined correction is a gross error (beyond ``max_correction_sigma`` of
+    its stated uncertainty) cannot be left out like a sensor: the cells are held at their stated
+    pose and calibration and the rest refined again (the answer of ``refine_load_cells=False``),
+    and ``gross_errors`` says so. Here the cell's moment outputs read 15 % low (15 σ)."""
+    b = build_scenario("calibration-mass-bungee", 0)
+    frf = b.model_frf(noise=0.005)
+    moment = np.array(
+        [
+            k == "reaction" and abs(c.direction) > 3
+            for k, c in zip(frf.output_kinds, frf.outputs, strict=True)
+        ]
+    )
+    frf = frf.replace(H=frf.H * np.where(moment, 0.85, 1.0)[None, :, None]).band(
+        3.0, float(frf.frequencies_hz[-1])
+    )
+    r = solve_output_error(frf, b.setup)
+    held = solve_output_error(frf, b.setup, options=OutputErrorOptions(refine_load_cells=False))
+    assert r.refine_geometry and held.refine_geometry
+    assert [g["item"] for g in r.gross_errors][:1] == [
+        "load cells (held at their stated pose and calibration)"
+    ]
+    assert r.gross_errors[0]["correction_sigma"] > 6.0
+    np.testing.assert_allclose(r.parameters, held.parameters, rtol=1e-12)
+    assert not any(c["moment_gain_estimated"] for c in r.load_cell_corrections)

@@ -527,6 +527,11 @@ def print_report(
                 f"  sensor corrections: {len(est)} nodes, largest rotation node {worst['node']} "
                 f"{float(np.linalg.norm(worst['rotation_deg'])):.3f} deg\n"
             )
+        for gross in oe.get("gross_errors") or []:
+            w(
+                f"  gross error: {gross['item']} (its correction {gross['correction_sigma']:.1f} σ "
+                "of the stated uncertainty)\n"
+            )
         for c in oe.get("load_cell_corrections") or []:
             if not (c.get("offset_estimated") or c.get("moment_gain_estimated")):
                 continue
