@@ -419,3 +419,4 @@ def test_a_load_cell_far_off_is_held_at_its_stated_pose() -> None:
     assert r.gross_errors[0]["correction_sigma"] > 6.0
     np.testing.assert_allclose(r.parameters, held.parameters, rtol=1e-12)
     assert not any(c["moment_gain_estimated"] for c in r.load_cell_corrections)
+    assert all("held at its stated pose" in c["offset_status"] for c in r.load_cell_corrections)

@@ -284,6 +284,9 @@ def _corrections(
         ok_r, why_r = status(list(range(b, b + 3)))
         ok_p, why_p = status(list(range(b + 3, b + 6)))
         ok_g, why_g = status(list(range(b + 6, b + 9)))
+        if refine and not note and not np.any(sig[b : b + 9] > 0):
+            held = "held at its stated pose and calibration (load cells not refined)"
+            why_r = why_p = why_g = held
         cells.append(
             {
                 "node": int(node),

@@ -91,7 +91,9 @@ def solve_output_error(
     An item (sensor node or input) whose refined correction exceeds ``max_correction_sigma`` of
     its stated uncertainty is a gross error: it is left out and the solve repeated (at most
     ``max_gross_items`` times; ``gross_errors`` of the result lists them); beyond that the
-    refinement is refused and the stated geometry used.
+    refinement is refused and the stated geometry used. A load cell cannot be left out: when the
+    worst item is a cell's, the cells are held at their stated pose and calibration
+    (``refine_load_cells`` off) and the solve repeated.
 
     Parameters
     ----------
