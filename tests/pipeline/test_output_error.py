@@ -4,6 +4,8 @@ flexibility — each against an independent answer (the closed-form generator of
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import pytest
 from _selection_support import CG_M, I_O, MASS_KG, make_case
@@ -345,6 +347,21 @@ def test_the_similarity_with_the_load_cells_changes_no_prediction(
             assert moved < 1e-9 * scale < broken.max() * 1e-2, (k, moved, broken.max())
 
 
+def _bungee_with_moment_error(factor: float) -> tuple[Any, Any]:
+    """The bungee-hung mass's model FRFs (0.5 % noise) with its load cell's three moment outputs
+    times ``factor``, from 3 Hz up; and the scenario."""
+    b = build_scenario("calibration-mass-bungee", 0)
+    frf = b.model_frf(noise=0.005)
+    moment = np.array(
+        [
+            k == "reaction" and abs(c.direction) > 3
+            for k, c in zip(frf.output_kinds, frf.outputs, strict=True)
+        ]
+    )
+    frf = frf.replace(H=frf.H * np.where(moment, factor, 1.0)[None, :, None])
+    return b, frf.band(3.0, float(frf.frequencies_hz[-1]))
+
+
 def test_a_load_cell_moment_error_does_not_move_the_principal_moments() -> None:
     """Issue 23 (netft-udp-simulated, seeds 3, 5, 7: principal moments 0.4–0.54 % low, mass
     right): with the load cell held at its stated pose and calibration, an error in its moment
@@ -355,17 +372,7 @@ def test_a_load_cell_moment_error_does_not_move_the_principal_moments() -> None:
     from dimacq.model.properties import RigidBodyProperties, principal_moments, vector_to_inertia
     from dimacq.model.setup import GeometryUncertainty
 
-    b = build_scenario("calibration-mass-bungee", 0)
-    frf = b.model_frf(noise=0.005)
-    moment = np.array(
-        [
-            k == "reaction" and abs(c.direction) > 3
-            for k, c in zip(frf.output_kinds, frf.outputs, strict=True)
-        ]
-    )
-    frf = frf.replace(H=frf.H * np.where(moment, 0.97, 1.0)[None, :, None]).band(
-        3.0, float(frf.frequencies_hz[-1])
-    )
+    b, frf = _bungee_with_moment_error(0.97)
     tight = GeometryUncertainty(
         sensor_position_m=0.00034,
         sensor_orientation_deg=0.065,
@@ -399,17 +406,7 @@ def test_a_load_cell_far_off_is_held_at_its_stated_pose() -> None:
     its stated uncertainty) cannot be left out like a sensor: the cells are held at their stated
     pose and calibration and the rest refined again (the answer of ``refine_load_cells=False``),
     and ``gross_errors`` says so. Here the cell's moment outputs read 15 % low (15 σ)."""
-    b = build_scenario("calibration-mass-bungee", 0)
-    frf = b.model_frf(noise=0.005)
-    moment = np.array(
-        [
-            k == "reaction" and abs(c.direction) > 3
-            for k, c in zip(frf.output_kinds, frf.outputs, strict=True)
-        ]
-    )
-    frf = frf.replace(H=frf.H * np.where(moment, 0.85, 1.0)[None, :, None]).band(
-        3.0, float(frf.frequencies_hz[-1])
-    )
+    b, frf = _bungee_with_moment_error(0.85)
     r = solve_output_error(frf, b.setup)
     held = solve_output_error(frf, b.setup, options=OutputErrorOptions(refine_load_cells=False))
     assert r.refine_geometry and held.refine_geometry

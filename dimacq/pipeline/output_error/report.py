@@ -237,25 +237,29 @@ def _corrections(
             )
         return False, "no stated uncertainty (prior σ = 0): stated value kept"
 
+    def pose(node: int, b: int, rot: tuple[bool, str], off: tuple[bool, str]) -> dict[str, Any]:
+        """A rotation (``g[b:b+3]``, rad) and an offset (``g[b+3:b+6]``, m) with their σ and
+        their ``(estimated, status)``."""
+        (ok_r, why_r), (ok_p, why_p) = rot, off
+        return {
+            "node": int(node),
+            "rotation_deg": np.rad2deg(g[b : b + 3]).tolist(),
+            "rotation_se_deg": np.rad2deg(se[b : b + 3]).tolist(),
+            "rotation_prior_deg": float(np.rad2deg(sig[b])),
+            "rotation_status": why_r,
+            "rotation_estimated": ok_r,
+            "offset_mm": (1e3 * g[b + 3 : b + 6]).tolist(),
+            "offset_se_mm": (1e3 * se[b + 3 : b + 6]).tolist(),
+            "offset_prior_mm": float(1e3 * sig[b + 3]),
+            "offset_status": why_p,
+            "offset_estimated": ok_p,
+        }
+
     sens = []
     for n in range(nn):
         b = 6 * n
-        ok_r, why_r = status(list(range(b, b + 3)))
-        ok_p, why_p = status(list(range(b + 3, b + 6)))
         sens.append(
-            {
-                "node": int(prob.nodes[n]),
-                "rotation_deg": np.rad2deg(g[b : b + 3]).tolist(),
-                "rotation_se_deg": np.rad2deg(se[b : b + 3]).tolist(),
-                "rotation_prior_deg": float(np.rad2deg(sig[b])),
-                "rotation_status": why_r,
-                "rotation_estimated": ok_r,
-                "offset_mm": (1e3 * g[b + 3 : b + 6]).tolist(),
-                "offset_se_mm": (1e3 * se[b + 3 : b + 6]).tolist(),
-                "offset_prior_mm": float(1e3 * sig[b + 3]),
-                "offset_status": why_p,
-                "offset_estimated": ok_p,
-            }
+            pose(prob.nodes[n], b, status(list(range(b, b + 3))), status(list(range(b + 3, b + 6))))
         )
     inps = []
     for k, j in enumerate(in_idx):
@@ -289,17 +293,7 @@ def _corrections(
             why_r = why_p = why_g = held
         cells.append(
             {
-                "node": int(node),
-                "rotation_deg": np.rad2deg(g[b : b + 3]).tolist(),
-                "rotation_se_deg": np.rad2deg(se[b : b + 3]).tolist(),
-                "rotation_prior_deg": float(np.rad2deg(sig[b])),
-                "rotation_status": why_r,
-                "rotation_estimated": ok_r,
-                "offset_mm": (1e3 * g[b + 3 : b + 6]).tolist(),
-                "offset_se_mm": (1e3 * se[b + 3 : b + 6]).tolist(),
-                "offset_prior_mm": float(1e3 * sig[b + 3]),
-                "offset_status": why_p,
-                "offset_estimated": ok_p,
+                **pose(node, b, (ok_r, why_r), (ok_p, why_p)),
                 "moment_gain_pct": (100 * g[b + 6 : b + 9]).tolist(),
                 "moment_gain_se_pct": (100 * se[b + 6 : b + 9]).tolist(),
                 "moment_gain_prior_pct": float(100 * sig[b + 6]),
