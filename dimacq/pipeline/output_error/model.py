@@ -80,12 +80,14 @@ residual and the prior residuals with the analytic Jacobian:
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from dimacq.pipeline._batched import cross3
+from dimacq.pipeline.rigid_body import load_cell_transform
 from dimacq.pipeline.rotations import apply_rotvec, rotvec_to_matrix
 
 FloatArray = NDArray[np.float64]
@@ -252,18 +254,22 @@ class _Problem:
         """Index in ``g`` of the first channel gain."""
         return self.cell_base + CELL_PARAMS * self.n_cells
 
+    @cached_property
     def _cell_local(self) -> tuple[FloatArray, FloatArray]:
         """``T_k`` and ``T_k⁻¹`` (K, 6, 6): the stated map of cell ``k``'s local outputs to P
-        (without its sign, which cancels in ``T D T⁻¹``)."""
-        Q0, r = self.cell_rot0, self.cell_r0
-        K = self.n_cells
-        T = np.zeros((K, 6, 6))
-        Ti = np.zeros((K, 6, 6))
-        T[:, :3, :3] = T[:, 3:, 3:] = Q0
-        T[:, 3:, :3] = _skew(r) @ Q0
-        Q0t = np.swapaxes(Q0, 1, 2)
+        (:func:`~dimacq.pipeline.rigid_body.load_cell_transform` without the cell's sign, which
+        cancels in ``T D T⁻¹``); the stated geometry's, so computed once."""
+        T = np.array(
+            [
+                load_cell_transform(r, q, np.zeros(3))
+                for r, q in zip(self.cell_r0, self.cell_rot0, strict=True)
+            ]
+        ).reshape(-1, 6, 6)
+        # its inverse [[Qᵀ, 0], [−Qᵀ[r]x, Qᵀ]] in closed form
+        Q0t = np.swapaxes(self.cell_rot0, 1, 2)
+        Ti = np.zeros_like(T)
         Ti[:, :3, :3] = Ti[:, 3:, 3:] = Q0t
-        Ti[:, 3:, :3] = -Q0t @ _skew(r)
+        Ti[:, 3:, :3] = -Q0t @ _skew(self.cell_r0)
         return T, Ti
 
     def cell_maps(self, g: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
@@ -280,7 +286,7 @@ class _Problem:
         A[:, :3, :3] = Q
         A[:, 3:, 3:] = Q
         A[:, 3:, :3] = _skew(r + gc[:, 3:6]) @ Q - Q @ _skew(r)
-        T, Ti = self._cell_local()
+        T, Ti = self._cell_local
         gains = np.concatenate([np.zeros((K, 3)), gc[:, 6:9]], axis=1)  # forces: as calibrated
         B = (T * (1.0 + gains[:, None, :])) @ Ti
         return A @ B, A, B, Q
@@ -406,7 +412,7 @@ class _Problem:
                 gc = g[self.cell_base : self.gain_base].reshape(K, CELL_PARAMS)
                 jlc = _left_jacobian(gc[:, :3])  # (K, 3, 3)
                 rk = self.cell_r0 + gc[:, 3:6]
-                T, Ti = self._cell_local()
+                T, Ti = self._cell_local
                 for k in range(K):
                     lyk = self.Ly[:, 1 + 6 * k : 7 + 6 * k, :]  # (J, 6, k)
                     for i in range(CELL_PARAMS):
