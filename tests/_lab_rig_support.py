@@ -18,7 +18,7 @@ from _acq_support import ImpulseSource
 
 from dimacq.drivers.daq.driver import DaqDevice, DaqTask
 from dimacq.model.setup import Excitation, ResponseChannel, TestSetup
-from dimacq.services.rig import Rig
+from dimacq.services.acquisition.rig import Rig
 from dimacq.simulators.daq.backend import DaqFaults, DaqInput, VirtualDaqBackend
 from dimacq.simulators.daq.clock import SampleClock
 from dimacq.simulators.imperfections import NONE, Imperfections

@@ -54,7 +54,7 @@ class DeviceContext:
     closers : list of callables
         Called in reverse order by :meth:`close`.
     daq : Daq or None
-        The rig's DAQ task once opened (:func:`dimacq.services.rig.build_rig` sets it). A load
+        The rig's DAQ task once opened (:func:`dimacq.services.acquisition.rig.build_rig` sets it). A load
         cell backend whose signals are DAQ inputs (``"daq-channels"``) reads through it and may
         replace it by a wrapper that hands those inputs to the cell: the rig uses ``ctx.daq``.
     """

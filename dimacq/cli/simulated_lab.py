@@ -4,7 +4,7 @@ virtual lab (``dimacq acquire``, ``tests/scripts``): the scenarios' true article
 (:func:`model_frf`) and the agreement of measured FRFs with them (:func:`frf_agreement`).
 
 Every acquisition and calibration builds its devices with the one rig builder,
-:func:`dimacq.services.rig.build_rig`, from the backend tables; nothing here opens a device.
+:func:`dimacq.services.acquisition.rig.build_rig`, from the backend tables; nothing here opens a device.
 """
 
 from __future__ import annotations

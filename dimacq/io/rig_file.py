@@ -1,6 +1,6 @@
 """The acquisition rig's channel map: ``config/rig.toml`` (schema_version 1).
 
-What is cabled where, for :func:`dimacq.services.rig.build_rig`, real or simulated alike (the
+What is cabled where, for :func:`dimacq.services.acquisition.rig.build_rig`, real or simulated alike (the
 simulated lab is cabled as the rig file says, and its drivers read the same calibrated
 sensitivities and calibration files as on a real rig):
 

@@ -1,6 +1,6 @@
 """Impact-test time data from files: UFF dataset 58 time responses and LabVIEW TDMS.
 
-Both become :class:`TimeRecord` lists that :func:`dimacq.services.time_frf.frf_from_time`
+Both become :class:`TimeRecord` lists that :func:`dimacq.services.acquisition.time_frf.frf_from_time`
 turns into FRFs with the same estimator and windows as an acquisition.
 
 **UFF 58, function type 1** (time response; pyuff reads it): one record per channel per

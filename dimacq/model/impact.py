@@ -1,6 +1,6 @@
 """The settings of an impact test: one vocabulary for the API, the rig file, the CLI and the session.
 
-:class:`ImpactSettings` is what :class:`dimacq.services.acquisition.ImpactSession` runs with (every
+:class:`ImpactSettings` is what :class:`dimacq.services.acquisition.session.ImpactSession` runs with (every
 value concrete). :class:`ImpactOverrides` is the same user-facing fields, each optional: what an
 API request (``POST /api/acquisitions``) or a rig file's ``[acquisition]`` table gives, ``None``
 meaning "not given here". :meth:`ImpactSettings.layered` applies overrides in order of priority —

@@ -145,7 +145,7 @@ def _snapshot(r: m.JobRow) -> dict[str, Any]:
 
 
 class DbJobStore:
-    """:class:`dimacq.services.jobs.JobStore` on the database, for the service of one stand."""
+    """:class:`dimacq.services.lab.jobs.JobStore` on the database, for the service of one stand."""
 
     def __init__(self, db: Database, stand: str, instance: str) -> None:
         self.db = db

@@ -71,7 +71,7 @@ modes at 17 Hz over 4.8 Hz suspension. :func:`elastic_shapes` and :func:`project
 elastic motion in the span of the identified shapes, whatever drives it: each mode's shape is its
 accelerometer residue less its rigid share ``U_r = M⁻¹ W_r / λ_r²`` (the mode's reaction residues
 at P), and the accelerances are split per line into ``Ψ K + C η``; the reactions stay as
-measured. :func:`dimacq.services.modal_correction.corrected` does this (M from a first solve).
+measured. :func:`dimacq.services.solve.modal_correction.corrected` does this (M from a first solve).
 
 Where the FRFs support a fit (the range, then where the fit holds)
 ------------------------------------------------------------------

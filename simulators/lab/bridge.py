@@ -34,6 +34,7 @@ through ``S`` and the nonlinearity only.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -42,6 +43,7 @@ from numpy.typing import NDArray
 __all__ = [
     "BridgeState",
     "StrainGaugeCell",
+    "default_gauge_matrix",
     "default_strain_gauge_cell",
 ]
 
@@ -249,7 +251,7 @@ def default_strain_gauge_cell(
 
 def strain_gauge_cell(node: int, rated_scale: float = 1.0, **overrides: float) -> StrainGaugeCell:
     """The virtual lab's strain-gauge cell ``node`` (its serial number): the lab's 4-spoke
-    sensitivity for that cell (:func:`~dimacq.simulators.lab.timedomain.default_gauge_matrix`
+    sensitivity for that cell (:func:`default_gauge_matrix`
     seeded by the node, read as mV/V per N and N·m; the same in every run, as a real cell is)
     and :func:`default_strain_gauge_cell`'s zero terms.
 
@@ -257,10 +259,26 @@ def strain_gauge_cell(node: int, rated_scale: float = 1.0, **overrides: float) -
     ``rated_scale ×`` :data:`DEFAULT_RATED_LOAD` and a sensitivity ``1/rated_scale`` as large (the
     same mV/V at full scale). An 8-t vehicle on three cells loads each with ~26 kN: a 1-kN cell
     would sit 26 times past its range and every strike would overload."""
-    from dimacq.simulators.lab.timedomain import default_gauge_matrix
-
     if rated_scale <= 0:
         raise ValueError("rated_scale must be positive")
     S = default_gauge_matrix(np.random.default_rng([11, node])) / rated_scale
     overrides.setdefault("rated_load", np.asarray(DEFAULT_RATED_LOAD) * rated_scale)  # type: ignore[arg-type]
     return default_strain_gauge_cell(S, np.random.default_rng([23, node]), **overrides)
+
+
+def default_gauge_matrix(rng: np.random.Generator) -> FloatArray:
+    """A 12×6 sensitivity of a 4-spoke strain-gauge cell (V per N and per N·m), well conditioned.
+
+    Each spoke carries three gauges sensing mostly one combination of loads; a seeded perturbation
+    makes every cell different. Condition number about 3–6.
+    """
+    base = np.zeros((12, 6))
+    for spoke in range(4):
+        ang = spoke * np.pi / 2
+        c, s = math.cos(ang), math.sin(ang)
+        base[3 * spoke + 0] = [c, s, 0.0, 0.0, 0.0, 2.0]  # tangential bending: Fx/Fy and Mz
+        base[3 * spoke + 1] = [0.0, 0.0, 1.0, 2.0 * s, -2.0 * c, 0.0]  # vertical: Fz, Mx, My
+        base[3 * spoke + 2] = [-s, c, 0.3, 0.0, 0.0, -1.0]
+    S = base * 1e-3 + rng.normal(scale=1e-4, size=(12, 6))
+    S[:, 3:] *= 10.0  # moments in N·m give a larger strain per unit
+    return S

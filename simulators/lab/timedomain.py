@@ -50,7 +50,7 @@ from scipy.special import erfc
 
 from dimacq.errors import SetupError
 from dimacq.model.channels import N_GAUGES, axis_name, gauge_names, load_names
-from dimacq.simulators.lab.bridge import BridgeState, StrainGaugeCell
+from dimacq.simulators.lab.bridge import BridgeState, StrainGaugeCell, default_gauge_matrix
 from dimacq.simulators.lab.forward import ForwardModel
 
 __all__ = [
@@ -58,7 +58,6 @@ __all__ = [
     "LabNoise",
     "ShakerSignal",
     "VirtualLab",
-    "default_gauge_matrix",
     "foh_coefficients",
     "modal_foh_filter",
     "state_space",
@@ -976,21 +975,3 @@ def _real_matmul(a: ComplexArray, b: ComplexArray) -> FloatArray:
     """``Re(a @ b)`` with two real products (complex GEMM is far slower on some BLAS builds)."""
     out: FloatArray = a.real @ b.real - a.imag @ b.imag
     return out
-
-
-def default_gauge_matrix(rng: np.random.Generator) -> FloatArray:
-    """A 12×6 sensitivity of a 4-spoke strain-gauge cell (V per N and per N·m), well conditioned.
-
-    Each spoke carries three gauges sensing mostly one combination of loads; a seeded perturbation
-    makes every cell different. Condition number about 3–6.
-    """
-    base = np.zeros((12, 6))
-    for spoke in range(4):
-        ang = spoke * np.pi / 2
-        c, s = math.cos(ang), math.sin(ang)
-        base[3 * spoke + 0] = [c, s, 0.0, 0.0, 0.0, 2.0]  # tangential bending: Fx/Fy and Mz
-        base[3 * spoke + 1] = [0.0, 0.0, 1.0, 2.0 * s, -2.0 * c, 0.0]  # vertical: Fz, Mx, My
-        base[3 * spoke + 2] = [-s, c, 0.3, 0.0, 0.0, -1.0]
-    S = base * 1e-3 + rng.normal(scale=1e-4, size=(12, 6))
-    S[:, 3:] *= 10.0  # moments in N·m give a larger strain per unit
-    return S

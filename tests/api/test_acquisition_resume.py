@@ -21,7 +21,7 @@ from _lab_rig_support import IMPULSE_SETUP, impulse_rig_factory
 
 from dimacq.io.setup_file import dump_setup_dict
 from dimacq.model.impact import ImpactSettings
-from dimacq.services.acquisition import input_frf
+from dimacq.services.acquisition.session import input_frf
 from dimacq.services.lab import Lab
 
 BODY = {"averages_per_input": 3, "min_averages": 2, "record_samples": 2048, "trigger_level_n": 20.0}

@@ -23,7 +23,7 @@ from _lab_rig_support import IMPULSE_SETUP, struck_inputs_factory
 
 from dimacq.drivers.daq.protocol import frame_size
 from dimacq.io.setup_file import dump_setup_dict
-from dimacq.services.acquisition import OPERATOR_OVERRIDE, OPERATOR_REDO, OPERATOR_REJECT
+from dimacq.services.acquisition.session import OPERATOR_OVERRIDE, OPERATOR_REDO, OPERATOR_REJECT
 from dimacq.simulators.daq.backend import DaqFaults
 from dimacq.simulators.imperfections import NONE
 

@@ -210,7 +210,7 @@ def test_digitizer_chain_to_setup(api: Api) -> None:
     """Reference nodes → registration → jig orientation → line of action → setup."""
     from scipy.spatial.transform import Rotation
 
-    from dimacq.services.digitizing import load_jig
+    from dimacq.services.geometry.digitizer_config import load_jig
 
     c = api.client
     rot = Rotation.from_euler("xyz", [10, -5, 30], degrees=True)

@@ -161,9 +161,9 @@ def test_inertial_strike_requests_are_the_runs_prompt(
     session is tested on the real path (tests/services/test_inertial_calibration_real.py)."""
     import threading
 
-    import dimacq.services.inertial_calibration as ic
+    import dimacq.services.calibration.inertial_calibration as ic
     from dimacq.errors import DataError
-    from dimacq.services.rig import StrikeRequest
+    from dimacq.services.acquisition.rig import StrikeRequest
 
     seen = [threading.Event(), threading.Event()]
 

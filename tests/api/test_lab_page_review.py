@@ -17,7 +17,7 @@ from _api_support import TOKEN, served_lab
 from _lab_rig_support import IMPULSE_SETUP, struck_inputs_factory
 
 from dimacq.io.setup_file import dump_setup_dict
-from dimacq.services.acquisition import OPERATOR_OVERRIDE
+from dimacq.services.acquisition.session import OPERATOR_OVERRIDE
 from dimacq.simulators.daq.backend import DaqFaults
 
 CHROMIUM = shutil.which("chromium")

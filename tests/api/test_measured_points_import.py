@@ -19,7 +19,7 @@ from test_registration_limits import REFS, digitize, new_test, register_refs
 
 from dimacq.errors import SetupError
 from dimacq.io.measured_points import read_measured_points
-from dimacq.services.digitizing import load_jig
+from dimacq.services.geometry.digitizer_config import load_jig
 
 
 def _geometry(api: Api) -> tuple[dict, dict, dict]:

@@ -13,7 +13,7 @@ from _pg_support import SQLITE_ONLY
 
 from dimacq.io.setup_file import load_setup
 from dimacq.model.properties import RigidBodyProperties
-from dimacq.services.planning import make_plan
+from dimacq.services.solve.planning import make_plan
 
 pytestmark = SQLITE_ONLY  # computation-bound: see _pg_support.SQLITE_ONLY
 

@@ -16,7 +16,7 @@ import pytest
 from _api_support import Api
 from scipy.spatial.transform import Rotation
 
-from dimacq.services.digitizing import load_jig
+from dimacq.services.geometry.digitizer_config import load_jig
 
 REFS = {
     f"REF{i}": p

@@ -13,7 +13,7 @@ from dimacq.config import load_settings
 from dimacq.errors import SetupError
 from dimacq.io.loadcell_calibration import read_calibration
 from dimacq.model.frf import STANDARD_GRAVITY
-from dimacq.services.rig import build_rig
+from dimacq.services.acquisition.rig import build_rig
 from dimacq.simulators.lab import transducers as tr
 from dimacq.simulators.lab.scenarios import build_scenario
 

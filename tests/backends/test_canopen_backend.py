@@ -20,8 +20,8 @@ from dimacq.config import load_settings
 from dimacq.errors import SetupError
 from dimacq.io.loadcell_calibration import read_calibration
 from dimacq.pipeline.loadcell_calibration import LoadCase
-from dimacq.services import rig as rig_builder
-from dimacq.services.loadcell_calibration import calibrate_rig_cell
+from dimacq.services.acquisition import rig as rig_builder
+from dimacq.services.calibration.loadcell_calibration import calibrate_rig_cell
 from dimacq.simulators.canopen_loadcell.amplifier import CanopenAmplifierSim
 from dimacq.simulators.lab.bridge import strain_gauge_cell
 from dimacq.simulators.lab.scenarios import build_scenario

@@ -18,7 +18,7 @@ from dimacq.backends import BACKENDS, is_simulated, lookup
 from dimacq.backends.base import DeviceContext
 from dimacq.config import load_settings
 from dimacq.errors import DeviceNotFoundError, SetupError
-from dimacq.services import rig as rig_builder
+from dimacq.services.acquisition import rig as rig_builder
 from dimacq.simulators.cia404.node import Cia404NodeSim
 from dimacq.simulators.lab.scenarios import build_scenario
 

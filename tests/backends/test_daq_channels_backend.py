@@ -17,7 +17,7 @@ from dimacq.backends.base import DeviceContext
 from dimacq.config import default_config_file, load_settings
 from dimacq.drivers.daq_loadcell import DaqChannelLoadCell, DaqSplitter
 from dimacq.errors import SetupError
-from dimacq.services import rig as rig_builder
+from dimacq.services.acquisition import rig as rig_builder
 from dimacq.simulators.lab.scenarios import build_scenario
 
 

@@ -15,8 +15,9 @@ from _digitizer_support import make_device, url_backend
 
 from dimacq.config import load_settings
 from dimacq.errors import SetupError
-from dimacq.services.digitizing import DigitizingSession, load_array_config
-from dimacq.services.rig import build_rig, run_impact_test
+from dimacq.services.acquisition.rig import build_rig, run_impact_test
+from dimacq.services.geometry.digitizer_config import load_array_config
+from dimacq.services.geometry.digitizing import DigitizingSession
 from dimacq.simulators.imperfections import DEFAULT, NONE, Imperfections
 from dimacq.simulators.lab.scenarios import build_scenario
 

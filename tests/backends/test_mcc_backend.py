@@ -13,7 +13,7 @@ from dimacq.backends import BACKENDS, is_simulated, lookup
 from dimacq.backends.base import DeviceContext
 from dimacq.config import default_config_file, load_settings
 from dimacq.errors import DeviceNotFoundError, SetupError
-from dimacq.services import rig as rig_builder
+from dimacq.services.acquisition import rig as rig_builder
 from dimacq.simulators.daq.backend import DaqInput
 from dimacq.simulators.lab.scenarios import build_scenario
 from dimacq.simulators.mcc.backend import Mcc1808Backend, default_fpga_image

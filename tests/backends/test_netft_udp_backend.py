@@ -20,7 +20,7 @@ from dimacq.backends.base import DeviceContext
 from dimacq.config import default_config_file, load_settings
 from dimacq.drivers.netft.udp_driver import NetFtUdp
 from dimacq.errors import SetupError
-from dimacq.services import rig as rig_builder
+from dimacq.services.acquisition import rig as rig_builder
 from dimacq.simulators.lab.scenarios import build_scenario
 
 
@@ -149,7 +149,7 @@ def test_one_delay_fitted_on_every_input_of_the_run(
     cell FRFs then follow the CAN FD amplifier's over 50–655 Hz (median phase within half the
     budget of 10° at 655 Hz; measured up to 1.5°), on the article bolted to the cell
     (``GROUND``), on the two loads the strike drives most."""
-    caplog.set_level("INFO", logger="dimacq.services.data_alignment")
+    caplog.set_level("INFO", logger="dimacq.services.acquisition.data_alignment")
     budget = {"netft_max_phase_deg": 10.0}
     amp = _impact(tmp_path, "simulated", n_inputs=4, scenario=GROUND)
     try:

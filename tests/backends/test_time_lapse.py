@@ -17,7 +17,7 @@ from dimacq.backends import time_lapse as tl
 from dimacq.backends.time_lapse import HostLag, HostMeasurement, choose_time_lapse
 from dimacq.config import load_settings
 from dimacq.errors import SetupError
-from dimacq.services.rig import build_rig, run_impact_test
+from dimacq.services.acquisition.rig import build_rig, run_impact_test
 from dimacq.simulators.lab.scenarios import build_scenario
 from dimacq.simulators.virtual_can import SimVirtualBus
 

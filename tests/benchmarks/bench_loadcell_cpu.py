@@ -15,7 +15,7 @@ import time
 from pathlib import Path
 
 from dimacq.config import load_settings
-from dimacq.services import rig as rig_builder
+from dimacq.services.acquisition import rig as rig_builder
 from dimacq.simulators.lab.scenarios import build_scenario
 
 

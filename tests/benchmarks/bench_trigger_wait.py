@@ -2,7 +2,7 @@
 10 240 S/s × 64 channels.
 
 Run on demand: ``python tests/benchmarks/bench_trigger_wait.py [rate_hz] [wait_s]``. One
-impact average through :class:`~dimacq.services.acquisition.ImpactSession` on an in-memory DAQ
+impact average through :class:`~dimacq.services.acquisition.session.ImpactSession` on an in-memory DAQ
 (``tests/_block_daq.py``: blocks are preallocated zeros, so the DAQ side costs nothing) whose
 hammer hit comes ``wait_s`` seconds after arming; reports the process CPU of the whole run
 (trigger wait, record and FRF of one short record) and of a run with no wait, and their
@@ -20,7 +20,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from _block_daq import BlockDaq
 
-from dimacq.services.acquisition import ImpactSession, ImpactSettings
+from dimacq.services.acquisition.session import ImpactSession, ImpactSettings
 
 N_CH, BLOCK = 64, 512
 

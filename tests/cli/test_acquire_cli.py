@@ -217,7 +217,7 @@ def test_acquire_with_incomplete_inputs_keeps_the_rest_and_says_why(tmp_path, ca
     first test's)."""
     from dataclasses import replace
 
-    import dimacq.services.rig as rig_mod
+    import dimacq.services.acquisition.rig as rig_mod
     from dimacq.simulators.lab.scenarios import build_scenario
 
     built = build_scenario("calibration-mass-bungee", 0)

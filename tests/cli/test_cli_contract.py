@@ -41,8 +41,11 @@ def test_every_help_is_plain_text(capsys: pytest.CaptureFixture[str]) -> None:
 
 
 def test_plain_turns_roles_and_literals_into_text() -> None:
-    doc = "Uses :func:`dimacq.services.rig.build_rig` and :class:`~a.b.Rig`; ``--data-dir``.\n\n    x::"
-    assert plain(doc) == "Uses dimacq.services.rig.build_rig and Rig; --data-dir.\n\n    x:"
+    doc = "Uses :func:`dimacq.services.acquisition.rig.build_rig` and :class:`~a.b.Rig`; ``--data-dir``.\n\n    x::"
+    assert (
+        plain(doc)
+        == "Uses dimacq.services.acquisition.rig.build_rig and Rig; --data-dir.\n\n    x:"
+    )
 
 
 class _Clock:

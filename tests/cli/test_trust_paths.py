@@ -12,7 +12,7 @@ import pytest
 from dimacq.cli.main import main
 from dimacq.io.setup_file import load_setup
 from dimacq.model.setup import GeometryUncertainty
-from dimacq.services.analysis import AnalysisOptions, analyse
+from dimacq.services.solve.analysis import AnalysisOptions, analyse
 from dimacq.simulators.lab.scenarios import build_scenario
 
 ROOT = Path(__file__).resolve().parents[2]

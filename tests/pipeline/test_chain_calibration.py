@@ -10,7 +10,7 @@ import pytest
 
 from dimacq.errors import DataError, SetupError
 from dimacq.pipeline.chain_calibration import ChainCalibration, chain_calibration
-from dimacq.services.analysis import AnalysisOptions, analyse
+from dimacq.services.solve.analysis import AnalysisOptions, analyse
 from dimacq.simulators.lab.forward import REFERENCE_BLOCK, reference_block_drawing
 from dimacq.simulators.lab.scenarios import build_scenario
 

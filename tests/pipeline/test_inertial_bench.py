@@ -167,7 +167,7 @@ def test_a_wrong_geometry_is_not_a_rigid_body() -> None:
     motions are no rigid motion of the stated array, whatever the gains; the residual says so
     (the service refuses above 5 %, MAX_RIGID_RESIDUAL) — the matrix fit's own residual would
     not: C maps any linear combination."""
-    from dimacq.services.inertial_calibration import MAX_RIGID_RESIDUAL
+    from dimacq.services.calibration.inertial_calibration import MAX_RIGID_RESIDUAL
 
     psi_true = array(seed=0)
     H, _ = rigid_frf(psi_true)

@@ -11,7 +11,7 @@ from dimacq.errors import DataError
 from dimacq.model.frf import FrfData
 from dimacq.pipeline.dim import assemble, solve_system
 from dimacq.pipeline.modal import elastic_shapes, lscf_poles, project_out
-from dimacq.services.modal_correction import corrected, modal_fit
+from dimacq.services.solve.modal_correction import corrected, modal_fit
 from dimacq.simulators.lab.scenarios import build_scenario
 
 

@@ -73,7 +73,7 @@ def test_interval_covers_the_truth() -> None:
     """Coverage of the 95 % intervals over seeded trials with 0.5° sensor errors, as the analysis
     service computes them (inputs, sensor nodes, lines, stated geometry uncertainty): at least
     90 % of the parameters over the trials (a 95 % interval; 12 × 10 parameters)."""
-    from dimacq.services.analysis import AnalysisOptions, analyse
+    from dimacq.services.solve.analysis import AnalysisOptions, analyse
 
     hits = np.zeros(10)
     n = 12
@@ -107,7 +107,7 @@ def test_interval_covers_certificate_errors() -> None:
     do not (the transducer term is what makes them hold)."""
     from dimacq.model.setup import GeometryUncertainty, TransducerUncertainty
     from dimacq.pipeline.selection._common import response_geometry
-    from dimacq.services.analysis import AnalysisOptions, analyse
+    from dimacq.services.solve.analysis import AnalysisOptions, analyse
 
     exact = GeometryUncertainty(
         sensor_position_m=0.0,

@@ -12,7 +12,7 @@ from matplotlib.figure import Figure
 import dimacq.plotting.figures as figures
 from dimacq.model.setup import PARAMETERS
 from dimacq.pipeline.sensitivity import cube_study
-from dimacq.services.analysis import AnalysisOptions, analyse
+from dimacq.services.solve.analysis import AnalysisOptions, analyse
 
 
 def _line_data(ax) -> list[np.ndarray]:  # type: ignore[no-untyped-def]

@@ -38,7 +38,7 @@ from scipy.spatial.transform import Rotation
 from dimacq.model.properties import RigidBodyProperties, principal_moments, vector_to_inertia
 from dimacq.model.setup import TestSetup
 from dimacq.pipeline.output_error import gauge_property_jacobian
-from dimacq.services.analysis import AnalysisOptions, analyse
+from dimacq.services.solve.analysis import AnalysisOptions, analyse
 from dimacq.simulators.lab.scenarios import build_scenario, gross_errors
 
 

@@ -4,7 +4,7 @@ Run on demand (several minutes on a loaded machine)::
 
     nice python tests/scripts/accuracy_must_show.py [--seeds 6] [--bias-seeds 12] [--json OUT]
 
-Cases (every one solved through :func:`dimacq.services.analysis.analyse`, as ``dimacq solve``):
+Cases (every one solved through :func:`dimacq.services.solve.analysis.analyse`, as ``dimacq solve``):
 
 1. Realistic rigid cases, 1 % FRF noise, the scenarios' geometry errors (2 mm positions, 0.5° triax
    orientation, 1° hammer line of action, 2 mis-mounted axes, 2 bad impacts):
@@ -38,7 +38,7 @@ import numpy as np
 from dimacq.model.properties import RigidBodyProperties, principal_moments
 from dimacq.model.setup import PARAMETERS
 from dimacq.pipeline import dim
-from dimacq.services.analysis import AnalysisOptions, analyse
+from dimacq.services.solve.analysis import AnalysisOptions, analyse
 from dimacq.simulators.lab.scenarios import Scenario, build_scenario, load_scenario
 
 

@@ -19,7 +19,7 @@ import warnings
 import numpy as np
 
 from dimacq.model.properties import principal_moments
-from dimacq.services.analysis import AnalysisOptions, analyse
+from dimacq.services.solve.analysis import AnalysisOptions, analyse
 from dimacq.simulators.lab.scenarios import build_scenario
 
 

@@ -27,7 +27,7 @@ from accuracy_must_show import errors, spec_with  # type: ignore[import-not-foun
 
 from dimacq.model.properties import principal_moments
 from dimacq.model.setup import PARAMETERS
-from dimacq.services.analysis import AnalysisOptions, analyse
+from dimacq.services.solve.analysis import AnalysisOptions, analyse
 from dimacq.simulators.lab.scenarios import build_scenario
 
 FLEXIBLE_35 = {

@@ -14,8 +14,8 @@ import numpy as np
 
 import dimacq.simulators.digitizer as simdig
 from dimacq.drivers.digitizer import SerialDigitizer
-from dimacq.services.digitizer_selftest import run_selftest
-from dimacq.services.digitizing import load_array_config, load_jig
+from dimacq.services.geometry.digitizer_config import load_array_config, load_jig
+from dimacq.services.geometry.digitizer_selftest import run_selftest
 
 LIMITS = {
     "tip_rms_mm": 0.5,

@@ -32,8 +32,9 @@ from dimacq.drivers.digitizer import SerialDigitizer
 from dimacq.pipeline.digitizing.lines_of_action import angle_between_deg, line_of_action_svd
 from dimacq.pipeline.digitizing.orientation import fit_orientation, rotation_error_deg
 from dimacq.pipeline.digitizing.registration import registration_limit_m
-from dimacq.services.digitizing import DigitizingSession, load_array_config, load_jig
-from dimacq.services.geometry_trust import (
+from dimacq.services.geometry.digitizer_config import load_array_config, load_jig
+from dimacq.services.geometry.digitizing import DigitizingSession
+from dimacq.services.geometry.geometry_trust import (
     judge_registration,
     line_of_action_uncertainty,
     orientation_uncertainty,

@@ -5,7 +5,7 @@ the acquisition, then ~3 s per draw: ``python tests/scripts/inertial_certificate
 The matrix error of the inertial bench comes from the accelerometers' certificates (0.5 % 1σ
 each, :data:`CERTIFICATE_ERROR` of ``simulated_rig_files.py``): the shipped rig file is one draw.
 This script acquires the bench once per scenario seed through the real service
-(:func:`~dimacq.services.inertial_calibration.run_inertial_calibration` on the simulated lab,
+(:func:`~dimacq.services.calibration.inertial_calibration.run_inertial_calibration` on the simulated lab,
 over the devices' wires, with the rig file's certificates), then re-runs the same service code on
 that acquisition for ``--draws`` other certificate draws: a channel whose certificate is
 ``c' = true (1 + ε')`` instead of the rig file's ``c`` reads ``c/c'`` times what it read, so
@@ -32,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-import dimacq.services.inertial_calibration as ic
+import dimacq.services.calibration.inertial_calibration as ic
 from dimacq.config import Settings
 from dimacq.io.rig_file import load_rig_file
 from dimacq.pipeline import inertial_bench

@@ -25,7 +25,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from modal_must_show import _coverage, _errors
 
 from dimacq.io.uff import read_uff_test
-from dimacq.services.analysis import AnalysisOptions, analyse
+from dimacq.services.solve.analysis import AnalysisOptions, analyse
 from dimacq.simulators.lab.scenarios import build_scenario
 
 

@@ -29,7 +29,7 @@ import numpy as np
 
 from dimacq.model.properties import RigidBodyProperties, principal_moments
 from dimacq.model.setup import PARAMETERS
-from dimacq.services.analysis import AnalysisOptions, analyse
+from dimacq.services.solve.analysis import AnalysisOptions, analyse
 from dimacq.simulators.lab.scenarios import build_scenario
 
 CASES = {

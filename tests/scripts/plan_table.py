@@ -36,7 +36,7 @@ def main() -> None:
 
     from dimacq.cli.commands.plan import _properties
     from dimacq.io.setup_file import load_setup
-    from dimacq.services.planning import make_plan
+    from dimacq.services.solve.planning import make_plan
 
     rows, docs = [], []
     with LocalCluster(

@@ -31,7 +31,7 @@ from _selection_support import forward_case
 
 from dimacq.pipeline.selection._common import response_geometry
 from dimacq.pipeline.selection.orientation import estimate_orientation_frf
-from dimacq.services.analysis import AnalysisOptions, analyse
+from dimacq.services.solve.analysis import AnalysisOptions, analyse
 
 
 def _accuracy(report, truth) -> tuple[bool, float, float, float]:  # type: ignore[no-untyped-def]

@@ -12,7 +12,7 @@ Flexible cases: X-38-like vehicles whose elastic modes (drogue-chute pair, tails
 suspension frequency, 0.5 % noise, lines 1–60 Hz: each must be either solved (mass within 1 %,
 principal moments within 5 %, honest intervals) or refused (verdict ``fail``, with a reason).
 
-Everything goes through :func:`dimacq.services.analysis.analyse` with default options, i.e. what
+Everything goes through :func:`dimacq.services.solve.analysis.analyse` with default options, i.e. what
 ``dimacq solve`` does with no flags.
 """
 
@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from dimacq.model.setup import PARAMETERS
-from dimacq.services.analysis import AnalysisOptions, analyse
+from dimacq.services.solve.analysis import AnalysisOptions, analyse
 from dimacq.simulators.lab.scenarios import Scenario, build_scenario, load_scenario
 
 

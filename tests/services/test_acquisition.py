@@ -25,7 +25,7 @@ from dimacq.drivers.daq.driver import DaqDevice, DaqTask
 from dimacq.drivers.loadcell.driver import LoadCellAmplifier
 from dimacq.errors import DataError, DeviceTimeoutError, SetupError
 from dimacq.io.acquisition_hdf5 import AcquisitionWriter
-from dimacq.services.acquisition import ImpactSession, ImpactSettings
+from dimacq.services.acquisition.session import ImpactSession, ImpactSettings
 from dimacq.simulators.daq.backend import DaqFaults, DaqInput, VirtualDaqBackend
 from dimacq.simulators.daq.clock import SampleClock
 from dimacq.simulators.loadcell.amplifier import (
@@ -320,7 +320,7 @@ def test_a_session_resumed_with_kept_averages_strikes_only_the_missing(lab):
     bit, and records_frf (finish after a crash) gives the session's numbers from the same
     records."""
     from dimacq.model.setup import Excitation, ResponseChannel, TestSetup
-    from dimacq.services.acquisition import records_frf
+    from dimacq.services.acquisition.session import records_frf
 
     src, backend, task, amp = lab()
     strikes = []

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from _selection_support import forward_case
 
-from dimacq.services.analysis import AnalysisOptions, analyse
+from dimacq.services.solve.analysis import AnalysisOptions, analyse
 
 
 @pytest.mark.slow
@@ -77,7 +77,7 @@ def test_verdict_warns_on_an_interval_too_wide_to_be_useful() -> None:
     intervals are narrow enough (precision ok); with 1 cm positions and 3° directions stated they
     are not, and the verdict warns naming the widest ones; far wider than the limits it fails."""
     from dimacq.model.setup import GeometryUncertainty
-    from dimacq.services.analysis import CI95_LIMIT_PRINCIPAL
+    from dimacq.services.solve.analysis import CI95_LIMIT_PRINCIPAL
 
     c = forward_case(13)
     # the equation-error estimate: the stated uncertainty changes its intervals, not the estimate

@@ -12,7 +12,7 @@ from scipy.signal import find_peaks
 
 from dimacq.model.properties import principal_moments
 from dimacq.pipeline.selection.band import suggest_band
-from dimacq.services.analysis import AnalysisOptions, analyse
+from dimacq.services.solve.analysis import AnalysisOptions, analyse
 from dimacq.simulators.lab.scenarios import Scenario, build_scenario, load_scenario
 
 

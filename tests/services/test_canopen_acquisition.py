@@ -18,7 +18,7 @@ from dimacq.config import Settings
 from dimacq.drivers.canopen_loadcell import protocol as p
 from dimacq.drivers.canopen_loadcell.driver import CanopenLoadCell
 from dimacq.drivers.daq.driver import DaqDevice, DaqTask
-from dimacq.services.acquisition import ImpactSession, ImpactSettings
+from dimacq.services.acquisition.session import ImpactSession, ImpactSettings
 from dimacq.simulators.canopen_loadcell.amplifier import CanopenAmplifierSim, CanopenFaults
 from dimacq.simulators.daq.backend import DaqInput, VirtualDaqBackend
 from dimacq.simulators.daq.clock import SampleClock

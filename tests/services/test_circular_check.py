@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from dimacq.services.circular_check import MIN_CELL_SENSITIVITY, cell_sensitivity
+from dimacq.services.calibration.circular_check import MIN_CELL_SENSITIVITY, cell_sensitivity
 from dimacq.simulators.lab.scenarios import build_scenario
 
 
@@ -36,8 +36,8 @@ def test_the_bench_checks_on_the_mass_standing_on_the_cell(tmp_path) -> None:
     a bench without ``check_setup_file`` checks on the calibration's own mounting."""
     from dimacq.config import Settings, default_config_file
     from dimacq.io.loadcell_bench import load_bench_file
-    from dimacq.services.circular_check import SIMULATED_ON_CELL_SCENARIO, check_world
-    from dimacq.services.inertial_calibration import calibration_mass
+    from dimacq.services.calibration.circular_check import SIMULATED_ON_CELL_SCENARIO, check_world
+    from dimacq.services.calibration.inertial_calibration import calibration_mass
 
     bench = load_bench_file(default_config_file().parent / "loadcell_bench.toml")
     hung, props = calibration_mass(bench, 501)
@@ -63,7 +63,7 @@ def test_the_chain_weighs_as_the_cell_says() -> None:
     """Hung, DIM's mass is the hammer's force over the acceleration (+1, −1); on the cell the
     hammer's weight is 1 − the cell's (hammer and cell read high together: every force
     scaled), so the check compares the cell with the hammer–accelerometer chain."""
-    from dimacq.services.circular_check import chain_sensitivities
+    from dimacq.services.calibration.circular_check import chain_sensitivities
 
     for scenario, band in (
         ("calibration-mass-bungee", (20.0, 100.0)),

@@ -8,8 +8,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from dimacq.model.setup import TestSetup
-from dimacq.services.analysis import AnalysisOptions, AnalysisReport, VerdictReason, analyse
-from dimacq.services.cross_check import Z95, Z_FAMILY
+from dimacq.services.solve.analysis import AnalysisOptions, AnalysisReport, VerdictReason, analyse
+from dimacq.services.solve.cross_check import Z95, Z_FAMILY
 from dimacq.simulators.lab.scenarios import build_scenario
 
 
@@ -98,8 +98,8 @@ def test_a_mis_mounted_triax_the_selection_keeps_makes_them_disagree() -> None:
 
 
 def test_verdict_check_without_a_fit_and_below_the_family_wise_limit() -> None:
-    from dimacq.services.cross_check import CrossCheck
-    from dimacq.services.verdict import cross_check_checks
+    from dimacq.services.solve.cross_check import CrossCheck
+    from dimacq.services.solve.verdict import cross_check_checks
 
     assert cross_check_checks(None) == []
     none = CrossCheck(None, {}, {"all": True}, {}, (10.0, 20.0), error="rank 5")

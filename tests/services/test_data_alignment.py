@@ -1,5 +1,5 @@
 """The residual delay of a load cell on its own clock, fitted per input and removed
-(:mod:`dimacq.services.data_alignment`): against FRFs of the supports' mass-line model with a
+(:mod:`dimacq.services.acquisition.data_alignment`): against FRFs of the supports' mass-line model with a
 known delay (closed form), the refusal naming the fit, and only the cells that ask for it."""
 
 from __future__ import annotations
@@ -11,8 +11,8 @@ import pytest
 
 from dimacq.errors import SetupError
 from dimacq.pipeline.stream_alignment import DelayBudget
-from dimacq.services import data_alignment
-from dimacq.services.data_alignment import DataAligner, align_rows, force_share
+from dimacq.services.acquisition import data_alignment
+from dimacq.services.acquisition.data_alignment import DataAligner, align_rows, force_share
 
 F = np.arange(0.5, 1024.0, 0.5)
 

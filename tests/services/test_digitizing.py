@@ -12,12 +12,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from _digitizer_support import make_device, url_backend
 
 from dimacq.errors import DeviceNotFoundError, SetupError
-from dimacq.services.digitizing import (
-    DigitizingSession,
-    JsonlJournal,
-    load_array_config,
-    load_jig,
-)
+from dimacq.services.geometry.digitizer_config import load_array_config, load_jig
+from dimacq.services.geometry.digitizing import DigitizingSession, JsonlJournal
 
 CFG = load_array_config()
 

@@ -1,4 +1,4 @@
-"""The estimator step's guard (dimacq.services.estimation): an output-error fit left on the
+"""The estimator step's guard (dimacq.services.solve.estimation): an output-error fit left on the
 stated geometry is used only when its misfit is near the FRFs' measured noise — also when the
 refinement was asked for and refused, whose fit carries the refined fit's variance factor.
 
@@ -18,8 +18,8 @@ from _selection_support import MASS_KG, make_case
 
 from dimacq.pipeline.dim import solve
 from dimacq.pipeline.output_error import OutputErrorResult, solve_output_error
-from dimacq.services import estimation
-from dimacq.services.analysis import AnalysisOptions
+from dimacq.services.solve import estimation
+from dimacq.services.solve.analysis import AnalysisOptions
 
 #: stands for the step's Uncertainty argument, which these cases return or pass on untouched
 SENTINEL: Any = object()
@@ -114,7 +114,7 @@ def test_the_refusal_stays_in_the_verdict_when_the_equation_error_estimate_is_re
     """The equation-error estimate that stays is no answer to the data the refinement could not
     reconcile: the verdict keeps its ``estimator:refinement`` warn (an x38-flexible-17 with the
     realistic scenario's errors: CG 10.9 mm off, reported ``ok`` without it)."""
-    from dimacq.services.verdict import _estimator_checks
+    from dimacq.services.solve.verdict import _estimator_checks
 
     note = {"used": False, "reason": "…", "refinement_refused": "geometry refinement refused: x"}
     (r,) = _estimator_checks(note)

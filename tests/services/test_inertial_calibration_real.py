@@ -28,13 +28,13 @@ from dimacq.io.loadcell_calibration import read_calibration
 from dimacq.io.rig_file import load_rig_file
 from dimacq.io.setup_file import save_setup
 from dimacq.model.setup import KnownProperties
-from dimacq.services.circular_check import circular_check
-from dimacq.services.inertial_calibration import (
+from dimacq.services.calibration.circular_check import circular_check
+from dimacq.services.calibration.inertial_calibration import (
     install_inertial,
     run_inertial_calibration,
     select_cell,
 )
-from dimacq.services.loadcell_calibration import download_and_verify
+from dimacq.services.calibration.loadcell_calibration import download_and_verify
 
 FACTORY = "_real_rig_support:daq_backend"
 INPUTS = tuple(range(0, 24, 3))  # 8 impact points on the three faces

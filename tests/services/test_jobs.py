@@ -7,7 +7,7 @@ import threading
 import pytest
 
 from dimacq.errors import DataError, SetupError
-from dimacq.services.jobs import JobManager
+from dimacq.services.lab.jobs import JobManager
 
 
 def test_progress_and_success_are_persisted() -> None:

@@ -28,7 +28,7 @@ from dimacq.io.loadcell_calibration import (
 )
 from dimacq.io.rig_file import load_rig_file
 from dimacq.pipeline.loadcell_calibration import LoadCase
-from dimacq.services.loadcell_calibration import calibrate_rig_cell
+from dimacq.services.calibration.loadcell_calibration import calibrate_rig_cell
 from dimacq.simulators.lab.bridge import strain_gauge_cell
 from dimacq.simulators.loadcell.amplifier import LoadCellAmplifierSim
 from dimacq.simulators.loadcell.bench import DeadWeightBench

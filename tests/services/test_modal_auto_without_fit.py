@@ -11,7 +11,7 @@ from types import SimpleNamespace
 import pytest
 
 from dimacq.errors import DataError
-from dimacq.services import modal_correction as mc
+from dimacq.services.solve import modal_correction as mc
 
 
 def test_deformation_peaks_without_a_possible_fit_are_no_contamination(

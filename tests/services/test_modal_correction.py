@@ -11,7 +11,7 @@ import pytest
 from dimacq.cli.commands.solve import load_test
 from dimacq.errors import SetupError
 from dimacq.model.properties import principal_moments
-from dimacq.services.analysis import AnalysisOptions, analyse
+from dimacq.services.solve.analysis import AnalysisOptions, analyse
 from dimacq.simulators.lab.scenarios import build_scenario
 
 ROOT = Path(__file__).resolve().parents[2]

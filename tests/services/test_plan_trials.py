@@ -1,4 +1,4 @@
-"""The plan's Monte Carlo trial (dimacq.services.planning.run_trial): a simulated test of a layout
+"""The plan's Monte Carlo trial (dimacq.services.solve.planning.run_trial): a simulated test of a layout
 solved by the default ``dimacq solve``. With (almost) no noise and no geometry or transducer
 error, the solve returns the expected properties; trial i's draws do not depend on the others."""
 
@@ -13,7 +13,7 @@ import pytest
 from dimacq.io.setup_file import load_setup
 from dimacq.model.properties import RigidBodyProperties
 from dimacq.pipeline import planning as pl
-from dimacq.services.planning import TrialSpec, layout_setup, run_trial
+from dimacq.services.solve.planning import TrialSpec, layout_setup, run_trial
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -59,7 +59,7 @@ def test_trial_draws_depend_only_on_seed_and_index() -> None:
 
 @pytest.mark.parametrize(("n_trials", "workers"), [(1, 2), (7, 2), (100, 2), (1000, 2), (1000, 8)])
 def test_trial_batches_cover_every_trial_once_in_order(n_trials: int, workers: int) -> None:
-    from dimacq.services.planning import BATCH_MAX, _batches
+    from dimacq.services.solve.planning import BATCH_MAX, _batches
 
     batches = _batches(n_trials, workers)
     assert [i for b in batches for i in b] == list(range(n_trials))

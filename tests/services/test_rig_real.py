@@ -25,7 +25,7 @@ from dimacq.cli.simulated_lab import model_frf
 from dimacq.config import load_settings
 from dimacq.errors import DeviceNotFoundError, SetupError
 from dimacq.io.rig_file import load_rig_file
-from dimacq.services import rig as rig_builder
+from dimacq.services.acquisition import rig as rig_builder
 
 FACTORY = "_real_rig_support:daq_backend"
 INPUTS = (0, 9, 17)

@@ -8,7 +8,7 @@ import pytest
 
 from dimacq.errors import SetupError
 from dimacq.pipeline.loadcell_calibration import LoadPlan, standard_load_plan
-from dimacq.services.loadcell_calibration import run_static_calibration
+from dimacq.services.calibration.loadcell_calibration import run_static_calibration
 from dimacq.simulators.lab.bridge import strain_gauge_cell
 
 

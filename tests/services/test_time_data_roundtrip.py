@@ -3,7 +3,7 @@ time records, imported again, give the live path's FRFs (to 1e-6).
 
 A short impact test runs on the simulated devices (the dimacq USB DAQ, and the USB-1808X
 units); the accepted records — the samples that entered the live FRFs, before windows — are
-kept through the session's ``on_average``, exported by :func:`~dimacq.services.time_frf.
+kept through the session's ``on_average``, exported by :func:`~dimacq.services.acquisition.time_frf.
 time_records` with :func:`~dimacq.io.time_data.write_tdms_time` / ``write_uff_time``, read back
 by ``dimacq frf-from-time``'s readers and estimated with the session's windows and estimator.
 """
@@ -24,8 +24,8 @@ from dimacq.io.time_data import (
     write_tdms_time,
     write_uff_time,
 )
-from dimacq.services import rig as rig_builder
-from dimacq.services.time_frf import frf_from_time, time_records
+from dimacq.services.acquisition import rig as rig_builder
+from dimacq.services.acquisition.time_frf import frf_from_time, time_records
 from dimacq.simulators.lab.scenarios import build_scenario
 
 

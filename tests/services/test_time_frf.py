@@ -14,7 +14,7 @@ from nptdms import ChannelObject, GroupObject, TdmsWriter
 from dimacq.errors import DataError
 from dimacq.io.time_data import read_tdms_time, read_time_data, read_uff_time
 from dimacq.model.channels import axis_name, load_names
-from dimacq.services.time_frf import frf_from_time
+from dimacq.services.acquisition.time_frf import frf_from_time
 from dimacq.simulators.lab.scenarios import build_scenario
 
 FS = 2000.0  # 1/FS = 5.00000e-04 exactly in the 58 record's E13.5
@@ -195,7 +195,7 @@ def test_command_line_fft_threads_give_the_same_frfs_and_zero_is_refused(
     save_setup(setup, tmp_path / "setup.toml")
     args = ["frf-from-time", str(tmp_path / "setup.toml"), str(tmp_path / "t.uff")]
     one = frf_from_time(read_time_data(tmp_path / "t.uff"), setup, source="t")
-    import dimacq.services.time_frf as time_frf
+    import dimacq.services.acquisition.time_frf as time_frf
 
     threads: list[int] = []
     estimate = time_frf.estimate_frf

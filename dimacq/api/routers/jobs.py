@@ -13,7 +13,7 @@ from fastapi.responses import StreamingResponse
 from dimacq.api.deps import LabDep
 from dimacq.api.routers._common import LIST_RESPONSES, PageDep, found, paged
 from dimacq.api.schemas import JobInfo
-from dimacq.services.jobs import FINAL_STATES
+from dimacq.services.lab.jobs import FINAL_STATES
 
 router = APIRouter(prefix="/api/jobs", tags=["jobs"])
 

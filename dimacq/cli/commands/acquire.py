@@ -9,7 +9,7 @@ Usage::
 (``--impacts-per-input`` is the same as ``--averages-per-input``, ``--data`` as ``--data-dir``.)
 
 The virtual lab of SCENARIO (a file of ``config/scenarios/``) is read through the rig the
-service and ``dimacq demo`` use (:func:`dimacq.services.rig.build_rig`, backends ``simulated``):
+service and ``dimacq demo`` use (:func:`dimacq.services.acquisition.rig.build_rig`, backends ``simulated``):
 the simulated USB DAQ (pyusb backend) and one simulated CAN FD amplifier per load cell (python-can
 ``virtual``), cabled and calibrated as the scenario's rig file says (``config/rigs/<scenario>.toml``,
 else ``config/rig.toml``: certificate sensitivities, load cell calibration files; the simulated
@@ -110,7 +110,7 @@ def run(args: argparse.Namespace) -> int:
     from dimacq.config import Settings, scenario_rig_file
     from dimacq.io.acquisition_hdf5 import AcquisitionWriter
     from dimacq.io.uff import check_uff_geometry, write_uff_test
-    from dimacq.services.rig import build_rig, impact_settings, run_impact_test
+    from dimacq.services.acquisition.rig import build_rig, impact_settings, run_impact_test
     from dimacq.simulators.lab.scenarios import build_scenario
 
     if args.impacts_per_input < 1:

@@ -291,7 +291,7 @@ def _demo(
     import httpx
 
     from dimacq.io.setup_file import dump_setup_dict
-    from dimacq.services.digitizing import load_jig
+    from dimacq.services.geometry.digitizer_config import load_jig
 
     rng = np.random.default_rng(built.seed + 1000)
     model = built.model

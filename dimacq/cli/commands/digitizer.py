@@ -80,8 +80,8 @@ def register(subparsers: Any) -> None:
 def selftest(args: argparse.Namespace) -> int:
     from dimacq.drivers.digitizer import SerialDigitizer
     from dimacq.pipeline.digitizing.orientation import orthogonality_table
-    from dimacq.services.digitizer_selftest import run_selftest
-    from dimacq.services.digitizing import load_array_config, load_jig
+    from dimacq.services.geometry.digitizer_config import load_array_config, load_jig
+    from dimacq.services.geometry.digitizer_selftest import run_selftest
 
     if args.shots < 1 or not 0.0 <= args.echo_rate <= 1.0:
         raise SetupError("selftest: --shots must be >= 1 and --echo-rate within 0..1")

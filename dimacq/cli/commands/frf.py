@@ -2,7 +2,7 @@
 
 TIME is a UFF file of dataset 58 time responses (function type 1) or a TDMS file
 (:mod:`dimacq.io.time_data` documents both layouts); the FRFs are estimated per input with the
-acquisition's estimator and windows (:func:`dimacq.services.time_frf.frf_from_time`) and written
+acquisition's estimator and windows (:func:`dimacq.services.acquisition.time_frf.frf_from_time`) and written
 as a UFF file of FRFs that ``dimacq solve SETUP OUT.uff`` reads.
 """
 
@@ -67,7 +67,7 @@ def run(args: argparse.Namespace) -> int:
     from dimacq.io.setup_file import load_setup
     from dimacq.io.time_data import read_time_data
     from dimacq.io.uff import write_frf_uff
-    from dimacq.services.time_frf import frf_from_time
+    from dimacq.services.acquisition.time_frf import frf_from_time
 
     setup = load_setup(args.setup)
     records = read_time_data(args.time)

@@ -158,7 +158,7 @@ def calibrate(args: argparse.Namespace) -> int:
             )
         return _calibrate(args, settings, simulated=False)
     from dimacq.config import Settings
-    from dimacq.services.inertial_calibration import scratch_rig
+    from dimacq.services.calibration.inertial_calibration import scratch_rig
 
     with tempfile.TemporaryDirectory(prefix="dimacq-bench-") as tmp:
         base = Settings(
@@ -194,8 +194,8 @@ def _shown(stage: str, simulated: bool, quiet: bool) -> ProgressLine:
 
 def _calibrate(args: argparse.Namespace, settings: Any, *, simulated: bool) -> int:
     from dimacq.io.rig_file import load_rig_file
-    from dimacq.services.circular_check import circular_check
-    from dimacq.services.inertial_calibration import select_cell
+    from dimacq.services.calibration.circular_check import circular_check
+    from dimacq.services.calibration.inertial_calibration import select_cell
 
     rig = load_rig_file(settings.rig_path)
     entry = select_cell(rig, args.node)
@@ -283,7 +283,7 @@ def _write_file(cal: Any, path: Path, fmt: str) -> None:
 
 def _record(settings: Any, document: dict[str, Any]) -> int:
     from dimacq.persistence import open_database
-    from dimacq.services.loadcell_calibration import record_calibration
+    from dimacq.services.calibration.loadcell_calibration import record_calibration
 
     db = open_database(settings.db_url)
     try:
@@ -311,14 +311,14 @@ def _static(
     amplifier with a person at the bench. The result is installed as the cell's next
     calibration version."""
     from dimacq.pipeline.loadcell_calibration import LoadCase
-    from dimacq.services.loadcell_calibration import (
+    from dimacq.services.calibration.loadcell_calibration import (
         calibrate_rig_cell,
         simulated_static_calibration,
     )
 
     out = sys.stdout
     if simulated:
-        from dimacq.services.loadcell_calibration import install_static
+        from dimacq.services.calibration.loadcell_calibration import install_static
 
         line = _progress("dead weights", args.quiet)
 
@@ -392,13 +392,13 @@ def _inertial(
     import numpy as np
 
     from dimacq.io.rig_file import load_rig_file
-    from dimacq.services.inertial_calibration import (
+    from dimacq.services.calibration.inertial_calibration import (
         install_inertial,
         installed_document,
         run_inertial_calibration,
         select_cell,
     )
-    from dimacq.services.loadcell_calibration import download_and_verify
+    from dimacq.services.calibration.loadcell_calibration import download_and_verify
 
     line = _shown("inertial bench", simulated, args.quiet)
     run, check = run_inertial_calibration(

@@ -119,7 +119,7 @@ def _fmt(b: dict[str, Any]) -> str:
 
 def run(args: argparse.Namespace) -> int:
     from dimacq.io.setup_file import load_setup
-    from dimacq.services.planning import DEFAULT_LINES, DEFAULT_NOISE, make_plan
+    from dimacq.services.solve.planning import DEFAULT_LINES, DEFAULT_NOISE, make_plan
 
     if args.trials < 0:
         raise SetupError(f"--trials {args.trials}: give 0 or more")

@@ -327,7 +327,7 @@ def run(args: argparse.Namespace) -> int:
         )
         frf = frf.scaled(gamma)
     payload: dict[str, Any]
-    from dimacq.services.analysis import AnalysisOptions, analyse
+    from dimacq.services.solve.analysis import AnalysisOptions, analyse
 
     refine_geometry = args.refine_geometry
     if not args.unbiased:

@@ -20,7 +20,7 @@ if TYPE_CHECKING:
     from dimacq.services.lab.store import TestStore
 
 
-#: Builds the acquisition rig (:class:`dimacq.services.rig.Rig`) for a setup and a request.
+#: Builds the acquisition rig (:class:`dimacq.services.acquisition.rig.Rig`) for a setup and a request.
 RigFactory = Callable[[Settings, TestSetup, Mapping[str, Any]], Any]
 
 

@@ -45,7 +45,7 @@ class AcquisitionRecovery(ServiceParts):
         A running acquisition stops striking (its job stores the FRFs). One that ended short
         (``interrupted`` by a crash of the service, ``cancelled``, ``failed``) and has no FRF
         set gets its FRFs here, from the raw averages kept on disk, estimated exactly as the
-        live run does (:func:`~dimacq.services.acquisition.input_frf`): state ``succeeded``
+        live run does (:func:`~dimacq.services.acquisition.session.input_frf`): state ``succeeded``
         when every input is complete, else ``incomplete`` with the missing inputs named in
         the message (:meth:`resume` strikes them).
 
@@ -85,7 +85,7 @@ class AcquisitionRecovery(ServiceParts):
             )
 
     def _finish_kept(self, cur: AcquisitionInfo) -> AcquisitionInfo | None:
-        from dimacq.services.acquisition import records_frf
+        from dimacq.services.acquisition.session import records_frf
 
         acq_id, cfg = cur.id, cur.config
         assert cur.setup_id is not None

@@ -14,7 +14,7 @@ from dimacq.errors import (
     SetupError,
 )
 from dimacq.persistence import models as m
-from dimacq.services.impact_result import unusable_reasons
+from dimacq.services.acquisition.impact_result import unusable_reasons
 from dimacq.services.lab.acquisition_records import AcquisitionInfo, ServiceParts
 from dimacq.services.lab.acquisition_views import Decision, LiveReview
 
@@ -44,7 +44,7 @@ class AcquisitionReview(ServiceParts):
 
         A hit the checks rejected (double hit, overload, clock drift) is accepted only with
         ``override`` (it is kept with the checks' reasons and
-        :data:`~dimacq.services.impact_result.OPERATOR_OVERRIDE`); a hit with samples lost never
+        :data:`~dimacq.services.acquisition.impact_result.OPERATOR_OVERRIDE`); a hit with samples lost never
         (its record has no data there).
 
         Raises
@@ -128,7 +128,7 @@ class AcquisitionReview(ServiceParts):
 
     def _supersede(self, acq_id: int, input_index: int) -> None:
         """Redo of an input: its averages accepted so far no longer count."""
-        from dimacq.services.acquisition import OPERATOR_REDO
+        from dimacq.services.acquisition.session import OPERATOR_REDO
 
         chain = self._chain(acq_id)  # a resumed one: the kept averages are redone too
 

@@ -55,8 +55,7 @@ from dimacq.persistence import ArrayStore, Database
 from dimacq.persistence import models as m
 from dimacq.persistence import stands as stand_lease
 from dimacq.persistence.queue import Outbox
-from dimacq.services.impact_result import unusable_reasons
-from dimacq.services.jobs import JobContext, JobManager
+from dimacq.services.acquisition.impact_result import unusable_reasons
 from dimacq.services.lab.acquisition_records import (
     _INTERNAL_KEYS,
     ACQUISITION_DEVICES,
@@ -77,6 +76,7 @@ from dimacq.services.lab.acquisition_review import AcquisitionReview
 from dimacq.services.lab.acquisition_views import Decision, LiveReview, hit_view, merge_frfs
 from dimacq.services.lab.common import iso, json_safe
 from dimacq.services.lab.devices import DeviceService
+from dimacq.services.lab.jobs import JobContext, JobManager
 from dimacq.services.lab.ownership import Claim
 from dimacq.services.lab.store import Page, TestStore, frf_to_arrays
 
@@ -98,7 +98,7 @@ class AcquisitionService(AcquisitionReview, AcquisitionRecovery):
     settings, db, arrays, jobs, devices, store
         The lab's parts this service uses.
     rig_factory : callable (settings, setup, config) -> Rig, optional
-        Default :func:`dimacq.services.rig.build_rig` on the configured devices (which must
+        Default :func:`dimacq.services.acquisition.rig.build_rig` on the configured devices (which must
         be connected).
     """
 
@@ -293,7 +293,7 @@ class AcquisitionService(AcquisitionReview, AcquisitionRecovery):
         return out
 
     def _check(self, rig: Any, setup: TestSetup, cfg: Mapping[str, Any]) -> ImpactSettings | None:
-        from dimacq.services.rig import check_impact_test
+        from dimacq.services.acquisition.rig import check_impact_test
 
         return check_impact_test(rig, setup, cfg)
 
@@ -305,7 +305,7 @@ class AcquisitionService(AcquisitionReview, AcquisitionRecovery):
                 setattr(r, k, v)
 
     def _build_rig(self, setup: TestSetup, cfg: Mapping[str, Any]) -> Any:
-        from dimacq.services import rig as rig_builder
+        from dimacq.services.acquisition import rig as rig_builder
 
         if self._rig_factory is not None:
             return self._rig_factory(self.settings, setup, cfg)
@@ -333,7 +333,7 @@ class AcquisitionService(AcquisitionReview, AcquisitionRecovery):
         claim: Claim | None = None,
         prior: Sequence[Sequence[Record]] | None = None,
     ) -> dict[str, Any]:
-        from dimacq.services.rig import run_impact_test
+        from dimacq.services.acquisition.rig import run_impact_test
 
         inputs: list[int] = list(cfg["inputs"])
         names: list[str] = list(cfg["input_names"])

@@ -10,11 +10,11 @@ from typing import Any
 from dimacq.backends import BACKENDS
 from dimacq.errors import SetupError
 from dimacq.pipeline.loadcell_calibration import LoadCase
-from dimacq.services.lab.ownership import DeviceOwners
-from dimacq.services.loadcell_calibration import (
+from dimacq.services.calibration.loadcell_calibration import (
     calibrate_rig_cell,
     simulated_static_calibration,
 )
+from dimacq.services.lab.ownership import DeviceOwners
 
 __all__ = ["CalibrationRuns"]
 
@@ -38,7 +38,7 @@ class CalibrationRuns:
     rig :func:`calibrate_rig_cell` with a person answering the prompts: the job's progress
     message is the prompt, :meth:`prompt` gives it with its case number, :meth:`confirm` tells
     the job the load is in place. Inertial: the calibration mass on the cell through the rig
-    builder (:func:`~dimacq.services.inertial_calibration.run_inertial_calibration`); a person
+    builder (:func:`~dimacq.services.calibration.inertial_calibration.run_inertial_calibration`); a person
     strikes when asked: :meth:`prompt` gives the strike request (``kind`` ``strike``: the input's
     node, direction and line of action, the average, as the acquisition's "strike point 101
     along −X"; the trigger sees the hit, nothing to confirm). Then, on request, the circular
@@ -120,7 +120,7 @@ class CalibrationRuns:
             if simulated:  # the simulated lab's files stay as shipped: a scratch copy per job
                 from pathlib import Path
 
-                from dimacq.services.inertial_calibration import scratch_rig
+                from dimacq.services.calibration.inertial_calibration import scratch_rig
 
                 where = Path(settings.data_dir) / "calibration-runs" / ctx.job_id
                 settings = scratch_rig(settings, where)
@@ -174,13 +174,13 @@ class CalibrationRuns:
         """The inertial bench through the rig builder; on a real rig the job's progress asks
         the person for every strike (as an acquisition does)."""
         from dimacq.io.rig_file import load_rig_file
-        from dimacq.services.inertial_calibration import (
+        from dimacq.services.calibration.inertial_calibration import (
             install_inertial,
             installed_document,
             run_inertial_calibration,
             select_cell,
         )
-        from dimacq.services.loadcell_calibration import download_and_verify
+        from dimacq.services.calibration.loadcell_calibration import download_and_verify
 
         try:
             run, verified = run_inertial_calibration(
@@ -217,7 +217,7 @@ class CalibrationRuns:
         }
 
     def _check(self, ctx: Any, settings: Any, node: int, cfg: dict[str, Any]) -> dict[str, Any]:
-        from dimacq.services.circular_check import circular_check
+        from dimacq.services.calibration.circular_check import circular_check
 
         try:
             chk = circular_check(
@@ -234,8 +234,8 @@ class CalibrationRuns:
     def _simulated(self, ctx: Any, settings: Any, minimal: bool) -> dict[str, Any]:
         """The simulated dead-weight bench; installed in the job's scratch rig (so that the
         circular check reads it) and recorded."""
-        from dimacq.services.inertial_calibration import select_cell
-        from dimacq.services.loadcell_calibration import install_static
+        from dimacq.services.calibration.inertial_calibration import select_cell
+        from dimacq.services.calibration.loadcell_calibration import install_static
 
         def prog(done: int, total: int, message: str) -> None:
             ctx.check_cancelled()

@@ -1,6 +1,6 @@
 """Load cell calibrations: JSON documents (:mod:`dimacq.io.loadcell_calibration`) in the
 database, and calibration runs as jobs (:attr:`CalibrationService.runs`,
-:class:`~dimacq.services.loadcell_calibration.CalibrationRuns`: static or inertial, simulated or
+:class:`~dimacq.services.calibration.loadcell_calibration.CalibrationRuns`: static or inertial, simulated or
 on the configured rig with the operator's prompts answered over the API)."""
 
 from __future__ import annotations

@@ -3,7 +3,7 @@
 :class:`DeviceService` opens and closes the devices, records each one's state in a
 :class:`DeviceInfo` (failures are recorded, not raised, when everything is opened at start, so the
 service starts without hardware) and holds the open digitizer driver and its digitizing session
-(:class:`~dimacq.services.digitizing.DigitizingSession`, built by the geometry service).
+(:class:`~dimacq.services.geometry.digitizing.DigitizingSession`, built by the geometry service).
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ from dimacq.services.lab.ownership import DeviceOwners
 
 if TYPE_CHECKING:
     from dimacq.drivers.digitizer import SerialDigitizer
-    from dimacq.services.digitizing import DigitizingSession
+    from dimacq.services.geometry.digitizing import DigitizingSession
 
 __all__ = ["DeviceInfo", "DeviceService", "SessionFactory"]
 
@@ -118,7 +118,7 @@ class DeviceService:
         info.lost, info.since = lost, time.time()
 
     def on_acquisition_event(self, ev: Mapping[str, object]) -> None:
-        """An acquisition session's event (:class:`~dimacq.services.acquisition.ImpactSession`
+        """An acquisition session's event (:class:`~dimacq.services.acquisition.session.ImpactSession`
         ``on_event``) → the DAQ's state: lost (the run restarts, or fails when the DAQ stopped
         answering) and found again."""
         if ev.get("device") != "daq":
@@ -197,7 +197,7 @@ class DeviceService:
         if self._article is not None:
             return self._article
         from dimacq.backends import import_factory
-        from dimacq.services.digitizing import load_jig
+        from dimacq.services.geometry.digitizer_config import load_jig
 
         geometry = import_factory("dimacq.backends.simulated:article_geometry", setting="scenario")
         out: dict[str, Any] = geometry(s.scenario)
@@ -239,7 +239,7 @@ class DeviceService:
 
     def _connect_digitizer(self, info: DeviceInfo) -> None:
         from dimacq.backends import lookup
-        from dimacq.services.digitizing import load_array_config
+        from dimacq.services.geometry.digitizer_config import load_array_config
 
         self._close_digitizer()
         cfg = load_array_config()
@@ -263,8 +263,8 @@ class DeviceService:
     # ------------------------------------------------------------------ DAQ and load cells
     def _connect_acquisition_device(self, info: DeviceInfo) -> None:
         """Open the DAQ or every load cell of the rig file through its backend, identify,
-        close (:func:`dimacq.services.rig.build_rig` opens them again for each acquisition)."""
-        from dimacq.services.rig import check_devices
+        close (:func:`dimacq.services.acquisition.rig.build_rig` opens them again for each acquisition)."""
+        from dimacq.services.acquisition.rig import check_devices
 
         kind: Literal["daq", "loadcell"] = "daq" if info.kind == "daq" else "loadcell"
         info.identity = check_devices(self.settings, kind)

@@ -38,7 +38,7 @@ from dimacq.services.lab.geometry_records import (
 if TYPE_CHECKING:
     from dimacq.drivers.digitizer import SerialDigitizer
     from dimacq.io.measured_points import MeasuredPoints
-    from dimacq.services.digitizing import DigitizedPoint, DigitizingSession
+    from dimacq.services.geometry.digitizing import DigitizedPoint, DigitizingSession
     from dimacq.services.lab.devices import DeviceService
 
 __all__ = [
@@ -77,7 +77,8 @@ class GeometryService:
     # ------------------------------------------------------------------ the session
     def open_session(self, driver: SerialDigitizer) -> DigitizingSession:
         """A digitizing session on a freshly opened digitizer, with the stored patches."""
-        from dimacq.services.digitizing import DigitizingSession, load_array_config
+        from dimacq.services.geometry.digitizer_config import load_array_config
+        from dimacq.services.geometry.digitizing import DigitizingSession
 
         cfg = load_array_config()
         session = DigitizingSession(
@@ -146,7 +147,7 @@ class GeometryService:
     def fire_shots(self, n: int) -> Shots:
         """Fire ``n`` raw shots and triangulate them (speed of sound, tip, accepted)."""
         from dimacq.pipeline.digitizing.triangulation import triangulate
-        from dimacq.services.digitizing import records_to_arrays
+        from dimacq.services.geometry.digitizing import records_to_arrays
 
         with self.devices.lock:
             sess = self.devices.session()
@@ -338,8 +339,8 @@ class GeometryService:
 
     def _registration_settings(self) -> tuple[float, float, float]:
         """(point accuracy, registration limit, prior σ of a node), m."""
-        from dimacq.services.digitizing import load_array_config
-        from dimacq.services.geometry_trust import registration_limit
+        from dimacq.services.geometry.digitizer_config import load_array_config
+        from dimacq.services.geometry.geometry_trust import registration_limit
 
         settings = self.devices.settings
         cfg = load_array_config()
@@ -368,7 +369,7 @@ class GeometryService:
         setting) refuses it (DataError naming the worst node) and leaves the patch unregistered.
         A registration accepted against a limit raised above the array's is a ``warn``.
         """
-        from dimacq.services.geometry_trust import judge_registration
+        from dimacq.services.geometry.geometry_trust import judge_registration
 
         _point, default_limit, prior = self._registration_settings()
         limit = default_limit if limit_m is None else float(limit_m)
@@ -461,8 +462,8 @@ class GeometryService:
     ) -> Orientation:
         """Orientation of the triax at ``node`` from jig points labelled ``<prefix><jig label>``."""
         from dimacq.pipeline.digitizing.orientation import fit_orientation
-        from dimacq.services.digitizing import load_jig
-        from dimacq.services.geometry_trust import orientation_uncertainty
+        from dimacq.services.geometry.digitizer_config import load_jig
+        from dimacq.services.geometry.geometry_trust import orientation_uncertainty
 
         prefix = f"jig{node}/" if prefix is None else prefix
         jig = load_jig()
@@ -528,7 +529,7 @@ class GeometryService:
             line_of_action_svd,
             line_of_action_thesis,
         )
-        from dimacq.services.geometry_trust import line_of_action_uncertainty
+        from dimacq.services.geometry.geometry_trust import line_of_action_uncertainty
 
         with_patch = self._global_points_with_patch()
         pts = {k: v[0] for k, v in with_patch.items()}
@@ -586,11 +587,11 @@ class GeometryService:
         Each triax at node N gives channels N+X, N+Y, N+Z along the columns of its orientation
         matrix, at its jig origin; each input node gives one excitation at its input point along
         its line of action. The setup states the geometry's uncertainty
-        (:func:`dimacq.services.geometry_trust.geometry_uncertainty`: the orientations', lines of
+        (:func:`dimacq.services.geometry.geometry_trust.geometry_uncertainty`: the orientations', lines of
         action's and the current test's registrations' stated 1σ, and the array's registration
         limit).
         """
-        from dimacq.services.geometry_trust import geometry_uncertainty
+        from dimacq.services.geometry.geometry_trust import geometry_uncertainty
 
         ori = {o.node: o for o in self.orientations()}
         loas = {a.node: a for a in self.lines_of_action()}

@@ -75,7 +75,7 @@ class Registration:
     rms_m: float
     planarity: float
     # the check against the limit and the map's uncertainty
-    # (:func:`dimacq.services.geometry_trust.judge_registration`); None in records stored before
+    # (:func:`dimacq.services.geometry.geometry_trust.judge_registration`); None in records stored before
     verdict: str | None = None
     reasons: list[str] = field(default_factory=list)
     limit_m: float | None = None
@@ -162,7 +162,7 @@ class Orientation:
     orthogonality: list[list[float]] | None = None
     max_off_diagonal: float | None = None
     # ``uncertainty_deg`` = jig fit ⊕ registration (RMS misorientation, degrees) and the
-    # origin's 1σ per coordinate (:func:`dimacq.services.geometry_trust.orientation_uncertainty`);
+    # origin's 1σ per coordinate (:func:`dimacq.services.geometry.geometry_trust.orientation_uncertainty`);
     # None in records stored before
     jig_uncertainty_deg: float | None = None
     registration_uncertainty_deg: float | None = None
@@ -197,7 +197,7 @@ class LineOfAction:
     perpendicular_rms_m: float
     angle_std_deg: float
     # ``angle_std_deg`` = fit ⊕ registration and the input point's 1σ per coordinate
-    # (:func:`dimacq.services.geometry_trust.line_of_action_uncertainty`); None in records stored
+    # (:func:`dimacq.services.geometry.geometry_trust.line_of_action_uncertainty`); None in records stored
     # before
     fit_angle_std_deg: float | None = None
     registration_uncertainty_deg: float | None = None

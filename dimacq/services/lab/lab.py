@@ -21,7 +21,7 @@ services the REST API (and anything else) drives:
 ``lab.studies``           :class:`~dimacq.services.lab.studies.StudyService`: sensitivity
 ``lab.rig_map``           :class:`~dimacq.services.lab.rig_map.RigMapService`: the rig file
                           (channel map, sensitivities): read, check, replace
-``lab.jobs``              :class:`~dimacq.services.jobs.JobManager`
+``lab.jobs``              :class:`~dimacq.services.lab.jobs.JobManager`
 ========================  ===================================================================
 
 The chain of a DIM test: digitize points and register each array position (geometry), orient
@@ -47,12 +47,12 @@ from dimacq.errors import DatabaseUnavailableError
 from dimacq.persistence import ArrayStore, Database, open_database
 from dimacq.persistence import stands as stand_lease
 from dimacq.persistence.queue import DbJobStore, Outbox
-from dimacq.services.jobs import JobManager, Ticker
 from dimacq.services.lab.acquisitions import AcquisitionService, RigFactory
 from dimacq.services.lab.calibrations import CalibrationService
 from dimacq.services.lab.common import package_version
 from dimacq.services.lab.devices import DeviceService
 from dimacq.services.lab.geometry import GeometryService
+from dimacq.services.lab.jobs import JobManager, Ticker
 from dimacq.services.lab.lab_tests import LabTestService
 from dimacq.services.lab.plans import PlanService
 from dimacq.services.lab.rig_map import RigMapService
@@ -102,8 +102,8 @@ class Lab:
         Open the configured devices now (:meth:`DeviceService.connect_all`); failures are
         recorded in the device list, not raised, so the service starts without hardware.
     rig_factory : callable (settings, setup, config) -> Rig, optional
-        Builds the acquisition rig (:class:`dimacq.services.rig.Rig`); default
-        :func:`dimacq.services.rig.build_rig` on the configured device backends.
+        Builds the acquisition rig (:class:`dimacq.services.acquisition.rig.Rig`); default
+        :func:`dimacq.services.acquisition.rig.build_rig` on the configured device backends.
     """
 
     def __init__(

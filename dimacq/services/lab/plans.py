@@ -2,7 +2,7 @@
 and inputs from a candidate setup, the predicted 95 % bounds and, with ``trials``, the Monte Carlo
 of default solves, with progress (solves done) and cancel between solves. The trials run in the
 job's thread (in-process); the command line's ``--scheduler`` spreads them over a Dask cluster.
-The result is the JSON of ``dimacq plan --json`` (:func:`dimacq.services.planning.make_plan`)."""
+The result is the JSON of ``dimacq plan --json`` (:func:`dimacq.services.solve.planning.make_plan`)."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from dimacq.errors import SetupError
 from dimacq.io.setup_file import parse_setup
 from dimacq.model.properties import RigidBodyProperties
-from dimacq.services.jobs import Job, JobContext, JobManager
+from dimacq.services.lab.jobs import Job, JobContext, JobManager
 
 __all__ = ["ExpectedProperties", "PlanParams", "PlanService"]
 
@@ -81,7 +81,7 @@ class PlanService:
             )
 
         def work(ctx: JobContext) -> dict[str, Any]:
-            from dimacq.services.planning import make_plan
+            from dimacq.services.solve.planning import make_plan
 
             ctx.progress(0.0, "choosing the layout")
 

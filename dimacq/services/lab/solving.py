@@ -1,7 +1,7 @@
 """Analysis: DIM solutions of stored FRF sets, and the figure of a stored solution.
 
 :meth:`AnalysisService.solve` solves an FRF set with :class:`SolveOptions` (plain DIM, or the
-selection steps of :mod:`dimacq.services.analysis`) and stores the result with its options.
+selection steps of :mod:`dimacq.services.solve.analysis`) and stores the result with its options.
 :meth:`AnalysisService.solution_spectrum` gives the per-line estimates behind a stored solution
 from the stored result and options (the channels and inputs it used, its known values, length
 unit, band and orientation repair), so its figure shows the solution that was stored.
@@ -170,7 +170,7 @@ class AnalysisService:
         self.store = store
 
     def solve(self, frf_id: int, options: SolveOptions) -> StoredSolution | None:
-        """DIM solution of an FRF set through :func:`dimacq.services.analysis.analyse`; stored
+        """DIM solution of an FRF set through :func:`dimacq.services.solve.analysis.analyse`; stored
         with its options. None if the set does not exist.
 
         ``options``: ``band_hz`` (overrides the automatic band), ``known``, ``length_unit``,
@@ -243,7 +243,7 @@ class AnalysisService:
         return known
 
     def _analyse(self, frf: FrfData, setup: TestSetup, options: SolveOptions) -> Any:
-        from dimacq.services.analysis import AnalysisOptions, analyse
+        from dimacq.services.solve.analysis import AnalysisOptions, analyse
 
         return analyse(
             frf,

@@ -13,8 +13,8 @@ from pydantic import BaseModel, ConfigDict, Field
 from dimacq.persistence import Database
 from dimacq.persistence import models as m
 from dimacq.persistence.queue import enqueue_job
-from dimacq.services.jobs import JobContext, JobManager
 from dimacq.services.lab.common import iso, json_safe
+from dimacq.services.lab.jobs import JobContext, JobManager
 
 __all__ = ["CubeStudyParams", "StoredStudy", "StudyService"]
 

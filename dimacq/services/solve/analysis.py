@@ -65,10 +65,10 @@ from dimacq.pipeline.uncertainty import (
     estimate_uncertainty,
     geometry_spread,
 )
-from dimacq.services.cross_check import CrossCheck, cross_check
-from dimacq.services.estimation import output_error_step
-from dimacq.services.modal_correction import ModalCorrection, analyse_with_modal
-from dimacq.services.verdict import (
+from dimacq.services.solve.cross_check import CrossCheck, cross_check
+from dimacq.services.solve.estimation import output_error_step
+from dimacq.services.solve.modal_correction import ModalCorrection, analyse_with_modal
+from dimacq.services.solve.verdict import (
     CI95_LIMIT_MASS,
     CI95_LIMIT_PRINCIPAL,
     PRECISION_FAIL_FACTOR,
@@ -155,10 +155,10 @@ class AnalysisOptions:
         certificate's uncertainty is replaced by ``chain.u_rel``.
     cross_check : bool
         Run the second, independent estimator (the mass-line fit,
-        :mod:`dimacq.services.cross_check`) on the DIM's data and compare (default on).
+        :mod:`dimacq.services.solve.cross_check`) on the DIM's data and compare (default on).
     modal_correction : {"auto", "on", "off"}
         Take the elastic modes identified from the FRFs out of them and solve on the corrected
-        FRFs (:mod:`dimacq.services.modal_correction`): ``auto`` (default) only when the plain
+        FRFs (:mod:`dimacq.services.solve.modal_correction`): ``auto`` (default) only when the plain
         analysis shows elastic contamination, and says so.
     """
 
@@ -289,7 +289,7 @@ def analyse(
 ) -> AnalysisReport:
     """Run selection → solve → uncertainty → figures (module docstring), on the FRFs as
     measured or, when they show elastic contamination (``options.modal_correction``), on the
-    FRFs with the elastic modes taken out (:mod:`dimacq.services.modal_correction`).
+    FRFs with the elastic modes taken out (:mod:`dimacq.services.solve.modal_correction`).
     """
     opt = options or AnalysisOptions()
     return analyse_with_modal(frf, setup, opt, _analyse, lambda f, st: _with_chain(f, st, opt))

@@ -31,13 +31,13 @@ from dimacq.io.loadcell_bench import BenchFile
 from dimacq.io.rig_file import load_rig_file
 from dimacq.model.properties import RigidBodyProperties
 from dimacq.model.setup import KnownProperties, TestSetup
-from dimacq.services.inertial_calibration import (
+from dimacq.services.acquisition.rig import StrikeCallback, build_rig, run_impact_test
+from dimacq.services.calibration.inertial_calibration import (
     ProgressFn,
     bench_file_of,
     calibration_mass,
     select_cell,
 )
-from dimacq.services.rig import StrikeCallback, build_rig, run_impact_test
 
 __all__ = [
     "MIN_CELL_SENSITIVITY",

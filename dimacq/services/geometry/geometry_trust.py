@@ -10,7 +10,7 @@ The limit of one reference node's residual is ``5 sqrt(σ_point² + σ_reference
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -22,9 +22,7 @@ from dimacq.pipeline.digitizing.registration import (
     check_registration,
     registration_limit_m,
 )
-
-if TYPE_CHECKING:
-    from dimacq.services.digitizing import ArrayConfig
+from dimacq.services.geometry.digitizer_config import ArrayConfig
 
 __all__ = [
     "geometry_uncertainty",

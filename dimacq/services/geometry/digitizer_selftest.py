@@ -18,7 +18,8 @@ from dimacq.errors import DataError, SetupError
 from dimacq.pipeline.digitizing.orientation import JigDefinition
 from dimacq.pipeline.digitizing.registration import register
 from dimacq.pipeline.digitizing.triangulation import combine_shots, triangulate
-from dimacq.services.digitizing import ArrayConfig, records_to_arrays
+from dimacq.services.geometry.digitizer_config import ArrayConfig
+from dimacq.services.geometry.digitizing import records_to_arrays
 
 __all__ = ["SelftestReport", "run_selftest"]
 

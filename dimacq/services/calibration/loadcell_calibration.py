@@ -427,7 +427,7 @@ def calibrate_rig_cell(
     from dimacq.backends import lookup
     from dimacq.backends.base import DeviceContext
     from dimacq.io.loadcell_bench import load_bench_file
-    from dimacq.services.inertial_calibration import select_cell
+    from dimacq.services.calibration.inertial_calibration import select_cell
 
     ctx = DeviceContext(settings)
     rig = ctx.rig_file
@@ -497,7 +497,7 @@ def install_static(
 
     from dimacq.io.loadcell_calibration import LoadCellCalibration, install_calibration
     from dimacq.io.rig_file import load_rig_file
-    from dimacq.services.inertial_calibration import select_cell
+    from dimacq.services.calibration.inertial_calibration import select_cell
 
     rig = rig if rig is not None else load_rig_file(settings.rig_path)
     entry = select_cell(rig, node)

@@ -11,7 +11,7 @@ i.e. the difference lies within the combined 95 % interval. Both intervals hold 
 geometry uncertainty, which moves the two estimates alike: the combination is conservative (a
 disagreement is real). Inertia is compared about the reference point P, where the DIM states its
 intervals; the values about the CG are reported too. The verdict turns a disagreement into a
-``warn`` (:func:`dimacq.services.verdict.cross_check_checks`). Without geometry samples
+``warn`` (:func:`dimacq.services.solve.verdict.cross_check_checks`). Without geometry samples
 (``dimacq solve --no-geometry-uncertainty``) the comparison holds the noise only, and a stated
 geometry that is off makes the two disagree.
 

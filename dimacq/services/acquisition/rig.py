@@ -6,7 +6,7 @@ them from the rig file (``rig_file``, :mod:`dimacq.io.rig_file`): per hammer a f
 per setup response the accelerometer channel the rig file assigns to its node and direction,
 with the calibrated sensitivities, ranges, IEPE currents and couplings; each setup load cell the
 amplifier the rig file names, calibrated from its calibration file. :func:`run_impact_test` runs
-an :class:`~dimacq.services.acquisition.ImpactSession` on it and hands every completed average to
+an :class:`~dimacq.services.acquisition.session.ImpactSession` on it and hands every completed average to
 a callback *as soon as it is decided*, so the caller can make it durable before the next strike.
 :func:`check_devices` opens one kind of device, identifies it and closes it again (what the
 service's ``connect`` shows).
@@ -39,7 +39,7 @@ if TYPE_CHECKING:
     from numpy.typing import NDArray
 
     from dimacq.io.acquisition_hdf5 import AcquisitionWriter
-    from dimacq.services.acquisition import AverageCallback, ImpactResult, ReviewCallback
+    from dimacq.services.acquisition.session import AverageCallback, ImpactResult, ReviewCallback
 
 __all__ = [
     "Rig",
@@ -395,7 +395,7 @@ def run_impact_test(
     """Run the impact test; return FRFs in the setup's channel order (SI units).
 
     ``review``, ``should_finish``, ``on_input``, ``on_event`` and ``on_lost`` go to the
-    :class:`~dimacq.services.acquisition.ImpactSession` (the operator's accept / reject / redo
+    :class:`~dimacq.services.acquisition.session.ImpactSession` (the operator's accept / reject / redo
     of each hit; stop striking and keep the accepted averages; each input's coherence; the
     devices' events: DAQ lost and found again, gaps; each strike lost to a gap).
 
@@ -404,9 +404,9 @@ def run_impact_test(
     FRFs' metadata (default: the source). ``on_strike`` is told every request to a person to
     strike (:class:`StrikeRequest`; none where the world strikes by itself). ``prior``: the
     accepted averages an interrupted acquisition kept, per input (a resumed acquisition strikes
-    only the missing ones; see :class:`~dimacq.services.acquisition.ImpactSession`).
+    only the missing ones; see :class:`~dimacq.services.acquisition.session.ImpactSession`).
     """
-    from dimacq.services.acquisition import impact_frf
+    from dimacq.services.acquisition.session import impact_frf
 
     result = run_impact_session(
         rig,
@@ -448,7 +448,7 @@ def run_impact_session(
     gauges (``"gauges"``: a cell being calibrated). Without a world that strikes by itself
     (``rig.operator``) the person is asked through ``on_progress`` ("strike input N: ...") and,
     structured, through ``on_strike``."""
-    from dimacq.services.acquisition import ImpactSession, Progress
+    from dimacq.services.acquisition.session import ImpactSession, Progress
 
     settings = check_impact_test(rig, setup, cfg)
     n_in = len(setup.excitations)

@@ -2,7 +2,7 @@
 
 A wrong answer reported as ok is the worst defect a measurement tool can have: every check below is
 reported whatever its outcome, and any failing check fails the solution (``dimacq solve`` exits 3).
-Split from :mod:`dimacq.services.analysis`, which calls :func:`verdict` after the solve and
+Split from :mod:`dimacq.services.solve.analysis`, which calls :func:`verdict` after the solve and
 re-exports these names. This module does not import the analysis (not even for types): what it
 reads of a solve is the :class:`SolveReport` protocol, so the two modules form no circle.
 """
@@ -30,7 +30,7 @@ if TYPE_CHECKING:
 
 
 class SolveReport(Protocol):
-    """What the verdict reads of a solve (:class:`dimacq.services.analysis.AnalysisReport`)."""
+    """What the verdict reads of a solve (:class:`dimacq.services.solve.analysis.AnalysisReport`)."""
 
     @property
     def result(self) -> DimResult: ...
@@ -313,7 +313,7 @@ def _estimator_checks(oe: Any) -> list[VerdictReason]:
     - ``estimator:refinement``: a refinement the data refused (corrections far beyond the stated
       uncertainty after the gross-error search): ``warn``, the stated geometry was used — by the
       output-error fit, or, when that fit's misfit is far above the noise, by the equation-error
-      estimate reported instead (:mod:`dimacq.services.estimation`): the data the refinement
+      estimate reported instead (:mod:`dimacq.services.solve.estimation`): the data the refinement
       could not reconcile are no less suspect for the estimator that stays.
     - ``estimator:noise``: the misfit against the measured noise model (the a posteriori
       variance factor): stated for the record; the intervals are scaled by it.
@@ -420,7 +420,7 @@ def cross_check_checks(cc: Any) -> list[VerdictReason]:
     or a geometry the model does not describe — a mis-mounted sensor, a wrong line of action,
     elastic motion in the band), naming the items with their z-scores and the mass-line fit's
     rigid-structure test; ``warn`` when the cross-check could not be made; else ``ok``.
-    ``cc`` is a :class:`dimacq.services.cross_check.CrossCheck` or None (not run: no check).
+    ``cc`` is a :class:`dimacq.services.solve.cross_check.CrossCheck` or None (not run: no check).
     """
     if cc is None:
         return []

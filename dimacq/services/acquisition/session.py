@@ -78,8 +78,8 @@ from dimacq.pipeline.frf_estimation import (
     double_hit_mask,
     exponential_window,
 )
-from dimacq.services.data_alignment import DataAligner
-from dimacq.services.impact_result import (
+from dimacq.services.acquisition.data_alignment import DataAligner
+from dimacq.services.acquisition.impact_result import (
     OPERATOR_OVERRIDE,
     OPERATOR_REDO,
     OPERATOR_REJECT,
@@ -94,8 +94,8 @@ from dimacq.services.impact_result import (
     records_frf,
     unusable_reasons,
 )
-from dimacq.services.impact_stream import ImpactStream, _StrikeLost
-from dimacq.services.sample_window import SampleWindow
+from dimacq.services.acquisition.impact_stream import ImpactStream, _StrikeLost
+from dimacq.services.acquisition.sample_window import SampleWindow
 
 __all__ = [
     "OPERATOR_OVERRIDE",

@@ -1,6 +1,6 @@
 """The modal-model correction as a step of the analysis: when to use it, what it reports.
 
-:func:`dimacq.services.analysis.analyse` calls :func:`modal_fit` on the whole measured span, gives
+:func:`dimacq.services.solve.analysis.analyse` calls :func:`modal_fit` on the whole measured span, gives
 the DIM the corrected FRFs (:func:`corrected`), and adds the fit's own uncertainty to the intervals
 (:func:`with_modal_uncertainty`). The numerics are in :mod:`dimacq.pipeline.modal`.
 
@@ -47,7 +47,7 @@ from dimacq.pipeline.modal import (
 from dimacq.pipeline.rigid_body import response_matrix
 from dimacq.pipeline.selection._common import response_geometry
 from dimacq.pipeline.uncertainty import ParameterUncertainty, Uncertainty, principal_of_parameters
-from dimacq.services.verdict import VerdictReason
+from dimacq.services.solve.verdict import VerdictReason
 
 __all__ = [
     "TRIGGER_SIZE",
@@ -405,7 +405,7 @@ def analyse_with_modal(
     plain: Callable[..., Any],
     with_chain: Callable[[FrfData, TestSetup], tuple[FrfData, TestSetup]],
 ) -> Any:
-    """:func:`dimacq.services.analysis.analyse` with ``opt.modal_correction`` (module
+    """:func:`dimacq.services.solve.analysis.analyse` with ``opt.modal_correction`` (module
     docstring): ``plain(frf, setup, opt)`` is the analysis as measured (an ``AnalysisReport``),
     ``with_chain`` applies the options' chain calibration as it does."""
     if opt.modal_correction not in ("auto", "on", "off"):

@@ -56,7 +56,7 @@ def output_error_step(
 ) -> tuple[DimResult, Uncertainty]:
     """The output-error estimate and its intervals, or the inputs unchanged with the reason.
 
-    ``opt`` is the :class:`~dimacq.services.analysis.AnalysisOptions` (``refine_geometry``,
+    ``opt`` is the :class:`~dimacq.services.solve.analysis.AnalysisOptions` (``refine_geometry``,
     ``residual_flexibility``).
     """
     try:

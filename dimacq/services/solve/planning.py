@@ -11,7 +11,7 @@ selection, the simulated test of a layout). This module orchestrates it:
    triax or input buys, and the median bounds of random layouts of the same size;
 3. the Monte Carlo: ``trials`` simulated tests of the layout (model FRFs of the true — perturbed —
    geometry, with noise), each solved by the default ``dimacq solve``
-   (:func:`dimacq.services.analysis.analyse`); the 95 % bounds of the errors and the coverage of
+   (:func:`dimacq.services.solve.analysis.analyse`); the 95 % bounds of the errors and the coverage of
    the solve's own 95 % intervals.
 
 Trial ``i`` draws from ``SeedSequence(seed, spawn_key=(i,))`` (``SeedSequence(seed).spawn(n)[i]``):
@@ -122,7 +122,7 @@ class TrialSpec:
 def run_trial(spec: TrialSpec, index: int) -> list[float]:
     """One simulated test of the layout solved by the default ``dimacq solve``; a row of
     :data:`TRIAL_COLUMNS` (NaN errors and verdict 3 when the solve gave no answer)."""
-    from dimacq.services.analysis import AnalysisOptions, analyse
+    from dimacq.services.solve.analysis import AnalysisOptions, analyse
 
     rng = np.random.default_rng(np.random.SeedSequence(spec.seed, spawn_key=(index,)))
     n_lines = spec.errors.n_lines

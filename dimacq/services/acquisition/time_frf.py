@@ -1,8 +1,8 @@
 """FRFs of a test from time data in files (:mod:`dimacq.io.time_data`: UFF 58 time records,
 TDMS), through the same estimator and windows as an acquisition
 (:func:`dimacq.pipeline.frf_estimation.estimate_frf`, the force and exponential windows of
-:class:`~dimacq.services.acquisition.ImpactSession`) and the same conversion to
-:class:`~dimacq.model.frf.FrfData` (:func:`~dimacq.services.impact_result.impact_frf`)."""
+:class:`~dimacq.services.acquisition.session.ImpactSession`) and the same conversion to
+:class:`~dimacq.model.frf.FrfData` (:func:`~dimacq.services.acquisition.impact_result.impact_frf`)."""
 
 from __future__ import annotations
 
@@ -23,7 +23,7 @@ from dimacq.pipeline.frf_estimation import (
     exponential_window,
     force_window,
 )
-from dimacq.services.impact_result import ImpactResult, impact_frf
+from dimacq.services.acquisition.impact_result import ImpactResult, impact_frf
 
 __all__ = ["frf_from_time", "time_records"]
 
@@ -38,7 +38,7 @@ def time_records(
     record (N) then each response (m/s², node and direction of the setup) and each load cell's
     six loads (N, N·m), exactly the samples that entered the live FRFs (before windows).
 
-    ``kept``: per input its records as :data:`~dimacq.services.impact_result.AverageCallback`
+    ``kept``: per input its records as :data:`~dimacq.services.acquisition.impact_result.AverageCallback`
     gives them (``"force"`` (1, n), ``"outputs"`` (n_outputs, n)); ``fs`` the sample rate, Hz.
 
     Raises

@@ -1,6 +1,6 @@
 """Inertial bench calibration of a 6-DOF load cell and the circular check, on the configured rig.
 
-Both run through the one rig builder (:func:`dimacq.services.rig.build_rig`) and so through the
+Both run through the one rig builder (:func:`dimacq.services.acquisition.rig.build_rig`) and so through the
 device backend tables: the same code drives a real rig (a person strikes when asked) and the
 simulated lab (``daq = loadcell = "simulated"``: the world's hand strikes, the simulators are
 reached only through their wires).
@@ -32,7 +32,7 @@ inputs (:func:`~dimacq.pipeline.inertial_bench.jackknife_matrix_variance`: input
 faces leave loads weakly excited). A channel whose gain is far from its certificate (a wrong
 sensitivity in the rig file), or a matrix known to worse than ±0.5 %, is a warning.
 
-**Circular check** (:mod:`dimacq.services.circular_check`; thesis §4.1: "the same structure used
+**Circular check** (:mod:`dimacq.services.calibration.circular_check`; thesis §4.1: "the same structure used
 to calibrate the load cell in the same configuration"). The same mass on the same cell, now struck on the mass, acquired with the
 amplifier applying the cell's *installed* calibration (the rig file's calibration file: what an
 acquisition uses), solved by DIM with all ten properties unknown, compared with the certificate.
@@ -65,7 +65,7 @@ from dimacq.io.rig_file import LoadCellEntry, RigFile, load_rig_file
 from dimacq.model.properties import RigidBodyProperties
 from dimacq.model.setup import TestSetup, direction_label
 from dimacq.pipeline.inertial_bench import ChannelGains
-from dimacq.services.rig import (
+from dimacq.services.acquisition.rig import (
     StrikeCallback,
     build_rig,
     run_impact_session,

@@ -1,6 +1,6 @@
 """What an impact session reports: its progress, each average's verdict, the operator's decisions,
 the result (:class:`ImpactResult`), and its FRFs as :class:`~dimacq.model.frf.FrfData`
-(:func:`impact_frf`, the one conversion). Used by :mod:`dimacq.services.acquisition` and re-exported
+(:func:`impact_frf`, the one conversion). Used by :mod:`dimacq.services.acquisition.session` and re-exported
 there."""
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """The sample stream of an impact session: DAQ and load cell blocks read, written to disk and
 aligned by the sample counter in sliding windows; the trigger search; the gaps' kinds
-(:class:`ImpactStream`, a part of :class:`~dimacq.services.acquisition.ImpactSession`)."""
+(:class:`ImpactStream`, a part of :class:`~dimacq.services.acquisition.session.ImpactSession`)."""
 
 from __future__ import annotations
 
@@ -17,9 +17,9 @@ from dimacq.devices.loadcell import LoadCell, LoadCellBlock
 from dimacq.errors import DeviceTimeoutError
 from dimacq.io.acquisition_hdf5 import AcquisitionWriter
 from dimacq.model.impact import ImpactSettings
-from dimacq.services.sample_window import SampleWindow
+from dimacq.services.acquisition.sample_window import SampleWindow
 
-log = logging.getLogger("dimacq.services.acquisition")
+log = logging.getLogger("dimacq.services.acquisition.session")
 
 
 class _StrikeLost(Exception):
@@ -27,7 +27,7 @@ class _StrikeLost(Exception):
 
 
 class ImpactStream:
-    """Methods of :class:`~dimacq.services.acquisition.ImpactSession` (its state: see there)."""
+    """Methods of :class:`~dimacq.services.acquisition.session.ImpactSession` (its state: see there)."""
 
     if TYPE_CHECKING:  # the state of the ImpactSession it is a part of
         daq: Daq

@@ -1,0 +1,1 @@
+"""Acquisition: impact sessions, strike detection, stream alignment, rigs and FRFs from time data."""
