@@ -51,6 +51,7 @@ from dimacq.api.guards import (
     is_loopback,
     is_wildcard,
 )
+from dimacq.api.manual import mount_manual
 from dimacq.api.routers import (
     acquisitions,
     calibrations,
@@ -357,6 +358,7 @@ def _mount_page(app: FastAPI) -> None:
         return FileResponse(STATIC_DIR / "report.html", headers=PAGE_HEADERS)
 
     app.mount("/static", StaticFiles(directory=STATIC_DIR), name="static")
+    mount_manual(app, PAGE_HEADERS)
 
 
 def _mount_docs(app: FastAPI) -> None:

@@ -1,4 +1,4 @@
-"""Process settings for short-lived CLI commands (``dimacq solve``, issue #27).
+"""Process settings for short-lived CLI commands (``dimacq solve``).
 
 :func:`keep_freed_memory` tells glibc's allocator to keep the memory a command frees for its next
 arrays instead of handing it back to the kernel. By default glibc maps each block above a

@@ -19,7 +19,7 @@ from collections.abc import Sequence
 # numerical core multiplies many small matrices (6×2J Gram matrices per line, 10×10 systems);
 # on those OpenBLAS's worker threads spin instead of helping: the DIM normal equations of a
 # 1357-line test took 6.1 ms of CPU with two threads and 1.0 ms with one, and on a machine
-# shared with other jobs the spinning threads wait for cores (dimacq solve: issue #27).
+# shared with other jobs the spinning threads wait for cores (dimacq solve).
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
@@ -32,7 +32,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
 
     With ``command`` (the subcommand a command line names), only the module of that name is
     imported when it registers that subcommand: ``dimacq solve`` then does not import the
-    acquisition, the simulators or the sensitivity study (half a second of start-up, issue #27).
+    acquisition, the simulators or the sensitivity study (half a second of start-up).
     Any other name, or none, builds the whole parser (``dimacq --help``, a mistyped command).
     """
     if command is not None:
@@ -134,7 +134,7 @@ def _end_process(rc: int) -> None:
     is the interpreter's finalisation: every module torn down and every object freed one by one
     (numpy, pydantic's schemas, the solve's 190 MB of arrays), which the kernel does at once when
     the process ends. Measured on the acquired calibration-mass set: 0.07 s of CPU at the
-    minimum, 0.2 s at the median on the shared machine (issue #27). Only for commands that
+    minimum, 0.2 s at the median on the shared machine. Only for commands that
     leave no thread running and no file open (:data:`FAST_EXIT_COMMANDS`).
     """
     logging.shutdown()

@@ -2,7 +2,7 @@
 
 ``np.einsum`` without ``optimize`` runs its own loop over every index; for a real geometry matrix
 applied to complex FRFs over all lines and inputs that loop cost more than the rest of a solve
-(issue #27: 0.7 s of ``dimacq solve``'s 1.3 s on an acquired 24 × 24 × 2048-line test). These
+(0.7 s of ``dimacq solve``'s 1.3 s on an acquired 24 × 24 × 2048-line test). These
 helpers give the same sums (to rounding: the order of the additions differs) through ``matmul``.
 """
 

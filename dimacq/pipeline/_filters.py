@@ -3,7 +3,7 @@ median along a short axis.
 
 ``scipy.ndimage.median_filter(x, size=(w, 1, …), mode="nearest")`` and
 ``scipy.ndimage.uniform_filter1d(x, w, axis=0, mode="nearest")`` to the bit, without importing
-``scipy.ndimage`` (a quarter of a second of ``dimacq solve``'s start-up, issue #27):
+``scipy.ndimage`` (a quarter of a second of ``dimacq solve``'s start-up):
 
 * the median filter is a rank filter: output ``i`` is the ``w // 2``-th smallest (0-based) of the
   window ``x[i − w//2 … i − w//2 + w − 1]`` (indices clipped to the array: "nearest"); a

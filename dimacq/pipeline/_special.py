@@ -3,7 +3,7 @@
 
 ``scipy.special`` (and ``scipy.linalg``) pull in scipy's array-API layer, which clones the numpy
 namespace and with it ``numpy.f2py``: about 0.2 s of CPU at every start of ``dimacq solve``
-(issue #27), for three scalar functions. They are written out here from their definitions:
+for three scalar functions. They are written out here from their definitions:
 
 - regularized incomplete gamma functions ``P(a, x) = γ(a, x)/Γ(a)``, ``Q = 1 − P``: the series
   ``P = x^a e^{−x}/Γ(a) · Σ_n x^n / (a (a+1) … (a+n))`` for ``x < a + 1``, else Legendre's

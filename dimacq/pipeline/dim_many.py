@@ -9,7 +9,7 @@ lines ``l`` and inputs ``j`` of 6×6 Gram matrices (``dim._gram_normal_equations
 with ``Q`` (100×36) and ``R`` (10×36) the constant maps of the design matrix. So the per-input
 band sums ``G_j, C_j`` are formed once (O(L·J·36)), and every weighting ``w`` (a leave-one-input-
 out, a bootstrap resample) is a (J,)·(J, 36) product and a 10×10 solve, instead of the Gram
-matrices of every line again (issue #27: the jackknife's 93 solves were a third of ``dimacq
+matrices of every line again (the jackknife's 93 solves were a third of ``dimacq
 solve``). Known properties enter as in ``dim._normal_equations`` (``N_θ = Tᵀ N T``,
 ``r_θ = (r − N x₀) T``), and the solve is ``dim._solve_normal``'s (equilibrated, minimum norm).
 

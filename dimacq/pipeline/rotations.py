@@ -1,7 +1,7 @@
 """Rotation matrices of rotation vectors, as ``scipy.spatial.transform.Rotation`` computes them.
 
 ``Rotation.from_rotvec(v).as_matrix()`` and ``.apply(x)`` without importing ``scipy.spatial``
-(with ``scipy.sparse`` behind it, a fifth of ``dimacq solve``'s start-up, issue #27), by scipy's
+(with ``scipy.sparse`` behind it, a fifth of ``dimacq solve``'s start-up), by scipy's
 own steps, so that the numbers are the same:
 
 * rotation vector → unit quaternion ``q = (s·v, cos(θ/2))`` with ``θ = |v|`` and

@@ -145,7 +145,7 @@ class SensitivityResult:
 
     def to_json(self) -> dict[str, Any]:
         """Per parameter name its statistics, and ``study`` (the description and the units).
-        ``mass_kg`` repeats ``m``: issue 4 names that key, and scripts read it."""
+        ``mass_kg`` repeats ``m``: scripts read that key."""
         out: dict[str, Any] = {k: dict(v) for k, v in self.stats.items()}
         out["mass_kg"] = dict(self.stats["m"])
         out["study"] = {**self.description, "units": dict(UNITS)}

@@ -121,7 +121,7 @@ def run(args: argparse.Namespace) -> int:
     # same scenario and seed, and the drivers know only the rig file and its calibration files.
     # The setup the acquisition runs on and the file states is the lab's (the scenario's
     # geometry errors applied: digitized positions, jig orientations, lines of action), never
-    # the simulator's true geometry (issue 22).
+    # the simulator's true geometry.
     built = build_scenario(args.scenario, args.seed)
     model = built.model
     setup = built.setup

@@ -19,7 +19,7 @@ from typing import Any, Literal
 
 from dimacq.errors import SetupError
 
-# pass/fail limits of the selftest (issue 5, "Must show")
+# pass/fail limits of the selftest
 LIMITS = {
     "tip_rms_mm": 0.5,
     "echoes_accepted": 0,

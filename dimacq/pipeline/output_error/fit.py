@@ -65,7 +65,7 @@ def _gauge_constraint(
     them. The fixed scale holds the product of the sensors' and
     the inputs' scales (what the principal moments follow) only if nothing in the model ties
     their ratio to an exact length: with the cells held exact, the reactions did, and a 0.3 %
-    error in them moved the principal moments 0.5 % (acquired sets of issue 23). In the
+    error in them moved the principal moments 0.5 % (on acquired sets). In the
     whitened corrections ``θ_g = δg/σ_g`` a gauge motion is ``G_θ c`` with
     ``G_θ = diag(1/σ_g) G``; the prior's information on ``c`` is ``P = G_θᵀG_θ`` and the data's,
     properties marginalised, ``D = G_θᵀ (J_gᵀJ_g − J_gᵀJ_x (J_xᵀJ_x)⁻¹ J_xᵀJ_g) G_θ``.

@@ -52,7 +52,7 @@ class OutputErrorOptions:
         are exact, and their reactions alone tie the scale of the sensors against the inputs'
         (the fixed scale gauge then lets a reaction error move the principal moments: a
         bungee-hung mass through the simulated lab came out 0.3–0.5 % low, seeds 3, 5, 7 of
-        ``netft-udp-simulated``, issue 23).
+        ``netft-udp-simulated``).
     refuse_ratio : float
         A geometry parameter whose posterior σ exceeds this fraction of its prior σ is not
         estimated (not identified by the data).
@@ -73,7 +73,7 @@ class OutputErrorOptions:
         measured geometry too (digitized or drawn, as uncertain as a sensor's): they cannot pin
         the frame better than those, and a misfit that is not geometry (a load-cell chain error,
         gauge noise on a cell that carries almost no reaction, channel gains) projects onto the
-        common translation as if it were information. Seen on acquired data (issue 22): a bungee-
+        common translation as if it were information. Seen on acquired data: a bungee-
         hung calibration mass, reactions at noise level, came out with the CG moved 5 mm along a
         "identified" translation, intervals 0.5 mm wide, verdict ok; with the frame fixed, 0.2 mm.
         The scale and the common accelerometer gain are fixed either way

@@ -1,2 +1,2 @@
 """Data selection and diagnostics: perimeter response selection, sensor orientation repair,
-jackknife excitation selection with the excitation check, and band selection (issue 4)."""
+jackknife excitation selection with the excitation check, and band selection."""

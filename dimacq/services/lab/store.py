@@ -51,7 +51,7 @@ def _one_line(text: Any) -> Any:
 
 def _stored_names(body: dict[str, Any]) -> dict[str, Any]:
     """A stored setup with its name and labels as one line of at most MAX_NAME_CHARS: rows stored
-    before names had that rule (issue 24) stay readable (line breaks become spaces, the rest is
+    before names had that rule stay readable (line breaks become spaces, the rest is
     cut); a body that keeps the rule is returned as it is."""
     lists = ("responses", "inputs", "excitations", "load_cells")
     names = [body.get("name")] + [

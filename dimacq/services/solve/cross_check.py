@@ -1,4 +1,4 @@
-"""The second estimator beside the DIM on every solve (issue 25): the mass-line fit.
+"""The second estimator beside the DIM on every solve: the mass-line fit.
 
 :func:`cross_check` runs :func:`dimacq.pipeline.cross_check.mass_line_from_frf` on the data the
 DIM used (its band, the channels and inputs its selection and refinement kept, the stated

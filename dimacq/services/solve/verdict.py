@@ -66,7 +66,7 @@ log = logging.getLogger(__name__)
 RESIDUAL_FAIL = MAX_RESIDUAL
 RESIDUAL_WARN = 0.05
 #: Largest useful relative half-width of the 95 % interval of the mass and of each principal
-#: moment. Principal moments: ±5 %, the accuracy issue 10 accepts of any answer (flexible
+#: moment. Principal moments: ±5 %, the accuracy accepted of any answer (flexible
 #: structures). Mass: ±2 %, twice what a careful lab's stated uncertainties give (the default
 #: 0.5 % (1σ) hammer certificate alone is ±1 %; 2 mm / 0.5° / 1° geometry adds about ±0.3 % on
 #: the 18 kg calibration mass, whose principal moments come out near ±3 %). An interval wider than
@@ -304,7 +304,7 @@ def verdict(
 
 
 def _estimator_checks(oe: Any) -> list[VerdictReason]:
-    """The ``estimator`` checks of an output-error solve (issue 22).
+    """The ``estimator`` checks of an output-error solve.
 
     - ``estimator:adequacy``: the refined answer against the stated-geometry one
       (:func:`dimacq.pipeline.output_error.checks._adequacy`). A refinement that moved the properties
@@ -412,7 +412,7 @@ def _precision(unc: Uncertainty, limits: tuple[float, float]) -> VerdictReason:
 
 
 def cross_check_checks(cc: Any) -> list[VerdictReason]:
-    """The ``cross_check`` check (issue 25): the mass-line estimate against the DIM's.
+    """The ``cross_check`` check: the mass-line estimate against the DIM's.
 
     ``warn`` when an item differs by more than the combined 95 % interval and the largest |z|
     is beyond the family-wise limit of the 13 items compared (the two estimators
