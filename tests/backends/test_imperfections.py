@@ -3,14 +3,11 @@ them: USB re-enumeration, CAN bus-off and frame loss, serial line noise and port
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from _digitizer_support import make_device, url_backend
 
 from dimacq.config import load_settings

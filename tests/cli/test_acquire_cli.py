@@ -6,13 +6,10 @@ The full-size figures (24 inputs × 5 averages) are in tests/scripts/acquisition
 from __future__ import annotations
 
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from _acq_support import calibration_scale, no_leaks
 
 from dimacq.cli.main import main

@@ -12,12 +12,9 @@ from __future__ import annotations
 
 import importlib.util
 import json
-import sys
 from pathlib import Path
 
 import pytest
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from _acq_support import no_leaks
 
 from dimacq.cli.main import main

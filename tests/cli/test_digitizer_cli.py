@@ -1,12 +1,8 @@
 """``dimacq digitizer selftest``: JSON keys and pass/fail, over the URL handler and a real pty."""
 
 import json
-import sys
-from pathlib import Path
 
 import pytest
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from _digitizer_support import make_device
 
 from dimacq.cli.main import main

@@ -8,13 +8,8 @@ properties for DIM through the simulated devices (the devices themselves:
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from _acq_support import no_leaks
 
 from dimacq.cli.simulated_lab import model_frf, scenario_model

@@ -8,15 +8,11 @@ from __future__ import annotations
 
 import json
 import logging
-import sys
-from pathlib import Path
 
 import can
 import h5py
 import numpy as np
 import pytest
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from _acq_support import ImpulseSource, no_leaks
 from _block_daq import BlockDaq
 

@@ -5,13 +5,8 @@ FRFs (nothing accepted is lost or wrong)."""
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
 import can
 import numpy as np
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from _acq_support import ImpulseSource, no_leaks
 
 from dimacq.config import Settings

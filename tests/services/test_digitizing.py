@@ -1,15 +1,12 @@
 """Digitizing session on the simulator: points with patches, registration, journal, the port
 vanishing mid-point, and the configuration files."""
 
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from _digitizer_support import make_device, url_backend
+from scipy.spatial.transform import Rotation
 
 from dimacq.errors import DeviceNotFoundError, SetupError
 from dimacq.services.geometry.digitizer_config import load_array_config, load_jig
