@@ -7,7 +7,10 @@ The flow: the noise and the reactions' compensation (:mod:`.noise`), the equatio
 a posteriori variance factor and the gross-error rule (:mod:`.fit`), the geometry test and the
 residual-flexibility (Hausman) test (:mod:`.checks`), the covariance (noise, input-robust
 factors, model-form terms, the fixed gauge modes' prior variance, registration) and the report
-(:mod:`.report`).
+(:mod:`.report`). Each is a named step here: :func:`_band_data`, :func:`_stated_geometry`,
+:func:`_make_fitter` (:class:`_Fitter`), :func:`_gross_error_step`, :func:`_geometry_test_step`,
+:func:`_residual_flexibility_step`, :func:`_covariance_step`, :func:`_properties_posterior` and
+:func:`_noise_report`.
 
 Identifiability
 ---------------
@@ -660,6 +663,76 @@ def _start_point(
     return free_x, x_fixed, x_start
 
 
+def _make_fitter(
+    frf: FrfData,
+    setup: TestSetup,
+    data: _BandData,
+    g: _StatedGeometry,
+    opt: OutputErrorOptions,
+    initial: DimResult,
+    known: Mapping[str, float],
+) -> _Fitter:
+    """The fitter of one solve: the items it may refine, the start, the residual terms' basis
+    ``[ω̂², ω̂⁴]`` (``ω̂ = ω/ω_max``) and the line weights from the measured noise and the load
+    cells' certificate (the a posteriori variance factor scales the whole noise model, not the
+    lines' relative weights)."""
+    nn = g.nodes.size
+    cand = np.nonzero(g.sig_g > 0)[0] if opt.refine_geometry else np.zeros(0, np.intp)
+    if opt.refine_geometry and not opt.refine_positions:
+        cand = cand[~np.isin(cand % 6, (3, 4, 5)) | (cand >= 6 * nn)]
+    free_x, x_fixed, x_start = _start_point(initial, known, setup.reference_point)
+    w_hi = 2 * np.pi * float(frf.frequencies_hz[-1])
+    wn = 2 * np.pi * frf.frequencies_hz / w_hi
+    basis = np.stack([wn**2, wn**4], axis=1).astype(complex)
+    eps_r = setup.transducer_uncertainty.loadcell_matrix_rel if setup.load_cells else 0.0
+    psi0 = np.concatenate([g.d0, cross3(g.r0, g.d0)], axis=1)
+    phi0 = np.concatenate([g.din0, cross3(g.rin0, g.din0)], axis=1)
+    A0 = np.asarray(np.linalg.inv(mass_matrix(x_start)[0]), dtype=np.float64)  # typed for mypy
+    lw0 = _line_weights(
+        data.H, data.R_at_p, psi0, phi0, A0, eps_r, h_power=data.h_power, d3_power=data.d3_power
+    )
+    data.h_power = data.d3_power = None
+    return _Fitter(data, g, opt, free_x, x_fixed, x_start, cand, basis, lw0)
+
+
+def _properties_posterior(
+    prob: _Problem,
+    theta: FloatArray,
+    cov_theta: FloatArray,
+    cov_noise_theta: FloatArray,
+    free_x: NDArray[np.intp],
+    setup: TestSetup,
+) -> tuple[FloatArray, FloatArray, FloatArray, dict[str, Any]]:
+    """The ten properties (GCS) with their covariance: the fit's, the fixed gauge modes' prior
+    variance and the registration's; and the covariance of the noise alone.
+
+    Raises :class:`SolverError` when the fit ended on a mass matrix that is not positive
+    definite.
+    """
+    x = prob.full_x(theta)
+    if not np.all(np.linalg.eigvalsh(mass_matrix(x)[0]) > 0):
+        raise SolverError(
+            "the output-error fit ended on a mass matrix that is not positive definite; the data "
+            "do not support it: check the band, the selection and the stated geometry"
+        )
+    cov = np.zeros((10, 10))
+    cov_noise = np.zeros((10, 10))
+    nx = free_x.size
+    cov[np.ix_(free_x, free_x)] = cov_theta[:nx, :nx]
+    cov_noise[np.ix_(free_x, free_x)] = cov_noise_theta
+    cov_gauge, gauge_info = _gauge_covariance(prob, x)
+    if cov_gauge is not None:
+        cov[np.ix_(free_x, free_x)] += cov_gauge[np.ix_(free_x, free_x)]
+    gu = setup.geometry_uncertainty
+    if gu.registration_rms_m:
+        for i in (1, 2, 3):
+            if i in free_x:
+                cov[i, i] += gu.registration_rms_m**2
+    params = x.copy()
+    params[1:4] += setup.reference_point
+    return params, cov, cov_noise, gauge_info
+
+
 # ------------------------------------------------------------------------------------------
 # Entry point
 # ------------------------------------------------------------------------------------------
@@ -682,13 +755,6 @@ def solve_output_error(
     refinement is refused and the stated geometry used. A load cell cannot be left out: when the
     worst item is a cell's, the cells are held at their stated pose and calibration
     (``refine_load_cells`` off) and the solve repeated.
-
-    The stages: the band's data and noise (:func:`_band_data`), the stated geometry and its
-    priors (:func:`_stated_geometry`), the start (:func:`_start_point`), the fit
-    (:class:`_Fitter`), the variance factor and gross errors (:func:`_gross_error_step`), the
-    geometry test (:func:`_geometry_test_step`), the residual terms
-    (:func:`_residual_flexibility_step`), the posterior (:func:`_covariance_step`,
-    :func:`_gauge_covariance`) and the report.
 
     Parameters
     ----------
@@ -727,32 +793,15 @@ def solve_output_error(
         initial = solve_system(system, known=known, check_plausibility=False)
     data = _band_data(frf, setup, geo.output_index[active], in_idx)
     g = _stated_geometry(frf, setup, geo, active, in_idx, data.cell_nodes, opt.refine_load_cells)
-    nn, J = g.nodes.size, len(in_idx)
-    cand = np.nonzero(g.sig_g > 0)[0] if opt.refine_geometry else np.zeros(0, np.intp)
-    if opt.refine_geometry and not opt.refine_positions:
-        cand = cand[~np.isin(cand % 6, (3, 4, 5)) | (cand >= 6 * nn)]
-    free_x, x_fixed, x_start = _start_point(initial, known, p)
-    w_hi = 2 * np.pi * float(frf.frequencies_hz[-1])
-    wn = 2 * np.pi * frf.frequencies_hz / w_hi
-    basis = np.stack([wn**2, wn**4], axis=1).astype(complex)
-    eps_r = setup.transducer_uncertainty.loadcell_matrix_rel if setup.load_cells else 0.0
-    psi0 = np.concatenate([g.d0, cross3(g.r0, g.d0)], axis=1)
-    phi0 = np.concatenate([g.din0, cross3(g.rin0, g.din0)], axis=1)
-    A0 = np.asarray(np.linalg.inv(mass_matrix(x_start)[0]), dtype=np.float64)  # typed for mypy
-    # from the measured noise and the load cells' certificate; the a posteriori variance factor
-    # scales the whole noise model, not the lines' relative weights
-    lw0 = _line_weights(
-        data.H, data.R_at_p, psi0, phi0, A0, eps_r, h_power=data.h_power, d3_power=data.d3_power
-    )
-    data.h_power = data.d3_power = None
-    fitter = _Fitter(data, g, opt, free_x, x_fixed, x_start, cand, basis, lw0)
-
+    J = len(in_idx)
+    fitter = _make_fitter(frf, setup, data, g, opt, initial, known)
+    free_x = fitter.free_x
     n_data = 2 * data.H.shape[0] * data.H.shape[1] * J
     n_rf = 2 * data.H.shape[1] * J
     prob0, theta0, jac0, _cost0, it0, refused0 = fitter.fit(False)
     fit = _Fit(prob0, theta0, jac0, it0, refused0)
     variance_factor, refinement_note = 1.0, ""
-    if cand.size:
+    if fitter.cand.size:
         call = {"response_weights": wts, "input_keep": keep_in, "known": known, "options": opt}
         fit, variance_factor, refinement_note, sub = _gross_error_step(
             fitter, fit, frf, setup, call, geo, in_idx, _depth
@@ -769,45 +818,19 @@ def solve_output_error(
         fitter, fit, chi2, model_form, stated_theta, geometry_test, fitted_b
     )
     prob = fit.prob
-    x = prob.full_x(theta)
-    if not np.all(np.linalg.eigvalsh(mass_matrix(x)[0]) > 0):
-        raise SolverError(
-            "the output-error fit ended on a mass matrix that is not positive definite; the data "
-            "do not support it: check the band, the selection and the stated geometry"
-        )
-    cov = np.zeros((10, 10))
-    cov_noise = np.zeros((10, 10))
+    params, cov, cov_noise, gauge_info = _properties_posterior(
+        prob, theta, cov_theta, cov_noise_theta, free_x, setup
+    )
     nx = free_x.size
-    cov[np.ix_(free_x, free_x)] = cov_theta[:nx, :nx]
-    cov_noise[np.ix_(free_x, free_x)] = cov_noise_theta
-    cov_gauge, gauge_info = _gauge_covariance(prob, x)
-    if cov_gauge is not None:
-        cov[np.ix_(free_x, free_x)] += cov_gauge[np.ix_(free_x, free_x)]
-    gu = setup.geometry_uncertainty
-    if gu.registration_rms_m:
-        for i in (1, 2, 3):
-            if i in free_x:
-                cov[i, i] += gu.registration_rms_m**2
-    params = x.copy()
-    params[1:4] += p
     gvec = prob.full_g(theta)
     se_g = np.zeros(g.sig_g.size)
     se_g[prob.free_g] = np.sqrt(np.clip(np.diag(cov_theta)[nx:], 0, None)) * g.sig_g[prob.free_g]
     sens, inps, cell_corr = _corrections(
-        gvec,
-        se_g,
-        g.sig_g,
-        prob,
-        fit.refused,
-        frf.inputs,
-        in_idx,
-        opt.refine_geometry,
-        refinement_note or keep_note,
-        data.cell_nodes,
-    )
-    new_setup = _refined_setup(
-        setup, geo, active, prob, gvec, frf.inputs, in_idx, p, data.cell_nodes
-    )
+        gvec, se_g, g.sig_g, prob, fit.refused, frf.inputs, in_idx, opt.refine_geometry,
+        refinement_note or keep_note, data.cell_nodes,
+    )  # fmt: skip
+    new_setup = _refined_setup(setup, geo, active, prob, gvec, frf.inputs, in_idx, p,
+                               data.cell_nodes)  # fmt: skip
     return OutputErrorResult(
         parameters=params,
         covariance=cov,
