@@ -63,6 +63,7 @@ from dimacq.model.setup import (
     ResponseChannel,
     TestSetup,
 )
+from dimacq.pipeline.rigid_body import skew
 
 __all__ = [
     "CALIBRATION_MASS",
@@ -89,14 +90,10 @@ FloatArray = NDArray[np.float64]
 ComplexArray = NDArray[np.complex128]
 
 
-def _skew(v: FloatArray) -> FloatArray:
-    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
-
-
 def _G(position_m: FloatArray) -> FloatArray:
     """``[[E, −[r]x], [0, E]]``: motion of a point at ``r`` from ``[u_O; θ]``."""
     g = np.eye(6)
-    g[:3, 3:] = -_skew(np.asarray(position_m, float))
+    g[:3, 3:] = -skew(np.asarray(position_m, float))
     return g
 
 

@@ -46,6 +46,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from dimacq.model.channels import gauge_names
+from dimacq.pipeline.rigid_body import skew
 from dimacq.simulators.lab.bridge import BridgeState, StrainGaugeCell
 from dimacq.simulators.lab.timedomain import VirtualLab
 
@@ -196,10 +197,6 @@ class DeadWeightBench:
             return np.asarray(allc[ch], dtype=np.float64)
 
 
-def _skew(v: FloatArray) -> FloatArray:
-    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
-
-
 class SupportSideBench:
     """A :class:`~dimacq.simulators.lab.source.SampleSource`: the lab with load cell ``node``
     struck on its support side.
@@ -231,7 +228,7 @@ class SupportSideBench:
         T = np.zeros((6, 6))
         T[:3, :3] = R
         T[3:, 3:] = R
-        T[3:, :3] = _skew(np.asarray(s.position_m, float)) @ R
+        T[3:, :3] = skew(np.asarray(s.position_m, float)) @ R
         sign = 1.0 if s.sign == "on_structure" else -1.0
         setup = lab.model.setup
         phi = np.concatenate(

@@ -87,7 +87,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from dimacq.pipeline._batched import cross3
-from dimacq.pipeline.rigid_body import load_cell_transform
+from dimacq.pipeline.rigid_body import load_cell_transform, skew
 from dimacq.pipeline.rotations import apply_rotvec, rotvec_to_matrix
 
 FloatArray = NDArray[np.float64]
@@ -106,18 +106,10 @@ CELL_PARAMS = 9
 _GAUGE_WEIGHT = 1e3
 
 
-def _skew(v: FloatArray) -> FloatArray:
-    out = np.zeros(v.shape + (3,))
-    out[..., 0, 1], out[..., 0, 2] = -v[..., 2], v[..., 1]
-    out[..., 1, 0], out[..., 1, 2] = v[..., 2], -v[..., 0]
-    out[..., 2, 0], out[..., 2, 1] = -v[..., 1], v[..., 0]
-    return out
-
-
 def _left_jacobian(rv: FloatArray) -> FloatArray:
     """Left Jacobian of SO(3), ``J_l(θ) = E + ½[θ]x + ⅙[θ]x²`` (series to second order; the
     corrections are small angles), shape (..., 3, 3)."""
-    k = _skew(rv)
+    k = skew(rv)
     return np.asarray(_E + 0.5 * k + (k @ k) / 6.0, float)
 
 
@@ -144,14 +136,14 @@ def mass_matrix(x: FloatArray) -> tuple[FloatArray, FloatArray]:
     m, c = x[0], x[1:4]
     M = np.zeros((6, 6))
     M[:3, :3] = m * _E
-    M[:3, 3:] = -m * _skew(c)
-    M[3:, :3] = m * _skew(c)
+    M[:3, 3:] = -m * skew(c)
+    M[3:, :3] = m * skew(c)
     dM = np.zeros((10, 6, 6))
     dM[0, :3, :3] = _E
-    dM[0, :3, 3:] = -_skew(c)
-    dM[0, 3:, :3] = _skew(c)
+    dM[0, :3, 3:] = -skew(c)
+    dM[0, 3:, :3] = skew(c)
     for i in range(3):
-        s = _skew(_E[i])
+        s = skew(_E[i])
         dM[1 + i, :3, 3:] = -m * s
         dM[1 + i, 3:, :3] = m * s
     for k, (a, b) in enumerate(_IDX6):
@@ -191,7 +183,7 @@ def gauge_property_jacobian(x: FloatArray) -> FloatArray:
     for i in range(3):
         t = _E[i]
         put(i, t, m * (2 * (c @ t) * _E - np.outer(t, c) - np.outer(c, t)))
-        w = _skew(_E[i])
+        w = skew(_E[i])
         put(3 + i, cross3(_E[i], c), w @ Ip - Ip @ w)
     put(6, c, 2 * Ip)
     put(7, np.zeros(3), Ip, m)
@@ -269,7 +261,7 @@ class _Problem:
         Q0t = np.swapaxes(self.cell_rot0, 1, 2)
         Ti = np.zeros_like(T)
         Ti[:, :3, :3] = Ti[:, 3:, 3:] = Q0t
-        Ti[:, 3:, :3] = -Q0t @ _skew(self.cell_r0)
+        Ti[:, 3:, :3] = -Q0t @ skew(self.cell_r0)
         return T, Ti
 
     def cell_maps(self, g: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
@@ -285,7 +277,7 @@ class _Problem:
         A = np.zeros((K, 6, 6))
         A[:, :3, :3] = Q
         A[:, 3:, 3:] = Q
-        A[:, 3:, :3] = _skew(r + gc[:, 3:6]) @ Q - Q @ _skew(r)
+        A[:, 3:, :3] = skew(r + gc[:, 3:6]) @ Q - Q @ skew(r)
         T, Ti = self._cell_local
         gains = np.concatenate([np.zeros((K, 3)), gc[:, 6:9]], axis=1)  # forces: as calibrated
         B = (T * (1.0 + gains[:, None, :])) @ Ti
@@ -418,13 +410,13 @@ class _Problem:
                     for i in range(CELL_PARAMS):
                         dA = np.zeros((6, 6))
                         if i < 3:
-                            dQ = _skew(jlc[k][:, i]) @ Qc[k]
+                            dQ = skew(jlc[k][:, i]) @ Qc[k]
                             dA[:3, :3] = dQ
                             dA[3:, 3:] = dQ
-                            dA[3:, :3] = _skew(rk[k]) @ dQ - dQ @ _skew(self.cell_r0[k])
+                            dA[3:, :3] = skew(rk[k]) @ dQ - dQ @ skew(self.cell_r0[k])
                             dAB = dA @ Bc[k]
                         elif i < 6:
-                            dA[3:, :3] = _skew(_E[i - 3]) @ Qc[k]
+                            dA[3:, :3] = skew(_E[i - 3]) @ Qc[k]
                             dAB = dA @ Bc[k]
                         else:  # ∂B/∂γ = T e_o e_oᵀ T⁻¹, local output o = Mx, My, Mz
                             o = i - 3
