@@ -22,6 +22,7 @@ from typing import Any
 
 from dimacq.backends.base import DeviceContext
 from dimacq.drivers.ni.plan import (
+    ChannelKind,
     ChannelRequest,
     ModuleSlot,
     NiPlan,
@@ -105,7 +106,7 @@ def rig_requests(rf: RigFile, *, with_loadcells: bool = True) -> list[ChannelReq
         for i, lc in enumerate(rf.load_cells):
             names = channel_names(lc) if lc.daq_channels else []
             for ch, name in zip(lc.daq_channels, names, strict=True):
-                kind = "bridge" if lc.daq_signals == "gauges" else "voltage"
+                kind: ChannelKind = "bridge" if lc.daq_signals == "gauges" else "voltage"
                 out.append(
                     ChannelRequest(
                         ch,

@@ -28,6 +28,7 @@ from dimacq.drivers.ni.modules import CATALOGUE, ModuleSpec, coerce_rate, input_
 from dimacq.errors import SetupError
 
 __all__ = [
+    "ChannelKind",
     "ChannelRequest",
     "ModuleSlot",
     "NiPlan",

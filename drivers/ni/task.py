@@ -13,11 +13,11 @@ N and mV/V itself. **Never run on real hardware by its author**; NI-DAQmx's simu
 (NI MAX) are the way to try it without hardware.
 
 The channels are placed by :func:`dimacq.drivers.ni.plan.place` on the modules given
-(``ModuleSlot``: device, model, first rig input, what it offers): a current or excitation the
-module does not offer is refused when the channel is added. The rate is the plan's
-(:func:`~dimacq.drivers.ni.plan.task_rate`) before the task exists and NI-DAQmx's read back
-once it does; the task refuses to start when they differ, so no block is labelled with a rate
-the modules do not run at. Every channel's input delay is removed by NI-DAQmx
+(``ModuleSlot``: device, model, rig inputs, what it offers): a current or excitation the module
+does not offer is refused when the channel is added. The rate is NI-DAQmx's, read back from the
+committed task whenever it is asked (the plan's rate, where it differs, is logged); a rate that
+changes after it was reported (channels added later) refuses the start, so no block or FRF
+line is labelled with a rate the modules do not run at. Every channel's input delay is removed by NI-DAQmx
 (``ai_remove_filter_delay``), up to NI's published figure (``ai_filter_delay_adjustment``); a
 task whose modules' delays differ and cannot be removed is refused.
 """
@@ -274,20 +274,19 @@ class NiDsaTask:
 
     @property
     def sample_rate_hz(self) -> float | None:
-        """The rate the modules run at, Hz: NI-DAQmx's read back once the task is built, the
-        plan's before (a module not in the catalogue: the task is built to ask NI-DAQmx); None
-        before ``configure_timing``."""
+        """The rate the modules run at, Hz: NI-DAQmx's ``timing.samp_clk_rate`` read back (the
+        task is built and committed, not started, to ask it); without the driver (``nidaqmx``
+        None: a plan) the plan's; None before ``configure_timing``."""
         if self._read_back_hz is not None:
             return self._read_back_hz
         if self._asked_hz is None or not self._chans:
             return self._asked_hz
-        try:
+        if self._ni is None:
             rate, _fm, _m = task_rate(self._used_slots(), self._asked_hz)
-        except SetupError:
-            self._build()
-            return self._read_back_hz
-        self._reported_hz = rate
-        return rate
+            return rate
+        self._build()
+        self._reported_hz = self._read_back_hz
+        return self._read_back_hz
 
     @sample_rate_hz.setter
     def sample_rate_hz(self, value: float | None) -> None:
@@ -389,6 +388,7 @@ class NiDsaTask:
             task.control(c.TaskMode.TASK_COMMIT)
             rate = float(task.timing.samp_clk_rate)
             self._compensate(task, ais, kept, rate)
+            self._check_plan(rate)
         except err_t as err:
             task.close()
             raise SetupError(f"task {self.name}: NI-DAQmx refused the set-up: {err}") from err
@@ -431,6 +431,26 @@ class NiDsaTask:
             )
         task.control(c.TaskMode.TASK_COMMIT)
 
+    def _check_plan(self, rate: float) -> None:
+        """Log where NI-DAQmx's rate is not the plan's (the plan's timebase was not the one
+        NI-DAQmx shares): the read-back is what is used."""
+        assert self._asked_hz is not None
+        try:
+            planned, _fm, master = task_rate(self._used_slots(), self._asked_hz)
+        except SetupError:
+            return
+        if abs(rate - planned) > _RATE_TOL * planned:
+            log.warning(
+                "task %s: NI-DAQmx runs the modules at %.6g Hz where the plan (%s's timebase) "
+                "said %.6g Hz for %g Hz asked; %.6g Hz is used",
+                self.name,
+                rate,
+                master.device,
+                planned,
+                self._asked_hz,
+                rate,
+            )
+
     def start(self) -> None:
         """Build the task if not built (channels, delays, timing, clock export, trigger), check
         its rate against the one told before, start."""
@@ -445,9 +465,9 @@ class NiDsaTask:
         if told is not None and abs(rate - told) > _RATE_TOL * told:
             self._drop_built()
             raise SetupError(
-                f"task {self.name}: NI-DAQmx runs the modules at {rate:.6g} Hz, the plan said "
-                f"{told:.6g} Hz (asked {self._asked_hz:g} Hz); ask sample_rate_hz = {rate:.6g} "
-                "in the rig file's [daq]"
+                f"task {self.name}: NI-DAQmx runs the modules at {rate:.6g} Hz, but {told:.6g} Hz "
+                "was reported before channels or timing changed; configure every channel before "
+                "the rate is read, then start"
             )
         try:
             task.start()
