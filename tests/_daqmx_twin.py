@@ -28,6 +28,7 @@ from typing import Any
 import nidaqmx
 import numpy as np
 from nidaqmx.errors import DaqError
+from nidaqmx.system.device import _DeviceAlternateConstructor
 from nidaqmx.task._task import _TaskAlternateConstructor
 
 #: NI-DAQmx attribute ids (nidaqmx-python's generated properties)
@@ -43,6 +44,11 @@ NUM_CHANS = 0x217B
 OVERLOADED_CHANS_EXIST = 0x2174
 TOTAL_SAMP_PER_CHAN_ACQUIRED = 0x192A
 TASK_NAME = 0x1276
+PRODUCT_TYPE = 0x631
+SERIAL_NUM = 0x632
+AI_PHYSICAL_CHANS = 0x231E
+AI_CURRENT_INT_EXCIT_DISCRETE_VALS = 0x29CB
+AI_VOLTAGE_INT_EXCIT_DISCRETE_VALS = 0x29C9
 SECONDS = nidaqmx.constants.DigitalWidthUnits.SECONDS.value
 PERIODS = nidaqmx.constants.DigitalWidthUnits.SAMPLE_CLOCK_PERIODS.value
 CURRENT_SOURCE_INTERNAL = nidaqmx.constants.ExcitationSource.INTERNAL.value
@@ -103,7 +109,30 @@ class DaqmxTwin:
             self.tasks[handle] = _Task(name)
             return _TaskAlternateConstructor(handle, self, True)
 
-        return SimpleNamespace(Task=task, errors=nidaqmx.errors, constants=nidaqmx.constants)
+        devices = [_DeviceAlternateConstructor(name, self) for name in self.devices]
+        local = SimpleNamespace(devices=devices, driver_version=self.driver_version)
+        system = SimpleNamespace(System=SimpleNamespace(local=lambda: local))
+        return SimpleNamespace(
+            Task=task, errors=nidaqmx.errors, constants=nidaqmx.constants, system=system
+        )
+
+    # -- devices ----------------------------------------------------------------------------
+    def get_device_attribute_string(self, name: str, attr: int) -> str:
+        if attr == PRODUCT_TYPE:
+            return self.devices[name]
+        assert attr == AI_PHYSICAL_CHANS
+        return ", ".join(f"{name}/ai{k}" for k in range(4))
+
+    def get_device_attribute_uint32(self, name: str, attr: int) -> int:
+        assert attr == SERIAL_NUM
+        return 0x1A2B3C00 + list(self.devices).index(name)
+
+    def get_device_attribute_double_array(self, name: str, attr: int) -> list[float]:
+        _fm, _d, currents, volts = MODELS[self.devices[name]]
+        if attr == AI_CURRENT_INT_EXCIT_DISCRETE_VALS:
+            return list(currents)
+        assert attr == AI_VOLTAGE_INT_EXCIT_DISCRETE_VALS
+        return list(volts)
 
     # -- tasks ----------------------------------------------------------------------------------
     def get_task_attribute_string(self, handle: int, attr: int) -> str:

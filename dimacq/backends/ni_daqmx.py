@@ -212,12 +212,14 @@ def open_daq(ctx: DeviceContext) -> Any:
 
     ni = import_nidaqmx()
     slots = ni_slots(ni, ctx.rig_file)
-    return NiDsaTask(
+    task = NiDsaTask(
         ni,
         slots,
         start_trigger=ctx.settings.daq_ni_start_trigger,
         sample_clock_out=ctx.settings.daq_ni_sample_clock_out,
     )
+    ctx.on_close(task.close)
+    return task
 
 
 def ni_devices() -> tuple[list[dict[str, Any]], str]:

@@ -546,6 +546,12 @@ class NiDsaTask:
             return None
         return int(self._task.in_stream.total_samp_per_chan_acquired)
 
+    def close(self) -> None:
+        """Stop, and release the NI-DAQmx task built to read the rate back (it reserves the
+        modules until closed)."""
+        self.stop()
+        self._drop_built()
+
     def stop(self) -> None:
         if self._task is None:
             return

@@ -7,6 +7,8 @@ cannot remove, refuse the start."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
 pytest.importorskip("nidaqmx")
@@ -87,7 +89,7 @@ def test_the_rate_ni_daqmx_chose_is_the_one_used(caplog: pytest.LogCaptureFixtur
     try:
         assert task.read(16, timeout_s=1.0).sample_rate_hz == pytest.approx(50000 / 24)
     finally:
-        task.stop()
+        task.close()
 
 
 def test_a_rate_that_changed_after_it_was_reported_refuses_the_start() -> None:
@@ -100,6 +102,7 @@ def test_a_rate_that_changed_after_it_was_reported_refuses_the_start() -> None:
     with pytest.raises(SetupError, match=r"runs the modules at 2048 Hz, but 2083.33 Hz was rep"):
         task.start()
     assert not task.running
+    assert all(t.state == "cleared" for t in twin.tasks.values())  # nothing left reserved
 
 
 def test_a_delay_ni_daqmx_cannot_remove_refuses_the_start() -> None:
@@ -117,3 +120,85 @@ def test_a_delay_ni_daqmx_cannot_remove_refuses_the_start() -> None:
     task2.configure_timing(2048.0)
     task2.start()
     task2.stop()
+
+
+def _rig_for_the_cdaq(tmp_path: Path) -> Path:
+    """The shipped rig with what the modules offer (2 mA, 5 V) and its [[daq.modules]]."""
+    import shutil
+
+    shipped = Path(__file__).resolve().parents[3] / "config"
+    shutil.copytree(shipped / "calibrations", tmp_path / "calibrations")
+    text = (shipped / "rig.toml").read_text(encoding="utf-8")
+    text = text.replace("iepe_current_ma = 4.0", "iepe_current_ma = 2.0")
+    text = text.replace("excitation_v = 10 ", "excitation_v = 5.0 ")
+    modules = [("NI 9234", list(range(4 * i, min(4 * i + 4, 25)))) for i in range(7)]
+    modules += [("NI 9237", list(range(25 + 4 * j, 29 + 4 * j))) for j in range(3)]
+    table = "".join(
+        f'[[daq.modules]]\nname = "cDAQ1Mod{i + 1}"\nmodel = "{m}"\ninputs = {inputs}\n'
+        for i, (m, inputs) in enumerate(modules)
+    )
+    rig = tmp_path / "rig.toml"
+    rig.write_text(text.replace("[[hammers]]", table + "\n[[hammers]]", 1), encoding="utf-8")
+    return rig
+
+
+def test_daq_channels_on_nidaqmx_build_the_thesis_rig(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``loadcell = "daq-channels"`` on ``daq = "nidaqmx"``: the load cell's 12 bridges on the
+    NI 9237s in the task of the hammer and the 24 accelerometers (one task, one timebase)."""
+    from dimacq.backends import ni_daqmx
+    from dimacq.config import load_settings
+    from dimacq.drivers.daq_loadcell.driver import DaqSplitter
+    from dimacq.services import rig as rig_builder
+    from dimacq.simulators.lab.scenarios import build_scenario
+
+    devices = {f"cDAQ1Mod{i + 1}": "NI 9234" for i in range(7)}
+    devices.update({f"cDAQ1Mod{8 + j}": "NI 9237" for j in range(3)})
+    twin = DaqmxTwin(devices)
+    monkeypatch.setattr(ni_daqmx, "import_nidaqmx", twin.module)
+    settings = load_settings(
+        data_dir=tmp_path / "data",
+        token="t",
+        daq="nidaqmx",
+        loadcell="daq-channels",
+        rig_file=str(_rig_for_the_cdaq(tmp_path)),
+        daq_ni_sample_clock_out="/cDAQ1/PFI1",
+    )
+    setup = build_scenario(settings.scenario).model.setup
+    rig = rig_builder.build_rig(settings, setup, {})
+    try:
+        assert isinstance(rig.daq, DaqSplitter) and isinstance(rig.daq.inner, NiDsaTask)
+        task = rig.daq.inner
+        physical = {c.request.name: c.physical for c in task.planned}
+        assert physical["hammer ch0"] == "cDAQ1Mod1/ai0"
+        assert physical["8+Z"] == "cDAQ1Mod7/ai0"
+        assert (
+            physical["LC501 g01"] == "cDAQ1Mod8/ai0" and physical["LC501 g12"] == "cDAQ1Mod10/ai3"
+        )
+        assert rig.daq.sample_rate_hz == 2048.0
+        assert [s.model for s in task.slots] == ["NI 9234"] * 7 + ["NI 9237"] * 3
+        assert task.sample_clock_out == "/cDAQ1/PFI1"
+    finally:
+        rig.close()
+
+
+def test_a_module_that_is_not_the_rig_files_model_is_refused(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from dimacq.backends import ni_daqmx
+    from dimacq.config import load_settings
+    from dimacq.services import rig as rig_builder
+
+    devices = {f"cDAQ1Mod{i + 1}": "NI 9234" for i in range(10)}  # no 9237 in slot 8
+    monkeypatch.setattr(ni_daqmx, "import_nidaqmx", DaqmxTwin(devices).module)
+    settings = load_settings(
+        data_dir=tmp_path / "data",
+        token="t",
+        daq="nidaqmx",
+        rig_file=str(_rig_for_the_cdaq(tmp_path)),
+    )
+    with pytest.raises(
+        SetupError, match=r"daq.modules.7: cDAQ1Mod8 is an NI 9234, not the NI 9237"
+    ):
+        rig_builder.check_devices(settings, "daq")
