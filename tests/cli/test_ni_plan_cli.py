@@ -63,3 +63,21 @@ def test_a_rig_the_modules_accept_plans_ok(tmp_path: Path, capsys) -> None:
         in printed
     )
     assert "ok: nothing in the plan is refused" in printed
+
+
+def test_modules_and_units_together_are_refused() -> None:
+    from dimacq.errors import SetupError
+    from dimacq.io.rig_file import parse_rig_text
+
+    text = (
+        '[daq]\nsample_rate_hz = 2048.0\nunits = ["cDAQ1Mod1"]\n'
+        '[[daq.modules]]\nname = "cDAQ1Mod1"\nmodel = "NI 9234"\n'
+    )
+    with pytest.raises(SetupError, match=r"either as units .* or as \[\[daq\.modules\]\]"):
+        parse_rig_text(text, "rig.toml")
+    bad = (
+        '[daq]\nsample_rate_hz = 2048.0\n[[daq.modules]]\nname = "M"\nmodel = "NI 9234"\n'
+        "inputs = [1, 1]\n"
+    )
+    with pytest.raises(SetupError, match=r"daq\.modules\.0\.inputs"):
+        parse_rig_text(bad, "rig.toml")
