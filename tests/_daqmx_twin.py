@@ -5,6 +5,7 @@ NI 9234 and NI 9237 modules, written from NI's documents, not from dimacq's plan
 - a task's modules share one master timebase: the one named ``master`` (default: the device of
   the task's first channel); data rate ``fs = (fM/256)/n``, ``n = 1..31``, coerced up to the
   next rate (NI KB kA00Z0000004A0YSAU);
+- an NI 9234 measures ±5 V: a channel whose scaled limits ask more is refused (-200077);
 - an NI 9234 gives 2 mA IEPE current or none (NI 9234 Operating Instructions, Figure 4); an
   NI 9237 internal excitation of 2.0, 2.5, 3.3 or 5.0 V; other values are refused
   (NI-DAQmx's -200077, "requested value is not a supported value");
@@ -53,6 +54,8 @@ SECONDS = nidaqmx.constants.DigitalWidthUnits.SECONDS.value
 PERIODS = nidaqmx.constants.DigitalWidthUnits.SAMPLE_CLOCK_PERIODS.value
 CURRENT_SOURCE_INTERNAL = nidaqmx.constants.ExcitationSource.INTERNAL.value
 
+#: an NI 9234 measures ±5 V (NI 9144 User Guide, "NI 9234 Calibration Data")
+RANGE_9234_V = 5.0
 #: module model -> (internal fM, digital filter delay D in samples, IEPE currents, excitation V)
 MODELS = {
     "NI 9234": (13.1072e6, 38.4, (2e-3,), ()),
@@ -155,14 +158,23 @@ class DaqmxTwin:
         if source == CURRENT_SOURCE_INTERNAL and not any(abs(value - c) < 1e-9 for c in offered):
             raise _refuse(-200077, f"{device}: IEPE current {value} A is not supported")
 
+    def _volts(self, device: str, top_v: float) -> None:
+        if self.devices[device] == "NI 9234" and top_v > RANGE_9234_V * (1 + 1e-9):
+            raise _refuse(-200077, f"{device}: ±{top_v} V is beyond its ±5 V")
+
     def create_ai_accel_chan(self, handle, phys, name, *args: Any) -> None:  # type: ignore[no-untyped-def]
-        # (terminal_config, min, max, units, sensitivity, sensitivity_units,
+        # (terminal_config, min, max, units [m/s^2], sensitivity [mV/g], sensitivity_units,
         #  current_excit_source, current_excit_val, custom_scale_name)
-        self._current(phys.partition("/")[0], args[6], args[7])
+        device = phys.partition("/")[0]
+        self._volts(device, args[2] / 9.80665 * args[4] * 1e-3)
+        self._current(device, args[6], args[7])
         self._add(handle, phys, name, "accel")
 
     def create_ai_force_iepe_chan(self, handle, phys, name, *args: Any) -> None:  # type: ignore[no-untyped-def]
-        self._current(phys.partition("/")[0], args[6], args[7])
+        # (terminal_config, min, max, units [N], sensitivity [mV/N], ...)
+        device = phys.partition("/")[0]
+        self._volts(device, args[2] * args[4] * 1e-3)
+        self._current(device, args[6], args[7])
         self._add(handle, phys, name, "force")
 
     def create_ai_bridge_chan(self, handle, phys, name, *args: Any) -> None:  # type: ignore[no-untyped-def]

@@ -17,6 +17,7 @@ Published figures (the sources are cited per entry in :data:`CATALOGUE`):
   ``t_a = 3 µs`` (NI 9234 Operating Instructions and Specifications, "Input delay"; the
   figure was not found in the text searched for this module: check it in your module's
   manual, the task compares it with NI-DAQmx's ``ai_filter_delay`` at start).
+- **Input range** of the NI 9234: ±5 V (NI 9144 User Guide, "NI 9234 Calibration Data").
 - **IEPE current** of the NI 9234: 2 mA, on or off, AC coupling only (NI 9234 Operating
   Instructions and Specifications, Figure 4 "Input Circuitry for One Channel": "2 mA IEPE
   on/off"; NI USB-9234 User Guide, "NI USB-9234 Circuitry").
@@ -68,6 +69,8 @@ class ModuleSpec:
         IEPE currents offered (besides off), A; () for none.
     excitation_v : tuple of float
         Internal bridge excitation voltages offered, V; () for none.
+    range_v : float or None
+        Input range ±V of a voltage/IEPE module (None: not a voltage input).
     sources : str
         Where the figures come from.
     """
@@ -83,6 +86,7 @@ class ModuleSpec:
     iepe_currents_a: tuple[float, ...]
     excitation_v: tuple[float, ...]
     sources: str
+    range_v: float | None = None
 
     @property
     def max_rate_hz(self) -> float:
@@ -107,8 +111,10 @@ CATALOGUE: dict[str, ModuleSpec] = {
             "NI-9234 Specifications (ni.com/docs, ni-9234-specs): fM 13.1072 MHz, data rate "
             "1.652 kS/s .. 51.2 kS/s internal, 0.391 .. 52.734 kS/s external timebase; NI USB-9234 "
             "User Guide: fs = (fM/256)/n, n = 1..31; NI 9234 Operating Instructions, Figure 4: "
-            "2 mA IEPE on/off; input delay 38.4/fs + 3 us (the module's manual)"
+            "2 mA IEPE on/off; input delay 38.4/fs + 3 us (the module's manual); NI 9144 User "
+            "Guide, 'NI 9234 Calibration Data': nominal range ±5 V"
         ),
+        range_v=5.0,
     ),
     "NI 9237": ModuleSpec(
         model="NI 9237",

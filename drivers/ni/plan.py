@@ -267,7 +267,8 @@ def _mA(values: Sequence[float]) -> str:
 def place(req: ChannelRequest, slots: Sequence[ModuleSlot]) -> PlannedChannel:
     """The module, AI, IEPE current and excitation of one input.
 
-    IEPE current: 0 asked = off; otherwise the offered current within 10 % of the asked one.
+    Range: at most the module's input range. IEPE current: 0 asked = off; otherwise the
+    offered current within 10 % of the asked one.
     Bridge excitation: the offered internal voltage within 1 % of the asked one.
 
     Raises
@@ -301,27 +302,36 @@ def place(req: ChannelRequest, slots: Sequence[ModuleSlot]) -> PlannedChannel:
             f"input {req.input} is {slot.device}/ai{ai} ({slot.model}, a bridge module): an "
             f"{req.kind} input needs an IEPE module (NI 9234); cable it there"
         )
+    problems: list[str] = []
+    top = slot.spec.range_v if slot.spec is not None else None
+    if top is not None and req.range_v > top * (1 + 1e-9):
+        problems.append(
+            f"range_v = {req.range_v:g} V: {where} measures ±{top:g} V; set range_v = {top:g} "
+            "(or a sensor whose output stays within it)"
+        )
     asked = req.iepe_current_ma * 1e-3
-    if asked <= 0:
-        return PlannedChannel(req, slot, ai, 0.0, None)
-    if req.coupling == "DC":
-        raise SetupError(
+    got = [0.0]
+    if asked > 0 and req.coupling == "DC":
+        problems.append(
             f"iepe_current_ma = {req.iepe_current_ma:g} mA with coupling = 'DC': {where} gives "
             "IEPE current in AC coupling only; set coupling = 'AC' (or iepe_current_ma = 0)"
         )
-    got = [c for c in slot.iepe_currents_a if abs(c - asked) <= _CURRENT_TOL * asked]
-    if not got:
-        offered = _mA(slot.iepe_currents_a)
-        fix = (
-            f"set iepe_current_ma = {slot.iepe_currents_a[0] * 1e3:g} (or 0 = off), or cable the "
-            f"sensor to a module that offers {req.iepe_current_ma:g} mA"
-            if slot.iepe_currents_a
-            else "set iepe_current_ma = 0, or cable the sensor to an IEPE module"
-        )
-        raise SetupError(
-            f"iepe_current_ma = {req.iepe_current_ma:g} mA: {where} offers "
-            f"{offered + ' mA' if offered else 'no IEPE current'} (or off); {fix}"
-        )
+    elif asked > 0:
+        got = [c for c in slot.iepe_currents_a if abs(c - asked) <= _CURRENT_TOL * asked]
+        if not got:
+            offered = _mA(slot.iepe_currents_a)
+            fix = (
+                f"set iepe_current_ma = {slot.iepe_currents_a[0] * 1e3:g} (or 0 = off), or "
+                f"cable the sensor to a module that offers {req.iepe_current_ma:g} mA"
+                if slot.iepe_currents_a
+                else "set iepe_current_ma = 0, or cable the sensor to an IEPE module"
+            )
+            problems.append(
+                f"iepe_current_ma = {req.iepe_current_ma:g} mA: {where} offers "
+                f"{offered + ' mA' if offered else 'no IEPE current'} (or off); {fix}"
+            )
+    if problems:
+        raise SetupError("; and ".join(problems))
     return PlannedChannel(req, slot, ai, got[0], None)
 
 

@@ -25,10 +25,11 @@ def test_the_shipped_rig_is_planned_and_its_refusals_named(
         ["devices", "plan", "--daq", "nidaqmx", "--rig-file", str(SHIPPED), "--json", str(out)]
     )
     printed = capsys.readouterr().out
-    assert rc == 1  # the shipped rig asks 4 mA and 10 V: refused, each with its fix
+    assert rc == 1  # the shipped rig asks 4 mA, ±10 V and 10 V: refused, each with its fix
     assert "rate: asked 2048 Hz -> 2048 Hz (fM 13.1072 MHz of cDAQ1Mod1 / 256 / 25)" in printed
     assert "hammers.0 .. responses.23 (25): iepe_current_ma = 4 mA: NI 9234 offers 2 mA" in printed
     assert "excitation_v = 10 V: NI 9237 offers internal excitation of 2, 2.5, 3.3, 5 V" in printed
+    assert "responses.0 .. responses.23 (24): range_v = 10 V: NI 9234 measures ±5 V" in printed
     plan = json.loads(out.read_text())
     assert [m["model"] for m in plan["modules"]] == ["NI 9234"] * 7 + ["NI 9237"] * 3
     assert len(plan["channels"]) == 37
@@ -41,6 +42,7 @@ def test_a_rig_the_modules_accept_plans_ok(tmp_path: Path, capsys) -> None:
     text = SHIPPED.read_text(encoding="utf-8")
     text = text.replace("iepe_current_ma = 4.0", "iepe_current_ma = 2.0")
     text = text.replace("excitation_v = 10 ", "excitation_v = 5.0 ")
+    text = text.replace("range_v = 10.0", "range_v = 5.0")
     modules = "".join(
         f'[[daq.modules]]\nname = "cDAQ1Mod{i + 1}"\nmodel = "NI 9234"\n'
         f"inputs = {list(range(4 * i, min(4 * i + 4, 25)))}\n"

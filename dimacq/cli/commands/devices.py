@@ -165,7 +165,8 @@ def plan_lines(plan: Any, proposed: bool, rig: str) -> list[str]:
         groups: dict[str, list[str]] = {}
         for r in plan.refusals:
             item, _, why = r.partition(": ")
-            groups.setdefault(why, []).append(item)
+            for part in why.split("; and "):  # one line per field refused, its inputs together
+                groups.setdefault(part, []).append(item)
         for why, items in groups.items():
             who = items[0] if len(items) == 1 else f"{items[0]} .. {items[-1]} ({len(items)})"
             lines.append(f"  {who}: {why}")

@@ -107,6 +107,12 @@ def test_the_plan_refuses_4_mA_on_a_2_mA_device() -> None:
     assert place(ChannelRequest(1, "a", "accel", iepe_current_ma=0.0), [slot]).iepe_current_a == 0
     with pytest.raises(SetupError, match="AC coupling only; set coupling = 'AC'"):
         place(ChannelRequest(1, "a", "accel", iepe_current_ma=2.0, coupling="DC"), [slot])
+    # the 9234 measures ±5 V (NI 9144 User Guide, "NI 9234 Calibration Data"): every field
+    # refused is named
+    with pytest.raises(SetupError) as e:
+        place(ChannelRequest(1, "a", "accel", iepe_current_ma=4.0, range_v=10.0), [slot])
+    assert "range_v = 10 V: NI 9234 measures ±5 V; set range_v = 5" in str(e.value)
+    assert "; and iepe_current_ma = 4 mA" in str(e.value)
 
 
 def test_the_plan_refuses_an_excitation_the_9237_does_not_offer() -> None:

@@ -131,6 +131,7 @@ def _rig_for_the_cdaq(tmp_path: Path) -> Path:
     text = (shipped / "rig.toml").read_text(encoding="utf-8")
     text = text.replace("iepe_current_ma = 4.0", "iepe_current_ma = 2.0")
     text = text.replace("excitation_v = 10 ", "excitation_v = 5.0 ")
+    text = text.replace("range_v = 10.0", "range_v = 5.0")
     modules = [("NI 9234", list(range(4 * i, min(4 * i + 4, 25)))) for i in range(7)]
     modules += [("NI 9237", list(range(25 + 4 * j, 29 + 4 * j))) for j in range(3)]
     table = "".join(
