@@ -128,6 +128,9 @@ class Settings(BaseSettings):
     daq_fpga_file: str = ""
     #: daq = "nidaqmx": the terminal whose digital edge starts the task ("/cDAQ1/PFI0"), "" = none
     daq_ni_start_trigger: str = ""
+    #: daq = "nidaqmx": the terminal the task's sample clock is exported to ("/cDAQ1/PFI1") for
+    #: devices that sample on it, "" = not exported
+    daq_ni_sample_clock_out: str = ""
     rig_file: str = ""
     scenario: str = "calibration-mass-bungee"
     #: The simulated devices' imperfections over their defaults (dimacq.simulators.imperfections:

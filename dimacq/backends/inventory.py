@@ -1,4 +1,5 @@
-"""What this PC has that dimacq can talk to: serial ports, USB devices and CAN interfaces.
+"""What this PC has that dimacq can talk to: serial ports, USB devices, CAN interfaces and NI
+devices.
 
 The answers of ``dimacq devices list``: each entry names what to put in the settings to use it
 (``digitizer_url``, ``daq_vendor_id``/``daq_product_id``, ``loadcell_interface``/
@@ -6,13 +7,14 @@ The answers of ``dimacq devices list``: each entry names what to put in the sett
 there is one (the ``/dev/ttyUSB0`` number changes with the plugging order). Nothing is opened:
 serial ports are listed by pyserial, USB devices by pyusb (descriptors only, no claim), CAN
 interfaces by python-can's ``detect_available_configs`` (the real interfaces only; ``virtual``
-is the simulated lab's).
+is the simulated lab's), NI devices by NI-DAQmx (``nidaqmx.system.System.local().devices``;
+where nidaqmx or NI-DAQmx is missing, the note says which).
 """
 
 from __future__ import annotations
 
 import logging
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -28,12 +30,14 @@ CAN_INTERFACES = ("socketcan", "pcan", "kvaser", "vector", "ixxat", "gs_usb", "s
 class Inventory:
     """``serial``: ``port``, ``by_id``, ``description``, ``hwid``, ``setting``; ``usb``: ``vid``,
     ``pid`` (hex), ``bus``, ``address``, ``setting``; ``can``: ``interface``, ``channel``,
-    ``setting``; ``notes``: what could not be looked at, and why."""
+    ``setting``; ``ni``: ``name``, ``model``, ``serial``, ``chassis``, ``ai``, ``setting``;
+    ``notes``: what could not be looked at, and why."""
 
     serial: list[dict[str, Any]]
     usb: list[dict[str, Any]]
     can: list[dict[str, Any]]
     notes: list[str]
+    ni: list[dict[str, Any]] = field(default_factory=list)
 
     def to_json(self) -> dict[str, Any]:
         return asdict(self)
@@ -155,4 +159,19 @@ def inventory(
     serial = _serial(notes, by_id_folder)
     usb = _usb(notes)
     can = _can(notes, can_interfaces)
-    return Inventory(serial=serial, usb=usb, can=can, notes=notes)
+    ni = _ni(notes)
+    return Inventory(serial=serial, usb=usb, can=can, notes=notes, ni=ni)
+
+
+def _ni(notes: list[str]) -> list[dict[str, Any]]:
+    """NI devices through NI-DAQmx, each with the rig file entry that uses it."""
+    from dimacq.backends.ni_daqmx import ni_devices
+
+    found, why = ni_devices()
+    if why:
+        notes.append(f"NI devices: {why}")
+    for d in found:
+        d["setting"] = (
+            f"daq = 'nidaqmx'; [[daq.modules]] name = {d['name']!r}, model = {d['model']!r}"
+        )
+    return found

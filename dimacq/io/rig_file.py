@@ -14,6 +14,11 @@ sensitivities and calibration files as on a real rig):
     serial_number = ""          # "" = the first DAQ found
     timeout_s = 2.0             # USB transfer timeout
     strike_timeout_s = 60.0     # how long the trigger waits for the operator's strike
+    # daq = "nidaqmx": the cDAQ modules and the rig inputs on their ai0, ai1, ...
+    # [[daq.modules]]
+    # name = "cDAQ1Mod1"
+    # model = "NI 9234"
+    # inputs = [0, 1, 2, 3]
 
     [[hammers]]                 # one impact hammer per entry (usually one roving hammer)
     physical_channel = 0
@@ -64,6 +69,7 @@ from dimacq.model.setup import direction_label
 
 __all__ = [
     "ChainCalibrationEntry",
+    "NiModuleEntry",
     "RigFile",
     "load_rig_file",
     "parse_direction",
@@ -96,6 +102,27 @@ class _Model(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
 
+class NiModuleEntry(_Model):
+    """A C Series module of an NI cDAQ chassis (``daq = "nidaqmx"``): ``inputs[k]`` is the rig
+    input (``physical_channel``) wired to its ``ai<k>``; the model is checked against the device
+    and is what a dry run plans with."""
+
+    name: str = Field(min_length=1, description="its NI-DAQmx device name, e.g. 'cDAQ1Mod1'")
+    model: str = Field(min_length=1, description="its product type, e.g. 'NI 9234' or 'NI 9237'")
+    inputs: list[int] = Field(
+        default_factory=list,
+        description="the rig inputs on its ai0, ai1, ... (each 0..255); [] = all its AIs, "
+        "numbered on from the previous module's last",
+    )
+
+    @field_validator("inputs")
+    @classmethod
+    def _inputs(cls, v: list[int]) -> list[int]:
+        if any(not 0 <= k <= 255 for k in v) or len(set(v)) != len(v):
+            raise ValueError("give distinct rig inputs 0..255, one per AI from ai0 on")
+        return v
+
+
 class DaqSection(_Model):
     sample_rate_hz: float = Field(gt=0, description="the sample rate in Hz, e.g. 2048.0")
     samples_per_frame: int = Field(
@@ -108,10 +135,23 @@ class DaqSection(_Model):
         "(inputs 0..7 on the first, the clock master; 8..15 on the second; ...); daq = 'nidaqmx': "
         "the NI device names in channel order; [] = the one found",
     )
+    modules: list[NiModuleEntry] = Field(
+        default_factory=list,
+        description="daq = 'nidaqmx': the cDAQ's C Series modules ([[daq.modules]]: name, model, "
+        "inputs); [] = [daq] units (or the first device found)",
+    )
     timeout_s: float = Field(default=2.0, gt=0, description="a USB timeout in seconds > 0")
     strike_timeout_s: float = Field(
         default=60.0, gt=0, description="seconds the trigger waits for a strike (> 0)"
     )
+
+    @model_validator(mode="after")
+    def _one_module_list(self) -> DaqSection:
+        if self.units and self.modules:
+            raise ValueError(
+                "give the NI modules either as units (device names) or as [[daq.modules]], not both"
+            )
+        return self
 
 
 class _Analog(_Model):

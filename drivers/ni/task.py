@@ -1,21 +1,31 @@
-"""NI DSA devices (USB-4431, NI 9234, ...) through the official ``nidaqmx`` Python API.
+"""NI DSA devices (cDAQ C Series modules: NI 9234, NI 9237, ...; USB-4431) through the official
+``nidaqmx`` Python API.
 
-Written against nidaqmx's documented API (``nidaqmx.Task``: ``ai_channels.add_ai_accel_chan``
-/ ``add_ai_force_iepe_chan`` with internal IEPE current excitation and AC coupling,
-``timing.cfg_samp_clk_timing`` continuous, ``triggers.start_trigger.cfg_dig_edge_start_trig``,
-``stream_readers.AnalogMultiChannelReader.read_many_sample`` in blocks, ``in_stream``
-overload and sample counters). NI-DAQmx scales the data to m/s² and N from the sensitivities
-itself. **No simulated twin**: NI-DAQmx's own simulated devices (NI MAX) are the way to try it
-without hardware; dimacq's tests cover only its setup and error paths (README).
+Written against nidaqmx-python's API (names checked against its source: ``task.ai_channels``
+``add_ai_accel_chan`` / ``add_ai_force_iepe_chan`` with internal IEPE current and AC coupling,
+``add_ai_bridge_chan`` full bridge in mV/V with internal voltage excitation, ``add_ai_voltage_chan``;
+per channel ``ai_remove_filter_delay``, ``ai_filter_delay`` / ``ai_filter_delay_units`` /
+``ai_filter_delay_adjustment``; ``timing.cfg_samp_clk_timing`` continuous, read back with
+``timing.samp_clk_rate`` after ``control(TaskMode.TASK_COMMIT)``;
+``export_signals.samp_clk_output_term``; ``triggers.start_trigger.cfg_dig_edge_start_trig``;
+``stream_readers.AnalogMultiChannelReader.read_many_sample``). NI-DAQmx scales the data to m/s²,
+N and mV/V itself. **Never run on real hardware by its author**; NI-DAQmx's simulated devices
+(NI MAX) are the way to try it without hardware.
 
-Several DSA devices in one task (the channels of ``[daq] units`` in order) are synchronised by
-NI-DAQmx itself where the hardware allows it (modules of one cDAQ chassis; USB-4431s need their
-sync cabling); physical channel ``k`` is the ``k``-th AI of the units' AI channels.
+The channels are placed by :func:`dimacq.drivers.ni.plan.place` on the modules given
+(``ModuleSlot``: device, model, rig inputs, what it offers): a current or excitation the module
+does not offer is refused when the channel is added. The rate is NI-DAQmx's, read back from the
+committed task whenever it is asked (the plan's rate, where it differs, is logged); a rate that
+changes after it was reported (channels added later) refuses the start, so no block or FRF
+line is labelled with a rate the modules do not run at. Every channel's input delay is removed by NI-DAQmx
+(``ai_remove_filter_delay``), up to NI's published figure (``ai_filter_delay_adjustment``); a
+task whose modules' delays differ and cannot be removed is refused.
 """
 
 from __future__ import annotations
 
 import logging
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -23,6 +33,8 @@ import numpy as np
 
 from dimacq.devices.daq import ChannelConfig, DaqBlock, DaqEvent
 from dimacq.drivers.daq.driver import STANDARD_GRAVITY
+from dimacq.drivers.ni.modules import input_delay_s
+from dimacq.drivers.ni.plan import ChannelRequest, ModuleSlot, PlannedChannel, place, task_rate
 from dimacq.errors import DeviceError, DeviceStateError, DeviceTimeoutError, SetupError
 
 __all__ = ["NiDsaTask", "NiIdentity"]
@@ -32,6 +44,10 @@ log = logging.getLogger(__name__)
 #: NI-DAQmx error codes (nidaqmx.error_codes.DAQmxErrors)
 _TIMEOUT = -200284  # SAMPLES_NOT_YET_AVAILABLE
 _OVERWRITTEN = -200279  # SAMPLES_NO_LONGER_AVAILABLE: the host buffer overflowed
+#: a read-back rate differing from the plan's by more than this (relative) is refused
+_RATE_TOL = 1e-6
+#: channel delays left in the data that differ by more than this (s) refuse the task
+_DELAY_TOL_S = 1e-6
 
 
 @dataclass(frozen=True)
@@ -39,72 +55,92 @@ class NiIdentity:
     model: str
     serial_number: str
     units: tuple[str, ...]
+    models: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
 class _Chan:
     config: ChannelConfig
-    kind: Literal["accel", "force", "voltage"]
-    sensitivity: float  # mV/g, mV/N or 1
-    iepe_a: float
+    placed: PlannedChannel
+    sensitivity: float  # mV/g, mV/N, or 1
+    scale: float = 1.0  # data = NI-DAQmx's value x scale (a voltage input read in mV: 1e3)
 
 
 class NiDsaTask:
-    """A :class:`~dimacq.devices.daq.Daq` on NI DSA devices.
+    """A :class:`~dimacq.devices.daq.Daq` (and a channel DAQ for load cells on its inputs) on
+    NI DSA modules.
 
     Parameters
     ----------
     nidaqmx : module
         The imported ``nidaqmx`` package (injected).
-    physical_channels : list of str
-        ``"Dev1/ai0"`` ... : the units' AI channels in order (physical channel k = item k).
-    units : tuple of str
-        Device names.
+    slots : sequence of ModuleSlot
+        The modules and the rig inputs each carries (``inputs[k]`` is its
+        ``ai<k>``), with the IEPE currents and excitation voltages the device offers.
     start_trigger : str
         A digital edge that starts the task (``"/cDAQ1/PFI0"``), or "" (start at once).
+    sample_clock_out : str
+        A terminal the task's sample clock is exported to (``"/cDAQ1/PFI1"``) for devices that
+        sample on it, or "" (not exported).
     """
 
     def __init__(
         self,
         nidaqmx: Any,
-        physical_channels: list[str],
-        units: tuple[str, ...],
+        slots: Sequence[ModuleSlot],
         *,
         start_trigger: str = "",
+        sample_clock_out: str = "",
         name: str = "impact",
     ) -> None:
         self._ni = nidaqmx
-        self.physical_channels = physical_channels
-        self.units = units
+        self.slots = tuple(slots)
         self.start_trigger = start_trigger
+        self.sample_clock_out = sample_clock_out
         self.name = name
         self._chans: dict[int, _Chan] = {}
-        self.sample_rate_hz: float | None = None
+        self._asked_hz: float | None = None
+        self._reported_hz: float | None = None  # the rate told before the task existed
+        self._read_back_hz: float | None = None
         self.samples_per_frame = 256
         self.events: list[DaqEvent] = []
         self.samples_clocked: int | None = None
+        self._built: Any = None
         self._task: Any = None
         self._reader: Any = None
         self._next = 0
+        #: per channel name: (NI-DAQmx's filter delay, the published delay), s, once built
+        self.filter_delays_s: dict[str, tuple[float, float | None]] = {}
+
+    @property
+    def units(self) -> tuple[str, ...]:
+        return tuple(s.device for s in self.slots)
 
     def identify(self) -> NiIdentity:
         from nidaqmx.system import Device
 
         dev = Device(self.units[0])
-        return NiIdentity(str(dev.product_type), f"{int(dev.dev_serial_num):X}", self.units)
+        return NiIdentity(
+            str(dev.product_type),
+            f"{int(dev.dev_serial_num):X}",
+            self.units,
+            tuple(s.model for s in self.slots),
+        )
 
-    def _add(self, k: int, chan: _Chan) -> None:
+    # -- channels ---------------------------------------------------------------------------
+    def _add(
+        self, req: ChannelRequest, cfg: ChannelConfig, sens: float, scale: float = 1.0
+    ) -> None:
         if self._task is not None:
             raise DeviceStateError(f"task {self.name} is running; stop it before adding channels")
-        if not 0 <= k < len(self.physical_channels):
+        if req.input in self._chans:
             raise SetupError(
-                f"channel {chan.config.name}: physical_channel {k}; the units "
-                f"{', '.join(self.units)} have {len(self.physical_channels)} AI channels: add a "
-                "device to [daq] units or use another input"
+                f"physical channel {req.input} is already in task {self.name} as "
+                f"{self._chans[req.input].config.name!r}; use another input"
             )
-        if k in self._chans:
-            raise SetupError(f"physical channel {k} is already in task {self.name}")
-        self._chans[k] = chan
+        placed = place(req, self.slots)
+        self._drop_built()
+        self._chans[req.input] = _Chan(cfg, placed, sens, scale)
 
     def add_accel_channel(
         self,
@@ -118,7 +154,10 @@ class NiDsaTask:
     ) -> None:
         v = sensitivity_mv_per_g * 1e-3 / STANDARD_GRAVITY
         cfg = ChannelConfig(physical_channel, name, "m/s^2", v, range_v, 0, coupling)
-        self._add(physical_channel, _Chan(cfg, "accel", sensitivity_mv_per_g, iepe_current_ma))
+        req = ChannelRequest(
+            physical_channel, name, "accel", "", iepe_current_ma, None, range_v, coupling
+        )
+        self._add(req, cfg, sensitivity_mv_per_g)
 
     def add_force_channel(
         self,
@@ -133,18 +172,71 @@ class NiDsaTask:
         cfg = ChannelConfig(
             physical_channel, name, "N", sensitivity_mv_per_n * 1e-3, range_v, 0, coupling
         )
-        self._add(physical_channel, _Chan(cfg, "force", sensitivity_mv_per_n, iepe_current_ma))
+        req = ChannelRequest(
+            physical_channel, name, "force", "", iepe_current_ma, None, range_v, coupling
+        )
+        self._add(req, cfg, sensitivity_mv_per_n)
 
     def add_voltage_channel(
         self,
         physical_channel: int,
         name: str,
         *,
-        range_v: float = 10.0,
+        range_v: float = 5.0,
         coupling: Literal["AC", "DC"] = "DC",
     ) -> None:
         cfg = ChannelConfig(physical_channel, name, "V", 1.0, range_v, 0, coupling)
-        self._add(physical_channel, _Chan(cfg, "voltage", 1.0, 0.0))
+        req = ChannelRequest(physical_channel, name, "voltage", "", 0.0, None, range_v, coupling)
+        self._add(req, cfg, 1.0)
+
+    def add_channel(self, config: ChannelConfig) -> None:
+        """A channel in the config's own unit: ``"mV/V"`` is a full bridge read in mV/V with
+        ``sensitivity_v_per_unit × 1000`` V of excitation (V per mV/V); ``"V"`` and ``"mV"`` a
+        voltage input; ``"m/s^2"`` and ``"N"`` an IEPE accelerometer or force sensor.
+
+        Raises
+        ------
+        SetupError
+            Another unit, or what :func:`~dimacq.drivers.ni.plan.place` refuses.
+        """
+        c = config
+        if c.units == "mV/V":
+            exc = c.sensitivity_v_per_unit * 1e3
+            req = ChannelRequest(
+                c.physical_channel, c.name, "bridge", "", 0.0, exc, c.range_v, c.coupling
+            )
+            self._add(req, c, 1.0)
+        elif c.units in ("V", "mV"):
+            req = ChannelRequest(
+                c.physical_channel, c.name, "voltage", "", 0.0, None, c.range_v, c.coupling
+            )
+            self._add(req, c, 1.0, 1.0 / c.sensitivity_v_per_unit)
+        elif c.units == "m/s^2":
+            mv_per_g = c.sensitivity_v_per_unit * STANDARD_GRAVITY * 1e3
+            ma = c.iepe_current_ua * 1e-3
+            self.add_accel_channel(
+                c.physical_channel,
+                c.name,
+                mv_per_g,
+                range_v=c.range_v,
+                iepe_current_ma=ma,
+                coupling=c.coupling,
+            )
+        elif c.units == "N":
+            ma = c.iepe_current_ua * 1e-3
+            self.add_force_channel(
+                c.physical_channel,
+                c.name,
+                c.sensitivity_v_per_unit * 1e3,
+                range_v=c.range_v,
+                iepe_current_ma=ma,
+                coupling=c.coupling,
+            )
+        else:
+            raise SetupError(
+                f"channel {c.name}: unit {c.units!r}; an NI task reads 'mV/V' (bridge), 'V', "
+                "'mV', 'm/s^2' or 'N'"
+            )
 
     @property
     def channels(self) -> tuple[ChannelConfig, ...]:
@@ -155,75 +247,242 @@ class NiDsaTask:
         return tuple(c.name for c in self.channels)
 
     @property
+    def planned(self) -> tuple[PlannedChannel, ...]:
+        return tuple(self._chans[k].placed for k in sorted(self._chans))
+
+    @property
     def running(self) -> bool:
         return self._task is not None
 
+    # -- timing -----------------------------------------------------------------------------
     def configure_timing(self, sample_rate_hz: float, samples_per_frame: int = 256) -> None:
         if sample_rate_hz <= 0 or samples_per_frame <= 0:
             raise SetupError(
                 f"[daq] sample_rate_hz = {sample_rate_hz}, samples_per_frame = "
                 f"{samples_per_frame}: give positive values"
             )
-        self.sample_rate_hz = float(sample_rate_hz)
+        self._drop_built()
+        self._asked_hz = float(sample_rate_hz)
         self.samples_per_frame = int(samples_per_frame)
 
-    def start(self) -> None:
-        """Create the NI-DAQmx task, add the channels (IEPE from the device), time, start."""
+    def _used_slots(self) -> list[ModuleSlot]:
+        used: list[ModuleSlot] = []
+        for c in self.planned:
+            if c.slot not in used:
+                used.append(c.slot)
+        return used
+
+    @property
+    def sample_rate_hz(self) -> float | None:
+        """The rate the modules run at, Hz: NI-DAQmx's ``timing.samp_clk_rate`` read back (the
+        task is built and committed, not started, to ask it); without the driver (``nidaqmx``
+        None: a plan) the plan's; None before ``configure_timing``."""
+        if self._read_back_hz is not None:
+            return self._read_back_hz
+        if self._asked_hz is None or not self._chans:
+            return self._asked_hz
+        if self._ni is None:
+            rate, _fm, _m = task_rate(self._used_slots(), self._asked_hz)
+            return rate
+        self._build()
+        self._reported_hz = self._read_back_hz
+        return self._read_back_hz
+
+    @sample_rate_hz.setter
+    def sample_rate_hz(self, value: float | None) -> None:
+        if value is None:
+            self._drop_built()
+            self._asked_hz = None
+        else:
+            self.configure_timing(value, self.samples_per_frame)
+
+    # -- the NI-DAQmx task ------------------------------------------------------------------
+    def _drop_built(self) -> None:
+        if self._built is not None:
+            self._built.close()
+        self._built = None
+        self._read_back_hz = None
+
+    def _add_to(self, task: Any, ch: _Chan) -> Any:
         from nidaqmx import constants as c
+
+        cfg, pc = ch.config, ch.placed
+        phys = pc.physical
+        if pc.request.kind == "bridge":
+            assert pc.excitation_v is not None
+            full = cfg.range_v / cfg.sensitivity_v_per_unit  # ± mV/V
+            return task.ai_channels.add_ai_bridge_chan(
+                phys,
+                cfg.name,
+                min_val=-full,
+                max_val=full,
+                units=c.BridgeUnits.MILLIVOLTS_PER_VOLT,
+                bridge_config=c.BridgeConfiguration.FULL_BRIDGE,
+                voltage_excit_source=c.ExcitationSource.INTERNAL,
+                voltage_excit_val=pc.excitation_v,
+            )
+        full = cfg.range_v / cfg.sensitivity_v_per_unit  # ± full scale, units
+        excite = c.ExcitationSource.INTERNAL if pc.iepe_current_a > 0 else c.ExcitationSource.NONE
+        if pc.request.kind == "accel":
+            ai = task.ai_channels.add_ai_accel_chan(
+                phys,
+                cfg.name,
+                min_val=-full,
+                max_val=full,
+                units=c.AccelUnits.METERS_PER_SECOND_SQUARED,
+                sensitivity=ch.sensitivity,
+                sensitivity_units=c.AccelSensitivityUnits.MILLIVOLTS_PER_G,
+                current_excit_source=excite,
+                current_excit_val=pc.iepe_current_a,
+            )
+        elif pc.request.kind == "force":
+            ai = task.ai_channels.add_ai_force_iepe_chan(
+                phys,
+                cfg.name,
+                min_val=-full,
+                max_val=full,
+                units=c.ForceUnits.NEWTONS,
+                sensitivity=ch.sensitivity,
+                sensitivity_units=c.ForceIEPESensorSensitivityUnits.MILLIVOLTS_PER_NEWTON,
+                current_excit_source=excite,
+                current_excit_val=pc.iepe_current_a,
+            )
+        else:
+            ai = task.ai_channels.add_ai_voltage_chan(
+                phys, cfg.name, min_val=-cfg.range_v, max_val=cfg.range_v
+            )
+        ai.ai_coupling = c.Coupling.AC if cfg.coupling == "AC" else c.Coupling.DC
+        return ai
+
+    def _build(self) -> Any:
+        """Create and commit the NI-DAQmx task (not started): channels, delay removal, timing,
+        the sample clock's export; read the rate back."""
+        from nidaqmx import constants as c
+
+        if self._built is not None:
+            return self._built
+        if not self._chans or self._asked_hz is None:
+            raise SetupError(f"task {self.name}: add channels and configure_timing() first")
+        err_t = self._ni.errors.DaqError
+        task = self._ni.Task(self.name)
+        try:
+            ais: dict[int, Any] = {}
+            kept: dict[int, str] = {}  # inputs whose delay NI-DAQmx does not remove: why
+            for k in sorted(self._chans):
+                ai = self._add_to(task, self._chans[k])
+                ais[k] = ai
+                try:
+                    ai.ai_filter_delay_units = c.DigitalWidthUnits.SECONDS
+                    ai.ai_remove_filter_delay = True
+                except err_t as err:
+                    kept[k] = str(err).splitlines()[0]
+            task.timing.cfg_samp_clk_timing(
+                self._asked_hz,
+                sample_mode=c.AcquisitionType.CONTINUOUS,
+                samps_per_chan=max(int(self._asked_hz * 10), 4 * self.samples_per_frame),
+            )
+            if self.sample_clock_out:
+                task.export_signals.samp_clk_output_term = self.sample_clock_out
+            if self.start_trigger:
+                task.triggers.start_trigger.cfg_dig_edge_start_trig(self.start_trigger)
+            task.control(c.TaskMode.TASK_COMMIT)
+            rate = float(task.timing.samp_clk_rate)
+            self._compensate(task, ais, kept, rate)
+            self._check_plan(rate)
+        except err_t as err:
+            task.close()
+            raise SetupError(f"task {self.name}: NI-DAQmx refused the set-up: {err}") from err
+        except SetupError:
+            task.close()
+            raise
+        self._built = task
+        self._read_back_hz = rate
+        return task
+
+    def _compensate(
+        self, task: Any, ais: dict[int, Any], kept: dict[int, str], rate: float
+    ) -> None:
+        """Remove the rest of each channel's published input delay (``ai_filter_delay_adjustment``
+        = published - NI-DAQmx's filter delay); refuse delays left in the data that differ."""
+        from nidaqmx import constants as c
+
+        self.filter_delays_s = {}
+        left: dict[int, float] = {}
+        for k, ai in ais.items():
+            ch = self._chans[k]
+            spec = ch.placed.slot.spec
+            published = input_delay_s(spec, rate) if spec is not None else None
+            daqmx = float(ai.ai_filter_delay)
+            self.filter_delays_s[ch.config.name] = (daqmx, published)
+            if k in kept:
+                left[k] = published if published is not None else daqmx
+            elif published is not None and abs(published - daqmx) > 0:
+                ai.ai_filter_delay_adjustment = published - daqmx
+        if left and (
+            len(left) < len(ais) or max(left.values()) - min(left.values()) > _DELAY_TOL_S
+        ):
+            k = max(left, key=lambda j: left[j])
+            ch = self._chans[k]
+            raise SetupError(
+                f"task {self.name}: NI-DAQmx does not remove the filter delay of "
+                f"{ch.placed.physical} ({ch.placed.slot.model}: {kept[k]}); its "
+                f"{left[k] * 1e3:.4g} ms would differ from the other channels' and turn the FRF "
+                "phases: put these inputs on modules whose delay NI-DAQmx removes"
+            )
+        task.control(c.TaskMode.TASK_COMMIT)
+
+    def _check_plan(self, rate: float) -> None:
+        """Log where NI-DAQmx's rate is not the plan's (the plan's timebase was not the one
+        NI-DAQmx shares): the read-back is what is used."""
+        assert self._asked_hz is not None
+        try:
+            planned, _fm, master = task_rate(self._used_slots(), self._asked_hz)
+        except SetupError:
+            return
+        if abs(rate - planned) > _RATE_TOL * planned:
+            log.warning(
+                "task %s: NI-DAQmx runs the modules at %.6g Hz where the plan (%s's timebase) "
+                "said %.6g Hz for %g Hz asked; %.6g Hz is used",
+                self.name,
+                rate,
+                master.device,
+                planned,
+                self._asked_hz,
+                rate,
+            )
+
+    def start(self) -> None:
+        """Build the task if not built (channels, delays, timing, clock export, trigger), check
+        its rate against the one told before, start."""
         from nidaqmx.stream_readers import AnalogMultiChannelReader
 
         if self._task is not None:
             raise DeviceStateError(f"task {self.name} is already running")
-        if not self._chans or self.sample_rate_hz is None:
-            raise SetupError(f"task {self.name}: add channels and configure_timing() first")
-        task = self._ni.Task(self.name)
-        try:
-            for k in sorted(self._chans):
-                ch = self._chans[k]
-                cfg, phys = ch.config, self.physical_channels[k]
-                full = cfg.range_v / cfg.sensitivity_v_per_unit  # ± full scale, units
-                excite = c.ExcitationSource.INTERNAL if ch.iepe_a > 0 else c.ExcitationSource.NONE
-                if ch.kind == "accel":
-                    ai = task.ai_channels.add_ai_accel_chan(
-                        phys,
-                        cfg.name,
-                        min_val=-full,
-                        max_val=full,
-                        units=c.AccelUnits.METERS_PER_SECOND_SQUARED,
-                        sensitivity=ch.sensitivity,
-                        sensitivity_units=c.AccelSensitivityUnits.MILLIVOLTS_PER_G,
-                        current_excit_source=excite,
-                        current_excit_val=ch.iepe_a * 1e-3,
-                    )
-                elif ch.kind == "force":
-                    ai = task.ai_channels.add_ai_force_iepe_chan(
-                        phys,
-                        cfg.name,
-                        min_val=-full,
-                        max_val=full,
-                        units=c.ForceUnits.NEWTONS,
-                        sensitivity=ch.sensitivity,
-                        sensitivity_units=c.ForceIEPESensorSensitivityUnits.MILLIVOLTS_PER_NEWTON,
-                        current_excit_source=excite,
-                        current_excit_val=ch.iepe_a * 1e-3,
-                    )
-                else:
-                    ai = task.ai_channels.add_ai_voltage_chan(
-                        phys, cfg.name, min_val=-full, max_val=full
-                    )
-                ai.ai_coupling = c.Coupling.AC if cfg.coupling == "AC" else c.Coupling.DC
-            task.timing.cfg_samp_clk_timing(
-                self.sample_rate_hz,
-                sample_mode=c.AcquisitionType.CONTINUOUS,
-                samps_per_chan=max(int(self.sample_rate_hz * 10), 4 * self.samples_per_frame),
+        task = self._build()
+        rate = self._read_back_hz
+        assert rate is not None
+        told = self._reported_hz
+        if told is not None and abs(rate - told) > _RATE_TOL * told:
+            self._drop_built()
+            raise SetupError(
+                f"task {self.name}: NI-DAQmx runs the modules at {rate:.6g} Hz, but {told:.6g} Hz "
+                "was reported before channels or timing changed; configure every channel before "
+                "the rate is read, then start"
             )
-            if self.start_trigger:
-                task.triggers.start_trigger.cfg_dig_edge_start_trig(self.start_trigger)
+        try:
             task.start()
         except self._ni.errors.DaqError as err:
-            task.close()
-            raise SetupError(f"task {self.name}: NI-DAQmx refused the set-up: {err}") from err
+            self._drop_built()
+            raise SetupError(f"task {self.name}: NI-DAQmx refused to start: {err}") from err
+        log.info(
+            "task %s: %d channels at %.6g Hz (asked %g)",
+            self.name,
+            len(self._chans),
+            rate,
+            self._asked_hz,
+        )
         self._task = task
+        self._built = None
         self._reader = AnalogMultiChannelReader(task.in_stream)
         self._next = 0
         self.events = []
@@ -247,6 +506,9 @@ class NiDsaTask:
                     f"task {self.name}: the NI-DAQmx buffer overflowed (read faster); restart"
                 ) from err
             raise DeviceError(f"task {self.name}: NI-DAQmx read failed: {err}") from err
+        scale = np.array([self._chans[k].scale for k in sorted(self._chans)])
+        if np.any(scale != 1.0):
+            data *= scale[:, None]
         overload = np.zeros(data.shape, dtype=bool)
         events: tuple[DaqEvent, ...] = ()
         stream = self._task.in_stream
@@ -283,6 +545,12 @@ class NiDsaTask:
         if self._task is None:
             return None
         return int(self._task.in_stream.total_samp_per_chan_acquired)
+
+    def close(self) -> None:
+        """Stop, and release the NI-DAQmx task built to read the rate back (it reserves the
+        modules until closed)."""
+        self.stop()
+        self._drop_built()
 
     def stop(self) -> None:
         if self._task is None:

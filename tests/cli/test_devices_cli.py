@@ -26,7 +26,7 @@ def test_devices_list_names_the_settings(tmp_path: Path, capsys) -> None:
     assert main(["devices", "list", "--json", str(out)]) == 0
     printed = capsys.readouterr().out
     got = json.loads(out.read_text())
-    assert set(got) == {"serial", "usb", "can", "notes"}
+    assert set(got) == {"serial", "usb", "can", "notes", "ni"}
     assert f"serial ports ({len(got['serial'])})" in printed
     for s in got["serial"]:
         assert s["setting"].startswith("digitizer_url = ")
@@ -36,3 +36,22 @@ def test_devices_list_names_the_settings(tmp_path: Path, capsys) -> None:
     inv = inventory(can_interfaces=("virtual",))
     assert inv.can and inv.can[0]["interface"] == "virtual"
     assert inv.can[0]["setting"].startswith("loadcell_interface = 'virtual'")
+
+
+def test_devices_list_says_why_no_ni_device_is_listed(monkeypatch, capsys) -> None:
+    """nidaqmx installed without NI-DAQmx (as here and on CI), or not installed at all."""
+    import sys
+
+    from dimacq.backends.ni_daqmx import ni_devices
+
+    _found, why = ni_devices()
+    if why:  # no NI-DAQmx here: the note says so, nothing is listed
+        inv = inventory(can_interfaces=())
+        assert inv.ni == [] and f"NI devices: {why}" in inv.notes
+    monkeypatch.setitem(sys.modules, "nidaqmx", None)
+    assert main(["devices", "list"]) == 0
+    printed = capsys.readouterr().out
+    assert "NI devices (0):" in printed
+    assert (
+        "note: NI devices: daq = 'nidaqmx': the Python package nidaqmx is not installed" in printed
+    )

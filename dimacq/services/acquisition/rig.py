@@ -281,15 +281,15 @@ def build_rig(
             loadcells = [open_cell(ctx, rf.load_cells[i]) for i in cell_of]
         # a load cell read through the DAQ ("daq-channels") has wrapped it: the rig reads that
         daq = ctx.daq
+        # the rate the DAQ runs at (a DAQ may coerce the rig file's: NI's modules do)
+        fs = daq.sample_rate_hz or rf.daq.sample_rate_hz
         ok = True
     finally:
         if not ok:
             ctx.close()
     fixed = dict(ctx.fixed)
     if ctx.operator is None:
-        fixed["trigger_timeout_samples"] = max(
-            1, round(rf.daq.strike_timeout_s * rf.daq.sample_rate_hz)
-        )
+        fixed["trigger_timeout_samples"] = max(1, round(rf.daq.strike_timeout_s * fs))
     log.info(
         "rig: daq %r, loadcell %r, %d hammer(s), %d responses, %d load cell(s) at %g Hz (%s)",
         settings.daq,
@@ -297,7 +297,7 @@ def build_rig(
         len(rf.hammers),
         len(response_names),
         len(loadcells),
-        rf.daq.sample_rate_hz,
+        fs,
         rf.path,
     )
     return Rig(
