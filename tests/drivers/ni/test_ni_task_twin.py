@@ -151,7 +151,7 @@ def test_daq_channels_on_nidaqmx_build_the_thesis_rig(
     from dimacq.backends import ni_daqmx
     from dimacq.config import load_settings
     from dimacq.drivers.daq_loadcell.driver import DaqSplitter
-    from dimacq.services import rig as rig_builder
+    from dimacq.services.acquisition import rig as rig_builder
     from dimacq.simulators.lab.scenarios import build_scenario
 
     devices = {f"cDAQ1Mod{i + 1}": "NI 9234" for i in range(7)}
@@ -189,7 +189,7 @@ def test_a_module_that_is_not_the_rig_files_model_is_refused(
 ) -> None:
     from dimacq.backends import ni_daqmx
     from dimacq.config import load_settings
-    from dimacq.services import rig as rig_builder
+    from dimacq.services.acquisition import rig as rig_builder
 
     devices = {f"cDAQ1Mod{i + 1}": "NI 9234" for i in range(10)}  # no 9237 in slot 8
     monkeypatch.setattr(ni_daqmx, "import_nidaqmx", DaqmxTwin(devices).module)
