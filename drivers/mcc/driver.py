@@ -141,30 +141,39 @@ class Usb1808(WireDriver):
     def fpga_version(self) -> int:
         return int(p.STATUS_STRUCT.unpack(self._in(p.Request.FPGA_VERSION, 2))[0])
 
-    def configure_fpga(self, bitstream: bytes) -> None:
-        """Load the FPGA (``usbInit_1808``): FPGA_CONFIG with the unlock code, the bitstream in
-        64-byte FPGA_DATA chunks, then STATUS must say FPGA_CONFIGURED.
+    def configure_fpga(self, image: bytes, source: str = "the FPGA image") -> None:
+        """Load the FPGA as uldaq's ``UsbFpgaDevice::loadFpga`` and Jasper's ``usbInit_1808`` do:
+        FPGA_CONFIG with the unlock code, STATUS must say FPGA_CONFIG_MODE, the image in 64-byte
+        FPGA_DATA transfers and two zero bytes after it, then STATUS must say FPGA_CONFIGURED.
 
         Raises
         ------
+        SetupError
+            ``image`` is not the binary image (text, no sync word, another length): nothing sent.
         DeviceStateError
-            The unit does not enter config mode, or is not configured after the bitstream.
+            The unit does not enter config mode, or is not configured after the image.
         """
+        try:
+            p.check_fpga_image(image, source)
+        except ValueError as err:
+            raise SetupError(str(err)) from err
         self._out(p.Request.FPGA_CONFIG, bytes([p.FPGA_UNLOCK]))
         if not self.status() & p.Status.FPGA_CONFIG_MODE:
             raise DeviceStateError(f"{self.name} does not enter FPGA config mode; power-cycle it")
-        for k in range(0, len(bitstream), p.FPGA_CHUNK):
-            self._out(p.Request.FPGA_DATA, bitstream[k : k + p.FPGA_CHUNK])
+        for piece in p.fpga_transfers(image):
+            self._out(p.Request.FPGA_DATA, piece)
         if not self.status() & p.Status.FPGA_CONFIGURED:
             raise DeviceStateError(
-                f"{self.name}: FPGA not configured after {len(bitstream)} bytes; give MCC's "
-                "usb-1808.rbf as daq_fpga_file (DIMACQ_DAQ_FPGA_FILE)"
+                f"{self.name}: FPGA not configured after {len(image)} bytes of {source}; "
+                "power-cycle it and give uldaq's USB_1808.bin as daq_fpga_file "
+                "(DIMACQ_DAQ_FPGA_FILE)"
             )
 
     def read_memory(self, address: int, length: int) -> bytes:
-        """MEM_ADDRESS then MEMORY: ``length`` EEPROM bytes from ``address``."""
+        """MEM_ADDRESS once, then MEMORY reads of at most 64 bytes (the address
+        auto-increments), as uldaq's ``memRead_SingleCmd``: ``length`` EEPROM bytes."""
         self._out(p.Request.MEM_ADDRESS, p.ADDRESS_STRUCT.pack(address))
-        return self._in(p.Request.MEMORY, length)
+        return b"".join(self._in(p.Request.MEMORY, n) for n in p.eeprom_reads(length))
 
     def read_calibration(self) -> tuple[np.ndarray, np.ndarray]:
         """The factory calibration table (slope, offset), each shape (8 inputs, 4 ranges)."""

@@ -12,11 +12,12 @@ import pytest
 from dimacq.backends import BACKENDS, is_simulated, lookup
 from dimacq.backends.base import DeviceContext
 from dimacq.config import default_config_file, load_settings
+from dimacq.drivers.mcc import fpga
 from dimacq.errors import DeviceNotFoundError, SetupError
 from dimacq.services import rig as rig_builder
 from dimacq.simulators.daq.backend import DaqInput
 from dimacq.simulators.lab.scenarios import build_scenario
-from dimacq.simulators.mcc.backend import Mcc1808Backend, default_fpga_image
+from dimacq.simulators.mcc.backend import Mcc1808Backend, lab_fpga_image
 
 
 class _Quiet:
@@ -88,7 +89,10 @@ def test_devices_check_through_the_simulated_units(tmp_path: Path) -> None:
     )
 
 
-def test_one_line_errors_of_the_real_backend(tmp_path: Path) -> None:
+def test_one_line_errors_of_the_real_backend(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(fpga, "library_paths", lambda extra=(): [])  # no libuldaq here
     with pytest.raises(DeviceNotFoundError, match=r"no USB-1808 unit .*udev rule") as e:
         _open(tmp_path / "a", "no_units")
     assert "\n" not in str(e.value)
@@ -98,10 +102,11 @@ def test_one_line_errors_of_the_real_backend(tmp_path: Path) -> None:
         _open(tmp_path / "c", "two_units", units='"01F2A001", "0BADBEEF"')
     ident = _open(tmp_path / "d", "two_units", units='"01F2A001", "01F2A000"')
     assert ident.units == ("01F2A001", "01F2A000")  # type: ignore[attr-defined]
-    with pytest.raises(SetupError, match=r"FPGA is not loaded .*set daq_fpga_file"):
+    with pytest.raises(SetupError, match=r"FPGA is not loaded .*set daq_fpga_file") as e:
         _open(tmp_path / "e", "one_unloaded")
-    rbf = tmp_path / "usb-1808.rbf"
-    rbf.write_bytes(default_fpga_image())
+    assert "\n" not in str(e.value)
+    rbf = tmp_path / "USB_1808.bin"
+    rbf.write_bytes(lab_fpga_image())
     ident = _open(tmp_path / "f", "one_unloaded", daq_fpga_file=str(rbf))
     assert ident.serial_number == "01F2A000"  # type: ignore[attr-defined]
 
