@@ -165,10 +165,32 @@ def test_cli_names_the_fix_without_a_traceback(
     assert "pip install 'dimacq[ni]'" in line and "DIMACQ_DAQ" in line
 
 
-def test_devices_list_names_the_mcc_setting() -> None:
-    from dimacq.backends.inventory import _usb_setting
+def test_devices_list_offers_a_usb_device_only_to_a_backend_that_knows_it(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    import usb.core
+
+    from dimacq.backends.inventory import _usb_setting, inventory
 
     assert _usb_setting(0x09DB, 0x013E) == (
-        "daq = 'mcc-usb' (USB-1808X: its serial number in [daq] units)"
+        "daq = 'mcc-usb' (USB-1808X: its serial number in [daq] units), or daq = 'uldaq'"
     )
-    assert _usb_setting(0x1209, 0xDA64) == "daq_vendor_id = 0x1209, daq_product_id = 0xda64"
+    assert _usb_setting(0x1209, 0xDA64) == (
+        "daq = 'dimacq-usb' (daq_vendor_id = 0x1209, daq_product_id = 0xda64)"
+    )
+    assert _usb_setting(0x0867, 0x3998) == (
+        "daq = 'uldaq' (DT9837A/B/C: its serial number in [daq] units)"
+    )
+    assert _usb_setting(0x09DB, 0x0133) is None  # MCC's USB-DIO32HS: no analogue input
+    assert _usb_setting(0x046D, 0xC52B) is None  # a mouse receiver
+    assert _usb_setting(0x1D6B, 0x0002) is None  # a root hub
+
+    class Dev:
+        def __init__(self, vid: int, pid: int, address: int) -> None:
+            self.idVendor, self.idProduct, self.bus, self.address = vid, pid, 1, address
+
+    found = [Dev(0x1D6B, 0x0002, 1), Dev(0x046D, 0xC52B, 2), Dev(0x09DB, 0x013E, 3)]
+    monkeypatch.setattr(usb.core, "find", lambda **kw: iter(found))
+    inv = inventory(can_interfaces=())
+    assert [(u["vid"], u["pid"]) for u in inv.usb] == [("09db", "013e")]
+    assert any("2 other device(s)" in n and "not offered" in n for n in inv.notes)
