@@ -221,6 +221,7 @@ class UldaqTask(StreamedReads):
         self._stream: CounterStream[DaqEvent] = CounterStream(0)
         self._plan: ScanPlan | None = None
         self._buffer: Any = None
+        self._view = np.zeros(0)
         self._read = 0
 
     # -- identity and channels -------------------------------------------------------------
@@ -344,7 +345,8 @@ class UldaqTask(StreamedReads):
             self.ai.set_trigger(ul.TriggerType.POS_EDGE, 0, 0.0, 0.0, 0)
         n_scan = plan.high - plan.low + 1
         per_channel = max(self.samples_per_frame * 4, int(BUFFER_S * self.sample_rate_hz))
-        self._buffer = ul.create_float_buffer(n_scan, per_channel)
+        self._buffer = ul.create_float_buffer(n_scan, per_channel)  # (c_double * n)()
+        self._view = np.ctypeslib.as_array(self._buffer)  # no copy: the device writes into it
         actual = self.ai.a_in_scan(
             plan.low,
             plan.high,
@@ -377,7 +379,7 @@ class UldaqTask(StreamedReads):
         _status, xfer = self.ai.get_scan_status()
         n_scan = self._plan.high - self._plan.low + 1
         total = int(xfer.current_total_count) // n_scan
-        cap = len(self._buffer) // n_scan
+        cap = self._view.size // n_scan
         new = total - self._read
         if new <= 0:
             return 0
@@ -391,7 +393,7 @@ class UldaqTask(StreamedReads):
             self.events.append(ev)
             raise DeviceStateError(msg)
         idx = (np.arange(self._read, total) % cap)[:, None] * n_scan + np.array(self._plan.columns)
-        volts = np.asarray(self._buffer)[idx]
+        volts = self._view[idx]
         full = float(self.channels[0].range_v)
         over = np.abs(volts) >= full
         self._stream.put(self._stream.end, volts * self._scale, over)

@@ -4,18 +4,21 @@ loaded by path: the package itself needs libuldaq to import)."""
 
 from __future__ import annotations
 
+import ctypes
 import importlib.util
 import sys
 from pathlib import Path
-from types import ModuleType
+from types import ModuleType, SimpleNamespace
+from typing import Any
 
+import numpy as np
 import pytest
 
 from dimacq.backends import BACKENDS, lookup
 from dimacq.backends.mcc_uldaq import import_uldaq
 from dimacq.devices.daq import ChannelConfig
-from dimacq.drivers.mcc.uldaq_task import range_volts, scan_plan
-from dimacq.errors import DeviceNotFoundError, SetupError
+from dimacq.drivers.mcc.uldaq_task import UldaqTask, range_volts, scan_plan
+from dimacq.errors import DeviceNotFoundError, DeviceStateError, SetupError
 
 
 def _ul_enums() -> ModuleType:
@@ -107,3 +110,126 @@ def test_plan_refusals_name_the_fix() -> None:
     # the USB-1808X through uldaq: voltage inputs, no IEPE settings sent
     plan = scan_plan(ul, (_accel(0, ua=0),), ranges, n_inputs=8, supports_iepe=False)
     assert plan.iepe == {} and plan.coupling == {}
+
+
+class _FakeAi:
+    """uldaq's AiDevice as its docs describe it (ai_device.py): a_in_scan fills the circular
+    buffer scan-major and returns the actual rate; get_scan_status gives current_total_count."""
+
+    def __init__(self, ul: ModuleType, actual_rate: float | None = None) -> None:
+        self.ul, self.actual_rate, self.calls = ul, actual_rate, []
+        self.total = 0
+        self.buffer: Any = None
+        self.n_scan = 0
+
+    def get_info(self) -> Any:
+        ul = self.ul
+
+        class Info:
+            def get_num_chans(self) -> int:
+                return 4
+
+            def supports_iepe(self) -> bool:
+                return True
+
+            def get_ranges(self, mode: Any) -> list[Any]:
+                assert mode == ul.AiInputMode.SINGLE_ENDED
+                return [ul.Range.BIP10VOLTS, ul.Range.BIP1VOLTS]
+
+        return Info()
+
+    def get_config(self) -> Any:
+        calls = self.calls
+
+        class Config:
+            def __getattr__(self, name: str) -> Any:
+                return lambda *a: calls.append((name, *a))
+
+        return Config()
+
+    def a_in_scan(self, low, high, mode, rng, n, rate, options, flags, buf):  # type: ignore[no-untyped-def]
+        self.calls.append(("a_in_scan", low, high, mode, rng, n, rate, options, flags))
+        self.buffer, self.n_scan = buf, high - low + 1
+        return rate if self.actual_rate is None else self.actual_rate
+
+    def clock(self, scans: int) -> None:
+        """The device puts ``scans`` more scans in the buffer: input k holds 0.1·k + scan/1e4 V."""
+        assert self.buffer is not None
+        cap = len(self.buffer) // self.n_scan
+        for s in range(self.total // self.n_scan, self.total // self.n_scan + scans):
+            for k in range(self.n_scan):
+                self.buffer[(s % cap) * self.n_scan + k] = 0.1 * k + s / 1e4
+        self.total += scans * self.n_scan
+
+    def get_scan_status(self) -> Any:
+        class Xfer:
+            current_total_count = self.total
+
+        return self.ul.ScanStatus.RUNNING, Xfer()
+
+    def scan_stop(self) -> None:
+        self.calls.append(("scan_stop",))
+
+    def set_trigger(self, *a: Any) -> None:
+        self.calls.append(("set_trigger", *a))
+
+
+def _fake_ul(ai: _FakeAi) -> Any:
+    ul = ai.ul
+
+    class Desc:
+        product_name, unique_id = "DT9837A", "1F2E3D"
+
+    class Device:
+        def get_ai_device(self) -> _FakeAi:
+            return ai
+
+        def get_descriptor(self) -> Desc:
+            return Desc()
+
+    ns = SimpleNamespace(**{k: getattr(ul, k) for k in dir(ul) if not k.startswith("_")})
+    ns.create_float_buffer = lambda n_ch, n: (ctypes.c_double * (n_ch * n))()  # as uldaq's
+    return ns, Device()
+
+
+def test_task_reads_the_circular_buffer_in_volts_and_units() -> None:
+    ul = _ul_enums()
+    ai = _FakeAi(ul)
+    fake, device = _fake_ul(ai)
+    task = UldaqTask(fake, device, external_trigger=True)
+    task.add_accel_channel(1, "a1", 100.0)  # 100 mV/g
+    task.add_force_channel(3, "hammer", 2.25)  # 2.25 mV/N
+    task.configure_timing(1000.0, 64)
+    task.start()
+    assert ("set_trigger", ul.TriggerType.POS_EDGE, 0, 0.0, 0.0, 0) in ai.calls
+    scan = next(c for c in ai.calls if c[0] == "a_in_scan")
+    assert scan[1:5] == (1, 3, ul.AiInputMode.SINGLE_ENDED, ul.Range.BIP10VOLTS)
+    assert int(scan[7]) == (1 << 3) | (1 << 5) and scan[6] == 1000.0
+    assert ("set_chan_iepe_mode", 1, ul.IepeMode.ENABLED) in ai.calls
+    assert ("set_chan_coupling_mode", 3, ul.CouplingMode.AC) in ai.calls
+    cap = len(ai.buffer) // 3  # type: ignore[arg-type]
+    ai.clock(cap - 10)
+    first = task.read(cap - 10)
+    ai.clock(30)  # wraps around the circular buffer
+    block = task.read(30)
+    s = np.arange(cap - 10, cap + 20)
+    assert block.first_sample == cap - 10
+    assert block.data[0] == pytest.approx((0.0 + s / 1e4) / (0.1 / 9.80665))
+    assert block.data[1] == pytest.approx((0.2 + s / 1e4) / 2.25e-3)
+    assert first.data.shape == (2, cap - 10)
+    ai.clock(cap + 1)  # the host is later than the buffer holds
+    with pytest.raises(DeviceStateError, match="fell 1 scans behind"):
+        task.read(1)
+    assert task.identify().model == "DT9837A"
+
+
+def test_task_refuses_a_coerced_rate() -> None:
+    ul = _ul_enums()
+    ai = _FakeAi(ul, actual_rate=1002.5)
+    fake, device = _fake_ul(ai)
+    task = UldaqTask(fake, device)
+    task.add_accel_channel(0, "a0", 100.0)
+    task.configure_timing(1000.0)
+    with pytest.raises(SetupError, match=r"scans at 1002.5 Hz instead; set sample_rate_hz"):
+        task.start()
+    assert ai.calls[-1] == ("scan_stop",)
