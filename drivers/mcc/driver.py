@@ -3,10 +3,11 @@
 Two layers, as for our own DAQ (:mod:`dimacq.drivers.daq.driver`):
 
 - :class:`Usb1808` — one unit on the wire: the vendor requests and bulk scans of
-  :mod:`dimacq.drivers.mcc.protocol` (facts from MCC's open-source Linux driver,
-  ``github:wjasper/Linux_Drivers`` ``USB/mcc-libusb/usb-1808.c``) on an injected
-  ``usb.core.Device``: FPGA load, EEPROM calibration table, ADC setup, scan queue, scan
-  start/stop, status, bulk reads.
+  :mod:`dimacq.drivers.mcc.protocol` (facts from MCC's uldaq, ``github:mccdaq/uldaq``
+  ``src/usb/``, and Warren Jasper's Linux driver, ``github:wjasper/Linux_Drivers``
+  ``USB/mcc-libusb/usb-1808.c``) on an injected ``usb.core.Device``: FPGA load (the binary
+  image of :mod:`dimacq.drivers.mcc.fpga`), EEPROM calibration table in 64-byte reads, ADC setup,
+  scan queue, scan start/stop, status, bulk reads.
 - :class:`MccTask` — a :class:`~dimacq.devices.daq.Daq` over one or more units. Physical
   channel ``k`` is input ``k % 8`` of unit ``k // 8`` (units in the rig file's ``[daq] units``
   order). **Several units in step**: the first unit is the clock master (its pacer at
