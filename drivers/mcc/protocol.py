@@ -105,8 +105,6 @@ __all__ = [
     "codes_to_volts",
     "decode_scans",
     "eeprom_reads",
-    "encode_calibration",
-    "encode_scans",
     "fpga_transfers",
     "pacer_period",
     "pacer_rate_hz",
@@ -190,8 +188,9 @@ RANGES_V = {Range.BP_10V: 10.0, Range.BP_5V: 5.0, Range.UP_10V: 10.0, Range.UP_5
 AIN_SCAN_START_STRUCT = struct.Struct("<IIIBB")
 STATUS_STRUCT = struct.Struct("<H")
 ADDRESS_STRUCT = struct.Struct("<H")
-_CAL_PAIR = struct.Struct("<ff")
-CAL_TABLE_BYTES = N_AI * N_RANGES * _CAL_PAIR.size
+#: each calibration value: IEEE-754 f32 little-endian (slope, then offset, per input and range)
+CAL_VALUE = np.dtype("<f4")
+CAL_TABLE_BYTES = N_AI * N_RANGES * 2 * CAL_VALUE.itemsize
 
 
 #: the bulk endpoint's packet size (high speed)
@@ -302,23 +301,12 @@ def decode_scan_queue(w_index: int, data: bytes) -> list[int]:
     return list(data[: w_index + 1])
 
 
-def encode_calibration(slope: NDArray[np.float64], offset: NDArray[np.float64]) -> bytes:
-    """The EEPROM calibration table (from 0x7000): ``slope``, ``offset`` shape (8, 4)."""
-    pairs = np.stack([slope, offset], axis=-1).astype("<f4")
-    return pairs.tobytes()
-
-
 def calibration_table(data: bytes) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """``(slope, offset)``, each shape (8 inputs, 4 ranges), from the EEPROM bytes."""
     if len(data) != CAL_TABLE_BYTES:
         raise ValueError(f"calibration table of {len(data)} bytes; expected {CAL_TABLE_BYTES}")
-    pairs = np.frombuffer(data, dtype="<f4").reshape(N_AI, N_RANGES, 2).astype(float)
+    pairs = np.frombuffer(data, dtype=CAL_VALUE).reshape(N_AI, N_RANGES, 2).astype(float)
     return pairs[..., 0], pairs[..., 1]
-
-
-def encode_scans(codes: NDArray[np.integer]) -> bytes:
-    """Bulk data of ``codes`` shape (n_scans, n_queue): 32-bit LE words, scan-major."""
-    return (np.asarray(codes, dtype=np.int64) & CODE_MASK).astype("<u4").tobytes()
 
 
 def decode_scans(data: bytes, n_queue: int) -> NDArray[np.uint32]:

@@ -127,6 +127,13 @@ REFERENCES = [
         lambda u: u.scan_start(p.AInScanStart(4096, 0, 0)),
     ),
     Ref(
+        "AIN_SCAN_START (2^31 scans, retrigger every 2^31: unsigned counts)",
+        [(Ctrl(OUT, 0x12, 0, 0, bytes.fromhex("00000080 00000080 00000000 ff 04")), 14)],
+        "J usb-1808.c:424-425 (count, retrig_count uint32_t), :430 (bit 2 retrigger); "
+        "U DaqIUsb1808.h:43-44 (unsigned int)",
+        lambda u: u.scan_start(p.AInScanStart(2**31, 2**31, 0, options=0x04)),
+    ),
+    Ref(
         "bulk IN 0x86 (two scans of AI1, AI6)",
         [(BulkIn(0x86, 16), bytes.fromhex("00000200 ff3f0300 33330200 00000000"))],
         "J usb-1808.c:475 (LIBUSB_ENDPOINT_IN | 6), :389-396 (scan-major, 32-bit samples, "
