@@ -134,6 +134,13 @@ REFERENCES = [
         lambda u: u.scan_start(p.AInScanStart(2**31, 2**31, 0, options=0x04)),
     ),
     Ref(
+        "AIN_SCAN_START (slowest pacer: period 2^32 - 2)",
+        [(Ctrl(OUT, 0x12, 0, 0, bytes.fromhex("00000000 00000000 feffffff ff 00")), 14)],
+        "J usb-1808.c:426 (pacer_period uint32_t); U ai/AiUsb1808.cpp:15 (min rate = "
+        "clock / UINT_MAX), DaqIUsb1808.h:45",
+        lambda u: u.scan_start(p.AInScanStart(0, 0, 0xFFFFFFFE)),
+    ),
+    Ref(
         "bulk IN 0x86 (two scans of AI1, AI6)",
         [(BulkIn(0x86, 16), bytes.fromhex("00000200 ff3f0300 33330200 00000000"))],
         "J usb-1808.c:475 (LIBUSB_ENDPOINT_IN | 6), :389-396 (scan-major, 32-bit samples, "
