@@ -576,10 +576,16 @@ class MccTask(StreamedReads):
                         f"samples {end}..{counts[0] - 1} missing on a slave unit",
                     )
                 )
+            if overrun:  # an overrun stops that unit's scan: counts differ for that reason
+                raise ProtocolError(
+                    f"task {self.name}: FIFO overrun on {', '.join(overrun)} (the host read "
+                    f"later than its 32 KiB FIFO holds; scans per unit {counts}): read faster, "
+                    "lower the rate or the load on this PC, then restart"
+                )
             raise ProtocolError(
-                f"task {self.name}: the master clocked {counts[0]} scans but "
-                f"{'; '.join(bad) or 'a FIFO overran on ' + ', '.join(overrun)}; check the clock "
-                "cable from the master's ICLKO to each slave's clock input, then restart"
+                f"task {self.name}: the master clocked {counts[0]} scans but {'; '.join(bad)}; "
+                "check the clock cable from the master's ICLKO to each slave's clock input, "
+                "then restart"
             )
 
     def _read_unit_quiet(self, r: _UnitRun) -> int:

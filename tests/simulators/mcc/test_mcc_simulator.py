@@ -120,7 +120,7 @@ def test_fifo_overrun_is_reported() -> None:
         for _ in range(50):
             task.read(200, timeout_s=0.2)
     assert any(e.kind == "overflow" for e in task.events)
-    with pytest.raises(ProtocolError):
+    with pytest.raises(ProtocolError, match=r"FIFO overrun on .*read faster"):
         task.stop()
 
 
