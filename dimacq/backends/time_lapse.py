@@ -51,10 +51,10 @@ from dimacq.drivers.loadcell import protocol as lc_p
 from dimacq.errors import SetupError
 
 __all__ = [
+    "DAQ_MAX_SCALE",
     "FULL_OVER_PROBE",
     "HEADROOM",
     "LOADCELL_FRAMES_PER_SAMPLE",
-    "DAQ_MAX_SCALE",
     "LOADCELL_MAX_SCALE",
     "HostLag",
     "HostMeasurement",
