@@ -18,6 +18,9 @@ setting    name                what opens the device
                                on simulated USB-1808X units carrying the virtual lab
 ``daq``    ``"nidaqmx"``       :func:`dimacq.backends.ni_daqmx.open_daq`: NI DSA devices through
                                the ``nidaqmx`` API (extra ``[ni]``); no simulated twin
+``daq``    ``"uldaq"``         :func:`dimacq.backends.mcc_uldaq.open_daq`: MCC devices (DT9837
+                               IEPE DAQs, USB-1808X) through MCC's ``uldaq`` package (extra
+                               ``[mcc]``, needs libuldaq); no simulated twin
 ``loadcell`` ``"dimacq-can"``  :func:`dimacq.backends.can_loadcell.open_loadcell`: the CAN FD
                                amplifier on ``can.Bus(interface=loadcell_interface, ...)``
 ``loadcell`` ``"simulated"``   :func:`dimacq.backends.simulated.open_loadcell`: the same driver on
@@ -87,6 +90,7 @@ BACKENDS: dict[str, dict[str, str]] = {
         "mcc-usb": "dimacq.backends.mcc_usb:open_daq",
         "mcc-usb-simulated": "dimacq.backends.mcc_simulated:open_daq",
         "nidaqmx": "dimacq.backends.ni_daqmx:open_daq",
+        "uldaq": "dimacq.backends.mcc_uldaq:open_daq",
     },
     "loadcell": {
         "dimacq-can": "dimacq.backends.can_loadcell:open_loadcell",

@@ -2,8 +2,8 @@
 devices.
 
 The answers of ``dimacq devices list``: each entry names what to put in the settings to use it
-(``digitizer_url``, ``daq_vendor_id``/``daq_product_id``, ``loadcell_interface``/
-``loadcell_channel``). Serial ports are named by their stable ``/dev/serial/by-id`` link where
+(``digitizer_url``, ``daq``, ``loadcell_interface``/``loadcell_channel``); a USB device is offered
+only to a backend that knows its vendor/product id (the others are counted in a note). Serial ports are named by their stable ``/dev/serial/by-id`` link where
 there is one (the ``/dev/ttyUSB0`` number changes with the plugging order). Nothing is opened:
 serial ports are listed by pyserial, USB devices by pyusb (descriptors only, no claim), CAN
 interfaces by python-can's ``detect_available_configs`` (the real interfaces only; ``virtual``
@@ -95,26 +95,47 @@ def _usb(notes: list[str]) -> list[dict[str, Any]]:
     except usb.core.USBError as err:
         notes.append(f"USB devices: {err} (permissions: see the README's udev step)")
         return []
-    return [
-        {
-            "vid": f"{d.idVendor:04x}",
-            "pid": f"{d.idProduct:04x}",
-            "bus": int(d.bus) if d.bus is not None else None,
-            "address": int(d.address) if d.address is not None else None,
-            "setting": _usb_setting(int(d.idVendor), int(d.idProduct)),
-        }
-        for d in found
-    ]
+    out = []
+    unknown = 0
+    for d in found:
+        setting = _usb_setting(int(d.idVendor), int(d.idProduct))
+        if setting is None:
+            unknown += 1
+            continue
+        out.append(
+            {
+                "vid": f"{d.idVendor:04x}",
+                "pid": f"{d.idProduct:04x}",
+                "bus": int(d.bus) if d.bus is not None else None,
+                "address": int(d.address) if d.address is not None else None,
+                "setting": setting,
+            }
+        )
+    if unknown:
+        notes.append(
+            f"USB devices: {unknown} other device(s) (hubs, keyboards, ...) whose vendor/product "
+            "id no dimacq backend knows: not offered"
+        )
+    return out
 
 
-def _usb_setting(vid: int, pid: int) -> str:
-    """What uses a USB device: a Measurement Computing USB-1808(X) is ``daq = "mcc-usb"``;
-    anything else the dimacq DAQ's ids."""
+def _usb_setting(vid: int, pid: int) -> str | None:
+    """The backend that knows a USB device by its vendor/product id, or None: our DAQ
+    (``"dimacq-usb"``, pid.codes 1209:da64), MCC's USB-1808(X) (``"mcc-usb"``, or ``"uldaq"``),
+    the other devices MCC's uldaq drives (``"uldaq"``: its analogue-input DAQs, the DT9837)."""
     from dimacq.drivers.mcc import protocol as mcc
+    from dimacq.drivers.mcc.uldaq_task import ULDAQ_USB_IDS
 
+    if (vid, pid) == (0x1209, 0xDA64):
+        return f"daq = 'dimacq-usb' (daq_vendor_id = 0x{vid:04x}, daq_product_id = 0x{pid:04x})"
     if vid == mcc.VENDOR_ID and pid in mcc.PRODUCT_IDS:
-        return f"daq = 'mcc-usb' ({mcc.PRODUCT_IDS[pid]}: its serial number in [daq] units)"
-    return f"daq_vendor_id = 0x{vid:04x}, daq_product_id = 0x{pid:04x}"
+        return (
+            f"daq = 'mcc-usb' ({mcc.PRODUCT_IDS[pid]}: its serial number in [daq] units), "
+            "or daq = 'uldaq'"
+        )
+    if (vid, pid) in ULDAQ_USB_IDS:
+        return f"daq = 'uldaq' ({ULDAQ_USB_IDS[vid, pid]}: its serial number in [daq] units)"
+    return None
 
 
 def _can(notes: list[str], interfaces: tuple[str, ...]) -> list[dict[str, Any]]:

@@ -5,7 +5,8 @@ says) behind :class:`~dimacq.simulators.mcc.backend.Mcc1808Backend`, a pyusb bac
 many USB-1808X units as the rig file's inputs need (8 each; serials from ``[daq] units`` or the
 simulator's own, cabled in its order), master's clock cabled to the slaves, their FPGAs not loaded at power-up. The
 driver opens them exactly as ``"mcc-usb"`` does (:func:`dimacq.backends.mcc_usb.open_units`),
-loading the simulator's stand-in bitstream. The load cell simulators count the master's clock.
+loading the simulated lab's FPGA image (of the vendor image's form and length: the twin's
+Spartan-6 takes it as it takes MCC's). The load cell simulators count the master's clock.
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ from dimacq.backends.mcc_usb import open_units
 from dimacq.backends.simulated import imperfections, world
 from dimacq.drivers.mcc import protocol as p
 from dimacq.drivers.mcc.driver import MccTask
-from dimacq.simulators.mcc.backend import Mcc1808Backend, default_fpga_image
+from dimacq.simulators.mcc.backend import Mcc1808Backend, lab_fpga_image
 
 __all__ = ["open_daq"]
 
@@ -40,7 +41,9 @@ def open_daq(ctx: DeviceContext) -> MccTask:
     where = f"daq = 'mcc-usb-simulated' (scenario {w.scenario!r})"
     # the virtual lab's units are cabled in the simulator's order when [daq] units is empty
     cabled = [u.serial for u in backend.units]
-    task = open_units(ctx, backend, where, default_fpga_image(), cabled)
+    task = open_units(
+        ctx, backend, where, (lab_fpga_image(), "the simulated lab's USB_1808.bin"), cabled
+    )
     if ctx.setup is not None:
         ctx.operator = w.operator(ctx)
     ctx.fixed.update({"hit_delay_samples": w.lab.block_samples, "block_samples": 512})

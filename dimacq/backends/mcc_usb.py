@@ -4,20 +4,22 @@ The units are found on the pyusb backend ``daq_backend`` (``"libusb"`` or a fact
 ``"dimacq-usb"``) by MCC's vendor id 0x09DB and the USB-1808 / USB-1808X product ids; the rig
 file's ``[daq] units`` lists their serial numbers in channel order (inputs 0..7 on the first,
 the clock master; 8..15 on the second; ...), ``[]`` takes the one unit found. A unit whose FPGA
-is not loaded (after power-up) gets the bitstream of ``daq_fpga_file`` (MCC's ``usb-1808.rbf``).
+is not loaded (after power-up) gets the binary Spartan-6 image (:mod:`dimacq.drivers.mcc.fpga`):
+``daq_fpga_file`` when set (``USB_1808.bin``: ``dimacq devices mcc-fpga`` makes it from uldaq's
+``src/usb/fw/Usb1808Fpga.c``), else the image inside an installed libuldaq.
 The driver is :mod:`dimacq.drivers.mcc.driver`; the wiring of several units (master's ICLKO to
 each slave's clock input) is described there.
 """
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any
 
 from dimacq.backends.base import DeviceContext
 from dimacq.backends.usb_daq import pyusb_backend
 from dimacq.drivers.mcc import protocol as p
 from dimacq.drivers.mcc.driver import MccTask, Usb1808
+from dimacq.drivers.mcc.fpga import image_from_library, read_image
 from dimacq.errors import DeviceNotFoundError, SetupError
 
 __all__ = ["open_daq", "open_units"]
@@ -27,7 +29,7 @@ def open_units(
     ctx: DeviceContext,
     backend: Any,
     where: str,
-    fpga_bitstream: bytes | None,
+    fpga_image: tuple[bytes, str] | None,
     cabled: list[str] | None = None,
 ) -> MccTask:
     """The rig file's units on ``backend``, FPGA loaded, as one task (closers to ``ctx``).
@@ -82,26 +84,26 @@ def open_units(
     units = [by_serial[s] for s in wanted]
     for u in units:
         if not u.status() & p.Status.FPGA_CONFIGURED:
-            bits = fpga_bitstream if fpga_bitstream is not None else _fpga_file(ctx, where)
-            u.configure_fpga(bits)
+            image, source = fpga_image if fpga_image is not None else _fpga_image(ctx, where)
+            u.configure_fpga(image, source)
     task = MccTask(units, "impact")
     return task
 
 
-def _fpga_file(ctx: DeviceContext, where: str) -> bytes:
+def _fpga_image(ctx: DeviceContext, where: str) -> tuple[bytes, str]:
+    """``daq_fpga_file``'s image, else the one in an installed libuldaq, form checked."""
     name = ctx.settings.daq_fpga_file
-    if not name:
+    if name:
+        return read_image(name), name
+    found = image_from_library()
+    if found is None:
         raise SetupError(
-            f"{where}: the USB-1808X's FPGA is not loaded (after power-up); set daq_fpga_file "
-            "(DIMACQ_DAQ_FPGA_FILE) to MCC's usb-1808.rbf (github.com/wjasper/Linux_Drivers)"
+            f"{where}: the USB-1808X's FPGA is not loaded (after power-up) and no libuldaq with "
+            "its image is installed; set daq_fpga_file (DIMACQ_DAQ_FPGA_FILE) to USB_1808.bin "
+            "(dimacq devices mcc-fpga Usb1808Fpga.c -o USB_1808.bin, from github.com/mccdaq/uldaq "
+            "src/usb/fw) or install libuldaq"
         )
-    try:
-        return Path(name).read_bytes()
-    except OSError as err:
-        raise SetupError(
-            f"daq_fpga_file = {name!r}: cannot read it ({err.strerror}); give the path of "
-            "usb-1808.rbf"
-        ) from err
+    return found
 
 
 def open_daq(ctx: DeviceContext) -> MccTask:

@@ -51,6 +51,7 @@ from dimacq.drivers.loadcell import protocol as lc_p
 from dimacq.errors import SetupError
 
 __all__ = [
+    "DAQ_MAX_SCALE",
     "FULL_OVER_PROBE",
     "HEADROOM",
     "LOADCELL_FRAMES_PER_SAMPLE",
@@ -80,6 +81,10 @@ LOADCELL_MAX_SCALE: dict[str, float] = {
     # seconds late and the DAQ's FIFO overflowed from the second input on (2026-11-27)
     "netft-udp-simulated": 2.0,
 }
+#: the highest time-lapse of a simulated DAQ whose FIFO is small: the USB-1808X twin holds the
+#: device's 32 KiB, 1024 scans of 8 inputs (0.5 s at 2048 Hz of the lab's time, 0.5/s s of wall
+#: time at s x): at 4x under a load average of 30 it overran at the start (2026-11-29)
+DAQ_MAX_SCALE: dict[str, float] = {"mcc-usb-simulated": 2.0}
 
 
 @dataclass(frozen=True)
@@ -284,12 +289,16 @@ class HostLag:
 
 
 def rig_time_lapse(
-    imperfections: Mapping[str, object], rig_path: str | Path, loadcell: str = "simulated"
+    imperfections: Mapping[str, object],
+    rig_path: str | Path,
+    loadcell: str = "simulated",
+    daq: str = "simulated",
 ) -> TimeLapse:
     """:func:`choose_time_lapse` for the rig file at ``rig_path`` (its DAQ channels, its load
     cells on CAN amplifiers and its sample rate) read through the load cell backend
     ``loadcell`` (its frames per sample: :data:`LOADCELL_FRAMES_PER_SAMPLE`; its highest factor:
-    :data:`LOADCELL_MAX_SCALE`)."""
+    :data:`LOADCELL_MAX_SCALE`) on the DAQ backend ``daq`` (its highest factor:
+    :data:`DAQ_MAX_SCALE`)."""
     from dimacq.io.rig_file import load_rig_file
 
     rig = load_rig_file(rig_path)
@@ -302,5 +311,5 @@ def rig_time_lapse(
         n_channels=n_channels,
         n_cells=n_cells,
         sample_rate_hz=rig.daq.sample_rate_hz,
-        max_scale=LOADCELL_MAX_SCALE.get(loadcell, 40.0),
+        max_scale=min(LOADCELL_MAX_SCALE.get(loadcell, 40.0), DAQ_MAX_SCALE.get(daq, 40.0)),
     )

@@ -3,10 +3,11 @@
 Two layers, as for our own DAQ (:mod:`dimacq.drivers.daq.driver`):
 
 - :class:`Usb1808` — one unit on the wire: the vendor requests and bulk scans of
-  :mod:`dimacq.drivers.mcc.protocol` (facts from MCC's open-source Linux driver,
-  ``github:wjasper/Linux_Drivers`` ``USB/mcc-libusb/usb-1808.c``) on an injected
-  ``usb.core.Device``: FPGA load, EEPROM calibration table, ADC setup, scan queue, scan
-  start/stop, status, bulk reads.
+  :mod:`dimacq.drivers.mcc.protocol` (facts from MCC's uldaq, ``github:mccdaq/uldaq``
+  ``src/usb/``, and Warren Jasper's Linux driver, ``github:wjasper/Linux_Drivers``
+  ``USB/mcc-libusb/usb-1808.c``) on an injected ``usb.core.Device``: FPGA load (the binary
+  image of :mod:`dimacq.drivers.mcc.fpga`), EEPROM calibration table in 64-byte reads, ADC setup,
+  scan queue, scan start/stop, status, bulk reads.
 - :class:`MccTask` — a :class:`~dimacq.devices.daq.Daq` over one or more units. Physical
   channel ``k`` is input ``k % 8`` of unit ``k // 8`` (units in the rig file's ``[daq] units``
   order). **Several units in step**: the first unit is the clock master (its pacer at
@@ -141,30 +142,39 @@ class Usb1808(WireDriver):
     def fpga_version(self) -> int:
         return int(p.STATUS_STRUCT.unpack(self._in(p.Request.FPGA_VERSION, 2))[0])
 
-    def configure_fpga(self, bitstream: bytes) -> None:
-        """Load the FPGA (``usbInit_1808``): FPGA_CONFIG with the unlock code, the bitstream in
-        64-byte FPGA_DATA chunks, then STATUS must say FPGA_CONFIGURED.
+    def configure_fpga(self, image: bytes, source: str = "the FPGA image") -> None:
+        """Load the FPGA as uldaq's ``UsbFpgaDevice::loadFpga`` and Jasper's ``usbInit_1808`` do:
+        FPGA_CONFIG with the unlock code, STATUS must say FPGA_CONFIG_MODE, the image in 64-byte
+        FPGA_DATA transfers and two zero bytes after it, then STATUS must say FPGA_CONFIGURED.
 
         Raises
         ------
+        SetupError
+            ``image`` is not the binary image (text, no sync word, another length): nothing sent.
         DeviceStateError
-            The unit does not enter config mode, or is not configured after the bitstream.
+            The unit does not enter config mode, or is not configured after the image.
         """
+        try:
+            p.check_fpga_image(image, source)
+        except ValueError as err:
+            raise SetupError(str(err)) from err
         self._out(p.Request.FPGA_CONFIG, bytes([p.FPGA_UNLOCK]))
         if not self.status() & p.Status.FPGA_CONFIG_MODE:
             raise DeviceStateError(f"{self.name} does not enter FPGA config mode; power-cycle it")
-        for k in range(0, len(bitstream), p.FPGA_CHUNK):
-            self._out(p.Request.FPGA_DATA, bitstream[k : k + p.FPGA_CHUNK])
+        for piece in p.fpga_transfers(image):
+            self._out(p.Request.FPGA_DATA, piece)
         if not self.status() & p.Status.FPGA_CONFIGURED:
             raise DeviceStateError(
-                f"{self.name}: FPGA not configured after {len(bitstream)} bytes; give MCC's "
-                "usb-1808.rbf as daq_fpga_file (DIMACQ_DAQ_FPGA_FILE)"
+                f"{self.name}: FPGA not configured after {len(image)} bytes of {source}; "
+                "power-cycle it and give uldaq's USB_1808.bin as daq_fpga_file "
+                "(DIMACQ_DAQ_FPGA_FILE)"
             )
 
     def read_memory(self, address: int, length: int) -> bytes:
-        """MEM_ADDRESS then MEMORY: ``length`` EEPROM bytes from ``address``."""
+        """MEM_ADDRESS once, then MEMORY reads of at most 64 bytes (the address
+        auto-increments), as uldaq's ``memRead_SingleCmd``: ``length`` EEPROM bytes."""
         self._out(p.Request.MEM_ADDRESS, p.ADDRESS_STRUCT.pack(address))
-        return self._in(p.Request.MEMORY, length)
+        return b"".join(self._in(p.Request.MEMORY, n) for n in p.eeprom_reads(length))
 
     def read_calibration(self) -> tuple[np.ndarray, np.ndarray]:
         """The factory calibration table (slope, offset), each shape (8 inputs, 4 ranges)."""
@@ -566,10 +576,16 @@ class MccTask(StreamedReads):
                         f"samples {end}..{counts[0] - 1} missing on a slave unit",
                     )
                 )
+            if overrun:  # an overrun stops that unit's scan: counts differ for that reason
+                raise ProtocolError(
+                    f"task {self.name}: FIFO overrun on {', '.join(overrun)} (the host read "
+                    f"later than its 32 KiB FIFO holds; scans per unit {counts}): read faster, "
+                    "lower the rate or the load on this PC, then restart"
+                )
             raise ProtocolError(
-                f"task {self.name}: the master clocked {counts[0]} scans but "
-                f"{'; '.join(bad) or 'a FIFO overran on ' + ', '.join(overrun)}; check the clock "
-                "cable from the master's ICLKO to each slave's clock input, then restart"
+                f"task {self.name}: the master clocked {counts[0]} scans but {'; '.join(bad)}; "
+                "check the clock cable from the master's ICLKO to each slave's clock input, "
+                "then restart"
             )
 
     def _read_unit_quiet(self, r: _UnitRun) -> int:

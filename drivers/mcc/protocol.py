@@ -21,13 +21,13 @@ AIN_SCAN_START     0x12   OUT   0        0             14 bytes :data:`AIN_SCAN_
 AIN_SCAN_STOP      0x13   OUT   0        0             —
 AIN_SCAN_CONFIG    0x14   OUT   0        last - 1      13 bytes: the scan queue (0..7 = AI)
 AIN_CLR_FIFO       0x15   OUT   0        0             —
-MEMORY             0x30   IN    0        0             EEPROM bytes from the current address
+MEMORY             0x30   IN    0        0             ≤ 64 EEPROM bytes from the current address
 MEM_ADDRESS        0x31   OUT   0        0             u16 address (auto-increments on reads)
 STATUS             0x40   IN    0        0             u16 :class:`Status` bits
 TRIGGER_CONFIG     0x43   OUT   0        0             u8: bit0 edge, bit1 rising
 SERIAL             0x48   IN    0        0             8 ASCII bytes
 FPGA_CONFIG        0x50   OUT   0        0             u8 unlock code 0xAD
-FPGA_DATA          0x51   OUT   0        0             ≤ 64 bytes of the ``.rbf`` bitstream
+FPGA_DATA          0x51   OUT   0        0             ≤ 64 bytes of the image; then ``00 00``
 FPGA_VERSION       0x52   IN    0        0             u16
 =================  =====  ====  =======  ============  ======================================
 
@@ -50,8 +50,21 @@ Calibration (``usbBuildGainTableAI_USB1808``): EEPROM from 0x7000, for channel 0
 
 Status (``usbStatus_USB1808``): bit1 AIN_SCAN_RUNNING, bit2 AIN_SCAN_OVERRUN (the FIFO filled:
 the scan stopped, data after it are lost), bit5 AIN_SCAN_DONE, bit8 FPGA_CONFIGURED, bit9
-FPGA_CONFIG_MODE. After power-up the FPGA is not configured: FPGA_CONFIG then the bitstream in
-64-byte FPGA_DATA chunks (``usbInit_1808``); the bitstream is MCC's file ``usb-1808.rbf``.
+FPGA_CONFIG_MODE (uldaq ``Usb1808.cpp`` sets the same overrun and running masks, 0x0004 and
+0x0002).
+
+FPGA (uldaq ``UsbFpgaDevice::loadFpga``, Jasper ``usbInit_1808``): after power-up the FPGA is not
+configured; FPGA_CONFIG with the unlock code 0xAD, STATUS must show FPGA_CONFIG_MODE, then the
+image in FPGA_DATA transfers of 64 bytes (the last one shorter) and, the FPGA being a Xilinx
+Spartan-6, two zero bytes more (:data:`FPGA_TRAILER`: clocks for its start-up sequence). The image
+is the binary Spartan-6 bitstream uldaq compiles in (``src/usb/fw/Usb1808Fpga.c``, ``xxd -i`` of
+``USB_1808.bin``): :data:`FPGA_IMAGE_BYTES` bytes, 0xFF padding then the sync word ``AA 99 55 66``
+(:func:`check_fpga_image`). Jasper's ``usb-1808.rbf`` is the same form written as a C array: C
+source text, which the device cannot take as it is.
+
+EEPROM reads (uldaq ``UsbDaqDevice::memRead_SingleCmd``): MEM_ADDRESS once, then MEMORY reads of at
+most :data:`EEPROM_READ_MAX` = 64 bytes each (the address auto-increments); Jasper reads the table
+4 bytes at a time with MEM_ADDRESS before each.
 """
 
 from __future__ import annotations
@@ -71,6 +84,11 @@ __all__ = [
     "BM_REQUEST_OUT",
     "CAL_BASE_ADDRESS",
     "DATA_ENDPOINT",
+    "EEPROM_READ_MAX",
+    "FIFO_BYTES",
+    "FPGA_IMAGE_BYTES",
+    "FPGA_SYNC_WORD",
+    "FPGA_TRAILER",
     "N_AI",
     "N_RANGES",
     "PRODUCT_IDS",
@@ -83,10 +101,11 @@ __all__ = [
     "Status",
     "adc_setup",
     "calibration_table",
+    "check_fpga_image",
     "codes_to_volts",
     "decode_scans",
-    "encode_calibration",
-    "encode_scans",
+    "eeprom_reads",
+    "fpga_transfers",
     "pacer_period",
     "pacer_rate_hz",
     "scan_queue",
@@ -106,6 +125,18 @@ BASE_CLOCK_HZ = 100e6
 CAL_BASE_ADDRESS = 0x7000
 FPGA_UNLOCK = 0xAD
 FPGA_CHUNK = 64
+#: sent after the image to a Spartan-6 part (uldaq UsbFpgaDevice.cpp ``dummyData[2]``)
+FPGA_TRAILER = b"\x00\x00"
+#: the USB-1808(X) image's length, bytes (uldaq ``USB_1808_bin_len``; Jasper's is as long)
+FPGA_IMAGE_BYTES = 464196
+#: the Xilinx configuration sync word, after the 0xFF padding
+FPGA_SYNC_WORD = bytes.fromhex("aa995566")
+#: where the sync word may start at most (uldaq's and Jasper's images: byte 16)
+FPGA_SYNC_WITHIN = 64
+#: the largest EEPROM read (uldaq ``setMemMaxReadSize(MT_EEPROM, 64)``)
+EEPROM_READ_MAX = 64
+#: the analogue input FIFO, bytes (uldaq DaqIUsb1808.h ``FIFO_SIZE = 8 * 4 * 1024``)
+FIFO_BYTES = 8 * 4 * 1024
 #: 18-bit codes
 CODE_MASK = 0x3FFFF
 MID_SCALE = 131072
@@ -157,8 +188,9 @@ RANGES_V = {Range.BP_10V: 10.0, Range.BP_5V: 5.0, Range.UP_10V: 10.0, Range.UP_5
 AIN_SCAN_START_STRUCT = struct.Struct("<IIIBB")
 STATUS_STRUCT = struct.Struct("<H")
 ADDRESS_STRUCT = struct.Struct("<H")
-_CAL_PAIR = struct.Struct("<ff")
-CAL_TABLE_BYTES = N_AI * N_RANGES * _CAL_PAIR.size
+#: each calibration value: IEEE-754 f32 little-endian (slope, then offset, per input and range)
+CAL_VALUE = np.dtype("<f4")
+CAL_TABLE_BYTES = N_AI * N_RANGES * 2 * CAL_VALUE.itemsize
 
 
 #: the bulk endpoint's packet size (high speed)
@@ -204,6 +236,49 @@ class AInScanStart:
         return cls(*AIN_SCAN_START_STRUCT.unpack(data))
 
 
+def fpga_transfers(image: bytes) -> list[bytes]:
+    """The FPGA_DATA data stages for ``image``: 64-byte pieces (the last one shorter), then
+    :data:`FPGA_TRAILER`."""
+    return [image[k : k + FPGA_CHUNK] for k in range(0, len(image), FPGA_CHUNK)] + [FPGA_TRAILER]
+
+
+def eeprom_reads(length: int) -> list[int]:
+    """The MEMORY read lengths for ``length`` bytes from one MEM_ADDRESS: at most 64 each."""
+    full, rest = divmod(length, EEPROM_READ_MAX)
+    return [EEPROM_READ_MAX] * full + ([rest] if rest else [])
+
+
+def check_fpga_image(image: bytes, source: str) -> None:
+    """Refuse what is not the USB-1808(X)'s binary FPGA image.
+
+    Its form: :data:`FPGA_IMAGE_BYTES` bytes, 0xFF padding, the Xilinx sync word
+    ``AA 99 55 66`` within the first 64 bytes.
+
+    Raises
+    ------
+    ValueError
+        One line naming ``source`` and the fix: C source text (a ``.c`` or Jasper's ``.rbf``
+        array: convert it with ``dimacq devices mcc-fpga``), no sync word, or another length.
+    """
+    head = image[:4096]
+    if head and all(b in b"\t\n\r" or 32 <= b < 127 for b in head):
+        raise ValueError(
+            f"{source} is text (C source of an array?), not the binary FPGA image; convert it "
+            f"with: dimacq devices mcc-fpga {source} -o usb-1808.bin"
+        )
+    at = image.find(FPGA_SYNC_WORD, 0, FPGA_SYNC_WITHIN + len(FPGA_SYNC_WORD))
+    if at < 0 or image[:at] != b"\xff" * at:
+        raise ValueError(
+            f"{source}: no Xilinx sync word AA995566 after 0xFF padding in its first "
+            f"{FPGA_SYNC_WITHIN} bytes: not a USB-1808 FPGA image; give uldaq's USB_1808.bin"
+        )
+    if len(image) != FPGA_IMAGE_BYTES:
+        raise ValueError(
+            f"{source}: {len(image)} bytes, the USB-1808 FPGA image has {FPGA_IMAGE_BYTES}; "
+            "give the whole USB_1808.bin (uldaq src/usb/fw/Usb1808Fpga.c)"
+        )
+
+
 def adc_setup(ranges: list[Range], modes: list[InputMode]) -> bytes:
     """AIN_ADC_SETUP data: one byte per input, ``range | mode << 2``."""
     return bytes(int(r) | int(m) << 2 for r, m in zip(ranges, modes, strict=True))
@@ -226,23 +301,12 @@ def decode_scan_queue(w_index: int, data: bytes) -> list[int]:
     return list(data[: w_index + 1])
 
 
-def encode_calibration(slope: NDArray[np.float64], offset: NDArray[np.float64]) -> bytes:
-    """The EEPROM calibration table (from 0x7000): ``slope``, ``offset`` shape (8, 4)."""
-    pairs = np.stack([slope, offset], axis=-1).astype("<f4")
-    return pairs.tobytes()
-
-
 def calibration_table(data: bytes) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """``(slope, offset)``, each shape (8 inputs, 4 ranges), from the EEPROM bytes."""
     if len(data) != CAL_TABLE_BYTES:
         raise ValueError(f"calibration table of {len(data)} bytes; expected {CAL_TABLE_BYTES}")
-    pairs = np.frombuffer(data, dtype="<f4").reshape(N_AI, N_RANGES, 2).astype(float)
+    pairs = np.frombuffer(data, dtype=CAL_VALUE).reshape(N_AI, N_RANGES, 2).astype(float)
     return pairs[..., 0], pairs[..., 1]
-
-
-def encode_scans(codes: NDArray[np.integer]) -> bytes:
-    """Bulk data of ``codes`` shape (n_scans, n_queue): 32-bit LE words, scan-major."""
-    return (np.asarray(codes, dtype=np.int64) & CODE_MASK).astype("<u4").tobytes()
 
 
 def decode_scans(data: bytes, n_queue: int) -> NDArray[np.uint32]:

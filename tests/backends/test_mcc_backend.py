@@ -12,11 +12,12 @@ import pytest
 from dimacq.backends import BACKENDS, is_simulated, lookup
 from dimacq.backends.base import DeviceContext
 from dimacq.config import default_config_file, load_settings
+from dimacq.drivers.mcc import fpga
 from dimacq.errors import DeviceNotFoundError, SetupError
 from dimacq.services.acquisition import rig as rig_builder
 from dimacq.simulators.daq.backend import DaqInput
 from dimacq.simulators.lab.scenarios import build_scenario
-from dimacq.simulators.mcc.backend import Mcc1808Backend, default_fpga_image
+from dimacq.simulators.mcc.backend import Mcc1808Backend, lab_fpga_image
 
 
 class _Quiet:
@@ -88,7 +89,10 @@ def test_devices_check_through_the_simulated_units(tmp_path: Path) -> None:
     )
 
 
-def test_one_line_errors_of_the_real_backend(tmp_path: Path) -> None:
+def test_one_line_errors_of_the_real_backend(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(fpga, "library_paths", lambda extra=(): [])  # no libuldaq here
     with pytest.raises(DeviceNotFoundError, match=r"no USB-1808 unit .*udev rule") as e:
         _open(tmp_path / "a", "no_units")
     assert "\n" not in str(e.value)
@@ -98,10 +102,11 @@ def test_one_line_errors_of_the_real_backend(tmp_path: Path) -> None:
         _open(tmp_path / "c", "two_units", units='"01F2A001", "0BADBEEF"')
     ident = _open(tmp_path / "d", "two_units", units='"01F2A001", "01F2A000"')
     assert ident.units == ("01F2A001", "01F2A000")  # type: ignore[attr-defined]
-    with pytest.raises(SetupError, match=r"FPGA is not loaded .*set daq_fpga_file"):
+    with pytest.raises(SetupError, match=r"FPGA is not loaded .*set daq_fpga_file") as e:
         _open(tmp_path / "e", "one_unloaded")
-    rbf = tmp_path / "usb-1808.rbf"
-    rbf.write_bytes(default_fpga_image())
+    assert "\n" not in str(e.value)
+    rbf = tmp_path / "USB_1808.bin"
+    rbf.write_bytes(lab_fpga_image())
     ident = _open(tmp_path / "f", "one_unloaded", daq_fpga_file=str(rbf))
     assert ident.serial_number == "01F2A000"  # type: ignore[attr-defined]
 
@@ -160,10 +165,32 @@ def test_cli_names_the_fix_without_a_traceback(
     assert "pip install 'dimacq[ni]'" in line and "DIMACQ_DAQ" in line
 
 
-def test_devices_list_names_the_mcc_setting() -> None:
-    from dimacq.backends.inventory import _usb_setting
+def test_devices_list_offers_a_usb_device_only_to_a_backend_that_knows_it(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    import usb.core
+
+    from dimacq.backends.inventory import _usb_setting, inventory
 
     assert _usb_setting(0x09DB, 0x013E) == (
-        "daq = 'mcc-usb' (USB-1808X: its serial number in [daq] units)"
+        "daq = 'mcc-usb' (USB-1808X: its serial number in [daq] units), or daq = 'uldaq'"
     )
-    assert _usb_setting(0x1209, 0xDA64) == "daq_vendor_id = 0x1209, daq_product_id = 0xda64"
+    assert _usb_setting(0x1209, 0xDA64) == (
+        "daq = 'dimacq-usb' (daq_vendor_id = 0x1209, daq_product_id = 0xda64)"
+    )
+    assert _usb_setting(0x0867, 0x3998) == (
+        "daq = 'uldaq' (DT9837A/B/C: its serial number in [daq] units)"
+    )
+    assert _usb_setting(0x09DB, 0x0133) is None  # MCC's USB-DIO32HS: no analogue input
+    assert _usb_setting(0x046D, 0xC52B) is None  # a mouse receiver
+    assert _usb_setting(0x1D6B, 0x0002) is None  # a root hub
+
+    class Dev:
+        def __init__(self, vid: int, pid: int, address: int) -> None:
+            self.idVendor, self.idProduct, self.bus, self.address = vid, pid, 1, address
+
+    found = [Dev(0x1D6B, 0x0002, 1), Dev(0x046D, 0xC52B, 2), Dev(0x09DB, 0x013E, 3)]
+    monkeypatch.setattr(usb.core, "find", lambda **kw: iter(found))
+    inv = inventory(can_interfaces=())
+    assert [(u["vid"], u["pid"]) for u in inv.usb] == [("09db", "013e")]
+    assert any("2 other device(s)" in n and "not offered" in n for n in inv.notes)

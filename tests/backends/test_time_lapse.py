@@ -186,3 +186,5 @@ def test_the_load_cell_backend_counts_in_the_probe(monkeypatch: pytest.MonkeyPat
     assert seen == [1, 5, 7]  # the shipped rig's one cell, in frames per sample
     assert tl.rig_time_lapse({}, rig, "netft-udp-simulated").scale == 2.0
     assert tl.rig_time_lapse({"daq_time_scale": 6}, rig, "netft-udp-simulated").scale == 6.0
+    # the USB-1808X twin's 32 KiB FIFO: at most 2x
+    assert tl.rig_time_lapse({}, rig, "simulated", "mcc-usb-simulated").scale == 2.0

@@ -31,7 +31,7 @@ def test_devices_list_names_the_settings(tmp_path: Path, capsys) -> None:
     for s in got["serial"]:
         assert s["setting"].startswith("digitizer_url = ")
     for u in got["usb"]:
-        assert len(u["vid"]) == 4 and u["setting"].startswith("daq_vendor_id = 0x")
+        assert len(u["vid"]) == 4 and u["setting"].startswith("daq = ")
     # python-can's virtual interface is the simulated lab's: asked for, it is found and named
     inv = inventory(can_interfaces=("virtual",))
     assert inv.can and inv.can[0]["interface"] == "virtual"

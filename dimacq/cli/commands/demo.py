@@ -191,7 +191,10 @@ def run(args: argparse.Namespace) -> int:
     imperfections = dict(settings.simulation_imperfections)
     if not args.model_frfs:
         lapse = rig_time_lapse(
-            settings.simulation_imperfections, settings.rig_path, str(settings.loadcell)
+            settings.simulation_imperfections,
+            settings.rig_path,
+            str(settings.loadcell),
+            str(settings.daq),
         )
         imperfections["daq_time_scale"] = lapse.scale
         settings = settings.model_copy(update={"simulation_imperfections": imperfections})

@@ -1,16 +1,17 @@
 """On a real USB-1808X (opt-in: ``pytest --device mcc``; never run on CI, not run by its author:
-no unit was at hand). Needs libusb, the udev rule (config/udev) and, after power-up, MCC's
-bitstream in ``DIMACQ_DAQ_FPGA_FILE``. Leave AI0 open or on a conditioner output."""
+no unit was at hand). Needs libusb, the udev rule (config/udev) and, after power-up, the binary
+FPGA image in ``DIMACQ_DAQ_FPGA_FILE`` (``dimacq devices mcc-fpga``) or an installed libuldaq.
+Leave AI0 open or on a conditioner output."""
 
 from __future__ import annotations
 
 import os
-from pathlib import Path
 
 import numpy as np
 import pytest
 import usb.core
 
+from dimacq.drivers.mcc import fpga
 from dimacq.drivers.mcc import protocol as p
 from dimacq.drivers.mcc.driver import MccTask, Usb1808
 
@@ -26,7 +27,10 @@ def test_a_real_unit_scans_one_second() -> None:
     unit = Usb1808(found[0], timeout_s=2.0)
     try:
         if not unit.status() & p.Status.FPGA_CONFIGURED:
-            unit.configure_fpga(Path(os.environ["DIMACQ_DAQ_FPGA_FILE"]).read_bytes())
+            name = os.environ.get("DIMACQ_DAQ_FPGA_FILE", "")
+            found = (fpga.read_image(name), name) if name else fpga.image_from_library()
+            assert found, "set DIMACQ_DAQ_FPGA_FILE to USB_1808.bin or install libuldaq"
+            unit.configure_fpga(*found)
         slope, offset = unit.read_calibration()
         assert np.all(np.abs(slope[:, :2] - 1) < 0.05) and np.all(np.abs(offset[:, :2]) < 2000)
         task = MccTask([unit], calibrations=[(slope, offset)])

@@ -23,6 +23,7 @@ from _exchange import BulkIn, Ctrl, expected_exchange
 from dimacq.drivers.mcc import protocol as p
 from dimacq.drivers.mcc.driver import MccTask, Usb1808
 from dimacq.errors import DeviceStateError, SetupError
+from dimacq.simulators.mcc.backend import lab_fpga_image
 
 OUT, IN = 0x40, 0xC0
 # EEPROM table: slope 1.0, offset 0.0 for all 8 × 4 → f32 LE 0x3F800000, 0x00000000
@@ -67,11 +68,11 @@ def test_status_bits() -> None:
 
 
 def _unit_open() -> list[tuple[Ctrl | BulkIn, object]]:
-    """What MccTask([unit]) sends first: the EEPROM table (MEM_ADDRESS 0x7000, MEMORY 256),
-    then SERIAL."""
+    """What MccTask([unit]) sends first: the EEPROM table (MEM_ADDRESS 0x7000, four MEMORY
+    reads of 64 bytes), then SERIAL."""
     return [
         (Ctrl(OUT, 0x31, 0, 0, bytes.fromhex("0070")), 2),
-        (Ctrl(IN, 0x30, 0, 0, 256), UNIT_TABLE),
+        *[(Ctrl(IN, 0x30, 0, 0, 64), UNIT_TABLE[k : k + 64]) for k in range(0, 256, 64)],
         (Ctrl(IN, 0x48, 0, 0, 8), b"01F2A7C3"),
     ]
 
@@ -112,18 +113,25 @@ def test_one_unit_task_exchange() -> None:
     ]
 
 
-def test_fpga_load_exchange_and_refusal() -> None:
-    bitstream = bytes(range(100))
+def test_fpga_load_exchange_and_refusal(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    image = lab_fpga_image()
     pairs = [
         (Ctrl(OUT, 0x50, 0, 0, b"\xad"), 1),  # FPGA_CONFIG, unlock code 0xAD
         (Ctrl(IN, 0x40, 0, 0, 2), bytes.fromhex("0002")),  # FPGA_CONFIG_MODE
-        (Ctrl(OUT, 0x51, 0, 0, bitstream[:64]), 64),
-        (Ctrl(OUT, 0x51, 0, 0, bitstream[64:]), 36),
-        (Ctrl(IN, 0x40, 0, 0, 2), bytes.fromhex("0000")),  # not configured: wrong bitstream
+        *[(Ctrl(OUT, 0x51, 0, 0, image[k : k + 64]), 64) for k in range(0, len(image), 64)],
+        (Ctrl(OUT, 0x51, 0, 0, b"\x00\x00"), 2),
+        (Ctrl(IN, 0x40, 0, 0, 2), bytes.fromhex("0002")),  # not configured
     ]
     with expected_exchange("usb", pairs, connect=lambda d: Usb1808(d)) as unit:
         with pytest.raises(DeviceStateError, match="daq_fpga_file"):
-            unit.configure_fpga(bitstream)
+            unit.configure_fpga(image)
+    # a text file (Jasper's usb-1808.rbf is C source) or a short one: refused, nothing sent
+    text = b"static unsigned char FPGA_data[] = {\n  0xff,  0xff,\n};\n"
+    with expected_exchange("usb", [], connect=lambda d: Usb1808(d)) as unit:
+        with pytest.raises(SetupError, match=r"is text .*dimacq devices mcc-fpga usb-1808.rbf"):
+            unit.configure_fpga(text, "usb-1808.rbf")
+        with pytest.raises(SetupError, match=r"464194 bytes, the USB-1808 FPGA image has 464196"):
+            unit.configure_fpga(image[:-2])
 
 
 def test_stall_reads_as_a_state_error() -> None:

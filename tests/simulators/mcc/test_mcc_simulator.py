@@ -9,9 +9,9 @@ import usb.core
 
 from dimacq.drivers.mcc import protocol as p
 from dimacq.drivers.mcc.driver import MccTask, Usb1808
-from dimacq.errors import DeviceStateError, ProtocolError
+from dimacq.errors import DeviceStateError, ProtocolError, SetupError
 from dimacq.simulators.daq.backend import DaqInput
-from dimacq.simulators.mcc.backend import Mcc1808Backend, default_fpga_image
+from dimacq.simulators.mcc.backend import Mcc1808Backend, lab_fpga_image
 
 RATE = 2000.0
 
@@ -36,7 +36,7 @@ def _units(backend: Mcc1808Backend) -> list[Usb1808]:
     found = usb.core.find(find_all=True, idVendor=p.VENDOR_ID, idProduct=0x013E, backend=backend)
     units = [Usb1808(d, timeout_s=1.0) for d in found]
     for u in units:
-        u.configure_fpga(default_fpga_image())
+        u.configure_fpga(lab_fpga_image())
     return units
 
 
@@ -120,7 +120,7 @@ def test_fifo_overrun_is_reported() -> None:
         for _ in range(50):
             task.read(200, timeout_s=0.2)
     assert any(e.kind == "overflow" for e in task.events)
-    with pytest.raises(ProtocolError):
+    with pytest.raises(ProtocolError, match=r"FIFO overrun on .*read faster"):
         task.stop()
 
 
@@ -131,9 +131,10 @@ def test_fpga_must_be_loaded_first() -> None:
     assert not unit.status() & p.Status.FPGA_CONFIGURED
     with pytest.raises(DeviceStateError, match="refused AIN_SCAN_STOP"):
         unit.scan_stop()
-    with pytest.raises(DeviceStateError, match="FPGA not configured"):
-        unit.configure_fpga(b"\x00" * 4096)
-    unit.configure_fpga(default_fpga_image())
+    with pytest.raises(SetupError, match="no Xilinx sync word"):
+        unit.configure_fpga(b"\x00" * 4096)  # refused by the driver: nothing sent
+    assert not unit.status() & (p.Status.FPGA_CONFIGURED | p.Status.FPGA_CONFIG_MODE)
+    unit.configure_fpga(lab_fpga_image())
     assert unit.status() & p.Status.FPGA_CONFIGURED
     unit.scan_stop()
 
