@@ -9,6 +9,9 @@ import { testQuery } from "/static/test.js";
 export async function loadFrfSets(select) {
   const sets = items(await api("GET", `/api/frfs${testQuery()}`));
   $("#frf-set").innerHTML = `<option value="">—</option>` + sets.map((s) => `<option value="${s.id}">${s.id} ${esc(s.name)} (${s.n_responses}×${s.n_inputs}×${s.n_lines})</option>`).join("");
+  // after a reload: the set this tab had open, when it is still listed
+  const kept = +sessionStorage.getItem(FRF_KEY);
+  if (!select && kept && sets.some((s) => s.id === kept) && (!state.frf || state.frf.id !== kept)) select = kept;
   if (select) {
     $("#frf-set").value = select;
     await openFrf(+select);
@@ -50,14 +53,17 @@ function channelName(c) {
   return `${c.node}${d < 0 ? "-" : "+"}${ax}`;
 }
 
-/** "(m/s²)/N" from a numerator unit and the input's. */
-function frfUnit(num, den = "N") {
-  const wrap = (u) => (/[/ ]/.test(u) ? `(${u})` : u);
-  return `${wrap(num)}/${wrap(den)}`;
+/** The FRF's unit as the set states it ("(m/s²)/N"); a bare numerator gets the input's. */
+function frfUnit(unit, den = "N") {
+  if (unit.includes("/")) return unit;
+  return `${/ /.test(unit) ? `(${unit})` : unit}/${den}`;
 }
+
+const FRF_KEY = "dimacq-frf";
 
 export async function openFrf(id) {
   const t0 = performance.now();
+  sessionStorage.setItem(FRF_KEY, String(id));
   const line = status("frfs");
   line.busy(`reading FRF set ${id}…`);
   for (const k of ["#frf-mag", "#frf-coh", "#frf-cmif"]) $(k).classList.add("stale");
@@ -121,13 +127,13 @@ function drawFrfs() {
   const byKind = (lc) => d.outputs.map((c, k) => [c, k]).filter(([c]) => (c.kind === "reaction") === lc).map(([, k]) => k);
   const outs = o === "acc" ? byKind(false) : o === "lc" ? byKind(true) : o === "" ? d.mag[j].map((_, k) => k) : [+o];
   const onBand = (lo, hi) => setBand(lo, hi);
-  const units = [...new Set(outs.map((k) => d.outputs[k].unit || "m/s²"))];
   const inUnit = d.inputs[j] && d.inputs[j].unit ? d.inputs[j].unit : "N";
+  const units = [...new Set(outs.map((k) => frfUnit(d.outputs[k].unit || "m/s²", inUnit)))];
   const what = o === "acc" ? `${outs.length} accelerometers` : o === "lc" ? `${outs.length} load-cell channels` : o === "" ? `all ${d.outputs.length} outputs` : d.names[+o];
   const scale = { logX: $("#frf-logx").checked, db: $("#frf-db").checked };
   const series = outs.map((k) => ({ y: d.mag[j][k], label: d.names[k], group: d.outputs[k].kind === "reaction" ? "load cells" : "accelerometers" }));
   const mag = linePlot($("#frf-mag"), { x: d.x, logY: true, ...scale, xLabel: "frequency, Hz", xUnit: "Hz", yLabel: "|H|",
-    yUnit: units.map((u) => frfUnit(u, inUnit)).join(" and "),
+    yUnit: units.join(" and "),
     title: `FRF magnitude, input ${j + 1} ${channelName(d.inputs[j])} (${what})`, band: state.band, keepView: true,
     series, onBand });
   state.timings.frf_draw_ms = mag.ms;
