@@ -20,7 +20,6 @@ import os
 import shutil
 import signal
 import subprocess
-import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -30,6 +29,7 @@ import httpx
 import pytest
 from _api_support import TOKEN, served_lab
 from _lab_rig_support import IMPULSE_SETUP, struck_inputs_factory
+from _page_support import serve, two_input_setup
 
 from dimacq.api.server import free_port
 from dimacq.io.setup_file import dump_setup_dict
@@ -196,9 +196,7 @@ def test_double_click_solve_stores_one_solution_that_reopens_after_a_reload(
         logv = _view(page)
         assert logv["xScale"] == "log" and logv["yScale"] == "dB", logv
         assert page.get_attribute("#frf-mag", "data-x-scale") == "log"
-        assert page.evaluate("() => window.dimacq.plots.mag.yLabel()") == (
-            "|H|, dB re 1 (m/s²)/N"
-        )
+        assert page.evaluate("() => window.dimacq.plots.mag.yLabel()") == ("|H|, dB re 1 (m/s²)/N")
         assert logv["y"][1] < 100 and logv["y"][0] > -300, logv  # dB, not |H|
         page.click("#frf-reset")
         reset = _view(page)
@@ -258,52 +256,10 @@ def test_double_click_solve_stores_one_solution_that_reopens_after_a_reload(
         report = page.context.new_page()
         report.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
         report.goto(f"{c.base_url}{href}")
-        report.wait_for_function(
-            "() => document.body.innerText.includes('mass')", timeout=30_000
-        )
+        report.wait_for_function("() => document.body.innerText.includes('mass')", timeout=30_000)
         assert str(sid) in report.inner_text("body")
         report.close()
     assert not errors, errors
-
-
-def _serve(data_dir: Path, port: int) -> subprocess.Popen[bytes]:
-    env = {
-        **os.environ,
-        "DIMACQ_TOKEN": TOKEN,
-        "DIMACQ_SCENARIO": "calibration-mass-bungee",
-        "DIMACQ_DIGITIZER_URL": f"simdigitizer://recover{port}?seed=3",
-        "DIMACQ_DATABASE_URL": "",
-    }
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "dimacq.cli.main", "serve", "--port", str(port)]
-        + ["--data-dir", str(data_dir), "--log-level", "warning"],
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-        env=env,
-    )
-    deadline = time.monotonic() + 120  # a guard only: it returns as soon as the server answers
-    while time.monotonic() < deadline:
-        try:
-            if httpx.get(f"http://127.0.0.1:{port}/api/status", timeout=1).status_code == 200:
-                return proc
-        except httpx.TransportError:
-            pass
-        if proc.poll() is not None:
-            raise AssertionError(f"dimacq serve exited with {proc.returncode}")
-        time.sleep(0.1)
-    proc.kill()
-    proc.wait()
-    raise AssertionError("dimacq serve did not start")
-
-
-def _two_input_setup() -> dict[str, Any]:
-    """The simulated calibration mass with two of its inputs (a short acquisition)."""
-    from dimacq.simulators.lab.scenarios import build_scenario
-
-    setup = dump_setup_dict(build_scenario("calibration-mass-bungee").model.setup)
-    setup["inputs"] = setup["inputs"][:2]
-    setup["name"] = "calibration mass, two inputs"
-    return setup
 
 
 @pytest.mark.slow
@@ -315,12 +271,12 @@ def test_kill_the_service_mid_acquisition_then_resume_from_the_page(
     errors: list[str] = []
     port = free_port()
     url = f"http://127.0.0.1:{port}"
-    proc = _serve(tmp_path / "data", port)
+    proc = serve(tmp_path / "data", port, TOKEN)
     try:
         with httpx.Client(
             base_url=url, headers={"Authorization": f"Bearer {TOKEN}"}, timeout=30
         ) as c:
-            sid = c.post("/api/setups", json=_two_input_setup()).json()["id"]
+            sid = c.post("/api/setups", json=two_input_setup()).json()["id"]
         page = _page(browser, errors)
         _ready(page, f"{url}/#token={TOKEN}")
         page.select_option("#acq-setup", str(sid))
@@ -364,7 +320,7 @@ def test_kill_the_service_mid_acquisition_then_resume_from_the_page(
         page.screenshot(path=str(shots / "service-unreachable.png"))
 
         # restart; the banner goes by itself; a reload offers Resume
-        proc = _serve(tmp_path / "data", port)
+        proc = serve(tmp_path / "data", port, TOKEN)
         page.wait_for_selector("#offline", state="hidden", timeout=30_000)
         page.wait_for_selector(f"[data-rec='resume'][data-id='{acq_id}']", timeout=20_000)
         page.reload()
