@@ -189,6 +189,11 @@ class SimulatedWorld:
         ppm = np.random.default_rng([fault_seed, 0x0C]).uniform(
             -imp.loadcell_oscillator_ppm, imp.loadcell_oscillator_ppm, len(rig_file.load_cells)
         )
+        # The bus's frame losses and bus-offs: a seeded world replays its seed's; an unseeded
+        # one draws its own, as a bus does (seed 0 for every unseeded run lost the same frame,
+        # pulse 3705 of node 1, at the first strike of every acquisition)
+        can_seed = fault_seed if seed is not None else int(np.random.SeedSequence().entropy)
+        self.can_seed = can_seed
         self.can_channel = f"dimacq-sim-{os.getpid()}-{next(_names)}"
         self._sims: list[LoadCellAmplifierSim] = []
         try:
@@ -209,7 +214,7 @@ class SimulatedWorld:
                             frame_loss_rate=imp.can_frame_loss_rate,
                             bus_off_rate=imp.can_bus_off_rate,
                             bus_off_s=imp.can_bus_off_s,
-                            seed=fault_seed,
+                            seed=can_seed,
                         ),
                     )
                 )
