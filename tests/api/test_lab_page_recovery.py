@@ -126,6 +126,15 @@ def test_reload_during_a_run_then_reattach_decides_the_waiting_hit(
         # the hit that was waiting comes back, and is decided here
         assert _pending(page, 1, 20_000) == 1
         assert page.evaluate("() => window.dimacq.acq.id") == acq_id
+        # the hit view on the event: milliseconds around the force peak, channels named
+        force = page.evaluate("() => window.dimacq.plots.hitForce.view()")
+        assert -5 <= force["x"][0] < 0 < force["x"][1] <= 20, force
+        assert "time from the hit peak, ms" in page.evaluate(
+            "() => window.dimacq.plots.hitForce.opts.xLabel"
+        )
+        shots = Path(os.environ.get("DIMACQ_PAGE_SHOTS") or tmp_path / "screenshots")
+        shots.mkdir(parents=True, exist_ok=True)
+        page.locator("#acquire").screenshot(path=str(shots / "reattached-hit.png"))
         page.click("#hit-accept")
         _decide_all(page)
         page.wait_for_function(f"() => {ENDED}.test(document.querySelector('#msg').textContent)")
@@ -198,6 +207,7 @@ def test_double_click_solve_stores_one_solution_that_reopens_after_a_reload(
         assert page.get_attribute("#frf-mag", "data-x-scale") == "log"
         assert page.evaluate("() => window.dimacq.plots.mag.yLabel()") == ("|H|, dB re 1 (m/s²)/N")
         assert logv["y"][1] < 100 and logv["y"][0] > -300, logv  # dB, not |H|
+        page.locator("#frfs").screenshot(path=str(shots / "frfs-log-db.png"))
         page.click("#frf-reset")
         reset = _view(page)
         assert not reset["zoomed"] and reset["x"][1] == pytest.approx(full["x"][1]), reset

@@ -128,9 +128,7 @@ def test_unseeded_worlds_do_not_replay_one_frame_loss() -> None:
     first_loss = np.flatnonzero(np.random.default_rng([0, 1]).random(10_000) < 1e-6)
     assert first_loss.tolist() == [3705]  # the replayed loss
     rig = load_rig_file(Path(__file__).resolve().parents[2] / "config" / "rig.toml")
-    worlds = [
-        SimulatedWorld("calibration-mass-bungee", rig, seed) for seed in (None, None, 7, 7)
-    ]
+    worlds = [SimulatedWorld("calibration-mass-bungee", rig, seed) for seed in (None, None, 7, 7)]
     try:
         seeds = [[s.faults.seed for s in w._sims] for w in worlds]
         assert all(seeds) and all(len(set(x)) == 1 for x in seeds), seeds

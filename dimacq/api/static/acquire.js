@@ -61,7 +61,12 @@ function renderAcquisition(a, { review = true } = {}) {
       + (!running && incomplete.length ? `; incomplete (no FRF): ${incomplete.join(", ")}` : "");
   }
   const done = !running && a.frf_id;
-  $("#acq-inputs").innerHTML = table(["#", "node", "strike along", "accepted", "rejected", "strikes lost", "reasons", "accepted over the checks", "coherence γ̄²", ""],
+  // the coherence in the band the solve will use, once the FRFs are stored (during the run:
+  // the run's mean over every line, said so)
+  const bc = acq.bandCoh && acq.bandCoh.acq === a.id ? acq.bandCoh : null;
+  if (bc) per.forEach((p, i) => { if (bc.byInput[i] !== undefined) p.coh = bc.byInput[i]; });
+  const cohHead = bc ? `coherence γ̄² in ${f(bc.band[0], 3)}–${f(bc.band[1], 3)} Hz` : "coherence γ̄² (all lines)";
+  $("#acq-inputs").innerHTML = table(["#", "node", "strike along", "accepted", "rejected", "strikes lost", "reasons", "accepted over the checks", cohHead, ""],
     per.map((p, i) => [i + 1, ex[i].node, dirName(ex[i].direction_gcs),
       p.struck ? (p.state === "incomplete" ? `<span class="fail">${p.acc}/${acq.perInput} incomplete</span>` : `${p.acc}/${acq.perInput}`) : "—",
       p.rej ? `<span class="rej">${p.rej}</span>` : 0,
@@ -243,7 +248,35 @@ async function ended() {
     acq.frfId = a.frf_id;
     await emit("frf-stored", a.frf_id);
     renderAppend(a);
+    await bandCoherence(a).catch((e) => console.warn(`coherence in band: ${e.message}`));
   }
+}
+
+/** The solve's band: the one picked (step 4 / 5), else the simulated article's recommended one,
+ * else the FRF set's span. */
+function solveBand(frf) {
+  if (state.band) return state.band;
+  if (state.article && state.article.band_hz) return state.article.band_hz;
+  return [frf.f_min_hz, frf.f_max_hz];
+}
+
+/** Mean ordinary coherence of each input over the accelerometers and the solve's band (one
+ * envelope point of the stored set), shown in the table in place of the all-lines mean. */
+async function bandCoherence(a) {
+  const frf = await api("GET", `/api/frfs/${a.frf_id}`);
+  const band = solveBand(frf).map((v, k) => (k === 0 ? Math.max(v, frf.f_min_hz) : Math.min(v, frf.f_max_hz)));
+  const e = await api("GET", `/api/frfs/${a.frf_id}/envelope?points=1&f_min_hz=${band[0]}&f_max_hz=${band[1]}`);
+  if (!e.coherence_mean) return;
+  const acc = e.responses.map((o, i) => [o, i]).filter(([o]) => o.kind !== "reaction").map(([, i]) => i);
+  const byInput = {};
+  acq.setup.setup.inputs.forEach((inp, j) => {
+    const k = e.inputs.findIndex((x) => x.node === inp.node && x.direction === inp.direction);
+    if (k < 0) return;
+    const v = acc.map((o) => e.coherence_mean[o][k]).filter((c) => c !== null);
+    if (v.length) byInput[j] = v.reduce((s, c) => s + c, 0) / v.length;
+  });
+  acq.bandCoh = { acq: a.id, band, byInput };
+  renderAcquisition(acq.info);
 }
 
 // --- runs never lost: the open test's running and interrupted acquisitions, with what to do

@@ -97,7 +97,7 @@ function markOnline() {
   conn.failures = 0;
   if (conn.probe) { clearTimeout(conn.probe); conn.probe = null; }
   banner();
-  emit("online");
+  emit("online").catch((e) => console.warn(`after the service came back: ${e.message}`));
 }
 
 function markOffline() {
@@ -106,7 +106,7 @@ function markOffline() {
   conn.online = false;
   conn.delayMs = 500;
   banner();
-  emit("offline");
+  emit("offline").catch((e) => console.warn(`service unreachable: ${e.message}`));
   probeLater();
 }
 

@@ -1,7 +1,7 @@
 // Step 2: digitize — a new test, reference nodes (editable), live point readout with shots and
 // echo rejections, registration residual per node with its limit, jig orientations, lines of
 // action, redo a point; in simulation the page points the simulated probe at the article.
-import { $, api, dirName, emit, esc, f, guard, mm, on, say, state, table } from "/static/core.js";
+import { $, UserError, api, dirName, emit, esc, f, guard, job, mm, on, say, state, table } from "/static/core.js";
 
 function arrayPlacement() {
   // the array hangs 1.1 m above the article's centre, axes along the GCS: DACS = GCS + t
@@ -81,12 +81,36 @@ function renderReferenceNodes(refs) {
   }
 }
 
+/** The article's extent (GCS, m): the box around the positions of the simulated article or of
+ * the open setup; null when neither is known. */
+function articleBox() {
+  const st = (state.article && state.article.setup) || (state.setup && state.setup.setup);
+  if (!st) return null;
+  const pts = [...(st.responses || []), ...(st.inputs || []), ...(st.load_cells || [])].map((c) => c.position_m).filter(Boolean);
+  if (!pts.length) return null;
+  const lo = [0, 1, 2].map((k) => Math.min(...pts.map((q) => q[k])));
+  const hi = [0, 1, 2].map((k) => Math.max(...pts.map((q) => q[k])));
+  return { lo, hi, size: Math.max(...hi.map((v, k) => v - lo[k])) };
+}
+
 async function setReferenceNode() {
   const label = $("#ref-label").value.trim();
-  const p = ["#ref-x", "#ref-y", "#ref-z"].map((id) => parseFloat($(id).value));
-  if (!label) throw new Error("reference node label: give one (e.g. REF1)");
-  if (p.some((v) => !Number.isFinite(v))) throw new Error("reference node position: give x, y, z in m");
+  const ids = ["#ref-x", "#ref-y", "#ref-z"];
+  const p = ids.map((id) => Number($(id).value.trim() === "" ? NaN : $(id).value));
+  if (!label) throw new UserError("reference node label: give one (e.g. REF1)", { selector: "#ref-label" });
+  const bad = p.findIndex((v) => !Number.isFinite(v));
+  if (bad >= 0) throw new UserError(`reference node ${"xyz"[bad]}: give a number in m`, { selector: ids[bad] });
+  // a reference node is on or next to the article: within its size of its box (at least 1 m)
+  const box = articleBox();
+  if (box) {
+    const margin = Math.max(1, box.size);
+    const out = p.findIndex((v, k) => v < box.lo[k] - margin || v > box.hi[k] + margin);
+    if (out >= 0) {
+      throw new UserError(`reference node ${"xyz"[out]} = ${p[out]} m is ${f(Math.abs(p[out] - (p[out] < box.lo[out] ? box.lo[out] : box.hi[out])), 3)} m outside the article (${f(box.lo[out], 3)}…${f(box.hi[out], 3)} m along ${"xyz"[out]}); give the node's position in m, in the GCS`, { selector: ids[out] });
+    }
+  }
   renderReferenceNodes(await api("PUT", `/api/digitizer/reference-nodes/${encodeURIComponent(label)}`, { position_m: p }));
+  return `reference node ${label} set`;
 }
 
 function renderRegistration(reg) {
@@ -175,7 +199,7 @@ async function buildSetup() {
 export function init() {
   $("#new-session").onclick = guard(async () => { await newSession(); say($("#test-state").textContent); });
   on("test-created", () => newSession());
-  $("#ref-set").onclick = guard(setReferenceNode);
+  $("#ref-set").onclick = job("digitize", "#ref-set", "setting the reference node…", setReferenceNode);
   $("#digitize-all").onclick = guard(async () => {
     $("#digitize-all").disabled = true;
     try { await digitizeAll(); } finally { $("#digitize-all").disabled = false; }
