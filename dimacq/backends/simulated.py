@@ -394,6 +394,15 @@ def open_dead_weight_bench(
 _bench_names = itertools.count()
 
 
+def article_truth(scenario: str) -> dict[str, Any]:
+    """The simulated article's true properties (``dimacq solve --json`` keys, about the
+    scenario's reference point), for the demonstration only: the page shows them beside a
+    solution, marked as the simulator's. Never an input of the solve, which reads only FRFs and
+    the setup."""
+    out: dict[str, Any] = build_scenario(scenario, None).truth_json()
+    return out
+
+
 def article_geometry(scenario: str) -> dict[str, Any]:
     """Where the simulated article's sensors, impact points and load cells are (the scenario's
     geometry, in the setup-file format, GCS metres): what the engineer's hand knows in the

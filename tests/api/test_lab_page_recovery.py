@@ -287,6 +287,12 @@ def test_kill_the_service_mid_acquisition_then_resume_from_the_page(
             base_url=url, headers={"Authorization": f"Bearer {TOKEN}"}, timeout=30
         ) as c:
             sid = c.post("/api/setups", json=two_input_setup()).json()["id"]
+            # the simulator's truth, for the page to show beside an answer (the scenario's)
+            from dimacq.simulators.lab.scenarios import build_scenario
+
+            truth = c.get("/api/simulation/truth").json()
+            want = build_scenario("calibration-mass-bungee", None).truth_json()
+            assert truth["mass_kg"] == want["mass_kg"] and truth["cg_m"] == want["cg_m"]
         page = _page(browser, errors)
         _ready(page, f"{url}/#token={TOKEN}")
         page.select_option("#acq-setup", str(sid))

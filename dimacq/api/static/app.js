@@ -30,7 +30,7 @@ async function init() {
   const article = setup.loadArticle();
   await Promise.all([loadStatus(), article, digitize.load(article), setup.loadRig().catch((e) => say(e.message, true)),
     test.load().then(() => Promise.all([setup.loadSetups(), frfs.loadFrfSets(), solve.load()]))
-      .then(() => Promise.all([acquire.loadRecovery(), solve.restore()]))]);
+      .then(() => acquire.loadRecovery())]);
   startHeartbeat();
   on("online", () => loadStatus().catch(() => {}));
   // back to the step this tab was at (the last one it worked in)
@@ -42,6 +42,8 @@ async function init() {
   state.timings.init_ms = performance.now() - t0;
   state.timings.ready_ms = performance.now();
   document.body.dataset.ready = "1";
+  // then the results this tab had open (a large FRF set takes seconds: the page answers meanwhile)
+  await Promise.all([frfs.restore().catch((e) => say(e.message, true)), solve.restore().catch((e) => say(e.message, true))]);
 }
 
 guard(init)();

@@ -9,9 +9,7 @@ import { testQuery } from "/static/test.js";
 export async function loadFrfSets(select) {
   const sets = items(await api("GET", `/api/frfs${testQuery()}`));
   $("#frf-set").innerHTML = `<option value="">—</option>` + sets.map((s) => `<option value="${s.id}">${s.id} ${esc(s.name)} (${s.n_responses}×${s.n_inputs}×${s.n_lines})</option>`).join("");
-  // after a reload: the set this tab had open, when it is still listed
-  const kept = +sessionStorage.getItem(FRF_KEY);
-  if (!select && kept && sets.some((s) => s.id === kept) && (!state.frf || state.frf.id !== kept)) select = kept;
+  state.frfSets = sets;
   if (select) {
     $("#frf-set").value = select;
     await openFrf(+select);
@@ -60,6 +58,16 @@ function frfUnit(unit, den = "N") {
 }
 
 const FRF_KEY = "dimacq-frf";
+
+/** After a reload: the set this tab had open, when it is still listed (read after the page is
+ * ready: a large set takes seconds, the page answers meanwhile). */
+export async function restore() {
+  const kept = +sessionStorage.getItem(FRF_KEY);
+  if (kept && (state.frfSets || []).some((s) => s.id === kept) && (!state.frf || state.frf.id !== kept)) {
+    $("#frf-set").value = kept;
+    await openFrf(kept);
+  }
+}
 
 export async function openFrf(id) {
   const t0 = performance.now();

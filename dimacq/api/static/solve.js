@@ -95,8 +95,37 @@ async function renderSolution(s) {
   $("#solution").innerHTML = `<h3>solution ${s.id} (FRF set ${s.frf_id})</h3><p class="verdict ${esc(r.verdict)}">verdict: ${esc(r.verdict)}</p>
     <ul>${reasons.map((x) => `<li class="${esc(x.severity || "")}">${esc(x.severity ? `${x.severity}: ` : "")}${esc(x.message || JSON.stringify(x))}</li>`).join("")}</ul>
     <p>band ${f(r.band_hz[0])}–${f(r.band_hz[1])} Hz${r.band_selection && r.band_selection.automatic ? " (automatic)" : " (picked)"}; reference point P ${esc((r.reference_point_m || []).join(", "))} m; excluded responses: ${esc(ex("excluded_responses"))}; excluded inputs: ${esc(ex("excluded_inputs"))}</p>
-    ${table(["parameter", "unit", "estimate", "95 % interval"], paramRows(r).map(([n, un, v, uu]) => [`<span class="l">${n}</span>`, un, f(v, 6), interval(uu)]))}`;
+    ${await truthTable(r)}`;
   await drawSpectrum(s.id);
+}
+
+/** The simulated article's true properties, once per page (null: not a simulated lab). */
+async function simulatorTruth() {
+  if (state.truth !== undefined) return state.truth;
+  if (!state.article) return null; // no simulated device: no simulator, no truth
+  try { state.truth = await api("GET", "/api/simulation/truth"); } catch { state.truth = null; }
+  return state.truth;
+}
+
+/** Estimates with their intervals and, in a simulated lab, the simulator's truth beside them
+ * (inertia about P only when P is the scenario's reference point). */
+async function truthTable(r) {
+  const rows = paramRows(r);
+  const t = await simulatorTruth();
+  const sameP = t && (r.reference_point_m || [0, 0, 0]).every((v, k) => Math.abs(v - (t.reference_point_m || [0, 0, 0])[k]) < 1e-9);
+  const tRows = t ? paramRows({ ...t, inertia_p_kgm2: sameP ? t.inertia_p_kgm2 : [[null, null, null], [null, null, null], [null, null, null]] }) : [];
+  const head = ["parameter", "unit", "estimate", "95 % interval"];
+  if (t) head.push("simulator's truth (not known to the solve)", "inside the interval");
+  return `${t ? `<p class="small truth-note">Simulated lab: the last columns are the simulator's truth for scenario ${esc(t.scenario)}, shown for the demonstration only; the solve reads the FRFs and the setup, never this.</p>` : ""}`
+    + table(head, rows.map(([n, un, v, uu], i) => {
+      const row = [`<span class="l">${n}</span>`, un, f(v, 6), interval(uu)];
+      if (t) {
+        const tv = tRows[i] ? tRows[i][2] : null;
+        const inside = tv === null || tv === undefined || !uu || !uu.ci95 ? "—" : (tv >= uu.ci95[0] && tv <= uu.ci95[1] ? '<span class="ok">yes</span>' : '<span class="warn">no</span>');
+        row.push(`<span class="truth">${f(tv, 6)}</span>`, inside);
+      }
+      return row;
+    }));
 }
 
 async function drawSpectrum(id) {
