@@ -192,7 +192,9 @@ class SimulatedWorld:
         # The bus's frame losses and bus-offs: a seeded world replays its seed's; an unseeded
         # one draws its own, as a bus does (seed 0 for every unseeded run lost the same frame,
         # pulse 3705 of node 1, at the first strike of every acquisition)
-        can_seed = fault_seed if seed is not None else int(np.random.SeedSequence().entropy)
+        fresh = np.random.SeedSequence().entropy  # an int when drawn from the OS
+        assert isinstance(fresh, int)
+        can_seed = fault_seed if seed is not None else fresh
         self.can_seed = can_seed
         self.can_channel = f"dimacq-sim-{os.getpid()}-{next(_names)}"
         self._sims: list[LoadCellAmplifierSim] = []
