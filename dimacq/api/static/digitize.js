@@ -1,7 +1,7 @@
 // Step 2: digitize — a new test, reference nodes (editable), live point readout with shots and
 // echo rejections, registration residual per node with its limit, jig orientations, lines of
 // action, redo a point; in simulation the page points the simulated probe at the article.
-import { $, UserError, api, dirName, emit, esc, f, guard, job, mm, on, say, state, table } from "/static/core.js";
+import { $, UserError, api, dirName, emit, esc, f, guard, items, job, mm, on, say, state, table } from "/static/core.js";
 
 function arrayPlacement() {
   // the array hangs 1.1 m above the article's centre, axes along the GCS: DACS = GCS + t
@@ -124,6 +124,29 @@ function renderRegistration(reg) {
     }));
 }
 
+function renderOrientations() {
+  $("#orientations").innerHTML = table(["node", "points", "residual RMS, mm", "uncertainty, °"],
+    geo.orientations.map((r) => [r.node, r.n_points, mm(r.residual_rms_m), f(r.uncertainty_deg, 3)]));
+}
+
+function renderLoas() {
+  $("#loas").innerHTML = table(["node", "direction (GCS)", "strike along", "perp. RMS, mm", "angle std, °"],
+    geo.loas.map((l) => [l.node, l.direction.map((v) => v.toFixed(3)).join(", "), dirName(l.direction), mm(l.perpendicular_rms_m), f(l.angle_std_deg, 3)]));
+}
+
+/** After a reload: the session's points, jig orientations and lines of action as stored (the
+ * setup can be built from them without digitizing again). */
+async function loadGeometry() {
+  const [points, orientations, loas] = await Promise.all([api("GET", "/api/digitizer/points"),
+    api("GET", "/api/digitizer/orientations"), api("GET", "/api/digitizer/lines-of-action")]);
+  Object.assign(geo, { points: items(points), orientations: items(orientations), loas: items(loas) });
+  geo.triaxes = geo.orientations.map((o) => o.node);
+  geo.inputs = geo.loas.map((l) => l.node);
+  if (geo.points.length) renderPoints();
+  if (geo.orientations.length) renderOrientations();
+  if (geo.loas.length) renderLoas();
+}
+
 async function digitizeAll() {
   const a = state.article.setup;
   const jig = state.article.jig;
@@ -155,8 +178,7 @@ async function digitizeAll() {
       step();
     }
     geo.orientations.push(await api("POST", "/api/digitizer/orientations", { node: n }));
-    $("#orientations").innerHTML = table(["node", "points", "residual RMS, mm", "uncertainty, °"],
-      geo.orientations.map((r) => [r.node, r.n_points, mm(r.residual_rms_m), f(r.uncertainty_deg, 3)]));
+    renderOrientations();
   }
   for (const e of inputs) {
     const p = e.position_m;
@@ -168,8 +190,7 @@ async function digitizeAll() {
       labels.push(`loa${e.node}/${j}`);
     }
     geo.loas.push(await api("POST", "/api/digitizer/lines-of-action", { node: e.node, input_label: `in${e.node}`, labels }));
-    $("#loas").innerHTML = table(["node", "direction (GCS)", "strike along", "perp. RMS, mm", "angle std, °"],
-      geo.loas.map((l) => [l.node, l.direction.map((v) => v.toFixed(3)).join(", "), dirName(l.direction), mm(l.perpendicular_rms_m), f(l.angle_std_deg, 3)]));
+    renderLoas();
   }
   const nNew = geo.points.length;
   geo.points = await api("GET", "/api/digitizer/points");
@@ -210,7 +231,7 @@ export function init() {
 /** At load: the reference nodes (no need to wait for the article) and, once the article is
  * known (``article``: the promise of setup.loadArticle), the simulated digitizing controls. */
 export async function load(article) {
-  await Promise.all([loadReferenceNodes(), article.then(() => {
+  await Promise.all([loadReferenceNodes(), loadGeometry().catch((e) => say(e.message, true)), article.then(() => {
     if (!state.article) $("#digitize-all").disabled = true;
     else $("#n-inputs").value = state.article.setup.inputs.length;
   })]);
