@@ -97,6 +97,7 @@ def _decide_all(page: Any) -> None:
         )
 
 
+@pytest.mark.slow
 def test_reload_during_a_run_then_reattach_decides_the_waiting_hit(
     tmp_path: Path, browser: Any
 ) -> None:
@@ -146,6 +147,7 @@ def test_reload_during_a_run_then_reattach_decides_the_waiting_hit(
         page.wait_for_function(
             f"() => !document.querySelector(\"[data-rec][data-id='{acq_id}']\")", timeout=10_000
         )
+        page.context.close()  # before the service stops: its heartbeat would find it gone
     assert not errors, errors
 
 
@@ -268,7 +270,7 @@ def test_double_click_solve_stores_one_solution_that_reopens_after_a_reload(
         report.goto(f"{c.base_url}{href}")
         report.wait_for_function("() => document.body.innerText.includes('mass')", timeout=30_000)
         assert str(sid) in report.inner_text("body")
-        report.close()
+        page.context.close()  # before the service stops: its heartbeat would find it gone
     assert not errors, errors
 
 

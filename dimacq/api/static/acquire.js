@@ -112,7 +112,9 @@ async function showHit() {
   const [f0, f1] = win(-3, 12);
   const [r0, r1] = win(-20, 200);
   const resp = acq.setup && acq.setup.setup.responses[h.response];
-  const rname = resp ? `${resp.node}${resp.direction}` : `output ${h.response + 1}`;
+  // "100+Z": the node and its UFF direction (±1..±3) as the setup names its channels
+  const axis = (d) => (typeof d === "number" ? `${d < 0 ? "-" : "+"}${"XYZ"[Math.abs(d) - 1] || Math.abs(d)}` : String(d));
+  const rname = resp ? `${resp.node}${axis(resp.direction)}` : `output ${h.response + 1}`;
   const ex = acq.setup && h.input_index !== null && h.input_index !== undefined ? acq.setup.setup.inputs[h.input_index] : null;
   const iname = ex ? `${ex.node} ${dirName(ex.direction_gcs)}` : "hammer";
   state.plots.hitForce = linePlot($("#hit-force"), { x: ms.subarray(f0, f1), xLabel: "time from the hit peak, ms", yLabel: "force, N", title: `hit ${h.number} on ${iname}: hammer force (peak ${f(h.peak_force_n, 3)} N)`,
