@@ -1,7 +1,7 @@
 // Step 4: FRFs — magnitude and coherence per input (all outputs or one), CMIF, and the
 // reciprocity and driving-point checks where an input is at a response's place and direction;
 // drag on a plot to pick the solve band.
-import { $, api, authHeaders, emit, esc, f, guard, items, on, state, status, table } from "/static/core.js";
+import { $, api, authHeaders, dirName, emit, esc, f, guard, items, on, state, status, table } from "/static/core.js";
 import { linePlot } from "/static/plot.js";
 import { testQuery } from "/static/test.js";
 
@@ -117,7 +117,13 @@ export function setFrfData(summary, data) {
   state.frfData = { x: Float64Array.from(data.frequencies_hz), outputs: data.responses, inputs: data.inputs, mag, coh, data, names };
   const acc = data.responses.map((o, k) => [o, k]).filter(([o]) => o.kind !== "reaction");
   const lc = data.responses.map((o, k) => [o, k]).filter(([o]) => o.kind === "reaction");
-  $("#frf-input").innerHTML = data.inputs.map((inp, j) => `<option value="${j}">${j + 1}: ${esc(channelName(inp))}</option>`).join("");
+  // each input with the direction it was struck along in the GCS (its UFF label is the node's)
+  const setup = (state.setups || []).find((x) => x.id === summary.setup_id);
+  const along = (inp) => {
+    const e = setup && setup.setup.inputs.find((x) => x.node === inp.node && x.direction === inp.direction);
+    return e ? ` (struck along ${dirName(e.direction_gcs)})` : "";
+  };
+  $("#frf-input").innerHTML = data.inputs.map((inp, j) => `<option value="${j}">${j + 1}: ${esc(channelName(inp))}${esc(along(inp))}</option>`).join("");
   $("#frf-output").innerHTML = (acc.length ? `<option value="acc">all ${acc.length} accelerometers</option>` : "")
     + (lc.length ? `<option value="lc">all ${lc.length} load-cell channels</option>` : "")
     + `<option value="">all ${nO} outputs</option>`
