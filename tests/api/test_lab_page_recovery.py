@@ -143,6 +143,12 @@ def test_reload_during_a_run_then_reattach_decides_the_waiting_hit(
         assert a["state"] == "succeeded", a
         assert a["averages"][0]["number"] == 1 and a["averages"][0]["accepted"], a["averages"]
         assert a["accepted_per_input"] == [2, 2], a
+        # the table's coherence: in the band the solve will use (here the set's span), said so
+        page.wait_for_function(
+            "() => /coherence γ̄² in [0-9.]+–[0-9.]+ Hz/.test("
+            "document.querySelector('#acq-inputs thead').textContent)",
+            timeout=20_000,
+        )
         # nothing left to pick up
         page.wait_for_function(
             f"() => !document.querySelector(\"[data-rec][data-id='{acq_id}']\")", timeout=10_000
