@@ -189,6 +189,13 @@ class SimulatedWorld:
         ppm = np.random.default_rng([fault_seed, 0x0C]).uniform(
             -imp.loadcell_oscillator_ppm, imp.loadcell_oscillator_ppm, len(rig_file.load_cells)
         )
+        # The bus's frame losses and bus-offs: a seeded world replays its seed's; an unseeded
+        # one draws its own, as a bus does (seed 0 for every unseeded run lost the same frame,
+        # pulse 3705 of node 1, at the first strike of every acquisition)
+        fresh = np.random.SeedSequence().entropy  # an int when drawn from the OS
+        assert isinstance(fresh, int)
+        can_seed = fault_seed if seed is not None else fresh
+        self.can_seed = can_seed
         self.can_channel = f"dimacq-sim-{os.getpid()}-{next(_names)}"
         self._sims: list[LoadCellAmplifierSim] = []
         try:
@@ -209,7 +216,7 @@ class SimulatedWorld:
                             frame_loss_rate=imp.can_frame_loss_rate,
                             bus_off_rate=imp.can_bus_off_rate,
                             bus_off_s=imp.can_bus_off_s,
-                            seed=fault_seed,
+                            seed=can_seed,
                         ),
                     )
                 )
@@ -387,6 +394,15 @@ def open_dead_weight_bench(
 
 
 _bench_names = itertools.count()
+
+
+def article_truth(scenario: str) -> dict[str, Any]:
+    """The simulated article's true properties (``dimacq solve --json`` keys, about the
+    scenario's reference point), for the demonstration only: the page shows them beside a
+    solution, marked as the simulator's. Never an input of the solve, which reads only FRFs and
+    the setup."""
+    out: dict[str, Any] = build_scenario(scenario, None).truth_json()
+    return out
 
 
 def article_geometry(scenario: str) -> dict[str, Any]:

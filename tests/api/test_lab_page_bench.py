@@ -129,6 +129,7 @@ def test_inertial_calibration_through_the_page(service: Any, tmp_path: Path) -> 
         # what the page shows is the job's result
         cert = page.inner_text("#bench-cert")
         assert f"{result['uncertainty_pct_fs'][0]:.4f}" in cert
+        assert "NaN" not in cert, cert  # the 6 × 6 crosstalk shown per axis, not as NaN
         circular = page.inner_text("#bench-circular")
         assert f"{result['circular_mass_error_pct']:.3f} %" in circular
         assert result["circular_verdict"].upper() in circular  # CSS upper-cases it

@@ -113,6 +113,8 @@ def test_review_on_the_page(tmp_path: Path) -> None:
             a = page.evaluate("() => window.dimacq.acq.info")
             assert a["averages"][-1]["reason"] == f"double hit; {OPERATOR_OVERRIDE}"
             assert page.locator("#acq-inputs tbody tr").count() == 2
+            # the override stays on record in the input's row
+            assert "hit 5: double hit" in page.inner_text("#acq-inputs .override")
 
             # review unticked while the first hit of the next acquisition waits: the checks
             # decide it and the rest
@@ -143,5 +145,7 @@ def test_review_on_the_page(tmp_path: Path) -> None:
         ("11+X", 1, "incomplete"),
     ], (second["state"], second["id"], msg, prompt, WARNED)
     assert second["state"] == "incomplete" and "11+X" in second["message"], second
+    # the count it was held to: 2 averages asked, so "fewer than 2" (not the service's 3)
+    assert "fewer than 2 accepted averages" in second["message"], second["message"]
     assert "incomplete" in msg and "incomplete (no FRF): 11+X" in prompt, (msg, prompt)
     assert not errors, errors

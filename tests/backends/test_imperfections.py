@@ -112,3 +112,25 @@ def test_digitizing_survives_line_noise_and_port_loss() -> None:
     # each loss the session met: "port lost (...)" then "" once reopened
     assert s.reconnects >= 1 and seen == [seen[0], ""] * s.reconnects, seen
     assert all(x.startswith("port lost (") for x in seen[::2]), seen
+
+
+def test_unseeded_worlds_do_not_replay_one_frame_loss() -> None:
+    """CAN frame losses at 1e-6 per frame: seed 0's stream (what every unseeded world used) loses
+    node 1's frame 3705, about 1.8 s after START at 2048 Hz, so the first strike of every
+    unseeded acquisition came back "load cell 0 samples lost (1)". An unseeded world draws its
+    own bus seed; a seeded one keeps its seed (runs replayable)."""
+    from dimacq.backends.simulated import SimulatedWorld
+    from dimacq.io.rig_file import load_rig_file
+
+    first_loss = np.flatnonzero(np.random.default_rng([0, 1]).random(10_000) < 1e-6)
+    assert first_loss.tolist() == [3705]  # the replayed loss
+    rig = load_rig_file(Path(__file__).resolve().parents[2] / "config" / "rig.toml")
+    worlds = [SimulatedWorld("calibration-mass-bungee", rig, seed) for seed in (None, None, 7, 7)]
+    try:
+        seeds = [[s.faults.seed for s in w._sims] for w in worlds]
+        assert all(seeds) and all(len(set(x)) == 1 for x in seeds), seeds
+        assert seeds[0] != seeds[1]  # unseeded: each world its own losses
+        assert seeds[2] == seeds[3] == [7] * len(seeds[2])  # seeded: replayable
+    finally:
+        for w in worlds:
+            w.close()

@@ -1,4 +1,5 @@
-"""Simulation only: where the virtual lab's sensors and impact points are."""
+"""Simulation only: where the virtual lab's sensors and impact points are, and (for showing
+beside an answer) the simulated article's true properties."""
 
 from __future__ import annotations
 
@@ -23,4 +24,15 @@ async def article(lab: LabDep) -> dict[str, Any]:
     out = await run_in_threadpool(lab.devices.simulated_article)
     if out is None:
         raise HTTPException(404, "no simulated device: the article's geometry is not known")
+    return out
+
+
+@router.get("/truth", response_model=dict[str, Any])
+async def truth(lab: LabDep) -> dict[str, Any]:
+    """The simulated article's true properties (mass, CG, inertia about the scenario's reference
+    point, its modes and suspension frequencies): the simulator's, for a demonstration to show
+    beside a solution; the solve never reads them. 404 when no device is simulated."""
+    out = await run_in_threadpool(lab.devices.simulated_truth)
+    if out is None:
+        raise HTTPException(404, "no simulated device: there is no simulator's truth")
     return out

@@ -8,7 +8,7 @@ import { dirName } from "/static/core.js";
 const $ = (sel) => document.querySelector(sel);
 const TOKEN_KEY = "dimacq-token";
 const esc = (s) => String(s).replace(/[&<>"]/g, (c) => ({ "&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;" })[c]);
-const num = (v, d = 4) => (v === null || v === undefined ? "—" : Number(v).toFixed(d));
+const num = (v, d = 4) => (v === null || v === undefined || !Number.isFinite(Number(v)) ? "—" : Number(v).toFixed(d));
 const AXES = ["Fx", "Fy", "Fz", "Mx", "My", "Mz"];
 const bench = { job: null, result: null, prompts: 0, strikes: 0 };
 window.dimacqBench = bench; // for the browser test
@@ -57,9 +57,19 @@ trigger sees the hit); load cases: put the load in place, then confirm.</p>
 <h3>Calibrations</h3>
 <div id="bench-list" class="scroll"></div>`;
 
+/** Crosstalk per axis from the certificate's 6 × 6 ``[i][j]`` (error on axis i while axis j
+ * carries the load): the largest over the other axes j ≠ i that were loaded (null: none was). */
+function crosstalkPerAxis(m) {
+  if (!Array.isArray(m) || !Array.isArray(m[0])) return m;
+  return m.map((row, i) => {
+    const v = row.filter((x, j) => j !== i && x !== null && Number.isFinite(Number(x))).map(Number);
+    return v.length ? Math.max(...v) : null;
+  });
+}
+
 function certificateTable(r) {
   const rows = [["nonlinearity", r.nonlinearity_pct_fs], ["hysteresis", r.hysteresis_pct_fs],
-    ["uncertainty (k = 2)", r.uncertainty_pct_fs], ["crosstalk", r.crosstalk_pct_fs]]
+    ["uncertainty (k = 2)", r.uncertainty_pct_fs], ["crosstalk (largest from another axis)", crosstalkPerAxis(r.crosstalk_pct_fs)]]
     .filter(([, v]) => Array.isArray(v));
   const th = AXES.map((a) => `<th>${a}</th>`).join("");
   const tr = rows.map(([n, v]) => `<tr><td class="l">${esc(n)}</td>${v.map((x) => `<td>${num(x)}</td>`).join("")}</tr>`).join("");
@@ -119,6 +129,9 @@ async function follow(jobId) {
       bench.prompts += 1;
       $("#bench-prompt").textContent = `Load case ${p.case + 1} of ${p.of}: ${p.message}`;
       $("#bench-confirm").disabled = false;
+    } else if (!p.waiting && waitingCase === null && st.message) {
+      // nothing asked of the operator now: what the bench does
+      $("#bench-prompt").textContent = st.message;
     }
     await new Promise((res) => setTimeout(res, 250));
   }

@@ -1,7 +1,7 @@
 // Step 2: digitize — a new test, reference nodes (editable), live point readout with shots and
 // echo rejections, registration residual per node with its limit, jig orientations, lines of
 // action, redo a point; in simulation the page points the simulated probe at the article.
-import { $, api, dirName, emit, esc, f, guard, mm, on, say, state, table } from "/static/core.js";
+import { $, UserError, api, dirName, emit, esc, f, guard, items, job, mm, on, say, state, table } from "/static/core.js";
 
 function arrayPlacement() {
   // the array hangs 1.1 m above the article's centre, axes along the GCS: DACS = GCS + t
@@ -81,12 +81,36 @@ function renderReferenceNodes(refs) {
   }
 }
 
+/** The article's extent (GCS, m): the box around the positions of the simulated article or of
+ * the open setup; null when neither is known. */
+function articleBox() {
+  const st = (state.article && state.article.setup) || (state.setup && state.setup.setup);
+  if (!st) return null;
+  const pts = [...(st.responses || []), ...(st.inputs || []), ...(st.load_cells || [])].map((c) => c.position_m).filter(Boolean);
+  if (!pts.length) return null;
+  const lo = [0, 1, 2].map((k) => Math.min(...pts.map((q) => q[k])));
+  const hi = [0, 1, 2].map((k) => Math.max(...pts.map((q) => q[k])));
+  return { lo, hi, size: Math.max(...hi.map((v, k) => v - lo[k])) };
+}
+
 async function setReferenceNode() {
   const label = $("#ref-label").value.trim();
-  const p = ["#ref-x", "#ref-y", "#ref-z"].map((id) => parseFloat($(id).value));
-  if (!label) throw new Error("reference node label: give one (e.g. REF1)");
-  if (p.some((v) => !Number.isFinite(v))) throw new Error("reference node position: give x, y, z in m");
+  const ids = ["#ref-x", "#ref-y", "#ref-z"];
+  const p = ids.map((id) => Number($(id).value.trim() === "" ? NaN : $(id).value));
+  if (!label) throw new UserError("reference node label: give one (e.g. REF1)", { selector: "#ref-label" });
+  const bad = p.findIndex((v) => !Number.isFinite(v));
+  if (bad >= 0) throw new UserError(`reference node ${"xyz"[bad]}: give a number in m`, { selector: ids[bad] });
+  // a reference node is on or next to the article: within its size of its box (at least 1 m)
+  const box = articleBox();
+  if (box) {
+    const margin = Math.max(1, box.size);
+    const out = p.findIndex((v, k) => v < box.lo[k] - margin || v > box.hi[k] + margin);
+    if (out >= 0) {
+      throw new UserError(`reference node ${"xyz"[out]} = ${p[out]} m is ${f(Math.abs(p[out] - (p[out] < box.lo[out] ? box.lo[out] : box.hi[out])), 3)} m outside the article (${f(box.lo[out], 3)}…${f(box.hi[out], 3)} m along ${"xyz"[out]}); give the node's position in m, in the GCS`, { selector: ids[out] });
+    }
+  }
   renderReferenceNodes(await api("PUT", `/api/digitizer/reference-nodes/${encodeURIComponent(label)}`, { position_m: p }));
+  return `reference node ${label} set`;
 }
 
 function renderRegistration(reg) {
@@ -98,6 +122,29 @@ function renderRegistration(reg) {
       const over = limit !== null && v > limit;
       return [esc(l), `<span class="${over ? "over" : "ok"}">${mm(v)}</span>`, limit !== null ? mm(limit) : "—"];
     }));
+}
+
+function renderOrientations() {
+  $("#orientations").innerHTML = table(["node", "points", "residual RMS, mm", "uncertainty, °"],
+    geo.orientations.map((r) => [r.node, r.n_points, mm(r.residual_rms_m), f(r.uncertainty_deg, 3)]));
+}
+
+function renderLoas() {
+  $("#loas").innerHTML = table(["node", "direction (GCS)", "strike along", "perp. RMS, mm", "angle std, °"],
+    geo.loas.map((l) => [l.node, l.direction.map((v) => v.toFixed(3)).join(", "), dirName(l.direction), mm(l.perpendicular_rms_m), f(l.angle_std_deg, 3)]));
+}
+
+/** After a reload: the session's points, jig orientations and lines of action as stored (the
+ * setup can be built from them without digitizing again). */
+async function loadGeometry() {
+  const [points, orientations, loas] = await Promise.all([api("GET", "/api/digitizer/points"),
+    api("GET", "/api/digitizer/orientations"), api("GET", "/api/digitizer/lines-of-action")]);
+  Object.assign(geo, { points: items(points), orientations: items(orientations), loas: items(loas) });
+  geo.triaxes = geo.orientations.map((o) => o.node);
+  geo.inputs = geo.loas.map((l) => l.node);
+  if (geo.points.length) renderPoints();
+  if (geo.orientations.length) renderOrientations();
+  if (geo.loas.length) renderLoas();
 }
 
 async function digitizeAll() {
@@ -131,8 +178,7 @@ async function digitizeAll() {
       step();
     }
     geo.orientations.push(await api("POST", "/api/digitizer/orientations", { node: n }));
-    $("#orientations").innerHTML = table(["node", "points", "residual RMS, mm", "uncertainty, °"],
-      geo.orientations.map((r) => [r.node, r.n_points, mm(r.residual_rms_m), f(r.uncertainty_deg, 3)]));
+    renderOrientations();
   }
   for (const e of inputs) {
     const p = e.position_m;
@@ -144,8 +190,7 @@ async function digitizeAll() {
       labels.push(`loa${e.node}/${j}`);
     }
     geo.loas.push(await api("POST", "/api/digitizer/lines-of-action", { node: e.node, input_label: `in${e.node}`, labels }));
-    $("#loas").innerHTML = table(["node", "direction (GCS)", "strike along", "perp. RMS, mm", "angle std, °"],
-      geo.loas.map((l) => [l.node, l.direction.map((v) => v.toFixed(3)).join(", "), dirName(l.direction), mm(l.perpendicular_rms_m), f(l.angle_std_deg, 3)]));
+    renderLoas();
   }
   const nNew = geo.points.length;
   geo.points = await api("GET", "/api/digitizer/points");
@@ -175,7 +220,7 @@ async function buildSetup() {
 export function init() {
   $("#new-session").onclick = guard(async () => { await newSession(); say($("#test-state").textContent); });
   on("test-created", () => newSession());
-  $("#ref-set").onclick = guard(setReferenceNode);
+  $("#ref-set").onclick = job("digitize", "#ref-set", "setting the reference node…", setReferenceNode);
   $("#digitize-all").onclick = guard(async () => {
     $("#digitize-all").disabled = true;
     try { await digitizeAll(); } finally { $("#digitize-all").disabled = false; }
@@ -186,7 +231,7 @@ export function init() {
 /** At load: the reference nodes (no need to wait for the article) and, once the article is
  * known (``article``: the promise of setup.loadArticle), the simulated digitizing controls. */
 export async function load(article) {
-  await Promise.all([loadReferenceNodes(), article.then(() => {
+  await Promise.all([loadReferenceNodes(), loadGeometry().catch((e) => say(e.message, true)), article.then(() => {
     if (!state.article) $("#digitize-all").disabled = true;
     else $("#n-inputs").value = state.article.setup.inputs.length;
   })]);

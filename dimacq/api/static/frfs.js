@@ -1,7 +1,7 @@
 // Step 4: FRFs — magnitude and coherence per input (all outputs or one), CMIF, and the
 // reciprocity and driving-point checks where an input is at a response's place and direction;
 // drag on a plot to pick the solve band.
-import { $, api, emit, esc, f, guard, items, on, state, table } from "/static/core.js";
+import { $, api, authHeaders, dirName, emit, esc, f, guard, items, on, state, status, table } from "/static/core.js";
 import { linePlot } from "/static/plot.js";
 import { testQuery } from "/static/test.js";
 
@@ -9,16 +9,91 @@ import { testQuery } from "/static/test.js";
 export async function loadFrfSets(select) {
   const sets = items(await api("GET", `/api/frfs${testQuery()}`));
   $("#frf-set").innerHTML = `<option value="">—</option>` + sets.map((s) => `<option value="${s.id}">${s.id} ${esc(s.name)} (${s.n_responses}×${s.n_inputs}×${s.n_lines})</option>`).join("");
+  state.frfSets = sets;
   if (select) {
     $("#frf-set").value = select;
     await openFrf(+select);
   }
 }
 
+/** GET ``path`` as JSON with its progress shown on ``#frf-progress`` (the bytes read of the
+ * answer's length) and in the step's status line. */
+async function readWithProgress(path, what) {
+  const bar = $("#frf-progress");
+  let r;
+  try { r = await fetch(path, { headers: authHeaders() }); } catch { return api("GET", path); }
+  if (!r.ok || !r.body) return api("GET", path); // the error in the user's words
+  const total = +r.headers.get("Content-Length") || 0;
+  const reader = r.body.getReader();
+  const parts = [];
+  let got = 0;
+  bar.hidden = false;
+  for (;;) {
+    const { value, done } = await reader.read();
+    if (done) break;
+    parts.push(value);
+    got += value.length;
+    bar.firstElementChild.style.width = total ? `${(100 * got) / total}%` : "50%";
+    status("frfs").update(`${what}: ${(got / 1e6).toFixed(1)}${total ? ` of ${(total / 1e6).toFixed(1)}` : ""} MB read`);
+  }
+  bar.hidden = true;
+  const buf = new Uint8Array(got);
+  let k = 0;
+  for (const p of parts) { buf.set(p, k); k += p.length; }
+  return JSON.parse(new TextDecoder().decode(buf));
+}
+
+/** Name of a channel as the setup and the report write it: "101+X", a load cell's "LC1 Fx". */
+function channelName(c) {
+  const d = c.direction;
+  if (c.kind === "reaction") return `LC${c.node} ${["Fx", "Fy", "Fz", "Mx", "My", "Mz"][Math.abs(d) - 1] || d}`;
+  const ax = ["X", "Y", "Z", "RX", "RY", "RZ"][Math.abs(d) - 1] || String(d);
+  return `${c.node}${d < 0 ? "-" : "+"}${ax}`;
+}
+
+/** The FRF's unit as the set states it ("(m/s²)/N"); a bare numerator gets the input's. */
+function frfUnit(unit, den = "N") {
+  if (unit.includes("/")) return unit;
+  return `${/ /.test(unit) ? `(${unit})` : unit}/${den}`;
+}
+
+const FRF_KEY = "dimacq-frf";
+
+/** After a reload: the set this tab had open, when it is still listed (read after the page is
+ * ready: a large set takes seconds, the page answers meanwhile). */
+export async function restore() {
+  const kept = +sessionStorage.getItem(FRF_KEY);
+  if (kept && (state.frfSets || []).some((s) => s.id === kept) && (!state.frf || state.frf.id !== kept)) {
+    $("#frf-set").value = kept;
+    await openFrf(kept);
+  }
+}
+
 export async function openFrf(id) {
   const t0 = performance.now();
-  const [summary, data] = await Promise.all([api("GET", `/api/frfs/${id}`), api("GET", `/api/frfs/${id}/data`)]);
+  sessionStorage.setItem(FRF_KEY, String(id));
+  const line = status("frfs");
+  line.busy(`reading FRF set ${id}…`);
+  for (const k of ["#frf-mag", "#frf-coh", "#frf-cmif"]) $(k).classList.add("stale");
+  let summary;
+  let data;
+  try {
+    [summary, data] = await Promise.all([api("GET", `/api/frfs/${id}`), readWithProgress(`/api/frfs/${id}/data`, `reading FRF set ${id}`)]);
+  } catch (e) {
+    line.fail(e);
+    throw e;
+  } finally {
+    for (const k of ["#frf-mag", "#frf-coh", "#frf-cmif"]) $(k).classList.remove("stale");
+  }
   state.timings.frf_fetch_ms = performance.now() - t0;
+  setFrfData(summary, data);
+  line.done(`FRF set ${id}: ${data.responses.length} outputs × ${data.inputs.length} inputs × ${data.frequencies_hz.length} lines, read in ${((performance.now() - t0) / 1000).toFixed(1)} s`);
+  await emit("frf-opened", summary);
+}
+
+/** Show an FRF set from its arrays (``data`` as ``GET /api/frfs/{id}/data`` gives it: any
+ * fetch that yields these arrays, JSON or binary, can feed the plots). */
+export function setFrfData(summary, data) {
   state.frf = summary;
   const nL = data.frequencies_hz.length;
   const nO = data.responses.length;
@@ -38,29 +113,47 @@ export async function openFrf(id) {
       mag[j].push(m); coh[j].push(c);
     }
   }
-  state.frfData = { x: Float64Array.from(data.frequencies_hz), outputs: data.responses, inputs: data.inputs, mag, coh, data };
-  $("#frf-input").innerHTML = data.inputs.map((inp, j) => `<option value="${j}">${j + 1}: node ${inp.node} dir ${inp.direction}</option>`).join("");
-  $("#frf-output").innerHTML = `<option value="">all ${nO} outputs</option>` + data.responses.map((o, k) => `<option value="${k}">${k + 1}: node ${o.node} dir ${o.direction}</option>`).join("");
+  const names = data.responses.map(channelName);
+  state.frfData = { x: Float64Array.from(data.frequencies_hz), outputs: data.responses, inputs: data.inputs, mag, coh, data, names };
+  const acc = data.responses.map((o, k) => [o, k]).filter(([o]) => o.kind !== "reaction");
+  const lc = data.responses.map((o, k) => [o, k]).filter(([o]) => o.kind === "reaction");
+  // each input with the direction it was struck along in the GCS (its UFF label is the node's)
+  const setup = (state.setups || []).find((x) => x.id === summary.setup_id);
+  const along = (inp) => {
+    const e = setup && setup.setup.inputs.find((x) => x.node === inp.node && x.direction === inp.direction);
+    return e ? ` (struck along ${dirName(e.direction_gcs)})` : "";
+  };
+  $("#frf-input").innerHTML = data.inputs.map((inp, j) => `<option value="${j}">${j + 1}: ${esc(channelName(inp))}${esc(along(inp))}</option>`).join("");
+  $("#frf-output").innerHTML = (acc.length ? `<option value="acc">all ${acc.length} accelerometers</option>` : "")
+    + (lc.length ? `<option value="lc">all ${lc.length} load-cell channels</option>` : "")
+    + `<option value="">all ${nO} outputs</option>`
+    + data.responses.map((o, k) => `<option value="${k}">${k + 1}: ${esc(names[k])}${o.kind === "reaction" ? " (load cell)" : ""}</option>`).join("");
   $("#frf-info").textContent = `${nO} outputs × ${nI} inputs × ${nL} lines, ${f(summary.f_min_hz)}–${f(summary.f_max_hz)} Hz`;
   drawFrfs();
   drawCmif();
   checks();
-  await emit("frf-opened", summary);
 }
 
 function drawFrfs() {
   const d = state.frfData;
   const j = +$("#frf-input").value || 0;
   const o = $("#frf-output").value;
-  const outs = o === "" ? d.mag[j].map((_, k) => k) : [+o];
+  const byKind = (lc) => d.outputs.map((c, k) => [c, k]).filter(([c]) => (c.kind === "reaction") === lc).map(([, k]) => k);
+  const outs = o === "acc" ? byKind(false) : o === "lc" ? byKind(true) : o === "" ? d.mag[j].map((_, k) => k) : [+o];
   const onBand = (lo, hi) => setBand(lo, hi);
-  const mag = linePlot($("#frf-mag"), { x: d.x, logY: true, xLabel: "frequency, Hz", yLabel: "|H|",
-    title: `FRF magnitude, input ${j + 1} (${o === "" ? `all ${d.outputs.length} outputs` : `output ${+o + 1}`})`, band: state.band,
-    series: outs.map((k) => ({ y: d.mag[j][k] })), onBand });
+  const inUnit = d.inputs[j] && d.inputs[j].unit ? d.inputs[j].unit : "N";
+  const units = [...new Set(outs.map((k) => frfUnit(d.outputs[k].unit || "m/s²", inUnit)))];
+  const what = o === "acc" ? `${outs.length} accelerometers` : o === "lc" ? `${outs.length} load-cell channels` : o === "" ? `all ${d.outputs.length} outputs` : d.names[+o];
+  const scale = { logX: $("#frf-logx").checked, db: $("#frf-db").checked };
+  const series = outs.map((k) => ({ y: d.mag[j][k], label: d.names[k], group: d.outputs[k].kind === "reaction" ? "load cells" : "accelerometers" }));
+  const mag = linePlot($("#frf-mag"), { x: d.x, logY: true, ...scale, xLabel: "frequency, Hz", xUnit: "Hz", yLabel: "|H|",
+    yUnit: units.join(" and "),
+    title: `FRF magnitude, input ${j + 1} ${channelName(d.inputs[j])} (${what})`, band: state.band, keepView: true,
+    series, onBand });
   state.timings.frf_draw_ms = mag.ms;
   state.plots.mag = mag;
-  state.plots.coh = linePlot($("#frf-coh"), { x: d.x, yRange: [0, 1.02], xLabel: "frequency, Hz", yLabel: "γ²",
-    title: "coherence", band: state.band, series: outs.map((k) => ({ y: d.coh[j][k] })), onBand });
+  state.plots.coh = linePlot($("#frf-coh"), { x: d.x, logX: scale.logX, yRange: [0, 1.02], xLabel: "frequency, Hz", xUnit: "Hz", yLabel: "γ²", yUnit: "1",
+    title: "coherence", band: state.band, keepView: true, legend: false, series: series.map((s, i) => ({ ...s, y: d.coh[j][outs[i]] })), onBand });
 }
 
 /** Setup geometry of the set's channels: which outputs are accelerometers, and which input is
@@ -201,9 +294,10 @@ function drawCmif() {
       }
     }
   }
-  state.plots.cmif = linePlot($("#frf-cmif"), { x: d.x, logY: true, xLabel: "frequency, Hz", yLabel: "σ",
-    title: "CMIF (two largest singular values, accelerometers)", band: state.band,
-    series: sv.map((y) => ({ y })), onBand: (lo, hi) => setBand(lo, hi) });
+  const accUnit = outs.length ? (d.outputs[outs[0]].unit || "m/s²") : "m/s²";
+  state.plots.cmif = linePlot($("#frf-cmif"), { x: d.x, logY: true, logX: $("#frf-logx").checked, db: $("#frf-db").checked, xLabel: "frequency, Hz", xUnit: "Hz", yLabel: "σ",
+    yUnit: frfUnit(accUnit), title: "CMIF (two largest singular values, accelerometers)", band: state.band, keepView: true,
+    series: sv.map((y, k) => ({ y, label: `σ${k + 1}` })), onBand: (lo, hi) => setBand(lo, hi) });
 }
 
 export function setBand(lo, hi) {
@@ -220,6 +314,14 @@ export function setBand(lo, hi) {
 
 export function init() {
   $("#frf-set").onchange = guard(async () => { if ($("#frf-set").value) await openFrf(+$("#frf-set").value); });
+  // scales for the three plots at once; the wheel's zoom stays on each
+  const rescale = () => {
+    for (const k of ["mag", "cmif"]) if (state.plots[k]) state.plots[k].setScale({ logX: $("#frf-logx").checked, db: $("#frf-db").checked });
+    if (state.plots.coh) state.plots.coh.setScale({ logX: $("#frf-logx").checked });
+  };
+  $("#frf-logx").onchange = rescale;
+  $("#frf-db").onchange = rescale;
+  $("#frf-reset").onclick = () => { for (const k of ["mag", "coh", "cmif"]) if (state.plots[k]) state.plots[k].reset(); };
   $("#frf-input").onchange = () => drawFrfs();
   $("#frf-output").onchange = () => drawFrfs();
   on("frf-stored", (id) => loadFrfSets(id));

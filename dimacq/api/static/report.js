@@ -87,6 +87,8 @@ async function main() {
     const k = band.inputs.findIndex((i) => i.node === e.node && i.direction === e.direction);
     return [j + 1, e.node, by ? by.id : "—", avs.filter((a) => a.accepted).length, avs.filter((a) => !a.accepted).length,
       `<span class="l small">${esc([...new Set(avs.filter((a) => !a.accepted).map((a) => a.reason))].join("; "))}</span>`,
+      // hits the operator accepted over the checks: in the FRFs, their reasons on record
+      `<span class="l small warn override">${esc(avs.filter((a) => a.accepted && a.reason).map((a) => `hit ${a.number}: ${a.reason.replace(/; accepted by the operator over the checks$/, "")}`).join("; "))}</span>`,
       k < 0 ? "no FRF" : f(coh[k], 3)];
   });
   document.title = `dimacq report — solution ${s.id}`;
@@ -105,7 +107,7 @@ async function main() {
   <section><h2>Data quality</h2>
   <p>FRF set ${frf.id} (${esc(frf.name)}): ${frf.n_responses} outputs × ${frf.n_inputs} inputs × ${frf.n_lines} lines, ${f(frf.f_min_hz)}–${f(frf.f_max_hz)} Hz.
   ${chain.length ? `Acquisitions ${chain.map((a) => a.id).reverse().join(", ")}: ${chain.reduce((n, a) => n + a.averages_accepted, 0)} averages accepted, ${chain.reduce((n, a) => n + a.averages_rejected, 0)} rejected (every hit is kept on the stand's disk with its reason).` : "FRFs imported (no acquisition record)."}</p>
-  ${table(["input", "node", "acquisition", "accepted", "rejected", "reasons", "mean γ² in band"], perInput)}
+  ${table(["input", "node", "acquisition", "accepted", "rejected", "reasons", "accepted over the checks", "mean γ² in band"], perInput)}
   <p>excluded responses: ${esc(JSON.stringify(r.excluded_responses || []))}; excluded inputs: ${esc(JSON.stringify(r.excluded_inputs || []))}</p></section>
   <section><h2>Figures</h2>
   <canvas id="report-frf" class="plot"></canvas>
@@ -118,7 +120,7 @@ async function main() {
   view3d(document.getElementById("report-3d"), st);
   const canvas = document.getElementById("report-frf");
   const fig = await figureP;
-  linePlot(canvas, { x: fig.x, series: fig.series, logY: true, band: r.band_hz, xLabel: "frequency, Hz", yLabel: "|H|, (m/s²)/N",
+  linePlot(canvas, { x: fig.x, series: fig.series, logY: true, band: r.band_hz, xLabel: "frequency, Hz", xUnit: "Hz", yLabel: "|H|", yUnit: "(m/s²)/N",
     title: `accelerances of inputs 1–${fig.shown} (${fig.series.length} of ${acc.length * frf.n_inputs}; ${fig.linesPerPoint > 1 ? `largest and smallest |H| of every ${fig.linesPerPoint} lines` : "every line"}), the band shaded` });
   // parameters against frequency: one small plot per parameter, from the solution's spectrum
   const sp = await spectrumP;

@@ -496,9 +496,11 @@ class AcquisitionService(AcquisitionReview, AcquisitionRecovery):
             if frf.meta.get("incomplete_inputs"):
                 # not a success: inputs are missing from the set (state "incomplete")
                 state = "incomplete"
+                # the count the run held them to: min_averages capped at the averages asked
+                need = min(int(cfg["min_averages"]), int(cfg.get("averages_per_input") or 10**6))
                 message += (
                     f"; inputs {frf.meta['incomplete_inputs']} incomplete (fewer than "
-                    f"{cfg['min_averages']} accepted averages): no FRF, strike them again "
+                    f"{need} accepted averages): no FRF, strike them again "
                     f"(append them into FRF set {fid})"
                 )
             message += _lost_note(names, live.lost)

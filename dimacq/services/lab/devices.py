@@ -209,6 +209,18 @@ class DeviceService:
         self._article = out
         return out
 
+    def simulated_truth(self) -> dict[str, Any] | None:
+        """The simulated article's true properties (the simulator's, for showing beside an
+        answer), or None when no device is simulated."""
+        s = self.settings
+        if not any(is_simulated(k, getattr(s, k)) for k in ("daq", "loadcell", "digitizer")):
+            return None
+        from dimacq.backends import import_factory
+
+        truth = import_factory("dimacq.backends.simulated:article_truth", setting="scenario")
+        out: dict[str, Any] = truth(s.scenario)
+        return out
+
     def digitizer(self) -> SerialDigitizer:
         """The open digitizer driver (DeviceStateError if it is not connected)."""
         self.session()
