@@ -25,7 +25,6 @@ import json
 import logging
 import re
 import secrets
-import tempfile
 import time
 from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
@@ -51,6 +50,7 @@ from dimacq.api.guards import (
     is_loopback,
     is_wildcard,
 )
+from dimacq.api.public import hide_root, public
 from dimacq.api.routers import (
     acquisitions,
     calibrations,
@@ -166,15 +166,9 @@ class TokenMiddleware:
         await self.app(scope, receive, send)
 
 
-#: Temporary directories the server spools uploads to (never shown to a client).
-_TEMP_PATH = re.compile(
-    r"(?<![\w/.~-])" + re.escape(tempfile.gettempdir().rstrip("/")) + r"/[^\s:;,'\")]*"
-)
-
-
 def _public(text: str) -> str:
-    """``text`` without server paths of temporary files."""
-    return _TEMP_PATH.sub("<upload>", text)
+    """``text`` without server paths (:func:`dimacq.api.public.public`)."""
+    return public(text)
 
 
 def _error(
@@ -504,6 +498,8 @@ def create_app(
     )
     app.state.settings = settings
     app.state.token = token
+    hide_root(settings.data_dir, "data")
+    hide_root(settings.rig_path.parent, "rig")
     _install_error_handlers(app)
     for r in (
         status,
