@@ -40,6 +40,7 @@ from fastapi.responses import FileResponse, HTMLResponse, JSONResponse
 from fastapi.staticfiles import StaticFiles
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.requests import ClientDisconnect
+from starlette.responses import Response
 from starlette.types import ASGIApp, Receive, Scope, Send
 
 from dimacq.api.guards import (
@@ -350,7 +351,21 @@ def _mount_page(app: FastAPI) -> None:
     async def report() -> FileResponse:
         return FileResponse(STATIC_DIR / "report.html", headers=PAGE_HEADERS)
 
-    app.mount("/static", StaticFiles(directory=STATIC_DIR), name="static")
+    app.mount("/static", PageStaticFiles(directory=STATIC_DIR), name="static")
+
+
+class PageStaticFiles(StaticFiles):
+    """The page's assets; an HTML file among them (``/static/index.html``) is the page itself
+    and gets :data:`PAGE_HEADERS` (CSP, framing, referrer) as ``/`` does; every asset is
+    ``nosniff``."""
+
+    async def get_response(self, path: str, scope: Scope) -> Response:
+        response = await super().get_response(path, scope)
+        if response.headers.get("content-type", "").startswith("text/html"):
+            response.headers.update(PAGE_HEADERS)
+        else:
+            response.headers["X-Content-Type-Options"] = "nosniff"
+        return response
 
 
 def _mount_docs(app: FastAPI) -> None:
@@ -499,6 +514,7 @@ def create_app(
     app.state.settings = settings
     app.state.token = token
     hide_root(settings.data_dir, "data")
+    hide_root(settings.data_dir / "tmp", "upload", keep_tail=False)  # the spool (Lab)
     hide_root(settings.rig_path.parent, "rig")
     _install_error_handlers(app)
     for r in (

@@ -15,31 +15,32 @@ from typing import Any
 
 __all__ = ["hide_root", "public", "public_value"]
 
-_ROOTS: dict[str, tuple[re.Pattern[str], str]] = {}
+_ROOTS: dict[str, tuple[re.Pattern[str], str, bool]] = {}
 
 
-def _pattern(root: str, tail: bool) -> re.Pattern[str]:
-    rest = r"/[^\s:;,'\")]*" if tail else r"(?:/[^\s:;,'\")]*)?"
-    return re.compile(r"(?<![\w/.~-])" + re.escape(root.rstrip("/")) + rest)
-
-
-def hide_root(root: str | Path, label: str) -> None:
-    """Show paths under ``root`` as ``<label>/relative`` (``root`` itself as ``<label>``)."""
+def hide_root(root: str | Path, label: str, *, keep_tail: bool = True) -> None:
+    """Show paths under ``root`` as ``<label>/relative`` (``keep_tail``) or as ``<label>``
+    alone (temporary files: their names mean nothing to a client)."""
     for p in {str(Path(root)), str(Path(root).resolve())}:
-        if p not in ("", "/", "."):
-            _ROOTS[p] = (_pattern(p, tail=False), label)
+        p = p.rstrip("/")
+        if p not in ("", "."):
+            rx = re.compile(r"(?<![\w/.~-])" + re.escape(p) + r"(?![\w.~-])(?:/[^\s:;,'\")]*)?")
+            _ROOTS[p] = (rx, label, keep_tail)
 
 
-hide_root(tempfile.gettempdir(), "upload")
+hide_root(tempfile.gettempdir(), "upload", keep_tail=False)
 
 
 def public(text: str) -> str:
     """``text`` with every registered server folder replaced by its label (longest first)."""
     for root in sorted(_ROOTS, key=len, reverse=True):
-        rx, label = _ROOTS[root]
-        text = rx.sub(
-            lambda m, r=root, lab=label: f"<{lab}>{m.group()[len(r.rstrip('/')) :]}", text
-        )
+        rx, label, keep = _ROOTS[root]
+        n = len(root)
+
+        def repl(m: re.Match[str], n: int = n, label: str = label, keep: bool = keep) -> str:
+            return f"<{label}>" + (m.group()[n:] if keep else "")
+
+        text = rx.sub(repl, text)
     return text
 
 

@@ -35,8 +35,8 @@ outputs, ``gauge_unit`` ``"V"``); units are given as
 from __future__ import annotations
 
 import datetime as _dt
-import math
 import json
+import math
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path

@@ -587,10 +587,14 @@ def write_chain_calibration(
             written = True
     if not written:
         raise SetupError(f"rig file {p.name}: no sensitivity_mv_per_n line in [[hammers]]")
-    tmp = p.with_name(p.name + ".tmp")
-    tmp.write_text("\n".join(out) + "\n", encoding="utf-8")
+    import tempfile
+
+    fd, name = tempfile.mkstemp(prefix=".rig-chain-", suffix=".toml", dir=p.parent)
+    tmp = Path(name)
+    with os.fdopen(fd, "w", encoding="utf-8") as fh:  # a new file: never through a link
+        fh.write("\n".join(out) + "\n")
     try:
-        checked = load_rig_file(tmp)
+        checked = parse_rig_text(tmp.read_text(encoding="utf-8"), p)
     except SetupError:
         tmp.unlink(missing_ok=True)
         raise

@@ -109,9 +109,9 @@ class FrfData:
         if bad.any():
             line, out, inp = (int(i[0]) for i in np.nonzero(bad))
             raise DataError(
-                f"FRF {self.outputs[out].name}/{self.inputs[inp].name} has NaN, inf or a "
-                f"magnitude above {MAX_FRF_MAGNITUDE:g} at {f[line]:g} Hz ({int(bad.sum())} "
-                "values in all); remove or re-measure that record"
+                f"FRF {self.outputs[out].name}/{self.inputs[inp].name} has NaN or inf at "
+                f"{f[line]:g} Hz (or a magnitude above {MAX_FRF_MAGNITUDE:g}; "
+                f"{int(bad.sum())} values in all); remove or re-measure that record"
             )
         for kind in self.output_kinds:
             if kind not in ("acceleration", "reaction"):

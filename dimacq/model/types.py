@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import math
 import re
+from pathlib import PurePosixPath, PureWindowsPath
 from typing import Annotated
 
 from pydantic import AfterValidator, Field, Strict
@@ -32,10 +33,12 @@ __all__ = [
     "Finite",
     "FreeText",
     "OneLine",
+    "RelativePath",
     "StrictInt",
     "UnitComponent",
     "check_free_text",
     "check_one_line",
+    "check_relative_path",
 ]
 
 #: Characters refused in one line of text: C0 and C1 controls, DEL, the Unicode line and
@@ -74,6 +77,19 @@ def check_free_text(value: str) -> str:
     return value
 
 
+def check_relative_path(value: str) -> str:
+    """``value`` when it is a relative path that stays in its folder (no absolute path, drive,
+    ``~`` or ``..``); else ``ValueError``. Where it points is the reader's to check (symbolic
+    links)."""
+    check_one_line(value)
+    p = PurePosixPath(value.replace("\\", "/"))
+    if p.is_absolute() or PureWindowsPath(value).is_absolute() or value.startswith("~"):
+        raise ValueError(f"{value!r} is an absolute path; give a path relative to the file")
+    if ".." in p.parts:
+        raise ValueError(f"{value!r} leaves the file's folder ('..'); keep it in that folder")
+    return value
+
+
 def _finite(value: float) -> float:
     if not math.isfinite(value):
         raise ValueError(f"{value!r} is not a finite number; give a finite number")
@@ -90,5 +106,9 @@ Coordinate = Annotated[Finite, Field(ge=-COORDINATE_LIMIT, le=COORDINATE_LIMIT)]
 UnitComponent = Annotated[Finite, Field(ge=-1.0, le=1.0)]
 #: One line of printable text (names, labels, serial numbers, paths).
 OneLine = Annotated[str, AfterValidator(check_one_line)]
+#: A path relative to the file that names it, inside that file's folder.
+RelativePath = Annotated[
+    str, Field(min_length=1, max_length=1000), AfterValidator(check_relative_path)
+]
 #: Printable text that may span lines (notes).
 FreeText = Annotated[str, AfterValidator(check_free_text)]

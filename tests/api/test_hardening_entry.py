@@ -245,3 +245,15 @@ def test_ids_in_canonical_form_only(api: Api, setup_doc: dict[str, Any], path: s
     for digits in ("0" * 5000 + str(item), "0" + str(item), "00" + str(item)):
         r = api.client.get(path + digits)
         assert r.status_code == 404, (path, r.status_code, r.text[:200])
+
+
+# -- the page's headers on every HTML response -------------------------------------------------
+
+
+@pytest.mark.parametrize("path", ["/", "/report", "/static/index.html", "/static/report.html"])
+def test_every_html_response_has_the_page_headers(api: Api, path: str) -> None:
+    r = api.anon.get(path)
+    assert r.status_code == 200 and r.headers["content-type"].startswith("text/html")
+    assert "frame-ancestors 'none'" in r.headers["content-security-policy"]
+    assert r.headers["x-frame-options"] == "DENY"
+    assert r.headers["referrer-policy"] == "no-referrer"
