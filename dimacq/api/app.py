@@ -79,6 +79,7 @@ from dimacq.errors import (
     SetupError,
     SolverError,
 )
+from dimacq.io.measured_points import MAX_POINTS_BYTES
 from dimacq.services.lab import Lab
 
 __all__ = ["create_app"]
@@ -542,6 +543,7 @@ def create_app(
         max_body_bytes=settings.max_body_bytes,
         max_upload_bytes=settings.max_upload_bytes,
         upload_paths=UPLOAD_PATHS,
+        path_limits={"/api/digitizer/points/import": (MAX_POINTS_BYTES, "MAX_POINTS_BYTES")},
     )
     app.add_middleware(TokenMiddleware, token=token, protect_reads=not is_loopback(settings.host))
     app.add_middleware(HostCheckMiddleware, allowed=allowed_hosts(settings))

@@ -33,13 +33,21 @@ from dimacq.errors import SetupError
 from dimacq.io.documents import loads_json
 from dimacq.model.types import check_one_line
 
-__all__ = ["MAX_POINTS", "MeasuredPoint", "MeasuredPoints", "read_measured_points"]
+__all__ = [
+    "MAX_POINTS",
+    "MAX_POINTS_BYTES",
+    "MeasuredPoint",
+    "MeasuredPoints",
+    "read_measured_points",
+]
 
 SCHEMA_VERSION = 1
 KIND = "dimacq.measured_points"
 _UNITS = {"m": 1.0, "mm": 1e-3}
-#: The most points one import may hold (a patch of a laser tracker survey is thousands).
-MAX_POINTS = 20_000
+#: The most points one import may hold (a laser tracker's survey of an article: hundreds).
+MAX_POINTS = 5_000
+#: The largest file of measured points, bytes (the API refuses a bigger one before reading it).
+MAX_POINTS_BYTES = 4 * 2**20
 #: The longest line of a CSV file, characters.
 MAX_LINE_CHARS = 2_000
 MAX_LABEL_CHARS = 200
@@ -189,6 +197,11 @@ def read_measured_points(
     SetupError
         A missing column, unit or label, a non-number, a repeated label (one line naming it).
     """
+    if len(data) > MAX_POINTS_BYTES:
+        raise SetupError(
+            f"{what}: {len(data)} bytes, more than {MAX_POINTS_BYTES} (MAX_POINTS_BYTES); "
+            "split the file into patches"
+        )
     try:
         text = data.decode("utf-8-sig") if isinstance(data, bytes) else data
     except UnicodeDecodeError as err:

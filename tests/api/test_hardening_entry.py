@@ -257,3 +257,84 @@ def test_every_html_response_has_the_page_headers(api: Api, path: str) -> None:
     assert "frame-ancestors 'none'" in r.headers["content-security-policy"]
     assert r.headers["x-frame-options"] == "DENY"
     assert r.headers["referrer-policy"] == "no-referrer"
+
+
+# -- big inputs: bounded, paged, deleted in bulk ------------------------------------------------
+
+
+def test_point_imports_are_bounded_and_points_deleted_in_bulk(api: Api) -> None:
+    from dimacq.io.measured_points import MAX_POINTS, MAX_POINTS_BYTES
+
+    rows = "".join(f"Q{i},{i},0,0\n" for i in range(MAX_POINTS + 1))
+    r = api.client.post(
+        "/api/digitizer/points/import?format=csv", content=b"label,x_mm,y_mm,z_mm\n" + rows.encode()
+    )
+    _refused(r, "MAX_POINTS")
+    r = api.client.post(
+        "/api/digitizer/points/import?format=csv", content=b"x" * (MAX_POINTS_BYTES + 1)
+    )
+    assert r.status_code == 413 and "MAX_POINTS_BYTES" in r.json()["detail"], r.text[:300]
+    ok = "".join(f"B{i},{i},0,0\n" for i in range(30))
+    r = api.client.post(
+        "/api/digitizer/points/import?format=csv", content=b"label,x_mm,y_mm,z_mm\n" + ok.encode()
+    )
+    assert r.status_code == 201, r.text[:300]
+    patch = r.json()[0]["patch"]
+    page = api.client.get("/api/digitizer/points?limit=10")
+    assert len(page.json()) == 10 and int(page.headers["x-total-count"]) >= 30
+    r = api.client.delete(f"/api/digitizer/points?patch={patch}")
+    assert r.status_code == 200 and r.json() == {"deleted": 30}, r.text
+    left = api.client.get("/api/digitizer/points").json()
+    assert not [p for p in left if p["patch"] == patch]
+    _serving(api)
+
+
+# -- start-up refusals ------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("kind", ["file", "unreadable"])
+def test_a_bad_data_dir_is_refused_in_one_line_exit_2(tmp_path: Path, kind: str) -> None:
+    import os
+    import subprocess
+    import sys
+
+    from dimacq.api.server import free_port
+
+    target = tmp_path / "data"
+    if kind == "file":
+        target.write_text("not a folder")
+    else:
+        target.mkdir()
+        (target / "inner").mkdir()
+        target = target / "inner"
+        target.chmod(0)
+        if os.geteuid() == 0:
+            pytest.skip("root reads any folder")
+    env = {k: v for k, v in os.environ.items() if not k.startswith("DIMACQ_")}
+    env["DIMACQ_DATA_DIR"] = str(target)
+    try:
+        out = subprocess.run(
+            [sys.executable, "-m", "dimacq.cli.main", "serve", "--port", str(free_port())],
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
+    finally:
+        target.chmod(0o700)
+    assert out.returncode == 2, (out.returncode, out.stderr[-2000:])
+    lines = [ln for ln in out.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and "data_dir" in lines[0] and "DIMACQ_DATA_DIR" in lines[0], lines
+
+
+def test_a_full_data_dir_is_refused(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import shutil
+
+    from dimacq.config import load_settings
+    from dimacq.errors import SetupError
+
+    settings = load_settings(data_dir=tmp_path / "d", token="t")
+    assert settings.check_data_dir() == tmp_path / "d"
+    monkeypatch.setattr(shutil, "disk_usage", lambda _p: shutil._ntuple_diskusage(10, 10, 1000))  # type: ignore[attr-defined]
+    with pytest.raises(SetupError, match=r"0 MiB free, less than 64 MiB \(MIN_FREE_BYTES\)"):
+        settings.check_data_dir()

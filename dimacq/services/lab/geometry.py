@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
-from sqlalchemy import select
+from sqlalchemy import delete, func, select
 
 from dimacq.errors import DataError, DeviceStateError, SetupError
 from dimacq.model.setup import Excitation, KnownProperties, LoadCell, ResponseChannel, TestSetup
@@ -34,6 +34,7 @@ from dimacq.services.lab.geometry_records import (
     Shots,
     StoredPoint,
 )
+from dimacq.services.lab.records import Page
 
 if TYPE_CHECKING:
     from dimacq.drivers.digitizer import SerialDigitizer
@@ -194,6 +195,25 @@ class GeometryService:
             rows = list(s.scalars(select(m.DigitizedPointRow).order_by(m.DigitizedPointRow.id)))
             regs = self._registrations(s)
         return [self._stored(r, regs) for r in rows]
+
+    def points_page(self, limit: int | None, offset: int) -> Page[StoredPoint]:
+        """One page of the points (id order), cut by the database, and their total count."""
+        with self.db.session() as s:
+            total = int(s.scalar(select(func.count()).select_from(m.DigitizedPointRow)) or 0)
+            q = select(m.DigitizedPointRow).order_by(m.DigitizedPointRow.id).offset(offset)
+            rows = list(s.scalars(q if limit is None else q.limit(limit)))
+            regs = self._registrations(s)
+        return Page([self._stored(r, regs) for r in rows], total)
+
+    def delete_points(self, patch: int | None) -> int:
+        """Delete every digitized point, or those of one patch (an import to do again); fits
+        made from them are kept. Returns how many were deleted."""
+        with self.db.session() as s:
+            q = delete(m.DigitizedPointRow)
+            if patch is not None:
+                q = q.where(m.DigitizedPointRow.patch == patch)
+            done = s.execute(q.execution_options(synchronize_session=False))
+            return int(done.rowcount)  # type: ignore[attr-defined]
 
     @staticmethod
     def _stored(r: m.DigitizedPointRow, regs: dict[int, Registration]) -> StoredPoint:
