@@ -210,6 +210,22 @@ def _path_value(req: Request, name: str) -> str:
     return value if len(value) <= 40 else f"{value[:12]}…({len(value)} digits)"
 
 
+_ITEM = re.compile(r"item '([^']+)'")
+
+
+def _field_of(req: Request, err: Exception) -> str | None:
+    """The field a refusal of the service names: the item the message names inside the body
+    (``body.responses.0.position_m``), else the body (a file or a JSON body refused as a whole),
+    else none (a state of the stand, not a field of the request)."""
+    given = getattr(err, "field", None)
+    if isinstance(given, str):
+        return given
+    if req.method in ("POST", "PUT", "PATCH"):
+        m = _ITEM.search(str(err))
+        return f"body.{m.group(1)}" if m else "body"
+    return None
+
+
 def _install_error_handlers(app: FastAPI) -> None:
     @app.exception_handler(RequestValidationError)
     async def _validation(req: Request, err: RequestValidationError) -> JSONResponse:
@@ -259,16 +275,16 @@ def _install_error_handlers(app: FastAPI) -> None:
         return _error(400, "the client closed the connection before the body was complete")
 
     @app.exception_handler(DataError)
-    async def _data(_req: Request, err: DataError) -> JSONResponse:
-        return _error(400, str(err))
+    async def _data(req: Request, err: DataError) -> JSONResponse:
+        return _error(400, str(err), _field_of(req, err))
 
     @app.exception_handler(SetupError)
-    async def _setup(_req: Request, err: SetupError) -> JSONResponse:
-        return _error(422, str(err))
+    async def _setup(req: Request, err: SetupError) -> JSONResponse:
+        return _error(422, str(err), _field_of(req, err))
 
     @app.exception_handler(SolverError)
-    async def _solver(_req: Request, err: SolverError) -> JSONResponse:
-        return _error(422, str(err))
+    async def _solver(req: Request, err: SolverError) -> JSONResponse:
+        return _error(422, str(err), _field_of(req, err))
 
     @app.exception_handler(DeviceStateError)
     async def _state(_req: Request, err: DeviceStateError) -> JSONResponse:

@@ -37,9 +37,10 @@ CYCLE = textwrap.dedent(
                 return s
             time.sleep(0.1)
         raise SystemExit(f"job {job} did not end")
-    with BackgroundServer(create_app(settings)) as srv, httpx.Client(
-        base_url=srv.url, headers={"Authorization": "Bearer tok"}, timeout=300
-    ) as c:
+    srv = BackgroundServer(create_app(settings))
+    srv.start(timeout_s=300)  # a loaded host: the start may take long
+    c = httpx.Client(base_url=srv.url, headers={"Authorization": "Bearer tok"}, timeout=300)
+    try:
         # import: a setup file and its FRFs (a UFF: spooled for the UFF reader)
         r = c.post("/api/setups/import?format=toml",
                    content=(example / "six_triax_setup.toml").read_bytes())
@@ -68,6 +69,9 @@ CYCLE = textwrap.dedent(
         assert r.status_code == 202, r.text
         snap = wait(c, r.json()["job_id"])
         assert snap["state"] == "succeeded", snap
+    finally:
+        c.close()
+        srv.stop()
     print("cycle done")
     """
 )
