@@ -514,6 +514,12 @@ class DiagnosticOut(BaseModel):
     message: str
 
 
+class DeletedOut(BaseModel):
+    """How many items a bulk delete removed."""
+
+    deleted: int
+
+
 class StandOut(BaseModel):
     """A test stand sharing the database: its service's host, process, API address, start and
     last heartbeat (ISO 8601, UTC)."""

@@ -24,6 +24,7 @@ from dimacq.api.routers._common import (
 from dimacq.api.schemas import (
     LABEL_PATTERN,
     MAX_ID,
+    DeletedOut,
     LineOfActionRequest,
     NewTestRequest,
     OrientationRequest,
@@ -100,7 +101,7 @@ def list_points(lab: LabDep, page: PageDep, response: Response) -> list[StoredPo
     return paged(response, lab.geometry.points_page(page.limit, page.offset), page)
 
 
-@router.delete("/points", response_model=dict[str, int])
+@router.delete("/points", response_model=DeletedOut)
 def delete_points(
     lab: LabDep,
     patch: Annotated[

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
-from sqlalchemy import delete, func, select
+from sqlalchemy import delete, func, insert, select
 
 from dimacq.errors import DataError, DeviceStateError, SetupError
 from dimacq.model.setup import Excitation, KnownProperties, LoadCell, ResponseChannel, TestSetup
@@ -285,20 +285,18 @@ class GeometryService:
         test = self.current_test()
         with self.db.session() as s:
             s.merge(m.PatchRow(index=index, name=name, test=test))
-            for p in points.points:
-                sigma = 0.0 if p.sigma_m is None else p.sigma_m
-                s.add(
-                    m.DigitizedPointRow(
-                        label=p.label,
-                        patch=index,
-                        position_array_m=list(p.xyz_m),
-                        spread_m=[sigma, sigma, sigma],
-                        n_shots=1,
-                        n_used=1,
-                        seqs=[],
-                    )
-                )
-        return [q for q in self.points() if q.patch == index]
+            s.flush()
+            rows = [
+                dict(label=p.label, patch=index, position_array_m=list(p.xyz_m), seqs=[],
+                     spread_m=[p.sigma_m or 0.0] * 3, n_shots=1, n_used=1)
+                for p in points.points
+            ]  # fmt: skip
+            s.execute(insert(m.DigitizedPointRow), rows)  # one executemany, not a row at a time
+        with self.db.session() as s:
+            q = select(m.DigitizedPointRow).where(m.DigitizedPointRow.patch == index)
+            rows = list(s.scalars(q.order_by(m.DigitizedPointRow.id)))
+            regs = self._registrations(s)
+        return [self._stored(r, regs) for r in rows]
 
     def new_test(self, name: str | None = None) -> NewTest:
         """Start a new digitizing test: a fresh patch, no reference nodes, no orientations or
