@@ -4,8 +4,8 @@ or booleans) gets an answer below 500, on SQLite and PostgreSQL, and the service
 
 Each example takes a known-good body of an endpoint, walks to one of its leaves and puts the
 hostile value there. Bounded: 200 examples a database (under 10 s each on 2 cores, the server's
-start aside); bodies that would start work (acquisitions, runs) name an item that does not exist, so a valid one is refused
-after validation and nothing runs."""
+start aside); bodies that would start work (acquisitions, runs) name an item that does not
+exist, so a valid one is refused after validation and nothing runs."""
 
 from __future__ import annotations
 

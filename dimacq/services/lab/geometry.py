@@ -286,12 +286,12 @@ class GeometryService:
         with self.db.session() as s:
             s.merge(m.PatchRow(index=index, name=name, test=test))
             s.flush()
-            rows = [
+            new = [
                 dict(label=p.label, patch=index, position_array_m=list(p.xyz_m), seqs=[],
                      spread_m=[p.sigma_m or 0.0] * 3, n_shots=1, n_used=1)
                 for p in points.points
             ]  # fmt: skip
-            s.execute(insert(m.DigitizedPointRow), rows)  # one executemany, not a row at a time
+            s.execute(insert(m.DigitizedPointRow), new)  # one executemany, not a row at a time
         with self.db.session() as s:
             q = select(m.DigitizedPointRow).where(m.DigitizedPointRow.patch == index)
             rows = list(s.scalars(q.order_by(m.DigitizedPointRow.id)))
