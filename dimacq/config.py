@@ -20,6 +20,7 @@ from __future__ import annotations
 import os
 import re
 import secrets
+import shutil
 import socket
 from pathlib import Path
 from typing import Any, Literal
@@ -57,6 +58,11 @@ def scenario_rig_file(scenario: str) -> str:
         if (rigs / f"{name}.toml").exists():
             return str(rigs / f"{name}.toml")
     return ""
+
+
+#: The least free space on the data folder's disk the service starts with (an acquisition
+#: writes its averages there).
+MIN_FREE_BYTES = 64 * 2**20
 
 
 def _default_data_dir() -> Path:
@@ -264,11 +270,43 @@ class Settings(BaseSettings):
         p = Path(self.loadcell_cia404_eds).expanduser()
         return p if p.is_absolute() else default_config_file().parent / p
 
+    def check_data_dir(self) -> Path:
+        """``data_dir``, created (mode 0700) when missing, checked to be a writable folder with
+        room left (:data:`MIN_FREE_BYTES`); returns it.
+
+        Raises
+        ------
+        SetupError
+            One line naming the setting and the fix: ``data_dir`` is a file, cannot be created,
+            is not writable, or its disk is full.
+        """
+        d = self.data_dir
+        fix = "set data_dir (DIMACQ_DATA_DIR) to a writable folder"
+        if d.exists() and not d.is_dir():
+            raise SetupError(f"data_dir {d} is not a folder; {fix}")
+        try:
+            d.mkdir(mode=0o700, parents=True, exist_ok=True)
+        except OSError as err:
+            raise SetupError(f"data_dir {d} cannot be created ({err.strerror}); {fix}") from None
+        if not os.access(d, os.R_OK | os.W_OK | os.X_OK):
+            raise SetupError(f"data_dir {d} is not readable and writable by this user; {fix}")
+        try:
+            free = shutil.disk_usage(d).free
+        except OSError as err:
+            raise SetupError(f"data_dir {d} cannot be examined ({err.strerror}); {fix}") from None
+        if free < MIN_FREE_BYTES:
+            raise SetupError(
+                f"data_dir {d}: {free // 2**20} MiB free, less than {MIN_FREE_BYTES // 2**20} MiB "
+                f"(MIN_FREE_BYTES); free disk space or {fix} on another disk"
+            )
+        return d
+
     def resolved_token(self) -> str:
         """The access token: configured, or generated once and kept in ``<data_dir>/token``
         (mode 0600: readable by the service's user only)."""
         if self.token:
             return self.token
+        self.check_data_dir()
         path = self.data_dir / "token"
         if path.exists():
             if path.stat().st_mode & 0o077:  # written by an older dimacq or by hand

@@ -25,7 +25,6 @@ import json
 import logging
 import re
 import secrets
-import tempfile
 import time
 from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
@@ -41,6 +40,7 @@ from fastapi.responses import FileResponse, HTMLResponse, JSONResponse
 from fastapi.staticfiles import StaticFiles
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.requests import ClientDisconnect
+from starlette.responses import Response
 from starlette.types import ASGIApp, Receive, Scope, Send
 
 from dimacq.api.guards import (
@@ -52,6 +52,7 @@ from dimacq.api.guards import (
     is_wildcard,
 )
 from dimacq.api.manual import mount_manual
+from dimacq.api.public import hide_root, public
 from dimacq.api.routers import (
     acquisitions,
     calibrations,
@@ -79,6 +80,7 @@ from dimacq.errors import (
     SetupError,
     SolverError,
 )
+from dimacq.io.measured_points import MAX_POINTS_BYTES
 from dimacq.services.lab import Lab
 
 __all__ = ["create_app"]
@@ -167,15 +169,9 @@ class TokenMiddleware:
         await self.app(scope, receive, send)
 
 
-#: Temporary directories the server spools uploads to (never shown to a client).
-_TEMP_PATH = re.compile(
-    r"(?<![\w/.~-])" + re.escape(tempfile.gettempdir().rstrip("/")) + r"/[^\s:;,'\")]*"
-)
-
-
 def _public(text: str) -> str:
-    """``text`` without server paths of temporary files."""
-    return _TEMP_PATH.sub("<upload>", text)
+    """``text`` without server paths (:func:`dimacq.api.public.public`)."""
+    return public(text)
 
 
 def _error(
@@ -213,6 +209,22 @@ def _allowed_methods(app: FastAPI, path: str) -> set[str]:
 def _path_value(req: Request, name: str) -> str:
     value = str(req.path_params.get(name, "?"))
     return value if len(value) <= 40 else f"{value[:12]}…({len(value)} digits)"
+
+
+_ITEM = re.compile(r"item '([^']+)'")
+
+
+def _field_of(req: Request, err: Exception) -> str | None:
+    """The field a refusal of the service names: the item the message names inside the body
+    (``body.responses.0.position_m``), else the body (a file or a JSON body refused as a whole),
+    else none (a state of the stand, not a field of the request)."""
+    given = getattr(err, "field", None)
+    if isinstance(given, str):
+        return given
+    if req.method in ("POST", "PUT", "PATCH"):
+        m = _ITEM.search(str(err))
+        return f"body.{m.group(1)}" if m else "body"
+    return None
 
 
 def _install_error_handlers(app: FastAPI) -> None:
@@ -264,16 +276,16 @@ def _install_error_handlers(app: FastAPI) -> None:
         return _error(400, "the client closed the connection before the body was complete")
 
     @app.exception_handler(DataError)
-    async def _data(_req: Request, err: DataError) -> JSONResponse:
-        return _error(400, str(err))
+    async def _data(req: Request, err: DataError) -> JSONResponse:
+        return _error(400, str(err), _field_of(req, err))
 
     @app.exception_handler(SetupError)
-    async def _setup(_req: Request, err: SetupError) -> JSONResponse:
-        return _error(422, str(err))
+    async def _setup(req: Request, err: SetupError) -> JSONResponse:
+        return _error(422, str(err), _field_of(req, err))
 
     @app.exception_handler(SolverError)
-    async def _solver(_req: Request, err: SolverError) -> JSONResponse:
-        return _error(422, str(err))
+    async def _solver(req: Request, err: SolverError) -> JSONResponse:
+        return _error(422, str(err), _field_of(req, err))
 
     @app.exception_handler(DeviceStateError)
     async def _state(_req: Request, err: DeviceStateError) -> JSONResponse:
@@ -357,8 +369,22 @@ def _mount_page(app: FastAPI) -> None:
     async def report() -> FileResponse:
         return FileResponse(STATIC_DIR / "report.html", headers=PAGE_HEADERS)
 
-    app.mount("/static", StaticFiles(directory=STATIC_DIR), name="static")
+    app.mount("/static", PageStaticFiles(directory=STATIC_DIR), name="static")
     mount_manual(app, PAGE_HEADERS)
+
+
+class PageStaticFiles(StaticFiles):
+    """The page's assets; an HTML file among them (``/static/index.html``) is the page itself
+    and gets :data:`PAGE_HEADERS` (CSP, framing, referrer) as ``/`` does; every asset is
+    ``nosniff``."""
+
+    async def get_response(self, path: str, scope: Scope) -> Response:
+        response = await super().get_response(path, scope)
+        if response.headers.get("content-type", "").startswith("text/html"):
+            response.headers.update(PAGE_HEADERS)
+        else:
+            response.headers["X-Content-Type-Options"] = "nosniff"
+        return response
 
 
 def _mount_docs(app: FastAPI) -> None:
@@ -506,6 +532,9 @@ def create_app(
     )
     app.state.settings = settings
     app.state.token = token
+    hide_root(settings.data_dir, "data")
+    hide_root(settings.data_dir / "tmp", "upload", keep_tail=False)  # the spool (Lab)
+    hide_root(settings.rig_path.parent, "rig")
     _install_error_handlers(app)
     for r in (
         status,
@@ -532,6 +561,7 @@ def create_app(
         max_body_bytes=settings.max_body_bytes,
         max_upload_bytes=settings.max_upload_bytes,
         upload_paths=UPLOAD_PATHS,
+        path_limits={"/api/digitizer/points/import": (MAX_POINTS_BYTES, "MAX_POINTS_BYTES")},
     )
     app.add_middleware(TokenMiddleware, token=token, protect_reads=not is_loopback(settings.host))
     app.add_middleware(HostCheckMiddleware, allowed=allowed_hosts(settings))

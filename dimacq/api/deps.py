@@ -17,6 +17,7 @@ from __future__ import annotations
 from typing import Annotated
 
 from fastapi import Depends, Path, Query, Request
+from pydantic import Strict
 from starlette.convertors import Convertor, register_url_convertor
 
 from dimacq.api.schemas import MAX_ID
@@ -41,13 +42,15 @@ ID_DIGITS = 20
 
 
 class IdConvertor(Convertor[int | str]):
-    """A path segment of digits: an int up to :data:`ID_DIGITS` digits, the string beyond (never
-    ``int()`` of thousands of digits, which raises); the route's id validation answers 404."""
+    """A path segment of digits: an int when written canonically (no leading zero) in at most
+    :data:`ID_DIGITS` digits, else the string (never ``int()`` of thousands of digits, which
+    raises; ``0001`` is not another name of item 1); the route's id validation answers 404."""
 
     regex = "[0-9]+"
 
     def convert(self, value: str) -> int | str:
-        return int(value) if len(value) <= ID_DIGITS else value
+        canonical = len(value) <= ID_DIGITS and (value == "0" or not value.startswith("0"))
+        return int(value) if canonical else value
 
     def to_string(self, value: int | str) -> str:
         return str(value)
@@ -68,7 +71,9 @@ def get_settings(request: Request) -> Settings:
 
 LabDep = Annotated[Lab, Depends(get_lab)]
 SettingsDep = Annotated[Settings, Depends(get_settings)]
-IdPath = Annotated[int, Path(ge=1, le=MAX_ID, description=f"the item's id, 1..{MAX_ID}")]
+#: Strict: only what :class:`IdConvertor` made an int (canonical digits) is an id; a segment it
+#: left a string (leading zeros, too long) is refused (404).
+IdPath = Annotated[int, Strict(), Path(ge=1, le=MAX_ID, description=f"the item's id, 1..{MAX_ID}")]
 #: A name given in the query (imports): one line of printable text, at most MAX_NAME_CHARS.
 NameQuery = Annotated[
     str,

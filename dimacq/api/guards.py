@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import ipaddress
 import json
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 
 from starlette.exceptions import HTTPException
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
@@ -154,7 +154,8 @@ def _too_large(limit: int, setting: str) -> str:
 
 
 class BodyLimitMiddleware:
-    """413 for bodies over ``max_body_bytes`` (``max_upload_bytes`` on ``upload_paths``)."""
+    """413 for bodies over ``max_body_bytes`` (``max_upload_bytes`` on ``upload_paths``; the
+    lower limit of ``path_limits`` on an import kind that has one)."""
 
     def __init__(
         self,
@@ -162,11 +163,13 @@ class BodyLimitMiddleware:
         max_body_bytes: int,
         max_upload_bytes: int,
         upload_paths: frozenset[str],
+        path_limits: Mapping[str, tuple[int, str]] | None = None,
     ) -> None:
         self.app = app
         self.max_body_bytes = max_body_bytes
         self.max_upload_bytes = max_upload_bytes
         self.upload_paths = upload_paths
+        self.path_limits = dict(path_limits or {})
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http":
@@ -176,6 +179,8 @@ class BodyLimitMiddleware:
             limit, setting = self.max_upload_bytes, "max_upload_bytes"
         else:
             limit, setting = self.max_body_bytes, "max_body_bytes"
+        if scope["path"] in self.path_limits:  # an import kind with its own, lower limit
+            limit, setting = min((limit, setting), self.path_limits[scope["path"]])
         for k, v in scope.get("headers", []):
             if k == b"content-length":
                 try:

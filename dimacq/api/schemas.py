@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import datetime
+import math
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, FiniteFloat, field_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from dimacq.model.impact import ImpactOverrides
 from dimacq.model.setup import KnownProperties, LoadCell, Name, NodeNumber
+from dimacq.model.types import Coordinate, Finite, FreeText, OneLine
 from dimacq.services.lab.plans import PlanParams
 from dimacq.services.lab.solving import SolveOptions
 from dimacq.services.lab.studies import CubeStudyParams
@@ -30,7 +32,7 @@ __all__ = [
     "SolveRequest",
 ]
 
-Vec3 = tuple[float, float, float]
+Vec3 = tuple[Coordinate, Coordinate, Coordinate]
 
 #: The largest id or node number the API accepts: the range of a SQL ``INTEGER`` on every
 #: database backend (PostgreSQL's is 32-bit; SQLite's 64-bit) and of a UFF node number (I10).
@@ -42,7 +44,7 @@ MAX_ID = 2**31 - 1
 DbId = Annotated[int, Field(ge=1, le=MAX_ID)]
 #: A patch index in a request body (0..MAX_ID); node numbers are :data:`NodeNumber`.
 Number = Annotated[int, Field(ge=0, le=MAX_ID)]
-FiniteVec3 = tuple[FiniteFloat, FiniteFloat, FiniteFloat]
+FiniteVec3 = tuple[Coordinate, Coordinate, Coordinate]
 
 
 class _Body(BaseModel):
@@ -57,16 +59,25 @@ class ErrorBody(BaseModel):
     errors: list[dict[str, Any]] = Field(default_factory=list)
 
 
-Coord = Annotated[float, Field(ge=-100.0, le=100.0)]
+Coord = Annotated[Finite, Field(ge=-100.0, le=100.0)]
 
 
-#: A point or node label: printable text (no control characters: PostgreSQL cannot store NUL,
-#: and a label is shown to the operator), 1..200 characters.
-LABEL_PATTERN = r"^[^\x00-\x1f\x7f]+$"
+#: A point or node label: one line of printable text (:data:`dimacq.model.types.OneLine`: no
+#: NUL, which PostgreSQL cannot store, no line breaks or Unicode line separators), 1..200
+#: characters.
+LABEL_PATTERN = r"^[^\x00-\x1f\x7f-\x9f\u2028\u2029]+$"
 Label = Annotated[
-    str,
-    Field(min_length=1, max_length=200, pattern=LABEL_PATTERN, description="printable text"),
+    OneLine,
+    Field(
+        min_length=1,
+        max_length=200,
+        description="one line of printable text",
+        json_schema_extra={"pattern": LABEL_PATTERN},
+    ),
 ]
+
+#: The shortest simulated probe axis accepted, m (any unit direction is normalised from it).
+MIN_AXIS_LENGTH = 1e-6
 
 
 class SimProbe(_Body):
@@ -79,8 +90,11 @@ class SimProbe(_Body):
     @field_validator("axis")
     @classmethod
     def _axis_non_zero(cls, v: tuple[float, float, float]) -> tuple[float, float, float]:
-        if not any(v):
-            raise ValueError("give a non-zero direction of the probe")
+        if not math.hypot(*v) >= MIN_AXIS_LENGTH:
+            raise ValueError(
+                f"has length {math.hypot(*v):.3g}; give a direction of the probe at least "
+                f"{MIN_AXIS_LENGTH:g} long"
+            )
         return v
 
 
@@ -126,7 +140,7 @@ class RegistrationRequest(_Body):
 
 class OrientationRequest(_Body):
     node: NodeNumber
-    prefix: Annotated[str, Field(max_length=100, pattern=r"^[^\x00-\x1f\x7f]*$")] | None = None
+    prefix: Annotated[OneLine, Field(max_length=100)] | None = None
     method: Literal["rigid", "affine", "cross"] = "rigid"
 
 
@@ -500,6 +514,12 @@ class DiagnosticOut(BaseModel):
     message: str
 
 
+class DeletedOut(BaseModel):
+    """How many items a bulk delete removed."""
+
+    deleted: int
+
+
 class StandOut(BaseModel):
     """A test stand sharing the database: its service's host, process, API address, start and
     last heartbeat (ISO 8601, UTC)."""
@@ -523,7 +543,7 @@ class TestCreate(_Body):
     article: Annotated[Name, Field(min_length=1)]
     operator: Text200 = ""
     date: datetime.date | None = None
-    notes: Annotated[str, Field(max_length=20_000)] = ""
+    notes: Annotated[FreeText, Field(max_length=20_000)] = ""
 
 
 class TestUpdate(_Body):
@@ -535,7 +555,7 @@ class TestUpdate(_Body):
     article: Annotated[Name, Field(min_length=1)] | None = None
     operator: Text200 | None = None
     date: datetime.date | None = None
-    notes: Annotated[str, Field(max_length=20_000)] | None = None
+    notes: Annotated[FreeText, Field(max_length=20_000)] | None = None
     archived: bool | None = None
 
 

@@ -88,7 +88,7 @@ def open_loadcell(ctx: DeviceContext, entry: LoadCellEntry) -> DaqChannelLoadCel
         unit the inputs cannot read, an input the DAQ refuses (each names the rig file item).
     """
     rf = ctx.rig_file
-    where = f"load cell {entry.node} (loadcell = 'daq-channels', rig file {rf.path})"
+    where = f"load cell {entry.node} (loadcell = 'daq-channels', rig file {rf.name})"
     if not entry.daq_channels:
         raise SetupError(
             f"{where}: no daq_channels; list the DAQ inputs of its gauges (or of its six "

@@ -115,7 +115,7 @@ class SimulatedWorld:
             cache_blocks=64,
         )
         article = self.lab.model.setup
-        where = f"rig file {rig_file.path} with scenario {scenario!r}"
+        where = f"rig file {rig_file.name} with scenario {scenario!r}"
         #: what the devices read and the hand strikes: the lab, or the bench around it
         self.source: VirtualLab | SupportSideBench = self.lab
         if calibration_bench is not None:

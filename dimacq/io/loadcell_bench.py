@@ -55,45 +55,50 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 
 from dimacq.errors import SetupError
 from dimacq.io.validation import refuse
+from dimacq.model.types import Finite, OneLine, RelativePath, StrictInt
 from dimacq.pipeline.loadcell_calibration import LoadPlan, standard_load_plan
 
 __all__ = ["BenchFile", "load_bench_file"]
 
 
 class _Model(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    """Numbers strict (no ``"1"`` or ``true``) and finite: :mod:`dimacq.model.types`."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class BenchPoint(_Model):
-    name: str = Field(min_length=1, description="a hanger point of the plan, e.g. 'arm +x'")
-    position_m: tuple[float, float, float] = Field(description="[x, y, z] in the cell frame, m")
+    name: OneLine = Field(
+        min_length=1, max_length=200, description="a hanger point of the plan, e.g. 'arm +x'"
+    )
+    position_m: tuple[Finite, Finite, Finite] = Field(description="[x, y, z] in the cell frame, m")
 
 
 class BenchTiming(_Model):
-    sample_rate_hz: int = Field(default=20, ge=1, le=10000, description="S/s (1–10000)")
-    settle_s: float = Field(default=20.0, ge=0, description="seconds ≥ 0")
-    average_s: float = Field(default=5.0, gt=0, description="seconds > 0")
-    max_wait_s: float = Field(default=120.0, gt=0, description="seconds > 0")
-    creep_tolerance: float = Field(default=2e-5, gt=0, lt=0.1, description="a fraction (0–0.1)")
+    sample_rate_hz: StrictInt = Field(default=20, ge=1, le=10000, description="S/s (1–10000)")
+    settle_s: Finite = Field(default=20.0, ge=0, le=3600, description="seconds, 0–3600")
+    average_s: Finite = Field(default=5.0, ge=0.01, le=3600, description="seconds, 0.01–3600")
+    max_wait_s: Finite = Field(default=120.0, ge=0.1, le=86400, description="seconds, 0.1–86400")
+    creep_tolerance: Finite = Field(default=2e-5, gt=0, lt=0.1, description="a fraction (0–0.1)")
 
 
 class InertialBench(_Model):
-    setup_file: str = Field(
-        min_length=1, description="the calibration mass's setup file (relative to the bench file)"
+    setup_file: RelativePath = Field(
+        description="the calibration mass's setup file (relative to the bench file, in its folder)"
     )
-    check_setup_file: str = Field(
+    check_setup_file: RelativePath | Literal[""] = Field(
         default="",
         description="the calibration mass standing on the cell for the circular check (relative "
         "to the bench file; empty: setup_file)",
     )
-    band_hz: tuple[float, float] = Field(
+    band_hz: tuple[Finite, Finite] = Field(
         default=(5.0, 800.0), description="[lo, hi] Hz of the calibration fit, 0 ≤ lo < hi"
     )
-    check_band_hz: tuple[float, float] = Field(
+    check_band_hz: tuple[Finite, Finite] = Field(
         default=(20.0, 400.0), description="[lo, hi] Hz of the circular check, 0 ≤ lo < hi"
     )
-    averages_per_input: int = Field(default=5, ge=1, le=1000, description="1–1000")
-    check_tolerance_pct: float = Field(
+    averages_per_input: StrictInt = Field(default=5, ge=1, le=100, description="1–100")
+    check_tolerance_pct: Finite = Field(
         default=0.5, gt=0, le=100, description="circular check: largest mass error, % (0–100)"
     )
 
@@ -110,21 +115,21 @@ class BenchFile(_Model):
     """The dead-weight bench (see the module docstring)."""
 
     schema_version: Literal[1] = Field(description="schema_version = 1")
-    rated_load: tuple[float, float, float, float, float, float] = Field(
+    rated_load: tuple[Finite, Finite, Finite, Finite, Finite, Finite] = Field(
         description="six positive rated loads [Fx, Fy, Fz] N, [Mx, My, Mz] N*m"
     )
-    arm_m: float = Field(default=0.1, gt=0, le=2, description="metres (0–2)")
-    height_m: float = Field(default=0.05, ge=0, le=2, description="metres (0–2)")
-    levels: tuple[float, ...] = Field(
+    arm_m: Finite = Field(default=0.1, gt=0, le=2, description="metres (0–2)")
+    height_m: Finite = Field(default=0.05, ge=0, le=2, description="metres (0–2)")
+    levels: tuple[Finite, ...] = Field(
         default=(0.5, 1.0), min_length=1, description="increasing fractions ending at 1.0"
     )
-    mass_step_kg: float = Field(default=0.5, gt=0, description="kilograms > 0")
+    mass_step_kg: Finite = Field(default=0.5, ge=1e-6, le=1e4, description="kilograms > 0")
     plan: Literal["standard", "minimal"] = Field(
         default="standard", description="standard or minimal"
     )
-    mass_rel_uncertainty: float = Field(default=5e-5, ge=0, lt=0.01, description="fraction")
-    position_uncertainty_m: float = Field(default=5e-6, ge=0, lt=0.01, description="metres")
-    gravity_uncertainty_rad: float = Field(default=1e-4, ge=0, lt=0.1, description="radians")
+    mass_rel_uncertainty: Finite = Field(default=5e-5, ge=0, lt=0.01, description="fraction")
+    position_uncertainty_m: Finite = Field(default=5e-6, ge=0, lt=0.01, description="metres")
+    gravity_uncertainty_rad: Finite = Field(default=1e-4, ge=0, lt=0.1, description="radians")
     points: tuple[BenchPoint, ...] = Field(default=(), description="[[points]] entries")
     timing: BenchTiming = BenchTiming()
     inertial: InertialBench | None = Field(default=None, description="[inertial] table")
@@ -145,10 +150,7 @@ class BenchFile(_Model):
                 "mass on the cell, with its certified [known] properties) for the inertial "
                 "calibration and the circular check"
             )
-        p = Path(self.inertial.setup_file)
-        if not p.is_absolute() and self.path is not None:
-            p = self.path.parent / p
-        return p
+        return self._inside(self.inertial.setup_file, "inertial.setup_file")
 
     def check_setup_path(self) -> Path:
         """The circular check's setup file: ``[inertial] check_setup_file``, else the
@@ -157,9 +159,20 @@ class BenchFile(_Model):
         assert self.inertial is not None
         if not self.inertial.check_setup_file:
             return path
-        p = Path(self.inertial.check_setup_file)
-        if not p.is_absolute() and self.path is not None:
-            p = self.path.parent / p
+        return self._inside(self.inertial.check_setup_file, "inertial.check_setup_file")
+
+    def _inside(self, name: str, item: str) -> Path:
+        """``name`` in the bench file's folder; :class:`SetupError` naming ``item`` if it
+        resolves outside it (a symbolic link out of the folder)."""
+        if self.path is None:
+            return Path(name)
+        folder = self.path.parent.resolve()
+        p = self.path.parent / name
+        if not p.resolve().is_relative_to(folder):
+            raise SetupError(
+                f"bench file {self.path.name}: item '{item}' = {name!r} leaves the bench file's "
+                "folder; fix: keep the setup file in that folder or below it"
+            )
         return p
 
     def load_plan(self) -> LoadPlan:
@@ -184,16 +197,16 @@ def load_bench_file(path: str | Path) -> BenchFile:
         data = tomllib.loads(p.read_text(encoding="utf-8"))
     except OSError as err:
         raise SetupError(
-            f"bench file {p}: cannot read it ({err}); give the dead-weight bench file "
+            f"bench file {p.name}: cannot read it ({err.strerror}); give the dead-weight bench file "
             "(config/loadcell_bench.toml)"
         ) from err
     except tomllib.TOMLDecodeError as err:
-        raise SetupError(f"bench file {p}: not valid TOML ({err})") from err
+        raise SetupError(f"bench file {p.name}: not valid TOML ({err})") from err
     try:
         bench = BenchFile.model_validate(data)
     except ValidationError as err:
         raise refuse(
-            "bench file", str(p), err, BenchFile, "see dimacq/io/loadcell_bench.py"
+            "bench file", p.name, err, BenchFile, "see dimacq/io/loadcell_bench.py"
         ) from err
     bench.load_plan()  # refuses geometry that overloads the cell or unknown points
     return bench.model_copy(update={"path": p})

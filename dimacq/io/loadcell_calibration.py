@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import datetime as _dt
 import json
+import math
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -192,6 +193,26 @@ def _check_text(data: dict[str, Any], source: str) -> None:
                 raise SetupError(f"{source}: {key} {err}") from None
 
 
+def _matrix(value: Any, source: str) -> NDArray[np.float64]:
+    """The calibration matrix: six rows of the same number (6..64) of finite numbers."""
+    if not isinstance(value, list) or len(value) != 6:
+        raise DataError(
+            f"{source}: matrix must be a list of 6 rows (Fx Fy Fz Mx My Mz); give the 6xN matrix"
+        )
+    width = len(value[0]) if isinstance(value[0], list) else -1
+    for i, row in enumerate(value):
+        if not isinstance(row, list) or len(row) != width or not 6 <= width <= 64:
+            n = len(row) if isinstance(row, list) else "no"
+            raise DataError(
+                f"{source}: matrix[{i}] has {n} values, row 0 has {width}; give every row the "
+                "same number (6..64) of gauge or output coefficients"
+            )
+        for j, v in enumerate(row):
+            if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+                raise DataError(f"{source}: matrix[{i}][{j}] is {v!r}; give a finite number")
+    return np.asarray(value, dtype=float)
+
+
 def parse_calibration_json(data: Any, source: str = "calibration") -> LoadCellCalibration:
     """A calibration from its JSON document (already parsed); errors name ``source``."""
     if not isinstance(data, dict) or data.get("kind") != "dimacq.loadcell_calibration":
@@ -212,7 +233,7 @@ def parse_calibration_json(data: Any, source: str = "calibration") -> LoadCellCa
             f"{source}: units {data.get('force_unit')!r}/{data.get('moment_unit')!r} unknown; "
             f"use one of {sorted(_FORCE_UNITS)} and {sorted(_MOMENT_UNITS)}"
         )
-    m = np.asarray(data["matrix"], dtype=float)
+    m = _matrix(data["matrix"], source)
     if m.ndim == 2 and m.shape[0] == 6:
         m = m * np.array([fu] * 3 + [mu] * 3)[:, None]
     return LoadCellCalibration(

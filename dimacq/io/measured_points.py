@@ -31,12 +31,26 @@ from typing import Any, Literal
 
 from dimacq.errors import SetupError
 from dimacq.io.documents import loads_json
+from dimacq.model.types import check_one_line
 
-__all__ = ["MeasuredPoint", "MeasuredPoints", "read_measured_points"]
+__all__ = [
+    "MAX_POINTS",
+    "MAX_POINTS_BYTES",
+    "MeasuredPoint",
+    "MeasuredPoints",
+    "read_measured_points",
+]
 
 SCHEMA_VERSION = 1
 KIND = "dimacq.measured_points"
 _UNITS = {"m": 1.0, "mm": 1e-3}
+#: The most points one import may hold (a laser tracker's survey of an article: hundreds).
+MAX_POINTS = 5_000
+#: The largest file of measured points, bytes (the API refuses a bigger one before reading it).
+MAX_POINTS_BYTES = 4 * 2**20
+#: The longest line of a CSV file, characters.
+MAX_LINE_CHARS = 2_000
+MAX_LABEL_CHARS = 200
 
 
 @dataclass(frozen=True)
@@ -68,6 +82,12 @@ def _number(v: Any, where: str) -> float:
 def _point(label: str, xyz: list[Any], sigma: Any, scale: float, where: str) -> MeasuredPoint:
     if not label or not label.strip():
         raise SetupError(f"{where}: the label is empty; name every point (e.g. REF0, 1101-J01)")
+    if len(label) > MAX_LABEL_CHARS:
+        raise SetupError(f"{where}: the label has {len(label)} characters; give at most 200")
+    try:
+        check_one_line(label)
+    except ValueError as err:
+        raise SetupError(f"{where}: the label {err}") from None
     if len(xyz) != 3:
         raise SetupError(f"{where}: {len(xyz)} coordinates; give x, y and z")
     x, y, z = (_number(v, f"{where} coordinate {i}") * scale for i, v in enumerate(xyz))
@@ -94,7 +114,22 @@ def _check_unique(points: list[MeasuredPoint], what: str) -> tuple[MeasuredPoint
 
 
 def _read_csv(text: str, what: str) -> MeasuredPoints:
+    if text.count("\n") > MAX_POINTS + 1000:  # before any parsing: a cheap count
+        raise SetupError(
+            f"{what}: more than {MAX_POINTS} rows (MAX_POINTS); split the file into patches"
+        )
     lines = [ln for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
+    for n, ln in enumerate(lines, start=1):
+        if len(ln) > MAX_LINE_CHARS:
+            raise SetupError(
+                f"{what} line {n}: {len(ln)} characters, more than {MAX_LINE_CHARS} "
+                "(MAX_LINE_CHARS); give one point per line: label, x, y, z[, sigma]"
+            )
+    if len(lines) > MAX_POINTS + 1:
+        raise SetupError(
+            f"{what}: {len(lines) - 1} rows, more than {MAX_POINTS} (MAX_POINTS); split the "
+            "file into patches"
+        )
     rows = list(csv.reader(io.StringIO("\n".join(lines))))
     if not rows:
         raise SetupError(f"{what}: empty; give a header row (label,x_mm,y_mm,z_mm) and points")
@@ -139,6 +174,10 @@ def _read_json(text: str, what: str) -> MeasuredPoints:
     raw = doc.get("points")
     if not isinstance(raw, list):
         raise SetupError(f'{what}: "points" must be a list of {{label, xyz, sigma}}')
+    if len(raw) > MAX_POINTS:
+        raise SetupError(
+            f"{what}: {len(raw)} points, more than {MAX_POINTS} (MAX_POINTS); split the file"
+        )
     pts = []
     for n, p in enumerate(raw):
         where = f"{what} points[{n}]"
@@ -158,6 +197,11 @@ def read_measured_points(
     SetupError
         A missing column, unit or label, a non-number, a repeated label (one line naming it).
     """
+    if len(data) > MAX_POINTS_BYTES:
+        raise SetupError(
+            f"{what}: {len(data)} bytes, more than {MAX_POINTS_BYTES} (MAX_POINTS_BYTES); "
+            "split the file into patches"
+        )
     try:
         text = data.decode("utf-8-sig") if isinstance(data, bytes) else data
     except UnicodeDecodeError as err:

@@ -56,7 +56,7 @@ from __future__ import annotations
 
 import logging
 from pathlib import Path, PurePosixPath, PureWindowsPath
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
@@ -66,6 +66,7 @@ from dimacq.io.validation import refuse
 from dimacq.model.channels import axis_name
 from dimacq.model.impact import ImpactOverrides
 from dimacq.model.setup import direction_label
+from dimacq.model.types import OneLine
 
 __all__ = [
     "ChainCalibrationEntry",
@@ -78,6 +79,13 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
+
+#: The highest DAQ sample rate a rig file may give, Hz.
+MAX_SAMPLE_RATE_HZ = 1e7
+#: The names a load cell's calibration file may have.
+CALIBRATION_SUFFIXES = (".json", ".xml")
+#: The range of a transducer's sensitivity (mV/N, mV/g).
+MIN_SENSITIVITY, MAX_SENSITIVITY = 1e-3, 1e5
 
 _LABELS = {direction_label(d): d for d in (1, 2, 3, -1, -2, -3)}
 
@@ -99,7 +107,9 @@ def parse_direction(value: Any) -> int:
 
 
 class _Model(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    """Strict (no ``"1"`` or ``true`` as a number) and finite (no ``"inf"`` or ``1e999``)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False)
 
 
 class NiModuleEntry(_Model):
@@ -124,12 +134,17 @@ class NiModuleEntry(_Model):
 
 
 class DaqSection(_Model):
-    sample_rate_hz: float = Field(gt=0, description="the sample rate in Hz, e.g. 2048.0")
+    sample_rate_hz: float = Field(
+        ge=1.0, le=MAX_SAMPLE_RATE_HZ, description="the sample rate in Hz (1..10 MHz), e.g. 2048.0"
+    )
     samples_per_frame: int = Field(
         default=256, ge=1, le=65535, description="USB frame size in samples (1..65535)"
     )
-    serial_number: str = Field(default="", description="the DAQ's serial number, or ''")
-    units: list[str] = Field(
+    serial_number: OneLine = Field(
+        default="", max_length=200, description="the DAQ's serial number, or ''"
+    )
+    units: list[Annotated[OneLine, Field(max_length=200)]] = Field(
+        max_length=64,
         default_factory=list,
         description="daq = 'mcc-usb': the USB-1808X units' serial numbers in channel order "
         "(inputs 0..7 on the first, the clock master; 8..15 on the second; ...); daq = 'nidaqmx': "
@@ -140,9 +155,14 @@ class DaqSection(_Model):
         description="daq = 'nidaqmx': the cDAQ's C Series modules ([[daq.modules]]: name, model, "
         "inputs); [] = [daq] units (or the first device found)",
     )
-    timeout_s: float = Field(default=2.0, gt=0, description="a USB timeout in seconds > 0")
+    timeout_s: float = Field(
+        default=2.0, ge=0.001, le=3600.0, description="a USB timeout in seconds, 0.001..3600"
+    )
     strike_timeout_s: float = Field(
-        default=60.0, gt=0, description="seconds the trigger waits for a strike (> 0)"
+        default=60.0,
+        ge=0.1,
+        le=86400.0,
+        description="seconds the trigger waits for a strike (0.1..86400)",
     )
 
     @model_validator(mode="after")
@@ -159,8 +179,12 @@ class _Analog(_Model):
     backend refuses a value it does not have when the rig is built, naming this item."""
 
     physical_channel: int = Field(ge=0, le=255, description="the DAQ input number (0-based)")
-    range_v: float = Field(default=10.0, gt=0, description="the input range ±V (> 0)")
-    iepe_current_ma: float = Field(default=4.0, ge=0, description="IEPE current in mA (0 = off)")
+    range_v: float = Field(
+        default=10.0, ge=0.001, le=100.0, description="the input range ±V (0.001..100)"
+    )
+    iepe_current_ma: float = Field(
+        default=4.0, ge=0, le=20.0, description="IEPE current in mA (0 = off, at most 20)"
+    )
     coupling: Literal["AC", "DC"] = Field(default="AC", description="'AC' or 'DC'")
 
 
@@ -173,14 +197,21 @@ class ChainCalibrationEntry(_Model):
         ge=0.9, le=1.1, description="γ = measured / weighed mass of the reference body (0.9..1.1)"
     )
     u_rel: float = Field(ge=0, lt=0.5, description="relative standard uncertainty of γ")
-    source: str = Field(default="", description="where it was measured (reference body, data)")
-    date: str = Field(default="", description="when (ISO date)")
+    source: OneLine = Field(
+        default="", max_length=500, description="where it was measured (reference body, data)"
+    )
+    date: OneLine = Field(default="", max_length=40, description="when (ISO date)")
 
 
 class HammerEntry(_Analog):
-    sensitivity_mv_per_n: float = Field(gt=0, description="the hammer's sensitivity in mV/N > 0")
-    inputs: list[str] = Field(
+    sensitivity_mv_per_n: float = Field(
+        ge=MIN_SENSITIVITY,
+        le=MAX_SENSITIVITY,
+        description="the hammer's sensitivity in mV/N (0.001..100000)",
+    )
+    inputs: list[Annotated[OneLine, Field(max_length=200)]] = Field(
         default_factory=list,
+        max_length=10_000,
         description="setup inputs struck with this hammer as 'node+dir' (e.g. '101+X'), [] = all",
     )
     chain_calibration: ChainCalibrationEntry | None = Field(
@@ -197,9 +228,13 @@ class HammerEntry(_Analog):
 
 
 class ResponseEntry(_Analog):
-    node: int = Field(description="the setup response's node number")
+    node: int = Field(ge=1, le=2**31 - 1, description="the setup response's node number")
     direction: int = Field(description="the response's direction, ±1..±3 or '+X'..'-Z'")
-    sensitivity_mv_per_g: float = Field(gt=0, description="the accelerometer's mV/g > 0")
+    sensitivity_mv_per_g: float = Field(
+        ge=MIN_SENSITIVITY,
+        le=MAX_SENSITIVITY,
+        description="the accelerometer's mV/g (0.001..100000)",
+    )
 
     @field_validator("direction", mode="before")
     @classmethod
@@ -216,21 +251,25 @@ class LoadCellEntry(_Model):
     gauges or six conditioned F/T outputs on DAQ inputs (``daq_channels``: the
     ``loadcell = "daq-channels"`` backend, sampled with the accelerometers on one clock)."""
 
-    node: int = Field(description="the setup load cell's node number")
+    node: int = Field(ge=1, le=2**31 - 1, description="the setup load cell's node number")
     node_id: int | None = Field(
         default=None,
         ge=1,
         le=127,
         description="the amplifier's CAN node id (1..127); the CAN backends need it",
     )
-    calibration_file: str = Field(
+    calibration_file: OneLine = Field(
         min_length=1,
+        max_length=1000,
         description="the cell's calibration file (.json or .xml, relative paths from rig.toml)",
     )
-    channel: str = Field(default="", description="a CAN channel, or '' for loadcell_channel")
+    channel: OneLine = Field(
+        default="", max_length=200, description="a CAN channel, or '' for loadcell_channel"
+    )
     # the cell's signals read as DAQ inputs (loadcell = "daq-channels")
-    daq_channels: list[int] = Field(
+    daq_channels: list[Annotated[int, Field(ge=0, le=255)]] = Field(
         default_factory=list,
+        max_length=64,
         description="DAQ inputs (0-based) of the cell's gauges, or of its six conditioned "
         "outputs, in the calibration matrix's column order",
     )
@@ -245,7 +284,9 @@ class LoadCellEntry(_Model):
         le=20,
         description="the bridges' excitation in V when the calibration's gauge_unit is mV/V",
     )
-    daq_range_v: float = Field(default=10.0, gt=0, description="the inputs' range ±V (> 0)")
+    daq_range_v: float = Field(
+        default=10.0, ge=0.001, le=100.0, description="the inputs' range ±V (0.001..100)"
+    )
     daq_coupling: Literal["AC", "DC"] = Field(
         default="DC", description="the inputs' coupling: 'DC' (bridges, static loads) or 'AC'"
     )
@@ -256,8 +297,10 @@ class LoadCellEntry(_Model):
         le=0x7F9,
         description="the Net F/T's CAN base address as its DIP switches set it (0..0x7F9)",
     )
-    netft_host: str = Field(
-        default="", description="the Net F/T's IP address for RDT over UDP ('netft-udp')"
+    netft_host: OneLine = Field(
+        max_length=253,
+        default="",
+        description="the Net F/T's IP address for RDT over UDP ('netft-udp')",
     )
     netft_port: int = Field(default=49152, ge=1, le=65535, description="its RDT UDP port")
     netft_rdt_rate_hz: float = Field(
@@ -269,22 +312,26 @@ class LoadCellEntry(_Model):
     netft_ft_rate_hz: float = Field(
         default=7000.0,
         gt=0,
+        le=1e6,
         description="its internal sample rate in Hz: what ft_sequence counts (7000 on a Net F/T)",
     )
     netft_band_hz: float | None = Field(
         default=None,
         gt=0,
+        le=MAX_SAMPLE_RATE_HZ,
         description="the top of the band analysed, Hz: where the RDT alignment's phase is "
         "checked (default: 0.32 x the DAQ's rate, the automatic band's top)",
     )
     netft_max_phase_deg: float = Field(
         default=2.0,
         gt=0,
+        le=180.0,
         description="the FRF phase error in degrees the RDT alignment may cost at netft_band_hz",
     )
     netft_latency_floor_s: float = Field(
         default=20e-6,
         ge=0,
+        le=10.0,
         description="the network's least latency in s (in the RDT alignment's budget)",
     )
     netft_time_base: Literal["data", "host"] = Field(
@@ -296,13 +343,20 @@ class LoadCellEntry(_Model):
     netft_fit_lo_hz: float = Field(
         default=50.0,
         gt=0,
+        le=MAX_SAMPLE_RATE_HZ,
         description="the lowest line of the RDT delay fit, Hz (its highest: netft_band_hz)",
     )
     netft_counts_per_force: int | None = Field(
-        default=None, gt=0, description="its counts per force unit (its calibration info)"
+        default=None,
+        gt=0,
+        le=2**31 - 1,
+        description="its counts per force unit (its calibration info)",
     )
     netft_counts_per_torque: int | None = Field(
-        default=None, gt=0, description="its counts per torque unit (its calibration info)"
+        default=None,
+        gt=0,
+        le=2**31 - 1,
+        description="its counts per torque unit (its calibration info)",
     )
     netft_force_unit: int = Field(
         default=2, ge=1, le=6, description="its force unit code (1 lbf, 2 N, 3 klbf, 4 kN, ...)"
@@ -312,16 +366,19 @@ class LoadCellEntry(_Model):
     )
     # CAN FD bit timing of this cell's bus (None: the loadcell_* setting of the same name)
     f_clock: int | None = Field(
-        default=None, gt=0, description="the adapter's CAN clock in Hz, or leave it out"
+        default=None, gt=0, le=10**9, description="the adapter's CAN clock in Hz, or leave it out"
     )
     bitrate: int | None = Field(
-        default=None, gt=0, description="the nominal bit rate in bit/s, or leave it out"
+        default=None, gt=0, le=10**7, description="the nominal bit rate in bit/s, or leave it out"
     )
     sample_point: float | None = Field(
         default=None, gt=50.0, lt=100.0, description="the nominal sample point in % (50..100)"
     )
     data_bitrate: int | None = Field(
-        default=None, gt=0, description="the data-phase bit rate in bit/s, or leave it out"
+        default=None,
+        gt=0,
+        le=10**7,
+        description="the data-phase bit rate in bit/s, or leave it out",
     )
     data_sample_point: float | None = Field(
         default=None, gt=50.0, lt=100.0, description="the data-phase sample point in % (50..100)"
@@ -342,6 +399,11 @@ class LoadCellEntry(_Model):
             raise ValueError(
                 f"{v!r} leaves the rig file's folder ('..'); keep the calibration files in the "
                 "rig file's folder or below it (e.g. 'calibrations/lc-501.json')"
+            )
+        if p.suffix.lower() not in CALIBRATION_SUFFIXES:
+            raise ValueError(
+                f"{v!r} is not a calibration file name; give a .json or .xml file in the rig "
+                "file's folder or below it (e.g. 'calibrations/lc-501.json')"
             )
         return v
 
@@ -413,6 +475,11 @@ class RigFile(_Model):
             ids.add((lc.channel, lc.node_id))
         return self
 
+    @property
+    def name(self) -> str:
+        """The rig file's name (never its folder: messages leave server paths out)."""
+        return self.path.name if self.path is not None else "rig.toml"
+
     def calibration_path(self, entry: LoadCellEntry) -> Path:
         """The calibration file, relative to the rig file's folder (never outside it:
         :meth:`LoadCellEntry._inside_the_rig_folder`)."""
@@ -449,7 +516,7 @@ def load_rig_file(path: str | Path) -> RigFile:
         text = p.read_text(encoding="utf-8")
     except OSError as err:
         raise SetupError(
-            f"rig file {p}: cannot read it ({err}); set rig_file (DIMACQ_RIG_FILE) to the channel "
+            f"rig file {p.name}: cannot read it ({err.strerror}); set rig_file (DIMACQ_RIG_FILE) to the channel "
             "map of the real rig (see config/rig.toml)"
         ) from err
     return parse_rig_text(text, p)
@@ -471,8 +538,38 @@ def parse_rig_text(text: str, path: str | Path) -> RigFile:
     try:
         rig = RigFile.model_validate(data)
     except ValidationError as err:
-        raise _refuse(str(p), err) from err
-    return rig.model_copy(update={"path": p.resolve()})
+        raise _refuse(p.name, err) from err
+    rig = rig.model_copy(update={"path": p.resolve()})
+    _check_calibration_files(rig)
+    return rig
+
+
+def _check_calibration_files(rig: RigFile) -> None:
+    """Every calibration file that exists is a regular file inside the rig file's folder (a
+    symbolic link out of it, a folder or a device would fail the acquisition later)."""
+    assert rig.path is not None
+    folder = rig.path.parent
+    for i, lc in enumerate(rig.load_cells):
+        target = rig.calibration_path(lc)
+        item = f"load_cells.{i}.calibration_file"
+        try:
+            real = target.resolve()
+            inside = real.is_relative_to(folder) and real != rig.path
+            exists = target.exists()
+            regular = target.is_file()
+        except (OSError, ValueError) as err:
+            raise SetupError(
+                f"rig file {rig.path.name} refused: item '{item}' = {lc.calibration_file!r}: "
+                f"cannot be read ({type(err).__name__}); fix: give a calibration file in the "
+                "rig file's folder"
+            ) from err
+        if not inside or (exists and not regular):
+            what = "leaves the rig file's folder" if not inside else "is not a regular file"
+            raise SetupError(
+                f"rig file {rig.path.name} refused: item '{item}' = {lc.calibration_file!r} "
+                f"{what}; fix: give a .json or .xml calibration file in the rig file's folder "
+                "or below it (e.g. 'calibrations/lc-501.json')"
+            )
 
 
 def write_chain_calibration(
@@ -530,10 +627,14 @@ def write_chain_calibration(
             written = True
     if not written:
         raise SetupError(f"rig file {p.name}: no sensitivity_mv_per_n line in [[hammers]]")
-    tmp = p.with_name(p.name + ".tmp")
-    tmp.write_text("\n".join(out) + "\n", encoding="utf-8")
+    import tempfile
+
+    fd, name = tempfile.mkstemp(prefix=".rig-chain-", suffix=".toml", dir=p.parent)
+    tmp = Path(name)
+    with os.fdopen(fd, "w", encoding="utf-8") as fh:  # a new file: never through a link
+        fh.write("\n".join(out) + "\n")
     try:
-        checked = load_rig_file(tmp)
+        checked = parse_rig_text(tmp.read_text(encoding="utf-8"), p)
     except SetupError:
         tmp.unlink(missing_ok=True)
         raise

@@ -17,10 +17,22 @@ from numpy.typing import NDArray
 from dimacq.errors import DataError
 from dimacq.model.setup import direction_label
 
-__all__ = ["STANDARD_GRAVITY", "Channel", "FrfData", "to_accelerance"]
+__all__ = [
+    "MAX_FREQUENCY_HZ",
+    "MAX_FRF_MAGNITUDE",
+    "STANDARD_GRAVITY",
+    "Channel",
+    "FrfData",
+    "to_accelerance",
+]
 
 #: Standard gravity, m/s² per g.
 STANDARD_GRAVITY = 9.80665
+#: The highest frequency line of an FRF set, Hz (half the highest DAQ sample rate a rig takes).
+MAX_FREQUENCY_HZ = 5e6
+#: The largest |H| of an FRF (SI): far above any accelerance or transmissibility, and small
+#: enough that products and sums of squares in the solver stay finite.
+MAX_FRF_MAGNITUDE = 1e100
 
 OutputKind = Literal["acceleration", "reaction"]
 
@@ -86,12 +98,20 @@ class FrfData:
             )
         if not np.all(np.isfinite(f)) or np.any(np.diff(f) <= 0):
             raise DataError("frequencies_hz must be finite and strictly increasing")
+        if f[0] < 0 or f[-1] > MAX_FREQUENCY_HZ:
+            raise DataError(
+                f"frequencies_hz runs from {f[0]:g} to {f[-1]:g} Hz; give lines within "
+                f"0..{MAX_FREQUENCY_HZ:g} Hz (check the file's abscissa start and increment)"
+            )
         bad = ~np.isfinite(h)
+        with np.errstate(invalid="ignore"):
+            bad |= np.abs(h) > MAX_FRF_MAGNITUDE
         if bad.any():
             line, out, inp = (int(i[0]) for i in np.nonzero(bad))
             raise DataError(
                 f"FRF {self.outputs[out].name}/{self.inputs[inp].name} has NaN or inf at "
-                f"{f[line]:g} Hz ({int(bad.sum())} values in all); remove or re-measure that record"
+                f"{f[line]:g} Hz (or a magnitude above {MAX_FRF_MAGNITUDE:g}; "
+                f"{int(bad.sum())} values in all); remove or re-measure that record"
             )
         for kind in self.output_kinds:
             if kind not in ("acceleration", "reaction"):

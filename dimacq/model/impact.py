@@ -28,7 +28,13 @@ PretriggerSamples = Annotated[
     int, Field(ge=0, le=65536, description="samples kept before the trigger, 0..65536")
 ]
 TriggerLevelN = Annotated[
-    float, Field(gt=0, le=1e6, description="hammer force that triggers a record, N > 0")
+    float,
+    Field(
+        ge=0.001,
+        le=1e6,
+        allow_inf_nan=False,
+        description="hammer force that triggers a record, N (0.001..1e6)",
+    ),
 ]
 AveragesPerInput = Annotated[
     int, Field(ge=1, le=100, description="accepted averages wanted per input, 1..100")
@@ -46,7 +52,13 @@ ForceWindowSamples = Annotated[
     int, Field(ge=1, le=1_048_576, description="force window length after the trigger, samples")
 ]
 ExponentialTauS = Annotated[
-    float, Field(gt=0, le=1e4, description="exponential window time constant from the trigger, s")
+    float,
+    Field(
+        ge=1e-6,
+        le=1e4,
+        allow_inf_nan=False,
+        description="exponential window time constant from the trigger, s",
+    ),
 ]
 
 
@@ -59,7 +71,7 @@ def _doc(alias: Any) -> Any:
 class ImpactOverrides(BaseModel):
     """Impact-test settings given by a request or a rig file (None: not given here)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False)
 
     record_samples: RecordSamples | None = _doc(RecordSamples)
     pretrigger_samples: PretriggerSamples | None = _doc(PretriggerSamples)

@@ -21,7 +21,6 @@ Conventions
 from __future__ import annotations
 
 import logging
-import re
 from collections.abc import Mapping
 from typing import Annotated, Any, Literal
 
@@ -33,10 +32,11 @@ from pydantic import (
     BaseModel,
     ConfigDict,
     Field,
-    FiniteFloat,
     field_validator,
     model_validator,
 )
+
+from dimacq.model.types import Coordinate, Finite, StrictInt, check_one_line
 
 __all__ = [
     "LENGTH_UNITS",
@@ -55,26 +55,21 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-Vec3 = tuple[float, float, float]
+#: A position or direction: three finite numbers (strict: no strings, no booleans), each within
+#: ±COORDINATE_LIMIT.
+Vec3 = tuple[Coordinate, Coordinate, Coordinate]
 #: A node number: a UFF node label (I10 field, positive), 1..2³¹−1.
-NodeNumber = Annotated[int, Field(ge=1, le=2**31 - 1)]
+NodeNumber = Annotated[StrictInt, Field(ge=1, le=2**31 - 1)]
 
 #: Longest name of a setup or label of a channel, characters.
 MAX_NAME_CHARS = 200
-_CONTROL = re.compile(r"[\x00-\x1f\x7f]")
 
 
 def one_line(value: str) -> str:
-    """``value`` if it is one line of printable text; names and labels are written verbatim into
-    exported files (UFF 2420 part names and labels, a UFF 58 header line), where a line break
-    ends the record and corrupts the file."""
-    m = _CONTROL.search(value)
-    if m is not None:
-        raise ValueError(
-            f"holds the control character {m.group()!r} at position {m.start()}; a name is one "
-            "line of printable text (no line breaks or tabs)"
-        )
-    return value
+    """``value`` if it is one line of printable text (:func:`dimacq.model.types.check_one_line`);
+    names and labels are written verbatim into exported files (UFF 2420 part names and labels, a
+    UFF 58 header line), where a line break ends the record and corrupts the file."""
+    return check_one_line(value)
 
 
 #: A name or label: one line of printable text, at most :data:`MAX_NAME_CHARS` characters.
@@ -82,7 +77,7 @@ Name = Annotated[
     str,
     Field(
         max_length=MAX_NAME_CHARS,
-        json_schema_extra={"pattern": "^[^\\x00-\\x1f\\x7f]*$"},
+        json_schema_extra={"pattern": "^[^\\x00-\\x1f\\x7f-\\x9f\\u2028\\u2029]*$"},
     ),
     AfterValidator(one_line),
 ]
@@ -137,7 +132,7 @@ class ResponseChannel(_Model):
     """
 
     node: NodeNumber
-    direction: int = Field(ge=-3, le=3)
+    direction: StrictInt = Field(ge=-3, le=3)
     position_m: Vec3
     direction_gcs: Vec3
     label: Name = ""
@@ -178,7 +173,7 @@ class Excitation(_Model):
     """
 
     node: NodeNumber
-    direction: int = Field(default=1, ge=-3, le=3)
+    direction: StrictInt = Field(default=1, ge=-3, le=3)
     position_m: Vec3
     direction_gcs: Vec3 | None = None
     label: Name = ""
@@ -279,14 +274,14 @@ class GeometryUncertainty(_Model):
         Where the values come from: these defaults, the user's statement, or the digitizing chain.
     """
 
-    sensor_position_m: float = Field(default=0.002, ge=0, le=0.5)
-    sensor_orientation_deg: float = Field(default=0.5, ge=0, le=45)
-    input_position_m: float = Field(default=0.002, ge=0, le=0.5)
-    line_of_action_deg: float = Field(default=1.0, ge=0, le=45)
-    load_cell_position_m: float = Field(default=0.002, ge=0, le=0.5)
-    load_cell_orientation_deg: float = Field(default=0.5, ge=0, le=45)
-    registration_rms_m: float | None = Field(default=None, ge=0)
-    registration_limit_m: float | None = Field(default=None, gt=0)
+    sensor_position_m: Finite = Field(default=0.002, ge=0, le=0.5)
+    sensor_orientation_deg: Finite = Field(default=0.5, ge=0, le=45)
+    input_position_m: Finite = Field(default=0.002, ge=0, le=0.5)
+    line_of_action_deg: Finite = Field(default=1.0, ge=0, le=45)
+    load_cell_position_m: Finite = Field(default=0.002, ge=0, le=0.5)
+    load_cell_orientation_deg: Finite = Field(default=0.5, ge=0, le=45)
+    registration_rms_m: Finite | None = Field(default=None, ge=0, le=1.0)
+    registration_limit_m: Finite | None = Field(default=None, gt=0, le=1.0)
     source: Literal["default", "stated", "digitized"] = "default"
 
 
@@ -318,9 +313,9 @@ class TransducerUncertainty(_Model):
         ``chain``: the force term is a chain calibration's (:mod:`dimacq.pipeline.chain_calibration`).
     """
 
-    accel_sensitivity_rel: float = Field(default=0.005, ge=0, le=0.5)
-    force_sensitivity_rel: float = Field(default=0.005, ge=0, le=0.5)
-    loadcell_matrix_rel: float = Field(default=0.01, ge=0, le=0.5)
+    accel_sensitivity_rel: Finite = Field(default=0.005, ge=0, le=0.5)
+    force_sensitivity_rel: Finite = Field(default=0.005, ge=0, le=0.5)
+    loadcell_matrix_rel: Finite = Field(default=0.01, ge=0, le=0.5)
     source: Literal["default", "stated", "chain"] = "default"
 
 
@@ -378,16 +373,16 @@ class KnownProperties(_Model):
     with a deprecation message in the log.
     """
 
-    m: FiniteFloat | None = Field(default=None, gt=0, description=_KNOWN_DOC["m"])
-    cx: FiniteFloat | None = Field(default=None, description=_KNOWN_DOC["cx"])
-    cy: FiniteFloat | None = Field(default=None, description=_KNOWN_DOC["cy"])
-    cz: FiniteFloat | None = Field(default=None, description=_KNOWN_DOC["cz"])
-    Ixx: FiniteFloat | None = Field(default=None, gt=0, description=_KNOWN_DOC["Ixx"])
-    Ixy: FiniteFloat | None = Field(default=None, description=_KNOWN_DOC["Ixy"])
-    Ixz: FiniteFloat | None = Field(default=None, description=_KNOWN_DOC["Ixz"])
-    Iyy: FiniteFloat | None = Field(default=None, gt=0, description=_KNOWN_DOC["Iyy"])
-    Iyz: FiniteFloat | None = Field(default=None, description=_KNOWN_DOC["Iyz"])
-    Izz: FiniteFloat | None = Field(default=None, gt=0, description=_KNOWN_DOC["Izz"])
+    m: Finite | None = Field(default=None, gt=0, description=_KNOWN_DOC["m"])
+    cx: Finite | None = Field(default=None, description=_KNOWN_DOC["cx"])
+    cy: Finite | None = Field(default=None, description=_KNOWN_DOC["cy"])
+    cz: Finite | None = Field(default=None, description=_KNOWN_DOC["cz"])
+    Ixx: Finite | None = Field(default=None, gt=0, description=_KNOWN_DOC["Ixx"])
+    Ixy: Finite | None = Field(default=None, description=_KNOWN_DOC["Ixy"])
+    Ixz: Finite | None = Field(default=None, description=_KNOWN_DOC["Ixz"])
+    Iyy: Finite | None = Field(default=None, gt=0, description=_KNOWN_DOC["Iyy"])
+    Iyz: Finite | None = Field(default=None, description=_KNOWN_DOC["Iyz"])
+    Izz: Finite | None = Field(default=None, gt=0, description=_KNOWN_DOC["Izz"])
 
     @model_validator(mode="before")
     @classmethod

@@ -48,12 +48,28 @@ def arrays_from_bytes(data: bytes) -> tuple[dict[str, NDArray[Any]], dict[str, A
     return arrays, attrs
 
 
+def _private_dirs(folder: Path) -> None:
+    """``folder`` and its missing parents created 0700 (mode given explicitly: ``mkdir``'s
+    ``parents`` ignores it for the parents)."""
+    missing = []
+    p = folder
+    while not p.exists():
+        missing.append(p)
+        p = p.parent
+    for d in reversed(missing):
+        try:
+            d.mkdir(mode=0o700)
+        except FileExistsError:
+            continue
+        os.chmod(d, 0o700)
+
+
 class ArrayStore:
     """HDF5 files under ``root``; paths given and returned are relative to ``root``."""
 
     def __init__(self, root: Path | str) -> None:
         self.root = Path(root)
-        self.root.mkdir(parents=True, exist_ok=True)
+        _private_dirs(self.root)
 
     def path(self, rel: str) -> Path:
         p = (self.root / rel).resolve()
@@ -71,9 +87,11 @@ class ArrayStore:
     ) -> str:
         """Write ``arrays`` (name → ndarray) and JSON-able ``attrs`` atomically to ``rel``."""
         final = self.path(rel)
-        final.parent.mkdir(parents=True, exist_ok=True)
+        _private_dirs(final.parent)
         tmp = final.with_name(f".{final.name}.{uuid.uuid4().hex}.tmp")
         try:
+            # created 0600 (the measurements are the lab's), never through an existing link
+            os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, 0o600))
             with h5py.File(tmp, "w") as fh:
                 for name, arr in arrays.items():
                     fh.create_dataset(name, data=np.asarray(arr))

@@ -189,10 +189,14 @@ class DbJobStore:
             return [_snapshot(r) for r in rows]
 
     def cancel(self, job_id: str) -> dict[str, Any]:
+        """Cancel a queued job, or a job of this stand that no thread of this service runs (the
+        caller knows its own): one service per stand, so nothing else will ever finish it."""
         if not cancel_pending(self.db, job_id):
             snap = self.load(job_id)
             assert snap is not None
-            if snap["state"] in _RUNNING:
+            if snap["state"] in _RUNNING and snap["stand"] == self.stand:
+                self._end_orphan(job_id, "cancelled", "cancelled: no thread of this stand ran it")
+            elif snap["state"] in _RUNNING:
                 raise DeviceStateError(
                     f"job {job_id} runs on stand {snap['stand']!r}; cancel it through that "
                     "stand's API (GET /api/stands lists their addresses)"
@@ -200,6 +204,21 @@ class DbJobStore:
         out = self.load(job_id)
         assert out is not None
         return out
+
+    def _end_orphan(self, job_id: str, state: str, message: str) -> None:
+        with self.db.session() as s:
+            s.execute(
+                update(m.JobRow)
+                .where(m.JobRow.id == job_id, m.JobRow.state.in_(list(_RUNNING)))
+                .where(m.JobRow.stand == self.stand)
+                .values(state=state, message=message, error=message, finished_at=m.utcnow())
+                .execution_options(synchronize_session=False)
+            )
+
+    def release(self, job_id: str, reason: str) -> None:
+        """A job this service claimed but could not start: failed with ``reason`` (never left
+        running with nobody to run it)."""
+        self._end_orphan(job_id, "failed", reason)
 
     def claim(self, kinds: list[str]) -> tuple[str, str, dict[str, Any]] | None:
         return claim_job(self.db, kinds, stand=self.stand, instance=self.instance)

@@ -26,13 +26,14 @@ MAX_LIMIT = 10_000
 
 @dataclass(frozen=True)
 class PageQuery:
-    """``limit`` (at most :data:`MAX_LIMIT`; left out: all) items after the first ``offset``,
-    in id order (creation order)."""
+    """``limit`` (at most :data:`MAX_LIMIT`, also when left out: no answer holds more) items
+    after the first ``offset``, in id order (creation order); ``X-Total-Count`` tells how many
+    there are in all."""
 
     limit: Annotated[
         int | None,
-        Query(ge=1, le=MAX_LIMIT, description="items to return (default: all, up to 10000)"),
-    ] = None
+        Query(ge=1, le=MAX_LIMIT, description="items to return (default and at most 10000)"),
+    ] = MAX_LIMIT
     offset: Annotated[int, Query(ge=0, le=MAX_ID, description="items to skip")] = 0
 
 

@@ -58,7 +58,7 @@ async def add_calibration(request: Request, lab: LabDep) -> StoredCalibration:
                             "circular_check": {"type": "boolean"},
                             "averages_per_input": {
                                 "anyOf": [
-                                    {"type": "integer", "minimum": 1, "maximum": 1000},
+                                    {"type": "integer", "minimum": 1, "maximum": 100},
                                     {"type": "null"},
                                 ]
                             },

@@ -6,7 +6,7 @@ from __future__ import annotations
 from dataclasses import asdict
 from typing import Annotated, Any, Literal
 
-from fastapi import APIRouter, HTTPException, Path, Request, Response, status
+from fastapi import APIRouter, HTTPException, Path, Query, Request, Response, status
 from fastapi.concurrency import run_in_threadpool
 
 from dimacq.api.deps import IdPath, LabDep, NameQuery
@@ -23,6 +23,8 @@ from dimacq.api.routers._common import (
 )
 from dimacq.api.schemas import (
     LABEL_PATTERN,
+    MAX_ID,
+    DeletedOut,
     LineOfActionRequest,
     NewTestRequest,
     OrientationRequest,
@@ -96,7 +98,20 @@ def digitize_point(
 
 @router.get("/points", response_model=list[PointOut], responses=LIST_RESPONSES)
 def list_points(lab: LabDep, page: PageDep, response: Response) -> list[StoredPoint]:
-    return paged(response, lab.geometry.points(), page)
+    return paged(response, lab.geometry.points_page(page.limit, page.offset), page)
+
+
+@router.delete("/points", response_model=DeletedOut)
+def delete_points(
+    lab: LabDep,
+    patch: Annotated[
+        int | None,
+        Query(ge=0, le=MAX_ID, description="only this patch's points (default: every point)"),
+    ] = None,
+) -> dict[str, int]:
+    """Delete the digitized points in bulk: every one, or one patch's (an import to do again);
+    ``{"deleted": n}``. Registrations, orientations and lines of action are kept."""
+    return {"deleted": lab.geometry.delete_points(patch)}
 
 
 @router.post(
@@ -117,8 +132,12 @@ async def import_points(
     from dimacq.io.measured_points import read_measured_points
 
     data = await read_upload(request)
-    points = read_measured_points(data, format, what=f"measured points ({format})")
-    return await run_in_threadpool(lab.geometry.import_points, points, name)
+
+    def parse_and_store() -> list[StoredPoint]:  # off the event loop: a big file takes time
+        points = read_measured_points(data, format, what=f"measured points ({format})")
+        return lab.geometry.import_points(points, name)
+
+    return await run_in_threadpool(parse_and_store)
 
 
 @router.delete("/points/{point_id:id}", status_code=status.HTTP_204_NO_CONTENT)

@@ -11,6 +11,7 @@ from fastapi import APIRouter, Query, Response
 from fastapi.responses import StreamingResponse
 
 from dimacq.api.deps import LabDep
+from dimacq.api.public import public_value
 from dimacq.api.routers._common import LIST_RESPONSES, PageDep, found, paged
 from dimacq.api.schemas import JobInfo
 from dimacq.services.lab.jobs import FINAL_STATES
@@ -20,18 +21,23 @@ router = APIRouter(prefix="/api/jobs", tags=["jobs"])
 
 @router.get("", response_model=list[JobInfo], responses=LIST_RESPONSES)
 async def list_jobs(lab: LabDep, page: PageDep, response: Response) -> list[dict[str, Any]]:
-    return paged(response, lab.jobs.list_jobs(), page)
+    return paged(response, [_public_job(j) for j in lab.jobs.list_jobs()], page)
+
+
+def _public_job(snap: dict[str, Any]) -> dict[str, Any]:
+    """The job without server paths in its message, error or result."""
+    return {**snap, **{k: public_value(snap.get(k)) for k in ("message", "error", "result")}}
 
 
 @router.get("/{job_id}", response_model=JobInfo)
 async def get_job(job_id: str, lab: LabDep) -> dict[str, Any]:
-    return found(lab.jobs.snapshot(job_id), f"job {job_id!r}")
+    return _public_job(found(lab.jobs.snapshot(job_id), f"job {job_id!r}"))
 
 
 @router.post("/{job_id}/cancel", response_model=JobInfo)
 async def cancel_job(job_id: str, lab: LabDep) -> dict[str, Any]:
     found(lab.jobs.snapshot(job_id), f"job {job_id!r}")
-    return lab.jobs.cancel(job_id)
+    return _public_job(lab.jobs.cancel(job_id))
 
 
 @router.get(
@@ -72,9 +78,9 @@ async def job_events(
             if snap["version"] != seen:
                 seen = snap["version"]
                 idle = 0.0
-                yield f"event: status\ndata: {json.dumps(snap)}\n\n"
+                yield f"event: status\ndata: {json.dumps(_public_job(snap))}\n\n"
             if snap["state"] in FINAL_STATES:
-                yield f"event: end\ndata: {json.dumps(snap)}\n\n"
+                yield f"event: end\ndata: {json.dumps(_public_job(snap))}\n\n"
                 return
             await asyncio.sleep(poll)
             idle += poll

@@ -7,6 +7,7 @@ from typing import Annotated, Any
 from fastapi import APIRouter
 
 from dimacq.api.deps import LabDep
+from dimacq.api.public import public
 from dimacq.api.routers._common import body_openapi, strict_body
 from dimacq.api.schemas import RigOut, RigText
 
@@ -18,7 +19,8 @@ def read_rig(lab: LabDep) -> dict[str, Any]:
     """The configured rig file: ``path``, ``text``, ``rig`` (parsed: ``daq``, ``hammers``,
     ``responses`` with ``sensitivity_mv_per_g``, ``load_cells``; None when invalid) and
     ``error`` (why it is invalid, "" when valid)."""
-    return lab.rig_map.read()
+    out = lab.rig_map.read()
+    return {**out, "error": public(out["error"])}
 
 
 @router.post("/check", response_model=RigOut, openapi_extra=body_openapi(RigText))
@@ -34,4 +36,5 @@ def check_rig(lab: LabDep, body: Annotated[RigText, strict_body(RigText)]) -> di
 def write_rig(lab: LabDep, body: Annotated[RigText, strict_body(RigText)]) -> dict[str, Any]:
     """Replace the rig file with ``text`` once it is checked (422 naming the item otherwise);
     the previous file is kept as ``<name>.previous``. The next acquisition uses it."""
-    return lab.rig_map.write(body.text)
+    out = lab.rig_map.write(body.text)
+    return {**out, "error": public(out["error"])}

@@ -147,7 +147,7 @@ class Rig:
 
 def _channels(rf: RigFile, setup: TestSetup) -> tuple[list[int], list[int], list[int]]:
     """Rig file entries per setup hammer input, response and load cell (indices)."""
-    where = f"rig file {rf.path}"
+    where = f"rig file {rf.name}"
     by_key = {r.key: i for i, r in enumerate(rf.responses)}
     missing = [
         axis_name(c.node, c.direction)
@@ -194,7 +194,7 @@ def _item(rf: RigFile, item: str) -> Iterator[None]:
     try:
         yield
     except SetupError as err:
-        raise SetupError(f"rig file {rf.path}, {item}: {err}") from err
+        raise SetupError(f"rig file {rf.name}, {item}: {err}") from err
 
 
 def _configure(daq: Daq, rf: RigFile, response_of: list[int]) -> tuple[list[str], list[str]]:

@@ -16,6 +16,9 @@ from dimacq.services.calibration.loadcell_calibration import (
 )
 from dimacq.services.lab.ownership import DeviceOwners
 
+#: The most averages per input a calibration run asks (an impact test's limit).
+MAX_AVERAGES = 100
+
 __all__ = ["CalibrationRuns"]
 
 
@@ -96,11 +99,13 @@ class CalibrationRuns:
             raise SetupError(f"circular_check {check!r}: give true or false")
         averages = request.get("averages_per_input")
         if averages is not None and (
-            not isinstance(averages, int) or isinstance(averages, bool) or not 1 <= averages <= 1000
+            not isinstance(averages, int)
+            or isinstance(averages, bool)
+            or not 1 <= averages <= MAX_AVERAGES
         ):
             raise SetupError(
-                f"averages_per_input {averages!r}: give an integer 1–1000 (default: the bench "
-                "file's)"
+                f"averages_per_input {averages!r}: give an integer 1–{MAX_AVERAGES} (what an "
+                "impact test takes per input; default: the bench file's)"
             )
         cfg = {} if averages is None else {"averages_per_input": averages}
         devices = ("loadcell", "daq") if method == "inertial" else ("loadcell",)

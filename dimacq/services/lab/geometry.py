@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
-from sqlalchemy import select
+from sqlalchemy import delete, func, insert, select
 
 from dimacq.errors import DataError, DeviceStateError, SetupError
 from dimacq.model.setup import Excitation, KnownProperties, LoadCell, ResponseChannel, TestSetup
@@ -34,6 +34,7 @@ from dimacq.services.lab.geometry_records import (
     Shots,
     StoredPoint,
 )
+from dimacq.services.lab.records import Page
 
 if TYPE_CHECKING:
     from dimacq.drivers.digitizer import SerialDigitizer
@@ -195,6 +196,25 @@ class GeometryService:
             regs = self._registrations(s)
         return [self._stored(r, regs) for r in rows]
 
+    def points_page(self, limit: int | None, offset: int) -> Page[StoredPoint]:
+        """One page of the points (id order), cut by the database, and their total count."""
+        with self.db.session() as s:
+            total = int(s.scalar(select(func.count()).select_from(m.DigitizedPointRow)) or 0)
+            q = select(m.DigitizedPointRow).order_by(m.DigitizedPointRow.id).offset(offset)
+            rows = list(s.scalars(q if limit is None else q.limit(limit)))
+            regs = self._registrations(s)
+        return Page([self._stored(r, regs) for r in rows], total)
+
+    def delete_points(self, patch: int | None) -> int:
+        """Delete every digitized point, or those of one patch (an import to do again); fits
+        made from them are kept. Returns how many were deleted."""
+        with self.db.session() as s:
+            q = delete(m.DigitizedPointRow)
+            if patch is not None:
+                q = q.where(m.DigitizedPointRow.patch == patch)
+            done = s.execute(q.execution_options(synchronize_session=False))
+            return int(done.rowcount)  # type: ignore[attr-defined]
+
     @staticmethod
     def _stored(r: m.DigitizedPointRow, regs: dict[int, Registration]) -> StoredPoint:
         reg = regs.get(r.patch)
@@ -265,20 +285,18 @@ class GeometryService:
         test = self.current_test()
         with self.db.session() as s:
             s.merge(m.PatchRow(index=index, name=name, test=test))
-            for p in points.points:
-                sigma = 0.0 if p.sigma_m is None else p.sigma_m
-                s.add(
-                    m.DigitizedPointRow(
-                        label=p.label,
-                        patch=index,
-                        position_array_m=list(p.xyz_m),
-                        spread_m=[sigma, sigma, sigma],
-                        n_shots=1,
-                        n_used=1,
-                        seqs=[],
-                    )
-                )
-        return [q for q in self.points() if q.patch == index]
+            s.flush()
+            new = [
+                dict(label=p.label, patch=index, position_array_m=list(p.xyz_m), seqs=[],
+                     spread_m=[p.sigma_m or 0.0] * 3, n_shots=1, n_used=1)
+                for p in points.points
+            ]  # fmt: skip
+            s.execute(insert(m.DigitizedPointRow), new)  # one executemany, not a row at a time
+        with self.db.session() as s:
+            q = select(m.DigitizedPointRow).where(m.DigitizedPointRow.patch == index)
+            rows = list(s.scalars(q.order_by(m.DigitizedPointRow.id)))
+            regs = self._registrations(s)
+        return [self._stored(r, regs) for r in rows]
 
     def new_test(self, name: str | None = None) -> NewTest:
         """Start a new digitizing test: a fresh patch, no reference nodes, no orientations or

@@ -56,6 +56,11 @@ JobState = Literal["pending", "running", "succeeded", "failed", "cancelled", "in
 FINAL_STATES: frozenset[str] = frozenset({"succeeded", "failed", "cancelled", "interrupted"})
 
 
+#: Job kinds that use the stand's devices while the operator waits (acquisitions, calibration
+#: runs): they have their own limit, never taken by background work (studies, plans).
+FOREGROUND_KINDS = frozenset({"acquisition", "loadcell-calibration"})
+
+
 class JobCancelled(DimacqError):
     """Raised inside a job function by :meth:`JobContext.check_cancelled` after a cancel."""
 
@@ -143,6 +148,8 @@ class JobStore(Protocol):
 
     def claim(self, kinds: list[str]) -> tuple[str, str, dict[str, Any]] | None: ...
 
+    def release(self, job_id: str, reason: str) -> None: ...
+
 
 class JobManager:
     """Runs jobs on their own threads and keeps their state.
@@ -154,7 +161,12 @@ class JobManager:
     persist_interval_s : float
         Minimum time between two progress-only persist calls of one job.
     max_running : int
-        Jobs allowed to run at once; :meth:`submit` beyond that raises SetupError.
+        Background jobs (studies, plans: every kind not in ``foreground``) allowed to run at
+        once; :meth:`submit` beyond that raises SetupError.
+    max_foreground : int
+        Foreground jobs (:data:`FOREGROUND_KINDS`: acquisitions, calibration runs, the lab's
+        tests on its devices) allowed at once, counted apart: background work never blocks
+        them.
     """
 
     def __init__(
@@ -164,6 +176,7 @@ class JobManager:
         store: JobStore | None = None,
         persist_interval_s: float = 1.0,
         max_running: int = 4,
+        max_foreground: int = 4,
     ) -> None:
         self.store = store
         if persist is None and store is not None:
@@ -177,6 +190,8 @@ class JobManager:
         self._persist_interval_s = persist_interval_s
         self._last_persist: dict[str, float] = {}
         self.max_running = max_running
+        self.max_foreground = max_foreground
+        self._reserved = 0  # background slots held by claims in progress
 
     # -- queries -------------------------------------------------------------------------------
     def get(self, job_id: str) -> Job | None:
@@ -244,13 +259,18 @@ class JobManager:
     ) -> Job:
         """Start ``fn`` on a new thread; return the job at once (``claimed``: a queued job this
         service has claimed, already ``running`` in the store)."""
+        foreground = kind in FOREGROUND_KINDS
         with self._lock:
-            active = sum(1 for j in self._jobs.values() if not j.done)
-            if active >= self.max_running:
-                raise SetupError(
-                    f"{active} jobs are running (limit {self.max_running}); wait for one to finish "
-                    "or cancel one"
-                )
+            if claimed:
+                self._reserved = max(0, self._reserved - 1)  # the slot claim_queued held
+            else:
+                active, limit = self._active(foreground)
+                if active >= limit:
+                    what = "acquisitions and calibration runs" if foreground else "background jobs"
+                    raise SetupError(
+                        f"{active} {what} are running (limit {limit}); wait for one to finish "
+                        "or cancel one"
+                    )
             job = Job(
                 id=job_id or uuid.uuid4().hex[:12],
                 kind=kind,
@@ -265,26 +285,52 @@ class JobManager:
         thread.start()
         return job
 
+    def _active(self, foreground: bool) -> tuple[int, int]:
+        """Jobs of the class running here (background: with the slots reserved by claims in
+        progress) and the class's limit; call with the lock held."""
+        n = sum(
+            1
+            for j in self._jobs.values()
+            if not j.done and (j.kind in FOREGROUND_KINDS) == foreground
+        )
+        if foreground:
+            return n, self.max_foreground
+        return n + self._reserved, self.max_running
+
     def claim_queued(self) -> bool:
-        """Claim one queued job this service has a handler for and start it; False if none (or
-        no capacity)."""
+        """Claim one queued (background) job this service has a handler for and start it; False
+        if none (or no capacity). Its slot is reserved before the claim, so the claimed job
+        always starts; a job claimed but not started is failed in the store, never left
+        running with nobody to run it."""
         if self.store is None or not self.handlers:
             return False
         with self._claim_lock:
             with self._lock:
-                if sum(1 for j in self._jobs.values() if not j.done) >= self.max_running:
+                active, limit = self._active(foreground=False)
+                if active >= limit:
                     return False
-            got = self.store.claim(sorted(self.handlers))
-            if got is None:
-                return False
-            job_id, kind, params = got
-            log.info("claimed queued job %s (%s)", job_id, kind)
+                self._reserved += 1
+            started = False
+            got = None
             try:
-                fn = self.handlers[kind](params)
-            except DimacqError as err:
-                fn = _failing(err)
-            self.submit(kind, fn, job_id=job_id, claimed=True)
-            return True
+                got = self.store.claim(sorted(self.handlers))
+                if got is None:
+                    return False
+                job_id, kind, params = got
+                log.info("claimed queued job %s (%s)", job_id, kind)
+                try:
+                    fn = self.handlers[kind](params)
+                except DimacqError as err:
+                    fn = _failing(err)
+                self.submit(kind, fn, job_id=job_id, claimed=True)
+                started = True
+                return True
+            finally:
+                if not started:
+                    with self._lock:
+                        self._reserved = max(0, self._reserved - 1)
+                    if got is not None:
+                        self.store.release(got[0], "claimed but could not be started")
 
     def cancel(self, job_id: str) -> dict[str, Any]:
         """Ask a job to stop (it stops at its next check); final jobs are left as they are. A

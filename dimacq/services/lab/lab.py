@@ -37,9 +37,14 @@ return ``None`` (the API's 404).
 from __future__ import annotations
 
 import logging
+import os
+import shutil
+import sys
+import tempfile
 import time
 from dataclasses import dataclass
 from datetime import UTC, datetime
+from pathlib import Path
 from typing import Any
 
 from dimacq.config import Settings
@@ -63,6 +68,23 @@ from dimacq.services.lab.studies import StudyService
 __all__ = ["Lab", "LabStatus"]
 
 log = logging.getLogger(__name__)
+
+
+def confine_files(data_dir: Path) -> Path:
+    """Keep the service's own files under ``data_dir``: temporary files (upload spools, UFF
+    reads) in ``<data_dir>/tmp``, emptied here (a spool left by a killed service goes), and
+    matplotlib's configuration and font cache in ``<data_dir>/cache/matplotlib`` (set before
+    matplotlib is first imported: a process that imported it already keeps its folder). Returns
+    the temporary folder."""
+    spool = data_dir / "tmp"
+    shutil.rmtree(spool, ignore_errors=True)
+    spool.mkdir(mode=0o700, parents=True, exist_ok=True)
+    tempfile.tempdir = str(spool)
+    mpl = data_dir / "cache" / "matplotlib"
+    mpl.mkdir(mode=0o700, parents=True, exist_ok=True)
+    if "matplotlib" not in sys.modules:
+        os.environ["MPLCONFIGDIR"] = str(mpl)
+    return spool
 
 
 @dataclass(frozen=True)
@@ -114,7 +136,8 @@ class Lab:
         rig_factory: RigFactory | None = None,
     ) -> None:
         self.settings = settings
-        settings.data_dir.mkdir(parents=True, exist_ok=True)
+        settings.check_data_dir()
+        self._spool = confine_files(settings.data_dir)
         self.db: Database = open_database(
             settings.db_url, timeout_s=min(20.0, settings.database_retry_s)
         )
@@ -167,6 +190,8 @@ class Lab:
         self.ticker.stop()
         self.jobs.shutdown()
         self.devices.disconnect_all()
+        if tempfile.tempdir == str(self._spool):
+            tempfile.tempdir = None  # back to the environment's choice
         try:
             self.outbox.flush(self.db)
             stand_lease.release_stand(self.db, self.stand)

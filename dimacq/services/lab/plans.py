@@ -29,7 +29,7 @@ class ExpectedProperties(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    mass_kg: float = Field(gt=0, le=1e9, allow_inf_nan=False)
+    mass_kg: float = Field(ge=1e-6, le=1e9, allow_inf_nan=False)
     cg_m: tuple[Coord, Coord, Coord]
     inertia_cg_kgm2: tuple[InertiaRow, InertiaRow, InertiaRow]
 
@@ -47,7 +47,7 @@ class PlanParams(BaseModel):
     inputs: int = Field(ge=1, le=1000)
     trials: int = Field(default=0, ge=0, le=200)
     seed: int = Field(default=0, ge=0, le=2**32 - 1)
-    noise: float = Field(default=0.01, gt=0, le=1)
+    noise: float = Field(default=0.01, ge=1e-6, le=1, allow_inf_nan=False)
     noise_model: Literal["channel", "relative"] = "channel"
 
 

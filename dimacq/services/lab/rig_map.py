@@ -76,8 +76,7 @@ class RigMapService:
                 fh.flush()
                 os.fsync(fh.fileno())
             if self.path.exists():
-                previous = self.path.with_name(self.path.name + ".previous")
-                previous.write_bytes(self.path.read_bytes())
+                _keep_previous(self.path)
             os.replace(tmp, self.path)
             tmp = ""
         except OSError as err:
@@ -89,6 +88,23 @@ class RigMapService:
             if tmp:
                 Path(tmp).unlink(missing_ok=True)
         return self.read()
+
+
+def _keep_previous(path: Path) -> None:
+    """Copy ``path`` to ``<name>.previous`` atomically: written to a new private file in the same
+    folder, then renamed over it (a rename replaces a symbolic link planted at ``.previous``
+    instead of writing through it)."""
+    previous = path.with_name(path.name + ".previous")
+    fd, tmp = tempfile.mkstemp(prefix=".rig-previous-", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(path.read_bytes())
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, previous)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
 
 
 def dump_rig(rig: RigFile) -> dict[str, Any]:

@@ -25,11 +25,11 @@ class CubeStudyParams(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    half_size_m: float = Field(gt=0, le=1000)
+    half_size_m: float = Field(ge=1e-3, le=1000, allow_inf_nan=False)
     sensors: int = Field(default=1, ge=1, le=8)
-    max_angle_deg: float = Field(gt=0, le=90)
+    max_angle_deg: float = Field(ge=1e-6, le=90, allow_inf_nan=False)
     trials: int = Field(default=500, ge=1, le=10_000)
-    seed: int = Field(default=0, ge=0)
+    seed: int = Field(default=0, ge=0, le=2**32 - 1)
 
 
 @dataclass(frozen=True)
