@@ -135,7 +135,9 @@ class TagsFile(_Model):
         return self
 
     def tags_of(self, body: BodySpec) -> list[TagSpec]:
-        return list(body.tags) if body.tags is not None else list(self.layouts[body.layout or ""].tags)
+        return (
+            list(body.tags) if body.tags is not None else list(self.layouts[body.layout or ""].tags)
+        )
 
     def body_models(self) -> list[BodyModel]:
         """The bodies as the bundle adjustment takes them (tags mounted at their stated
@@ -183,7 +185,9 @@ def load_tags(path: str | Path) -> TagsFile:
     try:
         return TagsFile.model_validate(data)
     except ValidationError as err:
-        raise refuse("tags file", str(p), err, TagsFile, "see dimacq/manual/photo-geometry.md") from err
+        raise refuse(
+            "tags file", str(p), err, TagsFile, "see dimacq/manual/photo-geometry.md"
+        ) from err
 
 
 def dump_tags(tags: TagsFile, path: str | Path) -> None:

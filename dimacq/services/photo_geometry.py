@@ -113,7 +113,9 @@ def load_camera(path: str | Path) -> tuple[Intrinsics, bool]:
     try:
         cam = _CameraFile.model_validate(data)
     except ValidationError as err:
-        raise refuse("camera file", str(p), err, _CameraFile, "see dimacq/manual/photo-geometry.md") from err
+        raise refuse(
+            "camera file", str(p), err, _CameraFile, "see dimacq/manual/photo-geometry.md"
+        ) from err
     d = cam.model_dump()
     refine = bool(d.pop("refine"))
     d.pop("schema_version")
@@ -131,7 +133,12 @@ class PhotoIssue:
     fix: str
 
     def to_json(self) -> dict[str, str]:
-        return {"photo": self.photo, "severity": self.severity, "problem": self.problem, "fix": self.fix}
+        return {
+            "photo": self.photo,
+            "severity": self.severity,
+            "problem": self.problem,
+            "fix": self.fix,
+        }
 
     def __str__(self) -> str:
         return f"{self.photo}: {self.problem}; {self.fix}"
@@ -222,7 +229,9 @@ def _dictionary(family: str) -> Any:
     return cv2.aruco.getPredefinedDictionary(code)
 
 
-def detect_tags(gray: NDArray[np.uint8], family: str = "DICT_APRILTAG_36h11") -> dict[int, FloatArray]:
+def detect_tags(
+    gray: NDArray[np.uint8], family: str = "DICT_APRILTAG_36h11"
+) -> dict[int, FloatArray]:
     """Tags of ``family`` in a grey image: id → four corners in pixels (OpenCV's order:
     top-left, top-right, bottom-right, bottom-left of the printed tag), refined to sub-pixel.
     A tag id seen twice in one photo is dropped (it cannot be told apart)."""
@@ -287,7 +296,12 @@ def _read_photos(
         gray = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
         if gray is None:
             issues.append(
-                PhotoIssue(path.name, "skipped", "not an image OpenCV can read", "remove it or save it as JPEG/PNG")
+                PhotoIssue(
+                    path.name,
+                    "skipped",
+                    "not an image OpenCV can read",
+                    "remove it or save it as JPEG/PNG",
+                )
             )
             continue
         size = (int(gray.shape[1]), int(gray.shape[0]))
@@ -336,7 +350,10 @@ def _why_no_tags(name: str, gray: NDArray[np.uint8], family: str, foreign: list[
     cv2 = _cv2()
     if foreign:
         return PhotoIssue(
-            name, "skipped", f"only tags {foreign} not in the tags file", "photograph the test's tags"
+            name,
+            "skipped",
+            f"only tags {foreign} not in the tags file",
+            "photograph the test's tags",
         )
     for other in _OTHER_FAMILIES:
         if other != family and len(detect_tags(gray, other)) >= 2:
@@ -344,7 +361,7 @@ def _why_no_tags(name: str, gray: NDArray[np.uint8], family: str, foreign: list[
                 name,
                 "skipped",
                 f"tags of family {other} seen, none of {family} (the tags file's family)",
-                f"set family = \"{other}\" in the tags file, or print {family} tags",
+                f'set family = "{other}" in the tags file, or print {family} tags',
             )
     sharp = float(cv2.Laplacian(gray, cv2.CV_64F).var())
     if sharp < BLUR_LIMIT:
@@ -362,18 +379,22 @@ def _why_no_tags(name: str, gray: NDArray[np.uint8], family: str, foreign: list[
     )
 
 
-def _pose_from_points(obj: FloatArray, xy: FloatArray, planar_square: bool) -> tuple[FloatArray, FloatArray, float]:
+def _pose_from_points(
+    obj: FloatArray, xy: FloatArray, planar_square: bool
+) -> tuple[FloatArray, FloatArray, float]:
     """(R, t, rms) of object points seen at normalised image points (camera matrix I)."""
     cv2 = _cv2()
     k = np.eye(3)
     if planar_square:
-        n, rs, ts, errs = cv2.solvePnPGeneric(
+        _n, rs, ts, errs = cv2.solvePnPGeneric(
             obj.astype(np.float64), xy.astype(np.float64), k, None, flags=cv2.SOLVEPNP_IPPE_SQUARE
         )
         best = int(np.argmin(np.asarray(errs).ravel()))
         r, t, e = rs[best], ts[best], float(np.asarray(errs).ravel()[best])
     else:
-        ok, r, t = cv2.solvePnP(obj.astype(np.float64), xy.astype(np.float64), k, None, flags=cv2.SOLVEPNP_SQPNP)
+        ok, r, t = cv2.solvePnP(
+            obj.astype(np.float64), xy.astype(np.float64), k, None, flags=cv2.SOLVEPNP_SQPNP
+        )
         if not ok:
             raise DataError("pose: solvePnP failed")
         ok, r, t = cv2.solvePnP(obj, xy, k, None, r, t, True, cv2.SOLVEPNP_ITERATIVE)
@@ -578,7 +599,9 @@ def geometry_from_photos(
                 )
             )
     use_bodies = [
-        bi for bi, b in enumerate(models) if views[bi] >= (1 if b.kind in ("reference", "scalebar") else MIN_VIEWS)
+        bi
+        for bi, b in enumerate(models)
+        if views[bi] >= (1 if b.kind in ("reference", "scalebar") else MIN_VIEWS)
     ]
     sub_models = [models[bi] for bi in use_bodies]
     cams, poses = _initial_poses(sub_models, photos, intr, say)
@@ -614,7 +637,9 @@ def geometry_from_photos(
         for tid, corners in photos[c].tags.items()
         if tid in mount
     ]
-    obs, oblique = _drop_oblique(obs, final_models, [cams[c] for c in cam_idx], [poses[i] for i in body_idx])
+    obs, oblique = _drop_oblique(
+        obs, final_models, [cams[c] for c in cam_idx], [poses[i] for i in body_idx]
+    )
     if oblique:
         say(f"{oblique} tag views more oblique than {MAX_INCIDENCE_DEG:g} deg left out")
     say(f"adjusting {len(cam_idx)} photos, {len(final_models)} bodies, {4 * len(obs)} corners")
@@ -642,7 +667,12 @@ def geometry_from_photos(
             )
     for p, t, r in bundle.rejected:
         issues.append(
-            PhotoIssue(used[p], "warn", f"tag {t} left out as a gross error ({r:.1f} px)", "a tag partly hidden or misread: retake it")
+            PhotoIssue(
+                used[p],
+                "warn",
+                f"tag {t} left out as a gross error ({r:.1f} px)",
+                "a tag partly hidden or misread: retake it",
+            )
         )
     depth = float(np.median(np.linalg.norm(bundle.camera_translations, axis=1)))
     scale_m = bundle.sigma_px * depth / bundle.intrinsics.fx
@@ -716,7 +746,9 @@ def _records(
                     residual_rms_m=float(residual_m),
                     angle_std_deg=[float(v) for v in axis_std],
                     uncertainty_deg=float(np.degrees(np.sqrt(np.trace(cov_r)))),
-                    jig_uncertainty_deg=float(np.degrees(np.sqrt(np.trace(est.covariance[:3, :3])))),
+                    jig_uncertainty_deg=float(
+                        np.degrees(np.sqrt(np.trace(est.covariance[:3, :3])))
+                    ),
                     registration_uncertainty_deg=None,
                     origin_std_m=pos_std,
                 )
@@ -783,7 +815,11 @@ def apply_to_setup(setup: TestSetup, result: PhotoGeometry) -> TestSetup:
         )
     geo = geometry_uncertainty(
         [o.to_json() for o in result.orientations if o.node in {c.node for c in setup.responses}],
-        [a.to_json() for a in result.lines_of_action if a.node in {e.node for e in setup.excitations}],
+        [
+            a.to_json()
+            for a in result.lines_of_action
+            if a.node in {e.node for e in setup.excitations}
+        ],
         [],
         point_accuracy_m=0.0,
         registration_limit_m=None,
@@ -799,4 +835,3 @@ def apply_to_setup(setup: TestSetup, result: PhotoGeometry) -> TestSetup:
         )
     except ValidationError as err:
         raise SetupError(f"setup from photographs: {err}") from err
-

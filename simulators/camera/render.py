@@ -115,8 +115,12 @@ def tagged_world(
         truth[b.label()] = (r, p)
         inward = centre - p
         specs = tags.tags_of(b)
-        normals = [r @ Rotation.from_rotvec(np.radians(t.rotation_deg)).apply([0, 0, 1.0]) for t in specs]
-        mount_face = int(np.argmax([np.dot(n, inward) for n in normals])) if b.kind == "triax" else -1
+        normals = [
+            r @ Rotation.from_rotvec(np.radians(t.rotation_deg)).apply([0, 0, 1.0]) for t in specs
+        ]
+        mount_face = (
+            int(np.argmax([np.dot(n, inward) for n in normals])) if b.kind == "triax" else -1
+        )
         for k, t in enumerate(specs):
             r_bt = (
                 Rotation.from_rotvec(rng.normal(scale=np.radians(tags.placement_angle_deg), size=3))
@@ -169,7 +173,9 @@ _DICT_CACHE: dict[str, Any] = {}
 
 def _marker(tag_id: int, family: str, px: int) -> NDArray[np.uint8]:
     """The printed tag with a white margin of one cell: ``px`` pixels per cell."""
-    d = _DICT_CACHE.setdefault(family, cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, family)))
+    d = _DICT_CACHE.setdefault(
+        family, cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, family))
+    )
     cells = d.markerSize + 2
     img = cv2.aruco.generateImageMarker(d, tag_id, cells * px)
     return cv2.copyMakeBorder(img, px, px, px, px, cv2.BORDER_CONSTANT, value=255)
@@ -181,7 +187,9 @@ _MAP_CACHE: dict[CameraModel, tuple[NDArray[np.float32], NDArray[np.float32]]] =
 def _distortion_map(cam: CameraModel, ss: int) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
     """For each sensor pixel, where it looks on the ideal (undistorted) canvas of ``ss``× size."""
     if cam not in _MAP_CACHE:
-        u, v = np.meshgrid(np.arange(cam.width, dtype=np.float64), np.arange(cam.height, dtype=np.float64))
+        u, v = np.meshgrid(
+            np.arange(cam.width, dtype=np.float64), np.arange(cam.height, dtype=np.float64)
+        )
         pts = np.stack([u.ravel(), v.ravel()], axis=1).reshape(-1, 1, 2)
         und = cv2.undistortPoints(
             pts,
@@ -251,7 +259,9 @@ def render(
         px = int(np.clip(size / 10, 2, 40))
         mk = _marker(t.tag_id, family, px).astype(np.float32)
         n = mk.shape[0]
-        src = np.array([[-0.5, -0.5], [n - 0.5, -0.5], [n - 0.5, n - 0.5], [-0.5, n - 0.5]], np.float32)
+        src = np.array(
+            [[-0.5, -0.5], [n - 0.5, -0.5], [n - 0.5, n - 0.5], [-0.5, n - 0.5]], np.float32
+        )
         x0, y0 = np.floor(uv.min(0)).astype(int) - 2
         x1, y1 = np.ceil(uv.max(0)).astype(int) + 2
         x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, w2), min(y1, h2)
@@ -268,7 +278,13 @@ def render(
     for _ in range(occluders):
         if rng.uniform() < 0.5:
             pts = rng.uniform([0, 0], [w2, h2], (2, 2)).astype(np.int32)
-            cv2.line(canvas, tuple(pts[0]), tuple(pts[1]), float(rng.uniform(10, 60)), int(rng.uniform(6, 30)))
+            cv2.line(
+                canvas,
+                tuple(pts[0]),
+                tuple(pts[1]),
+                float(rng.uniform(10, 60)),
+                int(rng.uniform(6, 30)),
+            )
         else:
             c = rng.uniform([0, 0], [w2, h2])
             poly = (c + rng.normal(scale=120, size=(5, 2))).astype(np.int32)
@@ -283,7 +299,9 @@ def render(
     return np.clip(np.round(img), 0, 255).astype(np.uint8)
 
 
-def _look_at(eye: FloatArray, target: FloatArray, rng: np.random.Generator) -> tuple[FloatArray, FloatArray]:
+def _look_at(
+    eye: FloatArray, target: FloatArray, rng: np.random.Generator
+) -> tuple[FloatArray, FloatArray]:
     z = target - eye
     z /= np.linalg.norm(z)
     up = rng.normal(size=3)
@@ -294,7 +312,9 @@ def _look_at(eye: FloatArray, target: FloatArray, rng: np.random.Generator) -> t
     return r, -r @ eye
 
 
-def write_jpeg(path: Path, img: NDArray[np.uint8], cam: CameraModel | None, quality: int = 95) -> None:
+def write_jpeg(
+    path: Path, img: NDArray[np.uint8], cam: CameraModel | None, quality: int = 95
+) -> None:
     """JPEG with the EXIF a camera writes (make, model, focal length and its 35 mm
     equivalent); ``cam=None`` writes none."""
     from PIL import Image
@@ -309,7 +329,7 @@ def write_jpeg(path: Path, img: NDArray[np.uint8], cam: CameraModel | None, qual
     sensor_w_mm = 7.2
     sub = exif.get_ifd(0x8769)
     sub[0x920A] = round(cam.f_px / cam.width * sensor_w_mm, 2)
-    sub[0xA405] = int(round(cam.f_px / cam.width * 36.0))
+    sub[0xA405] = round(cam.f_px / cam.width * 36.0)
     im.save(path, quality=quality, exif=exif)
 
 
@@ -346,14 +366,20 @@ def photograph_article(
         if overview:
             target = world.centre_m + rng.normal(scale=0.05, size=3) * world.extent_m
         else:
-            target = centres[rng.integers(len(centres))] + rng.normal(scale=0.1, size=3) * world.extent_m
+            target = (
+                centres[rng.integers(len(centres))] + rng.normal(scale=0.1, size=3) * world.extent_m
+            )
         d = rng.normal(size=3)
         d[2] = abs(d[2]) * 0.8 - 0.25
         d /= np.linalg.norm(d)
         eye = target + d * (rng.uniform(2.2, 2.8) * ext if overview else rng.uniform(lo_d, hi_d))
         r, t = _look_at(eye, target, rng)
         img = render(
-            world, cam, r, t, rng,
+            world,
+            cam,
+            r,
+            t,
+            rng,
             family=family,
             blur_px=float(rng.uniform(0.4, 1.1)),
             exposure=float(rng.uniform(0.7, 1.3)),
