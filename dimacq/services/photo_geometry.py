@@ -229,12 +229,78 @@ def _dictionary(family: str) -> Any:
     return cv2.aruco.getPredefinedDictionary(code)
 
 
+def refine_corners_by_edges(img: FloatArray, corners: FloatArray, cells: int) -> FloatArray:
+    """Corners as the intersections of the tag's four outer edges, each a line fitted to
+    sub-pixel edge points.
+
+    Along each side, away from the corners, the intensity profile across the edge (bilinear,
+    ±0.4 cell) is located where it crosses the mean of its outer (white margin) and inner (black
+    border) levels: under a symmetric blur that is the edge itself, whereas the corner of a
+    blurred square, which ``cornerSubPix`` finds, lies inside it (0.2–0.4 px for a blur of
+    0.4–1.1 px). The lines are fitted by total least squares and intersected. A side with too
+    few edge points keeps the detector's corners.
+    """
+    from scipy.ndimage import map_coordinates
+
+    c = np.asarray(corners, float)
+    centre = c.mean(axis=0)
+    lines = []
+    for k in range(4):
+        a, b = c[k], c[(k + 1) % 4]
+        side = float(np.linalg.norm(b - a))
+        if side < 8:
+            return c
+        t_dir = (b - a) / side
+        n = np.array([-t_dir[1], t_dir[0]])
+        if np.dot(n, 0.5 * (a + b) - centre) < 0:
+            n = -n  # outward
+        half = max(1.0, 0.4 * side / cells)
+        ts = np.linspace(0.15, 0.85, max(6, int(side / 2)))
+        offs = np.linspace(-half, half, max(7, int(4 * half) + 1))
+        base = a[None, :] + ts[:, None] * (b - a)[None, :]
+        pts = base[:, None, :] + offs[None, :, None] * n[None, None, :]
+        prof = map_coordinates(
+            img, [pts[..., 1].ravel(), pts[..., 0].ravel()], order=1, mode="nearest"
+        ).reshape(len(ts), len(offs))
+        inner = prof[:, :2].mean(axis=1)
+        outer = prof[:, -2:].mean(axis=1)
+        mid = 0.5 * (inner + outer)
+        edge = []
+        for j in np.flatnonzero((outer - inner) > 20.0):
+            above = np.flatnonzero(prof[j] >= mid[j])
+            if not len(above) or above[0] == 0:
+                continue
+            q = above[0]
+            p0, p1 = prof[j, q - 1], prof[j, q]
+            f = (mid[j] - p0) / (p1 - p0) if p1 != p0 else 0.5
+            edge.append(base[j] + (offs[q - 1] + f * (offs[q] - offs[q - 1])) * n)
+        if len(edge) < 4:
+            return c
+        e = np.array(edge)
+        m = e.mean(axis=0)
+        _, _, vt = np.linalg.svd(e - m)
+        lines.append((m, vt[0]))
+    out = np.empty((4, 2))
+    for k in range(4):
+        (p1_, d1), (p2_, d2) = lines[(k - 1) % 4], lines[k]
+        a_mat = np.column_stack([d1, -d2])
+        if abs(np.linalg.det(a_mat)) < 1e-6:
+            return c
+        s_ = np.linalg.solve(a_mat, p2_ - p1_)
+        out[k] = p1_ + s_[0] * d1
+    if np.max(np.linalg.norm(out - c, axis=1)) > 2.0:
+        return c
+    return out
+
+
 def detect_tags(
-    gray: NDArray[np.uint8], family: str = "DICT_APRILTAG_36h11"
+    gray: NDArray[np.uint8], family: str = "DICT_APRILTAG_36h11", *, refine_edges: bool = True
 ) -> dict[int, FloatArray]:
     """Tags of ``family`` in a grey image: id → four corners in pixels (OpenCV's order:
-    top-left, top-right, bottom-right, bottom-left of the printed tag), refined to sub-pixel.
-    A tag id seen twice in one photo is dropped (it cannot be told apart)."""
+    top-left, top-right, bottom-right, bottom-left of the printed tag), refined to sub-pixel
+    by ``cornerSubPix`` and then, with ``refine_edges``, as the intersections of the fitted
+    outer edges (:func:`refine_corners_by_edges`). A tag id seen twice in one photo is dropped
+    (it cannot be told apart)."""
     cv2 = _cv2()
     params = cv2.aruco.DetectorParameters()
     params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
@@ -247,11 +313,14 @@ def detect_tags(
     dup: set[int] = set()
     if ids is None:
         return out
+    img = np.asarray(gray, dtype=np.float64)
+    cells = int(det.getDictionary().markerSize) + 2
     for c, i in zip(corners, ids.ravel(), strict=True):
         k = int(i)
         if k in out:
             dup.add(k)
-        out[k] = np.asarray(c, float).reshape(4, 2)
+        c4 = np.asarray(c, float).reshape(4, 2)
+        out[k] = refine_corners_by_edges(img, c4, cells) if refine_edges else c4
     for k in dup:
         del out[k]
     return out
@@ -642,6 +711,21 @@ def geometry_from_photos(
     )
     if oblique:
         say(f"{oblique} tag views more oblique than {MAX_INCIDENCE_DEG:g} deg left out")
+    # photos and bodies left without a view are left out (nothing would fix them)
+    seen_cams = sorted({o.photo for o in obs})
+    tag_body = {t.tag_id: k for k, b in enumerate(final_models) for t in b.tags}
+    seen_bodies = sorted({tag_body[o.tag_id] for o in obs})
+    for k, b in enumerate(final_models):
+        if k not in seen_bodies and b.kind in ("triax", "input"):
+            unfixed.append(
+                f"{b.name}: its tags are seen only edge-on (more than {MAX_INCIDENCE_DEG:g} deg "
+                "from square on); take photos facing them"
+            )
+    cam_idx = [cam_idx[k] for k in seen_cams]
+    cmap = {old: new_ for new_, old in enumerate(seen_cams)}
+    body_idx = [body_idx[k] for k in seen_bodies]
+    final_models = [sub_models[i] for i in body_idx]
+    obs = [Observation(cmap[o.photo], o.tag_id, o.corners_px) for o in obs]
     say(f"adjusting {len(cam_idx)} photos, {len(final_models)} bodies, {4 * len(obs)} corners")
     bundle = adjust(
         final_models,
