@@ -324,7 +324,8 @@ def adjust(
         Start poses, body → world.
     reject_sigma : float
         An observation whose corner RMS exceeds ``reject_sigma · σ_px`` after the first fit is
-        removed and the fit repeated (once).
+        removed (worst first, never a photo's or a body's last one) and the fit repeated
+        (once).
     progress : callable (evaluations, cost), optional
         Called as the adjustment evaluates its residuals.
 
@@ -380,7 +381,17 @@ def adjust(
     dof = max(res.size - len(x) + 6 * len(prob.prior_idx), 1)
     sigma = float(np.sqrt(np.sum(res**2) / dof))
     per_obs = np.sqrt(np.mean(res.reshape(len(prob.obs), -1) ** 2, axis=1))
-    bad = per_obs > reject_sigma * max(sigma, 0.05)
+    bad = np.zeros(len(per_obs), dtype=bool)
+    n_cam_obs = np.bincount(prob.o_cam, minlength=prob.n_cam)
+    n_body_obs = np.bincount(prob.o_body, minlength=prob.n_body)
+    for i in np.argsort(-per_obs):  # worst first; a photo or body keeps its last view
+        if per_obs[i] <= reject_sigma * max(sigma, 0.05):
+            break
+        c, b = prob.o_cam[i], prob.o_body[i]
+        if n_cam_obs[c] > 1 and n_body_obs[b] > 1:
+            bad[i] = True
+            n_cam_obs[c] -= 1
+            n_body_obs[b] -= 1
     rejected: list[tuple[int, int, float]] = []
     if bad.any():
         rejected = [
