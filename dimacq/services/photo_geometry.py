@@ -643,10 +643,10 @@ def geometry_from_photos(
     unfixed = []
     for bi, b in enumerate(models):
         if b.kind in ("triax", "input") and views[bi] < MIN_VIEWS:
-            ids = sorted(t.tag_id for t in b.tags)
+            id_list = sorted(t.tag_id for t in b.tags)
             need = MIN_VIEWS - views[bi]
             unfixed.append(
-                f"{b.name}: its tags (ids {ids[0]}–{ids[-1]}) are seen in {views[bi]} photo(s); "
+                f"{b.name}: its tags (ids {id_list[0]}–{id_list[-1]}) are seen in {views[bi]} photo(s); "
                 f"take at least {need} more photo(s) showing them from other directions"
             )
     if setup is not None:
@@ -749,10 +749,10 @@ def geometry_from_photos(
                     "motion blur or a tag misread: retake it",
                 )
             )
-    for p, t, r in bundle.rejected:
+    for k_photo, t, r in bundle.rejected:
         issues.append(
             PhotoIssue(
-                used[p],
+                used[k_photo],
                 "warn",
                 f"tag {t} left out as a gross error ({r:.1f} px)",
                 "a tag partly hidden or misread: retake it",

@@ -73,7 +73,7 @@ def tagged_world(
     occluder_box: tuple[Any, Any] | None = None,
 ) -> TaggedWorld:
     """The bodies of ``tags`` at their true poses (see the module)."""
-    resp = {}
+    resp: dict[int, dict[int, tuple[FloatArray, FloatArray]]] = {}
     for ch in setup_true.responses:
         resp.setdefault(ch.node, {})[abs(ch.direction)] = (
             np.sign(ch.direction) * np.asarray(ch.direction_gcs, float),
@@ -87,12 +87,14 @@ def tagged_world(
     out: list[WorldTag] = []
     for b in tags.bodies:
         if b.kind == "triax":
+            assert b.node is not None
             axes = resp[b.node]
             r = np.column_stack([axes[k][0] for k in (1, 2, 3)])
             u, _, vt = np.linalg.svd(r)
             r = u @ vt
             p = axes[1][1]
         elif b.kind == "input":
+            assert b.node is not None
             e = ins[b.node]
             z = -np.asarray(e.direction_gcs, float)
             rot, _ = Rotation.align_vectors([z], [[0.0, 0.0, 1.0]])
@@ -178,7 +180,10 @@ def _marker(tag_id: int, family: str, px: int) -> NDArray[np.uint8]:
     )
     cells = d.markerSize + 2
     img = cv2.aruco.generateImageMarker(d, tag_id, cells * px)
-    return cv2.copyMakeBorder(img, px, px, px, px, cv2.BORDER_CONSTANT, value=255)
+    out: NDArray[np.uint8] = cv2.copyMakeBorder(
+        img, px, px, px, px, cv2.BORDER_CONSTANT, value=255
+    ).astype(np.uint8)
+    return out
 
 
 _MAP_CACHE: dict[CameraModel, tuple[NDArray[np.float32], NDArray[np.float32]]] = {}

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from dimacq.errors import DataError
-from dimacq.io.tags_file import BodySpec, LayoutSpec, TagSpec, TagsFile
+from dimacq.io.tags_file import BodySpec, LayoutSpec, TagsFile, TagSpec
 from dimacq.services.photo_geometry import _read_photos, detect_tags, geometry_from_photos
 
 
@@ -72,5 +72,5 @@ def test_bad_photos_named(tmp_path: Path) -> None:
 def test_exif_less_photos_refused(tmp_path: Path) -> None:
     for k in range(3):
         cv2.imwrite(str(tmp_path / f"p{k}.png"), _sheet([0, 1], cv2.aruco.DICT_APRILTAG_36h11))
-    with pytest.raises(DataError, match="EXIF.*--camera"):
+    with pytest.raises(DataError, match=r"EXIF.*--camera"):
         geometry_from_photos(tmp_path, _tags())

@@ -48,7 +48,10 @@ def test_charuco_photo_matches_the_board() -> None:
     board = cv2.aruco.CharucoBoard((5, 7), 0.04, 0.02, d)
     det = detect_tags(_gray("choriginal.jpg"), "DICT_6X6_250")
     assert sorted(det) == list(range(17))
-    obj = {int(i): np.asarray(p, float) for i, p in zip(board.getIds(), board.getObjPoints(), strict=True)}
+    obj = {
+        int(i): np.asarray(p, float)
+        for i, p in zip(board.getIds(), board.getObjPoints(), strict=True)
+    }
     src = np.concatenate([obj[i][:, :2] for i in sorted(det)])
     dst = np.concatenate([det[i] for i in sorted(det)])
     h, _ = cv2.findHomography(src, dst, 0)
