@@ -27,6 +27,7 @@ from dimacq.api.schemas import (
     NewTestRequest,
     OrientationRequest,
     PatchRequest,
+    PhotoGeometryStored,
     PointOut,
     PointRequest,
     ReferenceNodeRequest,
@@ -121,7 +122,12 @@ async def import_points(
     return await run_in_threadpool(lab.geometry.import_points, points, name)
 
 
-@router.post("/photo-geometry", status_code=status.HTTP_201_CREATED, openapi_extra=RAW_BODY)
+@router.post(
+    "/photo-geometry",
+    response_model=PhotoGeometryStored,
+    status_code=status.HTTP_201_CREATED,
+    openapi_extra=RAW_BODY,
+)
 async def import_photo_geometry(request: Request, lab: LabDep) -> dict[str, Any]:
     """Triax orientations and lines of action from photographs (the JSON ``dimacq geometry
     from-photos`` writes) as the current test's records: a setup built from geometry
