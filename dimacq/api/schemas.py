@@ -80,6 +80,14 @@ Label = Annotated[
 MIN_AXIS_LENGTH = 1e-6
 
 
+class PhotoGeometryStored(BaseModel):
+    """What ``POST /api/digitizer/photo-geometry`` stored."""
+
+    orientations: int = Field(description="triax orientation records stored")
+    lines_of_action: int = Field(description="line-of-action records stored")
+    verdict: str | None = Field(default=None, description="the photographed geometry's verdict")
+
+
 class SimProbe(_Body):
     """Simulation only: where the simulated probe tip is (array coordinates, within ±100 m) and
     its axis."""

@@ -93,7 +93,14 @@ def deleted(done: bool | None, what: str) -> Response:
 
 #: Paths whose body is a file (``RAW_BODY``): limited by ``max_upload_bytes`` instead of
 #: ``max_body_bytes`` (:class:`dimacq.api.guards.BodyLimitMiddleware`).
-UPLOAD_PATHS = frozenset({"/api/setups/import", "/api/frfs/import", "/api/digitizer/points/import"})
+UPLOAD_PATHS = frozenset(
+    {
+        "/api/setups/import",
+        "/api/frfs/import",
+        "/api/digitizer/points/import",
+        "/api/digitizer/photo-geometry",
+    }
+)
 
 RAW_BODY: dict[str, Any] = {
     "requestBody": {

@@ -29,6 +29,7 @@ from dimacq.api.schemas import (
     NewTestRequest,
     OrientationRequest,
     PatchRequest,
+    PhotoGeometryStored,
     PointOut,
     PointRequest,
     ReferenceNodeRequest,
@@ -138,6 +139,28 @@ async def import_points(
         return lab.geometry.import_points(points, name)
 
     return await run_in_threadpool(parse_and_store)
+
+
+@router.post(
+    "/photo-geometry",
+    response_model=PhotoGeometryStored,
+    status_code=status.HTTP_201_CREATED,
+    openapi_extra=RAW_BODY,
+)
+async def import_photo_geometry(request: Request, lab: LabDep) -> dict[str, Any]:
+    """Triax orientations and lines of action from photographs (the JSON ``dimacq geometry
+    from-photos`` writes) as the current test's records: a setup built from geometry
+    (``POST /api/setups/from-geometry``) then uses them as digitized ones."""
+    import json
+
+    data = await read_upload(request)
+    try:
+        doc = json.loads(data.decode("utf-8"))
+    except (UnicodeDecodeError, ValueError) as err:
+        raise HTTPException(
+            status_code=422, detail=f"photo geometry: not JSON ({err}); send GEOMETRY.json"
+        ) from err
+    return await run_in_threadpool(lab.geometry.import_photo_geometry, doc)
 
 
 @router.delete("/points/{point_id:id}", status_code=status.HTTP_204_NO_CONTENT)

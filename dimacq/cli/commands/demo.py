@@ -127,6 +127,16 @@ def register(sub: Any) -> None:
         "automatic band and selections, as a user gets them)",
     )
     p.add_argument(
+        "--geometry",
+        choices=["digitizer", "photos"],
+        default="digitizer",
+        help="how steps 1-2 measure the geometry: the sonic digitizer and the jig (default), or "
+        "photos of fiducial tags from the simulated camera (dimacq geometry from-photos)",
+    )
+    p.add_argument(
+        "--photos", type=int, default=40, metavar="N", help="photos taken (--geometry photos)"
+    )
+    p.add_argument(
         "--no-chain-calibration",
         action="store_true",
         help="skip step 0 (measuring the chain on the weighed reference block); the rig file's "
@@ -314,88 +324,110 @@ def _demo(
         )
         if not args.model_frfs:
             _acquisition_devices_connected(st["devices"])
-        # --- 1. array placement and registration -----------------------------------------
-        pos = np.vstack([setup_true.response_positions, setup_true.input_positions])
-        lo, hi = pos.min(axis=0) - 0.02, pos.max(axis=0) + 0.02
-        arr = _Array(rng, 0.5 * (lo + hi))
-        refs = {
-            f"REF{i}": [float(x), float(y), float(z)]
-            for i, (x, y, z) in enumerate(
-                [
-                    (lo[0], lo[1], lo[2]),
-                    (hi[0], lo[1], lo[2]),
-                    (lo[0], hi[1], lo[2]),
-                    (lo[0], lo[1], hi[2]),
-                    (hi[0], hi[1], hi[2]),
-                    (hi[0], lo[1], hi[2]),
-                ]
-            )
-        }
-        check(c.put("/api/digitizer/reference-nodes", json={"nodes": refs}), "reference nodes")
-        n_points = [0]
-
-        def digitize(label: str, p_gcs: np.ndarray) -> None:
-            body = {
-                "label": label,
-                "shots": 5,
-                "sim_probe": {"tip_m": arr.dacs(p_gcs), "axis": [0.0, 0.0, 1.0]},
-            }
-            check(c.post("/api/digitizer/points", json=body), f"digitizing {label}")
-            n_points[0] += 1
-
-        for lab, ref in refs.items():
-            digitize(lab, np.array(ref))
-        reg = check(
-            c.post("/api/digitizer/registrations", json={"method": "rigid"}), "registration"
-        )
-        rms_mm = 1e3 * reg["registration"]["rms_m"]
-        info["registration"] = {
-            k: reg["registration"][k]
-            for k in ("verdict", "reasons", "limit_m", "rms_m", "worst_node", "worst_residual_m")
-        }
-        say(
-            f"[1/5] array registered from {len(refs)} reference nodes: RMS residual {rms_mm:.3f} mm"
-        )
-        # --- 2. jig orientation and lines of action -------------------------------------
-        jig = load_jig()
         nodes = sorted({ch.node for ch in setup_true.responses})
-        ori_err = []
-        ori_unc = []
-        for k, n in enumerate(nodes):
-            chans = sorted(
-                (ch for ch in setup_true.responses if ch.node == n), key=lambda ch: ch.direction
+        if args.geometry == "photos":
+            photo = _photograph(c, built, args, say)
+            rms_mm, ori_err, ori_unc, loa_err = (
+                0.0,
+                photo.pop("ori_err"),
+                photo.pop("ori_unc"),
+                photo.pop("loa_err"),
             )
-            C = np.array([ch.direction_gcs for ch in chans]).T
-            origin = np.asarray(chans[0].position_m)
-            for lab, xl in zip(jig.labels, jig.points_local_m, strict=True):
-                digitize(f"jig{n}/{lab}", C @ xl + origin)
-            o = check(c.post("/api/digitizer/orientations", json={"node": n}), f"orientation {n}")
-            ori_err.append(_angle_deg(np.array(o["rotation"]), C))
-            ori_unc.append(float(o["uncertainty_deg"]))
+            n_points = [0]
+            info["photos"] = photo
+        else:
+            # --- 1. array placement and registration -----------------------------------------
+            pos = np.vstack([setup_true.response_positions, setup_true.input_positions])
+            lo, hi = pos.min(axis=0) - 0.02, pos.max(axis=0) + 0.02
+            arr = _Array(rng, 0.5 * (lo + hi))
+            refs = {
+                f"REF{i}": [float(x), float(y), float(z)]
+                for i, (x, y, z) in enumerate(
+                    [
+                        (lo[0], lo[1], lo[2]),
+                        (hi[0], lo[1], lo[2]),
+                        (lo[0], hi[1], lo[2]),
+                        (lo[0], lo[1], hi[2]),
+                        (hi[0], hi[1], hi[2]),
+                        (hi[0], lo[1], hi[2]),
+                    ]
+                )
+            }
+            check(c.put("/api/digitizer/reference-nodes", json={"nodes": refs}), "reference nodes")
+            n_points = [0]
+
+            def digitize(label: str, p_gcs: np.ndarray) -> None:
+                body = {
+                    "label": label,
+                    "shots": 5,
+                    "sim_probe": {"tip_m": arr.dacs(p_gcs), "axis": [0.0, 0.0, 1.0]},
+                }
+                check(c.post("/api/digitizer/points", json=body), f"digitizing {label}")
+                n_points[0] += 1
+
+            for lab, ref in refs.items():
+                digitize(lab, np.array(ref))
+            reg = check(
+                c.post("/api/digitizer/registrations", json={"method": "rigid"}), "registration"
+            )
+            rms_mm = 1e3 * reg["registration"]["rms_m"]
+            info["registration"] = {
+                k: reg["registration"][k]
+                for k in (
+                    "verdict",
+                    "reasons",
+                    "limit_m",
+                    "rms_m",
+                    "worst_node",
+                    "worst_residual_m",
+                )
+            }
             say(
-                f"[2/5] triax {n} oriented ({k + 1}/{len(nodes)}): error {ori_err[-1]:.3f} deg, "
-                f"uncertainty {o['uncertainty_deg']:.3f} deg"
+                f"[1/5] array registered from {len(refs)} reference nodes: RMS residual {rms_mm:.3f} mm"
             )
-        loa_err = []
-        for e in setup_true.excitations:
-            p_in, d = np.asarray(e.position_m), np.asarray(e.direction_gcs)
-            digitize(f"in{e.node}", p_in)
-            labels = []
-            for j, s in enumerate((0.04, 0.08, 0.12)):
-                digitize(f"loa{e.node}/{j}", p_in - s * d)
-                labels.append(f"loa{e.node}/{j}")
-            la = check(
-                c.post(
-                    "/api/digitizer/lines-of-action",
-                    json={"node": e.node, "input_label": f"in{e.node}", "labels": labels},
-                ),
-                f"line of action {e.node}",
+            # --- 2. jig orientation and lines of action -------------------------------------
+            jig = load_jig()
+            ori_err = []
+            ori_unc = []
+            for k, n in enumerate(nodes):
+                chans = sorted(
+                    (ch for ch in setup_true.responses if ch.node == n), key=lambda ch: ch.direction
+                )
+                C = np.array([ch.direction_gcs for ch in chans]).T
+                origin = np.asarray(chans[0].position_m)
+                for lab, xl in zip(jig.labels, jig.points_local_m, strict=True):
+                    digitize(f"jig{n}/{lab}", C @ xl + origin)
+                o = check(
+                    c.post("/api/digitizer/orientations", json={"node": n}), f"orientation {n}"
+                )
+                ori_err.append(_angle_deg(np.array(o["rotation"]), C))
+                ori_unc.append(float(o["uncertainty_deg"]))
+                say(
+                    f"[2/5] triax {n} oriented ({k + 1}/{len(nodes)}): error {ori_err[-1]:.3f} deg, "
+                    f"uncertainty {o['uncertainty_deg']:.3f} deg"
+                )
+            loa_err = []
+            for e in setup_true.excitations:
+                p_in, d = np.asarray(e.position_m), np.asarray(e.direction_gcs)
+                digitize(f"in{e.node}", p_in)
+                labels = []
+                for j, s in enumerate((0.04, 0.08, 0.12)):
+                    digitize(f"loa{e.node}/{j}", p_in - s * d)
+                    labels.append(f"loa{e.node}/{j}")
+                la = check(
+                    c.post(
+                        "/api/digitizer/lines-of-action",
+                        json={"node": e.node, "input_label": f"in{e.node}", "labels": labels},
+                    ),
+                    f"line of action {e.node}",
+                )
+                loa_err.append(
+                    float(np.degrees(np.arccos(np.clip(np.dot(la["direction"], d), -1, 1))))
+                )
+            say(
+                f"[2/5] {len(loa_err)} lines of action: RMS error {np.sqrt(np.mean(np.square(loa_err))):.3f} deg; "
+                f"{n_points[0]} points digitized"
             )
-            loa_err.append(float(np.degrees(np.arccos(np.clip(np.dot(la["direction"], d), -1, 1)))))
-        say(
-            f"[2/5] {len(loa_err)} lines of action: RMS error {np.sqrt(np.mean(np.square(loa_err))):.3f} deg; "
-            f"{n_points[0]} points digitized"
-        )
         # --- 3. setup from geometry -----------------------------------------------------
         geo = {
             "name": f"demo {args.scenario}",
@@ -492,6 +524,69 @@ def _demo(
     )
     payload["demo"] = info
     return payload
+
+
+def _photograph(
+    c: Any, built: Any, args: argparse.Namespace, say: Callable[[str], None]
+) -> dict[str, Any]:
+    """Steps 1–2 with the simulated camera: the lab's standard tags plan on the true article,
+    ``args.photos`` photos written as JPEG files, ``dimacq geometry from-photos`` on them, and
+    the result sent to the service (``POST /api/digitizer/photo-geometry``)."""
+    from dimacq.io.tags_file import dump_tags, load_tags, standard_tags
+    from dimacq.services.photo_geometry import geometry_from_photos
+    from dimacq.simulators.camera.render import photograph_article, tagged_world
+
+    setup_true = built.model.setup
+    nodes = sorted({ch.node for ch in setup_true.responses})
+    ins = [e.node for e in setup_true.excitations]
+    pts = np.vstack([setup_true.response_positions, setup_true.input_positions])
+    plan = standard_tags(nodes, ins, pts)
+    box = None
+    if built.spec.article.model in ("calibration-mass", "reference-block"):
+        r = setup_true.response_positions  # the blocks sit on the faces: the body is inside
+        box = (r.min(axis=0) + 0.015, r.max(axis=0) - 0.015)
+    rng = np.random.default_rng(built.seed + 2000)
+    world = tagged_world(plan, setup_true, rng, box)
+    with tempfile.TemporaryDirectory(prefix="dimacq-photos-") as tmp:
+        folder = Path(tmp) / "photos"
+        photograph_article(world, folder, args.photos, built.seed + 3000)
+        dump_tags(plan, Path(tmp) / "tags.toml")
+        say(f"[1/5] {args.photos} photos of {len(plan.bodies)} tagged bodies taken")
+        res = geometry_from_photos(
+            folder, load_tags(Path(tmp) / "tags.toml"), progress=lambda m: None
+        )
+        doc = res.to_json()
+    check(
+        c.post("/api/digitizer/photo-geometry", content=json.dumps(doc).encode()), "photo geometry"
+    )
+    ori_err, ori_unc, pos_err = [], [], []
+    for o in res.orientations:
+        r_true, p_true = world.truth[f"triax {o.node}"]
+        ori_err.append(_angle_deg(np.array(o.rotation), r_true))
+        ori_unc.append(o.uncertainty_deg)
+        pos_err.append(float(np.linalg.norm(np.array(o.origin_m) - p_true)))
+    loa_err = []
+    for a in res.lines_of_action:
+        d_true = -world.truth[f"input {a.node}"][0][:, 2]
+        loa_err.append(float(np.degrees(np.arccos(np.clip(np.dot(a.direction, d_true), -1, 1)))))
+    say(
+        f"[2/5] photographed geometry: reprojection σ {res.bundle.sigma_px:.3f} px, triax position "
+        f"RMS error {1e3 * np.sqrt(np.mean(np.square(pos_err))):.3f} mm, orientation RMS error "
+        f"{np.sqrt(np.mean(np.square(ori_err))):.3f} deg; {len(res.issues)} photo issues"
+    )
+    for u in res.unfixed:
+        say(f"      not fixed: {u}")
+    return {
+        "photos": len(res.photos),
+        "used": len(res.used),
+        "sigma_px": res.bundle.sigma_px,
+        "verdict": res.verdict,
+        "issues": [str(i) for i in res.issues],
+        "triax_position_error_rms_mm": 1e3 * float(np.sqrt(np.mean(np.square(pos_err)))),
+        "ori_err": ori_err,
+        "ori_unc": ori_unc,
+        "loa_err": loa_err,
+    }
 
 
 def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:

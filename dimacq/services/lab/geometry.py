@@ -298,6 +298,39 @@ class GeometryService:
             regs = self._registrations(s)
         return [self._stored(r, regs) for r in rows]
 
+    def import_photo_geometry(self, doc: Mapping[str, Any]) -> dict[str, Any]:
+        """Store the orientations and lines of action of a photographed geometry (the JSON of
+        :meth:`dimacq.services.photo_geometry.PhotoGeometry.to_json`) as the current test's
+        records, replacing those of the same nodes. A result whose verdict is ``fail`` (a triax
+        or input not fixed) is refused with its reasons."""
+        if not isinstance(doc, Mapping) or doc.get("source") != "photographs":
+            raise DataError(
+                "photo geometry: not the JSON of dimacq geometry from-photos (source must be "
+                "'photographs'); send GEOMETRY.json"
+            )
+        if doc.get("verdict") == "fail":
+            raise DataError(
+                "photo geometry: not every triax and input is fixed: "
+                + "; ".join(str(u) for u in doc.get("unfixed", []))
+            )
+        try:
+            ori = [Orientation.from_json(o) for o in doc.get("orientations", [])]
+            loas = [LineOfAction.from_json(a) for a in doc.get("lines_of_action", [])]
+        except TypeError as err:
+            raise DataError(
+                f"photo geometry: a record has wrong keys ({err}); send GEOMETRY.json"
+            ) from err
+        with self.db.session() as s:
+            for o in ori:
+                s.merge(m.OrientationRow(node=o.node, body=o.to_json()))
+            for a in loas:
+                s.merge(m.LineOfActionRow(node=a.node, body=a.to_json()))
+        return {
+            "orientations": len(ori),
+            "lines_of_action": len(loas),
+            "verdict": doc.get("verdict"),
+        }
+
     def new_test(self, name: str | None = None) -> NewTest:
         """Start a new digitizing test: a fresh patch, no reference nodes, no orientations or
         lines of action. Earlier points and patches stay in the database (listed, never used

@@ -1,0 +1,507 @@
+"""Bundle adjustment of camera poses and tagged rigid bodies (and the camera's intrinsics).
+
+Every fiducial tag is mounted on a rigid body (a triax block, an impact jig, a reference plate
+of the article, a scale bar) at a known pose in the body's frame. The unknowns are each photo's
+pose ``(R_c, t_c)`` (world → camera), each body's pose ``(R_b, p_b)`` (body → world) and,
+optionally, the intrinsics (:data:`~dimacq.pipeline.photogrammetry.camera.INTRINSIC_NAMES`).
+A corner ``c`` of tag ``k`` of body ``b`` in photo ``i`` is predicted at
+
+    u = π(K, dist; R_c,i (R_b (R_bk c + o_bk) + p_b) + t_c,i)
+
+(:func:`~dimacq.pipeline.photogrammetry.camera.project`), and the adjustment minimises
+
+    Σ |u − u_obs|² / σ_px² + Σ_ref (|p_b − p̄_b|² / σ_p² + |log(R_b R̄_bᵀ)|² / σ_θ²)
+
+over all corners and the reference bodies' stated poses ``(R̄_b, p̄_b)`` — the gauge (frame and
+scale) comes from those priors; a scale bar is one more body whose two tags are a known distance
+apart. Rotations are updated on the left, ``R = exp([δ]×) R₀`` with ``δ`` in the world frame
+(camera frame for photos), so ``δ`` is the small rotation whose covariance is reported.
+
+The covariance of the parameters is ``Σ = (JᵀJ)⁻¹`` of the whitened problem at the solution,
+with ``σ_px² = Σ r² / (n − p)`` estimated from the corner residuals (the reprojection error
+the photos actually show, not a nominal one).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+from numpy.typing import ArrayLike, NDArray
+from scipy.optimize import least_squares
+from scipy.spatial.transform import Rotation
+
+from dimacq.errors import SolverError
+from dimacq.pipeline.photogrammetry.camera import Intrinsics, project, tag_corners
+
+__all__ = [
+    "BodyEstimate",
+    "BodyModel",
+    "BundleResult",
+    "Observation",
+    "TagMount",
+    "adjust",
+]
+
+FloatArray = NDArray[np.float64]
+N_INTR = 8
+
+
+@dataclass(frozen=True)
+class TagMount:
+    """A tag on a body: its id, side (m) and pose in the body frame (tag → body)."""
+
+    tag_id: int
+    side_m: float
+    rotation: FloatArray
+    offset_m: FloatArray
+
+    def corners_body(self) -> FloatArray:
+        """The tag's four corners in the body frame, shape (4, 3)."""
+        return tag_corners(self.side_m) @ np.asarray(self.rotation).T + np.asarray(self.offset_m)
+
+
+@dataclass(frozen=True)
+class BodyModel:
+    """A rigid body carrying tags.
+
+    ``kind`` is ``"triax"`` (the body frame is the sensor's: origin at its measuring point,
+    axes along its X, Y, Z), ``"input"`` (origin at the impact point, the line of action along
+    ``−z``), ``"reference"`` (a plate whose pose in the article's frame is stated:
+    ``prior_rotation``, ``prior_position_m`` with their 1σ) or ``"scalebar"``.
+    """
+
+    name: str
+    kind: str
+    tags: tuple[TagMount, ...]
+    node: int | None = None
+    prior_rotation: FloatArray | None = None
+    prior_position_m: FloatArray | None = None
+    prior_position_std_m: float = 0.0
+    prior_angle_std_deg: float = 0.0
+
+
+@dataclass(frozen=True)
+class Observation:
+    """Tag ``tag_id`` seen in photo ``photo``: its four corners in pixels, OpenCV's order."""
+
+    photo: int
+    tag_id: int
+    corners_px: FloatArray
+
+
+@dataclass(frozen=True)
+class BodyEstimate:
+    """A body's adjusted pose with its covariance.
+
+    Attributes
+    ----------
+    rotation : ndarray, shape (3, 3)
+        Body → world.
+    position_m : ndarray, shape (3,)
+    covariance : ndarray, shape (6, 6)
+        Of ``(δ [rad], p [m])``, ``δ`` the small world-frame rotation of the body.
+    n_photos : int
+        Photos in which at least one of its tags was used.
+    n_corners : int
+    """
+
+    name: str
+    kind: str
+    node: int | None
+    rotation: FloatArray
+    position_m: FloatArray
+    covariance: FloatArray
+    n_photos: int
+    n_corners: int
+
+    @property
+    def position_std_m(self) -> FloatArray:
+        """1σ of each world coordinate of the origin, m."""
+        return np.sqrt(np.clip(np.diag(self.covariance)[3:], 0, None))
+
+    @property
+    def angle_std_deg(self) -> FloatArray:
+        """1σ of the small rotation about each world axis, degrees."""
+        return np.degrees(np.sqrt(np.clip(np.diag(self.covariance)[:3], 0, None)))
+
+
+@dataclass(frozen=True)
+class BundleResult:
+    """The adjustment: bodies, photos, intrinsics and the fit's quality.
+
+    ``sigma_px`` is the corner residuals' RMS estimate ``sqrt(Σr²/(n − p))``; ``rejected``
+    lists ``(photo, tag_id, rms_px)`` of observations removed as gross errors
+    (``rms > reject_sigma · σ_px``); ``photo_rms_px`` the RMS corner residual of each photo
+    (NaN for photos not used).
+    """
+
+    bodies: tuple[BodyEstimate, ...]
+    camera_rotations: FloatArray
+    camera_translations: FloatArray
+    intrinsics: Intrinsics
+    intrinsics_std: FloatArray | None
+    sigma_px: float
+    n_corners: int
+    n_parameters: int
+    rms_px: float
+    photo_rms_px: FloatArray
+    rejected: tuple[tuple[int, int, float], ...]
+    nfev: int
+    condition: float
+    messages: tuple[str, ...] = field(default_factory=tuple)
+
+    def body(self, name: str) -> BodyEstimate:
+        for b in self.bodies:
+            if b.name == name:
+                return b
+        raise KeyError(name)
+
+
+def _rot(delta: FloatArray, base: FloatArray) -> FloatArray:
+    """``exp([δ]×) R₀`` for stacks ``δ`` (n, 3), ``R₀`` (n, 3, 3), with Rodrigues' formula
+    ``exp([δ]×) = I + sin θ/θ [δ]× + (1 − cos θ)/θ² [δ]×²``, ``θ = |δ|``."""
+    th2 = np.sum(delta * delta, axis=1)
+    th = np.sqrt(th2)
+    small = th < 1e-4
+    a = np.where(small, 1.0 - th2 / 6.0, np.sin(th) / np.where(small, 1.0, th))
+    b = np.where(small, 0.5 - th2 / 24.0, (1.0 - np.cos(th)) / np.where(small, 1.0, th2))
+    k = np.zeros((len(delta), 3, 3))
+    k[:, 0, 1], k[:, 0, 2], k[:, 1, 2] = -delta[:, 2], delta[:, 1], -delta[:, 0]
+    k[:, 1, 0], k[:, 2, 0], k[:, 2, 1] = delta[:, 2], -delta[:, 1], delta[:, 0]
+    e = np.eye(3) + a[:, None, None] * k + b[:, None, None] * (k @ k)
+    return np.asarray(e @ base)
+
+
+class _Problem:
+    def __init__(
+        self,
+        bodies: Sequence[BodyModel],
+        obs: Sequence[Observation],
+        intr: Intrinsics,
+        cam_r: FloatArray,
+        cam_t: FloatArray,
+        body_r: FloatArray,
+        body_p: FloatArray,
+        refine_intrinsics: bool,
+    ) -> None:
+        self.bodies = list(bodies)
+        self.intr = intr
+        self.refine = refine_intrinsics
+        self.n_cam = len(cam_r)
+        self.n_body = len(bodies)
+        self.cam_r0 = np.array(cam_r, float)
+        self.body_r0 = np.array(body_r, float)
+        self.x0 = np.concatenate(
+            [
+                intr.vector() if refine_intrinsics else np.zeros(0),
+                np.column_stack([np.zeros((self.n_cam, 3)), cam_t]).ravel(),
+                np.column_stack([np.zeros((self.n_body, 3)), body_p]).ravel(),
+            ]
+        )
+        mount = {t.tag_id: (i, t) for i, b in enumerate(bodies) for t in b.tags}
+        self.set_observations(obs, mount)
+        self.prior_idx = np.array(
+            [i for i, b in enumerate(bodies) if b.prior_position_m is not None], dtype=int
+        )
+        ref = [self.bodies[i] for i in self.prior_idx]
+        self.prior_p = np.array([np.asarray(b.prior_position_m, float) for b in ref]).reshape(-1, 3)
+        self.prior_r = np.array([np.asarray(b.prior_rotation, float) for b in ref]).reshape(
+            -1, 3, 3
+        )
+        self.prior_sp = np.array([max(b.prior_position_std_m, 1e-9) for b in ref])
+        self.prior_sa = np.radians([max(b.prior_angle_std_deg, 1e-6) for b in ref])
+        self.sigma_px = 1.0
+
+    def set_observations(
+        self, obs: Sequence[Observation], mount: dict[int, tuple[int, TagMount]]
+    ) -> None:
+        self.obs = list(obs)
+        self.mount = mount
+        self.o_cam = np.array([o.photo for o in obs], dtype=int)
+        self.o_body = np.array([mount[o.tag_id][0] for o in obs], dtype=int)
+        self.o_pts = np.array([mount[o.tag_id][1].corners_body() for o in obs]).reshape(-1, 4, 3)
+        self.o_uv = np.array([o.corners_px for o in obs], dtype=float).reshape(-1, 4, 2)
+
+    @property
+    def n_intr(self) -> int:
+        return N_INTR if self.refine else 0
+
+    def unpack(
+        self, x: FloatArray
+    ) -> tuple[Intrinsics, FloatArray, FloatArray, FloatArray, FloatArray]:
+        k = self.n_intr
+        intr = self.intr.with_vector(x[:k]) if self.refine else self.intr
+        c = x[k : k + 6 * self.n_cam].reshape(-1, 6)
+        b = x[k + 6 * self.n_cam :].reshape(-1, 6)
+        return intr, _rot(c[:, :3], self.cam_r0), c[:, 3:], _rot(b[:, :3], self.body_r0), b[:, 3:]
+
+    def image_residuals(self, x: FloatArray) -> FloatArray:
+        """Corner residuals in pixels, shape (n_obs, 4, 2)."""
+        intr, rc, tc, rb, pb = self.unpack(x)
+        xw = np.einsum("nij,nkj->nki", rb[self.o_body], self.o_pts) + pb[self.o_body][:, None]
+        xc = np.einsum("nij,nkj->nki", rc[self.o_cam], xw) + tc[self.o_cam][:, None]
+        return project(xc, intr) - self.o_uv
+
+    def residuals(self, x: FloatArray) -> FloatArray:
+        r_img = self.image_residuals(x).ravel() / self.sigma_px
+        if not len(self.prior_idx):
+            return r_img
+        _, _, _, rb, pb = self.unpack(x)
+        i = self.prior_idx
+        dp = (pb[i] - self.prior_p) / self.prior_sp[:, None]
+        dr = Rotation.from_matrix(rb[i] @ self.prior_r.transpose(0, 2, 1)).as_rotvec()
+        pri = np.concatenate([dp, dr / self.prior_sa[:, None]], axis=1)
+        return np.concatenate([r_img, pri.ravel()])
+
+    def sparsity(self) -> sp.csr_matrix:
+        n_obs = len(self.obs)
+        n_par = self.n_intr + 6 * (self.n_cam + self.n_body)
+        rows, cols = [], []
+        r = np.arange(8 * n_obs).reshape(n_obs, 8)
+        for j in range(self.n_intr):
+            rows.append(r.ravel())
+            cols.append(np.full(r.size, j))
+        cam0 = self.n_intr
+        body0 = self.n_intr + 6 * self.n_cam
+        for j in range(6):
+            rows.append(r.ravel())
+            cols.append(np.repeat(cam0 + 6 * self.o_cam + j, 8))
+            rows.append(r.ravel())
+            cols.append(np.repeat(body0 + 6 * self.o_body + j, 8))
+        for k, i in enumerate(self.prior_idx):
+            pr = 8 * n_obs + 6 * k + np.arange(6)
+            for j in range(6):
+                rows.append(pr)
+                cols.append(np.full(6, body0 + 6 * i + j))
+        n_rows = 8 * n_obs + 6 * len(self.prior_idx)
+        rr, cc = np.concatenate(rows), np.concatenate(cols)
+        return sp.csr_matrix((np.ones(rr.size), (rr, cc)), shape=(n_rows, n_par))
+
+    def rebase(self, x: FloatArray) -> FloatArray:
+        """Fold the rotations of ``x`` into the bases: the same poses with ``δ = 0``."""
+        _, rc, _, rb, _ = self.unpack(x)
+        self.cam_r0, self.body_r0 = rc, rb
+        y = x.copy()
+        k = self.n_intr
+        c = y[k : k + 6 * self.n_cam].reshape(-1, 6)
+        b = y[k + 6 * self.n_cam :].reshape(-1, 6)
+        c[:, :3] = 0.0
+        b[:, :3] = 0.0
+        return y
+
+
+def adjust(
+    bodies: Sequence[BodyModel],
+    observations: Sequence[Observation],
+    intrinsics: Intrinsics,
+    camera_rotations: ArrayLike,
+    camera_translations: ArrayLike,
+    body_rotations: ArrayLike,
+    body_positions: ArrayLike,
+    *,
+    refine_intrinsics: bool = True,
+    reject_sigma: float = 6.0,
+    progress: Callable[[int, float], None] | None = None,
+    max_nfev: int = 60,
+) -> BundleResult:
+    """Adjust photos, bodies (and intrinsics) to the observed tag corners (see the module).
+
+    Parameters
+    ----------
+    bodies : sequence of BodyModel
+        Every observed tag must be mounted on one of them; at least one with a stated pose
+        (``prior_position_m``) or the frame is not fixed.
+    observations : sequence of Observation
+        ``photo`` indexes the camera arrays.
+    intrinsics : Intrinsics
+        Start (or fixed, with ``refine_intrinsics=False``).
+    camera_rotations, camera_translations : array_like, shapes (n_photos, 3, 3), (n_photos, 3)
+        Start poses, world → camera.
+    body_rotations, body_positions : array_like, shapes (n_bodies, 3, 3), (n_bodies, 3)
+        Start poses, body → world.
+    reject_sigma : float
+        An observation whose corner RMS exceeds ``reject_sigma · σ_px`` after the first fit is
+        removed (worst first, never a photo's or a body's last one) and the fit repeated
+        (once).
+    progress : callable (evaluations, cost), optional
+        Called as the adjustment evaluates its residuals.
+
+    Raises
+    ------
+    SolverError
+        No stated pose fixes the frame, or the normal matrix is singular (a body or photo not
+        tied to the rest): the message names it.
+    """
+    if not any(b.prior_position_m is not None for b in bodies):
+        raise SolverError(
+            "bundle adjustment: no reference tag with a stated pose fixes the article's frame; "
+            "put reference tags at known positions and state them in the tags file"
+        )
+    prob = _Problem(
+        bodies,
+        observations,
+        intrinsics,
+        np.asarray(camera_rotations, float),
+        np.asarray(camera_translations, float),
+        np.asarray(body_rotations, float),
+        np.asarray(body_positions, float),
+        refine_intrinsics,
+    )
+    nfev = [0]
+
+    def fun(x: FloatArray) -> FloatArray:
+        r = prob.residuals(x)
+        nfev[0] += 1
+        if progress is not None and nfev[0] % 20 == 1:
+            progress(nfev[0], 0.5 * float(r @ r))
+        return r
+
+    def solve(x0: FloatArray, loss: str, nmax: int) -> FloatArray:
+        sol = least_squares(
+            fun,
+            x0,
+            jac_sparsity=prob.sparsity(),
+            loss=loss,
+            f_scale=3.0,
+            x_scale="jac",
+            max_nfev=nmax,
+            method="trf",
+            tr_solver="lsmr",
+            xtol=1e-8,
+            ftol=1e-8,
+            gtol=1e-10,
+        )
+        return np.asarray(sol.x)
+
+    x = solve(prob.x0, "soft_l1", max_nfev)
+    res = prob.image_residuals(x)
+    dof = max(res.size - len(x) + 6 * len(prob.prior_idx), 1)
+    sigma = float(np.sqrt(np.sum(res**2) / dof))
+    per_obs = np.sqrt(np.mean(res.reshape(len(prob.obs), -1) ** 2, axis=1))
+    bad = np.zeros(len(per_obs), dtype=bool)
+    n_cam_obs = np.bincount(prob.o_cam, minlength=prob.n_cam)
+    n_body_obs = np.bincount(prob.o_body, minlength=prob.n_body)
+    for i in np.argsort(-per_obs):  # worst first; a photo or body keeps its last view
+        if per_obs[i] <= reject_sigma * max(sigma, 0.05):
+            break
+        c, b = prob.o_cam[i], prob.o_body[i]
+        if n_cam_obs[c] > 1 and n_body_obs[b] > 1:
+            bad[i] = True
+            n_cam_obs[c] -= 1
+            n_body_obs[b] -= 1
+    rejected: list[tuple[int, int, float]] = []
+    if bad.any():
+        rejected = [
+            (prob.obs[i].photo, prob.obs[i].tag_id, float(per_obs[i])) for i in np.flatnonzero(bad)
+        ]
+        prob.set_observations([o for o, b in zip(prob.obs, bad, strict=True) if not b], prob.mount)
+    prob.sigma_px = max(sigma, 1e-3)
+    x = solve(prob.rebase(x), "linear", max_nfev)
+    res = prob.image_residuals(x)
+    dof = max(res.size - len(x) + 6 * len(prob.prior_idx), 1)
+    sigma = float(np.sqrt(np.sum(res**2) / dof))
+    prob.sigma_px = max(sigma, 1e-3)
+    x = prob.rebase(x)
+    jac = _jacobian(prob, x)
+    jtj = (jac.T @ jac).toarray()
+    d = np.sqrt(np.clip(np.diag(jtj), 1e-300, None))
+    scaled = jtj / np.outer(d, d)
+    ev = np.linalg.eigvalsh(scaled)
+    cond = float(ev[-1] / max(ev[0], 1e-300))
+    if ev[0] <= 1e-12 * ev[-1]:
+        raise SolverError(
+            f"bundle adjustment: the normal matrix is singular (condition {cond:.2g}): a photo or "
+            "a body is not tied to the reference tags; take photos that show it together with "
+            "tags already fixed"
+        )
+    cov = np.linalg.inv(scaled) / np.outer(d, d)
+    intr, rc, tc, rb, pb = prob.unpack(x)
+    k = prob.n_intr
+    body0 = k + 6 * prob.n_cam
+    out = []
+    for i, b in enumerate(bodies):
+        sel = prob.o_body == i
+        s = slice(body0 + 6 * i, body0 + 6 * i + 6)
+        out.append(
+            BodyEstimate(
+                name=b.name,
+                kind=b.kind,
+                node=b.node,
+                rotation=rb[i],
+                position_m=pb[i],
+                covariance=cov[s, s],
+                n_photos=len(set(prob.o_cam[sel].tolist())),
+                n_corners=4 * int(sel.sum()),
+            )
+        )
+    per_photo = np.full(prob.n_cam, np.nan)
+    r2 = np.sum(res**2, axis=(1, 2))
+    for c in range(prob.n_cam):
+        m = prob.o_cam == c
+        if m.any():
+            per_photo[c] = float(np.sqrt(r2[m].sum() / (8 * m.sum())))
+    return BundleResult(
+        bodies=tuple(out),
+        camera_rotations=rc,
+        camera_translations=tc,
+        intrinsics=intr,
+        intrinsics_std=np.sqrt(np.clip(np.diag(cov)[:k], 0, None)) if k else None,
+        sigma_px=sigma,
+        n_corners=4 * len(prob.obs),
+        n_parameters=len(x),
+        rms_px=float(np.sqrt(np.mean(res**2))),
+        photo_rms_px=per_photo,
+        rejected=tuple(rejected),
+        nfev=nfev[0],
+        condition=cond,
+    )
+
+
+def _jacobian(prob: _Problem, x: FloatArray) -> sp.csr_matrix:
+    """The Jacobian of the whitened residuals at ``x`` by central differences over the
+    sparsity pattern's column groups (columns sharing no row are perturbed together)."""
+    pattern = prob.sparsity().tocsc()
+    n = pattern.shape[1]
+    groups = _column_groups(pattern)
+    h = 1e-6 * np.maximum(1.0, np.abs(x))
+    k = prob.n_intr
+    if k:
+        h[:k] = 1e-6 * np.maximum(np.abs(x[:k]), 1e-3)
+    rows_all, cols_all, vals_all = [], [], []
+    for g in range(groups.max() + 1):
+        cols = np.flatnonzero(groups == g)
+        dx = np.zeros(n)
+        dx[cols] = h[cols]
+        diff = (prob.residuals(x + dx) - prob.residuals(x - dx)) / 2.0
+        for c in cols:
+            r = pattern.indices[pattern.indptr[c] : pattern.indptr[c + 1]]
+            rows_all.append(r)
+            cols_all.append(np.full(r.size, c))
+            vals_all.append(diff[r] / h[c])
+    return sp.csr_matrix(
+        (np.concatenate(vals_all), (np.concatenate(rows_all), np.concatenate(cols_all))),
+        shape=pattern.shape,
+    )
+
+
+def _column_groups(pattern: sp.csc_matrix) -> NDArray[np.int64]:
+    """Greedy colouring of the columns: two columns in one group share no row."""
+    n = pattern.shape[1]
+    groups = np.full(n, -1, dtype=np.int64)
+    used: list[NDArray[np.bool_]] = []
+    for c in range(n):
+        r = pattern.indices[pattern.indptr[c] : pattern.indptr[c + 1]]
+        for g, mask in enumerate(used):
+            if not mask[r].any():
+                mask[r] = True
+                groups[c] = g
+                break
+        else:
+            mask = np.zeros(pattern.shape[0], dtype=bool)
+            mask[r] = True
+            used.append(mask)
+            groups[c] = len(used) - 1
+    return groups

@@ -1,0 +1,399 @@
+"""Photographs of a tagged article through a pinhole camera with lens distortion.
+
+The world: every body of a tags plan (:class:`~dimacq.io.tags_file.TagsFile`) at its true pose
+— triax blocks on the true sensors, impact jigs on the true inputs, reference plates where
+stated plus a draw of their stated 1σ, a scale bar beside the article — each tag placed on its
+body with a draw of the plan's placement 1σ. A photo: tags facing the camera are warped
+(``cv2.warpPerspective``) from ``cv2.aruco.generateImageMarker`` onto a canvas at twice the
+resolution through the ideal pinhole, the canvas is resampled through the lens distortion
+(``cv2.undistortPoints`` of every sensor pixel, ``cv2.remap``), then blurred, exposed,
+occluded in part by random shapes, given sensor noise, and written as JPEG with the EXIF a
+camera writes (35 mm-equivalent focal length). Nothing but the image files leaves this module
+for the solver.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+
+from dimacq.io.tags_file import TagsFile
+from dimacq.model.setup import TestSetup
+
+__all__ = ["CameraModel", "TaggedWorld", "photograph_article", "tagged_world"]
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class CameraModel:
+    """The simulated camera: pinhole ``f`` px, principal point, OpenCV distortion, size."""
+
+    f_px: float = 1450.0
+    cx: float = 803.7
+    cy: float = 596.2
+    dist: tuple[float, float, float, float, float] = (-0.11, 0.07, 3e-4, -2e-4, 0.0)
+    width: int = 1600
+    height: int = 1200
+
+    @property
+    def matrix(self) -> FloatArray:
+        return np.array([[self.f_px, 0, self.cx], [0, self.f_px, self.cy], [0, 0, 1.0]])
+
+
+@dataclass(frozen=True)
+class WorldTag:
+    tag_id: int
+    side_m: float
+    rotation: FloatArray  # tag → world
+    centre_m: FloatArray
+    body: str
+    hidden: bool  # against the article (a block's mounting face)
+
+
+@dataclass(frozen=True)
+class TaggedWorld:
+    tags: tuple[WorldTag, ...]
+    centre_m: FloatArray
+    extent_m: FloatArray
+    occluder_box: tuple[FloatArray, FloatArray] | None
+    truth: dict[str, tuple[FloatArray, FloatArray]]  # body label → (R body→world, position)
+
+
+def tagged_world(
+    tags: TagsFile,
+    setup_true: TestSetup,
+    rng: np.random.Generator,
+    occluder_box: tuple[Any, Any] | None = None,
+) -> TaggedWorld:
+    """The bodies of ``tags`` at their true poses (see the module)."""
+    resp: dict[int, dict[int, tuple[FloatArray, FloatArray]]] = {}
+    for ch in setup_true.responses:
+        resp.setdefault(ch.node, {})[abs(ch.direction)] = (
+            np.sign(ch.direction) * np.asarray(ch.direction_gcs, float),
+            np.asarray(ch.position_m, float),
+        )
+    ins = {e.node: e for e in setup_true.excitations}
+    pts = np.vstack([setup_true.response_positions, setup_true.input_positions])
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    centre = 0.5 * (lo + hi)
+    truth: dict[str, tuple[FloatArray, FloatArray]] = {}
+    out: list[WorldTag] = []
+    for b in tags.bodies:
+        if b.kind == "triax":
+            assert b.node is not None
+            axes = resp[b.node]
+            r = np.column_stack([axes[k][0] for k in (1, 2, 3)])
+            u, _, vt = np.linalg.svd(r)
+            r = u @ vt
+            p = axes[1][1]
+        elif b.kind == "input":
+            assert b.node is not None
+            e = ins[b.node]
+            z = -np.asarray(e.direction_gcs, float)
+            rot, _ = Rotation.align_vectors([z], [[0.0, 0.0, 1.0]])
+            r = (rot * Rotation.from_euler("z", rng.uniform(0, 360), degrees=True)).as_matrix()
+            p = np.asarray(e.position_m, float)
+        elif b.kind == "reference":
+            assert b.rotation_deg is not None and b.position_m is not None
+            r = (
+                Rotation.from_rotvec(rng.normal(scale=np.radians(b.angle_std_deg), size=3))
+                * Rotation.from_rotvec(np.radians(b.rotation_deg))
+            ).as_matrix()
+            p = np.asarray(b.position_m, float) + rng.normal(scale=b.position_std_m, size=3)
+        else:  # the scale bar lies below the article, along its longest side
+            k = int(np.argmax(hi - lo))
+            rot, _ = Rotation.align_vectors([np.eye(3)[k]], [[1.0, 0.0, 0.0]])
+            r = rot.as_matrix()
+            p = centre.copy()
+            p[2] = lo[2] - 0.15 * (hi[2] - lo[2]) - 0.05
+            p[(k + 1) % 3] += 0.3 * (hi - lo)[(k + 1) % 3]
+        truth[b.label()] = (r, p)
+        inward = centre - p
+        specs = tags.tags_of(b)
+        normals = [
+            r @ Rotation.from_rotvec(np.radians(t.rotation_deg)).apply([0, 0, 1.0]) for t in specs
+        ]
+        mount_face = (
+            int(np.argmax([np.dot(n, inward) for n in normals])) if b.kind == "triax" else -1
+        )
+        for k, t in enumerate(specs):
+            r_bt = (
+                Rotation.from_rotvec(rng.normal(scale=np.radians(tags.placement_angle_deg), size=3))
+                * Rotation.from_rotvec(np.radians(t.rotation_deg))
+            ).as_matrix()
+            o_bt = np.asarray(t.offset_m) + r_bt @ np.append(
+                rng.normal(scale=tags.placement_position_m, size=2), 0.0
+            )
+            out.append(
+                WorldTag(
+                    b.first_id + t.index,
+                    t.side_m,
+                    r @ r_bt,
+                    r @ o_bt + p,
+                    b.label(),
+                    k == mount_face or (b.kind == "input" and k == 5),
+                )
+            )
+    box = None
+    if occluder_box is not None:
+        box = (np.asarray(occluder_box[0], float), np.asarray(occluder_box[1], float))
+    all_c = np.array([t.centre_m for t in out])
+    return TaggedWorld(
+        tuple(out),
+        0.5 * (all_c.min(0) + all_c.max(0)),
+        all_c.max(0) - all_c.min(0),
+        box,
+        truth,
+    )
+
+
+def _segment_hits_box(a: FloatArray, b: FloatArray, lo: FloatArray, hi: FloatArray) -> bool:
+    """Whether the segment a→b passes through the box (slab test)."""
+    d = b - a
+    t0, t1 = 0.0, 1.0
+    for k in range(3):
+        if abs(d[k]) < 1e-12:
+            if a[k] < lo[k] or a[k] > hi[k]:
+                return False
+            continue
+        ta, tb = (lo[k] - a[k]) / d[k], (hi[k] - a[k]) / d[k]
+        t0, t1 = max(t0, min(ta, tb)), min(t1, max(ta, tb))
+        if t0 > t1:
+            return False
+    return True
+
+
+_DICT_CACHE: dict[str, Any] = {}
+
+
+def _marker(tag_id: int, family: str, px: int) -> NDArray[np.uint8]:
+    """The printed tag with a white margin of one cell: ``px`` pixels per cell."""
+    d = _DICT_CACHE.setdefault(
+        family, cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, family))
+    )
+    cells = d.markerSize + 2
+    img = cv2.aruco.generateImageMarker(d, tag_id, cells * px)
+    out: NDArray[np.uint8] = cv2.copyMakeBorder(
+        img, px, px, px, px, cv2.BORDER_CONSTANT, value=255
+    ).astype(np.uint8)
+    return out
+
+
+_MAP_CACHE: dict[CameraModel, tuple[NDArray[np.float32], NDArray[np.float32]]] = {}
+
+
+def _distortion_map(cam: CameraModel, ss: int) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+    """For each sensor pixel, where it looks on the ideal (undistorted) canvas of ``ss``× size."""
+    if cam not in _MAP_CACHE:
+        u, v = np.meshgrid(
+            np.arange(cam.width, dtype=np.float64), np.arange(cam.height, dtype=np.float64)
+        )
+        pts = np.stack([u.ravel(), v.ravel()], axis=1).reshape(-1, 1, 2)
+        und = cv2.undistortPoints(
+            pts,
+            cam.matrix,
+            np.array(cam.dist),
+            R=np.eye(3),
+            P=cam.matrix,
+            criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-10),
+        ).reshape(cam.height, cam.width, 2)
+        mx = (ss * und[..., 0] + (ss - 1) / 2).astype(np.float32)
+        my = (ss * und[..., 1] + (ss - 1) / 2).astype(np.float32)
+        _MAP_CACHE[cam] = (mx, my)
+    return _MAP_CACHE[cam]
+
+
+def render(
+    world: TaggedWorld,
+    cam: CameraModel,
+    r_wc: FloatArray,
+    t_wc: FloatArray,
+    rng: np.random.Generator,
+    *,
+    family: str = "DICT_APRILTAG_36h11",
+    blur_px: float = 0.6,
+    noise: float = 2.0,
+    exposure: float = 1.0,
+    occluders: int = 1,
+) -> NDArray[np.uint8]:
+    """One photo (grey, uint8) from the camera at ``X_c = r_wc X + t_wc``."""
+    ss = 2
+    h2, w2 = ss * cam.height, ss * cam.width
+    low = rng.normal(0, 1, (h2 // 64 + 2, w2 // 64 + 2)).astype(np.float32)
+    canvas = 100 + 30 * cv2.resize(low, (w2, h2), interpolation=cv2.INTER_LINEAR)
+    k2 = cam.matrix.copy()
+    k2[:2] *= ss
+    k2[0, 2] += (ss - 1) / 2
+    k2[1, 2] += (ss - 1) / 2
+    centre_cam = -r_wc.T @ t_wc
+    order = sorted(world.tags, key=lambda t: -float(np.linalg.norm(r_wc @ t.centre_m + t_wc)))
+    for t in order:
+        if t.hidden:
+            continue
+        pc = r_wc @ t.centre_m + t_wc
+        if pc[2] < 0.05:
+            continue
+        view = pc / np.linalg.norm(pc)
+        normal = r_wc @ t.rotation[:, 2]
+        if np.dot(normal, -view) < np.cos(np.radians(75)):
+            continue
+        if world.occluder_box is not None and _segment_hits_box(
+            centre_cam, t.centre_m + 0.004 * t.rotation[:, 2], *world.occluder_box
+        ):
+            continue
+        h = 0.5 * t.side_m
+        cells = 8  # 36h11: 6 data cells + border; margin adds one each side
+        margin = h / cells * 2  # a one-cell white margin
+        hm = h + margin
+        quad = np.array([[-hm, hm, 0], [hm, hm, 0], [hm, -hm, 0], [-hm, -hm, 0]])
+        xw = quad @ t.rotation.T + t.centre_m
+        xc = xw @ r_wc.T + t_wc
+        if np.any(xc[:, 2] < 0.05):
+            continue
+        uv = (xc @ k2.T)[:, :2] / xc[:, 2:3]
+        if np.any(uv < -200) or np.any(uv > [w2 + 200, h2 + 200]):
+            continue
+        size = float(np.max(np.linalg.norm(uv - np.roll(uv, 1, axis=0), axis=1)))
+        px = int(np.clip(size / 10, 2, 40))
+        mk = _marker(t.tag_id, family, px).astype(np.float32)
+        n = mk.shape[0]
+        src = np.array(
+            [[-0.5, -0.5], [n - 0.5, -0.5], [n - 0.5, n - 0.5], [-0.5, n - 0.5]], np.float32
+        )
+        x0, y0 = np.floor(uv.min(0)).astype(int) - 2
+        x1, y1 = np.ceil(uv.max(0)).astype(int) + 2
+        x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, w2), min(y1, h2)
+        if x1 <= x0 or y1 <= y0:
+            continue
+        hmat = cv2.getPerspectiveTransform(src, (uv - [x0, y0]).astype(np.float32))
+        roi = (x1 - x0, y1 - y0)
+        shade = float(np.clip(0.55 + 0.45 * np.dot(normal, -view), 0.5, 1.0))
+        warped = cv2.warpPerspective(mk * shade, hmat, roi, flags=cv2.INTER_LINEAR)
+        mask = cv2.warpPerspective(np.ones_like(mk), hmat, roi, flags=cv2.INTER_LINEAR)
+        sub = canvas[y0:y1, x0:x1]
+        canvas[y0:y1, x0:x1] = sub * (1 - mask) + warped
+    # partial occlusion: cables, a hand
+    for _ in range(occluders):
+        if rng.uniform() < 0.5:
+            pts = rng.uniform([0, 0], [w2, h2], (2, 2)).astype(np.int32)
+            cv2.line(
+                canvas,
+                tuple(pts[0]),
+                tuple(pts[1]),
+                float(rng.uniform(10, 60)),
+                int(rng.uniform(6, 30)),
+            )
+        else:
+            c = rng.uniform([0, 0], [w2, h2])
+            poly = (c + rng.normal(scale=120, size=(5, 2))).astype(np.int32)
+            cv2.fillPoly(canvas, [poly], float(rng.uniform(20, 200)))
+    mx, my = _distortion_map(cam, ss)
+    img = cv2.remap(canvas, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    if blur_px > 0:
+        img = cv2.GaussianBlur(img, (0, 0), blur_px)
+    img = img * exposure
+    sigma = np.sqrt(noise**2 + 0.02 * np.clip(img, 0, None))
+    img = img + rng.standard_normal(img.shape, dtype=np.float32) * sigma
+    return np.clip(np.round(img), 0, 255).astype(np.uint8)
+
+
+def _look_at(
+    eye: FloatArray, target: FloatArray, rng: np.random.Generator
+) -> tuple[FloatArray, FloatArray]:
+    z = target - eye
+    z /= np.linalg.norm(z)
+    up = rng.normal(size=3)
+    x = np.cross(z, up)
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    r = np.array([x, y, z])
+    return r, -r @ eye
+
+
+def write_jpeg(
+    path: Path, img: NDArray[np.uint8], cam: CameraModel | None, quality: int = 95
+) -> None:
+    """JPEG with the EXIF a camera writes (make, model, focal length and its 35 mm
+    equivalent); ``cam=None`` writes none."""
+    from PIL import Image
+
+    im = Image.fromarray(img)
+    if cam is None:
+        im.save(path, quality=quality)
+        return
+    exif = Image.Exif()
+    exif[0x010F] = "dimacq virtual lab"
+    exif[0x0110] = "simulated camera"
+    sensor_w_mm = 7.2
+    sub = exif.get_ifd(0x8769)
+    sub[0x920A] = round(cam.f_px / cam.width * sensor_w_mm, 2)
+    sub[0xA405] = round(cam.f_px / cam.width * 36.0)
+    im.save(path, quality=quality, exif=exif)
+
+
+def photograph_article(
+    world: TaggedWorld,
+    out_dir: str | Path,
+    n_photos: int,
+    seed: int,
+    cam: CameraModel | None = None,
+    *,
+    distance_m: tuple[float, float] | None = None,
+    family: str = "DICT_APRILTAG_36h11",
+    exif: bool = True,
+    suffix: str = ".jpg",
+) -> list[Path]:
+    """Write ``n_photos`` photos of ``world`` from random poses around it into ``out_dir``.
+
+    Every third photo is an overview (looking at the middle from 2.2–2.8 × the largest extent), the others
+    look near a random tag from a random direction (the
+    hemisphere above the floor and a little below the article), at ``distance_m`` (default:
+    0.7–1.3 × the region's largest extent, at most 3 m away), with its own blur (0.4–1.1 px),
+    exposure (0.7–1.3), noise and occluders.
+    """
+    cam = cam or CameraModel()
+    rng = np.random.default_rng(seed)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    ext = float(np.max(world.extent_m))
+    lo_d, hi_d = distance_m or (min(0.7 * ext, 2.0), min(1.3 * ext, 3.0))
+    paths = []
+    centres = np.array([t.centre_m for t in world.tags])
+    for i in range(n_photos):
+        overview = i % 3 == 0
+        if overview:
+            target = world.centre_m + rng.normal(scale=0.05, size=3) * world.extent_m
+        else:
+            target = (
+                centres[rng.integers(len(centres))] + rng.normal(scale=0.1, size=3) * world.extent_m
+            )
+        d = rng.normal(size=3)
+        d[2] = abs(d[2]) * 0.8 - 0.25
+        d /= np.linalg.norm(d)
+        eye = target + d * (rng.uniform(2.2, 2.8) * ext if overview else rng.uniform(lo_d, hi_d))
+        r, t = _look_at(eye, target, rng)
+        img = render(
+            world,
+            cam,
+            r,
+            t,
+            rng,
+            family=family,
+            blur_px=float(rng.uniform(0.4, 1.1)),
+            exposure=float(rng.uniform(0.7, 1.3)),
+            occluders=int(rng.integers(0, 3)),
+        )
+        p = out / f"IMG_{i:04d}{suffix}"
+        if suffix.lower() in (".jpg", ".jpeg"):
+            write_jpeg(p, img, cam if exif else None)
+        else:
+            cv2.imwrite(str(p), img)
+        paths.append(p)
+    return paths

@@ -1,0 +1,76 @@
+"""Geometry from photos: bad photos named with the fix, EXIF-less photos refused, a body seen
+too rarely named with the photos it needs; the detector's corners against a rendered truth."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from dimacq.errors import DataError
+from dimacq.io.tags_file import BodySpec, LayoutSpec, TagsFile, TagSpec
+from dimacq.services.photo_geometry import _read_photos, detect_tags, geometry_from_photos
+
+
+def _sheet(ids: list[int], family: int, px: int = 60) -> np.ndarray:
+    d = cv2.aruco.getPredefinedDictionary(family)
+    img = np.full((400, 600), 255, np.uint8)
+    for k, i in enumerate(ids):
+        x = 60 + k * (px + 40)
+        img[170 : 170 + px, x : x + px] = cv2.aruco.generateImageMarker(d, i, px)
+    return img
+
+
+def _tags() -> TagsFile:
+    plate = LayoutSpec(tags=[TagSpec(index=0, side_m=0.04)])
+    return TagsFile(
+        layouts={"plate": plate},
+        bodies=[
+            BodySpec(
+                kind="reference",
+                name="REF0",
+                layout="plate",
+                first_id=0,
+                position_m=(0.0, 0.0, 0.0),
+                rotation_deg=(0.0, 0.0, 0.0),
+            ),
+            BodySpec(kind="triax", node=1, layout="plate", first_id=1),
+        ],
+    )
+
+
+def test_detection_corners_exact_on_a_printed_sheet() -> None:
+    img = _sheet([3, 7], cv2.aruco.DICT_APRILTAG_36h11)
+    det = detect_tags(img)
+    assert sorted(det) == [3, 7]
+    # the black square spans pixels 60..119 (edges at 59.5 and 119.5)
+    np.testing.assert_allclose(
+        det[3], [[59.5, 169.5], [119.5, 169.5], [119.5, 229.5], [59.5, 229.5]], atol=0.6
+    )
+
+
+def test_bad_photos_named(tmp_path: Path) -> None:
+    cv2.imwrite(str(tmp_path / "a_blank.png"), np.full((400, 600), 128, np.uint8))
+    cv2.imwrite(str(tmp_path / "b_family.png"), _sheet([1, 2], cv2.aruco.DICT_4X4_50))
+    blurred = cv2.GaussianBlur(_sheet([0, 1], cv2.aruco.DICT_APRILTAG_36h11), (0, 0), 12)
+    cv2.imwrite(str(tmp_path / "c_blur.png"), blurred)
+    cv2.imwrite(str(tmp_path / "d_one.png"), _sheet([0], cv2.aruco.DICT_APRILTAG_36h11))
+    (tmp_path / "e_text.jpg").write_text("not an image")
+    paths = sorted(tmp_path.iterdir())
+    photos, issues = _read_photos(paths, "DICT_APRILTAG_36h11", {0, 1}, lambda _m: None)
+    by = {i.photo: i for i in issues}
+    assert "no tags found" in by["a_blank.png"].problem
+    assert "DICT_4X4" in by["b_family.png"].problem and "family" in by["b_family.png"].fix
+    assert "blurred" in by["c_blur.png"].problem
+    assert "one known tag" in by["d_one.png"].problem
+    assert "not an image" in by["e_text.jpg"].problem
+    assert [p.name for p in photos] == ["d_one.png"]
+
+
+def test_exif_less_photos_refused(tmp_path: Path) -> None:
+    for k in range(3):
+        cv2.imwrite(str(tmp_path / f"p{k}.png"), _sheet([0, 1], cv2.aruco.DICT_APRILTAG_36h11))
+    with pytest.raises(DataError, match=r"EXIF.*--camera"):
+        geometry_from_photos(tmp_path, _tags())
