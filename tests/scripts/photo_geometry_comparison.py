@@ -31,8 +31,8 @@ import numpy as np
 
 from dimacq.io.tags_file import dump_tags, load_tags, standard_tags
 from dimacq.model.setup import GeometryUncertainty, TestSetup
-from dimacq.services.analysis import analyse
-from dimacq.services.photo_geometry import apply_to_setup, geometry_from_photos
+from dimacq.services.geometry.photo_geometry import apply_to_setup, geometry_from_photos
+from dimacq.services.solve.analysis import analyse
 from dimacq.simulators.camera.render import photograph_article, tagged_world
 from dimacq.simulators.lab.scenarios import build_scenario, nominal_setup
 

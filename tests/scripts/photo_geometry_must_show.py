@@ -24,7 +24,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from dimacq.io.tags_file import dump_tags, load_tags, standard_tags
-from dimacq.services.photo_geometry import geometry_from_photos
+from dimacq.services.geometry.photo_geometry import geometry_from_photos
 from dimacq.simulators.camera.render import photograph_article, tagged_world
 from dimacq.simulators.lab.scenarios import build_scenario
 

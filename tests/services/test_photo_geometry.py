@@ -11,7 +11,7 @@ import pytest
 
 from dimacq.errors import DataError
 from dimacq.io.tags_file import BodySpec, LayoutSpec, TagsFile, TagSpec
-from dimacq.services.photo_geometry import _read_photos, detect_tags, geometry_from_photos
+from dimacq.services.geometry.photo_geometry import _read_photos, detect_tags, geometry_from_photos
 
 
 def _sheet(ids: list[int], family: int, px: int = 60) -> np.ndarray:

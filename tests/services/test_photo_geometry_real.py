@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 
 from dimacq.pipeline.photogrammetry.camera import tag_corners
-from dimacq.services.photo_geometry import _pose_from_points, detect_tags
+from dimacq.services.geometry.photo_geometry import _pose_from_points, detect_tags
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "photos"
 

@@ -38,8 +38,7 @@ from dimacq.api.schemas import (
     ShotsRequest,
     SpeedOfSoundOut,
 )
-from dimacq.services.lab.geometry import StoredPoint
-from dimacq.services.lab.geometry_records import (
+from dimacq.services.geometry.records import (
     LineOfAction,
     NewTest,
     Orientation,
@@ -48,6 +47,7 @@ from dimacq.services.lab.geometry_records import (
     RegisteredPatch,
     Shots,
 )
+from dimacq.services.lab.geometry import StoredPoint
 
 router = APIRouter(prefix="/api/digitizer", tags=["digitizer"])
 

@@ -533,7 +533,7 @@ def _photograph(
     ``args.photos`` photos written as JPEG files, ``dimacq geometry from-photos`` on them, and
     the result sent to the service (``POST /api/digitizer/photo-geometry``)."""
     from dimacq.io.tags_file import dump_tags, load_tags, standard_tags
-    from dimacq.services.photo_geometry import geometry_from_photos
+    from dimacq.services.geometry.photo_geometry import geometry_from_photos
     from dimacq.simulators.camera.render import photograph_article, tagged_world
 
     setup_true = built.model.setup

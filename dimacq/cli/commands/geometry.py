@@ -56,7 +56,7 @@ def from_photos(args: argparse.Namespace) -> int:
     from dimacq.errors import SetupError
     from dimacq.io.setup_file import load_setup
     from dimacq.io.tags_file import load_tags
-    from dimacq.services.photo_geometry import geometry_from_photos, load_camera
+    from dimacq.services.geometry.photo_geometry import geometry_from_photos, load_camera
 
     say = (lambda _m: None) if args.quiet else (lambda m: print(m, flush=True))
     tags_path = args.tags

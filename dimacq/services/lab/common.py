@@ -2,14 +2,14 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from dataclasses import asdict, is_dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
+
+from dimacq.services.geometry.records import vec as vec
 
 __all__ = ["identity_dict", "iso", "json_safe", "package_version", "vec"]
 
@@ -20,11 +20,6 @@ def iso(t: datetime | None) -> str | None:
     if t is None:
         return None
     return (t if t.tzinfo is not None else t.replace(tzinfo=UTC)).astimezone(UTC).isoformat()
-
-
-def vec(v: Sequence[float] | NDArray[np.floating]) -> list[float]:
-    """A vector as a list of Python floats (JSON)."""
-    return [float(x) for x in np.asarray(v, dtype=float).reshape(-1)]
 
 
 def json_safe(obj: Any) -> Any:

@@ -21,8 +21,7 @@ from dimacq.errors import DataError, DeviceStateError, SetupError
 from dimacq.model.setup import Excitation, KnownProperties, LoadCell, ResponseChannel, TestSetup
 from dimacq.persistence import Database
 from dimacq.persistence import models as m
-from dimacq.services.lab.common import iso, vec
-from dimacq.services.lab.geometry_records import (
+from dimacq.services.geometry.records import (
     LineOfAction,
     NewTest,
     Orientation,
@@ -34,6 +33,7 @@ from dimacq.services.lab.geometry_records import (
     Shots,
     StoredPoint,
 )
+from dimacq.services.lab.common import iso, vec
 from dimacq.services.lab.records import Page
 
 if TYPE_CHECKING:
@@ -300,7 +300,7 @@ class GeometryService:
 
     def import_photo_geometry(self, doc: Mapping[str, Any]) -> dict[str, Any]:
         """Store the orientations and lines of action of a photographed geometry (the JSON of
-        :meth:`dimacq.services.photo_geometry.PhotoGeometry.to_json`) as the current test's
+        :meth:`dimacq.services.geometry.photo_geometry.PhotoGeometry.to_json`) as the current test's
         records, replacing those of the same nodes. A result whose verdict is ``fail`` (a triax
         or input not fixed) is refused with its reasons."""
         if not isinstance(doc, Mapping) or doc.get("source") != "photographs":

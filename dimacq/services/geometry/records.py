@@ -8,8 +8,7 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
-
-from dimacq.services.lab.common import vec
+from numpy.typing import NDArray
 
 __all__ = [
     "LineOfAction",
@@ -22,7 +21,13 @@ __all__ = [
     "Shot",
     "Shots",
     "StoredPoint",
+    "vec",
 ]
+
+
+def vec(v: Sequence[float] | NDArray[np.floating]) -> list[float]:
+    """A vector as a list of Python floats (JSON)."""
+    return [float(x) for x in np.asarray(v, dtype=float).reshape(-1)]
 
 
 @dataclass(frozen=True)

@@ -8,10 +8,10 @@ and why (unreadable, blurred, no tags, tags of another family, one tag only, ano
 size), chain first poses from the reference plates outwards (``cv2.solvePnP`` per tag and per
 photo), then adjust everything together (:func:`dimacq.pipeline.photogrammetry.bundle.adjust`,
 the intrinsics refined unless a camera file fixes them). Each triax and input becomes an
-:class:`~dimacq.services.lab.geometry_records.Orientation` or
-:class:`~dimacq.services.lab.geometry_records.LineOfAction` record with its standard
+:class:`~dimacq.services.geometry.records.Orientation` or
+:class:`~dimacq.services.geometry.records.LineOfAction` record with its standard
 uncertainty (the adjustment's covariance ⊕ the tags' placement on their bodies), the records a
-digitized setup is built from (:func:`dimacq.services.geometry_trust.geometry_uncertainty`).
+digitized setup is built from (:func:`dimacq.services.geometry.geometry_trust.geometry_uncertainty`).
 
 A body whose tags are seen in fewer than :data:`MIN_VIEWS` photos is not fixed: the result
 names it and how many more photos it needs.
@@ -42,8 +42,8 @@ from dimacq.pipeline.photogrammetry.bundle import (
     adjust,
 )
 from dimacq.pipeline.photogrammetry.camera import Intrinsics, tag_corners, undistort_normalised
-from dimacq.services.geometry_trust import geometry_uncertainty
-from dimacq.services.lab.geometry_records import LineOfAction, Orientation
+from dimacq.services.geometry.geometry_trust import geometry_uncertainty
+from dimacq.services.geometry.records import LineOfAction, Orientation
 
 __all__ = [
     "MIN_VIEWS",
@@ -862,7 +862,7 @@ def apply_to_setup(setup: TestSetup, result: PhotoGeometry) -> TestSetup:
     """``setup`` with each photographed triax's channels and each input at the photographed
     geometry (a channel ``±k`` along ``±`` column ``k`` of the triax's rotation), and the
     geometry uncertainty the records state
-    (:func:`dimacq.services.geometry_trust.geometry_uncertainty`), as a digitized setup."""
+    (:func:`dimacq.services.geometry.geometry_trust.geometry_uncertainty`), as a digitized setup."""
     ori = {o.node: o for o in result.orientations}
     loas = {a.node: a for a in result.lines_of_action}
     responses = []
