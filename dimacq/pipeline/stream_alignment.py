@@ -14,7 +14,8 @@ Used for a sensor with no sync input that streams numbered samples (an ATI Net F
   arrivals, one minimum per window of ``window_s``, gives the line: the highest line under
   all the minima (:func:`fit_lower_envelope`, a linear programme: it rests on the datagrams
   that waited least, where a least-squares line through the minima moved with every busy
-  window); the minima's scatter above it is what the fit cannot tell apart from latency;
+  window; a window held in a queue, more than ``BURST_S`` above it, bounds it without pulling
+  it); the minima's scatter above it is what the fit cannot tell apart from latency;
 - the **DAQ** clocks sample ``k`` at ``t = T0 + k / (f_d · time_scale)``; ``T0`` lies in the
   window the host measured around the request that started its clock (``t_a ≤ T0 ≤ t_b``, its
   midpoint taken, half its width an uncertainty);
