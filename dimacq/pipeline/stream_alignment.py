@@ -145,6 +145,8 @@ def _lower_hull(x: NDArray[np.float64], y: NDArray[np.float64]) -> NDArray[np.in
 #: sender or the network held a burst of datagrams back), host s: it bounds the line from above
 #: but does not pull it (:func:`fit_lower_envelope`)
 BURST_S = 1e-3
+#: steps of :func:`fit_lower_envelope`'s iteration at most (it stops within two or three)
+_MAX_STEPS = 20
 
 
 def fit_lower_envelope(
@@ -228,7 +230,7 @@ def fit_lower_envelope(
     lim = max_ppm * 1e-6 * nominal_slope
     quiet = np.ones(x.size, dtype=bool)
     seen: set[bytes] = set()
-    while True:
+    for _ in range(_MAX_STEPS):
         c1 = _hull_slope(x, y, hull, float(x[quiet].mean()), lim)
         c0 = float(np.min(y - c1 * x))  # the line touches the hull (exactly, unless clipped)
         r = y - (c0 + c1 * x)
