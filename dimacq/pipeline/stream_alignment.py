@@ -14,7 +14,8 @@ Used for a sensor with no sync input that streams numbered samples (an ATI Net F
   arrivals, one minimum per window of ``window_s``, gives the line: the highest line under
   all the minima (:func:`fit_lower_envelope`, a linear programme: it rests on the datagrams
   that waited least, where a least-squares line through the minima moved with every busy
-  window); the minima's scatter above it is what the fit cannot tell apart from latency;
+  window; a window held in a queue, more than ``BURST_S`` above it, bounds it without pulling
+  it); the minima's scatter above it is what the fit cannot tell apart from latency;
 - the **DAQ** clocks sample ``k`` at ``t = T0 + k / (f_d · time_scale)``; ``T0`` lies in the
   window the host measured around the request that started its clock (``t_a ≤ T0 ≤ t_b``, its
   midpoint taken, half its width an uncertainty);
@@ -89,6 +90,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 __all__ = [
+    "BURST_S",
     "ClockFit",
     "DelayBudget",
     "DelayFit",
@@ -139,6 +141,14 @@ def _lower_hull(x: NDArray[np.float64], y: NDArray[np.float64]) -> NDArray[np.in
     return np.asarray(hull, dtype=np.intp)
 
 
+#: a window whose least-waiting datagram lies this far above the clock line was in a queue (the
+#: sender or the network held a burst of datagrams back), host s: it bounds the line from above
+#: but does not pull it (:func:`fit_lower_envelope`)
+BURST_S = 1e-3
+#: steps of :func:`fit_lower_envelope`'s iteration at most (it stops within two or three)
+_MAX_STEPS = 20
+
+
 def fit_lower_envelope(
     sensor_s: NDArray[np.float64],
     host_s: NDArray[np.float64],
@@ -147,23 +157,37 @@ def fit_lower_envelope(
     window_s: float,
     max_ppm: float = 200.0,
     min_windows: int = 8,
+    burst_s: float = BURST_S,
 ) -> ClockFit:
     """The line under the arrivals: with ``o = host_s − nominal_slope · sensor_s`` and one
     minimum per window of ``window_s`` host seconds, the line ``o = c0 + c1 s`` that lies under
-    every minimum and is as high as it can be on average::
+    every minimum and is as high as it can be on average over the windows that were not held
+    in a queue::
 
-        maximise  Σ_w (c0 + c1 s_w)   subject to   c0 + c1 s_w ≤ o_w  for every window w
+        minimise  Σ_w min(r_w, burst_s),   r_w = o_w − (c0 + c1 s_w) ≥ 0 for every window w
 
-    (the linear-programming estimate of clock skew of Moon, Skelly & Towsley, 1999). Latency
-    only ever adds (``o_w = c0 + c1 s_w + d_w``, ``d_w ≥ d_min``), so the constraint holds for
-    the true line shifted by ``d_min``; the optimum is the edge of the minima's lower convex
-    hull over their mean ``s̄`` (the objective is ``n (c0 + c1 s̄)``), and it rests on the
-    datagrams that waited least — it does not move with the bulk of the latency, which a
-    least-squares line through the minima does (under load by tens of µs from one window to
-    the next, each move a jump of the DAQ samples' positions). The slope is kept within
-    ``nominal_slope × (1 ± max_ppm 10⁻⁶)`` (a crystal's tolerance; beyond, the line through
-    the lowest minimum with that slope); the lowest point with ``nominal_slope`` while fewer
-    than ``min_windows`` windows are in.
+    Without the cap this is the linear-programming estimate of clock skew of Moon, Skelly &
+    Towsley (1999): latency only ever adds (``o_w = c0 + c1 s_w + d_w``, ``d_w ≥ d_min``), so
+    the constraint holds for the true line shifted by ``d_min``; the optimum is the edge of the
+    minima's lower convex hull over their mean ``s̄`` (the objective is
+    ``Σ o_w − n (c0 + c1 s̄)``), and it rests on the datagrams that waited least — it does not
+    move with the bulk of the latency, which a least-squares line through the minima does.
+
+    The cap: a burst of datagrams held back (a sender or a switch that falls behind for
+    seconds: every window's minimum then lies milliseconds to seconds above the floor) makes
+    those windows most of the uncapped objective, whose optimum then moves to the hull edge
+    that climbs into the burst — its slope is the queue's growth, clipped at ``max_ppm``, and
+    extrapolated to the newest samples it puts them ``max_ppm ×`` the time since the last
+    quiet window off (200 ppm over 12.5 s is 2.5 ms). A window above the line by more than
+    ``burst_s`` counts ``burst_s`` whatever its height: it still bounds the line, it no longer
+    pulls it. The truncated objective is minimised by the iteration that alternates the
+    windows held in a queue (``r_w > burst_s``) and the hull edge over the mean ``s̄`` of the
+    others (each step lowers the objective; it starts from the uncapped optimum and stops when
+    the set repeats).
+
+    The slope is kept within ``nominal_slope × (1 ± max_ppm 10⁻⁶)`` (a crystal's tolerance;
+    beyond, the line through the lowest minimum with that slope); the lowest point with
+    ``nominal_slope`` while fewer than ``min_windows`` windows are in.
 
     Parameters
     ----------
@@ -176,12 +200,15 @@ def fit_lower_envelope(
     window_s : float
     max_ppm : float
     min_windows : int
+    burst_s : float
+        Host s above the line beyond which a window's minimum was held in a queue.
 
     Returns
     -------
     ClockFit
         ``scatter_s``: 1.4826 × the median absolute deviation of the minima's heights above
-        the line (how far a typical window's least latency is from the floor).
+        the line over the windows not held in a queue (how far a typical window's least
+        latency is from the floor).
     """
     s = np.asarray(sensor_s, dtype=float)
     t = np.asarray(host_s, dtype=float)
@@ -201,17 +228,35 @@ def fit_lower_envelope(
     y = o[idx]
     hull = _lower_hull(x, y)
     lim = max_ppm * 1e-6 * nominal_slope
-    c1 = 0.0
-    if hull.size >= 2:
-        e = int(np.clip(np.searchsorted(x[hull], x.mean()) - 1, 0, hull.size - 2))
-        a, b = hull[e], hull[e + 1]
-        c1 = float((y[b] - y[a]) / (x[b] - x[a]))
-    # a crystal is within max_ppm: a slope beyond is the scatter's, not the clock's
-    c1 = float(np.clip(c1, -lim, lim))
-    c0 = float(np.min(y - c1 * x))  # the line touches the hull (exactly, unless clipped)
-    r = y - (c0 + c1 * x)
-    scatter = 1.4826 * float(np.median(np.abs(r - np.median(r))))
+    quiet = np.ones(x.size, dtype=bool)
+    seen: set[bytes] = set()
+    for _ in range(_MAX_STEPS):
+        c1 = _hull_slope(x, y, hull, float(x[quiet].mean()), lim)
+        c0 = float(np.min(y - c1 * x))  # the line touches the hull (exactly, unless clipped)
+        r = y - (c0 + c1 * x)
+        held = r > burst_s
+        if held.all():  # nothing but queues: the lowest of them
+            held = r > r.min()
+        key = np.packbits(held).tobytes()
+        if key in seen or np.array_equal(~held, quiet):
+            break
+        seen.add(key)
+        quiet = ~held
+    rq = r[quiet]
+    scatter = 1.4826 * float(np.median(np.abs(rq - np.median(rq))))
     return ClockFit(float(c0 - c1 * s[idx[0]]), float(nominal_slope + c1), scatter, int(idx.size))
+
+
+def _hull_slope(
+    x: NDArray[np.float64], y: NDArray[np.float64], hull: NDArray[np.intp], at: float, lim: float
+) -> float:
+    """The slope of the lower hull's edge over ``x = at``, within ``±lim``."""
+    if hull.size < 2:
+        return 0.0
+    e = int(np.clip(np.searchsorted(x[hull], at) - 1, 0, hull.size - 2))
+    a, b = hull[e], hull[e + 1]
+    # a crystal is within max_ppm: a slope beyond is the scatter's, not the clock's
+    return float(np.clip((y[b] - y[a]) / (x[b] - x[a]), -lim, lim))
 
 
 def lagrange4(y: NDArray[np.float64], u: NDArray[np.float64]) -> NDArray[np.float64]:

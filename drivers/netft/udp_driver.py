@@ -88,6 +88,9 @@ MAX_SLEW = 5e-6
 #: it the cell's response moves by more than a few DAQ samples against the hammer's record
 #: window (its pre-trigger, its exponential window), and the fit's search grows long
 MAX_COARSE_S = 0.01
+#: the widest realtime-clock bracket around a monotonic read that gives the clocks' offset, ns
+#: (two clock reads take ~0.1 µs; a preempted read takes milliseconds)
+_OFFSET_BRACKET_NS = 20_000
 #: the data's delay is sought within this many coarse uncertainties (and at least 1 ms)
 _SEARCH_FACTOR = 4.0
 
@@ -185,6 +188,7 @@ class NetFtUdp(WireDriver):
         self._run: _Run | None = None
         self._daq_window: tuple[float, float] | None = None
         self._final: int | None = None
+        self._rt_offset_ns: int | None = None
         self._stamps = self._enable_stamps()
 
     @property
@@ -235,12 +239,37 @@ class NetFtUdp(WireDriver):
             return None
         except OSError as err:
             raise DeviceError(f"{self.name}: {err}") from err
-        mono, real = time.monotonic(), time.time()
         for level, kind, payload in anc:
             if level == socket.SOL_SOCKET and kind == _SO_TIMESTAMPNS and len(payload) >= 16:
                 sec, nsec = struct.unpack_from("@qq", payload)
-                return bytes(data), mono - (real - (sec + 1e-9 * nsec))
-        return bytes(data), mono
+                return bytes(data), 1e-9 * (sec * 1_000_000_000 + nsec - self._realtime_offset_ns())
+        return bytes(data), time.monotonic()
+
+    def _realtime_offset_ns(self) -> int:
+        """``CLOCK_REALTIME − CLOCK_MONOTONIC``, ns: what turns the kernel's arrival stamps (on
+        the realtime clock) into the monotonic clock the DAQ's start window is on.
+
+        Read as ``r1, m, r2`` (the realtime clock on both sides of the monotonic one): the
+        offset is ``(r1 + r2)/2 − m`` within ``(r2 − r1)/2``. A thread preempted between two
+        reads (the scheduler, another thread taking the GIL: milliseconds under load) would
+        put the stamp that far early — below the arrivals' floor, where the clock fit's lower
+        envelope rests on it — so a read wider than :data:`_OFFSET_BRACKET_NS` is tried again
+        (three times), and the last narrow one is kept otherwise (the offset moves only when
+        the realtime clock is stepped)."""
+        best: tuple[int, int] | None = None
+        for _ in range(3):
+            r1 = time.time_ns()
+            m = time.monotonic_ns()
+            r2 = time.time_ns()
+            if best is None or r2 - r1 < best[0]:
+                best = (r2 - r1, (r1 + r2) // 2 - m)
+            if best[0] <= _OFFSET_BRACKET_NS:
+                self._rt_offset_ns = best[1]
+                break
+        assert best is not None
+        if self._rt_offset_ns is None:  # never a narrow read yet: the narrowest
+            return best[1]
+        return self._rt_offset_ns
 
     def _drain(self) -> None:
         while self._recv(1e-4) is not None:

@@ -8,6 +8,7 @@ host's clock alone (``"host"``) it is refused at that band and runs at a band wh
 
 from __future__ import annotations
 
+import re
 import shutil
 from pathlib import Path
 from typing import Any
@@ -145,31 +146,50 @@ def test_one_delay_fitted_on_every_input_of_the_run(
 ) -> None:
     """Four inputs through the acquisition: each input's records are kept as they come, the
     run's delay is fitted on the four at once at the end (the driver asked for its clock
-    fit's offsets at the inputs' records) and removed from every input: each input's load
-    cell FRFs then follow the CAN FD amplifier's over 50–655 Hz (median phase within half the
-    budget of 10° at 655 Hz; measured up to 1.5°), on the article bolted to the cell
-    (``GROUND``), on the two loads the strike drives most."""
+    fit's offsets at the inputs' records) and removed from every input where it meets the
+    budget (10° at 655 Hz, times the cell's share of the force balance), else each input's own
+    fit: the run is never refused here (the article bolted to the cell, ``GROUND``: every
+    input's own fit is within 1 µs), and each input's load cell FRFs then follow the CAN FD
+    amplifier's over 50–655 Hz, on the two loads the strike drives most, within what the
+    alignment states: the delay left in each (the least-squares slope of their phase against
+    frequency) is within twice the stated uncertainty (the run's: the inputs' own spread about
+    the run's delay, which the jackknife over four inputs and the halves' drift measure; or the
+    input's own fit's). The coarse
+    alignment's part in it is the host clock's: the arrivals' floor rises by tens of µs while
+    the lab works, which the clock fit cannot tell from a crystal's rate."""
     caplog.set_level("INFO", logger="dimacq.services.acquisition.data_alignment")
     budget = {"netft_max_phase_deg": 10.0}
     amp = _impact(tmp_path, "simulated", n_inputs=4, scenario=GROUND)
-    try:
-        ft = _impact(
-            tmp_path,
-            "netft-udp-simulated",
-            _rig_file(tmp_path, **budget),
-            n_inputs=4,
-            scenario=GROUND,
-        )
-    except SetupError as err:
-        # Known defect (README, RDT: "An input whose alignment jumped"): in about one run in
-        # five the coarse alignment of a later input jumps by 0.7-2.5 ms; with that input too
-        # weak for its own fit the run is refused, naming the drift between the run's halves.
-        # A refusal, never a wrong alignment taken: anything else fails here.
-        assert "the data align its loads" in str(err), err
-        assert "drift between the run's halves" in str(err), err
-        return
-    pooled = [r.getMessage() for r in caplog.records if "inputs at once" in r.getMessage()]
-    assert len(pooled) == 1 and "fitted on 4 inputs at once" in pooled[0], pooled
+    ft = _impact(
+        tmp_path,
+        "netft-udp-simulated",
+        _rig_file(tmp_path, **budget),
+        n_inputs=4,
+        scenario=GROUND,
+    )
+    messages = [
+        r.getMessage() for r in caplog.records if r.name == "dimacq.services.data_alignment"
+    ]
+    own = [m for m in messages if "own delay fit +" in m or "own delay fit -" in m]
+    assert len(own) == 4, own
+    own_u = []
+    for m in own:
+        got = re.search(r"within ([0-9.]+) us", m)
+        assert got is not None, m
+        own_u.append(1e-6 * float(got.group(1)))
+    pooled = [m for m in messages if "inputs at once" in m]
+    if pooled:  # the run's delay met the budget: removed from every input
+        assert len(pooled) == 1 and "fitted on 4 inputs at once" in pooled[0], pooled
+        got_u = re.search(r"within ([0-9.]+) us \(([0-9.]+) deg at ([0-9.]+) Hz", pooled[0])
+        share = re.search(r"share of the force balance ([0-9.e+-]+)", pooled[0])
+        assert got_u is not None and share is not None, pooled[0]
+        u = 1e-6 * float(got_u.group(1))
+        # (as the message rounds it: u to 0.05 µs, 0.01° here)
+        assert u * 360.0 * float(got_u.group(3)) * float(share.group(1)) <= 10.0 + 0.01
+        bound = [2 * u] * 4
+    else:  # the inputs' delays differed by more than the budget: each its own fit
+        assert any("each input's own delay fit removed" in m for m in messages), messages
+        bound = [2 * v for v in own_u]
     f = ft.frequencies_hz
     band = (f >= 50) & (f <= 655)  # netft_fit_lo_hz to the automatic band's top
     assert amp.coherence is not None
@@ -177,8 +197,12 @@ def test_one_delay_fitted_on_every_input_of_the_run(
         ref, got = amp.H[band, 24:30, j], ft.H[band, 24:30, j]
         # the loads the strike explains best (as in the test above)
         big = np.argsort(np.median(amp.coherence[band, 24:30, j], axis=0))[-2:]
-        dphi = np.degrees(np.angle(got[:, big] / ref[:, big]))
-        assert np.all(np.abs(np.median(dphi, axis=0)) < 5.0), (j, np.median(dphi, axis=0))
+        phi = np.angle(got[:, big] / ref[:, big])  # rad
+        fb = f[band][:, None]
+        left = np.sum(fb * phi, axis=0) / (2 * np.pi * np.sum(fb**2))  # s
+        # plus the comparison's own noise: two averages on each side, the sensor's certificate
+        # error (the one-input test above: 0.03–0.2° median phase, ≤ 1.6 µs)
+        assert np.all(np.abs(left) <= bound[j] + 3e-6), (j, left, bound[j])
 
 
 def test_refused_where_the_data_cannot_support_the_alignment(tmp_path: Path) -> None:

@@ -53,6 +53,41 @@ def test_lower_envelope_finds_the_clock_under_random_latency() -> None:
     assert short.offset_s == pytest.approx(np.min(t[:200] - s[:200]))
 
 
+def _arrivals_with_a_burst() -> tuple[np.ndarray, np.ndarray, float, float]:
+    """RDT datagrams (40 records at 7000 Hz) over 40 s of a sensor 20 ppm fast, a latency floor
+    of 50 µs plus exponential waits, and from 12 s to 30 s of the sensor a sender that falls
+    behind: its queue grows to 1.2 s at 24 s and drains by 30 s (what a starved sender thread
+    or a congested switch does). Returns ``s, t`` and the true line's offset and slope."""
+    rng = np.random.default_rng(7)
+    s = np.arange(0.0, 40.0, 40 / 7000)
+    slope, offset = 1.0 + 20e-6, 500.0
+    queue = np.interp(s, [12.0, 24.0, 30.0], [0.0, 1.2, 0.0], left=0.0, right=0.0)
+    t = offset + slope * s + 50e-6 + rng.exponential(150e-6, s.size) + queue
+    return s, np.maximum.accumulate(t), offset, slope
+
+
+def test_lower_envelope_does_not_follow_a_burst_of_held_datagrams() -> None:
+    """The clock fit as the driver uses it, refitted on the arrivals so far and extrapolated to
+    the newest one: while datagrams are held back for seconds, the uncapped linear programme's
+    edge over the windows' mean climbs into the queue (its slope clipped at 200 ppm), and the
+    newest samples were put up to 2.5 ms off; the capped one rests on the windows before the
+    burst (and after it, once they come) and stays within the floor's scatter and the slope
+    that span allows."""
+    s, t, offset, slope = _arrivals_with_a_burst()
+    worst = 0.0
+    for now in np.arange(4.0, 40.0, 0.5):
+        m = t - offset <= now
+        fit = fit_lower_envelope(s[m], t[m], nominal_slope=1.0, window_s=0.2, min_windows=15)
+        assert abs(fit.slope - slope) <= 10e-6, (now, fit.slope - slope)
+        # the line at the newest sensor time against the true line plus the 50 µs floor
+        s_now = s[m][-1]
+        err = (fit.offset_s + fit.slope * s_now) - (offset + slope * s_now + 50e-6)
+        worst = max(worst, abs(err))
+    assert worst < 150e-6, worst
+    # the burst's windows are held, not scattered: the envelope's scatter is the quiet floor's
+    assert fit.scatter_s < 150e-6
+
+
 def test_phase_error() -> None:
     assert phase_error_deg(1e-4, 100.0) == pytest.approx(3.6)
     assert phase_error_deg(-1e-3, 50.0) == pytest.approx(18.0)

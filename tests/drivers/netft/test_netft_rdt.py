@@ -73,6 +73,49 @@ def _driver(sim: NetFtUdpSim) -> tuple[NetFtUdp, socket.socket]:
     return NetFtUdp(sock, calibration=CAL, timeout_s=2.0), sock
 
 
+class _Clocks:
+    """``time_ns`` and ``monotonic_ns`` read in turn from a script of (realtime, monotonic)
+    readings, ns."""
+
+    def __init__(self, reads: list[int]) -> None:
+        self.reads = iter(reads)
+
+    def time_ns(self) -> int:
+        return next(self.reads)
+
+    def monotonic_ns(self) -> int:
+        return next(self.reads)
+
+
+def test_arrival_stamps_survive_a_thread_preempted_between_clock_reads(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The kernel stamps arrivals on the realtime clock; the driver puts them on the
+    monotonic one through ``realtime − monotonic``. A thread preempted between the two reads
+    (5 ms here: the scheduler or another thread's GIL) would have put the stamp 5 ms early —
+    below every arrival, where the clock fit's lower envelope rests. A read whose realtime
+    bracket is wide is tried again, then the last narrow offset kept; a stepped realtime clock
+    is taken at the next narrow read."""
+    import dimacq.drivers.netft.udp_driver as udp
+
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        drv = NetFtUdp(sock, calibration=CAL)
+        off = 1_700_000_000_000_000_000  # realtime − monotonic, ns
+        m = 5_000_000_000
+        clocks = _Clocks(
+            [off + m - 50, m, off + m + 50]  # narrow: the offset within 50 ns
+            + [off + m, m, off + m + 5_000_000] * 3  # preempted after the monotonic read
+            + [off + 10**9 + m, m, off + 10**9 + m + 80]  # the realtime clock stepped 1 s
+        )
+        monkeypatch.setattr(udp, "time", clocks)
+        assert drv._realtime_offset_ns() == off
+        assert drv._realtime_offset_ns() == off  # not off + 2.5 ms
+        assert drv._realtime_offset_ns() == off + 10**9 + 40
+    finally:
+        sock.close()
+
+
 def test_driver_on_the_loopback_simulator() -> None:
     rng = np.random.default_rng(2)
     C = rng.normal(size=(6, 12)) * 100.0
