@@ -4,6 +4,7 @@
 import { $, api, emit, esc, f, guard, items, on, state, table } from "/static/core.js";
 import { linePlot } from "/static/plot.js";
 import { testQuery } from "/static/test.js";
+import { fetchFrfData } from "/static/frf-data.js";
 
 /** List the FRF sets; open ``select`` (the page does not fetch FRF values before asked). */
 export async function loadFrfSets(select) {
@@ -17,12 +18,12 @@ export async function loadFrfSets(select) {
 
 export async function openFrf(id) {
   const t0 = performance.now();
-  const [summary, data] = await Promise.all([api("GET", `/api/frfs/${id}`), api("GET", `/api/frfs/${id}/data`)]);
+  const [summary, data] = await Promise.all([api("GET", `/api/frfs/${id}`), fetchFrfData(id)]);
   state.timings.frf_fetch_ms = performance.now() - t0;
   state.frf = summary;
-  const nL = data.frequencies_hz.length;
-  const nO = data.responses.length;
-  const nI = data.inputs.length;
+  const nL = data.nLines;
+  const nO = data.nResponses;
+  const nI = data.nInputs;
   // flatten once: (line, output, input) → Float64Array per (input, output) of |H| and γ²
   const mag = [];
   const coh = [];
@@ -32,8 +33,9 @@ export async function openFrf(id) {
       const m = new Float64Array(nL);
       const c = new Float64Array(nL);
       for (let l = 0; l < nL; l++) {
-        m[l] = Math.hypot(data.real[l][o][j], data.imag[l][o][j]);
-        c[l] = data.coherence && data.coherence[l][o][j] !== null ? data.coherence[l][o][j] : NaN;
+        const k = data.at(l, o, j);
+        m[l] = Math.hypot(data.real[k], data.imag[k]);
+        c[l] = data.coherence ? data.coherence[k] : NaN;
       }
       mag[j].push(m); coh[j].push(c);
     }
@@ -95,8 +97,8 @@ function colocated() {
 function checks() {
   const d = state.frfData;
   const { pairs } = colocated();
-  const re = d.data.real;
-  const im = d.data.imag;
+  const re = (l, o, j) => d.data.real[d.data.at(l, o, j)];
+  const im = (l, o, j) => d.data.imag[d.data.at(l, o, j)];
   const nL = d.x.length;
   const inBand = (l) => !state.band || (d.x[l] >= state.band[0] && d.x[l] <= state.band[1]);
   const rows = [];
@@ -104,8 +106,8 @@ function checks() {
     let pos = 0; let passive = 0; let n = 0;
     for (let l = 0; l < nL; l++) {
       if (!inBand(l)) continue;
-      const a = p.sign * re[l][p.output][p.input];
-      const b = p.sign * im[l][p.output][p.input];
+      const a = p.sign * re(l, p.output, p.input);
+      const b = p.sign * im(l, p.output, p.input);
       const m = Math.hypot(a, b);
       n += 1;
       if (a > 0) pos += 1;
@@ -125,12 +127,12 @@ function checks() {
       const diffs = [];
       for (let l = 0; l < nL; l++) {
         if (!inBand(l)) continue;
-        const ar = q.sign * re[l][q.output][p.input];
-        const ai = q.sign * im[l][q.output][p.input];
-        const br = p.sign * re[l][p.output][q.input];
-        const bi = p.sign * im[l][p.output][q.input];
-        const dp = Math.hypot(re[l][p.output][p.input], im[l][p.output][p.input]);
-        const dq = Math.hypot(re[l][q.output][q.input], im[l][q.output][q.input]);
+        const ar = q.sign * re(l, q.output, p.input);
+        const ai = q.sign * im(l, q.output, p.input);
+        const br = p.sign * re(l, p.output, q.input);
+        const bi = p.sign * im(l, p.output, q.input);
+        const dp = Math.hypot(re(l, p.output, p.input), im(l, p.output, p.input));
+        const dq = Math.hypot(re(l, q.output, q.input), im(l, q.output, q.input));
         const den = Math.max(Math.hypot(ar, ai), Math.hypot(br, bi), 0.01 * Math.sqrt(dp * dq)) || 1;
         diffs.push(Math.hypot(ar - br, ai - bi) / den);
       }
@@ -157,12 +159,13 @@ function drawCmif() {
   const sv = Array.from({ length: K }, () => new Float64Array(nL));
   const re = d.data.real;
   const im = d.data.imag;
+  const nO = d.outputs.length;
   for (let l = 0; l < nL; l++) {
     const Ar = new Float64Array(nI * nI);
     const Ai = new Float64Array(nI * nI);
     for (const o of outs) {
-      const hr = re[l][o];
-      const hi = im[l][o];
+      const hr = re.subarray((l * nO + o) * nI, (l * nO + o + 1) * nI);
+      const hi = im.subarray((l * nO + o) * nI, (l * nO + o + 1) * nI);
       for (let a = 0; a < nI; a++) {
         for (let b = 0; b < nI; b++) {
           Ar[a * nI + b] += hr[a] * hr[b] + hi[a] * hi[b];
