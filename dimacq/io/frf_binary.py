@@ -31,13 +31,14 @@ MEDIA_TYPE = "application/vnd.dimacq.frf-f32"
 
 
 def encode_f32(header: Mapping[str, Any], arrays: Mapping[str, ArrayLike]) -> bytes:
-    """``header`` (JSON-able) with an ``arrays`` entry added, then ``arrays`` as ``<f4``."""
-    parts = {k: np.ascontiguousarray(v, dtype="<f4") for k, v in arrays.items()}
+    """``header`` (JSON-able) with an ``arrays`` entry added, then ``arrays`` as ``<f4``
+    (each converted once, straight into the message's buffer)."""
+    parts = {k: np.asarray(v) for k, v in arrays.items()}
     meta: list[dict[str, Any]] = []
     offset = 0
     for name, a in parts.items():
         meta.append({"name": name, "shape": list(a.shape), "offset": offset})
-        offset += a.nbytes
+        offset += 4 * a.size
     head = dict(header)
     head["dtype"] = "<f4"
     head["arrays"] = meta
@@ -50,10 +51,14 @@ def encode_f32(header: Mapping[str, Any], arrays: Mapping[str, ArrayLike]) -> by
     text = json.dumps(head, separators=(",", ":"), allow_nan=False).encode()
     if 8 + len(text) > start:  # pragma: no cover - the 64 spare bytes hold the offsets' digits
         raise AssertionError("FRF header outgrew its room")
-    text += b" " * (start - 8 - len(text))
-    return b"".join(
-        [MAGIC, struct.pack("<I", len(text)), text, *(a.tobytes() for a in parts.values())]
-    )
+    out = bytearray(start + offset)
+    out[:4] = MAGIC
+    out[4:8] = struct.pack("<I", start - 8)
+    out[8:start] = text + b" " * (start - 8 - len(text))
+    for m, a in zip(meta, parts.values(), strict=True):
+        view = np.frombuffer(out, dtype="<f4", count=a.size, offset=m["offset"])
+        view.reshape(a.shape)[...] = a
+    return bytes(out)
 
 
 def decode_f32(data: bytes) -> tuple[dict[str, Any], dict[str, np.ndarray]]:

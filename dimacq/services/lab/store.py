@@ -460,10 +460,19 @@ class TestStore:
         if got is None:
             return None
         frf, oi, ii, lines = got
-        h = frf.H[np.ix_(lines, oi, ii)]
+        whole = (
+            lines.size == frf.H.shape[0]
+            and oi == list(range(frf.H.shape[1]))
+            and ii == list(range(frf.H.shape[2]))
+        )
+
+        def pick(a: NDArray[Any]) -> NDArray[Any]:
+            return a if whole else a[np.ix_(lines, oi, ii)]
+
+        h = pick(frf.H)
         arrays: dict[str, NDArray[Any]] = {"real": h.real, "imag": h.imag}
         if frf.coherence is not None:
-            arrays["coherence"] = frf.coherence[np.ix_(lines, oi, ii)]
+            arrays["coherence"] = pick(frf.coherence)
         header = {
             "frf_id": frf_id,
             "layout": "[line][response][input]",
