@@ -18,6 +18,7 @@ import argparse
 import json
 import os
 import re
+import signal
 import subprocess
 import sys
 import tempfile
@@ -29,8 +30,8 @@ RESULTS = HERE / "busy_host_demos_results.md"
 
 #: name → the environment that selects the backend (as a user sets it)
 DEMOS: dict[str, dict[str, str]] = {
-    "default": {},
     "canopen-simulated": {"DIMACQ_LOADCELL": "canopen-simulated"},
+    "default": {},
     "netft-can-simulated": {"DIMACQ_LOADCELL": "netft-can-simulated"},
     "netft-udp-simulated": {"DIMACQ_LOADCELL": "netft-udp-simulated"},
     "cia404-simulated": {"DIMACQ_LOADCELL": "cia404-simulated"},
@@ -63,11 +64,22 @@ def run_demo(name: str, env_extra: dict[str, str], out_dir: Path, timeout_s: flo
     cmd = ["/usr/bin/time", "-v", "dimacq", "demo", "--json", str(out)]
     t0 = time.monotonic()
     load0 = os.getloadavg()[0]
+    # a session of its own: a demo past its time is ended with its children (the step-0 process)
+    p = subprocess.Popen(
+        cmd,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+    )
     try:
-        p = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=timeout_s)
-        rc, err = p.returncode, p.stderr
-    except subprocess.TimeoutExpired as e:
-        rc, err = "timeout", (e.stderr or b"").decode() if isinstance(e.stderr, bytes) else ""
+        _, err = p.communicate(timeout=timeout_s)
+        rc: int | str = p.returncode
+    except subprocess.TimeoutExpired:
+        os.killpg(p.pid, signal.SIGTERM)
+        _, err = p.communicate()
+        rc = "timeout"
     wall = time.monotonic() - t0
     rss = re.search(r"Maximum resident set size \(kbytes\): (\d+)", err or "")
     row: dict = {
@@ -99,32 +111,8 @@ def run_demo(name: str, env_extra: dict[str, str], out_dir: Path, timeout_s: flo
     return row
 
 
-def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--only", nargs="*", default=None, choices=sorted(DEMOS))
-    ap.add_argument("--burners", type=int, default=2, help="busy processes beside each demo")
-    ap.add_argument("--burn-s", type=float, default=3600.0, help="each burner ends after this")
-    ap.add_argument("--timeout-s", type=float, default=1200.0, help="per demo")
-    args = ap.parse_args()
-    names = args.only or list(DEMOS)
-    commit = subprocess.run(
-        ["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=HERE
-    ).stdout.strip()
-    before = host_line()
-    rows = []
-    with tempfile.TemporaryDirectory(prefix="dimacq-busy-") as tmp:
-        for name in names:
-            burn = burners(args.burners, args.burn_s)
-            try:
-                time.sleep(2.0)  # the burners are running before the demo measures the host
-                row = run_demo(name, DEMOS[name], Path(tmp), args.timeout_s)
-            finally:
-                for b in burn:
-                    b.terminate()
-                for b in burn:
-                    b.wait()
-            rows.append(row)
-            print(json.dumps(row), flush=True)
+def write_results(rows: list[dict], args: argparse.Namespace, commit: str, before: str) -> None:
+    """The results file, rewritten after each demo (a demo cut short keeps the others)."""
     after = host_line()
     lines = [
         "# Every backend's demo on a busy host",
@@ -157,6 +145,35 @@ def main() -> int:
             lines.append(f"- `{r['env']}` ended without a result: {' / '.join(r['tail'])}")
     RESULTS.write_text("\n".join(lines) + "\n", encoding="utf-8")
     print(f"wrote {RESULTS}")
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--only", nargs="*", default=None, choices=sorted(DEMOS))
+    ap.add_argument("--burners", type=int, default=2, help="busy processes beside each demo")
+    ap.add_argument("--burn-s", type=float, default=3600.0, help="each burner ends after this")
+    ap.add_argument("--timeout-s", type=float, default=1200.0, help="per demo")
+    args = ap.parse_args()
+    names = args.only or list(DEMOS)
+    commit = subprocess.run(
+        ["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=HERE
+    ).stdout.strip()
+    before = host_line()
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="dimacq-busy-") as tmp:
+        for name in names:
+            burn = burners(args.burners, args.burn_s)
+            try:
+                time.sleep(2.0)  # the burners are running before the demo measures the host
+                row = run_demo(name, DEMOS[name], Path(tmp), args.timeout_s)
+            finally:
+                for b in burn:
+                    b.terminate()
+                for b in burn:
+                    b.wait()
+            rows.append(row)
+            print(json.dumps(row), flush=True)
+            write_results(rows, args, commit, before)
     lost = [r for r in rows if r["rc"] != 0 or not r.get("kept_up")]
     return 1 if lost else 0
 
