@@ -74,13 +74,14 @@ def run_demo(name: str, env_extra: dict[str, str], out_dir: Path, timeout_s: flo
         start_new_session=True,
     )
     try:
-        _, err = p.communicate(timeout=timeout_s)
+        said_out, err = p.communicate(timeout=timeout_s)
         rc: int | str = p.returncode
     except subprocess.TimeoutExpired:
         os.killpg(p.pid, signal.SIGTERM)
-        _, err = p.communicate()
+        said_out, err = p.communicate()
         rc = "timeout"
     wall = time.monotonic() - t0
+    (out_dir / f"{name}.log").write_text(f"{said_out}\n{err}", encoding="utf-8")
     rss = re.search(r"Maximum resident set size \(kbytes\): (\d+)", err or "")
     row: dict = {
         "name": name,
@@ -106,8 +107,10 @@ def run_demo(name: str, env_extra: dict[str, str], out_dir: Path, timeout_s: flo
         truth, mass = payload.get("truth", {}).get("mass_kg"), payload.get("mass_kg")
         if truth and mass:
             row["mass_error_pct"] = 100 * (mass - truth) / truth
-    else:
-        row["tail"] = (err or "").strip().splitlines()[-3:]
+    if rc != 0 or not out.exists():
+        said = [ln for ln in (said_out + "\n" + (err or "")).splitlines() if ln.strip()]
+        cut = next((i for i, ln in enumerate(said) if "Command being timed" in ln), len(said))
+        row["tail"] = said[max(0, cut - 3) : cut]
     return row
 
 
@@ -153,6 +156,7 @@ def main() -> int:
     ap.add_argument("--burners", type=int, default=2, help="busy processes beside each demo")
     ap.add_argument("--burn-s", type=float, default=3600.0, help="each burner ends after this")
     ap.add_argument("--timeout-s", type=float, default=1200.0, help="per demo")
+    ap.add_argument("--logs", default=None, help="keep each demo's output and JSON here")
     args = ap.parse_args()
     names = args.only or list(DEMOS)
     commit = subprocess.run(
@@ -161,11 +165,13 @@ def main() -> int:
     before = host_line()
     rows = []
     with tempfile.TemporaryDirectory(prefix="dimacq-busy-") as tmp:
+        logs = Path(args.logs) if args.logs else Path(tmp)
+        logs.mkdir(parents=True, exist_ok=True)
         for name in names:
             burn = burners(args.burners, args.burn_s)
             try:
                 time.sleep(2.0)  # the burners are running before the demo measures the host
-                row = run_demo(name, DEMOS[name], Path(tmp), args.timeout_s)
+                row = run_demo(name, DEMOS[name], logs, args.timeout_s)
             finally:
                 for b in burn:
                     b.terminate()
