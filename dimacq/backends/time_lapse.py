@@ -45,6 +45,7 @@ from collections.abc import Iterable, Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -237,7 +238,7 @@ class HostLag:
     overflow_samples: int = 0
     overflow_events: int = 0
     loadcell_gaps: list[int] = field(default_factory=list)
-    daq_runs: list[dict[str, object]] = field(default_factory=list)
+    daq_runs: list[dict[str, Any]] = field(default_factory=list)
 
     @contextmanager
     def recording(self) -> Iterator[HostLag]:
@@ -273,22 +274,22 @@ class HostLag:
     @property
     def simulated_s(self) -> float:
         """Simulated seconds of the recorded DAQ runs."""
-        return float(sum(float(r["simulated_s"]) for r in self.daq_runs))  # type: ignore[arg-type]
+        return float(sum(float(r["simulated_s"]) for r in self.daq_runs))
 
     @property
     def daq_wall_s(self) -> float:
         """Wall seconds of the recorded DAQ runs."""
-        return float(sum(float(r["wall_s"]) for r in self.daq_runs))  # type: ignore[arg-type]
+        return float(sum(float(r["wall_s"]) for r in self.daq_runs))
 
     def factors_used(self) -> list[float]:
         """Every time-lapse factor the recorded runs used, lowest first."""
-        return sorted({float(f) for r in self.daq_runs for f in r["factors"]})  # type: ignore[attr-defined]
+        return sorted({float(f) for r in self.daq_runs for f in r["factors"]})
 
     def describe_factors(self) -> str:
         """The recorded runs' factors: what the summary says of the adaptive time-lapse."""
         if not self.daq_runs:
             return "no simulated DAQ run recorded"
-        waits = sum(int(r["waits"]) for r in self.daq_runs)  # type: ignore[call-overload]
+        waits = sum(int(r["waits"]) for r in self.daq_runs)
         f = self.factors_used()
         sim, wall = self.simulated_s, self.daq_wall_s
         eff = sim / wall if wall > 0 else 0.0
@@ -360,7 +361,7 @@ class HostLag:
             "daq_simulated_s": self.simulated_s,
             "daq_wall_s": self.daq_wall_s,
             "factors_used": self.factors_used(),
-            "host_waits": sum(int(r["waits"]) for r in self.daq_runs),  # type: ignore[call-overload]
+            "host_waits": sum(int(r["waits"]) for r in self.daq_runs),
         }
 
 

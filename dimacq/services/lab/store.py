@@ -467,7 +467,9 @@ class TestStore:
         )
 
         def pick(a: NDArray[Any]) -> NDArray[Any]:
-            return a if whole else a[np.ix_(lines, oi, ii)]
+            return (
+                a if whole else a[np.ix_(lines, np.asarray(oi, np.intp), np.asarray(ii, np.intp))]
+            )
 
         h = pick(frf.H)
         arrays: dict[str, NDArray[Any]] = {"real": h.real, "imag": h.imag}
