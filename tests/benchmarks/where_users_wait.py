@@ -82,12 +82,15 @@ def fmt(xs: list[float]) -> str:
 def frf_view(c: httpx.Client, fid: int, n: int) -> dict[str, Any]:
     from dimacq.io.frf_binary import decode_f32
 
+    size = {"json": 0, "f32": 0}
+
     def js() -> float:
         t0 = time.perf_counter()
         r = c.get(f"/api/frfs/{fid}/data")
         r.raise_for_status()
         d = r.json()
         np.asarray(d["real"])
+        size["json"] = len(r.content)
         return time.perf_counter() - t0
 
     def f32() -> float:
@@ -95,12 +98,11 @@ def frf_view(c: httpx.Client, fid: int, n: int) -> dict[str, Any]:
         r = c.get(f"/api/frfs/{fid}/data.f32")
         r.raise_for_status()
         decode_f32(r.content)
+        size["f32"] = len(r.content)
         return time.perf_counter() - t0
 
-    size_js = len(c.get(f"/api/frfs/{fid}/data").content)
-    size_f32 = len(c.get(f"/api/frfs/{fid}/data.f32").content)
     a, b = pairs(js, f32, n)
-    return {"json": a, "f32": b, "bytes_json": size_js, "bytes_f32": size_f32}
+    return {"json": a, "f32": b, "bytes_json": size["json"], "bytes_f32": size["f32"]}
 
 
 def solve_pair(c: httpx.Client, fid: int, n: int, tmp: Path) -> dict[str, Any]:
@@ -203,7 +205,7 @@ def main() -> int:
         with (
             BackgroundServer(create_app(settings, lab=lab)) as srv,
             httpx.Client(
-                base_url=srv.url, headers={"Authorization": f"Bearer {TOKEN}"}, timeout=120
+                base_url=srv.url, headers={"Authorization": f"Bearer {TOKEN}"}, timeout=900
             ) as c,
         ):
             sid = c.post(
