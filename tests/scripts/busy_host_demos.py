@@ -107,6 +107,12 @@ def run_demo(name: str, env_extra: dict[str, str], out_dir: Path, timeout_s: flo
         truth, mass = payload.get("truth", {}).get("mass_kg"), payload.get("mass_kg")
         if truth and mass:
             row["mass_error_pct"] = 100 * (mass - truth) / truth
+    text = f"{said_out}\n{err}"
+    # what the log says whatever the end: the DAQ's overflows and each acquisition's averages
+    row["log_fifo_overflows"] = text.count("simulated fault fifo_overflow")
+    row["log_acquisitions"] = [
+        ln.strip() for ln in text.splitlines() if "averages accepted" in ln and "/5]" in ln
+    ]
     if rc != 0 or not out.exists():
         said = [ln for ln in (said_out + "\n" + (err or "")).splitlines() if ln.strip()]
         cut = next((i for i, ln in enumerate(said) if "Command being timed" in ln), len(said))
@@ -144,6 +150,11 @@ def write_results(rows: list[dict], args: argparse.Namespace, commit: str, befor
     for r in rows:
         if r.get("summary"):
             lines.append(f"- `{r['env']}`: {r['summary']}")
+        if r.get("log_acquisitions") is not None:
+            lines.append(
+                f"- `{r['env']}` log: {r['log_fifo_overflows']} simulated DAQ FIFO overflow(s); "
+                + ("; ".join(r["log_acquisitions"]) or "no acquisition ended")
+            )
         if r.get("tail"):
             lines.append(f"- `{r['env']}` ended without a result: {' / '.join(r['tail'])}")
     RESULTS.write_text("\n".join(lines) + "\n", encoding="utf-8")
