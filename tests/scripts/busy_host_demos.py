@@ -157,8 +157,9 @@ def write_results(rows: list[dict], args: argparse.Namespace, commit: str, befor
             )
         if r.get("tail"):
             lines.append(f"- `{r['env']}` ended without a result: {' / '.join(r['tail'])}")
-    RESULTS.write_text("\n".join(lines) + "\n", encoding="utf-8")
-    print(f"wrote {RESULTS}")
+    out = Path(args.results)
+    out.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    print(f"wrote {out}")
 
 
 def main() -> int:
@@ -168,6 +169,7 @@ def main() -> int:
     ap.add_argument("--burn-s", type=float, default=3600.0, help="each burner ends after this")
     ap.add_argument("--timeout-s", type=float, default=1200.0, help="per demo")
     ap.add_argument("--logs", default=None, help="keep each demo's output and JSON here")
+    ap.add_argument("--results", default=str(RESULTS), help="the results file")
     args = ap.parse_args()
     names = args.only or list(DEMOS)
     commit = subprocess.run(
