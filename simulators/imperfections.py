@@ -26,6 +26,9 @@ field                        what                                    default
 =========================== ======================================= ================================
 daq_free_running             the DAQ clocks in wall time             true
 daq_time_scale               simulated seconds per wall second       4
+daq_adaptive_time_lapse      the time-lapse slows down (never below  true
+                             0.25x) when the host falls behind,
+                             instead of overflowing the FIFO
 daq_fifo_bytes               device FIFO, 0: unbounded (host late:   4 MiB (19 s of the demo's 25
                              overflow)                               channels, 4.7 s wall at 4×)
 daq_stale_frames             START keeps the previous run's frames   true
@@ -69,6 +72,7 @@ class Imperfections:
     enabled: bool = True
     daq_free_running: bool = True
     daq_time_scale: float = 4.0
+    daq_adaptive_time_lapse: bool = True
     daq_fifo_bytes: int = 4 << 20
     daq_stale_frames: bool = True
     daq_stall_rate: float = 0.002
@@ -131,6 +135,7 @@ NONE = Imperfections(
     enabled=False,
     daq_free_running=False,
     daq_time_scale=1.0,
+    daq_adaptive_time_lapse=False,
     daq_fifo_bytes=0,
     daq_stale_frames=False,
     daq_stall_rate=0.0,

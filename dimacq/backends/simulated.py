@@ -27,6 +27,7 @@ picks up noise and its port drops off.
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import logging
 import os
@@ -176,6 +177,7 @@ class SimulatedWorld:
             free_running=imp.daq_free_running,
             time_scale=imp.daq_time_scale,
             fifo_bytes=imp.daq_fifo_bytes,
+            adaptive=imp.daq_adaptive_time_lapse,
             seed=fault_seed,
             faults=DaqFaults(
                 stale_frames_survive_start=imp.daq_stale_frames,
@@ -294,8 +296,14 @@ def world(ctx: DeviceContext) -> SimulatedWorld:
 
 
 def imperfections(ctx: DeviceContext) -> Imperfections:
-    """The simulated devices' imperfections of the settings (``simulation_imperfections``)."""
-    return Imperfections.from_mapping(ctx.settings.simulation_imperfections)
+    """The simulated devices' imperfections of the settings (``simulation_imperfections``).
+
+    The RDT sensor (``netft-udp-simulated``) samples on its own clock at the set time-lapse and
+    its driver aligns on it: the DAQ's time-lapse stays fixed (not adaptive) with it."""
+    imp = Imperfections.from_mapping(ctx.settings.simulation_imperfections)
+    if str(ctx.settings.loadcell) == "netft-udp-simulated" and imp.daq_adaptive_time_lapse:
+        imp = dataclasses.replace(imp, daq_adaptive_time_lapse=False)
+    return imp
 
 
 def open_daq(ctx: DeviceContext) -> DaqTask:

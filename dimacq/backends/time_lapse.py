@@ -37,12 +37,15 @@ host's clock is its coarse time base, and every wall microsecond of the host's f
 
 from __future__ import annotations
 
+import logging
 import math
 import re
 import time
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Iterator, Mapping
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -217,6 +220,10 @@ def choose_time_lapse(
     return TimeLapse(scale, "measured", m)
 
 
+#: the logger of :mod:`dimacq.simulators.daq.clock`'s run reports (named, not imported: the
+#: simulators are not loaded where no simulated device is used)
+_RUN_LOG = "dimacq.simulators.time_lapse"
+
 _LC_LOST = re.compile(r"load cell \d+ samples lost \((\d+)\)")
 
 
@@ -227,11 +234,80 @@ class HostLag:
     The DAQ reports a FIFO overflow when the host read too late; a load cell gap longer than one
     frame is frames dropped because they could not be taken in time (one frame alone is the
     bus's own rare loss, ``can_frame_loss_rate``). ``kept_up``: neither happened.
+
+    ``daq_runs``: the simulated DAQ's free-running runs in this process while :meth:`recording`
+    (simulated and wall seconds, the factors its adaptive time-lapse used, how often it waited
+    for the host: :class:`~dimacq.simulators.daq.clock.RunReport`).
     """
 
     overflow_samples: int = 0
     overflow_events: int = 0
     loadcell_gaps: list[int] = field(default_factory=list)
+    daq_runs: list[dict[str, Any]] = field(default_factory=list)
+
+    @contextmanager
+    def recording(self) -> Iterator[HostLag]:
+        """Collect the simulated DAQ's run reports of this process into :attr:`daq_runs`."""
+        log = logging.getLogger(_RUN_LOG)
+        runs = self.daq_runs
+
+        class _Collect(logging.Handler):
+            def emit(self, record: logging.LogRecord) -> None:
+                r = getattr(record, "run_report", None)
+                if r is not None:
+                    runs.append(
+                        {
+                            "simulated_s": r.simulated_s,
+                            "wall_s": r.wall_s,
+                            "factors": list(r.factors),
+                            "waits": r.waits,
+                            "adaptive": r.adaptive,
+                        }
+                    )
+
+        handler = _Collect(logging.DEBUG)
+        level = log.level
+        log.addHandler(handler)
+        if log.getEffectiveLevel() > logging.DEBUG:
+            log.setLevel(logging.DEBUG)
+        try:
+            yield self
+        finally:
+            log.removeHandler(handler)
+            log.setLevel(level)
+
+    @property
+    def simulated_s(self) -> float:
+        """Simulated seconds of the recorded DAQ runs."""
+        return float(sum(float(r["simulated_s"]) for r in self.daq_runs))
+
+    @property
+    def daq_wall_s(self) -> float:
+        """Wall seconds of the recorded DAQ runs."""
+        return float(sum(float(r["wall_s"]) for r in self.daq_runs))
+
+    def factors_used(self) -> list[float]:
+        """Every time-lapse factor the recorded runs used, lowest first."""
+        return sorted({float(f) for r in self.daq_runs for f in r["factors"]})
+
+    def describe_factors(self) -> str:
+        """The recorded runs' factors: what the summary says of the adaptive time-lapse."""
+        if not self.daq_runs:
+            return "no simulated DAQ run recorded"
+        waits = sum(int(r["waits"]) for r in self.daq_runs)
+        f = self.factors_used()
+        sim, wall = self.simulated_s, self.daq_wall_s
+        eff = sim / wall if wall > 0 else 0.0
+        used = "/".join(f"{x:g}" for x in f)
+        how = (
+            f"slowed for the host {waits} time(s), factors used {used}x"
+            if waits or len(f) > 1
+            else f"at {used}x throughout"
+        )
+        return (
+            f"{len(self.daq_runs)} DAQ runs, {sim:.0f} s simulated in {wall:.1f} s wall "
+            f"(effective {eff:.1f}x); {how}"
+        )
 
     def observe(self, event: Mapping[str, object]) -> None:
         """One device event of an impact session (``on_event``)."""
@@ -258,6 +334,7 @@ class HostLag:
         self.overflow_events += other.overflow_events
         self.overflow_samples += other.overflow_samples
         self.loadcell_gaps += other.loadcell_gaps
+        self.daq_runs += other.daq_runs
 
     @property
     def kept_up(self) -> bool:
@@ -285,6 +362,11 @@ class HostLag:
             "daq_overflow_events": self.overflow_events,
             "daq_overflow_samples": self.overflow_samples,
             "loadcell_gap_samples": list(self.loadcell_gaps),
+            "daq_runs": len(self.daq_runs),
+            "daq_simulated_s": self.simulated_s,
+            "daq_wall_s": self.daq_wall_s,
+            "factors_used": self.factors_used(),
+            "host_waits": sum(int(r["waits"]) for r in self.daq_runs),
         }
 
 

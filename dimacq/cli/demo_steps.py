@@ -291,16 +291,17 @@ def _child(
     lag = HostLag()
     runs: list[dict[str, Any]] = []
     try:
-        chain = chain_step(
-            data_dir,
-            token,
-            args,
-            lambda m: conn.send(("say", m)),
-            imperfections,
-            lag,
-            runs,
-            acquired=lambda: conn.send(("acquired", lag, runs)),
-        )
+        with lag.recording():
+            chain = chain_step(
+                data_dir,
+                token,
+                args,
+                lambda m: conn.send(("say", m)),
+                imperfections,
+                lag,
+                runs,
+                acquired=lambda: conn.send(("acquired", lag, runs)),
+            )
         end: tuple[Any, ...] = ("ok", chain)
     except DimacqError as err:
         end = ("error", type(err).__name__, str(err))

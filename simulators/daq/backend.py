@@ -38,7 +38,10 @@ clock runs on, the FIFO fills; a stall as long as the host's timeout is a USB ti
 **re-enumeration** (``reenumerate_rate`` per bulk read): the device drops off the bus for
 ``reenumerate_s`` (a reset: it stops, forgets its configuration and FIFO) and comes back at a new
 address; every transfer on the old handle fails with ``ENODEV`` (libusb's NO_DEVICE), as on a
-real bus. ``time_scale`` makes the free-running clock a time-lapse (1: real time).
+real bus. ``time_scale`` makes the free-running clock a time-lapse (1: real time);
+``adaptive`` lets that time-lapse slow down rather than overflow the FIFO when the host falls
+behind (:class:`~dimacq.simulators.daq.clock.SampleClock`: the clock never counts past the FIFO's
+room), which a simulation may do and a real DAQ cannot.
 """
 
 from __future__ import annotations
@@ -136,6 +139,9 @@ class VirtualDaqBackend(OneBulkInBackend):
     fifo_bytes : int
         Free-running: the device FIFO's size in bytes (0: unbounded); a frame takes
         ``p.frame_size`` bytes.
+    adaptive : bool
+        Free-running: the time-lapse slows down when the host falls behind instead of losing
+        samples in a full FIFO.
     seed : int
         Seed of the random faults (:class:`DaqFaults` rates).
     """
@@ -155,6 +161,7 @@ class VirtualDaqBackend(OneBulkInBackend):
         free_running: bool = False,
         time_scale: float = 1.0,
         fifo_bytes: int = 0,
+        adaptive: bool = False,
         seed: int = 0,
     ) -> None:
         super().__init__()
@@ -211,6 +218,7 @@ class VirtualDaqBackend(OneBulkInBackend):
         self.free_running = free_running
         self.time_scale = float(time_scale)
         self.fifo_bytes = int(fifo_bytes)
+        self.adaptive = bool(adaptive)
         self.rng = np.random.default_rng(seed)
         self._lost: deque[tuple[int, int]] = deque()  # sample ranges lost in a full FIFO
         self._lost_upto = 0
@@ -356,7 +364,15 @@ class VirtualDaqBackend(OneBulkInBackend):
             self._epoch,
             self.sample_rate_hz,
             wall_scale=self.time_scale if self.free_running else None,
+            adaptive=self.adaptive,
         )
+        self._hold_clock()
+
+    def _hold_clock(self) -> None:
+        """Adaptive time-lapse: the clock may count up to the FIFO's room, no further."""
+        cap = self._fifo_samples()
+        if self.adaptive and self.free_running and cap:
+            self.clock.hold_at("daq", self._sent + cap + sum(b - a for a, b in self._lost))
 
     def _stop(self) -> None:
         if self.running:
@@ -446,6 +462,8 @@ class VirtualDaqBackend(OneBulkInBackend):
         if self._sent > self._count:
             self._count = self._sent
             self.clock.advance(self._count)
+        if self.running:
+            self._hold_clock()
         return first, mask, counts.astype(np.int32), n
 
     def _await_frame(self, deadline: float) -> bool:
@@ -459,7 +477,7 @@ class VirtualDaqBackend(OneBulkInBackend):
                 return False
             # the rest of the frame takes its samples' duration at the clock's pace (real
             # time over the time-lapse): a bulk read returns once its frame is complete
-            pace = self.sample_rate_hz * self.time_scale
+            pace = self.clock.pulses_per_wall_s() or self.sample_rate_hz * self.time_scale
             need = (self._sent + self._spf - self._count) / pace
             time.sleep(min(left, max(need, 0.0005)))
         return True

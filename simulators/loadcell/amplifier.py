@@ -154,6 +154,7 @@ class LoadCellAmplifierSim(SyncPulses):
     def close(self) -> None:
         self._stop_evt.set()
         if self.clock is not None:
+            self.clock.hold_at(f"amplifier-{id(self)}", None)
             self.clock.notify()
         self._thread.join(timeout=5.0)
         self.bus.shutdown()
@@ -233,6 +234,8 @@ class LoadCellAmplifierSim(SyncPulses):
             case p.Stop():
                 self._send_pulses(final=True)
                 self.state = 0
+                if self.clock is not None:
+                    self.clock.hold_at(f"amplifier-{id(self)}", None)
                 self._reply(p.StopReply(self._counter & 0xFFFFFFFF))
             case p.Start(clock=clock):
                 self._arm(external=clock == 1)
@@ -292,6 +295,8 @@ class LoadCellAmplifierSim(SyncPulses):
         self._counter = 0
         self._arm_pulses(external)
         self.state = 2
+
+    max_backlog = _MAX_BACKLOG
 
     def _drop_backlog(self, avail: int) -> None:
         if self._external and avail - self._pulses > _MAX_BACKLOG:

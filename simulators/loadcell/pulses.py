@@ -108,6 +108,19 @@ class SyncPulses:
     def _drop_backlog(self, avail: int) -> None:
         """Hook: what to do with pulses far behind (default: nothing, send them all)."""
 
+    #: pulses of backlog past which the amplifier drops frames (None: it never does); on an
+    #: adaptive DAQ clock (:meth:`SampleClock.hold_at`) the clock waits for it there instead
+    max_backlog: int | None = None
+
+    def _hold_clock(self) -> None:
+        """Tell an adaptive DAQ clock how far it may count before this amplifier drops frames."""
+        if self.max_backlog is None or self.clock is None or not self._external:
+            return
+        key = f"amplifier-{id(self)}"
+        st = self.clock.state()
+        if st.run == self._base_run and st.running:
+            self.clock.hold_at(key, self._base_count + self._pulses + self.max_backlog)
+
     def _send_pulses(self, final: bool = False) -> int:
         """Send frames for pulses seen (one chunk, or all of them when ``final``); how many
         pulses were sent (0: nothing to send; fewer than a chunk: caught up, wait
@@ -122,4 +135,5 @@ class SyncPulses:
             sent += n
             if not final:
                 break
+        self._hold_clock()
         return sent

@@ -1,9 +1,10 @@
 // Step 4: FRFs — magnitude and coherence per input (all outputs or one), CMIF, and the
 // reciprocity and driving-point checks where an input is at a response's place and direction;
 // drag on a plot to pick the solve band.
-import { $, api, authHeaders, dirName, emit, esc, f, guard, items, on, state, status, table } from "/static/core.js";
+import { $, api, dirName, emit, esc, f, guard, items, on, state, status, table } from "/static/core.js";
 import { linePlot } from "/static/plot.js";
 import { testQuery } from "/static/test.js";
+import { fetchFrfData } from "/static/frf-data.js";
 
 /** List the FRF sets; open ``select`` (the page does not fetch FRF values before asked). */
 export async function loadFrfSets(select) {
@@ -16,31 +17,15 @@ export async function loadFrfSets(select) {
   }
 }
 
-/** GET ``path`` as JSON with its progress shown on ``#frf-progress`` (the bytes read of the
- * answer's length) and in the step's status line. */
-async function readWithProgress(path, what) {
+/** Progress of an FRF set's read on ``#frf-progress`` and in the step's status line. */
+function showProgress(what) {
   const bar = $("#frf-progress");
-  let r;
-  try { r = await fetch(path, { headers: authHeaders() }); } catch { return api("GET", path); }
-  if (!r.ok || !r.body) return api("GET", path); // the error in the user's words
-  const total = +r.headers.get("Content-Length") || 0;
-  const reader = r.body.getReader();
-  const parts = [];
-  let got = 0;
   bar.hidden = false;
-  for (;;) {
-    const { value, done } = await reader.read();
-    if (done) break;
-    parts.push(value);
-    got += value.length;
+  return (got, total) => {
     bar.firstElementChild.style.width = total ? `${(100 * got) / total}%` : "50%";
     status("frfs").update(`${what}: ${(got / 1e6).toFixed(1)}${total ? ` of ${(total / 1e6).toFixed(1)}` : ""} MB read`);
-  }
-  bar.hidden = true;
-  const buf = new Uint8Array(got);
-  let k = 0;
-  for (const p of parts) { buf.set(p, k); k += p.length; }
-  return JSON.parse(new TextDecoder().decode(buf));
+    if (total && got >= total) bar.hidden = true;
+  };
 }
 
 /** Name of a channel as the setup and the report write it: "101+X", a load cell's "LC1 Fx". */
@@ -78,11 +63,12 @@ export async function openFrf(id) {
   let summary;
   let data;
   try {
-    [summary, data] = await Promise.all([api("GET", `/api/frfs/${id}`), readWithProgress(`/api/frfs/${id}/data`, `reading FRF set ${id}`)]);
+    [summary, data] = await Promise.all([api("GET", `/api/frfs/${id}`), fetchFrfData(id, "", showProgress(`reading FRF set ${id}`))]);
   } catch (e) {
     line.fail(e);
     throw e;
   } finally {
+    $("#frf-progress").hidden = true;
     for (const k of ["#frf-mag", "#frf-coh", "#frf-cmif"]) $(k).classList.remove("stale");
   }
   state.timings.frf_fetch_ms = performance.now() - t0;
@@ -91,13 +77,13 @@ export async function openFrf(id) {
   await emit("frf-opened", summary);
 }
 
-/** Show an FRF set from its arrays (``data`` as ``GET /api/frfs/{id}/data`` gives it: any
+/** Show an FRF set from its arrays (``data`` as :func:`fetchFrfData` gives it: any
  * fetch that yields these arrays, JSON or binary, can feed the plots). */
 export function setFrfData(summary, data) {
   state.frf = summary;
-  const nL = data.frequencies_hz.length;
-  const nO = data.responses.length;
-  const nI = data.inputs.length;
+  const nL = data.nLines;
+  const nO = data.nResponses;
+  const nI = data.nInputs;
   // flatten once: (line, output, input) → Float64Array per (input, output) of |H| and γ²
   const mag = [];
   const coh = [];
@@ -107,8 +93,9 @@ export function setFrfData(summary, data) {
       const m = new Float64Array(nL);
       const c = new Float64Array(nL);
       for (let l = 0; l < nL; l++) {
-        m[l] = Math.hypot(data.real[l][o][j], data.imag[l][o][j]);
-        c[l] = data.coherence && data.coherence[l][o][j] !== null ? data.coherence[l][o][j] : NaN;
+        const k = data.at(l, o, j);
+        m[l] = Math.hypot(data.real[k], data.imag[k]);
+        c[l] = data.coherence ? data.coherence[k] : NaN;
       }
       mag[j].push(m); coh[j].push(c);
     }
@@ -188,8 +175,8 @@ function colocated() {
 function checks() {
   const d = state.frfData;
   const { pairs } = colocated();
-  const re = d.data.real;
-  const im = d.data.imag;
+  const re = (l, o, j) => d.data.real[d.data.at(l, o, j)];
+  const im = (l, o, j) => d.data.imag[d.data.at(l, o, j)];
   const nL = d.x.length;
   const inBand = (l) => !state.band || (d.x[l] >= state.band[0] && d.x[l] <= state.band[1]);
   const rows = [];
@@ -197,8 +184,8 @@ function checks() {
     let pos = 0; let passive = 0; let n = 0;
     for (let l = 0; l < nL; l++) {
       if (!inBand(l)) continue;
-      const a = p.sign * re[l][p.output][p.input];
-      const b = p.sign * im[l][p.output][p.input];
+      const a = p.sign * re(l, p.output, p.input);
+      const b = p.sign * im(l, p.output, p.input);
       const m = Math.hypot(a, b);
       n += 1;
       if (a > 0) pos += 1;
@@ -218,12 +205,12 @@ function checks() {
       const diffs = [];
       for (let l = 0; l < nL; l++) {
         if (!inBand(l)) continue;
-        const ar = q.sign * re[l][q.output][p.input];
-        const ai = q.sign * im[l][q.output][p.input];
-        const br = p.sign * re[l][p.output][q.input];
-        const bi = p.sign * im[l][p.output][q.input];
-        const dp = Math.hypot(re[l][p.output][p.input], im[l][p.output][p.input]);
-        const dq = Math.hypot(re[l][q.output][q.input], im[l][q.output][q.input]);
+        const ar = q.sign * re(l, q.output, p.input);
+        const ai = q.sign * im(l, q.output, p.input);
+        const br = p.sign * re(l, p.output, q.input);
+        const bi = p.sign * im(l, p.output, q.input);
+        const dp = Math.hypot(re(l, p.output, p.input), im(l, p.output, p.input));
+        const dq = Math.hypot(re(l, q.output, q.input), im(l, q.output, q.input));
         const den = Math.max(Math.hypot(ar, ai), Math.hypot(br, bi), 0.01 * Math.sqrt(dp * dq)) || 1;
         diffs.push(Math.hypot(ar - br, ai - bi) / den);
       }
@@ -250,12 +237,13 @@ function drawCmif() {
   const sv = Array.from({ length: K }, () => new Float64Array(nL));
   const re = d.data.real;
   const im = d.data.imag;
+  const nO = d.outputs.length;
   for (let l = 0; l < nL; l++) {
     const Ar = new Float64Array(nI * nI);
     const Ai = new Float64Array(nI * nI);
     for (const o of outs) {
-      const hr = re[l][o];
-      const hi = im[l][o];
+      const hr = re.subarray((l * nO + o) * nI, (l * nO + o + 1) * nI);
+      const hi = im.subarray((l * nO + o) * nI, (l * nO + o + 1) * nI);
       for (let a = 0; a < nI; a++) {
         for (let b = 0; b < nI; b++) {
           Ar[a * nI + b] += hr[a] * hr[b] + hi[a] * hi[b];

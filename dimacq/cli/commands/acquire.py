@@ -210,6 +210,8 @@ def run(args: argparse.Namespace) -> int:
     }
     rig = build_rig(settings, setup, cfg)
     t_acq, cpu_acq = time.monotonic(), time.process_time()
+    recording = lag.recording()
+    recording.__enter__()
     try:
         # min_averages as the service states it: the rig file's [acquisition], else the
         # min_averages setting (capped at --impacts-per-input by the session)
@@ -262,6 +264,7 @@ def run(args: argparse.Namespace) -> int:
                 )
     finally:
         rig.close()
+        recording.__exit__(None, None, None)
         line.close()
     acq_wall_s, acq_cpu_s = time.monotonic() - t_acq, time.process_time() - cpu_acq
     # Inputs with too few accepted averages have no FRF: the file holds the complete ones (what
@@ -353,7 +356,8 @@ def run(args: argparse.Namespace) -> int:
         f"{100 * agreement.p99_rel_error:.2f} %, max {100 * agreement.max_rel_error:.2f} %\n"
     )
     out.write(
-        f"time-lapse: {lapse.describe()}; {lag.describe()}; acquisition {acq_wall_s:.1f} s wall, "
+        f"time-lapse: {lapse.describe()}; {lag.describe_factors()}; {lag.describe()}; "
+        f"acquisition {acq_wall_s:.1f} s wall, "
         f"{acq_cpu_s:.1f} s CPU (user + sys)\n"
     )
     out.write(f"wrote {args.frf} in {elapsed:.1f} s\n")

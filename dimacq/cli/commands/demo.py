@@ -230,15 +230,14 @@ def run(args: argparse.Namespace) -> int:
             chain = ChainCheck(data_dir, token, args, imperfections, say)
         app = create_app(settings)
         backends = {k: str(getattr(settings, k)) for k in ("daq", "loadcell", "digitizer")}
-        with BackgroundServer(app) as srv:
+        with BackgroundServer(app) as srv, lag.recording():
             say(f"dimacq demo: service on {srv.url} (data in {data_dir}), scenario {args.scenario}")
             say("backends: " + ", ".join(f"{k} = {v!r}" for k, v in backends.items()))
             payload = _demo(srv.url, token, built, args, say, chain, backends, lag, runs)
         payload["demo"]["backends"] = backends
         if lapse is not None:
-            for r in runs:  # the DAQ clocks in wall time at the factor: simulated seconds
-                r["simulated_s"] = r["wall_s"] * lapse.scale
-            sim_s = sum(r["simulated_s"] for r in runs)
+            # simulated seconds: what the DAQ clocked (its time-lapse adapts to the host)
+            sim_s = lag.simulated_s or sum(r["wall_s"] for r in runs) * lapse.scale
             payload["demo"]["acquisitions"] = runs
             payload["demo"]["time_lapse"] = {
                 **lapse.to_json(),
@@ -248,7 +247,8 @@ def run(args: argparse.Namespace) -> int:
             }
             payload["demo"]["time_lapse_summary"] = (
                 f"{lapse.describe()}; {len(runs)} acquisitions, about {sim_s:.0f} s of simulated "
-                f"test in {sum(r['wall_s'] for r in runs):.1f} s; {lag.describe()}"
+                f"test in {sum(r['wall_s'] for r in runs):.1f} s ({lag.describe_factors()}); "
+                f"{lag.describe()}"
             )
     finally:
         if chain is not None:

@@ -444,6 +444,45 @@ class TestStore:
             coherence=coh,
         )
 
+    def frf_values_f32(
+        self,
+        frf_id: int,
+        response: ChannelQuery = ChannelQuery(),
+        input_: ChannelQuery = ChannelQuery(),
+        band_hz: tuple[float | None, float | None] = (None, None),
+    ) -> bytes | None:
+        """:meth:`frf_values` as one float32 message (:func:`dimacq.io.frf_binary.encode_f32`):
+        arrays ``real``, ``imag`` and (when the set has it) ``coherence``, each shape
+        (n_lines, n_responses, n_inputs); the frequencies and channels in its header."""
+        from dimacq.io.frf_binary import encode_f32
+
+        got = self._frf_selection(frf_id, response, input_, band_hz)
+        if got is None:
+            return None
+        frf, oi, ii, lines = got
+        whole = (
+            lines.size == frf.H.shape[0]
+            and oi == list(range(frf.H.shape[1]))
+            and ii == list(range(frf.H.shape[2]))
+        )
+
+        def pick(a: NDArray[Any]) -> NDArray[Any]:
+            return (
+                a if whole else a[np.ix_(lines, np.asarray(oi, np.intp), np.asarray(ii, np.intp))]
+            )
+
+        h = pick(frf.H)
+        arrays: dict[str, NDArray[Any]] = {"real": h.real, "imag": h.imag}
+        if frf.coherence is not None:
+            arrays["coherence"] = pick(frf.coherence)
+        header = {
+            "frf_id": frf_id,
+            "layout": "[line][response][input]",
+            "frequencies_hz": vec(frf.frequencies_hz[lines]),
+            **self._channels(frf, oi, ii),
+        }
+        return encode_f32(header, arrays)
+
     def frf_envelope(
         self,
         frf_id: int,

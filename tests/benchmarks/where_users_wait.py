@@ -1,0 +1,298 @@
+"""Where a user waits: the page's FRF view and solve against the CLI, the flexible solve's CPU,
+the peak memory of the demo and the bench calibration.
+
+Each figure is measured in A/B pairs run one after the other (A, B, A, B, ...), so that a
+neighbour's load hits both alike; medians and their ratio are reported. The results file
+(``where_users_wait_results.md`` beside this script) carries the command, date, commit, the load
+average and this host's sustainable time-lapse (:func:`dimacq.backends.time_lapse.measure_host`,
+its speed) beside the figures.
+
+1. **FRF view open** (what the page's FRFs step waits for before it draws): ``GET
+   /api/frfs/{id}/data`` (JSON, parsed) against ``GET /api/frfs/{id}/data.f32`` (float32 behind
+   a JSON header, decoded to arrays), over loopback HTTP (a Python client: a browser reads the
+   bytes straight into typed arrays), and the server's CPU seconds for the float32 answer, for
+   the shipped example set
+   (``config/examples/six_triax_frf.uff``) and an X-38-size set (the ``x38-flexible-17``
+   scenario's model FRFs on 2048 lines: 81 responses × 22 inputs, more than 63 × 22).
+2. **Page solve vs CLI solve** on the same set (the shipped example, automatic band):
+   ``POST /api/solutions`` on a running service against ``dimacq solve`` in a process of its own
+   (the wall time a user waits for each, the CLI's start-up included).
+3. **Flexible solve CPU**: :func:`~dimacq.services.solve.analysis.analyse` of the
+   ``x38-flexible-17`` model FRFs (0.5 % noise) with the modal correction (``auto``) and without.
+4. **Peak memory** (``--memory``): ``dimacq demo`` and ``dimacq loadcell calibrate --simulated
+   --method static`` under ``/usr/bin/time -v`` (maximum resident set size; the demo's step-0
+   child process is a process of its own and is reported by the same tool only for the largest
+   process: the figure is the largest process's).
+
+    python tests/benchmarks/where_users_wait.py [--pairs 5] [--memory] [--skip-flexible]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import re
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import httpx
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parents[1]
+RESULTS = HERE / "where_users_wait_results.md"
+EXAMPLES = ROOT / "config" / "examples"
+
+
+def host_line() -> str:
+    from dimacq.backends.time_lapse import measure_host
+
+    m = measure_host(30, 1, 51200.0)
+    load = os.getloadavg()
+    return (
+        f"load average {load[0]:.2f} / {load[1]:.2f} / {load[2]:.2f} on {os.cpu_count()} cores; "
+        f"this host sustains about {m.sustainable_scale:.1f}x time-lapse now"
+    )
+
+
+def pairs(
+    a: Callable[[], float], b: Callable[[], float], n: int
+) -> tuple[list[float], list[float]]:
+    """``n`` interleaved runs of ``a`` and ``b`` (each returns its seconds)."""
+    xa: list[float] = []
+    xb: list[float] = []
+    for _ in range(n):
+        xa.append(a())
+        xb.append(b())
+    return xa, xb
+
+
+def fmt(xs: list[float]) -> str:
+    return f"{statistics.median(xs):.3f} s (min {min(xs):.3f}, max {max(xs):.3f}, n {len(xs)})"
+
+
+def frf_view(c: httpx.Client, fid: int, n: int) -> dict[str, Any]:
+    from dimacq.io.frf_binary import decode_f32
+
+    size = {"json": 0, "f32": 0}
+
+    def js() -> float:
+        t0 = time.perf_counter()
+        r = c.get(f"/api/frfs/{fid}/data")
+        r.raise_for_status()
+        d = r.json()
+        np.asarray(d["real"])
+        size["json"] = len(r.content)
+        return time.perf_counter() - t0
+
+    def f32() -> float:
+        t0 = time.perf_counter()
+        r = c.get(f"/api/frfs/{fid}/data.f32")
+        r.raise_for_status()
+        decode_f32(r.content)
+        size["f32"] = len(r.content)
+        return time.perf_counter() - t0
+
+    a, b = pairs(js, f32, n)
+    return {"json": a, "f32": b, "bytes_json": size["json"], "bytes_f32": size["f32"]}
+
+
+def solve_pair(c: httpx.Client, fid: int, n: int, tmp: Path) -> dict[str, Any]:
+    body = {"frf_id": fid}
+
+    def page() -> float:
+        t0 = time.perf_counter()
+        r = c.post("/api/solutions", json=body, timeout=600)
+        r.raise_for_status()
+        return time.perf_counter() - t0
+
+    out = tmp / "cli.json"
+    cmd = [
+        "dimacq",
+        "solve",
+        str(EXAMPLES / "six_triax_setup.toml"),
+        str(EXAMPLES / "six_triax_frf.uff"),
+        "--json",
+        str(out),
+    ]
+
+    def cli() -> float:
+        t0 = time.perf_counter()
+        subprocess.run(cmd, check=True, capture_output=True)
+        return time.perf_counter() - t0
+
+    a, b = pairs(page, cli, n)
+    page_json = c.post("/api/solutions", json=body, timeout=600).json()
+    cli_json = json.loads(out.read_text())
+    same = abs(page_json["result"]["mass_kg"] - cli_json["mass_kg"]) <= 1e-9 * cli_json["mass_kg"]
+    return {"page": a, "cli": b, "same_mass": same, "command": " ".join(cmd[:4]) + " ..."}
+
+
+def flexible(n: int) -> dict[str, Any]:
+    from dimacq.services.solve.analysis import AnalysisOptions, analyse
+    from dimacq.simulators.lab.scenarios import build_scenario
+
+    b = build_scenario("x38-flexible-17", 0)
+    frf = b.model_frf(noise=0.005)
+    out: dict[str, Any] = {"shape": list(frf.H.shape)}
+    for mode in ("off", "auto"):
+        cpu = []
+        for _ in range(n):
+            t0 = time.process_time()
+            rep = analyse(frf, b.setup, AnalysisOptions(modal_correction=mode))
+            cpu.append(time.process_time() - t0)
+        out[mode] = {
+            "cpu": cpu,
+            "mass_kg": rep.result.properties.mass_kg,
+            "truth_kg": b.truth.mass_kg,
+            "band_hz": list(rep.result.band_hz),
+            "verdict": rep.verdict,
+        }
+    return out
+
+
+def peak_rss(cmd: list[str], env: dict[str, str] | None = None) -> tuple[float | None, float, int]:
+    t0 = time.perf_counter()
+    p = subprocess.run(
+        ["/usr/bin/time", "-v", *cmd],
+        capture_output=True,
+        text=True,
+        env={**os.environ, **(env or {})},
+        cwd=tempfile.gettempdir(),
+    )
+    m = re.search(r"Maximum resident set size \(kbytes\): (\d+)", p.stderr)
+    return (int(m.group(1)) / 1024 if m else None), time.perf_counter() - t0, p.returncode
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--pairs", type=int, default=5)
+    ap.add_argument("--memory", action="store_true", help="also the demo's and calibrate's peak")
+    ap.add_argument("--skip-flexible", action="store_true")
+    args = ap.parse_args()
+    logging.disable(logging.WARNING)
+    sys.path.insert(0, str(ROOT / "tests"))
+    from _api_support import TOKEN, make_settings
+
+    from dimacq.api import create_app
+    from dimacq.api.server import BackgroundServer
+    from dimacq.services.lab import Lab
+    from dimacq.simulators.lab.scenarios import build_scenario
+
+    commit = subprocess.run(
+        ["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=ROOT
+    ).stdout.strip()
+    lines = [
+        "# Where a user waits",
+        "",
+        f"- command: `python tests/benchmarks/where_users_wait.py {' '.join(sys.argv[1:])}`",
+        f"- date: {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, commit {commit}",
+        f"- at start: {host_line()}",
+        "",
+    ]
+    with tempfile.TemporaryDirectory(prefix="dimacq-wait-") as tmp_s:
+        tmp = Path(tmp_s)
+        settings = make_settings(tmp / "data", database_url="")
+        lab = Lab(settings, open_devices=False)
+        with (
+            BackgroundServer(create_app(settings, lab=lab)) as srv,
+            httpx.Client(
+                base_url=srv.url, headers={"Authorization": f"Bearer {TOKEN}"}, timeout=900
+            ) as c,
+        ):
+            sid = c.post(
+                "/api/setups/import",
+                params={"format": "toml"},
+                content=(EXAMPLES / "six_triax_setup.toml").read_bytes(),
+            ).json()["id"]
+            small = c.post(
+                "/api/frfs/import",
+                params={"setup_id": sid},
+                content=(EXAMPLES / "six_triax_frf.uff").read_bytes(),
+            ).json()["id"]
+            b = build_scenario("x38-flexible-17", 0)
+            big_frf = b.model_frf(noise=0.005, frequencies_hz=np.linspace(0.125, 60.0, 2048))
+            big_sid = lab.store.save_setup(b.setup)
+            big = lab.store.save_frf(big_frf, big_sid, name="X-38 size")
+            lines += ["## 1. FRF view open (page: GET the set's values; HTTP on loopback)", ""]
+            lines += [
+                "| set | lines × responses × inputs | JSON /data | float32 /data.f32 "
+                "| ratio (JSON / f32) | server CPU of f32 (store read + encode) | bytes JSON "
+                "| bytes f32 |",
+                "|---|---|---|---|---|---|---|---|",
+            ]
+            for name, fid, shape in (
+                ("shipped example (six_triax_frf.uff)", small, None),
+                ("X-38 size (x38-flexible-17 model, 2048 lines)", big, big_frf.H.shape),
+            ):
+                r = frf_view(c, fid, args.pairs)
+                cpu = []
+                for _ in range(args.pairs):  # the server's share: the store read and the encode
+                    t0 = time.process_time()
+                    lab.store.frf_values_f32(fid)
+                    cpu.append(time.process_time() - t0)
+                if shape is None:
+                    shape = lab.store.frf(fid)[0].H.shape
+                ratio = statistics.median(r["json"]) / statistics.median(r["f32"])
+                lines.append(
+                    f"| {name} | {' × '.join(map(str, shape))} | {fmt(r['json'])} "
+                    f"| {fmt(r['f32'])} | {ratio:.1f} | {statistics.median(cpu):.3f} s "
+                    f"| {r['bytes_json']:,} | {r['bytes_f32']:,} |"
+                )
+                print(lines[-1], flush=True)
+            lines += ["", f"- then: {host_line()}", ""]
+            lines += ["## 2. Page solve vs CLI solve (shipped example, automatic band)", ""]
+            s = solve_pair(c, small, args.pairs, tmp)
+            ratio = statistics.median(s["page"]) / statistics.median(s["cli"])
+            lines += [
+                f"- page (`POST /api/solutions`, service running): {fmt(s['page'])}",
+                f"- CLI (`{s['command']}`, a process of its own): {fmt(s['cli'])}",
+                f"- ratio page / CLI: {ratio:.2f}; same mass from both: {s['same_mass']}",
+                f"- then: {host_line()}",
+                "",
+            ]
+            print("\n".join(lines[-6:]), flush=True)
+        lab.close()
+    if not args.skip_flexible:
+        fl = flexible(max(1, min(args.pairs, 2)))
+        lines += [
+            f"## 3. Flexible solve CPU (x38-flexible-17 model FRFs, {fl['shape']}, 0.5 % noise)",
+            "",
+        ]
+        for mode in ("off", "auto"):
+            d = fl[mode]
+            lines.append(
+                f"- modal correction {mode}: CPU {fmt(d['cpu'])}; mass {d['mass_kg']:.1f} kg "
+                f"(truth {d['truth_kg']:.1f}), band {d['band_hz'][0]:g}–{d['band_hz'][1]:g} Hz, "
+                f"verdict {d['verdict']}"
+            )
+        lines += [f"- then: {host_line()}", ""]
+        print("\n".join(lines[-4:]), flush=True)
+    if args.memory:
+        lines += ["## 4. Peak memory (maximum resident set size, /usr/bin/time -v)", ""]
+        for what, cmd in (
+            (
+                "dimacq loadcell calibrate --simulated --method static",
+                ["dimacq", "loadcell", "calibrate", "--simulated", "--method", "static"],
+            ),
+            ("dimacq demo", ["dimacq", "demo", "--quiet"]),
+        ):
+            rss, wall, rc = peak_rss(cmd)
+            lines.append(f"- `{what}`: {rss or 0:.0f} MB peak (exit {rc}, {wall:.0f} s wall)")
+            print(lines[-1], flush=True)
+        lines += [f"- then: {host_line()}", ""]
+    RESULTS.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    print(f"wrote {RESULTS}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
