@@ -380,6 +380,309 @@ def _derive(g: FloatArray, ell: float, p: FloatArray) -> tuple[FloatArray, Float
     return q, st
 
 
+@dataclass(frozen=True, eq=False)
+class _Scaled:
+    """The stated geometry scaled by ``ℓ`` (rms channel distance from P) and the data's sums."""
+
+    p: FloatArray
+    geometry: tuple[FloatArray, FloatArray, FloatArray, FloatArray]
+    keep: NDArray[np.bool_]
+    ell: float
+    psi0: FloatArray
+    phi0: FloatArray
+    sums: _Sums
+    F: ComplexArray
+    W: FloatArray
+
+
+def _prepare(
+    H: ComplexArray,
+    reactions: NDArray[np.complexfloating] | None,
+    geometry: tuple[NDArray[np.floating], ...],
+    reference_point_m: NDArray[np.floating],
+    weights: NDArray[np.floating] | None,
+) -> _Scaled:
+    """Scaled ``Ψ``, ``Φ``, reactions ``R`` (moments / ``ℓ``), ``F = Φᵀ + R`` and weights.
+
+    Raises
+    ------
+    SolverError
+        Fewer than 6 response channels or no input.
+    """
+    L, n, J = H.shape
+    R = (
+        np.zeros((L, 6, J), dtype=np.complex128)
+        if reactions is None
+        else np.asarray(reactions, dtype=np.complex128)
+    )
+    p = np.asarray(reference_point_m, float)
+    pos, dirs, ipos, idir = (np.asarray(a, float) for a in geometry)
+    wc = np.ones(n) if weights is None else np.asarray(weights, float)
+    keep = wc > 0
+    if keep.sum() < 6 or J < 1:
+        raise SolverError(
+            f"the mass-line fit needs at least 6 response channels and 1 input; got "
+            f"{int(keep.sum())} and {J}"
+        )
+    ell = float(np.sqrt(np.mean(np.sum((pos[keep] - p) ** 2, axis=1))))
+    if not ell > 0:
+        ell = 1.0
+    psi0 = _scaled(pos, dirs, p, ell)
+    phi0 = _scaled(ipos, idir, p, ell)
+    Rs = R.copy()
+    Rs[:, 3:] /= ell
+    sums = _sums(H, Rs)
+    F = phi0.T[None] + Rs  # (L, 6, J)
+    W = np.broadcast_to(wc[None, :], (J, n)).copy()
+    return _Scaled(p, (pos, dirs, ipos, idir), keep, ell, psi0, phi0, sums, F, W)
+
+
+def _weighted_fit(
+    H: ComplexArray,
+    F: ComplexArray,
+    sums: _Sums,
+    psi0: FloatArray,
+    phi0: FloatArray,
+    W: FloatArray,
+    noise_weighting: bool,
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """Fit ``g`` with channel weights, then (optionally) again with ``W_c = 1/σ²_c``.
+
+    ``σ²_c`` is channel c's residual power pooled over inputs and lines, floored at 10⁻⁶ of the
+    median; exact data (round-off residuals) keep their weights.
+
+    Returns
+    -------
+    g : ndarray, shape (21,)
+    Nj, bj : ndarray, shape (J, 21, 21), (J, 21)
+        Each input's normal equations.
+    W : ndarray, shape (J, n)
+        The weights used.
+    """
+
+    def fit(Wm: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+        Nj, bj = _normal(sums, psi0[None], phi0[None], Wm)
+        N, b = Nj[0].sum(axis=0), bj[0].sum(axis=0)
+        return _solve(N, b), Nj[0], bj[0]
+
+    g, Nj, bj = fit(W)
+    if noise_weighting:
+        res = H - real_apply(psi0 @ _sym(g), F)
+        s2 = np.mean(np.abs(res) ** 2, axis=0).T  # (J, n)
+        power = np.mean(np.abs(H) ** 2, axis=0).T
+        pos_s2 = s2[W > 0]
+        floor = 1e-6 * float(np.median(pos_s2)) if pos_s2.size else 0.0
+        # exact data (round-off residuals) carry no noise to weight by
+        exact = (
+            not pos_s2.size or float(np.median(pos_s2 / np.maximum(power[W > 0], 1e-300))) < 1e-16
+        )
+        if floor > 0 and not exact:
+            # one noise level per channel (pooled over inputs and lines): a sensor's floor; per
+            # channel and input the weights would follow each FRF's own size and put the small
+            # cross terms, which the stated geometry's errors dominate, first
+            s2c = np.sum(s2 * (W > 0), axis=0) / np.maximum(np.sum(W > 0, axis=0), 1)
+            W = W / np.maximum(s2c, floor)[None, :]
+            W /= float(np.median(W[W > 0]))
+            g, Nj, bj = fit(W)
+    return g, Nj, bj, W
+
+
+def _checked(N: FloatArray, g: FloatArray) -> tuple[float, FloatArray]:
+    """Condition number of the scaled normal matrix and ``G = M⁻¹``; refuse a singular fit.
+
+    ``κ = √(λ_max/λ_min)`` of ``D⁻¹ N D⁻¹``, ``D = diag(√N_ii)``.
+
+    Raises
+    ------
+    SolverError
+        ``κ > 10¹²`` or ``G`` not positive definite.
+    """
+    d = np.sqrt(np.diag(N))
+    cond = float("inf")
+    if np.all(d > 0) and np.all(np.isfinite(N)):
+        ev = np.linalg.eigvalsh(N / np.outer(d, d))
+        cond = float(np.sqrt(ev[-1] / ev[0])) if ev[0] > 0 else float("inf")
+    if not np.isfinite(cond) or cond > 1e12:
+        raise SolverError(
+            f"the mass-line fit is singular (condition {cond:.3g}): the inputs and channels do "
+            "not excite and see all six rigid-body DOF"
+        )
+    G = _sym(g)
+    if np.min(np.linalg.eigvalsh(G)) <= 0:
+        raise SolverError(
+            "the fitted inverse mass matrix is not positive definite: the data are not a rigid "
+            "body with the stated geometry in this band"
+        )
+    return cond, G
+
+
+def _noise_spread(
+    g: FloatArray, N: FloatArray, res: ComplexArray, W: FloatArray, ell: float, p: FloatArray
+) -> tuple[FloatArray, FloatArray]:
+    """Noise: ``Cov(g) = N⁻¹ χ²/ν``, first-order through the reading (central differences).
+
+    ``χ² = Σ W |A − Ψ G F|²``, ``ν = 2 L n_w − 21``.
+
+    Returns
+    -------
+    se_noise : ndarray, shape (19,)
+    cov_s : ndarray, shape (11, 11)
+        Covariance of the structure terms, unscaled.
+    """
+    chi2 = float(np.sum(W.T[None] * np.abs(res) ** 2))
+    nu = max(2 * res.shape[0] * int(np.sum(W > 0)) - 21, 1)
+    Ninv = np.linalg.inv(N)
+    cov_g = Ninv * chi2 / nu
+    step = np.sqrt(np.maximum(np.diag(cov_g), 0.0))
+    step = np.where(step > 0, step, 1e-9 * np.maximum(np.abs(g), 1e-30))
+    eye = np.eye(21) * step[None, :]
+    qp, sp_ = _derive(g[None] + eye, ell, p)
+    qm, sm_ = _derive(g[None] - eye, ell, p)
+    Jq = ((qp - qm) / (2 * step[:, None])).T  # (19, 21)
+    Js = ((sp_ - sm_) / (2 * step[:, None])).T  # (11, 21)
+    se_noise = np.sqrt(np.maximum(np.einsum("ik,kl,il->i", Jq, cov_g, Jq), 0.0))
+    return se_noise, Js @ cov_g @ Js.T
+
+
+def _input_jackknife(
+    N: FloatArray, Nj: FloatArray, bj: FloatArray, ell: float, p: FloatArray
+) -> tuple[FloatArray, FloatArray]:
+    """Delete-one-input fits ``g₋ⱼ = (N − N_j)⁻¹ (b − b_j)`` (same weights), read.
+
+    Returns
+    -------
+    qj : ndarray, shape (n_ok, 19)
+    sj : ndarray, shape (n_ok, 11)
+        Only the fits with a positive definite ``G``.
+    """
+    if Nj.shape[0] > 1:
+        gj = _solve(N[None] - Nj, bj.sum(axis=0)[None] - bj)
+        ok = np.all(np.isfinite(gj), axis=1)
+        ok[ok] = np.linalg.eigvalsh(_sym(gj[ok]))[:, 0] > 0
+        if ok.any():
+            return _derive(gj[ok], ell, p)
+    return np.empty((0, 19)), np.empty((0, 11))
+
+
+def _jackknife_spread(
+    qj: FloatArray, sj: FloatArray, st_scale: FloatArray, cov_s: FloatArray
+) -> tuple[FloatArray, FloatArray]:
+    """Jackknife standard errors ``√((n−1)/n Σ (q₋ⱼ − q̄)²)`` and structure covariance.
+
+    The structure covariance is the jackknife's where its trace exceeds ``cov_s``'s.
+    """
+    nj = qj.shape[0]
+    if nj > 1:
+        se_inputs = np.sqrt((nj - 1) / nj * np.sum((qj - qj.mean(axis=0)) ** 2, axis=0))
+        dj = (sj - sj.mean(axis=0)) / st_scale
+        cov_sj = (nj - 1) / nj * dj.T @ dj
+        if np.trace(cov_sj) > np.trace(cov_s):
+            cov_s = cov_sj
+    else:
+        se_inputs = np.zeros(19)
+    return se_inputs, cov_s
+
+
+@dataclass(frozen=True)
+class _GeometrySigma:
+    """Stated 1σ geometry and transducer uncertainty (m, deg, relative)."""
+
+    sensor_position_m: float
+    sensor_orientation_deg: float
+    input_position_m: float
+    line_of_action_deg: float
+    accel_sensitivity_rel: float
+    force_sensitivity_rel: float
+
+    def any(self) -> bool:
+        return any(
+            s > 0
+            for s in (
+                self.sensor_position_m,
+                self.sensor_orientation_deg,
+                self.input_position_m,
+                self.line_of_action_deg,
+                self.accel_sensitivity_rel,
+                self.force_sensitivity_rel,
+            )
+        )
+
+
+def _geometry_monte_carlo(
+    sg: _GeometrySigma,
+    S: int,
+    seed: int | None,
+    nodes: NDArray[np.integer] | None,
+    geometry: tuple[FloatArray, FloatArray, FloatArray, FloatArray],
+    p: FloatArray,
+    ell: float,
+    sums: _Sums,
+    W: FloatArray,
+    companion: Companion | None,
+    st_scale: FloatArray,
+) -> tuple[FloatArray, FloatArray | None, FloatArray | None]:
+    """Refit on ``S`` perturbed geometries (node moves and turns, input moves, line tilts,
+    sensitivities) with the same weights.
+
+    Returns
+    -------
+    se_geometry : ndarray, shape (19,)
+        Sample standard deviation of the readings with a positive definite ``G`` (0 from < 2).
+    cov_geo : ndarray, shape (11, 11), or None
+        Covariance of the scaled structure terms over those samples (None from < 2).
+    se_geometry_difference : ndarray, shape (19,), or None
+        Standard deviation of reading minus the companion's (finite rows; None from < 2).
+    """
+    pos, dirs, ipos, idir = geometry
+    n, J = pos.shape[0], ipos.shape[0]
+    rng = np.random.default_rng(seed)
+    node_ids = np.arange(n) if nodes is None else np.asarray(nodes)
+    uniq, inv = np.unique(node_ids, return_inverse=True)
+    Gn = uniq.size
+    dp = rng.normal(scale=sg.sensor_position_m, size=(S, Gn, 3))
+    rv = rng.normal(scale=np.deg2rad(sg.sensor_orientation_deg), size=(S, Gn, 3))
+    dpi = rng.normal(scale=sg.input_position_m, size=(S, J, 3))
+    rvi = rng.normal(scale=np.deg2rad(sg.line_of_action_deg), size=(S, J, 3))
+    rvi -= np.einsum("sjk,jk->sj", rvi, idir)[..., None] * idir[None]
+    eps = rng.normal(scale=sg.accel_sensitivity_rel, size=(S, n))
+    eta = rng.normal(scale=sg.force_sensitivity_rel, size=S)
+    Rn = rotvec_to_matrix(rv)  # (S, Gn, 3, 3), as scipy Rotation
+    Ri = rotvec_to_matrix(rvi)
+    pos_s = pos[None] + dp[:, inv]
+    dir_s = np.einsum("snij,nj->sni", Rn[:, inv], dirs) * (1.0 + eps)[..., None]
+    idir_s = np.einsum("sjik,jk->sji", Ri, idir) * (1.0 + eta)[:, None, None]
+    ipos_s = ipos[None] + dpi
+    qs_list, ss_list, dd_list = [], [], []
+    for chunk in np.array_split(np.arange(S), max(1, S // 50)):
+        psi_s = _scaled(pos_s[chunk], dir_s[chunk], p, ell)
+        phi_s = _scaled(ipos_s[chunk], idir_s[chunk], p, ell)
+        Ns, bs = _normal(sums, psi_s, phi_s, W, summed=True)
+        gs = _solve(Ns, bs)
+        good = np.all(np.isfinite(gs), axis=1)
+        good[good] = np.linalg.eigvalsh(_sym(gs[good]))[:, 0] > 0
+        if good.any():
+            q_s, s_s = _derive(gs[good], ell, p)
+            qs_list.append(q_s)
+            ss_list.append(s_s)
+            if companion is not None:
+                sel = chunk[good]
+                qc = companion(pos_s[sel], dir_s[sel], ipos_s[sel], idir_s[sel])
+                dd_list.append(q_s - qc)
+    se_geometry = np.zeros(19)
+    cov_geo = se_geo_diff = None
+    if qs_list:
+        qs, ss = np.concatenate(qs_list), np.concatenate(ss_list)
+        if qs.shape[0] > 1:
+            se_geometry = qs.std(axis=0, ddof=1)
+            cov_geo = np.cov((ss / st_scale).T)
+    if dd_list:
+        dd = np.concatenate(dd_list)
+        dd = dd[np.all(np.isfinite(dd), axis=1)]
+        if dd.shape[0] > 1:
+            se_geo_diff = dd.std(axis=0, ddof=1)
+    return se_geometry, cov_geo, se_geo_diff
+
+
 def mass_line_fit(
     H_acc: NDArray[np.complexfloating],
     reactions: NDArray[np.complexfloating] | None,
@@ -439,120 +742,24 @@ def mass_line_fit(
         definite (the data are not a rigid body with the stated geometry).
     """
     H = np.asarray(H_acc, dtype=np.complex128)
-    L, n, J = H.shape
-    R = (
-        np.zeros((L, 6, J), dtype=np.complex128)
-        if reactions is None
-        else np.asarray(reactions, dtype=np.complex128)
-    )
-    p = np.asarray(reference_point_m, float)
-    pos, dirs = np.asarray(positions_m, float), np.asarray(directions, float)
-    ipos, idir = np.asarray(in_positions_m, float), np.asarray(in_directions, float)
-    wc = np.ones(n) if weights is None else np.asarray(weights, float)
-    keep = wc > 0
-    if keep.sum() < 6 or J < 1:
-        raise SolverError(
-            f"the mass-line fit needs at least 6 response channels and 1 input; got "
-            f"{int(keep.sum())} and {J}"
-        )
-    ell = float(np.sqrt(np.mean(np.sum((pos[keep] - p) ** 2, axis=1))))
-    if not ell > 0:
-        ell = 1.0
-    psi0 = _scaled(pos, dirs, p, ell)
-    phi0 = _scaled(ipos, idir, p, ell)
-    Rs = R.copy()
-    Rs[:, 3:] /= ell
-    sums = _sums(H, Rs)
-
-    F = phi0.T[None] + Rs  # (L, 6, J)
-    W = np.broadcast_to(wc[None, :], (J, n)).copy()
-
-    def fit(Wm: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
-        Nj, bj = _normal(sums, psi0[None], phi0[None], Wm)
-        N, b = Nj[0].sum(axis=0), bj[0].sum(axis=0)
-        return _solve(N, b), Nj[0], bj[0]
-
-    g, Nj, bj = fit(W)
-    if noise_weighting:
-        res = H - real_apply(psi0 @ _sym(g), F)
-        s2 = np.mean(np.abs(res) ** 2, axis=0).T  # (J, n)
-        power = np.mean(np.abs(H) ** 2, axis=0).T
-        pos_s2 = s2[W > 0]
-        floor = 1e-6 * float(np.median(pos_s2)) if pos_s2.size else 0.0
-        # exact data (round-off residuals) carry no noise to weight by
-        exact = (
-            not pos_s2.size or float(np.median(pos_s2 / np.maximum(power[W > 0], 1e-300))) < 1e-16
-        )
-        if floor > 0 and not exact:
-            # one noise level per channel (pooled over inputs and lines): a sensor's floor; per
-            # channel and input the weights would follow each FRF's own size and put the small
-            # cross terms, which the stated geometry's errors dominate, first
-            s2c = np.sum(s2 * (W > 0), axis=0) / np.maximum(np.sum(W > 0, axis=0), 1)
-            W = W / np.maximum(s2c, floor)[None, :]
-            W /= float(np.median(W[W > 0]))
-            g, Nj, bj = fit(W)
+    L, J = H.shape[0], H.shape[2]
+    geometry = (positions_m, directions, in_positions_m, in_directions)
+    sc = _prepare(H, reactions, geometry, reference_point_m, weights)
+    p, ell, keep, F, sums = sc.p, sc.ell, sc.keep, sc.F, sc.sums
+    g, Nj, bj, W = _weighted_fit(H, F, sums, sc.psi0, sc.phi0, sc.W, noise_weighting)
     N = Nj.sum(axis=0)
-    d = np.sqrt(np.diag(N))
-    cond = float("inf")
-    if np.all(d > 0) and np.all(np.isfinite(N)):
-        ev = np.linalg.eigvalsh(N / np.outer(d, d))
-        cond = float(np.sqrt(ev[-1] / ev[0])) if ev[0] > 0 else float("inf")
-    if not np.isfinite(cond) or cond > 1e12:
-        raise SolverError(
-            f"the mass-line fit is singular (condition {cond:.3g}): the inputs and channels do "
-            "not excite and see all six rigid-body DOF"
-        )
-    G = _sym(g)
-    if np.min(np.linalg.eigvalsh(G)) <= 0:
-        raise SolverError(
-            "the fitted inverse mass matrix is not positive definite: the data are not a rigid "
-            "body with the stated geometry in this band"
-        )
+    cond, G = _checked(N, g)
     values, structure = _derive(g, ell, p)
-
-    # noise: Cov(g) = N⁻¹ χ²/ν, first-order through the reading
-    res = H - real_apply(psi0 @ G, F)
-    chi2 = float(np.sum(W.T[None] * np.abs(res) ** 2))
-    nu = max(2 * L * int(np.sum(W > 0)) - 21, 1)
-    Ninv = np.linalg.inv(N)
-    cov_g = Ninv * chi2 / nu
-    step = np.sqrt(np.maximum(np.diag(cov_g), 0.0))
-    step = np.where(step > 0, step, 1e-9 * np.maximum(np.abs(g), 1e-30))
-    eye = np.eye(21) * step[None, :]
-    qp, sp_ = _derive(g[None] + eye, ell, p)
-    qm, sm_ = _derive(g[None] - eye, ell, p)
-    Jq = ((qp - qm) / (2 * step[:, None])).T  # (19, 21)
-    Js = ((sp_ - sm_) / (2 * step[:, None])).T  # (11, 21)
-    se_noise = np.sqrt(np.maximum(np.einsum("ik,kl,il->i", Jq, cov_g, Jq), 0.0))
+    res = H - real_apply(sc.psi0 @ G, F)
+    se_noise, cov_s_raw = _noise_spread(g, N, res, W, ell, p)
     st_scale = np.concatenate([np.full(5, values[0]), np.full(6, values[0] * ell)])
-    cov_s = (Js @ cov_g @ Js.T) / np.outer(st_scale, st_scale)
+    cov_s = cov_s_raw / np.outer(st_scale, st_scale)
     structure_rel = float(np.linalg.norm(structure / st_scale))
-
-    # delete-one-input jackknife (same weights)
-    if J > 1:
-        gj = _solve(N[None] - Nj, bj.sum(axis=0)[None] - bj)
-        ok = np.all(np.isfinite(gj), axis=1)
-        ok[ok] = np.linalg.eigvalsh(_sym(gj[ok]))[:, 0] > 0
-        if ok.any():
-            qj, sj = _derive(gj[ok], ell, p)
-        else:
-            qj, sj = np.empty((0, 19)), np.empty((0, 11))
-    else:
-        qj, sj = np.empty((0, 19)), np.empty((0, 11))
-    nj = qj.shape[0]
-    if nj > 1:
-        se_inputs = np.sqrt((nj - 1) / nj * np.sum((qj - qj.mean(axis=0)) ** 2, axis=0))
-        dj = (sj - sj.mean(axis=0)) / st_scale
-        cov_sj = (nj - 1) / nj * dj.T @ dj
-        if np.trace(cov_sj) > np.trace(cov_s):
-            cov_s = cov_sj
-    else:
-        se_inputs = np.zeros(19)
-
-    # stated geometry and transducer uncertainty, Monte Carlo
+    qj, sj = _input_jackknife(N, Nj, bj, ell, p)
+    se_inputs, cov_s = _jackknife_spread(qj, sj, st_scale, cov_s)
     se_geometry = np.zeros(19)
     se_geo_diff: FloatArray | None = None
-    sig = (
+    sg = _GeometrySigma(
         sensor_position_m,
         sensor_orientation_deg,
         input_position_m,
@@ -560,51 +767,12 @@ def mass_line_fit(
         accel_sensitivity_rel,
         force_sensitivity_rel,
     )
-    S = int(n_samples) if any(s > 0 for s in sig) else 0
+    S = int(n_samples) if sg.any() else 0
     if S > 1:
-        rng = np.random.default_rng(seed)
-        node_ids = np.arange(n) if nodes is None else np.asarray(nodes)
-        uniq, inv = np.unique(node_ids, return_inverse=True)
-        Gn = uniq.size
-        dp = rng.normal(scale=sensor_position_m, size=(S, Gn, 3))
-        rv = rng.normal(scale=np.deg2rad(sensor_orientation_deg), size=(S, Gn, 3))
-        dpi = rng.normal(scale=input_position_m, size=(S, J, 3))
-        rvi = rng.normal(scale=np.deg2rad(line_of_action_deg), size=(S, J, 3))
-        rvi -= np.einsum("sjk,jk->sj", rvi, idir)[..., None] * idir[None]
-        eps = rng.normal(scale=accel_sensitivity_rel, size=(S, n))
-        eta = rng.normal(scale=force_sensitivity_rel, size=S)
-        Rn = rotvec_to_matrix(rv)  # (S, Gn, 3, 3), as scipy Rotation
-        Ri = rotvec_to_matrix(rvi)
-        pos_s = pos[None] + dp[:, inv]
-        dir_s = np.einsum("snij,nj->sni", Rn[:, inv], dirs) * (1.0 + eps)[..., None]
-        idir_s = np.einsum("sjik,jk->sji", Ri, idir) * (1.0 + eta)[:, None, None]
-        ipos_s = ipos[None] + dpi
-        qs_list, ss_list, dd_list = [], [], []
-        for chunk in np.array_split(np.arange(S), max(1, S // 50)):
-            psi_s = _scaled(pos_s[chunk], dir_s[chunk], p, ell)
-            phi_s = _scaled(ipos_s[chunk], idir_s[chunk], p, ell)
-            Ns, bs = _normal(sums, psi_s, phi_s, W, summed=True)
-            gs = _solve(Ns, bs)
-            good = np.all(np.isfinite(gs), axis=1)
-            good[good] = np.linalg.eigvalsh(_sym(gs[good]))[:, 0] > 0
-            if good.any():
-                q_s, s_s = _derive(gs[good], ell, p)
-                qs_list.append(q_s)
-                ss_list.append(s_s)
-                if companion is not None:
-                    sel = chunk[good]
-                    qc = companion(pos_s[sel], dir_s[sel], ipos_s[sel], idir_s[sel])
-                    dd_list.append(q_s - qc)
-        if qs_list:
-            qs, ss = np.concatenate(qs_list), np.concatenate(ss_list)
-            if qs.shape[0] > 1:
-                se_geometry = qs.std(axis=0, ddof=1)
-                cov_s = cov_s + np.cov((ss / st_scale).T)
-        if dd_list:
-            dd = np.concatenate(dd_list)
-            dd = dd[np.all(np.isfinite(dd), axis=1)]
-            if dd.shape[0] > 1:
-                se_geo_diff = dd.std(axis=0, ddof=1)
+        se_geometry, cov_geo, se_geo_diff = _geometry_monte_carlo(
+            sg, S, seed, nodes, sc.geometry, p, ell, sums, W, companion, st_scale
+        )
+        cov_s = cov_s + cov_geo if cov_geo is not None else cov_s
     z = structure / st_scale
     structure_chi2 = float(z @ np.linalg.pinv(cov_s, rcond=1e-12, hermitian=True) @ z)
     se = np.sqrt(np.maximum(se_noise**2, se_inputs**2) + se_geometry**2)

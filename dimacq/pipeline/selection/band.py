@@ -48,7 +48,7 @@ from __future__ import annotations
 import itertools
 import logging
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -273,6 +273,371 @@ def _runs(mask: NDArray[np.bool_], bridge: int = 1) -> list[tuple[int, int]]:
     return out
 
 
+@dataclass(frozen=True, eq=False)
+class _LineEvidence:
+    """Per-line evidence over the whole span: CMIF, rigid-body error, DIM estimates, residual."""
+
+    f: FloatArray
+    sv: FloatArray
+    e: FloatArray
+    pl: FloatArray
+    r: FloatArray
+    m_ref: float
+    pn: FloatArray
+
+
+def _line_evidence(
+    frf: FrfData,
+    setup: TestSetup,
+    known: Mapping[str, float] | None,
+    response_weights: NDArray[np.floating] | None,
+    input_keep: NDArray[np.bool_] | None,
+) -> _LineEvidence:
+    """CMIF, rigid-body error ``e = ‖q − Ψ Ψ⁺ q‖ / ‖q‖``, per-line DIM and residual per line.
+
+    The estimates are normalised: mass by its median, CG by ``L``, inertia by ``m L²``.
+    """
+    geo = response_geometry(frf, setup)
+    # every input kept (the first pass): the FRFs as they are, not a copy of them (23 MB on an
+    # acquired test)
+    data = (
+        frf
+        if input_keep is None or bool(np.all(input_keep))
+        else frf.select(inputs=np.nonzero(input_keep)[0])
+    )
+    w = (
+        np.ones(geo.output_index.size)
+        if response_weights is None
+        else np.asarray(response_weights, float)
+    )
+    use = w > 0
+    f = data.frequencies_hz
+    n = f.size
+    # np.take: numpy's fancy indexing on the middle axis of a complex array is several times
+    # slower. The rigid-body fit Ψ Ψ⁺ q is one real matmul on the (re, im) view, and the
+    # squared norms are sums over that view.
+    qa = np.take(data.H, geo.output_index[use], axis=1)  # (L, n_used, n_in)
+    sv = cmif(qa)
+    psi = response_matrix(geo.positions_m, geo.directions, setup.reference_point)[use]
+    qv = qa.view(np.float64)  # (L, n_used, 2 n_in): |z|² summed as re² + im²
+    dv = qv - (psi @ np.linalg.pinv(psi)) @ qv
+    with np.errstate(divide="ignore", invalid="ignore"):
+        e = np.sqrt(np.einsum("lcx,lcx->l", dv, dv) / np.einsum("lcx,lcx->l", qv, qv))
+    e = np.where(np.isfinite(e), e, np.inf)
+    system = assemble(data, setup, response_weights=w)
+    try:
+        res = solve_system(system, known=known, check_plausibility=False)
+        pl = res.per_line
+    except SolverError:
+        pl = np.full((n, 10), np.nan)
+    r = line_residuals(system, known=known)
+    r = np.where(np.isfinite(r), r, np.inf)
+    L = float(
+        np.sqrt(np.mean(np.sum((geo.positions_m - geo.positions_m.mean(axis=0)) ** 2, axis=1)))
+    )
+    m_med = float(np.nanmedian(pl[:, 0])) if np.any(np.isfinite(pl[:, 0])) else 1.0
+    m_ref = abs(m_med) if m_med != 0 else 1.0
+    norm = np.concatenate([[m_ref], [L] * 3, [m_ref * L**2] * 6])
+    return _LineEvidence(f=f, sv=sv, e=e, pl=pl, r=r, m_ref=m_ref, pn=pl / norm)
+
+
+def _roughness(
+    pn: FloatArray, window: int | None, rough_sigma: float
+) -> tuple[FloatArray, FloatArray, NDArray[np.bool_]]:
+    """Line-to-line noise level ``σ``, roughness ``ρ`` and the lines within ``max(5 σ, floor)``.
+
+    ``σ = 1.4826 MAD(Δp) / √2`` per normalised estimate; ``ρ = max |p − median_win(p)|``.
+
+    Returns
+    -------
+    sig : ndarray, shape (10,)
+    rough : ndarray, shape (n_lines,)
+    rough_ok : ndarray of bool, shape (n_lines,)
+    """
+    n = pn.shape[0]
+    win = window or max(5, n // 15)
+    win += 1 - win % 2
+    fin = np.all(np.isfinite(pn), axis=1)
+    # line-to-line noise level of each normalised estimate (robust scale of first differences)
+    dif = np.diff(pn[fin], axis=0)
+    sig = (
+        1.4826 * np.median(np.abs(dif - np.median(dif, axis=0)), axis=0) / np.sqrt(2)
+        if dif.shape[0] > 2
+        else np.zeros(10)
+    )
+    rough = np.full(n, np.inf)
+    if fin.sum() >= 3:
+        med = median_filter_nearest(np.where(fin[:, None], pn, 0.0), win)
+        dev = np.abs(pn - med)
+        rough = np.where(fin, np.max(dev, axis=1), np.inf)
+        rough_ok = fin & np.all(dev < np.maximum(rough_sigma * sig, ROUGH_FLOOR), axis=1)
+    else:
+        rough_ok = np.zeros(n, bool)
+    return sig, rough, rough_ok
+
+
+def _threshold(x: FloatArray, limit: float) -> float:
+    """Usable-line threshold ``min(max(3 x₁₀, x₁₀ + 0.02), limit)``, ``x₁₀`` the 10th percentile."""
+    x10 = float(np.percentile(x[np.isfinite(x)], 10)) if np.isfinite(x).any() else np.inf
+    return min(max(3 * x10, x10 + 0.02), limit)
+
+
+def _unexplained_peaks(
+    sv: FloatArray, e: FloatArray, r: FloatArray, e_thr: float, r_thr: float
+) -> tuple[NDArray[np.intp], list[int]]:
+    """CMIF peaks, and the peaks the rigid-body model does not explain.
+
+    Unexplained: CMIF peaks where ``e`` or ``r`` reaches its threshold within ±2 lines, and peaks
+    of ``r`` itself above its threshold.
+
+    Returns
+    -------
+    cpk : ndarray of int
+        Peaks of the first CMIF curve.
+    unexplained : list of int, ascending
+    """
+
+    def _near_max(x: FloatArray, i: int) -> float:
+        return float(np.max(x[max(i - 2, 0) : i + 3]))
+
+    cpk = find_peaks(np.log10(sv[:, 0] + 1e-300), prominence=0.3)
+    rlog = np.log10(np.where(np.isfinite(r), r, np.nanmax(r[np.isfinite(r)], initial=1.0)) + 1e-12)
+    rpk = find_peaks(rlog, prominence=np.log10(2.0))
+    unexplained = sorted(
+        {int(p) for p in cpk if _near_max(e, p) >= e_thr or _near_max(r, p) >= r_thr}
+        | {int(p) for p in rpk if r[p] >= r_thr}
+    )
+    return cpk, unexplained
+
+
+@dataclass
+class _BandSearch:
+    """The walk up the usable runs: resonance clearance, plateau trim, elastic clearance.
+
+    ``cleared`` maps a band start moved by the resonance clearance to that CMIF peak, ``capped``
+    a band top moved by the elastic clearance to that elastic peak.
+    """
+
+    f: FloatArray
+    pn: FloatArray
+    s1: FloatArray
+    cpk: NDArray[np.intp]
+    unexplained: list[int]
+    tol: FloatArray
+    min_lines: int
+    mass_line_ratio: float
+    elastic_clearance: float
+    cleared: dict[int, int] = field(default_factory=dict)
+    capped: dict[int, int] = field(default_factory=dict)
+
+    def clear_of_resonance(self, i0: int, i1: int) -> int:
+        """First line of ``[i0, i1]`` clear of the highest resonance at or below it: on that
+        peak's falling flank, the last line where ``σ₁`` exceeds :data:`MASS_LINE_RATIO` times its
+        lowest level between the peak and ``i1`` (the mass line) bounds the band from below."""
+        below = [int(p) for p in self.cpk if p <= i1]
+        if i1 < i0 or not below:
+            return i0
+        pk = below[-1]
+        seg = self.s1[pk : i1 + 1]
+        k = int(np.argmin(seg))  # the falling flank only: σ₁ may rise again towards a mode above
+        high = np.nonzero(seg[:k] > self.mass_line_ratio * seg[k])[0]
+        start = max(i0, pk + int(high[-1]) + 1) if high.size else i0
+        if start > i0:
+            self.cleared[start] = pk
+        return start
+
+    def trim(self, i0: int, i1: int) -> tuple[int, int]:
+        """Trim ``[i0, i1]`` at its ends until both end lines lie within ``tol`` of the median."""
+        pn, tol = self.pn, self.tol
+        while i1 - i0 + 1 > self.min_lines:
+            seg = pn[i0 : i1 + 1]
+            if not np.all(np.isfinite(seg)):
+                bad = ~np.all(np.isfinite(seg), axis=1)
+                if bad[0]:
+                    i0 += 1
+                    continue
+                if bad[-1]:
+                    i1 -= 1
+                    continue
+                seg = seg[~bad]
+            d = np.max(np.abs(pn[i0 : i1 + 1] - np.median(seg, axis=0)) / tol, axis=1)
+            d = np.where(np.isfinite(d), d, np.inf)
+            if d[0] <= 1.0 and d[-1] <= 1.0:
+                break
+            if d[0] >= d[-1]:
+                i0 += 1
+            else:
+                i1 -= 1
+        return i0, i1
+
+    def below_elastic(self, i0: int, i1: int) -> int:
+        """Top line of ``[i0, i1]`` at most :data:`ELASTIC_CLEARANCE` times the frequency of the
+        first unexplained peak above it (an elastic mode)."""
+        f = self.f
+        above = [int(p) for p in self.unexplained if p > i1]
+        if not above:
+            return i1
+        cap = self.elastic_clearance * f[above[0]]
+        top = i1
+        while top >= i0 and f[top] > cap + 1e-9:
+            top -= 1
+        if top < i1:
+            self.capped[top] = above[0]
+        return top
+
+    def candidates(self, usable: NDArray[np.bool_]) -> list[tuple[int, int]]:
+        """Qualifying bands, walking up the usable runs until an elastic mode ends the walk."""
+        unexplained, min_lines = self.unexplained, self.min_lines
+        candidates: list[tuple[int, int]] = []
+        for a, b in _runs(usable):
+            if candidates and any(candidates[-1][1] < p < a for p in unexplained):
+                break  # an elastic mode lies between: the band never crosses it
+            # a run that holds an unexplained peak (bridged gap) is cut there
+            inside = [p for p in unexplained if a <= p <= b]
+            pieces = []
+            lo_i = a
+            for p in inside:
+                pieces.append((lo_i, p - 1))
+                lo_i = p + 1
+            pieces.append((lo_i, b))
+            for k, (i0, i1) in enumerate(pieces):
+                i0 = self.clear_of_resonance(i0, i1)
+                if i1 - i0 + 1 < min_lines:
+                    if candidates and k < len(pieces) - 1:
+                        break
+                    continue
+                t0, t1 = self.trim(i0, i1)
+                t1 = self.below_elastic(t0, t1)
+                if t1 - t0 + 1 >= min_lines:
+                    candidates.append((t0, t1))
+                    if k < len(pieces) - 1:  # an unexplained peak follows inside the run
+                        break
+            if candidates and inside and candidates[-1][1] < inside[-1]:
+                break
+        return candidates
+
+
+def _best_band(
+    e: FloatArray,
+    r: FloatArray,
+    min_lines: int,
+    max_rigid_body_error: float,
+    max_residual: float,
+) -> tuple[int, int]:
+    """Best band found when none qualifies: the window with the lowest median score.
+
+    Over runs of lines with finite ``e`` and ``r``, a window of ``max(min_lines, n/20)`` lines
+    slides to the lowest running median of ``max(e/e_max, r/r_max)``.
+    """
+    n = e.size
+    cand = [(a, b) for a, b in _runs(np.isfinite(r) & np.isfinite(e)) if b - a + 1 >= min_lines]
+    if not cand:
+        raise DataError(
+            "no frequency line has a finite rigid-body error and DIM residual; check the data"
+        )
+    best, best_score = cand[0], np.inf
+    for a, b in cand:
+        # slide a window of max(min_lines, 5 %) lines: lowest median of max(e/e_max, r/r_max)
+        wl = max(min_lines, n // 20)
+        score = np.maximum(e[a : b + 1] / max_rigid_body_error, r[a : b + 1] / max_residual)
+        if b - a + 1 <= wl:
+            s0, sc = a, float(np.median(score))
+        else:
+            med = median_filter_nearest(score, wl)
+            k = int(np.argmin(med[wl // 2 : b - a + 1 - wl // 2])) + wl // 2
+            s0, sc = a + k - wl // 2, float(med[k])
+            b = s0 + wl - 1
+            a = s0
+        if sc < best_score:
+            best, best_score = (a, b), sc
+    return best
+
+
+def _qualified_reason(
+    ev: _LineEvidence,
+    search: _BandSearch,
+    i0: int,
+    i1: int,
+    e_thr: float,
+    r_thr: float,
+    susp_peaks: list[float],
+    deform: tuple[float, ...],
+) -> str:
+    """Why the band: its errors, what bounds it below (resonance, drift) and above (mode, error)."""
+    f, e, r, pl = ev.f, ev.e, ev.r, ev.pl
+    n = f.size
+    lo, hi = float(f[i0]), float(f[i1])
+    band_e = float(np.max(e[i0 : i1 + 1]))
+    band_r = float(np.median(r[i0 : i1 + 1]))
+    in_band = np.arange(i0, i1 + 1)
+    m_var = (
+        float(np.nanstd(pl[in_band, 0]) / ev.m_ref * 100)
+        if np.isfinite(pl[in_band, 0]).any()
+        else float("nan")
+    )
+    parts = [
+        f"{lo:g}–{hi:g} Hz ({i1 - i0 + 1} lines): rigid-body error ≤ {band_e:.3g} "
+        f"(limit {e_thr:.3g}), DIM residual median {band_r:.3g} (limit {r_thr:.3g}), per-line "
+        f"estimates flat (per-line mass varies {m_var:.2g} % there)"
+    ]
+    if i0 > 0:
+        below = (
+            f"below {lo:g} Hz the resonance at {f[search.cleared[i0]]:g} Hz still dominates the "
+            f"motion (first CMIF curve above {search.mass_line_ratio:g}× its mass-line level)"
+            if i0 in search.cleared
+            else f"below {lo:g} Hz the per-line estimates drift off the plateau (suspension / "
+            "support effects)"
+        )
+        peaks = susp_peaks
+        if peaks:
+            below += (
+                f" near the suspension (support) modes at {', '.join(f'{x:g}' for x in peaks)} Hz"
+            )
+        parts.append(below)
+    if i1 < n - 1:
+        k = i1 + 1
+        if i1 in search.capped:
+            above = (
+                f"above {hi:g} Hz the band keeps below {search.elastic_clearance:g} of the elastic "
+                f"mode at {f[search.capped[i1]]:g} Hz (its part's dynamic mass grows like (f/f_e)²)"
+            )
+        elif deform:
+            above = (
+                f"above {hi:g} Hz the first deformation mode at {deform[0]:g} Hz (an elastic "
+                "mode: a resonance the rigid-body model does not explain) ends the rigid-body band"
+            )
+        elif e[k] >= e_thr:
+            above = f"above {hi:g} Hz the rigid-body error rises to {e[k]:.3g}"
+        elif r[k] >= r_thr:
+            above = f"above {hi:g} Hz the DIM residual rises to {r[k]:.3g}"
+        else:
+            above = f"above {hi:g} Hz the per-line estimates drift off the plateau"
+        parts.append(above)
+    return "; ".join(parts)
+
+
+def _unqualified_reason(
+    min_lines: int,
+    e_thr: float,
+    r_thr: float,
+    limits: dict[str, float],
+    lo: float,
+    hi: float,
+    *,
+    band_e: float,
+    band_r: float,
+) -> str:
+    """Why no band qualifies, with the best band found and its errors."""
+    return (
+        f"no band qualifies: no run of {min_lines} lines with rigid-body error below "
+        f"{e_thr:.3g} and DIM residual below {r_thr:.3g} (absolute limits "
+        f"{limits['max_rigid_body_error']:g} and {limits['max_residual']:g}) and flat per-line "
+        f"estimates lies below the first elastic mode; best band found {lo:g}–{hi:g} Hz with "
+        f"rigid-body error {band_e:.3g} and DIM residual {band_r:.3g}; check the channels, the "
+        "support and the span, or give the band by hand (--band)"
+    )
+
+
 def suggest_band(
     frf: FrfData,
     setup: TestSetup,
@@ -327,70 +692,11 @@ def suggest_band(
         ``qualified = False`` (with the best band found and its errors in ``reason``) when no
         band meets the limits.
     """
-    geo = response_geometry(frf, setup)
-    # every input kept (the first pass): the FRFs as they are, not a copy of them (23 MB on an
-    # acquired test)
-    data = (
-        frf
-        if input_keep is None or bool(np.all(input_keep))
-        else frf.select(inputs=np.nonzero(input_keep)[0])
-    )
-    w = (
-        np.ones(geo.output_index.size)
-        if response_weights is None
-        else np.asarray(response_weights, float)
-    )
-    use = w > 0
-    f = data.frequencies_hz
-    n = f.size
-    # np.take: numpy's fancy indexing on the middle axis of a complex array is several times
-    # slower. The rigid-body fit Ψ Ψ⁺ q is one real matmul on the (re, im) view, and the
-    # squared norms are sums over that view.
-    qa = np.take(data.H, geo.output_index[use], axis=1)  # (L, n_used, n_in)
-    sv = cmif(qa)
-    psi = response_matrix(geo.positions_m, geo.directions, setup.reference_point)[use]
-    qv = qa.view(np.float64)  # (L, n_used, 2 n_in): |z|² summed as re² + im²
-    dv = qv - (psi @ np.linalg.pinv(psi)) @ qv
-    with np.errstate(divide="ignore", invalid="ignore"):
-        e = np.sqrt(np.einsum("lcx,lcx->l", dv, dv) / np.einsum("lcx,lcx->l", qv, qv))
-    e = np.where(np.isfinite(e), e, np.inf)
-    system = assemble(data, setup, response_weights=w)
-    try:
-        res = solve_system(system, known=known, check_plausibility=False)
-        pl = res.per_line
-    except SolverError:
-        pl = np.full((n, 10), np.nan)
-    r = line_residuals(system, known=known)
-    r = np.where(np.isfinite(r), r, np.inf)
-    L = float(
-        np.sqrt(np.mean(np.sum((geo.positions_m - geo.positions_m.mean(axis=0)) ** 2, axis=1)))
-    )
-    m_med = float(np.nanmedian(pl[:, 0])) if np.any(np.isfinite(pl[:, 0])) else 1.0
-    m_ref = abs(m_med) if m_med != 0 else 1.0
-    norm = np.concatenate([[m_ref], [L] * 3, [m_ref * L**2] * 6])
-    pn = pl / norm
-    win = window or max(5, n // 15)
-    win += 1 - win % 2
-    fin = np.all(np.isfinite(pn), axis=1)
-    # line-to-line noise level of each normalised estimate (robust scale of first differences)
-    dif = np.diff(pn[fin], axis=0)
-    sig = (
-        1.4826 * np.median(np.abs(dif - np.median(dif, axis=0)), axis=0) / np.sqrt(2)
-        if dif.shape[0] > 2
-        else np.zeros(10)
-    )
-    rough = np.full(n, np.inf)
-    if fin.sum() >= 3:
-        med = median_filter_nearest(np.where(fin[:, None], pn, 0.0), win)
-        dev = np.abs(pn - med)
-        rough = np.where(fin, np.max(dev, axis=1), np.inf)
-        rough_ok = fin & np.all(dev < np.maximum(rough_sigma * sig, ROUGH_FLOOR), axis=1)
-    else:
-        rough_ok = np.zeros(n, bool)
-    e10 = float(np.percentile(e[np.isfinite(e)], 10)) if np.isfinite(e).any() else np.inf
-    r10 = float(np.percentile(r[np.isfinite(r)], 10)) if np.isfinite(r).any() else np.inf
-    e_thr = min(max(3 * e10, e10 + 0.02), max_rigid_body_error)
-    r_thr = min(max(3 * r10, r10 + 0.02), max_residual)
+    ev = _line_evidence(frf, setup, known, response_weights, input_keep)
+    f, sv, e, r = ev.f, ev.sv, ev.e, ev.r
+    sig, rough, rough_ok = _roughness(ev.pn, window, rough_sigma)
+    e_thr = _threshold(e, max_rigid_body_error)
+    r_thr = _threshold(r, max_residual)
     usable = (e < e_thr) & (r < r_thr) & rough_ok
     limits = {
         "rigid_body_error": e_thr,
@@ -398,132 +704,24 @@ def suggest_band(
         "max_rigid_body_error": max_rigid_body_error,
         "max_residual": max_residual,
     }
-
-    # peaks the rigid-body model does not explain ----------------------------------------------
-    def _near_max(x: FloatArray, i: int) -> float:
-        return float(np.max(x[max(i - 2, 0) : i + 3]))
-
-    cpk = find_peaks(np.log10(sv[:, 0] + 1e-300), prominence=0.3)
-    rlog = np.log10(np.where(np.isfinite(r), r, np.nanmax(r[np.isfinite(r)], initial=1.0)) + 1e-12)
-    rpk = find_peaks(rlog, prominence=np.log10(2.0))
-    unexplained = sorted(
-        {int(p) for p in cpk if _near_max(e, p) >= e_thr or _near_max(r, p) >= r_thr}
-        | {int(p) for p in rpk if r[p] >= r_thr}
+    cpk, unexplained = _unexplained_peaks(sv, e, r, e_thr, r_thr)
+    search = _BandSearch(
+        f=f,
+        pn=ev.pn,
+        s1=median_filter_nearest(sv[:, 0], 3),
+        cpk=cpk,
+        unexplained=unexplained,
+        tol=np.maximum(flat_sigma * sig, flat_floor),
+        min_lines=min_lines,
+        mass_line_ratio=mass_line_ratio,
+        elastic_clearance=elastic_clearance,
     )
-
-    tol = np.maximum(flat_sigma * sig, flat_floor)
-
-    s1 = median_filter_nearest(sv[:, 0], 3)
-    cleared: dict[int, int] = {}  # band start moved by the resonance clearance → that CMIF peak
-    capped: dict[int, int] = {}  # band top moved by the elastic clearance → that elastic peak
-
-    def _clear_of_resonance(i0: int, i1: int) -> int:
-        """First line of ``[i0, i1]`` clear of the highest resonance at or below it: on that
-        peak's falling flank, the last line where ``σ₁`` exceeds :data:`MASS_LINE_RATIO` times its
-        lowest level between the peak and ``i1`` (the mass line) bounds the band from below."""
-        below = [int(p) for p in cpk if p <= i1]
-        if i1 < i0 or not below:
-            return i0
-        pk = below[-1]
-        seg = s1[pk : i1 + 1]
-        k = int(np.argmin(seg))  # the falling flank only: σ₁ may rise again towards a mode above
-        high = np.nonzero(seg[:k] > mass_line_ratio * seg[k])[0]
-        start = max(i0, pk + int(high[-1]) + 1) if high.size else i0
-        if start > i0:
-            cleared[start] = pk
-        return start
-
-    def _trim(i0: int, i1: int) -> tuple[int, int]:
-        while i1 - i0 + 1 > min_lines:
-            seg = pn[i0 : i1 + 1]
-            if not np.all(np.isfinite(seg)):
-                bad = ~np.all(np.isfinite(seg), axis=1)
-                if bad[0]:
-                    i0 += 1
-                    continue
-                if bad[-1]:
-                    i1 -= 1
-                    continue
-                seg = seg[~bad]
-            d = np.max(np.abs(pn[i0 : i1 + 1] - np.median(seg, axis=0)) / tol, axis=1)
-            d = np.where(np.isfinite(d), d, np.inf)
-            if d[0] <= 1.0 and d[-1] <= 1.0:
-                break
-            if d[0] >= d[-1]:
-                i0 += 1
-            else:
-                i1 -= 1
-        return i0, i1
-
-    def _below_elastic(i0: int, i1: int) -> int:
-        """Top line of ``[i0, i1]`` at most :data:`ELASTIC_CLEARANCE` times the frequency of the
-        first unexplained peak above it (an elastic mode)."""
-        above = [int(p) for p in unexplained if p > i1]
-        if not above:
-            return i1
-        cap = elastic_clearance * f[above[0]]
-        top = i1
-        while top >= i0 and f[top] > cap + 1e-9:
-            top -= 1
-        if top < i1:
-            capped[top] = above[0]
-        return top
-
-    runs = _runs(usable)
-    chosen: tuple[int, int] | None = None
-    candidates: list[tuple[int, int]] = []
-    for a, b in runs:
-        if candidates and any(candidates[-1][1] < p < a for p in unexplained):
-            break  # an elastic mode lies between: the band never crosses it
-        # a run that holds an unexplained peak (bridged gap) is cut there
-        inside = [p for p in unexplained if a <= p <= b]
-        pieces = []
-        lo_i = a
-        for p in inside:
-            pieces.append((lo_i, p - 1))
-            lo_i = p + 1
-        pieces.append((lo_i, b))
-        for k, (i0, i1) in enumerate(pieces):
-            i0 = _clear_of_resonance(i0, i1)
-            if i1 - i0 + 1 < min_lines:
-                if candidates and k < len(pieces) - 1:
-                    break
-                continue
-            t0, t1 = _trim(i0, i1)
-            t1 = _below_elastic(t0, t1)
-            if t1 - t0 + 1 >= min_lines:
-                candidates.append((t0, t1))
-                if k < len(pieces) - 1:  # an unexplained peak follows inside the run
-                    break
-        if candidates and inside and candidates[-1][1] < inside[-1]:
-            break
+    candidates = search.candidates(usable)
+    qualified = bool(candidates)
     if candidates:
-        chosen = max(candidates, key=lambda ab: ab[1] - ab[0])
-    qualified = chosen is not None
-    if chosen is None:
-        # best band found: the run (usable or not) with the lowest median residual
-        cand = [(a, b) for a, b in _runs(np.isfinite(r) & np.isfinite(e)) if b - a + 1 >= min_lines]
-        if not cand:
-            raise DataError(
-                "no frequency line has a finite rigid-body error and DIM residual; check the data"
-            )
-        best, best_score = cand[0], np.inf
-        for a, b in cand:
-            # slide a window of max(min_lines, 5 %) lines: lowest median of max(e/e_max, r/r_max)
-            wl = max(min_lines, n // 20)
-            score = np.maximum(e[a : b + 1] / max_rigid_body_error, r[a : b + 1] / max_residual)
-            if b - a + 1 <= wl:
-                s0, sc = a, float(np.median(score))
-            else:
-                med = median_filter_nearest(score, wl)
-                k = int(np.argmin(med[wl // 2 : b - a + 1 - wl // 2])) + wl // 2
-                s0, sc = a + k - wl // 2, float(med[k])
-                b = s0 + wl - 1
-                a = s0
-            if sc < best_score:
-                best, best_score = (a, b), sc
-        chosen = best
-    i0, i1 = chosen
+        i0, i1 = max(candidates, key=lambda ab: ab[1] - ab[0])
+    else:
+        i0, i1 = _best_band(e, r, min_lines, max_rigid_body_error, max_residual)
     lo, hi = float(f[i0]), float(f[i1])
     band_e = float(np.max(e[i0 : i1 + 1]))
     band_r = float(np.median(r[i0 : i1 + 1]))
@@ -532,58 +730,12 @@ def suggest_band(
         float(f[p]) for p in cpk if p < i0 and int(p) not in unexplained
     )  # rigid-body (suspension) peaks the model explains
     deform = tuple(float(f[p]) for p in unexplained if p > i1)
-    in_band = np.arange(i0, i1 + 1)
-    m_var = (
-        float(np.nanstd(pl[in_band, 0]) / m_ref * 100)
-        if np.isfinite(pl[in_band, 0]).any()
-        else float("nan")
-    )
     if qualified:
-        parts = [
-            f"{lo:g}–{hi:g} Hz ({i1 - i0 + 1} lines): rigid-body error ≤ {band_e:.3g} "
-            f"(limit {e_thr:.3g}), DIM residual median {band_r:.3g} (limit {r_thr:.3g}), per-line "
-            f"estimates flat (per-line mass varies {m_var:.2g} % there)"
-        ]
-        if i0 > 0:
-            below = (
-                f"below {lo:g} Hz the resonance at {f[cleared[i0]]:g} Hz still dominates the "
-                f"motion (first CMIF curve above {mass_line_ratio:g}× its mass-line level)"
-                if i0 in cleared
-                else f"below {lo:g} Hz the per-line estimates drift off the plateau (suspension / "
-                "support effects)"
-            )
-            peaks = sorted(set(susp) | set(susp_cmif))
-            if peaks:
-                below += f" near the suspension (support) modes at {', '.join(f'{x:g}' for x in peaks)} Hz"
-            parts.append(below)
-        if i1 < n - 1:
-            k = i1 + 1
-            if i1 in capped:
-                above = (
-                    f"above {hi:g} Hz the band keeps below {elastic_clearance:g} of the elastic mode "
-                    f"at {f[capped[i1]]:g} Hz (its part's dynamic mass grows like (f/f_e)²)"
-                )
-            elif deform:
-                above = (
-                    f"above {hi:g} Hz the first deformation mode at {deform[0]:g} Hz (an elastic "
-                    "mode: a resonance the rigid-body model does not explain) ends the rigid-body band"
-                )
-            elif e[k] >= e_thr:
-                above = f"above {hi:g} Hz the rigid-body error rises to {e[k]:.3g}"
-            elif r[k] >= r_thr:
-                above = f"above {hi:g} Hz the DIM residual rises to {r[k]:.3g}"
-            else:
-                above = f"above {hi:g} Hz the per-line estimates drift off the plateau"
-            parts.append(above)
-        reason = "; ".join(parts)
+        peaks = sorted(set(susp) | set(susp_cmif))
+        reason = _qualified_reason(ev, search, i0, i1, e_thr, r_thr, peaks, deform)
     else:
-        reason = (
-            f"no band qualifies: no run of {min_lines} lines with rigid-body error below "
-            f"{e_thr:.3g} and DIM residual below {r_thr:.3g} (absolute limits "
-            f"{max_rigid_body_error:g} and {max_residual:g}) and flat per-line estimates lies below "
-            f"the first elastic mode; best band found {lo:g}–{hi:g} Hz with rigid-body error "
-            f"{band_e:.3g} and DIM residual {band_r:.3g}; check the channels, the support and the "
-            "span, or give the band by hand (--band)"
+        reason = _unqualified_reason(
+            min_lines, e_thr, r_thr, limits, lo, hi, band_e=band_e, band_r=band_r
         )
     log.info("band suggestion: %s", reason)
     return BandSuggestion(
@@ -596,7 +748,7 @@ def suggest_band(
         usable=usable,
         suspension_peaks_hz=tuple(sorted(set(susp) | set(susp_cmif))),
         deformation_peaks_hz=deform,
-        per_line=pl,
+        per_line=ev.pl,
         residual=r,
         qualified=qualified,
         band_rigid_body_error=band_e,

@@ -348,6 +348,110 @@ class JackknifeSelection:
         }
 
 
+def _cycle_statistics(
+    system: DimSystem, active: NDArray[np.bool_], known: Mapping[str, float] | None
+) -> (
+    tuple[FloatArray, NDArray[np.intp], FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]
+    | None
+):
+    """One jackknife cycle's statistics over the active inputs (None: fewer than 3 solved).
+
+    Scaled deviations ``|x₋ⱼ − x̄| / max_j |x₋ⱼ − x̄|`` and their sum per input; the
+    predictive residual ``e_j`` of each input under the fit without it, studentised as
+    ``√(e_j(x₋ⱼ) e_j(x))`` with ``x`` the joint fit over all active inputs.
+
+    Returns
+    -------
+    est, idx, sdev, score, std, resid, stat
+    """
+    n = system.K.shape[2]
+    est, solved = jackknife_estimates(system, active, known=known)
+    idx = np.nonzero(active & solved)[0]
+    if idx.size < 3:
+        return None
+    mean = est[idx].mean(axis=0)
+    dev = np.abs(est - mean)
+    mx = np.nanmax(dev[idx], axis=0)
+    sdev = dev / np.where(mx > 0, mx, 1.0)
+    score = np.where(active & solved, np.nansum(sdev, axis=1), np.nan)
+    std = est[idx].std(axis=0, ddof=1)
+    resid = np.full(n, np.nan)
+    pred = _PredictiveResiduals(system.select_inputs(idx))
+    resid[idx] = pred(est[idx])
+    stat = resid.copy()
+    try:
+        full = solve_joint(system, known=known, input_weights=active.astype(float))
+        stat[idx] = np.sqrt(resid[idx] * pred(full))
+    except SolverError:  # pragma: no cover - the active inputs excite rank 6 (checked)
+        pass
+    return est, idx, sdev, score, std, resid, stat
+
+
+def _candidate(
+    phi: FloatArray,
+    active: NDArray[np.bool_],
+    fin: NDArray[np.bool_],
+    idx: NDArray[np.intp],
+    stat: FloatArray,
+    can_remove: bool,
+) -> tuple[int | None, ExcitationCheck, list[int]]:
+    """The input with the largest studentised predictive residual whose removal keeps rank 6.
+
+    Returns
+    -------
+    removed : int or None
+    after : ExcitationCheck
+        The excitation without it (with every active input when none).
+    refused : list of int
+        Inputs passed over because their removal would drop the rank below 6.
+    """
+    refused: list[int] = []
+    removed: int | None = None
+    after = excitation_check(phi[:, active])
+    if can_remove:
+        for j in idx[np.argsort(stat[idx])[::-1]]:
+            if fin[j]:
+                continue
+            trial = active.copy()
+            trial[j] = False
+            chk_j = excitation_check(phi[:, trial])
+            if not chk_j.ok:
+                refused.append(int(j))
+                continue
+            removed, after = int(j), chk_j
+            break
+    return removed, after, refused
+
+
+def _selection(
+    system: DimSystem,
+    phi: FloatArray,
+    fout: NDArray[np.bool_],
+    removed_order: list[int],
+    chosen: int,
+    reasons: dict[str, str],
+    cycles: list[JackknifeCycle],
+    stop: str,
+) -> JackknifeSelection:
+    """The kept inputs: all but the forced-out and the first ``chosen`` removed, with reasons."""
+    keep = ~fout
+    for j in removed_order[:chosen]:
+        keep[j] = False
+    excluded = [system.inputs[i] for i in np.nonzero(fout)[0]] + [
+        system.inputs[j] for j in removed_order[:chosen]
+    ]
+    return JackknifeSelection(
+        inputs=system.inputs,
+        keep=keep,
+        excluded=tuple(excluded),
+        reasons={k: v for k, v in reasons.items() if any(c.name == k for c in excluded)},
+        cycles=tuple(cycles),
+        chosen_cycle=chosen,
+        stop_reason=stop,
+        excitation=excitation_check(phi[:, keep]),
+    )
+
+
 def jackknife_inputs(
     system: DimSystem,
     *,
@@ -402,43 +506,13 @@ def jackknife_inputs(
         system.inputs[i].name: "forced out by the user" for i in np.nonzero(fout)[0]
     }
     while True:
-        est, solved = jackknife_estimates(system, active, known=known)
-        idx = np.nonzero(active & solved)[0]
-        if idx.size < 3:
+        stats = _cycle_statistics(system, active, known)
+        if stats is None:
             stop = stop or "too few inputs for a jackknife cycle"
             break
-        mean = est[idx].mean(axis=0)
-        dev = np.abs(est - mean)
-        mx = np.nanmax(dev[idx], axis=0)
-        sdev = dev / np.where(mx > 0, mx, 1.0)
-        score = np.where(active & solved, np.nansum(sdev, axis=1), np.nan)
-        std = est[idx].std(axis=0, ddof=1)
-        resid = np.full(n, np.nan)
-        pred = _PredictiveResiduals(system.select_inputs(idx))
-        resid[idx] = pred(est[idx])
-        stat = resid.copy()
-        try:
-            full = solve_joint(system, known=known, input_weights=active.astype(float))
-            stat[idx] = np.sqrt(resid[idx] * pred(full))
-        except SolverError:  # pragma: no cover - the active inputs excite rank 6 (checked)
-            pass
-        # candidate: largest studentised predictive residual whose removal keeps rank 6
-        refused: list[int] = []
-        removed: int | None = None
-        after = excitation_check(phi[:, active])
+        est, idx, sdev, score, std, resid, stat = stats
         can_remove = int(active.sum()) - 1 >= min_inputs and len(removed_order) < limit
-        if can_remove:
-            for j in idx[np.argsort(stat[idx])[::-1]]:
-                if fin[j]:
-                    continue
-                trial = active.copy()
-                trial[j] = False
-                chk_j = excitation_check(phi[:, trial])
-                if not chk_j.ok:
-                    refused.append(int(j))
-                    continue
-                removed, after = int(j), chk_j
-                break
+        removed, after, refused = _candidate(phi, active, fin, idx, stat, can_remove)
         justified, med, thr = False, float("nan"), float("nan")
         if removed is not None:
             others = idx[idx != removed]
@@ -491,19 +565,4 @@ def jackknife_inputs(
         active[removed] = False
     if chosen is None:
         chosen = len(removed_order)
-    keep = ~fout
-    for j in removed_order[:chosen]:
-        keep[j] = False
-    excluded = [system.inputs[i] for i in np.nonzero(fout)[0]] + [
-        system.inputs[j] for j in removed_order[:chosen]
-    ]
-    return JackknifeSelection(
-        inputs=system.inputs,
-        keep=keep,
-        excluded=tuple(excluded),
-        reasons={k: v for k, v in reasons.items() if any(c.name == k for c in excluded)},
-        cycles=tuple(cycles),
-        chosen_cycle=chosen,
-        stop_reason=stop,
-        excitation=excitation_check(phi[:, keep]),
-    )
+    return _selection(system, phi, fout, removed_order, chosen, reasons, cycles, stop)
