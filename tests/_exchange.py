@@ -25,6 +25,7 @@ protocol's message table where it exercises the driver's logic.
 from __future__ import annotations
 
 import contextlib
+import threading
 import time
 from collections import deque
 from collections.abc import Callable, Iterator, Sequence
@@ -33,6 +34,7 @@ from typing import Any, Literal
 
 import can
 import serial
+import usb.core
 
 __all__ = [
     "BulkIn",
@@ -189,22 +191,43 @@ class _Ctx:
 
 
 class ScriptedUsb:
-    """A stand-in for ``usb.core.Device`` whose far end plays the script."""
+    """A stand-in for ``usb.core.Device`` whose far end plays the script.
 
-    def __init__(self, pairs: Sequence[tuple[Ctrl | BulkIn, Any]]) -> None:
+    ``reader_thread=True`` (a driver reading the bulk endpoint in its own thread): a bulk read
+    whose pair is not next waits, as a device with no data, for the control transfers scripted
+    before it (at most 5 s or its own timeout, whichever is longer), then times out without
+    taking a pair; with the script done it times out at once.
+    """
+
+    def __init__(
+        self, pairs: Sequence[tuple[Ctrl | BulkIn, Any]], *, reader_thread: bool = False
+    ) -> None:
         self.pairs = list(pairs)
         self._ctx = _Ctx()
+        self._threaded = reader_thread
+        self._cond = threading.Condition()
 
     def set_configuration(self) -> None:
         return None
 
     def _next(self, got: Ctrl | BulkIn) -> Any:
-        assert self.pairs, f"unexpected {got!r}: script exhausted"
-        sent, answer = self.pairs.pop(0)
+        with self._cond:
+            assert self.pairs, f"unexpected {got!r}: script exhausted"
+            sent, answer = self.pairs.pop(0)
+            self._cond.notify_all()
         assert got == sent, f"sent {got!r}, script expected {sent!r}"
         if isinstance(answer, BaseException):
             raise answer
         return answer
+
+    def _await_bulk(self, timeout_ms: int) -> bool:
+        """Reader-thread mode: wait until a bulk read is next (False: it is not)."""
+        with self._cond:
+            self._cond.wait_for(
+                lambda: not self.pairs or isinstance(self.pairs[0][0], BulkIn),
+                max(5.0, timeout_ms / 1000),
+            )
+            return bool(self.pairs) and isinstance(self.pairs[0][0], BulkIn)
 
     def ctrl_transfer(
         self, bm: int, req: int, value: int, index: int, data: Any, timeout: int
@@ -213,6 +236,8 @@ class ScriptedUsb:
         return self._next(Ctrl(bm, int(req), value, index, payload))
 
     def read(self, endpoint: int, size: int, timeout: int) -> Any:
+        if self._threaded and not self._await_bulk(timeout):
+            raise usb.core.USBTimeoutError("Operation timed out", error_code=-7, errno=110)
         return self._next(BulkIn(endpoint, size))
 
     def assert_done(self) -> None:

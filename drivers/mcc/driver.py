@@ -26,12 +26,22 @@ and ``coupling`` are that conditioner's settings, not sent to the DAQ; its sensi
 The bulk stream has no sample counter and no overload flags: scan ``s`` is the ``s``-th scan
 received; a code at either end of the 18-bit scale is an overload; a FIFO overrun (status bit
 AIN_SCAN_OVERRUN) ends the unit's scan, which the task reports as an ``overflow`` event.
+
+**Host buffer**, as uldaq's: the unit's FIFO holds 32 KiB of samples (8192 samples: 0.5 s of
+eight inputs at 2 kHz), so the task reads every unit's bulk endpoint continuously in one
+background thread, started by ``start()`` and joined by ``stop()``, into a bounded host buffer
+per unit (``host_buffer_s`` of scans); ``read`` takes from that buffer. A unit whose host buffer
+is full is not read until the program reads; if its FIFO overruns meanwhile, the error names
+the host falling behind (the program did not read for ``host_buffer_s``), not the device. An
+error in the thread is raised by the next read that needs what the thread did not deliver.
 """
 
 from __future__ import annotations
 
 import errno
 import logging
+import threading
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, Literal
@@ -63,6 +73,11 @@ _BULK = "bulk read"
 #: 100 MHz oscillator's own tolerance
 RATE_TOLERANCE = 1e-5
 _DRAIN_TIMEOUT_S = 0.05
+#: the host buffer per unit, seconds of scans (uldaq's applications hold seconds of scans)
+HOST_BUFFER_S = 10.0
+#: the reader thread's bulk-read timeout (at least two transfers' time): how long ``stop()``
+#: may wait for the thread's read in progress
+_READER_TIMEOUT_S = 0.25
 
 
 class Usb1808(WireDriver):
@@ -222,7 +237,8 @@ class MccIdentity:
 
 @dataclass
 class _UnitRun:
-    """A unit's part of a run: its inputs, calibration row per queued input, scans received."""
+    """A unit's part of a run: its inputs, calibration row per queued input, its host buffer
+    (``scans``, ``held`` scans in it) and the scans read off the wire (``received``)."""
 
     unit: Usb1808
     inputs: list[int]
@@ -232,7 +248,9 @@ class _UnitRun:
     offset: np.ndarray
     scans: list[np.ndarray]
     received: int = 0
+    held: int = 0
     overrun: bool = False
+    drained: bool = False  # after stop: read until a timeout
 
 
 def range_of(config: ChannelConfig) -> p.Range:
@@ -262,6 +280,9 @@ class MccTask(StreamedReads):
     name : str
     calibrations : sequence of (slope, offset), optional
         Each unit's EEPROM table (read from the units when not given).
+    host_buffer_s : float
+        Each unit's host buffer, seconds of scans: ``ceil(host_buffer_s · rate)`` scans (at
+        least two transfers).
 
     ``samples_clocked_now()`` is None: the unit's STATUS is flags only (no scan count in the
     command set read), so an impact session looks for a hit from what it has read.
@@ -273,9 +294,15 @@ class MccTask(StreamedReads):
         name: str = "task",
         *,
         calibrations: Sequence[tuple[np.ndarray, np.ndarray]] | None = None,
+        host_buffer_s: float = HOST_BUFFER_S,
     ) -> None:
         if not units:
             raise SetupError("no USB-1808 unit; connect one and give its serial in [daq] units")
+        if not host_buffer_s > 0:
+            raise SetupError(
+                f"host_buffer_s = {host_buffer_s}: give the host buffer's length in seconds (> 0)"
+            )
+        self.host_buffer_s = float(host_buffer_s)
         self.units = list(units)
         self.name = name
         self.calibrations = (
@@ -293,6 +320,18 @@ class MccTask(StreamedReads):
         self._runs: list[_UnitRun] = []
         self._stream: CounterStream[DaqEvent] = CounterStream(0)
         self._scale = np.zeros(0)
+        # shared with the reader thread, under _cond: each run's host buffer and counts,
+        # the thread's failure and the host overflow
+        self._cond = threading.Condition()
+        self._reader: threading.Thread | None = None
+        self._halt = threading.Event()
+        self._host_scans = 0
+        self._failure: Exception | None = None
+        self._failure_is_overflow = False
+        self._failure_reported = False
+        self._waited = False
+        self._full_at = 0
+        self._host_behind: str | None = None
 
     # -- identity and channels ---------------------------------------------------------------
     def identify(self) -> MccIdentity:
@@ -442,11 +481,20 @@ class MccTask(StreamedReads):
         self._stream = CounterStream(len(chans), flag_shape=(len(chans),), flag_dtype=np.bool_)
         self.events = []
         self.samples_clocked = None
+        transfer = max(self._transfer(r) for r in self._runs)
+        self._host_scans = max(int(np.ceil(self.host_buffer_s * self.sample_rate_hz)), 2 * transfer)
+        self._failure, self._failure_is_overflow, self._failure_reported = None, False, False
+        self._waited, self._full_at, self._host_behind = False, 0, None
         master, slaves = self._runs[0], self._runs[1:]
         for r in slaves:  # armed first: they take a scan on each master pulse from the first
             r.unit.scan_start(p.AInScanStart(0, 0, 0))
         master.unit.scan_start(p.AInScanStart(0, 0, p.pacer_period(self.sample_rate_hz)))
         self._running = True
+        self._halt.clear()
+        self._reader = threading.Thread(
+            target=self._read_continuously, name=f"MCC reader {self.name}", daemon=True
+        )
+        self._reader.start()
         log.info(
             "MCC task %s started: %d channels on %d unit(s) at %g Hz",
             self.name,
@@ -457,34 +505,137 @@ class MccTask(StreamedReads):
 
     def _read_unit(self, r: _UnitRun, timeout_s: float | None) -> int:
         """One bulk transfer of about ``samples_per_frame`` scans of unit ``r`` (whole 512-byte
-        packets, :func:`~dimacq.drivers.mcc.protocol.scans_per_transfer`); the scans read."""
+        packets, :func:`~dimacq.drivers.mcc.protocol.scans_per_transfer`) into its host buffer;
+        the scans read."""
         n_q = len(r.inputs)
-        n = p.scans_per_transfer(self.samples_per_frame, n_q)
-        data = r.unit.read_scans(n * n_q * 4, timeout_s)
+        data = r.unit.read_scans(self._transfer(r) * n_q * 4, timeout_s)
         try:
             codes = p.decode_scans(data, n_q)
         except ValueError as err:
             raise ProtocolError(f"{r.unit.name}: {err}; stop and restart the task") from err
-        if codes.shape[0]:
-            r.scans.append(codes)
-            r.received += codes.shape[0]
-        return int(codes.shape[0])
+        got = int(codes.shape[0])
+        if got:
+            with self._cond:
+                r.scans.append(codes)
+                r.received += got
+                r.held += got
+                self._cond.notify_all()
+        return got
+
+    def _transfer(self, r: _UnitRun) -> int:
+        return p.scans_per_transfer(self.samples_per_frame, len(r.inputs))
+
+    def _fail(self, err: Exception, *, overflow: bool = False) -> None:
+        """Keep the reader's first failure for the reads."""
+        with self._cond:
+            if self._failure is None:
+                self._failure, self._failure_is_overflow = err, overflow
+            self._cond.notify_all()
+
+    def _read_continuously(self) -> None:
+        """The reader thread: a transfer of the unit with the fewest scans received, in turn;
+        once ``stop()`` has stopped the scans (``_halt``), each unit until a read times out
+        (its FIFO is empty), then the thread ends.
+
+        A unit whose host buffer has no room for a transfer is not read until the program
+        reads (the unit's FIFO fills meanwhile); if a FIFO overran during such a wait, the
+        overrun is the host's falling behind. A timeout with a unit's AIN_SCAN_OVERRUN set ends
+        the thread (that scan has stopped), as does any other error, kept for the reads.
+        """
+        assert self.sample_rate_hz is not None
+        transfer_s = max(self._transfer(r) for r in self._runs) / self.sample_rate_hz
+        timeout_s = max(_READER_TIMEOUT_S, 2 * transfer_s)
+        try:
+            while True:
+                halted = self._halt.is_set()
+                todo = [r for r in self._runs if not (halted and r.drained)]
+                if not todo:
+                    return
+                lag = min(todo, key=lambda r: r.received)
+                if not halted and self._wait_for_room(lag):
+                    continue
+                try:
+                    self._read_unit(lag, _DRAIN_TIMEOUT_S if halted else timeout_s)
+                except DeviceTimeoutError:
+                    if not self._running:  # stop() has begun: no status asked
+                        lag.drained = self._halt.is_set()
+                        continue
+                    over = [r for r in self._runs if r.unit.status() & p.Status.AIN_SCAN_OVERRUN]
+                    if not over:
+                        continue  # no scan yet: a read waiting longer says so
+                    for r in over:
+                        r.overrun = True
+                    msg = self._host_behind or (
+                        f"{over[0].unit.name} FIFO overrun after scan {over[0].received}: its "
+                        "scan stopped (read faster or lower the rate); stop and restart the task"
+                    )
+                    self._fail(DeviceStateError(msg), overflow=True)
+                    return
+        except Exception as err:  # re-raised by the next read
+            log.error("MCC task %s: reader thread failed: %s", self.name, err)
+            self._fail(err)
+
+    def _wait_for_room(self, r: _UnitRun) -> bool:
+        """Whether unit ``r``'s host buffer had no room for a transfer (then wait up to
+        :data:`_READER_TIMEOUT_S` for a read); on resuming after such a wait, a unit whose FIFO
+        overran meanwhile is put down to the host (:attr:`_host_behind`)."""
+        with self._cond:
+            if r.held + self._transfer(r) <= self._host_scans:
+                if not self._waited:
+                    return False
+                self._waited = False
+            else:
+                if not self._waited:
+                    self._waited = True
+                    self._full_at = r.received
+                    log.debug(
+                        "MCC task %s: the host buffer of %s is full (%d scans unread); not "
+                        "reading it until the program reads",
+                        self.name,
+                        r.unit.name,
+                        r.held,
+                    )
+                self._cond.wait(_READER_TIMEOUT_S)
+                return True
+        if self._host_behind is None and any(
+            u.unit.status() & p.Status.AIN_SCAN_OVERRUN for u in self._runs
+        ):
+            assert self.sample_rate_hz is not None
+            self._host_behind = (
+                f"task {self.name}: the host fell behind: its buffer of {r.unit.name} held "
+                f"{self._host_scans} scans ({self._host_scans / self.sample_rate_hz:.3g} s) "
+                f"unread after scan {self._full_at}, so it was not read and the unit's FIFO "
+                "overran; read more often or give a larger host_buffer_s, then restart"
+            )
+        return False
+
+    def _halt_reader(self) -> None:
+        self._halt.set()
+        if self._reader is not None:
+            self._reader.join()
+            self._reader = None
 
     def _merge(self) -> None:
-        """Scans every unit has delivered → engineering units in the counter stream."""
-        common = min(r.received for r in self._runs)
+        """Scans every unit has delivered to its host buffer → engineering units in the counter
+        stream."""
         first = self._stream.end
-        n = common - first
-        if n <= 0:
-            return
+        with self._cond:
+            n = min(r.received for r in self._runs) - first
+            if n <= 0:
+                return
+            taken = []
+            for r in self._runs:
+                codes = np.concatenate(r.scans) if len(r.scans) > 1 else r.scans[0]
+                rest = codes[n:]
+                r.scans = [rest] if rest.shape[0] else []
+                r.held -= n
+                taken.append(codes[:n])
+            self._cond.notify_all()  # room in the host buffers
         n_ch = len(self._channels)
         volts = np.zeros((n, n_ch))
         over = np.zeros((n, n_ch), dtype=bool)
-        for r in self._runs:
-            codes = np.concatenate(r.scans) if len(r.scans) > 1 else r.scans[0]
-            v, clip = p.codes_to_volts(codes[:n], r.ranges, r.slope, r.offset)
-            rest = codes[n:]
-            r.scans = [rest] if rest.shape[0] else []
+        for r, codes in zip(self._runs, taken, strict=True):
+            v, clip = p.codes_to_volts(codes, r.ranges, r.slope, r.offset)
             if r.columns:
                 volts[:, r.columns] = v[:, : len(r.columns)]
                 over[:, r.columns] = clip[:, : len(r.columns)]
@@ -509,32 +660,54 @@ class MccTask(StreamedReads):
         log.warning("MCC task %s: %s", self.name, ev.message)
 
     def _fill(self, n_samples: int, timeout_s: float | None) -> None:
-        while self._stream.buffered < n_samples:
+        """Wait (at most ``timeout_s``, else the master's USB timeout) until the host buffers
+        hold ``n_samples`` scans of every unit beyond those read.
+
+        Raises
+        ------
+        DeviceTimeoutError
+            Not in time; what arrived stays buffered for the next read.
+        DeviceStateError
+            A unit's FIFO overran or the host buffer did (after the samples before it).
+        DeviceError
+            The reader thread's error (USB, protocol), after the samples before it.
+        """
+        wait_s = self.units[0].timeout_s if timeout_s is None else timeout_s
+        deadline = time.monotonic() + wait_s
+        while True:
+            self._merge()
+            st = self._stream
+            if st.buffered >= n_samples:
+                return
             if not self._running:
                 raise DeviceStateError(
-                    f"task {self.name} is not running and holds {self._stream.buffered} of the "
+                    f"task {self.name} is not running and holds {st.buffered} of the "
                     f"{n_samples} samples asked for; start() it or read_buffered()"
                 )
+            with self._cond:
+                more = min(r.received for r in self._runs) > st.end
+                failure = self._failure
+                if not more and failure is None:
+                    left = deadline - time.monotonic()
+                    if left > 0:
+                        self._cond.wait(left)
+                        continue
+            if more:
+                continue
+            if failure is not None:
+                if self._failure_is_overflow and not self._failure_reported:
+                    self._failure_reported = True
+                    self._record(DaqEvent("overflow", st.end, 0, self.channel_names, str(failure)))
+                raise failure
             lag = min(self._runs, key=lambda r: r.received)
-            try:
-                self._read_unit(lag, timeout_s)
-            except DeviceTimeoutError as err:
-                st = self._stream
-                if lag.unit.status() & p.Status.AIN_SCAN_OVERRUN:
-                    lag.overrun = True
-                    msg = (
-                        f"{lag.unit.name} FIFO overrun after scan {lag.received}: its scan "
-                        "stopped (read faster or lower the rate); stop and restart the task"
-                    )
-                    self._record(DaqEvent("overflow", st.end, 0, self.channel_names, msg))
-                    raise DeviceStateError(msg) from err
-                self._record(
-                    DaqEvent("timeout", st.end, 0, (), f"USB timeout after sample {st.end - 1}")
-                )
-                raise DeviceTimeoutError(
-                    f"task {self.name}: {err} ({st.buffered} samples kept; read again)"
-                ) from err
-            self._merge()
+            self._record(
+                DaqEvent("timeout", st.end, 0, (), f"USB timeout after sample {st.end - 1}")
+            )
+            raise DeviceTimeoutError(
+                f"task {self.name}: no scan from {lag.unit.name} within {wait_s} s; check the "
+                "USB cable and, on a slave unit, the clock cable from the master's ICLKO "
+                f"({st.buffered} samples kept; read again)"
+            )
 
     def stop(self) -> None:
         """Stop the master's pacer (every unit stops with it), stop the slaves, read what each
@@ -545,14 +718,19 @@ class MccTask(StreamedReads):
         ProtocolError
             A unit delivered another number of scans than the master (clock cable), or
             overran (the samples after its overrun are reported as an ``overflow`` event first).
+        DeviceStateError
+            A unit's FIFO overran while its host buffer was full (the program fell behind).
         """
         if not self._running:
             return
         self._running = False
-        for r in self._runs:
-            r.unit.scan_stop()
-        for r in self._runs:
-            while self._read_unit_quiet(r):
+        try:
+            for r in self._runs:
+                r.unit.scan_stop()
+        finally:
+            self._halt_reader()  # the thread reads what the FIFOs still hold
+        for r in self._runs:  # unless it ended first (an error)
+            while not r.drained and self._read_unit_quiet(r):
                 pass
         counts = [r.received for r in self._runs]
         self.samples_clocked = counts[0]
@@ -576,6 +754,8 @@ class MccTask(StreamedReads):
                         f"samples {end}..{counts[0] - 1} missing on a slave unit",
                     )
                 )
+            if overrun and self._host_behind:  # the host buffer was full: the host's fault
+                raise DeviceStateError(self._host_behind)
             if overrun:  # an overrun stops that unit's scan: counts differ for that reason
                 raise ProtocolError(
                     f"task {self.name}: FIFO overrun on {', '.join(overrun)} (the host read "
@@ -595,5 +775,12 @@ class MccTask(StreamedReads):
             return 0
 
     def close(self) -> None:
-        for u in self.units:
-            u.close()
+        """Close the units (a running task is stopped first; its errors are logged)."""
+        try:
+            self.stop()
+        except DeviceError as err:
+            log.warning("MCC task %s: stopping before close: %s", self.name, err)
+        finally:
+            self._halt_reader()
+            for u in self.units:
+                u.close()

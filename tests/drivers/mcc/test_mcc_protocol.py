@@ -78,7 +78,8 @@ def _unit_open() -> list[tuple[Ctrl | BulkIn, object]]:
 
 
 def test_one_unit_task_exchange() -> None:
-    """A 2-channel task at 1000 Hz: configuration, start, one bulk read, stop, drain."""
+    """A 2-channel task at 1000 Hz: configuration, start, one bulk read (the task's reader
+    thread), stop, drain (the thread, until a timeout), status."""
     # 64 scans (one 512-byte packet): 0 V on AI1, +0.625 V on AI6 (±5 V)
     scans = bytes.fromhex("0000020000400200") * 64
     pairs = [
@@ -94,7 +95,9 @@ def test_one_unit_task_exchange() -> None:
         (BulkIn(0x86, 512), usb.core.USBTimeoutError("timeout", errno=110)),
         (Ctrl(IN, 0x40, 0, 0, 2), bytes.fromhex("0001")),  # STATUS: FPGA configured, no overrun
     ]
-    with expected_exchange("usb", pairs, connect=lambda d: Usb1808(d, timeout_s=0.5)) as unit:
+    with expected_exchange(
+        "usb", pairs, connect=lambda d: Usb1808(d, timeout_s=0.5), reader_thread=True
+    ) as unit:
         task = MccTask([unit])
         task.add_voltage_channel(1, "a1", range_v=10.0)
         task.add_voltage_channel(6, "a6", range_v=5.0)

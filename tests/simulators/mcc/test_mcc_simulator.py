@@ -1,7 +1,12 @@
 """The USB-1808X simulator behind the real driver: several units in step on one master clock,
-the EEPROM calibration, the FPGA load, a loose clock cable and a FIFO overrun."""
+the EEPROM calibration, the FPGA load, a loose clock cable, a FIFO overrun, and the driver's
+host buffer (a pause longer than the FIFO holds; the host buffer's own overflow)."""
 
 from __future__ import annotations
+
+import errno
+import threading
+import time
 
 import numpy as np
 import pytest
@@ -9,7 +14,7 @@ import usb.core
 
 from dimacq.drivers.mcc import protocol as p
 from dimacq.drivers.mcc.driver import MccTask, Usb1808
-from dimacq.errors import DeviceStateError, ProtocolError, SetupError
+from dimacq.errors import DeviceLostError, DeviceStateError, ProtocolError, SetupError
 from dimacq.simulators.daq.backend import DaqInput
 from dimacq.simulators.mcc.backend import Mcc1808Backend, lab_fpga_image
 
@@ -107,21 +112,117 @@ def test_a_slave_missing_clock_pulses_is_caught_at_stop() -> None:
         task.stop()
 
 
+class StallingSines(Sines):
+    """:class:`Sines` whose first read takes 0.3 s: the host's reader thread is late once."""
+
+    def __init__(self) -> None:
+        self.stalled = threading.Event()
+
+    def read(self, channels: np.ndarray, start: int, n: int) -> np.ndarray:
+        if not self.stalled.is_set():
+            self.stalled.set()
+            time.sleep(0.3)
+        return super().read(channels, start, n)
+
+
 def test_fifo_overrun_is_reported() -> None:
+    """The reader thread is 0.3 s late once: 120 000 scans clocked, the FIFO holds 341."""
     backend = Mcc1808Backend(
-        Sines(), {0: DaqInput(0, 1.0)}, n_units=3, time_scale=200.0, fifo_bytes=4096
+        StallingSines(), {0: DaqInput(0, 1.0)}, n_units=3, time_scale=200.0, fifo_bytes=4096
     )
     task = _task(_units(backend))
     task.start()
-    import time
-
-    time.sleep(0.3)  # the host is late: 120 000 scans clocked, the FIFO holds 341
-    with pytest.raises(DeviceStateError, match="FIFO overrun"):
+    with pytest.raises(DeviceStateError, match="FIFO overrun") as err:
         for _ in range(50):
-            task.read(200, timeout_s=0.2)
+            task.read(200, timeout_s=2.0)
+    assert "host buffer" not in str(err.value)
     assert any(e.kind == "overflow" for e in task.events)
     with pytest.raises(ProtocolError, match=r"FIFO overrun on .*read faster"):
         task.stop()
+
+
+def _one_unit_task(backend: Mcc1808Backend, n_inputs: int, **kw: float) -> MccTask:
+    task = MccTask(_units(backend), **kw)
+    for k in range(n_inputs):
+        task.add_voltage_channel(k, f"ai{k}")
+    task.configure_timing(RATE, samples_per_frame=200)
+    return task
+
+
+def test_a_pause_longer_than_the_fifo_loses_no_sample() -> None:
+    """The device's 32 KiB FIFO holds 8192 samples: 2048 scans of four inputs, 1.02 s at
+    2 kHz. The program pauses 2 s (at 1× time) between reads; the reader thread keeps every
+    scan, so the samples after the pause are the 50 Hz sine at their own counters."""
+    wiring = {k: DaqInput(0, 1.0) for k in range(4)}
+    backend = Mcc1808Backend(Sines(), wiring, n_units=1, time_scale=1.0, seed=7)
+    task = _one_unit_task(backend, 4)
+    task.start()
+    try:
+        before = task.read(400, timeout_s=2.0)
+        time.sleep(2.0)  # 4000 scans clocked: twice what the FIFO holds
+        after = task.read(4000, timeout_s=2.0)
+    finally:
+        task.stop()
+    assert backend.units[0].sent >= 4400 and not backend.units[0].overrun
+    assert (before.first_sample, after.first_sample) == (0, 400)
+    assert after.valid.all() and not after.events and not task.events
+    t = np.arange(400, 4400) / RATE
+    lsb = 10.0 / 131072
+    assert np.abs(after.data - 3.0 * np.sin(2 * np.pi * 50 * t)).max() < 2.1 * lsb
+
+
+def test_host_buffer_overflow_names_the_host_not_the_device() -> None:
+    """A 0.5 s host buffer (1000 scans) and a program that does not read for 10 s of lab time
+    (1 s at 10×): the host buffer fills, the reader stops reading the unit, whose FIFO (8192
+    scans, 4.1 s) then overruns. Every scan up to the overrun is read, in order; then the read
+    and ``stop()`` name the host falling behind, not the device's FIFO."""
+    backend = Mcc1808Backend(Sines(), {0: DaqInput(0, 1.0)}, n_units=1, time_scale=10.0)
+    task = _one_unit_task(backend, 1, host_buffer_s=0.5)
+    task.start()
+    blocks = [task.read(200, timeout_s=2.0)]
+    time.sleep(1.0)
+    with pytest.raises(DeviceStateError, match=r"host fell behind: its buffer .*1000 scans") as err:
+        for _ in range(100):
+            blocks.append(task.read(200, timeout_s=2.0))
+    assert "FIFO overrun after" not in str(err.value)  # the device's own message
+    with pytest.raises(DeviceStateError, match="host fell behind"):
+        task.stop()
+    rest = task.read_buffered()
+    blocks += [rest] if rest is not None else []
+    data = np.concatenate([b.data[0] for b in blocks])
+    assert backend.units[0].overrun and data.size == task.samples_clocked
+    assert data.size > 8192 and all(b.valid.all() for b in blocks)
+    t = np.arange(data.size) / RATE
+    assert np.abs(data - 3.0 * np.sin(2 * np.pi * 50 * t)).max() < 2.1 * 10.0 / 131072
+    (over,) = [e for e in task.events if e.kind == "overflow"]
+    assert "host fell behind" in over.message
+
+
+class UnpluggedSines(Sines):
+    """:class:`Sines` whose unit drops off the bus after scan 1023 (libusb's ENODEV)."""
+
+    def read(self, channels: np.ndarray, start: int, n: int) -> np.ndarray:
+        if start + n > 1024:
+            raise usb.core.USBError("No such device", error_code=-4, errno=errno.ENODEV)
+        return super().read(channels, start, n)
+
+
+def test_reader_thread_error_is_raised_by_the_next_read() -> None:
+    """The unit drops off the bus under the reader thread: the scans before it are read, then
+    the read raises the thread's error (and ``stop()`` too: the unit is gone)."""
+    backend = Mcc1808Backend(UnpluggedSines(), {0: DaqInput(0, 1.0)}, n_units=1, time_scale=10.0)
+    task = _one_unit_task(backend, 1)  # transfers of 256 scans: 4 arrive
+    task.start()
+    try:
+        first = task.read(512, timeout_s=2.0)
+        with pytest.raises(DeviceLostError, match="dropped off the USB bus"):
+            task.read(2000, timeout_s=2.0)
+    finally:
+        with pytest.raises(DeviceLostError):
+            task.stop()
+    rest = task.read_buffered()
+    assert first.valid.all() and rest is not None and rest.valid.all()
+    assert (rest.first_sample, rest.data.shape[1]) == (512, 512)
 
 
 def test_fpga_must_be_loaded_first() -> None:
