@@ -36,6 +36,7 @@ def open_daq(ctx: DeviceContext) -> MccTask:
         free_running=imp.daq_free_running,
         time_scale=imp.daq_time_scale,
         seed=0 if ctx.seed is None else ctx.seed,
+        adaptive=imp.daq_adaptive_time_lapse,
     )
     w.backend = backend  # what the world's operator strikes on (the master's clock)
     where = f"daq = 'mcc-usb-simulated' (scenario {w.scenario!r})"

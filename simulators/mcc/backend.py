@@ -183,6 +183,7 @@ class Mcc1808Backend(OneBulkInBackend):
         free_running: bool = True,
         time_scale: float = 1.0,
         fifo_bytes: int = FIFO_BYTES,
+        adaptive: bool = False,
         fpga_configured: bool = False,
         missed_pulses: Mapping[str, int] | None = None,
         seed: int = 0,
@@ -197,6 +198,7 @@ class Mcc1808Backend(OneBulkInBackend):
         self.free_running = free_running
         self.time_scale = float(time_scale)
         self.fifo_bytes = int(fifo_bytes)
+        self.adaptive = bool(adaptive)
         self.sample_rate_hz = float(source.sample_rate_hz)
         self._epoch = 0
         self._world = 0
@@ -368,17 +370,35 @@ class Mcc1808Backend(OneBulkInBackend):
                 )
             self._epoch = self._world
             scale = self.time_scale if self.free_running else None
-            self.clock.start(self._epoch, self.sample_rate_hz, wall_scale=scale)
+            self.clock.start(
+                self._epoch, self.sample_rate_hz, wall_scale=scale, adaptive=self.adaptive
+            )
             self._run = self.clock.state().run
             u.run, u.offset_pulses = self._run, 0
             for s in self.units:  # armed slaves take the master's pulses from the first
                 if s.running and not s.master and s.run == -1:
                     s.run, s.offset_pulses = self._run, s.missed
+            self._hold_clock()
         else:
             st = self.clock.state()
             live = st.running and st.run == self._run
             u.run = self._run if live else -1
             u.offset_pulses = (st.count + u.missed) if live else 0
+            self._hold_clock()
+
+    def _hold_clock(self) -> None:
+        """Adaptive time-lapse of the simulated lab: its clock may count up to each running
+        unit's FIFO room, no further (the lab waits for a late host, as a simulation may; a
+        real unit cannot, and overruns)."""
+        if not (self.adaptive and self.free_running and self.fifo_bytes):
+            return
+        for u in self.units:
+            key = f"mcc-{u.serial}"
+            if u.running and u.run == self._run and u.frozen is None:
+                cap = self.fifo_bytes // (SAMPLE_BYTES * len(u.queue))
+                self.clock.hold_at(key, u.offset_pulses + u.sent + cap - 1)
+            else:
+                self.clock.hold_at(key, None)
 
     def _scan_stop(self, u: _Unit) -> None:
         if not u.running:
@@ -388,6 +408,7 @@ class Mcc1808Backend(OneBulkInBackend):
             self._world = self._epoch + count
         u.frozen = self._clocked(u)
         u.running = False
+        self._hold_clock()
 
     def _frozen(self, u: _Unit) -> bool:
         """The unit gets no more pulses: stopped, or its master's clock stopped."""
@@ -465,5 +486,6 @@ class Mcc1808Backend(OneBulkInBackend):
         # Jasper usbAInScanStart_USB1808: scan-major, each sample 32 bits (18-bit code, zeros)
         data = self._codes(u, u.sent, n).astype("<u4").tobytes()
         u.sent += n
+        self._hold_clock()
         buff[: len(data)] = array.array("B", data)
         return len(data)
