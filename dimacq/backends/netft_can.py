@@ -6,7 +6,9 @@ switches set it) and its calibration: counts per force and per torque unit and t
 ``netft_torque_unit``, as the sensor's configuration page or its Read Calibration Info answer
 give them: the CAN protocol carries no calibration). The bus is ``can.Bus(interface =
 loadcell_interface, channel = the entry's or loadcell_channel, bitrate =
-loadcell_netft_bitrate)``, filtered to the sensor's seven identifiers. The requests on the DAQ's
+loadcell_netft_bitrate)``, opened once per channel (:func:`~dimacq.backends.can_bus.
+shared_can_bus`: several sensors, or a sensor and CANopen nodes, share it), each sensor's handle
+filtered to its seven identifiers. The requests on the DAQ's
 clock are the rig's (see :mod:`dimacq.drivers.netft.can_driver`).
 """
 
@@ -15,7 +17,7 @@ from __future__ import annotations
 from typing import Any
 
 from dimacq.backends.base import DeviceContext
-from dimacq.backends.can_bus import open_can_bus
+from dimacq.backends.can_bus import shared_can_bus
 from dimacq.drivers.netft import protocol as p
 from dimacq.drivers.netft.can_driver import NetFtCan, bus_filters
 from dimacq.errors import DeviceNotFoundError, DeviceTimeoutError, SetupError
@@ -99,7 +101,7 @@ def open_loadcell(ctx: DeviceContext, entry: LoadCellEntry) -> NetFtCan:
         f"{channel!r}, loadcell_netft_bitrate = {s.loadcell_netft_bitrate}"
     )
     base = require_base(entry, where)
-    bus = open_can_bus(
+    bus = shared_can_bus(
         s,
         backend="netft-can",
         channel=channel,

@@ -18,6 +18,7 @@ import os
 import numpy as np
 
 from dimacq.backends.base import DeviceContext
+from dimacq.backends.can_bus import BUSES
 from dimacq.backends.netft_can import open_netft, require_base
 from dimacq.backends.netft_udp import open_rdt
 from dimacq.backends.simulated import SimulatedWorld, imperfections, world
@@ -88,7 +89,9 @@ def open_loadcell(ctx: DeviceContext, entry: LoadCellEntry) -> NetFtCan:
     channel = _channel(ctx)
     # the channel is the simulators' own: every frame on it is a Net F/T's (no filter to run
     # in Python on each of the five frames per sample); the driver ignores other bases' frames
-    bus = can.Bus(interface="virtual", channel=channel)
+    bus = BUSES.acquire(
+        "virtual", channel, lambda: can.Bus(interface="virtual", channel=channel), where=where
+    )
     return open_netft(ctx, entry, bus, where=where, timeout_s=5.0)
 
 
