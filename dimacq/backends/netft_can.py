@@ -78,6 +78,9 @@ def open_netft(
             serial_number=entry.node,
             timeout_s=timeout_s,
             bitrate=ctx.settings.loadcell_netft_bitrate,
+            adc_rate_hz=entry.netft_ft_rate_hz,
+            band_hz=entry.netft_band_hz,
+            max_phase_deg=entry.netft_max_phase_deg,
             label=f"Net F/T of load cell {entry.node}",
         )
         try:
