@@ -109,9 +109,7 @@ def open_loadcell(
         f"loadcell = 'canopen', loadcell_interface = {s.loadcell_interface!r}, channel "
         f"{channel!r} (loadcell_channel), loadcell_canopen_bitrate = {s.loadcell_canopen_bitrate}"
     )
-    bus = shared_can_bus(
-        s, backend="canopen", channel=channel, bitrate=s.loadcell_canopen_bitrate
-    )
+    bus = shared_can_bus(s, backend="canopen", channel=channel, bitrate=s.loadcell_canopen_bitrate)
     return open_canopen_amplifier(
         ctx,
         entry,

@@ -85,6 +85,8 @@ def open_node(
         heartbeat_factor=s.loadcell_canopen_heartbeat_factor,
         sync=s.loadcell_cia404_sync,
         process_value=s.loadcell_cia404_process_value,
+        gauge_unit=None if cal is None else cal.gauge_unit,
+        max_phase_deg=s.loadcell_cia404_max_phase_deg,
         label=f"load cell {entry.node}",
     )
     try:

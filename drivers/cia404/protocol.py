@@ -21,7 +21,14 @@ SYNC, 0x1017 producer heartbeat time, 0x1018 identity (vendor, product, revision
 ``index << 16 | sub << 8 | bits``: analogue input 1 as REAL32 is ``0x61300120``).
 
 CiA 404 objects (analogue inputs, one sub-index per channel): 0x6130 AI input process value
-REAL32, 0x7130 AI input process value INTEGER16 (value = integer / 10^decimal digits, 0x6132).
+REAL32, 0x7130 AI input process value INTEGER16 (value = integer / 10^decimal digits, 0x6132);
+0x6110 AI sensor type (U16), 0x6114 AI ADC sample rate (U32; its unit is the device's: the
+generic EDS declares Hz), 0x6126 AI scaling factor and 0x6127 AI scaling offset (REAL32:
+process value = factor × input + offset), 0x6131 AI physical unit of the process value (U32,
+CiA 303-2 coding: prefix exponent in byte 3, SI unit in byte 2, :data:`UNIT_CODES`), 0x61A0 AI
+filter type (U8; 1 read here as a moving average) and 0x61A1 AI filter constant (U8: samples
+averaged). The indices are as CiA 404 lists them; the codes of 0x6110 and 0x61A0 and the unit
+of 0x6114 vary by device and are taken from the EDS, not interpreted.
 
 **Mapping procedure** (CiA 301 §7.5.2.35, by SDO while the node is PRE-OPERATIONAL), per TPDO:
 disable it (COB-ID with bit 31 set), set its mapping count to 0, write the entries, write the
@@ -50,7 +57,16 @@ from numpy.typing import NDArray
 from dimacq.errors import ProtocolError, SetupError
 
 __all__ = [
+    "AI_ADC_SAMPLE_RATE",
     "AI_DECIMAL_DIGITS",
+    "AI_FILTER_CONSTANT",
+    "AI_FILTER_TYPE",
+    "AI_PHYSICAL_UNIT",
+    "AI_SCALING_FACTOR",
+    "AI_SCALING_OFFSET",
+    "AI_SENSOR_TYPE",
+    "FILTER_MOVING_AVERAGE",
+    "UNIT_CODES",
     "COB_ID_INVALID",
     "DEVICE_TYPE",
     "HEARTBEAT_TIME",
@@ -89,6 +105,19 @@ IDENTITY = 0x1018
 TPDO_COMM = 0x1800
 TPDO_MAP = 0x1A00
 AI_DECIMAL_DIGITS = 0x6132
+AI_SENSOR_TYPE = 0x6110
+AI_ADC_SAMPLE_RATE = 0x6114
+AI_SCALING_FACTOR = 0x6126
+AI_SCALING_OFFSET = 0x6127
+AI_PHYSICAL_UNIT = 0x6131
+AI_FILTER_TYPE = 0x61A0
+AI_FILTER_CONSTANT = 0x61A1
+#: 0x61A0 filter type read as a moving average of 0x61A1 samples (0: no filter)
+FILTER_MOVING_AVERAGE = 1
+#: CiA 303-2 physical unit codes of the process values a bridge amplifier gives, by the
+#: calibration file's ``gauge_unit``: volt (SI code 0x26), millivolt (prefix −3), and mV/V as a
+#: dimensionless ratio with prefix −3 (our reading of CiA 303-2 for a ratio)
+UNIT_CODES: dict[str, int] = {"V": 0x00260000, "mV": 0xFD260000, "mV/V": 0xFD000000}
 #: COB-ID bit 31: the PDO does not exist / is not valid
 COB_ID_INVALID = 1 << 31
 #: transmission type 1: synchronous, sent after every SYNC (sampled at the SYNC)
