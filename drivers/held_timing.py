@@ -23,6 +23,11 @@ Its cost at the band's top ``f`` is taken as that per-sample spread,
 compared with the phase budget (:meth:`HeldSampleTiming.check`): above it the run is refused.
 At the Net F/T's 7000 S/s (T = 142.9 µs) σ_φ is 2° at 135 Hz and 9.7° at 655 Hz.
 
+Where the two rates are commensurate (a DAQ at exactly 1000 S/s and the device at exactly 7000)
+the age is one constant of ``[0, T)`` instead of a spread: an unknown delay of the same
+``T/√12`` standard deviation about the removed mean, which does not average down. The same
+bound covers both.
+
 The age could be recovered per sample from the device's sample numbers (its clock's phase and
 rate fitted against the requests); that is not done here.
 """
