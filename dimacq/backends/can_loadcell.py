@@ -125,6 +125,7 @@ def open_amplifier(
     missing = not ctx.rig_file.calibration_path(entry).exists()
     cal = None if (missing and not require_calibration) else read_entry_calibration(ctx, entry)
     extra = {} if timing is None else {"timing": timing}
+    bus: Any
     if interface is None:  # a real adapter: the settings' interface or python-can's own
         bus = shared_can_bus(
             ctx.settings,

@@ -79,7 +79,6 @@ from dimacq.pipeline.frf_estimation import (
     exponential_window,
 )
 from dimacq.services.data_alignment import DataAligner
-from dimacq.services.known_response import KnownResponses
 from dimacq.services.impact_result import (
     OPERATOR_OVERRIDE,
     OPERATOR_REDO,
@@ -96,6 +95,7 @@ from dimacq.services.impact_result import (
     unusable_reasons,
 )
 from dimacq.services.impact_stream import ImpactStream, _StrikeLost
+from dimacq.services.known_response import KnownResponses
 from dimacq.services.sample_window import SampleWindow
 
 __all__ = [

@@ -71,8 +71,8 @@ from numpy.typing import NDArray
 
 from dimacq.devices.loadcell import LoadCellBlock, LoadCellEvent, LoadCellIdentity
 from dimacq.drivers.base import Deadline, WireDriver
-from dimacq.drivers.held_timing import HeldSampleTiming
 from dimacq.drivers.cia404 import protocol as p
+from dimacq.drivers.held_timing import HeldSampleTiming
 from dimacq.drivers.stream import CounterStream, false_runs
 from dimacq.errors import DeviceError, DeviceTimeoutError, ProtocolError, SetupError
 
@@ -379,7 +379,6 @@ class Cia404Amplifier(WireDriver):
         SetupError
             A unit other than the calibration's, a sensor type or scaling other than the EDS's.
         """
-        said = []
         for c in range(1, self.n_channels + 1):
             if self._has(p.AI_PHYSICAL_UNIT):
                 code = self._read_u32(p.AI_PHYSICAL_UNIT, c)

@@ -180,7 +180,7 @@ class Cia404NodeSim:
             taps = max(taps, 1)
             _, m = held_sample(x, per_world, self._phase)
             own = (m[:, None] - np.arange(taps)[None, :] + self._phase) / per_world  # (n, taps)
-            g = read_between(self.source, self.inputs, own.ravel(), self._lock)
+            g = read_between(self.source, self.inputs, np.asarray(own.ravel(), float), self._lock)
             raw = g.reshape(len(self.inputs), n, taps).mean(axis=2).T
         return raw * self._own(p.AI_SCALING_FACTOR, 1.0) + self._own(p.AI_SCALING_OFFSET, 0.0)
 

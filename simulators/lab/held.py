@@ -27,7 +27,7 @@ def held_sample(
     """``(y, m)``: the world position of the last own sample at or before each ``x`` and its
     number (``per_world = f_a / fs``)."""
     m = np.floor(np.asarray(x, dtype=float) * per_world - phase).astype(np.int64)
-    return (m + phase) / per_world, m
+    return np.asarray((m + phase) / per_world, dtype=np.float64), m
 
 
 def read_between(

@@ -40,9 +40,9 @@ from numpy.typing import NDArray
 from dimacq.drivers.netft import protocol as p
 from dimacq.simulators.daq.clock import SampleClock
 from dimacq.simulators.imperfections import fault_log
+from dimacq.simulators.lab.held import held_sample, read_between
 from dimacq.simulators.lab.source import SampleSource
 from dimacq.simulators.loadcell.pulses import BURST_S
-from dimacq.simulators.lab.held import held_sample, read_between
 from dimacq.simulators.virtual_can import SimVirtualBus
 
 __all__ = ["NetFtCanSim"]

@@ -51,7 +51,7 @@ class NetFtEthernetSim:
         sim = self
 
         class Handler(BaseHTTPRequestHandler):
-            def do_GET(self) -> None:  # noqa: N802 - http.server's name
+            def do_GET(self) -> None:
                 url = urlparse(self.path)
                 sim.requests.append(self.path)
                 if url.path != "/netftapi2.xml":
