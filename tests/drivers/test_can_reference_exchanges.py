@@ -157,12 +157,15 @@ def test_config_page_as_atis_demo_reads_it() -> None:
     assert got.index == 3 and got.calibration() == cal and got.rdt_rate_hz == 7000
 
 
-def _frames(bus: Any, want: int, timeout_s: float = 2.0) -> list[can.Message]:
+def _frames(
+    bus: Any, want: int, timeout_s: float = 2.0, cob: int | None = None
+) -> list[can.Message]:
+    """Up to ``want`` frames (of identifier ``cob`` when given) within ``timeout_s``."""
     out: list[can.Message] = []
     end = time.monotonic() + timeout_s
     while len(out) < want and time.monotonic() < end:
         m = bus.recv(0.05)
-        if m is not None:
+        if m is not None and (cob is None or m.arbitration_id == cob):
             out.append(m)
     return out
 
@@ -217,12 +220,12 @@ def test_cia404_sdo_nmt_sync_and_pdo_bytes_on_the_twin() -> None:
     )
     bus = can.Bus(interface="virtual", channel=name)
     try:
-        _frames(bus, 1, 0.3)  # its boot-up/heartbeat
+        _frames(bus, 1, 0.3)  # its boot-up
 
         def exchange(cob: int, data: bytes) -> bytes:
             bus.send(can.Message(arbitration_id=cob, data=data, is_extended_id=False))
-            got = [m for m in _frames(bus, 8, 1.0) if m.arbitration_id == 0x580 + node_id]
-            return bytes(got[0].data)
+            (got,) = _frames(bus, 1, 2.0, cob=0x580 + node_id)
+            return bytes(got.data)
 
         assert exchange(0x605, heartbeat) == bytes.fromhex("6017100000000000")
         assert exchange(0x605, bytes.fromhex("4031610100000000")) == bytes.fromhex(
@@ -243,7 +246,7 @@ def test_cia404_sdo_nmt_sync_and_pdo_bytes_on_the_twin() -> None:
         bus.send(can.Message(arbitration_id=0x000, data=b"\x01\x05", is_extended_id=False))
         time.sleep(0.2)
         bus.send(can.Message(arbitration_id=0x080, data=b"", is_extended_id=False))
-        tpdo = [m for m in _frames(bus, 4, 1.0) if m.arbitration_id == 0x185]
+        tpdo = _frames(bus, 1, 2.0, cob=0x185)
     finally:
         bus.shutdown()
         node.close()
