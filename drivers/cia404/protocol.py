@@ -14,8 +14,7 @@ CiA 301 frames (11-bit identifiers; ``n`` the node id)::
     SDO answer   0x580 + n   download confirmed: [0x60, index U16, sub, 0, 0, 0, 0]
     heartbeat    0x700 + n   [state]  00 boot-up, 04 stopped, 05 operational, 7F pre-operational
 
-CiA 301 objects used: 0x1000 device type (CiA 404 in its low word, 404 = 0x194), 0x1005 COB-ID
-SYNC, 0x1017 producer heartbeat time, 0x1018 identity (vendor, product, revision, serial),
+CiA 301 objects used: 0x1000 device type (CiA 404 in its low word, 404 = 0x194), 0x1017 producer heartbeat time, 0x1018 identity (vendor, product, revision, serial),
 0x1800 + k TPDO communication (sub 1 COB-ID, bit 31 = PDO not valid; sub 2 transmission type,
 1 = synchronous, every SYNC), 0x1A00 + k TPDO mapping (sub 0 count, subs 1..8 entries
 ``index << 16 | sub << 8 | bits``: analogue input 1 as REAL32 is ``0x61300120``).
@@ -99,7 +98,6 @@ __all__ = [
 
 SYNC_COB_ID = 0x080
 DEVICE_TYPE = 0x1000
-COB_ID_SYNC = 0x1005
 HEARTBEAT_TIME = 0x1017
 IDENTITY = 0x1018
 TPDO_COMM = 0x1800
@@ -160,12 +158,14 @@ def sdo_expedited_download(
     if not 1 <= len(data) <= 4:
         raise ValueError(f"expedited download of {len(data)} bytes: give 1..4")
     cmd = 0x23 | ((4 - len(data)) << 2)
-    return 0x600 + node_id, struct.pack("<BHB", cmd, index, subindex) + data.ljust(4, b"\0")
+    return 0x600 + node_id, bytes([cmd]) + struct.pack("<HB", index, subindex) + data.ljust(
+        4, b"\0"
+    )
 
 
 def sdo_download_answer(node_id: int, index: int, subindex: int) -> tuple[int, bytes]:
     """The server's confirmation of a download: ``(0x580 + n, [0x60, index, sub, 0 × 4])``."""
-    return 0x580 + node_id, struct.pack("<BHB4x", 0x60, index, subindex)
+    return 0x580 + node_id, bytes([0x60]) + struct.pack("<HB", index, subindex) + bytes(4)
 
 
 def mapping_entry(index: int, subindex: int, bits: int) -> int:
@@ -280,7 +280,11 @@ def mapping_writes(
     """The SDO downloads ``(index, sub, data)`` of the CiA 301 mapping procedure, in order: for
     each planned TPDO disable, clear the count, entries, count, transmission type 1, enable; each
     other TPDO of the EDS disabled (no frame of it on the bus)."""
-    u8, u32 = struct.Struct("<B").pack, struct.Struct("<I").pack
+    u32 = struct.Struct("<I").pack
+
+    def u8(v: int) -> bytes:
+        return bytes([v])
+
     out: list[tuple[int, int, bytes]] = []
     for k in range(n_tpdos):
         comm, mapping = TPDO_COMM + k, TPDO_MAP + k

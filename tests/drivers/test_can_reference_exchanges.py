@@ -38,10 +38,12 @@ from typing import Any
 
 import can
 import numpy as np
+import pytest
 
 from dimacq.drivers.cia404 import protocol as cp
 from dimacq.drivers.netft import protocol as p
 from dimacq.drivers.netft.config_page import parse_config_page
+from dimacq.errors import ProtocolError, SetupError
 from dimacq.simulators.cia404.node import Cia404NodeSim
 from dimacq.simulators.netft.can_sensor import NetFtCanSim
 from dimacq.simulators.netft.ethernet import NetFtEthernetSim
@@ -54,9 +56,10 @@ _n = itertools.count()
 RDT_START_10 = bytes.fromhex("123400020000000a")  # startHighSpeedDataCollection(10)
 RDT_TARE = bytes.fromhex("1234004200000001")  # tare()
 RDT_STOP = bytes.fromhex("1234000000000000")  # stopDataCollection()
-# one record: rdt seq 1, ft seq 7000, status 0, Fx..Tz = 1, -2, 3, -4, 5, -6 (big endian)
+# one record: rdt seq 1, ft seq 0x80001b58, status 0x80000000, Fx..Tz = 1, -2, 3, -4, 5, -6
+# (big endian; the sequence and status words unsigned)
 RDT_RECORD = bytes.fromhex(
-    "0000000100001b580000000000000001fffffffe00000003fffffffc00000005fffffffa"
+    "0000000180001b588000000000000001fffffffe00000003fffffffc00000005fffffffa"
 )
 
 # -- Net F/T Read Calibration Info (manual §11, as transcribed) ---------------------------------
@@ -89,10 +92,33 @@ def test_rdt_request_and_record_codec() -> None:
     assert p.RdtRequest(p.RdtCommand.STOP, 0).encode() == RDT_STOP
     assert p.RDT_PORT == 49152 and p.RdtRecord.SIZE == len(RDT_RECORD) == 36
     (r,) = p.RdtRecord.decode_all(RDT_RECORD)
-    assert (r.rdt_sequence, r.ft_sequence, r.status) == (1, 7000, 0)
+    assert (r.rdt_sequence, r.ft_sequence, r.status) == (1, 0x80001B58, 0x80000000)
     assert r.counts == (1, -2, 3, -4, 5, -6)
+    assert r.encode() == RDT_RECORD
     b = p.decode_rdt(RDT_RECORD)
-    assert b.counts.tolist() == [[1, -2, 3, -4, 5, -6]] and int(b.ft_sequence[0]) == 7000
+    assert b.counts.tolist() == [[1, -2, 3, -4, 5, -6]]
+    assert (int(b.rdt_sequence[0]), int(b.ft_sequence[0]), int(b.status[0])) == (
+        1,
+        0x80001B58,
+        0x80000000,
+    )
+    assert p.encode_rdt(b.rdt_sequence, b.ft_sequence, 0x80000000, b.counts) == RDT_RECORD
+    # the commands: 0 stop, 2 real-time, 0x42 bias (ATI's demo); 3 buffered (the manual)
+    assert {c.name: int(c) for c in p.RdtCommand} == {
+        "STOP": 0,
+        "START_REALTIME": 2,
+        "START_BUFFERED": 3,
+        "SET_BIAS": 0x42,
+    }
+    assert p.RdtRequest(p.RdtCommand.START_BUFFERED, 0xFFFFFFFF).encode() == bytes.fromhex(
+        "12340003ffffffff"
+    )
+    assert p.RdtRequest.decode(RDT_START_10) == p.RdtRequest(p.RdtCommand.START_REALTIME, 10)
+    with pytest.raises(ProtocolError, match="header 0x9234, not 0x1234"):
+        p.RdtRequest.decode(bytes.fromhex("9234000200000000"))
+    with pytest.raises(ProtocolError, match="RDT command 0xffff is not known"):
+        p.RdtRequest.decode(bytes.fromhex("1234ffff00000000"))
+    assert p.TCP_PORT == 49151
 
 
 def test_rdt_twin_answers_the_vendors_request_bytes() -> None:
@@ -124,6 +150,15 @@ def test_read_calibration_info_codec_and_twins() -> None:
         1_000_000,
     )
     assert cal.encode() == CALINFO
+    big = p.CalibrationInfo.decode(
+        bytes.fromhex("1234020380000000ffffffff") + bytes.fromhex("ffff") * 6
+    )
+    assert (big.counts_per_force, big.counts_per_torque) == (0x80000000, 0xFFFFFFFF)
+    assert big.scale_factors == (0xFFFF,) * 6
+    with pytest.raises(SetupError, match="units 255/3"):
+        p.CalibrationInfo.decode(bytes.fromhex("1234ff03") + CALINFO[4:])
+    with pytest.raises(ProtocolError, match="header 0xffff, not 0x1234"):
+        p.CalibrationInfo.decode(bytes.fromhex("ffff") + CALINFO[2:])
     with NetFtEthernetSim(cal) as eth:
         with socket.create_connection(eth.tcp_address, timeout=2.0) as s:
             s.sendall(READCALINFO)
@@ -175,8 +210,8 @@ def test_netft_can_request_long_and_its_four_answers_on_the_twin() -> None:
     status and sample number, 32-bit little endian; BIAS (0x04) zeros them."""
     base = 0x140
     C = np.zeros((6, 12))
-    C[0, 0], C[3, 1], C[2, 2] = 1.0, 1.0, 1.0  # Fx, Tx, Fz from bridges 0, 1, 2
-    g = [-35.991793, 0.000598, 1.0] + [0.0] * 9  # Fx -35 991 793 counts, Tx 598, Fz 10^6
+    C[0, 0], C[3, 1], C[2, 2], C[4, 3] = 1.0, 1.0, 1.0, 1.0  # Fx, Tx, Fz, Ty: bridges 0..3
+    g = [-35.991793, 0.000598, 1.0, -0.000001] + [0.0] * 8  # Fx -35991793, Tx 598, Fz 1e6, Ty -1
     cal = p.CalibrationInfo(2, 3, 1_000_000, 1_000_000)
     assert p.Request(p.Command.REQUEST_LONG).encode() == REQUEST_LONG
     assert p.Request(p.Command.BIAS).encode() == BIAS
@@ -194,12 +229,55 @@ def test_netft_can_request_long_and_its_four_answers_on_the_twin() -> None:
             bus.shutdown()
     assert sorted(ans) == [1, 2, 3, 4]
     assert ans[1] == bytes.fromhex("0fcfdafd56020000")  # the manual's example bytes
-    assert ans[2] == bytes(8)
+    assert ans[2] == bytes.fromhex("00000000ffffffff")  # Fy 0, Ty -1
     assert ans[3] == bytes.fromhex("40420f0000000000")
     assert ans[4][:4] == bytes(4)  # status 0; then its own sample number
     assert [zero[k] for k in (1, 2, 3)] == [bytes(8)] * 3
-    # the driver's codec reads the same bytes
+    # the driver's codec reads the same bytes, at the same identifiers
     assert p.decode_long(1, ans[1]) == (-35991793, 0x0256)
+    assert p.decode_long(2, ans[2]) == (0, -1)
+    assert p.LongPair.decode(1, ans[2]) == p.LongPair(1, 0, -1)
+    status = bytes.fromhex("01000080f0ffffff")  # status word 0x80000001, sample 0xfffffff0
+    assert p.decode_long(4, status) == (0x80000001, 0xFFFFFFF0)
+    assert p.LongStatus.decode(status) == p.LongStatus(0x80000001, 0xFFFFFFF0)
+    assert p.LongStatus.OFFSET == 4 and p.Request.OFFSET == 0
+    assert p.decode_i16(b"\xfe\xff") == -2  # two's complement, little endian
+
+
+def test_netft_can_command_table_as_transcribed() -> None:
+    """REQUEST LONG 0x01, REQUEST SHORT 0x02, BIAS 0x04, clear threshold latch 0x08 (manual
+    §15 as transcribed; the latch code unverified)."""
+    assert {c.name: int(c) for c in p.Command} == {
+        "REQUEST_LONG": 0x01,
+        "REQUEST_SHORT": 0x02,
+        "BIAS": 0x04,
+        "CLEAR_THRESHOLD_LATCH": 0x08,
+    }
+
+
+def test_netft_can_request_short_on_the_twin() -> None:
+    """REQUEST SHORT (0x02) answered at base+5 (Fx Tx Fy Ty) and base+6 (Fz Tz status sample),
+    16-bit little endian, two's complement."""
+    base = 0x160
+    C = np.zeros((6, 12))
+    for row in range(6):
+        C[row, row] = 1.0
+    g = [-0.000002, 0.000003, -0.000004, 0.000005, -0.000006, 0.000007] + [0.0] * 6
+    cal = p.CalibrationInfo(2, 3, 1_000_000, 1_000_000)  # Fx = -2 counts ... Tz = 7
+    name = f"ref-netft-short-{os.getpid()}-{next(_n)}"
+    with NetFtCanSim(name, Constant(g), range(12), C, cal, base=base):
+        bus = can.Bus(interface="virtual", channel=name)
+        try:
+            bus.send(can.Message(arbitration_id=base, data=b"\x02", is_extended_id=False))
+            ans = {m.arbitration_id - base: bytes(m.data) for m in _frames(bus, 2)}
+        finally:
+            bus.shutdown()
+    assert sorted(ans) == [p.ShortXY.OFFSET, p.ShortZ.OFFSET] == [5, 6]
+    assert ans[5] == bytes.fromhex("feff05000300faff")  # Fx -2, Tx 5, Fy 3, Ty -6
+    assert ans[6][:6] == bytes.fromhex("fcff07000000")  # Fz -4, Tz 7, status 0
+    assert p.ShortXY.decode(ans[5]) == p.ShortXY(-2, 5, 3, -6)
+    z = p.ShortZ.decode(ans[6])
+    assert (z.fz, z.tz, z.status) == (-4, 7, 0)
 
 
 def test_cia404_sdo_nmt_sync_and_pdo_bytes_on_the_twin() -> None:

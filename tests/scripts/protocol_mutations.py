@@ -12,8 +12,12 @@ module's name to the copy; the working tree is not touched):
   signedness letter flipped in turn (``h``↔``H``, ``i``↔``I``, ``b``↔``B``, ``l``↔``L``,
   ``q``↔``Q``; dtype ``i``↔``u``).
 
-A mutant is **killed** when its tests fail (``pytest -x``), **survived** when they pass,
-**equal** when the change gives the same value (no mutant). The results go to
+A mutant is **killed** when its tests fail (``pytest -x``), **survived** when they pass (a
+change that cannot differ, a byte order of one byte, is not made). By default the mutants run in
+one process (``--in-process``): the heavy third-party imports (numpy, python-can, canopen) are
+made once, and before each mutant every ``dimacq`` and test module is dropped from
+``sys.modules`` so that the tests import the mutated copy afresh; ``--subprocess`` runs each in
+a fresh interpreter instead (slower, the same verdicts). The results go to
 ``protocol_mutations_results.md`` beside this script (command, date, commit, load).
 
 Usage::
@@ -48,8 +52,11 @@ TARGETS: dict[str, tuple[str, str, tuple[str, ...]]] = {
         (
             "tests/drivers/netft/test_netft_can_protocol.py",
             "tests/drivers/test_can_reference_exchanges.py",
-            "tests/drivers/netft/test_netft_rdt.py",
             "tests/simulators/netft/test_netft_can_sim.py",
+            # the RDT codec's exchanges (its timing tests are the alignment's, not the codec's)
+            "tests/drivers/netft/test_netft_rdt.py::test_request_and_record_bytes",
+            "tests/drivers/netft/test_netft_rdt.py::test_driver_on_the_loopback_simulator",
+            "tests/drivers/netft/test_netft_rdt.py::test_calibration_read_from_the_device_over_tcp",
         ),
     ),
     "cia404": (
@@ -152,7 +159,7 @@ def _fmt_mutants(fmt: str) -> list[tuple[str, str]]:
         return out
     order = fmt[0] if fmt[0] in "<>!=@" else ""
     body = fmt[len(order) :]
-    one_byte = all(ch in "xcbB?" or ch.isdigit() for ch in body) and struct_size(fmt) <= 1
+    one_byte = all(ch in "xcbB?s" or ch.isdigit() for ch in body)  # no multi-byte field
     if order in ("<", ">", "!") and not one_byte:  # one byte has no byte order: no mutant
         out.append(("byte order", {"<": ">", ">": "<", "!": "<"}[order] + body))
     for i, ch in enumerate(body):
@@ -319,6 +326,76 @@ def run_mutant(
     )
 
 
+class _Finder:
+    """Maps one module name to a file (the mutated copy)."""
+
+    def __init__(self, name: str, path: str) -> None:
+        self.name, self.path = name, path
+
+    def find_spec(self, fullname: str, path: object = None, target: object = None) -> object:
+        import importlib.util
+
+        if fullname == self.name:
+            return importlib.util.spec_from_file_location(fullname, self.path)
+        return None
+
+
+def _purge() -> None:
+    """Drop every dimacq and test module (the tests import them again, the mutant among them)."""
+    tests = str(ROOT / "tests")
+    for name in list(sys.modules):
+        mod = sys.modules[name]
+        f = getattr(mod, "__file__", None) or ""
+        if name == "dimacq" or name.startswith("dimacq.") or f.startswith(tests):
+            del sys.modules[name]
+
+
+def run_in_process(
+    module: str, source: str, m: Mutant, tests: tuple[str, ...]
+) -> tuple[str, float, str]:
+    """``(verdict, seconds, first failing test)`` of one mutant, in this process."""
+    import contextlib
+    import io
+
+    import pytest
+
+    text = source[: m.start] + m.new + source[m.end :]
+    with tempfile.TemporaryDirectory(prefix="mutant-") as tmp:
+        mod = Path(tmp) / "mutated_protocol.py"
+        mod.write_text(text, encoding="utf-8")
+        finder = _Finder(module, str(mod))
+        _purge()
+        sys.meta_path.insert(0, finder)  # type: ignore[arg-type]
+        out = io.StringIO()
+        t0 = time.monotonic()
+        try:
+            with contextlib.redirect_stdout(out):
+                rc = pytest.main(
+                    [
+                        "-x",
+                        "-q",
+                        "-p",
+                        "no:cacheprovider",
+                        "-n",
+                        "0",
+                        "--no-header",
+                        "-rf",
+                        *tests,
+                    ]
+                )
+        finally:
+            sys.meta_path.remove(finder)  # type: ignore[arg-type]
+            _purge()
+        secs = time.monotonic() - t0
+    lines = out.getvalue().splitlines()
+    failed = next((ln.split(" ")[1] for ln in lines if ln.startswith("FAILED ")), "")
+    if rc == 0:
+        return "survived", secs, ""
+    if rc == 1:
+        return "killed", secs, failed
+    return f"killed (pytest exit {int(rc)})", secs, failed or (lines[-1] if lines else "")
+
+
 def _git(*args: str) -> str:
     return subprocess.run(["git", *args], cwd=ROOT, capture_output=True, text=True).stdout.strip()
 
@@ -329,6 +406,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--list", action="store_true", help="list the mutants, run nothing")
     ap.add_argument("-n", "--workers", default="0", help="pytest-xdist workers per run (0 or 2)")
     ap.add_argument("--timeout", type=float, default=600.0, help="per mutant, s")
+    ap.add_argument("--out", type=Path, default=RESULTS, help="the results file (markdown)")
+    ap.add_argument(
+        "--subprocess", action="store_true", help="each mutant in a fresh interpreter (slower)"
+    )
     args = ap.parse_args(argv)
     names = args.targets or list(TARGETS)
     unknown = [n for n in names if n not in TARGETS]
@@ -345,8 +426,19 @@ def main(argv: list[str] | None = None) -> int:
             continue
         source = path.read_text(encoding="utf-8")
         ms = mutants(source)
-        present = tuple(t for t in tests if (ROOT / t).exists())
+        present = tuple(t for t in tests if (ROOT / t.split("::")[0]).exists())
         rows = []
+        if not args.list:  # the unmutated copy must pass, or the verdicts mean nothing
+            control = Mutant("(none)", 1, "control", "", "", 0, 0)
+            verdict, secs, failed = (
+                run_mutant(module, source, control, present, args.workers, args.timeout)
+                if args.subprocess
+                else run_in_process(module, source, control, present)
+            )
+            print(f"[{name}] control (no change): {verdict} ({secs:.1f} s) {failed}", flush=True)
+            if verdict != "survived":
+                print(f"{name}: the tests fail without a mutation ({failed}); fix them first")
+                return 2
         for i, m in enumerate(ms):
             if args.list:
                 print(f"{name} {m.line:4d} {m.name:40s} {m.kind:24s} {m.old} -> {m.new}")
@@ -385,8 +477,8 @@ def main(argv: list[str] | None = None) -> int:
         f"- targets run: {', '.join(names)}; modules not run are listed with their test paths "
         "in the script's TARGETS\n\n"
     )
-    RESULTS.write_text(head + "\n".join(sections), encoding="utf-8")
-    print(f"wrote {RESULTS}")
+    args.out.write_text(head + "\n".join(sections), encoding="utf-8")
+    print(f"wrote {args.out}")
     return 1 if total_survived else 0
 
 

@@ -113,3 +113,40 @@ def test_the_mapping_procedure_on_the_wire() -> None:
         bus.assert_done()
     finally:
         ch.close()
+
+
+def test_nmt_command_specifiers_of_cia301() -> None:
+    """CiA 301 NMT: 01 start, 02 stop, 80 enter pre-operational, 81 reset node, 82 reset
+    communication, each [command, node] on identifier 0."""
+    want = {
+        p.NmtCommand.START: "0105",
+        p.NmtCommand.STOP: "0205",
+        p.NmtCommand.PRE_OPERATIONAL: "8005",
+        p.NmtCommand.RESET_NODE: "8105",
+        p.NmtCommand.RESET_COMMUNICATION: "8205",
+    }
+    for cmd, data in want.items():
+        assert p.nmt_frame(cmd, NODE) == (0x000, bytes.fromhex(data)), cmd.name
+
+
+def test_sdo_of_a_high_index_and_subindex() -> None:
+    """Index and sub-index are unsigned: 0xA000 (a profile area index) sub 0x81."""
+    assert p.sdo_expedited_download(NODE, 0xA000, 0x81, b"\x01\x02\x03\x04")[1] == bytes.fromhex(
+        "2300a08101020304"
+    )
+    assert p.sdo_download_answer(NODE, 0xA000, 0x81)[1] == bytes.fromhex("6000a08100000000")
+
+
+def test_a_mapping_holds_at_most_eight_entries() -> None:
+    eight = p.TpdoPlan(1, 0x185, p.INT16_PV, tuple(range(8)))
+    assert len([w for w in p.mapping_writes([eight], 1, NODE) if w[0] == p.TPDO_MAP]) == 10
+    nine = p.TpdoPlan(1, 0x185, p.INT16_PV, tuple(range(9)))
+    with pytest.raises(SetupError, match="9 entries; at most 8"):
+        p.mapping_writes([nine], 1, NODE)
+
+
+def test_int16_process_values_are_signed_little_endian() -> None:
+    plan = p.plan_tpdos(2, p.INT16_PV, NODE, 6, where="t")[0]
+    got = p.decode_tpdo(plan, [bytes.fromhex("feff0200")], np.array([0.5, 0.5]))
+    np.testing.assert_array_equal(got, [[-1.0, 1.0]])
+    assert p.encode_tpdo(plan, np.array([[-2.0, 2.0]]))[0] == bytes.fromhex("feff0200")
