@@ -410,6 +410,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--subprocess", action="store_true", help="each mutant in a fresh interpreter (slower)"
     )
+    ap.add_argument(
+        "--from-log",
+        type=Path,
+        action="append",
+        default=[],
+        help="write the results from the printed log(s) of runs stopped before their end (the "
+        "source unchanged since): the mutants not reached are listed as not run",
+    )
     args = ap.parse_args(argv)
     names = args.targets or list(TARGETS)
     unknown = [n for n in names if n not in TARGETS]
@@ -418,6 +426,15 @@ def main(argv: list[str] | None = None) -> int:
     sections = []
     total_survived = 0
     started = time.monotonic()
+    logged: dict[str, dict[int, tuple[str, float, str]]] = {}
+    pat = re.compile(
+        r"^\[(\w+) (\d+)/(\d+)\] .*?: (killed(?: \([^)]*\))?|survived) \(([\d.]+) s\) ?(.*)$"
+    )
+    for log in args.from_log:
+        for ln in log.read_text(encoding="utf-8").splitlines():
+            got = pat.match(ln)
+            if got:
+                logged.setdefault(got[1], {})[int(got[2]) - 1] = (got[4], float(got[5]), got[6])
     for name in names:
         module, rel, tests = TARGETS[name]
         path = ROOT / rel
@@ -428,6 +445,25 @@ def main(argv: list[str] | None = None) -> int:
         ms = mutants(source)
         present = tuple(t for t in tests if (ROOT / t.split("::")[0]).exists())
         rows = []
+        if args.from_log:
+            done = logged.get(name, {})
+            for i, m in enumerate(ms):
+                verdict, _secs, failed = done.get(i, ("not run", 0.0, ""))
+                total_survived += verdict == "survived"
+                rows.append(
+                    f"| {m.line} | `{m.name}` | {m.kind} | `{m.old}` → `{m.new}` | {verdict} | "
+                    f"{failed.replace('|', '/')} |"
+                )
+            killed = sum("killed" in r for r in rows)
+            survived = sum("| survived |" in r for r in rows)
+            sections.append(
+                f"## {module}\n\nTests: {', '.join(f'`{t}`' for t in present)}\n\n"
+                f"{killed} killed, {survived} survived, {len(rows) - killed - survived} not run "
+                f"of {len(rows)} mutants.\n\n"
+                "| line | item | mutation | change | verdict | first failing test |\n"
+                "|---|---|---|---|---|---|\n" + "\n".join(rows) + "\n"
+            )
+            continue
         if not args.list:  # the unmutated copy must pass, or the verdicts mean nothing
             control = Mutant("(none)", 1, "control", "", "", 0, 0)
             verdict, secs, failed = (
