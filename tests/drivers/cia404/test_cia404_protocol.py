@@ -17,6 +17,23 @@ EDS = Path(__file__).resolve().parents[3] / "config" / "canopen" / "cia404-gener
 NODE = 5
 
 
+def test_object_indices_of_cia301_and_cia404() -> None:
+    """The objects the driver reads and writes, as CiA 301 (communication) and CiA 404
+    (analogue inputs) number them."""
+    assert (p.SYNC_COB_ID, p.DEVICE_TYPE, p.HEARTBEAT_TIME, p.IDENTITY) == (
+        0x080,
+        0x1000,
+        0x1017,
+        0x1018,
+    )
+    assert (p.TPDO_COMM, p.TPDO_MAP, p.COB_ID_INVALID) == (0x1800, 0x1A00, 1 << 31)
+    assert (p.REAL32_PV.index, p.INT16_PV.index, p.AI_DECIMAL_DIGITS) == (0x6130, 0x7130, 0x6132)
+    assert (p.AI_SENSOR_TYPE, p.AI_ADC_SAMPLE_RATE, p.AI_PHYSICAL_UNIT) == (0x6110, 0x6114, 0x6131)
+    assert (p.AI_SCALING_FACTOR, p.AI_SCALING_OFFSET) == (0x6126, 0x6127)
+    assert (p.AI_FILTER_TYPE, p.AI_FILTER_CONSTANT, p.FILTER_MOVING_AVERAGE) == (0x61A0, 0x61A1, 1)
+    assert p.TRANSMISSION_SYNCHRONOUS == 1  # CiA 301: synchronous, every SYNC
+
+
 def test_cia301_reference_frames() -> None:
     # SDO expedited download, 4 bytes (ccs 1, e = s = 1, n = 0: 0x23), index LE, sub, data LE:
     # TPDO1's first mapping entry = 0x6130 sub 1, 32 bits, to node 5

@@ -32,6 +32,30 @@ def _driver(bus: object) -> NetFtCan:
     return NetFtCan(bus, base=BASE, calibration=CAL, serial_number=501, timeout_s=0.5)
 
 
+def test_the_codecs_numbers_as_transcribed() -> None:
+    """Offsets from the base address, the RDT and TCP ports, the calibration header and sizes
+    (manual §11/§15 as transcribed; ATI's demo code for the RDT port and record size)."""
+    assert (p.Request.OFFSET, p.LongStatus.OFFSET, p.ShortXY.OFFSET, p.ShortZ.OFFSET) == (
+        0,
+        4,
+        5,
+        6,
+    )
+    assert (p.RDT_PORT, p.TCP_PORT, p.RdtRecord.SIZE, p.RdtRequest.HEADER) == (
+        49152,
+        49151,
+        36,
+        0x1234,
+    )
+    assert (p.CalibrationInfo.HEADER, p.CalibrationInfo.READCALINFO, p.CalibrationInfo.SIZE) == (
+        0x1234,
+        1,
+        24,
+    )
+    assert [int(c) for c in p.Command] == [0x01, 0x02, 0x04, 0x08]
+    assert [int(c) for c in p.RdtCommand] == [0x0000, 0x0002, 0x0003, 0x0042]
+
+
 def test_the_manuals_byte_order_examples() -> None:
     (b16, v16), (b32, v32) = p.MANUAL_EXAMPLES
     assert p.decode_i16(b16) == v16 == 0x0256
