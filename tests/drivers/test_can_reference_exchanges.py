@@ -56,10 +56,10 @@ _n = itertools.count()
 RDT_START_10 = bytes.fromhex("123400020000000a")  # startHighSpeedDataCollection(10)
 RDT_TARE = bytes.fromhex("1234004200000001")  # tare()
 RDT_STOP = bytes.fromhex("1234000000000000")  # stopDataCollection()
-# one record: rdt seq 1, ft seq 0x80001b58, status 0x80000000, Fx..Tz = 1, -2, 3, -4, 5, -6
+# one record: rdt seq 0x80000001, ft seq 0x80001b58, status 0x80000000, Fx..Tz = 1, -2, 3, -4, 5, -6
 # (big endian; the sequence and status words unsigned)
 RDT_RECORD = bytes.fromhex(
-    "0000000180001b588000000000000001fffffffe00000003fffffffc00000005fffffffa"
+    "8000000180001b588000000000000001fffffffe00000003fffffffc00000005fffffffa"
 )
 
 # -- Net F/T Read Calibration Info (manual §11, as transcribed) ---------------------------------
@@ -92,13 +92,13 @@ def test_rdt_request_and_record_codec() -> None:
     assert p.RdtRequest(p.RdtCommand.STOP, 0).encode() == RDT_STOP
     assert p.RDT_PORT == 49152 and p.RdtRecord.SIZE == len(RDT_RECORD) == 36
     (r,) = p.RdtRecord.decode_all(RDT_RECORD)
-    assert (r.rdt_sequence, r.ft_sequence, r.status) == (1, 0x80001B58, 0x80000000)
+    assert (r.rdt_sequence, r.ft_sequence, r.status) == (0x80000001, 0x80001B58, 0x80000000)
     assert r.counts == (1, -2, 3, -4, 5, -6)
     assert r.encode() == RDT_RECORD
     b = p.decode_rdt(RDT_RECORD)
     assert b.counts.tolist() == [[1, -2, 3, -4, 5, -6]]
     assert (int(b.rdt_sequence[0]), int(b.ft_sequence[0]), int(b.status[0])) == (
-        1,
+        0x80000001,
         0x80001B58,
         0x80000000,
     )
