@@ -278,6 +278,11 @@ def test_netft_can_request_short_on_the_twin() -> None:
     assert p.ShortXY.decode(ans[5]) == p.ShortXY(-2, 5, 3, -6)
     z = p.ShortZ.decode(ans[6])
     assert (z.fz, z.tz, z.status) == (-4, 7, 0)
+    # every field signed: a negative value in each position of both short answers
+    xy, zz = p.ShortXY(-1, -2, -3, -4), p.ShortZ(-5, -6, -7, -8)
+    assert xy.encode() == bytes.fromhex("fffffefffdfffcff")
+    assert zz.encode() == bytes.fromhex("fbfffafff9fff8ff")
+    assert p.ShortXY.decode(xy.encode()) == xy and p.ShortZ.decode(zz.encode()) == zz
 
 
 def test_cia404_sdo_nmt_sync_and_pdo_bytes_on_the_twin() -> None:

@@ -144,6 +144,14 @@ def test_nmt_command_specifiers_of_cia301() -> None:
     }
     for cmd, data in want.items():
         assert p.nmt_frame(cmd, NODE) == (0x000, bytes.fromhex(data)), cmd.name
+    # by name: two members of one value would be one member (an alias) and pass the loop
+    assert {c.name: int(c) for c in p.NmtCommand} == {
+        "START": 0x01,
+        "STOP": 0x02,
+        "PRE_OPERATIONAL": 0x80,
+        "RESET_NODE": 0x81,
+        "RESET_COMMUNICATION": 0x82,
+    }
 
 
 def test_sdo_of_a_high_index_and_subindex() -> None:
