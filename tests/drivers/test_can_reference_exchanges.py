@@ -157,6 +157,8 @@ def test_read_calibration_info_codec_and_twins() -> None:
     assert big.scale_factors == (0xFFFF,) * 6
     with pytest.raises(SetupError, match="units 255/3"):
         p.CalibrationInfo.decode(bytes.fromhex("1234ff03") + CALINFO[4:])
+    with pytest.raises(SetupError, match="units 2/255"):
+        p.CalibrationInfo.decode(bytes.fromhex("123402ff") + CALINFO[4:])
     with pytest.raises(ProtocolError, match="header 0xffff, not 0x1234"):
         p.CalibrationInfo.decode(bytes.fromhex("ffff") + CALINFO[2:])
     with NetFtEthernetSim(cal) as eth:
