@@ -174,6 +174,8 @@ class Settings(BaseSettings):
     loadcell_cia404_process_value: Literal["auto", "0x6130", "0x7130"] = "auto"
     loadcell_cia404_max_bus_load: float = Field(default=0.70, gt=0.0, le=1.0)
     loadcell_cia404_channels: int = Field(default=12, ge=1, le=64)
+    # FRF phase (deg) the CiA 404 node's held values may cost at 0.32 x the DAQ's rate
+    loadcell_cia404_max_phase_deg: float = Field(default=2.0, gt=0.0)
     # ATI Net F/T on CAN (loadcell = "netft-can" | "netft-can-simulated",
     # dimacq.backends.netft_can): the classic CAN bit rate its DIP switches set, bit/s.
     loadcell_netft_bitrate: int = Field(default=1_000_000, gt=0, le=1_000_000)

@@ -1,6 +1,6 @@
 """Backend ``loadcell = "dimacq-can"``: the CAN FD load cell amplifier through python-can.
 
-Each load cell of the rig file is opened on its own bus handle (``interface =
+Each load cell of the rig file is opened on its own handle of its channel's one bus (``interface =
 loadcell_interface``, ``channel`` = the entry's or ``loadcell_channel``, CAN FD with the bit timing
 of the ``loadcell_f_clock``/``loadcell_bitrate``/``loadcell_sample_point``/
 ``loadcell_data_bitrate``/``loadcell_data_sample_point`` settings, each overridable per rig file entry by ``f_clock``,
@@ -14,7 +14,7 @@ from __future__ import annotations
 from typing import Any
 
 from dimacq.backends.base import DeviceContext
-from dimacq.backends.can_bus import open_can_bus
+from dimacq.backends.can_bus import shared_can_bus
 from dimacq.drivers.loadcell import protocol as lp
 from dimacq.drivers.loadcell.driver import LoadCellAmplifier
 from dimacq.errors import DataError, DeviceNotFoundError, DeviceTimeoutError, SetupError
@@ -125,8 +125,9 @@ def open_amplifier(
     missing = not ctx.rig_file.calibration_path(entry).exists()
     cal = None if (missing and not require_calibration) else read_entry_calibration(ctx, entry)
     extra = {} if timing is None else {"timing": timing}
+    bus: Any
     if interface is None:  # a real adapter: the settings' interface or python-can's own
-        bus = open_can_bus(
+        bus = shared_can_bus(
             ctx.settings,
             backend="dimacq-can",
             channel=channel,

@@ -15,7 +15,7 @@ from __future__ import annotations
 from typing import Any
 
 from dimacq.backends.base import DeviceContext
-from dimacq.backends.can_bus import open_can_bus
+from dimacq.backends.can_bus import shared_can_bus
 from dimacq.backends.can_loadcell import read_entry_calibration
 from dimacq.drivers.canopen_loadcell.driver import CanopenLoadCell
 from dimacq.errors import DeviceNotFoundError, DeviceTimeoutError, SetupError
@@ -101,14 +101,15 @@ def open_canopen_amplifier(
 def open_loadcell(
     ctx: DeviceContext, entry: LoadCellEntry, *, require_calibration: bool = True
 ) -> CanopenLoadCell:
-    """The table entry ``"canopen"`` (the bus: :func:`~dimacq.backends.can_bus.open_can_bus`)."""
+    """The table entry ``"canopen"`` (the bus: one per channel,
+    :func:`~dimacq.backends.can_bus.shared_can_bus`)."""
     s = ctx.settings
     channel = entry.channel or s.loadcell_channel
     where = (
         f"loadcell = 'canopen', loadcell_interface = {s.loadcell_interface!r}, channel "
         f"{channel!r} (loadcell_channel), loadcell_canopen_bitrate = {s.loadcell_canopen_bitrate}"
     )
-    bus = open_can_bus(s, backend="canopen", channel=channel, bitrate=s.loadcell_canopen_bitrate)
+    bus = shared_can_bus(s, backend="canopen", channel=channel, bitrate=s.loadcell_canopen_bitrate)
     return open_canopen_amplifier(
         ctx,
         entry,

@@ -2,8 +2,8 @@
 
 Each load cell of the rig file is the node its ``node_id`` names, on the CAN channel its entry
 gives (or ``loadcell_channel``); every cell of one channel shares **one** ``can.Bus`` and one
-``canopen.Network`` (:class:`~dimacq.drivers.cia404.driver.CanChannel`, opened once per context by
-:func:`~dimacq.backends.can_bus.open_can_bus`: PCAN allows one client per channel), whose summed
+``canopen.Network`` (:class:`~dimacq.drivers.cia404.driver.CanChannel`, on a handle of the channel's one bus,
+:func:`~dimacq.backends.can_bus.shared_can_bus`: PCAN allows one client per channel), whose summed
 load is checked when the rate is set. The node is described by ``loadcell_cia404_eds`` (default
 ``config/canopen/cia404-generic.eds``); its inputs 1..N carry the cell's gauges in the order of
 the calibration file's columns (N = the matrix's columns), whose matrix the driver applies; the
@@ -15,7 +15,7 @@ from __future__ import annotations
 from typing import Any
 
 from dimacq.backends.base import DeviceContext
-from dimacq.backends.can_bus import open_can_bus
+from dimacq.backends.can_bus import shared_can_bus
 from dimacq.backends.can_loadcell import read_entry_calibration
 from dimacq.drivers.cia404.driver import CanChannel, Cia404Amplifier
 from dimacq.errors import DeviceNotFoundError, DeviceTimeoutError, SetupError
@@ -85,6 +85,8 @@ def open_node(
         heartbeat_factor=s.loadcell_canopen_heartbeat_factor,
         sync=s.loadcell_cia404_sync,
         process_value=s.loadcell_cia404_process_value,
+        gauge_unit=None if cal is None else cal.gauge_unit,
+        max_phase_deg=s.loadcell_cia404_max_phase_deg,
         label=f"load cell {entry.node}",
     )
     try:
@@ -120,7 +122,9 @@ def open_loadcell(ctx: DeviceContext, entry: LoadCellEntry) -> Cia404Amplifier:
     channel = shared_channel(
         ctx,
         f"{s.loadcell_interface}:{chan}",
-        lambda: open_can_bus(s, backend="cia404", channel=chan, bitrate=s.loadcell_canopen_bitrate),
+        lambda: shared_can_bus(
+            s, backend="cia404", channel=chan, bitrate=s.loadcell_canopen_bitrate
+        ),
         where=where,
     )
     return open_node(ctx, entry, channel, where=where)

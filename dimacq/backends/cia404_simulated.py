@@ -20,6 +20,7 @@ import itertools
 import os
 
 from dimacq.backends.base import DeviceContext
+from dimacq.backends.can_bus import BUSES
 from dimacq.backends.cia404 import open_node, shared_channel
 from dimacq.backends.simulated import world
 from dimacq.drivers.cia404.driver import Cia404Amplifier
@@ -66,7 +67,9 @@ def open_loadcell(ctx: DeviceContext, entry: LoadCellEntry) -> Cia404Amplifier:
     channel = shared_channel(
         ctx,
         name,
-        lambda: can.Bus(interface="virtual", channel=name),
+        lambda: BUSES.acquire(
+            "virtual", name, lambda: can.Bus(interface="virtual", channel=name), where=where
+        ),
         where=where,
         enforce=False,
     )

@@ -6,8 +6,10 @@ same driver as ``"netft-can"``.
 Each simulated sensor reads its cell's bridge outputs (the lab's gauge channels, the same the
 amplifier simulators read) through its own factory calibration — the cell's true gauge matrix
 inverted, with a 0.2 % certificate error of its own, which the host never sees — and counts with
-:data:`SENSOR_CALIBRATION`, which the rig file states (``netft_counts_per_force`` ...), as a lab
-copies them from a real sensor's configuration page.
+:data:`SENSOR_CALIBRATION`, which the driver reads from it: each sensor's Ethernet side
+(:class:`~dimacq.simulators.netft.ethernet.NetFtEthernetSim`: Read Calibration Info on TCP, its
+configuration page ``netftapi2.xml`` on HTTP, loopback), as from a real one (the rig file's
+stated counts are checked against it).
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ import os
 import numpy as np
 
 from dimacq.backends.base import DeviceContext
+from dimacq.backends.can_bus import BUSES
 from dimacq.backends.netft_can import open_netft, require_base
 from dimacq.backends.netft_udp import open_rdt
 from dimacq.backends.simulated import SimulatedWorld, imperfections, world
@@ -52,6 +55,7 @@ def _channel(ctx: DeviceContext) -> str:
     """The virtual channel of this context's Net F/T simulators (one per rig file load cell
     with a ``netft_base``; made on first use, closed with the context)."""
     from dimacq.simulators.netft.can_sensor import NetFtCanSim
+    from dimacq.simulators.netft.ethernet import NetFtEthernetSim
 
     got = ctx.shared.get(_SIMS)
     if got is not None:
@@ -63,6 +67,9 @@ def _channel(ctx: DeviceContext) -> str:
         if e.netft_base is None:
             continue
         gauges = [w.lab.channel_index(n) for n in gauge_names(e.node)]
+        eth = NetFtEthernetSim(SENSOR_CALIBRATION, rdt_rate_hz=e.netft_rdt_rate_hz)
+        ctx.on_close(eth.close)
+        ctx.shared[f"{_SIMS}:eth:{e.node}"] = eth
         sim = NetFtCanSim(
             channel,
             w.source,
@@ -88,8 +95,20 @@ def open_loadcell(ctx: DeviceContext, entry: LoadCellEntry) -> NetFtCan:
     channel = _channel(ctx)
     # the channel is the simulators' own: every frame on it is a Net F/T's (no filter to run
     # in Python on each of the five frames per sample); the driver ignores other bases' frames
-    bus = can.Bus(interface="virtual", channel=channel)
-    return open_netft(ctx, entry, bus, where=where, timeout_s=5.0)
+    bus = BUSES.acquire(
+        "virtual", channel, lambda: can.Bus(interface="virtual", channel=channel), where=where
+    )
+    eth = ctx.shared[f"{_SIMS}:eth:{entry.node}"]
+    return open_netft(
+        ctx,
+        entry,
+        bus,
+        where=where,
+        timeout_s=5.0,
+        host=eth.http_address[0],
+        tcp_port=eth.tcp_address[1],
+        http_port=eth.http_address[1],
+    )
 
 
 def open_udp_loadcell(ctx: DeviceContext, entry: LoadCellEntry) -> NetFtUdp:

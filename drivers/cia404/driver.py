@@ -27,6 +27,21 @@ sees after :meth:`start` *is* the node's sample ``k``, and the frames between SY
   bench, devices check). A node does not hear its host's own SYNC, so in that mode a sample starts
   with the lowest TPDO (sent first: lowest identifier wins arbitration).
 
+**Its own sampling.** A CiA 404 amplifier samples its inputs on its own clock (0x6114) and a
+synchronous TPDO carries the last value its filter produced, not a sample taken at the SYNC.
+At :meth:`Cia404Amplifier.set_rate` the driver sets the fastest ADC rate the EDS allows and a
+moving average over about one DAQ period (0x61A0/0x61A1) where the EDS has them writable (else
+it reads what the node has); the node's timing
+(:class:`~dimacq.drivers.held_timing.HeldSampleTiming`) gives the FRF factor that is divided out
+(:meth:`Cia404Amplifier.known_response`) and the phase the held value's random age costs at the
+band's top, refused above ``max_phase_deg``. An EDS without 0x6114 is refused for a run on the
+DAQ's clock: the node's timing could not be bounded.
+
+**Units and scaling.** :meth:`Cia404Amplifier.identify` reads each input's physical unit
+(0x6131), sensor type (0x6110) and scaling (0x6126/0x6127): the unit must be the calibration
+file's ``gauge_unit`` (:data:`~dimacq.drivers.cia404.protocol.UNIT_CODES`), the sensor type and
+scaling what the EDS declares (the calibration was made through them), else it refuses.
+
 **Faults.** A lost TPDO leaves its sample incomplete (NaN, ``gap``). Any EMCY (except an error
 reset) and any NMT state other than OPERATIONAL while streaming (heartbeat ``0x700 + n``; a
 boot-up means the node reset and lost its mapping) are ``device_error`` events naming the node;
@@ -57,6 +72,7 @@ from numpy.typing import NDArray
 from dimacq.devices.loadcell import LoadCellBlock, LoadCellEvent, LoadCellIdentity
 from dimacq.drivers.base import Deadline, WireDriver
 from dimacq.drivers.cia404 import protocol as p
+from dimacq.drivers.held_timing import HeldSampleTiming
 from dimacq.drivers.stream import CounterStream, false_runs
 from dimacq.errors import DeviceError, DeviceTimeoutError, ProtocolError, SetupError
 
@@ -196,6 +212,9 @@ class Cia404Amplifier(WireDriver):
         heartbeat_factor: float = 5.0,
         sync: str = "daq",
         process_value: str = "auto",
+        gauge_unit: str | None = None,
+        max_phase_deg: float = 2.0,
+        band_hz: float | None = None,
         label: str = "",
     ) -> None:
         if not 1 <= node_id <= 127:
@@ -212,6 +231,10 @@ class Cia404Amplifier(WireDriver):
         self.heartbeat_ms = int(heartbeat_ms)
         self.heartbeat_factor = float(heartbeat_factor)
         self.sample_rate_hz: float | None = None
+        self.gauge_unit = gauge_unit
+        self.max_phase_deg = float(max_phase_deg)
+        self.band_hz = band_hz
+        self.timing: HeldSampleTiming | None = None
         self.calibration_matrix: NDArray[np.float64] | None = None
         self.events: list[LoadCellEvent] = []
         self.streaming = False
@@ -330,13 +353,136 @@ class Cia404Amplifier(WireDriver):
         serial = self._read_u32(p.IDENTITY, 4)
         revision = self._read_u32(p.IDENTITY, 3)
         self._write(p.HEARTBEAT_TIME, 0, self.heartbeat_ms.to_bytes(2, "little"))
+        units = self.check_inputs()
         self.configure()
         return LoadCellIdentity(
             self.n_channels,
             f"vendor 0x{vendor:08X} product 0x{product:08X} rev 0x{revision:08X}, "
-            f"{self.pv.name} (0x{self.pv.index:04X}) in {len(self.plans)} TPDOs",
+            f"{self.pv.name} (0x{self.pv.index:04X}) in {len(self.plans)} TPDOs, {units}",
             serial,
         )
+
+    def _has(self, index: int) -> bool:
+        return bool(index in self.od)
+
+    def _read_f32(self, index: int, sub: int) -> float:
+        raw = self._sdo("upload", index, sub, lambda: self.node.sdo.upload(index, sub))
+        return float(struct.unpack("<f", raw[:4])[0])
+
+    def check_inputs(self) -> str:
+        """Each input's unit (0x6131), sensor type (0x6110) and scaling (0x6126/0x6127) read
+        and checked: the unit against the calibration file's ``gauge_unit``, the others against
+        the EDS. Objects the EDS lacks are named in the returned summary as not checked.
+
+        Raises
+        ------
+        SetupError
+            A unit other than the calibration's, a sensor type or scaling other than the EDS's.
+        """
+        for c in range(1, self.n_channels + 1):
+            if self._has(p.AI_PHYSICAL_UNIT):
+                code = self._read_u32(p.AI_PHYSICAL_UNIT, c)
+                names = [u for u, v in p.UNIT_CODES.items() if v == code]
+                if self.gauge_unit is not None and self.gauge_unit not in names:
+                    raise SetupError(
+                        f"{self.name}: input {c} gives its process value in unit code "
+                        f"0x{code:08X} ({names[0] if names else 'not a bridge unit'}, 0x6131) but "
+                        f"the calibration file's gauge_unit is {self.gauge_unit!r} (code "
+                        f"0x{p.UNIT_CODES.get(self.gauge_unit, 0):08X}); set the amplifier's "
+                        "unit to the calibration's or calibrate the cell in the amplifier's unit"
+                    )
+            if self._has(p.AI_SENSOR_TYPE):
+                st = self._read_u32(p.AI_SENSOR_TYPE, c) & 0xFFFF
+                want = self._expected(p.AI_SENSOR_TYPE, c)
+                if st != want:
+                    raise SetupError(
+                        f"{self.name}: input {c} sensor type 0x{st:04X} (0x6110) but the EDS "
+                        f"{self.eds.name} declares 0x{want:04X}; set the input's sensor type or "
+                        "give the amplifier's own EDS"
+                    )
+            for index, what in ((p.AI_SCALING_FACTOR, "factor"), (p.AI_SCALING_OFFSET, "offset")):
+                if not self._has(index):
+                    continue
+                v = self._read_f32(index, c)
+                want_v = float(self.od[index][c].default or 0.0)
+                if not np.isclose(v, want_v, rtol=1e-6, atol=1e-9):
+                    raise SetupError(
+                        f"{self.name}: input {c} scaling {what} {v:g} (0x{index:04X}) but the "
+                        f"EDS {self.eds.name} declares {want_v:g}, which the calibration was made "
+                        f"through; set 0x{index:04X}:{c} back or calibrate the cell again"
+                    )
+        checked = [
+            n
+            for i, n in (
+                (p.AI_PHYSICAL_UNIT, "unit"),
+                (p.AI_SENSOR_TYPE, "sensor type"),
+                (p.AI_SCALING_FACTOR, "scaling"),
+            )
+            if self._has(i)
+        ]
+        missing = [
+            n
+            for i, n in (
+                (p.AI_PHYSICAL_UNIT, "unit 0x6131"),
+                (p.AI_SENSOR_TYPE, "sensor type 0x6110"),
+                (p.AI_SCALING_FACTOR, "scaling 0x6126"),
+            )
+            if not self._has(i)
+        ]
+        return ", ".join(
+            (["checked: " + ", ".join(checked)] if checked else [])
+            + (["not in the EDS: " + ", ".join(missing)] if missing else [])
+        )
+
+    def _writable(self, index: int) -> bool:
+        return self._has(index) and bool(getattr(self.od[index][1], "writable", False))
+
+    def set_sampling(self, rate_hz: float) -> HeldSampleTiming:
+        """The node's own ADC rate and filter: set where the EDS has them writable (the fastest
+        rate it allows, a moving average over about one DAQ period), else read.
+
+        Raises
+        ------
+        SetupError
+            No 0x6114 in the EDS (the node's timing unknown).
+        """
+        if not self._has(p.AI_ADC_SAMPLE_RATE):
+            raise SetupError(
+                f"{self.name}: the EDS {self.eds.name} has no 0x6114 (AI ADC sample rate): the "
+                "node's own sampling, hence the age of the value it sends at each SYNC, is "
+                "unknown; give the amplifier's EDS, or read the cell as DAQ inputs "
+                "(loadcell = 'daq-channels')"
+            )
+        chans = range(1, self.n_channels + 1)
+        if self._writable(p.AI_ADC_SAMPLE_RATE):
+            top = self.od[p.AI_ADC_SAMPLE_RATE][1].max
+            adc = int(top if top is not None else self._expected(p.AI_ADC_SAMPLE_RATE, 1))
+            for c in chans:
+                self._write(p.AI_ADC_SAMPLE_RATE, c, int(adc).to_bytes(4, "little"))
+        adc = self._read_u32(p.AI_ADC_SAMPLE_RATE, 1)
+        n = 1
+        if self._writable(p.AI_FILTER_TYPE) and self._writable(p.AI_FILTER_CONSTANT):
+            n = int(min(255, max(1, adc // max(int(rate_hz), 1))))
+            kind = p.FILTER_MOVING_AVERAGE if n > 1 else 0
+            for c in chans:
+                self._write(p.AI_FILTER_TYPE, c, bytes([kind]))
+                self._write(p.AI_FILTER_CONSTANT, c, bytes([n]))
+        if self._has(p.AI_FILTER_TYPE):
+            kind = self._read_u32(p.AI_FILTER_TYPE, 1) & 0xFF
+            if kind not in (0, p.FILTER_MOVING_AVERAGE):
+                raise SetupError(
+                    f"{self.name}: filter type {kind} (0x61A0) is not one whose delay is known "
+                    "here (0 none, 1 moving average); set 0x61A0 to 0 or 1"
+                )
+            n = (self._read_u32(p.AI_FILTER_CONSTANT, 1) & 0xFF) if kind else 1
+        return HeldSampleTiming(float(adc), max(int(n), 1), self.name)
+
+    def known_response(self, f_hz: NDArray[np.float64]) -> NDArray[np.complex128]:
+        """The factor its held, filtered values put on its FRFs (divided out by the
+        acquisition); 1 before :meth:`set_rate`."""
+        if self.timing is None:
+            return np.ones(np.shape(f_hz), dtype=complex)
+        return self.timing.response(f_hz)
 
     def configure(self) -> None:
         """NMT PRE-OPERATIONAL, then the CiA 301 mapping procedure by SDO (and, for 0x7130,
@@ -360,8 +506,20 @@ class Cia404Amplifier(WireDriver):
         self.calibration_matrix = m
 
     def set_rate(self, rate_hz: int) -> float:
-        """The SYNC rate (the DAQ's); the channel refuses a summed load above its limit."""
+        """The SYNC rate (the DAQ's); the channel refuses a summed load above its limit. The
+        node's own sampling is set (:meth:`set_sampling`) and its cost in FRF phase at the
+        band's top (``band_hz``, default 0.32 × the rate) checked against ``max_phase_deg``.
+
+        Raises
+        ------
+        SetupError
+            Bus load, unknown node timing, or the phase above the budget.
+        """
         self.channel.check_load(float(rate_hz))
+        if self.sync == "daq":
+            self.timing = self.set_sampling(float(rate_hz))
+            band = self.band_hz if self.band_hz is not None else 0.32 * float(rate_hz)
+            self.timing.check(band, self.max_phase_deg, where=f"{self.name} at {rate_hz} S/s")
         self.sample_rate_hz = float(rate_hz)
         return self.sample_rate_hz
 

@@ -14,14 +14,20 @@ CiA 301 frames (11-bit identifiers; ``n`` the node id)::
     SDO answer   0x580 + n   download confirmed: [0x60, index U16, sub, 0, 0, 0, 0]
     heartbeat    0x700 + n   [state]  00 boot-up, 04 stopped, 05 operational, 7F pre-operational
 
-CiA 301 objects used: 0x1000 device type (CiA 404 in its low word, 404 = 0x194), 0x1005 COB-ID
-SYNC, 0x1017 producer heartbeat time, 0x1018 identity (vendor, product, revision, serial),
+CiA 301 objects used: 0x1000 device type (CiA 404 in its low word, 404 = 0x194), 0x1017 producer heartbeat time, 0x1018 identity (vendor, product, revision, serial),
 0x1800 + k TPDO communication (sub 1 COB-ID, bit 31 = PDO not valid; sub 2 transmission type,
 1 = synchronous, every SYNC), 0x1A00 + k TPDO mapping (sub 0 count, subs 1..8 entries
 ``index << 16 | sub << 8 | bits``: analogue input 1 as REAL32 is ``0x61300120``).
 
 CiA 404 objects (analogue inputs, one sub-index per channel): 0x6130 AI input process value
-REAL32, 0x7130 AI input process value INTEGER16 (value = integer / 10^decimal digits, 0x6132).
+REAL32, 0x7130 AI input process value INTEGER16 (value = integer / 10^decimal digits, 0x6132);
+0x6110 AI sensor type (U16), 0x6114 AI ADC sample rate (U32; its unit is the device's: the
+generic EDS declares Hz), 0x6126 AI scaling factor and 0x6127 AI scaling offset (REAL32:
+process value = factor × input + offset), 0x6131 AI physical unit of the process value (U32,
+CiA 303-2 coding: prefix exponent in byte 3, SI unit in byte 2, :data:`UNIT_CODES`), 0x61A0 AI
+filter type (U8; 1 read here as a moving average) and 0x61A1 AI filter constant (U8: samples
+averaged). The indices are as CiA 404 lists them; the codes of 0x6110 and 0x61A0 and the unit
+of 0x6114 vary by device and are taken from the EDS, not interpreted.
 
 **Mapping procedure** (CiA 301 §7.5.2.35, by SDO while the node is PRE-OPERATIONAL), per TPDO:
 disable it (COB-ID with bit 31 set), set its mapping count to 0, write the entries, write the
@@ -50,9 +56,17 @@ from numpy.typing import NDArray
 from dimacq.errors import ProtocolError, SetupError
 
 __all__ = [
+    "AI_ADC_SAMPLE_RATE",
     "AI_DECIMAL_DIGITS",
+    "AI_FILTER_CONSTANT",
+    "AI_FILTER_TYPE",
+    "AI_PHYSICAL_UNIT",
+    "AI_SCALING_FACTOR",
+    "AI_SCALING_OFFSET",
+    "AI_SENSOR_TYPE",
     "COB_ID_INVALID",
     "DEVICE_TYPE",
+    "FILTER_MOVING_AVERAGE",
     "HEARTBEAT_TIME",
     "IDENTITY",
     "INT16_PV",
@@ -62,6 +76,7 @@ __all__ = [
     "TPDO_COMM",
     "TPDO_MAP",
     "TRANSMISSION_SYNCHRONOUS",
+    "UNIT_CODES",
     "NmtCommand",
     "ProcessValue",
     "TpdoPlan",
@@ -83,12 +98,24 @@ __all__ = [
 
 SYNC_COB_ID = 0x080
 DEVICE_TYPE = 0x1000
-COB_ID_SYNC = 0x1005
 HEARTBEAT_TIME = 0x1017
 IDENTITY = 0x1018
 TPDO_COMM = 0x1800
 TPDO_MAP = 0x1A00
 AI_DECIMAL_DIGITS = 0x6132
+AI_SENSOR_TYPE = 0x6110
+AI_ADC_SAMPLE_RATE = 0x6114
+AI_SCALING_FACTOR = 0x6126
+AI_SCALING_OFFSET = 0x6127
+AI_PHYSICAL_UNIT = 0x6131
+AI_FILTER_TYPE = 0x61A0
+AI_FILTER_CONSTANT = 0x61A1
+#: 0x61A0 filter type read as a moving average of 0x61A1 samples (0: no filter)
+FILTER_MOVING_AVERAGE = 1
+#: CiA 303-2 physical unit codes of the process values a bridge amplifier gives, by the
+#: calibration file's ``gauge_unit``: volt (SI code 0x26), millivolt (prefix −3), and mV/V as a
+#: dimensionless ratio with prefix −3 (our reading of CiA 303-2 for a ratio)
+UNIT_CODES: dict[str, int] = {"V": 0x00260000, "mV": 0xFD260000, "mV/V": 0xFD000000}
 #: COB-ID bit 31: the PDO does not exist / is not valid
 COB_ID_INVALID = 1 << 31
 #: transmission type 1: synchronous, sent after every SYNC (sampled at the SYNC)
@@ -131,12 +158,14 @@ def sdo_expedited_download(
     if not 1 <= len(data) <= 4:
         raise ValueError(f"expedited download of {len(data)} bytes: give 1..4")
     cmd = 0x23 | ((4 - len(data)) << 2)
-    return 0x600 + node_id, struct.pack("<BHB", cmd, index, subindex) + data.ljust(4, b"\0")
+    return 0x600 + node_id, bytes([cmd]) + struct.pack("<HB", index, subindex) + data.ljust(
+        4, b"\0"
+    )
 
 
 def sdo_download_answer(node_id: int, index: int, subindex: int) -> tuple[int, bytes]:
     """The server's confirmation of a download: ``(0x580 + n, [0x60, index, sub, 0 × 4])``."""
-    return 0x580 + node_id, struct.pack("<BHB4x", 0x60, index, subindex)
+    return 0x580 + node_id, bytes([0x60]) + struct.pack("<HB", index, subindex) + bytes(4)
 
 
 def mapping_entry(index: int, subindex: int, bits: int) -> int:
@@ -251,7 +280,11 @@ def mapping_writes(
     """The SDO downloads ``(index, sub, data)`` of the CiA 301 mapping procedure, in order: for
     each planned TPDO disable, clear the count, entries, count, transmission type 1, enable; each
     other TPDO of the EDS disabled (no frame of it on the bus)."""
-    u8, u32 = struct.Struct("<B").pack, struct.Struct("<I").pack
+    u32 = struct.Struct("<I").pack
+
+    def u8(v: int) -> bytes:
+        return bytes([v])
+
     out: list[tuple[int, int, bytes]] = []
     for k in range(n_tpdos):
         comm, mapping = TPDO_COMM + k, TPDO_MAP + k

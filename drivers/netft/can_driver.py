@@ -14,6 +14,16 @@ the run finds (``verify_count``: requests counted against samples the DAQ clocke
 The driver sends requests itself only outside a run (:meth:`identify`, :meth:`read_once`) and
 the BIAS at the start of a run.
 
+**It does not sample at the request.** The Net F/T samples free-running on its own clock
+(``adc_rate_hz``, 7000 S/s) and a request copies the set it last sampled: each DAQ sample's
+value is 0..1/7000 s old, uniformly (the clocks are unrelated). :attr:`NetFtCan.timing`
+(:class:`~dimacq.drivers.held_timing.HeldSampleTiming`) gives the FRF factor that makes
+(:meth:`NetFtCan.known_response`, removed from the cell's FRFs by the acquisition) and the
+phase its random part costs, checked at :meth:`NetFtCan.set_rate` against ``max_phase_deg`` at
+``band_hz`` (default 0.32 × the DAQ's rate): above it the run is refused. No python-can adapter
+transmits on a DAQ's clock pulse by itself: the requests on the DAQ's clock need an interface
+with a hardware-triggered transmit (or a trigger node), which is the rig's, not this driver's.
+
 The values are counts: the driver's ``calibration_matrix`` is the diagonal of the sensor's own
 counts per force and per torque unit (:class:`~dimacq.drivers.netft.protocol.CalibrationInfo`,
 read from the device), so ``forces = C g`` as for the strain-gauge amplifiers. A non-zero status
@@ -29,6 +39,7 @@ import numpy as np
 
 from dimacq.devices.loadcell import LoadCellBlock, LoadCellEvent, LoadCellIdentity
 from dimacq.drivers.base import Deadline, WireDriver
+from dimacq.drivers.held_timing import HeldSampleTiming
 from dimacq.drivers.netft import protocol as p
 from dimacq.drivers.stream import CounterStream, false_runs
 from dimacq.errors import DeviceError, DeviceTimeoutError, ProtocolError, SetupError
@@ -63,6 +74,11 @@ class NetFtCan(WireDriver):
         What :meth:`identify` reports (the rig's name of the cell: the CAN protocol carries none).
     bitrate : int
         The bus's bit rate (for the bus-load warning of :meth:`set_rate`).
+    adc_rate_hz : float
+        Its own free-running sample rate (7000 S/s on a Net F/T).
+    band_hz, max_phase_deg : float
+        The band's top (None: 0.32 × the DAQ's rate) and the FRF phase the held value's random
+        age may cost there, degrees.
     """
 
     def __init__(
@@ -74,6 +90,9 @@ class NetFtCan(WireDriver):
         serial_number: int = 0,
         timeout_s: float = 1.0,
         bitrate: int = 1_000_000,
+        adc_rate_hz: float = 7000.0,
+        band_hz: float | None = None,
+        max_phase_deg: float = 2.0,
         label: str = "Net F/T",
     ) -> None:
         super().__init__(f"{label} (CAN base {base:#x})", timeout_s=timeout_s, log=log)
@@ -83,6 +102,9 @@ class NetFtCan(WireDriver):
         self.calibration_matrix: np.ndarray | None = calibration.matrix()
         self.serial_number = serial_number
         self.bitrate = bitrate
+        self.timing = HeldSampleTiming(float(adc_rate_hz), 1, self.name)
+        self.band_hz = band_hz
+        self.max_phase_deg = float(max_phase_deg)
         self.sample_rate_hz: float | None = None
         self.events: list[LoadCellEvent] = []
         self.streaming = False
@@ -185,9 +207,21 @@ class NetFtCan(WireDriver):
             pass
 
     # -- a run -----------------------------------------------------------------------------------
+    def known_response(self, f_hz: np.ndarray) -> np.ndarray:
+        """The factor its held values put on its FRFs (divided out by the acquisition)."""
+        return self.timing.response(f_hz)
+
     def set_rate(self, rate_hz: int) -> float:
         """The requests come at the DAQ's rate; warns when they fill more than 80 % of the bus
-        (a request and four answers per sample)."""
+        (a request and four answers per sample).
+
+        Raises
+        ------
+        SetupError
+            The held value's random age costs more than ``max_phase_deg`` at the band's top.
+        """
+        band = self.band_hz if self.band_hz is not None else 0.32 * float(rate_hz)
+        self.timing.check(band, self.max_phase_deg, where=f"{self.name} at {rate_hz} S/s")
         load = rate_hz * 5 * _FRAME_BITS / self.bitrate
         if load > 0.8:
             log.warning(

@@ -365,7 +365,6 @@ class CalibrationInfo:
     READCALINFO = 1
     SIZE = 24
     _RESPONSE = struct.Struct(">HBBII6H")
-    _COMMAND = struct.Struct(">B19x")
 
     def __post_init__(self) -> None:
         if self.force_unit not in FORCE_UNITS or self.torque_unit not in TORQUE_UNITS:
@@ -381,7 +380,7 @@ class CalibrationInfo:
 
     @classmethod
     def command(cls) -> bytes:
-        return cls._COMMAND.pack(cls.READCALINFO)
+        return bytes([cls.READCALINFO]) + bytes(19)
 
     def encode(self) -> bytes:
         return self._RESPONSE.pack(

@@ -8,7 +8,13 @@ firmware adds: on each SYNC, when OPERATIONAL, the node samples its inputs (chan
 virtual lab's :class:`~dimacq.simulators.lab.source.SampleSource`, in the lab's own units) and
 answers with every valid synchronous TPDO, packed as **its own** mapping parameters say
 (0x6130 REAL32, 0x7130 INTEGER16 × 10^digits of 0x6132). It knows nothing of the DAQ, the host
-or the calibration: only its dictionary and the SYNCs it hears. Faults: EMCY codes at given SYNCs
+or the calibration: only its dictionary and the SYNCs it hears.
+
+**Its own sampling.** Its ADC runs free on its own clock at the rate its dictionary holds
+(0x6114, in Hz as the generic EDS declares it; its phase at power-on drawn from its node id),
+each input through its filter (0x61A0 = 1: the mean of its last 0x61A1 samples; 0: none) and its
+scaling (0x6126 × value + 0x6127); a SYNC sends the last filtered value, not a sample taken at
+the SYNC (:mod:`~dimacq.simulators.lab.held`). Without 0x6114 in its EDS it samples at the SYNC. Faults: EMCY codes at given SYNCs
 (sent with that sample, CiA 301 layout: code, error register, 5 bytes), and an NMT state it falls
 into by itself at a given SYNC (e.g. PRE-OPERATIONAL after an internal error).
 
@@ -37,6 +43,7 @@ from numpy.typing import NDArray
 
 from dimacq.drivers.cia404 import protocol as p
 from dimacq.simulators.daq.clock import SampleClock
+from dimacq.simulators.lab.held import held_sample, read_between
 from dimacq.simulators.lab.source import SampleSource
 from dimacq.simulators.loadcell.pulses import BURST_S
 from dimacq.simulators.virtual_can import SimVirtualBus
@@ -113,6 +120,9 @@ class Cia404NodeSim:
         n_in = int(od[0x6130][0].raw) if 0x6130 in self.node.object_dictionary else 0
         if len(self.inputs) > max(n_in, 1):
             raise ValueError(f"{len(self.inputs)} inputs wired, the EDS has {n_in}")
+        self._phase = float(np.random.default_rng([0x404, node_id]).random())
+        self._lock = threading.Lock()
+        self._deferred_nmt: int | None = None
         self._syncs = 0  # SYNCs heard while OPERATIONAL (this run)
         self._was_operational = False
         self._layout: list[tuple[int, list[tuple[int, int, int]]]] = []
@@ -149,6 +159,30 @@ class Cia404NodeSim:
                 return int(np.clip(np.rint(v * 10**digits), -32768, 32767))
             return v
         return None
+
+    def _own(self, index: int, default: float) -> float:
+        if index not in self.node.object_dictionary:
+            return default
+        return float(self._od[index][1].raw)
+
+    def _sampled(self, world0: int, n: int) -> NDArray[np.float64]:
+        """What it sends at SYNCs at world samples ``world0 ..``: its last filtered, scaled
+        values, shape (n, inputs)."""
+        if n == 0:
+            return np.zeros((0, len(self.inputs)))
+        x = world0 + np.arange(n, dtype=float)
+        if p.AI_ADC_SAMPLE_RATE not in self.node.object_dictionary:
+            raw = self.source.read(self.inputs, world0, n).T
+        else:
+            per_world = self._own(p.AI_ADC_SAMPLE_RATE, 1.0) / self.source.sample_rate_hz
+            kind = int(self._own(p.AI_FILTER_TYPE, 0))
+            taps = int(self._own(p.AI_FILTER_CONSTANT, 1)) if kind == p.FILTER_MOVING_AVERAGE else 1
+            taps = max(taps, 1)
+            _, m = held_sample(x, per_world, self._phase)
+            own = (m[:, None] - np.arange(taps)[None, :] + self._phase) / per_world  # (n, taps)
+            g = read_between(self.source, self.inputs, np.asarray(own.ravel(), float), self._lock)
+            raw = g.reshape(len(self.inputs), n, taps).mean(axis=2).T
+        return raw * self._own(p.AI_SCALING_FACTOR, 1.0) + self._own(p.AI_SCALING_OFFSET, 0.0)
 
     def _read_layout(self) -> list[tuple[int, list[tuple[int, int, int]]]]:
         """Valid synchronous TPDOs from the node's own 0x1800/0x1A00: (COB-ID, entries)."""
@@ -196,6 +230,7 @@ class Cia404NodeSim:
         self._own_world += 1
         for cob, payload in frames:
             self.network.send_message(cob, payload)
+        self.settle()
 
     def on_sync(self, world0: int, n: int) -> list[list[tuple[int, bytes]]]:
         """``n`` SYNCs at world samples ``world0 ..``: per SYNC, the frames the node sends."""
@@ -215,7 +250,7 @@ class Cia404NodeSim:
         for s in self.faults.nmt_at:
             if first <= s < first + n:
                 cut = min(cut, s - first)
-        values = self.source.read(self.inputs, world0, n).T if n else np.zeros((0, 0))
+        values = self._sampled(world0, n)
         if n:
             self.last_values = values[max(cut - 1, 0)].copy()
         out = empty
@@ -229,10 +264,16 @@ class Cia404NodeSim:
                 out[s - first].append((p.emcy_cob_id(self.node_id), data))
         self._syncs = first + n
         if cut < n:
-            cmd = next(c for s, c in self.faults.nmt_at.items() if s == first + cut)
-            self.node.nmt.send_command(cmd)
+            # taken once the frames before it are on the bus (:meth:`settle`)
+            self._deferred_nmt = next(c for s, c in self.faults.nmt_at.items() if s == first + cut)
             self._was_operational = False
         return out
+
+    def settle(self) -> None:
+        """After the frames of :meth:`on_sync` are sent: the NMT state a fault left it in."""
+        cmd, self._deferred_nmt = self._deferred_nmt, None
+        if cmd is not None:
+            self.node.nmt.send_command(cmd)
 
 
 class SyncProducerSim:
@@ -288,6 +329,8 @@ class SyncProducerSim:
             frames = answers[0][j] if one else sorted(f for a in answers for f in a[j])
             for cob, data in frames:
                 send(Msg(arbitration_id=cob, data=data, is_extended_id=False))
+        for node in self.nodes:
+            node.settle()
         self.sent += n
         return n
 

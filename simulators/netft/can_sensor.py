@@ -7,6 +7,17 @@ sees: what the sensor holds), then into counts with its counts per force and per
 answers the frames of :mod:`dimacq.drivers.netft.protocol` (the only thing it shares with the
 driver): REQUEST LONG with its four answers, REQUEST SHORT with two, BIAS.
 
+**It samples on its own clock.** A Net F/T samples its gauges free-running at its internal rate
+(7000 S/s, ``adc_rate_hz``) and a REQUEST LONG copies the set it holds — the last one its
+own clock sampled — into the answers (the manual: "the current force/torque set"); nothing in
+it samples at the request. So sample ``n`` of its clock is taken at world position
+``y_n = (n + φ) · fs / f_adc`` (``fs`` the world's rate, ``φ`` its clock's phase at power-on,
+drawn from the seed; ``ppm`` its crystal's error) and a request at world position ``x``
+answers ``n = ⌊x · f_adc / fs − φ⌋``, a value ``x − y_n`` old: 0 .. 1/f_adc s (0–143 µs at
+7 kHz). The world exists as samples at ``fs``; between them it is interpolated band-limited
+(the RDT simulator's 16-tap Kaiser-windowed sinc). Its answers carry ``n`` as their sample
+number. The factory's low-pass filter is off (the sensor's default setting, not modelled).
+
 The same thread plays the rig's **request trigger**: the bus interface that sends REQUEST LONG
 on every pulse of the DAQ's sample clock (:class:`~dimacq.simulators.daq.clock.SampleClock`).
 For pulse ``k`` of a DAQ run it sends the request, then the sensor's answers for world sample
@@ -29,6 +40,7 @@ from numpy.typing import NDArray
 from dimacq.drivers.netft import protocol as p
 from dimacq.simulators.daq.clock import SampleClock
 from dimacq.simulators.imperfections import fault_log
+from dimacq.simulators.lab.held import held_sample, read_between
 from dimacq.simulators.lab.source import SampleSource
 from dimacq.simulators.loadcell.pulses import BURST_S
 from dimacq.simulators.virtual_can import SimVirtualBus
@@ -59,7 +71,9 @@ class NetFtCanSim:
     clock : SampleClock, optional
         The DAQ's sample clock, whose pulses trigger the requests (None: host requests only).
     adc_rate_hz : float
-        The sensor's own sample rate (its sample number counts these).
+        The sensor's own free-running sample rate (its sample number counts these).
+    ppm : float
+        Its crystal's error against the world's clock, parts per million.
     frame_loss_rate : float
         Per answer frame: probability it is lost on the bus.
     """
@@ -75,6 +89,7 @@ class NetFtCanSim:
         base: int = 0x020,
         clock: SampleClock | None = None,
         adc_rate_hz: float = 7000.0,
+        ppm: float = 0.0,
         frame_loss_rate: float = 0.0,
         seed: int = 0,
     ) -> None:
@@ -89,6 +104,9 @@ class NetFtCanSim:
         self.adc_rate_hz = adc_rate_hz
         self.frame_loss_rate = frame_loss_rate
         self.rng = np.random.default_rng([seed, base])
+        #: its own samples per world sample, and its clock's phase at power-on (in its samples)
+        self.per_world = adc_rate_hz * (1.0 + 1e-6 * ppm) / source.sample_rate_hz
+        self.phase = float(self.rng.random())
         self.bias_g = np.zeros(len(self.gauges))
         self.status = 0
         self.injected: dict[str, int] = {}
@@ -125,15 +143,18 @@ class NetFtCanSim:
         st = self.clock.state()
         return st.epoch + st.count
 
-    def _counts(self, world0: int, n: int) -> NDArray[np.int64]:
-        """Counts (n, 6) in AXES order for world samples ``world0 ..``."""
-        with self._source_lock():
-            g = self.source.read(self.gauges, world0, n)
-        loads = self.C @ (g - self.bias_g[:, None])  # (6, n) N, N·m
-        return np.rint(loads.T * self.counts_per_unit).astype(np.int64)
+    def held(self, x: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+        """For requests at world positions ``x``: the world position of the set it holds and
+        that set's sample number, ``(y, n)``."""
+        return held_sample(x, self.per_world, self.phase)
 
-    def _sample_number(self, world: int) -> int:
-        return int(world * self.adc_rate_hz / self.source.sample_rate_hz) & 0xFFFFFFFF
+    def _read(self, y: NDArray[np.float64]) -> NDArray[np.float64]:
+        return read_between(self.source, self.gauges, y, self._source_lock())
+
+    def _counts(self, y: NDArray[np.float64]) -> NDArray[np.int64]:
+        """Counts (n, 6) in AXES order of the sets held at world positions ``y``."""
+        loads = self.C @ (self._read(y) - self.bias_g[:, None])  # (6, n) N, N·m
+        return np.rint(loads.T * self.counts_per_unit).astype(np.int64)
 
     # -- wire ----------------------------------------------------------------------------------
     def _send(self, offset: int, data: bytes) -> None:
@@ -147,8 +168,8 @@ class NetFtCanSim:
             "simulated fault can_frame_loss: Net F/T answer base+%d lost on the bus", offset
         )
 
-    def _answer_long(self, counts: NDArray[np.int64], world: int) -> None:
-        for off, data in p.long_frames(counts.tolist(), self.status, self._sample_number(world)):
+    def _answer_long(self, counts: NDArray[np.int64], sample: int) -> None:
+        for off, data in p.long_frames(counts.tolist(), self.status, sample & 0xFFFFFFFF):
             if self.frame_loss_rate and self.rng.random() < self.frame_loss_rate:
                 self._lost(off)
                 continue
@@ -161,11 +182,12 @@ class NetFtCanSim:
             log.debug("Net F/T simulator: ignored request %s", data.hex())
             return
         world = self._world_now()
+        y, n = self.held(np.array([float(world)]))
         if req.command == p.Command.REQUEST_LONG:
-            self._answer_long(self._counts(world, 1)[0], world)
+            self._answer_long(self._counts(y)[0], int(n[0]))
         elif req.command == p.Command.REQUEST_SHORT:
-            c = self._counts(world, 1)[0]
-            sample = self._sample_number(world)
+            c = self._counts(y)[0]
+            sample = int(n[0])
             c16 = np.clip(c, -32768, 32767).tolist()
             self._send(5, p.ShortXY(c16[0], c16[3], c16[1], c16[4]).encode())
             self._send(6, p.ShortZ(c16[2], c16[5], self.status & 0x7FFF, sample & 0x7FFF).encode())
@@ -187,9 +209,9 @@ class NetFtCanSim:
         if n <= 0:
             return 0
         k0 = self._sent
-        world = self._epoch + k0 + np.arange(n, dtype=np.int64)
-        counts = self._counts(self._epoch + k0, n)
-        samples = (world * self.adc_rate_hz / self.source.sample_rate_hz).astype(np.int64)
+        world = (self._epoch + k0 + np.arange(n, dtype=np.int64)).astype(float)
+        y, samples = self.held(world)
+        counts = self._counts(y)
         payloads = p.long_payloads(counts, self.status, samples)
         lost = (
             self.rng.random((n, 4)) < self.frame_loss_rate

@@ -12,7 +12,7 @@ lab's bridge outputs at the lab's physical time of that instant — the DAQ's fr
 gives the world's sample position at a wall time (fractional) — through the sensor's own
 calibration, in its counts per unit. The world exists as samples at the DAQ's rate; between them
 it is interpolated band-limited, as a real sensor samples the continuous signal: a 16-tap
-Kaiser-windowed sinc (β = 8, :func:`_sinc_weights`), within 0.05 % and 0.01° up to 0.33 × the
+Kaiser-windowed sinc (β = 8, :func:`sinc_weights`), within 0.05 % and 0.01° up to 0.33 × the
 DAQ's rate. (The 4-point cubic it replaced lost up to 27 % of the amplitude and ±5° of phase at
 0.32 × the rate, the automatic band's top, varying with the instant's fraction: the data's delay
 fit read it as a delay that changes across the band.) Nothing of the DAQ's clock reaches the driver: only the records, their sequence numbers
@@ -35,26 +35,13 @@ import numpy as np
 from dimacq.drivers.netft import protocol as p
 from dimacq.simulators.daq.clock import SampleClock
 from dimacq.simulators.imperfections import fault_log
+from dimacq.simulators.lab.held import INTERP_TAPS, sinc_weights
 from dimacq.simulators.lab.source import SampleSource
 
 __all__ = ["NetFtUdpSim"]
 
 #: how far ahead of its last record's instant a datagram is measured, wall s
 _AHEAD_S = 0.0004
-#: the band-limited interpolator: taps i − 7 .. i + 8 around the world's sample i, Kaiser β
-_TAPS = np.arange(-7, 9)
-_BETA = 8.0
-
-
-def _sinc_weights(d: np.ndarray) -> np.ndarray:
-    """Weights of the world's samples at distances ``d = x − (i + k)`` (shape (n, 16)): a
-    Kaiser-windowed sinc ``sinc(d) I0(β √(1 − (d/8.5)²)) / I0(β)``, each row normalised to a
-    sum of 1 (exact at DC)."""
-    win = np.i0(_BETA * np.sqrt(np.clip(1.0 - (d / 8.5) ** 2, 0.0, None))) / np.i0(_BETA)
-    w = np.sinc(d) * win
-    return w / w.sum(axis=1, keepdims=True)
-
-
 log = logging.getLogger(__name__)
 
 
@@ -158,10 +145,10 @@ class NetFtUdpSim:
             x = pos + (walls - walls[0]) * per_s
             # before the run's first pulse the world stands where the last run left it
             x = np.maximum(x, st.epoch)
-            idx = np.floor(x).astype(np.int64)[:, None] + _TAPS[None, :]  # (n, 16)
+            idx = np.floor(x).astype(np.int64)[:, None] + INTERP_TAPS[None, :]  # (n, 16)
             lo = max(0, int(idx.min()))
             y = self.source.read(self.gauges, lo, int(idx.max()) + 1 - lo)
-        w = _sinc_weights(x[:, None] - idx)
+        w = sinc_weights(x[:, None] - idx)
         return np.einsum("gnk,nk->gn", y[:, np.clip(idx - lo, 0, y.shape[1] - 1)], w)
 
     def _counts(self, walls: np.ndarray) -> np.ndarray:

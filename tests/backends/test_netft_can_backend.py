@@ -26,8 +26,14 @@ def test_entries_in_the_table() -> None:
     assert not is_simulated("loadcell", "netft-can")
 
 
-def _impact(tmp_path: Path, loadcell: str) -> Any:
-    settings = load_settings(data_dir=tmp_path / loadcell, token="t", loadcell=loadcell)
+def _impact(tmp_path: Path, loadcell: str, band_hz: float | None = None) -> Any:
+    kw: dict[str, Any] = {}
+    if band_hz is not None:  # the band its held values allow within the phase budget
+        text = (default_config_file().parent / "rig.toml").read_text(encoding="utf-8")
+        text = text.replace("# netft_band_hz = 100", f"netft_band_hz = {band_hz}")
+        (tmp_path / "rig.toml").write_text(text, encoding="utf-8")
+        kw["rig_file"] = str(tmp_path / "rig.toml")
+    settings = load_settings(data_dir=tmp_path / loadcell, token="t", loadcell=loadcell, **kw)
     setup = build_scenario(settings.scenario).model.setup
     setup = setup.model_copy(update={"excitations": setup.excitations[:2]})
     cfg = {"averages_per_input": 2, "record_samples": 2048, "seed": 4}
@@ -42,9 +48,17 @@ def _impact(tmp_path: Path, loadcell: str) -> Any:
         rig.close()
 
 
+def test_the_default_band_is_refused_for_its_held_values(tmp_path: Path) -> None:
+    """At 0.32 x 2048 S/s = 655 Hz the held value's age (0..143 us) costs 9.7 deg: refused."""
+    with pytest.raises(SetupError) as err:
+        _impact(tmp_path, "netft-can-simulated")
+    msg = str(err.value)
+    assert "7000 S/s" in msg and "9.7 deg" in msg and "655.36 Hz" in msg and "up to 135 Hz" in msg
+
+
 def test_same_impact_test_through_the_net_ft(tmp_path: Path) -> None:
     amp = _impact(tmp_path, "simulated")
-    ft = _impact(tmp_path, "netft-can-simulated")
+    ft = _impact(tmp_path, "netft-can-simulated", band_hz=100)
     assert ft.H.shape == amp.H.shape and ft.H.shape[1] == 24 + 6
     f = ft.frequencies_hz
     band = (f >= 20) & (f <= 100)

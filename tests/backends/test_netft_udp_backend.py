@@ -168,7 +168,9 @@ def test_one_delay_fitted_on_every_input_of_the_run(
         scenario=GROUND,
     )
     messages = [
-        r.getMessage() for r in caplog.records if r.name == "dimacq.services.acquisition.data_alignment"
+        r.getMessage()
+        for r in caplog.records
+        if r.name == "dimacq.services.acquisition.data_alignment"
     ]
     own = [m for m in messages if "own delay fit +" in m or "own delay fit -" in m]
     assert len(own) == 4, own

@@ -96,6 +96,7 @@ from dimacq.services.acquisition.impact_result import (
 )
 from dimacq.services.acquisition.impact_stream import ImpactStream, _StrikeLost
 from dimacq.services.acquisition.sample_window import SampleWindow
+from dimacq.services.acquisition.session.known_response import KnownResponses
 
 __all__ = [
     "OPERATOR_OVERRIDE",
@@ -441,6 +442,10 @@ class ImpactSession(ImpactStream):
             len(self.response_rows),
             line_bandwidth=s.record_samples * float(np.sum(w_out**2)) / float(np.sum(w_out)) ** 2,
         )
+        # cells answering with values held from their own clock: their mean effect divided out
+        known = KnownResponses(
+            self.loadcells, [b.data.shape[0] for b in self._lc_bufs], len(self.response_rows)
+        )
         # Streamed: an input's FRF is estimated as soon as its averages are in, and its records
         # are dropped (memory: one input's records, not the whole test's).
         H_all: NDArray[np.complex128] | None = None
@@ -572,6 +577,7 @@ class ImpactSession(ImpactStream):
                 n_accepted.append(len(records[j]))
                 if len(records[j]) >= need:  # fewer: incomplete, no FRF (coherence would be 1)
                     f_j, H_j, coh_j = self._frf(records[j], fs)
+                    known.apply(f_j, H_j)
                     # a load cell on its own clock: its residual delay fitted from the data
                     where = f"input {self.input_names[j]}"
                     ranges = [

@@ -17,6 +17,23 @@ EDS = Path(__file__).resolve().parents[3] / "config" / "canopen" / "cia404-gener
 NODE = 5
 
 
+def test_object_indices_of_cia301_and_cia404() -> None:
+    """The objects the driver reads and writes, as CiA 301 (communication) and CiA 404
+    (analogue inputs) number them."""
+    assert (p.SYNC_COB_ID, p.DEVICE_TYPE, p.HEARTBEAT_TIME, p.IDENTITY) == (
+        0x080,
+        0x1000,
+        0x1017,
+        0x1018,
+    )
+    assert (p.TPDO_COMM, p.TPDO_MAP, p.COB_ID_INVALID) == (0x1800, 0x1A00, 1 << 31)
+    assert (p.REAL32_PV.index, p.INT16_PV.index, p.AI_DECIMAL_DIGITS) == (0x6130, 0x7130, 0x6132)
+    assert (p.AI_SENSOR_TYPE, p.AI_ADC_SAMPLE_RATE, p.AI_PHYSICAL_UNIT) == (0x6110, 0x6114, 0x6131)
+    assert (p.AI_SCALING_FACTOR, p.AI_SCALING_OFFSET) == (0x6126, 0x6127)
+    assert (p.AI_FILTER_TYPE, p.AI_FILTER_CONSTANT, p.FILTER_MOVING_AVERAGE) == (0x61A0, 0x61A1, 1)
+    assert p.TRANSMISSION_SYNCHRONOUS == 1  # CiA 301: synchronous, every SYNC
+
+
 def test_cia301_reference_frames() -> None:
     # SDO expedited download, 4 bytes (ccs 1, e = s = 1, n = 0: 0x23), index LE, sub, data LE:
     # TPDO1's first mapping entry = 0x6130 sub 1, 32 bits, to node 5
@@ -113,3 +130,48 @@ def test_the_mapping_procedure_on_the_wire() -> None:
         bus.assert_done()
     finally:
         ch.close()
+
+
+def test_nmt_command_specifiers_of_cia301() -> None:
+    """CiA 301 NMT: 01 start, 02 stop, 80 enter pre-operational, 81 reset node, 82 reset
+    communication, each [command, node] on identifier 0."""
+    want = {
+        p.NmtCommand.START: "0105",
+        p.NmtCommand.STOP: "0205",
+        p.NmtCommand.PRE_OPERATIONAL: "8005",
+        p.NmtCommand.RESET_NODE: "8105",
+        p.NmtCommand.RESET_COMMUNICATION: "8205",
+    }
+    for cmd, data in want.items():
+        assert p.nmt_frame(cmd, NODE) == (0x000, bytes.fromhex(data)), cmd.name
+    # by name: two members of one value would be one member (an alias) and pass the loop
+    assert {c.name: int(c) for c in p.NmtCommand} == {
+        "START": 0x01,
+        "STOP": 0x02,
+        "PRE_OPERATIONAL": 0x80,
+        "RESET_NODE": 0x81,
+        "RESET_COMMUNICATION": 0x82,
+    }
+
+
+def test_sdo_of_a_high_index_and_subindex() -> None:
+    """Index and sub-index are unsigned: 0xA000 (a profile area index) sub 0x81."""
+    assert p.sdo_expedited_download(NODE, 0xA000, 0x81, b"\x01\x02\x03\x04")[1] == bytes.fromhex(
+        "2300a08101020304"
+    )
+    assert p.sdo_download_answer(NODE, 0xA000, 0x81)[1] == bytes.fromhex("6000a08100000000")
+
+
+def test_a_mapping_holds_at_most_eight_entries() -> None:
+    eight = p.TpdoPlan(1, 0x185, p.INT16_PV, tuple(range(8)))
+    assert len([w for w in p.mapping_writes([eight], 1, NODE) if w[0] == p.TPDO_MAP]) == 10
+    nine = p.TpdoPlan(1, 0x185, p.INT16_PV, tuple(range(9)))
+    with pytest.raises(SetupError, match="9 entries; at most 8"):
+        p.mapping_writes([nine], 1, NODE)
+
+
+def test_int16_process_values_are_signed_little_endian() -> None:
+    plan = p.plan_tpdos(2, p.INT16_PV, NODE, 6, where="t")[0]
+    got = p.decode_tpdo(plan, [bytes.fromhex("feff0200")], np.array([0.5, 0.5]))
+    np.testing.assert_array_equal(got, [[-1.0, 1.0]])
+    assert p.encode_tpdo(plan, np.array([[-2.0, 2.0]]))[0] == bytes.fromhex("feff0200")

@@ -32,6 +32,30 @@ def _driver(bus: object) -> NetFtCan:
     return NetFtCan(bus, base=BASE, calibration=CAL, serial_number=501, timeout_s=0.5)
 
 
+def test_the_codecs_numbers_as_transcribed() -> None:
+    """Offsets from the base address, the RDT and TCP ports, the calibration header and sizes
+    (manual §11/§15 as transcribed; ATI's demo code for the RDT port and record size)."""
+    assert (p.Request.OFFSET, p.LongStatus.OFFSET, p.ShortXY.OFFSET, p.ShortZ.OFFSET) == (
+        0,
+        4,
+        5,
+        6,
+    )
+    assert (p.RDT_PORT, p.TCP_PORT, p.RdtRecord.SIZE, p.RdtRequest.HEADER) == (
+        49152,
+        49151,
+        36,
+        0x1234,
+    )
+    assert (p.CalibrationInfo.HEADER, p.CalibrationInfo.READCALINFO, p.CalibrationInfo.SIZE) == (
+        0x1234,
+        1,
+        24,
+    )
+    assert [int(c) for c in p.Command] == [0x01, 0x02, 0x04, 0x08]
+    assert [int(c) for c in p.RdtCommand] == [0x0000, 0x0002, 0x0003, 0x0042]
+
+
 def test_the_manuals_byte_order_examples() -> None:
     (b16, v16), (b32, v32) = p.MANUAL_EXAMPLES
     assert p.decode_i16(b16) == v16 == 0x0256
@@ -108,7 +132,7 @@ def test_a_run_counts_the_requests_on_the_daqs_clock() -> None:
     c = [[10 * k + j for j in range(6)] for k in range(4)]
     stream = _sample(0, c[0]) + _sample(1, c[1], lose=3) + _sample(2, c[2]) + _sample(3, c[3])
     with expected_exchange("can", [(BIAS, None), (None, stream)], connect=_driver) as drv:
-        drv.set_rate(2048)
+        drv.set_rate(256)  # its held values' phase within 2 deg up to 135 Hz: 0.32 x 256
         drv.start()
         blk = drv.read_until(3)
         assert blk.first_sample == 0 and blk.n_samples == 3

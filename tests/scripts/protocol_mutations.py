@@ -1,0 +1,522 @@
+"""Mutation check of the drivers' protocol modules: does changing one constant fail a test?
+
+For each target protocol module, each mutable item in turn is changed in a temporary copy of
+the module's source, and that device's tests are run against the copy (a pytest plugin maps the
+module's name to the copy; the working tree is not touched):
+
+- every int constant assigned at module level or in a top-level class body (an endpoint, a
+  request code, a port, an object index, an enum member): ``+1``, ``−1``, and its bytes swapped
+  (for values above 0xFF, at the smallest width of 2, 4 or 8 bytes that holds it);
+- every struct format string (``struct.Struct("<ii")``, ``">HBBII6H"``...) and numpy dtype
+  string (``">u4"``, ``"<f4"``): byte order ``<`` ↔ ``>`` (``!`` → ``<``), and each
+  signedness letter flipped in turn (``h``↔``H``, ``i``↔``I``, ``b``↔``B``, ``l``↔``L``,
+  ``q``↔``Q``; dtype ``i``↔``u``).
+
+A mutant is **killed** when its tests fail (``pytest -x``), **survived** when they pass (a
+change that cannot differ, a byte order of one byte, is not made). By default the mutants run in
+one process (``--in-process``): the heavy third-party imports (numpy, python-can, canopen) are
+made once, and before each mutant every ``dimacq`` and test module is dropped from
+``sys.modules`` so that the tests import the mutated copy afresh; ``--subprocess`` runs each in
+a fresh interpreter instead (slower, the same verdicts). The results go to
+``protocol_mutations_results.md`` beside this script (command, date, commit, load).
+
+Usage::
+
+    python tests/scripts/protocol_mutations.py                 # every target
+    python tests/scripts/protocol_mutations.py netft cia404    # those targets
+    python tests/scripts/protocol_mutations.py --list          # the mutants, not run
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import datetime as dt
+import os
+import re
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+RESULTS = Path(__file__).with_name("protocol_mutations_results.md")
+
+#: target name → (module, source file, test paths: fastest first, -x stops at the first failure)
+TARGETS: dict[str, tuple[str, str, tuple[str, ...]]] = {
+    "netft": (
+        "dimacq.drivers.netft.protocol",
+        "drivers/netft/protocol.py",
+        (
+            "tests/drivers/netft/test_netft_can_protocol.py",
+            "tests/drivers/test_can_reference_exchanges.py",
+            "tests/simulators/netft/test_netft_can_sim.py",
+            # the RDT codec's exchanges (its timing tests are the alignment's, not the codec's)
+            "tests/drivers/netft/test_netft_rdt.py::test_request_and_record_bytes",
+            "tests/drivers/netft/test_netft_rdt.py::test_driver_on_the_loopback_simulator",
+            "tests/drivers/netft/test_netft_rdt.py::test_calibration_read_from_the_device_over_tcp",
+        ),
+    ),
+    "cia404": (
+        "dimacq.drivers.cia404.protocol",
+        "drivers/cia404/protocol.py",
+        (
+            "tests/drivers/cia404/test_cia404_protocol.py",
+            "tests/drivers/test_can_reference_exchanges.py",
+            "tests/simulators/cia404/test_cia404_node.py",
+        ),
+    ),
+    "canopen": (
+        "dimacq.drivers.canopen_loadcell.protocol",
+        "drivers/canopen_loadcell/protocol.py",
+        ("tests/simulators/canopen_loadcell/test_canopen_loadcell.py",),
+    ),
+    "mcc": (
+        "dimacq.drivers.mcc.protocol",
+        "drivers/mcc/protocol.py",
+        ("tests/drivers/mcc/test_mcc_protocol.py", "tests/simulators/mcc/test_mcc_simulator.py"),
+    ),
+    "loadcell": (
+        "dimacq.drivers.loadcell.protocol",
+        "drivers/loadcell/protocol.py",
+        (
+            "tests/drivers/loadcell/test_loadcell_protocol.py",
+            "tests/drivers/loadcell/test_loadcell_driver.py",
+        ),
+    ),
+    "daq": (
+        "dimacq.drivers.daq.protocol",
+        "drivers/daq/protocol.py",
+        ("tests/drivers/daq/test_daq_driver.py", "tests/simulators/daq/test_daq_simulator.py"),
+    ),
+}
+
+_STRUCT = re.compile(r"^[<>!=@]?(\d*[xcbB?hHiIlLqQnNefdsp])+$")
+_DTYPE = re.compile(r"^[<>|=]?[iuf]\d$")
+_SIGN = {
+    "h": "H",
+    "H": "h",
+    "i": "I",
+    "I": "i",
+    "b": "B",
+    "B": "b",
+    "l": "L",
+    "L": "l",
+    "q": "Q",
+    "Q": "q",
+}
+
+
+@dataclass(frozen=True)
+class Mutant:
+    """One change: ``line`` (1-based), the item's name, the source segment and its
+    replacement at ``[start, end)`` of the source."""
+
+    name: str
+    line: int
+    kind: str
+    old: str
+    new: str
+    start: int
+    end: int
+
+
+def _offset(lines: list[str], line: int, col: int) -> int:
+    return sum(len(x) for x in lines[: line - 1]) + len(
+        lines[line - 1][:col].encode()[:col].decode(errors="ignore")
+    )
+
+
+def _int_mutants(value: int) -> list[tuple[str, int]]:
+    out = [("+1", value + 1), ("-1", value - 1)]
+    if value > 0xFF:
+        width = next(w for w in (2, 4, 8) if value < 1 << (8 * w))
+        swapped = int.from_bytes(value.to_bytes(width, "little"), "big")
+        if swapped != value:
+            out.append((f"byte swap ({width} B)", swapped))
+    return out
+
+
+def struct_size(fmt: str) -> int:
+    import struct
+
+    try:
+        return struct.calcsize(fmt)
+    except struct.error:
+        return 0
+
+
+def _fmt_mutants(fmt: str) -> list[tuple[str, str]]:
+    out = []
+    if _DTYPE.match(fmt):
+        order, body = (fmt[0], fmt[1:]) if fmt[0] in "<>|=" else ("", fmt)
+        if order in "<>":
+            out.append(("byte order", {"<": ">", ">": "<"}[order] + body))
+        if body[0] in "iu":
+            out.append(("signedness", order + {"i": "u", "u": "i"}[body[0]] + body[1:]))
+        return out
+    order = fmt[0] if fmt[0] in "<>!=@" else ""
+    body = fmt[len(order) :]
+    one_byte = all(ch in "xcbB?s" or ch.isdigit() for ch in body)  # no multi-byte field
+    if order in ("<", ">", "!") and not one_byte:  # one byte has no byte order: no mutant
+        out.append(("byte order", {"<": ">", ">": "<", "!": "<"}[order] + body))
+    for i, ch in enumerate(body):
+        if ch in _SIGN:
+            out.append(
+                (
+                    f"signedness {ch}->{_SIGN[ch]} at {i}",
+                    order + body[:i] + _SIGN[ch] + body[i + 1 :],
+                )
+            )
+    return out
+
+
+def mutants(source: str) -> list[Mutant]:
+    """Every mutant of ``source`` (see the module docstring)."""
+    tree = ast.parse(source)
+    lines = source.splitlines(keepends=True)
+    starts = [0]
+    for ln in lines:
+        starts.append(starts[-1] + len(ln))
+
+    def pos(node: ast.AST) -> tuple[int, int]:
+        a = starts[node.lineno - 1] + len(
+            lines[node.lineno - 1].encode()[: node.col_offset].decode()
+        )
+        b = (
+            starts[node.end_lineno - 1]
+            + len(  # type: ignore[operator]
+                lines[node.end_lineno - 1].encode()[: node.end_col_offset].decode()  # type: ignore[index]
+            )
+        )
+        return a, b
+
+    out: list[Mutant] = []
+    bodies: list[tuple[str, list[ast.stmt]]] = [("", tree.body)]
+    bodies += [(f"{n.name}.", n.body) for n in tree.body if isinstance(n, ast.ClassDef)]
+    for prefix, body in bodies:
+        for stmt in body:
+            if isinstance(stmt, ast.Assign) and len(stmt.targets) == 1:
+                target, value = stmt.targets[0], stmt.value
+            elif isinstance(stmt, ast.AnnAssign) and stmt.value is not None and not prefix:
+                # (a dataclass field's default in a class body is not a protocol constant)
+                target, value = stmt.target, stmt.value
+            else:
+                continue
+            if not isinstance(target, ast.Name):
+                continue
+            name = prefix + target.id
+            if (
+                isinstance(value, ast.Constant)
+                and isinstance(value.value, int)
+                and not isinstance(value.value, bool)
+            ):
+                a, b = pos(value)
+                for kind, v in _int_mutants(value.value):
+                    out.append(
+                        Mutant(
+                            name, stmt.lineno, kind, source[a:b], hex(v) if v >= 0 else str(v), a, b
+                        )
+                    )
+                continue
+            # format strings anywhere in the assigned value (struct.Struct("<ii"), np.dtype([...]))
+            for node in ast.walk(value):
+                if isinstance(node, ast.Constant) and isinstance(node.value, str):
+                    fmt = node.value
+                    # with a byte order: a format, not a word ("lbf" is letters of codes too)
+                    if fmt[:1] not in "<>!=@|" or not (_STRUCT.match(fmt) or _DTYPE.match(fmt)):
+                        continue
+                    a, b = pos(node)
+                    for kind, new in _fmt_mutants(fmt):
+                        where = f"{name} {fmt!r}" + (
+                            f" col {node.col_offset}" if "DTYPE" in name else ""
+                        )
+                        out.append(Mutant(where, node.lineno, kind, source[a:b], repr(new), a, b))
+    # struct formats used inline in functions (struct.unpack("<h", b))
+    for node in ast.walk(tree):
+        if (
+            isinstance(node, ast.Call)
+            and isinstance(node.func, ast.Attribute)
+            and isinstance(node.func.value, ast.Name)
+            and node.func.value.id == "struct"
+            and node.args
+            and isinstance(node.args[0], ast.Constant)
+            and isinstance(node.args[0].value, str)
+        ):
+            fmt = node.args[0].value
+            a, b = pos(node.args[0])
+            if any(m.start == a for m in out):
+                continue
+            for kind, new in _fmt_mutants(fmt):
+                out.append(
+                    Mutant(
+                        f"struct.{node.func.attr}({fmt!r})",
+                        node.lineno,
+                        kind,
+                        source[a:b],
+                        repr(new),
+                        a,
+                        b,
+                    )
+                )
+    return out
+
+
+_PLUGIN = """
+import importlib.abc, importlib.util, sys
+_NAME, _PATH = {name!r}, {path!r}
+
+class _Finder(importlib.abc.MetaPathFinder):
+    def find_spec(self, fullname, path=None, target=None):
+        if fullname == _NAME:
+            return importlib.util.spec_from_file_location(fullname, _PATH)
+        return None
+
+sys.meta_path.insert(0, _Finder())
+"""
+
+
+def run_mutant(
+    module: str, source: str, m: Mutant, tests: tuple[str, ...], workers: str, timeout_s: float
+) -> tuple[str, float, str]:
+    """``(verdict, seconds, first failing test)`` of one mutant."""
+    text = source[: m.start] + m.new + source[m.end :]
+    with tempfile.TemporaryDirectory(prefix="mutant-") as tmp:
+        mod = Path(tmp) / "mutated_protocol.py"
+        mod.write_text(text, encoding="utf-8")
+        (Path(tmp) / "_mutant_plugin.py").write_text(_PLUGIN.format(name=module, path=str(mod)))
+        env = dict(os.environ, PYTHONPATH=tmp + os.pathsep + os.environ.get("PYTHONPATH", ""))
+        cmd = [
+            sys.executable,
+            "-m",
+            "pytest",
+            "-p",
+            "_mutant_plugin",
+            "-x",
+            "-q",
+            "-p",
+            "no:cacheprovider",
+            "-n",
+            workers,
+            "--no-header",
+            "-rf",
+            *tests,
+        ]
+        t0 = time.monotonic()
+        try:
+            r = subprocess.run(
+                cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=timeout_s
+            )
+        except subprocess.TimeoutExpired:
+            return "killed (timeout)", time.monotonic() - t0, ""
+        secs = time.monotonic() - t0
+    failed = next(
+        (ln.split(" ")[1] for ln in r.stdout.splitlines() if ln.startswith("FAILED ")), ""
+    )
+    if r.returncode == 0:
+        return "survived", secs, ""
+    if r.returncode == 1:
+        return "killed", secs, failed
+    return (
+        f"killed (pytest exit {r.returncode})",
+        secs,
+        failed or r.stdout.strip().splitlines()[-1:][0] if r.stdout.strip() else "",
+    )
+
+
+class _Finder:
+    """Maps one module name to a file (the mutated copy)."""
+
+    def __init__(self, name: str, path: str) -> None:
+        self.name, self.path = name, path
+
+    def find_spec(self, fullname: str, path: object = None, target: object = None) -> object:
+        import importlib.util
+
+        if fullname == self.name:
+            return importlib.util.spec_from_file_location(fullname, self.path)
+        return None
+
+
+def _purge() -> None:
+    """Drop every dimacq and test module (the tests import them again, the mutant among them)."""
+    tests = str(ROOT / "tests")
+    for name in list(sys.modules):
+        mod = sys.modules[name]
+        f = getattr(mod, "__file__", None) or ""
+        if name == "dimacq" or name.startswith("dimacq.") or f.startswith(tests):
+            del sys.modules[name]
+
+
+def run_in_process(
+    module: str, source: str, m: Mutant, tests: tuple[str, ...]
+) -> tuple[str, float, str]:
+    """``(verdict, seconds, first failing test)`` of one mutant, in this process."""
+    import contextlib
+    import io
+
+    import pytest
+
+    text = source[: m.start] + m.new + source[m.end :]
+    with tempfile.TemporaryDirectory(prefix="mutant-") as tmp:
+        mod = Path(tmp) / "mutated_protocol.py"
+        mod.write_text(text, encoding="utf-8")
+        finder = _Finder(module, str(mod))
+        _purge()
+        sys.meta_path.insert(0, finder)  # type: ignore[arg-type]
+        out = io.StringIO()
+        t0 = time.monotonic()
+        try:
+            with contextlib.redirect_stdout(out):
+                rc = pytest.main(
+                    [
+                        "-x",
+                        "-q",
+                        "-p",
+                        "no:cacheprovider",
+                        "-n",
+                        "0",
+                        "--no-header",
+                        "-rf",
+                        *tests,
+                    ]
+                )
+        finally:
+            sys.meta_path.remove(finder)  # type: ignore[arg-type]
+            _purge()
+        secs = time.monotonic() - t0
+    lines = out.getvalue().splitlines()
+    failed = next((ln.split(" ")[1] for ln in lines if ln.startswith("FAILED ")), "")
+    if rc == 0:
+        return "survived", secs, ""
+    if rc == 1:
+        return "killed", secs, failed
+    return f"killed (pytest exit {int(rc)})", secs, failed or (lines[-1] if lines else "")
+
+
+def _git(*args: str) -> str:
+    return subprocess.run(["git", *args], cwd=ROOT, capture_output=True, text=True).stdout.strip()
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("targets", nargs="*", help=f"of {sorted(TARGETS)} (default: all)")
+    ap.add_argument("--list", action="store_true", help="list the mutants, run nothing")
+    ap.add_argument("-n", "--workers", default="0", help="pytest-xdist workers per run (0 or 2)")
+    ap.add_argument("--timeout", type=float, default=600.0, help="per mutant, s")
+    ap.add_argument("--out", type=Path, default=RESULTS, help="the results file (markdown)")
+    ap.add_argument(
+        "--subprocess", action="store_true", help="each mutant in a fresh interpreter (slower)"
+    )
+    ap.add_argument(
+        "--from-log",
+        type=Path,
+        action="append",
+        default=[],
+        help="write the results from the printed log(s) of runs stopped before their end (the "
+        "source unchanged since): the mutants not reached are listed as not run",
+    )
+    args = ap.parse_args(argv)
+    names = args.targets or list(TARGETS)
+    unknown = [n for n in names if n not in TARGETS]
+    if unknown:
+        ap.error(f"unknown targets {unknown}; give any of {sorted(TARGETS)}")
+    sections = []
+    total_survived = 0
+    started = time.monotonic()
+    logged: dict[str, dict[int, tuple[str, float, str]]] = {}
+    pat = re.compile(
+        r"^\[(\w+) (\d+)/(\d+)\] .*?: (killed(?: \([^)]*\))?|survived) \(([\d.]+) s\) ?(.*)$"
+    )
+    for log in args.from_log:
+        for ln in log.read_text(encoding="utf-8").splitlines():
+            got = pat.match(ln)
+            if got:
+                logged.setdefault(got[1], {})[int(got[2]) - 1] = (got[4], float(got[5]), got[6])
+    for name in names:
+        module, rel, tests = TARGETS[name]
+        path = ROOT / rel
+        if not path.exists():
+            sections.append(f"## {module}\n\n{rel} not in this tree: not run.\n")
+            continue
+        source = path.read_text(encoding="utf-8")
+        ms = mutants(source)
+        present = tuple(t for t in tests if (ROOT / t.split("::")[0]).exists())
+        rows = []
+        if args.from_log:
+            done = logged.get(name, {})
+            for i, m in enumerate(ms):
+                verdict, _secs, failed = done.get(i, ("not run", 0.0, ""))
+                total_survived += verdict == "survived"
+                rows.append(
+                    f"| {m.line} | `{m.name}` | {m.kind} | `{m.old}` → `{m.new}` | {verdict} | "
+                    f"{failed.replace('|', '/')} |"
+                )
+            killed = sum("killed" in r for r in rows)
+            survived = sum("| survived |" in r for r in rows)
+            sections.append(
+                f"## {module}\n\nTests: {', '.join(f'`{t}`' for t in present)}\n\n"
+                f"{killed} killed, {survived} survived, {len(rows) - killed - survived} not run "
+                f"of {len(rows)} mutants.\n\n"
+                "| line | item | mutation | change | verdict | first failing test |\n"
+                "|---|---|---|---|---|---|\n" + "\n".join(rows) + "\n"
+            )
+            continue
+        if not args.list:  # the unmutated copy must pass, or the verdicts mean nothing
+            control = Mutant("(none)", 1, "control", "", "", 0, 0)
+            verdict, secs, failed = (
+                run_mutant(module, source, control, present, args.workers, args.timeout)
+                if args.subprocess
+                else run_in_process(module, source, control, present)
+            )
+            print(f"[{name}] control (no change): {verdict} ({secs:.1f} s) {failed}", flush=True)
+            if verdict != "survived":
+                print(f"{name}: the tests fail without a mutation ({failed}); fix them first")
+                return 2
+        for i, m in enumerate(ms):
+            if args.list:
+                print(f"{name} {m.line:4d} {m.name:40s} {m.kind:24s} {m.old} -> {m.new}")
+                continue
+            verdict, secs, failed = run_mutant(
+                module, source, m, present, args.workers, args.timeout
+            )
+            total_survived += verdict == "survived"
+            print(
+                f"[{name} {i + 1}/{len(ms)}] {m.name} {m.kind}: {verdict} ({secs:.1f} s) {failed}",
+                flush=True,
+            )
+            rows.append(
+                f"| {m.line} | `{m.name}` | {m.kind} | `{m.old}` → `{m.new}` | {verdict} | "
+                f"{failed.replace('|', '/')} |"
+            )
+        if args.list:
+            continue
+        killed = sum("killed" in r for r in rows)
+        sections.append(
+            f"## {module}\n\nTests: {', '.join(f'`{t}`' for t in present)}\n\n"
+            f"{killed} of {len(rows)} mutants killed, {len(rows) - killed} survived.\n\n"
+            "| line | item | mutation | change | verdict | first failing test |\n"
+            "|---|---|---|---|---|---|\n" + "\n".join(rows) + "\n"
+        )
+    if args.list:
+        return 0
+    load = os.getloadavg()
+    head = (
+        "# Protocol mutations: results\n\n"
+        f"- command: `python {Path(__file__).relative_to(ROOT)} {' '.join(argv if argv is not None else sys.argv[1:])}`\n"
+        f"- date: {dt.datetime.now(dt.UTC).strftime('%Y-%m-%d %H:%M UTC')}\n"
+        f"- commit: {_git('rev-parse', '--short', 'HEAD')}{' (with uncommitted changes)' if _git('status', '--porcelain') else ''}\n"
+        f"- machine load (1/5/15 min) at the end: {load[0]:.2f} / {load[1]:.2f} / {load[2]:.2f} "
+        f"on {os.cpu_count()} CPUs; wall time {time.monotonic() - started:.0f} s\n"
+        f"- targets run: {', '.join(names)}; modules not run are listed with their test paths "
+        "in the script's TARGETS\n\n"
+    )
+    args.out.write_text(head + "\n".join(sections), encoding="utf-8")
+    print(f"wrote {args.out}")
+    return 1 if total_survived else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
