@@ -96,7 +96,7 @@ from dimacq.services.acquisition.impact_result import (
 )
 from dimacq.services.acquisition.impact_stream import ImpactStream, _StrikeLost
 from dimacq.services.acquisition.sample_window import SampleWindow
-from dimacq.services.acquisition.session.known_response import KnownResponses
+from dimacq.services.acquisition.known_response import KnownResponses
 
 __all__ = [
     "OPERATOR_OVERRIDE",
