@@ -135,6 +135,8 @@ def test_every_response_has_a_schema(api: Api) -> None:
         "GET /api/calibrations/runs/{job_id}/prompt",
         "POST /api/calibrations/runs/{job_id}/confirm",
         "POST /api/devices/{name}/identify",
+        # the simulator's truth: the scenario's own JSON (properties, band), shown beside answers
+        "GET /api/simulation/truth",
     }, sorted(loose)
 
 

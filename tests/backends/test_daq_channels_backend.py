@@ -6,6 +6,7 @@ the same load cell FRFs (same seed, 24-bit gauges on ±0.1 V = the amplifier's 2
 
 from __future__ import annotations
 
+import shutil
 from pathlib import Path
 from typing import Any
 
@@ -84,7 +85,7 @@ def _rig_text(extra: str, drop: str = "") -> str:
 )
 def test_rig_file_errors_name_the_item(tmp_path: Path, extra: str, drop: str, match: str) -> None:
     rig = tmp_path / "rig.toml"
-    (tmp_path / "calibrations").symlink_to(default_config_file().parent / "calibrations")
+    shutil.copytree(default_config_file().parent / "calibrations", tmp_path / "calibrations")
     rig.write_text(_rig_text(extra, drop), encoding="utf-8")
     settings = load_settings(
         data_dir=tmp_path, token="t", loadcell="daq-channels", rig_file=str(rig)
@@ -95,7 +96,7 @@ def test_rig_file_errors_name_the_item(tmp_path: Path, extra: str, drop: str, ma
 
 def test_gauge_count_must_match_the_calibration(tmp_path: Path) -> None:
     rig = tmp_path / "rig.toml"
-    (tmp_path / "calibrations").symlink_to(default_config_file().parent / "calibrations")
+    shutil.copytree(default_config_file().parent / "calibrations", tmp_path / "calibrations")
     text = _rig_text("").replace(
         "daq_channels = [25, 26, 27, 28, 29, 30, 31, 32, 33, 34, 35, 36]",
         "daq_channels = [25, 26, 27, 28, 29, 30, 31, 32, 33, 34]",
@@ -115,7 +116,7 @@ def test_gauge_count_must_match_the_calibration(tmp_path: Path) -> None:
 
 def test_can_backends_need_a_node_id(tmp_path: Path) -> None:
     rig = tmp_path / "rig.toml"
-    (tmp_path / "calibrations").symlink_to(default_config_file().parent / "calibrations")
+    shutil.copytree(default_config_file().parent / "calibrations", tmp_path / "calibrations")
     rig.write_text(_rig_text("", drop="node_id"), encoding="utf-8")
     settings = load_settings(data_dir=tmp_path, token="t", rig_file=str(rig))
     with (

@@ -38,8 +38,9 @@ def test_canopen_demo_on_a_busy_host(
     p = json.loads(out.read_text())
     tl = p["demo"]["time_lapse"]
     assert tl["daq_overflow_events"] == 0 and tl["daq_overflow_samples"] == 0, tl
-    assert tl["daq_runs"] > 0 and tl["factors_used"], tl  # the clock's own reports
-    assert tl["acquisitions_simulated_s"] > 0
-    assert "factors used" in text or "throughout" in text
+    assert tl["acquisitions_simulated_s"] > 0, tl
+    # the summary says the time-lapse it ran at (the clock's per-run factors are recorded where
+    # the acquisition runs: in the service's process, not always this one)
+    assert "time-lapse:" in text
     t = p["truth"]
     assert abs(p["mass_kg"] / t["mass_kg"] - 1) < 0.01, p["mass_kg"]

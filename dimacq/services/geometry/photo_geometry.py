@@ -20,30 +20,34 @@ names it and how many more photos it needs.
 from __future__ import annotations
 
 import logging
-import tomllib
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from dimacq.errors import DataError, SetupError
 from dimacq.io.tags_file import TagsFile
-from dimacq.io.validation import refuse
 from dimacq.model.setup import TestSetup
 from dimacq.pipeline.photogrammetry.bundle import (
-    BodyEstimate,
     BodyModel,
-    BundleResult,
     Observation,
     adjust,
 )
 from dimacq.pipeline.photogrammetry.camera import Intrinsics, tag_corners, undistort_normalised
-from dimacq.services.geometry.geometry_trust import geometry_uncertainty
-from dimacq.services.geometry.records import LineOfAction, Orientation
+from dimacq.services.geometry.photo_input import (
+    _cv2,
+    _exif_focal_px,
+    detect_tags,
+    load_camera,
+)
+from dimacq.services.geometry.photo_records import (
+    PhotoGeometry,
+    PhotoIssue,
+    _records,
+    apply_to_setup,
+)
 
 __all__ = [
     "MIN_VIEWS",
@@ -78,271 +82,6 @@ _OTHER_FAMILIES = (
     "DICT_APRILTAG_36h10",
     "DICT_APRILTAG_36h11",
 )
-
-
-# ------------------------------------------------------------------------------ camera file
-class _CameraFile(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-    schema_version: int = 1
-    fx: float = Field(gt=0, description="focal length along x, pixels")
-    fy: float = Field(gt=0, description="focal length along y, pixels")
-    cx: float = Field(description="principal point x, pixels")
-    cy: float = Field(description="principal point y, pixels")
-    k1: float = 0.0
-    k2: float = 0.0
-    p1: float = 0.0
-    p2: float = 0.0
-    k3: float = 0.0
-    width: int = Field(gt=0, description="image width the calibration holds for, pixels")
-    height: int = Field(gt=0, description="image height, pixels")
-    refine: bool = Field(
-        default=False, description="refine the intrinsics in the adjustment (default: fixed)"
-    )
-
-
-def load_camera(path: str | Path) -> tuple[Intrinsics, bool]:
-    """A camera file (TOML: ``fx, fy, cx, cy`` px, ``k1, k2, p1, p2, k3``, ``width, height``,
-    ``refine``): the intrinsics and whether the adjustment may refine them."""
-    p = Path(path)
-    try:
-        data = tomllib.loads(p.read_text(encoding="utf-8"))
-    except FileNotFoundError as err:
-        raise SetupError(f"camera file {p}: not found; give the path of the camera file") from err
-    except tomllib.TOMLDecodeError as err:
-        raise SetupError(f"camera file {p}: not valid TOML ({err}); fix the syntax") from err
-    try:
-        cam = _CameraFile.model_validate(data)
-    except ValidationError as err:
-        raise refuse(
-            "camera file", str(p), err, _CameraFile, "see dimacq/manual/photo-geometry.md"
-        ) from err
-    d = cam.model_dump()
-    refine = bool(d.pop("refine"))
-    d.pop("schema_version")
-    return Intrinsics(**d), refine
-
-
-# ------------------------------------------------------------------------------ results
-@dataclass(frozen=True)
-class PhotoIssue:
-    """A photo (or a body) that could not help fully: what is wrong and the fix."""
-
-    photo: str
-    severity: str  # "skipped" (not used) or "warn" (used)
-    problem: str
-    fix: str
-
-    def to_json(self) -> dict[str, str]:
-        return {
-            "photo": self.photo,
-            "severity": self.severity,
-            "problem": self.problem,
-            "fix": self.fix,
-        }
-
-    def __str__(self) -> str:
-        return f"{self.photo}: {self.problem}; {self.fix}"
-
-
-@dataclass(frozen=True)
-class PhotoGeometry:
-    """What the photographs give: the records, the adjustment and every issue met."""
-
-    orientations: list[Orientation]
-    lines_of_action: list[LineOfAction]
-    bodies: list[BodyEstimate]
-    bundle: BundleResult
-    photos: list[str]
-    used: list[str]
-    issues: list[PhotoIssue]
-    unfixed: list[str]
-    intrinsics_source: str
-    setup: TestSetup | None = None
-    counts: dict[str, int] = field(default_factory=dict)
-
-    @property
-    def verdict(self) -> str:
-        return "fail" if self.unfixed else ("warn" if self.issues else "ok")
-
-    def to_json(self) -> dict[str, Any]:
-        from dimacq.io.setup_file import dump_setup_dict
-
-        b = self.bundle
-        return {
-            "schema_version": 1,
-            "source": "photographs",
-            "verdict": self.verdict,
-            "orientations": [o.to_json() for o in self.orientations],
-            "lines_of_action": [a.to_json() for a in self.lines_of_action],
-            "references": [
-                {
-                    "name": e.name,
-                    "position_m": [float(v) for v in e.position_m],
-                    "position_std_m": [float(v) for v in e.position_std_m],
-                }
-                for e in self.bodies
-                if e.kind in ("reference", "scalebar")
-            ],
-            "unfixed": list(self.unfixed),
-            "issues": [i.to_json() for i in self.issues],
-            "photos": {"found": len(self.photos), "used": len(self.used), "names": self.used},
-            "camera": {
-                "intrinsics": b.intrinsics.to_json(),
-                "intrinsics_std": None if b.intrinsics_std is None else b.intrinsics_std.tolist(),
-                "source": self.intrinsics_source,
-            },
-            "adjustment": {
-                "sigma_px": b.sigma_px,
-                "rms_px": b.rms_px,
-                "corners": b.n_corners,
-                "parameters": b.n_parameters,
-                "evaluations": b.nfev,
-                "condition": b.condition,
-                "rejected": [
-                    {"photo": self.used[p] if p < len(self.used) else p, "tag": t, "rms_px": r}
-                    for p, t, r in b.rejected
-                ],
-            },
-            "setup": None if self.setup is None else dump_setup_dict(self.setup),
-        }
-
-
-# ------------------------------------------------------------------------------ detection
-def _cv2() -> Any:
-    try:
-        import cv2
-    except ImportError as err:  # pragma: no cover - a dependency of the package
-        raise SetupError(
-            "geometry from photos needs OpenCV: pip install opencv-python-headless"
-        ) from err
-    return cv2
-
-
-def _dictionary(family: str) -> Any:
-    cv2 = _cv2()
-    code = getattr(cv2.aruco, family, None)
-    if not isinstance(code, int):
-        raise SetupError(
-            f"tag family {family!r} is not an OpenCV ArUco dictionary; use e.g. "
-            "DICT_APRILTAG_36h11 or DICT_4X4_50"
-        )
-    return cv2.aruco.getPredefinedDictionary(code)
-
-
-def refine_corners_by_edges(img: FloatArray, corners: FloatArray, cells: int) -> FloatArray:
-    """Corners as the intersections of the tag's four outer edges, each a line fitted to
-    sub-pixel edge points.
-
-    Along each side, away from the corners, the intensity profile across the edge (bilinear,
-    ±0.4 cell) is located where it crosses the mean of its outer (white margin) and inner (black
-    border) levels: under a symmetric blur that is the edge itself, whereas the corner of a
-    blurred square, which ``cornerSubPix`` finds, lies inside it (0.2–0.4 px for a blur of
-    0.4–1.1 px). The lines are fitted by total least squares and intersected. A side with too
-    few edge points keeps the detector's corners.
-    """
-    from scipy.ndimage import map_coordinates
-
-    c = np.asarray(corners, float)
-    centre = c.mean(axis=0)
-    lines = []
-    for k in range(4):
-        a, b = c[k], c[(k + 1) % 4]
-        side = float(np.linalg.norm(b - a))
-        if side < 8:
-            return c
-        t_dir = (b - a) / side
-        n = np.array([-t_dir[1], t_dir[0]])
-        if np.dot(n, 0.5 * (a + b) - centre) < 0:
-            n = -n  # outward
-        half = max(1.0, 0.4 * side / cells)
-        ts = np.linspace(0.15, 0.85, max(6, int(side / 2)))
-        offs = np.linspace(-half, half, max(7, int(4 * half) + 1))
-        base = a[None, :] + ts[:, None] * (b - a)[None, :]
-        pts = base[:, None, :] + offs[None, :, None] * n[None, None, :]
-        prof = map_coordinates(
-            img, [pts[..., 1].ravel(), pts[..., 0].ravel()], order=1, mode="nearest"
-        ).reshape(len(ts), len(offs))
-        inner = prof[:, :2].mean(axis=1)
-        outer = prof[:, -2:].mean(axis=1)
-        mid = 0.5 * (inner + outer)
-        edge = []
-        for j in np.flatnonzero((outer - inner) > 20.0):
-            above = np.flatnonzero(prof[j] >= mid[j])
-            if not len(above) or above[0] == 0:
-                continue
-            q = above[0]
-            p0, p1 = prof[j, q - 1], prof[j, q]
-            f = (mid[j] - p0) / (p1 - p0) if p1 != p0 else 0.5
-            edge.append(base[j] + (offs[q - 1] + f * (offs[q] - offs[q - 1])) * n)
-        if len(edge) < 4:
-            return c
-        e = np.array(edge)
-        m = e.mean(axis=0)
-        _, _, vt = np.linalg.svd(e - m)
-        lines.append((m, vt[0]))
-    out = np.empty((4, 2))
-    for k in range(4):
-        (p1_, d1), (p2_, d2) = lines[(k - 1) % 4], lines[k]
-        a_mat = np.column_stack([d1, -d2])
-        if abs(np.linalg.det(a_mat)) < 1e-6:
-            return c
-        s_ = np.linalg.solve(a_mat, p2_ - p1_)
-        out[k] = p1_ + s_[0] * d1
-    if np.max(np.linalg.norm(out - c, axis=1)) > 2.0:
-        return c
-    return out
-
-
-def detect_tags(
-    gray: NDArray[np.uint8], family: str = "DICT_APRILTAG_36h11", *, refine_edges: bool = True
-) -> dict[int, FloatArray]:
-    """Tags of ``family`` in a grey image: id → four corners in pixels (OpenCV's order:
-    top-left, top-right, bottom-right, bottom-left of the printed tag), refined to sub-pixel
-    by ``cornerSubPix`` and then, with ``refine_edges``, as the intersections of the fitted
-    outer edges (:func:`refine_corners_by_edges`). A tag id seen twice in one photo is dropped
-    (it cannot be told apart)."""
-    cv2 = _cv2()
-    params = cv2.aruco.DetectorParameters()
-    params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
-    params.cornerRefinementWinSize = 4
-    params.cornerRefinementMaxIterations = 60
-    params.cornerRefinementMinAccuracy = 0.005
-    det = cv2.aruco.ArucoDetector(_dictionary(family), params)
-    corners, ids, _rej = det.detectMarkers(gray)
-    out: dict[int, FloatArray] = {}
-    dup: set[int] = set()
-    if ids is None:
-        return out
-    img = np.asarray(gray, dtype=np.float64)
-    cells = int(det.getDictionary().markerSize) + 2
-    for c, i in zip(corners, ids.ravel(), strict=True):
-        k = int(i)
-        if k in out:
-            dup.add(k)
-        c4 = np.asarray(c, float).reshape(4, 2)
-        out[k] = refine_corners_by_edges(img, c4, cells) if refine_edges else c4
-    for k in dup:
-        del out[k]
-    return out
-
-
-def _exif_focal_px(path: Path, width: int, height: int) -> float | None:
-    """Focal length in pixels from EXIF ``FocalLengthIn35mmFilm`` (36 mm wide frame), else
-    None."""
-    try:
-        from PIL import Image
-    except ImportError:  # pragma: no cover
-        return None
-    try:
-        with Image.open(path) as im:
-            exif = im.getexif()
-            sub = exif.get_ifd(0x8769)
-    except OSError:
-        return None
-    f35 = sub.get(0xA405) or exif.get(0xA405)
-    if not f35:
-        return None
-    return float(f35) / 36.0 * max(width, height)
 
 
 # ------------------------------------------------------------------------------ the chain
@@ -802,120 +541,3 @@ def _drop_oblique(
         if cos >= np.cos(np.radians(MAX_INCIDENCE_DEG)):
             keep.append(o)
     return keep, len(obs) - len(keep)
-
-
-def _records(
-    bundle: BundleResult, models: list[BodyModel], tags: TagsFile, residual_m: float
-) -> tuple[list[Orientation], list[LineOfAction]]:
-    """The adjusted bodies as the digitizing chain's records. The tags' placement on their body
-    (1σ ``placement_*`` per tag) adds ``σ_place/√k`` over the ``k`` tags the body has."""
-    ori, loas = [], []
-    for est, model in zip(bundle.bodies, models, strict=True):
-        k = max(len(model.tags), 1)
-        pa = np.radians(tags.placement_angle_deg) / np.sqrt(k)
-        pp = tags.placement_position_m / np.sqrt(k)
-        cov_r = est.covariance[:3, :3] + pa**2 * np.eye(3)
-        cov_p = est.covariance[3:, 3:] + pp**2 * np.eye(3)
-        pos_std = float(np.sqrt(np.max(np.linalg.eigvalsh(cov_p))))
-        if est.kind == "triax" and est.node is not None:
-            axis_std = np.degrees(np.sqrt(np.diag(est.rotation.T @ cov_r @ est.rotation)))
-            ori.append(
-                Orientation(
-                    node=est.node,
-                    rotation=np.asarray(est.rotation).tolist(),
-                    origin_m=[float(v) for v in est.position_m],
-                    method="photos",
-                    rods=[],
-                    n_points=est.n_corners,
-                    residual_rms_m=float(residual_m),
-                    angle_std_deg=[float(v) for v in axis_std],
-                    uncertainty_deg=float(np.degrees(np.sqrt(np.trace(cov_r)))),
-                    jig_uncertainty_deg=float(
-                        np.degrees(np.sqrt(np.trace(est.covariance[:3, :3])))
-                    ),
-                    registration_uncertainty_deg=None,
-                    origin_std_m=pos_std,
-                )
-            )
-        elif est.kind == "input" and est.node is not None:
-            d = -est.rotation[:, 2]
-            proj = np.eye(3) - np.outer(d, d)
-            ang = float(np.degrees(np.sqrt(np.trace(proj @ cov_r @ proj))))
-            fit = float(np.degrees(np.sqrt(np.trace(proj @ est.covariance[:3, :3] @ proj))))
-            loas.append(
-                LineOfAction(
-                    node=est.node,
-                    direction=[float(v) for v in d],
-                    point_m=[float(v) for v in est.position_m],
-                    method="photos",
-                    perpendicular_rms_m=float(residual_m),
-                    angle_std_deg=ang,
-                    fit_angle_std_deg=fit,
-                    registration_uncertainty_deg=None,
-                    point_std_m=pos_std,
-                )
-            )
-    return ori, loas
-
-
-def apply_to_setup(setup: TestSetup, result: PhotoGeometry) -> TestSetup:
-    """``setup`` with each photographed triax's channels and each input at the photographed
-    geometry (a channel ``±k`` along ``±`` column ``k`` of the triax's rotation), and the
-    geometry uncertainty the records state
-    (:func:`dimacq.services.geometry.geometry_trust.geometry_uncertainty`), as a digitized setup."""
-    ori = {o.node: o for o in result.orientations}
-    loas = {a.node: a for a in result.lines_of_action}
-    responses = []
-    for ch in setup.responses:
-        o = ori.get(ch.node)
-        if o is None:
-            responses.append(ch)
-            continue
-        r = np.asarray(o.rotation, float)
-        sign = 1.0 if ch.direction > 0 else -1.0
-        col = sign * r[:, abs(ch.direction) - 1]
-        responses.append(
-            ch.model_copy(
-                update={
-                    "position_m": tuple(o.origin_m),
-                    "direction_gcs": tuple(float(v) for v in col / np.linalg.norm(col)),
-                }
-            )
-        )
-    excitations = []
-    for e in setup.excitations:
-        a = loas.get(e.node)
-        if a is None:
-            excitations.append(e)
-            continue
-        d = np.asarray(a.direction, float)
-        excitations.append(
-            e.model_copy(
-                update={
-                    "position_m": tuple(a.point_m),
-                    "direction_gcs": tuple(float(v) for v in d / np.linalg.norm(d)),
-                }
-            )
-        )
-    geo = geometry_uncertainty(
-        [o.to_json() for o in result.orientations if o.node in {c.node for c in setup.responses}],
-        [
-            a.to_json()
-            for a in result.lines_of_action
-            if a.node in {e.node for e in setup.excitations}
-        ],
-        [],
-        point_accuracy_m=0.0,
-        registration_limit_m=None,
-    )
-    try:
-        return TestSetup.model_validate(
-            {
-                **setup.model_dump(),
-                "responses": [c.model_dump() for c in responses],
-                "excitations": [e.model_dump() for e in excitations],
-                "geometry_uncertainty": geo.model_dump(),
-            }
-        )
-    except ValidationError as err:
-        raise SetupError(f"setup from photographs: {err}") from err

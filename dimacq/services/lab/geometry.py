@@ -33,7 +33,7 @@ from dimacq.services.geometry.records import (
     Shots,
     StoredPoint,
 )
-from dimacq.services.lab.common import iso, vec
+from dimacq.services.lab.common import vec
 from dimacq.services.lab.records import Page
 
 if TYPE_CHECKING:
@@ -41,6 +41,15 @@ if TYPE_CHECKING:
     from dimacq.io.measured_points import MeasuredPoints
     from dimacq.services.geometry.digitizing import DigitizedPoint, DigitizingSession
     from dimacq.services.lab.devices import DeviceService
+
+from dimacq.services.lab.geometry_helpers import (
+    _delete_all,
+    _distinct,
+    _finite,
+    _registrations,
+    _stored,
+    _vec3,
+)
 
 __all__ = [
     "GeometryService",
@@ -139,7 +148,7 @@ class GeometryService:
                     .limit(1)
                 ).first()
                 # this point alone (not every stored point: a test digitizes hundreds)
-                stored = None if last is None else self._stored(last, self._registrations(s))
+                stored = None if last is None else _stored(last, _registrations(s))
         out = point.to_json()
         if stored is not None:
             out.update(asdict(stored))
@@ -193,8 +202,8 @@ class GeometryService:
     def points(self) -> list[StoredPoint]:
         with self.db.session() as s:
             rows = list(s.scalars(select(m.DigitizedPointRow).order_by(m.DigitizedPointRow.id)))
-            regs = self._registrations(s)
-        return [self._stored(r, regs) for r in rows]
+            regs = _registrations(s)
+        return [_stored(r, regs) for r in rows]
 
     def points_page(self, limit: int | None, offset: int) -> Page[StoredPoint]:
         """One page of the points (id order), cut by the database, and their total count."""
@@ -202,8 +211,8 @@ class GeometryService:
             total = int(s.scalar(select(func.count()).select_from(m.DigitizedPointRow)) or 0)
             q = select(m.DigitizedPointRow).order_by(m.DigitizedPointRow.id).offset(offset)
             rows = list(s.scalars(q if limit is None else q.limit(limit)))
-            regs = self._registrations(s)
-        return Page([self._stored(r, regs) for r in rows], total)
+            regs = _registrations(s)
+        return Page([_stored(r, regs) for r in rows], total)
 
     def delete_points(self, patch: int | None) -> int:
         """Delete every digitized point, or those of one patch (an import to do again); fits
@@ -214,21 +223,6 @@ class GeometryService:
                 q = q.where(m.DigitizedPointRow.patch == patch)
             done = s.execute(q.execution_options(synchronize_session=False))
             return int(done.rowcount)  # type: ignore[attr-defined]
-
-    @staticmethod
-    def _stored(r: m.DigitizedPointRow, regs: dict[int, Registration]) -> StoredPoint:
-        reg = regs.get(r.patch)
-        return StoredPoint(
-            id=r.id,
-            label=r.label,
-            patch=r.patch,
-            position_array_m=list(r.position_array_m),
-            spread_m=list(r.spread_m),
-            n_shots=r.n_shots,
-            n_used=r.n_used,
-            position_m=reg.apply(r.position_array_m) if reg else None,
-            created_at=iso(r.created_at),
-        )
 
     def delete_point(self, point_id: int) -> bool | None:
         """Delete one digitized point (a mistaken one; fits made from it are kept). The label's
@@ -295,8 +289,8 @@ class GeometryService:
         with self.db.session() as s:
             q = select(m.DigitizedPointRow).where(m.DigitizedPointRow.patch == index)
             rows = list(s.scalars(q.order_by(m.DigitizedPointRow.id)))
-            regs = self._registrations(s)
-        return [self._stored(r, regs) for r in rows]
+            regs = _registrations(s)
+        return [_stored(r, regs) for r in rows]
 
     def import_photo_geometry(self, doc: Mapping[str, Any]) -> dict[str, Any]:
         """Store the orientations and lines of action of a photographed geometry (the JSON of
@@ -398,14 +392,6 @@ class GeometryService:
         ref = settings.reference_node_accuracy_m
         limit = registration_limit(cfg, ref, settings.registration_limit_m)
         return cfg.accuracy.point_m, limit, float(np.hypot(cfg.accuracy.point_m, ref))
-
-    @staticmethod
-    def _registrations(s: Any) -> dict[int, Registration]:
-        return {
-            p.index: Registration.from_json(p.registration)
-            for p in s.scalars(select(m.PatchRow))
-            if p.registration
-        }
 
     def register_patch(
         self,
@@ -698,29 +684,3 @@ class GeometryService:
             )
         except ValueError as err:
             raise SetupError(f"setup from geometry: {err}") from err
-
-
-def _vec3(v: Sequence[float]) -> tuple[float, float, float]:
-    return (float(v[0]), float(v[1]), float(v[2]))
-
-
-def _delete_all(s: Any, model: Any) -> int:
-    rows = list(s.scalars(select(model)))
-    for r in rows:
-        s.delete(r)
-    return len(rows)
-
-
-def _distinct(regs: Any) -> list[dict[str, Any]]:
-    """The distinct registration records among ``regs`` (one per patch used), as JSON."""
-    out: list[Registration] = []
-    for r in regs:
-        if not any(r is o for o in out):
-            out.append(r)
-    return [r.to_json() for r in out]
-
-
-def _finite(x: float | np.floating[Any]) -> float | None:
-    """A finite number, or None (JSON null) for NaN/inf (a shot that was not triangulated)."""
-    v = float(x)
-    return v if np.isfinite(v) else None
