@@ -233,6 +233,9 @@ def parse_calibration_json(data: Any, source: str = "calibration") -> LoadCellCa
             f"{source}: units {data.get('force_unit')!r}/{data.get('moment_unit')!r} unknown; "
             f"use one of {sorted(_FORCE_UNITS)} and {sorted(_MOMENT_UNITS)}"
         )
+    for key in ("diagnostics", "certificate"):
+        if not isinstance(data.get(key, {}), dict):
+            raise DataError(f"{source}: {key} must be a table of named values (a JSON object)")
     m = _matrix(data["matrix"], source)
     if m.ndim == 2 and m.shape[0] == 6:
         m = m * np.array([fu] * 3 + [mu] * 3)[:, None]
