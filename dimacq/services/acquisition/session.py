@@ -95,8 +95,8 @@ from dimacq.services.acquisition.impact_result import (
     unusable_reasons,
 )
 from dimacq.services.acquisition.impact_stream import ImpactStream, _StrikeLost
-from dimacq.services.acquisition.sample_window import SampleWindow
 from dimacq.services.acquisition.known_response import KnownResponses
+from dimacq.services.acquisition.sample_window import SampleWindow
 
 __all__ = [
     "OPERATOR_OVERRIDE",
