@@ -260,7 +260,7 @@ def test_reactions_at_noise_level_are_reported() -> None:
 def _bungee_problem(monkeypatch: pytest.MonkeyPatch) -> tuple[object, np.ndarray]:
     """The first :class:`_Problem` of an output-error fit of the bungee-hung calibration mass (one
     load cell), and the start θ with small random geometry corrections."""
-    import dimacq.pipeline.output_error.solver as solver_module
+    import dimacq.pipeline.output_error.stages as solver_module
 
     b = build_scenario("calibration-mass-bungee", 0)
     frf = b.model_frf(noise=0.005).band(3.0, 200.0)

@@ -38,6 +38,7 @@ from dimacq.api.schemas import (
     ShotsRequest,
     SpeedOfSoundOut,
 )
+from dimacq.errors import DataError
 from dimacq.services.geometry.records import (
     LineOfAction,
     NewTest,
@@ -105,6 +106,7 @@ def list_points(lab: LabDep, page: PageDep, response: Response) -> list[StoredPo
 @router.delete("/points", response_model=DeletedOut)
 def delete_points(
     lab: LabDep,
+    request: Request,
     patch: Annotated[
         int | None,
         Query(ge=0, le=MAX_ID, description="only this patch's points (default: every point)"),
@@ -112,6 +114,10 @@ def delete_points(
 ) -> dict[str, int]:
     """Delete the digitized points in bulk: every one, or one patch's (an import to do again);
     ``{"deleted": n}``. Registrations, orientations and lines of action are kept."""
+    # a bulk delete never guesses: a misspelt filter (``?pach=2``) must not delete every point
+    unknown = sorted(set(request.query_params) - {"patch"})
+    if unknown:
+        raise DataError(f"query parameter {unknown[0]!r} unknown; give only patch=N (or nothing)")
     return {"deleted": lab.geometry.delete_points(patch)}
 
 
