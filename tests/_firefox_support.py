@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import base64
 import json
+import os
 import queue
 import shutil
 import signal
@@ -17,7 +18,17 @@ from typing import Any
 
 FIREFOX = shutil.which("firefox-esr") or shutil.which("firefox")
 
-__all__ = ["FIREFOX", "PREFS", "Bidi", "BidiError", "Page", "lines_of", "stop", "wait_line"]
+__all__ = [
+    "FIREFOX",
+    "PREFS",
+    "Bidi",
+    "BidiError",
+    "Page",
+    "launch_firefox",
+    "lines_of",
+    "stop",
+    "wait_line",
+]
 
 #: The profile: the remote agent's recommended preferences already turn most background
 #: services off; these send whatever would still leave to a closed port on loopback.
@@ -187,3 +198,22 @@ def stop(proc: subprocess.Popen[str]) -> None:
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait()
+
+
+def launch_firefox(tmp_path: Path, port: int) -> subprocess.Popen[str]:
+    """Headless Firefox with the test profile (:data:`PREFS`) in ``tmp_path``, its WebDriver
+    BiDi on ``port``; wait for "WebDriver BiDi listening on" before connecting."""
+    assert FIREFOX is not None
+    profile = tmp_path / "firefox-profile"
+    profile.mkdir()
+    (profile / "user.js").write_text(
+        "".join(f"user_pref({json.dumps(k)}, {json.dumps(v)});\n" for k, v in PREFS.items())
+    )
+    return subprocess.Popen(
+        [FIREFOX, "--headless", "--no-remote", "--profile", str(profile)]
+        + ["--remote-debugging-port", str(port), "about:blank"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        env={**os.environ, "MOZ_CRASHREPORTER_DISABLE": "1", "HOME": str(tmp_path)},
+        text=True,
+    )

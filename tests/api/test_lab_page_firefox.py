@@ -28,7 +28,7 @@ from typing import Any
 from urllib.parse import urlsplit
 
 import pytest
-from _firefox_support import FIREFOX, PREFS, Bidi, Page, lines_of, stop, wait_line
+from _firefox_support import FIREFOX, Bidi, Page, launch_firefox, lines_of, stop, wait_line
 
 from dimacq.api.server import free_port
 
@@ -63,20 +63,8 @@ def firefox_and_service(tmp_path: Path) -> Iterator[tuple[Bidi, str, list[Any]]]
         },
         text=True,
     )
-    profile = tmp_path / "firefox-profile"
-    profile.mkdir()
-    (profile / "user.js").write_text(
-        "".join(f"user_pref({json.dumps(k)}, {json.dumps(v)});\n" for k, v in PREFS.items())
-    )
     ff_port = free_port()
-    firefox = subprocess.Popen(
-        [FIREFOX, "--headless", "--no-remote", "--profile", str(profile)]
-        + ["--remote-debugging-port", str(ff_port), "about:blank"],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        env={**os.environ, "MOZ_CRASHREPORTER_DISABLE": "1", "HOME": str(tmp_path)},
-        text=True,
-    )
+    firefox = launch_firefox(tmp_path, ff_port)
     from websockets.sync.client import connect
 
     events: list[Any] = []

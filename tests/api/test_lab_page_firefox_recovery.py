@@ -19,7 +19,7 @@ from typing import Any
 
 import httpx
 import pytest
-from _firefox_support import FIREFOX, PREFS, Bidi, Page, lines_of, stop, wait_line
+from _firefox_support import FIREFOX, Bidi, Page, launch_firefox, lines_of, stop, wait_line
 from _page_support import serve, two_input_setup
 
 from dimacq.api.server import free_port
@@ -36,20 +36,8 @@ ENDED = "/acquisition \\d+ (succeeded|incomplete|failed|cancelled)/"
 @pytest.fixture
 def firefox(tmp_path: Path) -> Iterator[tuple[Bidi, list[Any]]]:
     assert FIREFOX is not None, "CI=true: Firefox must be installed (.ci/run installs firefox-esr)"
-    profile = tmp_path / "firefox-profile"
-    profile.mkdir()
-    (profile / "user.js").write_text(
-        "".join(f"user_pref({json.dumps(k)}, {json.dumps(v)});\n" for k, v in PREFS.items())
-    )
     ff_port = free_port()
-    proc = subprocess.Popen(
-        [FIREFOX, "--headless", "--no-remote", "--profile", str(profile)]
-        + ["--remote-debugging-port", str(ff_port), "about:blank"],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        env={**os.environ, "MOZ_CRASHREPORTER_DISABLE": "1", "HOME": str(tmp_path)},
-        text=True,
-    )
+    proc = launch_firefox(tmp_path, ff_port)
     from websockets.sync.client import connect
 
     events: list[Any] = []
