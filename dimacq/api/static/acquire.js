@@ -83,7 +83,9 @@ function renderAcquisition(a, { review = true } = {}) {
   $("#acq-state").className = `small ${["failed", "incomplete", "cancelled", "interrupted"].includes(a.state) ? "fail" : ""}`;
   $("#acq-bar").style.width = `${100 * (a.progress || 0)}%`;
   // no decision while the service is unreachable: it could not be stored
-  const pending = running && a.pending_review && conn.online;
+  // a hit decided here stays off even when a poll sent before the decision still shows it
+  const decided = a.pending_review && acq.decided && acq.decided.id === a.id && acq.decided.numbers.has(a.pending_review.number);
+  const pending = running && a.pending_review && conn.online && !decided;
   for (const id of ["#hit-reject", "#hit-redo"]) $(id).disabled = !pending;
   // a hit the checks rejected is not accepted by a plain click: Accept is disabled, the reason
   // shown; "accept anyway" is there for the checks an operator may overrule (double hit,
@@ -360,9 +362,15 @@ async function decide(decision, override = false) {
   for (const id of ["#hit-accept", "#hit-override", "#hit-reject", "#hit-redo"]) $(id).disabled = true;
   const body = { number: p.number, decision };
   if (override) body.override = true;
-  await api("POST", `/api/acquisitions/${acq.id}/review`, body);
+  if (!acq.decided || acq.decided.id !== acq.id) acq.decided = { id: acq.id, numbers: new Set() };
+  acq.decided.numbers.add(p.number);
+  try {
+    await api("POST", `/api/acquisitions/${acq.id}/review`, body);
+  } catch (e) {
+    acq.decided.numbers.delete(p.number); // not stored: the hit can be decided again
+    throw e;
+  }
   say(`hit ${p.number}: ${decision === "redo" ? "input redone (its averages dropped)" : override ? `accepted over the checks (${p.reasons.join("; ")})` : `${decision}ed`}`);
-  acq.decisions = [...(acq.decisions || []), [p.number, decision]];
   await refresh();
 }
 
