@@ -157,4 +157,7 @@ def open_udp_loadcell(ctx: DeviceContext, entry: LoadCellEntry) -> NetFtUdp:
         tcp_port=sim.tcp_address[1],
         time_scale=imp.daq_time_scale,
         latency_floor_s=SIM_LATENCY_FLOOR_S,
+        # the twin's thread shares the host's cores: a loaded host can hold it for seconds
+        # (a real sensor streams on its own), as the other simulated backends allow
+        timeout_s=5.0,
     )

@@ -55,9 +55,11 @@ def open_rdt(
     tcp_port: int = p.TCP_PORT,
     time_scale: float = 1.0,
     latency_floor_s: float | None = None,
+    timeout_s: float = 1.0,
 ) -> NetFtUdp:
     """The driver on a UDP socket connected to ``host:port`` (closed with ``ctx``), identified;
-    its counts per unit read from the device (``tcp_port``) unless the rig file states them.
+    its counts per unit read from the device (``tcp_port``) unless the rig file states them;
+    ``timeout_s``: how long a read waits for the sensor's records, s.
 
     Raises
     ------
@@ -89,6 +91,7 @@ def open_rdt(
             ),
             time_base=entry.netft_time_base,
             fit_lo_hz=entry.netft_fit_lo_hz,
+            timeout_s=timeout_s,
         )
         try:
             drv.identify()

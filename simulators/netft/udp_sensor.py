@@ -206,7 +206,8 @@ class NetFtUdpSim:
 
     def _stream(self) -> float:
         """Send what is due; the wall time of the next thing to do."""
-        while True:
+        now = time.monotonic()
+        while not self._stop_evt.is_set():
             now = time.monotonic()
             while self._pending and self._pending[0][0] <= now:
                 self.sock.sendto(self._pending.pop(0)[1], self._peer)
@@ -257,5 +258,8 @@ class NetFtUdpSim:
                 wait = nxt - time.monotonic()
                 if wait > 0:
                     time.sleep(min(wait, 0.001))
+        except OSError:
+            if not self._stop_evt.is_set():  # closed under it at close(): not a failure
+                log.exception("RDT simulator thread failed")
         except Exception:  # pragma: no cover - surfaced through the test's timeouts
             log.exception("RDT simulator thread failed")
