@@ -17,7 +17,6 @@ from long_functions import LIMIT, REPO, long_functions
 CEILINGS: dict[tuple[str, str], int] = {
     ("dimacq/services/acquisition/session.py", "ImpactSession.run"): 239,
     ("dimacq/services/solve/analysis.py", "_analyse"): 212,
-    ("dimacq/cli/commands/demo.py", "_demo"): 234,
     ("dimacq/services/lab/acquisitions.py", "AcquisitionService._run"): 206,
     ("dimacq/services/geometry/digitizer_selftest.py", "run_selftest"): 184,
     ("dimacq/services/solve/verdict.py", "verdict"): 170,
