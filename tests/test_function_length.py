@@ -17,7 +17,6 @@ from long_functions import LIMIT, REPO, long_functions
 CEILINGS: dict[tuple[str, str], int] = {
     ("dimacq/services/acquisition/session.py", "ImpactSession.run"): 239,
     ("dimacq/services/lab/acquisitions.py", "AcquisitionService._run"): 206,
-    ("dimacq/services/geometry/digitizer_selftest.py", "run_selftest"): 184,
     ("dimacq/pipeline/modal.py", "fit_modal_model"): 155,
     ("dimacq/pipeline/uncertainty.py", "geometry_spread"): 154,
     ("dimacq/pipeline/loadcell_calibration.py", "static_certificate"): 154,
