@@ -40,6 +40,7 @@ import argparse
 import json
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -540,6 +541,7 @@ def _kept_averages(
     """For ``--resume``: the folder's array store, its accepted averages per input (oldest
     first) and the number of the next average; ``cfg`` takes the interrupted run's settings."""
     from dimacq.persistence import ArrayStore
+    from dimacq.services.acquisition.resume import kept_averages
 
     info_path = args.data / "acquisition.json"
     try:
@@ -563,20 +565,21 @@ def _kept_averages(
     applied = info.get("applied", {})
     cfg.update({k: old.get(k, applied.get(k)) for k in _KEPT_SETTINGS if k in old or k in applied})
     store = ArrayStore(args.data)
-    kept: list[list[dict[str, Any]]] = [[] for _ in range(n_in)]
-    last = 0
-    for path in sorted((args.data / "averages").glob("avg-*.h5")):
-        rel = path.relative_to(args.data).as_posix()
-        arrays, attrs = store.read(rel)
-        last = max(last, int(attrs["number"]))
-        if attrs["accepted"]:
-            kept[int(attrs["input_index"])].append(arrays)
-    if all(len(r) >= args.impacts_per_input for r in kept):
+    numbers: list[int] = []
+
+    def averages() -> Iterator[tuple[int, bool, dict[str, Any]]]:
+        for path in sorted((args.data / "averages").glob("avg-*.h5")):
+            arrays, attrs = store.read(path.relative_to(args.data).as_posix())
+            numbers.append(int(attrs["number"]))
+            yield int(attrs["input_index"]), bool(attrs["accepted"]), arrays
+
+    kept = kept_averages(averages(), range(n_in), lambda arrays: arrays)
+    if kept.nothing_to_strike(args.impacts_per_input):
         raise SetupError(
             f"--resume: every input in {args.data} has its {args.impacts_per_input} accepted "
             "averages; nothing to strike (run without --resume into a new folder)"
         )
-    return store, kept, last + 1
+    return store, kept.per_input, max([0, *numbers]) + 1
 
 
 def _rejections(
