@@ -433,15 +433,8 @@ def run_inertial_calibration(
         del res
         lc = setup.load_cells[k]
         fit, var, var_fit = _fit_matrix(gauges, a_p, M, lc, P, gains, Tq, psi)
-        u_rel = float(2 * np.sqrt(np.sum(var + var_fit)) / np.linalg.norm(fit.matrix))
         labels = tuple(f"{r.node}{direction_label(r.direction)}" for r in setup.responses)
-        reasons = _gain_reasons(gains, labels, setup.transducer_uncertainty.accel_sensitivity_rel)
-        if u_rel > MAX_MATRIX_UNCERTAINTY_REL:
-            reasons += (
-                f"the matrix is known to ±{100 * u_rel:.2f} % only (k = 2; fit condition "
-                f"σ1/σ6 {fit.condition:.3g}): the inputs do not excite the six loads evenly; "
-                "strike the mass on three faces, off its centre",
-            )
+        reasons = _calibration_reasons(setup, gains, labels, fit, var + var_fit)
         run = InertialRun(
             node=entry.node,
             serial_number=serial,
@@ -520,6 +513,26 @@ def _check_band_hammer_ratio(
     above = (f >= clo) & (f <= chi)
     a_hi = _platform_motion(Tq, res.H[above, :n_acc])
     return hammer_ratio(a_hi, M, directions) if above.any() else None
+
+
+def _calibration_reasons(
+    setup: TestSetup, gains: ChannelGains, labels: tuple[str, ...], fit: Any, var: FloatArray
+) -> tuple[str, ...]:
+    """Why the calibration only warns: the accelerometers' gains (:func:`_gain_reasons`) and a
+    matrix known to worse than :data:`MAX_MATRIX_UNCERTAINTY_REL` (k = 2) from its variance
+    ``var`` (gains and fit).
+
+    u_rel = 2 sqrt(Σ var) / ‖C‖_F
+    """
+    u_rel = float(2 * np.sqrt(np.sum(var)) / np.linalg.norm(fit.matrix))
+    reasons = _gain_reasons(gains, labels, setup.transducer_uncertainty.accel_sensitivity_rel)
+    if u_rel > MAX_MATRIX_UNCERTAINTY_REL:
+        reasons += (
+            f"the matrix is known to ±{100 * u_rel:.2f} % only (k = 2; fit condition "
+            f"σ1/σ6 {fit.condition:.3g}): the inputs do not excite the six loads evenly; "
+            "strike the mass on three faces, off its centre",
+        )
+    return reasons
 
 
 def _fit_matrix(

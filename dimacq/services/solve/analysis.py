@@ -358,18 +358,7 @@ def _analyse(frf: FrfData, setup: TestSetup, opt: AnalysisOptions) -> AnalysisRe
         )
     exc = excitation_check(_phi_m(system_used))
     result = _with_extras(result, rsel, jsel, repair)
-    cc: CrossCheck | None = None
-    if opt.cross_check:
-        cc = cross_check(
-            data,
-            setup_used,
-            result,
-            unc,
-            weights,
-            keep_in,
-            geometry_samples=min(opt.geometry_samples, 200),
-        )
-
+    cc = _cross_checked(data, setup_used, result, unc, weights, keep_in, opt)
     report = AnalysisReport(
         result=result,
         excluded_responses=excluded_resp,
@@ -589,6 +578,29 @@ def _output_error_tried(
                 MAX_RIGID_BODY_ERROR,
             )
     return bool(refine)
+
+
+def _cross_checked(
+    data: FrfData,
+    setup_used: TestSetup,
+    result: DimResult,
+    unc: Any,
+    weights: np.ndarray,
+    keep_in: np.ndarray,
+    opt: AnalysisOptions,
+) -> CrossCheck | None:
+    """The independent cross-check of the answer when asked (at most 200 geometry samples)."""
+    if not opt.cross_check:
+        return None
+    return cross_check(
+        data,
+        setup_used,
+        result,
+        unc,
+        weights,
+        keep_in,
+        geometry_samples=min(opt.geometry_samples, 200),
+    )
 
 
 def _judged(
