@@ -40,6 +40,7 @@ import argparse
 import json
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -105,18 +106,11 @@ def _scenario_band(name: str) -> tuple[float, float]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from dimacq.backends.time_lapse import HostLag, rig_time_lapse
-    from dimacq.cli.simulated_lab import frf_agreement
-    from dimacq.config import Settings, scenario_rig_file
-    from dimacq.io.acquisition_hdf5 import AcquisitionWriter
-    from dimacq.io.uff import check_uff_geometry, write_uff_test
-    from dimacq.services.acquisition.rig import build_rig, impact_settings, run_impact_test
+    from dimacq.backends.time_lapse import HostLag
+    from dimacq.io.uff import check_uff_geometry
     from dimacq.simulators.lab.scenarios import build_scenario
 
-    if args.impacts_per_input < 1:
-        raise SetupError(f"--averages-per-input {args.impacts_per_input}: give at least 1")
-    if args.frf.suffix.lower() not in (".uff", ".unv"):
-        raise SetupError(f"--frf {args.frf}: give a .uff (or .unv) file name")
+    _check_arguments(args)
     # The truth (``model``), to compare the FRFs with; the rig below builds its own world of the
     # same scenario and seed, and the drivers know only the rig file and its calibration files.
     # The setup the acquisition runs on and the file states is the lab's (the scenario's
@@ -127,13 +121,83 @@ def run(args: argparse.Namespace) -> int:
     setup = built.setup
     check_uff_geometry(setup)  # before striking: the FRF file must be able to hold the geometry
     n_in = len(setup.excitations)
+    settings, lapse = _lab_settings(args.scenario)
+    lag = HostLag()
+    cfg = _impact_config(args)
+    store, kept, first_number = _average_store(args, cfg, n_in)
+    t0 = time.monotonic()
+    total = n_in * args.impacts_per_input
+    averages: list[tuple[int, bool, list[str]]] = [
+        (j, True, []) for j, recs in enumerate(kept or []) for _ in recs
+    ]
+    line = ProgressLine("acquire", quiet=args.quiet)
+    fs_hz = [0.0]
+    on_average = _average_recorder(averages, store, first_number, fs_hz, setup, line)
+
+    def on_progress(fraction: float, message: str) -> None:
+        line.update(fraction, f"[{round(fraction * total)}/{total}] {message}")
+
+    data_path = _raw_data_path(args)
+    frf, used, acq_wall_s, acq_cpu_s = _acquire(
+        args, settings, setup, cfg, data_path, kept, lag, line, fs_hz, on_average, on_progress
+    )
+    complete, incomplete = _write_frf_files(args, setup, frf, averages, used)
+    elapsed = time.monotonic() - t0
+    rejected = [(j, reasons) for j, ok, reasons in averages if not ok]
+    agreement = _model_agreement(args.scenario, setup, frf, model, used, complete)
+    min_averages = min(used.min_averages, used.averages_per_input)
+    time_lapse = {
+        **lapse.to_json(),
+        **lag.to_json(),
+        "acquisition_wall_s": acq_wall_s,
+        "acquisition_cpu_s": acq_cpu_s,
+    }
+    summary = _summary_json(
+        args, setup, settings, frf, averages, used, agreement, incomplete, data_path, elapsed
+    )
+    summary["time_lapse"] = time_lapse
+    _print_summary(args, setup, frf, rejected, incomplete, min_averages, agreement)
+    sys.stdout.write(
+        f"time-lapse: {lapse.describe()}; {lag.describe_factors()}; {lag.describe()}; "
+        f"acquisition {acq_wall_s:.1f} s wall, "
+        f"{acq_cpu_s:.1f} s CPU (user + sys)\n"
+    )
+    sys.stdout.write(f"wrote {args.frf} in {elapsed:.1f} s\n")
+    if args.json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
+    if incomplete:
+        raise DataError(
+            f"acquisition incomplete: {len(incomplete)} of {n_in} inputs have fewer than "
+            f"{min_averages} accepted averages ({_rejections(setup, averages, incomplete)}); "
+            f"{args.frf} holds the FRFs of the {len(complete)} complete inputs only"
+        )
+    return 0
+
+
+def _check_arguments(args: argparse.Namespace) -> None:
+    """Refuse an average count below 1 or an FRF file that is not UFF, before anything runs."""
+    if args.impacts_per_input < 1:
+        raise SetupError(f"--averages-per-input {args.impacts_per_input}: give at least 1")
+    if args.frf.suffix.lower() not in (".uff", ".unv"):
+        raise SetupError(f"--frf {args.frf}: give a .uff (or .unv) file name")
+
+
+def _lab_settings(scenario: str) -> tuple[Any, Any]:
+    """The simulated rig's settings for ``scenario`` and the DAQ time-lapse they run at.
+
+    The time-lapse is the setting's ``daq_time_scale``, else what this host sustains now; the
+    settings returned carry it, so the simulated DAQ runs at that factor.
+    """
+    from dimacq.backends.time_lapse import rig_time_lapse
+    from dimacq.config import Settings, scenario_rig_file
+
     settings = Settings(
         daq="simulated",
         loadcell="simulated",
-        scenario=args.scenario,
-        rig_file=scenario_rig_file(args.scenario),
+        scenario=scenario,
+        rig_file=scenario_rig_file(scenario),
     )
-    # the simulated DAQ's time-lapse: the setting's, else what this host sustains now
     lapse = rig_time_lapse(settings.simulation_imperfections, settings.rig_path)
     settings = settings.model_copy(
         update={
@@ -143,35 +207,58 @@ def run(args: argparse.Namespace) -> int:
             }
         }
     )
-    lag = HostLag()
-    cfg: dict[str, Any] = {
+    return settings, lapse
+
+
+def _impact_config(args: argparse.Namespace) -> dict[str, Any]:
+    """The impact session's settings as the command line gives them (the API's names)."""
+    return {
         "seed": args.seed,
         "noise_scale": 0.0 if args.noise_free else 1.0,
         "averages_per_input": args.impacts_per_input,
         "record_samples": args.record_samples,
         "exponential_tau_s": args.exp_tau,
     }
-    store = kept = None
-    first_number = 1
+
+
+def _average_store(
+    args: argparse.Namespace, cfg: dict[str, Any], n_in: int
+) -> tuple[Any, list[list[dict[str, Any]]] | None, int]:
+    """Where each decided average is kept, the averages kept already, and the next number.
+
+    Without ``--data`` nothing is kept; with it, a new acquisition refuses a folder that
+    holds one (``--resume`` continues that), and ``--resume`` reads what the folder keeps.
+    """
     if args.resume:
         if args.data is None:
             raise SetupError("--resume: give --data DIR, the folder of the interrupted acquisition")
-        store, kept, first_number = _kept_averages(args, cfg, n_in)
-    elif args.data is not None:
-        from dimacq.persistence import ArrayStore
+        return _kept_averages(args, cfg, n_in)
+    if args.data is None:
+        return None, None, 1
+    from dimacq.persistence import ArrayStore
 
-        if (args.data / "averages").exists() and any((args.data / "averages").glob("*.h5")):
-            raise SetupError(
-                f"--data {args.data} holds the averages of an acquisition; continue it with "
-                "--resume, or give an empty folder"
-            )
-        store = ArrayStore(args.data)
-    t0 = time.monotonic()
-    total = n_in * args.impacts_per_input
-    averages: list[tuple[int, bool, list[str]]] = [
-        (j, True, []) for j, recs in enumerate(kept or []) for _ in recs
-    ]
-    line = ProgressLine("acquire", quiet=args.quiet)
+    if (args.data / "averages").exists() and any((args.data / "averages").glob("*.h5")):
+        raise SetupError(
+            f"--data {args.data} holds the averages of an acquisition; continue it with "
+            "--resume, or give an empty folder"
+        )
+    return ArrayStore(args.data), None, 1
+
+
+def _average_recorder(
+    averages: list[tuple[int, bool, list[str]]],
+    store: Any,
+    first_number: int,
+    fs_hz: list[float],
+    setup: Any,
+    line: ProgressLine,
+) -> Any:
+    """The session's ``on_average``: note each decided average and keep it before the next strike.
+
+    Each average goes to ``averages`` (input, accepted, reasons) and, with a store, to its own
+    file ``averages/avg-NNNNN.h5`` numbered from ``first_number``; a rejection is noted on the
+    progress line. ``fs_hz[0]`` is the sample rate, known once the rig is configured.
+    """
 
     def on_average(
         input_index: int, number: int, accepted: bool, reasons: Any, record: Any
@@ -194,16 +281,76 @@ def run(args: argparse.Namespace) -> int:
             name = setup.excitations[input_index].name
             line.note(f"input {name} rejected: {'; '.join(reasons)}")
 
-    def on_progress(fraction: float, message: str) -> None:
-        line.update(fraction, f"[{round(fraction * total)}/{total}] {message}")
+    return on_average
 
-    data_path = args.data / "acquisition.h5" if args.data else None
-    if args.resume and data_path is not None:
-        k = 1
-        while (args.data / f"acquisition-resumed-{k}.h5").exists():
-            k += 1
-        data_path = args.data / f"acquisition-resumed-{k}.h5"
-    fs_hz = [0.0]
+
+def _raw_data_path(args: argparse.Namespace) -> Path | None:
+    """The raw blocks' HDF5 file: ``acquisition.h5``, or the next ``acquisition-resumed-K.h5``."""
+    if not args.data:
+        return None
+    if not args.resume:
+        return args.data / "acquisition.h5"
+    k = 1
+    while (args.data / f"acquisition-resumed-{k}.h5").exists():
+        k += 1
+    return args.data / f"acquisition-resumed-{k}.h5"
+
+
+def _write_acquisition_json(data: Path, scenario: str, cfg: dict[str, Any], used: Any) -> None:
+    """Keep the settings asked and applied in ``data/acquisition.json`` (what ``--resume`` reads)."""
+    data.mkdir(parents=True, exist_ok=True)
+    (data / "acquisition.json").write_text(
+        json.dumps(
+            {"scenario": scenario, "config": cfg, "applied": used.model_dump()},
+            indent=2,
+        )
+        + "\n",
+        encoding="utf-8",
+    )
+
+
+def _strike(
+    rig: Any, setup: Any, cfg: dict[str, Any], data_path: Path | None, **session: Any
+) -> Any:
+    """Run the impact test on ``rig``; with ``data_path``, the raw blocks are written there too."""
+    from dimacq.io.acquisition_hdf5 import AcquisitionWriter
+    from dimacq.services.acquisition.rig import run_impact_test
+
+    if data_path is None:
+        return run_impact_test(rig, setup, cfg, **session)
+    data_path.parent.mkdir(parents=True, exist_ok=True)
+    sample_rate_hz = rig.daq.sample_rate_hz
+    assert sample_rate_hz is not None  # configured by build_rig
+    with AcquisitionWriter(
+        data_path,
+        sample_rate_hz=sample_rate_hz,
+        daq_channels=rig.daq.channel_names,
+        daq_units=rig.daq_units,
+        n_loadcells=len(rig.loadcells),
+    ) as writer:
+        return run_impact_test(rig, setup, cfg, writer=writer, **session)
+
+
+def _acquire(
+    args: argparse.Namespace,
+    settings: Any,
+    setup: Any,
+    cfg: dict[str, Any],
+    data_path: Path | None,
+    kept: list[list[dict[str, Any]]] | None,
+    lag: Any,
+    line: ProgressLine,
+    fs_hz: list[float],
+    on_average: Any,
+    on_progress: Any,
+) -> tuple[Any, Any, float, float]:
+    """Build the simulated rig and strike; return the FRFs, the settings applied, wall and CPU s.
+
+    The rig, the host-lag recording and the progress line are closed whatever happens; a new
+    acquisition under ``--data`` keeps its settings in ``acquisition.json`` before striking.
+    """
+    from dimacq.services.acquisition.rig import build_rig, impact_settings
+
     meta = {
         "source": "dimacq acquire (simulated USB DAQ + CAN load cells)",
         "scenario": args.scenario,
@@ -220,56 +367,40 @@ def run(args: argparse.Namespace) -> int:
         used = impact_settings(rig, cfg)
         fs_hz[0] = float(rig.daq.sample_rate_hz or 0.0)
         if args.data is not None and not args.resume:
-            args.data.mkdir(parents=True, exist_ok=True)
-            (args.data / "acquisition.json").write_text(
-                json.dumps(
-                    {"scenario": args.scenario, "config": cfg, "applied": used.model_dump()},
-                    indent=2,
-                )
-                + "\n",
-                encoding="utf-8",
-            )
-        if data_path is None:
-            frf = run_impact_test(
-                rig,
-                setup,
-                cfg,
-                on_average=on_average,
-                on_progress=on_progress,
-                meta=meta,
-                prior=kept,
-                on_event=lag.observe,
-            )
-        else:
-            data_path.parent.mkdir(parents=True, exist_ok=True)
-            sample_rate_hz = rig.daq.sample_rate_hz
-            assert sample_rate_hz is not None  # configured by build_rig
-            with AcquisitionWriter(
-                data_path,
-                sample_rate_hz=sample_rate_hz,
-                daq_channels=rig.daq.channel_names,
-                daq_units=rig.daq_units,
-                n_loadcells=len(rig.loadcells),
-            ) as writer:
-                frf = run_impact_test(
-                    rig,
-                    setup,
-                    cfg,
-                    on_average=on_average,
-                    on_progress=on_progress,
-                    writer=writer,
-                    meta=meta,
-                    prior=kept,
-                    on_event=lag.observe,
-                )
+            _write_acquisition_json(args.data, args.scenario, cfg, used)
+        frf = _strike(
+            rig,
+            setup,
+            cfg,
+            data_path,
+            on_average=on_average,
+            on_progress=on_progress,
+            meta=meta,
+            prior=kept,
+            on_event=lag.observe,
+        )
     finally:
         rig.close()
         recording.__exit__(None, None, None)
         line.close()
-    acq_wall_s, acq_cpu_s = time.monotonic() - t_acq, time.process_time() - cpu_acq
-    # Inputs with too few accepted averages have no FRF: the file holds the complete ones (what
-    # was acquired is kept) and the command ends with the reason, not with a mismatch of inputs.
-    accepted = [sum(ok for j, ok, _ in averages if j == i) for i in range(n_in)]
+    return frf, used, time.monotonic() - t_acq, time.process_time() - cpu_acq
+
+
+def _write_frf_files(
+    args: argparse.Namespace,
+    setup: Any,
+    frf: Any,
+    averages: list[tuple[int, bool, list[str]]],
+    used: Any,
+) -> tuple[list[Any], list[str]]:
+    """Write the FRFs of the complete inputs; return those inputs and the incomplete names.
+
+    Inputs with too few accepted averages have no FRF: the file holds the complete ones (what
+    was acquired is kept) and the command ends with the reason, not with a mismatch of inputs.
+    Under ``--data``, ``frf.npz`` keeps the FRFs with their coherence (UFF 58 holds none).
+    """
+    from dimacq.io.uff import write_uff_test
+
     have = set(frf.inputs)
     complete = [e for e in setup.excitations if Channel(e.node, e.direction) in have]
     incomplete = [e.name for e in setup.excitations if Channel(e.node, e.direction) not in have]
@@ -283,27 +414,51 @@ def run(args: argparse.Namespace) -> int:
     args.frf.parent.mkdir(parents=True, exist_ok=True)
     write_uff_test(args.frf, written, frf, binary=True)
     if args.data:
-        # UFF 58 holds no coherence: keep it (with the FRFs) next to the raw data.
         np.savez(
             args.data / "frf.npz",
             frequencies_hz=frf.frequencies_hz,
             H=frf.H,
             coherence=np.asarray(frf.coherence if frf.coherence is not None else []),
         )
-    elapsed = time.monotonic() - t0
-    rejected = [(j, reasons) for j, ok, reasons in averages if not ok]
-    # one average per input has no coherence (NaN): compare every value then
+    return complete, incomplete
+
+
+def _model_agreement(
+    scenario: str, setup: Any, frf: Any, model: Any, used: Any, complete: list[Any]
+) -> Any:
+    """The measured FRFs of the complete inputs against the true model, in the scenario's band.
+
+    Where coherence is known, only values above 0.99 are compared; one average per input has
+    no coherence (NaN), and every value is compared then.
+    """
+    from dimacq.cli.simulated_lab import frf_agreement
+
     coherent = frf.coherence is not None and bool(np.isfinite(frf.coherence).any())
-    agreement = frf_agreement(
+    return frf_agreement(
         frf,
         model,
         exponential_tau_s=used.exponential_tau_s,
-        band_hz=_scenario_band(args.scenario),
+        band_hz=_scenario_band(scenario),
         coherence_threshold=0.99 if coherent else None,
         inputs=[j for j, e in enumerate(setup.excitations) if e in complete],
     )
-    min_averages = min(used.min_averages, used.averages_per_input)
-    summary: dict[str, Any] = {
+
+
+def _summary_json(
+    args: argparse.Namespace,
+    setup: Any,
+    settings: Any,
+    frf: Any,
+    averages: list[tuple[int, bool, list[str]]],
+    used: Any,
+    agreement: Any,
+    incomplete: list[str],
+    data_path: Path | None,
+    elapsed: float,
+) -> dict[str, Any]:
+    """The ``--json`` summary without its ``time_lapse`` entry (which the caller appends last)."""
+    n_in = len(setup.excitations)
+    return {
         "scenario": args.scenario,
         "setup": setup.name,
         "seed": args.seed,
@@ -315,22 +470,31 @@ def run(args: argparse.Namespace) -> int:
         "n_inputs": n_in,
         "n_responses": len(frf.outputs),
         "n_lines": frf.n_lines,
-        "averages_accepted": accepted,
-        "min_averages": min_averages,
+        "averages_accepted": [sum(ok for j, ok, _ in averages if j == i) for i in range(n_in)],
+        "min_averages": min(used.min_averages, used.averages_per_input),
         "incomplete_inputs": incomplete,
         "averages_rejected": [
-            {"input": setup.excitations[j].name, "reasons": reasons} for j, reasons in rejected
+            {"input": setup.excitations[j].name, "reasons": reasons}
+            for j, ok, reasons in averages
+            if not ok
         ],
         "frf_vs_model": agreement.to_json(),
         "elapsed_s": elapsed,
-        "time_lapse": {
-            **lapse.to_json(),
-            **lag.to_json(),
-            "acquisition_wall_s": acq_wall_s,
-            "acquisition_cpu_s": acq_cpu_s,
-        },
     }
+
+
+def _print_summary(
+    args: argparse.Namespace,
+    setup: Any,
+    frf: Any,
+    rejected: list[tuple[int, list[str]]],
+    incomplete: list[str],
+    min_averages: int,
+    agreement: Any,
+) -> None:
+    """Write the test's shape, the rejections, the incomplete inputs and the model agreement."""
     out = sys.stdout
+    n_in = len(setup.excitations)
     out.write(
         f"{setup.name}: {n_in} inputs × {args.impacts_per_input} averages, "
         f"{len(frf.outputs)} outputs ({len(setup.load_cells)} load cells), "
@@ -355,22 +519,6 @@ def run(args: argparse.Namespace) -> int:
         f"{100 * agreement.median_rel_error:.3f} %, 99th percentile "
         f"{100 * agreement.p99_rel_error:.2f} %, max {100 * agreement.max_rel_error:.2f} %\n"
     )
-    out.write(
-        f"time-lapse: {lapse.describe()}; {lag.describe_factors()}; {lag.describe()}; "
-        f"acquisition {acq_wall_s:.1f} s wall, "
-        f"{acq_cpu_s:.1f} s CPU (user + sys)\n"
-    )
-    out.write(f"wrote {args.frf} in {elapsed:.1f} s\n")
-    if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
-    if incomplete:
-        raise DataError(
-            f"acquisition incomplete: {len(incomplete)} of {n_in} inputs have fewer than "
-            f"{min_averages} accepted averages ({_rejections(setup, averages, incomplete)}); "
-            f"{args.frf} holds the FRFs of the {len(complete)} complete inputs only"
-        )
-    return 0
 
 
 #: The settings a resumed acquisition takes from the interrupted one (records and FRFs alike).
@@ -393,6 +541,7 @@ def _kept_averages(
     """For ``--resume``: the folder's array store, its accepted averages per input (oldest
     first) and the number of the next average; ``cfg`` takes the interrupted run's settings."""
     from dimacq.persistence import ArrayStore
+    from dimacq.services.acquisition.resume import kept_averages
 
     info_path = args.data / "acquisition.json"
     try:
@@ -416,20 +565,21 @@ def _kept_averages(
     applied = info.get("applied", {})
     cfg.update({k: old.get(k, applied.get(k)) for k in _KEPT_SETTINGS if k in old or k in applied})
     store = ArrayStore(args.data)
-    kept: list[list[dict[str, Any]]] = [[] for _ in range(n_in)]
-    last = 0
-    for path in sorted((args.data / "averages").glob("avg-*.h5")):
-        rel = path.relative_to(args.data).as_posix()
-        arrays, attrs = store.read(rel)
-        last = max(last, int(attrs["number"]))
-        if attrs["accepted"]:
-            kept[int(attrs["input_index"])].append(arrays)
-    if all(len(r) >= args.impacts_per_input for r in kept):
+    numbers: list[int] = []
+
+    def averages() -> Iterator[tuple[int, bool, dict[str, Any]]]:
+        for path in sorted((args.data / "averages").glob("avg-*.h5")):
+            arrays, attrs = store.read(path.relative_to(args.data).as_posix())
+            numbers.append(int(attrs["number"]))
+            yield int(attrs["input_index"]), bool(attrs["accepted"]), arrays
+
+    kept = kept_averages(averages(), range(n_in), lambda arrays: arrays)
+    if kept.nothing_to_strike(args.impacts_per_input):
         raise SetupError(
             f"--resume: every input in {args.data} has its {args.impacts_per_input} accepted "
             "averages; nothing to strike (run without --resume into a new folder)"
         )
-    return store, kept, last + 1
+    return store, kept.per_input, max([0, *numbers]) + 1
 
 
 def _rejections(

@@ -303,9 +303,6 @@ def _demo(
 ) -> dict[str, Any]:
     import httpx
 
-    from dimacq.io.setup_file import dump_setup_dict
-    from dimacq.services.geometry.digitizer_config import load_jig
-
     rng = np.random.default_rng(built.seed + 1000)
     model = built.model
     setup_true = model.setup  # the TRUE geometry: what the digitizer measures
@@ -336,116 +333,10 @@ def _demo(
             n_points = [0]
             info["photos"] = photo
         else:
-            # --- 1. array placement and registration -----------------------------------------
-            pos = np.vstack([setup_true.response_positions, setup_true.input_positions])
-            lo, hi = pos.min(axis=0) - 0.02, pos.max(axis=0) + 0.02
-            arr = _Array(rng, 0.5 * (lo + hi))
-            refs = {
-                f"REF{i}": [float(x), float(y), float(z)]
-                for i, (x, y, z) in enumerate(
-                    [
-                        (lo[0], lo[1], lo[2]),
-                        (hi[0], lo[1], lo[2]),
-                        (lo[0], hi[1], lo[2]),
-                        (lo[0], lo[1], hi[2]),
-                        (hi[0], hi[1], hi[2]),
-                        (hi[0], lo[1], hi[2]),
-                    ]
-                )
-            }
-            check(c.put("/api/digitizer/reference-nodes", json={"nodes": refs}), "reference nodes")
-            n_points = [0]
-
-            def digitize(label: str, p_gcs: np.ndarray) -> None:
-                body = {
-                    "label": label,
-                    "shots": 5,
-                    "sim_probe": {"tip_m": arr.dacs(p_gcs), "axis": [0.0, 0.0, 1.0]},
-                }
-                check(c.post("/api/digitizer/points", json=body), f"digitizing {label}")
-                n_points[0] += 1
-
-            for lab, ref in refs.items():
-                digitize(lab, np.array(ref))
-            reg = check(
-                c.post("/api/digitizer/registrations", json={"method": "rigid"}), "registration"
+            rms_mm, ori_err, ori_unc, loa_err, n_points = _digitize_geometry(
+                c, setup_true, rng, nodes, info, say
             )
-            rms_mm = 1e3 * reg["registration"]["rms_m"]
-            info["registration"] = {
-                k: reg["registration"][k]
-                for k in (
-                    "verdict",
-                    "reasons",
-                    "limit_m",
-                    "rms_m",
-                    "worst_node",
-                    "worst_residual_m",
-                )
-            }
-            say(
-                f"[1/5] array registered from {len(refs)} reference nodes: RMS residual {rms_mm:.3f} mm"
-            )
-            # --- 2. jig orientation and lines of action -------------------------------------
-            jig = load_jig()
-            ori_err = []
-            ori_unc = []
-            for k, n in enumerate(nodes):
-                chans = sorted(
-                    (ch for ch in setup_true.responses if ch.node == n), key=lambda ch: ch.direction
-                )
-                C = np.array([ch.direction_gcs for ch in chans]).T
-                origin = np.asarray(chans[0].position_m)
-                for lab, xl in zip(jig.labels, jig.points_local_m, strict=True):
-                    digitize(f"jig{n}/{lab}", C @ xl + origin)
-                o = check(
-                    c.post("/api/digitizer/orientations", json={"node": n}), f"orientation {n}"
-                )
-                ori_err.append(_angle_deg(np.array(o["rotation"]), C))
-                ori_unc.append(float(o["uncertainty_deg"]))
-                say(
-                    f"[2/5] triax {n} oriented ({k + 1}/{len(nodes)}): error {ori_err[-1]:.3f} deg, "
-                    f"uncertainty {o['uncertainty_deg']:.3f} deg"
-                )
-            loa_err = []
-            for e in setup_true.excitations:
-                p_in, d = np.asarray(e.position_m), np.asarray(e.direction_gcs)
-                digitize(f"in{e.node}", p_in)
-                labels = []
-                for j, s in enumerate((0.04, 0.08, 0.12)):
-                    digitize(f"loa{e.node}/{j}", p_in - s * d)
-                    labels.append(f"loa{e.node}/{j}")
-                la = check(
-                    c.post(
-                        "/api/digitizer/lines-of-action",
-                        json={"node": e.node, "input_label": f"in{e.node}", "labels": labels},
-                    ),
-                    f"line of action {e.node}",
-                )
-                loa_err.append(
-                    float(np.degrees(np.arccos(np.clip(np.dot(la["direction"], d), -1, 1))))
-                )
-            say(
-                f"[2/5] {len(loa_err)} lines of action: RMS error {np.sqrt(np.mean(np.square(loa_err))):.3f} deg; "
-                f"{n_points[0]} points digitized"
-            )
-        # --- 3. setup from geometry -----------------------------------------------------
-        geo = {
-            "name": f"demo {args.scenario}",
-            "reference_point_m": list(setup_true.reference_point_m),
-            "triaxes": nodes,
-            "inputs": [e.node for e in setup_true.excitations],
-            "load_cells": [
-                dump_setup_dict(setup_true)["load_cells"][i]
-                for i in range(len(setup_true.load_cells))
-            ],
-        }
-        setup_out = check(c.post("/api/setups/from-geometry", json=geo), "setup from geometry")
-        sid = setup_out["id"]
-        info["geometry_uncertainty"] = setup_out["setup"].get("geometry_uncertainty")
-        say(
-            f"[3/5] setup {sid}: {setup_out['n_responses']} responses, {setup_out['n_inputs']} inputs, "
-            f"{setup_out['n_load_cells']} load cell(s)"
-        )
+        sid = _setup_from_geometry(c, setup_true, nodes, args, info, say)
         # --- 4. acquisition, once step 0 is done: one acquisition at a time, and step 0's solve
         # (its modal fit can take both cores for seconds) not beside it: that starved the test's
         # acquisition into FIFO overflows at 18x on the loaded machine
@@ -453,55 +344,8 @@ def _demo(
             chain_check.acquired(lag, runs)
             chain = chain_check.result()
             info["chain_calibration"] = chain
-        if args.model_frfs:
-            say(
-                "[4/5] no acquisition (--model-frfs): importing the virtual lab's FRFs of the true "
-                f"article (UFF, {100 * args.noise:.2g} % noise)"
-            )
-            frf_id = _import_model_frfs(c, built, sid, args)
-            info["acquisition"] = (
-                "not run (--model-frfs): FRFs of the virtual lab's forward model (true geometry) "
-                f"with {100 * args.noise:g} % noise imported as UFF"
-            )
-        else:
-            frf_id = acquire(
-                c,
-                {"setup_id": sid, **acquisition_plan(args), "seed": built.seed},
-                ACQUISITION,
-                say,
-                quiet=args.quiet,
-                lag=lag,
-                runs=runs,
-            )
-            b = backends or {}
-            cell = {
-                "daq-channels": "its bridges on inputs of the DAQ",
-                "canopen-simulated": "load cell (CANopen)",
-                "netft-can-simulated": "ATI Net F/T (CAN)",
-                "netft-udp-simulated": "ATI Net F/T (RDT over UDP)",
-                "cia404-simulated": "CiA 404 amplifier (CANopen)",
-            }.get(b.get("loadcell", ""), "load cell (CAN)")
-            daq = b.get("daq", "?")
-            usb = "Measurement Computing USB-1808X units (USB)"
-            dev = {"mcc-usb-simulated": usb, "mcc-usb": usb}.get(daq, "DAQ (USB)")
-            info["acquisition"] = (
-                f"impact test through the {_sim('daq', daq)}{dev} and {cell} "
-                f"(daq = {daq!r}, loadcell = {b.get('loadcell', '?')!r})"
-            )
-            say(f"[4/5] acquired: {info['acquisition']}")
-        # --- 5. solve (with step 0's chain calibration) -----------------------------------
-        body: dict[str, Any] = {"frf_id": frf_id}
-        if chain is not None and "solution_id" in chain:
-            body["chain_calibration_id"] = chain["solution_id"]
-        if args.scenario_band:
-            body["band_hz"] = band
-        sol = check(c.post("/api/solutions", json=body), "solve")
-        lo, hi = sol["result"]["band_hz"]
-        how = "the scenario's recommended band" if args.scenario_band else "chosen by the service"
-        say(
-            f"[5/5] solution {sol['id']} on FRF set {frf_id}, band {lo:g}-{hi:g} Hz ({how}), "
-            f"verdict {sol['result'].get('verdict', '?')}"
-        )
+        frf_id = _acquire_frfs(c, built, sid, args, say, info, backends, lag, runs)
+        sol = _solve_step(c, frf_id, chain, band, args, say)
     finally:
         c.close()
     payload: dict[str, Any] = dict(sol["result"])
@@ -524,6 +368,249 @@ def _demo(
     )
     payload["demo"] = info
     return payload
+
+
+def _digitize_geometry(
+    c: Any,
+    setup_true: Any,
+    rng: np.random.Generator,
+    nodes: list[int],
+    info: dict[str, Any],
+    say: Callable[[str], None],
+) -> tuple[float, list[float], list[float], list[float], list[int]]:
+    """Steps 1–2 with the simulated digitizer: register the array, orient the triaxes, fit the
+    lines of action. Returns the registration RMS (mm), the orientation errors and
+    uncertainties (deg), the line-of-action errors (deg) and the count of points digitized."""
+    n_points = [0]
+    digitize, rms_mm = _register_array(c, setup_true, rng, n_points, info, say)
+    ori_err, ori_unc = _orient_triaxes(c, setup_true, nodes, digitize, say)
+    loa_err = _fit_lines_of_action(c, setup_true, digitize)
+    say(
+        f"[2/5] {len(loa_err)} lines of action: RMS error {np.sqrt(np.mean(np.square(loa_err))):.3f} deg; "
+        f"{n_points[0]} points digitized"
+    )
+    return rms_mm, ori_err, ori_unc, loa_err, n_points
+
+
+def _register_array(
+    c: Any,
+    setup_true: Any,
+    rng: np.random.Generator,
+    n_points: list[int],
+    info: dict[str, Any],
+    say: Callable[[str], None],
+) -> tuple[Callable[[str, np.ndarray], None], float]:
+    """Step 1: place the array before the article and register it on six reference nodes.
+
+    Returns the function that digitizes a point (a true GCS position, probed through the
+    array; ``n_points[0]`` counts them) and the registration's RMS residual in mm.
+    """
+    pos = np.vstack([setup_true.response_positions, setup_true.input_positions])
+    lo, hi = pos.min(axis=0) - 0.02, pos.max(axis=0) + 0.02
+    arr = _Array(rng, 0.5 * (lo + hi))
+    refs = {
+        f"REF{i}": [float(x), float(y), float(z)]
+        for i, (x, y, z) in enumerate(
+            [
+                (lo[0], lo[1], lo[2]),
+                (hi[0], lo[1], lo[2]),
+                (lo[0], hi[1], lo[2]),
+                (lo[0], lo[1], hi[2]),
+                (hi[0], hi[1], hi[2]),
+                (hi[0], lo[1], hi[2]),
+            ]
+        )
+    }
+    check(c.put("/api/digitizer/reference-nodes", json={"nodes": refs}), "reference nodes")
+
+    def digitize(label: str, p_gcs: np.ndarray) -> None:
+        body = {
+            "label": label,
+            "shots": 5,
+            "sim_probe": {"tip_m": arr.dacs(p_gcs), "axis": [0.0, 0.0, 1.0]},
+        }
+        check(c.post("/api/digitizer/points", json=body), f"digitizing {label}")
+        n_points[0] += 1
+
+    for lab, ref in refs.items():
+        digitize(lab, np.array(ref))
+    reg = check(c.post("/api/digitizer/registrations", json={"method": "rigid"}), "registration")
+    rms_mm = 1e3 * reg["registration"]["rms_m"]
+    info["registration"] = {
+        k: reg["registration"][k]
+        for k in (
+            "verdict",
+            "reasons",
+            "limit_m",
+            "rms_m",
+            "worst_node",
+            "worst_residual_m",
+        )
+    }
+    say(f"[1/5] array registered from {len(refs)} reference nodes: RMS residual {rms_mm:.3f} mm")
+    return digitize, rms_mm
+
+
+def _orient_triaxes(
+    c: Any,
+    setup_true: Any,
+    nodes: list[int],
+    digitize: Callable[[str, np.ndarray], None],
+    say: Callable[[str], None],
+) -> tuple[list[float], list[float]]:
+    """Step 2a: digitize the jig on every triax and fit its orientation; return each fit's
+    error against the true orientation and its stated uncertainty (deg)."""
+    from dimacq.services.geometry.digitizer_config import load_jig
+
+    jig = load_jig()
+    ori_err = []
+    ori_unc = []
+    for k, n in enumerate(nodes):
+        chans = sorted(
+            (ch for ch in setup_true.responses if ch.node == n), key=lambda ch: ch.direction
+        )
+        C = np.array([ch.direction_gcs for ch in chans]).T
+        origin = np.asarray(chans[0].position_m)
+        for lab, xl in zip(jig.labels, jig.points_local_m, strict=True):
+            digitize(f"jig{n}/{lab}", C @ xl + origin)
+        o = check(c.post("/api/digitizer/orientations", json={"node": n}), f"orientation {n}")
+        ori_err.append(_angle_deg(np.array(o["rotation"]), C))
+        ori_unc.append(float(o["uncertainty_deg"]))
+        say(
+            f"[2/5] triax {n} oriented ({k + 1}/{len(nodes)}): error {ori_err[-1]:.3f} deg, "
+            f"uncertainty {o['uncertainty_deg']:.3f} deg"
+        )
+    return ori_err, ori_unc
+
+
+def _fit_lines_of_action(
+    c: Any, setup_true: Any, digitize: Callable[[str, np.ndarray], None]
+) -> list[float]:
+    """Step 2b: digitize each impact point and three points along the hammer's line; return
+    the angle (deg) between each fitted line of action and the true direction."""
+    loa_err = []
+    for e in setup_true.excitations:
+        p_in, d = np.asarray(e.position_m), np.asarray(e.direction_gcs)
+        digitize(f"in{e.node}", p_in)
+        labels = []
+        for j, s in enumerate((0.04, 0.08, 0.12)):
+            digitize(f"loa{e.node}/{j}", p_in - s * d)
+            labels.append(f"loa{e.node}/{j}")
+        la = check(
+            c.post(
+                "/api/digitizer/lines-of-action",
+                json={"node": e.node, "input_label": f"in{e.node}", "labels": labels},
+            ),
+            f"line of action {e.node}",
+        )
+        loa_err.append(float(np.degrees(np.arccos(np.clip(np.dot(la["direction"], d), -1, 1)))))
+    return loa_err
+
+
+def _setup_from_geometry(
+    c: Any,
+    setup_true: Any,
+    nodes: list[int],
+    args: argparse.Namespace,
+    info: dict[str, Any],
+    say: Callable[[str], None],
+) -> int:
+    """Step 3: the setup built by the service from the digitized geometry; return its id."""
+    from dimacq.io.setup_file import dump_setup_dict
+
+    geo = {
+        "name": f"demo {args.scenario}",
+        "reference_point_m": list(setup_true.reference_point_m),
+        "triaxes": nodes,
+        "inputs": [e.node for e in setup_true.excitations],
+        "load_cells": [
+            dump_setup_dict(setup_true)["load_cells"][i] for i in range(len(setup_true.load_cells))
+        ],
+    }
+    setup_out = check(c.post("/api/setups/from-geometry", json=geo), "setup from geometry")
+    sid: int = setup_out["id"]
+    info["geometry_uncertainty"] = setup_out["setup"].get("geometry_uncertainty")
+    say(
+        f"[3/5] setup {sid}: {setup_out['n_responses']} responses, {setup_out['n_inputs']} inputs, "
+        f"{setup_out['n_load_cells']} load cell(s)"
+    )
+    return sid
+
+
+def _acquire_frfs(
+    c: Any,
+    built: Any,
+    sid: int,
+    args: argparse.Namespace,
+    say: Callable[[str], None],
+    info: dict[str, Any],
+    backends: dict[str, str] | None,
+    lag: HostLag | None,
+    runs: list[dict[str, Any]] | None,
+) -> int:
+    """Step 4: acquire the impacts through the service (or, with ``--model-frfs``, import the
+    model's FRFs); ``info["acquisition"]`` says which and through what. Returns the FRF set id."""
+    if args.model_frfs:
+        say(
+            "[4/5] no acquisition (--model-frfs): importing the virtual lab's FRFs of the true "
+            f"article (UFF, {100 * args.noise:.2g} % noise)"
+        )
+        frf_id = _import_model_frfs(c, built, sid, args)
+        info["acquisition"] = (
+            "not run (--model-frfs): FRFs of the virtual lab's forward model (true geometry) "
+            f"with {100 * args.noise:g} % noise imported as UFF"
+        )
+        return frf_id
+    frf_id = acquire(
+        c,
+        {"setup_id": sid, **acquisition_plan(args), "seed": built.seed},
+        ACQUISITION,
+        say,
+        quiet=args.quiet,
+        lag=lag,
+        runs=runs,
+    )
+    b = backends or {}
+    cell = {
+        "daq-channels": "its bridges on inputs of the DAQ",
+        "canopen-simulated": "load cell (CANopen)",
+        "netft-can-simulated": "ATI Net F/T (CAN)",
+        "netft-udp-simulated": "ATI Net F/T (RDT over UDP)",
+        "cia404-simulated": "CiA 404 amplifier (CANopen)",
+    }.get(b.get("loadcell", ""), "load cell (CAN)")
+    daq = b.get("daq", "?")
+    usb = "Measurement Computing USB-1808X units (USB)"
+    dev = {"mcc-usb-simulated": usb, "mcc-usb": usb}.get(daq, "DAQ (USB)")
+    info["acquisition"] = (
+        f"impact test through the {_sim('daq', daq)}{dev} and {cell} "
+        f"(daq = {daq!r}, loadcell = {b.get('loadcell', '?')!r})"
+    )
+    say(f"[4/5] acquired: {info['acquisition']}")
+    return frf_id
+
+
+def _solve_step(
+    c: Any,
+    frf_id: int,
+    chain: dict[str, Any] | None,
+    band: list[float],
+    args: argparse.Namespace,
+    say: Callable[[str], None],
+) -> dict[str, Any]:
+    """Step 5: solve the FRF set (with step 0's chain calibration when it gave one)."""
+    body: dict[str, Any] = {"frf_id": frf_id}
+    if chain is not None and "solution_id" in chain:
+        body["chain_calibration_id"] = chain["solution_id"]
+    if args.scenario_band:
+        body["band_hz"] = band
+    sol: dict[str, Any] = check(c.post("/api/solutions", json=body), "solve")
+    lo, hi = sol["result"]["band_hz"]
+    how = "the scenario's recommended band" if args.scenario_band else "chosen by the service"
+    say(
+        f"[5/5] solution {sol['id']} on FRF set {frf_id}, band {lo:g}-{hi:g} Hz ({how}), "
+        f"verdict {sol['result'].get('verdict', '?')}"
+    )
+    return sol
 
 
 def _photograph(

@@ -59,6 +59,15 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         description=plain(__doc__),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
+    _add_problem_arguments(p)
+    _add_chain_calibration_arguments(p)
+    _add_selection_arguments(p)
+    _add_estimator_arguments(p)
+    p.set_defaults(func=run)
+
+
+def _add_problem_arguments(p: argparse.ArgumentParser) -> None:
+    """The data, the band, the known parameters, the reference point and the method."""
     p.add_argument(
         "input", type=Path, metavar="INPUT", help="setup file (.toml/.json) or whole-test UFF"
     )
@@ -98,6 +107,10 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         metavar="KG",
         help="scale the FRFs so that the band mass equals KG (FRF scaling, thesis §3.2.2.1)",
     )
+
+
+def _add_chain_calibration_arguments(p: argparse.ArgumentParser) -> None:
+    """Chain calibration on a weighed reference mass: measure the factor, record it, apply it."""
     c = p.add_argument_group(
         "chain calibration on a reference mass (dimacq.pipeline.chain_calibration)"
     )
@@ -122,6 +135,10 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         help="apply the chain calibration of a reference-mass solve (its --json output): FRFs "
         "times the factor, the hammer's certificate uncertainty replaced by its own",
     )
+
+
+def _add_selection_arguments(p: argparse.ArgumentParser) -> None:
+    """The reference values, the JSON output, data selection and diagnostics."""
     p.add_argument("--reference", type=Path, metavar="REF.json", help="true values: print %% error")
     p.add_argument("--json", type=Path, metavar="OUT", help="write the solution as JSON")
     g = p.add_argument_group(
@@ -157,6 +174,10 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         "--repair-orientation", action="store_true", help="apply sensor orientation repair"
     )
     g.add_argument("--plots", type=Path, metavar="DIR", help="write figures (PNG and SVG) to DIR")
+
+
+def _add_estimator_arguments(p: argparse.ArgumentParser) -> None:
+    """The estimator: output-error, geometry refinement, residual flexibility, modal correction."""
     e = p.add_argument_group("estimator (dimacq.pipeline.output_error)")
     e.add_argument(
         "--unbiased",
@@ -190,7 +211,6 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         "pair, LSCF + LSFD) out of the accelerances and reactions and solve on the corrected "
         "FRFs: auto (default) when the rigid-body checks show elastic contamination, on, off",
     )
-    p.set_defaults(func=run)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -439,8 +459,20 @@ def print_report(
     out: TextIO,
 ) -> None:
     """A table like the thesis's: estimate, band statistics and, with a reference, % error."""
-    lo, hi = result.band_hz
     w = out.write
+    _print_header(result, w)
+    _print_table(result, payload, reference, w)
+    _print_principal_axes(result, payload, w)
+    _print_modal(payload, w)
+    _print_cross_check(result, payload, reference, w)
+    _print_data_corrections(payload, w)
+    _print_estimator(payload, w)
+    _print_checks(result, payload, w)
+
+
+def _print_header(result: dim.DimResult, w: Any) -> None:
+    """The band, the method, the reference point, the channel counts and the known values."""
+    lo, hi = result.band_hz
     w(
         f"DIM solution — band {lo:g}–{hi:g} Hz ({result.frequencies_hz.size} lines), "
         f"method {result.method}, length unit {result.length_unit}\n"
@@ -452,6 +484,15 @@ def print_report(
     )
     if result.known:
         w("known: " + ", ".join(f"{k} = {v:g}" for k, v in result.known.items()) + "\n")
+
+
+def _print_table(
+    result: dim.DimResult,
+    payload: dict[str, Any],
+    reference: RigidBodyProperties | None,
+    w: Any,
+) -> None:
+    """One row per parameter: estimate, band statistics, 95 % interval, true value and error."""
     header = f"{'parameter':<10}{'unit':<7}{'estimate':>14}{'band mean':>14}{'band std':>12}{'band min':>14}{'band max':>14}"
     unc = payload.get("uncertainty") or {}
     if unc:
@@ -474,6 +515,10 @@ def print_report(
         if reference is not None and errs is not None:
             line += f"{true[i]:>14.6g}{errs[name]:>10.3f}"
         w(line + "\n")
+
+
+def _print_principal_axes(result: dim.DimResult, payload: dict[str, Any], w: Any) -> None:
+    """Principal moments and axes about the CG, the solve's rank, conditioning and residual."""
     pm = payload["principal_moments_kgm2"]
     w("principal moments about the CG: " + ", ".join(f"{x:.6g}" for x in pm) + " kg·m²\n")
     axes = np.asarray(payload["principal_axes"])
@@ -484,8 +529,10 @@ def print_report(
         f"relative residual {result.residual_rel:.3g}\n"
     )
     w(f"sign convention: {PRODUCT_SIGN_CONVENTION}\n")
-    _print_modal(payload, w)
-    _print_cross_check(result, payload, reference, w)
+
+
+def _print_data_corrections(payload: dict[str, Any], w: Any) -> None:
+    """What was done to the data: FRF scaling, chain calibration, band, exclusions, orientations."""
     if "frf_scale_factor" in payload:
         w(f"FRFs scaled by {payload['frf_scale_factor']:.9g} to the known mass\n")
     chain = payload.get("chain_calibration")
@@ -514,6 +561,10 @@ def print_report(
             applied = "applied" if corr.get("applied") else "not applied"
             angle = float(corr.get("angle_deg", float("nan")))
             w(f"orientation correction node {corr.get('node')}: {angle:.3f} deg ({applied})\n")
+
+
+def _print_estimator(payload: dict[str, Any], w: Any) -> None:
+    """The estimator used and, for output-error, its fit and the corrections it estimated."""
     oe = payload.get("output_error")
     if isinstance(oe, dict) and oe.get("used"):
         w(
@@ -552,6 +603,10 @@ def print_report(
         w(f"estimator: equation-error (output-error not used: {oe.get('reason')})\n")
     else:
         w("estimator: equation-error least squares (output-error fit not asked for)\n")
+
+
+def _print_checks(result: dim.DimResult, payload: dict[str, Any], w: Any) -> None:
+    """Each diagnostic with its mark, then the verdict and the reasons that are not ok."""
     for d in result.diagnostics:
         mark = "ok  " if d.ok else ("FAIL" if d.severity == "error" else "warn")
         w(f"[{mark}] {d.code}: {d.message}\n")

@@ -397,13 +397,7 @@ def run_inertial_calibration(
         The fit is refused (too few inputs, loads not excited), or the accelerometers do not
         move as one rigid body with the setup's geometry (:data:`MAX_RIGID_RESIDUAL`).
     """
-    from dimacq.pipeline.inertial_bench import (
-        jackknife_matrix_variance,
-        matrix_gain_variance,
-        rigid_body_gains,
-    )
-    from dimacq.pipeline.loadcell_calibration import inertial_calibration
-    from dimacq.pipeline.rigid_body import condense, load_cell_transform, response_matrix
+    from dimacq.pipeline.rigid_body import condense, response_matrix
 
     rig_file = load_rig_file(settings.rig_path)
     entry = select_cell(rig_file, node)
@@ -424,77 +418,23 @@ def run_inertial_calibration(
             on_strike=on_strike,
         )
         f = res.frequencies_hz
-        lo, hi = bench.inertial.band_hz
-        sel = (f >= lo) & (f <= hi)
-        if sel.sum() < 2:
-            raise SetupError(
-                f"bench file {bench.path}: [inertial] band_hz = [{lo}, {hi}] holds "
-                f"{int(sel.sum())} lines of 0–{f[-1]:g} Hz; give a band inside it"
-            )
+        sel = _band_lines(bench, f)
         n_acc = len(setup.responses)
         P = np.asarray(setup.reference_point_m, float)
         psi = response_matrix(setup.response_positions, setup.response_directions, P)
-        gains = rigid_body_gains(
-            res.H[sel, :n_acc], psi, setup.transducer_uncertainty.accel_sensitivity_rel
-        )
-        if not gains.residual_rel <= MAX_RIGID_RESIDUAL:
-            raise DataError(
-                f"the accelerometers do not move as one rigid body with the setup's geometry "
-                f"(rms residual {100 * gains.residual_rel:.1f} % of their motion, "
-                f"{100 * MAX_RIGID_RESIDUAL:g} % at most): a sensor's position or direction in "
-                f"{bench.inertial_setup_path()} or its cabling in the rig file is wrong; the "
-                "matrix would be wrong by as much, nothing installed"
-            )
+        gains = _rigid_body_gains(bench, setup, res.H[sel, :n_acc], psi)
         Tq = condense(psi).transform * gains.gains[None, :]  # (6, n_acc), gains applied
-        acc = res.H[sel, :n_acc]
-        # T_q H with real arithmetic (complex GEMM is slow on this machine's BLAS)
-        a_p = np.einsum("kc,lci->lki", Tq, acc.real) + 1j * np.einsum("kc,lci->lki", Tq, acc.imag)
+        a_p = _platform_motion(Tq, res.H[sel, :n_acc])
         gauges = res.H[sel, n_acc + 12 * k : n_acc + 12 * (k + 1)]
         n_inputs = res.H.shape[2]
         kept = list(res.input_indices or range(n_inputs))
-        clo, chi = bench.inertial.check_band_hz  # above the suspension modes
-        above = (f >= clo) & (f <= chi)
-        acc_hi = res.H[above, :n_acc]
-        a_hi = np.einsum("kc,lci->lki", Tq, acc_hi.real) + 1j * np.einsum(
-            "kc,lci->lki", Tq, acc_hi.imag
-        )
         M = props.mass_matrix(P)
-        ratio = hammer_ratio(a_hi, M, setup.input_directions[kept]) if above.any() else None
-        del res, acc, acc_hi, a_hi
+        ratio = _check_band_hammer_ratio(bench, res, Tq, M, setup.input_directions[kept])
+        del res
         lc = setup.load_cells[k]
-        fit = inertial_calibration(
-            gauges,
-            a_p,
-            M,
-            np.asarray(lc.position_m, float),
-            lc.rotation_matrix,
-            P,
-            sign=lc.sign_factor,
-        )
-        Tc = load_cell_transform(
-            np.asarray(lc.position_m, float), lc.rotation_matrix, P, lc.sign_factor
-        )
-        var = matrix_gain_variance(fit.matrix, gains.covariance, Tq, psi, M, Tc)
-        var_fit = jackknife_matrix_variance(
-            gauges,
-            a_p,
-            M,
-            np.asarray(lc.position_m, float),
-            lc.rotation_matrix,
-            P,
-            sign=lc.sign_factor,
-        )
-        if var_fit is None:  # fewer than 4 inputs: the residuals' (a lower bound)
-            var_fit = np.asarray(fit.matrix_std, float) ** 2
-        u_rel = float(2 * np.sqrt(np.sum(var + var_fit)) / np.linalg.norm(fit.matrix))
+        fit, var, var_fit = _fit_matrix(gauges, a_p, M, lc, P, gains, Tq, psi)
         labels = tuple(f"{r.node}{direction_label(r.direction)}" for r in setup.responses)
-        reasons = _gain_reasons(gains, labels, setup.transducer_uncertainty.accel_sensitivity_rel)
-        if u_rel > MAX_MATRIX_UNCERTAINTY_REL:
-            reasons += (
-                f"the matrix is known to ±{100 * u_rel:.2f} % only (k = 2; fit condition "
-                f"σ1/σ6 {fit.condition:.3g}): the inputs do not excite the six loads evenly; "
-                "strike the mass on three faces, off its centre",
-            )
+        reasons = _calibration_reasons(setup, gains, labels, fit, var + var_fit)
         run = InertialRun(
             node=entry.node,
             serial_number=serial,
@@ -521,6 +461,121 @@ def run_inertial_calibration(
         *run.band_hz,
     )
     return run, done
+
+
+def _band_lines(bench: BenchFile, f: FloatArray) -> NDArray[np.bool_]:
+    """The lines of the bench file's ``[inertial] band_hz`` (at least two, else refused)."""
+    assert bench.inertial is not None
+    lo, hi = bench.inertial.band_hz
+    sel = (f >= lo) & (f <= hi)
+    if sel.sum() < 2:
+        raise SetupError(
+            f"bench file {bench.path}: [inertial] band_hz = [{lo}, {hi}] holds "
+            f"{int(sel.sum())} lines of 0–{f[-1]:g} Hz; give a band inside it"
+        )
+    return sel
+
+
+def _rigid_body_gains(bench: BenchFile, setup: TestSetup, acc: Any, psi: Any) -> ChannelGains:
+    """The accelerometers' gains that make them move as one rigid body; refused (nothing
+    installed) when their rms residual exceeds :data:`MAX_RIGID_RESIDUAL` of their motion."""
+    from dimacq.pipeline.inertial_bench import rigid_body_gains
+
+    gains = rigid_body_gains(acc, psi, setup.transducer_uncertainty.accel_sensitivity_rel)
+    if not gains.residual_rel <= MAX_RIGID_RESIDUAL:
+        raise DataError(
+            f"the accelerometers do not move as one rigid body with the setup's geometry "
+            f"(rms residual {100 * gains.residual_rel:.1f} % of their motion, "
+            f"{100 * MAX_RIGID_RESIDUAL:g} % at most): a sensor's position or direction in "
+            f"{bench.inertial_setup_path()} or its cabling in the rig file is wrong; the "
+            "matrix would be wrong by as much, nothing installed"
+        )
+    return gains
+
+
+def _platform_motion(Tq: Any, acc: Any) -> Any:
+    """The mass's rigid-body accelerations at P, ``T_q H`` per line: shape (lines, 6, inputs).
+
+    Real and imaginary parts apart (complex GEMM is slow on common BLAS builds).
+    """
+    return np.einsum("kc,lci->lki", Tq, acc.real) + 1j * np.einsum("kc,lci->lki", Tq, acc.imag)
+
+
+def _check_band_hammer_ratio(
+    bench: BenchFile, res: Any, Tq: Any, M: FloatArray, directions: FloatArray
+) -> Any:
+    """:func:`hammer_ratio` in the bench's check band (above the suspension modes), or None
+    when the band holds no line."""
+    assert bench.inertial is not None
+    f = res.frequencies_hz
+    n_acc = Tq.shape[1]
+    clo, chi = bench.inertial.check_band_hz  # above the suspension modes
+    above = (f >= clo) & (f <= chi)
+    a_hi = _platform_motion(Tq, res.H[above, :n_acc])
+    return hammer_ratio(a_hi, M, directions) if above.any() else None
+
+
+def _calibration_reasons(
+    setup: TestSetup, gains: ChannelGains, labels: tuple[str, ...], fit: Any, var: FloatArray
+) -> tuple[str, ...]:
+    """Why the calibration only warns: the accelerometers' gains (:func:`_gain_reasons`) and a
+    matrix known to worse than :data:`MAX_MATRIX_UNCERTAINTY_REL` (k = 2) from its variance
+    ``var`` (gains and fit).
+
+    u_rel = 2 sqrt(Σ var) / ‖C‖_F
+    """
+    u_rel = float(2 * np.sqrt(np.sum(var)) / np.linalg.norm(fit.matrix))
+    reasons = _gain_reasons(gains, labels, setup.transducer_uncertainty.accel_sensitivity_rel)
+    if u_rel > MAX_MATRIX_UNCERTAINTY_REL:
+        reasons += (
+            f"the matrix is known to ±{100 * u_rel:.2f} % only (k = 2; fit condition "
+            f"σ1/σ6 {fit.condition:.3g}): the inputs do not excite the six loads evenly; "
+            "strike the mass on three faces, off its centre",
+        )
+    return reasons
+
+
+def _fit_matrix(
+    gauges: Any,
+    a_p: Any,
+    M: FloatArray,
+    lc: Any,
+    P: FloatArray,
+    gains: ChannelGains,
+    Tq: Any,
+    psi: Any,
+) -> tuple[Any, FloatArray, FloatArray]:
+    """The calibration matrix fit, the variance its elements owe to the accelerometers' gains,
+    and the fit's own variance (jackknife over inputs, else the residuals' lower bound)."""
+    from dimacq.pipeline.inertial_bench import jackknife_matrix_variance, matrix_gain_variance
+    from dimacq.pipeline.loadcell_calibration import inertial_calibration
+    from dimacq.pipeline.rigid_body import load_cell_transform
+
+    fit = inertial_calibration(
+        gauges,
+        a_p,
+        M,
+        np.asarray(lc.position_m, float),
+        lc.rotation_matrix,
+        P,
+        sign=lc.sign_factor,
+    )
+    Tc = load_cell_transform(
+        np.asarray(lc.position_m, float), lc.rotation_matrix, P, lc.sign_factor
+    )
+    var = matrix_gain_variance(fit.matrix, gains.covariance, Tq, psi, M, Tc)
+    var_fit = jackknife_matrix_variance(
+        gauges,
+        a_p,
+        M,
+        np.asarray(lc.position_m, float),
+        lc.rotation_matrix,
+        P,
+        sign=lc.sign_factor,
+    )
+    if var_fit is None:  # fewer than 4 inputs: the residuals' (a lower bound)
+        var_fit = np.asarray(fit.matrix_std, float) ** 2
+    return fit, var, var_fit
 
 
 # ---------------------------------------------------------------------------------------------

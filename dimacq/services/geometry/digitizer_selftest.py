@@ -114,17 +114,6 @@ def run_selftest(
     fitted with three rods (rigid and thesis affine), two rods (cross product and rigid), and the Z
     rod as a line of action; (4) triangulation throughput on the recorded shots.
     """
-    import time
-
-    from scipy.spatial.transform import Rotation
-
-    from dimacq.pipeline.digitizing.lines_of_action import (
-        angle_between_deg,
-        line_of_action_svd,
-        line_of_action_thesis,
-    )
-    from dimacq.pipeline.digitizing.orientation import fit_orientation, rotation_error_deg
-
     if cfg.volume is None:
         raise SetupError("selftest: the array config has no [volume] section; add min_m and max_m")
     if shots < shots_per_point:
@@ -142,9 +131,63 @@ def run_selftest(
     n_points = shots // shots_per_point
     tips = rng.uniform(lo, hi, size=(n_points, 3))
     axes = _random_axes(rng, n_points, geometry.facing, 40.0)
+    records = _shots_at_points(device, tips, axes, shots_per_point)
+    tip_rms, known_points = _known_points_figures(device, records, tips, cfg, shots_per_point)
+
+    # (2) temperature step
+    device.command("SIM:ECHO 0")
+    device.command(f"SIM:TEMP {temperature_c + temperature_step_c:g}")
+    step = _temperature_step_figures(device, records, tips, axes, cfg, shots_per_point, tip_rms)
+    device.command(f"SIM:TEMP {temperature_c:g}")
+    device.command(f"SIM:ECHO {echo_rate:g}")
+
+    # (3) registration + jig placements
+    placements, checks, names = _jig_placement_figures(
+        device, cfg, jig, rng, lo, hi, n_jigs, shots_per_point
+    )
+
+    # (4) throughput on the recorded shots (solver only, no serial link)
+    rate = _triangulation_rate(records, cfg, min_timing_s)
+
+    values: dict[str, Any] = {
+        "shots": len(records),
+        "points": n_points,
+        "shots_per_point": shots_per_point,
+        "echo_rate": echo_rate,
+        "temperature_c": temperature_c,
+        **known_points,
+        "temperature_step_c": temperature_step_c,
+        **step,
+        **placements,
+        "triangulation_shots_per_second": rate,
+    }
+    return SelftestReport(values=values, orthogonality_checks=checks, jig_names=names)
+
+
+def _rms(v: Sequence[float]) -> float:
+    """Root mean square of ``v``; NaN when empty."""
+    return float(np.sqrt(np.mean(np.square(v)))) if len(v) else float("nan")
+
+
+def _shots_at_points(
+    device: _SimControl, points: FloatArray, axes: FloatArray, shots_per_point: int
+) -> list[ShotRecord]:
+    """``shots_per_point`` shots with the probe at each point, its axis along ``axes``."""
     records: list[ShotRecord] = []
-    for tip, ax in zip(tips, axes, strict=True):
+    for tip, ax in zip(points, axes, strict=True):
         records += _shots_at(device, tip, ax, shots_per_point)
+    return records
+
+
+def _known_points_figures(
+    device: _SimControl,
+    records: list[ShotRecord],
+    tips: FloatArray,
+    cfg: ArrayConfig,
+    shots_per_point: int,
+) -> tuple[float, dict[str, Any]]:
+    """Step 1's figures: tip RMS (m) and the tip errors per point and per clean shot (mm), and
+    how many of the echoes the simulator injected were accepted."""
     echo_fields = device.command("SIM:ECHOES?", expect="SIM")
     echo_seqs = {int(v) for v in echo_fields[3:]}
     pts, sol = _points_from(records, cfg, shots_per_point)
@@ -155,13 +198,30 @@ def run_selftest(
     ok = sol.accepted
     point_err = np.linalg.norm(pts - tips, axis=1)
     tip_rms = float(np.sqrt(np.nanmean(point_err**2)))
+    return tip_rms, {
+        "tip_rms_mm": 1e3 * tip_rms,
+        "tip_max_mm": 1e3 * float(np.nanmax(point_err)),
+        "tip_rms_single_shot_mm": 1e3 * float(np.sqrt(np.mean(shot_err[ok & ~is_echo] ** 2))),
+        "echoes_injected": int(is_echo.sum()),
+        "echoes_accepted": int((is_echo & ok).sum()),
+        "echoes_rejected": int((is_echo & ~ok).sum()),
+        "clean_shots_rejected": int((~is_echo & ~ok).sum()),
+    }
 
-    # (2) temperature step
-    device.command("SIM:ECHO 0")
-    device.command(f"SIM:TEMP {temperature_c + temperature_step_c:g}")
-    rec_t: list[ShotRecord] = []
-    for tip, ax in zip(tips, axes, strict=True):
-        rec_t += _shots_at(device, tip, ax, shots_per_point)
+
+def _temperature_step_figures(
+    device: _SimControl,
+    records: list[ShotRecord],
+    tips: FloatArray,
+    axes: FloatArray,
+    cfg: ArrayConfig,
+    shots_per_point: int,
+    tip_rms: float,
+) -> dict[str, Any]:
+    """Step 2's figures: the same points shot again after the air temperature changed, with
+    the speed of sound tracked (bar) and frozen at the first pass's."""
+    geometry = cfg.geometry()
+    rec_t = _shots_at_points(device, tips, axes, shots_per_point)
     pts_t, _ = _points_from(rec_t, cfg, shots_per_point)
     rms_t = float(np.sqrt(np.nanmean(np.sum((pts_t - tips) ** 2, axis=1))))
     # the same shots with the speed of sound frozen at the first pass (no bar tracking)
@@ -170,21 +230,38 @@ def run_selftest(
     frozen = triangulate(
         counts_t, bar_0, geometry, averaging=avg_t, status=status_t, limits=cfg.limits()
     )
+    truth_per_shot = np.repeat(tips, shots_per_point, axis=0)
     frozen_err = np.linalg.norm(frozen.tip_m - truth_per_shot, axis=1)
-    device.command(f"SIM:TEMP {temperature_c:g}")
-    device.command(f"SIM:ECHO {echo_rate:g}")
+    return {
+        "tip_rms_mm_after_step": 1e3 * rms_t,
+        "temperature_step_added_mm": 1e3 * float(np.sqrt(max(rms_t**2 - tip_rms**2, 0.0))),
+        "tip_rms_mm_speed_not_tracked": 1e3 * float(np.sqrt(np.mean(frozen_err**2))),
+    }
 
-    # (3) registration + jig placements
+
+def _jig_placement_figures(
+    device: _SimControl,
+    cfg: ArrayConfig,
+    jig: JigDefinition,
+    rng: np.random.Generator,
+    lo: FloatArray,
+    hi: FloatArray,
+    n_jigs: int,
+    shots_per_point: int,
+) -> tuple[dict[str, Any], list[FloatArray], list[str]]:
+    """Step 3: register a random DACS→GCS placement on 8 reference nodes, then digitize
+    ``n_jigs`` random jig placements and fit each; the RMS errors, the affine fits'
+    orthogonality checks and their jig names."""
+    from scipy.spatial.transform import Rotation
+
+    geometry = cfg.geometry()
     true_rot = Rotation.random(random_state=int(rng.integers(2**31)))
     true_off = rng.uniform(-1, 1, 3)
     corners = np.array([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)], dtype=float)
     ref_dacs = lo + 0.1 * (hi - lo) + corners * 0.8 * (hi - lo)
     ref_gcs = true_rot.apply(ref_dacs) + true_off
-    ref_rec: list[ShotRecord] = []
-    for p, ax in zip(
-        ref_dacs, _random_axes(rng, len(ref_dacs), geometry.facing, 30.0), strict=True
-    ):
-        ref_rec += _shots_at(device, p, ax, shots_per_point)
+    ref_axes = _random_axes(rng, len(ref_dacs), geometry.facing, 30.0)
+    ref_rec = _shots_at_points(device, ref_dacs, ref_axes, shots_per_point)
     ref_meas, _ = _points_from(ref_rec, cfg, shots_per_point)
     reg = register(ref_meas, ref_gcs)
     errs: dict[str, list[float]] = {
@@ -192,45 +269,82 @@ def run_selftest(
     }
     checks: list[FloatArray] = []
     names: list[str] = []
-    local = jig.points_local_m
     margin = 0.25
     for j in range(n_jigs):
         r_sensor = Rotation.random(random_state=int(rng.integers(2**31)))
         origin_dacs = rng.uniform(lo + margin, hi - margin)
         # the sensor's true orientation in the GCS: C = R_reg · R_sensor(DACS)
-        jig_dacs = r_sensor.apply(local) + origin_dacs
-        jig_rec: list[ShotRecord] = []
-        for p, ax in zip(
-            jig_dacs, _random_axes(rng, len(jig_dacs), geometry.facing, 30.0), strict=True
-        ):
-            jig_rec += _shots_at(device, p, ax, shots_per_point)
+        jig_dacs = r_sensor.apply(jig.points_local_m) + origin_dacs
+        jig_axes = _random_axes(rng, len(jig_dacs), geometry.facing, 30.0)
+        jig_rec = _shots_at_points(device, jig_dacs, jig_axes, shots_per_point)
         meas_dacs, _ = _points_from(jig_rec, cfg, shots_per_point)
-        meas_gcs = reg.apply(meas_dacs)
         c_true = true_rot.as_matrix() @ r_sensor.as_matrix()
         o_true = true_rot.apply(origin_dacs) + true_off
-        good = np.isfinite(meas_gcs).all(axis=1)
-        full = fit_orientation(local[good], meas_gcs[good], jig.rod[good], method="rigid")
-        aff = fit_orientation(local[good], meas_gcs[good], jig.rod[good], method="affine")
-        two = good & (jig.rod != 2)
-        cross = fit_orientation(local[two], meas_gcs[two], jig.rod[two], method="cross")
-        rigid2 = fit_orientation(local[two], meas_gcs[two], jig.rod[two], method="rigid")
-        errs["rigid"].append(rotation_error_deg(full.rotation, c_true))
-        errs["affine"].append(rotation_error_deg(aff.rotation, c_true))
-        errs["cross"].append(rotation_error_deg(cross.rotation, c_true))
-        errs["rigid2"].append(rotation_error_deg(rigid2.rotation, c_true))
-        if full.affine is not None:
-            checks.append(full.affine.orthogonality)
+        affine = _jig_fit_errors(jig, reg.apply(meas_dacs), c_true, o_true, errs)
+        if affine is not None:
+            checks.append(affine.orthogonality)
             names.append(f"jig {j + 1}")
-        zrod = good & (jig.rod == 2)
-        true_dir = -c_true[:, 2]  # from the rod's points towards the input node (jig origin)
-        errs["loa"].append(
-            angle_between_deg(line_of_action_svd(meas_gcs[zrod], o_true).direction, true_dir)
-        )
-        errs["loa13"].append(
-            angle_between_deg(line_of_action_thesis(meas_gcs[zrod], o_true).direction, true_dir)
-        )
+    values = {
+        "registration_rms_mm": 1e3 * reg.rms_m,
+        "jigs": n_jigs,
+        "jig_orientation_rms_deg": _rms(errs["rigid"]),
+        "jig_orientation_affine_nearest_rms_deg": _rms(errs["affine"]),
+        "jig_two_rod_cross_rms_deg": _rms(errs["cross"]),
+        "jig_two_rod_rigid_rms_deg": _rms(errs["rigid2"]),
+        "jig_max_orthogonality_off_diagonal": float(
+            max((np.abs(c - np.diag(np.diag(c))).max() for c in checks), default=float("nan"))
+        ),
+        "line_of_action_rms_deg": _rms(errs["loa"]),
+        "line_of_action_eq13_rms_deg": _rms(errs["loa13"]),
+    }
+    return values, checks, names
 
-    # (4) throughput on the recorded shots (solver only, no serial link)
+
+def _jig_fit_errors(
+    jig: JigDefinition,
+    meas_gcs: FloatArray,
+    c_true: FloatArray,
+    o_true: FloatArray,
+    errs: dict[str, list[float]],
+) -> Any:
+    """Fit one digitized jig placement every way and append each fit's error (deg) to ``errs``:
+    three rods (rigid, affine), two rods (cross, rigid), the Z rod as a line of action (SVD and
+    the thesis's eq. 13). Returns the three-rod rigid fit's affine part (None when absent)."""
+    from dimacq.pipeline.digitizing.lines_of_action import (
+        angle_between_deg,
+        line_of_action_svd,
+        line_of_action_thesis,
+    )
+    from dimacq.pipeline.digitizing.orientation import fit_orientation, rotation_error_deg
+
+    local = jig.points_local_m
+    good = np.isfinite(meas_gcs).all(axis=1)
+    full = fit_orientation(local[good], meas_gcs[good], jig.rod[good], method="rigid")
+    aff = fit_orientation(local[good], meas_gcs[good], jig.rod[good], method="affine")
+    two = good & (jig.rod != 2)
+    cross = fit_orientation(local[two], meas_gcs[two], jig.rod[two], method="cross")
+    rigid2 = fit_orientation(local[two], meas_gcs[two], jig.rod[two], method="rigid")
+    errs["rigid"].append(rotation_error_deg(full.rotation, c_true))
+    errs["affine"].append(rotation_error_deg(aff.rotation, c_true))
+    errs["cross"].append(rotation_error_deg(cross.rotation, c_true))
+    errs["rigid2"].append(rotation_error_deg(rigid2.rotation, c_true))
+    zrod = good & (jig.rod == 2)
+    true_dir = -c_true[:, 2]  # from the rod's points towards the input node (jig origin)
+    errs["loa"].append(
+        angle_between_deg(line_of_action_svd(meas_gcs[zrod], o_true).direction, true_dir)
+    )
+    errs["loa13"].append(
+        angle_between_deg(line_of_action_thesis(meas_gcs[zrod], o_true).direction, true_dir)
+    )
+    return full.affine
+
+
+def _triangulation_rate(records: list[ShotRecord], cfg: ArrayConfig, min_timing_s: float) -> float:
+    """Step 4: shots triangulated per second (solver only, no serial link), timed over at least
+    ``min_timing_s``."""
+    import time
+
+    geometry = cfg.geometry()
     counts, bar, avg, status, _ = records_to_arrays(records)
     n_done, t0 = 0, time.perf_counter()
     while True:
@@ -239,38 +353,4 @@ def run_selftest(
         elapsed = time.perf_counter() - t0
         if elapsed >= min_timing_s:
             break
-
-    def rms(v: Sequence[float]) -> float:
-        return float(np.sqrt(np.mean(np.square(v)))) if len(v) else float("nan")
-
-    values: dict[str, Any] = {
-        "shots": len(records),
-        "points": n_points,
-        "shots_per_point": shots_per_point,
-        "echo_rate": echo_rate,
-        "temperature_c": temperature_c,
-        "tip_rms_mm": 1e3 * tip_rms,
-        "tip_max_mm": 1e3 * float(np.nanmax(point_err)),
-        "tip_rms_single_shot_mm": 1e3 * float(np.sqrt(np.mean(shot_err[ok & ~is_echo] ** 2))),
-        "echoes_injected": int(is_echo.sum()),
-        "echoes_accepted": int((is_echo & ok).sum()),
-        "echoes_rejected": int((is_echo & ~ok).sum()),
-        "clean_shots_rejected": int((~is_echo & ~ok).sum()),
-        "temperature_step_c": temperature_step_c,
-        "tip_rms_mm_after_step": 1e3 * rms_t,
-        "temperature_step_added_mm": 1e3 * float(np.sqrt(max(rms_t**2 - tip_rms**2, 0.0))),
-        "tip_rms_mm_speed_not_tracked": 1e3 * float(np.sqrt(np.mean(frozen_err**2))),
-        "registration_rms_mm": 1e3 * reg.rms_m,
-        "jigs": n_jigs,
-        "jig_orientation_rms_deg": rms(errs["rigid"]),
-        "jig_orientation_affine_nearest_rms_deg": rms(errs["affine"]),
-        "jig_two_rod_cross_rms_deg": rms(errs["cross"]),
-        "jig_two_rod_rigid_rms_deg": rms(errs["rigid2"]),
-        "jig_max_orthogonality_off_diagonal": float(
-            max((np.abs(c - np.diag(np.diag(c))).max() for c in checks), default=float("nan"))
-        ),
-        "line_of_action_rms_deg": rms(errs["loa"]),
-        "line_of_action_eq13_rms_deg": rms(errs["loa13"]),
-        "triangulation_shots_per_second": n_done / elapsed,
-    }
-    return SelftestReport(values=values, orthogonality_checks=checks, jig_names=names)
+    return n_done / elapsed

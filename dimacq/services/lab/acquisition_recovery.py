@@ -19,6 +19,7 @@ from dimacq.errors import (
 from dimacq.model.channels import axis_name
 from dimacq.model.impact import ImpactSettings
 from dimacq.persistence import models as m
+from dimacq.services.acquisition.resume import KeptAverages, kept_averages
 from dimacq.services.lab.acquisition_records import (
     _INTERNAL_KEYS,
     _RECORD_SETTINGS,
@@ -94,7 +95,8 @@ class AcquisitionRecovery(ServiceParts):
         struck = setup.model_copy(
             update={"excitations": tuple(setup.excitations[j] for j in inputs)}
         )
-        kept, fs = self._kept(acq_id, inputs)
+        held, fs = self._kept(acq_id, inputs)
+        kept = held.per_input
         applied = self._applied(cfg)
         need = min(applied.min_averages, applied.averages_per_input)
         short = [
@@ -171,7 +173,7 @@ class AcquisitionRecovery(ServiceParts):
         inputs = [int(j) for j in cfg["inputs"]]
         wanted = int(cfg["averages_per_input"])
         kept, _fs = self._kept(acq_id, inputs)
-        if all(len(r) >= wanted for r in kept):
+        if kept.nothing_to_strike(wanted):
             raise DeviceStateError(
                 f"acquisition {acq_id}: every input has its {wanted} accepted averages, nothing "
                 f"to strike; finish it (POST /api/acquisitions/{acq_id}/finish) for its FRFs"
@@ -181,7 +183,7 @@ class AcquisitionRecovery(ServiceParts):
         pinned = {k: applied[k] for k in _RECORD_SETTINGS if applied.get(k) is not None}
         new = {**{k: v for k, v in cfg.items() if k not in _INTERNAL_KEYS}, **pinned}
         new["merge_frf_id"] = cur.frf_id if cur.frf_id is not None else cfg.get("merge_frf_id")
-        return self._start(new, _Resume(acq_id, kept))
+        return self._start(new, _Resume(acq_id, kept.per_input))
 
     def _chain(self, acq_id: int) -> list[int]:
         """The acquisition and the ones it resumes, oldest first."""
@@ -197,9 +199,10 @@ class AcquisitionRecovery(ServiceParts):
                 at = None if nxt is None else int(nxt)
         return ids[::-1]
 
-    def _kept(self, acq_id: int, inputs: Sequence[int]) -> tuple[list[list[Record]], float]:
+    def _kept(self, acq_id: int, inputs: Sequence[int]) -> tuple[KeptAverages[Record], float]:
         """The accepted averages of an acquisition and of those it resumes, per struck input
-        (``inputs`` order; oldest first), read from this stand's disk; and the sample rate.
+        (``inputs`` order; oldest first; :func:`~dimacq.services.acquisition.resume.kept_averages`),
+        read from this stand's disk; and the sample rate.
 
         Raises
         ------
@@ -219,12 +222,11 @@ class AcquisitionRecovery(ServiceParts):
                 )
             ]
         rows.sort(key=lambda r: (ids.index(r[0]), r[1]))
-        where = {j: k for k, j in enumerate(inputs)}
-        kept: list[list[Record]] = [[] for _ in inputs]
         fs = 0.0
-        for aid, number, j, rel, stand in rows:
-            if j not in where:
-                continue
+
+        def load(row: tuple[int, int, int, str, str]) -> Record:
+            nonlocal fs
+            aid, number, _j, rel, stand = row
             if stand not in (self.stand, ""):
                 raise DeviceStateError(
                     f"average {number} of acquisition {aid} is on stand {stand!r}'s disk; "
@@ -242,7 +244,10 @@ class AcquisitionRecovery(ServiceParts):
                     f"average {number} of acquisition {aid} ({self.arrays.path(rel)}): {err}; "
                     "restore the file, or delete the average's row to go on without it"
                 ) from err
-            kept[where[j]].append(rec)
+            return rec
+
+        # every row is an accepted average (the query's condition)
+        kept = kept_averages(((r[2], True, r) for r in rows), inputs, load)
         return kept, fs
 
     def _applied(self, cfg: Mapping[str, Any]) -> ImpactSettings:

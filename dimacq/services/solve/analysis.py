@@ -307,91 +307,32 @@ def _analyse(frf: FrfData, setup: TestSetup, opt: AnalysisOptions) -> AnalysisRe
     """
     frf, setup = _with_chain(frf, setup, opt)
     known = dict(setup.known.as_dict() if opt.known is None else opt.known)
-    force_in = [tuple(map(int, p)) for p in opt.force_in]
-    force_out = [tuple(map(int, p)) for p in opt.force_out]
-    if set(force_in) & set(force_out):
-        raise SetupError(
-            f"{sorted(set(force_in) & set(force_out))[0]} is both forced in and forced out; choose one"
-        )
+    force_in, force_out = _forced_pairs(opt)
     geo_all = response_geometry(frf, setup)
     w0 = (~match_pairs(force_out, geo_all.channels)).astype(float)  # type: ignore[arg-type]
     in_out = match_pairs(force_out, frf.inputs)  # type: ignore[arg-type]
     in_in = match_pairs(force_in, frf.inputs)  # type: ignore[arg-type]
 
     # 1. band ------------------------------------------------------------------------------
-    suggestion: BandSuggestion | None = None
     auto = opt.auto_band and opt.band_hz is None
-    if opt.band_hz is not None:
-        band = (float(opt.band_hz[0]), float(opt.band_hz[1]))
-        if not band[0] < band[1]:
-            raise SetupError(f"band {band[0]:g}–{band[1]:g} Hz is empty; give LO < HI in Hz")
-        band_sel = {"band_hz": list(band), "reason": "given by the user", "automatic": False}
-    elif auto:
-        suggestion = suggest_band(frf, setup, known=known, response_weights=w0, input_keep=~in_out)
-        band = suggestion.band_hz
-        band_sel = suggestion.to_json()
-    else:
-        band = (float(frf.frequencies_hz[0]), float(frf.frequencies_hz[-1]))
-        band_sel = {
-            "band_hz": list(band),
-            "reason": "whole measured span (automatic band turned off and no band given)",
-            "automatic": False,
-        }
+    band, band_sel, suggestion = _first_band(frf, setup, opt, known, w0, in_out)
     data = frf.band(*band)
-
     # 2. responses -------------------------------------------------------------------------
-    rsel: ResponseSelection | None = None
-    weights = w0
-    if opt.select_responses:
-        rsel, _ = select_responses_frf(data, setup, force_in=force_in, force_out=force_out)  # type: ignore[arg-type]
-        weights = rsel.weights
-    excluded_resp = [_ch(geo_all.channels[i]) for i in np.nonzero(weights == 0)[0]]
-    if rsel is not None:  # keep the order of removal
-        excluded_resp = [_ch(c) for c in rsel.excluded]
-
+    rsel, weights, excluded_resp = _responses(data, setup, opt, force_in, force_out, w0, geo_all)
     # 3. orientation -----------------------------------------------------------------------
-    setup_used = setup
-    repair: OrientationRepair | None = None
-    if opt.repair_orientation:
-        repair, geo_b = estimate_orientation_frf(data, setup, active=weights > 0)
-        setup_used = apply_orientation(setup, repair, geo_b)
-        repair = OrientationRepair(**{**repair.__dict__, "applied": True})
-        log.info(
-            "orientation repair applied: %s",
-            ", ".join(
-                f"{n}: {a:.2f}°" for n, a in zip(repair.nodes, repair.angles_deg, strict=True)
-            ),
-        )
-
+    setup_used, repair = _orientation(data, setup, opt, weights)
     # 4. inputs ----------------------------------------------------------------------------
     system = assemble(data, setup_used, length_unit=opt.length_unit, response_weights=weights)
-    jsel: JackknifeSelection | None = None
-    keep_in = ~in_out
-    if opt.select_inputs:
-        jsel = jackknife_inputs(system, known=known, force_in=in_in, force_out=in_out)
-        keep_in = jsel.keep
-        excluded_in = [_ch(c) for c in jsel.excluded]
-    else:
-        excluded_in = [_ch(frf.inputs[i]) for i in np.nonzero(in_out)[0]]
+    jsel, keep_in, excluded_in = _inputs(system, frf, opt, known, in_in, in_out)
     keep_idx = np.nonzero(keep_in)[0]
     if auto and (rsel is not None or jsel is not None or repair is not None):
         # the first suggestion saw every channel and input; suggest again on the selected data
-        first = suggestion
-        if (
-            first is not None
-            and setup_used is setup
-            and np.array_equal(weights, w0)
-            and np.array_equal(keep_in, ~in_out)
-        ):
-            # the selection kept every channel and input: the second pass would see exactly
-            # what the first saw and repeat its answer (a deterministic function of the data)
-            suggestion = first
-        else:
-            suggestion = suggest_band(
-                frf, setup_used, known=known, response_weights=weights, input_keep=keep_in
-            )
-        if first is not None:
-            suggestion = _below_first_elastic_ceiling(suggestion, first)
+        unchanged = setup_used is setup and (
+            np.array_equal(weights, w0) and np.array_equal(keep_in, ~in_out)
+        )
+        suggestion = _second_suggestion(
+            frf, setup_used, known, suggestion, unchanged, weights, keep_in
+        )
         if suggestion.band_hz != band:
             band = suggestion.band_hz
             data = frf.band(*band)
@@ -408,10 +349,177 @@ def _analyse(frf: FrfData, setup: TestSetup, opt: AnalysisOptions) -> AnalysisRe
     geo: GeometrySpread | None = None
     if opt.geometry_samples > 0:
         geo = _geometry(data, setup_used, system_used, weights, keep_idx, known, opt)
-    # the leave-one-node-out systems (K and F of every line: 6 MB each on an acquired test) live
-    # only as long as the uncertainty needs them, not through the output-error fit and the
-    # cross-check (their 50 MB on top of those steps' own was most of dimacq solve's page faults)
-    nodes = geo_all.nodes
+    unc = _uncertainty(
+        data, setup_used, system_used, result, known, opt, geo_all.nodes, weights, keep_idx, geo
+    )
+    if _output_error_tried(opt, auto, data, setup_used, weights, keep_idx, known):
+        result, unc = output_error_step(
+            data, setup_used, result, unc, weights, keep_in, known, opt, system_used.hull_points_m
+        )
+    exc = excitation_check(_phi_m(system_used))
+    result = _with_extras(result, rsel, jsel, repair)
+    cc = _cross_checked(data, setup_used, result, unc, weights, keep_in, opt)
+    report = AnalysisReport(
+        result=result,
+        excluded_responses=excluded_resp,
+        excluded_inputs=excluded_in,
+        uncertainty=unc,
+        orientation_corrections=repair.to_json() if repair is not None else [],
+        band_selection=band_sel,
+        excitation=exc,
+        setup_used=setup_used,
+        response_selection=rsel,
+        input_selection=jsel,
+        band_suggestion=suggestion,
+        orientation=repair,
+        geometry=geo,
+        cross_check=cc,
+        weights_used=np.asarray(weights, float),
+        inputs_kept=np.asarray(keep_in, bool),
+    )
+    return _judged(
+        report, frf, data, setup_used, suggestion if auto else None, opt, weights, keep_in
+    )
+
+
+def _forced_pairs(opt: AnalysisOptions) -> tuple[list[tuple[int, ...]], list[tuple[int, ...]]]:
+    """The (node, direction) pairs forced in and forced out; a pair may not be both."""
+    force_in = [tuple(map(int, p)) for p in opt.force_in]
+    force_out = [tuple(map(int, p)) for p in opt.force_out]
+    if set(force_in) & set(force_out):
+        raise SetupError(
+            f"{sorted(set(force_in) & set(force_out))[0]} is both forced in and forced out; choose one"
+        )
+    return force_in, force_out
+
+
+def _first_band(
+    frf: FrfData,
+    setup: TestSetup,
+    opt: AnalysisOptions,
+    known: dict[str, float],
+    w0: np.ndarray,
+    in_out: np.ndarray,
+) -> tuple[tuple[float, float], dict[str, Any], BandSuggestion | None]:
+    """The band to start from: the one given, the automatic suggestion on every channel and
+    input not forced out, or the whole measured span; with its ``band_selection`` record."""
+    if opt.band_hz is not None:
+        band = (float(opt.band_hz[0]), float(opt.band_hz[1]))
+        if not band[0] < band[1]:
+            raise SetupError(f"band {band[0]:g}–{band[1]:g} Hz is empty; give LO < HI in Hz")
+        return (
+            band,
+            {"band_hz": list(band), "reason": "given by the user", "automatic": False},
+            None,
+        )
+    if opt.auto_band:
+        suggestion = suggest_band(frf, setup, known=known, response_weights=w0, input_keep=~in_out)
+        return suggestion.band_hz, suggestion.to_json(), suggestion
+    band = (float(frf.frequencies_hz[0]), float(frf.frequencies_hz[-1]))
+    band_sel = {
+        "band_hz": list(band),
+        "reason": "whole measured span (automatic band turned off and no band given)",
+        "automatic": False,
+    }
+    return band, band_sel, None
+
+
+def _responses(
+    data: FrfData,
+    setup: TestSetup,
+    opt: AnalysisOptions,
+    force_in: list[tuple[int, ...]],
+    force_out: list[tuple[int, ...]],
+    w0: np.ndarray,
+    geo_all: Any,
+) -> tuple[ResponseSelection | None, np.ndarray, list[dict[str, int]]]:
+    """Perimeter response selection when asked: the selection, the channel weights and the
+    excluded channels (in the order of removal when selected)."""
+    rsel: ResponseSelection | None = None
+    weights = w0
+    if opt.select_responses:
+        rsel, _ = select_responses_frf(data, setup, force_in=force_in, force_out=force_out)  # type: ignore[arg-type]
+        weights = rsel.weights
+    excluded_resp = [_ch(geo_all.channels[i]) for i in np.nonzero(weights == 0)[0]]
+    if rsel is not None:  # keep the order of removal
+        excluded_resp = [_ch(c) for c in rsel.excluded]
+    return rsel, weights, excluded_resp
+
+
+def _orientation(
+    data: FrfData, setup: TestSetup, opt: AnalysisOptions, weights: np.ndarray
+) -> tuple[TestSetup, OrientationRepair | None]:
+    """Sensor orientation repair when asked: the setup with the repair applied, and the repair."""
+    if not opt.repair_orientation:
+        return setup, None
+    repair, geo_b = estimate_orientation_frf(data, setup, active=weights > 0)
+    setup_used = apply_orientation(setup, repair, geo_b)
+    repair = OrientationRepair(**{**repair.__dict__, "applied": True})
+    log.info(
+        "orientation repair applied: %s",
+        ", ".join(f"{n}: {a:.2f}°" for n, a in zip(repair.nodes, repair.angles_deg, strict=True)),
+    )
+    return setup_used, repair
+
+
+def _inputs(
+    system: DimSystem,
+    frf: FrfData,
+    opt: AnalysisOptions,
+    known: dict[str, float],
+    in_in: np.ndarray,
+    in_out: np.ndarray,
+) -> tuple[JackknifeSelection | None, np.ndarray, list[dict[str, int]]]:
+    """Jackknife input selection when asked: the selection, the inputs kept, the excluded ones."""
+    if opt.select_inputs:
+        jsel = jackknife_inputs(system, known=known, force_in=in_in, force_out=in_out)
+        return jsel, jsel.keep, [_ch(c) for c in jsel.excluded]
+    return None, ~in_out, [_ch(frf.inputs[i]) for i in np.nonzero(in_out)[0]]
+
+
+def _second_suggestion(
+    frf: FrfData,
+    setup_used: TestSetup,
+    known: dict[str, float],
+    first: BandSuggestion | None,
+    unchanged: bool,
+    weights: np.ndarray,
+    keep_in: np.ndarray,
+) -> BandSuggestion:
+    """The band suggested again on the selected channels and inputs (and repaired setup).
+
+    When the selection kept every channel and input, the second pass would see exactly what
+    the first saw and repeat its answer (a deterministic function of the data): the first is
+    kept. The second stays below the first's elastic ceiling.
+    """
+    if first is not None and unchanged:
+        suggestion = first
+    else:
+        suggestion = suggest_band(
+            frf, setup_used, known=known, response_weights=weights, input_keep=keep_in
+        )
+    if first is not None:
+        suggestion = _below_first_elastic_ceiling(suggestion, first)
+    return suggestion
+
+
+def _uncertainty(
+    data: FrfData,
+    setup_used: TestSetup,
+    system_used: DimSystem,
+    result: DimResult,
+    known: dict[str, float],
+    opt: AnalysisOptions,
+    nodes: np.ndarray,
+    weights: np.ndarray,
+    keep_idx: np.ndarray,
+    geo: GeometrySpread | None,
+) -> Any:
+    """The 95 % intervals: resampling of the inputs, leave-one-sensor-node-out and geometry.
+
+    The leave-one-node-out systems (K and F of every line: 6 MB each on an acquired test) live
+    only as long as this step, not through the output-error fit and the cross-check.
+    """
     resp_systems: list[DimSystem] = []
     n_node_rank = 0
     for g in np.unique(nodes[weights > 0]):
@@ -438,13 +546,28 @@ def _analyse(frf: FrfData, setup: TestSetup, opt: AnalysisOptions) -> AnalysisRe
     del resp_systems
     if n_node_rank:
         unc = replace(unc, n_rank_deficient=unc.n_rank_deficient + n_node_rank)
+    return unc
+
+
+def _output_error_tried(
+    opt: AnalysisOptions,
+    auto: bool,
+    data: FrfData,
+    setup_used: TestSetup,
+    weights: np.ndarray,
+    keep_idx: np.ndarray,
+    known: dict[str, float],
+) -> bool:
+    """Whether the output-error estimate is tried: asked for, on the joint solve, and, on a
+    band given by hand, only when the data are a rigid body there.
+
+    A band given by hand that the verdict will fail (the band check is made on it) gains nothing
+    from the output-error fit, whose gross-error search then tries every item in turn (minutes).
+    """
     refine = opt.method == "joint" and (
         opt.unbiased or opt.refine_geometry or opt.residual_flexibility
     )
     if refine and not auto:
-        # A band given by hand that the verdict will fail (the data are not a rigid body there,
-        # with the stated geometry: the band check is made on it) gains nothing from the output-
-        # error fit, whose gross-error search then tries every item in turn (minutes).
         e_max, _ = band_quality(data, setup_used, weights > 0, keep_idx.tolist(), known)
         if e_max > MAX_RIGID_BODY_ERROR:
             refine = False
@@ -454,46 +577,47 @@ def _analyse(frf: FrfData, setup: TestSetup, opt: AnalysisOptions) -> AnalysisRe
                 e_max,
                 MAX_RIGID_BODY_ERROR,
             )
-    if refine:
-        result, unc = output_error_step(
-            data, setup_used, result, unc, weights, keep_in, known, opt, system_used.hull_points_m
-        )
-    exc = excitation_check(_phi_m(system_used))
-    result = _with_extras(result, rsel, jsel, repair)
-    cc: CrossCheck | None = None
-    if opt.cross_check:
-        cc = cross_check(
-            data,
-            setup_used,
-            result,
-            unc,
-            weights,
-            keep_in,
-            geometry_samples=min(opt.geometry_samples, 200),
-        )
+    return bool(refine)
 
-    report = AnalysisReport(
-        result=result,
-        excluded_responses=excluded_resp,
-        excluded_inputs=excluded_in,
-        uncertainty=unc,
-        orientation_corrections=repair.to_json() if repair is not None else [],
-        band_selection=band_sel,
-        excitation=exc,
-        setup_used=setup_used,
-        response_selection=rsel,
-        input_selection=jsel,
-        band_suggestion=suggestion,
-        orientation=repair,
-        geometry=geo,
-        cross_check=cc,
-        weights_used=np.asarray(weights, float),
-        inputs_kept=np.asarray(keep_in, bool),
+
+def _cross_checked(
+    data: FrfData,
+    setup_used: TestSetup,
+    result: DimResult,
+    unc: Any,
+    weights: np.ndarray,
+    keep_in: np.ndarray,
+    opt: AnalysisOptions,
+) -> CrossCheck | None:
+    """The independent cross-check of the answer when asked (at most 200 geometry samples)."""
+    if not opt.cross_check:
+        return None
+    return cross_check(
+        data,
+        setup_used,
+        result,
+        unc,
+        weights,
+        keep_in,
+        geometry_samples=min(opt.geometry_samples, 200),
     )
+
+
+def _judged(
+    report: AnalysisReport,
+    frf: FrfData,
+    data: FrfData,
+    setup_used: TestSetup,
+    suggestion: BandSuggestion | None,
+    opt: AnalysisOptions,
+    weights: np.ndarray,
+    keep_in: np.ndarray,
+) -> AnalysisReport:
+    """The report with its verdict, its chain calibration (applied or measured) and figures."""
     v, reasons = verdict(
         report,
         data,
-        suggestion if auto else None,
+        suggestion,
         ci95_limits=(opt.ci95_limit_mass, opt.ci95_limit_principal),
     )
     report = replace(report, verdict=v, verdict_reasons=reasons)

@@ -154,143 +154,15 @@ def verdict(
     an interval that wide cannot tell whether the answer is good enough).
     """
     res = report.result
-    out: list[VerdictReason] = []
-    add = out.append
-    # band
-    if suggestion is not None:
-        if suggestion.qualified:
-            add(VerdictReason("band", "ok", f"automatic band: {suggestion.reason}"))
-        else:
-            add(VerdictReason("band", "fail", suggestion.reason))
-    else:
-        e_max, r_med = _band_quality(report, data)
-        lo, hi = res.band_hz
-        bad = e_max > MAX_RIGID_BODY_ERROR or r_med > MAX_RESIDUAL
-        add(
-            VerdictReason(
-                "band",
-                "fail" if bad else "ok",
-                f"band {lo:g}–{hi:g} Hz ({report.band_selection.get('reason', '')}): worst "
-                f"rigid-body error {e_max:.3g} (limit {MAX_RIGID_BODY_ERROR:g}), median DIM "
-                f"residual {r_med:.3g} (limit {MAX_RESIDUAL:g})"
-                + (
-                    "; the data in this band are not a rigid body with measured forces"
-                    if bad
-                    else ""
-                ),
-            )
-        )
-    # residual
-    rr = res.residual_rel
-    sev = "fail" if rr > RESIDUAL_FAIL else "warn" if rr > RESIDUAL_WARN else "ok"
-    add(
-        VerdictReason(
-            "residual",
-            sev,
-            f"relative residual of the DIM system {rr:.3g} (warn above {RESIDUAL_WARN:g}, "
-            f"fail above {RESIDUAL_FAIL:g})"
-            + (
-                ""
-                if sev == "ok"
-                else ": the rigid-body equations do not explain the data; "
-                "check the setup against the FRFs (channels, signs, units, geometry)"
-            ),
-        )
-    )
-    # plausibility
-    for d in res.diagnostics:
-        if d.ok:
-            add(VerdictReason(f"plausibility:{d.code}", "ok", d.message))
-        else:
-            add(
-                VerdictReason(
-                    f"plausibility:{d.code}",
-                    "fail"
-                    if d.severity == "error"
-                    else "warn"
-                    if d.severity == "warning"
-                    else "ok",
-                    d.message,
-                )
-            )
-    # excitation and coverage
-    exc = report.excitation
-    exc_j = exc.to_json()
-    rank = int(exc_j.get("rank", 6))
-    add(
-        VerdictReason(
-            "excitation",
-            "ok" if rank >= 6 else "fail",
-            f"the kept inputs excite {rank} of 6 rigid-body DOF"
-            + ("" if rank >= 6 else "; add inputs in the missing directions"),
-        )
-    )
-    n_lines = res.frequencies_hz.size
-    n_ch = len(res.responses)
-    n_ex_r = len(report.excluded_responses)
-    n_in = len(res.inputs) + len(report.excluded_inputs)
-    n_ex_i = len(report.excluded_inputs)
-    warn_cov = n_lines < 5 or n_ex_r > n_ch / 3 or n_ex_i > n_in / 3
-    add(
-        VerdictReason(
-            "coverage",
-            "warn" if warn_cov else "ok",
-            f"{n_lines} lines in the band; {n_ex_r} of {n_ch} response channels and {n_ex_i} of "
-            f"{n_in} inputs excluded"
-            + ("; a large share of the data was set aside, check why" if warn_cov else ""),
-        )
-    )
-    nbad = report.uncertainty.n_rank_deficient
-    if nbad:
-        add(
-            VerdictReason(
-                "coverage:leave_one_out",
-                "warn",
-                f"{nbad} leave-one-out solve(s) rank deficient: some input or sensor node is "
-                "indispensable; the interval cannot show what losing it would do",
-            )
-        )
-    # registration
-    gu = report.setup_used.geometry_uncertainty
-    if gu.registration_rms_m is not None:
-        lim = gu.registration_limit_m
-        if lim is not None and gu.registration_rms_m > lim:
-            add(
-                VerdictReason(
-                    "registration",
-                    "fail",
-                    f"registration RMS residual {gu.registration_rms_m * 1000:.3g} mm exceeds its "
-                    f"limit {lim * 1000:.3g} mm: the digitized geometry is not trustworthy; "
-                    "re-register the array (check the reference nodes)",
-                )
-            )
-        else:
-            add(
-                VerdictReason(
-                    "registration",
-                    "ok",
-                    f"registration RMS residual {gu.registration_rms_m * 1000:.3g} mm"
-                    + (
-                        f" (limit {lim * 1000:.3g} mm)" if lim is not None else " (no limit stated)"
-                    ),
-                )
-            )
-    out.extend(_estimator_checks(res.extras.get("output_error")))
-    # uncertainty sources
-    missing = [
-        c
-        for c in ("inputs", "responses", "geometry", "lines")
-        if c not in report.uncertainty.components
+    out: list[VerdictReason] = [
+        _band_check(report, data, suggestion),
+        _residual_check(res.residual_rel),
     ]
-    add(
-        VerdictReason(
-            "uncertainty",
-            "warn" if missing else "ok",
-            "95 % intervals include "
-            + ", ".join(report.uncertainty.components)
-            + (f"; they leave out {', '.join(missing)}" if missing else ""),
-        )
-    )
+    out.extend(_plausibility_checks(res.diagnostics))
+    out.extend(_coverage_checks(report))
+    out.extend(_registration_checks(report.setup_used.geometry_uncertainty))
+    out.extend(_estimator_checks(res.extras.get("output_error")))
+    out.append(_uncertainty_check(report.uncertainty.components))
     out.extend(cross_check_checks(getattr(report, "cross_check", None)))
     out.append(_precision(report.uncertainty, ci95_limits))
     order = {"fail": 0, "warn": 1, "ok": 2}
@@ -301,6 +173,146 @@ def verdict(
         else ("warn" if any(r.severity == "warn" for r in out) else "ok")
     )
     return v, out
+
+
+def _band_check(
+    report: SolveReport, data: FrfData, suggestion: BandSuggestion | None
+) -> VerdictReason:
+    """``band``: an automatic band that qualified, or a given band whose worst rigid-body error
+    and median DIM residual stay below their absolute limits."""
+    if suggestion is not None:
+        if suggestion.qualified:
+            return VerdictReason("band", "ok", f"automatic band: {suggestion.reason}")
+        return VerdictReason("band", "fail", suggestion.reason)
+    e_max, r_med = _band_quality(report, data)
+    lo, hi = report.result.band_hz
+    bad = e_max > MAX_RIGID_BODY_ERROR or r_med > MAX_RESIDUAL
+    return VerdictReason(
+        "band",
+        "fail" if bad else "ok",
+        f"band {lo:g}–{hi:g} Hz ({report.band_selection.get('reason', '')}): worst "
+        f"rigid-body error {e_max:.3g} (limit {MAX_RIGID_BODY_ERROR:g}), median DIM "
+        f"residual {r_med:.3g} (limit {MAX_RESIDUAL:g})"
+        + ("; the data in this band are not a rigid body with measured forces" if bad else ""),
+    )
+
+
+def _residual_check(rr: float) -> VerdictReason:
+    """``residual``: the joint solve's relative residual against the warn and fail limits."""
+    sev = "fail" if rr > RESIDUAL_FAIL else "warn" if rr > RESIDUAL_WARN else "ok"
+    return VerdictReason(
+        "residual",
+        sev,
+        f"relative residual of the DIM system {rr:.3g} (warn above {RESIDUAL_WARN:g}, "
+        f"fail above {RESIDUAL_FAIL:g})"
+        + (
+            ""
+            if sev == "ok"
+            else ": the rigid-body equations do not explain the data; "
+            "check the setup against the FRFs (channels, signs, units, geometry)"
+        ),
+    )
+
+
+def _plausibility_checks(diagnostics: Any) -> list[VerdictReason]:
+    """``plausibility:CODE``: each solver diagnostic (error → fail, warning → warn)."""
+    out = []
+    for d in diagnostics:
+        if d.ok:
+            out.append(VerdictReason(f"plausibility:{d.code}", "ok", d.message))
+        else:
+            out.append(
+                VerdictReason(
+                    f"plausibility:{d.code}",
+                    "fail"
+                    if d.severity == "error"
+                    else "warn"
+                    if d.severity == "warning"
+                    else "ok",
+                    d.message,
+                )
+            )
+    return out
+
+
+def _coverage_checks(report: SolveReport) -> list[VerdictReason]:
+    """``excitation`` (every rigid-body DOF excited), ``coverage`` (lines, share of channels and
+    inputs kept) and ``coverage:leave_one_out`` (rank-deficient leave-outs)."""
+    res = report.result
+    exc_j = report.excitation.to_json()
+    rank = int(exc_j.get("rank", 6))
+    out = [
+        VerdictReason(
+            "excitation",
+            "ok" if rank >= 6 else "fail",
+            f"the kept inputs excite {rank} of 6 rigid-body DOF"
+            + ("" if rank >= 6 else "; add inputs in the missing directions"),
+        )
+    ]
+    n_lines = res.frequencies_hz.size
+    n_ch = len(res.responses)
+    n_ex_r = len(report.excluded_responses)
+    n_in = len(res.inputs) + len(report.excluded_inputs)
+    n_ex_i = len(report.excluded_inputs)
+    warn_cov = n_lines < 5 or n_ex_r > n_ch / 3 or n_ex_i > n_in / 3
+    out.append(
+        VerdictReason(
+            "coverage",
+            "warn" if warn_cov else "ok",
+            f"{n_lines} lines in the band; {n_ex_r} of {n_ch} response channels and {n_ex_i} of "
+            f"{n_in} inputs excluded"
+            + ("; a large share of the data was set aside, check why" if warn_cov else ""),
+        )
+    )
+    nbad = report.uncertainty.n_rank_deficient
+    if nbad:
+        out.append(
+            VerdictReason(
+                "coverage:leave_one_out",
+                "warn",
+                f"{nbad} leave-one-out solve(s) rank deficient: some input or sensor node is "
+                "indispensable; the interval cannot show what losing it would do",
+            )
+        )
+    return out
+
+
+def _registration_checks(gu: Any) -> list[VerdictReason]:
+    """``registration``: the setup's registration RMS residual against its limit (none when the
+    setup states no registration)."""
+    if gu.registration_rms_m is None:
+        return []
+    lim = gu.registration_limit_m
+    if lim is not None and gu.registration_rms_m > lim:
+        return [
+            VerdictReason(
+                "registration",
+                "fail",
+                f"registration RMS residual {gu.registration_rms_m * 1000:.3g} mm exceeds its "
+                f"limit {lim * 1000:.3g} mm: the digitized geometry is not trustworthy; "
+                "re-register the array (check the reference nodes)",
+            )
+        ]
+    return [
+        VerdictReason(
+            "registration",
+            "ok",
+            f"registration RMS residual {gu.registration_rms_m * 1000:.3g} mm"
+            + (f" (limit {lim * 1000:.3g} mm)" if lim is not None else " (no limit stated)"),
+        )
+    ]
+
+
+def _uncertainty_check(components: Any) -> VerdictReason:
+    """``uncertainty``: which sources the 95 % intervals include (warn when one is left out)."""
+    missing = [c for c in ("inputs", "responses", "geometry", "lines") if c not in components]
+    return VerdictReason(
+        "uncertainty",
+        "warn" if missing else "ok",
+        "95 % intervals include "
+        + ", ".join(components)
+        + (f"; they leave out {', '.join(missing)}" if missing else ""),
+    )
 
 
 def _estimator_checks(oe: Any) -> list[VerdictReason]:
