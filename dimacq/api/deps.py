@@ -14,10 +14,11 @@ segment of more than :data:`ID_DIGITS` digits stays a string, and the id's valid
 
 from __future__ import annotations
 
+import re
 from typing import Annotated
 
 from fastapi import Depends, Path, Query, Request
-from pydantic import Strict
+from pydantic import BeforeValidator, Strict
 from starlette.convertors import Convertor, register_url_convertor
 
 from dimacq.api.schemas import MAX_ID
@@ -26,6 +27,7 @@ from dimacq.model.setup import MAX_NAME_CHARS
 from dimacq.services.lab import Lab
 
 __all__ = [
+    "CANONICAL_INT",
     "ID_DIGITS",
     "IdConvertor",
     "IdPath",
@@ -57,6 +59,27 @@ class IdConvertor(Convertor[int | str]):
 
 
 register_url_convertor("id", IdConvertor())
+
+_CANONICAL = re.compile(rf"0|-?[1-9][0-9]{{0,{ID_DIGITS - 1}}}")
+
+
+def _canonical_int(value: object) -> object:
+    """A query string's integer as written canonically: ``0`` or an optional ``-`` then at most
+    :data:`ID_DIGITS` digits, the first not ``0``. Refused (422 naming the parameter): ``01``,
+    ``+1``, `` 1``, ``1_0``, ``1.0``, thousands of digits; pydantic's lax mode reads them all as
+    numbers, so one id would have many names."""
+    if isinstance(value, str) and not _CANONICAL.fullmatch(value):
+        shown = value if len(value) <= 24 else f"{value[:12]}…({len(value)} characters)"
+        raise ValueError(
+            f"{shown!r} is not an integer written plainly; give digits only, without sign, "
+            "spaces or leading zeros (e.g. 12)"
+        )
+    return value
+
+
+#: The validator of every integer in a query string (ids, indices, paging): canonical form
+#: only, as :class:`IdConvertor` for ids in paths.
+CANONICAL_INT = BeforeValidator(_canonical_int)
 
 
 def get_lab(request: Request) -> Lab:

@@ -13,6 +13,7 @@ from fastapi import Depends, HTTPException, Query, Request, Response
 from fastapi.exceptions import RequestValidationError
 from pydantic import BaseModel, TypeAdapter, ValidationError
 
+from dimacq.api.deps import CANONICAL_INT
 from dimacq.api.schemas import MAX_ID
 from dimacq.errors import SetupError
 from dimacq.io.documents import find_non_finite, loads_json
@@ -33,9 +34,10 @@ class PageQuery:
 
     limit: Annotated[
         int | None,
+        CANONICAL_INT,
         Query(ge=1, le=MAX_LIMIT, description="items to return (default and at most 10000)"),
     ] = MAX_LIMIT
-    offset: Annotated[int, Query(ge=0, le=MAX_ID, description="items to skip")] = 0
+    offset: Annotated[int, CANONICAL_INT, Query(ge=0, le=MAX_ID, description="items to skip")] = 0
 
 
 PageDep = Annotated[PageQuery, Depends()]

@@ -9,7 +9,7 @@ from typing import Annotated, Any, Literal
 from fastapi import APIRouter, HTTPException, Path, Query, Request, Response, status
 from fastapi.concurrency import run_in_threadpool
 
-from dimacq.api.deps import IdPath, LabDep, NameQuery
+from dimacq.api.deps import CANONICAL_INT, IdPath, LabDep, NameQuery
 from dimacq.api.routers._common import (
     LIST_RESPONSES,
     RAW_BODY,
@@ -118,6 +118,7 @@ def delete_points(
     request: Request,
     patch: Annotated[
         int | None,
+        CANONICAL_INT,
         Query(ge=0, le=MAX_ID, description="only this patch's points (default: every point)"),
     ] = None,
 ) -> dict[str, int]:
