@@ -31,6 +31,7 @@ __all__ = [
     "ID_DIGITS",
     "IdConvertor",
     "IdPath",
+    "JobIdPath",
     "LabDep",
     "NameQuery",
     "SettingsDep",
@@ -97,6 +98,17 @@ SettingsDep = Annotated[Settings, Depends(get_settings)]
 #: Strict: only what :class:`IdConvertor` made an int (canonical digits) is an id; a segment it
 #: left a string (leading zeros, too long) is refused (404).
 IdPath = Annotated[int, Strict(), Path(ge=1, le=MAX_ID, description=f"the item's id, 1..{MAX_ID}")]
+#: A job's id in a path: letters, digits, ``-`` and ``_`` (the service makes 12 hex digits); any
+#: other text (NUL, line separators, a path) names no job and is answered 404 before any lookup.
+JobIdPath = Annotated[
+    str,
+    Path(
+        min_length=1,
+        max_length=64,
+        pattern=r"^[A-Za-z0-9_-]+$",
+        description="the job's id (letters, digits, '-' and '_'; the service makes 12 hex digits)",
+    ),
+]
 #: A name given in the query (imports): one line of printable text, at most MAX_NAME_CHARS.
 NameQuery = Annotated[
     str,

@@ -64,3 +64,24 @@ def test_integers_inside_other_routes_queries(api: Api) -> None:
     # a minus sign is part of a direction's canonical form: refused only for what it names
     r = c.get("/api/frfs/1/data", params={"response_direction": "-3"})
     assert r.status_code == 404, r.text[:200]  # no FRF set 1; the direction itself was read
+
+
+@pytest.mark.parametrize("job_id", ["a%00b", "%00", "x%E2%80%A8y", "%C2%85", "x" * 65, "a.b"])
+@pytest.mark.parametrize(
+    ("method", "template"),
+    [
+        ("GET", "/api/jobs/{}"),
+        ("POST", "/api/jobs/{}/cancel"),
+        ("GET", "/api/jobs/{}/events"),
+        ("GET", "/api/calibrations/runs/{}/prompt"),
+        ("POST", "/api/calibrations/runs/{}/confirm"),
+    ],
+)
+def test_job_ids_in_paths_name_no_job_unless_plain(
+    api: Api, method: str, template: str, job_id: str
+) -> None:
+    """A job id is letters, digits, '-' and '_': anything else (NUL, which PostgreSQL cannot
+    store or compare, line separators) names no job: 404 before any lookup, on both databases."""
+    r = api.client.request(method, template.format(job_id), json={})
+    assert r.status_code == 404, (method, template, job_id, r.text[:200])
+    assert "does not exist" in r.json()["detail"]
