@@ -208,7 +208,9 @@ def _allowed_methods(app: FastAPI, path: str) -> set[str]:
 
 def _path_value(req: Request, name: str) -> str:
     value = str(req.path_params.get(name, "?"))
-    return value if len(value) <= 40 else f"{value[:12]}…({len(value)} digits)"
+    unit = "digits" if value.isdigit() else "characters"
+    shown = value if len(value) <= 40 else f"{value[:12]}…({len(value)} {unit})"
+    return shown if value.isdigit() or value == "?" else repr(shown)
 
 
 _ITEM = re.compile(r"item '([^']+)'")
@@ -244,10 +246,16 @@ def _install_error_handlers(app: FastAPI) -> None:
         field = errs[0]["field"] if errs else None
         if errs and all(e["loc"][:1] == ["path"] for e in errs):
             # an id out of range names no item: the same answer as an id that is not stored
+            name = errs[0]["loc"][-1]
+            form = (
+                "job ids are letters, digits, '-' and '_'"
+                if name == "job_id"
+                else f"ids are 1..{MAX_ID}"
+            )
             return _error(
                 404,
-                f"{errs[0]['loc'][-1]} {_path_value(req, errs[0]['loc'][-1])} does not exist "
-                f"(ids are 1..{MAX_ID}); list the collection to find its id",
+                f"{name} {_path_value(req, name)} does not exist ({form}); list the "
+                "collection to find its id",
                 field,
                 errs,
             )
@@ -262,7 +270,7 @@ def _install_error_handlers(app: FastAPI) -> None:
             allowed = _allowed_methods(req.app, req.url.path)
             if allowed:
                 headers["Allow"] = ", ".join(sorted(allowed))
-        field = "Content-Length" if isinstance(err, BodyTooLarge) else None
+        field = "body" if isinstance(err, BodyTooLarge) else None  # a chunked body too long
         return JSONResponse(
             status_code=err.status_code,
             content={"detail": _public(str(err.detail)), "field": field, "errors": []},

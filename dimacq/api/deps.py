@@ -14,10 +14,11 @@ segment of more than :data:`ID_DIGITS` digits stays a string, and the id's valid
 
 from __future__ import annotations
 
+import re
 from typing import Annotated
 
 from fastapi import Depends, Path, Query, Request
-from pydantic import Strict
+from pydantic import BeforeValidator, Strict
 from starlette.convertors import Convertor, register_url_convertor
 
 from dimacq.api.schemas import MAX_ID
@@ -26,9 +27,11 @@ from dimacq.model.setup import MAX_NAME_CHARS
 from dimacq.services.lab import Lab
 
 __all__ = [
+    "CANONICAL_INT",
     "ID_DIGITS",
     "IdConvertor",
     "IdPath",
+    "JobIdPath",
     "LabDep",
     "NameQuery",
     "SettingsDep",
@@ -58,6 +61,27 @@ class IdConvertor(Convertor[int | str]):
 
 register_url_convertor("id", IdConvertor())
 
+_CANONICAL = re.compile(rf"0|-?[1-9][0-9]{{0,{ID_DIGITS - 1}}}")
+
+
+def _canonical_int(value: object) -> object:
+    """A query string's integer as written canonically: ``0`` or an optional ``-`` then at most
+    :data:`ID_DIGITS` digits, the first not ``0``. Refused (422 naming the parameter): ``01``,
+    ``+1``, `` 1``, ``1_0``, ``1.0``, thousands of digits; pydantic's lax mode reads them all as
+    numbers, so one id would have many names."""
+    if isinstance(value, str) and not _CANONICAL.fullmatch(value):
+        shown = value if len(value) <= 24 else f"{value[:12]}…({len(value)} characters)"
+        raise ValueError(
+            f"{shown!r} is not an integer written plainly; give digits only, without sign, "
+            "spaces or leading zeros (e.g. 12)"
+        )
+    return value
+
+
+#: The validator of every integer in a query string (ids, indices, paging): canonical form
+#: only, as :class:`IdConvertor` for ids in paths.
+CANONICAL_INT = BeforeValidator(_canonical_int)
+
 
 def get_lab(request: Request) -> Lab:
     lab: Lab = request.app.state.lab
@@ -74,6 +98,17 @@ SettingsDep = Annotated[Settings, Depends(get_settings)]
 #: Strict: only what :class:`IdConvertor` made an int (canonical digits) is an id; a segment it
 #: left a string (leading zeros, too long) is refused (404).
 IdPath = Annotated[int, Strict(), Path(ge=1, le=MAX_ID, description=f"the item's id, 1..{MAX_ID}")]
+#: A job's id in a path: letters, digits, ``-`` and ``_`` (the service makes 12 hex digits); any
+#: other text (NUL, line separators, a path) names no job and is answered 404 before any lookup.
+JobIdPath = Annotated[
+    str,
+    Path(
+        min_length=1,
+        max_length=64,
+        pattern=r"^[A-Za-z0-9_-]+$",
+        description="the job's id (letters, digits, '-' and '_'; the service makes 12 hex digits)",
+    ),
+]
 #: A name given in the query (imports): one line of printable text, at most MAX_NAME_CHARS.
 NameQuery = Annotated[
     str,

@@ -143,14 +143,18 @@ class BodyTooLarge(HTTPException):
     HTTP error handler, or by :class:`BodyLimitMiddleware` if it escapes)."""
 
     def __init__(self, limit: int, setting: str) -> None:
-        super().__init__(status_code=413, detail=_too_large(limit, setting))
+        super().__init__(status_code=413, detail=_too_large(limit, setting, "body"))
 
 
-def _too_large(limit: int, setting: str) -> str:
-    return (
-        f"Content-Length: the request body is larger than {limit} bytes; send less, or raise "
-        f"{setting} (DIMACQ_{setting.upper()})"
+def _too_large(limit: int, setting: str, field: str = "Content-Length") -> str:
+    """The 413 message; ``setting`` a lower-case setting (raised through ``DIMACQ_<SETTING>``)
+    or an upper-case limit of an import kind (the file is to be split)."""
+    fix = (
+        f"raise {setting} (DIMACQ_{setting.upper()})"
+        if setting.islower()
+        else f"split the file (the {setting} limit)"
     )
+    return f"{field}: the request body is larger than {limit} bytes; send less, or {fix}"
 
 
 class BodyLimitMiddleware:
@@ -224,4 +228,4 @@ class BodyLimitMiddleware:
         except BodyTooLarge as err:
             if started:
                 raise
-            await send_error(send, 413, str(err.detail), "Content-Length")
+            await send_error(send, 413, str(err.detail), "body")

@@ -125,3 +125,61 @@ def test_refused_over_http_naming_the_field(api: Api) -> None:
         "/api/digitizer/points/import", params={"format": "csv"}, content=b"label,x,y,z\nA,1,2,3\n"
     )
     assert 400 <= r.status_code < 500 and "x_mm" in r.text, r.text
+
+
+@pytest.mark.parametrize("n", [0, 1, 2, 3, 5, 7])
+def test_json_array_in_chunks_is_the_response_model_json(n: int) -> None:
+    """The big answers (imports, the points list) are built off the event loop a few items per
+    pydantic call; the bytes are those of the whole list turned into the model at once,
+    whatever the chunk boundaries (chunks of 2 and 3: empty, partial and exact last chunks)."""
+    from pydantic import TypeAdapter
+
+    from dimacq.api.routers._common import json_array
+    from dimacq.api.schemas import PointOut
+    from dimacq.services.geometry.records import StoredPoint
+
+    items = [
+        StoredPoint(
+            id=i + 1,
+            label=f"P{i}\u00e9",
+            patch=1 + i % 2,
+            position_array_m=[0.1 * i, -2.5e-7, 1e3],
+            spread_m=[0.0, 1e-5, 2e-5],
+            n_shots=1,
+            n_used=1,
+            position_m=None if i % 2 else [1.0, 2.0, 3.0 + i],
+            created_at="2026-01-02T03:04:05Z",
+        )
+        for i in range(n)
+    ]
+    whole = TypeAdapter(list[PointOut])
+    expected = whole.dump_json(whole.validate_python(items, from_attributes=True))
+    for chunk in (2, 3, 256):
+        got = json_array(PointOut, items, chunk=chunk)
+        assert got == expected
+        assert [p["id"] for p in json.loads(got)] == list(range(1, n + 1))
+
+
+def test_import_answer_is_the_stored_points(api: Api) -> None:
+    """The import's answer (built in the worker) is the stored points as the list sends them,
+    and the list's total count is in X-Total-Count."""
+    c = api.client
+    new_test(api)
+    rows = "".join(f"Q{i},{i}.5,{2 * i},-{i}\n" for i in range(600))  # more than one chunk
+    r = c.post(
+        "/api/digitizer/points/import",
+        params={"format": "csv"},
+        content=("label,x_mm,y_mm,z_mm\n" + rows).encode(),
+    )
+    assert r.status_code == 201, r.text[:300]
+    assert r.headers["content-type"] == "application/json"
+    got = r.json()
+    assert [p["label"] for p in got] == [f"Q{i}" for i in range(600)]
+    assert got[3]["position_array_m"] == pytest.approx([3.5e-3, 6e-3, -3e-3])
+    listed = c.get("/api/digitizer/points", params={"offset": 0, "limit": 10_000})
+    assert listed.status_code == 200
+    total = int(listed.headers["x-total-count"])
+    assert listed.json()[total - 600 :] == got
+    page = c.get("/api/digitizer/points", params={"offset": total - 2, "limit": 5})
+    assert [p["label"] for p in page.json()] == ["Q598", "Q599"]
+    assert page.headers["x-total-count"] == str(total)

@@ -4,14 +4,16 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import cache
 from typing import Annotated, Any, TypeVar
 
 import numpy as np
 import pydantic_core
 from fastapi import Depends, HTTPException, Query, Request, Response
 from fastapi.exceptions import RequestValidationError
-from pydantic import BaseModel, ValidationError
+from pydantic import BaseModel, TypeAdapter, ValidationError
 
+from dimacq.api.deps import CANONICAL_INT
 from dimacq.api.schemas import MAX_ID
 from dimacq.errors import SetupError
 from dimacq.io.documents import find_non_finite, loads_json
@@ -32,9 +34,10 @@ class PageQuery:
 
     limit: Annotated[
         int | None,
+        CANONICAL_INT,
         Query(ge=1, le=MAX_LIMIT, description="items to return (default and at most 10000)"),
     ] = MAX_LIMIT
-    offset: Annotated[int, Query(ge=0, le=MAX_ID, description="items to skip")] = 0
+    offset: Annotated[int, CANONICAL_INT, Query(ge=0, le=MAX_ID, description="items to skip")] = 0
 
 
 PageDep = Annotated[PageQuery, Depends()]
@@ -65,6 +68,32 @@ def paged(response: Response, got: Page[T] | Sequence[T], page: PageQuery) -> li
         items = list(got[page.offset : stop])
     response.headers["X-Total-Count"] = str(total)
     return items
+
+
+#: Items one pydantic call validates and serialises in :func:`json_array`.
+JSON_CHUNK = 256
+
+
+@cache
+def _list_adapter(model: type[BaseModel]) -> TypeAdapter[list[Any]]:
+    return TypeAdapter(list[model])  # type: ignore[valid-type]
+
+
+def json_array(model: type[BaseModel], items: Sequence[Any], chunk: int = JSON_CHUNK) -> bytes:
+    """``items`` (objects or mappings with ``model``'s fields) as the JSON array of ``model``
+    that FastAPI's ``response_model`` would send, built ``chunk`` items per pydantic call.
+
+    For big answers, in a worker thread (``run_in_threadpool``), returned as a ``Response``:
+    FastAPI itself turns a response into JSON on the event loop, and one pydantic call holds
+    the GIL until it returns; a chunk at a time keeps each hold short, so the event loop
+    (``/api/status``) is served between chunks.
+    """
+    adapter = _list_adapter(model)
+    parts = []
+    for i in range(0, len(items), chunk):
+        valid = adapter.validate_python(items[i : i + chunk], from_attributes=True)
+        parts.append(adapter.dump_json(valid)[1:-1])
+    return b"[" + b",".join(parts) + b"]"
 
 
 def json_object(raw: bytes, example: str) -> dict[str, Any]:

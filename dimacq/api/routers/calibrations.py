@@ -12,7 +12,7 @@ from typing import Any
 from fastapi import APIRouter, HTTPException, Request, Response, status
 from starlette.concurrency import run_in_threadpool
 
-from dimacq.api.deps import IdPath, LabDep
+from dimacq.api.deps import IdPath, JobIdPath, LabDep
 from dimacq.api.routers._common import LIST_RESPONSES, PageDep, found, json_object, paged
 from dimacq.api.schemas import CalibrationOut
 from dimacq.services.lab.calibrations import StoredCalibration
@@ -81,7 +81,7 @@ async def start_calibration_run(request: Request, lab: LabDep) -> dict[str, Any]
 
 
 @router.get("/runs/{job_id}/prompt", response_model=dict[str, Any])
-def calibration_prompt(job_id: str, lab: LabDep) -> dict[str, Any]:
+def calibration_prompt(job_id: JobIdPath, lab: LabDep) -> dict[str, Any]:
     """What the run waits for from the operator: a load case to put in place (``kind``
     ``load_case``: ``case``, ``of``, ``message``; confirm it) or a strike (``kind`` ``strike``:
     ``stage``, ``input_index`` of ``n_inputs``, ``node``, ``direction`` (``+X``),
@@ -92,7 +92,7 @@ def calibration_prompt(job_id: str, lab: LabDep) -> dict[str, Any]:
 
 
 @router.post("/runs/{job_id}/confirm", response_model=dict[str, Any])
-async def confirm_load_case(job_id: str, request: Request, lab: LabDep) -> dict[str, Any]:
+async def confirm_load_case(job_id: JobIdPath, request: Request, lab: LabDep) -> dict[str, Any]:
     """The operator has put load case ``{"case": N}`` in place."""
     found(lab.jobs.snapshot(job_id), f"job {job_id}")
     body = json_object(await request.body() or b"null", '{"case": N}')

@@ -9,7 +9,7 @@ from typing import Annotated, Any, Literal
 from fastapi import APIRouter, HTTPException, Path, Query, Request, Response, status
 from fastapi.concurrency import run_in_threadpool
 
-from dimacq.api.deps import IdPath, LabDep, NameQuery
+from dimacq.api.deps import CANONICAL_INT, IdPath, LabDep, NameQuery
 from dimacq.api.routers._common import (
     LIST_RESPONSES,
     RAW_BODY,
@@ -17,6 +17,7 @@ from dimacq.api.routers._common import (
     body_openapi,
     deleted,
     found,
+    json_array,
     paged,
     read_upload,
     strict_body,
@@ -48,7 +49,6 @@ from dimacq.services.geometry.records import (
     RegisteredPatch,
     Shots,
 )
-from dimacq.services.lab.geometry import StoredPoint
 
 router = APIRouter(prefix="/api/digitizer", tags=["digitizer"])
 
@@ -99,8 +99,17 @@ def digitize_point(
 
 
 @router.get("/points", response_model=list[PointOut], responses=LIST_RESPONSES)
-def list_points(lab: LabDep, page: PageDep, response: Response) -> list[StoredPoint]:
-    return paged(response, lab.geometry.points_page(page.limit, page.offset), page)
+async def list_points(lab: LabDep, page: PageDep) -> Response:
+    # up to MAX_LIMIT points: read and turned into JSON in a worker (json_array)
+    def read() -> Response:
+        got = lab.geometry.points_page(page.limit, page.offset)
+        return Response(
+            json_array(PointOut, got.items),
+            media_type="application/json",
+            headers={"X-Total-Count": str(got.total)},
+        )
+
+    return await run_in_threadpool(read)
 
 
 @router.delete("/points", response_model=DeletedOut)
@@ -109,6 +118,7 @@ def delete_points(
     request: Request,
     patch: Annotated[
         int | None,
+        CANONICAL_INT,
         Query(ge=0, le=MAX_ID, description="only this patch's points (default: every point)"),
     ] = None,
 ) -> dict[str, int]:
@@ -132,7 +142,7 @@ async def import_points(
     lab: LabDep,
     format: Literal["csv", "json"] = "csv",
     name: NameQuery | None = None,
-) -> list[StoredPoint]:
+) -> Response:
     """Labelled points measured by another instrument (CMM, laser tracker, photogrammetry), in
     its own frame, as a new patch: register it from reference nodes and fit orientations and
     lines of action as for digitized points (file layout: ``dimacq/io/measured_points.py``)."""
@@ -140,11 +150,12 @@ async def import_points(
 
     data = await read_upload(request)
 
-    def parse_and_store() -> list[StoredPoint]:  # off the event loop: a big file takes time
+    def parse_and_store() -> bytes:  # off the event loop, answer included (json_array)
         points = read_measured_points(data, format, what=f"measured points ({format})")
-        return lab.geometry.import_points(points, name)
+        return json_array(PointOut, lab.geometry.import_points(points, name))
 
-    return await run_in_threadpool(parse_and_store)
+    body = await run_in_threadpool(parse_and_store)
+    return Response(body, status_code=status.HTTP_201_CREATED, media_type="application/json")
 
 
 @router.post(

@@ -12,7 +12,7 @@ from fastapi.exceptions import RequestValidationError
 from pydantic import Field
 from starlette.concurrency import run_in_threadpool
 
-from dimacq.api.deps import IdPath, LabDep, NameQuery
+from dimacq.api.deps import CANONICAL_INT, IdPath, LabDep, NameQuery
 from dimacq.api.routers._common import (
     LIST_RESPONSES,
     RAW_BODY,
@@ -28,9 +28,9 @@ from dimacq.services.lab.store import ChannelQuery, FrfSummary
 
 router = APIRouter(prefix="/api/frfs", tags=["frfs"])
 
-_Index = Annotated[int | None, Query(ge=0, le=MAX_ID)]
-_Node = Annotated[int | None, Query(ge=1, le=MAX_ID)]
-_Dir = Annotated[int | None, Query(ge=-6, le=6, description="UFF direction, ±1..±6")]
+_Index = Annotated[int | None, CANONICAL_INT, Query(ge=0, le=MAX_ID)]
+_Node = Annotated[int | None, CANONICAL_INT, Query(ge=1, le=MAX_ID)]
+_Dir = Annotated[int | None, CANONICAL_INT, Query(ge=-6, le=6, description="UFF direction, ±1..±6")]
 _Hz = Annotated[float | None, Query(ge=0, le=1e9)]
 
 
@@ -73,7 +73,9 @@ def list_frfs(
     page: PageDep,
     response: Response,
     test_id: Annotated[
-        int | None, Query(ge=1, le=MAX_ID, description="of the setups of this test only")
+        int | None,
+        CANONICAL_INT,
+        Query(ge=1, le=MAX_ID, description="of the setups of this test only"),
     ] = None,
 ) -> list[FrfSummary]:
     return paged(response, lab.store.frfs(page.limit, page.offset, test_id), page)
@@ -139,9 +141,11 @@ def frf_envelope(
     frf_id: IdPath,
     lab: LabDep,
     sel: SelectionDep,
-    points: Annotated[int, Query(ge=1, le=100_000, description="most points per pair")] = 512,
+    points: Annotated[
+        int, CANONICAL_INT, Query(ge=1, le=100_000, description="most points per pair")
+    ] = 512,
     input: Annotated[
-        list[Annotated[int, Field(ge=0, le=MAX_ID)]] | None,
+        list[Annotated[int, CANONICAL_INT, Field(ge=0, le=MAX_ID)]] | None,
         Query(max_length=1000, description="input indices (repeat the key for several)"),
     ] = None,
 ) -> dict[str, Any]:
@@ -188,7 +192,7 @@ def export_uff(frf_id: IdPath, lab: LabDep, whole_test: bool = True) -> Response
 async def import_uff(
     request: Request,
     lab: LabDep,
-    setup_id: Annotated[int, Query(ge=1, le=MAX_ID)],
+    setup_id: Annotated[int, CANONICAL_INT, Query(ge=1, le=MAX_ID)],
     name: NameQuery = "",
 ) -> FrfSummary:
     """Send a UFF file (58 records) whose channels match the setup; returns the set with its

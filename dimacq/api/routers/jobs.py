@@ -10,7 +10,7 @@ from typing import Annotated, Any
 from fastapi import APIRouter, Query, Response
 from fastapi.responses import StreamingResponse
 
-from dimacq.api.deps import LabDep
+from dimacq.api.deps import JobIdPath, LabDep
 from dimacq.api.public import public_value
 from dimacq.api.routers._common import LIST_RESPONSES, PageDep, found, paged
 from dimacq.api.schemas import JobInfo
@@ -30,12 +30,12 @@ def _public_job(snap: dict[str, Any]) -> dict[str, Any]:
 
 
 @router.get("/{job_id}", response_model=JobInfo)
-async def get_job(job_id: str, lab: LabDep) -> dict[str, Any]:
+async def get_job(job_id: JobIdPath, lab: LabDep) -> dict[str, Any]:
     return _public_job(found(lab.jobs.snapshot(job_id), f"job {job_id!r}"))
 
 
 @router.post("/{job_id}/cancel", response_model=JobInfo)
-async def cancel_job(job_id: str, lab: LabDep) -> dict[str, Any]:
+async def cancel_job(job_id: JobIdPath, lab: LabDep) -> dict[str, Any]:
     found(lab.jobs.snapshot(job_id), f"job {job_id!r}")
     return _public_job(lab.jobs.cancel(job_id))
 
@@ -51,7 +51,7 @@ async def cancel_job(job_id: str, lab: LabDep) -> dict[str, Any]:
     },
 )
 async def job_events(
-    job_id: str,
+    job_id: JobIdPath,
     lab: LabDep,
     poll_s: Annotated[
         float,

@@ -9,7 +9,7 @@ from typing import Annotated, Any, Literal
 from fastapi import APIRouter, Query, Request, Response, status
 from starlette.concurrency import run_in_threadpool
 
-from dimacq.api.deps import IdPath, LabDep, NameQuery
+from dimacq.api.deps import CANONICAL_INT, IdPath, LabDep, NameQuery
 from dimacq.api.routers._common import (
     LIST_RESPONSES,
     RAW_BODY,
@@ -28,7 +28,7 @@ from dimacq.services.lab.store import SetupSummary
 router = APIRouter(prefix="/api/setups", tags=["setups"])
 
 TestIdQuery = Annotated[
-    int | None, Query(ge=1, le=MAX_ID, description="the test the setup belongs to")
+    int | None, CANONICAL_INT, Query(ge=1, le=MAX_ID, description="the test the setup belongs to")
 ]
 
 

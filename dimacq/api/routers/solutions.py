@@ -6,7 +6,7 @@ from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, Query, Response, status
 
-from dimacq.api.deps import IdPath, LabDep
+from dimacq.api.deps import CANONICAL_INT, IdPath, LabDep
 from dimacq.api.routers._common import (
     LIST_RESPONSES,
     PageDep,
@@ -51,10 +51,12 @@ def list_solutions(
     page: PageDep,
     response: Response,
     frf_id: Annotated[
-        int | None, Query(ge=1, le=MAX_ID, description="of this FRF set only")
+        int | None, CANONICAL_INT, Query(ge=1, le=MAX_ID, description="of this FRF set only")
     ] = None,
     test_id: Annotated[
-        int | None, Query(ge=1, le=MAX_ID, description="of the FRF sets of this test only")
+        int | None,
+        CANONICAL_INT,
+        Query(ge=1, le=MAX_ID, description="of the FRF sets of this test only"),
     ] = None,
 ) -> list[StoredSolution]:
     return paged(response, lab.store.solutions(page.limit, page.offset, frf_id, test_id), page)

@@ -48,7 +48,7 @@ from pathlib import Path
 from typing import Any
 
 from dimacq.config import Settings
-from dimacq.errors import DatabaseUnavailableError
+from dimacq.errors import DatabaseUnavailableError, DimacqError
 from dimacq.persistence import ArrayStore, Database, open_database
 from dimacq.persistence import stands as stand_lease
 from dimacq.persistence.queue import DbJobStore, Outbox
@@ -174,7 +174,9 @@ class Lab:
         )
         self.studies = StudyService(self.db, self.jobs, name)
         self.plans = PlanService(self.jobs)
-        self.rig_map = RigMapService(settings)
+        self.rig_map = RigMapService(
+            settings, self._daq_inputs, self._reopen_rig_devices if open_devices else lambda: None
+        )
         self.job_store.interrupt_stale()  # this stand's jobs that ran when it stopped
         self.acquisitions.recover()
         self.ticker = Ticker(f"dimacq-ticker-{name}")
@@ -184,6 +186,23 @@ class Lab:
         self.ticker.start()
         if open_devices:
             self.devices.connect_all()
+
+    def _daq_inputs(self) -> int | None:
+        """The DAQ's number of analogue inputs, as it told when last opened (None: not opened,
+        or a DAQ whose identity does not say)."""
+        info = self.devices.get("daq")
+        n = info.identity.get("n_channels") if info is not None and info.connected else None
+        return n if isinstance(n, int) and not isinstance(n, bool) and n > 0 else None
+
+    def _reopen_rig_devices(self) -> None:
+        """Open the DAQ and the load cells again with the rig file just written (each outcome in
+        the device list: a cell a bad file left disconnected is connected again once the file
+        is right). A device a job holds keeps its state; the job's next build reads the file."""
+        for name in ("daq", "loadcell"):
+            try:
+                self.devices.connect(name)
+            except DimacqError as err:
+                log.info("rig file written: %s not reopened: %s", name, err)
 
     def close(self) -> None:
         """Cancel jobs, close devices, give the stand up, close the database."""

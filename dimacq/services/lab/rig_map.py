@@ -4,13 +4,17 @@ The lab page shows the file (hammers, responses with their sensitivities, load c
 the engineer edit it as text: comments and layout are the engineer's, so the service keeps the
 text as given; it is checked exactly as an acquisition would read it (:func:`load_rig_file`,
 relative calibration paths resolved from the file's folder) before it replaces the file. The
-previous version is kept beside it (``rig.toml.previous``).
+previous version is kept beside it (``rig.toml.previous``). Every DAQ input the file names must
+exist on the DAQ, when the DAQ has told how many it has. Once a file is written the DAQ and the
+load cells are opened again with it (``on_written``): a device a bad file left disconnected is
+back for the next acquisition.
 """
 
 from __future__ import annotations
 
 import os
 import tempfile
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -24,8 +28,17 @@ __all__ = ["RigMapService", "dump_rig"]
 class RigMapService:
     """The configured rig file (``settings.rig_path``)."""
 
-    def __init__(self, settings: Settings) -> None:
+    def __init__(
+        self,
+        settings: Settings,
+        daq_inputs: Callable[[], int | None] = lambda: None,
+        on_written: Callable[[], None] = lambda: None,
+    ) -> None:
         self.path = settings.rig_path
+        #: how many analogue inputs the DAQ has (its identity), None when not known
+        self.daq_inputs = daq_inputs
+        #: called after a new file replaced the old one
+        self.on_written = on_written
 
     def read(self) -> dict[str, Any]:
         """``path``, ``text``, ``rig`` (the parsed map, or None) and ``error`` ("" when valid)."""
@@ -45,8 +58,8 @@ class RigMapService:
         Raises
         ------
         SetupError
-            Not UTF-8 text, TOML syntax, or an item that fails its check (the message names it
-            and the fix).
+            Not UTF-8 text, TOML syntax, an item that fails its check, or a DAQ input the DAQ
+            does not have (the message names the item and the fix).
         """
         try:
             text.encode("utf-8")
@@ -54,7 +67,17 @@ class RigMapService:
             raise SetupError(
                 f"text: not UTF-8 text at character {err.start}; send the rig file as written"
             ) from err
-        return parse_rig_text(text, self.path)
+        rig = parse_rig_text(text, self.path)
+        n = self.daq_inputs()
+        if n is not None:
+            for item, channel in _daq_inputs_used(rig):
+                if not 0 <= channel < n:
+                    raise SetupError(
+                        f"rig file {rig.name}: item '{item}' = {channel}: the DAQ has {n} inputs "
+                        f"(0..{n - 1}); fix: give an input 0..{n - 1}, the one the signal is "
+                        "cabled to"
+                    )
+        return rig
 
     def write(self, text: str) -> dict[str, Any]:
         """Check ``text`` and replace the rig file with it (the old one kept as
@@ -87,7 +110,19 @@ class RigMapService:
         finally:
             if tmp:
                 Path(tmp).unlink(missing_ok=True)
+        self.on_written()
         return self.read()
+
+
+def _daq_inputs_used(rig: RigFile) -> Iterator[tuple[str, int]]:
+    """``(item, input)`` for every DAQ input the rig file names."""
+    for i, h in enumerate(rig.hammers):
+        yield f"hammers.{i}.physical_channel", h.physical_channel
+    for i, r in enumerate(rig.responses):
+        yield f"responses.{i}.physical_channel", r.physical_channel
+    for i, lc in enumerate(rig.load_cells):
+        for k, channel in enumerate(lc.daq_channels):
+            yield f"load_cells.{i}.daq_channels.{k}", channel
 
 
 def _keep_previous(path: Path) -> None:
