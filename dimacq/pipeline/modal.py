@@ -206,7 +206,7 @@ def frf_noise(H: ComplexArray, window: int = NOISE_WINDOW) -> FloatArray:
         ``ε_l = median_window( RMS_pairs(Δ²H_l) / √6 / RMS_pairs(H_l) )``, the end lines taking
         their neighbour's second difference.
     """
-    from scipy.ndimage import median_filter
+    from dimacq.pipeline._filters import median_filter_nearest
 
     H = np.asarray(H, complex).reshape(H.shape[0], -1)
     if H.shape[0] < 3:
@@ -216,7 +216,7 @@ def frf_noise(H: ComplexArray, window: int = NOISE_WINDOW) -> FloatArray:
     mag = np.sqrt(np.mean(np.abs(H) ** 2, axis=1))
     rel = d2 / np.where(mag > 0, mag, np.inf)
     rel[mag == 0] = np.inf
-    return np.asarray(median_filter(rel, size=min(window, H.shape[0]), mode="nearest"), float)
+    return median_filter_nearest(rel, min(window, H.shape[0]))
 
 
 def clean_span(noise: FloatArray) -> tuple[int, int, float]:
@@ -642,13 +642,13 @@ def _where_fit_holds(
     NaN off ``fit_lines``) and the longest run of fitted lines where it is within
     :data:`FIT_HOLDS` of the noise (module docstring); None when that run has fewer than 16
     lines."""
-    from scipy.ndimage import median_filter
+    from dimacq.pipeline._filters import median_filter_nearest
 
     Y = H_acc[fit_lines]
     r = Y - B[fit_lines] @ coef
     mag = np.sqrt(np.mean(np.abs(Y) ** 2, axis=1))
     rel = np.sqrt(np.mean(np.abs(r) ** 2, axis=1)) / np.where(mag > 0, mag, np.inf)
-    rel = median_filter(rel, size=min(9, rel.size), mode="nearest")
+    rel = median_filter_nearest(rel, min(9, rel.size))
     out = np.full(f.size, np.nan)
     out[fit_lines] = rel
     holds = rel <= FIT_HOLDS * np.maximum(noise[fit_lines], np.median(rel))

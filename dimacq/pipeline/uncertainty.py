@@ -48,6 +48,7 @@ from dimacq.errors import SetupError, SolverError
 from dimacq.model.properties import vector_to_inertia
 from dimacq.model.setup import PARAMETERS
 from dimacq.pipeline._batched import cross3
+from dimacq.pipeline._special import t_ppf
 from dimacq.pipeline.dim import DimResult, DimSystem, solve_joint
 from dimacq.pipeline.dim_many import solve_joint_many
 from dimacq.pipeline.rotations import rotvec_to_matrix
@@ -285,9 +286,7 @@ def estimate_uncertainty(
     se = np.sqrt(se_in**2 + se_r**2 + se_g**2 + se_l**2)
     for k in known or {}:
         se[PARAMETERS.index(k)] = 0.0
-    from scipy.special import stdtrit  # scipy.stats.t.ppf's function, imported when used
-
-    tq = float(stdtrit(max(n_in - 1, 1), 0.975))
+    tq = t_ppf(0.975, max(n_in - 1, 1))  # stats.t.ppf to ~1e-14, without scipy
     p = result.parameters
     params = {
         name: ParameterUncertainty(

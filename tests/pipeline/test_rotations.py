@@ -1,49 +1,42 @@
-"""Rotation matrices of :mod:`dimacq.pipeline.rotations` against Rodrigues' formula, and the CG
-hull test of :mod:`dimacq.pipeline.dim.checks` against a box whose inside is known."""
+"""Rotation matrices and the hull test of :mod:`dimacq.pipeline.rotations` against scipy's."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.spatial import ConvexHull
+from scipy.spatial.transform import Rotation
 
-from dimacq.pipeline.dim.checks import inside_hull
-from dimacq.pipeline.rigid_body import skew
-from dimacq.pipeline.rotations import apply_rotvec, rotvec_to_matrix
-
-
-def _rodrigues(v: np.ndarray) -> np.ndarray:
-    """``I + sin θ [u]× + (1 − cos θ) [u]×²`` for one rotation vector ``v = θ u``."""
-    theta = float(np.linalg.norm(v))
-    if theta == 0.0:
-        return np.eye(3)
-    k = skew(v / theta)
-    return np.eye(3) + np.sin(theta) * k + (1.0 - np.cos(theta)) * (k @ k)
+from dimacq.pipeline.rotations import apply_rotvec, inside_hull, rotvec_to_matrix
 
 
-@pytest.mark.parametrize("size", [0.0, 1e-6, 5e-4, 2e-3, 0.1, 3.0])
-def test_rotation_matrices_are_rodrigues(size: float) -> None:
+@pytest.mark.parametrize("size", [0.0, 1e-6, 5e-4, 1e-3, 2e-3, 0.1, 3.0])
+def test_rotation_matrices_are_scipys_bit_for_bit(size: float) -> None:
     rng = np.random.default_rng(int(size * 1e6))
-    v = rng.normal(size=(20, 3)) * size
-    x = rng.normal(size=(20, 3))
-    want = np.stack([_rodrigues(r) for r in v])
-    np.testing.assert_allclose(rotvec_to_matrix(v), want, rtol=0, atol=1e-14)
-    np.testing.assert_allclose(
-        rotvec_to_matrix(v.reshape(4, 5, 3)).reshape(20, 3, 3), want, rtol=0, atol=1e-14
+    v = rng.normal(size=(200, 3)) * size  # both sides of the series' 1e-3 switch
+    x = rng.normal(size=(200, 3))
+    rot = Rotation.from_rotvec(v)
+    np.testing.assert_array_equal(rotvec_to_matrix(v), rot.as_matrix())
+    np.testing.assert_array_equal(
+        rotvec_to_matrix(v.reshape(20, 10, 3)).reshape(200, 3, 3), rot.as_matrix()
     )
-    np.testing.assert_allclose(apply_rotvec(v, x), np.einsum("nij,nj->ni", want, x), atol=1e-14)
-    np.testing.assert_allclose(apply_rotvec(v[0], x), x @ want[0].T, atol=1e-14)
+    np.testing.assert_array_equal(apply_rotvec(v, x), rot.apply(x))
+    np.testing.assert_array_equal(apply_rotvec(v, x[0]), rot.apply(x[0]))
+    np.testing.assert_array_equal(apply_rotvec(v[0], x), Rotation.from_rotvec(v[0]).apply(x))
 
 
-def test_hull_membership_of_a_box() -> None:
+def test_hull_membership_is_qhulls() -> None:
     rng = np.random.default_rng(1)
-    lengths = np.array([1.0, 2.0, 0.5])
     box = np.array([[a, b, c] for a in (0, 1) for b in (0, 2) for c in (0, 0.5)], float)
     box = np.vstack([box, [[0.5, 1, 0], [0, 1, 0.25]]])  # points inside facets: coplanar triples
     n_out = 0
-    for _ in range(200):
-        x = rng.uniform(-0.2, 1.2, 3) * lengths
-        want = bool(np.all((x >= 0) & (x <= lengths)))
-        assert inside_hull(x, box, 1e-9 * 2.0) is want
+    for t in range(200):
+        pts = box if t % 2 else rng.normal(size=(rng.integers(4, 30), 3)) * rng.uniform(0.1, 3, 3)
+        x = rng.uniform(-0.2, 1.2, 3) * [1, 2, 0.5] if t % 2 else rng.normal(size=3)
+        hull = ConvexHull(np.unique(pts, axis=0))
+        tol = 1e-9 * float(np.ptp(pts, axis=0).max())
+        want = bool(np.all(hull.equations[:, :3] @ x + hull.equations[:, 3] <= tol))
+        assert inside_hull(x, pts, tol) is want
         n_out += not want
     assert 20 < n_out < 180  # both answers were tried
 

@@ -9,6 +9,8 @@ Modules
 - :mod:`.writing`: a whole test (:func:`write_uff_test`), only the FRFs (:func:`write_frf_uff`),
   their bytes (:func:`dump_uff`), the geometry check (:func:`check_uff_geometry`).
 
+The binary 58 records are read without pyuff by :mod:`dimacq.io._uff_read`.
+
 Non-geometric setup fields (reference point, length unit, known properties, labels) have no place
 in UFF: the reader takes them from its keyword arguments; ``setup.name`` travels as the 2420 part
 name. Load cells with ``sign="on_support"`` are written negated as ``"on_structure"``.

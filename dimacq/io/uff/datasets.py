@@ -49,6 +49,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from dimacq.errors import DataError
+from dimacq.io._uff_read import read_sets
 from dimacq.model.frf import STANDARD_GRAVITY, to_accelerance
 from dimacq.model.setup import (
     direction_label,
@@ -195,38 +196,6 @@ def _system_18(
                 f"{path}: dataset #{k} (18): coordinate systems {sorted(pending)} refer to "
                 "reference systems that are not defined; add them"
             )
-
-
-def read_sets(path: Path) -> list[dict[str, Any]]:
-    """Every dataset of the UFF file at ``path``, in file order, as ``pyuff.UFF.read_sets`` reads
-    them (pyuff imported here, when a file is read).
-
-    Raises
-    ------
-    DataError
-        No such file, no dataset, or a dataset pyuff cannot read (its message quoted).
-    """
-    import pyuff
-
-    if not path.is_file():
-        raise DataError(f"{path}: no such UFF file; check the path")
-    try:
-        uff = pyuff.UFF(str(path))
-        types = uff.get_set_types()
-    except Exception as err:  # pyuff raises bare Exception
-        raise DataError(f"{path}: pyuff cannot index the file ({err}); is it a UFF file?") from err
-    if not len(types):
-        raise DataError(f"{path}: no UFF datasets found; is it a UFF file?")
-    sets: list[dict[str, Any]] = []
-    for k, kind in enumerate(types):
-        try:
-            sets.append(uff.read_sets(k))
-        except Exception as err:
-            raise DataError(
-                f"{path}: dataset #{k + 1} (type {int(kind)}) cannot be read ({err}); "
-                "re-export it or remove it"
-            ) from err
-    return sets
 
 
 def _parse(path: Path) -> _Content:

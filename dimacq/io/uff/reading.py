@@ -46,7 +46,7 @@ def _common_axis(records: Sequence[_Record], path: Path) -> NDArray[np.float64]:
     scale = float(np.max(np.abs(f0))) if f0.size else 1.0
     rest = records[1:]
     if all(r.frequencies_hz is f0 for r in rest) and np.all(np.isfinite(f0)):
-        return f0  # one axis object shared by the records
+        return f0  # one axis shared by the records of a batch (dimacq.io._uff_read)
     # np.allclose of every record with the first, in one comparison of the stacked axes.
     ok = np.array([r.frequencies_hz.shape == f0.shape for r in rest], dtype=bool)
     if ok.any():

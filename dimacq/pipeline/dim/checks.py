@@ -84,29 +84,11 @@ def plausibility(
     return tuple(diags)
 
 
-def inside_hull(x: FloatArray, points: FloatArray, tol: float) -> bool | None:
-    """Whether ``x`` lies in the convex hull of ``points`` (n, 3), within ``tol`` (m) of a facet;
-    None when the points span no volume (fewer than 4 distinct, or all on one plane).
-
-    Qhull's facets (``scipy.spatial.ConvexHull``) as planes ``nᵀp + o = 0`` with unit outward
-    normals ``n``: ``x`` is inside when ``nᵀx + o ≤ tol`` for every facet.
-    """
-    pts = np.unique(np.asarray(points, dtype=np.float64), axis=0)
-    if pts.shape[0] < 4:
-        return None
-    scale = float(np.ptp(pts, axis=0).max())
-    sv = np.linalg.svd(pts - pts.mean(axis=0), compute_uv=False)
-    if not scale > 0 or sv[2] <= 1e-9 * sv[0]:
-        return None
-    from scipy.spatial import ConvexHull
-
-    eq = ConvexHull(pts).equations  # (facets, 4): n, o
-    return bool(np.all(eq[:, :3] @ np.asarray(x, dtype=np.float64) + eq[:, 3] <= tol))
-
-
 def _hull_check(cg: FloatArray, points: FloatArray) -> Diagnostic:
     """CG inside the convex hull of the points: on their side of every facet plane, within
-    1e-9 of their extent (:func:`inside_hull`)."""
+    1e-9 of their extent (:func:`dimacq.pipeline.rotations.inside_hull`)."""
+    from dimacq.pipeline.rotations import inside_hull
+
     pts = np.asarray(points, float)
     scale = float(np.ptp(pts, axis=0).max()) if pts.size else 0.0
     inside = inside_hull(cg, pts, 1e-9 * scale)

@@ -17,6 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from dimacq.model.setup import PARAMETERS
+from dimacq.pipeline._special import chi2_ppf
 from dimacq.pipeline.output_error.fit import _line_residual
 from dimacq.pipeline.output_error.model import _Problem
 
@@ -25,11 +26,9 @@ ComplexArray = NDArray[np.complex128]
 
 
 def _chi2_ppf(q: float, dof: int) -> float:
-    """χ² quantile ``x`` with ``P(X ≤ x) = q``: ``2·P⁻¹(dof/2, q)``, ``P`` the regularized lower
-    incomplete gamma function (what ``scipy.stats.chi2.ppf(q, dof)`` computes)."""
-    from scipy.special import gammaincinv
-
-    return 2.0 * float(gammaincinv(0.5 * dof, q))
+    """χ² quantile, ``scipy.stats.chi2.ppf(q, dof)`` (its ``2·P⁻¹(dof/2, q)``) to ~1e-13, without
+    importing scipy (:mod:`dimacq.pipeline._special`)."""
+    return chi2_ppf(q, dof)
 
 
 #: Significance of the refinement's adequacy test (:func:`_adequacy`) and of the test that the

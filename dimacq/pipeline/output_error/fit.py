@@ -37,6 +37,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from dimacq.pipeline._batched import cross3
+from dimacq.pipeline._special import eigh_generalized, null_space
 from dimacq.pipeline.output_error.model import _Problem, mass_matrix
 
 #: the logger of the module before the split into a package: the messages keep its name
@@ -115,9 +116,7 @@ def _gauge_constraint(
     D = W.T @ (G.T @ Dg @ G) @ W
     P = W.T @ (G.T @ G) @ W
     D, P = 0.5 * (D + D.T), 0.5 * (P + P.T)
-    from scipy.linalg import eigh, null_space  # imported when a geometry refinement runs
-
-    lam_all = eigh(D, P, eigvals_only=True)
+    lam_all = eigh_generalized(D, P)[0]
     # always fixed: the scale and common-gain axes (columns 6, 7 of the full basis), in y
     live_idx = np.nonzero(live)[0]
     A = W[np.isin(live_idx, (6, 7)) | fix_all].T  # (r, n_always)
@@ -128,7 +127,7 @@ def _gauge_constraint(
     B = null_space((P @ A).T) if A.shape[1] else np.eye(W.shape[1])
     fixed_y = A
     if B.shape[1]:
-        lam, U = eigh(B.T @ D @ B, B.T @ P @ B)
+        lam, U = eigh_generalized(B.T @ D @ B, B.T @ P @ B)
         sel = 1.0 / np.sqrt(1.0 + np.clip(lam, 0.0, None)) > refuse_ratio
         fixed_y = np.concatenate([A, B @ U[:, sel]], axis=1)
     fixed = W @ fixed_y

@@ -23,6 +23,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from dimacq.errors import SetupError
+from dimacq.pipeline._filters import median_along, uniform_filter_nearest
 
 FloatArray = NDArray[np.float64]
 ComplexArray = NDArray[np.complex128]
@@ -31,30 +32,6 @@ ComplexArray = NDArray[np.complex128]
 # ------------------------------------------------------------------------------------------
 # Noise
 # ------------------------------------------------------------------------------------------
-def median_along(x: NDArray[np.floating], axis: int) -> NDArray[np.float64]:
-    """``np.median(x, axis=axis)`` by sorting that axis: the same numbers, faster on a short axis.
-
-    ``np.median`` partitions a copy with the axis moved last, one selection per slice: on
-    (1290, 24, 24) FRF powers over the 24 channels that is 12 ms, a sort of the same slices
-    (numpy's vectorised sort) 2.5 ms. The middle value (odd length) or the mean of the middle
-    two (even: ``(a + b) / 2``, the sum and division ``np.mean`` makes of them) of the sorted
-    slice are the values the partition selects, so the result is the same to the bit, except
-    for the sign of a zero that ties with a ``-0.0``; a slice holding NaN gives NaN, as
-    ``np.median`` does.
-    """
-    s = np.sort(np.moveaxis(np.asarray(x, dtype=np.float64), axis, -1), axis=-1)
-    n = s.shape[-1]
-    if n == 0:
-        return np.median(s, axis=-1)  # numpy's own warning and NaN
-    out: NDArray[np.float64] = (
-        s[..., n // 2].copy() if n % 2 else (s[..., n // 2 - 1] + s[..., n // 2]) / 2.0
-    )
-    nan = np.isnan(s[..., -1])  # NaN sorts last
-    if nan.any():
-        out[nan] = np.nan
-    return out
-
-
 def _third_difference_power(H: ComplexArray) -> FloatArray:
     """``|Δ³H|²`` along the lines (axis 0): ``|H_ℓ − 3H_ℓ₊₁ + 3H_ℓ₊₂ − H_ℓ₊₃|²``, (L − 3, ...)."""
     d3 = H[:-3] - 3 * H[1:-2] + 3 * H[2:-1] - H[3:]
@@ -161,9 +138,7 @@ def _line_weights(
     # |Δ³H|² and |H|² as the caller may have them (the noise estimate and the band's power)
     d3 = _third_difference_power(H) if d3_power is None else d3_power  # (L-3, C, J)
     h2 = np.abs(H) ** 2 if h_power is None else h_power
-    from scipy.ndimage import uniform_filter1d  # imported when the line weights are formed
-
-    loc = uniform_filter1d(d3, 2 * LINE_NOISE_HALF_WIDTH + 1, axis=0, mode="nearest")
+    loc = uniform_filter_nearest(d3, 2 * LINE_NOISE_HALF_WIDTH + 1)
     loc = np.concatenate([loc[:2], loc, loc[-1:]], axis=0)  # centre the L-3 differences on L lines
     power = np.maximum(np.mean(h2, axis=0), 1e-300)  # (C, J)
     n = median_along(loc / (20.0 * power[None]), axis=1)  # (L, J)

@@ -26,6 +26,7 @@ import numpy as np
 from dimacq.errors import SetupError, SolverError
 from dimacq.model.frf import FrfData
 from dimacq.model.setup import PARAMETERS, TestSetup
+from dimacq.pipeline._special import t_ppf
 from dimacq.pipeline.dim import DimResult
 from dimacq.pipeline.output_error import (
     OutputErrorOptions,
@@ -210,9 +211,7 @@ def _apply_output_error(
     se = np.sqrt(se_post**2 + se_geo**2)
     for k in result.known:
         se[PARAMETERS.index(k)] = 0.0
-    from scipy.special import stdtrit  # scipy.stats.t.ppf's function, imported when used
-
-    tq = float(stdtrit(max(oe.n_inputs - 1, 1), 0.975))
+    tq = t_ppf(0.975, max(oe.n_inputs - 1, 1))  # stats.t.ppf to ~1e-14, without scipy
     # the principal moments from the same covariance (first order): the posterior, plus the
     # transducer share as the common scale of m and I it is (refined) or the Monte Carlo and
     # sensor-jackknife shares (unrefined, diagonal as they were added above)
