@@ -49,8 +49,13 @@ from dimacq.model.properties import vector_to_inertia
 from dimacq.model.setup import PARAMETERS
 from dimacq.pipeline._batched import cross3
 from dimacq.pipeline._special import t_ppf
-from dimacq.pipeline.dim import DimResult, DimSystem, solve_joint
-from dimacq.pipeline.dim_many import solve_joint_many
+from dimacq.pipeline.dim import (
+    DimResult,
+    DimSystem,
+    solve_gram_sums,
+    solve_joint,
+    solve_joint_many,
+)
 from dimacq.pipeline.rotations import rotvec_to_matrix
 
 __all__ = [
@@ -228,7 +233,7 @@ def estimate_uncertainty(
     samples: list[FloatArray] = []
     n_bad = 0
     if method == "jackknife":
-        # every leave-one-out from the inputs' band sums (dimacq.pipeline.dim_many)
+        # every leave-one-out from the inputs' band sums (dimacq.pipeline.dim.solve_joint_many)
         loo, solved = solve_joint_many(system, 1.0 - np.eye(n_in), known=known)
         for j in range(n_in):
             if solved[j]:
@@ -444,8 +449,6 @@ def joint_parameters_for_geometry(
     ndarray, shape (S, 10)
         ``[m, cx, cy, cz, Ixx..Izz]`` as :attr:`DimResult.parameters`.
     """
-    from dimacq.pipeline.dim import _Q, _R, _parameterisation, _to_parameters
-
     P, S1, S2 = sums
     u = system.unit_m
     p = system.reference_point_m
@@ -458,16 +461,7 @@ def joint_parameters_for_geometry(
     G = M @ P @ np.swapaxes(M, 1, 2)  # (S, 6, 6)
     C = M @ (S1 @ phi + S2) / u
     S = G.shape[0]
-    N = (G.reshape(S, 36) @ _Q.T).reshape(S, 10, 10)
-    rhs = C.reshape(S, 36) @ _R.T
-    prm = _parameterisation(dict(known or {}), p, u)
-    T, x0 = prm.T, prm.x0
-    Nt = T.T @ N @ T
-    rt = (rhs - N @ x0) @ T
-    d = np.sqrt(np.einsum("sii->si", Nt))
-    theta = np.linalg.solve(Nt / (d[:, :, None] * d[:, None, :]), (rt / d)[..., None])[..., 0] / d
-    x = theta @ T.T + x0
-    out: FloatArray = _to_parameters(x, p, u)
+    out: FloatArray = solve_gram_sums(G.reshape(S, 36), C.reshape(S, 36), p, u, known=known)[0]
     return out
 
 
