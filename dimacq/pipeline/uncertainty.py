@@ -465,11 +465,6 @@ def joint_parameters_for_geometry(
     return out
 
 
-def _rot(v: FloatArray) -> FloatArray:
-    """Rotation matrices of rotation vectors ``v`` (..., 3) (scipy's Rodrigues, without scipy)."""
-    return rotvec_to_matrix(v)
-
-
 def geometry_spread(
     system: DimSystem,
     H_acc: NDArray[np.complexfloating],
@@ -544,12 +539,12 @@ def geometry_spread(
         eps_ch: FloatArray,
         eta: FloatArray,
     ) -> FloatArray:
-        Rn = _rot(rv_node)  # (S, G, 3, 3)
+        Rn = rotvec_to_matrix(rv_node)  # (S, G, 3, 3)
         pos = pos0[None] + dp_node[:, inv]
         dirs = np.einsum("snij,nj->sni", Rn[:, inv], dir0) * (1.0 + eps_ch)[..., None]
         # line of action turns about axes normal to it: project the rotation vector
         rv = rv_in - np.einsum("sjk,jk->sj", rv_in, idir0)[..., None] * idir0[None]
-        idir = np.einsum("sjik,jk->sji", _rot(rv), idir0) * (1.0 + eta)[:, None, None]
+        idir = np.einsum("sjik,jk->sji", rotvec_to_matrix(rv), idir0) * (1.0 + eta)[:, None, None]
         return joint_parameters_for_geometry(
             system, sums, pos, dirs, np.asarray(weights, float), ipos0[None] + dp_in, idir, known
         )
