@@ -399,7 +399,7 @@ class GeometrySpread:
     sigma: dict[str, float]
 
 
-def _band_sums(
+def band_sums(
     system: DimSystem, H_acc: NDArray[np.complexfloating]
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Sums over lines that make the joint normal equations a function of the geometry only.
@@ -436,7 +436,7 @@ def joint_parameters_for_geometry(
     ----------
     system : DimSystem
         The assembled system (its load cells, reference point, unit and inputs).
-    sums : from :func:`_band_sums`
+    sums : from :func:`band_sums`
     positions_m, directions : ndarray, shape (S, n, 3)
         Response channel positions and unit directions (GCS, m) of each geometry sample.
     weights : ndarray, shape (n,)
@@ -517,7 +517,7 @@ def geometry_spread(
     in_positions_m, in_directions : ndarray, shape (J, 3)
     """
     rng = np.random.default_rng(seed)
-    sums = _band_sums(system, H_acc)
+    sums = band_sums(system, H_acc)
     reg = float(registration_rms_m or 0.0)
     sp = float(np.hypot(sensor_position_m, reg))
     ip = float(np.hypot(input_position_m, reg))
