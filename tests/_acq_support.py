@@ -12,6 +12,7 @@ gauges, each a fixed mix of the responses) make every channel distinguishable.
 from __future__ import annotations
 
 import threading
+from collections.abc import Iterator
 from pathlib import Path
 
 import can.interfaces.virtual
@@ -99,17 +100,12 @@ class ImpulseSource:
 
 
 @pytest.fixture
-def no_leaks():
-    """Fail the test if it leaves threads or python-can virtual channels open."""
-    threads_before = set(threading.enumerate())
+def no_leaks(no_thread_leaks: None) -> Iterator[None]:
+    """Fail the test if it leaves python-can virtual channels open (and, through the suite's
+    ``no_thread_leaks``, threads)."""
     yield
-    leaked_threads = [t for t in threading.enumerate() if t not in threads_before and t.is_alive()]
-    for t in leaked_threads:
-        t.join(timeout=2.0)
-    leaked_threads = [t for t in leaked_threads if t.is_alive()]
     with can.interfaces.virtual.channels_lock:
         open_channels = list(can.interfaces.virtual.channels)
-    assert not leaked_threads, f"test left threads running: {leaked_threads}"
     assert not open_channels, f"test left python-can virtual channels open: {open_channels}"
 
 

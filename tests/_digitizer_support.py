@@ -4,10 +4,8 @@ from __future__ import annotations
 
 import contextlib
 import itertools
-import threading
 from collections.abc import Iterator, Sequence
 
-import pytest
 from _exchange import expected_exchange
 
 import dimacq.simulators.digitizer as simdig
@@ -79,11 +77,3 @@ def pty_backend(device: SimulatedDigitizer) -> Iterator[tuple[PtyServer, SerialD
         if driver is not None:
             driver.close()
         server.stop()
-
-
-@pytest.fixture
-def no_thread_leaks() -> Iterator[None]:
-    before = set(threading.enumerate())
-    yield
-    left = [t for t in threading.enumerate() if t not in before and t.is_alive()]
-    assert not left, f"test left threads running: {left}"

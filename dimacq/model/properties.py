@@ -24,6 +24,7 @@ __all__ = [
     "inertia_to_vector",
     "parallel_axis_shift",
     "principal_moments",
+    "skew",
     "vector_to_inertia",
 ]
 
@@ -33,6 +34,19 @@ PRODUCT_SIGN_CONVENTION = (
 )
 
 _I_INDEX = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
+
+
+def skew(v: NDArray[Any]) -> NDArray[Any]:
+    """Skew matrices ``[v]x`` with ``[v]x w = v × w``; ``v`` has shape (..., 3) → (..., 3, 3)."""
+    v = np.asarray(v)
+    out: NDArray[Any] = np.zeros(v.shape + (3,), dtype=v.dtype)
+    out[..., 0, 1] = -v[..., 2]
+    out[..., 0, 2] = v[..., 1]
+    out[..., 1, 0] = v[..., 2]
+    out[..., 1, 2] = -v[..., 0]
+    out[..., 2, 0] = -v[..., 1]
+    out[..., 2, 1] = v[..., 0]
+    return out
 
 
 def vector_to_inertia(v: NDArray[np.floating]) -> NDArray[np.float64]:
@@ -130,7 +144,7 @@ class RigidBodyProperties:
         ``M = m c×a + I_P α``.
         """
         c = self.cg_m - np.asarray(point_m, float)
-        cx = np.array([[0, -c[2], c[1]], [c[2], 0, -c[0]], [-c[1], c[0], 0]])
+        cx = skew(c)
         m = self.mass_kg
         out = np.zeros((6, 6))
         out[:3, :3] = m * np.eye(3)

@@ -861,7 +861,7 @@ def mass_line_from_frf(
     H = frf.H[:, geo.output_index][:, :, idx]
     companion: Companion | None = None
     if dim_companion and geometry:
-        from dimacq.pipeline.uncertainty import _band_sums, joint_parameters_for_geometry
+        from dimacq.pipeline.uncertainty import band_sums, joint_parameters_for_geometry
 
         wts = (
             np.ones(len(geo.channels))
@@ -871,7 +871,7 @@ def mass_line_from_frf(
         sysd = assemble(
             frf, setup, length_unit=length_unit, reference_point_m=p, response_weights=wts
         ).select_inputs(idx)
-        dsums = _band_sums(sysd, H)
+        dsums = band_sums(sysd, H)
 
         def companion(
             pos_s: FloatArray, dir_s: FloatArray, ipos_s: FloatArray, idir_s: FloatArray

@@ -61,6 +61,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from dimacq.errors import DataError, SetupError, SolverError
+from dimacq.pipeline.line_noise import scatter_sigma
 from dimacq.pipeline.rigid_body import load_cell_transform
 
 __all__ = [
@@ -640,7 +641,9 @@ def settled_mean(samples: ArrayLike, step: ArrayLike, *, tolerance: float = 2e-5
     A line ``g(t) = a + b t`` is fitted per gauge over the window (``t`` centred, n samples);
     ``drift = b (n − 1)`` with standard error ``σ √(12 / n)`` (slope std ``σ √(12/n³)`` times
     the duration), ``σ`` the white noise estimated robustly from the sample-to-sample
-    differences (``1.4826 MAD(Δg) / √2``), so a step or a swing in the window counts as drift. The window is settled when every gauge's drift is within
+    differences (``1.4826 MAD(Δg) / √2``, :func:`dimacq.pipeline.line_noise.scatter_sigma`),
+    so a step or a swing in the window counts as drift. The window is settled when every
+    gauge's drift is within
     ``tolerance · |step|`` (``step``: the reading's change from the series zero, so the creep
     allowed is a fraction of the load change) or within four of its own standard errors.
 
@@ -661,8 +664,7 @@ def settled_mean(samples: ArrayLike, step: ArrayLike, *, tolerance: float = 2e-5
     b = (g - mean[:, None]) @ t / (t @ t)
     # Noise from the sample-to-sample differences (median absolute deviation): a step or a
     # swing inside the window inflates a fit's residual, not this; so they count as drift.
-    d = np.diff(g, axis=1)
-    sig = 1.4826 * np.median(np.abs(d - np.median(d, axis=1, keepdims=True)), axis=1) / np.sqrt(2)
+    sig = scatter_sigma(g.T, 1)
     drift = b * (n - 1)
     drift_se = sig * np.sqrt(12.0 / n)
     ok = np.abs(drift) <= np.maximum(tolerance * np.abs(np.asarray(step, float)), 4 * drift_se)

@@ -204,15 +204,15 @@ def frf_noise(H: ComplexArray, window: int = NOISE_WINDOW) -> FloatArray:
     -------
     ndarray, shape (n_lines,)
         ``ε_l = median_window( RMS_pairs(Δ²H_l) / √6 / RMS_pairs(H_l) )``, the end lines taking
-        their neighbour's second difference.
+        their neighbour's second difference (:func:`dimacq.pipeline.line_noise.line_sigma`).
     """
     from dimacq.pipeline._filters import median_filter_nearest
+    from dimacq.pipeline.line_noise import line_sigma
 
     H = np.asarray(H, complex).reshape(H.shape[0], -1)
     if H.shape[0] < 3:
         return np.full(H.shape[0], np.inf)
-    d2 = np.sqrt(np.mean(np.abs(H[2:] - 2 * H[1:-1] + H[:-2]) ** 2, axis=1) / 6.0)
-    d2 = np.concatenate([d2[:1], d2, d2[-1:]])
+    d2 = line_sigma(H, 2)
     mag = np.sqrt(np.mean(np.abs(H) ** 2, axis=1))
     rel = d2 / np.where(mag > 0, mag, np.inf)
     rel[mag == 0] = np.inf

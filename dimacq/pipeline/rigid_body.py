@@ -19,12 +19,12 @@ Perimeter filtering (Eq. 30–31): with a 0/1 (or any non-negative) diagonal wei
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from dimacq.errors import SetupError
+from dimacq.model.properties import skew
 from dimacq.pipeline._batched import cross3
 
 __all__ = [
@@ -38,19 +38,6 @@ __all__ = [
 ]
 
 FloatArray = NDArray[np.float64]
-
-
-def skew(v: NDArray[Any]) -> NDArray[Any]:
-    """Skew matrices ``[v]x`` with ``[v]x w = v × w``; ``v`` has shape (..., 3) → (..., 3, 3)."""
-    v = np.asarray(v)
-    out: NDArray[Any] = np.zeros(v.shape + (3,), dtype=v.dtype)
-    out[..., 0, 1] = -v[..., 2]
-    out[..., 0, 2] = v[..., 1]
-    out[..., 1, 0] = v[..., 2]
-    out[..., 1, 2] = -v[..., 0]
-    out[..., 2, 0] = -v[..., 1]
-    out[..., 2, 1] = v[..., 0]
-    return out
 
 
 def response_matrix(

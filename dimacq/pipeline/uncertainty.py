@@ -49,8 +49,13 @@ from dimacq.model.properties import vector_to_inertia
 from dimacq.model.setup import PARAMETERS
 from dimacq.pipeline._batched import cross3
 from dimacq.pipeline._special import t_ppf
-from dimacq.pipeline.dim import DimResult, DimSystem, solve_joint
-from dimacq.pipeline.dim_many import solve_joint_many
+from dimacq.pipeline.dim import (
+    DimResult,
+    DimSystem,
+    solve_gram_sums,
+    solve_joint,
+    solve_joint_many,
+)
 from dimacq.pipeline.rotations import rotvec_to_matrix
 
 __all__ = [
@@ -228,7 +233,7 @@ def estimate_uncertainty(
     samples: list[FloatArray] = []
     n_bad = 0
     if method == "jackknife":
-        # every leave-one-out from the inputs' band sums (dimacq.pipeline.dim_many)
+        # every leave-one-out from the inputs' band sums (dimacq.pipeline.dim.solve_joint_many)
         loo, solved = solve_joint_many(system, 1.0 - np.eye(n_in), known=known)
         for j in range(n_in):
             if solved[j]:
@@ -394,7 +399,7 @@ class GeometrySpread:
     sigma: dict[str, float]
 
 
-def _band_sums(
+def band_sums(
     system: DimSystem, H_acc: NDArray[np.complexfloating]
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Sums over lines that make the joint normal equations a function of the geometry only.
@@ -431,7 +436,7 @@ def joint_parameters_for_geometry(
     ----------
     system : DimSystem
         The assembled system (its load cells, reference point, unit and inputs).
-    sums : from :func:`_band_sums`
+    sums : from :func:`band_sums`
     positions_m, directions : ndarray, shape (S, n, 3)
         Response channel positions and unit directions (GCS, m) of each geometry sample.
     weights : ndarray, shape (n,)
@@ -444,8 +449,6 @@ def joint_parameters_for_geometry(
     ndarray, shape (S, 10)
         ``[m, cx, cy, cz, Ixx..Izz]`` as :attr:`DimResult.parameters`.
     """
-    from dimacq.pipeline.dim import _Q, _R, _parameterisation, _to_parameters
-
     P, S1, S2 = sums
     u = system.unit_m
     p = system.reference_point_m
@@ -458,22 +461,8 @@ def joint_parameters_for_geometry(
     G = M @ P @ np.swapaxes(M, 1, 2)  # (S, 6, 6)
     C = M @ (S1 @ phi + S2) / u
     S = G.shape[0]
-    N = (G.reshape(S, 36) @ _Q.T).reshape(S, 10, 10)
-    rhs = C.reshape(S, 36) @ _R.T
-    prm = _parameterisation(dict(known or {}), p, u)
-    T, x0 = prm.T, prm.x0
-    Nt = T.T @ N @ T
-    rt = (rhs - N @ x0) @ T
-    d = np.sqrt(np.einsum("sii->si", Nt))
-    theta = np.linalg.solve(Nt / (d[:, :, None] * d[:, None, :]), (rt / d)[..., None])[..., 0] / d
-    x = theta @ T.T + x0
-    out: FloatArray = _to_parameters(x, p, u)
+    out: FloatArray = solve_gram_sums(G.reshape(S, 36), C.reshape(S, 36), p, u, known=known)[0]
     return out
-
-
-def _rot(v: FloatArray) -> FloatArray:
-    """Rotation matrices of rotation vectors ``v`` (..., 3) (scipy's Rodrigues, without scipy)."""
-    return rotvec_to_matrix(v)
 
 
 def geometry_spread(
@@ -528,7 +517,7 @@ def geometry_spread(
     in_positions_m, in_directions : ndarray, shape (J, 3)
     """
     rng = np.random.default_rng(seed)
-    sums = _band_sums(system, H_acc)
+    sums = band_sums(system, H_acc)
     reg = float(registration_rms_m or 0.0)
     sp = float(np.hypot(sensor_position_m, reg))
     ip = float(np.hypot(input_position_m, reg))
@@ -550,12 +539,12 @@ def geometry_spread(
         eps_ch: FloatArray,
         eta: FloatArray,
     ) -> FloatArray:
-        Rn = _rot(rv_node)  # (S, G, 3, 3)
+        Rn = rotvec_to_matrix(rv_node)  # (S, G, 3, 3)
         pos = pos0[None] + dp_node[:, inv]
         dirs = np.einsum("snij,nj->sni", Rn[:, inv], dir0) * (1.0 + eps_ch)[..., None]
         # line of action turns about axes normal to it: project the rotation vector
         rv = rv_in - np.einsum("sjk,jk->sj", rv_in, idir0)[..., None] * idir0[None]
-        idir = np.einsum("sjik,jk->sji", _rot(rv), idir0) * (1.0 + eta)[:, None, None]
+        idir = np.einsum("sjik,jk->sji", rotvec_to_matrix(rv), idir0) * (1.0 + eta)[:, None, None]
         return joint_parameters_for_geometry(
             system, sums, pos, dirs, np.asarray(weights, float), ipos0[None] + dp_in, idir, known
         )

@@ -2,7 +2,6 @@
 
 import json
 
-import pytest
 from _digitizer_support import make_device
 
 from dimacq.cli.main import main
@@ -68,12 +67,3 @@ def test_bad_input_is_one_clear_line(capsys):
     assert "--echo-rate" in capsys.readouterr().err
     assert main(["digitizer", "selftest", "--port", "/dev/does-not-exist"]) == 2
     assert "cannot open '/dev/does-not-exist'" in capsys.readouterr().err
-
-
-@pytest.fixture
-def no_thread_leaks():
-    import threading
-
-    before = set(threading.enumerate())
-    yield
-    assert not [t for t in threading.enumerate() if t not in before and t.is_alive()]

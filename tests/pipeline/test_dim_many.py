@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from dimacq.pipeline import dim
-from dimacq.pipeline.dim_many import input_band_sums, solve_joint_many
+from dimacq.pipeline.dim import input_band_sums, solve_joint_many
 from dimacq.simulators.lab.forward import calibration_mass, x38_like
 
 BAND = (20.0, 100.0)

@@ -166,7 +166,7 @@ def test_geometry_monte_carlo_matches_linearisation() -> None:
     and the Monte Carlo spread agrees with first-order propagation (two independent answers)."""
     from dimacq.pipeline.selection._common import response_geometry
     from dimacq.pipeline.uncertainty import (
-        _band_sums,
+        band_sums,
         geometry_spread,
         joint_parameters_for_geometry,
     )
@@ -182,7 +182,7 @@ def test_geometry_monte_carlo_matches_linearisation() -> None:
     w = np.ones(len(geo.channels))
     p0 = joint_parameters_for_geometry(
         sy,
-        _band_sums(sy, H),
+        band_sums(sy, H),
         geo.positions_m[None],
         geo.directions[None],
         w,
@@ -221,7 +221,7 @@ def test_transducer_calibration_enters_the_spread_as_derived() -> None:
     not the Ψ-row scaling the spread uses)."""
     from dimacq.pipeline.selection._common import response_geometry
     from dimacq.pipeline.uncertainty import (
-        _band_sums,
+        band_sums,
         geometry_spread,
         joint_parameters_for_geometry,
     )
@@ -247,7 +247,7 @@ def test_transducer_calibration_enters_the_spread_as_derived() -> None:
         w = np.ones(len(geo.channels))
         scaled = solve_system(assemble(frf.replace(H=frf.H / (1 + eta)), c.nominal)).parameters
         equivalent = joint_parameters_for_geometry(
-            sy, _band_sums(sy, H), geo.positions_m[None], geo.directions[None], w,
+            sy, band_sums(sy, H), geo.positions_m[None], geo.directions[None], w,
             ipos[None], idir[None] * (1 + eta),
         )[0]  # fmt: skip
         assert equivalent == pytest.approx(scaled, rel=1e-8, abs=1e-12)

@@ -18,16 +18,16 @@ name. Load cells with ``sign="on_support"`` are written negated as ``"on_structu
 The names below are importable from this package as they were from the module it replaces.
 """
 
-from dimacq.io.uff.datasets import ORDINATE_TYPES, _Record
-from dimacq.io.uff.reading import UffSource, _common_axis, read_frf_uff, read_uff_test
+from dimacq.io.uff.datasets import ORDINATE_TYPES, Record
+from dimacq.io.uff.reading import UffSource, common_axis, read_frf_uff, read_uff_test
 from dimacq.io.uff.writing import check_uff_geometry, dump_uff, write_frf_uff, write_uff_test
 
 __all__ = [
     "ORDINATE_TYPES",
+    "Record",
     "UffSource",
-    "_Record",
-    "_common_axis",
     "check_uff_geometry",
+    "common_axis",
     "dump_uff",
     "read_frf_uff",
     "read_uff_test",

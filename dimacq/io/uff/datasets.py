@@ -1,5 +1,5 @@
 """The UFF datasets dimacq reads, each converted to SI and the global system: 164 units, 2420/18
-coordinate systems, 2411/15 nodes and 58 FRF records (:func:`_parse`, :func:`_record`), with the
+coordinate systems, 2411/15 nodes and 58 FRF records (:func:`parse`, :func:`_record`), with the
 ordinate types a 58 record may carry (:data:`ORDINATE_TYPES`).
 
 Reading a whole test (:func:`read_uff_test`) follows the layout commercial systems export:
@@ -85,8 +85,8 @@ _TYPE_NAMES: dict[int, str] = {
     19: "rpm",
     20: "order",
 }
-_ORTHO_TOL = 1e-6  # max |M Mᵀ − I| of a coordinate system's axes (as the model's unit tolerance)
-_SAME_TOL = 1e-12  # positions/directions that must agree when one node carries several items
+ORTHO_TOL = 1e-6  # max |M Mᵀ − I| of a coordinate system's axes (as the model's unit tolerance)
+SAME_TOL = 1e-12  # positions/directions that must agree when one node carries several items
 _G_LABEL = re.compile(r"^g(/.*)?$")
 
 
@@ -109,7 +109,7 @@ class _Node:
 
 
 @dataclass(frozen=True)
-class _Record:
+class Record:
     index: int  # dataset number in the file, 1-based
     rsp_node: int
     rsp_dir: int
@@ -128,11 +128,11 @@ class _Record:
 
 
 @dataclass
-class _Content:
+class Content:
     path: Path
     systems: dict[int, _System]
     nodes: dict[int, _Node]
-    records: list[_Record]
+    records: list[Record]
     part_name: str
 
 
@@ -142,7 +142,7 @@ def _int(v: Any) -> int:
 
 def _frame_check(axes: NDArray[np.float64], what: str, path: Path) -> None:
     err = float(np.max(np.abs(axes @ axes.T - np.eye(3))))
-    if not np.all(np.isfinite(axes)) or err > _ORTHO_TOL:
+    if not np.all(np.isfinite(axes)) or err > ORTHO_TOL:
         raise DataError(
             f"{path}: {what}: axes are not orthonormal (max |M Mᵀ − I| = {err:.3g}); "
             "rows 1–3 of a coordinate system must be its unit x, y, z axes in the global system"
@@ -198,7 +198,7 @@ def _system_18(
             )
 
 
-def _parse(path: Path) -> _Content:
+def parse(path: Path) -> Content:
     """Read every dataset and convert geometry and FRFs to SI, GCS."""
     sets = read_sets(path)
     length, force = 1.0, 1.0
@@ -206,7 +206,7 @@ def _parse(path: Path) -> _Content:
     raw_nodes: list[
         tuple[int, int, int, int, NDArray[np.float64]]
     ] = []  # node, def, disp, set, xyz
-    records: list[_Record] = []
+    records: list[Record] = []
     part_name = ""
     skipped: dict[int, int] = {}
     deferred: list[tuple[Any, int, str, float, float]] = []
@@ -276,7 +276,7 @@ def _parse(path: Path) -> _Content:
             s = systems[def_cs]
             xyz = s.origin_m + s.axes.T @ xyz
         nodes[n] = _Node(n, np.asarray(xyz, dtype=float), disp_cs)
-    return _Content(path, systems, nodes, records, part_name)
+    return Content(path, systems, nodes, records, part_name)
 
 
 def _record(
@@ -286,7 +286,7 @@ def _record(
     force: float,
     path: Path,
     deferred: list[tuple[Any, int, str, float, float]] | None = None,
-) -> _Record | None:
+) -> Record | None:
     """One 58 dataset → SI record, or None for a function that is not an FRF.
 
     A record read in a batch (``d["_rows"]``: a row of an array of records) with ``deferred``
@@ -346,13 +346,13 @@ def _record(
     rows = d.get("_rows")
     if deferred is not None and rows is not None and o_type not in (8, 11):
         deferred.append((rows[0], rows[1], op, c, force))
-        return _Record(k, rsp_node, rsp_dir, ref_node, ref_dir, kind, f, d["data"])
+        return Record(k, rsp_node, rsp_dir, ref_node, ref_dir, kind, f, d["data"])
     h: NDArray[np.complex128] = np.asarray(d["data"]).astype(complex)
     h = h * c if op == "mul" else h / c
     h = h * force
     if o_type in (8, 11):
         h = to_accelerance(h, f, quantity="displacement" if o_type == 8 else "velocity")
-    return _Record(k, rsp_node, rsp_dir, ref_node, ref_dir, kind, f, h)
+    return Record(k, rsp_node, rsp_dir, ref_node, ref_dir, kind, f, h)
 
 
 def _scale_rows(deferred: list[tuple[Any, int, str, float, float]]) -> None:
@@ -373,6 +373,6 @@ def _scale_rows(deferred: list[tuple[Any, int, str, float, float]]) -> None:
         array[idx] = block * force
 
 
-def _axis_text(f: NDArray[np.float64]) -> str:
+def axis_text(f: NDArray[np.float64]) -> str:
     step = f"{f[1] - f[0]:g} Hz steps" if f.size > 1 else "one line"
     return f"{f.size} lines {f[0]:g}–{f[-1]:g} Hz ({step})" if f.size else "no lines"

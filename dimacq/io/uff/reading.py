@@ -25,7 +25,7 @@ from numpy.typing import NDArray
 from pydantic import ValidationError
 
 from dimacq.errors import DataError, DimacqError
-from dimacq.io.uff.datasets import _axis_text, _Content, _parse, _Record
+from dimacq.io.uff.datasets import Content, Record, axis_text, parse
 from dimacq.model.frf import Channel, FrfData
 from dimacq.model.setup import (
     Excitation,
@@ -40,7 +40,7 @@ from dimacq.model.setup import (
 logger = logging.getLogger("dimacq.io.uff")
 
 
-def _common_axis(records: Sequence[_Record], path: Path) -> NDArray[np.float64]:
+def common_axis(records: Sequence[Record], path: Path) -> NDArray[np.float64]:
     first = records[0]
     f0 = first.frequencies_hz
     scale = float(np.max(np.abs(f0))) if f0.size else 1.0
@@ -55,14 +55,14 @@ def _common_axis(records: Sequence[_Record], path: Path) -> NDArray[np.float64]:
     if not ok.all():
         r = rest[int(np.argmin(ok))]  # the first record off the axis
         raise DataError(
-            f"{path}: {r.name} has {_axis_text(r.frequencies_hz)} but {first.name} has "
-            f"{_axis_text(f0)}; export all FRFs on one frequency axis"
+            f"{path}: {r.name} has {axis_text(r.frequencies_hz)} but {first.name} has "
+            f"{axis_text(f0)}; export all FRFs on one frequency axis"
         )
     return f0
 
 
 def _assemble(
-    records: Sequence[_Record],
+    records: Sequence[Record],
     outputs: Sequence[tuple[Channel, str]],
     inputs: Sequence[Channel],
     path: Path,
@@ -70,7 +70,7 @@ def _assemble(
     """Fill H (n_lines, n_outputs, n_inputs) from records; every pair must be present once."""
     if not records:
         raise DataError(f"{path}: no FRF records (58, function type 4) to read; export the FRFs")
-    f = _common_axis(records, path)
+    f = common_axis(records, path)
     o_index = {ch: i for i, (ch, _) in enumerate(outputs)}
     i_index = {ch: i for i, ch in enumerate(inputs)}
     n_in = len(inputs)
@@ -122,10 +122,10 @@ def _lines_first(rows: Sequence[NDArray[np.complex128]], n_lines: int) -> NDArra
 
 
 def _ordered_channels(
-    records: Iterable[_Record], path: Path
+    records: Iterable[Record], path: Path
 ) -> tuple[list[tuple[Channel, str]], list[Channel]]:
     outputs: dict[Channel, str] = {}
-    node_kind: dict[int, tuple[str, _Record]] = {}
+    node_kind: dict[int, tuple[str, Record]] = {}
     inputs: dict[Channel, None] = {}
     for r in records:
         prev = node_kind.setdefault(r.rsp_node, (r.kind, r))
@@ -139,7 +139,7 @@ def _ordered_channels(
     return list(outputs.items()), list(inputs)
 
 
-def _node_geometry(content: _Content, node: int, used_by: str) -> tuple[Vec3, NDArray[np.float64]]:
+def _node_geometry(content: Content, node: int, used_by: str) -> tuple[Vec3, NDArray[np.float64]]:
     """Position (GCS, m) and axes (rows) of a node."""
     path = content.path
     n = content.nodes.get(node)
@@ -236,7 +236,7 @@ def read_uff_test(
 def _read_uff_test(
     p: Path, reference_point_m: Vec3, length_unit: str, name: str | None
 ) -> tuple[TestSetup, FrfData]:
-    content = _parse(p)
+    content = parse(p)
     outputs, inputs = _ordered_channels(content.records, p)
     frf = _assemble(content.records, outputs, inputs, p)
     first_use: dict[tuple[str, int, int], str] = {}
@@ -294,7 +294,7 @@ def _read_uff_test(
         len(responses),
         len(cells),
         len(excitations),
-        _axis_text(frf.frequencies_hz),
+        axis_text(frf.frequencies_hz),
     )
     return setup, frf
 
@@ -320,7 +320,7 @@ def read_frf_uff(path: UffSource, setup: TestSetup) -> FrfData:
 
 
 def _read_frf_uff(p: Path, setup: TestSetup) -> FrfData:
-    content = _parse(p)
+    content = parse(p)
     recs = content.records
     by_node_kind: dict[int, str] = {}
     for r in recs:

@@ -21,7 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from dimacq.errors import SetupError
-from dimacq.io.uff.datasets import _ORTHO_TOL, _SAME_TOL, _axis_text
+from dimacq.io.uff.datasets import ORTHO_TOL, SAME_TOL, axis_text
 from dimacq.model.frf import Channel, FrfData
 from dimacq.model.setup import (
     TestSetup,
@@ -47,7 +47,7 @@ def _complete_frame(
     if len(given) >= 2:
         g = np.array([rows[k] for k in given])
         err = float(np.max(np.abs(g @ g.T - np.eye(len(given)))))
-        if err > _ORTHO_TOL:
+        if err > ORTHO_TOL:
             raise SetupError(
                 f"node {node}: the directions of {names} are not orthogonal (max |M Mᵀ − I| = "
                 f"{err:.3g}); a UFF node's displacement system is a rotation: give the channels' "
@@ -90,7 +90,7 @@ def _node_frames(setup: TestSetup) -> dict[int, tuple[NDArray[np.float64], NDArr
             )
         q = np.asarray(p, dtype=float)
         prev = pos.setdefault(node, (q, what))
-        if np.max(np.abs(prev[0] - q)) > _SAME_TOL * max(1.0, float(np.max(np.abs(q)))):
+        if np.max(np.abs(prev[0] - q)) > SAME_TOL * max(1.0, float(np.max(np.abs(q)))):
             raise SetupError(
                 f"node {node}: {prev[1]} is at {tuple(prev[0])} but {what} at {tuple(q)}; one node "
                 "has one position: give them separate node numbers"
@@ -102,7 +102,7 @@ def _node_frames(setup: TestSetup) -> dict[int, tuple[NDArray[np.float64], NDArr
         v = np.sign(direction) * np.asarray(d, dtype=float)
         s = slots.setdefault(node, {})
         k = abs(direction) - 1
-        if k in s and np.max(np.abs(s[k][0] - v)) > _SAME_TOL:
+        if k in s and np.max(np.abs(s[k][0] - v)) > SAME_TOL:
             raise SetupError(
                 f"node {node}: {s[k][1]} and {what} use axis {k + 1} of the node with different "
                 "GCS directions; give them separate node numbers or matching directions"
@@ -245,7 +245,7 @@ def _append58(fh: Any, frf: FrfData, sign: NDArray[np.float64], binary: bool) ->
         logger.warning(
             "frequency axis %s is not f0 + k·df with E13.5 header values; "
             "written as uneven abscissa, %s",
-            _axis_text(f),
+            axis_text(f),
             msg,
         )
     for i, inp in enumerate(frf.inputs):

@@ -9,14 +9,13 @@ Modules
 - :mod:`.assembly`: from FRFs and setup to the condensed motion ``K`` and the summed forces ``F``
   at P in the working length unit, and the design matrices ``A(a, α)`` (Eq. 32–35).
 - :mod:`.solver`: known properties eliminated (``x = T θ + x0``, Eq. 17–22), the normal
-  equations per line and over the band, their solution and refinement.
+  equations per line and over the band, their solution and refinement; the joint solve from
+  band-summed Gram matrices (many input weightings, many geometries).
 - :mod:`.result`: the solution with its evidence, and its JSON.
 - :mod:`.checks`: the physical plausibility checks of an estimate.
 - :mod:`.scaling`: the FRF scale factor that gives a known mass (§3.2.2.1).
 
-The names below are importable from this package as they were from the module it replaces
-(with the private ones :mod:`dimacq.pipeline.dim_many` and :mod:`dimacq.pipeline.uncertainty`
-import from here).
+The names below are importable from this package as they were from the module it replaces.
 """
 
 from dimacq.pipeline.dim.assembly import DimSystem, assemble, cell_reactions, design_matrices
@@ -24,35 +23,29 @@ from dimacq.pipeline.dim.checks import plausibility
 from dimacq.pipeline.dim.result import Diagnostic, DimResult
 from dimacq.pipeline.dim.scaling import scale_to_known_mass
 from dimacq.pipeline.dim.solver import (
-    _Q,
-    _R,
-    _REFINE_COND,
-    _parameterisation,
-    _solve_normal,
-    _to_parameters,
+    input_band_sums,
     line_residuals,
     solve,
+    solve_gram_sums,
     solve_joint,
+    solve_joint_many,
     solve_system,
 )
 
 __all__ = [
-    "_Q",
-    "_R",
-    "_REFINE_COND",
     "Diagnostic",
     "DimResult",
     "DimSystem",
-    "_parameterisation",
-    "_solve_normal",
-    "_to_parameters",
     "assemble",
     "cell_reactions",
     "design_matrices",
+    "input_band_sums",
     "line_residuals",
     "plausibility",
     "scale_to_known_mass",
     "solve",
+    "solve_gram_sums",
     "solve_joint",
+    "solve_joint_many",
     "solve_system",
 ]

@@ -1,7 +1,9 @@
 """Solving the DIM system: known properties eliminated, normal equations per line and over the
 band, their solution and refinement (:func:`solve_system`, :func:`solve_joint`,
-:func:`line_residuals`, :func:`solve`). The system comes from :mod:`.assembly`, the result is a
-:class:`~.result.DimResult` checked by :mod:`.checks`.
+:func:`line_residuals`, :func:`solve`); many joint solves under different input weights or
+geometries from band-summed Gram matrices (:func:`solve_joint_many`, :func:`solve_gram_sums`).
+The system comes from :mod:`.assembly`, the result is a :class:`~.result.DimResult` checked by
+:mod:`.checks`.
 
 Solution
 --------
@@ -248,6 +250,31 @@ def _to_parameters(x: FloatArray, p: FloatArray, u: float) -> FloatArray:
     return out
 
 
+def _eliminate_known(
+    N_full: FloatArray, rhs_full: FloatArray, prm: _Param
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Normal equations in the unknowns θ from those in ``x = [m, s, I]`` (Eq. 17–22).
+
+    With ``x = T θ + x0``: ``N_θ = Tᵀ N T`` and ``r_θ = (r − N x0) T``.
+
+    Parameters
+    ----------
+    N_full : ndarray, shape (..., 10, 10)
+    rhs_full : ndarray, shape (..., 10)
+    prm : the parameterisation (:func:`_parameterisation`)
+
+    Returns
+    -------
+    N : ndarray, shape (..., nθ, nθ)
+    rhs : ndarray, shape (..., nθ)
+    Nx0 : ndarray, shape (..., 10)
+        ``N x0`` (the residual's cross term).
+    """
+    T, x0 = prm.T, prm.x0
+    Nx0 = N_full @ x0
+    return T.T @ N_full @ T, (rhs_full - Nx0) @ T, Nx0
+
+
 @dataclass(frozen=True, eq=False)
 class _NormalEquations:
     """Per-line normal equations in the unknowns θ (known properties eliminated)."""
@@ -287,11 +314,9 @@ def _normal_equations(
 
     # Normal equations from 6×6 Gram matrices (see module docstring, "Solution").
     N_full, rhs_full, bb = _gram_normal_equations(Kw, Fw)
-    T, x0 = prm.T, prm.x0
+    x0 = prm.x0
     if known:
-        Nx0 = N_full @ x0  # (L, 10)
-        N = T.T @ N_full @ T  # (L, nθ, nθ)
-        rhs = (rhs_full - Nx0) @ T  # (L, nθ)
+        N, rhs, Nx0 = _eliminate_known(N_full, rhs_full, prm)  # (L, nθ, nθ), (L, nθ), (L, 10)
         bb = bb - 2.0 * rhs_full @ x0 + Nx0 @ x0  # ‖b − A x0‖² per line
     else:  # T = I, x0 = 0
         N, rhs = N_full, rhs_full
@@ -372,6 +397,124 @@ def solve_joint(
             "the estimated mass is exactly zero; the data carry no inertia information"
         )
     return params
+
+
+def solve_gram_sums(
+    G: FloatArray,
+    C: FloatArray,
+    reference_point_m: NDArray[np.floating],
+    unit_m: float,
+    *,
+    known: Mapping[str, float] | None = None,
+    rcond: float = 1e-10,
+) -> tuple[FloatArray, NDArray[np.intp], FloatArray, int]:
+    """Joint DIM answers from band-summed Gram matrices, one per row (vectorised).
+
+    The joint normal equations are linear in the Gram matrices of :func:`_gram_normal_equations`
+    summed over the band (and over inputs, with any input weights):
+    ``N = Q · Σ G`` (``Q`` the 100×36 map of the design matrix) and ``r = R · Σ C`` (``R``,
+    10×36). Known properties are eliminated (:func:`_eliminate_known`) and the equilibrated
+    minimum-norm solve is :func:`_solve_normal`'s, as :func:`solve_joint` solves the same
+    equations summed over lines first. An ill-conditioned row (``cond`` above
+    ``_REFINE_COND``) is not refined on the unsquared system here; :func:`solve_joint_many`
+    hands those to :func:`solve_joint`.
+
+    Parameters
+    ----------
+    G, C : ndarray, shape (n_solves, 36)
+        Row-major 6×6 sums ``Re Σ k̄ kᵀ`` and ``Re Σ k̄ fᵀ`` in the working unit.
+    reference_point_m : ndarray, shape (3,)
+    unit_m : float
+        The working length unit (m).
+    known : mapping, optional
+        Known properties (as :func:`solve_joint`).
+
+    Returns
+    -------
+    params : ndarray, shape (n_solves, 10)
+        ``[m, cx, cy, cz, Ixx, Ixy, Ixz, Iyy, Iyz, Izz]`` (CG in the GCS, m; I about P, kg·m²).
+    rank : ndarray of int, shape (n_solves,)
+    cond : ndarray, shape (n_solves,)
+        Condition number of the equilibrated design matrix.
+    n_theta : int
+        Number of unknowns (a row is determined when its rank reaches it).
+    """
+    p = np.asarray(reference_point_m, float)
+    prm = _parameterisation(dict(known or {}), p, unit_m)
+    N_full = (np.asarray(G) @ _Q.T).reshape(-1, 10, 10)  # (S, 10, 10)
+    r_full = np.asarray(C) @ _R.T  # (S, 10)
+    N, rhs, _ = _eliminate_known(N_full, r_full, prm)
+    theta, rank, cond, _ = _solve_normal(N, rhs, rcond)
+    params = _to_parameters(theta @ prm.T.T + prm.x0, p, unit_m)
+    return params, rank, cond, prm.T.shape[1]
+
+
+def input_band_sums(system: DimSystem) -> tuple[FloatArray, FloatArray]:
+    """Per-input band sums ``G_j = Re Σ_l k̄_lj k_ljᵀ`` and ``C_j = Re Σ_l k̄_lj f_ljᵀ``.
+
+    Returns
+    -------
+    G, C : ndarray, shape (n_inputs, 36)
+        Row-major 6×6 blocks (``G[j, 6 s + t] = G_j[s, t]``), as :func:`_gram_normal_equations`.
+    """
+    K = np.asarray(system.K, dtype=np.complex128)  # (L, 6, J)
+    F = np.asarray(system.F, dtype=np.complex128)
+    Kj = np.ascontiguousarray(K.transpose(2, 1, 0))  # (J, 6, L)
+    Fj = np.ascontiguousarray(F.transpose(2, 1, 0))
+    n_in = Kj.shape[0]
+    G = np.real(Kj.conj() @ Kj.swapaxes(1, 2)).reshape(n_in, 36)
+    C = np.real(Kj.conj() @ Fj.swapaxes(1, 2)).reshape(n_in, 36)
+    return G, C
+
+
+def solve_joint_many(
+    system: DimSystem,
+    weights: NDArray[np.floating],
+    *,
+    known: Mapping[str, float] | None = None,
+    rcond: float = 1e-10,
+) -> tuple[FloatArray, NDArray[np.bool_]]:
+    """Joint answers of ``solve_joint(system, known=known, input_weights=w)`` for every row w.
+
+    The joint normal equations are sums over lines ``l`` and inputs ``j`` of 6×6 Gram matrices,
+    ``N(w) = Q · Σ_j w_j G_j`` and ``r(w) = R · Σ_j w_j C_j`` with ``G_j = Re Σ_l k̄_lj k_ljᵀ``,
+    ``C_j = Re Σ_l k̄_lj f_ljᵀ`` (:func:`input_band_sums`), so the per-input band sums are
+    formed once and every weighting (a leave-one-input-out, a bootstrap resample) is a
+    (J,)·(J, 36) product and a 10×10 solve (:func:`solve_gram_sums`). The sums are
+    :func:`solve_joint`'s in another order (lines first, then inputs): the answers agree to
+    rounding, not to the bit. A weighting whose joint system is ill conditioned (condition above
+    ``_REFINE_COND``) is solved by :func:`solve_joint` itself, refined on the unsquared system.
+
+    Parameters
+    ----------
+    system : DimSystem
+    weights : ndarray, shape (n_solves, n_inputs)
+        Non-negative input weights of each solve.
+    known : mapping, optional
+        Known properties (as :func:`solve_joint`).
+
+    Returns
+    -------
+    params : ndarray, shape (n_solves, 10)
+        ``[m, cx, cy, cz, Ixx, Ixy, Ixz, Iyy, Iyz, Izz]`` per solve (CG in the GCS, m; I about P,
+        kg·m²); NaN rows where ``solve_joint`` raises :class:`SolverError` (rank deficiency, a
+        mass of exactly zero).
+    solved : ndarray of bool, shape (n_solves,)
+    """
+    W = np.atleast_2d(np.asarray(weights, dtype=np.float64))
+    kn = dict(known or {})
+    G, C = input_band_sums(system)
+    params, rank, cond, n_theta = solve_gram_sums(
+        W @ G, W @ C, system.reference_point_m, system.unit_m, known=kn, rcond=rcond
+    )
+    solved = (rank >= n_theta) & (params[:, 0] != 0) & np.all(np.isfinite(params), axis=1)
+    params[~solved] = np.nan
+    for s in np.nonzero(solved & (cond > _REFINE_COND))[0]:
+        try:  # refined on the unsquared system, as solve_joint does
+            params[s] = solve_joint(system, known=kn, input_weights=W[s], rcond=rcond)
+        except SolverError:
+            params[s], solved[s] = np.nan, False
+    return params, solved
 
 
 def solve_system(

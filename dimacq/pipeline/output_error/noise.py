@@ -8,9 +8,10 @@ projection of the reactions that cuts their noise where it holds (:func:`_smooth
 Noise model (errors in variables)
 ---------------------------------
 Independent circular complex noise per output, input and line. ``σ_cj`` is estimated from the data by
-the line-to-line scatter: the third difference along the lines ``Δ³H = H_ℓ − 3H_ℓ₊₁ + 3H_ℓ₊₂ − H_ℓ₊₃``
-removes a smooth FRF (the mass line) and has variance ``20 σ²`` for white noise; a robust
-(median) estimate ``σ² = median|Δ³H|² / (20 ln 2)``. The reactions ``R_j`` are regressors with noise:
+the line-to-line scatter (:mod:`dimacq.pipeline.line_noise`, order 3): the third difference along
+the lines ``Δ³H = H_ℓ − 3H_ℓ₊₁ + 3H_ℓ₊₂ − H_ℓ₊₃`` removes a smooth FRF (the mass line) and has
+variance ``20 σ²`` for white noise; a robust (median) estimate ``σ² = median|Δ³H|² / (20 ln 2)``.
+The reactions ``R_j`` are regressors with noise:
 ``E[S_RR] = S_RR⁰ + n_ω Σ_R``, so ``n_ω Σ_R`` (``Σ_R`` from the third difference of ``R_j``) is
 subtracted before the fit (bias compensation). Noise on ``H`` sits on the compared quantity and does
 not bias the estimate. The reduced ``χ²`` at the solution checks the noise model; the covariance
@@ -24,6 +25,12 @@ from numpy.typing import NDArray
 
 from dimacq.errors import SetupError
 from dimacq.pipeline._filters import median_along, uniform_filter_nearest
+from dimacq.pipeline.line_noise import (
+    difference_gain,
+    line_difference,
+    scatter_sigma,
+    scatter_variance,
+)
 
 FloatArray = NDArray[np.float64]
 ComplexArray = NDArray[np.complex128]
@@ -34,8 +41,7 @@ ComplexArray = NDArray[np.complex128]
 # ------------------------------------------------------------------------------------------
 def _third_difference_power(H: ComplexArray) -> FloatArray:
     """``|Δ³H|²`` along the lines (axis 0): ``|H_ℓ − 3H_ℓ₊₁ + 3H_ℓ₊₂ − H_ℓ₊₃|²``, (L − 3, ...)."""
-    d3 = H[:-3] - 3 * H[1:-2] + 3 * H[2:-1] - H[3:]
-    return np.asarray(np.abs(d3) ** 2, float)
+    return np.asarray(np.abs(line_difference(H, 3)) ** 2, float)
 
 
 def estimate_noise(H: ComplexArray, *, d3_power: FloatArray | None = None) -> FloatArray:
@@ -61,16 +67,17 @@ def estimate_noise(H: ComplexArray, *, d3_power: FloatArray | None = None) -> Fl
             "needs at least 8: widen the band"
         )
     d3p = _third_difference_power(H) if d3_power is None else d3_power
-    return np.asarray(np.sqrt(np.median(d3p, axis=0) / (20 * np.log(2))), float)
+    return scatter_sigma(None, 3, power=d3p)
 
 
 def _reaction_noise_cov(R: ComplexArray) -> FloatArray:
     """``Σ_R`` per input (J, 6, 6): real covariance per line of the noise on the reactions at P
     (``E Re(e eᴴ)`` = total complex covariance), from the third difference of ``R_j``."""
-    d3 = R[:-3] - 3 * R[1:-2] + 3 * R[2:-1] - R[3:]  # (L-3, 6, J)
-    cov = np.real(np.einsum("lij,lkj->jik", d3, d3.conj())) / (20.0 * d3.shape[0])
+    d3 = line_difference(R, 3)  # (L-3, 6, J)
+    gain = difference_gain(3)
+    cov = np.real(np.einsum("lij,lkj->jik", d3, d3.conj())) / (float(gain) * d3.shape[0])
     # robust scale: match the diagonal to the median estimate, keep the correlation structure
-    med = np.median(np.abs(d3) ** 2, axis=0).T / (20 * np.log(2))  # (J, 6)
+    med = scatter_variance(np.abs(d3) ** 2, 3).T  # (J, 6)
     diag = np.einsum("jii->ji", cov)
     with np.errstate(divide="ignore", invalid="ignore"):
         s = np.sqrt(np.where(diag > 0, med / diag, 0.0))

@@ -59,6 +59,7 @@ from dimacq.model.frf import FrfData
 from dimacq.model.setup import TestSetup
 from dimacq.pipeline._filters import median_filter_nearest
 from dimacq.pipeline.dim import assemble, line_residuals, solve_system
+from dimacq.pipeline.line_noise import scatter_sigma
 from dimacq.pipeline.rigid_body import response_matrix
 from dimacq.pipeline.selection._common import response_geometry
 
@@ -346,7 +347,8 @@ def _roughness(
 ) -> tuple[FloatArray, FloatArray, NDArray[np.bool_]]:
     """Line-to-line noise level ``σ``, roughness ``ρ`` and the lines within ``max(5 σ, floor)``.
 
-    ``σ = 1.4826 MAD(Δp) / √2`` per normalised estimate; ``ρ = max |p − median_win(p)|``.
+    ``σ = 1.4826 MAD(Δp) / √2`` per normalised estimate (first differences,
+    :func:`dimacq.pipeline.line_noise.scatter_sigma`); ``ρ = max |p − median_win(p)|``.
 
     Returns
     -------
@@ -359,12 +361,7 @@ def _roughness(
     win += 1 - win % 2
     fin = np.all(np.isfinite(pn), axis=1)
     # line-to-line noise level of each normalised estimate (robust scale of first differences)
-    dif = np.diff(pn[fin], axis=0)
-    sig = (
-        1.4826 * np.median(np.abs(dif - np.median(dif, axis=0)), axis=0) / np.sqrt(2)
-        if dif.shape[0] > 2
-        else np.zeros(10)
-    )
+    sig = scatter_sigma(pn[fin], 1) if fin.sum() > 3 else np.zeros(10)
     rough = np.full(n, np.inf)
     if fin.sum() >= 3:
         med = median_filter_nearest(np.where(fin[:, None], pn, 0.0), win)

@@ -61,8 +61,7 @@ from numpy.typing import NDArray
 from dimacq.errors import SetupError, SolverError
 from dimacq.model.frf import Channel
 from dimacq.model.setup import PARAMETERS
-from dimacq.pipeline.dim import DimSystem, solve_joint
-from dimacq.pipeline.dim_many import solve_joint_many
+from dimacq.pipeline.dim import DimSystem, solve_joint, solve_joint_many
 from dimacq.pipeline.selection._common import robust_outlier
 
 __all__ = [
@@ -234,7 +233,7 @@ def jackknife_estimates(
     ok = np.zeros(n, dtype=bool)
     idx = np.nonzero(active)[0]
     if idx.size:
-        # only the joint answers, all from the inputs' band sums (dimacq.pipeline.dim_many)
+        # only the joint answers, all from the inputs' band sums (dim.solve_joint_many)
         w = np.broadcast_to(np.asarray(active, float), (idx.size, n)).copy()
         w[np.arange(idx.size), idx] = 0.0
         est[idx], ok[idx] = solve_joint_many(system, w, known=known)

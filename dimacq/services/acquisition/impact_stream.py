@@ -22,7 +22,7 @@ from dimacq.services.acquisition.sample_window import SampleWindow
 log = logging.getLogger("dimacq.services.acquisition.session")
 
 
-class _StrikeLost(Exception):
+class StrikeLost(Exception):
     """Samples were lost while waiting for a strike: it may have been among them."""
 
 
@@ -135,7 +135,7 @@ class ImpactStream:
                 if np.isnan(seg).any():
                     # samples lost while waiting (FIFO overflow, lost transfer): the strike may
                     # be among them; ask for it again rather than wait for one that never comes
-                    raise _StrikeLost(self._gap_kinds(search_from, buf.end))
+                    raise StrikeLost(self._gap_kinds(search_from, buf.end))
                 search_from = buf.end
                 # keep only the pre-trigger history while waiting: O(1) memory and work per block
                 self._trim(search_from - s.pretrigger_samples)

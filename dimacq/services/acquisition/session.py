@@ -94,7 +94,7 @@ from dimacq.services.acquisition.impact_result import (
     records_frf,
     unusable_reasons,
 )
-from dimacq.services.acquisition.impact_stream import ImpactStream, _StrikeLost
+from dimacq.services.acquisition.impact_stream import ImpactStream, StrikeLost
 from dimacq.services.acquisition.known_response import KnownResponses
 from dimacq.services.acquisition.sample_window import SampleWindow
 
@@ -485,7 +485,7 @@ class ImpactSession(ImpactStream):
                         attempts -= 1
                         armed_from = 0
                         continue
-                    except _StrikeLost as gap:
+                    except StrikeLost as gap:
                         # not the operator's strike nor the article's: not counted against the
                         # strike budget, counted (and reported) on its own, with its own bound
                         attempts -= 1

@@ -71,7 +71,7 @@ class AcquisitionInfo:
     updated_at: str | None = None  # the last change of state, message, job or FRF set
     #: every hit waits for the operator's decision (switchable while it runs: set_review)
     review: bool = False
-    #: per struck input (:func:`_input_states`): its name, accepted / rejected averages, the
+    #: per struck input (:func:`input_states`): its name, accepted / rejected averages, the
     #: strikes lost to DAQ gaps with their reasons, and its state
     input_states: list[dict[str, Any]] = field(default_factory=list)
 
@@ -90,7 +90,7 @@ ENDED_SHORT = ("interrupted", "cancelled", "failed")
 #: ... and one finished with inputs short of min_averages can be resumed too.
 RESUMABLE = (*ENDED_SHORT, "incomplete")
 #: The settings that shape a record and its FRFs: a resumed acquisition keeps its ended one's.
-_RECORD_SETTINGS = (
+RECORD_SETTINGS = (
     "record_samples",
     "pretrigger_samples",
     "trigger_level_n",
@@ -101,11 +101,11 @@ _RECORD_SETTINGS = (
     "estimator",
 )
 #: Keys of an acquisition's config the service writes (never taken from a request).
-_INTERNAL_KEYS = ("applied", "resume_of", "kept_per_input")
+INTERNAL_KEYS = ("applied", "resume_of", "kept_per_input")
 
 
 @dataclass(frozen=True)
-class _Resume:
+class Resume:
     """What a resumed acquisition continues: the ended one and its accepted averages, per
     struck input (in its ``inputs`` order, oldest first)."""
 
@@ -117,7 +117,7 @@ class _Resume:
 ACQUISITION_DEVICES = ("daq", "loadcell")
 
 
-def _accepted_per_input(avgs: Sequence[AverageInfo]) -> list[int]:
+def accepted_per_input(avgs: Sequence[AverageInfo]) -> list[int]:
     """Accepted averages per input index (0 for inputs struck without success)."""
     n = 1 + max((a.input_index for a in avgs), default=-1)
     out = [0] * n
@@ -127,11 +127,11 @@ def _accepted_per_input(avgs: Sequence[AverageInfo]) -> list[int]:
     return out
 
 
-def _count(per_input: Sequence[int], j: int) -> int:
+def count(per_input: Sequence[int], j: int) -> int:
     return per_input[j] if 0 <= j < len(per_input) else 0
 
 
-def _lost_note(names: Sequence[str], lost: Sequence[Sequence[str]]) -> str:
+def lost_note(names: Sequence[str], lost: Sequence[Sequence[str]]) -> str:
     """``"; strikes lost to DAQ sample gaps (asked again): 101+X 2 (DAQ samples lost (FIFO
     overflow))"``, or "" when none was lost."""
     parts = [
@@ -142,7 +142,7 @@ def _lost_note(names: Sequence[str], lost: Sequence[Sequence[str]]) -> str:
     return f"; strikes lost to DAQ sample gaps (asked again): {', '.join(parts)}" if parts else ""
 
 
-def _input_states(
+def input_states(
     state: str,
     struck: Sequence[int],
     names: Sequence[str] | None,
@@ -194,7 +194,7 @@ class ServiceParts:
         def _set(self, acq_id: int, **values: Any) -> None: ...
         def _stand_url(self, name: str) -> str: ...
         def _start(
-            self, config: Mapping[str, Any], resume: _Resume | None = None
+            self, config: Mapping[str, Any], resume: Resume | None = None
         ) -> AcquisitionInfo: ...
         def _chain(self, acq_id: int) -> list[int]: ...
         def _require_live(self, acq_id: int) -> LiveReview: ...

@@ -21,14 +21,14 @@ from dimacq.model.impact import ImpactSettings
 from dimacq.persistence import models as m
 from dimacq.services.acquisition.resume import KeptAverages, kept_averages
 from dimacq.services.lab.acquisition_records import (
-    _INTERNAL_KEYS,
-    _RECORD_SETTINGS,
     ENDED_SHORT,
+    INTERNAL_KEYS,
+    RECORD_SETTINGS,
     RESUMABLE,
     AcquisitionInfo,
     Record,
+    Resume,
     ServiceParts,
-    _Resume,
 )
 from dimacq.services.lab.acquisition_views import merge_frfs
 
@@ -180,10 +180,10 @@ class AcquisitionRecovery(ServiceParts):
             )
         applied = cfg.get("applied") or {}
         # the settings the kept averages were taken with (whatever the rig file says now)
-        pinned = {k: applied[k] for k in _RECORD_SETTINGS if applied.get(k) is not None}
-        new = {**{k: v for k, v in cfg.items() if k not in _INTERNAL_KEYS}, **pinned}
+        pinned = {k: applied[k] for k in RECORD_SETTINGS if applied.get(k) is not None}
+        new = {**{k: v for k, v in cfg.items() if k not in INTERNAL_KEYS}, **pinned}
         new["merge_frf_id"] = cur.frf_id if cur.frf_id is not None else cfg.get("merge_frf_id")
-        return self._start(new, _Resume(acq_id, kept.per_input))
+        return self._start(new, Resume(acq_id, kept.per_input))
 
     def _chain(self, acq_id: int) -> list[int]:
         """The acquisition and the ones it resumes, oldest first."""

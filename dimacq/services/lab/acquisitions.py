@@ -57,19 +57,19 @@ from dimacq.persistence import stands as stand_lease
 from dimacq.persistence.queue import Outbox
 from dimacq.services.acquisition.impact_result import unusable_reasons
 from dimacq.services.lab.acquisition_records import (
-    _INTERNAL_KEYS,
     ACQUISITION_DEVICES,
     ENDED_WITH_INPUTS,
+    INTERNAL_KEYS,
     RESUMABLE,
     AcquisitionInfo,
     AverageInfo,
     Record,
+    Resume,
     RigFactory,
-    _accepted_per_input,
-    _count,
-    _input_states,
-    _lost_note,
-    _Resume,
+    accepted_per_input,
+    count,
+    input_states,
+    lost_note,
 )
 from dimacq.services.lab.acquisition_recovery import AcquisitionRecovery
 from dimacq.services.lab.acquisition_review import AcquisitionReview
@@ -166,11 +166,11 @@ class AcquisitionService(AcquisitionReview, AcquisitionRecovery):
         """
         return self._start(config)
 
-    def _start(self, config: Mapping[str, Any], resume: _Resume | None = None) -> AcquisitionInfo:
+    def _start(self, config: Mapping[str, Any], resume: Resume | None = None) -> AcquisitionInfo:
         """:meth:`start`; with ``resume`` the new acquisition continues an ended one: its
         inputs start with the accepted averages kept (``resume.kept``) and the ended one is
         marked ``resumed`` when the new one exists (one step, the devices held)."""
-        cfg = {k: v for k, v in config.items() if k not in _INTERNAL_KEYS}
+        cfg = {k: v for k, v in config.items() if k not in INTERNAL_KEYS}
         setup_id = int(cfg["setup_id"])
         setup = self.store.require_setup(setup_id)
         n_ex = len(setup.excitations)
@@ -503,11 +503,11 @@ class AcquisitionService(AcquisitionReview, AcquisitionRecovery):
                     f"{need} accepted averages): no FRF, strike them again "
                     f"(append them into FRF set {fid})"
                 )
-            message += _lost_note(names, live.lost)
+            message += lost_note(names, live.lost)
             return {"acquisition_id": acq_id, "frf_id": fid}
         except DimacqError as err:
             state = "cancelled" if ctx.cancelled else "failed"
-            message = str(err) + _lost_note(names, live.lost)
+            message = str(err) + lost_note(names, live.lost)
             raise
         finally:
             rig.close()
@@ -597,7 +597,7 @@ class AcquisitionService(AcquisitionReview, AcquisitionRecovery):
         state = "succeeded" if state == "finished" else state
         snap = self.jobs.snapshot(job_id) if job_id else None
         cfg = config or {}
-        per_input = _accepted_per_input(avgs)
+        per_input = accepted_per_input(avgs)
         for j, n in (cfg.get("kept_per_input") or {}).items():  # a resumed one: those kept
             j = int(j)
             per_input += [0] * (j + 1 - len(per_input))
@@ -620,7 +620,7 @@ class AcquisitionService(AcquisitionReview, AcquisitionRecovery):
             averages_rejected=sum(1 for a in avgs if not a.accepted),
             averages=avgs,
             min_averages=need,
-            incomplete_inputs=[j for j in struck_inputs if _count(per_input, j) < need]
+            incomplete_inputs=[j for j in struck_inputs if count(per_input, j) < need]
             if state in ENDED_WITH_INPUTS
             else [],
             progress=snap["progress"] if snap else (1.0 if state == "succeeded" else 0.0),
@@ -629,7 +629,7 @@ class AcquisitionService(AcquisitionReview, AcquisitionRecovery):
             input_coherence=list(live.coherence) if live else [],
             inputs=struck_inputs,
             review=review,
-            input_states=_input_states(
+            input_states=input_states(
                 state, struck_inputs, cfg.get("input_names"), avgs, need, live
             ),
             created_at=times[0],

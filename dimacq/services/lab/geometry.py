@@ -43,12 +43,12 @@ if TYPE_CHECKING:
     from dimacq.services.lab.devices import DeviceService
 
 from dimacq.services.lab.geometry_helpers import (
-    _delete_all,
-    _distinct,
-    _finite,
-    _registrations,
-    _stored,
-    _vec3,
+    delete_all,
+    distinct,
+    finite_or_none,
+    registrations_of,
+    stored_point,
+    vec3,
 )
 
 __all__ = [
@@ -148,7 +148,7 @@ class GeometryService:
                     .limit(1)
                 ).first()
                 # this point alone (not every stored point: a test digitizes hundreds)
-                stored = None if last is None else _stored(last, _registrations(s))
+                stored = None if last is None else stored_point(last, registrations_of(s))
         out = point.to_json()
         if stored is not None:
             out.update(asdict(stored))
@@ -170,13 +170,13 @@ class GeometryService:
             shots=[
                 Shot(
                     seq=int(seq[i]),
-                    tip_array_m=[_finite(x) for x in vec(sol.tip_m[i])],
-                    speed_of_sound_m_s=_finite(sol.speed_m_s[i]),
+                    tip_array_m=[finite_or_none(x) for x in vec(sol.tip_m[i])],
+                    speed_of_sound_m_s=finite_or_none(sol.speed_m_s[i]),
                     accepted=bool(sol.accepted[i]),
                 )
                 for i in range(n)
             ],
-            speed_of_sound_m_s=_finite(
+            speed_of_sound_m_s=finite_or_none(
                 np.nanmedian(sol.speed_m_s) if np.isfinite(sol.speed_m_s).any() else np.nan
             ),
         )
@@ -202,8 +202,8 @@ class GeometryService:
     def points(self) -> list[StoredPoint]:
         with self.db.session() as s:
             rows = list(s.scalars(select(m.DigitizedPointRow).order_by(m.DigitizedPointRow.id)))
-            regs = _registrations(s)
-        return [_stored(r, regs) for r in rows]
+            regs = registrations_of(s)
+        return [stored_point(r, regs) for r in rows]
 
     def points_page(self, limit: int | None, offset: int) -> Page[StoredPoint]:
         """One page of the points (id order), cut by the database, and their total count."""
@@ -211,8 +211,8 @@ class GeometryService:
             total = int(s.scalar(select(func.count()).select_from(m.DigitizedPointRow)) or 0)
             q = select(m.DigitizedPointRow).order_by(m.DigitizedPointRow.id).offset(offset)
             rows = list(s.scalars(q if limit is None else q.limit(limit)))
-            regs = _registrations(s)
-        return Page([_stored(r, regs) for r in rows], total)
+            regs = registrations_of(s)
+        return Page([stored_point(r, regs) for r in rows], total)
 
     def delete_points(self, patch: int | None) -> int:
         """Delete every digitized point, or those of one patch (an import to do again); fits
@@ -289,8 +289,8 @@ class GeometryService:
         with self.db.session() as s:
             q = select(m.DigitizedPointRow).where(m.DigitizedPointRow.patch == index)
             rows = list(s.scalars(q.order_by(m.DigitizedPointRow.id)))
-            regs = _registrations(s)
-        return [_stored(r, regs) for r in rows]
+            regs = registrations_of(s)
+        return [stored_point(r, regs) for r in rows]
 
     def import_photo_geometry(self, doc: Mapping[str, Any]) -> dict[str, Any]:
         """Store the orientations and lines of action of a photographed geometry (the JSON of
@@ -335,9 +335,9 @@ class GeometryService:
         with self.db.session() as s:
             s.merge(m.PatchRow(index=p.index, name=p.name, test=test))
             cleared = {
-                "reference_nodes": _delete_all(s, m.ReferenceNode),
-                "orientations": _delete_all(s, m.OrientationRow),
-                "lines_of_action": _delete_all(s, m.LineOfActionRow),
+                "reference_nodes": delete_all(s, m.ReferenceNode),
+                "orientations": delete_all(s, m.OrientationRow),
+                "lines_of_action": delete_all(s, m.LineOfActionRow),
             }
         return NewTest(test, PatchInfo(p.index, p.name, None, test), cleared)
 
@@ -521,7 +521,7 @@ class GeometryService:
             float(fit.residual_rms_m),
             len(have),
             fit.origin_m,
-            _distinct(with_patch[prefix + jig.labels[i]][1] for i in have),
+            distinct(with_patch[prefix + jig.labels[i]][1] for i in have),
             point_m,
         )
         result = Orientation(
@@ -582,7 +582,7 @@ class GeometryService:
         unc = line_of_action_uncertainty(
             float(loa.angle_std_deg),
             pts[input_label],
-            _distinct(with_patch[lab][1] for lab in [input_label, *labels]),
+            distinct(with_patch[lab][1] for lab in [input_label, *labels]),
             point_m,
         )
         result = LineOfAction(
@@ -647,7 +647,7 @@ class GeometryService:
                     ResponseChannel(
                         node=n,
                         direction=k + 1,
-                        position_m=_vec3(ori[n].origin_m),
+                        position_m=vec3(ori[n].origin_m),
                         direction_gcs=tuple(c[:, k] / np.linalg.norm(c[:, k])),
                     )
                 )
@@ -655,7 +655,7 @@ class GeometryService:
             Excitation(
                 node=n,
                 direction=1,
-                position_m=_vec3(loas[n].point_m),
+                position_m=vec3(loas[n].point_m),
                 direction_gcs=tuple(
                     np.asarray(loas[n].direction) / np.linalg.norm(loas[n].direction)
                 ),

@@ -17,18 +17,18 @@ if TYPE_CHECKING:
     pass
 
 
-def _vec3(v: Sequence[float]) -> tuple[float, float, float]:
+def vec3(v: Sequence[float]) -> tuple[float, float, float]:
     return (float(v[0]), float(v[1]), float(v[2]))
 
 
-def _delete_all(s: Any, model: Any) -> int:
+def delete_all(s: Any, model: Any) -> int:
     rows = list(s.scalars(select(model)))
     for r in rows:
         s.delete(r)
     return len(rows)
 
 
-def _distinct(regs: Any) -> list[dict[str, Any]]:
+def distinct(regs: Any) -> list[dict[str, Any]]:
     """The distinct registration records among ``regs`` (one per patch used), as JSON."""
     out: list[Registration] = []
     for r in regs:
@@ -37,13 +37,13 @@ def _distinct(regs: Any) -> list[dict[str, Any]]:
     return [r.to_json() for r in out]
 
 
-def _finite(x: float | np.floating[Any]) -> float | None:
+def finite_or_none(x: float | np.floating[Any]) -> float | None:
     """A finite number, or None (JSON null) for NaN/inf (a shot that was not triangulated)."""
     v = float(x)
     return v if np.isfinite(v) else None
 
 
-def _stored(r: m.DigitizedPointRow, regs: dict[int, Registration]) -> StoredPoint:
+def stored_point(r: m.DigitizedPointRow, regs: dict[int, Registration]) -> StoredPoint:
     reg = regs.get(r.patch)
     return StoredPoint(
         id=r.id,
@@ -58,7 +58,7 @@ def _stored(r: m.DigitizedPointRow, regs: dict[int, Registration]) -> StoredPoin
     )
 
 
-def _registrations(s: Any) -> dict[int, Registration]:
+def registrations_of(s: Any) -> dict[int, Registration]:
     return {
         p.index: Registration.from_json(p.registration)
         for p in s.scalars(select(m.PatchRow))

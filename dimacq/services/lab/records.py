@@ -118,7 +118,7 @@ class FrfValues:
 
 #: Unit of an FRF's numerator per response kind (inputs are forces, N); a load cell's
 #: directions 4..6 are moments.
-_FRF_UNIT = {"acceleration": "(m/s²)/N", "reaction": "N/N"}
+FRF_UNIT = {"acceleration": "(m/s²)/N", "reaction": "N/N"}
 
 
 @dataclass(frozen=True)

@@ -26,7 +26,7 @@ from dimacq.persistence.arrays import arrays_from_bytes, arrays_to_bytes
 from dimacq.pipeline.frf_summary import magnitude_envelope
 from dimacq.services.lab.common import json_safe, vec
 from dimacq.services.lab.records import (
-    _FRF_UNIT,
+    FRF_UNIT,
     ChannelQuery,
     ExportedFile,
     FrfSummary,
@@ -408,7 +408,7 @@ class TestStore:
     def _channels(frf: FrfData, oi: list[int], ii: list[int]) -> dict[str, Any]:
         def resp(i: int) -> dict[str, Any]:
             c, kind = frf.outputs[i], frf.output_kinds[i]
-            unit = _FRF_UNIT[kind] if abs(c.direction) <= 3 or kind != "reaction" else "N·m/N"
+            unit = FRF_UNIT[kind] if abs(c.direction) <= 3 or kind != "reaction" else "N·m/N"
             return {**c.as_dict(), "kind": kind, "unit": unit}
 
         return {
