@@ -48,7 +48,7 @@ from dimacq.errors import (
     DimacqError,
     SetupError,
 )
-from dimacq.model.channels import axis_name
+from dimacq.model.channels import input_name
 from dimacq.model.impact import ImpactSettings
 from dimacq.model.setup import TestSetup
 from dimacq.persistence import ArrayStore, Database
@@ -236,7 +236,7 @@ class AcquisitionService(AcquisitionReview, AcquisitionRecovery):
             }
             prior = resume.kept
         # the struck inputs by point and direction ("101+X"): what the operator strikes
-        cfg["input_names"] = [axis_name(e.node, e.direction) for e in struck.excitations]
+        cfg["input_names"] = [input_name(e) for e in struck.excitations]
         try:
             with self.db.session() as s:
                 old = None
