@@ -498,6 +498,17 @@ class _BandSearch:
             self.cleared[start] = pk
         return start
 
+    def suspension_peaks_hz(self, i0: int) -> list[float]:
+        """The resonances below a band starting at line ``i0``, ascending: the unexplained
+        peaks, the CMIF peaks the rigid-body model explains, and the maximum of ``σ₁`` the band
+        was started above (:meth:`suspension_top`)."""
+        f = self.f
+        peaks = {float(f[p]) for p in self.unexplained if p < i0}
+        peaks |= {float(f[p]) for p in self.cpk if p < i0 and int(p) not in self.unexplained}
+        if i0 in self.risen:
+            peaks.add(float(f[self.risen[i0]]))
+        return sorted(peaks)
+
     def trim(self, i0: int, i1: int) -> tuple[int, int]:
         """Trim ``[i0, i1]`` at its ends until both end lines lie within ``tol`` of the median."""
         pn, tol = self.pn, self.tol
@@ -793,15 +804,9 @@ def suggest_band(
     lo, hi = float(f[i0]), float(f[i1])
     band_e = float(np.max(e[i0 : i1 + 1]))
     band_r = float(np.median(r[i0 : i1 + 1]))
-    susp = tuple(float(f[p]) for p in unexplained if p < i0)
-    susp_cmif = tuple(
-        float(f[p]) for p in cpk if p < i0 and int(p) not in unexplained
-    )  # rigid-body (suspension) peaks the model explains
-    if i0 in search.risen:  # the suspension's maximum of σ₁ that is no CMIF peak
-        susp_cmif = (*susp_cmif, float(f[search.risen[i0]]))
+    peaks = search.suspension_peaks_hz(i0)
     deform = tuple(float(f[p]) for p in unexplained if p > i1)
     if qualified:
-        peaks = sorted(set(susp) | set(susp_cmif))
         reason = _qualified_reason(ev, search, i0, i1, e_thr, r_thr, peaks, deform)
     else:
         reason = _unqualified_reason(
@@ -816,7 +821,7 @@ def suggest_band(
         rigid_body_error=e,
         roughness=rough,
         usable=usable,
-        suspension_peaks_hz=tuple(sorted(set(susp) | set(susp_cmif))),
+        suspension_peaks_hz=tuple(peaks),
         deformation_peaks_hz=deform,
         per_line=ev.pl,
         residual=r,
