@@ -5,6 +5,8 @@ session, the CLI) names channels with these functions, so a name built in one pl
 another:
 
 - a response or input axis: ``"1103+Y"`` (:func:`axis_name`: node, then the UFF direction label);
+- a struck input in messages: ``"117+Z"`` (:func:`input_name`: node, then the GCS axis its line of
+  action lies along, whatever UFF direction the setup records for it);
 - a load cell's gauges: ``"LC501 g01" .. "LC501 g12"`` (:func:`gauge_names`, :data:`N_GAUGES`);
 - a load cell's six loads in its frame: ``"LC501 Fx" .. "LC501 Mz"`` (:func:`load_names`,
   :data:`LOAD_AXES`; UFF directions 1..6 in that order).
@@ -12,14 +14,19 @@ another:
 
 from __future__ import annotations
 
-from dimacq.model.setup import direction_label
+import math
+from collections.abc import Sequence
+
+from dimacq.model.setup import Excitation, direction_label
 
 __all__ = [
+    "AXIS_NAME_TOLERANCE_DEG",
     "LOAD_AXES",
     "N_GAUGES",
     "axis_name",
     "gauge_name",
     "gauge_names",
+    "input_name",
     "load_names",
     "loadcell_prefix",
 ]
@@ -34,6 +41,30 @@ LOAD_AXES: tuple[str, ...] = ("Fx", "Fy", "Fz", "Mx", "My", "Mz")
 def axis_name(node: int, direction: int) -> str:
     """``"1103+Y"``: a response or input axis (node and UFF direction ±1..±3)."""
     return f"{node}{direction_label(direction)}"
+
+
+#: Largest angle between an input's line of action and a GCS axis for the input to be named by that
+#: axis (``"117+Z"``); a line further off every axis is named by its direction cosines.
+AXIS_NAME_TOLERANCE_DEG = 20.0
+
+
+def input_name(excitation: Excitation) -> str:
+    """``"117+Z"``: an input named by its point and the GCS axis of its line of action.
+
+    With ``d`` the unit line of action in the GCS (``direction_gcs``) and ``k = argmax |d_k|``,
+    the name is the node, the sign of ``d_k`` and axis ``k`` when the angle ``arccos |d_k|`` to
+    that axis is at most :data:`AXIS_NAME_TOLERANCE_DEG`; otherwise the node and ``d`` to two
+    decimals (``"117(+0.71,+0.00,-0.71)"``). The UFF direction the setup records is a label in
+    the node's system (an input struck along +Z can carry direction 1): it is what channel keys
+    are built from (:func:`axis_name`), not what the operator strikes along.
+    """
+    d: Sequence[float] | None = excitation.direction_gcs
+    if d is None:
+        return axis_name(excitation.node, excitation.direction)
+    k = max(range(3), key=lambda i: abs(d[i]))
+    if math.degrees(math.acos(min(1.0, abs(d[k])))) <= AXIS_NAME_TOLERANCE_DEG:
+        return f"{excitation.node}{'+' if d[k] > 0 else '-'}{'XYZ'[k]}"
+    return f"{excitation.node}(" + ",".join(f"{x:+.2f}" for x in d) + ")"
 
 
 def loadcell_prefix(node: int) -> str:

@@ -149,6 +149,28 @@ def test_finish_keeps_the_accepted_averages_and_append_completes_the_set(review_
     np.testing.assert_allclose(h2, _closed_form(f2), atol=3e-3 * np.abs(h2).max())
 
 
+def test_inputs_are_named_by_their_line_of_action(review_api) -> None:
+    # input 11 recorded with UFF direction 1 (+X in its node's system) but struck along −Z in
+    # the GCS: every message names it by where the operator strikes, 11-Z
+    c = review_api
+    d = dump_setup_dict(IMPULSE_SETUP)
+    d["inputs"][1]["direction_gcs"] = [0.0, 0.0, -1.0]
+    assert d["inputs"][1]["direction"] == 1
+    sid = c.post("/api/setups", json=d).json()["id"]
+    aid = c.post("/api/acquisitions", json={**BODY, "setup_id": sid, "review": True}).json()["id"]
+    _decide(c, aid, "accept")
+    _decide(c, aid, "accept")
+    p = _wait(c, aid, lambda a: a["pending_review"] is not None)["pending_review"]
+    assert p["input_name"] == "11-Z", p
+    assert c.post(f"/api/acquisitions/{aid}/finish").status_code == 200
+    a = _wait(c, aid, lambda a: a["state"] != "running")
+    assert [(s["name"], s["state"]) for s in a["input_states"]] == [
+        ("10+X", "complete"),
+        ("11-Z", "incomplete"),
+    ]
+    assert "11-Z" in a["message"] and "11+X" not in a["message"], a["message"]
+
+
 # --- issue 24: reviewing a hit loses the test -------------------------------------------------
 
 

@@ -20,7 +20,7 @@ import pytest
 
 from dimacq.api.server import free_port
 from dimacq.io.setup_file import dump_setup_dict
-from dimacq.model.channels import axis_name
+from dimacq.model.channels import input_name
 from dimacq.persistence import ArrayStore
 from dimacq.simulators.lab.scenarios import build_scenario
 
@@ -164,7 +164,7 @@ def test_sigkill_loses_nothing_and_finish_then_resume_give_the_frfs_of_a_run_wit
     second acquisition on each backend to look at the same kill.)"""
     env = _quiet_lab(tmp_path)
     setup = build_scenario(env["DIMACQ_SCENARIO"]).model.setup
-    names = [axis_name(e.node, e.direction) for e in setup.excitations]
+    names = [input_name(e) for e in setup.excitations]  # by line of action: 102-X
     port = free_port()
     proc = _start(tmp_path, port, database_url, env)
     try:

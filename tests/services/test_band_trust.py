@@ -133,3 +133,35 @@ def test_band_keeps_below_six_tenths_of_the_elastic_mode_in_noisy_data() -> None
     assert np.linalg.norm(rep.result.cg_m - truth.cg_m) < 4e-3
     keys = ("cx", "cy", "cz")
     assert all(_inside(rep, c, k, widen=1.5) for c, k in zip(truth.cg_m, keys, strict=True))
+
+
+def test_band_starts_above_the_bungee_modes_the_exponential_window_smears() -> None:
+    # the calibration mass on its bungee as an impact test measures it: 0.5 Hz lines, the
+    # exponential window (τ = 0.25 s) turning each FRF into H(iω + 1/τ); the suspension modes
+    # (0.43–2.05 Hz) leave no CMIF peak of twice the mass line, and every line is usable (the
+    # load cell measures the bungee's force), so the band started at the first line, 0.5 Hz
+    from dimacq.cli.simulated_lab import model_frf
+
+    b = build_scenario(load_scenario("calibration-mass-bungee"), 0)
+    f = np.arange(0.5, 1024.0 + 1e-9, 0.5)
+    frf = b.model_frf(frequencies_hz=f)
+    H = model_frf(b.model, f, exponential_tau_s=0.25)
+    rng = np.random.default_rng(7)
+    rms = np.sqrt(np.mean(np.abs(H) ** 2, axis=0, keepdims=True))
+    H = H + 0.003 * rms * (rng.standard_normal(H.shape) + 1j * rng.standard_normal(H.shape))
+    frf = frf.replace(H=H)
+    top = float(np.max(b.model.suspension_frequencies_hz()))
+    without = suggest_band(frf, b.setup, mass_line_flatness=np.inf)
+    assert without.band_hz[0] < top  # the premise: the band under the suspension modes
+    s = suggest_band(frf, b.setup)
+    lo, hi = s.band_hz
+    assert s.qualified and lo > top and hi == without.band_hz[1], (s.band_hz, top)
+    assert lo < 3 * top  # clear of the suspension, not of the whole low range
+    assert "not yet on its mass line" in s.reason and s.suspension_peaks_hz, s.reason
+    # the band's first line is on the mass line's falling side: σ₁ within 2× its level there
+    f_s, s1 = s.frequencies_hz, s.cmif[:, 0]
+    band = (f_s >= lo) & (f_s <= hi)
+    assert s1[band][0] < 2.0 * np.median(s1[band])
+    # the same rule through the solve (the CLI's and the lab page's automatic band)
+    rep = analyse(frf, b.setup, AnalysisOptions(select_responses=False, select_inputs=False))
+    assert rep.result.band_hz[0] == lo

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Annotated, Any, Literal
 
-from fastapi import APIRouter, Query, Response, status
+from fastapi import APIRouter, Header, Query, Response, status
 
 from dimacq.api.deps import CANONICAL_INT, IdPath, LabDep
 from dimacq.api.routers._common import (
@@ -35,14 +35,33 @@ router = APIRouter(prefix="/api/solutions", tags=["solutions"])
     status_code=status.HTTP_201_CREATED,
     openapi_extra=body_openapi(SolveRequest),
 )
-def solve(lab: LabDep, body: Annotated[SolveRequest, strict_body(SolveRequest)]) -> StoredSolution:
+def solve(
+    lab: LabDep,
+    body: Annotated[SolveRequest, strict_body(SolveRequest)],
+    idempotency_key: Annotated[
+        str | None,
+        Header(
+            alias="Idempotency-Key",
+            min_length=1,
+            max_length=200,
+            pattern=r"^[\x21-\x7e]+$",
+            description="the client's key for this request: sent again with the same body, the "
+            "solution it stored comes back (nothing solved twice)",
+        ),
+    ] = None,
+) -> StoredSolution:
     """Solve mass, CG and inertia from an FRF set; the result has the keys of ``dimacq solve
     --json``. The options are those of ``dimacq solve``: ``band_hz`` (``--band``), ``known``
     (``--known-*``, the ten parameter names), ``reference_point_m`` (``--reference-point``),
     ``length_unit`` (``--length-unit``), ``scale_to_mass_kg`` (``--scale-to-mass``), ``method``,
-    the selections (``--no-select*``) and the estimators."""
+    the selections (``--no-select*``) and the estimators.
+
+    One solution per request: an identical solve while one runs answers 409 naming it; a
+    request sent again with the same ``Idempotency-Key`` gets the solution it stored."""
     options = SolveOptions.model_validate(body.model_dump(exclude={"frf_id"}))
-    return found(lab.analysis.solve(body.frf_id, options), f"FRF set {body.frf_id}")
+    return found(
+        lab.analysis.solve(body.frf_id, options, idempotency_key), f"FRF set {body.frf_id}"
+    )
 
 
 @router.get("", response_model=list[SolutionOut], responses=LIST_RESPONSES)

@@ -134,10 +134,10 @@ export function startHeartbeat(periodMs = 1500) {
   }, periodMs);
 }
 
-export async function api(method, path, body, { raw = false } = {}) {
+export async function api(method, path, body, { raw = false, headers: extra = {} } = {}) {
   // every call carries the token when the page has it: state-changing calls need it, and so do
   // reads when the service is bound to a non-loopback address
-  const headers = authHeaders();
+  const headers = { ...authHeaders(), ...extra };
   let payload;
   if (body !== undefined) {
     if (raw) payload = body;

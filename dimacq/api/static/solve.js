@@ -51,7 +51,9 @@ async function solve() {
   $("#solution").classList.add("stale");
   $("#spec-plot").classList.add("stale");
   try {
-    const s = await api("POST", "/api/solutions", body);
+    // one key per click: a request the network or the browser sends twice stores one solution
+    const key = `solve-${Date.now().toString(36)}-${Math.random().toString(36).slice(2, 10)}`;
+    const s = await api("POST", "/api/solutions", body, { headers: { "Idempotency-Key": key } });
     state.solution = s;
     sessionStorage.setItem(LAST_KEY, String(s.id));
     await renderSolution(s);

@@ -34,7 +34,10 @@ between (that peak is an elastic mode: the band never crosses it); the longest o
 Unexplained peaks below the band are reported as suspension (support) modes, the ones above as
 elastic modes. Each run starts clear of the highest peak of the first CMIF curve ``σ₁`` at or below
 it: on that peak's falling flank, above the last line where ``σ₁`` is more than twice its mass-line
-level (:data:`MASS_LINE_RATIO`). The run is trimmed at its ends until every line's normalised
+level (:data:`MASS_LINE_RATIO`). A run whose ``σ₁`` is not yet flat at its start, rising through
+its mass line to a maximum and falling back to it (a suspension resonance too damped, or too
+smeared by the exponential window, to stand out as a peak), starts above that maximum
+(:data:`MASS_LINE_FLATNESS`). The run is trimmed at its ends until every line's normalised
 estimates lie within ``max(4 σ, 0.002)`` of the band median (σ the line-to-line noise level from
 first differences): slow trends from the suspension or an approaching mode are cut off. Its top
 stays at or below 0.6 of the first elastic mode above it (:data:`ELASTIC_CLEARANCE`).
@@ -65,6 +68,7 @@ from dimacq.pipeline.selection._common import response_geometry
 
 __all__ = [
     "ELASTIC_CLEARANCE",
+    "MASS_LINE_FLATNESS",
     "MASS_LINE_RATIO",
     "MAX_RESIDUAL",
     "MAX_RIGID_BODY_ERROR",
@@ -124,6 +128,21 @@ ELASTIC_CLEARANCE = 0.6
 #: whose support modes lie inside the span is trimmed above them like any other (the calibration
 #: mass standing on its cell: 133.5 → 221 Hz; that case fails the band checks either way).
 MASS_LINE_RATIO = 2.0
+#: Flatness of the mass line: ``σ₁`` within this fraction of its level (its median over the run)
+#: is on the mass line. The suspension (rigid-body) modes are where it is not yet: a rigid body on
+#: a support of stiffness ``k`` has the accelerance ``a/F = (1/m) s² / (s² + ω_s²)``, below the
+#: mass line ``1/m`` under ``f_s`` (stiffness-controlled, rising as ``f²``), above it over the
+#: resonance and falling back as ``1/(1 − (f_s/f)²)`` (within 5 % from ``4.6 f_s``). Lightly
+#: damped modes are peaks the resonance clearance finds; the exponential window of an impact test
+#: (``s = iω + 1/τ``) smears them: on the calibration mass hung on a bungee (suspension modes
+#: 0.43–2.05 Hz, τ = 0.25 s, 0.5 Hz lines) ``σ₁`` rises from 0.3× its mass line at 0.5 Hz to
+#: 1.3× at 2.5 Hz and is back within 5 % from 8 Hz: no peak of twice the mass line, and the band
+#: started at 0.5 Hz, under every suspension mode. A run whose ``σ₁`` is off its level by more
+#: than this fraction at its first line, reaches more than this fraction above it and comes back
+#: within it inside the run starts one line above that maximum (the top suspension mode as the
+#: window shows it); a curve that rises and never comes back (towards an elastic mode above)
+#: moves nothing.
+MASS_LINE_FLATNESS = 0.05
 
 
 def find_peaks(x: NDArray[np.floating], prominence: float) -> NDArray[np.intp]:
@@ -424,14 +443,47 @@ class _BandSearch:
     min_lines: int
     mass_line_ratio: float
     elastic_clearance: float
+    mass_line_flatness: float = MASS_LINE_FLATNESS
     cleared: dict[int, int] = field(default_factory=dict)
     capped: dict[int, int] = field(default_factory=dict)
+    risen: dict[int, int] = field(default_factory=dict)
+
+    def suspension_top(self, i0: int, i1: int) -> int | None:
+        """The maximum of ``σ₁`` over the run's first not-flat stretch when it is a resonance.
+
+        With ``M`` the median of ``σ₁`` over ``[i0, i1]`` (its mass-line level) and ``δ``
+        :data:`MASS_LINE_FLATNESS`, the stretch is the lines from ``i0`` on with
+        ``|σ₁/M − 1| > δ``. When it ends inside the run (``σ₁`` comes back to its mass line) and
+        its maximum lies above its first line and above ``(1 + δ) M`` (``σ₁`` rose through the
+        mass line to a resonance and fell back), that maximum's line; otherwise None.
+        """
+        if i1 - i0 < 2:
+            return None
+        seg = self.s1[i0 : i1 + 1]
+        level = float(np.median(seg))
+        if not level > 0:
+            return None
+        off = np.abs(seg / level - 1.0) > self.mass_line_flatness
+        if not off[0] or off.all():
+            return None
+        n_off = int(np.argmin(off))
+        k = int(np.argmax(seg[:n_off]))
+        if k == 0 or seg[k] <= (1.0 + self.mass_line_flatness) * level:
+            return None
+        return i0 + k
 
     def clear_of_resonance(self, i0: int, i1: int) -> int:
         """First line of ``[i0, i1]`` clear of the highest resonance at or below it: on that
         peak's falling flank, the last line where ``σ₁`` exceeds :data:`MASS_LINE_RATIO` times its
-        lowest level between the peak and ``i1`` (the mass line) bounds the band from below."""
+        lowest level between the peak and ``i1`` (the mass line) bounds the band from below. A
+        suspension resonance at the run's start that is no CMIF peak
+        (:meth:`suspension_top`) counts as one, and the band starts above it."""
         below = [int(p) for p in self.cpk if p <= i1]
+        top = self.suspension_top(i0, i1)
+        if top is not None:
+            self.risen[top + 1] = top
+            i0 = top + 1
+            below = sorted({*below, top})
         if i1 < i0 or not below:
             return i0
         pk = below[-1]
@@ -442,6 +494,17 @@ class _BandSearch:
         if start > i0:
             self.cleared[start] = pk
         return start
+
+    def suspension_peaks_hz(self, i0: int) -> list[float]:
+        """The resonances below a band starting at line ``i0``, ascending: the unexplained
+        peaks, the CMIF peaks the rigid-body model explains, and the maximum of ``σ₁`` the band
+        was started above (:meth:`suspension_top`)."""
+        f = self.f
+        peaks = {float(f[p]) for p in self.unexplained if p < i0}
+        peaks |= {float(f[p]) for p in self.cpk if p < i0 and int(p) not in self.unexplained}
+        if i0 in self.risen:
+            peaks.add(float(f[self.risen[i0]]))
+        return sorted(peaks)
 
     def trim(self, i0: int, i1: int) -> tuple[int, int]:
         """Trim ``[i0, i1]`` at its ends until both end lines lie within ``tol`` of the median."""
@@ -578,13 +641,23 @@ def _qualified_reason(
         f"estimates flat (per-line mass varies {m_var:.2g} % there)"
     ]
     if i0 > 0:
-        below = (
-            f"below {lo:g} Hz the resonance at {f[search.cleared[i0]]:g} Hz still dominates the "
-            f"motion (first CMIF curve above {search.mass_line_ratio:g}× its mass-line level)"
-            if i0 in search.cleared
-            else f"below {lo:g} Hz the per-line estimates drift off the plateau (suspension / "
-            "support effects)"
-        )
+        if i0 in search.cleared:
+            below = (
+                f"below {lo:g} Hz the resonance at {f[search.cleared[i0]]:g} Hz still dominates "
+                f"the motion (first CMIF curve above {search.mass_line_ratio:g}× its mass-line "
+                "level)"
+            )
+        elif i0 in search.risen:
+            below = (
+                f"below {lo:g} Hz the first CMIF curve is not yet on its mass line: it rises "
+                f"to its maximum at {f[search.risen[i0]]:g} Hz (the suspension modes) and "
+                f"comes back within {search.mass_line_flatness:g} of its level above"
+            )
+        else:
+            below = (
+                f"below {lo:g} Hz the per-line estimates drift off the plateau (suspension / "
+                "support effects)"
+            )
         peaks = susp_peaks
         if peaks:
             below += (
@@ -649,6 +722,7 @@ def suggest_band(
     max_rigid_body_error: float = MAX_RIGID_BODY_ERROR,
     max_residual: float = MAX_RESIDUAL,
     mass_line_ratio: float = MASS_LINE_RATIO,
+    mass_line_flatness: float = MASS_LINE_FLATNESS,
     rough_sigma: float = ROUGH_SIGMA,
     elastic_clearance: float = ELASTIC_CLEARANCE,
 ) -> BandSuggestion:
@@ -682,6 +756,10 @@ def suggest_band(
     mass_line_ratio : float
         Lowest usable line above a resonance below the run: the first CMIF curve at most this
         many times its lowest level in the run (:data:`MASS_LINE_RATIO`).
+    mass_line_flatness : float
+        ``σ₁`` within this fraction of its median over a run is on the mass line; a run starting
+        with ``σ₁`` off it, rising to a maximum and coming back, starts above that maximum
+        (:data:`MASS_LINE_FLATNESS`); ``inf`` turns the rule off.
 
     Returns
     -------
@@ -712,6 +790,7 @@ def suggest_band(
         min_lines=min_lines,
         mass_line_ratio=mass_line_ratio,
         elastic_clearance=elastic_clearance,
+        mass_line_flatness=mass_line_flatness,
     )
     candidates = search.candidates(usable)
     qualified = bool(candidates)
@@ -722,13 +801,9 @@ def suggest_band(
     lo, hi = float(f[i0]), float(f[i1])
     band_e = float(np.max(e[i0 : i1 + 1]))
     band_r = float(np.median(r[i0 : i1 + 1]))
-    susp = tuple(float(f[p]) for p in unexplained if p < i0)
-    susp_cmif = tuple(
-        float(f[p]) for p in cpk if p < i0 and int(p) not in unexplained
-    )  # rigid-body (suspension) peaks the model explains
+    peaks = search.suspension_peaks_hz(i0)
     deform = tuple(float(f[p]) for p in unexplained if p > i1)
     if qualified:
-        peaks = sorted(set(susp) | set(susp_cmif))
         reason = _qualified_reason(ev, search, i0, i1, e_thr, r_thr, peaks, deform)
     else:
         reason = _unqualified_reason(
@@ -743,7 +818,7 @@ def suggest_band(
         rigid_body_error=e,
         roughness=rough,
         usable=usable,
-        suspension_peaks_hz=tuple(sorted(set(susp) | set(susp_cmif))),
+        suspension_peaks_hz=tuple(peaks),
         deformation_peaks_hz=deform,
         per_line=ev.pl,
         residual=r,

@@ -13,7 +13,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from dimacq.errors import DataError
-from dimacq.model.channels import axis_name
+from dimacq.model.channels import input_name
 from dimacq.model.frf import Channel, FrfData, OutputKind
 from dimacq.model.impact import ImpactSettings
 from dimacq.model.setup import TestSetup
@@ -163,9 +163,7 @@ def impact_frf(
     for lc in setup.load_cells:
         outputs += [Channel(lc.node, k) for k in range(1, 7)]
         kinds += ["reaction"] * 6
-    incomplete = [
-        axis_name(e.node, e.direction) for j, e in enumerate(setup.excitations) if j not in kept
-    ]
+    incomplete = [input_name(e) for j, e in enumerate(setup.excitations) if j not in kept]
     extra = {"incomplete_inputs": ", ".join(incomplete)} if incomplete else {}
     f = result.frequencies_hz
     # the 0 Hz line leads (ascending lines): a slice keeps views, not copies, of the arrays
@@ -243,7 +241,7 @@ def records_frf(
             f"{len(records)} lists of records for {len(setup.excitations)} inputs of the setup"
         )
     need = min(settings.min_averages, settings.averages_per_input)
-    names = [axis_name(e.node, e.direction) for e in setup.excitations]
+    names = [input_name(e) for e in setup.excitations]
     kept = [j for j, r in enumerate(records) if len(r) >= need]
     if not kept:
         raise DataError(f"inputs {names}: fewer than {need} accepted averages each; no FRF")

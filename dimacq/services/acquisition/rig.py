@@ -29,7 +29,7 @@ from dimacq.devices.daq import Daq
 from dimacq.devices.loadcell import LoadCell
 from dimacq.errors import SetupError
 from dimacq.io.rig_file import RigFile
-from dimacq.model.channels import axis_name
+from dimacq.model.channels import axis_name, input_name
 from dimacq.model.frf import FrfData
 from dimacq.model.impact import ImpactSettings
 from dimacq.model.setup import TestSetup
@@ -471,7 +471,7 @@ def run_impact_session(
             e = setup.excitations[j]
             asked[0] += 1
             message = (
-                f"strike input {j + 1}: {axis_name(e.node, e.direction)} "
+                f"strike input {j + 1}: {input_name(e)} "
                 f"(average {accepted[j] + 1} of {wanted}, input {j + 1} of {n_in}, "
                 f"request {asked[0]})"
             )
@@ -510,7 +510,7 @@ def run_impact_session(
         loadcell_outputs=loadcell_outputs,
         on_event=on_event,
         on_lost=on_lost,
-        input_labels=[axis_name(e.node, e.direction) for e in setup.excitations],
+        input_labels=[input_name(e) for e in setup.excitations],
         prior=prior,
     )
     return session.run()

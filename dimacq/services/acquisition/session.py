@@ -63,7 +63,7 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import asdict
+from dataclasses import asdict, dataclass, field
 from typing import Literal
 
 import numpy as np
@@ -126,6 +126,31 @@ def _n_gauges(lc: LoadCell) -> int:
     """Gauges of a load cell: its own count when it says (a cell on DAQ inputs), else 12."""
     n = getattr(lc, "n_gauges", None)
     return int(n) if isinstance(n, int) else 12
+
+
+@dataclass
+class _RunState:
+    """What a run has gathered so far: the accepted records per input (one input's at a time:
+    dropped once its FRF is in), every average's record, where the next strike is looked for,
+    the FRFs filled input by input and the accepted count of each finished input."""
+
+    records: list[list[Mapping[str, NDArray[np.float64]]]]
+    history: list[AverageRecord] = field(default_factory=list)
+    armed_from: int = 0
+    finished_early: bool = False
+    H_all: NDArray[np.complex128] | None = None
+    coh_all: NDArray[np.float64] | None = None
+    freqs: NDArray[np.float64] | None = None
+    n_accepted: list[int] = field(default_factory=list)
+
+
+@dataclass
+class _InputCount:
+    """One input's strikes: rejected, attempted (the budget) and lost to sample gaps."""
+
+    rejected: int = 0
+    attempts: int = 0
+    lost: int = 0
 
 
 class ImpactSession(ImpactStream):
@@ -427,6 +452,37 @@ class ImpactSession(ImpactStream):
         self._lost = [0] * n_in
         self._rearmed = False
         self._start_run()
+        aligner, known = self._aligners(fs)
+        # Streamed: an input's FRF is estimated as soon as its averages are in, and its records
+        # are dropped (memory: one input's records, not the whole test's).
+        st = _RunState(records)
+        need = min(s.min_averages, s.averages_per_input)
+        stopped = False
+        try:
+            for j in range(n_in):
+                self._acquire_input(j, st, fs)
+                self._input_done(j, st, fs, need, known, aligner)
+            self._stop_devices()
+            stopped = True
+        finally:
+            if not stopped:
+                self._stop_after_error()
+            if self.writer is not None:
+                self.writer.flush()
+        short = self._incomplete(st.n_accepted, need)
+        H_all, coh_all, freqs = st.H_all, st.coh_all, st.freqs
+        assert H_all is not None and coh_all is not None and freqs is not None
+        for msg in aligner.finish(freqs, H_all, coh_all):  # the run's delay, every input
+            self._event({"device": "loadcell", "kind": "alignment", "message": msg})
+        kept = [j for j in range(n_in) if j not in set(short)]
+        if short:  # drop the incomplete inputs' empty columns
+            H_all, coh_all = H_all[:, :, kept], coh_all[:, :, kept]
+        return self._result(freqs, H_all, coh_all, st.history, st.n_accepted, kept, short, need)
+
+    def _aligners(self, fs: float) -> tuple[DataAligner, KnownResponses]:
+        """The load cells' delay fit (:class:`DataAligner`) and held-value correction
+        (:class:`KnownResponses`) of this run."""
+        s = self.settings
         # the noise of FRF lines under the response window is shared by ~its equivalent noise
         # bandwidth in lines: the delay fit's σ counts the independent ones
         w_out = (
@@ -446,185 +502,228 @@ class ImpactSession(ImpactStream):
         known = KnownResponses(
             self.loadcells, [b.data.shape[0] for b in self._lc_bufs], len(self.response_rows)
         )
-        # Streamed: an input's FRF is estimated as soon as its averages are in, and its records
-        # are dropped (memory: one input's records, not the whole test's).
-        H_all: NDArray[np.complex128] | None = None
-        coh_all: NDArray[np.float64] | None = None
-        freqs: NDArray[np.float64] | None = None
-        n_accepted: list[int] = []
-        history: list[AverageRecord] = []
-        need = min(s.min_averages, s.averages_per_input)
-        stopped = False
-        try:
-            armed_from = 0
-            finished_early = False
-            for j in range(n_in):
-                rejected = 0
-                attempts = 0
-                lost = 0
-                while len(records[j]) < s.averages_per_input and not finished_early:
-                    if self.should_finish is not None and self.should_finish():
-                        finished_early = True
-                        break
-                    attempts += 1
-                    if attempts > s.max_attempts_factor * s.averages_per_input:
-                        break
-                    try:
-                        # a strike asked for now lands after the DAQ's clock now, however far
-                        # the host is behind it: anything before is an earlier request's
-                        # (module docstring, step 3)
-                        now = self.daq.samples_clocked_now()
-                        search_from = max(armed_from, self._daq_buf.end, now or 0)
-                        if self.operator is not None:
-                            self.operator(j, search_from + s.hit_delay_samples)
-                        t = self._wait_trigger(j, search_from)
-                        s0 = t - s.pretrigger_samples
-                        self._until(s0 + s.record_samples)
-                    except DeviceLostError as err:
-                        self._restart(err, j)  # bounded by max_restarts, not the strikes
-                        attempts -= 1
-                        armed_from = 0
-                        continue
-                    except StrikeLost as gap:
-                        # not the operator's strike nor the article's: not counted against the
-                        # strike budget, counted (and reported) on its own, with its own bound
-                        attempts -= 1
-                        lost += 1
-                        self._lost[j] += 1
-                        armed_from = self._daq_buf.end
-                        msg = (
-                            f"input {self.input_names[j]}: strike lost ({gap}) while waiting for "
-                            f"it; {lost} lost on this input"
-                        )
-                        out_of_lost = lost >= s.max_attempts_factor * s.averages_per_input
-                        msg += (
-                            "; no more strikes asked for this input"
-                            if out_of_lost
-                            else "; asking for it again"
-                        )
-                        log.warning("%s", msg)
-                        self._event({"device": "daq", "kind": "strike_lost", "message": msg})
-                        if self.on_lost is not None:
-                            self.on_lost(j, str(gap))
-                        if self.progress is not None:
-                            self.progress(
-                                Progress(
-                                    j, n_in, len(records[j]), s.averages_per_input, rejected, msg
-                                )
-                            )
-                        if out_of_lost:
-                            break
-                        continue
-                    reasons, rec = self._check(j, s0, s.record_samples)
-                    decision: Decision = "reject" if reasons else "accept"
-                    if self.review is not None:
-                        asked = self._ask_review(j, len(history), tuple(reasons), rec, fs)
-                        if asked == "redo":
-                            decision = "redo"
-                            reasons.append(OPERATOR_REDO)
-                        elif asked == "reject" and not reasons:
-                            decision = "reject"
-                            reasons.append(OPERATOR_REJECT)
-                        elif asked == "override" and reasons:
-                            holes = unusable_reasons(reasons)
-                            if holes:  # the caller should have refused it: say so, keep it out
-                                log.warning("override of %s refused: %s", reasons, holes)
-                                reasons.append(f"override refused: {'; '.join(holes)}")
-                            else:
-                                decision = "accept"
-                                reasons.append(OPERATOR_OVERRIDE)
-                    ok = decision == "accept"
-                    if ok:
-                        records[j].append(rec)
-                        self._n_acc[j] += 1
-                    else:
-                        rejected += 1
-                    if decision == "redo":  # the input starts again: its averages and budget
-                        records[j] = []
-                        rejected, attempts, lost = 0, 0, 0
-                        history = [
-                            AverageRecord(
-                                h.input_index, h.first_sample, h.n_samples, False, (OPERATOR_REDO,)
-                            )
-                            if h.input_index == j and h.accepted
-                            else h
-                            for h in history
-                        ]
-                    ar = AverageRecord(j, s0, s.record_samples, ok, tuple(reasons))
-                    history.append(ar)
-                    if self.writer is not None:
-                        self.writer.log_average(asdict(ar))
-                    if self.on_average is not None:
-                        self.on_average(j, len(history) - 1, ok, ar.reasons, rec)
-                    armed_from = s0 + s.record_samples
-                    if self._rearmed:  # the run restarted while the hit waited: from its start
-                        armed_from, self._rearmed = 0, False
-                    self._trim(armed_from - s.pretrigger_samples)
-                    for lc in self.loadcells:  # between records: a cell on its own clock
-                        realign = getattr(lc, "realign", None)  # may move its alignment now
-                        if realign is not None:
-                            realign()
-                    msg = (
-                        f"input {self.input_names[j]}: average {len(records[j])}/"
-                        f"{s.averages_per_input}"
-                        + (f" rejected: {'; '.join(reasons)}" if reasons else "")
-                    )
-                    log.info(msg)
-                    if self.progress is not None:
-                        self.progress(
-                            Progress(j, n_in, len(records[j]), s.averages_per_input, rejected, msg)
-                        )
-                n_accepted.append(len(records[j]))
-                if len(records[j]) >= need:  # fewer: incomplete, no FRF (coherence would be 1)
-                    f_j, H_j, coh_j = self._frf(records[j], fs)
-                    known.apply(f_j, H_j)
-                    # a load cell on its own clock: its residual delay fitted from the data
-                    where = f"input {self.input_names[j]}"
-                    ranges = [
-                        (h.first_sample, h.n_samples)
-                        for h in history
-                        if h.input_index == j and h.accepted
-                    ]
-                    for msg in aligner.align(j, f_j, H_j, coh_j, where, ranges):
-                        self._event({"device": "loadcell", "kind": "alignment", "message": msg})
-                    if H_all is None:  # filled input by input: no stacking copy at the end
-                        H_all = np.zeros((*H_j.shape, n_in), dtype=H_j.dtype)
-                        coh_all = np.zeros((*coh_j.shape, n_in))
-                        freqs = f_j
-                    assert coh_all is not None
-                    H_all[:, :, j] = H_j
-                    coh_all[:, :, j] = coh_j
-                    if self.on_input is not None:
-                        self.on_input(j, coh_j)
-                records[j] = []
+        return aligner, known
+
+    def _acquire_input(self, j: int, st: _RunState, fs: float) -> None:
+        """Strike input ``j`` until its averages are in, its strike budget is spent or the
+        caller asks to finish (``st.finished_early``)."""
+        s = self.settings
+        c = _InputCount()
+        while len(st.records[j]) < s.averages_per_input and not st.finished_early:
+            if self.should_finish is not None and self.should_finish():
+                st.finished_early = True
+                break
+            c.attempts += 1
+            if c.attempts > s.max_attempts_factor * s.averages_per_input:
+                break
+            try:
+                # a strike asked for now lands after the DAQ's clock now, however far
+                # the host is behind it: anything before is an earlier request's
+                # (module docstring, step 3)
+                now = self.daq.samples_clocked_now()
+                search_from = max(st.armed_from, self._daq_buf.end, now or 0)
+                if self.operator is not None:
+                    self.operator(j, search_from + s.hit_delay_samples)
+                t = self._wait_trigger(j, search_from)
+                s0 = t - s.pretrigger_samples
+                self._until(s0 + s.record_samples)
+            except DeviceLostError as err:
+                self._restart(err, j)  # bounded by max_restarts, not the strikes
+                c.attempts -= 1
+                st.armed_from = 0
+                continue
+            except StrikeLost as gap:
+                # not the operator's strike nor the article's: not counted against the
+                # strike budget, counted (and reported) on its own, with its own bound
+                c.attempts -= 1
+                if self._strike_lost(j, gap, c, st):
+                    break
+                continue
+            self._book_average(j, s0, c, st, fs)
+
+    def _strike_lost(self, j: int, gap: StrikeLost, c: _InputCount, st: _RunState) -> bool:
+        """Count and report a strike of input ``j`` lost to a sample gap; True when the input
+        has lost as many as its strike budget (no more strikes asked for it)."""
+        s = self.settings
+        c.lost += 1
+        self._lost[j] += 1
+        st.armed_from = self._daq_buf.end
+        msg = f"input {self.input_names[j]}: strike lost ({gap}) while waiting for it; {c.lost} lost on this input"
+        out_of_lost = c.lost >= s.max_attempts_factor * s.averages_per_input
+        msg += "; no more strikes asked for this input" if out_of_lost else "; asking for it again"
+        log.warning("%s", msg)
+        self._event({"device": "daq", "kind": "strike_lost", "message": msg})
+        if self.on_lost is not None:
+            self.on_lost(j, str(gap))
+        if self.progress is not None:
+            self.progress(
+                Progress(
+                    j,
+                    len(self.input_rows),
+                    len(st.records[j]),
+                    s.averages_per_input,
+                    c.rejected,
+                    msg,
+                )
+            )
+        return out_of_lost
+
+    def _decision(
+        self,
+        j: int,
+        number: int,
+        reasons: list[str],
+        rec: Mapping[str, NDArray[np.float64]],
+        fs: float,
+    ) -> Decision:
+        """The checks' decision on a hit, and the operator's when the hit is reviewed (its
+        reason appended to ``reasons``)."""
+        decision: Decision = "reject" if reasons else "accept"
+        if self.review is not None:
+            asked = self._ask_review(j, number, tuple(reasons), rec, fs)
+            if asked == "redo":
+                decision = "redo"
+                reasons.append(OPERATOR_REDO)
+            elif asked == "reject" and not reasons:
+                decision = "reject"
+                reasons.append(OPERATOR_REJECT)
+            elif asked == "override" and reasons:
+                holes = unusable_reasons(reasons)
+                if holes:  # the caller should have refused it: say so, keep it out
+                    log.warning("override of %s refused: %s", reasons, holes)
+                    reasons.append(f"override refused: {'; '.join(holes)}")
+                else:
+                    decision = "accept"
+                    reasons.append(OPERATOR_OVERRIDE)
+        return decision
+
+    def _book_average(self, j: int, s0: int, c: _InputCount, st: _RunState, fs: float) -> None:
+        """Check, decide and record the average of input ``j`` starting at DAQ sample ``s0``;
+        re-arm after it."""
+        s = self.settings
+        reasons, rec = self._check(j, s0, s.record_samples)
+        decision = self._decision(j, len(st.history), reasons, rec, fs)
+        ok = decision == "accept"
+        if ok:
+            st.records[j].append(rec)
+            self._n_acc[j] += 1
+        else:
+            c.rejected += 1
+        if decision == "redo":  # the input starts again: its averages and budget
+            st.records[j] = []
+            c.rejected, c.attempts, c.lost = 0, 0, 0
+            st.history = [
+                AverageRecord(h.input_index, h.first_sample, h.n_samples, False, (OPERATOR_REDO,))
+                if h.input_index == j and h.accepted
+                else h
+                for h in st.history
+            ]
+        ar = AverageRecord(j, s0, s.record_samples, ok, tuple(reasons))
+        st.history.append(ar)
+        if self.writer is not None:
+            self.writer.log_average(asdict(ar))
+        if self.on_average is not None:
+            self.on_average(j, len(st.history) - 1, ok, ar.reasons, rec)
+        st.armed_from = s0 + s.record_samples
+        if self._rearmed:  # the run restarted while the hit waited: from its start
+            st.armed_from, self._rearmed = 0, False
+        self._trim(st.armed_from - s.pretrigger_samples)
+        for lc in self.loadcells:  # between records: a cell on its own clock
+            realign = getattr(lc, "realign", None)  # may move its alignment now
+            if realign is not None:
+                realign()
+        msg = (
+            f"input {self.input_names[j]}: average {len(st.records[j])}/"
+            f"{s.averages_per_input}" + (f" rejected: {'; '.join(reasons)}" if reasons else "")
+        )
+        log.info(msg)
+        if self.progress is not None:
+            self.progress(
+                Progress(
+                    j,
+                    len(self.input_rows),
+                    len(st.records[j]),
+                    s.averages_per_input,
+                    c.rejected,
+                    msg,
+                )
+            )
+
+    def _input_done(
+        self,
+        j: int,
+        st: _RunState,
+        fs: float,
+        need: int,
+        known: KnownResponses,
+        aligner: DataAligner,
+    ) -> None:
+        """Input ``j``'s FRFs into the run's arrays when it has ``need`` averages (fewer:
+        incomplete, no FRF, the coherence would be 1); its records dropped."""
+        st.n_accepted.append(len(st.records[j]))
+        if len(st.records[j]) >= need:
+            f_j, H_j, coh_j = self._frf(st.records[j], fs)
+            known.apply(f_j, H_j)
+            # a load cell on its own clock: its residual delay fitted from the data
+            where = f"input {self.input_names[j]}"
+            ranges = [
+                (h.first_sample, h.n_samples)
+                for h in st.history
+                if h.input_index == j and h.accepted
+            ]
+            for msg in aligner.align(j, f_j, H_j, coh_j, where, ranges):
+                self._event({"device": "loadcell", "kind": "alignment", "message": msg})
+            if st.H_all is None:  # filled input by input: no stacking copy at the end
+                st.H_all = np.zeros((*H_j.shape, len(self.input_rows)), dtype=H_j.dtype)
+                st.coh_all = np.zeros((*coh_j.shape, len(self.input_rows)))
+                st.freqs = f_j
+            assert st.coh_all is not None
+            st.H_all[:, :, j] = H_j
+            st.coh_all[:, :, j] = coh_j
+            if self.on_input is not None:
+                self.on_input(j, coh_j)
+        st.records[j] = []
+
+    def _stop_devices(self) -> None:
+        """Stop the DAQ and the load cells at the run's end; read the cells' rest (so that its
+        gaps are reported) and check their pulse counts against the DAQ's clock."""
+        self.daq.stop()
+        tail = self.daq.read_buffered()
+        n_received = self._daq_buf.end if tail is None else tail.first_sample + tail.n_samples
+        # the load cells counted every pulse the DAQ clocked, received by the host or not
+        n_clocked = self.daq.samples_clocked
+        if n_clocked is None:
+            n_clocked = n_received
+        for k, lc in enumerate(self.loadcells):
+            counted = lc.stop()
+            if counted > self._lc_bufs[k].end:
+                # the rest of the run (after the last average): read so that its gaps are
+                # reported too, not kept
+                self._ingest_lc(k, lc.read_until(counted))
+            ev = lc.verify_count(n_clocked)
+            if ev is not None:
+                self._event({"device": f"loadcell{k}", **asdict(ev)})
+
+    def _stop_after_error(self) -> None:
+        """Stop the DAQ and the load cells after an error, keeping the original error."""
+        if self.daq.running:
             self.daq.stop()
-            tail = self.daq.read_buffered()
-            n_received = self._daq_buf.end if tail is None else tail.first_sample + tail.n_samples
-            # the load cells counted every pulse the DAQ clocked, received by the host or not
-            n_clocked = self.daq.samples_clocked
-            if n_clocked is None:
-                n_clocked = n_received
-            for k, lc in enumerate(self.loadcells):
-                counted = lc.stop()
-                if counted > self._lc_bufs[k].end:
-                    # the rest of the run (after the last average): read so that its gaps are
-                    # reported too, not kept
-                    self._ingest_lc(k, lc.read_until(counted))
-                ev = lc.verify_count(n_clocked)
-                if ev is not None:
-                    self._event({"device": f"loadcell{k}", **asdict(ev)})
-            stopped = True
-        finally:
-            if not stopped:
-                if self.daq.running:
-                    self.daq.stop()
-                for lc in self.loadcells:
-                    try:
-                        lc.stop()
-                    except Exception:  # keep the original error
-                        log.exception("stopping load cell after an error failed")
-            if self.writer is not None:
-                self.writer.flush()
+        for lc in self.loadcells:
+            try:
+                lc.stop()
+            except Exception:  # keep the original error
+                log.exception("stopping load cell after an error failed")
+
+    def _incomplete(self, n_accepted: Sequence[int], need: int) -> list[int]:
+        """The inputs with fewer than ``need`` accepted averages (logged).
+
+        Raises
+        ------
+        DataError
+            Every input is incomplete: no FRF at all.
+        """
+        s = self.settings
+        n_in = len(self.input_rows)
         short = [j for j in range(n_in) if n_accepted[j] < need]
         if short:
             log.warning(
@@ -646,13 +745,7 @@ class ImpactSession(ImpactStream):
                 f"{s.max_attempts_factor * s.averages_per_input} strikes{lost_note} (see the "
                 "rejected reasons in the acquisition file); fix the cause and repeat those inputs"
             )
-        assert H_all is not None and coh_all is not None and freqs is not None
-        for msg in aligner.finish(freqs, H_all, coh_all):  # the run's delay, every input
-            self._event({"device": "loadcell", "kind": "alignment", "message": msg})
-        kept = [j for j in range(n_in) if j not in set(short)]
-        if short:  # drop the incomplete inputs' empty columns
-            H_all, coh_all = H_all[:, :, kept], coh_all[:, :, kept]
-        return self._result(freqs, H_all, coh_all, history, n_accepted, kept, short, need)
+        return short
 
     def _frf(
         self, recs: Sequence[Mapping[str, NDArray[np.float64]]], fs: float

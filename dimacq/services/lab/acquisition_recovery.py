@@ -16,7 +16,7 @@ from dimacq.errors import (
     DataError,
     DeviceStateError,
 )
-from dimacq.model.channels import axis_name
+from dimacq.model.channels import input_name
 from dimacq.model.impact import ImpactSettings
 from dimacq.persistence import models as m
 from dimacq.services.acquisition.resume import KeptAverages, kept_averages
@@ -100,7 +100,7 @@ class AcquisitionRecovery(ServiceParts):
         applied = self._applied(cfg)
         need = min(applied.min_averages, applied.averages_per_input)
         short = [
-            f"{axis_name(e.node, e.direction)} ({len(r)} of {applied.averages_per_input})"
+            f"{input_name(e)} ({len(r)} of {applied.averages_per_input})"
             for e, r in zip(struck.excitations, kept, strict=True)
             if len(r) < need
         ]

@@ -13,7 +13,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from dimacq.errors import DataError
-from dimacq.model.channels import axis_name
+from dimacq.model.channels import input_name
 from dimacq.model.frf import FrfData
 from dimacq.model.setup import TestSetup
 from dimacq.services.lab.common import json_safe
@@ -158,7 +158,7 @@ def merge_frfs(base: FrfData, new: FrfData, setup: TestSetup) -> FrfData:
         else np.stack([c for c in cohs if c is not None], axis=2)
     )
     done = {(c.node, c.direction) for c in chans}
-    missing = [axis_name(n, d) for n, d in order if (n, d) not in done]
+    missing = [input_name(e) for e in setup.excitations if (e.node, e.direction) not in done]
     meta = {k: v for k, v in {**base.meta, **new.meta}.items() if k != "incomplete_inputs"}
     if missing:
         meta["incomplete_inputs"] = ", ".join(missing)

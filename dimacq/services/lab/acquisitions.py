@@ -33,6 +33,7 @@ from __future__ import annotations
 import logging
 import queue
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -48,7 +49,7 @@ from dimacq.errors import (
     DimacqError,
     SetupError,
 )
-from dimacq.model.channels import axis_name
+from dimacq.model.channels import input_name
 from dimacq.model.impact import ImpactSettings
 from dimacq.model.setup import TestSetup
 from dimacq.persistence import ArrayStore, Database
@@ -173,96 +174,13 @@ class AcquisitionService(AcquisitionReview, AcquisitionRecovery):
         cfg = {k: v for k, v in config.items() if k not in INTERNAL_KEYS}
         setup_id = int(cfg["setup_id"])
         setup = self.store.require_setup(setup_id)
-        n_ex = len(setup.excitations)
-        inputs = cfg.get("inputs")
-        if inputs is None:
-            inputs = list(range(n_ex))
-        inputs = [int(j) for j in inputs]
-        bad = [j for j in inputs if not 0 <= j < n_ex]
-        if bad or not inputs or len(set(inputs)) != len(inputs):
-            raise SetupError(
-                f"inputs {inputs}: give distinct indices of setup {setup_id}'s inputs, "
-                f"0..{n_ex - 1}"
-            )
-        cfg["inputs"] = inputs
-        merge_id = cfg.get("merge_frf_id")
-        if merge_id is not None:
-            merged = self.store.frf(int(merge_id))
-            if merged is None:
-                raise SetupError(
-                    f"merge_frf_id {merge_id} does not exist; give an FRF set of setup {setup_id}"
-                )
-            if merged[1] != setup:
-                raise SetupError(
-                    f"merge_frf_id {merge_id} belongs to another setup; give an FRF set of "
-                    f"setup {setup_id} (its inputs are replaced or appended)"
-                )
-        # The DAQ and the load cells are this acquisition's from here until its job ends: the
-        # check and the claim are one step (three requests sent together: one starts).
-        claim = self.devices.owners.claim(ACQUISITION_DEVICES, "an acquisition being started")
-        try:
-            if self.jobs.running("acquisition"):  # another stand's process, same service
-                raise DeviceStateError("an acquisition is already running; stop it or wait for it")
-            struck = setup.model_copy(
-                update={"excitations": tuple(setup.excitations[j] for j in inputs)}
-            )
-            rig = self._build_rig(struck, cfg)  # raises DeviceError if the devices are not there
-        except BaseException:
-            self.devices.owners.release(claim)
-            raise
-        try:
-            # every setting as applied (request < rig file < rig), before any job starts
-            applied = self._check(rig, struck, cfg)
-        except BaseException:
-            rig.close()
-            self.devices.owners.release(claim)
-            raise
-        # the minimum of accepted averages per input, stated with the acquisition (the request,
-        # else the rig file's [acquisition], else the service's min_averages setting)
-        defaults: Mapping[str, Any] = getattr(rig, "defaults", {})
-        if cfg.get("min_averages") is None:
-            cfg["min_averages"] = defaults.get("min_averages", self.settings.min_averages)
-        if cfg.get("averages_per_input") is None:
-            cfg["averages_per_input"] = defaults.get(
-                "averages_per_input", ImpactSettings().averages_per_input
-            )
-        # the settings the FRFs are estimated with: a finish after a crash estimates them alike
-        cfg["applied"] = json_safe(applied.model_dump()) if applied is not None else None
-        prior: list[list[Record]] | None = None
-        if resume is not None:
-            cfg["resume_of"] = resume.acq_id
-            cfg["kept_per_input"] = {
-                str(j): len(r) for j, r in zip(inputs, resume.kept, strict=True)
-            }
-            prior = resume.kept
-        # the struck inputs by point and direction ("101+X"): what the operator strikes
-        cfg["input_names"] = [axis_name(e.node, e.direction) for e in struck.excitations]
-        try:
-            with self.db.session() as s:
-                old = None
-                if resume is not None:  # still resumable (nobody resumed it meanwhile)
-                    old = s.get(m.Acquisition, resume.acq_id)
-                    if old is None or old.state not in RESUMABLE:
-                        raise DeviceStateError(
-                            f"acquisition {resume.acq_id} is "
-                            f"{'deleted' if old is None else old.state}: it cannot be resumed"
-                        )
-                row = m.Acquisition(
-                    setup_id=setup_id, config=json_safe(cfg), state="running", stand=self.stand
-                )
-                s.add(row)
-                s.flush()
-                acq_id = int(row.id)
-                if old is not None:
-                    old.state = "resumed"
-                    old.message = (
-                        f"resumed by acquisition {acq_id} (its {sum(map(len, prior or []))} "
-                        "accepted averages are used there; the missing ones are struck)"
-                    )
-        except BaseException:
-            rig.close()
-            self.devices.owners.release(claim)
-            raise
+        inputs = self._struck_inputs(cfg, setup_id, setup)
+        struck = setup.model_copy(
+            update={"excitations": tuple(setup.excitations[j] for j in inputs)}
+        )
+        claim, rig, applied = self._claim_rig(struck, cfg)
+        prior = self._complete_config(cfg, rig, applied, inputs, struck, resume)
+        acq_id = self._insert(setup_id, cfg, resume, prior, rig, claim)
         self.devices.owners.rename(claim, f"acquisition {acq_id}")
         live = LiveReview(
             review=bool(cfg.get("review")),
@@ -291,6 +209,149 @@ class AcquisitionService(AcquisitionReview, AcquisitionRecovery):
         out = self.get(acq_id)
         assert out is not None
         return out
+
+    def _struck_inputs(self, cfg: dict[str, Any], setup_id: int, setup: TestSetup) -> list[int]:
+        """The setup indices of the inputs to strike (``cfg["inputs"]``, default all; written
+        back), and the FRF set to merge into checked to be of this setup.
+
+        Raises
+        ------
+        SetupError
+            Indices out of range or repeated; a merge set that does not exist or belongs to
+            another setup.
+        """
+        n_ex = len(setup.excitations)
+        inputs = cfg.get("inputs")
+        if inputs is None:
+            inputs = list(range(n_ex))
+        inputs = [int(j) for j in inputs]
+        bad = [j for j in inputs if not 0 <= j < n_ex]
+        if bad or not inputs or len(set(inputs)) != len(inputs):
+            raise SetupError(
+                f"inputs {inputs}: give distinct indices of setup {setup_id}'s inputs, "
+                f"0..{n_ex - 1}"
+            )
+        cfg["inputs"] = inputs
+        merge_id = cfg.get("merge_frf_id")
+        if merge_id is not None:
+            merged = self.store.frf(int(merge_id))
+            if merged is None:
+                raise SetupError(
+                    f"merge_frf_id {merge_id} does not exist; give an FRF set of setup {setup_id}"
+                )
+            if merged[1] != setup:
+                raise SetupError(
+                    f"merge_frf_id {merge_id} belongs to another setup; give an FRF set of "
+                    f"setup {setup_id} (its inputs are replaced or appended)"
+                )
+        return inputs
+
+    def _claim_rig(
+        self, struck: TestSetup, cfg: Mapping[str, Any]
+    ) -> tuple[Any, Any, ImpactSettings | None]:
+        """Claim the DAQ and the load cells, build the rig of the struck inputs and check the
+        settings as applied; on any failure the rig is closed and the claim released.
+
+        Returns
+        -------
+        claim, rig, applied
+        """
+        # The DAQ and the load cells are this acquisition's from here until its job ends: the
+        # check and the claim are one step (three requests sent together: one starts).
+        claim = self.devices.owners.claim(ACQUISITION_DEVICES, "an acquisition being started")
+        try:
+            if self.jobs.running("acquisition"):  # another stand's process, same service
+                raise DeviceStateError("an acquisition is already running; stop it or wait for it")
+            rig = self._build_rig(struck, cfg)  # raises DeviceError if the devices are not there
+        except BaseException:
+            self.devices.owners.release(claim)
+            raise
+        try:
+            # every setting as applied (request < rig file < rig), before any job starts
+            applied = self._check(rig, struck, cfg)
+        except BaseException:
+            rig.close()
+            self.devices.owners.release(claim)
+            raise
+        return claim, rig, applied
+
+    def _complete_config(
+        self,
+        cfg: dict[str, Any],
+        rig: Any,
+        applied: ImpactSettings | None,
+        inputs: list[int],
+        struck: TestSetup,
+        resume: Resume | None,
+    ) -> list[list[Record]] | None:
+        """Write into ``cfg`` what the acquisition is stored with (averages, the applied
+        settings, what it resumes, the inputs' names); the kept averages it starts from."""
+        # the minimum of accepted averages per input, stated with the acquisition (the request,
+        # else the rig file's [acquisition], else the service's min_averages setting)
+        defaults: Mapping[str, Any] = getattr(rig, "defaults", {})
+        if cfg.get("min_averages") is None:
+            cfg["min_averages"] = defaults.get("min_averages", self.settings.min_averages)
+        if cfg.get("averages_per_input") is None:
+            cfg["averages_per_input"] = defaults.get(
+                "averages_per_input", ImpactSettings().averages_per_input
+            )
+        # the settings the FRFs are estimated with: a finish after a crash estimates them alike
+        cfg["applied"] = json_safe(applied.model_dump()) if applied is not None else None
+        prior: list[list[Record]] | None = None
+        if resume is not None:
+            cfg["resume_of"] = resume.acq_id
+            cfg["kept_per_input"] = {
+                str(j): len(r) for j, r in zip(inputs, resume.kept, strict=True)
+            }
+            prior = resume.kept
+        # the struck inputs by point and direction ("101+X"): what the operator strikes
+        cfg["input_names"] = [input_name(e) for e in struck.excitations]
+        return prior
+
+    def _insert(
+        self,
+        setup_id: int,
+        cfg: Mapping[str, Any],
+        resume: Resume | None,
+        prior: list[list[Record]] | None,
+        rig: Any,
+        claim: Any,
+    ) -> int:
+        """Store the new acquisition (running) and mark the one it resumes ``resumed``, in one
+        transaction; its id. On failure the rig is closed and the claim released.
+
+        Raises
+        ------
+        DeviceStateError
+            The acquisition to resume was deleted or resumed meanwhile.
+        """
+        try:
+            with self.db.session() as s:
+                old = None
+                if resume is not None:  # still resumable (nobody resumed it meanwhile)
+                    old = s.get(m.Acquisition, resume.acq_id)
+                    if old is None or old.state not in RESUMABLE:
+                        raise DeviceStateError(
+                            f"acquisition {resume.acq_id} is "
+                            f"{'deleted' if old is None else old.state}: it cannot be resumed"
+                        )
+                row = m.Acquisition(
+                    setup_id=setup_id, config=json_safe(cfg), state="running", stand=self.stand
+                )
+                s.add(row)
+                s.flush()
+                acq_id = int(row.id)
+                if old is not None:
+                    old.state = "resumed"
+                    old.message = (
+                        f"resumed by acquisition {acq_id} (its {sum(map(len, prior or []))} "
+                        "accepted averages are used there; the missing ones are struck)"
+                    )
+        except BaseException:
+            rig.close()
+            self.devices.owners.release(claim)
+            raise
+        return acq_id
 
     def _check(self, rig: Any, setup: TestSetup, cfg: Mapping[str, Any]) -> ImpactSettings | None:
         from dimacq.services.acquisition.rig import check_impact_test
@@ -335,114 +396,60 @@ class AcquisitionService(AcquisitionReview, AcquisitionRecovery):
     ) -> dict[str, Any]:
         from dimacq.services.acquisition.rig import run_impact_test
 
-        inputs: list[int] = list(cfg["inputs"])
         names: list[str] = list(cfg["input_names"])
-        fs = live.sample_rate_hz
-        n_resp = len(setup.responses)
-
-        def review(
-            j: int,
-            average_index: int,
-            reasons: tuple[str, ...],
-            record: Mapping[str, NDArray[np.float64]],
-            wait_s: float,
-        ) -> Decision | None:
-            number = average_index + 1
-            with live.lock:
-                if not live.review:  # never on, or switched off: the checks decide this hit
-                    if live.pending is not None and live.pending["number"] == number:
-                        live.pending = None
-                        live.answered = number
-                    return "accept"
-                announce = live.answered != number and (
-                    live.pending is None or live.pending["number"] != number
-                )
-                if announce:
-                    holes = unusable_reasons(reasons)
-                    live.pending_view = hit_view(record, fs, n_resp)
-                    live.pending = {
-                        "number": number,
-                        "input_index": inputs[j],
-                        "input_name": names[j],
-                        "reasons": list(reasons),
-                        # accept: "yes" (the checks passed), "override" (only with override:
-                        # true) or "no" (samples lost: the record has holes)
-                        "accept": "no" if holes else ("override" if reasons else "yes"),
-                    }
-            if announce:
-                ctx.progress(
-                    ctx_fraction[0],
-                    f"hit {number} on input {inputs[j] + 1}: accept, reject or redo the input",
-                )
-            if live.finish.is_set():
-                return "reject"
-            ctx.check_cancelled()
-            try:
-                got, decision = live.decisions.get(timeout=wait_s)
-            except queue.Empty:
-                return None
-            if got != number:  # a decision on a hit already decided: ignored
-                return None
-            if decision == "redo":
-                self._supersede(acq_id, inputs[j])
-            return decision
-
-        def on_lost(j: int, reason: str) -> None:
-            live.lost[j].append(reason)
-
-        def on_input(j: int, coherence: NDArray[np.float64]) -> None:
-            c = coherence[:, :n_resp]
-            live.coherence[j] = float(np.nanmean(c)) if np.isfinite(c).any() else None
-
-        def on_average(
-            input_index: int,
-            average_index: int,
-            accepted: bool,
-            reasons: Sequence[str],
-            record: Mapping[str, NDArray[np.float64]],
-        ) -> None:
-            input_index = inputs[input_index]  # the session counts the struck inputs only
-            live.last_view = (
-                live.pending_view if live.pending_view is not None else hit_view(record, fs, n_resp)
+        hooks = _RunHooks(
+            self,
+            ctx,
+            acq_id,
+            list(cfg["inputs"]),
+            names,
+            live.sample_rate_hz,
+            len(setup.responses),
+            live,
+        )
+        state, message = "failed", ""
+        try:
+            frf = run_impact_test(
+                rig,
+                struck,
+                cfg,
+                on_average=hooks.on_average,
+                on_progress=hooks.on_progress,
+                review=hooks.review,  # always: the operator may switch review on or off mid-run
+                should_finish=live.finish.is_set,
+                on_input=hooks.on_input,
+                on_event=self.devices.on_acquisition_event,
+                prior=prior,
+                on_lost=hooks.on_lost,
             )
-            live.last_view = {
-                **live.last_view,
-                "number": average_index + 1,
-                "input_index": input_index,
-                "accepted": accepted,
-                "reasons": list(reasons),
-            }
-            live.pending_view = None
-            number = average_index + 1
-            rel = f"acquisitions/{acq_id:06d}/avg-{number:05d}.h5"
-            reason = "; ".join(reasons)
-            attrs = {
-                "acquisition_id": acq_id,
-                "input_index": input_index,
-                "number": number,
-                "accepted": accepted,
-                "reason": reason,
-                "sample_rate_hz": fs,
-            }
-            self.arrays.write(rel, record, attrs)  # on this stand's disk first, always
-            row = {
-                "acquisition_id": acq_id,
-                "input_index": input_index,
-                "number": number,
-                "accepted": accepted,
-                "reason": reason,
-                "path": rel,
-                "stand": self.stand,
-            }
-            if not self.outbox.write(self.db, rel, lambda s: s.add(m.Average(**row))):
-                log.warning("average %s kept on disk; registered when the database is back", rel)
+            fid = self._store_run_frf(ctx, acq_id, setup_id, setup, cfg, frf)
+            state, message = _outcome(frf, fid, cfg)
+            message += lost_note(names, live.lost)
+            return {"acquisition_id": acq_id, "frf_id": fid}
+        except DimacqError as err:
+            state = "cancelled" if ctx.cancelled else "failed"
+            message = str(err) + lost_note(names, live.lost)
+            raise
+        finally:
+            self._end_run(acq_id, rig, claim, live, state, message)
 
-        ctx_fraction = [0.0]
+    def _store_run_frf(
+        self,
+        ctx: JobContext,
+        acq_id: int,
+        setup_id: int,
+        setup: TestSetup,
+        cfg: Mapping[str, Any],
+        frf: Any,
+    ) -> int:
+        """Store the run's FRFs (merged into ``merge_frf_id`` when given) after its averages,
+        retrying while the database is away; its FRF set id.
 
-        def on_progress(fraction: float, message: str) -> None:
-            ctx_fraction[0] = fraction
-            ctx.progress(fraction, message)
-            ctx.check_cancelled()  # raising here stops the session; its finally stops the devices
+        Raises
+        ------
+        DatabaseUnavailableError
+            The database stayed away: the FRFs are kept in a file named in the message.
+        """
 
         def wait(msg: str) -> None:
             ctx.progress(1.0, msg)
@@ -461,71 +468,50 @@ class AcquisitionService(AcquisitionReview, AcquisitionRecovery):
             self._set(acq_id, frf_id=fid)
             return fid
 
-        state, message = "failed", ""
         try:
-            frf = run_impact_test(
-                rig,
-                struck,
-                cfg,
-                on_average=on_average,
-                on_progress=on_progress,
-                review=review,  # always: the operator may switch review on or off mid-run
-                should_finish=live.finish.is_set,
-                on_input=on_input,
-                on_event=self.devices.on_acquisition_event,
-                prior=prior,
-                on_lost=on_lost,
+            return self.db.retry(
+                lambda: store_frf(frf),
+                what="store the FRFs",
+                timeout_s=self.settings.database_retry_s,
+                on_wait=wait,
             )
-            try:
-                fid = self.db.retry(
-                    lambda: store_frf(frf),
-                    what="store the FRFs",
-                    timeout_s=self.settings.database_retry_s,
-                    on_wait=wait,
-                )
-            except DatabaseUnavailableError as err:
-                rel = self.arrays.write(
-                    f"frfs/unsaved-acquisition-{acq_id:06d}.h5", *frf_to_arrays(frf)
-                )
-                raise DatabaseUnavailableError(
-                    f"{err}; the FRFs are kept in {self.arrays.path(rel)} and every average in "
-                    f"{self.arrays.path(f'acquisitions/{acq_id:06d}')} (import the FRFs when "
-                    "the database is back)"
-                ) from err
-            state, message = "succeeded", f"FRFs stored as FRF set {fid}"
-            if frf.meta.get("incomplete_inputs"):
-                # not a success: inputs are missing from the set (state "incomplete")
-                state = "incomplete"
-                # the count the run held them to: min_averages capped at the averages asked
-                need = min(int(cfg["min_averages"]), int(cfg.get("averages_per_input") or 10**6))
-                message += (
-                    f"; inputs {frf.meta['incomplete_inputs']} incomplete (fewer than "
-                    f"{need} accepted averages): no FRF, strike them again "
-                    f"(append them into FRF set {fid})"
-                )
-            message += lost_note(names, live.lost)
-            return {"acquisition_id": acq_id, "frf_id": fid}
-        except DimacqError as err:
-            state = "cancelled" if ctx.cancelled else "failed"
-            message = str(err) + lost_note(names, live.lost)
-            raise
-        finally:
-            rig.close()
-            if claim is not None:  # the devices are free for the next job
-                self.devices.owners.release(claim)
-            live.pending = live.pending_view = None
+        except DatabaseUnavailableError as err:
+            rel = self.arrays.write(
+                f"frfs/unsaved-acquisition-{acq_id:06d}.h5", *frf_to_arrays(frf)
+            )
+            raise DatabaseUnavailableError(
+                f"{err}; the FRFs are kept in {self.arrays.path(rel)} and every average in "
+                f"{self.arrays.path(f'acquisitions/{acq_id:06d}')} (import the FRFs when "
+                "the database is back)"
+            ) from err
 
-            def final(s: Any) -> None:
-                r = s.get(m.Acquisition, acq_id)
-                assert r is not None
-                r.state, r.message = state, message
+    def _end_run(
+        self,
+        acq_id: int,
+        rig: Any,
+        claim: Claim | None,
+        live: LiveReview,
+        state: str,
+        message: str,
+    ) -> None:
+        """Close the rig, free the devices, drop the waiting hit and store the acquisition's
+        end state (through the outbox when the database is away)."""
+        rig.close()
+        if claim is not None:  # the devices are free for the next job
+            self.devices.owners.release(claim)
+        live.pending = live.pending_view = None
 
-            if not self.outbox.write(self.db, f"acquisition {acq_id} {state}", final):
-                log.warning(
-                    "acquisition %d %s; its state is stored when the database is back",
-                    acq_id,
-                    state,
-                )
+        def final(s: Any) -> None:
+            r = s.get(m.Acquisition, acq_id)
+            assert r is not None
+            r.state, r.message = state, message
+
+        if not self.outbox.write(self.db, f"acquisition {acq_id} {state}", final):
+            log.warning(
+                "acquisition %d %s; its state is stored when the database is back",
+                acq_id,
+                state,
+            )
 
     # ------------------------------------------------------------------ read and stop
     def all(self, limit: int | None = None, offset: int = 0) -> Page[AcquisitionInfo]:
@@ -688,3 +674,148 @@ class AcquisitionService(AcquisitionReview, AcquisitionRecovery):
             "arrays": {k: json_safe(np.asarray(v)) for k, v in arrays.items()},
             "shapes": {k: list(np.shape(v)) for k, v in arrays.items()},
         }
+
+
+def _outcome(frf: Any, fid: int, cfg: Mapping[str, Any]) -> tuple[str, str]:
+    """The end state and message of a run whose FRFs are stored as set ``fid``: ``succeeded``,
+    or ``incomplete`` when inputs are missing from the set (named, with the count they lack)."""
+    state, message = "succeeded", f"FRFs stored as FRF set {fid}"
+    if frf.meta.get("incomplete_inputs"):
+        # not a success: inputs are missing from the set (state "incomplete")
+        state = "incomplete"
+        # the count the run held them to: min_averages capped at the averages asked
+        need = min(int(cfg["min_averages"]), int(cfg.get("averages_per_input") or 10**6))
+        message += (
+            f"; inputs {frf.meta['incomplete_inputs']} incomplete (fewer than "
+            f"{need} accepted averages): no FRF, strike them again "
+            f"(append them into FRF set {fid})"
+        )
+    return state, message
+
+
+@dataclass
+class _RunHooks:
+    """The impact session's callbacks of one acquisition job: the operator's review of each
+    hit, strikes lost, each input's coherence, each average stored, the job's progress.
+
+    ``inputs`` and ``names`` are the struck inputs' setup indices and names (the session counts
+    the struck inputs only); ``fraction`` is the job's last progress.
+    """
+
+    svc: AcquisitionService
+    ctx: JobContext
+    acq_id: int
+    inputs: list[int]
+    names: list[str]
+    fs: float
+    n_resp: int
+    live: LiveReview
+    fraction: float = 0.0
+
+    def review(
+        self,
+        j: int,
+        average_index: int,
+        reasons: tuple[str, ...],
+        record: Mapping[str, NDArray[np.float64]],
+        wait_s: float,
+    ) -> Decision | None:
+        live, inputs = self.live, self.inputs
+        number = average_index + 1
+        with live.lock:
+            if not live.review:  # never on, or switched off: the checks decide this hit
+                if live.pending is not None and live.pending["number"] == number:
+                    live.pending = None
+                    live.answered = number
+                return "accept"
+            announce = live.answered != number and (
+                live.pending is None or live.pending["number"] != number
+            )
+            if announce:
+                holes = unusable_reasons(reasons)
+                live.pending_view = hit_view(record, self.fs, self.n_resp)
+                live.pending = {
+                    "number": number,
+                    "input_index": inputs[j],
+                    "input_name": self.names[j],
+                    "reasons": list(reasons),
+                    # accept: "yes" (the checks passed), "override" (only with override:
+                    # true) or "no" (samples lost: the record has holes)
+                    "accept": "no" if holes else ("override" if reasons else "yes"),
+                }
+        if announce:
+            self.ctx.progress(
+                self.fraction,
+                f"hit {number} on input {inputs[j] + 1}: accept, reject or redo the input",
+            )
+        if live.finish.is_set():
+            return "reject"
+        self.ctx.check_cancelled()
+        try:
+            got, decision = live.decisions.get(timeout=wait_s)
+        except queue.Empty:
+            return None
+        if got != number:  # a decision on a hit already decided: ignored
+            return None
+        if decision == "redo":
+            self.svc._supersede(self.acq_id, inputs[j])
+        return decision
+
+    def on_lost(self, j: int, reason: str) -> None:
+        self.live.lost[j].append(reason)
+
+    def on_input(self, j: int, coherence: NDArray[np.float64]) -> None:
+        c = coherence[:, : self.n_resp]
+        self.live.coherence[j] = float(np.nanmean(c)) if np.isfinite(c).any() else None
+
+    def on_average(
+        self,
+        input_index: int,
+        average_index: int,
+        accepted: bool,
+        reasons: Sequence[str],
+        record: Mapping[str, NDArray[np.float64]],
+    ) -> None:
+        live, svc, acq_id = self.live, self.svc, self.acq_id
+        input_index = self.inputs[input_index]  # the session counts the struck inputs only
+        live.last_view = (
+            live.pending_view
+            if live.pending_view is not None
+            else hit_view(record, self.fs, self.n_resp)
+        )
+        live.last_view = {
+            **live.last_view,
+            "number": average_index + 1,
+            "input_index": input_index,
+            "accepted": accepted,
+            "reasons": list(reasons),
+        }
+        live.pending_view = None
+        number = average_index + 1
+        rel = f"acquisitions/{acq_id:06d}/avg-{number:05d}.h5"
+        reason = "; ".join(reasons)
+        attrs = {
+            "acquisition_id": acq_id,
+            "input_index": input_index,
+            "number": number,
+            "accepted": accepted,
+            "reason": reason,
+            "sample_rate_hz": self.fs,
+        }
+        svc.arrays.write(rel, record, attrs)  # on this stand's disk first, always
+        row = {
+            "acquisition_id": acq_id,
+            "input_index": input_index,
+            "number": number,
+            "accepted": accepted,
+            "reason": reason,
+            "path": rel,
+            "stand": svc.stand,
+        }
+        if not svc.outbox.write(svc.db, rel, lambda s: s.add(m.Average(**row))):
+            log.warning("average %s kept on disk; registered when the database is back", rel)
+
+    def on_progress(self, fraction: float, message: str) -> None:
+        self.fraction = fraction
+        self.ctx.progress(fraction, message)
+        self.ctx.check_cancelled()  # raising here stops the session; its finally stops the devices

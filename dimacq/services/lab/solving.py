@@ -10,6 +10,7 @@ unit, band and orientation repair), so its figure shows the solution that was st
 from __future__ import annotations
 
 import io
+import json
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
@@ -24,6 +25,7 @@ from dimacq.model.frf import FrfData
 from dimacq.model.properties import inertia_to_vector
 from dimacq.model.setup import TestSetup
 from dimacq.pipeline.chain_calibration import ChainCalibration
+from dimacq.services.lab.request_once import RequestOnce
 from dimacq.services.lab.store import StoredSolution, TestStore
 
 __all__ = ["AnalysisService", "Param", "SolutionSpectrum", "SolveOptions"]
@@ -168,8 +170,11 @@ class AnalysisService:
 
     def __init__(self, store: TestStore) -> None:
         self.store = store
+        self._once = RequestOnce("solve")
 
-    def solve(self, frf_id: int, options: SolveOptions) -> StoredSolution | None:
+    def solve(
+        self, frf_id: int, options: SolveOptions, idempotency_key: str | None = None
+    ) -> StoredSolution | None:
         """DIM solution of an FRF set through :func:`dimacq.services.solve.analysis.analyse`; stored
         with its options. None if the set does not exist.
 
@@ -179,16 +184,34 @@ class AnalysisService:
         ``repair_orientation``). The result carries ``verdict`` (ok/warn/fail) and
         ``verdict_reasons``; a ``fail`` is stored and returned like any other, its reasons say
         why it must not be used.
+
+        One solution per request (:class:`~dimacq.services.lab.request_once.RequestOnce`): an
+        identical solve (same FRF set, same options) while one runs is refused
+        (:class:`~dimacq.errors.DeviceStateError`, naming it); ``idempotency_key`` sent again
+        with the same request returns the solution it stored.
         """
-        got = self.store.frf(frf_id)
-        if got is None:
-            return None
-        frf, setup = got
-        frf, setup, gamma = self._prepared(frf, setup, options)
-        result = self._analyse(frf, setup, options).to_json()
-        if gamma is not None:
-            result["frf_scale_factor"] = gamma
-        return self.store.save_solution(frf_id, options.model_dump(), result)
+        request = json.dumps([frf_id, options.model_dump(mode="json")], sort_keys=True)
+        with self._once.once(
+            request,
+            idempotency_key,
+            f"a solve of FRF set {frf_id} with the same options",
+            f"its solution is stored once when it ends (GET /api/solutions?frf_id={frf_id})",
+        ) as slot:
+            if slot.replay is not None:
+                stored = self.store.solution(slot.replay)
+                if stored is not None:
+                    return stored
+            got = self.store.frf(frf_id)
+            if got is None:
+                return None
+            frf, setup = got
+            frf, setup, gamma = self._prepared(frf, setup, options)
+            result = self._analyse(frf, setup, options).to_json()
+            if gamma is not None:
+                result["frf_scale_factor"] = gamma
+            sol = self.store.save_solution(frf_id, options.model_dump(), result)
+            slot.done(sol.id)
+            return sol
 
     def chain(self, solution_id: int | None) -> ChainCalibration | None:
         """The chain calibration a stored reference-mass solve measured (None for no id).
