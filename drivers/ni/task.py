@@ -446,6 +446,16 @@ class NiDsaTask:
                 left[k] = published if published is not None else daqmx
             elif published is not None and abs(published - daqmx) > 0:
                 ai.ai_filter_delay_adjustment = published - daqmx
+                log.info(
+                    "task %s: %s (%s) input delay %.6g ms published, NI-DAQmx's filter delay "
+                    "%.6g ms: %.4g us adjusted",
+                    self.name,
+                    ch.placed.physical,
+                    ch.placed.slot.model,
+                    published * 1e3,
+                    daqmx * 1e3,
+                    (published - daqmx) * 1e6,
+                )
         if left and (
             len(left) < len(ais) or max(left.values()) - min(left.values()) > _DELAY_TOL_S
         ):
