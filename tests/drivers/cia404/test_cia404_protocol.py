@@ -187,3 +187,14 @@ def test_unit_codes_follow_the_cia303_2_coding() -> None:
 
     volt, ratio = 0x26, 0x00
     assert p.UNIT_CODES == {"V": code(0, volt), "mV": code(-3, volt), "mV/V": code(-3, ratio)}
+
+
+def test_heartbeat_states_of_cia301() -> None:
+    """CiA 301 heartbeat / boot-up byte: 0x00 boot-up, 0x04 stopped, 0x05 operational,
+    0x7F pre-operational, as python-canopen's own table has them (its 0x00 is named
+    INITIALISING: the boot-up message)."""
+    from canopen.nmt import NMT_STATES as theirs
+
+    ours = {"INITIALISING" if v == "BOOT-UP" else v: k for k, v in p.NMT_STATES.items()}
+    assert ours == {v: k for k, v in theirs.items() if v in ours}
+    assert sorted(ours) == ["INITIALISING", "OPERATIONAL", "PRE-OPERATIONAL", "STOPPED"]
