@@ -66,10 +66,6 @@ T = TypeVar("T")
 
 #: abort codes that mean "not now" (the device's state) rather than "not ever"
 _STATE_ABORTS = {0x08000021, 0x08000022}
-#: the receive side is drained when no TPDO frame came in for this long, s
-_QUIET_S = 0.1
-#: how often the drain looks at the frames received, s
-_POLL_S = 0.004
 
 
 def _new_samples() -> CounterStream[LoadCellEvent]:
@@ -169,8 +165,6 @@ class CanopenLoadCell(SyncCounting, WireDriver):
         self._last_abs: list[int] = []
         self._cond = threading.Condition()
         self._frames: dict[int, list[bytes]] = {}
-        #: TPDO frames received since open (the drain at stop watches it grow)
-        self._received = 0
         self._emcys: list[Any] = []
         self._bad: set[int] = set()
         self._last_heartbeat: float | None = None
@@ -258,7 +252,6 @@ class CanopenLoadCell(SyncCounting, WireDriver):
         # no wake-up per frame: the reader decodes what came in every few ms, in bulk
         with self._cond:
             self._frames[can_id].append(bytes(data))
-            self._received += 1
 
     def _on_emcy(self, emcy: Any) -> None:
         with self._cond:
@@ -404,22 +397,9 @@ class CanopenLoadCell(SyncCounting, WireDriver):
         """NMT PRE-OPERATIONAL, then the pulses counted (``0x2102``); frames in flight are kept."""
         self._exchange("NMT stop", lambda d: self.node.nmt.send_command(0x80))
         self.streaming = False
-        self._wait_quiet()
         pulses = self._read_int(p.COUNTER)
         self._final_pulses = pulses
         return pulses
-
-    def _wait_quiet(self) -> None:
-        """Until no TPDO frame came in for :data:`_QUIET_S`: the frames the node sent before it
-        stopped and the host has not yet received (a loaded host, a long run) are ahead of the
-        answer to the next SDO in one receive queue, so that answer waits behind them. Waits
-        while frames keep coming, at most ``max(2 s, 10 × timeout_s)``."""
-        quiet, give_up = Deadline(_QUIET_S), Deadline(max(2.0, 10 * self.timeout_s))
-        seen = -1
-        while not quiet.passed and not give_up.passed:
-            if self._received != seen:
-                seen, quiet = self._received, Deadline(_QUIET_S)
-            time.sleep(_POLL_S)
 
     @property
     def _who(self) -> str:
