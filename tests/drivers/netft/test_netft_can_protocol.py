@@ -194,3 +194,9 @@ def test_the_highest_base_address_keeps_its_answers_11_bit() -> None:
     p.check_base(0x7FF - 6)
     with pytest.raises(SetupError):
         p.check_base(0x7FF - 5)
+
+
+def test_the_axes_in_the_order_of_the_rdt_record() -> None:
+    """ATI's RDT record (its demo ``NetFTSensor.java``) and the long answers carry Fx, Fy, Fz,
+    Tx, Ty, Tz in that order: the order every ``counts`` array of the codec is in."""
+    assert p.AXES == ("Fx", "Fy", "Fz", "Tx", "Ty", "Tz")
