@@ -309,7 +309,101 @@ class StreamedReads:
         )
 
 
-class DaqTask(StreamedReads):
+def accel_config(
+    physical_channel: int,
+    name: str,
+    sensitivity_mv_per_g: float,
+    range_v: float,
+    iepe_current_ma: float,
+    coupling: Literal["AC", "DC"],
+) -> ChannelConfig:
+    """An IEPE accelerometer's channel in m/s²: ``v = S · 10⁻³ / g₀`` V per m/s² from ``S``
+    mV/g, the IEPE current in whole µA."""
+    v = sensitivity_mv_per_g * 1e-3 / STANDARD_GRAVITY
+    ua = round(iepe_current_ma * 1000)
+    return ChannelConfig(physical_channel, name, "m/s^2", v, range_v, ua, coupling)
+
+
+def force_config(
+    physical_channel: int,
+    name: str,
+    sensitivity_mv_per_n: float,
+    range_v: float,
+    iepe_current_ma: float,
+    coupling: Literal["AC", "DC"],
+) -> ChannelConfig:
+    """An IEPE force sensor's channel in N: ``v = S · 10⁻³`` V per N from ``S`` mV/N, the
+    IEPE current in whole µA."""
+    ua = round(iepe_current_ma * 1000)
+    return ChannelConfig(
+        physical_channel, name, "N", sensitivity_mv_per_n * 1e-3, range_v, ua, coupling
+    )
+
+
+class ScanTask(StreamedReads):
+    """The channel table and timing of a task scanning its device's inputs: one
+    :class:`ChannelConfig` per physical input, returned in ascending input order (the order on
+    the wire), the checks every such device makes before its own (not while running, one config
+    per input, a positive sensitivity), the rate and frame size."""
+
+    name: str
+    samples_per_frame: int
+    _running: bool
+    _channels: dict[int, ChannelConfig]
+
+    def _check_new_channel(self, config: ChannelConfig) -> None:
+        """Raises DeviceStateError (running) or SetupError (input taken, sensitivity ≤ 0)."""
+        if self._running:
+            raise DeviceStateError(f"task {self.name} is running; stop it before adding channels")
+        if config.physical_channel in self._channels:
+            raise SetupError(
+                f"physical channel {config.physical_channel} is already in task {self.name} "
+                f"as {self._channels[config.physical_channel].name!r}; use another input"
+            )
+        if not config.sensitivity_v_per_unit > 0:
+            raise SetupError(
+                f"channel {config.name}: sensitivity {config.sensitivity_v_per_unit} V/unit; "
+                "give the transducer's positive sensitivity from its calibration sheet"
+            )
+
+    def add_channel(self, config: ChannelConfig) -> None:
+        raise NotImplementedError
+
+    def add_voltage_channel(
+        self,
+        physical_channel: int,
+        name: str,
+        *,
+        range_v: float = 10.0,
+        coupling: Literal["AC", "DC"] = "DC",
+    ) -> None:
+        self.add_channel(ChannelConfig(physical_channel, name, "V", 1.0, range_v, 0, coupling))
+
+    @property
+    def channels(self) -> tuple[ChannelConfig, ...]:
+        return tuple(self._channels[k] for k in sorted(self._channels))
+
+    @property
+    def channel_names(self) -> tuple[str, ...]:
+        return tuple(c.name for c in self.channels)
+
+    @property
+    def running(self) -> bool:
+        return self._running
+
+    def configure_timing(self, sample_rate_hz: float, samples_per_frame: int = 256) -> None:
+        if self._running:
+            raise DeviceStateError(f"task {self.name} is running; stop it before changing timing")
+        if not sample_rate_hz > 0 or samples_per_frame <= 0:
+            raise SetupError(
+                f"[daq] sample_rate_hz = {sample_rate_hz:g}, samples_per_frame = "
+                f"{samples_per_frame}: give a positive rate and frame size"
+            )
+        self.sample_rate_hz = float(sample_rate_hz)
+        self.samples_per_frame = int(samples_per_frame)
+
+
+class DaqTask(ScanTask):
     """An acquisition task: channels → timing → start → read → stop (NI-DAQmx style).
 
     Channels come back in ascending physical-channel order (the order on the wire); their
@@ -348,18 +442,7 @@ class DaqTask(StreamedReads):
         return self.device.identify()
 
     def add_channel(self, config: ChannelConfig) -> None:
-        if self._running:
-            raise DeviceStateError(f"task {self.name} is running; stop it before adding channels")
-        if config.physical_channel in self._channels:
-            raise SetupError(
-                f"physical channel {config.physical_channel} is already in task {self.name} "
-                f"as {self._channels[config.physical_channel].name!r}; use another input"
-            )
-        if not config.sensitivity_v_per_unit > 0:
-            raise SetupError(
-                f"channel {config.name}: sensitivity {config.sensitivity_v_per_unit} V/unit; "
-                "give the transducer's positive sensitivity from its calibration sheet"
-            )
+        self._check_new_channel(config)
         range_code(config.range_v)
         if config.iepe_current_ua not in p.IEPE_CURRENTS_UA:
             raise SetupError(
@@ -380,14 +463,8 @@ class DaqTask(StreamedReads):
     ) -> None:
         """IEPE accelerometer; data in m/s²."""
         self.add_channel(
-            ChannelConfig(
-                physical_channel,
-                name,
-                "m/s^2",
-                sensitivity_mv_per_g * 1e-3 / STANDARD_GRAVITY,
-                range_v,
-                round(iepe_current_ma * 1000),
-                coupling,
+            accel_config(
+                physical_channel, name, sensitivity_mv_per_g, range_v, iepe_current_ma, coupling
             )
         )
 
@@ -403,52 +480,12 @@ class DaqTask(StreamedReads):
     ) -> None:
         """IEPE force transducer (impact hammer, shaker stinger load cell); data in N."""
         self.add_channel(
-            ChannelConfig(
-                physical_channel,
-                name,
-                "N",
-                sensitivity_mv_per_n * 1e-3,
-                range_v,
-                round(iepe_current_ma * 1000),
-                coupling,
+            force_config(
+                physical_channel, name, sensitivity_mv_per_n, range_v, iepe_current_ma, coupling
             )
         )
 
-    def add_voltage_channel(
-        self,
-        physical_channel: int,
-        name: str,
-        *,
-        range_v: float = 10.0,
-        coupling: Literal["AC", "DC"] = "DC",
-    ) -> None:
-        self.add_channel(ChannelConfig(physical_channel, name, "V", 1.0, range_v, 0, coupling))
-
-    @property
-    def channels(self) -> tuple[ChannelConfig, ...]:
-        return tuple(self._channels[k] for k in sorted(self._channels))
-
-    @property
-    def channel_names(self) -> tuple[str, ...]:
-        return tuple(c.name for c in self.channels)
-
-    # -- timing ------------------------------------------------------------------------------
-    def configure_timing(self, sample_rate_hz: float, samples_per_frame: int = 256) -> None:
-        if self._running:
-            raise DeviceStateError(f"task {self.name} is running; stop it before changing timing")
-        if sample_rate_hz <= 0 or samples_per_frame <= 0:
-            raise SetupError(
-                f"sample rate {sample_rate_hz} Hz / {samples_per_frame} samples per frame; "
-                "give positive values"
-            )
-        self.sample_rate_hz = float(sample_rate_hz)
-        self.samples_per_frame = int(samples_per_frame)
-
     # -- run -----------------------------------------------------------------------------------
-    @property
-    def running(self) -> bool:
-        return self._running
-
     @property
     def frame_bytes(self) -> int:
         return p.frame_size(self.samples_per_frame, len(self._channels))

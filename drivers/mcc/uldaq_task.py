@@ -36,7 +36,7 @@ from typing import Any, Literal
 import numpy as np
 
 from dimacq.devices.daq import ChannelConfig, DaqEvent
-from dimacq.drivers.daq.driver import STANDARD_GRAVITY, StreamedReads
+from dimacq.drivers.daq.driver import ScanTask, accel_config, force_config
 from dimacq.drivers.mcc.driver import MccIdentity
 from dimacq.drivers.stream import CounterStream
 from dimacq.errors import DeviceStateError, DeviceTimeoutError, SetupError
@@ -187,7 +187,7 @@ def scan_plan(
     )
 
 
-class UldaqTask(StreamedReads):
+class UldaqTask(ScanTask):
     """A task on one uldaq device (``uldaq.DaqDevice``, connected).
 
     Parameters
@@ -230,39 +230,20 @@ class UldaqTask(StreamedReads):
         serial = str(d.unique_id)
         return MccIdentity(str(d.product_name), serial, (serial,), "uldaq", self.n_inputs)
 
-    @property
-    def channels(self) -> tuple[ChannelConfig, ...]:
-        return tuple(self._channels[k] for k in sorted(self._channels))
-
-    @property
-    def channel_names(self) -> tuple[str, ...]:
-        return tuple(c.name for c in self.channels)
-
-    @property
-    def running(self) -> bool:
-        return self._running
-
     def add_channel(self, config: ChannelConfig) -> None:
-        if self._running:
-            raise DeviceStateError(f"task {self.name} is running; stop it before adding channels")
-        if config.physical_channel in self._channels:
-            raise SetupError(
-                f"physical channel {config.physical_channel} is already in task {self.name}; "
-                "use another input"
-            )
-        if not config.sensitivity_v_per_unit > 0:
-            raise SetupError(
-                f"channel {config.name}: sensitivity {config.sensitivity_v_per_unit} V/unit; "
-                "give the transducer's positive sensitivity from its calibration sheet"
-            )
+        self._check_new_channel(config)
         self._channels[config.physical_channel] = config
-        scan_plan(
-            self.ul,
-            self.channels,
-            self.ranges,
-            n_inputs=self.n_inputs,
-            supports_iepe=self.supports_iepe,
-        )
+        try:
+            scan_plan(
+                self.ul,
+                self.channels,
+                self.ranges,
+                n_inputs=self.n_inputs,
+                supports_iepe=self.supports_iepe,
+            )
+        except SetupError:
+            del self._channels[config.physical_channel]
+            raise
 
     def add_accel_channel(
         self,
@@ -275,9 +256,11 @@ class UldaqTask(StreamedReads):
         coupling: Literal["AC", "DC"] = "AC",
     ) -> None:
         """An IEPE accelerometer (excitation on when ``iepe_current_ma`` > 0); data in m/s²."""
-        v = sensitivity_mv_per_g * 1e-3 / STANDARD_GRAVITY
-        ua = round(iepe_current_ma * 1000)
-        self.add_channel(ChannelConfig(physical_channel, name, "m/s^2", v, range_v, ua, coupling))
+        self.add_channel(
+            accel_config(
+                physical_channel, name, sensitivity_mv_per_g, range_v, iepe_current_ma, coupling
+            )
+        )
 
     def add_force_channel(
         self,
@@ -290,33 +273,11 @@ class UldaqTask(StreamedReads):
         coupling: Literal["AC", "DC"] = "AC",
     ) -> None:
         """An IEPE force transducer (hammer); data in N."""
-        ua = round(iepe_current_ma * 1000)
         self.add_channel(
-            ChannelConfig(
-                physical_channel, name, "N", sensitivity_mv_per_n * 1e-3, range_v, ua, coupling
+            force_config(
+                physical_channel, name, sensitivity_mv_per_n, range_v, iepe_current_ma, coupling
             )
         )
-
-    def add_voltage_channel(
-        self,
-        physical_channel: int,
-        name: str,
-        *,
-        range_v: float = 10.0,
-        coupling: Literal["AC", "DC"] = "DC",
-    ) -> None:
-        self.add_channel(ChannelConfig(physical_channel, name, "V", 1.0, range_v, 0, coupling))
-
-    def configure_timing(self, sample_rate_hz: float, samples_per_frame: int = 256) -> None:
-        if self._running:
-            raise DeviceStateError(f"task {self.name} is running; stop it before changing timing")
-        if not sample_rate_hz > 0 or samples_per_frame <= 0:
-            raise SetupError(
-                f"[daq] sample_rate_hz = {sample_rate_hz:g}, samples_per_frame = "
-                f"{samples_per_frame}: give a positive rate and frame size"
-            )
-        self.sample_rate_hz = float(sample_rate_hz)
-        self.samples_per_frame = int(samples_per_frame)
 
     # -- run ---------------------------------------------------------------------------------
     def start(self) -> None:

@@ -51,6 +51,37 @@ _DELAY_TOL_S = 1e-6
 
 
 @dataclass(frozen=True)
+class _IepeChannel:
+    """How NI-DAQmx takes one kind of IEPE sensor: the ``task.ai_channels`` method, its units
+    and sensitivity units (``(enum, member)`` names of ``nidaqmx.constants``), and our SI unit
+    with the size of NI's sensitivity unit in it (mV/g: g₀ m/s²; mV/N: 1 N)."""
+
+    method: str
+    units: tuple[str, str]
+    sensitivity_units: tuple[str, str]
+    si_unit: str
+    unit_in_si: float
+
+
+_IEPE_CHANNELS = {
+    "accel": _IepeChannel(
+        "add_ai_accel_chan",
+        ("AccelUnits", "METERS_PER_SECOND_SQUARED"),
+        ("AccelSensitivityUnits", "MILLIVOLTS_PER_G"),
+        "m/s^2",
+        STANDARD_GRAVITY,
+    ),
+    "force": _IepeChannel(
+        "add_ai_force_iepe_chan",
+        ("ForceUnits", "NEWTONS"),
+        ("ForceIEPESensorSensitivityUnits", "MILLIVOLTS_PER_NEWTON"),
+        "N",
+        1.0,
+    ),
+}
+
+
+@dataclass(frozen=True)
 class NiIdentity:
     model: str
     serial_number: str
@@ -142,6 +173,28 @@ class NiDsaTask:
         self._drop_built()
         self._chans[req.input] = _Chan(cfg, placed, sens, scale)
 
+    def _add_iepe(
+        self,
+        kind: Literal["accel", "force"],
+        physical_channel: int,
+        name: str,
+        sensitivity: float,
+        range_v: float,
+        iepe_current_ma: float,
+        coupling: Literal["AC", "DC"],
+    ) -> None:
+        """An IEPE sensor of ``kind`` with ``sensitivity`` in mV per its unit (g or N, as
+        NI-DAQmx takes it); the config in SI: ``v = sensitivity · 10⁻³ / u`` V per m/s² or N,
+        ``u`` = g₀ for an accelerometer, 1 for a force sensor."""
+        unit, per_si = _IEPE_CHANNELS[kind].si_unit, _IEPE_CHANNELS[kind].unit_in_si
+        cfg = ChannelConfig(
+            physical_channel, name, unit, sensitivity * 1e-3 / per_si, range_v, 0, coupling
+        )
+        req = ChannelRequest(
+            physical_channel, name, kind, "", iepe_current_ma, None, range_v, coupling
+        )
+        self._add(req, cfg, sensitivity)
+
     def add_accel_channel(
         self,
         physical_channel: int,
@@ -152,12 +205,10 @@ class NiDsaTask:
         iepe_current_ma: float = 4.0,
         coupling: Literal["AC", "DC"] = "AC",
     ) -> None:
-        v = sensitivity_mv_per_g * 1e-3 / STANDARD_GRAVITY
-        cfg = ChannelConfig(physical_channel, name, "m/s^2", v, range_v, 0, coupling)
-        req = ChannelRequest(
-            physical_channel, name, "accel", "", iepe_current_ma, None, range_v, coupling
-        )
-        self._add(req, cfg, sensitivity_mv_per_g)
+        self._add_iepe(
+            "accel", physical_channel, name, sensitivity_mv_per_g, range_v, iepe_current_ma,
+            coupling,
+        )  # fmt: skip
 
     def add_force_channel(
         self,
@@ -169,13 +220,10 @@ class NiDsaTask:
         iepe_current_ma: float = 4.0,
         coupling: Literal["AC", "DC"] = "AC",
     ) -> None:
-        cfg = ChannelConfig(
-            physical_channel, name, "N", sensitivity_mv_per_n * 1e-3, range_v, 0, coupling
-        )
-        req = ChannelRequest(
-            physical_channel, name, "force", "", iepe_current_ma, None, range_v, coupling
-        )
-        self._add(req, cfg, sensitivity_mv_per_n)
+        self._add_iepe(
+            "force", physical_channel, name, sensitivity_mv_per_n, range_v, iepe_current_ma,
+            coupling,
+        )  # fmt: skip
 
     def add_voltage_channel(
         self,
@@ -211,26 +259,15 @@ class NiDsaTask:
                 c.physical_channel, c.name, "voltage", "", 0.0, None, c.range_v, c.coupling
             )
             self._add(req, c, 1.0, 1.0 / c.sensitivity_v_per_unit)
-        elif c.units == "m/s^2":
-            mv_per_g = c.sensitivity_v_per_unit * STANDARD_GRAVITY * 1e3
-            ma = c.iepe_current_ua * 1e-3
-            self.add_accel_channel(
+        elif kind := next((k for k, v in _IEPE_CHANNELS.items() if v.si_unit == c.units), None):
+            self._add_iepe(
+                kind,  # type: ignore[arg-type]
                 c.physical_channel,
                 c.name,
-                mv_per_g,
-                range_v=c.range_v,
-                iepe_current_ma=ma,
-                coupling=c.coupling,
-            )
-        elif c.units == "N":
-            ma = c.iepe_current_ua * 1e-3
-            self.add_force_channel(
-                c.physical_channel,
-                c.name,
-                c.sensitivity_v_per_unit * 1e3,
-                range_v=c.range_v,
-                iepe_current_ma=ma,
-                coupling=c.coupling,
+                c.sensitivity_v_per_unit * _IEPE_CHANNELS[kind].unit_in_si * 1e3,
+                c.range_v,
+                c.iepe_current_ua * 1e-3,
+                c.coupling,
             )
         else:
             raise SetupError(
@@ -323,27 +360,18 @@ class NiDsaTask:
             )
         full = cfg.range_v / cfg.sensitivity_v_per_unit  # ± full scale, units
         excite = c.ExcitationSource.INTERNAL if pc.iepe_current_a > 0 else c.ExcitationSource.NONE
-        if pc.request.kind == "accel":
-            ai = task.ai_channels.add_ai_accel_chan(
+        iepe = _IEPE_CHANNELS.get(pc.request.kind)
+        if iepe is not None:
+            units_enum, units_name = iepe.units
+            sens_enum, sens_name = iepe.sensitivity_units
+            ai = getattr(task.ai_channels, iepe.method)(
                 phys,
                 cfg.name,
                 min_val=-full,
                 max_val=full,
-                units=c.AccelUnits.METERS_PER_SECOND_SQUARED,
+                units=getattr(getattr(c, units_enum), units_name),
                 sensitivity=ch.sensitivity,
-                sensitivity_units=c.AccelSensitivityUnits.MILLIVOLTS_PER_G,
-                current_excit_source=excite,
-                current_excit_val=pc.iepe_current_a,
-            )
-        elif pc.request.kind == "force":
-            ai = task.ai_channels.add_ai_force_iepe_chan(
-                phys,
-                cfg.name,
-                min_val=-full,
-                max_val=full,
-                units=c.ForceUnits.NEWTONS,
-                sensitivity=ch.sensitivity,
-                sensitivity_units=c.ForceIEPESensorSensitivityUnits.MILLIVOLTS_PER_NEWTON,
+                sensitivity_units=getattr(getattr(c, sens_enum), sens_name),
                 current_excit_source=excite,
                 current_excit_val=pc.iepe_current_a,
             )
@@ -418,6 +446,16 @@ class NiDsaTask:
                 left[k] = published if published is not None else daqmx
             elif published is not None and abs(published - daqmx) > 0:
                 ai.ai_filter_delay_adjustment = published - daqmx
+                log.info(
+                    "task %s: %s (%s) input delay %.6g ms published, NI-DAQmx's filter delay "
+                    "%.6g ms: %.4g us adjusted",
+                    self.name,
+                    ch.placed.physical,
+                    ch.placed.slot.model,
+                    published * 1e3,
+                    daqmx * 1e3,
+                    (published - daqmx) * 1e6,
+                )
         if left and (
             len(left) < len(ais) or max(left.values()) - min(left.values()) > _DELAY_TOL_S
         ):

@@ -76,7 +76,12 @@ TARGETS: dict[str, tuple[str, str, tuple[str, ...]]] = {
     "mcc": (
         "dimacq.drivers.mcc.protocol",
         "drivers/mcc/protocol.py",
-        ("tests/drivers/mcc/test_mcc_protocol.py", "tests/simulators/mcc/test_mcc_simulator.py"),
+        (
+            "tests/drivers/mcc/test_mcc_reference_exchanges.py",
+            "tests/drivers/mcc/test_mcc_protocol.py",
+            "tests/drivers/mcc/test_mcc_fpga.py",
+            "tests/simulators/mcc/test_mcc_simulator.py",
+        ),
     ),
     "loadcell": (
         "dimacq.drivers.loadcell.protocol",
@@ -173,13 +178,58 @@ def _fmt_mutants(fmt: str) -> list[tuple[str, str]]:
     return out
 
 
+_BITOPS = (ast.LShift, ast.RShift, ast.BitAnd, ast.BitOr, ast.BitXor)
+
+
+def _float_mutants(value: float) -> list[tuple[str, str]]:
+    return [("+0.1 %", repr(value * 1.001))] if value else [("+1e-3", "0.001")]
+
+
+def _bytes_mutants(value: bytes) -> list[tuple[str, str]]:
+    out = [("last byte +1", repr(value[:-1] + bytes([(value[-1] + 1) & 0xFF])))] if value else []
+    if len(value) > 1:
+        out.append(("one byte fewer", repr(value[:-1])))
+    return out
+
+
+def _hex_mutants(text: str) -> list[tuple[str, str]]:
+    """A ``bytes.fromhex`` argument: its bytes reversed, its last byte +1."""
+    data = bytes.fromhex(text)
+    out = [("last byte +1", repr((data[:-1] + bytes([(data[-1] + 1) & 0xFF])).hex()))]
+    if data[::-1] != data:
+        out.append(("bytes reversed", repr(data[::-1].hex())))
+    return out
+
+
+def _field_swaps(fmt: str) -> list[tuple[str, str]]:
+    """A struct layout with two adjacent fields of different codes swapped."""
+    order = fmt[0] if fmt[0] in "<>!=@" else ""
+    fields = re.findall(r"\d*[xcbB?hHiIlLqQnNefdsp]", fmt[len(order) :])
+    out = []
+    for k in range(len(fields) - 1):
+        if fields[k] != fields[k + 1]:
+            swapped = fields[:k] + [fields[k + 1], fields[k]] + fields[k + 2 :]
+            out.append((f"fields {k},{k + 1} swapped", order + "".join(swapped)))
+    return out
+
+
 def mutants(source: str) -> list[Mutant]:
-    """Every mutant of ``source`` (see the module docstring)."""
+    """Every mutant of ``source`` (see the module docstring).
+
+    In the value of each module-level or top-level class-level assignment (named by its
+    target): every int (``±1``, byte swap), float (``+0.1 %``), bytes constant (last byte
+    ``+1``, one byte fewer), ``bytes.fromhex`` argument, tuple of names (first two swapped) and
+    format string. Anywhere else (function bodies, dataclass defaults): every format string,
+    every int written in hexadecimal and every int operand of a bit operation (``<< 2``,
+    ``& 0x7F``: the protocol's numbers written inline). Nothing inside an f-string or a
+    ``raise`` (messages) is mutated.
+    """
     tree = ast.parse(source)
     lines = source.splitlines(keepends=True)
     starts = [0]
     for ln in lines:
         starts.append(starts[-1] + len(ln))
+    parents = {c: n for n in ast.walk(tree) for c in ast.iter_child_nodes(n)}
 
     def pos(node: ast.AST) -> tuple[int, int]:
         a = starts[node.lineno - 1] + len(
@@ -193,7 +243,51 @@ def mutants(source: str) -> list[Mutant]:
         )
         return a, b
 
+    def in_message(node: ast.AST) -> bool:
+        while node in parents:
+            node = parents[node]
+            if isinstance(node, (ast.JoinedStr, ast.Raise)):
+                return True
+        return False
+
+    def enclosing(node: ast.AST) -> str:
+        names = []
+        while node in parents:
+            node = parents[node]
+            if isinstance(node, (ast.FunctionDef, ast.ClassDef)):
+                names.append(node.name)
+        return ".".join(reversed(names))
+
     out: list[Mutant] = []
+    done: set[int] = set()
+
+    def add(name: str, node: ast.AST, pairs: list[tuple[str, str]]) -> None:
+        a, b = pos(node)
+        if a in done:
+            return
+        done.add(a)
+        for kind, new in pairs:
+            out.append(Mutant(name, node.lineno, kind, source[a:b], new, a, b))
+
+    def ints(value: int) -> list[tuple[str, str]]:
+        return [(k, hex(v) if v >= 0 else str(v)) for k, v in _int_mutants(value)]
+
+    def fmt_label(name: str, fmt: str, node: ast.AST) -> str:
+        return f"{name} {fmt!r}" + (f" col {node.col_offset}" if "DTYPE" in name else "")
+
+    def is_fmt(node: ast.AST) -> bool:
+        if not (isinstance(node, ast.Constant) and isinstance(node.value, str)):
+            return False
+        fmt = node.value
+        # with a byte order: a format, not a word ("lbf" is letters of codes too)
+        return fmt[:1] in "<>!=@|" and bool(_STRUCT.match(fmt) or _DTYPE.match(fmt))
+
+    def fmt_pairs(fmt: str) -> list[tuple[str, str]]:
+        pairs = [(k, repr(v)) for k, v in _fmt_mutants(fmt)]
+        if _STRUCT.match(fmt) and not _DTYPE.match(fmt):
+            pairs += [(k, repr(v)) for k, v in _field_swaps(fmt)]
+        return pairs
+
     bodies: list[tuple[str, list[ast.stmt]]] = [("", tree.body)]
     bodies += [(f"{n.name}.", n.body) for n in tree.body if isinstance(n, ast.ClassDef)]
     for prefix, body in bodies:
@@ -201,66 +295,82 @@ def mutants(source: str) -> list[Mutant]:
             if isinstance(stmt, ast.Assign) and len(stmt.targets) == 1:
                 target, value = stmt.targets[0], stmt.value
             elif isinstance(stmt, ast.AnnAssign) and stmt.value is not None and not prefix:
-                # (a dataclass field's default in a class body is not a protocol constant)
+                # (a dataclass field's default: below, with the inline numbers)
                 target, value = stmt.target, stmt.value
             else:
                 continue
             if not isinstance(target, ast.Name):
                 continue
             name = prefix + target.id
-            if (
-                isinstance(value, ast.Constant)
-                and isinstance(value.value, int)
-                and not isinstance(value.value, bool)
-            ):
-                a, b = pos(value)
-                for kind, v in _int_mutants(value.value):
-                    out.append(
-                        Mutant(
-                            name, stmt.lineno, kind, source[a:b], hex(v) if v >= 0 else str(v), a, b
-                        )
-                    )
-                continue
-            # format strings anywhere in the assigned value (struct.Struct("<ii"), np.dtype([...]))
             for node in ast.walk(value):
-                if isinstance(node, ast.Constant) and isinstance(node.value, str):
-                    fmt = node.value
-                    # with a byte order: a format, not a word ("lbf" is letters of codes too)
-                    if fmt[:1] not in "<>!=@|" or not (_STRUCT.match(fmt) or _DTYPE.match(fmt)):
-                        continue
-                    a, b = pos(node)
-                    for kind, new in _fmt_mutants(fmt):
-                        where = f"{name} {fmt!r}" + (
-                            f" col {node.col_offset}" if "DTYPE" in name else ""
+                if not isinstance(node, ast.Constant) or in_message(node):
+                    if (
+                        isinstance(node, ast.Tuple)
+                        and len(node.elts) > 1
+                        and all(
+                            isinstance(e, ast.Constant) and isinstance(e.value, str)
+                            for e in node.elts
                         )
-                        out.append(Mutant(where, node.lineno, kind, source[a:b], repr(new), a, b))
-    # struct formats used inline in functions (struct.unpack("<h", b))
+                        and node.elts[0].value != node.elts[1].value  # type: ignore[attr-defined]
+                    ):
+                        a, b = pos(node.elts[0])
+                        c, d = pos(node.elts[1])
+                        text = source[a:b], source[c:d]
+                        seg = source[a:d]
+                        out.append(
+                            Mutant(
+                                name,
+                                node.lineno,
+                                "first two swapped",
+                                seg,
+                                text[1] + source[b:c] + text[0],
+                                a,
+                                d,
+                            )
+                        )
+                    continue
+                v = node.value
+                if isinstance(v, bool):
+                    continue
+                if isinstance(v, int):
+                    add(name, node, ints(v))
+                elif isinstance(v, float):
+                    add(name, node, _float_mutants(v))
+                elif isinstance(v, bytes):
+                    add(name, node, _bytes_mutants(v))
+                elif is_fmt(node):
+                    add(fmt_label(name, v, node), node, fmt_pairs(v))
+                elif (
+                    isinstance(v, str)
+                    and isinstance(parents.get(node), ast.Call)
+                    and isinstance(parents[node].func, ast.Attribute)  # type: ignore[attr-defined]
+                    and parents[node].func.attr == "fromhex"  # type: ignore[attr-defined]
+                ):
+                    add(name, node, _hex_mutants(v))
+    # the numbers and formats written inline
     for node in ast.walk(tree):
-        if (
-            isinstance(node, ast.Call)
-            and isinstance(node.func, ast.Attribute)
-            and isinstance(node.func.value, ast.Name)
-            and node.func.value.id == "struct"
-            and node.args
-            and isinstance(node.args[0], ast.Constant)
-            and isinstance(node.args[0].value, str)
-        ):
-            fmt = node.args[0].value
-            a, b = pos(node.args[0])
-            if any(m.start == a for m in out):
-                continue
-            for kind, new in _fmt_mutants(fmt):
-                out.append(
-                    Mutant(
-                        f"struct.{node.func.attr}({fmt!r})",
-                        node.lineno,
-                        kind,
-                        source[a:b],
-                        repr(new),
-                        a,
-                        b,
-                    )
-                )
+        if not isinstance(node, ast.Constant) or in_message(node):
+            continue
+        v, where = node.value, enclosing(node)
+        if is_fmt(node):
+            call = parents.get(node)
+            label = (
+                f"{call.func.value.id}.{call.func.attr}({v!r})"  # type: ignore[attr-defined]
+                if isinstance(call, ast.Call)
+                and isinstance(call.func, ast.Attribute)
+                and isinstance(call.func.value, ast.Name)
+                and call.func.value.id == "struct"
+                else f"{where or 'module'} {v!r}"
+            )
+            add(label, node, fmt_pairs(v))
+        elif isinstance(v, int) and not isinstance(v, bool):
+            a, b = pos(node)
+            hexa = source[a:b].lower().startswith("0x")
+            parent = parents.get(node)
+            bitop = isinstance(parent, ast.BinOp) and isinstance(parent.op, _BITOPS)
+            if hexa or bitop:
+                add(f"{where or 'module'} {source[a:b]}", node, ints(v))
+    out.sort(key=lambda m: m.start)
     return out
 
 
@@ -368,21 +478,28 @@ def run_in_process(
         sys.meta_path.insert(0, finder)  # type: ignore[arg-type]
         out = io.StringIO()
         t0 = time.monotonic()
+        rc: int | pytest.ExitCode = 0
         try:
-            with contextlib.redirect_stdout(out):
-                rc = pytest.main(
-                    [
-                        "-x",
-                        "-q",
-                        "-p",
-                        "no:cacheprovider",
-                        "-n",
-                        "0",
-                        "--no-header",
-                        "-rf",
-                        *tests,
-                    ]
-                )
+            # one path at a time, in order: most mutants fail the first (the reference
+            # exchanges) and the others are not even collected
+            for path in tests:
+                with contextlib.redirect_stdout(out):
+                    rc = pytest.main(
+                        [
+                            "-x",
+                            "-q",
+                            "-p",
+                            "no:cacheprovider",
+                            "-n",
+                            "0",
+                            "--no-header",
+                            "-rf",
+                            path,
+                        ]
+                    )
+                _purge()
+                if rc != 0:
+                    break
         finally:
             sys.meta_path.remove(finder)  # type: ignore[arg-type]
             _purge()
@@ -418,7 +535,30 @@ def main(argv: list[str] | None = None) -> int:
         help="write the results from the printed log(s) of runs stopped before their end (the "
         "source unchanged since): the mutants not reached are listed as not run",
     )
+    ap.add_argument(
+        "--mutants",
+        default="",
+        help="run only these mutants (1-based numbers of --list, comma-separated: a re-run of "
+        "survivors after a test was added; merge with --from-log)",
+    )
+    ap.add_argument(
+        "--reuse-log",
+        type=Path,
+        action="append",
+        default=[],
+        help="a log of an earlier run (another numbering): a mutant it shows killed, named by the "
+        "same item and mutation (one of its kind in the module), is not run again; its line is "
+        "printed with '(earlier run)'",
+    )
     args = ap.parse_args(argv)
+    earlier: dict[tuple[str, str], str] = {}
+    old_pat = re.compile(r"^\[(\w+) \d+/\d+\] (.*?): (killed(?: \([^)]*\))?) \([\d.]+ s\) ?(.*)$")
+    for log in args.reuse_log:
+        for ln in log.read_text(encoding="utf-8").splitlines():
+            got = old_pat.match(ln)
+            if got and "earlier run" not in ln:
+                earlier[(got[1], got[2])] = got[4]
+    picked = {int(x) for x in args.mutants.split(",") if x.strip()}
     names = args.targets or list(TARGETS)
     unknown = [n for n in names if n not in TARGETS]
     if unknown:
@@ -477,10 +617,22 @@ def main(argv: list[str] | None = None) -> int:
                 return 2
         for i, m in enumerate(ms):
             if args.list:
-                print(f"{name} {m.line:4d} {m.name:40s} {m.kind:24s} {m.old} -> {m.new}")
+                print(f"{name} {i + 1:3d} {m.line:4d} {m.name:40s} {m.kind:24s} {m.old} -> {m.new}")
                 continue
-            verdict, secs, failed = run_mutant(
-                module, source, m, present, args.workers, args.timeout
+            if picked and i + 1 not in picked:
+                continue
+            key = (name, f"{m.name} {m.kind}")
+            if key in earlier and sum(f"{x.name} {x.kind}" == key[1] for x in ms) == 1:
+                print(
+                    f"[{name} {i + 1}/{len(ms)}] {m.name} {m.kind}: killed (earlier run) (0.0 s) "
+                    f"{earlier[key]}",
+                    flush=True,
+                )
+                continue
+            verdict, secs, failed = (
+                run_mutant(module, source, m, present, args.workers, args.timeout)
+                if args.subprocess
+                else run_in_process(module, source, m, present)
             )
             total_survived += verdict == "survived"
             print(

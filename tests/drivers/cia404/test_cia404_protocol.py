@@ -175,3 +175,26 @@ def test_int16_process_values_are_signed_little_endian() -> None:
     got = p.decode_tpdo(plan, [bytes.fromhex("feff0200")], np.array([0.5, 0.5]))
     np.testing.assert_array_equal(got, [[-1.0, 1.0]])
     assert p.encode_tpdo(plan, np.array([[-2.0, 2.0]]))[0] == bytes.fromhex("feff0200")
+
+
+def test_unit_codes_follow_the_cia303_2_coding() -> None:
+    """CiA 303-2 physical unit (0x6131): the prefix's power of ten as a signed byte in byte 3,
+    the SI unit's code in byte 2 (volt 0x26; a ratio has none, 0x00). Built here from that rule,
+    not copied from the codec: V = 10⁰ V, mV = 10⁻³ V, mV/V = 10⁻³ (dimensionless)."""
+
+    def code(power_of_ten: int, si_unit: int) -> int:
+        return (power_of_ten & 0xFF) << 24 | si_unit << 16
+
+    volt, ratio = 0x26, 0x00
+    assert p.UNIT_CODES == {"V": code(0, volt), "mV": code(-3, volt), "mV/V": code(-3, ratio)}
+
+
+def test_heartbeat_states_of_cia301() -> None:
+    """CiA 301 heartbeat / boot-up byte: 0x00 boot-up, 0x04 stopped, 0x05 operational,
+    0x7F pre-operational, as python-canopen's own table has them (its 0x00 is named
+    INITIALISING: the boot-up message)."""
+    from canopen.nmt import NMT_STATES as theirs
+
+    ours = {"INITIALISING" if v == "BOOT-UP" else v: k for k, v in p.NMT_STATES.items()}
+    assert ours == {v: k for k, v in theirs.items() if v in ours}
+    assert sorted(ours) == ["INITIALISING", "OPERATIONAL", "PRE-OPERATIONAL", "STOPPED"]

@@ -352,3 +352,29 @@ def test_twin_fifo_is_the_devices() -> None:
     data = bytes(dev.read(0x86, 8192 * 4, 1000))  # exactly the FIFO: no overrun
     assert len(data) == 32768 and not _status(dev) & 0x0004
     dev.ctrl_transfer(OUT, 0x13, 0, 0, b"")
+
+
+def test_the_sixteen_bit_words_are_unsigned() -> None:
+    """J usb-1808.c: ``usbMemAddressW_USB1808(udev, uint16_t address)`` sends the address as its
+    two bytes, and the calibration area unlocks by a write at address 0x8000
+    (``usbMemWriteEnable_USB1808``'s comment): ``00 80`` on the wire. ``usbStatus_USB1808``
+    returns the ``uint16_t`` it read: ``ff ff`` is 65535, not −1."""
+    assert p.ADDRESS_STRUCT.pack(0x8000) == bytes.fromhex("0080")
+    assert p.STATUS_STRUCT.unpack(bytes.fromhex("ffff")) == (0xFFFF,)
+
+
+def test_the_fpga_sync_word_may_start_up_to_byte_64() -> None:
+    """The image check takes the sync word after at most 64 bytes of 0xFF padding (uldaq's and
+    Jasper's images have 16): 64 is taken, 65 refused."""
+    body = p.FPGA_SYNC_WORD + bytes(p.FPGA_IMAGE_BYTES)
+    p.check_fpga_image((b"\xff" * 64 + body)[: p.FPGA_IMAGE_BYTES], "at 64")
+    with pytest.raises(ValueError, match="no Xilinx sync word"):
+        p.check_fpga_image((b"\xff" * 65 + body)[: p.FPGA_IMAGE_BYTES], "at 65")
+
+
+def test_the_scan_start_bytes_are_unsigned() -> None:
+    """J usb-1808.h ``usbAInScanStart_USB1808(udev, uint32_t count, uint32_t retrig_count,
+    double frequency, uint8_t options)``; the pacer period is sent as a ``uint32_t`` and the
+    packet size as one byte (0xFF block I/O): every field takes its whole unsigned range."""
+    data = p.AInScanStart(2**32 - 1, 2**32 - 1, 2**32 - 1, 0xFF, 0xFF).encode()
+    assert data == b"\xff" * 14

@@ -168,3 +168,35 @@ def test_internal_clock_is_refused() -> None:
         pytest.raises(SetupError, match="requests sent on the DAQ's clock"),
     ):
         drv.start(external_clock=False)
+
+
+def test_every_unit_code_and_its_si_factor() -> None:
+    """Read Calibration Info's unit codes (manual §11.6, as transcribed: force 1 lbf, 2 N,
+    3 klbf, 4 kN, 5 kgf, 6 gf; torque 1 lbf-in, 2 lbf-ft, 3 N-m, 4 N-mm, 5 kgf-cm, 6 kN-m), each
+    factor built here from the exact definitions (NIST SP 811: lb = 0.45359237 kg,
+    g₀ = 9.80665 m/s², in = 0.0254 m, ft = 0.3048 m), not copied from the codec."""
+    g0, lb, inch, ft = 9.80665, 0.45359237, 0.0254, 0.3048
+    lbf, kgf = lb * g0, g0
+    force = {1: ("lbf", lbf), 2: ("N", 1.0), 3: ("klbf", 1e3 * lbf), 4: ("kN", 1e3)}
+    force |= {5: ("kgf", kgf), 6: ("gf", 1e-3 * kgf)}
+    torque = {1: ("lbf-in", lbf * inch), 2: ("lbf-ft", lbf * ft), 3: ("N-m", 1.0)}
+    torque |= {4: ("N-mm", 1e-3), 5: ("kgf-cm", kgf * 0.01), 6: ("kN-m", 1e3)}
+    for ours, want in ((p.FORCE_UNITS, force), (p.TORQUE_UNITS, torque)):
+        assert sorted(ours) == sorted(want)
+        for code, (name, si) in want.items():
+            assert ours[code][0] == name
+            assert ours[code][1] == pytest.approx(si, rel=1e-12), name
+
+
+def test_the_highest_base_address_keeps_its_answers_11_bit() -> None:
+    """base + 6 (the last short answer) must be an 11-bit identifier, at most 0x7FF: 0x7F9 is
+    the highest base taken, 0x7FA the lowest refused."""
+    p.check_base(0x7FF - 6)
+    with pytest.raises(SetupError):
+        p.check_base(0x7FF - 5)
+
+
+def test_the_axes_in_the_order_of_the_rdt_record() -> None:
+    """ATI's RDT record (its demo ``NetFTSensor.java``) and the long answers carry Fx, Fy, Fz,
+    Tx, Ty, Tz in that order: the order every ``counts`` array of the codec is in."""
+    assert p.AXES == ("Fx", "Fy", "Fz", "Tx", "Ty", "Tz")
