@@ -32,6 +32,7 @@ from dimacq.io.tags_file import TagsFile
 from dimacq.model.setup import TestSetup
 from dimacq.pipeline.photogrammetry.bundle import (
     BodyModel,
+    BundleResult,
     Observation,
     adjust,
 )
@@ -327,7 +328,74 @@ def geometry_from_photos(
         plate seen: the message names the photos and the fix.
     """
     say = progress or (lambda _m: None)
-    folder = Path(photos_dir)
+    paths, photos, issues, models, known = _photos_of(Path(photos_dir), tags, say)
+    intr, refine, source = _start_intrinsics(photos, camera, issues)
+    views, unfixed = _views(models, photos, known, setup, issues)
+    use_bodies = [
+        bi
+        for bi, b in enumerate(models)
+        if views[bi] >= (1 if b.kind in ("reference", "scalebar") else MIN_VIEWS)
+    ]
+    sub_models = [models[bi] for bi in use_bodies]
+    cams, poses = _initial_poses(sub_models, photos, intr, say)
+    if not any(sub_models[i].prior_position_m is not None for i in poses):
+        raise DataError(
+            "no reference plate is seen in any photo: the article's frame is not fixed; "
+            "photograph the reference plates together with the triaxes and inputs"
+        )
+    obs, cam_idx, body_idx = _tied_observations(
+        sub_models, photos, cams, poses, unfixed, issues, say
+    )
+    final_models = [sub_models[i] for i in body_idx]
+    say(f"adjusting {len(cam_idx)} photos, {len(final_models)} bodies, {4 * len(obs)} corners")
+    bundle = adjust(
+        final_models,
+        obs,
+        intr,
+        [cams[c][0] for c in cam_idx],
+        [cams[c][1] for c in cam_idx],
+        [poses[i][0] for i in body_idx],
+        [poses[i][1] for i in body_idx],
+        refine_intrinsics=refine,
+        progress=lambda n, cost: say(f"adjustment: {n} evaluations, cost {cost:.4g}"),
+    )
+    used = [photos[c].name for c in cam_idx]
+    _bundle_issues(bundle, used, issues)
+    depth = float(np.median(np.linalg.norm(bundle.camera_translations, axis=1)))
+    scale_m = bundle.sigma_px * depth / bundle.intrinsics.fx
+    orientations, loas = _records(bundle, final_models, tags, scale_m)
+    say(
+        f"adjusted: σ {bundle.sigma_px:.3f} px, {len(orientations)} triaxes, {len(loas)} inputs, "
+        f"{len(unfixed)} not fixed"
+    )
+    result = PhotoGeometry(
+        orientations=orientations,
+        lines_of_action=loas,
+        bodies=list(bundle.bodies),
+        bundle=bundle,
+        photos=[p.name for p in paths],
+        used=used,
+        issues=issues,
+        unfixed=unfixed,
+        intrinsics_source=source,
+        counts={"photos": len(paths), "used": len(used), "observations": len(obs)},
+    )
+    if setup is not None and not unfixed:
+        result = replace(result, setup=apply_to_setup(setup, result))
+    return result
+
+
+def _photos_of(
+    folder: Path, tags: TagsFile, say: Callable[[str], None]
+) -> tuple[list[Path], list[_Photo], list[PhotoIssue], list[BodyModel], set[int]]:
+    """The photos of ``folder`` with their tags read (:func:`_read_photos`), the issues met,
+    the tags file's bodies and tag ids.
+
+    Raises
+    ------
+    SetupError, DataError
+        Not a folder, no photos, or none showing a tag of the tags file.
+    """
     if not folder.is_dir():
         raise SetupError(f"photos folder {folder}: not a folder; give the folder of the photos")
     paths = sorted(p for p in folder.iterdir() if p.suffix.lower() in PHOTO_SUFFIXES)
@@ -343,6 +411,20 @@ def geometry_from_photos(
             f"photos folder {folder}: none of {len(paths)} photos shows a tag of the tags file: "
             + "; ".join(str(i) for i in issues[:5])
         )
+    return paths, photos, issues, models, known
+
+
+def _start_intrinsics(
+    photos: list[_Photo], camera: tuple[Intrinsics, bool] | None, issues: list[PhotoIssue]
+) -> tuple[Intrinsics, bool, str]:
+    """The intrinsics to start from, whether to refine them, and where they come from: the
+    camera file, else the photos' EXIF focal length (median), the image centre, no distortion.
+
+    Raises
+    ------
+    SetupError, DataError
+        The camera file is for another image size; no camera file and no EXIF focal length.
+    """
     w, h = photos[0].size
     if camera is not None:
         intr, refine = camera
@@ -351,30 +433,39 @@ def geometry_from_photos(
                 f"camera file is for {intr.width}x{intr.height} px, the photos are {w}x{h} px; "
                 "calibrate the camera at the photos' resolution"
             )
-        source = "camera file"
-    else:
-        focals = [p.focal_px for p in photos if p.focal_px]
-        if not focals:
-            raise DataError(
-                f"{len(photos)} photos carry no EXIF focal length (e.g. {photos[0].name}): give "
-                "--camera CAM.toml (fx, fy, cx, cy in pixels from a calibration) or use the "
-                "camera's original files, whose EXIF states the focal length"
+        return intr, refine, "camera file"
+    focals = [p.focal_px for p in photos if p.focal_px]
+    if not focals:
+        raise DataError(
+            f"{len(photos)} photos carry no EXIF focal length (e.g. {photos[0].name}): give "
+            "--camera CAM.toml (fx, fy, cx, cy in pixels from a calibration) or use the "
+            "camera's original files, whose EXIF states the focal length"
+        )
+    no_exif = [p.name for p in photos if not p.focal_px]
+    if no_exif:
+        issues.append(
+            PhotoIssue(
+                ", ".join(no_exif[:5]),
+                "warn",
+                f"{len(no_exif)} photos without EXIF focal length (the others' is used)",
+                "keep the camera's original files",
             )
-        no_exif = [p.name for p in photos if not p.focal_px]
-        if no_exif:
-            issues.append(
-                PhotoIssue(
-                    ", ".join(no_exif[:5]),
-                    "warn",
-                    f"{len(no_exif)} photos without EXIF focal length (the others' is used)",
-                    "keep the camera's original files",
-                )
-            )
-        f = float(np.median(focals))
-        intr = Intrinsics(fx=f, fy=f, cx=(w - 1) / 2, cy=(h - 1) / 2, width=w, height=h)
-        refine = True
-        source = "EXIF focal length, refined in the adjustment"
-    # bodies with too few views are not fixed
+        )
+    f = float(np.median(focals))
+    intr = Intrinsics(fx=f, fy=f, cx=(w - 1) / 2, cy=(h - 1) / 2, width=w, height=h)
+    return intr, True, "EXIF focal length, refined in the adjustment"
+
+
+def _views(
+    models: list[BodyModel],
+    photos: list[_Photo],
+    known: set[int],
+    setup: TestSetup | None,
+    issues: list[PhotoIssue],
+) -> tuple[dict[int, int], list[str]]:
+    """Photos showing each body (by index), and what is not fixed: triaxes and inputs seen in
+    fewer than :data:`MIN_VIEWS` photos (with how many more they need), the setup's triaxes and
+    inputs without tags; a tag seen in one photo only is added to ``issues``."""
     views: dict[int, int] = {}
     for bi, b in enumerate(models):
         ids = {t.tag_id for t in b.tags}
@@ -406,18 +497,22 @@ def geometry_from_photos(
                     "a tag seen once fixes nothing: show it in at least two more photos",
                 )
             )
-    use_bodies = [
-        bi
-        for bi, b in enumerate(models)
-        if views[bi] >= (1 if b.kind in ("reference", "scalebar") else MIN_VIEWS)
-    ]
-    sub_models = [models[bi] for bi in use_bodies]
-    cams, poses = _initial_poses(sub_models, photos, intr, say)
-    if not any(sub_models[i].prior_position_m is not None for i in poses):
-        raise DataError(
-            "no reference plate is seen in any photo: the article's frame is not fixed; "
-            "photograph the reference plates together with the triaxes and inputs"
-        )
+    return views, unfixed
+
+
+def _tied_observations(
+    sub_models: list[BodyModel],
+    photos: list[_Photo],
+    cams: dict[int, tuple[FloatArray, FloatArray]],
+    poses: dict[int, tuple[FloatArray, FloatArray]],
+    unfixed: list[str],
+    issues: list[PhotoIssue],
+    say: Callable[[str], None],
+) -> tuple[list[Observation], list[int], list[int]]:
+    """The observations the adjustment uses (photos and bodies tied to the reference plates,
+    tag views not too oblique), indexed by photo in the returned photo list; the photos
+    (indices into ``photos``) and bodies (into ``sub_models``) they use. What is left out is
+    added to ``unfixed`` (triaxes, inputs) or ``issues`` (photos)."""
     for i, b in enumerate(sub_models):
         if i not in poses and b.kind in ("triax", "input"):
             unfixed.append(
@@ -463,21 +558,13 @@ def geometry_from_photos(
     cam_idx = [cam_idx[k] for k in seen_cams]
     cmap = {old: new_ for new_, old in enumerate(seen_cams)}
     body_idx = [body_idx[k] for k in seen_bodies]
-    final_models = [sub_models[i] for i in body_idx]
     obs = [Observation(cmap[o.photo], o.tag_id, o.corners_px) for o in obs]
-    say(f"adjusting {len(cam_idx)} photos, {len(final_models)} bodies, {4 * len(obs)} corners")
-    bundle = adjust(
-        final_models,
-        obs,
-        intr,
-        [cams[c][0] for c in cam_idx],
-        [cams[c][1] for c in cam_idx],
-        [poses[i][0] for i in body_idx],
-        [poses[i][1] for i in body_idx],
-        refine_intrinsics=refine,
-        progress=lambda n, cost: say(f"adjustment: {n} evaluations, cost {cost:.4g}"),
-    )
-    used = [photos[c].name for c in cam_idx]
+    return obs, cam_idx, body_idx
+
+
+def _bundle_issues(bundle: BundleResult, used: list[str], issues: list[PhotoIssue]) -> None:
+    """Add to ``issues`` the photos whose corner residual is over 4 × the set's and the tag
+    views the adjustment left out as gross errors."""
     for k, r in enumerate(bundle.photo_rms_px):
         if np.isfinite(r) and r > 4 * max(bundle.sigma_px, 0.1):
             issues.append(
@@ -497,28 +584,6 @@ def geometry_from_photos(
                 "a tag partly hidden or misread: retake it",
             )
         )
-    depth = float(np.median(np.linalg.norm(bundle.camera_translations, axis=1)))
-    scale_m = bundle.sigma_px * depth / bundle.intrinsics.fx
-    orientations, loas = _records(bundle, final_models, tags, scale_m)
-    say(
-        f"adjusted: σ {bundle.sigma_px:.3f} px, {len(orientations)} triaxes, {len(loas)} inputs, "
-        f"{len(unfixed)} not fixed"
-    )
-    result = PhotoGeometry(
-        orientations=orientations,
-        lines_of_action=loas,
-        bodies=list(bundle.bodies),
-        bundle=bundle,
-        photos=[p.name for p in paths],
-        used=used,
-        issues=issues,
-        unfixed=unfixed,
-        intrinsics_source=source,
-        counts={"photos": len(paths), "used": len(used), "observations": len(obs)},
-    )
-    if setup is not None and not unfixed:
-        result = replace(result, setup=apply_to_setup(setup, result))
-    return result
 
 
 def _drop_oblique(
