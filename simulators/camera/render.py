@@ -6,7 +6,8 @@ stated plus a draw of their stated 1σ, a scale bar beside the article — each 
 body with a draw of the plan's placement 1σ. A photo: tags facing the camera are warped
 (``cv2.warpPerspective``) from ``cv2.aruco.generateImageMarker`` onto a canvas at twice the
 resolution through the ideal pinhole, the canvas is resampled through the lens distortion
-(``cv2.undistortPoints`` of every sensor pixel, ``cv2.remap``), then blurred, exposed,
+(``cv2.undistortPoints`` of every sensor pixel, ``cv2.remap``) after the lens blur and the
+pixels' area are applied to the canvas (a sensor integrates the blurred image), then exposed,
 occluded in part by random shapes, given sensor noise, and written as JPEG with the EXIF a
 camera writes (35 mm-equivalent focal length). Nothing but the image files leaves this module
 for the solver.
@@ -294,10 +295,12 @@ def render(
             c = rng.uniform([0, 0], [w2, h2])
             poly = (c + rng.normal(scale=120, size=(5, 2))).astype(np.int32)
             cv2.fillPoly(canvas, [poly], float(rng.uniform(20, 200)))
+    # the lens's blur and each pixel's area (a box of 1 px: variance 1/12 px²) act on the image
+    # before the sensor samples it
+    psf_px = float(np.sqrt(max(blur_px, 0.0) ** 2 + 1.0 / 12.0))
+    canvas = cv2.GaussianBlur(canvas, (0, 0), ss * psf_px)
     mx, my = _distortion_map(cam, ss)
     img = cv2.remap(canvas, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    if blur_px > 0:
-        img = cv2.GaussianBlur(img, (0, 0), blur_px)
     img = img * exposure
     sigma = np.sqrt(noise**2 + 0.02 * np.clip(img, 0, None))
     img = img + rng.standard_normal(img.shape, dtype=np.float32) * sigma

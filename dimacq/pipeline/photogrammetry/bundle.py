@@ -17,9 +17,14 @@ scale) comes from those priors; a scale bar is one more body whose two tags are 
 apart. Rotations are updated on the left, ``R = exp([δ]×) R₀`` with ``δ`` in the world frame
 (camera frame for photos), so ``δ`` is the small rotation whose covariance is reported.
 
+One more unknown is the detector's edge bias ``b`` (px): every observed corner is taken as
+``u_obs − b n̂``, ``n̂`` the unit vector from its tag's observed centre out to the corner (a
+corner found inside or outside the printed one by the same amount on every tag, which would
+otherwise read as tags smaller or larger than printed, i.e. farther or nearer).
+
 The covariance of the parameters is ``Σ = (JᵀJ)⁻¹`` of the whitened problem at the solution,
-with ``σ_px² = Σ r² / (n − p)`` estimated from the corner residuals (the reprojection error
-the photos actually show, not a nominal one).
+with ``σ_px² = Σ (r/s)² / (n − p)`` estimated from the corner residuals (the reprojection error
+the photos actually show, not a nominal one; ``s`` each view's ``sigma_scale``).
 """
 
 from __future__ import annotations
@@ -85,11 +90,16 @@ class BodyModel:
 
 @dataclass(frozen=True)
 class Observation:
-    """Tag ``tag_id`` seen in photo ``photo``: its four corners in pixels, OpenCV's order."""
+    """Tag ``tag_id`` seen in photo ``photo``: its four corners in pixels, OpenCV's order.
+
+    ``sigma_scale`` is this view's corner 1σ relative to the set's ``σ_px`` (a tag seen at
+    incidence ``θ`` has its border foreshortened by ``cos θ``, and its edges located that much
+    less well: ``1/cos θ``)."""
 
     photo: int
     tag_id: int
     corners_px: FloatArray
+    sigma_scale: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -152,6 +162,8 @@ class BundleResult:
     nfev: int
     condition: float
     messages: tuple[str, ...] = field(default_factory=tuple)
+    edge_bias_px: float = 0.0
+    edge_bias_std_px: float = 0.0
 
     def body(self, name: str) -> BodyEstimate:
         for b in self.bodies:
@@ -278,6 +290,7 @@ class _Problem:
                 intr.vector() if refine_intrinsics else np.zeros(0),
                 np.column_stack([np.zeros((self.n_cam, 3)), cam_t]).ravel(),
                 np.column_stack([np.zeros((self.n_body, 3)), body_p]).ravel(),
+                [0.0],
             ]
         )
         mount = {t.tag_id: (i, t) for i, b in enumerate(bodies) for t in b.tags}
@@ -303,6 +316,13 @@ class _Problem:
         self.o_body = np.array([mount[o.tag_id][0] for o in obs], dtype=int)
         self.o_pts = np.array([mount[o.tag_id][1].corners_body() for o in obs]).reshape(-1, 4, 3)
         self.o_uv = np.array([o.corners_px for o in obs], dtype=float).reshape(-1, 4, 2)
+        self.o_s = np.array([o.sigma_scale for o in obs], dtype=float).reshape(-1, 1, 1)
+        out = self.o_uv - self.o_uv.mean(axis=1, keepdims=True)
+        self.o_n = out / np.maximum(np.linalg.norm(out, axis=2, keepdims=True), 1e-12)
+
+    def scaled_residuals(self, x: FloatArray) -> FloatArray:
+        """Corner residuals over each view's ``sigma_scale``, pixels, shape (n_obs, 4, 2)."""
+        return self.image_residuals(x) / self.o_s
 
     @property
     def n_intr(self) -> int:
@@ -314,7 +334,7 @@ class _Problem:
         k = self.n_intr
         intr = self.intr.with_vector(x[:k]) if self.refine else self.intr
         c = x[k : k + 6 * self.n_cam].reshape(-1, 6)
-        b = x[k + 6 * self.n_cam :].reshape(-1, 6)
+        b = x[k + 6 * self.n_cam : k + 6 * (self.n_cam + self.n_body)].reshape(-1, 6)
         return intr, _rot(c[:, :3], self.cam_r0), c[:, 3:], _rot(b[:, :3], self.body_r0), b[:, 3:]
 
     def image_residuals(self, x: FloatArray) -> FloatArray:
@@ -322,10 +342,10 @@ class _Problem:
         intr, rc, tc, rb, pb = self.unpack(x)
         xw = np.einsum("nij,nkj->nki", rb[self.o_body], self.o_pts) + pb[self.o_body][:, None]
         xc = np.einsum("nij,nkj->nki", rc[self.o_cam], xw) + tc[self.o_cam][:, None]
-        return project(xc, intr) - self.o_uv
+        return project(xc, intr) - (self.o_uv - x[-1] * self.o_n)
 
     def residuals(self, x: FloatArray) -> FloatArray:
-        r_img = self.image_residuals(x).ravel() / self.sigma_px
+        r_img = self.scaled_residuals(x).ravel() / self.sigma_px
         if not len(self.prior_idx):
             return r_img
         _, _, _, rb, pb = self.unpack(x)
@@ -347,7 +367,7 @@ class _Problem:
         intr, rc, tc, rb, pb = self.unpack(x)
         k = self.n_intr
         c = x[k : k + 6 * self.n_cam].reshape(-1, 6)
-        b = x[k + 6 * self.n_cam :].reshape(-1, 6)
+        b = x[k + 6 * self.n_cam : k + 6 * (self.n_cam + self.n_body)].reshape(-1, 6)
         jl_c, jl_b = _left_jacobian(c[:, :3]), _left_jacobian(b[:, :3])
         n_obs = len(self.obs)
         rcn = rc[self.o_cam][:, None]
@@ -362,14 +382,17 @@ class _Problem:
             d_pb,
         ]
         body0 = k + 6 * self.n_cam
+        n_par = k + 6 * (self.n_cam + self.n_body) + 1
+        blocks.append(self.o_n[..., None])
         cols = [
             k + 6 * self.o_cam[:, None] + np.arange(6),
             body0 + 6 * self.o_body[:, None] + np.arange(6),
+            np.full((n_obs, 1), n_par - 1),
         ]
         if k:
             blocks.insert(0, d_in)
             cols.insert(0, np.broadcast_to(np.arange(k), (n_obs, k)))
-        vals = np.concatenate(blocks, axis=-1) / self.sigma_px  # (n, 4, 2, n_cols)
+        vals = np.concatenate(blocks, axis=-1) / (self.sigma_px * self.o_s[..., None])
         col = np.broadcast_to(np.concatenate(cols, axis=1)[:, None, None], vals.shape)
         row = np.broadcast_to(np.arange(8 * n_obs).reshape(n_obs, 4, 2, 1), vals.shape)
         rows, colz, valz = [row.ravel()], [col.ravel()], [vals.ravel()]
@@ -386,7 +409,6 @@ class _Problem:
                 colz.append(np.broadcast_to(cc, blk.shape).ravel())
                 valz.append(blk.ravel())
         n_rows = 8 * n_obs + 6 * len(self.prior_idx)
-        n_par = k + 6 * (self.n_cam + self.n_body)
         return sp.csr_matrix(
             (np.concatenate(valz), (np.concatenate(rows), np.concatenate(colz))),
             shape=(n_rows, n_par),
@@ -399,7 +421,7 @@ class _Problem:
         y = x.copy()
         k = self.n_intr
         c = y[k : k + 6 * self.n_cam].reshape(-1, 6)
-        b = y[k + 6 * self.n_cam :].reshape(-1, 6)
+        b = y[k + 6 * self.n_cam : k + 6 * (self.n_cam + self.n_body)].reshape(-1, 6)
         c[:, :3] = 0.0
         b[:, :3] = 0.0
         return y
@@ -417,7 +439,7 @@ def adjust(
     refine_intrinsics: bool = True,
     reject_sigma: float = 6.0,
     progress: Callable[[int, float], None] | None = None,
-    max_nfev: int = 60,
+    max_nfev: int = 200,
 ) -> BundleResult:
     """Adjust photos, bodies (and intrinsics) to the observed tag corners (see the module).
 
@@ -474,7 +496,7 @@ def adjust(
     x = _solve(prob, fun, prob.x0, "soft_l1", max_nfev)
     rejected = _reject_gross(prob, x, reject_sigma)
     x = _solve(prob, fun, prob.rebase(x), "linear", max_nfev)
-    res = prob.image_residuals(x)
+    res = prob.scaled_residuals(x)
     dof = max(res.size - len(x) + 6 * len(prob.prior_idx), 1)
     sigma = float(np.sqrt(np.sum(res**2) / dof))
     prob.sigma_px = max(sigma, 1e-3)
@@ -510,9 +532,9 @@ def _reject_gross(
 ) -> list[tuple[int, int, float]]:
     """Remove from ``prob`` the observations whose corner RMS exceeds ``reject_sigma · σ_px``
     at ``x`` (worst first; a photo or body keeps its last view) and set ``prob.sigma_px`` to
-    the first fit's ``σ_px = sqrt(Σr²/(n − p))``; returns ``(photo, tag_id, rms_px)`` of those
-    removed."""
-    res = prob.image_residuals(x)
+    the first fit's ``σ_px = sqrt(Σr²/(n − p))`` (``r`` over each view's ``sigma_scale``);
+    returns ``(photo, tag_id, rms_px)`` of those removed."""
+    res = prob.scaled_residuals(x)
     dof = max(res.size - len(x) + 6 * len(prob.prior_idx), 1)
     sigma = float(np.sqrt(np.sum(res**2) / dof))
     per_obs = np.sqrt(np.mean(res.reshape(len(prob.obs), -1) ** 2, axis=1))
@@ -612,4 +634,6 @@ def _result(
         rejected=tuple(rejected),
         nfev=nfev,
         condition=cond,
+        edge_bias_px=float(x[-1]),
+        edge_bias_std_px=float(np.sqrt(max(cov[-1, -1], 0.0))),
     )

@@ -403,7 +403,7 @@ def _photos_of(
         raise DataError(
             f"photos folder {folder}: no photos ({', '.join(PHOTO_SUFFIXES)}); copy the photos there"
         )
-    models = tags.body_models()
+    models = [_with_placement(b, tags) for b in tags.body_models()]
     known = {t.tag_id for b in models for t in b.tags}
     photos, issues = _read_photos(paths, tags.family, known, say)
     if not photos:
@@ -412,6 +412,24 @@ def _photos_of(
             + "; ".join(str(i) for i in issues[:5])
         )
     return paths, photos, issues, models, known
+
+
+def _with_placement(body: BodyModel, tags: TagsFile) -> BodyModel:
+    """A reference body whose prior also carries its tags' placement on it: the tags the
+    adjustment sees sit at the stated pose ⊕ their placement, ``σ² = σ_stated² + σ_place²/k``
+    over its ``k`` tags (per coordinate, per axis)."""
+    if body.prior_position_m is None:
+        return body
+    k = max(len(body.tags), 1)
+    return replace(
+        body,
+        prior_position_std_m=float(
+            np.hypot(body.prior_position_std_m, tags.placement_position_m / np.sqrt(k))
+        ),
+        prior_angle_std_deg=float(
+            np.hypot(body.prior_angle_std_deg, tags.placement_angle_deg / np.sqrt(k))
+        ),
+    )
 
 
 def _start_intrinsics(
@@ -558,7 +576,7 @@ def _tied_observations(
     cam_idx = [cam_idx[k] for k in seen_cams]
     cmap = {old: new_ for new_, old in enumerate(seen_cams)}
     body_idx = [body_idx[k] for k in seen_bodies]
-    obs = [Observation(cmap[o.photo], o.tag_id, o.corners_px) for o in obs]
+    obs = [replace(o, photo=cmap[o.photo]) for o in obs]
     return obs, cam_idx, body_idx
 
 
@@ -593,7 +611,8 @@ def _drop_oblique(
     poses: list[tuple[FloatArray, FloatArray]],
 ) -> tuple[list[Observation], int]:
     """The observations whose tag faces the camera within :data:`MAX_INCIDENCE_DEG` at the
-    first poses (a tag seen edge-on has its corners located far less well)."""
+    first poses (a tag seen edge-on has its corners located far less well), each with its
+    corner 1σ scaled by ``1/cos θ`` (its border is foreshortened by ``cos θ``)."""
     mount = {t.tag_id: (i, t) for i, b in enumerate(models) for t in b.tags}
     keep = []
     for o in obs:
@@ -604,5 +623,5 @@ def _drop_oblique(
         normal = rc @ rb @ t.rotation[:, 2]
         cos = -float(np.dot(normal, centre)) / float(np.linalg.norm(centre))
         if cos >= np.cos(np.radians(MAX_INCIDENCE_DEG)):
-            keep.append(o)
+            keep.append(replace(o, sigma_scale=1.0 / cos))
     return keep, len(obs) - len(keep)

@@ -208,7 +208,7 @@ def test_tag_corners_order() -> None:
 def test_analytic_jacobian_matches_central_differences(refine: bool) -> None:
     """The adjustment's analytic Jacobian against central differences of its residuals, at a
     point away from the solution (rotations off their bases, distorted lens, reference priors
-    not met)."""
+    not met, an edge bias)."""
     from dimacq.pipeline.photogrammetry.bundle import _Problem
 
     bodies, truth, cams, obs = _scene(3, 6)
@@ -219,7 +219,8 @@ def test_analytic_jacobian_matches_central_differences(refine: bool) -> None:
     x = prob.x0 + rng.normal(scale=1e-3, size=prob.x0.size)
     n_pose = 6 * (prob.n_cam + prob.n_body)
     rot = (np.arange(n_pose) % 6) < 3
-    x[prob.n_intr :][rot] += rng.normal(scale=0.05, size=int(rot.sum()))
+    x[prob.n_intr : prob.n_intr + n_pose][rot] += rng.normal(scale=0.05, size=int(rot.sum()))
+    x[-1] = 0.3  # the detector's edge bias, px
     if refine:
         x[: prob.n_intr] = CAM.vector() * rng.uniform(0.98, 1.02, prob.n_intr)
     analytic = prob.jacobian(x).toarray()
