@@ -353,35 +353,48 @@ def photograph_article(
     exif: bool = True,
     suffix: str = ".jpg",
 ) -> list[Path]:
-    """Write ``n_photos`` photos of ``world`` from random poses around it into ``out_dir``.
+    """Write ``n_photos`` photos of ``world`` into ``out_dir``, as the manual's photo plan says.
 
-    Every third photo is an overview (looking at the middle from 2.2–2.8 × the largest extent), the others
-    look near a random tag from a random direction (the
-    hemisphere above the floor and a little below the article), at ``distance_m`` (default:
-    0.7–1.3 × the region's largest extent, at most 3 m away), with its own blur (0.4–1.1 px),
-    exposure (0.7–1.3), noise and occluders.
+    Every third photo is an overview: it looks at a random point of the tagged region from
+    where the largest tags (the reference plates') span 30–45 px (at most 2.8 × the region's
+    largest extent away). The others are close-ups taken in turn of each triax block (twice a
+    round) and impact jig (once), a fresh random order each round, from where its tags span 60–110 px (``distance_m``
+    overrides), from a random direction of the hemisphere above the floor and a little below
+    the article. Each photo has its own blur (0.4–1.1 px), exposure (0.7–1.3), noise and
+    occluders.
     """
     cam = cam or CameraModel()
     rng = np.random.default_rng(seed)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     ext = float(np.max(world.extent_m))
-    lo_d, hi_d = distance_m or (min(0.7 * ext, 2.0), min(1.3 * ext, 3.0))
-    paths = []
     centres = np.array([t.centre_m for t in world.tags])
+    sides = {t.body: t.side_m for t in world.tags}
+    bodies = {
+        b: np.mean([t.centre_m for t in world.tags if t.body == b], axis=0)
+        for b in sides
+        if b.startswith(("triax", "input"))
+    }
+    names = sorted(bodies)
+    big = max(sides.values())
+    queue: list[str] = []
+    paths = []
     for i in range(n_photos):
-        overview = i % 3 == 0
-        if overview:
-            target = world.centre_m + rng.normal(scale=0.05, size=3) * world.extent_m
+        if i % 3 == 0 or not names:
+            target = rng.uniform(centres.min(axis=0), centres.max(axis=0))
+            dist = min(cam.f_px * big / rng.uniform(30, 45), rng.uniform(2.2, 2.8) * ext)
         else:
-            target = (
-                centres[rng.integers(len(centres))] + rng.normal(scale=0.1, size=3) * world.extent_m
-            )
+            if not queue:  # a round: each triax from two sides, each input once
+                twice = [n for n in names if n.startswith("triax")]
+                queue = [(names + twice)[k] for k in rng.permutation(len(names) + len(twice))]
+            name = queue.pop()
+            target = bodies[name] + rng.normal(scale=0.2 * sides[name], size=3)
+            lo_d, hi_d = distance_m or (cam.f_px * sides[name] / 110, cam.f_px * sides[name] / 60)
+            dist = rng.uniform(lo_d, hi_d)
         d = rng.normal(size=3)
         d[2] = abs(d[2]) * 0.8 - 0.25
         d /= np.linalg.norm(d)
-        eye = target + d * (rng.uniform(2.2, 2.8) * ext if overview else rng.uniform(lo_d, hi_d))
-        r, t = _look_at(eye, target, rng)
+        r, t = _look_at(target + d * dist, target, rng)
         img = render(
             world,
             cam,

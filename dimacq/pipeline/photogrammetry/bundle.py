@@ -572,15 +572,28 @@ def _covariance(prob: _Problem, x: FloatArray) -> tuple[FloatArray, float]:
     jtj = (jac.T @ jac).toarray()
     d = np.sqrt(np.clip(np.diag(jtj), 1e-300, None))
     scaled = jtj / np.outer(d, d)
-    ev = np.linalg.eigvalsh(scaled)
+    ev, vec = np.linalg.eigh(scaled)
     cond = float(ev[-1] / max(ev[0], 1e-300))
     if ev[0] <= 1e-12 * ev[-1]:
         raise SolverError(
-            f"bundle adjustment: the normal matrix is singular (condition {cond:.2g}): a photo or "
-            "a body is not tied to the reference tags; take photos that show it together with "
-            "tags already fixed"
+            f"bundle adjustment: the normal matrix is singular (condition {cond:.2g}): "
+            f"{_parameter_name(prob, int(np.argmax(np.abs(vec[:, 0]))))} is not fixed by the "
+            "photos; take photos that show it together with tags already fixed"
         )
     return np.linalg.inv(scaled) / np.outer(d, d), cond
+
+
+def _parameter_name(prob: _Problem, j: int) -> str:
+    """What parameter ``j`` of the adjustment belongs to: a body (by name), a photo (by its
+    index), the intrinsics or the edge bias."""
+    k = prob.n_intr
+    if j < k:
+        return "the camera's intrinsics"
+    if j < k + 6 * prob.n_cam:
+        return f"photo {(j - k) // 6}"
+    if j < k + 6 * (prob.n_cam + prob.n_body):
+        return f"body {prob.bodies[(j - k - 6 * prob.n_cam) // 6].name}"
+    return "the detector's edge bias"
 
 
 def _result(

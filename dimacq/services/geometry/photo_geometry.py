@@ -563,6 +563,7 @@ def _tied_observations(
     )
     if oblique:
         say(f"{oblique} tag views more oblique than {MAX_INCIDENCE_DEG:g} deg left out")
+    obs = _tied_only(obs, final_models)
     # photos and bodies left without a view are left out (nothing would fix them)
     seen_cams = sorted({o.photo for o in obs})
     tag_body = {t.tag_id: k for k, b in enumerate(final_models) for t in b.tags}
@@ -578,6 +579,27 @@ def _tied_observations(
     body_idx = [body_idx[k] for k in seen_bodies]
     obs = [replace(o, photo=cmap[o.photo]) for o in obs]
     return obs, cam_idx, body_idx
+
+
+def _tied_only(obs: list[Observation], models: list[BodyModel]) -> list[Observation]:
+    """``obs`` without the views of a body with no stated pose seen in one photo only (nothing
+    but that photo fixes it) and of a photo showing one tag only (a small square alone leaves
+    its tilt and its distance all but undetermined: the planar pose ambiguity); repeated until
+    there is none."""
+    body_of = {t.tag_id: k for k, b in enumerate(models) for t in b.tags}
+    while True:
+        photos_of: dict[int, set[int]] = {}
+        tags_in: dict[int, int] = {}
+        for o in obs:
+            photos_of.setdefault(body_of[o.tag_id], set()).add(o.photo)
+            tags_in[o.photo] = tags_in.get(o.photo, 0) + 1
+        loose = {
+            k for k, ph in photos_of.items() if len(ph) < 2 and models[k].prior_position_m is None
+        }
+        lone = {c for c, n in tags_in.items() if n < 2}
+        if not loose and not lone:
+            return obs
+        obs = [o for o in obs if body_of[o.tag_id] not in loose and o.photo not in lone]
 
 
 def _bundle_issues(bundle: BundleResult, used: list[str], issues: list[PhotoIssue]) -> None:
