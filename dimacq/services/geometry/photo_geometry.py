@@ -49,8 +49,12 @@ from dimacq.services.geometry.photo_records import (
     _records,
     apply_to_setup,
 )
+from dimacq.services.geometry.records import LineOfAction, Orientation
 
 __all__ = [
+    "LIMIT_ANGLE_STD_DEG",
+    "LIMIT_LOA_STD_DEG",
+    "LIMIT_POSITION_STD_M",
     "MIN_VIEWS",
     "PHOTO_SUFFIXES",
     "PhotoGeometry",
@@ -70,6 +74,12 @@ PHOTO_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp")
 #: Tag views more oblique than this (angle between the tag's normal and the line of sight)
 #: are left out of the adjustment.
 MAX_INCIDENCE_DEG = 65.0
+#: A triax whose stated 1σ exceeds these (per axis, per coordinate) is not fixed: the set is
+#: refused and the triax named with the photos it still needs (``σ ∝ 1/√n``).
+LIMIT_ANGLE_STD_DEG = 0.1
+LIMIT_POSITION_STD_M = 2e-4
+#: An input's line of action whose stated 1σ exceeds this angle is named (a warning).
+LIMIT_LOA_STD_DEG = 0.2
 #: Variance of the Laplacian below which a photo without tags is called blurred.
 BLUR_LIMIT = 20.0
 _OTHER_FAMILIES = (
@@ -364,6 +374,7 @@ def geometry_from_photos(
     depth = float(np.median(np.linalg.norm(bundle.camera_translations, axis=1)))
     scale_m = bundle.sigma_px * depth / bundle.intrinsics.fx
     orientations, loas = _records(bundle, final_models, tags, scale_m)
+    unfixed.extend(_too_uncertain(bundle, orientations, loas, issues))
     say(
         f"adjusted: σ {bundle.sigma_px:.3f} px, {len(orientations)} triaxes, {len(loas)} inputs, "
         f"{len(unfixed)} not fixed"
@@ -600,6 +611,52 @@ def _tied_only(obs: list[Observation], models: list[BodyModel]) -> list[Observat
         if not loose and not lone:
             return obs
         obs = [o for o in obs if body_of[o.tag_id] not in loose and o.photo not in lone]
+
+
+def _more_views(n: int, ratio: float) -> int:
+    """Photos to add to ``n`` to bring a 1σ ``ratio`` times its limit under it,
+    ``σ ∝ 1/√n``: ``⌈n (ratio² − 1)⌉``."""
+    return max(1, int(np.ceil(n * (ratio**2 - 1.0))))
+
+
+def _too_uncertain(
+    bundle: BundleResult,
+    orientations: list[Orientation],
+    loas: list[LineOfAction],
+    issues: list[PhotoIssue],
+) -> list[str]:
+    """The triaxes whose stated 1σ exceeds :data:`LIMIT_ANGLE_STD_DEG` or
+    :data:`LIMIT_POSITION_STD_M`, each with the photos it still needs; inputs over
+    :data:`LIMIT_LOA_STD_DEG` are added to ``issues``."""
+    seen = {(b.kind, b.node): b.n_photos for b in bundle.bodies}
+    out = []
+    for o in orientations:
+        ratio = max(
+            max(o.angle_std_deg or [0.0]) / LIMIT_ANGLE_STD_DEG,
+            (o.origin_std_m or 0.0) / LIMIT_POSITION_STD_M,
+        )
+        if ratio > 1.0:
+            n = seen.get(("triax", o.node), 1)
+            out.append(
+                f"triax {o.node}: stated 1σ {max(o.angle_std_deg or [0.0]):.3f} deg, "
+                f"{1e3 * (o.origin_std_m or 0.0):.3f} mm from {n} photos (limits "
+                f"{LIMIT_ANGLE_STD_DEG:g} deg, {1e3 * LIMIT_POSITION_STD_M:g} mm); take about "
+                f"{_more_views(n, ratio)} more close-ups of its block from other sides"
+            )
+    for a in loas:
+        if (a.angle_std_deg or 0.0) > LIMIT_LOA_STD_DEG:
+            n = seen.get(("input", a.node), 1)
+            issues.append(
+                PhotoIssue(
+                    f"input {a.node}",
+                    "warn",
+                    f"line of action 1σ {a.angle_std_deg:.3f} deg from {n} photos "
+                    f"(over {LIMIT_LOA_STD_DEG:g} deg)",
+                    f"take about {_more_views(n, a.angle_std_deg / LIMIT_LOA_STD_DEG)} more "
+                    "close-ups of its jig",
+                )
+            )
+    return out
 
 
 def _bundle_issues(bundle: BundleResult, used: list[str], issues: list[PhotoIssue]) -> None:
