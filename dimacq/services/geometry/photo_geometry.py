@@ -34,6 +34,7 @@ from dimacq.pipeline.photogrammetry.bundle import (
     BodyModel,
     BundleResult,
     Observation,
+    TagMount,
     adjust,
 )
 from dimacq.pipeline.photogrammetry.camera import Intrinsics, tag_corners, undistort_normalised
@@ -257,18 +258,10 @@ def _initial_poses(
             if not pts_w:
                 continue
             w, xy = np.concatenate(pts_w), np.concatenate(pts_xy)
-            if len(pts_w) == 1:  # one tag: its own square solution, mapped to the world
-                tid = next(t for t in obs if mount[t][0] in bodies)
-                bi, t = mount[tid]
-                r_ct, t_ct, _ = _pose_from_points(tag_corners(t.side_m), obs[tid], True)
-                rb, pb = bodies[bi]
-                r_wt = rb @ t.rotation
-                p_wt = rb @ t.offset_m + pb
-                rc = r_ct @ r_wt.T
-                cams[c] = (rc, t_ct - rc @ p_wt)
-            else:
-                rc, tc, _ = _pose_from_points(w, xy, False)
-                cams[c] = (rc, tc)
+            try:
+                cams[c] = _photo_pose(w, xy, len(pts_w), obs, mount, bodies)
+            except DataError:
+                continue  # these points give no pose: the photo stays out
             progress = True
         # bodies seen by placed photos: from the photo where their tags look largest
         for bi, b in enumerate(models):
@@ -301,6 +294,29 @@ def _initial_poses(
             break
     say(f"first poses: {len(cams)} of {len(photos)} photos, {len(bodies)} of {len(models)} bodies")
     return cams, bodies
+
+
+def _photo_pose(
+    w: FloatArray,
+    xy: FloatArray,
+    n_tags: int,
+    obs: dict[int, FloatArray],
+    mount: dict[int, tuple[int, TagMount]],
+    bodies: dict[int, tuple[FloatArray, FloatArray]],
+) -> tuple[FloatArray, FloatArray]:
+    """A photo's first pose (world → camera) from the placed tags' corners ``w`` seen at the
+    normalised points ``xy``; one tag: its own square solution mapped to the world."""
+    if n_tags > 1:
+        rc, tc, _ = _pose_from_points(w, xy, False)
+        return rc, tc
+    tid = next(t for t in obs if mount[t][0] in bodies)
+    bi, t = mount[tid]
+    r_ct, t_ct, _ = _pose_from_points(tag_corners(t.side_m), obs[tid], True)
+    rb, pb = bodies[bi]
+    r_wt = rb @ t.rotation
+    p_wt = rb @ t.offset_m + pb
+    rc = r_ct @ r_wt.T
+    return rc, t_ct - rc @ p_wt
 
 
 def _area(c: FloatArray) -> float:
