@@ -509,11 +509,19 @@ def _solve(
     prob: _Problem, fun: Callable[[FloatArray], FloatArray], x0: FloatArray, loss: str, nmax: int
 ) -> FloatArray:
     """Minimise ``fun`` from ``x0`` (scipy's trust-region reflective method, the analytic
-    sparse Jacobian) with the robust ``loss``."""
+    sparse Jacobian) with the robust ``loss``, the focal length kept within a factor 4 of the
+    start (a diverging first pass would otherwise reach a negative one)."""
+    lo, hi = np.full(x0.size, -np.inf), np.full(x0.size, np.inf)
+    if prob.n_intr:  # the focal length stays within a factor 4 of its start
+        f0 = prob.intr.fx
+        lo[0], hi[0] = f0 / 4, 4 * f0
+        x0 = x0.copy()
+        x0[0] = np.clip(x0[0], lo[0] * 1.0001, hi[0] * 0.9999)
     sol = least_squares(
         fun,
         x0,
         jac=prob.jacobian,
+        bounds=(lo, hi),
         loss=loss,
         f_scale=3.0,
         x_scale="jac",
