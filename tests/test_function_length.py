@@ -23,10 +23,6 @@ CEILINGS: dict[tuple[str, str], int] = {
     ("dimacq/pipeline/frf_estimation.py", "estimate_frf"): 125,
     ("dimacq/backends/simulated.py", "SimulatedWorld.__init__"): 132,
     ("dimacq/pipeline/output_error/model.py", "_Problem.residual"): 122,
-    # the photo-geometry chain, not yet split into named steps
-    ("dimacq/services/geometry/photo_geometry.py", "geometry_from_photos"): 222,
-    # the photo-geometry chain, not yet split into named steps
-    ("dimacq/pipeline/photogrammetry/bundle.py", "adjust"): 165,
 }
 
 

@@ -6,7 +6,8 @@ stated plus a draw of their stated 1σ, a scale bar beside the article — each 
 body with a draw of the plan's placement 1σ. A photo: tags facing the camera are warped
 (``cv2.warpPerspective``) from ``cv2.aruco.generateImageMarker`` onto a canvas at twice the
 resolution through the ideal pinhole, the canvas is resampled through the lens distortion
-(``cv2.undistortPoints`` of every sensor pixel, ``cv2.remap``), then blurred, exposed,
+(``cv2.undistortPoints`` of every sensor pixel, ``cv2.remap``) after the lens blur and the
+pixels' area are applied to the canvas (a sensor integrates the blurred image), then exposed,
 occluded in part by random shapes, given sensor noise, and written as JPEG with the EXIF a
 camera writes (35 mm-equivalent focal length). Nothing but the image files leaves this module
 for the solver.
@@ -294,10 +295,12 @@ def render(
             c = rng.uniform([0, 0], [w2, h2])
             poly = (c + rng.normal(scale=120, size=(5, 2))).astype(np.int32)
             cv2.fillPoly(canvas, [poly], float(rng.uniform(20, 200)))
+    # the lens's blur and each pixel's area (a box of 1 px: variance 1/12 px²) act on the image
+    # before the sensor samples it
+    psf_px = float(np.sqrt(max(blur_px, 0.0) ** 2 + 1.0 / 12.0))
+    canvas = cv2.GaussianBlur(canvas, (0, 0), ss * psf_px)
     mx, my = _distortion_map(cam, ss)
     img = cv2.remap(canvas, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    if blur_px > 0:
-        img = cv2.GaussianBlur(img, (0, 0), blur_px)
     img = img * exposure
     sigma = np.sqrt(noise**2 + 0.02 * np.clip(img, 0, None))
     img = img + rng.standard_normal(img.shape, dtype=np.float32) * sigma
@@ -350,35 +353,48 @@ def photograph_article(
     exif: bool = True,
     suffix: str = ".jpg",
 ) -> list[Path]:
-    """Write ``n_photos`` photos of ``world`` from random poses around it into ``out_dir``.
+    """Write ``n_photos`` photos of ``world`` into ``out_dir``, as the manual's photo plan says.
 
-    Every third photo is an overview (looking at the middle from 2.2–2.8 × the largest extent), the others
-    look near a random tag from a random direction (the
-    hemisphere above the floor and a little below the article), at ``distance_m`` (default:
-    0.7–1.3 × the region's largest extent, at most 3 m away), with its own blur (0.4–1.1 px),
-    exposure (0.7–1.3), noise and occluders.
+    Every third photo is an overview: it looks at a random point of the tagged region from
+    where the largest tags (the reference plates') span 30–45 px (at most 2.8 × the region's
+    largest extent away). The others are close-ups taken in turn of each triax block (twice a
+    round) and impact jig (once), a fresh random order each round, from where its tags span 60–110 px (``distance_m``
+    overrides), from a random direction of the hemisphere above the floor and a little below
+    the article. Each photo has its own blur (0.4–1.1 px), exposure (0.7–1.3), noise and
+    occluders.
     """
     cam = cam or CameraModel()
     rng = np.random.default_rng(seed)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     ext = float(np.max(world.extent_m))
-    lo_d, hi_d = distance_m or (min(0.7 * ext, 2.0), min(1.3 * ext, 3.0))
-    paths = []
     centres = np.array([t.centre_m for t in world.tags])
+    sides = {t.body: t.side_m for t in world.tags}
+    bodies = {
+        b: np.mean([t.centre_m for t in world.tags if t.body == b], axis=0)
+        for b in sides
+        if b.startswith(("triax", "input"))
+    }
+    names = sorted(bodies)
+    big = max(sides.values())
+    queue: list[str] = []
+    paths = []
     for i in range(n_photos):
-        overview = i % 3 == 0
-        if overview:
-            target = world.centre_m + rng.normal(scale=0.05, size=3) * world.extent_m
+        if i % 3 == 0 or not names:
+            target = rng.uniform(centres.min(axis=0), centres.max(axis=0))
+            dist = min(cam.f_px * big / rng.uniform(30, 45), rng.uniform(2.2, 2.8) * ext)
         else:
-            target = (
-                centres[rng.integers(len(centres))] + rng.normal(scale=0.1, size=3) * world.extent_m
-            )
+            if not queue:  # a round: each triax from two sides, each input once
+                twice = [n for n in names if n.startswith("triax")]
+                queue = [(names + twice)[k] for k in rng.permutation(len(names) + len(twice))]
+            name = queue.pop()
+            target = bodies[name] + rng.normal(scale=0.2 * sides[name], size=3)
+            lo_d, hi_d = distance_m or (cam.f_px * sides[name] / 110, cam.f_px * sides[name] / 60)
+            dist = rng.uniform(lo_d, hi_d)
         d = rng.normal(size=3)
         d[2] = abs(d[2]) * 0.8 - 0.25
         d /= np.linalg.norm(d)
-        eye = target + d * (rng.uniform(2.2, 2.8) * ext if overview else rng.uniform(lo_d, hi_d))
-        r, t = _look_at(eye, target, rng)
+        r, t = _look_at(target + d * dist, target, rng)
         img = render(
             world,
             cam,

@@ -6,7 +6,8 @@ stated uncertainties cover them.
 
 Coverage: each triax's error per coordinate against ``1.96 σ`` (``origin_std_m``) and its
 rotation error per sensor axis against ``1.96 σ`` (``angle_std_deg``); the fraction inside.
-Writes ``photo_geometry_must_show.results.txt`` beside this script (command, date, commit, load).
+Appends to ``photo_geometry_must_show.results.txt`` beside this script (command, date, commit,
+load) one block per run.
 """
 
 from __future__ import annotations
@@ -98,7 +99,8 @@ def main() -> int:
             f"{r['pos_rms_mm']:>8.3f}{r['ori_rms_deg']:>9.3f}{r['coverage']:>7.2f}{r['solve_s']:>8.1f}"
         )
     out = Path(__file__).with_suffix(".results.txt")
-    out.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    with out.open("a", encoding="utf-8") as fh:  # one block per run, the newest last
+        fh.write("\n" + "\n".join(lines) + "\n")
     print("\n".join(lines))
     return 0
 

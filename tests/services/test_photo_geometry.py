@@ -74,3 +74,66 @@ def test_exif_less_photos_refused(tmp_path: Path) -> None:
         cv2.imwrite(str(tmp_path / f"p{k}.png"), _sheet([0, 1], cv2.aruco.DICT_APRILTAG_36h11))
     with pytest.raises(DataError, match=r"EXIF.*--camera"):
         geometry_from_photos(tmp_path, _tags())
+
+
+def test_views_nothing_ties_are_left_out() -> None:
+    """A body without a stated pose seen in one photo, and a photo with one tag, are dropped."""
+    from dimacq.pipeline.photogrammetry.bundle import BodyModel, Observation, TagMount
+    from dimacq.services.geometry.photo_geometry import _tied_only
+
+    def body(name: str, ids: list[int], prior: bool) -> BodyModel:
+        tags = tuple(TagMount(i, 0.02, np.eye(3), np.zeros(3)) for i in ids)
+        if prior:
+            return BodyModel(name, "reference", tags, None, np.eye(3), np.zeros(3), 1e-4, 0.1)
+        return BodyModel(name, "triax", tags, 1)
+
+    models = [body("REF0", [0], True), body("triax 1", [1, 2], False), body("bar", [3], False)]
+    c = np.zeros((4, 2))
+    obs = [
+        Observation(0, 0, c),
+        Observation(0, 1, c),
+        Observation(1, 0, c),
+        Observation(1, 2, c),
+        Observation(1, 3, c),  # the bar: in photo 1 only
+        Observation(2, 1, c),  # photo 2: one tag only
+    ]
+    kept = {(o.photo, o.tag_id) for o in _tied_only(obs, models)}
+    assert kept == {(0, 0), (0, 1), (1, 0), (1, 2)}
+
+
+def test_too_uncertain_triax_refused_with_the_views_it_needs() -> None:
+    """σ ∝ 1/√n: a triax at twice the angle limit from 10 photos needs 30 more."""
+    from types import SimpleNamespace
+
+    from dimacq.services.geometry.photo_geometry import LIMIT_ANGLE_STD_DEG, _too_uncertain
+    from dimacq.services.geometry.records import Orientation
+
+    def ori(node: int, ang: float) -> Orientation:
+        return Orientation(
+            node=node,
+            rotation=np.eye(3).tolist(),
+            origin_m=[0.0, 0.0, 0.0],
+            method="photos",
+            rods=[],
+            n_points=40,
+            residual_rms_m=1e-5,
+            angle_std_deg=[ang, 0.01, 0.01],
+            uncertainty_deg=ang,
+            jig_uncertainty_deg=ang,
+            registration_uncertainty_deg=None,
+            origin_std_m=5e-5,
+        )
+
+    bundle = SimpleNamespace(
+        bodies=[
+            SimpleNamespace(kind="triax", node=1, n_photos=10),
+            SimpleNamespace(kind="triax", node=2, n_photos=10),
+        ]
+    )
+    out = _too_uncertain(
+        bundle,  # type: ignore[arg-type]
+        [ori(1, 2 * LIMIT_ANGLE_STD_DEG), ori(2, 0.5 * LIMIT_ANGLE_STD_DEG)],
+        [],
+        [],
+    )
+    assert len(out) == 1 and out[0].startswith("triax 1:") and "about 30 more" in out[0]

@@ -17,9 +17,14 @@ scale) comes from those priors; a scale bar is one more body whose two tags are 
 apart. Rotations are updated on the left, ``R = exp([δ]×) R₀`` with ``δ`` in the world frame
 (camera frame for photos), so ``δ`` is the small rotation whose covariance is reported.
 
+One more unknown is the detector's edge bias ``b`` (px): every observed corner is taken as
+``u_obs − b n̂``, ``n̂`` the unit vector from its tag's observed centre out to the corner (a
+corner found inside or outside the printed one by the same amount on every tag, which would
+otherwise read as tags smaller or larger than printed, i.e. farther or nearer).
+
 The covariance of the parameters is ``Σ = (JᵀJ)⁻¹`` of the whitened problem at the solution,
-with ``σ_px² = Σ r² / (n − p)`` estimated from the corner residuals (the reprojection error
-the photos actually show, not a nominal one).
+with ``σ_px² = Σ (r/s)² / (n − p)`` estimated from the corner residuals (the reprojection error
+the photos actually show, not a nominal one; ``s`` each view's ``sigma_scale``).
 """
 
 from __future__ import annotations
@@ -85,11 +90,16 @@ class BodyModel:
 
 @dataclass(frozen=True)
 class Observation:
-    """Tag ``tag_id`` seen in photo ``photo``: its four corners in pixels, OpenCV's order."""
+    """Tag ``tag_id`` seen in photo ``photo``: its four corners in pixels, OpenCV's order.
+
+    ``sigma_scale`` is this view's corner 1σ relative to the set's ``σ_px`` (a tag seen at
+    incidence ``θ`` has its border foreshortened by ``cos θ``, and its edges located that much
+    less well: ``1/cos θ``)."""
 
     photo: int
     tag_id: int
     corners_px: FloatArray
+    sigma_scale: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -152,12 +162,22 @@ class BundleResult:
     nfev: int
     condition: float
     messages: tuple[str, ...] = field(default_factory=tuple)
+    edge_bias_px: float = 0.0
+    edge_bias_std_px: float = 0.0
 
     def body(self, name: str) -> BodyEstimate:
         for b in self.bodies:
             if b.name == name:
                 return b
         raise KeyError(name)
+
+
+def _skew(v: FloatArray) -> FloatArray:
+    """``[v]×`` for a stack of vectors, shape (..., 3) → (..., 3, 3)."""
+    k = np.zeros((*v.shape[:-1], 3, 3))
+    k[..., 0, 1], k[..., 0, 2], k[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
+    k[..., 1, 0], k[..., 2, 0], k[..., 2, 1] = v[..., 2], -v[..., 1], v[..., 0]
+    return k
 
 
 def _rot(delta: FloatArray, base: FloatArray) -> FloatArray:
@@ -168,11 +188,82 @@ def _rot(delta: FloatArray, base: FloatArray) -> FloatArray:
     small = th < 1e-4
     a = np.where(small, 1.0 - th2 / 6.0, np.sin(th) / np.where(small, 1.0, th))
     b = np.where(small, 0.5 - th2 / 24.0, (1.0 - np.cos(th)) / np.where(small, 1.0, th2))
-    k = np.zeros((len(delta), 3, 3))
-    k[:, 0, 1], k[:, 0, 2], k[:, 1, 2] = -delta[:, 2], delta[:, 1], -delta[:, 0]
-    k[:, 1, 0], k[:, 2, 0], k[:, 2, 1] = delta[:, 2], -delta[:, 1], delta[:, 0]
+    k = _skew(delta)
     e = np.eye(3) + a[:, None, None] * k + b[:, None, None] * (k @ k)
     return np.asarray(e @ base)
+
+
+def _left_jacobian(delta: FloatArray) -> FloatArray:
+    """SO(3)'s left Jacobian ``J_l(δ) = I + (1 − cos θ)/θ² [δ]× + (θ − sin θ)/θ³ [δ]×²``
+    for a stack ``δ`` (n, 3): ``exp([δ + ε]×) ≈ exp([J_l(δ) ε]×) exp([δ]×)``, so
+    ``∂(exp([δ]×) v)/∂δ = −[exp([δ]×) v]× J_l(δ)``."""
+    th2 = np.sum(delta * delta, axis=1)
+    th = np.sqrt(th2)
+    small = th < 1e-4
+    safe = np.where(small, 1.0, th)
+    a = np.where(small, 0.5 - th2 / 24.0, (1.0 - np.cos(th)) / safe**2)
+    b = np.where(small, 1.0 / 6.0 - th2 / 120.0, (th - np.sin(th)) / safe**3)
+    k = _skew(delta)
+    return np.asarray(np.eye(3) + a[:, None, None] * k + b[:, None, None] * (k @ k))
+
+
+def _left_jacobian_inv(phi: FloatArray) -> FloatArray:
+    """``J_l(φ)⁻¹ = I − [φ]×/2 + (1/θ² − (1 + cos θ)/(2 θ sin θ)) [φ]×²`` for a stack
+    ``φ`` (n, 3): ``log(exp([η]×) exp([φ]×)) ≈ φ + J_l(φ)⁻¹ η``."""
+    th2 = np.sum(phi * phi, axis=1)
+    th = np.sqrt(th2)
+    small = th < 1e-4
+    safe = np.where(small, 1.0, th)
+    c = np.where(
+        small,
+        1.0 / 12.0 + th2 / 720.0,
+        1.0 / safe**2 - (1 + np.cos(th)) / (2 * safe * np.sin(safe)),
+    )
+    k = _skew(phi)
+    return np.asarray(np.eye(3) - 0.5 * k + c[:, None, None] * (k @ k))
+
+
+def _projection_derivatives(xc: FloatArray, intr: Intrinsics) -> tuple[FloatArray, FloatArray]:
+    """Derivatives of :func:`~dimacq.pipeline.photogrammetry.camera.project` at camera-frame
+    points ``xc`` (shape (..., 3)): ``∂u/∂X_c`` (..., 2, 3) and ``∂u/∂(f, cx, cy, k1, k2, p1,
+    p2, k3)`` (..., 2, 8).
+
+    With ``x = X/Z``, ``y = Y/Z``, ``ρ = 1 + k1 r² + k2 r⁴ + k3 r⁶``, ``g = ∂ρ/∂(r²)``:
+    ``∂x'/∂x = ρ + 2x²g + 2p1 y + 6p2 x``, ``∂x'/∂y = 2xy g + 2p1 x + 2p2 y``,
+    ``∂y'/∂x = 2xy g + 2p1 x + 2p2 y``, ``∂y'/∂y = ρ + 2y²g + 6p1 y + 2p2 x``, and
+    ``∂(x, y)/∂X_c = [[1/Z, 0, −x/Z], [0, 1/Z, −y/Z]]``; ``u = fx x' + cx``, ``v = fy y' + cy``
+    with ``fy = f · (fy/fx)``.
+    """
+    z = xc[..., 2]
+    x, y = xc[..., 0] / z, xc[..., 1] / z
+    r2 = x * x + y * y
+    k1, k2, k3, p1, p2 = intr.k1, intr.k2, intr.k3, intr.p1, intr.p2
+    rho = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    g = k1 + 2.0 * k2 * r2 + 3.0 * k3 * r2 * r2
+    cross = 2.0 * x * y * g + 2.0 * p1 * x + 2.0 * p2 * y
+    dd = np.empty((*x.shape, 2, 2))
+    dd[..., 0, 0] = rho + 2.0 * x * x * g + 2.0 * p1 * y + 6.0 * p2 * x
+    dd[..., 0, 1] = cross
+    dd[..., 1, 0] = cross
+    dd[..., 1, 1] = rho + 2.0 * y * y * g + 6.0 * p1 * y + 2.0 * p2 * x
+    dp = np.zeros((*x.shape, 2, 3))
+    dp[..., 0, 0] = dp[..., 1, 1] = 1.0 / z
+    dp[..., 0, 2] = -x / z
+    dp[..., 1, 2] = -y / z
+    f = np.array([intr.fx, intr.fy])
+    d_xc = f[:, None] * (dd @ dp)
+    xd = x * rho + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
+    yd = y * rho + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+    aspect = intr.fy / intr.fx
+    d_in = np.zeros((*x.shape, 2, N_INTR))
+    d_in[..., 0, 0], d_in[..., 1, 0] = xd, aspect * yd
+    d_in[..., 0, 1] = 1.0
+    d_in[..., 1, 2] = 1.0
+    for j, rad in ((3, r2), (4, r2 * r2), (7, r2**3)):
+        d_in[..., 0, j], d_in[..., 1, j] = intr.fx * x * rad, intr.fy * y * rad
+    d_in[..., 0, 5], d_in[..., 1, 5] = intr.fx * 2.0 * x * y, intr.fy * (r2 + 2.0 * y * y)
+    d_in[..., 0, 6], d_in[..., 1, 6] = intr.fx * (r2 + 2.0 * x * x), intr.fy * 2.0 * x * y
+    return d_xc, d_in
 
 
 class _Problem:
@@ -199,6 +290,7 @@ class _Problem:
                 intr.vector() if refine_intrinsics else np.zeros(0),
                 np.column_stack([np.zeros((self.n_cam, 3)), cam_t]).ravel(),
                 np.column_stack([np.zeros((self.n_body, 3)), body_p]).ravel(),
+                [0.0],
             ]
         )
         mount = {t.tag_id: (i, t) for i, b in enumerate(bodies) for t in b.tags}
@@ -224,6 +316,13 @@ class _Problem:
         self.o_body = np.array([mount[o.tag_id][0] for o in obs], dtype=int)
         self.o_pts = np.array([mount[o.tag_id][1].corners_body() for o in obs]).reshape(-1, 4, 3)
         self.o_uv = np.array([o.corners_px for o in obs], dtype=float).reshape(-1, 4, 2)
+        self.o_s = np.array([o.sigma_scale for o in obs], dtype=float).reshape(-1, 1, 1)
+        out = self.o_uv - self.o_uv.mean(axis=1, keepdims=True)
+        self.o_n = out / np.maximum(np.linalg.norm(out, axis=2, keepdims=True), 1e-12)
+
+    def scaled_residuals(self, x: FloatArray) -> FloatArray:
+        """Corner residuals over each view's ``sigma_scale``, pixels, shape (n_obs, 4, 2)."""
+        return self.image_residuals(x) / self.o_s
 
     @property
     def n_intr(self) -> int:
@@ -235,7 +334,7 @@ class _Problem:
         k = self.n_intr
         intr = self.intr.with_vector(x[:k]) if self.refine else self.intr
         c = x[k : k + 6 * self.n_cam].reshape(-1, 6)
-        b = x[k + 6 * self.n_cam :].reshape(-1, 6)
+        b = x[k + 6 * self.n_cam : k + 6 * (self.n_cam + self.n_body)].reshape(-1, 6)
         return intr, _rot(c[:, :3], self.cam_r0), c[:, 3:], _rot(b[:, :3], self.body_r0), b[:, 3:]
 
     def image_residuals(self, x: FloatArray) -> FloatArray:
@@ -243,10 +342,10 @@ class _Problem:
         intr, rc, tc, rb, pb = self.unpack(x)
         xw = np.einsum("nij,nkj->nki", rb[self.o_body], self.o_pts) + pb[self.o_body][:, None]
         xc = np.einsum("nij,nkj->nki", rc[self.o_cam], xw) + tc[self.o_cam][:, None]
-        return project(xc, intr) - self.o_uv
+        return project(xc, intr) - (self.o_uv - x[-1] * self.o_n)
 
     def residuals(self, x: FloatArray) -> FloatArray:
-        r_img = self.image_residuals(x).ravel() / self.sigma_px
+        r_img = self.scaled_residuals(x).ravel() / self.sigma_px
         if not len(self.prior_idx):
             return r_img
         _, _, _, rb, pb = self.unpack(x)
@@ -256,29 +355,64 @@ class _Problem:
         pri = np.concatenate([dp, dr / self.prior_sa[:, None]], axis=1)
         return np.concatenate([r_img, pri.ravel()])
 
-    def sparsity(self) -> sp.csr_matrix:
+    def jacobian(self, x: FloatArray) -> sp.csr_matrix:
+        """The analytic Jacobian of :meth:`residuals` at ``x``, sparse (n_residuals,
+        n_parameters): a corner depends on the intrinsics, its photo's pose and its body's pose,
+
+            ∂u/∂δ_c = U (−[R_c X_w]×) J_l(δ_c),  ∂u/∂t_c = U,
+            ∂u/∂δ_b = U R_c (−[R_b P]×) J_l(δ_b),  ∂u/∂p_b = U R_c,
+
+        ``U = ∂u/∂X_c`` (:func:`_projection_derivatives`); a reference prior's rotation
+        residual ``φ = log(R_b R̄_bᵀ)`` has ``∂φ/∂δ_b = J_l(φ)⁻¹ J_l(δ_b)``."""
+        intr, rc, tc, rb, pb = self.unpack(x)
+        k = self.n_intr
+        c = x[k : k + 6 * self.n_cam].reshape(-1, 6)
+        b = x[k + 6 * self.n_cam : k + 6 * (self.n_cam + self.n_body)].reshape(-1, 6)
+        jl_c, jl_b = _left_jacobian(c[:, :3]), _left_jacobian(b[:, :3])
         n_obs = len(self.obs)
-        n_par = self.n_intr + 6 * (self.n_cam + self.n_body)
-        rows, cols = [], []
-        r = np.arange(8 * n_obs).reshape(n_obs, 8)
-        for j in range(self.n_intr):
-            rows.append(r.ravel())
-            cols.append(np.full(r.size, j))
-        cam0 = self.n_intr
-        body0 = self.n_intr + 6 * self.n_cam
-        for j in range(6):
-            rows.append(r.ravel())
-            cols.append(np.repeat(cam0 + 6 * self.o_cam + j, 8))
-            rows.append(r.ravel())
-            cols.append(np.repeat(body0 + 6 * self.o_body + j, 8))
-        for k, i in enumerate(self.prior_idx):
-            pr = 8 * n_obs + 6 * k + np.arange(6)
-            for j in range(6):
-                rows.append(pr)
-                cols.append(np.full(6, body0 + 6 * i + j))
+        rcn = rc[self.o_cam][:, None]
+        a = np.einsum("nij,nkj->nki", rb[self.o_body], self.o_pts)
+        q = np.einsum("nkij,nkj->nki", rcn, a + pb[self.o_body][:, None])
+        d_xc, d_in = _projection_derivatives(q + tc[self.o_cam][:, None], intr)
+        d_pb = d_xc @ rcn
+        blocks = [
+            d_xc @ (-_skew(q) @ jl_c[self.o_cam][:, None]),
+            d_xc,
+            d_pb @ (-_skew(a) @ jl_b[self.o_body][:, None]),
+            d_pb,
+        ]
+        body0 = k + 6 * self.n_cam
+        n_par = k + 6 * (self.n_cam + self.n_body) + 1
+        blocks.append(self.o_n[..., None])
+        cols = [
+            k + 6 * self.o_cam[:, None] + np.arange(6),
+            body0 + 6 * self.o_body[:, None] + np.arange(6),
+            np.full((n_obs, 1), n_par - 1),
+        ]
+        if k:
+            blocks.insert(0, d_in)
+            cols.insert(0, np.broadcast_to(np.arange(k), (n_obs, k)))
+        vals = np.concatenate(blocks, axis=-1) / (self.sigma_px * self.o_s[..., None])
+        col = np.broadcast_to(np.concatenate(cols, axis=1)[:, None, None], vals.shape)
+        row = np.broadcast_to(np.arange(8 * n_obs).reshape(n_obs, 4, 2, 1), vals.shape)
+        rows, colz, valz = [row.ravel()], [col.ravel()], [vals.ravel()]
+        if len(self.prior_idx):
+            i = self.prior_idx
+            phi = Rotation.from_matrix(rb[i] @ self.prior_r.transpose(0, 2, 1)).as_rotvec()
+            d_rot = _left_jacobian_inv(phi) @ jl_b[i] / self.prior_sa[:, None, None]
+            d_pos = np.eye(3) / self.prior_sp[:, None, None]
+            r0 = 8 * n_obs + 6 * np.arange(len(i))
+            for off, blk, c0 in ((0, d_pos, 3), (3, d_rot, 0)):
+                rr = r0[:, None, None] + off + np.arange(3)[None, :, None]
+                cc = body0 + 6 * i[:, None, None] + c0 + np.arange(3)[None, None, :]
+                rows.append(np.broadcast_to(rr, blk.shape).ravel())
+                colz.append(np.broadcast_to(cc, blk.shape).ravel())
+                valz.append(blk.ravel())
         n_rows = 8 * n_obs + 6 * len(self.prior_idx)
-        rr, cc = np.concatenate(rows), np.concatenate(cols)
-        return sp.csr_matrix((np.ones(rr.size), (rr, cc)), shape=(n_rows, n_par))
+        return sp.csr_matrix(
+            (np.concatenate(valz), (np.concatenate(rows), np.concatenate(colz))),
+            shape=(n_rows, n_par),
+        )
 
     def rebase(self, x: FloatArray) -> FloatArray:
         """Fold the rotations of ``x`` into the bases: the same poses with ``δ = 0``."""
@@ -287,7 +421,7 @@ class _Problem:
         y = x.copy()
         k = self.n_intr
         c = y[k : k + 6 * self.n_cam].reshape(-1, 6)
-        b = y[k + 6 * self.n_cam :].reshape(-1, 6)
+        b = y[k + 6 * self.n_cam : k + 6 * (self.n_cam + self.n_body)].reshape(-1, 6)
         c[:, :3] = 0.0
         b[:, :3] = 0.0
         return y
@@ -305,7 +439,7 @@ def adjust(
     refine_intrinsics: bool = True,
     reject_sigma: float = 6.0,
     progress: Callable[[int, float], None] | None = None,
-    max_nfev: int = 60,
+    max_nfev: int = 200,
 ) -> BundleResult:
     """Adjust photos, bodies (and intrinsics) to the observed tag corners (see the module).
 
@@ -359,32 +493,63 @@ def adjust(
             progress(nfev[0], 0.5 * float(r @ r))
         return r
 
-    def solve(x0: FloatArray, loss: str, nmax: int) -> FloatArray:
-        sol = least_squares(
-            fun,
-            x0,
-            jac_sparsity=prob.sparsity(),
-            loss=loss,
-            f_scale=3.0,
-            x_scale="jac",
-            max_nfev=nmax,
-            method="trf",
-            tr_solver="lsmr",
-            xtol=1e-8,
-            ftol=1e-8,
-            gtol=1e-10,
-        )
-        return np.asarray(sol.x)
+    x = _solve(prob, fun, prob.x0, "soft_l1", max_nfev)
+    rejected = _reject_gross(prob, x, reject_sigma)
+    x = _solve(prob, fun, prob.rebase(x), "linear", max_nfev)
+    res = prob.scaled_residuals(x)
+    dof = max(res.size - len(x) + 6 * len(prob.prior_idx), 1)
+    sigma = float(np.sqrt(np.sum(res**2) / dof))
+    prob.sigma_px = max(sigma, 1e-3)
+    x = prob.rebase(x)
+    cov, cond = _covariance(prob, x)
+    return _result(prob, bodies, x, cov, cond, sigma, rejected, nfev[0])
 
-    x = solve(prob.x0, "soft_l1", max_nfev)
-    res = prob.image_residuals(x)
+
+def _solve(
+    prob: _Problem, fun: Callable[[FloatArray], FloatArray], x0: FloatArray, loss: str, nmax: int
+) -> FloatArray:
+    """Minimise ``fun`` from ``x0`` (scipy's trust-region reflective method, the analytic
+    sparse Jacobian) with the robust ``loss``, the focal length kept within a factor 4 of the
+    start (a diverging first pass would otherwise reach a negative one)."""
+    lo, hi = np.full(x0.size, -np.inf), np.full(x0.size, np.inf)
+    if prob.n_intr:  # the focal length stays within a factor 4 of its start
+        f0 = prob.intr.fx
+        lo[0], hi[0] = f0 / 4, 4 * f0
+        x0 = x0.copy()
+        x0[0] = np.clip(x0[0], lo[0] * 1.0001, hi[0] * 0.9999)
+    sol = least_squares(
+        fun,
+        x0,
+        jac=prob.jacobian,
+        bounds=(lo, hi),
+        loss=loss,
+        f_scale=3.0,
+        x_scale="jac",
+        max_nfev=nmax,
+        method="trf",
+        tr_solver="lsmr",
+        xtol=1e-8,
+        ftol=1e-8,
+        gtol=1e-10,
+    )
+    return np.asarray(sol.x)
+
+
+def _reject_gross(
+    prob: _Problem, x: FloatArray, reject_sigma: float
+) -> list[tuple[int, int, float]]:
+    """Remove from ``prob`` the observations whose corner RMS exceeds ``reject_sigma · σ_px``
+    at ``x`` (worst first; a photo or body keeps its last view) and set ``prob.sigma_px`` to
+    the first fit's ``σ_px = sqrt(Σr²/(n − p))`` (``r`` over each view's ``sigma_scale``);
+    returns ``(photo, tag_id, rms_px)`` of those removed."""
+    res = prob.scaled_residuals(x)
     dof = max(res.size - len(x) + 6 * len(prob.prior_idx), 1)
     sigma = float(np.sqrt(np.sum(res**2) / dof))
     per_obs = np.sqrt(np.mean(res.reshape(len(prob.obs), -1) ** 2, axis=1))
     bad = np.zeros(len(per_obs), dtype=bool)
     n_cam_obs = np.bincount(prob.o_cam, minlength=prob.n_cam)
     n_body_obs = np.bincount(prob.o_body, minlength=prob.n_body)
-    for i in np.argsort(-per_obs):  # worst first; a photo or body keeps its last view
+    for i in np.argsort(-per_obs):
         if per_obs[i] <= reject_sigma * max(sigma, 0.05):
             break
         c, b = prob.o_cam[i], prob.o_body[i]
@@ -399,25 +564,58 @@ def adjust(
         ]
         prob.set_observations([o for o, b in zip(prob.obs, bad, strict=True) if not b], prob.mount)
     prob.sigma_px = max(sigma, 1e-3)
-    x = solve(prob.rebase(x), "linear", max_nfev)
-    res = prob.image_residuals(x)
-    dof = max(res.size - len(x) + 6 * len(prob.prior_idx), 1)
-    sigma = float(np.sqrt(np.sum(res**2) / dof))
-    prob.sigma_px = max(sigma, 1e-3)
-    x = prob.rebase(x)
-    jac = _jacobian(prob, x)
+    return rejected
+
+
+def _covariance(prob: _Problem, x: FloatArray) -> tuple[FloatArray, float]:
+    """``Σ = (JᵀJ)⁻¹`` of the whitened problem at ``x`` (equilibrated by the diagonal) and the
+    equilibrated normal matrix's condition number.
+
+    Raises
+    ------
+    SolverError
+        The normal matrix is singular: a photo or body not tied to the reference tags.
+    """
+    jac = prob.jacobian(x)
     jtj = (jac.T @ jac).toarray()
     d = np.sqrt(np.clip(np.diag(jtj), 1e-300, None))
     scaled = jtj / np.outer(d, d)
-    ev = np.linalg.eigvalsh(scaled)
+    ev, vec = np.linalg.eigh(scaled)
     cond = float(ev[-1] / max(ev[0], 1e-300))
     if ev[0] <= 1e-12 * ev[-1]:
         raise SolverError(
-            f"bundle adjustment: the normal matrix is singular (condition {cond:.2g}): a photo or "
-            "a body is not tied to the reference tags; take photos that show it together with "
-            "tags already fixed"
+            f"bundle adjustment: the normal matrix is singular (condition {cond:.2g}): "
+            f"{_parameter_name(prob, int(np.argmax(np.abs(vec[:, 0]))))} is not fixed by the "
+            "photos; take photos that show it together with tags already fixed"
         )
-    cov = np.linalg.inv(scaled) / np.outer(d, d)
+    return np.linalg.inv(scaled) / np.outer(d, d), cond
+
+
+def _parameter_name(prob: _Problem, j: int) -> str:
+    """What parameter ``j`` of the adjustment belongs to: a body (by name), a photo (by its
+    index), the intrinsics or the edge bias."""
+    k = prob.n_intr
+    if j < k:
+        return "the camera's intrinsics"
+    if j < k + 6 * prob.n_cam:
+        return f"photo {(j - k) // 6}"
+    if j < k + 6 * (prob.n_cam + prob.n_body):
+        return f"body {prob.bodies[(j - k - 6 * prob.n_cam) // 6].name}"
+    return "the detector's edge bias"
+
+
+def _result(
+    prob: _Problem,
+    bodies: Sequence[BodyModel],
+    x: FloatArray,
+    cov: FloatArray,
+    cond: float,
+    sigma: float,
+    rejected: list[tuple[int, int, float]],
+    nfev: int,
+) -> BundleResult:
+    """The adjustment at ``x`` with its covariance ``cov`` as a :class:`BundleResult`."""
+    res = prob.image_residuals(x)
     intr, rc, tc, rb, pb = prob.unpack(x)
     k = prob.n_intr
     body0 = k + 6 * prob.n_cam
@@ -455,53 +653,8 @@ def adjust(
         rms_px=float(np.sqrt(np.mean(res**2))),
         photo_rms_px=per_photo,
         rejected=tuple(rejected),
-        nfev=nfev[0],
+        nfev=nfev,
         condition=cond,
+        edge_bias_px=float(x[-1]),
+        edge_bias_std_px=float(np.sqrt(max(cov[-1, -1], 0.0))),
     )
-
-
-def _jacobian(prob: _Problem, x: FloatArray) -> sp.csr_matrix:
-    """The Jacobian of the whitened residuals at ``x`` by central differences over the
-    sparsity pattern's column groups (columns sharing no row are perturbed together)."""
-    pattern = prob.sparsity().tocsc()
-    n = pattern.shape[1]
-    groups = _column_groups(pattern)
-    h = 1e-6 * np.maximum(1.0, np.abs(x))
-    k = prob.n_intr
-    if k:
-        h[:k] = 1e-6 * np.maximum(np.abs(x[:k]), 1e-3)
-    rows_all, cols_all, vals_all = [], [], []
-    for g in range(groups.max() + 1):
-        cols = np.flatnonzero(groups == g)
-        dx = np.zeros(n)
-        dx[cols] = h[cols]
-        diff = (prob.residuals(x + dx) - prob.residuals(x - dx)) / 2.0
-        for c in cols:
-            r = pattern.indices[pattern.indptr[c] : pattern.indptr[c + 1]]
-            rows_all.append(r)
-            cols_all.append(np.full(r.size, c))
-            vals_all.append(diff[r] / h[c])
-    return sp.csr_matrix(
-        (np.concatenate(vals_all), (np.concatenate(rows_all), np.concatenate(cols_all))),
-        shape=pattern.shape,
-    )
-
-
-def _column_groups(pattern: sp.csc_matrix) -> NDArray[np.int64]:
-    """Greedy colouring of the columns: two columns in one group share no row."""
-    n = pattern.shape[1]
-    groups = np.full(n, -1, dtype=np.int64)
-    used: list[NDArray[np.bool_]] = []
-    for c in range(n):
-        r = pattern.indices[pattern.indptr[c] : pattern.indptr[c + 1]]
-        for g, mask in enumerate(used):
-            if not mask[r].any():
-                mask[r] = True
-                groups[c] = g
-                break
-        else:
-            mask = np.zeros(pattern.shape[0], dtype=bool)
-            mask[r] = True
-            used.append(mask)
-            groups[c] = len(used) - 1
-    return groups

@@ -32,7 +32,9 @@ from dimacq.io.tags_file import TagsFile
 from dimacq.model.setup import TestSetup
 from dimacq.pipeline.photogrammetry.bundle import (
     BodyModel,
+    BundleResult,
     Observation,
+    TagMount,
     adjust,
 )
 from dimacq.pipeline.photogrammetry.camera import Intrinsics, tag_corners, undistort_normalised
@@ -48,8 +50,12 @@ from dimacq.services.geometry.photo_records import (
     _records,
     apply_to_setup,
 )
+from dimacq.services.geometry.records import LineOfAction, Orientation
 
 __all__ = [
+    "LIMIT_ANGLE_STD_DEG",
+    "LIMIT_LOA_STD_DEG",
+    "LIMIT_POSITION_STD_M",
     "MIN_VIEWS",
     "PHOTO_SUFFIXES",
     "PhotoGeometry",
@@ -69,6 +75,12 @@ PHOTO_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp")
 #: Tag views more oblique than this (angle between the tag's normal and the line of sight)
 #: are left out of the adjustment.
 MAX_INCIDENCE_DEG = 65.0
+#: A triax whose stated 1σ exceeds these (per axis, per coordinate) is not fixed: the set is
+#: refused and the triax named with the photos it still needs (``σ ∝ 1/√n``).
+LIMIT_ANGLE_STD_DEG = 0.1
+LIMIT_POSITION_STD_M = 2e-4
+#: An input's line of action whose stated 1σ exceeds this angle is named (a warning).
+LIMIT_LOA_STD_DEG = 0.2
 #: Variance of the Laplacian below which a photo without tags is called blurred.
 BLUR_LIMIT = 20.0
 _OTHER_FAMILIES = (
@@ -246,18 +258,10 @@ def _initial_poses(
             if not pts_w:
                 continue
             w, xy = np.concatenate(pts_w), np.concatenate(pts_xy)
-            if len(pts_w) == 1:  # one tag: its own square solution, mapped to the world
-                tid = next(t for t in obs if mount[t][0] in bodies)
-                bi, t = mount[tid]
-                r_ct, t_ct, _ = _pose_from_points(tag_corners(t.side_m), obs[tid], True)
-                rb, pb = bodies[bi]
-                r_wt = rb @ t.rotation
-                p_wt = rb @ t.offset_m + pb
-                rc = r_ct @ r_wt.T
-                cams[c] = (rc, t_ct - rc @ p_wt)
-            else:
-                rc, tc, _ = _pose_from_points(w, xy, False)
-                cams[c] = (rc, tc)
+            try:
+                cams[c] = _photo_pose(w, xy, len(pts_w), obs, mount, bodies)
+            except DataError:
+                continue  # these points give no pose: the photo stays out
             progress = True
         # bodies seen by placed photos: from the photo where their tags look largest
         for bi, b in enumerate(models):
@@ -290,6 +294,29 @@ def _initial_poses(
             break
     say(f"first poses: {len(cams)} of {len(photos)} photos, {len(bodies)} of {len(models)} bodies")
     return cams, bodies
+
+
+def _photo_pose(
+    w: FloatArray,
+    xy: FloatArray,
+    n_tags: int,
+    obs: dict[int, FloatArray],
+    mount: dict[int, tuple[int, TagMount]],
+    bodies: dict[int, tuple[FloatArray, FloatArray]],
+) -> tuple[FloatArray, FloatArray]:
+    """A photo's first pose (world → camera) from the placed tags' corners ``w`` seen at the
+    normalised points ``xy``; one tag: its own square solution mapped to the world."""
+    if n_tags > 1:
+        rc, tc, _ = _pose_from_points(w, xy, False)
+        return rc, tc
+    tid = next(t for t in obs if mount[t][0] in bodies)
+    bi, t = mount[tid]
+    r_ct, t_ct, _ = _pose_from_points(tag_corners(t.side_m), obs[tid], True)
+    rb, pb = bodies[bi]
+    r_wt = rb @ t.rotation
+    p_wt = rb @ t.offset_m + pb
+    rc = r_ct @ r_wt.T
+    return rc, t_ct - rc @ p_wt
 
 
 def _area(c: FloatArray) -> float:
@@ -327,7 +354,75 @@ def geometry_from_photos(
         plate seen: the message names the photos and the fix.
     """
     say = progress or (lambda _m: None)
-    folder = Path(photos_dir)
+    paths, photos, issues, models, known = _photos_of(Path(photos_dir), tags, say)
+    intr, refine, source = _start_intrinsics(photos, camera, issues)
+    views, unfixed = _views(models, photos, known, setup, issues)
+    use_bodies = [
+        bi
+        for bi, b in enumerate(models)
+        if views[bi] >= (1 if b.kind in ("reference", "scalebar") else MIN_VIEWS)
+    ]
+    sub_models = [models[bi] for bi in use_bodies]
+    cams, poses = _initial_poses(sub_models, photos, intr, say)
+    if not any(sub_models[i].prior_position_m is not None for i in poses):
+        raise DataError(
+            "no reference plate is seen in any photo: the article's frame is not fixed; "
+            "photograph the reference plates together with the triaxes and inputs"
+        )
+    obs, cam_idx, body_idx = _tied_observations(
+        sub_models, photos, cams, poses, unfixed, issues, say
+    )
+    final_models = [sub_models[i] for i in body_idx]
+    say(f"adjusting {len(cam_idx)} photos, {len(final_models)} bodies, {4 * len(obs)} corners")
+    bundle = adjust(
+        final_models,
+        obs,
+        intr,
+        [cams[c][0] for c in cam_idx],
+        [cams[c][1] for c in cam_idx],
+        [poses[i][0] for i in body_idx],
+        [poses[i][1] for i in body_idx],
+        refine_intrinsics=refine,
+        progress=lambda n, cost: say(f"adjustment: {n} evaluations, cost {cost:.4g}"),
+    )
+    used = [photos[c].name for c in cam_idx]
+    _bundle_issues(bundle, used, issues)
+    depth = float(np.median(np.linalg.norm(bundle.camera_translations, axis=1)))
+    scale_m = bundle.sigma_px * depth / bundle.intrinsics.fx
+    orientations, loas = _records(bundle, final_models, tags, scale_m)
+    unfixed.extend(_too_uncertain(bundle, orientations, loas, issues))
+    say(
+        f"adjusted: σ {bundle.sigma_px:.3f} px, {len(orientations)} triaxes, {len(loas)} inputs, "
+        f"{len(unfixed)} not fixed"
+    )
+    result = PhotoGeometry(
+        orientations=orientations,
+        lines_of_action=loas,
+        bodies=list(bundle.bodies),
+        bundle=bundle,
+        photos=[p.name for p in paths],
+        used=used,
+        issues=issues,
+        unfixed=unfixed,
+        intrinsics_source=source,
+        counts={"photos": len(paths), "used": len(used), "observations": len(obs)},
+    )
+    if setup is not None and not unfixed:
+        result = replace(result, setup=apply_to_setup(setup, result))
+    return result
+
+
+def _photos_of(
+    folder: Path, tags: TagsFile, say: Callable[[str], None]
+) -> tuple[list[Path], list[_Photo], list[PhotoIssue], list[BodyModel], set[int]]:
+    """The photos of ``folder`` with their tags read (:func:`_read_photos`), the issues met,
+    the tags file's bodies and tag ids.
+
+    Raises
+    ------
+    SetupError, DataError
+        Not a folder, no photos, or none showing a tag of the tags file.
+    """
     if not folder.is_dir():
         raise SetupError(f"photos folder {folder}: not a folder; give the folder of the photos")
     paths = sorted(p for p in folder.iterdir() if p.suffix.lower() in PHOTO_SUFFIXES)
@@ -335,7 +430,7 @@ def geometry_from_photos(
         raise DataError(
             f"photos folder {folder}: no photos ({', '.join(PHOTO_SUFFIXES)}); copy the photos there"
         )
-    models = tags.body_models()
+    models = [_with_placement(b, tags) for b in tags.body_models()]
     known = {t.tag_id for b in models for t in b.tags}
     photos, issues = _read_photos(paths, tags.family, known, say)
     if not photos:
@@ -343,6 +438,38 @@ def geometry_from_photos(
             f"photos folder {folder}: none of {len(paths)} photos shows a tag of the tags file: "
             + "; ".join(str(i) for i in issues[:5])
         )
+    return paths, photos, issues, models, known
+
+
+def _with_placement(body: BodyModel, tags: TagsFile) -> BodyModel:
+    """A reference body whose prior also carries its tags' placement on it: the tags the
+    adjustment sees sit at the stated pose ⊕ their placement, ``σ² = σ_stated² + σ_place²/k``
+    over its ``k`` tags (per coordinate, per axis)."""
+    if body.prior_position_m is None:
+        return body
+    k = max(len(body.tags), 1)
+    return replace(
+        body,
+        prior_position_std_m=float(
+            np.hypot(body.prior_position_std_m, tags.placement_position_m / np.sqrt(k))
+        ),
+        prior_angle_std_deg=float(
+            np.hypot(body.prior_angle_std_deg, tags.placement_angle_deg / np.sqrt(k))
+        ),
+    )
+
+
+def _start_intrinsics(
+    photos: list[_Photo], camera: tuple[Intrinsics, bool] | None, issues: list[PhotoIssue]
+) -> tuple[Intrinsics, bool, str]:
+    """The intrinsics to start from, whether to refine them, and where they come from: the
+    camera file, else the photos' EXIF focal length (median), the image centre, no distortion.
+
+    Raises
+    ------
+    SetupError, DataError
+        The camera file is for another image size; no camera file and no EXIF focal length.
+    """
     w, h = photos[0].size
     if camera is not None:
         intr, refine = camera
@@ -351,30 +478,39 @@ def geometry_from_photos(
                 f"camera file is for {intr.width}x{intr.height} px, the photos are {w}x{h} px; "
                 "calibrate the camera at the photos' resolution"
             )
-        source = "camera file"
-    else:
-        focals = [p.focal_px for p in photos if p.focal_px]
-        if not focals:
-            raise DataError(
-                f"{len(photos)} photos carry no EXIF focal length (e.g. {photos[0].name}): give "
-                "--camera CAM.toml (fx, fy, cx, cy in pixels from a calibration) or use the "
-                "camera's original files, whose EXIF states the focal length"
+        return intr, refine, "camera file"
+    focals = [p.focal_px for p in photos if p.focal_px]
+    if not focals:
+        raise DataError(
+            f"{len(photos)} photos carry no EXIF focal length (e.g. {photos[0].name}): give "
+            "--camera CAM.toml (fx, fy, cx, cy in pixels from a calibration) or use the "
+            "camera's original files, whose EXIF states the focal length"
+        )
+    no_exif = [p.name for p in photos if not p.focal_px]
+    if no_exif:
+        issues.append(
+            PhotoIssue(
+                ", ".join(no_exif[:5]),
+                "warn",
+                f"{len(no_exif)} photos without EXIF focal length (the others' is used)",
+                "keep the camera's original files",
             )
-        no_exif = [p.name for p in photos if not p.focal_px]
-        if no_exif:
-            issues.append(
-                PhotoIssue(
-                    ", ".join(no_exif[:5]),
-                    "warn",
-                    f"{len(no_exif)} photos without EXIF focal length (the others' is used)",
-                    "keep the camera's original files",
-                )
-            )
-        f = float(np.median(focals))
-        intr = Intrinsics(fx=f, fy=f, cx=(w - 1) / 2, cy=(h - 1) / 2, width=w, height=h)
-        refine = True
-        source = "EXIF focal length, refined in the adjustment"
-    # bodies with too few views are not fixed
+        )
+    f = float(np.median(focals))
+    intr = Intrinsics(fx=f, fy=f, cx=(w - 1) / 2, cy=(h - 1) / 2, width=w, height=h)
+    return intr, True, "EXIF focal length, refined in the adjustment"
+
+
+def _views(
+    models: list[BodyModel],
+    photos: list[_Photo],
+    known: set[int],
+    setup: TestSetup | None,
+    issues: list[PhotoIssue],
+) -> tuple[dict[int, int], list[str]]:
+    """Photos showing each body (by index), and what is not fixed: triaxes and inputs seen in
+    fewer than :data:`MIN_VIEWS` photos (with how many more they need), the setup's triaxes and
+    inputs without tags; a tag seen in one photo only is added to ``issues``."""
     views: dict[int, int] = {}
     for bi, b in enumerate(models):
         ids = {t.tag_id for t in b.tags}
@@ -406,18 +542,22 @@ def geometry_from_photos(
                     "a tag seen once fixes nothing: show it in at least two more photos",
                 )
             )
-    use_bodies = [
-        bi
-        for bi, b in enumerate(models)
-        if views[bi] >= (1 if b.kind in ("reference", "scalebar") else MIN_VIEWS)
-    ]
-    sub_models = [models[bi] for bi in use_bodies]
-    cams, poses = _initial_poses(sub_models, photos, intr, say)
-    if not any(sub_models[i].prior_position_m is not None for i in poses):
-        raise DataError(
-            "no reference plate is seen in any photo: the article's frame is not fixed; "
-            "photograph the reference plates together with the triaxes and inputs"
-        )
+    return views, unfixed
+
+
+def _tied_observations(
+    sub_models: list[BodyModel],
+    photos: list[_Photo],
+    cams: dict[int, tuple[FloatArray, FloatArray]],
+    poses: dict[int, tuple[FloatArray, FloatArray]],
+    unfixed: list[str],
+    issues: list[PhotoIssue],
+    say: Callable[[str], None],
+) -> tuple[list[Observation], list[int], list[int]]:
+    """The observations the adjustment uses (photos and bodies tied to the reference plates,
+    tag views not too oblique), indexed by photo in the returned photo list; the photos
+    (indices into ``photos``) and bodies (into ``sub_models``) they use. What is left out is
+    added to ``unfixed`` (triaxes, inputs) or ``issues`` (photos)."""
     for i, b in enumerate(sub_models):
         if i not in poses and b.kind in ("triax", "input"):
             unfixed.append(
@@ -450,6 +590,7 @@ def geometry_from_photos(
     )
     if oblique:
         say(f"{oblique} tag views more oblique than {MAX_INCIDENCE_DEG:g} deg left out")
+    obs = _tied_only(obs, final_models)
     # photos and bodies left without a view are left out (nothing would fix them)
     seen_cams = sorted({o.photo for o in obs})
     tag_body = {t.tag_id: k for k, b in enumerate(final_models) for t in b.tags}
@@ -463,21 +604,80 @@ def geometry_from_photos(
     cam_idx = [cam_idx[k] for k in seen_cams]
     cmap = {old: new_ for new_, old in enumerate(seen_cams)}
     body_idx = [body_idx[k] for k in seen_bodies]
-    final_models = [sub_models[i] for i in body_idx]
-    obs = [Observation(cmap[o.photo], o.tag_id, o.corners_px) for o in obs]
-    say(f"adjusting {len(cam_idx)} photos, {len(final_models)} bodies, {4 * len(obs)} corners")
-    bundle = adjust(
-        final_models,
-        obs,
-        intr,
-        [cams[c][0] for c in cam_idx],
-        [cams[c][1] for c in cam_idx],
-        [poses[i][0] for i in body_idx],
-        [poses[i][1] for i in body_idx],
-        refine_intrinsics=refine,
-        progress=lambda n, cost: say(f"adjustment: {n} evaluations, cost {cost:.4g}"),
-    )
-    used = [photos[c].name for c in cam_idx]
+    obs = [replace(o, photo=cmap[o.photo]) for o in obs]
+    return obs, cam_idx, body_idx
+
+
+def _tied_only(obs: list[Observation], models: list[BodyModel]) -> list[Observation]:
+    """``obs`` without the views of a body with no stated pose seen in one photo only (nothing
+    but that photo fixes it) and of a photo showing one tag only (a small square alone leaves
+    its tilt and its distance all but undetermined: the planar pose ambiguity); repeated until
+    there is none."""
+    body_of = {t.tag_id: k for k, b in enumerate(models) for t in b.tags}
+    while True:
+        photos_of: dict[int, set[int]] = {}
+        tags_in: dict[int, int] = {}
+        for o in obs:
+            photos_of.setdefault(body_of[o.tag_id], set()).add(o.photo)
+            tags_in[o.photo] = tags_in.get(o.photo, 0) + 1
+        loose = {
+            k for k, ph in photos_of.items() if len(ph) < 2 and models[k].prior_position_m is None
+        }
+        lone = {c for c, n in tags_in.items() if n < 2}
+        if not loose and not lone:
+            return obs
+        obs = [o for o in obs if body_of[o.tag_id] not in loose and o.photo not in lone]
+
+
+def _more_views(n: int, ratio: float) -> int:
+    """Photos to add to ``n`` to bring a 1σ ``ratio`` times its limit under it,
+    ``σ ∝ 1/√n``: ``⌈n (ratio² − 1)⌉``."""
+    return max(1, int(np.ceil(n * (ratio**2 - 1.0))))
+
+
+def _too_uncertain(
+    bundle: BundleResult,
+    orientations: list[Orientation],
+    loas: list[LineOfAction],
+    issues: list[PhotoIssue],
+) -> list[str]:
+    """The triaxes whose stated 1σ exceeds :data:`LIMIT_ANGLE_STD_DEG` or
+    :data:`LIMIT_POSITION_STD_M`, each with the photos it still needs; inputs over
+    :data:`LIMIT_LOA_STD_DEG` are added to ``issues``."""
+    seen = {(b.kind, b.node): b.n_photos for b in bundle.bodies}
+    out = []
+    for o in orientations:
+        ratio = max(
+            max(o.angle_std_deg or [0.0]) / LIMIT_ANGLE_STD_DEG,
+            (o.origin_std_m or 0.0) / LIMIT_POSITION_STD_M,
+        )
+        if ratio > 1.0:
+            n = seen.get(("triax", o.node), 1)
+            out.append(
+                f"triax {o.node}: stated 1σ {max(o.angle_std_deg or [0.0]):.3f} deg, "
+                f"{1e3 * (o.origin_std_m or 0.0):.3f} mm from {n} photos (limits "
+                f"{LIMIT_ANGLE_STD_DEG:g} deg, {1e3 * LIMIT_POSITION_STD_M:g} mm); take about "
+                f"{_more_views(n, ratio)} more close-ups of its block from other sides"
+            )
+    for a in loas:
+        if (a.angle_std_deg or 0.0) > LIMIT_LOA_STD_DEG:
+            n = seen.get(("input", a.node), 1)
+            issues.append(
+                PhotoIssue(
+                    f"input {a.node}",
+                    "warn",
+                    f"line of action 1σ {a.angle_std_deg:.3f} deg from {n} photos "
+                    f"(over {LIMIT_LOA_STD_DEG:g} deg)",
+                    f"take about {_more_views(n, a.angle_std_deg / LIMIT_LOA_STD_DEG)} more "
+                    "close-ups of its jig",
+                )
+            )
+    return out
+
+
+def _bundle_issues(bundle: BundleResult, used: list[str], issues: list[PhotoIssue]) -> None:
+    """Add to ``issues`` the photos whose corner residual is over 4 × the set's and the tag
+    views the adjustment left out as gross errors."""
     for k, r in enumerate(bundle.photo_rms_px):
         if np.isfinite(r) and r > 4 * max(bundle.sigma_px, 0.1):
             issues.append(
@@ -497,28 +697,6 @@ def geometry_from_photos(
                 "a tag partly hidden or misread: retake it",
             )
         )
-    depth = float(np.median(np.linalg.norm(bundle.camera_translations, axis=1)))
-    scale_m = bundle.sigma_px * depth / bundle.intrinsics.fx
-    orientations, loas = _records(bundle, final_models, tags, scale_m)
-    say(
-        f"adjusted: σ {bundle.sigma_px:.3f} px, {len(orientations)} triaxes, {len(loas)} inputs, "
-        f"{len(unfixed)} not fixed"
-    )
-    result = PhotoGeometry(
-        orientations=orientations,
-        lines_of_action=loas,
-        bodies=list(bundle.bodies),
-        bundle=bundle,
-        photos=[p.name for p in paths],
-        used=used,
-        issues=issues,
-        unfixed=unfixed,
-        intrinsics_source=source,
-        counts={"photos": len(paths), "used": len(used), "observations": len(obs)},
-    )
-    if setup is not None and not unfixed:
-        result = replace(result, setup=apply_to_setup(setup, result))
-    return result
 
 
 def _drop_oblique(
@@ -528,7 +706,8 @@ def _drop_oblique(
     poses: list[tuple[FloatArray, FloatArray]],
 ) -> tuple[list[Observation], int]:
     """The observations whose tag faces the camera within :data:`MAX_INCIDENCE_DEG` at the
-    first poses (a tag seen edge-on has its corners located far less well)."""
+    first poses (a tag seen edge-on has its corners located far less well), each with its
+    corner 1σ scaled by ``1/cos θ`` (its border is foreshortened by ``cos θ``)."""
     mount = {t.tag_id: (i, t) for i, b in enumerate(models) for t in b.tags}
     keep = []
     for o in obs:
@@ -539,5 +718,5 @@ def _drop_oblique(
         normal = rc @ rb @ t.rotation[:, 2]
         cos = -float(np.dot(normal, centre)) / float(np.linalg.norm(centre))
         if cos >= np.cos(np.radians(MAX_INCIDENCE_DEG)):
-            keep.append(o)
+            keep.append(replace(o, sigma_scale=1.0 / cos))
     return keep, len(obs) - len(keep)
