@@ -9,6 +9,7 @@ import shutil
 import stat
 import subprocess
 import sys
+import tempfile
 import textwrap
 from pathlib import Path
 
@@ -123,3 +124,33 @@ def test_a_whole_cycle_writes_only_in_the_data_and_rig_folders(tmp_path: Path) -
             if str(folder) != ".":
                 mode = stat.S_IMODE((data / folder).stat().st_mode)
                 assert mode == 0o700, (folder, oct(mode))
+
+
+def test_a_spool_is_emptied_only_where_no_running_process_owns_it(tmp_path: Path) -> None:
+    """Two services on one data folder (the demo's chain check runs a second one): each
+    keeps to ``tmp/<its pid>``; a start empties the folders of ended processes and loose
+    files, never a running process's."""
+    from dimacq.services.lab.lab import confine_files
+
+    before = tempfile.tempdir
+    root = tmp_path / "tmp"
+    live = root / str(os.getppid())  # the test runner's parent: running
+    ended = subprocess.run(
+        [sys.executable, "-c", "import os; print(os.getpid())"],
+        check=True,
+        capture_output=True,
+        text=True,
+    )
+    dead = root / ended.stdout.strip()
+    for d in (live, dead):
+        d.mkdir(parents=True)
+        (d / "upload-spool").write_bytes(b"x")
+    (root / "loose.bin").write_bytes(b"y")
+    try:
+        spool = confine_files(tmp_path)
+        assert spool == root / str(os.getpid()) and spool.is_dir()
+        assert tempfile.tempdir == str(spool)
+        assert (live / "upload-spool").read_bytes() == b"x"
+        assert not dead.exists() and not (root / "loose.bin").exists()
+    finally:
+        tempfile.tempdir = before

@@ -72,19 +72,48 @@ log = logging.getLogger(__name__)
 
 def confine_files(data_dir: Path) -> Path:
     """Keep the service's own files under ``data_dir``: temporary files (upload spools, UFF
-    reads) in ``<data_dir>/tmp``, emptied here (a spool left by a killed service goes), and
-    matplotlib's configuration and font cache in ``<data_dir>/cache/matplotlib`` (set before
-    matplotlib is first imported: a process that imported it already keeps its folder). Returns
-    the temporary folder."""
-    spool = data_dir / "tmp"
-    shutil.rmtree(spool, ignore_errors=True)
-    spool.mkdir(mode=0o700, parents=True, exist_ok=True)
+    reads) in ``<data_dir>/tmp/<pid>``, this process's own folder, and matplotlib's
+    configuration and font cache in ``<data_dir>/cache/matplotlib`` (set before matplotlib is
+    first imported: a process that imported it already keeps its folder). Returns the
+    temporary folder.
+
+    Several processes may share one data folder (the demo's chain check runs a second service
+    on it): each empties only what no live process owns — the folders of processes that have
+    ended (a spool left by a killed service goes) and loose files of older versions — never
+    another running service's spool."""
+    root = data_dir / "tmp"
+    root.mkdir(mode=0o700, parents=True, exist_ok=True)
+    for entry in root.iterdir():
+        if entry.name.isdigit() and entry.is_dir() and _alive(int(entry.name)):
+            continue
+        if entry.is_dir() and not entry.is_symlink():
+            shutil.rmtree(entry, ignore_errors=True)
+        else:
+            entry.unlink(missing_ok=True)
+    spool = root / str(os.getpid())
+    shutil.rmtree(spool, ignore_errors=True)  # a reused pid's leftovers
+    spool.mkdir(mode=0o700)
     tempfile.tempdir = str(spool)
     mpl = data_dir / "cache" / "matplotlib"
     mpl.mkdir(mode=0o700, parents=True, exist_ok=True)
     if "matplotlib" not in sys.modules:
         os.environ["MPLCONFIGDIR"] = str(mpl)
     return spool
+
+
+def _alive(pid: int) -> bool:
+    """Whether process ``pid`` runs (signal 0: the check, no signal sent)."""
+    if pid == os.getpid():
+        return False  # this process's old folder (a second Lab in it): emptied anew
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True  # another user's process
+    except OSError:
+        return False
+    return True
 
 
 @dataclass(frozen=True)
