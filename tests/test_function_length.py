@@ -24,7 +24,6 @@ CEILINGS: dict[tuple[str, str], int] = {
     ("dimacq/services/solve/verdict.py", "verdict"): 170,
     ("dimacq/services/calibration/inertial_calibration.py", "run_inertial_calibration"): 166,
     ("dimacq/pipeline/modal.py", "fit_modal_model"): 155,
-    ("dimacq/pipeline/loadcell_calibration.py", "static_certificate"): 154,
     ("dimacq/cli/commands/solve.py", "register"): 139,
     ("dimacq/pipeline/selection/responses.py", "select_responses"): 136,
     ("dimacq/pipeline/sensitivity.py", "monte_carlo"): 135,
