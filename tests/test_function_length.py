@@ -25,7 +25,6 @@ CEILINGS: dict[tuple[str, str], int] = {
     ("dimacq/services/calibration/inertial_calibration.py", "run_inertial_calibration"): 166,
     ("dimacq/pipeline/modal.py", "fit_modal_model"): 155,
     ("dimacq/cli/commands/solve.py", "register"): 139,
-    ("dimacq/pipeline/sensitivity.py", "monte_carlo"): 135,
     ("dimacq/cli/commands/solve.py", "print_report"): 129,
     ("dimacq/services/lab/acquisitions.py", "AcquisitionService._start"): 125,
     ("dimacq/pipeline/frf_estimation.py", "estimate_frf"): 125,
