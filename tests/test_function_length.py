@@ -27,7 +27,6 @@ CEILINGS: dict[tuple[str, str], int] = {
     ("dimacq/cli/commands/solve.py", "register"): 139,
     ("dimacq/cli/commands/solve.py", "print_report"): 129,
     ("dimacq/services/lab/acquisitions.py", "AcquisitionService._start"): 125,
-    ("dimacq/pipeline/output_error/model.py", "_Problem.residual"): 122,
     # the photo-geometry chain, not yet split into named steps
     ("dimacq/services/geometry/photo_geometry.py", "geometry_from_photos"): 222,
     # the photo-geometry chain, not yet split into named steps
