@@ -345,7 +345,7 @@ def monte_carlo(
     # forward and inverse -----------------------------------------------------------------------
     K_t = np.linalg.solve(M, phi_t)  # (T, 6, N): free rigid body, a = M⁻¹ F
     q = psi_t @ K_t  # (T, n_ch, N)
-    K_hat = np.linalg.pinv(psi_n) @ q  # (T, 6, N)
+    K_hat = np.asarray(np.linalg.pinv(psi_n) @ q, dtype=np.float64)  # (T, 6, N)
     samples = solve_trials(K_hat, phi_n)
     desc = {
         "n_trials": T,
