@@ -34,6 +34,7 @@ import os
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from dimacq.backends.base import DeviceContext, require_setup
 from dimacq.backends.can_loadcell import open_amplifier
@@ -115,23 +116,60 @@ class SimulatedWorld:
             hammer_noise=calibration_bench is None,
             cache_blocks=64,
         )
-        article = self.lab.model.setup
         where = f"rig file {rig_file.name} with scenario {scenario!r}"
         #: what the devices read and the hand strikes: the lab, or the bench around it
-        self.source: VirtualLab | SupportSideBench = self.lab
-        if calibration_bench is not None:
-            if calibration_bench not in {lc.node for lc in article.load_cells}:
-                raise SetupError(
-                    f"{where}: load cell {calibration_bench} to calibrate is not on the "
-                    "scenario's article; give a scenario whose article hangs on that cell "
-                    "(calibration-mass-*)"
-                )
-            self.source = SupportSideBench(self.lab, calibration_bench)
+        self.source: VirtualLab | SupportSideBench = self._source(calibration_bench, where)
         if abs(rig_file.daq.sample_rate_hz - self.lab.sample_rate_hz) > 1e-9:
             raise SetupError(
                 f"{where}: [daq] sample_rate_hz = {rig_file.daq.sample_rate_hz:g} but the virtual "
                 f"lab samples at {self.lab.sample_rate_hz:g} Hz; set sample_rate_hz to it"
             )
+        #: what is plugged into each DAQ input (what a simulated DAQ of another make reads)
+        self.wiring = self._wiring(rig_file, where)
+        self.clock = SampleClock()
+        #: the DAQ's pyusb backend (``daq = "mcc-usb-simulated"`` puts its units here): what
+        #: the operator's strikes are timed on (``world_sample``, ``clock``)
+        self.backend: Any = self._daq_backend(imp, fault_seed)
+        # each amplifier's crystal: within ±loadcell_oscillator_ppm of nominal
+        ppm = np.random.default_rng([fault_seed, 0x0C]).uniform(
+            -imp.loadcell_oscillator_ppm, imp.loadcell_oscillator_ppm, len(rig_file.load_cells)
+        )
+        # The bus's frame losses and bus-offs: a seeded world replays its seed's; an unseeded
+        # one draws its own, as a bus does (seed 0 for every unseeded run lost the same frame,
+        # pulse 3705 of node 1, at the first strike of every acquisition)
+        fresh = np.random.SeedSequence().entropy  # an int when drawn from the OS
+        assert isinstance(fresh, int)
+        self.can_seed = fault_seed if seed is not None else fresh
+        self.can_channel = f"dimacq-sim-{os.getpid()}-{next(_names)}"
+        self._sims: list[LoadCellAmplifierSim] = []
+        try:
+            self._start_amplifiers(rig_file, imp, ppm)
+        except BaseException:
+            self.close()
+            raise
+
+    def _source(self, calibration_bench: int | None, where: str) -> VirtualLab | SupportSideBench:
+        """The lab, or the inertial calibration bench of load cell ``calibration_bench`` around
+        it (the cell must be on the scenario's article)."""
+        if calibration_bench is None:
+            return self.lab
+        if calibration_bench not in {lc.node for lc in self.lab.model.setup.load_cells}:
+            raise SetupError(
+                f"{where}: load cell {calibration_bench} to calibrate is not on the "
+                "scenario's article; give a scenario whose article hangs on that cell "
+                "(calibration-mass-*)"
+            )
+        return SupportSideBench(self.lab, calibration_bench)
+
+    def _wiring(self, rig_file: RigFile, where: str) -> dict[int, DaqInput]:
+        """DAQ input → the lab channel plugged into it and its true sensitivity (V per unit).
+
+        Hammers (mV/N) and accelerometers (mV/g) get a true sensitivity within their datasheet
+        tolerance, drawn from their serial number; load cells cabled to DAQ inputs
+        (``loadcell = "daq-channels"``) their bridge outputs, the same lab channels the
+        amplifier simulators read.
+        """
+        article = self.lab.model.setup
         responses = {(c.node, c.direction): k for k, c in enumerate(article.responses)}
         hammer = self.lab.channel_index("hammer")
         wiring: dict[int, DaqInput] = {}
@@ -160,19 +198,17 @@ class SimulatedWorld:
             wiring[r.physical_channel] = DaqInput(
                 responses[(r.node, r.direction)], mv * 1e-3 / STANDARD_GRAVITY
             )
-        # load cells cabled to DAQ inputs (loadcell = "daq-channels"): their bridge outputs,
-        # the same lab channels the amplifier simulators read
         for e in rig_file.load_cells:
             if e.daq_channels:
                 wiring.update(self._bridge_inputs(e, where))
-        #: what is plugged into each DAQ input (what a simulated DAQ of another make reads)
-        self.wiring = wiring
-        self.clock = SampleClock()
-        #: the DAQ's pyusb backend (``daq = "mcc-usb-simulated"`` puts its units here): what
-        #: the operator's strikes are timed on (``world_sample``, ``clock``)
-        self.backend: Any = VirtualDaqBackend(
+        return wiring
+
+    def _daq_backend(self, imp: Imperfections, fault_seed: int) -> VirtualDaqBackend:
+        """The DAQ's pyusb backend on the source, the wiring and the clock, with the DAQ's
+        imperfections (free-running clock, bounded FIFO, stale frames, stalls, re-enumeration)."""
+        return VirtualDaqBackend(
             self.source,
-            wiring,
+            self.wiring,
             clock=self.clock,
             free_running=imp.daq_free_running,
             time_scale=imp.daq_time_scale,
@@ -187,44 +223,34 @@ class SimulatedWorld:
                 reenumerate_s=imp.daq_reenumerate_s,
             ),
         )
-        # each amplifier's crystal: within ±loadcell_oscillator_ppm of nominal
-        ppm = np.random.default_rng([fault_seed, 0x0C]).uniform(
-            -imp.loadcell_oscillator_ppm, imp.loadcell_oscillator_ppm, len(rig_file.load_cells)
-        )
-        # The bus's frame losses and bus-offs: a seeded world replays its seed's; an unseeded
-        # one draws its own, as a bus does (seed 0 for every unseeded run lost the same frame,
-        # pulse 3705 of node 1, at the first strike of every acquisition)
-        fresh = np.random.SeedSequence().entropy  # an int when drawn from the OS
-        assert isinstance(fresh, int)
-        can_seed = fault_seed if seed is not None else fresh
-        self.can_seed = can_seed
-        self.can_channel = f"dimacq-sim-{os.getpid()}-{next(_names)}"
-        self._sims: list[LoadCellAmplifierSim] = []
-        try:
-            for k, e in enumerate(rig_file.load_cells):
-                if e.node_id is None:  # not on CAN: its gauges are DAQ inputs
-                    continue
-                gauges = [self.lab.channel_index(n) for n in gauge_names(e.node)]
-                self._sims.append(
-                    LoadCellAmplifierSim(
-                        self.can_channel,
-                        self.source,
-                        gauges,
-                        clock=self.clock,
-                        node_id=e.node_id,
-                        serial_number=e.node,
-                        oscillator_ppm=float(ppm[k]),
-                        faults=LoadCellFaults(
-                            frame_loss_rate=imp.can_frame_loss_rate,
-                            bus_off_rate=imp.can_bus_off_rate,
-                            bus_off_s=imp.can_bus_off_s,
-                            seed=can_seed,
-                        ),
-                    )
+
+    def _start_amplifiers(
+        self, rig_file: RigFile, imp: Imperfections, ppm: NDArray[np.float64]
+    ) -> None:
+        """One amplifier simulator per load cell on CAN (``node_id`` set) on the world's
+        ``virtual`` channel, crystal ``ppm[k]`` off nominal; each joins ``_sims`` as it starts
+        (a failure closes those already started)."""
+        for k, e in enumerate(rig_file.load_cells):
+            if e.node_id is None:  # not on CAN: its gauges are DAQ inputs
+                continue
+            gauges = [self.lab.channel_index(n) for n in gauge_names(e.node)]
+            self._sims.append(
+                LoadCellAmplifierSim(
+                    self.can_channel,
+                    self.source,
+                    gauges,
+                    clock=self.clock,
+                    node_id=e.node_id,
+                    serial_number=e.node,
+                    oscillator_ppm=float(ppm[k]),
+                    faults=LoadCellFaults(
+                        frame_loss_rate=imp.can_frame_loss_rate,
+                        bus_off_rate=imp.can_bus_off_rate,
+                        bus_off_s=imp.can_bus_off_s,
+                        seed=self.can_seed,
+                    ),
                 )
-        except BaseException:
-            self.close()
-            raise
+            )
 
     def _bridge_inputs(self, entry: LoadCellEntry, where: str) -> dict[int, DaqInput]:
         """DAQ inputs of load cell ``entry``'s gauges: the lab's bridge outputs (mV/V, a

@@ -128,6 +128,87 @@ def _check_finite(name: str, arr: NDArray[np.float64]) -> None:
         raise DataError(f"{name} contains NaN or infinite samples; reject that average first")
 
 
+def _check_request(
+    x: NDArray[np.float64],
+    y: NDArray[np.float64],
+    sample_rate_hz: float,
+    estimator: str,
+    workers: int,
+) -> None:
+    """Refuse records and settings :func:`estimate_frf` cannot use, naming the fix."""
+    if x.shape[0] != y.shape[0] or x.shape[2] != y.shape[2]:
+        raise DataError(
+            f"inputs {x.shape} and outputs {y.shape} must share n_averages and n_samples"
+        )
+    if sample_rate_hz <= 0:
+        raise SetupError(f"sample_rate_hz = {sample_rate_hz}; give a positive sample rate")
+    n_avg, n_in, _n_s = x.shape
+    if estimator not in ("H1", "H2", "Hv"):
+        raise SetupError(f"estimator {estimator!r} is unknown; use 'H1', 'H2' or 'Hv'")
+    if estimator == "H2" and n_in != 1:
+        raise SetupError(
+            f"estimator 'H2' needs one input, got {n_in}; use 'H1' or 'Hv' for multiple inputs"
+        )
+    if n_in > 1 and n_avg < n_in:
+        raise DataError(
+            f"{n_in} inputs need at least {n_in} averages for the multiple-input estimator, "
+            f"got {n_avg}; acquire more averages"
+        )
+    if workers < 1:
+        raise SetupError(f"workers = {workers}; give 1 or more FFT threads")
+
+
+def _estimates(
+    g_ff: NDArray[np.complex128],
+    g_yf: NDArray[np.complex128],
+    g_yy: NDArray[np.float64],
+    g_yf_abs2: NDArray[np.float64],
+    estimator: str,
+    fused: str | None,
+) -> tuple[NDArray[np.complex128], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """FRF, ordinary and multiple coherence and cond(G_ff) from the summed spectra.
+
+    ``γ²_yf = |G_yf|² / (G_yy G_ff)`` (written over ``g_yf_abs2``);
+    ``H1 = G_yf G_ff⁻¹``, multiple coherence ``Re Σ_f H1 Ḡ_yf / G_yy`` clipped to [0, 1]; ``Hv``
+    by :func:`_hv`. With ``fused`` (one input, H1 or H2) :func:`_spectral_sums` has already
+    turned ``g_yf`` into the FRF and ``g_yf_abs2`` into the coherence, block by block while
+    each block was in cache; multiple and ordinary coherence are equal for one input (module
+    docstring) and share that memory.
+    """
+    g_ff_diag = np.real(np.diagonal(g_ff, axis1=1, axis2=2))  # (L, n_in)
+    n_in = g_ff.shape[1]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        if fused is not None:
+            h = g_yf
+            ordinary = g_yf_abs2
+            multiple = g_yf_abs2[:, :, 0]
+            cond = np.ones(g_ff.shape[0])
+        else:
+            if n_in == 1:
+                cond = np.ones(g_ff.shape[0])
+            else:
+                s = np.linalg.svd(g_ff, compute_uv=False)
+                cond = s[:, 0] / s[:, -1]
+            ordinary = np.divide(g_yf_abs2, g_yy[:, :, None] * g_ff_diag[:, None, :], out=g_yf_abs2)
+            if estimator == "Hv":
+                h = _hv(g_ff, g_yf, g_yy)
+            if n_in == 1:
+                multiple = ordinary[:, :, 0].copy()
+            else:
+                # H1 = G_yf G_ff⁻¹  ⇔  G_ffᵀ H1ᵀ = G_yfᵀ (G_ff Hermitian), batched over lines.
+                h1 = np.asarray(
+                    np.linalg.solve(g_ff.transpose(0, 2, 1), g_yf.transpose(0, 2, 1)).transpose(
+                        0, 2, 1
+                    ),
+                    dtype=np.complex128,
+                )
+                multiple = np.real(np.sum(h1 * g_yf.conj(), axis=2)) / g_yy
+                if estimator == "H1":
+                    h = h1
+            np.clip(multiple, 0.0, 1.0, where=np.isfinite(multiple), out=multiple)
+    return h, ordinary, multiple, cond
+
+
 def estimate_frf(
     inputs: ArrayLike,
     outputs: ArrayLike,
@@ -171,26 +252,8 @@ def estimate_frf(
     """
     x = _as_records("inputs", inputs)
     y = _as_records("outputs", outputs)
-    if x.shape[0] != y.shape[0] or x.shape[2] != y.shape[2]:
-        raise DataError(
-            f"inputs {x.shape} and outputs {y.shape} must share n_averages and n_samples"
-        )
-    if sample_rate_hz <= 0:
-        raise SetupError(f"sample_rate_hz = {sample_rate_hz}; give a positive sample rate")
+    _check_request(x, y, sample_rate_hz, estimator, workers)
     n_avg, n_in, n_s = x.shape
-    if estimator not in ("H1", "H2", "Hv"):
-        raise SetupError(f"estimator {estimator!r} is unknown; use 'H1', 'H2' or 'Hv'")
-    if estimator == "H2" and n_in != 1:
-        raise SetupError(
-            f"estimator 'H2' needs one input, got {n_in}; use 'H1' or 'Hv' for multiple inputs"
-        )
-    if n_in > 1 and n_avg < n_in:
-        raise DataError(
-            f"{n_in} inputs need at least {n_in} averages for the multiple-input estimator, "
-            f"got {n_avg}; acquire more averages"
-        )
-    if workers < 1:
-        raise SetupError(f"workers = {workers}; give 1 or more FFT threads")
     wx = None if input_window is None else _window("input_window", input_window, n_s)
     wy = None if output_window is None else _window("output_window", output_window, n_s)
 
@@ -202,41 +265,7 @@ def estimate_frf(
     if not (np.all(np.isfinite(g_yy)) and np.all(np.isfinite(g_ff))):
         _check_finite("inputs", x)
         _check_finite("outputs", y)
-    g_ff_diag = np.real(np.diagonal(g_ff, axis1=1, axis2=2))  # (L, n_in)
-
-    with np.errstate(divide="ignore", invalid="ignore"):
-        if fused is not None:
-            # One input, H1 or H2: the sums turned G_yf into the FRF and |G_yf|² into the
-            # (clipped) coherence block by block, while each block was in cache
-            # (:func:`_spectral_sums`); multiple and ordinary coherence are equal for one input
-            # (module docstring) and share that memory.
-            h = g_yf
-            ordinary = g_yf_abs2
-            multiple = g_yf_abs2[:, :, 0]
-            cond = np.ones(g_ff.shape[0])
-        else:
-            if n_in == 1:
-                cond = np.ones(g_ff.shape[0])
-            else:
-                s = np.linalg.svd(g_ff, compute_uv=False)
-                cond = s[:, 0] / s[:, -1]
-            ordinary = np.divide(g_yf_abs2, g_yy[:, :, None] * g_ff_diag[:, None, :], out=g_yf_abs2)
-            if estimator == "Hv":
-                h = _hv(g_ff, g_yf, g_yy)
-            if n_in == 1:
-                multiple = ordinary[:, :, 0].copy()
-            else:
-                # H1 = G_yf G_ff⁻¹  ⇔  G_ffᵀ H1ᵀ = G_yfᵀ (G_ff Hermitian), batched over lines.
-                h1 = np.asarray(
-                    np.linalg.solve(g_ff.transpose(0, 2, 1), g_yf.transpose(0, 2, 1)).transpose(
-                        0, 2, 1
-                    ),
-                    dtype=np.complex128,
-                )
-                multiple = np.real(np.sum(h1 * g_yf.conj(), axis=2)) / g_yy
-                if estimator == "H1":
-                    h = h1
-            np.clip(multiple, 0.0, 1.0, where=np.isfinite(multiple), out=multiple)
+    h, ordinary, multiple, cond = _estimates(g_ff, g_yf, g_yy, g_yf_abs2, estimator, fused)
     if n_avg <= n_in:  # identically 1: no information (module docstring)
         multiple[...] = np.nan
     if n_avg == 1:

@@ -54,6 +54,7 @@ uncertainty (k = 2) from the fit's residuals and the stated uncertainty of the a
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Literal
 
@@ -741,6 +742,146 @@ class StaticCertificate:
     reasons: tuple[str, ...]
 
 
+def _same_load_groups(
+    cases: list[LoadCase],
+) -> Iterator[tuple[list[int], list[int], list[int]]]:
+    """Readings of one load of one series, in (series, mass) order: all, loading, unloading."""
+    key = [(c.series, c.mass_kg) for c in cases]
+    for kk in sorted(set(key)):
+        idx = [i for i, q in enumerate(key) if q == kk]
+        up = [i for i in idx if cases[i].phase == "loading"]
+        down = [i for i in idx if cases[i].phase == "unloading"]
+        yield idx, up, down
+
+
+def _hysteresis_free_fit_data(
+    G: NDArray[np.float64], F: NDArray[np.float64], R: NDArray[np.float64], cases: list[LoadCase]
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Gauges (12, n_fit) and loads (6, n_fit) the matrix is fitted to.
+
+    The mean ``½(g_up + g_down)`` of the loading and unloading readings of a load, and single
+    readings (series tops) only where every axis is at ≥ 90 % of its rated load or ≤ 5 % (the
+    loop closes there); otherwise the loading branch of the tops would bias ``C``. A plan
+    without pairs (too few points or loads of rank < 6) fits every reading.
+    """
+    fit_G, fit_F = [], []
+    for idx, up, down in _same_load_groups(cases):
+        if up and down:
+            fit_G.append(0.5 * (G[:, up[0]] + G[:, down[0]]))
+            fit_F.append(0.5 * (F[:, up[0]] + F[:, down[0]]))
+        else:
+            for i in idx:
+                xi = np.abs(F[:, i]) / R
+                if np.all((xi >= 0.9) | (xi <= 0.05)):
+                    fit_G.append(G[:, i])
+                    fit_F.append(F[:, i])
+    Gf, Ff = np.array(fit_G).T, np.array(fit_F).T
+    if Gf.shape[1] < N_GAUGES or np.linalg.matrix_rank(Ff / R[:, None], tol=1e-3) < 6:
+        Gf, Ff = G, F
+    return Gf, Ff
+
+
+def _hysteresis_points(
+    E: NDArray[np.float64], F: NDArray[np.float64], cases: list[LoadCase]
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
+    """Hysteresis ``max |e_down − e_up|`` (6,) and the hysteresis-free points.
+
+    Returns the hysteresis, the points' applied loads ``F_p`` and errors ``e_p`` (6, n_points)
+    (``½(e_up + e_down)`` for a load read both ways, ``e`` for a single reading) and which
+    points are single readings (n_points,).
+    """
+    hyst = np.zeros(6)
+    pts_F: list[NDArray[np.float64]] = []
+    pts_e: list[NDArray[np.float64]] = []
+    single_pts: list[bool] = []
+    for idx, up, down in _same_load_groups(cases):
+        if up and down:
+            e_up, e_dn = E[:, up[0]], E[:, down[0]]
+            pts_F.append(0.5 * (F[:, up[0]] + F[:, down[0]]))
+            pts_e.append(0.5 * (e_up + e_dn))
+            single_pts.append(False)
+            hyst = np.maximum(hyst, np.abs(e_dn - e_up))
+        else:
+            for i in idx:
+                pts_F.append(F[:, i])
+                pts_e.append(E[:, i])
+                single_pts.append(True)
+    return hyst, np.array(pts_F).T, np.array(pts_e).T, np.array(single_pts, dtype=bool)
+
+
+def _bfsl_nonlinearity(
+    PF: NDArray[np.float64],
+    PE: NDArray[np.float64],
+    single: NDArray[np.bool_],
+    R: NDArray[np.float64],
+) -> NDArray[np.float64]:
+    """``max_p |e_p − k_i F_p|`` (6,) against each axis's best straight line through zero.
+
+    ``k_i = Σ F e / Σ F²`` over the points used: a residual gain (the hysteresis of single top
+    readings pulls the matrix fit slightly) is a sensitivity error, not nonlinearity. A single
+    reading carries the loading branch's hysteresis except near the rated load, where the loop
+    closes: axis ``i`` keeps its single readings at ≥ 90 % FS (or unloaded).
+    """
+    xs = np.abs(PF) / R[:, None]
+    use = ~single[None, :] | (xs >= 0.9) | (xs < 1e-9)
+    W = use.astype(float)
+    k_gain = np.sum(W * PF * PE, axis=1) / np.maximum(
+        np.sum(W * PF**2, axis=1), np.finfo(float).tiny
+    )
+    out: NDArray[np.float64] = np.max(W * np.abs(PE - k_gain[:, None] * PF), axis=1)
+    return out
+
+
+def _crosstalk_pct_fs(
+    E: NDArray[np.float64], F: NDArray[np.float64], R: NDArray[np.float64]
+) -> NDArray[np.float64]:
+    """``[i, j]`` (6, 6): ``100 max |e_i| / R_i`` over the readings where axis ``j`` carries the
+    largest share of its rated load and axis ``i`` less than 5 % of its own."""
+    x = np.abs(F) / R[:, None]
+    dominant = np.argmax(x, axis=0)
+    cross = np.zeros((6, 6))
+    for i in range(6):
+        quiet = x[i] < 0.05
+        for j in range(6):
+            sel = quiet & (dominant == j)
+            if j != i and sel.any():
+                cross[i, j] = 100 * np.max(np.abs(E[i, sel])) / R[i]
+    return cross
+
+
+def _certificate_verdict(
+    warnings: list[str],
+    plan: LoadPlan,
+    unsettled: ArrayLike | None,
+    nonlin: NDArray[np.float64],
+    hyst: NDArray[np.float64],
+    R: NDArray[np.float64],
+    residual_rel: float,
+) -> tuple[str, list[str]]:
+    """``fail`` when the residual exceeds 1 % of the loads, ``warn`` when the plan warned,
+    readings crept or nonlinearity or hysteresis exceeds 0.5 % FS; with the reasons."""
+    reasons = list(warnings)
+    verdict = "ok"
+    if unsettled is not None and np.any(unsettled):
+        bad = [plan.cases[i].prompt() for i in np.flatnonzero(np.asarray(unsettled, bool))]
+        reasons.append(
+            f"{len(bad)} reading(s) still creeping when taken (first: {bad[0]}); "
+            "allow a longer settling time"
+        )
+    figures = np.concatenate([100 * nonlin / R, 100 * hyst / R])
+    if figures.max() > 0.5:
+        reasons.append(f"nonlinearity or hysteresis up to {figures.max():.2f} % FS")
+    if reasons:
+        verdict = "warn"
+    if residual_rel > 0.01:
+        verdict = "fail"
+        reasons.append(
+            f"residual {100 * residual_rel:.2f} % of the loads: the readings do not follow "
+            "the plan (a weight or hanger point wrong, a gauge broken)"
+        )
+    return verdict, reasons
+
+
 def static_certificate(
     gauges: ArrayLike,
     plan: LoadPlan,
@@ -788,27 +929,7 @@ def static_certificate(
     F = F_all[:, loaded]
     R = plan.rated_load
     cases = [c for c in plan.cases if c.mass_kg > 0]
-    key = [(c.series, c.mass_kg) for c in cases]
-    # The fit uses hysteresis-free data: the mean of the loading and unloading readings of a
-    # load, and single readings (series tops) only where every axis is near its rated load or
-    # unloaded (the loop closes there); otherwise the loading branch of the tops would bias C.
-    fit_G, fit_F = [], []
-    for kk in sorted(set(key)):
-        idx = [i for i, q in enumerate(key) if q == kk]
-        up = [i for i in idx if cases[i].phase == "loading"]
-        down = [i for i in idx if cases[i].phase == "unloading"]
-        if up and down:
-            fit_G.append(0.5 * (G[:, up[0]] + G[:, down[0]]))
-            fit_F.append(0.5 * (F[:, up[0]] + F[:, down[0]]))
-        else:
-            for i in idx:
-                xi = np.abs(F[:, i]) / R
-                if np.all((xi >= 0.9) | (xi <= 0.05)):
-                    fit_G.append(G[:, i])
-                    fit_F.append(F[:, i])
-    Gf, Ff = np.array(fit_G).T, np.array(fit_F).T
-    if Gf.shape[1] < N_GAUGES or np.linalg.matrix_rank(Ff / R[:, None], tol=1e-3) < 6:
-        Gf, Ff = G, F  # a plan without pairs: fit every reading
+    Gf, Ff = _hysteresis_free_fit_data(G, F, R, cases)
     fit = static_calibration(Gf.T, np.zeros(N_GAUGES), Ff, gauge_coupling=gauge_coupling, rank=rank)
     C = fit.matrix
     E = C @ G - F
@@ -821,68 +942,12 @@ def static_certificate(
     matrix_std = s[:, None] * np.sqrt(np.sum(P**2, axis=0))[None, :]
     u_ref = np.sqrt(np.mean(plan.load_uncertainty()[:, loaded] ** 2, axis=1))
     uncertainty = 200 * np.sqrt(s**2 + u_ref**2) / R
-    # pair loading and unloading readings of the same load
-    hyst = np.zeros(6)
-    pts_F: list[NDArray[np.float64]] = []  # hysteresis-free points: applied load, error
-    pts_e: list[NDArray[np.float64]] = []
-    single_pts: list[bool] = []
-    for kk in sorted(set(key)):
-        idx = [i for i, q in enumerate(key) if q == kk]
-        up = [i for i in idx if cases[i].phase == "loading"]
-        down = [i for i in idx if cases[i].phase == "unloading"]
-        if up and down:
-            e_up, e_dn = E[:, up[0]], E[:, down[0]]
-            pts_F.append(0.5 * (F[:, up[0]] + F[:, down[0]]))
-            pts_e.append(0.5 * (e_up + e_dn))
-            single_pts.append(False)
-            hyst = np.maximum(hyst, np.abs(e_dn - e_up))
-        else:
-            for i in idx:
-                pts_F.append(F[:, i])
-                pts_e.append(E[:, i])
-                single_pts.append(True)
-    # Nonlinearity against each axis's best straight line through zero (BFSL): a residual
-    # gain k_i (the hysteresis of single top readings pulls the matrix fit slightly) is a
-    # sensitivity error, not nonlinearity.
-    PF, PE = np.array(pts_F).T, np.array(pts_e).T  # (6, n_points)
-    single = np.array(single_pts, dtype=bool)
-    # A reading taken only on the way up carries the loading branch's hysteresis, except near
-    # the rated load where the loop closes: for axis i keep its single readings at ≥ 90 % FS.
-    xs = np.abs(PF) / R[:, None]
-    use = ~single[None, :] | (xs >= 0.9) | (xs < 1e-9)
-    W = use.astype(float)
-    k_gain = np.sum(W * PF * PE, axis=1) / np.maximum(
-        np.sum(W * PF**2, axis=1), np.finfo(float).tiny
+    hyst, PF, PE, single = _hysteresis_points(E, F, cases)
+    nonlin = _bfsl_nonlinearity(PF, PE, single, R)
+    cross = _crosstalk_pct_fs(E, F, R)
+    verdict, reasons = _certificate_verdict(
+        warnings, plan, unsettled, nonlin, hyst, R, fit.residual_rel
     )
-    nonlin = np.max(W * np.abs(PE - k_gain[:, None] * PF), axis=1)
-    x = np.abs(F) / R[:, None]
-    dominant = np.argmax(x, axis=0)
-    cross = np.zeros((6, 6))
-    for i in range(6):
-        quiet = x[i] < 0.05
-        for j in range(6):
-            sel = quiet & (dominant == j)
-            if j != i and sel.any():
-                cross[i, j] = 100 * np.max(np.abs(E[i, sel])) / R[i]
-    reasons = list(warnings)
-    verdict = "ok"
-    if unsettled is not None and np.any(unsettled):
-        bad = [plan.cases[i].prompt() for i in np.flatnonzero(np.asarray(unsettled, bool))]
-        reasons.append(
-            f"{len(bad)} reading(s) still creeping when taken (first: {bad[0]}); "
-            "allow a longer settling time"
-        )
-    figures = np.concatenate([100 * nonlin / R, 100 * hyst / R])
-    if figures.max() > 0.5:
-        reasons.append(f"nonlinearity or hysteresis up to {figures.max():.2f} % FS")
-    if reasons:
-        verdict = "warn"
-    if fit.residual_rel > 0.01:
-        verdict = "fail"
-        reasons.append(
-            f"residual {100 * fit.residual_rel:.2f} % of the loads: the readings do not follow "
-            "the plan (a weight or hanger point wrong, a gauge broken)"
-        )
     return StaticCertificate(
         fit=fit,
         matrix_std=matrix_std,

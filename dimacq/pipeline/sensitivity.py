@@ -172,6 +172,103 @@ def _stats(samples: FloatArray, truth: FloatArray) -> dict[str, dict[str, float]
     return out
 
 
+def _in_chunks(
+    kw: dict[str, Any], n_trials: int, seed: int | np.random.SeedSequence | None
+) -> SensitivityResult:
+    """:func:`monte_carlo` of ``n_trials`` in chunks of at most ``_CHUNK`` trials (bounded
+    memory), each with a child of ``seed``'s sequence, concatenated."""
+    parts, left = [], n_trials
+    ss = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(seed)
+    for child in ss.spawn(-(-n_trials // _CHUNK)):
+        k = min(_CHUNK, left)
+        left -= k
+        parts.append(monte_carlo(**kw, n_trials=k, seed=child))
+    samples_all = np.concatenate([r.samples for r in parts])
+    return SensitivityResult(
+        samples_all,
+        parts[0].truth,
+        _stats(samples_all, parts[0].truth),
+        {**parts[0].description, "n_trials": n_trials, "seed": seed},
+    )
+
+
+def _sensor_trials(
+    pos: FloatArray,
+    axes: FloatArray,
+    rs: NDArray[np.intp],
+    T: int,
+    max_angle_deg: float,
+    sensor_position_error_m: float,
+    rng: np.random.Generator,
+) -> tuple[FloatArray, FloatArray]:
+    """Nominal Ψ (n_ch, 6) and the true Ψ of each trial (T, n_ch, 6), rows ``[dᵀ, (r × d)ᵀ]``.
+
+    Sensors ``rs`` are turned by a random rotation within ``max_angle_deg``
+    (:func:`random_rotations`) and moved by ``U(−e, e)`` per coordinate,
+    ``e = sensor_position_error_m``; 3 channels per sensor, along its axes' columns.
+    """
+    n_s = pos.shape[0]
+    if rs.size and (rs.min() < 0 or rs.max() >= n_s):
+        raise SetupError(f"rotate_sensors must be sensor indices 0..{n_s - 1}")
+    axes_t = np.broadcast_to(axes, (T, n_s, 3, 3)).copy()
+    pos_t = np.broadcast_to(pos, (T, n_s, 3)).copy()
+    if rs.size and max_angle_deg > 0:
+        axes_t[:, rs] = axes_t[:, rs] @ random_rotations(T, rs.size, max_angle_deg, rng)
+    if rs.size and sensor_position_error_m > 0:
+        pos_t[:, rs] += rng.uniform(
+            -sensor_position_error_m, sensor_position_error_m, (T, rs.size, 3)
+        )
+    d_n = np.swapaxes(axes, -1, -2).reshape(-1, 3)  # channel directions (3 per sensor)
+    p_n = np.repeat(pos, 3, axis=0)
+    psi_n = np.concatenate([d_n, np.cross(p_n, d_n)], axis=1)
+    d_t = np.swapaxes(axes_t, -1, -2).reshape(T, -1, 3)
+    p_t = np.repeat(pos_t, 3, axis=1)
+    psi_t = np.concatenate([d_t, np.cross(p_t, d_t)], axis=2)  # (T, n_ch, 6)
+    return psi_n, psi_t
+
+
+def _input_trials(
+    phi: NDArray[np.floating] | None,
+    input_positions_m: NDArray[np.floating] | None,
+    input_directions: NDArray[np.floating] | None,
+    perturb_inputs: Sequence[int],
+    input_angle_deg: float,
+    input_position_error_m: float,
+    T: int,
+    rng: np.random.Generator,
+) -> tuple[FloatArray, FloatArray]:
+    """Nominal input force vectors Φ (6, N) and the true ones of each trial (T, 6, N).
+
+    The unit loads ``phi`` as given, then each force input ``[d; r × d]``; inputs
+    ``perturb_inputs`` have their line of action turned within ``input_angle_deg`` and their
+    point moved by ``U(−e, e)`` per coordinate, ``e = input_position_error_m``.
+    """
+    phis_n, phis_t = [], []
+    if phi is not None:
+        ph = np.asarray(phi, float).reshape(6, -1)
+        phis_n.append(ph)
+        phis_t.append(np.broadcast_to(ph, (T, 6, ph.shape[1])))
+    if input_positions_m is not None and input_directions is not None:
+        ip = np.asarray(input_positions_m, float).reshape(-1, 3)
+        idr = np.asarray(input_directions, float).reshape(-1, 3)
+        n_in = ip.shape[0]
+        pi = np.asarray(perturb_inputs, dtype=np.intp)
+        ip_t = np.broadcast_to(ip, (T, n_in, 3)).copy()
+        id_t = np.broadcast_to(idr, (T, n_in, 3)).copy()
+        if pi.size and input_angle_deg > 0:
+            R = random_rotations(T, pi.size, input_angle_deg, rng)
+            id_t[:, pi] = np.einsum("tnij,tnj->tni", R, id_t[:, pi])
+        if pi.size and input_position_error_m > 0:
+            ip_t[:, pi] += rng.uniform(
+                -input_position_error_m, input_position_error_m, (T, pi.size, 3)
+            )
+        phis_n.append(np.concatenate([idr, np.cross(ip, idr)], axis=1).T)
+        phis_t.append(np.swapaxes(np.concatenate([id_t, np.cross(ip_t, id_t)], axis=2), 1, 2))
+    if not phis_n:
+        raise SetupError("no input: give phi (unit loads at P) or input positions and directions")
+    return np.concatenate(phis_n, axis=1), np.concatenate(phis_t, axis=2)
+
+
 def monte_carlo(
     *,
     mass_kg: float,
@@ -218,19 +315,7 @@ def monte_carlo(
     if n_trials > _CHUNK:  # bounded memory: independent chunks from spawned seed sequences
         kw = dict(locals())
         kw.pop("n_trials"), kw.pop("seed")
-        parts, left = [], n_trials
-        ss = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(seed)
-        for child in ss.spawn(-(-n_trials // _CHUNK)):
-            k = min(_CHUNK, left)
-            left -= k
-            parts.append(monte_carlo(**kw, n_trials=k, seed=child))
-        samples_all = np.concatenate([r.samples for r in parts])
-        return SensitivityResult(
-            samples_all,
-            parts[0].truth,
-            _stats(samples_all, parts[0].truth),
-            {**parts[0].description, "n_trials": n_trials, "seed": seed},
-        )
+        return _in_chunks(kw, n_trials, seed)
     rng = np.random.default_rng(seed)
     pos = np.asarray(sensor_positions_m, float).reshape(-1, 3)
     axes = np.asarray(sensor_axes, float).reshape(-1, 3, 3)
@@ -244,57 +329,23 @@ def monte_carlo(
     i6 = np.asarray(inertia_p_kgm2, float)
     M = _mass_matrix(mass_kg, cg, i6)
     truth = np.concatenate([[mass_kg], cg, i6])
-
-    # nominal and true sensor geometry --------------------------------------------------
     rs = np.asarray(rotate_sensors, dtype=np.intp)
-    if rs.size and (rs.min() < 0 or rs.max() >= n_s):
-        raise SetupError(f"rotate_sensors must be sensor indices 0..{n_s - 1}")
-    axes_t = np.broadcast_to(axes, (T, n_s, 3, 3)).copy()
-    pos_t = np.broadcast_to(pos, (T, n_s, 3)).copy()
-    if rs.size and max_angle_deg > 0:
-        axes_t[:, rs] = axes_t[:, rs] @ random_rotations(T, rs.size, max_angle_deg, rng)
-    if rs.size and sensor_position_error_m > 0:
-        pos_t[:, rs] += rng.uniform(
-            -sensor_position_error_m, sensor_position_error_m, (T, rs.size, 3)
-        )
-    d_n = np.swapaxes(axes, -1, -2).reshape(-1, 3)  # channel directions (3 per sensor)
-    p_n = np.repeat(pos, 3, axis=0)
-    psi_n = np.concatenate([d_n, np.cross(p_n, d_n)], axis=1)
-    d_t = np.swapaxes(axes_t, -1, -2).reshape(T, -1, 3)
-    p_t = np.repeat(pos_t, 3, axis=1)
-    psi_t = np.concatenate([d_t, np.cross(p_t, d_t)], axis=2)  # (T, n_ch, 6)
-
-    # inputs -------------------------------------------------------------------------------
-    phis_n, phis_t = [], []
-    if phi is not None:
-        ph = np.asarray(phi, float).reshape(6, -1)
-        phis_n.append(ph)
-        phis_t.append(np.broadcast_to(ph, (T, 6, ph.shape[1])))
-    if input_positions_m is not None and input_directions is not None:
-        ip = np.asarray(input_positions_m, float).reshape(-1, 3)
-        idr = np.asarray(input_directions, float).reshape(-1, 3)
-        n_in = ip.shape[0]
-        pi = np.asarray(perturb_inputs, dtype=np.intp)
-        ip_t = np.broadcast_to(ip, (T, n_in, 3)).copy()
-        id_t = np.broadcast_to(idr, (T, n_in, 3)).copy()
-        if pi.size and input_angle_deg > 0:
-            R = random_rotations(T, pi.size, input_angle_deg, rng)
-            id_t[:, pi] = np.einsum("tnij,tnj->tni", R, id_t[:, pi])
-        if pi.size and input_position_error_m > 0:
-            ip_t[:, pi] += rng.uniform(
-                -input_position_error_m, input_position_error_m, (T, pi.size, 3)
-            )
-        phis_n.append(np.concatenate([idr, np.cross(ip, idr)], axis=1).T)
-        phis_t.append(np.swapaxes(np.concatenate([id_t, np.cross(ip_t, id_t)], axis=2), 1, 2))
-    if not phis_n:
-        raise SetupError("no input: give phi (unit loads at P) or input positions and directions")
-    phi_n = np.concatenate(phis_n, axis=1)
-    phi_t = np.concatenate(phis_t, axis=2)  # (T, 6, N)
+    psi_n, psi_t = _sensor_trials(pos, axes, rs, T, max_angle_deg, sensor_position_error_m, rng)
+    phi_n, phi_t = _input_trials(
+        phi,
+        input_positions_m,
+        input_directions,
+        perturb_inputs,
+        input_angle_deg,
+        input_position_error_m,
+        T,
+        rng,
+    )
 
     # forward and inverse -----------------------------------------------------------------------
     K_t = np.linalg.solve(M, phi_t)  # (T, 6, N): free rigid body, a = M⁻¹ F
     q = psi_t @ K_t  # (T, n_ch, N)
-    K_hat = np.linalg.pinv(psi_n) @ q  # (T, 6, N)
+    K_hat = np.asarray(np.linalg.pinv(psi_n) @ q, dtype=np.float64)  # (T, 6, N)
     samples = solve_trials(K_hat, phi_n)
     desc = {
         "n_trials": T,

@@ -465,6 +465,137 @@ def joint_parameters_for_geometry(
     return out
 
 
+@dataclass(frozen=True, eq=False)
+class _NominalGeometry:
+    """The stated geometry that :func:`geometry_spread` perturbs, with the band's sums.
+
+    ``positions``, ``directions`` (n, 3) of the channels, ``node_index`` (n,) the index of each
+    channel's node, ``weights`` (n,), ``in_positions``, ``in_directions`` (J, 3) of the inputs.
+    """
+
+    system: DimSystem
+    sums: tuple[FloatArray, FloatArray, FloatArray]
+    positions: FloatArray
+    directions: FloatArray
+    node_index: NDArray[np.integer]
+    weights: FloatArray
+    in_positions: FloatArray
+    in_directions: FloatArray
+    known: Mapping[str, float] | None
+
+    def parameters(
+        self,
+        dp_node: FloatArray,
+        rv_node: FloatArray,
+        dp_in: FloatArray,
+        rv_in: FloatArray,
+        eps_ch: FloatArray,
+        eta: FloatArray,
+    ) -> FloatArray:
+        """Joint parameters (S, 10) of S perturbed geometries.
+
+        Node ``g`` moves by ``dp_node`` (S, G, 3) and turns by ``R(rv_node)``; input ``j`` moves
+        by ``dp_in`` (S, J, 3) and its line of action turns by ``R(rv⊥)``, ``rv⊥`` the part of
+        ``rv_in`` normal to it; channel ``c``'s direction is scaled by ``1 + eps_ch`` (S, n), the
+        input force vectors by ``1 + eta`` (S,).
+        """
+        inv, dir0, idir0 = self.node_index, self.directions, self.in_directions
+        Rn = rotvec_to_matrix(rv_node)  # (S, G, 3, 3)
+        pos = self.positions[None] + dp_node[:, inv]
+        dirs = np.einsum("snij,nj->sni", Rn[:, inv], dir0) * (1.0 + eps_ch)[..., None]
+        # line of action turns about axes normal to it: project the rotation vector
+        rv = rv_in - np.einsum("sjk,jk->sj", rv_in, idir0)[..., None] * idir0[None]
+        idir = np.einsum("sjik,jk->sji", rotvec_to_matrix(rv), idir0) * (1.0 + eta)[:, None, None]
+        return joint_parameters_for_geometry(
+            self.system,
+            self.sums,
+            pos,
+            dirs,
+            self.weights,
+            self.in_positions[None] + dp_in,
+            idir,
+            self.known,
+        )
+
+
+def _central_difference_perturbations(
+    G: int,
+    J: int,
+    n_ch: int,
+    sigmas: tuple[float, float, float, float, float, float],
+    in_directions: FloatArray,
+) -> list[list[FloatArray]]:
+    """The ``±σ_k`` steps along every geometry coordinate ``k``, in pairs (+ then −).
+
+    Each step is the six arguments of :meth:`_NominalGeometry.parameters` for one geometry:
+    node offsets and rotations (G, 3), input offsets and line-of-action rotations (J, 3; only
+    the two directions normal to the line), channel gains (n_ch,) and the force gain (). A
+    coordinate whose ``σ`` is zero has no step.
+    """
+    sp, so, ip, sl, sa, sf = sigmas
+
+    def zero() -> list[FloatArray]:
+        return [
+            np.zeros((G, 3)),
+            np.zeros((G, 3)),
+            np.zeros((J, 3)),
+            np.zeros((J, 3)),
+            np.zeros(n_ch),
+            np.zeros(()),
+        ]
+
+    blocks = [(0, G, sp), (1, G, so), (2, J, ip), (3, J, sl)]
+    pert: list[list[FloatArray]] = []
+    for b, count, sig in blocks:
+        if sig == 0:
+            continue
+        for i in range(count):
+            for k in range(3):
+                if b == 3:  # only the two directions normal to the line of action
+                    basis = np.linalg.svd(in_directions[i][None])[2][1:]
+                    if k == 2:
+                        continue
+                    vec = basis[k]
+                else:
+                    vec = np.eye(3)[k]
+                for sgn in (1.0, -1.0):
+                    z = zero()
+                    z[b][i] = sgn * sig * vec
+                    pert.append(z)
+    for c in range(n_ch if sa > 0 else 0):
+        for sgn in (1.0, -1.0):
+            z = zero()
+            z[4][c] = sgn * sa
+            pert.append(z)
+    for sgn in (1.0, -1.0) if sf > 0 else ():
+        z = zero()
+        z[5] = np.asarray(sgn * sf)
+        pert.append(z)
+    return pert
+
+
+def _linearised_se(
+    nominal: _NominalGeometry,
+    G: int,
+    J: int,
+    sigmas: tuple[float, float, float, float, float, float],
+) -> FloatArray:
+    """First-order spread ``sqrt(Σ_k (∂p/∂g_k · σ_k)²)`` (10,) by central differences.
+
+    ``∂p/∂g_k · σ_k = (p(+σ_k) − p(−σ_k)) / 2`` over every coordinate of
+    :func:`_central_difference_perturbations`, solved in one batch.
+    """
+    n_ch = nominal.positions.shape[0]
+    pert = _central_difference_perturbations(G, J, n_ch, sigmas, nominal.in_directions)
+    if not pert:
+        return np.zeros(10)
+    arr = [np.stack([p[k] for p in pert]) for k in range(6)]
+    vals = nominal.parameters(*arr)
+    d = (vals[0::2] - vals[1::2]) / 2.0
+    out: FloatArray = np.sqrt(np.sum(d**2, axis=0))
+    return out
+
+
 def geometry_spread(
     system: DimSystem,
     H_acc: NDArray[np.complexfloating],
@@ -517,40 +648,29 @@ def geometry_spread(
     in_positions_m, in_directions : ndarray, shape (J, 3)
     """
     rng = np.random.default_rng(seed)
-    sums = band_sums(system, H_acc)
     reg = float(registration_rms_m or 0.0)
     sp = float(np.hypot(sensor_position_m, reg))
     ip = float(np.hypot(input_position_m, reg))
     so = np.deg2rad(sensor_orientation_deg)
     sl = np.deg2rad(line_of_action_deg)
     uniq, inv = np.unique(nodes, return_inverse=True)
+    nominal = _NominalGeometry(
+        system,
+        band_sums(system, H_acc),
+        np.asarray(positions_m, float),
+        np.asarray(directions, float),
+        inv,
+        np.asarray(weights, float),
+        np.asarray(in_positions_m, float),
+        np.asarray(in_directions, float),
+        known,
+    )
     G, J = uniq.size, in_positions_m.shape[0]
-    pos0, dir0 = np.asarray(positions_m, float), np.asarray(directions, float)
-    ipos0, idir0 = np.asarray(in_positions_m, float), np.asarray(in_directions, float)
-
-    n_ch = pos0.shape[0]
+    n_ch = nominal.positions.shape[0]
     sa, sf = float(accel_sensitivity_rel), float(force_sensitivity_rel)
 
-    def params(
-        dp_node: FloatArray,
-        rv_node: FloatArray,
-        dp_in: FloatArray,
-        rv_in: FloatArray,
-        eps_ch: FloatArray,
-        eta: FloatArray,
-    ) -> FloatArray:
-        Rn = rotvec_to_matrix(rv_node)  # (S, G, 3, 3)
-        pos = pos0[None] + dp_node[:, inv]
-        dirs = np.einsum("snij,nj->sni", Rn[:, inv], dir0) * (1.0 + eps_ch)[..., None]
-        # line of action turns about axes normal to it: project the rotation vector
-        rv = rv_in - np.einsum("sjk,jk->sj", rv_in, idir0)[..., None] * idir0[None]
-        idir = np.einsum("sjik,jk->sji", rotvec_to_matrix(rv), idir0) * (1.0 + eta)[:, None, None]
-        return joint_parameters_for_geometry(
-            system, sums, pos, dirs, np.asarray(weights, float), ipos0[None] + dp_in, idir, known
-        )
-
     S = int(n_samples)
-    samples = params(
+    samples = nominal.parameters(
         rng.normal(scale=sp, size=(S, G, 3)),
         rng.normal(scale=so, size=(S, G, 3)),
         rng.normal(scale=ip, size=(S, J, 3)),
@@ -559,52 +679,7 @@ def geometry_spread(
         rng.normal(scale=sf, size=S),
     )
     se = samples.std(axis=0, ddof=1) if S > 1 else np.zeros(10)
-
-    # linearisation: central differences of ±σ along every coordinate, one batch
-    def zero() -> list[FloatArray]:
-        return [
-            np.zeros((G, 3)),
-            np.zeros((G, 3)),
-            np.zeros((J, 3)),
-            np.zeros((J, 3)),
-            np.zeros(n_ch),
-            np.zeros(()),
-        ]
-
-    blocks = [(0, G, sp), (1, G, so), (2, J, ip), (3, J, sl)]
-    pert: list[list[FloatArray]] = []
-    for b, count, sig in blocks:
-        if sig == 0:
-            continue
-        for i in range(count):
-            for k in range(3):
-                if b == 3:  # only the two directions normal to the line of action
-                    basis = np.linalg.svd(idir0[i][None])[2][1:]
-                    if k == 2:
-                        continue
-                    vec = basis[k]
-                else:
-                    vec = np.eye(3)[k]
-                for sgn in (1.0, -1.0):
-                    z = zero()
-                    z[b][i] = sgn * sig * vec
-                    pert.append(z)
-    for c in range(n_ch if sa > 0 else 0):
-        for sgn in (1.0, -1.0):
-            z = zero()
-            z[4][c] = sgn * sa
-            pert.append(z)
-    for sgn in (1.0, -1.0) if sf > 0 else ():
-        z = zero()
-        z[5] = np.asarray(sgn * sf)
-        pert.append(z)
-    if pert:
-        arr = [np.stack([p[k] for p in pert]) for k in range(6)]
-        vals = params(*arr)
-        d = (vals[0::2] - vals[1::2]) / 2.0
-        se_lin = np.sqrt(np.sum(d**2, axis=0))
-    else:
-        se_lin = np.zeros(10)
+    se_lin = _linearised_se(nominal, G, J, (sp, so, ip, sl, sa, sf))
     return GeometrySpread(
         se=se,
         se_linear=se_lin,

@@ -44,7 +44,7 @@ from dimacq.model.frf import FrfData
 from dimacq.pipeline.frf_estimation import estimate_frf, welch_segments
 from dimacq.simulators.lab.impact import virtual_lab
 from dimacq.simulators.lab.scenarios import BuiltScenario
-from dimacq.simulators.lab.timedomain import ShakerSignal
+from dimacq.simulators.lab.timedomain import ShakerSignal, VirtualLab
 
 __all__ = ["EXCITATIONS", "ShakerRun", "shaker_test"]
 
@@ -86,6 +86,127 @@ class ShakerRun:
     samples: int
 
 
+def _checked_plan(
+    built: BuiltScenario,
+    excitation: str | None,
+    n_shakers: int | None,
+    averages: int | None,
+) -> tuple[Excitation, int, list[int], int]:
+    """The excitation, shakers at once, inputs driven and averages per run of a shaker test
+    (the scenario's ``shaker`` values unless given), refused when they cannot work."""
+    spec = built.spec
+    sh = spec.shaker
+    requested = sh.kind if excitation is None else excitation
+    if requested not in EXCITATIONS:
+        raise SetupError(
+            f"excitation {requested!r} is unknown; use one of {', '.join(EXCITATIONS)}"
+        )
+    kind = cast(Excitation, requested)
+    n_sh = sh.shakers if n_shakers is None else int(n_shakers)
+    n_in = len(built.setup.excitations)
+    inputs = list(sh.inputs) if sh.inputs else list(range(n_in))
+    bad = [j for j in inputs if not 0 <= j < n_in]
+    if bad:
+        raise SetupError(
+            f"scenario {spec.name}: shaker.inputs {bad} out of range; give indices 0..{n_in - 1}"
+        )
+    if not 1 <= n_sh <= min(8, len(inputs)):
+        raise SetupError(
+            f"{n_sh} shakers for {len(inputs)} inputs; give 1 to {min(8, len(inputs))} shakers"
+        )
+    n_avg = sh.averages if averages is None else int(averages)
+    if n_avg < n_sh:
+        raise SetupError(
+            f"{n_avg} averages for {n_sh} shakers; the multiple-input H1 needs at least as many "
+            "averages as shakers (more: 10 per shaker or so)"
+        )
+    return kind, n_sh, inputs, n_avg
+
+
+def _outputs(
+    rec: FloatArray, n_acc: int, calib: list[FloatArray], cell_units: list[str]
+) -> FloatArray:
+    """The FRF outputs (n_acc + 6 per cell, n_samples): the accelerometers, then each cell's
+    loads ``C g`` from its 12 gauges (``rec`` rows after the accelerometers) by its calibration
+    ``C``; a DC-coupled bridge (``mV/V``) loses its mean, its zero and static load not being
+    part of the response."""
+    out = np.empty((n_acc + 6 * len(calib), rec.shape[1]))
+    out[:n_acc] = rec[:n_acc]
+    for c, C in enumerate(calib):
+        gg = rec[n_acc + 12 * c : n_acc + 12 * (c + 1)]
+        if cell_units[c] == "mV/V":
+            gg = gg - gg.mean(axis=1, keepdims=True)
+        out[n_acc + 6 * c : n_acc + 6 * (c + 1)] = C @ gg
+    return out
+
+
+def _drive(
+    lab: VirtualLab,
+    built: BuiltScenario,
+    kind: Excitation,
+    signs: FloatArray,
+    band_hz: tuple[float, float],
+    N: int,
+    run: int,
+    group: tuple[int, ...],
+    span: tuple[int, int],
+) -> None:
+    """Shaker ``k`` of run ``run`` drives input ``group[k]`` from sample ``span[0]`` to
+    ``span[1]``: the scenario's signal in ``band_hz``, polarity column ``k`` of the Hadamard
+    ``signs`` for a swept sine, its own seed."""
+    sh = built.spec.shaker
+    for k, j in enumerate(group):
+        signal = ShakerSignal(
+            kind=kind,
+            level_n=sh.level_n,
+            record_samples=N,
+            burst_fraction=sh.burst_fraction,
+            f_lo_hz=band_hz[0],
+            f_hi_hz=band_hz[1],
+            sweep=sh.sweep,
+            polarity=tuple(signs[:, k]) if kind == "swept-sine" else (1.0,),
+            seed=int(np.random.SeedSequence([built.seed, 71, run, k]).generate_state(1)[0]),
+            band_limited=sh.band_limited,
+        )
+        lab.drive(k, j, signal, span[0], span[1])
+
+
+def _shaker_frf(
+    built: BuiltScenario,
+    freqs: FloatArray,
+    keep: NDArray[np.bool_],
+    H: NDArray[np.complex128],
+    coh: FloatArray,
+    inputs: list[int],
+    rigid_only: bool,
+    kind: str,
+    n_sh: int,
+    n_avg: int,
+) -> FrfData:
+    """The estimated ``H`` and coherence on the lines ``freqs[keep]`` as :class:`FrfData` in
+    the scenario's channel order, restricted to the ``inputs`` driven, with how they were
+    taken."""
+    spec = built.spec
+    n_in = len(built.setup.excitations)
+    model_frf = built.model_frf(rigid_only=rigid_only, frequencies_hz=freqs[keep])
+    if inputs != list(range(n_in)):
+        H, coh = H[:, :, inputs], coh[:, :, inputs]
+        model_frf = model_frf.replace(
+            H=model_frf.H[:, :, inputs], inputs=tuple(model_frf.inputs[j] for j in inputs)
+        )
+    return model_frf.replace(
+        H=H[keep],
+        coherence=coh[keep],
+        meta={
+            "source": f"dimacq simulate {spec.name} --time-domain --excitation {kind}",
+            "estimator": "H1 (multiple-input)" if n_sh > 1 else "H1",
+            "excitation": kind,
+            "shakers": str(n_sh),
+            "averages": str(n_avg),
+        },
+    )
+
+
 def shaker_test(
     built: BuiltScenario,
     *,
@@ -118,30 +239,8 @@ def shaker_test(
     """
     spec = built.spec
     sh, acq = spec.shaker, spec.acquisition
-    requested = sh.kind if excitation is None else excitation
-    if requested not in EXCITATIONS:
-        raise SetupError(
-            f"excitation {requested!r} is unknown; use one of {', '.join(EXCITATIONS)}"
-        )
-    kind = cast(Excitation, requested)
-    n_sh = sh.shakers if n_shakers is None else int(n_shakers)
+    kind, n_sh, inputs, n_avg = _checked_plan(built, excitation, n_shakers, averages)
     n_in = len(built.setup.excitations)
-    inputs = list(sh.inputs) if sh.inputs else list(range(n_in))
-    bad = [j for j in inputs if not 0 <= j < n_in]
-    if bad:
-        raise SetupError(
-            f"scenario {spec.name}: shaker.inputs {bad} out of range; give indices 0..{n_in - 1}"
-        )
-    if not 1 <= n_sh <= min(8, len(inputs)):
-        raise SetupError(
-            f"{n_sh} shakers for {len(inputs)} inputs; give 1 to {min(8, len(inputs))} shakers"
-        )
-    n_avg = sh.averages if averages is None else int(averages)
-    if n_avg < n_sh:
-        raise SetupError(
-            f"{n_avg} averages for {n_sh} shakers; the multiple-input H1 needs at least as many "
-            "averages as shakers (more: 10 per shaker or so)"
-        )
     lab = virtual_lab(
         built, rigid_only=rigid_only, noise_scale=noise_scale, n_shakers=n_sh, cache_blocks=64
     )
@@ -180,20 +279,7 @@ def shaker_test(
         start = cursor
         first = start + settle_records * N  # records of the signal start at start + r·N
         until = first + n_read
-        for k, j in enumerate(group):
-            signal = ShakerSignal(
-                kind=kind,
-                level_n=sh.level_n,
-                record_samples=N,
-                burst_fraction=sh.burst_fraction,
-                f_lo_hz=f_lo,
-                f_hi_hz=f_hi,
-                sweep=sh.sweep,
-                polarity=tuple(signs[:, k]) if kind == "swept-sine" else (1.0,),
-                seed=int(np.random.SeedSequence([built.seed, 71, run, k]).generate_state(1)[0]),
-                band_limited=sh.band_limited,
-            )
-            lab.drive(k, j, signal, start, until)
+        _drive(lab, built, kind, signs, (f_lo, f_hi), N, run, group, (start, until))
         g = len(group)
         channels = np.array(
             [*(lab.channel_index(f"shaker{k + 1}") for k in range(g)), *range(n_acc), *gauge_ch],
@@ -201,14 +287,7 @@ def shaker_test(
         )
         rec = lab.read(channels, first, n_read)
         cursor = until
-        out = np.empty((n_out, n_read))
-        out[:n_acc] = rec[g : g + n_acc]
-        for c, C in enumerate(calib):
-            gg = rec[g + n_acc + 12 * c : g + n_acc + 12 * (c + 1)]
-            if lab.channel_units[gauge_ch[12 * c]] == "mV/V":
-                # DC-coupled bridges: their zero and static load are not part of the response
-                gg = gg - gg.mean(axis=1, keepdims=True)
-            out[n_acc + 6 * c : n_acc + 6 * (c + 1)] = C @ gg
+        out = _outputs(rec[g:], n_acc, calib, [lab.channel_units[c] for c in gauge_ch[::12]])
         if kind == "random":
             x = welch_segments(rec[:g], N, N - step)
             y = welch_segments(out, N, N - step)
@@ -228,23 +307,7 @@ def shaker_test(
             float(np.median(est.input_condition[1:])),
         )
     freqs = est.frequencies_hz
-    top = ax.max_hz if max_hz is None else max_hz
+    top = spec.frequency_axis.max_hz if max_hz is None else max_hz
     keep = (freqs > 0) & (freqs <= top)
-    model_frf = built.model_frf(rigid_only=rigid_only, frequencies_hz=freqs[keep])
-    if inputs != list(range(n_in)):
-        H, coh = H[:, :, inputs], coh[:, :, inputs]
-        model_frf = model_frf.replace(
-            H=model_frf.H[:, :, inputs], inputs=tuple(model_frf.inputs[j] for j in inputs)
-        )
-    frf = model_frf.replace(
-        H=H[keep],
-        coherence=coh[keep],
-        meta={
-            "source": f"dimacq simulate {spec.name} --time-domain --excitation {kind}",
-            "estimator": "H1 (multiple-input)" if n_sh > 1 else "H1",
-            "excitation": kind,
-            "shakers": str(n_sh),
-            "averages": str(n_avg),
-        },
-    )
+    frf = _shaker_frf(built, freqs, keep, H, coh, inputs, rigid_only, kind, n_sh, n_avg)
     return ShakerRun(frf, kind, n_sh, tuple(groups), n_avg, cond[keep], cursor)

@@ -403,6 +403,19 @@ def modal_foh_filter(
     return z, zf
 
 
+def _modal_residues(
+    A: FloatArray, B: FloatArray, C: FloatArray
+) -> tuple[ComplexArray, ComplexArray]:
+    """Poles ``λ`` (P,) of ``A = V Λ V⁻¹`` and residues ``R_obp = (C V)_op (V⁻¹ B)_pb``
+    (n_out, n_basis, P); none for a model without states."""
+    if not A.shape[0]:
+        return np.zeros(0, complex), np.zeros((C.shape[0], B.shape[1], 0), complex)
+    lam, V = np.linalg.eig(A)
+    W = np.linalg.solve(V, B)  # (P, n_basis)
+    CV = C @ V  # (n_out, P)
+    return lam, CV[:, None, :] * W.T[None, :, :]  # (n_out, n_basis, P)
+
+
 @dataclass
 class _Hit:
     input_index: int
@@ -490,8 +503,6 @@ class VirtualLab:
     gravity_mps2: float = 9.80665
 
     def __post_init__(self) -> None:
-        from scipy.signal import butter  # lazy: scipy.signal is slow to import
-
         fs = float(self.sample_rate_hz)
         self.sigma_s = self.hammer.sigma_s if self.hammer.sigma_s is not None else 1.4 / fs
         if math.exp(-((2 * np.pi * fs / 2 * self.sigma_s) ** 2) / 2) > 1e-3:
@@ -504,51 +515,107 @@ class VirtualLab:
         setup = self.model.setup
         n_in = len(setup.excitations)
         self._dirs = np.asarray(setup.input_directions, float).reshape(n_in, 3)
-        if self.hammer.line_of_action_error_deg > 0:
-            # Basis: unit forces along X, Y, Z at each input point (responses are linear in the
-            # force direction, so a strike along d has the residues Σ_a d_a R_{·,3j+a}).
-            loads = self.model.generalised_loads(
-                [e.node for e in setup.excitations for _ in range(3)],
-                np.repeat(np.asarray(setup.input_positions, float).reshape(n_in, 3), 3, axis=0),
-                np.tile(np.eye(3), (n_in, 1)),
-            )
-            W_in = np.zeros((3 * n_in, n_in))
-            for j in range(n_in):
-                W_in[3 * j : 3 * j + 3, j] = self._dirs[j]
-        else:
-            loads, W_in = None, np.eye(n_in)
+        loads, W_in = self._input_basis()
         self._W_in = W_in  # (n_basis, n_in): input j in the basis
         A, B, C, D, n_acc = state_space(self.model, loads)
         self._n_acc = n_acc
-        if A.shape[0]:
-            lam, V = np.linalg.eig(A)
-            W = np.linalg.solve(V, B)  # (P, n_basis)
-            CV = C @ V  # (n_out, P)
-            self._lam = lam
-            R_basis = CV[:, None, :] * W.T[None, :, :]  # (n_out, n_basis, P)
-        else:
-            self._lam = np.zeros(0, complex)
-            R_basis = np.zeros((C.shape[0], B.shape[1], 0), complex)
+        self._lam, R_basis = _modal_residues(A, B, C)  # R_basis: (n_out, n_basis, P)
         self._R = np.einsum("obp,bj->ojp", R_basis, W_in)  # (n_out, n_in, P)
         self._D = D @ W_in
         rng = np.random.default_rng([self.seed, 7])
-        # Transducer mixing: sensitivity error and cross-axis within each triax.
         n_out = D.shape[0]
-        X = np.eye(n_out)
-        nodes = [c.node for c in setup.responses]
-        for i, node in enumerate(nodes):
-            X[i, i] = 1.0 + self.noise.sensitivity_error * rng.standard_normal()
-            for k, other in enumerate(nodes):
-                if other == node and k != i:
-                    X[i, k] = self.noise.cross_axis * rng.uniform(-1, 1)
+        X = self._transducer_mixing(rng, n_out)
         names = [c.label or axis_name(c.node, c.direction) for c in setup.responses]
         units = ["m/s^2"] * n_acc
         names.append("hammer")
         units.append("N")
         rows: list[FloatArray] = [X[:n_acc]]
         hammer_row = n_acc
-        self._gauge_matrix: dict[int, FloatArray] = {}
         bridges = dict(self.bridges or {})
+        rows += self._load_cell_rows(bridges, n_out, names, units)
+        self._shaker_rows = np.arange(len(names), len(names) + self.n_shakers)
+        names += [f"shaker{k + 1}" for k in range(self.n_shakers)]
+        units += ["N"] * self.n_shakers
+        mix = np.vstack(rows)  # (n_phys = channels − hammer − shakers, n_out)
+        self._mix = mix
+        self._R_ch = np.einsum("co,obp->cbp", mix, R_basis)  # (n_phys, n_basis, P)
+        self._D_ch = mix @ D  # (n_phys, n_basis)
+        self._hammer_row = hammer_row
+        phys = np.ones(len(names), bool)
+        phys[hammer_row] = False
+        phys[self._shaker_rows] = False
+        self._phys_rows = np.flatnonzero(phys)
+        self.channel_names = tuple(names)
+        self.channel_units = tuple(units)
+        self._is_gauge = np.array([u == "V" for u in units])  # AC-coupled gauges
+        self._noise_std = self._channel_noise(names, units, bridges)
+        self._drift = np.where(
+            self._is_gauge, self.noise.gauge_drift_v_per_s * rng.uniform(-1, 1, len(names)), 0.0
+        )
+        self._hits: list[_Hit] = []
+        self._hit_rng = np.random.default_rng([self.seed, 13])
+        self._loa_rng = np.random.default_rng([self.seed, 19])
+        self.hit_directions: list[FloatArray] = []
+        n_basis = W_in.shape[0]
+        self._carry: list[ComplexArray] = [np.zeros((len(self._lam), n_basis), complex)]
+        self._cache: OrderedDict[int, FloatArray] = OrderedDict()
+        self._frontier = 0  # first sample not yet generated
+        self._block_decay = np.exp(self._lam * (self.block_samples / fs))
+        # e^{λ (t − t0)} over one block: the same for every block (t − t0 = k / fs)
+        self._block_exp = np.exp(np.outer(self._lam, np.arange(self.block_samples) / fs))
+        self.double_hits: list[int] = []
+        self._shaker_filter(fs)
+        self._drives: list[_Drive] = []
+        self._sh_state: list[dict[int, tuple[ComplexArray, ComplexArray | None]]] = [{}]
+
+    def _input_basis(self) -> tuple[FloatArray | None, FloatArray]:
+        """The generalised loads of the lab's input basis (None: the inputs themselves) and
+        ``W_in`` (n_basis, n_in), input ``j`` in that basis.
+
+        With a line-of-action error the basis is unit forces along X, Y, Z at each input point:
+        responses are linear in the force direction, so a strike along ``d`` has the residues
+        ``Σ_a d_a R_{·,3j+a}``.
+        """
+        setup = self.model.setup
+        n_in = len(setup.excitations)
+        if self.hammer.line_of_action_error_deg <= 0:
+            return None, np.eye(n_in)
+        loads = self.model.generalised_loads(
+            [e.node for e in setup.excitations for _ in range(3)],
+            np.repeat(np.asarray(setup.input_positions, float).reshape(n_in, 3), 3, axis=0),
+            np.tile(np.eye(3), (n_in, 1)),
+        )
+        W_in = np.zeros((3 * n_in, n_in))
+        for j in range(n_in):
+            W_in[3 * j : 3 * j + 3, j] = self._dirs[j]
+        return loads, W_in
+
+    def _transducer_mixing(self, rng: np.random.Generator, n_out: int) -> FloatArray:
+        """``X`` (n_out, n_out): each accelerometer's sensitivity error on the diagonal and
+        the cross-axis sensitivity to the other axes of its own triax."""
+        X = np.eye(n_out)
+        nodes = [c.node for c in self.model.setup.responses]
+        for i, node in enumerate(nodes):
+            X[i, i] = 1.0 + self.noise.sensitivity_error * rng.standard_normal()
+            for k, other in enumerate(nodes):
+                if other == node and k != i:
+                    X[i, k] = self.noise.cross_axis * rng.uniform(-1, 1)
+        return X
+
+    def _load_cell_rows(
+        self,
+        bridges: dict[int, StrainGaugeCell],
+        n_out: int,
+        names: list[str],
+        units: list[str],
+    ) -> list[FloatArray]:
+        """Rows of the channel mix (n_out columns) for each load cell: its 12 gauges ``S F``
+        (V, or mV/V for a strain-gauge cell of ``bridges``), then its 6 local loads; appends
+        their names and units and sets the cells' gauge matrices and bridge states (hung
+        long before the test, under the article's weight)."""
+        n_acc = self._n_acc
+        rows: list[FloatArray] = []
+        self._gauge_matrix: dict[int, FloatArray] = {}
         unknown = sorted(set(bridges) - {s.node for s in self.model.supports})
         if unknown:
             raise ValueError(f"bridges for load cells {unknown} that the model does not have")
@@ -583,22 +650,13 @@ class VirtualLab:
             rows.append(sel)
             names += load_names(s.node)
             units += ["N", "N", "N", "N*m", "N*m", "N*m"]
-        self._shaker_rows = np.arange(len(names), len(names) + self.n_shakers)
-        names += [f"shaker{k + 1}" for k in range(self.n_shakers)]
-        units += ["N"] * self.n_shakers
-        mix = np.vstack(rows)  # (n_phys = channels − hammer − shakers, n_out)
-        self._mix = mix
-        self._R_ch = np.einsum("co,obp->cbp", mix, R_basis)  # (n_phys, n_basis, P)
-        self._D_ch = mix @ D  # (n_phys, n_basis)
-        self._hammer_row = hammer_row
-        phys = np.ones(len(names), bool)
-        phys[hammer_row] = False
-        phys[self._shaker_rows] = False
-        self._phys_rows = np.flatnonzero(phys)
-        self.channel_names = tuple(names)
-        self.channel_units = tuple(units)
-        self._is_gauge = np.array([u == "V" for u in units])  # AC-coupled gauges
-        self._noise_std = np.array(
+        return rows
+
+    def _channel_noise(
+        self, names: list[str], units: list[str], bridges: dict[int, StrainGaugeCell]
+    ) -> FloatArray:
+        """Noise standard deviation of each channel, by its unit (and a bridge's own)."""
+        return np.array(
             [
                 self.noise.accel_noise_ms2
                 if u == "m/s^2"
@@ -612,22 +670,13 @@ class VirtualLab:
                 for n, u in zip(names, units, strict=True)
             ]
         )
-        self._drift = np.where(
-            self._is_gauge, self.noise.gauge_drift_v_per_s * rng.uniform(-1, 1, len(names)), 0.0
-        )
-        self._hits: list[_Hit] = []
-        self._hit_rng = np.random.default_rng([self.seed, 13])
-        self._loa_rng = np.random.default_rng([self.seed, 19])
-        self.hit_directions: list[FloatArray] = []
-        n_basis = W_in.shape[0]
-        self._carry: list[ComplexArray] = [np.zeros((len(self._lam), n_basis), complex)]
-        self._cache: OrderedDict[int, FloatArray] = OrderedDict()
-        self._frontier = 0  # first sample not yet generated
-        self._block_decay = np.exp(self._lam * (self.block_samples / fs))
-        # e^{λ (t − t0)} over one block: the same for every block (t − t0 = k / fs)
-        self._block_exp = np.exp(np.outer(self._lam, np.arange(self.block_samples) / fs))
-        self.double_hits: list[int] = []
-        # Shakers: exact first-order-hold recursion at K·fs, anti-alias filter, decimation.
+
+    def _shaker_filter(self, fs: float) -> None:
+        """The shakers' integration step ``1/(K fs)``, the anti-alias low-pass (Butterworth,
+        order 8, at 0.45 fs; None when off or without shakers) and its gain ``L(e^{λ T_int})``
+        on each pole's free decay."""
+        from scipy.signal import butter  # lazy: scipy.signal is slow to import
+
         K = self.oversample
         self._dt_int = 1.0 / (K * fs)
         self._sos = (
@@ -642,8 +691,6 @@ class VirtualLab:
             self._decay_gain = np.prod(num / den, axis=0)  # L(e^{λ T_int}), (P,)
         else:
             self._decay_gain = np.ones(len(self._lam), complex)
-        self._drives: list[_Drive] = []
-        self._sh_state: list[dict[int, tuple[ComplexArray, ComplexArray | None]]] = [{}]
 
     # SampleSource ----------------------------------------------------------------------------
     @property

@@ -193,6 +193,25 @@ def gauge_property_jacobian(x: FloatArray) -> FloatArray:
 # ------------------------------------------------------------------------------------------
 # Problem
 # ------------------------------------------------------------------------------------------
+@dataclass(frozen=True, eq=False)
+class _Linearisation:
+    """What the Jacobian of :meth:`_Problem.residual` is taken at: the corrections ``g``, the
+    channel (C, 3) and input (J, 3) positions and directions they give, Ψ (C, 6), the weights
+    ``wt`` (J, C, 1), ``W Ψ A⁻¹`` (J, C, 6), ``G = A⁻¹ Y L_y`` (J, 6, k) and the cells' maps
+    (:meth:`_Problem.cell_maps`; None without load cells)."""
+
+    g: FloatArray
+    r: FloatArray
+    d: FloatArray
+    rin: FloatArray
+    din: FloatArray
+    psi: FloatArray
+    wt: FloatArray
+    WPA: FloatArray
+    G: FloatArray
+    cells: tuple[FloatArray, FloatArray, FloatArray, FloatArray] | None
+
+
 @dataclass(eq=False)
 class _Problem:
     """Everything the cost needs, in SI units relative to P."""
@@ -328,11 +347,8 @@ class _Problem:
         A = np.linalg.inv(M)
         psi = np.concatenate([d, cross3(r, d)], axis=1)  # (C, 6)
         phi = np.concatenate([din, cross3(rin, din)], axis=1)  # (J, 6)
-        if self.n_cells:
-            ABc, Ac, Bc, Qc = self.cell_maps(g)
-            Ycell = np.concatenate(list(ABc), axis=1)  # (6, 6K)
-        else:
-            Ycell = np.zeros((6, 0))
+        cells = self.cell_maps(g) if self.n_cells else None
+        Ycell = np.concatenate(list(cells[0]), axis=1) if cells is not None else np.zeros((6, 0))
         Y = np.concatenate(
             [phi[:, :, None], np.broadcast_to(Ycell, (phi.shape[0], 6, Ycell.shape[1]))], 2
         )
@@ -349,7 +365,6 @@ class _Problem:
         res = np.concatenate([E.ravel(), prior, gauge])
         if not jacobian:
             return res, None
-        J_, C_, k_ = E.shape
         n_x, n_g = self.free_x.size, self.free_g.size
         Jac = np.zeros((n_data + n_g + n_c, n_x + n_g))
         # properties
@@ -357,85 +372,119 @@ class _Problem:
         for col, k in enumerate(self.free_x):
             Jac[:n_data, col] = ((WPA @ dM[k]) @ G).ravel()
         if n_g:
-            n_full = self.sigma_g.size
-            # Every geometry item free (the usual case): the sensitivities are written straight
-            # into the Jacobian's block (a view; its zeros are Jac's) and scaled there, instead
-            # of into a (J, C, k, n_geom) array gathered and scaled into a third copy (~6 MB per
-            # call): the same products, in place.
-            in_place = n_g == n_full and bool(np.all(self.free_g == np.arange(n_full)))
-            if in_place:
-                full = Jac[:n_data, n_x:].reshape(J_, C_, k_, n_full)  # splits rows: a view
-                assert np.may_share_memory(full, Jac)
-            else:
-                full = np.zeros((J_, C_, k_, n_full))
-            nn = self.n_nodes
-            # sensor nodes: ∂ψ_c for rotation (3) and offset (3)
-            # ∂(exp([θ]x) d⁰)/∂θ_i = (J_l(θ) e_i) × d with the left Jacobian of SO(3)
-            rv = g[: 6 * nn].reshape(nn, 6)[:, :3]
-            jl = _left_jacobian(rv)[self.node_of]  # (C, 3, 3), columns J_l e_i
-            ex_d = cross3(np.swapaxes(jl, 1, 2), d[:, None, :])  # (C, 3, 3): (J_l e_i) × d_c
-            dpsi = np.zeros((C_, 6, 6))
-            dpsi[:, :3, :3] = ex_d
-            dpsi[:, :3, 3:] = cross3(r[:, None, :], ex_d)
-            dpsi[:, 3:, 3:] = cross3(_E[None, :, :], d[:, None, :])  # e_i × d_c (offsets)
-            # −W_jc dψ_c[p]ᵀ G_j
-            cols = 6 * self.node_of[:, None] + np.arange(6)[None, :]  # (C, 6)
-            for p in range(6):  # each channel belongs to one node: no two writes collide
-                sens_p = -wt * (dpsi[:, p, :] @ G)  # (J, C, k)
-                full[:, np.arange(C_), :, cols[:, p]] = np.moveaxis(sens_p, 1, 0)
-            # inputs: ∂φ for β (2) and γ (2)
-            gi = g[6 * nn : 6 * nn + 4 * self.rin0.shape[0]].reshape(-1, 4)
-            ax = np.einsum("ji,jik->jk", gi[:, :2], self.ebasis)
-            jli = _left_jacobian(ax)  # (J, 3, 3)
-            eb_l = np.einsum("jab,jib->jia", jli, self.ebasis)  # J_l e_i for the two normals
-            exd = cross3(eb_l, din[:, None, :])  # (J, 2, 3)
-            dphi = np.zeros((J_, 4, 6))
-            dphi[:, :2, :3] = exd
-            dphi[:, :2, 3:] = cross3(rin[:, None, :], exd)
-            dphi[:, 2:, 3:] = exd
-            base = 6 * nn + 4 * np.arange(J_)
-            ly0 = self.Ly[:, None, 0, :]  # (J, 1, k)
-            for p in range(4):
-                full[np.arange(J_), :, :, base + p] = -(WPA @ dphi[:, p, :, None]) * ly0
-            if self.n_cells:
-                # load cell k: ∂(A_k B_k) for its rotation (3), offset (3) and moment gains (3),
-                # on its block of L_jʸ
-                K = self.n_cells
-                gc = g[self.cell_base : self.gain_base].reshape(K, CELL_PARAMS)
-                jlc = _left_jacobian(gc[:, :3])  # (K, 3, 3)
-                rk = self.cell_r0 + gc[:, 3:6]
-                T, Ti = self._cell_local
-                for k in range(K):
-                    lyk = self.Ly[:, 1 + 6 * k : 7 + 6 * k, :]  # (J, 6, k)
-                    for i in range(CELL_PARAMS):
-                        dA = np.zeros((6, 6))
-                        if i < 3:
-                            dQ = skew(jlc[k][:, i]) @ Qc[k]
-                            dA[:3, :3] = dQ
-                            dA[3:, 3:] = dQ
-                            dA[3:, :3] = skew(rk[k]) @ dQ - dQ @ skew(self.cell_r0[k])
-                            dAB = dA @ Bc[k]
-                        elif i < 6:
-                            dA[3:, :3] = skew(_E[i - 3]) @ Qc[k]
-                            dAB = dA @ Bc[k]
-                        else:  # ∂B/∂γ = T e_o e_oᵀ T⁻¹, local output o = Mx, My, Mz
-                            o = i - 3
-                            dAB = Ac[k] @ np.outer(T[k][:, o], Ti[k][o])
-                        full[..., self.cell_base + CELL_PARAMS * k + i] = -(WPA @ (dAB @ lyk))
-            if self.sigma_g.size > self.gain_base:  # channel gains (relative)
-                gcols = self.gain_base + np.arange(C_)
-                full[:, np.arange(C_), :, gcols] = np.moveaxis(
-                    -(self.w.T[:, :, None] * (psi @ G)), 1, 0
-                )
-            if in_place:
-                full *= self.sigma_g
-            else:
-                sub = full[..., self.free_g] * self.sigma_g[self.free_g]
-                Jac[:n_data, n_x:] = sub.reshape(n_data, n_g)
-            Jac[n_data : n_data + n_g, n_x:] = np.eye(n_g)
-            if n_c:
-                Jac[n_data + n_g :, n_x:] = _GAUGE_WEIGHT * self.gauge_rows
+            lin = _Linearisation(g, r, d, rin, din, psi, wt, WPA, G, cells)
+            self._geometry_jacobian(Jac, E.shape, n_c, lin)
         return res, Jac
+
+    def _geometry_jacobian(
+        self, Jac: FloatArray, shape: tuple[int, ...], n_c: int, lin: _Linearisation
+    ) -> None:
+        """Write the geometry columns of the Jacobian ``Jac`` (data rows of ``shape`` (J, C, k),
+        then the prior's identity and the ``n_c`` gauge rows), in whitened units ``g / σ_g``.
+
+        The sensitivities ``∂E/∂g`` of every geometry item (sensor nodes, inputs, load cells,
+        channel gains) are formed over the full geometry vector, then scaled by ``σ_g``.
+        """
+        J_, C_, k_ = shape
+        n_data = J_ * C_ * k_
+        n_x, n_g = self.free_x.size, self.free_g.size
+        n_full = self.sigma_g.size
+        # Every geometry item free (the usual case): the sensitivities are written straight
+        # into the Jacobian's block (a view; its zeros are Jac's) and scaled there, instead
+        # of into a (J, C, k, n_geom) array gathered and scaled into a third copy (~6 MB per
+        # call): the same products, in place.
+        in_place = n_g == n_full and bool(np.all(self.free_g == np.arange(n_full)))
+        if in_place:
+            full = Jac[:n_data, n_x:].reshape(J_, C_, k_, n_full)  # splits rows: a view
+            assert np.may_share_memory(full, Jac)
+        else:
+            full = np.zeros((J_, C_, k_, n_full))
+        self._node_sensitivities(full, lin)
+        self._input_sensitivities(full, lin)
+        if lin.cells is not None:
+            self._cell_sensitivities(full, lin)
+        if self.sigma_g.size > self.gain_base:  # channel gains (relative)
+            gcols = self.gain_base + np.arange(C_)
+            full[:, np.arange(C_), :, gcols] = np.moveaxis(
+                -(self.w.T[:, :, None] * (lin.psi @ lin.G)), 1, 0
+            )
+        if in_place:
+            full *= self.sigma_g
+        else:
+            sub = full[..., self.free_g] * self.sigma_g[self.free_g]
+            Jac[:n_data, n_x:] = sub.reshape(n_data, n_g)
+        Jac[n_data : n_data + n_g, n_x:] = np.eye(n_g)
+        if n_c:
+            Jac[n_data + n_g :, n_x:] = _GAUGE_WEIGHT * self.gauge_rows
+
+    def _node_sensitivities(self, full: FloatArray, lin: _Linearisation) -> None:
+        """``∂E/∂g`` (into ``full``, (J, C, k, n_geom)) of each sensor node's rotation (3) and
+        offset (3): ``−W_jc dψ_c[p]ᵀ G_j``, with ``∂(exp([θ]x) d⁰)/∂θ_i = (J_l(θ) e_i) × d`` and
+        ``J_l`` the left Jacobian of SO(3)."""
+        nn = self.n_nodes
+        r, d = lin.r, lin.d
+        C_ = r.shape[0]
+        rv = lin.g[: 6 * nn].reshape(nn, 6)[:, :3]
+        jl = _left_jacobian(rv)[self.node_of]  # (C, 3, 3), columns J_l e_i
+        ex_d = cross3(np.swapaxes(jl, 1, 2), d[:, None, :])  # (C, 3, 3): (J_l e_i) × d_c
+        dpsi = np.zeros((C_, 6, 6))
+        dpsi[:, :3, :3] = ex_d
+        dpsi[:, :3, 3:] = cross3(r[:, None, :], ex_d)
+        dpsi[:, 3:, 3:] = cross3(_E[None, :, :], d[:, None, :])  # e_i × d_c (offsets)
+        cols = 6 * self.node_of[:, None] + np.arange(6)[None, :]  # (C, 6)
+        for p in range(6):  # each channel belongs to one node: no two writes collide
+            sens_p = -lin.wt * (dpsi[:, p, :] @ lin.G)  # (J, C, k)
+            full[:, np.arange(C_), :, cols[:, p]] = np.moveaxis(sens_p, 1, 0)
+
+    def _input_sensitivities(self, full: FloatArray, lin: _Linearisation) -> None:
+        """``∂E/∂g`` of each input's line-of-action turns ``β`` (2) and point offsets ``γ`` (2)
+        along the two normals ``e_ji``: ``∂φ_j`` through ``(J_l e_i) × d_j``, on the input's
+        column of ``L_jʸ``."""
+        nn = self.n_nodes
+        rin, din = lin.rin, lin.din
+        J_ = rin.shape[0]
+        gi = lin.g[6 * nn : 6 * nn + 4 * self.rin0.shape[0]].reshape(-1, 4)
+        ax = np.einsum("ji,jik->jk", gi[:, :2], self.ebasis)
+        jli = _left_jacobian(ax)  # (J, 3, 3)
+        eb_l = np.einsum("jab,jib->jia", jli, self.ebasis)  # J_l e_i for the two normals
+        exd = cross3(eb_l, din[:, None, :])  # (J, 2, 3)
+        dphi = np.zeros((J_, 4, 6))
+        dphi[:, :2, :3] = exd
+        dphi[:, :2, 3:] = cross3(rin[:, None, :], exd)
+        dphi[:, 2:, 3:] = exd
+        base = 6 * nn + 4 * np.arange(J_)
+        ly0 = self.Ly[:, None, 0, :]  # (J, 1, k)
+        for p in range(4):
+            full[np.arange(J_), :, :, base + p] = -(lin.WPA @ dphi[:, p, :, None]) * ly0
+
+    def _cell_sensitivities(self, full: FloatArray, lin: _Linearisation) -> None:
+        """``∂E/∂g`` of load cell ``k``'s rotation (3), offset (3) and moment gains (3):
+        ``−W ψ A⁻¹ ∂(A_k B_k) L_kʸ`` on its block of ``L_jʸ``, with
+        ``∂B/∂γ_o = T e_o e_oᵀ T⁻¹`` for the local outputs ``o = Mx, My, Mz``."""
+        assert lin.cells is not None
+        _ABc, Ac, Bc, Qc = lin.cells
+        K = self.n_cells
+        gc = lin.g[self.cell_base : self.gain_base].reshape(K, CELL_PARAMS)
+        jlc = _left_jacobian(gc[:, :3])  # (K, 3, 3)
+        rk = self.cell_r0 + gc[:, 3:6]
+        T, Ti = self._cell_local
+        for k in range(K):
+            lyk = self.Ly[:, 1 + 6 * k : 7 + 6 * k, :]  # (J, 6, k)
+            for i in range(CELL_PARAMS):
+                dA = np.zeros((6, 6))
+                if i < 3:
+                    dQ = skew(jlc[k][:, i]) @ Qc[k]
+                    dA[:3, :3] = dQ
+                    dA[3:, 3:] = dQ
+                    dA[3:, :3] = skew(rk[k]) @ dQ - dQ @ skew(self.cell_r0[k])
+                    dAB = dA @ Bc[k]
+                elif i < 6:
+                    dA[3:, :3] = skew(_E[i - 3]) @ Qc[k]
+                    dAB = dA @ Bc[k]
+                else:  # ∂B/∂γ = T e_o e_oᵀ T⁻¹, local output o = Mx, My, Mz
+                    o = i - 3
+                    dAB = Ac[k] @ np.outer(T[k][:, o], Ti[k][o])
+                full[..., self.cell_base + CELL_PARAMS * k + i] = -(lin.WPA @ (dAB @ lyk))
 
     def gauge_basis(self) -> FloatArray:
         """The similarity of the whole instrumentation and the common accelerometer gain, as

@@ -254,6 +254,138 @@ def _guards(
     return True, "", cond
 
 
+def _checked_forces(
+    psi: FloatArray,
+    q: NDArray[np.complexfloating],
+    channels: tuple[Channel, ...],
+    force_in: NDArray[np.bool_] | None,
+    force_out: NDArray[np.bool_] | None,
+) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
+    """The forced-in and forced-out masks (n_ch,), after checking that the shapes agree and no
+    channel is both."""
+    n = psi.shape[0]
+    if psi.shape != (n, 6) or q.shape[1] != n or len(channels) != n:
+        raise SetupError(
+            f"psi {psi.shape}, q {q.shape} and {len(channels)} channels do not match; "
+            "give one Ψ row and one FRF row per channel"
+        )
+    fin = np.zeros(n, bool) if force_in is None else np.asarray(force_in, bool)
+    fout = np.zeros(n, bool) if force_out is None else np.asarray(force_out, bool)
+    if np.any(fin & fout):
+        c = channels[int(np.argmax(fin & fout))]
+        raise SetupError(f"channel {c.name} is both forced in and forced out; choose one")
+    return fin, fout
+
+
+def _core_error(
+    psi: FloatArray,
+    q: NDArray[np.complexfloating],
+    psi_n: FloatArray,
+    dirs: FloatArray,
+    active: NDArray[np.bool_],
+    trial: NDArray[np.bool_],
+    errs: ResponseErrors,
+    i: int,
+) -> tuple[float, FloatArray]:
+    """Candidate ``i``'s error predicted from a clean core, and the core channels' errors.
+
+    The core leaves out the candidate (``trial``) and the provisional suspects (active channels
+    above 2× the median error, at most a third of the channels), so that neither the candidate
+    nor a second bad channel inflates the reference spread. A core that fails the rank guard
+    keeps the suspects; one that still fails falls back to the current errors.
+    """
+    n = psi.shape[0]
+    act_idx = np.nonzero(active)[0]
+    med_all = float(np.median(errs.loo_band[act_idx][np.isfinite(errs.loo_band[act_idx])]))
+    suspects = act_idx[errs.loo_band[act_idx] > 2.0 * med_all]
+    suspects = suspects[np.argsort(errs.loo_band[suspects])[::-1]][: max(n // 3, 1)]
+    core = trial.copy()
+    core[suspects] = False
+    if not _guards(psi_n, dirs, core, 0, np.inf)[0]:
+        core = trial
+    if _guards(psi_n, dirs, core, 0, np.inf)[0]:
+        e_core = rigid_body_errors(psi, q, core).loo_band
+        e_cand = float(e_core[i])
+    else:
+        e_core, e_cand = errs.loo_band, float(errs.loo_band[i])
+    return e_cand, e_core[np.nonzero(core)[0]]
+
+
+def _remove_outliers(
+    psi: FloatArray,
+    q: NDArray[np.complexfloating],
+    channels: tuple[Channel, ...],
+    active: NDArray[np.bool_],
+    fin: NDArray[np.bool_],
+    errs: ResponseErrors,
+    excluded: list[Channel],
+    reasons: dict[str, str],
+    *,
+    ratio: float,
+    z: float,
+    min_per_direction: int,
+    cond_max: float,
+    limit: int,
+) -> tuple[NDArray[np.bool_], ResponseErrors, list[ResponseStep], str]:
+    """The stopping rule of the module docstring, one removal at a time.
+
+    Tests the removable active channels worst first against their clean core
+    (:func:`_core_error`, :func:`~dimacq.pipeline.selection._common.robust_outlier`); an
+    outlier that a guard needs is kept and the next one tried. Appends to ``excluded`` and
+    ``reasons``; returns the kept set, its errors, the steps and why the selection stopped.
+    """
+    psi_n = _norm_psi(psi)
+    dirs: FloatArray = psi[:, :3]
+    steps: list[ResponseStep] = []
+    stop = "no channel to test"
+    n_removed = 0
+    while True:
+        if n_removed >= limit:
+            stop = f"reached the removal limit ({limit} channels)"
+            break
+        cand = np.nonzero(active & ~fin & np.isfinite(errs.loo_band))[0]
+        if cand.size == 0:
+            stop = "no removable channel left"
+            break
+        order = cand[np.argsort(errs.loo_band[cand])[::-1]]
+        removed_now = False
+        for i in order:
+            trial = active.copy()
+            trial[i] = False
+            e_cand, others = _core_error(psi, q, psi_n, dirs, active, trial, errs, i)
+            out, med, thr = robust_outlier(e_cand, others, ratio=ratio, z=z)
+            if not out:
+                stop = (
+                    f"worst remaining channel {channels[i].name} has error {e_cand:.3g}, "
+                    f"within the spread of the others (median {med:.3g}, threshold {thr:.3g})"
+                )
+                steps.append(ResponseStep(channels[i], e_cand, med, thr, False, stop))
+                break
+            ok, why, _cond = _guards(psi_n, dirs, trial, min_per_direction, cond_max)
+            if not ok:
+                steps.append(ResponseStep(channels[i], e_cand, med, thr, False, "kept: " + why))
+                log.info("channel %s is an outlier but kept: %s", channels[i].name, why)
+                continue
+            active = trial
+            n_removed += 1
+            excluded.append(channels[i])
+            msg = (
+                f"rigid-body error {e_cand:.3g} > threshold {thr:.3g} "
+                f"(median of the others {med:.3g})"
+            )
+            reasons[channels[i].name] = msg
+            steps.append(ResponseStep(channels[i], e_cand, med, thr, True, msg))
+            log.info("removed channel %s: %s", channels[i].name, msg)
+            errs = rigid_body_errors(psi, q, active)
+            removed_now = True
+            break
+        if not removed_now:
+            if not steps or steps[-1].removed or steps[-1].reason.startswith("kept"):
+                stop = "every outlier channel is needed by a guard"
+            break
+    return active, errs, steps, stop
+
+
 def select_responses(
     psi: NDArray[np.floating],
     q: NDArray[np.complexfloating],
@@ -290,16 +422,7 @@ def select_responses(
     psi_f: FloatArray = np.asarray(psi, dtype=np.float64)
     psi = psi_f
     n = psi.shape[0]
-    if psi.shape != (n, 6) or q.shape[1] != n or len(channels) != n:
-        raise SetupError(
-            f"psi {psi.shape}, q {q.shape} and {len(channels)} channels do not match; "
-            "give one Ψ row and one FRF row per channel"
-        )
-    fin = np.zeros(n, bool) if force_in is None else np.asarray(force_in, bool)
-    fout = np.zeros(n, bool) if force_out is None else np.asarray(force_out, bool)
-    if np.any(fin & fout):
-        c = channels[int(np.argmax(fin & fout))]
-        raise SetupError(f"channel {c.name} is both forced in and forced out; choose one")
+    fin, fout = _checked_forces(psi, q, channels, force_in, force_out)
     psi_n = _norm_psi(psi_f)
     dirs: FloatArray = psi_f[:, :3]
     active = ~fout
@@ -308,73 +431,22 @@ def select_responses(
     ok, why, cond0 = _guards(psi_n, dirs, active, 0, np.inf)
     if not ok:
         raise SetupError(f"the response set after the forced-out channels is unusable: {why}")
-    cond_max = max(cond_limit, cond_growth * cond0)
-    limit = n // 3 if max_removals is None else max_removals
     initial = rigid_body_errors(psi, q, active)
-    errs = initial
-    steps: list[ResponseStep] = []
-    stop = "no channel to test"
-    n_removed = 0
-    while True:
-        if n_removed >= limit:
-            stop = f"reached the removal limit ({limit} channels)"
-            break
-        cand = np.nonzero(active & ~fin & np.isfinite(errs.loo_band))[0]
-        if cand.size == 0:
-            stop = "no removable channel left"
-            break
-        order = cand[np.argsort(errs.loo_band[cand])[::-1]]
-        removed_now = False
-        for i in order:
-            trial = active.copy()
-            trial[i] = False
-            # Reference: a "clean core" fit without the candidate and without the provisional
-            # suspects (active channels above 2× the median error), so that neither the
-            # candidate nor a second bad channel inflates the reference spread; the candidate's
-            # error is then its prediction from the core.
-            act_idx = np.nonzero(active)[0]
-            med_all = float(np.median(errs.loo_band[act_idx][np.isfinite(errs.loo_band[act_idx])]))
-            suspects = act_idx[errs.loo_band[act_idx] > 2.0 * med_all]
-            suspects = suspects[np.argsort(errs.loo_band[suspects])[::-1]][: max(n // 3, 1)]
-            core = trial.copy()
-            core[suspects] = False
-            if not _guards(psi_n, dirs, core, 0, np.inf)[0]:
-                core = trial
-            if _guards(psi_n, dirs, core, 0, np.inf)[0]:
-                e_core = rigid_body_errors(psi, q, core).loo_band
-                e_cand = float(e_core[i])
-            else:
-                e_core, e_cand = errs.loo_band, float(errs.loo_band[i])
-            out, med, thr = robust_outlier(e_cand, e_core[np.nonzero(core)[0]], ratio=ratio, z=z)
-            if not out:
-                stop = (
-                    f"worst remaining channel {channels[i].name} has error {e_cand:.3g}, "
-                    f"within the spread of the others (median {med:.3g}, threshold {thr:.3g})"
-                )
-                steps.append(ResponseStep(channels[i], e_cand, med, thr, False, stop))
-                break
-            ok, why, _cond = _guards(psi_n, dirs, trial, min_per_direction, cond_max)
-            if not ok:
-                steps.append(ResponseStep(channels[i], e_cand, med, thr, False, "kept: " + why))
-                log.info("channel %s is an outlier but kept: %s", channels[i].name, why)
-                continue
-            active = trial
-            n_removed += 1
-            excluded.append(channels[i])
-            msg = (
-                f"rigid-body error {e_cand:.3g} > threshold {thr:.3g} "
-                f"(median of the others {med:.3g})"
-            )
-            reasons[channels[i].name] = msg
-            steps.append(ResponseStep(channels[i], e_cand, med, thr, True, msg))
-            log.info("removed channel %s: %s", channels[i].name, msg)
-            errs = rigid_body_errors(psi, q, active)
-            removed_now = True
-            break
-        if not removed_now:
-            if not steps or steps[-1].removed or steps[-1].reason.startswith("kept"):
-                stop = "every outlier channel is needed by a guard"
-            break
+    active, errs, steps, stop = _remove_outliers(
+        psi,
+        q,
+        channels,
+        active,
+        fin,
+        initial,
+        excluded,
+        reasons,
+        ratio=ratio,
+        z=z,
+        min_per_direction=min_per_direction,
+        cond_max=max(cond_limit, cond_growth * cond0),
+        limit=n // 3 if max_removals is None else max_removals,
+    )
     _, _, cond_f = _guards(psi_n, dirs, active, 0, np.inf)
     counts = np.sum(np.abs(dirs[active]) >= 0.5, axis=0)
     return ResponseSelection(
