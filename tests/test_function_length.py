@@ -23,7 +23,6 @@ CEILINGS: dict[tuple[str, str], int] = {
     ("dimacq/services/geometry/digitizer_selftest.py", "run_selftest"): 184,
     ("dimacq/services/solve/verdict.py", "verdict"): 170,
     ("dimacq/services/calibration/inertial_calibration.py", "run_inertial_calibration"): 166,
-    ("dimacq/pipeline/modal.py", "fit_modal_model"): 155,
     ("dimacq/pipeline/uncertainty.py", "geometry_spread"): 154,
     ("dimacq/pipeline/loadcell_calibration.py", "static_certificate"): 154,
     ("dimacq/cli/commands/solve.py", "register"): 139,
