@@ -210,12 +210,10 @@ class _Projection:
         pos = {int(o): k for k, o in enumerate(fit.kind_index["acceleration"])}
         self.rows = np.array([pos[int(o)] for o in self.acc], dtype=np.intp)
         # each elastic mode's reaction residues as a load at P, and λ²
-        self.W = (
-            np.asarray([_reactions_at_p(frf, fit.residues[r], setup) for r in self.el])
-            if self.el
-            else None
+        self.W: ComplexArray = np.asarray(
+            [_reactions_at_p(frf, fit.residues[r], setup) for r in self.el], complex
         )
-        self.lam2 = np.array([fit.poles[r].lam ** 2 for r in self.el])
+        self.lam2: ComplexArray = np.array([fit.poles[r].lam ** 2 for r in self.el], complex)
 
     def apply(
         self,
