@@ -311,31 +311,28 @@ def _stable(
     pole a few lines above 0 Hz is not located better than a line; damping within a factor 1.5
     or 0.005) and keep the clusters seen in at least half of the orders (their medians)."""
     allp = sorted((fr, ze, i) for i, ps in enumerate(found) for fr, ze in ps)
-    clusters: list[list[tuple[float, float, int]]] = []
+    # per cluster: its frequencies, damping ratios, orders, and their medians (kept current)
+    clusters: list[tuple[list[float], list[float], set[int], list[float]]] = []
     for fr, ze, i in allp:
         best = None
         for c in clusters:
-            fm = float(np.median([x[0] for x in c]))
-            zm = float(np.median([x[1] for x in c]))
+            fm, zm = c[3]
             if abs(fr - fm) <= max(0.01 * fm, line_hz) and abs(ze - zm) <= max(0.5 * zm, 0.005):
-                if i not in {x[2] for x in c}:
+                if i not in c[2]:
                     best = c
                     break
         if best is None:
-            clusters.append([(fr, ze, i)])
+            clusters.append(([fr], [ze], {i}, [fr, ze]))
         else:
-            best.append((fr, ze, i))
-    out = []
-    for c in clusters:
-        n = len({x[2] for x in c})
-        if n >= 0.5 * n_orders:
-            out.append(
-                Pole(
-                    float(np.median([x[0] for x in c])),
-                    float(np.median([x[1] for x in c])),
-                    stability=n / n_orders,
-                )
-            )
+            best[0].append(fr)
+            best[1].append(ze)
+            best[2].add(i)
+            best[3][:] = [float(np.median(best[0])), float(np.median(best[1]))]
+    out = [
+        Pole(c[3][0], c[3][1], stability=len(c[2]) / n_orders)
+        for c in clusters
+        if len(c[2]) >= 0.5 * n_orders
+    ]
     return sorted(out, key=lambda p: p.frequency_hz)
 
 
@@ -502,7 +499,7 @@ def fit_modal_model(
     """
     f = np.asarray(frequencies_hz, float)
     H = np.asarray(H, complex)
-    n_l, n_o, n_i = H.shape
+    n_l, _, n_i = H.shape
     kind_index = {
         k: np.array([i for i, x in enumerate(kinds) if x == k], dtype=np.intp)
         for k in ("acceleration", "reaction")
@@ -512,7 +509,8 @@ def fit_modal_model(
         raise DataError("a modal correction needs accelerometer outputs; the FRFs have none")
     # the span the FRFs support: the noisy top (above the hammer's
     # spectrum) are left out of every step of the fit (module docstring)
-    noise = frf_noise(H[:, acc].reshape(n_l, -1))
+    H_acc = H[:, acc].reshape(n_l, -1)
+    noise = frf_noise(H_acc)
     i0, i1, noise_limit = clean_span(noise)
     span = np.zeros(n_l, bool)
     span[i0 : i1 + 1] = True
@@ -530,59 +528,138 @@ def fit_modal_model(
         )
     s = 2j * np.pi * f
     omega_ref = 2 * np.pi * f[i1]
-    # classify each pole by the rigid-body error of its accelerometer residues
-    B_acc, _, _ = _basis(s, poles, s**2, omega_ref)
-    coef_a0, *_ = _lsfd(B_acc[span], H[span][:, acc].reshape(n_span, -1))
+    # the basis columns do not depend on which poles are elastic: one per kind serves every step
+    weights = {"acceleration": s**2, "reaction": np.ones_like(s)}
+    B_acc = _basis(s, poles, weights["acceleration"], omega_ref)[0]
+    coef_a0, *_ = _lsfd(B_acc[span], H_acc[span])
+    classified = _by_shape(coef_a0, poles, rigid_basis, n_i, elastic_shape_error)
+    f_lo, fit_lines = _fit_lines(f, classified, span, i0, i1, noise_limit)
+    fits = {}
+    for kind, idx in kind_index.items():
+        if idx.size == 0:
+            continue
+        B = B_acc if kind == "acceleration" else _basis(s, poles, weights[kind], omega_ref)[0]
+        fits[kind] = _lsfd(B[fit_lines], H[fit_lines][:, idx].reshape(-1, idx.size * n_i))
+    coef_a = fits["acceleration"][0]
+    classified = _by_snr(classified, fits["acceleration"], elastic_shape_error)
+    parts = _corrections(fits, kind_index, classified, s, weights, omega_ref, H.shape)
+    resid_rel, band = _where_fit_holds(f, H_acc, B_acc, coef_a, fit_lines, noise)
+    if band is None:
+        raise DataError(
+            f"the modal fit over {f_lo:.3g}–{f[i1]:.4g} Hz holds (LSFD residual ≤ {FIT_HOLDS:g}× "
+            "the FRFs' noise or the fit's median residual) on too few consecutive lines for a DIM band: the FRFs do not "
+            "support a modal model there (modes missed, a nonlinear or noisy response)"
+        )
+    return ModalFit(
+        poles=classified,
+        frequencies_hz=f,
+        kind_index=kind_index,
+        fit_error=float(np.sqrt(np.mean(np.concatenate([fit[3] for fit in fits.values()]) ** 2))),
+        fit_range_hz=(float(f_lo), float(f[i1])),
+        band_range_hz=band,
+        noise_rel=noise,
+        residual_rel=resid_rel,
+        clean_span_hz=(float(f[i0]), float(f[i1])),
+        noise_limit=noise_limit,
+        top_line=i1,
+        **parts,
+    )
+
+
+def _by_shape(
+    coef: FloatArray,
+    poles: list[Pole],
+    rigid_basis: FloatArray,
+    n_i: int,
+    elastic_shape_error: float,
+) -> list[Pole]:
+    """Each pole with the rigid-body error of its accelerometer residues
+    ``‖A_r − Ψ Ψ⁺ A_r‖ / ‖A_r‖`` (``coef``: the LSFD coefficients of the accelerances) and
+    marked elastic when that exceeds ``elastic_shape_error`` (the signal to noise is checked
+    later, :func:`_by_snr`)."""
     Pq, _ = np.linalg.qr(np.asarray(rigid_basis, float))
-    classified = []
+    out = []
     for r, p in enumerate(poles):
-        A = (coef_a0[2 * r] + 1j * coef_a0[2 * r + 1]).reshape(acc.size, n_i)
+        A = (coef[2 * r] + 1j * coef[2 * r + 1]).reshape(-1, n_i)
         nrm = np.linalg.norm(A)
         err = float(np.linalg.norm(A - Pq @ (Pq.T @ A)) / nrm) if nrm > 0 else 0.0
-        elastic = err > elastic_shape_error  # the signal to noise is checked below
-        classified.append(Pole(p.frequency_hz, p.damping_ratio, elastic, err, p.stability))
-    # the residues are fitted above the suspension (rigid-body) poles: their closely spaced peaks
-    # are what the lower residual terms cannot follow, and the DIM band lies above them anyway
-    el_f = [p.frequency_hz for p in classified if p.elastic]
+        out.append(
+            Pole(p.frequency_hz, p.damping_ratio, err > elastic_shape_error, err, p.stability)
+        )
+    return out
+
+
+def _fit_lines(
+    f: FloatArray,
+    poles: list[Pole],
+    span: NDArray[np.bool_],
+    i0: int,
+    i1: int,
+    noise_limit: float,
+) -> tuple[float, NDArray[np.bool_]]:
+    """The lowest line of the residue fit and the lines fitted: above :data:`CLEARANCE` times
+    the highest suspension (rigid-body) pole below the first elastic one, within the clean
+    span. Their closely spaced peaks are what the lower residual terms cannot follow, and the
+    DIM band lies above them anyway."""
+    el_f = [p.frequency_hz for p in poles if p.elastic]
     first_el = min(el_f) if el_f else float(f[-1])
-    rigid_f = [p.frequency_hz for p in classified if not p.elastic and p.frequency_hz < first_el]
+    rigid_f = [p.frequency_hz for p in poles if not p.elastic and p.frequency_hz < first_el]
     f_lo = CLEARANCE * max(rigid_f) if rigid_f else 0.5 * first_el
     f_lo = max(f_lo, float(f[i0]))
     fit_lines = (f >= f_lo) & span
-    if fit_lines.sum() < 4 * (2 * len(classified) + len(RESIDUAL_POWERS)):
+    if fit_lines.sum() < 4 * (2 * len(poles) + len(RESIDUAL_POWERS)):
         raise DataError(
             f"{int(fit_lines.sum())} clean lines between {f_lo:.3g} Hz (clear of the suspension "
             f"modes) and {f[i1]:.4g} Hz (where the FRFs' noise exceeds "
             f"{100 * noise_limit:.2g} %) are too few for the modal fit; measure a wider span, a "
             "finer resolution or with a hammer tip that excites higher"
         )
-    correction = np.zeros_like(H)
-    nr = len(classified)
+    return f_lo, fit_lines
+
+
+def _by_snr(
+    poles: list[Pole],
+    fit: tuple[FloatArray, FloatArray, FloatArray, FloatArray],
+    elastic_shape_error: float,
+) -> list[Pole]:
+    """Each pole with the signal to noise of its accelerometer residues on the fitted lines
+    (``‖A_r‖`` over the root sum of their LSFD variances, ``fit`` the accelerances'
+    :func:`_lsfd`): elastic when its shape is not rigid and that exceeds :data:`MIN_SNR`."""
+    coef, sig, chol, _ = fit
+    out = []
+    for r, p in enumerate(poles):
+        A = coef[2 * r] + 1j * coef[2 * r + 1]
+        se2 = (np.sum(chol[2 * r] ** 2) + np.sum(chol[2 * r + 1] ** 2)) * np.sum(sig**2)
+        snr = float(np.linalg.norm(A) / np.sqrt(se2)) if se2 > 0 else float("inf")
+        elastic = p.shape_rigid_error > elastic_shape_error and snr > MIN_SNR
+        out.append(replace(p, elastic=elastic, snr=snr))
+    return out
+
+
+def _corrections(
+    fits: dict[str, tuple[FloatArray, FloatArray, FloatArray, FloatArray]],
+    kind_index: dict[str, NDArray[np.intp]],
+    poles: list[Pole],
+    s: ComplexArray,
+    weights: dict[str, ComplexArray],
+    omega_ref: float,
+    shape: tuple[int, int, int],
+) -> dict[str, Any]:
+    """The fit's per-kind results as :class:`ModalFit` fields: the correction (the elastic
+    terms and the residual terms subtracted, module docstring), the residues, the ``s²``
+    residual term of the accelerances, σ per pair, the subtracted columns and the coefficients'
+    covariance factors."""
+    n_l, n_o, n_i = shape
+    nr = len(poles)
+    correction = np.zeros(shape, complex)
     residues = np.zeros((nr, n_o, n_i), complex)
-    upper_acc = np.zeros_like(H)
+    upper_acc = np.zeros(shape, complex)
     sigma = np.zeros((n_o, n_i))
     sub_basis: dict[str, ComplexArray] = {}
     chols: dict[str, FloatArray] = {}
-    rels = []
-    fits = {}
-    for kind, idx in kind_index.items():
-        if idx.size == 0:
-            continue
-        weight = s**2 if kind == "acceleration" else np.ones_like(s)
-        B, _, _ = _basis(s, classified, weight, omega_ref)
-        fits[kind] = _lsfd(B[fit_lines], H[fit_lines][:, idx].reshape(-1, idx.size * n_i))
-    # the residues' signal to noise on the fitted lines decides, with the shape, what is elastic
-    coef_a, sig_a, chol_a, _ = fits["acceleration"]
-    for r, p in enumerate(classified):
-        A = coef_a[2 * r] + 1j * coef_a[2 * r + 1]
-        se2 = (np.sum(chol_a[2 * r] ** 2) + np.sum(chol_a[2 * r + 1] ** 2)) * np.sum(sig_a**2)
-        snr = float(np.linalg.norm(A) / np.sqrt(se2)) if se2 > 0 else float("inf")
-        elastic = p.shape_rigid_error > elastic_shape_error and snr > MIN_SNR
-        classified[r] = replace(p, elastic=elastic, snr=snr)
-    for kind, (coef, sig, chol, rel) in fits.items():
+    for kind, (coef, sig, chol, _) in fits.items():
         idx = kind_index[kind]
-        weight = s**2 if kind == "acceleration" else np.ones_like(s)
-        _, sub_a, sub_r = _basis(s, classified, weight, omega_ref)
+        _, sub_a, sub_r = _basis(s, poles, weights[kind], omega_ref)
         sub = sub_a if kind == "acceleration" else sub_r
         correction[:, idx] = (sub @ coef).reshape(n_l, idx.size, n_i)
         residues[:, idx] = (coef[0 : 2 * nr : 2] + 1j * coef[1 : 2 * nr : 2]).reshape(
@@ -594,40 +671,14 @@ def fit_modal_model(
         sigma[idx] = sig.reshape(idx.size, n_i)
         sub_basis[kind] = sub
         chols[kind] = chol
-        rels.append(rel)
-    resid_rel, band = _where_fit_holds(
-        f,
-        H[:, acc].reshape(n_l, -1),
-        _basis(s, classified, s**2, omega_ref)[0],
-        coef_a,
-        fit_lines,
-        noise,
-    )
-    if band is None:
-        raise DataError(
-            f"the modal fit over {f_lo:.3g}–{f[i1]:.4g} Hz holds (LSFD residual ≤ {FIT_HOLDS:g}× "
-            "the FRFs' noise or the fit's median residual) on too few consecutive lines for a DIM band: the FRFs do not "
-            "support a modal model there (modes missed, a nonlinear or noisy response)"
-        )
-    return ModalFit(
-        poles=classified,
-        frequencies_hz=f,
-        correction=correction,
-        sub_basis=sub_basis,
-        coef_cov_chol=chols,
-        sigma=sigma,
-        kind_index=kind_index,
-        fit_error=float(np.sqrt(np.mean(np.concatenate(rels) ** 2))),
-        fit_range_hz=(float(f_lo), float(f[i1])),
-        residues=residues,
-        upper_acc=upper_acc,
-        band_range_hz=band,
-        noise_rel=noise,
-        residual_rel=resid_rel,
-        clean_span_hz=(float(f[i0]), float(f[i1])),
-        noise_limit=noise_limit,
-        top_line=i1,
-    )
+    return {
+        "correction": correction,
+        "residues": residues,
+        "upper_acc": upper_acc,
+        "sigma": sigma,
+        "sub_basis": sub_basis,
+        "coef_cov_chol": chols,
+    }
 
 
 def _where_fit_holds(
@@ -687,8 +738,8 @@ def project_out(
     """
     B = np.concatenate([np.asarray(rigid_basis, complex), shapes], axis=1)
     pinv = np.linalg.pinv(B)[6:]  # rows giving η
-    eta = np.einsum("ec,lcj->lej", pinv, H_acc)
-    corr = np.einsum("ce,lej->lcj", shapes, eta)
+    eta = pinv @ H_acc  # (n_lines, n_el, n_inputs), one matrix product per line
+    corr = shapes @ eta
     return H_acc - corr, corr
 
 

@@ -176,51 +176,67 @@ def corrected(
     they are: that keeps the quasi-static deformation the support forces cause out of the rigid
     motion, which a subtraction of the modes leaves in (its error grows as
     ``(f_suspension / f_elastic)²``: 0.4 % mass and 10 mm CG with the hull modes at 17 Hz,
-    noise-free; projected: 0.001 %, 0.01 mm).
+    noise-free; projected: 0.001 %, 0.01 mm). The passes for ``M`` project only the band's lines
+    (the projection is line by line).
     """
     lo, hi = fit.band_range_hz
+    proj = _Projection(frf, fit, setup)
+    band = frf.band(lo, hi)
     M = _mass_matrix(_subtracted(frf, fit), setup)
     for _ in range(n_iter):
-        H = _projected(frf, fit, setup, M)
-        M = _mass_matrix(frf.replace(H=H).band(lo, hi), setup)
-    H = _projected(frf, fit, setup, M)
+        M = _mass_matrix(band.replace(H=proj.apply(band.H, M)), setup)
+    H = proj.apply(frf.H, M)
     return frf.replace(H=H).band(lo, hi), frf.H - H
 
 
-def _projected(
-    frf: FrfData,
-    fit: ModalFit,
-    setup: TestSetup,
-    M: FloatArray,
-    residues_acc: ComplexArray | None = None,
-    upper_acc: ComplexArray | None = None,
-) -> ComplexArray:
-    """``H`` with the elastic shapes projected out of the accelerometer rows (:func:`corrected`);
-    ``residues_acc`` (n_modes, n_acc, n_inputs) and ``upper_acc`` (n_acc, n_inputs) replace the
-    fit's accelerometer residues and top-line residual term (for the uncertainty draws)."""
-    el = [r for r, p in enumerate(fit.poles) if p.elastic]
-    geo = response_geometry(frf, setup)
-    psi = response_matrix(geo.positions_m, geo.directions, np.asarray(setup.reference_point, float))
-    acc = geo.output_index
-    pos = {int(o): k for k, o in enumerate(fit.kind_index["acceleration"])}
-    rows = np.array([pos[int(o)] for o in acc], dtype=np.intp)
-    res = fit.residues[:, fit.kind_index["acceleration"]] if residues_acc is None else residues_acc
-    top = (
-        fit.upper_acc[fit.top_line][fit.kind_index["acceleration"]]
-        if upper_acc is None
-        else upper_acc
-    )
-    up = np.real(top[rows])
-    u_up, sv_up, _ = np.linalg.svd(up, full_matrices=False)
-    shapes = [u_up[:, sv_up > UPPER_RANK_RATIO * sv_up[0]] if sv_up[0] > 0 else u_up[:, :0]]
-    if el:
-        W = np.asarray([_reactions_at_p(frf, fit.residues[r], setup) for r in el])
-        lam2 = np.array([fit.poles[r].lam ** 2 for r in el])
-        U = np.linalg.solve(M[None], W) / lam2[:, None, None]
-        shapes.insert(0, elastic_shapes(res[el][:, rows], U, psi))
-    H = frf.H.copy()
-    H[:, acc], _ = project_out(frf.H[:, acc], psi, np.concatenate(shapes, 1).astype(complex))
-    return H
+class _Projection:
+    """The elastic shapes projected out of the accelerometer rows (:func:`corrected`): what
+    does not change with ``M`` or a draw of the residues is worked out once.
+
+    ``apply(H, M, residues_acc, upper_acc)`` returns ``H`` (any lines of the FRFs, n_lines ×
+    n_outputs × n_inputs) with the shapes projected out; ``residues_acc`` (n_modes, n_acc,
+    n_inputs) and ``upper_acc`` (n_acc, n_inputs) replace the fit's accelerometer residues and
+    top-line residual term (for the uncertainty draws).
+    """
+
+    def __init__(self, frf: FrfData, fit: ModalFit, setup: TestSetup) -> None:
+        self.fit = fit
+        self.el = [r for r, p in enumerate(fit.poles) if p.elastic]
+        geo = response_geometry(frf, setup)
+        self.psi = response_matrix(
+            geo.positions_m, geo.directions, np.asarray(setup.reference_point, float)
+        )
+        self.acc = geo.output_index
+        pos = {int(o): k for k, o in enumerate(fit.kind_index["acceleration"])}
+        self.rows = np.array([pos[int(o)] for o in self.acc], dtype=np.intp)
+        # each elastic mode's reaction residues as a load at P, and λ²
+        self.W: ComplexArray = np.asarray(
+            [_reactions_at_p(frf, fit.residues[r], setup) for r in self.el], complex
+        )
+        self.lam2: ComplexArray = np.array([fit.poles[r].lam ** 2 for r in self.el], complex)
+
+    def apply(
+        self,
+        H: ComplexArray,
+        M: FloatArray,
+        residues_acc: ComplexArray | None = None,
+        upper_acc: ComplexArray | None = None,
+    ) -> ComplexArray:
+        fit, el, rows = self.fit, self.el, self.rows
+        kind_acc = fit.kind_index["acceleration"]
+        res = fit.residues[:, kind_acc] if residues_acc is None else residues_acc
+        top = fit.upper_acc[fit.top_line][kind_acc] if upper_acc is None else upper_acc
+        up = np.real(top[rows])
+        u_up, sv_up, _ = np.linalg.svd(up, full_matrices=False)
+        shapes = [u_up[:, sv_up > UPPER_RANK_RATIO * sv_up[0]] if sv_up[0] > 0 else u_up[:, :0]]
+        if el:
+            U = np.linalg.solve(M[None], self.W) / self.lam2[:, None, None]
+            shapes.insert(0, elastic_shapes(res[el][:, rows], U, self.psi))
+        out = H.copy()
+        out[:, self.acc], _ = project_out(
+            H[:, self.acc], self.psi, np.concatenate(shapes, 1).astype(complex)
+        )
+        return out
 
 
 def _reactions_at_p(frf: FrfData, residue: ComplexArray, setup: TestSetup) -> ComplexArray:
@@ -360,10 +376,11 @@ def with_modal_uncertainty(
     lo, hi = result.band_hz
     M = np.asarray(result.properties.mass_matrix(np.asarray(setup.reference_point, float)))
     res, up = residue_draws(fit, N_DRAWS, seed=25)
+    proj = _Projection(frf, fit, setup)
+    band = frf.band(lo, hi)  # the projection is line by line: the band's lines are all it needs
     samples = []
     for r_d, u_d in zip(res, up, strict=True):
-        H = _projected(frf, fit, setup, M, r_d, u_d)
-        data = frf.replace(H=H).band(lo, hi)
+        data = band.replace(H=proj.apply(band.H, M, r_d, u_d))
         system = assemble(
             data, setup, length_unit=length_unit, response_weights=weights
         ).select_inputs(keep_idx)
