@@ -4,7 +4,7 @@ Starts ``dimacq serve`` as its own process on the simulated lab (scenario
 calibration-mass-bungee: USB DAQ and CAN FD load cell simulators fed by the virtual lab), starts
 the scenario's impact acquisition (24 inputs x 5 averages), then 50 concurrent clients each call
 ``GET /api/status`` repeatedly over keep-alive connections; prints p50/p90/p99/max latency and
-checks that the acquisition was running for the whole measurement. Target (issue 7): p99 < 50 ms.
+checks that the acquisition was running for the whole measurement. Target: p99 < 50 ms.
 
     python tests/benchmarks/bench_api_status.py [--clients 50] [--calls 40]
 """

@@ -23,7 +23,7 @@ page faults (first touches of fresh memory: the kernel maps and zeroes each page
 Then dimacq H1 and pyFRF's one call again, each ``--repeat`` times in a row (as a caller looping
 over a test's inputs runs them, each call reusing the memory its previous one freed).
 
-Targets (issue #27): H1 and H2 within 1.5x the floor and at least 4x faster than pyFRF (one
+Targets: H1 and H2 within 1.5x the floor and at least 4x faster than pyFRF (one
 call, its default ``copy=True``), both in CPU time, in the same run; the ratios are printed,
 with the wall-time ratio of our ``--workers`` threads to pyFRF's all-core FFTs (meaningful only
 when the machine has idle cores: the load average is printed).

@@ -1,4 +1,4 @@
-"""Lab page speed (issue 13): page load and a plot of 30 FRFs × 2048 lines, in headless Chromium.
+"""Lab page speed: page load and a plot of 30 FRFs × 2048 lines, in headless Chromium.
 
 Starts ``dimacq serve`` on the simulated lab (scenario calibration-mass-bungee), stores the bundled
 example (``config/examples/six_triax_setup.toml`` and its FRFs), then in Debian's ``chromium``

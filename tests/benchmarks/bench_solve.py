@@ -1,4 +1,4 @@
-"""Benchmark: ``dimacq solve FILE --json OUT`` end to end, as a user runs it (issue #27).
+"""Benchmark: ``dimacq solve FILE --json OUT`` end to end, as a user runs it.
 
 Run on demand (not collected by pytest)::
 

@@ -1,4 +1,4 @@
-"""Triangulation throughput on one core (issue 5: >= 5000 shots/s).
+"""Triangulation throughput on one core (target >= 5000 shots/s).
 
 Run: ``python tests/benchmarks/bench_triangulation.py [n_shots]``. Shots come from the virtual
 lab's sonic physics (20 degC, 0.1 mm timing noise, 2 % echoes), 2 emitters x 4 microphones,
