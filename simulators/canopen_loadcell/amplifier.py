@@ -11,6 +11,15 @@ and PRE-OPERATIONAL stops it, every sample goes out as the TPDOs its mapping par
 (:class:`~dimacq.drivers.canopen_loadcell.protocol.PdoLayout` read from its own dictionary),
 the heartbeat is the node's NMT heartbeat (``0x1017``), and EMCY frames carry the sample counter.
 
+The TPDOs of a burst go out in order as one :meth:`SimVirtualBus.send_frames
+<dimacq.simulators.virtual_can.SimVirtualBus.send_frames>` (about 1 µs a frame, not the 15 µs or
+more of ``Network.send_message``): at PRE-OPERATIONAL the node sends the frames of every pulse
+it counted before it answers the SDO read of the counter (``0x2102``) that follows, as a real
+node's frames are on the bus before that answer, so the stop costs the backlog's bursts, not
+a send per frame on the thread that answers SDO. On an adaptive DAQ clock it holds the clock
+:data:`_MAX_BACKLOG` pulses ahead of what it sent (:meth:`SyncPulses._hold_clock`), so that
+backlog stays bounded when the host is busy.
+
 Faults (:class:`CanopenFaults`): TPDO frames not sent (bus overload), a bus-off period (nothing
 sent, then the EMCY "recovered from bus-off"), the heartbeat stopped, EMCY at given samples,
 and SDO writes of the calibration matrix refused while streaming (as the firmware does; a real
@@ -42,6 +51,8 @@ __all__ = ["CanopenAmplifierSim", "CanopenFaults"]
 log = logging.getLogger(__name__)
 
 _CHUNK = 128
+#: SYNC pulses an adaptive DAQ clock may run ahead of the frames sent (it waits there)
+_MAX_BACKLOG = 16 * _CHUNK
 _ABORT_STATE = 0x08000022  # data cannot be transferred because of the present device state
 _ABORT_LENGTH = 0x06070010  # data type and length do not match
 
@@ -121,7 +132,8 @@ class CanopenAmplifierSim(SyncPulses):
         self._lock = threading.RLock()
         self._count_lock = threading.Lock()  # samples read ↔ counter, held briefly
         self._stop_evt = threading.Event()
-        self.network = canopen.Network(SimVirtualBus(channel=channel))
+        self._bus = SimVirtualBus(channel=channel)
+        self.network = canopen.Network(self._bus)
         self.network.NOTIFIER_CYCLE = 0.1  # how long closing waits for the receive thread
         self.node = canopen.LocalNode(node_id, canopen.import_od(str(eds), node_id))
         self.node_id = node_id
@@ -138,6 +150,8 @@ class CanopenAmplifierSim(SyncPulses):
             self.node.nmt.send_command(0x80)  # boot-up → PRE-OPERATIONAL, heartbeat starts
         self._thread = threading.Thread(target=self._run, name=f"canopen-sim-{channel}")
         self._thread.start()
+
+    max_backlog = _MAX_BACKLOG
 
     def _obj(self, index: int) -> Any:
         """Object ``index`` of the node's own dictionary (read and written locally)."""
@@ -281,23 +295,33 @@ class CanopenAmplifierSim(SyncPulses):
         frames = self.layout.encode(counters, counts)
         f = self.faults
         off_a, off_n = f.bus_off if f.bus_off is not None else (-1, 0)
+        if f.silent:
+            return
+        tpdos = [(t.cob_id, k) for k, t in enumerate(self.layout.tpdos)]
+        burst: list[tuple[int, bytes | bytearray, bool]] = []
         for i, c in enumerate(counters.tolist()):
-            if f.silent:
-                break
             if off_a <= c < off_a + off_n:
                 if not self._hb_stopped:
+                    self._flush(burst)
                     self.node.nmt.stop_heartbeat()
                     self._hb_stopped = True
                 continue
             if off_n and c >= off_a + off_n and not self._bus_off_reported:
+                self._flush(burst)  # the frames before it first, in order
                 self._bus_off_reported = True
                 if not f.heartbeat_lost:
                     self.node.nmt.start_heartbeat(int(self._obj(p.HEARTBEAT_TIME).raw))
                     self._hb_stopped = False
                 self.node.emcy.send(p.EMCY_BUS_OFF_RECOVERED, 0x11, p.emcy_data(c))
             if c in f.emcy_at:
+                self._flush(burst)
                 self.node.emcy.send(f.emcy_at[c], 0x01, p.emcy_data(c))
-            for k, t in enumerate(self.layout.tpdos):
-                if k == 1 and c in f.dropped_frames:
-                    continue
-                self.network.send_message(t.cob_id, frames[k][i])
+            dropped = c in f.dropped_frames
+            burst.extend((cob, frames[k][i], False) for cob, k in tpdos if not (k == 1 and dropped))
+        self._flush(burst)
+
+    def _flush(self, burst: list[tuple[int, bytes | bytearray, bool]]) -> None:
+        """Send the TPDO frames of ``burst`` in order as one burst, and empty it."""
+        if burst:
+            self._bus.send_frames(burst)
+            burst.clear()

@@ -229,3 +229,51 @@ def test_heartbeat_loss_is_reported_naming_the_node_and_survived(rig) -> None:
     assert first.valid.all() and second.valid.all()
     truth = src.read(np.arange(4, 16), 256, 256)
     np.testing.assert_allclose(second.gauges_v, truth, atol=0.51 * LSB_V)
+
+
+def test_stop_sends_the_backlog_in_bursts_before_answering_the_counter(rig) -> None:
+    """NMT PRE-OPERATIONAL with 5000 pulses counted and none sent: the node sends their TPDOs
+    as bursts (not a send per frame on the thread that answers SDO), all of them on the wire
+    before the answer of the counter read (0x2102) that follows, as the driver expects."""
+    src, _task, amp, sim = rig()
+    clock = sim.clock
+    tpdos = set(sim.layout.cob_ids)
+    send_pulses = sim._send_pulses
+    sim._send_pulses = lambda final=False: send_pulses(final) if final else 0  # only the stop
+    bursts: list[int] = []
+    send_frames = sim.network.bus.send_frames
+
+    def count_bursts(frames):
+        bursts.append(len(frames))
+        send_frames(frames)
+
+    sim.network.bus.send_frames = count_bursts
+    single: list[int] = []
+    send_message = sim.network.send_message
+
+    def count_single(can_id, data, remote=False):
+        single.append(can_id)
+        send_message(can_id, data, remote)
+
+    sim.network.send_message = count_single
+    amp.set_rate(int(src.sample_rate_hz))
+    amp.start()
+    clock.start(0, src.sample_rate_hz)
+    clock.advance(5000)
+    clock.stop()
+    wire = can.Bus(interface="virtual", channel=sim.network.bus.channel_id)  # listens from here
+    try:
+        assert amp.stop() == 5000
+        order = []
+        while (m := wire.recv(timeout=0)) is not None:
+            order.append(m.arbitration_id)
+    finally:
+        wire.shutdown()
+    answer = order.index(0x580 + NODE)  # the counter read's answer
+    assert sum(a in tpdos for a in order[:answer]) == 6 * 5000
+    assert not any(a in tpdos for a in order[answer:])
+    assert not any(a in tpdos for a in single) and sum(bursts) == 6 * 5000
+    assert len(bursts) == -(-5000 // 128)
+    block = amp.read_until(5000)
+    assert block.valid.all()
+    _accepted_are_true(src, block)
