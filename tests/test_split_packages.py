@@ -12,7 +12,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 
 #: The names the old modules offered (their __all__ and constants) and the private names that
-#: tests and other modules import from them.
+#: tests and other modules still import from them.
 NAMES = {
     "dimacq.pipeline.output_error": (
         "ADEQUACY_P",
@@ -41,12 +41,6 @@ NAMES = {
         "solve",
         "solve_joint",
         "solve_system",
-        "_Q",
-        "_R",
-        "_REFINE_COND",
-        "_parameterisation",
-        "_solve_normal",
-        "_to_parameters",
     ),
     "dimacq.io.uff": (
         "ORDINATE_TYPES",
@@ -57,8 +51,6 @@ NAMES = {
         "read_uff_test",
         "write_frf_uff",
         "write_uff_test",
-        "_Record",
-        "_common_axis",
     ),
 }
 
