@@ -11,8 +11,8 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 
-#: The names the old modules offered (their __all__ and constants) and the private names that
-#: tests and other modules import from them.
+#: The names the old modules offered (their __all__ and constants) and the names that tests and
+#: other modules import from them.
 NAMES = {
     "dimacq.pipeline.output_error": (
         "ADEQUACY_P",
@@ -22,7 +22,7 @@ NAMES = {
         "SMOOTH_FIT_RATIO",
         "OutputErrorOptions",
         "OutputErrorResult",
-        "_Problem",
+        "Problem",
         "effective_lines",
         "estimate_noise",
         "gauge_property_jacobian",
@@ -41,12 +41,6 @@ NAMES = {
         "solve",
         "solve_joint",
         "solve_system",
-        "_Q",
-        "_R",
-        "_REFINE_COND",
-        "_parameterisation",
-        "_solve_normal",
-        "_to_parameters",
     ),
     "dimacq.io.uff": (
         "ORDINATE_TYPES",
@@ -57,8 +51,8 @@ NAMES = {
         "read_uff_test",
         "write_frf_uff",
         "write_uff_test",
-        "_Record",
-        "_common_axis",
+        "Record",
+        "common_axis",
     ),
 }
 

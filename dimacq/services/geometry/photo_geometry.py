@@ -39,16 +39,16 @@ from dimacq.pipeline.photogrammetry.bundle import (
 )
 from dimacq.pipeline.photogrammetry.camera import Intrinsics, tag_corners, undistort_normalised
 from dimacq.services.geometry.photo_input import (
-    _cv2,
-    _exif_focal_px,
     detect_tags,
+    exif_focal_px,
     load_camera,
+    load_cv2,
 )
 from dimacq.services.geometry.photo_records import (
     PhotoGeometry,
     PhotoIssue,
-    _records,
     apply_to_setup,
+    bundle_records,
 )
 from dimacq.services.geometry.records import LineOfAction, Orientation
 
@@ -108,7 +108,7 @@ class _Photo:
 def _read_photos(
     paths: Sequence[Path], family: str, known: set[int], say: Callable[[str], None]
 ) -> tuple[list[_Photo], list[PhotoIssue]]:
-    cv2 = _cv2()
+    cv2 = load_cv2()
     photos: list[_Photo] = []
     issues: list[PhotoIssue] = []
     size0: tuple[int, int] | None = None
@@ -162,12 +162,12 @@ def _read_photos(
                     "a photo ties tags together: show each tag with at least one other",
                 )
             )
-        photos.append(_Photo(path.name, size, ours, _exif_focal_px(path, *size)))
+        photos.append(_Photo(path.name, size, ours, exif_focal_px(path, *size)))
     return photos, issues
 
 
 def _why_no_tags(name: str, gray: NDArray[np.uint8], family: str, foreign: list[int]) -> PhotoIssue:
-    cv2 = _cv2()
+    cv2 = load_cv2()
     if foreign:
         return PhotoIssue(
             name,
@@ -203,7 +203,7 @@ def _pose_from_points(
     obj: FloatArray, xy: FloatArray, planar_square: bool
 ) -> tuple[FloatArray, FloatArray, float]:
     """(R, t, rms) of object points seen at normalised image points (camera matrix I)."""
-    cv2 = _cv2()
+    cv2 = load_cv2()
     k = np.eye(3)
     if planar_square:
         _n, rs, ts, errs = cv2.solvePnPGeneric(
@@ -389,7 +389,7 @@ def geometry_from_photos(
     _bundle_issues(bundle, used, issues)
     depth = float(np.median(np.linalg.norm(bundle.camera_translations, axis=1)))
     scale_m = bundle.sigma_px * depth / bundle.intrinsics.fx
-    orientations, loas = _records(bundle, final_models, tags, scale_m)
+    orientations, loas = bundle_records(bundle, final_models, tags, scale_m)
     unfixed.extend(_too_uncertain(bundle, orientations, loas, issues))
     say(
         f"adjusted: σ {bundle.sigma_px:.3f} px, {len(orientations)} triaxes, {len(loas)} inputs, "

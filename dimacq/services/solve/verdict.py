@@ -319,7 +319,7 @@ def _estimator_checks(oe: Any) -> list[VerdictReason]:
     """The ``estimator`` checks of an output-error solve.
 
     - ``estimator:adequacy``: the refined answer against the stated-geometry one
-      (:func:`dimacq.pipeline.output_error.checks._adequacy`). A refinement that moved the properties
+      (:func:`dimacq.pipeline.output_error.checks.adequacy_test`). A refinement that moved the properties
       beyond what the stated geometry uncertainty allows explained a misfit that is not
       geometry: ``warn``, with the difference already in the intervals (model-form term).
     - ``estimator:refinement``: a refinement the data refused (corrections far beyond the stated
