@@ -171,6 +171,7 @@ class OutputErrorResult:
 
 
 def rf_mode_label(mode: bool | None) -> str:
+    """The residual-flexibility option as reported: ``None`` "auto", ``True`` "on", ``False`` "off"."""
     return "auto" if mode is None else ("on" if mode else "off")
 
 

@@ -268,6 +268,10 @@ def _projection_derivatives(xc: FloatArray, intr: Intrinsics) -> tuple[FloatArra
 
 
 class Problem:
+    """The bundle adjustment: unknowns ``x`` (the intrinsics if refined, each camera's and body's
+    rotation increment and position, one outward shift of the detected corners in pixels), the
+    corner residuals and their sparse Jacobian."""
+
     def __init__(
         self,
         bodies: Sequence[BodyModel],

@@ -112,6 +112,8 @@ class _Photo:
 def read_photos(
     paths: Sequence[Path], family: str, known: set[int], say: Callable[[str], None]
 ) -> tuple[list[_Photo], list[PhotoIssue]]:
+    """The photos' known tags (detected with OpenCV), and an issue naming each photo that is
+    unreadable, of another size than the first, shows no known tag, foreign tags or one tag."""
     cv2 = load_cv2()
     photos: list[_Photo] = []
     issues: list[PhotoIssue] = []

@@ -62,6 +62,7 @@ def load_camera(path: str | Path) -> tuple[Intrinsics, bool]:
 
 # ------------------------------------------------------------------------------ detection
 def load_cv2() -> Any:
+    """OpenCV (``cv2``), imported on first use; a :class:`SetupError` naming the package if absent."""
     try:
         import cv2
     except ImportError as err:  # pragma: no cover - a dependency of the package
