@@ -11,8 +11,8 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 
-#: The names the old modules offered (their __all__ and constants) and the private names that
-#: tests and other modules still import from them.
+#: The names the old modules offered (their __all__ and constants) and the names that tests and
+#: other modules import from them.
 NAMES = {
     "dimacq.pipeline.output_error": (
         "ADEQUACY_P",
@@ -22,7 +22,7 @@ NAMES = {
         "SMOOTH_FIT_RATIO",
         "OutputErrorOptions",
         "OutputErrorResult",
-        "_Problem",
+        "Problem",
         "effective_lines",
         "estimate_noise",
         "gauge_property_jacobian",
@@ -51,6 +51,8 @@ NAMES = {
         "read_uff_test",
         "write_frf_uff",
         "write_uff_test",
+        "Record",
+        "common_axis",
     ),
 }
 

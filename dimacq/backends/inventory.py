@@ -20,7 +20,7 @@ from typing import Any
 
 log = logging.getLogger(__name__)
 
-__all__ = ["CAN_INTERFACES", "Inventory", "inventory", "serial_by_id"]
+__all__ = ["CAN_INTERFACES", "Inventory", "inventory", "serial_by_id", "usb_setting"]
 
 #: python-can interfaces asked for their channels (those a lab's adapters use).
 CAN_INTERFACES = ("socketcan", "pcan", "kvaser", "vector", "ixxat", "gs_usb", "slcan", "nican")
@@ -98,7 +98,7 @@ def _usb(notes: list[str]) -> list[dict[str, Any]]:
     out = []
     unknown = 0
     for d in found:
-        setting = _usb_setting(int(d.idVendor), int(d.idProduct))
+        setting = usb_setting(int(d.idVendor), int(d.idProduct))
         if setting is None:
             unknown += 1
             continue
@@ -119,7 +119,7 @@ def _usb(notes: list[str]) -> list[dict[str, Any]]:
     return out
 
 
-def _usb_setting(vid: int, pid: int) -> str | None:
+def usb_setting(vid: int, pid: int) -> str | None:
     """The backend that knows a USB device by its vendor/product id, or None: our DAQ
     (``"dimacq-usb"``, pid.codes 1209:da64), MCC's USB-1808(X) (``"mcc-usb"``, or ``"uldaq"``),
     the other devices MCC's uldaq drives (``"uldaq"``: its analogue-input DAQs, the DT9837)."""

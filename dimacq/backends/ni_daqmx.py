@@ -35,7 +35,7 @@ from dimacq.drivers.ni.plan import (
 from dimacq.errors import DeviceNotFoundError, SetupError
 from dimacq.io.rig_file import RigFile
 
-__all__ = ["import_nidaqmx", "ni_devices", "open_daq", "plan_rig", "rig_requests"]
+__all__ = ["import_nidaqmx", "ni_devices", "offered", "open_daq", "plan_rig", "rig_requests"]
 
 log = logging.getLogger(__name__)
 
@@ -143,7 +143,7 @@ def plan_rig(
     return make_plan(requests, slots, rf.daq.sample_rate_hz), proposed
 
 
-def _offered(dev: Any, attr: str) -> tuple[float, ...]:
+def offered(dev: Any, attr: str) -> tuple[float, ...]:
     """A ``Device`` list property, () where NI-DAQmx says the device has none."""
     import nidaqmx.errors
 
@@ -197,8 +197,8 @@ def ni_slots(ni: Any, rf: RigFile) -> list[ModuleSlot]:
             product,
             slot_inputs(inputs, nxt, n, item),
             n,
-            _offered(dev, "ai_current_int_excit_discrete_vals"),
-            _offered(dev, "ai_voltage_int_excit_discrete_vals"),
+            offered(dev, "ai_current_int_excit_discrete_vals"),
+            offered(dev, "ai_voltage_int_excit_discrete_vals"),
         )
         no_overlap(slots, slot, item)
         slots.append(slot)

@@ -37,7 +37,7 @@ from numpy.typing import NDArray
 
 from dimacq.errors import DataError
 
-__all__ = ["fast_58b", "index_blocks", "read_sets"]
+__all__ = ["fast_58b", "index_blocks", "interleaved_complex", "read_sets"]
 
 #: A line end as ``bytes.splitlines`` sees one.
 _EOL = re.compile(rb"\r\n|\r|\n")
@@ -242,7 +242,7 @@ def _batched_58b(
         values = np.empty((len(members), count))
         for row, (_, _, offset) in enumerate(members):
             values[row] = np.frombuffer(raw, dtype=dtype, count=count, offset=offset)
-        data = _interleaved_complex(values)
+        data = interleaved_complex(values)
         axes: dict[tuple[float, float], NDArray[np.float64]] = {}
         for row, (k, d, _) in enumerate(members):
             key = (d["abscissa_min"], d["abscissa_inc"])
@@ -257,7 +257,7 @@ def _batched_58b(
     return out
 
 
-def _interleaved_complex(values: NDArray[np.float64]) -> NDArray[np.complex128]:
+def interleaved_complex(values: NDArray[np.float64]) -> NDArray[np.complex128]:
     """pyuff's ``re + 1j * im`` of interleaved values (rows of ``re₀, im₀, re₁, im₁ …``), in place.
 
     Viewed as complex the values already are ``re + i·im``; the expression differs only where

@@ -308,7 +308,7 @@ class TransducerUncertainty(_Model):
         1σ relative error of each load cell's calibration matrix (its certificate), per output
         component. Default 0.01 (a six-axis cell's certificate, ±2 % at k = 2). The output-error
         fit weighs the lines where the reactions carry much of the force by it
-        (:func:`dimacq.pipeline.output_error.noise._line_weights`).
+        (:func:`dimacq.pipeline.output_error.noise.line_weights`).
     source : {"default", "stated", "chain"}
         ``chain``: the force term is a chain calibration's (:mod:`dimacq.pipeline.chain_calibration`).
     """

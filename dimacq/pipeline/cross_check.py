@@ -90,8 +90,10 @@ from dimacq.pipeline.rotations import rotvec_to_matrix
 __all__ = [
     "QUANTITIES",
     "MassLineFit",
+    "data_band_sums",
     "mass_line_fit",
     "mass_line_from_frf",
+    "normal_equations",
     "quantities_from_parameters",
     "read_mass_matrix",
 ]
@@ -294,7 +296,9 @@ class _Sums:
     ar: ComplexArray  # (J, n, 6)  Σ_ω A_·j R_jᴴ
 
 
-def _sums(H: ComplexArray, R: ComplexArray) -> _Sums:
+def data_band_sums(H: ComplexArray, R: ComplexArray) -> _Sums:
+    """The data's band sums per input (:class:`_Sums`) from the FRFs ``H`` (lines, n, J) and
+    the reactions ``R`` (lines, 6, J)."""
     return _Sums(
         n_lines=H.shape[0],
         sum_r=R.sum(axis=0).T,
@@ -304,7 +308,7 @@ def _sums(H: ComplexArray, R: ComplexArray) -> _Sums:
     )
 
 
-def _normal(
+def normal_equations(
     sums: _Sums, psi: FloatArray, phi: FloatArray, w: FloatArray, *, summed: bool = False
 ) -> tuple[FloatArray, FloatArray]:
     """Per-input normal matrices and right sides, batched over geometries.
@@ -431,7 +435,7 @@ def _prepare(
     phi0 = _scaled(ipos, idir, p, ell)
     Rs = R.copy()
     Rs[:, 3:] /= ell
-    sums = _sums(H, Rs)
+    sums = data_band_sums(H, Rs)
     F = phi0.T[None] + Rs  # (L, 6, J)
     W = np.broadcast_to(wc[None, :], (J, n)).copy()
     return _Scaled(p, (pos, dirs, ipos, idir), keep, ell, psi0, phi0, sums, F, W)
@@ -461,7 +465,7 @@ def _weighted_fit(
     """
 
     def fit(Wm: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
-        Nj, bj = _normal(sums, psi0[None], phi0[None], Wm)
+        Nj, bj = normal_equations(sums, psi0[None], phi0[None], Wm)
         N, b = Nj[0].sum(axis=0), bj[0].sum(axis=0)
         return _solve(N, b), Nj[0], bj[0]
 
@@ -656,7 +660,7 @@ def _geometry_monte_carlo(
     for chunk in np.array_split(np.arange(S), max(1, S // 50)):
         psi_s = _scaled(pos_s[chunk], dir_s[chunk], p, ell)
         phi_s = _scaled(ipos_s[chunk], idir_s[chunk], p, ell)
-        Ns, bs = _normal(sums, psi_s, phi_s, W, summed=True)
+        Ns, bs = normal_equations(sums, psi_s, phi_s, W, summed=True)
         gs = _solve(Ns, bs)
         good = np.all(np.isfinite(gs), axis=1)
         good[good] = np.linalg.eigvalsh(_sym(gs[good]))[:, 0] > 0

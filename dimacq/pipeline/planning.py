@@ -76,8 +76,10 @@ __all__ = [
     "layout_covariance",
     "predicted_bounds",
     "random_layouts",
+    "target_jacobian",
     "target_values",
     "triax_information",
+    "x_covariance",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -461,7 +463,7 @@ def dense_information(model: PlanModel, layout: Layout) -> FloatArray:
     return info
 
 
-def _x_covariance(info: FloatArray, model: PlanModel) -> FloatArray:
+def x_covariance(info: FloatArray, model: PlanModel) -> FloatArray:
     """``(J⁻¹)_xx`` in physical units plus the hammer's common scale."""
     from scipy.linalg import LinAlgError, cho_factor, cho_solve
 
@@ -483,10 +485,12 @@ def layout_covariance(model: PlanModel, layout: Layout) -> FloatArray:
     """Predicted covariance of ``x = [m, m·c, I6 about P]`` for a layout, shape (10, 10)."""
     S = input_information(model, layout.triaxes)[list(layout.inputs)].sum(axis=0)
     S[10:, 10:] += np.eye(S.shape[0] - 10)
-    return _x_covariance(S, model)
+    return x_covariance(S, model)
 
 
-def _target_jacobian(model: PlanModel) -> FloatArray:
+def target_jacobian(model: PlanModel) -> FloatArray:
+    """``∂t/∂x`` (7, 10) of the targets at ``model.x0``, by central differences
+    ``(t(x + h e_i) − t(x − h e_i)) / 2h`` with ``h = 10⁻⁶ x_scale``."""
     x0 = model.x0
     h = 1e-6 * model.x_scale
     J = np.empty((7, 10))
@@ -528,7 +532,7 @@ class Bounds:
 
 def predicted_bounds(model: PlanModel, cov_x: FloatArray) -> Bounds:
     """95 % bounds of the targets from the covariance of x (module docstring)."""
-    jt = _target_jacobian(model)
+    jt = target_jacobian(model)
     ct = jt @ cov_x @ jt.T
     t0 = target_values(model.x0)
     mass = 100 * _Q95 * np.sqrt(max(ct[0, 0], 0.0)) / t0[0]
@@ -603,14 +607,14 @@ def exchange_select(
             f"--inputs {n_inputs}: the candidate setup has {cand.n_inputs} inputs; give 1 to "
             f"{cand.n_inputs}"
         )
-    jt = _target_jacobian(model)
+    jt = target_jacobian(model)
     wt = _criterion_weights(model)
 
     def triax_cost(info_t: FloatArray) -> Any:
         def cost(ts: list[int]) -> float:
             S = info_t[ts].sum(axis=0)
             S[10:, 10:] += np.eye(S.shape[0] - 10)
-            return _criterion(_x_covariance(S, model), jt, wt)
+            return _criterion(x_covariance(S, model), jt, wt)
 
         return cost
 
@@ -618,7 +622,7 @@ def exchange_select(
         def cost(js: list[int]) -> float:
             S = info_j[js].sum(axis=0)
             S[10:, 10:] += np.eye(S.shape[0] - 10)
-            return _criterion(_x_covariance(S, model), jt, wt)
+            return _criterion(x_covariance(S, model), jt, wt)
 
         return cost
 
@@ -639,7 +643,7 @@ def exchange_select(
 def criterion(model: PlanModel, layout: Layout) -> float:
     """The selection criterion of a layout (smaller is better)."""
     return _criterion(
-        layout_covariance(model, layout), _target_jacobian(model), _criterion_weights(model)
+        layout_covariance(model, layout), target_jacobian(model), _criterion_weights(model)
     )
 
 

@@ -50,6 +50,7 @@ __all__ = [
     "SensitivityResult",
     "cube_model",
     "cube_study",
+    "mass_matrix",
     "monte_carlo",
     "random_rotations",
     "solve_trials",
@@ -77,7 +78,9 @@ JSON_KEYS = PARAMETERS
 UNITS = {"m": "kg", "cx": "m", "cy": "m", "cz": "m"} | dict.fromkeys(PARAMETERS[4:], "kg m^2")
 
 
-def _mass_matrix(mass: float, cg: FloatArray, i6: FloatArray) -> FloatArray:
+def mass_matrix(mass: float, cg: FloatArray, i6: FloatArray) -> FloatArray:
+    """Rigid-body mass matrix ``[[m E, −m[c]x], [m[c]x, I]]`` (6, 6) from the mass, the CG and
+    the six inertia components ``(Ixx, Ixy, Ixz, Iyy, Iyz, Izz)``."""
     I = np.array([[i6[0], i6[1], i6[2]], [i6[1], i6[3], i6[4]], [i6[2], i6[4], i6[5]]])
     M = np.zeros((6, 6))
     M[:3, :3] = mass * np.eye(3)
@@ -327,7 +330,7 @@ def monte_carlo(
     T = n_trials
     cg = np.asarray(cg_m, float)
     i6 = np.asarray(inertia_p_kgm2, float)
-    M = _mass_matrix(mass_kg, cg, i6)
+    M = mass_matrix(mass_kg, cg, i6)
     truth = np.concatenate([[mass_kg], cg, i6])
     rs = np.asarray(rotate_sensors, dtype=np.intp)
     psi_n, psi_t = _sensor_trials(pos, axes, rs, T, max_angle_deg, sensor_position_error_m, rng)

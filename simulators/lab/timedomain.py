@@ -61,6 +61,7 @@ __all__ = [
     "foh_coefficients",
     "modal_foh_filter",
     "state_space",
+    "static_support_loads",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -619,7 +620,7 @@ class VirtualLab:
         unknown = sorted(set(bridges) - {s.node for s in self.model.supports})
         if unknown:
             raise ValueError(f"bridges for load cells {unknown} that the model does not have")
-        preload = _static_support_loads(self.model, self.gravity_mps2) if bridges else None
+        preload = static_support_loads(self.model, self.gravity_mps2) if bridges else None
         #: strain-gauge cells: node → (state, gauge channel rows, load channel rows)
         self._bridges: dict[int, tuple[BridgeState, NDArray[np.intp], NDArray[np.intp]]] = {}
         n_rows = n_acc + 1
@@ -1000,7 +1001,7 @@ class VirtualLab:
         return self._gauge_matrix[node]
 
 
-def _static_support_loads(model: ForwardModel, gravity_mps2: float) -> FloatArray:
+def static_support_loads(model: ForwardModel, gravity_mps2: float) -> FloatArray:
     """Each support's local load (n_supports, 6) under gravity ``g`` along −Z of the GCS.
 
     The article's weight ``w = m g (−ẑ)`` at its CG is the generalised force

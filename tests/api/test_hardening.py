@@ -340,9 +340,9 @@ def test_errors_do_not_show_server_temp_paths(api: Api) -> None:
 
 
 def test_temp_paths_are_scrubbed_from_any_error_text() -> None:
-    from dimacq.api.app import _public
+    from dimacq.api.public import public
 
     tmp = tempfile.gettempdir()
-    text = _public(f"{tmp}/dimacq-uff-x1/upload.uff: bad record; see ({tmp}/a/b)")
+    text = public(f"{tmp}/dimacq-uff-x1/upload.uff: bad record; see ({tmp}/a/b)")
     assert tmp not in text and text.startswith("<upload>: bad record")
-    assert _public("/home/lab/tmp/setup.toml: fine") == "/home/lab/tmp/setup.toml: fine"
+    assert public("/home/lab/tmp/setup.toml: fine") == "/home/lab/tmp/setup.toml: fine"

@@ -170,20 +170,20 @@ def test_devices_list_offers_a_usb_device_only_to_a_backend_that_knows_it(
 ) -> None:
     import usb.core
 
-    from dimacq.backends.inventory import _usb_setting, inventory
+    from dimacq.backends.inventory import inventory, usb_setting
 
-    assert _usb_setting(0x09DB, 0x013E) == (
+    assert usb_setting(0x09DB, 0x013E) == (
         "daq = 'mcc-usb' (USB-1808X: its serial number in [daq] units), or daq = 'uldaq'"
     )
-    assert _usb_setting(0x1209, 0xDA64) == (
+    assert usb_setting(0x1209, 0xDA64) == (
         "daq = 'dimacq-usb' (daq_vendor_id = 0x1209, daq_product_id = 0xda64)"
     )
-    assert _usb_setting(0x0867, 0x3998) == (
+    assert usb_setting(0x0867, 0x3998) == (
         "daq = 'uldaq' (DT9837A/B/C: its serial number in [daq] units)"
     )
-    assert _usb_setting(0x09DB, 0x0133) is None  # MCC's USB-DIO32HS: no analogue input
-    assert _usb_setting(0x046D, 0xC52B) is None  # a mouse receiver
-    assert _usb_setting(0x1D6B, 0x0002) is None  # a root hub
+    assert usb_setting(0x09DB, 0x0133) is None  # MCC's USB-DIO32HS: no analogue input
+    assert usb_setting(0x046D, 0xC52B) is None  # a mouse receiver
+    assert usb_setting(0x1D6B, 0x0002) is None  # a root hub
 
     class Dev:
         def __init__(self, vid: int, pid: int, address: int) -> None:

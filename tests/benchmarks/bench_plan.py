@@ -34,12 +34,12 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args()
 
-    from dimacq.cli.commands.plan import _properties
+    from dimacq.cli.commands.plan import read_properties
     from dimacq.io.setup_file import load_setup
     from dimacq.services.solve.planning import make_plan
 
     setup = load_setup(ROOT / "config" / "plans" / f"{args.article}-candidates.toml")
-    props = _properties(ROOT / "config" / "plans" / f"{args.article}-properties.json")
+    props = read_properties(ROOT / "config" / "plans" / f"{args.article}-properties.json")
     t0 = time.perf_counter()
     plan0 = make_plan(setup, props, args.k, args.m, seed=args.seed)
     t_plan = time.perf_counter() - t0

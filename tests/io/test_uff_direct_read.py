@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import pyuff
 
-from dimacq.io._uff_read import _interleaved_complex, index_blocks, read_sets
+from dimacq.io._uff_read import index_blocks, interleaved_complex, read_sets
 
 ROOT = Path(__file__).resolve().parents[2]
 EXAMPLE = ROOT / "config" / "examples" / "six_triax_frf.uff"
@@ -93,7 +93,7 @@ def test_batched_complex_values_equal_pyuffs_expression_to_the_bit(seed: int) ->
     values.flat[idx] = specials[rng.integers(0, specials.size, idx.size)]
     with np.errstate(invalid="ignore"):  # 0·∞ in 1j·im
         want = values[:, 0:-1:2] + 1.0j * values[:, 1::2]
-    got = _interleaved_complex(values.copy())
+    got = interleaved_complex(values.copy())
     finite = np.isfinite(want)
     assert (np.isfinite(got) == finite).all()
     assert got[finite].tobytes() == want[finite].tobytes()  # signed zeros included

@@ -145,7 +145,7 @@ def test_known_mass_stays_exact() -> None:
 def test_gauge_modes_change_no_frf_and_move_the_properties_as_stated() -> None:
     """The similarity and common-gain directions of the geometry (gauge_basis) with the
     properties moved by gauge_property_jacobian leave the prediction unchanged (first order)."""
-    from dimacq.pipeline.output_error import _Problem, gauge_property_jacobian
+    from dimacq.pipeline.output_error import Problem, gauge_property_jacobian
     from dimacq.pipeline.selection._common import response_geometry
 
     case = make_case(0, noise=0.0)
@@ -163,7 +163,7 @@ def test_gauge_modes_change_no_frf_and_move_the_properties_as_stated() -> None:
         e1 /= np.linalg.norm(e1)
         eb[k] = (e1, np.cross(dv, e1))
     n_g = 6 * nodes.size + 4 * len(din) + r0.shape[0]
-    prob = _Problem(
+    prob = Problem(
         r0, d0, node_of, nodes, rin, din, eb, np.ones((r0.shape[0], len(din))),
         np.zeros((len(din), 7, 1)), np.zeros((len(din), r0.shape[0], 1)),
         np.arange(10), TRUTH - np.r_[0, p, np.zeros(6)], np.arange(n_g), np.ones(n_g),
@@ -258,20 +258,20 @@ def test_reactions_at_noise_level_are_reported() -> None:
 
 
 def _bungee_problem(monkeypatch: pytest.MonkeyPatch) -> tuple[object, np.ndarray]:
-    """The first :class:`_Problem` of an output-error fit of the bungee-hung calibration mass (one
+    """The first :class:`Problem` of an output-error fit of the bungee-hung calibration mass (one
     load cell), and the start θ with small random geometry corrections."""
     import dimacq.pipeline.output_error.stages as solver_module
 
     b = build_scenario("calibration-mass-bungee", 0)
     frf = b.model_frf(noise=0.005).band(3.0, 200.0)
     seen: list[tuple[object, np.ndarray]] = []
-    lm = solver_module._lm
+    lm = solver_module.lm
 
     def capture(prob, theta0, max_iter):  # type: ignore[no-untyped-def]
         seen.append((prob, theta0.copy()))
         return lm(prob, theta0, max_iter)
 
-    monkeypatch.setattr(solver_module, "_lm", capture)
+    monkeypatch.setattr(solver_module, "lm", capture)
     solve_output_error(frf, b.setup)
     prob, theta = seen[0]
     rng = np.random.default_rng(2)

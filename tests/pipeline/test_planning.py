@@ -63,12 +63,12 @@ def test_eliminated_forms_equal_the_full_information() -> None:
     setup = _setup(0.2 * CORNERS[:5], _box_inputs(9))
     model = _model(setup)
     lay = pl.Layout((0, 2, 3, 4), (0, 1, 3, 5, 6, 8))
-    full = pl._x_covariance(pl.dense_information(model, lay), model)
+    full = pl.x_covariance(pl.dense_information(model, lay), model)
     S = pl.input_information(model, lay.triaxes)[list(lay.inputs)].sum(axis=0)
     S[10:, 10:] += np.eye(S.shape[0] - 10)
     T = pl.triax_information(model, lay.inputs)[list(lay.triaxes)].sum(axis=0)
     T[10:, 10:] += np.eye(T.shape[0] - 10)
-    for cov in (pl._x_covariance(S, model), pl._x_covariance(T, model)):
+    for cov in (pl.x_covariance(S, model), pl.x_covariance(T, model)):
         np.testing.assert_allclose(cov, full, rtol=1e-7, atol=1e-12 * np.abs(full).max())
 
 
@@ -204,7 +204,7 @@ def test_predicted_bounds_of_a_known_covariance() -> None:
     solves (2Φ(q/σ) − 1)³ = 0.95, q = 2.388 σ."""
     setup = _setup(0.2 * CORNERS[:4], _box_inputs(6))
     model = _model(setup)
-    jt = pl._target_jacobian(model)
+    jt = pl.target_jacobian(model)
     # a covariance of x whose target covariance is diagonal: build it in target space
     ct = np.diag([0.01**2, 1e-6, 1e-6, 1e-6, 1e-9, 1e-9, 1e-9])
     cov = np.linalg.pinv(jt) @ ct @ np.linalg.pinv(jt).T

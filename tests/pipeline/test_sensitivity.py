@@ -110,9 +110,9 @@ def test_batched_solve_matches_the_dim_solver() -> None:
     R = random_rotations(1, 1, 3.0, rng)[0, 0]
     axes_t = axes.copy()
     axes_t[2] = axes[2] @ R
-    from dimacq.pipeline.sensitivity import _mass_matrix
+    from dimacq.pipeline.sensitivity import mass_matrix
 
-    M = _mass_matrix(cm["mass_kg"], np.array(cm["cg_m"]), np.array(cm["inertia_origin_kgm2"]))
+    M = mass_matrix(cm["mass_kg"], np.array(cm["cg_m"]), np.array(cm["inertia_origin_kgm2"]))
     ip = np.array([[0.5, 0.1, 0.2], [0.1, 0.5, -0.2], [0.2, -0.1, 0.5]] * 3) * [
         [1],
         [1],

@@ -66,7 +66,7 @@ def run(backend: str, averages: int, root: Path) -> dict[str, float | str]:
             seed=None,
         )
         t0 = time.perf_counter()
-        p = demo._demo(svc.url, token, built, args, lambda m: None)
+        p = demo.run_demo(svc.url, token, built, args, lambda m: None)
         demo_s = time.perf_counter() - t0
         acq = svc.client.get("/api/acquisitions").json()[-1]
         t0 = time.perf_counter()

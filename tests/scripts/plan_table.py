@@ -34,7 +34,7 @@ def main() -> None:
     args = ap.parse_args()
     from dask.distributed import LocalCluster
 
-    from dimacq.cli.commands.plan import _properties
+    from dimacq.cli.commands.plan import read_properties
     from dimacq.io.setup_file import load_setup
     from dimacq.services.solve.planning import make_plan
 
@@ -45,7 +45,7 @@ def main() -> None:
         for label, name, k, m in CASES:
             t0 = time.perf_counter()
             setup = load_setup(ROOT / "config" / "plans" / f"{name}-candidates.toml")
-            props = _properties(ROOT / "config" / "plans" / f"{name}-properties.json")
+            props = read_properties(ROOT / "config" / "plans" / f"{name}-properties.json")
             plan = make_plan(
                 setup, props, k, m, trials=args.trials, seed=args.seed,
                 scheduler=cluster.scheduler_address,

@@ -114,10 +114,10 @@ def test_the_refusal_stays_in_the_verdict_when_the_equation_error_estimate_is_re
     """The equation-error estimate that stays is no answer to the data the refinement could not
     reconcile: the verdict keeps its ``estimator:refinement`` warn (an x38-flexible-17 with the
     realistic scenario's errors: CG 10.9 mm off, reported ``ok`` without it)."""
-    from dimacq.services.solve.verdict import _estimator_checks
+    from dimacq.services.solve.verdict import estimator_checks
 
     note = {"used": False, "reason": "…", "refinement_refused": "geometry refinement refused: x"}
-    (r,) = _estimator_checks(note)
+    (r,) = estimator_checks(note)
     assert (r.check, r.severity) == ("estimator:refinement", "warn")
     assert "equation-error estimate is reported" in r.message
-    assert _estimator_checks({"used": False, "reason": "χ² 12 with the stated geometry"}) == []
+    assert estimator_checks({"used": False, "reason": "χ² 12 with the stated geometry"}) == []

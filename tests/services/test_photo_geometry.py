@@ -11,7 +11,7 @@ import pytest
 
 from dimacq.errors import DataError
 from dimacq.io.tags_file import BodySpec, LayoutSpec, TagsFile, TagSpec
-from dimacq.services.geometry.photo_geometry import _read_photos, detect_tags, geometry_from_photos
+from dimacq.services.geometry.photo_geometry import detect_tags, geometry_from_photos, read_photos
 
 
 def _sheet(ids: list[int], family: int, px: int = 60) -> np.ndarray:
@@ -59,7 +59,7 @@ def test_bad_photos_named(tmp_path: Path) -> None:
     cv2.imwrite(str(tmp_path / "d_one.png"), _sheet([0], cv2.aruco.DICT_APRILTAG_36h11))
     (tmp_path / "e_text.jpg").write_text("not an image")
     paths = sorted(tmp_path.iterdir())
-    photos, issues = _read_photos(paths, "DICT_APRILTAG_36h11", {0, 1}, lambda _m: None)
+    photos, issues = read_photos(paths, "DICT_APRILTAG_36h11", {0, 1}, lambda _m: None)
     by = {i.photo: i for i in issues}
     assert "no tags found" in by["a_blank.png"].problem
     assert "DICT_4X4" in by["b_family.png"].problem and "family" in by["b_family.png"].fix
@@ -79,7 +79,7 @@ def test_exif_less_photos_refused(tmp_path: Path) -> None:
 def test_views_nothing_ties_are_left_out() -> None:
     """A body without a stated pose seen in one photo, and a photo with one tag, are dropped."""
     from dimacq.pipeline.photogrammetry.bundle import BodyModel, Observation, TagMount
-    from dimacq.services.geometry.photo_geometry import _tied_only
+    from dimacq.services.geometry.photo_geometry import tied_only
 
     def body(name: str, ids: list[int], prior: bool) -> BodyModel:
         tags = tuple(TagMount(i, 0.02, np.eye(3), np.zeros(3)) for i in ids)
@@ -97,7 +97,7 @@ def test_views_nothing_ties_are_left_out() -> None:
         Observation(1, 3, c),  # the bar: in photo 1 only
         Observation(2, 1, c),  # photo 2: one tag only
     ]
-    kept = {(o.photo, o.tag_id) for o in _tied_only(obs, models)}
+    kept = {(o.photo, o.tag_id) for o in tied_only(obs, models)}
     assert kept == {(0, 0), (0, 1), (1, 0), (1, 2)}
 
 
@@ -105,7 +105,7 @@ def test_too_uncertain_triax_refused_with_the_views_it_needs() -> None:
     """σ ∝ 1/√n: a triax at twice the angle limit from 10 photos needs 30 more."""
     from types import SimpleNamespace
 
-    from dimacq.services.geometry.photo_geometry import LIMIT_ANGLE_STD_DEG, _too_uncertain
+    from dimacq.services.geometry.photo_geometry import LIMIT_ANGLE_STD_DEG, too_uncertain
     from dimacq.services.geometry.records import Orientation
 
     def ori(node: int, ang: float) -> Orientation:
@@ -130,7 +130,7 @@ def test_too_uncertain_triax_refused_with_the_views_it_needs() -> None:
             SimpleNamespace(kind="triax", node=2, n_photos=10),
         ]
     )
-    out = _too_uncertain(
+    out = too_uncertain(
         bundle,  # type: ignore[arg-type]
         [ori(1, 2 * LIMIT_ANGLE_STD_DEG), ori(2, 0.5 * LIMIT_ANGLE_STD_DEG)],
         [],

@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 
 from dimacq.pipeline.photogrammetry.camera import tag_corners
-from dimacq.services.geometry.photo_geometry import _pose_from_points, detect_tags
+from dimacq.services.geometry.photo_geometry import detect_tags, pose_from_points
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "photos"
 
@@ -63,7 +63,7 @@ def test_charuco_photo_matches_the_board() -> None:
     centres = {}
     for i, c in det.items():
         xy = np.column_stack([(c[:, 0] - ww / 2) / k, (c[:, 1] - hh / 2) / k])
-        _r, t, _e = _pose_from_points(tag_corners(0.02), xy, True)
+        _r, t, _e = pose_from_points(tag_corners(0.02), xy, True)
         centres[i] = t
     for i in sorted(det)[1:]:
         board_d = np.linalg.norm(obj[i].mean(axis=0) - obj[0].mean(axis=0))

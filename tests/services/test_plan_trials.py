@@ -59,9 +59,9 @@ def test_trial_draws_depend_only_on_seed_and_index() -> None:
 
 @pytest.mark.parametrize(("n_trials", "workers"), [(1, 2), (7, 2), (100, 2), (1000, 2), (1000, 8)])
 def test_trial_batches_cover_every_trial_once_in_order(n_trials: int, workers: int) -> None:
-    from dimacq.services.solve.planning import BATCH_MAX, _batches
+    from dimacq.services.solve.planning import BATCH_MAX, trial_batches
 
-    batches = _batches(n_trials, workers)
+    batches = trial_batches(n_trials, workers)
     assert [i for b in batches for i in b] == list(range(n_trials))
     assert all(1 <= len(b) <= BATCH_MAX for b in batches)
     assert len(batches) >= min(n_trials, 8 * workers)  # enough tasks to keep the workers busy

@@ -233,7 +233,7 @@ def run(args: argparse.Namespace) -> int:
         with BackgroundServer(app) as srv, lag.recording():
             say(f"dimacq demo: service on {srv.url} (data in {data_dir}), scenario {args.scenario}")
             say("backends: " + ", ".join(f"{k} = {v!r}" for k, v in backends.items()))
-            payload = _demo(srv.url, token, built, args, say, chain, backends, lag, runs)
+            payload = run_demo(srv.url, token, built, args, say, chain, backends, lag, runs)
         payload["demo"]["backends"] = backends
         if lapse is not None:
             # simulated seconds: what the DAQ clocked (its time-lapse adapts to the host)
@@ -290,7 +290,7 @@ def _acquisition_devices_connected(devices: dict[str, Any]) -> None:
         )
 
 
-def _demo(
+def run_demo(
     url: str,
     token: str,
     built: Any,
@@ -301,6 +301,8 @@ def _demo(
     lag: HostLag | None = None,
     runs: list[dict[str, Any]] | None = None,
 ) -> dict[str, Any]:
+    """Play the engineer's part of the demo against the service at ``url`` (bearer ``token``)
+    through its HTTP API; the solve's result with the truth and the demo's figures (``"demo"``)."""
     import httpx
 
     rng = np.random.default_rng(built.seed + 1000)

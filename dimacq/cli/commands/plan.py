@@ -96,7 +96,10 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.set_defaults(func=run)
 
 
-def _properties(path: Path) -> Any:
+def read_properties(path: Path) -> Any:
+    """The expected properties of ``--properties PATH`` (a JSON object with ``mass_kg``,
+    ``cg_m`` and the inertia), as :class:`RigidBodyProperties`; a :class:`SetupError` naming the
+    file otherwise."""
     from dimacq.model.properties import RigidBodyProperties
 
     try:
@@ -126,7 +129,7 @@ def run(args: argparse.Namespace) -> int:
     if args.workers < 0:
         raise SetupError(f"--workers {args.workers}: give 0 (in-process) or more")
     setup = load_setup(args.setup)
-    props = _properties(args.properties)
+    props = read_properties(args.properties)
     bar = ProgressLine("plan", quiet=args.quiet)
 
     def progress(done: int, total: int, left: float) -> None:

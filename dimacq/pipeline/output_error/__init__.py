@@ -28,7 +28,7 @@ The names below are importable from this package as they were from the module it
 """
 
 from dimacq.pipeline.output_error.checks import ADEQUACY_P, effective_lines
-from dimacq.pipeline.output_error.model import _Problem, gauge_property_jacobian, mass_matrix
+from dimacq.pipeline.output_error.model import Problem, gauge_property_jacobian, mass_matrix
 from dimacq.pipeline.output_error.noise import (
     LINE_NOISE_HALF_WIDTH,
     PRECISION_FLOOR_REL,
@@ -47,7 +47,7 @@ __all__ = [
     "SMOOTH_FIT_RATIO",
     "OutputErrorOptions",
     "OutputErrorResult",
-    "_Problem",
+    "Problem",
     "effective_lines",
     "estimate_noise",
     "gauge_property_jacobian",

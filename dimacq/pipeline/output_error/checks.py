@@ -1,9 +1,9 @@
 """The statistical tests on an output-error fit and its robust covariance.
 
-Holds the test that the data need the geometry moved at all (:func:`_geometry_needed`: the
+Holds the test that the data need the geometry moved at all (:func:`geometry_needed`: the
 likelihood ratio ``Λ = 2 (C_gains − C_full)`` scaled by ``n_eff / L``, against ``χ²(k)``), the
-refinement's adequacy test (:func:`_adequacy`: Hausman, ``h = dᵀ(V_s − V_r)⁺d ~ χ²(rank)``), the
-input-clustered sandwich (:func:`_input_robust_factors`:
+refinement's adequacy test (:func:`adequacy_test`: Hausman, ``h = dᵀ(V_s − V_r)⁺d ~ χ²(rank)``), the
+input-clustered sandwich (:func:`input_robust_factors`:
 ``V = N⁻¹ (Σ_j (s_j − s̄)(s_j − s̄)ᵀ · J/(J−1) + J_pᵀJ_p) N⁻¹``), the effective number of lines
 of a misfit (:func:`effective_lines`: ``n_eff = L (1 − ρ)/(1 + ρ)``) and the χ² quantile they
 are compared with (:func:`_chi2_ppf`). Each function's docstring derives its equation.
@@ -18,8 +18,8 @@ from numpy.typing import NDArray
 
 from dimacq.model.setup import PARAMETERS
 from dimacq.pipeline._special import chi2_ppf
-from dimacq.pipeline.output_error.fit import _line_residual
-from dimacq.pipeline.output_error.model import _Problem
+from dimacq.pipeline.output_error.fit import line_residual
+from dimacq.pipeline.output_error.model import Problem
 
 FloatArray = NDArray[np.float64]
 ComplexArray = NDArray[np.complex128]
@@ -31,13 +31,13 @@ def _chi2_ppf(q: float, dof: int) -> float:
     return chi2_ppf(q, dof)
 
 
-#: Significance of the refinement's adequacy test (:func:`_adequacy`) and of the test that the
-#: geometry needs moving (:func:`_geometry_needed`).
+#: Significance of the refinement's adequacy test (:func:`adequacy_test`) and of the test that the
+#: geometry needs moving (:func:`geometry_needed`).
 ADEQUACY_P = 0.001
 
 
-def _geometry_needed(
-    prob: _Problem,
+def geometry_needed(
+    prob: Problem,
     theta: FloatArray,
     fit: Any,
     cand: NDArray[np.intp],
@@ -46,7 +46,7 @@ def _geometry_needed(
     R: ComplexArray,
     sigma: FloatArray,
     lw: FloatArray | None,
-) -> tuple[dict[str, Any], _Problem, FloatArray]:
+) -> tuple[dict[str, Any], Problem, FloatArray]:
     """Do the data need the geometry moved, or do the channels' gains explain them as well?
 
     Nested models at the same noise scale: the refined fit (geometry and gains) against the fit
@@ -68,7 +68,7 @@ def _geometry_needed(
     res_g, _ = prob_g.residual(theta_g, jacobian=False)
     raw = 2.0 * (float(res_g @ res_g) - float(res_f @ res_f))
     L = H.shape[0]
-    n_eff = effective_lines(_line_residual(prob, theta, H, R, sigma, lw))
+    n_eff = effective_lines(line_residual(prob, theta, H, R, sigma, lw))
     lr = raw * n_eff / L
     k = max(int(np.sum(prob.free_g < n_geo)) - int(prob.gauge_rows.shape[0]), 1)
     crit = _chi2_ppf(1.0 - ADEQUACY_P, k)
@@ -91,8 +91,8 @@ def _geometry_needed(
     )
 
 
-def _adequacy(
-    prob: _Problem,
+def adequacy_test(
+    prob: Problem,
     theta: FloatArray,
     Jac: FloatArray,
     theta_s: FloatArray,
@@ -155,8 +155,8 @@ def _adequacy(
     }
 
 
-def _input_robust_factors(
-    prob: _Problem,
+def input_robust_factors(
+    prob: Problem,
     theta: FloatArray,
     Jac: FloatArray,
     cov: FloatArray,
@@ -176,7 +176,7 @@ def _input_robust_factors(
         V = N⁻¹ (Σ_j (s_j − s̄)(s_j − s̄)ᵀ · J/(J−1) + J_pᵀJ_p) N⁻¹,   s_j = J_jᵀ r_j
 
     with ``s_j`` input ``j``'s score (the gradient of its cost: rows of the data residual and
-    Jacobian that belong to it, :meth:`_Problem.residual`), centred (the priors' pull balances
+    Jacobian that belong to it, :meth:`Problem.residual`), centred (the priors' pull balances
     their sum at the MAP), and ``J_pᵀJ_p`` the priors' own (their scores have unit variance; the
     gauge constraint rows carry none). Where a property's ``V`` exceeds the model-based variance,
     its row and column of the covariance are scaled up to it (correlations kept); never down:

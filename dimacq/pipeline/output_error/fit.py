@@ -1,10 +1,10 @@
 """Fitting the output-error model: the gauge constraint, Levenberg–Marquardt, the residual on
 every line.
 
-Holds :func:`_gauge_constraint` (the gauge modes the data do not identify, fixed by an inner
-constraint), :func:`_lm` (Levenberg–Marquardt with column equilibration on the residual of
-:meth:`.model._Problem.residual`), and the direct residual ``w (H − Ĥ)/σ`` on every line
-(:func:`_line_residual`) with its cost ``Σ w²|H − Ĥ|²/σ²`` (:func:`_direct_cost`), which χ² and
+Holds :func:`gauge_constraint` (the gauge modes the data do not identify, fixed by an inner
+constraint), :func:`lm` (Levenberg–Marquardt with column equilibration on the residual of
+:meth:`.model.Problem.residual`), and the direct residual ``w (H − Ĥ)/σ`` on every line
+(:func:`line_residual`) with its cost ``Σ w²|H − Ĥ|²/σ²`` (:func:`weighted_direct_cost`), which χ² and
 the tests of :mod:`.checks` use.
 
 Gauge
@@ -17,7 +17,7 @@ move with its pose; under the scale its own moments would need its moment gains 
 the scale mode leaves out: model.py, ``gauge_basis``). When the cells are not
 refined (``OutputErrorOptions.refine_load_cells`` off) their stated poses break the symmetry,
 and the reactions alone see it. The priors fix
-what the data do not (inner constraint, :func:`_gauge_constraint`): the scale and the common gain
+what the data do not (inner constraint, :func:`gauge_constraint`): the scale and the common gain
 always (the reactions could pin the scale only if modelled to a few 0.1 %), and by default the
 translations and rotations too (the reactions tie the frame only to the load cells' stated
 positions, themselves measured geometry: ``OutputErrorOptions.gauge_from_reactions``). Frame, scale and gain are then those of the stated
@@ -38,7 +38,7 @@ from numpy.typing import NDArray
 
 from dimacq.pipeline._batched import cross3
 from dimacq.pipeline._special import eigh_generalized, null_space
-from dimacq.pipeline.output_error.model import _Problem, mass_matrix
+from dimacq.pipeline.output_error.model import Problem, mass_matrix
 
 #: the logger of the module before the split into a package: the messages keep its name
 log = logging.getLogger("dimacq.pipeline.output_error")
@@ -47,8 +47,8 @@ FloatArray = NDArray[np.float64]
 ComplexArray = NDArray[np.complex128]
 
 
-def _gauge_constraint(
-    prob: _Problem,
+def gauge_constraint(
+    prob: Problem,
     theta0: FloatArray,
     refuse_ratio: float,
     fix_all: bool = False,
@@ -57,10 +57,10 @@ def _gauge_constraint(
     """Fix the gauge modes the data do not identify (sets ``prob.gauge_rows``).
 
     ``data_jacobian``: the data rows of the Jacobian at ``theta0`` when the caller has them
-    (:meth:`_Problem.residual`'s, whose data rows do not depend on the constraint rows).
+    (:meth:`Problem.residual`'s, whose data rows do not depend on the constraint rows).
 
     The similarity of the whole instrumentation (the load cells included when they are refined)
-    and the common accelerometer gain (:meth:`_Problem.gauge_basis`, ``G``) change no FRF when the
+    and the common accelerometer gain (:meth:`Problem.gauge_basis`, ``G``) change no FRF when the
     properties move with them; only load cells held at their stated poses and calibration can tie
     them. The fixed scale holds the product of the sensors' and
     the inputs' scales (what the principal moments follow) only if nothing in the model ties
@@ -140,8 +140,8 @@ def _gauge_constraint(
     prob.gauge_modes = fixed
 
 
-def _lm(
-    prob: _Problem, theta0: FloatArray, max_iter: int
+def lm(
+    prob: Problem, theta0: FloatArray, max_iter: int
 ) -> tuple[FloatArray, FloatArray, float, int]:
     """Levenberg–Marquardt with column equilibration; returns θ, Jacobian, cost, iterations."""
     theta = theta0.copy()
@@ -192,8 +192,8 @@ def _lm(
     return theta, Jac, cost, it
 
 
-def _line_residual(
-    prob: _Problem,
+def line_residual(
+    prob: Problem,
     theta: FloatArray,
     H: ComplexArray,
     R: ComplexArray,
@@ -228,8 +228,8 @@ def _line_residual(
     return e
 
 
-def _direct_cost(
-    prob: _Problem,
+def weighted_direct_cost(
+    prob: Problem,
     theta: FloatArray,
     H: ComplexArray,
     R: ComplexArray,
@@ -240,7 +240,7 @@ def _direct_cost(
     """``Σ w²|H − Ĥ|²/σ²`` over every line, channel and input (residual terms projected out when
     ``basis`` is given; ``w`` the line weights, 1 when absent): the data cost without the bias
     compensation, for χ² and the test."""
-    e = _line_residual(prob, theta, H, R, sigma, lw)
+    e = line_residual(prob, theta, H, R, sigma, lw)
     if basis is not None:
         Bs = np.concatenate([basis.real, basis.imag], axis=0)  # (2L, nb)
         es = np.concatenate([e.real, e.imag], axis=0).reshape(2 * e.shape[0], -1)

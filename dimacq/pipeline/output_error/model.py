@@ -2,8 +2,8 @@
 
 Holds the rigid mass matrix of the ten properties (:func:`mass_matrix`) and how they follow the
 gauge modes of the instrumentation (:func:`gauge_property_jacobian`), the problem of one fit
-(:class:`_Problem`: the geometry for corrections ``g``, the stacked residual with its analytic
-Jacobian, the gauge basis) and the reduced statistics it is built from (:func:`_statistics`).
+(:class:`Problem`: the geometry for corrections ``g``, the stacked residual with its analytic
+Jacobian, the gauge basis) and the reduced statistics it is built from (:func:`reduced_statistics`).
 The package's docstring (:mod:`dimacq.pipeline.output_error`) says why; the noise model is in
 :mod:`.noise`, the gauge in :mod:`.fit`.
 
@@ -48,7 +48,7 @@ with their stated 1σ (:class:`~dimacq.model.setup.GeometryUncertainty`):
   so the lengths keep the stated scale and the gains take a moment-channel error (with the gains
   in it, the inner constraint shared the scale between lengths and gains by their priors: −0.5 %
   on the principal moments of an acquired Net F/T set with the default priors). So the
-  fixed gauge (:func:`~dimacq.pipeline.output_error.fit._gauge_constraint`) holds what the data
+  fixed gauge (:func:`~dimacq.pipeline.output_error.fit.gauge_constraint`) holds what the data
   cannot see; with the cells exact, the reactions alone tie the scale of the sensors against the
   inputs', and an error in the reactions moved the principal moments through it. The moment
   gains take the error of a cell's moment channels (its calibration, its chain's response at
@@ -56,7 +56,7 @@ with their stated 1σ (:class:`~dimacq.model.setup.GeometryUncertainty`):
   trade with the mass and with the hammer's certificate where a cell carries much of the force
   (near the support modes, where the rigid model is least adequate), and a cell's force gain
   went 6 σ on an X-38 with the realistic geometry errors (model FRFs, exact cells); their
-  certificate stays in the line weights (:func:`~dimacq.pipeline.output_error.noise._line_weights`).
+  certificate stays in the line weights (:func:`~dimacq.pipeline.output_error.noise.line_weights`).
 
 Sufficient statistics (why it is fast)
 --------------------------------------
@@ -94,7 +94,7 @@ FloatArray = NDArray[np.float64]
 ComplexArray = NDArray[np.complex128]
 
 
-_E = np.eye(3)
+EYE3 = np.eye(3)
 #: Directions of the (bias-compensated) regressor moments below this fraction of the largest are
 #: dropped (numerically null: no reaction in that direction).
 _EIG_KEEP = 1e-12
@@ -110,7 +110,7 @@ def _left_jacobian(rv: FloatArray) -> FloatArray:
     """Left Jacobian of SO(3), ``J_l(θ) = E + ½[θ]x + ⅙[θ]x²`` (series to second order; the
     corrections are small angles), shape (..., 3, 3)."""
     k = skew(rv)
-    return np.asarray(_E + 0.5 * k + (k @ k) / 6.0, float)
+    return np.asarray(EYE3 + 0.5 * k + (k @ k) / 6.0, float)
 
 
 # ------------------------------------------------------------------------------------------
@@ -135,15 +135,15 @@ def mass_matrix(x: FloatArray) -> tuple[FloatArray, FloatArray]:
     """
     m, c = x[0], x[1:4]
     M = np.zeros((6, 6))
-    M[:3, :3] = m * _E
+    M[:3, :3] = m * EYE3
     M[:3, 3:] = -m * skew(c)
     M[3:, :3] = m * skew(c)
     dM = np.zeros((10, 6, 6))
-    dM[0, :3, :3] = _E
+    dM[0, :3, :3] = EYE3
     dM[0, :3, 3:] = -skew(c)
     dM[0, 3:, :3] = skew(c)
     for i in range(3):
-        s = skew(_E[i])
+        s = skew(EYE3[i])
         dM[1 + i, :3, 3:] = -m * s
         dM[1 + i, 3:, :3] = m * s
     for k, (a, b) in enumerate(_IDX6):
@@ -153,7 +153,7 @@ def mass_matrix(x: FloatArray) -> tuple[FloatArray, FloatArray]:
 
 
 def gauge_property_jacobian(x: FloatArray) -> FloatArray:
-    """How the ten properties follow the gauge modes of :meth:`_Problem.gauge_basis`.
+    """How the ten properties follow the gauge modes of :meth:`Problem.gauge_basis`.
 
     Parameters
     ----------
@@ -181,10 +181,10 @@ def gauge_property_jacobian(x: FloatArray) -> FloatArray:
         out[4:, col] = [dI[a, b] for a, b in _IDX6]
 
     for i in range(3):
-        t = _E[i]
-        put(i, t, m * (2 * (c @ t) * _E - np.outer(t, c) - np.outer(c, t)))
-        w = skew(_E[i])
-        put(3 + i, cross3(_E[i], c), w @ Ip - Ip @ w)
+        t = EYE3[i]
+        put(i, t, m * (2 * (c @ t) * EYE3 - np.outer(t, c) - np.outer(c, t)))
+        w = skew(EYE3[i])
+        put(3 + i, cross3(EYE3[i], c), w @ Ip - Ip @ w)
     put(6, c, 2 * Ip)
     put(7, np.zeros(3), Ip, m)
     return out
@@ -195,10 +195,10 @@ def gauge_property_jacobian(x: FloatArray) -> FloatArray:
 # ------------------------------------------------------------------------------------------
 @dataclass(frozen=True, eq=False)
 class _Linearisation:
-    """What the Jacobian of :meth:`_Problem.residual` is taken at: the corrections ``g``, the
+    """What the Jacobian of :meth:`Problem.residual` is taken at: the corrections ``g``, the
     channel (C, 3) and input (J, 3) positions and directions they give, Ψ (C, 6), the weights
     ``wt`` (J, C, 1), ``W Ψ A⁻¹`` (J, C, 6), ``G = A⁻¹ Y L_y`` (J, 6, k) and the cells' maps
-    (:meth:`_Problem.cell_maps`; None without load cells)."""
+    (:meth:`Problem.cell_maps`; None without load cells)."""
 
     g: FloatArray
     r: FloatArray
@@ -213,7 +213,7 @@ class _Linearisation:
 
 
 @dataclass(eq=False)
-class _Problem:
+class Problem:
     """Everything the cost needs, in SI units relative to P."""
 
     r0: FloatArray  # (C, 3) channel positions rel P
@@ -242,8 +242,8 @@ class _Problem:
     #: in ``g``
     cell_r0: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
     cell_rot0: FloatArray = field(default_factory=lambda: np.zeros((0, 3, 3)))
-    #: the last :func:`_line_residual` (its key, the arrays it was computed from, the residual,
-    #: then its sum of squares once :func:`_direct_cost` formed it): the variance factor, the
+    #: the last :func:`line_residual` (its key, the arrays it was computed from, the residual,
+    #: then its sum of squares once :func:`weighted_direct_cost` formed it): the variance factor, the
     #: geometry test and χ² ask for the same one
     line_residual_memo: tuple[Any, ...] | None = field(default=None, repr=False)
 
@@ -430,7 +430,7 @@ class _Problem:
         dpsi = np.zeros((C_, 6, 6))
         dpsi[:, :3, :3] = ex_d
         dpsi[:, :3, 3:] = cross3(r[:, None, :], ex_d)
-        dpsi[:, 3:, 3:] = cross3(_E[None, :, :], d[:, None, :])  # e_i × d_c (offsets)
+        dpsi[:, 3:, 3:] = cross3(EYE3[None, :, :], d[:, None, :])  # e_i × d_c (offsets)
         cols = 6 * self.node_of[:, None] + np.arange(6)[None, :]  # (C, 6)
         for p in range(6):  # each channel belongs to one node: no two writes collide
             sens_p = -lin.wt * (dpsi[:, p, :] @ lin.G)  # (J, C, k)
@@ -479,7 +479,7 @@ class _Problem:
                     dA[3:, :3] = skew(rk[k]) @ dQ - dQ @ skew(self.cell_r0[k])
                     dAB = dA @ Bc[k]
                 elif i < 6:
-                    dA[3:, :3] = skew(_E[i - 3]) @ Qc[k]
+                    dA[3:, :3] = skew(EYE3[i - 3]) @ Qc[k]
                     dAB = dA @ Bc[k]
                 else:  # ∂B/∂γ = T e_o e_oᵀ T⁻¹, local output o = Mx, My, Mz
                     o = i - 3
@@ -506,7 +506,7 @@ class _Problem:
         Gj = G[6 * nn : 6 * nn + 4 * J].reshape(J, 4, 8)  # rows of input k: β (2), γ (2)
         eb = np.asarray(self.ebasis)  # (J, 2, 3)
         for i in range(3):  # over the three axes; nodes and inputs at once (same bits as per item)
-            e = _E[i]
+            e = EYE3[i]
             Gn[:, 3:6, i] = e
             Gn[:, i, 3 + i] = 1.0
             Gn[:, 3:6, 3 + i] = cross3(e, rn)
@@ -525,7 +525,7 @@ class _Problem:
         # keep the stated scale and the gains take the cell's error
         Gc = G[self.cell_base : self.gain_base].reshape(self.n_cells, CELL_PARAMS, 8)
         for i in range(3):
-            e = _E[i]
+            e = EYE3[i]
             Gc[:, 3:6, i] = e
             Gc[:, i, 3 + i] = 1.0
             Gc[:, 3:6, 3 + i] = cross3(e, self.cell_r0)
@@ -534,7 +534,7 @@ class _Problem:
         return G
 
 
-def _statistics(
+def reduced_statistics(
     H: ComplexArray,
     R: ComplexArray,
     sigma: FloatArray,
@@ -545,7 +545,7 @@ def _statistics(
     """Factors ``L_jʸ`` (J, n_y, k) and ``T_j`` (J, C, k) of the reduced statistics (module
     docstring), and the part of the cost that no parameter changes (for χ²).
 
-    ``lw`` (L, J): line weights (:func:`_line_weights`); the residual of line ``ℓ`` and input
+    ``lw`` (L, J): line weights (:func:`line_weights`); the residual of line ``ℓ`` and input
     ``j`` is ``w_ℓj (H − Ĥ)/σ``, so ``z_j`` is scaled by ``w_ℓj`` (its prediction is linear in
     ``z_j``) and the statistics keep their form. The reactions' noise compensation is scaled by
     the mean ``w²`` of the input."""

@@ -1,9 +1,9 @@
 """The noise model of the output-error fit, estimated from the measurement.
 
 Holds the FRF noise from the line-to-line scatter (:func:`estimate_noise`), the reactions' noise
-covariance (:func:`_reaction_noise_cov`), the per-line weights of the line's own noise and of the
-load cells' calibration (:func:`_line_weights`, its equations in its docstring) and the smooth
-projection of the reactions that cuts their noise where it holds (:func:`_smooth_reactions`).
+covariance (:func:`reaction_noise_cov`), the per-line weights of the line's own noise and of the
+load cells' calibration (:func:`line_weights`, its equations in its docstring) and the smooth
+projection of the reactions that cuts their noise where it holds (:func:`smooth_reactions`).
 
 Noise model (errors in variables)
 ---------------------------------
@@ -39,7 +39,7 @@ ComplexArray = NDArray[np.complex128]
 # ------------------------------------------------------------------------------------------
 # Noise
 # ------------------------------------------------------------------------------------------
-def _third_difference_power(H: ComplexArray) -> FloatArray:
+def third_difference_power(H: ComplexArray) -> FloatArray:
     """``|Δ³H|²`` along the lines (axis 0): ``|H_ℓ − 3H_ℓ₊₁ + 3H_ℓ₊₂ − H_ℓ₊₃|²``, (L − 3, ...)."""
     return np.asarray(np.abs(line_difference(H, 3)) ** 2, float)
 
@@ -52,7 +52,7 @@ def estimate_noise(H: ComplexArray, *, d3_power: FloatArray | None = None) -> Fl
     H : ndarray, shape (n_lines, ...), complex
         FRFs along their lines (axis 0), at least 8 lines.
     d3_power : ndarray, optional
-        ``|Δ³H|²`` if already formed (:func:`_third_difference_power`; the line weights use it
+        ``|Δ³H|²`` if already formed (:func:`third_difference_power`; the line weights use it
         too).
 
     Returns
@@ -66,11 +66,11 @@ def estimate_noise(H: ComplexArray, *, d3_power: FloatArray | None = None) -> Fl
             f"the band holds {H.shape[0]} lines; the noise estimate from line-to-line scatter "
             "needs at least 8: widen the band"
         )
-    d3p = _third_difference_power(H) if d3_power is None else d3_power
+    d3p = third_difference_power(H) if d3_power is None else d3_power
     return scatter_sigma(None, 3, power=d3p)
 
 
-def _reaction_noise_cov(R: ComplexArray) -> FloatArray:
+def reaction_noise_cov(R: ComplexArray) -> FloatArray:
     """``Σ_R`` per input (J, 6, 6): real covariance per line of the noise on the reactions at P
     (``E Re(e eᴴ)`` = total complex covariance), from the third difference of ``R_j``."""
     d3 = line_difference(R, 3)  # (L-3, 6, J)
@@ -87,14 +87,14 @@ def _reaction_noise_cov(R: ComplexArray) -> FloatArray:
 #: Reactions whose power on a line is at most this multiple of their noise are at noise level.
 REACTION_SNR_LOW = 4.0
 
-#: Relative precision floor of an FRF value in the line weights (:func:`_line_weights`).
+#: Relative precision floor of an FRF value in the line weights (:func:`line_weights`).
 PRECISION_FLOOR_REL = 1e-6
 
-#: Half-width (lines) of the local noise estimate of :func:`_line_weights`.
+#: Half-width (lines) of the local noise estimate of :func:`line_weights`.
 LINE_NOISE_HALF_WIDTH = 16
 
 
-def _line_weights(
+def line_weights(
     H: ComplexArray,
     R: ComplexArray,
     psi: FloatArray,
@@ -129,7 +129,7 @@ def _line_weights(
     The weight ``w_ℓj² = median_ℓ(v_ℓj) / v_ℓj`` (residual ``w (H − Ĥ)/σ``, σ carrying the band
     level): where the random noise dominates the weights are flat; lines where a support
     carries much of the force count as far as the cells' calibration lets them. One weight for
-    every channel of the line keeps the statistics' form (:func:`_statistics`). ``None`` below
+    every channel of the line keeps the statistics' form (:func:`reduced_statistics`). ``None`` below
     16 lines.
 
     The accelerometers' and the hammer's certificates are *not* in ``v``: each channel's gain
@@ -143,7 +143,7 @@ def _line_weights(
     if L < 16:
         return None
     # |Δ³H|² and |H|² as the caller may have them (the noise estimate and the band's power)
-    d3 = _third_difference_power(H) if d3_power is None else d3_power  # (L-3, C, J)
+    d3 = third_difference_power(H) if d3_power is None else d3_power  # (L-3, C, J)
     h2 = np.abs(H) ** 2 if h_power is None else h_power
     loc = uniform_filter_nearest(d3, 2 * LINE_NOISE_HALF_WIDTH + 1)
     loc = np.concatenate([loc[:2], loc, loc[-1:]], axis=0)  # centre the L-3 differences on L lines
@@ -167,11 +167,11 @@ def _line_weights(
 
 
 #: A reaction's projection on the smooth basis is kept when its residual is within this factor
-#: of the noise's share (:func:`_smooth_reactions`).
+#: of the noise's share (:func:`smooth_reactions`).
 SMOOTH_FIT_RATIO = 3.0
 
 
-def _smooth_reactions(
+def smooth_reactions(
     R: ComplexArray, f_hz: FloatArray, cov_R: FloatArray
 ) -> tuple[ComplexArray, FloatArray]:
     """Least-squares projection of each reaction ``R_j(ω)`` on a smooth basis over the band,

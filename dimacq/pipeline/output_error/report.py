@@ -2,9 +2,9 @@
 
 Holds :class:`OutputErrorOptions` and :class:`OutputErrorResult` (the estimate with its evidence,
 and its JSON), and the parts of the report formed from a fit: the size of fitted residual terms
-(RMS of ``G b(ω)`` relative to the RMS of the FRFs, :func:`_residual_size`), the sensor and input
+(RMS of ``G b(ω)`` relative to the RMS of the FRFs, :func:`residual_size`), the sensor and input
 corrections with their standard deviations or the reason they were not estimated
-(:func:`_corrections`), and the setup with the refined geometry (:func:`_refined_setup`:
+(:func:`corrections`), and the setup with the refined geometry (:func:`refined_setup`:
 ``d_c = exp([δθ_n]x) d_c⁰``, ``r_c = r_c⁰ + δp_n`` per sensor node; inputs moved and turned).
 """
 
@@ -19,7 +19,7 @@ from numpy.typing import NDArray
 from dimacq.model.frf import Channel
 from dimacq.model.setup import PARAMETERS, TestSetup
 from dimacq.pipeline._batched import cross3
-from dimacq.pipeline.output_error.model import CELL_PARAMS, _Problem, mass_matrix
+from dimacq.pipeline.output_error.model import CELL_PARAMS, Problem, mass_matrix
 from dimacq.pipeline.rotations import apply_rotvec, rotvec_to_matrix
 
 FloatArray = NDArray[np.float64]
@@ -63,7 +63,7 @@ class OutputErrorOptions:
         that the model, not the geometry, is wrong: the refinement is refused.
     max_gross_items : int
     fix_gauge : bool
-        Fix the gauge modes the data do not identify (:func:`_gauge_constraint`) and add their
+        Fix the gauge modes the data do not identify (:func:`gauge_constraint`) and add their
         prior variance to the properties' covariance; off: the priors alone hold them.
     gauge_from_reactions : bool
         Let the load-cell reactions identify a common translation or rotation of the
@@ -77,9 +77,9 @@ class OutputErrorOptions:
         hung calibration mass, reactions at noise level, came out with the CG moved 5 mm along a
         "identified" translation, intervals 0.5 mm wide, verdict ok; with the frame fixed, 0.2 mm.
         The scale and the common accelerometer gain are fixed either way
-        (:func:`_gauge_constraint`).
+        (:func:`gauge_constraint`).
     geometry_test : bool
-        Test whether the data need the geometry moved at all (:func:`_geometry_needed`): when
+        Test whether the data need the geometry moved at all (:func:`geometry_needed`): when
         the channel gains alone explain the misfit as well, the stated geometry is kept and its
         stated uncertainty propagated into the intervals (default on).
     """
@@ -170,12 +170,13 @@ class OutputErrorResult:
         }
 
 
-def _rf_mode(mode: bool | None) -> str:
+def rf_mode_label(mode: bool | None) -> str:
+    """The residual-flexibility option as reported: ``None`` "auto", ``True`` "on", ``False`` "off"."""
     return "auto" if mode is None else ("on" if mode else "off")
 
 
-def _residual_size(
-    prob: _Problem,
+def residual_size(
+    prob: Problem,
     theta: FloatArray,
     H: ComplexArray,
     R: ComplexArray,
@@ -205,11 +206,11 @@ def _residual_size(
     }
 
 
-def _corrections(
+def corrections(
     g: FloatArray,
     se: FloatArray,
     sig: FloatArray,
-    prob: _Problem,
+    prob: Problem,
     refused: list[int],
     inputs: tuple[Channel, ...],
     in_idx: NDArray[np.intp],
@@ -304,11 +305,11 @@ def _corrections(
     return sens, inps, cells
 
 
-def _refined_setup(
+def refined_setup(
     setup: TestSetup,
     geo: Any,
     active: NDArray[np.bool_],
-    prob: _Problem,
+    prob: Problem,
     g: FloatArray,
     inputs: tuple[Channel, ...],
     in_idx: NDArray[np.intp],

@@ -38,8 +38,8 @@ from dimacq.pipeline.dim import DimResult, assemble, solve_system
 from dimacq.pipeline.output_error.report import (
     OutputErrorOptions,
     OutputErrorResult,
-    _corrections,
-    _refined_setup,
+    corrections,
+    refined_setup,
 )
 from dimacq.pipeline.output_error.stages import (
     Fit,
@@ -262,11 +262,11 @@ def solve_output_error(
     gvec = prob.full_g(theta)
     se_g = np.zeros(g.sig_g.size)
     se_g[prob.free_g] = np.sqrt(np.clip(np.diag(cov_theta)[nx:], 0, None)) * g.sig_g[prob.free_g]
-    sens, inps, cell_corr = _corrections(
+    sens, inps, cell_corr = corrections(
         gvec, se_g, g.sig_g, prob, fit.refused, frf.inputs, in_idx, opt.refine_geometry,
         refinement_note or keep_note, data.cell_nodes,
     )  # fmt: skip
-    new_setup = _refined_setup(setup, geo, active, prob, gvec, frf.inputs, in_idx, p,
+    new_setup = refined_setup(setup, geo, active, prob, gvec, frf.inputs, in_idx, p,
                                data.cell_nodes)  # fmt: skip
     return OutputErrorResult(
         parameters=params,

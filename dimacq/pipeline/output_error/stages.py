@@ -13,33 +13,33 @@ from dimacq.errors import SolverError
 from dimacq.model.frf import FrfData
 from dimacq.model.setup import PARAMETERS, TestSetup
 from dimacq.pipeline._batched import cross3
+from dimacq.pipeline._special import chi2_ppf
 from dimacq.pipeline.dim import DimResult, cell_reactions
 from dimacq.pipeline.output_error.checks import (
-    _adequacy,
-    _chi2_ppf,
-    _geometry_needed,
-    _input_robust_factors,
+    adequacy_test,
+    geometry_needed,
+    input_robust_factors,
 )
-from dimacq.pipeline.output_error.fit import _direct_cost, _gauge_constraint, _lm
+from dimacq.pipeline.output_error.fit import gauge_constraint, lm, weighted_direct_cost
 from dimacq.pipeline.output_error.model import (
-    _E,
-    _Problem,
-    _statistics,
+    EYE3,
+    Problem,
     gauge_property_jacobian,
     mass_matrix,
+    reduced_statistics,
 )
 from dimacq.pipeline.output_error.noise import (
     REACTION_SNR_LOW,
-    _line_weights,
-    _reaction_noise_cov,
-    _smooth_reactions,
-    _third_difference_power,
     estimate_noise,
+    line_weights,
+    reaction_noise_cov,
+    smooth_reactions,
+    third_difference_power,
 )
 from dimacq.pipeline.output_error.report import (
     OutputErrorOptions,
-    _residual_size,
-    _rf_mode,
+    residual_size,
+    rf_mode_label,
 )
 
 #: the logger of the module before the split into a package: the messages keep its name
@@ -57,7 +57,7 @@ class BandData:
     """The band's data relative to P, their noise and the load cells' reactions.
 
     ``H`` (L, C, J) the kept accelerances, ``R`` (L, 6K, J) each load cell's reactions at P
-    (smoothed, :func:`.noise._smooth_reactions`), ``sigma`` (C, J) the FRF noise,
+    (smoothed, :func:`.noise.smooth_reactions`), ``sigma`` (C, J) the FRF noise,
     ``cov_R`` (J, 6K, 6K) the reactions' noise left after the smoothing, ``R_at_p`` (L, 6, J)
     the stated cells' sum at P, ``reaction_snr`` (L, J) ``Σ_k |R_ℓkj|² / tr Σ_Rj``.
     """
@@ -81,19 +81,19 @@ def band_data(
     p = setup.reference_point
     H = frf.H[:, out_idx][:, :, in_idx]  # (L, C, J)
     # each load cell's reactions at P (L, 6K, J), N and N·m per N: the fit may turn and move
-    # each cell within its stated uncertainty (model.py, _Problem.cell_maps)
+    # each cell within its stated uncertainty (model.py, Problem.cell_maps)
     cell_nodes, R = cell_reactions(frf, setup, p)
     R = R[:, :, in_idx]
     L_lines = H.shape[0]
     # |H|², its band mean and |Δ³H|² once: the noise, its floor, the line weights and the report
     h_power = np.abs(H) ** 2
     h_mean_power = np.mean(h_power, axis=0)  # (C, J)
-    d3_power = _third_difference_power(H) if L_lines >= 8 else None
+    d3_power = third_difference_power(H) if L_lines >= 8 else None
     sigma = estimate_noise(H, d3_power=d3_power)
     floor = 1e-6 * np.sqrt(h_mean_power)
     sigma = np.maximum(sigma, np.maximum(floor, 1e-300))
     cov_R = (
-        _reaction_noise_cov(R)
+        reaction_noise_cov(R)
         if R.shape[0] >= 8
         else np.zeros((len(in_idx), R.shape[1], R.shape[1]))
     )
@@ -101,7 +101,7 @@ def band_data(
     # S/N_ℓj = Σ_k |R_ℓkj|² / tr Σ_Rj (the share of lines at noise level is reported)
     with np.errstate(divide="ignore", invalid="ignore"):
         reaction_snr = np.sum(np.abs(R) ** 2, axis=1) / np.einsum("jii->j", cov_R)[None]
-    R, n_rb = _smooth_reactions(R, frf.frequencies_hz, cov_R)
+    R, n_rb = smooth_reactions(R, frf.frequencies_hz, cov_R)
     cov_R = cov_R * n_rb[:, None, None]  # noise left in Σ_ω Re(R̂ R̂ᴴ) after the projection
     R_at_p = R.reshape(L_lines, len(cell_nodes), 6, len(in_idx)).sum(axis=1)
     return BandData(
@@ -162,7 +162,7 @@ def stated_geometry(
     cell_rot0 = np.array([cells[n].rotation_matrix for n in cell_nodes]).reshape(-1, 3, 3)
     eb = np.empty((len(in_idx), 2, 3))
     for k, dv in enumerate(din0_a):
-        a = _E[int(np.argmin(np.abs(dv)))]
+        a = EYE3[int(np.argmin(np.abs(dv)))]
         e1 = cross3(dv, a)
         e1 /= np.linalg.norm(e1)
         eb[k] = (e1, cross3(dv, e1))
@@ -219,7 +219,7 @@ class Fitter:
         """The line weights; with residual terms the projection is per channel over all lines."""
         return None if use_basis else self.lw0
 
-    def build(self, use_basis: bool, free_g: NDArray[np.intp]) -> tuple[_Problem, float]:
+    def build(self, use_basis: bool, free_g: NDArray[np.intp]) -> tuple[Problem, float]:
         d, g = self.data, self.g
         args = (d.H, d.R, self.sigma, d.cov_R, self.basis if use_basis else None,
                 self.line_w(use_basis))  # fmt: skip
@@ -227,10 +227,10 @@ class Fitter:
         if memo is not None and all(a is b for a, b in zip(memo[0], args, strict=True)):
             Ly, Lh, const = memo[1]
         else:
-            Ly, Lh, const = _statistics(*args)
+            Ly, Lh, const = reduced_statistics(*args)
             self._memo[use_basis] = (args, (Ly, Lh, const))
         return (
-            _Problem(
+            Problem(
                 g.r0, g.d0, g.node_of, g.nodes, g.rin0, g.din0, g.eb, 1.0 / self.sigma, Ly, Lh,
                 self.free_x, self.x_fixed, free_g, g.sig_g, cell_r0=g.cell_r0,
                 cell_rot0=g.cell_rot0,
@@ -240,7 +240,7 @@ class Fitter:
 
     def fit(
         self, use_basis: bool, cands: NDArray[np.intp] | None = None
-    ) -> tuple[_Problem, FloatArray, FloatArray, float, int, list[int]]:
+    ) -> tuple[Problem, FloatArray, FloatArray, float, int, list[int]]:
         """Refuse the unidentified items, fix the gauge, and fit (Levenberg–Marquardt)."""
         opt, free_x, x_start = self.opt, self.free_x, self.x_start
         cand_ = self.cand if cands is None else cands
@@ -260,31 +260,31 @@ class Fitter:
                 # the data rows of J0 in the columns kept: the Jacobian at theta0 of the items
                 # kept, without computing it again (its data rows are the same numbers)
                 cols = np.concatenate([np.arange(free_x.size), free_x.size + np.nonzero(ok)[0]])
-                _gauge_constraint(
+                gauge_constraint(
                     prob,
                     theta0,
                     opt.refuse_ratio,
                     fix_all=not opt.gauge_from_reactions,
                     data_jacobian=J0[: prob.Lh.size][:, cols],
                 )
-        theta, Jac, cost, it = _lm(prob, theta0, opt.max_iterations)
+        theta, Jac, cost, it = lm(prob, theta0, opt.max_iterations)
         return prob, theta, Jac, cost + const, it, refused
 
     def direct_cost(
-        self, prob: _Problem, theta: FloatArray, use_basis: bool = False, lw: bool = True
+        self, prob: Problem, theta: FloatArray, use_basis: bool = False, lw: bool = True
     ) -> float:
         """The fit's cost on the data, recomputed directly (not from the reduced statistics)."""
         d = self.data
         weights = self.line_w(use_basis) if lw else None
         basis = self.basis if use_basis else None
-        return float(_direct_cost(prob, theta, d.H, d.R, self.sigma, basis, weights))
+        return float(weighted_direct_cost(prob, theta, d.H, d.R, self.sigma, basis, weights))
 
 
 @dataclass
 class Fit:
     """One fit's state as the stages hand it on."""
 
-    prob: _Problem
+    prob: Problem
     theta: FloatArray
     Jac: FloatArray
     it: int
@@ -300,7 +300,7 @@ def geometry_test_step(fitter: Fitter, fit: Fit) -> tuple[dict[str, Any], FloatA
     if not (opt.geometry_test and fitter.cand.size and np.any(prob.free_g < n_geo)):
         return {"tested": False}, None, ""
     d = fitter.data
-    geometry_test, prob_g, theta_g = _geometry_needed(
+    geometry_test, prob_g, theta_g = geometry_needed(
         prob, theta, fitter.fit, fitter.cand, n_geo, d.H, d.R, fitter.sigma, fitter.line_w()
     )
     if geometry_test["needed"]:
@@ -335,7 +335,7 @@ def residual_flexibility_step(
     fit kept, the report, and the model-form difference ``d`` when the terms are kept.
     """
     rf_mode = fitter.opt.residual_flexibility
-    rf_info: dict[str, Any] = {"fitted": False, "mode": _rf_mode(rf_mode)}
+    rf_info: dict[str, Any] = {"fitted": False, "mode": rf_mode_label(rf_mode)}
     if rf_mode is False:
         return fit, rf_info, None
     prob_b, theta_b, Jac_b, _cost_b, it_b, refused_b = fitter.fit(True)
@@ -351,7 +351,7 @@ def residual_flexibility_step(
     ok_d = lam_d > max(float(lam_d.max()), 0.0) * 1e-9
     if ok_d.any():
         hz = float(np.sum((vec_d[:, ok_d].T @ dx) ** 2 / lam_d[ok_d]))
-        crit = _chi2_ppf(0.999, int(ok_d.sum()))
+        crit = chi2_ppf(0.999, int(ok_d.sum()))
     else:  # no precision lost to the residual terms: nothing to test against
         hz, crit = 0.0, float("inf")
     needed = bool(hz > crit)
@@ -378,7 +378,7 @@ def residual_flexibility_step(
         rf_info["model_form_difference"] = [float(v) for v in dx]
     if rf_info["fitted"]:
         d = fitter.data
-        rf_info.update(_residual_size(fit.prob, fit.theta, d.H, d.R, fitter.sigma, fitter.basis))
+        rf_info.update(residual_size(fit.prob, fit.theta, d.H, d.R, fitter.sigma, fitter.basis))
     return fit, rf_info, model_form
 
 
@@ -403,7 +403,7 @@ def covariance_step(
     N = Jac.T @ Jac
     N_inv: FloatArray = np.asarray(np.linalg.pinv(N), float)
     cov_theta = N_inv * max(1.0, chi2)
-    robust = _input_robust_factors(prob, theta, Jac, cov_theta, nx0, N_inv)
+    robust = input_robust_factors(prob, theta, Jac, cov_theta, nx0, N_inv)
     cov_theta[:nx0] *= robust[:, None]
     cov_theta[:, :nx0] *= robust[None, :]
     if model_form is not None:
@@ -422,8 +422,8 @@ def covariance_step(
         # the same data and noise scale with the stated geometry taken as exact
         prob_s, _ = fitter.build(use_basis, np.zeros(0, np.intp))
         x0 = np.asarray(fitter.x_start[fitter.free_x], float)
-        theta_s, _, _, _ = _lm(prob_s, x0, fitter.opt.max_iterations)
-        adequacy = _adequacy(prob, theta, Jac, theta_s, max(1.0, chi2))
+        theta_s, _, _, _ = lm(prob_s, x0, fitter.opt.max_iterations)
+        adequacy = adequacy_test(prob, theta, Jac, theta_s, max(1.0, chi2))
         if adequacy["tested"] and not adequacy["passed"]:
             # a refined answer never silently replaces a stated one that disagrees with it: the
             # difference stays in the intervals (rank one, as for the residual terms)
@@ -434,7 +434,7 @@ def covariance_step(
     return theta, cov_theta, cov_noise_theta, robust, adequacy, N
 
 
-def gauge_covariance(prob: _Problem, x: FloatArray) -> tuple[FloatArray | None, dict[str, Any]]:
+def gauge_covariance(prob: Problem, x: FloatArray) -> tuple[FloatArray | None, dict[str, Any]]:
     """The fixed gauge modes' prior variance mapped to the properties (fit.py, "Gauge")."""
     if not (prob.gauge_rows.shape[0] and prob.gauge_modes.size):
         return None, {"fixed_modes": 0}
@@ -553,7 +553,7 @@ def make_fitter(
     psi0 = np.concatenate([g.d0, cross3(g.r0, g.d0)], axis=1)
     phi0 = np.concatenate([g.din0, cross3(g.rin0, g.din0)], axis=1)
     A0 = np.asarray(np.linalg.inv(mass_matrix(x_start)[0]), dtype=np.float64)  # typed for mypy
-    lw0 = _line_weights(
+    lw0 = line_weights(
         data.H, data.R_at_p, psi0, phi0, A0, eps_r, h_power=data.h_power, d3_power=data.d3_power
     )
     data.h_power = data.d3_power = None
@@ -561,7 +561,7 @@ def make_fitter(
 
 
 def properties_posterior(
-    prob: _Problem,
+    prob: Problem,
     theta: FloatArray,
     cov_theta: FloatArray,
     cov_noise_theta: FloatArray,

@@ -46,6 +46,7 @@ __all__ = [
     "BodyModel",
     "BundleResult",
     "Observation",
+    "Problem",
     "TagMount",
     "adjust",
 ]
@@ -266,7 +267,11 @@ def _projection_derivatives(xc: FloatArray, intr: Intrinsics) -> tuple[FloatArra
     return d_xc, d_in
 
 
-class _Problem:
+class Problem:
+    """The bundle adjustment: unknowns ``x`` (the intrinsics if refined, each camera's and body's
+    rotation increment and position, one outward shift of the detected corners in pixels), the
+    corner residuals and their sparse Jacobian."""
+
     def __init__(
         self,
         bodies: Sequence[BodyModel],
@@ -474,7 +479,7 @@ def adjust(
             "bundle adjustment: no reference tag with a stated pose fixes the article's frame; "
             "put reference tags at known positions and state them in the tags file"
         )
-    prob = _Problem(
+    prob = Problem(
         bodies,
         observations,
         intrinsics,
@@ -506,7 +511,7 @@ def adjust(
 
 
 def _solve(
-    prob: _Problem, fun: Callable[[FloatArray], FloatArray], x0: FloatArray, loss: str, nmax: int
+    prob: Problem, fun: Callable[[FloatArray], FloatArray], x0: FloatArray, loss: str, nmax: int
 ) -> FloatArray:
     """Minimise ``fun`` from ``x0`` (scipy's trust-region reflective method, the analytic
     sparse Jacobian) with the robust ``loss``, the focal length kept within a factor 4 of the
@@ -536,7 +541,7 @@ def _solve(
 
 
 def _reject_gross(
-    prob: _Problem, x: FloatArray, reject_sigma: float
+    prob: Problem, x: FloatArray, reject_sigma: float
 ) -> list[tuple[int, int, float]]:
     """Remove from ``prob`` the observations whose corner RMS exceeds ``reject_sigma · σ_px``
     at ``x`` (worst first; a photo or body keeps its last view) and set ``prob.sigma_px`` to
@@ -567,7 +572,7 @@ def _reject_gross(
     return rejected
 
 
-def _covariance(prob: _Problem, x: FloatArray) -> tuple[FloatArray, float]:
+def _covariance(prob: Problem, x: FloatArray) -> tuple[FloatArray, float]:
     """``Σ = (JᵀJ)⁻¹`` of the whitened problem at ``x`` (equilibrated by the diagonal) and the
     equilibrated normal matrix's condition number.
 
@@ -591,7 +596,7 @@ def _covariance(prob: _Problem, x: FloatArray) -> tuple[FloatArray, float]:
     return np.linalg.inv(scaled) / np.outer(d, d), cond
 
 
-def _parameter_name(prob: _Problem, j: int) -> str:
+def _parameter_name(prob: Problem, j: int) -> str:
     """What parameter ``j`` of the adjustment belongs to: a body (by name), a photo (by its
     index), the intrinsics or the edge bias."""
     k = prob.n_intr
@@ -605,7 +610,7 @@ def _parameter_name(prob: _Problem, j: int) -> str:
 
 
 def _result(
-    prob: _Problem,
+    prob: Problem,
     bodies: Sequence[BodyModel],
     x: FloatArray,
     cov: FloatArray,

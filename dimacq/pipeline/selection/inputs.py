@@ -68,6 +68,7 @@ __all__ = [
     "ExcitationCheck",
     "JackknifeCycle",
     "JackknifeSelection",
+    "PredictiveResiduals",
     "excitation_check",
     "jackknife_estimates",
     "jackknife_inputs",
@@ -169,10 +170,10 @@ def predictive_residuals(system: DimSystem, params: FloatArray) -> FloatArray:
         ``sqrt(mean_{lines, rows} |(A_j x − b_j)_r / s_r|²)`` with ``s_r`` the RMS of row r of b
         over lines and inputs.
     """
-    return _PredictiveResiduals(system)(params)
+    return PredictiveResiduals(system)(params)
 
 
-class _PredictiveResiduals:
+class PredictiveResiduals:
     """:func:`predictive_residuals` of one system for several parameter sets: the motions,
     right sides and row scales are laid out once (the jackknife asks twice a cycle).
 
@@ -375,7 +376,7 @@ def _cycle_statistics(
     score = np.where(active & solved, np.nansum(sdev, axis=1), np.nan)
     std = est[idx].std(axis=0, ddof=1)
     resid = np.full(n, np.nan)
-    pred = _PredictiveResiduals(system.select_inputs(idx))
+    pred = PredictiveResiduals(system.select_inputs(idx))
     resid[idx] = pred(est[idx])
     stat = resid.copy()
     try:

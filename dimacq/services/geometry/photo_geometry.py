@@ -39,16 +39,16 @@ from dimacq.pipeline.photogrammetry.bundle import (
 )
 from dimacq.pipeline.photogrammetry.camera import Intrinsics, tag_corners, undistort_normalised
 from dimacq.services.geometry.photo_input import (
-    _cv2,
-    _exif_focal_px,
     detect_tags,
+    exif_focal_px,
     load_camera,
+    load_cv2,
 )
 from dimacq.services.geometry.photo_records import (
     PhotoGeometry,
     PhotoIssue,
-    _records,
     apply_to_setup,
+    bundle_records,
 )
 from dimacq.services.geometry.records import LineOfAction, Orientation
 
@@ -64,6 +64,10 @@ __all__ = [
     "detect_tags",
     "geometry_from_photos",
     "load_camera",
+    "pose_from_points",
+    "read_photos",
+    "tied_only",
+    "too_uncertain",
 ]
 
 log = logging.getLogger(__name__)
@@ -105,10 +109,12 @@ class _Photo:
     focal_px: float | None
 
 
-def _read_photos(
+def read_photos(
     paths: Sequence[Path], family: str, known: set[int], say: Callable[[str], None]
 ) -> tuple[list[_Photo], list[PhotoIssue]]:
-    cv2 = _cv2()
+    """The photos' known tags (detected with OpenCV), and an issue naming each photo that is
+    unreadable, of another size than the first, shows no known tag, foreign tags or one tag."""
+    cv2 = load_cv2()
     photos: list[_Photo] = []
     issues: list[PhotoIssue] = []
     size0: tuple[int, int] | None = None
@@ -162,12 +168,12 @@ def _read_photos(
                     "a photo ties tags together: show each tag with at least one other",
                 )
             )
-        photos.append(_Photo(path.name, size, ours, _exif_focal_px(path, *size)))
+        photos.append(_Photo(path.name, size, ours, exif_focal_px(path, *size)))
     return photos, issues
 
 
 def _why_no_tags(name: str, gray: NDArray[np.uint8], family: str, foreign: list[int]) -> PhotoIssue:
-    cv2 = _cv2()
+    cv2 = load_cv2()
     if foreign:
         return PhotoIssue(
             name,
@@ -199,11 +205,11 @@ def _why_no_tags(name: str, gray: NDArray[np.uint8], family: str, foreign: list[
     )
 
 
-def _pose_from_points(
+def pose_from_points(
     obj: FloatArray, xy: FloatArray, planar_square: bool
 ) -> tuple[FloatArray, FloatArray, float]:
     """(R, t, rms) of object points seen at normalised image points (camera matrix I)."""
-    cv2 = _cv2()
+    cv2 = load_cv2()
     k = np.eye(3)
     if planar_square:
         _n, rs, ts, errs = cv2.solvePnPGeneric(
@@ -280,13 +286,13 @@ def _initial_poses(
             seen = [t for t in b.tags if t.tag_id in norm[c]]
             if len(seen) == 1:
                 t = seen[0]
-                r_ct, t_ct, _ = _pose_from_points(tag_corners(t.side_m), norm[c][t.tag_id], True)
+                r_ct, t_ct, _ = pose_from_points(tag_corners(t.side_m), norm[c][t.tag_id], True)
                 r_cb = r_ct @ t.rotation.T
                 t_cb = t_ct - r_cb @ t.offset_m
             else:
                 obj = np.concatenate([t.corners_body() for t in seen])
                 xy = np.concatenate([norm[c][t.tag_id] for t in seen])
-                r_cb, t_cb, _ = _pose_from_points(obj, xy, False)
+                r_cb, t_cb, _ = pose_from_points(obj, xy, False)
             rc, tc = cams[c]
             bodies[bi] = (rc.T @ r_cb, rc.T @ (t_cb - tc))
             progress = True
@@ -307,11 +313,11 @@ def _photo_pose(
     """A photo's first pose (world → camera) from the placed tags' corners ``w`` seen at the
     normalised points ``xy``; one tag: its own square solution mapped to the world."""
     if n_tags > 1:
-        rc, tc, _ = _pose_from_points(w, xy, False)
+        rc, tc, _ = pose_from_points(w, xy, False)
         return rc, tc
     tid = next(t for t in obs if mount[t][0] in bodies)
     bi, t = mount[tid]
-    r_ct, t_ct, _ = _pose_from_points(tag_corners(t.side_m), obs[tid], True)
+    r_ct, t_ct, _ = pose_from_points(tag_corners(t.side_m), obs[tid], True)
     rb, pb = bodies[bi]
     r_wt = rb @ t.rotation
     p_wt = rb @ t.offset_m + pb
@@ -389,8 +395,8 @@ def geometry_from_photos(
     _bundle_issues(bundle, used, issues)
     depth = float(np.median(np.linalg.norm(bundle.camera_translations, axis=1)))
     scale_m = bundle.sigma_px * depth / bundle.intrinsics.fx
-    orientations, loas = _records(bundle, final_models, tags, scale_m)
-    unfixed.extend(_too_uncertain(bundle, orientations, loas, issues))
+    orientations, loas = bundle_records(bundle, final_models, tags, scale_m)
+    unfixed.extend(too_uncertain(bundle, orientations, loas, issues))
     say(
         f"adjusted: σ {bundle.sigma_px:.3f} px, {len(orientations)} triaxes, {len(loas)} inputs, "
         f"{len(unfixed)} not fixed"
@@ -415,7 +421,7 @@ def geometry_from_photos(
 def _photos_of(
     folder: Path, tags: TagsFile, say: Callable[[str], None]
 ) -> tuple[list[Path], list[_Photo], list[PhotoIssue], list[BodyModel], set[int]]:
-    """The photos of ``folder`` with their tags read (:func:`_read_photos`), the issues met,
+    """The photos of ``folder`` with their tags read (:func:`read_photos`), the issues met,
     the tags file's bodies and tag ids.
 
     Raises
@@ -432,7 +438,7 @@ def _photos_of(
         )
     models = [_with_placement(b, tags) for b in tags.body_models()]
     known = {t.tag_id for b in models for t in b.tags}
-    photos, issues = _read_photos(paths, tags.family, known, say)
+    photos, issues = read_photos(paths, tags.family, known, say)
     if not photos:
         raise DataError(
             f"photos folder {folder}: none of {len(paths)} photos shows a tag of the tags file: "
@@ -590,7 +596,7 @@ def _tied_observations(
     )
     if oblique:
         say(f"{oblique} tag views more oblique than {MAX_INCIDENCE_DEG:g} deg left out")
-    obs = _tied_only(obs, final_models)
+    obs = tied_only(obs, final_models)
     # photos and bodies left without a view are left out (nothing would fix them)
     seen_cams = sorted({o.photo for o in obs})
     tag_body = {t.tag_id: k for k, b in enumerate(final_models) for t in b.tags}
@@ -608,7 +614,7 @@ def _tied_observations(
     return obs, cam_idx, body_idx
 
 
-def _tied_only(obs: list[Observation], models: list[BodyModel]) -> list[Observation]:
+def tied_only(obs: list[Observation], models: list[BodyModel]) -> list[Observation]:
     """``obs`` without the views of a body with no stated pose seen in one photo only (nothing
     but that photo fixes it) and of a photo showing one tag only (a small square alone leaves
     its tilt and its distance all but undetermined: the planar pose ambiguity); repeated until
@@ -635,7 +641,7 @@ def _more_views(n: int, ratio: float) -> int:
     return max(1, int(np.ceil(n * (ratio**2 - 1.0))))
 
 
-def _too_uncertain(
+def too_uncertain(
     bundle: BundleResult,
     orientations: list[Orientation],
     loas: list[LineOfAction],

@@ -61,7 +61,8 @@ def load_camera(path: str | Path) -> tuple[Intrinsics, bool]:
 
 
 # ------------------------------------------------------------------------------ detection
-def _cv2() -> Any:
+def load_cv2() -> Any:
+    """OpenCV (``cv2``), imported on first use; a :class:`SetupError` naming the package if absent."""
     try:
         import cv2
     except ImportError as err:  # pragma: no cover - a dependency of the package
@@ -72,7 +73,7 @@ def _cv2() -> Any:
 
 
 def _dictionary(family: str) -> Any:
-    cv2 = _cv2()
+    cv2 = load_cv2()
     code = getattr(cv2.aruco, family, None)
     if not isinstance(code, int):
         raise SetupError(
@@ -154,7 +155,7 @@ def detect_tags(
     by ``cornerSubPix`` and then, with ``refine_edges``, as the intersections of the fitted
     outer edges (:func:`refine_corners_by_edges`). A tag id seen twice in one photo is dropped
     (it cannot be told apart)."""
-    cv2 = _cv2()
+    cv2 = load_cv2()
     params = cv2.aruco.DetectorParameters()
     params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
     params.cornerRefinementWinSize = 4
@@ -179,7 +180,7 @@ def detect_tags(
     return out
 
 
-def _exif_focal_px(path: Path, width: int, height: int) -> float | None:
+def exif_focal_px(path: Path, width: int, height: int) -> float | None:
     """Focal length in pixels from EXIF ``FocalLengthIn35mmFilm`` (36 mm wide frame), else
     None."""
     try:

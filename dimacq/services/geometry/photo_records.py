@@ -109,7 +109,7 @@ class PhotoGeometry:
         }
 
 
-def _records(
+def bundle_records(
     bundle: BundleResult, models: list[BodyModel], tags: TagsFile, residual_m: float
 ) -> tuple[list[Orientation], list[LineOfAction]]:
     """The adjusted bodies as the digitizing chain's records. The tags' placement on their body

@@ -89,6 +89,7 @@ __all__ = [
     "AnalysisReport",
     "VerdictReason",
     "analyse",
+    "below_first_elastic_ceiling",
     "verdict",
 ]
 
@@ -499,7 +500,7 @@ def _second_suggestion(
             frf, setup_used, known=known, response_weights=weights, input_keep=keep_in
         )
     if first is not None:
-        suggestion = _below_first_elastic_ceiling(suggestion, first)
+        suggestion = below_first_elastic_ceiling(suggestion, first)
     return suggestion
 
 
@@ -633,7 +634,7 @@ def _judged(
     return report
 
 
-def _below_first_elastic_ceiling(second: BandSuggestion, first: BandSuggestion) -> BandSuggestion:
+def below_first_elastic_ceiling(second: BandSuggestion, first: BandSuggestion) -> BandSuggestion:
     """The second band suggestion (on the selected channels and inputs), kept below the first's
     upper edge when the first found an elastic mode above its band.
 

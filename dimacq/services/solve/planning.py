@@ -46,6 +46,7 @@ __all__ = [
     "run_trial",
     "run_trial_batch",
     "run_trials",
+    "trial_batches",
 ]
 
 log = logging.getLogger(__name__)
@@ -172,7 +173,7 @@ def run_trial_batch(spec: TrialSpec, indices: list[int]) -> list[list[float]]:
     return [run_trial(spec, i) for i in indices]
 
 
-def _batches(n_trials: int, workers: int) -> list[list[int]]:
+def trial_batches(n_trials: int, workers: int) -> list[list[int]]:
     """Consecutive trial indices in batches: about 8 per worker so that the progress and the
     load stay even, at most :data:`BATCH_MAX` trials each."""
     size = max(1, min(BATCH_MAX, n_trials // max(8 * workers, 1)))
@@ -206,7 +207,7 @@ def run_trials(
     ``scheduler``: ``None`` or ``"none"`` (or ``workers == 0``) runs in this process; ``"local"``
     starts a Dask LocalCluster of ``workers`` single-threaded worker processes; an address
     (``tcp://host:8786``) uses that scheduler. ``progress(done, total, seconds_left)`` is called
-    after each trial in-process, after each batch of trials (:func:`_batches`) on Dask.
+    after each trial in-process, after each batch of trials (:func:`trial_batches`) on Dask.
     """
     if n_trials < 1:
         raise SetupError(f"--trials {n_trials}: give at least 1 trial")
@@ -258,7 +259,7 @@ def run_trials(
                 ) from err
         with client:
             [spec_f] = client.scatter([spec], broadcast=True)
-            batches = _batches(n_trials, workers if scheduler == "local" else 8)
+            batches = trial_batches(n_trials, workers if scheduler == "local" else 8)
             futures = client.map(run_trial_batch, [spec_f] * len(batches), batches, pure=False)
             index = {f.key: b for f, b in zip(futures, batches, strict=True)}
             done = 0

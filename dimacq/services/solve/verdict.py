@@ -57,6 +57,7 @@ __all__ = [
     "VerdictReason",
     "band_quality",
     "cross_check_checks",
+    "estimator_checks",
     "verdict",
 ]
 
@@ -161,7 +162,7 @@ def verdict(
     out.extend(_plausibility_checks(res.diagnostics))
     out.extend(_coverage_checks(report))
     out.extend(_registration_checks(report.setup_used.geometry_uncertainty))
-    out.extend(_estimator_checks(res.extras.get("output_error")))
+    out.extend(estimator_checks(res.extras.get("output_error")))
     out.append(_uncertainty_check(report.uncertainty.components))
     out.extend(cross_check_checks(getattr(report, "cross_check", None)))
     out.append(_precision(report.uncertainty, ci95_limits))
@@ -315,11 +316,11 @@ def _uncertainty_check(components: Any) -> VerdictReason:
     )
 
 
-def _estimator_checks(oe: Any) -> list[VerdictReason]:
+def estimator_checks(oe: Any) -> list[VerdictReason]:
     """The ``estimator`` checks of an output-error solve.
 
     - ``estimator:adequacy``: the refined answer against the stated-geometry one
-      (:func:`dimacq.pipeline.output_error.checks._adequacy`). A refinement that moved the properties
+      (:func:`dimacq.pipeline.output_error.checks.adequacy_test`). A refinement that moved the properties
       beyond what the stated geometry uncertainty allows explained a misfit that is not
       geometry: ``warn``, with the difference already in the intervals (model-form term).
     - ``estimator:refinement``: a refinement the data refused (corrections far beyond the stated

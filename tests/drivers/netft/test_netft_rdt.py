@@ -330,13 +330,14 @@ def test_positions_stay_continuous_when_the_clock_fit_moves() -> None:
     the positions differs from the fit's by at most MAX_SLEW; between records (``realign``)
     they go to the fit at once."""
     from dimacq.drivers.netft import udp_driver as ud
+    from dimacq.drivers.netft.rdt_stream import RdtRun
 
     fs, rate = 2048.0, 7000.0
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     try:
         drv = NetFtUdp(sock, calibration=CAL, rdt_rate_hz=rate, ft_rate_hz=rate)
         drv.set_rate(int(fs))
-        run = drv._run = ud._Run(rate, 1.0)
+        run = drv._run = RdtRun(rate, 1.0)
         run.ft0 = 0
         t0 = 100.0  # host time of the sensor's instant 0
         blank = np.zeros((40, 6), dtype=np.int64)

@@ -11,7 +11,7 @@ import pytest
 
 @pytest.mark.device("ni")
 def test_a_real_dsa_device_reads_one_second() -> None:
-    from dimacq.backends.ni_daqmx import _offered, import_nidaqmx
+    from dimacq.backends.ni_daqmx import import_nidaqmx, offered
     from dimacq.drivers.ni.plan import ModuleSlot
     from dimacq.drivers.ni.task import NiDsaTask
 
@@ -20,7 +20,7 @@ def test_a_real_dsa_device_reads_one_second() -> None:
     assert devices, "NI-DAQmx sees no device with analogue inputs"
     dev = devices[0]
     n = len(dev.ai_physical_chans)
-    currents = _offered(dev, "ai_current_int_excit_discrete_vals")
+    currents = offered(dev, "ai_current_int_excit_discrete_vals")
     slot = ModuleSlot(dev.name, str(dev.product_type), tuple(range(n)), n, currents)
     task = NiDsaTask(ni, [slot])
     ma = currents[0] * 1e3 if currents else 0.0

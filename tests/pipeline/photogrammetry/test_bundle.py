@@ -209,12 +209,12 @@ def test_analytic_jacobian_matches_central_differences(refine: bool) -> None:
     """The adjustment's analytic Jacobian against central differences of its residuals, at a
     point away from the solution (rotations off their bases, distorted lens, reference priors
     not met, an edge bias)."""
-    from dimacq.pipeline.photogrammetry.bundle import _Problem
+    from dimacq.pipeline.photogrammetry.bundle import Problem
 
     bodies, truth, cams, obs = _scene(3, 6)
     rng = np.random.default_rng(7)
     cr, ct, br, bp = _perturbed(truth, cams, rng)
-    prob = _Problem(bodies, obs, CAM, cr, ct, br, bp, refine)
+    prob = Problem(bodies, obs, CAM, cr, ct, br, bp, refine)
     prob.sigma_px = 0.7
     x = prob.x0 + rng.normal(scale=1e-3, size=prob.x0.size)
     n_pose = 6 * (prob.n_cam + prob.n_body)

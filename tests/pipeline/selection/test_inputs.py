@@ -144,13 +144,13 @@ def test_predicted_equations_are_the_design_matrices_times_x() -> None:
     from types import SimpleNamespace
 
     from dimacq.pipeline.dim import design_matrices
-    from dimacq.pipeline.selection.inputs import _PredictiveResiduals
+    from dimacq.pipeline.selection.inputs import PredictiveResiduals
 
     rng = np.random.default_rng(3)
     L, J = 40, 6
     K = rng.normal(size=(L, 6, J)) + 1j * rng.normal(size=(L, 6, J))
     F = rng.normal(size=(L, 6, J)) + 1j * rng.normal(size=(L, 6, J))
-    pred = _PredictiveResiduals(SimpleNamespace(K=K, F=F))  # type: ignore[arg-type]
+    pred = PredictiveResiduals(SimpleNamespace(K=K, F=F))  # type: ignore[arg-type]
     A = design_matrices(K)  # (L, J, 6, 10)
     x = rng.normal(size=10)
     xs = rng.normal(size=(J, 10))

@@ -7,7 +7,7 @@ import pytest
 
 from dimacq.simulators.lab.bridge import BridgeState, StrainGaugeCell, strain_gauge_cell
 from dimacq.simulators.lab.forward import calibration_mass
-from dimacq.simulators.lab.timedomain import VirtualLab, _static_support_loads
+from dimacq.simulators.lab.timedomain import VirtualLab, static_support_loads
 
 R = np.array([500.0, 500.0, 1000.0, 50.0, 50.0, 50.0])
 
@@ -76,7 +76,7 @@ def test_dc_lab_carries_the_weight_of_the_hanging_mass() -> None:
     its origin (independent closed form, cell frame)."""
     model = calibration_mass(0)
     (s,) = model.supports
-    F = _static_support_loads(model, 9.80665)[0]
+    F = static_support_loads(model, 9.80665)[0]
     m, c = model.properties.mass_kg, np.asarray(model.properties.cg_m)
     w = np.array([0.0, 0.0, -m * 9.80665])
     Rm = np.asarray(s.rotation)
