@@ -20,8 +20,8 @@ names it and how many more photos it needs.
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass, replace
+from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -39,10 +39,11 @@ from dimacq.pipeline.photogrammetry.bundle import (
 )
 from dimacq.pipeline.photogrammetry.camera import Intrinsics, tag_corners, undistort_normalised
 from dimacq.services.geometry.photo_input import (
+    Photo,
     detect_tags,
-    exif_focal_px,
     load_camera,
     load_cv2,
+    read_photos,
 )
 from dimacq.services.geometry.photo_records import (
     PhotoGeometry,
@@ -85,126 +86,9 @@ LIMIT_ANGLE_STD_DEG = 0.1
 LIMIT_POSITION_STD_M = 2e-4
 #: An input's line of action whose stated 1σ exceeds this angle is named (a warning).
 LIMIT_LOA_STD_DEG = 0.2
-#: Variance of the Laplacian below which a photo without tags is called blurred.
-BLUR_LIMIT = 20.0
-_OTHER_FAMILIES = (
-    "DICT_4X4_250",
-    "DICT_5X5_250",
-    "DICT_6X6_250",
-    "DICT_7X7_250",
-    "DICT_ARUCO_ORIGINAL",
-    "DICT_APRILTAG_16h5",
-    "DICT_APRILTAG_25h9",
-    "DICT_APRILTAG_36h10",
-    "DICT_APRILTAG_36h11",
-)
 
 
 # ------------------------------------------------------------------------------ the chain
-@dataclass
-class _Photo:
-    name: str
-    size: tuple[int, int]
-    tags: dict[int, FloatArray]
-    focal_px: float | None
-
-
-def read_photos(
-    paths: Sequence[Path], family: str, known: set[int], say: Callable[[str], None]
-) -> tuple[list[_Photo], list[PhotoIssue]]:
-    """The photos' known tags (detected with OpenCV), and an issue naming each photo that is
-    unreadable, of another size than the first, shows no known tag, foreign tags or one tag."""
-    cv2 = load_cv2()
-    photos: list[_Photo] = []
-    issues: list[PhotoIssue] = []
-    size0: tuple[int, int] | None = None
-    for k, path in enumerate(paths):
-        gray = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-        if gray is None:
-            issues.append(
-                PhotoIssue(
-                    path.name,
-                    "skipped",
-                    "not an image OpenCV can read",
-                    "remove it or save it as JPEG/PNG",
-                )
-            )
-            continue
-        size = (int(gray.shape[1]), int(gray.shape[0]))
-        if size0 is None:
-            size0 = size
-        if size != size0:
-            issues.append(
-                PhotoIssue(
-                    path.name,
-                    "skipped",
-                    f"{size[0]}x{size[1]} px while the first photo is {size0[0]}x{size0[1]} px",
-                    "take one set with one camera at one zoom and resolution",
-                )
-            )
-            continue
-        tags = detect_tags(gray, family)
-        say(f"photo {k + 1}/{len(paths)} {path.name}: {len(tags)} tags")
-        ours = {i: c for i, c in tags.items() if i in known}
-        foreign = sorted(set(tags) - known)
-        if not ours:
-            issues.append(_why_no_tags(path.name, gray, family, foreign))
-            continue
-        if foreign:
-            issues.append(
-                PhotoIssue(
-                    path.name,
-                    "warn",
-                    f"tag ids {foreign} are not in the tags file (ignored)",
-                    "add them to the tags file if they belong to the test",
-                )
-            )
-        if len(ours) == 1:
-            issues.append(
-                PhotoIssue(
-                    path.name,
-                    "warn",
-                    f"shows one known tag only (id {next(iter(ours))})",
-                    "a photo ties tags together: show each tag with at least one other",
-                )
-            )
-        photos.append(_Photo(path.name, size, ours, exif_focal_px(path, *size)))
-    return photos, issues
-
-
-def _why_no_tags(name: str, gray: NDArray[np.uint8], family: str, foreign: list[int]) -> PhotoIssue:
-    cv2 = load_cv2()
-    if foreign:
-        return PhotoIssue(
-            name,
-            "skipped",
-            f"only tags {foreign} not in the tags file",
-            "photograph the test's tags",
-        )
-    for other in _OTHER_FAMILIES:
-        if other != family and len(detect_tags(gray, other)) >= 2:
-            return PhotoIssue(
-                name,
-                "skipped",
-                f"tags of family {other} seen, none of {family} (the tags file's family)",
-                f'set family = "{other}" in the tags file, or print {family} tags',
-            )
-    sharp = float(cv2.Laplacian(gray, cv2.CV_64F).var())
-    if sharp < BLUR_LIMIT:
-        return PhotoIssue(
-            name,
-            "skipped",
-            f"no tags found and the photo is blurred (sharpness {sharp:.0f} < {BLUR_LIMIT:.0f})",
-            "hold the camera still, focus on the tags, use more light or a faster shutter",
-        )
-    return PhotoIssue(
-        name,
-        "skipped",
-        "no tags found",
-        "frame the tags, come closer (a tag should span at least 20 px) and avoid glare",
-    )
-
-
 def pose_from_points(
     obj: FloatArray, xy: FloatArray, planar_square: bool
 ) -> tuple[FloatArray, FloatArray, float]:
@@ -231,7 +115,7 @@ def pose_from_points(
 
 def _initial_poses(
     models: list[BodyModel],
-    photos: list[_Photo],
+    photos: list[Photo],
     intr: Intrinsics,
     say: Callable[[str], None],
 ) -> tuple[dict[int, tuple[FloatArray, FloatArray]], dict[int, tuple[FloatArray, FloatArray]]]:
@@ -420,7 +304,7 @@ def geometry_from_photos(
 
 def _photos_of(
     folder: Path, tags: TagsFile, say: Callable[[str], None]
-) -> tuple[list[Path], list[_Photo], list[PhotoIssue], list[BodyModel], set[int]]:
+) -> tuple[list[Path], list[Photo], list[PhotoIssue], list[BodyModel], set[int]]:
     """The photos of ``folder`` with their tags read (:func:`read_photos`), the issues met,
     the tags file's bodies and tag ids.
 
@@ -466,7 +350,7 @@ def _with_placement(body: BodyModel, tags: TagsFile) -> BodyModel:
 
 
 def _start_intrinsics(
-    photos: list[_Photo], camera: tuple[Intrinsics, bool] | None, issues: list[PhotoIssue]
+    photos: list[Photo], camera: tuple[Intrinsics, bool] | None, issues: list[PhotoIssue]
 ) -> tuple[Intrinsics, bool, str]:
     """The intrinsics to start from, whether to refine them, and where they come from: the
     camera file, else the photos' EXIF focal length (median), the image centre, no distortion.
@@ -509,7 +393,7 @@ def _start_intrinsics(
 
 def _views(
     models: list[BodyModel],
-    photos: list[_Photo],
+    photos: list[Photo],
     known: set[int],
     setup: TestSetup | None,
     issues: list[PhotoIssue],
@@ -553,7 +437,7 @@ def _views(
 
 def _tied_observations(
     sub_models: list[BodyModel],
-    photos: list[_Photo],
+    photos: list[Photo],
     cams: dict[int, tuple[FloatArray, FloatArray]],
     poses: dict[int, tuple[FloatArray, FloatArray]],
     unfixed: list[str],

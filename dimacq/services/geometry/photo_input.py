@@ -4,6 +4,8 @@ detector; corners refined on the tag's fitted edges) and the focal length from E
 from __future__ import annotations
 
 import tomllib
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -14,6 +16,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from dimacq.errors import SetupError
 from dimacq.io.validation import refuse
 from dimacq.pipeline.photogrammetry.camera import Intrinsics
+from dimacq.services.geometry.photo_records import PhotoIssue
 
 FloatArray = NDArray[np.float64]
 
@@ -197,3 +200,125 @@ def exif_focal_px(path: Path, width: int, height: int) -> float | None:
     if not f35:
         return None
     return float(f35) / 36.0 * max(width, height)
+
+
+#: Variance of the Laplacian below which a photo without tags is called blurred.
+BLUR_LIMIT = 20.0
+_OTHER_FAMILIES = (
+    "DICT_4X4_250",
+    "DICT_5X5_250",
+    "DICT_6X6_250",
+    "DICT_7X7_250",
+    "DICT_ARUCO_ORIGINAL",
+    "DICT_APRILTAG_16h5",
+    "DICT_APRILTAG_25h9",
+    "DICT_APRILTAG_36h10",
+    "DICT_APRILTAG_36h11",
+)
+
+
+@dataclass
+class Photo:
+    """One usable photo: its file name, size (px), the known tags' corners (px) and its EXIF
+    focal length (px) if it has one."""
+
+    name: str
+    size: tuple[int, int]
+    tags: dict[int, FloatArray]
+    focal_px: float | None
+
+
+def read_photos(
+    paths: Sequence[Path], family: str, known: set[int], say: Callable[[str], None]
+) -> tuple[list[Photo], list[PhotoIssue]]:
+    """The photos' known tags (detected with OpenCV), and an issue naming each photo that is
+    unreadable, of another size than the first, shows no known tag, foreign tags or one tag."""
+    cv2 = load_cv2()
+    photos: list[Photo] = []
+    issues: list[PhotoIssue] = []
+    size0: tuple[int, int] | None = None
+    for k, path in enumerate(paths):
+        gray = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+        if gray is None:
+            issues.append(
+                PhotoIssue(
+                    path.name,
+                    "skipped",
+                    "not an image OpenCV can read",
+                    "remove it or save it as JPEG/PNG",
+                )
+            )
+            continue
+        size = (int(gray.shape[1]), int(gray.shape[0]))
+        if size0 is None:
+            size0 = size
+        if size != size0:
+            issues.append(
+                PhotoIssue(
+                    path.name,
+                    "skipped",
+                    f"{size[0]}x{size[1]} px while the first photo is {size0[0]}x{size0[1]} px",
+                    "take one set with one camera at one zoom and resolution",
+                )
+            )
+            continue
+        tags = detect_tags(gray, family)
+        say(f"photo {k + 1}/{len(paths)} {path.name}: {len(tags)} tags")
+        ours = {i: c for i, c in tags.items() if i in known}
+        foreign = sorted(set(tags) - known)
+        if not ours:
+            issues.append(_why_no_tags(path.name, gray, family, foreign))
+            continue
+        if foreign:
+            issues.append(
+                PhotoIssue(
+                    path.name,
+                    "warn",
+                    f"tag ids {foreign} are not in the tags file (ignored)",
+                    "add them to the tags file if they belong to the test",
+                )
+            )
+        if len(ours) == 1:
+            issues.append(
+                PhotoIssue(
+                    path.name,
+                    "warn",
+                    f"shows one known tag only (id {next(iter(ours))})",
+                    "a photo ties tags together: show each tag with at least one other",
+                )
+            )
+        photos.append(Photo(path.name, size, ours, exif_focal_px(path, *size)))
+    return photos, issues
+
+
+def _why_no_tags(name: str, gray: NDArray[np.uint8], family: str, foreign: list[int]) -> PhotoIssue:
+    cv2 = load_cv2()
+    if foreign:
+        return PhotoIssue(
+            name,
+            "skipped",
+            f"only tags {foreign} not in the tags file",
+            "photograph the test's tags",
+        )
+    for other in _OTHER_FAMILIES:
+        if other != family and len(detect_tags(gray, other)) >= 2:
+            return PhotoIssue(
+                name,
+                "skipped",
+                f"tags of family {other} seen, none of {family} (the tags file's family)",
+                f'set family = "{other}" in the tags file, or print {family} tags',
+            )
+    sharp = float(cv2.Laplacian(gray, cv2.CV_64F).var())
+    if sharp < BLUR_LIMIT:
+        return PhotoIssue(
+            name,
+            "skipped",
+            f"no tags found and the photo is blurred (sharpness {sharp:.0f} < {BLUR_LIMIT:.0f})",
+            "hold the camera still, focus on the tags, use more light or a faster shutter",
+        )
+    return PhotoIssue(
+        name,
+        "skipped",
+        "no tags found",
+        "frame the tags, come closer (a tag should span at least 20 px) and avoid glare",
+    )
