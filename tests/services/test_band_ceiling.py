@@ -1,12 +1,12 @@
 """The second automatic band pass stays below the first's upper edge when the first found an
-elastic mode above its band (dimacq.services.solve.analysis.below_first_elastic_ceiling)."""
+elastic mode above its band (dimacq.services.solve.selection_steps.below_first_elastic_ceiling)."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from dimacq.pipeline.selection.band import BandSuggestion
-from dimacq.services.solve.analysis import below_first_elastic_ceiling
+from dimacq.services.solve.selection_steps import below_first_elastic_ceiling
 
 F = np.arange(1, 161) * 0.125  # 0.125 … 20 Hz
 
