@@ -17,6 +17,7 @@ from dimacq.services.lab.acquisition_views import LiveReview
 if TYPE_CHECKING:
     from dimacq.persistence import ArrayStore, Database
     from dimacq.persistence.queue import Outbox
+    from dimacq.services.lab.devices import DeviceService
     from dimacq.services.lab.store import TestStore
 
 
@@ -178,8 +179,9 @@ def input_states(
 
 class ServiceParts:
     """What the parts of :class:`~dimacq.services.lab.acquisitions.AcquisitionService`
-    (:mod:`~dimacq.services.lab.acquisition_review`, :mod:`~dimacq.services.lab.acquisition_recovery`)
-    use of its state and of each other; declared for the type checker only (empty at run time)."""
+    (:mod:`~dimacq.services.lab.acquisition_review`, :mod:`~dimacq.services.lab.acquisition_recovery`,
+    :mod:`~dimacq.services.lab.acquisition_run`) use of its state and of each other; declared for
+    the type checker only (empty at run time)."""
 
     if TYPE_CHECKING:
         db: Database
@@ -188,6 +190,7 @@ class ServiceParts:
         settings: Settings
         stand: str
         outbox: Outbox
+        devices: DeviceService
         _live: dict[int, LiveReview]
 
         def get(self, acq_id: int) -> AcquisitionInfo | None: ...
@@ -198,3 +201,4 @@ class ServiceParts:
         ) -> AcquisitionInfo: ...
         def _chain(self, acq_id: int) -> list[int]: ...
         def _require_live(self, acq_id: int) -> LiveReview: ...
+        def _supersede(self, acq_id: int, input_index: int) -> None: ...
