@@ -600,6 +600,21 @@ class PooledDelayFit:
         return float(max(self.sigma_s, self.jackknife_s))
 
     @property
+    def scatter_s(self) -> float:
+        """How far one input's delay lies from the run's, RMS, s, as the inputs tell it: the
+        jackknife's pseudo-values ``k τ̂ − (k − 1) τ̂_(i)`` are each input's own say (their
+        mean is ``τ̂``, their spread over ``√k`` the jackknife's standard error), and their
+        spread, taken robustly (``1.4826 · MAD``: an input whose alignment jumped does not
+        count for the others, it is told apart on its own), is the scatter — a drift over the
+        run, a wander between inputs and each input's own bias alike. What removing the run's
+        delay leaves in one input. 0 with one input."""
+        k = self.n_inputs
+        if k < 2:
+            return 0.0
+        pseudo = k * self.delay_s - (k - 1) * self.loo_delays_s
+        return float(1.4826 * np.median(np.abs(pseudo - np.median(pseudo))))
+
+    @property
     def drift_s(self) -> float:
         """How far the inputs' delays lie from the run's, RMS, if it drifts over the run, s:
         a drift linear from ``−D/2`` to ``+D/2`` puts the halves' means ``D/2`` apart and the

@@ -139,12 +139,13 @@ def _refusal(
         else " (the run's delay: its error and the alignment's wander between inputs)"
     )
     if pooled is not None:
-        p, wander, share = pooled
+        p, _wander, share = pooled
         how = (
             f" (the run's delay {1e6 * p.delay_s:+.1f} us fitted on {p.n_inputs} inputs at once: "
             f"jackknife over inputs {1e6 * p.jackknife_s:.1f} us, noise {1e6 * p.sigma_s:.1f} us, "
-            f"its drift between the run's halves {1e6 * wander:.1f} us; the cell's share of the "
-            f"force balance {share:.3g}: {phase * share:.3g} deg of it)"
+            f"the inputs' scatter about it {1e6 * p.scatter_s:.1f} us, its drift between the "
+            f"run's halves {1e6 * p.drift_s:.1f} us; the cell's share of the force balance "
+            f"{share:.3g}: {phase * share:.3g} deg of it)"
         )
     return (
         f"{budget.label}: {where}: the data align its loads to the DAQ's clock within only "
@@ -246,10 +247,13 @@ class DataAligner:
     was put from its whole-run clock fit at each input's records (``alignment_offsets_s``),
     those offsets are taken as known differences of the inputs' delays when the data fit
     better with them than without. An input taking ``τ̂`` is off by ``τ̂``'s error and by
-    how far the delay drifted at its records, which the data tell by the run's halves
-    fitted apart (``drift_s``); every input takes ``τ̂`` when ``√(se² + drift²)`` meets the
-    budget (``se`` never below the noise's ``σ``; its phase at ``band_hz`` weighed by the
-    cell's share of the force balance, :func:`force_share`). Otherwise — the inputs' delays truly
+    how far its own delay lies from the run's: the inputs' scatter about ``τ̂``
+    (``scatter_s``, from the jackknife's pseudo-values: a wander between inputs as well as a
+    drift; an input that jumped is told apart on its own), at least the drift
+    the run's halves fitted apart tell (``drift_s``); every input takes ``τ̂`` when
+    ``u = √(se² + max(scatter, drift)²)`` meets the budget (``se`` never below the noise's
+    ``σ``; its phase at ``band_hz`` weighed by the cell's share of the force balance,
+    :func:`force_share`). Otherwise — the inputs' delays truly
     differ, or the data say too little — each input takes its own fit where that meets the
     budget, and the run is refused (:class:`~dimacq.errors.SetupError`, one line) when any
     input's does not: the data could not support the alignment. One input: its own fit.
@@ -359,7 +363,7 @@ class DataAligner:
                 )
                 if not pooled.offsets_used:
                     offsets = np.zeros(len(entries))
-                wander = pooled.drift_s
+                wander = max(pooled.drift_s, pooled.scatter_s)
                 u = float(np.hypot(pooled.uncertainty_s, wander))
             phase = phase_error_deg(u, budget.band_hz)
             share = force_share(f, H_all[:, rows], budget, [e.j for e in entries])
@@ -377,7 +381,8 @@ class DataAligner:
                     f"{pooled.n_inputs} inputs at once, within {1e6 * u:.1f} us "
                     f"({phase:.2f} deg at {budget.band_hz:g} Hz; jackknife over inputs "
                     f"{1e6 * pooled.jackknife_s:.1f} us, noise {1e6 * pooled.sigma_s:.1f} us, "
-                    f"its drift between the run's halves {1e6 * wander:.1f} us; the cell's "
+                    f"the inputs' scatter about it {1e6 * pooled.scatter_s:.1f} us, its drift "
+                    f"between the run's halves {1e6 * pooled.drift_s:.1f} us; the cell's "
                     f"share of the force balance {share:.3g}: {phase * share:.3g} deg of it), "
                     "removed from every input"
                     + (
