@@ -226,8 +226,9 @@ def parse_calibration_json(data: Any, source: str = "calibration") -> LoadCellCa
         if key not in data:
             raise DataError(f"{source}: key {key!r} missing")
     _check_text(data, source)
-    fu = _FORCE_UNITS.get(data.get("force_unit", "N"))
-    mu = _MOMENT_UNITS.get(data.get("moment_unit", "N*m"))
+    units = (data.get("force_unit", "N"), data.get("moment_unit", "N*m"))
+    fu = _FORCE_UNITS.get(units[0]) if isinstance(units[0], str) else None
+    mu = _MOMENT_UNITS.get(units[1]) if isinstance(units[1], str) else None
     if fu is None or mu is None:
         raise DataError(
             f"{source}: units {data.get('force_unit')!r}/{data.get('moment_unit')!r} unknown; "

@@ -10,6 +10,7 @@ exist, so a valid one is refused after validation and nothing runs."""
 from __future__ import annotations
 
 import json
+import os
 import tomllib
 from pathlib import Path
 from typing import Any
@@ -120,9 +121,12 @@ def requests(draw: st.DrawFn) -> tuple[str, Any]:
     return route, _replaced(BODIES[route], path, value)
 
 
+#: the default run draws the same 200 of the ~24,000 (route, leaf, value) cases every time (a
+#: suite that passes or fails by chance is a flaky one); ``DIMACQ_FUZZ_RANDOM=1`` draws anew
 FUZZ = settings(
     max_examples=200,
     deadline=None,
+    derandomize=not os.environ.get("DIMACQ_FUZZ_RANDOM"),
     suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow],
 )
 

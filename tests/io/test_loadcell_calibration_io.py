@@ -98,3 +98,8 @@ def test_lbf_and_lbf_in_read_and_the_gauge_count_taken_from_the_file(tmp_path):
     (tmp_path / "kip.json").write_text(json.dumps(d))
     with pytest.raises(DataError, match=r"units 'kip'/'lbf-ft' unknown; use one of \[.*'lbf'"):
         read_calibration(tmp_path / "kip.json")
+    for bad in ([], {"a": 1}, 3.0, None):  # not a unit name: refused, never a crash
+        d["force_unit"] = bad
+        (tmp_path / "odd.json").write_text(json.dumps(d))
+        with pytest.raises(DataError, match=r"units .* unknown; use one of"):
+            read_calibration(tmp_path / "odd.json")
