@@ -602,17 +602,20 @@ class PooledDelayFit:
     @property
     def scatter_s(self) -> float:
         """How far one input's delay lies from the run's, RMS, s, as the inputs tell it: the
-        jackknife's pseudo-values ``k τ̂ − (k − 1) τ̂_(i)`` are each input's own say (their
-        mean is ``τ̂``, their spread over ``√k`` the jackknife's standard error), and their
-        spread, taken robustly (``1.4826 · MAD``: an input whose alignment jumped does not
-        count for the others, it is told apart on its own), is the scatter — a drift over the
-        run, a wander between inputs and each input's own bias alike. What removing the run's
-        delay leaves in one input. 0 with one input."""
+        jackknife's pseudo-values ``p_i = k τ̂ − (k − 1) τ̂_(i)`` are each input's own say
+        (their mean is ``τ̂``, their spread over ``√k`` the jackknife's standard error); their
+        RMS about ``τ̂`` is the scatter — a drift over the run, a wander between inputs and
+        each input's own bias alike — over the inputs within ``5 · 1.4826 · MAD`` of their
+        median (an input whose alignment jumped does not count for the others: it is told
+        apart on its own). What removing the run's delay leaves in one input. 0 with one
+        input."""
         k = self.n_inputs
         if k < 2:
             return 0.0
         pseudo = k * self.delay_s - (k - 1) * self.loo_delays_s
-        return float(1.4826 * np.median(np.abs(pseudo - np.median(pseudo))))
+        dev = np.abs(pseudo - np.median(pseudo))
+        kept = dev <= 5.0 * 1.4826 * np.median(dev)
+        return float(np.sqrt(np.mean((pseudo[kept] - self.delay_s) ** 2)))
 
     @property
     def drift_s(self) -> float:

@@ -262,12 +262,12 @@ def test_pooled_delay_recovers_one_delay_and_its_jackknife_matches_the_scatter()
         fit_pooled_delay(f, H, w[:1], search_s=1e-3, regressors=X)
 
 
-def test_the_inputs_scatter_is_the_robust_spread_of_their_pseudo_values() -> None:
+def test_the_inputs_scatter_is_the_rms_of_their_pseudo_values_without_a_jump() -> None:
     """For a mean of inputs ``x_i`` the leave-one-out means are ``(k x̄ − x_i)/(k − 1)``, so
-    the pseudo-values ``k τ̂ − (k − 1) τ̂_(i)`` are the ``x_i`` themselves: the scatter is
-    ``1.4826 · MAD(x)`` — four inputs 50.7 .. 107.6 µs apart give 23.9 µs, about their sample
-    standard deviation (24.6 µs), where the jackknife's standard error of the mean is half of
-    that; one input that jumped by 1 ms does not move the others' scatter."""
+    the pseudo-values ``k τ̂ − (k − 1) τ̂_(i)`` are the ``x_i`` themselves: the scatter is their
+    RMS about the mean — four inputs 50.7 .. 107.6 µs give 21.3 µs, where the jackknife's
+    standard error of the mean is about half of that; one input that jumped by 1 ms does not
+    count for the others' scatter."""
     from dimacq.pipeline.stream_alignment import PooledDelayFit
 
     def fit(x: np.ndarray) -> PooledDelayFit:
@@ -276,9 +276,10 @@ def test_the_inputs_scatter_is_the_robust_spread_of_their_pseudo_values() -> Non
         return PooledDelayFit(m, 0.0, 0.0, loo, x, 0.0)
 
     x = np.array([50.7, 107.6, 75.4, 93.5]) * 1e-6
-    mad = np.median(np.abs(x - np.median(x)))
-    assert fit(x).scatter_s == pytest.approx(1.4826 * mad, rel=1e-9)
-    assert fit(x).scatter_s == pytest.approx(23.9e-6, abs=0.1e-6)
+    assert fit(x).scatter_s == pytest.approx(np.sqrt(np.mean((x - x.mean()) ** 2)), rel=1e-9)
+    assert fit(x).scatter_s == pytest.approx(21.3e-6, abs=0.1e-6)
     jumped = np.array([300.0, 300.1, 299.9, 300.0, 1300.0]) * 1e-6
-    assert fit(jumped).scatter_s < 0.2e-6
+    assert fit(jumped).scatter_s < 210e-6  # the four about the five's mean (500 µs), not ±400
+    four = np.array([300.0, 300.1, 299.9, 300.0]) * 1e-6
+    assert fit(four).scatter_s < 0.1e-6
     assert PooledDelayFit(x[0], 0.0, 0.0, x[:1], x[:1], 0.0).scatter_s == 0.0
