@@ -2,8 +2,10 @@
 channels, timing, export signals and readers call with NI's attribute ids) for a cDAQ chassis of
 NI 9234 and NI 9237 modules, written from NI's documents, not from dimacq's plan:
 
-- a task's modules share one master timebase: the one named ``master`` (default: the device of
-  the task's first channel); data rate ``fs = (fM/256)/n``, ``n = 1..31``, coerced up to the
+- a task's modules share one master timebase: the one named ``master`` (default: an NI 9234's
+  when the task has one, NI's default (NI KB "Valid Sampling Rates for the NI 9233, NI 9234,
+  and NI 9237": a 9237 in a task with a 9234 runs at the 9234's rates), else the device of the
+  task's first channel); data rate ``fs = (fM/256)/n``, ``n = 1..31``, coerced up to the
   next rate (NI KB kA00Z0000004A0YSAU);
 - an NI 9234 measures ±5 V: a channel whose scaled limits ask more is refused (-200077);
 - an NI 9234 gives 2 mA IEPE current or none (NI 9234 Operating Instructions, Figure 4); an
@@ -225,7 +227,8 @@ class DaqmxTwin:
         self.tasks[handle].trigger = source
 
     def _commit(self, t: _Task) -> None:
-        master = self.master or t.chans[0].device
+        leads = [ch.device for ch in t.chans if self.devices[ch.device] == "NI 9234"]
+        master = self.master or (leads[0] if leads else t.chans[0].device)
         fm = MODELS[self.devices[master]][0]
         top = fm / 256.0
         assert t.asked_hz is not None

@@ -1,26 +1,33 @@
 """ATI Net F/T CAN bus protocol: the message table (driver, simulator and tests share it).
 
 From the Net F/T Installation and Operation Manual (ATI Industrial Automation, document
-9620-05-Net FT, section 15 "CAN Bus Operation"):
+9620-05-Net FT-11, section 15 "CAN Bus Operation"; a public copy is yumpu.com document 54843814,
+pages 89-90), and from two independent public Net F/T CAN clients (an Arduino one and a TI Tiva
+one; see ``tests/drivers/netft/test_netft_can_references.py`` for the exchanges and where they
+come from):
 
 - the Net F/T answers a basic CAN protocol (classic CAN, 11-bit identifiers) that reads its
   force/torque data and system status word without a DeviceNet scanner; its **base address**
-  and bit rate are set with its DIP switches (manual section 3.10), CAN Bus selected on its
+  and bit rate are set with its DIP switches (manual §15.1, referring to §3.10, whose table was
+  not in the copy; both clients ran at 500 kbit/s with base 0x1B0), CAN Bus selected on its
   Communications page;
 - a **request** message to the base address (DLC 1) copies the current force/torque set into an
-  output buffer and sends it: ``0x01`` REQUEST LONG (32-bit values in four messages), ``0x02``
-  REQUEST SHORT (16-bit values in two messages); ``0x04`` BIAS zeros the readings at the current
-  load; a clear-threshold-latch command exists (Table 15.4; its byte is not in the pages read
-  for this module: :data:`CLEAR_THRESHOLD_LATCH` is ``0x08``, the next bit, not confirmed);
-  a request received during a transmission ends it and is served;
+  output buffer and sends it: ``0x01`` REQUEST LONG (32-bit values in four messages; the Arduino
+  client), ``0x02`` REQUEST SHORT (16-bit values in two messages; manual Table 15.2), ``0x04``
+  BIAS zeros the readings at the current load (Table 15.3); a clear-threshold-latch command
+  exists (Table 15.4), but its byte was in neither source: :data:`CLEAR_THRESHOLD_LATCH` is
+  ``0x08``, the next bit, **not confirmed** (the driver never sends it); a request received
+  during a transmission ends it and is served;
 - **little endian**, two's complement: ``56 02`` is ``0x0256``; ``0F CF DA FD`` is
-  ``0xFDDACF0F`` = −35 991 793 (the manual's own examples, :data:`MANUAL_EXAMPLES`);
+  ``0xFDDACF0F`` = −35 991 793 (the manual's own examples, :data:`MANUAL_EXAMPLES`; the
+  manual prints the 32-bit one with a doubled byte, ``0x0F 0xCF 0xDA 0xDA 0xFD``);
 - short answers (Table 15.2): base + 5 = Fx, Tx, Fy, Ty (INT); base + 6 = Fz, Tz, system status,
   sample number (INT);
-- long answers (Table 15.1): four messages of two DINT each. Their order is read here as the
-  short one's, pair by pair: base + 1 = Fx, Tx; base + 2 = Fy, Ty; base + 3 = Fz, Tz;
-  base + 4 = status word, sample number (the table's body was not among the pages read: the
-  identifiers base + 1 .. + 4 follow from base + 5, + 6 being the short ones);
+- long answers (Table 15.1, whose body was not in the copy): four messages of two DINT each;
+  base + 1, + 2, + 3 = the x, y, z axis, force in bytes 0-3 and torque in bytes 4-7 (the Arduino
+  client, whose own test reads ``0F CF DA FD 00 00 00 00`` as force −35 991 793);
+  base + 4 = the status message: read here as status word, sample number, as the short answers
+  carry them (**inferred**: no source decodes it);
 - values are **counts**: force = counts / counts-per-force (its force unit), torque = counts /
   counts-per-torque (its torque unit); the counts per unit are the sensor's calibration, read
   from the device (its configuration page, or the Read Calibration Info command of its
@@ -46,7 +53,9 @@ record sent: a jump is a lost datagram), ``uint32 ft_sequence`` (the sensor's ow
 counter), ``uint32 status``, ``int32 Fx, Fy, Fz, Tx, Ty, Tz`` counts; one record per datagram in
 real-time mode, several in buffered mode.
 
-The Ethernet interface's Read Calibration Info (manual section 11.6, TCP; network byte order)::
+The Ethernet interface's Read Calibration Info (manual §11: TCP port 49151, every command 20
+bytes, every response headed 0x1234, READCALINFO = 1; the structures and unit codes as in ATI's
+Ethernet Axia manual §10.4-10.5, document 9610-05-Ethernet Axia-09; network byte order)::
 
     command   >B19x          READCALINFO = 1, 19 reserved zero bytes
     response  >HBBII6H       header 0x1234, force units, torque units, counts per force,
@@ -108,7 +117,7 @@ class Command(IntEnum):
     CLEAR_THRESHOLD_LATCH = 0x08
 
 
-#: not confirmed by the pages read (see the module docstring)
+#: in no source found (see the module docstring): the next bit after BIAS, never sent
 CLEAR_THRESHOLD_LATCH = Command.CLEAR_THRESHOLD_LATCH
 
 #: the highest base address: base + 6 is still an 11-bit identifier
@@ -412,7 +421,7 @@ class CalibrationInfo:
 
 #: the Net F/T's RDT UDP port
 RDT_PORT = 49152
-#: its TCP command port (Read Calibration Info); not in the manual pages read for this module
+#: its TCP command port (Read Calibration Info; manual §11.1)
 TCP_PORT = 49151
 
 

@@ -10,7 +10,10 @@ Published figures (the sources are cited per entry in :data:`CATALOGUE`):
   internal, 50 kS/s .. 1.613 kS/s). A rate between two of them is coerced **up** to the next
   one (NI KB kA00Z0000004A0YSAU). Modules sampled together share one master timebase: a 9234
   slaved to a 9237's timebase runs at most 50 kS/s (NI CompactRIO manual, "NI 9234 maximum
-  sample rate when synchronizing multiple modules").
+  sample rate when synchronizing multiple modules"). In a task with an NI 9234, NI 9233 and
+  NI 9237 modules run at the NI 9234's rates by default (NI KB "Valid Sampling Rates for the
+  NI 9233, NI 9234, and NI 9237", digital.ni.com/public.nsf/allkb/593CC07F76B1405A862570DE005F6836):
+  :attr:`ModuleSpec.leads_mixed_task`.
 - **Input delay** (the digital filter's delay plus the analogue front end's):
   ``tau = D / fs + t_a``; NI 9237: ``D = 40 + 5/512``, ``t_a = 4.5 µs`` (NI KB
   kA00Z0000004A0YSAU, "Calculate the Input Delay on NI-9237"); NI 9234: ``D = 38.4``,
@@ -73,6 +76,9 @@ class ModuleSpec:
         Input range ±V of a voltage/IEPE module (None: not a voltage input).
     sources : str
         Where the figures come from.
+    leads_mixed_task : bool
+        Its timebase is the task's when it shares a task with modules of another timebase
+        (NI's default), whatever the order of the channels.
     """
 
     model: str
@@ -87,6 +93,7 @@ class ModuleSpec:
     excitation_v: tuple[float, ...]
     sources: str
     range_v: float | None = None
+    leads_mixed_task: bool = False
 
     @property
     def max_rate_hz(self) -> float:
@@ -112,9 +119,12 @@ CATALOGUE: dict[str, ModuleSpec] = {
             "1.652 kS/s .. 51.2 kS/s internal, 0.391 .. 52.734 kS/s external timebase; NI USB-9234 "
             "User Guide: fs = (fM/256)/n, n = 1..31; NI 9234 Operating Instructions, Figure 4: "
             "2 mA IEPE on/off; input delay 38.4/fs + 3 us (the module's manual); NI 9144 User "
-            "Guide, 'NI 9234 Calibration Data': nominal range ±5 V"
+            "Guide, 'NI 9234 Calibration Data': nominal range ±5 V; NI KB 'Valid Sampling "
+            "Rates for the NI 9233, NI 9234, and NI 9237': a 9237 in a task with a 9234 runs at "
+            "the 9234's rates by default"
         ),
         range_v=5.0,
+        leads_mixed_task=True,
     ),
     "NI 9237": ModuleSpec(
         model="NI 9237",

@@ -4,9 +4,11 @@ on their shared timebase, and each channel's input delay. Pure (no ``nidaqmx``):
 prints it without hardware and :class:`~dimacq.drivers.ni.task.NiDsaTask` places its channels
 with it.
 
-Rate of the task: every module of one task runs on one master timebase ``fM``, taken here to be
-the internal timebase of the module of the task's lowest input (the hammer's: an IEPE module's
-13.1072 MHz in the thesis's set-up); each module coerces the rig's rate with
+Rate of the task: every module of one task runs on one master timebase ``fM``: an NI 9234's
+13.1072 MHz when the task has one (a 9237 in a task with a 9234 runs at the 9234's rates by
+default: NI KB "Valid Sampling Rates for the NI 9233, NI 9234, and NI 9237";
+:attr:`~dimacq.drivers.ni.modules.ModuleSpec.leads_mixed_task`), else the internal timebase of
+the module of the task's lowest input; each module coerces the rig's rate with
 :func:`~dimacq.drivers.ni.modules.coerce_rate` on that ``fM`` and the task's rate is theirs (they
 agree: one ``fM``, one rule). NI-DAQmx makes that choice itself; the task reads its
 ``timing.samp_clk_rate`` back and refuses to start when it is not the plan's.
@@ -354,8 +356,8 @@ def locate(rig_input: int, slots: Sequence[ModuleSlot]) -> tuple[ModuleSlot, int
 
 
 def task_rate(slots: Sequence[ModuleSlot], asked_hz: float) -> tuple[float, float, ModuleSlot]:
-    """The data rate of a task over ``slots`` (the first one masters the timebase), its ``fM``
-    and the master.
+    """The data rate of a task over ``slots``, its ``fM`` and the module whose timebase it is:
+    the first module that leads a mixed task (an NI 9234), else the first one.
 
     Raises
     ------
@@ -365,13 +367,13 @@ def task_rate(slots: Sequence[ModuleSlot], asked_hz: float) -> tuple[float, floa
     """
     if not slots:
         raise SetupError("the task has no module; add channels first")
-    master = slots[0]
     unknown = [s for s in slots if s.spec is None]
     if unknown:
         raise SetupError(
             f"{', '.join(f'{s.model} ({s.device})' for s in unknown)} not in the catalogue "
             f"({', '.join(CATALOGUE)}): the rate is known once NI-DAQmx has the task"
         )
+    master = next((s for s in slots if s.spec is not None and s.spec.leads_mixed_task), slots[0])
     spec0 = master.spec
     assert spec0 is not None
     fm = spec0.timebase_hz
@@ -412,7 +414,8 @@ def make_plan(
     master = used[0].device if used else ""
     if used:
         try:
-            rate, fm, _m = task_rate(used, asked_rate_hz)
+            rate, fm, lead = task_rate(used, asked_rate_hz)
+            master = lead.device
         except SetupError as err:
             refusals.append(f"daq.sample_rate_hz: {err}")
     chans = []

@@ -128,8 +128,10 @@ def test_the_plan_refuses_an_excitation_the_9237_does_not_offer() -> None:
 
 
 def test_the_plan_reports_the_coerced_rate_and_the_delays() -> None:
-    """9234 masters the timebase: 2000 Hz asked -> 2048 Hz for every module; the 9237 masters:
-    2048 Hz asked -> 50000/24 = 2083.33 Hz."""
+    """9234 masters the timebase: 2000 Hz asked -> 2048 Hz for every module, whatever the order
+    of the modules (NI KB "Valid Sampling Rates for the NI 9233, NI 9234, and NI 9237": "If you
+    have a 9233 or 9237 in a task with a 9234 it will run at the 9234 rates by default"); the
+    9237 alone: 2048 Hz asked -> 50000/24 = 2083.33 Hz."""
     reqs = [
         ChannelRequest(0, "hammer", "force", "hammers.0", 2.0),
         ChannelRequest(1, "1+X", "accel", "responses.0", 2.0),
@@ -143,6 +145,10 @@ def test_the_plan_reports_the_coerced_rate_and_the_delays() -> None:
     assert d["g01"] == pytest.approx((40 + 5 / 512) / 2048 + 4.5e-6)
     assert plan.delay_spread_s() == pytest.approx((40 + 5 / 512 - 38.4) / 2048 + 1.5e-6)
     rate, fm, master = task_rate(list(reversed(slots)), 2048.0)
+    assert (rate, fm, master.device) == (2048.0, 13.1072e6, "cDAQ1Mod1")
+    bridges_first = make_plan(list(reversed(reqs)), list(reversed(slots)), 2000.0)
+    assert (bridges_first.rate_hz, bridges_first.timebase_device) == (2048.0, "cDAQ1Mod1")
+    rate, fm, master = task_rate(slots[1:], 2048.0)
     assert (round(rate, 6), fm, master.device) == (round(50000 / 24, 6), 12.8e6, "cDAQ1Mod2")
 
 

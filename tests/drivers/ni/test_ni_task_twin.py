@@ -93,11 +93,11 @@ def test_the_rate_ni_daqmx_chose_is_the_one_used(caplog: pytest.LogCaptureFixtur
 
 
 def test_a_rate_that_changed_after_it_was_reported_refuses_the_start() -> None:
-    twin = DaqmxTwin(DEVICES)  # the first channel's module masters the twin's timebase
+    twin = DaqmxTwin(DEVICES)  # NI's default: a 9234's timebase when the task has one
     task = NiDsaTask(twin.module(), _slots())
     task.add_channel(ChannelConfig(8, "LC501 g01", "mV/V", 5e-3, 0.1, 0, "DC"))
     task.configure_timing(2048.0)
-    assert task.sample_rate_hz == pytest.approx(50000 / 24)  # the 9237's 12.8 MHz
+    assert task.sample_rate_hz == pytest.approx(50000 / 24)  # a 9237 alone: its 12.8 MHz
     task.add_force_channel(0, "hammer", 2.25, iepe_current_ma=2.0)  # now a 9234 leads
     with pytest.raises(SetupError, match=r"runs the modules at 2048 Hz, but 2083.33 Hz was rep"):
         task.start()
