@@ -51,6 +51,7 @@ TARGETS: dict[str, tuple[str, str, tuple[str, ...]]] = {
         "drivers/netft/protocol.py",
         (
             "tests/drivers/netft/test_netft_can_protocol.py",
+            "tests/drivers/netft/test_netft_can_references.py",
             "tests/drivers/test_can_reference_exchanges.py",
             "tests/simulators/netft/test_netft_can_sim.py",
             # the RDT codec's exchanges (its timing tests are the alignment's, not the codec's)

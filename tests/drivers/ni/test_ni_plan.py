@@ -189,3 +189,33 @@ def test_catalogue_slots_number_on_and_refuse_overlaps() -> None:
         catalogue_slots([("M1", "NI 9234", []), ("M2", "NI 9237", [3, 4])])
     with pytest.raises(SetupError, match="not in the catalogue"):
         catalogue_slots([("M1", "NI 9250", [])])
+
+
+def test_every_catalogue_figure_and_its_source() -> None:
+    """Each figure of the catalogue against the NI document it comes from:
+
+    - NI 9234: NI-9234 Specifications, Table 2 (internal master timebase 13.1072 MHz) and
+      Table 3 (data rate 1.652 .. 51.2 kS/s internal, 0.391 .. 52.734 kS/s external timebase);
+      NI USB-9234 User Guide, "Understanding NI USB-9234 Data Rates" (``n`` 1 .. 31); NI 9234
+      Operating Instructions, Figure 4 (2 mA IEPE on/off); NI 9144 User Guide, "NI 9234
+      Calibration Data" (±5 V); NI KB "Valid Sampling Rates for the NI 9233, NI 9234, and
+      NI 9237" (a 9237 in a task with a 9234 runs at the 9234's rates). Its input delay
+      ``38.4/fs + 3 µs`` is the one figure not found in NI's pages (see the manual).
+    - NI 9237: NI KB kA00Z0000004A0YSAU (12.8 MHz, ``n`` 1 .. 31, input delay
+      ``(40 + 5/512)/fs + 4.5 µs``); NI 9144 User Guide, "NI 9237 Example Data Rates" (data
+      rate between 391 S/s and 52.734 kS/s).
+    """
+    n34, n37 = CATALOGUE["NI 9234"], CATALOGUE["NI 9237"]
+    assert (n34.timebase_hz, n34.max_rate_hz, n34.n_max) == (13.1072e6, 51200.0, 31)
+    assert n34.ext_rate_range_hz == (391.0, 52734.0)
+    assert n34.timebase_hz / 256 / n34.n_max == pytest.approx(1652.0, abs=0.5)
+    assert (n34.iepe_currents_a, n34.range_v, n34.kind, n34.n_channels) == ((2e-3,), 5.0, "iepe", 4)
+    assert (n34.delay_samples, n34.analog_delay_s) == (38.4, 3e-6)
+    assert n34.leads_mixed_task and not n37.leads_mixed_task
+    assert (n37.timebase_hz, n37.max_rate_hz, n37.n_max) == (12.8e6, 50000.0, 31)
+    assert n37.ext_rate_range_hz == (391.0, 52734.0)
+    assert (n37.delay_samples, n37.analog_delay_s) == (40 + 5 / 512, 4.5e-6)
+    assert (n37.kind, n37.n_channels, n37.iepe_currents_a) == ("bridge", 4, ())
+    # a 9237 on the 9234's 13.1072 MHz (NI's default in a mixed task) stays in its range
+    assert coerce_rate(n37, 51200.0, n34.timebase_hz) == (51200.0, 1)
+    assert coerce_rate(n37, 2000.0, n34.timebase_hz) == (2048.0, 25)
