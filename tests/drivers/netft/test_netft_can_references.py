@@ -148,16 +148,18 @@ def test_the_tiva_clients_short_exchange() -> None:
     each ``hi << 8 | lo`` sign-extended: the twin's bytes through the client's decoder and
     the codec."""
     assert p.Request(p.Command.REQUEST_SHORT).encode() == b"\x02"
-    g = [-0.000002, 0.000003, -0.000004, 0.000005, -0.000006, 0.000007]  # counts -2 .. 7
+    g = [-0.000002, -0.000003, -0.000004, -0.000005, -0.000006, -0.000007]  # counts -2 .. -7
     (got,) = _exchange(g, [(b"\x02", 2)])
     assert sorted(got) == [0x1B5, 0x1B6]
     xy, z = got[0x1B5], got[0x1B6]
     fx, tx, fy, ty = (tiva_int16(xy[i], xy[i + 1]) for i in (0, 2, 4, 6))
     fz, tz = (tiva_int16(z[i], z[i + 1]) for i in (0, 2))
-    assert (fx, fy, fz, tx, ty, tz) == (-2, 3, -4, 5, -6, 7)
-    assert p.decode(BASE, 0x1B5, xy) == p.ShortXY(-2, 5, 3, -6)
+    assert (fx, fy, fz, tx, ty, tz) == (-2, -3, -4, -5, -6, -7)
+    assert xy == bytes.fromhex("fefffbfffdfffaff")
+    assert p.decode(BASE, 0x1B5, xy) == p.ShortXY(-2, -5, -3, -6)
     short_z = p.decode(BASE, 0x1B6, z)
-    assert isinstance(short_z, p.ShortZ) and (short_z.fz, short_z.tz, short_z.status) == (-4, 7, 0)
+    assert isinstance(short_z, p.ShortZ)
+    assert (short_z.fz, short_z.tz, short_z.status) == (-4, -7, 0)
     # the client's decoder and the codec agree on every 16-bit pattern's sign
     for lo, hi in ((0xFF, 0x7F), (0x00, 0x80), (0xFE, 0xFF), (0x56, 0x02)):
         assert tiva_int16(lo, hi) == p.decode_i16(bytes([lo, hi]))
