@@ -178,7 +178,7 @@ class Settings(BaseSettings):
     loadcell_cia404_max_phase_deg: float = Field(default=2.0, gt=0.0)
     # ATI Net F/T on CAN (loadcell = "netft-can" | "netft-can-simulated",
     # dimacq.backends.netft_can): the classic CAN bit rate its DIP switches set, bit/s.
-    loadcell_netft_bitrate: int = Field(default=1_000_000, gt=0, le=1_000_000)
+    loadcell_netft_bitrate: int = Field(default=500_000, gt=0, le=1_000_000)
 
     @model_validator(mode="before")
     @classmethod
