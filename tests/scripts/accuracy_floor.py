@@ -1,9 +1,9 @@
-"""What no FRF-based estimate can beat on the realistic scenarios: the gauge (issue 12).
+"""What no FRF-based estimate can beat on the realistic scenarios: the gauge.
 
 A similarity of the whole instrumentation — translation ``t``, small rotation ``w``, scale
 ``1 + ds`` of every sensor and input together — changes no FRF when the properties move with it
-(``ψᵀ M⁻¹ φ`` is invariant; README, Accuracy, Gauge). So even an *oracle* that knew the true shape
-of the instrumentation exactly can place it only by the stated geometry's priors: the similarity
+(``ψᵀ M⁻¹ φ`` is invariant; the manual's accuracy.md, "Gauge"). So even an *oracle* that knew the
+true shape of the instrumentation exactly can place it only by the stated geometry's priors: the similarity
 that best maps the true points onto the stated ones (least squares, each triax's three
 coordinates, each input's two coordinates normal to its line of action, the gross errors left out
 as a perfect selection would), ::

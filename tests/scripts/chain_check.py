@@ -1,4 +1,4 @@
-"""The measured chain, end to end (issue 22): every impact-test scenario of ``config/scenarios/``
+"""The measured chain, end to end: every impact-test scenario of ``config/scenarios/``
 acquired through the simulated devices on several seeds, then solved with no flags, each result
 against its truth.
 

@@ -1,4 +1,4 @@
-"""How often the mass-line cross-check disagrees with the default DIM (issue 25): over virtual-lab
+"""How often the mass-line cross-check disagrees with the default DIM: over virtual-lab
 scenarios, noise levels and seeds, the largest |z| of each solve, whether an item lies outside
 its combined 95 % interval (``agrees``) and whether the verdict warns (family-wise limit), beside
 both estimators' errors against the simulator's truth (the comparison with the truth is this

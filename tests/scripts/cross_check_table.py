@@ -1,5 +1,5 @@
-"""The README's "Cross-check" table: DIM and the mass-line cross-check against the truth, through
-the command line (``dimacq simulate`` files, ``dimacq solve --json``), as a user would run them.
+"""DIM and the mass-line cross-check against the truth, through the command line (``dimacq
+simulate`` files, ``dimacq solve --json``), as a user would run them.
 
 Cases: the simulator's model FRFs of ``calibration-mass-bungee`` and ``x38`` (noise-free and with
 ``--noise``), of ``calibration-mass-realistic`` and ``x38-realistic`` (their geometry errors), and

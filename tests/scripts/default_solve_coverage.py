@@ -1,7 +1,7 @@
 """Default ``dimacq solve`` (``analyse`` with its defaults: automatic band, selection, refinement)
 over virtual-lab scenarios and seeds: errors, verdicts, 95 % coverage, and ``ok`` answers whose
-truth lies outside an interval (issue 12; the comparison with the simulator's truth is this
-script's, never the solver's).
+truth lies outside an interval (the comparison with the simulator's truth is this script's, never
+the solver's).
 
 For each seed: the errors of mass (%), |CG| (mm) and the largest principal moment (%); the share of
 the mass, the three CG coordinates and the three principal moments whose 95 % interval holds the
