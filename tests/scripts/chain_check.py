@@ -1,4 +1,4 @@
-"""The measured chain, end to end (issue 22): every impact-test scenario of ``config/scenarios/``
+"""The measured chain, end to end: every impact-test scenario of ``config/scenarios/``
 acquired through the simulated devices on several seeds, then solved with no flags, each result
 against its truth.
 
@@ -21,6 +21,7 @@ simulated DAQ's default time-lapse; ``--jobs`` runs cases side by side)::
     python tests/scripts/chain_check.py [--scenarios a,b] [--seeds 0,1,2] [--averages 3]
         [--jobs 2] [--json OUT] [--keep DIR [--reuse]]
 
+It writes its tables to ``chain_check_results.md`` beside it (``--results`` elsewhere).
 ``tests/cli/test_chain_check.py`` runs the short version in CI.
 """
 
@@ -39,6 +40,9 @@ from typing import Any
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT / "tests"))
+from _results import Results, add_results_argument  # noqa: E402
+
 #: Scenarios that describe an impact test on a structure free enough for DIM (the others: on the
 #: ground or a cube family, which the default solve refuses by design, are listed by --all).
 DEFAULT_SCENARIOS = (
@@ -170,7 +174,9 @@ def main() -> None:
     ap.add_argument(
         "--reuse", action="store_true", help="with --keep: solve acquisitions already in DIR again"
     )
+    add_results_argument(ap, __file__)
     a = ap.parse_args()
+    res = Results(__file__, "The measured chain: acquire, solve with no flags, compare", a.results)
     seeds = [int(s) for s in a.seeds.split(",")]
     cases = [(s, seed) for s in a.scenarios.split(",") for seed in seeds]
     with tempfile.TemporaryDirectory() as tmp:
@@ -200,8 +206,69 @@ def main() -> None:
             f"mass {s['worst_mass_pct']:.3f} %, CG {s['worst_cg_mm']:.2f} mm, principal "
             f"{s['worst_pm_pct']:.3f} %; coverage {s['coverage95']:.2f}; ok-miss {s['ok_miss']}"
         )
+    _write_results(res, a.averages, rows, summary)
     if a.json:
         a.json.write_text(json.dumps({"rows": rows, "summary": summary}, indent=2) + "\n")
+
+
+def _write_results(
+    res: Results, averages: int, rows: list[dict[str, Any]], summary: dict[str, Any]
+) -> None:
+    """The per-scenario summary and the per-case rows, into the results file."""
+    res.add(
+        f"`dimacq acquire SCENARIO --seed S --averages-per-input {averages}` through the simulated "
+        "devices (their default imperfections on), then `dimacq solve F.uff --json S.json` with no "
+        "flags; each answer against the scenario's truth. Intervals: the ten parameters and the "
+        "three principal moments (13 per case); ok-miss: `ok` answers whose truth lies beyond an "
+        "interval by more than half its half-width."
+    )
+    res.table(
+        ["scenario", "solved", "refused", "errors", "worst mass %", "worst \\|CG\\| mm"]
+        + ["worst principal %", "95 % coverage", "ok-miss"],
+        [
+            [
+                name if name == "all" else f"`{name}`",
+                s["solved"],
+                s["refused"],
+                s["errors"],
+                f"{s['worst_mass_pct']:.3f}",
+                f"{s['worst_cg_mm']:.2f}",
+                f"{s['worst_pm_pct']:.3f}",
+                f"{s['coverage95']:.2f}",
+                s["ok_miss"],
+            ]
+            for name, s in summary.items()
+        ],
+        "Per scenario",
+    )
+    cases = []
+    for r in rows:
+        if r.get("status") in ("solved", "refused"):
+            cases.append(
+                [
+                    f"`{r['scenario']}`",
+                    r["seed"],
+                    f"{r['status']} {r['verdict']}",
+                    f"{r['band_hz'][0]:g}–{r['band_hz'][1]:g}",
+                    f"{r['mass_pct']:+.3f}",
+                    f"{r['cg_mm']:.2f}",
+                    f"{r['pm_max_pct']:.3f}",
+                    f"{r['covered']}/{r['n_intervals']}",
+                    f"{r['miss']:.2f}",
+                    f"{r['acquire_s']:.0f}",
+                    f"{r['solve_s']:.1f}",
+                ]
+            )
+        else:
+            cases.append([f"`{r['scenario']}`", r["seed"], f"{r['status']}: {r.get('error')}"])
+            cases[-1] += [""] * 8
+    res.table(
+        ["scenario", "seed", "answer", "band Hz", "mass %", "\\|CG\\| mm", "principal %"]
+        + ["intervals holding the truth", "miss", "acquire s", "solve s"],
+        cases,
+        "Per case",
+    )
+    res.write()
 
 
 if __name__ == "__main__":

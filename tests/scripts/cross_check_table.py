@@ -1,5 +1,5 @@
-"""The README's "Cross-check" table: DIM and the mass-line cross-check against the truth, through
-the command line (``dimacq simulate`` files, ``dimacq solve --json``), as a user would run them.
+"""DIM and the mass-line cross-check against the truth, through the command line (``dimacq
+simulate`` files, ``dimacq solve --json``), as a user would run them.
 
 Cases: the simulator's model FRFs of ``calibration-mass-bungee`` and ``x38`` (noise-free and with
 ``--noise``), of ``calibration-mass-realistic`` and ``x38-realistic`` (their geometry errors), and
@@ -10,6 +10,8 @@ principal-moment error (%), and the cross-check's verdict (all items agree / whi
 Run on demand (a few seconds per solve)::
 
     python tests/scripts/cross_check_table.py [--noise 0.01] [--seed 0] [--out DIR]
+
+It writes the table to ``cross_check_table_results.md`` beside it (``--results`` elsewhere).
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "tests"))
 
+from _results import Results, add_results_argument  # noqa: E402
 from _samples import samples_dir  # noqa: E402
 
 from dimacq.cli.main import main  # noqa: E402
@@ -74,14 +77,22 @@ def main_(argv: list[str] | None = None) -> int:
     ap.add_argument("--noise", type=float, default=0.01)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", type=Path, default=None)
+    add_results_argument(ap, __file__)
     a = ap.parse_args(argv)
+    res = Results(__file__, "DIM and the mass-line cross-check against the truth", a.results)
     work = a.out or Path(tempfile.mkdtemp(prefix="cross_check_"))
     work.mkdir(parents=True, exist_ok=True)
-    print(
+    table: list[str] = []
+
+    def say(line: str) -> None:
+        print(line, flush=True)
+        table.append(line)
+
+    say(
         "| case | DIM: mass / CG / principal moments | mass line: mass / CG / principal moments "
         "| cross-check | verdict |"
     )
-    print("| --- | --- | --- | --- | --- |")
+    say("| --- | --- | --- | --- | --- |")
     cases = [
         ("calibration-mass-bungee", 0.0),
         ("calibration-mass-bungee", a.noise),
@@ -97,14 +108,22 @@ def main_(argv: list[str] | None = None) -> int:
         if noise:
             args += ["--noise", f"{noise:g}"]
         if _quiet(args) != 0:
-            print(f"| {scn} | simulate failed | | | |")
+            say(f"| {scn} | simulate failed | | | |")
             continue
         label = f"`{scn}` model FRFs, " + (f"{100 * noise:g} % noise" if noise else "noise-free")
-        print(_row(label, uff, truth, work), flush=True)
+        say(_row(label, uff, truth, work))
     samples = samples_dir()
     if samples.is_dir():
         for f in ("bracket_clean_binary.uff", "bracket_clean_ascii.uff", "bracket_noisy_ascii.uff"):
-            print(_row(f"`{f}` (shared sample)", samples / f, samples / "bracket_truth.json", work))
+            say(_row(f"`{f}` (shared sample)", samples / f, samples / "bracket_truth.json", work))
+    res.add(
+        f"Seed {a.seed}; `dimacq simulate SCENARIO --frf F.uff --truth T.json [--noise N]` then "
+        "`dimacq solve F.uff --json OUT.json` (defaults). Errors against the truth: mass (%), "
+        "largest CG coordinate (mm), largest principal moment (%); the cross-check's agreement "
+        "and largest |z|; the solve's verdict and exit status."
+    )
+    res.add("\n".join(table))
+    res.write()
     return 0
 
 
