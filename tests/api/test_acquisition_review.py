@@ -190,15 +190,18 @@ def _states(a: dict) -> list[tuple[str, int, int, int, str]]:
 
 
 def test_a_review_longer_than_the_fifo_holds_loses_nothing(tmp_path: Path, database_url: str):
-    """The DAQ free-runs at 4x real time into a FIFO of 8 frames (2048 samples, 1/4 s of wall
-    time); the operator looks at the first hit while the DAQ clocks 6 FIFOs' worth: the session
-    drains it, no sample and no strike is lost, every hit is accepted (the reading that waited
-    half a block per block read overflowed here at 2x the rate it drained)."""
-    fifo_frames, n_channels = 8, 5
+    """The DAQ free-runs at 2x real time (not adaptive: it never waits for the host) into a FIFO
+    of 16 frames (4096 samples, 1 s of wall time); the operator looks at the first hit while the
+    DAQ clocks 6 FIFOs' worth: the session drains it, no sample and no strike is lost, every hit
+    is accepted. A session that drains slower than the DAQ clocks (the reading that waited half a
+    block per block read drained at half the rate) overflows whatever the FIFO's size; the FIFO
+    holds 1 s so that a host whose threads are preempted for a fraction of that (a loaded CI
+    machine) loses nothing either."""
+    fifo_frames, n_channels = 16, 5
     imp = dataclasses.replace(
         NONE,
         daq_free_running=True,
-        daq_time_scale=4.0,
+        daq_time_scale=2.0,
         daq_fifo_bytes=fifo_frames * frame_size(256, n_channels),
     )
     with _review_lab(tmp_path, database_url, imperfections=imp) as (c, factory):

@@ -63,7 +63,8 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import asdict
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import asdict, dataclass
 from typing import Literal
 
 import numpy as np
@@ -112,6 +113,17 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class _InputFrf:
+    """One input's FRFs as the worker estimated them, with the alignment's messages."""
+
+    input_index: int
+    freqs: NDArray[np.float64]
+    H: NDArray[np.complex128]
+    coherence: NDArray[np.float64]
+    messages: tuple[str, ...]
 
 
 def _n_gauges(lc: LoadCell) -> int:
@@ -338,20 +350,26 @@ class ImpactSession(ImpactSteps):
         aligner, known = self._aligners(fs)
         # Streamed: an input's FRF is estimated as soon as its averages are in, and its records
         # are dropped (memory: one input's records, not the whole test's).
+        # An input's FRFs are estimated on a worker thread while the next input is struck: the
+        # DAQ free-runs, and its FIFO must be read while they are computed.
         st = RunState(records)
         need = min(s.min_averages, s.averages_per_input)
         stopped = False
-        try:
-            for j in range(n_in):
-                self._acquire_input(j, st, fs)
-                self._input_done(j, st, fs, need, known, aligner)
-            self._stop_devices()
-            stopped = True
-        finally:
-            if not stopped:
-                self._stop_after_error()
-            if self.writer is not None:
-                self.writer.flush()
+        pending: Future[_InputFrf] | None = None
+        with ThreadPoolExecutor(max_workers=1, thread_name_prefix="dimacq-input-frf") as pool:
+            try:
+                for j in range(n_in):
+                    self._acquire_input(j, st, fs)
+                    self._input_done(st, pending)
+                    pending = self._submit_input(pool, j, st, fs, need, known, aligner)
+                self._stop_devices()
+                stopped = True
+                self._input_done(st, pending)
+            finally:
+                if not stopped:
+                    self._stop_after_error()
+                if self.writer is not None:
+                    self.writer.flush()
         short = self._incomplete(st.n_accepted, need)
         H_all, coh_all, freqs = st.H_all, st.coh_all, st.freqs
         assert H_all is not None and coh_all is not None and freqs is not None
@@ -387,40 +405,61 @@ class ImpactSession(ImpactSteps):
         )
         return aligner, known
 
-    def _input_done(
+    def _submit_input(
         self,
+        pool: ThreadPoolExecutor,
         j: int,
         st: RunState,
         fs: float,
         need: int,
         known: KnownResponses,
         aligner: DataAligner,
-    ) -> None:
-        """Input ``j``'s FRFs into the run's arrays when it has ``need`` averages (fewer:
-        incomplete, no FRF, the coherence would be 1); its records dropped."""
-        st.n_accepted.append(len(st.records[j]))
-        if len(st.records[j]) >= need:
-            f_j, H_j, coh_j = self._frf(st.records[j], fs)
-            known.apply(f_j, H_j)
-            # a load cell on its own clock: its residual delay fitted from the data
-            where = f"input {self.input_names[j]}"
-            ranges = [
-                (h.first_sample, h.n_samples)
-                for h in st.history
-                if h.input_index == j and h.accepted
-            ]
-            for msg in aligner.align(j, f_j, H_j, coh_j, where, ranges):
-                self._event({"device": "loadcell", "kind": "alignment", "message": msg})
-            if st.H_all is None:  # filled input by input: no stacking copy at the end
-                st.H_all = np.zeros((*H_j.shape, len(self.input_rows)), dtype=H_j.dtype)
-                st.coh_all = np.zeros((*coh_j.shape, len(self.input_rows)))
-                st.freqs = f_j
-            assert st.coh_all is not None
-            st.H_all[:, :, j] = H_j
-            st.coh_all[:, :, j] = coh_j
-            if self.on_input is not None:
-                self.on_input(j, coh_j)
+    ) -> Future[_InputFrf] | None:
+        """Input ``j``'s FRFs to the worker when it has ``need`` averages (fewer: incomplete, no
+        FRF, the coherence would be 1); its records dropped from the run's state."""
+        recs = st.records[j]
+        st.n_accepted.append(len(recs))
         st.records[j] = []
+        if len(recs) < need:
+            return None
+        ranges = [
+            (h.first_sample, h.n_samples) for h in st.history if h.input_index == j and h.accepted
+        ]
+        return pool.submit(self._input_frf, j, recs, ranges, fs, known, aligner)
+
+    def _input_frf(
+        self,
+        j: int,
+        recs: Sequence[Mapping[str, NDArray[np.float64]]],
+        ranges: list[tuple[int, int]],
+        fs: float,
+        known: KnownResponses,
+        aligner: DataAligner,
+    ) -> _InputFrf:
+        """Input ``j``'s FRFs (worker thread): estimated, the held values' mean effect divided
+        out, a load cell on its own clock aligned from the data (its messages returned)."""
+        f_j, H_j, coh_j = self._frf(recs, fs)
+        known.apply(f_j, H_j)
+        msgs = aligner.align(j, f_j, H_j, coh_j, f"input {self.input_names[j]}", ranges)
+        return _InputFrf(j, f_j, H_j, coh_j, tuple(msgs))
+
+    def _input_done(self, st: RunState, pending: Future[_InputFrf] | None) -> None:
+        """An input's FRFs from the worker into the run's arrays (this thread: the events and
+        ``on_input`` come from the acquisition's own thread, in input order)."""
+        if pending is None:
+            return
+        r = pending.result()
+        for msg in r.messages:
+            self._event({"device": "loadcell", "kind": "alignment", "message": msg})
+        if st.H_all is None:  # filled input by input: no stacking copy at the end
+            st.H_all = np.zeros((*r.H.shape, len(self.input_rows)), dtype=r.H.dtype)
+            st.coh_all = np.zeros((*r.coherence.shape, len(self.input_rows)))
+            st.freqs = r.freqs
+        assert st.coh_all is not None
+        st.H_all[:, :, r.input_index] = r.H
+        st.coh_all[:, :, r.input_index] = r.coherence
+        if self.on_input is not None:
+            self.on_input(r.input_index, r.coherence)
 
     def _stop_devices(self) -> None:
         """Stop the DAQ and the load cells at the run's end; read the cells' rest (so that its
