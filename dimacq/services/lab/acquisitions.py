@@ -58,6 +58,7 @@ from dimacq.services.lab.acquisition_records import (
     RESUMABLE,
     AcquisitionInfo,
     AverageInfo,
+    RawBlocks,
     Record,
     Resume,
     RigFactory,
@@ -78,6 +79,7 @@ __all__ = [
     "AcquisitionInfo",
     "AcquisitionService",
     "AverageInfo",
+    "RawBlocks",
     "RigFactory",
 ]
 
@@ -94,6 +96,9 @@ class AcquisitionService(AcquisitionReview, AcquisitionRecovery, AcquisitionRun)
     rig_factory : callable (settings, setup, config) -> Rig, optional
         Default :func:`dimacq.services.acquisition.rig.build_rig` on the configured devices (which must
         be connected).
+    raw_blocks : callable (acquisition id) -> Path or None, optional
+        Where an acquisition keeps every raw block it reads (an HDF5 file,
+        :func:`dimacq.services.acquisition.rig.raw_writer`); None (default): not kept.
     """
 
     def __init__(
@@ -108,8 +113,10 @@ class AcquisitionService(AcquisitionReview, AcquisitionRecovery, AcquisitionRun)
         *,
         stand: str = "",
         outbox: Outbox | None = None,
+        raw_blocks: RawBlocks | None = None,
     ) -> None:
         self.settings = settings
+        self.raw_blocks = raw_blocks
         self.stand = stand
         self.outbox = outbox if outbox is not None else Outbox()
         self.db = db
