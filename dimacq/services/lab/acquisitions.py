@@ -247,10 +247,11 @@ class AcquisitionService(AcquisitionReview, AcquisitionRecovery, AcquisitionRun)
         return inputs
 
     def _claim_rig(
-        self, struck: TestSetup, cfg: Mapping[str, Any]
+        self, struck: TestSetup, cfg: dict[str, Any]
     ) -> tuple[Any, Any, ImpactSettings | None]:
-        """Claim the DAQ and the load cells, build the rig of the struck inputs and check the
-        settings as applied; on any failure the rig is closed and the claim released.
+        """Claim the DAQ and the load cells, build the rig of the struck inputs, complete the
+        average counts of ``cfg`` (:meth:`_fill_counts`) and check the settings as applied; on
+        any failure the rig is closed and the claim released.
 
         Returns
         -------
@@ -267,6 +268,7 @@ class AcquisitionService(AcquisitionReview, AcquisitionRecovery, AcquisitionRun)
             self.devices.owners.release(claim)
             raise
         try:
+            self._fill_counts(cfg, rig)
             # every setting as applied (request < rig file < rig), before any job starts
             applied = self._check(rig, struck, cfg)
         except BaseException:
@@ -274,6 +276,18 @@ class AcquisitionService(AcquisitionReview, AcquisitionRecovery, AcquisitionRun)
             self.devices.owners.release(claim)
             raise
         return claim, rig, applied
+
+    def _fill_counts(self, cfg: dict[str, Any], rig: Any) -> None:
+        """Write into ``cfg`` the averages per input and the minimum of accepted ones the
+        acquisition runs with and is stored with: the request's, else the rig file's
+        ``[acquisition]``, else the service's ``min_averages`` setting (and the built-in count)."""
+        defaults: Mapping[str, Any] = getattr(rig, "defaults", {})
+        if cfg.get("min_averages") is None:
+            cfg["min_averages"] = defaults.get("min_averages", self.settings.min_averages)
+        if cfg.get("averages_per_input") is None:
+            cfg["averages_per_input"] = defaults.get(
+                "averages_per_input", ImpactSettings().averages_per_input
+            )
 
     def _complete_config(
         self,
@@ -284,17 +298,8 @@ class AcquisitionService(AcquisitionReview, AcquisitionRecovery, AcquisitionRun)
         struck: TestSetup,
         resume: Resume | None,
     ) -> list[list[Record]] | None:
-        """Write into ``cfg`` what the acquisition is stored with (averages, the applied
-        settings, what it resumes, the inputs' names); the kept averages it starts from."""
-        # the minimum of accepted averages per input, stated with the acquisition (the request,
-        # else the rig file's [acquisition], else the service's min_averages setting)
-        defaults: Mapping[str, Any] = getattr(rig, "defaults", {})
-        if cfg.get("min_averages") is None:
-            cfg["min_averages"] = defaults.get("min_averages", self.settings.min_averages)
-        if cfg.get("averages_per_input") is None:
-            cfg["averages_per_input"] = defaults.get(
-                "averages_per_input", ImpactSettings().averages_per_input
-            )
+        """Write into ``cfg`` what the acquisition is stored with (the applied settings, what
+        it resumes, the inputs' names); the kept averages it starts from."""
         # the settings the FRFs are estimated with: a finish after a crash estimates them alike
         cfg["applied"] = json_safe(applied.model_dump()) if applied is not None else None
         prior: list[list[Record]] | None = None
