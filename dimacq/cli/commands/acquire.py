@@ -53,13 +53,18 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from dimacq.cli.progress import ProgressLine, add_quiet, plain
 from dimacq.errors import DataError, SetupError
 from dimacq.model.frf import Channel
+
+if TYPE_CHECKING:
+    from dimacq.model.frf import FrfData
+    from dimacq.model.impact import ImpactSettings
+    from dimacq.services.lab.acquisitions import AcquisitionInfo
 
 
 def register(subparsers: Any) -> None:
@@ -123,9 +128,9 @@ class _Run:
     the accepted averages per setup input (with those a resumed run kept), and its wall and CPU
     seconds."""
 
-    info: Any
-    frf: Any
-    used: Any
+    info: AcquisitionInfo
+    frf: FrfData
+    used: ImpactSettings
     averages: list[tuple[int, bool, list[str]]]
     accepted: list[int]
     wall_s: float
