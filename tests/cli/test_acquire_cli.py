@@ -331,3 +331,47 @@ def test_acquire_interrupted_resumes_striking_only_the_missing_averages(
     # every input complete: nothing left to resume
     assert main([*args, "--resume", "--frf", str(tmp_path / "x.uff")]) == 2
     assert "nothing to strike" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_acquire_killed_resumes_striking_only_the_missing_averages(tmp_path, capsys, no_leaks):
+    """``dimacq acquire --data`` killed (SIGKILL: no cleanup at all) once five averages are
+    stored is continued with --resume: the service finds its acquisition running when it died
+    (interrupted), and only the inputs without their accepted average are struck."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    raw = tmp_path / "raw"
+    args = ["acquire", "calibration-mass-bungee", "--averages-per-input", "1",
+            "--record-samples", "1024", "--data", str(raw), "-q"]  # fmt: skip
+    cmd = [sys.executable, "-m", "dimacq.cli.main", *args, "--frf", str(tmp_path / "x.uff")]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    folder = raw / "arrays" / "acquisitions" / "000001"
+    try:
+        deadline = time.monotonic() + 600
+        while len(list(folder.glob("avg-*.h5"))) < 5:
+            assert proc.poll() is None, proc.stderr.read().decode() if proc.stderr else ""
+            assert time.monotonic() < deadline, "no five averages stored in 10 min"
+            time.sleep(0.05)
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+        if proc.stderr is not None:
+            proc.stderr.close()
+    first = _averages(raw, 1)
+    kept = [sum(a["accepted"] for a in first if a["input_index"] == j) for j in range(24)]
+    assert 0 < sum(kept) < 24, kept
+    rc = main([*args, "--resume", "--frf", str(tmp_path / "resumed.uff"),
+               "--json", str(tmp_path / "acq.json")])  # fmt: skip
+    assert rc == 0, capsys.readouterr().err
+    assert json.loads((tmp_path / "acq.json").read_text())["averages_accepted"] == [1] * 24
+    new = _averages(raw, 2)
+    for j in range(24):
+        mine = [a for a in new if a["input_index"] == j]
+        assert sum(a["accepted"] for a in mine) == 1 - kept[j], j
+        if kept[j]:
+            assert not mine, f"input {j} had its average and was struck again"
+    _, frf = read_uff_test(tmp_path / "resumed.uff")
+    assert frf.H.shape[2] == 24
