@@ -179,7 +179,7 @@ class AcquisitionService(AcquisitionReview, AcquisitionRecovery, AcquisitionRun)
             update={"excitations": tuple(setup.excitations[j] for j in inputs)}
         )
         claim, rig, applied = self._claim_rig(struck, cfg)
-        prior = self._complete_config(cfg, rig, applied, inputs, struck, resume)
+        prior = self._complete_config(cfg, applied, inputs, struck, resume)
         acq_id = self._insert(setup_id, cfg, resume, prior, rig, claim)
         self.devices.owners.rename(claim, f"acquisition {acq_id}")
         live = LiveReview(
@@ -292,7 +292,6 @@ class AcquisitionService(AcquisitionReview, AcquisitionRecovery, AcquisitionRun)
     def _complete_config(
         self,
         cfg: dict[str, Any],
-        rig: Any,
         applied: ImpactSettings | None,
         inputs: list[int],
         struck: TestSetup,
