@@ -51,6 +51,8 @@ def test_acquisition_to_frfs(rig_api) -> None:
     assert a["averages_accepted"] == 6 and a["progress"] == 1.0
     # the service's minimum (setting min_averages = 3) stated with the acquisition, and met
     assert a["config"]["min_averages"] == 3 and a["min_averages"] == 3
+    # ... and in the settings stored as applied (what a finish from kept averages estimates with)
+    assert a["config"]["applied"]["min_averages"] == 3
     assert a["accepted_per_input"] == [3, 3] and a["incomplete_inputs"] == []
     assert all(Path(lab.arrays.path(av["path"])).exists() for av in a["averages"])
     frf = c.get(f"/api/frfs/{a['frf_id']}").json()

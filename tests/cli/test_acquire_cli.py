@@ -222,11 +222,15 @@ def test_acquire_with_incomplete_inputs_keeps_the_rest_and_says_why(tmp_path, ca
 
     def session(rig, setup, cfg, *, on_average, on_progress, **_kw):
         frf = built.model_frf(noise=0.0)
+        record = {"force": np.zeros((1, 64)), "outputs": np.zeros((frf.H.shape[1], 64))}
         for j in range(len(setup.excitations)):
             ok = j not in lost
-            on_average(j, 0, ok, [] if ok else ["load cell 0 samples lost (12)"], None)
+            on_average(j, j, ok, [] if ok else ["load cell 0 samples lost (12)"], record)
         keep = [j for j in range(frf.H.shape[2]) if j not in lost]
-        return replace(frf, H=frf.H[:, :, keep], inputs=tuple(frf.inputs[j] for j in keep))
+        meta = {**frf.meta, "incomplete_inputs": [setup.excitations[j].name for j in sorted(lost)]}
+        return replace(
+            frf, H=frf.H[:, :, keep], inputs=tuple(frf.inputs[j] for j in keep), meta=meta
+        )
 
     monkeypatch.setattr(rig_mod, "run_impact_test", session)
     uff = tmp_path / "part.uff"
@@ -246,50 +250,128 @@ def test_acquire_with_incomplete_inputs_keeps_the_rest_and_says_why(tmp_path, ca
     assert summary["incomplete_inputs"] == names
 
 
-def test_acquire_resume_strikes_only_the_missing_averages(tmp_path, capsys, no_leaks):
-    """Issue 24 on the command line: an acquisition with --data keeps every average as its own
-    file; one cut short (here: the files after input 10's first average removed, as a kill
-    would leave them) is continued with --resume: only the missing averages are struck (input
-    10's second included), and the inputs whose averages were all kept have the FRFs of the
-    uninterrupted run, bit for bit."""
+def _averages(folder: Path, acq_id: int) -> list[dict]:
+    """The averages acquisition ``acq_id`` of the data folder ``folder`` keeps (its array
+    files, as the service writes them): their attributes and records, in number order."""
+    from dimacq.persistence import ArrayStore
+
+    store = ArrayStore(folder / "arrays")
+    out = []
+    for p in sorted((folder / "arrays" / "acquisitions" / f"{acq_id:06d}").glob("avg-*.h5")):
+        arrays, attrs = store.read(p.relative_to(folder / "arrays").as_posix())
+        out.append({**attrs, "record": {k: np.asarray(v) for k, v in arrays.items()}})
+    return out
+
+
+def test_acquire_interrupted_resumes_striking_only_the_missing_averages(
+    tmp_path, capsys, monkeypatch, no_leaks
+):
+    """An acquisition with --data stopped by Ctrl-C once input 11 has begun (the first ten
+    complete) is continued with --resume through the service's resume: every input ends with its
+    two accepted averages, an input complete when interrupted is not struck again (no new
+    average of it), one partly struck gets only its missing ones, and the complete inputs' FRFs
+    are those of the averages kept (estimated from their files)."""
+    from dimacq.cli.progress import ProgressLine
+    from dimacq.model.impact import ImpactSettings
+    from dimacq.services.acquisition.impact_result import records_frf
+    from dimacq.simulators.lab.scenarios import build_scenario
+
     raw = tmp_path / "raw"
     args = ["acquire", "calibration-mass-bungee", "--averages-per-input", "2",
             "--record-samples", "1024", "--data", str(raw), "-q"]  # fmt: skip
-    assert main([*args, "--frf", str(tmp_path / "full.uff")]) == 0
-    with np.load(raw / "frf.npz") as z:
-        h_full = z["H"]
-    files = sorted((raw / "averages").glob("avg-*.h5"))
-    assert len(files) >= 48
-    from dimacq.persistence import ArrayStore
+    update = ProgressLine.update
 
-    store = ArrayStore(raw)
-    cut = None
-    for p in files:  # the kill: after input 10's first accepted average
-        attrs = store.read(p.relative_to(raw).as_posix())[1]
-        if attrs["input_index"] == 10 and attrs["accepted"]:
-            cut = int(attrs["number"])
-            break
-    assert cut is not None
-    for p in files:
-        if int(p.stem.split("-")[1]) > cut:
-            p.unlink()
+    def interrupt_after_ten_inputs(self, fraction, message=""):
+        update(self, fraction, message)
+        if fraction > 20 / 48:  # input 11's first average accepted (2 × 10 of 2 × 24 before)
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(ProgressLine, "update", interrupt_after_ten_inputs)
+    with pytest.raises(KeyboardInterrupt):
+        main([*args, "--frf", str(tmp_path / "x.uff")])
+    monkeypatch.setattr(ProgressLine, "update", update)
+    first = _averages(raw, 1)
+    kept = [
+        [a["record"] for a in first if a["input_index"] == j and a["accepted"]] for j in range(24)
+    ]
+    assert all(len(k) == 2 for k in kept[:10]) and len(kept[10]) >= 1
+    assert sum(map(len, kept)) < 48, "interrupted before the end"
     capsys.readouterr()
     # the folder holds an acquisition: not overwritten without --resume
     assert main([*args, "--frf", str(tmp_path / "x.uff")]) == 2
     assert "--resume" in capsys.readouterr().err
+    assert (
+        main([*args, "--resume", "--averages-per-input", "3", "--frf", str(tmp_path / "x.uff")])
+        == 2
+    )
+    assert "differs from the interrupted acquisition's 2" in capsys.readouterr().err
     rc = main([*args, "--resume", "--frf", str(tmp_path / "resumed.uff"),
                "--json", str(tmp_path / "acq.json")])  # fmt: skip
     assert rc == 0, capsys.readouterr().err
     summary = json.loads((tmp_path / "acq.json").read_text())
     assert summary["averages_accepted"] == [2] * 24
-    new = sorted((raw / "averages").glob("avg-*.h5"))[cut:]
-    accepted_new = [store.read(p.relative_to(raw).as_posix())[1] for p in new]
-    accepted_new = [a for a in accepted_new if a["accepted"]]
-    assert len(accepted_new) == 1 + 2 * 13  # input 10's second, then inputs 11..23
-    assert min(a["input_index"] for a in accepted_new) == 10
-    assert (raw / "acquisition-resumed-1.h5").exists()
+    new = _averages(raw, 2)
+    for j in range(24):  # nothing struck again that was kept: only what was missing
+        mine = [a for a in new if a["input_index"] == j]
+        assert sum(a["accepted"] for a in mine) == 2 - len(kept[j]), j
+        if len(kept[j]) == 2:
+            assert not mine, f"input {j} was complete and was struck again"
+    assert (raw / "acquisition.h5").exists() and (raw / "acquisition-resumed-1.h5").exists()
+    complete = [j for j in range(24) if len(kept[j]) == 2]
+    setup = build_scenario("calibration-mass-bungee", 0).setup
+    struck = setup.model_copy(update={"excitations": tuple(setup.excitations[j] for j in complete)})
+    applied = ImpactSettings.model_validate(
+        json.loads((raw / "acquisition.json").read_text())["applied"]
+    )
+    expected = records_frf([kept[j] for j in complete], first[0]["sample_rate_hz"], applied, struck)
     with np.load(raw / "frf.npz") as z:
-        h = z["H"]
-    np.testing.assert_array_equal(h[:, :, :10], h_full[:, :, :10])
+        np.testing.assert_array_equal(z["H"][:, :, complete], expected.H)
+    _, frf = read_uff_test(tmp_path / "resumed.uff")
+    assert frf.H.shape[2] == 24
+    # every input complete: nothing left to resume
+    assert main([*args, "--resume", "--frf", str(tmp_path / "x.uff")]) == 2
+    assert "nothing to strike" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_acquire_killed_resumes_striking_only_the_missing_averages(tmp_path, capsys, no_leaks):
+    """``dimacq acquire --data`` killed (SIGKILL: no cleanup at all) once five averages are
+    stored is continued with --resume: the service finds its acquisition running when it died
+    (interrupted), and only the inputs without their accepted average are struck."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    raw = tmp_path / "raw"
+    args = ["acquire", "calibration-mass-bungee", "--averages-per-input", "1",
+            "--record-samples", "1024", "--data", str(raw), "-q"]  # fmt: skip
+    cmd = [sys.executable, "-m", "dimacq.cli.main", *args, "--frf", str(tmp_path / "x.uff")]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    folder = raw / "arrays" / "acquisitions" / "000001"
+    try:
+        deadline = time.monotonic() + 600
+        while len(list(folder.glob("avg-*.h5"))) < 5:
+            assert proc.poll() is None, proc.stderr.read().decode() if proc.stderr else ""
+            assert time.monotonic() < deadline, "no five averages stored in 10 min"
+            time.sleep(0.05)
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+        if proc.stderr is not None:
+            proc.stderr.close()
+    first = _averages(raw, 1)
+    kept = [sum(a["accepted"] for a in first if a["input_index"] == j) for j in range(24)]
+    assert 0 < sum(kept) < 24, kept
+    rc = main([*args, "--resume", "--frf", str(tmp_path / "resumed.uff"),
+               "--json", str(tmp_path / "acq.json")])  # fmt: skip
+    assert rc == 0, capsys.readouterr().err
+    assert json.loads((tmp_path / "acq.json").read_text())["averages_accepted"] == [1] * 24
+    new = _averages(raw, 2)
+    for j in range(24):
+        mine = [a for a in new if a["input_index"] == j]
+        assert sum(a["accepted"] for a in mine) == 1 - kept[j], j
+        if kept[j]:
+            assert not mine, f"input {j} had its average and was struck again"
     _, frf = read_uff_test(tmp_path / "resumed.uff")
     assert frf.H.shape[2] == 24

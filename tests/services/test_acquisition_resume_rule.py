@@ -1,8 +1,8 @@
-"""The one resume rule (:mod:`dimacq.services.acquisition.resume`): what is kept, what is next."""
+"""The one resume rule (:func:`dimacq.services.lab.acquisition_recovery.kept_averages`): what is kept, what is next."""
 
 from __future__ import annotations
 
-from dimacq.services.acquisition.resume import kept_averages
+from dimacq.services.lab.acquisition_recovery import kept_averages
 
 
 def test_accepted_averages_of_struck_inputs_are_kept_in_order_and_the_rest_is_missing() -> None:

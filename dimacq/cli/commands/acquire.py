@@ -8,24 +8,31 @@ Usage::
 
 (``--impacts-per-input`` is the same as ``--averages-per-input``, ``--data`` as ``--data-dir``.)
 
-The virtual lab of SCENARIO (a file of ``config/scenarios/``) is read through the rig the
-service and ``dimacq demo`` use (:func:`dimacq.services.acquisition.rig.build_rig`, backends ``simulated``):
-the simulated USB DAQ (pyusb backend) and one simulated CAN FD amplifier per load cell (python-can
-``virtual``), cabled and calibrated as the scenario's rig file says (``config/rigs/<scenario>.toml``,
-else ``config/rig.toml``: certificate sensitivities, load cell calibration files; the simulated
-transducers differ from them within their tolerances). An impact session strikes every input N
-accepted times (the rig file's ``[acquisition]`` gives the other settings), and
-the FRFs (accelerances and the load cells' six loads, as the drivers' calibration matrices give
-them) are written as one whole-test UFF file (the geometry the lab states: the scenario's
-geometry errors applied, never the simulator's truth; + 58 records, binary) that
-``dimacq solve OUT.uff`` reads. ``--data-dir DIR`` keeps the raw blocks in ``DIR/acquisition.h5`` and the FRFs with their
-coherence (which UFF 58 cannot carry) in ``DIR/frf.npz``; and, as the service does, every
-decided average as its own file (``DIR/averages/avg-NNNNN.h5``, written before the next strike)
-with the settings in ``DIR/acquisition.json``. ``--resume`` continues an acquisition of ``DIR``
-that was interrupted (killed, a crash, Ctrl-C): the accepted averages kept there are used and
-only the missing ones are struck (a partly struck input gets its missing averages), with the
-kept settings (seed, record length, window; ``--averages-per-input`` must be the same); the new
-raw blocks go to ``DIR/acquisition-resumed-K.h5``.
+The test runs through the lab's acquisition service, the one the API drives
+(:class:`dimacq.services.lab.acquisitions.AcquisitionService`: the plan of inputs, the impact
+session per input, the averages, the FRF estimation, the recovery and resume), on the simulated
+rig of SCENARIO (a file of ``config/scenarios/``; :func:`dimacq.services.acquisition.rig.build_rig`,
+backends ``simulated``): the simulated USB DAQ (pyusb backend) and one simulated CAN FD amplifier
+per load cell (python-can ``virtual``), cabled and calibrated as the scenario's rig file says
+(``config/rigs/<scenario>.toml``, else ``config/rig.toml``: certificate sensitivities, load cell
+calibration files; the simulated transducers differ from them within their tolerances). Every
+input is struck until N averages are accepted (the rig file's ``[acquisition]`` gives the other
+settings), and the FRFs (accelerances and the load cells' six loads, as the drivers' calibration
+matrices give them) are written as one whole-test UFF file (the geometry the lab states: the
+scenario's geometry errors applied, never the simulator's truth; + 58 records, binary) that
+``dimacq solve OUT.uff`` reads.
+
+``--data-dir DIR`` is the service's data folder: its database (``DIR/dimacq.sqlite``) and every
+decided average as its own file (``DIR/arrays/acquisitions/NNNNNN/avg-NNNNN.h5``, stored before
+the next strike), as ``dimacq serve`` keeps them; the raw blocks in ``DIR/acquisition.h5``, the
+FRFs with their coherence (which UFF 58 cannot carry) in ``DIR/frf.npz`` and the settings asked
+and applied in ``DIR/acquisition.json``. Without it the service works in a temporary folder,
+removed at the end. ``--resume`` continues the last acquisition of ``DIR`` when it was
+interrupted (killed, a crash, Ctrl-C) or ended short, through the service's resume: the accepted
+averages kept there are used and only the missing ones are struck (a partly struck input gets
+its missing averages), with the kept settings (seed, record length, window;
+``--averages-per-input`` must be the same); the new raw blocks go to
+``DIR/acquisition-resumed-K.h5``. Ctrl-C stops the acquisition as the API's stop does.
 The simulated DAQ runs at a time-lapse: simulation_imperfections.daq_time_scale
 (DIMACQ_SIMULATION_IMPERFECTIONS='{"daq_time_scale": 10}') when given, else measured at start
 (half of what this host sustains now, dimacq.backends.time_lapse); the summary says the factor
@@ -38,17 +45,26 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
+import tempfile
 import time
 from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from dimacq.cli.progress import ProgressLine, add_quiet, plain
 from dimacq.errors import DataError, SetupError
 from dimacq.model.frf import Channel
+
+if TYPE_CHECKING:
+    from dimacq.model.frf import FrfData
+    from dimacq.model.impact import ImpactSettings
+    from dimacq.services.lab.acquisitions import AcquisitionInfo
 
 
 def register(subparsers: Any) -> None:
@@ -105,62 +121,60 @@ def _scenario_band(name: str) -> tuple[float, float]:
     return DIM_BAND_HZ
 
 
+@dataclass
+class _Run:
+    """What the acquisition service did for the command: the acquisition as stored, its FRFs,
+    the settings applied, every average of this run (input, accepted, reasons; decision order),
+    the accepted averages per setup input (with those a resumed run kept), and its wall and CPU
+    seconds."""
+
+    info: AcquisitionInfo
+    frf: FrfData
+    used: ImpactSettings
+    averages: list[tuple[int, bool, list[str]]]
+    accepted: list[int]
+    wall_s: float
+    cpu_s: float
+
+
 def run(args: argparse.Namespace) -> int:
     from dimacq.backends.time_lapse import HostLag
     from dimacq.io.uff import check_uff_geometry
     from dimacq.simulators.lab.scenarios import build_scenario
 
     _check_arguments(args)
-    # The truth (``model``), to compare the FRFs with; the rig below builds its own world of the
-    # same scenario and seed, and the drivers know only the rig file and its calibration files.
-    # The setup the acquisition runs on and the file states is the lab's (the scenario's
-    # geometry errors applied: digitized positions, jig orientations, lines of action), never
-    # the simulator's true geometry.
+    # The truth (``model``), to compare the FRFs with; the rig the service builds makes its own
+    # world of the same scenario and seed, and the drivers know only the rig file and its
+    # calibration files. The setup the acquisition runs on and the file states is the lab's
+    # (the scenario's geometry errors applied), never the simulator's true geometry.
     built = build_scenario(args.scenario, args.seed)
     model = built.model
     setup = built.setup
     check_uff_geometry(setup)  # before striking: the FRF file must be able to hold the geometry
     n_in = len(setup.excitations)
-    settings, lapse = _lab_settings(args.scenario)
     lag = HostLag()
-    cfg = _impact_config(args)
-    store, kept, first_number = _average_store(args, cfg, n_in)
     t0 = time.monotonic()
-    total = n_in * args.impacts_per_input
-    averages: list[tuple[int, bool, list[str]]] = [
-        (j, True, []) for j, recs in enumerate(kept or []) for _ in recs
-    ]
-    line = ProgressLine("acquire", quiet=args.quiet)
-    fs_hz = [0.0]
-    on_average = _average_recorder(averages, store, first_number, fs_hz, setup, line)
-
-    def on_progress(fraction: float, message: str) -> None:
-        line.update(fraction, f"[{round(fraction * total)}/{total}] {message}")
-
     data_path = _raw_data_path(args)
-    frf, used, acq_wall_s, acq_cpu_s = _acquire(
-        args, settings, setup, cfg, data_path, kept, lag, line, fs_hz, on_average, on_progress
-    )
-    complete, incomplete = _write_frf_files(args, setup, frf, averages, used)
+    with _service_lab(args, data_path) as (lab, settings, lapse):
+        done = _acquire(args, lab, setup, lag)
+    complete, incomplete = _write_frf_files(args, setup, done)
     elapsed = time.monotonic() - t0
-    rejected = [(j, reasons) for j, ok, reasons in averages if not ok]
-    agreement = _model_agreement(args.scenario, setup, frf, model, used, complete)
+    agreement = _model_agreement(args.scenario, setup, done.frf, model, done.used, complete)
+    used = done.used
     min_averages = min(used.min_averages, used.averages_per_input)
     time_lapse = {
         **lapse.to_json(),
         **lag.to_json(),
-        "acquisition_wall_s": acq_wall_s,
-        "acquisition_cpu_s": acq_cpu_s,
+        "acquisition_wall_s": done.wall_s,
+        "acquisition_cpu_s": done.cpu_s,
     }
-    summary = _summary_json(
-        args, setup, settings, frf, averages, used, agreement, incomplete, data_path, elapsed
-    )
+    summary = _summary_json(args, setup, settings, done, agreement, incomplete, data_path, elapsed)
     summary["time_lapse"] = time_lapse
-    _print_summary(args, setup, frf, rejected, incomplete, min_averages, agreement)
+    _print_summary(args, setup, done, incomplete, min_averages, agreement)
     sys.stdout.write(
         f"time-lapse: {lapse.describe()}; {lag.describe_factors()}; {lag.describe()}; "
-        f"acquisition {acq_wall_s:.1f} s wall, "
-        f"{acq_cpu_s:.1f} s CPU (user + sys)\n"
+        f"acquisition {done.wall_s:.1f} s wall, "
+        f"{done.cpu_s:.1f} s CPU (user + sys)\n"
     )
     sys.stdout.write(f"wrote {args.frf} in {elapsed:.1f} s\n")
     if args.json:
@@ -169,45 +183,49 @@ def run(args: argparse.Namespace) -> int:
     if incomplete:
         raise DataError(
             f"acquisition incomplete: {len(incomplete)} of {n_in} inputs have fewer than "
-            f"{min_averages} accepted averages ({_rejections(setup, averages, incomplete)}); "
+            f"{min_averages} accepted averages ({_rejections(setup, done, incomplete)}); "
             f"{args.frf} holds the FRFs of the {len(complete)} complete inputs only"
         )
     return 0
 
 
 def _check_arguments(args: argparse.Namespace) -> None:
-    """Refuse an average count below 1 or an FRF file that is not UFF, before anything runs."""
+    """Refuse an average count below 1, an FRF file that is not UFF, or ``--resume`` without
+    ``--data``, before anything runs."""
     if args.impacts_per_input < 1:
         raise SetupError(f"--averages-per-input {args.impacts_per_input}: give at least 1")
     if args.frf.suffix.lower() not in (".uff", ".unv"):
         raise SetupError(f"--frf {args.frf}: give a .uff (or .unv) file name")
+    if args.resume and args.data is None:
+        raise SetupError("--resume: give --data DIR, the folder of the interrupted acquisition")
 
 
-def _lab_settings(scenario: str) -> tuple[Any, Any]:
-    """The simulated rig's settings for ``scenario`` and the DAQ time-lapse they run at.
+def _lab_settings(scenario: str, data_dir: Path) -> tuple[Any, Any]:
+    """The settings of the service the command drives (data in ``data_dir``, its SQLite
+    database there; the simulated rig of ``scenario``) and the DAQ time-lapse they run at.
 
     The time-lapse is the setting's ``daq_time_scale``, else what this host sustains now; the
     settings returned carry it, so the simulated DAQ runs at that factor.
     """
     from dimacq.backends.time_lapse import rig_time_lapse
-    from dimacq.config import Settings, scenario_rig_file
+    from dimacq.config import load_settings, scenario_rig_file
 
-    settings = Settings(
+    settings = load_settings(
+        data_dir=data_dir,
+        database_url="",
         daq="simulated",
         loadcell="simulated",
         scenario=scenario,
         rig_file=scenario_rig_file(scenario),
     )
-    lapse = rig_time_lapse(settings.simulation_imperfections, settings.rig_path)
-    settings = settings.model_copy(
-        update={
-            "simulation_imperfections": {
-                **settings.simulation_imperfections,
-                "daq_time_scale": lapse.scale,
-            }
-        }
+    lapse = rig_time_lapse(
+        settings.simulation_imperfections,
+        settings.rig_path,
+        str(settings.loadcell),
+        str(settings.daq),
     )
-    return settings, lapse
+    imperfections = {**settings.simulation_imperfections, "daq_time_scale": lapse.scale}
+    return settings.model_copy(update={"simulation_imperfections": imperfections}), lapse
 
 
 def _impact_config(args: argparse.Namespace) -> dict[str, Any]:
@@ -219,69 +237,6 @@ def _impact_config(args: argparse.Namespace) -> dict[str, Any]:
         "record_samples": args.record_samples,
         "exponential_tau_s": args.exp_tau,
     }
-
-
-def _average_store(
-    args: argparse.Namespace, cfg: dict[str, Any], n_in: int
-) -> tuple[Any, list[list[dict[str, Any]]] | None, int]:
-    """Where each decided average is kept, the averages kept already, and the next number.
-
-    Without ``--data`` nothing is kept; with it, a new acquisition refuses a folder that
-    holds one (``--resume`` continues that), and ``--resume`` reads what the folder keeps.
-    """
-    if args.resume:
-        if args.data is None:
-            raise SetupError("--resume: give --data DIR, the folder of the interrupted acquisition")
-        return _kept_averages(args, cfg, n_in)
-    if args.data is None:
-        return None, None, 1
-    from dimacq.persistence import ArrayStore
-
-    if (args.data / "averages").exists() and any((args.data / "averages").glob("*.h5")):
-        raise SetupError(
-            f"--data {args.data} holds the averages of an acquisition; continue it with "
-            "--resume, or give an empty folder"
-        )
-    return ArrayStore(args.data), None, 1
-
-
-def _average_recorder(
-    averages: list[tuple[int, bool, list[str]]],
-    store: Any,
-    first_number: int,
-    fs_hz: list[float],
-    setup: Any,
-    line: ProgressLine,
-) -> Any:
-    """The session's ``on_average``: note each decided average and keep it before the next strike.
-
-    Each average goes to ``averages`` (input, accepted, reasons) and, with a store, to its own
-    file ``averages/avg-NNNNN.h5`` numbered from ``first_number``; a rejection is noted on the
-    progress line. ``fs_hz[0]`` is the sample rate, known once the rig is configured.
-    """
-
-    def on_average(
-        input_index: int, number: int, accepted: bool, reasons: Any, record: Any
-    ) -> None:
-        averages.append((input_index, accepted, list(reasons)))
-        if store is not None and record is not None:  # durable before the next strike
-            n = first_number + number
-            store.write(
-                f"averages/avg-{n:05d}.h5",
-                record,
-                {
-                    "input_index": input_index,
-                    "number": n,
-                    "accepted": accepted,
-                    "reason": "; ".join(reasons),
-                    "sample_rate_hz": fs_hz[0],
-                },
-            )
-        if not accepted:
-            name = setup.excitations[input_index].name
-            line.note(f"input {name} rejected: {'; '.join(reasons)}")
-
-    return on_average
 
 
 def _raw_data_path(args: argparse.Namespace) -> Path | None:
@@ -296,102 +251,188 @@ def _raw_data_path(args: argparse.Namespace) -> Path | None:
     return args.data / f"acquisition-resumed-{k}.h5"
 
 
-def _write_acquisition_json(data: Path, scenario: str, cfg: dict[str, Any], used: Any) -> None:
-    """Keep the settings asked and applied in ``data/acquisition.json`` (what ``--resume`` reads)."""
+@contextmanager
+def _service_lab(args: argparse.Namespace, raw: Path | None) -> Iterator[tuple[Any, Any, Any]]:
+    """The lab service on ``--data DIR`` (a temporary folder without it), its settings and
+    time-lapse; closed (and the temporary folder removed) on leaving.
+
+    The acquisitions' rig is the simulated one of the settings (:func:`build_rig`; no device is
+    opened before an acquisition asks for it); each acquisition keeps its raw blocks in ``raw``.
+    """
+    from dimacq.services.acquisition.rig import build_rig
+    from dimacq.services.lab.lab import Lab
+
+    tmp = None
+    data_dir = args.data
+    if data_dir is None:
+        tmp = tempfile.TemporaryDirectory(prefix="dimacq-acquire-")
+        data_dir = Path(tmp.name)
+    mpl = os.environ.get("MPLCONFIGDIR")  # the lab points matplotlib into its data folder
+    try:
+        settings, lapse = _lab_settings(args.scenario, data_dir)
+        lab = Lab(settings, open_devices=False, rig_factory=build_rig, raw_blocks=lambda _id: raw)
+        try:
+            yield lab, settings, lapse
+        finally:
+            lab.close()
+    finally:
+        if mpl is None:
+            os.environ.pop("MPLCONFIGDIR", None)
+        else:
+            os.environ["MPLCONFIGDIR"] = mpl
+        if tmp is not None:
+            tmp.cleanup()
+
+
+def _acquire(args: argparse.Namespace, lab: Any, setup: Any, lag: Any) -> _Run:
+    """Start the acquisition (or, with ``--resume``, resume the folder's last one) through the
+    lab's acquisition service, follow it to its end and read its FRFs.
+
+    Raises
+    ------
+    DataError
+        The acquisition failed (its averages are kept in the folder: ``--resume`` goes on).
+    """
+    from dimacq.model.impact import ImpactSettings
+
+    total = len(setup.excitations) * args.impacts_per_input
+    t_acq, cpu_acq = time.monotonic(), time.process_time()
+    with lag.recording():
+        info = _start_or_resume(args, lab, setup)
+        if args.data is not None:
+            _write_acquisition_json(args.data, args.scenario, info.config)
+        snap = _follow(lab, info, setup, total, ProgressLine("acquire", quiet=args.quiet))
+    wall_s, cpu_s = time.monotonic() - t_acq, time.process_time() - cpu_acq
+    info = lab.acquisitions.get(info.id)
+    if snap["state"] != "succeeded" or info.frf_id is None:
+        kept = f"; its averages are kept in {args.data}: --resume goes on" if args.data else ""
+        raise DataError(f"{snap.get('error') or info.message or snap['message']}{kept}")
+    averages = [
+        (a.input_index, a.accepted, a.reason.split("; ") if a.reason else []) for a in info.averages
+    ]
+    lag.observe_reasons(r for _j, ok, reasons in averages if not ok for r in reasons)
+    lag.observe_reasons(r for st in info.input_states for r in st.get("lost_reasons", []))
+    n_in = len(setup.excitations)
+    per_input = info.accepted_per_input
+    stored = lab.store.frf(info.frf_id)
+    assert stored is not None
+    return _Run(
+        info=info,
+        frf=stored[0],
+        used=ImpactSettings.model_validate(info.config["applied"]),
+        averages=averages,
+        accepted=[per_input[j] if j < len(per_input) else 0 for j in range(n_in)],
+        wall_s=wall_s,
+        cpu_s=cpu_s,
+    )
+
+
+def _start_or_resume(args: argparse.Namespace, lab: Any, setup: Any) -> Any:
+    """A new acquisition of ``setup`` in an empty folder, or the resumption of the folder's last
+    acquisition (``--resume``: only the averages it is missing are struck); the acquisition.
+
+    Raises
+    ------
+    SetupError
+        A new acquisition in a folder that holds one; ``--resume`` on a folder without one, of
+        another scenario or seed, another average count, or with nothing left to strike.
+    """
+    acquisitions = lab.acquisitions
+    total = acquisitions.all(limit=0).total
+    last = acquisitions.all(limit=1, offset=total - 1).items[0] if total else None
+    if not args.resume:
+        if last is not None:
+            raise SetupError(
+                f"--data {args.data} holds the averages of an acquisition; continue it with "
+                "--resume, or give an empty folder"
+            )
+        setup_id = lab.store.save_setup(setup)
+        return acquisitions.start({"setup_id": setup_id, **_impact_config(args)})
+    if last is None:
+        raise SetupError(
+            f"--resume: {args.data} holds no acquisition; give the --data folder of an "
+            "acquisition made with --data"
+        )
+    if lab.store.setup(last.setup_id) != setup:
+        raise SetupError(
+            f"--resume: {args.data} holds an acquisition of another setup than scenario "
+            f"{args.scenario!r} with seed {args.seed}; give that acquisition's scenario and seed"
+        )
+    wanted = int(last.config.get("averages_per_input") or 0)
+    if wanted != args.impacts_per_input:
+        raise SetupError(
+            f"--resume: --averages-per-input {args.impacts_per_input} differs from the "
+            f"interrupted acquisition's {wanted}; give that"
+        )
+    if last.state == "succeeded":
+        raise SetupError(
+            f"--resume: every input in {args.data} has its {wanted} accepted averages; nothing "
+            "to strike (run without --resume into a new folder)"
+        )
+    resumed = acquisitions.resume(last.id)
+    assert resumed is not None
+    return resumed
+
+
+def _follow(lab: Any, info: Any, setup: Any, total: int, line: ProgressLine) -> dict[str, Any]:
+    """Show the acquisition's progress (``[averages/total]`` and the session's message) and
+    each rejected average until its job ends; its job's last state.
+
+    Ctrl-C stops the acquisition as the API's stop does (the averages decided are kept) and
+    is raised again once its job has ended.
+    """
+    from dimacq.services.lab.jobs import FINAL_STATES
+
+    jobs, job_id = lab.jobs, info.job_id
+    version, noted, message, fraction = -1, 0, "", 0.0
+    try:
+        while True:
+            snap = jobs.wait_change(job_id, version, 1.0)
+            assert snap is not None
+            version = snap["version"]
+            if snap["state"] == "running":
+                message = snap["message"]
+                fraction = float(snap["progress"])
+                line.update(fraction, f"[{round(fraction * total)}/{total}] {message}")
+            noted = _note_rejections(lab, info.id, setup, noted, line)
+            if snap["state"] in FINAL_STATES:
+                break
+        if snap["state"] == "succeeded" and fraction < 1.0:
+            line.update(1.0, f"[{total}/{total}] {message}")
+    except KeyboardInterrupt:
+        lab.acquisitions.stop(info.id)
+        jobs.wait(job_id)
+        raise
+    finally:
+        line.close()
+    return dict(snap)
+
+
+def _note_rejections(lab: Any, acq_id: int, setup: Any, noted: int, line: ProgressLine) -> int:
+    """Note on the progress line every average rejected since the first ``noted`` averages;
+    the number of averages seen now."""
+    info = lab.acquisitions.get(acq_id)
+    for a in info.averages[noted:]:
+        if not a.accepted:
+            line.note(f"input {setup.excitations[a.input_index].name} rejected: {a.reason}")
+    return len(info.averages)
+
+
+def _write_acquisition_json(data: Path, scenario: str, config: dict[str, Any]) -> None:
+    """Keep the settings asked and applied in ``data/acquisition.json``."""
     data.mkdir(parents=True, exist_ok=True)
+    asked = {k: v for k, v in config.items() if k != "applied"}
     (data / "acquisition.json").write_text(
         json.dumps(
-            {"scenario": scenario, "config": cfg, "applied": used.model_dump()},
-            indent=2,
+            {"scenario": scenario, "config": asked, "applied": config.get("applied")}, indent=2
         )
         + "\n",
         encoding="utf-8",
     )
 
 
-def _strike(
-    rig: Any, setup: Any, cfg: dict[str, Any], data_path: Path | None, **session: Any
-) -> Any:
-    """Run the impact test on ``rig``; with ``data_path``, the raw blocks are written there too."""
-    from dimacq.io.acquisition_hdf5 import AcquisitionWriter
-    from dimacq.services.acquisition.rig import run_impact_test
-
-    if data_path is None:
-        return run_impact_test(rig, setup, cfg, **session)
-    data_path.parent.mkdir(parents=True, exist_ok=True)
-    sample_rate_hz = rig.daq.sample_rate_hz
-    assert sample_rate_hz is not None  # configured by build_rig
-    with AcquisitionWriter(
-        data_path,
-        sample_rate_hz=sample_rate_hz,
-        daq_channels=rig.daq.channel_names,
-        daq_units=rig.daq_units,
-        n_loadcells=len(rig.loadcells),
-    ) as writer:
-        return run_impact_test(rig, setup, cfg, writer=writer, **session)
-
-
-def _acquire(
-    args: argparse.Namespace,
-    settings: Any,
-    setup: Any,
-    cfg: dict[str, Any],
-    data_path: Path | None,
-    kept: list[list[dict[str, Any]]] | None,
-    lag: Any,
-    line: ProgressLine,
-    fs_hz: list[float],
-    on_average: Any,
-    on_progress: Any,
-) -> tuple[Any, Any, float, float]:
-    """Build the simulated rig and strike; return the FRFs, the settings applied, wall and CPU s.
-
-    The rig, the host-lag recording and the progress line are closed whatever happens; a new
-    acquisition under ``--data`` keeps its settings in ``acquisition.json`` before striking.
-    """
-    from dimacq.services.acquisition.rig import build_rig, impact_settings
-
-    meta = {
-        "source": "dimacq acquire (simulated USB DAQ + CAN load cells)",
-        "scenario": args.scenario,
-    }
-    rig = build_rig(settings, setup, cfg)
-    t_acq, cpu_acq = time.monotonic(), time.process_time()
-    recording = lag.recording()
-    recording.__enter__()
-    try:
-        # min_averages as the service states it: the rig file's [acquisition], else the
-        # min_averages setting (capped at --impacts-per-input by the session)
-        if cfg.get("min_averages") is None:
-            cfg["min_averages"] = rig.defaults.get("min_averages", settings.min_averages)
-        used = impact_settings(rig, cfg)
-        fs_hz[0] = float(rig.daq.sample_rate_hz or 0.0)
-        if args.data is not None and not args.resume:
-            _write_acquisition_json(args.data, args.scenario, cfg, used)
-        frf = _strike(
-            rig,
-            setup,
-            cfg,
-            data_path,
-            on_average=on_average,
-            on_progress=on_progress,
-            meta=meta,
-            prior=kept,
-            on_event=lag.observe,
-        )
-    finally:
-        rig.close()
-        recording.__exit__(None, None, None)
-        line.close()
-    return frf, used, time.monotonic() - t_acq, time.process_time() - cpu_acq
-
-
 def _write_frf_files(
-    args: argparse.Namespace,
-    setup: Any,
-    frf: Any,
-    averages: list[tuple[int, bool, list[str]]],
-    used: Any,
+    args: argparse.Namespace, setup: Any, done: _Run
 ) -> tuple[list[Any], list[str]]:
     """Write the FRFs of the complete inputs; return those inputs and the incomplete names.
 
@@ -401,13 +442,14 @@ def _write_frf_files(
     """
     from dimacq.io.uff import write_uff_test
 
+    frf, used = done.frf, done.used
     have = set(frf.inputs)
     complete = [e for e in setup.excitations if Channel(e.node, e.direction) in have]
     incomplete = [e.name for e in setup.excitations if Channel(e.node, e.direction) not in have]
     if not complete:
         raise DataError(
             f"acquisition incomplete: no input has {min(used.min_averages, used.averages_per_input)}"
-            f" accepted averages ({_rejections(setup, averages)}); nothing written to {args.frf}; "
+            f" accepted averages ({_rejections(setup, done)}); nothing written to {args.frf}; "
             "find the fault and acquire again"
         )
     written = setup if not incomplete else setup.model_copy(update={"excitations": complete})
@@ -448,9 +490,7 @@ def _summary_json(
     args: argparse.Namespace,
     setup: Any,
     settings: Any,
-    frf: Any,
-    averages: list[tuple[int, bool, list[str]]],
-    used: Any,
+    done: _Run,
     agreement: Any,
     incomplete: list[str],
     data_path: Path | None,
@@ -458,6 +498,7 @@ def _summary_json(
 ) -> dict[str, Any]:
     """The ``--json`` summary without its ``time_lapse`` entry (which the caller appends last)."""
     n_in = len(setup.excitations)
+    frf, used = done.frf, done.used
     return {
         "scenario": args.scenario,
         "setup": setup.name,
@@ -470,12 +511,12 @@ def _summary_json(
         "n_inputs": n_in,
         "n_responses": len(frf.outputs),
         "n_lines": frf.n_lines,
-        "averages_accepted": [sum(ok for j, ok, _ in averages if j == i) for i in range(n_in)],
+        "averages_accepted": done.accepted,
         "min_averages": min(used.min_averages, used.averages_per_input),
         "incomplete_inputs": incomplete,
         "averages_rejected": [
             {"input": setup.excitations[j].name, "reasons": reasons}
-            for j, ok, reasons in averages
+            for j, ok, reasons in done.averages
             if not ok
         ],
         "frf_vs_model": agreement.to_json(),
@@ -486,8 +527,7 @@ def _summary_json(
 def _print_summary(
     args: argparse.Namespace,
     setup: Any,
-    frf: Any,
-    rejected: list[tuple[int, list[str]]],
+    done: _Run,
     incomplete: list[str],
     min_averages: int,
     agreement: Any,
@@ -495,6 +535,8 @@ def _print_summary(
     """Write the test's shape, the rejections, the incomplete inputs and the model agreement."""
     out = sys.stdout
     n_in = len(setup.excitations)
+    frf = done.frf
+    rejected = [(j, reasons) for j, ok, reasons in done.averages if not ok]
     out.write(
         f"{setup.name}: {n_in} inputs × {args.impacts_per_input} averages, "
         f"{len(frf.outputs)} outputs ({len(setup.load_cells)} load cells), "
@@ -521,77 +563,14 @@ def _print_summary(
     )
 
 
-#: The settings a resumed acquisition takes from the interrupted one (records and FRFs alike).
-_KEPT_SETTINGS = (
-    "seed",
-    "noise_scale",
-    "record_samples",
-    "pretrigger_samples",
-    "trigger_level_n",
-    "min_averages",
-    "force_window_samples",
-    "exponential_tau_s",
-    "estimator",
-)
-
-
-def _kept_averages(
-    args: argparse.Namespace, cfg: dict[str, Any], n_in: int
-) -> tuple[Any, list[list[dict[str, Any]]], int]:
-    """For ``--resume``: the folder's array store, its accepted averages per input (oldest
-    first) and the number of the next average; ``cfg`` takes the interrupted run's settings."""
-    from dimacq.persistence import ArrayStore
-    from dimacq.services.acquisition.resume import kept_averages
-
-    info_path = args.data / "acquisition.json"
-    try:
-        info = json.loads(info_path.read_text(encoding="utf-8"))
-    except (OSError, ValueError) as err:
-        raise SetupError(
-            f"--resume: {info_path} is missing or unreadable ({err}); give the --data folder "
-            "of an acquisition made with --data"
-        ) from err
-    if info.get("scenario") != args.scenario:
-        raise SetupError(
-            f"--resume: {args.data} holds an acquisition of scenario {info.get('scenario')!r}; "
-            f"give that scenario, not {args.scenario!r}"
-        )
-    old = info.get("config", {})
-    if int(old.get("averages_per_input", 0)) != args.impacts_per_input:
-        raise SetupError(
-            f"--resume: --averages-per-input {args.impacts_per_input} differs from the "
-            f"interrupted acquisition's {old.get('averages_per_input')}; give that"
-        )
-    applied = info.get("applied", {})
-    cfg.update({k: old.get(k, applied.get(k)) for k in _KEPT_SETTINGS if k in old or k in applied})
-    store = ArrayStore(args.data)
-    numbers: list[int] = []
-
-    def averages() -> Iterator[tuple[int, bool, dict[str, Any]]]:
-        for path in sorted((args.data / "averages").glob("avg-*.h5")):
-            arrays, attrs = store.read(path.relative_to(args.data).as_posix())
-            numbers.append(int(attrs["number"]))
-            yield int(attrs["input_index"]), bool(attrs["accepted"]), arrays
-
-    kept = kept_averages(averages(), range(n_in), lambda arrays: arrays)
-    if kept.nothing_to_strike(args.impacts_per_input):
-        raise SetupError(
-            f"--resume: every input in {args.data} has its {args.impacts_per_input} accepted "
-            "averages; nothing to strike (run without --resume into a new folder)"
-        )
-    return store, kept.per_input, max([0, *numbers]) + 1
-
-
-def _rejections(
-    setup: Any, averages: list[tuple[int, bool, list[str]]], names: list[str] | None = None
-) -> str:
+def _rejections(setup: Any, done: _Run, names: list[str] | None = None) -> str:
     """Per input named (all, or ``names``): accepted count and the rejection reasons seen."""
     parts = []
     for j, e in enumerate(setup.excitations):
         if names is not None and e.name not in names:
             continue
-        ok = sum(a for i, a, _ in averages if i == j)
-        why = sorted({r for i, a, rs in averages if i == j and not a for r in rs})
+        ok = done.accepted[j]
+        why = sorted({r for i, a, rs in done.averages if i == j and not a for r in rs})
         parts.append(
             f"{e.name}: {ok} accepted" + (f", rejected for {'; '.join(why)}" if why else "")
         )

@@ -18,6 +18,7 @@ import logging
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field, is_dataclass
+from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
 from pydantic import ValidationError
@@ -47,6 +48,7 @@ __all__ = [
     "build_rig",
     "check_devices",
     "impact_settings",
+    "raw_writer",
     "run_impact_session",
     "run_impact_test",
 ]
@@ -373,6 +375,30 @@ def check_impact_test(rig: Rig, setup: TestSetup, cfg: Mapping[str, Any]) -> Imp
             f"{len(setup.responses)} responses of the setup; use a setup of this rig"
         )
     return impact_settings(rig, cfg)
+
+
+@contextmanager
+def raw_writer(rig: Rig, path: Path | None) -> Iterator[AcquisitionWriter | None]:
+    """The writer that keeps every raw block of an impact test on ``rig`` in the HDF5 file
+    ``path`` (:class:`~dimacq.io.acquisition_hdf5.AcquisitionWriter`: the DAQ's channels
+    ``rig.daq.channel_names`` in units ``rig.daq_units``, each load cell's loads), closed on
+    leaving; None when ``path`` is None (nothing kept)."""
+    if path is None:
+        yield None
+        return
+    from dimacq.io.acquisition_hdf5 import AcquisitionWriter
+
+    sample_rate_hz = rig.daq.sample_rate_hz
+    assert sample_rate_hz is not None  # configured by build_rig
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with AcquisitionWriter(
+        path,
+        sample_rate_hz=sample_rate_hz,
+        daq_channels=rig.daq.channel_names,
+        daq_units=rig.daq_units,
+        n_loadcells=len(rig.loadcells),
+    ) as writer:
+        yield writer
 
 
 def run_impact_test(

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -23,6 +24,10 @@ if TYPE_CHECKING:
 
 #: Builds the acquisition rig (:class:`dimacq.services.acquisition.rig.Rig`) for a setup and a request.
 RigFactory = Callable[[Settings, TestSetup, Mapping[str, Any]], Any]
+
+#: Where an acquisition keeps its raw blocks (an HDF5 file, given the acquisition's id); None:
+#: not kept (its averages are kept whatever this says).
+RawBlocks = Callable[[int], Path | None]
 
 
 @dataclass(frozen=True)
@@ -191,6 +196,7 @@ class ServiceParts:
         stand: str
         outbox: Outbox
         devices: DeviceService
+        raw_blocks: RawBlocks | None
         _live: dict[int, LiveReview]
 
         def get(self, acq_id: int) -> AcquisitionInfo | None: ...

@@ -1,13 +1,21 @@
 """Finishing and resuming an acquisition that ended short (a crash, a stop, a failure): the
 FRFs of its complete inputs from the averages kept on disk, and a new acquisition that strikes
 only what is missing (:class:`AcquisitionRecovery`, a part of
-:class:`~dimacq.services.lab.acquisitions.AcquisitionService`)."""
+:class:`~dimacq.services.lab.acquisitions.AcquisitionService`; the API and ``dimacq acquire
+--resume`` both resume through it).
+
+The resume rule (:func:`kept_averages`): every struck input starts with its accepted averages,
+oldest first, and only the ones it is short of ``averages_per_input`` are struck (the session's
+``prior``: :class:`~dimacq.services.acquisition.session.ImpactSession`). Rejected averages and
+averages of inputs not struck now are left out.
+"""
 
 from __future__ import annotations
 
 import logging
-from collections.abc import Mapping, Sequence
-from typing import Any
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any, Generic, TypeVar
 
 import numpy as np
 from sqlalchemy import select
@@ -19,7 +27,6 @@ from dimacq.errors import (
 from dimacq.model.channels import input_name
 from dimacq.model.impact import ImpactSettings
 from dimacq.persistence import models as m
-from dimacq.services.acquisition.resume import KeptAverages, kept_averages
 from dimacq.services.lab.acquisition_records import (
     ENDED_SHORT,
     INTERNAL_KEYS,
@@ -33,6 +40,52 @@ from dimacq.services.lab.acquisition_records import (
 from dimacq.services.lab.acquisition_views import merge_frfs
 
 log = logging.getLogger("dimacq.services.lab.acquisitions")
+
+T = TypeVar("T")
+R = TypeVar("R")
+
+
+@dataclass(frozen=True)
+class KeptAverages(Generic[R]):
+    """The accepted averages kept, per struck input (in the order of ``inputs``, oldest first)."""
+
+    per_input: list[list[R]]
+
+    def missing(self, averages_per_input: int) -> list[int]:
+        """Averages still to strike per input: ``max(0, N - kept_k)`` with N ``averages_per_input``."""
+        return [max(0, averages_per_input - len(r)) for r in self.per_input]
+
+    def nothing_to_strike(self, averages_per_input: int) -> bool:
+        """True when every input has its ``averages_per_input`` accepted averages."""
+        return not any(self.missing(averages_per_input))
+
+
+def kept_averages(
+    averages: Iterable[tuple[int, bool, T]], inputs: Sequence[int], load: Callable[[T], R]
+) -> KeptAverages[R]:
+    """Group the accepted averages of an ended acquisition by struck input.
+
+    Parameters
+    ----------
+    averages : iterable of (input index, accepted, item)
+        Every average decided, oldest first; ``input index`` as in the setup's excitations.
+    inputs : sequence of int
+        The setup's input indices struck, in their striking order.
+    load : callable (item) -> record
+        Reads an average kept; called only for the accepted averages of ``inputs``, in order
+        (its errors name the average that cannot be read).
+
+    Returns
+    -------
+    KeptAverages
+        ``per_input[k]``: the records of input ``inputs[k]``, oldest first.
+    """
+    where = {j: k for k, j in enumerate(inputs)}
+    kept: list[list[R]] = [[] for _ in inputs]
+    for j, accepted, item in averages:
+        if accepted and j in where:
+            kept[where[j]].append(load(item))
+    return KeptAverages(kept)
 
 
 class AcquisitionRecovery(ServiceParts):
@@ -201,7 +254,7 @@ class AcquisitionRecovery(ServiceParts):
 
     def _kept(self, acq_id: int, inputs: Sequence[int]) -> tuple[KeptAverages[Record], float]:
         """The accepted averages of an acquisition and of those it resumes, per struck input
-        (``inputs`` order; oldest first; :func:`~dimacq.services.acquisition.resume.kept_averages`),
+        (``inputs`` order; oldest first; :func:`kept_averages`),
         read from this stand's disk; and the sample rate.
 
         Raises

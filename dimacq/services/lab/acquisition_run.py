@@ -45,7 +45,7 @@ class AcquisitionRun(ServiceParts):
         claim: Claim | None = None,
         prior: Sequence[Sequence[Record]] | None = None,
     ) -> dict[str, Any]:
-        from dimacq.services.acquisition.rig import run_impact_test
+        from dimacq.services.acquisition.rig import raw_writer, run_impact_test
 
         names: list[str] = list(cfg["input_names"])
         hooks = RunHooks(
@@ -59,20 +59,23 @@ class AcquisitionRun(ServiceParts):
             live,
         )
         state, message = "failed", ""
+        raw = self.raw_blocks(acq_id) if self.raw_blocks is not None else None
         try:
-            frf = run_impact_test(
-                rig,
-                struck,
-                cfg,
-                on_average=hooks.on_average,
-                on_progress=hooks.on_progress,
-                review=hooks.review,  # always: the operator may switch review on or off mid-run
-                should_finish=live.finish.is_set,
-                on_input=hooks.on_input,
-                on_event=self.devices.on_acquisition_event,
-                prior=prior,
-                on_lost=hooks.on_lost,
-            )
+            with raw_writer(rig, raw) as writer:
+                frf = run_impact_test(
+                    rig,
+                    struck,
+                    cfg,
+                    on_average=hooks.on_average,
+                    on_progress=hooks.on_progress,
+                    writer=writer,
+                    review=hooks.review,  # always: the operator may switch review on or off
+                    should_finish=live.finish.is_set,
+                    on_input=hooks.on_input,
+                    on_event=self.devices.on_acquisition_event,
+                    prior=prior,
+                    on_lost=hooks.on_lost,
+                )
             fid = self._store_run_frf(ctx, acq_id, setup_id, setup, cfg, frf)
             state, message = outcome(frf, fid, cfg)
             message += lost_note(names, live.lost)

@@ -58,6 +58,7 @@ from dimacq.services.lab.acquisition_records import (
     RESUMABLE,
     AcquisitionInfo,
     AverageInfo,
+    RawBlocks,
     Record,
     Resume,
     RigFactory,
@@ -78,6 +79,7 @@ __all__ = [
     "AcquisitionInfo",
     "AcquisitionService",
     "AverageInfo",
+    "RawBlocks",
     "RigFactory",
 ]
 
@@ -94,6 +96,9 @@ class AcquisitionService(AcquisitionReview, AcquisitionRecovery, AcquisitionRun)
     rig_factory : callable (settings, setup, config) -> Rig, optional
         Default :func:`dimacq.services.acquisition.rig.build_rig` on the configured devices (which must
         be connected).
+    raw_blocks : callable (acquisition id) -> Path or None, optional
+        Where an acquisition keeps every raw block it reads (an HDF5 file,
+        :func:`dimacq.services.acquisition.rig.raw_writer`); None (default): not kept.
     """
 
     def __init__(
@@ -108,8 +113,10 @@ class AcquisitionService(AcquisitionReview, AcquisitionRecovery, AcquisitionRun)
         *,
         stand: str = "",
         outbox: Outbox | None = None,
+        raw_blocks: RawBlocks | None = None,
     ) -> None:
         self.settings = settings
+        self.raw_blocks = raw_blocks
         self.stand = stand
         self.outbox = outbox if outbox is not None else Outbox()
         self.db = db
@@ -172,7 +179,7 @@ class AcquisitionService(AcquisitionReview, AcquisitionRecovery, AcquisitionRun)
             update={"excitations": tuple(setup.excitations[j] for j in inputs)}
         )
         claim, rig, applied = self._claim_rig(struck, cfg)
-        prior = self._complete_config(cfg, rig, applied, inputs, struck, resume)
+        prior = self._complete_config(cfg, applied, inputs, struck, resume)
         acq_id = self._insert(setup_id, cfg, resume, prior, rig, claim)
         self.devices.owners.rename(claim, f"acquisition {acq_id}")
         live = LiveReview(
@@ -240,10 +247,11 @@ class AcquisitionService(AcquisitionReview, AcquisitionRecovery, AcquisitionRun)
         return inputs
 
     def _claim_rig(
-        self, struck: TestSetup, cfg: Mapping[str, Any]
+        self, struck: TestSetup, cfg: dict[str, Any]
     ) -> tuple[Any, Any, ImpactSettings | None]:
-        """Claim the DAQ and the load cells, build the rig of the struck inputs and check the
-        settings as applied; on any failure the rig is closed and the claim released.
+        """Claim the DAQ and the load cells, build the rig of the struck inputs, complete the
+        average counts of ``cfg`` (:meth:`_fill_counts`) and check the settings as applied; on
+        any failure the rig is closed and the claim released.
 
         Returns
         -------
@@ -260,6 +268,7 @@ class AcquisitionService(AcquisitionReview, AcquisitionRecovery, AcquisitionRun)
             self.devices.owners.release(claim)
             raise
         try:
+            self._fill_counts(cfg, rig)
             # every setting as applied (request < rig file < rig), before any job starts
             applied = self._check(rig, struck, cfg)
         except BaseException:
@@ -268,19 +277,10 @@ class AcquisitionService(AcquisitionReview, AcquisitionRecovery, AcquisitionRun)
             raise
         return claim, rig, applied
 
-    def _complete_config(
-        self,
-        cfg: dict[str, Any],
-        rig: Any,
-        applied: ImpactSettings | None,
-        inputs: list[int],
-        struck: TestSetup,
-        resume: Resume | None,
-    ) -> list[list[Record]] | None:
-        """Write into ``cfg`` what the acquisition is stored with (averages, the applied
-        settings, what it resumes, the inputs' names); the kept averages it starts from."""
-        # the minimum of accepted averages per input, stated with the acquisition (the request,
-        # else the rig file's [acquisition], else the service's min_averages setting)
+    def _fill_counts(self, cfg: dict[str, Any], rig: Any) -> None:
+        """Write into ``cfg`` the averages per input and the minimum of accepted ones the
+        acquisition runs with and is stored with: the request's, else the rig file's
+        ``[acquisition]``, else the service's ``min_averages`` setting (and the built-in count)."""
         defaults: Mapping[str, Any] = getattr(rig, "defaults", {})
         if cfg.get("min_averages") is None:
             cfg["min_averages"] = defaults.get("min_averages", self.settings.min_averages)
@@ -288,6 +288,17 @@ class AcquisitionService(AcquisitionReview, AcquisitionRecovery, AcquisitionRun)
             cfg["averages_per_input"] = defaults.get(
                 "averages_per_input", ImpactSettings().averages_per_input
             )
+
+    def _complete_config(
+        self,
+        cfg: dict[str, Any],
+        applied: ImpactSettings | None,
+        inputs: list[int],
+        struck: TestSetup,
+        resume: Resume | None,
+    ) -> list[list[Record]] | None:
+        """Write into ``cfg`` what the acquisition is stored with (the applied settings, what
+        it resumes, the inputs' names); the kept averages it starts from."""
         # the settings the FRFs are estimated with: a finish after a crash estimates them alike
         cfg["applied"] = json_safe(applied.model_dump()) if applied is not None else None
         prior: list[list[Record]] | None = None

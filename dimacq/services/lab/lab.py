@@ -52,7 +52,7 @@ from dimacq.errors import DatabaseUnavailableError, DimacqError
 from dimacq.persistence import ArrayStore, Database, open_database
 from dimacq.persistence import stands as stand_lease
 from dimacq.persistence.queue import DbJobStore, Outbox
-from dimacq.services.lab.acquisitions import AcquisitionService, RigFactory
+from dimacq.services.lab.acquisitions import AcquisitionService, RawBlocks, RigFactory
 from dimacq.services.lab.calibrations import CalibrationService
 from dimacq.services.lab.common import package_version
 from dimacq.services.lab.devices import DeviceService
@@ -155,6 +155,8 @@ class Lab:
     rig_factory : callable (settings, setup, config) -> Rig, optional
         Builds the acquisition rig (:class:`dimacq.services.acquisition.rig.Rig`); default
         :func:`dimacq.services.acquisition.rig.build_rig` on the configured device backends.
+    raw_blocks : callable (acquisition id) -> Path or None, optional
+        Where each acquisition keeps its raw blocks (:class:`AcquisitionService`); default none.
     """
 
     def __init__(
@@ -163,6 +165,7 @@ class Lab:
         *,
         open_devices: bool = True,
         rig_factory: RigFactory | None = None,
+        raw_blocks: RawBlocks | None = None,
     ) -> None:
         self.settings = settings
         settings.check_data_dir()
@@ -197,6 +200,7 @@ class Lab:
             rig_factory,
             stand=name,
             outbox=self.outbox,
+            raw_blocks=raw_blocks,
         )
         self.calibrations = CalibrationService(
             self.db, name, jobs=self.jobs, settings=settings, owners=self.devices.owners
