@@ -46,6 +46,7 @@ import logging
 import os
 import re
 import resource
+import shlex
 import statistics
 import subprocess
 import sys
@@ -283,7 +284,7 @@ def memory_only(runs: int, label: str) -> int:
     lines = [
         head,
         "",
-        f"- command: `python tests/benchmarks/where_users_wait.py {' '.join(sys.argv[1:])}`",
+        f"- command: `python tests/benchmarks/where_users_wait.py {shlex.join(sys.argv[1:])}`",
         f"- date: {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, commit {commit}"
         + (" (with uncommitted changes)" if dirty else ""),
         f"- at start: {host_line()}",
