@@ -680,8 +680,8 @@ class VirtualLab:
         self._dt_int = 1.0 / (K * fs)
         self._sos: FloatArray | None = None
         if self.anti_alias and self.n_shakers:
-            # here: scipy.signal (and the scipy.stats and scipy.optimize it loads) costs an
-            # impact test's simulator about 40 MB and a second of start-up
+            # here: scipy.signal, with the scipy.stats and scipy.optimize it loads, holds about
+            # 40 MB that an impact test's simulator does not need
             from scipy.signal import butter
 
             self._sos = butter(8, 0.45 * fs, fs=K * fs, output="sos")
