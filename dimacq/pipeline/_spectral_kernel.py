@@ -16,9 +16,11 @@ lines innermost so the compiler vectorises it; the additions run in the same ord
 
 Compiled by numba on first use, cached on disk beside this module (or in the user's cache when
 that is not writable): the first call of a new install takes ~0.5 s, later processes load it in
-~0.15 s. Imported lazily by the estimator, so commands that never estimate FRFs (``dimacq solve``)
-do not load numba. No fast-math: NaN and infinity propagate as in numpy, which the estimator's
-finite-sample check relies on.
+~0.15 s. Imported lazily by the estimator, once a process has summed more than
+:data:`~dimacq.pipeline.frf_estimation.NUMPY_SUMS_BUDGET` products with numpy's equivalent (the
+same bits): commands that estimate few FRFs or none (``dimacq solve``, an impact test) do not
+load numba. No fast-math, no fused multiply-add: NaN and infinity propagate as in numpy, which the
+estimator's finite-sample check relies on.
 """
 
 from __future__ import annotations

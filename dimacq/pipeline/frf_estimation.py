@@ -47,6 +47,8 @@ around the DIM band are only more damped, which is why DIM can use windowed impa
 
 from __future__ import annotations
 
+import sys
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Literal
 
@@ -327,8 +329,6 @@ def _spectral_sums(
     g_yf_abs2 : ndarray, shape (n_lines, n_outputs, n_inputs)
         ``|G_yf|²``, as ``Re(G_yf)² + Im(G_yf)²``.
     """
-    from dimacq.pipeline._spectral_kernel import block_sums  # numba: loaded on first use
-
     n_avg, n_in, n_s = x.shape
     n_out = y.shape[1]
     n_lines = n_s // 2 + 1
@@ -356,6 +356,7 @@ def _spectral_sums(
     spectra = np.empty(n_avg * block * n_lines, dtype=np.complex128)
     scratch = np.empty((block, n_lines))
     windowed = None if wy is None else np.empty((n_avg, block, n_s))
+    block_sums = _block_sums_for(n_avg * n_out * n_in * n_lines)
     for o0 in range(0, n_out, block):
         o1 = min(o0 + block, n_out)
         nb = o1 - o0
@@ -364,13 +365,92 @@ def _spectral_sums(
             yb = np.multiply(yb, wy, out=windowed[:, :nb])
         fy = spectra[: n_avg * nb * n_lines].reshape(n_avg, nb, n_lines)  # contiguous
         ducc0.fft.r2c(yb, axes=(2,), out=fy, nthreads=workers)
-        # Σ_a Y_a F̄_a, Σ_a |Y_a|² and |G_yf|² in one pass over the block while it is in cache
-        # (compiled: _spectral_kernel). A NaN or infinite sample is reported by the caller from
-        # the sums.
+        # Σ_a Y_a F̄_a, Σ_a |Y_a|² and |G_yf|² over the block while it is in cache (compiled:
+        # _spectral_kernel, or numpy's: _numpy_block_sums). A NaN or infinite sample is reported
+        # by the caller from the sums.
         block_sums(fy, fxc, g[o0:o1], g_abs2[o0:o1], g_yy[o0:o1])
         if gff is not None:
             _finish_block(g[o0:o1, 0], g_abs2[o0:o1, 0], g_yy[o0:o1], gff, inv2, scratch[:nb])
     return g_ff, g.transpose(2, 0, 1), g_yy.T, g_abs2.transpose(2, 0, 1)
+
+
+#: Products ``Y F̄`` (averages x outputs x inputs x lines) a process sums with numpy
+#: (:func:`_numpy_block_sums`) before it loads the compiled sums
+#: (:mod:`dimacq.pipeline._spectral_kernel`). Loading numba and the cached kernel costs about
+#: 0.5 s of CPU and 100 MB of memory; numpy's sums take about 11 ns per product more. A process
+#: that sums fewer (an impact test's FRFs: 30 outputs x 5 averages x 2049 lines per input, a
+#: few million in all) never loads numba; one that sums more (a live stream) switches after
+#: spending about numba's load time. Both give the same bits.
+NUMPY_SUMS_BUDGET = 50_000_000
+
+
+class _SumsChoice:
+    """How many products this process has summed with numpy (:data:`NUMPY_SUMS_BUDGET`)."""
+
+    numpy_products = 0
+
+
+def _block_sums_for(n_products: int) -> Callable[..., None]:
+    """The sums for a call of ``n_products`` products: numpy's while the process is within
+    :data:`NUMPY_SUMS_BUDGET` and numba is not loaded, the compiled ones after."""
+    kernel = "dimacq.pipeline._spectral_kernel"
+    if kernel not in sys.modules and _SumsChoice.numpy_products < NUMPY_SUMS_BUDGET:
+        _SumsChoice.numpy_products += n_products
+        return _numpy_block_sums
+    from dimacq.pipeline._spectral_kernel import block_sums
+
+    return block_sums
+
+
+def _numpy_block_sums(
+    spectra: NDArray[np.complex128],
+    inputs_conj: NDArray[np.complex128],
+    g: NDArray[np.complex128],
+    g_abs2: NDArray[np.float64],
+    g_yy: NDArray[np.float64],
+) -> None:
+    """:func:`dimacq.pipeline._spectral_kernel.block_sums` in numpy, bit for bit.
+
+    With ``Y = y_r + i y_i`` and ``F̄ = f_r + i f_i``, summed over averages ``a = 0, 1, …`` in
+    that order from zero::
+
+        Re G_yf += y_r f_r − y_i f_i      Im G_yf += y_r f_i + y_i f_r
+        G_yy    += y_r² + y_i²            |G_yf|² = (Re G_yf)² + (Im G_yf)²
+
+    each product and sum rounded on its own, as the compiled loop does (numpy's complex
+    multiply fuses them, FMA, and differs in the last bit). Same arguments and shapes.
+    """
+    n_avg, n_out, n_lines = spectra.shape
+    n_in = inputs_conj.shape[1]
+    y = spectra.view(np.float64)
+    f = inputs_conj.view(np.float64)
+    gv = g.view(np.float64)
+    y_r, y_i = y[..., 0::2], y[..., 1::2]
+    f_r, f_i = f[..., 0::2], f[..., 1::2]
+    g_r, g_i = gv[..., 0::2], gv[..., 1::2]
+    gv[...] = 0.0
+    g_yy[...] = 0.0
+    with np.errstate(invalid="ignore", over="ignore"):  # NaN and inf kept, as compiled
+        t = np.empty((n_out, n_lines))
+        u = np.empty((n_out, n_lines))
+        for a in range(n_avg):
+            np.multiply(y_r[a], y_r[a], out=t)
+            np.multiply(y_i[a], y_i[a], out=u)
+            t += u
+            g_yy += t
+            for i in range(n_in):
+                np.multiply(y_r[a], f_r[a, i], out=t)
+                np.multiply(y_i[a], f_i[a, i], out=u)
+                t -= u
+                g_r[:, i] += t
+                np.multiply(y_r[a], f_i[a, i], out=t)
+                np.multiply(y_i[a], f_r[a, i], out=u)
+                t += u
+                g_i[:, i] += t
+        for i in range(n_in):
+            np.multiply(g_r[:, i], g_r[:, i], out=g_abs2[:, i])
+            np.multiply(g_i[:, i], g_i[:, i], out=t)
+            g_abs2[:, i] += t
 
 
 def _finish_block(

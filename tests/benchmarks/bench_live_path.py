@@ -7,8 +7,10 @@ driver by a scripted USB device that answers each bulk read with the next frame,
 host asks (the device is never the limit). The host does what the acquisition does per record:
 the driver reads ``RECORD`` samples (header check, CRC-32, 24-bit unpack, scaling, overload
 bookkeeping) into a block, and the record's FRFs are estimated (H1, force and exponential
-windows: :func:`dimacq.pipeline.frf_estimation.estimate_frf`, one FFT thread). The process is
-pinned to one core; the figures are
+windows: :func:`dimacq.pipeline.frf_estimation.estimate_frf`, one FFT thread; its sums in numpy
+until the process has summed ``NUMPY_SUMS_BUDGET`` products (15 s of stream at 128 channels),
+then compiled: a short count measures mostly the slower numpy sums). The process is pinned to
+one core; the figures are
 
     realtime factor = simulated seconds / CPU seconds        (and / wall seconds)
 

@@ -29,10 +29,13 @@ its speed) beside the figures.
 5. **Peak memory** (``--memory``): ``dimacq demo`` and ``dimacq loadcell calibrate --simulated
    --method static`` under ``/usr/bin/time -v`` (maximum resident set size; the demo's step-0
    child process is a process of its own and is reported by the same tool only for the largest
-   process: the figure is the largest process's).
+   process: the figure is the largest process's). ``--memory-only`` runs this section alone,
+   ``--memory-runs`` times per command (taking turns), and writes it into the results file under
+   its ``--label`` (a section of the same label replaced, the file's other sections kept).
 
     python tests/benchmarks/where_users_wait.py [--pairs 5] [--memory] [--live]
            [--skip-flexible] [--flexible x38-flexible-17 ...]
+    python tests/benchmarks/where_users_wait.py --memory-only [--memory-runs 2] [--label after]
 """
 
 from __future__ import annotations
@@ -43,6 +46,7 @@ import logging
 import os
 import re
 import resource
+import shlex
 import statistics
 import subprocess
 import sys
@@ -231,6 +235,72 @@ def peak_rss(cmd: list[str], env: dict[str, str] | None = None) -> tuple[float |
     return (int(m.group(1)) / 1024 if m else None), time.perf_counter() - t0, p.returncode
 
 
+#: The commands of section 5 and their targets, MB of peak resident set.
+MEMORY_COMMANDS: tuple[tuple[str, list[str], float], ...] = (
+    (
+        "dimacq loadcell calibrate --simulated --method static",
+        ["dimacq", "loadcell", "calibrate", "--simulated", "--method", "static"],
+        300.0,
+    ),
+    ("dimacq demo", ["dimacq", "demo", "--quiet"], 350.0),
+)
+
+
+def memory(runs: int) -> list[str]:
+    """Section 5's lines: each command's peak RSS, ``runs`` times (the commands take turns)."""
+    peaks: dict[str, list[float]] = {what: [] for what, _, _ in MEMORY_COMMANDS}
+    lines = []
+    for k in range(runs):
+        for what, cmd, _ in MEMORY_COMMANDS:
+            load = os.getloadavg()[0]
+            rss, wall, rc = peak_rss(cmd)
+            peaks[what].append(rss or 0.0)
+            lines.append(
+                f"- run {k + 1}: `{what}`: {rss or 0:.0f} MB peak (exit {rc}, {wall:.0f} s wall, "
+                f"load average {load:.1f} at its start)"
+            )
+            print(lines[-1], flush=True)
+    for what, _, target in MEMORY_COMMANDS:
+        xs = peaks[what]
+        lines.append(
+            f"- `{what}`: largest {max(xs):.0f} MB, median {statistics.median(xs):.0f} MB over "
+            f"{len(xs)} runs (target ≤ {target:.0f} MB)"
+        )
+    return lines
+
+
+def memory_only(runs: int, label: str) -> int:
+    """Section 5 alone, written into the results file under ``label`` (module docstring)."""
+    commit = subprocess.run(
+        ["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=ROOT
+    ).stdout.strip()
+    dirty = subprocess.run(
+        ["git", "status", "--porcelain", "--", "dimacq", "simulators", "drivers"],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+    ).stdout.strip()
+    head = f"## 5. Peak memory, {label} (maximum resident set size, /usr/bin/time -v)"
+    lines = [
+        head,
+        "",
+        f"- command: `python tests/benchmarks/where_users_wait.py {shlex.join(sys.argv[1:])}`",
+        f"- date: {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, commit {commit}"
+        + (" (with uncommitted changes)" if dirty else ""),
+        f"- at start: {host_line()}",
+        *memory(runs),
+        f"- then: {host_line()}",
+        "",
+    ]
+    old = RESULTS.read_text(encoding="utf-8") if RESULTS.exists() else ""
+    sections = re.split(r"(?m)^(?=## )", old)
+    kept = [x for x in sections if not x.startswith(head)]
+    body = "".join(kept).rstrip("\n") + "\n\n" + "\n".join(lines)
+    RESULTS.write_text(body, encoding="utf-8")
+    print(f"wrote {RESULTS}")
+    return 0
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--pairs", type=int, default=5)
@@ -247,8 +317,15 @@ def main() -> int:
         "--big-json", action="store_true", help="also the X-38 size set's JSON /data (minutes)"
     )
     ap.add_argument("--live-seconds", type=float, default=2.0)
+    ap.add_argument(
+        "--memory-only", action="store_true", help="section 5 alone, into the results file"
+    )
+    ap.add_argument("--memory-runs", type=int, default=2, help="runs of each command (section 5)")
+    ap.add_argument("--label", default="", help="--memory-only: the section's label")
     args = ap.parse_args()
     logging.disable(logging.WARNING)
+    if args.memory_only:
+        return memory_only(args.memory_runs, args.label or "this run")
     sys.path.insert(0, str(ROOT / "tests"))
     from _api_support import TOKEN, make_settings
 
@@ -358,16 +435,7 @@ def main() -> int:
         print("\n".join(lines[-6:]), flush=True)
     if args.memory:
         lines += ["## 5. Peak memory (maximum resident set size, /usr/bin/time -v)", ""]
-        for what, cmd in (
-            (
-                "dimacq loadcell calibrate --simulated --method static",
-                ["dimacq", "loadcell", "calibrate", "--simulated", "--method", "static"],
-            ),
-            ("dimacq demo", ["dimacq", "demo", "--quiet"]),
-        ):
-            rss, wall, rc = peak_rss(cmd)
-            lines.append(f"- `{what}`: {rss or 0:.0f} MB peak (exit {rc}, {wall:.0f} s wall)")
-            print(lines[-1], flush=True)
+        lines += memory(args.memory_runs)
         lines += [f"- then: {host_line()}", ""]
     RESULTS.write_text("\n".join(lines) + "\n", encoding="utf-8")
     print(f"wrote {RESULTS}")

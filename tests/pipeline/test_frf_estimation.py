@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 import scipy.signal
@@ -354,6 +357,64 @@ def test_compiled_block_sums_equal_numpy_and_keep_a_nan_to_its_output() -> None:
     np.testing.assert_allclose(yy, np.sum(np.abs(y) ** 2, axis=0), rtol=1e-14)
     assert np.isnan(yy[1, 7]) and np.isnan(g[1, :, 7]).all() and np.isnan(a2[1, :, 7]).all()
     assert np.isfinite(np.delete(yy.ravel(), 1 * n_l + 7)).all()
+
+
+def test_numpy_block_sums_equal_the_compiled_ones_bit_for_bit() -> None:
+    """numpy's sums (``_numpy_block_sums``: each product and sum rounded on its own, averages in
+    order) give the compiled kernel's bits, not merely its values to rounding: a process gives
+    the same FRFs whichever it uses. Two inputs, NaN and infinity kept to their line, and the
+    contiguous views the estimator passes."""
+    from dimacq.pipeline._spectral_kernel import block_sums
+    from dimacq.pipeline.frf_estimation import _numpy_block_sums
+
+    rng = np.random.default_rng(405)
+    for n_avg, n_out, n_in, n_l in ((5, 3, 2, 33), (1, 7, 1, 1025), (10, 2, 3, 5)):
+        y = rng.standard_normal((n_avg, n_out, n_l)) + 1j * rng.standard_normal((n_avg, n_out, n_l))
+        fc = rng.standard_normal((n_avg, n_in, n_l)) * 1e3 + 1j * rng.standard_normal(
+            (n_avg, n_in, n_l)
+        )
+        y[0, n_out - 1, n_l // 2] = np.nan
+        fc[n_avg - 1, 0, 1] = np.inf
+        out = []
+        for sums in (block_sums, _numpy_block_sums):
+            g = np.full((n_out, n_in, n_l), 7.0 + 7.0j)  # overwritten, not added to
+            a2 = np.full((n_out, n_in, n_l), 7.0)
+            yy = np.full((n_out, n_l), 7.0)
+            sums(y, fc, g, a2, yy)
+            out.append((g, a2, yy))
+        for compiled, numpy_ in zip(*out, strict=True):
+            np.testing.assert_array_equal(numpy_, compiled)
+        np.testing.assert_allclose(
+            out[1][0][: n_out - 1, :, 2:],
+            np.einsum("aol,ail->oil", y, fc)[: n_out - 1, :, 2:],
+            rtol=1e-13,
+            atol=1e-13,
+        )
+
+
+def test_a_process_loads_numba_only_past_its_budget_of_sums() -> None:
+    """An impact test's FRFs are summed by numpy (numba not loaded: about 100 MB); past
+    ``NUMPY_SUMS_BUDGET`` products the compiled sums are loaded; the FRFs are the same bits."""
+    code = """
+import sys
+import numpy as np
+from dimacq.pipeline import frf_estimation as fe
+rng = np.random.default_rng(3)
+x = rng.standard_normal((5, 1, 4096))
+y = rng.standard_normal((5, 30, 4096)) + x
+a = fe.estimate_frf(x, y, 1024.0, estimator="Hv")
+b = fe.estimate_frf(x, y, 1024.0)
+print("numba" in sys.modules)
+fe.NUMPY_SUMS_BUDGET = fe._SumsChoice.numpy_products
+c = fe.estimate_frf(x, y, 1024.0)
+print("numba" in sys.modules, fe._SumsChoice.numpy_products)
+print(np.array_equal(b.H, c.H) and np.array_equal(b.coherence, c.coherence)
+      and np.array_equal(b.g_yy, c.g_yy))
+"""
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True
+    ).stdout.split()
+    assert out == ["False", "True", str(2 * 5 * 30 * 2049), "True"]
 
 
 def test_results_own_their_memory_across_calls_and_threads() -> None:
