@@ -274,6 +274,7 @@ def geometry_from_photos(
         [poses[i][1] for i in body_idx],
         refine_intrinsics=refine,
         progress=lambda n, cost: say(f"adjustment: {n} evaluations, cost {cost:.4g}"),
+        placement=(tags.placement_angle_deg, tags.placement_position_m),
     )
     used = [photos[c].name for c in cam_idx]
     _bundle_issues(bundle, used, issues)
