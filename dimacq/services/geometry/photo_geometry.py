@@ -68,6 +68,7 @@ __all__ = [
     "pose_from_points",
     "read_photos",
     "tied_only",
+    "tied_views",
     "too_uncertain",
 ]
 
@@ -133,40 +134,40 @@ def _initial_poses(
     }
     cams: dict[int, tuple[FloatArray, FloatArray]] = {}
     while True:
+        # photos that see placed bodies: pose from all their corners; a photo showing one
+        # placed tag only waits (a small square's pose is ambiguous: two tilts fit it) until
+        # no photo with two or more is left, then the one whose tag looks largest goes
+        lone: list[tuple[float, int]] = []
         progress = False
-        # photos that see placed bodies: pose from all their corners
         for c, obs in enumerate(norm):
             if c in cams:
                 continue
-            pts_w, pts_xy = [], []
-            for tid, xy in obs.items():
-                bi, t = mount[tid]
-                if bi in bodies:
-                    rb, pb = bodies[bi]
-                    pts_w.append(t.corners_body() @ rb.T + pb)
-                    pts_xy.append(xy)
-            if not pts_w:
-                continue
-            w, xy = np.concatenate(pts_w), np.concatenate(pts_xy)
-            try:
-                cams[c] = _photo_pose(w, xy, len(pts_w), obs, mount, bodies)
-            except DataError:
-                continue  # these points give no pose: the photo stays out
-            progress = True
-        # bodies seen by placed photos: from the photo where their tags look largest
+            placed = [tid for tid in obs if mount[tid][0] in bodies]
+            if len(placed) == 1:
+                lone.append((_area(photos[c].tags[placed[0]]), c))
+            elif len(placed) > 1:
+                progress |= _place_photo(c, obs, mount, bodies, cams)
+        if not progress:
+            for _area_px, c in sorted(lone, reverse=True):
+                if _place_photo(c, norm[c], mount, bodies, cams):
+                    progress = True
+                    break
+        # bodies seen by placed photos: from the photo where their tags look largest, one
+        # showing two or more of them first (one tag alone: the ambiguous square again)
         for bi, b in enumerate(models):
             if bi in bodies:
                 continue
-            best: tuple[float, int] | None = None
+            best: tuple[bool, float, int] | None = None
             for c in cams:
                 seen = [t for t in b.tags if t.tag_id in norm[c]]
                 if seen:
                     area = sum(_area(photos[c].tags[t.tag_id]) for t in seen)
-                    if best is None or area > best[0]:
-                        best = (area, c)
+                    key = (len(seen) > 1, area, c)
+                    if best is None or key[:2] > best[:2]:
+                        best = key
             if best is None:
                 continue
-            c = best[1]
+            c = best[2]
             seen = [t for t in b.tags if t.tag_id in norm[c]]
             if len(seen) == 1:
                 t = seen[0]
@@ -184,6 +185,33 @@ def _initial_poses(
             break
     say(f"first poses: {len(cams)} of {len(photos)} photos, {len(bodies)} of {len(models)} bodies")
     return cams, bodies
+
+
+def _place_photo(
+    c: int,
+    obs: dict[int, FloatArray],
+    mount: dict[int, tuple[int, TagMount]],
+    bodies: dict[int, tuple[FloatArray, FloatArray]],
+    cams: dict[int, tuple[FloatArray, FloatArray]],
+) -> bool:
+    """Photo ``c``'s first pose from the placed tags it shows (:func:`_photo_pose`) into
+    ``cams``; False if its points give none (the photo stays out)."""
+    pts_w, pts_xy = [], []
+    for tid, xy in obs.items():
+        bi, t = mount[tid]
+        if bi in bodies:
+            rb, pb = bodies[bi]
+            pts_w.append(t.corners_body() @ rb.T + pb)
+            pts_xy.append(xy)
+    if not pts_w:
+        return False
+    try:
+        cams[c] = _photo_pose(
+            np.concatenate(pts_w), np.concatenate(pts_xy), len(pts_w), obs, mount, bodies
+        )
+    except DataError:
+        return False
+    return True
 
 
 def _photo_pose(
@@ -281,7 +309,7 @@ def geometry_from_photos(
     depth = float(np.median(np.linalg.norm(bundle.camera_translations, axis=1)))
     scale_m = bundle.sigma_px * depth / bundle.intrinsics.fx
     orientations, loas = bundle_records(bundle, final_models, tags, scale_m)
-    unfixed.extend(too_uncertain(bundle, orientations, loas, issues))
+    unfixed.extend(too_uncertain(bundle, orientations, loas, issues, tied_views(obs, final_models)))
     say(
         f"adjusted: σ {bundle.sigma_px:.3f} px, {len(orientations)} triaxes, {len(loas)} inputs, "
         f"{len(unfixed)} not fixed"
@@ -531,28 +559,47 @@ def too_uncertain(
     orientations: list[Orientation],
     loas: list[LineOfAction],
     issues: list[PhotoIssue],
+    tied: dict[tuple[str, int | None], int] | None = None,
 ) -> list[str]:
     """The triaxes whose stated 1σ exceeds :data:`LIMIT_ANGLE_STD_DEG` or
     :data:`LIMIT_POSITION_STD_M`, each with the photos it still needs; inputs over
-    :data:`LIMIT_LOA_STD_DEG` are added to ``issues``."""
+    :data:`LIMIT_LOA_STD_DEG` are added to ``issues``.
+
+    Only a photo showing the block together with another tied body fixes it (a photo of the
+    block alone leaves the camera's pose, and so the block's, free), so the count ``n`` is
+    those photos (``tied``: body's kind and node → photos; default every photo of the block)
+    and the advice asks for such photos: more close-ups from other sides for the angle, more
+    views with the reference plates or tied neighbours for the position (its tie to the
+    article's frame)."""
     seen = {(b.kind, b.node): b.n_photos for b in bundle.bodies}
+    with_others = tied if tied is not None else seen
     out = []
     for o in orientations:
-        ratio = max(
-            max(o.angle_std_deg or [0.0]) / LIMIT_ANGLE_STD_DEG,
-            (o.origin_std_m or 0.0) / LIMIT_POSITION_STD_M,
-        )
-        if ratio > 1.0:
-            n = seen.get(("triax", o.node), 1)
-            out.append(
-                f"triax {o.node}: stated 1σ {max(o.angle_std_deg or [0.0]):.3f} deg, "
-                f"{1e3 * (o.origin_std_m or 0.0):.3f} mm from {n} photos (limits "
-                f"{LIMIT_ANGLE_STD_DEG:g} deg, {1e3 * LIMIT_POSITION_STD_M:g} mm); take about "
-                f"{_more_views(n, ratio)} more close-ups of its block from other sides"
+        angle = max(o.angle_std_deg or [0.0])
+        pos = o.origin_std_m or 0.0
+        ra, rp = angle / LIMIT_ANGLE_STD_DEG, pos / LIMIT_POSITION_STD_M
+        if max(ra, rp) <= 1.0:
+            continue
+        n = max(with_others.get(("triax", o.node), 0), 1)
+        fixes = []
+        if ra > 1.0:
+            fixes.append(
+                f"take about {_more_views(n, ra)} more close-ups of its block from other sides, "
+                "each showing a neighbouring tagged body too"
             )
+        if rp > 1.0:
+            fixes.append(
+                f"take about {_more_views(n, rp)} more photos showing its block together with "
+                "reference plates (or blocks already tied to them)"
+            )
+        out.append(
+            f"triax {o.node}: stated 1σ {angle:.3f} deg, {1e3 * pos:.3f} mm from {n} photos "
+            f"showing it with other tagged bodies (limits {LIMIT_ANGLE_STD_DEG:g} deg, "
+            f"{1e3 * LIMIT_POSITION_STD_M:g} mm); " + "; ".join(fixes)
+        )
     for a in loas:
         if (a.angle_std_deg or 0.0) > LIMIT_LOA_STD_DEG:
-            n = seen.get(("input", a.node), 1)
+            n = max(with_others.get(("input", a.node), 0), 1)
             issues.append(
                 PhotoIssue(
                     f"input {a.node}",
@@ -560,9 +607,26 @@ def too_uncertain(
                     f"line of action 1σ {a.angle_std_deg:.3f} deg from {n} photos "
                     f"(over {LIMIT_LOA_STD_DEG:g} deg)",
                     f"take about {_more_views(n, a.angle_std_deg / LIMIT_LOA_STD_DEG)} more "
-                    "close-ups of its jig",
+                    "close-ups of its jig, each showing a neighbouring tagged body too",
                 )
             )
+    return out
+
+
+def tied_views(
+    obs: list[Observation], models: list[BodyModel]
+) -> dict[tuple[str, int | None], int]:
+    """Photos in which each body (kind, node) is seen together with another body's tags."""
+    body_of = {t.tag_id: k for k, b in enumerate(models) for t in b.tags}
+    per_photo: dict[int, set[int]] = {}
+    for o in obs:
+        per_photo.setdefault(o.photo, set()).add(body_of[o.tag_id])
+    out: dict[tuple[str, int | None], int] = {}
+    for bodies in per_photo.values():
+        if len(bodies) > 1:
+            for k in bodies:
+                key = (models[k].kind, models[k].node)
+                out[key] = out.get(key, 0) + 1
     return out
 
 
