@@ -24,7 +24,9 @@ otherwise read as tags smaller or larger than printed, i.e. farther or nearer).
 
 The covariance of the parameters is ``Σ = (JᵀJ)⁻¹`` of the whitened problem at the solution,
 with ``σ_px² = Σ (r/s)² / (n − p)`` estimated from the corner residuals (the reprojection error
-the photos actually show, not a nominal one; ``s`` each view's ``sigma_scale``).
+the photos actually show, not a nominal one; ``s`` each view's ``sigma_scale``). The tags'
+placement on their bodies, an error all corners of a tag share, is added to each body's as a
+considered covariance (:func:`placement_covariance`).
 """
 
 from __future__ import annotations
@@ -49,6 +51,7 @@ __all__ = [
     "Problem",
     "TagMount",
     "adjust",
+    "placement_covariance",
 ]
 
 FloatArray = NDArray[np.float64]

@@ -134,40 +134,40 @@ def _initial_poses(
     }
     cams: dict[int, tuple[FloatArray, FloatArray]] = {}
     while True:
-        # photos that see placed bodies: pose from all their corners; a photo showing one
-        # placed tag only waits (a small square's pose is ambiguous: two tilts fit it) until
-        # no photo with two or more is left, then the one whose tag looks largest goes
-        lone: list[tuple[float, int]] = []
         progress = False
+        # photos that see placed bodies: pose from all their corners
         for c, obs in enumerate(norm):
             if c in cams:
                 continue
-            placed = [tid for tid in obs if mount[tid][0] in bodies]
-            if len(placed) == 1:
-                lone.append((_area(photos[c].tags[placed[0]]), c))
-            elif len(placed) > 1:
-                progress |= _place_photo(c, obs, mount, bodies, cams)
-        if not progress:
-            for _area_px, c in sorted(lone, reverse=True):
-                if _place_photo(c, norm[c], mount, bodies, cams):
-                    progress = True
-                    break
-        # bodies seen by placed photos: from the photo where their tags look largest, one
-        # showing two or more of them first (one tag alone: the ambiguous square again)
+            pts_w, pts_xy = [], []
+            for tid, xy in obs.items():
+                bi, t = mount[tid]
+                if bi in bodies:
+                    rb, pb = bodies[bi]
+                    pts_w.append(t.corners_body() @ rb.T + pb)
+                    pts_xy.append(xy)
+            if not pts_w:
+                continue
+            w, xy = np.concatenate(pts_w), np.concatenate(pts_xy)
+            try:
+                cams[c] = _photo_pose(w, xy, len(pts_w), obs, mount, bodies)
+            except DataError:
+                continue  # these points give no pose: the photo stays out
+            progress = True
+        # bodies seen by placed photos: from the photo where their tags look largest
         for bi, b in enumerate(models):
             if bi in bodies:
                 continue
-            best: tuple[bool, float, int] | None = None
+            best: tuple[float, int] | None = None
             for c in cams:
                 seen = [t for t in b.tags if t.tag_id in norm[c]]
                 if seen:
                     area = sum(_area(photos[c].tags[t.tag_id]) for t in seen)
-                    key = (len(seen) > 1, area, c)
-                    if best is None or key[:2] > best[:2]:
-                        best = key
+                    if best is None or area > best[0]:
+                        best = (area, c)
             if best is None:
                 continue
-            c = best[2]
+            c = best[1]
             seen = [t for t in b.tags if t.tag_id in norm[c]]
             if len(seen) == 1:
                 t = seen[0]
@@ -185,33 +185,6 @@ def _initial_poses(
             break
     say(f"first poses: {len(cams)} of {len(photos)} photos, {len(bodies)} of {len(models)} bodies")
     return cams, bodies
-
-
-def _place_photo(
-    c: int,
-    obs: dict[int, FloatArray],
-    mount: dict[int, tuple[int, TagMount]],
-    bodies: dict[int, tuple[FloatArray, FloatArray]],
-    cams: dict[int, tuple[FloatArray, FloatArray]],
-) -> bool:
-    """Photo ``c``'s first pose from the placed tags it shows (:func:`_photo_pose`) into
-    ``cams``; False if its points give none (the photo stays out)."""
-    pts_w, pts_xy = [], []
-    for tid, xy in obs.items():
-        bi, t = mount[tid]
-        if bi in bodies:
-            rb, pb = bodies[bi]
-            pts_w.append(t.corners_body() @ rb.T + pb)
-            pts_xy.append(xy)
-    if not pts_w:
-        return False
-    try:
-        cams[c] = _photo_pose(
-            np.concatenate(pts_w), np.concatenate(pts_xy), len(pts_w), obs, mount, bodies
-        )
-    except DataError:
-        return False
-    return True
 
 
 def _photo_pose(
