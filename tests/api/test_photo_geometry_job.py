@@ -71,6 +71,20 @@ def test_requests_refused_naming_the_field(api: Api, tmp_path: Path) -> None:
     sid = c.post("/api/setups", json=_one_setup()).json()["id"]
     r = c.post("/api/photo-geometry/jobs", json={"folder": "f1", "setup_id": sid})
     assert r.status_code == 422 and "tags_toml" in r.json()["detail"]
+    # a tags file sent with the request that does not read leaves the folder's as it was
+    r = c.post(
+        "/api/photo-geometry/files", params={"folder": "f1", "name": "tags.toml"}, content=b"x=1"
+    )
+    assert r.status_code == 201 and r.json()["tags_file"]
+    r = c.post(
+        "/api/photo-geometry/jobs",
+        json={"folder": "f1", "setup_id": sid, "tags_toml": "not [toml"},
+    )
+    assert r.status_code == 422 and "tags.toml" in r.json()["detail"], r.text
+    assert ".part" not in r.json()["detail"]
+    kept = api.settings.data_dir / "photos" / "f1" / "tags.toml"
+    assert kept.read_text(encoding="utf-8") == "x=1"
+    assert sorted(p.name for p in kept.parent.iterdir()) == ["a.jpg", "tags.toml"]
     assert c.delete("/api/photo-geometry/folders/f1").status_code == 204
     assert c.get("/api/photo-geometry/folders/f1").status_code == 404
 

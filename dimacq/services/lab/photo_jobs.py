@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from dimacq.errors import DataError, SetupError
+from dimacq.errors import DataError, DimacqError, SetupError
 from dimacq.services.lab.jobs import Job, JobContext, JobManager
 
 if TYPE_CHECKING:
@@ -199,10 +199,11 @@ class PhotoGeometryService:
                 )
         else:
             setup = parse_setup(params.setup or {}, "setup")
+        # a file sent with the request replaces the folder's only once it reads
         if params.tags_toml is not None:
-            (path / "tags.toml").write_text(params.tags_toml, encoding="utf-8")
+            _replace_checked(path / "tags.toml", params.tags_toml, load_tags)
         if params.camera_toml is not None:
-            (path / "camera.toml").write_text(params.camera_toml, encoding="utf-8")
+            _replace_checked(path / "camera.toml", params.camera_toml, load_camera)
         tags_path = next(
             (p for p in (path / "tags.toml", self.root / "tags.toml") if p.is_file()), None
         )
@@ -242,6 +243,22 @@ class PhotoGeometryService:
             return out
 
         return self.jobs.submit("photo-geometry", work)
+
+
+def _replace_checked(target: Path, text: str, load: Callable[[Path], object]) -> None:
+    """Write ``text`` as ``target`` once ``load`` reads it (its error, naming the file, is
+    raised and ``target`` is left as it was)."""
+    tmp = target.with_name(f".{target.name}.part")
+    tmp.write_text(text, encoding="utf-8")
+    try:
+        load(tmp)
+    except DimacqError as err:
+        tmp.unlink(missing_ok=True)
+        raise type(err)(str(err).replace(str(tmp), target.name)) from err
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    tmp.replace(target)
 
 
 def _progress(ctx: JobContext) -> Callable[[str], None]:
