@@ -54,6 +54,7 @@ PAGE_FILES = (
     "setup.js",
     "view3d.js",
     "digitize.js",
+    "photograph.js",
     "acquire.js",
     "frfs.js",
     "solve.js",

@@ -103,6 +103,7 @@ def test_views_nothing_ties_are_left_out() -> None:
 
 def test_too_uncertain_triax_refused_with_the_views_it_needs() -> None:
     """σ ∝ 1/√n: a triax at twice the angle limit from 10 photos needs 30 more."""
+    from dataclasses import replace
     from types import SimpleNamespace
 
     from dimacq.services.geometry.photo_geometry import LIMIT_ANGLE_STD_DEG, too_uncertain
@@ -136,4 +137,12 @@ def test_too_uncertain_triax_refused_with_the_views_it_needs() -> None:
         [],
         [],
     )
-    assert len(out) == 1 and out[0].startswith("triax 1:") and "about 30 more" in out[0]
+    assert len(out) == 1 and out[0].startswith("triax 1:") and "about 30 more close-ups" in out[0]
+    assert "reference plates" not in out[0]
+    # a block seen with other bodies in 4 of its 10 photos, its position twice over the limit:
+    # 12 more photos tying it to the frame
+    pos = replace(ori(3, 0.5 * LIMIT_ANGLE_STD_DEG), origin_std_m=4e-4)
+    out = too_uncertain(bundle, [pos], [], [], {("triax", 3): 4})  # type: ignore[arg-type]
+    assert len(out) == 1 and "from 4 photos" in out[0]
+    assert "about 12 more photos showing its block together with reference plates" in out[0]
+    assert "close-ups" not in out[0]

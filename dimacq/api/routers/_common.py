@@ -128,6 +128,7 @@ UPLOAD_PATHS = frozenset(
         "/api/frfs/import",
         "/api/digitizer/points/import",
         "/api/digitizer/photo-geometry",
+        "/api/photo-geometry/files",
     }
 )
 

@@ -1,10 +1,11 @@
 // The lab page: a small vanilla-JS app over the REST API (no build step, no outside asset).
-// One module per step (test, setup, digitize, acquire, FRFs, solve, report); they share core.js and
+// One module per step (test, setup, digitize, photograph, acquire, FRFs, solve, report); they share core.js and
 // meet through its events (on/emit), so a new step is one more module and one more <section>.
 import { $, api, guard, on, say, startHeartbeat, state, takeTokenFromFragment } from "/static/core.js";
 import * as acquire from "/static/acquire.js";
 import * as digitize from "/static/digitize.js";
 import * as frfs from "/static/frfs.js";
+import * as photograph from "/static/photograph.js";
 import * as reportStep from "/static/report-step.js";
 import * as setup from "/static/setup.js";
 import * as solve from "/static/solve.js";
@@ -25,7 +26,7 @@ async function init() {
     $("#token").value = "";
     takeTokenFromFragment();
   };
-  for (const step of [test, setup, digitize, acquire, frfs, solve, reportStep]) step.init();
+  for (const step of [test, setup, digitize, photograph, acquire, frfs, solve, reportStep]) step.init();
   // the test this tab had open first: the other steps list its setups, FRF sets and solutions
   const article = setup.loadArticle();
   await Promise.all([loadStatus(), article, digitize.load(article), setup.loadRig().catch((e) => say(e.message, true)),

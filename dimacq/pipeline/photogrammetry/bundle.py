@@ -24,13 +24,15 @@ otherwise read as tags smaller or larger than printed, i.e. farther or nearer).
 
 The covariance of the parameters is ``Σ = (JᵀJ)⁻¹`` of the whitened problem at the solution,
 with ``σ_px² = Σ (r/s)² / (n − p)`` estimated from the corner residuals (the reprojection error
-the photos actually show, not a nominal one; ``s`` each view's ``sigma_scale``).
+the photos actually show, not a nominal one; ``s`` each view's ``sigma_scale``). The tags'
+placement on their bodies, an error all corners of a tag share, is added to each body's as a
+considered covariance (:func:`placement_covariance`).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import scipy.sparse as sp
@@ -49,6 +51,7 @@ __all__ = [
     "Problem",
     "TagMount",
     "adjust",
+    "placement_covariance",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -117,6 +120,9 @@ class BodyEstimate:
     n_photos : int
         Photos in which at least one of its tags was used.
     n_corners : int
+    placement_covariance : ndarray, shape (6, 6), optional
+        What the tags' placement on their bodies adds to ``covariance``
+        (:func:`placement_covariance`); None when the adjustment was not given it.
     """
 
     name: str
@@ -127,6 +133,7 @@ class BodyEstimate:
     covariance: FloatArray
     n_photos: int
     n_corners: int
+    placement_covariance: FloatArray | None = None
 
     @property
     def position_std_m(self) -> FloatArray:
@@ -445,6 +452,7 @@ def adjust(
     reject_sigma: float = 6.0,
     progress: Callable[[int, float], None] | None = None,
     max_nfev: int = 200,
+    placement: tuple[float, float] | None = None,
 ) -> BundleResult:
     """Adjust photos, bodies (and intrinsics) to the observed tag corners (see the module).
 
@@ -467,6 +475,10 @@ def adjust(
         (once).
     progress : callable (evaluations, cost), optional
         Called as the adjustment evaluates its residuals.
+    placement : (angle 1σ deg, position 1σ m), optional
+        How well each tag sits on its body (per axis; in its plane): each body's
+        ``placement_covariance`` is then what the tags of the bodies without a stated pose add
+        (:func:`placement_covariance`).
 
     Raises
     ------
@@ -507,7 +519,73 @@ def adjust(
     prob.sigma_px = max(sigma, 1e-3)
     x = prob.rebase(x)
     cov, cond = _covariance(prob, x)
-    return _result(prob, bodies, x, cov, cond, sigma, rejected, nfev[0])
+    out = _result(prob, bodies, x, cov, cond, sigma, rejected, nfev[0])
+    if placement is None:
+        return out
+    extra = placement_covariance(prob, x, cov, np.radians(placement[0]), placement[1])
+    return replace(
+        out,
+        bodies=tuple(
+            replace(b, placement_covariance=e) for b, e in zip(out.bodies, extra, strict=True)
+        ),
+    )
+
+
+def placement_covariance(
+    prob: Problem, x: FloatArray, cov: FloatArray, angle_rad: float, position_m: float
+) -> FloatArray:
+    """What the tags' placement on their bodies adds to each body's covariance, shape
+    (n_bodies, 6, 6).
+
+    A tag sits on its body turned by a small ``ω`` (1σ ``angle_rad`` per axis, about its
+    centre) and shifted by ``n`` in its plane (1σ ``position_m`` per axis): every corner of
+    that tag, in every photo, moves by the same
+
+        ΔX = −[v]× R_b ω + R_b R_t[:, :2] n,    v = R_b R_t c  (the corner from the tag's centre),
+
+    an error the corners share, which the adjustment's ``(JᵀJ)⁻¹`` (independent corners) does
+    not hold. The adjusted parameters follow it as ``Δθ = −Σ Jᵀ J_η η``
+    (``J_η = ∂r/∂X · ∂X/∂η`` over that tag's rows, whitened as ``J``), so the considered
+    covariance is ``Σ Jᵀ J_η S J_ηᵀ J Σ``, ``S`` the placements' variances, summed over the
+    tags. Tags of bodies with a stated pose are left out: their placement is in the stated
+    pose's 1σ. Through its lever arm (half the block's edge) a tag's shift turns the block,
+    and a body seen through few of its tags keeps most of their placement: both are in this
+    term, neither in a per-tag ``σ/√k``.
+    """
+    out = np.zeros((prob.n_body, 6, 6))
+    if angle_rad <= 0 and position_m <= 0:
+        return out
+    jac = prob.jacobian(x).tocsr()
+    _, _, _, rb, _ = prob.unpack(x)
+    body0 = prob.n_intr + 6 * prob.n_cam
+    scale = np.array([angle_rad] * 3 + [position_m] * 2)
+    o_tag = np.array([o.tag_id for o in prob.obs], dtype=int)
+    corner_of_row = np.arange(8) // 2
+    sens = []
+    for tag_id in np.unique(o_tag):
+        bi, t = prob.mount[int(tag_id)]
+        if prob.bodies[bi].prior_position_m is not None:
+            continue
+        idx = np.flatnonzero(o_tag == tag_id)
+        rows = (8 * idx[:, None] + np.arange(8)).ravel()
+        jr = jac[rows]
+        d_x = jr[:, body0 + 6 * bi + 3 : body0 + 6 * bi + 6].toarray()
+        v = tag_corners(t.side_m) @ np.asarray(t.rotation).T @ rb[bi].T
+        a_pos = rb[bi] @ np.asarray(t.rotation)[:, :2]
+        j_eta = np.empty((len(rows), 5))
+        corner = np.tile(corner_of_row, len(idx))
+        for k in range(4):
+            sel = corner == k
+            j_eta[sel, :3] = d_x[sel] @ (-_skew(v[k]) @ rb[bi])
+            j_eta[sel, 3:] = d_x[sel] @ a_pos
+        sens.append(jr.T @ (j_eta * scale))
+    if not sens:
+        return out
+    b_all = np.hstack(sens)
+    for i in range(prob.n_body):
+        d = cov[body0 + 6 * i : body0 + 6 * i + 6] @ b_all
+        out[i] = d @ d.T
+    return out
 
 
 def _solve(

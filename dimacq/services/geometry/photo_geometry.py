@@ -68,6 +68,7 @@ __all__ = [
     "pose_from_points",
     "read_photos",
     "tied_only",
+    "tied_views",
     "too_uncertain",
 ]
 
@@ -274,13 +275,14 @@ def geometry_from_photos(
         [poses[i][1] for i in body_idx],
         refine_intrinsics=refine,
         progress=lambda n, cost: say(f"adjustment: {n} evaluations, cost {cost:.4g}"),
+        placement=(tags.placement_angle_deg, tags.placement_position_m),
     )
     used = [photos[c].name for c in cam_idx]
     _bundle_issues(bundle, used, issues)
     depth = float(np.median(np.linalg.norm(bundle.camera_translations, axis=1)))
     scale_m = bundle.sigma_px * depth / bundle.intrinsics.fx
     orientations, loas = bundle_records(bundle, final_models, tags, scale_m)
-    unfixed.extend(too_uncertain(bundle, orientations, loas, issues))
+    unfixed.extend(too_uncertain(bundle, orientations, loas, issues, tied_views(obs, final_models)))
     say(
         f"adjusted: σ {bundle.sigma_px:.3f} px, {len(orientations)} triaxes, {len(loas)} inputs, "
         f"{len(unfixed)} not fixed"
@@ -530,28 +532,47 @@ def too_uncertain(
     orientations: list[Orientation],
     loas: list[LineOfAction],
     issues: list[PhotoIssue],
+    tied: dict[tuple[str, int | None], int] | None = None,
 ) -> list[str]:
     """The triaxes whose stated 1σ exceeds :data:`LIMIT_ANGLE_STD_DEG` or
     :data:`LIMIT_POSITION_STD_M`, each with the photos it still needs; inputs over
-    :data:`LIMIT_LOA_STD_DEG` are added to ``issues``."""
+    :data:`LIMIT_LOA_STD_DEG` are added to ``issues``.
+
+    Only a photo showing the block together with another tied body fixes it (a photo of the
+    block alone leaves the camera's pose, and so the block's, free), so the count ``n`` is
+    those photos (``tied``: body's kind and node → photos; default every photo of the block)
+    and the advice asks for such photos: more close-ups from other sides for the angle, more
+    views with the reference plates or tied neighbours for the position (its tie to the
+    article's frame)."""
     seen = {(b.kind, b.node): b.n_photos for b in bundle.bodies}
+    with_others = tied if tied is not None else seen
     out = []
     for o in orientations:
-        ratio = max(
-            max(o.angle_std_deg or [0.0]) / LIMIT_ANGLE_STD_DEG,
-            (o.origin_std_m or 0.0) / LIMIT_POSITION_STD_M,
-        )
-        if ratio > 1.0:
-            n = seen.get(("triax", o.node), 1)
-            out.append(
-                f"triax {o.node}: stated 1σ {max(o.angle_std_deg or [0.0]):.3f} deg, "
-                f"{1e3 * (o.origin_std_m or 0.0):.3f} mm from {n} photos (limits "
-                f"{LIMIT_ANGLE_STD_DEG:g} deg, {1e3 * LIMIT_POSITION_STD_M:g} mm); take about "
-                f"{_more_views(n, ratio)} more close-ups of its block from other sides"
+        angle = max(o.angle_std_deg or [0.0])
+        pos = o.origin_std_m or 0.0
+        ra, rp = angle / LIMIT_ANGLE_STD_DEG, pos / LIMIT_POSITION_STD_M
+        if max(ra, rp) <= 1.0:
+            continue
+        n = max(with_others.get(("triax", o.node), 0), 1)
+        fixes = []
+        if ra > 1.0:
+            fixes.append(
+                f"take about {_more_views(n, ra)} more close-ups of its block from other sides, "
+                "each showing a neighbouring tagged body too"
             )
+        if rp > 1.0:
+            fixes.append(
+                f"take about {_more_views(n, rp)} more photos showing its block together with "
+                "reference plates (or blocks already tied to them)"
+            )
+        out.append(
+            f"triax {o.node}: stated 1σ {angle:.3f} deg, {1e3 * pos:.3f} mm from {n} photos "
+            f"showing it with other tagged bodies (limits {LIMIT_ANGLE_STD_DEG:g} deg, "
+            f"{1e3 * LIMIT_POSITION_STD_M:g} mm); " + "; ".join(fixes)
+        )
     for a in loas:
         if (a.angle_std_deg or 0.0) > LIMIT_LOA_STD_DEG:
-            n = seen.get(("input", a.node), 1)
+            n = max(with_others.get(("input", a.node), 0), 1)
             issues.append(
                 PhotoIssue(
                     f"input {a.node}",
@@ -559,9 +580,26 @@ def too_uncertain(
                     f"line of action 1σ {a.angle_std_deg:.3f} deg from {n} photos "
                     f"(over {LIMIT_LOA_STD_DEG:g} deg)",
                     f"take about {_more_views(n, a.angle_std_deg / LIMIT_LOA_STD_DEG)} more "
-                    "close-ups of its jig",
+                    "close-ups of its jig, each showing a neighbouring tagged body too",
                 )
             )
+    return out
+
+
+def tied_views(
+    obs: list[Observation], models: list[BodyModel]
+) -> dict[tuple[str, int | None], int]:
+    """Photos in which each body (kind, node) is seen together with another body's tags."""
+    body_of = {t.tag_id: k for k, b in enumerate(models) for t in b.tags}
+    per_photo: dict[int, set[int]] = {}
+    for o in obs:
+        per_photo.setdefault(o.photo, set()).add(body_of[o.tag_id])
+    out: dict[tuple[str, int | None], int] = {}
+    for bodies in per_photo.values():
+        if len(bodies) > 1:
+            for k in bodies:
+                key = (models[k].kind, models[k].node)
+                out[key] = out.get(key, 0) + 1
     return out
 
 

@@ -113,14 +113,21 @@ def bundle_records(
     bundle: BundleResult, models: list[BodyModel], tags: TagsFile, residual_m: float
 ) -> tuple[list[Orientation], list[LineOfAction]]:
     """The adjusted bodies as the digitizing chain's records. The tags' placement on their body
-    (1σ ``placement_*`` per tag) adds ``σ_place/√k`` over the ``k`` tags the body has."""
+    (1σ ``placement_*`` per tag) adds the body's ``placement_covariance`` (the error its tags'
+    corners share, propagated through the adjustment:
+    :func:`dimacq.pipeline.photogrammetry.bundle.placement_covariance`); an adjustment made
+    without it adds ``σ_place/√k`` over the ``k`` tags the body has."""
     ori, loas = [], []
     for est, model in zip(bundle.bodies, models, strict=True):
-        k = max(len(model.tags), 1)
-        pa = np.radians(tags.placement_angle_deg) / np.sqrt(k)
-        pp = tags.placement_position_m / np.sqrt(k)
-        cov_r = est.covariance[:3, :3] + pa**2 * np.eye(3)
-        cov_p = est.covariance[3:, 3:] + pp**2 * np.eye(3)
+        if est.placement_covariance is not None:
+            cov = est.covariance + est.placement_covariance
+            cov_r, cov_p = cov[:3, :3], cov[3:, 3:]
+        else:
+            k = max(len(model.tags), 1)
+            pa = np.radians(tags.placement_angle_deg) / np.sqrt(k)
+            pp = tags.placement_position_m / np.sqrt(k)
+            cov_r = est.covariance[:3, :3] + pa**2 * np.eye(3)
+            cov_p = est.covariance[3:, 3:] + pp**2 * np.eye(3)
         pos_std = float(np.sqrt(np.max(np.linalg.eigvalsh(cov_p))))
         if est.kind == "triax" and est.node is not None:
             axis_std = np.degrees(np.sqrt(np.diag(est.rotation.T @ cov_r @ est.rotation)))

@@ -18,6 +18,8 @@ services the REST API (and anything else) drives:
 ``lab.calibrations``      :class:`~dimacq.services.lab.calibrations.CalibrationService`:
                           documents, and calibration runs as jobs (``.runs``)
 ``lab.plans``             :class:`~dimacq.services.lab.plans.PlanService`: pre-test plans (jobs)
+``lab.photos``            :class:`~dimacq.services.lab.photo_jobs.PhotoGeometryService`: photo
+                          folders, geometry from photographs (jobs)
 ``lab.studies``           :class:`~dimacq.services.lab.studies.StudyService`: sensitivity
 ``lab.rig_map``           :class:`~dimacq.services.lab.rig_map.RigMapService`: the rig file
                           (channel map, sensitivities): read, check, replace
@@ -59,6 +61,7 @@ from dimacq.services.lab.devices import DeviceService
 from dimacq.services.lab.geometry import GeometryService
 from dimacq.services.lab.jobs import JobManager, Ticker
 from dimacq.services.lab.lab_tests import LabTestService
+from dimacq.services.lab.photo_jobs import PhotoGeometryService
 from dimacq.services.lab.plans import PlanService
 from dimacq.services.lab.rig_map import RigMapService
 from dimacq.services.lab.solving import AnalysisService
@@ -207,6 +210,9 @@ class Lab:
         )
         self.studies = StudyService(self.db, self.jobs, name)
         self.plans = PlanService(self.jobs)
+        self.photos = PhotoGeometryService(
+            self.jobs, self.geometry, self.store, settings.data_dir / "photos"
+        )
         self.rig_map = RigMapService(
             settings, self._daq_inputs, self._reopen_rig_devices if open_devices else lambda: None
         )
