@@ -55,9 +55,11 @@ from typing import Any
 import httpx
 import numpy as np
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from _results import Results, add_results_argument
+
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[1]
-RESULTS = HERE / "where_users_wait_results.md"
 EXAMPLES = ROOT / "config" / "examples"
 
 
@@ -247,6 +249,7 @@ def main() -> int:
         "--big-json", action="store_true", help="also the X-38 size set's JSON /data (minutes)"
     )
     ap.add_argument("--live-seconds", type=float, default=2.0)
+    add_results_argument(ap, __file__)
     args = ap.parse_args()
     logging.disable(logging.WARNING)
     sys.path.insert(0, str(ROOT / "tests"))
@@ -257,17 +260,9 @@ def main() -> int:
     from dimacq.services.lab import Lab
     from dimacq.simulators.lab.scenarios import build_scenario
 
-    commit = subprocess.run(
-        ["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=ROOT
-    ).stdout.strip()
-    lines = [
-        "# Where a user waits",
-        "",
-        f"- command: `python tests/benchmarks/where_users_wait.py {' '.join(sys.argv[1:])}`",
-        f"- date: {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, commit {commit}",
-        f"- at start: {host_line()}",
-        "",
-    ]
+    res = Results(__file__, "Where a user waits", args.results)
+    res.note(f"at start: {host_line()}")
+    lines: list[str] = []
     with tempfile.TemporaryDirectory(prefix="dimacq-wait-") as tmp_s:
         tmp = Path(tmp_s)
         settings = make_settings(tmp / "data", database_url="")
@@ -369,8 +364,8 @@ def main() -> int:
             lines.append(f"- `{what}`: {rss or 0:.0f} MB peak (exit {rc}, {wall:.0f} s wall)")
             print(lines[-1], flush=True)
         lines += [f"- then: {host_line()}", ""]
-    RESULTS.write_text("\n".join(lines) + "\n", encoding="utf-8")
-    print(f"wrote {RESULTS}")
+    res.add("\n".join(lines))
+    res.write()
     return 0
 
 
