@@ -60,8 +60,11 @@ def run(backend: str, averages: int, root: Path) -> dict[str, float | str]:
             full=True,  # the rig file's [acquisition], as before dimacq demo's own cut
             record_samples=None,
             data_dir=None,
+            geometry="digitizer",
             json=None,
+            model_frfs=False,
             no_chain_calibration=True,
+            photos=40,
             noise=0.005,
             quiet=True,
             rig_file=None,
