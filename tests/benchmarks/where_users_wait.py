@@ -3,9 +3,9 @@ the peak memory of the demo and the bench calibration.
 
 Each figure is measured in A/B pairs run one after the other (A, B, A, B, ...), so that a
 neighbour's load hits both alike; medians and their ratio are reported. The results file
-(``where_users_wait_results.md`` beside this script) carries the command, date, commit, the load
-average and this host's sustainable time-lapse (:func:`dimacq.backends.time_lapse.measure_host`,
-its speed) beside the figures.
+(``where_users_wait_results.md`` beside this script, ``--results`` elsewhere) carries the
+command, date, commit, the load average and this host's sustainable time-lapse
+(:func:`dimacq.backends.time_lapse.measure_host`, its speed) beside the figures.
 
 1. **FRF view open** (what the page's FRFs step waits for before it draws): ``GET
    /api/frfs/{id}/data`` (JSON, parsed) against ``GET /api/frfs/{id}/data.f32`` (float32 behind
