@@ -13,6 +13,10 @@ Prints requests per second and the p50/p95 latency of each, and checks nothing w
 number of setups afterwards equals prefill + successful saves.
 
     python tests/benchmarks/bench_db_concurrency.py [--clients 10] [--seconds 8] [--prefill 50]
+           [--services 2] [--results PATH]
+
+The table goes to ``bench_db_concurrency_results.md`` beside this script (``--results``
+elsewhere) with the command, date, commit and machine load.
 """
 
 from __future__ import annotations
@@ -32,6 +36,7 @@ TESTS = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(TESTS))
 
 from _pg_support import PgServer, pg_binaries_missing  # noqa: E402
+from _results import Results, add_results_argument, markdown_table  # noqa: E402
 from _serve_support import Service  # noqa: E402
 
 from dimacq.api.server import free_port  # noqa: E402
@@ -117,11 +122,16 @@ def main() -> int:
     ap.add_argument("--seconds", type=float, default=8.0)
     ap.add_argument("--prefill", type=int, default=50)
     ap.add_argument("--services", type=int, default=1, help="stands sharing the PostgreSQL DB")
+    add_results_argument(ap, __file__)
     args = ap.parse_args()
+    res = Results(
+        __file__, "Listing and saving with concurrent clients, SQLite and PostgreSQL", args.results
+    )
     rows = [run("sqlite", args, None, 1)]
     why = pg_binaries_missing()
     if why:
         print(f"PostgreSQL skipped: {why}")
+        res.note(f"PostgreSQL skipped: {why}")
     else:
         pg = PgServer(durable=True)
         try:
@@ -130,22 +140,40 @@ def main() -> int:
                 rows.append(run("postgresql", args, pg, args.services))
         finally:
             pg.close()
-    print(
-        f"\n{args.clients} concurrent clients, {args.seconds:.0f} s per phase, list = GET "
-        f"/api/setups with {args.prefill} setups, save = POST /api/setups (six-triax setup)\n"
+    what = (
+        f"{args.clients} concurrent clients, {args.seconds:.0f} s per phase, list = GET "
+        f"/api/setups with {args.prefill} setups, save = POST /api/setups (six-triax setup)"
     )
-    print(
-        "| backend | services | list req/s | list p50 / p95 ms | save req/s | save p50 / p95 ms "
-        "| errors | lost |"
-    )
-    print("| --- | --- | --- | --- | --- | --- | --- | --- |")
+    res.note(what)
+    table = []
     for r in rows:
         lr, lp50, lp95 = r["list"]
         sr, sp50, sp95 = r["save"]
-        print(
-            f"| {r['backend']} | {r['services']} | {lr:.0f} | {lp50:.0f} / {lp95:.0f} | {sr:.0f} "
-            f"| {sp50:.0f} / {sp95:.0f} | {r['errors']} | {r['lost']} |"
+        table.append(
+            (
+                r["backend"],
+                r["services"],
+                f"{lr:.0f}",
+                f"{lp50:.0f} / {lp95:.0f}",
+                f"{sr:.0f}",
+                f"{sp50:.0f} / {sp95:.0f}",
+                r["errors"],
+                r["lost"],
+            )
         )
+    header = [
+        "backend",
+        "services",
+        "list req/s",
+        "list p50 / p95 ms",
+        "save req/s",
+        "save p50 / p95 ms",
+        "errors",
+        "lost",
+    ]
+    res.table(header, table)
+    print(f"\n{what}\n\n{markdown_table(header, table)}")
+    res.write()
     return 0 if all(r["errors"] == 0 and r["lost"] == 0 for r in rows) else 1
 
 

@@ -19,7 +19,10 @@ example (``config/examples/six_triax_setup.toml`` and its FRFs), then in Debian'
 
 Targets: page load < 1 s; 30 FRFs × 2048 lines drawn < 1 s; report ~1 s.
 
-    nice python tests/benchmarks/bench_lab_page.py [--repeat 10] [--cold 3]
+    nice python tests/benchmarks/bench_lab_page.py [--repeat 10] [--cold 3] [--results PATH]
+
+The figures go to ``bench_lab_page_results.md`` beside this script (``--results`` elsewhere)
+with the command, date, commit and machine load.
 """
 
 from __future__ import annotations
@@ -35,6 +38,9 @@ from pathlib import Path
 from statistics import median
 
 import httpx
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from _results import Results, add_results_argument
 
 from dimacq.api.server import free_port
 from dimacq.config import default_config_file
@@ -159,7 +165,9 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     ap.add_argument("--repeat", type=int, default=10)
     ap.add_argument("--cold", type=int, default=3, help="service starts for the cold load")
+    add_results_argument(ap, __file__)
     args = ap.parse_args()
+    res = Results(__file__, "Lab page speed in headless Chromium", args.results)
     chromium = shutil.which("chromium")
     if chromium is None:
         raise SystemExit("Debian's chromium is not installed (apt-get install -y chromium)")
@@ -218,23 +226,21 @@ def main() -> None:
         finally:
             _stop(proc)
     print(f"chromium {version}, {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f}")
-    print(
+    res.note(f"chromium {version}")
+    said = [
         f"page load, navigation start -> ready: cold (first request after the service printed "
         f"its address) median {median(cold):.0f} ms (max {max(cold):.0f}, n={len(cold)}); warm "
-        f"median {median(warm):.0f} ms (max {max(warm):.0f}, n={len(warm)})   target < 1000 ms"
-    )
-    print(
+        f"median {median(warm):.0f} ms (max {max(warm):.0f}, n={len(warm)}); target < 1000 ms",
         f"plot 30 FRFs x 2048 lines: median {median(plot):.1f} ms (max {max(plot):.1f}, "
-        f"n={len(plot)})   target < 1000 ms"
-    )
-    print(
-        f"FRF step, example set ({info}): fetch {step[0]:.0f} ms, magnitude plot {step[1]:.1f} ms"
-    )
-    print(
+        f"n={len(plot)}); target < 1000 ms",
+        f"FRF step, example set ({info}): fetch {step[0]:.0f} ms, magnitude plot {step[1]:.1f} ms",
         f"report, simulated set ({size}): navigation -> drawn median {median(report):.0f} ms "
         f"(max {max(report):.0f}, n={len(report)}); the whole set fetched and parsed as the "
-        f"report did before: {whole[0]:.0f} ms"
-    )
+        f"report did before: {whole[0]:.0f} ms",
+    ]
+    print("\n".join(said))
+    res.add("\n".join(f"- {x}" for x in said))
+    res.write()
 
 
 def sol_frf(url: str, solution_id: int) -> int:

@@ -17,7 +17,8 @@ one core; the figures are
 for each channel count; the most channels sustained is the largest count with a factor ≥ 1
 (interpolated between the counts measured, the cost being about linear in the channels), and
 the margin at 128 channels is its factor. Written to ``bench_live_path_results.md`` beside this
-script with the command, date, commit, load and this host's sustainable time-lapse.
+script (``--results`` elsewhere) with the command, date, commit, load and this host's sustainable
+time-lapse.
 
     python tests/benchmarks/bench_live_path.py [--channels 32 64 128 192 256] [--seconds 4]
 """
@@ -26,7 +27,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -39,7 +39,9 @@ from dimacq.drivers.daq.driver import DaqDevice, DaqTask
 from dimacq.pipeline.frf_estimation import estimate_frf, exponential_window, force_window
 
 HERE = Path(__file__).resolve().parent
-RESULTS = HERE / "bench_live_path_results.md"
+sys.path.insert(0, str(HERE.parent))
+from _results import Results, add_results_argument  # noqa: E402
+
 FS = 51200
 SPF = 512
 RECORD = 4096
@@ -139,7 +141,11 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--channels", type=int, nargs="+", default=[32, 64, 128, 192, 256])
     ap.add_argument("--seconds", type=float, default=4.0, help="simulated seconds per count")
+    add_results_argument(ap, __file__)
     args = ap.parse_args()
+    res = Results(
+        __file__, "Live path: DAQ driver → blocks → FRF per record, one core", args.results
+    )
     if hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
     from dimacq.backends.time_lapse import measure_host
@@ -153,18 +159,12 @@ def main() -> int:
             "time-lapse now"
         )
 
-    commit = subprocess.run(
-        ["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=HERE
-    ).stdout.strip()
+    res.note(f"at start: {host()}")
+    res.note(
+        f"stream: 24-bit frames of {SPF} samples at {FS} S/s, records of {RECORD} samples, "
+        "H1 with force and exponential windows per record"
+    )
     lines = [
-        "# Live path: DAQ driver → blocks → FRF per record, one core",
-        "",
-        f"- command: `python tests/benchmarks/bench_live_path.py {' '.join(sys.argv[1:])}`",
-        f"- date: {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, commit {commit}",
-        f"- at start: {host()}",
-        f"- stream: 24-bit frames of {SPF} samples at {FS} S/s, records of {RECORD} samples, "
-        "H1 with force and exponential windows per record",
-        "",
         "| channels | realtime factor (CPU) | realtime factor (wall) |",
         "|---|---|---|",
     ]
@@ -188,9 +188,9 @@ def main() -> int:
         f"- margin at 128 channels: {at128:.2f}x real time (CPU)",
         f"- at end: {host()}",
     ]
-    RESULTS.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    res.add("\n".join(lines))
     print("\n".join(lines[-3:]))
-    print(f"wrote {RESULTS}")
+    res.write()
     return 0
 
 

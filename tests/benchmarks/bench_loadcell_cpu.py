@@ -1,18 +1,24 @@
 """CPU of an impact acquisition through each simulated load cell backend (same world, DAQ and
-strikes): ``python tests/benchmarks/bench_loadcell_cpu.py [backend ...]``.
+strikes): ``python tests/benchmarks/bench_loadcell_cpu.py [backend ...] [--results PATH]``.
 
 Four inputs × two averages × 4096 samples of the calibration mass; prints wall time and the
-process's user + sys CPU per backend (the machine is shared: compare CPU, not wall time).
+process's user + sys CPU per backend (the machine is shared: compare CPU, not wall time), and
+writes them to ``bench_loadcell_cpu_results.md`` beside this script (``--results`` elsewhere)
+with the command, date, commit and machine load.
 """
 
 from __future__ import annotations
 
+import argparse
 import logging
 import resource
 import sys
 import tempfile
 import time
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from _results import Results, add_results_argument
 
 from dimacq.config import load_settings
 from dimacq.services.acquisition import rig as rig_builder
@@ -41,12 +47,26 @@ def run(backend: str, data: Path) -> tuple[float, float]:
 
 
 def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument(
+        "backends",
+        nargs="*",
+        default=["simulated", "cia404-simulated", "canopen-simulated"],
+        help="load cell backends (default: simulated, cia404-simulated, canopen-simulated)",
+    )
+    add_results_argument(ap, __file__)
+    args = ap.parse_args()
+    res = Results(__file__, "CPU of an acquisition through each simulated load cell", args.results)
+    res.note("four inputs × two averages × 4096 samples of the calibration mass, one process")
     logging.basicConfig(level=logging.ERROR)
-    backends = sys.argv[1:] or ["simulated", "cia404-simulated", "canopen-simulated"]
+    rows = []
     with tempfile.TemporaryDirectory() as tmp:
-        for b in backends:
+        for b in args.backends:
             wall, cpu = run(b, Path(tmp))
             print(f"{b:20s} wall {wall:5.1f} s  cpu (user+sys) {cpu:5.1f} s")
+            rows.append((f"`{b}`", f"{wall:.1f}", f"{cpu:.1f}"))
+    res.table(["load cell backend", "wall s", "CPU s (user + sys)"], rows)
+    res.write()
 
 
 if __name__ == "__main__":

@@ -12,19 +12,16 @@ folder in a temporary directory), then, while a thread polls ``/api/status`` eve
 
 For each step it reports the HTTP status and the time taken, and the number, maximum, 99th
 percentile and median of the status calls' latencies. Targets: a refusal in under 1 s, every
-status call within 100 ms. The figures go to ``import_status_results.md`` beside this script with
-the command, the date, the commit and the machine's load.
+status call within 100 ms. The figures go to ``import_status_results.md`` beside this script
+(``--results`` elsewhere) with the command, the date, the commit and the machine's load.
 
-    python tests/benchmarks/import_status.py [--points 1000000] [--no-write]
+    python tests/benchmarks/import_status.py [--points 1000000] [--no-write] [--results PATH]
 """
 
 from __future__ import annotations
 
 import argparse
-import datetime as dt
-import os
 import shutil
-import subprocess
 import sys
 import tempfile
 import threading
@@ -37,12 +34,12 @@ import httpx
 TESTS = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(TESTS))
 
+from _results import Results, add_results_argument  # noqa: E402
 from _serve_support import Service  # noqa: E402
 
 from dimacq.api.server import free_port  # noqa: E402
 from dimacq.io.measured_points import MAX_POINTS  # noqa: E402
 
-RESULTS = Path(__file__).with_name("import_status_results.md")
 TOKEN = "import-status-token"
 POLL_S = 0.020
 
@@ -117,7 +114,9 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--points", type=int, default=1_000_000)
     ap.add_argument("--no-write", action="store_true", help="print only; keep the results file")
+    add_results_argument(ap, __file__)
     args = ap.parse_args()
+    res = Results(__file__, "/api/status latency during big CSV imports", args.results)
     tmp = Path(tempfile.mkdtemp(prefix="import-status-"))
     rows: list[str] = []
     worst: list[float] = []
@@ -163,16 +162,8 @@ def main() -> int:
             svc.stop()
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
-    commit = subprocess.run(
-        ["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=TESTS
-    ).stdout.strip()
-    load = " ".join(f"{x:.1f}" for x in os.getloadavg())
     text = "\n".join(
         [
-            "# /api/status latency during big CSV imports",
-            "",
-            f"`{' '.join(['python', *sys.argv])}`, {dt.datetime.now(dt.UTC).isoformat()}, "
-            f"commit {commit}, {os.cpu_count()} CPUs, load average {load} (at the end).",
             f"`dimacq serve` in its own process; `/api/status` polled every {POLL_S * 1e3:.0f} ms "
             "from 0.2 s before each request to 0.2 s after it. Targets: a refusal in under 1 s, "
             "every status call within 100 ms.",
@@ -184,12 +175,12 @@ def main() -> int:
             "All status calls (count, max, p99, median in ms): "
             + _stats(worst).replace(" | ", ", ")
             + ".",
-            "",
         ]
     )
-    print(text)
+    res.add(text)
+    print("\n\n".join([res.header(), *res.sections]))
     if not args.no_write:
-        RESULTS.write_text(text)
+        res.write()
     return 0
 
 

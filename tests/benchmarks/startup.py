@@ -6,8 +6,8 @@ Run on demand (not collected by pytest)::
 
 Each run is a fresh process, as a user starts it. For each command the median (and minimum)
 wall time and CPU time (user + system of the child) over ``--repeat`` runs are printed and
-appended to ``startup_results.md`` beside this script, with the command line, date, commit,
-label and the load average before and after. On a shared machine the CPU time is the steadier
+appended to ``startup_results.md`` beside this script (``--results`` elsewhere), with the
+command line, date, commit, label and the load average before and after. On a shared machine the CPU time is the steadier
 figure; the wall time is what the user waits. The commands take turns run by run, so that all
 see the same load. ``--importtime`` adds the cumulative import time of ``dimacq.cli.main`` plus
 the modules ``dimacq --help`` loads (``python -X importtime``, median of the same runs).
@@ -16,17 +16,20 @@ the modules ``dimacq --help`` loads (``python -X importtime``, median of the sam
 from __future__ import annotations
 
 import argparse
-import datetime as dt
 import os
+import shlex
 import statistics
 import subprocess
 import sys
 import time
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from _results import Results, add_results_argument
+
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[1]
-RESULTS = HERE / "startup_results.md"
+TITLE = "Start-up: `dimacq --help`, `dimacq solve --help`, `dimacq solve` of the example"
 SETUP = ROOT / "config" / "examples" / "six_triax_setup.toml"
 FRF = ROOT / "config" / "examples" / "six_triax_frf.uff"
 
@@ -71,37 +74,20 @@ def _import_ms(args: list[str]) -> float:
     return total / 1000.0
 
 
-def _commit() -> str:
-    """Short commit hash of the checkout, with ``+dirty`` when the tree has changes."""
-    rev = subprocess.run(
-        ["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True
-    ).stdout.strip()
-    dirty = subprocess.run(
-        ["git", "status", "--porcelain", "--untracked-files=no"],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-    ).stdout.strip()
-    return rev + ("+dirty" if dirty else "")
-
-
-def _load() -> str:
-    """Load averages (1, 5, 15 min) and the core count."""
-    one, five, fifteen = os.getloadavg()
-    return f"{one:.2f} / {five:.2f} / {fifteen:.2f} on {os.cpu_count()} cores"
-
-
 def main(argv: list[str] | None = None) -> int:
     """Measure, print and append the table; returns the exit status."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=7, help="runs per command (default 7)")
     parser.add_argument("--label", default="", help="a word for the table heading (before/after)")
     parser.add_argument("--importtime", action="store_true", help="also median import time")
+    add_results_argument(parser, __file__)
     args = parser.parse_args(argv)
     if args.repeat < 1:
         parser.error("--repeat: give at least 1 run")
 
-    load_before = _load()
+    res = Results(__file__, TITLE, args.results, append=True, label=args.label or "run")
+    if argv is not None:
+        res.command = " ".join(["python", res.shown, *map(shlex.quote, argv)])
     walls: dict[str, list[float]] = {name: [] for name in COMMANDS}
     cpus: dict[str, list[float]] = {name: [] for name in COMMANDS}
     imports: dict[str, list[float]] = {name: [] for name in COMMANDS}
@@ -113,38 +99,26 @@ def main(argv: list[str] | None = None) -> int:
             cpus[name].append(cpu)
             if args.importtime:
                 imports[name].append(_import_ms(cmd_args))
-    load_after = _load()
 
-    now = dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
-    command = "python tests/benchmarks/startup.py " + " ".join(
-        sys.argv[1:] if argv is None else argv
-    )
-    lines = [
-        "",
-        f"## {args.label or 'run'}: {now}, commit {_commit()}",
-        "",
-        f"- command: `{command.strip()}`",
-        f"- load average before: {load_before}; after: {load_after}",
-        f"- runs per command: {args.repeat} (fresh process each, commands taking turns)",
-        "",
-        "| command | wall median | wall min | CPU median | CPU min | imports median |",
-        "|---|---|---|---|---|---|",
-    ]
+    res.note(f"runs per command: {args.repeat} (fresh process each, commands taking turns)")
+    rows = []
     for name in COMMANDS:
         imp = f"{statistics.median(imports[name]):.0f} ms" if imports[name] else "-"
-        lines.append(
-            f"| `{name}` | {statistics.median(walls[name]):.3f} s | {min(walls[name]):.3f} s"
-            f" | {statistics.median(cpus[name]):.3f} s | {min(cpus[name]):.3f} s | {imp} |"
+        rows.append(
+            (
+                f"`{name}`",
+                f"{statistics.median(walls[name]):.3f} s",
+                f"{min(walls[name]):.3f} s",
+                f"{statistics.median(cpus[name]):.3f} s",
+                f"{min(cpus[name]):.3f} s",
+                imp,
+            )
         )
-    text = "\n".join(lines) + "\n"
-    print(text)
-    if not RESULTS.exists():
-        RESULTS.write_text(
-            "# Start-up: `dimacq --help`, `dimacq solve --help`, `dimacq solve` of the example\n\n"
-            "Written by `tests/benchmarks/startup.py`; each section is one run of it.\n"
-        )
-    with RESULTS.open("a") as fh:
-        fh.write(text)
+    res.table(
+        ["command", "wall median", "wall min", "CPU median", "CPU min", "imports median"], rows
+    )
+    print("\n\n".join([res.header(), *res.sections]))
+    res.write()
     return 0
 
 

@@ -3,9 +3,9 @@ the peak memory of the demo and the bench calibration.
 
 Each figure is measured in A/B pairs run one after the other (A, B, A, B, ...), so that a
 neighbour's load hits both alike; medians and their ratio are reported. The results file
-(``where_users_wait_results.md`` beside this script) carries the command, date, commit, the load
-average and this host's sustainable time-lapse (:func:`dimacq.backends.time_lapse.measure_host`,
-its speed) beside the figures.
+(``where_users_wait_results.md`` beside this script, ``--results`` elsewhere) carries the
+command, date, commit, the load average and this host's sustainable time-lapse
+(:func:`dimacq.backends.time_lapse.measure_host`, its speed) beside the figures.
 
 1. **FRF view open** (what the page's FRFs step waits for before it draws): ``GET
    /api/frfs/{id}/data`` (JSON, parsed) against ``GET /api/frfs/{id}/data.f32`` (float32 behind
@@ -59,9 +59,11 @@ from typing import Any
 import httpx
 import numpy as np
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from _results import Results, add_results_argument
+
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[1]
-RESULTS = HERE / "where_users_wait_results.md"
 EXAMPLES = ROOT / "config" / "examples"
 
 
@@ -269,7 +271,7 @@ def memory(runs: int) -> list[str]:
     return lines
 
 
-def memory_only(runs: int, label: str) -> int:
+def memory_only(runs: int, label: str, results: Path) -> int:
     """Section 5 alone, written into the results file under ``label`` (module docstring)."""
     commit = subprocess.run(
         ["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=ROOT
@@ -292,12 +294,12 @@ def memory_only(runs: int, label: str) -> int:
         f"- then: {host_line()}",
         "",
     ]
-    old = RESULTS.read_text(encoding="utf-8") if RESULTS.exists() else ""
+    old = results.read_text(encoding="utf-8") if results.exists() else ""
     sections = re.split(r"(?m)^(?=## )", old)
     kept = [x for x in sections if not x.startswith(head)]
     body = "".join(kept).rstrip("\n") + "\n\n" + "\n".join(lines)
-    RESULTS.write_text(body, encoding="utf-8")
-    print(f"wrote {RESULTS}")
+    results.write_text(body, encoding="utf-8")
+    print(f"wrote {results}")
     return 0
 
 
@@ -322,10 +324,11 @@ def main() -> int:
     )
     ap.add_argument("--memory-runs", type=int, default=2, help="runs of each command (section 5)")
     ap.add_argument("--label", default="", help="--memory-only: the section's label")
+    add_results_argument(ap, __file__)
     args = ap.parse_args()
     logging.disable(logging.WARNING)
     if args.memory_only:
-        return memory_only(args.memory_runs, args.label or "this run")
+        return memory_only(args.memory_runs, args.label or "this run", args.results)
     sys.path.insert(0, str(ROOT / "tests"))
     from _api_support import TOKEN, make_settings
 
@@ -334,17 +337,9 @@ def main() -> int:
     from dimacq.services.lab import Lab
     from dimacq.simulators.lab.scenarios import build_scenario
 
-    commit = subprocess.run(
-        ["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=ROOT
-    ).stdout.strip()
-    lines = [
-        "# Where a user waits",
-        "",
-        f"- command: `python tests/benchmarks/where_users_wait.py {' '.join(sys.argv[1:])}`",
-        f"- date: {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, commit {commit}",
-        f"- at start: {host_line()}",
-        "",
-    ]
+    res = Results(__file__, "Where a user waits", args.results)
+    res.note(f"at start: {host_line()}")
+    lines: list[str] = []
     with tempfile.TemporaryDirectory(prefix="dimacq-wait-") as tmp_s:
         tmp = Path(tmp_s)
         settings = make_settings(tmp / "data", database_url="")
@@ -437,8 +432,8 @@ def main() -> int:
         lines += ["## 5. Peak memory (maximum resident set size, /usr/bin/time -v)", ""]
         lines += memory(args.memory_runs)
         lines += [f"- then: {host_line()}", ""]
-    RESULTS.write_text("\n".join(lines) + "\n", encoding="utf-8")
-    print(f"wrote {RESULTS}")
+    res.add("\n".join(lines))
+    res.write()
     return 0
 
 

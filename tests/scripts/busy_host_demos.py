@@ -6,8 +6,9 @@ the script ends or after ``--burn-s``), each backend's demo runs as a user would
 demo and its children). Written per demo: the exit status, wall seconds, the time-lapse chosen at
 start and the factors the adaptive clock used, the simulated seconds, DAQ FIFO overflows and
 load cell gaps (nothing lost: both zero), the answer's mass error against the truth. Figures go
-to ``busy_host_demos_results.md`` beside this script with the command, date, commit, load average
-and this host's sustainable time-lapse (:func:`dimacq.backends.time_lapse.measure_host`).
+to ``busy_host_demos_results.md`` beside this script (``--results`` elsewhere) with the command,
+date, commit, load average and this host's sustainable time-lapse
+(:func:`dimacq.backends.time_lapse.measure_host`).
 
     python tests/scripts/busy_host_demos.py [--only canopen-simulated ...] [--burners 2]
 """
@@ -26,7 +27,8 @@ import time
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
-RESULTS = HERE / "busy_host_demos_results.md"
+sys.path.insert(0, str(HERE.parent))
+from _results import Results, add_results_argument  # noqa: E402
 
 #: name → the environment that selects the backend (as a user sets it)
 DEMOS: dict[str, dict[str, str]] = {
@@ -120,18 +122,15 @@ def run_demo(name: str, env_extra: dict[str, str], out_dir: Path, timeout_s: flo
     return row
 
 
-def write_results(rows: list[dict], args: argparse.Namespace, commit: str, before: str) -> None:
+def write_results(rows: list[dict], args: argparse.Namespace, res: Results, before: str) -> None:
     """The results file, rewritten after each demo (a demo cut short keeps the others)."""
-    after = host_line()
+    res.notes = []
+    res.note(
+        f"beside each demo: {args.burners} processes spinning a core each (`while True: pass`)"
+    )
+    res.note(f"before: {before}")
+    res.note(f"after: {host_line()}")
     lines = [
-        "# Every backend's demo on a busy host",
-        "",
-        f"- command: `python tests/scripts/busy_host_demos.py {' '.join(sys.argv[1:])}`".rstrip(),
-        f"- date: {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, commit {commit}",
-        f"- beside each demo: {args.burners} processes spinning a core each (`while True: pass`)",
-        f"- before: {before}",
-        f"- after: {after}",
-        "",
         "| demo | exit | wall s | load at start | time-lapse at start | factors used | waits "
         "| simulated s | DAQ FIFO overflows | load cell gaps > 1 | mass error % | peak RSS MB |",
         "|---|---|---|---|---|---|---|---|---|---|---|---|",
@@ -157,9 +156,8 @@ def write_results(rows: list[dict], args: argparse.Namespace, commit: str, befor
             )
         if r.get("tail"):
             lines.append(f"- `{r['env']}` ended without a result: {' / '.join(r['tail'])}")
-    out = Path(args.results)
-    out.write_text("\n".join(lines) + "\n", encoding="utf-8")
-    print(f"wrote {out}")
+    res.sections = ["\n".join(lines)]
+    res.write()
 
 
 def main() -> int:
@@ -169,12 +167,10 @@ def main() -> int:
     ap.add_argument("--burn-s", type=float, default=3600.0, help="each burner ends after this")
     ap.add_argument("--timeout-s", type=float, default=1200.0, help="per demo")
     ap.add_argument("--logs", default=None, help="keep each demo's output and JSON here")
-    ap.add_argument("--results", default=str(RESULTS), help="the results file")
+    add_results_argument(ap, __file__)
     args = ap.parse_args()
     names = args.only or list(DEMOS)
-    commit = subprocess.run(
-        ["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=HERE
-    ).stdout.strip()
+    res = Results(__file__, "Every backend's demo on a busy host", args.results)
     before = host_line()
     rows = []
     with tempfile.TemporaryDirectory(prefix="dimacq-busy-") as tmp:
@@ -192,7 +188,7 @@ def main() -> int:
                     b.wait()
             rows.append(row)
             print(json.dumps(row), flush=True)
-            write_results(rows, args, commit, before)
+            write_results(rows, args, res, before)
     lost = [r for r in rows if r["rc"] != 0 or not r.get("kept_up")]
     return 1 if lost else 0
 

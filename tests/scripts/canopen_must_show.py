@@ -1,4 +1,4 @@
-"""Issue 17's "Must show", on demand: the load cell on the CANopen backend against the native
+"""On demand: the load cell on the CANopen backend against the native
 (CAN FD) one, each through its own ``dimacq serve`` process configured only by
 ``DIMACQ_LOADCELL`` (``simulated`` | ``canopen-simulated``):
 
@@ -10,7 +10,10 @@
    the backend's amplifier simulator): matrix error against the simulated cell's ``pinv(S)``,
    nonlinearity and hysteresis against the simulated 0.05 % and 0.03 %.
 
-    python tests/scripts/canopen_must_show.py [--averages 3]
+    python tests/scripts/canopen_must_show.py [--averages 3] [--results PATH]
+
+The table goes to ``canopen_must_show_results.md`` beside this script (``--results`` elsewhere)
+with the command, date, commit and machine load.
 """
 
 from __future__ import annotations
@@ -27,6 +30,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from _acq_support import calibration_scale
+from _results import Results, add_results_argument
 from _serve_support import Service
 
 from dimacq.api.server import free_port
@@ -56,8 +60,11 @@ def run(backend: str, averages: int, root: Path) -> dict[str, float | str]:
             full=True,  # the rig file's [acquisition], as before dimacq demo's own cut
             record_samples=None,
             data_dir=None,
+            geometry="digitizer",
             json=None,
+            model_frfs=False,
             no_chain_calibration=True,
+            photos=40,
             noise=0.005,
             quiet=True,
             rig_file=None,
@@ -106,13 +113,20 @@ def run(backend: str, averages: int, root: Path) -> dict[str, float | str]:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--averages", type=int, default=3)
+    add_results_argument(ap, __file__)
     a = ap.parse_args()
+    out = Results(__file__, "The load cell on the CANopen backend against CAN FD", a.results)
+    backends = ("simulated", "canopen-simulated")
     with tempfile.TemporaryDirectory(prefix="dimacq-canopen-") as tmp:
-        rows = [run(b, a.averages, Path(tmp)) for b in ("simulated", "canopen-simulated")]
+        rows = [run(b, a.averages, Path(tmp)) for b in backends]
     keys = list(rows[0])
+    table = []
     for k in keys:
         vals = [f"{r[k]:.4g}" if isinstance(r[k], float) else str(r[k]) for r in rows]
         print(f"{k:<26}" + "".join(f"{v:>22}" for v in vals))
+        table.append((k, *vals))
+    out.table(["figure", *(f"`DIMACQ_LOADCELL={b}`" for b in backends)], table)
+    out.write()
 
 
 if __name__ == "__main__":

@@ -1,16 +1,16 @@
 """A long run of ``tests/api/test_hardening_every_endpoint_fuzz.py``: every operation of the
 spec, ``--examples`` hostile requests each, on SQLite and PostgreSQL (random examples, not the
 default run's fixed ones), and the counts per database and status class written to
-``fuzz_every_endpoint_results.md`` beside this script with the command, date, commit and load.
+``fuzz_every_endpoint_results.md`` beside this script (``--results`` elsewhere) with the
+command, date, commit and load.
 
-    python tests/scripts/fuzz_every_endpoint.py [--examples 40] [-n 2]
+    python tests/scripts/fuzz_every_endpoint.py [--examples 40] [-n 2] [--results PATH]
 """
 
 from __future__ import annotations
 
 import argparse
 import collections
-import datetime as dt
 import os
 import subprocess
 import sys
@@ -19,14 +19,17 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
-RESULTS = Path(__file__).with_name("fuzz_every_endpoint_results.md")
+sys.path.insert(0, str(ROOT / "tests"))
+from _results import Results, add_results_argument  # noqa: E402
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--examples", type=int, default=40, help="hostile requests per operation")
     ap.add_argument("-n", default="2", help="pytest-xdist workers (at most 2 on a shared host)")
+    add_results_argument(ap, __file__)
     args = ap.parse_args()
+    res = Results(__file__, "Hostile values on every endpoint (long run)", args.results)
     with tempfile.NamedTemporaryFile(prefix="fuzz-counts-", suffix=".tsv", delete=False) as fh:
         counts_path = Path(fh.name)
     env = {
@@ -63,17 +66,8 @@ def main() -> int:
         ops[backend].add(op)
         where[backend][place.split(":", 1)[0]] += 1
     summary = run.stdout.strip().splitlines()[-1] if run.stdout.strip() else run.stderr[-300:]
-    commit = subprocess.run(
-        ["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=ROOT
-    ).stdout.strip()
-    load = " ".join(f"{x:.1f}" for x in os.getloadavg())
+    res.note(f"pytest: {summary} ({took:.0f} s)")
     lines = [
-        "# Hostile values on every endpoint (long run)",
-        "",
-        f"`{' '.join(['python', *sys.argv])}`, {dt.datetime.now(dt.UTC).isoformat()}, commit "
-        f"{commit}, {os.cpu_count()} CPUs, load average {load} (at the end); {took:.0f} s.",
-        f"pytest: {summary}",
-        "",
         "| database | operations | requests | 2xx | 3xx | 4xx | 5xx | hostile value in |",
         "|---|---|---|---|---|---|---|---|",
     ]
@@ -86,9 +80,9 @@ def main() -> int:
         )
     if run.returncode != 0:
         lines += ["", "Failures:", "", "```", run.stdout[-4000:], "```"]
-    text = "\n".join(lines) + "\n"
-    print(text)
-    RESULTS.write_text(text)
+    res.add("\n".join(lines))
+    print("\n\n".join([res.header(), *res.sections]))
+    res.write()
     return run.returncode
 
 

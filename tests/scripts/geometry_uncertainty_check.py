@@ -1,4 +1,4 @@
-"""Stated vs observed geometry uncertainty of the digitizing chain (issue 10), on demand.
+"""Stated vs observed geometry uncertainty of the digitizing chain, on demand.
 
 Repeats, ``--trials`` times, what a digitized setup does: place the simulated array at a random
 pose, digitize six reference nodes through the wire (their stated GCS coordinates carry an error
@@ -16,16 +16,24 @@ A ratio observed/stated near 1 means the statement is right, below 1 conservativ
 σ uses max(σ̂, prior) per registration), above 1 optimistic (wrong).
 
     python tests/scripts/geometry_uncertainty_check.py --trials 60 [--ref-sigma-mm 0.5] [--json OUT]
+
+The figures go to ``geometry_uncertainty_check_results.md`` beside this script (``--results``
+elsewhere) with the command, date, commit and machine load.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import shlex
 import sys
+from pathlib import Path
 
 import numpy as np
 from scipy.spatial.transform import Rotation
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from _results import Results, add_results_argument
 
 import dimacq.simulators.digitizer as simdig
 from dimacq.drivers.digitizer import SerialDigitizer
@@ -51,7 +59,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--ref-sigma-mm", type=float, default=0.5)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--json", default=None)
+    add_results_argument(ap, __file__)
     args = ap.parse_args(argv)
+    res = Results(
+        __file__,
+        "Stated against observed geometry uncertainty of the digitizing chain",
+        args.results,
+    )
+    if argv is not None:
+        res.command = " ".join(["python", res.shown, *map(shlex.quote, argv)])
     rng = np.random.default_rng(args.seed)
     cfg = load_array_config()
     jig = load_jig()
@@ -163,6 +179,11 @@ def main(argv: list[str] | None = None) -> int:
     }
     for k, v in out.items():
         print(f"{k:45s} {v:.4g}" if isinstance(v, float) else f"{k:45s} {v}")
+    res.table(
+        ["figure", "value"],
+        [(k, f"{v:.4g}" if isinstance(v, float) else v) for k, v in out.items()],
+    )
+    res.write()
     if args.json:
         with open(args.json, "w", encoding="utf-8") as fh:
             json.dump(out, fh, indent=2)

@@ -23,14 +23,14 @@ The kernel and threads that actually ran (``threadpoolctl`` in the same environm
 recorded with each run. ``--fresh-clone``: ``git clone`` of this repository's HEAD (committed
 work only) into a temporary folder, a venv there with ``pip install -e ".[dev]"``, and the
 command run in it, as a new user would. The results are appended to
-``tests/scripts/machine_independence_results.md`` (command, date, commit, machine load, and per
+``tests/scripts/machine_independence_results.md`` (``--results`` elsewhere) through
+``tests/_results.py`` (command, date, commit of the tree tested, machine load, and per
 run: variant, kernel, passed / failed / skipped / errors, wall time, the failed tests).
 """
 
 from __future__ import annotations
 
 import argparse
-import datetime as dt
 import json
 import os
 import re
@@ -42,8 +42,12 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from _results import Results, commit
+
 ROOT = Path(__file__).resolve().parents[2]
 RESULTS = Path(__file__).with_name("machine_independence_results.md")
+TITLE = "Machine independence: the tests under BLAS code paths and thread counts"
 #: the README's test command, after ``pytest``
 README_ARGS = ["-q", "-p", "no:cacheprovider", "-n", "auto"]
 _CORES = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
@@ -130,50 +134,48 @@ def fresh_clone(where: Path) -> tuple[Path, str]:
     return dest, py
 
 
-def commit(cwd: Path) -> str:
-    got = subprocess.run(
-        ["git", "rev-parse", "--short", "HEAD"], cwd=cwd, capture_output=True, text=True
+def report(runs: list[Run], command: str, where: str, res: Results) -> None:
+    """The run's section: where, the pytest command, the BLAS settings, one row per run."""
+    res.note(f"tests: `{command}`")
+    res.note(f"where: {where}")
+    res.note(
+        "environment's own BLAS settings: "
+        + (", ".join(f"{k}={os.environ[k]}" for k in _BLAS_VARS if k in os.environ) or "none")
     )
-    dirty = subprocess.run(
-        ["git", "status", "--porcelain", "--untracked-files=no"],
-        cwd=cwd,
-        capture_output=True,
-        text=True,
-    ).stdout.strip()
-    return got.stdout.strip() + (" (with uncommitted changes)" if dirty else "")
-
-
-def report(runs: list[Run], command: str, where: str, rev: str, load: tuple[float, ...]) -> str:
-    now = dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
-    loads = "/".join(f"{v:.2f}" for v in load)
-    after = "/".join(f"{v:.2f}" for v in os.getloadavg())
-    lines = [
-        f"## {now}, commit {rev}",
-        "",
-        f"- command: `{command}`",
-        f"- where: {where}",
-        f"- machine: {_CORES} cores; load average (1/5/15 min) {loads} at the start, "
-        f"{after} at the end",
-        "- environment's own BLAS settings: "
-        + (", ".join(f"{k}={os.environ[k]}" for k in _BLAS_VARS if k in os.environ) or "none"),
-        "",
-        "| run | variant | BLAS (numpy, scipy) | passed | failed | errors | skipped | wall s |",
-        "|---|---|---|---|---|---|---|---|",
-    ]
-    for i, r in enumerate(runs, 1):
-        c = r.counts
-        lines.append(
-            f"| {i} | {r.variant} | {r.kernel} | {c.get('passed', 0)} | {c.get('failed', 0)} | "
-            f"{c.get('error', 0)} | {c.get('skipped', 0)} | {r.wall_s:.0f} |"
+    rows = [
+        (
+            i,
+            r.variant,
+            r.kernel,
+            r.counts.get("passed", 0),
+            r.counts.get("failed", 0),
+            r.counts.get("error", 0),
+            r.counts.get("skipped", 0),
+            f"{r.wall_s:.0f}",
         )
-    bad = [(i, r) for i, r in enumerate(runs, 1) if r.failed or r.returncode != 0]
-    lines += [
-        "",
-        f"All green: {'yes' if not bad else 'NO'} ({len(runs) - len(bad)} of {len(runs)} runs).",
+        for i, r in enumerate(runs, 1)
     ]
-    for i, r in bad:
-        lines.append(f"- run {i} ({r.variant}, exit {r.returncode}): " + ", ".join(r.failed[:20]))
-    return "\n".join(lines) + "\n\n"
+    res.table(
+        [
+            "run",
+            "variant",
+            "BLAS (numpy, scipy)",
+            "passed",
+            "failed",
+            "errors",
+            "skipped",
+            "wall s",
+        ],
+        rows,
+    )
+    bad = [(i, r) for i, r in enumerate(runs, 1) if r.failed or r.returncode != 0]
+    verdict = [
+        f"All green: {'yes' if not bad else 'NO'} ({len(runs) - len(bad)} of {len(runs)} runs)."
+    ]
+    verdict += [
+        f"- run {i} ({r.variant}, exit {r.returncode}): " + ", ".join(r.failed[:20]) for i, r in bad
+    ]
+    res.add("\n".join(verdict))
 
 
 def main() -> int:
@@ -200,7 +202,7 @@ def main() -> int:
     if unknown:
         ap.error(f"unknown variant(s) {unknown}; give some of {list(VARIANTS)}")
     pytest_args = args.pytest_args or README_ARGS
-    load = os.getloadavg()
+    res = Results(__file__, TITLE, args.results, append=True)
     tmp = Path(tempfile.mkdtemp(prefix="machine-independence-"))
     try:
         if args.fresh_clone:
@@ -213,7 +215,7 @@ def main() -> int:
         else:
             cwd, python = ROOT, sys.executable
             where = f"this tree ({ROOT}), {sys.executable}"
-        rev = commit(cwd)
+        res.commit = commit(cwd)
         runs: list[Run] = []
         for k in range(args.runs):
             for v in variants:
@@ -233,16 +235,9 @@ def main() -> int:
                     shutil.copy(log, keep)
                     print(f"  its output: {keep}", flush=True)
         command = "pytest " + " ".join(pytest_args)
-        text = report(runs, command, where, rev, load)
-        if not args.results.exists():
-            args.results.write_text(
-                "# Machine independence: the tests under BLAS code paths and thread counts\n\n"
-                "Written by `tests/scripts/machine_independence.py` (see its docstring); one "
-                "section per invocation, newest last.\n\n"
-            )
-        with args.results.open("a") as f:
-            f.write(text)
-        print(text)
+        report(runs, command, where, res)
+        res.write()
+        print("\n\n".join([res.header(), *res.sections]))
         return 0 if all(not r.failed and r.returncode == 0 for r in runs) else 1
     finally:
         if args.clone_dir is None:

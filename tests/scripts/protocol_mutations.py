@@ -18,7 +18,8 @@ one process (``--in-process``): the heavy third-party imports (numpy, python-can
 made once, and before each mutant every ``dimacq`` and test module is dropped from
 ``sys.modules`` so that the tests import the mutated copy afresh; ``--subprocess`` runs each in
 a fresh interpreter instead (slower, the same verdicts). The results go to
-``protocol_mutations_results.md`` beside this script (command, date, commit, load).
+``protocol_mutations_results.md`` beside this script (``--out`` / ``--results`` elsewhere) with
+the command, date, commit and load.
 
 Usage::
 
@@ -31,9 +32,9 @@ from __future__ import annotations
 
 import argparse
 import ast
-import datetime as dt
 import os
 import re
+import shlex
 import subprocess
 import sys
 import tempfile
@@ -43,6 +44,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
 RESULTS = Path(__file__).with_name("protocol_mutations_results.md")
+sys.path.insert(0, str(ROOT / "tests"))
+from _results import Results  # noqa: E402
 
 #: target name → (module, source file, test paths: fastest first, -x stops at the first failure)
 TARGETS: dict[str, tuple[str, str, tuple[str, ...]]] = {
@@ -514,17 +517,15 @@ def run_in_process(
     return f"killed (pytest exit {int(rc)})", secs, failed or (lines[-1] if lines else "")
 
 
-def _git(*args: str) -> str:
-    return subprocess.run(["git", *args], cwd=ROOT, capture_output=True, text=True).stdout.strip()
-
-
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("targets", nargs="*", help=f"of {sorted(TARGETS)} (default: all)")
     ap.add_argument("--list", action="store_true", help="list the mutants, run nothing")
     ap.add_argument("-n", "--workers", default="0", help="pytest-xdist workers per run (0 or 2)")
     ap.add_argument("--timeout", type=float, default=600.0, help="per mutant, s")
-    ap.add_argument("--out", type=Path, default=RESULTS, help="the results file (markdown)")
+    ap.add_argument(
+        "--out", "--results", type=Path, default=RESULTS, help="the results file (markdown)"
+    )
     ap.add_argument(
         "--subprocess", action="store_true", help="each mutant in a fresh interpreter (slower)"
     )
@@ -552,6 +553,9 @@ def main(argv: list[str] | None = None) -> int:
         "printed with '(earlier run)'",
     )
     args = ap.parse_args(argv)
+    res = Results(__file__, "Protocol mutations: results", args.out)
+    if argv is not None:
+        res.command = " ".join(["python", res.shown, *map(shlex.quote, argv)])
     earlier: dict[tuple[str, str], str] = {}
     old_pat = re.compile(r"^\[(\w+) \d+/\d+\] (.*?): (killed(?: \([^)]*\))?) \([\d.]+ s\) ?(.*)$")
     for log in args.reuse_log:
@@ -566,7 +570,6 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"unknown targets {unknown}; give any of {sorted(TARGETS)}")
     sections = []
     total_survived = 0
-    started = time.monotonic()
     logged: dict[str, dict[int, tuple[str, float, str]]] = {}
     pat = re.compile(
         r"^\[(\w+) (\d+)/(\d+)\] .*?: (killed(?: \([^)]*\))?|survived) \(([\d.]+) s\) ?(.*)$"
@@ -655,19 +658,12 @@ def main(argv: list[str] | None = None) -> int:
         )
     if args.list:
         return 0
-    load = os.getloadavg()
-    head = (
-        "# Protocol mutations: results\n\n"
-        f"- command: `python {Path(__file__).relative_to(ROOT)} {' '.join(argv if argv is not None else sys.argv[1:])}`\n"
-        f"- date: {dt.datetime.now(dt.UTC).strftime('%Y-%m-%d %H:%M UTC')}\n"
-        f"- commit: {_git('rev-parse', '--short', 'HEAD')}{' (with uncommitted changes)' if _git('status', '--porcelain') else ''}\n"
-        f"- machine load (1/5/15 min) at the end: {load[0]:.2f} / {load[1]:.2f} / {load[2]:.2f} "
-        f"on {os.cpu_count()} CPUs; wall time {time.monotonic() - started:.0f} s\n"
-        f"- targets run: {', '.join(names)}; modules not run are listed with their test paths "
-        "in the script's TARGETS\n\n"
+    res.note(
+        f"targets run: {', '.join(names)}; modules not run are listed with their test paths "
+        "in the script's TARGETS"
     )
-    args.out.write_text(head + "\n".join(sections), encoding="utf-8")
-    print(f"wrote {args.out}")
+    res.add("\n".join(sections))
+    res.write()
     return 1 if total_survived else 0
 
 

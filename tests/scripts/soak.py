@@ -22,6 +22,9 @@ of its own reads ``GET /api/status`` every 0.1 s. It checks and prints:
 Usage (on demand; the test suite runs a short version, ``tests/cli/test_soak.py``)::
 
     nice python tests/scripts/soak.py --minutes 30 [--seed 1] [--json soak.json]
+
+The tables go to ``soak_results.md`` beside this script (``--results`` elsewhere) with the
+command, date, commit and machine load.
 """
 
 from __future__ import annotations
@@ -31,6 +34,7 @@ import json
 import os
 import re
 import secrets
+import shlex
 import shutil
 import socket
 import subprocess
@@ -46,6 +50,7 @@ from typing import Any
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from _results import Results, add_results_argument
 from _serve_support import Service
 
 #: the imperfections turned up for the soak (see dimacq.simulators.imperfections)
@@ -449,7 +454,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--averages", type=int, default=3, help="averages per input")
     ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--keep", type=Path, default=None, help="keep the data and service log here")
+    add_results_argument(ap, __file__)
     args = ap.parse_args(argv)
+    res = Results(__file__, "Soak with faults", args.results)
+    res.command = " ".join(["python", res.shown, *map(shlex.quote, argv)])
     fig = run_soak(
         args.minutes,
         seed=args.seed,
@@ -458,10 +466,17 @@ def main(argv: list[str] | None = None) -> int:
         workdir=args.keep,
     )
     print(table(fig))
+    said = []
     for e in fig.errors + fig.acquisitions_failed:
         print("problem:", e)
+        said.append(f"- problem: {e}")
     for e in fig.acquisitions_incomplete:
         print("incomplete (refused, nothing lost):", e)
+        said.append(f"- incomplete (refused, nothing lost): {e}")
+    res.add(table(fig))
+    if said:
+        res.add("\n".join(said))
+    res.write()
     if args.json:
         args.json.write_text(json.dumps(fig.__dict__, indent=2) + "\n", encoding="utf-8")
     ok = (

@@ -6,8 +6,8 @@ starts it (``dimacq demo --json OUT``, ended after ``--timeout-s``). Written per
 status, the wall time, the mass error (%), the CG error (mm), the largest principal-moment error
 (%), the solution's verdict and whether the errors are within the limits (0.5 % mass, 1 mm CG,
 0.5 % principal moments); a demo that ends without a result has the reason it gave (its last
-lines). The figures go to ``twin_demos_results.md`` beside this script (rewritten after each
-demo) with the command, date, commit and load.
+lines). The figures go to ``twin_demos_results.md`` beside this script (``--results``
+elsewhere; rewritten after each demo) with the command, date, commit and load.
 
     python tests/scripts/twin_demos.py [--only cia404-simulated ...] [--timeout-s 900]
 """
@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shlex
 import signal
 import subprocess
 import sys
@@ -25,7 +26,8 @@ import time
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
-RESULTS = HERE / "twin_demos_results.md"
+sys.path.insert(0, str(HERE.parent))
+from _results import Results, add_results_argument  # noqa: E402
 
 #: name → the environment that selects the twin (as a user sets it)
 DEMOS: dict[str, dict[str, str]] = {
@@ -91,17 +93,9 @@ def run_demo(name: str, env_extra: dict[str, str], out_dir: Path, timeout_s: flo
     return row
 
 
-def write_results(rows: list[dict], argv: list[str], commit: str, before: str, path: Path) -> None:
-    load = os.getloadavg()
+def write_results(rows: list[dict], res: Results) -> None:
+    """The results file, rewritten after each demo (a demo cut short keeps the others)."""
     out = [
-        "# Each simulated twin's `dimacq demo`",
-        "",
-        f"- command: `python tests/scripts/twin_demos.py {' '.join(argv)}`".rstrip(),
-        f"- date: {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, commit {commit}",
-        f"- load average before: {before}; after: {load[0]:.2f} / {load[1]:.2f} / {load[2]:.2f} "
-        f"(1/5/15 min) on {os.cpu_count()} CPUs; one demo at a time",
-        f"- limits: mass {LIMITS[0]} %, CG {LIMITS[1]} mm, principal moments {LIMITS[2]} %",
-        "",
         "| twin | exit | wall s | load at start | mass % | CG mm | principal % (largest) "
         "| band Hz | verdict | within limits |",
         "|---|---|---|---|---|---|---|---|---|---|",
@@ -124,8 +118,8 @@ def write_results(rows: list[dict], argv: list[str], commit: str, before: str, p
             out.append(f"- `{r['env']}` ended without a result: " + " / ".join(r["tail"]))
         elif r.get("acquisition"):
             out.append(f"- `{r['env']}`: {r['acquisition']}")
-    path.write_text("\n".join(out) + "\n", encoding="utf-8")
-    print(f"wrote {path}", flush=True)
+    res.sections = ["\n".join(out)]
+    res.write()
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -134,14 +128,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--only", nargs="*", default=None, choices=sorted(DEMOS))
     ap.add_argument("--timeout-s", type=float, default=900.0, help="per demo")
     ap.add_argument("--logs", default=None, help="keep each demo's output and JSON here")
-    ap.add_argument("--results", type=Path, default=RESULTS, help="the results file")
+    add_results_argument(ap, __file__)
     ap.add_argument("--keep", type=Path, default=None, help="rows of earlier runs (JSON) kept")
     args = ap.parse_args(argv)
-    commit = subprocess.run(
-        ["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=HERE
-    ).stdout.strip()
-    load = os.getloadavg()
-    before = f"{load[0]:.2f} / {load[1]:.2f} / {load[2]:.2f}"
+    res = Results(__file__, "Each simulated twin's `dimacq demo`", args.results)
+    res.command = " ".join(["python", res.shown, *map(shlex.quote, argv)])
+    res.note("one demo at a time")
+    res.note(f"limits: mass {LIMITS[0]} %, CG {LIMITS[1]} mm, principal moments {LIMITS[2]} %")
     rows: list[dict] = []
     if args.keep and args.keep.exists():
         rows = json.loads(args.keep.read_text(encoding="utf-8"))
@@ -154,7 +147,7 @@ def main(argv: list[str] | None = None) -> int:
             print(json.dumps(row), flush=True)
             if args.keep:
                 args.keep.write_text(json.dumps(rows), encoding="utf-8")
-            write_results(rows, argv, commit, before, args.results)
+            write_results(rows, res)
     return 0 if all(r.get("within") for r in rows) else 1
 
 
