@@ -52,6 +52,7 @@ def test_raw_html_is_escaped_and_names_outside_the_manual_are_refused() -> None:
 CHROMIUM = shutil.which("chromium")
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(CHROMIUM is None, reason="Debian's chromium is not installed")
 def test_help_is_served_offline_from_dimacq_serve(tmp_path: Path) -> None:
     """``/help`` opens the index; following its links shows every linked page; each answer has

@@ -141,6 +141,7 @@ def test_the_data_time_base_where_the_host_clock_is_refused(tmp_path: Path) -> N
     assert np.all(np.abs(ratio - 1) < 0.05), ratio
 
 
+@pytest.mark.slow
 def test_one_delay_fitted_on_every_input_of_the_run(
     tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:

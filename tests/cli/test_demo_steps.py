@@ -45,6 +45,7 @@ def test_host_lag_of_another_process_is_added() -> None:
     assert here.loadcell_gaps == [1, 40]
 
 
+@pytest.mark.slow
 def test_an_error_of_step_0_is_raised_in_the_demo_with_its_reason(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

@@ -19,6 +19,7 @@ from typing import Any
 
 import httpx
 import numpy as np
+import pytest
 from _acq_support import ImpulseSource
 from _lab_rig_support import IMPULSE_SETUP
 
@@ -53,6 +54,7 @@ def test_factory_path_is_looked_up_like_a_table_entry() -> None:
     assert lookup("daq", "_second_daq:open_daq") is _second_daq.open_daq
 
 
+@pytest.mark.slow
 def test_second_daq_kind_through_dimacq_serve(tmp_path: Path) -> None:
     rig = tmp_path / "rig.toml"
     text = RIG

@@ -21,6 +21,7 @@ from dimacq.cli.main import main
 from dimacq.config import load_settings
 
 
+@pytest.mark.slow
 def test_serve_binds_loopback_and_needs_the_token(tmp_path: Path) -> None:
     port = free_port()
     env = {**os.environ, "DIMACQ_TOKEN": "", "DIMACQ_DIGITIZER_URL": f"simdigitizer://serve{port}"}

@@ -150,6 +150,7 @@ def test_scale_to_mass_and_options(tmp_path: Path) -> None:
     assert data["verdict"] == "ok"
 
 
+@pytest.mark.slow
 def test_selection_flags_add_the_contract_keys_and_figures(tmp_path: Path) -> None:
     out = tmp_path / "sol.json"
     args = ["solve", str(EXAMPLES / "six_triax_setup.toml"), str(EXAMPLES / "six_triax_frf.uff")]

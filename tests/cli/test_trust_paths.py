@@ -19,6 +19,7 @@ ROOT = Path(__file__).resolve().parents[2]
 EXAMPLES = ROOT / "config" / "examples"
 
 
+@pytest.mark.slow
 def test_x38_auto_band_is_right_or_refused(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
