@@ -304,9 +304,9 @@ def contamination(
     sugg = report.band_suggestion
     if sugg is not None and not sugg.qualified:
         return f"no band qualifies ({sugg.reason})"
-    for r in report.verdict_reasons:
-        if r.check in ("band", "residual") and r.severity != "ok":
-            return f"the {r.check} check gives {r.severity}: {r.message}"
+    for reason in report.verdict_reasons:
+        if reason.check in ("band", "residual") and reason.severity != "ok":
+            return f"the {reason.check} check gives {reason.severity}: {reason.message}"
     if sugg is None or not sugg.deformation_peaks_hz:
         return None
     try:
@@ -419,9 +419,7 @@ def with_modal_uncertainty(
             data, setup, length_unit=length_unit, response_weights=weights
         ).select_inputs(keep_idx)
         # the parameters alone: the plausibility checks are the headline solve's
-        samples.append(
-            solve_system(system, known=dict(known), check_plausibility=False).parameters
-        )
+        samples.append(solve_system(system, known=dict(known), check_plausibility=False).parameters)
     s = np.asarray(samples)
     se = s.std(axis=0, ddof=1)
     P = np.asarray(result.reference_point_m, float)
