@@ -262,6 +262,20 @@ def same_answer(a: dict[str, Any], b: dict[str, Any]) -> str:
     return "identical" if d is None else f"differ first at {d}"
 
 
+def with_section(path: Path, section: list[str]) -> str:
+    """The results file at ``path`` with its section of the same heading (``section[0]``, up to
+    its number) replaced by ``section``, or ``section`` added at its end."""
+    old = path.read_text(encoding="utf-8") if path.exists() else "# Where a user waits\n"
+    key = section[0].split(" (")[0]
+    parts = re.split(r"(?m)^(?=## )", old)
+    new = "\n".join(section) + "\n"
+    for i, part in enumerate(parts):
+        if part.startswith(key):
+            parts[i] = new
+            return "".join(parts).rstrip("\n") + "\n"
+    return old.rstrip("\n") + "\n\n" + new
+
+
 def flexible_section(args: argparse.Namespace) -> list[str]:
     """Section 3 of the results (and the comparison with ``--before``)."""
     n = max(1, min(args.pairs, 2))
@@ -384,9 +398,11 @@ def main() -> int:
         f"- at start: {host_line()}",
         "",
     ]
-    if args.only_flexible:
-        lines += flexible_section(args) + [f"- then: {host_line()}", ""]
-        RESULTS.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    if args.only_flexible:  # the results file's section 3 replaced, the others kept
+        section = flexible_section(args)
+        section[1:1] = lines[1:5]  # its command, date, commit and load
+        section += [f"- then: {host_line()}", ""]
+        RESULTS.write_text(with_section(RESULTS, section), encoding="utf-8")
         print(f"wrote {RESULTS}")
         return 0
     with tempfile.TemporaryDirectory(prefix="dimacq-wait-") as tmp_s:
