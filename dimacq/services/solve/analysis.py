@@ -285,6 +285,13 @@ def analyse(
     """Run selection → solve → uncertainty → figures (module docstring), on the FRFs as
     measured or, when they show elastic contamination (``options.modal_correction``), on the
     FRFs with the elastic modes taken out (:mod:`dimacq.services.solve.modal_correction`).
+
+    Raises
+    ------
+    SetupError, DataError
+        Bad setup, options or data (messages name the item and the fix).
+    SolverError
+        The kept data cannot be solved (rank < 6 ...).
     """
     opt = options or AnalysisOptions()
     return analyse_with_modal(frf, setup, opt, _Plain, lambda f, st: _with_chain(f, st, opt))
