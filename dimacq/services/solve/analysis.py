@@ -49,8 +49,6 @@ from dimacq.pipeline.selection.responses import ResponseSelection
 from dimacq.pipeline.uncertainty import (
     GeometrySpread,
     Uncertainty,
-    estimate_uncertainty,
-    geometry_spread,
 )
 from dimacq.services.solve.cross_check import CrossCheck, cross_check
 from dimacq.services.solve.estimation import output_error_step
@@ -66,6 +64,7 @@ from dimacq.services.solve.selection_steps import (
     selected_inputs,
     selected_responses,
 )
+from dimacq.services.solve.uncertainty_steps import geometry_step, uncertainty_step
 from dimacq.services.solve.verdict import (
     CI95_LIMIT_MASS,
     CI95_LIMIT_PRINCIPAL,
@@ -416,8 +415,8 @@ def _stage(frf: FrfData, setup: TestSetup, opt: AnalysisOptions) -> _Stage:
     )
     geo: GeometrySpread | None = None
     if opt.geometry_samples > 0:
-        geo = _geometry(data, setup_used, system_used, weights, keep_idx, known, opt)
-    unc = _uncertainty(
+        geo = geometry_step(data, setup_used, system_used, weights, keep_idx, known, opt)
+    unc = uncertainty_step(
         data, setup_used, system_used, result, known, opt, geo_all.nodes, weights, keep_idx, geo
     )
     return _Stage(
@@ -500,52 +499,6 @@ def _forced_pairs(opt: AnalysisOptions) -> tuple[list[tuple[int, ...]], list[tup
             f"{sorted(set(force_in) & set(force_out))[0]} is both forced in and forced out; choose one"
         )
     return force_in, force_out
-
-
-def _uncertainty(
-    data: FrfData,
-    setup_used: TestSetup,
-    system_used: DimSystem,
-    result: DimResult,
-    known: dict[str, float],
-    opt: AnalysisOptions,
-    nodes: np.ndarray,
-    weights: np.ndarray,
-    keep_idx: np.ndarray,
-    geo: GeometrySpread | None,
-) -> Any:
-    """The 95 % intervals: resampling of the inputs, leave-one-sensor-node-out and geometry.
-
-    The leave-one-node-out systems (K and F of every line: 6 MB each on an acquired test) live
-    only as long as this step, not through the output-error fit and the cross-check.
-    """
-    resp_systems: list[DimSystem] = []
-    n_node_rank = 0
-    for g in np.unique(nodes[weights > 0]):
-        wg = weights * (nodes != g)
-        try:
-            resp_systems.append(
-                assemble(
-                    data, setup_used, length_unit=opt.length_unit, response_weights=wg
-                ).select_inputs(keep_idx)
-            )
-        except SetupError:
-            log.info(
-                "leaving out sensor node %s drops the response rank; not used for the uncertainty",
-                g,
-            )
-    unc = estimate_uncertainty(
-        system_used,
-        result,
-        known=known,
-        method="bootstrap" if opt.uncertainty_method == "bootstrap" else "jackknife",
-        response_systems=resp_systems,
-        geometry=geo,
-    )
-    del resp_systems
-    if n_node_rank:
-        unc = replace(unc, n_rank_deficient=unc.n_rank_deficient + n_node_rank)
-    return unc
 
 
 def _output_error_tried(
@@ -696,46 +649,3 @@ def _with_extras(
         "orientation_repair": repair is not None and repair.applied,
     }
     return replace(result, extras=extras)
-
-
-def _geometry(
-    data: FrfData,
-    setup: TestSetup,
-    system: DimSystem,
-    weights: np.ndarray,
-    keep_idx: np.ndarray,
-    known: Mapping[str, float],
-    opt: AnalysisOptions,
-) -> GeometrySpread:
-    """The setup's stated geometry uncertainty through the joint solve of the kept data."""
-    geo = response_geometry(data, setup)
-    ex_key = {(e.node, e.direction): e for e in setup.excitations}
-    in_pos, in_dir = [], []
-    for j in keep_idx:
-        ch = data.inputs[int(j)]
-        ex = ex_key.get((ch.node, ch.direction)) or ex_key.get((ch.node, -ch.direction))
-        assert ex is not None and ex.direction_gcs is not None  # assemble checked it
-        sign = 1.0 if ex.direction == ch.direction else -1.0
-        in_pos.append(ex.position_m)
-        in_dir.append(sign * np.asarray(ex.direction_gcs, float))
-    gu = setup.geometry_uncertainty
-    H_acc = data.H[:, geo.output_index][:, :, keep_idx]
-    return geometry_spread(
-        system,
-        H_acc,
-        geo.positions_m,
-        geo.directions,
-        geo.nodes,
-        np.asarray(weights, float),
-        np.asarray(in_pos, float),
-        np.asarray(in_dir, float),
-        sensor_position_m=gu.sensor_position_m,
-        sensor_orientation_deg=gu.sensor_orientation_deg,
-        input_position_m=gu.input_position_m,
-        line_of_action_deg=gu.line_of_action_deg,
-        registration_rms_m=gu.registration_rms_m,
-        accel_sensitivity_rel=setup.transducer_uncertainty.accel_sensitivity_rel,
-        force_sensitivity_rel=setup.transducer_uncertainty.force_sensitivity_rel,
-        known=known,
-        n_samples=opt.geometry_samples,
-    )
