@@ -284,11 +284,16 @@ def lscf_poles(
     orders = orders or tuple(range(16, 50, 4))
     lo, hi = band_hz or (f[0], f[-1])
     found: list[list[tuple[float, float]]] = []
+    # S_o = −Xᴴ diag(H_o) X for every component at once, at the top order: X of order p is the
+    # top order's first p + 1 columns, so its S_o is the leading (p + 1) × (p + 1) block
+    top = max(orders)
+    X_top = np.exp(1j * omega[:, None] * dt * np.arange(top + 1)[None, :])
+    S_top = -np.einsum("lk,lo,lm->okm", X_top.conj(), Hc, X_top, optimize=True)
     for p in orders:
         X = np.exp(1j * omega[:, None] * dt * np.arange(p + 1)[None, :])  # (n_lines, p+1)
         R = X.conj().T @ X
-        # S_o = −Xᴴ diag(H_o) X and T_o = Xᴴ diag(|H_o|²) X for every component at once
-        S = -np.einsum("lk,lo,lm->okm", X.conj(), Hc, X, optimize=True)
+        S = np.ascontiguousarray(S_top[:, : p + 1, : p + 1])
+        # and T_o = Xᴴ diag(|H_o|²) X
         T = np.einsum("lk,lo,lm->km", X.conj(), np.abs(Hc) ** 2, X, optimize=True)
         Rinv_S = np.linalg.solve(R[None], S)
         Mm = np.real(T - np.einsum("okj,okm->jm", S.conj(), Rinv_S))

@@ -22,7 +22,11 @@ command, date, commit, the load average and this host's sustainable time-lapse
    the work.
 3. **Flexible solve CPU**: :func:`~dimacq.services.solve.analysis.analyse` of the X-38-like
    flexible vehicles' model FRFs (``x38-flexible-10``, ``-17``, ``-34``: 0.5 % noise) with the
-   modal correction (``auto``) and without (target ≤ 5 s CPU with it).
+   modal correction (``auto``) and without (target ≤ 5 s CPU with it), and of the rigid ``x38``
+   (the plain solve): process time of a worker process with one BLAS thread
+   (``OPENBLAS_NUM_THREADS=1``: a second thread spinning on a busy host is not work). With
+   ``--before REV`` the same worker also runs on the code of commit REV (``git archive`` laid out
+   as installed), one after the other per scenario, and the answers are compared.
 4. **Live path** (``--live``): :func:`bench_live_path.run` (driver → blocks → FRF per record on
    one core, from a recorded stream) at 128 channels × 51.2 kS/s: the realtime factor (the
    margin) and the most channels it sustains.
@@ -34,7 +38,7 @@ command, date, commit, the load average and this host's sustainable time-lapse
    its ``--label`` (a section of the same label replaced, the file's other sections kept).
 
     python tests/benchmarks/where_users_wait.py [--pairs 5] [--memory] [--live]
-           [--skip-flexible] [--flexible x38-flexible-17 ...]
+           [--skip-flexible] [--only-flexible] [--flexible x38-flexible-17 ...] [--before REV]
     python tests/benchmarks/where_users_wait.py --memory-only [--memory-runs 2] [--label after]
 """
 
@@ -173,6 +177,8 @@ def solve_pair(c: httpx.Client, fid: int, n: int, tmp: Path) -> dict[str, Any]:
 
 
 def flexible(n: int, scenario: str) -> dict[str, Any]:
+    """``n`` solves of SCENARIO's model FRFs (seed 0, 0.5 % noise) with the modal correction
+    off and auto, in this process: CPU seconds, answer and verdict of each mode (the worker)."""
     from dimacq.services.solve.analysis import AnalysisOptions, analyse
     from dimacq.simulators.lab.scenarios import build_scenario
 
@@ -192,8 +198,122 @@ def flexible(n: int, scenario: str) -> dict[str, Any]:
             "band_hz": list(rep.result.band_hz),
             "verdict": rep.verdict,
             "applied": rep.modal_correction is not None and rep.modal_correction.applied,
+            "report": json.loads(json.dumps(rep.to_json(), default=str)),
         }
     return out
+
+
+def flexible_in_worker(n: int, scenario: str, tree: Path | None = None) -> dict[str, Any]:
+    """:func:`flexible` in a process of its own with one BLAS thread, on this checkout or on
+    the package tree ``tree`` (:func:`tree_of`)."""
+    env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
+    if tree is not None:
+        env["PYTHONPATH"] = str(tree)
+    p = subprocess.run(
+        [sys.executable, str(Path(__file__).resolve()), "--flexible-worker", scenario, str(n)],
+        capture_output=True,
+        text=True,
+        env=env,
+        cwd=tempfile.gettempdir(),
+        check=True,
+    )
+    return dict(json.loads(p.stdout.strip().splitlines()[-1]))
+
+
+def tree_of(rev: str, where: Path) -> Path:
+    """The package of commit REV laid out as installed (pyproject's ``package-dir``:
+    ``drivers`` → ``dimacq.drivers``, ``simulators`` → ``dimacq.simulators``; ``config`` beside
+    them, where the simulators look for it), under ``where``; returns the folder to put on the
+    path."""
+    pkg = where / "pkg"
+    pkg.mkdir(parents=True)
+    for prefix, paths in (("", ["dimacq"]), ("dimacq/", ["drivers", "simulators", "config"])):
+        arc = subprocess.run(
+            ["git", "archive", f"--prefix={prefix}", rev, *paths],
+            capture_output=True,
+            check=True,
+            cwd=ROOT,
+        ).stdout
+        subprocess.run(["tar", "-x", "-C", str(pkg)], input=arc, check=True)
+    return pkg
+
+
+def same_answer(a: dict[str, Any], b: dict[str, Any]) -> str:
+    """Whether two reports (JSON) are the same number for number, and where they first differ."""
+
+    def walk(x: Any, y: Any, path: str) -> str | None:
+        if isinstance(x, dict) and isinstance(y, dict):
+            if list(x) != list(y):
+                return f"{path}: keys {sorted(set(x) ^ set(y))}"
+            for k in x:
+                if k == "elapsed_s":
+                    continue
+                d = walk(x[k], y[k], f"{path}.{k}")
+                if d:
+                    return d
+            return None
+        if isinstance(x, list) and isinstance(y, list):
+            if len(x) != len(y):
+                return f"{path}: {len(x)} → {len(y)} items"
+            for i, (u, v) in enumerate(zip(x, y, strict=True)):
+                d = walk(u, v, f"{path}[{i}]")
+                if d:
+                    return d
+            return None
+        if isinstance(x, float) and isinstance(y, float) and x != x and y != y:
+            return None  # both NaN
+        return None if x == y else f"{path}: {x!r} → {y!r}"
+
+    d = walk(a, b, "")
+    return "identical" if d is None else f"differ first at {d}"
+
+
+def with_section(path: Path, section: list[str]) -> str:
+    """The results file at ``path`` with its section of the same heading (``section[0]``, up to
+    its number) replaced by ``section``, or ``section`` added at its end."""
+    old = path.read_text(encoding="utf-8") if path.exists() else "# Where a user waits\n"
+    key = section[0].split(" (")[0]
+    parts = re.split(r"(?m)^(?=## )", old)
+    new = "\n".join(section) + "\n"
+    for i, part in enumerate(parts):
+        if part.startswith(key):
+            parts[i] = new
+            return "".join(parts).rstrip("\n") + "\n"
+    return old.rstrip("\n") + "\n\n" + new
+
+
+def flexible_section(args: argparse.Namespace) -> list[str]:
+    """Section 3 of the results (and the comparison with ``--before``)."""
+    n = max(1, min(args.pairs, 2))
+    lines = [
+        "## 3. Flexible solve CPU (model FRFs, 0.5 % noise, target ≤ 5 s with auto; process "
+        "time, OPENBLAS_NUM_THREADS=1)",
+        "",
+    ]
+    with tempfile.TemporaryDirectory(prefix="dimacq-before-") as tmp_s:
+        tree = tree_of(args.before, Path(tmp_s)) if args.before else None
+        if args.before:
+            lines += [f"- before: commit {args.before}; after: this checkout", ""]
+        for scenario in args.flexible:
+            before = flexible_in_worker(n, scenario, tree) if tree is not None else None
+            fl = flexible_in_worker(n, scenario)
+            for mode in ("off", "auto"):
+                d = fl[mode]
+                was = ""
+                if before is not None:
+                    bd = before[mode]
+                    was = (
+                        f"; before: CPU {fmt(bd['cpu'])}, mass {bd['mass_kg']:.1f} kg, report "
+                        f"{same_answer(bd['report'], d['report'])}"
+                    )
+                lines.append(
+                    f"- {scenario} {' × '.join(map(str, fl['shape']))}, modal correction "
+                    f"{mode}: CPU {fmt(d['cpu'])}; mass {d['mass_kg']:.1f} kg "
+                    f"(truth {d['truth_kg']:.1f}), band {d['band_hz'][0]:g}–{d['band_hz'][1]:g} "
+                    f"Hz, verdict {d['verdict']}, correction applied {d['applied']}{was}"
+                )
+                print(lines[-1], flush=True)
+    return lines
 
 
 def live_path(seconds: float) -> list[str]:
@@ -309,11 +429,18 @@ def main() -> int:
     ap.add_argument("--memory", action="store_true", help="also the demo's and calibrate's peak")
     ap.add_argument("--skip-flexible", action="store_true")
     ap.add_argument(
+        "--only-flexible", action="store_true", help="only the flexible solve CPU (section 3)"
+    )
+    ap.add_argument(
         "--flexible",
         nargs="+",
-        default=["x38-flexible-10", "x38-flexible-17", "x38-flexible-34"],
-        help="flexible scenarios solved (default the three X-38-like vehicles)",
+        default=["x38-flexible-10", "x38-flexible-17", "x38-flexible-34", "x38"],
+        help="scenarios solved (default the three X-38-like flexible vehicles and the rigid x38)",
     )
+    ap.add_argument(
+        "--before", metavar="REV", help="also solve them with the code of commit REV (git)"
+    )
+    ap.add_argument("--flexible-worker", nargs=2, help=argparse.SUPPRESS)
     ap.add_argument("--live", action="store_true", help="also the live path (bench_live_path)")
     ap.add_argument(
         "--big-json", action="store_true", help="also the X-38 size set's JSON /data (minutes)"
@@ -329,6 +456,9 @@ def main() -> int:
     logging.disable(logging.WARNING)
     if args.memory_only:
         return memory_only(args.memory_runs, args.label or "this run", args.results)
+    if args.flexible_worker:  # a process of its own: solve, print the figures as JSON
+        print(json.dumps(flexible(int(args.flexible_worker[1]), args.flexible_worker[0])))
+        return 0
     sys.path.insert(0, str(ROOT / "tests"))
     from _api_support import TOKEN, make_settings
 
@@ -337,6 +467,24 @@ def main() -> int:
     from dimacq.services.lab import Lab
     from dimacq.simulators.lab.scenarios import build_scenario
 
+    commit = subprocess.run(
+        ["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=ROOT
+    ).stdout.strip()
+    lines = [
+        "# Where a user waits",
+        "",
+        f"- command: `python tests/benchmarks/where_users_wait.py {' '.join(sys.argv[1:])}`",
+        f"- date: {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, commit {commit}",
+        f"- at start: {host_line()}",
+        "",
+    ]
+    if args.only_flexible:  # the results file's section 3 replaced, the others kept
+        section = flexible_section(args)
+        section[1:1] = lines[1:5]  # its command, date, commit and load
+        section += [f"- then: {host_line()}", ""]
+        args.results.write_text(with_section(args.results, section), encoding="utf-8")
+        print(f"wrote {args.results}")
+        return 0
     res = Results(__file__, "Where a user waits", args.results)
     res.note(f"at start: {host_line()}")
     lines: list[str] = []
@@ -410,18 +558,7 @@ def main() -> int:
             print("\n".join(lines[-7:]), flush=True)
         lab.close()
     if not args.skip_flexible:
-        lines += ["## 3. Flexible solve CPU (model FRFs, 0.5 % noise, target ≤ 5 s with auto)", ""]
-        for scenario in args.flexible:
-            fl = flexible(max(1, min(args.pairs, 2)), scenario)
-            for mode in ("off", "auto"):
-                d = fl[mode]
-                lines.append(
-                    f"- {scenario} {' × '.join(map(str, fl['shape']))}, modal correction "
-                    f"{mode}: CPU {fmt(d['cpu'])}; mass {d['mass_kg']:.1f} kg "
-                    f"(truth {d['truth_kg']:.1f}), band {d['band_hz'][0]:g}–{d['band_hz'][1]:g} "
-                    f"Hz, verdict {d['verdict']}, correction applied {d['applied']}"
-                )
-                print(lines[-1], flush=True)
+        lines += flexible_section(args)
         lines += [f"- then: {host_line()}", ""]
     if args.live:
         lines += ["## 4. Live path (driver → blocks → FRF per record, one core)", ""]

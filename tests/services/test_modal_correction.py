@@ -3,6 +3,8 @@ exactly as they were, corrects an elastically contaminated one and says why; on/
 
 from __future__ import annotations
 
+import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -76,3 +78,81 @@ def test_modal_correction_option_is_checked() -> None:
     b = build_scenario("calibration-mass-bungee", 0)
     with pytest.raises(SetupError, match="modal_correction = 'maybe'; give auto, on or off"):
         analyse(b.model_frf(), b.setup, AnalysisOptions(modal_correction="maybe"))
+
+
+def _same_report(a: dict[str, object], b: dict[str, object]) -> bool:
+    """Two reports (``to_json``) number for number, the output-error fit's wall time aside."""
+
+    def dropped(d: dict[str, object]) -> str:
+        d = json.loads(json.dumps(d))
+        oe = d.get("output_error")
+        if isinstance(oe, dict):
+            oe.pop("elapsed_s", None)
+        return json.dumps(d, sort_keys=True)
+
+    return dropped(a) == dropped(b)
+
+
+def test_auto_makes_the_plain_output_error_estimate_only_when_its_answer_is_reported(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """``auto`` decides on the plain analysis's rigid-body checks, which do not depend on its
+    output-error estimate: when the correction is applied, the only output-error fit is the
+    corrected solve's (the plain one, the costly part, is never made)."""
+    from dimacq.services.solve import analysis
+
+    bands: list[tuple[float, float]] = []
+    real = analysis.output_error_step
+
+    def counted(data, *args, **kw):  # type: ignore[no-untyped-def]
+        bands.append((float(data.frequencies_hz[0]), float(data.frequencies_hz[-1])))
+        return real(data, *args, **kw)
+
+    monkeypatch.setattr(analysis, "output_error_step", counted)
+    b = build_scenario("x38-flexible-34", 0)
+    rep = analyse(b.model_frf(noise=0.005), b.setup, AnalysisOptions(geometry_samples=40))
+    assert rep.modal_correction is not None and rep.modal_correction.applied
+    assert rep.result.extras["output_error"]["used"]
+    assert bands == [tuple(rep.result.band_hz)]
+
+
+def test_a_corrected_solve_that_fails_reports_the_plain_answer_as_it_is(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """When the corrected solve fails its checks and the plain one does not, the report is the
+    plain analysis's, number for number (its output-error estimate made then), with the note."""
+    from dimacq.services.solve import modal_correction as mc
+
+    real = mc.corrected
+
+    def spoiled(frf, fit, setup, n_iter=2):  # type: ignore[no-untyped-def]
+        data, correction = real(frf, fit, setup, n_iter)
+        return data.replace(H=-data.H), correction  # every sign flipped: a negative mass
+
+    monkeypatch.setattr(mc, "corrected", spoiled)
+    b = build_scenario("x38-flexible-34", 0)
+    frf = b.model_frf(noise=0.005)
+    opt = AnalysisOptions(geometry_samples=40)
+    auto = analyse(frf, b.setup, opt)
+    note = auto.modal_correction
+    assert note is not None and not note.applied
+    assert "the corrected solve fails its checks: solved as measured" in note.reason
+    off = analyse(frf, b.setup, replace(opt, modal_correction="off"))
+    assert off.verdict != "fail"
+    as_json = auto.to_json()
+    as_json.pop("modal_correction")
+    assert _same_report(as_json, off.to_json())
+
+
+def test_a_refused_correction_reports_the_plain_answer_as_it_is() -> None:
+    """No band qualifies on a flexible cube, but no modal fit either: the plain answer, number
+    for number, with the reason."""
+    b = build_scenario("cube-2", 0)
+    frf = b.model_frf(noise=0.01)
+    auto = analyse(frf, b.setup)
+    note = auto.modal_correction
+    assert note is not None and not note.applied and "solved as measured" in note.reason
+    off = analyse(frf, b.setup, AnalysisOptions(modal_correction="off"))
+    as_json = auto.to_json()
+    as_json.pop("modal_correction")
+    assert _same_report(as_json, off.to_json())

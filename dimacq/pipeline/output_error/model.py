@@ -212,6 +212,43 @@ class _Linearisation:
     cells: tuple[FloatArray, FloatArray, FloatArray, FloatArray] | None
 
 
+class _Columns:
+    """The data rows of a Jacobian, ``D`` (J, C, k, n_columns), and where each geometry item's
+    column is: ``n_x`` + its place among the free items, or none (a fixed item has no column).
+
+    Each writer takes an item's ``∂E/∂g`` and writes ``∂E/∂g · σ_g`` into its column, on the
+    rows the item moves: one item per channel (:meth:`channels`), per input (:meth:`inputs`) or
+    one item on every row (:meth:`dense`).
+    """
+
+    def __init__(self, D: FloatArray, prob: Problem, n_x: int) -> None:
+        self.D = D
+        self.sigma = prob.sigma_g
+        self.col = np.full(prob.sigma_g.size, -1, np.intp)
+        self.col[prob.free_g] = n_x + np.arange(prob.free_g.size)
+
+    def free(self, item: int) -> bool:
+        return bool(self.col[item] >= 0)
+
+    def channels(self, items: NDArray[np.intp], sens: FloatArray) -> None:
+        """Channel ``c``'s item ``items[c]`` moves rows (·, c, ·): ``sens`` (J, C, k)."""
+        c = np.nonzero(self.col[items] >= 0)[0]
+        it = items[c]
+        self.D[:, c, :, self.col[it]] = np.moveaxis(
+            sens[:, c] * self.sigma[it][None, :, None], 1, 0
+        )
+
+    def inputs(self, items: NDArray[np.intp], sens: FloatArray) -> None:
+        """Input ``j``'s item ``items[j]`` moves rows (j, ·, ·): ``sens`` (J, C, k)."""
+        j = np.nonzero(self.col[items] >= 0)[0]
+        it = items[j]
+        self.D[j, :, :, self.col[it]] = sens[j] * self.sigma[it][:, None, None]
+
+    def dense(self, item: int, sens: FloatArray) -> None:
+        """``item`` moves every row: ``sens`` (J, C, k)."""
+        self.D[..., self.col[item]] = sens * self.sigma[item]
+
+
 @dataclass(eq=False)
 class Problem:
     """Everything the cost needs, in SI units relative to P."""
@@ -383,43 +420,30 @@ class Problem:
         then the prior's identity and the ``n_c`` gauge rows), in whitened units ``g / σ_g``.
 
         The sensitivities ``∂E/∂g`` of every geometry item (sensor nodes, inputs, load cells,
-        channel gains) are formed over the full geometry vector, then scaled by ``σ_g``.
+        channel gains) are scaled by ``σ_g`` and written straight into the columns of the free
+        items (:class:`_Columns`): an item touches only its own rows (a sensor node those of its
+        channels, an input its own, a gain its channel's), and nothing is formed over the full
+        geometry vector.
         """
         J_, C_, k_ = shape
         n_data = J_ * C_ * k_
         n_x, n_g = self.free_x.size, self.free_g.size
-        n_full = self.sigma_g.size
-        # Every geometry item free (the usual case): the sensitivities are written straight
-        # into the Jacobian's block (a view; its zeros are Jac's) and scaled there, instead
-        # of into a (J, C, k, n_geom) array gathered and scaled into a third copy (~6 MB per
-        # call): the same products, in place.
-        in_place = n_g == n_full and bool(np.all(self.free_g == np.arange(n_full)))
-        if in_place:
-            full = Jac[:n_data, n_x:].reshape(J_, C_, k_, n_full)  # splits rows: a view
-            assert np.may_share_memory(full, Jac)
-        else:
-            full = np.zeros((J_, C_, k_, n_full))
-        self._node_sensitivities(full, lin)
-        self._input_sensitivities(full, lin)
+        cols = _Columns(Jac[:n_data].reshape(J_, C_, k_, Jac.shape[1]), self, n_x)
+        self._node_sensitivities(cols, lin)
+        self._input_sensitivities(cols, lin)
         if lin.cells is not None:
-            self._cell_sensitivities(full, lin)
+            self._cell_sensitivities(cols, lin)
         if self.sigma_g.size > self.gain_base:  # channel gains (relative)
-            gcols = self.gain_base + np.arange(C_)
-            full[:, np.arange(C_), :, gcols] = np.moveaxis(
-                -(self.w.T[:, :, None] * (lin.psi @ lin.G)), 1, 0
+            cols.channels(
+                self.gain_base + np.arange(C_), -(self.w.T[:, :, None] * (lin.psi @ lin.G))
             )
-        if in_place:
-            full *= self.sigma_g
-        else:
-            sub = full[..., self.free_g] * self.sigma_g[self.free_g]
-            Jac[:n_data, n_x:] = sub.reshape(n_data, n_g)
         Jac[n_data : n_data + n_g, n_x:] = np.eye(n_g)
         if n_c:
             Jac[n_data + n_g :, n_x:] = _GAUGE_WEIGHT * self.gauge_rows
 
-    def _node_sensitivities(self, full: FloatArray, lin: _Linearisation) -> None:
-        """``∂E/∂g`` (into ``full``, (J, C, k, n_geom)) of each sensor node's rotation (3) and
-        offset (3): ``−W_jc dψ_c[p]ᵀ G_j``, with ``∂(exp([θ]x) d⁰)/∂θ_i = (J_l(θ) e_i) × d`` and
+    def _node_sensitivities(self, cols: _Columns, lin: _Linearisation) -> None:
+        """``∂E/∂g`` of each sensor node's rotation (3) and offset (3):
+        ``−W_jc dψ_c[p]ᵀ G_j``, with ``∂(exp([θ]x) d⁰)/∂θ_i = (J_l(θ) e_i) × d`` and
         ``J_l`` the left Jacobian of SO(3)."""
         nn = self.n_nodes
         r, d = lin.r, lin.d
@@ -431,12 +455,10 @@ class Problem:
         dpsi[:, :3, :3] = ex_d
         dpsi[:, :3, 3:] = cross3(r[:, None, :], ex_d)
         dpsi[:, 3:, 3:] = cross3(EYE3[None, :, :], d[:, None, :])  # e_i × d_c (offsets)
-        cols = 6 * self.node_of[:, None] + np.arange(6)[None, :]  # (C, 6)
         for p in range(6):  # each channel belongs to one node: no two writes collide
-            sens_p = -lin.wt * (dpsi[:, p, :] @ lin.G)  # (J, C, k)
-            full[:, np.arange(C_), :, cols[:, p]] = np.moveaxis(sens_p, 1, 0)
+            cols.channels(6 * self.node_of + p, -lin.wt * (dpsi[:, p, :] @ lin.G))
 
-    def _input_sensitivities(self, full: FloatArray, lin: _Linearisation) -> None:
+    def _input_sensitivities(self, cols: _Columns, lin: _Linearisation) -> None:
         """``∂E/∂g`` of each input's line-of-action turns ``β`` (2) and point offsets ``γ`` (2)
         along the two normals ``e_ji``: ``∂φ_j`` through ``(J_l e_i) × d_j``, on the input's
         column of ``L_jʸ``."""
@@ -455,9 +477,9 @@ class Problem:
         base = 6 * nn + 4 * np.arange(J_)
         ly0 = self.Ly[:, None, 0, :]  # (J, 1, k)
         for p in range(4):
-            full[np.arange(J_), :, :, base + p] = -(lin.WPA @ dphi[:, p, :, None]) * ly0
+            cols.inputs(base + p, -(lin.WPA @ dphi[:, p, :, None]) * ly0)
 
-    def _cell_sensitivities(self, full: FloatArray, lin: _Linearisation) -> None:
+    def _cell_sensitivities(self, cols: _Columns, lin: _Linearisation) -> None:
         """``∂E/∂g`` of load cell ``k``'s rotation (3), offset (3) and moment gains (3):
         ``−W ψ A⁻¹ ∂(A_k B_k) L_kʸ`` on its block of ``L_jʸ``, with
         ``∂B/∂γ_o = T e_o e_oᵀ T⁻¹`` for the local outputs ``o = Mx, My, Mz``."""
@@ -471,6 +493,9 @@ class Problem:
         for k in range(K):
             lyk = self.Ly[:, 1 + 6 * k : 7 + 6 * k, :]  # (J, 6, k)
             for i in range(CELL_PARAMS):
+                item = self.cell_base + CELL_PARAMS * k + i
+                if not cols.free(item):
+                    continue
                 dA = np.zeros((6, 6))
                 if i < 3:
                     dQ = skew(jlc[k][:, i]) @ Qc[k]
@@ -484,7 +509,7 @@ class Problem:
                 else:  # ∂B/∂γ = T e_o e_oᵀ T⁻¹, local output o = Mx, My, Mz
                     o = i - 3
                     dAB = Ac[k] @ np.outer(T[k][:, o], Ti[k][o])
-                full[..., self.cell_base + CELL_PARAMS * k + i] = -(lin.WPA @ (dAB @ lyk))
+                cols.dense(item, -(lin.WPA @ (dAB @ lyk)))
 
     def gauge_basis(self) -> FloatArray:
         """The similarity of the whole instrumentation and the common accelerometer gain, as

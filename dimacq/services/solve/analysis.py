@@ -49,12 +49,14 @@ from dimacq.pipeline.selection.responses import ResponseSelection
 from dimacq.pipeline.uncertainty import (
     GeometrySpread,
     Uncertainty,
-    estimate_uncertainty,
-    geometry_spread,
 )
 from dimacq.services.solve.cross_check import CrossCheck, cross_check
 from dimacq.services.solve.estimation import output_error_step
-from dimacq.services.solve.modal_correction import ModalCorrection, analyse_with_modal
+from dimacq.services.solve.modal_correction import (
+    ModalCorrection,
+    RigidBodyScreen,
+    analyse_with_modal,
+)
 from dimacq.services.solve.selection_steps import (
     first_band,
     repaired_orientation,
@@ -62,6 +64,7 @@ from dimacq.services.solve.selection_steps import (
     selected_inputs,
     selected_responses,
 )
+from dimacq.services.solve.uncertainty_steps import geometry_step, uncertainty_step
 from dimacq.services.solve.verdict import (
     CI95_LIMIT_MASS,
     CI95_LIMIT_PRINCIPAL,
@@ -70,6 +73,7 @@ from dimacq.services.solve.verdict import (
     RESIDUAL_WARN,
     VerdictReason,
     band_quality,
+    rigid_body_checks,
     verdict,
 )
 
@@ -280,13 +284,6 @@ def analyse(
     """Run selection → solve → uncertainty → figures (module docstring), on the FRFs as
     measured or, when they show elastic contamination (``options.modal_correction``), on the
     FRFs with the elastic modes taken out (:mod:`dimacq.services.solve.modal_correction`).
-    """
-    opt = options or AnalysisOptions()
-    return analyse_with_modal(frf, setup, opt, _analyse, lambda f, st: _with_chain(f, st, opt))
-
-
-def _analyse(frf: FrfData, setup: TestSetup, opt: AnalysisOptions) -> AnalysisReport:
-    """Run selection → solve → uncertainty → figures (module docstring).
 
     Raises
     ------
@@ -295,6 +292,84 @@ def _analyse(frf: FrfData, setup: TestSetup, opt: AnalysisOptions) -> AnalysisRe
     SolverError
         The kept data cannot be solved (rank < 6 ...).
     """
+    opt = options or AnalysisOptions()
+    return analyse_with_modal(frf, setup, opt, _Plain, lambda f, st: _with_chain(f, st, opt))
+
+
+@dataclass(frozen=True, eq=False)
+class _Stage:
+    """The analysis up to the equation-error answer and its intervals (steps 1–5 of the module
+    docstring before the output-error estimate): what the remaining steps read.
+
+    ``frf`` and ``setup`` carry the chain calibration when one is applied; ``data`` is ``frf`` on
+    the band; ``weights`` (per accelerometer channel) and ``keep_in`` (per input) are the
+    selections; ``result`` and ``unc`` the equation-error solve and its intervals.
+    """
+
+    frf: FrfData
+    setup: TestSetup
+    opt: AnalysisOptions
+    known: dict[str, float]
+    auto: bool
+    data: FrfData
+    setup_used: TestSetup
+    weights: np.ndarray
+    keep_in: np.ndarray
+    band_sel: dict[str, Any]
+    suggestion: BandSuggestion | None
+    rsel: ResponseSelection | None
+    jsel: JackknifeSelection | None
+    repair: OrientationRepair | None
+    excluded_resp: list[dict[str, int]]
+    excluded_in: list[dict[str, int]]
+    system_used: DimSystem
+    result: DimResult
+    unc: Uncertainty
+    geo: GeometrySpread | None
+
+
+class _Plain:
+    """The analysis of one FRF set as given, in two stages.
+
+    Made, it holds the selections, the band and the equation-error solve with its intervals
+    (:func:`_stage`); :meth:`screen` gives the rigid-body checks the modal correction's ``auto``
+    mode reads of it (they do not depend on the output-error estimate); :meth:`report` runs the
+    output-error estimate, the cross-check and the verdict on first asking (the same report as
+    one run straight through) and writes the figures when the options ask for them.
+    """
+
+    def __init__(self, frf: FrfData, setup: TestSetup, opt: AnalysisOptions) -> None:
+        self.stage = _stage(frf, setup, opt)
+        self._report: AnalysisReport | None = None
+
+    def screen(self) -> RigidBodyScreen:
+        """The band suggestion, the verdict's band and residual checks, the band and the
+        exclusions of the equation-error stage."""
+        st = self.stage
+        pre = _stage_report(st, st.result, st.unc, None)
+        checks = rigid_body_checks(pre, st.data, st.suggestion if st.auto else None)
+        return RigidBodyScreen(
+            band_suggestion=st.suggestion,
+            verdict_reasons=checks,
+            band_hz=tuple(st.result.band_hz),
+            excluded_responses=st.excluded_resp,
+            excluded_inputs=st.excluded_in,
+        )
+
+    def report(self, figures: bool = True) -> AnalysisReport:
+        """The full report (figures written when ``figures`` and the options give a folder)."""
+        if self._report is None:
+            self._report = _finished(self.stage)
+        st = self.stage
+        if not figures or st.opt.plots_dir is None:
+            return self._report
+        return _with_figures(
+            self._report, st.frf, st.setup_used, Path(st.opt.plots_dir), st.weights, st.keep_in
+        )
+
+
+def _stage(frf: FrfData, setup: TestSetup, opt: AnalysisOptions) -> _Stage:
+    """Steps 1–5 of the module docstring up to the equation-error solve and its intervals."""
     frf, setup = _with_chain(frf, setup, opt)
     known = dict(setup.known.as_dict() if opt.known is None else opt.known)
     force_in, force_out = _forced_pairs(opt)
@@ -340,37 +415,78 @@ def _analyse(frf: FrfData, setup: TestSetup, opt: AnalysisOptions) -> AnalysisRe
     )
     geo: GeometrySpread | None = None
     if opt.geometry_samples > 0:
-        geo = _geometry(data, setup_used, system_used, weights, keep_idx, known, opt)
-    unc = _uncertainty(
+        geo = geometry_step(data, setup_used, system_used, weights, keep_idx, known, opt)
+    unc = uncertainty_step(
         data, setup_used, system_used, result, known, opt, geo_all.nodes, weights, keep_idx, geo
     )
-    if _output_error_tried(opt, auto, data, setup_used, weights, keep_idx, known):
-        result, unc = output_error_step(
-            data, setup_used, result, unc, weights, keep_in, known, opt, system_used.hull_points_m
-        )
-    exc = excitation_check(_phi_m(system_used))
-    result = _with_extras(result, rsel, jsel, repair)
-    cc = _cross_checked(data, setup_used, result, unc, weights, keep_in, opt)
-    report = AnalysisReport(
-        result=result,
-        excluded_responses=excluded_resp,
-        excluded_inputs=excluded_in,
-        uncertainty=unc,
-        orientation_corrections=repair.to_json() if repair is not None else [],
-        band_selection=band_sel,
-        excitation=exc,
+    return _Stage(
+        frf=frf,
+        setup=setup,
+        opt=opt,
+        known=known,
+        auto=auto,
+        data=data,
         setup_used=setup_used,
-        response_selection=rsel,
-        input_selection=jsel,
-        band_suggestion=suggestion,
-        orientation=repair,
-        geometry=geo,
-        cross_check=cc,
-        weights_used=np.asarray(weights, float),
-        inputs_kept=np.asarray(keep_in, bool),
+        weights=weights,
+        keep_in=keep_in,
+        band_sel=band_sel,
+        suggestion=suggestion,
+        rsel=rsel,
+        jsel=jsel,
+        repair=repair,
+        excluded_resp=excluded_resp,
+        excluded_in=excluded_in,
+        system_used=system_used,
+        result=result,
+        unc=unc,
+        geo=geo,
     )
-    return _judged(
-        report, frf, data, setup_used, suggestion if auto else None, opt, weights, keep_in
+
+
+def _finished(st: _Stage) -> AnalysisReport:
+    """Step 5's output-error estimate, the cross-check and the verdict (step 6) of a stage;
+    no figures."""
+    result, unc = st.result, st.unc
+    keep_idx = np.nonzero(st.keep_in)[0]
+    if _output_error_tried(st.opt, st.auto, st.data, st.setup_used, st.weights, keep_idx, st.known):
+        result, unc = output_error_step(
+            st.data,
+            st.setup_used,
+            result,
+            unc,
+            st.weights,
+            st.keep_in,
+            st.known,
+            st.opt,
+            st.system_used.hull_points_m,
+        )
+    result = _with_extras(result, st.rsel, st.jsel, st.repair)
+    cc = _cross_checked(st.data, st.setup_used, result, unc, st.weights, st.keep_in, st.opt)
+    report = _stage_report(st, result, unc, cc)
+    return _judged(report, st.data, st.suggestion if st.auto else None, st.opt)
+
+
+def _stage_report(
+    st: _Stage, result: DimResult, unc: Uncertainty, cc: CrossCheck | None
+) -> AnalysisReport:
+    """The report of a stage with this answer, its intervals and cross-check (no verdict)."""
+    return AnalysisReport(
+        result=result,
+        excluded_responses=st.excluded_resp,
+        excluded_inputs=st.excluded_in,
+        uncertainty=unc,
+        orientation_corrections=st.repair.to_json() if st.repair is not None else [],
+        band_selection=st.band_sel,
+        excitation=excitation_check(_phi_m(st.system_used)),
+        setup_used=st.setup_used,
+        response_selection=st.rsel,
+        input_selection=st.jsel,
+        band_suggestion=st.suggestion,
+        orientation=st.repair,
+        geometry=st.geo,
+        cross_check=cc,
+        weights_used=np.asarray(st.weights, float),
+        inputs_kept=np.asarray(st.keep_in, bool),
     )
 
 
@@ -383,52 +499,6 @@ def _forced_pairs(opt: AnalysisOptions) -> tuple[list[tuple[int, ...]], list[tup
             f"{sorted(set(force_in) & set(force_out))[0]} is both forced in and forced out; choose one"
         )
     return force_in, force_out
-
-
-def _uncertainty(
-    data: FrfData,
-    setup_used: TestSetup,
-    system_used: DimSystem,
-    result: DimResult,
-    known: dict[str, float],
-    opt: AnalysisOptions,
-    nodes: np.ndarray,
-    weights: np.ndarray,
-    keep_idx: np.ndarray,
-    geo: GeometrySpread | None,
-) -> Any:
-    """The 95 % intervals: resampling of the inputs, leave-one-sensor-node-out and geometry.
-
-    The leave-one-node-out systems (K and F of every line: 6 MB each on an acquired test) live
-    only as long as this step, not through the output-error fit and the cross-check.
-    """
-    resp_systems: list[DimSystem] = []
-    n_node_rank = 0
-    for g in np.unique(nodes[weights > 0]):
-        wg = weights * (nodes != g)
-        try:
-            resp_systems.append(
-                assemble(
-                    data, setup_used, length_unit=opt.length_unit, response_weights=wg
-                ).select_inputs(keep_idx)
-            )
-        except SetupError:
-            log.info(
-                "leaving out sensor node %s drops the response rank; not used for the uncertainty",
-                g,
-            )
-    unc = estimate_uncertainty(
-        system_used,
-        result,
-        known=known,
-        method="bootstrap" if opt.uncertainty_method == "bootstrap" else "jackknife",
-        response_systems=resp_systems,
-        geometry=geo,
-    )
-    del resp_systems
-    if n_node_rank:
-        unc = replace(unc, n_rank_deficient=unc.n_rank_deficient + n_node_rank)
-    return unc
 
 
 def _output_error_tried(
@@ -487,15 +557,11 @@ def _cross_checked(
 
 def _judged(
     report: AnalysisReport,
-    frf: FrfData,
     data: FrfData,
-    setup_used: TestSetup,
     suggestion: BandSuggestion | None,
     opt: AnalysisOptions,
-    weights: np.ndarray,
-    keep_in: np.ndarray,
 ) -> AnalysisReport:
-    """The report with its verdict, its chain calibration (applied or measured) and figures."""
+    """The report with its verdict and its chain calibration (applied or measured)."""
     v, reasons = verdict(
         report,
         data,
@@ -507,12 +573,22 @@ def _judged(
         report = replace(report, chain_calibration={"role": "applied", **opt.chain.to_json()})
     elif opt.reference_mass is not None:
         report = _measure_chain(report, opt.reference_mass)
-    if opt.plots_dir is not None:
-        from dimacq.plotting import write_report_figures
-
-        paths = write_report_figures(report, frf, setup_used, Path(opt.plots_dir), weights, keep_in)
-        report = AnalysisReport(**{**report.__dict__, "plots": paths})
     return report
+
+
+def _with_figures(
+    report: AnalysisReport,
+    frf: FrfData,
+    setup_used: TestSetup,
+    plots_dir: Path,
+    weights: np.ndarray,
+    keep_in: np.ndarray,
+) -> AnalysisReport:
+    """The report with its figures written to ``plots_dir`` (their paths in ``plots``)."""
+    from dimacq.plotting import write_report_figures
+
+    paths = write_report_figures(report, frf, setup_used, plots_dir, weights, keep_in)
+    return AnalysisReport(**{**report.__dict__, "plots": paths})
 
 
 def _with_chain(frf: FrfData, setup: TestSetup, opt: AnalysisOptions) -> tuple[FrfData, TestSetup]:
@@ -573,46 +649,3 @@ def _with_extras(
         "orientation_repair": repair is not None and repair.applied,
     }
     return replace(result, extras=extras)
-
-
-def _geometry(
-    data: FrfData,
-    setup: TestSetup,
-    system: DimSystem,
-    weights: np.ndarray,
-    keep_idx: np.ndarray,
-    known: Mapping[str, float],
-    opt: AnalysisOptions,
-) -> GeometrySpread:
-    """The setup's stated geometry uncertainty through the joint solve of the kept data."""
-    geo = response_geometry(data, setup)
-    ex_key = {(e.node, e.direction): e for e in setup.excitations}
-    in_pos, in_dir = [], []
-    for j in keep_idx:
-        ch = data.inputs[int(j)]
-        ex = ex_key.get((ch.node, ch.direction)) or ex_key.get((ch.node, -ch.direction))
-        assert ex is not None and ex.direction_gcs is not None  # assemble checked it
-        sign = 1.0 if ex.direction == ch.direction else -1.0
-        in_pos.append(ex.position_m)
-        in_dir.append(sign * np.asarray(ex.direction_gcs, float))
-    gu = setup.geometry_uncertainty
-    H_acc = data.H[:, geo.output_index][:, :, keep_idx]
-    return geometry_spread(
-        system,
-        H_acc,
-        geo.positions_m,
-        geo.directions,
-        geo.nodes,
-        np.asarray(weights, float),
-        np.asarray(in_pos, float),
-        np.asarray(in_dir, float),
-        sensor_position_m=gu.sensor_position_m,
-        sensor_orientation_deg=gu.sensor_orientation_deg,
-        input_position_m=gu.input_position_m,
-        line_of_action_deg=gu.line_of_action_deg,
-        registration_rms_m=gu.registration_rms_m,
-        accel_sensitivity_rel=setup.transducer_uncertainty.accel_sensitivity_rel,
-        force_sensitivity_rel=setup.transducer_uncertainty.force_sensitivity_rel,
-        known=known,
-        n_samples=opt.geometry_samples,
-    )

@@ -6,8 +6,10 @@ the DIM the corrected FRFs (:func:`corrected`), and adds the fit's own uncertain
 
 When (``modal_correction = "auto"``, the default)
 -------------------------------------------------
-The plain analysis runs first. Its result stands, unchanged, unless the rigid-body checks show
-elastic contamination (:func:`contamination`):
+The plain analysis runs first (up to its equation-error answer: what the checks below read does
+not depend on the output-error estimate, which is made only when the plain answer is reported).
+Its result stands, unchanged, unless the rigid-body checks show elastic contamination
+(:func:`contamination`):
 
 - no band qualifies (the band suggestion found no run of lines moving as one rigid body), or the
   band or residual checks of the verdict fail or warn;
@@ -25,10 +27,10 @@ corrects, ``"off"`` never.
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -52,6 +54,8 @@ from dimacq.services.solve.verdict import VerdictReason
 __all__ = [
     "TRIGGER_SIZE",
     "ModalCorrection",
+    "PlainAnalysis",
+    "RigidBodyScreen",
     "analyse_with_modal",
     "contamination",
     "corrected",
@@ -123,6 +127,36 @@ class ModalCorrection:
         if self.se_modal is not None:
             out["se_modal_fit"] = self.se_modal
         return out
+
+
+@dataclass(frozen=True, eq=False)
+class RigidBodyScreen:
+    """What :func:`contamination` reads of the plain analysis: none of it depends on the
+    estimator's answer (the output-error estimate), only on the band and the selections.
+
+    Attributes
+    ----------
+    band_suggestion : BandSuggestion, optional
+    verdict_reasons : list of VerdictReason
+        The verdict's ``band`` and ``residual`` checks (the failing and warning ones first).
+    band_hz : (lo, hi)
+    excluded_responses, excluded_inputs : list of {"node": N, "direction": D}
+    """
+
+    band_suggestion: Any
+    verdict_reasons: Sequence[VerdictReason]
+    band_hz: tuple[float, ...]
+    excluded_responses: Sequence[Mapping[str, int]]
+    excluded_inputs: Sequence[Mapping[str, int]]
+
+
+class PlainAnalysis(Protocol):
+    """The analysis of the FRFs as given (``plain(frf, setup, opt)`` of
+    :func:`analyse_with_modal`): its :class:`RigidBodyScreen` at once, its report on asking."""
+
+    def screen(self) -> RigidBodyScreen: ...
+
+    def report(self, figures: bool = True) -> Any: ...
 
 
 def modal_fit(frf: FrfData, setup: TestSetup) -> ModalFit:
@@ -264,15 +298,15 @@ def band_size(
 
 
 def contamination(
-    report: Any, frf: FrfData, setup: TestSetup, fit_cache: dict[str, ModalFit]
+    report: RigidBodyScreen, frf: FrfData, setup: TestSetup, fit_cache: dict[str, ModalFit]
 ) -> str | None:
     """Why the plain analysis is elastically contaminated, or None (module docstring)."""
     sugg = report.band_suggestion
     if sugg is not None and not sugg.qualified:
         return f"no band qualifies ({sugg.reason})"
-    for r in report.verdict_reasons:
-        if r.check in ("band", "residual") and r.severity != "ok":
-            return f"the {r.check} check gives {r.severity}: {r.message}"
+    for reason in report.verdict_reasons:
+        if reason.check in ("band", "residual") and reason.severity != "ok":
+            return f"the {reason.check} check gives {reason.severity}: {reason.message}"
     if sugg is None or not sugg.deformation_peaks_hz:
         return None
     try:
@@ -284,7 +318,7 @@ def contamination(
     fit_cache["fit"] = fit
     if not fit.elastic_poles:
         return None
-    hi = float(report.result.band_hz[1])
+    hi = float(report.band_hz[1])
     why = _suspension_peak_rejected(sugg.deformation_peaks_hz, hi, fit)
     if why is not None:
         return why
@@ -319,7 +353,7 @@ def contamination(
         terms[:, acc] = terms[:, acc] + (s**2)[:, None, None] * (
             A[None] / (s - lam)[:, None, None] + A.conj()[None] / (s - np.conj(lam))[:, None, None]
         )
-    _, size = band_size(frf, terms, tuple(report.result.band_hz), rows, inputs)
+    _, size = band_size(frf, terms, (report.band_hz[0], report.band_hz[1]), rows, inputs)
     top = float(np.sqrt(np.mean(size**2))) if size.size else 0.0
     if top <= TRIGGER_SIZE:
         return None
@@ -384,7 +418,8 @@ def with_modal_uncertainty(
         system = assemble(
             data, setup, length_unit=length_unit, response_weights=weights
         ).select_inputs(keep_idx)
-        samples.append(solve_system(system, known=dict(known)).parameters)
+        # the parameters alone: the plausibility checks are the headline solve's
+        samples.append(solve_system(system, known=dict(known), check_plausibility=False).parameters)
     s = np.asarray(samples)
     se = s.std(axis=0, ddof=1)
     P = np.asarray(result.reference_point_m, float)
@@ -419,26 +454,30 @@ def analyse_with_modal(
     frf: FrfData,
     setup: TestSetup,
     opt: Any,
-    plain: Callable[..., Any],
+    plain: Callable[[FrfData, TestSetup, Any], PlainAnalysis],
     with_chain: Callable[[FrfData, TestSetup], tuple[FrfData, TestSetup]],
 ) -> Any:
     """:func:`dimacq.services.solve.analysis.analyse` with ``opt.modal_correction`` (module
-    docstring): ``plain(frf, setup, opt)`` is the analysis as measured (an ``AnalysisReport``),
-    ``with_chain`` applies the options' chain calibration as it does."""
+    docstring): ``plain(frf, setup, opt)`` is the analysis as measured (its report an
+    ``AnalysisReport``), ``with_chain`` applies the options' chain calibration as it does.
+
+    ``auto`` decides on the plain analysis's :class:`RigidBodyScreen`; the plain report (its
+    output-error estimate, the costly part) is made only when it is the answer or its verdict
+    is needed (the corrected solve fails its checks).
+    """
     if opt.modal_correction not in ("auto", "on", "off"):
         raise SetupError(f"modal_correction = {opt.modal_correction!r}; give auto, on or off")
     if opt.modal_correction == "off":
-        return plain(frf, setup, opt)
+        return plain(frf, setup, opt).report()
     if opt.modal_correction == "on":
         return _analyse_modal(
             frf, setup, opt, plain, with_chain, "asked for (--modal-correction on)", {}
         )
-    plots = opt.plots_dir
-    first = plain(frf, setup, replace(opt, plots_dir=None))
+    first = plain(frf, setup, opt)
     cache: dict[str, Any] = {}
-    why = contamination(first, *with_chain(frf, setup), cache)
-    if why is None:  # the plain answer as it was, bit for bit and key for key
-        return plain(frf, setup, opt) if plots is not None else first
+    why = contamination(first.screen(), *with_chain(frf, setup), cache)
+    if why is None:  # the plain answer as it is, bit for bit and key for key
+        return first.report()
     fit: ModalFit | None = None
     try:
         fit = cache.get("fit") or modal_fit(*with_chain(frf, setup))
@@ -447,22 +486,18 @@ def analyse_with_modal(
         why_not = f"the modal fit is not possible ({err})"
     if why_not or fit is None:
         note = ModalCorrection(fit, f"{why}; but {why_not}: solved as measured", False, "auto")
-        if plots is not None:
-            first = plain(frf, setup, opt)
-        return replace(first, modal_correction=note)
+        return replace(first.report(), modal_correction=note)
     cache["fit"] = fit
     log.warning("modal correction applied: %s", why)
     second = _analyse_modal(frf, setup, opt, plain, with_chain, why, cache)
-    if second.verdict == "fail" and first.verdict != "fail":
+    if second.verdict == "fail" and first.report(figures=False).verdict != "fail":
         assert second.modal_correction is not None
         note = replace(
             second.modal_correction,
             applied=False,
             reason=f"{why}; but the corrected solve fails its checks: solved as measured",
         )
-        if plots is not None:
-            first = plain(frf, setup, opt)
-        return replace(first, modal_correction=note)
+        return replace(first.report(), modal_correction=note)
     return second
 
 
@@ -470,7 +505,7 @@ def _analyse_modal(
     frf: FrfData,
     setup: TestSetup,
     opt: Any,
-    plain: Callable[..., Any],
+    plain: Callable[[FrfData, TestSetup, Any], PlainAnalysis],
     with_chain: Callable[[FrfData, TestSetup], tuple[FrfData, TestSetup]],
     why: str,
     cache: dict[str, Any],
@@ -483,7 +518,7 @@ def _analyse_modal(
     opt_c = opt if opt.chain is None else replace(opt, chain=None)
     if opt.chain is not None:
         setup = setup_c
-    rep = plain(data, setup, opt_c)
+    rep = plain(data, setup, opt_c).report()
     if opt.chain is not None:
         rep = replace(rep, chain_calibration={"role": "applied", **opt.chain.to_json()})
     known = dict(setup.known.as_dict() if opt.known is None else opt.known)

@@ -58,6 +58,7 @@ __all__ = [
     "band_quality",
     "cross_check_checks",
     "estimator_checks",
+    "rigid_body_checks",
     "verdict",
 ]
 
@@ -76,6 +77,10 @@ RESIDUAL_WARN = 0.05
 CI95_LIMIT_MASS = 0.02
 CI95_LIMIT_PRINCIPAL = 0.05
 PRECISION_FAIL_FACTOR = 10.0
+
+
+#: Order of the reasons: the failing ones first, then the warning ones.
+_ORDER = {"fail": 0, "warn": 1, "ok": 2}
 
 
 @dataclass(frozen=True)
@@ -155,10 +160,7 @@ def verdict(
     an interval that wide cannot tell whether the answer is good enough).
     """
     res = report.result
-    out: list[VerdictReason] = [
-        _band_check(report, data, suggestion),
-        _residual_check(res.residual_rel),
-    ]
+    out = rigid_body_checks(report, data, suggestion)
     out.extend(_plausibility_checks(res.diagnostics))
     out.extend(_coverage_checks(report))
     out.extend(_registration_checks(report.setup_used.geometry_uncertainty))
@@ -166,14 +168,24 @@ def verdict(
     out.append(_uncertainty_check(report.uncertainty.components))
     out.extend(cross_check_checks(getattr(report, "cross_check", None)))
     out.append(_precision(report.uncertainty, ci95_limits))
-    order = {"fail": 0, "warn": 1, "ok": 2}
-    out.sort(key=lambda r: order.get(r.severity, 3))
+    out.sort(key=lambda r: _ORDER.get(r.severity, 3))
     v = (
         "fail"
         if any(r.severity == "fail" for r in out)
         else ("warn" if any(r.severity == "warn" for r in out) else "ok")
     )
     return v, out
+
+
+def rigid_body_checks(
+    report: SolveReport, data: FrfData, suggestion: BandSuggestion | None = None
+) -> list[VerdictReason]:
+    """The ``band`` and ``residual`` checks of :func:`verdict` (the failing and warning ones
+    first, as :func:`verdict` orders them): what the data in the band say of the rigid-body
+    model, read before the estimator's answer (they do not depend on it)."""
+    out = [_band_check(report, data, suggestion), _residual_check(report.result.residual_rel)]
+    out.sort(key=lambda r: _ORDER.get(r.severity, 3))
+    return out
 
 
 def _band_check(
