@@ -159,7 +159,6 @@ class Request(IntEnum):
 
 
 class Status(IntFlag):
-    NONE = 0
     AIN_SCAN_RUNNING = 1 << 1
     AIN_SCAN_OVERRUN = 1 << 2
     AIN_SCAN_DONE = 1 << 5
@@ -284,10 +283,6 @@ def adc_setup(ranges: list[Range], modes: list[InputMode]) -> bytes:
     return bytes(int(r) | int(m) << 2 for r, m in zip(ranges, modes, strict=True))
 
 
-def decode_adc_setup(data: bytes) -> tuple[list[Range], list[InputMode]]:
-    return [Range(b & 3) for b in data], [InputMode((b >> 2) & 3) for b in data]
-
-
 def scan_queue(channels: list[int]) -> tuple[int, bytes]:
     """AIN_SCAN_CONFIG: ``(wIndex, data)``: wIndex = index of the queue's last element
     (``lastChan − 1`` for ``lastChan`` elements in the C driver), the 13 queue bytes (AI numbers,
@@ -295,10 +290,6 @@ def scan_queue(channels: list[int]) -> tuple[int, bytes]:
     if not 0 < len(channels) <= SCAN_QUEUE_LEN:
         raise ValueError(f"scan queue of {len(channels)} elements; give 1..{SCAN_QUEUE_LEN}")
     return len(channels) - 1, bytes(channels) + bytes(SCAN_QUEUE_LEN - len(channels))
-
-
-def decode_scan_queue(w_index: int, data: bytes) -> list[int]:
-    return list(data[: w_index + 1])
 
 
 def calibration_table(data: bytes) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
