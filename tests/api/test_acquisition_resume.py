@@ -81,6 +81,7 @@ def _interrupted(c: httpx.Client, lab: Lab) -> int:
     return aid
 
 
+@pytest.mark.slow
 def test_finish_an_interrupted_acquisition(lab_api) -> None:
     c, lab = lab_api
     aid = _interrupted(c, lab)
@@ -108,6 +109,7 @@ def test_finish_an_interrupted_acquisition(lab_api) -> None:
     assert again.status_code == 409 and "FRF set" in again.json()["detail"], again.text
 
 
+@pytest.mark.slow
 def test_resume_strikes_only_what_is_missing(lab_api) -> None:
     c, lab = lab_api
     aid = _interrupted(c, lab)
@@ -140,6 +142,7 @@ def test_resume_strikes_only_what_is_missing(lab_api) -> None:
     assert r.status_code == 409 and "succeeded" in r.json()["detail"], r.text
 
 
+@pytest.mark.slow
 def test_resume_without_finish_and_refusals(lab_api) -> None:
     """Resumed straight away (no FRF set yet): the new set still covers every input; a
     complete acquisition's kept averages are not struck again (409, finish it)."""
@@ -161,6 +164,7 @@ def test_resume_without_finish_and_refusals(lab_api) -> None:
     assert r.status_code == 200 and r.json()["state"] == "succeeded", r.text
 
 
+@pytest.mark.slow
 def test_a_resumed_acquisition_is_deleted_after_the_one_that_resumed_it(lab_api) -> None:
     c, lab = lab_api
     aid = _interrupted(c, lab)
@@ -173,6 +177,7 @@ def test_a_resumed_acquisition_is_deleted_after_the_one_that_resumed_it(lab_api)
     assert c.delete(f"/api/acquisitions/{aid}").status_code == 204
 
 
+@pytest.mark.slow
 def test_redo_on_a_resumed_acquisition_drops_the_kept_averages_too(lab_api) -> None:
     c, lab = lab_api
     aid = _interrupted(c, lab)

@@ -69,6 +69,7 @@ def _closed_form(f: np.ndarray) -> np.ndarray:
     return ImpulseSource(n_inputs=2, n_responses=3, response_gain=0.01).frf(f)
 
 
+@pytest.mark.slow
 def test_accept_reject_redo_each_hit_then_redo_and_append_inputs(review_api) -> None:
     c = review_api
     sid = c.post("/api/setups", json=dump_setup_dict(IMPULSE_SETUP)).json()["id"]
@@ -119,6 +120,7 @@ def test_accept_reject_redo_each_hit_then_redo_and_append_inputs(review_api) -> 
     np.testing.assert_allclose(h2, _closed_form(f2), atol=3e-3 * np.abs(h2).max())
 
 
+@pytest.mark.slow
 def test_finish_keeps_the_accepted_averages_and_append_completes_the_set(review_api) -> None:
     c = review_api
     sid = c.post("/api/setups", json=dump_setup_dict(IMPULSE_SETUP)).json()["id"]
@@ -189,6 +191,7 @@ def _states(a: dict) -> list[tuple[str, int, int, int, str]]:
     ]
 
 
+@pytest.mark.slow
 def test_a_review_longer_than_the_fifo_holds_loses_nothing(tmp_path: Path, database_url: str):
     """The DAQ free-runs at 2x real time (not adaptive: it never waits for the host) into a FIFO
     of 16 frames (4096 samples, 1 s of wall time); the operator looks at the first hit while the
@@ -228,6 +231,7 @@ def test_a_review_longer_than_the_fifo_holds_loses_nothing(tmp_path: Path, datab
     assert "lost" not in a["message"], a["message"]
 
 
+@pytest.mark.slow
 def test_the_daq_lost_while_a_hit_waits_keeps_the_hit(tmp_path: Path, database_url: str) -> None:
     """The DAQ drops off the bus (USB re-enumeration) while the first hit waits for review: the
     session finds it again and starts the run anew, the hit waiting is kept for the operator, and
@@ -278,6 +282,7 @@ def test_lost_strikes_are_reported_and_not_counted(tmp_path: Path, database_url:
     assert "10+X 5 (DAQ samples lost (transfer lost))" in a["message"], a["message"]
 
 
+@pytest.mark.slow
 def test_an_input_that_loses_every_strike_is_incomplete_and_named(
     tmp_path: Path, database_url: str
 ) -> None:
@@ -298,6 +303,7 @@ def test_an_input_that_loses_every_strike_is_incomplete_and_named(
     assert "10+X 6 (DAQ samples lost (transfer lost))" in a["message"], a["message"]
 
 
+@pytest.mark.slow
 def test_a_hit_the_checks_rejected_needs_an_override(tmp_path: Path, database_url: str) -> None:
     """Input 10's first record lost a USB transfer (frame 1): it cannot be accepted, not even
     with override (409 naming the samples lost). Input 11's second strike is a double hit:
@@ -346,6 +352,7 @@ def test_a_hit_the_checks_rejected_needs_an_override(tmp_path: Path, database_ur
     assert _states(a) == [("10+X", 2, 1, 0, "complete"), ("11+X", 2, 0, 0, "complete")]
 
 
+@pytest.mark.slow
 def test_review_switched_off_mid_run_takes_effect(tmp_path: Path, database_url: str) -> None:
     """Unticking "review every hit": the hit waiting is decided by the checks and the rest run
     on without the operator; the acquisition says review is off. A finished acquisition is not

@@ -32,6 +32,7 @@ def _wait(c: httpx.Client, acq_id: int, cond, timeout_s: float = 30.0) -> dict:
     raise AssertionError(f"acquisition {acq_id} did not reach the condition: {a}")
 
 
+@pytest.mark.slow
 def test_acquisition_to_frfs(rig_api) -> None:
     c, lab = rig_api
     sid = c.post("/api/setups", json=dump_setup_dict(IMPULSE_SETUP)).json()["id"]
@@ -69,6 +70,7 @@ def test_acquisition_to_frfs(rig_api) -> None:
     assert job["state"] == "succeeded" and job["result"]["frf_id"] == a["frf_id"]
 
 
+@pytest.mark.slow
 def test_input_below_min_averages_is_reported_incomplete(tmp_path: Path, database_url: str) -> None:
     """Issue 10: an input with 1 accepted average gave an FRF with coherence 1, silently. Now it
     is struck again (3 × 3 strikes), then reported incomplete and left out of the FRF set."""
@@ -96,6 +98,7 @@ def test_input_below_min_averages_is_reported_incomplete(tmp_path: Path, databas
         assert np.isfinite(coh[1:]).all()  # three averages: a coherence, not NaN
 
 
+@pytest.mark.slow
 def test_acquisition_stop_keeps_completed_averages(tmp_path: Path, database_url: str) -> None:
     with served_lab(tmp_path, database_url, impulse_rig_factory(pace_s=0.05)) as (c, _lab):
         sid = c.post("/api/setups", json=dump_setup_dict(IMPULSE_SETUP)).json()["id"]
@@ -116,6 +119,7 @@ def test_acquisition_stop_keeps_completed_averages(tmp_path: Path, database_url:
         assert c.post("/api/acquisitions", json={**body, "setup_id": 999}).status_code == 422
 
 
+@pytest.mark.slow
 def test_settings_are_checked_when_the_acquisition_is_created(rig_api) -> None:
     """A bad setting is a 422 naming it, and no acquisition or job is left behind: in the
     request alone, against the built-in defaults, and against the rig the setup must match."""
@@ -139,6 +143,7 @@ def test_settings_are_checked_when_the_acquisition_is_created(rig_api) -> None:
     assert c.get("/api/jobs").json() == [] and c.get("/api/acquisitions").json() == []
 
 
+@pytest.mark.slow
 def test_one_owner_per_device(tmp_path: Path, database_url: str) -> None:
     """Issue 24: three acquisition requests sent together all got 202 and ran on one DAQ; a
     calibration run, connect and identify were accepted during an acquisition. Now the first

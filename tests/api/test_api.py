@@ -127,6 +127,7 @@ def test_bad_requests_get_4xx_naming_the_field(api: Api) -> None:
     assert api.client.post("/api/devices/nope/connect").status_code == 404
 
 
+@pytest.mark.slow
 def test_setup_frf_solution_round_trip(api: Api) -> None:
     model, frf = _model_frf()
     r = api.client.post("/api/setups", json=dump_setup_dict(model.setup))

@@ -25,6 +25,7 @@ from dimacq.simulators.loadcell.amplifier import LoadCellAmplifierSim
 from dimacq.simulators.loadcell.bench import DeadWeightBench
 
 
+@pytest.mark.slow
 def test_static_run_with_prompts_over_http(tmp_path: Path) -> None:
     rig_dir = write_bench_rig(tmp_path, node_id=2)
     cell = strain_gauge_cell(501, creep_tau_s=1.5, swing_tau_s=0.8)
@@ -92,6 +93,7 @@ def test_static_run_with_prompts_over_http(tmp_path: Path) -> None:
         assert c.post(f"/api/calibrations/runs/{job}/confirm", json={"case": 0}).status_code == 409
 
 
+@pytest.mark.slow
 def test_inertial_run_on_the_simulated_lab_over_http(tmp_path: Path) -> None:
     """Method inertial through the API on the simulated lab (the rig builder and the simulated
     backends: the calibration mass on the support-side bench), with the job's progress;

@@ -30,6 +30,7 @@ def _store(api: Api) -> int:
     return int(frf.json()["id"])
 
 
+@pytest.mark.slow
 def test_f32_is_data_in_float32(api: Api) -> None:
     fid = _store(api)
     for params in ({}, {"input": 1, "f_min_hz": 20, "f_max_hz": 60}, {"response": 2}):

@@ -113,6 +113,7 @@ TOML_BOMBS = {
 }
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", list(TOML_BOMBS))
 def test_toml_bombs_are_422_naming_the_limit(api: Api, name: str) -> None:
     text = TOML_BOMBS[name]

@@ -59,6 +59,7 @@ def _plan(**kw: object) -> dict[str, Any]:
 # -- setups: positions as strings, coerced values, text ----------------------------------------
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("value", ["nan", "-Infinity", "inf", "1e999", "1", True])
 def test_setup_positions_as_strings_or_booleans_are_refused(
     api: Api, setup_doc: dict[str, Any], value: Any
@@ -292,6 +293,7 @@ def test_point_imports_are_bounded_and_points_deleted_in_bulk(api: Api) -> None:
 # -- start-up refusals ------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", ["file", "unreadable"])
 def test_a_bad_data_dir_is_refused_in_one_line_exit_2(tmp_path: Path, kind: str) -> None:
     import os

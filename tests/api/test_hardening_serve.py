@@ -30,6 +30,7 @@ from dimacq.cli.main import main
 from dimacq.config import load_settings
 
 
+@pytest.mark.slow
 def test_serve_prints_the_token_once(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -15,6 +15,7 @@ import tomllib
 from pathlib import Path
 from typing import Any
 
+import pytest
 import tomli_w
 from _api_support import Api
 from hypothesis import HealthCheck, given, settings
@@ -131,6 +132,7 @@ FUZZ = settings(
 )
 
 
+@pytest.mark.slow
 @FUZZ
 @given(req=requests())
 def test_hostile_values_anywhere_never_fail(api: Api, req: tuple[str, Any]) -> None:

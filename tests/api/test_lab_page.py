@@ -518,6 +518,7 @@ def _rigid_frf(flip_input: int | None = None) -> tuple[Any, Any]:
     return setup, frf
 
 
+@pytest.mark.slow
 def test_frf_checks_and_the_token_on_every_call(tmp_path: Path) -> None:
     """The FRF step's driving-point and reciprocity checks on closed-form rigid-body FRFs: both
     pass on the true set; a hammer wired backwards fails its driving point and reciprocity.

@@ -97,6 +97,7 @@ def _whole_test_uff(tmp_path: Path) -> Path:
     return path
 
 
+@pytest.mark.slow
 def test_lab_page_in_firefox(firefox_and_service: Any, tmp_path: Path) -> None:
     bidi, url, events = firefox_and_service
 

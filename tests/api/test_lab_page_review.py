@@ -63,6 +63,7 @@ def _decided(page: Any, number: int) -> None:
     )
 
 
+@pytest.mark.slow
 def test_review_on_the_page(tmp_path: Path) -> None:
     factory = struck_inputs_factory(
         double_hit_input=1, faults=lambda: DaqFaults(lost_transfers={1})

@@ -32,6 +32,7 @@ def _geometry(api: Api) -> tuple[dict, dict, dict]:
     return r.json()["registration"], o.json(), {}
 
 
+@pytest.mark.slow
 def test_a_file_of_the_digitizers_points_gives_the_live_geometry(api: Api) -> None:
     c = api.client
     new_test(api)

@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 from _api_support import Api
 
 
@@ -51,6 +52,7 @@ def _doc(verdict: str = "ok") -> dict:
     }
 
 
+@pytest.mark.slow
 def test_photographed_records_build_a_setup(api: Api) -> None:
     c = api.client
     r = c.post("/api/digitizer/photo-geometry", content=json.dumps(_doc()).encode())

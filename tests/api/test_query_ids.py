@@ -34,6 +34,7 @@ REFUSED = [
 ]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("path", "name"), PARAMETERS)
 @pytest.mark.parametrize("value", REFUSED)
 def test_non_canonical_query_integers_refused_naming_the_parameter(

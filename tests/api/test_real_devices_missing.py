@@ -37,6 +37,7 @@ def real_api(tmp_path: Path, database_url: str) -> Iterator[httpx.Client]:
         yield c
 
 
+@pytest.mark.slow
 def test_acquisition_on_absent_real_daq_is_503_naming_the_setting(real_api: httpx.Client) -> None:
     status = real_api.get("/api/status")
     assert status.status_code == 200

@@ -225,6 +225,7 @@ def test_forced_bad_registration_widens_orientation_uncertainty_and_setup(api: A
     assert gu["sensor_position_m"] > 1e-3  # the map's position term at the origin
 
 
+@pytest.mark.slow
 def test_solve_on_geometry_of_a_forced_registration_fails_naming_it(api: Api) -> None:
     """The verdict of a solve reads the setup's registration residual against the array's limit:
     the bundled example's FRFs with the geometry quality a forced 5-cm registration states."""

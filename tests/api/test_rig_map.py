@@ -7,6 +7,7 @@ import shutil
 from pathlib import Path
 
 import httpx
+import pytest
 from _api_support import TOKEN, make_settings
 
 from dimacq.api import create_app
@@ -49,6 +50,7 @@ def test_rig_file_read_checked_and_replaced(tmp_path: Path) -> None:
     assert (rig_path.parent / "rig.toml.previous").read_text(encoding="utf-8") == got["text"]
 
 
+@pytest.mark.slow
 def test_a_rig_file_cannot_point_the_service_at_files_outside_its_folder(tmp_path: Path) -> None:
     """Issue 24: ``PUT /api/rig`` with a load cell's ``calibration_file`` set to an absolute path,
     then a calibration run, replaced that file (any file the service could write) with a
@@ -156,6 +158,7 @@ def test_daq_inputs_the_daq_does_not_have_are_refused_naming_the_item(tmp_path: 
         assert c.post("/api/rig/check", json={"text": ok}, headers=auth).status_code == 200
 
 
+@pytest.mark.slow
 def test_a_load_cell_a_bad_rig_left_disconnected_is_back_once_the_rig_is_right(
     tmp_path: Path,
 ) -> None:

@@ -35,6 +35,7 @@ def _count(api: Api, fid: int) -> int:
     return len(api.client.get("/api/solutions", params={"frf_id": fid}).json())
 
 
+@pytest.mark.slow
 def test_a_second_identical_solve_while_the_first_runs_is_refused(
     api: Api, frf_id: int, monkeypatch: pytest.MonkeyPatch
 ) -> None:

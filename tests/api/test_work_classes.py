@@ -30,6 +30,7 @@ def _until(cond: Any, timeout_s: float = 30.0) -> Any:
     raise AssertionError("condition not reached within the bound")
 
 
+@pytest.mark.slow
 def test_queued_studies_do_not_block_an_acquisition(tmp_path: Path, database_url: str) -> None:
     release = threading.Event()
     with served_lab(tmp_path, database_url, impulse_rig_factory(pace_s=0.05)) as (c, lab):

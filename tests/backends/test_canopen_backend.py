@@ -77,6 +77,7 @@ def test_devices_check_names_the_nodes(tmp_path: Path) -> None:
         rig_builder.check_devices(other, "loadcell")
 
 
+@pytest.mark.slow
 def test_bench_calibration_of_the_configured_canopen_cell(tmp_path: Path) -> None:
     """The real path (``calibrate_rig_cell``) with ``loadcell = "canopen"`` on a ``virtual``
     channel where a CANopen simulator reads the dead-weight bench: the matrix, its versioned

@@ -34,6 +34,7 @@ def test_defaults_are_on_and_the_setting_is_checked() -> None:
         Imperfections.from_mapping({"daq_stall_s": float("nan")})
 
 
+@pytest.mark.slow
 def test_impact_test_survives_re_enumeration_bus_off_and_frame_loss(
     tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:

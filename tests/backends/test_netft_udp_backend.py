@@ -109,6 +109,7 @@ def test_refused_where_the_host_clock_costs_too_much_phase(tmp_path: Path) -> No
         _impact(tmp_path, "netft-udp-simulated", rig)
 
 
+@pytest.mark.slow
 def test_the_data_time_base_where_the_host_clock_is_refused(tmp_path: Path) -> None:
     """10° at the automatic band's top (655 Hz): the host's clock alone (~0.1 ms here, 24°) is
     refused; the data's fit of the input's residual delay (its cell FRFs against its
@@ -208,6 +209,7 @@ def test_one_delay_fitted_on_every_input_of_the_run(
         assert np.all(np.abs(left) <= bound[j] + 3e-6), (j, left, bound[j])
 
 
+@pytest.mark.slow
 def test_refused_where_the_data_cannot_support_the_alignment(tmp_path: Path) -> None:
     """A budget no fit of two averages can meet (the shipped 2° at 655 Hz is one here: the cell
     carries ~0.1 % of the hammer's force above the bungee's modes): refused after the input,
@@ -219,6 +221,7 @@ def test_refused_where_the_data_cannot_support_the_alignment(tmp_path: Path) -> 
         _impact(tmp_path, "netft-udp-simulated", rig)
 
 
+@pytest.mark.slow
 def test_impact_test_at_a_band_the_alignment_allows(tmp_path: Path) -> None:
     """The load cell FRFs through RDT follow the CAN FD amplifier's within what the rig file's
     phase budget allows (30° at 40 Hz: the driver rejects what it cannot align better), plus

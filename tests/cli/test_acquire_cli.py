@@ -81,6 +81,7 @@ def test_acquire_refuses_unknown_scenario(tmp_path, capsys):
     assert "scenario 'nope' is unknown" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_loadcell_calibrate_simulated(tmp_path, capsys, no_leaks):
     out = tmp_path / "cal.json"
     mat = tmp_path / "lc501.json"
@@ -263,6 +264,7 @@ def _averages(folder: Path, acq_id: int) -> list[dict]:
     return out
 
 
+@pytest.mark.slow
 def test_acquire_interrupted_resumes_striking_only_the_missing_averages(
     tmp_path, capsys, monkeypatch, no_leaks
 ):

@@ -19,6 +19,7 @@ def _rel(a: float, b: float) -> float:
     return abs(a / b - 1)
 
 
+@pytest.mark.slow
 def test_noise_free_calibration_mass_files_give_the_truth(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -47,6 +48,7 @@ def test_noise_free_calibration_mass_files_give_the_truth(
     assert reasons["cross_check"]["severity"] == "ok"
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not SAMPLES.is_dir(), reason="shared samples folder absent")
 @pytest.mark.parametrize(
     ("name", "mass_rel", "cg_m"),

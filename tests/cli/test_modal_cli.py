@@ -12,6 +12,7 @@ import pytest
 from dimacq.cli.main import main
 
 
+@pytest.mark.slow
 def test_modal_correction_on_and_off_from_the_command_line(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

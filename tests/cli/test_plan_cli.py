@@ -38,6 +38,7 @@ def _plan(tmp_path: Path, name: str, *extra: str, k: int = 4, m: int = 8) -> dic
     return json.loads(out.read_text())
 
 
+@pytest.mark.slow
 def test_plan_json_contract(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     from dimacq.io.setup_file import load_setup
 

@@ -36,6 +36,7 @@ def test_list_names_every_scenario(capsys: pytest.CaptureFixture[str]) -> None:
         assert name in out
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("name", "size"), [("calibration-mass-ground", 0.3), ("cube-200", 200.0)])
 def test_rigid_only_model_frfs_solve_to_the_truth(tmp_path: Path, name: str, size: float) -> None:
     uff, truth, sol = tmp_path / "t.uff", tmp_path / "truth.json", tmp_path / "sol.json"
@@ -136,6 +137,7 @@ def test_bad_scenarios_exit_2_naming_the_fix(
     assert "--frf" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("excitation", ["random", "swept-sine"])
 def test_shaker_time_domain_solves_to_the_truth(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], excitation: str

@@ -231,6 +231,7 @@ def test_chain_calibration_on_the_reference_block(tmp_path: Path) -> None:
     assert main(["solve", str(art_setup), str(art_uff), "--chain-calibration", str(out)]) == 2
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not SAMPLES.is_dir(), reason="shared samples folder absent")
 def test_no_unbiased_gives_the_equation_error_estimate(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]

@@ -8,11 +8,14 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from dimacq.cli.main import FAST_EXIT_COMMANDS, main
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "config" / "examples"
 
 
+@pytest.mark.slow
 def test_solve_as_a_program_writes_everything_before_it_ends(tmp_path: Path) -> None:
     out = tmp_path / "sol.json"
     cmd = [sys.executable, "-m", "dimacq.cli.main", "solve"]

@@ -376,6 +376,7 @@ def test_shipped_example_solves_to_the_numbers_before_the_speed_work(
     assert not bad, f"{len(bad)} numbers changed:\n" + "\n".join(bad[:40])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("scenario", SIMULATED)
 def test_noisy_sets_solve_to_the_numbers_before_the_speed_work(
     scenario: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]

@@ -49,6 +49,7 @@ db.close()
 """
 
 
+@pytest.mark.slow
 def test_migrations_from_several_processes_at_once(database_url: str, tmp_path: Path) -> None:
     """Three processes open (and migrate) one empty database at the same instant."""
     url = _url(database_url, tmp_path)
@@ -146,6 +147,7 @@ def test_one_service_per_stand(database_url: str, tmp_path: Path) -> None:
         db.close()
 
 
+@pytest.mark.slow
 def test_two_stands_share_results_but_not_devices(database_url: str, tmp_path: Path) -> None:
     """Stand A acquires; stand B lists A's setup, acquisition and FRFs (from the database), is
     refused A's raw time data (on A's disk) with A's address, and cannot stop A's acquisition."""
@@ -190,6 +192,7 @@ def test_two_stands_share_results_but_not_devices(database_url: str, tmp_path: P
         lab_a.close()
 
 
+@pytest.mark.slow
 def test_postgresql_restart_mid_acquisition_loses_nothing(pg_server, tmp_path: Path) -> None:
     """The database server restarts while averages are being acquired: the acquisition goes
     on, the averages acquired meanwhile wait on disk and in the outbox, the status says the

@@ -93,6 +93,7 @@ def test_length_unit_weights_rows_on_noisy_data() -> None:
     assert all(abs(x / 18.175 - 1) < 0.05 for x in m)
 
 
+@pytest.mark.slow
 def test_every_subset_of_known_properties_is_exact() -> None:
     fm = calibration_mass(4)
     frf = fm.frf(np.linspace(20.0, 60.0, 5))

@@ -75,6 +75,7 @@ def test_elastic_shape_is_the_residue_minus_its_rigid_share() -> None:
     assert cos > 1 - 1e-10
 
 
+@pytest.mark.slow
 def test_correction_recovers_the_rigid_part_of_a_flexible_vehicle() -> None:
     """X-38-like vehicle on air-ride supports (suspension up to 4.8 Hz) with hull bending,
     torsion and lateral modes at 17/24/31 Hz (modal mass one fifth of the vehicle's, 2 %),

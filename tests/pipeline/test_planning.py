@@ -168,6 +168,7 @@ def test_predicted_covariance_matches_map_fits_of_simulated_tests() -> None:
     assert bias.max() < 4 / np.sqrt(150) * 1.5
 
 
+@pytest.mark.slow
 def test_exchange_finds_the_best_layout_of_a_small_candidate_set() -> None:
     """Brute force over every layout of 3 of 6 triaxes and 4 of 7 inputs."""
     pos = np.array([[0.2, 0.2, 0.2], [-0.2, 0.1, 0.2], [0.05, -0.2, -0.1], [0.02, 0.03, 0.0],

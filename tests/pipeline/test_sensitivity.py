@@ -42,6 +42,7 @@ def table5_tolerance(thesis: float, truth: float, std: float, n_trials: int) -> 
     return max(0.05 * abs(truth - thesis), 3.0 * std * np.sqrt(1 / THESIS_TRIALS + 1 / n_trials))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("half", "angle"), list(TABLE5))
 def test_cube_reproduces_table5(half: float, angle: float) -> None:
     """Each case's mass error against the thesis's (not the mass itself: an error-free study is

@@ -213,6 +213,7 @@ def _pooled_run(
     return H, w, X
 
 
+@pytest.mark.slow
 def test_pooled_delay_recovers_one_delay_and_its_jackknife_matches_the_scatter() -> None:
     """Inputs sharing one delay: recovered exactly without noise, every leave-one-out refit on
     it. Over 40 runs of 8 inputs whose delays differ at random (5 µs, what no input's own σ

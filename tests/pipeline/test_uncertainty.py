@@ -211,6 +211,7 @@ def test_geometry_monte_carlo_matches_linearisation() -> None:
     assert g.se == pytest.approx(g.se_linear, rel=0.10)
 
 
+@pytest.mark.slow
 def test_transducer_calibration_enters_the_spread_as_derived() -> None:
     """A hammer whose certificate is off by η divides every FRF (accelerations and load-cell
     reactions) by (1+η). Solving those data equals solving the unscaled data with the input forces

@@ -40,6 +40,7 @@ def solved(tmp_path_factory: pytest.TempPathFactory):  # type: ignore[no-untyped
     return c, rep, drawn, out
 
 
+@pytest.mark.slow
 def test_report_figures_written(solved) -> None:  # type: ignore[no-untyped-def]
     _c, rep, drawn, out = solved
     stems = {"parameters_vs_frequency", "cmif", "response_errors", "jackknife"}
@@ -114,6 +115,7 @@ def test_cmif_and_selection_figures_show_the_selection(solved) -> None:  # type:
     assert cyc0.statistic[cyc0.removed] > cyc0.threshold
 
 
+@pytest.mark.slow
 def test_sensitivity_histograms_count_the_samples(tmp_path: Path) -> None:
     res = cube_study(0.01, max_angle_deg=1.0, n_trials=50, seed=0)
     fig = figures.figure_sensitivity(res.samples, res.truth)

@@ -118,6 +118,7 @@ def test_residual_flexibility_on_a_rigid_vehicle_keeps_the_truth_in_its_interval
         assert p.ci95[0] <= t <= p.ci95[1]
 
 
+@pytest.mark.slow
 def test_band_keeps_below_six_tenths_of_the_elastic_mode_in_noisy_data() -> None:
     # shipped x38, 3 % noise, seed 2: the plateau test's 4 σ per line hid the 23 Hz tail mode's
     # growing dynamic mass and the band reached 18.25 Hz (0.8 f_e): CG 5.5 mm, 1.6 half-widths
@@ -135,6 +136,7 @@ def test_band_keeps_below_six_tenths_of_the_elastic_mode_in_noisy_data() -> None
     assert all(_inside(rep, c, k, widen=1.5) for c, k in zip(truth.cg_m, keys, strict=True))
 
 
+@pytest.mark.slow
 def test_band_starts_above_the_bungee_modes_the_exponential_window_smears() -> None:
     # the calibration mass on its bungee as an impact test measures it: 0.5 Hz lines, the
     # exponential window (τ = 0.25 s) turning each FRF into H(iω + 1/τ); the suspension modes

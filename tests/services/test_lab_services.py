@@ -33,6 +33,7 @@ def lab(tmp_path: Path):
     lab.close()
 
 
+@pytest.mark.slow
 def test_solution_spectrum_uses_the_stored_selection(lab: Lab) -> None:
     """One input's force is mis-scaled by 1.3; the jackknife drops it. The figure's per-line
     estimates are those of the inputs the stored solution kept: the true mass on every line

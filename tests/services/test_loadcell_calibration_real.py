@@ -39,6 +39,7 @@ position_m = [0.1, 0.0, 0.05]
 """
 
 
+@pytest.mark.slow
 def test_static_calibration_of_the_configured_cell(tmp_path: Path) -> None:
     rig_dir = write_bench_rig(tmp_path, node_id=3, points=POINTS)
     cell = strain_gauge_cell(501, creep_tau_s=1.5, swing_tau_s=0.8)

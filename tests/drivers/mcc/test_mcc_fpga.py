@@ -35,6 +35,7 @@ def _jasper(image: bytes) -> str:
     return f"static unsigned char FPGA_data[] = {{\n  {rows}\n}};\n"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("form", [_xxd, _jasper])
 def test_c_arrays_give_the_image(form) -> None:  # type: ignore[no-untyped-def]
     image = lab_fpga_image()

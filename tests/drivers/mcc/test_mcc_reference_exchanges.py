@@ -321,6 +321,7 @@ def _c_array_text(image: bytes) -> bytes:
     return f"static unsigned char FPGA_data[] = {{\n  {rows}\n}};\n".encode("ascii")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "what",
     ["C source text", "image without its last 64 bytes", "image with another IDCODE"],

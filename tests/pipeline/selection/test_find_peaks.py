@@ -9,6 +9,7 @@ import scipy.signal
 from dimacq.pipeline.selection.band import find_peaks
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", range(4))
 def test_find_peaks_returns_what_scipy_returns(seed: int) -> None:
     """Flat tops (values rounded to thirds), infinities and NaN, short and long records."""
