@@ -133,6 +133,29 @@ def test_fit_delay_against_reference_frfs_whatever_their_shape() -> None:
     assert fit_delay(f, W, np.ones(f.size), search_s=2e-3).uncertainty_s > 1e-5
 
 
+def test_fit_delay_between_two_readings_of_one_cell_whatever_their_calibrations() -> None:
+    """Two readings of the same six bridges (two amplifiers, each with its own calibration
+    matrix's certificate error) differ by a real 6×6 matrix ``C``: ``got = C ref e^{−iωτ}``
+    is equation (1) with the other reading's loads as references, so ``τ`` comes out exactly;
+    the least-squares slope of one load's phase ratio does not (a 0.2 % mixing turns a load's
+    phase by degrees near its own anti-resonances, and a small load's everywhere)."""
+    rng = np.random.default_rng(23)
+    f = np.arange(50.0, 655.0, 1.0)
+    modes = np.array([137.0, 212.0, 301.0, 455.0, 590.0])
+    q = 1.0 / (1 - (f[:, None] / modes) ** 2 + 0.04j * f[:, None] / modes)  # (lines, modes)
+    ref = q @ rng.standard_normal((modes.size, 6)) * np.array([1, 1, 1, 0.01, 0.01, 0.01])
+    C = np.eye(6) + 0.002 * rng.standard_normal((6, 6))
+    tau = 3.7e-6
+    got = (ref @ C.T) * np.exp(-2j * np.pi * f * tau)[:, None]
+    X = np.concatenate([ref, np.ones((f.size, 1))], axis=1)
+    fit = fit_delay(f, got / np.abs(got).max(axis=0), np.ones(f.size), search_s=1e-3, regressors=X)
+    assert fit.delay_s == pytest.approx(tau, abs=1e-9) and fit.uncertainty_s < 1e-9
+    # one load at a time: the phase ratio's slope, −Σ f φ / (2π Σ f²), s
+    phi = np.angle(got / ref)
+    per_load = -np.sum(f[:, None] * phi, axis=0) / (2 * np.pi * np.sum(f**2))
+    assert np.abs(per_load - tau).max() > 1e-6  # off by microseconds
+
+
 def test_fit_delay_uncertainty_matches_its_scatter_under_noise() -> None:
     """``σ_τ`` from the cost's curvature against the scatter of 40 noisy fits (closed form of
     the noise: complex Gaussian of known variance per line, weights its inverse)."""
