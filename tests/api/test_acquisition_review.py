@@ -151,6 +151,7 @@ def test_finish_keeps_the_accepted_averages_and_append_completes_the_set(review_
     np.testing.assert_allclose(h2, _closed_form(f2), atol=3e-3 * np.abs(h2).max())
 
 
+@pytest.mark.slow
 def test_inputs_are_named_by_their_line_of_action(review_api) -> None:
     # input 11 recorded with UFF direction 1 (+X in its node's system) but struck along −Z in
     # the GCS: every message names it by where the operator strikes, 11-Z
@@ -264,6 +265,7 @@ def test_the_daq_lost_while_a_hit_waits_keeps_the_hit(tmp_path: Path, database_u
     assert _states(a) == [("10+X", 2, 0, 0, "complete"), ("11+X", 2, 0, 0, "complete")]
 
 
+@pytest.mark.slow
 def test_lost_strikes_are_reported_and_not_counted(tmp_path: Path, database_url: str) -> None:
     """Five USB transfers are lost while the session waits for input 10's strikes (frames 0, 2,
     4, 6, 8: each holds the strike asked for): five strikes lost, each reported on the input

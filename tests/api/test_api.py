@@ -28,6 +28,7 @@ def _model_frf():
     return model, frf
 
 
+@pytest.mark.slow
 def test_status_docs_and_openapi(api: Api) -> None:
     st = api.anon.get("/api/status")
     assert st.status_code == 200
@@ -207,6 +208,7 @@ def test_setup_frf_solution_round_trip(api: Api) -> None:
     assert np.median(per_line[in_band, 0]) == pytest.approx(spec["headline"][0], rel=0.02)
 
 
+@pytest.mark.slow
 def test_digitizer_chain_to_setup(api: Api) -> None:
     """Reference nodes → registration → jig orientation → line of action → setup."""
     from scipy.spatial.transform import Rotation
@@ -357,6 +359,7 @@ def _store_example(api: Api, test_id: int | None) -> tuple[int, int]:
     return sid, frf.json()["id"]
 
 
+@pytest.mark.slow
 def test_envelope_and_the_lists_of_one_test(api: Api) -> None:
     """``GET /api/frfs/{id}/envelope`` (what the report and plots fetch instead of the whole
     set) against ``/data``; the lists of one test (``?test_id=``) of FRF sets and solutions."""

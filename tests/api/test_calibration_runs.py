@@ -152,6 +152,7 @@ def test_inertial_run_on_the_simulated_lab_over_http(tmp_path: Path) -> None:
     assert shipped.read_bytes() == before
 
 
+@pytest.mark.slow
 def test_inertial_strike_requests_are_the_runs_prompt(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

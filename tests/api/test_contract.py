@@ -53,6 +53,7 @@ def _json_body(op: dict[str, Any]) -> bool:
     return "application/json" in op.get("requestBody", {}).get("content", {})
 
 
+@pytest.mark.slow
 def test_malformed_json_is_422_on_every_route_with_a_json_body(api: Api) -> None:
     walked = []
     for path, method, op in _spec_operations(api):

@@ -152,6 +152,7 @@ def lan_server(tmp_path: Path) -> Iterator[BackgroundServer]:
         yield srv
 
 
+@pytest.mark.slow
 def test_reads_need_the_token_off_loopback(lan_server: BackgroundServer) -> None:
     with httpx.Client(base_url=lan_server.url, timeout=30) as c:
         for path in ("/api/status", "/api/setups", "/api/devices", "/api/digitizer/points"):

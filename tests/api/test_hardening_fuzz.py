@@ -62,6 +62,7 @@ digits = st.one_of(
 )
 
 
+@pytest.mark.slow
 @FUZZ
 @given(route=st.sampled_from(ID_ROUTES), value=digits)
 def test_path_ids_of_any_length_never_fail(api: Api, route: tuple[str, str], value: str) -> None:

@@ -141,6 +141,7 @@ def test_duplicate_host_headers_are_400(server: BackgroundServer, hosts: tuple[s
     assert "sent 2 times" in _body(answer)["detail"]
 
 
+@pytest.mark.slow
 def test_a_header_trickled_byte_by_byte_is_cut_off(server: BackgroundServer) -> None:
     """A slow client held the connection (and a worker's attention) forever."""
     s = _connect(server)

@@ -167,6 +167,7 @@ QUERIES = [
 ]
 
 
+@pytest.mark.slow
 @FUZZ
 @given(
     q=st.sampled_from(QUERIES),

@@ -117,6 +117,7 @@ def service(tmp_path: Path) -> Any:
             proc.communicate()
 
 
+@pytest.mark.slow
 def test_page_assets_come_from_the_installed_package(tmp_path: Path) -> None:
     """The page's files are package data next to the app (what ``pip install`` ships)."""
     from importlib.resources import files

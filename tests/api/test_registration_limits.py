@@ -68,6 +68,7 @@ def mm_of(detail: str, node: str) -> float:
     return float(m.group(1))
 
 
+@pytest.mark.slow
 def test_good_registration_states_its_limit_and_uncertainty(api: Api) -> None:
     new_test(api)
     r = register_refs(api)
@@ -87,6 +88,7 @@ def test_good_registration_states_its_limit_and_uncertainty(api: Api) -> None:
     assert reg["rotation_uncertainty_deg"] == pytest.approx(expect, rel=1e-9)
 
 
+@pytest.mark.slow
 def test_reference_node_redigitized_5_cm_off_is_refused_naming_it(api: Api) -> None:
     new_test(api)
     assert register_refs(api).status_code == 200
@@ -172,6 +174,7 @@ def test_reference_nodes_replaced_removed_and_cleared_by_a_new_test(api: Api) ->
     assert c.post("/api/digitizer/orientations", json={"node": 3}).status_code == 422
 
 
+@pytest.mark.slow
 def test_forced_bad_registration_widens_orientation_uncertainty_and_setup(api: Api) -> None:
     """With the limit raised on purpose, a registration 5 cm off is accepted as ``warn``, its
     residual reaches the orientation uncertainty and the setup's ``geometry_uncertainty`` (before:

@@ -16,6 +16,7 @@ from dimacq.config import default_config_file
 from dimacq.io.rig_file import load_rig_file
 
 
+@pytest.mark.slow
 def test_rig_file_read_checked_and_replaced(tmp_path: Path) -> None:
     src = default_config_file().parent
     rig_path = tmp_path / "rig" / "rig.toml"
@@ -111,6 +112,7 @@ def _rig_copy(tmp_path: Path) -> Path:
     return rig_path
 
 
+@pytest.mark.slow
 def test_daq_inputs_the_daq_does_not_have_are_refused_naming_the_item(tmp_path: Path) -> None:
     """A DAQ input past the DAQ's count (its identity: 64 on the simulated USB DAQ) in a load
     cell's ``daq_channels`` or a transducer's ``physical_channel`` is refused by the check and

@@ -77,6 +77,7 @@ def test_a_second_identical_solve_while_the_first_runs_is_refused(
     assert again.status_code == 201 and again.json()["id"] != first["r"].json()["id"]
 
 
+@pytest.mark.slow
 def test_the_same_idempotency_key_returns_the_stored_solution(api: Api, frf_id: int) -> None:
     body = {"frf_id": frf_id, **BODY}
     before = _count(api, frf_id)

@@ -91,6 +91,7 @@ def test_impact_test_survives_re_enumeration_bus_off_and_frame_loss(
     assert lost_found == ["restart", "reconnected"] * injected["usb_reenumeration"], lost_found
 
 
+@pytest.mark.slow
 def test_digitizing_survives_line_noise_and_port_loss() -> None:
     """Damaged reply lines are read again (a command) or fired again (a shot); a port that
     drops off is reopened; every point is kept. The session tells the service's device state

@@ -77,6 +77,7 @@ def test_entries_in_the_table() -> None:
     assert load_settings(daq="mcc-usb-simulated").loadcell == "simulated"
 
 
+@pytest.mark.slow
 def test_devices_check_through_the_simulated_units(tmp_path: Path) -> None:
     settings = load_settings(data_dir=tmp_path, token="t", daq="mcc-usb-simulated")
     got = rig_builder.check_devices(settings, "daq")
@@ -111,6 +112,7 @@ def test_one_line_errors_of_the_real_backend(
     assert ident.serial_number == "01F2A000"  # type: ignore[attr-defined]
 
 
+@pytest.mark.slow
 def test_bridge_inputs_need_an_amplifier(tmp_path: Path) -> None:
     """The load cell's bridges on ±0.1 V inputs: the USB-1808X has no such range."""
     settings = load_settings(

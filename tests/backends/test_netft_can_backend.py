@@ -56,6 +56,7 @@ def test_the_default_band_is_refused_for_its_held_values(tmp_path: Path) -> None
     assert "7000 S/s" in msg and "9.7 deg" in msg and "655.36 Hz" in msg and "up to 135 Hz" in msg
 
 
+@pytest.mark.slow
 def test_same_impact_test_through_the_net_ft(tmp_path: Path) -> None:
     amp = _impact(tmp_path, "simulated")
     ft = _impact(tmp_path, "netft-can-simulated", band_hz=100)

@@ -104,6 +104,7 @@ def test_devices_check_reads_the_sensor(tmp_path: Path) -> None:
         lookup("loadcell", "netft-udp")(ctx, ctx.rig_file.load_cells[0])
 
 
+@pytest.mark.slow
 def test_refused_where_the_host_clock_costs_too_much_phase(tmp_path: Path) -> None:
     rig = _rig_file(tmp_path, netft_time_base='"host"')
     with pytest.raises(SetupError, match=r"netft_max_phase_deg = 2\); lower netft_band_hz"):

@@ -2,6 +2,7 @@
 
 import json
 
+import pytest
 from _digitizer_support import make_device
 
 from dimacq.cli.main import main
@@ -16,6 +17,7 @@ KEYS = {
 }
 
 
+@pytest.mark.slow
 def test_selftest_json(tmp_path, capsys):
     out = tmp_path / "st.json"
     rc = main(
@@ -41,6 +43,7 @@ def test_selftest_json(tmp_path, capsys):
     assert "tip_rms_mm" in text and "PASS" in text and "Table 1" in text
 
 
+@pytest.mark.slow
 def test_selftest_over_a_pty(tmp_path, no_thread_leaks):
     with PtyServer(make_device(seed=4)) as server:
         out = tmp_path / "st.json"

@@ -29,6 +29,7 @@ def _faults(mode: str) -> tuple[bool, int]:
     return out[0] == "True", int(out[1])
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's mallopt")
 def test_freed_arrays_are_reused_without_page_faults() -> None:
     took, kept = _faults("on")

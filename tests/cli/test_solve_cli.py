@@ -53,6 +53,7 @@ def test_bundled_example_is_the_forward_model_and_solves_to_its_truth(
     assert max(abs(v) for v in data["error_pct"].values()) < 1e-6
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not SAMPLES.is_dir(), reason="shared samples folder absent")
 @pytest.mark.parametrize("name", ["bracket_clean_binary.uff", "bracket_clean_ascii.uff"])
 def test_independent_sample_files_solve_to_their_truth(name: str, tmp_path: Path) -> None:
@@ -179,6 +180,7 @@ def test_selection_flags_add_the_contract_keys_and_figures(tmp_path: Path) -> No
     assert any(p.suffix == ".svg" for p in (tmp_path / "fig").iterdir())
 
 
+@pytest.mark.slow
 def test_chain_calibration_on_the_reference_block(tmp_path: Path) -> None:
     """``--reference-mass`` on the reference block's FRFs (its drawing as the setup file, its
     weighing certificate) reports the chain factor; ``--chain-calibration`` applies it to the

@@ -53,6 +53,7 @@ def _same(got: dict[str, Any], want: dict[str, Any], what: str) -> None:
             assert g == w and type(g) is type(w), (what, key, g, w)
 
 
+@pytest.mark.slow
 def test_every_dataset_reads_as_pyuff_reads_it(tmp_path: Path) -> None:
     for path in _files(tmp_path):
         uff = pyuff.UFF(str(path))
@@ -100,6 +101,7 @@ def test_batched_complex_values_equal_pyuffs_expression_to_the_bit(seed: int) ->
     assert (np.isnan(got.real) == np.isnan(want.real)).all()
 
 
+@pytest.mark.slow
 def test_a_binary_whole_test_is_read_without_pyuff(tmp_path: Path) -> None:
     path = _whole_test(tmp_path)
     code = (

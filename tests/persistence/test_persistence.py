@@ -64,6 +64,7 @@ def test_frf_arrays_round_trip() -> None:
     assert back.output_kinds == frf.output_kinds
 
 
+@pytest.mark.slow
 def test_restart_recovers_interrupted_jobs_and_orphan_averages(
     tmp_path: Path, database_url: str
 ) -> None:

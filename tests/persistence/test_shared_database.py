@@ -83,6 +83,7 @@ def test_migrations_from_several_processes_at_once(database_url: str, tmp_path: 
         db.close()
 
 
+@pytest.mark.slow
 def test_queued_jobs_are_claimed_exactly_once(database_url: str, tmp_path: Path) -> None:
     """Two services (two engines), three claiming threads each, 40 jobs: every job is claimed
     by exactly one of them, once."""
@@ -126,6 +127,7 @@ def test_queued_jobs_are_claimed_exactly_once(database_url: str, tmp_path: Path)
         b.close()
 
 
+@pytest.mark.slow
 def test_one_service_per_stand(database_url: str, tmp_path: Path) -> None:
     url = _url(database_url, tmp_path)
     db = open_database(url)
@@ -239,6 +241,7 @@ def test_postgresql_restart_mid_acquisition_loses_nothing(pg_server, tmp_path: P
         pg_server.drop_database(url)
 
 
+@pytest.mark.slow
 def test_upgrade_from_schema_1_keeps_old_rows(database_url: str, tmp_path: Path) -> None:
     """A database of schema version 1 (FRF data in files, no stands) migrates to the current
     schema in place; its FRF set still reads from its file."""

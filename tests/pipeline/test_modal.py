@@ -20,6 +20,7 @@ def _pole(f_hz: float, zeta: float) -> complex:
     return complex(-zeta * wn, wn * np.sqrt(1 - zeta**2))
 
 
+@pytest.mark.slow
 def test_lscf_finds_the_poles_of_a_known_pole_residue_sum() -> None:
     """``H = Σ s² [A/(s − λ) + A*/(s − λ*)] + c`` for three modes (12, 19, 33 Hz; 1–3 %
     damping) on 30 pairs with random complex residues, 0.2 % noise: each pole within 0.2 % in
@@ -154,6 +155,7 @@ def test_noise_estimate_and_clean_span_follow_a_rising_noise_floor() -> None:
     assert clean_span(frf_noise(H))[1] == f.size - 1
 
 
+@pytest.mark.slow
 def test_fit_on_an_acquired_like_span_stops_where_the_frfs_do() -> None:
     """The flexible vehicle (hull modes 17/24/31 Hz) measured over 0.125–128 Hz as an impact
     test is: noise 0.2 % of the FRF where the hammer drives the structure, rising as (f/45 Hz)⁴

@@ -401,6 +401,7 @@ def test_a_load_cell_moment_error_does_not_move_the_principal_moments() -> None:
     assert err[True] < 0.001  # refined: 0.03 %
 
 
+@pytest.mark.slow
 def test_a_load_cell_far_off_is_held_at_its_stated_pose() -> None:
     """A load cell whose refined correction is a gross error (beyond ``max_correction_sigma`` of
     its stated uncertainty) cannot be left out like a sensor: the cells are held at their stated

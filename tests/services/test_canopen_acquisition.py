@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import can
 import numpy as np
+import pytest
 from _acq_support import ImpulseSource, no_leaks
 
 from dimacq.config import Settings
@@ -24,6 +25,7 @@ G = 9.80665
 NODE = 12
 
 
+@pytest.mark.slow
 def test_faults_are_reported_survived_and_nothing_accepted_is_lost(no_leaks) -> None:
     src = ImpulseSource(n_inputs=2, n_responses=3, n_gauges=12, response_gain=0.01)
     clock = SampleClock()

@@ -17,6 +17,7 @@ def _reason(report: AnalysisReport, check: str) -> VerdictReason:
     return next(r for r in report.verdict_reasons if r.check == check)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("scenario", ["calibration-mass-bungee", "calibration-mass-realistic"])
 def test_rigid_cases_agree_with_the_dim(scenario: str) -> None:
     b = build_scenario(scenario, 0)
@@ -49,6 +50,7 @@ def _turn_triax(setup: TestSetup, node: int, angle_deg: float) -> TestSetup:
     return setup.model_copy(update={"responses": resp})
 
 
+@pytest.mark.slow
 def test_a_mis_mounted_triax_the_selection_keeps_makes_them_disagree() -> None:
     """Triax 1 of the calibration mass sits 3° off its stated orientation (the jig was read on
     the wrong base); the lab states its geometry to 0.2 mm / 0.05° / 0.1°. The perimeter

@@ -42,6 +42,7 @@ def _smooth_errors(seed: int) -> Any:
     return case, frf
 
 
+@pytest.mark.slow
 def test_a_refused_refinement_leaves_a_fit_whose_misfit_is_judged_on_the_measured_noise(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:

@@ -88,6 +88,7 @@ def _write_bench(world: VirtualWorld) -> None:
     (folder / "loadcell_bench.toml").write_text(BENCH, encoding="utf-8")
 
 
+@pytest.mark.slow
 def test_inertial_calibration_and_circular_check_of_the_configured_cell(tmp_path: Path) -> None:
     bench_world = VirtualWorld(
         "calibration-mass-bungee", INPUTS, tmp_path / "rig", node_id=4, bench_node=501

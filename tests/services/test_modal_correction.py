@@ -43,6 +43,7 @@ def test_default_is_unchanged_on_a_rigid_scenario_with_noise() -> None:
     assert auto.modal_correction is None
 
 
+@pytest.mark.slow
 def test_auto_corrects_a_flexible_vehicle_and_says_why() -> None:
     """Hull modes at 17/24/31 Hz (3.6–6.5× the top suspension mode), 0.5 % noise: the plain
     analysis's band is contaminated; ``auto`` takes the three modes out, solves across them and

@@ -52,6 +52,7 @@ def _acquire(tmp_path: Path, daq: str) -> tuple[Any, Any, Any, list[list[dict[st
     return setup, live, settings_used, kept, fs
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("daq", ["simulated", "mcc-usb-simulated"])
 def test_time_files_give_the_live_frfs(tmp_path: Path, daq: str) -> None:
     setup, live, s, kept, fs = _acquire(tmp_path, daq)

@@ -75,6 +75,7 @@ def test_image_found_inside_a_library(tmp_path: Path, monkeypatch: pytest.Monkey
     assert lib in fpga.library_paths()
 
 
+@pytest.mark.slow
 def test_cli_converts_the_c_source(tmp_path: Path, capsys) -> None:  # type: ignore[no-untyped-def]
     image = lab_fpga_image()
     src = tmp_path / "Usb1808Fpga.c"

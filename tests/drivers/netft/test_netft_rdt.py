@@ -260,6 +260,7 @@ def _run(
             sock.close()
 
 
+@pytest.mark.slow
 def test_buffered_stream_put_on_the_daq_clock() -> None:
     """The resampled stream against the truth: its phase is the alignment's error, which is
     the host's latency floor (loopback and a Python thread's wake-up: ~70 us of wall time here)
@@ -289,6 +290,7 @@ def test_buffered_stream_put_on_the_daq_clock() -> None:
     assert drv.lost == 0
 
 
+@pytest.mark.slow
 def test_a_lost_datagram_rejects_its_samples_not_bridged() -> None:
     drv, _, _, blk = _run(drop_at_s=0.2)  # 8 records in one datagram of 8
     assert drv.lost == 8
@@ -301,11 +303,13 @@ def test_a_lost_datagram_rejects_its_samples_not_bridged() -> None:
     assert gaps and all("lost" in e.message and "rejected" in e.message for e in gaps)
 
 
+@pytest.mark.slow
 def test_refused_when_the_alignment_costs_more_phase_than_allowed() -> None:
     with pytest.raises(SetupError, match=r"netft_max_phase_deg = 1e-06.*lower netft_band_hz"):
         _run(max_phase_deg=1e-6, seconds=0.2)
 
 
+@pytest.mark.slow
 def test_no_samples_without_the_daq_start() -> None:
     src = Sine(np.ones(12))
     with NetFtUdpSim(src, range(12), np.zeros((6, 12)), CAL, rdt_rate_hz=1000.0) as sim:

@@ -81,6 +81,7 @@ def test_refusals():
         fit_orientation(JIG.points_local_m, JIG.points_local_m, JIG.rod, method="cross")
 
 
+@pytest.mark.slow
 def test_must_show_jig_accuracy_and_uncertainty():
     """5-shot points (tip noise ~0.15 mm RMS, from the lab's per-shot 0.33 mm): 3 rods <= 0.1 deg,
     two rods <= 0.2 deg; the reported uncertainty matches the observed error."""

@@ -125,6 +125,7 @@ def _perturbed(truth: list, cams: list, rng: np.random.Generator) -> tuple:
     return cr, ct, br, bp
 
 
+@pytest.mark.slow
 def test_noise_free_exact() -> None:
     bodies, truth, cams, obs = _scene(1)
     start = CAM.with_vector(CAM.vector() * [1.02, 1, 1, 0, 0, 0, 0, 0])

@@ -16,6 +16,7 @@ def _angles(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.degrees(np.arccos(np.clip(np.sum(a * b, axis=1), -1, 1)))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", [2000, 2001])
 def test_repair_brings_three_degree_errors_below_0_3(seed: int) -> None:
     c = forward_case(seed, triax_error_deg=3.0)

@@ -200,6 +200,7 @@ def test_the_bus_load_is_summed_over_the_channels_nodes() -> None:
         ch.close()
 
 
+@pytest.mark.slow
 def test_host_sync_readings_on_the_nodes_own_time(rig: Any) -> None:
     """``external_clock=False``: the driver's periodic SYNC (``canopen``'s producer), which the
     node answers at once; samples start with the lowest TPDO (the host hears not its own SYNC)."""

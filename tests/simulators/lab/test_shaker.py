@@ -106,6 +106,7 @@ def test_anti_aliased_shaker_response_equals_filtered_fine_lsim() -> None:
     assert np.abs(rec[lab.channel_index("shaker1")]).max() == 0.0
 
 
+@pytest.mark.slow
 def test_periodic_random_in_steady_state_gives_y_equal_h_f_per_line() -> None:
     b = build_scenario("calibration-mass-bungee")
     fs, Nr = 2048.0, 2048

@@ -149,6 +149,7 @@ def _one_unit_task(backend: Mcc1808Backend, n_inputs: int, **kw: float) -> MccTa
     return task
 
 
+@pytest.mark.slow
 def test_a_pause_longer_than_the_fifo_loses_no_sample() -> None:
     """The device's 32 KiB FIFO holds 8192 samples: 2048 scans of four inputs, 1.02 s at
     2 kHz. The program pauses 2 s (at 1× time) between reads; the reader thread keeps every
