@@ -196,6 +196,21 @@ class ImpactSteps(ImpactStream):
                 continue
             self._book_average(j, s0, c, st, fs)
 
+    def _progress(self, j: int, st: RunState, c: _InputCount, msg: str) -> None:
+        """Input ``j``'s counts and ``msg`` to the ``progress`` callback, when there is one."""
+        if self.progress is not None:
+            s = self.settings
+            self.progress(
+                Progress(
+                    j,
+                    len(self.input_rows),
+                    len(st.records[j]),
+                    s.averages_per_input,
+                    c.rejected,
+                    msg,
+                )
+            )
+
     def _strike_lost(self, j: int, gap: StrikeLost, c: _InputCount, st: RunState) -> bool:
         """Count and report a strike of input ``j`` lost to a sample gap; True when the input
         has lost as many as its strike budget (no more strikes asked for it)."""
@@ -210,17 +225,7 @@ class ImpactSteps(ImpactStream):
         self._event({"device": "daq", "kind": "strike_lost", "message": msg})
         if self.on_lost is not None:
             self.on_lost(j, str(gap))
-        if self.progress is not None:
-            self.progress(
-                Progress(
-                    j,
-                    len(self.input_rows),
-                    len(st.records[j]),
-                    s.averages_per_input,
-                    c.rejected,
-                    msg,
-                )
-            )
+        self._progress(j, st, c, msg)
         return out_of_lost
 
     def _decision(
@@ -292,14 +297,4 @@ class ImpactSteps(ImpactStream):
             f"{s.averages_per_input}" + (f" rejected: {'; '.join(reasons)}" if reasons else "")
         )
         log.info(msg)
-        if self.progress is not None:
-            self.progress(
-                Progress(
-                    j,
-                    len(self.input_rows),
-                    len(st.records[j]),
-                    s.averages_per_input,
-                    c.rejected,
-                    msg,
-                )
-            )
+        self._progress(j, st, c, msg)
