@@ -28,6 +28,8 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 from urllib.parse import urlsplit
@@ -103,8 +105,10 @@ def _serve(tmp_path: Path) -> tuple[subprocess.Popen[str], str]:
                 ) from None
 
 
-@pytest.fixture
-def service(tmp_path: Path) -> Any:
+@contextmanager
+def served(tmp_path: Path) -> Iterator[str]:
+    """A ``dimacq serve`` of the simulated lab for the page tests: its URL; stopped (SIGINT,
+    then killed after 20 s) at the end."""
     proc, url = _serve(tmp_path)
     try:
         yield url
@@ -115,6 +119,12 @@ def service(tmp_path: Path) -> Any:
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.communicate()
+
+
+@pytest.fixture
+def service(tmp_path: Path) -> Iterator[str]:
+    with served(tmp_path) as url:
+        yield url
 
 
 @pytest.mark.slow

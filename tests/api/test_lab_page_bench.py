@@ -12,8 +12,6 @@ from __future__ import annotations
 
 import json
 import shutil
-import signal
-import subprocess
 from pathlib import Path
 from typing import Any
 from urllib.parse import urlsplit
@@ -27,18 +25,10 @@ pytestmark = pytest.mark.skipif(CHROMIUM is None, reason="Debian's chromium is n
 
 @pytest.fixture
 def service(tmp_path: Path) -> Any:
-    from test_lab_page import TOKEN, _serve
+    from test_lab_page import TOKEN, served
 
-    proc, url = _serve(tmp_path)
-    try:
+    with served(tmp_path) as url:
         yield url, TOKEN
-    finally:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.communicate(timeout=20)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.communicate()
 
 
 def test_bench_calibration_module_is_package_data() -> None:

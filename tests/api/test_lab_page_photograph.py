@@ -12,8 +12,6 @@ Needs Debian's ``chromium`` and Playwright's Python package; skipped when either
 from __future__ import annotations
 
 import shutil
-import signal
-import subprocess
 from pathlib import Path
 from typing import Any
 from urllib.parse import urlsplit
@@ -29,18 +27,10 @@ pytestmark = pytest.mark.skipif(CHROMIUM is None, reason="Debian's chromium is n
 
 @pytest.fixture
 def service(tmp_path: Path) -> Any:
-    from test_lab_page import TOKEN, _serve
+    from test_lab_page import TOKEN, served
 
-    proc, url = _serve(tmp_path)
-    try:
+    with served(tmp_path) as url:
         yield url, TOKEN
-    finally:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.communicate(timeout=20)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.communicate()
 
 
 def test_photograph_module_is_package_data() -> None:
