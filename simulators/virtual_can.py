@@ -98,6 +98,24 @@ class SimVirtualBus(VirtualBus):
             # on the queue, where the senders of the channel see it
             self.queue.dimacq_accept = frozenset(accept_ids)  # type: ignore[attr-defined]
 
+    def receivers_backlog(self, arbitration_id: int | None = None) -> int:
+        """Frames waiting in the fullest receive queue among the other buses of the channel (those
+        whose acceptance filter lets ``arbitration_id`` through; None: all of them).
+
+        A simulator at a time-lapse sends faster than any real bus carries frames; when the
+        host's receive thread falls that far behind, a reply it sends next waits behind the
+        whole backlog. The simulators look here and wait (their clocks slip) rather than pile
+        more frames in front of the host's next answer."""
+        most = 0
+        for bus_queue in self.channel:
+            if bus_queue is self.queue:
+                continue
+            accept = getattr(bus_queue, "dimacq_accept", None)
+            if accept is not None and arbitration_id is not None and arbitration_id not in accept:
+                continue
+            most = max(most, bus_queue.qsize())
+        return most
+
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
         self._check_if_open()
         timestamp = msg.timestamp if self.preserve_timestamps else time.time()

@@ -132,7 +132,9 @@ class CanopenAmplifierSim(SyncPulses):
         self._lock = threading.RLock()
         self._count_lock = threading.Lock()  # samples read ↔ counter, held briefly
         self._stop_evt = threading.Event()
-        self._bus = SimVirtualBus(channel=channel)
+        # the node's controller accepts NMT and its SDO requests: not the other amplifiers'
+        # TPDOs on a shared channel, which its receive thread would take and drop one by one
+        self._bus = SimVirtualBus(channel=channel, accept_ids=frozenset({0x000, 0x600 + node_id}))
         self.network = canopen.Network(self._bus)
         self.network.NOTIFIER_CYCLE = 0.1  # how long closing waits for the receive thread
         self.node = canopen.LocalNode(node_id, canopen.import_od(str(eds), node_id))
@@ -269,7 +271,9 @@ class CanopenAmplifierSim(SyncPulses):
                 with self._lock:
                     if self.streaming:
                         sent = self._send_pulses()
-                if not sent:
+                if self.held_back:
+                    self._stop_evt.wait(BURST_S)
+                elif not sent:
                     if self.streaming and self.clock is not None and self._external:
                         self.clock.wait_change(self.clock.state(), 0.005)
                     else:
@@ -278,6 +282,9 @@ class CanopenAmplifierSim(SyncPulses):
                     self._stop_evt.wait(BURST_S)
         except Exception:  # pragma: no cover - surfaced through the driver's timeouts
             log.exception("CANopen load cell simulator thread failed")
+
+    def _receivers_backlog(self) -> int:
+        return self._bus.receivers_backlog(self.layout.tpdos[0].cob_id)
 
     def _emit(self, pulse0: int, n: int) -> None:
         """Samples at pulses ``pulse0 .. pulse0 + n − 1`` as TPDOs (counter = pulse)."""

@@ -41,7 +41,7 @@ from dimacq.errors import ProtocolError
 from dimacq.simulators.daq.clock import SampleClock
 from dimacq.simulators.imperfections import fault_log
 from dimacq.simulators.lab.source import SampleSource
-from dimacq.simulators.loadcell.pulses import SyncPulses
+from dimacq.simulators.loadcell.pulses import BURST_S, SyncPulses
 from dimacq.simulators.virtual_can import SimVirtualBus
 
 __all__ = ["LoadCellAmplifierSim", "LoadCellFaults"]
@@ -178,7 +178,9 @@ class LoadCellAmplifierSim(SyncPulses):
                     continue
                 if self.state == 2 and time.monotonic() >= next_burst:
                     sent = self._send_pulses()
-                    if not sent:
+                    if self.held_back:
+                        next_burst = time.monotonic() + BURST_S
+                    elif not sent:
                         self._wait_for_clock(0.005)
                     elif sent < _CHUNK:  # caught up: the next burst in BURST_S or more
                         next_burst = time.monotonic() + self._burst_s()
@@ -297,6 +299,9 @@ class LoadCellAmplifierSim(SyncPulses):
         self.state = 2
 
     max_backlog = _MAX_BACKLOG
+
+    def _receivers_backlog(self) -> int:
+        return self.bus.receivers_backlog(p.data_id(self.node))
 
     def _drop_backlog(self, avail: int) -> None:
         if self._external and avail - self._pulses > _MAX_BACKLOG:

@@ -16,7 +16,7 @@ import time
 
 from dimacq.simulators.daq.clock import SampleClock
 
-__all__ = ["BURST_PULSES", "BURST_S", "SyncPulses"]
+__all__ = ["BURST_PULSES", "BURST_S", "RX_BACKLOG_FRAMES", "SyncPulses"]
 
 #: wall time between two bursts of frames once a simulator has caught up with its clock, s. A
 #: real amplifier sends each sample as it is taken; the simulator sends the pulses of the last
@@ -29,6 +29,12 @@ BURST_S = 0.004
 #: above ``BURST_S``), so their fixed cost (a source read, an encode, a queue hand-over) is not
 #: paid 250 times per wall second for a few frames each: about 0.1 core at 1–4× before
 BURST_PULSES = 128
+#: frames waiting in a receiver's queue past which an amplifier simulator sends nothing more
+#: (its clock slips, an adaptive DAQ clock waits for it): on a host whose receive thread got too
+#: little CPU, the reply to the host's next request would otherwise wait behind seconds of
+#: frames (an SDO answer behind 50 000 TPDOs on a loaded machine). Tens of ms of a receive
+#: thread's work; an idle host keeps its queue under a few hundred frames.
+RX_BACKLOG_FRAMES = 2048
 
 
 class SyncPulses:
@@ -105,26 +111,50 @@ class SyncPulses:
             return BURST_S
         return max(BURST_S, BURST_PULSES / pace)
 
+    def _receivers_backlog(self) -> int:
+        """Hook: frames the fullest receiver on the bus has not taken yet (default: 0)."""
+        return 0
+
     def _drop_backlog(self, avail: int) -> None:
         """Hook: what to do with pulses far behind (default: nothing, send them all)."""
 
     #: pulses of backlog past which the amplifier drops frames (None: it never does); on an
     #: adaptive DAQ clock (:meth:`SampleClock.hold_at`) the clock waits for it there instead
     max_backlog: int | None = None
+    #: the last :meth:`_send_pulses` sent nothing because a receiver is that far behind
+    held_back: bool = False
 
-    def _hold_clock(self) -> None:
-        """Tell an adaptive DAQ clock how far it may count before this amplifier drops frames."""
+    def _hold_clock(self, ahead: int | None = None) -> None:
+        """Tell an adaptive DAQ clock how far it may count before this amplifier drops frames
+        (``ahead`` pulses past those sent; default :attr:`max_backlog`)."""
         if self.max_backlog is None or self.clock is None or not self._external:
             return
         key = f"amplifier-{id(self)}"
         st = self.clock.state()
         if st.run == self._base_run and st.running:
-            self.clock.hold_at(key, self._base_count + self._pulses + self.max_backlog)
+            more = self.max_backlog if ahead is None else ahead
+            self.clock.hold_at(key, self._base_count + self._pulses + more)
+
+    def _freeze(self) -> None:
+        """Stop the simulated clock where the frames sent stop, while the receivers catch up:
+        the internal oscillator slips (no ticks pile up for the stop's final burst) and an
+        adaptive DAQ clock is held at the last pulse sent (on a fixed DAQ clock the pulses
+        keep coming, as they would on a real bus, up to :attr:`max_backlog`)."""
+        if not self._external:
+            self._t0 = time.monotonic() - self._pulses / (self.rate_hz * self.time_scale)
+            return
+        self._hold_clock(ahead=0)
 
     def _send_pulses(self, final: bool = False) -> int:
         """Send frames for pulses seen (one chunk, or all of them when ``final``); how many
         pulses were sent (0: nothing to send; fewer than a chunk: caught up, wait
-        :data:`BURST_S` before looking again)."""
+        :data:`BURST_S` before looking again). Nothing is sent, except at the ``final`` call,
+        while a receiver holds more than :data:`RX_BACKLOG_FRAMES` frames (:attr:`held_back`
+        says so: wait :data:`BURST_S`, the clock may not stop changing)."""
+        self.held_back = not final and self._receivers_backlog() > RX_BACKLOG_FRAMES
+        if self.held_back:
+            self._freeze()
+            return 0
         avail = self._available_pulses()
         self._drop_backlog(avail)
         sent = 0

@@ -1,0 +1,83 @@
+"""A host whose receive thread falls behind: a CAN simulator (the CANopen amplifier, the
+Net F/T) stops sending (its clock slips, its pulses wait) while the host's queue holds more
+than :data:`RX_BACKLOG_FRAMES` frames, so the answer to the host's next request is not queued
+behind seconds of frames; nothing is lost, the sample counters stay contiguous when the host
+reads again."""
+
+from __future__ import annotations
+
+import time
+
+import can
+import numpy as np
+from _acq_support import ImpulseSource
+
+from dimacq.config import Settings
+from dimacq.drivers.canopen_loadcell import protocol as p
+from dimacq.simulators.canopen_loadcell.amplifier import CanopenAmplifierSim
+from dimacq.simulators.loadcell.pulses import RX_BACKLOG_FRAMES
+
+EDS = Settings().loadcell_canopen_eds_path
+NODE = 4
+
+
+def test_the_stream_waits_for_a_host_that_does_not_read(request) -> None:
+    name = f"rx-{request.node.name}"
+    src = ImpulseSource(n_gauges=12, background=0.3)
+    g0 = src.n_inputs + src.n_responses
+    # 2048 S/s at 40x: 490 000 frames a wall second if nothing held it back
+    sim = CanopenAmplifierSim(name, EDS, src, range(g0, g0 + 12), node_id=NODE, time_scale=40)
+    with sim:
+        layout = sim.layout  # decoding only: the mapping in the node's dictionary
+        sim.node.sdo[p.CLOCK_SOURCE].raw = 0  # its own oscillator (set locally, as a bench is)
+        host = can.Bus(interface="virtual", channel=name)
+        try:
+            host.send(can.Message(arbitration_id=0, data=[0x01, NODE], is_extended_id=False))
+            time.sleep(1.0)  # the host's receive thread gets no CPU for a second
+            queued = host.queue.qsize()
+            # a burst at most past the limit: 128 pulses x 6 TPDOs (and a heartbeat or two)
+            assert RX_BACKLOG_FRAMES < queued <= RX_BACKLOG_FRAMES + 128 * 6 + 16, queued
+            got = []
+            t_end = time.monotonic() + 0.5
+            while time.monotonic() < t_end:  # the host reads again: the stream goes on
+                m = host.recv(0.05)
+                if m is not None:
+                    got.append(m)
+        finally:
+            host.send(can.Message(arbitration_id=0, data=[0x80, NODE], is_extended_id=False))
+            host.shutdown()
+    first = layout.tpdos[0].cob_id
+    low, _g, _v = layout.decode(0, [bytes(m.data) for m in got if m.arbitration_id == first])
+    c = np.unwrap(low, period=2**16)  # the 16-bit low words of the sample counter
+    assert len(c) > 2 * RX_BACKLOG_FRAMES // 6, len(c)  # it went on past the held backlog
+    np.testing.assert_array_equal(np.diff(c), 1)  # nothing skipped while it waited
+
+
+def test_the_netft_requests_wait_for_a_host_that_does_not_read(request) -> None:
+    """The same rule for the Net F/T on the DAQ's pulses: the pulses not yet requested wait
+    (none skipped) while the host holds more than the limit."""
+    from dimacq.drivers.netft import protocol as nft
+    from dimacq.simulators.daq.clock import SampleClock
+    from dimacq.simulators.netft.can_sensor import NetFtCanSim
+
+    src = ImpulseSource(n_gauges=12, background=0.3)
+    g0 = src.n_inputs + src.n_responses
+    name = f"rx-netft-{request.node.name}"
+    clock = SampleClock()
+    cal = nft.CalibrationInfo(2, 3, 1_000_000, 500_000)
+    with NetFtCanSim(name, src, range(g0, g0 + 12), np.eye(6, 12), cal, clock=clock) as sim:
+        host = can.Bus(interface="virtual", channel=name)
+        try:
+            clock.start(0, 2048.0, wall_scale=40.0)  # 82 000 pulses a wall second
+            time.sleep(1.0)
+            queued = host.queue.qsize()
+            # a chunk at most past the limit: 128 pulses x (request + 4 answers)
+            assert RX_BACKLOG_FRAMES < queued <= RX_BACKLOG_FRAMES + 128 * 5, queued
+            requested = sim._sent
+            while host.recv(0.0) is not None:
+                pass
+            time.sleep(0.3)
+            assert sim._sent > requested  # it goes on once the host has read
+        finally:
+            clock.stop()
+            host.shutdown()
