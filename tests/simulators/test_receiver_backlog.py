@@ -14,11 +14,24 @@ from _acq_support import ImpulseSource
 
 from dimacq.config import Settings
 from dimacq.drivers.canopen_loadcell import protocol as p
+from dimacq.simulators.canopen_loadcell import amplifier
 from dimacq.simulators.canopen_loadcell.amplifier import CanopenAmplifierSim
 from dimacq.simulators.loadcell.pulses import RX_BACKLOG_FRAMES
 
 EDS = Settings().loadcell_canopen_eds_path
 NODE = 4
+
+
+def _held_backlog(host: can.BusABC, most: int) -> int:
+    """Wait (up to 60 s: a slow host) until the simulator has filled the host's queue past
+    the limit, give it 0.5 s more to overshoot, and return what the queue holds then."""
+    deadline = time.monotonic() + 60.0
+    while host.queue.qsize() <= RX_BACKLOG_FRAMES and time.monotonic() < deadline:
+        time.sleep(0.05)
+    time.sleep(0.5)
+    queued = int(host.queue.qsize())
+    assert RX_BACKLOG_FRAMES < queued <= most, (queued, most)
+    return queued
 
 
 def test_the_stream_waits_for_a_host_that_does_not_read(request) -> None:
@@ -33,20 +46,21 @@ def test_the_stream_waits_for_a_host_that_does_not_read(request) -> None:
         host = can.Bus(interface="virtual", channel=name)
         try:
             host.send(can.Message(arbitration_id=0, data=[0x01, NODE], is_extended_id=False))
-            time.sleep(1.0)  # the host's receive thread gets no CPU for a second
-            queued = host.queue.qsize()
-            # a burst at most past the limit: 128 pulses x 6 TPDOs (and a heartbeat or two)
-            assert RX_BACKLOG_FRAMES < queued <= RX_BACKLOG_FRAMES + 128 * 6 + 16, queued
-            got = []
-            t_end = time.monotonic() + 0.5
-            while time.monotonic() < t_end:  # the host reads again: the stream goes on
+            # the host's receive thread takes nothing: at most one burst past the limit
+            # (a chunk of pulses x 6 TPDOs, and a heartbeat or two)
+            _held_backlog(host, RX_BACKLOG_FRAMES + amplifier._CHUNK * 6 + 16)
+            got: list[can.Message] = []
+            first, n_first = layout.tpdos[0].cob_id, 0
+            deadline = time.monotonic() + 60.0
+            # the host reads again: the stream goes on past what was held
+            while n_first <= 2 * RX_BACKLOG_FRAMES // 6 and time.monotonic() < deadline:
                 m = host.recv(0.05)
                 if m is not None:
                     got.append(m)
+                    n_first += m.arbitration_id == first
         finally:
             host.send(can.Message(arbitration_id=0, data=[0x80, NODE], is_extended_id=False))
             host.shutdown()
-    first = layout.tpdos[0].cob_id
     low, _g, _v = layout.decode(0, [bytes(m.data) for m in got if m.arbitration_id == first])
     c = np.unwrap(low, period=2**16)  # the 16-bit low words of the sample counter
     assert len(c) > 2 * RX_BACKLOG_FRAMES // 6, len(c)  # it went on past the held backlog
@@ -58,6 +72,7 @@ def test_the_netft_requests_wait_for_a_host_that_does_not_read(request) -> None:
     (none skipped) while the host holds more than the limit."""
     from dimacq.drivers.netft import protocol as nft
     from dimacq.simulators.daq.clock import SampleClock
+    from dimacq.simulators.netft import can_sensor
     from dimacq.simulators.netft.can_sensor import NetFtCanSim
 
     src = ImpulseSource(n_gauges=12, background=0.3)
@@ -69,14 +84,14 @@ def test_the_netft_requests_wait_for_a_host_that_does_not_read(request) -> None:
         host = can.Bus(interface="virtual", channel=name)
         try:
             clock.start(0, 2048.0, wall_scale=40.0)  # 82 000 pulses a wall second
-            time.sleep(1.0)
-            queued = host.queue.qsize()
-            # a chunk at most past the limit: 128 pulses x (request + 4 answers)
-            assert RX_BACKLOG_FRAMES < queued <= RX_BACKLOG_FRAMES + 128 * 5, queued
+            # at most one chunk past the limit: its pulses x (request + 4 answers)
+            _held_backlog(host, RX_BACKLOG_FRAMES + can_sensor._CHUNK * 5)
             requested = sim._sent
             while host.recv(0.0) is not None:
                 pass
-            time.sleep(0.3)
+            deadline = time.monotonic() + 60.0
+            while sim._sent == requested and time.monotonic() < deadline:
+                time.sleep(0.05)
             assert sim._sent > requested  # it goes on once the host has read
         finally:
             clock.stop()
