@@ -28,7 +28,14 @@ from typing import Any
 import can
 from can.interfaces.virtual import VirtualBus
 
-__all__ = ["SimVirtualBus"]
+__all__ = ["RX_BACKLOG_FRAMES", "SimVirtualBus"]
+
+#: frames waiting in a receiver's queue past which a simulator sends nothing more (its
+#: clock slips, an adaptive DAQ clock waits for it): on a host whose receive thread got too
+#: little CPU, the reply to the host's next request would otherwise wait behind seconds of
+#: frames (an SDO answer behind 50 000 TPDOs on a loaded machine). Tens of ms of a receive
+#: thread's work; an idle host keeps its queue under a few hundred frames.
+RX_BACKLOG_FRAMES = 2048
 
 _new = object.__new__
 #: the fields of a python-can message this module sets (all of them, checked at import)
@@ -115,6 +122,11 @@ class SimVirtualBus(VirtualBus):
                 continue
             most = max(most, bus_queue.qsize())
         return most
+
+    def receivers_behind(self, arbitration_id: int | None = None) -> bool:
+        """More than :data:`RX_BACKLOG_FRAMES` frames wait in a receiver's queue
+        (:meth:`receivers_backlog`): a simulator sends nothing more until it has taken them."""
+        return self.receivers_backlog(arbitration_id) > RX_BACKLOG_FRAMES
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
         self._check_if_open()

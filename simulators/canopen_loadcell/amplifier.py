@@ -283,8 +283,8 @@ class CanopenAmplifierSim(SyncPulses):
         except Exception:  # pragma: no cover - surfaced through the driver's timeouts
             log.exception("CANopen load cell simulator thread failed")
 
-    def _receivers_backlog(self) -> int:
-        return self._bus.receivers_backlog(self.layout.tpdos[0].cob_id)
+    def _receivers_behind(self) -> bool:
+        return self._bus.receivers_behind(self.layout.tpdos[0].cob_id)
 
     def _emit(self, pulse0: int, n: int) -> None:
         """Samples at pulses ``pulse0 .. pulse0 + n − 1`` as TPDOs (counter = pulse)."""

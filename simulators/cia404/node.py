@@ -45,7 +45,7 @@ from dimacq.drivers.cia404 import protocol as p
 from dimacq.simulators.daq.clock import SampleClock
 from dimacq.simulators.lab.held import held_sample, read_between
 from dimacq.simulators.lab.source import SampleSource
-from dimacq.simulators.loadcell.pulses import BURST_S, RX_BACKLOG_FRAMES
+from dimacq.simulators.loadcell.pulses import BURST_S
 from dimacq.simulators.virtual_can import SimVirtualBus
 
 __all__ = ["Cia404Faults", "Cia404NodeSim", "SyncProducerSim"]
@@ -338,8 +338,8 @@ class SyncProducerSim:
     def _loop(self) -> None:
         try:
             while not self._stop_evt.is_set():
-                if self.bus.receivers_backlog() > RX_BACKLOG_FRAMES:
-                    # the pulses wait while a receiver holds that many frames, so the answer
+                if self.bus.receivers_behind():
+                    # the pulses wait while a receiver holds too many frames, so the answer
                     # to the host's next SDO request is not queued behind seconds of them
                     self._stop_evt.wait(BURST_S)
                     continue

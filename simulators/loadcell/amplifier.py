@@ -300,8 +300,8 @@ class LoadCellAmplifierSim(SyncPulses):
 
     max_backlog = _MAX_BACKLOG
 
-    def _receivers_backlog(self) -> int:
-        return self.bus.receivers_backlog(p.data_id(self.node))
+    def _receivers_behind(self) -> bool:
+        return self.bus.receivers_behind(p.data_id(self.node))
 
     def _drop_backlog(self, avail: int) -> None:
         if self._external and avail - self._pulses > _MAX_BACKLOG:

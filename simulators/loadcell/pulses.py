@@ -16,7 +16,7 @@ import time
 
 from dimacq.simulators.daq.clock import SampleClock
 
-__all__ = ["BURST_PULSES", "BURST_S", "RX_BACKLOG_FRAMES", "SyncPulses"]
+__all__ = ["BURST_PULSES", "BURST_S", "SyncPulses"]
 
 #: wall time between two bursts of frames once a simulator has caught up with its clock, s. A
 #: real amplifier sends each sample as it is taken; the simulator sends the pulses of the last
@@ -29,12 +29,6 @@ BURST_S = 0.004
 #: above ``BURST_S``), so their fixed cost (a source read, an encode, a queue hand-over) is not
 #: paid 250 times per wall second for a few frames each: about 0.1 core at 1–4× before
 BURST_PULSES = 128
-#: frames waiting in a receiver's queue past which an amplifier simulator sends nothing more
-#: (its clock slips, an adaptive DAQ clock waits for it): on a host whose receive thread got too
-#: little CPU, the reply to the host's next request would otherwise wait behind seconds of
-#: frames (an SDO answer behind 50 000 TPDOs on a loaded machine). Tens of ms of a receive
-#: thread's work; an idle host keeps its queue under a few hundred frames.
-RX_BACKLOG_FRAMES = 2048
 
 
 class SyncPulses:
@@ -111,9 +105,10 @@ class SyncPulses:
             return BURST_S
         return max(BURST_S, BURST_PULSES / pace)
 
-    def _receivers_backlog(self) -> int:
-        """Hook: frames the fullest receiver on the bus has not taken yet (default: 0)."""
-        return 0
+    def _receivers_behind(self) -> bool:
+        """Hook: a receiver on the bus holds too many frames not taken yet
+        (:meth:`~dimacq.simulators.virtual_can.SimVirtualBus.receivers_behind`; default: no)."""
+        return False
 
     def _drop_backlog(self, avail: int) -> None:
         """Hook: what to do with pulses far behind (default: nothing, send them all)."""
@@ -149,9 +144,10 @@ class SyncPulses:
         """Send frames for pulses seen (one chunk, or all of them when ``final``); how many
         pulses were sent (0: nothing to send; fewer than a chunk: caught up, wait
         :data:`BURST_S` before looking again). Nothing is sent, except at the ``final`` call,
-        while a receiver holds more than :data:`RX_BACKLOG_FRAMES` frames (:attr:`held_back`
+        while a receiver is behind (:data:`~dimacq.simulators.virtual_can.RX_BACKLOG_FRAMES`
+        frames waiting; :attr:`held_back`
         says so: wait :data:`BURST_S`, the clock may not stop changing)."""
-        self.held_back = not final and self._receivers_backlog() > RX_BACKLOG_FRAMES
+        self.held_back = not final and self._receivers_behind()
         if self.held_back:
             self._freeze()
             return 0

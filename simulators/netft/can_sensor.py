@@ -42,7 +42,7 @@ from dimacq.simulators.daq.clock import SampleClock
 from dimacq.simulators.imperfections import fault_log
 from dimacq.simulators.lab.held import held_sample, read_between
 from dimacq.simulators.lab.source import SampleSource
-from dimacq.simulators.loadcell.pulses import BURST_S, RX_BACKLOG_FRAMES
+from dimacq.simulators.loadcell.pulses import BURST_S
 from dimacq.simulators.virtual_can import SimVirtualBus
 
 __all__ = ["NetFtCanSim"]
@@ -244,8 +244,8 @@ class NetFtCanSim:
                     if msg.arbitration_id == self.base:
                         self._handle(bytes(msg.data))
                     msg = self.bus.recv(0.0)
-                if self.bus.receivers_backlog(self.base + 1) > RX_BACKLOG_FRAMES:
-                    # the pulses wait while the host holds that many frames, so its next
+                if self.bus.receivers_behind(self.base + 1):
+                    # the pulses wait while the host holds too many frames, so its next
                     # answer is not queued behind seconds of them
                     self._stop_evt.wait(BURST_S)
                     continue

@@ -16,7 +16,7 @@ from dimacq.config import Settings
 from dimacq.drivers.canopen_loadcell import protocol as p
 from dimacq.simulators.canopen_loadcell import amplifier
 from dimacq.simulators.canopen_loadcell.amplifier import CanopenAmplifierSim
-from dimacq.simulators.loadcell.pulses import RX_BACKLOG_FRAMES
+from dimacq.simulators.virtual_can import RX_BACKLOG_FRAMES
 
 EDS = Settings().loadcell_canopen_eds_path
 NODE = 4
