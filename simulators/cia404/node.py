@@ -23,7 +23,11 @@ simulated DAQ's :class:`~dimacq.simulators.daq.clock.SampleClock`): on pulse ``k
 puts a SYNC on the bus, then the synchronous TPDOs the nodes send for it, in identifier order
 (bus arbitration), before the next SYNC — the window CiA 301 gives synchronous PDOs. The SYNC's
 time on the wire (world sample ``epoch + k``) is when each node samples; the nodes learn it from
-the SYNC, nothing else.
+the SYNC, nothing else. While a receiver on the bus is too far behind
+(:meth:`~dimacq.simulators.virtual_can.SimVirtualBus.receivers_behind`) it sends nothing, and an
+adaptive DAQ clock is held at the last SYNC sent (at most :data:`_MAX_BACKLOG` past it
+otherwise): a simulated test on a host that cannot carry the time-lapse slows down instead of
+falling ever further behind the DAQ.
 """
 
 from __future__ import annotations
@@ -53,6 +57,9 @@ __all__ = ["Cia404Faults", "Cia404NodeSim", "SyncProducerSim"]
 log = logging.getLogger(__name__)
 
 _CHUNK = 128
+#: SYNCs an adaptive DAQ clock may count past those the producer has sent: past it the DAQ
+#: waits for the bus (:meth:`SampleClock.hold_at`), as it waits for the amplifiers
+_MAX_BACKLOG = 16 * _CHUNK
 _OPERATIONAL = "OPERATIONAL"
 
 
@@ -335,15 +342,31 @@ class SyncProducerSim:
         self.sent += n
         return n
 
+    def _hold_clock(self, ahead: int) -> None:
+        """Tell an adaptive DAQ clock it may count at most ``ahead`` pulses past the SYNCs sent
+        in this run: a simulated bus slower than the clock (a busy host, a high time-lapse)
+        slows the clock down instead of falling ever further behind it. A fixed clock, as a
+        real DAQ's, ignores the limit."""
+        st = self.clock.state()
+        if st.run == self._run and st.running:
+            self.clock.hold_at(self._hold_key, self.sent + ahead)
+
+    @property
+    def _hold_key(self) -> str:
+        return f"cia404-sync-{id(self)}"
+
     def _loop(self) -> None:
         try:
             while not self._stop_evt.is_set():
                 if self.bus.receivers_behind():
                     # the pulses wait while a receiver holds too many frames, so the answer
-                    # to the host's next SDO request is not queued behind seconds of them
+                    # to the host's next SDO request is not queued behind seconds of them;
+                    # an adaptive DAQ clock waits with them at the last SYNC sent
+                    self._hold_clock(ahead=0)
                     self._stop_evt.wait(BURST_S)
                     continue
                 sent = self._pulses()
+                self._hold_clock(ahead=_MAX_BACKLOG)
                 if sent == 0:
                     self.clock.wait_change(self.clock.state(), BURST_S)
                 elif sent < _CHUNK:

@@ -1,6 +1,7 @@
 """A host whose receive thread falls behind: a CAN simulator (the CANopen amplifier, the
-Net F/T) stops sending (its clock slips, its pulses wait) while the host's queue holds more
-than :data:`RX_BACKLOG_FRAMES` frames, so the answer to the host's next request is not queued
+Net F/T, the CiA 404 SYNC producer) stops sending (its clock slips, its pulses wait, an
+adaptive DAQ clock waits with them) while the host's queue holds more than
+:data:`RX_BACKLOG_FRAMES` frames, so the answer to the host's next request is not queued
 behind seconds of frames; nothing is lost, the sample counters stay contiguous when the host
 reads again."""
 
@@ -96,3 +97,35 @@ def test_the_netft_requests_wait_for_a_host_that_does_not_read(request) -> None:
         finally:
             clock.stop()
             host.shutdown()
+
+
+def test_an_adaptive_daq_clock_waits_with_the_cia404_sync_producer(request) -> None:
+    """The CiA 404 SYNC producer on an adaptive DAQ clock: while the host holds more than the
+    limit, the clock counts no further than the last SYNC sent (it waits, slower from then
+    on); once the host reads again, the SYNCs and the clock go on, none skipped."""
+    from dimacq.simulators.cia404 import node as cia
+    from dimacq.simulators.daq.clock import SampleClock
+
+    name = f"rx-cia404-{request.node.name}"
+    clock = SampleClock()
+    with cia.SyncProducerSim(name, clock, []) as prod:
+        host = can.Bus(interface="virtual", channel=name)
+        try:
+            clock.start(0, 1000.0, wall_scale=400.0, adaptive=True)  # 400 000 SYNCs a wall second
+            # at most one chunk of SYNCs past the limit
+            _held_backlog(host, RX_BACKLOG_FRAMES + cia._CHUNK)
+            held = prod.sent
+            time.sleep(1.5)  # without the hold the clock would count 600 000 more
+            assert prod.sent == held
+            assert clock.count() <= held + cia._MAX_BACKLOG, (clock.count(), held)
+            got = 0
+            deadline = time.monotonic() + 60.0
+            while got <= 3 * RX_BACKLOG_FRAMES and time.monotonic() < deadline:
+                got += host.recv(0.05) is not None
+            assert got > 3 * RX_BACKLOG_FRAMES  # it went on once the host read
+        finally:
+            clock.stop()
+            host.shutdown()
+    report = clock.run_report()
+    assert report is not None and report.waits > 0
+    assert min(report.factors) < 400.0  # the clock slowed down for the host
