@@ -344,10 +344,10 @@ def decode_tpdo(
 def encode_tpdo(plan: TpdoPlan, values: NDArray[np.float64]) -> list[bytes]:
     """Values (n, len(plan.channels)) in process-value units → payloads (the node's side; the
     INTEGER16 ones already scaled to integers)."""
-    if plan.pv.dtype == "<i2":
-        arr = np.clip(np.rint(values), -32768, 32767).astype("<i2")
+    if plan.pv is INT16_PV:
+        arr = np.clip(np.rint(values), -32768, 32767).astype(plan.pv.dtype)
     else:
-        arr = np.ascontiguousarray(values, dtype="<f4")
+        arr = np.ascontiguousarray(values, dtype=plan.pv.dtype)
     raw = arr.tobytes()
     L = plan.length
     return [raw[i * L : (i + 1) * L] for i in range(arr.shape[0])]

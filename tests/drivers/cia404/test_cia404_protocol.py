@@ -177,6 +177,21 @@ def test_int16_process_values_are_signed_little_endian() -> None:
     assert p.encode_tpdo(plan, np.array([[-2.0, 2.0]]))[0] == bytes.fromhex("feff0200")
 
 
+def test_the_process_value_the_eds_offers() -> None:
+    """``auto`` takes 0x6130 REAL32 where the EDS has it PDO-mappable, else 0x7130 INTEGER16
+    (CiA 404's two AI process values); a value the EDS does not map is refused by name."""
+    import canopen
+
+    od = canopen.import_od(str(EDS))
+    assert p.process_value(od, where="t") is p.REAL32_PV
+    assert p.process_value(od, "0x7130", where="t") is p.INT16_PV
+    od[0x6130][1].pdo_mappable = False
+    assert p.process_value(od, where="t") is p.INT16_PV
+    od[0x7130][1].pdo_mappable = False
+    with pytest.raises(SetupError, match="0x6130 or 0x7130"):
+        p.process_value(od, where="t")
+
+
 def test_unit_codes_follow_the_cia303_2_coding() -> None:
     """CiA 303-2 physical unit (0x6131): the prefix's power of ten as a signed byte in byte 3,
     the SI unit's code in byte 2 (volt 0x26; a ratio has none, 0x00). Built here from that rule,
