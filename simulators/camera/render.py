@@ -15,6 +15,7 @@ for the solver.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -27,7 +28,14 @@ from scipy.spatial.transform import Rotation
 from dimacq.io.tags_file import TagsFile
 from dimacq.model.setup import TestSetup
 
-__all__ = ["CameraModel", "TaggedWorld", "photograph_article", "tagged_world"]
+__all__ = [
+    "PHONE_12MP",
+    "CameraModel",
+    "TaggedWorld",
+    "camera_for",
+    "photograph_article",
+    "tagged_world",
+]
 
 FloatArray = NDArray[np.float64]
 
@@ -46,6 +54,14 @@ class CameraModel:
     @property
     def matrix(self) -> FloatArray:
         return np.array([[self.f_px, 0, self.cx], [0, self.f_px, self.cy], [0, 0, 1.0]])
+
+
+PHONE_12MP = CameraModel(
+    f_px=2900.0, cx=2006.3, cy=1496.1, dist=(-0.08, 0.05, 2e-4, -1e-4, 0.0), width=4000, height=3000
+)
+LARGE_ARTICLE_M = 1.5  # tagged region (m across) beyond which the lab uses the 12 MP camera
+FLOOR_Z = -0.25  # the lowest view: a direction to the camera at most this far below level
+AIM_SCATTER_DEG = 18.0  # how far a close-up's direction strays from the one the plan aims
 
 
 @dataclass(frozen=True)
@@ -308,13 +324,24 @@ def render(
 
 
 def _look_at(
-    eye: FloatArray, target: FloatArray, rng: np.random.Generator
+    eye: FloatArray,
+    target: FloatArray,
+    rng: np.random.Generator,
+    across: FloatArray | None = None,
 ) -> tuple[FloatArray, FloatArray]:
+    """The camera at ``eye`` looking at ``target``: ``X_c = r X + t``. Its image x axis lies
+    along ``across`` turned by a roll of ±15° (a photographer turns the camera to frame two
+    bodies side by side), or at a random roll without it."""
     z = target - eye
     z /= np.linalg.norm(z)
-    up = rng.normal(size=3)
-    x = np.cross(z, up)
-    x /= np.linalg.norm(x)
+    if across is not None and np.linalg.norm(np.cross(z, across)) > 1e-9:
+        x0 = across - np.dot(across, z) * z
+        x0 /= np.linalg.norm(x0)
+        roll = np.radians(rng.uniform(-15.0, 15.0)) + (np.pi if rng.uniform() < 0.5 else 0.0)
+        x = np.cos(roll) * x0 + np.sin(roll) * np.cross(z, x0)
+    else:
+        x = np.cross(z, rng.normal(size=3))
+        x /= np.linalg.norm(x)
     y = np.cross(z, x)
     r = np.array([x, y, z])
     return r, -r @ eye
@@ -341,6 +368,139 @@ def write_jpeg(
     im.save(path, quality=quality, exif=exif)
 
 
+def camera_for(world: TaggedWorld) -> CameraModel:
+    """The lab's camera for an article of the world's size: the 2 MP machine-vision camera
+    (:class:`CameraModel`'s defaults, 1600 × 1200 px, ``f`` 1450 px) for a tagged region up to
+    :data:`LARGE_ARTICLE_M` across, a 12 MP phone camera's main lens (:data:`PHONE_12MP`,
+    4000 × 3000 px, ``f`` 2900 px: 26 mm equivalent) beyond, where the 2 MP camera's overviews
+    would leave the block tags too few pixels."""
+    if float(np.max(world.extent_m)) > LARGE_ARTICLE_M:
+        return PHONE_12MP
+    return CameraModel()
+
+
+def _bodies(
+    world: TaggedWorld,
+) -> tuple[dict[str, FloatArray], dict[str, FloatArray], dict[str, FloatArray]]:
+    """Where each body is (its tags' mean centre, m), which way its visible tags face (their
+    outward normals, one row each) and which way it faces away from the article (the outward
+    normal opposite its mounting face; its visible normals' mean without one): what a
+    photographer sees of the article."""
+    centres: dict[str, list[FloatArray]] = {}
+    normals: dict[str, list[FloatArray]] = {}
+    mounts: dict[str, FloatArray] = {}
+    for t in world.tags:
+        centres.setdefault(t.body, []).append(t.centre_m)
+        if t.hidden:
+            mounts[t.body] = t.rotation[:, 2]
+        else:
+            normals.setdefault(t.body, []).append(t.rotation[:, 2])
+    out: dict[str, FloatArray] = {}
+    for b, n in normals.items():
+        away = -mounts[b] if b in mounts else np.mean(n, axis=0)
+        out[b] = away / max(float(np.linalg.norm(away)), 1e-12)
+    return (
+        {b: np.mean(c, axis=0) for b, c in centres.items()},
+        {b: np.array(n) for b, n in normals.items()},
+        out,
+    )
+
+
+def _between_faces(
+    normals: FloatArray, away: FloatArray, clear: Callable[[FloatArray], bool]
+) -> list[FloatArray]:
+    """Directions from which a body shows two or three of its tags together: the sums of the
+    outward normals ``n_i + n_j (+ n_k)`` of mutually perpendicular visible faces, normalised;
+    those at or above the floor limit (``z ≥`` :data:`FLOOR_Z`), not into the article
+    (``d · away > −0.2``) and from which the article does not hide the body (``clear``). The
+    corners (three tags) when at least three of them are left, otherwise the corners and the
+    edges (two tags); the face most away from the article within the floor limit when
+    neither."""
+    k = len(normals)
+    perp = np.abs(normals @ normals.T) < 0.5
+    corners, edges = [], []
+    for i in range(k):
+        for j in range(i + 1, k):
+            if not perp[i, j]:
+                continue
+            edges.append(normals[i] + normals[j])
+            corners.extend(
+                normals[i] + normals[j] + normals[m]
+                for m in range(j + 1, k)
+                if perp[i, m] and perp[j, m]
+            )
+
+    def usable(ds: list[FloatArray]) -> list[FloatArray]:
+        units = [d / np.linalg.norm(d) for d in ds]
+        return [u for u in units if u[2] >= FLOOR_Z and np.dot(u, away) > -0.2 and clear(u)]
+
+    out = usable(corners)
+    if len(out) < 3:
+        out += usable(edges)
+    if out:
+        return out
+    faces = [n for n in normals if n[2] >= FLOOR_Z] or [normals[int(np.argmax(normals[:, 2]))]]
+    return [max(faces, key=lambda n: float(np.dot(n, away)))]
+
+
+def _scatter(d: FloatArray, deg: float, rng: np.random.Generator) -> FloatArray:
+    """``d`` turned by up to ``deg`` about a random axis across it (uniform over the cone),
+    then raised to the floor limit if it fell below it."""
+    axis = np.cross(d, rng.normal(size=3))
+    axis /= np.linalg.norm(axis)
+    ang = np.radians(deg) * np.sqrt(rng.uniform())
+    out: FloatArray = Rotation.from_rotvec(ang * axis).apply(d)
+    if out[2] < FLOOR_Z:
+        flat = np.array([out[0], out[1], 0.0])
+        n = np.linalg.norm(flat)
+        flat = flat / n if n > 1e-9 else np.array([1.0, 0.0, 0.0])
+        out = np.sqrt(1 - FLOOR_Z**2) * flat + np.array([0.0, 0.0, FLOOR_Z])
+    return out
+
+
+def _frame_neighbour(
+    name: str,
+    d: FloatArray,
+    dist: tuple[float, float],
+    cam: CameraModel,
+    world: TaggedWorld,
+    centres: dict[str, FloatArray],
+    normals: dict[str, FloatArray],
+    rng: np.random.Generator,
+) -> tuple[FloatArray, float, FloatArray | None]:
+    """Aim, distance and the image's long axis for a close-up of ``name`` from direction ``d``
+    that frames another tagged body with it: one of the three nearest (across the view) whose
+    tags face the camera within 60° and that the article hides from neither camera (the
+    segment from the camera to each body's centre, stood off by half a tag along the view),
+    the camera aimed between the two, pulled back within the close-up band
+    ``dist = (near, far)`` if both need it (each inside 40 % of the frame's width from its
+    centre). With none within reach, the body alone from a distance drawn in the band."""
+    p = centres[name]
+    d_draw = rng.uniform(*dist)
+    box = world.occluder_box
+    off = 0.5 * min(t.side_m for t in world.tags if t.body == name) * d
+    reach = 0.8 * cam.width / cam.f_px  # separation across the view per metre of distance
+    options = []
+    for other, c in centres.items():
+        if other == name or other not in normals:
+            continue
+        sep = c - p - np.dot(c - p, d) * d
+        need = float(np.linalg.norm(sep)) / reach
+        if need > dist[1] or np.max(normals[other] @ d) < np.cos(np.radians(60.0)):
+            continue
+        eye = 0.5 * (p + c) + d * max(d_draw, need)
+        if box is not None and (
+            _segment_hits_box(eye, c + off, *box) or _segment_hits_box(eye, p + off, *box)
+        ):
+            continue
+        options.append((float(np.linalg.norm(sep)), other, sep, need))
+    if not options:
+        return p, d_draw, None
+    options.sort(key=lambda o: o[0])
+    _, other, sep, need = options[int(rng.integers(0, min(3, len(options))))]
+    return 0.5 * (p + centres[other]), max(d_draw, need), sep
+
+
 def photograph_article(
     world: TaggedWorld,
     out_dir: str | Path,
@@ -355,46 +515,67 @@ def photograph_article(
 ) -> list[Path]:
     """Write ``n_photos`` photos of ``world`` into ``out_dir``, as the manual's photo plan says.
 
-    Every third photo is an overview: it looks at a random point of the tagged region from
-    where the largest tags (the reference plates') span 30–45 px (at most 2.8 × the region's
-    largest extent away). The others are close-ups taken in turn of each triax block (twice a
-    round) and impact jig (once), a fresh random order each round, from where its tags span 60–110 px (``distance_m``
-    overrides), from a random direction of the hemisphere above the floor and a little below
-    the article. Each photo has its own blur (0.4–1.1 px), exposure (0.7–1.3), noise and
-    occluders.
+    The camera is ``cam`` or the one :func:`camera_for` gives the article. Every third photo is
+    an overview: it looks at a random point of the tagged region, from a random direction of the
+    hemisphere above the floor limit, from where the triax blocks' tags span 30–45 px
+    (``f × side / 30…45``; at most 2.8 × the region's largest extent away). The others are
+    close-ups taken in turn of each triax block (twice a round) and impact jig (once), a fresh
+    random order each round, from where its tags span 60–110 px (``distance_m`` overrides): from
+    between the body's visible faces (:func:`_between_faces`; each body's directions in turn,
+    the least used first and the farthest from its last), turned by an aiming scatter of up to
+    :data:`AIM_SCATTER_DEG`, framing a neighbouring tagged body with it where one is within
+    reach (:func:`_frame_neighbour`). Each photo has its own blur (0.4–1.1 px), exposure
+    (0.7–1.3), noise and occluders.
     """
-    cam = cam or CameraModel()
+    cam = cam or camera_for(world)
     rng = np.random.default_rng(seed)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     ext = float(np.max(world.extent_m))
-    centres = np.array([t.centre_m for t in world.tags])
+    tag_c = np.array([t.centre_m for t in world.tags])
     sides = {t.body: t.side_m for t in world.tags}
-    bodies = {
-        b: np.mean([t.centre_m for t in world.tags if t.body == b], axis=0)
-        for b in sides
-        if b.startswith(("triax", "input"))
-    }
-    names = sorted(bodies)
-    big = max(sides.values())
+    centres, normals, away = _bodies(world)
+    names = sorted(b for b in centres if b.startswith(("triax", "input")) and b in normals)
+    box = world.occluder_box
+
+    def clear_of_article(b: str) -> Callable[[FloatArray], bool]:
+        start = centres[b]
+        stand = 0.75 * sides[b]
+        return lambda u: (
+            box is None or not _segment_hits_box(start + stand * u, start + 0.5 * u, *box)
+        )
+
+    views = {b: _between_faces(normals[b], away[b], clear_of_article(b)) for b in names}
+    used = {b: np.zeros(len(views[b]), int) for b in names}
+    last: dict[str, FloatArray] = {}
+    small = min((sides[b] for b in names if b.startswith("triax")), default=max(sides.values()))
     queue: list[str] = []
     paths = []
     for i in range(n_photos):
+        across = None
         if i % 3 == 0 or not names:
-            target = rng.uniform(centres.min(axis=0), centres.max(axis=0))
-            dist = min(cam.f_px * big / rng.uniform(30, 45), rng.uniform(2.2, 2.8) * ext)
+            target = rng.uniform(tag_c.min(axis=0), tag_c.max(axis=0))
+            dist = min(cam.f_px * small / rng.uniform(30, 45), rng.uniform(2.2, 2.8) * ext)
+            d = rng.normal(size=3)
+            d[2] = abs(d[2]) * 0.8 - 0.25
+            d = _scatter(d / np.linalg.norm(d), 0.0, rng)
         else:
             if not queue:  # a round: each triax from two sides, each input once
                 twice = [n for n in names if n.startswith("triax")]
                 queue = [(names + twice)[k] for k in rng.permutation(len(names) + len(twice))]
             name = queue.pop()
-            target = bodies[name] + rng.normal(scale=0.2 * sides[name], size=3)
-            lo_d, hi_d = distance_m or (cam.f_px * sides[name] / 110, cam.f_px * sides[name] / 60)
-            dist = rng.uniform(lo_d, hi_d)
-        d = rng.normal(size=3)
-        d[2] = abs(d[2]) * 0.8 - 0.25
-        d /= np.linalg.norm(d)
-        r, t = _look_at(target + d * dist, target, rng)
+            prev = last.get(name)
+            far = [0.0 if prev is None else -float(np.dot(v, prev)) for v in views[name]]
+            k = min(range(len(views[name])), key=lambda j: (used[name][j], -far[j], rng.uniform()))
+            used[name][k] += 1
+            last[name] = views[name][k]
+            d = _scatter(views[name][k], AIM_SCATTER_DEG, rng)
+            band = distance_m or (cam.f_px * sides[name] / 110, cam.f_px * sides[name] / 60)
+            target, dist, across = _frame_neighbour(
+                name, d, band, cam, world, centres, normals, rng
+            )
+            target = target + rng.normal(scale=0.2 * sides[name], size=3)
+        r, t = _look_at(target + d * dist, target, rng, across)
         img = render(
             world,
             cam,
