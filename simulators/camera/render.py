@@ -61,7 +61,9 @@ PHONE_12MP = CameraModel(
 )
 LARGE_ARTICLE_M = 1.5  # tagged region (m across) beyond which the lab uses the 12 MP camera
 FLOOR_Z = -0.25  # the lowest view: a direction to the camera at most this far below level
-AIM_SCATTER_DEG = 18.0  # how far a close-up's direction strays from the one the plan aims
+AIM_SCATTER_DEG = 18.0
+HIDDEN = 1000  # a view the article hides (counted as that many bodies in front)
+TRIAX_VIEWS = 3  # close-ups of each triax block a round (each impact jig: one)  # how far a close-up's direction strays from the one the plan aims
 
 
 @dataclass(frozen=True)
@@ -407,38 +409,35 @@ def _bodies(
 
 
 def _between_faces(
-    normals: FloatArray, away: FloatArray, clear: Callable[[FloatArray], bool]
+    normals: FloatArray, away: FloatArray, blockers: Callable[[FloatArray], int]
 ) -> list[FloatArray]:
     """Directions from which a body shows two or three of its tags together: the sums of the
     outward normals ``n_i + n_j (+ n_k)`` of mutually perpendicular visible faces, normalised;
     those at or above the floor limit (``z ≥`` :data:`FLOOR_Z`), not into the article
-    (``d · away > −0.2``) and from which the article does not hide the body (``clear``). The
-    corners (three tags) when at least three of them are left, otherwise the corners and the
-    edges (two tags); the face most away from the article within the floor limit when
-    neither."""
+    (``d · away > −0.2``), from which the article does not hide the body and, of those, the
+    ones the fewest other bodies stand in front of (``blockers``: their count,
+    :data:`HIDDEN` when the article hides it). The edges (two tags at 45°) and the corners
+    (three at 55°). The face most away from the article within the floor limit when none."""
     k = len(normals)
     perp = np.abs(normals @ normals.T) < 0.5
-    corners, edges = [], []
+    cands = []
     for i in range(k):
         for j in range(i + 1, k):
             if not perp[i, j]:
                 continue
-            edges.append(normals[i] + normals[j])
-            corners.extend(
+            cands.append(normals[i] + normals[j])
+            cands.extend(
                 normals[i] + normals[j] + normals[m]
                 for m in range(j + 1, k)
                 if perp[i, m] and perp[j, m]
             )
-
-    def usable(ds: list[FloatArray]) -> list[FloatArray]:
-        units = [d / np.linalg.norm(d) for d in ds]
-        return [u for u in units if u[2] >= FLOOR_Z and np.dot(u, away) > -0.2 and clear(u)]
-
-    out = usable(corners)
-    if len(out) < 3:
-        out += usable(edges)
-    if out:
-        return out
+    units = [d / np.linalg.norm(d) for d in cands]
+    units = [u for u in units if u[2] >= FLOOR_Z and np.dot(u, away) > -0.2]
+    scored = [(blockers(u), u) for u in units]
+    scored = [(n, u) for n, u in scored if n < HIDDEN]
+    if scored:
+        least = min(n for n, _ in scored)
+        return [u for n, u in scored if n == least]
     faces = [n for n in normals if n[2] >= FLOOR_Z] or [normals[int(np.argmax(normals[:, 2]))]]
     return [max(faces, key=lambda n: float(np.dot(n, away)))]
 
@@ -467,38 +466,68 @@ def _frame_neighbour(
     centres: dict[str, FloatArray],
     normals: dict[str, FloatArray],
     rng: np.random.Generator,
-) -> tuple[FloatArray, float, FloatArray | None]:
-    """Aim, distance and the image's long axis for a close-up of ``name`` from direction ``d``
-    that frames another tagged body with it: one of the three nearest (across the view) whose
-    tags face the camera within 60° and that the article hides from neither camera (the
-    segment from the camera to each body's centre, stood off by half a tag along the view),
-    the camera aimed between the two, pulled back within the close-up band
-    ``dist = (near, far)`` if both need it (each inside 40 % of the frame's width from its
-    centre). With none within reach, the body alone from a distance drawn in the band."""
+) -> tuple[FloatArray, FloatArray, FloatArray | None]:
+    """Camera position, aim and the image's long axis for a close-up of ``name`` seen from
+    direction ``d`` (the camera at ``p + D d``, ``D`` drawn in the close-up band
+    ``dist = (near, far)``) that frames another tagged body with it: the camera aimed between
+    the two (the bisector of their directions), pulled back within the band if both need it
+    (each inside 40 % of the frame's width from its centre). The other body is one whose tags
+    face the camera within 60° and that the article hides from neither camera (the segment to
+    each body's centre, stood off by half a tag towards the camera): a triax block, reference
+    plate or the scale bar before an impact jig, one of the three nearest. With none within
+    reach, the body alone from ``D``."""
     p = centres[name]
     d_draw = rng.uniform(*dist)
     box = world.occluder_box
-    off = 0.5 * min(t.side_m for t in world.tags if t.body == name) * d
-    reach = 0.8 * cam.width / cam.f_px  # separation across the view per metre of distance
+    stand = 0.5 * min(t.side_m for t in world.tags if t.body == name)
+    half = np.arctan(0.4 * cam.width / cam.f_px)  # half the angle two framed bodies may span
     options = []
     for other, c in centres.items():
         if other == name or other not in normals:
             continue
-        sep = c - p - np.dot(c - p, d) * d
-        need = float(np.linalg.norm(sep)) / reach
-        if need > dist[1] or np.max(normals[other] @ d) < np.cos(np.radians(60.0)):
+        for dd in np.linspace(d_draw, max(d_draw, dist[1]), 4):
+            eye = p + dd * d
+            up, uc = (p - eye) / dd, (c - eye) / np.linalg.norm(c - eye)
+            if np.arccos(np.clip(np.dot(up, uc), -1, 1)) <= 2 * half:
+                break
+        else:
             continue
-        eye = 0.5 * (p + c) + d * max(d_draw, need)
+        if np.max(normals[other] @ -uc) < np.cos(np.radians(60.0)):
+            continue
         if box is not None and (
-            _segment_hits_box(eye, c + off, *box) or _segment_hits_box(eye, p + off, *box)
+            _segment_hits_box(eye, c - stand * uc, *box)
+            or _segment_hits_box(eye, p - stand * up, *box)
         ):
             continue
-        options.append((float(np.linalg.norm(sep)), other, sep, need))
+        options.append((other.startswith("input"), float(np.linalg.norm(c - p)), eye, up + uc))
     if not options:
-        return p, d_draw, None
-    options.sort(key=lambda o: o[0])
-    _, other, sep, need = options[int(rng.integers(0, min(3, len(options))))]
-    return 0.5 * (p + centres[other]), max(d_draw, need), sep
+        return p + d_draw * d, p, None
+    options.sort(key=lambda o: (o[0], o[1]))
+    pool = [o for o in options if o[0] == options[0][0]][:3]
+    _, _, eye, mid = pool[int(rng.integers(0, len(pool)))]
+    target = eye + mid / np.linalg.norm(mid) * float(np.linalg.norm(p - eye))
+    return eye, target, target - p
+
+
+def _round(names: list[str], rng: np.random.Generator) -> list[str]:
+    """One round of close-ups: each triax block :data:`TRIAX_VIEWS` times (every block's
+    ``k``-th close-up before any block's ``k + 1``-th, a fresh order each pass), each impact jig
+    once, the two interleaved evenly, so that a set cut short leaves no block with fewer
+    close-ups than another but one."""
+    blocks = [n for n in names if n.startswith("triax")]
+    jigs = [n for n in names if not n.startswith("triax")]
+    tri = [blocks[k] for _ in range(TRIAX_VIEWS) for k in rng.permutation(len(blocks))]
+    jig = [jigs[k] for k in rng.permutation(len(jigs))]
+    n = len(tri) + len(jig)
+    out, a, b = [], 0, 0
+    for i in range(n):
+        if b >= len(jig) or (a < len(tri) and a * n <= i * len(tri)):
+            out.append(tri[a])
+            a += 1
+        else:
+            out.append(jig[b])
+            b += 1
+    return out
 
 
 def photograph_article(
@@ -538,44 +567,58 @@ def photograph_article(
     names = sorted(b for b in centres if b.startswith(("triax", "input")) and b in normals)
     box = world.occluder_box
 
-    def clear_of_article(b: str) -> Callable[[FloatArray], bool]:
+    def blockers_of(b: str) -> Callable[[FloatArray], int]:
         start = centres[b]
         stand = 0.75 * sides[b]
-        return lambda u: (
-            box is None or not _segment_hits_box(start + stand * u, start + 0.5 * u, *box)
-        )
+        others = [(c, sides[o]) for o, c in centres.items() if o != b]
 
-    views = {b: _between_faces(normals[b], away[b], clear_of_article(b)) for b in names}
+        def blockers(u: FloatArray) -> int:
+            if box is not None and _segment_hits_box(start + stand * u, start + 0.5 * u, *box):
+                return HIDDEN
+            n = 0
+            for c, side in others:  # another body standing in front of it
+                along = float(np.dot(c - start, u))
+                n += along > 0 and np.linalg.norm(c - start - along * u) < 0.75 * (sides[b] + side)
+            return n
+
+        return blockers
+
+    blockers = {b: blockers_of(b) for b in names}
+    views = {b: _between_faces(normals[b], away[b], blockers[b]) for b in names}
     used = {b: np.zeros(len(views[b]), int) for b in names}
     last: dict[str, FloatArray] = {}
     small = min((sides[b] for b in names if b.startswith("triax")), default=max(sides.values()))
     queue: list[str] = []
     paths = []
     for i in range(n_photos):
-        across = None
+        across: FloatArray | None = None
         if i % 3 == 0 or not names:
             target = rng.uniform(tag_c.min(axis=0), tag_c.max(axis=0))
             dist = min(cam.f_px * small / rng.uniform(30, 45), rng.uniform(2.2, 2.8) * ext)
             d = rng.normal(size=3)
             d[2] = abs(d[2]) * 0.8 - 0.25
             d = _scatter(d / np.linalg.norm(d), 0.0, rng)
+            eye = target + d * dist
         else:
-            if not queue:  # a round: each triax from two sides, each input once
-                twice = [n for n in names if n.startswith("triax")]
-                queue = [(names + twice)[k] for k in rng.permutation(len(names) + len(twice))]
-            name = queue.pop()
+            if not queue:
+                queue = _round(names, rng)
+            name = queue.pop(0)
             prev = last.get(name)
             far = [0.0 if prev is None else -float(np.dot(v, prev)) for v in views[name]]
             k = min(range(len(views[name])), key=lambda j: (used[name][j], -far[j], rng.uniform()))
             used[name][k] += 1
             last[name] = views[name][k]
-            d = _scatter(views[name][k], AIM_SCATTER_DEG, rng)
+            worst = blockers[name](views[name][k])
+            for _try in range(20):  # the photographer does not shoot through the article
+                d = _scatter(views[name][k], AIM_SCATTER_DEG, rng)
+                if blockers[name](d) <= worst:
+                    break
+            else:
+                d = views[name][k]
             band = distance_m or (cam.f_px * sides[name] / 110, cam.f_px * sides[name] / 60)
-            target, dist, across = _frame_neighbour(
-                name, d, band, cam, world, centres, normals, rng
-            )
+            eye, target, across = _frame_neighbour(name, d, band, cam, world, centres, normals, rng)
             target = target + rng.normal(scale=0.2 * sides[name], size=3)
-        r, t = _look_at(target + d * dist, target, rng, across)
+        r, t = _look_at(eye, target, rng, across)
         img = render(
             world,
             cam,
