@@ -15,7 +15,7 @@ for the solver.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -31,8 +31,10 @@ from dimacq.model.setup import TestSetup
 __all__ = [
     "PHONE_12MP",
     "CameraModel",
+    "Shot",
     "TaggedWorld",
     "camera_for",
+    "photo_plan",
     "photograph_article",
     "tagged_world",
 ]
@@ -530,6 +532,108 @@ def _round(names: list[str], rng: np.random.Generator) -> list[str]:
     return out
 
 
+@dataclass(frozen=True)
+class Shot:
+    """One photo of the plan: ``overview`` or ``close-up`` of ``body``, the camera at
+    ``X_c = r_wc X + t_wc``."""
+
+    kind: str
+    body: str | None
+    r_wc: FloatArray
+    t_wc: FloatArray
+
+
+def _blockers_of(
+    b: str, centres: dict[str, FloatArray], sides: dict[str, float], world: TaggedWorld
+) -> Callable[[FloatArray], int]:
+    """How many bodies stand in front of body ``b`` seen from direction ``u`` (their centre
+    within ``0.75 (s_b + s_other)`` of the line of sight), :data:`HIDDEN` when the article
+    (the world's occluder box) hides it: what a photographer sees before taking the photo."""
+    start = centres[b]
+    stand = 0.75 * sides[b]
+    box = world.occluder_box
+    others = [(c, sides[o]) for o, c in centres.items() if o != b]
+
+    def blockers(u: FloatArray) -> int:
+        if box is not None and _segment_hits_box(start + stand * u, start + 0.5 * u, *box):
+            return HIDDEN
+        n = 0
+        for c, side in others:
+            along = float(np.dot(c - start, u))
+            n += along > 0 and np.linalg.norm(c - start - along * u) < 0.75 * (sides[b] + side)
+        return n
+
+    return blockers
+
+
+def _shots(
+    world: TaggedWorld,
+    n_photos: int,
+    rng: np.random.Generator,
+    cam: CameraModel,
+    distance_m: tuple[float, float] | None,
+) -> Iterator[Shot]:
+    """The plan's photos one after the other (see :func:`photograph_article`), drawn from
+    ``rng``."""
+    ext = float(np.max(world.extent_m))
+    tag_c = np.array([t.centre_m for t in world.tags])
+    sides = {t.body: t.side_m for t in world.tags}
+    centres, normals, away = _bodies(world)
+    names = sorted(b for b in centres if b.startswith(("triax", "input")) and b in normals)
+    blockers = {b: _blockers_of(b, centres, sides, world) for b in names}
+    views = {b: _between_faces(normals[b], away[b], blockers[b]) for b in names}
+    used = {b: np.zeros(len(views[b]), int) for b in names}
+    last: dict[str, FloatArray] = {}
+    small = min((sides[b] for b in names if b.startswith("triax")), default=max(sides.values()))
+    queue: list[str] = []
+    for i in range(n_photos):
+        across: FloatArray | None = None
+        name: str | None = None
+        if i % 3 == 0 or not names:
+            target = rng.uniform(tag_c.min(axis=0), tag_c.max(axis=0))
+            dist = min(cam.f_px * small / rng.uniform(30, 45), rng.uniform(2.2, 2.8) * ext)
+            d = rng.normal(size=3)
+            d[2] = abs(d[2]) * 0.8 - 0.25
+            d = _scatter(d / np.linalg.norm(d), 0.0, rng)
+            eye = target + d * dist
+        else:
+            if not queue:
+                queue = _round(names, rng)
+            name = queue.pop(0)
+            prev = last.get(name)
+            far = [0.0 if prev is None else -float(np.dot(v, prev)) for v in views[name]]
+            k = min(range(len(views[name])), key=lambda j: (used[name][j], -far[j], rng.uniform()))
+            used[name][k] += 1
+            last[name] = views[name][k]
+            worst = blockers[name](views[name][k])
+            for _try in range(20):  # nor through the article, nor past more bodies than planned
+                d = _scatter(views[name][k], AIM_SCATTER_DEG, rng)
+                if blockers[name](d) <= worst:
+                    break
+            else:
+                d = views[name][k]
+            band = distance_m or (cam.f_px * sides[name] / 110, cam.f_px * sides[name] / 60)
+            eye, target, across = _frame_neighbour(name, d, band, cam, world, centres, normals, rng)
+            target = target + rng.normal(scale=0.2 * sides[name], size=3)
+        r, t = _look_at(eye, target, rng, across)
+        yield Shot("overview" if name is None else "close-up", name, r, t)
+
+
+def photo_plan(
+    world: TaggedWorld,
+    n_photos: int,
+    seed: int,
+    cam: CameraModel | None = None,
+    *,
+    distance_m: tuple[float, float] | None = None,
+) -> list[Shot]:
+    """The shots of the plan :func:`photograph_article` follows, without the photos (drawn
+    from ``seed`` alone, so not the poses of that function's photos of the same seed, whose
+    rendering draws from the same generator)."""
+    cam = cam or camera_for(world)
+    return list(_shots(world, n_photos, np.random.default_rng(seed), cam, distance_m))
+
+
 def photograph_article(
     world: TaggedWorld,
     out_dir: str | Path,
@@ -548,77 +652,23 @@ def photograph_article(
     an overview: it looks at a random point of the tagged region, from a random direction of the
     hemisphere above the floor limit, from where the triax blocks' tags span 30–45 px
     (``f × side / 30…45``; at most 2.8 × the region's largest extent away). The others are
-    close-ups taken in turn of each triax block (twice a round) and impact jig (once), a fresh
-    random order each round, from where its tags span 60–110 px (``distance_m`` overrides): from
-    between the body's visible faces (:func:`_between_faces`; each body's directions in turn,
-    the least used first and the farthest from its last), turned by an aiming scatter of up to
-    :data:`AIM_SCATTER_DEG`, framing a neighbouring tagged body with it where one is within
-    reach (:func:`_frame_neighbour`). Each photo has its own blur (0.4–1.1 px), exposure
+    close-ups in rounds (:func:`_round`: each triax block :data:`TRIAX_VIEWS` times, each impact
+    jig once), from where the body's tags span 60–110 px (``distance_m`` overrides): from
+    between its visible faces (:func:`_between_faces`; each body's directions in turn, the least
+    used first and the farthest from its last), turned by an aiming scatter of up to
+    :data:`AIM_SCATTER_DEG` (drawn again, up to 20 times, while the article hides the body or
+    more bodies stand in front of it than on the planned direction), the camera on that
+    direction from the body and aimed between it and a neighbouring tagged body where one is
+    within reach (:func:`_frame_neighbour`). Each photo has its own blur (0.4–1.1 px), exposure
     (0.7–1.3), noise and occluders.
     """
     cam = cam or camera_for(world)
     rng = np.random.default_rng(seed)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    ext = float(np.max(world.extent_m))
-    tag_c = np.array([t.centre_m for t in world.tags])
-    sides = {t.body: t.side_m for t in world.tags}
-    centres, normals, away = _bodies(world)
-    names = sorted(b for b in centres if b.startswith(("triax", "input")) and b in normals)
-    box = world.occluder_box
-
-    def blockers_of(b: str) -> Callable[[FloatArray], int]:
-        start = centres[b]
-        stand = 0.75 * sides[b]
-        others = [(c, sides[o]) for o, c in centres.items() if o != b]
-
-        def blockers(u: FloatArray) -> int:
-            if box is not None and _segment_hits_box(start + stand * u, start + 0.5 * u, *box):
-                return HIDDEN
-            n = 0
-            for c, side in others:  # another body standing in front of it
-                along = float(np.dot(c - start, u))
-                n += along > 0 and np.linalg.norm(c - start - along * u) < 0.75 * (sides[b] + side)
-            return n
-
-        return blockers
-
-    blockers = {b: blockers_of(b) for b in names}
-    views = {b: _between_faces(normals[b], away[b], blockers[b]) for b in names}
-    used = {b: np.zeros(len(views[b]), int) for b in names}
-    last: dict[str, FloatArray] = {}
-    small = min((sides[b] for b in names if b.startswith("triax")), default=max(sides.values()))
-    queue: list[str] = []
     paths = []
-    for i in range(n_photos):
-        across: FloatArray | None = None
-        if i % 3 == 0 or not names:
-            target = rng.uniform(tag_c.min(axis=0), tag_c.max(axis=0))
-            dist = min(cam.f_px * small / rng.uniform(30, 45), rng.uniform(2.2, 2.8) * ext)
-            d = rng.normal(size=3)
-            d[2] = abs(d[2]) * 0.8 - 0.25
-            d = _scatter(d / np.linalg.norm(d), 0.0, rng)
-            eye = target + d * dist
-        else:
-            if not queue:
-                queue = _round(names, rng)
-            name = queue.pop(0)
-            prev = last.get(name)
-            far = [0.0 if prev is None else -float(np.dot(v, prev)) for v in views[name]]
-            k = min(range(len(views[name])), key=lambda j: (used[name][j], -far[j], rng.uniform()))
-            used[name][k] += 1
-            last[name] = views[name][k]
-            worst = blockers[name](views[name][k])
-            for _try in range(20):  # the photographer does not shoot through the article
-                d = _scatter(views[name][k], AIM_SCATTER_DEG, rng)
-                if blockers[name](d) <= worst:
-                    break
-            else:
-                d = views[name][k]
-            band = distance_m or (cam.f_px * sides[name] / 110, cam.f_px * sides[name] / 60)
-            eye, target, across = _frame_neighbour(name, d, band, cam, world, centres, normals, rng)
-            target = target + rng.normal(scale=0.2 * sides[name], size=3)
-        r, t = _look_at(eye, target, rng, across)
+    for i, shot in enumerate(_shots(world, n_photos, rng, cam, distance_m)):
+        r, t = shot.r_wc, shot.t_wc
         img = render(
             world,
             cam,
