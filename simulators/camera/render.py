@@ -560,7 +560,8 @@ def _blockers_of(
         n = 0
         for c, side in others:
             along = float(np.dot(c - start, u))
-            n += along > 0 and np.linalg.norm(c - start - along * u) < 0.75 * (sides[b] + side)
+            gap = float(np.linalg.norm(c - start - along * u))
+            n += int(along > 0 and gap < 0.75 * (sides[b] + side))
         return n
 
     return blockers

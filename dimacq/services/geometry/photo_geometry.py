@@ -287,7 +287,7 @@ def _body_pose(
         rc, tc = cams[c]
         for r_cb, t_cb in _view_poses(seen, norm[c]):
             rb, pb = rc.T @ r_cb, rc.T @ (t_cb - tc)
-            errs = []
+            errs: list[float] = []
             for _m, _a, c2, seen2 in views:
                 r2, t2 = cams[c2]
                 errs.extend(
