@@ -577,7 +577,6 @@ def _shots(
     """The plan's photos one after the other (see :func:`photograph_article`), drawn from
     ``rng``."""
     ext = float(np.max(world.extent_m))
-    tag_c = np.array([t.centre_m for t in world.tags])
     sides = {t.body: t.side_m for t in world.tags}
     centres, normals, away = _bodies(world)
     names = sorted(b for b in centres if b.startswith(("triax", "input")) and b in normals)
@@ -591,8 +590,13 @@ def _shots(
         across: FloatArray | None = None
         name: str | None = None
         if i % 3 == 0 or not names:
-            target = rng.uniform(tag_c.min(axis=0), tag_c.max(axis=0))
+            u = rng.uniform(-1.0, 1.0, 3)
             dist = min(cam.f_px * small / rng.uniform(30, 45), rng.uniform(2.2, 2.8) * ext)
+            # aimed so that the frame keeps as much of the tagged region as it can: anywhere
+            # along a region longer than the frame, near its middle across one that fits
+            keep = 0.4 * cam.height / cam.f_px * dist
+            slack = np.maximum(0.5 * world.extent_m - keep, 0.1 * 0.5 * world.extent_m)
+            target = world.centre_m + u * slack
             d = rng.normal(size=3)
             d[2] = abs(d[2]) * 0.8 - 0.25
             d = _scatter(d / np.linalg.norm(d), 0.0, rng)
@@ -650,9 +654,11 @@ def photograph_article(
     """Write ``n_photos`` photos of ``world`` into ``out_dir``, as the manual's photo plan says.
 
     The camera is ``cam`` or the one :func:`camera_for` gives the article. Every third photo is
-    an overview: it looks at a random point of the tagged region, from a random direction of the
-    hemisphere above the floor limit, from where the triax blocks' tags span 30–45 px
-    (``f × side / 30…45``; at most 2.8 × the region's largest extent away). The others are
+    an overview from a random direction of the hemisphere above the floor limit, from where the
+    triax blocks' tags span 30–45 px (``f × side / 30…45``; at most 2.8 × the region's largest
+    extent away), aimed at a random point of the tagged region that keeps as much of it in the
+    frame as it can (within 40 % of the frame's height of its centre, or 10 % of the region's
+    half-extent if that is more). The others are
     close-ups in rounds (:func:`_round`: each triax block :data:`TRIAX_VIEWS` times, each impact
     jig once), from where the body's tags span 60–110 px (``distance_m`` overrides): from
     between its visible faces (:func:`_between_faces`; each body's directions in turn, the least
