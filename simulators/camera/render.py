@@ -9,8 +9,9 @@ resolution through the ideal pinhole, the canvas is resampled through the lens d
 (``cv2.undistortPoints`` of every sensor pixel, ``cv2.remap``) after the lens blur and the
 pixels' area are applied to the canvas (a sensor integrates the blurred image), then exposed,
 occluded in part by random shapes, given sensor noise, and written as JPEG with the EXIF a
-camera writes (35 mm-equivalent focal length). Nothing but the image files leaves this module
-for the solver.
+camera writes (35 mm-equivalent focal length). The photographer (:func:`photograph_article`)
+aims from where the bodies are and which way their tags face, as a person sees them; nothing but
+the image files leaves this module for the solver.
 """
 
 from __future__ import annotations
