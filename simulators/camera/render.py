@@ -9,12 +9,14 @@ resolution through the ideal pinhole, the canvas is resampled through the lens d
 (``cv2.undistortPoints`` of every sensor pixel, ``cv2.remap``) after the lens blur and the
 pixels' area are applied to the canvas (a sensor integrates the blurred image), then exposed,
 occluded in part by random shapes, given sensor noise, and written as JPEG with the EXIF a
-camera writes (35 mm-equivalent focal length). Nothing but the image files leaves this module
-for the solver.
+camera writes (35 mm-equivalent focal length). The photographer (:func:`photograph_article`)
+aims from where the bodies are and which way their tags face, as a person sees them; nothing but
+the image files leaves this module for the solver.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -27,7 +29,16 @@ from scipy.spatial.transform import Rotation
 from dimacq.io.tags_file import TagsFile
 from dimacq.model.setup import TestSetup
 
-__all__ = ["CameraModel", "TaggedWorld", "photograph_article", "tagged_world"]
+__all__ = [
+    "PHONE_12MP",
+    "CameraModel",
+    "Shot",
+    "TaggedWorld",
+    "camera_for",
+    "photo_plan",
+    "photograph_article",
+    "tagged_world",
+]
 
 FloatArray = NDArray[np.float64]
 
@@ -46,6 +57,16 @@ class CameraModel:
     @property
     def matrix(self) -> FloatArray:
         return np.array([[self.f_px, 0, self.cx], [0, self.f_px, self.cy], [0, 0, 1.0]])
+
+
+PHONE_12MP = CameraModel(
+    f_px=2900.0, cx=2006.3, cy=1496.1, dist=(-0.08, 0.05, 2e-4, -1e-4, 0.0), width=4000, height=3000
+)
+LARGE_ARTICLE_M = 1.5  # tagged region (m across) beyond which the lab uses the 12 MP camera
+FLOOR_Z = -0.25  # the lowest view: a direction to the camera at most this far below level
+AIM_SCATTER_DEG = 18.0
+HIDDEN = 1000  # a view the article hides (counted as that many bodies in front)
+TRIAX_VIEWS = 3  # close-ups of each triax block a round (each impact jig: one)  # how far a close-up's direction strays from the one the plan aims
 
 
 @dataclass(frozen=True)
@@ -308,13 +329,24 @@ def render(
 
 
 def _look_at(
-    eye: FloatArray, target: FloatArray, rng: np.random.Generator
+    eye: FloatArray,
+    target: FloatArray,
+    rng: np.random.Generator,
+    across: FloatArray | None = None,
 ) -> tuple[FloatArray, FloatArray]:
+    """The camera at ``eye`` looking at ``target``: ``X_c = r X + t``. Its image x axis lies
+    along ``across`` turned by a roll of ±15° (a photographer turns the camera to frame two
+    bodies side by side), or at a random roll without it."""
     z = target - eye
     z /= np.linalg.norm(z)
-    up = rng.normal(size=3)
-    x = np.cross(z, up)
-    x /= np.linalg.norm(x)
+    if across is not None and np.linalg.norm(np.cross(z, across)) > 1e-9:
+        x0 = across - np.dot(across, z) * z
+        x0 /= np.linalg.norm(x0)
+        roll = np.radians(rng.uniform(-15.0, 15.0)) + (np.pi if rng.uniform() < 0.5 else 0.0)
+        x = np.cos(roll) * x0 + np.sin(roll) * np.cross(z, x0)
+    else:
+        x = np.cross(z, rng.normal(size=3))
+        x /= np.linalg.norm(x)
     y = np.cross(z, x)
     r = np.array([x, y, z])
     return r, -r @ eye
@@ -341,6 +373,273 @@ def write_jpeg(
     im.save(path, quality=quality, exif=exif)
 
 
+def camera_for(world: TaggedWorld) -> CameraModel:
+    """The lab's camera for an article of the world's size: the 2 MP machine-vision camera
+    (:class:`CameraModel`'s defaults, 1600 × 1200 px, ``f`` 1450 px) for a tagged region up to
+    :data:`LARGE_ARTICLE_M` across, a 12 MP phone camera's main lens (:data:`PHONE_12MP`,
+    4000 × 3000 px, ``f`` 2900 px: 26 mm equivalent) beyond, where the 2 MP camera's overviews
+    would leave the block tags too few pixels."""
+    if float(np.max(world.extent_m)) > LARGE_ARTICLE_M:
+        return PHONE_12MP
+    return CameraModel()
+
+
+def _bodies(
+    world: TaggedWorld,
+) -> tuple[dict[str, FloatArray], dict[str, FloatArray], dict[str, FloatArray]]:
+    """Where each body is (its tags' mean centre, m), which way its visible tags face (their
+    outward normals, one row each) and which way it faces away from the article (the outward
+    normal opposite its mounting face; its visible normals' mean without one): what a
+    photographer sees of the article."""
+    centres: dict[str, list[FloatArray]] = {}
+    normals: dict[str, list[FloatArray]] = {}
+    mounts: dict[str, FloatArray] = {}
+    for t in world.tags:
+        centres.setdefault(t.body, []).append(t.centre_m)
+        if t.hidden:
+            mounts[t.body] = t.rotation[:, 2]
+        else:
+            normals.setdefault(t.body, []).append(t.rotation[:, 2])
+    out: dict[str, FloatArray] = {}
+    for b, n in normals.items():
+        away = -mounts[b] if b in mounts else np.mean(n, axis=0)
+        out[b] = away / max(float(np.linalg.norm(away)), 1e-12)
+    return (
+        {b: np.mean(c, axis=0) for b, c in centres.items()},
+        {b: np.array(n) for b, n in normals.items()},
+        out,
+    )
+
+
+def _between_faces(
+    normals: FloatArray, away: FloatArray, blockers: Callable[[FloatArray], int]
+) -> list[FloatArray]:
+    """Directions from which a body shows two or three of its tags together: the sums of the
+    outward normals ``n_i + n_j (+ n_k)`` of mutually perpendicular visible faces, normalised;
+    those at or above the floor limit (``z ≥`` :data:`FLOOR_Z`), not into the article
+    (``d · away > −0.2``), from which the article does not hide the body and, of those, the
+    ones the fewest other bodies stand in front of (``blockers``: their count,
+    :data:`HIDDEN` when the article hides it). The edges (two tags at 45°) and the corners
+    (three at 55°). The face most away from the article within the floor limit when none."""
+    k = len(normals)
+    perp = np.abs(normals @ normals.T) < 0.5
+    cands = []
+    for i in range(k):
+        for j in range(i + 1, k):
+            if not perp[i, j]:
+                continue
+            cands.append(normals[i] + normals[j])
+            cands.extend(
+                normals[i] + normals[j] + normals[m]
+                for m in range(j + 1, k)
+                if perp[i, m] and perp[j, m]
+            )
+    units = [d / np.linalg.norm(d) for d in cands]
+    units = [u for u in units if u[2] >= FLOOR_Z and np.dot(u, away) > -0.2]
+    scored = [(blockers(u), u) for u in units]
+    scored = [(n, u) for n, u in scored if n < HIDDEN]
+    if scored:
+        least = min(n for n, _ in scored)
+        return [u for n, u in scored if n == least]
+    faces = [n for n in normals if n[2] >= FLOOR_Z] or [normals[int(np.argmax(normals[:, 2]))]]
+    return [max(faces, key=lambda n: float(np.dot(n, away)))]
+
+
+def _scatter(d: FloatArray, deg: float, rng: np.random.Generator) -> FloatArray:
+    """``d`` turned by up to ``deg`` about a random axis across it (uniform over the cone),
+    then raised to the floor limit if it fell below it."""
+    axis = np.cross(d, rng.normal(size=3))
+    axis /= np.linalg.norm(axis)
+    ang = np.radians(deg) * np.sqrt(rng.uniform())
+    out: FloatArray = Rotation.from_rotvec(ang * axis).apply(d)
+    if out[2] < FLOOR_Z:
+        flat = np.array([out[0], out[1], 0.0])
+        n = np.linalg.norm(flat)
+        flat = flat / n if n > 1e-9 else np.array([1.0, 0.0, 0.0])
+        out = np.sqrt(1 - FLOOR_Z**2) * flat + np.array([0.0, 0.0, FLOOR_Z])
+    return out
+
+
+def _frame_neighbour(
+    name: str,
+    d: FloatArray,
+    dist: tuple[float, float],
+    cam: CameraModel,
+    world: TaggedWorld,
+    centres: dict[str, FloatArray],
+    normals: dict[str, FloatArray],
+    rng: np.random.Generator,
+) -> tuple[FloatArray, FloatArray, FloatArray | None]:
+    """Camera position, aim and the image's long axis for a close-up of ``name`` seen from
+    direction ``d`` (the camera at ``p + D d``, ``D`` drawn in the close-up band
+    ``dist = (near, far)``) that frames another tagged body with it: the camera aimed between
+    the two (the bisector of their directions), pulled back within the band if both need it
+    (each inside 40 % of the frame's width from its centre). The other body is one whose tags
+    face the camera within 60° and that the article hides from neither camera (the segment to
+    each body's centre, stood off by half a tag towards the camera): a triax block, reference
+    plate or the scale bar before an impact jig, one of the three nearest. With none within
+    reach, the body alone from ``D``."""
+    p = centres[name]
+    d_draw = rng.uniform(*dist)
+    box = world.occluder_box
+    stand = 0.5 * min(t.side_m for t in world.tags if t.body == name)
+    half = np.arctan(0.4 * cam.width / cam.f_px)  # half the angle two framed bodies may span
+    options = []
+    for other, c in centres.items():
+        if other == name or other not in normals:
+            continue
+        for dd in np.linspace(d_draw, max(d_draw, dist[1]), 4):
+            eye = p + dd * d
+            up, uc = (p - eye) / dd, (c - eye) / np.linalg.norm(c - eye)
+            if np.arccos(np.clip(np.dot(up, uc), -1, 1)) <= 2 * half:
+                break
+        else:
+            continue
+        if np.max(normals[other] @ -uc) < np.cos(np.radians(60.0)):
+            continue
+        if box is not None and (
+            _segment_hits_box(eye, c - stand * uc, *box)
+            or _segment_hits_box(eye, p - stand * up, *box)
+        ):
+            continue
+        options.append((other.startswith("input"), float(np.linalg.norm(c - p)), eye, up + uc))
+    if not options:
+        return p + d_draw * d, p, None
+    options.sort(key=lambda o: (o[0], o[1]))
+    pool = [o for o in options if o[0] == options[0][0]][:3]
+    _, _, eye, mid = pool[int(rng.integers(0, len(pool)))]
+    target = eye + mid / np.linalg.norm(mid) * float(np.linalg.norm(p - eye))
+    return eye, target, target - p
+
+
+def _round(names: list[str], rng: np.random.Generator) -> list[str]:
+    """One round of close-ups: each triax block :data:`TRIAX_VIEWS` times (every block's
+    ``k``-th close-up before any block's ``k + 1``-th, a fresh order each pass), each impact jig
+    once, the two interleaved evenly, so that a set cut short leaves no block with fewer
+    close-ups than another but one."""
+    blocks = [n for n in names if n.startswith("triax")]
+    jigs = [n for n in names if not n.startswith("triax")]
+    tri = [blocks[k] for _ in range(TRIAX_VIEWS) for k in rng.permutation(len(blocks))]
+    jig = [jigs[k] for k in rng.permutation(len(jigs))]
+    n = len(tri) + len(jig)
+    out, a, b = [], 0, 0
+    for i in range(n):
+        if b >= len(jig) or (a < len(tri) and a * n <= i * len(tri)):
+            out.append(tri[a])
+            a += 1
+        else:
+            out.append(jig[b])
+            b += 1
+    return out
+
+
+@dataclass(frozen=True)
+class Shot:
+    """One photo of the plan: ``overview`` or ``close-up`` of ``body``, the camera at
+    ``X_c = r_wc X + t_wc``."""
+
+    kind: str
+    body: str | None
+    r_wc: FloatArray
+    t_wc: FloatArray
+
+
+def _blockers_of(
+    b: str, centres: dict[str, FloatArray], sides: dict[str, float], world: TaggedWorld
+) -> Callable[[FloatArray], int]:
+    """How many bodies stand in front of body ``b`` seen from direction ``u`` (their centre
+    within ``0.75 (s_b + s_other)`` of the line of sight), :data:`HIDDEN` when the article
+    (the world's occluder box) hides it: what a photographer sees before taking the photo."""
+    start = centres[b]
+    stand = 0.75 * sides[b]
+    box = world.occluder_box
+    others = [(c, sides[o]) for o, c in centres.items() if o != b]
+
+    def blockers(u: FloatArray) -> int:
+        if box is not None and _segment_hits_box(start + stand * u, start + 0.5 * u, *box):
+            return HIDDEN
+        n = 0
+        for c, side in others:
+            along = float(np.dot(c - start, u))
+            gap = float(np.linalg.norm(c - start - along * u))
+            n += int(along > 0 and gap < 0.75 * (sides[b] + side))
+        return n
+
+    return blockers
+
+
+def _shots(
+    world: TaggedWorld,
+    n_photos: int,
+    rng: np.random.Generator,
+    cam: CameraModel,
+    distance_m: tuple[float, float] | None,
+) -> Iterator[Shot]:
+    """The plan's photos one after the other (see :func:`photograph_article`), drawn from
+    ``rng``."""
+    ext = float(np.max(world.extent_m))
+    sides = {t.body: t.side_m for t in world.tags}
+    centres, normals, away = _bodies(world)
+    names = sorted(b for b in centres if b.startswith(("triax", "input")) and b in normals)
+    blockers = {b: _blockers_of(b, centres, sides, world) for b in names}
+    views = {b: _between_faces(normals[b], away[b], blockers[b]) for b in names}
+    used = {b: np.zeros(len(views[b]), int) for b in names}
+    last: dict[str, FloatArray] = {}
+    small = min((sides[b] for b in names if b.startswith("triax")), default=max(sides.values()))
+    queue: list[str] = []
+    for i in range(n_photos):
+        across: FloatArray | None = None
+        name: str | None = None
+        if i % 3 == 0 or not names:
+            u = rng.uniform(-1.0, 1.0, 3)
+            dist = min(cam.f_px * small / rng.uniform(30, 45), rng.uniform(2.2, 2.8) * ext)
+            # aimed so that the frame keeps as much of the tagged region as it can: anywhere
+            # along a region longer than the frame, near its middle across one that fits
+            keep = 0.4 * cam.height / cam.f_px * dist
+            slack = np.maximum(0.5 * world.extent_m - keep, 0.1 * 0.5 * world.extent_m)
+            target = world.centre_m + u * slack
+            d = rng.normal(size=3)
+            d[2] = abs(d[2]) * 0.8 - 0.25
+            d = _scatter(d / np.linalg.norm(d), 0.0, rng)
+            eye = target + d * dist
+        else:
+            if not queue:
+                queue = _round(names, rng)
+            name = queue.pop(0)
+            prev = last.get(name)
+            far = [0.0 if prev is None else -float(np.dot(v, prev)) for v in views[name]]
+            k = min(range(len(views[name])), key=lambda j: (used[name][j], -far[j], rng.uniform()))
+            used[name][k] += 1
+            last[name] = views[name][k]
+            worst = blockers[name](views[name][k])
+            for _try in range(20):  # nor through the article, nor past more bodies than planned
+                d = _scatter(views[name][k], AIM_SCATTER_DEG, rng)
+                if blockers[name](d) <= worst:
+                    break
+            else:
+                d = views[name][k]
+            band = distance_m or (cam.f_px * sides[name] / 110, cam.f_px * sides[name] / 60)
+            eye, target, across = _frame_neighbour(name, d, band, cam, world, centres, normals, rng)
+            target = target + rng.normal(scale=0.2 * sides[name], size=3)
+        r, t = _look_at(eye, target, rng, across)
+        yield Shot("overview" if name is None else "close-up", name, r, t)
+
+
+def photo_plan(
+    world: TaggedWorld,
+    n_photos: int,
+    seed: int,
+    cam: CameraModel | None = None,
+    *,
+    distance_m: tuple[float, float] | None = None,
+) -> list[Shot]:
+    """The shots of the plan :func:`photograph_article` follows, without the photos (drawn
+    from ``seed`` alone, so not the poses of that function's photos of the same seed, whose
+    rendering draws from the same generator)."""
+    cam = cam or camera_for(world)
+    return list(_shots(world, n_photos, np.random.default_rng(seed), cam, distance_m))
+
+
 def photograph_article(
     world: TaggedWorld,
     out_dir: str | Path,
@@ -355,46 +654,29 @@ def photograph_article(
 ) -> list[Path]:
     """Write ``n_photos`` photos of ``world`` into ``out_dir``, as the manual's photo plan says.
 
-    Every third photo is an overview: it looks at a random point of the tagged region from
-    where the largest tags (the reference plates') span 30–45 px (at most 2.8 × the region's
-    largest extent away). The others are close-ups taken in turn of each triax block (twice a
-    round) and impact jig (once), a fresh random order each round, from where its tags span 60–110 px (``distance_m``
-    overrides), from a random direction of the hemisphere above the floor and a little below
-    the article. Each photo has its own blur (0.4–1.1 px), exposure (0.7–1.3), noise and
-    occluders.
+    The camera is ``cam`` or the one :func:`camera_for` gives the article. Every third photo is
+    an overview from a random direction of the hemisphere above the floor limit, from where the
+    triax blocks' tags span 30–45 px (``f × side / 30…45``; at most 2.8 × the region's largest
+    extent away), aimed at a random point of the tagged region that keeps as much of it in the
+    frame as it can (within 40 % of the frame's height of its centre, or 10 % of the region's
+    half-extent if that is more). The others are
+    close-ups in rounds (:func:`_round`: each triax block :data:`TRIAX_VIEWS` times, each impact
+    jig once), from where the body's tags span 60–110 px (``distance_m`` overrides): from
+    between its visible faces (:func:`_between_faces`; each body's directions in turn, the least
+    used first and the farthest from its last), turned by an aiming scatter of up to
+    :data:`AIM_SCATTER_DEG` (drawn again, up to 20 times, while the article hides the body or
+    more bodies stand in front of it than on the planned direction), the camera on that
+    direction from the body and aimed between it and a neighbouring tagged body where one is
+    within reach (:func:`_frame_neighbour`). Each photo has its own blur (0.4–1.1 px), exposure
+    (0.7–1.3), noise and occluders.
     """
-    cam = cam or CameraModel()
+    cam = cam or camera_for(world)
     rng = np.random.default_rng(seed)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    ext = float(np.max(world.extent_m))
-    centres = np.array([t.centre_m for t in world.tags])
-    sides = {t.body: t.side_m for t in world.tags}
-    bodies = {
-        b: np.mean([t.centre_m for t in world.tags if t.body == b], axis=0)
-        for b in sides
-        if b.startswith(("triax", "input"))
-    }
-    names = sorted(bodies)
-    big = max(sides.values())
-    queue: list[str] = []
     paths = []
-    for i in range(n_photos):
-        if i % 3 == 0 or not names:
-            target = rng.uniform(centres.min(axis=0), centres.max(axis=0))
-            dist = min(cam.f_px * big / rng.uniform(30, 45), rng.uniform(2.2, 2.8) * ext)
-        else:
-            if not queue:  # a round: each triax from two sides, each input once
-                twice = [n for n in names if n.startswith("triax")]
-                queue = [(names + twice)[k] for k in rng.permutation(len(names) + len(twice))]
-            name = queue.pop()
-            target = bodies[name] + rng.normal(scale=0.2 * sides[name], size=3)
-            lo_d, hi_d = distance_m or (cam.f_px * sides[name] / 110, cam.f_px * sides[name] / 60)
-            dist = rng.uniform(lo_d, hi_d)
-        d = rng.normal(size=3)
-        d[2] = abs(d[2]) * 0.8 - 0.25
-        d /= np.linalg.norm(d)
-        r, t = _look_at(target + d * dist, target, rng)
+    for i, shot in enumerate(_shots(world, n_photos, rng, cam, distance_m)):
+        r, t = shot.r_wc, shot.t_wc
         img = render(
             world,
             cam,

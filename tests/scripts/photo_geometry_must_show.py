@@ -3,6 +3,15 @@ mass and the X-38 (several seeds), triax position and orientation errors and how
 stated uncertainties cover them.
 
     python tests/scripts/photo_geometry_must_show.py [--photos N] [--seeds 0 1 2] [--x38-seeds 0]
+        [--x38-photos N]
+
+Each set is photographed by the simulated photographer's plan
+(:func:`dimacq.simulators.camera.render.photograph_article`) with the camera it gives the article
+(:func:`~dimacq.simulators.camera.render.camera_for`).
+
+``--exact-tags`` renders the same worlds with every tag placed exactly on its body (the tags file
+still states its placement 1σ): the difference to a run without it is what the tags' placement
+adds to the errors.
 
 Coverage: each triax's error per coordinate against ``1.96 σ`` (``origin_std_m``) and its
 rotation error per sensor axis against ``1.96 σ`` (``angle_std_deg``); the fraction inside.
@@ -30,7 +39,7 @@ from dimacq.simulators.camera.render import photograph_article, tagged_world
 from dimacq.simulators.lab.scenarios import build_scenario
 
 
-def one(scenario: str, seed: int, n_photos: int) -> dict[str, float]:
+def one(scenario: str, seed: int, n_photos: int, exact_tags: bool = False) -> dict[str, float]:
     built = build_scenario(scenario, seed)
     st = built.model.setup
     nodes = sorted({c.node for c in st.responses})
@@ -40,14 +49,17 @@ def one(scenario: str, seed: int, n_photos: int) -> dict[str, float]:
     if built.spec.article.model == "calibration-mass":
         r = st.response_positions
         box = (r.min(axis=0) + 0.015, r.max(axis=0) - 0.015)
-    world = tagged_world(plan, st, np.random.default_rng(seed + 2000), box)
+    placed = plan
+    if exact_tags:  # the world's tags placed exactly; the tags file still states its placement
+        placed = plan.model_copy(update={"placement_angle_deg": 0.0, "placement_position_m": 0.0})
+    world = tagged_world(placed, st, np.random.default_rng(seed + 2000), box)
     with tempfile.TemporaryDirectory() as tmp:
         photograph_article(world, Path(tmp) / "photos", n_photos, seed + 3000)
         dump_tags(plan, Path(tmp) / "tags.toml")
         t0 = time.perf_counter()
         res = geometry_from_photos(Path(tmp) / "photos", load_tags(Path(tmp) / "tags.toml"))
         solve_s = time.perf_counter() - t0
-    pos, ang, inside = [], [], []
+    pos, ang, axes, inside = [], [], [], []
     for o in res.orientations:
         r_true, p_true = world.truth[f"triax {o.node}"]
         e = np.array(o.origin_m) - p_true
@@ -55,6 +67,7 @@ def one(scenario: str, seed: int, n_photos: int) -> dict[str, float]:
         rot = Rotation.from_matrix(np.array(o.rotation) @ r_true.T)
         ang.append(float(np.degrees(rot.magnitude())))
         per_axis = np.degrees(np.array(o.rotation).T @ rot.as_rotvec())
+        axes.extend(per_axis)
         inside.extend(np.abs(e) <= 1.96 * o.origin_std_m)
         inside.extend(np.abs(per_axis) <= 1.96 * np.asarray(o.angle_std_deg))
     return {
@@ -63,6 +76,7 @@ def one(scenario: str, seed: int, n_photos: int) -> dict[str, float]:
         "sigma_px": res.bundle.sigma_px,
         "pos_rms_mm": 1e3 * float(np.sqrt(np.mean(np.square(pos)))) if pos else float("nan"),
         "ori_rms_deg": float(np.sqrt(np.mean(np.square(ang)))) if ang else float("nan"),
+        "axis_rms_deg": float(np.sqrt(np.mean(np.square(axes)))) if axes else float("nan"),
         "coverage": float(np.mean(inside)) if inside else float("nan"),
         "solve_s": solve_s,
     }
@@ -74,13 +88,26 @@ def main() -> int:
     ap.add_argument("--seeds", type=int, nargs="*", default=[0, 1, 2])
     ap.add_argument("--x38-seeds", type=int, nargs="*", default=[0])
     ap.add_argument("--x38-photos", type=int, default=60)
+    ap.add_argument(
+        "--exact-tags",
+        action="store_true",
+        help="place the simulated tags exactly on their bodies (the same draws otherwise), to "
+        "show what the tags' placement adds to the errors",
+    )
     args = ap.parse_args()
     rows = []
     for s in args.seeds:
-        rows.append(("calibration-mass-bungee", s, one("calibration-mass-bungee", s, args.photos)))
+        rows.append(
+            (
+                "calibration-mass-bungee",
+                s,
+                args.photos,
+                one("calibration-mass-bungee", s, args.photos, args.exact_tags),
+            )
+        )
         print(rows[-1], flush=True)
     for s in args.x38_seeds:
-        rows.append(("x38", s, one("x38", s, args.x38_photos)))
+        rows.append(("x38", s, args.x38_photos, one("x38", s, args.x38_photos, args.exact_tags)))
         print(rows[-1], flush=True)
     commit = subprocess.run(
         ["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, check=False
@@ -90,13 +117,16 @@ def main() -> int:
         f"date: {datetime.datetime.now(datetime.UTC).isoformat(timespec='seconds')}",
         f"commit: {commit}; load average: {os.getloadavg()}",
         "limits: triax position <= 0.2 mm RMS, orientation <= 0.1 deg RMS, coverage >= 0.90",
-        f"{'scenario':<26}{'seed':>5}{'triax':>6}{'unfixed':>8}{'σ px':>7}{'pos mm':>8}"
-        f"{'ori deg':>9}{'cover':>7}{'solve s':>8}",
+        "ori deg: RMS of the rotation errors' angles; per axis: RMS over the sensor axes",
+        *(["tags placed exactly in the simulated world (--exact-tags)"] if args.exact_tags else []),
+        f"{'scenario':<26}{'seed':>5}{'photos':>7}{'triax':>6}{'unfixed':>8}{'σ px':>7}"
+        f"{'pos mm':>8}{'ori deg':>9}{'per axis':>9}{'cover':>7}{'solve s':>8}",
     ]
-    for name, s, r in rows:
+    for name, s, n, r in rows:
         lines.append(
-            f"{name:<26}{s:>5}{r['triaxes']:>6}{r['unfixed']:>8}{r['sigma_px']:>7.3f}"
-            f"{r['pos_rms_mm']:>8.3f}{r['ori_rms_deg']:>9.3f}{r['coverage']:>7.2f}{r['solve_s']:>8.1f}"
+            f"{name:<26}{s:>5}{n:>7}{r['triaxes']:>6}{r['unfixed']:>8}{r['sigma_px']:>7.3f}"
+            f"{r['pos_rms_mm']:>8.3f}{r['ori_rms_deg']:>9.3f}{r['axis_rms_deg']:>9.3f}"
+            f"{r['coverage']:>7.2f}{r['solve_s']:>8.1f}"
         )
     out = Path(__file__).with_suffix(".results.txt")
     with out.open("a", encoding="utf-8") as fh:  # one block per run, the newest last

@@ -8,10 +8,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from dimacq.errors import DataError
 from dimacq.io.tags_file import BodySpec, LayoutSpec, TagsFile, TagSpec
+from dimacq.pipeline.photogrammetry.bundle import BodyModel, TagMount
 from dimacq.services.geometry.photo_geometry import detect_tags, geometry_from_photos, read_photos
+from dimacq.services.geometry.photo_input import Photo
 
 
 def _sheet(ids: list[int], family: int, px: int = 60) -> np.ndarray:
@@ -146,3 +149,83 @@ def test_too_uncertain_triax_refused_with_the_views_it_needs() -> None:
     assert len(out) == 1 and "from 4 photos" in out[0]
     assert "about 12 more photos showing its block together with reference plates" in out[0]
     assert "close-ups" not in out[0]
+
+
+def _cube_tags(first: int, side: float) -> tuple[TagMount, ...]:
+    """Tags on the +z, +x and +y faces of a cube of edge ``1.25 side`` (body frame)."""
+    h = 0.625 * side
+    faces = [Rotation.identity(), Rotation.from_euler("y", 90, degrees=True)]
+    faces.append(Rotation.from_euler("x", -90, degrees=True))
+    return tuple(
+        TagMount(first + k, side, f.as_matrix(), f.apply([0.0, 0.0, h]))
+        for k, f in enumerate(faces)
+    )
+
+
+def _seen(
+    r_c: np.ndarray, t_c: np.ndarray, rb: np.ndarray, pb: np.ndarray, t: TagMount
+) -> np.ndarray:
+    xc = (t.corners_body() @ rb.T + pb) @ r_c.T + t_c
+    return xc[:, :2] / xc[:, 2:3]
+
+
+def _camera_at(eye: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A camera at ``eye`` looking at the origin (world → camera)."""
+    z = -eye / np.linalg.norm(eye)
+    x = np.cross(z, [0.0, 0.0, 1.0])
+    x /= np.linalg.norm(x)
+    r = np.array([x, np.cross(z, x), z])
+    return r, -r @ eye
+
+
+def test_first_poses_outvote_a_misplaced_body_and_the_mirrored_square() -> None:
+    from dimacq.services.geometry.photo_geometry import _body_pose, _photo_pose
+
+    rng = np.random.default_rng(4)
+    bodies_true = {
+        i: (
+            Rotation.from_rotvec(rng.normal(scale=0.1, size=3)).as_matrix(),
+            rng.uniform(-0.1, 0.1, 3),
+        )
+        for i in range(3)
+    }
+    tags = {i: _cube_tags(10 * i, 0.024) for i in range(3)}
+    mount = {t.tag_id: (i, t) for i, ts in tags.items() for t in ts}
+    r_c, t_c = _camera_at(np.array([0.5, 0.4, 0.45]))
+    obs = {
+        t.tag_id: _seen(r_c, t_c, *bodies_true[i], t)
+        for i, ts in tags.items()
+        for t in ts
+        if (r_c @ bodies_true[i][0] @ t.rotation[:, 2])[2] < -0.3  # facing the camera
+    }
+    assert len({mount[k][0] for k in obs}) == 3
+    # body 2 placed 80 mm and 45° off (a gross error, far beyond INIT_AGREE): the photo's pose
+    # follows bodies 0 and 1
+    wrong = dict(bodies_true)
+    wrong[2] = (
+        Rotation.from_euler("z", 45, degrees=True).as_matrix() @ bodies_true[2][0],
+        bodies_true[2][1] + 0.08,
+    )
+    pose = _photo_pose(obs, mount, wrong, 2)
+    assert pose is not None
+    np.testing.assert_allclose(pose[0], r_c, atol=1e-6)
+    np.testing.assert_allclose(pose[1], t_c, atol=1e-6)
+    # a body seen through one tag in its largest view: the planar square's two solutions;
+    # the one the other photos agree with is taken
+    one = BodyModel("triax 9", "triax", (tags[0][0],))
+    r_b, p_b = bodies_true[0]
+    cams = {
+        0: (r_c, t_c),
+        1: _camera_at(np.array([0.2, 0.5, 0.4])),
+    }
+    norm = [{one.tags[0].tag_id: _seen(*cams[c], r_b, p_b, one.tags[0])} for c in (0, 1)]
+    photos = [
+        Photo(
+            f"p{c}", (1600, 1200), {one.tags[0].tag_id: 1450 * norm[c][one.tags[0].tag_id]}, 1450.0
+        )
+        for c in (0, 1)
+    ]
+    got = _body_pose(one, cams, norm, photos)
+    assert got is not None
+    np.testing.assert_allclose(got[0], r_b, atol=1e-6)
+    np.testing.assert_allclose(got[1], p_b, atol=1e-8)
