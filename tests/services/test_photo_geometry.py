@@ -179,7 +179,7 @@ def _camera_at(eye: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def test_first_poses_outvote_a_misplaced_body_and_the_mirrored_square() -> None:
-    from dimacq.services.geometry.photo_geometry import _body_pose, _photo_pose
+    from dimacq.services.geometry.photo_poses import _body_pose, _photo_pose
 
     rng = np.random.default_rng(4)
     bodies_true = {
