@@ -200,3 +200,27 @@ def test_the_axes_in_the_order_of_the_rdt_record() -> None:
     """ATI's RDT record (its demo ``NetFTSensor.java``) and the long answers carry Fx, Fy, Fz,
     Tx, Ty, Tz in that order: the order every ``counts`` array of the codec is in."""
     assert p.AXES == ("Fx", "Fy", "Fz", "Tx", "Ty", "Tz")
+
+
+def test_the_32_bit_words_wrap_and_keep_every_bit() -> None:
+    """The unsigned 32-bit words a sensor sends (status, sample number, RDT and F/T sequence
+    numbers) keep every bit, the lowest and the highest, and a counter past 2^32 wraps as the
+    device's does; the scalar and the vectorised encoders agree."""
+    status, sample = 0x8000_0001, 2**32 + 0x7654_3211  # odd, top bit set; one past a wrap
+    want = (0x8000_0001, 0x7654_3211)
+    got = p.LongStatus.decode(p.LongStatus(status, sample).encode())
+    assert (got.status, got.sample) == want
+    counts = np.array([[1, -2, 3, -4, 5, -6]], dtype=np.int64)
+    block = p.long_payloads(counts, 0xFFFF_FFFF, np.array([sample]))
+    got = p.LongStatus.decode(bytes(block[0, 3]))
+    assert (got.status, got.sample) == (0xFFFF_FFFF, want[1])
+    assert [bytes(b) for b in block[0]] == [d for _o, d in p.long_frames(counts[0], -1, sample)]
+    seq = np.array([2**32 + 1, 0xFFFF_FFFF, 0x8000_0003], dtype=np.int64)
+    ft = seq + 2
+    one = p.RdtRecord(int(seq[0]), int(ft[0]), status, (1, 2, 3, 4, 5, 6))
+    (back,) = p.RdtRecord.decode_all(one.encode())
+    assert (back.rdt_sequence, back.ft_sequence, back.status) == (1, 3, want[0])
+    rdt = p.decode_rdt(p.encode_rdt(seq, ft, status, np.tile(counts, (3, 1))))
+    np.testing.assert_array_equal(rdt.rdt_sequence, [1, 0xFFFF_FFFF, 0x8000_0003])
+    np.testing.assert_array_equal(rdt.ft_sequence, [3, 1, 0x8000_0005])
+    np.testing.assert_array_equal(rdt.status, [want[0]] * 3)
