@@ -80,21 +80,16 @@ def demo_row(seed: int, photos: int, tmp: Path) -> dict:
 
 def acquire_rows(seed: int, photos: int, averages: int, tmp: Path) -> list[dict]:
     from dimacq.io.setup_file import save_setup
-    from dimacq.io.tags_file import dump_tags, standard_tags
+    from dimacq.io.tags_file import dump_tags
     from dimacq.model.setup import GeometryUncertainty
-    from dimacq.simulators.camera.render import camera_for, photograph_article, tagged_world
+    from dimacq.simulators.camera.render import photograph_article
+    from dimacq.simulators.camera.scenario import tagged_scenario
     from dimacq.simulators.lab.scenarios import build_scenario, nominal_setup
 
     built = build_scenario(SCENARIO, seed)
     true = built.model.setup
-    nodes = sorted({c.node for c in true.responses})
-    ins = [e.node for e in true.excitations]
-    pts = np.vstack([true.response_positions, true.input_positions])
-    plan = standard_tags(nodes, ins, pts)
-    r = true.response_positions
-    box = (r.min(0) + 0.015, r.max(0) - 0.015)
-    world = tagged_world(plan, true, np.random.default_rng(seed + 2000), box)
-    photograph_article(world, tmp / "photos", photos, seed + 3000, camera_for(world))
+    plan, world = tagged_scenario(built)
+    photograph_article(world, tmp / "photos", photos, seed + 3000)
     dump_tags(plan, tmp / "tags.toml")
     hand = nominal_setup(
         true,

@@ -29,11 +29,12 @@ from pathlib import Path
 
 import numpy as np
 
-from dimacq.io.tags_file import dump_tags, load_tags, standard_tags
+from dimacq.io.tags_file import dump_tags, load_tags
 from dimacq.model.setup import GeometryUncertainty, TestSetup
 from dimacq.services.geometry.photo_geometry import apply_to_setup, geometry_from_photos
 from dimacq.services.solve.analysis import analyse
-from dimacq.simulators.camera.render import photograph_article, tagged_world
+from dimacq.simulators.camera.render import photograph_article
+from dimacq.simulators.camera.scenario import tagged_scenario
 from dimacq.simulators.lab.scenarios import build_scenario, nominal_setup
 
 SCENARIO = "calibration-mass-bungee"
@@ -106,13 +107,7 @@ def main() -> int:
                 )
             }
         )
-        nodes = sorted({c.node for c in true.responses})
-        ins = [e.node for e in true.excitations]
-        plan = standard_tags(nodes, ins, np.vstack([true.response_positions, true.input_positions]))
-        r = true.response_positions
-        world = tagged_world(
-            plan, true, np.random.default_rng(seed + 2000), (r.min(0) + 0.015, r.max(0) - 0.015)
-        )
+        plan, world = tagged_scenario(built)
         with tempfile.TemporaryDirectory() as tmp:
             photograph_article(world, Path(tmp) / "photos", args.photos, seed + 3000)
             dump_tags(plan, Path(tmp) / "tags.toml")

@@ -33,26 +33,15 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from dimacq.io.tags_file import dump_tags, load_tags, standard_tags
+from dimacq.io.tags_file import dump_tags, load_tags
 from dimacq.services.geometry.photo_geometry import geometry_from_photos
-from dimacq.simulators.camera.render import photograph_article, tagged_world
+from dimacq.simulators.camera.render import photograph_article
+from dimacq.simulators.camera.scenario import tagged_scenario
 from dimacq.simulators.lab.scenarios import build_scenario
 
 
 def one(scenario: str, seed: int, n_photos: int, exact_tags: bool = False) -> dict[str, float]:
-    built = build_scenario(scenario, seed)
-    st = built.model.setup
-    nodes = sorted({c.node for c in st.responses})
-    ins = [e.node for e in st.excitations]
-    plan = standard_tags(nodes, ins, np.vstack([st.response_positions, st.input_positions]))
-    box = None
-    if built.spec.article.model == "calibration-mass":
-        r = st.response_positions
-        box = (r.min(axis=0) + 0.015, r.max(axis=0) - 0.015)
-    placed = plan
-    if exact_tags:  # the world's tags placed exactly; the tags file still states its placement
-        placed = plan.model_copy(update={"placement_angle_deg": 0.0, "placement_position_m": 0.0})
-    world = tagged_world(placed, st, np.random.default_rng(seed + 2000), box)
+    plan, world = tagged_scenario(build_scenario(scenario, seed), exact_tags=exact_tags)
     with tempfile.TemporaryDirectory() as tmp:
         photograph_article(world, Path(tmp) / "photos", n_photos, seed + 3000)
         dump_tags(plan, Path(tmp) / "tags.toml")

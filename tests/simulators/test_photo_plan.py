@@ -9,7 +9,6 @@ from collections import Counter
 import numpy as np
 import pytest
 
-from dimacq.io.tags_file import standard_tags
 from dimacq.services.geometry.photo_geometry import detect_tags
 from dimacq.simulators.camera.render import (
     FLOOR_Z,
@@ -23,8 +22,8 @@ from dimacq.simulators.camera.render import (
     camera_for,
     photo_plan,
     render,
-    tagged_world,
 )
+from dimacq.simulators.camera.scenario import tagged_scenario
 from dimacq.simulators.lab.scenarios import build_scenario
 
 # a cube block mounted by its +y face: the visible faces' outward normals
@@ -70,16 +69,7 @@ def test_rounds_fair_to_every_block() -> None:
 
 
 def _world(scenario: str, seed: int) -> TaggedWorld:
-    built = build_scenario(scenario, seed)
-    st = built.model.setup
-    nodes = sorted({c.node for c in st.responses})
-    ins = [e.node for e in st.excitations]
-    plan = standard_tags(nodes, ins, np.vstack([st.response_positions, st.input_positions]))
-    box = None
-    if built.spec.article.model == "calibration-mass":
-        r = st.response_positions
-        box = (r.min(axis=0) + 0.015, r.max(axis=0) - 0.015)
-    return tagged_world(plan, st, np.random.default_rng(seed + 2000), box)
+    return tagged_scenario(build_scenario(scenario, seed))[1]
 
 
 def test_camera_sized_to_the_article() -> None:

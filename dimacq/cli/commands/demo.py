@@ -621,21 +621,12 @@ def _photograph(
     """Steps 1–2 with the simulated camera: the lab's standard tags plan on the true article,
     ``args.photos`` photos written as JPEG files, ``dimacq geometry from-photos`` on them, and
     the result sent to the service (``POST /api/digitizer/photo-geometry``)."""
-    from dimacq.io.tags_file import dump_tags, load_tags, standard_tags
+    from dimacq.io.tags_file import dump_tags, load_tags
     from dimacq.services.geometry.photo_geometry import geometry_from_photos
-    from dimacq.simulators.camera.render import photograph_article, tagged_world
+    from dimacq.simulators.camera.render import photograph_article
+    from dimacq.simulators.camera.scenario import tagged_scenario
 
-    setup_true = built.model.setup
-    nodes = sorted({ch.node for ch in setup_true.responses})
-    ins = [e.node for e in setup_true.excitations]
-    pts = np.vstack([setup_true.response_positions, setup_true.input_positions])
-    plan = standard_tags(nodes, ins, pts)
-    box = None
-    if built.spec.article.model in ("calibration-mass", "reference-block"):
-        r = setup_true.response_positions  # the blocks sit on the faces: the body is inside
-        box = (r.min(axis=0) + 0.015, r.max(axis=0) - 0.015)
-    rng = np.random.default_rng(built.seed + 2000)
-    world = tagged_world(plan, setup_true, rng, box)
+    plan, world = tagged_scenario(built)
     with tempfile.TemporaryDirectory(prefix="dimacq-photos-") as tmp:
         folder = Path(tmp) / "photos"
         photograph_article(world, folder, args.photos, built.seed + 3000)
