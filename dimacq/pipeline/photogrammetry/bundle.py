@@ -22,11 +22,24 @@ One more unknown is the detector's edge bias ``b`` (px): every observed corner i
 corner found inside or outside the printed one by the same amount on every tag, which would
 otherwise read as tags smaller or larger than printed, i.e. farther or nearer).
 
+A tag sits on its body only as well as it was glued: turned by a small ``ω`` (body frame,
+about the tag's centre) and shifted by ``n`` in its plane, each with a stated 1σ. Given that 1σ
+(``placement``), every tag of a body without a stated pose carries these five unknowns too,
+
+    P = exp([ω]×) R_bk c + o_bk + R_bk[:, :2] n,
+
+with the prior ``Σ |ω|²/σ_ω² + |n|²/σ_n²`` in the sum above. The photos fix where the tags sit
+relative to one another; the priors fix the body in them, each tag by the same weight whatever
+the number of views that show it (a block is where its tags, placed by the same hand, say it
+is on average, not where the tag seen most says). A tag's placement error is then in each
+body's covariance as it should be: shared by all its corners in every view, through the lever
+arm of the block. A tag whose estimated placement is far outside its stated 1σ
+(:attr:`TagPlacement.z`) was glued off its stated place.
+
 The covariance of the parameters is ``Σ = (JᵀJ)⁻¹`` of the whitened problem at the solution,
 with ``σ_px² = Σ (r/s)² / (n − p)`` estimated from the corner residuals (the reprojection error
-the photos actually show, not a nominal one; ``s`` each view's ``sigma_scale``). The tags'
-placement on their bodies, an error all corners of a tag share, is added to each body's as a
-considered covariance (:func:`placement_covariance`).
+the photos actually show, not a nominal one; ``s`` each view's ``sigma_scale``; ``p`` counts
+only the unknowns no prior holds).
 """
 
 from __future__ import annotations
@@ -50,8 +63,8 @@ __all__ = [
     "Observation",
     "Problem",
     "TagMount",
+    "TagPlacement",
     "adjust",
-    "placement_covariance",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -120,9 +133,6 @@ class BodyEstimate:
     n_photos : int
         Photos in which at least one of its tags was used.
     n_corners : int
-    placement_covariance : ndarray, shape (6, 6), optional
-        What the tags' placement on their bodies adds to ``covariance``
-        (:func:`placement_covariance`); None when the adjustment was not given it.
     """
 
     name: str
@@ -133,7 +143,6 @@ class BodyEstimate:
     covariance: FloatArray
     n_photos: int
     n_corners: int
-    placement_covariance: FloatArray | None = None
 
     @property
     def position_std_m(self) -> FloatArray:
@@ -144,6 +153,25 @@ class BodyEstimate:
     def angle_std_deg(self) -> FloatArray:
         """1σ of the small rotation about each world axis, degrees."""
         return np.degrees(np.sqrt(np.clip(np.diag(self.covariance)[:3], 0, None)))
+
+
+@dataclass(frozen=True)
+class TagPlacement:
+    """A tag's estimated placement on its body: the small rotation ``ω`` (body frame, rad)
+    about its centre and the shift ``n`` along its own x, y (m), each with its 1σ.
+
+    ``z`` is the largest ``|η̂| / sqrt(σ_prior² − σ_post²)`` over the five: the estimate against
+    the spread it has when the tag sits within its stated 1σ (a prior's standardised residual;
+    about N(0, 1) for a tag placed as stated, several for one glued off its place)."""
+
+    tag_id: int
+    body: str
+    angle_rad: FloatArray
+    shift_m: FloatArray
+    angle_std_rad: FloatArray
+    shift_std_m: FloatArray
+    z: float
+    n_views: int
 
 
 @dataclass(frozen=True)
@@ -172,6 +200,7 @@ class BundleResult:
     messages: tuple[str, ...] = field(default_factory=tuple)
     edge_bias_px: float = 0.0
     edge_bias_std_px: float = 0.0
+    placements: tuple[TagPlacement, ...] = ()
 
     def body(self, name: str) -> BodyEstimate:
         for b in self.bodies:
@@ -276,8 +305,11 @@ def _projection_derivatives(xc: FloatArray, intr: Intrinsics) -> tuple[FloatArra
 
 class Problem:
     """The bundle adjustment: unknowns ``x`` (the intrinsics if refined, each camera's and body's
-    rotation increment and position, one outward shift of the detected corners in pixels), the
-    corner residuals and their sparse Jacobian."""
+    rotation increment and position, each placed tag's ``(ω, n)``, one outward shift of the
+    detected corners in pixels), the residuals and their sparse Jacobian.
+
+    ``placement`` is the tags' placement 1σ ``(angle rad, in-plane shift m)``; None takes every
+    tag as placed exactly (no placement unknowns)."""
 
     def __init__(
         self,
@@ -289,6 +321,7 @@ class Problem:
         body_r: FloatArray,
         body_p: FloatArray,
         refine_intrinsics: bool,
+        placement: tuple[float, float] | None = None,
     ) -> None:
         self.bodies = list(bodies)
         self.intr = intr
@@ -297,15 +330,32 @@ class Problem:
         self.n_body = len(bodies)
         self.cam_r0 = np.array(cam_r, float)
         self.body_r0 = np.array(body_r, float)
+        mount = {t.tag_id: (i, t) for i, b in enumerate(bodies) for t in b.tags}
+        seen = {o.tag_id for o in obs}
+        placed = (
+            []
+            if placement is None or max(placement) <= 0
+            else [
+                t.tag_id
+                for b in bodies
+                if b.prior_position_m is None
+                for t in b.tags
+                if t.tag_id in seen
+            ]
+        )
+        self.placed_tags = np.array(placed, dtype=int)
+        self.n_place = len(placed)
+        sa, sn = placement if placement is not None else (0.0, 0.0)
+        self.place_scale = np.array([max(sa, 1e-9)] * 3 + [max(sn, 1e-12)] * 2)
         self.x0 = np.concatenate(
             [
                 intr.vector() if refine_intrinsics else np.zeros(0),
                 np.column_stack([np.zeros((self.n_cam, 3)), cam_t]).ravel(),
                 np.column_stack([np.zeros((self.n_body, 3)), body_p]).ravel(),
+                np.zeros(5 * self.n_place),
                 [0.0],
             ]
         )
-        mount = {t.tag_id: (i, t) for i, b in enumerate(bodies) for t in b.tags}
         self.set_observations(obs, mount)
         self.prior_idx = np.array(
             [i for i, b in enumerate(bodies) if b.prior_position_m is not None], dtype=int
@@ -326,7 +376,14 @@ class Problem:
         self.mount = mount
         self.o_cam = np.array([o.photo for o in obs], dtype=int)
         self.o_body = np.array([mount[o.tag_id][0] for o in obs], dtype=int)
-        self.o_pts = np.array([mount[o.tag_id][1].corners_body() for o in obs]).reshape(-1, 4, 3)
+        tags = [mount[o.tag_id][1] for o in obs]
+        self.o_pts = np.array([t.corners_body() for t in tags]).reshape(-1, 4, 3)
+        self.o_c = np.array(
+            [tag_corners(t.side_m) @ np.asarray(t.rotation).T for t in tags]
+        ).reshape(-1, 4, 3)
+        self.o_a = np.array([np.asarray(t.rotation)[:, :2] for t in tags]).reshape(-1, 3, 2)
+        index = {int(t): j for j, t in enumerate(self.placed_tags)}
+        self.o_place = np.array([index.get(o.tag_id, -1) for o in obs], dtype=int)
         self.o_uv = np.array([o.corners_px for o in obs], dtype=float).reshape(-1, 4, 2)
         self.o_s = np.array([o.sigma_scale for o in obs], dtype=float).reshape(-1, 1, 1)
         out = self.o_uv - self.o_uv.mean(axis=1, keepdims=True)
@@ -340,6 +397,30 @@ class Problem:
     def n_intr(self) -> int:
         return N_INTR if self.refine else 0
 
+    @property
+    def place0(self) -> int:
+        """Index in ``x`` of the first placed tag's ``(ω, n)``."""
+        return self.n_intr + 6 * (self.n_cam + self.n_body)
+
+    @property
+    def n_prior_rows(self) -> int:
+        """Residuals that are priors: six per stated pose, five per placed tag."""
+        return 6 * len(self.prior_idx) + 5 * self.n_place
+
+    def body_points(self, x: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """Each observed corner in its body's frame with its tag's placement in ``x``,
+        ``P = exp([ω]×) R_bk c + o_bk + R_bk[:, :2] n`` (shape (n_obs, 4, 3)), and the
+        placement rotations ``exp([ω]×) R_bk c`` (the corners from the tag's centre)."""
+        if not self.n_place:
+            return self.o_pts, self.o_c
+        eta = np.zeros((len(self.obs), 5))
+        m = self.o_place >= 0
+        eta[m] = x[self.place0 : self.place0 + 5 * self.n_place].reshape(-1, 5)[self.o_place[m]]
+        turn = _rot(eta[:, :3], np.broadcast_to(np.eye(3), (len(eta), 3, 3)))
+        v = np.einsum("nij,nkj->nki", turn, self.o_c)
+        shift = np.einsum("nij,nj->ni", self.o_a, eta[:, 3:])
+        return self.o_pts - self.o_c + v + shift[:, None], v
+
     def unpack(
         self, x: FloatArray
     ) -> tuple[Intrinsics, FloatArray, FloatArray, FloatArray, FloatArray]:
@@ -352,20 +433,26 @@ class Problem:
     def image_residuals(self, x: FloatArray) -> FloatArray:
         """Corner residuals in pixels, shape (n_obs, 4, 2)."""
         intr, rc, tc, rb, pb = self.unpack(x)
-        xw = np.einsum("nij,nkj->nki", rb[self.o_body], self.o_pts) + pb[self.o_body][:, None]
+        pts, _ = self.body_points(x)
+        xw = np.einsum("nij,nkj->nki", rb[self.o_body], pts) + pb[self.o_body][:, None]
         xc = np.einsum("nij,nkj->nki", rc[self.o_cam], xw) + tc[self.o_cam][:, None]
         return project(xc, intr) - (self.o_uv - x[-1] * self.o_n)
 
     def residuals(self, x: FloatArray) -> FloatArray:
+        """Whitened residuals: the corners, then the stated poses' priors, then the placed
+        tags' priors ``η / σ``."""
         r_img = self.scaled_residuals(x).ravel() / self.sigma_px
-        if not len(self.prior_idx):
-            return r_img
-        _, _, _, rb, pb = self.unpack(x)
-        i = self.prior_idx
-        dp = (pb[i] - self.prior_p) / self.prior_sp[:, None]
-        dr = Rotation.from_matrix(rb[i] @ self.prior_r.transpose(0, 2, 1)).as_rotvec()
-        pri = np.concatenate([dp, dr / self.prior_sa[:, None]], axis=1)
-        return np.concatenate([r_img, pri.ravel()])
+        parts = [r_img]
+        if len(self.prior_idx):
+            _, _, _, rb, pb = self.unpack(x)
+            i = self.prior_idx
+            dp = (pb[i] - self.prior_p) / self.prior_sp[:, None]
+            dr = Rotation.from_matrix(rb[i] @ self.prior_r.transpose(0, 2, 1)).as_rotvec()
+            parts.append(np.concatenate([dp, dr / self.prior_sa[:, None]], axis=1).ravel())
+        if self.n_place:
+            eta = x[self.place0 : self.place0 + 5 * self.n_place].reshape(-1, 5)
+            parts.append((eta / self.place_scale).ravel())
+        return np.concatenate(parts)
 
     def jacobian(self, x: FloatArray) -> sp.csr_matrix:
         """The analytic Jacobian of :meth:`residuals` at ``x``, sparse (n_residuals,
@@ -373,9 +460,11 @@ class Problem:
 
             ∂u/∂δ_c = U (−[R_c X_w]×) J_l(δ_c),  ∂u/∂t_c = U,
             ∂u/∂δ_b = U R_c (−[R_b P]×) J_l(δ_b),  ∂u/∂p_b = U R_c,
+            ∂u/∂ω = U R_c R_b (−[exp([ω]×) R_bk c]×) J_l(ω),  ∂u/∂n = U R_c R_b R_bk[:, :2],
 
         ``U = ∂u/∂X_c`` (:func:`_projection_derivatives`); a reference prior's rotation
-        residual ``φ = log(R_b R̄_bᵀ)`` has ``∂φ/∂δ_b = J_l(φ)⁻¹ J_l(δ_b)``."""
+        residual ``φ = log(R_b R̄_bᵀ)`` has ``∂φ/∂δ_b = J_l(φ)⁻¹ J_l(δ_b)``, a placement's
+        prior ``η/σ`` the diagonal ``1/σ``."""
         intr, rc, tc, rb, pb = self.unpack(x)
         k = self.n_intr
         c = x[k : k + 6 * self.n_cam].reshape(-1, 6)
@@ -383,7 +472,8 @@ class Problem:
         jl_c, jl_b = _left_jacobian(c[:, :3]), _left_jacobian(b[:, :3])
         n_obs = len(self.obs)
         rcn = rc[self.o_cam][:, None]
-        a = np.einsum("nij,nkj->nki", rb[self.o_body], self.o_pts)
+        pts, v = self.body_points(x)
+        a = np.einsum("nij,nkj->nki", rb[self.o_body], pts)
         q = np.einsum("nkij,nkj->nki", rcn, a + pb[self.o_body][:, None])
         d_xc, d_in = _projection_derivatives(q + tc[self.o_cam][:, None], intr)
         d_pb = d_xc @ rcn
@@ -394,7 +484,7 @@ class Problem:
             d_pb,
         ]
         body0 = k + 6 * self.n_cam
-        n_par = k + 6 * (self.n_cam + self.n_body) + 1
+        n_par = self.place0 + 5 * self.n_place + 1
         blocks.append(self.o_n[..., None])
         cols = [
             k + 6 * self.o_cam[:, None] + np.arange(6),
@@ -408,6 +498,8 @@ class Problem:
         col = np.broadcast_to(np.concatenate(cols, axis=1)[:, None, None], vals.shape)
         row = np.broadcast_to(np.arange(8 * n_obs).reshape(n_obs, 4, 2, 1), vals.shape)
         rows, colz, valz = [row.ravel()], [col.ravel()], [vals.ravel()]
+        if self.n_place:
+            self._placement_jacobian(x, d_pb, v, rows, colz, valz)
         if len(self.prior_idx):
             i = self.prior_idx
             phi = Rotation.from_matrix(rb[i] @ self.prior_r.transpose(0, 2, 1)).as_rotvec()
@@ -420,11 +512,43 @@ class Problem:
                 rows.append(np.broadcast_to(rr, blk.shape).ravel())
                 colz.append(np.broadcast_to(cc, blk.shape).ravel())
                 valz.append(blk.ravel())
-        n_rows = 8 * n_obs + 6 * len(self.prior_idx)
+        if self.n_place:
+            rows.append(8 * n_obs + 6 * len(self.prior_idx) + np.arange(5 * self.n_place))
+            colz.append(self.place0 + np.arange(5 * self.n_place))
+            valz.append(np.tile(1.0 / self.place_scale, self.n_place))
+        n_rows = 8 * n_obs + self.n_prior_rows
         return sp.csr_matrix(
             (np.concatenate(valz), (np.concatenate(rows), np.concatenate(colz))),
             shape=(n_rows, n_par),
         )
+
+    def _placement_jacobian(
+        self,
+        x: FloatArray,
+        d_pb: FloatArray,
+        v: FloatArray,
+        rows: list[NDArray[np.int_]],
+        colz: list[NDArray[np.int_]],
+        valz: list[FloatArray],
+    ) -> None:
+        """Append the corners' derivatives by their tags' ``(ω, n)`` (see :meth:`jacobian`;
+        ``d_pb = U R_c``, ``v`` the turned corners from the tags' centres)."""
+        _, _, _, rb, _ = self.unpack(x)
+        m = np.flatnonzero(self.o_place >= 0)
+        j = self.o_place[m]
+        eta = x[self.place0 : self.place0 + 5 * self.n_place].reshape(-1, 5)
+        rbn = rb[self.o_body[m]][:, None]
+        d_w = d_pb[m] @ rbn @ (-_skew(v[m]) @ _left_jacobian(eta[j, :3])[:, None])
+        d_n = d_pb[m] @ rbn @ self.o_a[m][:, None]
+        vals = np.concatenate([d_w, d_n], axis=-1) / (self.sigma_px * self.o_s[m][..., None])
+        col = self.place0 + 5 * j[:, None] + np.arange(5)
+        rows.append(
+            np.broadcast_to(
+                (8 * m[:, None] + np.arange(8)).reshape(-1, 4, 2, 1), vals.shape
+            ).ravel()
+        )
+        colz.append(np.broadcast_to(col[:, None, None], vals.shape).ravel())
+        valz.append(vals.ravel())
 
     def rebase(self, x: FloatArray) -> FloatArray:
         """Fold the rotations of ``x`` into the bases: the same poses with ``δ = 0``."""
@@ -437,6 +561,28 @@ class Problem:
         c[:, :3] = 0.0
         b[:, :3] = 0.0
         return y
+
+    def placements(self, x: FloatArray, cov: FloatArray) -> tuple[TagPlacement, ...]:
+        """The placed tags' estimates at ``x`` with their 1σ from ``cov``."""
+        out = []
+        for j, tag_id in enumerate(self.placed_tags):
+            s = slice(self.place0 + 5 * j, self.place0 + 5 * j + 5)
+            eta = x[s]
+            post = np.clip(np.diag(cov)[s], 0.0, None)
+            spread = np.sqrt(np.clip(self.place_scale**2 - post, 1e-3 * self.place_scale**2, None))
+            out.append(
+                TagPlacement(
+                    tag_id=int(tag_id),
+                    body=self.bodies[self.mount[int(tag_id)][0]].name,
+                    angle_rad=eta[:3].copy(),
+                    shift_m=eta[3:].copy(),
+                    angle_std_rad=np.sqrt(post[:3]),
+                    shift_std_m=np.sqrt(post[3:]),
+                    z=float(np.max(np.abs(eta) / spread)),
+                    n_views=int(np.sum(self.o_place == j)),
+                )
+            )
+        return tuple(out)
 
 
 def adjust(
@@ -476,9 +622,10 @@ def adjust(
     progress : callable (evaluations, cost), optional
         Called as the adjustment evaluates its residuals.
     placement : (angle 1σ deg, position 1σ m), optional
-        How well each tag sits on its body (per axis; in its plane): each body's
-        ``placement_covariance`` is then what the tags of the bodies without a stated pose add
-        (:func:`placement_covariance`).
+        How well each tag sits on its body (per axis; in its plane): the tags of the bodies
+        without a stated pose are then placed by the adjustment (see the module), and the
+        bodies' covariances hold their placement. Without it the tags are taken as placed
+        exactly.
 
     Raises
     ------
@@ -500,6 +647,7 @@ def adjust(
         np.asarray(body_rotations, float),
         np.asarray(body_positions, float),
         refine_intrinsics,
+        None if placement is None else (float(np.radians(placement[0])), float(placement[1])),
     )
     nfev = [0]
 
@@ -514,78 +662,13 @@ def adjust(
     rejected = _reject_gross(prob, x, reject_sigma)
     x = _solve(prob, fun, prob.rebase(x), "linear", max_nfev)
     res = prob.scaled_residuals(x)
-    dof = max(res.size - len(x) + 6 * len(prob.prior_idx), 1)
+    dof = max(res.size - len(x) + prob.n_prior_rows, 1)
     sigma = float(np.sqrt(np.sum(res**2) / dof))
     prob.sigma_px = max(sigma, 1e-3)
     x = prob.rebase(x)
     cov, cond = _covariance(prob, x)
     out = _result(prob, bodies, x, cov, cond, sigma, rejected, nfev[0])
-    if placement is None:
-        return out
-    extra = placement_covariance(prob, x, cov, np.radians(placement[0]), placement[1])
-    return replace(
-        out,
-        bodies=tuple(
-            replace(b, placement_covariance=e) for b, e in zip(out.bodies, extra, strict=True)
-        ),
-    )
-
-
-def placement_covariance(
-    prob: Problem, x: FloatArray, cov: FloatArray, angle_rad: float, position_m: float
-) -> FloatArray:
-    """What the tags' placement on their bodies adds to each body's covariance, shape
-    (n_bodies, 6, 6).
-
-    A tag sits on its body turned by a small ``ω`` (1σ ``angle_rad`` per axis, about its
-    centre) and shifted by ``n`` in its plane (1σ ``position_m`` per axis): every corner of
-    that tag, in every photo, moves by the same
-
-        ΔX = −[v]× R_b ω + R_b R_t[:, :2] n,    v = R_b R_t c  (the corner from the tag's centre),
-
-    an error the corners share, which the adjustment's ``(JᵀJ)⁻¹`` (independent corners) does
-    not hold. The adjusted parameters follow it as ``Δθ = −Σ Jᵀ J_η η``
-    (``J_η = ∂r/∂X · ∂X/∂η`` over that tag's rows, whitened as ``J``), so the considered
-    covariance is ``Σ Jᵀ J_η S J_ηᵀ J Σ``, ``S`` the placements' variances, summed over the
-    tags. Tags of bodies with a stated pose are left out: their placement is in the stated
-    pose's 1σ. Through its lever arm (half the block's edge) a tag's shift turns the block,
-    and a body seen through few of its tags keeps most of their placement: both are in this
-    term, neither in a per-tag ``σ/√k``.
-    """
-    out = np.zeros((prob.n_body, 6, 6))
-    if angle_rad <= 0 and position_m <= 0:
-        return out
-    jac = prob.jacobian(x).tocsr()
-    _, _, _, rb, _ = prob.unpack(x)
-    body0 = prob.n_intr + 6 * prob.n_cam
-    scale = np.array([angle_rad] * 3 + [position_m] * 2)
-    o_tag = np.array([o.tag_id for o in prob.obs], dtype=int)
-    corner_of_row = np.arange(8) // 2
-    sens = []
-    for tag_id in np.unique(o_tag):
-        bi, t = prob.mount[int(tag_id)]
-        if prob.bodies[bi].prior_position_m is not None:
-            continue
-        idx = np.flatnonzero(o_tag == tag_id)
-        rows = (8 * idx[:, None] + np.arange(8)).ravel()
-        jr = jac[rows]
-        d_x = jr[:, body0 + 6 * bi + 3 : body0 + 6 * bi + 6].toarray()
-        v = tag_corners(t.side_m) @ np.asarray(t.rotation).T @ rb[bi].T
-        a_pos = rb[bi] @ np.asarray(t.rotation)[:, :2]
-        j_eta = np.empty((len(rows), 5))
-        corner = np.tile(corner_of_row, len(idx))
-        for k in range(4):
-            sel = corner == k
-            j_eta[sel, :3] = d_x[sel] @ (-_skew(v[k]) @ rb[bi])
-            j_eta[sel, 3:] = d_x[sel] @ a_pos
-        sens.append(jr.T @ (j_eta * scale))
-    if not sens:
-        return out
-    b_all = np.hstack(sens)
-    for i in range(prob.n_body):
-        d = cov[body0 + 6 * i : body0 + 6 * i + 6] @ b_all
-        out[i] = d @ d.T
-    return out
+    return replace(out, placements=prob.placements(x, cov))
 
 
 def _solve(
@@ -626,7 +709,7 @@ def _reject_gross(
     the first fit's ``σ_px = sqrt(Σr²/(n − p))`` (``r`` over each view's ``sigma_scale``);
     returns ``(photo, tag_id, rms_px)`` of those removed."""
     res = prob.scaled_residuals(x)
-    dof = max(res.size - len(x) + 6 * len(prob.prior_idx), 1)
+    dof = max(res.size - len(x) + prob.n_prior_rows, 1)
     sigma = float(np.sqrt(np.sum(res**2) / dof))
     per_obs = np.sqrt(np.mean(res.reshape(len(prob.obs), -1) ** 2, axis=1))
     bad = np.zeros(len(per_obs), dtype=bool)
@@ -676,7 +759,7 @@ def _covariance(prob: Problem, x: FloatArray) -> tuple[FloatArray, float]:
 
 def _parameter_name(prob: Problem, j: int) -> str:
     """What parameter ``j`` of the adjustment belongs to: a body (by name), a photo (by its
-    index), the intrinsics or the edge bias."""
+    index), the intrinsics, a tag's placement or the edge bias."""
     k = prob.n_intr
     if j < k:
         return "the camera's intrinsics"
@@ -684,6 +767,8 @@ def _parameter_name(prob: Problem, j: int) -> str:
         return f"photo {(j - k) // 6}"
     if j < k + 6 * (prob.n_cam + prob.n_body):
         return f"body {prob.bodies[(j - k - 6 * prob.n_cam) // 6].name}"
+    if j < prob.place0 + 5 * prob.n_place:
+        return f"the placement of tag {prob.placed_tags[(j - prob.place0) // 5]}"
     return "the detector's edge bias"
 
 

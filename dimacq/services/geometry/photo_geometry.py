@@ -76,6 +76,9 @@ LIMIT_ANGLE_STD_DEG = 0.1
 LIMIT_POSITION_STD_M = 2e-4
 #: An input's line of action whose stated 1σ exceeds this angle is named (a warning).
 LIMIT_LOA_STD_DEG = 0.2
+#: A tag whose estimated placement is this many times the spread of a tag placed within its
+#: stated 1σ is named as glued off its place (a warning).
+MISPLACED_Z = 4.5
 
 
 # ------------------------------------------------------------------------------ the chain
@@ -489,6 +492,19 @@ def _bundle_issues(bundle: BundleResult, used: list[str], issues: list[PhotoIssu
                 "a tag partly hidden or misread: retake it",
             )
         )
+    for tp in bundle.placements:
+        if tp.z > MISPLACED_Z:
+            issues.append(
+                PhotoIssue(
+                    f"tag {tp.tag_id} on {tp.body}",
+                    "warn",
+                    f"sits {1e3 * float(np.linalg.norm(tp.shift_m)):.2f} mm and "
+                    f"{float(np.degrees(np.linalg.norm(tp.angle_rad))):.3f}° off its stated place "
+                    f"on the body ({tp.z:.1f} times its stated placement 1σ; {tp.n_views} views)",
+                    "glue it square in its place (or state a larger placement 1σ in the tags "
+                    "file) and photograph it again",
+                )
+            )
 
 
 def _drop_oblique(

@@ -112,16 +112,13 @@ class PhotoGeometry:
 def bundle_records(
     bundle: BundleResult, models: list[BodyModel], tags: TagsFile, residual_m: float
 ) -> tuple[list[Orientation], list[LineOfAction]]:
-    """The adjusted bodies as the digitizing chain's records. The tags' placement on their body
-    (1σ ``placement_*`` per tag) adds the body's ``placement_covariance`` (the error its tags'
-    corners share, propagated through the adjustment:
-    :func:`dimacq.pipeline.photogrammetry.bundle.placement_covariance`); an adjustment made
-    without it adds ``σ_place/√k`` over the ``k`` tags the body has."""
+    """The adjusted bodies as the digitizing chain's records. An adjustment that placed the
+    tags on their bodies (:attr:`BundleResult.placements`) holds their placement in each body's
+    covariance; one made without it adds ``σ_place/√k`` over the ``k`` tags the body has."""
     ori, loas = [], []
     for est, model in zip(bundle.bodies, models, strict=True):
-        if est.placement_covariance is not None:
-            cov = est.covariance + est.placement_covariance
-            cov_r, cov_p = cov[:3, :3], cov[3:, 3:]
+        if bundle.placements:
+            cov_r, cov_p = est.covariance[:3, :3], est.covariance[3:, 3:]
         else:
             k = max(len(model.tags), 1)
             pa = np.radians(tags.placement_angle_deg) / np.sqrt(k)

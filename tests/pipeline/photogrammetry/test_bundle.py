@@ -152,23 +152,7 @@ def test_noise_covered_by_stated_uncertainty() -> None:
             Observation(o.photo, o.tag_id, o.corners_px + rng.normal(scale=0.3, size=(4, 2)))
             for o in obs
         ]
-        # the stated reference poses are off by draws of their stated 1σ, as in a real test
-        bodies = [
-            b
-            if b.prior_position_m is None
-            else BodyModel(
-                b.name,
-                b.kind,
-                b.tags,
-                b.node,
-                Rotation.from_rotvec(rng.normal(scale=np.radians(0.05), size=3)).as_matrix()
-                @ b.prior_rotation,
-                b.prior_position_m + rng.normal(scale=2e-5, size=3),
-                b.prior_position_std_m,
-                b.prior_angle_std_deg,
-            )
-            for b in bodies
-        ]
+        bodies = _stated_off(bodies, rng)
         cr, ct, br, bp = _perturbed(truth, cams, rng)
         res = adjust(bodies, noisy, CAM, cr, ct, br, bp, refine_intrinsics=True)
         sig.append(res.sigma_px)
@@ -182,6 +166,29 @@ def test_noise_covered_by_stated_uncertainty() -> None:
     z = np.abs(np.concatenate([z_pos, z_rot]))
     assert np.mean(z < 2.0) >= 0.9, np.sort(z)
     assert 0.2 < np.median(sig) < 0.4
+
+
+def _stated_off(bodies: list[BodyModel], rng: np.random.Generator) -> list[BodyModel]:
+    """The bodies with the reference plates' stated poses off by draws of their stated 1σ,
+    as in a real test."""
+    return [
+        b
+        if b.prior_position_m is None
+        else BodyModel(
+            b.name,
+            b.kind,
+            b.tags,
+            b.node,
+            Rotation.from_rotvec(
+                rng.normal(scale=np.radians(b.prior_angle_std_deg), size=3)
+            ).as_matrix()
+            @ b.prior_rotation,
+            b.prior_position_m + rng.normal(scale=b.prior_position_std_m, size=3),
+            b.prior_position_std_m,
+            b.prior_angle_std_deg,
+        )
+        for b in bodies
+    ]
 
 
 def test_no_reference_refused() -> None:
@@ -205,22 +212,27 @@ def test_tag_corners_order() -> None:
     assert c[0].tolist() == [-1.0, 1.0, 0.0] and c[2].tolist() == [1.0, -1.0, 0.0]
 
 
-@pytest.mark.parametrize("refine", [True, False])
-def test_analytic_jacobian_matches_central_differences(refine: bool) -> None:
+@pytest.mark.parametrize(("refine", "placed"), [(True, False), (False, True)])
+def test_analytic_jacobian_matches_central_differences(refine: bool, placed: bool) -> None:
     """The adjustment's analytic Jacobian against central differences of its residuals, at a
     point away from the solution (rotations off their bases, distorted lens, reference priors
-    not met, an edge bias)."""
+    not met, an edge bias, tags turned and shifted on their bodies)."""
     from dimacq.pipeline.photogrammetry.bundle import Problem
 
     bodies, truth, cams, obs = _scene(3, 6)
     rng = np.random.default_rng(7)
     cr, ct, br, bp = _perturbed(truth, cams, rng)
-    prob = Problem(bodies, obs, CAM, cr, ct, br, bp, refine)
+    placement = (np.radians(0.1), 1e-4) if placed else None
+    prob = Problem(bodies, obs, CAM, cr, ct, br, bp, refine, placement)
+    assert prob.n_place == (15 if placed else 0)
     prob.sigma_px = 0.7
     x = prob.x0 + rng.normal(scale=1e-3, size=prob.x0.size)
     n_pose = 6 * (prob.n_cam + prob.n_body)
     rot = (np.arange(n_pose) % 6) < 3
     x[prob.n_intr : prob.n_intr + n_pose][rot] += rng.normal(scale=0.05, size=int(rot.sum()))
+    x[prob.place0 : prob.place0 + 5 * prob.n_place] = rng.normal(
+        scale=[0.02, 0.02, 0.02, 1e-3, 1e-3], size=(prob.n_place, 5)
+    ).ravel()
     x[-1] = 0.3  # the detector's edge bias, px
     if refine:
         x[: prob.n_intr] = CAM.vector() * rng.uniform(0.98, 1.02, prob.n_intr)
@@ -269,53 +281,103 @@ def _placed(bodies: list[BodyModel], angle_rad: float, pos_m: float, rng: np.ran
     return out
 
 
+def _observe(placed: list[BodyModel], truth: list, cams: list, noise_px: float, rng) -> list:
+    """The tags of ``placed`` bodies at their ``truth`` poses as ``cams`` see them, with
+    ``noise_px`` of corner noise."""
+    obs = []
+    for i, (rc, tc) in enumerate(cams):
+        for b, (rb, pb) in zip(placed, truth, strict=True):
+            for t in b.tags:
+                xc = (t.corners_body() @ rb.T + pb) @ rc.T + tc
+                normal = rc @ rb @ t.rotation[:, 2]
+                if np.dot(normal, xc.mean(0)) > -0.2 * np.linalg.norm(xc.mean(0)):
+                    continue
+                uv = project(xc, CAM)
+                if np.all((uv > 0) & (uv < [CAM.width, CAM.height])):
+                    obs.append(
+                        Observation(i, t.tag_id, uv + rng.normal(scale=noise_px, size=(4, 2)))
+                    )
+    return obs
+
+
+def _triax_errors(res, truth: list) -> np.ndarray:
+    e = []
+    for b, (r, p) in zip(res.bodies, truth, strict=True):
+        if b.kind == "triax":
+            e.extend(Rotation.from_matrix(b.rotation @ r.T).as_rotvec())
+            e.extend(b.position_m - p)
+    return np.array(e)
+
+
 @pytest.mark.slow
-def test_placement_covariance_matches_monte_carlo() -> None:
-    """Noise-free corners of tags glued with random placement errors, adjusted with the
-    nominal placements: the spread of the triaxes' pose errors over draws is the stated
-    ``placement_covariance`` (first order; a second method: the adjustment itself)."""
+def test_placement_covered_and_better_than_exact_tags() -> None:
+    """Tags glued with random placement errors, corners with 0.05 px of noise, adjusted with
+    the tags placed by the adjustment: over draws the triaxes' pose errors spread as their
+    stated covariance says (a second method: the draws themselves), and less than the same
+    photos adjusted with every tag taken as placed exactly (which weights each tag by its
+    views and leaves its placement out of the covariance)."""
     bodies, truth, cams, _ = _scene(3, 12)
     angle, pos = np.radians(0.1), 1e-4
     rng = np.random.default_rng(11)
-    errs: list[np.ndarray] = []
-    stated = None
-    for _ in range(40):
-        placed = _placed(bodies, angle, pos, rng)
-        obs = []
-        for i, (rc, tc) in enumerate(cams):
-            for b, (rb, pb) in zip(placed, truth, strict=True):
-                for t in b.tags:
-                    xc = (t.corners_body() @ rb.T + pb) @ rc.T + tc
-                    normal = rc @ rb @ t.rotation[:, 2]
-                    if np.dot(normal, xc.mean(0)) > -0.2 * np.linalg.norm(xc.mean(0)):
-                        continue
-                    uv = project(xc, CAM)
-                    if np.all((uv > 0) & (uv < [CAM.width, CAM.height])):
-                        obs.append(Observation(i, t.tag_id, uv))
-        res = adjust(
-            bodies,
+    errs, errs_exact, stated = [], [], []
+    for _ in range(30):
+        obs = _observe(_placed(bodies, angle, pos, rng), truth, cams, 0.05, rng)
+        args = (
+            _stated_off(bodies, rng),
             obs,
             CAM,
             [r for r, _ in cams],
             [t for _, t in cams],
             [r for r, _ in truth],
             [p for _, p in truth],
-            refine_intrinsics=False,
-            placement=(np.degrees(angle), pos),
         )
-        e = []
-        for b, (r, p) in zip(res.bodies, truth, strict=True):
-            if b.kind == "triax":
-                e.extend(Rotation.from_matrix(b.rotation @ r.T).as_rotvec())
-                e.extend(b.position_m - p)
-        errs.append(np.array(e))
-        if stated is None:
-            stated = np.concatenate(
-                [np.diag(b.placement_covariance) for b in res.bodies if b.kind == "triax"]
-            )
-    assert stated is not None
+        res = adjust(*args, refine_intrinsics=False, placement=(np.degrees(angle), pos))
+        errs.append(_triax_errors(res, truth))
+        stated.append(
+            np.concatenate([np.diag(b.covariance) for b in res.bodies if b.kind == "triax"])
+        )
+        errs_exact.append(_triax_errors(adjust(*args, refine_intrinsics=False), truth))
+        assert len(res.placements) == 15 and max(p.z for p in res.placements) < 4.5
     spread = np.sqrt(np.mean(np.square(errs), axis=0))
-    ratio = spread / np.sqrt(stated)
-    # 40 draws: a standard deviation's ratio within about ±11 % (1σ); the mean over 18 within 5 %
+    ratio = spread / np.sqrt(np.mean(stated, axis=0))
+    # 30 draws: a standard deviation's ratio within about ±13 % (1σ); the mean over 18 within 5 %
     assert 0.85 < float(np.mean(ratio)) < 1.15, ratio
-    assert np.all((ratio > 0.55) & (ratio < 1.6)), ratio
+    assert np.all((ratio > 0.5) & (ratio < 1.6)), ratio
+    rot = np.tile(np.arange(6) < 3, 3)
+    rms = np.sqrt(np.mean(np.square(errs), axis=0))
+    rms_exact = np.sqrt(np.mean(np.square(errs_exact), axis=0))
+    assert np.sqrt(np.mean(rms[rot] ** 2)) < 0.9 * np.sqrt(np.mean(rms_exact[rot] ** 2))
+
+
+def test_misplaced_tag_named() -> None:
+    """One tag glued 0.8 mm off its stated place (eight times the stated 1σ), the others
+    where stated: its placement estimate stands out and no other does."""
+    bodies, truth, cams, _ = _scene(4, 14)
+    rng = np.random.default_rng(2)
+    moved = []
+    for b in bodies:
+        if b.name == "triax 2":
+            t0 = b.tags[1]
+            shifted = TagMount(
+                t0.tag_id, t0.side_m, t0.rotation, t0.offset_m + t0.rotation[:, 0] * 8e-4
+            )
+            b = BodyModel(b.name, b.kind, (b.tags[0], shifted, *b.tags[2:]), node=b.node)
+        moved.append(b)
+    obs = _observe(moved, truth, cams, 0.05, rng)
+    res = adjust(
+        bodies,
+        obs,
+        CAM,
+        [r for r, _ in cams],
+        [t for _, t in cams],
+        [r for r, _ in truth],
+        [p for _, p in truth],
+        refine_intrinsics=False,
+        placement=(0.1, 1e-4),
+    )
+    z = {p.tag_id: p.z for p in res.placements}
+    bad = bodies[5].tags[1].tag_id
+    assert z[bad] > 4.5, z
+    assert all(v < 4.5 for k, v in z.items() if k != bad), z
+    est = next(p for p in res.placements if p.tag_id == bad)
+    assert est.shift_m[0] > 4e-4
