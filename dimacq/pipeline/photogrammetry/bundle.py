@@ -162,7 +162,10 @@ class TagPlacement:
 
     ``z`` is the largest ``|η̂| / sqrt(σ_prior² − σ_post²)`` over the five: the estimate against
     the spread it has when the tag sits within its stated 1σ (a prior's standardised residual;
-    about N(0, 1) for a tag placed as stated, several for one glued off its place)."""
+    about N(0, 1) for a tag placed as stated, several for one glued off its place). ``freed``:
+    the tag was found off its place (``z`` over the adjustment's limit, the value shown) and
+    its prior dropped, so its body's pose no longer leans on where it was stated to sit.
+    """
 
     tag_id: int
     body: str
@@ -172,6 +175,7 @@ class TagPlacement:
     shift_std_m: FloatArray
     z: float
     n_views: int
+    freed: bool = False
 
 
 @dataclass(frozen=True)
@@ -562,14 +566,26 @@ class Problem:
         b[:, :3] = 0.0
         return y
 
-    def placements(self, x: FloatArray, cov: FloatArray) -> tuple[TagPlacement, ...]:
-        """The placed tags' estimates at ``x`` with their 1σ from ``cov``."""
+    def placement_z(self, x: FloatArray, cov: FloatArray) -> FloatArray:
+        """Each placed tag's :attr:`TagPlacement.z` at ``x`` with the covariance ``cov``."""
+        eta = x[self.place0 : self.place0 + 5 * self.n_place].reshape(-1, 5)
+        post = np.clip(np.diag(cov)[self.place0 : self.place0 + 5 * self.n_place], 0.0, None)
+        var = np.clip(self.place_scale**2 - post.reshape(-1, 5), 1e-3 * self.place_scale**2, None)
+        return np.asarray(np.max(np.abs(eta) / np.sqrt(var), axis=1))
+
+    def placements(
+        self, x: FloatArray, cov: FloatArray, found: dict[int, tuple[float, bool]] | None = None
+    ) -> tuple[TagPlacement, ...]:
+        """The placed tags' estimates at ``x`` with their 1σ from ``cov``; ``found`` maps the
+        index of each tag found off its place to its ``z`` then and whether its prior was
+        dropped."""
+        found = found or {}
+        z = self.placement_z(x, cov) if self.n_place else np.zeros(0)
         out = []
         for j, tag_id in enumerate(self.placed_tags):
             s = slice(self.place0 + 5 * j, self.place0 + 5 * j + 5)
             eta = x[s]
             post = np.clip(np.diag(cov)[s], 0.0, None)
-            spread = np.sqrt(np.clip(self.place_scale**2 - post, 1e-3 * self.place_scale**2, None))
             out.append(
                 TagPlacement(
                     tag_id=int(tag_id),
@@ -578,8 +594,9 @@ class Problem:
                     shift_m=eta[3:].copy(),
                     angle_std_rad=np.sqrt(post[:3]),
                     shift_std_m=np.sqrt(post[3:]),
-                    z=float(np.max(np.abs(eta) / spread)),
+                    z=float(found[j][0] if j in found else z[j]),
                     n_views=int(np.sum(self.o_place == j)),
+                    freed=found.get(j, (0.0, False))[1],
                 )
             )
         return tuple(out)
@@ -599,6 +616,7 @@ def adjust(
     progress: Callable[[int, float], None] | None = None,
     max_nfev: int = 200,
     placement: tuple[float, float] | None = None,
+    misplaced_z: float | None = None,
 ) -> BundleResult:
     """Adjust photos, bodies (and intrinsics) to the observed tag corners (see the module).
 
@@ -626,6 +644,9 @@ def adjust(
         without a stated pose are then placed by the adjustment (see the module), and the
         bodies' covariances hold their placement. Without it the tags are taken as placed
         exactly.
+    misplaced_z : float, optional
+        A placed tag whose :attr:`TagPlacement.z` exceeds it is taken as glued off its place
+        and its prior dropped, worst first (:func:`_free_misplaced`); None keeps every prior.
 
     Raises
     ------
@@ -667,8 +688,50 @@ def adjust(
     prob.sigma_px = max(sigma, 1e-3)
     x = prob.rebase(x)
     cov, cond = _covariance(prob, x)
+    x, cov, found = _free_misplaced(prob, x, cov, misplaced_z)
     out = _result(prob, bodies, x, cov, cond, sigma, rejected, nfev[0])
-    return replace(out, placements=prob.placements(x, cov))
+    return replace(out, placements=prob.placements(x, cov, found))
+
+
+def _free_misplaced(
+    prob: Problem, x: FloatArray, cov: FloatArray, z_limit: float | None
+) -> tuple[FloatArray, FloatArray, dict[int, tuple[float, bool]]]:
+    """Drop, one at a time, the prior of the placed tag with the largest ``z`` while it is
+    over ``z_limit`` (iterative data snooping: a tag glued off its place pulls its block, and
+    the block's other tags then look off too until the worst is freed).
+
+    Dropping tag ``j``'s prior rows ``U = ∂r_p/∂x`` (``1/σ`` on its five unknowns, residual
+    ``r_p = η_j/σ``) from the normal matrix ``H = Σ⁻¹`` gives, by Woodbury,
+
+        Σ' = (H − U Uᵀ)⁻¹ = Σ + Σ U (I − Uᵀ Σ U)⁻¹ Uᵀ Σ,    x' = x + Σ' U r_p
+
+    (one Gauss-Newton step of the objective without that prior from its minimum ``x``, where
+    the image terms' gradient is ``−U r_p``). ``Uᵀ Σ U`` is the tag's posterior over prior
+    variance: a tag the photos do not place by themselves (the eigenvalues of
+    ``I − Uᵀ Σ U`` below 0.05, e.g. its body's only tag) keeps its prior and is reported as
+    found. Returns ``x'``, ``Σ'`` and ``{tag index: (z when found, prior dropped)}``."""
+    found: dict[int, tuple[float, bool]] = {}
+    if z_limit is None or not prob.n_place:
+        return x, cov, found
+    for _ in range(prob.n_place):
+        z = prob.placement_z(x, cov)
+        z[list(found)] = 0.0
+        j = int(np.argmax(z))
+        if z[j] <= z_limit:
+            break
+        s = slice(prob.place0 + 5 * j, prob.place0 + 5 * j + 5)
+        u = 1.0 / prob.place_scale
+        m = np.eye(5) - u[:, None] * cov[s, s] * u[None, :]
+        free = bool(np.min(np.linalg.eigvalsh(m)) >= 0.05)
+        found[j] = (float(z[j]), free)
+        if not free:
+            continue
+        cu = cov[:, s] * u
+        cov = cov + cu @ np.linalg.solve(m, cu.T)
+        g = np.zeros(len(x))
+        g[s] = u * (x[s] * u)
+        x = x + cov @ g
+    return x, cov, found
 
 
 def _solve(

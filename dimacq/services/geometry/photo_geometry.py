@@ -77,7 +77,8 @@ LIMIT_POSITION_STD_M = 2e-4
 #: An input's line of action whose stated 1σ exceeds this angle is named (a warning).
 LIMIT_LOA_STD_DEG = 0.2
 #: A tag whose estimated placement is this many times the spread of a tag placed within its
-#: stated 1σ is named as glued off its place (a warning).
+#: stated 1σ is named as glued off its place (a warning) and its block's pose taken from its
+#: other tags.
 MISPLACED_Z = 4.5
 
 
@@ -143,6 +144,7 @@ def geometry_from_photos(
         refine_intrinsics=refine,
         progress=lambda n, cost: say(f"adjustment: {n} evaluations, cost {cost:.4g}"),
         placement=(tags.placement_angle_deg, tags.placement_position_m),
+        misplaced_z=MISPLACED_Z,
     )
     used = [photos[c].name for c in cam_idx]
     _bundle_issues(bundle, used, issues)
@@ -500,7 +502,12 @@ def _bundle_issues(bundle: BundleResult, used: list[str], issues: list[PhotoIssu
                     "warn",
                     f"sits {1e3 * float(np.linalg.norm(tp.shift_m)):.2f} mm and "
                     f"{float(np.degrees(np.linalg.norm(tp.angle_rad))):.3f}° off its stated place "
-                    f"on the body ({tp.z:.1f} times its stated placement 1σ; {tp.n_views} views)",
+                    f"on the body ({tp.z:.1f} times its stated placement 1σ; {tp.n_views} views)"
+                    + (
+                        "; its block's pose is taken from its other tags"
+                        if tp.freed
+                        else "; its block has no other tag to take its pose from"
+                    ),
                     "glue it square in its place (or state a larger placement 1σ in the tags "
                     "file) and photograph it again",
                 )
