@@ -154,3 +154,12 @@ def test_job_stores_the_commands_geometry(api: Api, photo_set: PhotoSet, tmp_pat
         np.testing.assert_allclose(a["origin_m"], b["origin_m"], atol=1e-9)
         np.testing.assert_allclose(a["angle_std_deg"], b["angle_std_deg"], rtol=1e-6)
     assert cli["setup"]["responses"] == geo["setup"]["responses"]
+    # each tag of the triaxes, the input and the scale bar placed on its body, with its 1σ,
+    # none off its place
+    placed = cli["adjustment"]["tag_placements"]
+    assert {p["body"] for p in placed} == {f"triax {n}" for n in photo_set.nodes} | {
+        f"input {n}" for n in photo_set.inputs
+    } | {"scale bar"}
+    for p in placed:
+        assert len(p["shift_mm"]) == 2 and len(p["angle_std_deg"]) == 3 and not p["freed"]
+        assert 0 < max(p["shift_std_mm"]) <= 0.05 + 1e-9 and p["z"] < 4.5

@@ -104,6 +104,22 @@ class PhotoGeometry:
                     {"photo": self.used[p] if p < len(self.used) else p, "tag": t, "rms_px": r}
                     for p, t, r in b.rejected
                 ],
+                "edge_bias_px": b.edge_bias_px,
+                "edge_bias_std_px": b.edge_bias_std_px,
+                "tag_placements": [
+                    {
+                        "tag": tp.tag_id,
+                        "body": tp.body,
+                        "shift_mm": [1e3 * float(v) for v in tp.shift_m],
+                        "shift_std_mm": [1e3 * float(v) for v in tp.shift_std_m],
+                        "angle_deg": [float(np.degrees(v)) for v in tp.angle_rad],
+                        "angle_std_deg": [float(np.degrees(v)) for v in tp.angle_std_rad],
+                        "z": tp.z,
+                        "freed": tp.freed,
+                        "views": tp.n_views,
+                    }
+                    for tp in b.placements
+                ],
             },
             "setup": None if self.setup is None else dump_setup_dict(self.setup),
         }
