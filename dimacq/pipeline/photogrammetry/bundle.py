@@ -69,6 +69,9 @@ __all__ = [
 
 FloatArray = NDArray[np.float64]
 N_INTR = 8
+#: A placement component is tested for a misplaced tag only when the photos hold at least this
+#: share of its variance (its redundancy as a prior observation).
+MIN_REDUNDANCY = 0.2
 
 
 @dataclass(frozen=True)
@@ -162,7 +165,11 @@ class TagPlacement:
 
     ``z`` is the largest ``|η̂| / sqrt(σ_prior² − σ_post²)`` over the five: the estimate against
     the spread it has when the tag sits within its stated 1σ (a prior's standardised residual;
-    about N(0, 1) for a tag placed as stated, several for one glued off its place). ``freed``:
+    about N(0, 1) for a tag placed as stated, several for one glued off its place). Only the
+    components the photos check are tested: those whose redundancy ``r = 1 − σ_post²/σ_prior²``
+    is at least :data:`MIN_REDUNDANCY` (below it the estimate is mostly the prior's, its spread
+    small, and any small model error would read as a large ``z``; an error there is also
+    what the photos cannot see). ``freed``:
     the tag was found off its place (``z`` over the adjustment's limit, the value shown) and
     its prior dropped, so its body's pose no longer leans on where it was stated to sit.
     """
@@ -570,8 +577,10 @@ class Problem:
         """Each placed tag's :attr:`TagPlacement.z` at ``x`` with the covariance ``cov``."""
         eta = x[self.place0 : self.place0 + 5 * self.n_place].reshape(-1, 5)
         post = np.clip(np.diag(cov)[self.place0 : self.place0 + 5 * self.n_place], 0.0, None)
-        var = np.clip(self.place_scale**2 - post.reshape(-1, 5), 1e-3 * self.place_scale**2, None)
-        return np.asarray(np.max(np.abs(eta) / np.sqrt(var), axis=1))
+        var = self.place_scale**2 - post.reshape(-1, 5)
+        tested = var >= MIN_REDUNDANCY * self.place_scale**2
+        z = np.abs(eta) / np.sqrt(np.where(tested, var, 1.0))
+        return np.asarray(np.max(np.where(tested, z, 0.0), axis=1))
 
     def placements(
         self, x: FloatArray, cov: FloatArray, found: dict[int, tuple[float, bool]] | None = None

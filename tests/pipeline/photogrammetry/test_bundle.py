@@ -393,3 +393,37 @@ def test_misplaced_tag_named_and_freed() -> None:
     ang_kept = Rotation.from_matrix(b_kept.rotation @ r_true.T).as_rotvec()
     assert np.all(np.abs(ang) < 3 * np.radians(b.angle_std_deg))
     assert np.linalg.norm(ang) < 0.7 * np.linalg.norm(ang_kept)
+
+
+def test_placement_z_tests_only_what_the_photos_check() -> None:
+    """``z = |η̂| / sqrt(σ² − σ_post²)`` over the components whose redundancy
+    ``1 − σ_post²/σ²`` is at least 0.2: a component the photos barely check (its posterior
+    nearly its prior) is not tested however its estimate reads."""
+    from dimacq.pipeline.photogrammetry.bundle import MIN_REDUNDANCY, Problem
+
+    bodies, truth, cams, obs = _scene(3, 6)
+    prob = Problem(
+        bodies,
+        obs,
+        CAM,
+        [r for r, _ in cams],
+        [t for _, t in cams],
+        [r for r, _ in truth],
+        [p for _, p in truth],
+        False,
+        (np.radians(0.1), 1e-4),
+    )
+    x = prob.x0.copy()
+    cov = np.eye(x.size) * 1e-30
+    s = prob.place0
+    sig = prob.place_scale
+    x[s : s + 5] = [3 * sig[0], 0.0, 0.0, 0.0, 2 * sig[4]]
+    cov[s, s] = 0.95 * sig[0] ** 2  # redundancy 0.05: not tested
+    cov[s + 4, s + 4] = 0.36 * sig[4] ** 2  # redundancy 0.64: z = 2 / 0.8
+    for k in (1, 2, 3):
+        cov[s + k, s + k] = 0.5 * sig[k] ** 2
+    z = prob.placement_z(x, cov)
+    assert z[0] == pytest.approx(2.5)
+    assert np.all(z[1:] == 0.0)
+    cov[s, s] = (1 - MIN_REDUNDANCY - 0.01) * sig[0] ** 2  # now checked: z = 3 / sqrt(0.21)
+    assert prob.placement_z(x, cov)[0] == pytest.approx(3 / np.sqrt(MIN_REDUNDANCY + 0.01))
