@@ -411,7 +411,6 @@ def calibrate_camera(
     cover = coverage([v.image_px for v in views], *size)
     intr = fit.intrinsics
     f_rel = max(fit.std["fx"] / intr.fx, fit.std["fy"] / intr.fy)
-    say(f"reprojection RMS {fit.rms_px:.3f} px; fx {intr.fx:.1f} ± {fit.std['fx']:.1f} px")
     return CameraCalibration(
         intr,
         fit.std,
