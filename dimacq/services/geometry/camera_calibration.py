@@ -223,16 +223,25 @@ def _why_not_found(
             f"board not found and the photo is blurred (sharpness {sharp:.0f} < {BLUR_LIMIT:.0f})",
             "hold the camera still, focus on the board, use more light or a faster shutter",
         )
+    if board.type == "charuco" and markers >= 4:
+        return PhotoIssue(
+            name,
+            "skipped",
+            f"board not found: {markers} of its markers seen but no corner between them where "
+            "the board file puts them",
+            "check squares_x, squares_y and legacy_pattern in the board file against the print",
+        )
     what = (
-        f"{board.squares_x} x {board.squares_y} squares" if board.type == "chessboard" else
-        f"{markers} markers seen but no corner between them"
+        f"no {board.squares_x} x {board.squares_y} squares"
+        if board.type == "chessboard"
+        else f"no marker of {board.dictionary}"
     )
     return PhotoIssue(
         name,
         "skipped",
         f"board not found ({what})",
-        "show the whole board in the frame, avoid glare; check squares_x and squares_y in the "
-        "board file",
+        "show the whole board in the frame and avoid glare; for a chessboard check squares_x "
+        "and squares_y in the board file",
     )
 
 
