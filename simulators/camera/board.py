@@ -168,7 +168,9 @@ def photograph_board(
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     paths = []
-    for i, (r, t) in enumerate(board_poses(board, cam, n_photos, rng, tilt_deg=tilt_deg, fill=fill, whole=whole)):
+    for i, (r, t) in enumerate(
+        board_poses(board, cam, n_photos, rng, tilt_deg=tilt_deg, fill=fill, whole=whole)
+    ):
         img = render_board(
             board,
             cam,

@@ -316,13 +316,13 @@ def render(
     return expose(canvas, cam, rng, blur_px=blur_px, noise=noise, exposure=exposure)
 
 
-def background(cam: CameraModel, rng: np.random.Generator) -> NDArray[np.float32]:
+def background(cam: CameraModel, rng: np.random.Generator) -> NDArray[Any]:
     """The ideal canvas (:data:`SUPERSAMPLE` × the sensor's size) filled with a smooth random
     background around grey level 100."""
     ss = SUPERSAMPLE
     h2, w2 = ss * cam.height, ss * cam.width
     low = rng.normal(0, 1, (h2 // 64 + 2, w2 // 64 + 2)).astype(np.float32)
-    out: NDArray[np.float32] = 100 + 30 * cv2.resize(low, (w2, h2), interpolation=cv2.INTER_LINEAR)
+    out: NDArray[Any] = 100 + 30 * cv2.resize(low, (w2, h2), interpolation=cv2.INTER_LINEAR)
     return out
 
 
@@ -338,7 +338,7 @@ def canvas_matrix(cam: CameraModel) -> FloatArray:
 
 
 def expose(
-    canvas: NDArray[np.float32],
+    canvas: NDArray[Any],
     cam: CameraModel,
     rng: np.random.Generator,
     *,

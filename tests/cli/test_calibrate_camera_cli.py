@@ -19,7 +19,9 @@ from dimacq.services.geometry.photo_input import exif_focal_px, load_camera
 from dimacq.simulators.camera.board import photograph_board
 from dimacq.simulators.camera.render import CameraModel
 
-BOARD = BoardFile(squares_x=8, squares_y=11, square_m=0.025, marker_m=0.018, dictionary="DICT_5X5_100")
+BOARD = BoardFile(
+    squares_x=8, squares_y=11, square_m=0.025, marker_m=0.018, dictionary="DICT_5X5_100"
+)
 
 
 @pytest.fixture(scope="module")
@@ -77,8 +79,16 @@ def test_refused_set_writes_nothing(
         (few / p.name).write_bytes(p.read_bytes())
     out = tmp_path / "cam.toml"
     code = main(
-        ["geometry", "calibrate-camera", str(few), "--board", str(calibrated / "board.toml"),
-         "--out", str(out), "-q"]
+        [
+            "geometry",
+            "calibrate-camera",
+            str(few),
+            "--board",
+            str(calibrated / "board.toml"),
+            "--out",
+            str(out),
+            "-q",
+        ]
     )
     text = capsys.readouterr().out
     assert code == 2 and not out.exists()
@@ -90,8 +100,15 @@ def test_bad_board_file_names_the_item(
 ) -> None:
     (tmp_path / "b.toml").write_text("squares_x = 8\nsquares_y = 11\nsquare_m = 0.025\n")
     code = main(
-        ["geometry", "calibrate-camera", str(calibrated / "board"), "--board",
-         str(tmp_path / "b.toml"), "--out", str(tmp_path / "cam.toml")]
+        [
+            "geometry",
+            "calibrate-camera",
+            str(calibrated / "board"),
+            "--board",
+            str(tmp_path / "b.toml"),
+            "--out",
+            str(tmp_path / "cam.toml"),
+        ]
     )
     assert code != 0 and "a charuco board needs marker_m" in capsys.readouterr().err
 
@@ -100,7 +117,9 @@ def test_board_print(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None
     from PIL import Image
 
     dump_board(BOARD, tmp_path / "board.toml")
-    code = main(["geometry", "board", str(tmp_path / "board.toml"), "--out", str(tmp_path / "b.png")])
+    code = main(
+        ["geometry", "board", str(tmp_path / "board.toml"), "--out", str(tmp_path / "b.png")]
+    )
     assert code == 0 and "200 x 275 mm" in capsys.readouterr().out
     with Image.open(tmp_path / "b.png") as im:
         px = round(0.025 / 0.0254 * 300)
@@ -123,9 +142,7 @@ def test_from_photos_with_the_camera_file(
     )
     assert code == 0, capsys.readouterr()
     g = json.loads((tmp_path / "g.json").read_text())
-    origins = {
-        o["node"]: (np.array(o["origin_m"]), o["origin_std_m"]) for o in g["orientations"]
-    }
+    origins = {o["node"]: (np.array(o["origin_m"]), o["origin_std_m"]) for o in g["orientations"]}
     assert sorted(origins) == sorted(ps.nodes)
     for node, (p, std) in origins.items():
         err = float(np.linalg.norm(p - ps.truth[f"triax {node}"][1]))

@@ -28,7 +28,9 @@ from dimacq.services.geometry.photo_input import detect_tags, load_camera
 from dimacq.simulators.camera.board import photograph_board
 from dimacq.simulators.camera.render import CameraModel
 
-BOARD = BoardFile(squares_x=8, squares_y=11, square_m=0.025, marker_m=0.018, dictionary="DICT_5X5_100")
+BOARD = BoardFile(
+    squares_x=8, squares_y=11, square_m=0.025, marker_m=0.018, dictionary="DICT_5X5_100"
+)
 DATA = Path(__file__).resolve().parents[1] / "data" / "photos"
 
 
@@ -172,9 +174,7 @@ def test_board_print_is_found_by_the_detector() -> None:
     image_px, board_m = find_board(img, BOARD)
     assert len(image_px) == 70
     # the board frame maps onto the print: x = margin + X / square × px − ½
-    np.testing.assert_allclose(
-        image_px, px // 2 + board_m[:, :2] / 0.025 * px - 0.5, atol=0.3
-    )
+    np.testing.assert_allclose(image_px, px // 2 + board_m[:, :2] / 0.025 * px - 0.5, atol=0.3)
 
 
 def test_real_charuco_photo_corners_against_its_markers() -> None:
@@ -182,11 +182,17 @@ def test_real_charuco_photo_corners_against_its_markers() -> None:
     where the plane through the 17 markers' own corners (found by the tag detector, a second
     method) puts it, within a pixel."""
     gray = cv2.imread(str(DATA / "choriginal.jpg"), cv2.IMREAD_GRAYSCALE)
-    board = BoardFile(squares_x=5, squares_y=7, square_m=0.04, marker_m=0.02, dictionary="DICT_6X6_250")
+    board = BoardFile(
+        squares_x=5, squares_y=7, square_m=0.04, marker_m=0.02, dictionary="DICT_6X6_250"
+    )
     image_px, board_m = find_board(gray, board)
     assert len(image_px) == 24
-    cb = cv2.aruco.CharucoBoard((5, 7), 0.04, 0.02, cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_6X6_250))
-    obj = {int(i): np.asarray(p, float) for i, p in zip(cb.getIds(), cb.getObjPoints(), strict=True)}
+    cb = cv2.aruco.CharucoBoard(
+        (5, 7), 0.04, 0.02, cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_6X6_250)
+    )
+    obj = {
+        int(i): np.asarray(p, float) for i, p in zip(cb.getIds(), cb.getObjPoints(), strict=True)
+    }
     tags = detect_tags(gray, "DICT_6X6_250")
     src = np.concatenate([obj[i][:, :2] for i in sorted(tags)])
     dst = np.concatenate([tags[i] for i in sorted(tags)])

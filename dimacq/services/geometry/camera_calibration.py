@@ -108,13 +108,20 @@ class CameraCalibration:
             "rms_px": self.rms_px,
             "photos": self.photos,
             "used": [
-                {"photo": v.name, "corners": len(v.image_px), "tilt_deg": v.tilt_deg,
-                 "rms_px": v.rms_px}
+                {
+                    "photo": v.name,
+                    "corners": len(v.image_px),
+                    "tilt_deg": v.tilt_deg,
+                    "rms_px": v.rms_px,
+                }
                 for v in self.used
             ],
             "issues": [i.to_json() for i in self.issues],
-            "coverage": {"cells": self.cover.cells, "reach": self.cover.reach,
-                         "empty": list(self.cover.empty)},
+            "coverage": {
+                "cells": self.cover.cells,
+                "reach": self.cover.reach,
+                "empty": list(self.cover.empty),
+            },
         }
 
 
@@ -260,7 +267,9 @@ def read_board_photos(
         if gray is None:
             issues.append(
                 PhotoIssue(
-                    path.name, "skipped", "not an image OpenCV can read",
+                    path.name,
+                    "skipped",
+                    "not an image OpenCV can read",
                     "remove it or save it as JPEG/PNG",
                 )
             )
