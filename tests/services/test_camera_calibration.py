@@ -5,6 +5,7 @@ ChArUco corners of a real photograph against a second method."""
 
 from __future__ import annotations
 
+import json
 import shutil
 from pathlib import Path
 
@@ -64,6 +65,8 @@ def test_intrinsics_within_their_uncertainty(good: tuple[Path, CameraCalibration
     assert image_difference_px(true, got) < 0.5
     assert cal.cover.cells == 1.0 and cal.cover.reach >= 0.8
     assert all(15 < v.tilt_deg < 50 for v in cal.used)
+    doc = json.loads(json.dumps(cal.to_json()))
+    assert doc["verdict"] == "ok" and doc["camera"]["fx"] == got.fx and len(doc["used"]) == 15
 
 
 def test_photos_that_cannot_help_are_named(
@@ -199,3 +202,27 @@ def test_real_charuco_photo_corners_against_its_markers() -> None:
     h, _ = cv2.findHomography(src, dst, 0)
     pred = cv2.perspectiveTransform(board_m[:, :2].reshape(-1, 1, 2), h).reshape(-1, 2)
     assert np.max(np.linalg.norm(pred - image_px, axis=1)) < 1.0
+
+
+def test_a_bent_board_photo_is_left_out(
+    good: tuple[Path, CameraCalibration], tmp_path: Path
+) -> None:
+    """A photo whose board is bent (its image warped by a 5 px wave) lies far off the fit of the
+    others: named, left out, and the calibration run again without it."""
+    folder, first = good
+    bent = tmp_path / "bent"
+    shutil.copytree(folder, bent)
+    sample = cv2.imread(str(folder / "BOARD_0001.jpg"), cv2.IMREAD_GRAYSCALE)
+    v, u = np.mgrid[0:1200, 0:1600].astype(np.float32)
+    wave = (5.0 * np.sin(2 * np.pi * u / 400.0)).astype(np.float32)
+    cv2.imwrite(str(bent / "z_bent.png"), cv2.remap(sample, u, v + wave, cv2.INTER_LINEAR))
+    lines: list[str] = []
+    cal = calibrate_camera(bent, BOARD, progress=lines.append)
+    (issue,) = cal.issues
+    assert issue.photo == "z_bent.png" and "px RMS off the calibration" in issue.problem
+    assert "board flat" in issue.fix
+    assert any("1 photos far off the fit left out" in m for m in lines)
+    assert len(cal.used) == 15 and cal.verdict == "ok"
+    assert cal.intrinsics is not None and first.intrinsics is not None
+    assert cal.intrinsics.fx == pytest.approx(first.intrinsics.fx, rel=1e-9)
+    assert image_difference_px(first.intrinsics, cal.intrinsics) < 1e-6

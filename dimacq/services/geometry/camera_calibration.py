@@ -30,6 +30,7 @@ from numpy.typing import NDArray
 from dimacq.errors import DataError, SetupError
 from dimacq.io.board_file import BoardFile
 from dimacq.pipeline.photogrammetry.calibration import (
+    LIMIT_RMS_PX,
     MIN_PHOTOS,
     Coverage,
     board_tilt_deg,
@@ -363,8 +364,6 @@ def _std(
 def _outliers(fit: _Fit, names: Sequence[str]) -> list[tuple[int, PhotoIssue]]:
     """The photos whose corners' RMS is above :data:`OUTLIER_FACTOR` × the median and the
     RMS limit, with their issue."""
-    from dimacq.pipeline.photogrammetry.calibration import LIMIT_RMS_PX
-
     med = float(np.median(fit.per_view_px))
     cut = max(OUTLIER_FACTOR * med, LIMIT_RMS_PX)
     return [
@@ -490,16 +489,17 @@ def board_print(board: BoardFile, dpi: float = 300.0) -> NDArray[np.uint8]:
 
 
 def write_board_print(board: BoardFile, path: str | Path, dpi: float = 300.0) -> Path:
-    """Write :func:`board_print` as an image file (PNG, with its resolution when PIL is
-    present)."""
+    """Write :func:`board_print` as an image file (PNG or TIFF, its resolution stated in the
+    file so that a printer at 100 % prints ``square_m`` squares)."""
+    from PIL import Image  # a dependency of matplotlib, one of ours
+
     p = Path(path)
     img = board_print(board, dpi)
     p.parent.mkdir(parents=True, exist_ok=True)
     try:
-        from PIL import Image
-    except ImportError:  # pragma: no cover
-        if not load_cv2().imwrite(str(p), img):
-            raise SetupError(f"cannot write {p}: give a .png path in a writable folder") from None
-        return p
-    Image.fromarray(img).save(p, dpi=(dpi, dpi))
+        Image.fromarray(img).save(p, dpi=(dpi, dpi))
+    except (ValueError, OSError) as err:
+        raise SetupError(
+            f"cannot write the board image {p} ({err}); give a .png path in a writable folder"
+        ) from err
     return p
