@@ -23,6 +23,7 @@ from dimacq.services.geometry.camera_calibration import (
     board_print,
     calibrate_camera,
     find_board,
+    read_board_photos,
     write_camera_file,
 )
 from dimacq.services.geometry.photo_input import detect_tags, load_camera
@@ -226,3 +227,23 @@ def test_a_bent_board_photo_is_left_out(
     assert cal.intrinsics is not None and first.intrinsics is not None
     assert cal.intrinsics.fx == pytest.approx(first.intrinsics.fx, rel=1e-9)
     assert image_difference_px(first.intrinsics, cal.intrinsics) < 1e-6
+
+
+def test_legacy_pattern_board(tmp_path: Path) -> None:
+    """A board printed by OpenCV before 4.6 (even squares down: the first square white): found
+    with ``legacy_pattern = true``, named with that fix without it."""
+    legacy = BoardFile(
+        squares_x=7,
+        squares_y=10,
+        square_m=0.025,
+        marker_m=0.018,
+        dictionary="DICT_5X5_100",
+        legacy_pattern=True,
+    )
+    paths = photograph_board(legacy, tmp_path, 3, seed=3)
+    views, issues, _size = read_board_photos(paths, legacy, lambda _m: None)
+    assert len(views) == 3 and not issues
+    modern = legacy.model_copy(update={"legacy_pattern": False})
+    views, issues, _size = read_board_photos(paths, modern, lambda _m: None)
+    assert not views and len(issues) == 3
+    assert all("legacy_pattern" in i.fix for i in issues)

@@ -43,11 +43,16 @@ from dimacq.services.geometry.photo_input import BLUR_LIMIT, load_cv2
 from dimacq.services.geometry.photo_records import PhotoIssue
 
 __all__ = [
+    "STD_NAMES",
     "BoardView",
     "CameraCalibration",
     "board_print",
     "calibrate_camera",
+    "camera_toml",
     "find_board",
+    "min_corners",
+    "read_board_photos",
+    "write_board_print",
     "write_camera_file",
 ]
 
