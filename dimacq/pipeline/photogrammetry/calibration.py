@@ -7,8 +7,9 @@ it), so the focal length comes from the board's tilt: the projection of a plane 
 carries ``f`` through the perspective foreshortening, of order ``tan θ × extent / Z``. Lens
 distortion grows as ``r²…r⁶`` from the principal point, so only corners out towards the image's
 corners fix ``k1, k2, k3``. The refusals follow: too few photos, a focal length whose standard
-deviation (from the calibration's covariance) is too large — too little tilt — corners that do
-not reach the image's corners, or a reprojection RMS too large for a flat, sharp board.
+deviation (from the calibration's covariance) is too large or too few photos tilted — too
+little tilt —, corners that do not reach the image's corners, or a reprojection RMS too large
+for a flat, sharp board.
 """
 
 from __future__ import annotations
@@ -28,6 +29,8 @@ __all__ = [
     "MIN_COVERAGE",
     "MIN_PHOTOS",
     "MIN_REACH",
+    "MIN_TILTED",
+    "MIN_TILT_DEG",
     "Coverage",
     "board_tilt_deg",
     "coverage",
@@ -41,7 +44,12 @@ FloatArray = NDArray[np.float64]
 #: Fewest usable photos a calibration is computed from.
 MIN_PHOTOS = 6
 #: Largest relative standard deviation of the focal lengths (σ_f / f).
-LIMIT_F_REL_STD = 0.005
+LIMIT_F_REL_STD = 0.002
+#: Fewest photos with the board tilted :data:`MIN_TILT_DEG` or more from square-on: however
+#: small its σ, a focal length from a board seen square-on trades against the board's distance
+#: and the distortion.
+MIN_TILTED = 3
+MIN_TILT_DEG = 15.0
 #: Largest RMS reprojection error of the corners, px.
 LIMIT_RMS_PX = 1.0
 #: Smallest share of the image's cells (a 4 × 4 grid) holding a corner of some photo.
@@ -177,7 +185,8 @@ def refusals(
     n_photos : int
         Usable photos.
     f_rel_std : float or None
-        ``max(σ_fx / fx, σ_fy / fy)`` (None: not calibrated).
+        ``max(σ_fx / fx, σ_fy / fy)`` (None: not calibrated; then neither it nor the tilts are
+        judged).
     rms_px : float or None
         RMS reprojection error of the corners, px.
     cover : Coverage
@@ -191,9 +200,8 @@ def refusals(
             f"{max(MIN_PHOTOS - n_photos, 15 - n_photos)} more photos of the whole board, "
             f"tilted {GOOD_TILT_DEG[0]:.0f}–{GOOD_TILT_DEG[1]:.0f}° towards different sides"
         )
-    if f_rel_std is not None and f_rel_std > LIMIT_F_REL_STD:
-        tilted = sum(1 for t in tilts_deg if t >= GOOD_TILT_DEG[0])
-        most = max(tilts_deg, default=0.0)
+    tilted = sum(1 for t in tilts_deg if t >= MIN_TILT_DEG)
+    if f_rel_std is not None and (f_rel_std > LIMIT_F_REL_STD or tilted < MIN_TILTED):
         # photos square-on do not fix f however many: more only help once most are tilted
         more = (
             more_photos(n_photos, f_rel_std / LIMIT_F_REL_STD)
@@ -201,11 +209,11 @@ def refusals(
             else max(MIN_PHOTOS, 10 - tilted)
         )
         out.append(
-            f"focal length ±{100 * f_rel_std:.2f} % (1σ; limit {100 * LIMIT_F_REL_STD:.1f} %): "
-            f"the board is tilted {GOOD_TILT_DEG[0]:.0f}° or more in {tilted} of {n_photos} "
-            f"photos (at most {most:.0f}°); take {more} more photos tilting the "
-            f"board {GOOD_TILT_DEG[0]:.0f}–{GOOD_TILT_DEG[1]:.0f}° to the left, right, up and "
-            "down"
+            f"focal length ±{100 * f_rel_std:.2f} % (1σ; limit {100 * LIMIT_F_REL_STD:.1f} %) "
+            f"with the board tilted {MIN_TILT_DEG:.0f}° or more in {tilted} of {n_photos} "
+            f"photos (at most {max(tilts_deg, default=0.0):.0f}°; at least {MIN_TILTED} "
+            f"needed): take {more} more photos tilting the board "
+            f"{GOOD_TILT_DEG[0]:.0f}–{GOOD_TILT_DEG[1]:.0f}° to the left, right, up and down"
         )
     if n_photos and (cover.cells < MIN_COVERAGE or cover.reach < MIN_REACH):
         where = ", ".join(cover.empty[:6]) + (" …" if len(cover.empty) > 6 else "")

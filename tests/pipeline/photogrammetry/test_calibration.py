@@ -76,6 +76,11 @@ def test_refusals_name_the_fix() -> None:
     assert len(few) == 1 and f"fewer than {MIN_PHOTOS}" in few[0] and "take 11 more" in few[0]
     flat = refusals(15, 0.02, 0.1, good, [2.0] * 15)
     assert len(flat) == 1 and "0 of 15 photos" in flat[0] and "tilting the board 20–45°" in flat[0]
+    # square-on photos refused however small the focal length's σ (a sharp, fine sensor)
+    sharp = refusals(15, 0.2 * LIMIT_F_REL_STD, 0.1, good, [2.0] * 13 + [20.0, 30.0])
+    assert len(sharp) == 1 and "2 of 15 photos" in sharp[0] and "at least 3 needed" in sharp[0]
+    assert "take 8 more photos" in sharp[0]
+    assert refusals(15, 0.2 * LIMIT_F_REL_STD, 0.1, good, [2.0] * 12 + [15.0] * 3) == []
     # most photos tilted: σ ∝ 1/√n asks for n (σ/limit)² − n more
     tilted = refusals(10, 2 * LIMIT_F_REL_STD, 0.1, good, [30.0] * 10)
     assert f"take {more_photos(10, 2.0)} more" in tilted[0] and more_photos(10, 2.0) == 30
