@@ -194,7 +194,12 @@ def refusals(
         Each photo's board tilt from square-on, degrees.
     """
     out = []
-    if n_photos < MIN_PHOTOS:
+    if n_photos == 0:
+        out.append(
+            "no usable photo of the board: each photo is named with what was wrong and the "
+            "fix (a wrong board file shows in every photo)"
+        )
+    elif n_photos < MIN_PHOTOS:
         out.append(
             f"{n_photos} usable photos, fewer than {MIN_PHOTOS}: take "
             f"{max(MIN_PHOTOS - n_photos, 15 - n_photos)} more photos of the whole board, "
