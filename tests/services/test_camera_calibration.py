@@ -247,3 +247,11 @@ def test_legacy_pattern_board(tmp_path: Path) -> None:
     views, issues, _size = read_board_photos(paths, modern, lambda _m: None)
     assert not views and len(issues) == 3
     assert all("legacy_pattern" in i.fix for i in issues)
+
+
+def test_missing_or_empty_folder_named(tmp_path: Path) -> None:
+    with pytest.raises(DataError, match="not found; give the folder of the board photos"):
+        calibrate_camera(tmp_path / "none", BOARD)
+    (tmp_path / "notes.txt").write_text("x")
+    with pytest.raises(DataError, match=r"no photos .*put the board photos in it"):
+        calibrate_camera(tmp_path, BOARD)

@@ -11,8 +11,11 @@ far off the fit and calibrate again, and judge what the data support
 
     Σ_photos Σ_corners ‖u_ij − π(K, d; R_i X_j + t_i)‖²
 
-over the intrinsics and every photo's board pose; the standard deviations are OpenCV's,
-``σ = √(diag (JᵀJ)⁻¹ · Σr² / (2N − p))``. :func:`write_camera_file` writes the camera file
+over the intrinsics and every photo's board pose; the intrinsics' standard deviations are
+``σ = √diag(s² S⁻¹)``, ``S`` the normal matrix's Schur complement on the intrinsics (the
+photos' poses eliminated) and ``s²`` the corners' a-posteriori variance
+(:func:`~dimacq.pipeline.photogrammetry.calibration.intrinsic_covariance`).
+:func:`write_camera_file` writes the camera file
 :func:`~dimacq.services.geometry.photo_input.load_camera` reads.
 """
 
@@ -398,7 +401,7 @@ def calibrate_camera(
     Raises
     ------
     DataError
-        No photo in the folder.
+        No such folder, or no photo in it.
     """
     say = progress or (lambda _m: None)
     folder = Path(photos_dir)
