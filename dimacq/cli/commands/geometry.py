@@ -148,7 +148,8 @@ def calibrate_camera(args: argparse.Namespace) -> int:
         print(
             f"reprojection RMS {cal.rms_px:.3f} px; board tilts {min(tilts):.0f}–{max(tilts):.0f}°; "
             f"corners over {100 * cal.cover.cells:.0f} % of the image, reaching "
-            f"{100 * cal.cover.reach:.0f} % of the way to its corners"
+            f"{100 * cal.cover.reach:.0f} % of the way to its corners; the image's corners "
+            f"placed to ±{cal.edge_std_px:.2f} px (1σ)"
         )
         for n in STD_NAMES:
             unit = " px" if n in ("fx", "fy", "cx", "cy") else ""

@@ -6,7 +6,8 @@ A plane seen square-on by a pinhole camera fixes only ``f / Z`` (its image is a 
 it), so the focal length comes from the board's tilt: the projection of a plane tilted by ``θ``
 carries ``f`` through the perspective foreshortening, of order ``tan θ × extent / Z``. Lens
 distortion grows as ``r²…r⁶`` from the principal point, so only corners out towards the image's
-corners fix ``k1, k2, k3``. The refusals follow: too few photos, a focal length whose standard
+corners fix ``k1, k2, k3``: how well they are fixed there is the 1σ of where the camera images
+the rays through the image's corners (:func:`edge_std_px`). The refusals follow: too few photos, a focal length whose standard
 deviation (from the calibration's covariance) is too large or too few photos tilted — too
 little tilt —, corners that do not reach the image's corners, or a reprojection RMS too large
 for a flat, sharp board.
@@ -16,7 +17,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -24,16 +25,17 @@ from numpy.typing import ArrayLike, NDArray
 from dimacq.pipeline.photogrammetry.camera import Intrinsics, project, undistort_normalised
 
 __all__ = [
+    "LIMIT_EDGE_STD_PX",
     "LIMIT_F_REL_STD",
     "LIMIT_RMS_PX",
     "MIN_COVERAGE",
     "MIN_PHOTOS",
-    "MIN_REACH",
     "MIN_TILTED",
     "MIN_TILT_DEG",
     "Coverage",
     "board_tilt_deg",
     "coverage",
+    "edge_std_px",
     "image_difference_px",
     "intrinsic_covariance",
     "refusals",
@@ -54,8 +56,9 @@ MIN_TILT_DEG = 15.0
 LIMIT_RMS_PX = 1.0
 #: Smallest share of the image's cells (a 4 × 4 grid) holding a corner of some photo.
 MIN_COVERAGE = 0.75
-#: Smallest reach of the corners from the image centre, as a share of the half-diagonal.
-MIN_REACH = 0.8
+#: Largest 1σ, px, of where the calibrated camera images the rays through the image's corners
+#: and edges (:func:`edge_std_px`).
+LIMIT_EDGE_STD_PX = 1.0
 #: Good tilts of the board from square-on, degrees.
 GOOD_TILT_DEG = (20.0, 45.0)
 _GRID = 4
@@ -165,6 +168,42 @@ def intrinsic_covariance(
     return s2 * np.linalg.pinv(s_mat, rcond=1e-15, hermitian=True)
 
 
+def _with(cam: Intrinsics, theta: FloatArray) -> Intrinsics:
+    """``cam`` with ``(fx, fy, cx, cy, k1, k2, p1, p2, k3) = theta``."""
+    fx, fy, cx, cy, k1, k2, p1, p2, k3 = (float(v) for v in theta)
+    return replace(cam, fx=fx, fy=fy, cx=cx, cy=cy, k1=k1, k2=k2, p1=p1, p2=p2, k3=k3)
+
+
+def edge_std_px(cam: Intrinsics, cov: ArrayLike) -> float:
+    """The largest 1σ, px, of where ``cam`` images the rays through the image's four corners and
+    four edge midpoints.
+
+    Each such pixel ``p`` is undistorted to its ray ``x = cam⁻¹(p)``; ``G = ∂π(x; θ)/∂θ``
+    (central differences) over ``θ = (fx, fy, cx, cy, k1, k2, p1, p2, k3)`` propagates the
+    intrinsics' covariance ``Σ`` (shape (9, 9)) to ``σ_p = √trace(G Σ Gᵀ)`` (both image
+    directions together); the largest over the eight points is returned.
+    """
+    w, h = cam.width - 1.0, cam.height - 1.0
+    pts = np.array(
+        [[0, 0], [w, 0], [0, h], [w, h], [w / 2, 0], [0, h / 2], [w / 2, h], [w, h / 2]], float
+    )
+    x = undistort_normalised(pts, cam, iterations=50)
+    rays = np.column_stack([x, np.ones(len(x))])
+    theta = np.array([cam.fx, cam.fy, cam.cx, cam.cy, *cam.distortion])
+    g = np.empty((len(pts), 2, len(theta)))
+    for i in range(len(theta)):
+        step = 1e-6 * max(1.0, abs(theta[i]))
+        hi, lo = theta.copy(), theta.copy()
+        hi[i] += step
+        lo[i] -= step
+        up = project(rays, _with(cam, hi))
+        down = project(rays, _with(cam, lo))
+        g[:, :, i] = (up - down) / (2 * step)
+    c = np.asarray(cov, float)
+    var = np.einsum("kai,ij,kaj->k", g, c, g)
+    return float(np.sqrt(np.max(np.clip(var, 0.0, None))))
+
+
 def more_photos(n: int, ratio: float) -> int:
     """Photos to add to ``n`` for a standard deviation ``ratio`` times its limit to reach it
     (``σ ∝ 1/√n``): ``⌈n ratio²⌉ − n``, at least :data:`MIN_PHOTOS`."""
@@ -177,6 +216,7 @@ def refusals(
     rms_px: float | None,
     cover: Coverage,
     tilts_deg: Sequence[float],
+    edge_px: float | None = None,
 ) -> list[str]:
     """Why the calibration cannot be trusted, each with the fix; empty when it can.
 
@@ -192,6 +232,8 @@ def refusals(
     cover : Coverage
     tilts_deg : sequence of float
         Each photo's board tilt from square-on, degrees.
+    edge_px : float, optional
+        :func:`edge_std_px` of the calibration.
     """
     out = []
     if n_photos == 0:
@@ -220,12 +262,21 @@ def refusals(
             f"needed): take {more} more photos tilting the board "
             f"{GOOD_TILT_DEG[0]:.0f}–{GOOD_TILT_DEG[1]:.0f}° to the left, right, up and down"
         )
-    if n_photos and (cover.cells < MIN_COVERAGE or cover.reach < MIN_REACH):
+    loose = edge_px is not None and edge_px > LIMIT_EDGE_STD_PX
+    if n_photos and (cover.cells < MIN_COVERAGE or loose):
         where = ", ".join(cover.empty[:6]) + (" …" if len(cover.empty) > 6 else "")
+        edge = (
+            ""
+            if edge_px is None
+            else (
+                f"; the calibrated camera places the image's corners to ±{edge_px:.2f} px (1σ; "
+                f"limit {LIMIT_EDGE_STD_PX:.1f} px)"
+            )
+        )
         out.append(
             f"the corners cover {100 * cover.cells:.0f} % of the image (limit "
             f"{100 * MIN_COVERAGE:.0f} %) and reach {100 * cover.reach:.0f} % of the way to its "
-            f"corners (limit {100 * MIN_REACH:.0f} %), so the lens distortion is not fixed"
+            f"corners{edge}, so the lens distortion is not fixed"
             + (f"; nothing in: {where}" if where else "")
             + "; take photos with the board near each corner and edge of the frame"
         )

@@ -38,6 +38,7 @@ from dimacq.pipeline.photogrammetry.calibration import (
     Coverage,
     board_tilt_deg,
     coverage,
+    edge_std_px,
     intrinsic_covariance,
     refusals,
 )
@@ -93,7 +94,9 @@ class BoardView:
 class CameraCalibration:
     """The calibration and what judges it: ``intrinsics`` (None when not computed), the 1σ of
     each (``std``), the RMS reprojection error, the photos used and the issues of the others,
-    the corners' cover of the image and the refusals (empty: the camera file may be written)."""
+    the corners' cover of the image, the refusals (empty: the camera file may be written) and
+    the 1σ of where the camera images the image's corners
+    (:func:`~dimacq.pipeline.photogrammetry.calibration.edge_std_px`)."""
 
     intrinsics: Intrinsics | None
     std: dict[str, float]
@@ -103,6 +106,7 @@ class CameraCalibration:
     issues: list[PhotoIssue]
     cover: Coverage
     refused: list[str] = field(default_factory=list)
+    edge_std_px: float | None = None
 
     @property
     def verdict(self) -> str:
@@ -115,6 +119,7 @@ class CameraCalibration:
             "camera": None if self.intrinsics is None else self.intrinsics.to_json(),
             "std": self.std,
             "rms_px": self.rms_px,
+            "edge_std_px": self.edge_std_px,
             "photos": self.photos,
             "used": [
                 {
@@ -314,6 +319,7 @@ class _Fit:
     rms_px: float
     per_view_px: FloatArray
     tilts_deg: list[float]
+    edge_std_px: float
 
 
 def _fit(views: Sequence[BoardView], size: tuple[int, int]) -> _Fit:
@@ -341,16 +347,18 @@ def _fit(views: Sequence[BoardView], size: tuple[int, int]) -> _Fit:
         width=size[0],
         height=size[1],
     )
-    s = _std(views, intr, rvecs, tvecs)
+    cov = _covariance(views, intr, rvecs, tvecs)
+    s = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     std = {n: float(s[i]) for i, n in enumerate(STD_NAMES)}
     tilts = [board_tilt_deg(r) for r in rvecs]
-    return _Fit(intr, std, float(rms), np.asarray(per_view, float).ravel(), tilts)
+    per_view_px = np.asarray(per_view, float).ravel()
+    return _Fit(intr, std, float(rms), per_view_px, tilts, edge_std_px(intr, cov))
 
 
-def _std(
+def _covariance(
     views: Sequence[BoardView], intr: Intrinsics, rvecs: Sequence[Any], tvecs: Sequence[Any]
 ) -> FloatArray:
-    """The 1σ of ``fx, fy, cx, cy, k1, k2, p1, p2, k3``: :func:`intrinsic_covariance` with the
+    """The covariance of ``fx, fy, cx, cy, k1, k2, p1, p2, k3``: :func:`intrinsic_covariance` with the
     Jacobians ``cv2.projectPoints`` gives at the fit (columns: rvec 3, tvec 3, f 2, c 2,
     distortion 5). OpenCV's own ``stdDeviationsIntrinsics`` is not used: on a board seen
     square-on in every photo, where ``f`` and the distance trade against each other, it states
@@ -365,8 +373,7 @@ def _std(
         a_blocks.append(jac[:, 6:15])
         b_blocks.append(jac[:, :6])
         res.append((np.asarray(proj, float).reshape(-1, 2) - v.image_px).ravel())
-    cov = intrinsic_covariance(a_blocks, b_blocks, np.concatenate(res))
-    return np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    return intrinsic_covariance(a_blocks, b_blocks, np.concatenate(res))
 
 
 def _outliers(fit: _Fit, names: Sequence[str]) -> list[tuple[int, PhotoIssue]]:
@@ -444,7 +451,8 @@ def calibrate_camera(
         used,
         issues,
         cover,
-        refusals(len(views), f_rel, fit.rms_px, cover, fit.tilts_deg),
+        refusals(len(views), f_rel, fit.rms_px, cover, fit.tilts_deg, fit.edge_std_px),
+        fit.edge_std_px,
     )
 
 

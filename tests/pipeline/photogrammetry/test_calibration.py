@@ -9,11 +9,13 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from dimacq.pipeline.photogrammetry.calibration import (
+    LIMIT_EDGE_STD_PX,
     LIMIT_F_REL_STD,
     MIN_PHOTOS,
     Coverage,
     board_tilt_deg,
     coverage,
+    edge_std_px,
     image_difference_px,
     intrinsic_covariance,
     more_photos,
@@ -52,6 +54,25 @@ def test_image_difference() -> None:
     assert image_difference_px(c0, c1) == pytest.approx(0.01 * np.hypot(800, 600), rel=1e-6)
 
 
+def test_edge_std_closed_forms() -> None:
+    cam = Intrinsics(1000.0, 1000.0, 700.0, 600.0, width=1600, height=1200)
+    # the principal point alone: every pixel moves with it
+    cov = np.zeros((9, 9))
+    cov[2, 2] = 0.3**2
+    assert edge_std_px(cam, cov) == pytest.approx(0.3, rel=1e-6)
+    # fx alone, no distortion: u = fx x + cx moves by σ_fx |x|, largest at the far edge
+    cov = np.zeros((9, 9))
+    cov[0, 0] = 2.0**2
+    assert edge_std_px(cam, cov) == pytest.approx(2.0 * (1599 - 700) / 1000, rel=1e-6)
+    # k1 alone: (u, v) = (cx, cy) + f (x, y)(1 + k1 r²) moves by f r³ σ_k1, largest at the
+    # corner farthest from the principal point, the top right (1599, 0)
+    cov = np.zeros((9, 9))
+    cov[4, 4] = 0.01**2
+    x, y = (1599 - 700) / 1000, (0 - 600) / 1000
+    want = 1000 * np.hypot(x, y) * (x * x + y * y) * 0.01
+    assert edge_std_px(cam, cov) == pytest.approx(want, rel=1e-6)
+
+
 def test_schur_covariance_matches_the_full_normal_matrix() -> None:
     rng = np.random.default_rng(1)
     p, n = 9, 5
@@ -86,5 +107,9 @@ def test_refusals_name_the_fix() -> None:
     assert f"take {more_photos(10, 2.0)} more" in tilted[0] and more_photos(10, 2.0) == 30
     corner = refusals(15, 0.001, 0.1, Coverage(0.5, ("top left", "top right"), 0.6), [30.0] * 15)
     assert "nothing in: top left, top right" in corner[0] and "near each corner" in corner[0]
+    # the cells covered but the image's corners placed loosely: refused on that alone
+    loose = refusals(15, 0.001, 0.1, good, [30.0] * 15, 1.5 * LIMIT_EDGE_STD_PX)
+    assert len(loose) == 1 and "image's corners to ±1.50 px (1σ; limit 1.0 px)" in loose[0]
+    assert refusals(15, 0.001, 0.1, good, [30.0] * 15, 0.5 * LIMIT_EDGE_STD_PX) == []
     rms = refusals(15, 0.001, 1.7, good, [30.0] * 15)
     assert "reprojection RMS 1.70 px" in rms[0] and "board file" in rms[0]
