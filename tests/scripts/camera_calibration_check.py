@@ -102,6 +102,7 @@ def main() -> int:
         "cy err ± 1σ px",
         "max |z|",
         "image diff px",
+        "corners 1σ px",
         "RMS px",
         "verdict",
         "refused",
@@ -115,7 +116,7 @@ def main() -> int:
         print(r, flush=True)
     for seed in range(2):
         r = _run(CHARUCO, cam, args.photos, 100 + seed, tilt_deg=(0.0, 3.0))
-        rows.append([*r[: len(header) - 2], r[len(header) - 2], r[len(header) - 1]])
+        rows.append(r[: len(header)])
         print(rows[-1], flush=True)
     r = _run(CHESS, cam, args.photos, 200, fill=(0.6, 0.9))
     rows.append(r[: len(header)])
