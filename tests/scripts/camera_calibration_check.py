@@ -79,7 +79,7 @@ def _run(board: BoardFile, cam: CameraModel, n: int, seed: int, **kw: object) ->
         f"{cal.edge_std_px:.2f}",
         f"{cal.rms_px:.3f}",
         cal.verdict,
-        " | ".join(r.split(";")[0] for r in cal.refused),
+        " | ".join(r.split(":")[0].split(", so ")[0] for r in cal.refused),
         z,
     ]
 
