@@ -28,16 +28,18 @@ class PhotoSet:
     inputs: list[int]
 
 
-def small_photo_set(folder: Path, n_photos: int = 18, seed: int = 0) -> PhotoSet:
+def small_photo_set(
+    folder: Path, n_photos: int = 18, seed: int = 0, *, exif: bool = True
+) -> PhotoSet:
     """Photos of two tagged triaxes and one tagged input of the calibration mass in ``folder``
-    (with its ``tags.toml``)."""
+    (with its ``tags.toml``); ``exif=False``: JPEGs without EXIF, as a camera file needs."""
     built = build_scenario("calibration-mass-bungee", seed)
     st = built.model.setup
     nodes = sorted({c.node for c in st.responses})[:2]
     inputs = [st.excitations[0].node]
     plan = standard_tags(nodes, inputs, np.vstack([st.response_positions, st.input_positions]))
     world = tagged_world(plan, st, np.random.default_rng(seed + 2000))
-    photograph_article(world, folder, n_photos, seed + 3000)
+    photograph_article(world, folder, n_photos, seed + 3000, exif=exif)
     dump_tags(plan, folder / "tags.toml")
     full = dump_setup_dict(built.setup)
     small = dict(full)

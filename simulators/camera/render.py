@@ -66,6 +66,7 @@ LARGE_ARTICLE_M = 1.5  # tagged region (m across) beyond which the lab uses the 
 FLOOR_Z = -0.25  # the lowest view: a direction to the camera at most this far below level
 AIM_SCATTER_DEG = 18.0
 HIDDEN = 1000  # a view the article hides (counted as that many bodies in front)
+SUPERSAMPLE = 2  # the ideal canvas's pixels per sensor pixel (each way)
 TRIAX_VIEWS = 3  # close-ups of each triax block a round (each impact jig: one)  # how far a close-up's direction strays from the one the plan aims
 
 
@@ -246,14 +247,10 @@ def render(
     occluders: int = 1,
 ) -> NDArray[np.uint8]:
     """One photo (grey, uint8) from the camera at ``X_c = r_wc X + t_wc``."""
-    ss = 2
+    ss = SUPERSAMPLE
     h2, w2 = ss * cam.height, ss * cam.width
-    low = rng.normal(0, 1, (h2 // 64 + 2, w2 // 64 + 2)).astype(np.float32)
-    canvas = 100 + 30 * cv2.resize(low, (w2, h2), interpolation=cv2.INTER_LINEAR)
-    k2 = cam.matrix.copy()
-    k2[:2] *= ss
-    k2[0, 2] += (ss - 1) / 2
-    k2[1, 2] += (ss - 1) / 2
+    canvas = background(cam, rng)
+    k2 = canvas_matrix(cam)
     centre_cam = -r_wc.T @ t_wc
     order = sorted(world.tags, key=lambda t: -float(np.linalg.norm(r_wc @ t.centre_m + t_wc)))
     for t in order:
@@ -316,8 +313,43 @@ def render(
             c = rng.uniform([0, 0], [w2, h2])
             poly = (c + rng.normal(scale=120, size=(5, 2))).astype(np.int32)
             cv2.fillPoly(canvas, [poly], float(rng.uniform(20, 200)))
-    # the lens's blur and each pixel's area (a box of 1 px: variance 1/12 px²) act on the image
-    # before the sensor samples it
+    return expose(canvas, cam, rng, blur_px=blur_px, noise=noise, exposure=exposure)
+
+
+def background(cam: CameraModel, rng: np.random.Generator) -> NDArray[Any]:
+    """The ideal canvas (:data:`SUPERSAMPLE` × the sensor's size) filled with a smooth random
+    background around grey level 100."""
+    ss = SUPERSAMPLE
+    h2, w2 = ss * cam.height, ss * cam.width
+    low = rng.normal(0, 1, (h2 // 64 + 2, w2 // 64 + 2)).astype(np.float32)
+    out: NDArray[Any] = 100 + 30 * cv2.resize(low, (w2, h2), interpolation=cv2.INTER_LINEAR)
+    return out
+
+
+def canvas_matrix(cam: CameraModel) -> FloatArray:
+    """The ideal pinhole of the canvas: ``K`` scaled by :data:`SUPERSAMPLE`, pixel centres kept
+    (a sensor pixel's centre ``u`` is the canvas's ``ss u + (ss − 1)/2``)."""
+    ss = SUPERSAMPLE
+    k2 = cam.matrix.copy()
+    k2[:2] *= ss
+    k2[0, 2] += (ss - 1) / 2
+    k2[1, 2] += (ss - 1) / 2
+    return k2
+
+
+def expose(
+    canvas: NDArray[Any],
+    cam: CameraModel,
+    rng: np.random.Generator,
+    *,
+    blur_px: float,
+    noise: float,
+    exposure: float,
+) -> NDArray[np.uint8]:
+    """The sensor's image of the ideal ``canvas``: the lens's blur and each pixel's area (a box
+    of 1 px: variance 1/12 px²) act on the image before the sensor samples it through the lens
+    distortion; then exposure and noise (read noise ``noise`` and shot noise, grey levels)."""
+    ss = SUPERSAMPLE
     psf_px = float(np.sqrt(max(blur_px, 0.0) ** 2 + 1.0 / 12.0))
     canvas = cv2.GaussianBlur(canvas, (0, 0), ss * psf_px)
     mx, my = _distortion_map(cam, ss)
