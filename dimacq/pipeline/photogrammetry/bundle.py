@@ -136,6 +136,12 @@ class BodyEstimate:
     n_photos : int
         Photos in which at least one of its tags was used.
     n_corners : int
+    residual_factor : float
+        ``f = sqrt(Σ (r/s)² / (σ_px² ν))`` over this body's corners, ``ν = 8 n − 6 − 5 k`` (its
+        ``n`` views less its own pose and its ``k`` placed tags' unknowns): how its corners
+        agree with the set's ``σ_px`` (about 1; well above where its tags are partly hidden,
+        bent or misread in many views, which the set's ``σ_px`` and ``covariance`` do not
+        hold). 1 where ``ν ≤ 0``.
     """
 
     name: str
@@ -146,6 +152,7 @@ class BodyEstimate:
     covariance: FloatArray
     n_photos: int
     n_corners: int
+    residual_factor: float = 1.0
 
     @property
     def position_std_m(self) -> FloatArray:
@@ -856,6 +863,7 @@ def _result(
 ) -> BundleResult:
     """The adjustment at ``x`` with its covariance ``cov`` as a :class:`BundleResult`."""
     res = prob.image_residuals(x)
+    chi2 = np.sum(prob.scaled_residuals(x) ** 2, axis=(1, 2)) / max(sigma, 1e-3) ** 2
     intr, rc, tc, rb, pb = prob.unpack(x)
     k = prob.n_intr
     body0 = k + 6 * prob.n_cam
@@ -863,6 +871,8 @@ def _result(
     for i, b in enumerate(bodies):
         sel = prob.o_body == i
         s = slice(body0 + 6 * i, body0 + 6 * i + 6)
+        placed = prob.o_place[sel]
+        nu = 8 * int(sel.sum()) - 6 - 5 * len(set(placed[placed >= 0].tolist()))
         out.append(
             BodyEstimate(
                 name=b.name,
@@ -873,6 +883,7 @@ def _result(
                 covariance=cov[s, s],
                 n_photos=len(set(prob.o_cam[sel].tolist())),
                 n_corners=4 * int(sel.sum()),
+                residual_factor=float(np.sqrt(chi2[sel].sum() / nu)) if nu > 0 else 1.0,
             )
         )
     per_photo = np.full(prob.n_cam, np.nan)

@@ -80,6 +80,9 @@ LIMIT_LOA_STD_DEG = 0.2
 #: stated 1σ is named as glued off its place (a warning) and its block's pose taken from its
 #: other tags.
 MISPLACED_Z = 4.5
+#: A body whose corners' residuals are this many times the set's σ (its
+#: ``residual_factor``) is named (its stated 1σ is scaled by the factor in any case).
+DISAGREE_FACTOR = 2.0
 
 
 # ------------------------------------------------------------------------------ the chain
@@ -494,6 +497,19 @@ def _bundle_issues(bundle: BundleResult, used: list[str], issues: list[PhotoIssu
                 "a tag partly hidden or misread: retake it",
             )
         )
+    for b in bundle.bodies:
+        if b.kind in ("triax", "input") and b.residual_factor > DISAGREE_FACTOR:
+            issues.append(
+                PhotoIssue(
+                    b.name,
+                    "warn",
+                    f"its tags' corners disagree with the set's: residuals "
+                    f"{b.residual_factor:.1f} times the set's σ over {b.n_photos} photos, so its "
+                    "stated 1σ is scaled by as much",
+                    "a tag partly hidden by a neighbouring body, bent or dirty: photograph it "
+                    "from where nothing stands in front of its tags, or clear the view",
+                )
+            )
     for tp in bundle.placements:
         if tp.z > MISPLACED_Z:
             issues.append(

@@ -427,3 +427,31 @@ def test_placement_z_tests_only_what_the_photos_check() -> None:
     assert np.all(z[1:] == 0.0)
     cov[s, s] = (1 - MIN_REDUNDANCY - 0.01) * sig[0] ** 2  # now checked: z = 3 / sqrt(0.21)
     assert prob.placement_z(x, cov)[0] == pytest.approx(3 / np.sqrt(MIN_REDUNDANCY + 0.01))
+
+
+def test_residual_factor_shows_a_body_whose_corners_disagree() -> None:
+    """0.2 px of corner noise everywhere, 1.2 px on one triax's views (what a tag partly
+    hidden in many photos gives): that triax's residual factor stands out against the others'
+    (which share a set σ its views inflate) and is its views' noise over the set's σ."""
+    bodies, truth, cams, obs = _scene(5, 16)
+    rng = np.random.default_rng(4)
+    bad = {t.tag_id for t in bodies[5].tags}
+    noisy = [
+        Observation(
+            o.photo,
+            o.tag_id,
+            o.corners_px + rng.normal(scale=1.2 if o.tag_id in bad else 0.2, size=(4, 2)),
+        )
+        for o in obs
+    ]
+    start = (
+        [r for r, _ in cams],
+        [t for _, t in cams],
+        [r for r, _ in truth],
+        [p for _, p in truth],
+    )
+    res = adjust(bodies, noisy, CAM, *start, refine_intrinsics=False, placement=(0.05, 5e-5))
+    f = {b.name: b.residual_factor for b in res.bodies}
+    assert f["triax 2"] > 1.5 and f["triax 2"] > 3 * max(f["triax 1"], f["triax 3"]), f
+    # the factor against what the noise says: the bad views' 1.2 px over the set's σ
+    assert f["triax 2"] == pytest.approx(1.2 / res.sigma_px, rel=0.25)
