@@ -142,6 +142,10 @@ class BodyEstimate:
         agree with the set's ``σ_px`` (about 1; well above where its tags are partly hidden,
         bent or misread in many views, which the set's ``σ_px`` and ``covariance`` do not
         hold). 1 where ``ν ≤ 0``.
+    prior_covariance : ndarray, shape (6, 6)
+        The part of ``covariance`` the priors give (the stated poses and the tags'
+        placements): ``Σ J_pᵀ J_p Σ`` over the prior rows ``J_p``; the rest, ``Σ J_cᵀ J_c Σ``,
+        is the corners' noise, the part a ``residual_factor`` scales.
     """
 
     name: str
@@ -153,6 +157,7 @@ class BodyEstimate:
     n_photos: int
     n_corners: int
     residual_factor: float = 1.0
+    prior_covariance: FloatArray = field(default_factory=lambda: np.zeros((6, 6)))
 
     @property
     def position_std_m(self) -> FloatArray:
@@ -706,7 +711,32 @@ def adjust(
     cov, cond = _covariance(prob, x)
     x, cov, found = _free_misplaced(prob, x, cov, misplaced_z)
     out = _result(prob, bodies, x, cov, cond, sigma, rejected, nfev[0])
-    return replace(out, placements=prob.placements(x, cov, found))
+    parts = _prior_parts(prob, x, cov, [j for j, (_, freed) in found.items() if freed])
+    return replace(
+        out,
+        bodies=tuple(
+            replace(b, prior_covariance=p) for b, p in zip(out.bodies, parts, strict=True)
+        ),
+        placements=prob.placements(x, cov, found),
+    )
+
+
+def _prior_parts(prob: Problem, x: FloatArray, cov: FloatArray, freed: list[int]) -> FloatArray:
+    """Each body's ``(Σ J_pᵀ J_p Σ)_bb`` (shape (n_bodies, 6, 6)): what the prior rows ``J_p``
+    (the stated poses; the placed tags' priors but those of the tags ``freed``) give its
+    covariance. ``Σ = (J_cᵀ J_c + J_pᵀ J_p)⁻¹`` splits as ``Σ J_cᵀ J_c Σ + Σ J_pᵀ J_p Σ``."""
+    n_img = 8 * len(prob.obs)
+    jp = prob.jacobian(x)[n_img:].tocsr()
+    if freed:
+        keep = np.ones(jp.shape[0], dtype=bool)
+        r0 = 6 * len(prob.prior_idx)
+        for j in freed:
+            keep[r0 + 5 * j : r0 + 5 * j + 5] = False
+        jp = jp[keep]
+    body0 = prob.n_intr + 6 * prob.n_cam
+    a = np.asarray(jp @ cov[:, body0 : body0 + 6 * prob.n_body])
+    blocks = a.reshape(a.shape[0], prob.n_body, 6)
+    return np.einsum("rbi,rbj->bij", blocks, blocks)
 
 
 def _free_misplaced(

@@ -131,20 +131,22 @@ def bundle_records(
     """The adjusted bodies as the digitizing chain's records. An adjustment that placed the
     tags on their bodies (:attr:`BundleResult.placements`) holds their placement in each body's
     covariance; one made without it adds ``σ_place/√k`` over the ``k`` tags the body has. A
-    body whose corners agree worse than the set's (``residual_factor f > 1``) has its
-    adjustment covariance scaled by ``f²`` (its own a-posteriori variance: what its views
-    show, not the set's; with the placement's part too, which errs on the safe side)."""
+    body whose corners agree worse than the set's (``residual_factor f > 1``) has the corners'
+    part of its covariance scaled by ``f²`` (its own a-posteriori variance: what its views
+    show, not the set's), ``f² (Σ − P) + P`` with ``P`` the priors' part."""
     ori, loas = [], []
     for est, model in zip(bundle.bodies, models, strict=True):
         inflate = max(1.0, est.residual_factor) ** 2
+        prior = est.prior_covariance
+        cov = inflate * (est.covariance - prior) + prior
         if bundle.placements:
-            cov_r, cov_p = inflate * est.covariance[:3, :3], inflate * est.covariance[3:, 3:]
+            cov_r, cov_p = cov[:3, :3], cov[3:, 3:]
         else:
             k = max(len(model.tags), 1)
             pa = np.radians(tags.placement_angle_deg) / np.sqrt(k)
             pp = tags.placement_position_m / np.sqrt(k)
-            cov_r = inflate * est.covariance[:3, :3] + pa**2 * np.eye(3)
-            cov_p = inflate * est.covariance[3:, 3:] + pp**2 * np.eye(3)
+            cov_r = cov[:3, :3] + pa**2 * np.eye(3)
+            cov_p = cov[3:, 3:] + pp**2 * np.eye(3)
         pos_std = float(np.sqrt(np.max(np.linalg.eigvalsh(cov_p))))
         if est.kind == "triax" and est.node is not None:
             axis_std = np.degrees(np.sqrt(np.diag(est.rotation.T @ cov_r @ est.rotation)))

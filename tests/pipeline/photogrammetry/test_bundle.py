@@ -455,3 +455,36 @@ def test_residual_factor_shows_a_body_whose_corners_disagree() -> None:
     assert f["triax 2"] > 1.5 and f["triax 2"] > 3 * max(f["triax 1"], f["triax 3"]), f
     # the factor against what the noise says: the bad views' 1.2 px over the set's σ
     assert f["triax 2"] == pytest.approx(1.2 / res.sigma_px, rel=0.25)
+
+
+@pytest.mark.slow
+def test_prior_part_is_the_spread_the_priors_give() -> None:
+    """Corners with 0.01 px of noise, tags glued with random placements and the reference
+    plates off by draws of their stated 1σ: the triaxes' errors then come from the priors'
+    errors alone, and over draws they spread as each body's ``prior_covariance`` says (the
+    split ``Σ = Σ J_cᵀ J_c Σ + Σ J_pᵀ J_p Σ`` against the draws); the corners' part is small."""
+    bodies, truth, cams, _ = _scene(3, 12)
+    angle, pos = np.radians(0.1), 1e-4
+    rng = np.random.default_rng(21)
+    errs, prior, total = [], [], []
+    for _ in range(25):
+        obs = _observe(_placed(bodies, angle, pos, rng), truth, cams, 0.01, rng)
+        res = adjust(
+            _stated_off(bodies, rng),
+            obs,
+            CAM,
+            [r for r, _ in cams],
+            [t for _, t in cams],
+            [r for r, _ in truth],
+            [p for _, p in truth],
+            refine_intrinsics=False,
+            placement=(np.degrees(angle), pos),
+        )
+        errs.append(_triax_errors(res, truth))
+        tri = [b for b in res.bodies if b.kind == "triax"]
+        prior.append(np.concatenate([np.diag(b.prior_covariance) for b in tri]))
+        total.append(np.concatenate([np.diag(b.covariance) for b in tri]))
+    ratio = np.sqrt(np.mean(np.square(errs), axis=0)) / np.sqrt(np.mean(prior, axis=0))
+    assert 0.8 < float(np.mean(ratio)) < 1.2, ratio
+    assert np.all((ratio > 0.45) & (ratio < 1.7)), ratio
+    assert np.all(np.mean(prior, axis=0) > 0.9 * np.mean(total, axis=0))
