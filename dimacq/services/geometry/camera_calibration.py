@@ -43,7 +43,7 @@ from dimacq.pipeline.photogrammetry.calibration import (
     refusals,
 )
 from dimacq.pipeline.photogrammetry.camera import Intrinsics
-from dimacq.services.geometry.photo_input import BLUR_LIMIT, load_cv2
+from dimacq.services.geometry.photo_input import blur_issue, load_cv2
 from dimacq.services.geometry.photo_records import PhotoIssue
 
 __all__ = [
@@ -236,14 +236,9 @@ def _why_not_found(
                     f"markers of {other} seen, none of {board.dictionary} (the board file's)",
                     f'set dictionary = "{other}" in the board file if that is the board printed',
                 )
-    sharp = float(cv2.Laplacian(gray, cv2.CV_64F).var())
-    if sharp < BLUR_LIMIT:
-        return PhotoIssue(
-            name,
-            "skipped",
-            f"board not found and the photo is blurred (sharpness {sharp:.0f} < {BLUR_LIMIT:.0f})",
-            "hold the camera still, focus on the board, use more light or a faster shutter",
-        )
+    blurred = blur_issue(name, gray, "board not found", "the board")
+    if blurred is not None:
+        return blurred
     if board.type == "charuco" and markers >= 4:
         return PhotoIssue(
             name,

@@ -291,8 +291,22 @@ def read_photos(
     return photos, issues
 
 
-def _why_no_tags(name: str, gray: NDArray[np.uint8], family: str, foreign: list[int]) -> PhotoIssue:
+def blur_issue(name: str, gray: NDArray[np.uint8], missing: str, subject: str) -> PhotoIssue | None:
+    """The issue of a photo in which ``missing`` ("no tags found") when it is blurred: the
+    variance of its Laplacian under :data:`BLUR_LIMIT`; None when it is sharp enough."""
     cv2 = load_cv2()
+    sharp = float(cv2.Laplacian(gray, cv2.CV_64F).var())
+    if sharp >= BLUR_LIMIT:
+        return None
+    return PhotoIssue(
+        name,
+        "skipped",
+        f"{missing} and the photo is blurred (sharpness {sharp:.0f} < {BLUR_LIMIT:.0f})",
+        f"hold the camera still, focus on {subject}, use more light or a faster shutter",
+    )
+
+
+def _why_no_tags(name: str, gray: NDArray[np.uint8], family: str, foreign: list[int]) -> PhotoIssue:
     if foreign:
         return PhotoIssue(
             name,
@@ -308,14 +322,9 @@ def _why_no_tags(name: str, gray: NDArray[np.uint8], family: str, foreign: list[
                 f"tags of family {other} seen, none of {family} (the tags file's family)",
                 f'set family = "{other}" in the tags file, or print {family} tags',
             )
-    sharp = float(cv2.Laplacian(gray, cv2.CV_64F).var())
-    if sharp < BLUR_LIMIT:
-        return PhotoIssue(
-            name,
-            "skipped",
-            f"no tags found and the photo is blurred (sharpness {sharp:.0f} < {BLUR_LIMIT:.0f})",
-            "hold the camera still, focus on the tags, use more light or a faster shutter",
-        )
+    blurred = blur_issue(name, gray, "no tags found", "the tags")
+    if blurred is not None:
+        return blurred
     return PhotoIssue(
         name,
         "skipped",
