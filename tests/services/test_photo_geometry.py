@@ -267,3 +267,48 @@ def test_a_tag_glued_off_its_place_is_named(tmp_path: Path) -> None:
     assert np.all(np.abs(np.array(o.origin_m) - p_true) < 3 * o.origin_std_m)
     err = np.degrees(Rotation.from_matrix(np.array(o.rotation) @ r_true.T).as_rotvec())
     assert np.all(np.abs(np.array(o.rotation).T @ err) < 3 * np.asarray(o.angle_std_deg))
+
+
+def test_records_scale_the_corners_part_by_the_residual_factor() -> None:
+    """A triax whose corners' residuals are twice the set's: its record's 1σ is
+    ``sqrt(f² (Σ − P) + P)`` per axis and coordinate (``P`` its priors' part), against the same
+    body at ``f = 1`` (or below: never scaled down)."""
+    from dimacq.pipeline.photogrammetry.bundle import BodyEstimate, BundleResult, TagPlacement
+    from dimacq.pipeline.photogrammetry.camera import Intrinsics
+    from dimacq.services.geometry.photo_records import bundle_records
+
+    cov = np.diag([4e-6, 9e-6, 1e-6, 4e-10, 1e-10, 9e-10])
+    prior = np.diag([1e-6, 1e-6, 1e-6, 1e-10, 1e-10, 1e-10])
+    model = BodyModel("triax 3", "triax", (), node=3)
+    intr = Intrinsics(1000.0, 1000.0, 500.0, 400.0, 0, 0, 0, 0, 0, 1000, 800)
+
+    def record(f: float):
+        est = BodyEstimate("triax 3", "triax", 3, np.eye(3), np.zeros(3), cov, 20, 80, f, prior)
+        tp = TagPlacement(1, "triax 3", np.zeros(3), np.zeros(2), np.zeros(3), np.zeros(2), 0.0, 20)
+        bundle = BundleResult(
+            (est,),
+            np.zeros((0, 3, 3)),
+            np.zeros((0, 3)),
+            intr,
+            None,
+            0.2,
+            80,
+            30,
+            0.2,
+            np.zeros(0),
+            (),
+            10,
+            1.0,
+            placements=(tp,),
+        )
+        (o,), _ = bundle_records(bundle, [model], _tags(), 1e-5)
+        return o
+
+    want = np.sqrt(4.0 * (np.diag(cov) - np.diag(prior)) + np.diag(prior))
+    o = record(2.0)
+    np.testing.assert_allclose(o.angle_std_deg, np.degrees(want[:3]), rtol=1e-9)
+    assert o.origin_std_m == pytest.approx(float(want[3:].max()), rel=1e-9)
+    for f in (1.0, 0.6):
+        np.testing.assert_allclose(
+            record(f).angle_std_deg, np.degrees(np.sqrt(np.diag(cov)[:3])), rtol=1e-9
+        )
