@@ -231,8 +231,10 @@ def test_a_bent_board_photo_is_left_out(
     assert any("1 photos far off the fit left out" in m for m in lines)
     assert len(cal.used) == 15 and cal.verdict == "ok"
     assert cal.intrinsics is not None and first.intrinsics is not None
-    assert cal.intrinsics.fx == pytest.approx(first.intrinsics.fx, rel=1e-9)
-    assert image_difference_px(first.intrinsics, cal.intrinsics) < 1e-6
+    # the same 15 photos as the good set: the same calibration, to far below its 1σ (0.1-0.6 px;
+    # the refit's iterations may end a hair apart from the first fit's on another BLAS path)
+    assert cal.intrinsics.fx == pytest.approx(first.intrinsics.fx, rel=1e-6)
+    assert image_difference_px(first.intrinsics, cal.intrinsics) < 1e-3
 
 
 def test_legacy_pattern_board(tmp_path: Path) -> None:
