@@ -39,7 +39,10 @@ arm of the block. A tag whose estimated placement is far outside its stated 1σ
 The covariance of the parameters is ``Σ = (JᵀJ)⁻¹`` of the whitened problem at the solution,
 with ``σ_px² = Σ (r/s)² / (n − p)`` estimated from the corner residuals (the reprojection error
 the photos actually show, not a nominal one; ``s`` each view's ``sigma_scale``; ``p`` counts
-only the unknowns no prior holds).
+only the unknowns no prior holds). Each body's part of it splits into what its priors give and
+what its corners' noise gives (:attr:`BodyEstimate.prior_covariance`), and its corners'
+residuals against ``σ_px`` give its :attr:`BodyEstimate.residual_factor`: a body whose tags are
+partly hidden in many views shows there, where ``σ_px``, shared by the set, does not.
 """
 
 from __future__ import annotations
