@@ -43,7 +43,7 @@ from dimacq.pipeline.photogrammetry.calibration import (
     refusals,
 )
 from dimacq.pipeline.photogrammetry.camera import Intrinsics
-from dimacq.services.geometry.photo_input import blur_issue, load_cv2
+from dimacq.services.geometry.photo_input import blur_issue, load_cv2, read_gray
 from dimacq.services.geometry.photo_records import PhotoIssue
 
 __all__ = [
@@ -266,37 +266,17 @@ def read_board_photos(
 ) -> tuple[list[BoardView], list[PhotoIssue], tuple[int, int] | None]:
     """Each photo's board corners; an issue naming each photo that is unreadable, of another
     size than the first, blurred, shows no board or too few corners. Also the image size."""
-    cv2 = load_cv2()
     finder = _Finder(board)
     views: list[BoardView] = []
     issues: list[PhotoIssue] = []
     size0: tuple[int, int] | None = None
     for k, path in enumerate(paths):
-        gray = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-        if gray is None:
-            issues.append(
-                PhotoIssue(
-                    path.name,
-                    "skipped",
-                    "not an image OpenCV can read",
-                    "remove it or save it as JPEG/PNG",
-                )
-            )
-            say(f"photo {k + 1}/{len(paths)} {path.name}: unreadable")
+        gray = read_gray(path, size0)
+        if isinstance(gray, PhotoIssue):
+            issues.append(gray)
+            say(f"photo {k + 1}/{len(paths)} {path.name}: {gray.problem}")
             continue
-        size = (int(gray.shape[1]), int(gray.shape[0]))
-        size0 = size0 or size
-        if size != size0:
-            issues.append(
-                PhotoIssue(
-                    path.name,
-                    "skipped",
-                    f"{size[0]}x{size[1]} px while the first photo is {size0[0]}x{size0[1]} px",
-                    "take every photo with one camera at one zoom and resolution",
-                )
-            )
-            say(f"photo {k + 1}/{len(paths)} {path.name}: another image size")
-            continue
+        size0 = size0 or (int(gray.shape[1]), int(gray.shape[0]))
         img, obj, markers = finder(gray)
         say(f"photo {k + 1}/{len(paths)} {path.name}: {len(img)} of {board.inner_corners} corners")
         if len(img) < min_corners(board):

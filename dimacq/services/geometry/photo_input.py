@@ -228,40 +228,41 @@ class Photo:
     focal_px: float | None
 
 
+def read_gray(path: Path, size0: tuple[int, int] | None) -> NDArray[np.uint8] | PhotoIssue:
+    """A photo of a set as a grey image, or the issue that skips it: unreadable, or of another
+    size than the set's first photo (``size0``, None for the first)."""
+    cv2 = load_cv2()
+    gray = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    if gray is None:
+        return PhotoIssue(
+            path.name, "skipped", "not an image OpenCV can read", "remove it or save it as JPEG/PNG"
+        )
+    size = (int(gray.shape[1]), int(gray.shape[0]))
+    if size0 is not None and size != size0:
+        return PhotoIssue(
+            path.name,
+            "skipped",
+            f"{size[0]}x{size[1]} px while the first photo is {size0[0]}x{size0[1]} px",
+            "take every photo with one camera at one zoom and resolution",
+        )
+    return np.asarray(gray, dtype=np.uint8)
+
+
 def read_photos(
     paths: Sequence[Path], family: str, known: set[int], say: Callable[[str], None]
 ) -> tuple[list[Photo], list[PhotoIssue]]:
     """The photos' known tags (detected with OpenCV), and an issue naming each photo that is
     unreadable, of another size than the first, shows no known tag, foreign tags or one tag."""
-    cv2 = load_cv2()
     photos: list[Photo] = []
     issues: list[PhotoIssue] = []
     size0: tuple[int, int] | None = None
     for k, path in enumerate(paths):
-        gray = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-        if gray is None:
-            issues.append(
-                PhotoIssue(
-                    path.name,
-                    "skipped",
-                    "not an image OpenCV can read",
-                    "remove it or save it as JPEG/PNG",
-                )
-            )
+        gray = read_gray(path, size0)
+        if isinstance(gray, PhotoIssue):
+            issues.append(gray)
             continue
         size = (int(gray.shape[1]), int(gray.shape[0]))
-        if size0 is None:
-            size0 = size
-        if size != size0:
-            issues.append(
-                PhotoIssue(
-                    path.name,
-                    "skipped",
-                    f"{size[0]}x{size[1]} px while the first photo is {size0[0]}x{size0[1]} px",
-                    "take one set with one camera at one zoom and resolution",
-                )
-            )
-            continue
+        size0 = size0 or size
         tags = detect_tags(gray, family)
         say(f"photo {k + 1}/{len(paths)} {path.name}: {len(tags)} tags")
         ours = {i: c for i, c in tags.items() if i in known}
